@@ -1,0 +1,73 @@
+"""The ``spotlights`` command line: a thin layer over the library.
+
+Each command group lives in its own module exposing ``register(subparsers)``;
+the modules import nothing heavy at import time (numpy, trimesh, torch are
+imported inside the handlers), so ``spotlights --help`` is instant.
+
+Handlers return an exit code (0 on success). Any :class:`SpotlightsError`
+becomes one line on stderr and exit code 2; no traceback is shown.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from .._version import __version__
+from ..errors import SpotlightsError
+
+# One line per command group; a new group is one module and one line here.
+COMMAND_MODULES = [
+    "spotlights.cli.core",  # encode, decode, show
+]
+
+EPILOG = """\
+typical workflow:
+  spotlights encode car.ply --out car.npz          # mesh -> Spotlights depth array
+  spotlights decode car.npz --out car_points.ply   # depth array -> ordered point cloud
+  spotlights show car.npz --out car.png            # look at it
+
+Run 'spotlights COMMAND --help' for the options and an example of each command.
+"""
+
+
+class _Parser(argparse.ArgumentParser):
+    """ArgumentParser whose usage errors exit with code 2 and one clear line."""
+
+    def error(self, message: str):  # noqa: D401 - argparse API
+        self.print_usage(sys.stderr)
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog="spotlights",
+        description="Spotlights: represent shapes as depth arrays probed from spherical viewpoints, "
+        "build completion datasets, train and evaluate SA-Net and its baselines.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"spotlights {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 0 if args.command is None else 2
+    try:
+        return int(args.func(args) or 0)
+    except SpotlightsError as exc:
+        print(f"spotlights: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("spotlights: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        return 0

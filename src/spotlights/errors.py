@@ -1,0 +1,27 @@
+"""User-facing errors.
+
+Every error a user can cause (bad file, bad parameter) is raised as a
+:class:`SpotlightsError`; the CLI prints its one-line message and exits with
+code 2, without a traceback.
+"""
+
+from __future__ import annotations
+
+import os
+
+
+class SpotlightsError(Exception):
+    """An error caused by the user's input, with a one-line message."""
+
+
+class InputFileError(SpotlightsError):
+    """A problem with one input file: the message is ``"PATH: problem"``."""
+
+    def __init__(self, path: str | os.PathLike, problem: str):
+        self.path = os.fspath(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}")
+
+
+class ParameterError(SpotlightsError, ValueError):
+    """An invalid parameter value (e.g. a rig with N < 1)."""
