@@ -1,0 +1,122 @@
+"""Checkpoint files: saving (atomic), loading with clear errors, rebuilding the model.
+
+A checkpoint is a ``torch.save`` dict (loadable with ``weights_only=True``)::
+
+    format            "spotlights-checkpoint"      format_version  1
+    spotlights_version
+    model_name        registry key, e.g. "sanet"
+    config            the full resolved config (model / data / train)
+    rig               Rig.to_dict() of the depths' rig (SA-Net), else None
+    model_state       the model's state_dict
+    param_counts      {"encoder", "decoder", "total"}
+    epoch             number of completed epochs;  global_step
+    optimizer_state, scheduler_state   (training checkpoints; absent in exported weights)
+    best              {"epoch", "val_accuracy"};  history  list of per-epoch log rows
+    dataset           {"path", "rig", "n_train", "n_val"} (informative)
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from .._version import __version__
+from ..errors import InputFileError
+
+FORMAT = "spotlights-checkpoint"
+FORMAT_VERSION = 1
+
+
+def save_checkpoint(path, payload: dict) -> Path:
+    """Write ``payload`` (plus format fields) to ``path`` atomically (temporary file, then rename)."""
+    import torch
+
+    from ..utils import atomic_output
+
+    data = {"format": FORMAT, "format_version": FORMAT_VERSION, "spotlights_version": __version__, **payload}
+    with atomic_output(path) as tmp:
+        torch.save(data, tmp)
+    return Path(path)
+
+
+def load_checkpoint(path, expect_model: str | None = None, map_location="cpu") -> dict:
+    """Read and validate a checkpoint.
+
+    Parameters
+    ----------
+    path : checkpoint file.
+    expect_model : if given, the registry name the checkpoint must hold (e.g. ``"sanet"``).
+
+    Raises
+    ------
+    InputFileError : missing file, not a torch file, not a spotlights checkpoint,
+        unknown model, or a model other than ``expect_model``.
+    """
+    import pickle
+    import zipfile
+
+    import torch
+
+    from .models import MODEL_REGISTRY
+
+    p = Path(path)
+    if not p.exists():
+        raise InputFileError(p, "no such checkpoint file")
+    if p.is_dir():
+        raise InputFileError(p, "is a folder, expected a checkpoint file (e.g. RUN/best.pt)")
+    try:
+        ckpt = torch.load(p, map_location=map_location, weights_only=True)
+    except (pickle.UnpicklingError, zipfile.BadZipFile, RuntimeError, EOFError, ValueError, OSError) as exc:
+        msg = str(exc).splitlines()[0][:100] if str(exc) else type(exc).__name__
+        raise InputFileError(p, f"not a readable checkpoint ({msg})") from None
+    if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
+        raise InputFileError(p, "not a spotlights checkpoint (no 'format: spotlights-checkpoint' entry)")
+    if int(ckpt.get("format_version", 0)) > FORMAT_VERSION:
+        raise InputFileError(p, f"checkpoint format version {ckpt.get('format_version')} is newer than this spotlights ({FORMAT_VERSION})")
+    name = ckpt.get("model_name")
+    if name not in MODEL_REGISTRY:
+        raise InputFileError(p, f"checkpoint holds an unknown model {name!r}")
+    if expect_model is not None and name != expect_model:
+        raise InputFileError(p, f"checkpoint holds a {name!r} model, expected {expect_model!r}")
+    for key in ("config", "model_state"):
+        if key not in ckpt:
+            raise InputFileError(p, f"checkpoint lacks its {key!r} entry")
+    ckpt["path"] = os.fspath(p)
+    return ckpt
+
+
+def model_from_checkpoint(ckpt: dict, device=None):
+    """Rebuild the model of a loaded checkpoint, load its weights, move it to ``device``, eval mode.
+
+    Raises :class:`InputFileError` when the weights do not fit the model the config describes.
+    """
+    import torch
+
+    from .models import build_model
+
+    model = build_model(ckpt["config"], rig=ckpt.get("rig"))
+    try:
+        model.load_state_dict(ckpt["model_state"])
+    except RuntimeError as exc:
+        first = str(exc).splitlines()[0][:160]
+        raise InputFileError(ckpt.get("path", "checkpoint"), f"weights do not match the {ckpt['model_name']} config ({first})") from None
+    model = model.float()
+    if device is not None:
+        model = model.to(torch.device(device))
+    return model.eval()
+
+
+def export_weights(src, dst, half: bool = False) -> Path:
+    """Write an inference-only copy of a checkpoint (no optimizer/scheduler state).
+
+    ``half=True`` stores floating-point weights as float16 (half the size; they are
+    cast back to float32 on load). Returns ``dst``.
+    """
+    import torch
+
+    ckpt = load_checkpoint(src)
+    keep = {k: v for k, v in ckpt.items() if k not in ("optimizer_state", "scheduler_state", "path", "format",
+                                                          "format_version", "spotlights_version")}
+    if half:
+        keep["model_state"] = {k: (v.half() if torch.is_floating_point(v) else v) for k, v in ckpt["model_state"].items()}
+    return save_checkpoint(dst, keep)

@@ -1,0 +1,121 @@
+"""Model registry and configurations.
+
+A model is one module (``spotlights/learning/models/<name>.py``) and one YAML
+config (``spotlights/learning/configs/<name>.yaml``); the registry maps a name to
+``"module:Class"`` and imports the module only when the model is built, so nothing
+imports every model (or torch) at start-up.
+
+Config layout (every file is complete; a user YAML overrides any subset)::
+
+    model: {name: sanet, args: {...}}      # constructor arguments of the class
+    data:  {rig, max_views, val_max_views, num_workers, partials_in_memory}
+    train: {epochs, batch_size, lr, weight_decay, lr_schedule, grad_clip, seed}
+"""
+
+from __future__ import annotations
+
+import copy
+import importlib
+from importlib import resources
+from pathlib import Path
+
+from ...errors import InputFileError, ParameterError
+
+MODEL_REGISTRY: dict[str, str] = {
+    "sanet": "spotlights.learning.models.sanet:SANet",
+    "pcn": "spotlights.learning.models.pcn:PCN",
+    "foldingnet": "spotlights.learning.models.foldingnet:FoldingNet",
+    "topnet": "spotlights.learning.models.topnet:TopNet",
+    "atlasnet": "spotlights.learning.models.atlasnet:AtlasNet",
+}
+MODEL_NAMES = tuple(MODEL_REGISTRY)
+DISPLAY_NAMES = {"sanet": "SA-Net", "pcn": "PCN", "foldingnet": "FoldingNet", "topnet": "TopNet", "atlasnet": "AtlasNet"}
+
+
+def check_model_name(name: str) -> str:
+    """Return ``name`` if registered, else raise :class:`ParameterError` listing the known names."""
+    if name not in MODEL_REGISTRY:
+        raise ParameterError(f"unknown model {name!r}; known models: {', '.join(MODEL_NAMES)}")
+    return name
+
+
+def model_class(name: str):
+    """The model class registered under ``name`` (imports its module, and torch, now)."""
+    module, cls = MODEL_REGISTRY[check_model_name(name)].split(":")
+    return getattr(importlib.import_module(module), cls)
+
+
+def default_config_path(name: str) -> Path:
+    """Path of the packaged YAML config of model ``name``."""
+    return Path(str(resources.files("spotlights.learning") / "configs" / f"{check_model_name(name)}.yaml"))
+
+
+def _read_yaml(path) -> dict:
+    import yaml
+
+    p = Path(path)
+    if not p.is_file():
+        raise InputFileError(p, "no such config file")
+    try:
+        data = yaml.safe_load(p.read_text())
+    except yaml.YAMLError as exc:
+        raise InputFileError(p, f"invalid YAML ({str(exc).splitlines()[0]})") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise InputFileError(p, "a config must be a YAML mapping (model:, data:, train:)")
+    return data
+
+
+def deep_merge(base: dict, override: dict) -> dict:
+    """A copy of ``base`` with ``override`` merged in recursively (mappings merge, other values replace)."""
+    out = copy.deepcopy(base)
+    for k, v in (override or {}).items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = deep_merge(out[k], v)
+        else:
+            out[k] = copy.deepcopy(v)
+    return out
+
+
+def load_config(name: str, path=None, overrides: dict | None = None) -> dict:
+    """The configuration of model ``name``: packaged defaults <- user YAML ``path`` <- ``overrides``.
+
+    Raises :class:`InputFileError` for a missing/invalid YAML and :class:`ParameterError`
+    when the user YAML names another model or has unknown top-level sections.
+    """
+    cfg = _read_yaml(default_config_path(name))
+    if path is not None:
+        user = _read_yaml(path)
+        unknown = set(user) - {"model", "data", "train"}
+        if unknown:
+            raise InputFileError(path, f"unknown config section(s) {', '.join(sorted(unknown))} (expected model, data, train)")
+        other = (user.get("model") or {}).get("name")
+        if other is not None and other != name:
+            raise InputFileError(path, f"config is for model {other!r}, not {name!r}")
+        cfg = deep_merge(cfg, user)
+    if overrides:
+        cfg = deep_merge(cfg, overrides)
+    cfg["model"]["name"] = name
+    return cfg
+
+
+def build_model(config: dict, rig=None):
+    """Instantiate the model a config describes.
+
+    Parameters
+    ----------
+    config : a config from :func:`load_config` (only ``config["model"]`` is used).
+    rig : ``Rig`` or ``Rig.to_dict()``; required for SA-Net (the depths' rig), ignored otherwise.
+    """
+    name = config["model"]["name"]
+    cls = model_class(name)
+    args = dict(config["model"].get("args") or {})
+    try:
+        if cls.target == "depths":
+            if rig is None:
+                raise ParameterError(f"model {name!r} needs a rig")
+            return cls(rig=rig if isinstance(rig, dict) else rig.to_dict(), **args)
+        return cls(**args)
+    except TypeError as exc:
+        raise ParameterError(f"invalid arguments for model {name!r} in config: {exc}") from None

@@ -1,0 +1,130 @@
+"""Building blocks shared by every completion model: the PCN encoder, MLPs, the model base class.
+
+Layout convention: point features are (B, K, C) tensors and every "shared
+point-wise" layer (a 1x1 convolution in the original papers) is an
+``nn.Linear`` applied to the last axis, which is the same function with the
+same parameter count as ``Conv1d(C_in, C_out, 1)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import ClassVar
+
+import torch
+from torch import nn
+
+CLIP_DEFAULT = object()
+"""Sentinel: "use the model's configured clip threshold"."""
+
+
+class MLP(nn.Module):
+    """Shared point-wise (or plain) MLP on the last axis: Linear -> [BatchNorm] -> ReLU, last layer linear.
+
+    Parameters
+    ----------
+    sizes : [C_in, C_1, ..., C_out] channel sizes.
+    batch_norm : BatchNorm1d after every hidden Linear (TopNet, AtlasNet), over all
+        leading axes flattened.
+    """
+
+    def __init__(self, sizes: Sequence[int], batch_norm: bool = False):
+        super().__init__()
+        sizes = [int(s) for s in sizes]
+        if len(sizes) < 2:
+            raise ValueError(f"an MLP needs at least an input and an output size, got {sizes}")
+        self.linears = nn.ModuleList(nn.Linear(a, b) for a, b in zip(sizes[:-1], sizes[1:]))
+        self.norms = nn.ModuleList(nn.BatchNorm1d(b) for b in sizes[1:-1]) if batch_norm else None
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """(..., C_in) -> (..., C_out)."""
+        shape = x.shape[:-1]
+        x = x.reshape(-1, x.shape[-1])
+        last = len(self.linears) - 1
+        for j, lin in enumerate(self.linears):
+            x = lin(x)
+            if j < last:
+                if self.norms is not None:
+                    x = self.norms[j](x)
+                x = torch.relu(x)
+        return x.reshape(*shape, x.shape[-1])
+
+
+class PCNEncoder(nn.Module):
+    """The PCN encoder (Yuan et al. 2018), shared by every model as in the paper.
+
+    Two stacked PointNet layers, no batch norm: point-wise 3 -> 128 -> 256, max-pool
+    to a 256-d global feature, concatenated to every point (512), point-wise
+    512 -> 512 -> ``code_size``, max-pool. ReLU between layers, none after the last
+    layer of each stage (as in PCN's ``mlp_conv``). 821,504 parameters for code 1024.
+
+    forward: (B, K, 3) float32 unit-frame points (any K >= 1) -> (B, code_size) code.
+    """
+
+    def __init__(self, code_size: int = 1024):
+        super().__init__()
+        self.code_size = int(code_size)
+        self.first = MLP([3, 128, 256])
+        self.second = MLP([512, 512, self.code_size])
+
+    def forward(self, points: torch.Tensor) -> torch.Tensor:
+        f = self.first(points)  # (B, K, 256)
+        g = f.amax(dim=1, keepdim=True)  # (B, 1, 256)
+        f = torch.cat([f, g.expand_as(f)], dim=-1)  # (B, K, 512)
+        return self.second(f).amax(dim=1)  # (B, code)
+
+
+def count_parameters(module: nn.Module) -> int:
+    """Number of trainable parameters (buffers such as BatchNorm statistics excluded)."""
+    return sum(p.numel() for p in module.parameters() if p.requires_grad)
+
+
+class CompletionModel(nn.Module):
+    """Base class: a PCN encoder (``self.encoder``) and a decoder.
+
+    Subclasses set ``name`` (registry key) and ``target`` (``"depths"`` for SA-Net,
+    ``"points"`` for the baselines) and implement :meth:`forward`, :meth:`loss`
+    and :meth:`complete`.
+    """
+
+    name: ClassVar[str] = ""
+    target: ClassVar[str] = "points"
+    encoder: PCNEncoder
+
+    def forward(self, partial: torch.Tensor) -> dict[str, torch.Tensor]:  # pragma: no cover - abstract
+        """partial (B, K, 3) unit frame -> dict of raw outputs (``"points"`` or ``"depths"``, ...)."""
+        raise NotImplementedError
+
+    def loss(self, outputs: dict[str, torch.Tensor], batch: dict[str, torch.Tensor], progress: float = 1.0):
+        """Training loss (scalar tensor) and a dict of float terms to log.
+
+        ``progress`` in [0, 1] is the share of training done (for schedules such as PCN's alpha).
+        """
+        raise NotImplementedError  # pragma: no cover - abstract
+
+    def outputs_to_points(self, outputs: dict[str, torch.Tensor], clip=CLIP_DEFAULT) -> list[torch.Tensor]:
+        """Completed clouds from :meth:`forward` outputs: list of B tensors (K_b, 3) float32, unit frame.
+
+        ``clip`` only matters for SA-Net (depth threshold; ``None`` keeps every ray
+        with depth > 0); point models return all their points and ignore it.
+        """
+        return list(outputs["points"].detach().float().unbind(0))
+
+    @torch.no_grad()
+    def complete(self, partial: torch.Tensor, clip=CLIP_DEFAULT) -> list[torch.Tensor]:
+        """partial (B, K, 3) unit frame -> list of B completed clouds (K_b, 3) float32, unit frame."""
+        return self.outputs_to_points(self.forward(partial), clip)
+
+    def param_counts(self) -> dict[str, int]:
+        """{"encoder": ..., "decoder": ..., "total": ...} trainable parameters (decoder = total - encoder)."""
+        total = count_parameters(self)
+        enc = count_parameters(self.encoder)
+        return {"encoder": enc, "decoder": total - enc, "total": total}
+
+
+def regular_grid(rows: int, cols: int, half_extent_rows: float, half_extent_cols: float) -> torch.Tensor:
+    """(rows * cols, 2) float32 regular 2-D grid, row-major, on [-h_r, h_r] x [-h_c, h_c]."""
+    r = torch.linspace(-half_extent_rows, half_extent_rows, rows) if rows > 1 else torch.zeros(1)
+    c = torch.linspace(-half_extent_cols, half_extent_cols, cols) if cols > 1 else torch.zeros(1)
+    rr, cc = torch.meshgrid(r, c, indexing="ij")
+    return torch.stack([rr.reshape(-1), cc.reshape(-1)], dim=1)

@@ -1,0 +1,86 @@
+"""SA-Net (paper Section 4): PCN encoder + a fully connected decoder regressing N*M depths.
+
+The decoder is ``code -> hidden... -> N*M`` with ReLU between layers and a
+*linear* output (no sigmoid). Reason: about half of the ground-truth depths are
+exact zeros (missed rays); a linear output reaches 0 exactly with a constant L1
+gradient, while a sigmoid would saturate there. Under an L1 loss the prediction of
+an ambiguous ray tends to the conditional *median* (either "miss" or "hit at
+depth d"), not to an average of the two, which would be an outlier between them.
+
+Inference decodes the rig (``P = P1 + 2 * depth * d``, unit frame) and keeps the
+rays with depth > 0 (no clip) or depth >= ``clip`` (the paper's clip, 0.2):
+an ordered point cloud with a variable number of points.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import nn
+
+from ..losses import depth_l1
+from .base import CLIP_DEFAULT, MLP, CompletionModel, PCNEncoder
+
+
+class SANet(CompletionModel):
+    """Spotlights Array Network.
+
+    Parameters
+    ----------
+    rig : dict of ``Rig.to_dict()`` (the rig whose depths are regressed); required.
+    code_size : encoder code size (paper: 1024).
+    hidden : hidden layer widths of the decoder (default [256, 256]: 0.85M parameters
+        for 2048 rays, keeping the decoder under 1M).
+    output_activation : ``"none"`` (linear, default) or ``"sigmoid"``.
+    clip : default inference threshold on predicted depths (paper: 0.2); ``None`` = no clip.
+
+    forward: partial (B, K, 3) -> {"depths": (B, N*M)}.
+    """
+
+    name = "sanet"
+    target = "depths"
+
+    def __init__(self, rig: dict, code_size: int = 1024, hidden: Sequence[int] = (256, 256),
+                 output_activation: str = "none", clip: float | None = 0.2):
+        super().__init__()
+        from ...geometry.rig import Rig
+
+        if rig is None:
+            raise ValueError("SA-Net needs a rig (the rig of the depths it regresses)")
+        self.rig = Rig.from_dict(rig) if isinstance(rig, dict) else rig
+        if output_activation not in ("none", "sigmoid"):
+            raise ValueError(f"output_activation must be 'none' or 'sigmoid', got {output_activation!r}")
+        self.output_activation = output_activation
+        self.clip = None if clip is None else float(clip)
+        self.encoder = PCNEncoder(code_size)
+        self.decoder = MLP([code_size, *hidden, self.rig.n_rays])
+        self.register_buffer("origins", torch.from_numpy(self.rig.origins.astype("float32")), persistent=False)
+        self.register_buffer("directions", torch.from_numpy(self.rig.directions.astype("float32")), persistent=False)
+
+    def forward(self, partial: torch.Tensor) -> dict[str, torch.Tensor]:
+        d = self.decoder(self.encoder(partial))
+        if self.output_activation == "sigmoid":
+            d = torch.sigmoid(d)
+        return {"depths": d}
+
+    def loss(self, outputs, batch, progress: float = 1.0):
+        loss = depth_l1(outputs["depths"], batch["depths"])
+        return loss, {"l1": float(loss.detach())}
+
+    def decode(self, depths: torch.Tensor, clip=CLIP_DEFAULT) -> tuple[torch.Tensor, torch.Tensor]:
+        """Depths (B, N*M) -> points (B, N*M, 3) float32 unit frame and kept mask (B, N*M) bool.
+
+        Same convention as ``spotlights.geometry.encode.decode``: a ray is kept when
+        depth > 0 and (with a clip) depth >= clip; dropped rays sit at their origin.
+        """
+        clip = self.clip if clip is CLIP_DEFAULT else clip
+        mask = depths > 0
+        if clip is not None:
+            mask &= depths >= float(clip)
+        dist = torch.where(mask, 2.0 * depths, torch.zeros_like(depths)).unsqueeze(-1)
+        return self.origins + dist * self.directions, mask
+
+    def outputs_to_points(self, outputs, clip=CLIP_DEFAULT) -> list[torch.Tensor]:
+        pts, mask = self.decode(outputs["depths"].detach().float(), clip)
+        return [p[m] for p, m in zip(pts, mask)]

@@ -1,0 +1,349 @@
+"""Training loop: seeded, resumable, validated every epoch, single process or DDP (torchrun).
+
+Determinism: the model is initialised under ``torch.manual_seed(seed)``; at the
+start of every epoch the global torch RNG is reseeded from ``(seed, epoch)`` and
+the shuffling permutation is drawn from a generator seeded the same way. Datasets
+hold no randomness, so the result does not depend on the number of DataLoader
+workers, and resuming from the checkpoint of epoch ``e`` reproduces exactly the
+run that did not stop (model, optimizer and scheduler states are saved each epoch).
+
+Outputs in ``out_dir``: ``config.yaml`` (resolved), ``last.pt`` (every epoch),
+``best.pt`` (best validation accuracy), ``log.csv`` (one row per epoch).
+
+Distributed: under ``torchrun`` (``WORLD_SIZE`` > 1) the process group is set up
+with NCCL on GPUs, gloo on CPU; each rank trains on its shard of the epoch's
+permutation (``batch_size`` is per process), gradients are averaged by
+DistributedDataParallel, validation sums are all-reduced, and rank 0 writes files.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader
+
+from ..errors import ParameterError, SpotlightsError
+from .checkpoint import load_checkpoint, save_checkpoint
+from .data import CompletionDataset
+from .models import build_model, load_config
+from .models.base import CLIP_DEFAULT
+
+LOG_COLUMNS = ("epoch", "lr", "train_loss", "val_loss", "val_accuracy", "val_n", "epoch_seconds", "samples_per_second")
+
+
+def default_device() -> torch.device:
+    """CUDA when available (this process's local rank under torchrun), else CPU."""
+    if torch.cuda.is_available():
+        return torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))
+    return torch.device("cpu")
+
+
+def _epoch_seed(seed: int, epoch: int) -> int:
+    return (int(seed) * 1_000_003 + int(epoch) * 7919 + 12345) % (2**63 - 1)
+
+
+def _collate(batch_list):
+    return torch.utils.data.default_collate(batch_list)
+
+
+def _to(batch: dict, device) -> dict:
+    return {k: (v.to(device, non_blocking=True) if torch.is_tensor(v) else v) for k, v in batch.items()}
+
+
+class _Dist:
+    """Process-group facts; a no-op shell in a single process."""
+
+    def __init__(self):
+        self.world = int(os.environ.get("WORLD_SIZE", "1"))
+        self.rank = int(os.environ.get("RANK", "0"))
+        self.active = self.world > 1
+        self.owned = False
+        if self.active and not torch.distributed.is_initialized():
+            backend = "nccl" if torch.cuda.is_available() else "gloo"
+            if torch.cuda.is_available():
+                torch.cuda.set_device(int(os.environ.get("LOCAL_RANK", 0)))
+            torch.distributed.init_process_group(backend=backend)
+            self.owned = True
+
+    @property
+    def main(self) -> bool:
+        return self.rank == 0
+
+    def all_sum(self, values: list[float], device) -> list[float]:
+        if not self.active:
+            return values
+        t = torch.tensor(values, dtype=torch.float64, device=device)
+        torch.distributed.all_reduce(t)
+        return t.tolist()
+
+    def barrier(self):
+        if self.active:
+            torch.distributed.barrier()
+
+    def close(self):
+        if self.owned:
+            torch.distributed.destroy_process_group()
+
+
+def _make_optimizer(model, tcfg: dict):
+    kind = str(tcfg.get("optimizer", "adam")).lower()
+    lr, wd = float(tcfg["lr"]), float(tcfg.get("weight_decay", 0.0) or 0.0)
+    if kind == "adam":
+        return torch.optim.Adam(model.parameters(), lr=lr, weight_decay=wd)
+    if kind == "adamw":
+        return torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=wd)
+    if kind == "sgd":
+        return torch.optim.SGD(model.parameters(), lr=lr, momentum=0.9, weight_decay=wd)
+    raise ParameterError(f"unknown optimizer {kind!r} (adam, adamw, sgd)")
+
+
+def _make_scheduler(opt, tcfg: dict):
+    sched = dict(tcfg.get("lr_schedule") or {"kind": "constant"})
+    kind = sched.get("kind", "constant")
+    epochs = int(tcfg["epochs"])
+    if kind == "step":
+        every, gamma = int(sched.get("every", 30)), float(sched.get("gamma", 0.5))
+        return torch.optim.lr_scheduler.LambdaLR(opt, lambda e: gamma ** (e // max(every, 1)))
+    if kind == "cosine":
+        floor = float(sched.get("min_factor", 0.01))
+        return torch.optim.lr_scheduler.LambdaLR(
+            opt, lambda e: floor + (1 - floor) * 0.5 * (1 + math.cos(math.pi * min(e, epochs) / max(epochs, 1))))
+    if kind == "constant":
+        return torch.optim.lr_scheduler.LambdaLR(opt, lambda e: 1.0)
+    raise ParameterError(f"unknown lr_schedule kind {kind!r} (step, cosine, constant)")
+
+
+def _write_csv(path: Path, history: list[dict]) -> None:
+    from ..utils import atomic_output
+
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(LOG_COLUMNS), extrasaction="ignore")
+    w.writeheader()
+    for row in history:
+        w.writerow(row)
+    with atomic_output(path) as tmp:
+        tmp.write_text(buf.getvalue())
+
+
+def _write_yaml(path: Path, cfg: dict) -> None:
+    import yaml
+
+    from ..utils import atomic_output
+
+    with atomic_output(path) as tmp:
+        tmp.write_text(yaml.safe_dump(cfg, sort_keys=False))
+
+
+@torch.no_grad()
+def validate(model, dataset: CompletionDataset, batch_size: int, device, gt_trees: dict, dist: _Dist | None = None,
+             num_workers: int = 0) -> dict:
+    """Validation loss and accuracy (one-sided CD prediction -> dense GT, SA-Net clipped at its default).
+
+    Returns {"val_loss": mean loss over samples, "val_accuracy": mean over samples, "val_n": samples}.
+    With ``dist`` active, each rank evaluates a contiguous shard and the sums are all-reduced.
+    """
+    from .metrics import NearestNeighbors
+
+    active = dist is not None and dist.active
+    world, rank = (dist.world, dist.rank) if active else (1, 0)
+    n = len(dataset)
+    lo, hi = n * rank // world, n * (rank + 1) // world
+    subset = torch.utils.data.Subset(dataset, range(lo, hi))
+    loader = DataLoader(subset, batch_size=batch_size, shuffle=False, num_workers=num_workers, collate_fn=_collate)
+    model.eval()
+    loss_sum = acc_sum = 0.0
+    count = acc_count = 0
+    for batch in loader:
+        batch = _to(batch, device)
+        out = model(batch["partial"])
+        b = batch["partial"].shape[0]
+        loss, _ = model.loss(out, batch, 1.0)
+        loss_sum += float(loss) * b
+        count += b
+        preds = model.outputs_to_points(out, CLIP_DEFAULT)
+        for p, m in zip(preds, batch["model"].tolist()):
+            if len(p) == 0:
+                continue
+            if m not in gt_trees:
+                raise SpotlightsError(f"no dense ground truth for model row {m}")
+            tree = gt_trees[m]
+            if not isinstance(tree, NearestNeighbors):
+                tree = gt_trees[m] = NearestNeighbors(tree)
+            acc_sum += float(tree.distances(p.detach().cpu().numpy()).mean())
+            acc_count += 1
+    sums = [loss_sum, float(count), acc_sum, float(acc_count)]
+    loss_sum, count, acc_sum, acc_count = dist.all_sum(sums, device) if active else sums
+    return {
+        "val_loss": loss_sum / count if count else float("nan"),
+        "val_accuracy": acc_sum / acc_count if acc_count else float("nan"),
+        "val_n": int(count),
+    }
+
+
+def train(model_name: str, data, out_dir, config=None, overrides: dict | None = None, resume: bool = False,
+          overwrite: bool = False, device=None, progress: bool = True, log=print) -> dict:
+    """Train one model on a completion dataset file.
+
+    Parameters
+    ----------
+    model_name : registry key (sanet, pcn, foldingnet, topnet, atlasnet).
+    data : HDF5 dataset file (splits train and val are used).
+    out_dir : run folder (config.yaml, last.pt, best.pt, log.csv).
+    config : optional user YAML overriding the packaged config.
+    overrides : nested dict applied last (e.g. ``{"train": {"epochs": 5}}``).
+    resume : continue from ``out_dir/last.pt`` (its config is kept; ``train.epochs`` may be raised).
+    overwrite : start afresh even if ``out_dir`` holds a run.
+    device : torch device (default CUDA when available, else CPU).
+    progress : show tqdm bars (rank 0 only).
+
+    Returns
+    -------
+    dict: out_dir, last, best (paths), epochs (completed), history (list of rows), param_counts.
+    """
+    dist = _Dist()
+    try:
+        return _train(dist, model_name, data, Path(out_dir), config, overrides, resume, overwrite, device, progress, log)
+    finally:
+        dist.close()
+
+
+def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, overwrite, device, progress, log):
+    from tqdm import tqdm
+
+    device = torch.device(device) if device is not None else default_device()
+    last_path, best_path = out_dir / "last.pt", out_dir / "best.pt"
+    state = None
+    if resume:
+        if not last_path.exists():
+            raise SpotlightsError(f"{last_path}: nothing to resume (no last.pt in the run folder)")
+        state = load_checkpoint(last_path, expect_model=model_name)
+        cfg = state["config"]
+        if overrides and "train" in overrides and "epochs" in overrides["train"]:
+            cfg["train"]["epochs"] = int(overrides["train"]["epochs"])
+    else:
+        if last_path.exists() and not overwrite:
+            raise SpotlightsError(f"{out_dir}: holds a run already; pass --resume to continue it or --overwrite to start again")
+        cfg = load_config(model_name, config, overrides)
+    dcfg, tcfg = cfg["data"], cfg["train"]
+    seed, epochs, batch_size = int(tcfg.get("seed", 0)), int(tcfg["epochs"]), int(tcfg["batch_size"])
+    if epochs < 0 or batch_size < 1:
+        raise ParameterError(f"epochs must be >= 0 and batch_size >= 1 (got {epochs}, {batch_size})")
+
+    from .models import model_class
+
+    wants_depths = model_class(model_name).target == "depths"
+    rig_sel = dcfg.get("rig") if wants_depths else False
+    train_set = CompletionDataset(data, "train", rig=rig_sel, max_views=dcfg.get("max_views"),
+                                  partials_in_memory=bool(dcfg.get("partials_in_memory", True)))
+    val_set = CompletionDataset(data, "val", rig=rig_sel, max_views=dcfg.get("val_max_views"),
+                                partials_in_memory=bool(dcfg.get("partials_in_memory", True)))
+    rig = train_set.rig if wants_depths else None
+    if state is not None and wants_depths and state.get("rig") != rig:
+        raise SpotlightsError(f"{last_path}: was trained on rig {state.get('rig')}, the dataset serves {rig}")
+    gt_trees = val_set.gt_dense()
+
+    torch.manual_seed(seed)
+    np.random.seed(seed % (2**32))
+    model = build_model(cfg, rig=rig).to(device)
+    param_counts = model.param_counts()
+    opt = _make_optimizer(model, tcfg)
+    sched = _make_scheduler(opt, tcfg)
+    start_epoch, global_step, history, best = 0, 0, [], {"epoch": None, "val_accuracy": float("inf")}
+    if state is not None:
+        model.load_state_dict(state["model_state"])
+        opt.load_state_dict(state["optimizer_state"])
+        sched.load_state_dict(state["scheduler_state"])
+        start_epoch, global_step = int(state["epoch"]), int(state["global_step"])
+        history, best = list(state.get("history", [])), dict(state.get("best", best))
+        if dist.main:
+            log(f"resuming {model_name} from {last_path} after epoch {start_epoch}")
+    net = model
+    if dist.active:
+        net = torch.nn.parallel.DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
+    if dist.main:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        _write_yaml(out_dir / "config.yaml", cfg)
+        log(f"{model_name}: {param_counts['total']:,} parameters (encoder {param_counts['encoder']:,}, "
+            f"decoder {param_counts['decoder']:,}); {len(train_set)} train / {len(val_set)} val samples; "
+            f"device {device}; {dist.world} process(es)")
+
+    n_train = len(train_set)
+    shard = n_train // dist.world
+    drop_last = shard >= batch_size
+    steps_per_epoch = (shard // batch_size) if drop_last else math.ceil(shard / batch_size)
+    total_steps = max(1, steps_per_epoch * epochs)
+    grad_clip = tcfg.get("grad_clip")
+    num_workers = int(dcfg.get("num_workers", 0) or 0)
+
+    for epoch in range(start_epoch, epochs):
+        t0 = time.perf_counter()
+        torch.manual_seed(_epoch_seed(seed, epoch))
+        gen = torch.Generator().manual_seed(_epoch_seed(seed, epoch))
+        perm = torch.randperm(n_train, generator=gen)[: shard * dist.world]
+        indices = perm[dist.rank::dist.world].tolist()
+        loader = DataLoader(train_set, batch_size=batch_size, sampler=indices, num_workers=num_workers,
+                            drop_last=drop_last, collate_fn=_collate, persistent_workers=False,
+                            worker_init_fn=_worker_init if num_workers else None,
+                            generator=torch.Generator().manual_seed(_epoch_seed(seed, epoch)))
+        net.train()
+        loss_sum, seen = 0.0, 0
+        bar = tqdm(loader, desc=f"{model_name} epoch {epoch + 1}/{epochs}", unit="batch", leave=False,
+                   disable=not (progress and dist.main), dynamic_ncols=True)
+        for batch in bar:
+            batch = _to(batch, device)
+            out = net(batch["partial"])
+            loss, terms = model.loss(out, batch, global_step / total_steps)
+            if not torch.isfinite(loss):
+                raise SpotlightsError(f"{model_name}: the training loss became {float(loss)} at epoch {epoch + 1}, "
+                                      "step {global_step}; lower train.lr or set train.grad_clip")
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            if grad_clip:
+                torch.nn.utils.clip_grad_norm_(model.parameters(), float(grad_clip))
+            opt.step()
+            global_step += 1
+            b = batch["partial"].shape[0]
+            loss_sum += float(loss.detach()) * b
+            seen += b
+            bar.set_postfix(loss=f"{loss_sum / seen:.5f}")
+        bar.close()
+        lr = opt.param_groups[0]["lr"]
+        sched.step()
+        train_sum, train_n = dist.all_sum([loss_sum, float(seen)], device)
+        val = validate(model, val_set, batch_size, device, gt_trees, dist)
+        dt = time.perf_counter() - t0
+        row = {"epoch": epoch + 1, "lr": lr, "train_loss": train_sum / max(train_n, 1), **val,
+               "epoch_seconds": round(dt, 3), "samples_per_second": round(train_n / dt, 2) if dt > 0 else 0.0}
+        history.append(row)
+        improved = val["val_accuracy"] < best["val_accuracy"]
+        if improved:
+            best = {"epoch": epoch + 1, "val_accuracy": val["val_accuracy"]}
+        if dist.main:
+            payload = {
+                "model_name": model_name, "config": cfg, "rig": rig, "model_state": model.state_dict(),
+                "optimizer_state": opt.state_dict(), "scheduler_state": sched.state_dict(),
+                "epoch": epoch + 1, "global_step": global_step, "best": best, "history": history,
+                "param_counts": param_counts,
+                "dataset": {"path": str(data), "rig": train_set.rig_name, "n_train": n_train, "n_val": len(val_set)},
+            }
+            save_checkpoint(last_path, payload)
+            if improved:
+                save_checkpoint(best_path, {k: v for k, v in payload.items() if k not in ("optimizer_state", "scheduler_state")})
+            _write_csv(out_dir / "log.csv", history)
+            log(f"{model_name} epoch {epoch + 1}/{epochs}: train loss {row['train_loss']:.5f}, val loss "
+                f"{row['val_loss']:.5f}, val accuracy {row['val_accuracy']:.5f}{' (best)' if improved else ''}, {dt:.1f} s")
+        dist.barrier()
+    return {"out_dir": str(out_dir), "last": str(last_path), "best": str(best_path), "epochs": len(history),
+            "history": history, "param_counts": param_counts}
+
+
+def _worker_init(worker_id: int) -> None:
+    """DataLoader worker: one torch thread (the main process does the math), fresh h5py handle on first read."""
+    torch.set_num_threads(1)
