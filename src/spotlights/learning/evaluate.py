@@ -1,0 +1,239 @@
+"""Evaluation of trained checkpoints on a dataset split: the paper's Table 1 (Markdown + JSON).
+
+For each checkpoint the split's partial scans are completed, and every prediction
+is scored against its model's dense ground truth (16,384 points, unit frame) with
+the metrics of :mod:`spotlights.learning.metrics` (KD-tree per ground-truth model).
+SA-Net is reported twice, without clip (rays with depth > 0) and with its clip
+(default 0.2), as in the paper. Aggregates are given per category and overall,
+both as the mean over samples (the paper's "Average") and the mean over categories.
+Parameter counts and the median latency (batch 1 and 32, same threads) complete
+the table.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ParameterError
+from .metrics import METRIC_DESCRIPTIONS, evaluate_completions, summarize
+
+TABLE_METRIC = "accuracy"
+
+
+def _latency(model, device, batches=(1, 32), repeats: int = 10, warmup: int = 2, n_input: int = 256) -> dict:
+    import torch
+
+    from .bench import median_latency
+    from .models.base import CLIP_DEFAULT
+
+    sync = torch.cuda.synchronize if device.type == "cuda" else None
+    gen = torch.Generator().manual_seed(0)
+    out = {}
+    for b in batches:
+        x = ((torch.rand(b, n_input, 3, generator=gen) * 2 - 1) * 0.57).to(device)
+        with torch.inference_mode():
+            f = median_latency(lambda: model(x), repeats, warmup, sync)
+            c = median_latency(lambda: model.complete(x, CLIP_DEFAULT), repeats, warmup, sync)
+        out[int(b)] = {"forward_ms": f * 1e3, "complete_ms": c * 1e3}
+    return out
+
+
+def evaluate_checkpoint(checkpoint, data, split: str = "test", batch_size: int = 32, max_views: int | None = None,
+                        clip=None, device=None, with_completeness: bool = True, fscore_threshold: float = 0.01,
+                        latency: bool = True, latency_repeats: int = 10, num_workers: int = 0,
+                        progress: bool = True, dataset=None, gt_dense=None) -> dict:
+    """Score one checkpoint on one split.
+
+    Parameters
+    ----------
+    checkpoint : checkpoint path. data : dataset HDF5 file. split : "test" (default), "val", "train".
+    max_views : only views < max_views per model (faster, fewer samples).
+    clip : SA-Net clip threshold for the "w/ clip" row (default: the checkpoint's, 0.2).
+    with_completeness : also compute the GT -> prediction side (completeness, CD-L1,
+        CD-L2, F-score); costs one small KD-tree per prediction.
+    latency : measure median latency at batch 1 and 32.
+    dataset, gt_dense : an already opened split and its dense GT (to share across checkpoints).
+
+    Returns
+    -------
+    dict with ``model``, ``checkpoint``, ``params``, ``latency_ms``, ``rows`` (one per
+    variant: SA-Net "no clip" and "clip 0.2"; baselines one), each with ``summary``
+    (see :func:`~spotlights.learning.metrics.summarize`) and ``hit_ratio`` for SA-Net.
+    """
+    import torch
+    from torch.utils.data import DataLoader
+    from tqdm import tqdm
+
+    from .checkpoint import load_checkpoint, model_from_checkpoint
+    from .data import CompletionDataset
+
+    dev = torch.device(device) if device is not None else torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    ckpt = load_checkpoint(checkpoint)
+    model = model_from_checkpoint(ckpt, dev)
+    name = ckpt["model_name"]
+    ds = dataset or CompletionDataset(data, split, rig=False, max_views=max_views, partials_in_memory=True)
+    dense = gt_dense if gt_dense is not None else ds.gt_dense()
+    variants = [("no clip", None), (f"clip {model.clip if clip is None else clip:g}", model.clip if clip is None else float(clip))] \
+        if model.target == "depths" else [("", None)]
+    preds = {v: [] for v, _ in variants}
+    kept = {v: [] for v, _ in variants}
+    loader = DataLoader(ds, batch_size=batch_size, shuffle=False, num_workers=num_workers)
+    t0 = time.perf_counter()
+    with torch.inference_mode():
+        for batch in tqdm(loader, desc=f"evaluate {name}", unit="batch", disable=not progress, leave=False):
+            out = model(batch["partial"].to(dev))
+            for v, c in variants:
+                pts = model.outputs_to_points(out, c)
+                preds[v].extend(p.cpu().numpy() for p in pts)
+                if model.target == "depths":
+                    kept[v].extend(len(p) / model.rig.n_rays for p in pts)
+    predict_s = time.perf_counter() - t0
+    models = ds.sample_models
+    cats = ds.sample_categories
+    order = ds.info.category_order()
+    rows = []
+    trees: dict = {}
+    for v, c in variants:
+        per = evaluate_completions(preds[v], models, _DenseView(dense), fscore_threshold, with_completeness, trees)
+        if model.target == "depths":
+            per["hit_ratio"] = np.asarray(kept[v], dtype=np.float64)
+        rows.append({"variant": v, "clip": c, "summary": summarize(per, cats, order)})
+    result = {
+        "model": name,
+        "checkpoint": str(checkpoint),
+        "split": ds.split,
+        "n_samples": len(ds),
+        "params": model.param_counts(),
+        "rows": rows,
+        "predict_seconds": predict_s,
+        "trained_epochs": int(ckpt.get("epoch", 0) or 0),
+    }
+    if latency:
+        result["latency_ms"] = _latency(model, dev, repeats=latency_repeats)
+        result["latency_device"] = str(dev)
+        result["threads"] = torch.get_num_threads()
+    return result
+
+
+class _DenseView:
+    """Index a {model row: (L, 3)} dict like an array (for evaluate_completions)."""
+
+    def __init__(self, d: dict):
+        self.d = d
+
+    def __getitem__(self, m):
+        return self.d[int(m)]
+
+
+def evaluate_checkpoints(checkpoints, data, split: str = "test", progress: bool = True, **kw) -> dict:
+    """Evaluate several checkpoints on the same split (the split and its dense GT are read once).
+
+    Returns a report dict: ``data``, ``split``, ``categories`` (report order), ``metric_descriptions``,
+    ``results`` (one :func:`evaluate_checkpoint` dict per checkpoint).
+    """
+    from .data import CompletionDataset
+
+    if not checkpoints:
+        raise ParameterError("give at least one checkpoint to evaluate")
+    ds = CompletionDataset(data, split, rig=False, max_views=kw.pop("max_views", None), partials_in_memory=True)
+    dense = ds.gt_dense()
+    results = [evaluate_checkpoint(c, data, split, dataset=ds, gt_dense=dense, progress=progress, **kw) for c in checkpoints]
+    return {
+        "data": str(data),
+        "split": split,
+        "n_samples": len(ds),
+        "n_models": int(len(np.unique(ds.sample_models))),
+        "categories": ds.info.category_order(),
+        "metric_descriptions": METRIC_DESCRIPTIONS,
+        "results": results,
+    }
+
+
+def _fmt(x: float, digits: int = 5) -> str:
+    return "n/a" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}f}"
+
+
+def report_markdown(report: dict, metric: str = TABLE_METRIC) -> str:
+    """The Table-1 style Markdown report (accuracy per category, averages, parameters, latency) + other metrics."""
+    from .models import DISPLAY_NAMES
+
+    cats = [c for c in report["categories"]]
+    lines = [f"# Completion accuracy on `{report['data']}` ({report['split']} split: "
+             f"{report['n_samples']} samples of {report['n_models']} models)", "",
+             f"{metric}: {METRIC_DESCRIPTIONS[metric]}. Lower is better.", "",
+             "Average (samples) = mean over all samples (the paper's Average); Average (categories) = "
+             "unweighted mean of the per-category means.", ""]
+    head = ["Method", *[c.capitalize() if c != "suv" else "SUV" for c in cats], "Average (samples)", "Average (categories)",
+            "#Params", "Latency b1 (ms)", "Latency b32 (ms)"]
+    lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for res in report["results"]:
+        for row in res["rows"]:
+            s = row["summary"]
+            label = DISPLAY_NAMES.get(res["model"], res["model"]) + (f" ({row['variant']})" if row["variant"] else "")
+            lat = res.get("latency_ms", {})
+            key = "complete_ms" if row["clip"] is not None or res["model"] != "sanet" else "forward_ms"
+
+            def _lat(b):
+                v = lat.get(b, lat.get(str(b)))
+                return f"{v[key]:.2f}" if v else "n/a"
+
+            cells = [label, *[_fmt(s["per_category"].get(c, {}).get(metric)) for c in cats],
+                     _fmt(s["mean_over_samples"][metric]), _fmt(s["mean_over_categories"][metric]),
+                     f"{res['params']['total'] / 1e6:.2f}M", _lat(1), _lat(32)]
+            lines.append("| " + " | ".join(cells) + " |")
+    lines += ["", "Latency: median forward time (SA-Net without clip) or forward + decoding + clip "
+              "(SA-Net with clip, baselines: forward + split into clouds), "
+              + (f"on {report['results'][0].get('latency_device', '?')} with {report['results'][0].get('threads', '?')} threads."
+                 if report["results"] else ""), ""]
+    # Other metrics, mean over samples.
+    others = [m for m in ("completeness", "chamfer_l1", "chamfer_l2", "fscore", "hit_ratio", "n_points")]
+    lines += ["## All metrics (mean over samples; per category in the JSON report)", ""]
+    head = ["Method", "accuracy", *others]
+    lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for res in report["results"]:
+        for row in res["rows"]:
+            m = row["summary"]["mean_over_samples"]
+            label = DISPLAY_NAMES.get(res["model"], res["model"]) + (f" ({row['variant']})" if row["variant"] else "")
+            cells = [label, _fmt(m.get("accuracy"))]
+            for k in others:
+                v = m.get(k)
+                cells.append("n/a" if v is None else (f"{v:.1f}" if k == "n_points" else _fmt(v, 4 if k in ("fscore", "hit_ratio") else 5)))
+            lines.append("| " + " | ".join(cells) + " |")
+    lines += ["", "Parameters (encoder / decoder / total):", ""]
+    for res in report["results"]:
+        p = res["params"]
+        lines.append(f"- {DISPLAY_NAMES.get(res['model'], res['model'])}: {p['encoder']:,} / {p['decoder']:,} / {p['total']:,} "
+                     f"({res['checkpoint']}, {res['trained_epochs']} epochs)")
+    lines += ["", "Metric definitions:", ""] + [f"- `{k}`: {v}" for k, v in METRIC_DESCRIPTIONS.items()]
+    return "\n".join(lines) + "\n"
+
+
+def _jsonable(x):
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, (np.floating, float)):
+        return None if math.isnan(float(x)) else float(x)
+    if isinstance(x, np.integer):
+        return int(x)
+    return x
+
+
+def write_report(report: dict, out) -> tuple[Path, Path]:
+    """Write ``OUT.md`` and ``OUT.json`` (atomically; NaN written as null). ``out`` may end in .md/.json or not."""
+    from ..utils import atomic_output
+
+    out = Path(out)
+    stem = out.with_suffix("") if out.suffix.lower() in (".md", ".json") else out
+    md, js = Path(f"{stem}.md"), Path(f"{stem}.json")
+    with atomic_output(md) as tmp:
+        tmp.write_text(report_markdown(report))
+    with atomic_output(js) as tmp:
+        tmp.write_text(json.dumps(_jsonable(report), indent=2))
+    return md, js
