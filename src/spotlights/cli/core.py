@@ -1,0 +1,137 @@
+"""Core commands: ``encode``, ``decode``, ``show``."""
+
+from __future__ import annotations
+
+import argparse
+
+from ._util import add_command
+
+
+def add_rig_arguments(p: argparse.ArgumentParser) -> None:
+    """The rig options shared by every command that builds a rig."""
+    g = p.add_argument_group("rig (paper defaults: 32 x 64 rays, 60 degrees)")
+    g.add_argument("--primary", "-N", type=int, default=32, metavar="N", help="viewpoints on the Fibonacci sphere (default 32)")
+    g.add_argument("--secondary", "-M", type=int, default=64, metavar="M", help="rays per viewpoint (default 64)")
+    g.add_argument("--angle", type=float, default=60.0, metavar="DEG", help="cap polar half-angle omega in degrees, (0, 90] (default 60)")
+    g.add_argument("--radius", type=float, default=None, metavar="R",
+                   help="alternatively the paper's small-sphere radius r/R: omega = arccos(r/2R); 0.25 gives 82.8 degrees")
+
+
+def add_axes_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--up", default="z", help="the mesh file's up axis (x, y, z, -x, ...); glTF files are usually y (default z)")
+    p.add_argument("--forward", default="x", help="the mesh file's forward axis (default x)")
+
+
+def rig_from_args(args):
+    from ..geometry.rig import make_rig
+
+    return make_rig(args.primary, args.secondary, angle=args.angle, radius=args.radius)
+
+
+def register(sub) -> None:
+    p = add_command(sub, "encode", "cast a Spotlights rig at meshes and write their depth arrays (.npz)",
+                    "spotlights encode car.glb --up y --forward z --out car.npz", _encode)
+    p.add_argument("meshes", nargs="+", metavar="MESH", help="mesh files (OBJ, PLY, OFF, STL, GLB, GLTF)")
+    p.add_argument("--out", "-o", required=True, metavar="PATH",
+                   help="output .npz for one mesh, or a folder for several (one MESH_STEM.npz each)")
+    add_rig_arguments(p)
+    add_axes_arguments(p)
+
+    p = add_command(sub, "decode", "turn an encoding back into its ordered point cloud",
+                    "spotlights decode car.npz --out car_points.ply --frame original", _decode)
+    p.add_argument("encoding", metavar="FILE.npz")
+    p.add_argument("--out", "-o", required=True, metavar="CLOUD", help="output .ply, .pcd, .npy, .xyz or .txt")
+    p.add_argument("--frame", choices=("original", "unit"), default="original",
+                   help="original: the mesh's own frame (default); unit: the normalised unit sphere")
+    p.add_argument("--clip", type=float, default=None, metavar="T", help="treat depths below T as misses (the paper uses 0.2 on predictions)")
+
+    p = add_command(sub, "show", "render a mesh, a point cloud or an encoding to a PNG",
+                    "spotlights show car.npz --out car.png", _show)
+    p.add_argument("file", metavar="FILE", help="mesh, point cloud (.ply .pcd .npy .xyz) or encoding (.npz)")
+    p.add_argument("--out", "-o", default=None, metavar="PNG", help="output picture (default: ./FILE_STEM.png)")
+    p.add_argument("--clip", type=float, default=None, metavar="T", help="for encodings: depths below T count as misses")
+    add_axes_arguments(p)
+
+
+def _encode(args) -> int:
+    from pathlib import Path
+
+    from tqdm import tqdm
+
+    from ..errors import SpotlightsError
+    from ..geometry.encode import MeshProbe, hit_ratio, save_encoding
+    from ..geometry.io import load_mesh
+
+    rig = rig_from_args(args)
+    out = Path(args.out)
+    several = len(args.meshes) > 1
+    if several and out.suffix.lower() == ".npz":
+        raise SpotlightsError(f"{out}: several meshes need a folder for --out, not a .npz file")
+    targets = [out / (Path(m).stem + ".npz") for m in args.meshes] if several else [out if out.suffix else out.with_suffix(".npz")]
+    if several and len(set(targets)) != len(targets):
+        raise SpotlightsError("several meshes share a file name; encode them into different folders")
+    meshes = [load_mesh(m, up=args.up, forward=args.forward) for m in args.meshes]  # validate all first
+    for path, mesh, target in tqdm(list(zip(args.meshes, meshes, targets)), desc="encode", unit="mesh", disable=not several):
+        probe = MeshProbe(mesh)
+        depths = probe.encode(rig)
+        save_encoding(target, depths, rig, probe.normalization)
+        msg = f"{path}: {rig.name}, hit ratio {hit_ratio(depths):.3f} ({int((depths > 0).sum())}/{rig.n_rays} rays) -> {target}"
+        (tqdm.write if several else print)(msg)
+    return 0
+
+
+def _decode(args) -> int:
+    from ..geometry.encode import load_encoding
+    from ..geometry.io import save_points
+
+    enc = load_encoding(args.encoding)
+    pts = enc.points(frame=args.frame, clip=args.clip)
+    save_points(args.out, pts)
+    print(f"{args.encoding}: {len(pts)} points ({args.frame} frame) -> {args.out}")
+    return 0
+
+
+def _show(args) -> int:
+    from pathlib import Path
+
+    import numpy as np
+
+    from .. import viz
+    from ..errors import InputFileError
+    from ..geometry.encode import load_encoding
+    from ..geometry.io import MESH_SUFFIXES, POINT_SUFFIXES, load_mesh, load_points
+
+    src = Path(args.file)
+    out = Path(args.out) if args.out else Path.cwd() / (src.stem + ".png")
+    suffix = src.suffix.lower()
+    if not src.exists():
+        raise InputFileError(src, "no such file")
+    if suffix == ".npz":
+        with np.load(src, allow_pickle=False) as z:
+            is_encoding = "depths" in z.files
+        if is_encoding:
+            viz.render_encoding(out, load_encoding(src), clip=args.clip)
+            print(f"{src}: encoding -> {out}")
+            return 0
+    if suffix in MESH_SUFFIXES and suffix != ".ply" or (suffix == ".ply" and _ply_has_faces(src)):
+        mesh = load_mesh(src, up=args.up, forward=args.forward)
+        viz.render_mesh(out, mesh, title=f"{src.name}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces")
+        print(f"{src}: mesh -> {out}")
+        return 0
+    if suffix in POINT_SUFFIXES:
+        pts = load_points(src)
+        viz.render_layers(out, [viz.Layer(pts, "tab:blue", None, 2.0)], title=f"{src.name}: {len(pts)} points")
+        print(f"{src}: point cloud -> {out}")
+        return 0
+    raise InputFileError(src, f"unknown file type {suffix!r} (a mesh, a point cloud or an encoding .npz)")
+
+
+def _ply_has_faces(path) -> bool:
+    """True when a PLY header declares at least one face."""
+    with open(path, "rb") as fh:
+        head = fh.read(4096).split(b"end_header")[0].decode("ascii", "replace")
+    for line in head.splitlines():
+        parts = line.split()
+        if len(parts) == 3 and parts[0] == "element" and parts[1] == "face":
+            return int(parts[2]) > 0
+    return False

@@ -1,0 +1,81 @@
+"""Deterministic point sampling: uniform on mesh surfaces, farthest-point subsets."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ParameterError
+
+
+def sample_surface(mesh, n: int, seed: int | np.random.Generator = 0) -> np.ndarray:
+    """``n`` points uniformly distributed (by area) on a triangle mesh's surface.
+
+    Parameters
+    ----------
+    mesh : object with ``vertices`` (V, 3) and ``faces`` (F, 3).
+    n : number of points.
+    seed : int seed or numpy Generator; the same seed gives the same points.
+
+    Returns
+    -------
+    (n, 3) float64 points, in the mesh's frame.
+    """
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    tri = np.asarray(mesh.vertices, dtype=np.float64)[np.asarray(mesh.faces)]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    total = area.sum()
+    if not (total > 0):
+        raise ParameterError("mesh has zero surface area")
+    face = rng.choice(len(tri), size=int(n), p=area / total)
+    u = rng.random((int(n), 2))
+    flip = u.sum(axis=1) > 1.0
+    u[flip] = 1.0 - u[flip]
+    t = tri[face]
+    return t[:, 0] + u[:, :1] * (t[:, 1] - t[:, 0]) + u[:, 1:] * (t[:, 2] - t[:, 0])
+
+
+def farthest_point_sample(points: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
+    """Indices of ``n`` points chosen by farthest-point sampling (vectorised over points).
+
+    Starts from a seeded random point; each step adds the point farthest from the
+    chosen set. O(n * K) time, one numpy pass over the K points per step.
+
+    Returns
+    -------
+    (n,) int64 indices into ``points`` (K, 3); requires ``n <= K``.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    k = len(p)
+    if n > k or n < 1:
+        raise ParameterError(f"cannot pick {n} of {k} points")
+    idx = np.empty(n, dtype=np.int64)
+    idx[0] = np.random.default_rng(seed).integers(k)
+    dist = np.sum((p - p[idx[0]]) ** 2, axis=1)
+    for j in range(1, n):
+        idx[j] = int(np.argmax(dist))
+        np.minimum(dist, np.sum((p - p[idx[j]]) ** 2, axis=1), out=dist)
+    return idx
+
+
+def resample(points: np.ndarray, n: int, seed: int | np.random.Generator = 0, method: str = "random") -> np.ndarray:
+    """Resample a (K, 3) cloud to exactly ``n`` points.
+
+    ``K > n``: a random subset without replacement (``method="random"``) or farthest-point
+    sampling (``method="fps"``). ``K < n``: all points plus a random choice of repeats
+    (upsampling by repetition). Returns (n, 3) with the input dtype.
+    """
+    p = np.asarray(points)
+    k = len(p)
+    if k == 0:
+        raise ParameterError("cannot resample an empty point cloud")
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    if k == n:
+        return p.copy()
+    if k > n:
+        if method == "fps":
+            return p[farthest_point_sample(p, n, seed=int(rng.integers(2**31)))]
+        if method != "random":
+            raise ParameterError(f"unknown resampling method {method!r} (random, fps)")
+        return p[np.sort(rng.choice(k, size=n, replace=False))]
+    extra = rng.choice(k, size=n - k, replace=True)
+    return np.concatenate([p, p[extra]], axis=0)
