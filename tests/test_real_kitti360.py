@@ -58,7 +58,8 @@ def write_dataset(root: Path, n_car_pts: int = 60) -> None:
     objs.append(("car", 13, 7, 0, 5, -1, CAR_T))
     for f, t in TRUCK_T.items():
         objs.append(("truck", 14, 2, 0, 1, f, t))
-    objs.append(("person", 19, 1, 0, 5, -1, rigid(np.diag([0.6, 0.6, 1.8]), [1005.0, 2000.0, 100.9])))
+    objs.append(("bicycle", 18, 1, 0, 5, -1, rigid(np.diag([1.8, 0.6, 1.2]), [1005.0, 2000.0, 100.6])))
+    objs.append(("building", 11, 3, 0, 5, -1, rigid(np.diag([20.0, 10.0, 8.0]), [1100.0, 2100.0, 104.0])))
     parts = ['<?xml version="1.0"?>', "<opencv_storage>"]
     for k, (label, sem, inst, s, e, ts, t) in enumerate(objs):
         parts.append(
@@ -106,7 +107,7 @@ def test_kitti360_boxes_in_velodyne_frame(tmp_path):
         frame = reader.load((SEQ, f"{f:010d}"))
         np.testing.assert_allclose(frame.sensor_to_world, world_T_velo(f), atol=1e-9)
         boxes = {b.label: b for b in frame.boxes}
-        assert set(boxes) == {"car", "truck", "person"}
+        assert set(boxes) == {"car", "truck", "bicycle"}  # the building is not read
         inv = np.linalg.inv(world_T_velo(f))
         for label, t in (("car", CAR_T), ("truck", TRUCK_T[f])):
             expect = world_corners(t) @ inv[:3, :3].T + inv[:3, 3]
@@ -117,7 +118,7 @@ def test_kitti360_boxes_in_velodyne_frame(tmp_path):
         assert np.linalg.det(truck.rotation) == pytest.approx(1.0)
         assert truck.rotation[2, 2] == pytest.approx(1.0)  # up is up
         assert car.track_id == "13-7" and truck.track_id == "14-2"
-        assert car.cls == "car" and truck.cls == "truck" and boxes["person"].cls is None
+        assert car.cls == "car" and truck.cls == "truck" and boxes["bicycle"].cls is None
 
 
 def test_kitti360_extraction_tracks_static_and_dynamic(tmp_path):
@@ -128,7 +129,7 @@ def test_kitti360_extraction_tracks_static_and_dynamic(tmp_path):
     assert all(n in (60, 200) for n in obs.n_points_raw)
     # the static car's unit-frame partials in both frames are the same object points
     assert np.abs(obs.partial).max() <= 1.0 + 1e-6
-    assert obs.meta["skipped_labels"] == {"person": 2}
+    assert obs.meta["skipped_labels"] == {"bicycle": 2}
     # The parked car's points are the same world points in both frames (different poses):
     # in the car's unit frame they must coincide. 60 points -> 256 = all 60 plus repeats.
     rows = [i for i, t in enumerate(obs.track_id) if t == "13-7"]

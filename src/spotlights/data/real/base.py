@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import abc
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Iterator
 
 import numpy as np
@@ -157,8 +157,6 @@ class Frame:
     sensor_to_world : (4, 4) float64 pose of the sensor frame in a fixed world
         frame (Argoverse 2 city frame, KITTI-360 world frame), or ``None``.
     scan_path, label_path : the files read (for provenance and ``real show``).
-    skipped_labels : annotations the reader dropped before building boxes,
-        as ``{reason: count}`` (e.g. KITTI ``DontCare``).
     """
 
     sequence: str
@@ -169,7 +167,6 @@ class Frame:
     sensor_to_world: np.ndarray | None = None
     scan_path: str = ""
     label_path: str = ""
-    skipped_labels: dict[str, int] = field(default_factory=dict)
 
 
 class SceneReader(abc.ABC):

@@ -36,6 +36,9 @@ and world boxes are moved into the Velodyne frame with its inverse. Frames
 without a pose or without a scan are left out. Track id = ``"<semanticId>-<instanceId>"``.
 
 Classes: car -> car, truck -> truck, caravan -> caravan, trailer -> trailer.
+Only objects of KITTI-360's vehicle category are read (the four above plus
+bus, train, motorcycle, bicycle, unknown vehicle, counted as excluded by the
+extraction); scene objects such as buildings, poles or signs are ignored.
 """
 
 from __future__ import annotations
@@ -61,6 +64,10 @@ KITTI360_ID_NAMES: dict[int, str] = {
     28: "box", 29: "stop", 33: "train", 34: "bus", 35: "unknown construction",
     36: "unknown vehicle", 37: "unknown object",
 }
+
+
+#: Labels of the KITTI-360 "vehicle" category: the only objects read as boxes.
+VEHICLE_LABELS = frozenset({"car", "truck", "bus", "caravan", "trailer", "train", "motorcycle", "bicycle", "unknown vehicle"})
 
 
 def _matrix(node, path, what: str) -> np.ndarray:
@@ -262,12 +269,17 @@ class Kitti360Reader(SceneReader):
             if frames is not None:
                 start, stop, step = frames
                 idx = [i for i in idx if i >= start and (stop is None or i < stop) and (i - start) % step == 0]
+            # Scene objects (buildings, poles, signs, ...) are not road users: only objects of
+            # the vehicle category become boxes (car, truck, caravan, trailer, and bus, train,
+            # motorcycle, bicycle, unknown vehicle, which the extraction counts as excluded).
+            objs = [o for o in objs if o["label"] in VEHICLE_LABELS]
             static = [o for o in objs if o["timestamp"] < 0]
             dynamic: dict[int, list[dict]] = {}
             for o in objs:
                 if o["timestamp"] >= 0:
                     dynamic.setdefault(o["timestamp"], []).append(o)
-            self._seq[seq] = dict(scans=scans, poses=poses, static=static, dynamic=dynamic, xml=str(xml))
+            span = np.array([[o["start_frame"], o["end_frame"]] for o in static], dtype=np.int64).reshape(-1, 2)
+            self._seq[seq] = dict(scans=scans, poses=poses, static=static, span=span, dynamic=dynamic, xml=str(xml))
             self._keys.extend((seq, f"{i:010d}") for i in idx)
 
     def frame_keys(self) -> list[tuple[str, str]]:
@@ -279,7 +291,8 @@ class Kitti360Reader(SceneReader):
         f = int(stem)
         world_T_velo = s["poses"][f] @ self.pose_T_velo
         velo_T_world = np.linalg.inv(world_T_velo)
-        objs = [o for o in s["static"] if o["start_frame"] <= f <= o["end_frame"]] + s["dynamic"].get(f, [])
+        live = np.flatnonzero((s["span"][:, 0] <= f) & (f <= s["span"][:, 1]))
+        objs = [s["static"][k] for k in live] + s["dynamic"].get(f, [])
         boxes = []
         for o in objs:
             center = velo_T_world[:3, :3] @ o["center"] + velo_T_world[:3, 3]
