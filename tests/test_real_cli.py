@@ -38,17 +38,20 @@ def fake_learning(monkeypatch, tmp_path):
 
     class Completer:
         n_params = 1
+        clips: list = []
 
         def __init__(self, name):
             self.model_name = name
 
-        def complete(self, partials, clip=None):
+        def complete(self, partials, clip="default"):
+            Completer.clips.append(clip)
             t = np.linspace(0, 2 * np.pi, 64)
             ring = np.c_[0.9 * np.cos(t), 0.38 * np.sin(t), np.zeros_like(t)].astype(np.float32)
             return [np.concatenate([ring, p[:32]]) for p in partials]  # depends a little on the input
 
     mod = types.ModuleType("spotlights.learning.inference")
     mod.load_completer = lambda path, device=None: Completer(Path(path).stem.split("_")[0])
+    mod.Completer = Completer
     monkeypatch.setitem(sys.modules, "spotlights.learning.inference", mod)
     ckpts = []
     for name in ("sanet_1.pt", "pcn_1.pt"):
@@ -73,6 +76,11 @@ def test_cli_extract_evaluate_show(tmp_path, capsys, fake_learning):
     assert [m["name"] for m in rep["models"]] == ["sanet", "pcn"]
     assert rep["models"][0]["classes"]["car"]["n_objects"] == 2
     assert (tmp_path / "rep.md").read_text().startswith("# Consistency")
+    clips = sys.modules["spotlights.learning.inference"].Completer.clips
+    assert set(clips) == {"default"}  # no --clip: the model's own default
+    assert main(["real", "evaluate", str(out), "--checkpoint", fake_learning[0], "--out", str(prefix), "-q", "--clip", "0.2"]) == 0
+    assert clips[-1] == 0.2
+    capsys.readouterr()
 
     png = tmp_path / "pic.png"
     assert main(["real", "show", str(out), "--checkpoint", fake_learning[0], "--frame", "f1", "--out", str(png)]) == 0

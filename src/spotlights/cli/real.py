@@ -57,6 +57,7 @@ def register(sub) -> None:
     p.add_argument("--out", "-o", default=None, metavar="PREFIX",
                    help="writes PREFIX.md and PREFIX.json (default: FILE without .h5 + '_consistency')")
     p.add_argument("--batch-size", type=int, default=64, help="completion batch size (default 64)")
+    p.add_argument("--clip", type=float, default=None, metavar="T", help="depth clip passed to the models (default: each model's own)")
     p.add_argument("--device", default=None, help="torch device for the models (default: the loader's choice)")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
 
@@ -68,6 +69,7 @@ def register(sub) -> None:
     p.add_argument("--sequence", default=None, metavar="SEQ", help="sequence / log of the frame, when frame ids repeat")
     p.add_argument("--max-objects", type=int, default=6, metavar="K", help="close-ups of the K objects with most points (default 6)")
     p.add_argument("--out", "-o", default=None, metavar="PNG", help="output picture (default: FILE_FRAME.png beside FILE)")
+    p.add_argument("--clip", type=float, default=None, metavar="T", help="depth clip passed to the model (default: its own)")
     p.add_argument("--device", default=None, help="torch device for the model")
 
 
@@ -143,7 +145,7 @@ def _evaluate(args) -> int:
     dup = {n for n in names if names.count(n) > 1}
     names = [f"{n} ({Path(p).stem})" if n in dup else n for n, p in zip(names, args.checkpoint)]
     report = evaluate_consistency(obs, completers, names=names, checkpoints=args.checkpoint,
-                                  batch_size=args.batch_size, progress=not args.quiet)
+                                  batch_size=args.batch_size, progress=not args.quiet, clip=args.clip)
     report["data"]["file"] = str(args.file)
     prefix = args.out or str(Path(args.file).with_suffix("")) + "_consistency"
     md, js = write_report(report, prefix)
@@ -169,7 +171,9 @@ def _show(args) -> int:
     completions, model = None, None
     if args.checkpoint:
         completer = _load_completers([args.checkpoint], args.device)[0]
-        completions = completer.complete(np.ascontiguousarray(obs.partial[rows], dtype=np.float32))
+        from ..data.real.evaluate import complete_all
+
+        completions = complete_all(completer, obs.partial[rows], progress=False, clip=args.clip)
         model = completer.model_name
     i0 = rows[0]
     frame = obs.frame_id[i0]

@@ -26,15 +26,19 @@ from .base import CLASSES
 from .extract import Observations, read_observations
 
 
-def complete_all(completer, partials: np.ndarray, batch_size: int = 64, progress: bool = True, desc: str = "complete") -> list[np.ndarray]:
-    """Run ``completer.complete`` over (n, P, 3) float32 partials in batches; returns n (K_i, 3) float32 arrays."""
+def complete_all(completer, partials: np.ndarray, batch_size: int = 64, progress: bool = True, desc: str = "complete",
+                 clip: float | None = None) -> list[np.ndarray]:
+    """Run ``completer.complete`` over (n, P, 3) float32 partials in batches; returns n (K_i, 3) float32 arrays.
+
+    ``clip`` is passed on as ``complete(batch, clip=clip)`` only when given (else the model's default).
+    """
     from tqdm import tqdm
 
     out: list[np.ndarray] = []
     n = len(partials)
     for s in tqdm(range(0, n, batch_size), desc=desc, unit="batch", disable=not progress or n == 0):
         batch = np.ascontiguousarray(partials[s : s + batch_size], dtype=np.float32)
-        res = completer.complete(batch)
+        res = completer.complete(batch) if clip is None else completer.complete(batch, clip=clip)
         if len(res) != len(batch):
             raise SpotlightsError(f"completer {getattr(completer, 'model_name', '?')} returned {len(res)} completions for {len(batch)} inputs")
         for r in res:
@@ -61,6 +65,7 @@ def evaluate_consistency(
     checkpoints: Sequence[str] | None = None,
     batch_size: int = 64,
     progress: bool = True,
+    clip: float | None = None,
 ) -> dict:
     """Consistency of each completer on the tracked objects of an observation file.
 
@@ -70,6 +75,7 @@ def evaluate_consistency(
     completers : objects with ``complete(partials) -> list of (K, 3)`` (see the module doc).
     names : row names in the report (default: each completer's ``model_name``).
     checkpoints : checkpoint paths to record in the report (optional).
+    clip : passed to ``complete`` when given (SA-Net's depth clip); None = each model's default.
 
     Returns
     -------
@@ -106,7 +112,7 @@ def evaluate_consistency(
     classes_present = [c for c in CLASSES if c in set(sub_cls)]
     models = []
     for k, completer in enumerate(completers):
-        comps = complete_all(completer, obs.partial[rows], batch_size=batch_size, progress=progress, desc=f"complete {names[k]}")
+        comps = complete_all(completer, obs.partial[rows], batch_size=batch_size, progress=progress, desc=f"complete {names[k]}", clip=clip)
         tracks = track_consistency(comps, sub_keys, sub_ts, sub_cls, radii)
         agg = aggregate(tracks, classes=classes_present)
         models.append(
@@ -136,6 +142,7 @@ def evaluate_consistency(
             n_pairs=len(consecutive_pairs(sub_keys, sub_ts)),
             objects_per_class={c: len({k for k, cc in zip(sub_keys, sub_cls) if cc == c}) for c in classes_present},
             extraction=obs.meta.get("config"),
+            clip=clip,
             skipped=obs.meta.get("skipped"),
         ),
         metrics=dict(
