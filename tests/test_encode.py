@@ -12,6 +12,7 @@ from spotlights.geometry import (
     RayCaster,
     decode,
     encode_mesh,
+    encode_mesh_files,
     encode_meshes,
     hit_ratio,
     load_encoding,
@@ -164,3 +165,16 @@ def test_real_car_hit_ratio_plausible():
     car = load_mesh(need(CARS) / "sedan" / "037-CAR02.ply")
     d = encode_mesh(car, make_rig())
     assert 0.2 < hit_ratio(d) < 0.5  # cars fill little of their sphere (paper: ~34-50% at 60 deg)
+
+
+def test_encode_mesh_files_same_bytes_whatever_workers(tmp_path):
+    paths = []
+    for j, ext in enumerate([[1, 2, 3], [2, 1, 1], [1, 1, 4]]):
+        p = tmp_path / f"box{j}.ply"
+        trimesh.creation.box(extents=ext).export(p)
+        paths.append(p)
+    rig = make_rig(8, 32, 60)
+    a = encode_mesh_files(paths, rig, workers=1)[rig.name]
+    b = encode_mesh_files(paths, [rig], workers=2)[rig.name]
+    assert a.shape == (3, 256) and a.tobytes() == b.tobytes()
+    assert np.array_equal(a[1], encode_mesh(load_mesh(paths[1]), rig))
