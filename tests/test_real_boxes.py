@@ -3,15 +3,12 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from spotlights.data.real.base import Box, quaternion_to_matrix
+from helpers import LIDAR, need
 from spotlights.data.real.kitti import box_from_label, read_calib, velo_from_rect
-
-SHARED = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "lidar"
 
 
 def same_corner_sets(a: np.ndarray, b: np.ndarray, atol: float) -> bool:
@@ -68,10 +65,9 @@ def test_kitti_box_hand_corners_with_translation_and_heading():
     assert box.cls == "caravan"
 
 
-@pytest.mark.skipif(not (SHARED / "kitti-object").is_dir(), reason="../shared/data/lidar/kitti-object not present")
 def test_kitti_real_calib_matches_devkit_corners():
     """Our boxes vs the KITTI devkit recipe (corners in the rectified camera, then inverse R0 and inverse rigid Tr)."""
-    root = SHARED / "kitti-object" / "training"
+    root = need(LIDAR / "kitti-object" / "training")
     calib = read_calib(root / "calib" / "000001.txt")
     t = velo_from_rect(calib)
     for line in (root / "label_2" / "000001.txt").read_text().splitlines()[:3]:

@@ -10,9 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from helpers import LIDAR, assert_user_error, need, run_cli
 from spotlights.cli import main
-
-LIDAR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "lidar"
 
 
 def scene(tmp_path) -> Path:
@@ -109,8 +108,7 @@ def test_cli_errors_one_line_exit_2(tmp_path, capsys, argv, message):
 def test_cli_malformed_kitti_label_and_missing_calib(tmp_path, capsys):
     import shutil
 
-    if not (LIDAR / "kitti-object").is_dir():
-        pytest.skip("../shared/data/lidar/kitti-object not present")
+    need(LIDAR / "kitti-object")
     root = tmp_path / "training"
     shutil.copytree(LIDAR / "kitti-object" / "training", root)
     for p in root.rglob("*"):
@@ -127,10 +125,23 @@ def test_cli_malformed_kitti_label_and_missing_calib(tmp_path, capsys):
 
 
 def test_cli_evaluate_untracked_file(tmp_path, capsys, fake_learning):
-    if not (LIDAR / "kitti-object").is_dir():
-        pytest.skip("../shared/data/lidar/kitti-object not present")
+    need(LIDAR / "kitti-object")
     out = tmp_path / "k.h5"
     assert main(["real", "extract", str(LIDAR / "kitti-object" / "training"), "--format", "kitti", "--out", str(out), "-q"]) == 0
     capsys.readouterr()
     assert main(["real", "evaluate", str(out), "--checkpoint", fake_learning[0]]) == 2
     assert "no object is observed in two or more frames" in capsys.readouterr().err
+
+
+def test_cli_subprocess_missing_calib(tmp_path):
+    """The real process: exit code 2, one error line naming the file, no traceback, no output file."""
+    import shutil
+
+    root = tmp_path / "training"
+    shutil.copytree(need(LIDAR / "kitti-object" / "training"), root)
+    for p in root.rglob("*"):
+        p.chmod(0o644 if p.is_file() else 0o755)
+    (root / "calib" / "000000.txt").unlink()
+    proc = run_cli("real", "extract", root, "--format", "kitti", "--out", tmp_path / "o.h5")
+    assert_user_error(proc, "calib/000000.txt: calibration file not found")
+    assert not (tmp_path / "o.h5").exists()

@@ -9,16 +9,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from helpers import LIDAR, need
 from spotlights.data.real import open_reader
 from spotlights.data.real.extract import ExtractConfig, extract, points_in_box
 from spotlights.errors import InputFileError
 
-LIDAR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "lidar"
 AV2 = LIDAR / "argoverse2"
 AV2_LOG = AV2 / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede"
 KITTI = LIDAR / "kitti-object"
-needs_av2 = pytest.mark.skipif(not AV2_LOG.is_dir(), reason="../shared/data/lidar/argoverse2 not present")
-needs_kitti = pytest.mark.skipif(not KITTI.is_dir(), reason="../shared/data/lidar/kitti-object not present")
+needs_av2 = pytest.mark.skipif(not AV2_LOG.is_dir(), reason=f"shared data not found at {AV2_LOG}")
+needs_kitti = pytest.mark.skipif(not KITTI.is_dir(), reason=f"shared data not found at {KITTI}")
 
 
 @needs_av2
@@ -86,8 +86,7 @@ def test_kitti_shared_frames():
 # ---- malformed input -------------------------------------------------------------------------
 
 def kitti_copy(tmp_path) -> Path:
-    if not KITTI.is_dir():
-        pytest.skip("../shared/data/lidar/kitti-object not present")
+    need(KITTI)
     dst = tmp_path / "training"
     shutil.copytree(KITTI / "training", dst)
     for p in dst.rglob("*"):
