@@ -157,8 +157,6 @@ def _evaluate(args) -> int:
 def _show(args) -> int:
     from pathlib import Path
 
-    import numpy as np
-
     from ..data.real.extract import read_observations
     from ..data.real.show import frame_rows, render_frame
     from ..errors import ParameterError

@@ -21,7 +21,7 @@ from typing import Sequence
 import numpy as np
 
 from ...errors import InputFileError, SpotlightsError
-from ..consistency import METRIC_DOC, METRICS, aggregate, consecutive_pairs, track_consistency
+from ..consistency import METRIC_DOC, aggregate, consecutive_pairs, track_consistency
 from .base import CLASSES
 from .extract import Observations, read_observations
 
