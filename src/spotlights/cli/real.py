@@ -178,5 +178,5 @@ def _show(args) -> int:
     out = args.out or str(Path(args.file).with_suffix("")) + f"_{frame}.png"
     title = f"{obs.meta.get('source_format')} {obs.sequence[i0] + '/' if obs.sequence[i0] else ''}{frame}" + (f" - {model}" if model else "")
     render_frame(out, obs, rows, completions, title=title)
-    print(f"wrote {out} ({len(rows)} objects of frame {frame})")
+    print(f"wrote {out} ({len(rows)} object{'' if len(rows) == 1 else 's'} of frame {frame})")
     return 0
