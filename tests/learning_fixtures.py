@@ -134,3 +134,76 @@ def write_tiny_dataset(path, rigs=None, views: int = 8, layout=DEFAULT_LAYOUT, s
         s.create_dataset("view", data=s_view)
         s.create_dataset("sensor_to_unit", data=s2u)
     return path
+
+
+# Small model arguments for fast tests (same architectures, narrower / fewer points).
+TINY_MODEL_ARGS = {
+    "sanet": {"code_size": 64, "encoder_widths": [16, 32, 64], "hidden": [32]},
+    "pcn": {"code_size": 64, "encoder_widths": [16, 32, 64], "num_coarse": 32, "grid_size": 2, "coarse_hidden": [64],
+            "folding_hidden": [32]},
+    "foldingnet": {"code_size": 64, "encoder_widths": [16, 32, 64], "grid": [8, 16], "hidden": [32]},
+    "topnet": {"code_size": 64, "encoder_widths": [16, 32, 64], "degrees": [2, 4, 4, 4], "node_features": 4,
+               "root_hidden": [32]},
+    "atlasnet": {"code_size": 64, "encoder_widths": [16, 32, 64], "n_patches": 2, "patch_grid": [8, 8]},
+}
+
+
+def tiny_overrides(name: str, epochs: int = 2, batch_size: int = 8, **train) -> dict:
+    """Config overrides for a fast test run of model ``name``."""
+    return {"model": {"args": dict(TINY_MODEL_ARGS[name])},
+            "data": {"val_max_views": 2, "num_workers": 0},
+            "train": {"epochs": epochs, "batch_size": batch_size, "lr": 1e-3, **train}}
+
+
+def make_checkpoint(path, name: str, rig=None, tiny: bool = True, seed: int = 0) -> Path:
+    """Save an untrained (seeded) checkpoint of model ``name`` (a valid file for inference tests)."""
+    import torch
+
+    from spotlights.geometry.rig import make_rig
+    from spotlights.learning.checkpoint import save_checkpoint
+    from spotlights.learning.models import build_model, load_config
+
+    cfg = load_config(name, overrides={"model": {"args": dict(TINY_MODEL_ARGS[name])}} if tiny else None)
+    rig = rig or make_rig(8, 16, 60.0)
+    torch.manual_seed(seed)
+    model = build_model(cfg, rig=rig)
+    payload = {"model_name": name, "config": cfg, "rig": rig.to_dict() if model.target == "depths" else None,
+               "model_state": model.state_dict(), "param_counts": model.param_counts(), "epoch": 0, "global_step": 0}
+    return save_checkpoint(path, payload)
+
+
+_CACHE: dict = {}
+
+
+def tiny_dataset_path(base_dir, **kw) -> Path:
+    """The tiny dataset, written once per test process into ``base_dir`` (cached by its arguments)."""
+    key = tuple(sorted(kw.items()))
+    if key not in _CACHE or not Path(_CACHE[key]).exists():
+        base = Path(base_dir)
+        base.mkdir(parents=True, exist_ok=True)
+        _CACHE[key] = write_tiny_dataset(base / f"tiny_{len(_CACHE)}.h5", **kw)
+    return _CACHE[key]
+
+
+def cli(capsys, *args):
+    """Run the CLI in this process (no interpreter start-up); returns an object like CompletedProcess."""
+    import subprocess
+
+    from spotlights.cli import main
+
+    capsys.readouterr()
+    code = main([str(a) for a in args])
+    captured = capsys.readouterr()
+    return subprocess.CompletedProcess(args, code, captured.out, captured.err)
+
+
+def one_torch_thread():
+    """Generator for an autouse fixture: tiny models run faster on one thread, above all on a shared CPU."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)

@@ -82,7 +82,9 @@ def register(sub) -> None:
     # ---- bench models (reuses an existing 'bench' group if another module made one)
     bench = sub.choices.get("bench")
     if bench is None:
-        bench = add_command(sub, "bench", "benchmarks", "spotlights bench models --batch 1 32")
+        bench = add_command(sub, "bench", "benchmarks (bench models: parameters and latency of the five models)",
+                            "spotlights bench models --batch 1 32")
+        bench.set_defaults(func=lambda args: (bench.print_help(), 2)[1])
     bsub = _subparsers_of(bench) or bench.add_subparsers(dest="bench_command", metavar="BENCH", parser_class=type(bench))
     p = add_command(bsub, "models", "parameters and median inference latency of the five models, in one run",
                     "spotlights bench models --batch 1 32 --json", _bench_models)

@@ -28,7 +28,8 @@ class AtlasNet(CompletionModel):
     name = "atlasnet"
     target = "points"
 
-    def __init__(self, code_size: int = 1024, n_patches: int = 4, patch_grid: Sequence[int] = (16, 32),
+    def __init__(self, code_size: int = 1024, encoder_widths: Sequence[int] = (128, 256, 512),
+                 n_patches: int = 4, patch_grid: Sequence[int] = (16, 32),
                  batch_norm: bool = True, chamfer: str = "l1", chamfer_method: str = "auto"):
         super().__init__()
         self.n_patches = int(n_patches)
@@ -36,7 +37,7 @@ class AtlasNet(CompletionModel):
         self.points_per_patch = rows * cols
         self.n_points = self.n_patches * self.points_per_patch
         self.chamfer, self.chamfer_method = chamfer, chamfer_method
-        self.encoder = PCNEncoder(code_size)
+        self.encoder = PCNEncoder(code_size, encoder_widths)
         b = code_size + 2
         self.patches = nn.ModuleList(MLP([b, b, b // 2, b // 4, 3], batch_norm=batch_norm) for _ in range(self.n_patches))
         # Regular grid in [0, 1]^2 (cell centres), used at evaluation.

@@ -58,14 +58,18 @@ class PCNEncoder(nn.Module):
     512 -> 512 -> ``code_size``, max-pool. ReLU between layers, none after the last
     layer of each stage (as in PCN's ``mlp_conv``). 821,504 parameters for code 1024.
 
+    ``widths`` = (128, 256, 512) are PCN's; they are parameters only so that tests can
+    use a narrower encoder.
+
     forward: (B, K, 3) float32 unit-frame points (any K >= 1) -> (B, code_size) code.
     """
 
-    def __init__(self, code_size: int = 1024):
+    def __init__(self, code_size: int = 1024, widths: Sequence[int] = (128, 256, 512)):
         super().__init__()
         self.code_size = int(code_size)
-        self.first = MLP([3, 128, 256])
-        self.second = MLP([512, 512, self.code_size])
+        w1, w2, w3 = (int(w) for w in widths)
+        self.first = MLP([3, w1, w2])
+        self.second = MLP([2 * w2, w3, self.code_size])
 
     def forward(self, points: torch.Tensor) -> torch.Tensor:
         f = self.first(points)  # (B, K, 256)

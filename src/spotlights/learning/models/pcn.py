@@ -34,7 +34,8 @@ class PCN(CompletionModel):
     name = "pcn"
     target = "points"
 
-    def __init__(self, code_size: int = 1024, num_coarse: int = 512, grid_size: int = 2, grid_scale: float = 0.05,
+    def __init__(self, code_size: int = 1024, encoder_widths: Sequence[int] = (128, 256, 512),
+                 num_coarse: int = 512, grid_size: int = 2, grid_scale: float = 0.05,
                  coarse_hidden: Sequence[int] = (1024, 1024), folding_hidden: Sequence[int] = (512, 512),
                  chamfer: str = "l1", chamfer_method: str = "auto",
                  alpha_schedule: Sequence[Sequence[float]] = DEFAULT_ALPHA_SCHEDULE):
@@ -44,7 +45,7 @@ class PCN(CompletionModel):
         self.n_points = self.num_coarse * self.grid_size**2
         self.chamfer, self.chamfer_method = chamfer, chamfer_method
         self.alpha_schedule = [(float(a), float(b)) for a, b in alpha_schedule]
-        self.encoder = PCNEncoder(code_size)
+        self.encoder = PCNEncoder(code_size, encoder_widths)
         self.coarse_mlp = MLP([code_size, *coarse_hidden, self.num_coarse * 3])
         self.folding = MLP([2 + 3 + code_size, *folding_hidden, 3])
         self.register_buffer("grid", regular_grid(self.grid_size, self.grid_size, grid_scale, grid_scale), persistent=False)

@@ -41,7 +41,8 @@ class SANet(CompletionModel):
     name = "sanet"
     target = "depths"
 
-    def __init__(self, rig: dict, code_size: int = 1024, hidden: Sequence[int] = (256, 256),
+    def __init__(self, rig: dict, code_size: int = 1024, encoder_widths: Sequence[int] = (128, 256, 512),
+                 hidden: Sequence[int] = (256, 256),
                  output_activation: str = "none", clip: float | None = 0.2):
         super().__init__()
         from ...geometry.rig import Rig
@@ -53,7 +54,7 @@ class SANet(CompletionModel):
             raise ValueError(f"output_activation must be 'none' or 'sigmoid', got {output_activation!r}")
         self.output_activation = output_activation
         self.clip = None if clip is None else float(clip)
-        self.encoder = PCNEncoder(code_size)
+        self.encoder = PCNEncoder(code_size, encoder_widths)
         self.decoder = MLP([code_size, *hidden, self.rig.n_rays])
         self.register_buffer("origins", torch.from_numpy(self.rig.origins.astype("float32")), persistent=False)
         self.register_buffer("directions", torch.from_numpy(self.rig.directions.astype("float32")), persistent=False)

@@ -32,7 +32,8 @@ class TopNet(CompletionModel):
     name = "topnet"
     target = "points"
 
-    def __init__(self, code_size: int = 1024, degrees: Sequence[int] = (2, 4, 4, 4, 4, 4), node_features: int = 8,
+    def __init__(self, code_size: int = 1024, encoder_widths: Sequence[int] = (128, 256, 512),
+                 degrees: Sequence[int] = (2, 4, 4, 4, 4, 4), node_features: int = 8,
                  root_hidden: Sequence[int] = (256, 64), batch_norm: bool = True,
                  chamfer: str = "l1", chamfer_method: str = "auto"):
         super().__init__()
@@ -42,7 +43,7 @@ class TopNet(CompletionModel):
         self.nfeat = int(node_features)
         self.n_points = math.prod(self.degrees)
         self.chamfer, self.chamfer_method = chamfer, chamfer_method
-        self.encoder = PCNEncoder(code_size)
+        self.encoder = PCNEncoder(code_size, encoder_widths)
         self.root = MLP([code_size, *root_hidden, self.nfeat * self.degrees[0]], batch_norm=batch_norm)
         nin = self.nfeat + code_size
         levels = []

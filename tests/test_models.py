@@ -1,0 +1,189 @@
+"""Models: output shapes, parameter counts against closed forms, registry and configs."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from helpers import REPO  # noqa: E402
+from learning_fixtures import TINY_MODEL_ARGS, one_torch_thread  # noqa: E402
+
+from spotlights.errors import InputFileError, ParameterError  # noqa: E402
+from spotlights.geometry.encode import decode  # noqa: E402
+from spotlights.geometry.rig import make_rig  # noqa: E402
+from spotlights.learning.models import MODEL_NAMES, build_model, load_config  # noqa: E402
+
+
+_single_thread = pytest.fixture(autouse=True)(one_torch_thread)
+
+
+def lin(a, b):
+    return a * b + b
+
+
+def bn(c):
+    return 2 * c
+
+
+ENCODER = lin(3, 128) + lin(128, 256) + lin(512, 512) + lin(512, 1024)
+
+
+def expected_decoder(name: str) -> int:
+    """Closed-form decoder parameter counts of the default configs (docs/learning.md)."""
+    if name == "sanet":
+        return lin(1024, 256) + lin(256, 256) + lin(256, 2048)
+    if name == "pcn":
+        return 2 * lin(1024, 1024) + lin(1024, 512 * 3) + lin(1024 + 5, 512) + lin(512, 512) + lin(512, 3)
+    if name == "foldingnet":
+        return lin(1026, 512) + lin(512, 512) + lin(512, 3) + lin(1027, 512) + lin(512, 512) + lin(512, 3)
+    if name == "topnet":
+        root = lin(1024, 256) + bn(256) + lin(256, 64) + bn(64) + lin(64, 8 * 2)
+        n = 1032
+        hidden = lin(n, n) + lin(n, n // 2) + lin(n // 2, n // 4) + lin(n // 4, n // 8)
+        hidden_bn = bn(n) + bn(n // 2) + bn(n // 4) + bn(n // 8)
+        inner = 4 * (hidden + hidden_bn + lin(n // 8, 8 * 4))
+        last = hidden + lin(n // 8, 3 * 4)
+        return root + inner + last
+    if name == "atlasnet":
+        b = 1026
+        return 4 * (lin(b, b) + bn(b) + lin(b, b // 2) + bn(b // 2) + lin(b // 2, b // 4) + bn(b // 4) + lin(b // 4, 3))
+    raise KeyError(name)
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return make_rig(32, 64, 60.0)
+
+
+@pytest.mark.parametrize("name", MODEL_NAMES)
+def test_default_model_shapes_and_parameter_counts(name, rig):
+    torch.manual_seed(0)
+    model = build_model(load_config(name), rig=rig).eval()
+    counts = model.param_counts()
+    assert counts["encoder"] == ENCODER == 821_504
+    assert counts["decoder"] == expected_decoder(name)
+    assert counts["total"] == counts["encoder"] + counts["decoder"]
+    x = torch.rand(2, 256, 3) * 1.1 - 0.55
+    with torch.no_grad():
+        out = model(x)
+    if name == "sanet":
+        assert out["depths"].shape == (2, 2048)
+    else:
+        assert out["points"].shape == (2, 2048, 3)
+    clouds = model.complete(x)
+    assert len(clouds) == 2 and all(c.ndim == 2 and c.shape[1] == 3 and c.dtype == torch.float32 for c in clouds)
+
+
+def test_sanet_decoder_is_small_and_a_quarter_of_the_papers_baselines():
+    counts = build_model(load_config("sanet"), rig=make_rig()).param_counts()
+    assert counts["decoder"] <= 1_000_000
+    # The paper's smallest baseline (TopNet, 7.5M): SA-Net must be at most a quarter of it.
+    assert counts["total"] <= 7.5e6 / 4
+
+
+def test_encoder_is_permutation_invariant_and_accepts_any_point_count():
+    torch.manual_seed(0)
+    model = build_model(load_config("pcn", overrides={"model": {"args": TINY_MODEL_ARGS["pcn"]}})).eval()
+    x = torch.rand(3, 100, 3)
+    perm = torch.randperm(100)
+    with torch.no_grad():
+        a = model.encoder(x)
+        b = model.encoder(x[:, perm])
+        c = model.encoder(x[:, :7])
+    torch.testing.assert_close(a, b)
+    assert c.shape == (3, 64) and a.shape == (3, 64)
+
+
+def test_sanet_decoding_matches_geometry_decode():
+    rig = make_rig(8, 16, 60.0)
+    model = build_model(load_config("sanet", overrides={"model": {"args": TINY_MODEL_ARGS["sanet"]}}), rig=rig)
+    rng = np.random.default_rng(0)
+    depths = rng.uniform(-0.1, 0.9, size=(3, rig.n_rays)).astype(np.float32)
+    depths[:, ::5] = 0.0
+    for clip in (None, 0.2):
+        pts, mask = model.decode(torch.from_numpy(depths), clip)
+        ref_pts, ref_mask = decode(np.clip(depths, 0, None), rig, clip)
+        np.testing.assert_array_equal(mask.numpy(), ref_mask)
+        np.testing.assert_allclose(pts.numpy()[mask.numpy()], ref_pts[ref_mask], atol=1e-6)
+    # complete() keeps exactly the rays with depth >= clip, in ray order
+    out = model.outputs_to_points({"depths": torch.from_numpy(depths)}, 0.2)
+    for b in range(3):
+        keep = depths[b] >= 0.2
+        expect = rig.origins[keep] + 2 * depths[b][keep, None] * rig.directions[keep]
+        np.testing.assert_allclose(out[b].numpy(), expect, atol=1e-6)
+
+
+def test_pcn_alpha_schedule_and_fine_points_refine_coarse():
+    model = build_model(load_config("pcn", overrides={"model": {"args": TINY_MODEL_ARGS["pcn"]}}))
+    assert model.alpha(0.0) == 0.01 and model.alpha(0.05) == 0.1 and model.alpha(0.1) == 0.5 and model.alpha(0.9) == 1.0
+    with torch.no_grad():
+        out = model(torch.rand(2, 50, 3))
+    assert out["coarse"].shape == (2, 32, 3) and out["points"].shape == (2, 128, 3)
+
+
+def test_topnet_leaf_count_and_tanh_range():
+    model = build_model(load_config("topnet", overrides={"model": {"args": {"degrees": [2, 4, 4, 4, 4, 4]}}})).eval()
+    assert model.n_points == 2048
+    with torch.no_grad():
+        pts = model(torch.rand(2, 64, 3))["points"]
+    assert pts.shape == (2, 2048, 3) and float(pts.abs().max()) <= 1.0
+
+
+def test_atlasnet_random_patches_in_training_regular_grid_in_eval():
+    torch.manual_seed(0)
+    model = build_model(load_config("atlasnet", overrides={"model": {"args": TINY_MODEL_ARGS["atlasnet"]}}))
+    x = torch.rand(2, 32, 3)
+    model.eval()
+    with torch.no_grad():
+        a, b = model(x)["points"], model(x)["points"]
+    torch.testing.assert_close(a, b)
+    model.train()
+    with torch.no_grad():
+        c, d = model(x)["points"], model(x)["points"]
+    assert not torch.equal(c, d)
+    assert a.shape == (2, 128, 3)
+
+
+def test_foldingnet_grid_is_exactly_32_by_64():
+    model = build_model(load_config("foldingnet"))
+    g = model.grid.numpy()
+    assert g.shape == (2048, 3 - 1)
+    assert len(np.unique(g[:, 0])) == 32 and len(np.unique(g[:, 1])) == 64
+    np.testing.assert_allclose(np.diff(np.unique(g[:, 0])).mean(), np.diff(np.unique(g[:, 1])).mean(), rtol=1e-5)
+
+
+def test_configs_override_and_errors(tmp_path):
+    cfg = load_config("sanet", overrides={"train": {"epochs": 3}})
+    assert cfg["train"]["epochs"] == 3 and cfg["model"]["args"]["clip"] == 0.2
+    user = tmp_path / "u.yaml"
+    user.write_text("model:\n  args:\n    hidden: [64]\ntrain:\n  lr: 0.01\n")
+    cfg = load_config("sanet", user)
+    assert cfg["model"]["args"]["hidden"] == [64] and cfg["train"]["lr"] == 0.01 and cfg["train"]["batch_size"] == 32
+    other = tmp_path / "o.yaml"
+    other.write_text("model:\n  name: pcn\n")
+    with pytest.raises(InputFileError, match="for model 'pcn', not 'sanet'"):
+        load_config("sanet", other)
+    bad = tmp_path / "b.yaml"
+    bad.write_text("model: [1, 2\n")
+    with pytest.raises(InputFileError, match="invalid YAML"):
+        load_config("sanet", bad)
+    with pytest.raises(ParameterError, match="unknown model"):
+        load_config("pointr")
+    with pytest.raises(ParameterError, match="invalid arguments"):
+        build_model(load_config("pcn", overrides={"model": {"args": {"bogus": 1}}}))
+    with pytest.raises(ParameterError, match="needs a rig"):
+        build_model(load_config("sanet"))
+
+
+def test_registry_imports_no_model_or_torch_at_start_up():
+    code = ("import sys; import spotlights.learning.models as m; import spotlights.cli as c; c.build_parser(); "
+            "assert 'torch' not in sys.modules, 'torch imported'; "
+            "assert not any(k.startswith('spotlights.learning.models.') for k in sys.modules), 'a model imported'")
+    env = {"PYTHONPATH": str(REPO / "src")}
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert proc.returncode == 0, proc.stderr

@@ -1,0 +1,223 @@
+"""Dataset reader, training (loss decreases, determinism, exact resume, DDP with gloo), evaluation, bench."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+
+import h5py
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from helpers import REPO, assert_user_error  # noqa: E402
+from learning_fixtures import TINY_MODEL_ARGS, cli, one_torch_thread, tiny_dataset_path, tiny_overrides  # noqa: E402
+
+from spotlights.errors import InputFileError, SpotlightsError  # noqa: E402
+from spotlights.learning.checkpoint import load_checkpoint  # noqa: E402
+from spotlights.learning.data import CompletionDataset, read_info  # noqa: E402
+from spotlights.learning.train import train  # noqa: E402
+
+
+_single_thread = pytest.fixture(autouse=True)(one_torch_thread)
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    return tiny_dataset_path(tmp_path_factory.getbasetemp() / "learning-data")
+
+
+def _run(name, path, out, data_cfg=None, **kw):
+    ov = tiny_overrides(name, epochs=kw.pop("epochs", 2), **kw.pop("train", {}))
+    ov["data"].update(data_cfg or {})
+    return train(name, path, out, overrides=ov, progress=False, log=lambda *a: None, **kw)
+
+
+# ---------------------------------------------------------------- dataset
+
+
+def test_dataset_reads_the_contract_schema(data):
+    info = read_info(data)
+    assert info.n_models == 12 and info.category_order() == ["hatchback", "sedan", "suv"]
+    assert info.default_rig == "cap-8x16-60" and info.rigs["cap-8x16-60"]["n_primary"] == 8
+    tr = CompletionDataset(data, "train")
+    assert len(tr) == 6 * 8 and len(CompletionDataset(data, "test", rig=False)) == 3 * 8
+    item = tr[9]
+    assert item["partial"].shape == (256, 3) and item["partial"].dtype == torch.float32
+    assert item["gt_points"].shape == (2048, 3) and item["depths"].shape == (128,)
+    assert int(item["model"]) == 1 and int(item["view"]) == 1
+    # ground truth is per model, shared by its views; depths are the file's
+    assert torch.equal(tr[8]["gt_points"], tr[15]["gt_points"])
+    with h5py.File(data, "r") as f:
+        np.testing.assert_array_equal(item["depths"].numpy(), f["rigs/cap-8x16-60/depths"][1])
+        np.testing.assert_array_equal(item["partial"].numpy(), f["samples/partial"][9])
+    few = CompletionDataset(data, "train", max_views=3)
+    assert len(few) == 18 and set(few.info.sample_view[few.indices].tolist()) == {0, 1, 2}
+    dense = CompletionDataset(data, "test", rig=False).gt_dense()
+    assert sorted(dense) == [9, 10, 11] and dense[9].shape == (16384, 3)
+    assert "depths" not in CompletionDataset(data, "val", rig=False)[0]
+
+
+def test_lazy_reading_with_worker_processes_gives_the_same_bytes(data):
+    from torch.utils.data import DataLoader
+
+    lazy = CompletionDataset(data, "train", partials_in_memory=False)
+    mem = CompletionDataset(data, "train", partials_in_memory=True)
+    a = torch.cat([b["partial"] for b in DataLoader(lazy, batch_size=7, num_workers=2)])
+    b = torch.cat([b["partial"] for b in DataLoader(mem, batch_size=7, num_workers=0)])
+    assert torch.equal(a, b) and a.shape == (48, 256, 3)
+    assert lazy._h5 is None  # the parent never opened the file: each worker opened its own
+
+
+def test_dataset_errors(data, tmp_path):
+    with pytest.raises(InputFileError, match="no such file"):
+        CompletionDataset(tmp_path / "missing.h5")
+    txt = tmp_path / "a.h5"
+    txt.write_text("hello")
+    with pytest.raises(InputFileError, match="not a readable HDF5"):
+        CompletionDataset(txt)
+    other = tmp_path / "other.h5"
+    with h5py.File(other, "w") as f:
+        f.attrs["format"] = "something-else"
+    with pytest.raises(InputFileError, match="not a spotlights completion dataset"):
+        CompletionDataset(other)
+    with pytest.raises(InputFileError, match="has no rig 'cap-32x64-60'"):
+        CompletionDataset(data, "train", rig="cap-32x64-60")
+    with pytest.raises(SpotlightsError, match="split must be"):
+        CompletionDataset(data, "holdout")
+
+
+# ---------------------------------------------------------------- training
+
+
+@pytest.mark.parametrize("name", ["sanet", "foldingnet"])
+def test_a_few_epochs_lower_the_loss(data, tmp_path, name):
+    res = _run(name, data, tmp_path / name, epochs=10, train={"lr": 3e-3})
+    losses = [h["train_loss"] for h in res["history"]]
+    assert losses[-1] < 0.85 * losses[0], losses
+    assert (tmp_path / name / "best.pt").exists() and (tmp_path / name / "config.yaml").exists()
+    rows = (tmp_path / name / "log.csv").read_text().splitlines()
+    assert rows[0].startswith("epoch,lr,train_loss,val_loss,val_accuracy") and len(rows) == 11
+
+
+def test_resume_continues_exactly(data, tmp_path):
+    # AtlasNet: random patch samples in training and batch norm: the strictest case.
+    full = _run("atlasnet", data, tmp_path / "full", epochs=2)
+    _run("atlasnet", data, tmp_path / "part", epochs=1)
+    resumed = train("atlasnet", data, tmp_path / "part", overrides={"train": {"epochs": 2}}, resume=True,
+                    progress=False, log=lambda *a: None)
+    a = load_checkpoint(tmp_path / "full" / "last.pt")
+    b = load_checkpoint(tmp_path / "part" / "last.pt")
+    assert a["model_state"].keys() == b["model_state"].keys()
+    for k in a["model_state"]:
+        assert torch.equal(a["model_state"][k], b["model_state"][k]), k
+    assert [h["train_loss"] for h in full["history"]] == [h["train_loss"] for h in resumed["history"]]
+    assert b["epoch"] == 2 and len((tmp_path / "part" / "log.csv").read_text().splitlines()) == 3
+
+
+def test_same_seed_same_weights_whatever_the_number_of_workers(data, tmp_path):
+    a = _run("sanet", data, tmp_path / "w0", epochs=1)
+    b = _run("sanet", data, tmp_path / "w2", epochs=1, data_cfg={"num_workers": 2, "partials_in_memory": False})
+    sa = load_checkpoint(tmp_path / "w0" / "last.pt")["model_state"]
+    sb = load_checkpoint(tmp_path / "w2" / "last.pt")["model_state"]
+    assert all(torch.equal(sa[k], sb[k]) for k in sa)
+    assert a["history"][0]["train_loss"] == b["history"][0]["train_loss"]
+
+
+def test_run_folder_protection_and_wrong_model_resume(data, tmp_path):
+    _run("sanet", data, tmp_path / "run", epochs=1)
+    with pytest.raises(SpotlightsError, match="holds a run already"):
+        _run("sanet", data, tmp_path / "run", epochs=1)
+    with pytest.raises(InputFileError, match="holds a 'sanet' model, expected 'pcn'"):
+        _run("pcn", data, tmp_path / "run", epochs=1, resume=True)
+    with pytest.raises(SpotlightsError, match="nothing to resume"):
+        _run("sanet", data, tmp_path / "empty", epochs=1, resume=True)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_ddp_with_torchrun_gloo_two_processes(data, tmp_path):
+    cfg = tmp_path / "tiny.yaml"
+    cfg.write_text(json.dumps(tiny_overrides("sanet", epochs=1, batch_size=4)))  # JSON is YAML
+    env = dict(os.environ, PYTHONPATH=str(REPO / "src"), OMP_NUM_THREADS="1")
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc-per-node", "2", "--master-addr", "127.0.0.1",
+           "--master-port", str(_free_port()), "-m", "spotlights", "train", "--model", "sanet", "--data", str(data),
+           "--config", str(cfg), "--out", str(tmp_path / "ddp"), "--no-progress", "--threads", "1"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=240)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
+    assert "2 process(es)" in proc.stdout
+    ck = load_checkpoint(tmp_path / "ddp" / "last.pt")
+    assert ck["epoch"] == 1 and ck["history"][0]["val_n"] == 3 * 2  # validation shards summed over both ranks
+    # each rank trained on half of the 48 samples per step: 24 / 4 = 6 steps
+    assert ck["global_step"] == 6
+
+
+# ---------------------------------------------------------------- evaluation and bench
+
+
+def test_evaluate_writes_table1_report(data, tmp_path):
+    from spotlights.learning.evaluate import evaluate_checkpoints, write_report
+    from spotlights.learning.inference import load_completer
+
+    _run("sanet", data, tmp_path / "sanet", epochs=1)
+    _run("topnet", data, tmp_path / "topnet", epochs=1)
+    ckpts = [tmp_path / "sanet" / "last.pt", tmp_path / "topnet" / "last.pt"]
+    report = evaluate_checkpoints(ckpts, data, "test", progress=False, latency_repeats=1)
+    md, js = write_report(report, tmp_path / "report")
+    text = md.read_text()
+    assert "| Method | Hatchback | Sedan | SUV | Average (samples) | Average (categories) |" in text
+    assert "SA-Net (no clip)" in text and "SA-Net (clip 0.2)" in text and "TopNet" in text
+    rep = json.loads(js.read_text())
+    sanet = rep["results"][0]
+    assert [r["variant"] for r in sanet["rows"]] == ["no clip", "clip 0.2"]
+    # Independent check of the no-clip accuracy: brute force over every test sample.
+    completer = load_completer(ckpts[0])
+    ds = CompletionDataset(data, "test", rig=False)
+    dense = ds.gt_dense()
+    preds = completer.complete(np.stack([ds[i]["partial"].numpy() for i in range(len(ds))]), clip=None)
+    accs = []
+    for p, m in zip(preds, ds.sample_models):
+        d = np.sqrt(((p[:, None].astype(np.float64) - dense[int(m)][None]) ** 2).sum(-1)).min(1)
+        accs.append(d.mean())
+    summary = sanet["rows"][0]["summary"]
+    assert summary["mean_over_samples"]["accuracy"] == pytest.approx(np.mean(accs), rel=1e-5)
+    cats = ds.sample_categories
+    by_cat = [np.mean([a for a, c in zip(accs, cats) if c == k]) for k in ("hatchback", "sedan", "suv")]
+    assert summary["mean_over_categories"]["accuracy"] == pytest.approx(np.mean(by_cat), rel=1e-5)
+    assert summary["per_category"]["sedan"]["accuracy"] == pytest.approx(by_cat[1], rel=1e-5)
+    assert 0 < summary["mean_over_samples"]["hit_ratio"] <= 1
+    assert rep["results"][1]["params"]["total"] > 0 and "1" in rep["results"][1]["latency_ms"]
+
+
+def test_cli_train_evaluate_and_errors(data, tmp_path, capsys):
+    cfg = tmp_path / "tiny.yaml"
+    cfg.write_text(json.dumps({"model": {"args": TINY_MODEL_ARGS["pcn"]}}))
+    proc = cli(capsys, "train", "--model", "pcn", "--data", data, "--config", cfg, "--epochs", "1", "--batch-size", "16",
+                   "--val-max-views", "1", "--out", tmp_path / "pcn", "--no-progress")
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "pcn" / "best.pt").exists()
+    proc = cli(capsys, "evaluate", "--data", data, "--checkpoint", tmp_path / "pcn" / "best.pt", "--out", tmp_path / "rep",
+                   "--max-views", "2", "--no-latency", "--no-progress")
+    assert proc.returncode == 0, proc.stderr
+    assert "| PCN |" in proc.stdout and (tmp_path / "rep.json").exists()
+    proc = cli(capsys, "evaluate", "--data", data, "--checkpoint", cfg, "--no-progress")
+    assert_user_error(proc, "tiny.yaml", "not a readable checkpoint")
+    proc = cli(capsys, "train", "--model", "pcn", "--data", data, "--config", cfg, "--out", tmp_path / "pcn", "--epochs", "1")
+    assert_user_error(proc, "holds a run already")
+
+
+def test_bench_models_cli_json(capsys):
+    proc = cli(capsys, "bench", "models", "--batch", "1", "--repeats", "1", "--warmup", "0", "--json", "--threads", "1")
+    assert proc.returncode == 0, proc.stderr
+    res = json.loads(proc.stdout)
+    assert [r["model"] for r in res["models"]] == ["sanet", "pcn", "foldingnet", "topnet", "atlasnet"]
+    sanet = res["models"][0]
+    assert sanet["params"]["encoder"] == 821_504 and sanet["latency_ms"]["1"]["forward_ms"] > 0
+    assert res["threads"] == 1
