@@ -187,3 +187,27 @@ def test_registry_imports_no_model_or_torch_at_start_up():
     env = {"PYTHONPATH": str(REPO / "src")}
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert proc.returncode == 0, proc.stderr
+
+
+def test_schedules_merge_between_defaults_and_user_config(tmp_path):
+    cpu = load_config("foldingnet", schedule="cpu")
+    assert cpu["data"]["max_views"] == 25 and cpu["train"]["epochs"] == 7 and cpu["data"]["val_max_views"] == 10
+    assert cpu["train"]["lr_schedule"] == {"kind": "cosine", "min_factor": 0.05}  # replaced whole, not merged
+    assert load_config("sanet", schedule="cpu")["data"]["max_views"] == 200
+    user = tmp_path / "u.yaml"
+    user.write_text("train:\n  epochs: 3\n")
+    assert load_config("sanet", user, schedule="cpu")["train"]["epochs"] == 3
+    paper = load_config("topnet", schedule="paper")
+    assert paper["data"]["max_views"] is None and paper["train"]["epochs"] == 40
+    with pytest.raises(ParameterError, match="unknown schedule 'gpu-fast'"):
+        load_config("sanet", schedule="gpu-fast")
+
+
+def test_mac_counts_match_closed_forms(rig):
+    from spotlights.learning.bench import count_macs
+
+    enc = 256 * (3 * 128 + 128 * 256 + 512 * 512 + 512 * 1024)
+    sanet = build_model(load_config("sanet"), rig=rig)
+    assert count_macs(sanet) == enc + 1024 * 256 + 256 * 256 + 256 * 2048
+    fold = build_model(load_config("foldingnet"))
+    assert count_macs(fold) == enc + 2048 * (1026 * 512 + 512 * 512 + 512 * 3 + 1027 * 512 + 512 * 512 + 512 * 3)

@@ -27,6 +27,9 @@ def register(sub) -> None:
     p.add_argument("--model", required=True, choices=MODEL_CHOICES, help="which model to train")
     p.add_argument("--data", required=True, metavar="FILE.h5", help="dataset file (spotlights dataset build)")
     p.add_argument("--config", metavar="YAML", default=None, help="YAML overriding the packaged config (model/data/train sections)")
+    p.add_argument("--schedule", default=None, metavar="NAME|YAML",
+                   help="training schedule applied before --config: 'cpu' (about 90 min per model on 2 cores), "
+                        "'paper' (the paper-scale GPU run), or a schedule YAML")
     p.add_argument("--out", metavar="DIR", default=None, help="run folder (default runs/MODEL): config.yaml, last.pt, best.pt, log.csv")
     p.add_argument("--epochs", type=int, default=None, help="number of epochs (with --resume: raise it to train longer)")
     p.add_argument("--batch-size", type=int, default=None, help="batch size per process")
@@ -120,7 +123,7 @@ def _train(args) -> int:
             ov["data"][key] = val
     out = args.out or f"runs/{args.model}"
     res = train(args.model, args.data, out, config=args.config, overrides=ov, resume=args.resume, overwrite=args.overwrite,
-                device=args.device, progress=not args.no_progress)
+                device=args.device, progress=not args.no_progress, schedule=args.schedule)
     h = res["history"][-1] if res["history"] else None
     if h:
         print(f"{args.model}: {res['epochs']} epochs, last val accuracy {h['val_accuracy']:.5f}; checkpoints {res['last']}, {res['best']}")

@@ -1,9 +1,10 @@
 """Parameter counts and inference latency of the five models, measured the same way.
 
-For every model and batch size: build the model from its packaged config (random
-weights, seeded), run ``warmup`` untimed forward passes, then ``repeats`` timed
-ones, and report the median wall time. All models run in one process with the same
-torch thread count, on the same random input (B, 256, 3) in the unit ball.
+Every model is built from its packaged config (random weights, seeded) and run on
+the same random input (B, 256, 3) in the unit ball, in one process with the same
+torch thread count. After ``warmup`` untimed passes each, the timed passes go
+round-robin (one pass of every model per repeat), so that load changes on a shared
+machine hit every model alike; the median of ``repeats`` passes is reported.
 
 Two timings per model and batch:
 
@@ -15,11 +16,25 @@ Two timings per model and batch:
 
 from __future__ import annotations
 
+import os
+import platform
 import statistics
 import time
 from collections.abc import Sequence
 
 from .models import DISPLAY_NAMES, MODEL_NAMES, build_model, check_model_name, load_config
+
+
+def cpu_name() -> str:
+    """The CPU model name (from /proc/cpuinfo on Linux), else the platform's processor string."""
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
 
 
 def median_latency(fn, repeats: int = 10, warmup: int = 2, sync=None) -> float:
@@ -36,6 +51,31 @@ def median_latency(fn, repeats: int = 10, warmup: int = 2, sync=None) -> float:
             sync()
         times.append(time.perf_counter() - t0)
     return statistics.median(times)
+
+
+def count_macs(model, n_input: int = 256) -> int:
+    """Multiply-accumulates of one forward pass for one sample, counted on every ``nn.Linear`` call.
+
+    A linear layer applied to R rows costs ``R * in_features * out_features`` MACs (biases,
+    activations, normalisation and max-pooling are not counted: they are a few percent).
+    """
+    import torch
+    from torch import nn
+
+    total = 0
+
+    def hook(mod, inp, out):
+        nonlocal total
+        total += int(inp[0].numel() // mod.in_features) * mod.in_features * mod.out_features
+
+    handles = [m.register_forward_hook(hook) for m in model.modules() if isinstance(m, nn.Linear)]
+    try:
+        with torch.inference_mode():
+            model(torch.zeros(1, n_input, 3, device=next(model.parameters()).device))
+    finally:
+        for h in handles:
+            h.remove()
+    return total
 
 
 def bench_models(names: Sequence[str] = MODEL_NAMES, batches: Sequence[int] = (1, 32), repeats: int = 10,
@@ -57,8 +97,6 @@ def bench_models(names: Sequence[str] = MODEL_NAMES, batches: Sequence[int] = (1
     list of {"model", "display_name", "params": {encoder, decoder, total},
     "latency_ms": {batch: {"forward_ms", "complete_ms"}}}.
     """
-    import platform
-
     import torch
 
     from ..geometry.rig import make_rig
@@ -71,25 +109,45 @@ def bench_models(names: Sequence[str] = MODEL_NAMES, batches: Sequence[int] = (1
     rig = rig or make_rig(32, 64, 60.0)
     gen = torch.Generator().manual_seed(seed)
     inputs = {b: (torch.rand(b, n_input, 3, generator=gen) * 2 - 1).mul(0.57).to(dev) for b in batches}
-    rows = []
+    models = {}
     for name in names:
         check_model_name(name)
         torch.manual_seed(seed)
-        model = build_model(load_config(name), rig=rig).to(dev).eval()
-        lat = {}
+        models[name] = build_model(load_config(name), rig=rig).to(dev).eval()
+    # Round-robin: every repeat times each model once, so that a change of load on a shared
+    # machine hits all models alike and the ratios stay meaningful.
+    times = {(n, b, k): [] for n in names for b in batches for k in ("forward", "complete")}
+    with torch.inference_mode():
         for b in batches:
             x = inputs[b]
-            with torch.inference_mode():
-                f = median_latency(lambda: model(x), repeats, warmup, sync)
-                c = median_latency(lambda: model.complete(x, CLIP_DEFAULT), repeats, warmup, sync)
-            lat[int(b)] = {"forward_ms": f * 1e3, "complete_ms": c * 1e3}
+            calls = {}
+            for name, model in models.items():
+                calls[(name, "forward")] = (lambda m=model: m(x))
+                calls[(name, "complete")] = (lambda m=model: m.complete(x, CLIP_DEFAULT))
+            for fn in calls.values():
+                for _ in range(max(warmup, 0)):
+                    fn()
+            for _ in range(max(repeats, 1)):
+                for (name, kind), fn in calls.items():
+                    t0 = time.perf_counter()
+                    fn()
+                    if sync:
+                        sync()
+                    times[(name, b, kind)].append(time.perf_counter() - t0)
             if progress:
-                progress(f"{name} batch {b}: forward {f * 1e3:.2f} ms, complete {c * 1e3:.2f} ms")
-        rows.append({"model": name, "display_name": DISPLAY_NAMES[name], "params": model.param_counts(), "latency_ms": lat})
-        del model
+                for name in names:
+                    progress(f"{name} batch {b}: forward {statistics.median(times[(name, b, 'forward')]) * 1e3:.2f} ms, "
+                             f"complete {statistics.median(times[(name, b, 'complete')]) * 1e3:.2f} ms")
+    rows = []
+    for name, model in models.items():
+        lat = {int(b): {"forward_ms": statistics.median(times[(name, b, "forward")]) * 1e3,
+                        "complete_ms": statistics.median(times[(name, b, "complete")]) * 1e3} for b in batches}
+        rows.append({"model": name, "display_name": DISPLAY_NAMES[name], "params": model.param_counts(),
+                     "macs_per_sample": count_macs(model, n_input), "latency_ms": lat})
     return {
         "device": str(dev) if dev.type == "cpu" else f"{dev} ({torch.cuda.get_device_name(dev)})",
-        "cpu": platform.processor() or platform.machine(),
+        "cpu": cpu_name(),
+        "cpu_count": os.cpu_count(),
         "threads": torch.get_num_threads(),
         "torch": torch.__version__,
         "repeats": repeats,
@@ -103,13 +161,14 @@ def bench_models(names: Sequence[str] = MODEL_NAMES, batches: Sequence[int] = (1
 def bench_markdown(result: dict) -> str:
     """A Markdown table of :func:`bench_models` output (parameters in millions, latencies in ms)."""
     batches = result["batches"]
-    head = ["Model", "Encoder", "Decoder", "Total"]
+    head = ["Model", "Encoder", "Decoder", "Total", "GMAC/sample"]
     for b in batches:
         head += [f"forward b{b} (ms)", f"complete b{b} (ms)"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in result["models"]:
         p = r["params"]
-        cells = [r["display_name"], f"{p['encoder'] / 1e6:.3f}M", f"{p['decoder'] / 1e6:.3f}M", f"{p['total'] / 1e6:.3f}M"]
+        cells = [r["display_name"], f"{p['encoder'] / 1e6:.3f}M", f"{p['decoder'] / 1e6:.3f}M", f"{p['total'] / 1e6:.3f}M",
+                 f"{r['macs_per_sample'] / 1e9:.3f}" if "macs_per_sample" in r else "n/a"]
         for b in batches:
             lt = r["latency_ms"][b] if b in r["latency_ms"] else r["latency_ms"][str(b)]
             cells += [f"{lt['forward_ms']:.2f}", f"{lt['complete_ms']:.2f}"]
@@ -125,10 +184,16 @@ def bench_markdown(result: dict) -> str:
             ratio_lines.append(f"batch {b}: fastest baseline {fastest['display_name']} "
                                f"{fastest['latency_ms'][key]['complete_ms']:.2f} ms, SA-Net (w/ clip) "
                                f"{sanet['latency_ms'][key]['complete_ms']:.2f} ms: {ratio:.1f}x faster")
+        if "macs_per_sample" in sanet:
+            least = min(others, key=lambda r: r["macs_per_sample"])
+            ratio_lines.append(f"compute: SA-Net {sanet['macs_per_sample'] / 1e9:.3f} GMAC/sample, the cheapest baseline "
+                               f"{least['display_name']} {least['macs_per_sample'] / 1e9:.3f} "
+                               f"({least['macs_per_sample'] / sanet['macs_per_sample']:.1f}x)")
         smallest = min(others, key=lambda r: r["params"]["total"])
         ratio_lines.append(f"parameters: SA-Net {sanet['params']['total'] / 1e6:.3f}M = "
                            f"{sanet['params']['total'] / smallest['params']['total']:.2f} x the smallest baseline "
                            f"({smallest['display_name']}, {smallest['params']['total'] / 1e6:.3f}M)")
-    foot = (f"\n{result['device']}, {result['threads']} torch threads, torch {result['torch']}, median of "
-            f"{result['repeats']} runs after {result['warmup']} warm-up runs, SA-Net rig {result['rig']}.\n")
+    foot = (f"\n{result['device']} ({result.get('cpu', '?')}, {result.get('cpu_count', '?')} cores), "
+            f"{result['threads']} torch threads, torch {result['torch']}, median of {result['repeats']} round-robin runs "
+            f"after {result['warmup']} warm-up runs, SA-Net rig {result['rig']}.\n")
     return "\n".join(lines) + "\n" + foot + "".join(f"\n- {r}" for r in ratio_lines) + ("\n" if ratio_lines else "")

@@ -188,7 +188,7 @@ def validate(model, dataset: CompletionDataset, batch_size: int, device, gt_tree
 
 
 def train(model_name: str, data, out_dir, config=None, overrides: dict | None = None, resume: bool = False,
-          overwrite: bool = False, device=None, progress: bool = True, log=print) -> dict:
+          overwrite: bool = False, device=None, progress: bool = True, log=print, schedule=None) -> dict:
     """Train one model on a completion dataset file.
 
     Parameters
@@ -197,6 +197,8 @@ def train(model_name: str, data, out_dir, config=None, overrides: dict | None = 
     data : HDF5 dataset file (splits train and val are used).
     out_dir : run folder (config.yaml, last.pt, best.pt, log.csv).
     config : optional user YAML overriding the packaged config.
+    schedule : optional training schedule (packaged ``"cpu"`` / ``"paper"`` or a YAML file),
+        applied between the packaged config and ``config``.
     overrides : nested dict applied last (e.g. ``{"train": {"epochs": 5}}``).
     resume : continue from ``out_dir/last.pt`` (its config is kept; ``train.epochs`` may be raised).
     overwrite : start afresh even if ``out_dir`` holds a run.
@@ -209,12 +211,13 @@ def train(model_name: str, data, out_dir, config=None, overrides: dict | None = 
     """
     dist = _Dist()
     try:
-        return _train(dist, model_name, data, Path(out_dir), config, overrides, resume, overwrite, device, progress, log)
+        return _train(dist, model_name, data, Path(out_dir), config, overrides, resume, overwrite, device, progress, log,
+                      schedule)
     finally:
         dist.close()
 
 
-def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, overwrite, device, progress, log):
+def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, overwrite, device, progress, log, schedule):
     from tqdm import tqdm
 
     device = torch.device(device) if device is not None else default_device()
@@ -230,7 +233,7 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
     else:
         if last_path.exists() and not overwrite:
             raise SpotlightsError(f"{out_dir}: holds a run already; pass --resume to continue it or --overwrite to start again")
-        cfg = load_config(model_name, config, overrides)
+        cfg = load_config(model_name, config, overrides, schedule=schedule)
     dcfg, tcfg = cfg["data"], cfg["train"]
     seed, epochs, batch_size = int(tcfg.get("seed", 0)), int(tcfg["epochs"]), int(tcfg["batch_size"])
     if epochs < 0 or batch_size < 1:
@@ -289,7 +292,7 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
         perm = torch.randperm(n_train, generator=gen)[: shard * dist.world]
         indices = perm[dist.rank::dist.world].tolist()
         loader = DataLoader(train_set, batch_size=batch_size, sampler=indices, num_workers=num_workers,
-                            drop_last=drop_last, collate_fn=_collate, persistent_workers=False,
+                            drop_last=drop_last, collate_fn=_collate, pin_memory=device.type == "cuda",
                             worker_init_fn=_worker_init if num_workers else None,
                             generator=torch.Generator().manual_seed(_epoch_seed(seed, epoch)))
         net.train()

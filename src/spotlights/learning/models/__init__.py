@@ -67,24 +67,56 @@ def _read_yaml(path) -> dict:
     return data
 
 
+REPLACED_WHOLE = frozenset({"lr_schedule"})
+"""Config keys whose mapping value replaces the previous one instead of merging into it."""
+
+
 def deep_merge(base: dict, override: dict) -> dict:
-    """A copy of ``base`` with ``override`` merged in recursively (mappings merge, other values replace)."""
+    """A copy of ``base`` with ``override`` merged in recursively (mappings merge, other values replace;
+    the keys in ``REPLACED_WHOLE`` are replaced whole)."""
     out = copy.deepcopy(base)
     for k, v in (override or {}).items():
-        if isinstance(v, dict) and isinstance(out.get(k), dict):
+        if isinstance(v, dict) and isinstance(out.get(k), dict) and k not in REPLACED_WHOLE:
             out[k] = deep_merge(out[k], v)
         else:
             out[k] = copy.deepcopy(v)
     return out
 
 
-def load_config(name: str, path=None, overrides: dict | None = None) -> dict:
-    """The configuration of model ``name``: packaged defaults <- user YAML ``path`` <- ``overrides``.
+def schedule_path(schedule) -> Path:
+    """Path of a training schedule: a packaged name (``cpu``, ``paper``) or a YAML file."""
+    p = Path(str(schedule))
+    if p.suffix.lower() in (".yaml", ".yml") or p.exists():
+        return p
+    packaged = Path(str(resources.files("spotlights.learning") / "configs" / "schedules" / f"{schedule}.yaml"))
+    if not packaged.is_file():
+        names = sorted(q.stem for q in packaged.parent.glob("*.yaml"))
+        raise ParameterError(f"unknown schedule {schedule!r}; packaged schedules: {', '.join(names)} (or give a YAML file)")
+    return packaged
 
-    Raises :class:`InputFileError` for a missing/invalid YAML and :class:`ParameterError`
-    when the user YAML names another model or has unknown top-level sections.
+
+def load_schedule(schedule, name: str) -> dict:
+    """The overrides a schedule gives model ``name``: its ``default`` section merged with its ``name`` section."""
+    p = schedule_path(schedule)
+    data = _read_yaml(p)
+    unknown = set(data) - {"default", *MODEL_NAMES, "description"}
+    if unknown:
+        raise InputFileError(p, f"unknown schedule section(s) {', '.join(sorted(unknown))} (expected default or model names)")
+    return deep_merge(data.get("default") or {}, data.get(name) or {})
+
+
+def load_config(name: str, path=None, overrides: dict | None = None, schedule=None) -> dict:
+    """The configuration of model ``name``.
+
+    Merge order (later wins): packaged defaults <- ``schedule`` (a packaged schedule
+    name such as ``"cpu"`` or a schedule YAML) <- user YAML ``path`` <- ``overrides``.
+
+    Raises :class:`InputFileError` for a missing/invalid YAML and when the user YAML
+    names another model or has unknown top-level sections.
     """
     cfg = _read_yaml(default_config_path(name))
+    if schedule is not None:
+        cfg = deep_merge(cfg, load_schedule(schedule, name))
     if path is not None:
         user = _read_yaml(path)
         unknown = set(user) - {"model", "data", "train"}
