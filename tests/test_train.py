@@ -105,17 +105,21 @@ def test_a_few_epochs_lower_the_loss(data, tmp_path, name):
 
 def test_resume_continues_exactly(data, tmp_path):
     # AtlasNet: random patch samples in training and batch norm: the strictest case.
-    full = _run("atlasnet", data, tmp_path / "full", epochs=2)
-    _run("atlasnet", data, tmp_path / "part", epochs=1)
-    resumed = train("atlasnet", data, tmp_path / "part", overrides={"train": {"epochs": 2}}, resume=True,
-                    progress=False, log=lambda *a: None)
+    full = _run("atlasnet", data, tmp_path / "full", epochs=3)
+    _run("atlasnet", data, tmp_path / "part", epochs=3, stop_after=1)  # interrupted after epoch 1 of 3
+    assert load_checkpoint(tmp_path / "part" / "last.pt")["epoch"] == 1
+    resumed = train("atlasnet", data, tmp_path / "part", resume=True, progress=False, log=lambda *a: None)
     a = load_checkpoint(tmp_path / "full" / "last.pt")
     b = load_checkpoint(tmp_path / "part" / "last.pt")
     assert a["model_state"].keys() == b["model_state"].keys()
     for k in a["model_state"]:
         assert torch.equal(a["model_state"][k], b["model_state"][k]), k
     assert [h["train_loss"] for h in full["history"]] == [h["train_loss"] for h in resumed["history"]]
-    assert b["epoch"] == 2 and len((tmp_path / "part" / "log.csv").read_text().splitlines()) == 3
+    assert b["epoch"] == 3 and len((tmp_path / "part" / "log.csv").read_text().splitlines()) == 4
+    # raising the number of epochs of a finished run continues it
+    more = train("atlasnet", data, tmp_path / "part", overrides={"train": {"epochs": 4}}, resume=True, progress=False,
+                 log=lambda *a: None)
+    assert more["epochs"] == 4 and more["history"][-1]["lr"] > 0
 
 
 def test_same_seed_same_weights_whatever_the_number_of_workers(data, tmp_path):

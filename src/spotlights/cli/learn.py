@@ -44,6 +44,8 @@ def register(sub) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--resume", action="store_true", help="continue the run in --out from its last.pt")
     g.add_argument("--overwrite", action="store_true", help="start again even if --out holds a run")
+    p.add_argument("--stop-after", type=int, default=None, metavar="K",
+                   help="run at most K epochs now, then stop (continue later with --resume); the schedule spans --epochs")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
 
     # ---- evaluate
@@ -123,7 +125,7 @@ def _train(args) -> int:
             ov["data"][key] = val
     out = args.out or f"runs/{args.model}"
     res = train(args.model, args.data, out, config=args.config, overrides=ov, resume=args.resume, overwrite=args.overwrite,
-                device=args.device, progress=not args.no_progress, schedule=args.schedule)
+                device=args.device, progress=not args.no_progress, schedule=args.schedule, stop_after=args.stop_after)
     h = res["history"][-1] if res["history"] else None
     if h:
         print(f"{args.model}: {res['epochs']} epochs, last val accuracy {h['val_accuracy']:.5f}; checkpoints {res['last']}, {res['best']}")

@@ -188,7 +188,8 @@ def validate(model, dataset: CompletionDataset, batch_size: int, device, gt_tree
 
 
 def train(model_name: str, data, out_dir, config=None, overrides: dict | None = None, resume: bool = False,
-          overwrite: bool = False, device=None, progress: bool = True, log=print, schedule=None) -> dict:
+          overwrite: bool = False, device=None, progress: bool = True, log=print, schedule=None,
+          stop_after: int | None = None) -> dict:
     """Train one model on a completion dataset file.
 
     Parameters
@@ -204,6 +205,8 @@ def train(model_name: str, data, out_dir, config=None, overrides: dict | None = 
     overwrite : start afresh even if ``out_dir`` holds a run.
     device : torch device (default CUDA when available, else CPU).
     progress : show tqdm bars (rank 0 only).
+    stop_after : run at most this many epochs in this call, then return (resume later with
+        ``resume=True``); the schedule still spans ``train.epochs``. For time-boxed sessions.
 
     Returns
     -------
@@ -212,12 +215,13 @@ def train(model_name: str, data, out_dir, config=None, overrides: dict | None = 
     dist = _Dist()
     try:
         return _train(dist, model_name, data, Path(out_dir), config, overrides, resume, overwrite, device, progress, log,
-                      schedule)
+                      schedule, stop_after)
     finally:
         dist.close()
 
 
-def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, overwrite, device, progress, log, schedule):
+def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, overwrite, device, progress, log, schedule,
+           stop_after):
     from tqdm import tqdm
 
     device = torch.device(device) if device is not None else default_device()
@@ -228,7 +232,9 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
             raise SpotlightsError(f"{last_path}: nothing to resume (no last.pt in the run folder)")
         state = load_checkpoint(last_path, expect_model=model_name)
         cfg = state["config"]
+        extended = False
         if overrides and "train" in overrides and "epochs" in overrides["train"]:
+            extended = int(overrides["train"]["epochs"]) != int(cfg["train"]["epochs"])
             cfg["train"]["epochs"] = int(overrides["train"]["epochs"])
     else:
         if last_path.exists() and not overwrite:
@@ -263,6 +269,9 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
         model.load_state_dict(state["model_state"])
         opt.load_state_dict(state["optimizer_state"])
         sched.load_state_dict(state["scheduler_state"])
+        if extended:  # a new total length: the learning-rate schedule is recomputed from here on
+            for group, base, lam in zip(opt.param_groups, sched.base_lrs, sched.lr_lambdas):
+                group["lr"] = base * lam(sched.last_epoch)
         start_epoch, global_step = int(state["epoch"]), int(state["global_step"])
         history, best = list(state.get("history", [])), dict(state.get("best", best))
         if dist.main:
@@ -285,7 +294,8 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
     grad_clip = tcfg.get("grad_clip")
     num_workers = int(dcfg.get("num_workers", 0) or 0)
 
-    for epoch in range(start_epoch, epochs):
+    end_epoch = epochs if stop_after is None else min(epochs, start_epoch + max(int(stop_after), 0))
+    for epoch in range(start_epoch, end_epoch):
         t0 = time.perf_counter()
         torch.manual_seed(_epoch_seed(seed, epoch))
         gen = torch.Generator().manual_seed(_epoch_seed(seed, epoch))
