@@ -191,7 +191,7 @@ def test_registry_imports_no_model_or_torch_at_start_up():
 
 def test_schedules_merge_between_defaults_and_user_config(tmp_path):
     cpu = load_config("foldingnet", schedule="cpu")
-    assert cpu["data"]["max_views"] == 25 and cpu["train"]["epochs"] == 7 and cpu["data"]["val_max_views"] == 10
+    assert cpu["data"]["max_views"] == 25 and cpu["train"]["epochs"] == 13 and cpu["data"]["val_max_views"] == 10
     assert cpu["train"]["lr_schedule"] == {"kind": "cosine", "min_factor": 0.05}  # replaced whole, not merged
     assert load_config("sanet", schedule="cpu")["data"]["max_views"] == 200
     user = tmp_path / "u.yaml"
