@@ -388,3 +388,18 @@ def test_study_command_on_small_meshes(tmp_path):
     assert r.returncode == 0 and (out / "rigs.csv").read_bytes() == before
     assert_user_error(run_cli("study", "rigs", "--out", out, "--meshes", root, "--rays", "100"), "multiple of")
     assert_user_error(run_cli("study", "rigs", "--out", out, "--meshes", tmp_path / "nope"), "nope")
+
+
+def test_cli_offers_every_target_set_and_mixes_keep_a_box_ray():
+    from spotlights.cli import build_parser
+
+    enc = build_parser()._subparsers._group_actions[0].choices["encode"]
+    action = next(a for a in enc._actions if a.dest == "box_targets")
+    assert tuple(sorted(action.choices)) == tuple(sorted(BOX_TARGETS))
+    rig = make_rig(4, 8, kind="box", box=CAR, cap_share=0.99)  # round(0.99 * 8) = 8: one ray stays on the box
+    assert np.array_equal(rig.directions.reshape(4, 8, 3)[:, :7], make_rig(4, 7).directions.reshape(4, 7, 3))
+    from spotlights.geometry.rig import check_extents
+
+    assert check_extents(np.stack([CAR, CAR])) == (tuple(CAR.tolist()),) * 2
+    with pytest.raises(ParameterError, match="unit sphere"):
+        check_extents(np.stack([CAR, 2 * CAR]))

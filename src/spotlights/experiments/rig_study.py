@@ -195,9 +195,15 @@ def evaluate_mesh(entry: MeshEntry, rigs: Sequence[StudyRig], seed: int = 0, n_s
 
 
 def _config_key(rigs: Sequence[StudyRig], seed: int, n_surface: int) -> str:
-    cfg = {"v": CACHE_VERSION, "seed": seed, "n_surface": n_surface,
-           "rigs": [[r.label, r.spec.to_dict()] for r in rigs]}
-    return hashlib.sha256(json.dumps(cfg, sort_keys=True).encode()).hexdigest()[:16]
+    # The rays themselves (for a reference box) enter the key, so a change of the rig
+    # geometry code invalidates cached results.
+    probe = np.array([0.8, 0.45, 0.4]) / np.linalg.norm([0.8, 0.45, 0.4])
+    h = hashlib.sha256()
+    h.update(json.dumps({"v": CACHE_VERSION, "seed": seed, "n_surface": n_surface,
+                         "rigs": [[r.label, r.spec.to_dict()] for r in rigs]}, sort_keys=True).encode())
+    for r in rigs:
+        h.update(np.ascontiguousarray(r.spec.for_box(probe).directions).tobytes())
+    return h.hexdigest()[:16]
 
 
 def _job(args):
@@ -226,6 +232,7 @@ def run_study(meshes: Sequence[MeshEntry], rigs: Sequence[StudyRig], seed: int =
     if cache_dir is not None:
         cache = Path(cache_dir) / _config_key(rigs, seed, n_surface)
         cache.mkdir(parents=True, exist_ok=True)
+        (Path(cache_dir) / ".gitignore").write_text("*\n")  # a cache inside a checkout stays out of git
 
     def cache_file(e: MeshEntry):
         if cache is None:

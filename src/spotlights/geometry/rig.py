@@ -34,30 +34,37 @@ scaled to radius 1).
 
 Box-targeted rigs (``kind="box"``, beyond the paper; docs/box-rig.md)
 ---------------------------------------------------------------------
-The same N viewpoints ``p_i``, but each viewpoint's M rays are aimed at M
-*target points* inside the object's box instead of spread over a cap. In the
-unit frame the box is axis-aligned with half-extents ``e`` (``e = size / 2R``,
-so ``|e| = 1``); a target is ``t = s * e * u`` for a fixed *normalised*
-position ``u`` in ``[-1, 1]^3`` and a scale ``s`` in (0, 1]; the ray is
-``p_i + t * normalize(t - p_i)``. Target sets (``targets=``):
+The same N viewpoints ``p_i``, but each viewpoint's M rays are aimed at the
+object's box instead of spread over a cap. In the unit frame the box is
+axis-aligned with half-extents ``e`` (``e = size / 2R``, so ``|e| = 1``); ``s``
+in (0, 1] scales it (``se = s * e``). Ray ``i*M + k`` starts at ``p_i`` with
+direction ``normalize(t_ik - p_i)`` toward a target ``t_ik = se * u_ik``, ``u_ik``
+a position in the normalised box ``[-1, 1]^3``. Target sets (``targets=``):
 
+* ``"ellipsoid"`` (the default): where the inscribed ellipsoid ``|x / se| <= 1``
+  is the unit ball, the viewpoint is ``q_i = p_i / se``; the ball's tangent cone
+  from ``q_i`` cuts the plane through the centre normal to ``q_i`` in a disc of
+  radius ``rho = L / sqrt(L^2 - 1)``, ``L = |q_i|``. Sample k is the paper's
+  lattice mapped with equal area onto that disc: ``u_ik = rho sqrt(k / M)
+  (cos psi_k a_i + sin psi_k b_i)``, ``psi_k = 2 pi frac(k / Phi)``, with ``a_i``
+  viewpoint i's ``u`` axis made orthogonal to ``q_i`` and ``b_i = (-q_i / L) x a_i``.
+  Every ray meets the ellipsoid (so the box); sample 0 is the central ray.
 * ``"volume"``: ``u_k = 2 H(k + 1) - 1``, H the Halton sequence in bases 2, 3, 5;
   the same M targets for every viewpoint.
-* ``"surface"``: fixed points on the six faces of the scaled box, M / 6 per
-  face (the same normalised positions for every box).
+* ``"surface"``: fixed points on the six faces of the cube, M / 6 per face.
 * ``"visible"``: per viewpoint, points on the faces of the scaled box that face
-  the viewpoint, face shares proportional to the solid angle each face
-  subtends there (so the rays cover the box's silhouette evenly).
+  the viewpoint, face shares proportional to the solid angle each face subtends
+  there. Its face shares move with the box proportions, so a ray near a face
+  boundary can switch faces between two boxes: a study variant only.
 
 The face-based sets place the 2-D lattice ``(a_k, b_k) = (frac(k / Phi),
 (k + 1/2) / M)``: ``b`` is cut into consecutive intervals, one per face, of
 lengths equal to the face shares; sample k goes to the face whose interval holds
 ``b_k``, at face coordinates ``(a_k, (b_k - start) / length)``. A mixed rig
-(``cap_share = c > 0``) gives the first ``round(c M)`` rays of every viewpoint
-the paper's cap of half-angle ``angle`` (``round(c M)`` cap samples) and aims
-the others at the box. The rays depend only on (N, M, the target parameters, e):
-the same box proportions give the same rays, and ray ``i*M + k`` always aims at
-the same normalised position of the box.
+(``cap_share = c > 0``) gives the first ``C = min(round(c M), M - 1)`` rays of
+every viewpoint the paper's cap of half-angle ``angle`` (C cap samples) and aims
+the others at the box. The rays depend only on (N, M, the target parameters, e),
+and ray ``i*M + k`` always aims at the same normalised place of the box.
 """
 
 from __future__ import annotations
@@ -145,6 +152,24 @@ def viewpoint_frames(primary: np.ndarray) -> np.ndarray:
     u /= np.linalg.norm(u, axis=1, keepdims=True)
     v = np.cross(w, u)
     return np.stack([u, v, w], axis=1)
+
+
+def cap_ray_directions(primary: np.ndarray, m: int, angle_deg: float) -> np.ndarray:
+    """The paper's ray bundles: cap sample k of every viewpoint, in world coordinates.
+
+    Parameters
+    ----------
+    primary : (N, 3) float64 viewpoints on the unit sphere.
+    m : samples per cap; angle_deg : cap half-angle in degrees.
+
+    Returns
+    -------
+    (N, m, 3) float64 unit vectors; ``[i, k]`` is direction k of viewpoint i.
+    """
+    local = cap_directions(m, angle_deg)  # (m, 3) in (u, v, w) coordinates
+    d = np.einsum("mj,njc->nmc", local, viewpoint_frames(primary))
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    return d
 
 
 def angle_from_radius(radius: float) -> float:
@@ -304,7 +329,7 @@ def box_directions(primary: np.ndarray, m: int, extents: np.ndarray, scale: floa
     extents : (B, 3) (or (3,)) float64 box half-extents, unit frame.
     scale, targets : the target set (see :func:`box_targets`).
     cap_share : share c in [0, 1) of each viewpoint's rays on the paper's cap
-        (the first ``round(c M)``), the others aimed at the box.
+        (the first ``min(round(c M), M - 1)``), the others aimed at the box.
     angle : half-angle in degrees of that cap.
 
     Returns
@@ -315,15 +340,13 @@ def box_directions(primary: np.ndarray, m: int, extents: np.ndarray, scale: floa
     single = np.ndim(extents) == 1
     e = np.asarray(extents, dtype=np.float64).reshape(-1, 3)
     p = np.asarray(primary, dtype=np.float64)
-    m_cap = int(round(cap_share * m))
+    m_cap = min(int(round(cap_share * m)), m - 1)  # at least one ray aimed at the box
     t = box_targets(p, m - m_cap, e, scale, targets)  # (B, N, m - m_cap, 3)
     d = t - p[None, :, None, :]
     norm = np.linalg.norm(d, axis=-1, keepdims=True)
     d = np.where(norm > 1e-12, d / np.where(norm > 1e-12, norm, 1.0), -p[None, :, None, :])
     if m_cap:
-        local = cap_directions(m_cap, angle)
-        cap = np.einsum("mj,njc->nmc", local, viewpoint_frames(p))  # (N, m_cap, 3)
-        cap /= np.linalg.norm(cap, axis=-1, keepdims=True)
+        cap = cap_ray_directions(p, m_cap, angle)  # (N, m_cap, 3)
         d = np.concatenate([np.broadcast_to(cap[None], (len(e),) + cap.shape), d], axis=2)
     d = d.reshape(len(e), -1, 3)
     return d[0] if single else d
@@ -361,17 +384,15 @@ class Rig:
     cap_share: float | None = None
 
     def __post_init__(self):
-        if self.kind not in RIG_KINDS:
-            raise ParameterError(f"unknown rig kind {self.kind!r}; known: {', '.join(RIG_KINDS)}")
-        object.__setattr__(self, "n_primary", _check_count(self.n_primary, "number of primary viewpoints N"))
-        object.__setattr__(self, "n_secondary", _check_count(self.n_secondary, "number of secondary rays M"))
-        object.__setattr__(self, "angle", float(_check_angle(self.angle)))
-        params = _check_box_params(self.kind, self.scale, self.targets, self.cap_share)
-        for key, value in params.items():
-            object.__setattr__(self, key, value)
+        spec = RigSpec(self.n_primary, self.n_secondary, self.angle, self.kind, self.scale, self.targets,
+                       self.cap_share)  # validates, fills the box defaults
+        for key in ("n_primary", "n_secondary", "angle", "scale", "targets", "cap_share"):
+            object.__setattr__(self, key, getattr(spec, key))
+        self.__dict__["spec"] = spec  # the cached property below
         if self.kind == "box":
             if self.box is None:
-                raise ParameterError("a box rig needs the box half-extents (box=...); build it with RigSpec.for_box(extents)")
+                raise ParameterError("a box rig needs the box half-extents (box=...); a description without a box is a "
+                                 "RigSpec: RigSpec.from_dict(d).for_box(extents)")
             object.__setattr__(self, "box", check_extents(self.box))
         elif self.box is not None:
             raise ParameterError("box half-extents are only for box rigs (kind='box')")
@@ -390,9 +411,9 @@ class Rig:
         """
         return self.spec.name
 
-    @property
+    @cached_property
     def spec(self) -> "RigSpec":
-        """The box-independent description of this rig."""
+        """The box-independent description of this rig (set on construction)."""
         return RigSpec(self.n_primary, self.n_secondary, self.angle, self.kind, self.scale, self.targets, self.cap_share)
 
     @property
@@ -427,14 +448,11 @@ class Rig:
             d = box_directions(self.primary, self.n_secondary, self.extents, self.scale, self.targets,
                                self.cap_share, self.angle)
             return _readonly(np.ascontiguousarray(d))
-        local = cap_directions(self.n_secondary, self.angle)  # (M, 3) in (u, v, w) coords
-        d = np.einsum("mj,njc->nmc", local, self.frames).reshape(-1, 3)
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
-        return _readonly(d)
+        return _readonly(cap_ray_directions(self.primary, self.n_secondary, self.angle).reshape(-1, 3))
 
     @property
     def secondary(self) -> np.ndarray:
-        """(N*M, 3) float64 secondary points ``P2 = P1 + r d`` on the small sphere (r = 2 cos omega)."""
+        """(N*M, 3) float64 secondary points ``P2 = P1 + r d`` on the small sphere (r = 2 cos omega; cap rigs)."""
         return self.origins + self.small_sphere_radius * self.directions
 
     @cached_property
@@ -466,20 +484,11 @@ class Rig:
     @classmethod
     def from_dict(cls, d: dict) -> "Rig":
         """Rebuild a rig from :meth:`to_dict` output (either kind)."""
-        try:
-            box = d.get("box")
-            return cls(
-                n_primary=int(d["n_primary"]),
-                n_secondary=int(d["n_secondary"]),
-                angle=float(d["angle"]),
-                kind=str(d.get("kind", "cap")),
-                box=None if box is None else tuple(float(x) for x in box),
-                scale=_opt(float, d.get("scale")),
-                targets=_opt(str, d.get("targets")),
-                cap_share=_opt(float, d.get("cap_share")),
-            )
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ParameterError(f"invalid rig description {d!r}: {exc}") from None
+        spec = RigSpec.from_dict(d)
+        if spec.needs_box and d.get("box") is None:
+            raise ParameterError(f"rig description {d!r} has no box: it is a RigSpec "
+                                 "(RigSpec.from_dict(d).for_box(extents))")
+        return spec.for_box(d.get("box"))
 
 
 @dataclass(frozen=True)
@@ -492,7 +501,7 @@ class RigSpec:
     concrete rig (``Rig.to_dict()`` carries the box), so it always decodes alone.
 
     Per-object rigs (datasets with one box per model, models predicting per-sample
-    depths): ``spec.for_box(e)`` is cached by the exact extents (the last 256
+    depths): ``spec.for_box(e)`` is cached by the exact extents (the last 64
     boxes); for a batch, :meth:`directions_for_boxes` gives every sample's rays in
     one vectorised call, and :attr:`origins` are shared by all boxes.
     """
@@ -534,7 +543,11 @@ class RigSpec:
 
     @classmethod
     def from_name(cls, name: str) -> "RigSpec":
-        """Parse :attr:`name` (``"cap-32x64-60"``, ``"box-32x64-visible-s0.9"``, ``"box-32x64-volume-s0.8-cap0.25@60"``)."""
+        """Parse :attr:`name` (``"cap-32x64-60"``, ``"box-32x64-ellipsoid-s1"``, ``"box-32x64-volume-s0.8-cap0.25@60"``).
+
+        Names print numbers with 6 significant digits, so only such parameters round-trip
+        exactly (``to_dict`` always does).
+        """
         s = str(name).strip().lower()
         m = re.fullmatch(r"cap-(\d+)x(\d+)-([0-9.]+)", s)
         if m:
@@ -583,8 +596,7 @@ class RigSpec:
         e = np.asarray(extents, dtype=np.float64).reshape(-1, 3)
         if not self.needs_box:
             return np.broadcast_to(self.for_box(None).directions, (len(e), self.n_rays, 3))
-        for row in e:
-            check_extents(row)
+        check_extents(e)
         return box_directions(fibonacci_sphere(self.n_primary), self.n_secondary, e, self.scale, self.targets,
                               self.cap_share, self.angle)
 
@@ -605,7 +617,7 @@ class RigSpec:
             raise ParameterError(f"invalid rig description {d!r}: {exc}") from None
 
 
-@lru_cache(maxsize=256)
+@lru_cache(maxsize=64)
 def _spec_rig(spec: RigSpec, box: tuple | None) -> Rig:
     return Rig(spec.n_primary, spec.n_secondary, spec.angle, spec.kind, box, spec.scale, spec.targets, spec.cap_share)
 
@@ -613,17 +625,24 @@ def _spec_rig(spec: RigSpec, box: tuple | None) -> Rig:
 def check_extents(extents) -> tuple:
     """Validate box half-extents (unit frame): 3 finite values >= 0, not all 0, norm <= 1 (+1e-6).
 
-    Returns a tuple of 3 Python floats (the form :class:`Rig` stores).
+    ``extents`` is (3,) or a batch (B, 3) (every row checked). Returns the (3,) input
+    as a tuple of 3 Python floats (the form :class:`Rig` stores), a batch as a
+    tuple of such tuples.
     """
     try:
-        e = np.asarray(extents, dtype=np.float64).reshape(3)
+        e = np.asarray(extents, dtype=np.float64)
+        rows = e.reshape(-1, 3) if e.ndim == 2 else e.reshape(1, 3)
     except (TypeError, ValueError):
-        raise ParameterError(f"box half-extents must be 3 numbers, got {extents!r}") from None
-    if not np.all(np.isfinite(e)) or np.any(e < 0) or not np.any(e > 0):
-        raise ParameterError(f"box half-extents must be finite, >= 0 and not all 0, got {e.tolist()}")
-    if np.linalg.norm(e) > 1.0 + 1e-6:
-        raise ParameterError(f"box half-extents {e.tolist()} reach outside the unit sphere (norm {np.linalg.norm(e):.6g} > 1)")
-    return tuple(float(x) for x in e)
+        raise ParameterError(f"box half-extents must be 3 numbers (or rows of 3), got {extents!r}") from None
+    bad = ~np.all(np.isfinite(rows), axis=1) | np.any(rows < 0, axis=1) | ~np.any(rows > 0, axis=1)
+    if np.any(bad):
+        raise ParameterError(f"box half-extents must be finite, >= 0 and not all 0, got {rows[np.argmax(bad)].tolist()}")
+    norm = np.linalg.norm(rows, axis=1)
+    if np.any(norm > 1.0 + 1e-6):
+        j = int(np.argmax(norm))
+        raise ParameterError(f"box half-extents {rows[j].tolist()} reach outside the unit sphere (norm {norm[j]:.6g} > 1)")
+    out = tuple(tuple(float(x) for x in row) for row in rows)
+    return out if e.ndim == 2 else out[0]
 
 
 def extents_from_normalization(normalization) -> np.ndarray:
