@@ -388,6 +388,9 @@ def test_study_command_on_small_meshes(tmp_path):
     assert r.returncode == 0 and (out / "rigs.csv").read_bytes() == before
     assert_user_error(run_cli("study", "rigs", "--out", out, "--meshes", root, "--rays", "100"), "multiple of")
     assert_user_error(run_cli("study", "rigs", "--out", out, "--meshes", tmp_path / "nope"), "nope")
+    (root / "boxes" / "broken.ply").write_text("not a mesh")
+    assert_user_error(run_cli("study", "rigs", "--out", out, "--meshes", root, "--rays", "64", "--workers", "2"),
+                      "broken.ply")
 
 
 def test_cli_offers_every_target_set_and_mixes_keep_a_box_ray():

@@ -210,7 +210,10 @@ def _job(args):
     entry, rigs, seed, n_surface, cache = args
     if cache is not None and cache.exists():
         return json.loads(cache.read_text())
-    rows = evaluate_mesh(entry, rigs, seed, n_surface)
+    try:
+        rows = evaluate_mesh(entry, rigs, seed, n_surface)
+    except SpotlightsError as exc:  # a plain SpotlightsError crosses process boundaries (pickles) intact
+        raise SpotlightsError(str(exc)) from None
     if cache is not None:
         with atomic_output(cache, suffix=".json") as tmp:
             Path(tmp).write_text(json.dumps(rows))
@@ -240,21 +243,20 @@ def run_study(meshes: Sequence[MeshEntry], rigs: Sequence[StudyRig], seed: int =
         return cache / (hashlib.sha256(f"{e.mesh_set}/{e.mesh_id}".encode()).hexdigest()[:20] + ".json")
 
     jobs = [(e, list(rigs), seed, n_surface, cache_file(e)) for e in meshes]
-    bar = tqdm(total=len(jobs), desc="rig study", unit="mesh", disable=not progress)
     results = []
-    if workers > 1 and len(jobs) > 1:
-        import multiprocessing as mp
+    with tqdm(total=len(jobs), desc="rig study", unit="mesh", disable=not progress) as bar:
+        if workers > 1 and len(jobs) > 1:
+            import multiprocessing as mp
 
-        ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
-        with ctx.Pool(min(workers, len(jobs))) as pool:
-            for rows in pool.imap(_job, jobs):
-                results.append(rows)
+            ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+            with ctx.Pool(min(workers, len(jobs))) as pool:
+                for rows in pool.imap(_job, jobs):
+                    results.append(rows)
+                    bar.update()
+        else:
+            for job in jobs:
+                results.append(_job(job))
                 bar.update()
-    else:
-        for job in jobs:
-            results.append(_job(job))
-            bar.update()
-    bar.close()
     return pd.DataFrame([row for rows in results for row in rows])
 
 
