@@ -104,27 +104,25 @@ def _check_r(r: np.ndarray) -> None:
         raise ParameterError("r must lie in [0, 1): the surfel must be strictly inside the unit sphere")
 
 
-def _g_azimuthal(x: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+def _g_azimuthal(x: np.ndarray, sa, ca) -> np.ndarray:
     """Azimuthal integral ``G(x) = Int_0^{2pi} max(0, n.u) dphi`` with the polar axis on ``e``.
 
     ``u = (sqrt(1-x^2) cos phi, sqrt(1-x^2) sin phi, x)`` in a frame whose z axis is the
     outward radial direction ``e`` and where ``n = (sin alpha, 0, cos alpha)``; then
     ``n.u = A cos(phi) + B`` with ``A = sin(alpha) sqrt(1-x^2) >= 0``, ``B = cos(alpha) x``, and
-    ``G = 2pi max(0, B)`` if ``|B| >= A`` else ``2 (sqrt(A^2 - B^2) + B arccos(-B / A))``.
-    Arrays broadcast; float64; dimensionless.
+    ``G = 2pi max(0, B)`` if ``|B| >= A`` else ``2 (sqrt(A^2 - B^2) + B arccos(-B / A))``
+    (``A^2 - B^2 = sin^2(alpha) - x^2`` exactly). ``x`` in [-1, 1]; ``sa = sin(alpha) >= 0``,
+    ``ca = cos(alpha)`` broadcast against it. float64, dimensionless.
     """
-    sa, ca = np.sin(alpha), np.cos(alpha)
-    s1 = np.sqrt(np.clip(1.0 - x * x, 0.0, None))
-    a_ = sa * s1
+    x2 = x * x
+    a_ = sa * np.sqrt(np.maximum(1.0 - x2, 0.0))
     b_ = ca * x
-    outer = 2.0 * np.pi * np.maximum(b_, 0.0)
     mid = np.abs(b_) < a_
-    a_safe = np.where(mid, a_, 1.0)
-    b_safe = np.where(mid, b_, 0.0)
-    # A^2 - B^2 = sin^2(alpha) - x^2 (exactly), better conditioned than the difference of squares
-    root = np.sqrt(np.clip(sa * sa - x * x, 0.0, None))
-    inner = 2.0 * (root + b_safe * np.arccos(np.clip(-b_safe / a_safe, -1.0, 1.0)))
-    return np.where(mid, inner, outer)
+    ratio = np.divide(-b_, a_, out=np.zeros(np.broadcast(x, sa, ca).shape), where=mid)
+    inner = 2.0 * (np.sqrt(np.maximum(sa * sa - x2, 0.0)) + b_ * np.arccos(np.minimum(np.maximum(ratio, -1.0), 1.0)))
+    g = 2.0 * np.pi * np.maximum(b_, 0.0)
+    np.copyto(g, inner, where=mid)
+    return g
 
 
 @functools.lru_cache(maxsize=32)
@@ -178,7 +176,7 @@ def rho(r, alpha, angle: float = 90.0, nodes: int = DEFAULT_NODES) -> np.ndarray
     u, wu = _gauss_cos_nodes(nodes)
     norm = 1.0 / (8.0 * np.pi**2 * (1.0 - np.cos(omega)))
     sin_om = np.sin(omega)
-    chunk = max(1, 2_000_000 // (5 * len(u)))
+    chunk = max(1, 250_000 // (5 * len(u)))
     for lo in range(0, r.size, chunk):
         rr = np.maximum(r[lo : lo + chunk], 1e-150)[:, None]
         al = alpha[lo : lo + chunk][:, None]
@@ -192,8 +190,8 @@ def rho(r, alpha, angle: float = 90.0, nodes: int = DEFAULT_NODES) -> np.ndarray
         b_ = brk[:, 1:, None]
         s = a_ + (b_ - a_) * u  # (B, 5, n)
         x = (eps / rr)[:, :, None] * np.sinh(s)
-        x = np.clip(x, -1.0, 1.0)
-        f = _g_azimuthal(x, al[:, :, None])
+        np.minimum(np.maximum(x, -1.0, out=x), 1.0, out=x)
+        f = _g_azimuthal(x, np.sin(al)[:, :, None], np.cos(al)[:, :, None])
         f = np.where(np.abs(x) >= xc[:, :, None], f, 0.0)
         integral = np.sum(f * wu * (b_ - a_), axis=(1, 2))
         out[lo : lo + chunk] = norm * integral / rr[:, 0]
@@ -365,5 +363,6 @@ def rho_ring(r, alpha, c) -> np.ndarray:
     ok = (q > 0.0) & (r > 0.0)
     x = np.where(ok, np.sqrt(np.clip(q, 0.0, None)) / rr, 1.0)
     x = np.clip(x, 1e-300, 1.0)
-    val = (_g_azimuthal(x, alpha) + _g_azimuthal(-x, alpha)) / (8.0 * np.pi**2 * rr * rr * x)
+    sa, ca = np.sin(alpha), np.cos(alpha)
+    val = (_g_azimuthal(x, sa, ca) + _g_azimuthal(-x, sa, ca)) / (8.0 * np.pi**2 * rr * rr * x)
     return np.where(ok, val, 0.0)

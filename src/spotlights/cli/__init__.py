@@ -21,6 +21,7 @@ from ..errors import SpotlightsError
 COMMAND_MODULES = [
     "spotlights.cli.core",  # encode, decode, show
     "spotlights.cli.demo",  # demo
+    "spotlights.cli.analyze",  # analyze density
 ]
 
 EPILOG = """\
