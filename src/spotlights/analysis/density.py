@@ -120,9 +120,7 @@ def _g_azimuthal(x: np.ndarray, sa, ca) -> np.ndarray:
     mid = np.abs(b_) < a_
     ratio = np.divide(-b_, a_, out=np.zeros(np.broadcast(x, sa, ca).shape), where=mid)
     inner = 2.0 * (np.sqrt(np.maximum(sa * sa - x2, 0.0)) + b_ * np.arccos(np.minimum(np.maximum(ratio, -1.0), 1.0)))
-    g = 2.0 * np.pi * np.maximum(b_, 0.0)
-    np.copyto(g, inner, where=mid)
-    return g
+    return np.where(mid, inner, 2.0 * np.pi * np.maximum(b_, 0.0))
 
 
 @functools.lru_cache(maxsize=32)

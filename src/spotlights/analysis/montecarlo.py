@@ -81,6 +81,10 @@ class MCResult:
             finite-M term (:func:`finite_m_correction`; at ``r = 0`` the exact rig value of
             :func:`centre_disc_expected_density` minus rho_quad). rho_expected = rho_quad + correction.
         rho_center: continuum density at the disc centre. z: (rho_mc - rho_expected) / se_mc.
+        shells: cap steps spanned by the disc, ``M (eps_max - eps_min) / (1 - cos omega)`` with
+            ``eps = sqrt(1 - r'^2)`` over the disc's points: the number of the rig's caustic shells
+            ``r = sin t_k`` the disc averages over. The finite-M term is reliable for ``shells >= 3``
+            (checked down to 3.3 in docs/analysis.md); below that the discreteness of the cap shows.
     """
 
     angle: float
@@ -101,6 +105,7 @@ class MCResult:
     rho_expected: float
     rho_center: float
     z: float
+    shells: float
 
     def to_dict(self) -> dict:
         """Plain-dict view (for CSV rows)."""
@@ -232,6 +237,20 @@ def centre_disc_expected_density(radius: float, n_secondary: int, angle: float =
     b = np.sqrt(np.clip(1.0 - cos_t * cos_t, 0.0, None))
     p = np.where(b < radius, 1.0 - (2.0 / np.pi) * np.arcsin(np.clip(b / radius, 0.0, 1.0)), 0.0)
     return float(p.sum() / (2.0 * n_secondary * np.pi * radius * radius))
+
+
+def _cap_steps_spanned(vertices: np.ndarray, radius: float, n_secondary: int, angle: float) -> float:
+    """``M (eps_max - eps_min) / (1 - cos omega)``, ``eps = sqrt(1 - |x|^2)`` over the disc (vertex 0 = centre)."""
+    c = vertices[0]
+    n = np.cross(vertices[1] - c, vertices[2] - c)
+    n /= np.linalg.norm(n)
+    foot = (c @ n) * n  # the origin projected onto the disc's plane
+    off = foot - c
+    if np.linalg.norm(off) > radius:
+        foot = c + off * (radius / np.linalg.norm(off))
+    r2 = np.concatenate([np.einsum("ij,ij->i", vertices, vertices), [foot @ foot]])
+    eps = np.sqrt(np.clip(1.0 - r2, 0.0, None))
+    return float(n_secondary * (eps.max() - eps.min()) / (1.0 - np.cos(np.radians(angle))))
 
 
 def _random_rotations(k: int, seed: int) -> np.ndarray:
@@ -393,6 +412,7 @@ def mc_density(
             corr = (exact - quad[0], exact - quad[1])
         else:
             corr = finite_m_correction(p.r, p.alpha, disc_radius, rig.n_secondary, angle=rig.angle, segments=segments)
+        shells = _cap_steps_spanned(vertices, disc_radius, rig.n_secondary, rig.angle)
         for col, side, alpha in ((0, "front", p.alpha), (1, "back", np.pi - p.alpha)):
             c = counts[:, col].astype(np.float64)
             scale = 1.0 / (nm * area)
@@ -407,7 +427,7 @@ def mc_density(
                     n_secondary=int(rig.n_secondary), n_rotations=int(n_rotations), disc_radius=float(disc_radius),
                     area=float(area), hits=int(c.sum()), rho_mc=rho_mc, se_mc=se, se_poisson=se_p,
                     rho_quad=float(quad[col]), correction=float(corr[col]), rho_expected=float(expect),
-                    rho_center=float(rho(p.r, alpha, angle=rig.angle)), z=float(z),
+                    rho_center=float(rho(p.r, alpha, angle=rig.angle)), z=float(z), shells=float(shells),
                 )
             )
     bar.close()

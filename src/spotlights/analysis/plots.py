@@ -144,7 +144,7 @@ def plot_montecarlo(path: str | os.PathLike, results: Sequence, curves: dict[flo
     return _save(fig, path)
 
 
-def plot_directional(path: str | os.PathLike, cases: Sequence[tuple[float, float]], angle: float = 90.0, n: int = 181) -> Path:
+def plot_directional(path: str | os.PathLike, cases: Sequence[tuple[float, float]], angle: float = 90.0, n: int = 121) -> Path:
     """The paper's occlusion formula ``rho(r, alpha, beta, gamma)`` over the surfel's front hemisphere.
 
     One polar panel per ``(r, alpha)`` case (alpha in radians): radius = beta (polar angle from

@@ -140,7 +140,7 @@ def _write_csv(path: Path, header: str, columns: Sequence[np.ndarray], fmts: Seq
 
 def _write_mc_csv(path: Path, results) -> None:
     keys = ["angle", "r", "alpha", "side", "n_primary", "n_secondary", "n_rotations", "disc_radius", "area", "hits",
-            "rho_mc", "se_mc", "se_poisson", "rho_quad", "correction", "rho_expected", "rho_center", "z"]
+            "rho_mc", "se_mc", "se_poisson", "rho_quad", "correction", "rho_expected", "rho_center", "z", "shells"]
     lines = [",".join(keys)]
     for x in results:
         d = x.to_dict()
@@ -164,6 +164,7 @@ def _mc_stats(results) -> dict:
         "median_abs_rel_deviation": float(np.median(np.abs(rel))),
         "median_rel_se": float(np.median([x.se_mc / x.rho_expected for x in results])),
         "max_abs_rel_deviation_vs_continuum": float(np.max(np.abs(rel_cont))),
+        "min_shells": float(min(x.shells for x in results)),
     }
 
 

@@ -26,6 +26,9 @@ def register(sub) -> None:
     d.add_argument("--angle", type=float, nargs="+", default=[90.0], metavar="DEG",
                    help="cap half-angles omega in degrees, (0, 90]; 90 is the paper's 2 pi analysis (default 90). "
                         "Several give a column 'angle' and the cap comparison figure")
+    d.add_argument("--r-step", type=float, default=0.01, metavar="DR", help="grid step in r, grid 0..0.99 (default 0.01)")
+    d.add_argument("--alpha-step", type=float, default=1.0, metavar="DEG",
+                   help="grid step in alpha in degrees, grid 0..180 (default 1)")
     d.add_argument("--no-mc", action="store_true", help="skip the Monte-Carlo check with real rays")
     d.add_argument("--mc-rays", type=int, nargs=2, default=[1024, 1024], metavar=("N", "M"),
                    help="viewpoints and rays per viewpoint of the Monte-Carlo rigs (default 1024 1024)")
@@ -48,7 +51,7 @@ def _density(args) -> int:
 
     cfg = DensityConfig(angles=tuple(args.angle), mc=not args.no_mc, mc_primary=args.mc_rays[0],
                         mc_secondary=args.mc_rays[1], mc_rotations=args.rotations, disc_radius=args.disc_radius,
-                        seed=args.seed)
+                        seed=args.seed, r_step=args.r_step, alpha_step_deg=args.alpha_step)
     summary, timings = run_density_analysis(args.out, cfg, progress=not args.quiet)
     print(f"ray density per unit N*M (paper Section 3.3); outputs in {args.out}/")
     lim = f"{cfg.r_limit:g}"
@@ -71,6 +74,9 @@ def _density(args) -> int:
             print(f"                 Monte-Carlo: {m['comparisons']} disc faces, max |z| {m['max_abs_z']:.2f}, "
                   f"rms z {m['rms_z']:.2f}, {m['within_2_sigma']:.0%} within 2 sigma, "
                   f"median |deviation| {m['median_abs_rel_deviation']:.2%} (median 1-sigma {m['median_rel_se']:.2%})")
+            if m["min_shells"] < 3.0:
+                print(f"                 note: some discs span only {m['min_shells']:.1f} cap steps (< 3): the finite-M "
+                      "term is unreliable there; use more rays per viewpoint (M) or a larger disc")
     print(f"done in {timings['total']:.1f} s (quadrature {timings['quadrature_grid']:.1f} s, "
           f"Monte-Carlo {timings['montecarlo']:.1f} s)")
     return 0
