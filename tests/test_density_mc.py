@@ -25,7 +25,7 @@ from spotlights.analysis.montecarlo import (
 from spotlights.geometry.rig import make_rig
 
 
-@pytest.mark.parametrize("angle", [90.0, 60.0])
+@pytest.mark.parametrize("angle", [90.0, 60.0, 30.0])
 def test_culling_changes_no_count(angle):
     rig = make_rig(96, 128, angle=angle)
     rays = RigRays(rig)
