@@ -373,3 +373,18 @@ def test_real_cars(tmp_path):
             s = ds.sample(i)
             assert s["n_raw"] >= 50 and np.linalg.norm(s["partial"], axis=1).max() < 1.0
             assert 4.0 <= s["distance"] <= 40.0
+
+
+def test_completion_goes_back_to_the_sensor_frame(reference):
+    """to_sensor inverts sensor_to_unit: the box's centre maps to the stored distance and bearing,
+    and its bottom onto the ground plane z = -1.73 m."""
+    with open_dataset(reference) as ds:
+        for i in (0, 7, 17):
+            s = ds.sample(i)
+            c = ds.to_sensor(i, np.zeros((1, 3)))[0]
+            assert np.hypot(c[0], c[1]) == pytest.approx(s["distance"], rel=1e-5)
+            assert np.arctan2(c[1], c[0]) == pytest.approx(s["azimuth"], abs=1e-5)
+            gt = ds.to_sensor(i, s["gt_dense"])
+            assert gt[:, 2].min() == pytest.approx(-1.73, abs=0.02)
+            back = (s["sensor_to_unit"] @ np.c_[gt, np.ones(len(gt))].T).T[:, :3]
+            assert np.allclose(back, s["gt_dense"], atol=1e-5)

@@ -270,6 +270,13 @@ class CompletionDataset:
         })
         return out
 
+    def to_sensor(self, index: int, points: np.ndarray) -> np.ndarray:
+        """Map (K, 3) unit-frame points of sample ``index`` (e.g. a completion) back into its LiDAR
+        sensor frame (metres): the inverse of ``/samples/sensor_to_unit``. Returns (K, 3) float64."""
+        m = np.linalg.inv(self._h5()["samples/sensor_to_unit"][int(index)])
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        return p @ m[:3, :3].T + m[:3, 3]
+
     def info(self) -> dict:
         """Summary: splits, categories, counts, shapes and dtypes of every dataset, build config."""
         import h5py
