@@ -20,6 +20,7 @@ from ..errors import SpotlightsError
 # One line per command group; a new group is one module and one line here.
 COMMAND_MODULES = [
     "spotlights.cli.core",  # encode, decode, show
+    "spotlights.cli.demo",  # demo
     "spotlights.cli.dataset",  # dataset build, info, export, show
 ]
 

@@ -8,7 +8,7 @@ Knows nothing of learning (no torch). Main entry points::
     points, mask = decode(depths, rig)                   # (2048, 3) unit frame + hit mask
 """
 
-from .encode import Encoding, MeshProbe, decode, encode_mesh, encode_meshes, hit_ratio, load_encoding, save_encoding
+from .encode import Encoding, MeshProbe, decode, encode_mesh, encode_mesh_files, encode_meshes, hit_ratio, load_encoding, save_encoding
 from .frames import Normalization, box_corners, normalization_from_box, normalization_from_mesh, normalization_from_points
 from .io import load_mesh, load_points, save_points
 from .raycast import RayCaster, first_hit
@@ -17,7 +17,7 @@ from .sampling import farthest_point_sample, resample, sample_surface
 
 __all__ = [
     "Encoding", "MeshProbe", "Normalization", "RayCaster", "Rig",
-    "box_corners", "cap_directions", "decode", "encode_mesh", "encode_meshes", "farthest_point_sample",
+    "box_corners", "cap_directions", "decode", "encode_mesh", "encode_mesh_files", "encode_meshes", "farthest_point_sample",
     "fibonacci_sphere", "first_hit", "hit_ratio", "load_encoding", "load_mesh", "load_points",
     "make_rig", "normalization_from_box", "normalization_from_mesh", "normalization_from_points",
     "resample", "sample_surface", "save_encoding", "save_points",

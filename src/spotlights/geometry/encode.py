@@ -46,14 +46,18 @@ class MeshProbe:
 
         ``origins`` (K, 3) on the unit sphere, ``directions`` (K, 3) unit vectors pointing inward.
         """
-        t, _ = self.caster.first_hit(origins, directions)
+        t = self.caster.distances(origins, directions).astype(np.float64)
         chord = np.clip(-2.0 * np.einsum("ij,ij->i", origins, directions), 0.0, 2.0)
         inside = np.isfinite(t) & (t <= chord + 1e-6)
         return np.where(inside, np.minimum(t, 2.0), 0.0)
 
     def encode(self, rig: Rig) -> np.ndarray:
         """(N*M,) float32 normalised depths for ``rig`` (0 = miss)."""
-        return (self.hit_distances(rig.origins, rig.directions) / 2.0).astype(np.float32)
+        depth = self.caster.raw_distances(*rig.rays32)  # float32, >= 1e30 on a miss
+        depth *= np.float32(0.5)
+        # misses, and hits beyond the ray's chord through the unit sphere, become 0
+        depth[~(depth <= rig.half_chords32)] = 0.0
+        return np.minimum(depth, np.float32(1.0), out=depth)
 
 
 def encode_mesh(mesh, rig: Rig, normalization: Normalization | None = None) -> np.ndarray:
@@ -88,6 +92,39 @@ def encode_meshes(meshes: Iterable, rigs: Rig | Sequence[Rig], normalizations=No
         for r in rigs:
             out[r.name][j] = probe.encode(r)
     return out
+
+
+def _encode_file(job):
+    from .io import load_mesh
+
+    path, rigs, up, forward = job
+    probe = MeshProbe(load_mesh(path, up=up, forward=forward))
+    return [probe.encode(r) for r in rigs]
+
+
+def encode_mesh_files(paths: Sequence, rigs: Rig | Sequence[Rig], workers: int = 1, up: str = "z",
+                      forward: str = "x") -> dict[str, np.ndarray]:
+    """Load and encode mesh files, in parallel over meshes with ``workers`` processes.
+
+    Each mesh is normalised by its own bounding box. The result does not depend on
+    ``workers`` (files are processed independently and returned in input order).
+
+    Returns
+    -------
+    dict ``rig.name -> (n_files, N*M) float32`` depth arrays.
+    """
+    rigs = [rigs] if isinstance(rigs, Rig) else list(rigs)
+    jobs = [(os.fspath(p), rigs, up, forward) for p in paths]
+    if workers > 1 and len(jobs) > 1:
+        import multiprocessing as mp
+
+        ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+        with ctx.Pool(min(workers, len(jobs))) as pool:
+            results = pool.map(_encode_file, jobs, chunksize=max(1, len(jobs) // (4 * workers)))
+    else:
+        results = [_encode_file(j) for j in jobs]
+    return {r.name: np.stack([res[j] for res in results]) if results else np.zeros((0, r.n_rays), np.float32)
+            for j, r in enumerate(rigs)}
 
 
 def hit_ratio(depths: np.ndarray) -> float:

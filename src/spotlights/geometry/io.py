@@ -89,13 +89,13 @@ def load_mesh(path: str | os.PathLike, up: str = "z", forward: str = "x"):
         raise InputFileError(p, "mesh has NaN or infinite vertex coordinates")
     if f.min() < 0 or f.max() >= len(v):
         raise InputFileError(p, "mesh has face indices out of range")
+    used = v[np.unique(f)]
+    if np.all(np.ptp(used, axis=0) == 0):
+        raise InputFileError(p, "mesh has a zero-size bounding box (all vertices coincide)")
     tri = v[f]
     area2 = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     if not np.any(area2 > 0):
         raise InputFileError(p, "mesh has only degenerate (zero-area) faces")
-    used = v[np.unique(f)]
-    if np.all(np.ptp(used, axis=0) == 0):
-        raise InputFileError(p, "mesh has a zero-size bounding box")
     if not np.allclose(rot, np.eye(3)):
         v = v @ rot.T
     return trimesh.Trimesh(vertices=v, faces=f, process=False, validate=False)

@@ -109,6 +109,35 @@ class RayCaster:
                 face[ray] = tri
         return t, face
 
+    def distances(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """First-hit distance only (the fast path used by encoding).
+
+        Parameters
+        ----------
+        origins, directions : (K, 3) arrays; float32 C-contiguous input avoids a copy.
+
+        Returns
+        -------
+        (K,) float32 distances, ``inf`` on a miss.
+        """
+        t = self.raw_distances(origins, directions)
+        t[t >= _MISS_T] = np.inf
+        return t
+
+    def raw_distances(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """Like :meth:`distances` but a miss is any value >= 1e30 (no clean-up pass)."""
+        if self.engine != "embree":
+            t = self.first_hit(origins, directions)[0].astype(np.float32)
+            t[~np.isfinite(t)] = 1e37
+            return t
+        o32 = np.ascontiguousarray(origins, dtype=np.float32)
+        d32 = np.ascontiguousarray(directions, dtype=np.float32)
+        if o32.shape != d32.shape or o32.ndim != 2 or o32.shape[1] != 3:
+            raise ParameterError(f"origins and directions must both be (K, 3), got {o32.shape} and {d32.shape}")
+        parts = [self._scene.run(o32[s : s + _CHUNK], d32[s : s + _CHUNK], query="DISTANCE")
+                 for s in range(0, len(o32), _CHUNK)]
+        return np.concatenate(parts) if len(parts) != 1 else parts[0]
+
 
 def first_hit(mesh, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Convenience: build a :class:`RayCaster` for ``mesh`` (``vertices``/``faces``) and query it once."""

@@ -191,9 +191,20 @@ class Rig:
         """(N*M, 3) float64 secondary points ``P2 = P1 + r d`` on the small sphere (r = 2 cos omega)."""
         return self.origins + self.small_sphere_radius * self.directions
 
+    @cached_property
     def chord_lengths(self) -> np.ndarray:
         """(N*M,) float64 length of each ray's chord inside the unit sphere (``-2 o.d``)."""
-        return np.clip(-2.0 * np.einsum("ij,ij->i", self.origins, self.directions), 0.0, 2.0)
+        return _readonly(np.clip(-2.0 * np.einsum("ij,ij->i", self.origins, self.directions), 0.0, 2.0))
+
+    @cached_property
+    def half_chords32(self) -> np.ndarray:
+        """(N*M,) float32 half chord lengths (+ 5e-7 float32 slack): the largest valid depth per ray."""
+        return _readonly((self.chord_lengths / 2.0 + 5e-7).astype(np.float32))
+
+    @cached_property
+    def rays32(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(origins, directions)`` as C-contiguous float32 (N*M, 3) arrays, for ray engines."""
+        return _readonly(self.origins.astype(np.float32)), _readonly(self.directions.astype(np.float32))
 
     def to_dict(self) -> dict:
         """JSON-serialisable description; ``Rig.from_dict`` rebuilds the identical rig."""

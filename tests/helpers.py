@@ -1,0 +1,61 @@
+"""Shared test helpers: where the shared data is, analytic shapes, CLI runner."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = Path(os.environ.get("SPOTLIGHTS_SHARED", REPO.parent / "shared")).resolve()
+DATA = SHARED / "data"
+CARS = DATA / "meshes" / "apolloscape-cars"
+KENNEY = DATA / "meshes" / "kenney-vehicles"
+CATEGORIES = DATA / "meshes" / "categories"
+LIDAR = DATA / "lidar"
+
+
+def need(path: Path) -> Path:
+    """Skip the calling test, with the reason, when a shared-data path is absent."""
+    if not path.exists():
+        pytest.skip(f"shared data not found at {path} (set SPOTLIGHTS_SHARED to the folder holding data/)")
+    return path
+
+
+def run_cli(*args: str, cwd: Path | None = None, timeout: float = 300) -> subprocess.CompletedProcess:
+    """Run ``python -m spotlights ARGS`` in a subprocess (the package from this checkout)."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO / "src") + os.pathsep + env.get("PYTHONPATH", "")
+    env.setdefault("MPLBACKEND", "Agg")
+    return subprocess.run(
+        [sys.executable, "-m", "spotlights", *map(str, args)],
+        capture_output=True, text=True, cwd=cwd, env=env, timeout=timeout,
+    )
+
+
+def assert_user_error(proc: subprocess.CompletedProcess, *fragments: str) -> None:
+    """A one-line error with exit code 2 and no traceback, containing every fragment."""
+    assert proc.returncode == 2, (proc.returncode, proc.stdout, proc.stderr)
+    assert "Traceback" not in proc.stderr, proc.stderr
+    err_lines = [ln for ln in proc.stderr.strip().splitlines() if "error" in ln]
+    assert len(err_lines) == 1, proc.stderr
+    for frag in fragments:
+        assert frag in err_lines[0], (frag, proc.stderr)
+
+
+def sphere_ray_depths(origins: np.ndarray, directions: np.ndarray, center, radius: float):
+    """Closed-form first hit of rays with a sphere: (t (K,), discriminant (K,)); t = inf on a miss.
+
+    t solves |o + t d - c|^2 = r^2 with the smallest t >= 0 (origins outside the sphere).
+    """
+    oc = origins - np.asarray(center, dtype=np.float64)
+    b = np.einsum("ij,ij->i", oc, directions)
+    c = np.einsum("ij,ij->i", oc, oc) - radius**2
+    disc = b * b - c
+    t = np.where(disc >= 0, -b - np.sqrt(np.clip(disc, 0, None)), np.inf)
+    t = np.where(t >= 0, t, np.inf)
+    return t, disc

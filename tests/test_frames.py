@@ -1,0 +1,80 @@
+"""Normalisation into the unit sphere: boxes, spheres, round trips, oriented boxes."""
+
+import math
+
+import numpy as np
+import pytest
+import trimesh
+
+from spotlights.errors import ParameterError
+from spotlights.geometry.frames import (
+    Normalization,
+    box_corners,
+    normalization_from_box,
+    normalization_from_mesh,
+    normalization_from_points,
+)
+
+
+def test_icosphere_normalises_to_centred_sphere_of_radius_inv_sqrt3():
+    m = trimesh.creation.icosphere(subdivisions=3, radius=0.5)
+    m.apply_translation([1, 2, 3])
+    n = normalization_from_mesh(m)
+    assert np.allclose(n.center, [1, 2, 3], atol=1e-12)
+    assert n.radius == pytest.approx(math.sqrt(3) / 2)  # half the diagonal of the unit cube
+    r = np.linalg.norm(n.to_unit(m.vertices), axis=1)
+    assert np.allclose(r, 1 / math.sqrt(3))
+
+
+def test_box_points_fill_unit_sphere_and_round_trip():
+    rng = np.random.default_rng(0)
+    pts = rng.uniform([-4, 1, 0], [2, 3, 1.5], size=(500, 3))
+    n = normalization_from_points(pts)
+    u = n.to_unit(pts)
+    assert np.linalg.norm(u, axis=1).max() <= 1 + 1e-12
+    corners = n.to_unit(np.array([pts.min(0), pts.max(0)]))
+    assert np.allclose(np.linalg.norm(corners, axis=1), 1.0)  # box corners on the sphere
+    assert np.allclose(n.from_unit(u), pts)
+    hom = np.c_[pts, np.ones(len(pts))]
+    assert np.allclose((hom @ n.matrix.T)[:, :3], u)
+    assert np.allclose((np.c_[u, np.ones(len(u))] @ n.inverse_matrix.T)[:, :3], pts)
+    assert np.allclose(Normalization.from_dict(n.to_dict()).to_unit(pts), u)
+
+
+def test_oriented_box_yaw():
+    # A 4 x 2 x 1.5 box at (10, 5, 0.75) heading 90 degrees: its forward axis is the source +y.
+    n = normalization_from_box([10, 5, 0.75], [4, 2, 1.5], yaw=math.pi / 2)
+    R = 0.5 * math.sqrt(16 + 4 + 2.25)
+    assert n.radius == pytest.approx(R)
+    front = n.to_unit([[10, 7, 0.75]])[0]  # 2 m ahead of the centre along the heading
+    assert np.allclose(front, [2 / R, 0, 0])
+    left = n.to_unit([[9, 5, 0.75]])[0]  # 1 m to the vehicle's left (source -x)
+    assert np.allclose(left, [0, 1 / R, 0])
+    corners = box_corners([10, 5, 0.75], [4, 2, 1.5], yaw=math.pi / 2)
+    # hand-computed: corner 0 = (-,-,-) in box axes -> centre - 2*fwd - 1*left - 0.75*up
+    assert np.allclose(corners[0], [10 + 1, 5 - 2, 0])
+    assert np.allclose(corners[7], [10 - 1, 5 + 2, 1.5])
+    assert np.allclose(np.linalg.norm(n.to_unit(corners), axis=1), 1.0)
+
+
+def test_oriented_box_full_rotation_equals_yaw():
+    a = normalization_from_box([1, 2, 3], [3, 2, 1], yaw=0.3)
+    c, s = math.cos(0.3), math.sin(0.3)
+    b = normalization_from_box([1, 2, 3], [3, 2, 1], rotation=[[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    pts = np.random.default_rng(1).normal(size=(20, 3))
+    assert np.allclose(a.to_unit(pts), b.to_unit(pts))
+
+
+@pytest.mark.parametrize(
+    "call",
+    [
+        lambda: normalization_from_points(np.zeros((5, 3))),
+        lambda: normalization_from_points(np.zeros((0, 3))),
+        lambda: normalization_from_points(np.array([[0, 0, 0], [1, np.nan, 0]])),
+        lambda: normalization_from_box([0, 0, 0], [0, 0, 0]),
+        lambda: normalization_from_box([0, 0, 0], [1, 1, 1], rotation=np.diag([1, 1, -1])),
+    ],
+)
+def test_degenerate_inputs_rejected(call):
+    with pytest.raises(ParameterError):
+        call()
