@@ -327,7 +327,7 @@ class LidarSimulator:
         d = d.reshape(-1, 3)
         o = np.broadcast_to(origin, d.shape)
         t1 = time.perf_counter()
-        t, _ = self.caster.first_hit(o, d)
+        t = self.caster.distances(o, d).astype(np.float64)
         t2 = time.perf_counter()
         # Ground plane z = lo_z (the box bottom) in the object frame; it occludes what lies beyond.
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -362,7 +362,7 @@ class LidarSimulator:
         el = self._elev[bb.ravel()]
         az = cc.ravel() * self._step - pose.heading
         d = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], axis=1)
-        t, _ = self.caster.first_hit(np.broadcast_to(origin, d.shape), d)
+        t = self.caster.distances(np.broadcast_to(origin, d.shape), d).astype(np.float64)
         with np.errstate(divide="ignore", invalid="ignore"):
             t_ground = np.where(d[:, 2] < 0.0, (self.lo[2] - origin[2]) / d[:, 2], np.inf)
         keep = np.isfinite(t) & (t <= t_ground + 1e-6) & (t >= s.min_range) & (t <= s.max_range)
