@@ -138,6 +138,8 @@ class CompletionDataset:
             raise InputFileError(self.path, "no such file")
         self._file = None
         self._pid = None
+        self._gt_cache: dict = {}
+        self._meta: dict | None = None
         f = self._h5()
         try:
             fmt = f.attrs.get("format")
@@ -194,6 +196,8 @@ class CompletionDataset:
         d = dict(self.__dict__)
         d["_file"] = None
         d["_pid"] = None
+        d["_gt_cache"] = {}
+        d["_meta"] = None
         return d
 
     def __len__(self) -> int:
@@ -232,17 +236,35 @@ class CompletionDataset:
         return Rig.from_dict(json.loads(self._h5()[f"rigs/{name}"].attrs["rig_json"]))
 
     # --- arrays ---------------------------------------------------------------------------
+    # Per-model ground truth is shared by all views: keep the most recent models in memory
+    # (0.2 MB each at the default sizes).
+    GT_CACHE_MODELS = 256
+
     def ground_truth(self, model: int, rig: str | None = None) -> dict:
         """Ground truth of model row ``model``: ``gt_points`` (2048, 3) f32, ``gt_dense`` (16384, 3) f32,
-        ``gt_depths`` (N*M,) f32 of ``rig`` (default rig), all in the unit frame."""
-        f = self._h5()
+        ``gt_depths`` (N*M,) f32 of ``rig`` (default rig), all in the unit frame.
+
+        Cached per (model, rig); the returned arrays are read-only (copy before modifying)."""
         name = rig or self.default_rig
-        self.rig(name)  # validates the name
-        return {
-            "gt_points": f["models/gt_points"][model],
-            "gt_dense": f["models/gt_dense"][model],
-            "gt_depths": f[f"rigs/{name}/depths"][model],
-        }
+        key = (int(model), name)
+        hit = self._gt_cache.pop(key, None)
+        if hit is None:
+            if name not in self.rig_names:
+                self.rig(name)  # raises a clear error
+            if not (0 <= key[0] < self.n_models):
+                raise ParameterError(f"model row {model} out of range (the dataset has {self.n_models} models)")
+            f = self._h5()
+            hit = {
+                "gt_points": f["models/gt_points"][key[0]],
+                "gt_dense": f["models/gt_dense"][key[0]],
+                "gt_depths": f[f"rigs/{name}/depths"][key[0]],
+            }
+            for a in hit.values():
+                a.setflags(write=False)
+            while len(self._gt_cache) >= self.GT_CACHE_MODELS:
+                self._gt_cache.pop(next(iter(self._gt_cache)))
+        self._gt_cache[key] = hit  # most recent last
+        return dict(hit)
 
     def sample(self, index: int, rig: str | None = None) -> dict:
         """One sample (global index): its partial scan, its model's ground truth and its metadata.
@@ -256,24 +278,31 @@ class CompletionDataset:
         if not (-n <= int(index) < n):
             raise ParameterError(f"sample index {index} out of range (the dataset has {n} samples)")
         i = int(index) % n
-        f = self._h5()
-        s = f["samples"]
+        meta = self.metadata()
         m = int(self.sample_model[i])
-        out = {"partial": s["partial"][i]}
+        out = {"partial": self._h5()["samples/partial"][i]}
         out.update(self.ground_truth(m, rig))
         out.update({
             "model": str(self.names[m]), "model_index": m, "category": str(self.categories[m]),
             "split": str(self.splits[m]), "view": int(self.sample_view[i]),
-            "sensor_to_unit": s["sensor_to_unit"][i], "distance": float(s["distance"][i]),
-            "azimuth": float(s["azimuth"][i]), "heading": float(s["heading"][i]), "n_raw": int(s["n_raw"][i]),
-            "rig": rig or self.default_rig,
+            "sensor_to_unit": meta["sensor_to_unit"][i].copy(), "distance": float(meta["distance"][i]),
+            "azimuth": float(meta["azimuth"][i]), "heading": float(meta["heading"][i]),
+            "n_raw": int(meta["n_raw"][i]), "rig": rig or self.default_rig,
         })
         return out
+
+    def metadata(self) -> dict:
+        """Every per-sample field except ``partial`` (``sensor_to_unit`` (n, 4, 4), ``distance``, ...),
+        read whole on first use (~150 bytes per sample) so that per-sample access needs no HDF5 read."""
+        if self._meta is None:
+            s = self._h5()["samples"]
+            self._meta = {k: s[k][()] for k in SAMPLE_FIELDS if k in s}
+        return self._meta
 
     def to_sensor(self, index: int, points: np.ndarray) -> np.ndarray:
         """Map (K, 3) unit-frame points of sample ``index`` (e.g. a completion) back into its LiDAR
         sensor frame (metres): the inverse of ``/samples/sensor_to_unit``. Returns (K, 3) float64."""
-        m = np.linalg.inv(self._h5()["samples/sensor_to_unit"][int(index)])
+        m = np.linalg.inv(self.metadata()["sensor_to_unit"][int(index)])
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         return p @ m[:3, :3].T + m[:3, 3]
 
