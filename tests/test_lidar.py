@@ -139,6 +139,24 @@ def test_noise_and_dropout_statistics():
     assert np.allclose(u, v, atol=1e-9)
 
 
+def test_beam_dropout_removes_whole_beams():
+    m = box_mesh()
+    clean_sim = LidarSimulator(m.vertices, m.faces, hdl64e(range_noise=0.0))
+    sim = LidarSimulator(m.vertices, m.faces, hdl64e(range_noise=0.0, beam_dropout=0.5))
+    kept, total = 0, 0
+    for k in range(20):
+        pose = VehiclePose(6.0 + k, 0.1 * k, 0.3 * k)
+        clean = clean_sim.scan(pose, np.random.default_rng(k))
+        scan = sim.scan(pose, np.random.default_rng(k))
+        beams = set(scan.beam.tolist())
+        assert beams <= set(clean.beam.tolist())
+        # every surviving beam keeps all of its returns
+        assert len(scan.points) == int(np.isin(clean.beam, list(beams)).sum())
+        kept += len(beams)
+        total += len(set(clean.beam.tolist()))
+    assert 0.35 < kept / total < 0.65
+
+
 def test_ground_occludes_and_sensor_outside():
     m = box_mesh()
     sim = LidarSimulator(m.vertices, m.faces, hdl64e())

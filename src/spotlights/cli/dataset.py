@@ -45,6 +45,8 @@ def register(sub) -> None:
     g.add_argument("--mount-height", type=float, default=None, metavar="M", help="sensor height above ground (hdl64e: 1.73)")
     g.add_argument("--range-noise", type=float, default=None, metavar="M", help="range noise sigma (hdl64e: 0.02)")
     g.add_argument("--dropout", type=float, default=None, metavar="P", help="probability that a return is lost (default 0)")
+    g.add_argument("--beam-dropout", type=float, default=None, metavar="P",
+                   help="probability that a whole beam is dead during a scan (default 0)")
     g.add_argument("--max-range", type=float, default=None, metavar="M", help="range limit (hdl64e: 120)")
     g.add_argument("--distance", default="4:40", metavar="MIN:MAX", help="vehicle distance range in metres (default 4:40)")
     g.add_argument("--min-points", type=int, default=50, help="fewer returns than this and the pose is redrawn (default 50)")
@@ -89,11 +91,19 @@ def _distance(text: str) -> tuple[float, float]:
 
 
 def _build(args) -> int:
+    import signal
+
     from ..data.lidar import sensor_preset
     from ..data.synthetic import BuildConfig, build_dataset
 
+    def _terminate(signum, frame):  # SIGTERM: stop the workers like Ctrl-C, finished units are kept
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, _terminate)
+
     sensor = sensor_preset(args.sensor, azimuth_step=args.azimuth_step, mount_height=args.mount_height,
-                           range_noise=args.range_noise, dropout=args.dropout, max_range=args.max_range)
+                           range_noise=args.range_noise, dropout=args.dropout, max_range=args.max_range,
+                           beam_dropout=args.beam_dropout)
     cfg = BuildConfig(
         meshes=str(args.meshes), manifest=args.manifest, views=args.views, split=args.split, seed=args.seed,
         n_points=args.points, gt_points=args.gt_points, gt_dense=args.gt_dense, default_rig=args.default_rig,
@@ -140,7 +150,7 @@ def _info(args) -> int:
     sen = info["sensor"]
     print(f"  sensor: {sen.get('name')} {sen.get('n_beams')} beams {sen.get('elevation_max')}..{sen.get('elevation_min')} deg, "
           f"azimuth step {sen.get('azimuth_step')} deg, {sen.get('mount_height')} m high, noise {sen.get('range_noise')} m, "
-          f"dropout {sen.get('dropout')}; distance {cfg.get('distance')} m, >= {cfg.get('min_points')} returns, "
+          f"dropout {sen.get('dropout')}, beam dropout {sen.get('beam_dropout', 0)}; distance {cfg.get('distance')} m, >= {cfg.get('min_points')} returns, "
           f"{cfg.get('n_points')} points ({cfg.get('downsample')})")
     if info["skipped"]:
         print(f"  skipped meshes: " + "; ".join(f"{s['file']} ({s['problem']})" for s in info["skipped"]))

@@ -16,7 +16,8 @@ Sensor model (:class:`SensorModel`, default :func:`hdl64e`)
   ``mount_height`` (1.73 m, KITTI) above a flat ground plane ``z = -mount_height``.
 * A return is the first surface hit along the ray. Returns closer than
   ``min_range`` or farther than ``max_range`` are lost; each return is lost with
-  probability ``dropout`` (independently: absorbing/glossy surfaces); the range
+  probability ``dropout`` (independently: absorbing/glossy surfaces), and each
+  beam is dead for a whole scan with probability ``beam_dropout``; the range
   gets Gaussian noise of standard deviation ``range_noise`` (2 cm) along the ray.
   Motion during the sweep (rolling shutter), beam divergence, intensity and
   multiple returns are not modelled.
@@ -68,6 +69,7 @@ class SensorModel:
     min_range, max_range : returns outside [min_range, max_range] metres are lost.
     range_noise : standard deviation of the Gaussian range noise, metres.
     dropout : probability that a return is lost, in [0, 1).
+    beam_dropout : probability that a whole beam returns nothing during a scan, in [0, 1).
     """
 
     name: str = "hdl64e"
@@ -81,6 +83,7 @@ class SensorModel:
     max_range: float = 120.0
     range_noise: float = 0.02
     dropout: float = 0.0
+    beam_dropout: float = 0.0
 
     def __post_init__(self):
         if self.elevations is not None:
@@ -103,6 +106,8 @@ class SensorModel:
             raise ParameterError(f"range noise must be >= 0 m, got {self.range_noise}")
         if not (0.0 <= self.dropout < 1.0):
             raise ParameterError(f"dropout must be in [0, 1), got {self.dropout}")
+        if not (0.0 <= self.beam_dropout < 1.0):
+            raise ParameterError(f"beam dropout must be in [0, 1), got {self.beam_dropout}")
 
     @property
     def beam_elevations(self) -> np.ndarray:
@@ -313,6 +318,9 @@ class LidarSimulator:
                 f"vehicle at {pose.distance:.2f} m would contain the sensor (footprint radius {self.footprint_radius:.2f} m)")
         origin = self._sensor_in_object(pose)
         beams, columns = self.window(pose)
+        if s.beam_dropout > 0.0:  # dead beams this scan (drawn for every beam: independent of the window)
+            alive = rng.random(s.n_beams) >= s.beam_dropout
+            beams = beams[alive[beams]]
         if len(beams) == 0 or len(columns) == 0:
             empty = np.zeros(0, dtype=np.int64)
             return Scan(np.zeros((0, 3)), empty, empty, 0)

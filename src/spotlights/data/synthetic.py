@@ -486,9 +486,11 @@ def _init_worker(state: dict, quiet_sigint: bool) -> None:
 
     if quiet_sigint:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)  # pool.terminate() must end a worker at once
     _WORKER.clear()
     _WORKER.update(state)
     _WORKER["sims"] = {}
+    _WORKER["parent"] = os.getppid() if quiet_sigint else None
 
 
 def _shard_name(unit: tuple) -> str:
@@ -526,6 +528,8 @@ def _run_unit(unit: tuple) -> tuple:
         arrays = simulate_views(sims[m], model, cfg, range(unit[2], unit[3]))
         arrays["model"][:] = m
     _save_npz_atomic(parts / _shard_name(unit), arrays)
+    if _WORKER.get("parent") is not None and os.getppid() != _WORKER["parent"]:
+        os._exit(0)  # the build was killed: the shard is saved, leave quietly instead of a broken pipe
     return unit, time.perf_counter() - t0
 
 
