@@ -25,8 +25,9 @@ from spotlights.errors import ParameterError, SpotlightsError
 from spotlights.geometry.encode import encode_mesh
 from spotlights.geometry.io import load_mesh
 
+from helpers import CARS, need
+
 ROOT = Path(__file__).resolve().parents[1]
-CARS = ROOT / ".." / "shared" / "data" / "meshes" / "apolloscape-cars"
 BOXES = {  # file -> (extents, centre) in the object frame, metres
     "boxes/box_a.ply": ((4.5, 1.8, 1.5), (0.2, 0.0, 0.75)),
     "boxes/box_b.obj": ((4.0, 1.7, 1.6), (0.0, 0.1, 0.0)),
@@ -355,8 +356,8 @@ def test_up_and_forward_axes_from_a_manifest(tmp_path):
         assert np.allclose(f["rigs/cap-32x64-60/depths"][0], f["rigs/cap-32x64-60/depths"][1], atol=1e-6)
 
 
-@pytest.mark.skipif(not CARS.exists(), reason="../shared/data/meshes/apolloscape-cars is not available")
 def test_real_cars(tmp_path):
+    need(CARS)
     root = tmp_path / "cars"
     for rel in ("sedan/037-CAR02.ply", "suv/019-SUV.ply"):
         (root / rel).parent.mkdir(parents=True, exist_ok=True)

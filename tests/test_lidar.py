@@ -12,7 +12,8 @@ import trimesh
 from spotlights.data.lidar import LidarSimulator, SensorModel, VehiclePose, hdl64e, sensor_preset
 from spotlights.errors import ParameterError
 
-CARS = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "meshes" / "apolloscape-cars"
+from helpers import CARS, need
+
 BOX = np.array([4.5, 1.8, 1.5])  # length, width, height (metres)
 
 
@@ -183,8 +184,8 @@ def test_unit_frame_transform():
     assert np.allclose(fwd, [math.cos(2.0), math.sin(2.0), 0.0])
 
 
-@pytest.mark.skipif(not CARS.exists(), reason="../shared/data/meshes/apolloscape-cars is not available")
 def test_car_window_equals_full_revolution():
+    need(CARS)
     from spotlights.geometry.io import load_mesh
 
     mesh = load_mesh(CARS / "sedan" / "037-CAR02.ply")
