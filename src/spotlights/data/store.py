@@ -206,10 +206,12 @@ class CompletionDataset:
     # --- tables ---------------------------------------------------------------------------
     @property
     def n_models(self) -> int:
+        """Number of models (rows of /models)."""
         return len(self.names)
 
     @property
     def n_samples(self) -> int:
+        """Number of samples (rows of /samples)."""
         return len(self.sample_model)
 
     def _check_split(self, split: str) -> str:

@@ -180,15 +180,18 @@ class BuildConfig:
 
     @property
     def sensor_model(self) -> SensorModel:
+        """The :class:`SensorModel` of ``sensor``."""
         return SensorModel.from_dict(self.sensor)
 
     def to_dict(self) -> dict:
+        """JSON-serialisable dict (what ``config_json`` stores)."""
         d = asdict(self)
         d["distance"] = list(self.distance)
         return d
 
     @classmethod
     def from_dict(cls, d: dict) -> "BuildConfig":
+        """Rebuild and validate a config from :meth:`to_dict` output (unknown keys ignored)."""
         cfg = cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
         return cfg.validate()
 
