@@ -22,6 +22,7 @@ COMMAND_MODULES = [
     "spotlights.cli.core",  # encode, decode, show
     "spotlights.cli.demo",  # demo
     "spotlights.cli.dataset",  # dataset build, info, export, show
+    "spotlights.cli.real",  # real extract, evaluate, show
 ]
 
 EPILOG = """\
