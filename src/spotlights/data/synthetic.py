@@ -777,7 +777,3 @@ def _consolidate(out: Path, parts: Path, cfg: BuildConfig, models: list, skipped
     with atomic_output(out, suffix=".h5") as tmp:
         write_dataset(tmp, attrs=attrs, models=model_arrays, rigs=rig_arrays, n_points=cfg.n_points,
                       views_per_model=cfg.views, sample_blocks=blocks())
-        # The temporary file is private (0600); give the dataset the usual permissions (umask).
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
