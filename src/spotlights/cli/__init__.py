@@ -21,6 +21,8 @@ from ..errors import SpotlightsError
 COMMAND_MODULES = [
     "spotlights.cli.core",  # encode, decode, show
     "spotlights.cli.demo",  # demo
+    "spotlights.cli.dataset",  # dataset build, info, export, show
+    "spotlights.cli.real",  # real extract, evaluate, show
     "spotlights.cli.analyze",  # analyze density
 ]
 

@@ -1,0 +1,179 @@
+"""Consistency of completions across frames (PCN's metric; the paper's Table 2). numpy + pykdtree only.
+
+With no ground truth on real scans, a completion model is scored by how much
+its completions of the *same object* in *consecutive frames* agree. For two
+point sets A (earlier frame) and B (later frame), with unsquared Euclidean
+nearest-neighbour distances ``d(a, B) = min_b ||a - b||_2``:
+
+- ``d_ab``  = mean over a in A of d(a, B)   (one-sided, earlier -> later)
+- ``d_ba``  = mean over b in B of d(b, A)   (one-sided, later -> earlier)
+- ``cd``    = d_ab + d_ba  **(headline)**: exactly the paper's Eq. (1), the
+  two-sided Chamfer distance with unsquared (L2-norm) distances, the same
+  definition PCN uses for its consistency metric.
+- ``cd_half`` = (d_ab + d_ba) / 2: the same quantity halved (the "CD-L1" that
+  many completion codebases print).
+- ``cd_l2`` = mean of d(a, B)^2 + mean of d(b, A)^2: the squared-distance Chamfer.
+
+Frames: every completion is predicted in the unit frame of its own box. Both
+are mapped to the object frame in metres (``p = q * R_i``, R_i = half the
+diagonal of that observation's box; box frames are the object frames, so no
+other transform is needed) and then divided by the track's mean radius
+``R_track`` (mean of R_i over the track's observations). Headline numbers are
+in this track-normalised unit frame (equal to comparing unit-frame completions
+directly when a track's box size is constant, as for KITTI-360's static
+objects); the metre values are reported too (suffix ``_m``).
+
+Aggregation: a track's consecutive observations (ordered by timestamp; frames
+where the object was skipped are not counted, so "consecutive" means
+consecutive among its observations) form pairs; a track's value is the mean
+over its pairs; a class's value the mean over its tracks; ``average`` is the
+mean over the classes that have at least one track (the paper's "Average"
+column is the mean of its four class columns); ``all_objects`` is the mean
+over every track regardless of class.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass
+
+import numpy as np
+
+METRICS = ("cd", "cd_half", "d_ab", "d_ba", "cd_l2")
+METRIC_DOC = {
+    "cd": "d_ab + d_ba: two-sided Chamfer distance of the paper's Eq. (1), unsquared Euclidean NN distances (headline)",
+    "cd_half": "(d_ab + d_ba) / 2: the same, halved",
+    "d_ab": "one-sided: mean over the earlier completion's points of the distance to the nearest point of the later one",
+    "d_ba": "one-sided: mean over the later completion's points of the distance to the nearest point of the earlier one",
+    "cd_l2": "mean squared NN distance earlier->later + later->earlier (squared-distance Chamfer)",
+}
+
+
+def nn_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(len(a),) float64 Euclidean distance from each point of ``a`` (K, 3) to its nearest point of ``b`` (L, 3)."""
+    from pykdtree.kdtree import KDTree
+
+    a = np.ascontiguousarray(a, dtype=np.float64).reshape(-1, 3)
+    b = np.ascontiguousarray(b, dtype=np.float64).reshape(-1, 3)
+    if len(a) == 0 or len(b) == 0:
+        raise ValueError("nearest-neighbour distances need two non-empty point sets")
+    d, _ = KDTree(b).query(a, k=1)
+    return np.asarray(d, dtype=np.float64)
+
+
+def chamfer(a: np.ndarray, b: np.ndarray) -> dict[str, float]:
+    """All Chamfer variants of :data:`METRICS` between point sets ``a`` (K, 3) and ``b`` (L, 3), same frame and units."""
+    dab = nn_distances(a, b)
+    dba = nn_distances(b, a)
+    m_ab, m_ba = float(dab.mean()), float(dba.mean())
+    return {
+        "cd": m_ab + m_ba,
+        "cd_half": 0.5 * (m_ab + m_ba),
+        "d_ab": m_ab,
+        "d_ba": m_ba,
+        "cd_l2": float(np.mean(dab * dab) + np.mean(dba * dba)),
+    }
+
+
+def consecutive_pairs(object_keys, timestamps) -> list[tuple[int, int]]:
+    """Pairs (i, j) of rows that are consecutive observations of the same object.
+
+    ``object_keys`` (n hashables: e.g. (sequence, track_id)) and ``timestamps``
+    (n ints). Rows of an object are ordered by (timestamp, row); objects seen
+    once give no pair. Pairs are returned sorted by (first row's object order, time).
+    """
+    groups: dict = defaultdict(list)
+    for i, k in enumerate(object_keys):
+        groups[k].append(i)
+    ts = np.asarray(timestamps)
+    pairs = []
+    for k in sorted(groups, key=lambda k: groups[k][0]):
+        rows = sorted(groups[k], key=lambda i: (int(ts[i]), i))
+        pairs.extend(zip(rows[:-1], rows[1:]))
+    return pairs
+
+
+@dataclass
+class TrackResult:
+    """Consistency of one tracked object: means over its consecutive pairs."""
+
+    key: tuple
+    cls: str
+    n_observations: int
+    n_pairs: int
+    n_pairs_empty: int
+    values: dict  # metric -> mean (track-normalised unit frame), metric + "_m" -> metres
+
+
+def track_consistency(completions, object_keys, timestamps, classes, radii) -> list[TrackResult]:
+    """Per-track consistency.
+
+    Parameters
+    ----------
+    completions : n arrays (K_i, 3), unit frame of observation i (K_i may differ, may be 0).
+    object_keys : n hashables identifying the object (tracks with one row are ignored).
+    timestamps : (n,) ints ordering the observations of a track.
+    classes : n class names (a track's class is that of its first observation).
+    radii : (n,) float, R_i = half the box diagonal of observation i, metres.
+
+    Pairs with an empty completion are not scored and counted in ``n_pairs_empty``;
+    a track whose every pair is empty is returned with NaN values.
+    """
+    radii = np.asarray(radii, dtype=np.float64)
+    pairs = consecutive_pairs(object_keys, timestamps)
+    by_track: dict = defaultdict(list)
+    for i, j in pairs:
+        by_track[object_keys[i]].append((i, j))
+    members: dict = defaultdict(list)
+    for i, k in enumerate(object_keys):
+        members[k].append(i)
+    out = []
+    for key, plist in by_track.items():
+        rows = members[key]
+        r_track = float(np.mean(radii[rows]))
+        vals = defaultdict(list)
+        empty = 0
+        for i, j in plist:
+            a = np.asarray(completions[i], dtype=np.float64).reshape(-1, 3)
+            b = np.asarray(completions[j], dtype=np.float64).reshape(-1, 3)
+            if len(a) == 0 or len(b) == 0:
+                empty += 1
+                continue
+            c = chamfer(a * radii[i], b * radii[j])  # object frame, metres
+            for m in METRICS:
+                scale = r_track * r_track if m == "cd_l2" else r_track
+                vals[m].append(c[m] / scale)
+                vals[m + "_m"].append(c[m])
+        values = {m: (float(np.mean(vals[m])) if vals[m] else float("nan")) for m in [*METRICS, *(x + "_m" for x in METRICS)]}
+        out.append(TrackResult(key, str(classes[rows[0]]), len(rows), len(plist), empty, values))
+    return out
+
+
+def aggregate(tracks: list[TrackResult], classes=None) -> dict:
+    """Class means, their mean (``average``) and the mean over all tracks (``all_objects``).
+
+    Returns ``{"classes": {cls: {"n_objects", "n_pairs", metric...}}, "average": {...},
+    "all_objects": {...}}``; tracks with NaN values (every pair empty) are left out
+    of the means and counted in ``n_objects_unscored``.
+    """
+    keys = [*METRICS, *(x + "_m" for x in METRICS)]
+    names = list(classes) if classes is not None else sorted({t.cls for t in tracks})
+    res: dict = {"classes": {}}
+    class_means = []
+    for c in names:
+        ts = [t for t in tracks if t.cls == c]
+        scored = [t for t in ts if np.isfinite(t.values["cd"])]
+        entry = {"n_objects": len(scored), "n_objects_unscored": len(ts) - len(scored), "n_pairs": sum(t.n_pairs - t.n_pairs_empty for t in ts)}
+        for k in keys:
+            entry[k] = float(np.mean([t.values[k] for t in scored])) if scored else None
+        res["classes"][c] = entry
+        if scored:
+            class_means.append(entry)
+    res["average"] = {"n_classes": len(class_means)}
+    for k in keys:
+        res["average"][k] = float(np.mean([e[k] for e in class_means])) if class_means else None
+    scored = [t for t in tracks if np.isfinite(t.values["cd"])]
+    res["all_objects"] = {"n_objects": len(scored), "n_pairs": sum(t.n_pairs - t.n_pairs_empty for t in tracks)}
+    for k in keys:
+        res["all_objects"][k] = float(np.mean([t.values[k] for t in scored])) if scored else None
+    return res

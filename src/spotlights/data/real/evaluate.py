@@ -1,0 +1,230 @@
+"""Completion of real observations and the consistency report (the paper's Table 2).
+
+:func:`evaluate_consistency` takes an observation file (from ``real extract``)
+and any number of *completers* - objects with ``model_name`` (str), optionally
+``n_params`` (int), and ``complete(partials (B, P, 3) float32 unit frame) ->
+list of B arrays (K_i, 3)`` in the unit frame (the interface of
+``spotlights.learning.inference.load_completer``). It completes every
+observation of every object seen in two or more frames, scores the
+consistency (:mod:`spotlights.data.consistency`), and returns a report dict;
+:func:`write_report` writes it as Markdown and JSON.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from ...errors import InputFileError, SpotlightsError
+from ..consistency import METRIC_DOC, aggregate, consecutive_pairs, track_consistency
+from .base import CLASSES
+from .extract import Observations, read_observations
+
+
+def complete_all(completer, partials: np.ndarray, batch_size: int = 64, progress: bool = True, desc: str = "complete",
+                 clip: float | None = None) -> list[np.ndarray]:
+    """Run ``completer.complete`` over (n, P, 3) float32 partials in batches; returns n (K_i, 3) float32 arrays.
+
+    ``clip`` is passed on as ``complete(batch, clip=clip)`` only when given (else the model's default).
+    """
+    from tqdm import tqdm
+
+    out: list[np.ndarray] = []
+    n = len(partials)
+    for s in tqdm(range(0, n, batch_size), desc=desc, unit="batch", disable=not progress or n == 0):
+        batch = np.ascontiguousarray(partials[s : s + batch_size], dtype=np.float32)
+        res = completer.complete(batch) if clip is None else completer.complete(batch, clip=clip)
+        if len(res) != len(batch):
+            raise SpotlightsError(f"completer {getattr(completer, 'model_name', '?')} returned {len(res)} completions for {len(batch)} inputs")
+        for r in res:
+            r = np.asarray(r, dtype=np.float32)
+            if r.ndim != 2 or r.shape[1] != 3:
+                if r.size == 0:
+                    r = r.reshape(0, 3)
+                else:
+                    raise SpotlightsError(f"completer {getattr(completer, 'model_name', '?')} returned an array of shape {r.shape}, expected (K, 3)")
+            out.append(r)
+    return out
+
+
+def tracked_rows(obs: Observations) -> np.ndarray:
+    """Sorted row indices of the observations that belong to a consecutive pair."""
+    pairs = consecutive_pairs(obs.object_keys(), obs.timestamp)
+    return np.array(sorted({i for p in pairs for i in p}), dtype=np.int64)
+
+
+def evaluate_consistency(
+    source: str | os.PathLike | Observations,
+    completers: Sequence,
+    names: Sequence[str] | None = None,
+    checkpoints: Sequence[str] | None = None,
+    batch_size: int = 64,
+    progress: bool = True,
+    clip: float | None = None,
+) -> dict:
+    """Consistency of each completer on the tracked objects of an observation file.
+
+    Parameters
+    ----------
+    source : an observation HDF5 path or loaded :class:`Observations`.
+    completers : objects with ``complete(partials) -> list of (K, 3)`` (see the module doc).
+    names : row names in the report (default: each completer's ``model_name``).
+    checkpoints : checkpoint paths to record in the report (optional).
+    clip : passed to ``complete`` when given (SA-Net's depth clip); None = each model's default.
+
+    Returns
+    -------
+    dict with ``data`` (file, counts, skip counts), ``metrics`` (definitions),
+    and ``models``: one entry per completer with ``name``, ``n_params``,
+    ``classes`` / ``average`` / ``all_objects`` (see
+    :func:`spotlights.data.consistency.aggregate`) and ``objects`` (per track).
+
+    Raises
+    ------
+    InputFileError if no object of the file is observed in two or more frames.
+    """
+    path = None
+    if isinstance(source, Observations):
+        obs = source
+    else:
+        path = str(source)
+        obs = read_observations(source)
+    rows = tracked_rows(obs)
+    if rows.size == 0:
+        raise InputFileError(
+            path or "<observations>",
+            "no object is observed in two or more frames, so there is nothing to compare "
+            f"({len(obs)} observations; KITTI object frames carry no track ids - use Argoverse 2, KITTI-360 or a generic scene with track_id)",
+        )
+    if not completers:
+        raise SpotlightsError("no completer (checkpoint) given")
+    names = list(names) if names is not None else [str(getattr(c, "model_name", f"model{i}")) for i, c in enumerate(completers)]
+    keys = obs.object_keys()
+    sub_keys = [keys[i] for i in rows]
+    sub_ts = obs.timestamp[rows]
+    sub_cls = [obs.cls[i] for i in rows]
+    radii = 0.5 * np.linalg.norm(obs.box_size[rows], axis=1)
+    classes_present = [c for c in CLASSES if c in set(sub_cls)]
+    models = []
+    for k, completer in enumerate(completers):
+        comps = complete_all(completer, obs.partial[rows], batch_size=batch_size, progress=progress, desc=f"complete {names[k]}", clip=clip)
+        tracks = track_consistency(comps, sub_keys, sub_ts, sub_cls, radii)
+        agg = aggregate(tracks, classes=classes_present)
+        models.append(
+            dict(
+                name=names[k],
+                model_name=str(getattr(completer, "model_name", names[k])),
+                checkpoint=None if checkpoints is None else str(checkpoints[k]),
+                n_params=getattr(completer, "n_params", None),
+                mean_points_per_completion=float(np.mean([len(c) for c in comps])),
+                **agg,
+                objects=[
+                    dict(sequence=t.key[0], track_id=t.key[1], cls=t.cls, n_observations=t.n_observations,
+                         n_pairs=t.n_pairs, n_pairs_empty=t.n_pairs_empty, **t.values)
+                    for t in tracks
+                ],
+            )
+        )
+    n_tracks = len(set(sub_keys))
+    return dict(
+        data=dict(
+            file=path,
+            source_format=obs.meta.get("source_format"),
+            source=obs.meta.get("source"),
+            n_observations=len(obs),
+            n_observations_tracked=int(rows.size),
+            n_objects_tracked=n_tracks,
+            n_pairs=len(consecutive_pairs(sub_keys, sub_ts)),
+            objects_per_class={c: len({k for k, cc in zip(sub_keys, sub_cls) if cc == c}) for c in classes_present},
+            extraction=obs.meta.get("config"),
+            clip=clip,
+            skipped=obs.meta.get("skipped"),
+        ),
+        metrics=dict(
+            headline="cd",
+            frame="object frame divided by the track's mean box radius (half diagonal); '_m' keys in metres",
+            aggregation="pair -> mean per tracked object -> mean per class; average = mean over classes present; all_objects = mean over objects",
+            definitions=METRIC_DOC,
+        ),
+        models=models,
+    )
+
+
+def _fmt(v, digits=4) -> str:
+    return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f"{v:.{digits}f}"
+
+
+def report_markdown(report: dict) -> str:
+    """The report as Markdown: a Table-2-style headline table, then the other metric variants."""
+    d = report["data"]
+    classes = list(d["objects_per_class"])
+    lines = ["# Consistency of completions on real scans (paper Table 2)", ""]
+    lines.append(
+        f"Source: `{d.get('source')}` ({d.get('source_format')}), file `{d.get('file')}`. "
+        f"{d['n_objects_tracked']} objects observed in two or more frames "
+        f"({d['n_observations_tracked']} of {d['n_observations']} observations, {d['n_pairs']} consecutive pairs); "
+        "objects per class: " + ", ".join(f"{c} {n}" for c, n in d["objects_per_class"].items()) + "."
+    )
+    lines.append("")
+    lines.append(
+        "Headline: **CD = d(A->B) + d(B->A)**, the paper's Eq. (1) with unsquared Euclidean nearest-neighbour "
+        "distances, between completions of the same object in consecutive frames, in the object frame divided by "
+        "the track's mean box radius (half diagonal); mean per object, then per class; Average = mean of the class columns. "
+        "Lower is better."
+    )
+    lines.append("")
+    head = "| Model | " + " | ".join(c.capitalize() for c in classes) + " | Average | All objects |"
+    lines += [head, "|" + "---|" * (len(classes) + 3)]
+    for m in report["models"]:
+        cells = [_fmt(m["classes"][c]["cd"]) for c in classes]
+        lines.append(f"| {m['name']} | " + " | ".join(cells) + f" | {_fmt(m['average']['cd'])} | {_fmt(m['all_objects']['cd'])} |")
+    lines += ["", "## Other variants (Average over classes; All objects in brackets)", ""]
+    lines += ["| Model | CD (m) | CD/2 | d(A->B) | d(B->A) | CD-L2 (squared) | points per completion |", "|---|---|---|---|---|---|---|"]
+    for m in report["models"]:
+        a, o = m["average"], m["all_objects"]
+        lines.append(
+            f"| {m['name']} | {_fmt(a['cd_m'])} ({_fmt(o['cd_m'])}) | {_fmt(a['cd_half'])} ({_fmt(o['cd_half'])}) | "
+            f"{_fmt(a['d_ab'])} ({_fmt(o['d_ab'])}) | {_fmt(a['d_ba'])} ({_fmt(o['d_ba'])}) | "
+            f"{_fmt(a['cd_l2'], 5)} ({_fmt(o['cd_l2'], 5)}) | {m['mean_points_per_completion']:.0f} |"
+        )
+    lines += ["", "Definitions (A = earlier frame's completion, B = later frame's):", ""]
+    for k, v in report["metrics"]["definitions"].items():
+        lines.append(f"- `{k}`: {v}")
+    skipped = d.get("skipped") or {}
+    if skipped:
+        lines += ["", "Boxes skipped at extraction: " + ", ".join(f"{k} {v}" for k, v in skipped.items()) + "."]
+    for m in report["models"]:
+        unscored = sum(m["classes"][c]["n_objects_unscored"] for c in classes)
+        if unscored:
+            lines.append(f"\n{m['name']}: {unscored} object(s) had only empty completions and are not scored.")
+    return "\n".join(lines) + "\n"
+
+
+def write_report(report: dict, prefix: str | os.PathLike) -> tuple[Path, Path]:
+    """Write ``PREFIX.md`` and ``PREFIX.json`` atomically; returns both paths."""
+    from ...utils import atomic_output
+
+    prefix = Path(prefix)
+    md, js = prefix.with_name(prefix.name + ".md"), prefix.with_name(prefix.name + ".json")
+
+    def clean(x):
+        if isinstance(x, float) and not math.isfinite(x):
+            return None
+        if isinstance(x, dict):
+            return {str(k): clean(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [clean(v) for v in x]
+        if isinstance(x, np.generic):
+            return clean(x.item())
+        return x
+
+    with atomic_output(js) as tmp:
+        tmp.write_text(json.dumps(clean(report), indent=2, sort_keys=False) + "\n", encoding="utf-8")
+    with atomic_output(md) as tmp:
+        tmp.write_text(report_markdown(report), encoding="utf-8")
+    return md, js

@@ -1,0 +1,214 @@
+"""KITTI 3D object benchmark reader (``training/`` or ``testing/`` folders).
+
+Layout (the standard KITTI object format)::
+
+    ROOT/velodyne/000123.bin          N x 4 float32: x, y, z, reflectance (Velodyne frame)
+    ROOT/velodyne_reduced/000123.bin  the same, cropped to the camera field of view
+    ROOT/label_2/000123.txt           one object per line, boxes in the rectified camera frame
+    ROOT/calib/000123.txt             P0..P3, R0_rect, Tr_velo_to_cam, Tr_imu_to_velo
+
+``ROOT`` may also be the KITTI folder that contains ``training/``.
+
+A ``label_2`` line has 15 fields (16 with a detection score)::
+
+    type truncated occluded alpha  x1 y1 x2 y2  h w l  x y z  rotation_y [score]
+
+``(x, y, z)`` is the **bottom centre** of the box in the rectified camera frame
+(x right, y down, z forward), ``h w l`` its height, width and length in metres,
+``rotation_y`` the heading about the camera's y axis (0 = facing the camera's
++x). Boxes are brought into the Velodyne frame with
+
+    p_velo = Tr_velo_to_cam^-1 @ R0_rect^-1 @ p_rect        (4x4 homogeneous forms)
+
+(the inverse of the devkit's ``p_rect = R0_rect @ Tr_velo_to_cam @ p_velo``).
+In the rectified camera frame the box's axes are forward
+``(cos ry, 0, -sin ry)``, left ``(sin ry, 0, cos ry)`` and up ``(0, -1, 0)``.
+
+Classes: ``Car`` -> car, ``Van`` -> caravan (van/caravan), ``Truck`` -> truck;
+``Pedestrian``, ``Person_sitting``, ``Cyclist``, ``Tram``, ``Misc`` and
+``DontCare`` are not vehicles of interest. KITTI object frames are independent
+snapshots: boxes carry no track id.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ...errors import InputFileError
+from .base import Box, Frame, SceneReader, lookup_class, orthonormalize
+
+CLASS_MAP: dict[str, str | None] = {"car": "car", "van": "caravan", "truck": "truck"}
+
+VELODYNE_FOLDERS = ("velodyne", "velodyne_reduced")
+
+
+def read_kitti_bin(path: str | os.PathLike) -> np.ndarray:
+    """Read a KITTI Velodyne ``.bin`` scan: returns (N, 3) float32 x, y, z in metres (sensor frame).
+
+    Raises :class:`InputFileError` if the file is missing or its size is not a
+    multiple of 16 bytes (4 float32 per point).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError(path, "scan file not found")
+    size = path.stat().st_size
+    if size % 16:
+        raise InputFileError(path, f"size {size} bytes is not a multiple of 16 (N x 4 float32 expected)")
+    data = np.fromfile(path, dtype="<f4").reshape(-1, 4)
+    return np.ascontiguousarray(data[:, :3])
+
+
+def read_calib(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Parse a KITTI ``calib/*.txt``; returns ``{"R0_rect": (3,3), "Tr_velo_to_cam": (3,4)}`` float64.
+
+    Also accepts the tracking benchmark's names ``R_rect`` and ``Tr_velo_cam``.
+    Raises :class:`InputFileError` when the file is missing or lacks either matrix.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError(path, "calibration file not found (every label_2 frame needs calib/<frame>.txt)")
+    values: dict[str, list[float]] = {}
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        for lineno, line in enumerate(fh, 1):
+            line = line.strip()
+            if not line:
+                continue
+            key, sep, rest = line.partition(":")
+            if not sep:
+                key, _, rest = line.partition(" ")
+            try:
+                values[key.strip()] = [float(v) for v in rest.split()]
+            except ValueError:
+                raise InputFileError(path, f"line {lineno}: non-numeric value in {key.strip()!r}") from None
+    out = {}
+    for name, aliases, shape in (("R0_rect", ("R0_rect", "R_rect"), (3, 3)), ("Tr_velo_to_cam", ("Tr_velo_to_cam", "Tr_velo_cam"), (3, 4))):
+        found = next((values[a] for a in aliases if a in values), None)
+        if found is None:
+            raise InputFileError(path, f"missing {name} in calibration file")
+        if len(found) != shape[0] * shape[1]:
+            raise InputFileError(path, f"{name} has {len(found)} values, expected {shape[0] * shape[1]}")
+        out[name] = np.array(found, dtype=np.float64).reshape(shape)
+    return out
+
+
+def velo_from_rect(calib: dict[str, np.ndarray]) -> np.ndarray:
+    """(4, 4) float64 transform rectified-camera frame -> Velodyne frame."""
+    r0 = np.eye(4)
+    r0[:3, :3] = calib["R0_rect"]
+    tr = np.eye(4)
+    tr[:3, :4] = calib["Tr_velo_to_cam"]
+    return np.linalg.inv(tr) @ np.linalg.inv(r0)
+
+
+def parse_label_line(line: str, path, lineno: int) -> tuple[str, np.ndarray]:
+    """Split one ``label_2`` line into (type, 14 float64 values); raises InputFileError if malformed."""
+    fields = line.split()
+    if len(fields) not in (15, 16):
+        raise InputFileError(path, f"line {lineno}: expected 15 or 16 fields (type, 14 numbers[, score]), got {len(fields)}")
+    try:
+        nums = np.array([float(v) for v in fields[1:15]], dtype=np.float64)
+    except ValueError:
+        raise InputFileError(path, f"line {lineno}: non-numeric field in {line.strip()!r}") from None
+    return fields[0], nums
+
+
+def box_from_label(kind: str, nums: np.ndarray, t_velo_rect: np.ndarray, track_id: str = "") -> Box:
+    """A KITTI label (type + 14 numbers) -> :class:`Box` in the Velodyne frame.
+
+    ``nums`` = truncated, occluded, alpha, x1, y1, x2, y2, h, w, l, x, y, z, rotation_y
+    (camera-frame bottom centre); ``t_velo_rect`` from :func:`velo_from_rect`.
+    """
+    h, w, l = nums[7:10]
+    x, y, z = nums[10:13]
+    ry = nums[13]
+    c, s = np.cos(ry), np.sin(ry)
+    axes_rect = np.array([[c, s, 0.0], [0.0, 0.0, -1.0], [-s, c, 0.0]])  # columns: forward, left, up
+    center_rect = np.array([x, y - h / 2.0, z])  # camera y points down: centre is h/2 above the bottom
+    rot = orthonormalize(t_velo_rect[:3, :3] @ axes_rect)
+    center = t_velo_rect[:3, :3] @ center_rect + t_velo_rect[:3, 3]
+    return Box(center, np.array([l, w, h], dtype=np.float64), rot, kind, lookup_class(kind, CLASS_MAP), track_id)
+
+
+def read_labels(path: str | os.PathLike, t_velo_rect: np.ndarray) -> list[Box]:
+    """Read a ``label_2`` file: every line as a :class:`Box` in the Velodyne frame (including ``DontCare``)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError(path, "label file not found")
+    boxes = []
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        for lineno, line in enumerate(fh, 1):
+            if not line.strip():
+                continue
+            kind, nums = parse_label_line(line, path, lineno)
+            boxes.append(box_from_label(kind, nums, t_velo_rect))
+    return boxes
+
+
+class KittiReader(SceneReader):
+    """KITTI object frames: one :class:`Frame` per ``label_2/*.txt``.
+
+    Parameters
+    ----------
+    root : the ``training`` (or ``testing``) folder, or the folder containing ``training/``.
+    velodyne : ``"auto"`` (``velodyne/`` if present, else ``velodyne_reduced/``),
+        ``"velodyne"`` or ``"velodyne_reduced"``.
+    """
+
+    format = "kitti"
+
+    def __init__(self, root: str | os.PathLike, velodyne: str = "auto"):
+        root = Path(root)
+        if not root.is_dir():
+            raise InputFileError(root, "not a folder")
+        if not (root / "label_2").is_dir() and (root / "training" / "label_2").is_dir():
+            root = root / "training"
+        if not (root / "label_2").is_dir():
+            raise InputFileError(root, "not a KITTI object folder: no label_2/ inside")
+        if velodyne == "auto":
+            found = [v for v in VELODYNE_FOLDERS if (root / v).is_dir()]
+            if not found:
+                raise InputFileError(root, "no velodyne/ or velodyne_reduced/ folder")
+            velodyne = found[0]
+        elif velodyne not in VELODYNE_FOLDERS:
+            raise InputFileError(root, f"unknown velodyne folder {velodyne!r} (velodyne or velodyne_reduced)")
+        elif not (root / velodyne).is_dir():
+            raise InputFileError(root / velodyne, "folder not found")
+        self.root = str(root)
+        self.velodyne = velodyne
+        self._frames = sorted(p.stem for p in (root / "label_2").glob("*.txt"))
+        if not self._frames:
+            raise InputFileError(root / "label_2", "no label files (*.txt)")
+        # Check every frame's companions up front: a missing calib or scan is an
+        # error naming the file before any work is done.
+        for stem in self._frames:
+            for sub, ext, what in (("calib", ".txt", "calibration file"), (velodyne, ".bin", "scan file")):
+                p = root / sub / f"{stem}{ext}"
+                if not p.is_file():
+                    raise InputFileError(p, f"{what} not found for label_2/{stem}.txt")
+
+    def frame_keys(self) -> list[tuple[str, str]]:
+        return [("", stem) for stem in self._frames]
+
+    def load(self, key: tuple[str, str]) -> Frame:
+        stem = key[1]
+        root = Path(self.root)
+        calib = read_calib(root / "calib" / f"{stem}.txt")
+        t = velo_from_rect(calib)
+        label_path = root / "label_2" / f"{stem}.txt"
+        boxes = read_labels(label_path, t)
+        scan_path = root / self.velodyne / f"{stem}.bin"
+        points = read_kitti_bin(scan_path)
+        index = int(stem) if stem.isdigit() else 0
+        return Frame(
+            sequence="",
+            frame_id=stem,
+            timestamp=index,
+            points=points,
+            boxes=boxes,
+            sensor_to_world=None,
+            scan_path=str(scan_path),
+            label_path=str(label_path),
+        )
