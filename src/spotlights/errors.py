@@ -22,6 +22,9 @@ class InputFileError(SpotlightsError):
         self.problem = problem
         super().__init__(f"{self.path}: {problem}")
 
+    def __reduce__(self):  # picklable, so it crosses process boundaries (worker pools)
+        return (type(self), (self.path, self.problem))
+
 
 class ParameterError(SpotlightsError, ValueError):
     """An invalid parameter value (e.g. a rig with N < 1)."""

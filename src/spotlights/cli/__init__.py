@@ -21,7 +21,10 @@ from ..errors import SpotlightsError
 COMMAND_MODULES = [
     "spotlights.cli.core",  # encode, decode, show
     "spotlights.cli.demo",  # demo
+    "spotlights.cli.dataset",  # dataset build, info, export, show
     "spotlights.cli.real",  # real extract, evaluate, show
+    "spotlights.cli.analyze",  # analyze density
+    "spotlights.cli.study",  # study rigs
     "spotlights.cli.learn",  # train, evaluate, complete, bench models
 ]
 

@@ -15,6 +15,16 @@ def add_rig_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--angle", type=float, default=60.0, metavar="DEG", help="cap polar half-angle omega in degrees, (0, 90] (default 60)")
     g.add_argument("--radius", type=float, default=None, metavar="R",
                    help="alternatively the paper's small-sphere radius r/R: omega = arccos(r/2R); 0.25 gives 82.8 degrees")
+    g.add_argument("--rig-kind", choices=("cap", "box"), default="cap",
+                   help="cap: the paper's rig (default); box: aim each viewpoint's rays at the object's box "
+                        "(beyond the paper; on the 79 cars: hit ratio 0.94 instead of 0.35 and 22-24%% better "
+                        "completeness than the 60-degree cap; docs/box-rig.md)")
+    g.add_argument("--box-targets", choices=("ellipsoid", "volume", "surface", "visible"), default=None,
+                   help="box rigs: target set (default ellipsoid: the tangent cone of the box's inscribed ellipsoid)")
+    g.add_argument("--box-scale", type=float, default=None, metavar="S",
+                   help="box rigs: targets within the box scaled by S, (0, 1] (default 1)")
+    g.add_argument("--box-cap-share", type=float, default=None, metavar="C",
+                   help="box rigs: share of each viewpoint's rays kept on the paper's cap of --angle, [0, 1) (default 0)")
 
 
 def add_axes_arguments(p: argparse.ArgumentParser) -> None:
@@ -22,10 +32,25 @@ def add_axes_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--forward", default="x", help="the mesh file's forward axis (default x)")
 
 
-def rig_from_args(args):
-    from ..geometry.rig import make_rig
+def spec_from_args(args):
+    """The :class:`~spotlights.geometry.rig.RigSpec` the rig options describe (box rigs need a box to become rigs)."""
+    from ..geometry.rig import make_rig_spec
 
-    return make_rig(args.primary, args.secondary, angle=args.angle, radius=args.radius)
+    kind = getattr(args, "rig_kind", "cap") or "cap"
+    box = {k: getattr(args, f"box_{k}", None) for k in ("targets", "scale", "cap_share")}
+    if kind == "cap":
+        given = [f"--box-{k.replace('_', '-')}" for k, v in box.items() if v is not None]
+        if given:
+            from ..errors import ParameterError
+
+            raise ParameterError(f"{', '.join(given)} only apply with --rig-kind box")
+        box = {}
+    return make_rig_spec(args.primary, args.secondary, angle=args.angle, radius=args.radius, kind=kind, **box)
+
+
+def rig_from_args(args, box=None):
+    """The concrete rig of the rig options; box rigs need ``box``, the object's (3,) half-extents in the unit frame."""
+    return spec_from_args(args).for_box(box)
 
 
 def register(sub) -> None:
@@ -62,7 +87,7 @@ def _encode(args) -> int:
     from ..geometry.encode import MeshProbe, hit_ratio, save_encoding
     from ..geometry.io import load_mesh
 
-    rig = rig_from_args(args)
+    spec = spec_from_args(args)
     out = Path(args.out)
     several = len(args.meshes) > 1
     if several and out.suffix.lower() == ".npz":
@@ -73,6 +98,7 @@ def _encode(args) -> int:
     meshes = [load_mesh(m, up=args.up, forward=args.forward) for m in args.meshes]  # validate all first
     for path, mesh, target in tqdm(list(zip(args.meshes, meshes, targets)), desc="encode", unit="mesh", disable=not several):
         probe = MeshProbe(mesh)
+        rig = probe.rig_for(spec)  # box rigs: aimed at this mesh's own box
         depths = probe.encode(rig)
         save_encoding(target, depths, rig, probe.normalization)
         msg = f"{path}: {rig.name}, hit ratio {hit_ratio(depths):.3f} ({int((depths > 0).sum())}/{rig.n_rays} rays) -> {target}"
@@ -110,8 +136,10 @@ def _show(args) -> int:
         with np.load(src, allow_pickle=False) as z:
             is_encoding = "depths" in z.files
         if is_encoding:
-            viz.render_encoding(out, load_encoding(src), clip=args.clip)
-            print(f"{src}: encoding -> {out}")
+            enc = load_encoding(src)
+            viz.render_encoding(out, enc, clip=args.clip)
+            box = "" if enc.rig.box is None else ", box half-extents " + " x ".join(f"{x:.3f}" for x in enc.rig.box)
+            print(f"{src}: encoding ({enc.rig.name}{box}) -> {out}")
             return 0
     if suffix in MESH_SUFFIXES and suffix != ".ply" or (suffix == ".ply" and _ply_has_faces(src)):
         mesh = load_mesh(src, up=args.up, forward=args.forward)

@@ -12,13 +12,13 @@ from .encode import Encoding, MeshProbe, decode, encode_mesh, encode_mesh_files,
 from .frames import Normalization, box_corners, normalization_from_box, normalization_from_mesh, normalization_from_points
 from .io import load_mesh, load_points, save_points
 from .raycast import RayCaster, first_hit
-from .rig import Rig, cap_directions, fibonacci_sphere, make_rig
+from .rig import Rig, RigSpec, cap_directions, fibonacci_sphere, make_rig, make_rig_spec
 from .sampling import farthest_point_sample, resample, sample_surface
 
 __all__ = [
-    "Encoding", "MeshProbe", "Normalization", "RayCaster", "Rig",
+    "Encoding", "MeshProbe", "Normalization", "RayCaster", "Rig", "RigSpec",
     "box_corners", "cap_directions", "decode", "encode_mesh", "encode_mesh_files", "encode_meshes", "farthest_point_sample",
     "fibonacci_sphere", "first_hit", "hit_ratio", "load_encoding", "load_mesh", "load_points",
-    "make_rig", "normalization_from_box", "normalization_from_mesh", "normalization_from_points",
+    "make_rig", "make_rig_spec", "normalization_from_box", "normalization_from_mesh", "normalization_from_points",
     "resample", "sample_surface", "save_encoding", "save_points",
 ]

@@ -22,7 +22,7 @@ from ..errors import InputFileError, ParameterError
 from ..utils import atomic_output
 from .frames import Normalization, normalization_from_mesh
 from .raycast import RayCaster
-from .rig import Rig
+from .rig import Rig, RigSpec, extents_from_normalization
 
 
 class MeshProbe:
@@ -51,8 +51,22 @@ class MeshProbe:
         inside = np.isfinite(t) & (t <= chord + 1e-6)
         return np.where(inside, np.minimum(t, 2.0), 0.0)
 
-    def encode(self, rig: Rig) -> np.ndarray:
-        """(N*M,) float32 normalised depths for ``rig`` (0 = miss)."""
+    @property
+    def box_extents(self) -> np.ndarray:
+        """(3,) float64 half-extents of the object's box in the unit frame (``size / 2R``)."""
+        return extents_from_normalization(self.normalization)
+
+    def rig_for(self, rig: Rig | RigSpec) -> Rig:
+        """The concrete rig to cast: ``rig`` itself, or a spec resolved for this object's box."""
+        return rig.for_normalization(self.normalization) if isinstance(rig, RigSpec) else rig
+
+    def encode(self, rig: Rig | RigSpec) -> np.ndarray:
+        """(N*M,) float32 normalised depths for ``rig`` (0 = miss).
+
+        A :class:`RigSpec` is resolved for this object's box first (:meth:`rig_for`);
+        keep that rig (``rig_for(spec)``) to decode the depths.
+        """
+        rig = self.rig_for(rig)
         depth = self.caster.raw_distances(*rig.rays32)  # float32, >= 1e30 on a miss
         depth *= np.float32(0.5)
         # misses, and hits beyond the ray's chord through the unit sphere, become 0
@@ -60,13 +74,14 @@ class MeshProbe:
         return np.minimum(depth, np.float32(1.0), out=depth)
 
 
-def encode_mesh(mesh, rig: Rig, normalization: Normalization | None = None) -> np.ndarray:
+def encode_mesh(mesh, rig: Rig | RigSpec, normalization: Normalization | None = None) -> np.ndarray:
     """Encode one mesh with one rig.
 
     Parameters
     ----------
     mesh : object with ``vertices`` (V, 3) and ``faces`` (F, 3) in its own frame.
-    rig : the ray rig.
+    rig : the ray rig, or a :class:`RigSpec` (box specs: resolved for the mesh's box;
+        ``spec.for_normalization(norm)`` gives the rig that decodes the result).
     normalization : source -> unit transform (default: the mesh's bounding-box sphere).
 
     Returns
@@ -76,14 +91,17 @@ def encode_mesh(mesh, rig: Rig, normalization: Normalization | None = None) -> n
     return MeshProbe(mesh, normalization).encode(rig)
 
 
-def encode_meshes(meshes: Iterable, rigs: Rig | Sequence[Rig], normalizations=None) -> dict[str, np.ndarray]:
+def encode_meshes(meshes: Iterable, rigs: Rig | RigSpec | Sequence, normalizations=None) -> dict[str, np.ndarray]:
     """Encode many meshes with one or several rigs, building each BVH once.
+
+    Box specs (:class:`RigSpec`) are resolved per mesh for its own box; their rows
+    decode with ``spec.for_box(extents of that mesh)``.
 
     Returns
     -------
     dict ``rig.name -> (n_meshes, N*M) float32`` depth arrays, meshes in input order.
     """
-    rigs = [rigs] if isinstance(rigs, Rig) else list(rigs)
+    rigs = [rigs] if isinstance(rigs, (Rig, RigSpec)) else list(rigs)
     meshes = list(meshes)
     norms = list(normalizations) if normalizations is not None else [None] * len(meshes)
     out = {r.name: np.zeros((len(meshes), r.n_rays), dtype=np.float32) for r in rigs}
@@ -102,18 +120,19 @@ def _encode_file(job):
     return [probe.encode(r) for r in rigs]
 
 
-def encode_mesh_files(paths: Sequence, rigs: Rig | Sequence[Rig], workers: int = 1, up: str = "z",
+def encode_mesh_files(paths: Sequence, rigs: Rig | RigSpec | Sequence, workers: int = 1, up: str = "z",
                       forward: str = "x") -> dict[str, np.ndarray]:
     """Load and encode mesh files, in parallel over meshes with ``workers`` processes.
 
-    Each mesh is normalised by its own bounding box. The result does not depend on
-    ``workers`` (files are processed independently and returned in input order).
+    Each mesh is normalised by its own bounding box (box specs are resolved for it).
+    The result does not depend on ``workers`` (files are processed independently and
+    returned in input order).
 
     Returns
     -------
     dict ``rig.name -> (n_files, N*M) float32`` depth arrays.
     """
-    rigs = [rigs] if isinstance(rigs, Rig) else list(rigs)
+    rigs = [rigs] if isinstance(rigs, (Rig, RigSpec)) else list(rigs)
     jobs = [(os.fspath(p), rigs, up, forward) for p in paths]
     if workers > 1 and len(jobs) > 1:
         import multiprocessing as mp
@@ -133,15 +152,20 @@ def hit_ratio(depths: np.ndarray) -> float:
     return float(np.count_nonzero(d > 0) / d.size) if d.size else 0.0
 
 
-def decode(depths: np.ndarray, rig: Rig, clip: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def decode(depths: np.ndarray, rig: Rig | RigSpec, clip: float | None = None,
+           extents: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Ordered point cloud from depths: ``P = P1 + 2 * depth * d`` (unit frame).
 
     Parameters
     ----------
     depths : (..., N*M) float depths in [0, 1] (any batch shape).
-    rig : the rig that produced (or that a model predicted for) the depths.
+    rig : the rig that produced (or that a model predicted for) the depths; or a
+        :class:`RigSpec` with ``extents`` (box specs: each depth array decodes with
+        the rig of its own box).
     clip : optional threshold; depths below it count as misses (the paper uses
         0.2 on predicted arrays). A depth of exactly 0 is always a miss.
+    extents : with a box spec, (..., 3) float box half-extents in the unit frame,
+        one per depth array (batch shape of ``depths``).
 
     Returns
     -------
@@ -151,11 +175,22 @@ def decode(depths: np.ndarray, rig: Rig, clip: float | None = None) -> tuple[np.
     d = np.asarray(depths, dtype=np.float64)
     if d.shape[-1:] != (rig.n_rays,):
         raise ParameterError(f"depth array has {d.shape[-1] if d.ndim else 0} entries, the rig {rig.name} has {rig.n_rays} rays")
+    if isinstance(rig, RigSpec) and rig.needs_box:
+        if extents is None:
+            raise ParameterError(f"decoding with the box spec {rig.name} needs the box half-extents of each depth array")
+        e = np.asarray(extents, dtype=np.float64)
+        if e.shape != d.shape[:-1] + (3,):
+            raise ParameterError(f"extents must have shape {d.shape[:-1] + (3,)} for depths of shape {d.shape}, got {e.shape}")
+        origins = rig.origins
+        directions = rig.directions_for_boxes(e.reshape(-1, 3)).reshape(d.shape + (3,))
+    else:
+        rig = rig.for_box(None) if isinstance(rig, RigSpec) else rig
+        origins, directions = rig.origins, rig.directions
     mask = d > 0.0
     if clip is not None:
         mask &= d >= float(clip)
     dist = np.where(mask, 2.0 * d, 0.0)[..., None]
-    points = rig.origins + dist * rig.directions
+    points = origins + dist * directions
     return points.astype(np.float32), mask
 
 
@@ -189,6 +224,8 @@ def save_encoding(path: str | os.PathLike, depths: np.ndarray, rig: Rig, normali
     normalisation; ``primary``, ``secondary`` int64, ``angle`` float64 (degrees);
     ``rig`` (JSON string of ``Rig.to_dict()``).
     """
+    if not isinstance(rig, Rig):
+        raise ParameterError("save_encoding needs the concrete rig (RigSpec.for_box / MeshProbe.rig_for), not a spec")
     depths = np.asarray(depths, dtype=np.float32)
     if depths.shape != (rig.n_rays,):
         raise ParameterError(f"depths must have shape ({rig.n_rays},), got {depths.shape}")

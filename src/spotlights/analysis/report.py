@@ -1,0 +1,284 @@
+"""The ``spotlights analyze density`` pipeline: grids, Monte-Carlo check, CSVs, figures, summary.
+
+:func:`run_density_analysis` is the library entry point the CLI calls. Everything it
+writes goes through a temporary name and a rename; the same arguments give the same
+bytes (the Monte-Carlo rotations come from ``seed``; timings are returned, not written).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from ..errors import ParameterError
+from ..utils import atomic_output
+from . import density as dens
+
+__all__ = ["DensityConfig", "run_density_analysis", "extrema", "hit_ratios", "MC_RADII", "MC_ALPHAS_DEG"]
+
+#: Monte-Carlo disc placements: every r with every alpha (alpha irrelevant at r = 0)
+MC_RADII = (0.0, 0.3, 0.5, 0.7, 0.8, 0.9)
+MC_ALPHAS_DEG = (0.0, 45.0, 90.0, 135.0)
+
+
+@dataclass
+class DensityConfig:
+    """Settings of :func:`run_density_analysis` (defaults: the documented run).
+
+    angles: cap half-angles in degrees, (0, 90]; 90 is the paper's analysis.
+    r_step: grid step in r (grid 0 .. 0.99). alpha_step_deg: grid step in alpha (0 .. 180 deg).
+    r_limit: the paper's range limit for min/max (0.8).
+    mc: run the Monte-Carlo check. mc_primary, mc_secondary: N and M of the real rigs.
+    mc_rotations: random rotations per placement. disc_radius: test disc radius.
+    seed: seeds the rotations.
+    """
+
+    angles: Sequence[float] = (90.0,)
+    r_step: float = 0.01
+    alpha_step_deg: float = 1.0
+    r_limit: float = 0.8
+    mc: bool = True
+    mc_primary: int = 1024
+    mc_secondary: int = 1024
+    mc_rotations: int = 24
+    disc_radius: float = 0.08
+    seed: int = 0
+    mc_radii: Sequence[float] = field(default_factory=lambda: MC_RADII)
+    mc_alphas_deg: Sequence[float] = field(default_factory=lambda: MC_ALPHAS_DEG)
+
+    def validate(self) -> None:
+        """Raise :class:`ParameterError` for values outside their ranges."""
+        if not self.angles:
+            raise ParameterError("give at least one cap angle")
+        for a in self.angles:
+            if not (0.0 < float(a) <= 90.0):
+                raise ParameterError(f"cap angle must be in (0, 90] degrees, got {a:g}")
+        if len(set(float(a) for a in self.angles)) != len(self.angles):
+            raise ParameterError("cap angles must be distinct")
+        if not (0.0 < self.r_step <= 0.5) or not (0.0 < self.alpha_step_deg <= 90.0):
+            raise ParameterError("grid steps must be positive (r_step <= 0.5, alpha_step <= 90 degrees)")
+        if not (0.0 < self.r_limit < 1.0):
+            raise ParameterError(f"r_limit must be in (0, 1), got {self.r_limit:g}")
+        if self.mc:
+            if self.mc_rotations < 2:
+                raise ParameterError("at least 2 rotations are needed to estimate the Monte-Carlo error")
+            if self.mc_primary < 1 or self.mc_secondary < 1:
+                raise ParameterError("the Monte-Carlo rig needs N >= 1 and M >= 1")
+            if not (0.0 < self.disc_radius < 0.1):
+                raise ParameterError("disc radius must be in (0, 0.1) so that a disc at r = 0.9 fits in the sphere")
+
+
+def extrema(angle: float, r_limit: float, r_values: np.ndarray, alpha_values: np.ndarray, grid: np.ndarray) -> dict:
+    """Min and max of ``rho`` over ``0 <= r <= r_limit``, all alpha, per unit N*M.
+
+    Starts from the best grid points and refines with a bounded quasi-Newton search
+    (scipy L-BFGS-B) on the quadrature. Returns a dict with ``min``, ``max`` and their
+    ``r``/``alpha`` (radians).
+    """
+    from scipy.optimize import minimize
+
+    inside = r_values <= r_limit + 1e-12
+    g = grid[inside]
+    out = {}
+    for name, sign, idx in (("min", 1.0, np.unravel_index(np.argmin(g), g.shape)),
+                            ("max", -1.0, np.unravel_index(np.argmax(g), g.shape))):
+        x0 = np.array([r_values[inside][idx[0]], alpha_values[idx[1]]])
+        best = (float(g[idx]), float(x0[0]), float(x0[1]))
+
+        def f(x):
+            return sign * float(dens.rho(x[0], x[1], angle=angle))
+
+        res = minimize(f, x0, method="L-BFGS-B", bounds=[(0.0, r_limit), (0.0, np.pi)],
+                       options={"ftol": 1e-14, "gtol": 1e-12, "maxiter": 200})
+        val = sign * float(res.fun)
+        if sign * val < sign * best[0]:
+            best = (val, float(res.x[0]), float(res.x[1]))
+        out[name] = best[0]
+        out[f"{name}_r"] = best[1]
+        out[f"{name}_alpha"] = best[2]
+    return out
+
+
+def hit_ratios(rig, radii: Sequence[float] = (0.5, 0.8)) -> dict[str, float]:
+    """Fraction of a real rig's rays whose line enters the centred ball of each radius.
+
+    A ray from ``o`` (unit sphere) with direction ``d`` passes at distance
+    ``sqrt(1 - (o.d)^2)`` from the centre. Returns ``{"hit_ratio_05": ..., "hit_ratio_08": ...}``
+    (keys from the radius digits).
+    """
+    od = np.einsum("ij,ij->i", rig.origins, rig.directions)
+    dist = np.sqrt(np.clip(1.0 - od * od, 0.0, None))
+    return {f"hit_ratio_{str(b).replace('.', '')[:2]}": float(np.mean(dist <= b)) for b in radii}
+
+
+def _symmetric_grid(r_values: np.ndarray, alpha_values: np.ndarray, angle: float, nodes: int = dens.DEFAULT_NODES) -> np.ndarray:
+    """``rho_grid`` on a grid symmetric about pi/2, computing only alpha <= pi/2 and mirroring.
+
+    ``rho(r, alpha) = rho(r, pi - alpha)`` exactly (see :mod:`.density`; tested independently).
+    ``alpha_values`` must be symmetric (``alpha_j + alpha_{A-1-j} = pi``); otherwise the full grid
+    is computed.
+    """
+    n = len(alpha_values)
+    if not np.allclose(alpha_values + alpha_values[::-1], np.pi, atol=1e-12):
+        return dens.rho_grid(r_values, alpha_values, angle=angle, nodes=nodes)
+    half = (n + 1) // 2
+    g = dens.rho_grid(r_values, alpha_values[:half], angle=angle, nodes=nodes)
+    return np.concatenate([g, g[:, : n - half][:, ::-1]], axis=1)
+
+
+def _write_csv(path: Path, header: str, columns: Sequence[np.ndarray], fmts: Sequence[str]) -> None:
+    data = np.column_stack([np.asarray(c, dtype=np.float64) for c in columns])
+    with atomic_output(path) as tmp:
+        np.savetxt(tmp, data, delimiter=",", header=header, comments="", fmt=list(fmts))
+
+
+def _write_mc_csv(path: Path, results) -> None:
+    keys = ["angle", "r", "alpha", "side", "n_primary", "n_secondary", "n_rotations", "disc_radius", "area", "hits",
+            "rho_mc", "se_mc", "se_poisson", "rho_quad", "correction", "rho_expected", "rho_center", "z", "shells"]
+    lines = [",".join(keys)]
+    for x in results:
+        d = x.to_dict()
+        lines.append(",".join(v if isinstance(v, str) else (str(v) if isinstance(v, int) else f"{v:.10g}")
+                              for v in (d[k] for k in keys)))
+    with atomic_output(path) as tmp:
+        tmp.write_text("\n".join(lines) + "\n")
+
+
+def _mc_stats(results) -> dict:
+    zs = np.array([x.z for x in results])
+    rel = np.array([x.rho_mc / x.rho_expected - 1.0 for x in results])
+    rel_cont = np.array([x.rho_mc / x.rho_quad - 1.0 for x in results])
+    return {
+        "comparisons": int(len(results)),
+        "max_abs_z": float(np.max(np.abs(zs))),
+        "rms_z": float(np.sqrt(np.mean(zs**2))),
+        "within_2_sigma": float(np.mean(np.abs(zs) < 2.0)),
+        "within_3_sigma": float(np.mean(np.abs(zs) < 3.0)),
+        "max_abs_rel_deviation": float(np.max(np.abs(rel))),
+        "median_abs_rel_deviation": float(np.median(np.abs(rel))),
+        "median_rel_se": float(np.median([x.se_mc / x.rho_expected for x in results])),
+        "max_abs_rel_deviation_vs_continuum": float(np.max(np.abs(rel_cont))),
+        "min_shells": float(min(x.shells for x in results)),
+    }
+
+
+def run_density_analysis(out_dir: str | os.PathLike, config: DensityConfig | None = None, progress: bool = True,
+                         log=print) -> tuple[dict, dict]:
+    """Compute, check and draw the ray density of Spotlights rigs; write everything under ``out_dir``.
+
+    Writes ``density.csv`` (columns ``r``, ``alpha`` [radians], ``rho_per_nm`` and, with several
+    angles, ``angle`` [degrees]), ``density_heatmap.png``, ``density_directional.png`` (the
+    occlusion formula), ``density_mc.csv`` and ``density_montecarlo.png`` (unless ``config.mc`` is
+    False), ``density_caps.png`` (with several angles) and ``summary.json``.
+
+    Returns:
+        ``(summary, timings)``: the summary written to ``summary.json`` and wall-clock seconds
+        per stage (not written, so that outputs stay byte-identical between runs).
+    """
+    config = config or DensityConfig()
+    config.validate()
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise ParameterError(f"{out}: exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    from . import plots
+
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+    angles = [float(a) for a in config.angles]
+    n_r = int(round(0.99 / config.r_step)) + 1
+    r_values = np.round(np.linspace(0.0, config.r_step * (n_r - 1), n_r), 12)
+    r_values = r_values[r_values < 1.0]
+    n_a = int(round(180.0 / config.alpha_step_deg)) + 1
+    alpha_values = np.radians(np.linspace(0.0, config.alpha_step_deg * (n_a - 1), n_a))
+    alpha_values = alpha_values[alpha_values <= np.pi + 1e-12]
+
+    # --- quadrature on the grid -------------------------------------------------------------
+    t = time.perf_counter()
+    grids = {a: _symmetric_grid(r_values, alpha_values, a) for a in angles}
+    timings["quadrature_grid"] = time.perf_counter() - t
+    t = time.perf_counter()
+    summary: dict = {"format": "spotlights-density-summary", "config": {
+        k: (list(v) if isinstance(v, (list, tuple)) else v) for k, v in config.__dict__.items()}, "angles": {}}
+    for a in angles:
+        ref = _symmetric_grid(r_values, alpha_values, a, nodes=2 * dens.DEFAULT_NODES)
+        ext = extrema(a, config.r_limit, r_values, alpha_values, grids[a])
+        ext_wide = extrema(a, 0.95, r_values, alpha_values, grids[a])
+        summary["angles"][f"{a:g}"] = {
+            "angle": a,
+            "rho_r0": float(grids[a][0, 0]),
+            "rho_r0_closed_form": dens.rho_closed_form_r0(a),
+            "quadrature_max_abs_error": float(np.max(np.abs(grids[a] - ref))),
+            "quadrature_max_rel_error": float(np.max(np.abs(grids[a] - ref) / ref)),
+            f"range_r_le_{config.r_limit:g}": ext,
+            "uniformity_max_over_min": ext["max"] / ext["min"],
+            "range_r_le_0.95": ext_wide,
+            "uniformity_max_over_min_r_le_0.95": ext_wide["max"] / ext_wide["min"],
+        }
+    timings["extrema_and_error"] = time.perf_counter() - t
+
+    # --- CSV + heat maps + occlusion figure ---------------------------------------------------
+    t = time.perf_counter()
+    rr, aa = np.meshgrid(r_values, alpha_values, indexing="ij")
+    cols, fmts, header = [], ["%.4f", "%.10f", "%.12e"], "r,alpha,rho_per_nm"
+    if len(angles) == 1:
+        cols = [rr.ravel(), aa.ravel(), grids[angles[0]].ravel()]
+    else:
+        cols = [np.tile(rr.ravel(), len(angles)), np.tile(aa.ravel(), len(angles)),
+                np.concatenate([grids[a].ravel() for a in angles]), np.repeat(angles, rr.size)]
+        fmts.append("%g")
+        header += ",angle"
+    _write_csv(out / "density.csv", header, cols, fmts)
+    plots.plot_heatmaps(out / "density_heatmap.png", r_values, alpha_values, grids, r_limit=config.r_limit)
+    dir_angle = 90.0 if 90.0 in angles else angles[0]
+    plots.plot_directional(out / "density_directional.png",
+                           [(0.0, 0.0), (0.5, np.radians(60.0)), (0.8, 0.0), (0.8, np.pi / 2), (0.8, np.pi)],
+                           angle=dir_angle)
+    timings["csv_and_figures"] = time.perf_counter() - t
+
+    # --- real rigs: hit ratios and Monte-Carlo ------------------------------------------------
+    from ..geometry.rig import make_rig
+    from .montecarlo import DiscPlacement, mc_density
+
+    all_results = []
+    t = time.perf_counter()
+    placements = [DiscPlacement(0.0, 0.0)] + [DiscPlacement(float(r), float(np.radians(ad)))
+                                              for r in config.mc_radii if r > 0 for ad in config.mc_alphas_deg]
+    for a in angles:
+        rig = make_rig(config.mc_primary, config.mc_secondary, angle=a)
+        summary["angles"][f"{a:g}"]["rig"] = rig.name
+        summary["angles"][f"{a:g}"].update(hit_ratios(rig))
+        if config.mc:
+            res = mc_density(rig, placements, disc_radius=config.disc_radius, n_rotations=config.mc_rotations,
+                             seed=config.seed + int(round(1000 * a)), progress=progress)
+            all_results.extend(res)
+            summary["angles"][f"{a:g}"]["montecarlo"] = _mc_stats(res)
+    timings["montecarlo"] = time.perf_counter() - t
+    t = time.perf_counter()
+    if config.mc:
+        _write_mc_csv(out / "density_mc.csv", all_results)
+        curve_r = np.linspace(0.0, 0.95, 96)
+        curves = {a: (curve_r, {ad: dens.rho(curve_r, np.radians(ad), angle=a) for ad in (0.0, 45.0, 90.0)})
+                  for a in angles}
+        plots.plot_montecarlo(out / "density_montecarlo.png", all_results, curves)
+        summary["montecarlo"] = _mc_stats(all_results)
+    if len(angles) > 1:
+        table = [{"angle": a, "uniformity": summary["angles"][f"{a:g}"]["uniformity_max_over_min"],
+                  "uniformity_095": summary["angles"][f"{a:g}"]["uniformity_max_over_min_r_le_0.95"],
+                  "hit_ratio_05": summary["angles"][f"{a:g}"]["hit_ratio_05"],
+                  "hit_ratio_08": summary["angles"][f"{a:g}"]["hit_ratio_08"]} for a in angles]
+        ia0 = 0
+        ia90 = int(np.argmin(np.abs(alpha_values - np.pi / 2)))
+        profiles = {a: {"alpha0": grids[a][:, ia0], "alpha90": grids[a][:, ia90]} for a in angles}
+        plots.plot_caps(out / "density_caps.png", r_values, profiles, table)
+    with atomic_output(out / "summary.json") as tmp:
+        tmp.write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
+    timings["mc_figures_and_summary"] = time.perf_counter() - t
+    timings["total"] = time.perf_counter() - t_start
+    return summary, timings

@@ -1,0 +1,208 @@
+"""``spotlights dataset``: build, inspect, export and render the synthetic completion dataset."""
+
+from __future__ import annotations
+
+from ._util import add_command
+
+
+def register(sub) -> None:
+    p = sub.add_parser("dataset", help="synthetic LiDAR completion dataset: build, info, export, show",
+                       description="Synthetic completion dataset (paper Section 5.1): simulated LiDAR partial scans "
+                                   "of meshes and their Spotlights ground truth, in one HDF5 file.")
+    dsub = p.add_subparsers(dest="dataset_command", metavar="SUBCOMMAND")
+    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
+
+    b = add_command(dsub, "build", "simulate LiDAR scans of every mesh of a folder and write the dataset (resumable)",
+                    "spotlights dataset build --meshes ../shared/data/meshes/apolloscape-cars --out cars.h5 "
+                    "--views 2000 --split 64/8/7 --rig 64x32@60 --rig 256x64@60", _build)
+    b.add_argument("--meshes", required=True, metavar="DIR",
+                   help="folder of meshes; categories = first sub-folder, or DIR/manifest.csv (file,category[,up,forward,split])")
+    b.add_argument("--out", "-o", required=True, metavar="FILE", help="dataset file to write (.h5); work folder FILE.parts")
+    b.add_argument("--manifest", default=None, metavar="CSV", help="manifest CSV (default: DIR/manifest.csv if present)")
+    b.add_argument("--views", type=int, default=2000, help="partial observations per model (default 2000)")
+    b.add_argument("--split", default="0.81/0.1/0.09", metavar="A/B/C",
+                   help="train/val/test: model counts (64/8/7) or fractions (0.8/0.1/0.1); default 0.81/0.1/0.09 "
+                        "(= the paper's 64/8/7 for 79 models)")
+    b.add_argument("--no-stratify", action="store_true", help="split over all models instead of per category")
+    b.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
+    b.add_argument("--workers", "-j", type=int, default=None, help="processes (default: all cores); never changes the result")
+    b.add_argument("--rig", action="append", default=[], metavar="NxM[@DEG]",
+                   help="extra Spotlights rig for the ground truth, repeatable (e.g. --rig 64x32@60 --rig 256x64@60)")
+    b.add_argument("--default-rig", default="32x64@60", metavar="NxM[@DEG]", help="the main rig (default 32x64@60)")
+    b.add_argument("--points", type=int, default=256, help="points per partial observation (default 256)")
+    b.add_argument("--gt-points", type=int, default=2048, help="uniform ground-truth points (default 2048)")
+    b.add_argument("--gt-dense", type=int, default=16384, help="dense ground-truth points (default 16384)")
+    b.add_argument("--downsample", choices=("random", "fps"), default="random",
+                   help="how scans with more points are reduced: random subset (default) or farthest-point sampling")
+    b.add_argument("--up", default="z", help="the mesh files' up axis (glTF: y; default z)")
+    b.add_argument("--forward", default="x", help="the mesh files' forward axis (default x)")
+    b.add_argument("--scale", type=float, default=1.0, help="multiply mesh coordinates by this to get metres (default 1)")
+    g = b.add_argument_group("LiDAR (default: Velodyne HDL-64E as in KITTI)")
+    g.add_argument("--sensor", default="hdl64e", help="preset: hdl64e (default), hdl32e, vlp16")
+    g.add_argument("--azimuth-step", type=float, default=None, metavar="DEG", help="horizontal step (hdl64e: 0.17)")
+    g.add_argument("--mount-height", type=float, default=None, metavar="M", help="sensor height above ground (hdl64e: 1.73)")
+    g.add_argument("--range-noise", type=float, default=None, metavar="M", help="range noise sigma (hdl64e: 0.02)")
+    g.add_argument("--dropout", type=float, default=None, metavar="P", help="probability that a return is lost (default 0)")
+    g.add_argument("--beam-dropout", type=float, default=None, metavar="P",
+                   help="probability that a whole beam is dead during a scan (default 0)")
+    g.add_argument("--max-range", type=float, default=None, metavar="M", help="range limit (hdl64e: 120)")
+    g.add_argument("--distance", default="4:40", metavar="MIN:MAX", help="vehicle distance range in metres (default 4:40)")
+    g.add_argument("--min-points", type=int, default=50, help="fewer returns than this and the pose is redrawn (default 50)")
+    r = b.add_argument_group("run")
+    r.add_argument("--overwrite", action="store_true", help="replace an existing FILE and discard unfinished parts")
+    r.add_argument("--resume", action="store_true", help="accept an existing complete FILE (unfinished parts resume anyway)")
+    r.add_argument("--block", type=int, default=None, help="views per work unit (default ~views/8, at most 250)")
+    r.add_argument("--keep-parts", action="store_true", help="keep FILE.parts after writing FILE")
+    r.add_argument("--quiet", "-q", action="store_true", help="no progress bars")
+
+    i = add_command(dsub, "info", "print a dataset's splits, categories, counts and array shapes",
+                    "spotlights dataset info cars.h5 --json", _info)
+    i.add_argument("file", metavar="FILE")
+    i.add_argument("--json", action="store_true", help="machine-readable output")
+
+    e = add_command(dsub, "export", "write one sample (partial scan + ground truth) to an .npz",
+                    "spotlights dataset export cars.h5 --split test --index 0 --out sample.npz", _export)
+    e.add_argument("file", metavar="FILE")
+    e.add_argument("--split", required=True, choices=("train", "val", "test"))
+    e.add_argument("--index", type=int, required=True, help="sample index within the split")
+    e.add_argument("--out", "-o", required=True, metavar="SAMPLE.npz")
+    e.add_argument("--rig", default=None, help="rig of gt_depths (default: the dataset's default rig)")
+
+    s = add_command(dsub, "show", "render a sample: partial (purple), ground truth (grey), Spotlights points (green)",
+                    "spotlights dataset show cars.h5 --split test --index 0 --out sample.png", _show)
+    s.add_argument("file", metavar="FILE")
+    s.add_argument("--split", default="test", choices=("train", "val", "test"))
+    s.add_argument("--index", type=int, default=0, help="sample index within the split (default 0)")
+    s.add_argument("--out", "-o", default=None, metavar="PNG", help="output picture (default: ./SPLIT-INDEX.png)")
+    s.add_argument("--rig", default=None, help="rig whose points are drawn (default: the default rig)")
+    s.add_argument("--clip", type=float, default=None, metavar="T", help="depths below T count as misses")
+
+
+def _distance(text: str) -> tuple[float, float]:
+    from ..errors import ParameterError
+
+    try:
+        a, b = (float(x) for x in text.replace(",", ":").split(":"))
+    except ValueError:
+        raise ParameterError(f"--distance {text!r}: write MIN:MAX in metres, e.g. 4:40") from None
+    return a, b
+
+
+def _build(args) -> int:
+    import signal
+
+    from ..data.lidar import sensor_preset
+    from ..data.synthetic import BuildConfig, build_dataset
+
+    def _terminate(signum, frame):  # SIGTERM: stop the workers like Ctrl-C, finished units are kept
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, _terminate)
+
+    sensor = sensor_preset(args.sensor, azimuth_step=args.azimuth_step, mount_height=args.mount_height,
+                           range_noise=args.range_noise, dropout=args.dropout, max_range=args.max_range,
+                           beam_dropout=args.beam_dropout)
+    cfg = BuildConfig(
+        meshes=str(args.meshes), manifest=args.manifest, views=args.views, split=args.split, seed=args.seed,
+        n_points=args.points, gt_points=args.gt_points, gt_dense=args.gt_dense, default_rig=args.default_rig,
+        extra_rigs=list(args.rig), sensor=sensor.to_dict(), distance=_distance(args.distance),
+        min_points=args.min_points, downsample=args.downsample, up=args.up, forward=args.forward,
+        scale=args.scale, stratify=not args.no_stratify,
+    )
+    rep = build_dataset(cfg, args.out, workers=args.workers, overwrite=args.overwrite, resume=args.resume,
+                        block=args.block, keep_parts=args.keep_parts, progress=not args.quiet)
+    if rep.already_complete:
+        print(f"{args.out}: already complete ({rep.n_models} models, {rep.n_samples} samples); nothing to do")
+        return 0
+    rate = rep.units_computed and rep.n_samples * rep.units_computed / max(rep.units_total, 1) / max(rep.seconds_units, 1e-9)
+    print(f"{args.out}: {rep.n_models} models, {rep.n_samples} samples, {rep.file_size / 2**20:.1f} MiB; "
+          f"{rep.units_computed} of {rep.units_total} work units computed in {rep.seconds_units:.1f} s "
+          f"(~{rate:.0f} samples/s), file written in {rep.seconds_consolidate:.1f} s, total {rep.seconds_total:.1f} s")
+    if rep.skipped:
+        print(f"skipped {len(rep.skipped)} mesh(es):")
+        for s in rep.skipped:
+            print(f"  {s['file']}: {s['problem']}")
+    return 0
+
+
+def _info(args) -> int:
+    import json
+
+    from ..data.store import open_dataset
+
+    with open_dataset(args.file) as ds:
+        info = ds.info()
+    if args.json:
+        print(json.dumps(info, indent=1))
+        return 0
+    cfg = info["config"]
+    print(f"{info['path']}: {info['format']} v{info['format_version']} (spotlights {info['spotlights_version']}), "
+          f"{info['file_size_bytes'] / 2**20:.1f} MiB, seed {info['seed']}")
+    print(f"  {info['n_models']} models x {info['views_per_model']} views = {info['n_samples']} samples; "
+          f"categories: " + ", ".join(f"{k} {v}" for k, v in info["categories"].items()))
+    for sp, d in info["splits"].items():
+        cats = ", ".join(f"{k} {v}" for k, v in d["categories"].items())
+        print(f"  {sp:5s}: {d['models']:4d} models, {d['samples']:8d} samples ({cats})")
+    print(f"  rigs: " + ", ".join(f"{n} ({k} rays){' [default]' if n == info['default_rig'] else ''}"
+                                  for n, k in info["rigs"].items()))
+    sen = info["sensor"]
+    print(f"  sensor: {sen.get('name')} {sen.get('n_beams')} beams {sen.get('elevation_max')}..{sen.get('elevation_min')} deg, "
+          f"azimuth step {sen.get('azimuth_step')} deg, {sen.get('mount_height')} m high, noise {sen.get('range_noise')} m, "
+          f"dropout {sen.get('dropout')}, beam dropout {sen.get('beam_dropout', 0)}; distance {cfg.get('distance')} m, >= {cfg.get('min_points')} returns, "
+          f"{cfg.get('n_points')} points ({cfg.get('downsample')})")
+    if info["skipped"]:
+        print(f"  skipped meshes: " + "; ".join(f"{s['file']} ({s['problem']})" for s in info["skipped"]))
+    print("  datasets:")
+    for name, d in info["datasets"].items():
+        print(f"    {name:28s} {str(tuple(d['shape'])):20s} {d['dtype']}")
+    return 0
+
+
+def _pick(ds, split: str, index: int) -> int:
+    from ..errors import ParameterError
+
+    idx = ds.split_indices(split)
+    if not (0 <= index < len(idx)):
+        raise ParameterError(f"{ds.path}: split {split!r} has {len(idx)} samples; --index {index} is out of range")
+    return int(idx[index])
+
+
+def _export(args) -> int:
+    import json
+
+    import numpy as np
+
+    from ..data.store import open_dataset
+    from ..utils import atomic_output
+
+    with open_dataset(args.file) as ds:
+        i = _pick(ds, args.split, args.index)
+        s = ds.sample(i, rig=args.rig)
+        rig = ds.rig(s["rig"])
+    with atomic_output(args.out, suffix=".npz") as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(
+                fh, partial=s["partial"], gt_points=s["gt_points"], gt_dense=s["gt_dense"], gt_depths=s["gt_depths"],
+                model=np.array(s["model"]), category=np.array(s["category"]), split=np.array(s["split"]),
+                view=np.int32(s["view"]), sample_index=np.int64(i), sensor_to_unit=s["sensor_to_unit"],
+                distance=np.float32(s["distance"]), heading=np.float32(s["heading"]), n_raw=np.int32(s["n_raw"]),
+                rig=np.array(json.dumps(rig.to_dict())),
+            )
+    print(f"{args.file}: {args.split}[{args.index}] = sample {i} ({s['model']}, view {s['view']}) -> {args.out}")
+    return 0
+
+
+def _show(args) -> int:
+    from pathlib import Path
+
+    from ..data.render import render_sample
+    from ..data.store import open_dataset
+
+    out = Path(args.out) if args.out else Path.cwd() / f"{args.split}-{args.index}.png"
+    with open_dataset(args.file) as ds:
+        i = _pick(ds, args.split, args.index)
+        s = ds.sample(i, rig=args.rig)
+        rig = ds.rig(s["rig"])
+    render_sample(out, s, rig, clip=args.clip)
+    print(f"{args.file}: {args.split}[{args.index}] = sample {i} ({s['model']}, view {s['view']}) -> {out}")
+    return 0

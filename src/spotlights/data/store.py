@@ -1,0 +1,354 @@
+"""The synthetic completion dataset file (HDF5): schema, streaming writer, lazy reader.
+
+Schema (``format = "spotlights-completion"``, ``format_version = 1``; see docs/dataset.md)
+-----------------------------------------------------------------------------------------
+Root attributes: ``format``, ``format_version``, ``spotlights_version``, ``config_json``
+(the full build configuration), ``seed``, ``sensor_json`` (the sensor model),
+``default_rig`` (e.g. ``"cap-32x64-60"``), ``views_per_model``, ``skipped_json``
+(meshes that could not be read: ``[{"file", "problem"}]``).
+
+========================== ====================== ======== ==================================================
+dataset                    shape                  dtype    meaning
+========================== ====================== ======== ==================================================
+/models/name               (n_models,)            utf-8    mesh id: relative path without suffix
+/models/file               (n_models,)            utf-8    mesh file, relative to the meshes folder
+/models/sha256             (n_models,)            utf-8    SHA-256 of the mesh file
+/models/category           (n_models,)            utf-8    e.g. hatchback, sedan, suv
+/models/split              (n_models,)            utf-8    train / val / test
+/models/gt_points          (n_models, 2048, 3)    float32  uniform surface samples, unit frame
+/models/gt_dense           (n_models, 16384, 3)   float32  dense uniform surface samples, unit frame
+/models/center             (n_models, 3)          float64  object-frame box centre (metres)
+/models/radius             (n_models,)            float64  half the box diagonal R (metres)
+/models/size               (n_models, 3)          float64  box length, width, height (metres)
+/rigs/<rig_name>/depths    (n_models, N*M)        float32  Spotlights depths; attr ``rig_json``
+/samples/partial           (n_samples, 256, 3)    float32  partial scan, unit frame; chunked per sample
+/samples/model             (n_samples,)           int32    row in /models
+/samples/view              (n_samples,)           int32    observation index within the model
+/samples/sensor_to_unit    (n_samples, 4, 4)      float64  sensor frame -> unit frame (column vectors)
+/samples/distance          (n_samples,)           float32  horizontal sensor -> box-centre distance, metres
+/samples/azimuth           (n_samples,)           float32  bearing of the box centre in the sensor frame, rad
+/samples/heading           (n_samples,)           float32  vehicle yaw in the sensor frame, rad
+/samples/n_raw             (n_samples,)           int32    returns on the vehicle before resampling
+/samples/n_draws           (n_samples,)           int16    poses drawn until one gave enough returns
+/samples/n_rays            (n_samples,)           int32    rays cast for the accepted pose (the window)
+========================== ====================== ======== ==================================================
+
+Samples are stored model-major: sample ``m * views_per_model + v`` is view ``v`` of model ``m``.
+The samples of a split are those whose model's split equals it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputFileError, ParameterError
+
+FORMAT = "spotlights-completion"
+FORMAT_VERSION = 1
+SPLITS = ("train", "val", "test")
+# HDF5 compression of every array dataset (portable: gzip is in every HDF5 build).
+COMPRESSION = dict(compression="gzip", compression_opts=4, shuffle=True)
+
+SAMPLE_FIELDS = {  # name -> (dtype, per-sample shape or None for scalars)
+    "model": ("int32", ()),
+    "view": ("int32", ()),
+    "sensor_to_unit": ("float64", (4, 4)),
+    "distance": ("float32", ()),
+    "azimuth": ("float32", ()),
+    "heading": ("float32", ()),
+    "n_raw": ("int32", ()),
+    "n_draws": ("int16", ()),
+    "n_rays": ("int32", ()),
+}
+
+
+def write_dataset(path, *, attrs: dict, models: dict, rigs: list, n_points: int, views_per_model: int,
+                  sample_blocks) -> None:
+    """Write a complete dataset file at ``path`` (use a temporary name; the caller renames it).
+
+    Parameters
+    ----------
+    attrs : root attributes (str / int values).
+    models : ``name, file, sha256, category, split`` (lists of str, one per model) and
+        ``gt_points`` (n, G, 3) f32, ``gt_dense`` (n, D, 3) f32, ``center`` (n, 3), ``radius`` (n,),
+        ``size`` (n, 3) arrays.
+    rigs : list of ``(Rig, depths (n_models, N*M) float32)``.
+    n_points : points per partial observation.
+    views_per_model : views per model; n_samples = n_models * views_per_model.
+    sample_blocks : iterable of dicts, in sample order, each with ``start`` (first sample index)
+        and arrays ``partial`` (B, n_points, 3) and every key of :data:`SAMPLE_FIELDS` (B, ...);
+        consumed one block at a time (streaming: memory stays one block).
+    """
+    import h5py
+
+    n_models = len(models["name"])
+    n_samples = n_models * views_per_model
+    strt = h5py.string_dtype("utf-8")
+    with h5py.File(path, "w", libver=("earliest", "v110")) as f:
+        for k, v in attrs.items():
+            f.attrs[k] = v
+        g = f.create_group("models", track_order=False)
+        for k in ("name", "file", "sha256", "category", "split"):
+            g.create_dataset(k, data=np.array(models[k], dtype=object), dtype=strt, track_times=False)
+        for k, dt in (("gt_points", "float32"), ("gt_dense", "float32")):
+            a = np.asarray(models[k], dtype=dt)
+            g.create_dataset(k, data=a, chunks=(1,) + a.shape[1:], track_times=False, **COMPRESSION)
+        for k in ("center", "radius", "size"):
+            g.create_dataset(k, data=np.asarray(models[k], dtype=np.float64), track_times=False)
+        rg = f.create_group("rigs")
+        for rig, depths in rigs:
+            sub = rg.create_group(rig.name)
+            sub.attrs["rig_json"] = json.dumps(rig.to_dict(), sort_keys=True)
+            d = np.asarray(depths, dtype=np.float32)
+            sub.create_dataset("depths", data=d, chunks=(1, d.shape[1]), track_times=False, **COMPRESSION)
+        s = f.create_group("samples")
+        ds = {"partial": s.create_dataset("partial", shape=(n_samples, n_points, 3), dtype="float32",
+                                          chunks=(1, n_points, 3), track_times=False, **COMPRESSION)}
+        for k, (dt, shp) in SAMPLE_FIELDS.items():
+            rows = max(1, min(n_samples, 4096 if not shp else 256))
+            ds[k] = s.create_dataset(k, shape=(n_samples,) + shp, dtype=dt, chunks=(rows,) + shp,
+                                     track_times=False, **COMPRESSION)
+        written = 0
+        for block in sample_blocks:
+            a = int(block["start"])
+            b = a + len(block["partial"])
+            if a != written or b > n_samples:
+                raise RuntimeError(f"sample blocks out of order: got [{a}, {b}) after {written}")
+            for k, d in ds.items():
+                d[a:b] = block[k]
+            written = b
+        if written != n_samples:
+            raise RuntimeError(f"only {written} of {n_samples} samples were written")
+
+
+class CompletionDataset:
+    """Lazy reader of a dataset file; safe to use across ``fork`` (reopens in a new process).
+
+    Small tables (models, per-sample model index) are read at open; arrays are read on demand.
+    Use as a context manager or call :meth:`close`.
+    """
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        if not self.path.exists():
+            raise InputFileError(self.path, "no such file")
+        self._file = None
+        self._pid = None
+        self._gt_cache: dict = {}
+        self._meta: dict | None = None
+        f = self._h5()
+        try:
+            fmt = f.attrs.get("format")
+        except Exception:  # pragma: no cover - defensive
+            fmt = None
+        if fmt != FORMAT:
+            raise InputFileError(self.path, f"not a spotlights completion dataset (format attribute {fmt!r})")
+        version = int(f.attrs.get("format_version", -1))
+        if version != FORMAT_VERSION:
+            raise InputFileError(self.path, f"dataset format version {version}, this spotlights reads {FORMAT_VERSION}")
+        try:
+            m = f["models"]
+            self.names = np.array([x.decode() if isinstance(x, bytes) else str(x) for x in m["name"][()]])
+            self.categories = np.array([x.decode() if isinstance(x, bytes) else str(x) for x in m["category"][()]])
+            self.splits = np.array([x.decode() if isinstance(x, bytes) else str(x) for x in m["split"][()]])
+            self.center = m["center"][()]
+            self.radius = m["radius"][()]
+            self.sample_model = f["samples/model"][()].astype(np.int64)
+            self.sample_view = f["samples/view"][()].astype(np.int64)
+            self.rig_names = sorted(f["rigs"].keys())
+        except KeyError as exc:
+            raise InputFileError(self.path, f"incomplete dataset file: missing {exc}") from None
+        self.default_rig = str(f.attrs.get("default_rig", self.rig_names[0] if self.rig_names else ""))
+        self.views_per_model = int(f.attrs.get("views_per_model", 0))
+        self.config = json.loads(f.attrs.get("config_json", "{}"))
+        self.sensor = json.loads(f.attrs.get("sensor_json", "{}"))
+        self.seed = int(f.attrs.get("seed", 0))
+
+    # --- file handle ----------------------------------------------------------------------
+    def _h5(self):
+        import h5py
+
+        if self._file is None or self._pid != os.getpid():
+            try:
+                self._file = h5py.File(self.path, "r")
+            except OSError as exc:
+                raise InputFileError(self.path, f"not a readable HDF5 file ({str(exc).splitlines()[0][:100]})") from None
+            self._pid = os.getpid()
+        return self._file
+
+    def close(self) -> None:
+        """Close the HDF5 handle (it reopens on the next access)."""
+        if self._file is not None and self._pid == os.getpid():
+            self._file.close()
+        self._file = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def __getstate__(self):  # picklable for DataLoader workers: the handle is reopened there
+        d = dict(self.__dict__)
+        d["_file"] = None
+        d["_pid"] = None
+        d["_gt_cache"] = {}
+        d["_meta"] = None
+        return d
+
+    def __len__(self) -> int:
+        return len(self.sample_model)
+
+    # --- tables ---------------------------------------------------------------------------
+    @property
+    def n_models(self) -> int:
+        """Number of models (rows of /models)."""
+        return len(self.names)
+
+    @property
+    def n_samples(self) -> int:
+        """Number of samples (rows of /samples)."""
+        return len(self.sample_model)
+
+    def _check_split(self, split: str) -> str:
+        if split not in SPLITS:
+            raise ParameterError(f"unknown split {split!r}; choose from {', '.join(SPLITS)}")
+        return split
+
+    def split_models(self, split: str) -> np.ndarray:
+        """(K,) int64 rows of /models in ``split``."""
+        return np.flatnonzero(self.splits == self._check_split(split)).astype(np.int64)
+
+    def split_indices(self, split: str) -> np.ndarray:
+        """(S,) int64 sample indices of ``split``, in storage order (model-major)."""
+        in_split = self.splits == self._check_split(split)
+        return np.flatnonzero(in_split[self.sample_model]).astype(np.int64)
+
+    def rig(self, name: str | None = None):
+        """The :class:`~spotlights.geometry.rig.Rig` stored under ``name`` (default: the default rig)."""
+        from ..geometry.rig import Rig
+
+        name = name or self.default_rig
+        if name not in self.rig_names:
+            raise ParameterError(f"{self.path}: no rig {name!r}; stored rigs: {', '.join(self.rig_names)}")
+        return Rig.from_dict(json.loads(self._h5()[f"rigs/{name}"].attrs["rig_json"]))
+
+    # --- arrays ---------------------------------------------------------------------------
+    # Per-model ground truth is shared by all views: keep the most recent models in memory
+    # (0.2 MB each at the default sizes).
+    GT_CACHE_MODELS = 256
+
+    def ground_truth(self, model: int, rig: str | None = None) -> dict:
+        """Ground truth of model row ``model``: ``gt_points`` (2048, 3) f32, ``gt_dense`` (16384, 3) f32,
+        ``gt_depths`` (N*M,) f32 of ``rig`` (default rig), all in the unit frame.
+
+        Cached per (model, rig); the returned arrays are read-only (copy before modifying)."""
+        name = rig or self.default_rig
+        key = (int(model), name)
+        hit = self._gt_cache.pop(key, None)
+        if hit is None:
+            if name not in self.rig_names:
+                self.rig(name)  # raises a clear error
+            if not (0 <= key[0] < self.n_models):
+                raise ParameterError(f"model row {model} out of range (the dataset has {self.n_models} models)")
+            f = self._h5()
+            hit = {
+                "gt_points": f["models/gt_points"][key[0]],
+                "gt_dense": f["models/gt_dense"][key[0]],
+                "gt_depths": f[f"rigs/{name}/depths"][key[0]],
+            }
+            for a in hit.values():
+                a.setflags(write=False)
+            while len(self._gt_cache) >= self.GT_CACHE_MODELS:
+                self._gt_cache.pop(next(iter(self._gt_cache)))
+        self._gt_cache[key] = hit  # most recent last
+        return dict(hit)
+
+    def sample(self, index: int, rig: str | None = None) -> dict:
+        """One sample (global index): its partial scan, its model's ground truth and its metadata.
+
+        Returns a dict: ``partial`` (256, 3) f32, ``gt_points`` (2048, 3) f32, ``gt_dense`` (16384, 3) f32,
+        ``gt_depths`` (N*M,) f32 (unit frame / depths), ``model`` (name), ``model_index``, ``category``,
+        ``split``, ``view``, ``sensor_to_unit`` (4, 4) f64, ``distance``, ``azimuth``, ``heading``, ``n_raw``,
+        ``rig`` (rig name).
+        """
+        n = self.n_samples
+        if not (-n <= int(index) < n):
+            raise ParameterError(f"sample index {index} out of range (the dataset has {n} samples)")
+        i = int(index) % n
+        meta = self.metadata()
+        m = int(self.sample_model[i])
+        out = {"partial": self._h5()["samples/partial"][i]}
+        out.update(self.ground_truth(m, rig))
+        out.update({
+            "model": str(self.names[m]), "model_index": m, "category": str(self.categories[m]),
+            "split": str(self.splits[m]), "view": int(self.sample_view[i]),
+            "sensor_to_unit": meta["sensor_to_unit"][i].copy(), "distance": float(meta["distance"][i]),
+            "azimuth": float(meta["azimuth"][i]), "heading": float(meta["heading"][i]),
+            "n_raw": int(meta["n_raw"][i]), "rig": rig or self.default_rig,
+        })
+        return out
+
+    def metadata(self) -> dict:
+        """Every per-sample field except ``partial`` (``sensor_to_unit`` (n, 4, 4), ``distance``, ...),
+        read whole on first use (~150 bytes per sample) so that per-sample access needs no HDF5 read."""
+        if self._meta is None:
+            s = self._h5()["samples"]
+            self._meta = {k: s[k][()] for k in SAMPLE_FIELDS if k in s}
+        return self._meta
+
+    def to_sensor(self, index: int, points: np.ndarray) -> np.ndarray:
+        """Map (K, 3) unit-frame points of sample ``index`` (e.g. a completion) back into its LiDAR
+        sensor frame (metres): the inverse of ``/samples/sensor_to_unit``. Returns (K, 3) float64."""
+        m = np.linalg.inv(self.metadata()["sensor_to_unit"][int(index)])
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        return p @ m[:3, :3].T + m[:3, 3]
+
+    def info(self) -> dict:
+        """Summary: splits, categories, counts, shapes and dtypes of every dataset, build config."""
+        import h5py
+
+        f = self._h5()
+        shapes = {}
+
+        def visit(name, obj):
+            if isinstance(obj, h5py.Dataset):
+                shapes["/" + name] = {"shape": list(obj.shape), "dtype": str(obj.dtype) if obj.dtype.kind != "O" else "str"}
+
+        f.visititems(visit)
+        splits = {}
+        for sp in SPLITS:
+            rows = self.split_models(sp)
+            cats = {}
+            for c in self.categories[rows]:
+                cats[str(c)] = cats.get(str(c), 0) + 1
+            splits[sp] = {"models": int(len(rows)), "samples": int(len(rows) * self.views_per_model),
+                          "categories": dict(sorted(cats.items()))}
+        cats = {}
+        for c in self.categories:
+            cats[str(c)] = cats.get(str(c), 0) + 1
+        return {
+            "path": str(self.path),
+            "file_size_bytes": self.path.stat().st_size,
+            "format": FORMAT, "format_version": FORMAT_VERSION,
+            "spotlights_version": str(f.attrs.get("spotlights_version", "")),
+            "seed": self.seed,
+            "n_models": self.n_models, "n_samples": self.n_samples, "views_per_model": self.views_per_model,
+            "categories": dict(sorted(cats.items())),
+            "splits": splits,
+            "default_rig": self.default_rig,
+            "rigs": {n: int(f[f"rigs/{n}/depths"].shape[1]) for n in self.rig_names},
+            "skipped": json.loads(f.attrs.get("skipped_json", "[]")),
+            "sensor": self.sensor,
+            "config": self.config,
+            "datasets": shapes,
+        }
+
+
+def open_dataset(path: str | os.PathLike) -> CompletionDataset:
+    """Open a completion dataset file for reading (validated; raises InputFileError)."""
+    return CompletionDataset(path)
