@@ -19,7 +19,7 @@ from learning_fixtures import TINY_MODEL_ARGS, cli, one_torch_thread, tiny_datas
 
 from spotlights.errors import InputFileError, SpotlightsError  # noqa: E402
 from spotlights.learning.checkpoint import load_checkpoint  # noqa: E402
-from spotlights.learning.data import CompletionDataset, read_info  # noqa: E402
+from spotlights.learning.data import TorchCompletionDataset, read_info  # noqa: E402
 from spotlights.learning.train import train  # noqa: E402
 
 
@@ -43,8 +43,8 @@ def test_dataset_reads_the_contract_schema(data):
     info = read_info(data)
     assert info.n_models == 12 and info.category_order() == ["hatchback", "sedan", "suv"]
     assert info.default_rig == "cap-8x16-60" and info.rigs["cap-8x16-60"]["n_primary"] == 8
-    tr = CompletionDataset(data, "train")
-    assert len(tr) == 6 * 8 and len(CompletionDataset(data, "test", rig=False)) == 3 * 8
+    tr = TorchCompletionDataset(data, "train")
+    assert len(tr) == 6 * 8 and len(TorchCompletionDataset(data, "test", rig=False)) == 3 * 8
     item = tr[9]
     assert item["partial"].shape == (256, 3) and item["partial"].dtype == torch.float32
     assert item["gt_points"].shape == (2048, 3) and item["depths"].shape == (128,)
@@ -54,18 +54,18 @@ def test_dataset_reads_the_contract_schema(data):
     with h5py.File(data, "r") as f:
         np.testing.assert_array_equal(item["depths"].numpy(), f["rigs/cap-8x16-60/depths"][1])
         np.testing.assert_array_equal(item["partial"].numpy(), f["samples/partial"][9])
-    few = CompletionDataset(data, "train", max_views=3)
+    few = TorchCompletionDataset(data, "train", max_views=3)
     assert len(few) == 18 and set(few.info.sample_view[few.indices].tolist()) == {0, 1, 2}
-    dense = CompletionDataset(data, "test", rig=False).gt_dense()
+    dense = TorchCompletionDataset(data, "test", rig=False).gt_dense()
     assert sorted(dense) == [9, 10, 11] and dense[9].shape == (16384, 3)
-    assert "depths" not in CompletionDataset(data, "val", rig=False)[0]
+    assert "depths" not in TorchCompletionDataset(data, "val", rig=False)[0]
 
 
 def test_lazy_reading_with_worker_processes_gives_the_same_bytes(data):
     from torch.utils.data import DataLoader
 
-    lazy = CompletionDataset(data, "train", partials_in_memory=False)
-    mem = CompletionDataset(data, "train", partials_in_memory=True)
+    lazy = TorchCompletionDataset(data, "train", partials_in_memory=False)
+    mem = TorchCompletionDataset(data, "train", partials_in_memory=True)
     a = torch.cat([b["partial"] for b in DataLoader(lazy, batch_size=7, num_workers=2)])
     b = torch.cat([b["partial"] for b in DataLoader(mem, batch_size=7, num_workers=0)])
     assert torch.equal(a, b) and a.shape == (48, 256, 3)
@@ -74,20 +74,20 @@ def test_lazy_reading_with_worker_processes_gives_the_same_bytes(data):
 
 def test_dataset_errors(data, tmp_path):
     with pytest.raises(InputFileError, match="no such file"):
-        CompletionDataset(tmp_path / "missing.h5")
+        TorchCompletionDataset(tmp_path / "missing.h5")
     txt = tmp_path / "a.h5"
     txt.write_text("hello")
     with pytest.raises(InputFileError, match="not a readable HDF5"):
-        CompletionDataset(txt)
+        TorchCompletionDataset(txt)
     other = tmp_path / "other.h5"
     with h5py.File(other, "w") as f:
         f.attrs["format"] = "something-else"
     with pytest.raises(InputFileError, match="not a spotlights completion dataset"):
-        CompletionDataset(other)
+        TorchCompletionDataset(other)
     with pytest.raises(InputFileError, match="has no rig 'cap-32x64-60'"):
-        CompletionDataset(data, "train", rig="cap-32x64-60")
+        TorchCompletionDataset(data, "train", rig="cap-32x64-60")
     with pytest.raises(SpotlightsError, match="split must be"):
-        CompletionDataset(data, "holdout")
+        TorchCompletionDataset(data, "holdout")
 
 
 # ---------------------------------------------------------------- training
@@ -183,7 +183,7 @@ def test_evaluate_writes_table1_report(data, tmp_path):
     assert [r["variant"] for r in sanet["rows"]] == ["no clip", "clip 0.2"]
     # Independent check of the no-clip accuracy: brute force over every test sample.
     completer = load_completer(ckpts[0])
-    ds = CompletionDataset(data, "test", rig=False)
+    ds = TorchCompletionDataset(data, "test", rig=False)
     dense = ds.gt_dense()
     preds = completer.complete(np.stack([ds[i]["partial"].numpy() for i in range(len(ds))]), clip=None)
     accs = []
@@ -225,3 +225,23 @@ def test_bench_models_cli_json(capsys):
     sanet = res["models"][0]
     assert sanet["params"]["encoder"] == 821_504 and sanet["latency_ms"]["1"]["forward_ms"] > 0
     assert res["threads"] == 1
+
+
+def test_reads_and_trains_on_a_file_built_by_the_dataset_builder(tmp_path):
+    """Integration with issue 4's builder: its file is read, trained on and evaluated."""
+    synthetic = pytest.importorskip("spotlights.data.synthetic")
+    from learning_fixtures import make_shape
+
+    rng = np.random.default_rng(0)
+    for cat in ("hatchback", "sedan", "suv"):
+        (tmp_path / "meshes" / cat).mkdir(parents=True)
+        for j in range(3):
+            make_shape(cat, rng).export(tmp_path / "meshes" / cat / f"{cat}{j}.ply")
+    cfg = synthetic.BuildConfig(meshes=str(tmp_path / "meshes"), views=4, split="3/3/3", gt_dense=2048,
+                                default_rig="8x16@60")
+    synthetic.build_dataset(cfg, tmp_path / "built.h5", workers=1, progress=False, log=lambda *a: None)
+    ds = TorchCompletionDataset(tmp_path / "built.h5", "train")
+    assert len(ds) == 12 and ds.rig_name == "cap-8x16-60" and ds[0]["depths"].shape == (128,)
+    res = _run("sanet", tmp_path / "built.h5", tmp_path / "run", epochs=1, train={"batch_size": 4})
+    assert res["history"][0]["val_n"] == 6 and np.isfinite(res["history"][0]["val_loss"])
+    assert (tmp_path / "run" / "best.pt").exists()  # even when every ray of the untrained model is clipped

@@ -1,7 +1,8 @@
 """Reading the synthetic completion dataset (HDF5, schema in docs / notes contracts) for PyTorch.
 
-:class:`CompletionDataset` is a ``torch.utils.data.Dataset`` over one split of a
-``spotlights-completion`` HDF5 file:
+:class:`TorchCompletionDataset` is a ``torch.utils.data.Dataset`` over one split of a
+``spotlights-completion`` HDF5 file (the format of ``spotlights.data.store``, whose
+reader is torch-free and per sample; this one serves training batches):
 
 * the per-model arrays (uniform ground truth, Spotlights depths of one rig) are
   small and read once at construction; every observation of a model shares them;
@@ -10,7 +11,7 @@
   own h5py handle; a handle is never shared across ``fork``), or, with
   ``partials_in_memory=True``, read once per split in contiguous per-model slices;
 * the dense ground truth (16,384 points per model, for metrics) is read on demand
-  by :meth:`CompletionDataset.gt_dense`.
+  by :meth:`TorchCompletionDataset.gt_dense`.
 
 Items are dicts of tensors::
 
@@ -149,7 +150,7 @@ def read_info(path) -> DatasetInfo:
     return info
 
 
-class CompletionDataset(Dataset):
+class TorchCompletionDataset(Dataset):
     """One split of a completion dataset file as a torch ``Dataset`` (see the module docstring).
 
     Parameters

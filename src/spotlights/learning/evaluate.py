@@ -70,16 +70,19 @@ def evaluate_checkpoint(checkpoint, data, split: str = "test", batch_size: int =
     from tqdm import tqdm
 
     from .checkpoint import load_checkpoint, model_from_checkpoint
-    from .data import CompletionDataset
+    from .data import TorchCompletionDataset
 
     dev = torch.device(device) if device is not None else torch.device("cuda" if torch.cuda.is_available() else "cpu")
     ckpt = load_checkpoint(checkpoint)
     model = model_from_checkpoint(ckpt, dev)
     name = ckpt["model_name"]
-    ds = dataset or CompletionDataset(data, split, rig=False, max_views=max_views, partials_in_memory=True)
+    ds = dataset or TorchCompletionDataset(data, split, rig=False, max_views=max_views, partials_in_memory=True)
     dense = gt_dense if gt_dense is not None else ds.gt_dense()
-    variants = [("no clip", None), (f"clip {model.clip if clip is None else clip:g}", model.clip if clip is None else float(clip))] \
-        if model.target == "depths" else [("", None)]
+    if model.target == "depths":
+        c = model.clip if clip is None else float(clip)
+        variants = [("no clip", None)] + ([(f"clip {c:g}", c)] if c is not None else [])
+    else:
+        variants = [("", None)]
     preds = {v: [] for v, _ in variants}
     kept = {v: [] for v, _ in variants}
     loader = DataLoader(ds, batch_size=batch_size, shuffle=False, num_workers=num_workers)
@@ -136,11 +139,11 @@ def evaluate_checkpoints(checkpoints, data, split: str = "test", progress: bool 
     Returns a report dict: ``data``, ``split``, ``categories`` (report order), ``metric_descriptions``,
     ``results`` (one :func:`evaluate_checkpoint` dict per checkpoint).
     """
-    from .data import CompletionDataset
+    from .data import TorchCompletionDataset
 
     if not checkpoints:
         raise ParameterError("give at least one checkpoint to evaluate")
-    ds = CompletionDataset(data, split, rig=False, max_views=kw.pop("max_views", None), partials_in_memory=True)
+    ds = TorchCompletionDataset(data, split, rig=False, max_views=kw.pop("max_views", None), partials_in_memory=True)
     dense = ds.gt_dense()
     results = [evaluate_checkpoint(c, data, split, dataset=ds, gt_dense=dense, progress=progress, **kw) for c in checkpoints]
     return {

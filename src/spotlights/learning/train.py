@@ -31,7 +31,7 @@ from torch.utils.data import DataLoader
 
 from ..errors import ParameterError, SpotlightsError
 from .checkpoint import load_checkpoint, save_checkpoint
-from .data import CompletionDataset
+from .data import TorchCompletionDataset
 from .models import build_model, load_config
 from .models.base import CLIP_DEFAULT
 
@@ -142,7 +142,7 @@ def _write_yaml(path: Path, cfg: dict) -> None:
 
 
 @torch.no_grad()
-def validate(model, dataset: CompletionDataset, batch_size: int, device, gt_trees: dict, dist: _Dist | None = None,
+def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt_trees: dict, dist: _Dist | None = None,
              num_workers: int = 0) -> dict:
     """Validation loss and accuracy (one-sided CD prediction -> dense GT, SA-Net clipped at its default).
 
@@ -187,8 +187,12 @@ def validate(model, dataset: CompletionDataset, batch_size: int, device, gt_tree
     }
 
 
+def _print_flush(msg: str) -> None:
+    print(msg, flush=True)
+
+
 def train(model_name: str, data, out_dir, config=None, overrides: dict | None = None, resume: bool = False,
-          overwrite: bool = False, device=None, progress: bool = True, log=print, schedule=None,
+          overwrite: bool = False, device=None, progress: bool = True, log=_print_flush, schedule=None,
           stop_after: int | None = None) -> dict:
     """Train one model on a completion dataset file.
 
@@ -249,9 +253,9 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
 
     wants_depths = model_class(model_name).target == "depths"
     rig_sel = dcfg.get("rig") if wants_depths else False
-    train_set = CompletionDataset(data, "train", rig=rig_sel, max_views=dcfg.get("max_views"),
+    train_set = TorchCompletionDataset(data, "train", rig=rig_sel, max_views=dcfg.get("max_views"),
                                   partials_in_memory=bool(dcfg.get("partials_in_memory", True)))
-    val_set = CompletionDataset(data, "val", rig=rig_sel, max_views=dcfg.get("val_max_views"),
+    val_set = TorchCompletionDataset(data, "val", rig=rig_sel, max_views=dcfg.get("val_max_views"),
                                 partials_in_memory=bool(dcfg.get("partials_in_memory", True)))
     rig = train_set.rig if wants_depths else None
     if state is not None and wants_depths and state.get("rig") != rig:
@@ -335,7 +339,9 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
         row = {"epoch": epoch + 1, "lr": lr, "train_loss": train_sum / max(train_n, 1), **val,
                "epoch_seconds": round(dt, 3), "samples_per_second": round(train_n / dt, 2) if dt > 0 else 0.0}
         history.append(row)
-        improved = val["val_accuracy"] < best["val_accuracy"]
+        acc, prev = val["val_accuracy"], best["val_accuracy"]
+        # The first epoch always gives a best.pt; later a finite accuracy below the best so far.
+        improved = best["epoch"] is None or (math.isfinite(acc) and not (math.isfinite(prev) and acc >= prev))
         if improved:
             best = {"epoch": epoch + 1, "val_accuracy": val["val_accuracy"]}
         if dist.main:
