@@ -143,3 +143,30 @@ def test_cli_complete_bad_inputs(ckpts, tmp_path, capsys):
     assert_user_error(cli(capsys, "complete", good, "--box", tmp_path / "box.json", "--checkpoint", tmp_path / "box.json",
                               "--out", tmp_path / "o.ply"), "box.json", "not a readable checkpoint")
     assert not (tmp_path / "o.ply").exists()
+
+
+def test_exported_half_precision_weights_complete_alike(ckpts, partial_unit, tmp_path):
+    from spotlights.learning.checkpoint import export_weights
+
+    small = export_weights(ckpts["sanet"], tmp_path / "sanet_half.pt", half=True)
+    full, half = load_completer(ckpts["sanet"]), load_completer(small)
+    assert half.model_name == "sanet" and half.n_params == full.n_params
+    a = full.model(torch.from_numpy(partial_unit[None]))["depths"]
+    b = half.model(torch.from_numpy(partial_unit[None]))["depths"]
+    torch.testing.assert_close(a, b, atol=5e-3, rtol=0)
+
+
+def test_default_checkpoint_is_the_packaged_one(tmp_path, capsys):
+    from spotlights.errors import SpotlightsError
+    from spotlights.learning.inference import pretrained_checkpoint
+
+    try:
+        path = pretrained_checkpoint()
+    except SpotlightsError as exc:
+        assert "no pretrained checkpoint is shipped" in str(exc)
+        (tmp_path / "box.json").write_text(json.dumps({"center": [0, 0, 0], "size": [4, 2, 1.5]}))
+        np.save(tmp_path / "scan.npy", np.random.default_rng(0).normal(size=(50, 3)))
+        proc = cli(capsys, "complete", tmp_path / "scan.npy", "--box", tmp_path / "box.json", "--out", tmp_path / "o.ply")
+        assert_user_error(proc, "no pretrained checkpoint is shipped", "--checkpoint")
+    else:
+        assert load_completer(path).model_name == "sanet"

@@ -245,3 +245,34 @@ def test_reads_and_trains_on_a_file_built_by_the_dataset_builder(tmp_path):
     res = _run("sanet", tmp_path / "built.h5", tmp_path / "run", epochs=1, train={"batch_size": 4})
     assert res["history"][0]["val_n"] == 6 and np.isfinite(res["history"][0]["val_loss"])
     assert (tmp_path / "run" / "best.pt").exists()  # even when every ray of the untrained model is clipped
+
+
+def test_validation_metrics_match_brute_force(data):
+    from spotlights.learning.checkpoint import model_from_checkpoint
+    from spotlights.learning.train import validate
+
+    val = TorchCompletionDataset(data, "val", max_views=2)
+    ckpt = load_checkpoint(make_checkpoint_cached(data))
+    model = model_from_checkpoint(ckpt)
+    dense = val.gt_dense()
+    res = validate(model, val, 4, torch.device("cpu"), dict(dense))
+    accs, comps = [], []
+    with torch.no_grad():
+        for i in range(len(val)):
+            item = val[i]
+            p = model.complete(item["partial"][None])[0].numpy().astype(np.float64)
+            g = dense[int(item["model"])].astype(np.float64)
+            d = np.sqrt(((p[:, None] - g[None]) ** 2).sum(-1))
+            accs.append(d.min(1).mean())
+            comps.append(d.min(0).mean())
+    assert res["val_n"] == 6 and res["val_empty"] == 0
+    assert res["val_accuracy"] == pytest.approx(np.mean(accs), rel=1e-5)
+    assert res["val_completeness"] == pytest.approx(np.mean(comps), rel=1e-5)
+    assert res["val_chamfer_l1"] == pytest.approx((np.mean(accs) + np.mean(comps)) / 2, rel=1e-5)
+
+
+def make_checkpoint_cached(data):
+    from learning_fixtures import make_checkpoint
+
+    path = data.parent / "pcn_untrained.pt"
+    return path if path.exists() else make_checkpoint(path, "pcn")

@@ -8,7 +8,8 @@ workers, and resuming from the checkpoint of epoch ``e`` reproduces exactly the
 run that did not stop (model, optimizer and scheduler states are saved each epoch).
 
 Outputs in ``out_dir``: ``config.yaml`` (resolved), ``last.pt`` (every epoch),
-``best.pt`` (best validation accuracy), ``log.csv`` (one row per epoch).
+``best.pt`` (best validation score, by default the symmetric CD-L1 of the completions:
+accuracy alone rewards collapsed predictions), ``log.csv`` (one row per epoch).
 
 Distributed: under ``torchrun`` (``WORLD_SIZE`` > 1) the process group is set up
 with NCCL on GPUs, gloo on CPU; each rank trains on its shard of the epoch's
@@ -35,7 +36,8 @@ from .data import TorchCompletionDataset
 from .models import build_model, load_config
 from .models.base import CLIP_DEFAULT
 
-LOG_COLUMNS = ("epoch", "lr", "train_loss", "val_loss", "val_accuracy", "val_n", "epoch_seconds", "samples_per_second")
+LOG_COLUMNS = ("epoch", "lr", "train_loss", "val_loss", "val_accuracy", "val_completeness", "val_chamfer_l1", "val_n",
+               "val_empty", "epoch_seconds", "samples_per_second")
 
 
 def default_device() -> torch.device:
@@ -144,9 +146,20 @@ def _write_yaml(path: Path, cfg: dict) -> None:
 @torch.no_grad()
 def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt_trees: dict, dist: _Dist | None = None,
              num_workers: int = 0) -> dict:
-    """Validation loss and accuracy (one-sided CD prediction -> dense GT, SA-Net clipped at its default).
+    """Validation loss and point metrics of the completions (SA-Net clipped at its default).
 
-    Returns {"val_loss": mean loss over samples, "val_accuracy": mean over samples, "val_n": samples}.
+    Parameters
+    ----------
+    gt_trees : {model row: (L, 3) dense GT array or its NearestNeighbors}; arrays are
+        replaced by their KD-tree on first use (so one tree per GT model per run).
+
+    Returns
+    -------
+    {"val_loss": mean loss over samples,
+     "val_accuracy": mean over samples of the one-sided CD prediction -> dense GT,
+     "val_completeness": mean over samples of the one-sided CD dense GT -> prediction,
+     "val_chamfer_l1": (accuracy + completeness) / 2, "val_n": samples,
+     "val_empty": samples whose completion is empty (left out of the point metrics)}.
     With ``dist`` active, each rank evaluates a contiguous shard and the sums are all-reduced.
     """
     from .metrics import NearestNeighbors
@@ -158,8 +171,8 @@ def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt
     subset = torch.utils.data.Subset(dataset, range(lo, hi))
     loader = DataLoader(subset, batch_size=batch_size, shuffle=False, num_workers=num_workers, collate_fn=_collate)
     model.eval()
-    loss_sum = acc_sum = 0.0
-    count = acc_count = 0
+    loss_sum = acc_sum = comp_sum = 0.0
+    count = scored = 0
     for batch in loader:
         batch = _to(batch, device)
         out = model(batch["partial"])
@@ -176,15 +189,25 @@ def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt
             tree = gt_trees[m]
             if not isinstance(tree, NearestNeighbors):
                 tree = gt_trees[m] = NearestNeighbors(tree)
-            acc_sum += float(tree.distances(p.detach().cpu().numpy()).mean())
-            acc_count += 1
-    sums = [loss_sum, float(count), acc_sum, float(acc_count)]
-    loss_sum, count, acc_sum, acc_count = dist.all_sum(sums, device) if active else sums
+            pts = p.detach().cpu().numpy()
+            acc_sum += float(tree.distances(pts).mean())
+            comp_sum += float(NearestNeighbors(pts).distances(tree.points).mean())
+            scored += 1
+    sums = [loss_sum, float(count), acc_sum, comp_sum, float(scored)]
+    loss_sum, count, acc_sum, comp_sum, scored = dist.all_sum(sums, device) if active else sums
+    acc = acc_sum / scored if scored else float("nan")
+    comp = comp_sum / scored if scored else float("nan")
     return {
         "val_loss": loss_sum / count if count else float("nan"),
-        "val_accuracy": acc_sum / acc_count if acc_count else float("nan"),
+        "val_accuracy": acc,
+        "val_completeness": comp,
+        "val_chamfer_l1": 0.5 * (acc + comp),
         "val_n": int(count),
+        "val_empty": int(count - scored),
     }
+
+
+SELECT_BY = {"chamfer_l1": "val_chamfer_l1", "accuracy": "val_accuracy", "loss": "val_loss"}
 
 
 def _print_flush(msg: str) -> None:
@@ -268,7 +291,10 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
     param_counts = model.param_counts()
     opt = _make_optimizer(model, tcfg)
     sched = _make_scheduler(opt, tcfg)
-    start_epoch, global_step, history, best = 0, 0, [], {"epoch": None, "val_accuracy": float("inf")}
+    select_by = str(tcfg.get("select_by", "chamfer_l1"))
+    if select_by not in SELECT_BY:
+        raise ParameterError(f"train.select_by must be one of {', '.join(SELECT_BY)}, got {select_by!r}")
+    start_epoch, global_step, history, best = 0, 0, [], {"epoch": None, "select_by": select_by, "value": float("inf")}
     if state is not None:
         model.load_state_dict(state["model_state"])
         opt.load_state_dict(state["optimizer_state"])
@@ -339,11 +365,11 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
         row = {"epoch": epoch + 1, "lr": lr, "train_loss": train_sum / max(train_n, 1), **val,
                "epoch_seconds": round(dt, 3), "samples_per_second": round(train_n / dt, 2) if dt > 0 else 0.0}
         history.append(row)
-        acc, prev = val["val_accuracy"], best["val_accuracy"]
-        # The first epoch always gives a best.pt; later a finite accuracy below the best so far.
-        improved = best["epoch"] is None or (math.isfinite(acc) and not (math.isfinite(prev) and acc >= prev))
+        value, prev = val[SELECT_BY[select_by]], best["value"]
+        # The first epoch always gives a best.pt; later a finite value below the best so far.
+        improved = best["epoch"] is None or (math.isfinite(value) and not (math.isfinite(prev) and value >= prev))
         if improved:
-            best = {"epoch": epoch + 1, "val_accuracy": val["val_accuracy"]}
+            best = {"epoch": epoch + 1, "select_by": select_by, "value": value, "val_accuracy": val["val_accuracy"]}
         if dist.main:
             payload = {
                 "model_name": model_name, "config": cfg, "rig": rig, "model_state": model.state_dict(),
@@ -357,7 +383,8 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
                 save_checkpoint(best_path, {k: v for k, v in payload.items() if k not in ("optimizer_state", "scheduler_state")})
             _write_csv(out_dir / "log.csv", history)
             log(f"{model_name} epoch {epoch + 1}/{epochs}: train loss {row['train_loss']:.5f}, val loss "
-                f"{row['val_loss']:.5f}, val accuracy {row['val_accuracy']:.5f}{' (best)' if improved else ''}, {dt:.1f} s")
+                f"{row['val_loss']:.5f}, val accuracy {row['val_accuracy']:.5f}, completeness {row['val_completeness']:.5f}"
+                f"{' (best)' if improved else ''}, {dt:.1f} s")
         dist.barrier()
     return {"out_dir": str(out_dir), "last": str(last_path), "best": str(best_path), "epochs": len(history),
             "history": history, "param_counts": param_counts}
