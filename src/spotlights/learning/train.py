@@ -252,6 +252,8 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
     from tqdm import tqdm
 
     device = torch.device(device) if device is not None else default_device()
+    if dist.active and device.type == "cuda" and device.index is None:
+        device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))  # one GPU per process
     last_path, best_path = out_dir / "last.pt", out_dir / "best.pt"
     state = None
     if resume:

@@ -17,7 +17,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import torch
-from torch import nn
 
 from ..losses import depth_l1
 from .base import CLIP_DEFAULT, MLP, CompletionModel, PCNEncoder
