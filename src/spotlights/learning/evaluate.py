@@ -189,10 +189,12 @@ def report_markdown(report: dict, metric: str = TABLE_METRIC) -> str:
                      _fmt(s["mean_over_samples"][metric]), _fmt(s["mean_over_categories"][metric]),
                      f"{res['params']['total'] / 1e6:.2f}M", _lat(1), _lat(32)]
             lines.append("| " + " | ".join(cells) + " |")
-    lines += ["", "Latency: median forward time (SA-Net without clip) or forward + decoding + clip "
-              "(SA-Net with clip, baselines: forward + split into clouds), "
-              + (f"on {report['results'][0].get('latency_device', '?')} with {report['results'][0].get('threads', '?')} threads."
-                 if report["results"] else ""), ""]
+    timed = [r for r in report["results"] if "latency_ms" in r]
+    if timed:
+        lines += ["", "Latency: median forward time (SA-Net without clip) or forward + decoding + clip "
+                  f"(SA-Net with clip, baselines: forward + split into clouds), on {timed[0]['latency_device']} "
+                  f"with {timed[0]['threads']} threads."]
+    lines += [""]
     # Other metrics, mean over samples.
     others = [m for m in ("completeness", "chamfer_l1", "chamfer_l2", "fscore", "hit_ratio", "n_points")]
     lines += ["## All metrics (mean over samples; per category in the JSON report)", ""]

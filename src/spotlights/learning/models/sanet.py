@@ -1,8 +1,8 @@
 """SA-Net (paper Section 4): PCN encoder + a fully connected decoder regressing N*M depths.
 
 The decoder is ``code -> hidden... -> N*M`` with ReLU between layers and a
-*linear* output (no sigmoid). Reason: about half of the ground-truth depths are
-exact zeros (missed rays); a linear output reaches 0 exactly with a constant L1
+*linear* output (no sigmoid). Reason: about two thirds of the ground-truth depths
+are exact zeros (missed rays); a linear output reaches 0 exactly with a constant L1
 gradient, while a sigmoid would saturate there. Under an L1 loss the prediction of
 an ambiguous ray tends to the conditional *median* (either "miss" or "hit at
 depth d"), not to an average of the two, which would be an outlier between them.
