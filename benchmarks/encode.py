@@ -12,6 +12,8 @@ ratios, not absolute numbers):
 * encoding all 79 ApolloScape cars at 32 x 64 / 60 degrees (loading included,
   reported apart), with 1 and 2 worker processes.
 
+Timings are medians of round-robin repeats (each repeat times every\nengine once), so a load change on the shared machine hits all of them alike.
+
 Usage: ``python benchmarks/encode.py [--repeat 20] [--json docs/results/bench_encode.json]``
 """
 
@@ -38,15 +40,21 @@ BIG = SHARED / "categories" / "chair" / "partnet_chair_40096_7f539a84.ply"
 RIGS = {2048: (32, 64), 8192: (64, 128), 32768: (128, 256)}
 
 
-def best_of(fn, repeat: int) -> float:
-    """Median wall time of ``fn()`` over ``repeat`` runs after one warm-up (seconds)."""
-    fn()
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
+def interleaved(fns: dict, repeat: int) -> dict:
+    """Median wall time (s) of each callable, timed round-robin so load changes hit all alike.
+
+    Each repeat runs every callable once, in an order rotated per repeat; one warm-up first.
+    """
+    for fn in fns.values():
         fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+    names = list(fns)
+    times = {n: [] for n in names}
+    for r in range(repeat):
+        for n in names[r % len(names):] + names[: r % len(names)]:
+            t0 = time.perf_counter()
+            fns[n]()
+            times[n].append(time.perf_counter() - t0)
+    return {n: statistics.median(t) for n, t in times.items()}
 
 
 def bench_mesh(path: Path, repeat: int) -> list[dict]:
@@ -70,18 +78,19 @@ def bench_mesh(path: Path, repeat: int) -> list[dict]:
         rig = make_rig(n, m, 60)
         o32 = rig.origins.astype(np.float32)
         d32 = rig.directions.astype(np.float32)
-        t_path = best_of(lambda: probe.encode(rig), repeat)
-        t_bare = best_of(lambda: scene.run(o32, d32, output=1), repeat)
-        row = {
-            "mesh": path.name, "faces": int(len(mesh.faces)), "rays": n_rays, "bvh_build_s": build,
-            "encode_path_mrays_s": n_rays / t_path / 1e6, "bare_embree_mrays_s": n_rays / t_bare / 1e6,
-            "path_over_bare": t_bare / t_path,
-        }
+        fns = {"path": lambda: probe.encode(rig), "bare": lambda: scene.run(o32, d32, output=1)}
         if o3d_scene is not None:
             rays = o3d.core.Tensor(np.concatenate([o32, d32], axis=1))
-            t_o3d = best_of(lambda: o3d_scene.cast_rays(rays)["t_hit"].numpy(), repeat)
-            row["open3d_mrays_s"] = n_rays / t_o3d / 1e6
-            row["path_over_open3d"] = t_o3d / t_path
+            fns["open3d"] = lambda: o3d_scene.cast_rays(rays)["t_hit"].numpy()
+        t = interleaved(fns, repeat)
+        row = {
+            "mesh": path.name, "faces": int(len(mesh.faces)), "rays": n_rays, "bvh_build_s": build,
+            "encode_path_mrays_s": n_rays / t["path"] / 1e6, "bare_embree_mrays_s": n_rays / t["bare"] / 1e6,
+            "path_over_bare": t["bare"] / t["path"],
+        }
+        if "open3d" in t:
+            row["open3d_mrays_s"] = n_rays / t["open3d"] / 1e6
+            row["path_over_open3d"] = t["open3d"] / t["path"]
         rows.append(row)
     return rows
 

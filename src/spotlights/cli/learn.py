@@ -79,7 +79,8 @@ def register(sub) -> None:
     g.add_argument("--clip", type=float, default=None, metavar="T", help="SA-Net: drop rays with depth < T (default: the checkpoint's, 0.2)")
     g.add_argument("--no-clip", action="store_true", help="SA-Net: keep every ray with depth > 0")
     p.add_argument("--crop", type=float, default=None, metavar="MARGIN", help="keep only scan points inside the box grown by MARGIN metres")
-    p.add_argument("--resample", default="fps", choices=("fps", "random"), help="how the scan is brought to 256 points (default fps)")
+    p.add_argument("--resample", default="random", choices=("random", "fps"),
+                   help="how the scan is brought to 256 points: a seeded random subset (default, as in the training data) or farthest-point sampling")
     p.add_argument("--seed", type=int, default=0, help="seed of the resampling")
     p.add_argument("--show", default=None, metavar="PNG", help="also write a picture of the scan and its completion")
     p.add_argument("--device", default=None)

@@ -206,7 +206,7 @@ def load_box(path) -> Box:
     return box_from_dict(d, p)
 
 
-def prepare_partial(points_unit: np.ndarray, n: int = INPUT_POINTS, seed: int = 0, method: str = "fps") -> np.ndarray:
+def prepare_partial(points_unit: np.ndarray, n: int = INPUT_POINTS, seed: int = 0, method: str = "random") -> np.ndarray:
     """Resample a unit-frame scan (K, 3) to exactly ``n`` points (float32).
 
     More points: farthest-point sampling (``"fps"``) or a random subset (``"random"``);
@@ -218,7 +218,7 @@ def prepare_partial(points_unit: np.ndarray, n: int = INPUT_POINTS, seed: int = 
 
 
 def complete_scan(points: np.ndarray, box: Box, completer: Completer, clip=DEFAULT, crop: float | None = None,
-                  seed: int = 0, resample_method: str = "fps", n_input: int = INPUT_POINTS) -> dict:
+                  seed: int = 0, resample_method: str = "random", n_input: int = INPUT_POINTS) -> dict:
     """Complete one partial scan given in its own frame (sensor or world) with its box.
 
     Parameters
