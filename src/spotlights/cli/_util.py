@@ -17,3 +17,19 @@ def add_command(sub, name: str, help: str, example: str, func=None) -> argparse.
     if func is not None:
         p.set_defaults(func=func)
     return p
+
+
+def add_group(sub, name: str, help: str, example: str, metavar: str = "SUBCOMMAND"):
+    """Add (or reuse) a command group such as ``spotlights dataset``; return its sub-parsers.
+
+    The group alone prints its help and exits with code 2. Several modules may add
+    sub-commands to the same group (e.g. ``bench``): the second call reuses the first's.
+    """
+    existing = sub.choices.get(name)
+    if existing is not None:
+        for action in existing._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                return action
+    group = add_command(sub, name, help, example)
+    group.set_defaults(func=lambda args: (group.print_help(), 2)[1])
+    return group.add_subparsers(dest=f"{name}_command", metavar=metavar, parser_class=type(group))

@@ -6,14 +6,12 @@ checked with real rigs and real ray casting, written as CSV, figures and a summa
 
 from __future__ import annotations
 
-from ._util import add_command
+from ._util import add_command, add_group
 
 
 def register(sub) -> None:
-    p = add_command(sub, "analyze", "analyses of the Spotlights representation (ray density, paper Section 3.3)",
-                    "spotlights analyze density --out out/density")
-    inner = p.add_subparsers(dest="analysis", metavar="ANALYSIS", parser_class=type(p))
-    p.set_defaults(func=lambda args: _missing(p))
+    inner = add_group(sub, "analyze", "analyses of the Spotlights representation (ray density, paper Section 3.3)",
+                      "spotlights analyze density --out out/density", metavar="ANALYSIS")
 
     d = add_command(inner, "density",
                     "ray density of a surfel at distance r and orientation alpha inside the sphere: quadrature, "
@@ -37,11 +35,6 @@ def register(sub) -> None:
     d.add_argument("--disc-radius", type=float, default=0.08, metavar="A", help="Monte-Carlo disc radius (default 0.08)")
     d.add_argument("--seed", type=int, default=0, help="seed of the random rotations (default 0)")
     d.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
-
-
-def _missing(p) -> int:
-    p.print_help()
-    return 2
 
 
 def _density(args) -> int:

@@ -2,15 +2,12 @@
 
 from __future__ import annotations
 
-from ._util import add_command
+from ._util import add_command, add_group
 
 
 def register(sub) -> None:
-    p = sub.add_parser("dataset", help="synthetic LiDAR completion dataset: build, info, export, show",
-                       description="Synthetic completion dataset (paper Section 5.1): simulated LiDAR partial scans "
-                                   "of meshes and their Spotlights ground truth, in one HDF5 file.")
-    dsub = p.add_subparsers(dest="dataset_command", metavar="SUBCOMMAND")
-    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
+    dsub = add_group(sub, "dataset", "synthetic LiDAR completion dataset (paper Section 5.1): build, info, export, show",
+                     "spotlights dataset build --meshes ../shared/data/meshes/apolloscape-cars --out cars.h5")
 
     b = add_command(dsub, "build", "simulate LiDAR scans of every mesh of a folder and write the dataset (resumable)",
                     "spotlights dataset build --meshes ../shared/data/meshes/apolloscape-cars --out cars.h5 "
@@ -143,7 +140,7 @@ def _info(args) -> int:
     for sp, d in info["splits"].items():
         cats = ", ".join(f"{k} {v}" for k, v in d["categories"].items())
         print(f"  {sp:5s}: {d['models']:4d} models, {d['samples']:8d} samples ({cats})")
-    print(f"  rigs: " + ", ".join(f"{n} ({k} rays){' [default]' if n == info['default_rig'] else ''}"
+    print("  rigs: " + ", ".join(f"{n} ({k} rays){' [default]' if n == info['default_rig'] else ''}"
                                   for n, k in info["rigs"].items()))
     sen = info["sensor"]
     print(f"  sensor: {sen.get('name')} {sen.get('n_beams')} beams {sen.get('elevation_max')}..{sen.get('elevation_min')} deg, "
@@ -151,7 +148,7 @@ def _info(args) -> int:
           f"dropout {sen.get('dropout')}, beam dropout {sen.get('beam_dropout', 0)}; distance {cfg.get('distance')} m, >= {cfg.get('min_points')} returns, "
           f"{cfg.get('n_points')} points ({cfg.get('downsample')})")
     if info["skipped"]:
-        print(f"  skipped meshes: " + "; ".join(f"{s['file']} ({s['problem']})" for s in info["skipped"]))
+        print("  skipped meshes: " + "; ".join(f"{s['file']} ({s['problem']})" for s in info["skipped"]))
     print("  datasets:")
     for name, d in info["datasets"].items():
         print(f"    {name:28s} {str(tuple(d['shape'])):20s} {d['dtype']}")

@@ -5,19 +5,11 @@ Thin over :mod:`spotlights.learning`; torch and numpy are imported inside the ha
 
 from __future__ import annotations
 
-import argparse
 import sys
 
-from ._util import add_command
+from ._util import add_command, add_group
 
 MODEL_CHOICES = ("sanet", "pcn", "foldingnet", "topnet", "atlasnet")
-
-
-def _subparsers_of(parser: argparse.ArgumentParser):
-    for action in parser._actions:  # noqa: SLF001 - argparse offers no public accessor
-        if isinstance(action, argparse._SubParsersAction):  # noqa: SLF001
-            return action
-    return None
 
 
 def register(sub) -> None:
@@ -86,12 +78,8 @@ def register(sub) -> None:
     p.add_argument("--device", default=None)
 
     # ---- bench models (reuses an existing 'bench' group if another module made one)
-    bench = sub.choices.get("bench")
-    if bench is None:
-        bench = add_command(sub, "bench", "benchmarks (bench models: parameters and latency of the five models)",
-                            "spotlights bench models --batch 1 32")
-        bench.set_defaults(func=lambda args: (bench.print_help(), 2)[1])
-    bsub = _subparsers_of(bench) or bench.add_subparsers(dest="bench_command", metavar="BENCH", parser_class=type(bench))
+    bsub = add_group(sub, "bench", "benchmarks (bench models: parameters and latency of the five models)",
+                     "spotlights bench models --batch 1 32", metavar="BENCH")
     p = add_command(bsub, "models", "parameters and median inference latency of the five models, in one run",
                     "spotlights bench models --batch 1 32 --json", _bench_models)
     p.add_argument("--models", nargs="+", default=list(MODEL_CHOICES), choices=MODEL_CHOICES, metavar="MODEL",

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ._util import add_command
+from ._util import add_command, add_group
 
 
 def _frames_range(text: str):
@@ -23,10 +23,8 @@ def _frames_range(text: str):
 
 
 def register(sub) -> None:
-    group = add_command(sub, "real", "real LiDAR data: extract vehicles, complete them, score consistency, draw them",
-                        "spotlights real extract ../shared/data/lidar/argoverse2 --format av2 --out av2.h5")
-    rs = group.add_subparsers(dest="real_command", metavar="SUBCOMMAND", parser_class=type(group))
-    group.set_defaults(func=lambda args: (group.print_help(), 2)[1])
+    rs = add_group(sub, "real", "real LiDAR data: extract vehicles, complete them, score consistency, draw them",
+                   "spotlights real extract ../shared/data/lidar/argoverse2 --format av2 --out av2.h5")
 
     p = add_command(rs, "extract", "cut the points of every vehicle box out of real scans into unit-frame partial observations (HDF5)",
                     "spotlights real extract ../shared/data/lidar/kitti-object/training --format kitti --out kitti.h5", _extract)

@@ -2,16 +2,14 @@
 
 from __future__ import annotations
 
-from ._util import add_command
+from ._util import add_command, add_group
 
 DEFAULT_MESHES = ("../shared/data/meshes/apolloscape-cars", "../shared/data/meshes/categories")
 
 
 def register(sub) -> None:
-    group = add_command(sub, "study", "studies beyond the paper (rigs: cap against box-targeted ray bundles)",
-                        "spotlights study rigs --out rig_study --rays 2048")
-    study = group.add_subparsers(dest="study_command", metavar="STUDY", parser_class=type(group))
-    group.set_defaults(func=lambda args: (group.print_help(), 2)[1])
+    study = add_group(sub, "study", "studies beyond the paper (rigs: cap against box-targeted ray bundles)",
+                      "spotlights study rigs --out rig_study --rays 2048", metavar="STUDY")
     r = add_command(study, "rigs", "hit ratio and completeness of the paper's cap rigs and box-targeted rigs",
                     "spotlights study rigs --out docs/results/rig_study --rays 2048 4096 8192", _rigs)
     r.add_argument("--out", "-o", required=True, metavar="DIR",

@@ -39,6 +39,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..geometry.neighbors import nearest_distances
+
 METRICS = ("cd", "cd_half", "d_ab", "d_ba", "cd_l2")
 METRIC_DOC = {
     "cd": "d_ab + d_ba: two-sided Chamfer distance of the paper's Eq. (1), unsquared Euclidean NN distances (headline)",
@@ -51,14 +53,11 @@ METRIC_DOC = {
 
 def nn_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(len(a),) float64 Euclidean distance from each point of ``a`` (K, 3) to its nearest point of ``b`` (L, 3)."""
-    from pykdtree.kdtree import KDTree
-
-    a = np.ascontiguousarray(a, dtype=np.float64).reshape(-1, 3)
-    b = np.ascontiguousarray(b, dtype=np.float64).reshape(-1, 3)
+    a = np.asarray(a, dtype=np.float64).reshape(-1, 3)
+    b = np.asarray(b, dtype=np.float64).reshape(-1, 3)
     if len(a) == 0 or len(b) == 0:
         raise ValueError("nearest-neighbour distances need two non-empty point sets")
-    d, _ = KDTree(b).query(a, k=1)
-    return np.asarray(d, dtype=np.float64)
+    return nearest_distances(a, b)
 
 
 def chamfer(a: np.ndarray, b: np.ndarray) -> dict[str, float]:

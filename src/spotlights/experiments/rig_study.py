@@ -79,14 +79,12 @@ def mean_nn_distance(query: np.ndarray, reference: np.ndarray) -> float:
     -------
     float, in the points' units; ``nan`` when ``reference`` is empty.
     """
-    from pykdtree.kdtree import KDTree
+    from ..geometry.neighbors import mean_nearest_distance
 
-    ref = np.ascontiguousarray(reference, dtype=np.float64).reshape(-1, 3)
-    q = np.ascontiguousarray(query, dtype=np.float64).reshape(-1, 3)
-    if len(ref) == 0:
+    if len(np.asarray(reference).reshape(-1, 3)) == 0:
         return float("nan")
-    dist, _ = KDTree(ref).query(q, k=1)
-    return float(np.mean(dist))
+    return mean_nearest_distance(np.asarray(query, dtype=np.float64).reshape(-1, 3),
+                                 np.asarray(reference, dtype=np.float64).reshape(-1, 3))
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,84 @@
+"""Nearest-neighbour distances between point sets (KD-trees), shared by every layer.
+
+``pykdtree`` (about 3x faster than scipy here) when importable, else
+``scipy.spatial.cKDTree``. Distances are unsquared Euclidean, in the points' units.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def _as_points(p, what: str = "points") -> np.ndarray:
+    p = np.asarray(p)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"{what} must have shape (K, 3), got {p.shape}")
+    if p.dtype not in (np.float32, np.float64):
+        p = p.astype(np.float64)
+    return np.ascontiguousarray(p)
+
+
+class NearestNeighbors:
+    """A KD-tree over a fixed (K, 3) point set, queried for unsquared NN distances.
+
+    Uses ``pykdtree`` (about 3x faster than scipy here) when importable, else
+    ``scipy.spatial.cKDTree``. Query points are cast to the tree's dtype.
+
+    Parameters
+    ----------
+    points : (K, 3) float32 or float64, K >= 1, in any frame (queries must use the same).
+    """
+
+    def __init__(self, points: np.ndarray):
+        pts = _as_points(points)
+        if len(pts) == 0:
+            raise ValueError("cannot build a KD-tree over an empty point set")
+        self.points = pts
+        self.dtype = pts.dtype
+        try:
+            from pykdtree.kdtree import KDTree
+        except ImportError:  # pragma: no cover - pykdtree is a dependency
+            from scipy.spatial import cKDTree
+
+            self._tree = cKDTree(pts)
+            self._pykd = False
+        else:
+            self._tree = KDTree(pts, leafsize=16)
+            self._pykd = True
+
+    def query(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Nearest neighbour of every query point.
+
+        Parameters
+        ----------
+        queries : (Q, 3) points in the same frame as the tree.
+
+        Returns
+        -------
+        distances : (Q,) float64 unsquared Euclidean distances.
+        indices : (Q,) int64 row of the nearest tree point.
+        """
+        q = np.ascontiguousarray(_as_points(queries, "queries"), dtype=self.dtype)
+        if len(q) == 0:
+            return np.zeros(0), np.zeros(0, dtype=np.int64)
+        dist, idx = self._tree.query(q, k=1)
+        return np.asarray(dist, dtype=np.float64).reshape(-1), np.asarray(idx, dtype=np.int64).reshape(-1)
+
+    def distances(self, queries: np.ndarray) -> np.ndarray:
+        """(Q,) float64 unsquared distances from each query point to its nearest tree point."""
+        return self.query(queries)[0]
+
+
+def nearest_distances(source: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """(K,) float64 unsquared distance from each ``source`` point (K, 3) to its nearest ``target`` point (L, 3)."""
+    return NearestNeighbors(target).distances(source)
+
+
+def mean_nearest_distance(source: np.ndarray, target: np.ndarray) -> float:
+    """One-sided Chamfer term: mean over ``source`` (K, 3) of the unsquared distance to the nearest
+    ``target`` (L, 3) point; ``nan`` when either set is empty."""
+    source = _as_points(source, "source")
+    target = _as_points(target, "target")
+    if len(source) == 0 or len(target) == 0:
+        return float("nan")
+    return float(nearest_distances(source, target).mean())
