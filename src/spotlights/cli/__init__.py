@@ -29,10 +29,20 @@ COMMAND_MODULES = [
 ]
 
 EPILOG = """\
-typical workflow:
-  spotlights encode car.ply --out car.npz          # mesh -> Spotlights depth array
-  spotlights decode car.npz --out car_points.ply   # depth array -> ordered point cloud
-  spotlights show car.npz --out car.png            # look at it
+start here:
+  spotlights demo --out out/demo                    # the whole pipeline on bundled CC0 data, with pictures
+
+the representation:
+  spotlights encode car.ply --out car.npz           # mesh -> Spotlights depth array (32 x 64 rays, 60 deg)
+  spotlights decode car.npz --out car_points.ply    # depth array -> ordered point cloud
+  spotlights show car.npz --out car.png             # look at it
+
+completion:
+  spotlights complete scan.pcd --box box.json --out done.ply --show done.png   # your scan + its 3-D box
+  spotlights dataset build --meshes DIR --out cars.h5                          # simulated LiDAR dataset
+  spotlights train --model sanet --data cars.h5 --schedule cpu                 # SA-Net or a baseline
+  spotlights evaluate --data cars.h5 --checkpoint runs/sanet/best.pt           # Table 1
+  spotlights real extract DIR --format av2 --out av2.h5                        # real LiDAR (KITTI, AV2, ...)
 
 Run 'spotlights COMMAND --help' for the options and an example of each command.
 """
