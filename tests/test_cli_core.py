@@ -93,6 +93,7 @@ def test_bad_meshes_one_line_error_no_output(tmp_path, make, fragment):
 @pytest.mark.parametrize("args, fragment", [
     (["-N", "0"], "N must be"), (["-M", "-3"], "M must be"), (["--angle", "95"], "(0, 90]"),
     (["--angle", "0"], "(0, 90]"), (["--radius", "2.5"], "radius"),
+    (["-M", "100000000"], "rays is more than"),
 ])
 def test_bad_rig_parameters(sphere_ply, tmp_path, args, fragment):
     r = run_cli("encode", sphere_ply, "--out", tmp_path / "x.npz", *args)
@@ -106,7 +107,26 @@ def test_bad_decode_inputs(tmp_path):
     (tmp_path / "trunc.npz").write_bytes(b"PK\x03\x04garbage")
     assert_user_error(run_cli("decode", tmp_path / "trunc.npz", "--out", tmp_path / "a.ply"), "trunc.npz")
     assert_user_error(run_cli("show", tmp_path / "nope.pcd"), "no such file")
+    (tmp_path / "g.npz").write_text("garbage")
+    assert_user_error(run_cli("show", tmp_path / "g.npz"), "g.npz", "not a readable")
+    _write(tmp_path / "h.ply", "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
+                               "property float z\nelement face abc\nend_header\n0 0 0\n")
+    assert_user_error(run_cli("show", tmp_path / "h.ply"), "h.ply")
     assert not (tmp_path / "a.ply").exists()
+
+
+def test_decode_refuses_out_of_range_clip_and_empty_output(sphere_ply, tmp_path):
+    assert run_cli("encode", sphere_ply, "--out", tmp_path / "s.npz").returncode == 0
+    assert_user_error(run_cli("decode", tmp_path / "s.npz", "--out", tmp_path / "a.ply", "--clip", "2"), "[0, 1]")
+    assert_user_error(run_cli("decode", tmp_path / "s.npz", "--out", tmp_path / "a.ply", "--clip", "nan"), "[0, 1]")
+    assert_user_error(run_cli("decode", tmp_path / "s.npz", "--out", tmp_path / "a.ply", "--clip", "1"), "no ray hit")
+    assert not (tmp_path / "a.ply").exists()
+
+
+def test_encode_into_existing_folder(sphere_ply, tmp_path):
+    (tmp_path / "enc").mkdir()
+    assert run_cli("encode", sphere_ply, "--out", tmp_path / "enc").returncode == 0
+    assert (tmp_path / "enc" / "sphere.npz").exists()
 
 
 def test_bad_point_clouds(tmp_path):

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ._util import add_command, add_group
+from ._util import add_command, add_group, positive_int, unit_interval
 
 
 def register(sub) -> None:
@@ -16,13 +16,13 @@ def register(sub) -> None:
                    help="folder of meshes; categories = first sub-folder, or DIR/manifest.csv (file,category[,up,forward,split])")
     b.add_argument("--out", "-o", required=True, metavar="FILE", help="dataset file to write (.h5); work folder FILE.parts")
     b.add_argument("--manifest", default=None, metavar="CSV", help="manifest CSV (default: DIR/manifest.csv if present)")
-    b.add_argument("--views", type=int, default=2000, help="partial observations per model (default 2000)")
+    b.add_argument("--views", type=positive_int, default=2000, help="partial observations per model (default 2000)")
     b.add_argument("--split", default="0.81/0.1/0.09", metavar="A/B/C",
                    help="train/val/test: model counts (64/8/7) or fractions (0.8/0.1/0.1); default 0.81/0.1/0.09 "
                         "(= the paper's 64/8/7 for 79 models)")
     b.add_argument("--no-stratify", action="store_true", help="split over all models instead of per category")
     b.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
-    b.add_argument("--workers", "-j", type=int, default=None, help="processes (default: all cores); never changes the result")
+    b.add_argument("--workers", "-j", type=positive_int, default=None, help="processes (default: all cores); never changes the result")
     b.add_argument("--rig", action="append", default=[], metavar="NxM[@DEG]",
                    help="extra Spotlights rig for the ground truth, repeatable (e.g. --rig 64x32@60 --rig 256x64@60)")
     b.add_argument("--default-rig", default="32x64@60", metavar="NxM[@DEG]", help="the main rig (default 32x64@60)")
@@ -72,7 +72,7 @@ def register(sub) -> None:
     s.add_argument("--index", type=int, default=0, help="sample index within the split (default 0)")
     s.add_argument("--out", "-o", default=None, metavar="PNG", help="output picture (default: ./SPLIT-INDEX.png)")
     s.add_argument("--rig", default=None, help="rig whose points are drawn (default: the default rig)")
-    s.add_argument("--clip", type=float, default=None, metavar="T", help="depths below T count as misses")
+    s.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="depths below T count as misses")
 
 
 def _distance(text: str) -> tuple[float, float]:
@@ -169,9 +169,14 @@ def _export(args) -> int:
 
     import numpy as np
 
+    from pathlib import Path
+
     from ..data.store import open_dataset
+    from ..errors import SpotlightsError
     from ..utils import atomic_output
 
+    if Path(args.out).suffix.lower() != ".npz":
+        raise SpotlightsError(f"{args.out}: the sample is written as .npz; name the output FILE.npz")
     with open_dataset(args.file) as ds:
         i = _pick(ds, args.split, args.index)
         s = ds.sample(i, rig=args.rig)

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import sys
 
-from ._util import add_command, add_group
+from ._util import add_command, add_group, non_negative_int, positive_float, positive_int, unit_interval
 
 MODEL_CHOICES = ("sanet", "pcn", "foldingnet", "topnet", "atlasnet")
 
@@ -23,13 +23,13 @@ def register(sub) -> None:
                    help="training schedule applied before --config: 'cpu' (about 90 min per model on 2 cores), "
                         "'paper' (the paper-scale GPU run), or a schedule YAML")
     p.add_argument("--out", metavar="DIR", default=None, help="run folder (default runs/MODEL): config.yaml, last.pt, best.pt, log.csv")
-    p.add_argument("--epochs", type=int, default=None, help="number of epochs (with --resume: raise it to train longer)")
-    p.add_argument("--batch-size", type=int, default=None, help="batch size per process")
+    p.add_argument("--epochs", type=positive_int, default=None, help="number of epochs (with --resume: raise it to train longer)")
+    p.add_argument("--batch-size", type=positive_int, default=None, help="batch size per process")
     p.add_argument("--lr", type=float, default=None, help="learning rate")
-    p.add_argument("--max-views", type=int, default=None, metavar="V", help="use only views 0..V-1 of each training model")
-    p.add_argument("--val-max-views", type=int, default=None, metavar="V", help="validation views per model")
+    p.add_argument("--max-views", type=positive_int, default=None, metavar="V", help="use only views 0..V-1 of each training model")
+    p.add_argument("--val-max-views", type=positive_int, default=None, metavar="V", help="validation views per model")
     p.add_argument("--rig", default=None, help="SA-Net: rig group of the dataset to regress (default: the file's default rig)")
-    p.add_argument("--workers", type=int, default=None, help="DataLoader worker processes")
+    p.add_argument("--workers", type=non_negative_int, default=None, help="DataLoader worker processes (0: load in the main process)")
     p.add_argument("--seed", type=int, default=None, help="random seed (same seed + config = same weights)")
     p.add_argument("--device", default=None, help="torch device (default: cuda when available, else cpu)")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
@@ -47,10 +47,10 @@ def register(sub) -> None:
     p.add_argument("--checkpoint", required=True, nargs="+", metavar="CKPT", help="one or more checkpoints")
     p.add_argument("--split", default="test", choices=("test", "val", "train"), help="split to score (default test)")
     p.add_argument("--out", default="report", metavar="PATH", help="report path without suffix: writes PATH.md and PATH.json (default ./report)")
-    p.add_argument("--max-views", type=int, default=None, metavar="V", help="score only views 0..V-1 of each model (faster)")
-    p.add_argument("--clip", type=float, default=None, metavar="T", help="SA-Net clip for the 'w/ clip' row (default: the checkpoint's, 0.2)")
-    p.add_argument("--batch-size", type=int, default=32)
-    p.add_argument("--fscore-threshold", type=float, default=0.01, metavar="T", help="F-score distance threshold, unit frame (default 0.01)")
+    p.add_argument("--max-views", type=positive_int, default=None, metavar="V", help="score only views 0..V-1 of each model (faster)")
+    p.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="SA-Net clip for the 'w/ clip' row (default: the checkpoint's, 0.2)")
+    p.add_argument("--batch-size", type=positive_int, default=32)
+    p.add_argument("--fscore-threshold", type=positive_float, default=0.01, metavar="T", help="F-score distance threshold, unit frame (default 0.01)")
     p.add_argument("--accuracy-only", action="store_true", help="skip the GT -> prediction side (completeness, CD, F-score)")
     p.add_argument("--no-latency", action="store_true", help="do not time the models")
     p.add_argument("--device", default=None)
@@ -68,7 +68,7 @@ def register(sub) -> None:
     p.add_argument("--size", type=float, nargs=3, default=None, metavar=("L", "W", "H"), help="box length, width, height")
     p.add_argument("--yaw", type=float, default=0.0, metavar="RAD", help="box heading in radians about z (default 0)")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--clip", type=float, default=None, metavar="T", help="SA-Net: drop rays with depth < T (default: the checkpoint's, 0.2)")
+    g.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="SA-Net: drop rays with depth < T (default: the checkpoint's, 0.2)")
     g.add_argument("--no-clip", action="store_true", help="SA-Net: keep every ray with depth > 0")
     p.add_argument("--crop", type=float, default=None, metavar="MARGIN", help="keep only scan points inside the box grown by MARGIN metres")
     p.add_argument("--resample", default="random", choices=("random", "fps"),
@@ -84,8 +84,8 @@ def register(sub) -> None:
                     "spotlights bench models --batch 1 32 --json", _bench_models)
     p.add_argument("--models", nargs="+", default=list(MODEL_CHOICES), choices=MODEL_CHOICES, metavar="MODEL",
                    help=f"models to measure (default all: {', '.join(MODEL_CHOICES)})")
-    p.add_argument("--batch", type=int, nargs="+", default=[1, 32], metavar="B", help="batch sizes (default 1 32)")
-    p.add_argument("--repeats", type=int, default=10, help="timed runs per measurement (median reported)")
+    p.add_argument("--batch", type=positive_int, nargs="+", default=[1, 32], metavar="B", help="batch sizes (default 1 32)")
+    p.add_argument("--repeats", type=positive_int, default=10, help="timed runs per measurement (median reported)")
     p.add_argument("--warmup", type=int, default=2, help="untimed warm-up runs")
     p.add_argument("--threads", type=int, default=None, help="torch threads for every model (default: torch's)")
     p.add_argument("--device", default=None)

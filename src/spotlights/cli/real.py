@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ._util import add_command, add_group
+from ._util import add_command, add_group, positive_int, unit_interval
 
 
 def _frames_range(text: str):
@@ -54,8 +54,8 @@ def register(sub) -> None:
     p.add_argument("--checkpoint", "-c", nargs="+", required=True, metavar="CKPT", help="one or more model checkpoints")
     p.add_argument("--out", "-o", default=None, metavar="PREFIX",
                    help="writes PREFIX.md and PREFIX.json (default: FILE without .h5 + '_consistency')")
-    p.add_argument("--batch-size", type=int, default=64, help="completion batch size (default 64)")
-    p.add_argument("--clip", type=float, default=None, metavar="T", help="depth clip passed to the models (default: each model's own)")
+    p.add_argument("--batch-size", type=positive_int, default=64, help="completion batch size (default 64)")
+    p.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="depth clip passed to the models (default: each model's own)")
     p.add_argument("--device", default=None, help="torch device for the models (default: the loader's choice)")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
 
@@ -67,7 +67,7 @@ def register(sub) -> None:
     p.add_argument("--sequence", default=None, metavar="SEQ", help="sequence / log of the frame, when frame ids repeat")
     p.add_argument("--max-objects", type=int, default=6, metavar="K", help="close-ups of the K objects with most points (default 6)")
     p.add_argument("--out", "-o", default=None, metavar="PNG", help="output picture (default: FILE_FRAME.png beside FILE)")
-    p.add_argument("--clip", type=float, default=None, metavar="T", help="depth clip passed to the model (default: its own)")
+    p.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="depth clip passed to the model (default: its own)")
     p.add_argument("--device", default=None, help="torch device for the model")
 
 

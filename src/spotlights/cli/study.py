@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ._util import add_command, add_group
+from ._util import add_command, add_group, positive_int
 
 DEFAULT_MESHES = ("../shared/data/meshes/apolloscape-cars", "../shared/data/meshes/categories")
 
@@ -20,7 +20,7 @@ def register(sub) -> None:
     r.add_argument("--rays", nargs="+", type=int, default=[2048, 4096, 8192], metavar="K",
                    help="ray counts, multiples of 64 (N = K / 64 viewpoints x 64 rays; default 2048 4096 8192)")
     r.add_argument("--seed", type=int, default=0, help="seed of the 16,384 surface samples per mesh (default 0)")
-    r.add_argument("--workers", type=int, default=1, help="processes over meshes (results do not depend on it; default 1)")
+    r.add_argument("--workers", type=positive_int, default=1, help="processes over meshes (results do not depend on it; default 1)")
 
 
 def _rigs(args) -> int:

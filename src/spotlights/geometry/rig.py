@@ -79,6 +79,8 @@ import numpy as np
 from ..errors import ParameterError
 
 GOLDEN_RATIO = (1.0 + math.sqrt(5.0)) / 2.0
+MAX_RAYS = 1 << 24
+"""Most rays one rig may hold (N * M): 16.8 million, ~1.2 GB of float64 rays."""
 RIG_KINDS = ("cap", "box")
 BOX_TARGETS = ("volume", "surface", "visible", "ellipsoid")
 # Parameters of a box rig left unset (the best variant of docs/box-rig.md).
@@ -519,6 +521,9 @@ class RigSpec:
             raise ParameterError(f"unknown rig kind {self.kind!r}; known: {', '.join(RIG_KINDS)}")
         object.__setattr__(self, "n_primary", _check_count(self.n_primary, "number of primary viewpoints N"))
         object.__setattr__(self, "n_secondary", _check_count(self.n_secondary, "number of secondary rays M"))
+        if self.n_primary * self.n_secondary > MAX_RAYS:
+            raise ParameterError(f"N * M = {self.n_primary * self.n_secondary:,} rays is more than the {MAX_RAYS:,} "
+                                 "one rig may hold (its arrays alone would need > 1 GB)")
         object.__setattr__(self, "angle", float(_check_angle(self.angle)))
         for key, value in _check_box_params(self.kind, self.scale, self.targets, self.cap_share).items():
             object.__setattr__(self, key, value)

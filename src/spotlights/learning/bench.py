@@ -104,7 +104,9 @@ def bench_models(names: Sequence[str] = MODEL_NAMES, batches: Sequence[int] = (1
 
     if threads:
         torch.set_num_threads(int(threads))
-    dev = torch.device(device) if device is not None else torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    from .device import resolve_device
+
+    dev = resolve_device(device)
     sync = torch.cuda.synchronize if dev.type == "cuda" else None
     rig = rig or make_rig(32, 64, 60.0)
     gen = torch.Generator().manual_seed(seed)

@@ -72,7 +72,9 @@ def evaluate_checkpoint(checkpoint, data, split: str = "test", batch_size: int =
     from .checkpoint import load_checkpoint, model_from_checkpoint
     from .data import TorchCompletionDataset
 
-    dev = torch.device(device) if device is not None else torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    from .device import resolve_device
+
+    dev = resolve_device(device)
     ckpt = load_checkpoint(checkpoint)
     model = model_from_checkpoint(ckpt, dev)
     name = ckpt["model_name"]

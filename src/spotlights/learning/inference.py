@@ -121,12 +121,11 @@ def load_completer(checkpoint_path=None, device=None) -> Completer:
     ``device``: torch device or name; default CUDA when available, else CPU.
     Raises :class:`InputFileError` for a missing/invalid checkpoint.
     """
-    import torch
-
     from .checkpoint import load_checkpoint, model_from_checkpoint
+    from .device import resolve_device
 
     path = pretrained_checkpoint() if checkpoint_path is None else checkpoint_path
-    dev = torch.device(device) if device is not None else torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    dev = resolve_device(device)
     ckpt = load_checkpoint(path)
     model = model_from_checkpoint(ckpt, dev)
     return Completer(model, ckpt, dev)

@@ -251,7 +251,9 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
            stop_after):
     from tqdm import tqdm
 
-    device = torch.device(device) if device is not None else default_device()
+    from .device import resolve_device
+
+    device = resolve_device(device) if device is not None else default_device()
     if dist.active and device.type == "cuda" and device.index is None:
         device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))  # one GPU per process
     last_path, best_path = out_dir / "last.pt", out_dir / "best.pt"
@@ -265,6 +267,13 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
         if overrides and "train" in overrides and "epochs" in overrides["train"]:
             extended = int(overrides["train"]["epochs"]) != int(cfg["train"]["epochs"])
             cfg["train"]["epochs"] = int(overrides["train"]["epochs"])
+        ignored = [f"{sec}.{key}" for sec, vals in (overrides or {}).items() if isinstance(vals, dict)
+                   for key, val in vals.items() if (sec, key) != ("train", "epochs")
+                   and cfg.get(sec, {}).get(key) != val]
+        ignored += ["--config"] * (config is not None) + ["--schedule"] * (schedule is not None)
+        if ignored and dist.main:
+            log(f"warning: resuming keeps the run's own config; ignored: {', '.join(ignored)} "
+                "(only --epochs may change; start a new run with --overwrite to change the rest)")
     else:
         if last_path.exists() and not overwrite:
             raise SpotlightsError(f"{out_dir}: holds a run already; pass --resume to continue it or --overwrite to start again")
@@ -347,7 +356,7 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
             loss, terms = model.loss(out, batch, global_step / total_steps)
             if not torch.isfinite(loss):
                 raise SpotlightsError(f"{model_name}: the training loss became {float(loss)} at epoch {epoch + 1}, "
-                                      "step {global_step}; lower train.lr or set train.grad_clip")
+                                      f"step {global_step}; lower train.lr or set train.grad_clip")
             opt.zero_grad(set_to_none=True)
             loss.backward()
             if grad_clip:
@@ -380,9 +389,11 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
                 "param_counts": param_counts,
                 "dataset": {"path": str(data), "rig": train_set.rig_name, "n_train": n_train, "n_val": len(val_set)},
             }
-            save_checkpoint(last_path, payload)
+            # best.pt first: a kill between the two writes must not leave a last.pt that names
+            # this epoch as best while best.pt still holds an older one.
             if improved:
                 save_checkpoint(best_path, {k: v for k, v in payload.items() if k not in ("optimizer_state", "scheduler_state")})
+            save_checkpoint(last_path, payload)
             _write_csv(out_dir / "log.csv", history)
             log(f"{model_name} epoch {epoch + 1}/{epochs}: train loss {row['train_loss']:.5f}, val loss "
                 f"{row['val_loss']:.5f}, val accuracy {row['val_accuracy']:.5f}, completeness {row['val_completeness']:.5f}"
