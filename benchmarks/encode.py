@@ -63,6 +63,7 @@ def bench_mesh(path: Path, repeat: int) -> list[dict]:
     probe = MeshProbe(mesh)
     build = time.perf_counter() - t0
     scene = probe.caster._scene
+    probe2 = MeshProbe(mesh, workers=2)  # one query split over 2 processes (>= PARALLEL_MIN_RAYS rays)
     try:
         import open3d as o3d
 
@@ -78,7 +79,8 @@ def bench_mesh(path: Path, repeat: int) -> list[dict]:
         rig = make_rig(n, m, 60)
         o32 = rig.origins.astype(np.float32)
         d32 = rig.directions.astype(np.float32)
-        fns = {"path": lambda: probe.encode(rig), "bare": lambda: scene.run(o32, d32, output=1)}
+        fns = {"path": lambda: probe.encode(rig), "bare": lambda: scene.run(o32, d32, output=1),
+               "path2": lambda: probe2.encode(rig)}
         if o3d_scene is not None:
             rays = o3d.core.Tensor(np.concatenate([o32, d32], axis=1))
             fns["open3d"] = lambda: o3d_scene.cast_rays(rays)["t_hit"].numpy()
@@ -87,10 +89,12 @@ def bench_mesh(path: Path, repeat: int) -> list[dict]:
             "mesh": path.name, "faces": int(len(mesh.faces)), "rays": n_rays, "bvh_build_s": build,
             "encode_path_mrays_s": n_rays / t["path"] / 1e6, "bare_embree_mrays_s": n_rays / t["bare"] / 1e6,
             "path_over_bare": t["bare"] / t["path"],
+            "encode_path_2proc_mrays_s": n_rays / t["path2"] / 1e6,
         }
         if "open3d" in t:
             row["open3d_mrays_s"] = n_rays / t["open3d"] / 1e6
             row["path_over_open3d"] = t["open3d"] / t["path"]
+            row["path2_over_open3d"] = t["open3d"] / t["path2"]
         rows.append(row)
     return rows
 
@@ -122,10 +126,12 @@ def main() -> int:
         print(f"shared data not found under {SHARED}; set SPOTLIGHTS_SHARED", file=sys.stderr)
         return 2
     rows = bench_mesh(CAR, args.repeat) + (bench_mesh(BIG, args.repeat) if BIG.exists() else [])
-    print(f"{'mesh':34s} {'faces':>7s} {'rays':>6s} {'path Mr/s':>9s} {'bare Mr/s':>9s} {'path/bare':>9s} {'o3d Mr/s':>9s}")
+    print(f"{'mesh':34s} {'faces':>7s} {'rays':>6s} {'path Mr/s':>9s} {'bare Mr/s':>9s} {'path/bare':>9s} "
+          f"{'2proc Mr/s':>10s} {'o3d Mr/s':>9s}")
     for r in rows:
         print(f"{r['mesh']:34s} {r['faces']:7d} {r['rays']:6d} {r['encode_path_mrays_s']:9.2f} "
-              f"{r['bare_embree_mrays_s']:9.2f} {r['path_over_bare']:9.2f} {r.get('open3d_mrays_s', float('nan')):9.2f}")
+              f"{r['bare_embree_mrays_s']:9.2f} {r['path_over_bare']:9.2f} {r['encode_path_2proc_mrays_s']:10.2f} "
+              f"{r.get('open3d_mrays_s', float('nan')):9.2f}")
     cars = [bench_cars(w) for w in (1, 2)]
     for c in cars:
         print(f"79 cars, 32x64/60deg, workers={c['workers']}: load {c['load_s']:.2f} s, encode (loaded) "

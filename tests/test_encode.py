@@ -178,3 +178,11 @@ def test_encode_mesh_files_same_bytes_whatever_workers(tmp_path):
     b = encode_mesh_files(paths, [rig], workers=2)[rig.name]
     assert a.shape == (3, 256) and a.tobytes() == b.tobytes()
     assert np.array_equal(a[1], encode_mesh(load_mesh(paths[1]), rig))
+
+
+def test_one_query_split_over_processes_gives_identical_depths():
+    mesh = trimesh.creation.icosphere(subdivisions=4, radius=0.7)
+    rig = make_rig(64, 512, angle=60)  # 32,768 rays: above the split threshold
+    one = MeshProbe(mesh).encode(rig)
+    two = MeshProbe(mesh, workers=2).encode(rig)
+    assert one.tobytes() == two.tobytes()

@@ -34,12 +34,13 @@ class MeshProbe:
     normalization : source -> unit transform; default: the mesh's axis-aligned box
         and its circumscribed sphere (the paper's step 1).
     engine : ray engine name (see :class:`~spotlights.geometry.raycast.RayCaster`).
+    workers : processes for one big query (rays split; same result), see ``RayCaster``.
     """
 
-    def __init__(self, mesh, normalization: Normalization | None = None, engine: str | None = None):
+    def __init__(self, mesh, normalization: Normalization | None = None, engine: str | None = None, workers: int = 1):
         self.normalization = normalization if normalization is not None else normalization_from_mesh(mesh)
         unit_vertices = self.normalization.to_unit(np.asarray(mesh.vertices))
-        self.caster = RayCaster(unit_vertices, np.asarray(mesh.faces), engine=engine)
+        self.caster = RayCaster(unit_vertices, np.asarray(mesh.faces), engine=engine, workers=workers)
 
     def hit_distances(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """(K,) float64 unit-frame first-hit distances inside the unit sphere, 0 on a miss.
@@ -67,7 +68,7 @@ class MeshProbe:
         keep that rig (``rig_for(spec)``) to decode the depths.
         """
         rig = self.rig_for(rig)
-        depth = self.caster.raw_distances(*rig.rays32)  # float32, >= 1e30 on a miss
+        depth = self.caster.rig_distances(rig)  # float32, >= 1e30 on a miss
         depth *= np.float32(0.5)
         # misses, and hits beyond the ray's chord through the unit sphere, become 0
         depth[~(depth <= rig.half_chords32)] = 0.0

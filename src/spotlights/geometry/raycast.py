@@ -19,6 +19,50 @@ from ..errors import ParameterError
 _MISS_T = 1e30
 # Rays per engine call: bounds the temporary memory of huge jobs (~0.2 GB at 4M rays).
 _CHUNK = 1 << 22
+# Below this many rays a query is not split over processes (the hand-over costs more).
+PARALLEL_MIN_RAYS = 16384
+# Casters handed to forked worker processes, by key (children inherit the BVH by fork).
+_FORKED: dict = {}
+
+
+def _worker_loop(conn, key) -> None:
+    """A forked helper process: answers ray queries on the parent's BVH until told to stop.
+
+    Jobs: ``("rays", o32, d32)`` or ``("rig", rig_json, start, stop)`` (the rig's rays are
+    rebuilt once per rig, so only slice bounds and results cross the pipe); ``None`` stops.
+    """
+    import json
+
+    from .rig import Rig
+
+    caster, rigs = _FORKED[key], {}
+    while True:
+        try:
+            job = conn.recv()
+        except EOFError:
+            return
+        if job is None:
+            return
+        if job[0] == "rig":
+            _, rig_json, start, stop = job
+            if rig_json not in rigs:
+                rigs[rig_json] = Rig.from_dict(json.loads(rig_json))
+            o32, d32 = rigs[rig_json].rays32
+            conn.send(caster._run(o32[start:stop], d32[start:stop]))
+        else:
+            conn.send(caster._run(job[1], job[2]))
+
+
+def _stop_workers(conns, procs) -> None:
+    for c in conns:
+        try:
+            c.send(None)
+        except (OSError, ValueError):
+            pass
+    for p in procs:
+        p.join(timeout=1)
+        if p.is_alive():
+            p.terminate()
 
 
 def _embree_available() -> bool:
@@ -38,11 +82,15 @@ class RayCaster:
     vertices : (V, 3) float array.
     faces : (F, 3) int array of vertex indices.
     engine : ``"embree"`` (default when available) or ``"trimesh"``.
+    workers : processes for one query (default 1). ``embreex`` holds the GIL, so a query
+        of at least :data:`PARALLEL_MIN_RAYS` rays is split over ``workers`` processes
+        forked once (lazily) with the BVH; results are identical to ``workers=1``.
+        Needs the ``fork`` start method (Linux); elsewhere queries stay in-process.
 
     The BVH is built once; query it as often as needed.
     """
 
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray, engine: str | None = None):
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, engine: str | None = None, workers: int = 1):
         v = np.asarray(vertices, dtype=np.float64)
         f = np.asarray(faces, dtype=np.int64)
         if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
@@ -55,6 +103,8 @@ class RayCaster:
                 warnings.warn("embreex is not installed: using trimesh's slow ray engine", RuntimeWarning, stacklevel=2)
         self.engine = engine
         self.n_faces = len(f)
+        self.workers = max(1, int(workers))
+        self._conns = None
         if engine == "embree":
             from embreex import rtcore_scene
             from embreex.mesh_construction import TriangleMesh
@@ -134,9 +184,64 @@ class RayCaster:
         d32 = np.ascontiguousarray(directions, dtype=np.float32)
         if o32.shape != d32.shape or o32.ndim != 2 or o32.shape[1] != 3:
             raise ParameterError(f"origins and directions must both be (K, 3), got {o32.shape} and {d32.shape}")
+        if self.workers > 1 and len(o32) >= PARALLEL_MIN_RAYS and self._ensure_pool():
+            bounds = np.linspace(0, len(o32), self.workers + 1).astype(np.int64)
+            for conn, a, b in zip(self._conns, bounds[1:-1], bounds[2:]):
+                conn.send(("rays", o32[a:b], d32[a:b]))  # sent now, from this thread: no GIL wait
+            first = self._run(o32[: bounds[1]], d32[: bounds[1]])  # the parent takes the first share
+            return np.concatenate([first, *(conn.recv() for conn in self._conns)])
+        return self._run(o32, d32)
+
+    def rig_distances(self, rig) -> np.ndarray:
+        """:meth:`raw_distances` for all rays of a :class:`~spotlights.geometry.rig.Rig`.
+
+        With ``workers > 1`` and a big rig, each worker process rebuilds the rig's rays
+        once (from ``rig.to_dict()``) and only slice bounds and results cross processes,
+        so the split costs little. Returns (N*M,) float32, >= 1e30 on a miss.
+        """
+        o32, d32 = rig.rays32
+        if self.engine != "embree" or self.workers == 1 or len(o32) < PARALLEL_MIN_RAYS or not self._ensure_pool():
+            return self.raw_distances(o32, d32)
+        import json
+
+        rig_json = json.dumps(rig.to_dict(), sort_keys=True)
+        bounds = np.linspace(0, len(o32), self.workers + 1).astype(np.int64)
+        for conn, a, b in zip(self._conns, bounds[1:-1], bounds[2:]):
+            conn.send(("rig", rig_json, int(a), int(b)))
+        first = self._run(o32[: bounds[1]], d32[: bounds[1]])
+        return np.concatenate([first, *(conn.recv() for conn in self._conns)])
+
+    def _run(self, o32: np.ndarray, d32: np.ndarray) -> np.ndarray:
         parts = [self._scene.run(o32[s : s + _CHUNK], d32[s : s + _CHUNK], query="DISTANCE")
                  for s in range(0, len(o32), _CHUNK)]
         return np.concatenate(parts) if len(parts) != 1 else parts[0]
+
+    def _ensure_pool(self) -> bool:
+        """Fork ``workers - 1`` helper processes holding this BVH (once); False where fork is unavailable."""
+        if self._conns is not None:
+            return True
+        import multiprocessing as mp
+        import weakref
+
+        if "fork" not in mp.get_all_start_methods():  # pragma: no cover - not Linux
+            self.workers = 1
+            return False
+        ctx = mp.get_context("fork")
+        conns, procs = [], []
+        _FORKED[id(self)] = self
+        try:
+            for _ in range(self.workers - 1):
+                parent, child = ctx.Pipe()
+                proc = ctx.Process(target=_worker_loop, args=(child, id(self)), daemon=True)
+                proc.start()
+                child.close()
+                conns.append(parent)
+                procs.append(proc)
+        finally:
+            del _FORKED[id(self)]  # the children have their copy; the parent must not keep self alive
+        self._conns = conns
+        weakref.finalize(self, _stop_workers, conns, procs)
+        return True
 
 
 def first_hit(mesh, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
