@@ -35,45 +35,27 @@ def add_group(sub, name: str, help: str, example: str, metavar: str = "SUBCOMMAN
     return group.add_subparsers(dest=f"{name}_command", metavar=metavar, parser_class=type(group))
 
 
-def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}")
-    return v
+def _number_type(cast, accept, expected: str):
+    """An argparse type: ``cast(text)`` that must satisfy ``accept``, else a usage error saying ``expected``."""
+
+    def parse(text: str):
+        try:
+            value = cast(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+        if not accept(value):
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
+        return value
+
+    parse.__name__ = expected
+    return parse
 
 
-def unit_interval(text: str) -> float:
-    """argparse type: a finite number in [0, 1] (depth clips, thresholds in the unit frame)."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
-    if not (0.0 <= v <= 1.0):
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}")
-    return v
-
-
-def positive_float(text: str) -> float:
-    """argparse type: a finite number > 0."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}") from None
-    if not (v > 0.0 and v < float("inf")):
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
-    return v
-
-
-def non_negative_int(text: str) -> int:
-    """argparse type: an integer >= 0 (e.g. DataLoader workers, 0 = in-process)."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}")
-    return v
+positive_int = _number_type(int, lambda v: v >= 1, "a whole number >= 1")
+"""argparse type: an integer >= 1 (counts, batch sizes, epochs)."""
+non_negative_int = _number_type(int, lambda v: v >= 0, "a whole number >= 0")
+"""argparse type: an integer >= 0 (e.g. DataLoader workers, 0 = in-process)."""
+unit_interval = _number_type(float, lambda v: 0.0 <= v <= 1.0, "a number in [0, 1]")
+"""argparse type: a finite number in [0, 1] (depth clips; NaN is refused)."""
+positive_float = _number_type(float, lambda v: 0.0 < v < float("inf"), "a finite number > 0")
+"""argparse type: a finite number > 0 (distance thresholds)."""
