@@ -31,7 +31,8 @@ class SANet(CompletionModel):
     code_size : encoder code size (paper: 1024).
     hidden : hidden layer widths of the decoder (default [256, 256]: 0.85M parameters
         for 2048 rays, keeping the decoder under 1M).
-    output_activation : ``"none"`` (linear, default) or ``"sigmoid"``.
+    output_activation : ``"none"`` (linear, default), ``"relu"`` (exact zeros for misses: a
+        ray the decoder drives below 0 decodes as a miss even without a clip) or ``"sigmoid"``.
     clip : default inference threshold on predicted depths (paper: 0.2); ``None`` = no clip.
 
     forward: partial (B, K, 3) -> {"depths": (B, N*M)}.
@@ -49,8 +50,8 @@ class SANet(CompletionModel):
         if rig is None:
             raise ValueError("SA-Net needs a rig (the rig of the depths it regresses)")
         self.rig = Rig.from_dict(rig) if isinstance(rig, dict) else rig
-        if output_activation not in ("none", "sigmoid"):
-            raise ValueError(f"output_activation must be 'none' or 'sigmoid', got {output_activation!r}")
+        if output_activation not in ("none", "relu", "sigmoid"):
+            raise ValueError(f"output_activation must be 'none', 'relu' or 'sigmoid', got {output_activation!r}")
         self.output_activation = output_activation
         self.clip = None if clip is None else float(clip)
         self.encoder = PCNEncoder(code_size, encoder_widths)
@@ -62,6 +63,8 @@ class SANet(CompletionModel):
         d = self.decoder(self.encoder(partial))
         if self.output_activation == "sigmoid":
             d = torch.sigmoid(d)
+        elif self.output_activation == "relu":
+            d = torch.relu(d)
         return {"depths": d}
 
     def loss(self, outputs, batch, progress: float = 1.0):
