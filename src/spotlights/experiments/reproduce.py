@@ -762,6 +762,11 @@ def _table_inputs(ctx: Context, key: str) -> list:
 # ----------------------------------------------------------------------------------------------
 # tables
 # ----------------------------------------------------------------------------------------------
+def _v(x) -> float:
+    """A value for comparisons: None / NaN (e.g. every completion empty) -> +inf."""
+    return float("inf") if x is None or not math.isfinite(float(x)) else float(x)
+
+
 def _fmt(x, digits=5) -> str:
     return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:.{digits}f}"
 
@@ -821,8 +826,11 @@ def _run_facts(ctx: Context, runs) -> dict:
 
 def _training_note(ctx: Context, runs) -> str:
     facts = _run_facts(ctx, runs)
-    parts = [f"{r}: {f.get('steps', '?'):,} steps of {f.get('batch_size', '?')} ({f.get('epochs', '?')} epochs, "
-             f"{f.get('train_seconds', 0) / 60:.0f} min)" if f else f"{r}: ?" for r, f in facts.items()]
+    def dur(sec):
+        return f"{sec:.0f} s" if sec < 120 else f"{sec / 60:.0f} min"
+
+    parts = [f"{r}: {f.get('steps', 0):,} steps of {f.get('batch_size', '?')} ({f.get('epochs', '?')} epochs, "
+             f"{dur(float(f.get('train_seconds') or 0))} of training)" if f else f"{r}: ?" for r, f in facts.items()]
     return "; ".join(parts)
 
 
@@ -845,17 +853,17 @@ def build_table1(ctx: Context) -> dict:
         body.append(["", "ours vs paper", *[_diff(o[c], p[c]) for c in cols], "", ""])
         for c in cols + ["params_m", "runtime_ms"]:
             rows.append({"row": name, "column": c, "ours": o.get(c), "paper": p.get(c)})
-    avg = {n: ours[n]["average"] for n in order if n in ours}
+    avg = {n: _v(ours[n]["average"]) for n in order if n in ours}
     best = min(avg, key=lambda n: avg[n]) if avg else None
     checks = [
         {"claim": "SA-Net with clip is the most accurate method (lowest Average)", "holds": best == "sanet (clip 0.2)",
          "detail": f"lowest Average: {best} ({_fmt(avg.get(best))})" if best else "-"},
-        {"claim": "the clip improves SA-Net's accuracy", "holds": bool(avg.get("sanet (clip 0.2)", 1) < avg.get("sanet (no clip)", 0)),
+        {"claim": "the clip improves SA-Net's accuracy",
+         "holds": bool(avg.get("sanet (clip 0.2)", math.inf) < avg.get("sanet (no clip)", math.inf)),
          "detail": f"no clip {_fmt(avg.get('sanet (no clip)'))}, clip 0.2 {_fmt(avg.get('sanet (clip 0.2)'))}"},
         {"claim": "SA-Net has the fewest parameters and the shortest runtime",
          "holds": bool(ours and min(ours, key=lambda n: ours[n]["params_m"]).startswith("sanet")
-                       and all(v["runtime_ms"] is not None for v in ours.values())
-                       and min(ours, key=lambda n: ours[n]["runtime_ms"]).startswith("sanet")),
+                       and min(ours, key=lambda n: _v(ours[n]["runtime_ms"])).startswith("sanet")),
          "detail": ", ".join(f"{n}: {ours[n]['params_m']:.2f}M / {_fmt(ours[n]['runtime_ms'], 2)} ms" for n in order if n in ours)},
     ]
     any_row = next(iter(ours.values())) if ours else {}
@@ -890,7 +898,7 @@ def build_table2(ctx: Context) -> dict:
         body.append(["", "paper (KITTI-360)", *[_fmt(p[c], 4) for c in classes + ["average"]], ""])
         for c in classes + ["average"]:
             rows.append({"row": name, "column": c, "ours": o[c], "paper": p[c]})
-    avg = {n: ours[n]["average"] for n in ours if ours[n]["average"] is not None}
+    avg = {n: _v(ours[n]["average"]) for n in ours}
     best = min(avg, key=lambda n: avg[n]) if avg else None
     kitti_obs = None
     kp = ctx.out / "data" / "kitti.h5"
@@ -959,7 +967,9 @@ def build_table3(ctx: Context) -> dict:
         for c in extra + ["average_all", "cars"]:
             rows.append({"row": f"{rays} rays {angle} deg", "column": c, "ours": o.get(c), "paper": None})
     checks = []
-    for key, lab in (("average", "the paper's 6 categories"), ("cars", "the cars")):
+    for key, lab in (("average", "the paper's 6 categories"), ("average_all", f"all {len(cats)} categories"), ("cars", "the cars")):
+        if any(vals[k][key] is None for k in vals):
+            continue
         for angle in (30, 60, 83):
             seq = [vals[(r, angle)][key] for r in ABLATION_RAYS]
             checks.append({"claim": f"completeness improves with the ray count ({angle}°, {lab})",
@@ -995,7 +1005,7 @@ def build_table4(ctx: Context) -> dict:
             rows.append({"row": f"{angle} deg", "column": c, "ours": o.get(c), "paper": p.get(c)})
         for c in extra + ["average_all", "cars"]:
             rows.append({"row": f"{angle} deg", "column": c, "ours": o.get(c), "paper": None})
-    spread = max(abs(vals[(r, a)]["average"] - vals[(HIT_RATIO_RAYS, a)]["average"]) for r in ABLATION_RAYS for a in (30, 60, 83))
+    spread = max(abs(vals[(r, a)]["average_all"] - vals[(HIT_RATIO_RAYS, a)]["average_all"]) for r in ABLATION_RAYS for a in (30, 60, 83))
     checks = []
     for key in ["average", "average_all", "cars"] + cats:
         seq = [vals[(HIT_RATIO_RAYS, a)].get(key) for a in (30, 60, 83)]
@@ -1006,7 +1016,7 @@ def build_table4(ctx: Context) -> dict:
     ours_avg = [vals[(HIT_RATIO_RAYS, a)]["average"] for a in (30, 60, 83)]
     md = [f"Hit ratio = rays that hit the object / all rays (%), at {HIT_RATIO_RAYS} rays (the paper does not give the ray "
           f"count; at 4096 and 8192 rays our averages differ by at most {spread:.1f} points). Same meshes and columns as "
-          f"Table 3. Paper averages 78.6 / 50.9 / 34.8 %; ours (6 categories) {' / '.join(f'{v:.1f}' for v in ours_avg)} %.", ""]
+          f"Table 3. Paper averages 78.6 / 50.9 / 34.8 %; ours (6 categories) {' / '.join(_fmt(v, 1) for v in ours_avg)} %.", ""]
     md += _md_table(head, body)
     return {"ours": {str(a): vals[(HIT_RATIO_RAYS, a)] for a in (30, 60, 83)},
             "ours_by_rays": {f"{r}x{a}": v for (r, a), v in vals.items()},
@@ -1029,8 +1039,8 @@ def build_table5(ctx: Context) -> dict:
         body.append(["", "ours vs paper", *[_diff(o[c], p[c]) for c in cols], ""])
         for c in cols:
             rows.append({"row": name, "column": c, "ours": o[c], "paper": p[c]})
-    a = {k: v["average"] for k, v in ours.items()}
-    rel = abs(a["64x32"] / a["32x64"] - 1.0)
+    a = {k: _v(v["average"]) for k, v in ours.items()}
+    rel = abs(a["64x32"] / a["32x64"] - 1.0) if math.isfinite(a["64x32"] + a["32x64"]) else math.inf
     checks = [
         {"claim": "32*64 and 64*32 (same ray count) perform alike (within 5%)", "holds": bool(rel < 0.05),
          "detail": f"{_fmt(a['32x64'])} vs {_fmt(a['64x32'])} ({100 * rel:.1f}% apart; paper 2.2%)"},
