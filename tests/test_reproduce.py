@@ -207,11 +207,11 @@ def test_table1_sanet_accuracy_by_brute_force(quick):
     assert t1["average"] == pytest.approx(np.mean([v for vs in per_cat.values() for v in vs]), rel=1e-4)
 
 
-def test_second_run_reuses_every_step(quick):
+def test_second_run_reuses_every_step_and_publishes(quick, tmp_path):
     out = quick["out"]
     t0 = time.perf_counter()
     proc = run_cli("reproduce", "--quick", "--out", out, "--meshes", CARS, "--category-meshes", CATEGORIES,
-                   "--lidar", LIDAR, "--no-progress")
+                   "--lidar", LIDAR, "--no-progress", "--publish", tmp_path / "pub")
     dt = time.perf_counter() - t0
     assert proc.returncode == 0, proc.stderr
     assert "0 step(s) run, 29 reused" in proc.stdout
@@ -219,6 +219,10 @@ def test_second_run_reuses_every_step(quick):
     steps = json.loads((out / "steps.json").read_text())
     assert all(r["reused"] for r in steps["steps"].values())
     assert len(steps["invocations"]) == 2
+    report = (tmp_path / "pub" / "REPORT.md").read_text()
+    for png in re.findall(r"\]\((figures/[^)]+\.png)\)", report):
+        assert (tmp_path / "pub" / png).is_file(), png
+    assert (tmp_path / "pub" / "tables" / "table1.csv").is_file() and not (tmp_path / "pub" / "runs").exists()
 
 
 def _ball_folder(root):

@@ -33,13 +33,16 @@ def register(sub) -> None:
     p.add_argument("--lidar", default=None, metavar="DIR", help="real LiDAR data (default ../shared/data/lidar)")
     p.add_argument("--workers", type=positive_int, default=None,
                    help="processes for the dataset build and the rig study (default 1; results do not depend on it)")
+    p.add_argument("--publish", default=None, metavar="DIR",
+                   help="afterwards, copy REPORT.md, results.json, steps.json, tables/ and figures/ into DIR "
+                        "(e.g. docs/results/reproduction)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
 def _reproduce(args) -> int:
     import sys
 
-    from ..experiments.reproduce import parse_tables, reproduce
+    from ..experiments.reproduce import parse_tables, publish, reproduce
 
     parse_tables(args.tables)  # a bad --tables fails before anything runs
     res = reproduce(args.out, tables=args.tables, quick=args.quick, schedule=args.schedule, cars_data=args.cars_data,
@@ -48,4 +51,6 @@ def _reproduce(args) -> int:
                     progress=not args.no_progress, argv=sys.argv[1:])
     print(f"{len(res.ran)} step(s) run, {len(res.reused)} reused, {res.seconds:.1f} s; report -> {res.report}, "
           f"numbers -> {res.results}")
+    if args.publish:
+        print(f"published -> {publish(args.out, args.publish)}")
     return 0

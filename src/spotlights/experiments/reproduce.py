@@ -1361,8 +1361,39 @@ def write_report(ctx: Context, keys: Sequence[str], seconds: float) -> tuple[Pat
     L += [f"- seeds: dataset {ctx.s.seed} (every random number of a view derives from it and the model name), training "
           f"`train.seed` = 0 of each run's config, rig study {ctx.s.seed} (surface samples per mesh), real extraction "
           f"{ctx.s.seed} (resampling); evaluation is deterministic.",
-          f"- all numbers: `results.json`; per table: `tables/table<K>.json` and `.csv`; per checkpoint: `eval/<run>.md`.", ""]
+          "- all numbers: `results.json`; per table: `tables/table<K>.json` and `.csv`; per checkpoint: `eval/<run>.md`.", ""]
     md_path = ctx.out / "REPORT.md"
     with atomic_output(md_path, suffix=".md") as tmp:
         Path(tmp).write_text("\n".join(L) + "\n")
     return md_path, res_path
+
+
+PUBLISHED = ("REPORT.md", "results.json", "steps.json", "tables", "figures")
+"""What :func:`publish` copies: the report, its numbers and its pictures (no data, checkpoints or caches)."""
+
+
+def publish(out, dest) -> Path:
+    """Copy a finished reproduction's report, numbers and figures from ``out`` into ``dest``
+    (e.g. ``docs/results/reproduction``), replacing what ``dest`` held of them.
+
+    The report's figure links are relative (``figures/...``), so they work in ``dest``.
+    Raises :class:`SpotlightsError` when ``out`` holds no report.
+    """
+    import shutil
+
+    out, dest = Path(out), Path(dest)
+    if not (out / "REPORT.md").is_file():
+        raise SpotlightsError(f"{out}: no REPORT.md to publish (run the reproduction first)")
+    dest.mkdir(parents=True, exist_ok=True)
+    for name in PUBLISHED:
+        src, dst = out / name, dest / name
+        if src.is_dir():
+            tmp = dest / f".{name}.tmp"
+            shutil.rmtree(tmp, ignore_errors=True)
+            shutil.copytree(src, tmp, ignore=shutil.ignore_patterns("*.csv") if name == "figures" else None)
+            shutil.rmtree(dst, ignore_errors=True)
+            tmp.rename(dst)
+        elif src.is_file():
+            with atomic_output(dst, suffix=src.suffix) as t:
+                shutil.copyfile(src, t)
+    return dest / "REPORT.md"
