@@ -6,7 +6,7 @@ from ._util import add_command, add_group, positive_int, unit_interval
 
 
 def register(sub) -> None:
-    dsub = add_group(sub, "dataset", "synthetic LiDAR completion dataset (paper Section 5.1): build, info, export, show",
+    dsub = add_group(sub, "dataset", "synthetic LiDAR completion dataset (paper Section 5.1): build, add-rig, info, export, show",
                      "spotlights dataset build --meshes ../shared/data/meshes/apolloscape-cars --out cars.h5")
 
     b = add_command(dsub, "build", "simulate LiDAR scans of every mesh of a folder and write the dataset (resumable)",
@@ -23,9 +23,10 @@ def register(sub) -> None:
     b.add_argument("--no-stratify", action="store_true", help="split over all models instead of per category")
     b.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
     b.add_argument("--workers", "-j", type=positive_int, default=None, help="processes (default: all cores); never changes the result")
-    b.add_argument("--rig", action="append", default=[], metavar="NxM[@DEG]",
-                   help="extra Spotlights rig for the ground truth, repeatable (e.g. --rig 64x32@60 --rig 256x64@60)")
-    b.add_argument("--default-rig", default="32x64@60", metavar="NxM[@DEG]", help="the main rig (default 32x64@60)")
+    b.add_argument("--rig", action="append", default=[], metavar="RIG",
+                   help="extra Spotlights rig for the ground truth, repeatable: NxM[@DEG] cap rigs (e.g. --rig 64x32@60 "
+                        "--rig 256x64@60) or rig names, e.g. box-32x64-ellipsoid-s1 (box-targeted: each model's own box)")
+    b.add_argument("--default-rig", default="32x64@60", metavar="RIG", help="the main rig (default 32x64@60)")
     b.add_argument("--points", type=int, default=256, help="points per partial observation (default 256)")
     b.add_argument("--gt-points", type=int, default=2048, help="uniform ground-truth points (default 2048)")
     b.add_argument("--gt-dense", type=int, default=16384, help="dense ground-truth points (default 16384)")
@@ -51,6 +52,16 @@ def register(sub) -> None:
     r.add_argument("--block", type=int, default=None, help="views per work unit (default ~views/8, at most 250)")
     r.add_argument("--keep-parts", action="store_true", help="keep FILE.parts after writing FILE")
     r.add_argument("--quiet", "-q", action="store_true", help="no progress bars")
+
+    a = add_command(dsub, "add-rig", "add one more rig's ground-truth depths to an existing dataset file (no rebuild; atomic)",
+                    "spotlights dataset add-rig cars.h5 --rig box-32x64-ellipsoid-s1", _add_rig)
+    a.add_argument("file", metavar="FILE")
+    a.add_argument("--rig", required=True, metavar="RIG",
+                   help="NxM[@DEG] or a rig name (cap-32x64-60, box-32x64-ellipsoid-s1, box-32x64-volume-s0.9, ...)")
+    a.add_argument("--meshes", default=None, metavar="DIR",
+                   help="the meshes folder the dataset was built from (default: the one its config records)")
+    a.add_argument("--workers", "-j", type=positive_int, default=None, help="processes (default: all cores); never changes the result")
+    a.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
 
     i = add_command(dsub, "info", "print a dataset's splits, categories, counts and array shapes",
                     "spotlights dataset info cars.h5 --json", _info)
@@ -122,6 +133,24 @@ def _build(args) -> int:
     return 0
 
 
+def _add_rig(args) -> int:
+    import signal
+
+    from ..data.synthetic import add_rig
+
+    def _terminate(signum, frame):  # SIGTERM: stop like Ctrl-C; the file is left untouched
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, _terminate)
+    rep = add_rig(args.file, args.rig, meshes=args.meshes, workers=args.workers, progress=not args.quiet)
+    if rep.already_present:
+        print(f"{args.file}: already holds rig {rep.rig}; nothing to do")
+        return 0
+    print(f"{args.file}: added rig {rep.rig} ({rep.n_models} models x {rep.n_rays} rays, hit ratio {rep.hit_ratio:.3f}); "
+          f"depths {rep.seconds_depths:.1f} s, file written in {rep.seconds_write:.1f} s, {rep.file_size / 2**20:.1f} MiB")
+    return 0
+
+
 def _info(args) -> int:
     import json
 
@@ -180,7 +209,7 @@ def _export(args) -> int:
     with open_dataset(args.file) as ds:
         i = _pick(ds, args.split, args.index)
         s = ds.sample(i, rig=args.rig)
-        rig = ds.rig(s["rig"])
+        rig = ds.rig(s["rig"], s["model_index"])
     with atomic_output(args.out, suffix=".npz") as tmp:
         with open(tmp, "wb") as fh:
             np.savez_compressed(
@@ -204,7 +233,7 @@ def _show(args) -> int:
     with open_dataset(args.file) as ds:
         i = _pick(ds, args.split, args.index)
         s = ds.sample(i, rig=args.rig)
-        rig = ds.rig(s["rig"])
+        rig = ds.rig(s["rig"], s["model_index"])
     render_sample(out, s, rig, clip=args.clip)
     print(f"{args.file}: {args.split}[{args.index}] = sample {i} ({s['model']}, view {s['view']}) -> {out}")
     return 0

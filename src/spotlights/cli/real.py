@@ -169,7 +169,7 @@ def _show(args) -> int:
         completer = _load_completers([args.checkpoint], args.device)[0]
         from ..data.real.evaluate import complete_all
 
-        completions = complete_all(completer, obs.partial[rows], progress=False, clip=args.clip)
+        completions = complete_all(completer, obs.partial[rows], progress=False, clip=args.clip, box_sizes=obs.box_size[rows])
         model = completer.model_name
     i0 = rows[0]
     frame = obs.frame_id[i0]

@@ -20,7 +20,8 @@ dataset                    shape                  dtype    meaning
 /models/center             (n_models, 3)          float64  object-frame box centre (metres)
 /models/radius             (n_models,)            float64  half the box diagonal R (metres)
 /models/size               (n_models, 3)          float64  box length, width, height (metres)
-/rigs/<rig_name>/depths    (n_models, N*M)        float32  Spotlights depths; attr ``rig_json``
+/rigs/<rig_name>/depths    (n_models, N*M)        float32  Spotlights depths; attr ``rig_json`` (RigSpec.to_dict;
+                                                           box-targeted rigs: each model's own box, see rig())
 /samples/partial           (n_samples, 256, 3)    float32  partial scan, unit frame; chunked per sample
 /samples/model             (n_samples,)           int32    row in /models
 /samples/view              (n_samples,)           int32    observation index within the model
@@ -101,10 +102,7 @@ def write_dataset(path, *, attrs: dict, models: dict, rigs: list, n_points: int,
             g.create_dataset(k, data=np.asarray(models[k], dtype=np.float64), track_times=False)
         rg = f.create_group("rigs")
         for rig, depths in rigs:
-            sub = rg.create_group(rig.name)
-            sub.attrs["rig_json"] = json.dumps(rig.to_dict(), sort_keys=True)
-            d = np.asarray(depths, dtype=np.float32)
-            sub.create_dataset("depths", data=d, chunks=(1, d.shape[1]), track_times=False, **COMPRESSION)
+            write_rig_group(rg, rig, depths)
         s = f.create_group("samples")
         ds = {"partial": s.create_dataset("partial", shape=(n_samples, n_points, 3), dtype="float32",
                                           chunks=(1, n_points, 3), track_times=False, **COMPRESSION)}
@@ -123,6 +121,19 @@ def write_dataset(path, *, attrs: dict, models: dict, rigs: list, n_points: int,
             written = b
         if written != n_samples:
             raise RuntimeError(f"only {written} of {n_samples} samples were written")
+
+
+def write_rig_group(rigs_group, rig, depths) -> None:
+    """Create ``/rigs/<rig.name>`` in an open HDF5 ``/rigs`` group: attr ``rig_json`` and ``depths``.
+
+    rig : a cap :class:`~spotlights.geometry.rig.Rig` or a :class:`~spotlights.geometry.rig.RigSpec`
+        (box-targeted: ``rig_json`` holds the spec, without a box; each model's box is in /models).
+    depths : (n_models, N*M) float32.
+    """
+    sub = rigs_group.create_group(rig.name)
+    sub.attrs["rig_json"] = json.dumps(rig.to_dict(), sort_keys=True)
+    d = np.asarray(depths, dtype=np.float32)
+    sub.create_dataset("depths", data=d, chunks=(1, d.shape[1]), track_times=False, **COMPRESSION)
 
 
 class CompletionDataset:
@@ -157,6 +168,7 @@ class CompletionDataset:
             self.splits = np.array([x.decode() if isinstance(x, bytes) else str(x) for x in m["split"][()]])
             self.center = m["center"][()]
             self.radius = m["radius"][()]
+            self.size = m["size"][()] if "size" in m else None
             self.sample_model = f["samples/model"][()].astype(np.int64)
             self.sample_view = f["samples/view"][()].astype(np.int64)
             self.rig_names = sorted(f["rigs"].keys())
@@ -228,14 +240,55 @@ class CompletionDataset:
         in_split = self.splits == self._check_split(split)
         return np.flatnonzero(in_split[self.sample_model]).astype(np.int64)
 
-    def rig(self, name: str | None = None):
-        """The :class:`~spotlights.geometry.rig.Rig` stored under ``name`` (default: the default rig)."""
-        from ..geometry.rig import Rig
+    @property
+    def extents(self) -> np.ndarray:
+        """(n_models, 3) float64 box half-extents in each model's unit frame, ``size / (2 R)``
+        (``|e| = 1``): what a box-targeted rig is aimed at. Raises InputFileError for files
+        without ``/models/size``."""
+        if self.size is None:
+            raise InputFileError(self.path, "has no /models/size, so box-targeted rigs cannot be resolved "
+                                            "(rebuild it with this spotlights)")
+        return np.asarray(self.size, dtype=np.float64) / (2.0 * np.asarray(self.radius, dtype=np.float64)[:, None])
+
+    def rig_spec(self, name: str | None = None):
+        """The :class:`~spotlights.geometry.rig.RigSpec` stored under ``name`` (default: the default rig).
+
+        For a cap rig, ``rig_spec(name).for_box(None)`` is the rig; for a box-targeted rig
+        each model's rig is ``rig_spec(name).for_box(extents[model])`` (:meth:`rig`)."""
+        from ..geometry.rig import RigSpec
 
         name = name or self.default_rig
         if name not in self.rig_names:
             raise ParameterError(f"{self.path}: no rig {name!r}; stored rigs: {', '.join(self.rig_names)}")
-        return Rig.from_dict(json.loads(self._h5()[f"rigs/{name}"].attrs["rig_json"]))
+        return RigSpec.from_dict(json.loads(self._h5()[f"rigs/{name}"].attrs["rig_json"]))
+
+    def rig(self, name: str | None = None, model: int | None = None):
+        """The :class:`~spotlights.geometry.rig.Rig` whose rays gave model row ``model``'s depths
+        under ``name`` (default: the default rig).
+
+        Cap rigs are the same for every model (``model`` may be omitted); a box-targeted rig
+        is resolved for that model's box (``spec.for_box(extents[model])``), so ``model``
+        is required. ``decode(ground_truth(model, name)["gt_depths"], rig(name, model))``
+        gives the model's Spotlights points.
+        """
+        spec = self.rig_spec(name)
+        if not spec.needs_box:
+            return spec.for_box(None)
+        if model is None:
+            raise ParameterError(f"{self.path}: rig {spec.name} is aimed at each model's box; give the model row "
+                                 "(ds.rig(name, model)) or use ds.rig_spec(name) with ds.extents")
+        if not (0 <= int(model) < self.n_models):
+            raise ParameterError(f"model row {model} out of range (the dataset has {self.n_models} models)")
+        return spec.for_box(self.extents[int(model)])
+
+    def directions(self, name: str | None, models) -> np.ndarray:
+        """(K, N*M, 3) float64 unit ray directions of rig ``name`` for model rows ``models`` (K,),
+        unit frame (vectorised; cap rigs: the same rays broadcast). Origins: ``rig_spec(name).origins``."""
+        spec = self.rig_spec(name)
+        rows = np.asarray(models, dtype=np.int64).reshape(-1)
+        if not spec.needs_box:
+            return spec.directions_for_boxes(np.zeros((len(rows), 3)))
+        return spec.directions_for_boxes(self.extents[rows])
 
     # --- arrays ---------------------------------------------------------------------------
     # Per-model ground truth is shared by all views: keep the most recent models in memory
@@ -274,7 +327,9 @@ class CompletionDataset:
         Returns a dict: ``partial`` (256, 3) f32, ``gt_points`` (2048, 3) f32, ``gt_dense`` (16384, 3) f32,
         ``gt_depths`` (N*M,) f32 (unit frame / depths), ``model`` (name), ``model_index``, ``category``,
         ``split``, ``view``, ``sensor_to_unit`` (4, 4) f64, ``distance``, ``azimuth``, ``heading``, ``n_raw``,
-        ``rig`` (rig name).
+        ``rig`` (rig name), ``extents`` (3,) f64: the model's box half-extents in the unit frame
+        (``size / 2R``; absent for files without /models/size). Decode ``gt_depths`` with
+        ``rig(out["rig"], out["model_index"])`` (box-targeted rigs use the model's own box).
         """
         n = self.n_samples
         if not (-n <= int(index) < n):
@@ -291,6 +346,8 @@ class CompletionDataset:
             "azimuth": float(meta["azimuth"][i]), "heading": float(meta["heading"][i]),
             "n_raw": int(meta["n_raw"][i]), "rig": rig or self.default_rig,
         })
+        if self.size is not None:
+            out["extents"] = self.extents[m]
         return out
 
     def metadata(self) -> dict:

@@ -48,7 +48,7 @@ import numpy as np
 from .._version import __version__
 from ..errors import InputFileError, ParameterError, SpotlightsError
 from ..geometry.io import MESH_SUFFIXES, load_mesh
-from ..geometry.rig import Rig, make_rig
+from ..geometry.rig import Rig, RigSpec, make_rig
 from ..utils import atomic_output
 from .lidar import LidarSimulator, SensorModel, VehiclePose, hdl64e
 from .store import FORMAT, FORMAT_VERSION, SAMPLE_FIELDS, SPLITS, write_dataset
@@ -63,15 +63,26 @@ SENSOR_CLEARANCE = 0.5
 # ----------------------------------------------------------------------------------------------
 # configuration
 # ----------------------------------------------------------------------------------------------
-def parse_rig(spec: str | Rig) -> Rig:
-    """A rig from ``"NxM"``, ``"NxM@DEG"`` (e.g. ``"64x32@60"``) or a rig name (``"cap-32x64-60"``)."""
+def parse_rig(spec: "str | Rig | RigSpec") -> "Rig | RigSpec":
+    """A rig from ``"NxM"``, ``"NxM@DEG"`` (e.g. ``"64x32@60"``) or a rig name.
+
+    Cap rigs (``"64x32@60"``, ``"cap-32x64-60"``) give the :class:`Rig` itself (its rays do
+    not depend on the object). Box-targeted rig names (``"box-32x64-ellipsoid-s1"``, any
+    :attr:`RigSpec.name`) give a :class:`RigSpec`: each model's depths use the rig of its own
+    box (``spec.for_box(size / 2R)``, see docs/box-rig.md).
+    """
     if isinstance(spec, Rig):
         return spec
+    if isinstance(spec, RigSpec):
+        return spec if spec.needs_box else spec.for_box(None)
     s = str(spec).strip().lower()
+    if s.startswith("box-"):
+        return RigSpec.from_name(s)
     m = re.fullmatch(r"(\d+)x(\d+)(?:@(\d+(?:\.\d*)?|\.\d+))?", s) or re.fullmatch(r"cap-(\d+)x(\d+)-(\d+(?:\.\d*)?)", s)
     if not m:
         raise ParameterError(f"rig {spec!r} not understood; write NxM or NxM@DEG, e.g. 64x32@60 (N viewpoints, "
-                             "M rays each, cap half-angle in degrees, default 60)")
+                             "M rays each, cap half-angle in degrees, default 60), or a rig name such as "
+                             "cap-32x64-60 or box-32x64-ellipsoid-s1 (box-targeted, docs/box-rig.md)")
     return make_rig(int(m.group(1)), int(m.group(2)), angle=float(m.group(3)) if m.group(3) else 60.0)
 
 
@@ -110,7 +121,8 @@ class BuildConfig:
     n_points : points per partial observation.
     gt_points, gt_dense : uniform surface samples per model (paper: 2048 and 16384).
     default_rig : the rig of the SA-Net ground truth (paper: 32 x 64, 60 deg).
-    extra_rigs : more rigs whose ground truth is stored too (ablations: 64x32@60, 256x64@60).
+    extra_rigs : more rigs whose ground truth is stored too (ablations: 64x32@60, 256x64@60;
+        box-targeted rigs by name, e.g. box-32x64-ellipsoid-s1: each model uses its own box).
     sensor : the LiDAR model (dict of :class:`SensorModel`).
     distance : (min, max) horizontal distance of the box centre from the sensor, metres.
     min_points : fewest returns an observation may have; fewer and the pose is redrawn.
@@ -174,8 +186,8 @@ class BuildConfig:
         return self
 
     @property
-    def rigs(self) -> list[Rig]:
-        """[default rig, extra rigs...]."""
+    def rigs(self) -> "list[Rig | RigSpec]":
+        """[default rig, extra rigs...]: cap :class:`Rig` objects, box-targeted :class:`RigSpec` objects."""
         return [parse_rig(self.default_rig)] + [parse_rig(r) for r in self.extra_rigs]
 
     @property
@@ -376,7 +388,8 @@ def model_ground_truth(model: LoadedModel, cfg: BuildConfig) -> dict:
 
     Returns ``gt_points`` (gt_points, 3) f32, ``gt_dense`` (gt_dense, 3) f32, ``center`` (3,) f64,
     ``radius`` f64, ``size`` (3,) f64 (metres), ``depths`` list of (N*M,) f32 in ``cfg.rigs`` order
-    (``MeshProbe(mesh).encode(rig)`` of the core).
+    (``MeshProbe(mesh).encode(rig)`` of the core; a box-targeted spec is resolved for this
+    model's box, ``spec.for_box(size / 2R)``).
     """
     import trimesh
 
@@ -777,3 +790,146 @@ def _consolidate(out: Path, parts: Path, cfg: BuildConfig, models: list, skipped
     with atomic_output(out, suffix=".h5") as tmp:
         write_dataset(tmp, attrs=attrs, models=model_arrays, rigs=rig_arrays, n_points=cfg.n_points,
                       views_per_model=cfg.views, sample_blocks=blocks())
+
+
+# ----------------------------------------------------------------------------------------------
+# adding a rig to an existing dataset file
+# ----------------------------------------------------------------------------------------------
+@dataclass
+class AddRigReport:
+    """What :func:`add_rig` did: the rig added, counts, seconds, the file size (bytes)."""
+
+    out: str
+    rig: str
+    n_models: int
+    n_rays: int
+    hit_ratio: float
+    seconds_depths: float = 0.0
+    seconds_write: float = 0.0
+    file_size: int = 0
+    already_present: bool = False
+
+
+def _add_rig_unit(m: int) -> tuple[int, np.ndarray]:
+    """Worker: one model's depths for the rig being added (``_WORKER`` holds the job)."""
+    import trimesh
+
+    from ..geometry.encode import MeshProbe
+    from ..geometry.frames import normalization_from_mesh
+
+    job = _WORKER
+    entry, stored = job["entries"][m], job["stored"]
+    model = load_model(job["root"], entry, job["scale"])
+    want = stored["sha256"][m]
+    if want and model.entry.sha256 != want:
+        raise InputFileError(job["root"] / entry.file, f"differs from the mesh the dataset was built from (SHA-256 "
+                                                      f"{model.entry.sha256[:12]}..., the dataset recorded {want[:12]}...)")
+    mesh = trimesh.Trimesh(model.vertices, model.faces, process=False, validate=False)
+    norm = normalization_from_mesh(mesh)
+    if not (np.array_equal(norm.center, stored["center"][m]) and float(norm.radius) == float(stored["radius"][m])):
+        raise InputFileError(job["root"] / entry.file, "normalises differently from the dataset's /models/center and "
+                                                      "/models/radius (other --scale/--up/--forward?)")
+    return m, MeshProbe(mesh, norm).encode(job["rig"])
+
+
+def add_rig(path: str | os.PathLike, rig: "str | Rig | RigSpec", meshes: str | os.PathLike | None = None,
+            workers: int | None = None, progress: bool = True, log: Callable[[str], None] | None = None) -> AddRigReport:
+    """Add the ground-truth depths of one more rig to an existing dataset file, without rebuilding it.
+
+    The depths are exactly those a build with ``--rig RIG`` would have stored: every model's
+    mesh is loaded again (``config_json`` records the meshes folder, manifest, axes and scale;
+    each file must still have the SHA-256 in ``/models/sha256``), normalised by its box
+    (checked against ``/models/center`` and ``/models/radius``) and encoded with
+    ``MeshProbe(mesh, norm).encode(rig)``; box-targeted specs use each model's own box. The
+    group ``/rigs/<rig.name>`` is written with ``rig_json`` and ``config_json``'s
+    ``extra_rigs`` gains the rig's name (so the file's config rebuilds it identically).
+
+    Atomic: the file is copied beside itself, the group added to the copy, and the copy renamed
+    onto ``path``; an interrupted run leaves ``path`` untouched (rerun it). The bytes do not
+    depend on ``workers``.
+
+    Parameters
+    ----------
+    path : dataset file (``spotlights-completion``).
+    rig : rig name or shorthand (see :func:`parse_rig`), a Rig or a RigSpec.
+    meshes : the meshes folder (default: the one ``config_json`` records).
+    workers : processes (default: all cores).
+
+    Returns
+    -------
+    :class:`AddRigReport` (``already_present`` when the file holds the identical rig already).
+    """
+    import h5py
+    from tqdm import tqdm
+
+    from .store import open_dataset, write_rig_group
+
+    log = log or _default_log
+    t0 = time.perf_counter()
+    path = Path(path)
+    rig = parse_rig(rig)
+    with open_dataset(path) as ds:
+        cfg_dict = dict(ds.config)
+        if rig.name in ds.rig_names:
+            have = json.loads(ds._h5()[f"rigs/{rig.name}"].attrs["rig_json"])
+            if have != json.loads(json.dumps(rig.to_dict())):
+                raise InputFileError(path, f"holds a different rig under the name {rig.name}")
+            return AddRigReport(str(path), rig.name, ds.n_models, rig.n_rays, float("nan"), already_present=True,
+                                file_size=path.stat().st_size)
+        f = ds._h5()
+        stored = {
+            "names": [str(x) for x in ds.names],
+            "sha256": [x.decode() if isinstance(x, bytes) else str(x) for x in f["models/sha256"][()]]
+            if "models/sha256" in f else [""] * ds.n_models,
+            "center": np.asarray(ds.center, dtype=np.float64), "radius": np.asarray(ds.radius, dtype=np.float64),
+        }
+    if not cfg_dict.get("meshes") and meshes is None:
+        raise InputFileError(path, "config_json records no meshes folder; pass --meshes DIR")
+    cfg = BuildConfig.from_dict(cfg_dict)
+    root = Path(meshes) if meshes is not None else Path(cfg.meshes)
+    manifest = cfg.manifest if cfg.manifest and Path(cfg.manifest).exists() else None
+    entries, _ = discover_models(root, manifest, cfg.up, cfg.forward)
+    by_name = {e.name: e for e in entries}
+    missing = [n for n in stored["names"] if n not in by_name]
+    if missing:
+        raise InputFileError(root, f"has no mesh for {len(missing)} of the dataset's models (first: {missing[0]}); "
+                                   "pass the meshes folder the dataset was built from (--meshes)")
+    state = {"entries": [by_name[n] for n in stored["names"]], "stored": stored, "root": root, "scale": cfg.scale,
+             "rig": rig}
+    n = len(stored["names"])
+    depths = np.zeros((n, rig.n_rays), dtype=np.float32)
+    workers = max(1, min(int(workers or os.cpu_count() or 1), n))
+    bar = tqdm(total=n, desc=f"depths {rig.name}", unit="model", disable=not progress, dynamic_ncols=True)
+    try:
+        if workers == 1:
+            _init_worker(state, quiet_sigint=False)
+            for m in range(n):
+                depths[m] = _add_rig_unit(m)[1]
+                bar.update(1)
+        else:
+            import multiprocessing as mp
+
+            ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+            pool = ctx.Pool(workers, initializer=_init_worker, initargs=(state, True))
+            try:
+                for m, d in pool.imap_unordered(_add_rig_unit, range(n), chunksize=1):
+                    depths[m] = d
+                    bar.update(1)
+                pool.close()
+            except BaseException:
+                pool.terminate()
+                raise
+            finally:
+                pool.join()
+    finally:
+        bar.close()
+    t1 = time.perf_counter()
+    cfg_dict["extra_rigs"] = list(cfg_dict.get("extra_rigs") or []) + [rig.name]
+    with atomic_output(path, suffix=".h5") as tmp:
+        shutil.copyfile(path, tmp)
+        with h5py.File(tmp, "r+") as f:
+            write_rig_group(f.require_group("rigs"), rig, depths)
+            f.attrs["config_json"] = json.dumps(cfg_dict, sort_keys=True)
+    hit = float(np.mean(depths > 0))
+    return AddRigReport(str(path), rig.name, n, rig.n_rays, hit, seconds_depths=t1 - t0,
+                        seconds_write=time.perf_counter() - t1, file_size=path.stat().st_size)

@@ -60,7 +60,8 @@ class DatasetInfo:
     Attributes
     ----------
     path : the file. names, categories, splits : (n_models,) str arrays.
-    sample_model, sample_view : (n_samples,) int64. rigs : rig name -> ``Rig.to_dict()``.
+    sample_model, sample_view : (n_samples,) int64. rigs : rig name -> ``rig_json`` dict
+    (``RigSpec.to_dict()``; cap rigs: ``Rig.to_dict()``).
     default_rig : the file's default rig name. attrs : root attributes (str/int).
     """
 
@@ -161,6 +162,12 @@ class TorchCompletionDataset(Dataset):
         ``False`` = no depths.
     max_views : keep only observations with view index < max_views (per model).
     partials_in_memory : read all the split's partial scans at construction.
+
+    Attributes: ``rig`` (the served rig's ``rig_json`` dict; box-targeted rigs hold the
+    spec, each model's rig is aimed at its own box), ``extents`` ((n_models, 3) float64
+    box half-extents ``size / 2R`` of every model row, or None for files without
+    /models/size): ``spotlights.learning.rays.DirectionTable(rig, ds.extents)`` gives
+    each sample's rays from its ``model`` row.
     """
 
     def __init__(self, path, split: str = "train", rig: str | None | bool = None, max_views: int | None = None,
@@ -192,6 +199,13 @@ class TorchCompletionDataset(Dataset):
                     raise InputFileError(self.path, f"/rigs/{self.rig_name} has no depths dataset")
                 self.depths = np.ascontiguousarray(f[key][()], dtype=np.float32)
             self.partials = self._read_partials(f) if partials_in_memory else None
+            self.extents = None
+            if "models/size" in f and "models/radius" in f:
+                size = np.asarray(f["models/size"][()], dtype=np.float64)
+                self.extents = size / (2.0 * np.asarray(f["models/radius"][()], dtype=np.float64)[:, None])
+        if self.rig is not None and self.rig.get("kind", "cap") == "box" and self.extents is None:
+            raise InputFileError(self.path, f"rig {self.rig_name} is box-targeted but the file has no /models/size "
+                                            "(each model's box)")
         self._h5 = None
         self._pid = None
 

@@ -36,9 +36,15 @@ def _latency(model, device, batches=(1, 32), repeats: int = 10, warmup: int = 2,
     out = {}
     for b in batches:
         x = ((torch.rand(b, n_input, 3, generator=gen) * 2 - 1) * 0.57).to(device)
+        dirs = None
+        if getattr(model, "needs_box", False):  # box rig: each sample's rays are given (computed once per object)
+            from .rays import directions_for_extents
+
+            e = np.tile([[0.80, 0.45, 0.40]], (b, 1))
+            dirs = torch.from_numpy(np.ascontiguousarray(directions_for_extents(model.rig, e / np.linalg.norm(e[0])))).to(device)
         with torch.inference_mode():
             f = median_latency(lambda: model(x), repeats, warmup, sync)
-            c = median_latency(lambda: model.complete(x, CLIP_DEFAULT), repeats, warmup, sync)
+            c = median_latency(lambda: model.complete(x, CLIP_DEFAULT, dirs), repeats, warmup, sync)
         out[int(b)] = {"forward_ms": f * 1e3, "complete_ms": c * 1e3}
     return out
 
@@ -87,13 +93,19 @@ def evaluate_checkpoint(checkpoint, data, split: str = "test", batch_size: int =
         variants = [("", None)]
     preds = {v: [] for v, _ in variants}
     kept = {v: [] for v, _ in variants}
+    rays = None
+    if getattr(model, "needs_box", False):  # box-targeted SA-Net: each sample decodes with its model's box
+        from .rays import DirectionTable
+
+        rays = DirectionTable(model.rig, ds.extents)
     loader = DataLoader(ds, batch_size=batch_size, shuffle=False, num_workers=num_workers)
     t0 = time.perf_counter()
     with torch.inference_mode():
         for batch in tqdm(loader, desc=f"evaluate {name}", unit="batch", disable=not progress, leave=False):
             out = model(batch["partial"].to(dev))
+            dirs = rays.directions(batch["model"].to(dev)) if rays is not None else None
             for v, c in variants:
-                pts = model.outputs_to_points(out, c)
+                pts = model.outputs_to_points(out, c, dirs)
                 preds[v].extend(p.cpu().numpy() for p in pts)
                 if model.target == "depths":
                     kept[v].extend(len(p) / model.rig.n_rays for p in pts)

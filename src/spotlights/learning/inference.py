@@ -7,6 +7,8 @@ by the real-data and reproduce layers)::
     c.model_name, c.n_params
     clouds = c.complete(partials)          # partials (B, 256, 3) float32, unit frame
     # -> list of B arrays (K_i, 3) float32, unit frame (SA-Net drops clipped/missed rays)
+    c.needs_box                            # True for SA-Net on a box-targeted rig: then
+    clouds = c.complete(partials, extents=E)   # E (B, 3) = box size / |size| per scan
 
 :func:`complete_scan` takes a scan in any frame plus its detector box, normalises
 it into the box's unit frame (``normalization_from_box``), resamples it to the
@@ -59,7 +61,9 @@ class Completer:
     model_name : registry key ("sanet", "pcn", ...). n_params : trainable parameters.
     param_counts : {"encoder", "decoder", "total"}. device : torch device.
     clip : SA-Net's default clip threshold (None for the point models).
-    rig : the SA-Net rig (``Rig``) or None. checkpoint : the loaded checkpoint dict (weights included).
+    rig : the SA-Net rig (``Rig`` for the paper's cap rig, ``RigSpec`` for a box-targeted rig) or None.
+    needs_box : True when :meth:`complete` needs each scan's box (SA-Net on a box-targeted rig).
+    checkpoint : the loaded checkpoint dict (weights included).
     """
 
     def __init__(self, model, checkpoint: dict, device):
@@ -71,11 +75,12 @@ class Completer:
         self.n_params = int(self.param_counts["total"])
         self.rig = getattr(model, "rig", None)
         self.clip = getattr(model, "clip", None)
+        self.needs_box = bool(getattr(model, "needs_box", False))
 
     def __repr__(self):
         return f"Completer({self.model_name}, {self.n_params:,} parameters, {self.device})"
 
-    def complete(self, partials: np.ndarray, clip=DEFAULT, batch_size: int = 256) -> list[np.ndarray]:
+    def complete(self, partials: np.ndarray, clip=DEFAULT, batch_size: int = 256, extents=None) -> list[np.ndarray]:
         """Complete partial scans.
 
         Parameters
@@ -85,6 +90,10 @@ class Completer:
         clip : SA-Net depth threshold: default = the checkpoint's (0.2), ``None`` = keep
             every ray with depth > 0. Ignored by the point models.
         batch_size : forward passes are chunked to this many scans.
+        extents : (B, 3) (or (3,) for all) box half-extents of each scan in its unit frame,
+            ``size / |size|`` for a box of size (l, w, h) (:func:`~spotlights.learning.rays.extents_from_sizes`).
+            Required when :attr:`needs_box` (SA-Net on a box-targeted rig: each scan decodes
+            with the rays aimed at its own box); ignored otherwise.
 
         Returns
         -------
@@ -107,11 +116,26 @@ class Completer:
         if not np.all(np.isfinite(x)):
             raise ParameterError("partial scans contain NaN or infinite coordinates")
         c = CLIP_DEFAULT if clip is DEFAULT else clip
+        e = None
+        if self.needs_box:
+            if extents is None:
+                raise ParameterError(f"this SA-Net regresses the box-targeted rig {self.rig.name}: give each scan's box "
+                                     "half-extents (extents = size / |size|)")
+            e = np.asarray(extents, dtype=np.float64)
+            e = np.broadcast_to(e, (len(x), 3)) if e.shape == (3,) else e
+            if e.shape != (len(x), 3):
+                raise ParameterError(f"extents must have shape ({len(x)}, 3) or (3,), got {np.shape(extents)}")
         out: list[np.ndarray] = []
         with torch.inference_mode():
             for s in range(0, len(x), batch_size):
                 t = torch.from_numpy(x[s:s + batch_size]).to(self.device)
-                out.extend(p.cpu().numpy().astype(np.float32) for p in self.model.complete(t, c))
+                dirs = None
+                if e is not None:
+                    from .rays import directions_for_extents
+
+                    d = directions_for_extents(self.rig, e[s:s + batch_size])
+                    dirs = torch.from_numpy(np.ascontiguousarray(d)).to(self.device)
+                out.extend(p.cpu().numpy().astype(np.float32) for p in self.model.complete(t, c, dirs))
         return out
 
 
@@ -252,7 +276,12 @@ def complete_scan(points: np.ndarray, box: Box, completer: Completer, clip=DEFAU
         if len(unit) == 0:
             raise ParameterError("no scan point lies inside the box (after --crop); check the box and the scan's frame")
     partial = prepare_partial(unit, n_input, seed=seed, method=resample_method)
-    done = completer.complete(partial[None], clip=clip)[0]
+    if getattr(completer, "needs_box", False):  # box-targeted SA-Net: rays aimed at this box
+        from .rays import extents_from_sizes
+
+        done = completer.complete(partial[None], clip=clip, extents=extents_from_sizes(box.size)[None])[0]
+    else:
+        done = completer.complete(partial[None], clip=clip)[0]
     return {
         "completed": norm.from_unit(done.astype(np.float64)),
         "completed_unit": done,

@@ -145,13 +145,15 @@ def _write_yaml(path: Path, cfg: dict) -> None:
 
 @torch.no_grad()
 def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt_trees: dict, dist: _Dist | None = None,
-             num_workers: int = 0) -> dict:
+             num_workers: int = 0, rays=None) -> dict:
     """Validation loss and point metrics of the completions (SA-Net clipped at its default).
 
     Parameters
     ----------
     gt_trees : {model row: (L, 3) dense GT array or its NearestNeighbors}; arrays are
         replaced by their KD-tree on first use (so one tree per GT model per run).
+    rays : a :class:`~spotlights.learning.rays.DirectionTable` for a box-targeted SA-Net (each
+        sample decodes with its model's box); default: built from ``dataset.extents``.
 
     Returns
     -------
@@ -163,7 +165,10 @@ def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt
     With ``dist`` active, each rank evaluates a contiguous shard and the sums are all-reduced.
     """
     from .metrics import NearestNeighbors
+    from .rays import DirectionTable
 
+    if rays is None and getattr(model, "needs_box", False):
+        rays = DirectionTable(model.rig, dataset.extents)
     active = dist is not None and dist.active
     world, rank = (dist.world, dist.rank) if active else (1, 0)
     n = len(dataset)
@@ -180,7 +185,8 @@ def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt
         loss, _ = model.loss(out, batch, 1.0)
         loss_sum += float(loss) * b
         count += b
-        preds = model.outputs_to_points(out, CLIP_DEFAULT)
+        dirs = rays.directions(batch["model"]) if rays is not None else None
+        preds = model.outputs_to_points(out, CLIP_DEFAULT, dirs)
         for p, m in zip(preds, batch["model"].tolist()):
             if len(p) == 0:
                 continue
@@ -295,6 +301,11 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
     if state is not None and wants_depths and state.get("rig") != rig:
         raise SpotlightsError(f"{last_path}: was trained on rig {state.get('rig')}, the dataset serves {rig}")
     gt_trees = val_set.gt_dense()
+    val_rays = None
+    if wants_depths and rig is not None and rig.get("kind", "cap") == "box":
+        from .rays import DirectionTable
+
+        val_rays = DirectionTable(rig, val_set.extents)  # each validation sample decodes with its model's box
 
     torch.manual_seed(seed)
     np.random.seed(seed % (2**32))
@@ -371,7 +382,7 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
         lr = opt.param_groups[0]["lr"]
         sched.step()
         train_sum, train_n = dist.all_sum([loss_sum, float(seen)], device)
-        val = validate(model, val_set, batch_size, device, gt_trees, dist)
+        val = validate(model, val_set, batch_size, device, gt_trees, dist, rays=val_rays)
         dt = time.perf_counter() - t0
         row = {"epoch": epoch + 1, "lr": lr, "train_loss": train_sum / max(train_n, 1), **val,
                "epoch_seconds": round(dt, 3), "samples_per_second": round(train_n / dt, 2) if dt > 0 else 0.0}

@@ -27,18 +27,31 @@ from .extract import Observations, read_observations
 
 
 def complete_all(completer, partials: np.ndarray, batch_size: int = 64, progress: bool = True, desc: str = "complete",
-                 clip: float | None = None) -> list[np.ndarray]:
+                 clip: float | None = None, box_sizes: np.ndarray | None = None) -> list[np.ndarray]:
     """Run ``completer.complete`` over (n, P, 3) float32 partials in batches; returns n (K_i, 3) float32 arrays.
 
     ``clip`` is passed on as ``complete(batch, clip=clip)`` only when given (else the model's default).
+    ``box_sizes`` (n, 3): each observation's box (l, w, h); completers with ``needs_box``
+    (SA-Net on a box-targeted rig) get ``extents = size / |size|`` per observation, the
+    half-extents of the box in the observation's unit frame. Others never see it.
     """
     from tqdm import tqdm
 
     out: list[np.ndarray] = []
     n = len(partials)
+    extents = None
+    if getattr(completer, "needs_box", False):
+        if box_sizes is None:
+            raise SpotlightsError(f"completer {getattr(completer, 'model_name', '?')} decodes rays aimed at each object's "
+                                  "box: give the boxes' sizes")
+        sizes = np.asarray(box_sizes, dtype=np.float64).reshape(n, 3)
+        extents = sizes / np.linalg.norm(sizes, axis=1, keepdims=True)
     for s in tqdm(range(0, n, batch_size), desc=desc, unit="batch", disable=not progress or n == 0):
         batch = np.ascontiguousarray(partials[s : s + batch_size], dtype=np.float32)
-        res = completer.complete(batch) if clip is None else completer.complete(batch, clip=clip)
+        kw = {} if clip is None else {"clip": clip}
+        if extents is not None:
+            kw["extents"] = extents[s : s + batch_size]
+        res = completer.complete(batch, **kw)
         if len(res) != len(batch):
             raise SpotlightsError(f"completer {getattr(completer, 'model_name', '?')} returned {len(res)} completions for {len(batch)} inputs")
         for r in res:
@@ -112,7 +125,8 @@ def evaluate_consistency(
     classes_present = [c for c in CLASSES if c in set(sub_cls)]
     models = []
     for k, completer in enumerate(completers):
-        comps = complete_all(completer, obs.partial[rows], batch_size=batch_size, progress=progress, desc=f"complete {names[k]}", clip=clip)
+        comps = complete_all(completer, obs.partial[rows], batch_size=batch_size, progress=progress, desc=f"complete {names[k]}",
+                             clip=clip, box_sizes=obs.box_size[rows])
         tracks = track_consistency(comps, sub_keys, sub_ts, sub_cls, radii)
         agg = aggregate(tracks, classes=classes_present)
         models.append(

@@ -106,18 +106,25 @@ class CompletionModel(nn.Module):
         """
         raise NotImplementedError  # pragma: no cover - abstract
 
-    def outputs_to_points(self, outputs: dict[str, torch.Tensor], clip=CLIP_DEFAULT) -> list[torch.Tensor]:
+    needs_box: bool = False
+    """True when decoding needs each sample's box (SA-Net on a box-targeted rig): pass ``directions``."""
+
+    def outputs_to_points(self, outputs: dict[str, torch.Tensor], clip=CLIP_DEFAULT,
+                          directions: torch.Tensor | None = None) -> list[torch.Tensor]:
         """Completed clouds from :meth:`forward` outputs: list of B tensors (K_b, 3) float32, unit frame.
 
-        ``clip`` only matters for SA-Net (depth threshold; ``None`` keeps every ray
-        with depth > 0); point models return all their points and ignore it.
+        ``clip`` and ``directions`` only matter for SA-Net (depth threshold, ``None`` keeps
+        every ray with depth > 0; per-sample ray directions (B, N*M, 3), required with a
+        box-targeted rig); point models return all their points and ignore both.
         """
         return list(outputs["points"].detach().float().unbind(0))
 
     @torch.no_grad()
-    def complete(self, partial: torch.Tensor, clip=CLIP_DEFAULT) -> list[torch.Tensor]:
-        """partial (B, K, 3) unit frame -> list of B completed clouds (K_b, 3) float32, unit frame."""
-        return self.outputs_to_points(self.forward(partial), clip)
+    def complete(self, partial: torch.Tensor, clip=CLIP_DEFAULT, directions: torch.Tensor | None = None) -> list[torch.Tensor]:
+        """partial (B, K, 3) unit frame -> list of B completed clouds (K_b, 3) float32, unit frame.
+
+        ``directions``: see :meth:`outputs_to_points` (box-targeted SA-Net only)."""
+        return self.outputs_to_points(self.forward(partial), clip, directions)
 
     def param_counts(self) -> dict[str, int]:
         """{"encoder": ..., "decoder": ..., "total": ...} trainable parameters (decoder = total - encoder)."""

@@ -10,6 +10,13 @@ depth d"), not to an average of the two, which would be an outlier between them.
 Inference decodes the rig (``P = P1 + 2 * depth * d``, unit frame) and keeps the
 rays with depth > 0 (no clip) or depth >= ``clip`` (the paper's clip, 0.2):
 an ordered point cloud with a variable number of points.
+
+Rigs: with the paper's cap rig the rays are constants of the model. With a
+box-targeted rig (docs/box-rig.md) the origins are constants but the directions
+depend on each sample's box, so decoding takes a ``(B, N*M, 3)`` direction tensor
+(``spotlights.learning.rays``: from the dataset's per-model boxes, or a detector
+box, ``e = size / |size|``). The network itself (encoder, decoder, loss) is the
+same for both kinds: N*M depths in a fixed ray order.
 """
 
 from __future__ import annotations
@@ -31,7 +38,8 @@ class SANet(CompletionModel):
     code_size : encoder code size (paper: 1024).
     hidden : hidden layer widths of the decoder (default [256, 256]: 0.85M parameters
         for 2048 rays, keeping the decoder under 1M).
-    output_activation : ``"none"`` (linear, default) or ``"sigmoid"``.
+    output_activation : ``"none"`` (linear, default), ``"relu"`` (exact zeros for misses: a
+        ray the decoder drives below 0 decodes as a miss even without a clip) or ``"sigmoid"``.
     clip : default inference threshold on predicted depths (paper: 0.2); ``None`` = no clip.
 
     forward: partial (B, K, 3) -> {"depths": (B, N*M)}.
@@ -44,43 +52,59 @@ class SANet(CompletionModel):
                  hidden: Sequence[int] = (256, 256),
                  output_activation: str = "none", clip: float | None = 0.2):
         super().__init__()
-        from ...geometry.rig import Rig
+        from ..rays import rig_from_dict, rig_needs_box, rig_rays
 
         if rig is None:
             raise ValueError("SA-Net needs a rig (the rig of the depths it regresses)")
-        self.rig = Rig.from_dict(rig) if isinstance(rig, dict) else rig
-        if output_activation not in ("none", "sigmoid"):
-            raise ValueError(f"output_activation must be 'none' or 'sigmoid', got {output_activation!r}")
+        self.rig = rig_from_dict(rig)  # cap: the Rig; box-targeted: its RigSpec
+        self.needs_box = rig_needs_box(self.rig)
+        if output_activation not in ("none", "relu", "sigmoid"):
+            raise ValueError(f"output_activation must be 'none', 'relu' or 'sigmoid', got {output_activation!r}")
         self.output_activation = output_activation
         self.clip = None if clip is None else float(clip)
         self.encoder = PCNEncoder(code_size, encoder_widths)
         self.decoder = MLP([code_size, *hidden, self.rig.n_rays])
-        self.register_buffer("origins", torch.from_numpy(self.rig.origins.astype("float32")), persistent=False)
-        self.register_buffer("directions", torch.from_numpy(self.rig.directions.astype("float32")), persistent=False)
+        origins, directions = rig_rays(self.rig)
+        self.register_buffer("origins", torch.from_numpy(origins), persistent=False)
+        self.register_buffer("directions", None if directions is None else torch.from_numpy(directions),
+                             persistent=False)
 
     def forward(self, partial: torch.Tensor) -> dict[str, torch.Tensor]:
         d = self.decoder(self.encoder(partial))
         if self.output_activation == "sigmoid":
             d = torch.sigmoid(d)
+        elif self.output_activation == "relu":
+            d = torch.relu(d)
         return {"depths": d}
 
     def loss(self, outputs, batch, progress: float = 1.0):
         loss = depth_l1(outputs["depths"], batch["depths"])
         return loss, {"l1": float(loss.detach())}
 
-    def decode(self, depths: torch.Tensor, clip=CLIP_DEFAULT) -> tuple[torch.Tensor, torch.Tensor]:
+    def decode(self, depths: torch.Tensor, clip=CLIP_DEFAULT, directions: torch.Tensor | None = None
+               ) -> tuple[torch.Tensor, torch.Tensor]:
         """Depths (B, N*M) -> points (B, N*M, 3) float32 unit frame and kept mask (B, N*M) bool.
 
         Same convention as ``spotlights.geometry.encode.decode``: a ray is kept when
         depth > 0 and (with a clip) depth >= clip; dropped rays sit at their origin.
+        ``directions``: (B, N*M, 3) float32 per-sample unit ray directions (unit frame);
+        required for a box-targeted rig (each sample's box), optional for a cap rig
+        (default: the rig's fixed rays).
         """
         clip = self.clip if clip is CLIP_DEFAULT else clip
+        if directions is None:
+            if self.directions is None:
+                raise ValueError(f"SA-Net regresses the box-targeted rig {self.rig.name}: decoding needs each sample's "
+                                 "ray directions (B, N*M, 3), e.g. spotlights.learning.rays.directions_for_extents")
+            directions = self.directions
+        elif directions.shape[-2:] != (self.rig.n_rays, 3) or (directions.dim() == 3 and directions.shape[0] != depths.shape[0]):
+            raise ValueError(f"directions of shape {tuple(directions.shape)} do not fit depths of shape {tuple(depths.shape)}")
         mask = depths > 0
         if clip is not None:
             mask &= depths >= float(clip)
         dist = torch.where(mask, 2.0 * depths, torch.zeros_like(depths)).unsqueeze(-1)
-        return self.origins + dist * self.directions, mask
+        return self.origins + dist * directions, mask
 
-    def outputs_to_points(self, outputs, clip=CLIP_DEFAULT) -> list[torch.Tensor]:
-        pts, mask = self.decode(outputs["depths"].detach().float(), clip)
+    def outputs_to_points(self, outputs, clip=CLIP_DEFAULT, directions: torch.Tensor | None = None) -> list[torch.Tensor]:
+        pts, mask = self.decode(outputs["depths"].detach().float(), clip, directions)
         return [p[m] for p, m in zip(pts, mask)]

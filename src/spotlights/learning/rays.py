@@ -1,0 +1,139 @@
+"""The rays a depth-regressing model (SA-Net) decodes with: fixed for cap rigs, per sample for box rigs.
+
+SA-Net predicts N*M depths and decodes them as ``P = o + 2 depth d`` (unit frame).
+With the paper's cap rig the rays ``(o, d)`` are the same for every object, so the
+model keeps them as constants. With a box-targeted rig (docs/box-rig.md) the
+origins are still the same for every object, but the directions depend on the
+object's box: sample b decodes with ``spec.for_box(e_b).directions``, where
+``e_b = size_b / (2 R_b)`` are the box half-extents in the sample's unit frame
+(``|e| = 1``). For a detector box of size ``(l, w, h)`` that is ``size / |size|``.
+
+This module is the only place of the learning layer that turns rig descriptions
+into rays (it uses :mod:`spotlights.geometry.rig`); the models receive the rays as
+tensors: a constant ``(N*M, 3)`` origin buffer, and either a constant direction
+buffer (cap rigs) or a ``(B, N*M, 3)`` direction tensor per batch (box rigs).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ParameterError
+
+
+def rig_from_dict(d):
+    """The rig a model regresses, from the ``rig`` entry of a checkpoint or a dataset's ``rig_json``.
+
+    Cap rigs give the :class:`~spotlights.geometry.rig.Rig` (exactly as before box rigs
+    existed); box-targeted rigs give the box-independent
+    :class:`~spotlights.geometry.rig.RigSpec` (a ``"box"`` key, if any, is dropped: every
+    sample decodes with its own box). Objects that are already a Rig or RigSpec pass through.
+    """
+    from ..geometry.rig import Rig, RigSpec
+
+    if isinstance(d, (Rig, RigSpec)):
+        return d.spec if isinstance(d, Rig) and d.kind == "box" else d
+    if not isinstance(d, dict):
+        raise ParameterError(f"a rig description must be a dict (Rig.to_dict / RigSpec.to_dict), got {type(d).__name__}")
+    if str(d.get("kind", "cap")) == "box":
+        return RigSpec.from_dict(d)
+    return Rig.from_dict(d)
+
+
+def rig_needs_box(rig) -> bool:
+    """True when ``rig`` (a dict, Rig or RigSpec) is box-targeted, i.e. decoding needs each sample's box."""
+    if isinstance(rig, dict):
+        return str(rig.get("kind", "cap")) == "box"
+    return getattr(rig, "kind", "cap") == "box"
+
+
+def rig_rays(rig) -> tuple[np.ndarray, np.ndarray | None]:
+    """Constant rays of a rig: ``(origins (N*M, 3) float32, directions (N*M, 3) float32)``, unit frame.
+
+    Box-targeted rigs return ``directions = None`` (they depend on each sample's box:
+    :func:`directions_for_extents`).
+    """
+    r = rig_from_dict(rig)
+    origins = r.origins.astype("float32")
+    if rig_needs_box(r):
+        return origins, None
+    return origins, r.directions.astype("float32")
+
+
+def extents_from_sizes(sizes) -> np.ndarray:
+    """Box half-extents in the unit frame from box sizes: ``size / |size|`` (= ``size / 2R``, R = half diagonal).
+
+    sizes : (..., 3) box length, width, height (any unit). Returns (..., 3) float64.
+    """
+    s = np.asarray(sizes, dtype=np.float64)
+    if s.shape[-1:] != (3,):
+        raise ParameterError(f"box sizes must have shape (..., 3), got {s.shape}")
+    n = np.linalg.norm(s, axis=-1, keepdims=True)
+    if not np.all(np.isfinite(s)) or np.any(s < 0) or np.any(n <= 0):
+        raise ParameterError("box sizes must be finite, >= 0 and not all zero")
+    return s / n
+
+
+def directions_for_extents(rig, extents) -> np.ndarray:
+    """Per-sample ray directions: (B, N*M, 3) float32 unit vectors, unit frame.
+
+    rig : dict / Rig / RigSpec. extents : (B, 3) box half-extents ``size / 2R`` (``|e| = 1``).
+    Row b equals ``spec.for_box(extents[b]).directions`` (cap rigs: the fixed rays, broadcast).
+    """
+    from ..geometry.rig import Rig
+
+    r = rig_from_dict(rig)
+    e = np.asarray(extents, dtype=np.float64).reshape(-1, 3)
+    if isinstance(r, Rig):  # cap rig: the same rays for every sample
+        return np.broadcast_to(r.directions.astype("float32"), (len(e), r.n_rays, 3))
+    return r.directions_for_boxes(e).astype("float32")
+
+
+class DirectionTable:
+    """Per-model ray directions of a box-targeted rig over a dataset's models, computed once per model.
+
+    Parameters
+    ----------
+    rig : the model's rig (dict / Rig / RigSpec).
+    extents : (n_models, 3) float64 half-extents of every model's box (``size / 2R``), or
+        None (only allowed for cap rigs).
+
+    ``table.directions(models)`` with a (B,) int64 tensor of model rows returns a
+    (B, N*M, 3) float32 tensor on ``models``' device, or None for cap rigs (the model
+    uses its constant rays). Rows are computed on first use and kept (float32,
+    12 bytes per ray and model), so a training run computes each model's rays once.
+    """
+
+    def __init__(self, rig, extents: np.ndarray | None):
+        self.rig = rig_from_dict(rig)
+        self.needs_box = rig_needs_box(self.rig)
+        self.extents = None if extents is None else np.asarray(extents, dtype=np.float64).reshape(-1, 3)
+        if self.needs_box and self.extents is None:
+            raise ParameterError(f"rig {self.rig.name} is aimed at each object's box, but the data gives no box sizes")
+        self._rows: dict = {}
+        self._device_cache: dict = {}
+
+    def directions(self, models):
+        """(B, N*M, 3) float32 tensor of the rays of model rows ``models`` (a (B,) tensor), or None for cap rigs."""
+        import torch
+
+        if not self.needs_box:
+            return None
+        rows = models.detach().cpu().numpy().astype(np.int64).reshape(-1)
+        new = sorted(set(rows.tolist()) - set(self._rows))
+        if new:
+            if min(new) < 0 or max(new) >= len(self.extents):
+                raise ParameterError(f"model row {max(new)} has no box (the table holds {len(self.extents)} models)")
+            d = directions_for_extents(self.rig, self.extents[new])
+            for m, dm in zip(new, d):
+                self._rows[m] = torch.from_numpy(np.ascontiguousarray(dm))
+            self._device_cache.clear()
+        dev = models.device
+        key = str(dev)
+        if key not in self._device_cache:
+            order = sorted(self._rows)
+            self._device_cache[key] = (torch.stack([self._rows[m] for m in order]).to(dev),
+                                       {m: i for i, m in enumerate(order)})
+        stacked, index = self._device_cache[key]
+        idx = torch.as_tensor([index[m] for m in rows.tolist()], dtype=torch.int64, device=dev)
+        return stacked.index_select(0, idx)
