@@ -1308,7 +1308,7 @@ DIFFERENCES = [
     "**LiDAR simulation.** The paper rendered HDL-64 scans in Blender; we simulate an HDL-64E ray caster (Embree) with "
     "range noise 0.02 m, vehicles 4-40 m away (spotlights.data.lidar). Partial scans differ in density and occlusion.",
     "**Training.** The paper trained on a GPU to convergence. Here every model gets a short, stated CPU budget (schedule "
-    "`budget`: SA-Net ~1,200 steps, TopNet 400, PCN 300, FoldingNet and AtlasNet 150, batch 32), far below the paper's "
+    "`budget`, batch 32; each run's steps and minutes are listed under Tables 1 and 5), far below the paper's "
     "(~160,000 steps); the baselines are the most under-trained (they cost 7-20x more per step on a CPU). Accuracies "
     "are therefore higher (worse) than the paper's and the ranking among the baselines is not meaningful.",
     "**Models.** The paper does not give its layer widths; ours follow the original papers with the PCN encoder "
