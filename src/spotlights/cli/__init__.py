@@ -26,6 +26,7 @@ COMMAND_MODULES = [
     "spotlights.cli.analyze",  # analyze density
     "spotlights.cli.study",  # study rigs
     "spotlights.cli.learn",  # train, evaluate, complete, bench models
+    "spotlights.cli.reproduce",  # reproduce (the paper's tables)
 ]
 
 EPILOG = """\
