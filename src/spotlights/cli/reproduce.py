@@ -17,14 +17,15 @@ def register(sub) -> None:
                    help="output folder: REPORT.md, results.json, tables/, figures/, steps.json, data/, runs/, eval/; "
                         "rerun with the same DIR to resume")
     p.add_argument("--tables", default=None, metavar="LIST",
-                   help="comma-separated tables to reproduce, from 1,2,3,4,5 (default: all)")
+                   help="comma-separated tables to reproduce, from 1,2,3,4,5 and box (box-targeted rigs, issue 8; default: all)")
     p.add_argument("--quick", action="store_true",
                    help="small data (9 cars, 16 views), the tiny 'quick' schedule, a few meshes per category: every "
                         "stage in a few minutes; the numbers mean nothing")
     p.add_argument("--schedule", default=None, metavar="NAME|YAML",
                    help="training schedule of new runs (default 'budget', with --quick 'quick'); existing runs keep theirs")
     p.add_argument("--cars-data", default=None, metavar="FILE.h5",
-                   help="use this car dataset instead of building DIR/data/cars.h5 (needs rigs 32x64, 64x32 and 256x64 at 60 deg)")
+                   help="use this car dataset instead of building DIR/data/cars.h5 (needs rigs 32x64, 64x32 and 256x64 at 60 deg; "
+                        "the box table adds rig box-32x64-ellipsoid-s1 to it with dataset add-rig if it lacks it)")
     p.add_argument("--eval-views", type=positive_int, default=None, metavar="V",
                    help="score the first V views of each test car in Tables 1 and 5 (default 200, --quick 4; 2000 = all)")
     p.add_argument("--meshes", default=None, metavar="DIR", help="car meshes (default ../shared/data/meshes/apolloscape-cars)")
