@@ -146,7 +146,7 @@ def test_report_has_figures_steps_versions(quick):
                  "completions_kitti.png", "completions_av2.png"):
         assert f"figures/{name}" in report
     steps = json.loads((out / "steps.json").read_text())["steps"]
-    assert len(steps) == 29
+    assert len(steps) == 35
     for name, rec in steps.items():
         assert rec["status"] == "done" and rec["seconds"] >= 0 and rec["command"], name
         assert f"| {name} |" in report
@@ -154,9 +154,9 @@ def test_report_has_figures_steps_versions(quick):
     for pkg in ("torch", "numpy", "trimesh", "embreex"):
         assert f"- {pkg}: " in report
     results = json.loads((out / "results.json").read_text())
-    assert set(results["tables"]) == set("12345")
+    assert set(results["tables"]) == set("12345") | {"box"}
     # the layout the lead trains into
-    for run in ("sanet", "pcn", "foldingnet", "topnet", "atlasnet", "sanet-64x32", "sanet-256x64"):
+    for run in ("sanet", "pcn", "foldingnet", "topnet", "atlasnet", "sanet-64x32", "sanet-256x64", "sanet-box"):
         assert (out / "runs" / run / "best.pt").is_file()
     for f in ("cars.h5", "kitti.h5", "av2.h5"):
         assert (out / "data" / f).is_file()
@@ -214,7 +214,7 @@ def test_second_run_reuses_every_step_and_publishes(quick, tmp_path):
                    "--lidar", LIDAR, "--no-progress", "--publish", tmp_path / "pub")
     dt = time.perf_counter() - t0
     assert proc.returncode == 0, proc.stderr
-    assert "0 step(s) run, 29 reused" in proc.stdout
+    assert "0 step(s) run, 35 reused" in proc.stdout
     assert dt < 30, dt
     steps = json.loads((out / "steps.json").read_text())
     assert all(r["reused"] for r in steps["steps"].values())
@@ -225,14 +225,32 @@ def test_second_run_reuses_every_step_and_publishes(quick, tmp_path):
     assert (tmp_path / "pub" / "tables" / "table1.csv").is_file() and not (tmp_path / "pub" / "runs").exists()
 
 
+BOX_SIZES = [(4.0, 1.8, 1.5), (1.0, 1.0, 1.0), (2.0, 0.5, 0.5), (1.0, 2.0, 3.0), (0.6, 0.6, 2.4)]
+
+
 def _ball_folder(root):
+    """Category 'ball': 5 spheres; category 'box': 5 solid boxes of different proportions."""
     import trimesh
 
     d = root / "balls" / "ball"
     d.mkdir(parents=True)
     for k in range(5):
         trimesh.creation.icosphere(subdivisions=4, radius=0.5 + 0.1 * k).export(d / f"ball{k}.ply")
+    d = root / "balls" / "box"
+    d.mkdir(parents=True)
+    for k, size in enumerate(BOX_SIZES):
+        trimesh.creation.box(extents=size).export(d / f"box{k}.ply")
     return root / "balls"
+
+
+def _slab_hit_ratio(origins, directions, half):
+    """Share of the rays that meet the box [-half, half] (slab test, numpy; independent of Embree)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1 = (-half - origins) / directions
+        t2 = (half - origins) / directions
+    tmin = np.nanmax(np.minimum(t1, t2), axis=1)
+    tmax = np.nanmin(np.maximum(t1, t2), axis=1)
+    return float(np.mean((tmax >= np.maximum(tmin, 0.0))))
 
 
 def test_tables_3_and_4_alone_on_balls_match_the_closed_form(tmp_path):
@@ -250,6 +268,33 @@ def test_tables_3_and_4_alone_on_balls_match_the_closed_form(tmp_path):
     assert set(steps) == {"rig-study", "fig-rig", "fig-density", "fig-gt", "table-3", "table-4"}
     assert not (out / "data").exists() and not (out / "runs").exists()
     assert set(res.ran) == set(steps)
+    # the box table's study numbers (same rig-study step) on the boxes: every ray of a box rig hits a
+    # solid box; a cap rig's hit ratio is the share of its rays that pass a slab test
+    from spotlights.experiments.reproduce import (BOX_STUDY_LABELS, Context, Settings, _box_study_section,
+                                                  _box_study_values)
+    from spotlights.geometry.rig import make_rig_spec
+
+    ctx = Context(Settings(out=out, quick=True))
+    vals = _box_study_values(ctx)
+    per_mesh = __import__("pandas").read_csv(out / "rig_study" / "per_mesh.csv")
+    boxes = per_mesh[per_mesh.category == "box"]
+    for rays in (2048, 4096, 8192):
+        for label in BOX_STUDY_LABELS:
+            assert (boxes[(boxes.label == label) & (boxes.rays == rays)].hit_ratio == 1.0).all(), (label, rays)
+        for label, kw in (("cap 30", dict(angle=30.0)), ("cap 60", dict(angle=60.0)), ("cap 83 (r = R/4)", dict(radius=0.25))):
+            rig = make_rig_spec(rays // 64, 64, **kw).for_box(None)
+            got = boxes[(boxes.label == label) & (boxes.rays == rays)]
+            assert len(got) == 2  # --quick: the first 2 meshes of each category
+            expect = [_slab_hit_ratio(rig.origins, rig.directions, np.array(sz) / np.linalg.norm(sz))
+                      for sz in (BOX_SIZES[int(m[len("box/box"):-len(".ply")])] for m in got.mesh)]
+            assert got.hit_ratio.to_numpy() == pytest.approx(expect, abs=2e-3), (label, rays)
+            assert min(expect) < 1.0 or label == "cap 30"
+            # the box table's category mean = mean of the category means (ball and box)
+            balls = per_mesh[(per_mesh.category == "ball") & (per_mesh.label == label) & (per_mesh.rays == rays)]
+            assert vals[("categories", label, rays)]["hit_ratio"] == pytest.approx(
+                (np.mean(expect) + balls.hit_ratio.mean()) / 2, abs=2e-3)
+    md, rows = _box_study_section(vals, "categories", ctx)
+    assert any("`box-32x64-ellipsoid-s1`" in line for line in md) and rows
     t4 = json.loads((out / "tables" / "table4.json").read_text())["ours"]
     c = 1.0 - math.cos(math.asin(1 / math.sqrt(3)))
     from spotlights.geometry.rig import make_rig_spec
@@ -269,3 +314,81 @@ def test_bad_tables_is_a_one_line_error(tmp_path):
     proc = run_cli("reproduce", "--tables", "", "--out", out)
     assert_user_error(proc, "--tables")
     assert not out.exists()
+
+
+def test_box_table_in_the_report(quick):
+    """The box table: issue 8's checks stated, its study rows from the shared rig study, SA-Net on the box
+    rig scored like Table 1 (brute force here, each scan decoded with its own model's box)."""
+    from scipy.spatial.distance import cdist
+
+    from spotlights.data.store import open_dataset
+    from spotlights.learning.inference import load_completer
+
+    out = quick["out"]
+    report = (out / "REPORT.md").read_text()
+    assert "## Beyond the paper: box-targeted rigs (issue 8)" in report and "figures/box_rig_clouds.png" in report
+    tb = json.loads((out / "tables" / "tablebox.json").read_text())
+    claims = [c["claim"] for c in tb["checks"]]
+    assert sum("hit ratio >= 0.90" in c for c in claims) == 2 and sum("SA-Net" in c for c in claims) == 2
+    for c in tb["checks"]:
+        assert ("yes" if c["holds"] else "**no**") in report
+    # the rig study numbers are the per-mesh means over the cars
+    import pandas as pd
+
+    df = pd.read_csv(out / "rig_study" / "per_mesh.csv")
+    cars = df[(df.mesh_set == "apolloscape-cars") & (df.label == "box ellipsoid s1") & (df.rays == 2048)]
+    assert tb["study"]["cars|box ellipsoid s1|2048"]["hit_ratio"] == pytest.approx(cars.hit_ratio.mean(), abs=1e-6)
+    assert tb["study"]["cars|box ellipsoid s1|2048"]["rig"] == "box-32x64-ellipsoid-s1"
+    completer = load_completer(out / "runs" / "sanet-box" / "best.pt", device="cpu")
+    assert completer.needs_box
+    acc, comp = [], []
+    with open_dataset(out / "data" / "cars.h5") as ds:
+        for i in ds.split_indices("test"):
+            s = ds.sample(int(i))
+            if s["view"] >= 4:
+                continue
+            e = ds.extents[s["model_index"]][None]  # the half-extents of this car's box, unit frame
+            pred = completer.complete(s["partial"][None], clip=0.2, extents=e)[0].astype(np.float64)
+            if len(pred) == 0:
+                continue
+            d = cdist(pred, s["gt_dense"].astype(np.float64))
+            acc.append(d.min(axis=1).mean())
+            comp.append(d.min(axis=0).mean())
+    row = tb["sanet"]["box"]["sanet (clip 0.2)"]
+    assert len(acc) >= 6
+    assert row["average"] == pytest.approx(np.mean(acc), rel=1e-4)
+    assert row["completeness"] == pytest.approx(np.mean(comp), rel=1e-4)
+    assert (out / "eval" / "av2_consistency_box.json").is_file() and set(tb["consistency"]) == {"paper", "box"}
+
+
+def test_box_table_plan_and_add_rig(quick, tmp_path):
+    """`--tables box` plans only its own steps; an existing car dataset without the box rig gets it added."""
+    import shutil
+
+    import h5py
+
+    from spotlights.experiments.reproduce import BOX_RIG, Context, Settings, all_steps, plan
+
+    ctx = Context(Settings(out=tmp_path / "plan"))
+    ctx.steps = all_steps(ctx)
+    names = [st.name for st in plan(ctx, ["box"])]
+    assert set(names) == {"cars-data", "cars-data-box", "train-sanet", "train-sanet-box", "eval-sanet", "eval-sanet-box",
+                          "real-av2", "consistency-av2-box", "rig-study", "fig-box", "table-box"}
+    # a dataset that lacks the box rig: the cars-data-box step adds it (dataset add-rig), the check accepts it
+    cars = tmp_path / "cars.h5"
+    shutil.copyfile(quick["out"] / "data" / "cars.h5", cars)
+    with h5py.File(cars, "r+") as f:
+        want = f[f"rigs/{BOX_RIG}/depths"][()]
+        del f[f"rigs/{BOX_RIG}"]
+        cfg = json.loads(f.attrs["config_json"])
+        cfg["extra_rigs"] = [r for r in cfg["extra_rigs"] if r != BOX_RIG]
+        f.attrs["config_json"] = json.dumps(cfg, sort_keys=True)
+    ctx = Context(Settings(out=tmp_path / "o", quick=True, cars_data=cars, progress=False), log=lambda m: None)
+    ctx.steps = all_steps(ctx)
+    step = ctx.steps["cars-data-box"]
+    assert ctx.steps["cars-data"].reuse(ctx)  # the cap rigs are there: the file is accepted
+    assert step.reuse(ctx) is None
+    info = step.run(ctx)
+    assert info["added"] and step.reuse(ctx)
+    with h5py.File(cars, "r") as f:
+        assert np.array_equal(f[f"rigs/{BOX_RIG}/depths"][()], want)  # the same depths as the build
