@@ -5,11 +5,50 @@ then all rays of a job in one call. Triangles are hit whatever their winding
 (real meshes are not watertight and not consistently oriented). Without
 embreex (an unsupported platform), trimesh's pure-numpy engine is used with a
 warning; it is ~100x slower. Another engine is one class with ``first_hit``.
+
+Both cores for one query (``workers=2``)
+----------------------------------------
+``embreex`` holds the GIL for a whole query, so threads cannot share one. With
+``workers > 1`` a :class:`RayCaster` forks ``workers - 1`` helper processes once,
+lazily, on the first query of at least :data:`PARALLEL_MIN_RAYS` rays; they
+inherit the committed BVH. Each query is one *job* in an anonymous shared
+memory map (``mmap``, no named segment: nothing can leak past the processes):
+the rays are cut into contiguous segments, one per process, and each segment
+into chunks whose sizes halve from its front. Every process takes its own
+segment's chunks from the front, then steals its neighbour's chunks from the
+back, so both finish together even when one starts late or runs slower. A
+chunk's claim is published before it is cast; two processes can at worst cast
+the same chunk twice, which writes the same bytes (each result is written once,
+as a plain copy of finished values). Rig rays are never copied: a helper rebuilds
+a rig's rays once from ``Rig.to_dict()`` and checks them against a CRC. Helpers
+poll for the next job for :data:`HELPER_SPIN_S` after each job, then sleep on a
+pipe. The depths are the same bytes whatever ``workers`` (Embree's single-ray
+query is deterministic and every element is computed by the same code).
+
+Robustness: helpers ignore SIGINT and exit when the parent closes the caster,
+is garbage collected, exits, or dies (checked every second); a process forked
+later (a DataLoader worker, a pool worker) never touches the helpers it
+inherits and starts its own if it needs them; any failure (fork refused, a
+helper dying or timing out) falls back to one process with a warning, with
+the same results. Needs Linux on x86-64 (``fork`` and total store order);
+elsewhere ``workers`` is ignored.
 """
 
 from __future__ import annotations
 
+import functools
+import json
+import mmap
+import os
+import platform
+import select
+import signal
+import sys
+import threading
+import time
 import warnings
+import weakref
+import zlib
 
 import numpy as np
 
@@ -20,49 +59,29 @@ _MISS_T = 1e30
 # Rays per engine call: bounds the temporary memory of huge jobs (~0.2 GB at 4M rays).
 _CHUNK = 1 << 22
 # Below this many rays a query is not split over processes (the hand-over costs more).
-PARALLEL_MIN_RAYS = 16384
-# Casters handed to forked worker processes, by key (children inherit the BVH by fork).
-_FORKED: dict = {}
+PARALLEL_MIN_RAYS = 2048
+# A helper keeps polling for the next job this long (s) after a job, then sleeps on a pipe.
+HELPER_SPIN_S = 0.002
+# Smallest chunk of a job (rays): ~25 us of work, ~5 us of Python overhead.
+_MIN_CHUNK = 256
+# Rays per shared-memory job (bigger queries are cut into several jobs).
+_WINDOW = 1 << 18
+# Seconds the parent waits for a helper's chunk before killing it and going on alone.
+_HELPER_TIMEOUT_S = 20.0
+_MAX_PROCS = 8
 
-
-def _worker_loop(conn, key) -> None:
-    """A forked helper process: answers ray queries on the parent's BVH until told to stop.
-
-    Jobs: ``("rays", o32, d32)`` or ``("rig", rig_json, start, stop)`` (the rig's rays are
-    rebuilt once per rig, so only slice bounds and results cross the pipe); ``None`` stops.
-    """
-    import json
-
-    from .rig import Rig
-
-    caster, rigs = _FORKED[key], {}
-    while True:
-        try:
-            job = conn.recv()
-        except EOFError:
-            return
-        if job is None:
-            return
-        if job[0] == "rig":
-            _, rig_json, start, stop = job
-            if rig_json not in rigs:
-                rigs[rig_json] = Rig.from_dict(json.loads(rig_json))
-            o32, d32 = rigs[rig_json].rays32
-            conn.send(caster._run(o32[start:stop], d32[start:stop]))
-        else:
-            conn.send(caster._run(job[1], job[2]))
-
-
-def _stop_workers(conns, procs) -> None:
-    for c in conns:
-        try:
-            c.send(None)
-        except (OSError, ValueError):
-            pass
-    for p in procs:
-        p.join(timeout=1)
-        if p.is_alive():
-            p.terminate()
+# Shared memory layout: a header page, then two job slots used alternately (a late
+# helper may still be finishing job s in one slot while the parent fills job s+1).
+_PAGE = 4096
+_JSON_BYTES = 1 << 16
+_SLOT_BYTES = _PAGE + _JSON_BYTES + _WINDOW * 28  # ctrl, rig JSON, origins, directions, out
+# header (int64 index): job sequence number, stop flag; per process p (8 int64 apart,
+# separate cache lines): done (last finished job), error (job that failed), sleeping flag
+_SEQ, _STOP, _DONE, _ERR, _SLEEP = 0, 1, 64, 128, 192
+# slot ctrl (int64 index): kind (1 rays in the slot, 2 a rig), rays, rig token, rig JSON
+# length, ray offset in the rig, processes, rig CRC; front (chunks claimed by a
+# segment's owner) and back (by its thief) per segment
+_KIND, _N, _TOKEN, _JLEN, _OFF, _NPROC, _CRC, _FRONT, _BACK = 0, 1, 2, 3, 4, 5, 6, 64, 128
 
 
 def _embree_available() -> bool:
@@ -74,6 +93,322 @@ def _embree_available() -> bool:
     return True
 
 
+def _helpers_supported() -> bool:
+    return (sys.platform.startswith("linux") and hasattr(os, "fork")
+            and platform.machine().lower() in ("x86_64", "amd64"))
+
+
+def to_depths(t: np.ndarray, half_chords: np.ndarray) -> np.ndarray:
+    """Raw first-hit distances -> Spotlights depths, in place.
+
+    ``t`` (K,) float32 unit-frame distances (>= 1e30 on a miss, never negative or NaN);
+    ``half_chords`` (K,) float32 largest valid depth per ray. Result: ``min(t / 2, 1)``, and
+    exactly 0 for a miss or a hit beyond the ray's chord through the unit sphere.
+    """
+    t *= np.float32(0.5)
+    valid = t <= half_chords
+    np.minimum(t, np.float32(1.0), out=t)
+    return np.multiply(t, valid, out=t)  # x * 1 = x exactly; a miss (finite) * 0 = +0
+
+
+@functools.lru_cache(maxsize=64)
+def _plan(n: int, procs: int) -> tuple:
+    """Chunk boundaries of a job of ``n`` rays over ``procs`` processes.
+
+    One contiguous segment per process; within a segment, chunk sizes halve from the
+    front (the owner's big first bites) down to ``_MIN_CHUNK`` (the thief's small ones
+    at the back, where the two meet). Returns a tuple of tuples of offsets.
+    """
+    edges = [n * s // procs for s in range(procs + 1)]
+    plan = []
+    for a, b in zip(edges[:-1], edges[1:]):
+        bounds = [a]
+        while bounds[-1] < b:
+            rest = b - bounds[-1]
+            bounds.append(bounds[-1] + min(rest, max(rest // 2, _MIN_CHUNK)))
+        plan.append(tuple(bounds))
+    return tuple(plan)
+
+
+def _share(p: int, procs: int, plan: tuple, ctrl: np.ndarray, cast) -> bool:
+    """Process ``p``'s part of a job: own segment from the front, then steal the next
+    segment's chunks from the back. ``cast(a, b)`` computes and stores rays [a, b).
+
+    Claims are published (``ctrl[_FRONT + 8 s]``, ``ctrl[_BACK + 8 s]``) before the chunk
+    is cast; a process stops at the first chunk the other has claimed. Returns True when
+    this process cast every chunk of both segments (the other one took none).
+    """
+    own = plan[p]
+    m = len(own) - 1
+    back = _BACK + 8 * p
+    i = 0
+    while i < m - ctrl[back]:
+        ctrl[_FRONT + 8 * p] = i + 1
+        cast(own[i], own[i + 1])
+        i += 1
+    q = (p + 1) % procs
+    other = plan[q]
+    m2 = len(other) - 1
+    front = _FRONT + 8 * q
+    k = 0
+    while m2 - 1 - k >= ctrl[front]:
+        ctrl[_BACK + 8 * q] = k + 1
+        j = m2 - 1 - k
+        cast(other[j], other[j + 1])
+        k += 1
+    return procs == 2 and i == m and k == m2
+
+
+class _Slot:
+    """Views of one job slot of the shared map."""
+
+    def __init__(self, mm: mmap.mmap, base: int):
+        self.ctrl = np.frombuffer(mm, dtype=np.int64, count=_PAGE // 8, offset=base)
+        self.json = np.frombuffer(mm, dtype=np.uint8, count=_JSON_BYTES, offset=base + _PAGE)
+        off = base + _PAGE + _JSON_BYTES
+        self.origins = np.frombuffer(mm, dtype=np.float32, count=3 * _WINDOW, offset=off).reshape(-1, 3)
+        self.directions = np.frombuffer(mm, dtype=np.float32, count=3 * _WINDOW,
+                                        offset=off + 12 * _WINDOW).reshape(-1, 3)
+        self.out = np.frombuffer(mm, dtype=np.float32, count=_WINDOW, offset=off + 24 * _WINDOW)
+
+
+def _helper_main(scene, mm: mmap.mmap, p: int, wake_fd: int, parent: int) -> None:
+    """Body of helper process ``p``: wait for a job, take its share, report, repeat."""
+    head = np.frombuffer(mm, dtype=np.int64, count=_PAGE // 8)
+    slots = (_Slot(mm, _PAGE), _Slot(mm, _PAGE + _SLOT_BYTES))
+    rigs: dict = {}  # token -> (origins32, directions32) or None (unusable)
+    last = 0  # helpers are forked before the first job (the parent may post it before we look)
+    spin_until = time.monotonic() + HELPER_SPIN_S
+    while True:
+        # wait for a new job: poll a while after the last one, then sleep on the pipe
+        while head[_SEQ] == last and not head[_STOP]:
+            if time.monotonic() < spin_until:
+                os.sched_yield()
+                continue
+            head[_SLEEP + 8 * p] = 1
+            if head[_SEQ] == last and not head[_STOP]:
+                ready, _, _ = select.select([wake_fd], [], [], 1.0)
+                if ready:
+                    if not os.read(wake_fd, 4096):
+                        return  # the parent closed its end
+                elif os.getppid() != parent:
+                    return  # the parent died
+            head[_SLEEP + 8 * p] = 0
+        if head[_STOP]:
+            return
+        seq = int(head[_SEQ])
+        slot = slots[seq % 2]
+        ctrl = slot.ctrl
+        try:
+            n, procs, off = int(ctrl[_N]), int(ctrl[_NPROC]), int(ctrl[_OFF])
+            if ctrl[_KIND] == 2:
+                token = int(ctrl[_TOKEN])
+                if token not in rigs:
+                    rigs[token] = _rebuild_rig(bytes(slot.json[: int(ctrl[_JLEN])]), int(ctrl[_CRC]))
+                    if len(rigs) > 8:
+                        del rigs[next(iter(rigs))]
+                rays = rigs[token]
+                if rays is not None:
+                    o, d = rays[0][off:off + n], rays[1][off:off + n]
+            else:
+                rays = True
+                o, d = slot.origins[:n], slot.directions[:n]
+            if rays is not None and p < procs:
+                out = slot.out
+
+                def cast(a, b):
+                    out[a:b] = scene.run(o[a:b], d[a:b], query="DISTANCE")
+
+                _share(p, procs, _plan(n, procs), ctrl, cast)
+        except Exception:
+            head[_ERR + 8 * p] = seq
+        head[_DONE + 8 * p] = seq
+        last = seq
+        spin_until = time.monotonic() + HELPER_SPIN_S
+
+
+def _rebuild_rig(rig_json: bytes, crc: int):
+    """A helper's copy of a rig's float32 rays, or None when they do not match the parent's."""
+    from .rig import Rig
+
+    try:
+        rig = Rig.from_dict(json.loads(rig_json.decode()))
+        o, d = rig.rays32
+        if _rays_crc(o, d) != crc:
+            return None
+        return o, d
+    except Exception:
+        return None
+
+
+def _rays_crc(o: np.ndarray, d: np.ndarray) -> int:
+    return zlib.crc32(d.tobytes(), zlib.crc32(o.tobytes()))
+
+
+def _shutdown(owner: int, pids: list, fds: list, head: np.ndarray) -> None:
+    """Stop and reap the helpers (only from the process that forked them)."""
+    if os.getpid() != owner:
+        for fd in fds:  # a forked copy: close our copies of the pipes, leave the helpers alone
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+        return
+    try:
+        head[_STOP] = 1
+    except Exception:  # pragma: no cover - map already gone
+        pass
+    for fd in fds:
+        try:
+            os.write(fd, b"\0")
+        except OSError:
+            pass
+        try:
+            os.close(fd)
+        except OSError:
+            pass
+    deadline = time.monotonic() + 1.0
+    for pid in pids:
+        while True:
+            try:
+                done, _ = os.waitpid(pid, os.WNOHANG)
+            except ChildProcessError:
+                break
+            if done:
+                break
+            if time.monotonic() > deadline:
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                    os.waitpid(pid, 0)
+                except (ProcessLookupError, ChildProcessError):
+                    pass
+                break
+            time.sleep(0.001)
+
+
+class _HelperFailed(RuntimeError):
+    pass
+
+
+class _Helpers:
+    """``procs - 1`` forked helper processes sharing one committed Embree scene."""
+
+    def __init__(self, scene, procs: int):
+        self.procs = procs
+        self.owner = os.getpid()
+        self.mm = mmap.mmap(-1, _PAGE + 2 * _SLOT_BYTES)  # MAP_SHARED | MAP_ANONYMOUS
+        self.head = np.frombuffer(self.mm, dtype=np.int64, count=_PAGE // 8)
+        self.slots = (_Slot(self.mm, _PAGE), _Slot(self.mm, _PAGE + _SLOT_BYTES))
+        self.seq = 0
+        self.pids: list = []
+        self.fds: list = []
+        self.tokens: dict = {}  # rig -> (token, json bytes, crc); tokens are never reused
+        self._last_token = 0
+        self._finalizer = weakref.finalize(self, _shutdown, self.owner, self.pids, self.fds, self.head)
+        for p in range(1, procs):
+            r, w = os.pipe()
+            pid = os.fork()
+            if pid == 0:  # the helper: never returns into the caller's stack
+                code = 0
+                try:
+                    signal.signal(signal.SIGINT, signal.SIG_IGN)
+                    os.close(w)
+                    for fd in self.fds:
+                        os.close(fd)
+                    _helper_main(scene, self.mm, p, r, self.owner)
+                except BaseException:
+                    code = 1
+                finally:
+                    os._exit(code)
+            os.close(r)
+            os.set_blocking(w, False)
+            self.pids.append(pid)
+            self.fds.append(w)
+
+    def close(self) -> None:
+        self._finalizer()
+
+    def token(self, rig) -> tuple:
+        entry = self.tokens.get(rig)
+        if entry is None:
+            o, d = rig.rays32
+            js = json.dumps(rig.to_dict(), sort_keys=True).encode()
+            if len(js) > _JSON_BYTES:
+                raise _HelperFailed("rig description too long for the shared map")
+            self._last_token += 1
+            entry = (self._last_token, js, _rays_crc(o, d))
+            self.tokens[rig] = entry
+            if len(self.tokens) > 8:
+                del self.tokens[next(iter(self.tokens))]
+        return entry
+
+    def run(self, scene, n: int, o: np.ndarray, d: np.ndarray, rig_entry, off: int) -> np.ndarray:
+        """One job of ``n <= _WINDOW`` rays ``o``, ``d`` (rays ``off:off + n`` of a rig when
+        ``rig_entry``): (n,) float32 raw distances, a fresh array."""
+        seq = self.seq + 1
+        self._wait(seq - 2)  # the slot's previous job is finished everywhere
+        slot = self.slots[seq % 2]
+        ctrl = slot.ctrl
+        ctrl[_FRONT:_FRONT + 8 * self.procs] = 0
+        ctrl[_BACK:_BACK + 8 * self.procs] = 0
+        ctrl[_N], ctrl[_NPROC], ctrl[_OFF] = n, self.procs, off
+        if rig_entry is not None:
+            token, js, crc = rig_entry
+            ctrl[_KIND], ctrl[_TOKEN], ctrl[_JLEN], ctrl[_CRC] = 2, token, len(js), crc
+            slot.json[: len(js)] = np.frombuffer(js, dtype=np.uint8)
+        else:
+            ctrl[_KIND] = 1
+            slot.origins[:n] = o
+            slot.directions[:n] = d
+        out = slot.out
+
+        def cast(a, b):
+            out[a:b] = scene.run(o[a:b], d[a:b], query="DISTANCE")
+
+        self.head[_SEQ] = seq  # published last: the job is complete in memory (x86 store order)
+        self.seq = seq
+        head = self.head
+        for p, fd in enumerate(self.fds, start=1):
+            if head[_SLEEP + 8 * p]:
+                try:
+                    os.write(fd, b"\0")
+                except BlockingIOError:
+                    pass  # the pipe is full of wake-ups already
+        alone = _share(0, self.procs, _plan(n, self.procs), ctrl, cast)
+        if not alone:
+            self._wait(seq)
+            if any(head[_ERR + 8 * p] == seq for p in range(1, self.procs)):
+                raise _HelperFailed("a helper process failed on a job")
+        return out[:n].copy()
+
+    def _wait(self, seq: int) -> None:
+        """Until every helper has finished job ``seq``; raises _HelperFailed if one died or hangs."""
+        head = self.head
+        idx = [_DONE + 8 * p for p in range(1, self.procs)]
+        if all(head[i] >= seq for i in idx):
+            return
+        t0 = time.monotonic()
+        check = t0 + 0.005
+        while not all(head[i] >= seq for i in idx):
+            os.sched_yield()
+            now = time.monotonic()
+            if now > check:
+                check = now + 0.005
+                for p, (pid, fd) in enumerate(zip(self.pids, self.fds), start=1):
+                    try:
+                        if os.waitpid(pid, os.WNOHANG)[0]:
+                            raise _HelperFailed(f"helper process {pid} died")
+                    except ChildProcessError:
+                        raise _HelperFailed(f"helper process {pid} is gone") from None
+                    if head[_SLEEP + 8 * p]:  # a wake-up lost in a race: send another
+                        try:
+                            os.write(fd, b"\0")
+                        except BlockingIOError:
+                            pass
+                if now - t0 > _HELPER_TIMEOUT_S:
+                    raise _HelperFailed(f"helper processes did not answer within {_HELPER_TIMEOUT_S:.0f} s")
+
+
 class RayCaster:
     """A BVH over one triangle mesh, answering first-hit queries.
 
@@ -82,10 +417,12 @@ class RayCaster:
     vertices : (V, 3) float array.
     faces : (F, 3) int array of vertex indices.
     engine : ``"embree"`` (default when available) or ``"trimesh"``.
-    workers : processes for one query (default 1). ``embreex`` holds the GIL, so a query
-        of at least :data:`PARALLEL_MIN_RAYS` rays is split over ``workers`` processes
-        forked once (lazily) with the BVH; results are identical to ``workers=1``.
-        Needs the ``fork`` start method (Linux); elsewhere queries stay in-process.
+    workers : processes for one query (default 1: everything in this process). With
+        ``workers > 1``, queries of at least :data:`PARALLEL_MIN_RAYS` rays are shared
+        with ``workers - 1`` helper processes forked lazily with the BVH (see the module
+        docstring); results are the same bytes as with ``workers=1``. Linux/x86-64 only,
+        ignored elsewhere. Call :meth:`close` (or use ``with``) to stop the helpers early;
+        they also stop when the caster is garbage collected or the process exits.
 
     The BVH is built once; query it as often as needed.
     """
@@ -103,8 +440,10 @@ class RayCaster:
                 warnings.warn("embreex is not installed: using trimesh's slow ray engine", RuntimeWarning, stacklevel=2)
         self.engine = engine
         self.n_faces = len(f)
-        self.workers = max(1, int(workers))
-        self._conns = None
+        self.workers = min(max(1, int(workers)), _MAX_PROCS)
+        self._helpers: _Helpers | None = None
+        self._helpers_failed = False
+        self._lock = threading.Lock()
         if engine == "embree":
             from embreex import rtcore_scene
             from embreex.mesh_construction import TriangleMesh
@@ -122,7 +461,7 @@ class RayCaster:
             raise ParameterError(f"unknown ray engine {engine!r} (known: embree, trimesh)")
 
     def first_hit(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """First intersection of each ray with the mesh.
+        """First intersection of each ray with the mesh (in this process).
 
         Parameters
         ----------
@@ -184,64 +523,89 @@ class RayCaster:
         d32 = np.ascontiguousarray(directions, dtype=np.float32)
         if o32.shape != d32.shape or o32.ndim != 2 or o32.shape[1] != 3:
             raise ParameterError(f"origins and directions must both be (K, 3), got {o32.shape} and {d32.shape}")
-        if self.workers > 1 and len(o32) >= PARALLEL_MIN_RAYS and self._ensure_pool():
-            bounds = np.linspace(0, len(o32), self.workers + 1).astype(np.int64)
-            for conn, a, b in zip(self._conns, bounds[1:-1], bounds[2:]):
-                conn.send(("rays", o32[a:b], d32[a:b]))  # sent now, from this thread: no GIL wait
-            first = self._run(o32[: bounds[1]], d32[: bounds[1]])  # the parent takes the first share
-            return np.concatenate([first, *(conn.recv() for conn in self._conns)])
-        return self._run(o32, d32)
+        return self._query(o32, d32, None, None)
 
     def rig_distances(self, rig) -> np.ndarray:
         """:meth:`raw_distances` for all rays of a :class:`~spotlights.geometry.rig.Rig`.
 
-        With ``workers > 1`` and a big rig, each worker process rebuilds the rig's rays
-        once (from ``rig.to_dict()``) and only slice bounds and results cross processes,
-        so the split costs little. Returns (N*M,) float32, >= 1e30 on a miss.
+        Returns (N*M,) float32 unit-frame distances, >= 1e30 on a miss. With helper
+        processes only the job's bounds cross processes (helpers rebuild a rig's rays once).
         """
+        if self.engine != "embree":
+            return self.raw_distances(*rig.rays32)
         o32, d32 = rig.rays32
-        if self.engine != "embree" or self.workers == 1 or len(o32) < PARALLEL_MIN_RAYS or not self._ensure_pool():
-            return self.raw_distances(o32, d32)
-        import json
+        return self._query(o32, d32, None, rig)
 
-        rig_json = json.dumps(rig.to_dict(), sort_keys=True)
-        bounds = np.linspace(0, len(o32), self.workers + 1).astype(np.int64)
-        for conn, a, b in zip(self._conns, bounds[1:-1], bounds[2:]):
-            conn.send(("rig", rig_json, int(a), int(b)))
-        first = self._run(o32[: bounds[1]], d32[: bounds[1]])
-        return np.concatenate([first, *(conn.recv() for conn in self._conns)])
+    def rig_depths(self, rig) -> np.ndarray:
+        """Spotlights depths of a rig: (N*M,) float32 in [0, 1], 0 = miss or hit beyond the chord.
+
+        :meth:`rig_distances` followed by :func:`to_depths`.
+        """
+        if self.engine != "embree":
+            return to_depths(self.raw_distances(*rig.rays32), rig.half_chords32)
+        o32, d32 = rig.rays32
+        return self._query(o32, d32, rig.half_chords32, rig)
+
+    def _query(self, o32: np.ndarray, d32: np.ndarray, post, rig) -> np.ndarray:
+        k = len(o32)
+        if self.workers > 1 and k >= PARALLEL_MIN_RAYS and not self._helpers_failed and self._lock.acquire(False):
+            try:
+                helpers = self._ensure_helpers()
+                if helpers is not None:
+                    try:
+                        entry = helpers.token(rig) if rig is not None else None
+                        parts = [helpers.run(self._scene, min(_WINDOW, k - s), o32[s:s + _WINDOW],
+                                             d32[s:s + _WINDOW], entry, s)
+                                 for s in range(0, k, _WINDOW)]
+                        t = parts[0] if len(parts) == 1 else np.concatenate(parts)
+                        return t if post is None else to_depths(t, post)
+                    except _HelperFailed as exc:
+                        self._give_up(f"{exc}; continuing in one process")
+            finally:
+                self._lock.release()
+        t = self._run(o32, d32)
+        return t if post is None else to_depths(t, post)
 
     def _run(self, o32: np.ndarray, d32: np.ndarray) -> np.ndarray:
         parts = [self._scene.run(o32[s : s + _CHUNK], d32[s : s + _CHUNK], query="DISTANCE")
                  for s in range(0, len(o32), _CHUNK)]
         return np.concatenate(parts) if len(parts) != 1 else parts[0]
 
-    def _ensure_pool(self) -> bool:
-        """Fork ``workers - 1`` helper processes holding this BVH (once); False where fork is unavailable."""
-        if self._conns is not None:
-            return True
-        import multiprocessing as mp
-        import weakref
-
-        if "fork" not in mp.get_all_start_methods():  # pragma: no cover - not Linux
-            self.workers = 1
-            return False
-        ctx = mp.get_context("fork")
-        conns, procs = [], []
-        _FORKED[id(self)] = self
+    def _ensure_helpers(self) -> _Helpers | None:
+        """The helper processes of this process (forked on first use); None where unavailable."""
+        h = self._helpers
+        if h is not None and h.owner == os.getpid():
+            return h
+        self._helpers = None  # inherited through a fork: the helpers belong to another process
+        if not _helpers_supported():
+            self._helpers_failed = True
+            return None
         try:
-            for _ in range(self.workers - 1):
-                parent, child = ctx.Pipe()
-                proc = ctx.Process(target=_worker_loop, args=(child, id(self)), daemon=True)
-                proc.start()
-                child.close()
-                conns.append(parent)
-                procs.append(proc)
-        finally:
-            del _FORKED[id(self)]  # the children have their copy; the parent must not keep self alive
-        self._conns = conns
-        weakref.finalize(self, _stop_workers, conns, procs)
-        return True
+            # commit the BVH before forking, so every process shares the same built scene
+            self._scene.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32), query="DISTANCE")
+            self._helpers = _Helpers(self._scene, self.workers)
+        except Exception as exc:
+            self._give_up(f"could not start helper processes ({exc}); continuing in one process")
+            return None
+        return self._helpers
+
+    def _give_up(self, why: str) -> None:
+        warnings.warn(f"RayCaster(workers={self.workers}): {why}", RuntimeWarning, stacklevel=4)
+        self._helpers_failed = True
+        self.close()
+
+    def close(self) -> None:
+        """Stop this caster's helper processes (if any); later queries run in this process
+        until a big one forks new helpers. Idempotent."""
+        h, self._helpers = self._helpers, None
+        if h is not None:
+            h.close()
+
+    def __enter__(self) -> "RayCaster":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
 def first_hit(mesh, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
