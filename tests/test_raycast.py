@@ -208,3 +208,22 @@ def test_job_plan_covers_every_ray_once():
             for seg in plan:
                 sizes = np.diff(seg)
                 assert (sizes > 0).all() and (sizes[:-1] >= sizes[1:]).all()  # halving from the front
+
+
+def test_optional_open3d_engine_agrees_with_embree(annulus):
+    pytest.importorskip("open3d")
+    o, d = _random_rays(3000, seed=7)
+    ref_t, ref_face = RayCaster(annulus.vertices, annulus.faces).first_hit(o, d)
+    for workers in (1, 2):
+        caster = RayCaster(annulus.vertices, annulus.faces, engine="open3d", workers=workers)
+        t, face = caster.first_hit(o, d)
+        both = np.isfinite(t) & np.isfinite(ref_t)
+        assert (np.isfinite(t) != np.isfinite(ref_t)).mean() < 0.002  # float32 edge cases only
+        assert np.allclose(t[both], ref_t[both], atol=1e-5)
+        assert (face[both] == ref_face[both]).mean() > 0.99
+        dist = caster.distances(o, d)
+        assert np.array_equal(np.isfinite(dist), np.isfinite(t))
+    rig = make_rig(32, 64, 60)
+    a = MeshProbe(annulus).encode(rig)
+    b = MeshProbe(annulus, engine="open3d", workers=2).encode(rig)
+    assert ((a > 0) != (b > 0)).mean() < 0.002 and np.allclose(a, b, atol=1e-5)

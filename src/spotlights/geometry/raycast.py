@@ -76,8 +76,9 @@ _PAGE = 4096
 _JSON_BYTES = 1 << 16
 _SLOT_BYTES = _PAGE + _JSON_BYTES + _WINDOW * 28  # ctrl, rig JSON, origins, directions, out
 # header (int64 index): job sequence number, stop flag; per process p (8 int64 apart,
-# separate cache lines): done (last finished job), error (job that failed), sleeping flag
-_SEQ, _STOP, _DONE, _ERR, _SLEEP = 0, 1, 64, 128, 192
+# separate cache lines): done (last finished job), error (job that failed), sleeping flag,
+# busy (the job it committed to)
+_SEQ, _STOP, _DONE, _ERR, _SLEEP, _BUSY = 0, 1, 64, 128, 192, 256
 # slot ctrl (int64 index): kind (1 rays in the slot, 2 a rig), rays, rig token, rig JSON
 # length, ray offset in the rig, processes, rig CRC; front (chunks claimed by a
 # segment's owner) and back (by its thief) per segment
@@ -91,6 +92,16 @@ def _embree_available() -> bool:
     except Exception:  # pragma: no cover - platform dependent
         return False
     return True
+
+
+_FENCE = threading.Lock()
+
+
+def _fence() -> None:
+    """A full memory barrier (a lock's atomic read-modify-write), for the two flag handshakes
+    (sleeping/new job, committed/slot reuse) where x86 could reorder a store after a load."""
+    _FENCE.acquire()
+    _FENCE.release()
 
 
 def _helpers_supported() -> bool:
@@ -180,12 +191,13 @@ def _helper_main(scene, mm: mmap.mmap, p: int, wake_fd: int, parent: int) -> Non
     last = 0  # helpers are forked before the first job (the parent may post it before we look)
     spin_until = time.monotonic() + HELPER_SPIN_S
     while True:
-        # wait for a new job: poll a while after the last one, then sleep on the pipe
+        # wait for a new job: poll a while after the last one (no sched_yield: on a busy
+        # core it hands the CPU to any other task for a whole time slice), then sleep
         while head[_SEQ] == last and not head[_STOP]:
             if time.monotonic() < spin_until:
-                os.sched_yield()
                 continue
             head[_SLEEP + 8 * p] = 1
+            _fence()  # the parent reads our flag after publishing a job: one of us sees the other
             if head[_SEQ] == last and not head[_STOP]:
                 ready, _, _ = select.select([wake_fd], [], [], 1.0)
                 if ready:
@@ -196,7 +208,13 @@ def _helper_main(scene, mm: mmap.mmap, p: int, wake_fd: int, parent: int) -> Non
             head[_SLEEP + 8 * p] = 0
         if head[_STOP]:
             return
-        seq = int(head[_SEQ])
+        # commit to the newest job; the parent reuses its slot only once we are done with it
+        while True:
+            seq = int(head[_SEQ])
+            head[_BUSY + 8 * p] = seq
+            _fence()
+            if head[_SEQ] == seq:
+                break
         slot = slots[seq % 2]
         ctrl = slot.ctrl
         try:
@@ -346,7 +364,11 @@ class _Helpers:
         """One job of ``n <= _WINDOW`` rays ``o``, ``d`` (rays ``off:off + n`` of a rig when
         ``rig_entry``): (n,) float32 raw distances, a fresh array."""
         seq = self.seq + 1
-        self._wait(seq - 2)  # the slot's previous job is finished everywhere
+        head = self.head
+        if self.procs == 2:  # the slot's previous job: wait only for a helper committed to it
+            p = 1
+            if head[_BUSY + 8 * p] == seq - 2 and head[_DONE + 8 * p] < seq - 2:
+                self._wait(seq - 2)
         slot = self.slots[seq % 2]
         ctrl = slot.ctrl
         ctrl[_FRONT:_FRONT + 8 * self.procs] = 0
@@ -365,21 +387,33 @@ class _Helpers:
         def cast(a, b):
             out[a:b] = scene.run(o[a:b], d[a:b], query="DISTANCE")
 
-        self.head[_SEQ] = seq  # published last: the job is complete in memory (x86 store order)
+        head[_SEQ] = seq  # published last: the job is complete in memory (x86 store order)
         self.seq = seq
-        head = self.head
+        _fence()
         for p, fd in enumerate(self.fds, start=1):
             if head[_SLEEP + 8 * p]:
                 try:
                     os.write(fd, b"\0")
                 except BlockingIOError:
                     pass  # the pipe is full of wake-ups already
+                except OSError as exc:
+                    raise _HelperFailed(f"helper process {self.pids[p - 1]} is gone ({exc})") from None
         alone = _share(0, self.procs, _plan(n, self.procs), ctrl, cast)
-        if not alone:
+        if alone:  # the helper took no part: is it still there?
+            self._check_alive()
+        else:
             self._wait(seq)
             if any(head[_ERR + 8 * p] == seq for p in range(1, self.procs)):
                 raise _HelperFailed("a helper process failed on a job")
         return out[:n].copy()
+
+    def _check_alive(self) -> None:
+        for pid in self.pids:
+            try:
+                if os.waitpid(pid, os.WNOHANG)[0]:
+                    raise _HelperFailed(f"helper process {pid} died")
+            except ChildProcessError:
+                raise _HelperFailed(f"helper process {pid} is gone") from None
 
     def _wait(self, seq: int) -> None:
         """Until every helper has finished job ``seq``; raises _HelperFailed if one died or hangs."""
@@ -390,20 +424,15 @@ class _Helpers:
         t0 = time.monotonic()
         check = t0 + 0.005
         while not all(head[i] >= seq for i in idx):
-            os.sched_yield()
             now = time.monotonic()
             if now > check:
                 check = now + 0.005
-                for p, (pid, fd) in enumerate(zip(self.pids, self.fds), start=1):
-                    try:
-                        if os.waitpid(pid, os.WNOHANG)[0]:
-                            raise _HelperFailed(f"helper process {pid} died")
-                    except ChildProcessError:
-                        raise _HelperFailed(f"helper process {pid} is gone") from None
+                self._check_alive()
+                for p, fd in enumerate(self.fds, start=1):
                     if head[_SLEEP + 8 * p]:  # a wake-up lost in a race: send another
                         try:
                             os.write(fd, b"\0")
-                        except BlockingIOError:
+                        except OSError:
                             pass
                 if now - t0 > _HELPER_TIMEOUT_S:
                     raise _HelperFailed(f"helper processes did not answer within {_HELPER_TIMEOUT_S:.0f} s")
@@ -416,7 +445,10 @@ class RayCaster:
     ----------
     vertices : (V, 3) float array.
     faces : (F, 3) int array of vertex indices.
-    engine : ``"embree"`` (default when available) or ``"trimesh"``.
+    engine : ``"embree"`` (default when available; ``embreex``), ``"open3d"`` (optional:
+        Open3D's ``RaycastingScene``, Embree on TBB threads, when ``open3d`` is installed;
+        ``workers`` is its thread count, ``workers >= cores`` its default pool) or
+        ``"trimesh"`` (slow fallback). Engines agree to float32 rounding, not bit for bit.
     workers : processes for one query (default 1: everything in this process). With
         ``workers > 1``, queries of at least :data:`PARALLEL_MIN_RAYS` rays are shared
         with ``workers - 1`` helper processes forked lazily with the BVH (see the module
@@ -457,8 +489,18 @@ class RayCaster:
             from trimesh.ray.ray_triangle import RayMeshIntersector
 
             self._intersector = RayMeshIntersector(trimesh.Trimesh(v, f, process=False))
+        elif engine == "open3d":
+            try:
+                import open3d as o3d
+            except ImportError:
+                raise ParameterError("the ray engine 'open3d' needs the open3d package (pip install open3d)") from None
+            self._o3d = o3d
+            self._o3d_threads = 0 if self.workers >= (os.cpu_count() or 1) else self.workers
+            self._o3d_scene = o3d.t.geometry.RaycastingScene()
+            self._o3d_scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(v, dtype=np.float32)),
+                                          o3d.core.Tensor(np.ascontiguousarray(f, dtype=np.uint32)))
         else:
-            raise ParameterError(f"unknown ray engine {engine!r} (known: embree, trimesh)")
+            raise ParameterError(f"unknown ray engine {engine!r} (known: embree, open3d, trimesh)")
 
     def first_hit(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """First intersection of each ray with the mesh (in this process).
@@ -491,6 +533,11 @@ class RayCaster:
                 hit = (res["geomID"] >= 0) & (res["tfar"] < _MISS_T)
                 t[s : s + _CHUNK][hit] = res["tfar"][hit]
                 face[s : s + _CHUNK][hit] = prim[hit]
+        elif self.engine == "open3d":
+            ans = self._o3d_cast(o, d)
+            hit = np.isfinite(ans["t_hit"].numpy())
+            t[hit] = ans["t_hit"].numpy()[hit]
+            face[hit] = ans["primitive_ids"].numpy()[hit]
         else:
             tri, ray, loc = self._intersector.intersects_id(o, d, multiple_hits=False, return_locations=True)
             if len(ray):
@@ -515,6 +562,8 @@ class RayCaster:
 
     def raw_distances(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """Like :meth:`distances` but a miss is any value >= 1e30 (no clean-up pass)."""
+        if self.engine == "open3d":
+            return self._o3d_cast(origins, directions)["t_hit"].numpy()  # inf on a miss
         if self.engine != "embree":
             t = self.first_hit(origins, directions)[0].astype(np.float32)
             t[~np.isfinite(t)] = 1e37
@@ -565,6 +614,15 @@ class RayCaster:
                 self._lock.release()
         t = self._run(o32, d32)
         return t if post is None else to_depths(t, post)
+
+    def _o3d_cast(self, origins: np.ndarray, directions: np.ndarray) -> dict:
+        o = np.asarray(origins)
+        d = np.asarray(directions)
+        if o.shape != d.shape or o.ndim != 2 or o.shape[1] != 3:
+            raise ParameterError(f"origins and directions must both be (K, 3), got {o.shape} and {d.shape}")
+        rays = np.empty((len(o), 6), dtype=np.float32)
+        rays[:, :3], rays[:, 3:] = o, d
+        return self._o3d_scene.cast_rays(self._o3d.core.Tensor(rays), nthreads=self._o3d_threads)
 
     def _run(self, o32: np.ndarray, d32: np.ndarray) -> np.ndarray:
         parts = [self._scene.run(o32[s : s + _CHUNK], d32[s : s + _CHUNK], query="DISTANCE")
