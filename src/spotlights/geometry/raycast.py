@@ -197,10 +197,11 @@ def _helper_main(scene, mm: mmap.mmap, p: int, wake_fd: int, parent: int) -> Non
     last = 0  # helpers are forked before the first job (the parent may post it before we look)
     spin_until = time.monotonic() + HELPER_SPIN_S
     while True:
-        # wait for a new job: poll a while after the last one (no sched_yield: on a busy
-        # core it hands the CPU to any other task for a whole time slice), then sleep
+        # wait for a new job: poll a while after the last one, then sleep. Polling yields the
+        # core (free on an idle core): should the parent share it, the parent must not starve
         while head[_SEQ] == last and not head[_STOP]:
             if time.monotonic() < spin_until:
+                os.sched_yield()
                 continue
             head[_SLEEP + 8 * p] = 1
             _fence()  # the parent reads our flag after publishing a job: one of us sees the other
@@ -435,6 +436,7 @@ class _Helpers:
         t0 = time.monotonic()
         check = t0 + 0.005
         while not all(head[i] >= seq for i in idx):
+            os.sched_yield()  # a helper preempted on this core gets it back
             now = time.monotonic()
             if now > check:
                 check = now + 0.005
