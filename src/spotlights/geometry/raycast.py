@@ -70,9 +70,10 @@ _WINDOW = 1 << 18
 _HELPER_TIMEOUT_S = 20.0
 _MAX_PROCS = 8
 
-# Shared memory layout: a header page, then two job slots used alternately (a late
+# Shared memory layout: a header page, then _SLOTS job slots used in turn (a late
 # helper may still be finishing job s in one slot while the parent fills job s+1).
 _PAGE = 4096
+_SLOTS = 4
 _JSON_BYTES = 1 << 16
 _SLOT_BYTES = _PAGE + _JSON_BYTES + _WINDOW * 28  # ctrl, rig JSON, origins, directions, out
 # header (int64 index): job sequence number, stop flag; per process p (8 int64 apart,
@@ -80,9 +81,10 @@ _SLOT_BYTES = _PAGE + _JSON_BYTES + _WINDOW * 28  # ctrl, rig JSON, origins, dir
 # busy (the job it committed to)
 _SEQ, _STOP, _DONE, _ERR, _SLEEP, _BUSY = 0, 1, 64, 128, 192, 256
 # slot ctrl (int64 index): kind (1 rays in the slot, 2 a rig), rays, rig token, rig JSON
-# length, ray offset in the rig, processes, rig CRC; front (chunks claimed by a
-# segment's owner) and back (by its thief) per segment
-_KIND, _N, _TOKEN, _JLEN, _OFF, _NPROC, _CRC, _FRONT, _BACK = 0, 1, 2, 3, 4, 5, 6, 64, 128
+# length, ray offset in the rig, processes, rig CRC; per segment: chunks claimed by its
+# owner (front) and its thief (back), chunks they finished (front done, back done)
+_KIND, _N, _TOKEN, _JLEN, _OFF, _NPROC, _CRC = 0, 1, 2, 3, 4, 5, 6
+_FRONT, _BACK, _FDONE, _BDONE = 64, 128, 192, 256
 
 
 def _embree_available() -> bool:
@@ -146,8 +148,9 @@ def _share(p: int, procs: int, plan: tuple, ctrl: np.ndarray, cast) -> bool:
     segment's chunks from the back. ``cast(a, b)`` computes and stores rays [a, b).
 
     Claims are published (``ctrl[_FRONT + 8 s]``, ``ctrl[_BACK + 8 s]``) before the chunk
-    is cast; a process stops at the first chunk the other has claimed. Returns True when
-    this process cast every chunk of both segments (the other one took none).
+    is cast, and counted done after; a process stops at the first chunk the other has
+    claimed. Returns True when this process cast every chunk of both segments (the other
+    one took none).
     """
     own = plan[p]
     m = len(own) - 1
@@ -157,6 +160,7 @@ def _share(p: int, procs: int, plan: tuple, ctrl: np.ndarray, cast) -> bool:
         ctrl[_FRONT + 8 * p] = i + 1
         cast(own[i], own[i + 1])
         i += 1
+        ctrl[_FDONE + 8 * p] = i
     q = (p + 1) % procs
     other = plan[q]
     m2 = len(other) - 1
@@ -167,6 +171,7 @@ def _share(p: int, procs: int, plan: tuple, ctrl: np.ndarray, cast) -> bool:
         j = m2 - 1 - k
         cast(other[j], other[j + 1])
         k += 1
+        ctrl[_BDONE + 8 * q] = k
     return procs == 2 and i == m and k == m2
 
 
@@ -192,7 +197,7 @@ class _Slot:
 def _helper_main(scene, mm: mmap.mmap, p: int, wake_fd: int, parent: int) -> None:
     """Body of helper process ``p``: wait for a job, take its share, report, repeat."""
     head = _ints(mm, 0)
-    slots = (_Slot(mm, _PAGE), _Slot(mm, _PAGE + _SLOT_BYTES))
+    slots = [_Slot(mm, _PAGE + i * _SLOT_BYTES) for i in range(_SLOTS)]
     rigs: dict = {}  # token -> (origins32, directions32) or None (unusable)
     last = 0  # helpers are forked before the first job (the parent may post it before we look)
     spin_until = time.monotonic() + HELPER_SPIN_S
@@ -222,7 +227,7 @@ def _helper_main(scene, mm: mmap.mmap, p: int, wake_fd: int, parent: int) -> Non
             _fence()
             if head[_SEQ] == seq:
                 break
-        slot = slots[seq % 2]
+        slot = slots[seq % _SLOTS]
         ctrl = slot.ctrl
         try:
             n, procs, off = int(ctrl[_N]), int(ctrl[_NPROC]), int(ctrl[_OFF])
@@ -321,9 +326,9 @@ class _Helpers:
     def __init__(self, scene, procs: int):
         self.procs = procs
         self.owner = os.getpid()
-        self.mm = mmap.mmap(-1, _PAGE + 2 * _SLOT_BYTES)  # MAP_SHARED | MAP_ANONYMOUS
+        self.mm = mmap.mmap(-1, _PAGE + _SLOTS * _SLOT_BYTES)  # MAP_SHARED | MAP_ANONYMOUS
         self.head = _ints(self.mm, 0)
-        self.slots = (_Slot(self.mm, _PAGE), _Slot(self.mm, _PAGE + _SLOT_BYTES))
+        self.slots = [_Slot(self.mm, _PAGE + i * _SLOT_BYTES) for i in range(_SLOTS)]
         self.seq = 0
         self.pids: list = []
         self.fds: list = []
@@ -379,12 +384,12 @@ class _Helpers:
         head = self.head
         if self.procs == 2:  # the slot's previous job: wait only for a helper committed to it
             p = 1
-            if head[_BUSY + 8 * p] == seq - 2 and head[_DONE + 8 * p] < seq - 2:
-                self._wait(seq - 2)
-        slot = self.slots[seq % 2]
+            if head[_BUSY + 8 * p] == seq - _SLOTS and head[_DONE + 8 * p] < seq - _SLOTS:
+                self._wait(seq - _SLOTS)
+        slot = self.slots[seq % _SLOTS]
         ctrl = slot.ctrl
         for q in range(self.procs):
-            ctrl[_FRONT + 8 * q] = ctrl[_BACK + 8 * q] = 0
+            ctrl[_FRONT + 8 * q] = ctrl[_BACK + 8 * q] = ctrl[_FDONE + 8 * q] = ctrl[_BDONE + 8 * q] = 0
         ctrl[_N], ctrl[_NPROC], ctrl[_OFF] = n, self.procs, off
         if rig_entry is not None:
             token, js, crc = rig_entry
@@ -410,14 +415,45 @@ class _Helpers:
                     pass  # the pipe is full of wake-ups already
                 except OSError as exc:
                     raise _HelperFailed(f"helper process {self.pids[p - 1]} is gone ({exc})") from None
-        alone = _share(0, self.procs, _plan(n, self.procs), ctrl, cast)
+        plan = _plan(n, self.procs)
+        t0 = time.perf_counter()
+        alone = _share(0, self.procs, plan, ctrl, cast)
         if alone:  # the helper took no part: is it still there?
             self._check_alive()
         else:
-            self._wait(seq)
+            if self.procs == 2:
+                self._finish(seq, plan, ctrl, cast, max(2e-5, 0.2 * (time.perf_counter() - t0)))
+            else:
+                self._wait(seq)
             if any(head[_ERR + 8 * p] == seq for p in range(1, self.procs)):
                 raise _HelperFailed("a helper process failed on a job")
         return out[:n].copy() if post is None else to_depths(out[:n], post, fresh=True)
+
+    def _finish(self, seq: int, plan: tuple, ctrl, cast, grace: float) -> None:
+        """Wait up to ``grace`` s for the helper's chunks of job ``seq``, then cast what it has
+        claimed but not finished (a preempted helper must not hold the caller up; a chunk
+        cast twice gives the same bytes, and the slot is not reused while it is busy)."""
+        head = self.head
+        done = _DONE + 8
+        deadline = time.perf_counter() + grace
+        while head[done] < seq:
+            if time.perf_counter() > deadline:
+                break
+            os.sched_yield()
+        else:
+            return
+        seg = plan[1]  # the helper's own segment, from the front
+        for i in range(ctrl[_FDONE + 8], ctrl[_FRONT + 8]):
+            if head[done] >= seq:
+                return
+            cast(seg[i], seg[i + 1])
+        seg = plan[0]  # the chunks it stole from the parent's segment, from the back
+        m = len(seg) - 1
+        for k in range(ctrl[_BDONE], ctrl[_BACK]):
+            if head[done] >= seq:
+                return
+            cast(seg[m - 1 - k], seg[m - k])
+        self._check_alive()
 
     def _check_alive(self) -> None:
         for pid in self.pids:
