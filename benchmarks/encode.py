@@ -20,10 +20,10 @@ ratios, not absolute numbers):
 Timing: each repeat runs every engine once, in an order rotated per repeat, as a
 block of ``--block`` back-to-back calls after a 5 ms pause (so helper processes
 and TBB worker threads have gone idle). The first call of a block is *cold* (it
-pays the wake-up of the other core), the rest are *warm* (a loop of encodes);
-medians over all repeats are reported. A load change hits all engines alike.
+pays the wake-up of the other core), the third and later ones are *warm* (a loop
+of encodes); medians over all repeats are reported. A load change hits all engines alike.
 
-Usage: ``python benchmarks/encode.py [--repeat 20] [--block 5] [--json docs/results/bench_encode.json]``
+Usage: ``python benchmarks/encode.py [--repeat 20] [--block 10] [--json docs/results/bench_encode.json]``
 """
 
 from __future__ import annotations
@@ -49,12 +49,13 @@ BIG = SHARED / "categories" / "chair" / "partnet_chair_40096_7f539a84.ply"
 RIGS = {2048: (32, 64), 8192: (64, 128), 32768: (128, 256)}
 
 
-def interleaved(fns: dict, repeat: int, block: int = 5, gap: float = 0.005) -> dict:
+def interleaved(fns: dict, repeat: int, block: int = 10, gap: float = 0.005) -> dict:
     """Median wall time (s) of each callable: ``{name: (warm, cold)}``.
 
     Each repeat runs every callable as a block of ``block`` timed calls after a ``gap``
     pause, in an order rotated per repeat; *cold* is the first call of a block, *warm*
-    the others. One untimed warm-up call each first.
+    the third and later ones (the second may still be ramping up). One untimed warm-up
+    call each first.
     """
     for fn in fns.values():
         fn()
@@ -68,7 +69,11 @@ def interleaved(fns: dict, repeat: int, block: int = 5, gap: float = 0.005) -> d
             for i in range(block):
                 t0 = time.perf_counter()
                 fn()
-                (warm if i else cold)[n].append(time.perf_counter() - t0)
+                dt = time.perf_counter() - t0
+                if i == 0:
+                    cold[n].append(dt)
+                elif i >= 2:
+                    warm[n].append(dt)
     return {n: (statistics.median(warm[n] or cold[n]), statistics.median(cold[n])) for n in names}
 
 
@@ -144,7 +149,7 @@ def bench_cars(workers: int) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeat", type=int, default=20)
-    ap.add_argument("--block", type=int, default=5, help="back-to-back calls per engine and repeat")
+    ap.add_argument("--block", type=int, default=10, help="back-to-back calls per engine and repeat")
     ap.add_argument("--json", default=str(ROOT / "docs" / "results" / "bench_encode.json"))
     args = ap.parse_args()
     load = os.getloadavg()  # the 1-, 5- and 15-minute load averages before the run

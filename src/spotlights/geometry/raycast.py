@@ -66,6 +66,10 @@ HELPER_SPIN_S = 0.002
 _MIN_CHUNK = 128
 # Rays per shared-memory job (bigger queries are cut into several jobs).
 _WINDOW = 1 << 18
+# The parent waits at least this long (s; or half its own share of the job) for chunks a
+# helper has claimed before casting them itself: long enough never to duplicate a healthy
+# helper's last chunk (which would leave it a job behind, and again at the next job).
+_GRACE_S = 3e-4
 # Seconds the parent waits for a helper's chunk before killing it and going on alone.
 _HELPER_TIMEOUT_S = 20.0
 _MAX_PROCS = 8
@@ -422,7 +426,7 @@ class _Helpers:
             self._check_alive()
         else:
             if self.procs == 2:
-                self._finish(seq, plan, ctrl, cast, max(2e-5, 0.2 * (time.perf_counter() - t0)))
+                self._finish(seq, plan, ctrl, cast, max(_GRACE_S, 0.5 * (time.perf_counter() - t0)))
             else:
                 self._wait(seq)
             if any(head[_ERR + 8 * p] == seq for p in range(1, self.procs)):
