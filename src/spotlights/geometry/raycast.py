@@ -100,6 +100,7 @@ def _embree_available() -> bool:
     return True
 
 
+_YIELD = True
 _FENCE = threading.Lock()
 
 
@@ -210,7 +211,8 @@ def _helper_main(scene, mm: mmap.mmap, p: int, wake_fd: int, parent: int) -> Non
         # core (free on an idle core): should the parent share it, the parent must not starve
         while head[_SEQ] == last and not head[_STOP]:
             if time.monotonic() < spin_until:
-                os.sched_yield()
+                if _YIELD:
+                    os.sched_yield()
                 continue
             head[_SLEEP + 8 * p] = 1
             _fence()  # the parent reads our flag after publishing a job: one of us sees the other
@@ -548,6 +550,7 @@ class RayCaster:
             except ImportError:
                 raise ParameterError("the ray engine 'open3d' needs the open3d package (pip install open3d)") from None
             self._o3d = o3d
+            self._o3d_rig = None
             self._o3d_threads = 0 if self.workers >= (os.cpu_count() or 1) else self.workers
             self._o3d_scene = o3d.t.geometry.RaycastingScene()
             self._o3d_scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(v, dtype=np.float32)),
@@ -633,6 +636,8 @@ class RayCaster:
         Returns (N*M,) float32 unit-frame distances, >= 1e30 on a miss. With helper
         processes only the job's bounds cross processes (helpers rebuild a rig's rays once).
         """
+        if self.engine == "open3d":
+            return self._o3d_cast(*rig.rays32, rig=rig)["t_hit"].numpy()  # inf on a miss
         if self.engine != "embree":
             return self.raw_distances(*rig.rays32)
         o32, d32 = rig.rays32
@@ -644,7 +649,7 @@ class RayCaster:
         :meth:`rig_distances` followed by :func:`to_depths`.
         """
         if self.engine != "embree":
-            return to_depths(self.raw_distances(*rig.rays32), rig.half_chords32)
+            return to_depths(self.rig_distances(rig), rig.half_chords32)
         o32, d32 = rig.rays32
         return self._query(o32, d32, rig.half_chords32, rig)
 
@@ -668,14 +673,19 @@ class RayCaster:
         t = self._run(o32, d32)
         return t if post is None else to_depths(t, post)
 
-    def _o3d_cast(self, origins: np.ndarray, directions: np.ndarray) -> dict:
-        o = np.asarray(origins)
-        d = np.asarray(directions)
-        if o.shape != d.shape or o.ndim != 2 or o.shape[1] != 3:
-            raise ParameterError(f"origins and directions must both be (K, 3), got {o.shape} and {d.shape}")
-        rays = np.empty((len(o), 6), dtype=np.float32)
-        rays[:, :3], rays[:, 3:] = o, d
-        return self._o3d_scene.cast_rays(self._o3d.core.Tensor(rays), nthreads=self._o3d_threads)
+    def _o3d_cast(self, origins: np.ndarray, directions: np.ndarray, rig=None) -> dict:
+        if rig is not None and self._o3d_rig is not None and self._o3d_rig[0] is rig:
+            rays = self._o3d_rig[1]  # the last rig's (K, 6) rays, kept (zero-copy tensor below)
+        else:
+            o = np.asarray(origins)
+            d = np.asarray(directions)
+            if o.shape != d.shape or o.ndim != 2 or o.shape[1] != 3:
+                raise ParameterError(f"origins and directions must both be (K, 3), got {o.shape} and {d.shape}")
+            rays = np.empty((len(o), 6), dtype=np.float32)
+            rays[:, :3], rays[:, 3:] = o, d
+            if rig is not None:
+                self._o3d_rig = (rig, rays)
+        return self._o3d_scene.cast_rays(self._o3d.core.Tensor.from_numpy(rays), nthreads=self._o3d_threads)
 
     def _run(self, o32: np.ndarray, d32: np.ndarray) -> np.ndarray:
         parts = [self._scene.run(o32[s : s + _CHUNK], d32[s : s + _CHUNK], query="DISTANCE")
