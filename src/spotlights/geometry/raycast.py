@@ -4,7 +4,9 @@ The engine is Intel Embree (through ``embreex``): a BVH built once per mesh,
 then all rays of a job in one call. Triangles are hit whatever their winding
 (real meshes are not watertight and not consistently oriented). Without
 embreex (an unsupported platform), trimesh's pure-numpy engine is used with a
-warning; it is ~100x slower. Another engine is one class with ``first_hit``.
+warning; it is ~100x slower. Open3D's ``RaycastingScene`` is an optional engine
+(``engine="open3d"``, when ``open3d`` is installed). Another engine is one class with
+``first_hit``.
 
 Both cores for one query (``workers=2``)
 ----------------------------------------
@@ -23,8 +25,9 @@ as a plain copy of finished values). Rig rays are never copied: a helper rebuild
 a rig's rays once from ``Rig.to_dict()`` and checks them against a CRC. Helpers
 poll for the next job for :data:`HELPER_SPIN_S` after each job (yielding the core),
 then sleep on a pipe. The parent never waits for a helper that took no part in a job, and
-casts itself the chunks a preempted helper claimed but did not finish in time. The depths are the same bytes whatever ``workers`` (Embree's single-ray
-query is deterministic and every element is computed by the same code).
+casts itself the chunks a preempted helper claimed but did not finish in time. The
+depths are the same bytes whatever ``workers`` (Embree's single-ray query is
+deterministic and every element is computed by the same code).
 
 Robustness: helpers ignore SIGINT and exit when the parent closes the caster,
 is garbage collected, exits, or dies (checked every second); a process forked
@@ -102,6 +105,8 @@ def _embree_available() -> bool:
     return True
 
 
+# Helpers yield the core while polling (free on an idle core; on a shared one it keeps a
+# polling helper from starving the parent). A switch for experiments.
 _YIELD = True
 _FENCE = threading.Lock()
 
