@@ -115,6 +115,7 @@ def test_workers_1_never_forks(annulus):
 
 def test_no_leaked_process_after_close_or_collection(annulus):
     o, d = _random_rays(4096, seed=2)
+    shm = set(os.listdir("/dev/shm")) if os.path.isdir("/dev/shm") else set()
     caster = RayCaster(annulus.vertices, annulus.faces, workers=2)
     caster.distances(o, d)
     pid = caster._helpers.pids[0]
@@ -127,6 +128,8 @@ def test_no_leaked_process_after_close_or_collection(annulus):
     gc.collect()
     assert not _alive(pid)
     assert not os.path.exists(f"/proc/{pid}")  # reaped, no zombie
+    if os.path.isdir("/dev/shm"):  # the shared map is anonymous: no named segment, ever
+        assert not {n for n in set(os.listdir("/dev/shm")) - shm if "spotlights" in n or n.startswith("psm_")}
 
 
 def test_falls_back_to_one_process_when_the_helper_dies(annulus):
