@@ -230,3 +230,12 @@ def test_optional_open3d_engine_agrees_with_embree(annulus):
     a = MeshProbe(annulus).encode(rig)
     b = MeshProbe(annulus, engine="open3d", workers=2).encode(rig)
     assert ((a > 0) != (b > 0)).mean() < 0.002 and np.allclose(a, b, atol=1e-5)
+
+
+def test_three_processes_same_bytes():
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.7)
+    rig = make_rig(128, 256, angle=60)
+    ref = MeshProbe(mesh).encode(rig).tobytes()
+    with MeshProbe(mesh, workers=3) as probe:
+        assert all(probe.encode(rig).tobytes() == ref for _ in range(10))
+        assert len(probe.caster._helpers.pids) == 2
