@@ -34,7 +34,10 @@ class MeshProbe:
     normalization : source -> unit transform; default: the mesh's axis-aligned box
         and its circumscribed sphere (the paper's step 1).
     engine : ray engine name (see :class:`~spotlights.geometry.raycast.RayCaster`).
-    workers : processes for one big query (rays split; same result), see ``RayCaster``.
+    workers : processes sharing each query (default 1: this process only). With 2, rigs of
+        at least ``raycast.PARALLEL_MIN_RAYS`` rays are shared with a helper process forked
+        once with the BVH; the depths are the same bytes (see ``RayCaster``). Use
+        ``with MeshProbe(...) as probe:`` or :meth:`close` to stop the helper early.
     """
 
     def __init__(self, mesh, normalization: Normalization | None = None, engine: str | None = None, workers: int = 1):
@@ -67,12 +70,19 @@ class MeshProbe:
         A :class:`RigSpec` is resolved for this object's box first (:meth:`rig_for`);
         keep that rig (``rig_for(spec)``) to decode the depths.
         """
-        rig = self.rig_for(rig)
-        depth = self.caster.rig_distances(rig)  # float32, >= 1e30 on a miss
-        depth *= np.float32(0.5)
-        # misses, and hits beyond the ray's chord through the unit sphere, become 0
-        depth[~(depth <= rig.half_chords32)] = 0.0
-        return np.minimum(depth, np.float32(1.0), out=depth)
+        # half the first-hit distance; misses, and hits beyond the ray's chord through the
+        # unit sphere, become 0 (raycast.to_depths, applied chunk by chunk by each process)
+        return self.caster.rig_depths(self.rig_for(rig))
+
+    def close(self) -> None:
+        """Stop the helper process of ``workers > 1`` (if started); the probe stays usable."""
+        self.caster.close()
+
+    def __enter__(self) -> "MeshProbe":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
 def encode_mesh(mesh, rig: Rig | RigSpec, normalization: Normalization | None = None) -> np.ndarray:
