@@ -35,3 +35,19 @@ def atomic_output(path: str | os.PathLike, suffix: str | None = None) -> Iterato
         with contextlib.suppress(FileNotFoundError):
             tmp_path.unlink()
         raise
+
+
+def process_pool_context():
+    """The multiprocessing context for pools of workers that build Embree scenes.
+
+    ``forkserver`` where available (Linux), else ``spawn``; never a plain ``fork`` of the
+    caller. Embree builds its BVHs on TBB worker threads, and TBB is not fork-safe: a
+    process forked while the parent's TBB threads are active inherits a thread pool that
+    does not exist, and its first BVH build can wait forever. The fork server is a fresh
+    interpreter that has never run Embree (or torch), so its children start clean. Results
+    do not depend on the start method.
+    """
+    import multiprocessing as mp
+
+    methods = mp.get_all_start_methods()
+    return mp.get_context("forkserver" if "forkserver" in methods else "spawn")

@@ -716,9 +716,9 @@ def _run_units(pending: list, state: dict, workers: int, progress: bool, n_model
             for u in pending:
                 advance(_run_unit(u)[0])
         else:
-            import multiprocessing as mp
+            from ..utils import process_pool_context
 
-            ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+            ctx = process_pool_context()
             pool = ctx.Pool(min(workers, len(pending)), initializer=_init_worker, initargs=(state, True))
             try:
                 for unit, _ in pool.imap_unordered(_run_unit, pending, chunksize=1):
@@ -907,9 +907,9 @@ def add_rig(path: str | os.PathLike, rig: "str | Rig | RigSpec", meshes: str | o
                 depths[m] = _add_rig_unit(m)[1]
                 bar.update(1)
         else:
-            import multiprocessing as mp
+            from ..utils import process_pool_context
 
-            ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+            ctx = process_pool_context()
             pool = ctx.Pool(workers, initializer=_init_worker, initargs=(state, True))
             try:
                 for m, d in pool.imap_unordered(_add_rig_unit, range(n), chunksize=1):

@@ -244,9 +244,9 @@ def run_study(meshes: Sequence[MeshEntry], rigs: Sequence[StudyRig], seed: int =
     results = []
     with tqdm(total=len(jobs), desc="rig study", unit="mesh", disable=not progress) as bar:
         if workers > 1 and len(jobs) > 1:
-            import multiprocessing as mp
+            from ..utils import process_pool_context
 
-            ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+            ctx = process_pool_context()
             with ctx.Pool(min(workers, len(jobs))) as pool:
                 for rows in pool.imap(_job, jobs):
                     results.append(rows)

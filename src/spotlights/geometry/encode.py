@@ -146,9 +146,9 @@ def encode_mesh_files(paths: Sequence, rigs: Rig | RigSpec | Sequence, workers: 
     rigs = [rigs] if isinstance(rigs, (Rig, RigSpec)) else list(rigs)
     jobs = [(os.fspath(p), rigs, up, forward) for p in paths]
     if workers > 1 and len(jobs) > 1:
-        import multiprocessing as mp
+        from ..utils import process_pool_context
 
-        ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+        ctx = process_pool_context()
         with ctx.Pool(min(workers, len(jobs))) as pool:
             results = pool.map(_encode_file, jobs, chunksize=max(1, len(jobs) // (4 * workers)))
     else:
