@@ -45,7 +45,8 @@ def process_pool_context():
     process forked while the parent's TBB threads are active inherits a thread pool that
     does not exist, and its first BVH build can wait forever. The fork server is a fresh
     interpreter that has never run Embree (or torch), so its children start clean. Results
-    do not depend on the start method.
+    do not depend on the start method. As with ``spawn`` (and Python 3.14's default), a
+    script that asks for ``workers > 1`` needs the usual ``if __name__ == "__main__":`` guard.
     """
     import multiprocessing as mp
 
