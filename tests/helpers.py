@@ -59,3 +59,26 @@ def sphere_ray_depths(origins: np.ndarray, directions: np.ndarray, center, radiu
     t = np.where(disc >= 0, -b - np.sqrt(np.clip(disc, 0, None)), np.inf)
     t = np.where(t >= 0, t, np.inf)
     return t, disc
+
+
+def brute_force_first_hit(mesh, o, d):
+    """Naive Moller-Trumbore reference: every ray (o, d: (K, 3) float64) against every triangle
+    of ``mesh``, both windings. Returns (K,) float64 first-hit distances (inf on a miss) and
+    (K,) the smallest barycentric margin of that hit (how close it is to a triangle edge)."""
+    tri = mesh.vertices[mesh.faces]
+    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    p = np.cross(d[:, None], e2[None])
+    det = np.einsum("fc,rfc->rf", e1, p)
+    ok = np.abs(det) > 1e-12
+    inv = np.where(ok, 1 / np.where(ok, det, 1), 0)
+    s = o[:, None] - tri[None, :, 0]
+    u = np.einsum("rfc,rfc->rf", s, p) * inv
+    q = np.cross(s, e1[None])
+    v = np.einsum("rc,rfc->rf", d, q) * inv
+    tt = np.einsum("fc,rfc->rf", e2, q) * inv
+    margin = np.minimum(np.minimum(u, v), 1 - u - v)
+    valid = ok & (margin >= 0) & (tt > 0)
+    tt = np.where(valid, tt, np.inf)
+    first = tt.argmin(axis=1)
+    rows = np.arange(len(o))
+    return tt[rows, first], np.abs(margin[rows, first])

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from helpers import CARS, need, sphere_ray_depths
+from helpers import CARS, brute_force_first_hit, need, sphere_ray_depths
 from spotlights.geometry import (
     MeshProbe,
     RayCaster,
@@ -125,20 +125,7 @@ def test_engine_matches_brute_force_moller_trumbore():
     d = -o + 0.3 * rng.normal(size=(400, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     t, face = RayCaster(mesh.vertices, mesh.faces).first_hit(o, d)
-    # brute force: every ray against every triangle (Moller-Trumbore), both windings
-    tri = mesh.vertices[mesh.faces]
-    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-    p = np.cross(d[:, None], e2[None])
-    det = np.einsum("fc,rfc->rf", e1, p)
-    ok = np.abs(det) > 1e-12
-    inv = np.where(ok, 1 / np.where(ok, det, 1), 0)
-    s = o[:, None] - tri[None, :, 0]
-    u = np.einsum("rfc,rfc->rf", s, p) * inv
-    q = np.cross(s, e1[None])
-    v = np.einsum("rc,rfc->rf", d, q) * inv
-    tt = np.einsum("fc,rfc->rf", e2, q) * inv
-    valid = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (tt > 0)
-    bf = np.where(valid, tt, np.inf).min(axis=1)
+    bf, _ = brute_force_first_hit(mesh, o, d)  # every ray against every triangle, both windings
     assert np.array_equal(np.isfinite(t), np.isfinite(bf))
     assert np.allclose(t[np.isfinite(t)], bf[np.isfinite(bf)], atol=1e-5)
     assert (face[np.isfinite(t)] >= 0).all()

@@ -16,6 +16,8 @@ import numpy as np
 import pytest
 import trimesh
 
+from helpers import brute_force_first_hit
+
 from spotlights.geometry import MeshProbe, RayCaster, make_rig
 from spotlights.geometry import raycast
 
@@ -30,28 +32,6 @@ def _alive(pid: int) -> bool:
             return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
     except FileNotFoundError:
         return False
-
-
-def _brute_force(mesh, o, d):
-    """(K,) float64 first-hit distance of every ray against every triangle (both windings), inf on a miss,
-    and the smallest barycentric margin of that hit (how close it is to a triangle edge)."""
-    tri = mesh.vertices[mesh.faces]
-    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-    p = np.cross(d[:, None], e2[None])
-    det = np.einsum("fc,rfc->rf", e1, p)
-    ok = np.abs(det) > 1e-12
-    inv = np.where(ok, 1 / np.where(ok, det, 1), 0)
-    s = o[:, None] - tri[None, :, 0]
-    u = np.einsum("rfc,rfc->rf", s, p) * inv
-    q = np.cross(s, e1[None])
-    v = np.einsum("rc,rfc->rf", d, q) * inv
-    tt = np.einsum("fc,rfc->rf", e2, q) * inv
-    margin = np.minimum(np.minimum(u, v), 1 - u - v)
-    valid = ok & (margin >= 0) & (tt > 0)
-    tt = np.where(valid, tt, np.inf)
-    first = tt.argmin(axis=1)
-    rows = np.arange(len(o))
-    return tt[rows, first], np.abs(margin[rows, first])
 
 
 @pytest.fixture(scope="module")
@@ -73,7 +53,7 @@ def test_two_processes_match_brute_force(annulus):
     with RayCaster(annulus.vertices, annulus.faces, workers=2) as caster:
         t = caster.distances(o, d).astype(np.float64)
         assert caster._helpers is not None and len(caster._helpers.pids) == 1
-    bf, margin = _brute_force(annulus, o, d)
+    bf, margin = brute_force_first_hit(annulus, o, d)
     # Embree works in float32: rays within ~1e-5 (barycentric) of an edge may fall either side
     clear = ~np.isfinite(bf) | (margin > 1e-5)
     assert clear.mean() > 0.99

@@ -711,26 +711,33 @@ def _run_units(pending: list, state: dict, workers: int, progress: bool, n_model
             bar.update(unit[3] - unit[2])
 
     try:
-        if workers == 1 or len(pending) <= 1:
-            _init_worker(state, quiet_sigint=False)
-            for u in pending:
-                advance(_run_unit(u)[0])
-        else:
-            from ..utils import process_pool_context
-
-            ctx = process_pool_context()
-            pool = ctx.Pool(min(workers, len(pending)), initializer=_init_worker, initargs=(state, True))
-            try:
-                for unit, _ in pool.imap_unordered(_run_unit, pending, chunksize=1):
-                    advance(unit)
-                pool.close()
-            except BaseException:
-                pool.terminate()
-                raise
-            finally:
-                pool.join()
+        for unit, _ in _map_units(_run_unit, pending, state, workers):
+            advance(unit)
     finally:
         bar.close()
+
+
+def _map_units(fn, items: list, state: dict, workers: int):
+    """Yield ``fn(item)`` for every item: in this process when ``workers == 1`` (or one item),
+    else unordered on a pool of ``min(workers, len(items))`` processes started from a fork
+    server (``spotlights.utils.process_pool_context``), each initialised with ``state``; the
+    pool is terminated on any error or when the caller stops early."""
+    if workers == 1 or len(items) <= 1:
+        _init_worker(state, quiet_sigint=False)
+        for item in items:
+            yield fn(item)
+        return
+    from ..utils import process_pool_context
+
+    pool = process_pool_context().Pool(min(workers, len(items)), initializer=_init_worker, initargs=(state, True))
+    try:
+        yield from pool.imap_unordered(fn, items, chunksize=1)
+        pool.close()
+    except BaseException:
+        pool.terminate()
+        raise
+    finally:
+        pool.join()
 
 
 def _load_shard(path: Path, unit: tuple, state: dict) -> dict:
@@ -901,26 +908,9 @@ def add_rig(path: str | os.PathLike, rig: "str | Rig | RigSpec", meshes: str | o
     workers = max(1, min(int(workers or os.cpu_count() or 1), n))
     bar = tqdm(total=n, desc=f"depths {rig.name}", unit="model", disable=not progress, dynamic_ncols=True)
     try:
-        if workers == 1:
-            _init_worker(state, quiet_sigint=False)
-            for m in range(n):
-                depths[m] = _add_rig_unit(m)[1]
-                bar.update(1)
-        else:
-            from ..utils import process_pool_context
-
-            ctx = process_pool_context()
-            pool = ctx.Pool(workers, initializer=_init_worker, initargs=(state, True))
-            try:
-                for m, d in pool.imap_unordered(_add_rig_unit, range(n), chunksize=1):
-                    depths[m] = d
-                    bar.update(1)
-                pool.close()
-            except BaseException:
-                pool.terminate()
-                raise
-            finally:
-                pool.join()
+        for m, d in _map_units(_add_rig_unit, list(range(n)), state, workers):
+            depths[m] = d
+            bar.update(1)
     finally:
         bar.close()
     t1 = time.perf_counter()
