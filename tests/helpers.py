@@ -82,3 +82,16 @@ def brute_force_first_hit(mesh, o, d):
     first = tt.argmin(axis=1)
     rows = np.arange(len(o))
     return tt[rows, first], np.abs(margin[rows, first])
+
+
+def slab_interval(origins, directions, lo, hi):
+    """Independent ray/box slab test (numpy, no Embree): rays ``origins + t * directions``
+    ((K, 3) or broadcastable, float64) against the axis-aligned box [lo, hi]. Returns
+    (t_enter, t_exit), each (K,) float64; the ray meets the box iff t_enter <= t_exit and
+    t_exit >= 0 (a ray parallel to a slab plane is bounded only by the others)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / directions
+        t1, t2 = (lo - origins) * inv, (hi - origins) * inv
+    t1 = np.where(np.isnan(t1), -np.inf, t1)
+    t2 = np.where(np.isnan(t2), np.inf, t2)
+    return np.minimum(t1, t2).max(axis=1), np.maximum(t1, t2).min(axis=1)

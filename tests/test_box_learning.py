@@ -21,7 +21,7 @@ import trimesh
 
 torch = pytest.importorskip("torch")
 
-from helpers import KENNEY, need  # noqa: E402
+from helpers import KENNEY, need, slab_interval  # noqa: E402
 from learning_fixtures import TINY_MODEL_ARGS, cli, one_torch_thread  # noqa: E402
 
 from spotlights.data.store import open_dataset  # noqa: E402
@@ -44,12 +44,8 @@ _single_thread = pytest.fixture(autouse=True)(one_torch_thread)
 # ------------------------------------------------------------------------------------------
 def slab(origins, directions, half):
     """Entry distance of rays into the box [-half, half] (closed form; inf when missed)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t1 = (-half - origins) / directions
-        t2 = (half - origins) / directions
-    tmin = np.nanmax(np.minimum(t1, t2), axis=1)
-    tmax = np.nanmin(np.maximum(t1, t2), axis=1)
-    return np.where(tmax >= np.maximum(tmin, 0), tmin, np.inf)
+    t0, t1 = slab_interval(origins, directions, -half, half)
+    return np.where(t1 >= np.maximum(t0, 0), t0, np.inf)
 
 
 def brute_force_depths(vertices, faces, origins, directions):

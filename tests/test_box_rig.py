@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from helpers import REPO, assert_user_error, run_cli
+from helpers import REPO, assert_user_error, run_cli, slab_interval
 from spotlights.errors import ParameterError
 from spotlights.geometry.encode import MeshProbe, decode, load_encoding, save_encoding
 from spotlights.geometry.frames import Normalization, normalization_from_mesh
@@ -21,16 +21,6 @@ PHI = (1 + 5**0.5) / 2
 CAR = np.array([4.6, 1.9, 1.5]) / np.linalg.norm([4.6, 1.9, 1.5])  # a car's box half-extents, |e| = 1
 BOXES = [CAR, np.ones(3) / math.sqrt(3), np.array([0.2, 0.3, 0.93]) / np.linalg.norm([0.2, 0.3, 0.93]),
          np.array([0.9, 0.05, 0.1]), np.array([0.6, 0.8, 0.0])]  # last: a flat box
-
-
-def slab(origins, directions, lo, hi):
-    """Independent ray/box slab test: (t_enter, t_exit) per ray; the ray meets the box iff t_enter <= t_exit."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / directions
-        t1, t2 = (lo - origins) * inv, (hi - origins) * inv
-    t1 = np.where(np.isnan(t1), -np.inf, t1)
-    t2 = np.where(np.isnan(t2), np.inf, t2)
-    return np.minimum(t1, t2).max(axis=1), np.maximum(t1, t2).min(axis=1)
 
 
 def radical_inverse(i: int, base: int) -> float:
@@ -55,11 +45,11 @@ def test_every_ray_passes_through_the_box(targets, scale):
         o, d = rig.origins, rig.directions
         assert np.allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-12)
         assert np.allclose(o, np.repeat(fibonacci_sphere(16), 40, axis=0))  # the paper's viewpoints
-        t0, t1 = slab(o, d, -e - 1e-9, e + 1e-9)
+        t0, t1 = slab_interval(o, d, -e - 1e-9, e + 1e-9)
         assert np.all(t0 <= t1) and np.all(t1 > 0), (targets, scale, e)
         # and through the scaled box [-s e, s e] too (the targets' box)
         if targets != "ellipsoid":
-            t0, t1 = slab(o, d, -scale * e - 1e-9, scale * e + 1e-9)
+            t0, t1 = slab_interval(o, d, -scale * e - 1e-9, scale * e + 1e-9)
             assert np.all(t0 <= t1)
 
 
@@ -90,7 +80,7 @@ def test_solid_angles_against_closed_forms_and_monte_carlo():
     p, e = np.array([0.7, -0.4, 0.55]), np.array([0.5, 0.3, 0.2])
     d = rng.normal(size=(400_000, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    t0, t1 = slab(np.broadcast_to(p, d.shape), d, -e, e)
+    t0, t1 = slab_interval(np.broadcast_to(p, d.shape), d, -e, e)
     hit = (t0 <= t1) & (t1 > 0)
     entry = p + t0[:, None] * d
     om = box_face_solid_angles(p, e)
@@ -106,7 +96,7 @@ def test_visible_targets_are_on_faces_facing_the_viewpoint_shared_by_solid_angle
         rig = make_rig(12, m, kind="box", box=e, targets="visible", scale=s)
         o, d = rig.origins, rig.directions
         se = s * e
-        t0, _ = slab(o, d, -se, se)
+        t0, _ = slab_interval(o, d, -se, se)
         entry = o + t0[:, None] * d
         cheb = np.max(np.abs(entry) / se, axis=1)
         assert np.allclose(cheb, 1.0, atol=1e-9)  # the ray enters the scaled box
@@ -186,7 +176,7 @@ def test_mixed_rig_keeps_the_paper_cap_first():
     cap = make_rig(8, 16, 45.0).directions.reshape(8, 16, 3)
     d = rig.directions.reshape(8, 64, 3)
     assert np.array_equal(d[:, :16], cap)
-    t0, t1 = slab(rig.origins.reshape(8, 64, 3)[:, 16:].reshape(-1, 3), d[:, 16:].reshape(-1, 3), -CAR, CAR)
+    t0, t1 = slab_interval(rig.origins.reshape(8, 64, 3)[:, 16:].reshape(-1, 3), d[:, 16:].reshape(-1, 3), -CAR, CAR)
     assert np.all(t0 <= t1)
     assert rig.name == "box-8x64-ellipsoid-s1-cap0.25@45"
 
@@ -283,7 +273,7 @@ def test_a_solid_box_is_hit_by_every_ray_at_the_slab_distance(targets):
     depths = probe.encode(spec)
     assert np.array_equal(depths, probe.encode(rig))
     assert np.all(depths > 0)  # hit ratio 1: every ray goes through the box
-    t0, _ = slab(rig.origins, rig.directions, -e, e)
+    t0, _ = slab_interval(rig.origins, rig.directions, -e, e)
     assert np.allclose(depths, t0 / 2, atol=2e-6)
     pts, mask = decode(depths, rig)
     assert mask.all() and np.allclose(np.max(np.abs(pts) / e, axis=1), 1.0, atol=1e-5)

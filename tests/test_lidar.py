@@ -11,7 +11,7 @@ import trimesh
 from spotlights.data.lidar import LidarSimulator, SensorModel, VehiclePose, hdl64e, sensor_preset
 from spotlights.errors import ParameterError
 
-from helpers import CARS, need
+from helpers import CARS, need, slab_interval
 
 BOX = np.array([4.5, 1.8, 1.5])  # length, width, height (metres)
 
@@ -32,12 +32,8 @@ def box_distance(p, center, half):
 
 def slab_hits(origin, dirs, lo, hi):
     """Brute-force ray/box intersection (slab method), independent of Embree: (K,) t or inf."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t1 = (lo - origin) / dirs
-        t2 = (hi - origin) / dirs
-    tmin = np.nanmax(np.minimum(t1, t2), axis=1)
-    tmax = np.nanmin(np.maximum(t1, t2), axis=1)
-    return np.where((tmax >= tmin) & (tmax > 0), np.maximum(tmin, 0), np.inf)
+    t0, t1 = slab_interval(origin, dirs, lo, hi)
+    return np.where((t1 >= t0) & (t1 > 0), np.maximum(t0, 0), np.inf)
 
 
 def test_hdl64e_sensor_model():

@@ -18,7 +18,7 @@ import time
 import numpy as np
 import pytest
 
-from helpers import CARS, CATEGORIES, LIDAR, SHARED, assert_user_error, need, run_cli
+from helpers import CARS, CATEGORIES, LIDAR, SHARED, assert_user_error, need, run_cli, slab_interval
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
@@ -245,12 +245,8 @@ def _ball_folder(root):
 
 def _slab_hit_ratio(origins, directions, half):
     """Share of the rays that meet the box [-half, half] (slab test, numpy; independent of Embree)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t1 = (-half - origins) / directions
-        t2 = (half - origins) / directions
-    tmin = np.nanmax(np.minimum(t1, t2), axis=1)
-    tmax = np.nanmin(np.maximum(t1, t2), axis=1)
-    return float(np.mean((tmax >= np.maximum(tmin, 0.0))))
+    t0, t1 = slab_interval(origins, directions, -half, half)
+    return float(np.mean(t1 >= np.maximum(t0, 0.0)))
 
 
 def test_tables_3_and_4_alone_on_balls_match_the_closed_form(tmp_path):
