@@ -316,3 +316,12 @@ def test_cap_checkpoints_and_datasets_unchanged(built):
     assert all(np.array_equal(p, q) for p, q in zip(a, b))
     with open_dataset(built[1]) as ds:
         assert ds.rig().kind == "cap" and ds.rig("cap-16x16-45") == ds.rig("cap-16x16-45", 0)
+
+
+def test_bench_models_times_a_box_rig_sanet():
+    """The latency benchmark decodes a box-rig SA-Net with the rays of one box (it needs them)."""
+    from spotlights.learning.bench import bench_models
+
+    rep = bench_models(["sanet"], batches=(2,), rig=SPEC, repeats=1, warmup=0, progress=False)
+    lat = rep["models"][0]["latency_ms"][2]
+    assert lat["forward_ms"] > 0 and lat["complete_ms"] > 0

@@ -506,6 +506,8 @@ def _init_worker(state: dict, quiet_sigint: bool) -> None:
     _WORKER.clear()
     _WORKER.update(state)
     _WORKER["sims"] = {}
+    # the process that started this worker (the fork server of process_pool_context, which exits
+    # with the build): when it is gone, the build was killed
     _WORKER["parent"] = os.getppid() if quiet_sigint else None
 
 

@@ -407,7 +407,11 @@ def _train_command(ctx: Context, run: str, resume: bool = False) -> str:
 def _reuse_train(ctx: Context, run: str):
     st = run_state(ctx.run_dir(run))
     if st["state"] == "finished":
-        return f"reusing run {run}: {st['epochs']}/{st['epochs_total']} epochs done", _run_info(ctx.run_dir(run))
+        info = _run_info(ctx.run_dir(run))
+        msg = f"reusing run {run}: {st['epochs']}/{st['epochs_total']} epochs done"
+        if info.get("data") and Path(info["data"]).resolve() != Path(ctx.s.cars_path).resolve():
+            msg += f" (warning: trained on {info['data']}, not on {ctx.s.cars_path})"
+        return msg, info
     return None
 
 
@@ -1139,6 +1143,9 @@ def build_table5(ctx: Context) -> dict:
     for res_name, run in TABLE5_RUNS.items():
         ev = _eval_rows(ctx, run)
         row = next((v for k, v in ev.items() if "clip" in k and "no clip" not in k), None)
+        if row is None:
+            raise SpotlightsError(f"{ctx.run_dir(run)}: run {run} has no clipped SA-Net row to put in Table 5 "
+                                  "(its checkpoint sets no clip); retrain it with the default clip")
         ours[res_name] = row
     head = ["Resolution", "", "Hatchback", "Sedan", "SUV", "Average", "hit ratio (clip)"]
     body, rows = [], []

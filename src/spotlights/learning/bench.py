@@ -101,6 +101,7 @@ def bench_models(names: Sequence[str] = MODEL_NAMES, batches: Sequence[int] = (1
 
     from ..geometry.rig import make_rig
     from .models.base import CLIP_DEFAULT
+    from .rays import timing_directions
 
     if threads:
         torch.set_num_threads(int(threads))
@@ -125,7 +126,10 @@ def bench_models(names: Sequence[str] = MODEL_NAMES, batches: Sequence[int] = (1
             calls = {}
             for name, model in models.items():
                 calls[(name, "forward")] = (lambda m=model: m(x))
-                calls[(name, "complete")] = (lambda m=model: m.complete(x, CLIP_DEFAULT))
+                dirs = timing_directions(model, b)  # None, or the rays of one box for box-rig SA-Nets
+                dirs = None if dirs is None else dirs.to(dev)
+                calls[(name, "complete")] = (lambda m=model, d=dirs: m.complete(x, CLIP_DEFAULT) if d is None
+                                             else m.complete(x, CLIP_DEFAULT, d))
             for fn in calls.values():
                 for _ in range(max(warmup, 0)):
                     fn()

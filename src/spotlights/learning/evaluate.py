@@ -30,18 +30,15 @@ def _latency(model, device, batches=(1, 32), repeats: int = 10, warmup: int = 2,
 
     from .bench import median_latency
     from .models.base import CLIP_DEFAULT
+    from .rays import timing_directions
 
     sync = torch.cuda.synchronize if device.type == "cuda" else None
     gen = torch.Generator().manual_seed(0)
     out = {}
     for b in batches:
         x = ((torch.rand(b, n_input, 3, generator=gen) * 2 - 1) * 0.57).to(device)
-        dirs = None
-        if getattr(model, "needs_box", False):  # box rig: each sample's rays are given (computed once per object)
-            from .rays import directions_for_extents
-
-            e = np.tile([[0.80, 0.45, 0.40]], (b, 1))
-            dirs = torch.from_numpy(np.ascontiguousarray(directions_for_extents(model.rig, e / np.linalg.norm(e[0])))).to(device)
+        dirs = timing_directions(model, b)  # box rig: each sample's rays are given (computed once per object)
+        dirs = None if dirs is None else dirs.to(device)
         with torch.inference_mode():
             f = median_latency(lambda: model(x), repeats, warmup, sync)
             c = median_latency(lambda: model.complete(x, CLIP_DEFAULT, dirs), repeats, warmup, sync)

@@ -137,3 +137,19 @@ class DirectionTable:
         stacked, index = self._device_cache[key]
         idx = torch.as_tensor([index[m] for m in rows.tolist()], dtype=torch.int64, device=dev)
         return stacked.index_select(0, idx)
+
+
+TIMING_BOX_SIZE = (4.6, 1.9, 1.6)
+"""A typical car's box (length, width, height, metres): the box latency measurements decode with."""
+
+
+def timing_directions(model, batch: int):
+    """Rays for timing a model on random input: None for models with constant rays; for a
+    box-rig SA-Net (``model.needs_box``) the (batch, N*M, 3) float32 torch tensor of
+    :data:`TIMING_BOX_SIZE` (one box for every sample; the decoding cost does not depend on it)."""
+    if not getattr(model, "needs_box", False):
+        return None
+    import torch
+
+    e = np.tile(extents_from_sizes(TIMING_BOX_SIZE), (int(batch), 1))
+    return torch.from_numpy(np.ascontiguousarray(directions_for_extents(model.rig, e)))
