@@ -309,6 +309,8 @@ def test_bad_tables_is_a_one_line_error(tmp_path):
     assert_user_error(proc, "--tables", "'9'")
     proc = run_cli("reproduce", "--tables", "", "--out", out)
     assert_user_error(proc, "--tables")
+    proc = run_cli("reproduce", "--tables", "1", "--cars-data", tmp_path / "none.h5", "--out", out)
+    assert_user_error(proc, "none.h5", "no such file")
     assert not out.exists()
 
 

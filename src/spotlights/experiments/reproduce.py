@@ -1542,6 +1542,8 @@ def reproduce(out, tables=None, quick: bool = False, schedule: str | None = None
     schedule_path(s.schedule)  # an unknown schedule fails now, not after an hour
     if s.out.exists() and not s.out.is_dir():
         raise SpotlightsError(f"{s.out}: exists and is not a folder")
+    if s.cars_data is not None and not s.cars_data.is_file():  # fails before the output folder is made
+        raise SpotlightsError(f"{s.cars_data}: --cars-data names no such file")
     ctx = Context(s, log)
     ctx.steps = all_steps(ctx)
     with _lock(s.out):
