@@ -26,7 +26,7 @@ from learning_fixtures import TINY_MODEL_ARGS, cli, one_torch_thread  # noqa: E4
 
 from spotlights.data.store import open_dataset  # noqa: E402
 from spotlights.data.synthetic import BuildConfig, add_rig, build_dataset  # noqa: E402
-from spotlights.errors import InputFileError, ParameterError  # noqa: E402
+from spotlights.errors import ParameterError  # noqa: E402
 from spotlights.geometry.encode import decode  # noqa: E402
 from spotlights.geometry.io import load_mesh  # noqa: E402
 from spotlights.geometry.rig import RigSpec  # noqa: E402

@@ -120,7 +120,7 @@ def test_surface_targets_are_fixed_positions_on_the_faces():
     m, s = 600, 0.8
     for e in BOXES[:3]:
         rig = make_rig(3, m, kind="box", box=e, targets="surface", scale=s)
-        o, d = rig.origins, rig.directions
+        d = rig.directions
         # the target of ray k: on the far or near side of the scaled box, at the position set by the lattice
         k = np.arange(m)
         a, b = np.mod(k / PHI, 1.0), (k + 0.5) / m
