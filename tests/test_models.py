@@ -210,4 +210,75 @@ def test_mac_counts_match_closed_forms(rig):
     sanet = build_model(load_config("sanet"), rig=rig)
     assert count_macs(sanet) == enc + 1024 * 256 + 256 * 256 + 256 * 2048
     fold = build_model(load_config("foldingnet"))
-    assert count_macs(fold) == enc + 2048 * (1026 * 512 + 512 * 512 + 512 * 3 + 1027 * 512 + 512 * 512 + 512 * 3)
+    # the code's share of each fold's first layer is computed once per shape, not per point
+    fold1 = 1024 * 512 + 2048 * (2 * 512 + 512 * 512 + 512 * 3)
+    fold2 = 1024 * 512 + 2048 * (3 * 512 + 512 * 512 + 512 * 3)
+    assert count_macs(fold) == enc + fold1 + fold2
+
+
+# --- Decoders that broadcast the code instead of concatenating it: checked against the
+# --- naive form of the original papers (code replicated on every point, then concatenated).
+
+def _naive(mlp, parts, n):
+    """The MLP on the explicit concatenation, every part expanded to (B, n, C_i)."""
+    b = max(p.shape[0] for p in parts)
+    return mlp(torch.cat([p.expand(b, n, -1) for p in parts], dim=-1))
+
+
+def _naive_forward(model, x):
+    code = model.encoder(x).unsqueeze(1)
+    b = code.shape[0]
+    if model.name == "foldingnet":
+        f1 = _naive(model.fold1, [code, model.grid.unsqueeze(0)], model.n_points)
+        return _naive(model.fold2, [code, f1], model.n_points)
+    if model.name == "pcn":
+        g2 = model.grid_size**2
+        coarse = model.coarse_mlp(code[:, 0]).reshape(b, model.num_coarse, 3)
+        pf = coarse.repeat_interleave(g2, dim=1)
+        grid = model.grid.repeat(model.num_coarse, 1).unsqueeze(0)
+        return _naive(model.folding, [grid, pf, code], model.n_points) + pf
+    if model.name == "atlasnet":
+        uv = model.grid.unsqueeze(0)
+        return torch.cat([torch.tanh(_naive(p, [code, uv], model.points_per_patch)) for p in model.patches], dim=1)
+    if model.name == "topnet":
+        nodes = torch.tanh(model.root(code[:, 0])).reshape(b, model.degrees[0], model.nfeat)
+        for i, level in enumerate(model.levels, start=1):
+            nout = 3 if i == len(model.degrees) - 1 else model.nfeat
+            y = _naive(level, [nodes, code], nodes.shape[1])
+            nodes = torch.tanh(y).reshape(b, nodes.shape[1] * model.degrees[i], nout)
+        return nodes
+    raise KeyError(model.name)
+
+
+@pytest.mark.parametrize("name", ["foldingnet", "pcn", "atlasnet", "topnet"])
+@pytest.mark.parametrize("train_mode", [False, True])
+def test_broadcast_decoders_match_the_naive_concatenation(name, train_mode):
+    torch.manual_seed(0)
+    model = build_model(load_config(name, overrides={"model": {"args": TINY_MODEL_ARGS[name]}}))
+    model.train(train_mode)
+    if name == "atlasnet":  # the regular grid in both modes, so that the two forms see the same uv
+        model.eval()
+        for m in model.modules():  # ... but batch statistics when train_mode (batch norm in training)
+            if isinstance(m, torch.nn.BatchNorm1d):
+                m.train(train_mode)
+    x = torch.rand(3, 40, 3)
+    got = model(x)["points"]
+    want = _naive_forward(model, x)
+    torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-5)
+    if train_mode:  # same gradients for every parameter
+        g_got = torch.autograd.grad(got.square().sum(), list(model.parameters()), allow_unused=True)
+        g_want = torch.autograd.grad(_naive_forward(model, x).square().sum(), list(model.parameters()), allow_unused=True)
+        # biases feeding a batch norm have a zero true gradient: compare at the gradients' scale
+        scale = max(float(g.abs().max()) for g in g_want if g is not None)
+        for a, b in zip(g_got, g_want):
+            assert (a is None) == (b is None)
+            if a is not None:
+                torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5 * scale)
+
+
+def test_forward_concat_rejects_a_channel_mismatch():
+    from spotlights.learning.models.base import MLP
+
+    mlp = MLP([5, 4, 3])
+    with pytest.raises(ValueError, match="channels"):
+        mlp.forward_concat([torch.zeros(1, 2, 3), torch.zeros(1, 1, 3)])

@@ -54,28 +54,20 @@ def median_latency(fn, repeats: int = 10, warmup: int = 2, sync=None) -> float:
 
 
 def count_macs(model, n_input: int = 256) -> int:
-    """Multiply-accumulates of one forward pass for one sample, counted on every ``nn.Linear`` call.
+    """Multiply-accumulates of one forward pass for one sample, as executed.
 
-    A linear layer applied to R rows costs ``R * in_features * out_features`` MACs (biases,
-    activations, normalisation and max-pooling are not counted: they are a few percent).
+    Counted with ``torch.utils.flop_counter.FlopCounterMode`` on the matrix products
+    actually run (a linear layer on R rows costs ``R * in_features * out_features``; a
+    per-shape code broadcast over K points by ``MLP.forward_concat`` is counted once, not
+    K times). Biases, activations, normalisation and max-pooling are not counted: they
+    are a few percent.
     """
     import torch
-    from torch import nn
+    from torch.utils.flop_counter import FlopCounterMode
 
-    total = 0
-
-    def hook(mod, inp, out):
-        nonlocal total
-        total += int(inp[0].numel() // mod.in_features) * mod.in_features * mod.out_features
-
-    handles = [m.register_forward_hook(hook) for m in model.modules() if isinstance(m, nn.Linear)]
-    try:
-        with torch.inference_mode():
-            model(torch.zeros(1, n_input, 3, device=next(model.parameters()).device))
-    finally:
-        for h in handles:
-            h.remove()
-    return total
+    with torch.inference_mode(), FlopCounterMode(display=False) as counter:
+        model(torch.zeros(1, n_input, 3, device=next(model.parameters()).device))
+    return int(counter.get_total_flops()) // 2
 
 
 def bench_models(names: Sequence[str] = MODEL_NAMES, batches: Sequence[int] = (1, 32), repeats: int = 10,

@@ -45,16 +45,15 @@ class AtlasNet(CompletionModel):
         self.register_buffer("grid", g, persistent=False)
 
     def forward(self, partial: torch.Tensor) -> dict[str, torch.Tensor]:
-        code = self.encoder(partial)
+        code = self.encoder(partial).unsqueeze(1)  # (B, 1, code): replicated by broadcasting
         b = code.shape[0]
-        rep = code.unsqueeze(1).expand(-1, self.points_per_patch, -1)
         outs = []
         for patch in self.patches:
             if self.training:
                 uv = torch.rand(b, self.points_per_patch, 2, device=code.device, dtype=code.dtype)
             else:
-                uv = self.grid.unsqueeze(0).expand(b, -1, -1)
-            outs.append(torch.tanh(patch(torch.cat([rep, uv], dim=-1))))
+                uv = self.grid.unsqueeze(0)
+            outs.append(torch.tanh(patch.forward_concat([code, uv])).expand(b, -1, -1))
         return {"points": torch.cat(outs, dim=1)}
 
     def loss(self, outputs, batch, progress: float = 1.0):

@@ -39,15 +39,50 @@ class MLP(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """(..., C_in) -> (..., C_out)."""
         shape = x.shape[:-1]
-        x = x.reshape(-1, x.shape[-1])
+        return self._from_layer(x.reshape(-1, x.shape[-1]), 0).reshape(*shape, -1)
+
+    def forward_concat(self, parts: Sequence[torch.Tensor]) -> torch.Tensor:
+        """The MLP on ``torch.cat(parts, dim=-1)`` (parts broadcast), without building the concatenation.
+
+        ``parts``: tensors (B or 1, K or 1, C_i) whose channel counts sum to C_in, in the
+        order of the concatenation. The first Linear is applied part by part to the
+        unexpanded tensors, ``W @ [a; b] = W_a @ a + W_b @ b``, and the results are
+        broadcast-added: a per-shape code (B, 1, 1024) replicated on K points costs one
+        matrix product per shape instead of K. Same function and parameters as
+        ``forward(torch.cat(expanded parts))`` (up to float rounding; tested);
+        returns (B, K, C_out).
+        """
+        lin = self.linears[0]
+        sizes = [int(p.shape[-1]) for p in parts]
+        if sum(sizes) != lin.in_features:
+            raise ValueError(f"parts have {sum(sizes)} channels in all, the first layer takes {lin.in_features}")
+        x = None
+        start = 0
+        for p, c in zip(parts, sizes):
+            y = torch.nn.functional.linear(p, lin.weight[:, start:start + c])
+            x = y if x is None else x + y
+            start += c
+        x = x + lin.bias
+        shape = x.shape[:-1]
+        return self._from_layer(x.reshape(-1, x.shape[-1]), 1, first_done=True).reshape(*shape, -1)
+
+    def _from_layer(self, x: torch.Tensor, start: int, first_done: bool = False) -> torch.Tensor:
+        """Run layers ``start..`` on (R, C) rows; ``first_done``: ``x`` is layer ``start - 1``'s
+        pre-activation (normalise and activate it first)."""
         last = len(self.linears) - 1
-        for j, lin in enumerate(self.linears):
-            x = lin(x)
+        if first_done:
+            j = start - 1
             if j < last:
                 if self.norms is not None:
                     x = self.norms[j](x)
                 x = torch.relu(x)
-        return x.reshape(*shape, x.shape[-1])
+        for j in range(start, last + 1):
+            x = self.linears[j](x)
+            if j < last:
+                if self.norms is not None:
+                    x = self.norms[j](x)
+                x = torch.relu(x)
+        return x
 
 
 class PCNEncoder(nn.Module):

@@ -42,12 +42,10 @@ class FoldingNet(CompletionModel):
         self.register_buffer("grid", regular_grid(rows, cols, h, h * (cols - 1) / max(rows - 1, 1)), persistent=False)
 
     def forward(self, partial: torch.Tensor) -> dict[str, torch.Tensor]:
-        code = self.encoder(partial)
+        code = self.encoder(partial).unsqueeze(1)  # (B, 1, code): replicated by broadcasting
         b = code.shape[0]
-        rep = code.unsqueeze(1).expand(-1, self.n_points, -1)
-        grid = self.grid.unsqueeze(0).expand(b, -1, -1)
-        f1 = self.fold1(torch.cat([rep, grid], dim=-1))
-        f2 = self.fold2(torch.cat([rep, f1], dim=-1))
+        f1 = self.fold1.forward_concat([code, self.grid.unsqueeze(0)]).expand(b, -1, -1)
+        f2 = self.fold2.forward_concat([code, f1])
         return {"fold1": f1, "points": f2}
 
     def loss(self, outputs, batch, progress: float = 1.0):

@@ -55,10 +55,10 @@ class PCN(CompletionModel):
         b = code.shape[0]
         coarse = self.coarse_mlp(code).reshape(b, self.num_coarse, 3)
         g2 = self.grid_size**2
-        grid_feat = self.grid.repeat(self.num_coarse, 1).unsqueeze(0).expand(b, -1, -1)  # (B, C*g2, 2)
+        grid_feat = self.grid.repeat(self.num_coarse, 1).unsqueeze(0)  # (1, C*g2, 2)
         point_feat = coarse.repeat_interleave(g2, dim=1)  # (B, C*g2, 3)
-        global_feat = code.unsqueeze(1).expand(-1, self.n_points, -1)  # (B, C*g2, code)
-        fine = self.folding(torch.cat([grid_feat, point_feat, global_feat], dim=-1)) + point_feat
+        global_feat = code.unsqueeze(1)  # (B, 1, code), replicated by broadcasting
+        fine = self.folding.forward_concat([grid_feat, point_feat, global_feat]) + point_feat
         return {"coarse": coarse, "points": fine}
 
     def alpha(self, progress: float) -> float:

@@ -59,8 +59,8 @@ class TopNet(CompletionModel):
         nodes = torch.tanh(self.root(code)).reshape(b, self.degrees[0], self.nfeat)
         for i, level in enumerate(self.levels, start=1):
             nout = 3 if i == len(self.degrees) - 1 else self.nfeat
-            x = torch.cat([nodes, code.unsqueeze(1).expand(-1, nodes.shape[1], -1)], dim=-1)
-            nodes = torch.tanh(level(x)).reshape(b, nodes.shape[1] * self.degrees[i], nout)
+            x = level.forward_concat([nodes, code.unsqueeze(1)])
+            nodes = torch.tanh(x).reshape(b, nodes.shape[1] * self.degrees[i], nout)
         return {"points": nodes}
 
     def loss(self, outputs, batch, progress: float = 1.0):
