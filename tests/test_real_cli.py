@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from helpers import LIDAR, assert_user_error, need, run_cli
+from learning_fixtures import tiny_dataset_path
 from spotlights.cli import main
 
 
@@ -80,6 +81,17 @@ def test_cli_extract_evaluate_show(tmp_path, capsys, fake_learning):
     assert main(["real", "evaluate", str(out), "--checkpoint", fake_learning[0], "--out", str(prefix), "-q", "--clip", "0.2"]) == 0
     assert clips[-1] == 0.2
     capsys.readouterr()
+    # --reference: the minimal matching distance against a completion dataset's cars
+    ref = tiny_dataset_path(tmp_path / "ds")
+    assert main(["real", "evaluate", str(out), "-c", fake_learning[0], "--out", str(prefix), "-q", "--reference", str(ref),
+                 "--reference-split", "train"]) == 0
+    rep = json.loads((tmp_path / "rep.json").read_text())
+    assert rep["models"][0]["average"]["mmd"] > 0 and rep["data"]["mmd_reference"]["file"] == str(ref)
+    assert rep["data"]["mmd_reference"]["split"] == "train" and "MMD reference" in (tmp_path / "rep.md").read_text()
+    capsys.readouterr()
+    assert main(["real", "evaluate", str(out), "-c", fake_learning[0], "--reference", str(tmp_path / "nope.h5")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "nope.h5" in err and len(err.splitlines()) == 1
 
     png = tmp_path / "pic.png"
     assert main(["real", "show", str(out), "--checkpoint", fake_learning[0], "--frame", "f1", "--out", str(png)]) == 0

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
 
-from spotlights.data.consistency import aggregate, chamfer, consecutive_pairs, nn_distances, track_consistency
+from spotlights.data.consistency import (aggregate, chamfer, consecutive_pairs, fidelity, minimal_matching_distance,
+                                         nn_distances, track_consistency)
 from spotlights.data.real import open_reader
 from spotlights.data.real.evaluate import evaluate_consistency, write_report
 from spotlights.data.real.extract import ExtractConfig, extract
@@ -149,3 +150,55 @@ def test_evaluate_needs_tracks(tmp_path):
     single = _stack(rows, 256, obs.meta)
     with pytest.raises(InputFileError, match="no object is observed in two or more frames"):
         evaluate_consistency(single, [Identity()], progress=False)
+
+
+def test_fidelity_against_brute_force_and_closed_form():
+    rng = np.random.default_rng(3)
+    base = rng.normal(size=(60, 3))
+    partial = np.concatenate([base, base[:20]])  # resampling repeats: counted once
+    comp = rng.normal(size=(400, 3)) * 1.2
+    want = cdist(base, comp).min(axis=1).mean()
+    assert fidelity(partial, comp) == pytest.approx(want, rel=1e-12)
+    assert fidelity(base, np.concatenate([comp, base])) == 0.0  # the completion keeps every observed point
+    # Closed form: observed points on the unit sphere, completion = the same directions at radius 1.25
+    dirs = base / np.linalg.norm(base, axis=1, keepdims=True)
+    assert fidelity(dirs, 1.25 * dirs) == pytest.approx(0.25, abs=1e-12)
+    assert math.isnan(fidelity(base, np.zeros((0, 3))))
+
+
+def test_minimal_matching_distance_against_brute_force():
+    rng = np.random.default_rng(4)
+    refs = [rng.normal(size=(int(rng.integers(50, 200)), 3)) * s + o
+            for s, o in zip(rng.uniform(0.5, 2, 12), rng.normal(size=(12, 3)))]
+    for trial in range(5):
+        comp = refs[(3 * trial + 5) % 12][rng.permutation(40)] + rng.normal(scale=0.05, size=(40, 3))
+        cds = []
+        for r in refs:
+            d = cdist(comp, r)
+            cds.append(d.min(axis=1).mean() + d.min(axis=0).mean())
+        got, idx = minimal_matching_distance(comp, refs)
+        assert idx == int(np.argmin(cds)) and got == pytest.approx(min(cds), rel=1e-12)
+    assert minimal_matching_distance(np.zeros((0, 3)), refs) == (pytest.approx(float("nan"), nan_ok=True), -1)
+    with pytest.raises(ValueError, match="at least one reference"):
+        minimal_matching_distance(comp, [])
+
+
+def test_evaluate_reports_fidelity_and_mmd(tmp_path):
+    obs = tracked_scene(tmp_path)
+    ell = Ellipsoid()
+    refs = [ell.points.astype(np.float64), ell.points * 0.5]
+    report = evaluate_consistency(obs, [Identity(), ell], progress=False, references=refs,
+                                  reference_info={"file": "refs", "split": "all", "n_shapes": 2, "points_per_shape": 512})
+    ident, e = report["models"]
+    assert ident["average"]["fidelity"] == pytest.approx(0.0, abs=1e-12)  # the completion is the input
+    # The fixed ellipsoid: brute-force fidelity per observation -> mean per track -> class -> average
+    rows = {tid: [i for i, t in enumerate(obs.track_id) if t == tid] for tid in ("a", "v")}
+    per_track = {tid: np.mean([cdist(np.unique(obs.partial[i].astype(np.float64), axis=0), ell.points).min(axis=1).mean()
+                               for i in r]) for tid, r in rows.items()}
+    assert e["classes"]["car"]["fidelity"] == pytest.approx(per_track["a"], rel=1e-6)
+    assert e["average"]["fidelity"] == pytest.approx((per_track["a"] + per_track["v"]) / 2, rel=1e-6)
+    assert e["average"]["mmd"] == pytest.approx(0.0, abs=1e-12)  # it is reference 0
+    assert ident["average"]["mmd"] > 0.05
+    text = write_report(report, tmp_path / "rep")[0].read_text()
+    assert "| Model | CD (consistency) | Fidelity | Fidelity (m) | MMD |" in text
+    assert "MMD reference: 2 complete shapes" in text

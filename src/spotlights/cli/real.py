@@ -57,6 +57,11 @@ def register(sub) -> None:
     p.add_argument("--batch-size", type=positive_int, default=64, help="completion batch size (default 64)")
     p.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="depth clip passed to the models (default: each model's own)")
     p.add_argument("--device", default=None, help="torch device for the models (default: the loader's choice)")
+    p.add_argument("--reference", default=None, metavar="DATASET.h5",
+                   help="completion dataset whose ground-truth cars are the reference set of the minimal matching "
+                        "distance (MMD) reported beside consistency and fidelity (default: no MMD)")
+    p.add_argument("--reference-split", default=None, choices=["train", "val", "test"],
+                   help="use only this split of --reference (default: every model)")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
 
     p = add_command(rs, "show", "draw one scan: raw points (grey), partial inputs (purple), completions (green), in the sensor frame",
@@ -138,12 +143,18 @@ def _evaluate(args) -> int:
     from ..data.real.extract import read_observations
 
     obs = read_observations(args.file)  # validate before loading models
+    refs, ref_info = (None, None)
+    if args.reference:
+        from ..data.real.evaluate import reference_shapes
+
+        refs, ref_info = reference_shapes(args.reference, args.reference_split)
     completers = _load_completers(args.checkpoint, args.device)
     names = [c.model_name for c in completers]
     dup = {n for n in names if names.count(n) > 1}
     names = [f"{n} ({Path(p).stem})" if n in dup else n for n, p in zip(names, args.checkpoint)]
     report = evaluate_consistency(obs, completers, names=names, checkpoints=args.checkpoint,
-                                  batch_size=args.batch_size, progress=not args.quiet, clip=args.clip)
+                                  batch_size=args.batch_size, progress=not args.quiet, clip=args.clip,
+                                  references=refs, reference_info=ref_info)
     report["data"]["file"] = str(args.file)
     prefix = args.out or str(Path(args.file).with_suffix("")) + "_consistency"
     md, js = write_report(report, prefix)

@@ -30,6 +30,22 @@ over its pairs; a class's value the mean over its tracks; ``average`` is the
 mean over the classes that have at least one track (the paper's "Average"
 column is the mean of its four class columns); ``all_objects`` is the mean
 over every track regardless of class.
+
+Consistency alone rewards a model that ignores its input (the same shape for
+every scan scores 0), so two per-observation scores of PCN's real-data
+evaluation are reported beside it, aggregated the same way (observation ->
+mean per track -> per class -> average):
+
+- ``fidelity``: one-sided, mean over the *observed* points (the partial input,
+  duplicates from resampling removed) of the unsquared distance to the nearest
+  point of the completion, in the observation's unit frame (box half-diagonal
+  units; ``fidelity_m`` in metres). How much of what the LiDAR saw the
+  completion keeps; a collapsed model scores badly.
+- ``mmd`` (minimal matching distance, optional): the headline Chamfer (``cd``,
+  two-sided, unsquared, sum of the two means) between the completion and the
+  *nearest* shape of a reference set of complete cars (unit frame: the
+  synthetic dataset's ground-truth points, normalised like the observation).
+  Whether the completion looks like some car.
 """
 
 from __future__ import annotations
@@ -48,6 +64,15 @@ METRIC_DOC = {
     "d_ab": "one-sided: mean over the earlier completion's points of the distance to the nearest point of the later one",
     "d_ba": "one-sided: mean over the later completion's points of the distance to the nearest point of the earlier one",
     "cd_l2": "mean squared NN distance earlier->later + later->earlier (squared-distance Chamfer)",
+}
+
+
+OBSERVATION_METRICS = ("fidelity", "mmd")
+OBSERVATION_METRIC_DOC = {
+    "fidelity": "one-sided: mean over the observed (partial input) points of the unsquared distance to the nearest "
+                "completion point, unit frame of the observation (box half-diagonal units); lower = keeps the input",
+    "mmd": "minimal matching distance: min over the reference cars of the two-sided unsquared Chamfer (d_ab + d_ba) "
+           "between the completion and the reference car, unit frame; lower = closer to some complete car",
 }
 
 
@@ -72,6 +97,46 @@ def chamfer(a: np.ndarray, b: np.ndarray) -> dict[str, float]:
         "d_ba": m_ba,
         "cd_l2": float(np.mean(dab * dab) + np.mean(dba * dba)),
     }
+
+
+def fidelity(partial: np.ndarray, completion: np.ndarray) -> float:
+    """PCN's fidelity: mean over the distinct points of ``partial`` (P, 3) of the distance to the nearest point of
+    ``completion`` (K, 3); unsquared, one-sided, same frame and units as the inputs. NaN when K = 0."""
+    p = np.unique(np.asarray(partial, dtype=np.float64).reshape(-1, 3), axis=0)
+    c = np.asarray(completion, dtype=np.float64).reshape(-1, 3)
+    if len(c) == 0 or len(p) == 0:
+        return float("nan")
+    return float(nn_distances(p, c).mean())
+
+
+def minimal_matching_distance(completion: np.ndarray, references) -> tuple[float, int]:
+    """Smallest two-sided Chamfer ``cd`` (unsquared, sum of the two means) between ``completion`` (K, 3)
+    and any of ``references`` (R arrays (L_r, 3), or prebuilt
+    :class:`~spotlights.geometry.neighbors.NearestNeighbors`, same frame); returns (distance, index of the nearest
+    reference). (NaN, -1) when the completion is empty.
+
+    The exact minimum is found with a lower bound: ``d(c, ref)`` >= the one-sided mean from the
+    completion alone, so references are visited in increasing order of that bound and the search
+    stops when the bound exceeds the best distance so far.
+    """
+    from ..geometry.neighbors import NearestNeighbors
+
+    c = np.asarray(completion, dtype=np.float64).reshape(-1, 3)
+    if len(c) == 0:
+        return float("nan"), -1
+    trees = [r if isinstance(r, NearestNeighbors) else NearestNeighbors(np.asarray(r, dtype=np.float64)) for r in references]
+    if not trees:
+        raise ValueError("the minimal matching distance needs at least one reference shape")
+    lower = np.array([float(t.query(c)[0].mean()) for t in trees])  # one side of each Chamfer
+    best, arg = float("inf"), -1
+    ctree = NearestNeighbors(c)
+    for r in np.argsort(lower, kind="stable"):
+        if lower[r] >= best:
+            break
+        other = float(ctree.query(trees[r].points)[0].mean())
+        if lower[r] + other < best:
+            best, arg = float(lower[r] + other), int(r)
+    return best, arg
 
 
 def consecutive_pairs(object_keys, timestamps) -> list[tuple[int, int]]:
@@ -104,7 +169,8 @@ class TrackResult:
     values: dict  # metric -> mean (track-normalised unit frame), metric + "_m" -> metres
 
 
-def track_consistency(completions, object_keys, timestamps, classes, radii) -> list[TrackResult]:
+def track_consistency(completions, object_keys, timestamps, classes, radii,
+                      per_observation: dict | None = None) -> list[TrackResult]:
     """Per-track consistency.
 
     Parameters
@@ -115,9 +181,13 @@ def track_consistency(completions, object_keys, timestamps, classes, radii) -> l
     classes : n class names (a track's class is that of its first observation).
     radii : (n,) float, R_i = half the box diagonal of observation i, metres.
 
+    per_observation : optional {name: (n,) float} per-observation scores (e.g. ``fidelity``,
+        ``mmd``); each track gets the mean over its observations (NaN ones left out).
+
     Pairs with an empty completion are not scored and counted in ``n_pairs_empty``;
     a track whose every pair is empty is returned with NaN values.
     """
+    per_observation = {k: np.asarray(v, dtype=np.float64) for k, v in (per_observation or {}).items()}
     radii = np.asarray(radii, dtype=np.float64)
     pairs = consecutive_pairs(object_keys, timestamps)
     by_track: dict = defaultdict(list)
@@ -144,6 +214,9 @@ def track_consistency(completions, object_keys, timestamps, classes, radii) -> l
                 vals[m].append(c[m] / scale)
                 vals[m + "_m"].append(c[m])
         values = {m: (float(np.mean(vals[m])) if vals[m] else float("nan")) for m in [*METRICS, *(x + "_m" for x in METRICS)]}
+        for name, v in per_observation.items():
+            finite = v[rows][np.isfinite(v[rows])]
+            values[name] = float(finite.mean()) if finite.size else float("nan")
         out.append(TrackResult(key, str(classes[rows[0]]), len(rows), len(plist), empty, values))
     return out
 
@@ -156,6 +229,7 @@ def aggregate(tracks: list[TrackResult], classes=None) -> dict:
     of the means and counted in ``n_objects_unscored``.
     """
     keys = [*METRICS, *(x + "_m" for x in METRICS)]
+    keys += sorted({k for t in tracks for k in t.values} - set(keys))  # per-observation scores
     names = list(classes) if classes is not None else sorted({t.cls for t in tracks})
     res: dict = {"classes": {}}
     class_means = []
@@ -164,15 +238,22 @@ def aggregate(tracks: list[TrackResult], classes=None) -> dict:
         scored = [t for t in ts if np.isfinite(t.values["cd"])]
         entry = {"n_objects": len(scored), "n_objects_unscored": len(ts) - len(scored), "n_pairs": sum(t.n_pairs - t.n_pairs_empty for t in ts)}
         for k in keys:
-            entry[k] = float(np.mean([t.values[k] for t in scored])) if scored else None
+            entry[k] = _mean([t.values.get(k, np.nan) for t in scored])
         res["classes"][c] = entry
         if scored:
             class_means.append(entry)
     res["average"] = {"n_classes": len(class_means)}
     for k in keys:
-        res["average"][k] = float(np.mean([e[k] for e in class_means])) if class_means else None
+        res["average"][k] = _mean([np.nan if e[k] is None else e[k] for e in class_means])
     scored = [t for t in tracks if np.isfinite(t.values["cd"])]
     res["all_objects"] = {"n_objects": len(scored), "n_pairs": sum(t.n_pairs - t.n_pairs_empty for t in tracks)}
     for k in keys:
-        res["all_objects"][k] = float(np.mean([t.values[k] for t in scored])) if scored else None
+        res["all_objects"][k] = _mean([t.values.get(k, np.nan) for t in scored])
     return res
+
+
+def _mean(values) -> float | None:
+    """Mean of the finite values, None when there is none."""
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    return float(v.mean()) if v.size else None

@@ -69,6 +69,21 @@ class NearestNeighbors:
         return self.query(queries)[0]
 
 
+def serial_queries():
+    """Context manager: KD-tree queries run on one thread inside it.
+
+    pykdtree splits every query over OpenMP threads; for the many small queries of a
+    metric loop (a few thousand points each) that split costs more than it saves, and on a
+    machine whose cores are busy (a training run beside it) each call can become ten times
+    slower (measured: 1.2 s instead of 0.13 s per minimal-matching search). Limits every
+    OpenMP pool of the process (threadpoolctl) for the duration; use it around loops of
+    small queries, not around torch work.
+    """
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(limits=1, user_api="openmp")
+
+
 def nearest_distances(source: np.ndarray, target: np.ndarray) -> np.ndarray:
     """(K,) float64 unsquared distance from each ``source`` point (K, 3) to its nearest ``target`` point (L, 3)."""
     return NearestNeighbors(target).distances(source)

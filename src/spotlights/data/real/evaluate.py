@@ -21,7 +21,9 @@ from typing import Sequence
 import numpy as np
 
 from ...errors import InputFileError, SpotlightsError
-from ..consistency import METRIC_DOC, aggregate, consecutive_pairs, track_consistency
+from ...geometry.neighbors import serial_queries
+from ..consistency import (METRIC_DOC, OBSERVATION_METRIC_DOC, aggregate, consecutive_pairs, fidelity,
+                           minimal_matching_distance, track_consistency)
 from .base import CLASSES
 from .extract import Observations, read_observations
 
@@ -71,6 +73,23 @@ def tracked_rows(obs: Observations) -> np.ndarray:
     return np.array(sorted({i for p in pairs for i in p}), dtype=np.int64)
 
 
+def reference_shapes(dataset: str | os.PathLike, split: str | None = None) -> tuple[list[np.ndarray], dict]:
+    """Complete reference cars for the minimal matching distance, from a completion dataset.
+
+    Returns the ground-truth surface points (``/models/gt_points``: R arrays (2048, 3) float32, each in
+    its model's unit frame, the frame of a real observation's completion) of every model, or of the
+    models of ``split`` ("train", "val", "test"), and a description dict (file, split, count).
+    """
+    from ..store import open_dataset
+
+    with open_dataset(dataset) as ds:
+        models = ds.split_models(split) if split else np.arange(ds.n_models)
+        shapes = [np.array(ds.ground_truth(int(m))["gt_points"]) for m in models]
+    if not shapes:
+        raise InputFileError(str(dataset), f"no reference model in split {split!r}")
+    return shapes, {"file": str(dataset), "split": split or "all", "n_shapes": len(shapes), "points_per_shape": int(len(shapes[0]))}
+
+
 def evaluate_consistency(
     source: str | os.PathLike | Observations,
     completers: Sequence,
@@ -79,6 +98,8 @@ def evaluate_consistency(
     batch_size: int = 64,
     progress: bool = True,
     clip: float | None = None,
+    references: Sequence[np.ndarray] | None = None,
+    reference_info: dict | None = None,
 ) -> dict:
     """Consistency of each completer on the tracked objects of an observation file.
 
@@ -89,6 +110,9 @@ def evaluate_consistency(
     names : row names in the report (default: each completer's ``model_name``).
     checkpoints : checkpoint paths to record in the report (optional).
     clip : passed to ``complete`` when given (SA-Net's depth clip); None = each model's default.
+    references : optional complete shapes (R arrays (L, 3), unit frame; see :func:`reference_shapes`)
+        for the minimal matching distance ``mmd``; without them only ``fidelity`` is added.
+    reference_info : description of ``references`` recorded in the report.
 
     Returns
     -------
@@ -123,11 +147,22 @@ def evaluate_consistency(
     sub_cls = [obs.cls[i] for i in rows]
     radii = 0.5 * np.linalg.norm(obs.box_size[rows], axis=1)
     classes_present = [c for c in CLASSES if c in set(sub_cls)]
+    ref_trees = None
+    if references is not None:
+        from ...geometry.neighbors import NearestNeighbors
+
+        ref_trees = [NearestNeighbors(np.asarray(r, dtype=np.float64)) for r in references]
     models = []
     for k, completer in enumerate(completers):
         comps = complete_all(completer, obs.partial[rows], batch_size=batch_size, progress=progress, desc=f"complete {names[k]}",
                              clip=clip, box_sizes=obs.box_size[rows])
-        tracks = track_consistency(comps, sub_keys, sub_ts, sub_cls, radii)
+        partials = obs.partial[rows]
+        with serial_queries():  # many small KD-tree queries
+            per_obs = {"fidelity": np.array([fidelity(p, c) for p, c in zip(partials, comps)])}
+            if ref_trees:
+                per_obs["mmd"] = np.array([minimal_matching_distance(c, ref_trees)[0] for c in comps])
+            per_obs["fidelity_m"] = per_obs["fidelity"] * radii
+            tracks = track_consistency(comps, sub_keys, sub_ts, sub_cls, radii, per_observation=per_obs)
         agg = aggregate(tracks, classes=classes_present)
         models.append(
             dict(
@@ -158,12 +193,13 @@ def evaluate_consistency(
             extraction=obs.meta.get("config"),
             clip=clip,
             skipped=obs.meta.get("skipped"),
+            mmd_reference=reference_info if references is not None else None,
         ),
         metrics=dict(
             headline="cd",
             frame="object frame divided by the track's mean box radius (half diagonal); '_m' keys in metres",
             aggregation="pair -> mean per tracked object -> mean per class; average = mean over classes present; all_objects = mean over objects",
-            definitions=METRIC_DOC,
+            definitions={**METRIC_DOC, **OBSERVATION_METRIC_DOC},
         ),
         models=models,
     )
@@ -206,6 +242,25 @@ def report_markdown(report: dict) -> str:
             f"{_fmt(a['d_ab'])} ({_fmt(o['d_ab'])}) | {_fmt(a['d_ba'])} ({_fmt(o['d_ba'])}) | "
             f"{_fmt(a['cd_l2'], 5)} ({_fmt(o['cd_l2'], 5)}) | {m['mean_points_per_completion']:.0f} |"
         )
+    has_mmd = any(m["average"].get("mmd") is not None for m in report["models"])
+    lines += ["", "## Consistency beside fidelity" + (" and minimal matching distance" if has_mmd else ""), ""]
+    lines.append("Consistency alone rewards a model that gives every scan the same shape; fidelity (does the completion "
+                 "keep the observed points?)" + (" and MMD (is it close to some complete car?)" if has_mmd else "")
+                 + " tell such a model apart. Average over classes; All objects in brackets; lower is better.")
+    lines.append("")
+    head = "| Model | CD (consistency) | Fidelity | Fidelity (m) |" + (" MMD |" if has_mmd else "")
+    lines += [head, "|---|---|---|---|" + ("---|" if has_mmd else "")]
+    for m in report["models"]:
+        a, o = m["average"], m["all_objects"]
+        row = (f"| {m['name']} | {_fmt(a['cd'])} ({_fmt(o['cd'])}) | {_fmt(a.get('fidelity'))} ({_fmt(o.get('fidelity'))}) | "
+               f"{_fmt(a.get('fidelity_m'))} ({_fmt(o.get('fidelity_m'))}) |")
+        if has_mmd:
+            row += f" {_fmt(a.get('mmd'))} ({_fmt(o.get('mmd'))}) |"
+        lines.append(row)
+    ref = d.get("mmd_reference")
+    if ref:
+        lines += ["", f"MMD reference: {ref['n_shapes']} complete shapes ({ref['points_per_shape']} points each) of "
+                      f"`{ref['file']}` (split {ref['split']}), unit frame."]
     lines += ["", "Definitions (A = earlier frame's completion, B = later frame's):", ""]
     for k, v in report["metrics"]["definitions"].items():
         lines.append(f"- `{k}`: {v}")
