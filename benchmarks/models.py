@@ -10,7 +10,10 @@ shared and noisy: compare ratios, not absolute numbers):
   (the GPU path), and autograd through ``torch.cdist`` + ``amin`` (the reference);
 * one training step (forward, loss, backward, Adam) of every model at batch 32,
   median over a few steps, from which the per-epoch time of a CPU schedule is
-  estimated (``--train-models`` models x ``--views`` views per epoch).
+  estimated (``--train-models`` models x ``--views`` views per epoch); the four
+  baselines are also timed with the code concatenated to every point as in the
+  original papers (``MLP.materialise_concat``; same function) beside our broadcast
+  form, round-robin in the same run.
 
 Usage: ``python benchmarks/models.py [--threads 2] [--json docs/results/bench_models.json]``
 """
@@ -59,6 +62,8 @@ def train_step_timing(batch: int = 32, steps: int = 3) -> dict:
         "gt_points": (torch.rand(batch, 2048, 3, generator=g) * 2 - 1) * 0.57,
         "depths": torch.rand(batch, rig.n_rays, generator=g) * 0.6,
     }
+    from spotlights.learning.models.base import MLP
+
     steps_fn = {}
     for name in MODEL_NAMES:
         torch.manual_seed(0)
@@ -74,7 +79,17 @@ def train_step_timing(batch: int = 32, steps: int = 3) -> dict:
 
         steps_fn[name] = step
         step()  # warm-up
-    times = {name: [] for name in MODEL_NAMES}
+        if name != "sanet":
+            def concat_step(step=step):
+                MLP.materialise_concat = True
+                try:
+                    step()
+                finally:
+                    MLP.materialise_concat = False
+
+            steps_fn[f"{name} (concatenation)"] = concat_step
+            concat_step()  # warm-up
+    times = {name: [] for name in steps_fn}
     for _ in range(steps):  # round-robin, as in bench_models
         for name, fn in steps_fn.items():
             t0 = time.perf_counter()
@@ -108,12 +123,17 @@ def main() -> None:
         s = v["seconds_per_step"]
         est = {vw: s * args.train_models * vw / 32 / 60 for vw in args.views}
         v["epoch_minutes"] = {str(k): m for k, m in est.items()}
-        print(f"  {name:10s} {s * 1e3:8.0f} ms/step  " +
+        print(f"  {name:24s} {s * 1e3:8.0f} ms/step  " +
               "  ".join(f"{args.train_models}x{vw} views: {m:6.1f} min/epoch" for vw, m in est.items()))
+    ratios = {n: tr[f"{n} (concatenation)"]["seconds_per_step"] / tr[n]["seconds_per_step"]
+              for n in MODEL_NAMES if f"{n} (concatenation)" in tr}
+    print("Training step, concatenated code / broadcast code (same run): "
+          + ", ".join(f"{n} {r:.2f}x" for n, r in ratios.items()))
     result = {
         "machine": {"cpu": cpu_name(), "cores": os.cpu_count(), "threads": args.threads,
                     "torch": torch.__version__, "load_average_at_start": load0, "load_average_at_end": os.getloadavg()[0]},
         "inference": inf, "chamfer_batch32_2048": ch, "train_step_batch32": tr,
+        "train_step_concat_over_broadcast": ratios,
         "train_models": args.train_models, "wall_seconds": time.time() - t0,
     }
     if args.json:

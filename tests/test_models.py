@@ -276,6 +276,23 @@ def test_broadcast_decoders_match_the_naive_concatenation(name, train_mode):
                 torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5 * scale)
 
 
+def test_materialised_concatenation_switch_gives_the_same_outputs():
+    """The benchmarks' switch to the original form (MLP.materialise_concat) changes only the speed."""
+    from spotlights.learning.models.base import MLP
+
+    torch.manual_seed(1)
+    model = build_model(load_config("foldingnet", overrides={"model": {"args": TINY_MODEL_ARGS["foldingnet"]}})).eval()
+    x = torch.rand(2, 30, 3)
+    with torch.no_grad():
+        a = model(x)["points"]
+        MLP.materialise_concat = True
+        try:
+            b = model(x)["points"]
+        finally:
+            MLP.materialise_concat = False
+    torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-5)
+
+
 def test_forward_concat_rejects_a_channel_mismatch():
     from spotlights.learning.models.base import MLP
 

@@ -80,7 +80,8 @@ def test_synthetic_scan_round_trip(tmp_path):
     np.testing.assert_allclose(obs.box_size[0], SIZE)
     assert obs.box_yaw[0] == pytest.approx(YAW)
     assert np.all(np.isnan(obs.sensor_to_world[0]))
-    assert obs.meta["skipped"] == {"class_excluded": 1, "invalid_box": 1, "empty_box": 1, "too_few_points": 1}
+    assert obs.meta["skipped"] == {"class_excluded": 1, "invalid_box": 1, "empty_box": 1, "too_few_points": 1,
+                                   "duplicate_box": 0}
     assert obs.meta["skipped_labels"] == {"Pedestrian": 1}
     assert obs.meta["n_boxes"] == 5
 
@@ -154,3 +155,19 @@ def test_read_observations_rejects_other_files(tmp_path):
         read_observations(tmp_path / "y.h5")
     with pytest.raises(InputFileError, match="file not found"):
         read_observations(tmp_path / "none.h5")
+
+
+def test_duplicate_annotations_are_scored_once(tmp_path):
+    """The same car annotated twice (two track ids, one box) gives one observation, the same track in every frame."""
+    make_scene(tmp_path)
+    boxes = json.loads((tmp_path / "scan.json").read_text())
+    twin = dict(boxes[0], track_id="0-twin")  # sorts before "a": the kept copy
+    near = dict(boxes[0], center=(CENTER + [0.2, 0, 0]).tolist(), track_id="n")  # 0.2 m away: another box
+    (tmp_path / "scan.json").write_text(json.dumps([boxes[0], twin, near]))
+    obs = extract(open_reader(tmp_path / "scan.npy", "generic"), ExtractConfig(), progress=False)
+    assert sorted(obs.track_id) == ["0-twin", "n"]
+    assert obs.meta["skipped"]["duplicate_box"] == 1
+    # order of the annotations does not change which copy is kept
+    (tmp_path / "scan.json").write_text(json.dumps([twin, near, boxes[0]]))
+    obs = extract(open_reader(tmp_path / "scan.npy", "generic"), ExtractConfig(), progress=False)
+    assert sorted(obs.track_id) == ["0-twin", "n"] and obs.meta["skipped"]["duplicate_box"] == 1

@@ -485,6 +485,13 @@ def _run_real(ctx: Context, name: str) -> dict:
     return {"observations": len(obs), "frames": int(obs.meta["n_frames"])}
 
 
+def _skip_reasons() -> list[str]:
+    """The extraction's skip reasons: a new one (e.g. duplicate_box) changes what is extracted, so it re-runs the step."""
+    from ..data.real.extract import SKIP_REASONS
+
+    return list(SKIP_REASONS)
+
+
 def _consistency_command(ctx: Context) -> str:
     ck = " ".join(_q(ctx.run_dir(r) / "best.pt") for r in TABLE1_RUNS)
     return (f"spotlights real evaluate {_q(ctx.out / 'data' / 'av2.h5')} --checkpoint {ck} --out {_q(ctx.out / 'eval' / 'av2_consistency')} "
@@ -810,7 +817,8 @@ def all_steps(ctx: Context) -> dict:
                           params=lambda c: {"eval_views": c.s.eval_views, "quick": c.s.quick}))
     for name in REAL_SOURCES:
         steps.append(Step(f"real-{name}", (lambda c, n=name: _run_real(c, n)), (lambda c, n=name: _real_command(c, n)),
-                          (lambda c, n=name: [c.out / "data" / f"{n}.h5"]), params=lambda c: {"lidar": str(c.s.lidar)}))
+                          (lambda c, n=name: [c.out / "data" / f"{n}.h5"]),
+                          params=lambda c: {"lidar": str(c.s.lidar), "skip_reasons": _skip_reasons()}))
     steps.append(Step("consistency-av2", _run_consistency, _consistency_command,
                       lambda c: [c.out / "eval" / "av2_consistency.json"],
                       needs=("real-av2", "cars-data") + tuple(f"train-{r}" for r in TABLE1_RUNS),

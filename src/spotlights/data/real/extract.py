@@ -24,7 +24,10 @@ For every box of a vehicle class (:data:`~spotlights.data.real.base.CLASSES`):
 
 Skip reasons (counted, never silent): ``class_excluded`` (the label is not a
 vehicle of interest; also counted per source label), ``invalid_box``
-(non-finite or non-positive size), ``empty_box``, ``too_few_points``.
+(non-finite or non-positive size), ``empty_box``, ``too_few_points``,
+``duplicate_box`` (the same box annotated twice in one frame, see
+:data:`DUPLICATE_TOLERANCE_M`: the copy with the smallest (track id, box index) is
+kept, the same one in every frame, so that an object is scored once).
 """
 
 from __future__ import annotations
@@ -43,7 +46,11 @@ from .base import CLASSES, Box, Frame, SceneReader
 
 FILE_FORMAT = "spotlights-real-observations"
 FILE_FORMAT_VERSION = 1
-SKIP_REASONS = ("class_excluded", "invalid_box", "empty_box", "too_few_points")
+SKIP_REASONS = ("class_excluded", "invalid_box", "empty_box", "too_few_points", "duplicate_box")
+DUPLICATE_TOLERANCE_M = 0.05
+"""Two vehicle boxes of one frame whose centres and sizes agree within this (metres, per
+coordinate) and whose axes agree within 0.01 (rotation matrix entries) are one object
+annotated twice (the shared Argoverse 2 sweeps hold such a pair under two track ids)."""
 
 
 @dataclass(frozen=True)
@@ -146,6 +153,29 @@ def observation_seed(seed: int, sequence: str, frame_id: str, box_index: int) ->
     return np.random.default_rng([int(seed), key])
 
 
+def duplicate_boxes(boxes: list[Box], tol: float = DUPLICATE_TOLERANCE_M) -> set[int]:
+    """Indices of the boxes that repeat another box of the list (same centre, size and axes).
+
+    Among copies of one box the one with the smallest ``(track_id, index)`` is kept (not
+    returned), so that a doubly annotated object keeps the same track in every frame.
+    Vectorised over pairs: a frame holds at most a few hundred boxes.
+    """
+    n = len(boxes)
+    if n < 2:
+        return set()
+    c = np.array([b.center for b in boxes], dtype=np.float64)
+    z = np.array([b.size for b in boxes], dtype=np.float64)
+    r = np.array([b.rotation for b in boxes], dtype=np.float64).reshape(n, 9)
+    same = ((np.abs(c[:, None] - c[None]) <= tol).all(-1) & (np.abs(z[:, None] - z[None]) <= tol).all(-1)
+            & (np.abs(r[:, None] - r[None]) <= 0.01).all(-1))
+    order = sorted(range(n), key=lambda i: (str(boxes[i].track_id), i))
+    rank = np.empty(n, dtype=np.int64)
+    rank[order] = np.arange(n)
+    # a box is a duplicate when a box of smaller rank is the same box
+    dup = (same & (rank[None, :] < rank[:, None])).any(axis=1)
+    return set(np.flatnonzero(dup).tolist())
+
+
 def extract_frame(frame: Frame, config: ExtractConfig, skipped: Counter, skipped_labels: Counter) -> list[dict]:
     """Observations of one frame (a list of dicts, see :class:`Observations`); updates the skip counters."""
     from ...geometry.frames import normalization_from_box
@@ -154,6 +184,9 @@ def extract_frame(frame: Frame, config: ExtractConfig, skipped: Counter, skipped
     out = []
     pts = np.asarray(frame.points, dtype=np.float64)
     pose = frame.sensor_to_world if frame.sensor_to_world is not None else np.full((4, 4), np.nan)
+    wanted = [i for i, b in enumerate(frame.boxes) if b.cls is not None and b.cls in config.classes and b.is_valid()]
+    duplicates = duplicate_boxes([frame.boxes[i] for i in wanted])
+    duplicates = {wanted[j] for j in duplicates}
     for i, box in enumerate(frame.boxes):
         if box.cls is None or box.cls not in config.classes:
             skipped["class_excluded"] += 1
@@ -161,6 +194,9 @@ def extract_frame(frame: Frame, config: ExtractConfig, skipped: Counter, skipped
             continue
         if not box.is_valid():
             skipped["invalid_box"] += 1
+            continue
+        if i in duplicates:
+            skipped["duplicate_box"] += 1
             continue
         # Cheap pre-cut by distance before the exact test (scans have ~100k points).
         reach = box.radius + config.margin

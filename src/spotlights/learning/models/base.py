@@ -28,6 +28,10 @@ class MLP(nn.Module):
         leading axes flattened.
     """
 
+    materialise_concat: ClassVar[bool] = False
+    """Benchmarks only: when True, :meth:`forward_concat` builds the expanded concatenation
+    (the original papers' form) instead of broadcasting; same outputs, slower."""
+
     def __init__(self, sizes: Sequence[int], batch_norm: bool = False):
         super().__init__()
         sizes = [int(s) for s in sizes]
@@ -56,6 +60,9 @@ class MLP(nn.Module):
         sizes = [int(p.shape[-1]) for p in parts]
         if sum(sizes) != lin.in_features:
             raise ValueError(f"parts have {sum(sizes)} channels in all, the first layer takes {lin.in_features}")
+        if MLP.materialise_concat:
+            shape = torch.broadcast_shapes(*(p.shape[:-1] for p in parts))
+            return self.forward(torch.cat([p.expand(*shape, -1) for p in parts], dim=-1))
         x = None
         start = 0
         for p, c in zip(parts, sizes):
