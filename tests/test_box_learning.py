@@ -175,9 +175,25 @@ def test_add_rig_matches_a_build_and_is_atomic(built, meshes, tmp_path, capsys):
     r = cli(capsys, "dataset", "add-rig", c, "--rig", BOX, "--meshes", bad, "-q", "-j", "1")
     assert r.returncode == 2 and "block.ply" in r.stderr and "differs" in r.stderr
     assert hashlib.sha256(c.read_bytes()).hexdigest() == before
-    assert not list(tmp_path.glob(".c.h5.*"))
+    assert [p.name for p in tmp_path.glob(".c.h5.*")] == [".c.h5.lock"]  # no temporary copy left, only the lock
     r = cli(capsys, "dataset", "add-rig", c, "--rig", "box-32x64-bogus-s1")
     assert r.returncode == 2
+
+
+def test_add_rig_refuses_a_file_another_add_rig_is_rewriting(built, tmp_path, capsys):
+    import fcntl
+
+    _, without = built
+    a = tmp_path / "a.h5"
+    shutil.copy(without, a)
+    before = hashlib.sha256(a.read_bytes()).hexdigest()
+    with open(tmp_path / ".a.h5.lock", "w") as held:  # what a running add-rig holds
+        fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        r = cli(capsys, "dataset", "add-rig", a, "--rig", BOX, "-q", "-j", "1")
+    assert r.returncode == 2 and "another 'dataset add-rig' is rewriting this file" in r.stderr and str(a) in r.stderr
+    assert hashlib.sha256(a.read_bytes()).hexdigest() == before
+    r = cli(capsys, "dataset", "add-rig", tmp_path / "none.h5", "--rig", BOX)
+    assert r.returncode == 2 and not (tmp_path / ".none.h5.lock").exists()  # no lock file beside a missing file
 
 
 # ------------------------------------------------------------------------------------------

@@ -560,19 +560,21 @@ def _plan_units(n_models: int, views: int, block: int) -> list[tuple]:
 
 
 @contextlib.contextmanager
-def _lock(parts: Path):
-    """Exclusive lock on the parts folder, so that two builds never write the same shards."""
+def _lock(parts: Path, lock_file: Path | None = None, busy: str = "another build is writing this dataset right now"):
+    """Exclusive, non-blocking lock (``parts/.lock``, or ``lock_file``), so that two builds never
+    write the same shards and two ``add-rig`` runs never rewrite the same file; raises
+    SpotlightsError naming ``parts`` when another process holds it."""
     try:
         import fcntl
     except ImportError:  # pragma: no cover - not POSIX: no lock
         yield
         return
-    fh = open(parts / ".lock", "w")
+    fh = open(lock_file if lock_file is not None else parts / ".lock", "w")
     try:
         try:
             fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
-            raise SpotlightsError(f"{parts}: another build is writing this dataset right now") from None
+            raise SpotlightsError(f"{parts}: {busy}") from None
         yield
     finally:
         fh.close()
@@ -867,16 +869,29 @@ def add_rig(path: str | os.PathLike, rig: "str | Rig | RigSpec", meshes: str | o
     Returns
     -------
     :class:`AddRigReport` (``already_present`` when the file holds the identical rig already).
+
+    A second ``add_rig`` on the same file while one runs raises SpotlightsError (a lock file
+    ``.NAME.lock`` beside it), instead of silently losing one of the two rigs.
     """
+    from .store import open_dataset
+
+    path = Path(path)
+    rig = parse_rig(rig)
+    open_dataset(path).close()  # a missing or foreign file fails before a lock file is made beside it
+    # Two add-rig runs on one file would each copy it and rename their copy onto it: the last
+    # rename would drop the other's rig. A lock beside the file makes the second one fail.
+    with _lock(path, path.with_name(f".{path.name}.lock"), "another 'dataset add-rig' is rewriting this file right now"):
+        return _add_rig_locked(path, rig, meshes, workers, progress, log or _default_log)
+
+
+def _add_rig_locked(path: Path, rig, meshes, workers, progress, log) -> AddRigReport:
+    """:func:`add_rig` once the file's lock is held."""
     import h5py
     from tqdm import tqdm
 
     from .store import open_dataset, write_rig_group
 
-    log = log or _default_log
     t0 = time.perf_counter()
-    path = Path(path)
-    rig = parse_rig(rig)
     with open_dataset(path) as ds:
         cfg_dict = dict(ds.config)
         if rig.name in ds.rig_names:
