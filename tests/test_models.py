@@ -214,6 +214,25 @@ def test_mac_counts_match_closed_forms(rig):
     fold1 = 1024 * 512 + 2048 * (2 * 512 + 512 * 512 + 512 * 3)
     fold2 = 1024 * 512 + 2048 * (3 * 512 + 512 * 512 + 512 * 3)
     assert count_macs(fold) == enc + fold1 + fold2
+    pcn = build_model(load_config("pcn"))
+    coarse = 1024 * 1024 + 1024 * 1024 + 1024 * 1536
+    folding = 1024 * 512 + 2048 * (2 * 512 + 3 * 512 + 512 * 512 + 512 * 3)  # grid and point per point, code once
+    assert count_macs(pcn) == enc + coarse + folding
+    atlas = build_model(load_config("atlasnet")).eval()
+    b = 1026
+    patch = 1024 * b + 512 * (2 * b + b * (b // 2) + (b // 2) * (b // 4) + (b // 4) * 3)
+    assert count_macs(atlas) == enc + 4 * patch
+    top = build_model(load_config("topnet")).eval()
+    n = 1032
+    root = 1024 * 256 + 256 * 64 + 64 * 16
+    tail = n * (n // 2) + (n // 2) * (n // 4) + (n // 4) * (n // 8)
+    levels = 0
+    nodes = 2
+    for i, d in enumerate([4, 4, 4, 4, 4]):
+        nout = 3 if i == 4 else 8
+        levels += 1024 * n + nodes * (8 * n + tail + (n // 8) * nout * d)
+        nodes *= d
+    assert count_macs(top) == enc + root + levels
 
 
 # --- Decoders that broadcast the code instead of concatenating it: checked against the

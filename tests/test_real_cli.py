@@ -106,6 +106,8 @@ def test_cli_extract_evaluate_show(tmp_path, capsys, fake_learning):
         (["real", "extract", "{tmp}", "--format", "av2", "--out", "{tmp}/o.h5"], "not an Argoverse 2 folder"),
         (["real", "extract", "{tmp}", "--format", "kitti", "--out", "{tmp}/o.h5", "--boxes", "b.json"], "--boxes applies to --format generic only"),
         (["real", "evaluate", "{tmp}/none.h5", "--checkpoint", "x.pt"], "none.h5: file not found"),
+        (["real", "evaluate", "{tmp}/none.h5", "--checkpoint", "x.pt", "--reference-split", "test"],
+         "--reference-split needs --reference"),
     ],
 )
 def test_cli_errors_one_line_exit_2(tmp_path, capsys, argv, message):

@@ -202,3 +202,28 @@ def test_evaluate_reports_fidelity_and_mmd(tmp_path):
     text = write_report(report, tmp_path / "rep")[0].read_text()
     assert "| Model | CD (consistency) | Fidelity | Fidelity (m) | MMD |" in text
     assert "MMD reference: 2 complete shapes" in text
+
+
+def test_per_observation_scores_skip_nan_and_follow_the_track_means():
+    pts = np.zeros((1, 3))
+    comps = [pts, pts, pts, pts]
+    keys = [("s", "a"), ("s", "a"), ("s", "b"), ("s", "b")]
+    fid = np.array([0.1, np.nan, np.nan, np.nan])  # track b: every observation empty -> no fidelity
+    tracks = track_consistency(comps, keys, [0, 1, 0, 1], ["car", "car", "truck", "truck"], [1.0] * 4,
+                               per_observation={"fidelity": fid})
+    by = {t.key[1]: t for t in tracks}
+    assert by["a"].values["fidelity"] == pytest.approx(0.1) and math.isnan(by["b"].values["fidelity"])
+    agg = aggregate(tracks, classes=["car", "truck"])
+    assert agg["classes"]["truck"]["fidelity"] is None and agg["classes"]["truck"]["cd"] == 0.0
+    assert agg["average"]["fidelity"] == pytest.approx(0.1)  # over the classes that have a value
+    assert agg["average"]["cd"] == 0.0 and agg["all_objects"]["fidelity"] == pytest.approx(0.1)
+
+
+def test_serial_queries_restores_the_thread_counts():
+    torch = pytest.importorskip("torch")
+    from spotlights.geometry.neighbors import serial_queries
+
+    before = torch.get_num_threads()
+    with serial_queries():
+        d = nn_distances(np.random.default_rng(0).normal(size=(500, 3)), np.zeros((1, 3)))
+    assert torch.get_num_threads() == before and d.shape == (500,)

@@ -171,3 +171,20 @@ def test_duplicate_annotations_are_scored_once(tmp_path):
     (tmp_path / "scan.json").write_text(json.dumps([twin, near, boxes[0]]))
     obs = extract(open_reader(tmp_path / "scan.npy", "generic"), ExtractConfig(), progress=False)
     assert sorted(obs.track_id) == ["0-twin", "n"] and obs.meta["skipped"]["duplicate_box"] == 1
+
+
+def test_duplicate_boxes_chain_and_tolerance():
+    from spotlights.data.real.base import Box
+    from spotlights.data.real.extract import DUPLICATE_TOLERANCE_M, duplicate_boxes
+
+    def car(x, tid, yaw=0.0):
+        return Box.from_yaw([x, 0.0, 0.0], [4.0, 1.8, 1.5], yaw, "Car", "car", tid)
+
+    # a chain 4 cm apart: b repeats a (kept), c is 8 cm from a, so it is another box
+    assert duplicate_boxes([car(0.0, "a"), car(0.04, "b"), car(0.08, "c")]) == {1}
+    # the kept copy is the smallest track id, wherever it is in the list
+    assert duplicate_boxes([car(0.0, "z"), car(0.01, "m"), car(0.02, "q")]) == {0, 2}
+    # just outside the tolerance, or turned by 90 degrees: not a duplicate
+    assert duplicate_boxes([car(0.0, "a"), car(DUPLICATE_TOLERANCE_M + 0.01, "b")]) == set()
+    assert duplicate_boxes([car(0.0, "a"), car(0.0, "b", yaw=np.pi / 2)]) == set()
+    assert duplicate_boxes([car(0.0, "a")]) == set()

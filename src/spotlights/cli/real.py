@@ -142,6 +142,10 @@ def _evaluate(args) -> int:
     from ..data.real.evaluate import evaluate_consistency, report_markdown, write_report
     from ..data.real.extract import read_observations
 
+    if args.reference_split and not args.reference:
+        from ..errors import ParameterError
+
+        raise ParameterError("--reference-split needs --reference DATASET.h5")
     obs = read_observations(args.file)  # validate before loading models
     refs, ref_info = (None, None)
     if args.reference:

@@ -226,7 +226,10 @@ def aggregate(tracks: list[TrackResult], classes=None) -> dict:
 
     Returns ``{"classes": {cls: {"n_objects", "n_pairs", metric...}}, "average": {...},
     "all_objects": {...}}``; tracks with NaN values (every pair empty) are left out
-    of the means and counted in ``n_objects_unscored``.
+    of the means and counted in ``n_objects_unscored``. Per-observation scores
+    (``fidelity``, ``mmd``) are averaged over the same scored tracks, leaving out a
+    track whose every observation had an empty completion (NaN); a class without any
+    such value is None for that key and left out of its ``average``.
     """
     keys = [*METRICS, *(x + "_m" for x in METRICS)]
     keys += sorted({k for t in tracks for k in t.values} - set(keys))  # per-observation scores

@@ -84,7 +84,8 @@ def reference_shapes(dataset: str | os.PathLike, split: str | None = None) -> tu
 
     with open_dataset(dataset) as ds:
         models = ds.split_models(split) if split else np.arange(ds.n_models)
-        shapes = [np.array(ds.ground_truth(int(m))["gt_points"]) for m in models]
+        gt = ds._h5()["models/gt_points"][np.sort(models)] if len(models) else np.zeros((0, 0, 3), np.float32)
+        shapes = list(np.asarray(gt, dtype=np.float32))
     if not shapes:
         raise InputFileError(str(dataset), f"no reference model in split {split!r}")
     return shapes, {"file": str(dataset), "split": split or "all", "n_shapes": len(shapes), "points_per_shape": int(len(shapes[0]))}
@@ -197,7 +198,8 @@ def evaluate_consistency(
         ),
         metrics=dict(
             headline="cd",
-            frame="object frame divided by the track's mean box radius (half diagonal); '_m' keys in metres",
+            frame="consistency (cd*, d_*): object frame divided by the track's mean box radius (half diagonal); "
+                  "fidelity and mmd: each observation's own unit frame (its box's half diagonal); '_m' keys in metres",
             aggregation="pair -> mean per tracked object -> mean per class; average = mean over classes present; all_objects = mean over objects",
             definitions={**METRIC_DOC, **OBSERVATION_METRIC_DOC},
         ),

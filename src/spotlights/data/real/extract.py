@@ -27,7 +27,8 @@ vehicle of interest; also counted per source label), ``invalid_box``
 (non-finite or non-positive size), ``empty_box``, ``too_few_points``,
 ``duplicate_box`` (the same box annotated twice in one frame, see
 :data:`DUPLICATE_TOLERANCE_M`: the copy with the smallest (track id, box index) is
-kept, the same one in every frame, so that an object is scored once).
+kept (track ids compared as text), the same one in every frame, so that an object is
+scored once).
 """
 
 from __future__ import annotations
@@ -156,9 +157,9 @@ def observation_seed(seed: int, sequence: str, frame_id: str, box_index: int) ->
 def duplicate_boxes(boxes: list[Box], tol: float = DUPLICATE_TOLERANCE_M) -> set[int]:
     """Indices of the boxes that repeat another box of the list (same centre, size and axes).
 
-    Among copies of one box the one with the smallest ``(track_id, index)`` is kept (not
-    returned), so that a doubly annotated object keeps the same track in every frame.
-    Vectorised over pairs: a frame holds at most a few hundred boxes.
+    Among copies of one box the one with the smallest ``(track_id, index)`` (track ids compared
+    as text) is kept (not returned), so that a doubly annotated object keeps the same track in
+    every frame. Pairwise tests vectorised: a frame holds at most a few hundred boxes.
     """
     n = len(boxes)
     if n < 2:
@@ -168,12 +169,18 @@ def duplicate_boxes(boxes: list[Box], tol: float = DUPLICATE_TOLERANCE_M) -> set
     r = np.array([b.rotation for b in boxes], dtype=np.float64).reshape(n, 9)
     same = ((np.abs(c[:, None] - c[None]) <= tol).all(-1) & (np.abs(z[:, None] - z[None]) <= tol).all(-1)
             & (np.abs(r[:, None] - r[None]) <= 0.01).all(-1))
+    # Greedy in (track id as text, index) order: a box is a duplicate when it matches a box
+    # already kept (the relation is not transitive: a chain of boxes 4 cm apart keeps every
+    # other one, never a box farther than the tolerance from every kept box).
     order = sorted(range(n), key=lambda i: (str(boxes[i].track_id), i))
-    rank = np.empty(n, dtype=np.int64)
-    rank[order] = np.arange(n)
-    # a box is a duplicate when a box of smaller rank is the same box
-    dup = (same & (rank[None, :] < rank[:, None])).any(axis=1)
-    return set(np.flatnonzero(dup).tolist())
+    kept: list[int] = []
+    dup: set[int] = set()
+    for i in order:
+        if kept and same[i, kept].any():
+            dup.add(i)
+        else:
+            kept.append(i)
+    return dup
 
 
 def extract_frame(frame: Frame, config: ExtractConfig, skipped: Counter, skipped_labels: Counter) -> list[dict]:
