@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
 
-from spotlights.data.consistency import (aggregate, chamfer, consecutive_pairs, fidelity, minimal_matching_distance,
-                                         nn_distances, track_consistency)
+from spotlights.data.consistency import (aggregate, chamfer, consecutive_pairs, diversity, fidelity,
+                                         minimal_matching_distance, nn_distances, track_consistency)
 from spotlights.data.real import open_reader
 from spotlights.data.real.evaluate import evaluate_consistency, write_report
 from spotlights.data.real.extract import ExtractConfig, extract
@@ -133,6 +133,9 @@ def test_evaluate_consistency_with_fake_completers(tmp_path):
         assert ident["classes"][cls]["cd"] == pytest.approx(want, rel=1e-6)
     assert ident["average"]["cd"] == pytest.approx((ident["classes"]["car"]["cd"] + ident["classes"]["caravan"]["cd"]) / 2)
     assert ell["average"]["cd"] == pytest.approx(0.0, abs=1e-12)  # the same prediction every time
+    assert ell["diversity"] == pytest.approx(0.0, abs=1e-12) and ell["consistency_over_diversity"] is None
+    assert ident["diversity"] > 0.1 and ident["consistency_over_diversity"] == pytest.approx(
+        ident["all_objects"]["cd"] / ident["diversity"])
     md, js = write_report(report, tmp_path / "out" / "rep")
     text = md.read_text()
     assert "| identity |" in text and "| Car | Caravan |" in text.replace("Model | ", "")
@@ -227,3 +230,18 @@ def test_serial_queries_restores_the_thread_counts():
     with serial_queries():
         d = nn_distances(np.random.default_rng(0).normal(size=(500, 3)), np.zeros((1, 3)))
     assert torch.get_num_threads() == before and d.shape == (500,)
+
+
+def test_diversity_against_brute_force():
+    rng = np.random.default_rng(6)
+    comps = [rng.normal(size=(30, 3)) + k for k in range(5)]
+    keys = ["a", "a", "b", "c", "c"]
+    ts = [5, 1, 0, 0, 3]  # earliest: a -> row 1, b -> row 2, c -> row 3
+    comps[3] = np.zeros((0, 3))  # c's earliest is empty: its next observation (row 4) stands for it
+    reps = [comps[1], comps[2], comps[4]]
+    want = np.mean([cdist(x, y).min(1).mean() + cdist(x, y).min(0).mean() for i, x in enumerate(reps) for y in reps[i + 1:]])
+    got, n = diversity(comps, keys, ts)
+    assert n == 3 and got == pytest.approx(want, rel=1e-12)
+    same = [np.ones((4, 3))] * 3
+    assert diversity(same, ["a", "b", "c"], [0, 0, 0]) == (0.0, 3)  # a template model
+    assert math.isnan(diversity(same[:1], ["a"], [0])[0])

@@ -68,6 +68,9 @@ METRIC_DOC = {
 
 
 OBSERVATION_METRICS = ("fidelity", "mmd")
+DIVERSITY_DOC = ("mean two-sided unsquared Chamfer (d_ab + d_ba) between the completions of different tracked objects "
+                 "(each object's earliest observation, unit frames), over all pairs of objects; ~0 = the same shape for "
+                 "every input. consistency_over_diversity = all_objects cd / diversity")
 OBSERVATION_METRIC_DOC = {
     "fidelity": "one-sided: mean over the observed (partial input) points of the unsquared distance to the nearest "
                 "completion point, unit frame of the observation (box half-diagonal units); lower = keeps the input",
@@ -137,6 +140,31 @@ def minimal_matching_distance(completion: np.ndarray, references) -> tuple[float
         if lower[r] + other < best:
             best, arg = float(lower[r] + other), int(r)
     return best, arg
+
+
+def diversity(completions, object_keys, timestamps) -> tuple[float, int]:
+    """How much completions of *different* objects differ: the mean two-sided Chamfer ``cd``
+    (unsquared, sum of the two one-sided means) over all pairs of distinct objects, each object
+    represented by its earliest non-empty completion, in the unit frames as given.
+
+    ``completions``: n arrays (K_i, 3); ``object_keys``: n hashables; ``timestamps``: (n,) ints.
+    Returns (mean, number of objects); (NaN, count) with fewer than two objects. A model that
+    outputs one template whatever its input has diversity ~0 and a trivially perfect
+    consistency; ``all_objects cd / diversity`` compares how much a completion moves for the
+    same object with how much it moves between objects.
+    """
+    ts = np.asarray(timestamps)
+    first: dict = {}
+    for i, k in enumerate(object_keys):
+        if len(completions[i]) == 0:
+            continue
+        if k not in first or (int(ts[i]), i) < (int(ts[first[k]]), first[k]):
+            first[k] = i
+    rows = sorted(first.values())
+    if len(rows) < 2:
+        return float("nan"), len(rows)
+    vals = [chamfer(completions[a], completions[b])["cd"] for n, a in enumerate(rows) for b in rows[n + 1:]]
+    return float(np.mean(vals)), len(rows)
 
 
 def consecutive_pairs(object_keys, timestamps) -> list[tuple[int, int]]:

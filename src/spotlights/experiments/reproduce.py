@@ -823,7 +823,7 @@ def all_steps(ctx: Context) -> dict:
                       lambda c: [c.out / "eval" / "av2_consistency.json"],
                       needs=("real-av2", "cars-data") + tuple(f"train-{r}" for r in TABLE1_RUNS),
                       inputs=lambda c: [c.out / "data" / "av2.h5", c.s.cars_path] + [c.run_dir(r) / "best.pt" for r in TABLE1_RUNS],
-                      params=lambda c: {"scores": ["consistency", "fidelity", "mmd"]}))
+                      params=lambda c: {"scores": ["consistency", "fidelity", "mmd", "diversity"]}))
     box_runs = tuple(BOX_RUNS.values())
     steps.append(Step("consistency-av2-box", _run_consistency_box, _consistency_box_command,
                       lambda c: [c.out / "eval" / "av2_consistency_box.json"],
@@ -1005,6 +1005,7 @@ def build_table2(ctx: Context) -> dict:
                            "average": m["average"]["cd"], "all_objects": m["all_objects"]["cd"],
                            "points_per_completion": m["mean_points_per_completion"],
                            "fidelity": m["average"].get("fidelity"), "mmd": m["average"].get("mmd"),
+                           "diversity": m.get("diversity"),
                            "objects": {c: (m["classes"].get(c) or {}).get("n_objects") for c in classes}}
     d = rep["data"]
     head = ["Model", "", "Car", "Truck", "Caravan", "Trailer", "Average", "All objects"]
@@ -1038,10 +1039,12 @@ def build_table2(ctx: Context) -> dict:
     md += ["", "Beside consistency, two scores of PCN's real-data evaluation that a model ignoring its input cannot "
            "fake (Average over classes; lower is better): **fidelity**, the one-sided mean distance from each observed "
            "point to the nearest completion point (does the completion keep what the LiDAR saw?), and **MMD**, the "
-           "Chamfer distance (Eq. 1) to the nearest complete car of the synthetic dataset (does it look like a car?).", ""]
-    md += _md_table(["Model", "Consistency", "Fidelity", "MMD", "points per completion"],
+           "Chamfer distance (Eq. 1) to the nearest complete car of the synthetic dataset (does it look like a car?); "
+           "and **diversity**, the mean Chamfer distance between completions of *different* objects (near 0: the same "
+           "shape whatever the input).", ""]
+    md += _md_table(["Model", "Consistency", "Fidelity", "MMD", "Diversity", "points per completion"],
                     [[f"**{DISPLAY[n]}**", _fmt(ours[n]["average"], 4), _fmt(ours[n]["fidelity"], 4), _fmt(ours[n]["mmd"], 4),
-                      f"{ours[n]['points_per_completion']:.0f}"] for n in TABLE1_RUNS if n in ours])
+                      _fmt(ours[n]["diversity"], 4), f"{ours[n]['points_per_completion']:.0f}"] for n in TABLE1_RUNS if n in ours])
     md += ["", f"KITTI: the shipped KITTI object frames ({kitti_obs if kitti_obs is not None else '?'} vehicles) carry no track ids, "
            "so no object is seen twice and consistency cannot be computed there; they appear in the qualitative figure."]
     return {"ours": ours, "paper": paper.TABLE2, "rows": rows, "checks": checks, "markdown": "\n".join(md),

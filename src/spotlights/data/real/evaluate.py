@@ -22,8 +22,8 @@ import numpy as np
 
 from ...errors import InputFileError, SpotlightsError
 from ...geometry.neighbors import serial_queries
-from ..consistency import (METRIC_DOC, OBSERVATION_METRIC_DOC, aggregate, consecutive_pairs, fidelity,
-                           minimal_matching_distance, track_consistency)
+from ..consistency import (DIVERSITY_DOC, METRIC_DOC, OBSERVATION_METRIC_DOC, aggregate, consecutive_pairs, diversity,
+                           fidelity, minimal_matching_distance, track_consistency)
 from .base import CLASSES
 from .extract import Observations, read_observations
 
@@ -164,7 +164,9 @@ def evaluate_consistency(
                 per_obs["mmd"] = np.array([minimal_matching_distance(c, ref_trees)[0] for c in comps])
             per_obs["fidelity_m"] = per_obs["fidelity"] * radii
             tracks = track_consistency(comps, sub_keys, sub_ts, sub_cls, radii, per_observation=per_obs)
+            div, _ = diversity(comps, sub_keys, sub_ts)
         agg = aggregate(tracks, classes=classes_present)
+        cons_all = agg["all_objects"]["cd"]
         models.append(
             dict(
                 name=names[k],
@@ -172,6 +174,8 @@ def evaluate_consistency(
                 checkpoint=None if checkpoints is None else str(checkpoints[k]),
                 n_params=getattr(completer, "n_params", None),
                 mean_points_per_completion=float(np.mean([len(c) for c in comps])),
+                diversity=div,
+                consistency_over_diversity=(cons_all / div if cons_all is not None and np.isfinite(div) and div > 0 else None),
                 **agg,
                 objects=[
                     dict(sequence=t.key[0], track_id=t.key[1], cls=t.cls, n_observations=t.n_observations,
@@ -201,7 +205,7 @@ def evaluate_consistency(
             frame="consistency (cd*, d_*): object frame divided by the track's mean box radius (half diagonal); "
                   "fidelity and mmd: each observation's own unit frame (its box's half diagonal); '_m' keys in metres",
             aggregation="pair -> mean per tracked object -> mean per class; average = mean over classes present; all_objects = mean over objects",
-            definitions={**METRIC_DOC, **OBSERVATION_METRIC_DOC},
+            definitions={**METRIC_DOC, **OBSERVATION_METRIC_DOC, "diversity": DIVERSITY_DOC},
         ),
         models=models,
     )
@@ -247,18 +251,23 @@ def report_markdown(report: dict) -> str:
     has_mmd = any(m["average"].get("mmd") is not None for m in report["models"])
     lines += ["", "## Consistency beside fidelity" + (" and minimal matching distance" if has_mmd else ""), ""]
     lines.append("Consistency alone rewards a model that gives every scan the same shape; fidelity (does the completion "
-                 "keep the observed points?)" + (" and MMD (is it close to some complete car?)" if has_mmd else "")
-                 + " tell such a model apart. Average over classes; All objects in brackets; lower is better.")
+                 "keep the observed points?)" + (", MMD (is it close to some complete car?)" if has_mmd else "")
+                 + " and diversity tell such a model apart. Average over classes; All objects in brackets; lower is better "
+                 "(but for diversity).")
     lines.append("")
-    head = "| Model | CD (consistency) | Fidelity | Fidelity (m) |" + (" MMD |" if has_mmd else "")
-    lines += [head, "|---|---|---|---|" + ("---|" if has_mmd else "")]
+    head = "| Model | CD (consistency) | Fidelity | Fidelity (m) |" + (" MMD |" if has_mmd else "") + " Diversity | CD / Diversity |"
+    lines += [head, "|---|---|---|---|" + ("---|" if has_mmd else "") + "---|---|"]
     for m in report["models"]:
         a, o = m["average"], m["all_objects"]
         row = (f"| {m['name']} | {_fmt(a['cd'])} ({_fmt(o['cd'])}) | {_fmt(a.get('fidelity'))} ({_fmt(o.get('fidelity'))}) | "
                f"{_fmt(a.get('fidelity_m'))} ({_fmt(o.get('fidelity_m'))}) |")
         if has_mmd:
             row += f" {_fmt(a.get('mmd'))} ({_fmt(o.get('mmd'))}) |"
+        row += f" {_fmt(m.get('diversity'))} | {_fmt(m.get('consistency_over_diversity'), 3)} |"
         lines.append(row)
+    lines += ["", "Diversity: how much completions of *different* objects differ (mean CD over pairs of tracked objects); "
+                  "a model that ignores its input has diversity ~0 and a perfect consistency. CD / Diversity = All objects "
+                  "CD over diversity (ours, not the paper's)."]
     ref = d.get("mmd_reference")
     if ref:
         lines += ["", f"MMD reference: {ref['n_shapes']} complete shapes ({ref['points_per_shape']} points each) of "
