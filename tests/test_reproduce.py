@@ -390,3 +390,22 @@ def test_box_table_plan_and_add_rig(quick, tmp_path):
     assert info["added"] and step.reuse(ctx)
     with h5py.File(cars, "r") as f:
         assert np.array_equal(f[f"rigs/{BOX_RIG}/depths"][()], want)  # the same depths as the build
+
+
+def test_table1_names_the_clipped_row_after_the_checkpoint_clip(monkeypatch, tmp_path):
+    """A SA-Net trained with another clip keeps its clipped row (and the checks use it)."""
+    from types import SimpleNamespace
+
+    from spotlights.experiments import reproduce as rp
+
+    def row(avg):
+        return {"hatchback": avg, "sedan": avg, "suv": avg, "average": avg, "params_m": 1.0, "runtime_ms": 1.0,
+                "n_samples": 7, "n_models": 1, "latency_device": "cpu", "threads": 1}
+
+    fake = {"pcn": {"pcn": row(0.03)}, "atlasnet": {"atlasnet": row(0.04)}, "foldingnet": {"foldingnet": row(0.05)},
+            "topnet": {"topnet": row(0.035)}, "sanet": {"sanet (no clip)": row(0.2), "sanet (clip 0.3)": row(0.02)}}
+    monkeypatch.setattr(rp, "_eval_rows", lambda ctx, run: fake[run])
+    ctx = SimpleNamespace(s=SimpleNamespace(schedule="budget"), records={}, run_dir=lambda r: tmp_path / r)
+    t1 = rp.build_table1(ctx)
+    assert "sanet (clip 0.3)" in {r["row"] for r in t1["rows"]}
+    assert t1["checks"][0]["holds"] and t1["checks"][1]["holds"] and "clip 0.3 0.02000" in t1["checks"][1]["detail"]
