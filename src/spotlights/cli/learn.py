@@ -20,7 +20,7 @@ def register(sub) -> None:
     p.add_argument("--data", required=True, metavar="FILE.h5", help="dataset file (spotlights dataset build)")
     p.add_argument("--config", metavar="YAML", default=None, help="YAML overriding the packaged config (model/data/train sections)")
     p.add_argument("--schedule", default=None, metavar="NAME|YAML",
-                   help="training schedule applied before --config: 'cpu' (about 90 min per model on 2 cores), "
+                   help="training schedule applied before --config: 'cpu' (35-70 min per model on 2 cores), "
                         "'paper' (the paper-scale GPU run), or a schedule YAML")
     p.add_argument("--out", metavar="DIR", default=None, help="run folder (default runs/MODEL): config.yaml, last.pt, best.pt, log.csv")
     p.add_argument("--epochs", type=positive_int, default=None, help="number of epochs (with --resume: raise it to train longer)")
