@@ -50,7 +50,11 @@ def fake_learning(monkeypatch, tmp_path):
             return [np.concatenate([ring, p[:32]]) for p in partials]  # depends a little on the input
 
     mod = types.ModuleType("spotlights.learning.inference")
-    mod.load_completer = lambda path, device=None: Completer(Path(path).stem.split("_")[0])
+    def load_completer(path, device=None):
+        stem = Path(path).stem.split("_")[0]
+        return Completer(Path(path).parent.name.split("-")[0] if stem in ("best", "last") else stem)
+
+    mod.load_completer = load_completer
     mod.Completer = Completer
     monkeypatch.setitem(sys.modules, "spotlights.learning.inference", mod)
     ckpts = []
@@ -80,6 +84,14 @@ def test_cli_extract_evaluate_show(tmp_path, capsys, fake_learning):
     assert set(clips) == {"default"}  # no --clip: the model's own default
     assert main(["real", "evaluate", str(out), "--checkpoint", fake_learning[0], "--out", str(prefix), "-q", "--clip", "0.2"]) == 0
     assert clips[-1] == 0.2
+    capsys.readouterr()
+    # two checkpoints of one model: named by their run folders (best.pt) or file names
+    for run in ("sanet-a", "sanet-b"):
+        (tmp_path / run).mkdir()
+        (tmp_path / run / "best.pt").write_bytes(b"x")
+    assert main(["real", "evaluate", str(out), "-c", str(tmp_path / "sanet-a" / "best.pt"), str(tmp_path / "sanet-b" / "best.pt"),
+                 fake_learning[1], "--out", str(prefix), "-q"]) == 0
+    assert [m["name"] for m in json.loads((tmp_path / "rep.json").read_text())["models"]] == ["sanet (sanet-a)", "sanet (sanet-b)", "pcn"]
     capsys.readouterr()
     # --reference: the minimal matching distance against a completion dataset's cars
     ref = tiny_dataset_path(tmp_path / "ds")

@@ -155,7 +155,9 @@ def _evaluate(args) -> int:
     completers = _load_completers(args.checkpoint, args.device)
     names = [c.model_name for c in completers]
     dup = {n for n in names if names.count(n) > 1}
-    names = [f"{n} ({Path(p).stem})" if n in dup else n for n, p in zip(names, args.checkpoint)]
+    # two checkpoints of one model: tell them apart by file name, or by run folder for best.pt / last.pt
+    tag = [Path(p).parent.name if Path(p).stem in ("best", "last") else Path(p).stem for p in args.checkpoint]
+    names = [f"{n} ({t})" if n in dup else n for n, t in zip(names, tag)]
     report = evaluate_consistency(obs, completers, names=names, checkpoints=args.checkpoint,
                                   batch_size=args.batch_size, progress=not args.quiet, clip=args.clip,
                                   references=refs, reference_info=ref_info)
