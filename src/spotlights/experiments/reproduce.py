@@ -1607,7 +1607,8 @@ DIFFERENCES = [
     "range noise 0.02 m, vehicles 4-40 m away (spotlights.data.lidar). Partial scans differ in density and occlusion.",
     "**Training.** The paper trained on a GPU to convergence. Here every model gets a short, stated CPU budget (schedule "
     "`budget`, batch 32; each run's steps and minutes are listed under Tables 1 and 5), far below the paper's "
-    "(~160,000 steps); the baselines are the most under-trained (they cost 7-20x more per step on a CPU). Accuracies "
+    "(~160,000 steps); the baselines are the most under-trained (they cost 4-12x more per step on a CPU). "
+    "Accuracies "
     "are therefore higher (worse) than the paper's and the ranking among the baselines is not meaningful.",
     "**Models.** The paper does not give its layer widths; ours follow the original papers with the PCN encoder "
     "for all (docs/learning.md), so parameter counts differ (PCN 5.3M, FoldingNet 2.4M, TopNet 10.0M, AtlasNet 7.7M, "
