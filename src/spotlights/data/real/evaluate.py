@@ -21,7 +21,7 @@ from typing import Sequence
 import numpy as np
 
 from ...errors import InputFileError, SpotlightsError
-from ...geometry.neighbors import serial_queries
+from ...geometry.neighbors import NearestNeighbors, serial_queries
 from ..consistency import (DIVERSITY_DOC, METRIC_DOC, OBSERVATION_METRIC_DOC, aggregate, consecutive_pairs, diversity,
                            fidelity, minimal_matching_distance, track_consistency)
 from .base import CLASSES
@@ -112,7 +112,7 @@ def evaluate_consistency(
     checkpoints : checkpoint paths to record in the report (optional).
     clip : passed to ``complete`` when given (SA-Net's depth clip); None = each model's default.
     references : optional complete shapes (R arrays (L, 3), unit frame; see :func:`reference_shapes`)
-        for the minimal matching distance ``mmd``; without them only ``fidelity`` is added.
+        for the minimal matching distance ``mmd``; fidelity and diversity are always reported.
     reference_info : description of ``references`` recorded in the report.
 
     Returns
@@ -148,16 +148,12 @@ def evaluate_consistency(
     sub_cls = [obs.cls[i] for i in rows]
     radii = 0.5 * np.linalg.norm(obs.box_size[rows], axis=1)
     classes_present = [c for c in CLASSES if c in set(sub_cls)]
-    ref_trees = None
-    if references is not None:
-        from ...geometry.neighbors import NearestNeighbors
-
-        ref_trees = [NearestNeighbors(np.asarray(r, dtype=np.float64)) for r in references]
+    ref_trees = None if references is None else [NearestNeighbors(np.asarray(r, dtype=np.float64)) for r in references]
+    partials = obs.partial[rows]
     models = []
     for k, completer in enumerate(completers):
-        comps = complete_all(completer, obs.partial[rows], batch_size=batch_size, progress=progress, desc=f"complete {names[k]}",
+        comps = complete_all(completer, partials, batch_size=batch_size, progress=progress, desc=f"complete {names[k]}",
                              clip=clip, box_sizes=obs.box_size[rows])
-        partials = obs.partial[rows]
         with serial_queries():  # many small KD-tree queries
             per_obs = {"fidelity": np.array([fidelity(p, c) for p, c in zip(partials, comps)])}
             if ref_trees:
