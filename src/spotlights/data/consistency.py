@@ -67,7 +67,6 @@ METRIC_DOC = {
 }
 
 
-OBSERVATION_METRICS = ("fidelity", "mmd")
 DIVERSITY_DOC = ("mean two-sided unsquared Chamfer (d_ab + d_ba) between the completions of different tracked objects "
                  "(each object's earliest observation, unit frames), over all pairs of objects; ~0 = the same shape for "
                  "every input. consistency_over_diversity = all_objects cd / diversity")

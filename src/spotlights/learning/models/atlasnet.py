@@ -53,7 +53,7 @@ class AtlasNet(CompletionModel):
                 uv = torch.rand(b, self.points_per_patch, 2, device=code.device, dtype=code.dtype)
             else:
                 uv = self.grid.unsqueeze(0)
-            outs.append(torch.tanh(patch.forward_concat([code, uv])).expand(b, -1, -1))
+            outs.append(torch.tanh(patch.forward_concat([code, uv])))  # (B, P, 3): the code broadcasts
         return {"points": torch.cat(outs, dim=1)}
 
     def loss(self, outputs, batch, progress: float = 1.0):

@@ -76,20 +76,19 @@ class MLP(nn.Module):
     def _from_layer(self, x: torch.Tensor, start: int, first_done: bool = False) -> torch.Tensor:
         """Run layers ``start..`` on (R, C) rows; ``first_done``: ``x`` is layer ``start - 1``'s
         pre-activation (normalise and activate it first)."""
-        last = len(self.linears) - 1
         if first_done:
-            j = start - 1
-            if j < last:
-                if self.norms is not None:
-                    x = self.norms[j](x)
-                x = torch.relu(x)
-        for j in range(start, last + 1):
-            x = self.linears[j](x)
-            if j < last:
-                if self.norms is not None:
-                    x = self.norms[j](x)
-                x = torch.relu(x)
+            x = self._activate(start - 1, x)
+        for j in range(start, len(self.linears)):
+            x = self._activate(j, self.linears[j](x))
         return x
+
+    def _activate(self, j: int, x: torch.Tensor) -> torch.Tensor:
+        """After layer ``j``: [BatchNorm +] ReLU for a hidden layer, nothing after the last one."""
+        if j == len(self.linears) - 1:
+            return x
+        if self.norms is not None:
+            x = self.norms[j](x)
+        return torch.relu(x)
 
 
 class PCNEncoder(nn.Module):

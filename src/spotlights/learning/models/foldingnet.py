@@ -43,8 +43,7 @@ class FoldingNet(CompletionModel):
 
     def forward(self, partial: torch.Tensor) -> dict[str, torch.Tensor]:
         code = self.encoder(partial).unsqueeze(1)  # (B, 1, code): replicated by broadcasting
-        b = code.shape[0]
-        f1 = self.fold1.forward_concat([code, self.grid.unsqueeze(0)]).expand(b, -1, -1)
+        f1 = self.fold1.forward_concat([code, self.grid.unsqueeze(0)])  # (B, N, 3): the code broadcasts
         f2 = self.fold2.forward_concat([code, f1])
         return {"fold1": f1, "points": f2}
 
