@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ._util import add_command, add_group, positive_int, unit_interval
+from ._util import DEVICE_HELP, add_command, add_group, add_quiet, check_picture, check_suffix, non_negative_int, positive_int, unit_interval
 
 
 def _frames_range(text: str):
@@ -38,7 +38,7 @@ def register(sub) -> None:
                    help="drop points less than M metres above the box bottom: ground returns (default 0.10)")
     p.add_argument("--min-points", type=int, default=10, metavar="K", help="skip boxes with fewer than K points (default 10)")
     p.add_argument("--points", type=int, default=256, metavar="P", help="points per observation after resampling (default 256)")
-    p.add_argument("--seed", type=int, default=0, help="resampling seed (default 0)")
+    p.add_argument("--seed", type=non_negative_int, default=0, help="resampling seed (default 0)")
     p.add_argument("--classes", default="car,truck,caravan,trailer", help="comma-separated classes to keep (default all four)")
     p.add_argument("--velodyne", default="auto", choices=("auto", "velodyne", "velodyne_reduced"),
                    help="kitti: which scan folder (default: velodyne/ if present, else velodyne_reduced/)")
@@ -46,26 +46,26 @@ def register(sub) -> None:
                    help="kitti360: a sequence to read, e.g. 2013_05_28_drive_0000_sync (repeatable; default all)")
     p.add_argument("--frames", type=_frames_range, default=None, metavar="START:STOP[:STEP]", help="kitti360: frame range")
     p.add_argument("--boxes", default=None, metavar="JSON", help="generic: the box list of a single point-cloud SOURCE (default SOURCE with .json)")
-    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    add_quiet(p)
 
     p = add_command(rs, "evaluate", "complete the tracked observations with each model and write the consistency table (Markdown + JSON)",
-                    "spotlights real evaluate av2.h5 --checkpoint runs/sanet.pt runs/pcn.pt --out results/av2_consistency", _evaluate)
+                    "spotlights real evaluate av2.h5 --checkpoint runs/sanet/best.pt runs/pcn/best.pt --out results/av2_consistency", _evaluate)
     p.add_argument("file", metavar="FILE.h5", help="observations from 'spotlights real extract'")
     p.add_argument("--checkpoint", "-c", nargs="+", required=True, metavar="CKPT", help="one or more model checkpoints")
     p.add_argument("--out", "-o", default=None, metavar="PREFIX",
                    help="writes PREFIX.md and PREFIX.json (default: FILE without .h5 + '_consistency')")
     p.add_argument("--batch-size", type=positive_int, default=64, help="completion batch size (default 64)")
     p.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="depth clip passed to the models (default: each model's own)")
-    p.add_argument("--device", default=None, help="torch device for the models (default: the loader's choice)")
+    p.add_argument("--device", default=None, help=DEVICE_HELP)
     p.add_argument("--reference", default=None, metavar="DATASET.h5",
                    help="completion dataset whose ground-truth cars are the reference set of the minimal matching "
                         "distance (MMD) reported beside consistency and fidelity (default: no MMD)")
     p.add_argument("--reference-split", default=None, choices=["train", "val", "test"],
                    help="use only this split of --reference (default: every model)")
-    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    add_quiet(p)
 
     p = add_command(rs, "show", "draw one scan: raw points (grey), partial inputs (purple), completions (green), in the sensor frame",
-                    "spotlights real show kitti.h5 --checkpoint runs/sanet.pt --frame 002155 --out kitti_002155.png", _show)
+                    "spotlights real show kitti.h5 --checkpoint runs/sanet/best.pt --frame 002155 --out kitti_002155.png", _show)
     p.add_argument("file", metavar="FILE.h5", help="observations from 'spotlights real extract'")
     p.add_argument("--checkpoint", "-c", default=None, metavar="CKPT", help="model checkpoint (without it: no completion drawn)")
     p.add_argument("--frame", default=None, metavar="ID", help="frame id (default: the frame with the most observations)")
@@ -73,7 +73,7 @@ def register(sub) -> None:
     p.add_argument("--max-objects", type=int, default=6, metavar="K", help="close-ups of the K objects with most points (default 6)")
     p.add_argument("--out", "-o", default=None, metavar="PNG", help="output picture (default: FILE_FRAME.png beside FILE)")
     p.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="depth clip passed to the model (default: its own)")
-    p.add_argument("--device", default=None, help="torch device for the model")
+    p.add_argument("--device", default=None, help=DEVICE_HELP)
 
 
 def _print_summary(obs) -> None:
@@ -110,6 +110,10 @@ def _extract(args) -> int:
                            ("--frames", args.frames, "kitti360"), ("--boxes", args.boxes, "generic")):
         if val and args.format != fmt:
             raise ParameterError(f"{name} applies to --format {fmt} only")
+    from ..utils import check_writable
+
+    check_suffix(args.out, (".h5", ".hdf5"), "the observations file (HDF5)")
+    check_writable(args.out)
     classes = tuple(c.strip() for c in args.classes.split(",") if c.strip())
     config = ExtractConfig(margin=args.margin, ground_clearance=args.ground_clearance, min_points=args.min_points,
                            n_points=args.points, seed=args.seed, classes=classes)
@@ -146,6 +150,10 @@ def _evaluate(args) -> int:
         from ..errors import ParameterError
 
         raise ParameterError("--reference-split needs --reference DATASET.h5")
+    from ..utils import check_writable
+
+    prefix = args.out or str(Path(args.file).with_suffix("")) + "_consistency"
+    check_writable(prefix + ".md")
     obs = read_observations(args.file)  # validate before loading models
     refs, ref_info = (None, None)
     if args.reference:
@@ -158,9 +166,16 @@ def _evaluate(args) -> int:
     # two checkpoints of one model: tell them apart by file name, or by run folder for best.pt / last.pt
     tag = [Path(p).parent.name if Path(p).stem in ("best", "last") else Path(p).stem for p in args.checkpoint]
     names = [f"{n} ({t})" if n in dup else n for n, t in zip(names, tag)]
-    report = evaluate_consistency(obs, completers, names=names, checkpoints=args.checkpoint,
-                                  batch_size=args.batch_size, progress=not args.quiet, clip=args.clip,
-                                  references=refs, reference_info=ref_info)
+    from ..errors import InputFileError
+
+    try:
+        report = evaluate_consistency(obs, completers, names=names, checkpoints=args.checkpoint,
+                                      batch_size=args.batch_size, progress=not args.quiet, clip=args.clip,
+                                      references=refs, reference_info=ref_info)
+    except InputFileError as exc:
+        if exc.path != "<observations>":
+            raise
+        raise InputFileError(args.file, exc.problem) from None  # name the file the user gave
     report["data"]["file"] = str(args.file)
     prefix = args.out or str(Path(args.file).with_suffix("")) + "_consistency"
     md, js = write_report(report, prefix)
@@ -178,9 +193,16 @@ def _show(args) -> int:
 
     if args.max_objects < 1:
         raise ParameterError("--max-objects must be >= 1")
+    from ..utils import check_writable
+
+    check_picture(args.out)
     obs = read_observations(args.file)
     rows = frame_rows(obs, args.sequence, args.frame)
     rows = sorted(rows, key=lambda i: -int(obs.n_points_raw[i]))[: args.max_objects]
+    i0 = rows[0]
+    frame = obs.frame_id[i0]
+    out = args.out or str(Path(args.file).with_suffix("")) + f"_{frame}.png"
+    check_writable(out)
     completions, model = None, None
     if args.checkpoint:
         completer = _load_completers([args.checkpoint], args.device)[0]
@@ -188,9 +210,6 @@ def _show(args) -> int:
 
         completions = complete_all(completer, obs.partial[rows], progress=False, clip=args.clip, box_sizes=obs.box_size[rows])
         model = completer.model_name
-    i0 = rows[0]
-    frame = obs.frame_id[i0]
-    out = args.out or str(Path(args.file).with_suffix("")) + f"_{frame}.png"
     title = f"{obs.meta.get('source_format')} {obs.sequence[i0] + '/' if obs.sequence[i0] else ''}{frame}" + (f" - {model}" if model else "")
     render_frame(out, obs, rows, completions, title=title)
     print(f"wrote {out} ({len(rows)} object{'' if len(rows) == 1 else 's'} of frame {frame})")

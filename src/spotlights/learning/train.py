@@ -30,7 +30,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader
 
-from ..errors import ParameterError, SpotlightsError
+from ..errors import InputFileError, ParameterError, SpotlightsError
 from .checkpoint import load_checkpoint, save_checkpoint
 from .data import TorchCompletionDataset
 from .models import build_model, load_config
@@ -318,9 +318,14 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
         raise ParameterError(f"train.select_by must be one of {', '.join(SELECT_BY)}, got {select_by!r}")
     start_epoch, global_step, history, best = 0, 0, [], {"epoch": None, "select_by": select_by, "value": float("inf")}
     if state is not None:
-        model.load_state_dict(state["model_state"])
-        opt.load_state_dict(state["optimizer_state"])
-        sched.load_state_dict(state["scheduler_state"])
+        try:  # a damaged or foreign last.pt is a bad file, not a crash
+            model.load_state_dict(state["model_state"])
+            opt.load_state_dict(state["optimizer_state"])
+            sched.load_state_dict(state["scheduler_state"])
+            int(state["epoch"]), int(state["global_step"])
+        except (RuntimeError, KeyError, TypeError, ValueError) as exc:
+            first = (str(exc).splitlines() or [type(exc).__name__])[0][:160]
+            raise InputFileError(last_path, f"cannot resume from this checkpoint ({type(exc).__name__}: {first})") from None
         if extended:  # a new total length: the learning-rate schedule is recomputed from here on
             for group, base, lam in zip(opt.param_groups, sched.base_lrs, sched.lr_lambdas):
                 group["lr"] = base * lam(sched.last_epoch)
