@@ -33,6 +33,13 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=None, help="random seed (same seed + config = same weights)")
     p.add_argument("--device", default=None, help="torch device (default: cuda when available, else cpu)")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
+    p.add_argument("--precision", choices=("auto", "fp32", "bf16"), default=None,
+                   help="forward-pass precision: auto (default: bf16 where the CPU or GPU supports it, else fp32), "
+                        "fp32, or bf16 (fp16 with a gradient scaler on GPUs without bf16); weights, losses and "
+                        "metrics stay float32")
+    p.add_argument("--steps-per-epoch", type=positive_int, default=None, metavar="N",
+                   help="make an epoch N optimizer steps drawn from shuffled passes over the training set "
+                        "(a validation and checkpoint interval) instead of one full pass")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--resume", action="store_true", help="continue the run in --out from its last.pt")
     g.add_argument("--overwrite", action="store_true", help="start again even if --out holds a run")
@@ -105,7 +112,8 @@ def _train(args) -> int:
 
     _set_threads(args.threads)
     ov: dict = {"train": {}, "data": {}}
-    for key, val in (("epochs", args.epochs), ("batch_size", args.batch_size), ("lr", args.lr), ("seed", args.seed)):
+    for key, val in (("epochs", args.epochs), ("batch_size", args.batch_size), ("lr", args.lr), ("seed", args.seed),
+                     ("precision", args.precision), ("steps_per_epoch", args.steps_per_epoch)):
         if val is not None:
             ov["train"][key] = val
     for key, val in (("max_views", args.max_views), ("val_max_views", args.val_max_views), ("rig", args.rig),
