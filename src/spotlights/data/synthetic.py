@@ -29,7 +29,6 @@ deleted.
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import hashlib
 import json
@@ -49,7 +48,7 @@ from .._version import __version__
 from ..errors import InputFileError, ParameterError, SpotlightsError
 from ..geometry.io import MESH_SUFFIXES, load_mesh
 from ..geometry.rig import Rig, RigSpec, make_rig
-from ..utils import atomic_output
+from ..utils import atomic_output, exclusive_lock
 from .lidar import LidarSimulator, SensorModel, VehiclePose, hdl64e
 from .store import FORMAT, FORMAT_VERSION, SAMPLE_FIELDS, SPLITS, write_dataset
 
@@ -559,27 +558,6 @@ def _plan_units(n_models: int, views: int, block: int) -> list[tuple]:
     return units
 
 
-@contextlib.contextmanager
-def _lock(parts: Path, lock_file: Path | None = None, busy: str = "another build is writing this dataset right now"):
-    """Exclusive, non-blocking lock (``parts/.lock``, or ``lock_file``), so that two builds never
-    write the same shards and two ``add-rig`` runs never rewrite the same file; raises
-    SpotlightsError naming ``parts`` when another process holds it."""
-    try:
-        import fcntl
-    except ImportError:  # pragma: no cover - not POSIX: no lock
-        yield
-        return
-    fh = open(lock_file if lock_file is not None else parts / ".lock", "w")
-    try:
-        try:
-            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            raise SpotlightsError(f"{parts}: {busy}") from None
-        yield
-    finally:
-        fh.close()
-
-
 def _default_log(msg: str) -> None:
     from tqdm import tqdm
 
@@ -656,7 +634,8 @@ def build_dataset(cfg: BuildConfig, out: str | os.PathLike, workers: int | None 
     if overwrite and parts.exists():
         shutil.rmtree(parts)
     parts.mkdir(parents=True, exist_ok=True)
-    with _lock(parts):
+    # two builds never write the same shards
+    with exclusive_lock(parts / ".lock", f"{parts}: another build is writing this dataset right now"):
         plan_path = parts / "plan.json"
         if plan_path.exists():
             try:
@@ -880,7 +859,7 @@ def add_rig(path: str | os.PathLike, rig: "str | Rig | RigSpec", meshes: str | o
     open_dataset(path).close()  # a missing or foreign file fails before a lock file is made beside it
     # Two add-rig runs on one file would each copy it and rename their copy onto it: the last
     # rename would drop the other's rig. A lock beside the file makes the second one fail.
-    with _lock(path, path.with_name(f".{path.name}.lock"), "another 'dataset add-rig' is rewriting this file right now"):
+    with exclusive_lock(path.with_name(f".{path.name}.lock"), f"{path}: another 'dataset add-rig' is rewriting this file right now"):
         return _add_rig_locked(path, rig, meshes, workers, progress, log or _default_log)
 
 

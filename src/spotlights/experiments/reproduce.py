@@ -49,7 +49,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..errors import ParameterError, SpotlightsError
-from ..utils import atomic_output
+from ..utils import atomic_output, exclusive_lock
 from . import paper_tables as paper
 
 STEPS_FORMAT = "spotlights-reproduce-steps"
@@ -449,12 +449,12 @@ def _run_eval(ctx: Context, run: str) -> dict:
         import torch
 
         from ..learning.checkpoint import load_checkpoint, model_from_checkpoint
-        from ..learning.evaluate import _latency
+        from ..learning.bench import model_latency
 
         dev = torch.device("cpu")
         model = model_from_checkpoint(load_checkpoint(ctx.run_dir(run) / "best.pt"), dev)
         res = rep["results"][0]
-        res["latency_ms"] = _latency(model, dev, batches=(1,), repeats=3, warmup=1)
+        res["latency_ms"] = model_latency(model, dev, batches=(1,), repeats=3, warmup=1)
         res["latency_device"], res["threads"] = str(dev), torch.get_num_threads()
     write_report(rep, ctx.out / "eval" / run)
     return {"n_samples": rep["n_samples"], "n_models": rep["n_models"]}
@@ -1442,24 +1442,6 @@ def _versions() -> dict:
     return out
 
 
-@contextlib.contextmanager
-def _lock(out: Path):
-    import fcntl
-
-    out.mkdir(parents=True, exist_ok=True)
-    fh = open(out / ".reproduce.lock", "w")
-    try:
-        fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        fh.close()
-        raise SpotlightsError(f"{out}: another 'spotlights reproduce' is running in this folder") from None
-    try:
-        yield
-    finally:
-        fcntl.flock(fh, fcntl.LOCK_UN)
-        fh.close()
-
-
 def _load_records(ctx: Context) -> None:
     p = ctx.out / "steps.json"
     if not p.is_file():
@@ -1571,7 +1553,8 @@ def reproduce(out, tables=None, quick: bool = False, schedule: str | None = None
         raise SpotlightsError(f"{s.cars_data}: --cars-data names no such file")
     ctx = Context(s, log)
     ctx.steps = all_steps(ctx)
-    with _lock(s.out):
+    s.out.mkdir(parents=True, exist_ok=True)
+    with exclusive_lock(s.out / ".reproduce.lock", f"{s.out}: another 'spotlights reproduce' is running in this folder"):
         _load_records(ctx)
         inv = {"started": _now(), "argv": list(argv) if argv is not None else None, "tables": keys, "seconds": None}
         ctx.invocations.append(inv)

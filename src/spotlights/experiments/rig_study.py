@@ -5,7 +5,8 @@ For every mesh of one or more folders and every rig of a list:
 * normalise the mesh by its own axis-aligned box (the paper's step 1),
 * encode it (one Embree call per rig; box rigs are built for the mesh's box),
 * ``hit_ratio`` = rays with a hit / all rays of the rig,
-* ``completeness`` = :func:`mean_nn_distance` from 16,384 points sampled uniformly
+* ``completeness`` = :func:`~spotlights.geometry.distances.completeness`: the mean
+  distance from 16,384 points sampled uniformly
   (by area) on the mesh surface to the decoded hit points, both in the unit frame
   (the paper's Section 5.3 completeness: one-sided, not squared, mean over the
   surface samples; lower is better).
@@ -29,6 +30,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import ParameterError, SpotlightsError
+from ..geometry.distances import completeness
 from ..geometry.rig import RigSpec, make_rig_spec
 from ..utils import atomic_output
 
@@ -61,30 +63,6 @@ BOX_RIGS = (
     ("box ellipsoid s1", dict(kind="box", targets="ellipsoid", scale=1.0)),
     ("box ellipsoid s1 + cap 25%", dict(kind="box", targets="ellipsoid", scale=1.0, cap_share=0.25, angle=60.0)),
 )
-
-
-def mean_nn_distance(query: np.ndarray, reference: np.ndarray) -> float:
-    """One-sided mean nearest-neighbour distance from ``query`` to ``reference``.
-
-    ``mean_q min_r |q - r|`` (Euclidean, not squared), a KD-tree on ``reference``.
-    With ``query`` = dense surface samples and ``reference`` = Spotlights points it
-    is the paper's completeness.
-
-    Parameters
-    ----------
-    query : (Q, 3) float points.
-    reference : (K, 3) float points, same frame and units.
-
-    Returns
-    -------
-    float, in the points' units; ``nan`` when ``reference`` is empty.
-    """
-    from ..geometry.neighbors import mean_nearest_distance
-
-    if len(np.asarray(reference).reshape(-1, 3)) == 0:
-        return float("nan")
-    return mean_nearest_distance(np.asarray(query, dtype=np.float64).reshape(-1, 3),
-                                 np.asarray(reference, dtype=np.float64).reshape(-1, 3))
 
 
 @dataclass(frozen=True)
@@ -187,7 +165,8 @@ def evaluate_mesh(entry: MeshEntry, rigs: Sequence[StudyRig], seed: int = 0, n_s
             "mesh_set": entry.mesh_set, "category": entry.category, "mesh": entry.mesh_id,
             "rig": r.spec.name, "label": r.label, "family": r.family, "rays": rig.n_rays,
             "hits": hits, "hit_ratio": hits / rig.n_rays,
-            "completeness": mean_nn_distance(surface, points[mask]),
+            # float64 queries: the distances do not depend on the decoded points' float32
+            "completeness": completeness(np.asarray(points[mask], dtype=np.float64), np.asarray(surface, dtype=np.float64)),
         })
     return rows
 

@@ -191,8 +191,9 @@ def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt
      "val_empty": samples whose completion is empty (left out of the point metrics)}.
     With ``dist`` active, each rank evaluates a contiguous shard and the sums are all-reduced.
     """
+    from ..geometry.distances import accuracy, combine_directions, completeness
+    from ..geometry.neighbors import NearestNeighbors
     from .device import autocast
-    from .metrics import NearestNeighbors
     from .rays import DirectionTable
 
     if rays is None and getattr(model, "needs_box", False):
@@ -226,8 +227,8 @@ def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt
             if not isinstance(tree, NearestNeighbors):
                 tree = gt_trees[m] = NearestNeighbors(tree)
             pts = p.detach().cpu().numpy()
-            acc_sum += float(tree.distances(pts).mean())
-            comp_sum += float(NearestNeighbors(pts).distances(tree.points).mean())
+            acc_sum += accuracy(pts, tree)
+            comp_sum += completeness(pts, tree)
             scored += 1
     sums = [loss_sum, float(count), acc_sum, comp_sum, float(scored)]
     loss_sum, count, acc_sum, comp_sum, scored = dist.all_sum(sums, device) if active else sums
@@ -237,7 +238,7 @@ def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt
         "val_loss": loss_sum / count if count else float("nan"),
         "val_accuracy": acc,
         "val_completeness": comp,
-        "val_chamfer_l1": 0.5 * (acc + comp),
+        "val_chamfer_l1": combine_directions(acc, comp, "mean"),  # chamfer_l1 of the means = mean of chamfer_l1
         "val_n": int(count),
         "val_empty": int(count - scored),
     }
