@@ -226,7 +226,7 @@ def _export(args) -> int:
 def _show(args) -> int:
     from pathlib import Path
 
-    from ..data.render import render_sample
+    from ..viz import render_sample
     from ..data.store import open_dataset
 
     out = Path(args.out) if args.out else Path.cwd() / f"{args.split}-{args.index}.png"

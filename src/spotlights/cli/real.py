@@ -173,8 +173,9 @@ def _show(args) -> int:
     from pathlib import Path
 
     from ..data.real.extract import read_observations
-    from ..data.real.show import frame_rows, render_frame
+    from ..data.real.frames import frame_rows
     from ..errors import ParameterError
+    from ..viz import render_frame
 
     if args.max_objects < 1:
         raise ParameterError("--max-objects must be >= 1")

@@ -350,45 +350,13 @@ def markdown_report(summary, meshes: Sequence[MeshEntry], seed: int, n_surface: 
 
 def plot_study(path, summary) -> Path:
     """Completeness against hit ratio, one panel per mesh set, one marker per rig and ray count (PNG)."""
-    from ..viz import _pyplot
+    from ..viz.study import plot_rig_study
 
-    plt = _pyplot()
-    sets = list(dict.fromkeys(summary.mesh_set))
-    fig, axes = plt.subplots(1, len(sets), figsize=(6.5 * len(sets) + 2.0, 5.0), squeeze=False)
-    markers = {r: m for r, m in zip(sorted(summary.rays.unique()), "os^Dv")}
-    # one colour family per target set (cap rigs: blues), shaded by variant
-    fam = {}
-    for label, rig in dict.fromkeys(zip(summary.label, summary.rig)):
-        spec = RigSpec.from_name(rig)
-        fam.setdefault(spec.targets or "cap", []).append(label)
-    cmaps = {"cap": "Blues", "volume": "Greens", "surface": "Purples", "visible": "Oranges", "ellipsoid": "Reds"}
-    colors = {}
-    for key, labels in fam.items():
-        for j, label in enumerate(labels):
-            colors[label] = plt.get_cmap(cmaps.get(key, "Greys"))(0.35 + 0.55 * j / max(len(labels) - 1, 1))
-    for ax, mesh_set in zip(axes[0], sets):
-        sub = summary[(summary.mesh_set == mesh_set) & (summary.category == "all")]
-        for _, r in sub.iterrows():
-            ax.scatter(r.hit_ratio, r.completeness, marker=markers[r.rays], color=colors[r.label], s=40,
-                       edgecolors="black" if r.family == "paper" else "none",
-                       label=r.label if r.rays == min(markers) else None)
-            if r.rig in (f"cap-{r.rays // SECONDARY}x{SECONDARY}-{REFERENCE_CAP_ANGLE:g}", default_box_spec(r.rays).name):
-                ax.annotate(f"{r.rays}: {r.label}", (r.hit_ratio, r.completeness), fontsize=7,
-                            xytext=(5, 3), textcoords="offset points")
-        for rays in markers:
-            ax.plot([], [], marker=markers[rays], color="gray", ls="none", label=f"{rays} rays")
-        ax.axvline(HIT_RATIO_FLOOR, color="gray", ls=":", lw=1)
-        ax.set_xlabel("hit ratio")
-        ax.set_ylabel("completeness (unit frame, lower is better)")
-        ax.set_title(mesh_set)
-        ax.grid(alpha=0.3)
-    handles, labels = axes[0][0].get_legend_handles_labels()
-    fig.legend(handles, labels, fontsize=7, loc="center right")
-    fig.tight_layout(rect=(0, 0, 0.85, 1))
-    with atomic_output(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
-    return Path(path)
+    def reference(r) -> bool:  # the paper's 60-degree cap and the default box rig at each ray count
+        return r.rig in (f"cap-{r.rays // SECONDARY}x{SECONDARY}-{REFERENCE_CAP_ANGLE:g}", default_box_spec(r.rays).name)
+
+    return plot_rig_study(path, summary, annotate=reference, floor=HIT_RATIO_FLOOR,
+                          floor_note="the best box variant is chosen among the rigs at or above it")
 
 
 @dataclass

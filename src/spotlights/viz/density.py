@@ -1,7 +1,8 @@
-"""Figures of the ray-density analysis (matplotlib, Agg backend, headless).
+"""Figures of the ray-density analysis (paper Section 3.3; numbers from :mod:`spotlights.analysis`).
 
 Every function writes one PNG atomically (temporary name, then rename) and
-returns its path. Densities are per unit ``N*M`` (see :mod:`.density`).
+returns its path. Densities are per unit ``N*M`` (see :mod:`spotlights.analysis.density`).
+The figures take arrays: the analysis computes, this module only draws.
 """
 
 from __future__ import annotations
@@ -12,26 +13,13 @@ from typing import Sequence
 
 import numpy as np
 
-from ..utils import atomic_output
+from ._figure import colormap, new_figure, save_png
 
 __all__ = ["plot_heatmaps", "plot_montecarlo", "plot_directional", "plot_caps"]
 
 
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def _save(fig, path, dpi=120) -> Path:
-    plt = _pyplot()
-    with atomic_output(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=dpi, format="png", metadata={"Software": None})
-    plt.close(fig)
-    return Path(path)
+    return save_png(fig, path, dpi, deterministic=True)
 
 
 def plot_heatmaps(
@@ -43,11 +31,11 @@ def plot_heatmaps(
         r_values: (R,) radii. alpha_values: (A,) radians. grids: cap angle (degrees) -> (R, A)
             density per unit N*M. r_limit: radius marked by a dashed line (the paper's 0.8).
     """
-    plt = _pyplot()
     angles = list(grids)
     ncol = min(len(angles), 2)
     nrow = (len(angles) + ncol - 1) // ncol
-    fig, axes = plt.subplots(nrow, ncol, figsize=(5.6 * ncol, 4.6 * nrow), squeeze=False)
+    fig = new_figure(5.6 * ncol, 4.6 * nrow)
+    axes = fig.subplots(nrow, ncol, squeeze=False)
     for ax in axes.ravel()[len(angles):]:
         ax.set_visible(False)
     for ax, ang in zip(axes.ravel(), angles):
@@ -85,12 +73,11 @@ def plot_montecarlo(path: str | os.PathLike, results: Sequence, curves: dict[flo
     Bottom row: relative deviation of the Monte-Carlo from the rig-aware expectation
     (filled, 2-sigma bars) and from the bare continuum (grey crosses).
     """
-    plt = _pyplot()
     angles = list(curves)
     ncol = min(len(angles), 2)
     nrow = (len(angles) + ncol - 1) // ncol
-    fig, axes = plt.subplots(2 * nrow, ncol, figsize=(6.4 * ncol, 7.6 * nrow), squeeze=False,
-                             gridspec_kw={"height_ratios": [3, 2] * nrow})
+    fig = new_figure(6.4 * ncol, 7.6 * nrow)
+    axes = fig.subplots(2 * nrow, ncol, squeeze=False, gridspec_kw={"height_ratios": [3, 2] * nrow})
     for j in range(len(angles), nrow * ncol):
         axes[2 * (j // ncol), j % ncol].set_visible(False)
         axes[2 * (j // ncol) + 1, j % ncol].set_visible(False)
@@ -144,29 +131,29 @@ def plot_montecarlo(path: str | os.PathLike, results: Sequence, curves: dict[flo
     return _save(fig, path)
 
 
-def plot_directional(path: str | os.PathLike, cases: Sequence[tuple[float, float]], angle: float = 90.0, n: int = 121) -> Path:
+def plot_directional(path: str | os.PathLike, cases: Sequence[tuple[float, float, np.ndarray, float]],
+                     beta: np.ndarray, gamma: np.ndarray, angle: float = 90.0) -> Path:
     """The paper's occlusion formula ``rho(r, alpha, beta, gamma)`` over the surfel's front hemisphere.
 
-    One polar panel per ``(r, alpha)`` case (alpha in radians): radius = beta (polar angle from
-    the normal, 0-90 degrees), angle = gamma (azimuth; 0 = towards the sphere centre). The
-    colour is the density per steradian of arrival direction (per unit N*M): what is lost
-    when that direction is blocked. The title gives its integral (= rho(r, alpha)).
-    """
-    from .density import rho, rho_direction_grid
+    Args:
+        cases: ``(r, alpha, grid, integral)`` per panel: alpha in radians, grid (B, G) the
+            density per steradian on ``beta`` x ``gamma``, integral = rho(r, alpha).
+        beta: (B,) polar angle from the normal, radians in [0, pi/2]. gamma: (G,) azimuth,
+            radians (0 = towards the sphere centre). angle: the cap angle (degrees, for the title).
 
-    plt = _pyplot()
-    beta = np.linspace(0.0, np.pi / 2, n)
-    gamma = np.linspace(0.0, 2 * np.pi, 2 * n)
-    fig, axes = plt.subplots(1, len(cases), figsize=(4.0 * len(cases), 4.3), subplot_kw={"projection": "polar"},
-                             squeeze=False)
-    for ax, (r, a) in zip(axes[0], cases):
-        g = rho_direction_grid(r, a, beta, gamma, angle=angle)
+    One polar panel per case: radius = beta (0-90 degrees), angle = gamma. The colour is
+    the density per steradian of arrival direction (per unit N*M): what is lost when that
+    direction is blocked. The title gives its integral (= rho(r, alpha)).
+    """
+    fig = new_figure(4.0 * len(cases), 4.3)
+    axes = fig.subplots(1, len(cases), subplot_kw={"projection": "polar"}, squeeze=False)
+    for ax, (r, a, g, integral) in zip(axes[0], cases):
         im = ax.pcolormesh(gamma, np.degrees(beta), g, shading="nearest", cmap="magma", vmin=0.0)
         ax.set_ylim(0, 90)
         ax.set_yticks([30, 60, 90])
         ax.set_yticklabels(["30", "60", "beta=90"], fontsize=7)
         ax.tick_params(axis="x", labelsize=7)
-        ax.set_title(f"r = {r:g}, alpha = {np.degrees(a):g} deg\nintegral = {float(rho(r, a, angle=angle)):.4f}", fontsize=9)
+        ax.set_title(f"r = {r:g}, alpha = {np.degrees(a):g} deg\nintegral = {float(integral):.4f}", fontsize=9)
         fig.colorbar(im, ax=ax, shrink=0.7, pad=0.1).ax.tick_params(labelsize=7)
     fig.suptitle(f"density per steradian of arrival direction, omega = {angle:g} deg "
                  "(gamma = 0 points towards the sphere centre)", fontsize=10)
@@ -186,9 +173,9 @@ def plot_caps(path: str | os.PathLike, r_values: np.ndarray, profiles: dict[floa
     Left: density normalised by its value at the centre, alpha = 0 (solid) and 90 deg (dashed).
     Right: uniformity against hit ratio, one point per cap angle.
     """
-    plt = _pyplot()
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.4))
-    cmap = plt.get_cmap("plasma")
+    fig = new_figure(11, 4.4)
+    ax, bx = fig.subplots(1, 2)
+    cmap = colormap("plasma")
     angles = list(profiles)
     for i, ang in enumerate(angles):
         col = cmap(i / max(len(angles), 1))
