@@ -499,7 +499,7 @@ def _consistency_command(ctx: Context) -> str:
 
 
 def _run_consistency(ctx: Context) -> dict:
-    from ..data.real.evaluate import evaluate_consistency, reference_shapes, write_report
+    from .real_evaluation import evaluate_consistency, reference_shapes, write_report
     from ..learning.inference import load_completer
 
     completers = [load_completer(ctx.run_dir(r) / "best.pt", device="cpu") for r in TABLE1_RUNS]
@@ -519,7 +519,7 @@ def _consistency_box_command(ctx: Context) -> str:
 
 def _run_consistency_box(ctx: Context) -> dict:
     """Consistency on the AV2 tracks of SA-Net on the paper's rig and on the box rig (each observation's own box)."""
-    from ..data.real.evaluate import evaluate_consistency, write_report
+    from .real_evaluation import evaluate_consistency, write_report
 
     runs = list(BOX_RUNS.values())
     rep = evaluate_consistency(ctx.out / "data" / "av2.h5", _completers(ctx, runs), names=runs,
@@ -718,7 +718,7 @@ def _run_fig_synthetic(ctx: Context) -> dict:
 
 def _run_fig_real(ctx: Context) -> dict:
     """KITTI and AV2: the frame with most vehicles, SA-Net completions drawn back in the scan."""
-    from ..data.real.evaluate import complete_all
+    from .real_evaluation import complete_all
     from ..data.real.extract import read_observations
     from ..data.real.frames import frame_rows
     from ..viz import render_frame
