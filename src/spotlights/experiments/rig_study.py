@@ -192,6 +192,10 @@ def _job(args):
     except SpotlightsError as exc:  # a plain SpotlightsError crosses process boundaries (pickles) intact
         raise SpotlightsError(str(exc)) from None
     if cache is not None:
+        ignore = cache.parent.parent / ".gitignore"
+        if not ignore.exists():
+            with atomic_output(ignore, suffix="") as tmp:  # a cache inside a checkout stays out of git
+                Path(tmp).write_text("*\n")
         with atomic_output(cache, suffix=".json") as tmp:
             Path(tmp).write_text(json.dumps(rows))
     return rows
@@ -210,9 +214,7 @@ def run_study(meshes: Sequence[MeshEntry], rigs: Sequence[StudyRig], seed: int =
 
     cache = None
     if cache_dir is not None:
-        cache = Path(cache_dir) / _config_key(rigs, seed, n_surface)
-        cache.mkdir(parents=True, exist_ok=True)
-        (Path(cache_dir) / ".gitignore").write_text("*\n")  # a cache inside a checkout stays out of git
+        cache = Path(cache_dir) / _config_key(rigs, seed, n_surface)  # created with its first result
 
     def cache_file(e: MeshEntry):
         if cache is None:
@@ -222,18 +224,11 @@ def run_study(meshes: Sequence[MeshEntry], rigs: Sequence[StudyRig], seed: int =
     jobs = [(e, list(rigs), seed, n_surface, cache_file(e)) for e in meshes]
     results = []
     with tqdm(total=len(jobs), desc="rig study", unit="mesh", disable=not progress) as bar:
-        if workers > 1 and len(jobs) > 1:
-            from ..utils import process_pool_context
+        from ..utils import process_map
 
-            ctx = process_pool_context()
-            with ctx.Pool(min(workers, len(jobs))) as pool:
-                for rows in pool.imap(_job, jobs):
-                    results.append(rows)
-                    bar.update()
-        else:
-            for job in jobs:
-                results.append(_job(job))
-                bar.update()
+        for rows in process_map(_job, jobs, workers, what="mesh"):
+            results.append(rows)
+            bar.update()
     return pd.DataFrame([row for rows in results for row in rows])
 
 
@@ -383,14 +378,16 @@ def rig_study(out_dir, mesh_dirs: Sequence, rays: Sequence[int] = DEFAULT_RAYS, 
     workers : processes over meshes (results do not depend on it).
     variants : ``(label, make_rig_spec kwargs)`` pairs (default ``PAPER_RIGS + BOX_RIGS``).
     """
+    from ..utils import output_folder
+
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     meshes = find_meshes(mesh_dirs)
     if not meshes:
         raise SpotlightsError("no category has enough meshes for the study")
     rigs = study_rigs(rays, variants=variants)
-    df = run_study(meshes, rigs, seed=seed, n_surface=n_surface, workers=workers, cache_dir=out / ".cache",
-                   progress=progress)
+    with output_folder(out):  # created now, removed again if the study fails before writing anything
+        df = run_study(meshes, rigs, seed=seed, n_surface=n_surface, workers=workers, cache_dir=out / ".cache",
+                       progress=progress)
     summary = summarize(df)
     paths = StudyResult(out / "rigs.csv", out / "rigs_per_mesh.csv.gz", out / "rigs.md", out / "rigs.png", summary)
     with atomic_output(paths.csv, suffix=".csv") as tmp:
