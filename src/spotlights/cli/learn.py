@@ -8,6 +8,7 @@ from __future__ import annotations
 import sys
 
 from ._util import add_command, add_group, non_negative_int, positive_float, positive_int, unit_interval
+from .view import add_html_argument
 
 MODEL_CHOICES = ("sanet", "pcn", "foldingnet", "topnet", "atlasnet")
 
@@ -53,6 +54,9 @@ def register(sub) -> None:
     p.add_argument("--fscore-threshold", type=positive_float, default=0.01, metavar="T", help="F-score distance threshold, unit frame (default 0.01)")
     p.add_argument("--accuracy-only", action="store_true", help="skip the GT -> prediction side (completeness, CD, F-score)")
     p.add_argument("--no-latency", action="store_true", help="do not time the models")
+    p.add_argument("--examples", type=non_negative_int, default=2, metavar="K",
+                   help="figure PATH.png: K scans per category, each model's prediction beside the ground truth "
+                        "(default 2; 0: no figure)")
     p.add_argument("--device", default=None)
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     p.add_argument("--no-progress", action="store_true")
@@ -75,6 +79,7 @@ def register(sub) -> None:
                    help="how the scan is brought to 256 points: a seeded random subset (default, as in the training data) or farthest-point sampling")
     p.add_argument("--seed", type=int, default=0, help="seed of the resampling")
     p.add_argument("--show", default=None, metavar="PNG", help="also write a picture of the scan and its completion")
+    add_html_argument(p)
     p.add_argument("--device", default=None)
 
     # ---- bench models (reuses an existing 'bench' group if another module made one)
@@ -132,6 +137,16 @@ def _evaluate(args) -> int:
     md, js = write_report(report, args.out)
     print(report_markdown(report).split("\n## ")[0].rstrip())
     print(f"\nreport -> {md}, {js}")
+    if args.examples:
+        from pathlib import Path
+
+        from ..learning.evaluate import prediction_examples
+        from ..viz import render_predictions
+
+        png = render_predictions(md.with_suffix(".png"), prediction_examples(
+            args.checkpoint, args.data, args.split, per_category=args.examples, clip=args.clip, device=args.device),
+            title=f"{args.split} scans of {Path(args.data).name}: predictions beside the ground truth (unit frame)")
+        print(f"figure -> {png}")
     return 0
 
 
@@ -171,6 +186,17 @@ def _complete(args) -> int:
         layers = [viz.Layer(points, "0.6", "scan", 3.0, 0.6), viz.Layer(res["completed"], "tab:green", "completion", 2.0)]
         viz.render_layers(args.show, layers, title=f"{Path(args.input).name}: {completer.model_name} completion")
         print(f"picture -> {args.show}")
+    if args.html:
+        from ..viz import html
+        from ..viz.scene import SceneObject
+        from .view import write_page
+
+        norm = res["normalization"]
+        obj = SceneObject("box", np.asarray(norm.center, dtype=np.float64), np.asarray(box.size, dtype=np.float64),
+                          np.asarray(norm.rotation, dtype=np.float64),
+                          norm.from_unit(np.asarray(res["partial_unit"], dtype=np.float64)), res["completed"])
+        write_page(args.html, [("scene", html.scene_traces(points, [obj]))],
+                   f"{Path(args.input).name}: {completer.model_name} completion (scan's frame)")
     return 0
 
 

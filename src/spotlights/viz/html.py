@@ -163,6 +163,23 @@ def encoding_traces(encoding, name: str, clip: float | None = None, rays: int | 
     return out
 
 
+def sample_traces(sample: dict, rig, clip: float | None = None) -> list:
+    """A dataset sample in its unit frame: ground truth (grey), Spotlights points decoded from the
+    ground-truth depths with ``rig`` (green), partial scan (purple), and a line toward the sensor.
+    ``sample``: a dict of :meth:`~spotlights.data.store.CompletionDataset.sample`."""
+    from ..geometry.encode import decode
+
+    gt = np.asarray(sample["gt_points"], dtype=np.float64)
+    spot, mask = decode(sample["gt_depths"], rig, clip)
+    partial = np.asarray(sample["partial"], dtype=np.float64)
+    sensor = np.asarray(sample["sensor_to_unit"], dtype=np.float64)[:3, 3]
+    toward = sensor / max(float(np.linalg.norm(sensor)), 1e-12)
+    return [points_trace(gt, f"uniform ground truth ({len(gt)} pts)", GREY, 2.0),
+            points_trace(spot[mask], f"Spotlights {rig.name} ({int(mask.sum())}/{rig.n_rays} hits)", GREEN, 2.5),
+            points_trace(partial, f"partial scan ({len(partial)} pts)", PURPLE, 3.5),
+            segments_trace(np.zeros((1, 3)), 0.95 * toward[None], "toward the sensor", "black", 5.0)]
+
+
 def page(panels: Sequence[tuple[str, list]], title: str = "", side_by_side: bool = False):
     """A plotly Figure: every panel's traces in one 3-D scene (overlay), or one scene per panel.
 
