@@ -28,6 +28,7 @@ COMMAND_MODULES = [
     "spotlights.cli.learn",  # train, evaluate, bench models
     "spotlights.cli.complete",  # complete (a frame with its boxes, or one object)
     "spotlights.cli.reproduce",  # reproduce (the paper's tables)
+    "spotlights.cli.view",  # view (interactive HTML page)
 ]
 
 EPILOG = """\
@@ -38,6 +39,7 @@ the representation:
   spotlights encode car.ply --out car.npz           # mesh -> Spotlights depth array (32 x 64 rays, 60 deg)
   spotlights decode car.npz --out car_points.ply    # depth array -> ordered point cloud
   spotlights show car.npz --out car.png             # look at it
+  spotlights view car.npz car.ply --out view.html   # interactive 3-D page, opens offline (rotate, zoom)
 
 completion:
   spotlights complete scan.bin --boxes boxes.json --out done.ply --show done.png   # a LiDAR frame + its 3-D boxes

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ._util import add_command, add_group, positive_int, unit_interval
+from .view import add_html_argument
 
 
 def register(sub) -> None:
@@ -81,9 +82,11 @@ def register(sub) -> None:
     s.add_argument("file", metavar="FILE")
     s.add_argument("--split", default="test", choices=("train", "val", "test"))
     s.add_argument("--index", type=int, default=0, help="sample index within the split (default 0)")
-    s.add_argument("--out", "-o", default=None, metavar="PNG", help="output picture (default: ./SPLIT-INDEX.png)")
+    s.add_argument("--out", "-o", default=None, metavar="PNG",
+                   help="output picture (default: ./SPLIT-INDEX.png; with --html alone, no picture)")
     s.add_argument("--rig", default=None, help="rig whose points are drawn (default: the default rig)")
     s.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="depths below T count as misses")
+    add_html_argument(s)
 
 
 def _distance(text: str) -> tuple[float, float]:
@@ -216,14 +219,24 @@ def _export(args) -> int:
 def _show(args) -> int:
     from pathlib import Path
 
-    from ..viz import render_sample
     from ..data.store import open_dataset
+    from ..viz import render_sample
 
     out = Path(args.out) if args.out else Path.cwd() / f"{args.split}-{args.index}.png"
     with open_dataset(args.file) as ds:
         i = _pick(ds, args.split, args.index)
         s = ds.sample(i, rig=args.rig)
         rig = ds.rig(s["rig"], s["model_index"])
+    what = f"{args.file}: {args.split}[{args.index}] = sample {i} ({s['model']}, view {s['view']})"
+    if args.html:
+        from ..viz import html
+        from .view import write_page
+
+        write_page(args.html, [("sample", html.sample_traces(s, rig, clip=args.clip))],
+                   f"{s['model']} ({s['category']}, {s['split']}), view {s['view']}, unit frame", quiet=True)
+        print(f"{what} -> {args.html}")
+        if not args.out:
+            return 0
     render_sample(out, s, rig, clip=args.clip)
-    print(f"{args.file}: {args.split}[{args.index}] = sample {i} ({s['model']}, view {s['view']}) -> {out}")
+    print(f"{what} -> {out}")
     return 0

@@ -60,6 +60,9 @@ def register(sub) -> None:
     p.add_argument("--fscore-threshold", type=positive_float, default=0.01, metavar="T", help="F-score distance threshold, unit frame (default 0.01)")
     p.add_argument("--accuracy-only", action="store_true", help="skip the GT -> prediction side (completeness, CD, F-score)")
     p.add_argument("--no-latency", action="store_true", help="do not time the models")
+    p.add_argument("--examples", type=non_negative_int, default=2, metavar="K",
+                   help="figure PATH.png: K scans per category, each model's prediction beside the ground truth "
+                        "(default 2; 0: no figure)")
     p.add_argument("--device", default=None)
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     p.add_argument("--no-progress", action="store_true")
@@ -120,6 +123,16 @@ def _evaluate(args) -> int:
     md, js = write_report(report, args.out)
     print(report_markdown(report).split("\n## ")[0].rstrip())
     print(f"\nreport -> {md}, {js}")
+    if args.examples:
+        from pathlib import Path
+
+        from ..learning.evaluate import prediction_examples
+        from ..viz import render_predictions
+
+        png = render_predictions(md.with_suffix(".png"), prediction_examples(
+            args.checkpoint, args.data, args.split, per_category=args.examples, clip=args.clip, device=args.device),
+            title=f"{args.split} scans of {Path(args.data).name}: predictions beside the ground truth (unit frame)")
+        print(f"figure -> {png}")
     return 0
 
 

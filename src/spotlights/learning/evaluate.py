@@ -233,3 +233,39 @@ def write_report(report: dict, out) -> tuple[Path, Path]:
     with atomic_output(js) as tmp:
         tmp.write_text(json.dumps(_jsonable(report), indent=2))
     return md, js
+
+
+def prediction_examples(checkpoints, data, split: str = "test", per_category: int = 2, clip=None,
+                        device=None) -> list[dict]:
+    """A few scans per category with every checkpoint's prediction, for
+    :func:`spotlights.viz.render_predictions` (``spotlights evaluate`` draws them beside the report).
+
+    The scans: in each category (report order), the first view of the first ``per_category``
+    models of the split. SA-Net predictions use ``clip`` (default: the checkpoint's).
+    Returns dicts with ``label``, ``partial`` (K, 3), ``gt`` (the dense ground truth, (L, 3)),
+    ``predictions`` [(model name, (M, 3))], all float, unit frame.
+    """
+    from ..data.store import open_dataset
+    from .inference import DEFAULT, load_completer
+
+    completers = [load_completer(c, device=device) for c in checkpoints]
+    names = [c.model_name for c in completers]
+    names = [f"{n} ({Path(c).parent.name or Path(c).stem})" if names.count(n) > 1 else n for n, c in zip(names, checkpoints)]
+    out = []
+    with open_dataset(data) as ds:
+        idx = ds.split_indices(split)
+        models = ds.sample_model[idx]
+        cats = ds.categories[models]
+        for cat in sorted(set(cats.tolist())):
+            first = {}
+            for i, m in zip(idx[cats == cat], models[cats == cat]):
+                first.setdefault(int(m), int(i))
+            for i in list(first.values())[:per_category]:
+                smp = ds.sample(i)
+                preds = []
+                for name, c in zip(names, completers):
+                    kw = {"extents": smp["extents"][None]} if c.needs_box else {}
+                    preds.append((name, c.complete(smp["partial"][None], clip=DEFAULT if clip is None else clip, **kw)[0]))
+                out.append({"label": f"{smp['model']} ({smp['category']}), view {smp['view']}", "partial": smp["partial"],
+                            "gt": smp["gt_dense"], "predictions": preds})
+    return out

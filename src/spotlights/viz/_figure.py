@@ -66,8 +66,8 @@ def cube_limits(points: np.ndarray, pad: float = 0.0) -> tuple[np.ndarray, float
 def equal_axes3d(ax, center: np.ndarray, half: float, labels=("x", "y", "z"), n_ticks: int = 5) -> None:
     """Equal scales on a 3-D axes: a cube of half-side ``half`` around ``center``.
 
-    At most ``n_ticks`` ticks per axis, so that tick labels never run into each other
-    (``-0.20.0``); labels are short (``-0.4``, not ``-0.40``).
+    At most ``n_ticks`` ticks per axis and none at the ends of an axis (where the labels of
+    two axes meet in a corner), so that tick labels never run into each other (``-0.20.0``).
     """
     from matplotlib.ticker import MaxNLocator
 
@@ -75,7 +75,7 @@ def equal_axes3d(ax, center: np.ndarray, half: float, labels=("x", "y", "z"), n_
         setlim(c - half, c + half)
     ax.set_box_aspect((1, 1, 1))
     for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
-        axis.set_major_locator(MaxNLocator(n_ticks, steps=[1, 2, 2.5, 5, 10]))
+        axis.set_major_locator(MaxNLocator(n_ticks, steps=[1, 2, 2.5, 5, 10], prune="both"))
     ax.tick_params(labelsize=7, pad=0)
     if labels:
         ax.set_xlabel(labels[0], labelpad=-2)
@@ -88,7 +88,7 @@ def add_scale_bar(ax, length: float | None = None, label: str = "m", loc: str = 
 
     ``length`` default: a round number near a fifth of the axes' width (1, 2 or 5 x 10^k).
     """
-    from matplotlib.offsetbox import AnchoredSizeBar
+    from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
     x0, x1 = ax.get_xlim()
     if length is None:

@@ -57,11 +57,11 @@ def render_predictions(path: str | os.PathLike, examples: Sequence[dict], title:
         gt = np.asarray(e["gt"], dtype=np.float64).reshape(-1, 3)
         shown_gt = gt[np.linspace(0, len(gt) - 1, min(len(gt), max_gt_points)).astype(np.int64)] if len(gt) else gt
         partial = np.asarray(e["partial"], dtype=np.float64).reshape(-1, 3)
-        row = [(f"{e['label']}\npartial input ({len(partial)} pts)", [Layer(partial, PARTIAL_COLOR, None, 3.0, 1.0)])]
+        row = [(f"{e['label']}\npartial input ({len(partial)} pts)", [Layer(partial, PARTIAL_COLOR, None, 4.0, 1.0)])]
         for (name, pred), d in zip(e["predictions"], dists[i]):
             pred = np.asarray(pred, dtype=np.float64).reshape(-1, 3)
             ttl = f"{name} ({len(pred)} pts)\nmean dist. to GT {d.mean():.4f}" if len(pred) else f"{name}: empty"
-            row.append((ttl, [Layer(pred, d, None, 1.5, 1.0, cmap=cmap, vmin=0.0, vmax=top)]))
+            row.append((ttl, [Layer(pred, d, None, 2.5, 1.0, cmap=cmap, vmin=0.0, vmax=top)]))
         row.append((f"ground truth ({len(gt)} pts)", [Layer(shown_gt, GT_COLOR, None, 0.8, 1.0)]))
         for j, (ttl, layers) in enumerate(row):
             ax = add_axes3d(fig, nrow, ncol, i * ncol + j + 1)
@@ -70,16 +70,16 @@ def render_predictions(path: str | os.PathLike, examples: Sequence[dict], title:
                 ax.scatter(p[:, 0], p[:, 1], p[:, 2], s=s, c=c, linewidths=0, depthshade=False)
             for setlim in (ax.set_xlim, ax.set_ylim, ax.set_zlim):
                 setlim(-0.85, 0.85)
-            ax.set_box_aspect((1, 1, 1), zoom=1.3)
+            ax.set_box_aspect((1, 1, 1), zoom=1.45)
             ax.view_init(elev=elev, azim=azim)
             ax.set_axis_off()
             ax.set_title(ttl, fontsize=7.5)
             cells.append(ax)
     if title:
         fig.suptitle(title, fontsize=10)
-    fig.tight_layout(rect=(0, 0, 1 - 0.8 / (2.6 * ncol + 0.8), 1))
+    fig.tight_layout(rect=(0, 0, 1 - 0.8 / (2.6 * ncol + 0.8), 1 - 0.45 / (2.7 * nrow + 0.6)))
     cax = fig.add_axes((1 - 0.7 / (2.6 * ncol + 0.8), 0.15, 0.012, 0.7))
     cb = fig.colorbar(ScalarMappable(norm=norm, cmap=colormap(cmap)), cax=cax, extend="max")
-    cb.set_label("distance to the nearest ground-truth point (unit frame)", fontsize=8)
+    cb.set_label("prediction: distance to the nearest ground-truth point (unit frame)", fontsize=9)
     cb.ax.tick_params(labelsize=7)
     return save_png(fig, path, dpi)

@@ -39,7 +39,7 @@ def render_sample(path: str | os.PathLike, sample: dict, rig, clip: float | None
         ("overlay, arrow: toward the sensor", [(gt, GT_COLOR, 1.0), (spot, SPOTLIGHTS_COLOR, 2.0),
                                               (partial, PARTIAL_COLOR, 4.0)]),
     ]
-    fig = new_figure(4.2 * len(panels), 4.6)
+    fig = new_figure(4.2 * len(panels), 4.8)
     for j, (title, layers) in enumerate(panels):
         ax = add_axes3d(fig, 1, len(panels), j + 1)
         draw_points3d(ax, [Layer(pts, color, None, size, 1.0) for pts, color, size in layers], elev, azim,
@@ -49,5 +49,5 @@ def render_sample(path: str | os.PathLike, sample: dict, rig, clip: float | None
         ax.set_title(title, fontsize=9)
     fig.suptitle(f"{sample['model']} ({sample['category']}, {sample['split']}), view {sample['view']}: "
                  f"{sample.get('distance', float('nan')):.1f} m from the sensor, unit frame", fontsize=11)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 0.94))
     return save_png(fig, path, dpi)

@@ -108,7 +108,8 @@ def draw_bev(ax, scan: np.ndarray, objects: Sequence[SceneObject], max_scan_poin
         ax.plot(c[:, 0], c[:, 1], color="black", lw=0.7)
         ax.annotate(o.label, o.center[:2] + np.array([0.0, 0.6 * o.reach + 0.4]), fontsize=7, ha="center",
                     va="bottom", color="black", bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.7))
-    ax.plot([0], [0], marker="^", color="black", ms=6, ls="none", label="sensor")
+    ax.plot([0], [0], marker="^", color="black", ms=6, ls="none")
+    ax.annotate("sensor", (0, 0), xytext=(0, -10), textcoords="offset points", fontsize=7, ha="center", va="top")
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
     ax.set_aspect("equal")
@@ -139,12 +140,13 @@ def draw_closeup(ax, scan: np.ndarray, obj: SceneObject, context: float = 1.0) -
     k = obj.corners()
     for a, b in BOX_EDGES:
         ax.plot(*np.stack([k[a], k[b]]).T, color="black", lw=0.5, alpha=0.6)
-    # a 1 m ruler along the box's length, on the ground at its front-left bottom corner
+    # a 1 m ruler along the box's length, on the ground beside its bottom edge that faces the sensor
     rot = np.asarray(obj.rotation, dtype=np.float64)
-    start = k[2] - rot[:, 1] * 0.25  # corner (-x, +y, -z) pushed 0.25 m out
+    side = 1.0 if np.linalg.norm(k[2] + k[3]) < np.linalg.norm(k[0] + k[1]) else -1.0  # +y side nearer the sensor?
+    start = (k[2] if side > 0 else k[0]) + side * rot[:, 1] * 0.3
     ruler = np.stack([start, start + rot[:, 0]])
     ax.plot(*ruler.T, color="black", lw=2.0, solid_capstyle="butt")
-    ax.text(*(ruler.mean(axis=0) - rot[:, 1] * 0.35 - np.array([0, 0, 0.15])), "1 m", fontsize=7, ha="center")
+    ax.text(*(ruler.mean(axis=0) + side * rot[:, 1] * 0.35), "1 m", fontsize=7, ha="center", va="top")
     r = reach + 0.3
     ax.set_xlim(c[0] - r, c[0] + r)
     ax.set_ylim(c[1] - r, c[1] + r)

@@ -45,16 +45,18 @@ def plot_rig_study(path: str | os.PathLike, summary, annotate: Callable[[object]
         for j, label in enumerate(labels):
             colors[label] = cmap(0.4 + 0.55 * j / max(len(labels) - 1, 1))
     paper = set(summary.label[summary.family == "paper"])
-    fig = new_figure(6.2 * len(sets), 6.6)
+    fig = new_figure(6.2 * len(sets), 6.2)
     axes = fig.subplots(1, len(sets), squeeze=False)[0]
     for ax, mesh_set in zip(axes, sets):
         sub = summary[(summary.mesh_set == mesh_set) & (summary.category == "all")]
+        mid = 0.5 * (float(sub.hit_ratio.min()) + float(sub.hit_ratio.max())) if len(sub) else 0.5
         for _, r in sub.iterrows():
             ax.scatter(r.hit_ratio, r.completeness, marker=markers[r.rays], color=colors[r.label], s=42,
                        edgecolors="black" if r.label in paper else "none", linewidths=0.8, zorder=3)
             if annotate is not None and annotate(r):
+                right = r.hit_ratio > mid  # name on the inner side: never past the panel's edge
                 ax.annotate(f"{r.rays}: {r.label}", (r.hit_ratio, r.completeness), fontsize=7,
-                            xytext=(5, 3), textcoords="offset points")
+                            xytext=(-6 if right else 6, 3), textcoords="offset points", ha="right" if right else "left")
         if floor is not None:
             ax.axvline(floor, color="gray", ls=":", lw=1.2, zorder=1)
         ax.set_xlabel("hit ratio (fraction of rays that hit the object)")
@@ -69,7 +71,7 @@ def plot_rig_study(path: str | os.PathLike, summary, annotate: Callable[[object]
         handles.append(Line2D([], [], color="gray", ls=":", lw=1.2, label=f"hit ratio {floor:g}" + (f": {floor_note}" if floor_note else "")))
     ncol = min(5, max(2, len(handles) // 4 + 1))
     nrows_legend = -(-len(handles) // ncol)
-    bottom = min(0.45, 0.06 + 0.032 * nrows_legend)
+    bottom = min(0.45, 0.03 + 0.034 * nrows_legend)
     fig.legend(handles=handles, loc="lower center", ncol=ncol, fontsize=7, frameon=False, bbox_to_anchor=(0.5, 0.0))
     fig.tight_layout(rect=(0, bottom, 1, 1))
     return save_png(fig, path, dpi)
