@@ -9,10 +9,11 @@ import sys
 
 import numpy as np
 import pytest
-from helpers import REPO
 
 from spotlights.geometry import distances as D
 from spotlights.geometry.neighbors import NearestNeighbors
+
+from helpers import REPO
 
 
 def naive_chamfer(x, y, squared=False, single_directional=False, point_reduction="mean", direction_reduction="sum"):
@@ -37,13 +38,20 @@ def clouds():
     return rng.normal(size=(230, 3)), rng.normal(size=(170, 3)) * 0.8 + 0.2
 
 
-@pytest.mark.parametrize("squared, single, point_reduction, direction_reduction",
-                         list(itertools.product([False, True], [False, True], ["mean", "sum"], ["sum", "mean"])))
-def test_chamfer_distance_every_setting_matches_the_naive_reference(clouds, squared, single, point_reduction,
-                                                                    direction_reduction):
+@pytest.mark.parametrize(
+    "squared, single, point_reduction, direction_reduction",
+    list(itertools.product([False, True], [False, True], ["mean", "sum"], ["sum", "mean"])),
+)
+def test_chamfer_distance_every_setting_matches_the_naive_reference(
+    clouds, squared, single, point_reduction, direction_reduction
+):
     x, y = clouds
-    kw = dict(squared=squared, single_directional=single, point_reduction=point_reduction,
-              direction_reduction=direction_reduction)
+    kw = dict(
+        squared=squared,
+        single_directional=single,
+        point_reduction=point_reduction,
+        direction_reduction=direction_reduction,
+    )
     expect = naive_chamfer(x, y, **kw)
     assert D.chamfer_distance(x, y, **kw) == pytest.approx(expect, rel=1e-12)
     # prebuilt trees on either side give the same value
@@ -57,7 +65,9 @@ def test_per_point_distances_and_float32(clouds):
     np.testing.assert_allclose(d_xy, ref_xy, rtol=1e-12)
     np.testing.assert_allclose(d_yx, ref_yx, rtol=1e-12)
     np.testing.assert_allclose(D.nearest_distances(x, y, squared=True), ref_xy**2, rtol=1e-12)
-    np.testing.assert_allclose(D.chamfer_distance(x, y, single_directional=True, point_reduction="none"), ref_xy, rtol=1e-12)
+    np.testing.assert_allclose(
+        D.chamfer_distance(x, y, single_directional=True, point_reduction="none"), ref_xy, rtol=1e-12
+    )
     # float32 points: the query runs in float32, distances come back as float64 within float32 accuracy
     x32, y32 = x.astype(np.float32), y.astype(np.float32)
     d = D.nearest_distances(x32, y32)
@@ -153,5 +163,7 @@ def test_every_caller_uses_the_same_numbers():
 
 def test_distances_module_does_not_import_torch():
     code = "import sys, spotlights.geometry.distances; assert 'torch' not in sys.modules"
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env={"PYTHONPATH": str(REPO / "src")})
+    proc = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env={"PYTHONPATH": str(REPO / "src")}
+    )
     assert proc.returncode == 0, proc.stderr

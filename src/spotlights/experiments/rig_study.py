@@ -31,11 +31,11 @@ import numpy as np
 
 from ..errors import ParameterError, SpotlightsError
 from ..geometry.distances import completeness
+from ..geometry.io import MESH_SUFFIXES
 from ..geometry.rig import RigSpec, make_rig_spec
 from ..utils import atomic_output
 
 CARS = "apolloscape-cars"
-MESH_SUFFIXES = (".ply", ".obj", ".off", ".stl", ".glb", ".gltf")
 DEFAULT_RAYS = (2048, 4096, 8192)
 SECONDARY = 64  # M; N = rays / M (the paper's 32 x 64 at 2048 rays)
 N_SURFACE = 16384
@@ -134,7 +134,8 @@ def find_meshes(folders: Sequence, min_per_category: int = MIN_PER_CATEGORY) -> 
     return entries
 
 
-def _mesh_axes(path: Path) -> dict:
+def mesh_axes(path: Path) -> dict:
+    """Keyword arguments of :func:`~spotlights.geometry.io.load_mesh` for a mesh file of the study: ``up="y"`` for glTF."""
     # glTF is y-up by its specification; other formats are read as they are (z up).
     return {"up": "y"} if path.suffix.lower() in (".glb", ".gltf") else {}
 
@@ -151,7 +152,7 @@ def evaluate_mesh(entry: MeshEntry, rigs: Sequence[StudyRig], seed: int = 0, n_s
     from ..geometry.io import load_mesh
     from ..geometry.sampling import sample_surface
 
-    mesh = load_mesh(entry.path, **_mesh_axes(entry.path))
+    mesh = load_mesh(entry.path, **mesh_axes(entry.path))
     probe = MeshProbe(mesh)
     mesh_seed = (int(seed) << 32) ^ zlib.crc32(f"{entry.mesh_set}/{entry.mesh_id}".encode())
     surface = probe.normalization.to_unit(sample_surface(mesh, n_surface, mesh_seed))

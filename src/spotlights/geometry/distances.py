@@ -52,6 +52,7 @@ POINT_REDUCTIONS = ("mean", "sum", "none")
 DIRECTION_REDUCTIONS = ("sum", "mean")
 """How :func:`chamfer_distance` combines the two sides: their sum (Eq. 1) or their mean (CD-L1)."""
 
+
 def _points(x, what: str) -> np.ndarray:
     return x.points if isinstance(x, NearestNeighbors) else as_points(x, what)
 
@@ -126,11 +127,20 @@ def combine_directions(d_xy, d_yx, direction_reduction: str = "sum"):
         return d_xy + d_yx
     if direction_reduction == "mean":
         return 0.5 * (d_xy + d_yx)
-    raise ValueError(f"unknown direction reduction {direction_reduction!r}; use one of {', '.join(DIRECTION_REDUCTIONS)}")
+    raise ValueError(
+        f"unknown direction reduction {direction_reduction!r}; use one of {', '.join(DIRECTION_REDUCTIONS)}"
+    )
 
 
-def chamfer_distance(x, y, *, squared: bool = False, single_directional: bool = False, point_reduction: str = "mean",
-                     direction_reduction: str = "sum"):
+def chamfer_distance(
+    x,
+    y,
+    *,
+    squared: bool = False,
+    single_directional: bool = False,
+    point_reduction: str = "mean",
+    direction_reduction: str = "sum",
+):
     """Chamfer distance between two point sets, parametrised as PyTorch3D's ``chamfer_distance``.
 
     Parameters
@@ -154,7 +164,9 @@ def chamfer_distance(x, y, *, squared: bool = False, single_directional: bool = 
     if point_reduction not in POINT_REDUCTIONS:
         raise ValueError(f"unknown point reduction {point_reduction!r}; use one of {', '.join(POINT_REDUCTIONS)}")
     if direction_reduction not in DIRECTION_REDUCTIONS:
-        raise ValueError(f"unknown direction reduction {direction_reduction!r}; use one of {', '.join(DIRECTION_REDUCTIONS)}")
+        raise ValueError(
+            f"unknown direction reduction {direction_reduction!r}; use one of {', '.join(DIRECTION_REDUCTIONS)}"
+        )
     px, py = _points(x, "x"), _points(y, "y")
     empty = len(px) == 0 or len(py) == 0
 
@@ -169,8 +181,9 @@ def chamfer_distance(x, y, *, squared: bool = False, single_directional: bool = 
     d_yx = side(y, x, py)
     if point_reduction == "none":
         return d_xy, d_yx
-    return combine_directions(_reduce_side(d_xy, point_reduction, empty), _reduce_side(d_yx, point_reduction, empty),
-                              direction_reduction)
+    return combine_directions(
+        _reduce_side(d_xy, point_reduction, empty), _reduce_side(d_yx, point_reduction, empty), direction_reduction
+    )
 
 
 def _reduce_side(d: np.ndarray, reduction: str, empty: bool) -> float:

@@ -31,7 +31,14 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..geometry.distances import (  # noqa: F401  (re-exported: the metrics' one owner is geometry.distances)
-    accuracy, chamfer_l1, chamfer_l2, combine_directions, completeness, fscore, fscore_from_shares, nearest_distances,
+    accuracy,
+    chamfer_l1,
+    chamfer_l2,
+    combine_directions,
+    completeness,
+    fscore,
+    fscore_from_shares,
+    nearest_distances,
     reduce_points,
 )
 from ..geometry.neighbors import NearestNeighbors, as_points
