@@ -325,8 +325,8 @@ def _consistency_command(ctx: Context) -> str:
 
 
 def _run_consistency(ctx: Context) -> dict:
-    from ..real_evaluation import evaluate_consistency, reference_shapes, write_report
     from ...learning.inference import load_completer
+    from ..real_evaluation import evaluate_consistency, reference_shapes, write_report
 
     completers = [load_completer(ctx.run_dir(r) / "best.pt", device="cpu") for r in TABLE1_RUNS]
     refs, ref_info = reference_shapes(ctx.s.cars_path)
