@@ -37,6 +37,8 @@ def expected_decoder(name: str) -> int:
     """Closed-form decoder parameter counts of the default configs (docs/learning.md)."""
     if name == "sanet":
         return lin(1024, 256) + lin(256, 256) + lin(256, 2048)
+    if name == "sanet-hit":  # a hit logit and a depth per ray
+        return lin(1024, 256) + lin(256, 256) + lin(256, 2 * 2048)
     if name == "pcn":
         return 2 * lin(1024, 1024) + lin(1024, 512 * 3) + lin(1024 + 5, 512) + lin(512, 512) + lin(512, 3)
     if name == "foldingnet":
@@ -71,7 +73,7 @@ def test_default_model_shapes_and_parameter_counts(name, rig):
     x = torch.rand(2, 256, 3) * 1.1 - 0.55
     with torch.no_grad():
         out = model(x)
-    if name == "sanet":
+    if name.startswith("sanet"):
         assert out["depths"].shape == (2, 2048)
     else:
         assert out["points"].shape == (2, 2048, 3)
