@@ -464,7 +464,7 @@ def report_markdown(report: dict) -> str:
 
 def write_report(report: dict, prefix: str | os.PathLike) -> tuple[Path, Path]:
     """Write ``PREFIX.md`` and ``PREFIX.json`` atomically; returns both paths."""
-    from ...utils import atomic_output
+    from ..utils import atomic_output
 
     prefix = Path(prefix)
     md, js = prefix.with_name(prefix.name + ".md"), prefix.with_name(prefix.name + ".json")
