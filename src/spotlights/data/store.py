@@ -240,6 +240,7 @@ class CompletionDataset:
         # a rig is the dataset's when every shard holds it (an interrupted add-rig adds it to some only)
         self.rig_names = sorted(set.intersection(*[set(t["rigs"]) for t in tables]))
         attrs = first["attrs"]
+        self.attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in attrs.items()}
         self.default_rig = str(attrs.get("default_rig", self.rig_names[0] if self.rig_names else ""))
         self.views_per_model = int(attrs.get("views_per_model", 0))
         self.config = json.loads(attrs.get("config_json", "{}"))
@@ -298,6 +299,10 @@ class CompletionDataset:
                 raise InputFileError(path, f"not a readable HDF5 file ({str(exc).splitlines()[0][:100]})") from None
             self._files[k] = f
         return f
+
+    def has(self, key: str) -> bool:
+        """Whether every shard holds the HDF5 dataset or group ``key`` (e.g. ``"models/gt_dense"``)."""
+        return all(key in self._h5(k) for k in range(len(self.shards)))
 
     def is_open(self) -> bool:
         """Whether this process holds an open handle (DataLoader parents should not)."""
@@ -425,10 +430,14 @@ class CompletionDataset:
         each model's rig is ``rig_spec(name).for_box(extents[model])`` (:meth:`rig`)."""
         from ..geometry.rig import RigSpec
 
+        return RigSpec.from_dict(self.rig_dict(name))
+
+    def rig_dict(self, name: str | None = None) -> dict:
+        """The stored ``rig_json`` of rig ``name`` (default rig) as a dict (``RigSpec.to_dict()``)."""
         name = name or self.default_rig
         if name not in self.rig_names:
             raise ParameterError(f"{self.path}: no rig {name!r}; stored rigs: {', '.join(self.rig_names)}")
-        return RigSpec.from_dict(json.loads(self._h5()[f"rigs/{name}"].attrs["rig_json"]))
+        return json.loads(self._h5()[f"rigs/{name}"].attrs["rig_json"])
 
     def rig(self, name: str | None = None, model: int | None = None):
         """The :class:`~spotlights.geometry.rig.Rig` whose rays gave model row ``model``'s depths
