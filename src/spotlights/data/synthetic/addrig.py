@@ -6,7 +6,7 @@ import json
 import os
 import shutil
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -15,13 +15,13 @@ import numpy as np
 import trimesh
 from tqdm import tqdm
 
-from ...errors import InputFileError
+from ...errors import InputFileError, ParameterError
 from ...geometry.encode import MeshProbe
 from ...geometry.frames import normalization_from_mesh
 from ...geometry.rig import Rig, RigSpec
 from ...utils import atomic_output
 from ..store import open_dataset, write_rig_group
-from .catalogue import discover_models, load_model
+from .catalogue import apply_augment, discover_sources, load_model, source_root, source_scale
 from .config import BuildConfig, parse_rig
 from ...utils import exclusive_lock
 from .runner import default_log, map_units, worker_state
@@ -47,17 +47,20 @@ class AddRigReport:
 def _add_rig_unit(m: int) -> tuple[int, np.ndarray]:
     """Worker: one model's depths for the rig being added (:func:`worker_state` holds the job)."""
     job = worker_state()
-    entry, stored = job["entries"][m], job["stored"]
-    model = load_model(job["root"], entry, job["scale"])
+    cfg, entry, stored = job["cfg"], job["entries"][m], job["stored"]
+    root = source_root(cfg, entry)
+    model = load_model(root, entry, source_scale(cfg, entry))
     want = stored["sha256"][m]
     if want and model.entry.sha256 != want:
-        raise InputFileError(job["root"] / entry.file, f"differs from the mesh the dataset was built from (SHA-256 "
-                                                      f"{model.entry.sha256[:12]}..., the dataset recorded {want[:12]}...)")
+        raise InputFileError(root / entry.file, f"differs from the mesh the dataset was built from (SHA-256 "
+                                                f"{model.entry.sha256[:12]}..., the dataset recorded {want[:12]}...)")
+    if stored["augment"][m]:
+        model = apply_augment(model, replace(model.entry, augment=json.loads(stored["augment"][m])))
     mesh = trimesh.Trimesh(model.vertices, model.faces, process=False, validate=False)
     norm = normalization_from_mesh(mesh)
     if not (np.array_equal(norm.center, stored["center"][m]) and float(norm.radius) == float(stored["radius"][m])):
-        raise InputFileError(job["root"] / entry.file, "normalises differently from the dataset's /models/center and "
-                                                      "/models/radius (other --scale/--up/--forward?)")
+        raise InputFileError(root / entry.file, "normalises differently from the dataset's /models/center and "
+                                                "/models/radius (other --scale/--up/--forward?)")
     return m, MeshProbe(mesh, norm).encode(job["rig"])
 
 
@@ -66,7 +69,8 @@ def add_rig(path: str | os.PathLike, rig: "str | Rig | RigSpec", meshes: str | o
     """Add the ground-truth depths of one more rig to an existing dataset file, without rebuilding it.
 
     The depths are exactly those a build with ``--rig RIG`` would have stored: every model's
-    mesh is loaded again (``config_json`` records the meshes folder, manifest, axes and scale;
+    mesh is loaded again (``config_json`` records the meshes folder(s), manifest, axes and scale;
+    an augmented copy is made again from ``/models/origin`` and ``/models/augment``;
     each file must still have the SHA-256 in ``/models/sha256``), normalised by its box
     (checked against ``/models/center`` and ``/models/radius``) and encoded with
     ``MeshProbe(mesh, norm).encode(rig)``; box-targeted specs use each model's own box. The
@@ -81,7 +85,8 @@ def add_rig(path: str | os.PathLike, rig: "str | Rig | RigSpec", meshes: str | o
     ----------
     path : dataset file (``spotlights-completion``).
     rig : rig name or shorthand (see :func:`parse_rig`), a Rig or a RigSpec.
-    meshes : the meshes folder (default: the one ``config_json`` records).
+    meshes : the meshes folder (default: the one ``config_json`` records); for a dataset built
+        from several sources, a list with one folder per source, in the build's order.
     workers : processes (default: all cores).
 
     Returns
@@ -117,20 +122,34 @@ def _add_rig_locked(path: Path, rig, meshes, workers, progress, log) -> AddRigRe
             "sha256": [x.decode() if isinstance(x, bytes) else str(x) for x in f["models/sha256"][()]]
             if "models/sha256" in f else [""] * ds.n_models,
             "center": np.asarray(ds.center, dtype=np.float64), "radius": np.asarray(ds.radius, dtype=np.float64),
+            "origin": [str(x) for x in ds.origins] if ds.origins is not None else [""] * ds.n_models,
+            "augment": [str(x) for x in ds.augments] if ds.augments is not None else [""] * ds.n_models,
         }
-    if not cfg_dict.get("meshes") and meshes is None:
+    if not cfg_dict.get("meshes") and not meshes:
         raise InputFileError(path, "config_json records no meshes folder; pass --meshes DIR")
     cfg = BuildConfig.from_dict(cfg_dict)
-    root = Path(meshes) if meshes is not None else Path(cfg.meshes)
-    manifest = cfg.manifest if cfg.manifest and Path(cfg.manifest).exists() else None
-    entries, _ = discover_models(root, manifest, cfg.up, cfg.forward)
+    if meshes:
+        meshes = [meshes] if isinstance(meshes, (str, os.PathLike)) else list(meshes)
+        if cfg.sources:
+            if len(meshes) != len(cfg.sources):
+                raise ParameterError(f"{path} was built from {len(cfg.sources)} mesh folders "
+                                     f"({', '.join(s['name'] for s in cfg.sources)}): give --meshes once for each, in order")
+            cfg.sources = [{**s, "path": str(p)} for s, p in zip(cfg.sources, meshes)]
+        elif len(meshes) != 1:
+            raise ParameterError(f"{path} was built from one mesh folder: give --meshes once")
+        else:
+            cfg.meshes = str(meshes[0])
+    if not cfg.sources and cfg.manifest and not Path(cfg.manifest).exists():
+        cfg.manifest = None
+    entries, _ = discover_sources(cfg)
     by_name = {e.name: e for e in entries}
-    missing = [n for n in stored["names"] if n not in by_name]
+    wanted = [o or n for n, o in zip(stored["names"], stored["origin"])]
+    missing = [n for n in wanted if n not in by_name]
     if missing:
-        raise InputFileError(root, f"has no mesh for {len(missing)} of the dataset's models (first: {missing[0]}); "
-                                   "pass the meshes folder the dataset was built from (--meshes)")
-    state = {"entries": [by_name[n] for n in stored["names"]], "stored": stored, "root": root, "scale": cfg.scale,
-             "rig": rig}
+        where = ", ".join(s.path for s in cfg.mesh_sources())
+        raise InputFileError(where, f"has no mesh for {len(missing)} of the dataset's models (first: {missing[0]}); "
+                                    "pass the meshes folder the dataset was built from (--meshes)")
+    state = {"entries": [by_name[n] for n in wanted], "stored": stored, "cfg": cfg, "rig": rig}
     n = len(stored["names"])
     depths = np.zeros((n, rig.n_rays), dtype=np.float32)
     workers = max(1, min(int(workers or os.cpu_count() or 1), n))

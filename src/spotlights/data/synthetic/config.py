@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -20,6 +21,10 @@ from ..lidar import SensorModel, hdl64e
 PLAN_VERSION = 1
 # Seed streams (the second spawn-key word).
 STREAM_VIEWS, STREAM_GT_POINTS, STREAM_GT_DENSE, STREAM_SPLIT = 1, 2, 3, 4
+STREAM_AUGMENT, STREAM_MOUNT_HEIGHT = 5, 6  # augmented copies' scale factors; per-view sensor height
+SPLIT_NAMES = ("train", "val", "test")
+# Keys of a mesh source (``--meshes DIR,key=value,...``), see :class:`MeshSource`.
+SOURCE_KEYS = ("manifest", "up", "forward", "scale", "split", "name")
 # Clearance between the sensor and the vehicle's footprint (metres), on top of its half diagonal.
 SENSOR_CLEARANCE = 0.5
 
@@ -72,6 +77,106 @@ def parse_split(spec: str) -> tuple[str, list[float]]:
     return "fractions", vals
 
 
+def parse_range(text, what: str, positive: bool = True) -> tuple[float, float]:
+    """``"MIN:MAX"`` (or a 2-sequence) -> ``(min, max)`` floats with ``min <= max`` (and ``min > 0``
+    when ``positive``); raises ParameterError naming ``what``."""
+    try:
+        vals = [float(x) for x in (str(text).replace(",", ":").split(":") if isinstance(text, str) else text)]
+    except (TypeError, ValueError):
+        raise ParameterError(f"{what} {text!r}: write MIN:MAX, e.g. 1.5:2.1") from None
+    if len(vals) != 2 or not all(math.isfinite(v) for v in vals) or vals[0] > vals[1] or (positive and vals[0] <= 0):
+        raise ParameterError(f"{what} {text!r}: write MIN:MAX with {'0 < ' if positive else ''}MIN <= MAX")
+    return vals[0], vals[1]
+
+
+@dataclass(frozen=True)
+class MeshSource:
+    """One folder of meshes of a build (``--meshes DIR[,key=value...]``).
+
+    path : the folder. manifest : CSV (default ``DIR/manifest.csv`` when present).
+    up, forward : the files' axes. scale : factor to metres (a manifest's ``scale`` column
+    overrides it per file). split : this source's split: a spec (``"64/8/7"``, fractions)
+    dealt over its models alone, or one split name (``"train"``: every model of the source);
+    None: the source's models join the pool split by ``BuildConfig.split``.
+    name : prefix of the model names (``NAME/relative/path``; default: the folder's name) in a
+    build given as ``sources`` ("" for the plain single folder ``meshes``: names are the
+    relative paths, as always).
+    """
+
+    path: str
+    manifest: str | None = None
+    up: str = "z"
+    forward: str = "x"
+    scale: float = 1.0
+    split: str | None = None
+    name: str = ""
+
+
+def parse_source(text: str) -> dict:
+    """``"DIR[,key=value...]"`` -> a source dict for :attr:`BuildConfig.sources` (keys:
+    ``manifest``, ``up``, ``forward``, ``scale``, ``split``, ``name``). A comma followed by
+    something that is not ``key=`` stays part of the path."""
+    parts = str(text).split(",")
+    path, opts = [parts[0]], {}
+    for p in parts[1:]:
+        key, eq, value = p.partition("=")
+        if eq and key.strip() in SOURCE_KEYS:
+            opts[key.strip()] = value.strip()
+        elif eq and not opts and "/" not in key:
+            raise ParameterError(f"--meshes {text!r}: unknown option {key.strip()!r}; known: {', '.join(SOURCE_KEYS)}")
+        elif opts:
+            raise ParameterError(f"--meshes {text!r}: {p!r} is not key=value (keys: {', '.join(SOURCE_KEYS)})")
+        else:
+            path.append(p)
+    return {"path": ",".join(path), **opts}
+
+
+# Realistic passenger-vehicle boxes (metres), from a Smart fortwo (2.70 x 1.66 x 1.56 m; 1.87 m wide
+# with mirrors) and a Fiat 500 (3.55 x 1.63 x 1.49 m) to a large SUV (Chevrolet Suburban 5.73 x
+# 2.06 x 1.92 m, Cadillac Escalade ESV 5.77 m long, Mercedes G-class 1.97 m high). Mesh boxes
+# include the mirrors (ApolloScape: width 1.73-2.41 m, median 2.04 m), hence the width range.
+AUGMENT_DEFAULTS = {
+    "mirror": False,
+    "copies": 0,
+    "length": [2.6, 5.8],
+    "width": [1.5, 2.45],
+    "height": [1.3, 2.0],
+    "factor": [0.7, 1.3],
+    # length/width (Smart with mirrors 1.44 ... limousines ~3) and length/height (Smart 1.73 ...
+    # low sports saloons ~4): keeps a shortened car from turning into a cube
+    "length_width": [1.4, 3.0],
+    "length_height": [1.6, 4.5],
+    "splits": ["train"],
+}
+
+
+def normalize_augment(aug: dict | None) -> dict | None:
+    """Validate an augmentation dict (keys of :data:`AUGMENT_DEFAULTS`; missing keys take the
+    defaults); None or one that adds no copies gives None (no augmentation)."""
+    if not aug:
+        return None
+    unknown = sorted(set(aug) - set(AUGMENT_DEFAULTS))
+    if unknown:
+        raise ParameterError(f"unknown augmentation option(s): {', '.join(unknown)}")
+    a = {**AUGMENT_DEFAULTS, **{k: v for k, v in aug.items() if v is not None}}
+    a["mirror"] = bool(a["mirror"])
+    if not (isinstance(a["copies"], (int, np.integer)) and 0 <= a["copies"] <= 1000):
+        raise ParameterError(f"scaled copies must be an integer in 0..1000, got {a['copies']!r}")
+    a["copies"] = int(a["copies"])
+    for k in ("length", "width", "height", "factor", "length_width", "length_height"):
+        a[k] = list(parse_range(a[k], f"augmentation {k.replace('_', '/')} range"))
+    if not (a["factor"][0] <= 1.0 <= a["factor"][1]):
+        raise ParameterError(f"augmentation factor range {a['factor']} must contain 1")
+    splits = a["splits"].split(",") if isinstance(a["splits"], str) else list(a["splits"])
+    splits = [s.strip().lower() for s in splits if s.strip()]
+    if not splits or any(s not in SPLIT_NAMES for s in splits):
+        raise ParameterError(f"augmented splits must be among {', '.join(SPLIT_NAMES)}, got {a['splits']!r}")
+    a["splits"] = [s for s in SPLIT_NAMES if s in splits]
+    if not a["mirror"] and a["copies"] == 0:
+        return None
+    return a
+
+
 @dataclass
 class BuildConfig:
     """Everything that determines a dataset's content (stored as ``config_json``).
@@ -95,6 +200,20 @@ class BuildConfig:
     up, forward : the mesh files' up and forward axes (object frame: x forward, y left, z up).
     scale : factor applied to the mesh coordinates (meshes must be in metres for the sensor).
     stratify : assign the split per category (keeps category proportions) or over all models.
+    sources : several mesh folders (dicts of :class:`MeshSource` fields); empty: the one folder
+        ``meshes`` with ``manifest``, ``up``, ``forward``, ``scale``.
+    category_split : ``{category: split}``: every model of the category goes to that split
+        (held-out body types, e.g. ``{"suv": "test"}``); the others are split as usual.
+    exclude_categories : categories left out of the build.
+    augment : augmented copies of the meshes as extra models (see :data:`AUGMENT_DEFAULTS`):
+        ``mirror`` (y -> -y), ``copies`` anisotropically scaled copies per mesh within the
+        ``length``/``width``/``height`` ranges (metres), per-axis ``factor`` range and the
+        ``length_width``/``length_height`` ratio ranges; only for models of ``splits``.
+    mount_height_range : (min, max) metres: each view's sensor height drawn uniformly from it
+        (None: the sensor's ``mount_height``).
+
+    The options after ``stratify`` are left out of :meth:`to_dict` at their defaults, so a
+    build without them stores the same ``config_json`` (and bytes) as before they existed.
     """
 
     meshes: str = ""
@@ -116,6 +235,11 @@ class BuildConfig:
     forward: str = "x"
     scale: float = 1.0
     stratify: bool = True
+    sources: list = field(default_factory=list)
+    category_split: dict = field(default_factory=dict)
+    exclude_categories: list = field(default_factory=list)
+    augment: dict | None = None
+    mount_height_range: tuple | None = None
 
     def validate(self) -> "BuildConfig":
         """Check every field (raises ParameterError); normalises rig specs and tuples."""
@@ -147,7 +271,59 @@ class BuildConfig:
         self.sensor = sensor.to_dict()
         if sensor.max_range <= d[0]:
             raise ParameterError(f"the sensor's range ({sensor.max_range} m) does not reach {d[0]} m")
+        self.sources = [self._check_source(s) for s in self.sources]
+        names = [s["name"] for s in self.sources]
+        if len(set(names)) != len(names):
+            raise ParameterError(f"two mesh sources share the name {sorted(n for n in names if names.count(n) > 1)[0]!r};"
+                                 " give one a name=... ")
+        if self.sources:
+            self.meshes = self.sources[0]["path"]
+        if not self.meshes:
+            raise ParameterError("no meshes folder given (--meshes DIR)")
+        cs = {}
+        for cat, sp in dict(self.category_split).items():
+            if str(sp).lower() not in SPLIT_NAMES:
+                raise ParameterError(f"category split {cat}={sp}: the split must be one of {', '.join(SPLIT_NAMES)}")
+            cs[str(cat)] = str(sp).lower()
+        self.category_split = dict(sorted(cs.items()))
+        self.exclude_categories = sorted({str(c) for c in self.exclude_categories})
+        self.augment = normalize_augment(self.augment)
+        if self.mount_height_range is not None:
+            self.mount_height_range = parse_range(self.mount_height_range, "mount height range")
         return self
+
+    def _check_source(self, src) -> dict:
+        """A validated source dict with every :class:`MeshSource` field (defaults: the global axes
+        and scale, the folder's name)."""
+        d = parse_source(src) if isinstance(src, str) else dict(src)
+        unknown = sorted(set(d) - {"path", *SOURCE_KEYS})
+        if unknown or not d.get("path"):
+            raise ParameterError(f"mesh source {src!r}: needs a path" + (f", unknown keys {unknown}" if unknown else ""))
+        out = {"path": str(d["path"]), "manifest": d.get("manifest") or None, "up": str(d.get("up") or self.up),
+               "forward": str(d.get("forward") or self.forward)}
+        try:
+            out["scale"] = float(d["scale"]) if d.get("scale") not in (None, "") else float(self.scale)
+        except ValueError:
+            raise ParameterError(f"mesh source {d['path']}: scale {d['scale']!r} is not a number") from None
+        if not (math.isfinite(out["scale"]) and out["scale"] > 0):
+            raise ParameterError(f"mesh source {d['path']}: scale must be > 0, got {out['scale']}")
+        sp = d.get("split") or None
+        if sp is not None:
+            sp = str(sp).strip().lower()
+            if sp not in SPLIT_NAMES:
+                parse_split(sp)
+        out["split"] = sp
+        name = str(d.get("name") or "").strip() or Path(str(d["path"]).rstrip("/\\")).name
+        if not name or "/" in name or name.startswith("."):
+            raise ParameterError(f"mesh source {d['path']}: name {name!r} must be a non-empty word without '/'")
+        out["name"] = name
+        return out
+
+    def mesh_sources(self) -> "list[MeshSource]":
+        """The build's mesh folders: ``sources``, or the single folder ``meshes`` (name "")."""
+        if self.sources:
+            return [MeshSource(**s) for s in self.sources]
+        return [MeshSource(self.meshes, self.manifest, self.up, self.forward, float(self.scale), None, "")]
 
     @property
     def rigs(self) -> "list[Rig | RigSpec]":
@@ -160,9 +336,15 @@ class BuildConfig:
         return SensorModel.from_dict(self.sensor)
 
     def to_dict(self) -> dict:
-        """JSON-serialisable dict (what ``config_json`` stores)."""
+        """JSON-serialisable dict (what ``config_json`` stores); the options added after
+        ``stratify`` only when set."""
         d = asdict(self)
         d["distance"] = list(self.distance)
+        for k in ("sources", "category_split", "exclude_categories", "augment", "mount_height_range"):
+            if not d[k]:
+                del d[k]
+        if "mount_height_range" in d:
+            d["mount_height_range"] = list(d["mount_height_range"])
         return d
 
     @classmethod

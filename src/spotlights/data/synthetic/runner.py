@@ -17,7 +17,7 @@ import shutil
 import signal
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -28,7 +28,7 @@ from ..._version import __version__
 from ...errors import InputFileError, SpotlightsError
 from ...utils import atomic_output, exclusive_lock, process_pool_context
 from ..store import FORMAT, FORMAT_VERSION, open_dataset, write_dataset
-from .catalogue import LoadedModel, assign_splits, discover_models, load_model
+from .catalogue import build_catalogue
 from .config import PLAN_VERSION, BuildConfig
 from .simulate import compute_unit
 
@@ -150,27 +150,12 @@ def build_dataset(cfg: BuildConfig, out: str | os.PathLike, workers: int | None 
                                file_size=out.stat().st_size)
     workers = max(1, int(workers or os.cpu_count() or 1))
 
-    root = Path(cfg.meshes)
-    entries, skipped = discover_models(root, cfg.manifest, cfg.up, cfg.forward)
-    models: list[LoadedModel] = []
-    for e in tqdm(entries, desc="load meshes", unit="mesh", disable=not progress or len(entries) < 20, leave=False):
-        try:
-            models.append(load_model(root, e, cfg.scale))
-        except InputFileError as exc:
-            skipped.append({"file": e.file, "problem": exc.problem})
-    for s in skipped:
-        log(f"warning: skipping {root / s['file']}: {s['problem']}")
-    if not models:
-        raise InputFileError(root, f"none of the {len(entries) + len(skipped)} meshes could be read")
-    splits = assign_splits([m.entry.category for m in models], cfg.split, cfg.seed, cfg.stratify,
-                           [m.entry.split for m in models])
-    for m, s in zip(models, splits):
-        m.entry.split = s
+    models, skipped = build_catalogue(cfg, log, progress)
     n_models, views = len(models), cfg.views
     block = int(block or max(1, min(250, math.ceil(views / 8))))
     plan = {
         "plan_version": PLAN_VERSION, "config": cfg.to_dict(),
-        "models": [asdict(m.entry) for m in models], "skipped": skipped,
+        "models": [m.entry.plan_dict() for m in models], "skipped": skipped,
     }
 
     # --- the parts folder: new, resumed, or refused --------------------------------------
@@ -290,6 +275,12 @@ def _consolidate(out: Path, parts: Path, cfg: BuildConfig, models: list, skipped
         "center": np.stack([g["center"] for g in gts]), "radius": np.array([float(g["radius"]) for g in gts]),
         "size": np.stack([g["size"] for g in gts]),
     }
+    if cfg.sources:
+        model_arrays["source"] = [m.entry.source for m in models]
+    if cfg.augment:
+        model_arrays["origin"] = [m.entry.origin or m.entry.name for m in models]
+        model_arrays["augment"] = [json.dumps(m.entry.augment, sort_keys=True) if m.entry.augment else ""
+                                   for m in models]
     rig_arrays = [(r, np.stack([g[f"depths_{i}"] for g in gts])) for i, r in enumerate(rigs)]
     del gts
     obs_units = [u for u in units if u[0] == "obs"]

@@ -22,7 +22,8 @@ from ...geometry.sampling import resample, sample_surface
 from ..lidar import LidarSimulator, VehiclePose
 from ..store import SAMPLE_FIELDS
 from .catalogue import LoadedModel, model_key
-from .config import SENSOR_CLEARANCE, STREAM_GT_DENSE, STREAM_GT_POINTS, STREAM_VIEWS, BuildConfig
+from .config import (SENSOR_CLEARANCE, STREAM_GT_DENSE, STREAM_GT_POINTS, STREAM_MOUNT_HEIGHT, STREAM_VIEWS,
+                     BuildConfig)
 
 
 def unit_rng(seed: int, name: str, *stream: int) -> np.random.Generator:
@@ -58,7 +59,8 @@ def simulate_views(sim: LidarSimulator, model: LoadedModel, cfg: BuildConfig, vi
     """Partial observations ``views`` of one model.
 
     Each view: draw a pose (distance uniform in ``cfg.distance`` but at least the footprint's half
-    diagonal + 0.5 m; bearing and heading uniform), scan; with fewer than ``min_points`` returns,
+    diagonal + 0.5 m; bearing and heading uniform; the sensor height uniform in
+    ``cfg.mount_height_range`` when set), scan; with fewer than ``min_points`` returns,
     draw again (at most ``max_draws`` times, then an error). Resample to ``n_points`` (more:
     ``downsample``; fewer: repeat random points), map into the unit frame of the vehicle's box.
 
@@ -77,12 +79,16 @@ def simulate_views(sim: LidarSimulator, model: LoadedModel, cfg: BuildConfig, vi
                               f"footprint) for the distance range {cfg.distance[0]:g}-{dmax:g} m; is it in metres? "
                               "(see --scale)")
     center, radius = sim.center, 0.5 * float(np.linalg.norm(sim.size))
+    heights = cfg.mount_height_range
     for j, v in enumerate(views):
         rng = unit_rng(cfg.seed, name, STREAM_VIEWS, int(v))
+        # the sensor height of a view (when ranged) comes from its own stream: the pose draws
+        # and everything else stay those of a build without the range
+        h = None if heights is None else float(unit_rng(cfg.seed, name, STREAM_MOUNT_HEIGHT, int(v)).uniform(*heights))
         t0 = time.perf_counter()
         for draw in range(1, cfg.max_draws + 1):
             pose = VehiclePose(distance=float(rng.uniform(dmin, dmax)), azimuth=float(rng.uniform(-np.pi, np.pi)),
-                               heading=float(rng.uniform(-np.pi, np.pi)))
+                               heading=float(rng.uniform(-np.pi, np.pi)), mount_height=h)
             scan = sim.scan(pose, rng, timings)
             if len(scan.points) >= cfg.min_points:
                 break
