@@ -115,13 +115,26 @@ def box_traces(boxes: Sequence[dict], name: str = "boxes", color: str = "black")
     return out
 
 
-def scene_traces(scan: np.ndarray | None, objects: Sequence, name: str = "") -> list:
+def scene_traces(scan: np.ndarray | None, objects: Sequence, name: str = "", margin: float | None = 15.0) -> list:
     """A whole scene: raw scan (grey), each object's partial input (purple) and completion (green),
-    boxes as wireframes labelled with their ids. ``objects``: :class:`~spotlights.viz.scene.SceneObject`."""
+    boxes as wireframes labelled with their ids. ``objects``: :class:`~spotlights.viz.scene.SceneObject`.
+
+    ``margin``: the raw scan is cut to the boxes' bird's-eye window grown by this many metres
+    (and the sensor), so that the page opens on the objects; None keeps the whole scan.
+    """
+    from .scene import bev_window
+
     pre = f"{name}: " if name else ""
     out = []
     if scan is not None and len(scan):
-        out.append(points_trace(scan, f"{pre}raw scan ({len(scan)} pts)", GREY, SIZES["raw"], group=f"{pre}raw"))
+        scan = np.asarray(scan, dtype=np.float64).reshape(-1, 3)
+        n_all, label = len(scan), "raw scan"
+        if margin is not None and len(objects):
+            lo, hi = bev_window(objects, margin)
+            scan = scan[np.all((scan[:, :2] >= lo) & (scan[:, :2] <= hi), axis=1)]
+            if len(scan) < n_all:
+                label = f"raw scan within {margin:g} m of the boxes"
+        out.append(points_trace(scan, f"{pre}{label} ({len(scan)} of {n_all} pts)", GREY, SIZES["raw"], group=f"{pre}raw"))
     partial = [np.asarray(o.partial, dtype=np.float64).reshape(-1, 3) for o in objects]
     comps = [np.asarray(o.completion, dtype=np.float64).reshape(-1, 3) for o in objects if o.completion is not None]
     if comps:
