@@ -100,15 +100,10 @@ def _distance(text: str) -> tuple[float, float]:
 
 
 def _build(args) -> int:
-    import signal
-
     from ..data.lidar import sensor_preset
     from ..data.synthetic import BuildConfig, build_dataset
 
-    def _terminate(signum, frame):  # SIGTERM: stop the workers like Ctrl-C, finished units are kept
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, _terminate)
+    # SIGTERM unwinds like Ctrl-C (spotlights.cli.main): the workers stop, finished units are kept
 
     sensor = sensor_preset(args.sensor, azimuth_step=args.azimuth_step, mount_height=args.mount_height,
                            range_noise=args.range_noise, dropout=args.dropout, max_range=args.max_range,
@@ -137,14 +132,9 @@ def _build(args) -> int:
 
 
 def _add_rig(args) -> int:
-    import signal
-
     from ..data.synthetic import add_rig
 
-    def _terminate(signum, frame):  # SIGTERM: stop like Ctrl-C; the file is left untouched
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, _terminate)
+    # SIGTERM unwinds like Ctrl-C (spotlights.cli.main): the file is left untouched
     rep = add_rig(args.file, args.rig, meshes=args.meshes, workers=args.workers, progress=not args.quiet)
     if rep.already_present:
         print(f"{args.file}: already holds rig {rep.rig}; nothing to do")

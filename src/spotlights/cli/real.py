@@ -142,7 +142,7 @@ def _load_completers(paths, device):
 def _evaluate(args) -> int:
     from pathlib import Path
 
-    from ..data.real.evaluate import evaluate_consistency, report_markdown, write_report
+    from ..experiments.real_evaluation import evaluate_consistency, report_markdown, write_report
     from ..data.real.extract import read_observations
 
     if args.reference_split and not args.reference:
@@ -152,7 +152,7 @@ def _evaluate(args) -> int:
     obs = read_observations(args.file)  # validate before loading models
     refs, ref_info = (None, None)
     if args.reference:
-        from ..data.real.evaluate import reference_shapes
+        from ..experiments.real_evaluation import reference_shapes
 
         refs, ref_info = reference_shapes(args.reference, args.reference_split)
     completers = _load_completers(args.checkpoint, args.device)
@@ -188,7 +188,7 @@ def _show(args) -> int:
     completions, model = None, None
     if args.checkpoint:
         completer = _load_completers([args.checkpoint], args.device)[0]
-        from ..data.real.evaluate import complete_all
+        from ..experiments.real_evaluation import complete_all
 
         completions = complete_all(completer, obs.partial[rows], progress=False, clip=args.clip, box_sizes=obs.box_size[rows])
         model = completer.model_name

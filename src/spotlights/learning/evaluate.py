@@ -20,30 +20,10 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ParameterError
+from .bench import model_latency
 from .metrics import METRIC_DESCRIPTIONS, evaluate_completions, summarize
 
 TABLE_METRIC = "accuracy"
-
-
-def _latency(model, device, batches=(1, 32), repeats: int = 10, warmup: int = 2, n_input: int = 256) -> dict:
-    import torch
-
-    from .bench import median_latency
-    from .models.base import CLIP_DEFAULT
-    from .rays import timing_directions
-
-    sync = torch.cuda.synchronize if device.type == "cuda" else None
-    gen = torch.Generator().manual_seed(0)
-    out = {}
-    for b in batches:
-        x = ((torch.rand(b, n_input, 3, generator=gen) * 2 - 1) * 0.57).to(device)
-        dirs = timing_directions(model, b)  # box rig: each sample's rays are given (computed once per object)
-        dirs = None if dirs is None else dirs.to(device)
-        with torch.inference_mode():
-            f = median_latency(lambda: model(x), repeats, warmup, sync)
-            c = median_latency(lambda: model.complete(x, CLIP_DEFAULT, dirs), repeats, warmup, sync)
-        out[int(b)] = {"forward_ms": f * 1e3, "complete_ms": c * 1e3}
-    return out
 
 
 def evaluate_checkpoint(checkpoint, data, split: str = "test", batch_size: int = 32, max_views: int | None = None,
@@ -128,7 +108,7 @@ def evaluate_checkpoint(checkpoint, data, split: str = "test", batch_size: int =
         "trained_epochs": int(ckpt.get("epoch", 0) or 0),
     }
     if latency:
-        result["latency_ms"] = _latency(model, dev, repeats=latency_repeats)
+        result["latency_ms"] = model_latency(model, dev, repeats=latency_repeats)
         result["latency_device"] = str(dev)
         result["threads"] = torch.get_num_threads()
     return result

@@ -15,7 +15,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..geometry.neighbors import nearest_distances
+from ..geometry.distances import nearest_distances
 from ._figure import add_axes3d, colormap, new_figure, save_png
 from .points import Layer, _stack
 

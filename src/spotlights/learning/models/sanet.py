@@ -86,7 +86,8 @@ class SANet(CompletionModel):
         """Depths (B, N*M) -> points (B, N*M, 3) float32 unit frame and kept mask (B, N*M) bool.
 
         Same convention as ``spotlights.geometry.encode.decode``: a ray is kept when
-        depth > 0 and (with a clip) depth >= clip; dropped rays sit at their origin.
+        depth > 0 and (with a clip) depth >= clip; dropped rays sit at their origin. Kept
+        depths are clamped to half the ray's chord (<= 1): every point stays in the unit sphere.
         ``directions``: (B, N*M, 3) float32 per-sample unit ray directions (unit frame);
         required for a box-targeted rig (each sample's box), optional for a cap rig
         (default: the rig's fixed rays).
@@ -102,6 +103,11 @@ class SANet(CompletionModel):
         mask = depths > 0
         if clip is not None:
             mask &= depths >= float(clip)
+        # Safe outputs: a depth is clamped to [0, half the ray's chord through the unit sphere]
+        # (<= 1), so no decoded point can leave the sphere of the object's box, whatever the
+        # network regresses (a linear output is unbounded); true depths never exceed it.
+        half_chord = (-(self.origins * directions).sum(-1)).clamp(min=0.0)
+        depths = torch.minimum(depths.clamp(min=0.0), half_chord)
         dist = torch.where(mask, 2.0 * depths, torch.zeros_like(depths)).unsqueeze(-1)
         return self.origins + dist * directions, mask
 
