@@ -200,7 +200,7 @@ def page(panels: Sequence[tuple[str, list]], title: str = "", side_by_side: bool
     """
     go = require_plotly()
     scene = dict(aspectmode="data", xaxis=dict(title="x"), yaxis=dict(title="y"), zaxis=dict(title="z"),
-                 camera=dict(eye=dict(x=-1.25, y=-1.25, z=0.9), up=dict(x=0, y=0, z=1)))
+                 camera=dict(eye=dict(x=-1.5, y=-1.5, z=1.1), up=dict(x=0, y=0, z=1)))
     if side_by_side and len(panels) > 1:
         from plotly.subplots import make_subplots
 
