@@ -276,3 +276,43 @@ def test_real_show_page_in_browser(tmp_path):
     img = _png(tmp_path / "k.png")
     assert _count_color(img[60:860, 100:1000], _hex("#9a9a9a"), tol=25) > 2000
     assert _count_color(img[60:860, 100:1000], _hex("#8e44ad"), tol=40) > 50
+
+
+def test_predictions_figure_colours_by_distance(tmp_path):
+    """A prediction lying on the ground truth is drawn in the colour of distance 0 (viridis' first),
+    one 0.3 away in the colour of the scale's top (yellow)."""
+    from spotlights.viz import render_predictions
+
+    rng = np.random.default_rng(0)
+    gt = rng.normal(size=(4000, 3))
+    gt /= np.linalg.norm(gt, axis=1, keepdims=True) * 1.5
+    exact = gt[::4].copy()
+    far = exact * (1 + 0.45)  # radius 1/1.5 -> 0.967: 0.3 from the sphere
+    ex = [{"label": "sphere", "partial": gt[gt[:, 0] > 0.3], "gt": gt, "predictions": [("exact", exact), ("far", far)]}]
+    out = render_predictions(tmp_path / "p.png", ex, title="t", vmax=0.3, dpi=80)
+    img = _png(out)
+    assert img.shape[0] > 200 and img.shape[1] > 800
+    ncol = 4
+    w = img.shape[1] / (ncol + 0.8 / 2.6)
+    exact_panel, far_panel = img[:, int(w):int(2 * w)], img[:, int(2 * w):int(3 * w)]
+    dark, yellow = (68, 1, 84), (253, 231, 37)
+    assert _count_color(exact_panel, dark, 20) > 200 and _count_color(exact_panel, yellow, 30) < 20
+    assert _count_color(far_panel, yellow, 30) > 200 and _count_color(far_panel, dark, 20) < 20
+
+
+def test_complete_and_real_show_html(tmp_path):
+    pytest.importorskip("plotly")
+    pytest.importorskip("torch")
+    assets = REPO / "src" / "spotlights" / "assets"
+    proc = run_cli("complete", assets / "demo_scan.pcd", "--box", assets / "demo_scan_box.json", "--out", tmp_path / "c.ply",
+                   "--html", tmp_path / "c.html")
+    assert proc.returncode == 0, proc.stderr
+    text = (tmp_path / "c.html").read_text()
+    assert "completion (" in text and "partial input (" in text and "raw scan" in text
+    src = need(LIDAR / "kitti-object" / "training-fov-cropped")
+    assert run_cli("real", "extract", src, "--format", "kitti", "--out", tmp_path / "k.h5", "-q").returncode == 0
+    proc = run_cli("real", "show", tmp_path / "k.h5", "--frame", "002155", "--html", tmp_path / "k.html", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    text = (tmp_path / "k.html").read_text()
+    assert '"#' in text and "boxes" in text  # rows as ids: KITTI has no track ids
+    assert not list(tmp_path.glob("*.png"))
