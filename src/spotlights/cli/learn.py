@@ -7,9 +7,8 @@ from __future__ import annotations
 
 import sys
 
+from ..learning.models import MODEL_NAMES as MODEL_CHOICES  # registry keys (imports neither torch nor a model)
 from ._util import add_command, add_group, non_negative_int, positive_float, positive_int, unit_interval
-
-MODEL_CHOICES = ("sanet", "pcn", "foldingnet", "topnet", "atlasnet")
 
 
 def register(sub) -> None:

@@ -189,17 +189,20 @@ class SceneResult:
 
 
 def object_ids(boxes: Sequence[Box]) -> list[int]:
-    """The ``object`` value of each box: its track id when every box has a distinct integer track id
-    (e.g. ``"track_id": 7``), else its index in the box list (the track ids then go to the summary)."""
+    """The ``object`` value of each box: its track id where it has an integer one (``"track_id": 7``), its
+    index in the box list where it has none. When a track id is not an integer (nuScenes tokens, AV2 UUIDs),
+    or two boxes would share a value, every box gets its index (the track ids are then in the summary and
+    the PLY header)."""
     ids = []
-    for b in boxes:
+    for i, b in enumerate(boxes):
         t = str(b.track_id).strip()
-        if not t or not t.lstrip("-").isdigit():
+        if not t:
+            ids.append(i)
+        elif t.lstrip("-").isdigit() and -(2**31) < int(t) < 2**31 and int(t) != -1:
+            ids.append(int(t))
+        else:
             return list(range(len(boxes)))
-        ids.append(int(t))
-    if len(set(ids)) != len(ids) or any(not -(2**31) < i < 2**31 for i in ids) or -1 in ids:
-        return list(range(len(boxes)))
-    return ids
+    return ids if len(set(ids)) == len(ids) else list(range(len(boxes)))
 
 
 def _selected(box: Box, config: SceneConfig) -> bool:

@@ -63,7 +63,11 @@ def evaluate_checkpoint(checkpoint, data, split: str = "test", batch_size: int =
     name = ckpt["model_name"]
     ds = dataset or TorchCompletionDataset(data, split, rig=False, max_views=max_views, partials_in_memory=True)
     dense = gt_dense if gt_dense is not None else ds.gt_dense()
-    if model.target == "depths":
+    hit_aware = hasattr(model, "hit_probabilities")
+    if hit_aware:  # hit-aware SA-Net: rays with p(hit) >= the checkpoint's threshold, no clip (a clip only if asked)
+        variants = [(f"p(hit) >= {model.threshold:g}", None)] + ([(f"p(hit) >= {model.threshold:g}, clip {float(clip):g}",
+                                                                    float(clip))] if clip is not None else [])
+    elif model.target == "depths":
         c = model.clip if clip is None else float(clip)
         variants = [("no clip", None)] + ([(f"clip {c:g}", c)] if c is not None else [])
     else:
@@ -96,7 +100,8 @@ def evaluate_checkpoint(checkpoint, data, split: str = "test", batch_size: int =
         per = evaluate_completions(preds[v], models, _DenseView(dense), fscore_threshold, with_completeness, trees)
         if model.target == "depths":
             per["hit_ratio"] = np.asarray(kept[v], dtype=np.float64)
-        rows.append({"variant": v, "clip": c, "summary": summarize(per, cats, order)})
+        rows.append({"variant": v, "clip": c, "summary": summarize(per, cats, order),
+                     **({"threshold": model.threshold} if hit_aware else {})})
     result = {
         "model": name,
         "checkpoint": str(checkpoint),

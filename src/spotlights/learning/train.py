@@ -37,7 +37,10 @@ from .models import build_model, load_config
 from .models.base import CLIP_DEFAULT
 
 LOG_COLUMNS = ("epoch", "lr", "train_loss", "val_loss", "val_accuracy", "val_completeness", "val_chamfer_l1", "val_n",
-               "val_empty", "epoch_seconds", "samples_per_second", "global_step", "samples_seen", "wall_seconds")
+               "val_empty", "epoch_seconds", "samples_per_second", "global_step", "samples_seen", "wall_seconds",
+               "val_threshold")
+"""Columns of ``RUN/log.csv``; ``val_threshold`` (the hit-aware SA-Net's chosen p(hit) threshold) is
+empty for the other models."""
 
 
 def default_device() -> torch.device:
@@ -170,7 +173,7 @@ def _write_yaml(path: Path, cfg: dict) -> None:
 
 @torch.no_grad()
 def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt_trees: dict, dist: _Dist | None = None,
-             num_workers: int = 0, rays=None, precision: str = "fp32") -> dict:
+             num_workers: int = 0, rays=None, precision: str = "fp32", thresholds=None) -> dict:
     """Validation loss and point metrics of the completions (SA-Net clipped at its default).
 
     Parameters
@@ -181,6 +184,9 @@ def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt
         sample decodes with its model's box); default: built from ``dataset.extents``.
     precision : ``"fp32"``, ``"bf16"`` or ``"fp16"``: autocast of the forward pass (the run's
         training precision); loss and metrics are computed in float32.
+    thresholds : hit-aware SA-Net only: the p(hit) thresholds to score (default: the model's
+        ``threshold_grid``, else its ``threshold``); the metrics of the one with the lowest
+        CD-L1 are returned (ties: the first), with ``val_threshold`` and ``val_threshold_scan``.
 
     Returns
     -------
@@ -189,6 +195,8 @@ def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt
      "val_completeness": mean over samples of the one-sided CD dense GT -> prediction,
      "val_chamfer_l1": (accuracy + completeness) / 2, "val_n": samples,
      "val_empty": samples whose completion is empty (left out of the point metrics)}.
+    Hit-aware models add ``val_threshold`` (the chosen threshold) and ``val_threshold_scan``
+    ({threshold: {"accuracy", "completeness", "chamfer_l1", "empty"}}).
     With ``dist`` active, each rank evaluates a contiguous shard and the sums are all-reduced.
     """
     from ..geometry.distances import accuracy, combine_directions, completeness
@@ -198,6 +206,12 @@ def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt
 
     if rays is None and getattr(model, "needs_box", False):
         rays = DirectionTable(model.rig, dataset.extents)
+    hit_aware = hasattr(model, "hit_probabilities")
+    if hit_aware:
+        grid = thresholds if thresholds is not None else (model.threshold_grid or (model.threshold,))
+        grid = [float(t) for t in grid]
+    else:
+        grid = [None]
     active = dist is not None and dist.active
     world, rank = (dist.world, dist.rank) if active else (1, 0)
     n = len(dataset)
@@ -205,8 +219,9 @@ def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt
     subset = torch.utils.data.Subset(dataset, range(lo, hi))
     loader = DataLoader(subset, batch_size=batch_size, shuffle=False, num_workers=num_workers, collate_fn=_collate)
     model.eval()
-    loss_sum = acc_sum = comp_sum = 0.0
-    count = scored = 0
+    loss_sum = 0.0
+    count = 0
+    acc_sum, comp_sum, scored = [0.0] * len(grid), [0.0] * len(grid), [0] * len(grid)
     for batch in loader:
         batch = _to(batch, device)
         with autocast(precision, device):
@@ -217,31 +232,51 @@ def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt
         loss_sum += float(loss) * b
         count += b
         dirs = rays.directions(batch["model"]) if rays is not None else None
-        preds = model.outputs_to_points(out, CLIP_DEFAULT, dirs)
-        for p, m in zip(preds, batch["model"].tolist()):
-            if len(p) == 0:
-                continue
-            if m not in gt_trees:
-                raise SpotlightsError(f"no dense ground truth for model row {m}")
-            tree = gt_trees[m]
-            if not isinstance(tree, NearestNeighbors):
-                tree = gt_trees[m] = NearestNeighbors(tree)
-            pts = p.detach().cpu().numpy()
-            acc_sum += accuracy(pts, tree)
-            comp_sum += completeness(pts, tree)
-            scored += 1
-    sums = [loss_sum, float(count), acc_sum, comp_sum, float(scored)]
-    loss_sum, count, acc_sum, comp_sum, scored = dist.all_sum(sums, device) if active else sums
-    acc = acc_sum / scored if scored else float("nan")
-    comp = comp_sum / scored if scored else float("nan")
-    return {
+        for j, t in enumerate(grid):
+            if hit_aware:
+                preds = model.outputs_to_points(out, CLIP_DEFAULT, dirs, threshold=t)
+            else:
+                preds = model.outputs_to_points(out, CLIP_DEFAULT, dirs)
+            for p, m in zip(preds, batch["model"].tolist()):
+                if len(p) == 0:
+                    continue
+                if m not in gt_trees:
+                    raise SpotlightsError(f"no dense ground truth for model row {m}")
+                tree = gt_trees[m]
+                if not isinstance(tree, NearestNeighbors):
+                    tree = gt_trees[m] = NearestNeighbors(tree)
+                pts = p.detach().cpu().numpy()
+                acc_sum[j] += accuracy(pts, tree)
+                comp_sum[j] += completeness(pts, tree)
+                scored[j] += 1
+    sums = [loss_sum, float(count), *acc_sum, *comp_sum, *map(float, scored)]
+    if active:
+        sums = dist.all_sum(sums, device)
+    k = len(grid)
+    loss_sum, count = sums[0], sums[1]
+    acc_sum, comp_sum, scored = sums[2:2 + k], sums[2 + k:2 + 2 * k], sums[2 + 2 * k:2 + 3 * k]
+    scan = []
+    for j in range(k):
+        acc = acc_sum[j] / scored[j] if scored[j] else float("nan")
+        comp = comp_sum[j] / scored[j] if scored[j] else float("nan")
+        scan.append({"accuracy": acc, "completeness": comp, "chamfer_l1": combine_directions(acc, comp, "mean"),
+                     "empty": int(count - scored[j])})
+    # The chosen threshold: the lowest CD-L1 (the first on ties); NaN (every completion empty) never wins.
+    finite = [j for j in range(k) if math.isfinite(scan[j]["chamfer_l1"])]
+    best = min(finite, key=lambda j: scan[j]["chamfer_l1"]) if finite else 0
+    row = scan[best]
+    res = {
         "val_loss": loss_sum / count if count else float("nan"),
-        "val_accuracy": acc,
-        "val_completeness": comp,
-        "val_chamfer_l1": combine_directions(acc, comp, "mean"),  # chamfer_l1 of the means = mean of chamfer_l1
+        "val_accuracy": row["accuracy"],
+        "val_completeness": row["completeness"],
+        "val_chamfer_l1": row["chamfer_l1"],
         "val_n": int(count),
-        "val_empty": int(count - scored),
+        "val_empty": row["empty"],
     }
+    if hit_aware:
+        res["val_threshold"] = grid[best]
+        res["val_threshold_scan"] = {f"{t:g}": v for t, v in zip(grid, scan)}
+    return res
 
 
 SELECT_BY = {"chamfer_l1": "val_chamfer_l1", "accuracy": "val_accuracy", "loss": "val_loss"}
@@ -354,6 +389,8 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
     start_epoch, global_step, history, best = 0, 0, [], {"epoch": None, "select_by": select_by, "value": float("inf")}
     if state is not None:
         model.load_state_dict(state["model_state"])
+        if state.get("hit_threshold") is not None:
+            model.threshold = float(state["hit_threshold"]["value"])
         opt.load_state_dict(state["optimizer_state"])
         sched.load_state_dict(state["scheduler_state"])
         if extended:  # a new total length: the learning-rate schedule is recomputed from here on
@@ -443,21 +480,27 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
         dt = time.perf_counter() - t0
         wall += dt
         row = {"epoch": epoch + 1, "global_step": global_step, "samples_seen": global_step * batch_size * dist.world,
-               "lr": lr, "train_loss": train_sum / max(train_n, 1), **val,
+               "lr": lr, "train_loss": train_sum / max(train_n, 1),
+               **{k: v for k, v in val.items() if k != "val_threshold_scan"},
                "epoch_seconds": round(dt, 3), "samples_per_second": round(train_n / dt, 2) if dt > 0 else 0.0,
                "wall_seconds": round(wall, 3)}
         history.append(row)
+        if "val_threshold" in val:  # hit-aware SA-Net: decode with the threshold chosen on validation
+            model.threshold = float(val["val_threshold"])
         value, prev = val[SELECT_BY[select_by]], best["value"]
         # The first epoch always gives a best.pt; later a finite value below the best so far.
         improved = best["epoch"] is None or (math.isfinite(value) and not (math.isfinite(prev) and value >= prev))
         if improved:
             best = {"epoch": epoch + 1, "select_by": select_by, "value": value, "val_accuracy": val["val_accuracy"]}
+            if "val_threshold" in val:
+                best["hit_threshold"] = float(val["val_threshold"])
         if dist.main:
             payload = {
                 "model_name": model_name, "config": cfg, "rig": rig, "model_state": model.state_dict(),
                 "optimizer_state": opt.state_dict(), "scheduler_state": sched.state_dict(),
                 "epoch": epoch + 1, "global_step": global_step, "best": best, "history": history,
                 "param_counts": param_counts, "precision": precision,
+                **({"hit_threshold": _threshold_record(val)} if "val_threshold" in val else {}),
                 **({"scaler_state": scaler.state_dict()} if scaler is not None else {}),
                 "dataset": {"path": str(data), "rig": train_set.rig_name, "n_train": n_train, "n_val": len(val_set)},
             }
@@ -470,10 +513,18 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
             _write_csv(out_dir / "log.csv", history)
             log(f"{model_name} epoch {epoch + 1}/{epochs}: train loss {row['train_loss']:.5f}, val loss "
                 f"{row['val_loss']:.5f}, val accuracy {row['val_accuracy']:.5f}, completeness {row['val_completeness']:.5f}"
+                + (f" at p(hit) >= {row['val_threshold']:g}" if "val_threshold" in row else "") +
                 f"{' (best)' if improved else ''}, {dt:.1f} s")
         dist.barrier()
     return {"out_dir": str(out_dir), "last": str(last_path), "best": str(best_path), "epochs": len(history),
             "history": history, "param_counts": param_counts}
+
+
+def _threshold_record(val: dict) -> dict:
+    """The ``hit_threshold`` entry of a hit-aware SA-Net's checkpoint: the chosen p(hit) threshold and the
+    validation scan it was chosen from (CD-L1, accuracy, completeness per grid value)."""
+    return {"value": float(val["val_threshold"]), "chosen_on": "val", "criterion": "min val_chamfer_l1",
+            "scan": val["val_threshold_scan"]}
 
 
 def _worker_init(worker_id: int) -> None:
