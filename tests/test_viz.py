@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from helpers import CARS, LIDAR, REPO, need, run_cli
 
 pytestmark = pytest.mark.timeout(300)
@@ -30,7 +31,7 @@ def _count_color(img: np.ndarray, rgb, tol: int = 12) -> int:
 
 
 def _hex(color: str) -> tuple[int, int, int]:
-    return tuple(int(color[i:i + 2], 16) for i in (1, 3, 5))
+    return tuple(int(color[i : i + 2], 16) for i in (1, 3, 5))
 
 
 # --- no global matplotlib state ---------------------------------------------------------------
@@ -65,7 +66,9 @@ print(before, matplotlib.get_backend(), len(calls), "matplotlib.pyplot" in sys.m
 
 def test_no_matplotlib_use_in_sources():
     src = (REPO / "src" / "spotlights").rglob("*.py")
-    offenders = [str(p) for p in src if "matplotlib.use(" in p.read_text() or "import matplotlib.pyplot" in p.read_text()]
+    offenders = [
+        str(p) for p in src if "matplotlib.use(" in p.read_text() or "import matplotlib.pyplot" in p.read_text()
+    ]
     assert offenders == []
 
 
@@ -87,6 +90,7 @@ def test_render_encoding_has_colour_bar(tmp_path):
     from types import SimpleNamespace
 
     import trimesh
+
     from spotlights import viz
     from spotlights.geometry.encode import MeshProbe
     from spotlights.geometry.rig import make_rig
@@ -97,7 +101,7 @@ def test_render_encoding_has_colour_bar(tmp_path):
     out = viz.render_encoding(tmp_path / "e.png", enc)
     img = _png(out)
     # the colour bar: a tall strip whose rows run through the turbo colours (dark red at the top)
-    right = img[:, int(img.shape[1] * 0.85):]
+    right = img[:, int(img.shape[1] * 0.85) :]
     assert _count_color(right, (122, 4, 3), tol=30) > 20  # turbo(1.0)
     assert _count_color(right, (48, 18, 59), tol=30) > 20  # turbo(0.0)
 
@@ -111,7 +115,9 @@ def test_rasterizer_occlusion_and_area():
     face, _ = rasterize(tri, np.zeros((1, 3)), 100, 100)
     area = 0.5 * 80 * 60
     assert abs(int((face == 0).sum()) - area) <= 80 + 60 + 100
-    sq = lambda x0, y0, s: np.array([[[x0, y0], [x0 + s, y0], [x0 + s, y0 + s]], [[x0, y0], [x0 + s, y0 + s], [x0, y0 + s]]])
+    sq = lambda x0, y0, s: np.array(
+        [[[x0, y0], [x0 + s, y0], [x0 + s, y0 + s]], [[x0, y0], [x0 + s, y0 + s], [x0, y0 + s]]]
+    )
     tris = np.concatenate([sq(20, 20, 40), sq(40, 40, 40)])  # faces 0,1 far square; 2,3 near square
     depth = np.array([[5.0] * 3, [5.0] * 3, [1.0] * 3, [1.0] * 3])
     for order in (np.arange(4), np.arange(4)[::-1]):
@@ -124,6 +130,7 @@ def test_rasterizer_occlusion_and_area():
 def test_render_mesh_top_view_is_opaque(tmp_path):
     """A dense closed mesh seen from the top covers its silhouette without holes (no face subsampling)."""
     import trimesh
+
     from spotlights import viz
     from spotlights.viz.raster import shade_mesh
 
@@ -142,8 +149,17 @@ def test_scene_picture_labels_ids(tmp_path):
 
     rng = np.random.default_rng(0)
     ground = np.c_[rng.uniform(-20, 20, (5000, 2)), np.full(5000, -1.0)]
-    objs = [SceneObject("track-a", np.array([8.0, 2.0, 0.0]), np.array([4.0, 1.8, 1.5]), np.eye(3),
-                        rng.normal([8, 2, 0], 0.4, (256, 3)), rng.normal([8, 2, 0], 0.6, (800, 3)), "car")]
+    objs = [
+        SceneObject(
+            "track-a",
+            np.array([8.0, 2.0, 0.0]),
+            np.array([4.0, 1.8, 1.5]),
+            np.eye(3),
+            rng.normal([8, 2, 0], 0.4, (256, 3)),
+            rng.normal([8, 2, 0], 0.6, (800, 3)),
+            "car",
+        )
+    ]
     out = render_scene(tmp_path / "s.png", ground, objs, title="scene")
     img = _png(out)
     assert _count_color(img, _hex("#8e44ad")) > 200  # purple inputs visible (not hidden by grey)
@@ -185,8 +201,10 @@ def test_view_kinds_and_errors(tmp_path):
     n = 300
     v = np.random.default_rng(0).normal(size=(n, 3)).astype(np.float32)
     ply = tmp_path / "scene.ply"
-    header = (f"ply\nformat binary_little_endian 1.0\nelement vertex {n}\nproperty float x\nproperty float y\n"
-              "property float z\nproperty uchar source\nproperty int object\nend_header\n")
+    header = (
+        f"ply\nformat binary_little_endian 1.0\nelement vertex {n}\nproperty float x\nproperty float y\n"
+        "property float z\nproperty uchar source\nproperty int object\nend_header\n"
+    )
     rec = np.zeros(n, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("source", "u1"), ("object", "<i4")])
     rec["x"], rec["y"], rec["z"] = v.T
     rec["source"] = np.arange(n) % 3
@@ -226,11 +244,26 @@ def _screenshot(page: Path, png: Path, timeout: float = 120) -> None:
     no name resolution), a fresh profile; waits for rendering and writes a 1200 x 900 screenshot."""
     chrome = _chromium()
     with tempfile.TemporaryDirectory() as profile:
-        cmd = [chrome, "--headless", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader", "--disable-quic",
-               "--no-first-run", "--disable-background-networking", "--disable-component-update", "--disable-sync",
-               f"--user-data-dir={profile}", "--host-resolver-rules=MAP * ~NOTFOUND", "--proxy-server=127.0.0.1:9",
-               "--window-size=1200,900", "--hide-scrollbars", "--virtual-time-budget=20000", f"--screenshot={png}",
-               page.resolve().as_uri()]
+        cmd = [
+            chrome,
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--enable-unsafe-swiftshader",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            f"--user-data-dir={profile}",
+            "--host-resolver-rules=MAP * ~NOTFOUND",
+            "--proxy-server=127.0.0.1:9",
+            "--window-size=1200,900",
+            "--hide-scrollbars",
+            "--virtual-time-budget=20000",
+            f"--screenshot={png}",
+            page.resolve().as_uri(),
+        ]
         unshare = shutil.which("unshare")
         if unshare and subprocess.run([unshare, "-n", "true"], capture_output=True).returncode == 0:
             cmd = [unshare, "-n"] + cmd  # no network device at all
@@ -238,8 +271,11 @@ def _screenshot(page: Path, png: Path, timeout: float = 120) -> None:
     assert png.exists(), proc.stderr[-2000:]
 
 
-@pytest.mark.skipif(_chromium() is None, reason="Chromium not found: install it (Debian/Ubuntu: apt-get install chromium) "
-                                                 "or set SPOTLIGHTS_CHROMIUM to a Chrome/Chromium binary")
+@pytest.mark.skipif(
+    _chromium() is None,
+    reason="Chromium not found: install it (Debian/Ubuntu: apt-get install chromium) "
+    "or set SPOTLIGHTS_CHROMIUM to a Chrome/Chromium binary",
+)
 def test_page_draws_points_in_a_real_browser(tmp_path):
     """The page opens offline in headless Chromium and the points are drawn: pixels of the point
     colour fill the plot area; with the cloud hidden (legend-only) the same area has none."""
@@ -263,7 +299,9 @@ def test_page_draws_points_in_a_real_browser(tmp_path):
     assert counts["hidden"] < 50, counts
 
 
-@pytest.mark.skipif(_chromium() is None, reason="Chromium not found: apt-get install chromium (or set SPOTLIGHTS_CHROMIUM)")
+@pytest.mark.skipif(
+    _chromium() is None, reason="Chromium not found: apt-get install chromium (or set SPOTLIGHTS_CHROMIUM)"
+)
 def test_real_show_page_in_browser(tmp_path):
     """A whole real scene: the page of 'view observations.h5' draws the grey raw scan in Chromium."""
     pytest.importorskip("plotly")
@@ -276,3 +314,51 @@ def test_real_show_page_in_browser(tmp_path):
     img = _png(tmp_path / "k.png")
     assert _count_color(img[60:860, 100:1000], _hex("#9a9a9a"), tol=25) > 2000
     assert _count_color(img[60:860, 100:1000], _hex("#8e44ad"), tol=40) > 50
+
+
+def test_predictions_figure_colours_by_distance(tmp_path):
+    """A prediction lying on the ground truth is drawn in the colour of distance 0 (viridis' first),
+    one 0.3 away in the colour of the scale's top (yellow)."""
+    from spotlights.viz import render_predictions
+
+    rng = np.random.default_rng(0)
+    gt = rng.normal(size=(4000, 3))
+    gt /= np.linalg.norm(gt, axis=1, keepdims=True) * 1.5
+    exact = gt[::4].copy()
+    far = exact * (1 + 0.45)  # radius 1/1.5 -> 0.967: 0.3 from the sphere
+    ex = [{"label": "sphere", "partial": gt[gt[:, 0] > 0.3], "gt": gt, "predictions": [("exact", exact), ("far", far)]}]
+    out = render_predictions(tmp_path / "p.png", ex, title="t", vmax=0.3, dpi=80)
+    img = _png(out)
+    assert img.shape[0] > 200 and img.shape[1] > 800
+    ncol = 4
+    w = img.shape[1] / (ncol + 0.8 / 2.6)
+    exact_panel, far_panel = img[:, int(w) : int(2 * w)], img[:, int(2 * w) : int(3 * w)]
+    dark, yellow = (68, 1, 84), (253, 231, 37)
+    assert _count_color(exact_panel, dark, 20) > 200 and _count_color(exact_panel, yellow, 30) < 20
+    assert _count_color(far_panel, yellow, 30) > 200 and _count_color(far_panel, dark, 20) < 20
+
+
+def test_complete_and_real_show_html(tmp_path):
+    pytest.importorskip("plotly")
+    pytest.importorskip("torch")
+    assets = REPO / "src" / "spotlights" / "assets"
+    proc = run_cli(
+        "complete",
+        assets / "demo_scan.pcd",
+        "--box",
+        assets / "demo_scan_box.json",
+        "--out",
+        tmp_path / "c.ply",
+        "--html",
+        tmp_path / "c.html",
+    )
+    assert proc.returncode == 0, proc.stderr
+    text = (tmp_path / "c.html").read_text()
+    assert "completion (" in text and "partial input (" in text and "raw scan" in text
+    src = need(LIDAR / "kitti-object" / "training-fov-cropped")
+    assert run_cli("real", "extract", src, "--format", "kitti", "--out", tmp_path / "k.h5", "-q").returncode == 0
+    proc = run_cli("real", "show", tmp_path / "k.h5", "--frame", "002155", "--html", tmp_path / "k.html", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    text = (tmp_path / "k.html").read_text()
+    assert '"#' in text and "boxes" in text  # rows as ids: KITTI has no track ids
+    assert not list(tmp_path.glob("*.png"))

@@ -168,6 +168,17 @@ def _show(args) -> int:
         viz.render_mesh(out, mesh, title=f"{src.name}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces")
         print(f"{src}: mesh -> {out}")
         return 0
+    if suffix == ".ply":
+        from ..viz.html import SOURCES, read_ply_fields
+
+        fields = read_ply_fields(src)
+        if "source" in fields:  # a scene from 'complete --boxes': raw grey, partial purple, completion green
+            xyz = np.stack([fields["x"], fields["y"], fields["z"]], axis=1).astype(np.float64)
+            layers = [viz.Layer(xyz[fields["source"] == code], color, f"{label} ({int((fields['source'] == code).sum())})",
+                                0.5 if code == 0 else 2.0) for code, (label, color, _) in SOURCES.items()]
+            viz.render_layers(out, layers, title=f"{src.name}: scene of {len(xyz)} points")
+            print(f"{src}: scene -> {out}")
+            return 0
     if suffix in POINT_SUFFIXES:
         pts = load_points(src)
         viz.render_layers(out, [viz.Layer(pts, "tab:blue", None, 2.0)], title=f"{src.name}: {len(pts)} points")

@@ -28,7 +28,18 @@ from .scene import SceneObject, render_frame, render_scene
 from .study import plot_rig_study
 
 __all__ = [
-    "DEFAULT_VIEWS", "Layer", "SceneObject", "plot_rig_study", "render_cloud_grid", "render_encoding", "render_frame",
-    "render_layers", "render_mesh", "render_predictions", "render_rig_rays", "render_sample", "render_scene",
+    "DEFAULT_VIEWS",
+    "Layer",
+    "SceneObject",
+    "plot_rig_study",
+    "render_cloud_grid",
+    "render_encoding",
+    "render_frame",
+    "render_layers",
+    "render_mesh",
+    "render_predictions",
+    "render_rig_rays",
+    "render_sample",
+    "render_scene",
     "viewpoint_rays",
 ]

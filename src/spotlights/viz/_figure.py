@@ -94,8 +94,18 @@ def add_scale_bar(ax, length: float | None = None, label: str = "m", loc: str = 
     if length is None:
         length = nice_length(abs(x1 - x0) / 5.0)
     text = f"{length:g} {label}".strip()
-    bar = AnchoredSizeBar(ax.transData, length, text, loc, pad=0.3, borderpad=0.4, sep=3, frameon=False,
-                          size_vertical=0, fontproperties={"size": 7})
+    bar = AnchoredSizeBar(
+        ax.transData,
+        length,
+        text,
+        loc,
+        pad=0.3,
+        borderpad=0.4,
+        sep=3,
+        frameon=False,
+        size_vertical=0,
+        fontproperties={"size": 7},
+    )
     ax.add_artist(bar)
     return length
 

@@ -10,8 +10,8 @@ dense one).
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -22,9 +22,16 @@ from .points import Layer, _stack
 PARTIAL_COLOR, GT_COLOR = "#7b2cbf", "#8c8c8c"
 
 
-def render_predictions(path: str | os.PathLike, examples: Sequence[dict], title: str | None = None,
-                       vmax: float | None = None, max_gt_points: int = 4096, elev: float = 22.0, azim: float = -60.0,
-                       dpi: int = 90) -> Path:
+def render_predictions(
+    path: str | os.PathLike,
+    examples: Sequence[dict],
+    title: str | None = None,
+    vmax: float | None = None,
+    max_gt_points: int = 4096,
+    elev: float = 22.0,
+    azim: float = -60.0,
+    dpi: int = 90,
+) -> Path:
     """One row per example: partial (purple), each prediction (coloured by distance to the ground truth), ground truth (grey).
 
     Parameters
@@ -44,8 +51,15 @@ def render_predictions(path: str | os.PathLike, examples: Sequence[dict], title:
         from ..errors import ParameterError
 
         raise ParameterError("no example to draw")
-    dists = [[nearest_distances(np.asarray(p, dtype=np.float64).reshape(-1, 3), np.asarray(e["gt"], dtype=np.float64))
-              if len(p) else np.zeros(0) for _, p in e["predictions"]] for e in examples]
+    dists = [
+        [
+            nearest_distances(np.asarray(p, dtype=np.float64).reshape(-1, 3), np.asarray(e["gt"], dtype=np.float64))
+            if len(p)
+            else np.zeros(0)
+            for _, p in e["predictions"]
+        ]
+        for e in examples
+    ]
     flat = np.concatenate([d for row in dists for d in row] + [np.zeros(1)])
     top = float(vmax) if vmax is not None else max(float(np.percentile(flat, 95)), 1e-6)
     norm, cmap = Normalize(0.0, top), "viridis"

@@ -20,9 +20,17 @@ def encoding_layers(encoding, clip: float | None = None, size: float = 3.0) -> t
     rig = encoding.rig
     pts, mask = decode(encoding.depths, rig, clip)
     view_id = np.repeat(np.arange(rig.n_primary), rig.n_secondary)
-    layer = Layer(pts[mask], view_id[mask].astype(np.float64), None, size, 0.95, cmap="turbo", vmin=0.0,
-                  vmax=float(max(rig.n_primary - 1, 1)),
-                  colorbar=f"viewpoint index (the {rig.n_secondary} rays of a viewpoint share its colour)")
+    layer = Layer(
+        pts[mask],
+        view_id[mask].astype(np.float64),
+        None,
+        size,
+        0.95,
+        cmap="turbo",
+        vmin=0.0,
+        vmax=float(max(rig.n_primary - 1, 1)),
+        colorbar=f"viewpoint index (the {rig.n_secondary} rays of a viewpoint share its colour)",
+    )
     return [layer], mask
 
 
@@ -34,8 +42,9 @@ def render_encoding(path: str | os.PathLike, encoding, title: str | None = None,
     """
     layers, mask = encoding_layers(encoding, clip)
     rig = encoding.rig
-    ttl = title or (f"{rig.name}: {int(mask.sum())}/{rig.n_rays} rays hit ({mask.mean():.1%}), unit frame, "
-                    f"colour = viewpoint")
+    ttl = title or (
+        f"{rig.name}: {int(mask.sum())}/{rig.n_rays} rays hit ({mask.mean():.1%}), unit frame, colour = viewpoint"
+    )
     return render_layers(path, layers, title=ttl)
 
 
@@ -50,7 +59,9 @@ def viewpoint_rays(encoding, index: int, clip: float | None = None) -> dict[str,
     if not 0 <= index < rig.n_primary:
         from ..errors import ParameterError
 
-        raise ParameterError(f"viewpoint {index} out of range: the rig has {rig.n_primary} viewpoints (0-{rig.n_primary - 1})")
+        raise ParameterError(
+            f"viewpoint {index} out of range: the rig has {rig.n_primary} viewpoints (0-{rig.n_primary - 1})"
+        )
     m = rig.n_secondary
     o = rig.origins.reshape(rig.n_primary, m, 3)[index].astype(np.float64)
     d = rig.directions.reshape(rig.n_primary, m, 3)[index].astype(np.float64)
@@ -60,5 +71,10 @@ def viewpoint_rays(encoding, index: int, clip: float | None = None) -> dict[str,
     # a miss crosses the unit sphere: it leaves at t = -2 o.d (origins on the sphere)
     t_out = np.clip(-2.0 * np.einsum("ij,ij->i", o, d), 0.0, 2.0)
     miss_end = o + d * t_out[:, None]
-    return {"origin": rig.primary[index].astype(np.float64), "hit_start": o[hit], "hit_end": pts[hit].astype(np.float64),
-            "miss_start": o[~hit], "miss_end": miss_end[~hit]}
+    return {
+        "origin": rig.primary[index].astype(np.float64),
+        "hit_start": o[hit],
+        "hit_end": pts[hit].astype(np.float64),
+        "miss_start": o[~hit],
+        "miss_end": miss_end[~hit],
+    }

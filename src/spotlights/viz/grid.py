@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -12,9 +12,16 @@ from ._figure import add_axes3d, new_figure, save_png
 from .points import Layer, _stack
 
 
-def render_cloud_grid(path: str | os.PathLike, rows: Sequence[Sequence[tuple]], title: str,
-                      row_labels: Sequence[str] | None = None, elev: float = 22.0, azim: float = -60.0,
-                      limit: float = 0.9, dpi: int = 90) -> Path:
+def render_cloud_grid(
+    path: str | os.PathLike,
+    rows: Sequence[Sequence[tuple]],
+    title: str,
+    row_labels: Sequence[str] | None = None,
+    elev: float = 22.0,
+    azim: float = -60.0,
+    limit: float = 0.9,
+    dpi: int = 90,
+) -> Path:
     """A grid of 3-D scatter panels (PNG, atomic write), axes fixed to ``[-limit, limit]`` (unit frame).
 
     ``rows``: lists of ``(panel title, [(points (K, 3), colour, size), ...])``; the layers of a
@@ -40,8 +47,9 @@ def render_cloud_grid(path: str | os.PathLike, rows: Sequence[Sequence[tuple]], 
     return save_png(fig, path, dpi)
 
 
-def render_rig_rays(path: str | os.PathLike, rig, depths: np.ndarray, index: int, surface: np.ndarray,
-                    title: str, dpi: int = 100) -> Path:
+def render_rig_rays(
+    path: str | os.PathLike, rig, depths: np.ndarray, index: int, surface: np.ndarray, title: str, dpi: int = 100
+) -> Path:
     """One viewpoint's rays on an object, in the unit frame (PNG, atomic write).
 
     Parameters
@@ -59,7 +67,7 @@ def render_rig_rays(path: str | os.PathLike, rig, depths: np.ndarray, index: int
     chord = np.clip(-2.0 * np.einsum("ij,ij->i", o, d), 0.0, 2.0)
     fig = new_figure(6.5, 6.0)
     ax = add_axes3d(fig, 1, 1, 1)
-    u, v = np.mgrid[0:2 * np.pi:25j, 0:np.pi:13j]
+    u, v = np.mgrid[0 : 2 * np.pi : 25j, 0 : np.pi : 13j]
     ax.plot_wireframe(np.cos(u) * np.sin(v), np.sin(u) * np.sin(v), np.cos(v), color="0.85", lw=0.4)
     ax.scatter(*np.asarray(surface).T, s=0.6, color="#7b2cbf", alpha=0.5, linewidths=0, depthshade=False)
     ax.scatter(*rig.primary.T, s=10, color="black", depthshade=False)

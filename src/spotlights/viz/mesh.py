@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -24,13 +24,23 @@ def _axis_triad(ax, elev: float, azim: float) -> None:
         if np.linalg.norm(d) < 1e-3:  # pointing at the viewer: a dot
             ax.plot(*origin, marker="o", ms=3, color=col, transform=ax.transAxes)
         else:
-            ax.annotate("", xy=origin + d, xytext=origin, xycoords="axes fraction",
-                        arrowprops=dict(arrowstyle="-|>", color=col, lw=1.2, mutation_scale=8))
+            ax.annotate(
+                "",
+                xy=origin + d,
+                xytext=origin,
+                xycoords="axes fraction",
+                arrowprops=dict(arrowstyle="-|>", color=col, lw=1.2, mutation_scale=8),
+            )
         ax.text(*(origin + d * 1.35), name, color=col, fontsize=8, ha="center", va="center", transform=ax.transAxes)
 
 
-def figure_mesh(mesh, title: str | None = None, views: Sequence[tuple[float, float]] = DEFAULT_VIEWS,
-                max_faces: int | None = None, size: int = 800):
+def figure_mesh(
+    mesh,
+    title: str | None = None,
+    views: Sequence[tuple[float, float]] = DEFAULT_VIEWS,
+    max_faces: int | None = None,
+    size: int = 800,
+):
     """The :class:`~matplotlib.figure.Figure` of :func:`render_mesh` (not saved)."""
     from matplotlib.ticker import MaxNLocator
 
@@ -66,8 +76,14 @@ def figure_mesh(mesh, title: str | None = None, views: Sequence[tuple[float, flo
     return fig
 
 
-def render_mesh(path: str | os.PathLike, mesh, title: str | None = None, views=DEFAULT_VIEWS,
-                max_faces: int | None = None, dpi: int = 110) -> Path:
+def render_mesh(
+    path: str | os.PathLike,
+    mesh,
+    title: str | None = None,
+    views=DEFAULT_VIEWS,
+    max_faces: int | None = None,
+    dpi: int = 110,
+) -> Path:
     """Shaded picture of a triangle mesh from several views into a PNG (atomic write).
 
     Every face is rasterised with a depth test (no painter's-algorithm artefacts, no face

@@ -10,9 +10,9 @@ of it merely because it was drawn later. The top view is a plain 2-D plot of x a
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -89,8 +89,9 @@ def _stack(layers: Sequence[Layer]) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     return np.concatenate(pts), np.concatenate(cols), np.concatenate(sizes)
 
 
-def draw_points3d(ax, layers: Sequence[Layer], elev: float, azim: float, center=None, half=None,
-                  labels=("x", "y", "z")) -> None:
+def draw_points3d(
+    ax, layers: Sequence[Layer], elev: float, azim: float, center=None, half=None, labels=("x", "y", "z")
+) -> None:
     """Draw layers on a 3-D axes as one depth-sorted scatter, with equal axes (cube around all points)."""
     p, c, s = _stack(layers)
     if len(p):
@@ -125,21 +126,25 @@ def draw_top(ax, layers: Sequence[Layer], center=None, half=None, labels=("x", "
 def _legend(ax, layers: Sequence[Layer]) -> None:
     from matplotlib.lines import Line2D
 
-    handles = [Line2D([], [], ls="none", marker="o", ms=6, color=l.color, label=l.label)
-               for l in layers if l.label and isinstance(l.color, (str, tuple))]
+    handles = [
+        Line2D([], [], ls="none", marker="o", ms=6, color=layer.color, label=layer.label)
+        for layer in layers
+        if layer.label and isinstance(layer.color, (str, tuple))
+    ]
     if handles:
         ax.legend(handles=handles, loc="upper left", fontsize=8, framealpha=0.8)
 
 
-def figure_layers(layers: Sequence[Layer], title: str | None = None,
-                  views: Sequence[tuple[float, float]] = DEFAULT_VIEWS):
+def figure_layers(
+    layers: Sequence[Layer], title: str | None = None, views: Sequence[tuple[float, float]] = DEFAULT_VIEWS
+):
     """The :class:`~matplotlib.figure.Figure` of :func:`render_layers` (not saved)."""
     from matplotlib.cm import ScalarMappable
 
     p, _, _ = _stack(layers)
     center, half = cube_limits(p, 0.0)
     half *= 1.04  # a margin: points on the extremes stay whole
-    bars = [l for l in layers if l.colorbar]
+    bars = [layer for layer in layers if layer.colorbar]
     fig = new_figure(5.0 * len(views) + (1.0 if bars else 0.0), 5.2, layout="constrained")
     axes = []
     for j, (elev, azim) in enumerate(views):
@@ -152,7 +157,7 @@ def figure_layers(layers: Sequence[Layer], title: str | None = None,
             draw_points3d(ax, layers, elev, azim, center, half)
             ax.set_title(f"elevation {elev:g} deg, azimuth {azim:g} deg", fontsize=9)
         axes.append(ax)
-    if any(l.label for l in layers):
+    if any(layer.label for layer in layers):
         _legend(axes[0], layers)
     if title:
         fig.suptitle(title, fontsize=11)

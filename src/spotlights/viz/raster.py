@@ -24,8 +24,9 @@ def view_basis(elev: float, azim: float) -> np.ndarray:
     return np.stack([right, up, toward])
 
 
-def rasterize(tri_xy: np.ndarray, tri_depth: np.ndarray, width: int, height: int,
-              chunk: int = 1 << 20) -> tuple[np.ndarray, np.ndarray]:
+def rasterize(
+    tri_xy: np.ndarray, tri_depth: np.ndarray, width: int, height: int, chunk: int = 1 << 20
+) -> tuple[np.ndarray, np.ndarray]:
     """Z-buffer rasterisation of triangles given in pixel coordinates.
 
     Parameters
@@ -64,7 +65,7 @@ def rasterize(tri_xy: np.ndarray, tri_depth: np.ndarray, width: int, height: int
             members = ids[cls == k]
             step = max(1, chunk // (s * s))
             for i0 in range(0, len(members), step):
-                f = members[i0:i0 + step]
+                f = members[i0 : i0 + step]
                 px = lo[f][:, None, :] + grid[None]  # (F, s*s, 2) pixel indices (x, y)
                 inb = (px[..., 0] <= hi[f][:, None, 0]) & (px[..., 1] <= hi[f][:, None, 1])
                 p = px + 0.5 - a[f][:, None, :]
@@ -95,8 +96,16 @@ def rasterize(tri_xy: np.ndarray, tri_depth: np.ndarray, width: int, height: int
     return face.reshape(height, width), depth.reshape(height, width)
 
 
-def shade_mesh(vertices: np.ndarray, faces: np.ndarray, elev: float, azim: float, size: int = 800,
-               center=None, half: float | None = None, base=(0.55, 0.65, 0.85)) -> tuple[np.ndarray, tuple]:
+def shade_mesh(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    elev: float,
+    azim: float,
+    size: int = 800,
+    center=None,
+    half: float | None = None,
+    base=(0.55, 0.65, 0.85),
+) -> tuple[np.ndarray, tuple]:
     """An orthographic, shaded RGBA image of a mesh seen from (elev, azim) degrees.
 
     Parameters

@@ -16,8 +16,15 @@ GT_COLOR = "#8c8c8c"  # grey
 SPOTLIGHTS_COLOR = "#2a9d3f"  # green
 
 
-def render_sample(path: str | os.PathLike, sample: dict, rig, clip: float | None = None,
-                  elev: float = 25.0, azim: float = -60.0, dpi: int = 100) -> Path:
+def render_sample(
+    path: str | os.PathLike,
+    sample: dict,
+    rig,
+    clip: float | None = None,
+    elev: float = 25.0,
+    azim: float = -60.0,
+    dpi: int = 100,
+) -> Path:
     """Draw one sample side by side: partial (purple), uniform ground truth (grey), Spotlights
     points (green, decoded from the ground-truth depths with ``rig``), and all three overlaid with
     an arrow toward the sensor. All in the unit frame, axes fixed to [-1, 1].
@@ -36,18 +43,30 @@ def render_sample(path: str | os.PathLike, sample: dict, rig, clip: float | None
         (f"partial scan ({len(partial)} pts, {sample.get('n_raw', '?')} raw)", [(partial, PARTIAL_COLOR, 4.0)]),
         (f"uniform ground truth ({len(gt)} pts)", [(gt, GT_COLOR, 1.5)]),
         (f"Spotlights {rig.name} ({len(spot)}/{rig.n_rays} hits)", [(spot, SPOTLIGHTS_COLOR, 2.5)]),
-        ("overlay, arrow: toward the sensor", [(gt, GT_COLOR, 1.0), (spot, SPOTLIGHTS_COLOR, 2.0),
-                                              (partial, PARTIAL_COLOR, 4.0)]),
+        (
+            "overlay, arrow: toward the sensor",
+            [(gt, GT_COLOR, 1.0), (spot, SPOTLIGHTS_COLOR, 2.0), (partial, PARTIAL_COLOR, 4.0)],
+        ),
     ]
     fig = new_figure(4.2 * len(panels), 4.8)
     for j, (title, layers) in enumerate(panels):
         ax = add_axes3d(fig, 1, len(panels), j + 1)
-        draw_points3d(ax, [Layer(pts, color, None, size, 1.0) for pts, color, size in layers], elev, azim,
-                      np.zeros(3), 1.0, ("x (forward)", "y (left)", "z"))
+        draw_points3d(
+            ax,
+            [Layer(pts, color, None, size, 1.0) for pts, color, size in layers],
+            elev,
+            azim,
+            np.zeros(3),
+            1.0,
+            ("x (forward)", "y (left)", "z"),
+        )
         if j == len(panels) - 1:
             ax.quiver(0, 0, 0, *(0.9 * to_sensor), color="black", arrow_length_ratio=0.15, linewidth=1.5)
         ax.set_title(title, fontsize=9)
-    fig.suptitle(f"{sample['model']} ({sample['category']}, {sample['split']}), view {sample['view']}: "
-                 f"{sample.get('distance', float('nan')):.1f} m from the sensor, unit frame", fontsize=11)
+    fig.suptitle(
+        f"{sample['model']} ({sample['category']}, {sample['split']}), view {sample['view']}: "
+        f"{sample.get('distance', float('nan')):.1f} m from the sensor, unit frame",
+        fontsize=11,
+    )
     fig.tight_layout(rect=(0, 0, 1, 0.94))
     return save_png(fig, path, dpi)

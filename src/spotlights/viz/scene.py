@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -85,8 +85,15 @@ def bev_window(objects: Sequence[SceneObject], margin: float = 8.0) -> tuple[np.
     return lo, hi
 
 
-def draw_bev(ax, scan: np.ndarray, objects: Sequence[SceneObject], max_scan_points: int = 40000, seed: int = 0,
-             window: tuple[np.ndarray, np.ndarray] | None = None, legend: bool = True) -> None:
+def draw_bev(
+    ax,
+    scan: np.ndarray,
+    objects: Sequence[SceneObject],
+    max_scan_points: int = 40000,
+    seed: int = 0,
+    window: tuple[np.ndarray, np.ndarray] | None = None,
+    legend: bool = True,
+) -> None:
     """Bird's-eye view on a 2-D axes: grey scan, green completions, purple inputs, boxes with ids, sensor, scale bar."""
     lo, hi = window if window is not None else bev_window(objects)
     scan = np.asarray(scan, dtype=np.float64).reshape(-1, 3)
@@ -97,8 +104,14 @@ def draw_bev(ax, scan: np.ndarray, objects: Sequence[SceneObject], max_scan_poin
     any_comp = False
     for o in objects:
         if o.completion is not None and len(o.completion):
-            ax.scatter(o.completion[:, 0], o.completion[:, 1], s=1.0, color=GREEN, linewidths=0,
-                       label=None if any_comp else "completion")
+            ax.scatter(
+                o.completion[:, 0],
+                o.completion[:, 1],
+                s=1.0,
+                color=GREEN,
+                linewidths=0,
+                label=None if any_comp else "completion",
+            )
             any_comp = True
     for k, o in enumerate(objects):
         p = np.asarray(o.partial, dtype=np.float64).reshape(-1, 3)
@@ -106,8 +119,15 @@ def draw_bev(ax, scan: np.ndarray, objects: Sequence[SceneObject], max_scan_poin
     for o in objects:
         c = o.corners()[[0, 1, 3, 2, 0], :2]  # bottom face, closed
         ax.plot(c[:, 0], c[:, 1], color="black", lw=0.7)
-        ax.annotate(o.label, o.center[:2] + np.array([0.0, 0.6 * o.reach + 0.4]), fontsize=7, ha="center",
-                    va="bottom", color="black", bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.7))
+        ax.annotate(
+            o.label,
+            o.center[:2] + np.array([0.0, 0.6 * o.reach + 0.4]),
+            fontsize=7,
+            ha="center",
+            va="bottom",
+            color="black",
+            bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.7),
+        )
     ax.plot([0], [0], marker="^", color="black", ms=6, ls="none")
     ax.annotate("sensor", (0, 0), xytext=(0, -10), textcoords="offset points", fontsize=7, ha="center", va="top")
     ax.set_xlim(lo[0], hi[0])
@@ -157,8 +177,15 @@ def draw_closeup(ax, scan: np.ndarray, obj: SceneObject, context: float = 1.0) -
     ax.set_axis_off()
 
 
-def figure_scene(scan: np.ndarray, objects: Sequence[SceneObject], title: str | None = None,
-                 max_scan_points: int = 40000, seed: int = 0, closeups: bool = True, id_note: str = "boxes: object id"):
+def figure_scene(
+    scan: np.ndarray,
+    objects: Sequence[SceneObject],
+    title: str | None = None,
+    max_scan_points: int = 40000,
+    seed: int = 0,
+    closeups: bool = True,
+    id_note: str = "boxes: object id",
+):
     """The :class:`~matplotlib.figure.Figure` of :func:`render_scene` (not saved)."""
     objects = list(objects)
     if not objects:
@@ -182,9 +209,17 @@ def figure_scene(scan: np.ndarray, objects: Sequence[SceneObject], title: str | 
     return fig
 
 
-def render_scene(path: str | os.PathLike, scan: np.ndarray, objects: Sequence[SceneObject], title: str | None = None,
-                 max_scan_points: int = 40000, seed: int = 0, closeups: bool = True, dpi: int = 110,
-                 id_note: str = "boxes: object id") -> Path:
+def render_scene(
+    path: str | os.PathLike,
+    scan: np.ndarray,
+    objects: Sequence[SceneObject],
+    title: str | None = None,
+    max_scan_points: int = 40000,
+    seed: int = 0,
+    closeups: bool = True,
+    dpi: int = 110,
+    id_note: str = "boxes: object id",
+) -> Path:
     """Draw a scene into a PNG (atomic write): bird's-eye view, plus one close-up per object.
 
     Parameters
@@ -211,11 +246,17 @@ def frame_objects(obs, rows: Sequence[int], completions: Sequence[np.ndarray] | 
     for k, i in enumerate(rows):
         m = obs.unit_to_sensor[i]
         comp = to_sensor(completions[k], m) if completions is not None else None
-        out.append(SceneObject(
-            label=observation_label(obs, i), center=np.asarray(obs.box_center[i], dtype=np.float64),
-            size=np.asarray(obs.box_size[i], dtype=np.float64), rotation=np.asarray(obs.box_rotation[i], dtype=np.float64),
-            partial=to_sensor(obs.partial[i], m), completion=comp,
-            caption=f"{obs.cls[i]} ({obs.label[i]}), {int(obs.n_points_raw[i])} raw pts, {len(obs.partial[i])} input"))
+        out.append(
+            SceneObject(
+                label=observation_label(obs, i),
+                center=np.asarray(obs.box_center[i], dtype=np.float64),
+                size=np.asarray(obs.box_size[i], dtype=np.float64),
+                rotation=np.asarray(obs.box_rotation[i], dtype=np.float64),
+                partial=to_sensor(obs.partial[i], m),
+                completion=comp,
+                caption=f"{obs.cls[i]} ({obs.label[i]}), {int(obs.n_points_raw[i])} raw pts, {len(obs.partial[i])} input",
+            )
+        )
     return out
 
 
@@ -246,7 +287,9 @@ def render_frame(
         scan = read_frame_scan(obs, rows[0])
     tracked = any(obs.track_id[i] for i in rows)
     note = "boxes: track id" if tracked else "boxes: row in the observation file (no track ids)"
-    return render_scene(path, scan, frame_objects(obs, rows, completions), title, max_scan_points, seed, True, dpi, note)
+    return render_scene(
+        path, scan, frame_objects(obs, rows, completions), title, max_scan_points, seed, True, dpi, note
+    )
 
 
 def read_frame_scan(obs, row: int) -> np.ndarray:

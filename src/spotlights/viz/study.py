@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Callable, Iterable
 
 from ..geometry.rig import RigSpec
 from ._figure import colormap, new_figure, save_png
@@ -13,8 +13,14 @@ from ._figure import colormap, new_figure, save_png
 FAMILY_CMAPS = {"cap": "Blues", "volume": "Greens", "surface": "Purples", "visible": "Oranges", "ellipsoid": "Reds"}
 
 
-def plot_rig_study(path: str | os.PathLike, summary, annotate: Callable[[object], bool] | None = None,
-                   floor: float | None = None, floor_note: str = "", dpi: int = 110) -> Path:
+def plot_rig_study(
+    path: str | os.PathLike,
+    summary,
+    annotate: Callable[[object], bool] | None = None,
+    floor: float | None = None,
+    floor_note: str = "",
+    dpi: int = 110,
+) -> Path:
     """Completeness against hit ratio, one panel per mesh set (PNG, atomic write).
 
     Parameters
@@ -51,24 +57,58 @@ def plot_rig_study(path: str | os.PathLike, summary, annotate: Callable[[object]
         sub = summary[(summary.mesh_set == mesh_set) & (summary.category == "all")]
         mid = 0.5 * (float(sub.hit_ratio.min()) + float(sub.hit_ratio.max())) if len(sub) else 0.5
         for _, r in sub.iterrows():
-            ax.scatter(r.hit_ratio, r.completeness, marker=markers[r.rays], color=colors[r.label], s=42,
-                       edgecolors="black" if r.label in paper else "none", linewidths=0.8, zorder=3)
+            ax.scatter(
+                r.hit_ratio,
+                r.completeness,
+                marker=markers[r.rays],
+                color=colors[r.label],
+                s=42,
+                edgecolors="black" if r.label in paper else "none",
+                linewidths=0.8,
+                zorder=3,
+            )
             if annotate is not None and annotate(r):
                 right = r.hit_ratio > mid  # name on the inner side: never past the panel's edge
-                ax.annotate(f"{r.rays}: {r.label}", (r.hit_ratio, r.completeness), fontsize=7,
-                            xytext=(-6 if right else 6, 3), textcoords="offset points", ha="right" if right else "left")
+                ax.annotate(
+                    f"{r.rays}: {r.label}",
+                    (r.hit_ratio, r.completeness),
+                    fontsize=7,
+                    xytext=(-6 if right else 6, 3),
+                    textcoords="offset points",
+                    ha="right" if right else "left",
+                )
         if floor is not None:
             ax.axvline(floor, color="gray", ls=":", lw=1.2, zorder=1)
         ax.set_xlabel("hit ratio (fraction of rays that hit the object)")
         ax.set_ylabel("completeness (unit frame, lower is better)")
         ax.set_title(f"{mesh_set} (mean over meshes)", fontsize=10)
         ax.grid(alpha=0.3)
-    handles = [Line2D([], [], ls="none", marker="o", ms=6, color=colors[label],
-                      markeredgecolor="black" if label in paper else "none", label=label)
-               for labels in fam.values() for label in labels]
+    handles = [
+        Line2D(
+            [],
+            [],
+            ls="none",
+            marker="o",
+            ms=6,
+            color=colors[label],
+            markeredgecolor="black" if label in paper else "none",
+            label=label,
+        )
+        for labels in fam.values()
+        for label in labels
+    ]
     handles += [Line2D([], [], ls="none", marker=markers[r], ms=6, color="gray", label=f"{r} rays") for r in ray_counts]
     if floor is not None:
-        handles.append(Line2D([], [], color="gray", ls=":", lw=1.2, label=f"hit ratio {floor:g}" + (f": {floor_note}" if floor_note else "")))
+        handles.append(
+            Line2D(
+                [],
+                [],
+                color="gray",
+                ls=":",
+                lw=1.2,
+                label=f"hit ratio {floor:g}" + (f": {floor_note}" if floor_note else ""),
+            )
+        )
     ncol = min(5, max(2, len(handles) // 4 + 1))
     nrows_legend = -(-len(handles) // ncol)
     bottom = min(0.45, 0.03 + 0.034 * nrows_legend)

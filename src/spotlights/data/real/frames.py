@@ -22,7 +22,11 @@ def frame_rows(obs: Observations, sequence: str | None = None, frame_id: str | N
     cands = [k for k in frames if k[1] == frame_id and (sequence is None or k[0] == sequence)]
     if not cands:
         known = ", ".join(sorted({f for _, f in frames})[:8])
-        raise ParameterError(f"frame {frame_id!r} has no observation in the file (frames: {known}{', ...' if len(frames) > 8 else ''})")
+        raise ParameterError(
+            f"frame {frame_id!r} has no observation in the file (frames: {known}{', ...' if len(frames) > 8 else ''})"
+        )
     if len(cands) > 1:
-        raise ParameterError(f"frame {frame_id!r} exists in several sequences ({', '.join(k[0] for k in cands)}); give --sequence")
+        raise ParameterError(
+            f"frame {frame_id!r} exists in several sequences ({', '.join(k[0] for k in cands)}); give --sequence"
+        )
     return frames[cands[0]]
