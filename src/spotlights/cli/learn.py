@@ -66,6 +66,22 @@ def register(sub) -> None:
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     p.add_argument("--no-progress", action="store_true")
 
+    # ---- curves
+    p = add_command(sub, "curves", "learning curves of training runs: validation CD-L1, accuracy and completeness "
+                    "against samples seen and minutes, one figure per axis, and whether each curve has flattened",
+                    "spotlights curves runs/sanet runs/topnet --budget-minutes 45 --out results/curves", _curves)
+    p.add_argument("runs", nargs="+", metavar="RUN", help="run folders of 'spotlights train' (each holds log.csv)")
+    p.add_argument("--out", "-o", default="curves", metavar="DIR",
+                   help="output folder: curves_samples.png, curves_minutes.png, curves.json, one CSV per run (default ./curves)")
+    p.add_argument("--names", nargs="+", default=None, metavar="NAME", help="display names, one per run (default: folder names)")
+    p.add_argument("--budget-minutes", type=positive_float, default=None, metavar="M",
+                   help="minutes axis in budget minutes: M x (steps done / steps planned), for runs given equal step "
+                        "budgets measured on a quiet machine (default: each run's wall clock)")
+    p.add_argument("--tail", type=unit_interval, default=0.2, metavar="SHARE",
+                   help="share of each run (by steps) judged for flatness (default 0.2: the last 20%%)")
+    p.add_argument("--tolerance", type=positive_float, default=0.02, metavar="REL",
+                   help="a curve has flattened when its tail improves it by less than this share (default 0.02)")
+
     # ---- bench models (reuses an existing 'bench' group if another module made one)
     bsub = add_group(sub, "bench", "benchmarks (bench models: parameters and latency of the five models)",
                      "spotlights bench models --batch 1 32", metavar="BENCH")
@@ -132,6 +148,15 @@ def _evaluate(args) -> int:
             args.checkpoint, args.data, args.split, per_category=args.examples, clip=args.clip, device=args.device),
             title=f"{args.split} scans of {Path(args.data).name}: predictions beside the ground truth (unit frame)")
         print(f"figure -> {png}")
+    return 0
+
+
+def _curves(args) -> int:
+    from ..experiments.curves import learning_curves, summary_markdown
+
+    summary = learning_curves(args.runs, args.names, args.out, args.budget_minutes, args.tail, args.tolerance)
+    print(summary_markdown(summary).rstrip())
+    print(f"\ncurves -> {args.out}/curves_samples.png, {args.out}/curves_minutes.png, {args.out}/curves.json")
     return 0
 
 
