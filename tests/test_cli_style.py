@@ -21,7 +21,7 @@ from spotlights.cli import EPILOG, build_parser, main
 # Commands that write nothing (info prints; add-rig extends its FILE in place, atomically).
 NO_OUTPUT = {"dataset info", "dataset add-rig"}
 # Commands that show a progress bar (or progress lines) while they work.
-PROGRESS = {"encode", "dataset build", "dataset add-rig", "real extract", "real evaluate", "analyze density",
+PROGRESS = {"encode", "dataset build", "dataset add-rig", "real extract", "real evaluate", "real complete", "analyze density",
             "study rigs", "train", "evaluate", "reproduce", "bench models"}
 
 

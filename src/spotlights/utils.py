@@ -1,5 +1,5 @@
 """Small utilities shared by every layer: atomic writes (and sweeping their stale temporaries),
-process pools that fail instead of hanging."""
+an exclusive lock, process pools that fail instead of hanging."""
 
 from __future__ import annotations
 
@@ -163,6 +163,32 @@ def check_writable(*paths: str | os.PathLike | None) -> None:
             os.unlink(tmp)
         except OSError as exc:
             raise OutputFileError(p, f"cannot write ({os_error_reason(exc)})") from None
+
+
+@contextlib.contextmanager
+def exclusive_lock(lock_file: str | os.PathLike, busy: str) -> Iterator[None]:
+    """Hold an exclusive, non-blocking lock on ``lock_file`` (created if missing) for the body.
+
+    The one file lock of the project: two processes that must not write the same output
+    (two dataset builds into one parts folder, two ``add-rig`` runs on one file, two
+    reproductions in one folder) take the same lock file; the second fails at once with
+    :class:`~spotlights.errors.SpotlightsError` ``busy`` (a one-line message naming the path)
+    instead of waiting. The lock is released when the body ends or the process dies (``flock``);
+    the small lock file stays. Not POSIX (no ``fcntl``): no lock.
+    """
+    from .errors import SpotlightsError
+
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX: no lock
+        yield
+        return
+    with open(lock_file, "w") as fh:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            raise SpotlightsError(busy) from None
+        yield
 
 
 @contextlib.contextmanager

@@ -25,8 +25,10 @@ COMMAND_MODULES = [
     "spotlights.cli.real",  # real extract, evaluate, show
     "spotlights.cli.analyze",  # analyze density
     "spotlights.cli.study",  # study rigs
-    "spotlights.cli.learn",  # train, evaluate, complete, bench models
+    "spotlights.cli.learn",  # train, evaluate, bench models
+    "spotlights.cli.complete",  # complete (a frame with its boxes, or one object)
     "spotlights.cli.reproduce",  # reproduce (the paper's tables)
+    "spotlights.cli.view",  # view (interactive HTML page)
 ]
 
 EPILOG = """\
@@ -37,9 +39,10 @@ the representation:
   spotlights encode car.ply --out car.npz           # mesh -> Spotlights depth array (32 x 64 rays, 60 deg)
   spotlights decode car.npz --out car_points.ply    # depth array -> ordered point cloud
   spotlights show car.npz --out car.png             # look at it
+  spotlights view car.npz car.ply --out view.html   # interactive 3-D page, opens offline (rotate, zoom)
 
 completion:
-  spotlights complete scan.pcd --box box.json --out done.ply --show done.png   # your scan + its 3-D box
+  spotlights complete scan.bin --boxes boxes.json --out done.ply --show done.png   # a LiDAR frame + its 3-D boxes
   spotlights dataset build --meshes DIR --out cars.h5                          # simulated LiDAR dataset
   spotlights train --model sanet --data cars.h5 --schedule cpu                 # SA-Net or a baseline
   spotlights evaluate --data cars.h5 --checkpoint runs/sanet/best.pt           # Table 1

@@ -190,6 +190,9 @@ def decode(depths: np.ndarray, rig: Rig | RigSpec, clip: float | None = None,
     -------
     points : (..., N*M, 3) float32, unit frame; misses are placed at their ray origin.
     mask : (..., N*M) bool, True where the ray hit (and passed the clip).
+
+    Kept depths are clamped to half their ray's chord through the unit sphere, so every point
+    lies in the sphere (predicted depths can exceed it; encoded ones cannot).
     """
     d = np.asarray(depths, dtype=np.float64)
     if d.shape[-1:] != (rig.n_rays,):
@@ -208,7 +211,11 @@ def decode(depths: np.ndarray, rig: Rig | RigSpec, clip: float | None = None,
     mask = d > 0.0
     if clip is not None:
         mask &= d >= float(clip)
-    dist = np.where(mask, 2.0 * d, 0.0)[..., None]
+    # A depth is clamped to half the ray's chord through the unit sphere (<= 1): no decoded point
+    # leaves the sphere, whatever a network predicted; encoded depths never exceed it (a ray from
+    # the sphere meets the object, which lies inside it, before leaving the sphere).
+    half_chord = np.maximum(-np.einsum("...j,...j->...", np.broadcast_to(origins, directions.shape), directions), 0.0)
+    dist = np.where(mask, 2.0 * np.minimum(d, half_chord), 0.0)[..., None]
     points = origins + dist * directions
     return points.astype(np.float32), mask
 
