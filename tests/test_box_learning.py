@@ -289,7 +289,7 @@ def test_box_completer_uses_each_scans_box(box_run):
 
 
 def test_box_checkpoint_in_evaluate_and_real_consistency(box_run, tmp_path, monkeypatch):
-    from spotlights.data.real import evaluate as real_eval
+    from spotlights.experiments import real_evaluation as real_eval
     from spotlights.learning.evaluate import evaluate_checkpoint
     from spotlights.learning.inference import load_completer
 

@@ -116,8 +116,12 @@ def test_sanet_decoding_matches_geometry_decode():
     out = model.outputs_to_points({"depths": torch.from_numpy(depths)}, 0.2)
     for b in range(3):
         keep = depths[b] >= 0.2
-        expect = rig.origins[keep] + 2 * depths[b][keep, None] * rig.directions[keep]
+        # a predicted depth is clamped to half its ray's chord through the unit sphere: P stays in the sphere
+        half_chord = -np.sum(rig.origins[keep] * rig.directions[keep], axis=1)
+        d = np.minimum(depths[b][keep], half_chord)
+        expect = rig.origins[keep] + 2 * d[:, None] * rig.directions[keep]
         np.testing.assert_allclose(out[b].numpy(), expect, atol=1e-6)
+        assert np.linalg.norm(out[b].numpy(), axis=1).max() <= 1 + 1e-6
 
 
 def test_pcn_alpha_schedule_and_fine_points_refine_coarse():

@@ -101,8 +101,11 @@ def test_completion_keeps_rays_with_p_at_or_above_the_threshold_and_clamps_depth
         clouds = model.outputs_to_points(outs)
         for b in range(2):
             keep = 1 / (1 + np.exp(-logits[b].astype(np.float64))) >= t
-            want = rig.origins[keep] + 2 * np.clip(depths[b][keep], 0, 1)[:, None] * rig.directions[keep]
+            half_chord = -np.sum(rig.origins[keep] * rig.directions[keep], axis=1)  # <= 1
+            d = np.minimum(np.clip(depths[b][keep], 0, None), half_chord)
+            want = rig.origins[keep] + 2 * d[:, None] * rig.directions[keep]
             np.testing.assert_allclose(clouds[b].numpy(), want, atol=1e-6)
+            assert np.linalg.norm(clouds[b].numpy(), axis=1).max() <= 1 + 1e-6  # inside the unit sphere
     # an explicit threshold wins over the stored one
     a = model.outputs_to_points(outs, threshold=0.9)
     assert all(len(x) < len(y) for x, y in zip(a, model.outputs_to_points(outs, threshold=0.1)))
@@ -138,7 +141,9 @@ def test_threshold_is_chosen_on_validation_stored_and_used(run, data):
             keep = 1 / (1 + np.exp(-logits[b])) >= t
             if not keep.any():
                 continue
-            pts = rig.origins[keep] + 2 * np.clip(depths[b][keep], 0, 1)[:, None] * rig.directions[keep]
+            half_chord = -np.sum(rig.origins[keep] * rig.directions[keep], axis=1)
+            d = np.minimum(np.clip(depths[b][keep], 0, None), half_chord)
+            pts = rig.origins[keep] + 2 * d[:, None] * rig.directions[keep]
             acc += cKDTree(dense[m]).query(pts)[0].mean()
             comp += cKDTree(pts).query(dense[m])[0].mean()
             n += 1
@@ -232,8 +237,7 @@ def test_the_shipped_paper_checkpoint_loads_and_gives_the_same_outputs():
     for clip in (0.2, None):
         clouds = comp.complete(x, clip=clip)
         for b in range(3):
-            d = np.clip(got[b], None, 1.0)  # decoding clamps to [0, 1]; the shipped model predicts <= 1 anyway
-            pts, keep = decode(d, comp.rig.for_box(None), clip)
+            pts, keep = decode(got[b], comp.rig.for_box(None), clip)  # both decodings clamp to half the ray's chord
             np.testing.assert_allclose(clouds[b], pts[keep], atol=1e-5)
 
 

@@ -174,8 +174,9 @@ def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt
     ({threshold: {"accuracy", "completeness", "chamfer_l1", "empty"}}).
     With ``dist`` active, each rank evaluates a contiguous shard and the sums are all-reduced.
     """
+    from ..geometry.distances import accuracy, combine_directions, completeness
+    from ..geometry.neighbors import NearestNeighbors
     from .device import autocast
-    from .metrics import NearestNeighbors
     from .rays import DirectionTable
 
     if rays is None and getattr(model, "needs_box", False):
@@ -220,8 +221,8 @@ def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt
                 if not isinstance(tree, NearestNeighbors):
                     tree = gt_trees[m] = NearestNeighbors(tree)
                 pts = p.detach().cpu().numpy()
-                acc_sum[j] += float(tree.distances(pts).mean())
-                comp_sum[j] += float(NearestNeighbors(pts).distances(tree.points).mean())
+                acc_sum[j] += accuracy(pts, tree)
+                comp_sum[j] += completeness(pts, tree)
                 scored[j] += 1
     sums = [loss_sum, float(count), *acc_sum, *comp_sum, *map(float, scored)]
     if active:
@@ -233,7 +234,7 @@ def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt
     for j in range(k):
         acc = acc_sum[j] / scored[j] if scored[j] else float("nan")
         comp = comp_sum[j] / scored[j] if scored[j] else float("nan")
-        scan.append({"accuracy": acc, "completeness": comp, "chamfer_l1": 0.5 * (acc + comp),
+        scan.append({"accuracy": acc, "completeness": comp, "chamfer_l1": combine_directions(acc, comp, "mean"),
                      "empty": int(count - scored[j])})
     # The chosen threshold: the lowest CD-L1 (the first on ties); NaN (every completion empty) never wins.
     finite = [j for j in range(k) if math.isfinite(scan[j]["chamfer_l1"])]

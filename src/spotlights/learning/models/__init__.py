@@ -90,7 +90,7 @@ def deep_merge(base: dict, override: dict) -> dict:
 def schedule_path(schedule) -> Path:
     """Path of a training schedule: a packaged name (``cpu``, ``paper``) or a YAML file."""
     p = Path(str(schedule))
-    if p.suffix.lower() in (".yaml", ".yml") or p.exists():
+    if p.suffix.lower() in (".yaml", ".yml") or p.is_file():
         return p
     packaged = Path(str(resources.files("spotlights.learning") / "configs" / "schedules" / f"{schedule}.yaml"))
     if not packaged.is_file():

@@ -91,9 +91,8 @@ class SANet(CompletionModel):
         Same convention as ``spotlights.geometry.encode.decode``: a ray is kept when
         depth > 0 and (with a clip) depth >= clip; dropped rays sit at their origin.
         ``keep``: (B, N*M) bool rays to keep instead of ``depth > 0`` (the hit-aware SA-Net's
-        ``p(hit) >= threshold``); a clip still applies on top.
-        Kept depths are clamped to [0, 1], the range of the encoding (a depth is a distance
-        over the sphere's diameter 2 R): an output above 1 cannot be a surface point.
+        ``p(hit) >= threshold``); a clip still applies on top. Kept depths are clamped to half
+        the ray's chord through the unit sphere (<= 1): every point stays in the sphere.
         ``directions``: (B, N*M, 3) float32 per-sample unit ray directions (unit frame);
         required for a box-targeted rig (each sample's box), optional for a cap rig
         (default: the rig's fixed rays).
@@ -109,7 +108,12 @@ class SANet(CompletionModel):
         mask = depths > 0 if keep is None else keep.clone()
         if clip is not None:
             mask &= depths >= float(clip)
-        dist = torch.where(mask, 2.0 * depths.clamp(0.0, 1.0), torch.zeros_like(depths)).unsqueeze(-1)
+        # Safe outputs: a depth is clamped to [0, half the ray's chord through the unit sphere]
+        # (<= 1), so no decoded point can leave the sphere of the object's box, whatever the
+        # network regresses (a linear output is unbounded); true depths never exceed it.
+        half_chord = (-(self.origins * directions).sum(-1)).clamp(min=0.0)
+        depths = torch.minimum(depths.clamp(min=0.0), half_chord)
+        dist = torch.where(mask, 2.0 * depths, torch.zeros_like(depths)).unsqueeze(-1)
         return self.origins + dist * directions, mask
 
     def outputs_to_points(self, outputs, clip=CLIP_DEFAULT, directions: torch.Tensor | None = None) -> list[torch.Tensor]:
