@@ -375,3 +375,15 @@ def test_real_complete_html_pages_share_one_local_script(tmp_path):
     page = (tmp_path / "out" / "002155.html").read_text()
     assert '<script charset="utf-8" src="plotly.min.js"' in page and "http" not in page.split("<body>")[0]
     assert (tmp_path / "out" / "plotly.min.js").stat().st_size > 3_000_000
+
+
+def test_view_without_plotly_says_how_to_install(tmp_path):
+    code = (
+        "import sys; sys.modules['plotly'] = None; sys.modules['plotly.graph_objects'] = None\n"
+        "from spotlights.cli import main\n"
+        f"sys.exit(main(['view', r'{REPO / 'src' / 'spotlights' / 'assets' / 'demo_scan.pcd'}', '-o', r'{tmp_path / 'v.html'}']))"
+    )
+    env = dict(os.environ, PYTHONPATH=str(REPO / "src"))
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert proc.returncode == 2 and "pip install 'spotlights[viewer]'" in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1 and not (tmp_path / "v.html").exists()
