@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 
 from ._util import add_command, positive_int, unit_interval
+from .view import add_html_argument
 
 CROP_DOC = ("each box's points: the box grown by --margin on its sides and top, its bottom raised by --ground-clearance "
             "(ground returns)")
@@ -78,6 +79,7 @@ def register(sub) -> None:
     p.add_argument("--summary", default=None, metavar="JSON", help="also write a JSON summary (objects, warnings, timings)")
     p.add_argument("--show", default=None, metavar="PNG",
                    help="also draw the scene: bird's-eye view with box outlines and ids, close-ups with a 1 m ruler")
+    add_html_argument(p)
     p.add_argument("--quiet", "-q", action="store_true", help="print nothing but warnings and errors")
 
 
@@ -201,11 +203,17 @@ def _complete(args) -> int:
     if not args.quiet:
         print(f"{args.input}: {len(points)} points, {describe(result)} ({result.model}) -> {args.out}"
               + (f" (+{len(written) - 1} per-object files in {args.per_object})" if args.per_object else ""))
+    title = f"{Path(args.input).name}: {result.model} completion of {len(result.completed)} object(s), scan frame"
     if args.show:
-        title = f"{Path(args.input).name}: {result.model} completion of {len(result.completed)} object(s), scan frame"
         render_result(result, args.show, title)
         if not args.quiet:
             print(f"picture -> {args.show}")
+    if args.html:
+        from ..experiments.scene import render_result_html
+
+        render_result_html(result, args.html, title)
+        if not args.quiet:
+            print(f"page -> {args.html}")
     return 0
 
 

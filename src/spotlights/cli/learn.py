@@ -7,9 +7,8 @@ from __future__ import annotations
 
 import sys
 
+from ..learning.models import MODEL_NAMES as MODEL_CHOICES  # registry keys (imports neither torch nor a model)
 from ._util import add_command, add_group, non_negative_int, positive_float, positive_int, unit_interval
-
-MODEL_CHOICES = ("sanet", "pcn", "foldingnet", "topnet", "atlasnet")
 
 
 def register(sub) -> None:
@@ -33,6 +32,13 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=None, help="random seed (same seed + config = same weights)")
     p.add_argument("--device", default=None, help="torch device (default: cuda when available, else cpu)")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
+    p.add_argument("--precision", choices=("auto", "fp32", "bf16"), default=None,
+                   help="forward-pass precision: auto (default: bf16 where the CPU or GPU supports it, else fp32), "
+                        "fp32, or bf16 (fp16 with a gradient scaler on GPUs without bf16); weights, losses and "
+                        "metrics stay float32")
+    p.add_argument("--steps-per-epoch", type=positive_int, default=None, metavar="N",
+                   help="make an epoch N optimizer steps drawn from shuffled passes over the training set "
+                        "(a validation and checkpoint interval) instead of one full pass")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--resume", action="store_true", help="continue the run in --out from its last.pt")
     g.add_argument("--overwrite", action="store_true", help="start again even if --out holds a run")
@@ -53,6 +59,9 @@ def register(sub) -> None:
     p.add_argument("--fscore-threshold", type=positive_float, default=0.01, metavar="T", help="F-score distance threshold, unit frame (default 0.01)")
     p.add_argument("--accuracy-only", action="store_true", help="skip the GT -> prediction side (completeness, CD, F-score)")
     p.add_argument("--no-latency", action="store_true", help="do not time the models")
+    p.add_argument("--examples", type=non_negative_int, default=2, metavar="K",
+                   help="figure PATH.png: K scans per category, each model's prediction beside the ground truth "
+                        "(default 2; 0: no figure)")
     p.add_argument("--device", default=None)
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     p.add_argument("--no-progress", action="store_true")
@@ -85,7 +94,8 @@ def _train(args) -> int:
 
     _set_threads(args.threads)
     ov: dict = {"train": {}, "data": {}}
-    for key, val in (("epochs", args.epochs), ("batch_size", args.batch_size), ("lr", args.lr), ("seed", args.seed)):
+    for key, val in (("epochs", args.epochs), ("batch_size", args.batch_size), ("lr", args.lr), ("seed", args.seed),
+                     ("precision", args.precision), ("steps_per_epoch", args.steps_per_epoch)):
         if val is not None:
             ov["train"][key] = val
     for key, val in (("max_views", args.max_views), ("val_max_views", args.val_max_views), ("rig", args.rig),
@@ -112,6 +122,16 @@ def _evaluate(args) -> int:
     md, js = write_report(report, args.out)
     print(report_markdown(report).split("\n## ")[0].rstrip())
     print(f"\nreport -> {md}, {js}")
+    if args.examples:
+        from pathlib import Path
+
+        from ..learning.evaluate import prediction_examples
+        from ..viz import render_predictions
+
+        png = render_predictions(md.with_suffix(".png"), prediction_examples(
+            args.checkpoint, args.data, args.split, per_category=args.examples, clip=args.clip, device=args.device),
+            title=f"{args.split} scans of {Path(args.data).name}: predictions beside the ground truth (unit frame)")
+        print(f"figure -> {png}")
     return 0
 
 

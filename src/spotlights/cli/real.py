@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from ._util import add_command, add_group, positive_int, unit_interval
+from .view import add_html_argument
 
 
 FORMAT_CHOICES = ("kitti", "kitti360", "av2", "nuscenes", "generic")
@@ -99,9 +100,11 @@ def register(sub) -> None:
     p.add_argument("--frame", default=None, metavar="ID", help="frame id (default: the frame with the most observations)")
     p.add_argument("--sequence", default=None, metavar="SEQ", help="sequence / log of the frame, when frame ids repeat")
     p.add_argument("--max-objects", type=int, default=6, metavar="K", help="close-ups of the K objects with most points (default 6)")
-    p.add_argument("--out", "-o", default=None, metavar="PNG", help="output picture (default: FILE_FRAME.png beside FILE)")
+    p.add_argument("--out", "-o", default=None, metavar="PNG",
+                   help="output picture (default: FILE_FRAME.png beside FILE; with --html alone, no picture)")
     p.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="depth clip passed to the model (default: its own)")
     p.add_argument("--device", default=None, help="torch device for the model")
+    add_html_argument(p)
 
 
 def _reader_arguments(p) -> None:
@@ -247,8 +250,9 @@ def _show(args) -> int:
     from pathlib import Path
 
     from ..data.real.extract import read_observations
-    from ..data.real.show import frame_rows, render_frame
+    from ..data.real.frames import frame_rows
     from ..errors import ParameterError
+    from ..viz import render_frame
 
     if args.max_objects < 1:
         raise ParameterError("--max-objects must be >= 1")
@@ -268,8 +272,19 @@ def _show(args) -> int:
     frame = obs.frame_id[i0]
     out = args.out or str(Path(args.file).with_suffix("")) + f"_{frame}.png"
     title = f"{obs.meta.get('source_format')} {obs.sequence[i0] + '/' if obs.sequence[i0] else ''}{frame}" + (f" - {model}" if model else "")
+    objects = f"{len(rows)} object{'' if len(rows) == 1 else 's'} of frame {frame}"
+    if args.html:
+        from ..viz import html
+        from ..viz.scene import frame_objects, read_frame_scan
+        from .view import write_page
+
+        scan = read_frame_scan(obs, i0)
+        write_page(args.html, [("scene", html.scene_traces(scan, frame_objects(obs, rows, completions)))], title, quiet=True)
+        print(f"wrote {args.html} ({objects}, interactive)")
+        if not args.out:
+            return 0
     render_frame(out, obs, rows, completions, title=title)
-    print(f"wrote {out} ({len(rows)} object{'' if len(rows) == 1 else 's'} of frame {frame})")
+    print(f"wrote {out} ({objects})")
     return 0
 
 

@@ -179,11 +179,14 @@ class VehiclePose:
     distance : horizontal distance from the sensor to the box centre, metres.
     azimuth : bearing of the box centre, radians counter-clockwise from the sensor's +x.
     heading : yaw of the vehicle's forward axis, radians counter-clockwise from the sensor's +x.
+    mount_height : the sensor's height above the ground for this scan, metres (None: the
+        sensor model's ``mount_height``); lets a dataset vary the mounting per view.
     """
 
     distance: float
     azimuth: float
     heading: float
+    mount_height: float | None = None
 
 
 @dataclass
@@ -233,11 +236,13 @@ class LidarSimulator:
 
     # --- frames -----------------------------------------------------------------------------
     def box_center_in_sensor(self, pose: VehiclePose) -> np.ndarray:
-        """(3,) float64 box centre in the sensor frame (the box bottom on the ground ``z = -h``)."""
+        """(3,) float64 box centre in the sensor frame (the box bottom on the ground ``z = -h``,
+        ``h`` = ``pose.mount_height`` or the sensor's ``mount_height``)."""
+        h = self.sensor.mount_height if pose.mount_height is None else float(pose.mount_height)
         return np.array([
             pose.distance * math.cos(pose.azimuth),
             pose.distance * math.sin(pose.azimuth),
-            -self.sensor.mount_height + self.size[2] / 2.0,
+            -h + self.size[2] / 2.0,
         ])
 
     def object_to_sensor(self, pose: VehiclePose) -> np.ndarray:

@@ -391,95 +391,38 @@ def describe(result: SceneResult) -> str:
             f"{1000 * result.timings.get('total_s', 0):.0f} ms")
 
 
-def render_result(result: SceneResult, path: str | Path, title: str | None = None) -> Path:
-    """Draw a completed scene into a PNG: a bird's-eye view (equal aspect, grey scan, purple inputs, green
-    completions, box outlines labelled with their ``object`` ids, a scale bar) and a 3-D close-up of every
-    completed object seen from the sensor (box wireframe, 1 m ruler). Uses :func:`spotlights.viz.render_scene`."""
-    try:
-        from ..viz import SceneObject, render_scene
-    except ImportError:  # until the viz package (issue 17) is merged: the same picture, drawn here
-        return _render_fallback(result, path, title)
+def scene_objects(result: SceneResult) -> list:
+    """The completed objects of a scene as :class:`spotlights.viz.SceneObject` (scan frame): box, partial
+    input, completion, labelled with their ``object`` ids (as in the PLY)."""
+    from ..viz import SceneObject
+
     objs = []
     for o in result.completed:
         b = o.used_box
         objs.append(SceneObject(label=str(o.object_id), center=b.center, size=b.size, rotation=b.rotation,
                                 partial=result.points[o.input_indices], completion=o.completion, caption=_caption(o)))
-    return render_scene(path, result.points, objs, title=title, id_note="boxes: object id, as in the PLY")
+    return objs
+
+
+def render_result(result: SceneResult, path: str | Path, title: str | None = None) -> Path:
+    """Draw a completed scene into a PNG: a bird's-eye view (equal aspect, grey scan, purple inputs, green
+    completions, box outlines labelled with their ``object`` ids, a scale bar) and a 3-D close-up of every
+    completed object seen from the sensor (box wireframe, 1 m ruler). Uses :func:`spotlights.viz.render_scene`."""
+    from ..viz import render_scene
+
+    return render_scene(path, result.points, scene_objects(result), title=title, id_note="boxes: object id, as in the PLY")
+
+
+def render_result_html(result: SceneResult, path: str | Path, title: str | None = None) -> Path:
+    """The same scene as one interactive, self-contained HTML page (:mod:`spotlights.viz.html`)."""
+    from ..viz import html
+
+    return html.write_html(path, html.page([("scene", html.scene_traces(result.points, scene_objects(result)))], title or ""))
 
 
 def _caption(o: ObjectResult) -> str:
     return (f"{o.box.cls or o.box.label or 'box'}: {len(o.input_indices)} pts in box, {len(o.completion)} completed"
             + (", heading flipped" if o.flipped else "") + (" [outside learned domain]" if o.warnings else ""))
-
-
-def _render_fallback(result: SceneResult, path, title=None) -> Path:
-    """The scene picture with matplotlib Figure objects only (no pyplot, no global backend)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-    from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
-
-    from ..utils import atomic_output
-
-    grey, purple, green = "#9a9a9a", "#8e44ad", "#27ae60"
-    objs = result.completed
-    ncol = min(3, max(len(objs), 1))
-    nrow = max(1, math.ceil(len(objs) / ncol))
-    fig = Figure(figsize=(7.0 + 3.6 * ncol, max(6.5, 3.6 * nrow)))
-    FigureCanvasAgg(fig)
-    gs = fig.add_gridspec(nrow, ncol + 2)
-    ax = fig.add_subplot(gs[:, :2])
-    scan = result.points
-    cs = np.array([o.used_box.center[:2] for o in objs]).reshape(-1, 2)
-    rs = np.array([o.used_box.radius for o in objs]).reshape(-1, 1)
-    lo = np.minimum((cs - rs).min(axis=0) - 8.0, -3.0) if len(objs) else np.array([-30.0, -30.0])
-    hi = np.maximum((cs + rs).max(axis=0) + 8.0, 3.0) if len(objs) else np.array([30.0, 30.0])
-    bev = scan[np.all((scan[:, :2] >= lo) & (scan[:, :2] <= hi), axis=1)]
-    if len(bev) > 40000:
-        bev = bev[np.sort(np.random.default_rng(0).choice(len(bev), 40000, replace=False))]
-    ax.scatter(bev[:, 0], bev[:, 1], s=0.3, color=grey, linewidths=0, label="raw scan", rasterized=True)
-    for k, o in enumerate(objs):
-        ax.scatter(o.completion[:, 0], o.completion[:, 1], s=1.0, color=green, linewidths=0, label="completion" if k == 0 else None)
-        p = scan[o.input_indices]
-        ax.scatter(p[:, 0], p[:, 1], s=2.5, color=purple, linewidths=0, label="partial input" if k == 0 else None)
-        c = o.used_box.corners()[[0, 2, 6, 4, 0], :2]
-        ax.plot(c[:, 0], c[:, 1], color="black", lw=0.7)
-        ax.annotate(str(o.object_id), o.used_box.center[:2] + [0.0, 0.6 * o.used_box.radius + 0.4], fontsize=7, ha="center")
-    ax.plot([0], [0], marker="^", color="black", ms=6, ls="none")
-    ax.set_xlim(lo[0], hi[0])
-    ax.set_ylim(lo[1], hi[1])
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (m, scan frame)")
-    ax.set_ylabel("y (m)")
-    span = float(hi[0] - lo[0])
-    bar = 10.0 if span > 40 else 5.0 if span > 15 else 1.0
-    ax.add_artist(AnchoredSizeBar(ax.transData, bar, f"{bar:g} m", "lower left", frameon=False, size_vertical=0))
-    ax.legend(loc="upper right", fontsize=7, markerscale=4)
-    ax.set_title("bird's-eye view (boxes: object id, as in the PLY)", fontsize=10)
-    for k, o in enumerate(objs):
-        a3 = fig.add_subplot(gs[k // ncol, 2 + k % ncol], projection="3d")
-        c, r = o.used_box.center, o.used_box.radius + 0.3
-        near = scan[np.sum((scan - c) ** 2, axis=1) <= (r + 0.7) ** 2]
-        for p, col, sz in ((near, grey, 0.8), (o.completion, green, 2.0), (scan[o.input_indices], purple, 4.0)):
-            if len(p):
-                a3.scatter(p[:, 0], p[:, 1], p[:, 2], s=sz, color=col, linewidths=0, depthshade=False)
-        rot = o.used_box.rotation
-        start = o.used_box.from_object([[-0.5 * o.used_box.size[0], -0.5 * o.used_box.size[1] - 0.3, -0.5 * o.used_box.size[2]]])[0]
-        ruler = np.stack([start, start + rot[:, 0]])
-        a3.plot(*ruler.T, color="black", lw=2.0)
-        a3.text(*ruler.mean(axis=0), "1 m", fontsize=7)
-        a3.set_xlim(c[0] - r, c[0] + r)
-        a3.set_ylim(c[1] - r, c[1] + r)
-        a3.set_zlim(c[2] - r, c[2] + r)
-        a3.set_box_aspect((1, 1, 1), zoom=1.3)
-        a3.view_init(elev=20, azim=math.degrees(math.atan2(c[1], c[0])) + 180.0)
-        a3.set_axis_off()
-        a3.set_title(f"{o.object_id}: {_caption(o)}", fontsize=7)
-    if title:
-        fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    with atomic_output(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    return Path(path)
 
 
 def require_points(points: np.ndarray, min_points: int, source) -> None:
@@ -490,4 +433,4 @@ def require_points(points: np.ndarray, min_points: int, source) -> None:
 
 
 __all__ = ["SceneConfig", "SceneResult", "ObjectResult", "complete_scene", "write_scene", "check_completed",
-           "object_ids", "describe", "render_result", "HEADING_DOC"]
+           "object_ids", "describe", "render_result", "render_result_html", "scene_objects", "HEADING_DOC"]

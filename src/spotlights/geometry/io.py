@@ -285,3 +285,14 @@ def load_ply_fields(path: str | os.PathLike) -> dict[str, np.ndarray]:
     if attrs is None:
         raise InputFileError(p, "PLY holds no vertex element")
     return {n: np.asarray(attrs[n]) for n in attrs.dtype.names}
+
+
+def ply_has_faces(path: str | os.PathLike) -> bool:
+    """True when a PLY file's header declares at least one face (a mesh, not a point cloud)."""
+    with open(path, "rb") as fh:
+        head = fh.read(4096).split(b"end_header")[0].decode("ascii", "replace")
+    for line in head.splitlines():
+        parts = line.split()
+        if len(parts) == 3 and parts[0] == "element" and parts[1] == "face":
+            return parts[2].isdigit() and int(parts[2]) > 0
+    return False

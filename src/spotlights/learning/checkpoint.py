@@ -12,6 +12,8 @@ A checkpoint is a ``torch.save`` dict (loadable with ``weights_only=True``)::
     epoch             number of completed epochs;  global_step
     optimizer_state, scheduler_state   (training checkpoints; absent in exported weights)
     best              {"epoch", "val_accuracy"};  history  list of per-epoch log rows
+    hit_threshold     hit-aware SA-Net only: {"value": p(hit) threshold chosen on the validation
+                      split, "chosen_on", "criterion", "scan": {threshold: val metrics}}
     dataset           {"path", "rig", "n_train", "n_val"} (informative)
 """
 
@@ -131,6 +133,9 @@ def model_from_checkpoint(ckpt: dict, device=None):
         first = str(exc).splitlines()[0][:160]
         raise InputFileError(ckpt.get("path", "checkpoint"), f"weights do not match the {ckpt['model_name']} config ({first})") from None
     model = model.float()
+    chosen = ckpt.get("hit_threshold")
+    if chosen is not None and hasattr(model, "threshold"):  # hit-aware SA-Net: the p(hit) threshold chosen on val
+        model.threshold = float(chosen["value"] if isinstance(chosen, dict) else chosen)
     if device is not None:
         model = model.to(torch.device(device))
     return model.eval()
