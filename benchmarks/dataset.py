@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from spotlights.data.lidar import LidarSimulator
-from spotlights.data.synthetic import (BuildConfig, _save_npz_atomic, build_dataset, discover_models, load_model,
+from spotlights.data.synthetic import (BuildConfig, save_npz_atomic, build_dataset, discover_models, load_model,
                                        model_ground_truth, simulate_views)
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -62,7 +62,7 @@ def stage_profile(root: Path, file: str, cfg: BuildConfig, views: int) -> dict:
     t_views = time.perf_counter() - t0
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        _save_npz_atomic(Path(tmp) / "shard.npz", arrays)
+        save_npz_atomic(Path(tmp) / "shard.npz", arrays)
         t_write = time.perf_counter() - t0
     per = {k: tm[k] / views * 1e3 for k in ("rays", "cast", "returns", "resample")}
     per["other"] = t_views / views * 1e3 - sum(per.values())

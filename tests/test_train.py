@@ -69,7 +69,7 @@ def test_lazy_reading_with_worker_processes_gives_the_same_bytes(data):
     a = torch.cat([b["partial"] for b in DataLoader(lazy, batch_size=7, num_workers=2)])
     b = torch.cat([b["partial"] for b in DataLoader(mem, batch_size=7, num_workers=0)])
     assert torch.equal(a, b) and a.shape == (48, 256, 3)
-    assert lazy._h5 is None  # the parent never opened the file: each worker opened its own
+    assert not lazy.store.is_open()  # the parent holds no open handle: each worker opened its own
 
 
 def test_dataset_errors(data, tmp_path):
@@ -221,7 +221,7 @@ def test_bench_models_cli_json(capsys):
     proc = cli(capsys, "bench", "models", "--batch", "1", "--repeats", "1", "--warmup", "0", "--json", "--threads", "1")
     assert proc.returncode == 0, proc.stderr
     res = json.loads(proc.stdout)
-    assert [r["model"] for r in res["models"]] == ["sanet", "pcn", "foldingnet", "topnet", "atlasnet"]
+    assert [r["model"] for r in res["models"]] == ["sanet", "sanet-hit", "pcn", "foldingnet", "topnet", "atlasnet"]
     sanet = res["models"][0]
     assert sanet["params"]["encoder"] == 821_504 and sanet["latency_ms"]["1"]["forward_ms"] > 0
     assert res["threads"] == 1

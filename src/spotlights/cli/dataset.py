@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from ._util import add_command, add_group, positive_int, unit_interval
+from ._util import add_command, add_group, non_negative_int, positive_int, unit_interval
+from .view import add_html_argument
 
 
 def register(sub) -> None:
@@ -12,8 +13,10 @@ def register(sub) -> None:
     b = add_command(dsub, "build", "simulate LiDAR scans of every mesh of a folder and write the dataset (resumable)",
                     "spotlights dataset build --meshes ../shared/data/meshes/apolloscape-cars --out cars.h5 "
                     "--views 2000 --split 64/8/7 --rig 64x32@60 --rig 256x64@60", _build)
-    b.add_argument("--meshes", required=True, metavar="DIR",
-                   help="folder of meshes; categories = first sub-folder, or DIR/manifest.csv (file,category[,up,forward,split])")
+    b.add_argument("--meshes", required=True, metavar="DIR[,KEY=VALUE...]", action="append",
+                   help="folder of meshes; categories = first sub-folder, or DIR/manifest.csv (file,category[,up,forward,"
+                        "split,scale]). Repeat for several sources (model names get the folder's name as prefix); "
+                        "per source: manifest=CSV, up=, forward=, scale=, split=A/B/C or train|val|test, name=")
     b.add_argument("--out", "-o", required=True, metavar="FILE", help="dataset file to write (.h5); work folder FILE.parts")
     b.add_argument("--manifest", default=None, metavar="CSV", help="manifest CSV (default: DIR/manifest.csv if present)")
     b.add_argument("--views", type=positive_int, default=2000, help="partial observations per model (default 2000)")
@@ -38,7 +41,9 @@ def register(sub) -> None:
     g = b.add_argument_group("LiDAR (default: Velodyne HDL-64E as in KITTI)")
     g.add_argument("--sensor", default="hdl64e", help="preset: hdl64e (default), hdl32e, vlp16")
     g.add_argument("--azimuth-step", type=float, default=None, metavar="DEG", help="horizontal step (hdl64e: 0.17)")
-    g.add_argument("--mount-height", type=float, default=None, metavar="M", help="sensor height above ground (hdl64e: 1.73)")
+    g.add_argument("--mount-height", default=None, metavar="M|MIN:MAX",
+                   help="sensor height above ground (hdl64e: 1.73); MIN:MAX draws each view's height uniformly "
+                        "(e.g. 1.5:2.1, from low roof mounts to tall SUVs and robotaxis)")
     g.add_argument("--range-noise", type=float, default=None, metavar="M", help="range noise sigma (hdl64e: 0.02)")
     g.add_argument("--dropout", type=float, default=None, metavar="P", help="probability that a return is lost (default 0)")
     g.add_argument("--beam-dropout", type=float, default=None, metavar="P",
@@ -46,6 +51,22 @@ def register(sub) -> None:
     g.add_argument("--max-range", type=float, default=None, metavar="M", help="range limit (hdl64e: 120)")
     g.add_argument("--distance", default="4:40", metavar="MIN:MAX", help="vehicle distance range in metres (default 4:40)")
     g.add_argument("--min-points", type=int, default=50, help="fewer returns than this and the pose is redrawn (default 50)")
+    sp = b.add_argument_group("splits by category")
+    sp.add_argument("--category-split", action="append", default=[], metavar="CAT=SPLIT",
+                    help="every model of category CAT goes to SPLIT (held-out body types, e.g. suv=test); the rest "
+                         "are split by --split; repeatable")
+    sp.add_argument("--exclude-category", action="append", default=[], metavar="CAT",
+                    help="leave the models of category CAT out; repeatable")
+    au = b.add_argument_group("augmentation (augmented copies of the meshes become extra models, in their mesh's split)")
+    au.add_argument("--mirror", action="store_true", help="add a copy mirrored across the car's x-z plane (y -> -y)")
+    au.add_argument("--scale-copies", type=non_negative_int, default=0, metavar="K",
+                    help="add K anisotropically scaled copies per mesh (with --mirror, each mirrored too)")
+    au.add_argument("--length-range", default=None, metavar="MIN:MAX", help="box length of scaled copies, m (2.6:5.8)")
+    au.add_argument("--width-range", default=None, metavar="MIN:MAX", help="box width (mirrors included), m (1.5:2.45)")
+    au.add_argument("--height-range", default=None, metavar="MIN:MAX", help="box height, m (1.3:2.0)")
+    au.add_argument("--scale-factor-range", default=None, metavar="MIN:MAX", help="per-axis factor (0.7:1.3)")
+    au.add_argument("--augment-splits", default="train", metavar="SPLITS",
+                    help="splits whose meshes get copies, comma-separated (default train: val/test stay real meshes)")
     r = b.add_argument_group("run")
     r.add_argument("--overwrite", action="store_true", help="replace an existing FILE and discard unfinished parts")
     r.add_argument("--resume", action="store_true", help="accept an existing complete FILE (unfinished parts resume anyway)")
@@ -58,8 +79,9 @@ def register(sub) -> None:
     a.add_argument("file", metavar="FILE")
     a.add_argument("--rig", required=True, metavar="RIG",
                    help="NxM[@DEG] or a rig name (cap-32x64-60, box-32x64-ellipsoid-s1, box-32x64-volume-s0.9, ...)")
-    a.add_argument("--meshes", default=None, metavar="DIR",
-                   help="the meshes folder the dataset was built from (default: the one its config records)")
+    a.add_argument("--meshes", default=None, metavar="DIR", action="append",
+                   help="the meshes folder the dataset was built from (default: the one its config records); "
+                        "repeat once per source, in the build's order, for a multi-source dataset")
     a.add_argument("--workers", "-j", type=positive_int, default=None, help="processes (default: all cores); never changes the result")
     a.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
 
@@ -81,9 +103,11 @@ def register(sub) -> None:
     s.add_argument("file", metavar="FILE")
     s.add_argument("--split", default="test", choices=("train", "val", "test"))
     s.add_argument("--index", type=int, default=0, help="sample index within the split (default 0)")
-    s.add_argument("--out", "-o", default=None, metavar="PNG", help="output picture (default: ./SPLIT-INDEX.png)")
+    s.add_argument("--out", "-o", default=None, metavar="PNG",
+                   help="output picture (default: ./SPLIT-INDEX.png; with --html alone, no picture)")
     s.add_argument("--rig", default=None, help="rig whose points are drawn (default: the default rig)")
     s.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="depths below T count as misses")
+    add_html_argument(s)
 
 
 def _distance(text: str) -> tuple[float, float]:
@@ -97,25 +121,49 @@ def _distance(text: str) -> tuple[float, float]:
 
 
 def _build(args) -> int:
-    import signal
-
     from ..data.lidar import sensor_preset
     from ..data.synthetic import BuildConfig, build_dataset
+    from ..data.synthetic.config import parse_range, parse_source
+    from ..errors import ParameterError
 
-    def _terminate(signum, frame):  # SIGTERM: stop the workers like Ctrl-C, finished units are kept
-        raise KeyboardInterrupt
+    # SIGTERM unwinds like Ctrl-C (spotlights.cli.main): the workers stop, finished units are kept
 
-    signal.signal(signal.SIGTERM, _terminate)
-
-    sensor = sensor_preset(args.sensor, azimuth_step=args.azimuth_step, mount_height=args.mount_height,
+    heights = None
+    mount = args.mount_height
+    if mount is not None and ":" in mount:
+        heights, mount = parse_range(mount, "--mount-height"), None
+    elif mount is not None:
+        try:
+            mount = float(mount)
+        except ValueError:
+            raise ParameterError(f"--mount-height {args.mount_height!r}: write metres (1.73) or MIN:MAX (1.5:2.1)") from None
+    sensor = sensor_preset(args.sensor, azimuth_step=args.azimuth_step, mount_height=mount,
                            range_noise=args.range_noise, dropout=args.dropout, max_range=args.max_range,
                            beam_dropout=args.beam_dropout)
+    sources = [parse_source(m) for m in args.meshes]
+    single = len(sources) == 1 and set(sources[0]) == {"path"}
+    if not single and args.manifest:
+        raise ParameterError("--manifest applies to a single --meshes folder; give each source its own "
+                             "(--meshes DIR,manifest=CSV)")
+    category_split = {}
+    for item in args.category_split:
+        cat, eq, split = item.partition("=")
+        if not eq or not cat.strip():
+            raise ParameterError(f"--category-split {item!r}: write CATEGORY=SPLIT, e.g. suv=test")
+        category_split[cat.strip()] = split.strip()
+    augment = None
+    if args.mirror or args.scale_copies:
+        augment = {"mirror": args.mirror, "copies": args.scale_copies, "length": args.length_range,
+                   "width": args.width_range, "height": args.height_range, "factor": args.scale_factor_range,
+                   "splits": args.augment_splits}
     cfg = BuildConfig(
-        meshes=str(args.meshes), manifest=args.manifest, views=args.views, split=args.split, seed=args.seed,
+        meshes=str(sources[0]["path"]), manifest=args.manifest, views=args.views, split=args.split, seed=args.seed,
         n_points=args.points, gt_points=args.gt_points, gt_dense=args.gt_dense, default_rig=args.default_rig,
         extra_rigs=list(args.rig), sensor=sensor.to_dict(), distance=_distance(args.distance),
         min_points=args.min_points, downsample=args.downsample, up=args.up, forward=args.forward,
-        scale=args.scale, stratify=not args.no_stratify,
+        scale=args.scale, stratify=not args.no_stratify, sources=[] if single else sources,
+        category_split=category_split, exclude_categories=list(args.exclude_category), augment=augment,
+        mount_height_range=heights,
     )
     rep = build_dataset(cfg, args.out, workers=args.workers, overwrite=args.overwrite, resume=args.resume,
                         block=args.block, keep_parts=args.keep_parts, progress=not args.quiet)
@@ -134,14 +182,9 @@ def _build(args) -> int:
 
 
 def _add_rig(args) -> int:
-    import signal
-
     from ..data.synthetic import add_rig
 
-    def _terminate(signum, frame):  # SIGTERM: stop like Ctrl-C; the file is left untouched
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, _terminate)
+    # SIGTERM unwinds like Ctrl-C (spotlights.cli.main): the file is left untouched
     rep = add_rig(args.file, args.rig, meshes=args.meshes, workers=args.workers, progress=not args.quiet)
     if rep.already_present:
         print(f"{args.file}: already holds rig {rep.rig}; nothing to do")
@@ -226,14 +269,24 @@ def _export(args) -> int:
 def _show(args) -> int:
     from pathlib import Path
 
-    from ..data.render import render_sample
     from ..data.store import open_dataset
+    from ..viz import render_sample
 
     out = Path(args.out) if args.out else Path.cwd() / f"{args.split}-{args.index}.png"
     with open_dataset(args.file) as ds:
         i = _pick(ds, args.split, args.index)
         s = ds.sample(i, rig=args.rig)
         rig = ds.rig(s["rig"], s["model_index"])
+    what = f"{args.file}: {args.split}[{args.index}] = sample {i} ({s['model']}, view {s['view']})"
+    if args.html:
+        from ..viz import html
+        from .view import write_page
+
+        write_page(args.html, [("sample", html.sample_traces(s, rig, clip=args.clip))],
+                   f"{s['model']} ({s['category']}, {s['split']}), view {s['view']}, unit frame", quiet=True)
+        print(f"{what} -> {args.html}")
+        if not args.out:
+            return 0
     render_sample(out, s, rig, clip=args.clip)
-    print(f"{args.file}: {args.split}[{args.index}] = sample {i} ({s['model']}, view {s['view']}) -> {out}")
+    print(f"{what} -> {out}")
     return 0

@@ -1,4 +1,4 @@
-"""Learning commands: ``train``, ``evaluate``, ``complete``, ``bench models``.
+"""Learning commands: ``train``, ``evaluate``, ``bench models`` (``complete`` is in :mod:`.complete`).
 
 Thin over :mod:`spotlights.learning`; torch and numpy are imported inside the handlers.
 """
@@ -7,9 +7,8 @@ from __future__ import annotations
 
 import sys
 
+from ..learning.models import MODEL_NAMES as MODEL_CHOICES  # registry keys (imports neither torch nor a model)
 from ._util import add_command, add_group, non_negative_int, positive_float, positive_int, unit_interval
-
-MODEL_CHOICES = ("sanet", "pcn", "foldingnet", "topnet", "atlasnet")
 
 
 def register(sub) -> None:
@@ -33,6 +32,13 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=None, help="random seed (same seed + config = same weights)")
     p.add_argument("--device", default=None, help="torch device (default: cuda when available, else cpu)")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
+    p.add_argument("--precision", choices=("auto", "fp32", "bf16"), default=None,
+                   help="forward-pass precision: auto (default: bf16 where the CPU or GPU supports it, else fp32), "
+                        "fp32, or bf16 (fp16 with a gradient scaler on GPUs without bf16); weights, losses and "
+                        "metrics stay float32")
+    p.add_argument("--steps-per-epoch", type=positive_int, default=None, metavar="N",
+                   help="make an epoch N optimizer steps drawn from shuffled passes over the training set "
+                        "(a validation and checkpoint interval) instead of one full pass")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--resume", action="store_true", help="continue the run in --out from its last.pt")
     g.add_argument("--overwrite", action="store_true", help="start again even if --out holds a run")
@@ -53,29 +59,12 @@ def register(sub) -> None:
     p.add_argument("--fscore-threshold", type=positive_float, default=0.01, metavar="T", help="F-score distance threshold, unit frame (default 0.01)")
     p.add_argument("--accuracy-only", action="store_true", help="skip the GT -> prediction side (completeness, CD, F-score)")
     p.add_argument("--no-latency", action="store_true", help="do not time the models")
+    p.add_argument("--examples", type=non_negative_int, default=2, metavar="K",
+                   help="figure PATH.png: K scans per category, each model's prediction beside the ground truth "
+                        "(default 2; 0: no figure)")
     p.add_argument("--device", default=None)
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     p.add_argument("--no-progress", action="store_true")
-
-    # ---- complete
-    p = add_command(sub, "complete", "complete a partial scan of an object given its 3-D box; output in the scan's frame",
-                    "spotlights complete car.pcd --box car_box.json --out car_completed.ply --show car.png", _complete)
-    p.add_argument("input", metavar="INPUT", help="partial scan: .ply .pcd .npy .npz .xyz .txt")
-    p.add_argument("--out", "-o", required=True, metavar="OUTPUT", help="completed cloud: .ply .pcd .npy .xyz .txt (scan's frame)")
-    p.add_argument("--checkpoint", default=None, metavar="CKPT", help="checkpoint (default: the pretrained SA-Net shipped with spotlights)")
-    p.add_argument("--box", default=None, metavar="BOX.json", help='box JSON: {"center": [x,y,z], "size": [l,w,h], "yaw": radians}')
-    p.add_argument("--center", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"), help="box centre (instead of --box)")
-    p.add_argument("--size", type=float, nargs=3, default=None, metavar=("L", "W", "H"), help="box length, width, height")
-    p.add_argument("--yaw", type=float, default=0.0, metavar="RAD", help="box heading in radians about z (default 0)")
-    g = p.add_mutually_exclusive_group()
-    g.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="SA-Net: drop rays with depth < T (default: the checkpoint's, 0.2)")
-    g.add_argument("--no-clip", action="store_true", help="SA-Net: keep every ray with depth > 0")
-    p.add_argument("--crop", type=float, default=None, metavar="MARGIN", help="keep only scan points inside the box grown by MARGIN metres")
-    p.add_argument("--resample", default="random", choices=("random", "fps"),
-                   help="how the scan is brought to 256 points: a seeded random subset (default, as in the training data) or farthest-point sampling")
-    p.add_argument("--seed", type=int, default=0, help="seed of the resampling")
-    p.add_argument("--show", default=None, metavar="PNG", help="also write a picture of the scan and its completion")
-    p.add_argument("--device", default=None)
 
     # ---- bench models (reuses an existing 'bench' group if another module made one)
     bsub = add_group(sub, "bench", "benchmarks (bench models: parameters and latency of the five models)",
@@ -105,7 +94,8 @@ def _train(args) -> int:
 
     _set_threads(args.threads)
     ov: dict = {"train": {}, "data": {}}
-    for key, val in (("epochs", args.epochs), ("batch_size", args.batch_size), ("lr", args.lr), ("seed", args.seed)):
+    for key, val in (("epochs", args.epochs), ("batch_size", args.batch_size), ("lr", args.lr), ("seed", args.seed),
+                     ("precision", args.precision), ("steps_per_epoch", args.steps_per_epoch)):
         if val is not None:
             ov["train"][key] = val
     for key, val in (("max_views", args.max_views), ("val_max_views", args.val_max_views), ("rig", args.rig),
@@ -132,45 +122,16 @@ def _evaluate(args) -> int:
     md, js = write_report(report, args.out)
     print(report_markdown(report).split("\n## ")[0].rstrip())
     print(f"\nreport -> {md}, {js}")
-    return 0
+    if args.examples:
+        from pathlib import Path
 
+        from ..learning.evaluate import prediction_examples
+        from ..viz import render_predictions
 
-def _complete(args) -> int:
-    from pathlib import Path
-
-    import numpy as np
-
-    from ..errors import SpotlightsError
-    from ..geometry.io import load_points, save_points
-    from ..learning.inference import DEFAULT, box_from_dict, complete_scan, load_box, load_completer
-
-    if args.box is not None and (args.center is not None or args.size is not None):
-        raise SpotlightsError("give the box either as --box BOX.json or as --center/--size/--yaw, not both")
-    if args.box is not None:
-        box = load_box(args.box)
-    elif args.center is not None and args.size is not None:
-        box = box_from_dict({"center": args.center, "size": args.size, "yaw": args.yaw}, "--center/--size")
-    else:
-        raise SpotlightsError("the object's box is missing: pass --box BOX.json, or --center X Y Z --size L W H [--yaw RAD]")
-    points = load_points(args.input)
-    completer = load_completer(args.checkpoint, device=args.device)
-    clip = None if args.no_clip else (args.clip if args.clip is not None else DEFAULT)
-    res = complete_scan(points, box, completer, clip=clip, crop=args.crop, seed=args.seed, resample_method=args.resample)
-    outside = float(np.mean(np.linalg.norm(box.normalization().to_unit(points), axis=1) > 1.2))
-    if outside > 0.5:
-        print(f"spotlights: warning: {outside:.0%} of the scan lies outside the box's sphere; is the box in the scan's frame?",
-              file=sys.stderr)
-    if len(res["completed"]) == 0:
-        raise SpotlightsError(f"{args.input}: the completion is empty (every ray was clipped); try --no-clip or a lower --clip")
-    save_points(args.out, res["completed"])
-    print(f"{args.input}: {len(points)} points ({res['used_points']} used) -> {completer.model_name} -> "
-          f"{len(res['completed'])} points in the scan's frame -> {args.out}")
-    if args.show:
-        from .. import viz
-
-        layers = [viz.Layer(points, "0.6", "scan", 3.0, 0.6), viz.Layer(res["completed"], "tab:green", "completion", 2.0)]
-        viz.render_layers(args.show, layers, title=f"{Path(args.input).name}: {completer.model_name} completion")
-        print(f"picture -> {args.show}")
+        png = render_predictions(md.with_suffix(".png"), prediction_examples(
+            args.checkpoint, args.data, args.split, per_category=args.examples, clip=args.clip, device=args.device),
+            title=f"{args.split} scans of {Path(args.data).name}: predictions beside the ground truth (unit frame)")
+        print(f"figure -> {png}")
     return 0
 
 

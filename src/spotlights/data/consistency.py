@@ -150,7 +150,7 @@ def diversity(completions, object_keys, timestamps) -> tuple[float, int]:
     (unsquared, sum of the two one-sided means) over all pairs of distinct objects, each object
     represented by its earliest non-empty completion, in the unit frames as given.
 
-    ``completions``: n arrays (K_i, 3); ``object_keys``: n hashables; ``timestamps``: (n,) ints.
+    ``completions``: n arrays (K_i, 3); ``object_keys``: n hashables; ``timestamps``: (n,) numbers (ints or floats, compared as given).
     Returns (mean, number of objects); (NaN, count) with fewer than two objects. A model that
     outputs one template whatever its input has diversity ~0 and a trivially perfect
     consistency; ``all_objects cd / diversity`` compares how much a completion moves for the
@@ -161,7 +161,7 @@ def diversity(completions, object_keys, timestamps) -> tuple[float, int]:
     for i, k in enumerate(object_keys):
         if len(completions[i]) == 0:
             continue
-        if k not in first or (int(ts[i]), i) < (int(ts[first[k]]), first[k]):
+        if k not in first or (ts[i], i) < (ts[first[k]], first[k]):
             first[k] = i
     rows = sorted(first.values())
     if len(rows) < 2:
@@ -174,7 +174,7 @@ def consecutive_pairs(object_keys, timestamps) -> list[tuple[int, int]]:
     """Pairs (i, j) of rows that are consecutive observations of the same object.
 
     ``object_keys`` (n hashables: e.g. (sequence, track_id)) and ``timestamps``
-    (n ints). Rows of an object are ordered by (timestamp, row); objects seen
+    (n numbers, ints or floats: 0.25 and 0.5 stay apart). Rows of an object are ordered by (timestamp, row); objects seen
     once give no pair. Pairs are returned sorted by (first row's object order, time).
     """
     groups: dict = defaultdict(list)
@@ -183,7 +183,7 @@ def consecutive_pairs(object_keys, timestamps) -> list[tuple[int, int]]:
     ts = np.asarray(timestamps)
     pairs = []
     for k in sorted(groups, key=lambda k: groups[k][0]):
-        rows = sorted(groups[k], key=lambda i: (int(ts[i]), i))
+        rows = sorted(groups[k], key=lambda i: (ts[i], i))
         pairs.extend(zip(rows[:-1], rows[1:]))
     return pairs
 
@@ -208,7 +208,7 @@ def track_consistency(completions, object_keys, timestamps, classes, radii,
     ----------
     completions : n arrays (K_i, 3), unit frame of observation i (K_i may differ, may be 0).
     object_keys : n hashables identifying the object (tracks with one row are ignored).
-    timestamps : (n,) ints ordering the observations of a track.
+    timestamps : (n,) numbers (ints or floats, never cut) ordering the observations of a track.
     classes : n class names (a track's class is that of its first observation).
     radii : (n,) float, R_i = half the box diagonal of observation i, metres.
 

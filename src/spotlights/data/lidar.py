@@ -49,7 +49,8 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from ..errors import ParameterError
-from ..geometry.frames import Normalization, yaw_rotation
+from ..geometry.frames import Normalization
+from ..geometry.rotations import rotation_z
 from ..geometry.raycast import RayCaster
 
 
@@ -178,11 +179,14 @@ class VehiclePose:
     distance : horizontal distance from the sensor to the box centre, metres.
     azimuth : bearing of the box centre, radians counter-clockwise from the sensor's +x.
     heading : yaw of the vehicle's forward axis, radians counter-clockwise from the sensor's +x.
+    mount_height : the sensor's height above the ground for this scan, metres (None: the
+        sensor model's ``mount_height``); lets a dataset vary the mounting per view.
     """
 
     distance: float
     azimuth: float
     heading: float
+    mount_height: float | None = None
 
 
 @dataclass
@@ -232,17 +236,19 @@ class LidarSimulator:
 
     # --- frames -----------------------------------------------------------------------------
     def box_center_in_sensor(self, pose: VehiclePose) -> np.ndarray:
-        """(3,) float64 box centre in the sensor frame (the box bottom on the ground ``z = -h``)."""
+        """(3,) float64 box centre in the sensor frame (the box bottom on the ground ``z = -h``,
+        ``h`` = ``pose.mount_height`` or the sensor's ``mount_height``)."""
+        h = self.sensor.mount_height if pose.mount_height is None else float(pose.mount_height)
         return np.array([
             pose.distance * math.cos(pose.azimuth),
             pose.distance * math.sin(pose.azimuth),
-            -self.sensor.mount_height + self.size[2] / 2.0,
+            -h + self.size[2] / 2.0,
         ])
 
     def object_to_sensor(self, pose: VehiclePose) -> np.ndarray:
         """(4, 4) float64 homogeneous transform object frame -> sensor frame for ``pose``."""
         m = np.eye(4)
-        r = yaw_rotation(pose.heading)
+        r = rotation_z(pose.heading)
         m[:3, :3] = r
         m[:3, 3] = self.box_center_in_sensor(pose) - r @ self.center
         return m
@@ -254,7 +260,7 @@ class LidarSimulator:
         box diagonal: the same unit frame as the mesh's ground truth.
         """
         return Normalization(center=self.box_center_in_sensor(pose), radius=0.5 * float(np.linalg.norm(self.size)),
-                             rotation=yaw_rotation(pose.heading), size=self.size)
+                             rotation=rotation_z(pose.heading), size=self.size)
 
     # --- scanning ----------------------------------------------------------------------------
     def window(self, pose: VehiclePose) -> tuple[np.ndarray, np.ndarray]:
@@ -296,7 +302,7 @@ class LidarSimulator:
     def _sensor_in_object(self, pose: VehiclePose) -> np.ndarray:
         """(3,) float64 sensor optical centre in the object frame."""
         b = self.box_center_in_sensor(pose)
-        return yaw_rotation(pose.heading).T @ (-b) + self.center
+        return rotation_z(pose.heading).T @ (-b) + self.center
 
     def scan(self, pose: VehiclePose, rng: np.random.Generator, timings: dict | None = None) -> Scan:
         """Simulate one scan of the vehicle at ``pose``.

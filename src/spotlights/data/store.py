@@ -20,6 +20,11 @@ dataset                    shape                  dtype    meaning
 /models/center             (n_models, 3)          float64  object-frame box centre (metres)
 /models/radius             (n_models,)            float64  half the box diagonal R (metres)
 /models/size               (n_models, 3)          float64  box length, width, height (metres)
+/models/source             (n_models,)            utf-8    mesh source (folder) name; multi-source builds only
+/models/origin             (n_models,)            utf-8    the mesh a model was made from (its own name for a mesh
+                                                           file; an augmented copy's origin); augmented builds only
+/models/augment            (n_models,)            utf-8    a copy's transform as JSON ({"mirror", "scale": [sx, sy,
+                                                           sz]}), "" for a mesh file; augmented builds only
 /rigs/<rig_name>/depths    (n_models, N*M)        float32  Spotlights depths; attr ``rig_json`` (RigSpec.to_dict;
                                                            box-targeted rigs: each model's own box, see rig())
 /samples/partial           (n_samples, 256, 3)    float32  partial scan, unit frame; chunked per sample
@@ -54,6 +59,9 @@ SPLITS = ("train", "val", "test")
 # HDF5 compression of every array dataset (portable: gzip is in every HDF5 build).
 COMPRESSION = dict(compression="gzip", compression_opts=4, shuffle=True)
 
+# Per-model string columns written only by builds that use them (multi-source, augmentation).
+OPTIONAL_MODEL_STRINGS = ("source", "origin", "augment")
+
 SAMPLE_FIELDS = {  # name -> (dtype, per-sample shape or None for scalars)
     "model": ("int32", ()),
     "view": ("int32", ()),
@@ -74,7 +82,8 @@ def write_dataset(path, *, attrs: dict, models: dict, rigs: list, n_points: int,
     Parameters
     ----------
     attrs : root attributes (str / int values).
-    models : ``name, file, sha256, category, split`` (lists of str, one per model) and
+    models : ``name, file, sha256, category, split`` (lists of str, one per model), optionally
+        :data:`OPTIONAL_MODEL_STRINGS` (``source``, ``origin``, ``augment``), and
         ``gt_points`` (n, G, 3) f32, ``gt_dense`` (n, D, 3) f32, ``center`` (n, 3), ``radius`` (n,),
         ``size`` (n, 3) arrays.
     rigs : list of ``(Rig, depths (n_models, N*M) float32)``.
@@ -93,8 +102,9 @@ def write_dataset(path, *, attrs: dict, models: dict, rigs: list, n_points: int,
         for k, v in attrs.items():
             f.attrs[k] = v
         g = f.create_group("models", track_order=False)
-        for k in ("name", "file", "sha256", "category", "split"):
-            g.create_dataset(k, data=np.array(models[k], dtype=object), dtype=strt, track_times=False)
+        for k in ("name", "file", "sha256", "category", "split") + OPTIONAL_MODEL_STRINGS:
+            if k in models:
+                g.create_dataset(k, data=np.array(models[k], dtype=object), dtype=strt, track_times=False)
         for k, dt in (("gt_points", "float32"), ("gt_dense", "float32")):
             a = np.asarray(models[k], dtype=dt)
             g.create_dataset(k, data=a, chunks=(1,) + a.shape[1:], track_times=False, **COMPRESSION)
@@ -136,67 +146,174 @@ def write_rig_group(rigs_group, rig, depths) -> None:
     sub.create_dataset("depths", data=d, chunks=(1, d.shape[1]), track_times=False, **COMPRESSION)
 
 
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+INDEX_FORMAT = "spotlights-completion-shards"
+INDEX_FORMAT_VERSION = 1
+
+
+def _strings(ds) -> np.ndarray:
+    return np.array([x.decode() if isinstance(x, bytes) else str(x) for x in ds[()]])
+
+
+def read_shard_index(path: Path) -> list[dict]:
+    """The shards of a sharded dataset's index (JSON, ``format = "spotlights-completion-shards"``).
+
+    Returns ``[{"path": Path, "n_models": int, "n_samples": int}, ...]`` in dataset order (shard
+    paths resolved against the index's folder). Raises InputFileError naming the index."""
+    try:
+        idx = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputFileError(path, f"not a readable shard index ({str(exc).splitlines()[0][:80]})") from None
+    if not isinstance(idx, dict) or idx.get("format") != INDEX_FORMAT:
+        raise InputFileError(path, f"not a spotlights shard index (format {idx.get('format') if isinstance(idx, dict) else None!r})")
+    if int(idx.get("format_version", -1)) != INDEX_FORMAT_VERSION:
+        raise InputFileError(path, f"shard index version {idx.get('format_version')}, this spotlights reads "
+                                   f"{INDEX_FORMAT_VERSION}")
+    try:
+        shards = [{"path": path.parent / str(s["file"]), "n_models": int(s["n_models"]), "n_samples": int(s["n_samples"])}
+                  for s in idx["shards"]]
+    except (KeyError, TypeError, ValueError):
+        raise InputFileError(path, "shard index without a valid 'shards' list") from None
+    if not shards:
+        raise InputFileError(path, "shard index lists no shards")
+    return shards
+
+
+def is_shard_index(path: str | os.PathLike) -> bool:
+    """True when ``path`` is a shard index (JSON) rather than an HDF5 file (looks at the first bytes)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(64).lstrip()
+    except OSError:
+        return False
+    return head.startswith(b"{")
+
+
 class CompletionDataset:
-    """Lazy reader of a dataset file; safe to use across ``fork`` (reopens in a new process).
+    """Lazy reader of a dataset: one HDF5 file, or a shard index (JSON) and its HDF5 shards,
+    read as one logical dataset (global model rows and sample indices); safe to use across
+    ``fork`` (handles reopen in a new process).
 
     Small tables (models, per-sample model index) are read at open; arrays are read on demand.
     Use as a context manager or call :meth:`close`.
+
+    Attributes: ``names``, ``categories``, ``splits`` (n_models,) str; ``center`` (n_models, 3),
+    ``radius`` (n_models,), ``size`` (n_models, 3) or None, float64 metres; ``sources``,
+    ``origins``, ``augments`` (n_models,) str or None (multi-source / augmented builds);
+    ``sample_model``, ``sample_view`` (n_samples,) int64; ``rig_names``, ``default_rig``,
+    ``views_per_model``, ``config``, ``sensor``, ``seed``; ``shards`` (list of shard paths;
+    ``[path]`` for a single file).
     """
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
         if not self.path.exists():
             raise InputFileError(self.path, "no such file")
-        self._file = None
+        if self.path.is_dir():
+            raise InputFileError(self.path, "is a folder, expected a dataset file (.h5) or a shard index (.json)")
+        self._files: dict = {}
         self._pid = None
         self._gt_cache: dict = {}
         self._meta: dict | None = None
-        f = self._h5()
-        try:
-            fmt = f.attrs.get("format")
-        except Exception:  # pragma: no cover - defensive
-            fmt = None
+        if is_shard_index(self.path):
+            entries = read_shard_index(self.path)
+            self.sharded = True
+        else:
+            entries = [{"path": self.path, "n_models": None, "n_samples": None}]
+            self.sharded = False
+        self.shards = [e["path"] for e in entries]
+        tables = [self._read_tables(k, e) for k, e in enumerate(entries)]
+        first = tables[0]
+        for k, t in enumerate(tables[1:], 1):
+            for key in ("config_json", "default_rig", "views_per_model", "sensor_json", "seed"):
+                if t["attrs"].get(key) != first["attrs"].get(key):
+                    raise InputFileError(self.shards[k], f"shard differs from {self.shards[0].name} in {key}: "
+                                                         "not a shard of the same dataset")
+        self.model_offset = np.cumsum([0] + [len(t["names"]) for t in tables]).astype(np.int64)
+        self.sample_offset = np.cumsum([0] + [len(t["sample_model"]) for t in tables]).astype(np.int64)
+        cat = lambda key: np.concatenate([t[key] for t in tables]) if all(t[key] is not None for t in tables) else None  # noqa: E731
+        self.names, self.categories, self.splits = cat("names"), cat("categories"), cat("splits")
+        self.center, self.radius, self.size = cat("center"), cat("radius"), cat("size")
+        self.sources, self.origins, self.augments = cat("source"), cat("origin"), cat("augment")
+        self.sample_model = np.concatenate([t["sample_model"] + self.model_offset[k] for k, t in enumerate(tables)])
+        self.sample_view = cat("sample_view")
+        # a rig is the dataset's when every shard holds it (an interrupted add-rig adds it to some only)
+        self.rig_names = sorted(set.intersection(*[set(t["rigs"]) for t in tables]))
+        attrs = first["attrs"]
+        self.attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in attrs.items()}
+        self.default_rig = str(attrs.get("default_rig", self.rig_names[0] if self.rig_names else ""))
+        self.views_per_model = int(attrs.get("views_per_model", 0))
+        self.config = json.loads(attrs.get("config_json", "{}"))
+        self.sensor = json.loads(attrs.get("sensor_json", "{}"))
+        self.seed = int(attrs.get("seed", 0))
+        if len(self.sample_model) and (self.sample_model.min() < 0 or self.sample_model.max() >= len(self.names)):
+            raise InputFileError(self.path, "/samples/model refers to rows outside /models")
+
+    def _read_tables(self, k: int, entry: dict) -> dict:
+        """Small tables and attributes of shard ``k``, validated."""
+        path = entry["path"]
+        if not path.exists():
+            raise InputFileError(path, f"no such file (a shard of {self.path})" if self.sharded else "no such file")
+        f = self._h5(k)
+        fmt = f.attrs.get("format")
         if fmt != FORMAT:
-            raise InputFileError(self.path, f"not a spotlights completion dataset (format attribute {fmt!r})")
+            raise InputFileError(path, f"not a spotlights completion dataset (format attribute {fmt!r})")
         version = int(f.attrs.get("format_version", -1))
         if version != FORMAT_VERSION:
-            raise InputFileError(self.path, f"dataset format version {version}, this spotlights reads {FORMAT_VERSION}")
+            raise InputFileError(path, f"dataset format version {version}, this spotlights reads {FORMAT_VERSION}")
         try:
             m = f["models"]
-            self.names = np.array([x.decode() if isinstance(x, bytes) else str(x) for x in m["name"][()]])
-            self.categories = np.array([x.decode() if isinstance(x, bytes) else str(x) for x in m["category"][()]])
-            self.splits = np.array([x.decode() if isinstance(x, bytes) else str(x) for x in m["split"][()]])
-            self.center = m["center"][()]
-            self.radius = m["radius"][()]
-            self.size = m["size"][()] if "size" in m else None
-            self.sample_model = f["samples/model"][()].astype(np.int64)
-            self.sample_view = f["samples/view"][()].astype(np.int64)
-            self.rig_names = sorted(f["rigs"].keys())
+            t = {
+                "names": _strings(m["name"]), "categories": _strings(m["category"]), "splits": _strings(m["split"]),
+                "center": m["center"][()], "radius": m["radius"][()], "size": m["size"][()] if "size" in m else None,
+                "sample_model": f["samples/model"][()].astype(np.int64),
+                "sample_view": f["samples/view"][()].astype(np.int64),
+                "rigs": list(f["rigs"].keys()),
+            }
+            for key in OPTIONAL_MODEL_STRINGS:
+                t[key] = _strings(m[key]) if key in m else None
         except KeyError as exc:
-            raise InputFileError(self.path, f"incomplete dataset file: missing {exc}") from None
-        self.default_rig = str(f.attrs.get("default_rig", self.rig_names[0] if self.rig_names else ""))
-        self.views_per_model = int(f.attrs.get("views_per_model", 0))
-        self.config = json.loads(f.attrs.get("config_json", "{}"))
-        self.sensor = json.loads(f.attrs.get("sensor_json", "{}"))
-        self.seed = int(f.attrs.get("seed", 0))
+            raise InputFileError(path, f"incomplete dataset file: missing {exc}") from None
+        t["attrs"] = {key: (v.item() if hasattr(v, "item") else v) for key, v in f.attrs.items()}
+        if entry["n_models"] is not None and (len(t["names"]), len(t["sample_model"])) != (entry["n_models"],
+                                                                                           entry["n_samples"]):
+            raise InputFileError(path, f"holds {len(t['names'])} models and {len(t['sample_model'])} samples, the "
+                                       f"index {self.path.name} says {entry['n_models']} and {entry['n_samples']}")
+        return t
 
-    # --- file handle ----------------------------------------------------------------------
-    def _h5(self):
+    # --- file handles ---------------------------------------------------------------------
+    def _h5(self, k: int = 0):
+        """The open HDF5 handle of shard ``k`` (the file itself for a single-file dataset), opened
+        on first use in each process."""
         import h5py
 
-        if self._file is None or self._pid != os.getpid():
-            try:
-                self._file = h5py.File(self.path, "r")
-            except OSError as exc:
-                raise InputFileError(self.path, f"not a readable HDF5 file ({str(exc).splitlines()[0][:100]})") from None
+        if self._pid != os.getpid():
+            self._files = {}
             self._pid = os.getpid()
-        return self._file
+        f = self._files.get(k)
+        if f is None:
+            path = self.shards[k]
+            try:
+                f = h5py.File(path, "r")
+            except OSError as exc:
+                raise InputFileError(path, f"not a readable HDF5 file ({str(exc).splitlines()[0][:100]})") from None
+            self._files[k] = f
+        return f
+
+    def has(self, key: str) -> bool:
+        """Whether every shard holds the HDF5 dataset or group ``key`` (e.g. ``"models/gt_dense"``)."""
+        return all(key in self._h5(k) for k in range(len(self.shards)))
+
+    def is_open(self) -> bool:
+        """Whether this process holds an open handle (DataLoader parents should not)."""
+        return self._pid == os.getpid() and bool(self._files)
 
     def close(self) -> None:
-        """Close the HDF5 handle (it reopens on the next access)."""
-        if self._file is not None and self._pid == os.getpid():
-            self._file.close()
-        self._file = None
+        """Close the HDF5 handles (they reopen on the next access)."""
+        if self._pid == os.getpid():
+            for f in self._files.values():
+                f.close()
+        self._files = {}
 
     def __enter__(self):
         return self
@@ -204,13 +321,69 @@ class CompletionDataset:
     def __exit__(self, *exc):
         self.close()
 
-    def __getstate__(self):  # picklable for DataLoader workers: the handle is reopened there
+    def __getstate__(self):  # picklable for DataLoader workers: the handles are reopened there
         d = dict(self.__dict__)
-        d["_file"] = None
+        d["_files"] = {}
         d["_pid"] = None
         d["_gt_cache"] = {}
         d["_meta"] = None
         return d
+
+    # --- locating rows in shards ----------------------------------------------------------
+    def _model_shard(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(shard, local row) of global model rows (K,) int64."""
+        k = np.searchsorted(self.model_offset, rows, side="right") - 1
+        return k, rows - self.model_offset[k]
+
+    def _sample_shard(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(shard, local index) of global sample indices (K,) int64."""
+        k = np.searchsorted(self.sample_offset, idx, side="right") - 1
+        return k, idx - self.sample_offset[k]
+
+    def _gather(self, key: str, rows, locate) -> np.ndarray:
+        """Rows ``rows`` (K,) of dataset ``key`` across shards, in the given order: contiguous
+        runs of each shard read with one h5py call each."""
+        rows = np.asarray(rows, dtype=np.int64).reshape(-1)
+        shard, local = locate(rows)
+        order = np.lexsort((local, shard))
+        out = None
+        pos = 0
+        s_sorted, l_sorted = shard[order], local[order]
+        breaks = np.flatnonzero((np.diff(s_sorted) != 0) | (np.diff(l_sorted) != 1)) + 1
+        for run in np.split(np.arange(len(rows)), breaks) if len(rows) else []:
+            k, lo, hi = int(s_sorted[run[0]]), int(l_sorted[run[0]]), int(l_sorted[run[-1]]) + 1
+            block = self._h5(k)[key][lo:hi]
+            if out is None:
+                out = np.empty((len(rows),) + block.shape[1:], dtype=block.dtype)
+            out[order[pos:pos + len(run)]] = block
+            pos += len(run)
+        if out is None:
+            d = self._h5(0)[key]
+            out = np.empty((0,) + d.shape[1:], dtype=d.dtype)
+        return out
+
+    def models_array(self, key: str, rows=None) -> np.ndarray:
+        """``/models/<key>`` (e.g. ``gt_points`` (K, 2048, 3) f32, ``gt_dense``) for global model
+        rows ``rows`` (default: all), in that order."""
+        rows = np.arange(self.n_models) if rows is None else rows
+        return self._gather(f"models/{key}", rows, self._model_shard)
+
+    def rig_depths(self, name: str | None = None, rows=None) -> np.ndarray:
+        """(K, N*M) float32 depths of rig ``name`` (default rig) for model rows ``rows`` (default: all)."""
+        name = name or self.default_rig
+        if name not in self.rig_names:
+            self.rig_spec(name)  # raises a clear error
+        rows = np.arange(self.n_models) if rows is None else rows
+        return self._gather(f"rigs/{name}/depths", rows, self._model_shard)
+
+    def partials(self, indices) -> np.ndarray:
+        """(K, n_points, 3) float32 partial scans of global samples ``indices`` (K,), in that order."""
+        return self._gather("samples/partial", indices, self._sample_shard)
+
+    def partial(self, index: int) -> np.ndarray:
+        """(n_points, 3) float32 partial scan of one global sample."""
+        k, i = self._sample_shard(np.array([int(index)]))
+        return self._h5(int(k[0]))["samples/partial"][int(i[0])]
 
     def __len__(self) -> int:
         return len(self.sample_model)
@@ -257,10 +430,14 @@ class CompletionDataset:
         each model's rig is ``rig_spec(name).for_box(extents[model])`` (:meth:`rig`)."""
         from ..geometry.rig import RigSpec
 
+        return RigSpec.from_dict(self.rig_dict(name))
+
+    def rig_dict(self, name: str | None = None) -> dict:
+        """The stored ``rig_json`` of rig ``name`` (default rig) as a dict (``RigSpec.to_dict()``)."""
         name = name or self.default_rig
         if name not in self.rig_names:
             raise ParameterError(f"{self.path}: no rig {name!r}; stored rigs: {', '.join(self.rig_names)}")
-        return RigSpec.from_dict(json.loads(self._h5()[f"rigs/{name}"].attrs["rig_json"]))
+        return json.loads(self._h5()[f"rigs/{name}"].attrs["rig_json"])
 
     def rig(self, name: str | None = None, model: int | None = None):
         """The :class:`~spotlights.geometry.rig.Rig` whose rays gave model row ``model``'s depths
@@ -308,11 +485,12 @@ class CompletionDataset:
                 self.rig(name)  # raises a clear error
             if not (0 <= key[0] < self.n_models):
                 raise ParameterError(f"model row {model} out of range (the dataset has {self.n_models} models)")
-            f = self._h5()
+            k, row = (int(x[0]) for x in self._model_shard(np.array([key[0]])))
+            f = self._h5(k)
             hit = {
-                "gt_points": f["models/gt_points"][key[0]],
-                "gt_dense": f["models/gt_dense"][key[0]],
-                "gt_depths": f[f"rigs/{name}/depths"][key[0]],
+                "gt_points": f["models/gt_points"][row],
+                "gt_dense": f["models/gt_dense"][row],
+                "gt_depths": f[f"rigs/{name}/depths"][row],
             }
             for a in hit.values():
                 a.setflags(write=False)
@@ -337,7 +515,7 @@ class CompletionDataset:
         i = int(index) % n
         meta = self.metadata()
         m = int(self.sample_model[i])
-        out = {"partial": self._h5()["samples/partial"][i]}
+        out = {"partial": self.partial(i)}
         out.update(self.ground_truth(m, rig))
         out.update({
             "model": str(self.names[m]), "model_index": m, "category": str(self.categories[m]),
@@ -354,8 +532,10 @@ class CompletionDataset:
         """Every per-sample field except ``partial`` (``sensor_to_unit`` (n, 4, 4), ``distance``, ...),
         read whole on first use (~150 bytes per sample) so that per-sample access needs no HDF5 read."""
         if self._meta is None:
-            s = self._h5()["samples"]
-            self._meta = {k: s[k][()] for k in SAMPLE_FIELDS if k in s}
+            parts = [self._h5(k)["samples"] for k in range(len(self.shards))]
+            self._meta = {k: np.concatenate([s[k][()] for s in parts]) for k in SAMPLE_FIELDS if k in parts[0]}
+            if "model" in self._meta:
+                self._meta["model"] = self.sample_model.astype(self._meta["model"].dtype)  # global rows
         return self._meta
 
     def to_sensor(self, index: int, points: np.ndarray) -> np.ndarray:
@@ -366,7 +546,9 @@ class CompletionDataset:
         return p @ m[:3, :3].T + m[:3, 3]
 
     def info(self) -> dict:
-        """Summary: splits, categories, counts, shapes and dtypes of every dataset, build config."""
+        """Summary: splits, categories, counts, shapes and dtypes of every dataset (a sharded
+        dataset's logical shapes: rows of all shards), build config; for a sharded dataset also
+        ``shards`` (their files) and ``file_size_bytes`` of the index and all shards."""
         import h5py
 
         f = self._h5()
@@ -377,6 +559,13 @@ class CompletionDataset:
                 shapes["/" + name] = {"shape": list(obj.shape), "dtype": str(obj.dtype) if obj.dtype.kind != "O" else "str"}
 
         f.visititems(visit)
+        if self.sharded:
+            for name, d in shapes.items():
+                if name.startswith("/samples/"):
+                    d["shape"][0] = self.n_samples
+                elif name.startswith(("/models/", "/rigs/")) and d["shape"]:
+                    d["shape"][0] = self.n_models
+            shapes = {k: v for k, v in shapes.items() if not k.startswith("/rigs/") or k.split("/")[2] in self.rig_names}
         splits = {}
         for sp in SPLITS:
             rows = self.split_models(sp)
@@ -388,9 +577,10 @@ class CompletionDataset:
         cats = {}
         for c in self.categories:
             cats[str(c)] = cats.get(str(c), 0) + 1
-        return {
+        size = self.path.stat().st_size + (sum(p.stat().st_size for p in self.shards) if self.sharded else 0)
+        out = {
             "path": str(self.path),
-            "file_size_bytes": self.path.stat().st_size,
+            "file_size_bytes": size,
             "format": FORMAT, "format_version": FORMAT_VERSION,
             "spotlights_version": str(f.attrs.get("spotlights_version", "")),
             "seed": self.seed,
@@ -404,8 +594,12 @@ class CompletionDataset:
             "config": self.config,
             "datasets": shapes,
         }
+        if self.sharded:
+            out["shards"] = [str(p) for p in self.shards]
+        return out
 
 
 def open_dataset(path: str | os.PathLike) -> CompletionDataset:
-    """Open a completion dataset file for reading (validated; raises InputFileError)."""
+    """Open a completion dataset for reading: an HDF5 file, or the index (JSON) of a sharded
+    dataset (validated; raises InputFileError)."""
     return CompletionDataset(path)

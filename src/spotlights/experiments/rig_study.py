@@ -193,6 +193,10 @@ def _job(args):
     except SpotlightsError as exc:  # a plain SpotlightsError crosses process boundaries (pickles) intact
         raise SpotlightsError(str(exc)) from None
     if cache is not None:
+        ignore = cache.parent.parent / ".gitignore"
+        if not ignore.exists():
+            with atomic_output(ignore, suffix="") as tmp:  # a cache inside a checkout stays out of git
+                Path(tmp).write_text("*\n")
         with atomic_output(cache, suffix=".json") as tmp:
             Path(tmp).write_text(json.dumps(rows))
     return rows
@@ -211,9 +215,7 @@ def run_study(meshes: Sequence[MeshEntry], rigs: Sequence[StudyRig], seed: int =
 
     cache = None
     if cache_dir is not None:
-        cache = Path(cache_dir) / _config_key(rigs, seed, n_surface)
-        cache.mkdir(parents=True, exist_ok=True)
-        (Path(cache_dir) / ".gitignore").write_text("*\n")  # a cache inside a checkout stays out of git
+        cache = Path(cache_dir) / _config_key(rigs, seed, n_surface)  # created with its first result
 
     def cache_file(e: MeshEntry):
         if cache is None:
@@ -223,18 +225,11 @@ def run_study(meshes: Sequence[MeshEntry], rigs: Sequence[StudyRig], seed: int =
     jobs = [(e, list(rigs), seed, n_surface, cache_file(e)) for e in meshes]
     results = []
     with tqdm(total=len(jobs), desc="rig study", unit="mesh", disable=not progress) as bar:
-        if workers > 1 and len(jobs) > 1:
-            from ..utils import process_pool_context
+        from ..utils import process_map
 
-            ctx = process_pool_context()
-            with ctx.Pool(min(workers, len(jobs))) as pool:
-                for rows in pool.imap(_job, jobs):
-                    results.append(rows)
-                    bar.update()
-        else:
-            for job in jobs:
-                results.append(_job(job))
-                bar.update()
+        for rows in process_map(_job, jobs, workers, what="mesh"):
+            results.append(rows)
+            bar.update()
     return pd.DataFrame([row for rows in results for row in rows])
 
 
@@ -351,45 +346,13 @@ def markdown_report(summary, meshes: Sequence[MeshEntry], seed: int, n_surface: 
 
 def plot_study(path, summary) -> Path:
     """Completeness against hit ratio, one panel per mesh set, one marker per rig and ray count (PNG)."""
-    from ..viz import _pyplot
+    from ..viz.study import plot_rig_study
 
-    plt = _pyplot()
-    sets = list(dict.fromkeys(summary.mesh_set))
-    fig, axes = plt.subplots(1, len(sets), figsize=(6.5 * len(sets) + 2.0, 5.0), squeeze=False)
-    markers = {r: m for r, m in zip(sorted(summary.rays.unique()), "os^Dv")}
-    # one colour family per target set (cap rigs: blues), shaded by variant
-    fam = {}
-    for label, rig in dict.fromkeys(zip(summary.label, summary.rig)):
-        spec = RigSpec.from_name(rig)
-        fam.setdefault(spec.targets or "cap", []).append(label)
-    cmaps = {"cap": "Blues", "volume": "Greens", "surface": "Purples", "visible": "Oranges", "ellipsoid": "Reds"}
-    colors = {}
-    for key, labels in fam.items():
-        for j, label in enumerate(labels):
-            colors[label] = plt.get_cmap(cmaps.get(key, "Greys"))(0.35 + 0.55 * j / max(len(labels) - 1, 1))
-    for ax, mesh_set in zip(axes[0], sets):
-        sub = summary[(summary.mesh_set == mesh_set) & (summary.category == "all")]
-        for _, r in sub.iterrows():
-            ax.scatter(r.hit_ratio, r.completeness, marker=markers[r.rays], color=colors[r.label], s=40,
-                       edgecolors="black" if r.family == "paper" else "none",
-                       label=r.label if r.rays == min(markers) else None)
-            if r.rig in (f"cap-{r.rays // SECONDARY}x{SECONDARY}-{REFERENCE_CAP_ANGLE:g}", default_box_spec(r.rays).name):
-                ax.annotate(f"{r.rays}: {r.label}", (r.hit_ratio, r.completeness), fontsize=7,
-                            xytext=(5, 3), textcoords="offset points")
-        for rays in markers:
-            ax.plot([], [], marker=markers[rays], color="gray", ls="none", label=f"{rays} rays")
-        ax.axvline(HIT_RATIO_FLOOR, color="gray", ls=":", lw=1)
-        ax.set_xlabel("hit ratio")
-        ax.set_ylabel("completeness (unit frame, lower is better)")
-        ax.set_title(mesh_set)
-        ax.grid(alpha=0.3)
-    handles, labels = axes[0][0].get_legend_handles_labels()
-    fig.legend(handles, labels, fontsize=7, loc="center right")
-    fig.tight_layout(rect=(0, 0, 0.85, 1))
-    with atomic_output(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
-    return Path(path)
+    def reference(r) -> bool:  # the paper's 60-degree cap and the default box rig at each ray count
+        return r.rig in (f"cap-{r.rays // SECONDARY}x{SECONDARY}-{REFERENCE_CAP_ANGLE:g}", default_box_spec(r.rays).name)
+
+    return plot_rig_study(path, summary, annotate=reference, floor=HIT_RATIO_FLOOR,
+                          floor_note="the best box variant is chosen among the rigs at or above it")
 
 
 @dataclass
@@ -416,14 +379,16 @@ def rig_study(out_dir, mesh_dirs: Sequence, rays: Sequence[int] = DEFAULT_RAYS, 
     workers : processes over meshes (results do not depend on it).
     variants : ``(label, make_rig_spec kwargs)`` pairs (default ``PAPER_RIGS + BOX_RIGS``).
     """
+    from ..utils import output_folder
+
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     meshes = find_meshes(mesh_dirs)
     if not meshes:
         raise SpotlightsError("no category has enough meshes for the study")
     rigs = study_rigs(rays, variants=variants)
-    df = run_study(meshes, rigs, seed=seed, n_surface=n_surface, workers=workers, cache_dir=out / ".cache",
-                   progress=progress)
+    with output_folder(out):  # created now, removed again if the study fails before writing anything
+        df = run_study(meshes, rigs, seed=seed, n_surface=n_surface, workers=workers, cache_dir=out / ".cache",
+                       progress=progress)
     summary = summarize(df)
     paths = StudyResult(out / "rigs.csv", out / "rigs_per_mesh.csv.gz", out / "rigs.md", out / "rigs.png", summary)
     with atomic_output(paths.csv, suffix=".csv") as tmp:

@@ -210,7 +210,7 @@ def bench_markdown(result: dict) -> str:
         lines.append("| " + " | ".join(cells) + " |")
     ratio_lines = []
     sanet = next((r for r in result["models"] if r["model"] == "sanet"), None)
-    others = [r for r in result["models"] if r["model"] != "sanet"]
+    others = [r for r in result["models"] if not r["model"].startswith("sanet")]  # the baselines
     if sanet and others:
         for b in batches:
             key = b if b in sanet["latency_ms"] else str(b)

@@ -1,14 +1,15 @@
-"""Reading the synthetic completion dataset (HDF5, schema in docs / notes contracts) for PyTorch.
+"""The synthetic completion dataset for PyTorch: a ``Dataset`` over the data layer's reader.
 
 :class:`TorchCompletionDataset` is a ``torch.utils.data.Dataset`` over one split of a
-``spotlights-completion`` HDF5 file (the format of ``spotlights.data.store``, whose
-reader is torch-free and per sample; this one serves training batches):
+``spotlights-completion`` dataset, read through :func:`spotlights.data.store.open_dataset`
+(the one reader of the format: it validates the format and its version, and reads single
+files and sharded datasets alike). This module only shapes training items:
 
 * the per-model arrays (uniform ground truth, Spotlights depths of one rig) are
   small and read once at construction; every observation of a model shares them;
-* partial scans are read lazily, one sample per ``__getitem__`` (the file is opened
-  on first use in each process, so several ``DataLoader`` workers each hold their
-  own h5py handle; a handle is never shared across ``fork``), or, with
+* partial scans are read lazily, one sample per ``__getitem__`` (the reader opens its
+  files on first use in each process, so several ``DataLoader`` workers each hold their
+  own h5py handles; a handle is never shared across ``fork``), or, with
   ``partials_in_memory=True``, read once per split in contiguous per-model slices;
 * the dense ground truth (16,384 points per model, for metrics) is read on demand
   by :meth:`TorchCompletionDataset.gt_dense`.
@@ -26,8 +27,6 @@ results do not depend on the number of workers.
 
 from __future__ import annotations
 
-import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,22 +34,11 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from ..data.store import SPLITS, CompletionDataset, open_dataset
 from ..errors import InputFileError, ParameterError
 
-FORMAT = "spotlights-completion"
-SPLITS = ("train", "val", "test")
 CATEGORY_ORDER = ("hatchback", "sedan", "suv")
 """Report order of the paper's categories; other categories follow, sorted."""
-
-
-def _str_array(ds) -> np.ndarray:
-    """h5py string dataset -> numpy array of Python str."""
-    raw = ds[()]
-    return np.array([x.decode() if isinstance(x, bytes) else str(x) for x in np.asarray(raw).reshape(-1)], dtype=object)
-
-
-def _attr_str(v) -> str:
-    return v.decode() if isinstance(v, bytes) else str(v)
 
 
 @dataclass(frozen=True)
@@ -96,59 +84,29 @@ class DatasetInfo:
         return name
 
 
-def _open_h5(path):
-    import h5py
-
-    p = Path(path)
-    if not p.exists():
-        raise InputFileError(p, "no such file")
-    if p.is_dir():
-        raise InputFileError(p, "is a folder, expected a dataset .h5 file")
-    try:
-        return h5py.File(p, "r")
-    except OSError as exc:
-        raise InputFileError(p, f"not a readable HDF5 file ({str(exc).splitlines()[0][:80]})") from None
-
-
-REQUIRED = ("models/name", "models/category", "models/split", "models/gt_points", "samples/partial", "samples/model", "samples/view")
-
-
 def read_info(path) -> DatasetInfo:
-    """Read and validate the table of contents of a dataset file.
+    """Read and validate the table of contents of a dataset (file or shard index).
 
-    Raises :class:`InputFileError` if the file is missing, not HDF5, not of format
-    ``spotlights-completion``, or lacks a required dataset.
+    Raises :class:`InputFileError` if it is missing, not HDF5, not of format
+    ``spotlights-completion`` (or another version), or lacks a required dataset.
     """
-    p = Path(path)
-    with _open_h5(p) as f:
-        fmt = _attr_str(f.attrs.get("format", ""))
-        if fmt != FORMAT:
-            raise InputFileError(p, f"not a spotlights completion dataset (format attribute {fmt!r}, expected {FORMAT!r})")
-        missing = [k for k in REQUIRED if k not in f]
-        if missing:
-            raise InputFileError(p, f"dataset file lacks {', '.join('/' + m for m in missing)}")
-        rigs = {}
-        for name, grp in (f["rigs"].items() if "rigs" in f else []):
-            try:
-                rigs[name] = json.loads(_attr_str(grp.attrs["rig_json"]))
-            except (KeyError, ValueError):
-                raise InputFileError(p, f"/rigs/{name} lacks a valid rig_json attribute") from None
-        attrs = {k: (_attr_str(v) if isinstance(v, (bytes, str)) else v.item() if hasattr(v, "item") else v) for k, v in f.attrs.items()}
-        info = DatasetInfo(
-            path=p,
-            names=_str_array(f["models/name"]),
-            categories=_str_array(f["models/category"]),
-            splits=_str_array(f["models/split"]),
-            sample_model=np.asarray(f["samples/model"][()], dtype=np.int64),
-            sample_view=np.asarray(f["samples/view"][()], dtype=np.int64),
-            rigs=rigs,
-            default_rig=attrs.get("default_rig") or None,
-            attrs=attrs,
-        )
-    n = info.n_models
-    if len(info.sample_model) and (info.sample_model.min() < 0 or info.sample_model.max() >= n):
-        raise InputFileError(p, "/samples/model refers to rows outside /models")
-    return info
+    with open_dataset(path) as ds:
+        return _info_of(ds)
+
+
+def _info_of(ds: CompletionDataset) -> DatasetInfo:
+    for key in ("models/gt_points", "samples/partial"):
+        if not ds.has(key):
+            raise InputFileError(ds.path, f"dataset file lacks /{key}")
+    rigs = {}
+    for name in ds.rig_names:
+        try:
+            rigs[name] = ds.rig_dict(name)
+        except (KeyError, ValueError):
+            raise InputFileError(ds.path, f"/rigs/{name} lacks a valid rig_json attribute") from None
+    return DatasetInfo(path=ds.path, names=ds.names.astype(object), categories=ds.categories.astype(object),
+                       splits=ds.splits.astype(object), sample_model=ds.sample_model, sample_view=ds.sample_view,
+                       rigs=rigs, default_rig=ds.attrs.get("default_rig") or None, attrs=dict(ds.attrs))
 
 
 class TorchCompletionDataset(Dataset):
@@ -156,7 +114,7 @@ class TorchCompletionDataset(Dataset):
 
     Parameters
     ----------
-    path : HDF5 file of format ``spotlights-completion``.
+    path : dataset of format ``spotlights-completion``: an HDF5 file or a shard index (JSON).
     split : ``"train"``, ``"val"``, ``"test"`` or ``"all"``.
     rig : rig group whose depths to serve (SA-Net); ``None`` = the file's default rig,
         ``False`` = no depths.
@@ -174,74 +132,37 @@ class TorchCompletionDataset(Dataset):
                  partials_in_memory: bool = False):
         if split not in (*SPLITS, "all"):
             raise ParameterError(f"split must be one of {', '.join(SPLITS)} or all, got {split!r}")
-        self.info = info = read_info(path)
-        self.path = str(info.path)
-        self.split = split
-        self.model_rows = np.flatnonzero(info.splits == split) if split != "all" else np.arange(info.n_models)
-        keep = np.isin(info.sample_model, self.model_rows)
-        if max_views is not None:
-            if int(max_views) < 1:
-                raise ParameterError(f"max_views must be >= 1, got {max_views}")
-            keep &= info.sample_view < int(max_views)
-        self.indices = np.flatnonzero(keep).astype(np.int64)  # rows of /samples, file order (model-major)
-        if len(self.indices) == 0:
-            raise InputFileError(self.path, f"split {split!r} has no samples" + (f" with view < {max_views}" if max_views else ""))
-        self.rig_name = None if rig is False else info.resolve_rig(rig if rig is not True else None)
-        self.rig = info.rigs[self.rig_name] if self.rig_name else None
-        import h5py  # noqa: F401  (fail early if missing)
-
-        with _open_h5(self.path) as f:
-            self.gt_points = np.ascontiguousarray(f["models/gt_points"][()], dtype=np.float32)
+        self.store = store = open_dataset(path)
+        try:
+            self.info = info = _info_of(store)
+            self.path = str(info.path)
+            self.split = split
+            self.model_rows = np.flatnonzero(info.splits == split) if split != "all" else np.arange(info.n_models)
+            keep = np.isin(info.sample_model, self.model_rows)
+            if max_views is not None:
+                if int(max_views) < 1:
+                    raise ParameterError(f"max_views must be >= 1, got {max_views}")
+                keep &= info.sample_view < int(max_views)
+            self.indices = np.flatnonzero(keep).astype(np.int64)  # rows of /samples, storage order (model-major)
+            if len(self.indices) == 0:
+                raise InputFileError(self.path, f"split {split!r} has no samples" + (f" with view < {max_views}" if max_views else ""))
+            self.rig_name = None if rig is False else info.resolve_rig(rig if rig is not True else None)
+            self.rig = info.rigs[self.rig_name] if self.rig_name else None
+            self.gt_points = np.ascontiguousarray(store.models_array("gt_points"), dtype=np.float32)
             self.depths = None
             if self.rig_name:
-                key = f"rigs/{self.rig_name}/depths"
-                if key not in f:
-                    raise InputFileError(self.path, f"/rigs/{self.rig_name} has no depths dataset")
-                self.depths = np.ascontiguousarray(f[key][()], dtype=np.float32)
-            self.partials = self._read_partials(f) if partials_in_memory else None
-            self.extents = None
-            if "models/size" in f and "models/radius" in f:
-                size = np.asarray(f["models/size"][()], dtype=np.float64)
-                self.extents = size / (2.0 * np.asarray(f["models/radius"][()], dtype=np.float64)[:, None])
+                self.depths = np.ascontiguousarray(store.rig_depths(self.rig_name), dtype=np.float32)
+            self.partials = np.ascontiguousarray(store.partials(self.indices), dtype=np.float32) if partials_in_memory else None
+            self.extents = store.extents if store.size is not None else None
+        finally:
+            store.close()  # DataLoader workers open their own handles
         if self.rig is not None and self.rig.get("kind", "cap") == "box" and self.extents is None:
             raise InputFileError(self.path, f"rig {self.rig_name} is box-targeted but the file has no /models/size "
                                             "(each model's box)")
-        self._h5 = None
-        self._pid = None
-
-    # -- per-process lazy file handle -------------------------------------------------
-    def _file(self):
-        if self._h5 is None or self._pid != os.getpid():
-            import h5py
-
-            self._h5 = h5py.File(self.path, "r")
-            self._pid = os.getpid()
-        return self._h5
-
-    def __getstate__(self):
-        state = dict(self.__dict__)
-        state["_h5"] = None
-        state["_pid"] = None
-        return state
 
     def close(self) -> None:
-        """Close this process's file handle (it reopens on the next access)."""
-        if self._h5 is not None and self._pid == os.getpid():
-            self._h5.close()
-        self._h5 = None
-
-    def _read_partials(self, f) -> np.ndarray:
-        """(len, 256, 3) float32: read in contiguous runs of /samples rows (one h5py call per run)."""
-        ds = f["samples/partial"]
-        out = np.empty((len(self.indices), *ds.shape[1:]), dtype=np.float32)
-        idx = self.indices
-        breaks = np.flatnonzero(np.diff(idx) != 1) + 1
-        start = 0
-        for run in np.split(np.arange(len(idx)), breaks):
-            lo, hi = idx[run[0]], idx[run[-1]] + 1
-            out[start:start + len(run)] = ds[lo:hi]
-            start += len(run)
-        return out
+        """Close this process's file handles (they reopen on the next access)."""
+        self.store.close()
 
     # -- Dataset protocol -------------------------------------------------------------
     def __len__(self) -> int:
@@ -250,10 +171,7 @@ class TorchCompletionDataset(Dataset):
     def __getitem__(self, i: int) -> dict:
         row = int(self.indices[i])
         model = int(self.info.sample_model[row])
-        if self.partials is not None:
-            partial = self.partials[i]
-        else:
-            partial = np.asarray(self._file()["samples/partial"][row], dtype=np.float32)
+        partial = self.partials[i] if self.partials is not None else self.store.partial(row)
         item = {
             "partial": torch.from_numpy(np.array(partial, dtype=np.float32)),
             "gt_points": torch.from_numpy(self.gt_points[model]),
@@ -278,8 +196,11 @@ class TorchCompletionDataset(Dataset):
 
     def gt_dense(self) -> dict[int, np.ndarray]:
         """{model row: (16384, 3) float32 dense unit-frame ground truth} for this split's models."""
-        with _open_h5(self.path) as f:
-            if "models/gt_dense" not in f:
-                raise InputFileError(self.path, "dataset file lacks /models/gt_dense (needed for the metrics)")
-            ds = f["models/gt_dense"]
-            return {int(m): np.asarray(ds[int(m)], dtype=np.float32) for m in np.unique(self.sample_models)}
+        rows = np.unique(self.sample_models)
+        if not self.store.has("models/gt_dense"):
+            raise InputFileError(self.path, "dataset file lacks /models/gt_dense (needed for the metrics)")
+        try:
+            dense = self.store.models_array("gt_dense", rows)
+        finally:
+            self.store.close()
+        return {int(m): np.asarray(d, dtype=np.float32) for m, d in zip(rows, dense)}

@@ -63,7 +63,11 @@ def evaluate_checkpoint(checkpoint, data, split: str = "test", batch_size: int =
     name = ckpt["model_name"]
     ds = dataset or TorchCompletionDataset(data, split, rig=False, max_views=max_views, partials_in_memory=True)
     dense = gt_dense if gt_dense is not None else ds.gt_dense()
-    if model.target == "depths":
+    hit_aware = hasattr(model, "hit_probabilities")
+    if hit_aware:  # hit-aware SA-Net: rays with p(hit) >= the checkpoint's threshold, no clip (a clip only if asked)
+        variants = [(f"p(hit) >= {model.threshold:g}", None)] + ([(f"p(hit) >= {model.threshold:g}, clip {float(clip):g}",
+                                                                    float(clip))] if clip is not None else [])
+    elif model.target == "depths":
         c = model.clip if clip is None else float(clip)
         variants = [("no clip", None)] + ([(f"clip {c:g}", c)] if c is not None else [])
     else:
@@ -96,7 +100,8 @@ def evaluate_checkpoint(checkpoint, data, split: str = "test", batch_size: int =
         per = evaluate_completions(preds[v], models, _DenseView(dense), fscore_threshold, with_completeness, trees)
         if model.target == "depths":
             per["hit_ratio"] = np.asarray(kept[v], dtype=np.float64)
-        rows.append({"variant": v, "clip": c, "summary": summarize(per, cats, order)})
+        rows.append({"variant": v, "clip": c, "summary": summarize(per, cats, order),
+                     **({"threshold": model.threshold} if hit_aware else {})})
     result = {
         "model": name,
         "checkpoint": str(checkpoint),
@@ -233,3 +238,39 @@ def write_report(report: dict, out) -> tuple[Path, Path]:
     with atomic_output(js) as tmp:
         tmp.write_text(json.dumps(_jsonable(report), indent=2))
     return md, js
+
+
+def prediction_examples(checkpoints, data, split: str = "test", per_category: int = 2, clip=None,
+                        device=None) -> list[dict]:
+    """A few scans per category with every checkpoint's prediction, for
+    :func:`spotlights.viz.render_predictions` (``spotlights evaluate`` draws them beside the report).
+
+    The scans: in each category (report order), the first view of the first ``per_category``
+    models of the split. SA-Net predictions use ``clip`` (default: the checkpoint's).
+    Returns dicts with ``label``, ``partial`` (K, 3), ``gt`` (the dense ground truth, (L, 3)),
+    ``predictions`` [(model name, (M, 3))], all float, unit frame.
+    """
+    from ..data.store import open_dataset
+    from .inference import DEFAULT, load_completer
+
+    completers = [load_completer(c, device=device) for c in checkpoints]
+    names = [c.model_name for c in completers]
+    names = [f"{n} ({Path(c).parent.name or Path(c).stem})" if names.count(n) > 1 else n for n, c in zip(names, checkpoints)]
+    out = []
+    with open_dataset(data) as ds:
+        idx = ds.split_indices(split)
+        models = ds.sample_model[idx]
+        cats = ds.categories[models]
+        for cat in sorted(set(cats.tolist())):
+            first = {}
+            for i, m in zip(idx[cats == cat], models[cats == cat]):
+                first.setdefault(int(m), int(i))
+            for i in list(first.values())[:per_category]:
+                smp = ds.sample(i)
+                preds = []
+                for name, c in zip(names, completers):
+                    kw = {"extents": smp["extents"][None]} if c.needs_box else {}
+                    preds.append((name, c.complete(smp["partial"][None], clip=DEFAULT if clip is None else clip, **kw)[0]))
+                out.append({"label": f"{smp['model']} ({smp['category']}), view {smp['view']}", "partial": smp["partial"],
+                            "gt": smp["gt_dense"], "predictions": preds})
+    return out

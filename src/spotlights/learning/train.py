@@ -37,7 +37,10 @@ from .models import build_model, load_config
 from .models.base import CLIP_DEFAULT
 
 LOG_COLUMNS = ("epoch", "lr", "train_loss", "val_loss", "val_accuracy", "val_completeness", "val_chamfer_l1", "val_n",
-               "val_empty", "epoch_seconds", "samples_per_second")
+               "val_empty", "epoch_seconds", "samples_per_second", "global_step", "samples_seen", "wall_seconds",
+               "val_threshold")
+"""Columns of ``RUN/log.csv``; ``val_threshold`` (the hit-aware SA-Net's chosen p(hit) threshold) is
+empty for the other models."""
 
 
 def default_device() -> torch.device:
@@ -49,6 +52,31 @@ def default_device() -> torch.device:
 
 def _epoch_seed(seed: int, epoch: int) -> int:
     return (int(seed) * 1_000_003 + int(epoch) * 7919 + 12345) % (2**63 - 1)
+
+
+def _stream_indices(n: int, seed: int, start: int, count: int) -> list[int]:
+    """Positions ``start .. start+count-1`` of an endless stream of shuffled passes over ``range(n)``.
+
+    Pass ``p`` is a permutation drawn from a generator seeded by ``(seed, p)``, so every sample is
+    seen once per pass, and the stream does not depend on where epochs begin or on resuming. Used
+    when ``train.steps_per_epoch`` makes an epoch a fixed number of steps (a validation interval)
+    rather than one pass over the training set.
+    """
+    out: list[int] = []
+    pos = start
+    while len(out) < count:
+        p, k = divmod(pos, n)
+        gen = torch.Generator().manual_seed(_epoch_seed(seed + 1_000_000_007, p))
+        perm = torch.randperm(n, generator=gen)
+        take = perm[k: k + (count - len(out))].tolist()
+        out.extend(take)
+        pos += len(take)
+    return out
+
+
+def _float_outputs(out: dict) -> dict:
+    """Model outputs cast to float32 (losses and metrics run in fp32 whatever the autocast dtype)."""
+    return {k: (v.float() if torch.is_tensor(v) and v.is_floating_point() else v) for k, v in out.items()}
 
 
 def _collate(batch_list):
@@ -145,7 +173,7 @@ def _write_yaml(path: Path, cfg: dict) -> None:
 
 @torch.no_grad()
 def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt_trees: dict, dist: _Dist | None = None,
-             num_workers: int = 0, rays=None) -> dict:
+             num_workers: int = 0, rays=None, precision: str = "fp32", thresholds=None) -> dict:
     """Validation loss and point metrics of the completions (SA-Net clipped at its default).
 
     Parameters
@@ -154,6 +182,11 @@ def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt
         replaced by their KD-tree on first use (so one tree per GT model per run).
     rays : a :class:`~spotlights.learning.rays.DirectionTable` for a box-targeted SA-Net (each
         sample decodes with its model's box); default: built from ``dataset.extents``.
+    precision : ``"fp32"``, ``"bf16"`` or ``"fp16"``: autocast of the forward pass (the run's
+        training precision); loss and metrics are computed in float32.
+    thresholds : hit-aware SA-Net only: the p(hit) thresholds to score (default: the model's
+        ``threshold_grid``, else its ``threshold``); the metrics of the one with the lowest
+        CD-L1 are returned (ties: the first), with ``val_threshold`` and ``val_threshold_scan``.
 
     Returns
     -------
@@ -162,14 +195,23 @@ def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt
      "val_completeness": mean over samples of the one-sided CD dense GT -> prediction,
      "val_chamfer_l1": (accuracy + completeness) / 2, "val_n": samples,
      "val_empty": samples whose completion is empty (left out of the point metrics)}.
+    Hit-aware models add ``val_threshold`` (the chosen threshold) and ``val_threshold_scan``
+    ({threshold: {"accuracy", "completeness", "chamfer_l1", "empty"}}).
     With ``dist`` active, each rank evaluates a contiguous shard and the sums are all-reduced.
     """
     from ..geometry.distances import accuracy, combine_directions, completeness
     from ..geometry.neighbors import NearestNeighbors
+    from .device import autocast
     from .rays import DirectionTable
 
     if rays is None and getattr(model, "needs_box", False):
         rays = DirectionTable(model.rig, dataset.extents)
+    hit_aware = hasattr(model, "hit_probabilities")
+    if hit_aware:
+        grid = thresholds if thresholds is not None else (model.threshold_grid or (model.threshold,))
+        grid = [float(t) for t in grid]
+    else:
+        grid = [None]
     active = dist is not None and dist.active
     world, rank = (dist.world, dist.rank) if active else (1, 0)
     n = len(dataset)
@@ -177,41 +219,64 @@ def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt
     subset = torch.utils.data.Subset(dataset, range(lo, hi))
     loader = DataLoader(subset, batch_size=batch_size, shuffle=False, num_workers=num_workers, collate_fn=_collate)
     model.eval()
-    loss_sum = acc_sum = comp_sum = 0.0
-    count = scored = 0
+    loss_sum = 0.0
+    count = 0
+    acc_sum, comp_sum, scored = [0.0] * len(grid), [0.0] * len(grid), [0] * len(grid)
     for batch in loader:
         batch = _to(batch, device)
-        out = model(batch["partial"])
+        with autocast(precision, device):
+            out = model(batch["partial"])
+        out = _float_outputs(out)
         b = batch["partial"].shape[0]
         loss, _ = model.loss(out, batch, 1.0)
         loss_sum += float(loss) * b
         count += b
         dirs = rays.directions(batch["model"]) if rays is not None else None
-        preds = model.outputs_to_points(out, CLIP_DEFAULT, dirs)
-        for p, m in zip(preds, batch["model"].tolist()):
-            if len(p) == 0:
-                continue
-            if m not in gt_trees:
-                raise SpotlightsError(f"no dense ground truth for model row {m}")
-            tree = gt_trees[m]
-            if not isinstance(tree, NearestNeighbors):
-                tree = gt_trees[m] = NearestNeighbors(tree)
-            pts = p.detach().cpu().numpy()
-            acc_sum += accuracy(pts, tree)
-            comp_sum += completeness(pts, tree)
-            scored += 1
-    sums = [loss_sum, float(count), acc_sum, comp_sum, float(scored)]
-    loss_sum, count, acc_sum, comp_sum, scored = dist.all_sum(sums, device) if active else sums
-    acc = acc_sum / scored if scored else float("nan")
-    comp = comp_sum / scored if scored else float("nan")
-    return {
+        for j, t in enumerate(grid):
+            if hit_aware:
+                preds = model.outputs_to_points(out, CLIP_DEFAULT, dirs, threshold=t)
+            else:
+                preds = model.outputs_to_points(out, CLIP_DEFAULT, dirs)
+            for p, m in zip(preds, batch["model"].tolist()):
+                if len(p) == 0:
+                    continue
+                if m not in gt_trees:
+                    raise SpotlightsError(f"no dense ground truth for model row {m}")
+                tree = gt_trees[m]
+                if not isinstance(tree, NearestNeighbors):
+                    tree = gt_trees[m] = NearestNeighbors(tree)
+                pts = p.detach().cpu().numpy()
+                acc_sum[j] += accuracy(pts, tree)
+                comp_sum[j] += completeness(pts, tree)
+                scored[j] += 1
+    sums = [loss_sum, float(count), *acc_sum, *comp_sum, *map(float, scored)]
+    if active:
+        sums = dist.all_sum(sums, device)
+    k = len(grid)
+    loss_sum, count = sums[0], sums[1]
+    acc_sum, comp_sum, scored = sums[2:2 + k], sums[2 + k:2 + 2 * k], sums[2 + 2 * k:2 + 3 * k]
+    scan = []
+    for j in range(k):
+        acc = acc_sum[j] / scored[j] if scored[j] else float("nan")
+        comp = comp_sum[j] / scored[j] if scored[j] else float("nan")
+        scan.append({"accuracy": acc, "completeness": comp, "chamfer_l1": combine_directions(acc, comp, "mean"),
+                     "empty": int(count - scored[j])})
+    # The chosen threshold: the lowest CD-L1 (the first on ties); NaN (every completion empty) never wins.
+    finite = [j for j in range(k) if math.isfinite(scan[j]["chamfer_l1"])]
+    best = min(finite, key=lambda j: scan[j]["chamfer_l1"]) if finite else 0
+    row = scan[best]
+    res = {
         "val_loss": loss_sum / count if count else float("nan"),
-        "val_accuracy": acc,
-        "val_completeness": comp,
-        "val_chamfer_l1": combine_directions(acc, comp, "mean"),  # chamfer_l1 of the means = mean of chamfer_l1
+        "val_accuracy": row["accuracy"],
+        "val_completeness": row["completeness"],
+        "val_chamfer_l1": row["chamfer_l1"],
         "val_n": int(count),
-        "val_empty": int(count - scored),
+        "val_empty": row["empty"],
     }
+    if hit_aware:
+        res["val_threshold"] = grid[best]
+        res["val_threshold_scan"] = {f"{t:g}": v for t, v in zip(grid, scan)}
+    return res
 
 
 SELECT_BY = {"chamfer_l1": "val_chamfer_l1", "accuracy": "val_accuracy", "loss": "val_loss"}
@@ -258,7 +323,7 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
            stop_after):
     from tqdm import tqdm
 
-    from .device import resolve_device
+    from .device import autocast, resolve_device, resolve_precision
 
     device = resolve_device(device) if device is not None else default_device()
     if dist.active and device.type == "cuda" and device.index is None:
@@ -289,6 +354,10 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
     seed, epochs, batch_size = int(tcfg.get("seed", 0)), int(tcfg["epochs"]), int(tcfg["batch_size"])
     if epochs < 0 or batch_size < 1:
         raise ParameterError(f"epochs must be >= 0 and batch_size >= 1 (got {epochs}, {batch_size})")
+    steps_per_epoch_cfg = tcfg.get("steps_per_epoch")
+    if steps_per_epoch_cfg is not None and int(steps_per_epoch_cfg) < 1:
+        raise ParameterError(f"train.steps_per_epoch must be >= 1 or null (got {steps_per_epoch_cfg})")
+    precision = resolve_precision(tcfg.get("precision", "fp32"), device)
 
     from .models import model_class
 
@@ -320,6 +389,8 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
     start_epoch, global_step, history, best = 0, 0, [], {"epoch": None, "select_by": select_by, "value": float("inf")}
     if state is not None:
         model.load_state_dict(state["model_state"])
+        if state.get("hit_threshold") is not None:
+            model.threshold = float(state["hit_threshold"]["value"])
         opt.load_state_dict(state["optimizer_state"])
         sched.load_state_dict(state["scheduler_state"])
         if extended:  # a new total length: the learning-rate schedule is recomputed from here on
@@ -341,9 +412,18 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
 
     n_train = len(train_set)
     shard = n_train // dist.world
-    drop_last = shard >= batch_size
-    steps_per_epoch = (shard // batch_size) if drop_last else math.ceil(shard / batch_size)
+    if steps_per_epoch_cfg is None:  # an epoch = one pass over the training set
+        drop_last = shard >= batch_size
+        steps_per_epoch = (shard // batch_size) if drop_last else math.ceil(shard / batch_size)
+    else:  # an epoch = a fixed number of steps drawn from a stream of passes (_stream_indices)
+        drop_last, steps_per_epoch = True, int(steps_per_epoch_cfg)
     total_steps = max(1, steps_per_epoch * epochs)
+    scaler = torch.amp.GradScaler(device.type) if precision == "fp16" else None
+    if scaler is not None and state is not None and state.get("scaler_state"):
+        scaler.load_state_dict(state["scaler_state"])
+    wall = float(history[-1].get("wall_seconds") or 0.0) if history else 0.0
+    if dist.main and precision != "fp32":
+        log(f"{model_name}: training at {precision} (autocast forward, float32 weights, losses and metrics)")
     grad_clip = tcfg.get("grad_clip")
     num_workers = int(dcfg.get("num_workers", 0) or 0)
 
@@ -351,8 +431,12 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
     for epoch in range(start_epoch, end_epoch):
         t0 = time.perf_counter()
         torch.manual_seed(_epoch_seed(seed, epoch))
-        gen = torch.Generator().manual_seed(_epoch_seed(seed, epoch))
-        perm = torch.randperm(n_train, generator=gen)[: shard * dist.world]
+        if steps_per_epoch_cfg is None:
+            gen = torch.Generator().manual_seed(_epoch_seed(seed, epoch))
+            perm = torch.randperm(n_train, generator=gen)[: shard * dist.world]
+        else:
+            per_epoch = steps_per_epoch * batch_size * dist.world
+            perm = torch.tensor(_stream_indices(n_train, seed, epoch * per_epoch, per_epoch))
         indices = perm[dist.rank::dist.world].tolist()
         loader = DataLoader(train_set, batch_size=batch_size, sampler=indices, num_workers=num_workers,
                             drop_last=drop_last, collate_fn=_collate, pin_memory=device.type == "cuda",
@@ -364,16 +448,25 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
                    disable=not (progress and dist.main), dynamic_ncols=True)
         for batch in bar:
             batch = _to(batch, device)
-            out = net(batch["partial"])
-            loss, terms = model.loss(out, batch, global_step / total_steps)
+            with autocast(precision, device):
+                out = net(batch["partial"])
+            loss, terms = model.loss(_float_outputs(out), batch, global_step / total_steps)
             if not torch.isfinite(loss):
                 raise SpotlightsError(f"{model_name}: the training loss became {float(loss)} at epoch {epoch + 1}, "
                                       f"step {global_step}; lower train.lr or set train.grad_clip")
             opt.zero_grad(set_to_none=True)
-            loss.backward()
-            if grad_clip:
-                torch.nn.utils.clip_grad_norm_(model.parameters(), float(grad_clip))
-            opt.step()
+            if scaler is not None:  # fp16 on CUDA: scaled backward, unscale before clipping
+                scaler.scale(loss).backward()
+                if grad_clip:
+                    scaler.unscale_(opt)
+                    torch.nn.utils.clip_grad_norm_(model.parameters(), float(grad_clip))
+                scaler.step(opt)
+                scaler.update()
+            else:
+                loss.backward()
+                if grad_clip:
+                    torch.nn.utils.clip_grad_norm_(model.parameters(), float(grad_clip))
+                opt.step()
             global_step += 1
             b = batch["partial"].shape[0]
             loss_sum += float(loss.detach()) * b
@@ -383,36 +476,55 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
         lr = opt.param_groups[0]["lr"]
         sched.step()
         train_sum, train_n = dist.all_sum([loss_sum, float(seen)], device)
-        val = validate(model, val_set, batch_size, device, gt_trees, dist, rays=val_rays)
+        val = validate(model, val_set, batch_size, device, gt_trees, dist, rays=val_rays, precision=precision)
         dt = time.perf_counter() - t0
-        row = {"epoch": epoch + 1, "lr": lr, "train_loss": train_sum / max(train_n, 1), **val,
-               "epoch_seconds": round(dt, 3), "samples_per_second": round(train_n / dt, 2) if dt > 0 else 0.0}
+        wall += dt
+        row = {"epoch": epoch + 1, "global_step": global_step, "samples_seen": global_step * batch_size * dist.world,
+               "lr": lr, "train_loss": train_sum / max(train_n, 1),
+               **{k: v for k, v in val.items() if k != "val_threshold_scan"},
+               "epoch_seconds": round(dt, 3), "samples_per_second": round(train_n / dt, 2) if dt > 0 else 0.0,
+               "wall_seconds": round(wall, 3)}
         history.append(row)
+        if "val_threshold" in val:  # hit-aware SA-Net: decode with the threshold chosen on validation
+            model.threshold = float(val["val_threshold"])
         value, prev = val[SELECT_BY[select_by]], best["value"]
         # The first epoch always gives a best.pt; later a finite value below the best so far.
         improved = best["epoch"] is None or (math.isfinite(value) and not (math.isfinite(prev) and value >= prev))
         if improved:
             best = {"epoch": epoch + 1, "select_by": select_by, "value": value, "val_accuracy": val["val_accuracy"]}
+            if "val_threshold" in val:
+                best["hit_threshold"] = float(val["val_threshold"])
         if dist.main:
             payload = {
                 "model_name": model_name, "config": cfg, "rig": rig, "model_state": model.state_dict(),
                 "optimizer_state": opt.state_dict(), "scheduler_state": sched.state_dict(),
                 "epoch": epoch + 1, "global_step": global_step, "best": best, "history": history,
-                "param_counts": param_counts,
+                "param_counts": param_counts, "precision": precision,
+                **({"hit_threshold": _threshold_record(val)} if "val_threshold" in val else {}),
+                **({"scaler_state": scaler.state_dict()} if scaler is not None else {}),
                 "dataset": {"path": str(data), "rig": train_set.rig_name, "n_train": n_train, "n_val": len(val_set)},
             }
             # best.pt first: a kill between the two writes must not leave a last.pt that names
             # this epoch as best while best.pt still holds an older one.
             if improved:
-                save_checkpoint(best_path, {k: v for k, v in payload.items() if k not in ("optimizer_state", "scheduler_state")})
+                save_checkpoint(best_path, {k: v for k, v in payload.items()
+                                            if k not in ("optimizer_state", "scheduler_state", "scaler_state")})
             save_checkpoint(last_path, payload)
             _write_csv(out_dir / "log.csv", history)
             log(f"{model_name} epoch {epoch + 1}/{epochs}: train loss {row['train_loss']:.5f}, val loss "
                 f"{row['val_loss']:.5f}, val accuracy {row['val_accuracy']:.5f}, completeness {row['val_completeness']:.5f}"
+                + (f" at p(hit) >= {row['val_threshold']:g}" if "val_threshold" in row else "") +
                 f"{' (best)' if improved else ''}, {dt:.1f} s")
         dist.barrier()
     return {"out_dir": str(out_dir), "last": str(last_path), "best": str(best_path), "epochs": len(history),
             "history": history, "param_counts": param_counts}
+
+
+def _threshold_record(val: dict) -> dict:
+    """The ``hit_threshold`` entry of a hit-aware SA-Net's checkpoint: the chosen p(hit) threshold and the
+    validation scan it was chosen from (CD-L1, accuracy, completeness per grid value)."""
+    return {"value": float(val["val_threshold"]), "chosen_on": "val", "criterion": "min val_chamfer_l1",
+            "scan": val["val_threshold_scan"]}
 
 
 def _worker_init(worker_id: int) -> None:

@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ...utils import atomic_output
 from .pipeline import Context, Step, shell_quote
 from .settings import ABLATION_RAYS, BOX_STUDY_LABELS, DISPLAY, TABLE1_RUNS, Settings
 from .steps import completers
@@ -52,13 +51,6 @@ EXTRA_FIGURES = {
 }
 
 
-def _figure(figsize):
-    """A matplotlib Figure with no pyplot state (no global backend; saved with the Agg canvas)."""
-    from matplotlib.figure import Figure
-
-    return Figure(figsize=figsize)
-
-
 def _cloud_grid(
     path: Path,
     rows: Sequence[Sequence[tuple]],
@@ -67,30 +59,10 @@ def _cloud_grid(
     elev: float = 22.0,
     azim: float = -60.0,
 ) -> Path:
-    """A grid of 3-D scatter panels, axes fixed to the unit sphere. ``rows``: lists of
-    ``(panel title, [(points (K, 3), colour, size), ...])``."""
-    nrow, ncol = len(rows), max(len(r) for r in rows)
-    fig = _figure(figsize=(2.7 * ncol, 2.8 * nrow + 0.5))
-    for i, row in enumerate(rows):
-        for j, (ttl, layers) in enumerate(row):
-            ax = fig.add_subplot(nrow, ncol, i * ncol + j + 1, projection="3d")
-            for pts, color, size in layers:
-                p = np.asarray(pts, dtype=np.float64).reshape(-1, 3)
-                if len(p):
-                    ax.scatter(p[:, 0], p[:, 1], p[:, 2], s=size, color=color, linewidths=0, depthshade=False)
-            for setlim in (ax.set_xlim, ax.set_ylim, ax.set_zlim):
-                setlim(-0.9, 0.9)
-            ax.set_box_aspect((1, 1, 1), zoom=1.25)
-            ax.view_init(elev=elev, azim=azim)
-            ax.set_axis_off()
-            label = f"{row_labels[i]}\n{ttl}" if (row_labels and j == 0) else ttl
-            ax.set_title(label, fontsize=8)
-    fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_output(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=90, format="png")
-    return path
+    """A grid of 3-D scatter panels, axes fixed to the unit sphere (see :func:`spotlights.viz.render_cloud_grid`)."""
+    from ...viz import render_cloud_grid
+
+    return render_cloud_grid(path, rows, title, row_labels, elev, azim)
 
 
 def _figure_meshes(s: Settings) -> list:
@@ -118,6 +90,7 @@ def _run_fig_rig(ctx: Context) -> dict:
     """The rig with one viewpoint's rays on a car: hits (green) end on the surface, misses (orange) cross the sphere."""
     from ...geometry.rig import make_rig
     from ...geometry.sampling import sample_surface
+    from ...viz import render_rig_rays
 
     entry = _figure_meshes(ctx.s)[0]
     mesh, probe = _load_unit_mesh(entry)
@@ -125,34 +98,16 @@ def _run_fig_rig(ctx: Context) -> dict:
     depth = probe.encode(rig).reshape(rig.n_primary, rig.n_secondary)
     share = (depth > 0).mean(axis=1)
     i = int(np.argmin(np.abs(share - 0.5)))  # a viewpoint with about half of its rays on the car
-    o = rig.origins.reshape(rig.n_primary, rig.n_secondary, 3)[i]
-    d = rig.directions.reshape(rig.n_primary, rig.n_secondary, 3)[i]
-    t_hit = 2.0 * depth[i]
-    chord = np.clip(-2.0 * np.einsum("ij,ij->i", o, d), 0.0, 2.0)
     surf = probe.normalization.to_unit(sample_surface(mesh, 4000, ctx.s.seed))
-    fig = _figure(figsize=(6.5, 6.0))
-    ax = fig.add_subplot(1, 1, 1, projection="3d")
-    u, v = np.mgrid[0 : 2 * np.pi : 25j, 0 : np.pi : 13j]
-    ax.plot_wireframe(np.cos(u) * np.sin(v), np.sin(u) * np.sin(v), np.cos(v), color="0.85", lw=0.4)
-    ax.scatter(*surf.T, s=0.6, color="#7b2cbf", alpha=0.5, linewidths=0, depthshade=False)
-    ax.scatter(*rig.primary.T, s=10, color="black", depthshade=False)
-    for k in range(rig.n_secondary):
-        hit = t_hit[k] > 0
-        end = o[k] + d[k] * (t_hit[k] if hit else chord[k])
-        ax.plot(*np.stack([o[k], end]).T, color="#2a9d3f" if hit else "#f4a261", lw=0.7, ls="-" if hit else "--")
-    ax.scatter(*o[0], s=40, color="red", depthshade=False)
-    ax.set_box_aspect((1, 1, 1), zoom=1.2)
-    ax.set_axis_off()
-    ax.view_init(elev=20, azim=-50)
-    ax.set_title(
+    render_rig_rays(
+        ctx.figures / "rig.png",
+        rig,
+        depth,
+        i,
+        surf,
         f"{rig.name}: the {rig.n_primary} viewpoints (black) and the {rig.n_secondary} rays of viewpoint {i} (red):\n"
         f"{int((depth[i] > 0).sum())} hit the car (green), the others cross the sphere (orange)",
-        fontsize=8,
     )
-    path = ctx.figures / "rig.png"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_output(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
     return {"mesh": entry.mesh_id, "viewpoint": i}
 
 
@@ -248,9 +203,10 @@ def _run_fig_synthetic(ctx: Context) -> dict:
 
 def _run_fig_real(ctx: Context) -> dict:
     """KITTI and AV2: the frame with most vehicles, SA-Net completions drawn back in the scan."""
-    from ...data.real.evaluate import complete_all
     from ...data.real.extract import read_observations
-    from ...data.real.show import frame_rows, render_frame
+    from ...data.real.frames import frame_rows
+    from ...viz import render_frame
+    from ..real_evaluation import complete_all
 
     sanet = completers(ctx, ["sanet"])[0]
     done = {}

@@ -325,8 +325,8 @@ def _consistency_command(ctx: Context) -> str:
 
 
 def _run_consistency(ctx: Context) -> dict:
-    from ...data.real.evaluate import evaluate_consistency, reference_shapes, write_report
     from ...learning.inference import load_completer
+    from ..real_evaluation import evaluate_consistency, reference_shapes, write_report
 
     completers = [load_completer(ctx.run_dir(r) / "best.pt", device="cpu") for r in TABLE1_RUNS]
     refs, ref_info = reference_shapes(ctx.s.cars_path)
@@ -353,7 +353,7 @@ def _consistency_box_command(ctx: Context) -> str:
 
 def _run_consistency_box(ctx: Context) -> dict:
     """Consistency on the AV2 tracks of SA-Net on the paper's rig and on the box rig (each observation's own box)."""
-    from ...data.real.evaluate import evaluate_consistency, write_report
+    from ..real_evaluation import evaluate_consistency, write_report
 
     runs = list(BOX_RUNS.values())
     rep = evaluate_consistency(

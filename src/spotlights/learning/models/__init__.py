@@ -23,13 +23,17 @@ from ...errors import InputFileError, ParameterError
 
 MODEL_REGISTRY: dict[str, str] = {
     "sanet": "spotlights.learning.models.sanet:SANet",
+    "sanet-hit": "spotlights.learning.models.sanet_hit:HitSANet",
     "pcn": "spotlights.learning.models.pcn:PCN",
     "foldingnet": "spotlights.learning.models.foldingnet:FoldingNet",
     "topnet": "spotlights.learning.models.topnet:TopNet",
     "atlasnet": "spotlights.learning.models.atlasnet:AtlasNet",
 }
 MODEL_NAMES = tuple(MODEL_REGISTRY)
-DISPLAY_NAMES = {"sanet": "SA-Net", "pcn": "PCN", "foldingnet": "FoldingNet", "topnet": "TopNet", "atlasnet": "AtlasNet"}
+SCHEDULE_FALLBACK = {"sanet-hit": "sanet"}
+"""A schedule without a section for a model uses the section of the model named here (a variant trains
+like its parent unless the schedule says otherwise)."""
+DISPLAY_NAMES = {"sanet": "SA-Net", "sanet-hit": "SA-Net (hit-aware)", "pcn": "PCN", "foldingnet": "FoldingNet", "topnet": "TopNet", "atlasnet": "AtlasNet"}
 
 
 def check_model_name(name: str) -> str:
@@ -86,7 +90,7 @@ def deep_merge(base: dict, override: dict) -> dict:
 def schedule_path(schedule) -> Path:
     """Path of a training schedule: a packaged name (``cpu``, ``paper``) or a YAML file."""
     p = Path(str(schedule))
-    if p.suffix.lower() in (".yaml", ".yml") or p.exists():
+    if p.suffix.lower() in (".yaml", ".yml") or p.is_file():
         return p
     packaged = Path(str(resources.files("spotlights.learning") / "configs" / "schedules" / f"{schedule}.yaml"))
     if not packaged.is_file():
@@ -96,13 +100,15 @@ def schedule_path(schedule) -> Path:
 
 
 def load_schedule(schedule, name: str) -> dict:
-    """The overrides a schedule gives model ``name``: its ``default`` section merged with its ``name`` section."""
+    """The overrides a schedule gives model ``name``: its ``default`` section merged with its ``name`` section
+    (a variant without a section of its own uses its parent's, :data:`SCHEDULE_FALLBACK`)."""
     p = schedule_path(schedule)
     data = _read_yaml(p)
     unknown = set(data) - {"default", *MODEL_NAMES, "description"}
     if unknown:
         raise InputFileError(p, f"unknown schedule section(s) {', '.join(sorted(unknown))} (expected default or model names)")
-    return deep_merge(data.get("default") or {}, data.get(name) or {})
+    section = name if name in data or name not in SCHEDULE_FALLBACK else SCHEDULE_FALLBACK[name]
+    return deep_merge(data.get("default") or {}, data.get(section) or {})
 
 
 def load_config(name: str, path=None, overrides: dict | None = None, schedule=None) -> dict:

@@ -1,0 +1,172 @@
+"""``dataset add-rig``: one more rig's ground-truth depths for every model of an existing file."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Callable
+
+import h5py
+import numpy as np
+import trimesh
+from tqdm import tqdm
+
+from ...errors import InputFileError, ParameterError
+from ...geometry.encode import MeshProbe
+from ...geometry.frames import normalization_from_mesh
+from ...geometry.rig import Rig, RigSpec
+from ...utils import atomic_output
+from ..store import open_dataset, write_rig_group
+from .catalogue import apply_augment, discover_sources, load_model, source_root, source_scale
+from .config import BuildConfig, parse_rig
+from ...utils import exclusive_lock
+from .runner import default_log, map_units, worker_state
+
+# ----------------------------------------------------------------------------------------------
+# adding a rig to an existing dataset file
+# ----------------------------------------------------------------------------------------------
+@dataclass
+class AddRigReport:
+    """What :func:`add_rig` did: the rig added, counts, seconds, the file size (bytes)."""
+
+    out: str
+    rig: str
+    n_models: int
+    n_rays: int
+    hit_ratio: float
+    seconds_depths: float = 0.0
+    seconds_write: float = 0.0
+    file_size: int = 0
+    already_present: bool = False
+
+
+def _add_rig_unit(m: int) -> tuple[int, np.ndarray]:
+    """Worker: one model's depths for the rig being added (:func:`worker_state` holds the job)."""
+    job = worker_state()
+    cfg, entry, stored = job["cfg"], job["entries"][m], job["stored"]
+    root = source_root(cfg, entry)
+    model = load_model(root, entry, source_scale(cfg, entry))
+    want = stored["sha256"][m]
+    if want and model.entry.sha256 != want:
+        raise InputFileError(root / entry.file, f"differs from the mesh the dataset was built from (SHA-256 "
+                                                f"{model.entry.sha256[:12]}..., the dataset recorded {want[:12]}...)")
+    if stored["augment"][m]:
+        model = apply_augment(model, replace(model.entry, augment=json.loads(stored["augment"][m])))
+    mesh = trimesh.Trimesh(model.vertices, model.faces, process=False, validate=False)
+    norm = normalization_from_mesh(mesh)
+    if not (np.array_equal(norm.center, stored["center"][m]) and float(norm.radius) == float(stored["radius"][m])):
+        raise InputFileError(root / entry.file, "normalises differently from the dataset's /models/center and "
+                                                "/models/radius (other --scale/--up/--forward?)")
+    return m, MeshProbe(mesh, norm).encode(job["rig"])
+
+
+def add_rig(path: str | os.PathLike, rig: "str | Rig | RigSpec", meshes: str | os.PathLike | None = None,
+            workers: int | None = None, progress: bool = True, log: Callable[[str], None] | None = None) -> AddRigReport:
+    """Add the ground-truth depths of one more rig to an existing dataset file, without rebuilding it.
+
+    The depths are exactly those a build with ``--rig RIG`` would have stored: every model's
+    mesh is loaded again (``config_json`` records the meshes folder(s), manifest, axes and scale;
+    an augmented copy is made again from ``/models/origin`` and ``/models/augment``;
+    each file must still have the SHA-256 in ``/models/sha256``), normalised by its box
+    (checked against ``/models/center`` and ``/models/radius``) and encoded with
+    ``MeshProbe(mesh, norm).encode(rig)``; box-targeted specs use each model's own box. The
+    group ``/rigs/<rig.name>`` is written with ``rig_json`` and ``config_json``'s
+    ``extra_rigs`` gains the rig's name (so the file's config rebuilds it identically).
+
+    Atomic: the file is copied beside itself, the group added to the copy, and the copy renamed
+    onto ``path``; an interrupted run leaves ``path`` untouched (rerun it). The bytes do not
+    depend on ``workers``.
+
+    Parameters
+    ----------
+    path : dataset file (``spotlights-completion``).
+    rig : rig name or shorthand (see :func:`parse_rig`), a Rig or a RigSpec.
+    meshes : the meshes folder (default: the one ``config_json`` records); for a dataset built
+        from several sources, a list with one folder per source, in the build's order.
+    workers : processes (default: all cores).
+
+    Returns
+    -------
+    :class:`AddRigReport` (``already_present`` when the file holds the identical rig already).
+
+    A second ``add_rig`` on the same file while one runs raises SpotlightsError (a lock file
+    ``.NAME.lock`` beside it), instead of silently losing one of the two rigs.
+    """
+    path = Path(path)
+    rig = parse_rig(rig)
+    open_dataset(path).close()  # a missing or foreign file fails before a lock file is made beside it
+    # Two add-rig runs on one file would each copy it and rename their copy onto it: the last
+    # rename would drop the other's rig. A lock beside the file makes the second one fail.
+    with exclusive_lock(path.with_name(f".{path.name}.lock"), f"{path}: another 'dataset add-rig' is rewriting this file right now"):
+        return _add_rig_locked(path, rig, meshes, workers, progress, log or default_log)
+
+
+def _add_rig_locked(path: Path, rig, meshes, workers, progress, log) -> AddRigReport:
+    """:func:`add_rig` once the file's lock is held."""
+    t0 = time.perf_counter()
+    with open_dataset(path) as ds:
+        cfg_dict = dict(ds.config)
+        if rig.name in ds.rig_names:
+            have = json.loads(ds._h5()[f"rigs/{rig.name}"].attrs["rig_json"])
+            if have != json.loads(json.dumps(rig.to_dict())):
+                raise InputFileError(path, f"holds a different rig under the name {rig.name}")
+            return AddRigReport(str(path), rig.name, ds.n_models, rig.n_rays, float("nan"), already_present=True,
+                                file_size=path.stat().st_size)
+        f = ds._h5()
+        stored = {
+            "names": [str(x) for x in ds.names],
+            "sha256": [x.decode() if isinstance(x, bytes) else str(x) for x in f["models/sha256"][()]]
+            if "models/sha256" in f else [""] * ds.n_models,
+            "center": np.asarray(ds.center, dtype=np.float64), "radius": np.asarray(ds.radius, dtype=np.float64),
+            "origin": [str(x) for x in ds.origins] if ds.origins is not None else [""] * ds.n_models,
+            "augment": [str(x) for x in ds.augments] if ds.augments is not None else [""] * ds.n_models,
+        }
+    if not cfg_dict.get("meshes") and not meshes:
+        raise InputFileError(path, "config_json records no meshes folder; pass --meshes DIR")
+    cfg = BuildConfig.from_dict(cfg_dict)
+    if meshes:
+        meshes = [meshes] if isinstance(meshes, (str, os.PathLike)) else list(meshes)
+        if cfg.sources:
+            if len(meshes) != len(cfg.sources):
+                raise ParameterError(f"{path} was built from {len(cfg.sources)} mesh folders "
+                                     f"({', '.join(s['name'] for s in cfg.sources)}): give --meshes once for each, in order")
+            cfg.sources = [{**s, "path": str(p)} for s, p in zip(cfg.sources, meshes)]
+        elif len(meshes) != 1:
+            raise ParameterError(f"{path} was built from one mesh folder: give --meshes once")
+        else:
+            cfg.meshes = str(meshes[0])
+    if not cfg.sources and cfg.manifest and not Path(cfg.manifest).exists():
+        cfg.manifest = None
+    entries, _ = discover_sources(cfg)
+    by_name = {e.name: e for e in entries}
+    wanted = [o or n for n, o in zip(stored["names"], stored["origin"])]
+    missing = [n for n in wanted if n not in by_name]
+    if missing:
+        where = ", ".join(s.path for s in cfg.mesh_sources())
+        raise InputFileError(where, f"has no mesh for {len(missing)} of the dataset's models (first: {missing[0]}); "
+                                    "pass the meshes folder the dataset was built from (--meshes)")
+    state = {"entries": [by_name[n] for n in wanted], "stored": stored, "cfg": cfg, "rig": rig}
+    n = len(stored["names"])
+    depths = np.zeros((n, rig.n_rays), dtype=np.float32)
+    workers = max(1, min(int(workers or os.cpu_count() or 1), n))
+    bar = tqdm(total=n, desc=f"depths {rig.name}", unit="model", disable=not progress, dynamic_ncols=True)
+    try:
+        for m, d in map_units(_add_rig_unit, list(range(n)), state, workers):
+            depths[m] = d
+            bar.update(1)
+    finally:
+        bar.close()
+    t1 = time.perf_counter()
+    cfg_dict["extra_rigs"] = list(cfg_dict.get("extra_rigs") or []) + [rig.name]
+    with atomic_output(path, suffix=".h5") as tmp:
+        shutil.copyfile(path, tmp)
+        with h5py.File(tmp, "r+") as f:
+            write_rig_group(f.require_group("rigs"), rig, depths)
+            f.attrs["config_json"] = json.dumps(cfg_dict, sort_keys=True)
+    hit = float(np.mean(depths > 0))
+    return AddRigReport(str(path), rig.name, n, rig.n_rays, hit, seconds_depths=t1 - t0,
+                        seconds_write=time.perf_counter() - t1, file_size=path.stat().st_size)
