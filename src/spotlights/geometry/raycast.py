@@ -227,7 +227,12 @@ class EmbreeEngine(RayEngine):
         self._scene.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32), query="DISTANCE")
 
     def distances(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
-        o, d = _as_rays(origins, directions)
+        return self._distances(*_as_rays(origins, directions))
+
+    def rig_distances(self, rig) -> np.ndarray:
+        return self._distances(*rig.rays32)  # already C-contiguous float32 (K, 3): no check, no copy
+
+    def _distances(self, o: np.ndarray, d: np.ndarray) -> np.ndarray:
         n = len(o)
         out = np.empty(n, dtype=np.float32)
         out.fill(np.inf)  # Embree keeps tfar (the initial value) on a miss
