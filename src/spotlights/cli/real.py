@@ -67,6 +67,9 @@ def register(sub) -> None:
     add_completion_arguments(p, single=False)
     p.add_argument("--per-object", action="store_true", help="also write FRAME_objects/object_<id>.ply per completed object")
     p.add_argument("--no-pictures", action="store_true", help="do not draw FRAME.png (faster)")
+    p.add_argument("--html", action="store_true",
+                   help="also write FRAME.html, an interactive 3-D page per frame (needs plotly); the pages share "
+                        "OUT/plotly.min.js, so copy the folder as a whole: it opens offline")
     add_quiet(p)
 
     p = add_command(rs, "evaluate", "complete the tracked observations with each model and write the consistency table (Markdown + JSON)",
@@ -381,9 +384,17 @@ def _complete_frames(args, reader, keys, config, completer, out) -> int:
             summ["sensor_to_world"] = [[float(v) for v in row] for row in frame.sensor_to_world]
         with atomic_output(stem.with_suffix(".json")) as tmp:
             tmp.write_text(json.dumps(summ, indent=2, default=float) + "\n", encoding="utf-8")
+        seq = f"{frame.sequence}/" if frame.sequence else ""
         if not args.no_pictures and result.completed:
-            seq = f"{frame.sequence}/" if frame.sequence else ""
             render_result(result, stem.with_suffix(".png"), f"{reader.format} {seq}{frame.frame_id}: {result.model}")
+        if args.html:
+            import os
+
+            from ..experiments.scene import render_result_html
+            from ..viz.html import write_plotlyjs
+
+            js = os.path.relpath(write_plotlyjs(out), stem.parent).replace(os.sep, "/")
+            render_result_html(result, stem.with_suffix(".html"), f"{reader.format} {seq}{frame.frame_id}: {result.model}", js)
         totals["boxes"] += len(result.objects)
         totals["completed"] += len(result.completed)
         totals["flipped"] += sum(o.flipped for o in result.completed)

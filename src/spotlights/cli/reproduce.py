@@ -17,7 +17,7 @@ def register(sub) -> None:
                    help="output folder: REPORT.md, results.json, tables/, figures/, steps.json, data/, runs/, eval/; "
                         "rerun with the same DIR to resume")
     p.add_argument("--tables", default=None, metavar="LIST",
-                   help="comma-separated tables to reproduce, from 1,2,3,4,5 and box (box-targeted rigs, issue 8; default: all)")
+                   help="comma-separated tables to reproduce, from 1,2,3,4,5 and box (box-targeted rigs, docs/box-rig.md; default: all)")
     p.add_argument("--quick", action="store_true",
                    help="small data (9 cars, 16 views), the tiny 'quick' schedule, a few meshes per category: every "
                         "stage in a few minutes; the numbers mean nothing")
