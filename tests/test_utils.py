@@ -16,11 +16,17 @@ from pathlib import Path
 
 import pytest
 
-from helpers import REPO
-
 from spotlights.errors import OutputFileError, SpotlightsError
-from spotlights.utils import (atomic_output, check_writable, output_folder, process_map, sweep_temporaries,
-                              unguarded_main_call)
+from spotlights.utils import (
+    atomic_output,
+    check_writable,
+    output_folder,
+    process_map,
+    sweep_temporaries,
+    unguarded_main_call,
+)
+
+from helpers import REPO
 
 
 def _dead_pid() -> int:
@@ -182,8 +188,9 @@ def _run_script(tmp_path: Path, text: str) -> subprocess.CompletedProcess:
     script = tmp_path / "user_script.py"
     script.write_text(text)
     env = {**os.environ, "PYTHONPATH": str(REPO / "src")}
-    return subprocess.run([sys.executable, str(script)], cwd=tmp_path, env=env, capture_output=True, text=True,
-                          timeout=300)
+    return subprocess.run(
+        [sys.executable, str(script)], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300
+    )
 
 
 def test_a_script_without_the_main_guard_fails_with_one_clear_line(tmp_path):

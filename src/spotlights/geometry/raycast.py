@@ -238,6 +238,7 @@ class EmbreeEngine(RayEngine):
         out.fill(np.inf)  # Embree keeps tfar (the initial value) on a miss
         run = self._scene.run
         if self.threads > 1 and n >= SPLIT_MIN_RAYS:
+
             def cast(a, b):
                 run(o[a:b], d[a:b], dists=out[a:b], query="DISTANCE")
 
@@ -283,8 +284,10 @@ class Open3DEngine(RayEngine):
         self._o3d = o3d
         self._nthreads = 0 if self.threads >= (os.cpu_count() or 1) else self.threads
         self._scene = o3d.t.geometry.RaycastingScene()
-        self._scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),
-                                  o3d.core.Tensor(np.ascontiguousarray(faces, dtype=np.uint32)))
+        self._scene.add_triangles(
+            o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),
+            o3d.core.Tensor(np.ascontiguousarray(faces, dtype=np.uint32)),
+        )
         self._rig_rays: tuple | None = None  # (rig, (K, 6) float32): the last rig's rays, kept
 
     def _cast(self, rays: np.ndarray) -> dict:
@@ -425,7 +428,7 @@ class RayCaster:
     def close(self) -> None:
         """Nothing to release (kept so ``with RayCaster(...)`` and older code keep working)."""
 
-    def __enter__(self) -> "RayCaster":
+    def __enter__(self) -> RayCaster:
         return self
 
     def __exit__(self, *exc) -> None:
