@@ -93,6 +93,18 @@ _POOL_LOCK = threading.Lock()
 _POOL: tuple | None = None  # (owner pid, executor, threads)
 
 
+def _forget_pool_after_fork() -> None:
+    """In a forked child: the parent's pool threads do not exist here, and the lock may have
+    been held by one of them at the fork; start from nothing."""
+    global _POOL, _POOL_LOCK
+    _POOL_LOCK = threading.Lock()
+    _POOL = None
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pool_after_fork)
+
+
 def _pool(threads: int) -> ThreadPoolExecutor | None:
     """The process-wide pool of ray-casting threads (at least ``threads``), or None at shutdown.
 
@@ -164,8 +176,13 @@ def _run_split(n: int, threads: int, cast) -> None:
                 pool.submit(job.work)
             except RuntimeError:  # interpreter shutting down: the caller casts everything
                 break
-    job.work()
-    job.done.wait()
+    try:
+        job.work()
+        job.done.wait()
+    except BaseException as exc:  # Ctrl-C while waiting: the pool threads stop claiming chunks
+        if job.error is None:
+            job.error = exc
+        raise
     if job.error is not None:
         raise job.error
 
