@@ -45,8 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spotlights.geometry import MeshProbe, load_mesh, make_rig
-from spotlights.geometry import raycast
+from spotlights.geometry import MeshProbe, load_mesh, make_rig, raycast
 from spotlights.geometry.encode import encode_mesh_files
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -65,7 +64,7 @@ def interleaved(fns: dict, repeat: int, block: int) -> dict:
     warm = {n: [] for n in names}
     cold = {n: [] for n in names}
     for r in range(repeat):
-        for n in names[r % len(names):] + names[: r % len(names)]:
+        for n in names[r % len(names) :] + names[: r % len(names)]:
             fn = fns[n]
             for i in range(block):
                 t0 = time.perf_counter()
@@ -87,8 +86,10 @@ def bench_mesh(path: Path, repeat: int, block: int, helper: ThreadPoolExecutor) 
         import open3d as o3d
 
         o3d_scene = o3d.t.geometry.RaycastingScene()
-        o3d_scene.add_triangles(o3d.core.Tensor(probe1.normalization.to_unit(mesh.vertices).astype(np.float32)),
-                                o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)))
+        o3d_scene.add_triangles(
+            o3d.core.Tensor(probe1.normalization.to_unit(mesh.vertices).astype(np.float32)),
+            o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)),
+        )
         probe_o3d = MeshProbe(mesh, engine="open3d", workers=2)
     except ImportError:
         pass
@@ -113,8 +114,12 @@ def bench_mesh(path: Path, repeat: int, block: int, helper: ThreadPoolExecutor) 
             finally:
                 raycast.SPLIT_MIN_RAYS = keep
 
-        fns = {"path1": lambda rig=rig: probe1.encode(rig), "path2": lambda rig=rig: probe2.encode(rig),
-               "bare1": lambda o=o, d=d: scene.run(o, d, query="DISTANCE"), "bare2": bare2}
+        fns = {
+            "path1": lambda rig=rig: probe1.encode(rig),
+            "path2": lambda rig=rig: probe2.encode(rig),
+            "bare1": lambda o=o, d=d: scene.run(o, d, query="DISTANCE"),
+            "bare2": bare2,
+        }
         if n_rays < raycast.SPLIT_MIN_RAYS:
             fns["split2"] = forced  # what splitting would give below the threshold
         if o3d_scene is not None and n_rays in SIZES:
@@ -124,8 +129,14 @@ def bench_mesh(path: Path, repeat: int, block: int, helper: ThreadPoolExecutor) 
             fns["path_o3d"] = lambda rig=rig: probe_o3d.encode(rig)
         t = interleaved(fns, repeat, block)
         mr = {k: n_rays / v[0] / 1e6 for k, v in t.items()}
-        row = {"mesh": path.name, "faces": int(len(mesh.faces)), "rays": n_rays, "bvh_build_s": build,
-               "mrays_s": mr, "cold_mrays_s": {k: n_rays / v[1] / 1e6 for k, v in t.items()}}
+        row = {
+            "mesh": path.name,
+            "faces": int(len(mesh.faces)),
+            "rays": n_rays,
+            "bvh_build_s": build,
+            "mrays_s": mr,
+            "cold_mrays_s": {k: n_rays / v[1] / 1e6 for k, v in t.items()},
+        }
         if "path2" in mr:
             row["path2_over_path1"] = mr["path2"] / mr["path1"]
             row["path1_over_bare1"] = mr["path1"] / mr["bare1"]
@@ -137,8 +148,17 @@ def bench_mesh(path: Path, repeat: int, block: int, helper: ThreadPoolExecutor) 
         if "o3d" in mr:
             row["path2_over_best_open3d"] = mr["path2"] / max(mr["o3d"], mr["o3d_nt2"])
         rows.append(row)
-        print(json.dumps({k: (round(v, 3) if isinstance(v, float) else v) for k, v in row.items()
-                          if k not in ("mrays_s", "cold_mrays_s")}), file=sys.stderr, flush=True)
+        print(
+            json.dumps(
+                {
+                    k: (round(v, 3) if isinstance(v, float) else v)
+                    for k, v in row.items()
+                    if k not in ("mrays_s", "cold_mrays_s")
+                }
+            ),
+            file=sys.stderr,
+            flush=True,
+        )
     return rows
 
 
@@ -149,15 +169,19 @@ def bench_cars(repeat: int) -> dict:
     ref = encode_mesh_files(files, rig, workers=1)[rig.name]
     times = {1: [], 2: []}
     for r in range(repeat):
-        for w in ((1, 2) if r % 2 == 0 else (2, 1)):
+        for w in (1, 2) if r % 2 == 0 else (2, 1):
             t0 = time.perf_counter()
             out = encode_mesh_files(files, rig, workers=w)[rig.name]
             times[w].append(time.perf_counter() - t0)
             assert out.tobytes() == ref.tobytes()
-    return {"meshes": len(files), "rig": rig.name, "seconds": {str(w): v for w, v in times.items()},
-            "median_s": {str(w): statistics.median(v) for w, v in times.items()},
-            "workers2_over_workers1": statistics.median(times[1]) / statistics.median(times[2]),
-            "mean_hit_ratio": float((ref > 0).mean())}
+    return {
+        "meshes": len(files),
+        "rig": rig.name,
+        "seconds": {str(w): v for w, v in times.items()},
+        "median_s": {str(w): statistics.median(v) for w, v in times.items()},
+        "workers2_over_workers1": statistics.median(times[1]) / statistics.median(times[2]),
+        "mean_hit_ratio": float((ref > 0).mean()),
+    }
 
 
 def main() -> int:
@@ -173,24 +197,39 @@ def main() -> int:
     rows += bench_mesh(BIG, args.repeat, args.block, helper) if BIG.exists() else []
     cars = bench_cars(args.car_repeat)
     load_after = os.getloadavg()
-    print(f"{'mesh':34s} {'faces':>7s} {'rays':>6s} {'path1':>6s} {'path2':>6s} {'2t/1t':>6s} {'bare1':>6s} "
-          f"{'bare2':>6s} {'p1/b1':>6s} {'p2/b2':>6s} {'o3d':>6s} {'o3d nt2':>7s} {'2t/o3d':>6s}  (M rays/s)")
+    print(
+        f"{'mesh':34s} {'faces':>7s} {'rays':>6s} {'path1':>6s} {'path2':>6s} {'2t/1t':>6s} {'bare1':>6s} "
+        f"{'bare2':>6s} {'p1/b1':>6s} {'p2/b2':>6s} {'o3d':>6s} {'o3d nt2':>7s} {'2t/o3d':>6s}  (M rays/s)"
+    )
     nan = float("nan")
     for r in rows:
         m = r["mrays_s"]
-        print(f"{r['mesh']:34s} {r['faces']:7d} {r['rays']:6d} {m['path1']:6.2f} {m['path2']:6.2f} "
-              f"{r['path2_over_path1']:6.2f} {m['bare1']:6.2f} {m['bare2']:6.2f} {r['path1_over_bare1']:6.2f} "
-              f"{r['path2_over_bare2']:6.2f} {m.get('o3d', nan):6.2f} {m.get('o3d_nt2', nan):7.2f} "
-              f"{r.get('path2_over_best_open3d', nan):6.2f}"
-              + (f"  (split forced: {m['split2']:.2f} = {r['split2_over_path1']:.2f}x path1)" if "split2" in m else ""))
-    print(f"79 cars, encode_mesh_files: workers=1 {cars['median_s']['1']:.3f} s, workers=2 {cars['median_s']['2']:.3f} s "
-          f"({cars['workers2_over_workers1']:.2f}x), medians of {args.car_repeat} alternating runs each")
+        print(
+            f"{r['mesh']:34s} {r['faces']:7d} {r['rays']:6d} {m['path1']:6.2f} {m['path2']:6.2f} "
+            f"{r['path2_over_path1']:6.2f} {m['bare1']:6.2f} {m['bare2']:6.2f} {r['path1_over_bare1']:6.2f} "
+            f"{r['path2_over_bare2']:6.2f} {m.get('o3d', nan):6.2f} {m.get('o3d_nt2', nan):7.2f} "
+            f"{r.get('path2_over_best_open3d', nan):6.2f}"
+            + (f"  (split forced: {m['split2']:.2f} = {r['split2_over_path1']:.2f}x path1)" if "split2" in m else "")
+        )
+    print(
+        f"79 cars, encode_mesh_files: workers=1 {cars['median_s']['1']:.3f} s, workers=2 {cars['median_s']['2']:.3f} s "
+        f"({cars['workers2_over_workers1']:.2f}x), medians of {args.car_repeat} alternating runs each"
+    )
     print(f"load average before {load_before[0]:.2f}, after {load_after[0]:.2f}")
-    out = {"command": "PYTHONPATH=src python benchmarks/encode.py " + " ".join(sys.argv[1:]),
-           "python": platform.python_version(), "cpus": os.cpu_count(), "machine": platform.machine(),
-           "split_min_rays": raycast.SPLIT_MIN_RAYS, "min_chunk": raycast.MIN_CHUNK,
-           "repeat": args.repeat, "block": args.block, "load_before": load_before, "load_after": load_after,
-           "rays": rows, "cars": cars}
+    out = {
+        "command": "PYTHONPATH=src python benchmarks/encode.py " + " ".join(sys.argv[1:]),
+        "python": platform.python_version(),
+        "cpus": os.cpu_count(),
+        "machine": platform.machine(),
+        "split_min_rays": raycast.SPLIT_MIN_RAYS,
+        "min_chunk": raycast.MIN_CHUNK,
+        "repeat": args.repeat,
+        "block": args.block,
+        "load_before": load_before,
+        "load_after": load_after,
+        "rays": rows,
+        "cars": cars,
+    }
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(out, indent=1) + "\n")
     print(f"wrote {args.json}")

@@ -27,11 +27,17 @@ import numpy as np
 import pytest
 import trimesh
 
-from helpers import REPO
-
 from spotlights.cli import main
 
-CKPT = REPO / "src" / "spotlights" / "learning" / "pretrained" / "sanet.pt"
+
+def _shipped_checkpoint():
+    """The package's default checkpoint file, whatever its name in this version."""
+    from spotlights.learning.checkpoint import resolve_checkpoint
+
+    return resolve_checkpoint("default")
+
+
+CKPT = _shipped_checkpoint()
 
 
 # ---------------------------------------------------------------------------- fixtures
@@ -102,14 +108,39 @@ def fx(tmp_path_factory):
     torch.save({"state_dict": {"w": torch.zeros(2)}}, f["ckpt_not_spotlights"])
     f["yaml_bad"] = root / "bad.yaml"
     f["yaml_bad"].write_text("train: [\n")
+    f["yaml_typo"] = root / "typo.yaml"
+    f["yaml_typo"].write_text("train:\n  epoch: 3\n")  # a typo of epochs
+    f["yaml_section"] = root / "section.yaml"
+    f["yaml_section"].write_text("training:\n  epochs: 3\n")
     f["yaml_list"] = root / "list.yaml"
     f["yaml_list"].write_text("- 1\n- 2\n")
     f["txt"] = root / "notes.txt"
     f["txt"].write_text("hello\n")
     # a real dataset file, built by the command itself (tiny: 5 boxes x 2 views)
     f["data"] = root / "data.h5"
-    rc = main(["dataset", "build", "--meshes", str(meshes), "-o", str(f["data"]), "--views", "2", "--split", "3/1/1",
-               "--points", "32", "--gt-points", "64", "--gt-dense", "128", "-j", "1", "-q"])
+    rc = main(
+        [
+            "dataset",
+            "build",
+            "--meshes",
+            str(meshes),
+            "-o",
+            str(f["data"]),
+            "--views",
+            "2",
+            "--split",
+            "3/1/1",
+            "--points",
+            "32",
+            "--gt-points",
+            "64",
+            "--gt-dense",
+            "128",
+            "-j",
+            "1",
+            "-q",
+        ]
+    )
     assert rc == 0 and f["data"].exists()
     # real observations: a generic scene of two frames, one car tracked through both
     scene = root / "scene"
@@ -118,9 +149,22 @@ def fx(tmp_path_factory):
     for k in range(2):
         pts = rng.uniform(-0.5, 0.5, (300, 3)) * [4.0, 1.8, 1.5] + [10.0 + k, 2.0, 0.8]
         np.save(scene / f"{k}.npy", np.vstack([pts, rng.uniform(-30, 30, (200, 3)) * [1, 1, 0]]).astype(np.float32))
-        frames.append({"scan": f"{k}.npy", "timestamp": k, "sequence": "s",
-                       "boxes": [{"center": [10.0 + k, 2.0, 0.8], "size": [4.0, 1.8, 1.5], "yaw": 0.0,
-                                  "label": "car", "track_id": "a"}]})
+        frames.append(
+            {
+                "scan": f"{k}.npy",
+                "timestamp": k,
+                "sequence": "s",
+                "boxes": [
+                    {
+                        "center": [10.0 + k, 2.0, 0.8],
+                        "size": [4.0, 1.8, 1.5],
+                        "yaw": 0.0,
+                        "label": "car",
+                        "track_id": "a",
+                    }
+                ],
+            }
+        )
     f["scene"] = scene / "scene.json"
     f["scene"].write_text(json.dumps({"frames": frames}))
     f["obs"] = root / "obs.h5"
@@ -128,7 +172,21 @@ def fx(tmp_path_factory):
         fr["boxes"][0].pop("track_id")
     (scene / "untracked.json").write_text(json.dumps({"frames": frames}))
     f["obs_untracked"] = root / "untracked.h5"
-    assert main(["real", "extract", str(scene / "untracked.json"), "--format", "generic", "-o", str(f["obs_untracked"]), "-q"]) == 0
+    assert (
+        main(
+            [
+                "real",
+                "extract",
+                str(scene / "untracked.json"),
+                "--format",
+                "generic",
+                "-o",
+                str(f["obs_untracked"]),
+                "-q",
+            ]
+        )
+        == 0
+    )
     assert main(["real", "extract", str(f["scene"]), "--format", "generic", "-o", str(f["obs"]), "-q"]) == 0
     return f
 
@@ -270,10 +328,19 @@ CASES = [
     C("build-block-0", "dataset build --meshes {meshes} -o {out}/d.h5 --block 0 -q", "--block", usage=True),
     C("build-scale-neg", "dataset build --meshes {meshes} -o {out}/d.h5 --scale -1 -q", "scale"),
     C("build-seed-neg", "dataset build --meshes {meshes} -o {out}/d.h5 --seed -1 -q", "--seed", usage=True),
-    C("build-readonly", "dataset build --meshes {meshes} -o {out}/d.h5 --views 2 --split 3/1/1 -j 1 -q", "d.h5",
-      fault="readonly"),
-    C("build-full-disk", "dataset build --meshes {meshes} -o {out}/d.h5 --views 2 --split 3/1/1 --points 32 "
-      "--gt-points 64 --gt-dense 128 -j 1 -q", "d.h5", fault="full"),
+    C(
+        "build-readonly",
+        "dataset build --meshes {meshes} -o {out}/d.h5 --views 2 --split 3/1/1 -j 1 -q",
+        "d.h5",
+        fault="readonly",
+    ),
+    C(
+        "build-full-disk",
+        "dataset build --meshes {meshes} -o {out}/d.h5 --views 2 --split 3/1/1 --points 32 "
+        "--gt-points 64 --gt-dense 128 -j 1 -q",
+        "d.h5",
+        fault="full",
+    ),
     # ---- dataset add-rig / info / export / show
     C("add-rig-missing", "dataset add-rig {out}/nope.h5 --rig 8x8 -q", "nope.h5"),
     C("add-rig-garbage", "dataset add-rig {garbage} --rig 8x8 -q", "garbage.bin"),
@@ -294,11 +361,20 @@ CASES = [
     C("extract-missing", "real extract {out}/nope --format kitti -o {out}/k.h5 -q", "nope"),
     C("extract-not-kitti", "real extract {empty_dir} --format kitti -o {out}/k.h5 -q", "empty"),
     C("extract-out-npz", "real extract {empty_dir} --format kitti -o {out}/k.npz -q", "k.npz"),
-    C("extract-option-format", "real extract {empty_dir} --format av2 --velodyne velodyne -o {out}/k.h5 -q", "--velodyne"),
-    C("extract-frames", "real extract {empty_dir} --format kitti360 --frames 5:x -o {out}/k.h5", "--frames", usage=True),
+    C(
+        "extract-option-format",
+        "real extract {empty_dir} --format av2 --velodyne velodyne -o {out}/k.h5 -q",
+        "--velodyne",
+    ),
+    C(
+        "extract-frames",
+        "real extract {empty_dir} --format kitti360 --frames 5:x -o {out}/k.h5",
+        "--frames",
+        usage=True,
+    ),
     C("extract-points-0", "real extract {empty_dir} --format kitti -o {out}/k.h5 --points 0 -q", "points"),
     C("extract-margin-neg", "real extract {empty_dir} --format kitti -o {out}/k.h5 --margin -1 -q", "margin"),
-    C("extract-classes", "real extract {empty_dir} --format kitti -o {out}/k.h5 --classes bus -q", "bus"),
+    C("extract-classes", "real extract {scene} --format generic -o {out}/k.h5 --classes tractor -q", "tractor"),
     C("extract-readonly", "real extract {scene} --format generic -o {out}/k.h5 -q", "k.h5", fault="readonly"),
     C("extract-full-disk", "real extract {scene} --format generic -o {out}/k.h5 -q", "k.h5", fault="full"),
     C("extract-scene-bad-json", "real extract {bad_box} --format generic -o {out}/k.h5 -q", "bad_box.json"),
@@ -307,8 +383,7 @@ CASES = [
     C("revaluate-ckpt-missing", "real evaluate {obs} --checkpoint {out}/nope.pt -q", "nope.pt"),
     C("revaluate-ckpt-corrupt", "real evaluate {obs} --checkpoint {ckpt_truncated} -q", "truncated.pt"),
     C("revaluate-no-tracks", "real evaluate {obs_untracked} --checkpoint {ckpt} -q", "untracked.h5"),
-    C("revaluate-reference-split", "real evaluate {obs} --checkpoint {ckpt} --reference-split test -q",
-      "--reference"),
+    C("revaluate-reference-split", "real evaluate {obs} --checkpoint {ckpt} --reference-split test -q", "--reference"),
     C("revaluate-readonly", "real evaluate {obs} --checkpoint {ckpt} -o {out}/cons -q", "cons", fault="readonly"),
     C("rshow-missing", "real show {out}/nope.h5", "nope.h5"),
     C("rshow-max-objects", "real show {obs} --max-objects 0", "--max-objects"),
@@ -321,8 +396,7 @@ CASES = [
     C("density-mc-rays", "analyze density -o {out}/d --mc-rays 0 5 -q", "Monte-Carlo"),
     C("density-rotations", "analyze density -o {out}/d --rotations 1 -q", "rotations"),
     C("density-out-is-file", "analyze density -o {mesh} --no-mc -q", "box.ply"),
-    C("density-readonly", "analyze density -o {out}/d --no-mc --r-step 0.25 --alpha-step 45 -q", "d",
-      fault="readonly"),
+    C("density-readonly", "analyze density -o {out}/d --no-mc --r-step 0.25 --alpha-step 45 -q", "d", fault="readonly"),
     # ---- study rigs
     C("study-no-meshes", "study rigs -o {out}/st --meshes {empty_dir} -q", "empty"),
     C("study-missing-meshes", "study rigs -o {out}/st --meshes {out}/nope -q", "nope"),
@@ -344,6 +418,12 @@ CASES = [
     C("train-resume-corrupt", "train --model sanet --data {data} --resume -o {run_corrupt}", "last.pt"),
     C("train-config-missing", "train --model sanet --data {data} --config {out}/nope.yaml -o {out}/r", "nope.yaml"),
     C("train-config-bad-yaml", "train --model sanet --data {data} --config {yaml_bad} -o {out}/r", "bad.yaml"),
+    C("train-config-unknown-key", "train --model sanet --data {data} --config {yaml_typo} -o {out}/r", "epoch"),
+    C(
+        "train-config-unknown-section",
+        "train --model sanet --data {data} --config {yaml_section} -o {out}/r",
+        "training",
+    ),
     C("train-config-not-mapping", "train --model sanet --data {data} --config {yaml_list} -o {out}/r", "list.yaml"),
     C("train-device", "train --model sanet --data {data} --device bogus -o {out}/r", "bogus"),
     C("train-schedule", "train --model sanet --data {data} --schedule nope -o {out}/r", "nope"),
@@ -354,14 +434,25 @@ CASES = [
     C("evaluate-ckpt-missing", "evaluate --data {data} --checkpoint {out}/nope.pt -o {out}/rep -q", "nope.pt"),
     C("evaluate-ckpt-corrupt", "evaluate --data {data} --checkpoint {ckpt_truncated} -o {out}/rep -q", "truncated.pt"),
     C("evaluate-ckpt-foreign", "evaluate --data {data} --checkpoint {ckpt_not_spotlights} -o {out}/rep -q", "other.pt"),
-    C("evaluate-ckpt-bad-config", "evaluate --data {data} --checkpoint {ckpt_bad_config} -o {out}/rep -q",
-      "bad_config.pt"),
+    C(
+        "evaluate-ckpt-bad-config",
+        "evaluate --data {data} --checkpoint {ckpt_bad_config} -o {out}/rep -q",
+        "bad_config.pt",
+    ),
     C("evaluate-data-missing", "evaluate --data {out}/nope.h5 --checkpoint {ckpt} -o {out}/rep -q", "nope.h5"),
-    C("evaluate-threads-neg", "evaluate --data {data} --checkpoint {ckpt} --threads -1 -o {out}/rep", "--threads",
-      usage=True),
+    C(
+        "evaluate-threads-neg",
+        "evaluate --data {data} --checkpoint {ckpt} --threads -1 -o {out}/rep",
+        "--threads",
+        usage=True,
+    ),
     C("evaluate-split", "evaluate --data {data} --checkpoint {ckpt} --split dev -o {out}/rep", "--split", usage=True),
-    C("evaluate-fscore", "evaluate --data {data} --checkpoint {ckpt} --fscore-threshold 0 -o {out}/rep",
-      "--fscore-threshold", usage=True),
+    C(
+        "evaluate-fscore",
+        "evaluate --data {data} --checkpoint {ckpt} --fscore-threshold 0 -o {out}/rep",
+        "--fscore-threshold",
+        usage=True,
+    ),
     C("evaluate-device", "evaluate --data {data} --checkpoint {ckpt} --device bogus -o {out}/rep -q", "bogus"),
     # ---- complete
     C("complete-missing", "complete {out}/nope.pcd --box {box} -o {out}/c.ply", "nope.pcd"),
@@ -374,15 +465,39 @@ CASES = [
     C("complete-size-neg", "complete {pts} --center 0 0 0 --size -1 2 1 -o {out}/c.ply", "size"),
     C("complete-out-obj", "complete {pts} --box {box} -o {out}/c.obj", "c.obj"),
     C("complete-show-jpg", "complete {pts} --box {box} -o {out}/c.ply --show {out}/c.jpg", "c.jpg"),
-    C("complete-ckpt-corrupt", "complete {pts} --box {box} -o {out}/c.ply --checkpoint {ckpt_truncated}", "truncated.pt"),
-    C("complete-ckpt-weights", "complete {pts} --box {box} -o {out}/c.ply --checkpoint {ckpt_bad_weights}",
-      "bad_weights.pt"),
+    C(
+        "complete-ckpt-corrupt",
+        "complete {pts} --box {box} -o {out}/c.ply --checkpoint {ckpt_truncated}",
+        "truncated.pt",
+    ),
+    C(
+        "complete-ckpt-weights",
+        "complete {pts} --box {box} -o {out}/c.ply --checkpoint {ckpt_bad_weights}",
+        "bad_weights.pt",
+    ),
     C("complete-device", "complete {pts} --box {box} -o {out}/c.ply --device bogus", "bogus"),
     C("complete-seed-neg", "complete {pts} --box {box} -o {out}/c.ply --seed -1", "--seed", usage=True),
     C("complete-readonly", "complete {pts} --box {box} -o {out}/c.ply", "c.ply", fault="readonly"),
     C("complete-full-disk", "complete {pts} --box {box} -o {out}/c.ply", "c.ply", fault="full"),
-    C("complete-one-point", "complete {one_point} --box {box} -o {out}/c.ply", "one.npy",
-      xfail="the realscan helper's fix (a scan too small to mean anything is refused)"),
+    C("complete-one-point", "complete {one_point} --box {box} -o {out}/c.ply", "one.npy"),
+    C("complete-summary-txt", "complete {pts} --box {box} -o {out}/c.ply --summary {out}/s.txt", "s.txt"),
+    C("complete-html-png", "complete {pts} --box {box} -o {out}/c.ply --html {out}/v.png", "v.png"),
+    C("complete-boxes-and-box", "complete {pts} --boxes {box} --box {box} -o {out}/c.ply", "--boxes"),
+    C("complete-calib-alone", "complete {pts} --box {box} --calib {txt} -o {out}/c.ply", "--calib"),
+    # ---- real complete
+    C("rcomplete-missing", "real complete {out}/nope --format generic -o {out}/rc -q", "nope"),
+    C("rcomplete-not-kitti", "real complete {empty_dir} --format kitti -o {out}/rc -q", "empty"),
+    C("rcomplete-frames", "real complete {scene} --format generic --frames 7:9 -o {out}/rc -q", "--frames"),
+    C("rcomplete-readonly", "real complete {scene} --format generic -o {out}/rc -q", "rc", fault="readonly"),
+    # ---- view
+    C("view-missing", "view {out}/nope.ply -o {out}/v.html -q", "nope.ply"),
+    C("view-unknown-type", "view {garbage} -o {out}/v.html -q", "garbage.bin"),
+    C("view-out-png", "view {mesh} -o {out}/v.png -q", "v.png"),
+    C("view-readonly", "view {mesh} -o {out}/v.html -q", "v.html", fault="readonly"),
+    # ---- curves
+    C("curves-missing", "curves {out}/nope -o {out}/cv", "nope"),
+    C("curves-no-log", "curves {empty_dir} -o {out}/cv", "log.csv"),
+    C("curves-tail", "curves {empty_dir} --tail 2 -o {out}/cv", "--tail", usage=True),
     # ---- bench models
     C("bench-out-csv", "bench models --out {out}/b.csv --models sanet --batch 1", "b.csv"),
     C("bench-threads-0", "bench models --threads 0 --models sanet", "--threads", usage=True),

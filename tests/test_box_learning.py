@@ -154,7 +154,7 @@ def test_add_rig_matches_a_build_and_is_atomic(built, meshes, tmp_path, capsys):
     shutil.copy(without, b)
     rep = add_rig(a, BOX, workers=1, progress=False)
     assert rep.rig == BOX and rep.n_models == 3 and 0.9 < rep.hit_ratio <= 1.0
-    r = cli(capsys, "dataset", "add-rig", b, "--rig", BOX, "--workers", "2", "-q")
+    r = cli(capsys, "dataset", "add-rig", b, "--rig", BOX, "--workers", "2")  # (no -q: it silences the summary line too)
     assert r.returncode == 0 and f"added rig {BOX}" in r.stdout
     assert hashlib.sha256(a.read_bytes()).digest() == hashlib.sha256(b.read_bytes()).digest()  # workers never matter
     with h5py.File(a) as fa, h5py.File(with_box) as fw:

@@ -14,15 +14,27 @@ import shlex
 import pytest
 import trimesh
 
-from helpers import REPO
-
 from spotlights.cli import EPILOG, build_parser, main
+
+from helpers import REPO
 
 # Commands that write nothing (info prints; add-rig extends its FILE in place, atomically).
 NO_OUTPUT = {"dataset info", "dataset add-rig"}
 # Commands that show a progress bar (or progress lines) while they work.
-PROGRESS = {"encode", "dataset build", "dataset add-rig", "real extract", "real evaluate", "real complete", "analyze density",
-            "study rigs", "train", "evaluate", "reproduce", "bench models"}
+PROGRESS = {
+    "encode",
+    "dataset build",
+    "dataset add-rig",
+    "real extract",
+    "real evaluate",
+    "real complete",
+    "analyze density",
+    "study rigs",
+    "train",
+    "evaluate",
+    "reproduce",
+    "bench models",
+}
 
 
 def _commands(parser=None, prefix="") -> dict[str, argparse.ArgumentParser]:
@@ -44,16 +56,34 @@ def _options(p: argparse.ArgumentParser) -> dict[str, argparse.Action]:
 
 
 def test_the_walk_finds_every_command():
-    assert {"encode", "decode", "show", "demo", "dataset build", "dataset info", "train", "evaluate", "complete",
-            "real extract", "real evaluate", "real show", "analyze density", "study rigs", "reproduce",
-            "bench models"} <= set(COMMANDS)
+    assert {
+        "encode",
+        "decode",
+        "show",
+        "demo",
+        "dataset build",
+        "dataset info",
+        "train",
+        "evaluate",
+        "complete",
+        "real extract",
+        "real evaluate",
+        "real show",
+        "analyze density",
+        "study rigs",
+        "reproduce",
+        "bench models",
+    } <= set(COMMANDS)
     assert PROGRESS <= set(COMMANDS) and NO_OUTPUT <= set(COMMANDS)
 
 
 @pytest.mark.parametrize("command", sorted(COMMANDS))
 def test_every_option_has_help(command):
-    missing = [a.option_strings[0] if a.option_strings else a.dest for a in COMMANDS[command]._actions
-               if not isinstance(a, argparse._SubParsersAction) and a.help is None]
+    missing = [
+        a.option_strings[0] if a.option_strings else a.dest
+        for a in COMMANDS[command]._actions
+        if not isinstance(a, argparse._SubParsersAction) and a.help is None
+    ]
     assert not missing, f"{command}: options without help text: {missing}"
 
 

@@ -122,7 +122,7 @@ def test_mc_is_reproducible():
 def test_cli_density_end_to_end(tmp_path):
     out = tmp_path / "density"
     proc = run_cli("analyze", "density", "--out", out, "--angle", "90", "60", "--mc-rays", "128", "128",
-                   "--rotations", "3", "--r-step", "0.05", "--alpha-step", "5", "-q")
+                   "--rotations", "3", "--r-step", "0.05", "--alpha-step", "5")  # (no -q: it silences the summary lines too)
     assert proc.returncode == 0, proc.stderr
     assert "min 0.03979" in proc.stdout and "max 0.05691" in proc.stdout
     for name in ("density.csv", "density_heatmap.png", "density_directional.png", "density_mc.csv",

@@ -11,11 +11,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from helpers import brute_force_first_hit
-
 from spotlights.errors import ParameterError
-from spotlights.geometry import MeshProbe, RayCaster, make_rig
-from spotlights.geometry import raycast
+from spotlights.geometry import MeshProbe, RayCaster, make_rig, raycast
+
+from helpers import brute_force_first_hit
 
 needs_embree = pytest.mark.skipif(not raycast._embree_available(), reason="embreex is not installed")
 

@@ -67,7 +67,7 @@ def fake_learning(monkeypatch, tmp_path):
 def test_cli_extract_evaluate_show(tmp_path, capsys, fake_learning):
     src = scene(tmp_path)
     out = tmp_path / "obs.h5"
-    assert main(["real", "extract", str(src), "--format", "generic", "--out", str(out), "-q"]) == 0
+    assert main(["real", "extract", str(src), "--format", "generic", "--out", str(out)]) == 0  # (no -q: it silences the summary too)
     text = capsys.readouterr().out
     assert "4 observations" in text and "objects observed in two or more frames: 2" in text
     assert "skipped boxes: class_excluded 0" in text

@@ -56,8 +56,12 @@ def register(sub) -> None:
 def _view(args) -> int:
     from pathlib import Path
 
+    from ..utils import check_writable
     from ..viz import html
+    from ._util import check_suffix
 
+    check_suffix(args.out, (".html", ".htm"), "the page (HTML)")
+    check_writable(args.out)
     html.require_plotly()
     panels, lines = [], []
     for f in args.files:

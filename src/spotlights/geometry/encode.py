@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Iterable, Sequence
 
 import numpy as np
 
@@ -77,7 +77,7 @@ class MeshProbe:
         """Nothing to release (kept for ``with MeshProbe(...)`` and older code)."""
         self.caster.close()
 
-    def __enter__(self) -> "MeshProbe":
+    def __enter__(self) -> MeshProbe:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -93,6 +93,18 @@ _POOL_LOCK = threading.Lock()
 _POOL: tuple | None = None  # (owner pid, executor, threads)
 
 
+def _forget_pool_after_fork() -> None:
+    """In a forked child: the parent's pool threads do not exist here, and the lock may have
+    been held by one of them at the fork; start from nothing."""
+    global _POOL, _POOL_LOCK
+    _POOL_LOCK = threading.Lock()
+    _POOL = None
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pool_after_fork)
+
+
 def _pool(threads: int) -> ThreadPoolExecutor | None:
     """The process-wide pool of ray-casting threads (at least ``threads``), or None at shutdown.
 
@@ -164,8 +176,13 @@ def _run_split(n: int, threads: int, cast) -> None:
                 pool.submit(job.work)
             except RuntimeError:  # interpreter shutting down: the caller casts everything
                 break
-    job.work()
-    job.done.wait()
+    try:
+        job.work()
+        job.done.wait()
+    except BaseException as exc:  # Ctrl-C while waiting: the pool threads stop claiming chunks
+        if job.error is None:
+            job.error = exc
+        raise
     if job.error is not None:
         raise job.error
 
@@ -227,12 +244,18 @@ class EmbreeEngine(RayEngine):
         self._scene.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32), query="DISTANCE")
 
     def distances(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
-        o, d = _as_rays(origins, directions)
+        return self._distances(*_as_rays(origins, directions))
+
+    def rig_distances(self, rig) -> np.ndarray:
+        return self._distances(*rig.rays32)  # already C-contiguous float32 (K, 3): no check, no copy
+
+    def _distances(self, o: np.ndarray, d: np.ndarray) -> np.ndarray:
         n = len(o)
         out = np.empty(n, dtype=np.float32)
         out.fill(np.inf)  # Embree keeps tfar (the initial value) on a miss
         run = self._scene.run
         if self.threads > 1 and n >= SPLIT_MIN_RAYS:
+
             def cast(a, b):
                 run(o[a:b], d[a:b], dists=out[a:b], query="DISTANCE")
 
@@ -278,8 +301,10 @@ class Open3DEngine(RayEngine):
         self._o3d = o3d
         self._nthreads = 0 if self.threads >= (os.cpu_count() or 1) else self.threads
         self._scene = o3d.t.geometry.RaycastingScene()
-        self._scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),
-                                  o3d.core.Tensor(np.ascontiguousarray(faces, dtype=np.uint32)))
+        self._scene.add_triangles(
+            o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),
+            o3d.core.Tensor(np.ascontiguousarray(faces, dtype=np.uint32)),
+        )
         self._rig_rays: tuple | None = None  # (rig, (K, 6) float32): the last rig's rays, kept
 
     def _cast(self, rays: np.ndarray) -> dict:
@@ -420,7 +445,7 @@ class RayCaster:
     def close(self) -> None:
         """Nothing to release (kept so ``with RayCaster(...)`` and older code keep working)."""
 
-    def __enter__(self) -> "RayCaster":
+    def __enter__(self) -> RayCaster:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -26,7 +26,8 @@ from tqdm import tqdm
 
 from ..._version import __version__
 from ...errors import InputFileError, SpotlightsError
-from ...utils import atomic_output, exclusive_lock, process_pool_context
+from ...errors import OutputFileError
+from ...utils import atomic_output, check_can_start_processes, exclusive_lock, process_map
 from ..store import FORMAT, FORMAT_VERSION, open_dataset, write_dataset
 from .catalogue import build_catalogue
 from .config import PLAN_VERSION, BuildConfig
@@ -149,10 +150,11 @@ def build_dataset(cfg: BuildConfig, out: str | os.PathLike, workers: int | None 
             return BuildReport(str(out), ds.n_models, ds.n_samples, 0, 0, 0, [], already_complete=True,
                                file_size=out.stat().st_size)
     workers = max(1, int(workers or os.cpu_count() or 1))
+    if workers > 1:
+        check_can_start_processes()  # an unguarded script fails here, before anything is written
 
     models, skipped = build_catalogue(cfg, log, progress)
-    n_models, views = len(models), cfg.views
-    block = int(block or max(1, min(250, math.ceil(views / 8))))
+    block = int(block or max(1, min(250, math.ceil(cfg.views / 8))))
     plan = {
         "plan_version": PLAN_VERSION, "config": cfg.to_dict(),
         "models": [m.entry.plan_dict() for m in models], "skipped": skipped,
@@ -161,7 +163,20 @@ def build_dataset(cfg: BuildConfig, out: str | os.PathLike, workers: int | None 
     # --- the parts folder: new, resumed, or refused --------------------------------------
     if overwrite and parts.exists():
         shutil.rmtree(parts)
+    new_parts = not parts.exists()
     parts.mkdir(parents=True, exist_ok=True)
+    try:
+        return _build_in(parts, out, cfg, models, skipped, plan, block, workers, progress, log, keep_parts, t_start)
+    except (OSError, OutputFileError):
+        # the disk refused a write (full, read-only): a parts folder this run made is removed, freeing its space
+        # (Ctrl-C, SIGTERM and other errors keep it: the next run resumes from it)
+        if new_parts:
+            shutil.rmtree(parts, ignore_errors=True)
+        raise
+
+
+def _build_in(parts, out, cfg, models, skipped, plan, block, workers, progress, log, keep_parts, t_start) -> BuildReport:
+    n_models, views = len(models), cfg.views
     # two builds never write the same shards
     with exclusive_lock(parts / ".lock", f"{parts}: another build is writing this dataset right now"):
         plan_path = parts / "plan.json"
@@ -228,23 +243,17 @@ def _run_units(pending: list, state: dict, workers: int, progress: bool, n_model
 
 def map_units(fn, items: list, state: dict, workers: int):
     """Yield ``fn(item)`` for every item: in this process when ``workers == 1`` (or one item),
-    else unordered on a pool of ``min(workers, len(items))`` processes started from a fork
-    server (``spotlights.utils.process_pool_context``), each initialised with ``state``; the
-    pool is terminated on any error or when the caller stops early."""
+    else unordered on ``min(workers, len(items))`` processes started from a fork server
+    (:func:`spotlights.utils.process_map`), each initialised with ``state``; the pool is stopped
+    on any error or when the caller stops early, a dead worker or a pool in which no unit
+    finishes within ``utils.POOL_TIMEOUT_S`` is a one-line error, never a hang."""
     if workers == 1 or len(items) <= 1:
         init_worker(state, quiet_sigint=False)
         for item in items:
             yield fn(item)
         return
-    pool = process_pool_context().Pool(min(workers, len(items)), initializer=init_worker, initargs=(state, True))
-    try:
-        yield from pool.imap_unordered(fn, items, chunksize=1)
-        pool.close()
-    except BaseException:
-        pool.terminate()
-        raise
-    finally:
-        pool.join()
+    yield from process_map(fn, items, workers, initializer=init_worker, initargs=(state, True), ordered=False,
+                           what="work unit")
 
 
 def _load_shard(path: Path, unit: tuple, state: dict) -> dict:
