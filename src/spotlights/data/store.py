@@ -179,6 +179,15 @@ def read_shard_index(path: Path) -> list[dict]:
     return shards
 
 
+def _without_extra_rigs(config_json) -> dict | None:
+    try:
+        d = json.loads(config_json)
+    except (TypeError, ValueError):
+        return None
+    d.pop("extra_rigs", None)
+    return d
+
+
 def is_shard_index(path: str | os.PathLike) -> bool:
     """True when ``path`` is a shard index (JSON) rather than an HDF5 file (looks at the first bytes)."""
     try:
@@ -226,7 +235,10 @@ class CompletionDataset:
         first = tables[0]
         for k, t in enumerate(tables[1:], 1):
             for key in ("config_json", "default_rig", "views_per_model", "sensor_json", "seed"):
-                if t["attrs"].get(key) != first["attrs"].get(key):
+                a, b = t["attrs"].get(key), first["attrs"].get(key)
+                if key == "config_json":  # an interrupted add-rig leaves some shards with one more rig
+                    a, b = _without_extra_rigs(a), _without_extra_rigs(b)
+                if a != b:
                     raise InputFileError(self.shards[k], f"shard differs from {self.shards[0].name} in {key}: "
                                                          "not a shard of the same dataset")
         self.model_offset = np.cumsum([0] + [len(t["names"]) for t in tables]).astype(np.int64)
@@ -244,6 +256,10 @@ class CompletionDataset:
         self.default_rig = str(attrs.get("default_rig", self.rig_names[0] if self.rig_names else ""))
         self.views_per_model = int(attrs.get("views_per_model", 0))
         self.config = json.loads(attrs.get("config_json", "{}"))
+        if self.sharded and self.config.get("extra_rigs"):  # only the rigs every shard holds
+            from .synthetic.config import parse_rig
+
+            self.config["extra_rigs"] = [r for r in self.config["extra_rigs"] if parse_rig(r).name in self.rig_names]
         self.sensor = json.loads(attrs.get("sensor_json", "{}"))
         self.seed = int(attrs.get("seed", 0))
         if len(self.sample_model) and (self.sample_model.min() < 0 or self.sample_model.max() >= len(self.names)):
