@@ -256,10 +256,16 @@ class CompletionDataset:
         self.default_rig = str(attrs.get("default_rig", self.rig_names[0] if self.rig_names else ""))
         self.views_per_model = int(attrs.get("views_per_model", 0))
         self.config = json.loads(attrs.get("config_json", "{}"))
-        if self.sharded and self.config.get("extra_rigs"):  # only the rigs every shard holds
+        if self.sharded:  # the extra rigs of any shard that every shard holds (an add-rig may be half done)
             from .synthetic.config import parse_rig
 
-            self.config["extra_rigs"] = [r for r in self.config["extra_rigs"] if parse_rig(r).name in self.rig_names]
+            union = []
+            for t in tables:
+                for r in json.loads(t["attrs"].get("config_json", "{}")).get("extra_rigs") or []:
+                    if r not in union and parse_rig(r).name in self.rig_names:
+                        union.append(r)
+            if "extra_rigs" in self.config:
+                self.config["extra_rigs"] = union
         self.sensor = json.loads(attrs.get("sensor_json", "{}"))
         self.seed = int(attrs.get("seed", 0))
         if len(self.sample_model) and (self.sample_model.min() < 0 or self.sample_model.max() >= len(self.names)):

@@ -15,7 +15,7 @@ import numpy as np
 import trimesh
 from tqdm import tqdm
 
-from ...distributed import DEFAULT_RETRIES, check_backend, ray_session
+from ...distributed import DEFAULT_RETRIES, check_backend, import_ray, ray_session
 from ...errors import InputFileError, ParameterError
 from ...geometry.encode import MeshProbe
 from ...geometry.frames import normalization_from_mesh
@@ -111,6 +111,8 @@ def add_rig(path: str | os.PathLike, rig: "str | Rig | RigSpec", meshes: str | o
     """
     path = Path(path)
     rig = parse_rig(rig)
+    if check_backend(backend) == "ray":
+        import_ray()  # before anything else: one line saying how to install it
     open_dataset(path).close()  # a missing or foreign file fails before a lock file is made beside it
     # Two add-rig runs on one file would each copy it and rename their copy onto it: the last
     # rename would drop the other's rig. A lock beside the file makes the second one fail.

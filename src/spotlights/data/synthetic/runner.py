@@ -25,7 +25,7 @@ from typing import Callable
 import numpy as np
 from tqdm import tqdm
 
-from ...distributed import DEFAULT_RETRIES, check_backend, ray_session
+from ...distributed import DEFAULT_RETRIES, check_backend, import_ray, ray_session
 from ...errors import InputFileError, ParameterError, SpotlightsError
 from ...utils import atomic_output, process_pool_context
 from ..store import open_dataset
@@ -161,6 +161,8 @@ def build_dataset(cfg: BuildConfig, out: str | os.PathLike, workers: int | None 
     t_start = time.perf_counter()
     log = log or default_log
     backend = check_backend(backend)
+    if backend == "ray":
+        import_ray()  # before anything else: one line saying how to install it
     cfg = cfg.validate()
     out = Path(out)
     parts = out.with_name(out.name + ".parts")
