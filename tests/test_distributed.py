@@ -229,7 +229,7 @@ def test_ray_build_resumes_after_the_driver_is_killed(meshes, local_ref, tmp_pat
     deadline = time.time() + 240
     killed = False
     while time.time() < deadline and proc.poll() is None:
-        if parts.exists() and len(list(parts.glob("obs-*.npz"))) >= 8:
+        if parts.exists() and len(list(parts.glob("obs-*.npz"))) >= 4:
             os.killpg(proc.pid, signal.SIGKILL)
             killed = True
             break
@@ -238,7 +238,7 @@ def test_ray_build_resumes_after_the_driver_is_killed(meshes, local_ref, tmp_pat
     if killed:
         assert not out.exists()
         done = len([p for p in parts.glob("*.npz") if not p.name.startswith(".")])
-        assert done >= 8
+        assert done >= 4
         r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=240)
         assert r.returncode == 0, r.stderr
         assert "resuming" in r.stderr, r.stderr
