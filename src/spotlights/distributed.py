@@ -65,7 +65,12 @@ def ray_session(address: str | None = None, workers: int | None = None) -> Itera
     except Exception as exc:  # ray.init raises bare Exceptions (e.g. a node that timed out during startup)
         where = f"connect to the Ray cluster at {address}" if address else "start a local Ray instance"
         reason = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
-        raise SpotlightsError(f"cannot {where}: {reason}") from None
+        hint = ""
+        if address and os.environ.get("RAY_AUTH_MODE", "") != "token":
+            hint = ("; if the cluster uses token authentication (Ray's default for instances started by ray.init), "
+                    "set RAY_AUTH_MODE=token and give its token (RAY_AUTH_TOKEN or ~/.ray/auth_token), see "
+                    "docs/scale-out.md")
+        raise SpotlightsError(f"cannot {where}: {reason}{hint}") from None
     try:
         yield ray
     finally:

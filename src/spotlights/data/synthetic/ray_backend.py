@@ -142,7 +142,9 @@ class RayBuild:
     """Runs a build's loading, units and shard writing on a connected Ray cluster.
 
     ray : the ``ray`` module (connected, :func:`spotlights.distributed.ray_session`).
-    workers : at most this many tasks in flight (default: the cluster's CPUs x 2).
+    workers : at most this many tasks running at once (``--workers`` with ``--ray-address``);
+        default: twice the cluster's CPUs in flight (Ray runs as many as there are CPUs, the
+        rest wait in its queue so that no CPU idles between tasks).
     retries : Ray retries of a task that fails other than by a SpotlightsError.
     """
 
@@ -152,7 +154,7 @@ class RayBuild:
         self.ray = ray
         self.retries = int(retries)
         self.cpus = cluster_cpus(ray)
-        self.in_flight = max(1, int(workers)) * 2 if workers else self.cpus * 2
+        self.in_flight = max(1, int(workers)) if workers else self.cpus * 2
         opts = dict(num_cpus=1, max_retries=self.retries, retry_exceptions=True)
         self._load = ray.remote(num_returns=2, **opts)(_load_task)
         self._unit = ray.remote(**opts)(_unit_task)
