@@ -1,15 +1,37 @@
 # The two set-up commands of the README: `make demo` and `make test`.
-# Both install everything they need into the current Python (3.11+) first.
-# torch==2.13.0 is installed on its own first: any other torch requirement that pip
-# resolves by itself may download a CUDA build of several GB.
+# Both install everything they need first, into the Python chosen here (3.11+):
+#   1. PYTHON=... on the command line: that interpreter (e.g. make test PYTHON=.venv/bin/python);
+#   2. inside an active virtual environment or conda environment: its python3;
+#   3. a python3 marked externally managed (PEP 668: Debian 12, Ubuntu 23.04 and later, whose pip
+#      refuses to install into the system Python): a project environment .venv, created on first use
+#      (`python3 -m venv .venv`) and used by every later make command;
+#   4. otherwise the python3 first on the PATH (pyenv, CI's setup-python, a container's Python).
+# torch==2.13.0 is installed on its own first: any other torch requirement that pip resolves by
+# itself may download a CUDA build of several GB.
+SYSTEM_PYTHON ?= python3
+VENV ?= .venv
+
+ifndef PYTHON
+ifeq ($(VIRTUAL_ENV)$(CONDA_PREFIX),)
+EXTERNALLY_MANAGED := $(shell $(SYSTEM_PYTHON) scripts/externally_managed.py 2>/dev/null)
+ifeq ($(EXTERNALLY_MANAGED),yes)
+PYTHON := $(VENV)/bin/python
+MAKE_VENV := $(VENV)/bin/python
+endif
+endif
+endif
 PYTHON ?= python3
 PIP := $(PYTHON) -m pip install --quiet --disable-pip-version-check
 
-.PHONY: install demo test bench
+.PHONY: install demo test bench lint format where
 
-install:
+install: $(MAKE_VENV)
 	$(PIP) torch==2.13.0
 	$(PIP) -e ".[all,test]"
+
+$(VENV)/bin/python:
+	@echo "$(SYSTEM_PYTHON) is externally managed (PEP 668): installing into a project environment $(VENV)"
+	@$(SYSTEM_PYTHON) -m venv $(VENV) || { rm -rf $(VENV); echo "make: could not create $(VENV) with '$(SYSTEM_PYTHON) -m venv' (on Debian/Ubuntu: apt install python3-venv)" >&2; exit 1; }
 
 demo: install
 	$(PYTHON) -m spotlights demo --out out/demo
@@ -19,3 +41,16 @@ test: install
 
 bench: install
 	$(PYTHON) benchmarks/encode.py
+
+# Lint and format (ruff; configured in pyproject.toml). `make test` runs the same checks once the
+# repository-wide format sweep is in.
+lint:
+	$(PYTHON) -m ruff check .
+
+format:
+	$(PYTHON) -m ruff format .
+	$(PYTHON) -m ruff check --fix .
+
+# Which interpreter the commands above use, and why.
+where:
+	@echo "PYTHON=$(PYTHON) (virtual env: $(if $(VIRTUAL_ENV)$(CONDA_PREFIX),$(VIRTUAL_ENV)$(CONDA_PREFIX),none); $(SYSTEM_PYTHON) externally managed: $(if $(EXTERNALLY_MANAGED),$(EXTERNALLY_MANAGED),not checked))"

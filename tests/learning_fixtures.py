@@ -139,6 +139,7 @@ def write_tiny_dataset(path, rigs=None, views: int = 8, layout=DEFAULT_LAYOUT, s
 # Small model arguments for fast tests (same architectures, narrower / fewer points).
 TINY_MODEL_ARGS = {
     "sanet": {"code_size": 64, "encoder_widths": [16, 32, 64], "hidden": [32]},
+    "sanet-hit": {"code_size": 64, "encoder_widths": [16, 32, 64], "hidden": [32]},
     "pcn": {"code_size": 64, "encoder_widths": [16, 32, 64], "num_coarse": 32, "grid_size": 2, "coarse_hidden": [64],
             "folding_hidden": [32]},
     "foldingnet": {"code_size": 64, "encoder_widths": [16, 32, 64], "grid": [8, 16], "hidden": [32]},

@@ -289,7 +289,7 @@ def test_box_completer_uses_each_scans_box(box_run):
 
 
 def test_box_checkpoint_in_evaluate_and_real_consistency(box_run, tmp_path, monkeypatch):
-    from spotlights.data.real import evaluate as real_eval
+    from spotlights.experiments import real_evaluation as real_eval
     from spotlights.learning.evaluate import evaluate_checkpoint
     from spotlights.learning.inference import load_completer
 
@@ -341,3 +341,30 @@ def test_bench_models_times_a_box_rig_sanet():
     rep = bench_models(["sanet"], batches=(2,), rig=SPEC, repeats=1, warmup=0, progress=False)
     lat = rep["models"][0]["latency_ms"][2]
     assert lat["forward_ms"] > 0 and lat["complete_ms"] > 0
+
+
+def test_hit_aware_sanet_on_a_box_rig(built, tmp_path):
+    """sanet-hit trains on a box rig, stores its threshold, and decodes each scan's kept rays on that scan's box."""
+    from spotlights.learning.checkpoint import load_checkpoint
+    from spotlights.learning.inference import load_completer
+    from spotlights.learning.rays import extents_from_sizes
+    from spotlights.learning.train import train
+
+    path, _ = built
+    ov = {"model": {"args": dict(TINY_MODEL_ARGS["sanet-hit"])}, "data": {"rig": BOX, "num_workers": 0},
+          "train": {"epochs": 1, "batch_size": 4, "lr": 1e-3, "precision": "fp32"}}
+    res = train("sanet-hit", path, tmp_path / "hit", overrides=ov, progress=False, log=lambda m: None)
+    assert np.isfinite(res["history"][0]["train_loss"]) and np.isfinite(res["history"][0]["val_chamfer_l1"])
+    ck = load_checkpoint(res["best"])
+    assert ck["rig"] == SPEC.to_dict() and 0 < ck["hit_threshold"]["value"] < 1
+    comp = load_completer(res["best"], device="cpu")
+    assert comp.needs_box and comp.model.threshold == ck["hit_threshold"]["value"]
+    e = extents_from_sizes([4.6, 1.9, 1.6])
+    rig = SPEC.for_box(e)
+    t = slab(rig.origins, rig.directions, e) / 2
+    hit = np.isfinite(t) & (t > 0)
+    logits = np.where(hit, 8.0, -8.0)  # p(hit) = 0.9997 on the box's rays, 0.0003 elsewhere
+    force_depths(comp.model, np.concatenate([logits, np.where(hit, t, 5.0)]))
+    out = comp.complete(np.random.default_rng(0).normal(size=(1, 256, 3)).astype(np.float32) * 0.3, extents=e[None])[0]
+    assert len(out) == hit.sum()
+    np.testing.assert_allclose(np.abs(out / e).max(1), 1.0, atol=2e-5)  # every kept ray on the box's surface

@@ -342,16 +342,6 @@ def test_cli_encode_decode_show_with_a_box_rig(tmp_path):
                       "scale")
 
 
-def test_mean_nn_distance_against_brute_force():
-    from spotlights.experiments.rig_study import mean_nn_distance
-
-    rng = np.random.default_rng(3)
-    q, ref = rng.normal(size=(300, 3)), rng.normal(size=(50, 3))
-    brute = np.linalg.norm(q[:, None] - ref[None], axis=2).min(axis=1).mean()
-    assert mean_nn_distance(q, ref) == pytest.approx(brute, rel=1e-12)
-    assert math.isnan(mean_nn_distance(q, np.zeros((0, 3))))
-
-
 def test_study_command_on_small_meshes(tmp_path):
     root = tmp_path / "shapes"
     for cat, make in (("boxes", lambda j: trimesh.creation.box(extents=[1 + j, 1, 0.5])),

@@ -167,7 +167,7 @@ def test_encode_mesh_files_same_bytes_whatever_workers(tmp_path):
     assert np.array_equal(a[1], encode_mesh(load_mesh(paths[1]), rig))
 
 
-def test_one_query_split_over_processes_gives_identical_depths():
+def test_one_query_split_over_threads_gives_identical_depths():
     mesh = trimesh.creation.icosphere(subdivisions=4, radius=0.7)
     rig = make_rig(64, 512, angle=60)  # 32,768 rays: above the split threshold
     one = MeshProbe(mesh).encode(rig)

@@ -85,3 +85,14 @@ def test_depth_l1_and_errors():
         chamfer_distance(torch.zeros(2, 5, 2), torch.zeros(2, 5, 3))
     with pytest.raises(ValueError, match="unknown"):
         chamfer_distance(torch.zeros(1, 5, 3), torch.zeros(1, 5, 3), method="octree")
+
+
+@pytest.mark.parametrize("kind", ["l1", "l2"])
+def test_losses_equal_the_numpy_metrics(pair, kind):
+    """The loss is the metric of spotlights.geometry.distances that owns the definition, per sample."""
+    from spotlights.geometry.distances import chamfer_l1, chamfer_l2
+
+    pred, target = pair
+    metric = chamfer_l1 if kind == "l1" else chamfer_l2
+    per = chamfer_distance(pred, target, kind, "kdtree", reduction="none").detach().numpy()
+    np.testing.assert_allclose(per, [metric(p.numpy(), t.numpy()) for p, t in zip(pred, target)], rtol=1e-6)

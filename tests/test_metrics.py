@@ -10,7 +10,7 @@ import pytest
 from helpers import REPO
 
 from spotlights.learning.metrics import (
-    NearestNeighbors, accuracy, chamfer_l1, chamfer_l2, completeness, evaluate_completions, fscore, hit_ratio,
+    NearestNeighbors, accuracy, chamfer_l1, chamfer_l2, completeness, evaluate_completions, fscore, kept_ratio,
     nearest_distances, summarize,
 )
 
@@ -63,11 +63,11 @@ def test_closed_forms():
     assert np.isnan(accuracy(np.zeros((0, 3)), sphere)) and fscore(np.zeros((0, 3)), sphere) == 0.0
 
 
-def test_hit_ratio():
+def test_kept_ratio():
     d = np.array([[0.0, 0.1, 0.3, 0.0], [0.5, 0.5, 0.0, 0.19]])
-    np.testing.assert_allclose(hit_ratio(d), [0.5, 0.75])
-    np.testing.assert_allclose(hit_ratio(d, threshold=0.2), [0.25, 0.5])
-    assert hit_ratio(d[0]) == 0.5
+    np.testing.assert_allclose(kept_ratio(d), [0.5, 0.75])
+    np.testing.assert_allclose(kept_ratio(d, clip=0.2), [0.25, 0.5])
+    assert kept_ratio(d[0]) == 0.5
 
 
 def test_evaluate_completions_batched_matches_per_sample():

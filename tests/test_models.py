@@ -37,6 +37,8 @@ def expected_decoder(name: str) -> int:
     """Closed-form decoder parameter counts of the default configs (docs/learning.md)."""
     if name == "sanet":
         return lin(1024, 256) + lin(256, 256) + lin(256, 2048)
+    if name == "sanet-hit":  # a hit logit and a depth per ray
+        return lin(1024, 256) + lin(256, 256) + lin(256, 2 * 2048)
     if name == "pcn":
         return 2 * lin(1024, 1024) + lin(1024, 512 * 3) + lin(1024 + 5, 512) + lin(512, 512) + lin(512, 3)
     if name == "foldingnet":
@@ -71,7 +73,7 @@ def test_default_model_shapes_and_parameter_counts(name, rig):
     x = torch.rand(2, 256, 3) * 1.1 - 0.55
     with torch.no_grad():
         out = model(x)
-    if name == "sanet":
+    if name.startswith("sanet"):
         assert out["depths"].shape == (2, 2048)
     else:
         assert out["points"].shape == (2, 2048, 3)
@@ -114,8 +116,12 @@ def test_sanet_decoding_matches_geometry_decode():
     out = model.outputs_to_points({"depths": torch.from_numpy(depths)}, 0.2)
     for b in range(3):
         keep = depths[b] >= 0.2
-        expect = rig.origins[keep] + 2 * depths[b][keep, None] * rig.directions[keep]
+        # a predicted depth is clamped to half its ray's chord through the unit sphere: P stays in the sphere
+        half_chord = -np.sum(rig.origins[keep] * rig.directions[keep], axis=1)
+        d = np.minimum(depths[b][keep], half_chord)
+        expect = rig.origins[keep] + 2 * d[:, None] * rig.directions[keep]
         np.testing.assert_allclose(out[b].numpy(), expect, atol=1e-6)
+        assert np.linalg.norm(out[b].numpy(), axis=1).max() <= 1 + 1e-6
 
 
 def test_pcn_alpha_schedule_and_fine_points_refine_coarse():
@@ -174,8 +180,10 @@ def test_configs_override_and_errors(tmp_path):
         load_config("sanet", bad)
     with pytest.raises(ParameterError, match="unknown model"):
         load_config("pointr")
-    with pytest.raises(ParameterError, match="invalid arguments"):
+    with pytest.raises(ParameterError, match="unknown key 'model.args.bogus' for model 'pcn'"):
         build_model(load_config("pcn", overrides={"model": {"args": {"bogus": 1}}}))
+    with pytest.raises(ParameterError, match="invalid arguments for model 'sanet'"):
+        build_model(load_config("sanet", overrides={"model": {"args": {"output_activation": "tanh"}}}), rig=make_rig())
     with pytest.raises(ParameterError, match="needs a rig"):
         build_model(load_config("sanet"))
 

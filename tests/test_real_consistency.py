@@ -12,7 +12,7 @@ from scipy.spatial.distance import cdist
 from spotlights.data.consistency import (aggregate, chamfer, consecutive_pairs, diversity, fidelity,
                                          minimal_matching_distance, nn_distances, track_consistency)
 from spotlights.data.real import open_reader
-from spotlights.data.real.evaluate import evaluate_consistency, write_report
+from spotlights.experiments.real_evaluation import evaluate_consistency, write_report
 from spotlights.data.real.extract import ExtractConfig, extract
 from spotlights.errors import InputFileError
 

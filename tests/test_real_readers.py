@@ -159,8 +159,8 @@ def test_generic_malformed_boxes(tmp_path):
     cases = [
         ("not json", "not valid JSON"),
         (json.dumps({"a": 1}), "expected a JSON list of boxes"),
-        (json.dumps([{"center": [0, 0, 0], "label": "car", "yaw": 0}]), "box 0 lacks 'size'"),
-        (json.dumps([{"center": [0, 0], "size": [1, 1, 1], "label": "car", "yaw": 0}]), r"box 0 center has shape \(2,\)"),
+        (json.dumps([{"center": [0, 0, 0], "label": "car", "yaw": 0}]), "box 0 has no 'size'"),
+        (json.dumps([{"center": [0, 0], "size": [1, 1, 1], "label": "car", "yaw": 0}]), r"box 0 center must be three finite numbers, got shape \(2,\)"),
         (json.dumps([{"center": [0, 0, 0], "size": [1, 1, 1], "label": "car"}]), "needs 'yaw' or 'rotation'"),
         (json.dumps([{"center": [0, 0, 0], "size": [1, 1, 1], "label": "car", "rotation": [[2, 0, 0], [0, 1, 0], [0, 0, 1]]}]),
          "not a proper rotation"),

@@ -209,13 +209,10 @@ def test_table1_sanet_accuracy_by_brute_force(quick):
 
 def test_second_run_reuses_every_step_and_publishes(quick, tmp_path):
     out = quick["out"]
-    t0 = time.perf_counter()
     proc = run_cli("reproduce", "--quick", "--out", out, "--meshes", CARS, "--category-meshes", CATEGORIES,
                    "--lidar", LIDAR, "--no-progress", "--publish", tmp_path / "pub")
-    dt = time.perf_counter() - t0
     assert proc.returncode == 0, proc.stderr
-    assert "0 step(s) run, 35 reused" in proc.stdout
-    assert dt < 30, dt
+    assert "0 step(s) run, 35 reused" in proc.stdout  # nothing recomputed (no wall-clock bound: the machine is shared)
     steps = json.loads((out / "steps.json").read_text())
     assert all(r["reused"] for r in steps["steps"].values())
     assert len(steps["invocations"]) == 2
@@ -266,12 +263,12 @@ def test_tables_3_and_4_alone_on_balls_match_the_closed_form(tmp_path):
     assert set(res.ran) == set(steps)
     # the box table's study numbers (same rig-study step) on the boxes: every ray of a box rig hits a
     # solid box; a cap rig's hit ratio is the share of its rays that pass a slab test
-    from spotlights.experiments.reproduce import (BOX_STUDY_LABELS, Context, Settings, _box_study_section,
-                                                  _box_study_values)
+    from spotlights.experiments.reproduce import BOX_STUDY_LABELS, Context, Settings
+    from spotlights.experiments.reproduce.tables.box import box_study_section, box_study_values
     from spotlights.geometry.rig import make_rig_spec
 
     ctx = Context(Settings(out=out, quick=True))
-    vals = _box_study_values(ctx)
+    vals = box_study_values(ctx)
     per_mesh = __import__("pandas").read_csv(out / "rig_study" / "per_mesh.csv")
     boxes = per_mesh[per_mesh.category == "box"]
     for rays in (2048, 4096, 8192):
@@ -289,7 +286,7 @@ def test_tables_3_and_4_alone_on_balls_match_the_closed_form(tmp_path):
             balls = per_mesh[(per_mesh.category == "ball") & (per_mesh.label == label) & (per_mesh.rays == rays)]
             assert vals[("categories", label, rays)]["hit_ratio"] == pytest.approx(
                 (np.mean(expect) + balls.hit_ratio.mean()) / 2, abs=2e-3)
-    md, rows = _box_study_section(vals, "categories", ctx)
+    md, rows = box_study_section(vals, "categories", ctx)
     assert any("`box-32x64-ellipsoid-s1`" in line for line in md) and rows
     t4 = json.loads((out / "tables" / "table4.json").read_text())["ours"]
     c = 1.0 - math.cos(math.asin(1 / math.sqrt(3)))
@@ -396,7 +393,7 @@ def test_table1_names_the_clipped_row_after_the_checkpoint_clip(monkeypatch, tmp
     """A SA-Net trained with another clip keeps its clipped row (and the checks use it)."""
     from types import SimpleNamespace
 
-    from spotlights.experiments import reproduce as rp
+    from spotlights.experiments.reproduce.tables import synthetic as rp
 
     def row(avg):
         return {"hatchback": avg, "sedan": avg, "suv": avg, "average": avg, "params_m": 1.0, "runtime_ms": 1.0,
@@ -404,7 +401,7 @@ def test_table1_names_the_clipped_row_after_the_checkpoint_clip(monkeypatch, tmp
 
     fake = {"pcn": {"pcn": row(0.03)}, "atlasnet": {"atlasnet": row(0.04)}, "foldingnet": {"foldingnet": row(0.05)},
             "topnet": {"topnet": row(0.035)}, "sanet": {"sanet (no clip)": row(0.2), "sanet (clip 0.3)": row(0.02)}}
-    monkeypatch.setattr(rp, "_eval_rows", lambda ctx, run: fake[run])
+    monkeypatch.setattr(rp, "eval_rows", lambda ctx, run: fake[run])
     ctx = SimpleNamespace(s=SimpleNamespace(schedule="budget"), records={}, run_dir=lambda r: tmp_path / r)
     t1 = rp.build_table1(ctx)
     assert "sanet (clip 0.3)" in {r["row"] for r in t1["rows"]}

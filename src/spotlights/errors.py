@@ -28,3 +28,15 @@ class InputFileError(SpotlightsError):
 
 class ParameterError(SpotlightsError, ValueError):
     """An invalid parameter value (e.g. a rig with N < 1)."""
+
+
+class OutputFileError(SpotlightsError):
+    """An output that cannot be written (read-only folder, full disk, ...): ``"PATH: problem"``."""
+
+    def __init__(self, path: str | os.PathLike, problem: str):
+        self.path = os.fspath(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}")
+
+    def __reduce__(self):
+        return (type(self), (self.path, self.problem))

@@ -1,43 +1,283 @@
-"""Small utilities shared by every layer (atomic writes)."""
+"""Small utilities shared by every layer: atomic writes (and sweeping their stale temporaries),
+an exclusive lock, process pools that fail instead of hanging."""
 
 from __future__ import annotations
 
+import ast
 import contextlib
 import os
+import re
+import sys
 import tempfile
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterable, Iterator
+
+from .errors import OutputFileError, SpotlightsError
+
+# ---------------------------------------------------------------------------- atomic writes
+
+# Temporaries are named ".NAME.PID-RANDOM.partSUFFIX" beside NAME: the PID tells a stale one
+# (its writer is gone) from one that a live process is writing right now.
+_TEMP_RE = re.compile(r"^\.(?P<name>.+)\.(?:(?P<pid>\d+)-)?[A-Za-z0-9_]+\.part(?:\.[^/]*)?$")
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's live process
+        return True
+    return True
+
+
+def sweep_temporaries(path: str | os.PathLike) -> list[Path]:
+    """Remove the stale temporaries that an interrupted write of ``path`` left beside it.
+
+    A temporary of :func:`atomic_output` is ``.NAME.PID-RANDOM.partSUFFIX`` in ``path``'s
+    folder; it is stale when the process ``PID`` no longer exists (killed, crashed, power
+    loss), or when it has no PID (written by spotlights < 0.x). Temporaries of a live process
+    (a concurrent write of the same target) are left alone. Returns the removed paths.
+    """
+    path = Path(path)
+    removed = []
+    try:
+        entries = list(os.scandir(path.parent))
+    except OSError:
+        return removed
+    prefix = f".{path.name}."
+    for entry in entries:
+        if not entry.name.startswith(prefix):
+            continue
+        m = _TEMP_RE.match(entry.name)
+        if m is None or m.group("name") != path.name:
+            continue
+        pid = m.group("pid")
+        if pid is not None and _pid_alive(int(pid)):
+            continue
+        with contextlib.suppress(OSError):
+            if entry.is_dir(follow_symlinks=False):
+                continue
+            os.unlink(entry.path)
+            removed.append(Path(entry.path))
+    return removed
+
+
+def _missing_parents(folder: Path) -> list[Path]:
+    """The folders ``mkdir(parents=True)`` would create for ``folder``, outermost first."""
+    missing = []
+    p = folder
+    while not p.exists() and p != p.parent:
+        missing.append(p)
+        p = p.parent
+    return missing[::-1]
+
+
+def _remove_empty(folders: list[Path]) -> None:
+    for d in reversed(folders):
+        with contextlib.suppress(OSError):
+            d.rmdir()  # only when empty
+
+
+def os_error_reason(exc: OSError) -> str:
+    """The reason of an OS error in a few words (``strerror``, else the first line of the message)."""
+    if exc.errno is not None and exc.strerror:
+        return exc.strerror[0].lower() + exc.strerror[1:]
+    text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    m = re.search(r"errno = (\d+)", text)  # h5py: "Can't write data (file write failed: ..., errno = 28, ...)"
+    if m:
+        return os.strerror(int(m.group(1))).lower()
+    return text[:160]
 
 
 @contextlib.contextmanager
 def atomic_output(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it onto ``path`` on success.
 
-    Nothing half-written is ever left under ``path``: if the body raises, the
-    temporary file is removed and ``path`` is untouched. The temporary name keeps
-    the target's suffix (or ``suffix``) so that writers choosing a format from the
-    extension (trimesh, matplotlib) still work.
+    Nothing half-written is ever left under ``path``: if the body raises, the temporary file
+    is removed, ``path`` is untouched and folders created for it are removed again. Stale
+    temporaries of earlier, killed writes of the same ``path`` are swept first
+    (:func:`sweep_temporaries`). The temporary name keeps the target's suffix (or ``suffix``)
+    so that writers choosing a format from the extension (trimesh, matplotlib) still work.
+
+    Raises
+    ------
+    OutputFileError : the folder cannot be created, or the file cannot be written or renamed
+        (read-only folder, no permission, full disk, ...): one line naming ``path`` and the reason.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     sfx = suffix if suffix is not None else "".join(path.suffixes[-1:])
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=f".part{sfx}", dir=path.parent)
-    os.close(fd)
-    tmp_path = Path(tmp)
-    # mkstemp creates the file 0600; give it the permissions a plain open() would (0666 & ~umask)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp_path, 0o666 & ~umask)
+    created = _missing_parents(path.parent)
+    tmp_path = None
     try:
-        yield tmp_path
-        os.replace(tmp_path, path)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            if path.is_dir():
+                raise OutputFileError(path, "is a folder, expected a file name")
+            sweep_temporaries(path)
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}-", suffix=f".part{sfx}", dir=path.parent)
+            os.close(fd)
+            tmp_path = Path(tmp)
+            # mkstemp creates the file 0600; give it the permissions a plain open() would (0666 & ~umask)
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp_path, 0o666 & ~umask)
+            yield tmp_path
+            os.replace(tmp_path, path)
+        except OSError as exc:
+            if getattr(exc, "filename", None) not in (None, str(tmp_path), str(path), str(path.parent),
+                                                      *map(str, created)):
+                raise  # about another file: the caller's own error
+            raise OutputFileError(path, f"cannot write ({os_error_reason(exc)})") from exc
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            tmp_path.unlink()
+        if tmp_path is not None:
+            with contextlib.suppress(OSError):
+                tmp_path.unlink()
+        _remove_empty(created)
         raise
 
 
-def process_pool_context():
+def check_writable(*paths: str | os.PathLike | None) -> None:
+    """Fail now, before the work, when an output cannot be written: for each path (None is
+    skipped) create and remove a temporary file in its folder, or in the nearest folder that
+    exists (nothing is created for folders that do not exist yet).
+
+    Raises :class:`OutputFileError` naming the path and the reason (read-only, no permission).
+    """
+    for path in paths:
+        if path is None:
+            continue
+        p = Path(path)
+        if p.is_dir():
+            raise OutputFileError(p, "is a folder, expected a file name")
+        folder = p.parent
+        while not folder.exists() and folder != folder.parent:
+            folder = folder.parent
+        if not folder.is_dir():
+            raise OutputFileError(p, f"{folder} is not a folder")
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.{os.getpid()}-", suffix=".part", dir=folder)
+            os.close(fd)
+            os.unlink(tmp)
+        except OSError as exc:
+            raise OutputFileError(p, f"cannot write ({os_error_reason(exc)})") from None
+
+
+@contextlib.contextmanager
+def exclusive_lock(lock_file: str | os.PathLike, busy: str) -> Iterator[None]:
+    """Hold an exclusive, non-blocking lock on ``lock_file`` (created if missing) for the body.
+
+    The one file lock of the project: two processes that must not write the same output
+    (two dataset builds into one parts folder, two ``add-rig`` runs on one file, two
+    reproductions in one folder) take the same lock file; the second fails at once with
+    :class:`~spotlights.errors.SpotlightsError` ``busy`` (a one-line message naming the path)
+    instead of waiting. The lock is released when the body ends or the process dies (``flock``);
+    the small lock file stays. Not POSIX (no ``fcntl``): no lock.
+    """
+    from .errors import SpotlightsError
+
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX: no lock
+        yield
+        return
+    with open(lock_file, "w") as fh:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            raise SpotlightsError(busy) from None
+        yield
+
+
+@contextlib.contextmanager
+def output_folder(folder: str | os.PathLike) -> Iterator[Path]:
+    """Create ``folder`` (and its parents) for the body's outputs; if the body fails, remove
+    the folders this call created as long as they are empty (nothing left behind)."""
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise OutputFileError(folder, "exists and is not a folder")
+    created = _missing_parents(folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        _remove_empty(created)
+        raise OutputFileError(folder, f"cannot create the folder ({os_error_reason(exc)})") from exc
+    try:
+        yield folder
+    except BaseException:
+        _remove_empty(created)
+        raise
+
+
+# ---------------------------------------------------------------------------- process pools
+
+# A pool in which no work unit finishes for this long is considered hung (seconds).
+POOL_TIMEOUT_S = 1800.0
+
+
+def _is_main_guard(test: ast.expr) -> bool:
+    """``__name__ == "__main__"`` (either order)."""
+    if not (isinstance(test, ast.Compare) and len(test.ops) == 1 and isinstance(test.ops[0], ast.Eq)):
+        return False
+    sides = [test.left, test.comparators[0]]
+    return (any(isinstance(s, ast.Name) and s.id == "__name__" for s in sides)
+            and any(isinstance(s, ast.Constant) and s.value == "__main__" for s in sides))
+
+
+def unguarded_main_call() -> tuple[str, int] | None:
+    """Where the main script starts worker processes outside ``if __name__ == "__main__":``.
+
+    Worker processes started with ``spawn`` or ``forkserver`` re-import the main script; code
+    at its top level that starts a pool then runs again in every worker, which dies, and a
+    ``multiprocessing.Pool`` replaces it without end. Returns ``(script, line)`` when the
+    calling stack runs the main script's top-level code outside such a guard, else None
+    (``python -m package``, interactive sessions, code under the guard, code not called
+    from the main script's top level).
+    """
+    main = sys.modules.get("__main__")
+    spec = getattr(main, "__spec__", None)
+    if main is None or (spec is not None and (spec.name == "__main__" or spec.name.endswith(".__main__"))):
+        return None
+    script = getattr(main, "__file__", None)
+    if not script:
+        return None
+    frame = sys._getframe(1)
+    while frame is not None and not (frame.f_globals is main.__dict__ and frame.f_code.co_name == "<module>"):
+        frame = frame.f_back
+    if frame is None:
+        return None
+    line = frame.f_lineno
+    try:
+        tree = ast.parse(Path(script).read_text(encoding="utf-8", errors="replace"))
+    except (OSError, SyntaxError, ValueError):
+        return None
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and _is_main_guard(node.test) and node.lineno <= line <= (node.end_lineno or line):
+            return None
+    return script, line
+
+
+def check_can_start_processes(what: str = "worker processes") -> None:
+    """Raise a one-line :class:`SpotlightsError` where starting ``what`` would respawn without end.
+
+    In a worker that is still importing the main script (the unguarded script case, seen from
+    inside), and in a main script whose top-level code starts them without the guard.
+    """
+    import multiprocessing as mp
+
+    if getattr(mp.current_process(), "_inheriting", False):
+        raise SpotlightsError(f"cannot start {what} from a worker that is importing the main script; "
+                              "put the script's code under `if __name__ == \"__main__\":`")
+    where = unguarded_main_call()
+    if where is not None:
+        script, line = where
+        raise SpotlightsError(f"{script}:{line}: this call starts {what}, which re-import the script; put the "
+                              "script's code under `if __name__ == \"__main__\":` (or use workers=1)")
+
+
+def process_pool_context(check: bool = True):
     """The multiprocessing context for pools of workers that build Embree scenes.
 
     ``forkserver`` where available (Linux), else ``spawn``; never a plain ``fork`` of the
@@ -46,9 +286,95 @@ def process_pool_context():
     does not exist, and its first BVH build can wait forever. The fork server is a fresh
     interpreter that has never run Embree (or torch), so its children start clean. Results
     do not depend on the start method. As with ``spawn`` (and Python 3.14's default), a
-    script that asks for ``workers > 1`` needs the usual ``if __name__ == "__main__":`` guard.
+    script that asks for ``workers > 1`` needs the usual ``if __name__ == "__main__":`` guard;
+    without it (``check``) this raises a one-line :class:`SpotlightsError` instead of letting
+    the pool respawn its workers without end (:func:`check_can_start_processes`).
     """
     import multiprocessing as mp
 
+    if check:
+        check_can_start_processes()
     methods = mp.get_all_start_methods()
     return mp.get_context("forkserver" if "forkserver" in methods else "spawn")
+
+
+def _quiet_worker(initializer, initargs) -> None:
+    """Pool workers leave Ctrl-C to the parent (which stops the pool), then run ``initializer``."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    if initializer is not None:
+        initializer(*initargs)
+
+
+def process_map(fn: Callable, items: Iterable, workers: int, *, initializer: Callable | None = None,
+                initargs: tuple = (), ordered: bool = True, timeout: float | None = POOL_TIMEOUT_S,
+                what: str = "work unit") -> Iterator:
+    """Yield ``fn(item)`` for every item, on ``workers`` processes (in this process for one).
+
+    For independent work units only (many meshes, dataset units, studies): results are the
+    same whatever ``workers``; ``ordered`` yields them in input order, else as they finish.
+    Never hangs and never respawns without end: a worker that dies (killed, out of memory)
+    or a pool in which no unit finishes within ``timeout`` seconds raises a one-line
+    :class:`SpotlightsError`; an exception raised by ``fn`` is re-raised here as it is
+    (a :class:`SpotlightsError` keeps its message). The pool is stopped on any error, on
+    Ctrl-C, and when the caller stops iterating early.
+    """
+    items = list(items)
+    if workers <= 1 or len(items) <= 1:
+        if initializer is not None:
+            initializer(*initargs)
+        for item in items:
+            yield fn(item)
+        return
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    from concurrent.futures.process import BrokenProcessPool
+
+    ctx = process_pool_context()
+    pool = ProcessPoolExecutor(min(workers, len(items)), mp_context=ctx, initializer=_quiet_worker,
+                               initargs=(initializer, initargs))
+    ok = False
+    try:
+        futures = {pool.submit(fn, item): i for i, item in enumerate(items)}
+        pending = set(futures)
+        ready: dict = {}
+        nxt = 0
+        while pending:
+            done, pending = wait(pending, timeout=timeout, return_when=FIRST_COMPLETED)
+            if not done:
+                raise SpotlightsError(f"no {what} finished within {timeout:.0f} s on {min(workers, len(items))} "
+                                      "worker processes: stopped (a worker hangs?)")
+            for fut in done:
+                try:
+                    res = fut.result()
+                except BrokenProcessPool:
+                    raise SpotlightsError(f"a worker process died while computing a {what} (killed, or out of "
+                                          "memory?); run again to resume, or with fewer workers") from None
+                if ordered:
+                    ready[futures[fut]] = res
+                else:
+                    yield res
+            while ordered and nxt in ready:
+                yield ready.pop(nxt)
+                nxt += 1
+        ok = True
+    finally:
+        if not ok:
+            _stop(pool)
+        else:
+            pool.shutdown(wait=True)
+
+
+def _stop(pool) -> None:
+    """Stop a ProcessPoolExecutor now: cancel what has not started, end the workers."""
+    processes = list(getattr(pool, "_processes", {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in processes:
+        with contextlib.suppress(Exception):
+            p.terminate()
+    for p in processes:
+        with contextlib.suppress(Exception):
+            p.join(5)
+            if p.is_alive():
+                p.kill()

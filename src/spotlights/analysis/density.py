@@ -124,8 +124,8 @@ def _g_azimuthal(x: np.ndarray, sa, ca) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=32)
-def _leggauss(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Cached Gauss-Legendre nodes and weights on [-1, 1] (read-only arrays)."""
+def gauss_legendre(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Cached Gauss-Legendre nodes and weights on [-1, 1]: two (n,) float64 read-only arrays (numpy's ``leggauss``)."""
     z, w = np.polynomial.legendre.leggauss(int(n))
     z.setflags(write=False)
     w.setflags(write=False)
@@ -138,7 +138,7 @@ def _gauss_cos_nodes(n: int) -> tuple[np.ndarray, np.ndarray]:
 
     Gauss-Legendre in ``t`` on [0, pi]; the weights include ``du/dt = sin(t) / 2``.
     """
-    z, w = _leggauss(n)
+    z, w = gauss_legendre(n)
     t = 0.5 * np.pi * (z + 1.0)
     u = 0.5 * (1.0 - np.cos(t))
     wu = w * 0.5 * np.pi * 0.5 * np.sin(t)

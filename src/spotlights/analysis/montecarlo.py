@@ -49,7 +49,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..errors import ParameterError
-from .density import _leggauss, rho, rho_at_points
+from .density import gauss_legendre, rho, rho_at_points
 
 __all__ = [
     "DiscPlacement", "MCResult", "RigRays", "centre_disc_expected_density", "count_disc_hits",
@@ -156,7 +156,7 @@ def _disc_average(r: float, alpha: float, radius: float, segments: int, order: i
     Returns ``(front, back)``.
     """
     vertices, faces, n = disc_mesh(r, alpha, radius, segments)
-    zs, ws = _leggauss(order)
+    zs, ws = gauss_legendre(order)
     s, wsn = 0.5 * (zs + 1.0), 0.5 * ws
     w, wwn = np.array([0.5]), np.array([1.0])
     c = vertices[0]

@@ -187,7 +187,7 @@ def run_density_analysis(out_dir: str | os.PathLike, config: DensityConfig | Non
     if out.exists() and not out.is_dir():
         raise ParameterError(f"{out}: exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
-    from . import plots
+    from ..viz import density as plots
 
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
@@ -237,9 +237,11 @@ def run_density_analysis(out_dir: str | os.PathLike, config: DensityConfig | Non
     _write_csv(out / "density.csv", header, cols, fmts)
     plots.plot_heatmaps(out / "density_heatmap.png", r_values, alpha_values, grids, r_limit=config.r_limit)
     dir_angle = 90.0 if 90.0 in angles else angles[0]
-    plots.plot_directional(out / "density_directional.png",
-                           [(0.0, 0.0), (0.5, np.radians(60.0)), (0.8, 0.0), (0.8, np.pi / 2), (0.8, np.pi)],
-                           angle=dir_angle)
+    beta = np.linspace(0.0, np.pi / 2, 121)
+    gamma = np.linspace(0.0, 2 * np.pi, 2 * 121)
+    cases = [(r, a, dens.rho_direction_grid(r, a, beta, gamma, angle=dir_angle), float(dens.rho(r, a, angle=dir_angle)))
+             for r, a in [(0.0, 0.0), (0.5, np.radians(60.0)), (0.8, 0.0), (0.8, np.pi / 2), (0.8, np.pi)]]
+    plots.plot_directional(out / "density_directional.png", cases, beta, gamma, angle=dir_angle)
     timings["csv_and_figures"] = time.perf_counter() - t
 
     # --- real rigs: hit ratios and Monte-Carlo ------------------------------------------------

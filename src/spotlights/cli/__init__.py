@@ -25,8 +25,10 @@ COMMAND_MODULES = [
     "spotlights.cli.real",  # real extract, evaluate, show
     "spotlights.cli.analyze",  # analyze density
     "spotlights.cli.study",  # study rigs
-    "spotlights.cli.learn",  # train, evaluate, complete, bench models
+    "spotlights.cli.learn",  # train, evaluate, bench models
+    "spotlights.cli.complete",  # complete (a frame with its boxes, or one object)
     "spotlights.cli.reproduce",  # reproduce (the paper's tables)
+    "spotlights.cli.view",  # view (interactive HTML page)
 ]
 
 EPILOG = """\
@@ -37,9 +39,10 @@ the representation:
   spotlights encode car.ply --out car.npz           # mesh -> Spotlights depth array (32 x 64 rays, 60 deg)
   spotlights decode car.npz --out car_points.ply    # depth array -> ordered point cloud
   spotlights show car.npz --out car.png             # look at it
+  spotlights view car.npz car.ply --out view.html   # interactive 3-D page, opens offline (rotate, zoom)
 
 completion:
-  spotlights complete scan.pcd --box box.json --out done.ply --show done.png   # your scan + its 3-D box
+  spotlights complete scan.bin --boxes boxes.json --out done.ply --show done.png   # a LiDAR frame + its 3-D boxes
   spotlights dataset build --meshes DIR --out cars.h5                          # simulated LiDAR dataset
   spotlights train --model sanet --data cars.h5 --schedule cpu                 # SA-Net or a baseline
   spotlights evaluate --data cars.h5 --checkpoint runs/sanet/best.pt           # Table 1
@@ -72,19 +75,68 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM arrived: unwinds like Ctrl-C (pools stopped, temporaries removed), exit code 143."""
+
+
+def _on_sigterm(signum, frame):
+    raise Terminated()
+
+
+def _os_error_line(exc: OSError) -> str:
+    from ..utils import os_error_reason
+
+    name = exc.filename if exc.filename is not None else None
+    reason = os_error_reason(exc)
+    return f"{name}: {reason}" if name is not None else reason
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; returns the exit code.
+
+    0 success; 2 a user error (bad file, bad parameter, an output that cannot be written: one
+    line on stderr naming the file or parameter, no traceback; argparse's usage errors keep
+    their usage block); 130 Ctrl-C; 143 SIGTERM. ``-q`` silences stdout (summary lines) as
+    well as progress bars; warnings and errors still go to stderr.
+    """
+    import contextlib
+    import os
+    import signal
+
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 0 if args.command is None else 2
+    previous = None
+    if threading_is_main():
+        previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
-        return int(args.func(args) or 0)
+        with contextlib.ExitStack() as stack:
+            if getattr(args, "quiet", False):
+                stack.enter_context(contextlib.redirect_stdout(stack.enter_context(open(os.devnull, "w"))))
+            return int(args.func(args) or 0)
     except SpotlightsError as exc:
         print(f"spotlights: error: {exc}", file=sys.stderr)
         return 2
+    except Terminated:
+        print("spotlights: terminated", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
         print("spotlights: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:
         return 0
+    except OSError as exc:  # a file the command reads or writes: one line, naming it
+        print(f"spotlights: error: {_os_error_line(exc)}", file=sys.stderr)
+        return 2
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def threading_is_main() -> bool:
+    """Signal handlers can only be installed from the main thread."""
+    import threading
+
+    return threading.current_thread() is threading.main_thread()

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from ._util import add_command, unit_interval
+from ._util import add_command, add_quiet, check_picture, check_suffix, unit_interval
+from .view import add_html_argument
 
 
 def add_rig_arguments(p: argparse.ArgumentParser) -> None:
@@ -61,10 +62,11 @@ def register(sub) -> None:
                    help="output .npz for one mesh, or a folder for several (one MESH_STEM.npz each)")
     add_rig_arguments(p)
     add_axes_arguments(p)
+    add_quiet(p, "no progress bar (several meshes)")
 
     p = add_command(sub, "decode", "turn an encoding back into its ordered point cloud",
                     "spotlights decode car.npz --out car_points.ply --frame original", _decode)
-    p.add_argument("encoding", metavar="FILE.npz")
+    p.add_argument("encoding", metavar="FILE.npz", help="an encoding written by 'spotlights encode'")
     p.add_argument("--out", "-o", required=True, metavar="CLOUD", help="output .ply, .pcd, .npy, .xyz or .txt")
     p.add_argument("--frame", choices=("original", "unit"), default="original",
                    help="original: the mesh's own frame (default); unit: the normalised unit sphere")
@@ -73,8 +75,10 @@ def register(sub) -> None:
     p = add_command(sub, "show", "render a mesh, a point cloud or an encoding to a PNG",
                     "spotlights show car.npz --out car.png", _show)
     p.add_argument("file", metavar="FILE", help="mesh, point cloud (.ply .pcd .npy .xyz) or encoding (.npz)")
-    p.add_argument("--out", "-o", default=None, metavar="PNG", help="output picture (default: ./FILE_STEM.png)")
+    p.add_argument("--out", "-o", default=None, metavar="PNG",
+                   help="output picture (default: ./FILE_STEM.png; with --html alone, no picture)")
     p.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="for encodings: depths below T count as misses")
+    add_html_argument(p)
     add_axes_arguments(p)
 
 
@@ -93,12 +97,19 @@ def _encode(args) -> int:
     if several and out.suffix.lower() == ".npz":
         raise SpotlightsError(f"{out}: several meshes need a folder for --out, not a .npz file")
     into_folder = several or out.is_dir()  # an existing folder receives MESH_STEM.npz
+    if not into_folder and out.suffix and out.suffix.lower() != ".npz":
+        raise SpotlightsError(f"--out {out}: an encoding is written as an .npz archive; name it {out.stem}.npz "
+                              "(or give a folder)")
     targets = ([out / (Path(m).stem + ".npz") for m in args.meshes] if into_folder
                else [out if out.suffix else out.with_suffix(".npz")])
     if several and len(set(targets)) != len(targets):
         raise SpotlightsError("several meshes share a file name; encode them into different folders")
+    from ..utils import check_writable
+
+    check_writable(*targets)
     meshes = [load_mesh(m, up=args.up, forward=args.forward) for m in args.meshes]  # validate all first
-    for path, mesh, target in tqdm(list(zip(args.meshes, meshes, targets)), desc="encode", unit="mesh", disable=not several):
+    for path, mesh, target in tqdm(list(zip(args.meshes, meshes, targets)), desc="encode", unit="mesh",
+                                   disable=not several or args.quiet):
         probe = MeshProbe(mesh)
         rig = probe.rig_for(spec)  # box rigs: aimed at this mesh's own box
         depths = probe.encode(rig)
@@ -112,8 +123,11 @@ def _decode(args) -> int:
     from ..geometry.encode import load_encoding
     from ..geometry.io import save_points
 
-    enc = load_encoding(args.encoding)
     from ..errors import InputFileError
+    from ..utils import check_writable
+
+    check_writable(args.out)
+    enc = load_encoding(args.encoding)
 
     pts = enc.points(frame=args.frame, clip=args.clip)
     if len(pts) == 0:
@@ -132,13 +146,27 @@ def _show(args) -> int:
     from .. import viz
     from ..errors import InputFileError
     from ..geometry.encode import load_encoding
-    from ..geometry.io import MESH_SUFFIXES, POINT_SUFFIXES, load_mesh, load_points
+    from ..geometry.io import MESH_SUFFIXES, POINT_SUFFIXES, load_mesh, load_points, ply_has_faces
 
+    check_picture(args.out)
     src = Path(args.file)
     out = Path(args.out) if args.out else Path.cwd() / (src.stem + ".png")
     suffix = src.suffix.lower()
     if not src.exists():
         raise InputFileError(src, "no such file")
+    from ..utils import check_writable
+
+    check_suffix(args.html, (".html", ".htm"), "the page (HTML)", "--html")
+    check_writable(args.out or (None if args.html else out), args.html)
+    if args.html:
+        from ..viz import html
+        from .view import write_page
+
+        traces, what = html.file_traces(src, clip=args.clip, up=args.up, forward=args.forward)
+        write_page(args.html, [(src.name, traces)], f"{src.name}: {what}", quiet=True)
+        print(f"{src}: {what} -> {args.html}")
+        if not args.out:
+            return 0
     if suffix == ".npz":
         try:
             with np.load(src, allow_pickle=False) as z:
@@ -151,25 +179,25 @@ def _show(args) -> int:
             box = "" if enc.rig.box is None else ", box half-extents " + " x ".join(f"{x:.3f}" for x in enc.rig.box)
             print(f"{src}: encoding ({enc.rig.name}{box}) -> {out}")
             return 0
-    if suffix in MESH_SUFFIXES and suffix != ".ply" or (suffix == ".ply" and _ply_has_faces(src)):
+    if suffix in MESH_SUFFIXES and suffix != ".ply" or (suffix == ".ply" and ply_has_faces(src)):
         mesh = load_mesh(src, up=args.up, forward=args.forward)
         viz.render_mesh(out, mesh, title=f"{src.name}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces")
         print(f"{src}: mesh -> {out}")
         return 0
+    if suffix == ".ply":
+        from ..viz.html import SOURCES, read_ply_fields
+
+        fields = read_ply_fields(src)
+        if "source" in fields:  # a scene from 'complete --boxes': raw grey, partial purple, completion green
+            xyz = np.stack([fields["x"], fields["y"], fields["z"]], axis=1).astype(np.float64)
+            layers = [viz.Layer(xyz[fields["source"] == code], color, f"{label} ({int((fields['source'] == code).sum())})",
+                                0.5 if code == 0 else 2.0) for code, (label, color, _) in SOURCES.items()]
+            viz.render_layers(out, layers, title=f"{src.name}: scene of {len(xyz)} points")
+            print(f"{src}: scene -> {out}")
+            return 0
     if suffix in POINT_SUFFIXES:
         pts = load_points(src)
         viz.render_layers(out, [viz.Layer(pts, "tab:blue", None, 2.0)], title=f"{src.name}: {len(pts)} points")
         print(f"{src}: point cloud -> {out}")
         return 0
     raise InputFileError(src, f"unknown file type {suffix!r} (a mesh, a point cloud or an encoding .npz)")
-
-
-def _ply_has_faces(path) -> bool:
-    """True when a PLY header declares at least one face."""
-    with open(path, "rb") as fh:
-        head = fh.read(4096).split(b"end_header")[0].decode("ascii", "replace")
-    for line in head.splitlines():
-        parts = line.split()
-        if len(parts) == 3 and parts[0] == "element" and parts[1] == "face":
-            return parts[2].isdigit() and int(parts[2]) > 0
-    return False

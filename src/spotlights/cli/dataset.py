@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from ._util import add_command, add_group, non_negative_int, positive_int, unit_interval
+from ._util import add_command, add_group, add_quiet, check_picture, check_suffix, non_negative_int, positive_int, unit_interval
+from .view import add_html_argument
 
 
 def register(sub) -> None:
@@ -24,7 +25,7 @@ def register(sub) -> None:
                    help="train/val/test: model counts (64/8/7) or fractions (0.8/0.1/0.1); default 0.81/0.1/0.09 "
                         "(= the paper's 64/8/7 for 79 models)")
     b.add_argument("--no-stratify", action="store_true", help="split over all models instead of per category")
-    b.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
+    b.add_argument("--seed", type=non_negative_int, default=0, help="root seed (default 0)")
     b.add_argument("--workers", "-j", type=positive_int, default=None, help="processes (default: all cores); never changes the result")
     b.add_argument("--rig", action="append", default=[], metavar="RIG",
                    help="extra Spotlights rig for the ground truth, repeatable: NxM[@DEG] cap rigs (e.g. --rig 64x32@60 "
@@ -70,9 +71,9 @@ def register(sub) -> None:
     r = b.add_argument_group("run")
     r.add_argument("--overwrite", action="store_true", help="replace an existing FILE and discard unfinished parts")
     r.add_argument("--resume", action="store_true", help="accept an existing complete FILE (unfinished parts resume anyway)")
-    r.add_argument("--block", type=int, default=None, help="views per work unit (default ~views/8, at most 250)")
+    r.add_argument("--block", type=positive_int, default=None, help="views per work unit (default ~views/8, at most 250)")
     r.add_argument("--keep-parts", action="store_true", help="keep FILE.parts after writing FILE")
-    r.add_argument("--quiet", "-q", action="store_true", help="no progress bars")
+    add_quiet(r, "no progress bars")
     _add_backend_options(r)
     r.add_argument("--shard-size", type=positive_int, default=None, metavar="N",
                    help="write shards of at most N samples (whole models) plus an index: give --out NAME.json; "
@@ -80,14 +81,14 @@ def register(sub) -> None:
 
     a = add_command(dsub, "add-rig", "add one more rig's ground-truth depths to an existing dataset file (no rebuild; atomic)",
                     "spotlights dataset add-rig cars.h5 --rig box-32x64-ellipsoid-s1", _add_rig)
-    a.add_argument("file", metavar="FILE")
+    a.add_argument("file", metavar="FILE", help="dataset file (.h5) to extend in place")
     a.add_argument("--rig", required=True, metavar="RIG",
                    help="NxM[@DEG] or a rig name (cap-32x64-60, box-32x64-ellipsoid-s1, box-32x64-volume-s0.9, ...)")
     a.add_argument("--meshes", default=None, metavar="DIR", action="append",
                    help="the meshes folder the dataset was built from (default: the one its config records); "
                         "repeat once per source, in the build's order, for a multi-source dataset")
     a.add_argument("--workers", "-j", type=positive_int, default=None, help="processes (default: all cores); never changes the result")
-    a.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    add_quiet(a)
     _add_backend_options(a)
 
     mg = add_command(dsub, "merge", "turn a sharded dataset (its index) into one HDF5 file (the same bytes as an unsharded build)",
@@ -95,29 +96,32 @@ def register(sub) -> None:
     mg.add_argument("file", metavar="INDEX", help="the shard index (.json) of a sharded dataset")
     mg.add_argument("--out", "-o", required=True, metavar="FILE", help="the single dataset file to write (.h5)")
     mg.add_argument("--overwrite", action="store_true", help="replace an existing FILE")
-    mg.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    add_quiet(mg)
 
     i = add_command(dsub, "info", "print a dataset's splits, categories, counts and array shapes",
                     "spotlights dataset info cars.h5 --json", _info)
-    i.add_argument("file", metavar="FILE")
+    i.add_argument("file", metavar="FILE", help="dataset file (.h5)")
     i.add_argument("--json", action="store_true", help="machine-readable output")
 
     e = add_command(dsub, "export", "write one sample (partial scan + ground truth) to an .npz",
                     "spotlights dataset export cars.h5 --split test --index 0 --out sample.npz", _export)
-    e.add_argument("file", metavar="FILE")
-    e.add_argument("--split", required=True, choices=("train", "val", "test"))
+    e.add_argument("file", metavar="FILE", help="dataset file (.h5)")
+    e.add_argument("--split", required=True, choices=("train", "val", "test"), help="split of the sample")
     e.add_argument("--index", type=int, required=True, help="sample index within the split")
-    e.add_argument("--out", "-o", required=True, metavar="SAMPLE.npz")
+    e.add_argument("--out", "-o", required=True, metavar="SAMPLE.npz",
+                   help="output .npz: partial, gt_points, gt_dense, gt_depths and the sample's metadata")
     e.add_argument("--rig", default=None, help="rig of gt_depths (default: the dataset's default rig)")
 
     s = add_command(dsub, "show", "render a sample: partial (purple), ground truth (grey), Spotlights points (green)",
                     "spotlights dataset show cars.h5 --split test --index 0 --out sample.png", _show)
-    s.add_argument("file", metavar="FILE")
-    s.add_argument("--split", default="test", choices=("train", "val", "test"))
+    s.add_argument("file", metavar="FILE", help="dataset file (.h5)")
+    s.add_argument("--split", default="test", choices=("train", "val", "test"), help="split of the sample (default test)")
     s.add_argument("--index", type=int, default=0, help="sample index within the split (default 0)")
-    s.add_argument("--out", "-o", default=None, metavar="PNG", help="output picture (default: ./SPLIT-INDEX.png)")
+    s.add_argument("--out", "-o", default=None, metavar="PNG",
+                   help="output picture (default: ./SPLIT-INDEX.png; with --html alone, no picture)")
     s.add_argument("--rig", default=None, help="rig whose points are drawn (default: the default rig)")
     s.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="depths below T count as misses")
+    add_html_argument(s)
 
 
 def _add_backend_options(group) -> None:
@@ -135,6 +139,7 @@ def _add_backend_options(group) -> None:
 def _merge(args) -> int:
     from ..data.synthetic.consolidate import merge_shards
 
+    check_suffix(args.out, (".h5", ".hdf5"), "the merged dataset (HDF5)")
     rep = merge_shards(args.file, args.out, progress=not args.quiet, overwrite=args.overwrite)
     print(f"{args.out}: {rep['n_models']} models, {rep['n_samples']} samples from {rep['n_shards']} shards, "
           f"{rep['file_size'] / 2**20:.1f} MiB")
@@ -152,18 +157,20 @@ def _distance(text: str) -> tuple[float, float]:
 
 
 def _build(args) -> int:
-    import signal
-
     from ..data.lidar import sensor_preset
     from ..data.synthetic import BuildConfig, build_dataset
     from ..data.synthetic.config import parse_range, parse_source
     from ..errors import ParameterError
 
-    def _terminate(signum, frame):  # SIGTERM: stop the workers like Ctrl-C, finished units are kept
-        raise KeyboardInterrupt
+    from ..utils import check_writable
 
-    signal.signal(signal.SIGTERM, _terminate)
+    # SIGTERM unwinds like Ctrl-C (spotlights.cli.main): the workers stop, finished units are kept
 
+    if args.shard_size:
+        check_suffix(args.out, (".json",), "the shard index of a sharded dataset (--shard-size)")
+    else:
+        check_suffix(args.out, (".h5", ".hdf5"), "the dataset (HDF5)")
+    check_writable(args.out)
     heights = None
     mount = args.mount_height
     if mount is not None and ":" in mount:
@@ -219,14 +226,9 @@ def _build(args) -> int:
 
 
 def _add_rig(args) -> int:
-    import signal
-
     from ..data.synthetic import add_rig
 
-    def _terminate(signum, frame):  # SIGTERM: stop like Ctrl-C; the file is left untouched
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, _terminate)
+    # SIGTERM unwinds like Ctrl-C (spotlights.cli.main): the file is left untouched
     rep = add_rig(args.file, args.rig, meshes=args.meshes, workers=args.workers, progress=not args.quiet,
                   backend=args.backend, ray_address=args.ray_address, retries=args.task_retries)
     if rep.already_present:
@@ -291,8 +293,11 @@ def _export(args) -> int:
     from ..errors import SpotlightsError
     from ..utils import atomic_output
 
+    from ..utils import check_writable
+
     if Path(args.out).suffix.lower() != ".npz":
         raise SpotlightsError(f"{args.out}: the sample is written as .npz; name the output FILE.npz")
+    check_writable(args.out)
     with open_dataset(args.file) as ds:
         i = _pick(ds, args.split, args.index)
         s = ds.sample(i, rig=args.rig)
@@ -313,14 +318,29 @@ def _export(args) -> int:
 def _show(args) -> int:
     from pathlib import Path
 
-    from ..data.render import render_sample
     from ..data.store import open_dataset
+    from ..viz import render_sample
 
+    from ..utils import check_writable
+
+    check_picture(args.out)
+    check_suffix(args.html, (".html", ".htm"), "the page (HTML)", "--html")
     out = Path(args.out) if args.out else Path.cwd() / f"{args.split}-{args.index}.png"
+    check_writable(args.out or (None if args.html else out), args.html)
     with open_dataset(args.file) as ds:
         i = _pick(ds, args.split, args.index)
         s = ds.sample(i, rig=args.rig)
         rig = ds.rig(s["rig"], s["model_index"])
+    what = f"{args.file}: {args.split}[{args.index}] = sample {i} ({s['model']}, view {s['view']})"
+    if args.html:
+        from ..viz import html
+        from .view import write_page
+
+        write_page(args.html, [("sample", html.sample_traces(s, rig, clip=args.clip))],
+                   f"{s['model']} ({s['category']}, {s['split']}), view {s['view']}, unit frame", quiet=True)
+        print(f"{what} -> {args.html}")
+        if not args.out:
+            return 0
     render_sample(out, s, rig, clip=args.clip)
-    print(f"{args.file}: {args.split}[{args.index}] = sample {i} ({s['model']}, view {s['view']}) -> {out}")
+    print(f"{what} -> {out}")
     return 0

@@ -1,10 +1,19 @@
-"""``spotlights real``: real LiDAR scans -> partial observations -> completions and consistency (paper Table 2)."""
+"""``spotlights real``: real LiDAR datasets -> partial observations, completed frames, consistency (paper Table 2)."""
 
 from __future__ import annotations
 
 import argparse
 
-from ._util import add_command, add_group, positive_int, unit_interval
+from ._util import (DEVICE_HELP, add_command, add_group, add_quiet, check_picture, check_suffix, non_negative_int,
+                    positive_int, unit_interval)
+from .view import add_html_argument
+
+
+FORMAT_CHOICES = ("kitti", "kitti360", "av2", "nuscenes", "generic")
+SOURCE_HELP = ("kitti: a training/ folder (velodyne[_reduced]/, label_2/, calib/); kitti360: the KITTI-360 folder; "
+               "av2: a log folder or a folder of logs; nuscenes: the folder with samples/ and the v1.0-* tables; "
+               "generic: a scan file (see --boxes), a folder of scans with NAME.json box files, or a sequence .json. "
+               "Several SOURCEs of one format are read one after another")
 
 
 def _frames_range(text: str):
@@ -23,57 +32,125 @@ def _frames_range(text: str):
 
 
 def register(sub) -> None:
-    rs = add_group(sub, "real", "real LiDAR data: extract vehicles, complete them, score consistency, draw them",
-                   "spotlights real extract ../shared/data/lidar/argoverse2 --format av2 --out av2.h5")
+    rs = add_group(sub, "real", "real LiDAR data: extract vehicles, complete whole frames, score consistency, draw them",
+                   "spotlights real extract ../shared/data/lidar/nuscenes --format nuscenes --out nuscenes.h5")
 
     p = add_command(rs, "extract", "cut the points of every vehicle box out of real scans into unit-frame partial observations (HDF5)",
                     "spotlights real extract ../shared/data/lidar/kitti-object/training --format kitti --out kitti.h5", _extract)
-    p.add_argument("source", metavar="SOURCE",
-                   help="kitti: a training/ folder (velodyne[_reduced]/, label_2/, calib/); kitti360: the KITTI-360 folder; "
-                        "av2: a log folder or a folder of logs; generic: a scene .json or a point-cloud file (see --boxes)")
-    p.add_argument("--format", "-f", required=True, choices=("kitti", "kitti360", "av2", "generic"), help="dataset format")
+    p.add_argument("source", nargs="+", metavar="SOURCE", help=SOURCE_HELP)
+    p.add_argument("--format", "-f", required=True, choices=FORMAT_CHOICES, help="dataset format")
     p.add_argument("--out", "-o", required=True, metavar="FILE.h5", help="output HDF5 of observations")
     p.add_argument("--margin", type=float, default=0.15, metavar="M", help="grow each box by M metres on the sides and top (default 0.15)")
     p.add_argument("--ground-clearance", type=float, default=0.10, metavar="M",
                    help="drop points less than M metres above the box bottom: ground returns (default 0.10)")
     p.add_argument("--min-points", type=int, default=10, metavar="K", help="skip boxes with fewer than K points (default 10)")
     p.add_argument("--points", type=int, default=256, metavar="P", help="points per observation after resampling (default 256)")
-    p.add_argument("--seed", type=int, default=0, help="resampling seed (default 0)")
-    p.add_argument("--classes", default="car,truck,caravan,trailer", help="comma-separated classes to keep (default all four)")
-    p.add_argument("--velodyne", default="auto", choices=("auto", "velodyne", "velodyne_reduced"),
-                   help="kitti: which scan folder (default: velodyne/ if present, else velodyne_reduced/)")
-    p.add_argument("--sequence", action="append", default=None, metavar="SEQ",
-                   help="kitti360: a sequence to read, e.g. 2013_05_28_drive_0000_sync (repeatable; default all)")
+    p.add_argument("--seed", type=non_negative_int, default=0, help="resampling seed (default 0)")
+    p.add_argument("--classes", default="car,truck,caravan,trailer",
+                   help="comma-separated classes to keep (default: the paper's four, car,truck,caravan,trailer; also bus, "
+                        "construction, emergency)")
+    _reader_arguments(p)
     p.add_argument("--frames", type=_frames_range, default=None, metavar="START:STOP[:STEP]", help="kitti360: frame range")
-    p.add_argument("--boxes", default=None, metavar="JSON", help="generic: the box list of a single point-cloud SOURCE (default SOURCE with .json)")
-    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    add_quiet(p)
+
+    p = add_command(rs, "complete", "complete every vehicle of every frame of a dataset: one scene PLY, JSON and picture per frame",
+                    "spotlights real complete ../shared/data/lidar/nuscenes --format nuscenes --out nuscenes_completed", _complete)
+    p.add_argument("source", nargs="+", metavar="SOURCE", help=SOURCE_HELP)
+    p.add_argument("--format", "-f", required=True, choices=FORMAT_CHOICES, help="dataset format")
+    p.add_argument("--out", "-o", required=True, metavar="DIR",
+                   help="output folder: [SEQUENCE/]FRAME.ply (x y z, source, object), FRAME.json, FRAME.png, and summary.json")
+    _reader_arguments(p)
+    p.add_argument("--frames", type=_frames_select, default=None, metavar="SPEC",
+                   help="frames to complete: START:STOP[:STEP] positions in the dataset's frame order, or frame ids separated by commas")
+    from .complete import add_completion_arguments
+
+    add_completion_arguments(p, single=False)
+    p.add_argument("--per-object", action="store_true", help="also write FRAME_objects/object_<id>.ply per completed object")
+    p.add_argument("--no-pictures", action="store_true", help="do not draw FRAME.png (faster)")
+    p.add_argument("--html", action="store_true",
+                   help="also write FRAME.html, an interactive 3-D page per frame (needs plotly); the pages share "
+                        "OUT/plotly.min.js, so copy the folder as a whole: it opens offline")
+    add_quiet(p)
 
     p = add_command(rs, "evaluate", "complete the tracked observations with each model and write the consistency table (Markdown + JSON)",
-                    "spotlights real evaluate av2.h5 --checkpoint runs/sanet.pt runs/pcn.pt --out results/av2_consistency", _evaluate)
+                    "spotlights real evaluate av2.h5 --checkpoint default runs/pcn/best.pt --out results/av2_consistency", _evaluate)
     p.add_argument("file", metavar="FILE.h5", help="observations from 'spotlights real extract'")
-    p.add_argument("--checkpoint", "-c", nargs="+", required=True, metavar="CKPT", help="one or more model checkpoints")
+    p.add_argument("--checkpoint", "-c", nargs="+", default=None, metavar="CKPT",
+                   help="one or more models: checkpoint files or short names ('default', 'paper'); default: the package's default model")
+    p.add_argument("--classes", default=None, metavar="LIST", help="score only these classes, e.g. car,truck,trailer (default: every class in the file)")
+    p.add_argument("--equal-points", type=int, default=512, metavar="N",
+                   help="also score consistency with every completion brought to N points by farthest-point sampling (default 512; 0: not)")
+    p.add_argument("--no-noise-floor", action="store_true",
+                   help="skip the resampling noise floor (each observation completed again from a second 256-point resampling)")
+    p.add_argument("--no-heading-check", action="store_true", help="skip counting heading flips (each observation completed with its box turned)")
     p.add_argument("--out", "-o", default=None, metavar="PREFIX",
                    help="writes PREFIX.md and PREFIX.json (default: FILE without .h5 + '_consistency')")
     p.add_argument("--batch-size", type=positive_int, default=64, help="completion batch size (default 64)")
     p.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="depth clip passed to the models (default: each model's own)")
-    p.add_argument("--device", default=None, help="torch device for the models (default: the loader's choice)")
+    p.add_argument("--device", default=None, help=DEVICE_HELP)
     p.add_argument("--reference", default=None, metavar="DATASET.h5",
                    help="completion dataset whose ground-truth cars are the reference set of the minimal matching "
                         "distance (MMD) reported beside consistency and fidelity (default: no MMD)")
     p.add_argument("--reference-split", default=None, choices=["train", "val", "test"],
                    help="use only this split of --reference (default: every model)")
-    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    add_quiet(p)
 
     p = add_command(rs, "show", "draw one scan: raw points (grey), partial inputs (purple), completions (green), in the sensor frame",
-                    "spotlights real show kitti.h5 --checkpoint runs/sanet.pt --frame 002155 --out kitti_002155.png", _show)
+                    "spotlights real show kitti.h5 --checkpoint runs/sanet/best.pt --frame 002155 --out kitti_002155.png", _show)
     p.add_argument("file", metavar="FILE.h5", help="observations from 'spotlights real extract'")
-    p.add_argument("--checkpoint", "-c", default=None, metavar="CKPT", help="model checkpoint (without it: no completion drawn)")
+    p.add_argument("--checkpoint", "-c", default=None, metavar="CKPT",
+                   help="model: a checkpoint file or a short name ('default', 'paper'); default: the package's default model")
+    p.add_argument("--no-completion", action="store_true", help="draw the scan and the partial inputs only (no model)")
     p.add_argument("--frame", default=None, metavar="ID", help="frame id (default: the frame with the most observations)")
     p.add_argument("--sequence", default=None, metavar="SEQ", help="sequence / log of the frame, when frame ids repeat")
     p.add_argument("--max-objects", type=int, default=6, metavar="K", help="close-ups of the K objects with most points (default 6)")
-    p.add_argument("--out", "-o", default=None, metavar="PNG", help="output picture (default: FILE_FRAME.png beside FILE)")
+    p.add_argument("--out", "-o", default=None, metavar="PNG",
+                   help="output picture (default: FILE_FRAME.png beside FILE; with --html alone, no picture)")
     p.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="depth clip passed to the model (default: its own)")
-    p.add_argument("--device", default=None, help="torch device for the model")
+    p.add_argument("--device", default=None, help=DEVICE_HELP)
+    add_html_argument(p)
+
+
+def _reader_arguments(p) -> None:
+    p.add_argument("--velodyne", default="auto", choices=("auto", "velodyne", "velodyne_reduced"),
+                   help="kitti: which scan folder (default: velodyne/ if present, else velodyne_reduced/)")
+    p.add_argument("--sequence", action="append", default=None, metavar="SEQ",
+                   help="kitti360: a sequence to read (e.g. 2013_05_28_drive_0000_sync); nuscenes: a scene name (e.g. "
+                        "scene-0523); repeatable; default all")
+    p.add_argument("--boxes", default=None, metavar="JSON",
+                   help="generic: the box file of a single scan SOURCE (default: the scan's name with .json)")
+
+
+def _frames_select(text: str):
+    """--frames of 'real complete': a START:STOP[:STEP] range of positions, or comma-separated frame ids."""
+    if ":" in text:
+        return ("range", _frames_range(text))
+    ids = [t.strip() for t in text.split(",") if t.strip()]
+    if not ids:
+        raise argparse.ArgumentTypeError(f"expected START:STOP[:STEP] or frame ids separated by commas, got {text!r}")
+    return ("ids", ids)
+
+
+def _open(args):
+    """The reader of the shared dataset options (validated)."""
+    from ..data.real import open_reader
+    from ..errors import ParameterError
+
+    options = {}
+    if args.format == "kitti":
+        options["velodyne"] = args.velodyne
+    elif args.format in ("kitti360", "nuscenes"):
+        options["sequences"] = args.sequence
+        if args.format == "kitti360" and getattr(args, "frames", None) is not None and not isinstance(args.frames[0], str):
+            options["frames"] = args.frames
+    elif args.format == "generic":
+        options["boxes"] = args.boxes
+    frames_k360 = getattr(args, "frames", None) is not None and not isinstance(args.frames[0], str)
+    for name, val, fmts in (("--velodyne", args.velodyne != "auto", ("kitti",)), ("--sequence", args.sequence, ("kitti360", "nuscenes")),
+                            ("--frames", frames_k360, ("kitti360",)), ("--boxes", args.boxes, ("generic",))):
+        if val and args.format not in fmts:
+            raise ParameterError(f"{name} applies to --format {' or '.join(fmts)} only")
+    return open_reader(args.source, args.format, **options)
 
 
 def _print_summary(obs) -> None:
@@ -94,26 +171,16 @@ def _print_summary(obs) -> None:
 
 
 def _extract(args) -> int:
-    from ..data.real import open_reader
     from ..data.real.extract import ExtractConfig, extract, write_observations
-    from ..errors import ParameterError
 
-    options = {}
-    if args.format == "kitti":
-        options["velodyne"] = args.velodyne
-    elif args.format == "kitti360":
-        options["sequences"] = args.sequence
-        options["frames"] = args.frames
-    elif args.format == "generic":
-        options["boxes"] = args.boxes
-    for name, val, fmt in (("--velodyne", args.velodyne != "auto", "kitti"), ("--sequence", args.sequence, "kitti360"),
-                           ("--frames", args.frames, "kitti360"), ("--boxes", args.boxes, "generic")):
-        if val and args.format != fmt:
-            raise ParameterError(f"{name} applies to --format {fmt} only")
+    from ..utils import check_writable
+
+    check_suffix(args.out, (".h5", ".hdf5"), "the observations file (HDF5)")
+    check_writable(args.out)
     classes = tuple(c.strip() for c in args.classes.split(",") if c.strip())
     config = ExtractConfig(margin=args.margin, ground_clearance=args.ground_clearance, min_points=args.min_points,
                            n_points=args.points, seed=args.seed, classes=classes)
-    reader = open_reader(args.source, args.format, **options)
+    reader = _open(args)
     obs = extract(reader, config, progress=not args.quiet)
     write_observations(args.out, obs)
     _print_summary(obs)
@@ -122,48 +189,76 @@ def _extract(args) -> int:
 
 
 def _load_completers(paths, device):
-    from pathlib import Path
+    from ..errors import SpotlightsError
 
-    from ..errors import InputFileError, SpotlightsError
-
-    for p in paths:
-        if not Path(p).is_file():
-            raise InputFileError(p, "checkpoint not found")
     try:
+        from ..learning.checkpoint import resolve_checkpoint
         from ..learning.inference import load_completer
     except ImportError as exc:
         raise SpotlightsError(f"model loading is not available ({exc}); install spotlights[learn]") from None
+    for p in paths:
+        resolve_checkpoint(p)  # every file or name checked before any model is loaded
     return [load_completer(p, device=device) for p in paths]
 
 
 def _evaluate(args) -> int:
     from pathlib import Path
 
-    from ..data.real.evaluate import evaluate_consistency, report_markdown, write_report
+    from ..experiments.real_evaluation import evaluate_consistency, report_markdown, write_report
     from ..data.real.extract import read_observations
 
     if args.reference_split and not args.reference:
         from ..errors import ParameterError
 
         raise ParameterError("--reference-split needs --reference DATASET.h5")
+    from ..errors import ParameterError
+    from .complete import classes_arg
+
+    if args.equal_points < 0:
+        raise ParameterError(f"--equal-points must be >= 0, got {args.equal_points}")
+    from ..utils import check_writable
+
+    prefix = args.out or str(Path(args.file).with_suffix("")) + "_consistency"
+    check_writable(prefix + ".md")
     obs = read_observations(args.file)  # validate before loading models
+    classes = classes_arg(args.classes)
+    if classes:
+        from ..data.real.base import CLASSES
+
+        bad = [c for c in classes if c not in CLASSES]
+        if bad:
+            raise ParameterError(f"unknown class(es) {', '.join(bad)}; choose among {', '.join(CLASSES)}")
     refs, ref_info = (None, None)
     if args.reference:
-        from ..data.real.evaluate import reference_shapes
+        from ..experiments.real_evaluation import reference_shapes
 
         refs, ref_info = reference_shapes(args.reference, args.reference_split)
-    completers = _load_completers(args.checkpoint, args.device)
+    checkpoints = args.checkpoint or ["default"]
+    completers = _load_completers(checkpoints, args.device)
     names = [c.model_name for c in completers]
     dup = {n for n in names if names.count(n) > 1}
     # two checkpoints of one model: tell them apart by file name, or by run folder for best.pt / last.pt
-    tag = [Path(p).parent.name if Path(p).stem in ("best", "last") else Path(p).stem for p in args.checkpoint]
+    tag = [Path(p).parent.name if Path(p).stem in ("best", "last") else Path(p).stem for p in checkpoints]
     names = [f"{n} ({t})" if n in dup else n for n, t in zip(names, tag)]
-    report = evaluate_consistency(obs, completers, names=names, checkpoints=args.checkpoint,
-                                  batch_size=args.batch_size, progress=not args.quiet, clip=args.clip,
-                                  references=refs, reference_info=ref_info)
+    from ..errors import InputFileError
+
+    try:
+        report = evaluate_consistency(obs, completers, names=names, checkpoints=checkpoints,
+                                      batch_size=args.batch_size, progress=not args.quiet, clip=args.clip,
+                                      references=refs, reference_info=ref_info, classes=classes,
+                                      equal_points=args.equal_points or None, noise_floor=not args.no_noise_floor,
+                                      heading_check=not args.no_heading_check)
+    except InputFileError as exc:
+        if exc.path != "<observations>":
+            raise
+        raise InputFileError(args.file, exc.problem) from None  # name the file the user gave
     report["data"]["file"] = str(args.file)
-    prefix = args.out or str(Path(args.file).with_suffix("")) + "_consistency"
     md, js = write_report(report, prefix)
+    from .complete import warn
+
+    warn([f"{m['name']}: {m['out_of_domain']['n_observations']} of {report['data']['n_observations_tracked']} observations "
+          "are outside what the model learned (see the report)" for m in report["models"]
+          if m.get("out_of_domain", {}).get("n_observations")])
     print(report_markdown(report).split("\n## ")[0].strip())
     print(f"wrote {md} and {js}")
     return 0
@@ -173,18 +268,27 @@ def _show(args) -> int:
     from pathlib import Path
 
     from ..data.real.extract import read_observations
-    from ..data.real.show import frame_rows, render_frame
+    from ..data.real.frames import frame_rows
     from ..errors import ParameterError
+    from ..viz import render_frame
 
     if args.max_objects < 1:
         raise ParameterError("--max-objects must be >= 1")
+    from ..utils import check_writable
+
+    check_picture(args.out)
+    check_suffix(args.html, (".html", ".htm"), "the page (HTML)", "--html")
     obs = read_observations(args.file)
     rows = frame_rows(obs, args.sequence, args.frame)
     rows = sorted(rows, key=lambda i: -int(obs.n_points_raw[i]))[: args.max_objects]
+    default_out = str(Path(args.file).with_suffix("")) + f"_{obs.frame_id[rows[0]]}.png"
+    check_writable(args.out or (None if args.html else default_out), args.html)
     completions, model = None, None
-    if args.checkpoint:
-        completer = _load_completers([args.checkpoint], args.device)[0]
-        from ..data.real.evaluate import complete_all
+    if args.no_completion and args.checkpoint:
+        raise ParameterError("--no-completion draws no model: it takes no --checkpoint")
+    if not args.no_completion:
+        completer = _load_completers([args.checkpoint or "default"], args.device)[0]
+        from ..experiments.real_evaluation import complete_all
 
         completions = complete_all(completer, obs.partial[rows], progress=False, clip=args.clip, box_sizes=obs.box_size[rows])
         model = completer.model_name
@@ -192,6 +296,127 @@ def _show(args) -> int:
     frame = obs.frame_id[i0]
     out = args.out or str(Path(args.file).with_suffix("")) + f"_{frame}.png"
     title = f"{obs.meta.get('source_format')} {obs.sequence[i0] + '/' if obs.sequence[i0] else ''}{frame}" + (f" - {model}" if model else "")
+    objects = f"{len(rows)} object{'' if len(rows) == 1 else 's'} of frame {frame}"
+    if args.html:
+        from ..viz import html
+        from ..viz.scene import frame_objects, read_frame_scan
+        from .view import write_page
+
+        scan = read_frame_scan(obs, i0)
+        write_page(args.html, [("scene", html.scene_traces(scan, frame_objects(obs, rows, completions)))], title, quiet=True)
+        print(f"wrote {args.html} ({objects}, interactive)")
+        if not args.out:
+            return 0
     render_frame(out, obs, rows, completions, title=title)
-    print(f"wrote {out} ({len(rows)} object{'' if len(rows) == 1 else 's'} of frame {frame})")
+    print(f"wrote {out} ({objects})")
+    return 0
+
+
+def _select_frames(keys, spec):
+    from ..errors import ParameterError
+
+    if spec is None:
+        return keys
+    kind, val = spec
+    if kind == "range":
+        start, stop, step = val
+        return keys[start:stop:step]
+    wanted = list(val)
+    known = {k[1] for k in keys}
+    missing = [f for f in wanted if f not in known]
+    if missing:
+        ex = ", ".join(sorted(known)[:5])
+        raise ParameterError(f"frame(s) {', '.join(missing)} not in the dataset (frames: {ex}{', ...' if len(known) > 5 else ''})")
+    return [k for k in keys if k[1] in set(wanted)]
+
+
+def _safe_name(text: str) -> str:
+    import re
+
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", str(text)).strip("._") or "frame"
+
+
+def _complete(args) -> int:
+    from ..errors import ParameterError
+    from .complete import load_model, scene_config
+
+    from ..utils import output_folder
+
+    reader = _open(args)
+    keys = _select_frames(reader.frame_keys(), args.frames)
+    if not keys:
+        raise ParameterError("--frames selects no frame")
+    config = scene_config(args, single=False)
+    completer = load_model(args.checkpoint, args.device)
+    with output_folder(args.out) as out:  # removed again if nothing could be written
+        return _complete_frames(args, reader, keys, config, completer, out)
+
+
+def _complete_frames(args, reader, keys, config, completer, out) -> int:
+    import json
+    import time
+    from pathlib import Path
+
+    from tqdm import tqdm
+
+    from ..experiments.scene import complete_scene, describe, render_result, write_scene
+    from ..utils import atomic_output
+    from .complete import warn
+
+    out = Path(out)
+    frames, warnings = [], []
+    totals = {"boxes": 0, "completed": 0, "flipped": 0, "completion_points": 0, "skipped": {}}
+    t_model = 0.0
+    t0 = time.perf_counter()
+    for key in tqdm(keys, desc="complete", unit="frame", disable=args.quiet):
+        frame = reader.load(key)
+        stem = (out / _safe_name(frame.sequence) if frame.sequence else out) / _safe_name(frame.frame_id)
+        info = dict(sequence=frame.sequence, frame_id=frame.frame_id, timestamp=frame.timestamp, scan=frame.scan_path,
+                    labels=frame.label_path)
+        if len(frame.points) < config.min_points:
+            frames.append({**info, "status": f"scan holds {len(frame.points)} points (< {config.min_points}): not completed"})
+            continue
+        result = complete_scene(frame.points, frame.boxes, completer, config, checkpoint=args.checkpoint or "default")
+        write_scene(result, stem.with_suffix(".ply"), per_object=stem.parent / (stem.name + "_objects") if args.per_object else None,
+                    scan_name=Path(frame.scan_path).name)
+        summ = {**info, **result.summary()}
+        if frame.sensor_to_world is not None:
+            summ["sensor_to_world"] = [[float(v) for v in row] for row in frame.sensor_to_world]
+        with atomic_output(stem.with_suffix(".json")) as tmp:
+            tmp.write_text(json.dumps(summ, indent=2, default=float) + "\n", encoding="utf-8")
+        seq = f"{frame.sequence}/" if frame.sequence else ""
+        if not args.no_pictures and result.completed:
+            render_result(result, stem.with_suffix(".png"), f"{reader.format} {seq}{frame.frame_id}: {result.model}")
+        if args.html:
+            import os
+
+            from ..experiments.scene import render_result_html
+            from ..viz.html import write_plotlyjs
+
+            js = os.path.relpath(write_plotlyjs(out), stem.parent).replace(os.sep, "/")
+            render_result_html(result, stem.with_suffix(".html"), f"{reader.format} {seq}{frame.frame_id}: {result.model}", js)
+        totals["boxes"] += len(result.objects)
+        totals["completed"] += len(result.completed)
+        totals["flipped"] += sum(o.flipped for o in result.completed)
+        totals["completion_points"] += sum(len(o.completion) for o in result.completed)
+        for k, v in result.skipped().items():
+            totals["skipped"][k] = totals["skipped"].get(k, 0) + v
+        t_model += result.timings.get("total_s", 0.0)
+        warnings += [f"{frame.sequence + '/' if frame.sequence else ''}{frame.frame_id} {w}" for w in result.warnings()]
+        frames.append({**info, "status": describe(result), "ply": str(stem.with_suffix(".ply")), "n_completed": len(result.completed),
+                       "n_flipped": sum(o.flipped for o in result.completed), "n_warnings": len(result.warnings())})
+    summary = dict(source=[str(s) for s in args.source], format=reader.format, model=completer.model_name,
+                   checkpoint=args.checkpoint or "default", n_frames=len(keys), totals=totals,
+                   heading_check=config.heading_check, completion_seconds=t_model, wall_seconds=time.perf_counter() - t0,
+                   warnings=warnings, frames=frames)
+    with atomic_output(out / "summary.json") as tmp:
+        tmp.write_text(json.dumps(summary, indent=2, default=float) + "\n", encoding="utf-8")
+    if len(warnings) > 10:
+        warn(warnings[:5] + [f"... and {len(warnings) - 5} more out-of-domain boxes (see {out / 'summary.json'})"])
+    else:
+        warn(warnings)
+    flips = f", {totals['flipped']} heading flip(s)" if config.heading_check else ""
+    sk = ", ".join(f"{k} {v}" for k, v in sorted(totals["skipped"].items()))
+    print(f"{len(keys)} frame(s), {totals['boxes']} boxes: {totals['completed']} completed{flips}"
+          + (f", skipped {sk}" if sk else "") + f" ({completer.model_name}, {t_model:.1f} s of completion) -> {out}/")
     return 0

@@ -55,7 +55,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry.neighbors import nearest_distances
+from ..geometry.distances import chamfer_distance, combine_directions, nearest_distances, reduce_points
+from ..geometry.neighbors import NearestNeighbors
 
 METRICS = ("cd", "cd_half", "d_ab", "d_ba", "cd_l2")
 METRIC_DOC = {
@@ -79,7 +80,8 @@ OBSERVATION_METRIC_DOC = {
 
 
 def nn_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(len(a),) float64 Euclidean distance from each point of ``a`` (K, 3) to its nearest point of ``b`` (L, 3)."""
+    """(len(a),) float64 Euclidean distance from each point of ``a`` (K, 3) to its nearest point of ``b`` (L, 3),
+    computed in float64 (:func:`spotlights.geometry.distances.nearest_distances`); ValueError when either is empty."""
     a = np.asarray(a, dtype=np.float64).reshape(-1, 3)
     b = np.asarray(b, dtype=np.float64).reshape(-1, 3)
     if len(a) == 0 or len(b) == 0:
@@ -88,16 +90,20 @@ def nn_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def chamfer(a: np.ndarray, b: np.ndarray) -> dict[str, float]:
-    """All Chamfer variants of :data:`METRICS` between point sets ``a`` (K, 3) and ``b`` (L, 3), same frame and units."""
+    """All Chamfer variants of :data:`METRICS` between point sets ``a`` (K, 3) and ``b`` (L, 3), same frame and units.
+
+    Each is one setting of :func:`spotlights.geometry.distances.chamfer_distance` (float64), from one
+    pair of nearest-neighbour queries. ValueError when either set is empty.
+    """
     dab = nn_distances(a, b)
     dba = nn_distances(b, a)
-    m_ab, m_ba = float(dab.mean()), float(dba.mean())
+    m_ab, m_ba = reduce_points(dab), reduce_points(dba)
     return {
-        "cd": m_ab + m_ba,
-        "cd_half": 0.5 * (m_ab + m_ba),
+        "cd": combine_directions(m_ab, m_ba, "sum"),
+        "cd_half": combine_directions(m_ab, m_ba, "mean"),
         "d_ab": m_ab,
         "d_ba": m_ba,
-        "cd_l2": float(np.mean(dab * dab) + np.mean(dba * dba)),
+        "cd_l2": combine_directions(reduce_points(dab * dab), reduce_points(dba * dba), "sum"),
     }
 
 
@@ -108,7 +114,7 @@ def fidelity(partial: np.ndarray, completion: np.ndarray) -> float:
     c = np.asarray(completion, dtype=np.float64).reshape(-1, 3)
     if len(c) == 0 or len(p) == 0:
         return float("nan")
-    return float(nn_distances(p, c).mean())
+    return chamfer_distance(p, c, single_directional=True)
 
 
 def minimal_matching_distance(completion: np.ndarray, references) -> tuple[float, int]:
@@ -121,23 +127,21 @@ def minimal_matching_distance(completion: np.ndarray, references) -> tuple[float
     completion alone, so references are visited in increasing order of that bound and the search
     stops when the bound exceeds the best distance so far.
     """
-    from ..geometry.neighbors import NearestNeighbors
-
     c = np.asarray(completion, dtype=np.float64).reshape(-1, 3)
     if len(c) == 0:
         return float("nan"), -1
     trees = [r if isinstance(r, NearestNeighbors) else NearestNeighbors(np.asarray(r, dtype=np.float64)) for r in references]
     if not trees:
         raise ValueError("the minimal matching distance needs at least one reference shape")
-    lower = np.array([float(t.query(c)[0].mean()) for t in trees])  # one side of each Chamfer
+    lower = np.array([chamfer_distance(c, t, single_directional=True) for t in trees])  # one side of each Chamfer
     best, arg = float("inf"), -1
     ctree = NearestNeighbors(c)
     for r in np.argsort(lower, kind="stable"):
         if lower[r] >= best:
             break
-        other = float(ctree.query(trees[r].points)[0].mean())
-        if lower[r] + other < best:
-            best, arg = float(lower[r] + other), int(r)
+        cd = combine_directions(lower[r], chamfer_distance(trees[r], ctree, single_directional=True), "sum")
+        if cd < best:
+            best, arg = float(cd), int(r)
     return best, arg
 
 
@@ -146,7 +150,7 @@ def diversity(completions, object_keys, timestamps) -> tuple[float, int]:
     (unsquared, sum of the two one-sided means) over all pairs of distinct objects, each object
     represented by its earliest non-empty completion, in the unit frames as given.
 
-    ``completions``: n arrays (K_i, 3); ``object_keys``: n hashables; ``timestamps``: (n,) ints.
+    ``completions``: n arrays (K_i, 3); ``object_keys``: n hashables; ``timestamps``: (n,) numbers (ints or floats, compared as given).
     Returns (mean, number of objects); (NaN, count) with fewer than two objects. A model that
     outputs one template whatever its input has diversity ~0 and a trivially perfect
     consistency; ``all_objects cd / diversity`` compares how much a completion moves for the
@@ -157,7 +161,7 @@ def diversity(completions, object_keys, timestamps) -> tuple[float, int]:
     for i, k in enumerate(object_keys):
         if len(completions[i]) == 0:
             continue
-        if k not in first or (int(ts[i]), i) < (int(ts[first[k]]), first[k]):
+        if k not in first or (ts[i], i) < (ts[first[k]], first[k]):
             first[k] = i
     rows = sorted(first.values())
     if len(rows) < 2:
@@ -170,7 +174,7 @@ def consecutive_pairs(object_keys, timestamps) -> list[tuple[int, int]]:
     """Pairs (i, j) of rows that are consecutive observations of the same object.
 
     ``object_keys`` (n hashables: e.g. (sequence, track_id)) and ``timestamps``
-    (n ints). Rows of an object are ordered by (timestamp, row); objects seen
+    (n numbers, ints or floats: 0.25 and 0.5 stay apart). Rows of an object are ordered by (timestamp, row); objects seen
     once give no pair. Pairs are returned sorted by (first row's object order, time).
     """
     groups: dict = defaultdict(list)
@@ -179,7 +183,7 @@ def consecutive_pairs(object_keys, timestamps) -> list[tuple[int, int]]:
     ts = np.asarray(timestamps)
     pairs = []
     for k in sorted(groups, key=lambda k: groups[k][0]):
-        rows = sorted(groups[k], key=lambda i: (int(ts[i]), i))
+        rows = sorted(groups[k], key=lambda i: (ts[i], i))
         pairs.extend(zip(rows[:-1], rows[1:]))
     return pairs
 
@@ -204,7 +208,7 @@ def track_consistency(completions, object_keys, timestamps, classes, radii,
     ----------
     completions : n arrays (K_i, 3), unit frame of observation i (K_i may differ, may be 0).
     object_keys : n hashables identifying the object (tracks with one row are ignored).
-    timestamps : (n,) ints ordering the observations of a track.
+    timestamps : (n,) numbers (ints or floats, never cut) ordering the observations of a track.
     classes : n class names (a track's class is that of its first observation).
     radii : (n,) float, R_i = half the box diagonal of observation i, metres.
 

@@ -49,7 +49,8 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from ..errors import ParameterError
-from ..geometry.frames import Normalization, yaw_rotation
+from ..geometry.frames import Normalization
+from ..geometry.rotations import rotation_z
 from ..geometry.raycast import RayCaster
 
 
@@ -247,7 +248,7 @@ class LidarSimulator:
     def object_to_sensor(self, pose: VehiclePose) -> np.ndarray:
         """(4, 4) float64 homogeneous transform object frame -> sensor frame for ``pose``."""
         m = np.eye(4)
-        r = yaw_rotation(pose.heading)
+        r = rotation_z(pose.heading)
         m[:3, :3] = r
         m[:3, 3] = self.box_center_in_sensor(pose) - r @ self.center
         return m
@@ -259,7 +260,7 @@ class LidarSimulator:
         box diagonal: the same unit frame as the mesh's ground truth.
         """
         return Normalization(center=self.box_center_in_sensor(pose), radius=0.5 * float(np.linalg.norm(self.size)),
-                             rotation=yaw_rotation(pose.heading), size=self.size)
+                             rotation=rotation_z(pose.heading), size=self.size)
 
     # --- scanning ----------------------------------------------------------------------------
     def window(self, pose: VehiclePose) -> tuple[np.ndarray, np.ndarray]:
@@ -301,7 +302,7 @@ class LidarSimulator:
     def _sensor_in_object(self, pose: VehiclePose) -> np.ndarray:
         """(3,) float64 sensor optical centre in the object frame."""
         b = self.box_center_in_sensor(pose)
-        return yaw_rotation(pose.heading).T @ (-b) + self.center
+        return rotation_z(pose.heading).T @ (-b) + self.center
 
     def scan(self, pose: VehiclePose, rng: np.random.Generator, timings: dict | None = None) -> Scan:
         """Simulate one scan of the vehicle at ``pose``.

@@ -5,7 +5,8 @@ For every mesh of one or more folders and every rig of a list:
 * normalise the mesh by its own axis-aligned box (the paper's step 1),
 * encode it (one Embree call per rig; box rigs are built for the mesh's box),
 * ``hit_ratio`` = rays with a hit / all rays of the rig,
-* ``completeness`` = :func:`mean_nn_distance` from 16,384 points sampled uniformly
+* ``completeness`` = :func:`~spotlights.geometry.distances.completeness`: the mean
+  distance from 16,384 points sampled uniformly
   (by area) on the mesh surface to the decoded hit points, both in the unit frame
   (the paper's Section 5.3 completeness: one-sided, not squared, mean over the
   surface samples; lower is better).
@@ -29,11 +30,12 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import ParameterError, SpotlightsError
+from ..geometry.distances import completeness
+from ..geometry.io import MESH_SUFFIXES
 from ..geometry.rig import RigSpec, make_rig_spec
 from ..utils import atomic_output
 
 CARS = "apolloscape-cars"
-MESH_SUFFIXES = (".ply", ".obj", ".off", ".stl", ".glb", ".gltf")
 DEFAULT_RAYS = (2048, 4096, 8192)
 SECONDARY = 64  # M; N = rays / M (the paper's 32 x 64 at 2048 rays)
 N_SURFACE = 16384
@@ -61,30 +63,6 @@ BOX_RIGS = (
     ("box ellipsoid s1", dict(kind="box", targets="ellipsoid", scale=1.0)),
     ("box ellipsoid s1 + cap 25%", dict(kind="box", targets="ellipsoid", scale=1.0, cap_share=0.25, angle=60.0)),
 )
-
-
-def mean_nn_distance(query: np.ndarray, reference: np.ndarray) -> float:
-    """One-sided mean nearest-neighbour distance from ``query`` to ``reference``.
-
-    ``mean_q min_r |q - r|`` (Euclidean, not squared), a KD-tree on ``reference``.
-    With ``query`` = dense surface samples and ``reference`` = Spotlights points it
-    is the paper's completeness.
-
-    Parameters
-    ----------
-    query : (Q, 3) float points.
-    reference : (K, 3) float points, same frame and units.
-
-    Returns
-    -------
-    float, in the points' units; ``nan`` when ``reference`` is empty.
-    """
-    from ..geometry.neighbors import mean_nearest_distance
-
-    if len(np.asarray(reference).reshape(-1, 3)) == 0:
-        return float("nan")
-    return mean_nearest_distance(np.asarray(query, dtype=np.float64).reshape(-1, 3),
-                                 np.asarray(reference, dtype=np.float64).reshape(-1, 3))
 
 
 @dataclass(frozen=True)
@@ -156,7 +134,8 @@ def find_meshes(folders: Sequence, min_per_category: int = MIN_PER_CATEGORY) -> 
     return entries
 
 
-def _mesh_axes(path: Path) -> dict:
+def mesh_axes(path: Path) -> dict:
+    """Keyword arguments of :func:`~spotlights.geometry.io.load_mesh` for a mesh file of the study: ``up="y"`` for glTF."""
     # glTF is y-up by its specification; other formats are read as they are (z up).
     return {"up": "y"} if path.suffix.lower() in (".glb", ".gltf") else {}
 
@@ -173,7 +152,7 @@ def evaluate_mesh(entry: MeshEntry, rigs: Sequence[StudyRig], seed: int = 0, n_s
     from ..geometry.io import load_mesh
     from ..geometry.sampling import sample_surface
 
-    mesh = load_mesh(entry.path, **_mesh_axes(entry.path))
+    mesh = load_mesh(entry.path, **mesh_axes(entry.path))
     probe = MeshProbe(mesh)
     mesh_seed = (int(seed) << 32) ^ zlib.crc32(f"{entry.mesh_set}/{entry.mesh_id}".encode())
     surface = probe.normalization.to_unit(sample_surface(mesh, n_surface, mesh_seed))
@@ -187,7 +166,8 @@ def evaluate_mesh(entry: MeshEntry, rigs: Sequence[StudyRig], seed: int = 0, n_s
             "mesh_set": entry.mesh_set, "category": entry.category, "mesh": entry.mesh_id,
             "rig": r.spec.name, "label": r.label, "family": r.family, "rays": rig.n_rays,
             "hits": hits, "hit_ratio": hits / rig.n_rays,
-            "completeness": mean_nn_distance(surface, points[mask]),
+            # float64 queries: the distances do not depend on the decoded points' float32
+            "completeness": completeness(np.asarray(points[mask], dtype=np.float64), np.asarray(surface, dtype=np.float64)),
         })
     return rows
 
@@ -213,6 +193,10 @@ def _job(args):
     except SpotlightsError as exc:  # a plain SpotlightsError crosses process boundaries (pickles) intact
         raise SpotlightsError(str(exc)) from None
     if cache is not None:
+        ignore = cache.parent.parent / ".gitignore"
+        if not ignore.exists():
+            with atomic_output(ignore, suffix="") as tmp:  # a cache inside a checkout stays out of git
+                Path(tmp).write_text("*\n")
         with atomic_output(cache, suffix=".json") as tmp:
             Path(tmp).write_text(json.dumps(rows))
     return rows
@@ -231,9 +215,7 @@ def run_study(meshes: Sequence[MeshEntry], rigs: Sequence[StudyRig], seed: int =
 
     cache = None
     if cache_dir is not None:
-        cache = Path(cache_dir) / _config_key(rigs, seed, n_surface)
-        cache.mkdir(parents=True, exist_ok=True)
-        (Path(cache_dir) / ".gitignore").write_text("*\n")  # a cache inside a checkout stays out of git
+        cache = Path(cache_dir) / _config_key(rigs, seed, n_surface)  # created with its first result
 
     def cache_file(e: MeshEntry):
         if cache is None:
@@ -243,18 +225,11 @@ def run_study(meshes: Sequence[MeshEntry], rigs: Sequence[StudyRig], seed: int =
     jobs = [(e, list(rigs), seed, n_surface, cache_file(e)) for e in meshes]
     results = []
     with tqdm(total=len(jobs), desc="rig study", unit="mesh", disable=not progress) as bar:
-        if workers > 1 and len(jobs) > 1:
-            from ..utils import process_pool_context
+        from ..utils import process_map
 
-            ctx = process_pool_context()
-            with ctx.Pool(min(workers, len(jobs))) as pool:
-                for rows in pool.imap(_job, jobs):
-                    results.append(rows)
-                    bar.update()
-        else:
-            for job in jobs:
-                results.append(_job(job))
-                bar.update()
+        for rows in process_map(_job, jobs, workers, what="mesh"):
+            results.append(rows)
+            bar.update()
     return pd.DataFrame([row for rows in results for row in rows])
 
 
@@ -371,45 +346,13 @@ def markdown_report(summary, meshes: Sequence[MeshEntry], seed: int, n_surface: 
 
 def plot_study(path, summary) -> Path:
     """Completeness against hit ratio, one panel per mesh set, one marker per rig and ray count (PNG)."""
-    from ..viz import _pyplot
+    from ..viz.study import plot_rig_study
 
-    plt = _pyplot()
-    sets = list(dict.fromkeys(summary.mesh_set))
-    fig, axes = plt.subplots(1, len(sets), figsize=(6.5 * len(sets) + 2.0, 5.0), squeeze=False)
-    markers = {r: m for r, m in zip(sorted(summary.rays.unique()), "os^Dv")}
-    # one colour family per target set (cap rigs: blues), shaded by variant
-    fam = {}
-    for label, rig in dict.fromkeys(zip(summary.label, summary.rig)):
-        spec = RigSpec.from_name(rig)
-        fam.setdefault(spec.targets or "cap", []).append(label)
-    cmaps = {"cap": "Blues", "volume": "Greens", "surface": "Purples", "visible": "Oranges", "ellipsoid": "Reds"}
-    colors = {}
-    for key, labels in fam.items():
-        for j, label in enumerate(labels):
-            colors[label] = plt.get_cmap(cmaps.get(key, "Greys"))(0.35 + 0.55 * j / max(len(labels) - 1, 1))
-    for ax, mesh_set in zip(axes[0], sets):
-        sub = summary[(summary.mesh_set == mesh_set) & (summary.category == "all")]
-        for _, r in sub.iterrows():
-            ax.scatter(r.hit_ratio, r.completeness, marker=markers[r.rays], color=colors[r.label], s=40,
-                       edgecolors="black" if r.family == "paper" else "none",
-                       label=r.label if r.rays == min(markers) else None)
-            if r.rig in (f"cap-{r.rays // SECONDARY}x{SECONDARY}-{REFERENCE_CAP_ANGLE:g}", default_box_spec(r.rays).name):
-                ax.annotate(f"{r.rays}: {r.label}", (r.hit_ratio, r.completeness), fontsize=7,
-                            xytext=(5, 3), textcoords="offset points")
-        for rays in markers:
-            ax.plot([], [], marker=markers[rays], color="gray", ls="none", label=f"{rays} rays")
-        ax.axvline(HIT_RATIO_FLOOR, color="gray", ls=":", lw=1)
-        ax.set_xlabel("hit ratio")
-        ax.set_ylabel("completeness (unit frame, lower is better)")
-        ax.set_title(mesh_set)
-        ax.grid(alpha=0.3)
-    handles, labels = axes[0][0].get_legend_handles_labels()
-    fig.legend(handles, labels, fontsize=7, loc="center right")
-    fig.tight_layout(rect=(0, 0, 0.85, 1))
-    with atomic_output(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
-    return Path(path)
+    def reference(r) -> bool:  # the paper's 60-degree cap and the default box rig at each ray count
+        return r.rig in (f"cap-{r.rays // SECONDARY}x{SECONDARY}-{REFERENCE_CAP_ANGLE:g}", default_box_spec(r.rays).name)
+
+    return plot_rig_study(path, summary, annotate=reference, floor=HIT_RATIO_FLOOR,
+                          floor_note="the best box variant is chosen among the rigs at or above it")
 
 
 @dataclass
@@ -436,14 +379,16 @@ def rig_study(out_dir, mesh_dirs: Sequence, rays: Sequence[int] = DEFAULT_RAYS, 
     workers : processes over meshes (results do not depend on it).
     variants : ``(label, make_rig_spec kwargs)`` pairs (default ``PAPER_RIGS + BOX_RIGS``).
     """
+    from ..utils import output_folder
+
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     meshes = find_meshes(mesh_dirs)
     if not meshes:
         raise SpotlightsError("no category has enough meshes for the study")
     rigs = study_rigs(rays, variants=variants)
-    df = run_study(meshes, rigs, seed=seed, n_surface=n_surface, workers=workers, cache_dir=out / ".cache",
-                   progress=progress)
+    with output_folder(out):  # created now, removed again if the study fails before writing anything
+        df = run_study(meshes, rigs, seed=seed, n_surface=n_surface, workers=workers, cache_dir=out / ".cache",
+                       progress=progress)
     summary = summarize(df)
     paths = StudyResult(out / "rigs.csv", out / "rigs_per_mesh.csv.gz", out / "rigs.md", out / "rigs.png", summary)
     with atomic_output(paths.csv, suffix=".csv") as tmp:

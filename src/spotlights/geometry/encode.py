@@ -34,10 +34,9 @@ class MeshProbe:
     normalization : source -> unit transform; default: the mesh's axis-aligned box
         and its circumscribed sphere (the paper's step 1).
     engine : ray engine name (see :class:`~spotlights.geometry.raycast.RayCaster`).
-    workers : processes sharing each query (default 1: this process only). With 2, rigs of
-        at least ``raycast.PARALLEL_MIN_RAYS`` rays are shared with a helper process forked
-        once with the BVH; the depths are the same bytes (see ``RayCaster``). Use
-        ``with MeshProbe(...) as probe:`` or :meth:`close` to stop the helper early.
+    workers : threads sharing each query (default 1). With 2, rigs of at least
+        ``raycast.SPLIT_MIN_RAYS`` rays are cast by two threads over the one BVH; the depths
+        are the same bytes (see :class:`~spotlights.geometry.raycast.RayCaster`).
     """
 
     def __init__(self, mesh, normalization: Normalization | None = None, engine: str | None = None, workers: int = 1):
@@ -71,11 +70,11 @@ class MeshProbe:
         keep that rig (``rig_for(spec)``) to decode the depths.
         """
         # half the first-hit distance; misses, and hits beyond the ray's chord through the
-        # unit sphere, become 0 (raycast.to_depths, applied chunk by chunk by each process)
+        # unit sphere, become 0 (raycast.to_depths)
         return self.caster.rig_depths(self.rig_for(rig))
 
     def close(self) -> None:
-        """Stop the helper process of ``workers > 1`` (if started); the probe stays usable."""
+        """Nothing to release (kept for ``with MeshProbe(...)`` and older code)."""
         self.caster.close()
 
     def __enter__(self) -> "MeshProbe":
@@ -123,6 +122,10 @@ def encode_meshes(meshes: Iterable, rigs: Rig | RigSpec | Sequence, normalizatio
     return out
 
 
+# Default threads of encode_mesh_files (measured: docs/benchmarks.md, benchmarks/encode.py).
+FILE_WORKERS = 2
+
+
 def _encode_file(job):
     from .io import load_mesh
 
@@ -131,13 +134,16 @@ def _encode_file(job):
     return [probe.encode(r) for r in rigs]
 
 
-def encode_mesh_files(paths: Sequence, rigs: Rig | RigSpec | Sequence, workers: int = 1, up: str = "z",
+def encode_mesh_files(paths: Sequence, rigs: Rig | RigSpec | Sequence, workers: int | None = None, up: str = "z",
                       forward: str = "x") -> dict[str, np.ndarray]:
-    """Load and encode mesh files, in parallel over meshes with ``workers`` processes.
+    """Load and encode mesh files, over meshes with ``workers`` threads.
 
     Each mesh is normalised by its own bounding box (box specs are resolved for it).
     The result does not depend on ``workers`` (files are processed independently and
-    returned in input order).
+    returned in input order). Threads, not processes: Embree releases the GIL while it
+    casts, so one thread encodes while another loads, with no process to start and no
+    ``if __name__ == "__main__":`` guard needed. Default ``workers``: :data:`FILE_WORKERS`
+    (the faster choice measured on the 79 ApolloScape cars, docs/benchmarks.md).
 
     Returns
     -------
@@ -145,12 +151,14 @@ def encode_mesh_files(paths: Sequence, rigs: Rig | RigSpec | Sequence, workers: 
     """
     rigs = [rigs] if isinstance(rigs, (Rig, RigSpec)) else list(rigs)
     jobs = [(os.fspath(p), rigs, up, forward) for p in paths]
-    if workers > 1 and len(jobs) > 1:
-        from ..utils import process_pool_context
+    workers = min(FILE_WORKERS if workers is None else int(workers), len(jobs))
+    if workers < 1 and jobs:
+        raise ParameterError(f"workers must be >= 1, got {workers}")
+    if workers > 1:
+        from concurrent.futures import ThreadPoolExecutor
 
-        ctx = process_pool_context()
-        with ctx.Pool(min(workers, len(jobs))) as pool:
-            results = pool.map(_encode_file, jobs, chunksize=max(1, len(jobs) // (4 * workers)))
+        with ThreadPoolExecutor(workers, thread_name_prefix="spotlights-encode") as pool:
+            results = list(pool.map(_encode_file, jobs))
     else:
         results = [_encode_file(j) for j in jobs]
     return {r.name: np.stack([res[j] for res in results]) if results else np.zeros((0, r.n_rays), np.float32)
@@ -182,6 +190,9 @@ def decode(depths: np.ndarray, rig: Rig | RigSpec, clip: float | None = None,
     -------
     points : (..., N*M, 3) float32, unit frame; misses are placed at their ray origin.
     mask : (..., N*M) bool, True where the ray hit (and passed the clip).
+
+    Kept depths are clamped to half their ray's chord through the unit sphere, so every point
+    lies in the sphere (predicted depths can exceed it; encoded ones cannot).
     """
     d = np.asarray(depths, dtype=np.float64)
     if d.shape[-1:] != (rig.n_rays,):
@@ -200,7 +211,11 @@ def decode(depths: np.ndarray, rig: Rig | RigSpec, clip: float | None = None,
     mask = d > 0.0
     if clip is not None:
         mask &= d >= float(clip)
-    dist = np.where(mask, 2.0 * d, 0.0)[..., None]
+    # A depth is clamped to half the ray's chord through the unit sphere (<= 1): no decoded point
+    # leaves the sphere, whatever a network predicted; encoded depths never exceed it (a ray from
+    # the sphere meets the object, which lies inside it, before leaving the sphere).
+    half_chord = np.maximum(-np.einsum("...j,...j->...", np.broadcast_to(origins, directions.shape), directions), 0.0)
+    dist = np.where(mask, 2.0 * np.minimum(d, half_chord), 0.0)[..., None]
     points = origins + dist * directions
     return points.astype(np.float32), mask
 

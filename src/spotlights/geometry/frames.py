@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ParameterError
+from .rotations import rotation_z
 
 
 @dataclass(frozen=True, eq=False)
@@ -116,12 +117,6 @@ def normalization_from_mesh(mesh) -> Normalization:
     return normalization_from_points(np.asarray(mesh.vertices))
 
 
-def yaw_rotation(yaw: float) -> np.ndarray:
-    """(3, 3) rotation by ``yaw`` radians about +z (box x axis at angle ``yaw`` from source x)."""
-    c, s = math.cos(yaw), math.sin(yaw)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 def normalization_from_box(center, size, yaw: float = 0.0, rotation=None) -> Normalization:
     """Normalisation from an oriented box as a 3-D detector gives it.
 
@@ -139,7 +134,7 @@ def normalization_from_box(center, size, yaw: float = 0.0, rotation=None) -> Nor
     size = np.asarray(size, dtype=np.float64).reshape(3)
     if not np.all(np.isfinite(size)) or np.any(size < 0) or not np.any(size > 0):
         raise ParameterError(f"box size must be finite, non-negative and not all zero, got {size.tolist()}")
-    rot = yaw_rotation(float(yaw)) if rotation is None else np.asarray(rotation, dtype=np.float64)
+    rot = rotation_z(float(yaw)) if rotation is None else np.asarray(rotation, dtype=np.float64)
     return Normalization(center=center, radius=0.5 * float(np.linalg.norm(size)), rotation=rot, size=size)
 
 
@@ -151,7 +146,7 @@ def box_corners(center, size, yaw: float = 0.0, rotation=None) -> np.ndarray:
     ``s_j = (±1, ±1, ±1)``.
     """
     size = np.asarray(size, dtype=np.float64).reshape(3)
-    rot = yaw_rotation(float(yaw)) if rotation is None else np.asarray(rotation, dtype=np.float64)
+    rot = rotation_z(float(yaw)) if rotation is None else np.asarray(rotation, dtype=np.float64)
     j = np.arange(8)
     signs = np.stack([(j >> b & 1) * 2 - 1 for b in range(3)], axis=1).astype(np.float64)
     return np.asarray(center, dtype=np.float64).reshape(3) + (signs * size / 2.0) @ rot.T

@@ -17,7 +17,8 @@ from ..errors import InputFileError, ParameterError
 from ..utils import atomic_output
 
 MESH_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
-POINT_SUFFIXES = (".ply", ".pcd", ".npy", ".npz", ".xyz", ".txt")
+POINT_SUFFIXES = (".ply", ".pcd", ".npy", ".npz", ".xyz", ".txt", ".las", ".laz")
+LAS_INSTALL_HINT = "pip install 'spotlights[las]'"
 _AXES = {"x": 0, "y": 1, "z": 2}
 
 
@@ -101,13 +102,16 @@ def load_mesh(path: str | os.PathLike, up: str = "z", forward: str = "x"):
     return trimesh.Trimesh(vertices=v, faces=f, process=False, validate=False)
 
 
-def load_points(path: str | os.PathLike) -> np.ndarray:
+def load_points(path: str | os.PathLike, drop_nonfinite: bool = False) -> np.ndarray:
     """Load a point cloud as a (K, 3) float64 array (extra columns such as intensity dropped).
 
     Formats: ``.ply`` (vertices), ``.pcd`` (x, y, z fields), ``.npy`` ((K, >=3)),
     ``.npz`` (key ``points``, else ``partial``, else the only array), ``.xyz``/``.txt``
-    (whitespace or comma separated, first three columns).
-    Raises :class:`InputFileError` for missing, unreadable, empty or non-finite clouds.
+    (whitespace or comma separated, first three columns), ``.las``/``.laz`` (scaled x, y, z
+    in float64; needs the optional ``laspy`` extra, ``pip install 'spotlights[las]'``).
+    Raises :class:`InputFileError` for missing, unreadable, empty or non-finite clouds
+    (``drop_nonfinite=True``: rows with NaN or infinite coordinates, the "no return" points of
+    organised scans, are dropped instead; a cloud with none left is still an error).
     """
     p = Path(path)
     if not p.exists():
@@ -138,6 +142,8 @@ def load_points(path: str | os.PathLike) -> np.ndarray:
                 if key is None:
                     raise InputFileError(p, f"NPZ has no 'points' array (keys: {', '.join(z.files)})")
                 pts = z[key]
+        elif suffix in (".las", ".laz"):
+            pts = _read_las(p)
         elif suffix in (".xyz", ".txt", ".csv"):
             with open(p) as fh:
                 text = fh.read().replace(",", " ")
@@ -153,11 +159,30 @@ def load_points(path: str | os.PathLike) -> np.ndarray:
     if pts.ndim != 2 or pts.shape[1] < 3:
         raise InputFileError(p, f"expected (K, 3) points, got shape {pts.shape}")
     pts = pts[:, :3].astype(np.float64)
+    if drop_nonfinite:
+        pts = pts[np.all(np.isfinite(pts), axis=1)]
     if len(pts) == 0:
-        raise InputFileError(p, "point cloud is empty")
+        raise InputFileError(p, "point cloud is empty" + (" (no finite point)" if drop_nonfinite else ""))
     if not np.all(np.isfinite(pts)):
         raise InputFileError(p, "point cloud has NaN or infinite coordinates")
     return pts
+
+
+def _read_las(p: Path) -> np.ndarray:
+    """x, y, z (K, 3) float64 of a LAS/LAZ file (scale and offset applied) via laspy."""
+    try:
+        import laspy
+    except ImportError:
+        raise InputFileError(p, f"reading LAS/LAZ needs laspy: {LAS_INSTALL_HINT}") from None
+    try:
+        las = laspy.read(str(p))
+    except laspy.errors.LaspyException as exc:
+        msg = str(exc).splitlines()[0][:100] if str(exc) else type(exc).__name__
+        if p.suffix.lower() == ".laz" and "backend" in msg.lower():
+            raise InputFileError(p, f"reading LAZ needs a decompressor (lazrs): {LAS_INSTALL_HINT}") from None
+        raise InputFileError(p, f"not a readable LAS/LAZ file ({msg})") from None
+    return np.stack([np.asarray(las.x, dtype=np.float64), np.asarray(las.y, dtype=np.float64),
+                     np.asarray(las.z, dtype=np.float64)], axis=1)
 
 
 def save_points(path: str | os.PathLike, points: np.ndarray) -> Path:
@@ -186,3 +211,88 @@ def save_points(path: str | os.PathLike, points: np.ndarray) -> Path:
         else:
             np.savetxt(tmp, pts, fmt="%.6f")
     return p
+
+
+def save_ply(path: str | os.PathLike, points: np.ndarray, fields: dict[str, np.ndarray] | None = None,
+             comments: list[str] | None = None, precision: str = "auto") -> Path:
+    """Write a binary little-endian PLY point cloud with extra per-point fields (atomic).
+
+    Parameters
+    ----------
+    points : (K, 3) coordinates, written as ``x y z``.
+    fields : name -> (K,) array of extra vertex properties; the PLY type follows the dtype
+        (uint8 -> uchar, int32 -> int, float32 -> float, ...; int64/float64 are narrowed to int/double).
+    comments : header ``comment`` lines (one line each; newlines are replaced by spaces).
+    precision : ``"float"`` (float32), ``"double"`` (float64) or ``"auto"``: double when a
+        coordinate's magnitude exceeds 1e4 (float32 would round georeferenced scans to cm or worse).
+
+    Returns the path. Readable by trimesh, Open3D, CloudCompare, plyfile.
+    """
+    p = Path(path)
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if precision == "auto":
+        precision = "double" if (len(pts) and float(np.abs(pts).max()) > 1e4) else "float"
+    if precision not in ("float", "double"):
+        raise ParameterError(f"precision must be 'float', 'double' or 'auto', got {precision!r}")
+    ply_types = {"u1": "uchar", "i1": "char", "u2": "ushort", "i2": "short", "u4": "uint", "i4": "int",
+                 "f4": "float", "f8": "double"}
+    narrow = {"i8": "<i4", "u8": "<u4", "b1": "u1"}
+    cdt = "<f8" if precision == "double" else "<f4"
+    dtype = [("x", cdt), ("y", cdt), ("z", cdt)]
+    cols = {}
+    for name, v in (fields or {}).items():
+        a = np.asarray(v).reshape(-1)
+        if len(a) != len(pts):
+            raise ParameterError(f"PLY field {name!r} has {len(a)} values for {len(pts)} points")
+        code = a.dtype.str[1:]
+        a = a.astype(narrow.get(code, "<" + code) if code not in ("u1", "i1") else code)
+        if a.dtype.str[1:] not in ply_types:
+            raise ParameterError(f"PLY field {name!r}: unsupported dtype {v.dtype}")
+        cols[name] = a
+        dtype.append((name, a.dtype.newbyteorder("<").str))
+    rec = np.empty(len(pts), dtype=dtype)
+    rec["x"], rec["y"], rec["z"] = pts[:, 0], pts[:, 1], pts[:, 2]
+    for name, a in cols.items():
+        rec[name] = a
+    head = ["ply", "format binary_little_endian 1.0"]
+    head += ["comment " + " ".join(str(c).split()) for c in (comments or [])]
+    head.append(f"element vertex {len(pts)}")
+    head += [f"property {ply_types[rec.dtype[n].str[1:]]} {n}" for n in rec.dtype.names]
+    head.append("end_header")
+    with atomic_output(p) as tmp:
+        with open(tmp, "wb") as fh:
+            fh.write(("\n".join(head) + "\n").encode("ascii", "replace"))
+            fh.write(rec.tobytes())
+    return p
+
+
+def load_ply_fields(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Every vertex property of a PLY file as name -> (K,) array (e.g. ``x``, ``y``, ``z``, ``source``, ``object``).
+
+    Reads what :func:`save_ply` writes (binary little-endian or ASCII vertex-only PLYs).
+    """
+    import trimesh
+
+    p = Path(path)
+    if not p.is_file():
+        raise InputFileError(p, "no such file")
+    try:
+        with open(p, "rb") as fh:
+            cloud = trimesh.exchange.ply.load_ply(fh, prefer_color=None)
+    except Exception as exc:
+        raise InputFileError(p, f"cannot read PLY ({type(exc).__name__})") from None
+    attrs = cloud.get("metadata", {}).get("_ply_raw", {}).get("vertex", {}).get("data")
+    if attrs is None:
+        raise InputFileError(p, "PLY holds no vertex element")
+    return {n: np.asarray(attrs[n]) for n in attrs.dtype.names}
+
+
+def ply_has_faces(path: str | os.PathLike) -> bool:
+    """True when a PLY file's header declares at least one face (a mesh, not a point cloud)."""
+    with open(path, "rb") as fh:
+        head = fh.read(4096).split(b"end_header")[0].decode("ascii", "replace")
+    for line in head.splitlines():
+        parts = line.split()
+        if len(parts) == 3 and parts[0] == "element" and parts[1] == "face":
+            return parts[2].isdigit() and int(parts[2]) > 0
+    return False

@@ -1,7 +1,9 @@
-"""Nearest-neighbour distances between point sets (KD-trees), shared by every layer.
+"""The KD-tree for repeated nearest-neighbour queries on one point set, shared by every layer.
 
 ``pykdtree`` (about 3x faster than scipy here) when importable, else
-``scipy.spatial.cKDTree``. Distances are unsquared Euclidean, in the points' units.
+``scipy.spatial.cKDTree``. Distances are unsquared Euclidean, in the points' units. The
+distance metrics built on it (one-sided and two-sided Chamfer, F-score) are in
+:mod:`spotlights.geometry.distances`.
 """
 
 from __future__ import annotations
@@ -9,7 +11,9 @@ from __future__ import annotations
 import numpy as np
 
 
-def _as_points(p, what: str = "points") -> np.ndarray:
+def as_points(p, what: str = "points") -> np.ndarray:
+    """``p`` as a C-contiguous (K, 3) float32/float64 array (other dtypes become float64); ValueError naming
+    ``what`` for another shape."""
     p = np.asarray(p)
     if p.ndim != 2 or p.shape[1] != 3:
         raise ValueError(f"{what} must have shape (K, 3), got {p.shape}")
@@ -30,7 +34,7 @@ class NearestNeighbors:
     """
 
     def __init__(self, points: np.ndarray):
-        pts = _as_points(points)
+        pts = as_points(points)
         if len(pts) == 0:
             raise ValueError("cannot build a KD-tree over an empty point set")
         self.points = pts
@@ -58,7 +62,7 @@ class NearestNeighbors:
         distances : (Q,) float64 unsquared Euclidean distances.
         indices : (Q,) int64 row of the nearest tree point.
         """
-        q = np.ascontiguousarray(_as_points(queries, "queries"), dtype=self.dtype)
+        q = np.ascontiguousarray(as_points(queries, "queries"), dtype=self.dtype)
         if len(q) == 0:
             return np.zeros(0), np.zeros(0, dtype=np.int64)
         dist, idx = self._tree.query(q, k=1)
@@ -82,18 +86,3 @@ def serial_queries():
     from threadpoolctl import threadpool_limits
 
     return threadpool_limits(limits=1, user_api="openmp")
-
-
-def nearest_distances(source: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """(K,) float64 unsquared distance from each ``source`` point (K, 3) to its nearest ``target`` point (L, 3)."""
-    return NearestNeighbors(target).distances(source)
-
-
-def mean_nearest_distance(source: np.ndarray, target: np.ndarray) -> float:
-    """One-sided Chamfer term: mean over ``source`` (K, 3) of the unsquared distance to the nearest
-    ``target`` (L, 3) point; ``nan`` when either set is empty."""
-    source = _as_points(source, "source")
-    target = _as_points(target, "target")
-    if len(source) == 0 or len(target) == 0:
-        return float("nan")
-    return float(nearest_distances(source, target).mean())

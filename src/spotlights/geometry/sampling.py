@@ -79,3 +79,21 @@ def resample(points: np.ndarray, n: int, seed: int | np.random.Generator = 0, me
         return p[np.sort(rng.choice(k, size=n, replace=False))]
     extra = rng.choice(k, size=n - k, replace=True)
     return np.concatenate([p, p[extra]], axis=0)
+
+
+def canonical_order(points: np.ndarray) -> np.ndarray:
+    """(K,) int64 indices that sort (K, 3) points by x, then y, then z: an order that depends only on
+    the set of points, not on how a file or a crop listed them."""
+    p = np.asarray(points)
+    return np.lexsort((p[:, 2], p[:, 1], p[:, 0])) if len(p) else np.zeros(0, dtype=np.int64)
+
+
+def resample_set(points: np.ndarray, n: int, seed: int | np.random.Generator = 0, method: str = "random") -> np.ndarray:
+    """:func:`resample` applied to the points in :func:`canonical_order`: (n, 3), the input dtype.
+
+    The result depends only on the *set* of points, ``seed`` and ``method``: one observation
+    gives one network input whatever the order of its points (``complete``, ``real complete``
+    and ``real extract`` feed a model the same 256 points for the same vehicle).
+    """
+    p = np.asarray(points)
+    return resample(p[canonical_order(p)], n, seed=seed, method=method)

@@ -37,20 +37,76 @@ def cpu_name() -> str:
     return platform.processor() or platform.machine()
 
 
-def median_latency(fn, repeats: int = 10, warmup: int = 2, sync=None) -> float:
-    """Median wall time of ``fn()`` in seconds over ``repeats`` runs after ``warmup`` untimed runs."""
-    for _ in range(max(warmup, 0)):
-        fn()
+def time_calls(calls: dict, repeats: int = 10, warmup: int = 2, sync=None) -> dict:
+    """The one latency timer: median wall time in seconds of each of several calls, timed round-robin.
+
+    Parameters
+    ----------
+    calls : {key: fn} zero-argument callables.
+    repeats : timed runs of each call; warmup : untimed runs of each call first.
+    sync : optional callable run after every call (``torch.cuda.synchronize`` on a GPU).
+
+    Every repeat times each call once, in order, so that a change of load on a shared machine
+    hits every call alike and their ratios stay meaningful. Returns {key: median seconds}.
+    """
+    for fn in calls.values():
+        for _ in range(max(warmup, 0)):
+            fn()
     if sync:
         sync()
-    times = []
+    times: dict = {k: [] for k in calls}
     for _ in range(max(repeats, 1)):
-        t0 = time.perf_counter()
-        fn()
-        if sync:
-            sync()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+        for key, fn in calls.items():
+            t0 = time.perf_counter()
+            fn()
+            if sync:
+                sync()
+            times[key].append(time.perf_counter() - t0)
+    return {k: statistics.median(v) for k, v in times.items()}
+
+
+def median_latency(fn, repeats: int = 10, warmup: int = 2, sync=None) -> float:
+    """Median wall time of ``fn()`` in seconds over ``repeats`` runs after ``warmup`` untimed runs (:func:`time_calls`)."""
+    return time_calls({0: fn}, repeats, warmup, sync)[0]
+
+
+def timing_inputs(batches: Sequence[int], n_input: int = 256, seed: int = 0, device=None) -> dict:
+    """{batch: (batch, n_input, 3) float32 tensor on ``device``}: points uniform in [-0.57, 0.57]^3 (the unit
+    frame; the cube inside the unit ball), from one generator seeded with ``seed``, drawn in batch order."""
+    import torch
+
+    gen = torch.Generator().manual_seed(seed)
+    return {b: (torch.rand(b, n_input, 3, generator=gen) * 2 - 1).mul(0.57).to(device) for b in batches}
+
+
+def _model_calls(model, x, device) -> dict:
+    """{"forward": fn, "complete": fn} for one model and input batch (box-rig SA-Nets get one box's rays)."""
+    from .models.base import CLIP_DEFAULT
+    from .rays import timing_directions
+
+    dirs = timing_directions(model, x.shape[0])  # None, or the rays of one box for box-rig SA-Nets
+    dirs = None if dirs is None else dirs.to(device)
+    return {"forward": (lambda: model(x)),
+            "complete": (lambda: model.complete(x, CLIP_DEFAULT) if dirs is None else model.complete(x, CLIP_DEFAULT, dirs))}
+
+
+def model_latency(model, device, batches: Sequence[int] = (1, 32), repeats: int = 10, warmup: int = 2,
+                  n_input: int = 256, seed: int = 0) -> dict:
+    """Median latency of one model (the ``latency_ms`` of ``spotlights evaluate``), timed as :func:`bench_models` does.
+
+    Returns {batch: {"forward_ms", "complete_ms"}} in milliseconds: the network alone, and
+    forward + turning the output into point clouds (SA-Net: decoding and the 0.2 clip).
+    """
+    import torch
+
+    sync = torch.cuda.synchronize if torch.device(device).type == "cuda" else None
+    inputs = timing_inputs(batches, n_input, seed, device)
+    out = {}
+    with torch.inference_mode():
+        for b in batches:
+            med = time_calls(_model_calls(model, inputs[b], device), repeats, warmup, sync)
+            out[int(b)] = {"forward_ms": med["forward"] * 1e3, "complete_ms": med["complete"] * 1e3}
+    return out
 
 
 def count_macs(model, n_input: int = 256) -> int:
@@ -92,54 +148,35 @@ def bench_models(names: Sequence[str] = MODEL_NAMES, batches: Sequence[int] = (1
     import torch
 
     from ..geometry.rig import make_rig
-    from .models.base import CLIP_DEFAULT
-    from .rays import timing_directions
+    from .device import resolve_device
 
     if threads:
         torch.set_num_threads(int(threads))
-    from .device import resolve_device
-
     dev = resolve_device(device)
     sync = torch.cuda.synchronize if dev.type == "cuda" else None
     rig = rig or make_rig(32, 64, 60.0)
-    gen = torch.Generator().manual_seed(seed)
-    inputs = {b: (torch.rand(b, n_input, 3, generator=gen) * 2 - 1).mul(0.57).to(dev) for b in batches}
+    inputs = timing_inputs(batches, n_input, seed, dev)
     models = {}
     for name in names:
         check_model_name(name)
         torch.manual_seed(seed)
         models[name] = build_model(load_config(name), rig=rig).to(dev).eval()
-    # Round-robin: every repeat times each model once, so that a change of load on a shared
-    # machine hits all models alike and the ratios stay meaningful.
-    times = {(n, b, k): [] for n in names for b in batches for k in ("forward", "complete")}
+    # Round-robin over every model and both timings (time_calls), so that a change of load on a
+    # shared machine hits all models alike and the ratios stay meaningful.
+    med = {}
     with torch.inference_mode():
         for b in batches:
-            x = inputs[b]
-            calls = {}
-            for name, model in models.items():
-                calls[(name, "forward")] = (lambda m=model: m(x))
-                dirs = timing_directions(model, b)  # None, or the rays of one box for box-rig SA-Nets
-                dirs = None if dirs is None else dirs.to(dev)
-                calls[(name, "complete")] = (lambda m=model, d=dirs: m.complete(x, CLIP_DEFAULT) if d is None
-                                             else m.complete(x, CLIP_DEFAULT, d))
-            for fn in calls.values():
-                for _ in range(max(warmup, 0)):
-                    fn()
-            for _ in range(max(repeats, 1)):
-                for (name, kind), fn in calls.items():
-                    t0 = time.perf_counter()
-                    fn()
-                    if sync:
-                        sync()
-                    times[(name, b, kind)].append(time.perf_counter() - t0)
+            calls = {(name, kind): fn for name, model in models.items()
+                     for kind, fn in _model_calls(model, inputs[b], dev).items()}
+            med.update({(name, b, kind): t for (name, kind), t in time_calls(calls, repeats, warmup, sync).items()})
             if progress:
                 for name in names:
-                    progress(f"{name} batch {b}: forward {statistics.median(times[(name, b, 'forward')]) * 1e3:.2f} ms, "
-                             f"complete {statistics.median(times[(name, b, 'complete')]) * 1e3:.2f} ms")
+                    progress(f"{name} batch {b}: forward {med[(name, b, 'forward')] * 1e3:.2f} ms, "
+                             f"complete {med[(name, b, 'complete')] * 1e3:.2f} ms")
     rows = []
     for name, model in models.items():
-        lat = {int(b): {"forward_ms": statistics.median(times[(name, b, "forward")]) * 1e3,
-                        "complete_ms": statistics.median(times[(name, b, "complete")]) * 1e3} for b in batches}
+        lat = {int(b): {"forward_ms": med[(name, b, "forward")] * 1e3, "complete_ms": med[(name, b, "complete")] * 1e3}
+               for b in batches}
         rows.append({"model": name, "display_name": DISPLAY_NAMES[name], "params": model.param_counts(),
                      "macs_per_sample": count_macs(model, n_input), "latency_ms": lat})
     return {
@@ -173,7 +210,7 @@ def bench_markdown(result: dict) -> str:
         lines.append("| " + " | ".join(cells) + " |")
     ratio_lines = []
     sanet = next((r for r in result["models"] if r["model"] == "sanet"), None)
-    others = [r for r in result["models"] if r["model"] != "sanet"]
+    others = [r for r in result["models"] if not r["model"].startswith("sanet")]  # the baselines
     if sanet and others:
         for b in batches:
             key = b if b in sanet["latency_ms"] else str(b)

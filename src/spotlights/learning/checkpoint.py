@@ -12,6 +12,8 @@ A checkpoint is a ``torch.save`` dict (loadable with ``weights_only=True``)::
     epoch             number of completed epochs;  global_step
     optimizer_state, scheduler_state   (training checkpoints; absent in exported weights)
     best              {"epoch", "val_accuracy"};  history  list of per-epoch log rows
+    hit_threshold     hit-aware SA-Net only: {"value": p(hit) threshold chosen on the validation
+                      split, "chosen_on", "criterion", "scan": {threshold: val metrics}}
     dataset           {"path", "rig", "n_train", "n_val"} (informative)
 """
 
@@ -25,6 +27,38 @@ from ..errors import InputFileError
 
 FORMAT = "spotlights-checkpoint"
 FORMAT_VERSION = 1
+
+#: Short checkpoint names -> files shipped in ``spotlights/learning/pretrained/``.
+#: ``default`` is the model every command uses when ``--checkpoint`` is not given;
+#: ``paper`` is the paper-faithful SA-Net (32 x 64 rays at 60 degrees, clip 0.2).
+#: Today both name the one shipped SA-Net.
+PRETRAINED: dict[str, str] = {"default": "sanet.pt", "paper": "sanet.pt"}
+
+
+def resolve_checkpoint(name=None) -> Path:
+    """The checkpoint file behind a ``--checkpoint`` value.
+
+    ``None`` or ``"default"``: the package's default model; a short name of :data:`PRETRAINED`
+    (``"paper"``): its shipped file; anything else: a path (``~`` expanded). A path that
+    happens to equal a short name is taken as the short name unless it contains a separator
+    or a suffix (``./default`` or ``default.pt`` are files).
+
+    Raises :class:`InputFileError` for a missing file (naming the short names, so a typo
+    in a name is caught) or a short name whose file this installation does not ship.
+    """
+    from importlib import resources
+
+    key = "default" if name is None else os.fspath(name)
+    if key in PRETRAINED:
+        p = Path(str(resources.files("spotlights.learning") / "pretrained" / PRETRAINED[key]))
+        if not p.is_file():
+            raise InputFileError(p, f"the '{key}' checkpoint is not shipped in this installation; pass a checkpoint "
+                                    "file (train one with 'spotlights train --model sanet --data DATASET.h5')")
+        return p
+    p = Path(key).expanduser()
+    if not p.exists():
+        raise InputFileError(p, f"no such checkpoint file (short names: {', '.join(PRETRAINED)})")
+    return p
 
 
 def save_checkpoint(path, payload: dict) -> Path:
@@ -44,7 +78,7 @@ def load_checkpoint(path, expect_model: str | None = None, map_location="cpu") -
 
     Parameters
     ----------
-    path : checkpoint file.
+    path : checkpoint file, or a short name of :data:`PRETRAINED` (``default``, ``paper``).
     expect_model : if given, the registry name the checkpoint must hold (e.g. ``"sanet"``).
 
     Raises
@@ -59,9 +93,7 @@ def load_checkpoint(path, expect_model: str | None = None, map_location="cpu") -
 
     from .models import MODEL_REGISTRY
 
-    p = Path(path)
-    if not p.exists():
-        raise InputFileError(p, "no such checkpoint file")
+    p = resolve_checkpoint(path)
     if p.is_dir():
         raise InputFileError(p, "is a folder, expected a checkpoint file (e.g. RUN/best.pt)")
     try:
@@ -81,6 +113,11 @@ def load_checkpoint(path, expect_model: str | None = None, map_location="cpu") -
     for key in ("config", "model_state"):
         if key not in ckpt:
             raise InputFileError(p, f"checkpoint lacks its {key!r} entry")
+    cfg = ckpt["config"]
+    if not isinstance(cfg, dict) or not all(isinstance(cfg.get(k, {}), dict) for k in ("model", "data", "train")):
+        raise InputFileError(p, "damaged checkpoint: its 'config' entry is not a model/data/train mapping")
+    if not isinstance(ckpt["model_state"], dict) or not all(isinstance(v, torch.Tensor) for v in ckpt["model_state"].values()):
+        raise InputFileError(p, "damaged checkpoint: its 'model_state' entry is not a mapping of tensors")
     ckpt["path"] = os.fspath(p)
     return ckpt
 
@@ -94,13 +131,16 @@ def model_from_checkpoint(ckpt: dict, device=None):
 
     from .models import build_model
 
-    model = build_model(ckpt["config"], rig=ckpt.get("rig"))
     try:
+        model = build_model(ckpt["config"], rig=ckpt.get("rig"))
         model.load_state_dict(ckpt["model_state"])
-    except RuntimeError as exc:
+    except (RuntimeError, KeyError, TypeError, ValueError) as exc:
         first = str(exc).splitlines()[0][:160]
         raise InputFileError(ckpt.get("path", "checkpoint"), f"weights do not match the {ckpt['model_name']} config ({first})") from None
     model = model.float()
+    chosen = ckpt.get("hit_threshold")
+    if chosen is not None and hasattr(model, "threshold"):  # hit-aware SA-Net: the p(hit) threshold chosen on val
+        model.threshold = float(chosen["value"] if isinstance(chosen, dict) else chosen)
     if device is not None:
         model = model.to(torch.device(device))
     return model.eval()

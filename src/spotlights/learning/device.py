@@ -30,3 +30,61 @@ def resolve_device(device=None) -> torch.device:
     elif dev.type not in ("cpu", "mps"):
         raise ParameterError(f"unsupported torch device {device!r} (use cpu, cuda or cuda:N)")
     return dev
+
+
+PRECISIONS = ("auto", "fp32", "bf16")
+"""Training precisions offered by ``spotlights train --precision`` (``fp16`` is what ``bf16``
+becomes on a CUDA device without bfloat16 support; it runs with a gradient scaler)."""
+
+
+def cpu_supports_bf16() -> bool:
+    """True when this CPU has native bfloat16 matrix instructions (AVX512-BF16 or AMX-BF16).
+
+    oneDNN's own check is used when torch exposes it, else the Linux CPU flags. Without native
+    support torch still runs bfloat16 on the CPU, emulated and slower than float32.
+    """
+    try:
+        return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    except (AttributeError, RuntimeError):
+        pass
+    try:
+        with open("/proc/cpuinfo") as f:
+            flags = f.read()
+    except OSError:
+        return False
+    return "avx512_bf16" in flags or "amx_bf16" in flags
+
+
+def resolve_precision(precision: str | None, device: torch.device) -> str:
+    """The precision a run uses: ``"fp32"``, ``"bf16"`` or ``"fp16"`` (CUDA only).
+
+    ``"auto"`` (or None): bf16 on a CUDA device that supports it, else fp16 on CUDA; on the CPU,
+    bf16 where the CPU has native bfloat16 instructions, else fp32. ``"bf16"`` on a CUDA device
+    without bfloat16 support becomes fp16 (with a gradient scaler). Raises :class:`ParameterError`
+    for anything else.
+    """
+    p = "auto" if precision is None else str(precision).lower()
+    if p not in PRECISIONS:
+        raise ParameterError(f"unknown precision {precision!r} (choose {', '.join(PRECISIONS)})")
+    if p == "fp32":
+        return "fp32"
+    if device.type == "cuda":
+        return "bf16" if torch.cuda.is_bf16_supported() else "fp16"
+    if device.type == "cpu":
+        return "bf16" if (p == "bf16" or cpu_supports_bf16()) else "fp32"
+    return "fp32" if p == "auto" else "bf16"
+
+
+def autocast(precision: str, device: torch.device):
+    """A context manager running the forward pass at ``precision`` (``fp32``: no autocast).
+
+    Weights stay float32 (the master copy the optimizer updates); matrix products run in
+    bfloat16 / float16 under ``torch.autocast``. Cast outputs back with ``.float()`` before
+    losses and metrics.
+    """
+    import contextlib
+
+    if precision == "fp32":
+        return contextlib.nullcontext()
+    dtype = torch.bfloat16 if precision == "bf16" else torch.float16
+    return torch.autocast(device_type=device.type, dtype=dtype)

@@ -21,30 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ParameterError
+from .bench import model_latency
 from .metrics import METRIC_DESCRIPTIONS, evaluate_completions, summarize
 
 TABLE_METRIC = "accuracy"
-
-
-def _latency(model, device, batches=(1, 32), repeats: int = 10, warmup: int = 2, n_input: int = 256) -> dict:
-    import torch
-
-    from .bench import median_latency
-    from .models.base import CLIP_DEFAULT
-    from .rays import timing_directions
-
-    sync = torch.cuda.synchronize if device.type == "cuda" else None
-    gen = torch.Generator().manual_seed(0)
-    out = {}
-    for b in batches:
-        x = ((torch.rand(b, n_input, 3, generator=gen) * 2 - 1) * 0.57).to(device)
-        dirs = timing_directions(model, b)  # box rig: each sample's rays are given (computed once per object)
-        dirs = None if dirs is None else dirs.to(device)
-        with torch.inference_mode():
-            f = median_latency(lambda: model(x), repeats, warmup, sync)
-            c = median_latency(lambda: model.complete(x, CLIP_DEFAULT, dirs), repeats, warmup, sync)
-        out[int(b)] = {"forward_ms": f * 1e3, "complete_ms": c * 1e3}
-    return out
 
 
 def evaluate_checkpoint(checkpoint, data, split: str = "test", batch_size: int = 32, max_views: int | None = None,
@@ -86,7 +66,11 @@ def evaluate_checkpoint(checkpoint, data, split: str = "test", batch_size: int =
     name = ckpt["model_name"]
     ds = dataset or TorchCompletionDataset(data, split, rig=False, max_views=max_views, partials_in_memory=True)
     dense = gt_dense if gt_dense is not None else ds.gt_dense()
-    if model.target == "depths":
+    hit_aware = hasattr(model, "hit_probabilities")
+    if hit_aware:  # hit-aware SA-Net: rays with p(hit) >= the checkpoint's threshold, no clip (a clip only if asked)
+        variants = [(f"p(hit) >= {model.threshold:g}", None)] + ([(f"p(hit) >= {model.threshold:g}, clip {float(clip):g}",
+                                                                    float(clip))] if clip is not None else [])
+    elif model.target == "depths":
         c = model.clip if clip is None else float(clip)
         variants = [("no clip", None)] + ([(f"clip {c:g}", c)] if c is not None else [])
     else:
@@ -120,7 +104,8 @@ def evaluate_checkpoint(checkpoint, data, split: str = "test", batch_size: int =
                                                with_completeness, trees)
         if model.target == "depths":
             per["hit_ratio"] = np.asarray(kept[v], dtype=np.float64)
-        rows.append({"variant": v, "clip": c, "summary": summarize(per, cats, order)})
+        rows.append({"variant": v, "clip": c, "summary": summarize(per, cats, order),
+                     **({"threshold": model.threshold} if hit_aware else {})})
     result = {
         "model": name,
         "checkpoint": str(checkpoint),
@@ -132,7 +117,7 @@ def evaluate_checkpoint(checkpoint, data, split: str = "test", batch_size: int =
         "trained_epochs": int(ckpt.get("epoch", 0) or 0),
     }
     if latency:
-        result["latency_ms"] = _latency(model, dev, repeats=latency_repeats)
+        result["latency_ms"] = model_latency(model, dev, repeats=latency_repeats)
         result["latency_device"] = str(dev)
         result["threads"] = torch.get_num_threads()
     return result
@@ -270,3 +255,39 @@ def write_report(report: dict, out) -> tuple[Path, Path]:
     with atomic_output(js) as tmp:
         tmp.write_text(json.dumps(_jsonable(report), indent=2))
     return md, js
+
+
+def prediction_examples(checkpoints, data, split: str = "test", per_category: int = 2, clip=None,
+                        device=None) -> list[dict]:
+    """A few scans per category with every checkpoint's prediction, for
+    :func:`spotlights.viz.render_predictions` (``spotlights evaluate`` draws them beside the report).
+
+    The scans: in each category (report order), the first view of the first ``per_category``
+    models of the split. SA-Net predictions use ``clip`` (default: the checkpoint's).
+    Returns dicts with ``label``, ``partial`` (K, 3), ``gt`` (the dense ground truth, (L, 3)),
+    ``predictions`` [(model name, (M, 3))], all float, unit frame.
+    """
+    from ..data.store import open_dataset
+    from .inference import DEFAULT, load_completer
+
+    completers = [load_completer(c, device=device) for c in checkpoints]
+    names = [c.model_name for c in completers]
+    names = [f"{n} ({Path(c).parent.name or Path(c).stem})" if names.count(n) > 1 else n for n, c in zip(names, checkpoints)]
+    out = []
+    with open_dataset(data) as ds:
+        idx = ds.split_indices(split)
+        models = ds.sample_model[idx]
+        cats = ds.categories[models]
+        for cat in sorted(set(cats.tolist())):
+            first = {}
+            for i, m in zip(idx[cats == cat], models[cats == cat]):
+                first.setdefault(int(m), int(i))
+            for i in list(first.values())[:per_category]:
+                smp = ds.sample(i)
+                preds = []
+                for name, c in zip(names, completers):
+                    kw = {"extents": smp["extents"][None]} if c.needs_box else {}
+                    preds.append((name, c.complete(smp["partial"][None], clip=DEFAULT if clip is None else clip, **kw)[0]))
+                out.append({"label": f"{smp['model']} ({smp['category']}), view {smp['view']}", "partial": smp["partial"],
+                            "gt": smp["gt_dense"], "predictions": preds})
+    return out

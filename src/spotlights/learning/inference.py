@@ -17,31 +17,84 @@ network's input size, completes it and maps the result back into the scan's fram
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputFileError, ParameterError, SpotlightsError
+from ..errors import ParameterError
+from ..geometry.boxes import Box, box_from_dict, load_box  # noqa: F401  (the box of complete_scan; re-exported)
 
 INPUT_POINTS = 256
 """Points per partial scan the models were trained with (the dataset's partial size)."""
 
-PRETRAINED_NAME = "sanet.pt"
+RESAMPLE_METHODS = ("random", "fps")
+DEFAULT_RESAMPLE = "random"
+"""How a scan is brought to :data:`INPUT_POINTS` by default: a seeded random subset of its points
+taken in a canonical (sorted) order, as the training data's partials are random subsets. The
+same set of points gives the same input, whatever their order or file (see :func:`prepare_partial`)."""
 
 
-def pretrained_checkpoint() -> Path:
-    """Path of the SA-Net checkpoint shipped in the package (``spotlights/learning/pretrained/sanet.pt``).
+def pretrained_checkpoint(name: str = "default") -> Path:
+    """Path of a checkpoint shipped in the package by short name (``default``, ``paper``).
 
-    Raises :class:`SpotlightsError` when this installation ships none.
+    See :func:`spotlights.learning.checkpoint.resolve_checkpoint`; raises
+    :class:`~spotlights.errors.InputFileError` when this installation ships none.
     """
-    p = Path(str(resources.files("spotlights.learning") / "pretrained" / PRETRAINED_NAME))
-    if not p.is_file():
-        raise SpotlightsError(f"no pretrained checkpoint is shipped in this installation ({p}); pass --checkpoint CKPT "
-                              "(train one with 'spotlights train --model sanet --data DATASET.h5')")
-    return p
+    from .checkpoint import PRETRAINED, resolve_checkpoint
+
+    if name not in PRETRAINED:
+        raise ParameterError(f"unknown pretrained model {name!r}; choose one of {', '.join(PRETRAINED)}")
+    return resolve_checkpoint(name)
+
+
+@dataclass(frozen=True)
+class LearnedDomain:
+    """What a model was trained on: the object classes and the box sizes (metres) it has seen.
+
+    ``size_min``/``size_max``: (length, width, height) ranges of the training boxes. A box whose
+    class is not in ``classes`` or whose size leaves the range widened by ``tolerance`` (a
+    fraction: 0.1 = 10%) gets a warning: the completion is an extrapolation (a car stretched
+    over a truck's box). Checkpoints may record it as ``checkpoint["domain"] = {"classes": [...],
+    "size_min": [l, w, h], "size_max": [l, w, h]}``; older ones get :data:`CARS_DOMAIN`.
+    """
+
+    classes: tuple = ("car",)
+    size_min: tuple = (3.449, 1.733, 1.359)
+    size_max: tuple = (5.593, 2.412, 1.894)
+    tolerance: float = 0.10
+    source: str = "the 79 ApolloScape cars (length, width, height ranges)"
+
+    @classmethod
+    def from_checkpoint(cls, ckpt: dict) -> "LearnedDomain":
+        d = ckpt.get("domain") if isinstance(ckpt, dict) else None
+        if not isinstance(d, dict):
+            return cls()
+        try:
+            return cls(tuple(str(c) for c in d.get("classes", ("car",))), tuple(float(v) for v in d["size_min"]),
+                       tuple(float(v) for v in d["size_max"]), float(d.get("tolerance", 0.10)),
+                       str(d.get("source", "the checkpoint's training boxes")))
+        except (KeyError, TypeError, ValueError):
+            return cls()
+
+    def warnings(self, cls_name: str | None, size) -> list[str]:
+        """Human-readable reasons why a box of class ``cls_name`` (None = unknown) and ``size`` (l, w, h) is
+        outside what the model learned; empty when it is inside."""
+        out = []
+        if cls_name is not None and cls_name not in self.classes:
+            out.append(f"class {cls_name} is not one the model learned ({', '.join(self.classes)})")
+        lo = np.asarray(self.size_min) * (1.0 - self.tolerance)
+        hi = np.asarray(self.size_max) * (1.0 + self.tolerance)
+        sz = np.asarray(size, dtype=np.float64).reshape(3)
+        bad = [f"{n} {v:.2f} m" for n, v, a, b in zip(("length", "width", "height"), sz, lo, hi) if not a <= v <= b]
+        if bad:
+            out.append("size outside the learned range (" + ", ".join(bad) + "; learned "
+                       + " x ".join(f"{a:.1f}-{b:.1f}" for a, b in zip(lo, hi)) + " m)")
+        return out
+
+
+CARS_DOMAIN = LearnedDomain()
+"""The domain of every checkpoint trained on the shipped car dataset (l 3.45-5.59 m, w 1.73-2.41 m, h 1.36-1.89 m)."""
 
 
 class _Default:
@@ -61,9 +114,13 @@ class Completer:
     model_name : registry key ("sanet", "pcn", ...). n_params : trainable parameters.
     param_counts : {"encoder", "decoder", "total"}. device : torch device.
     clip : SA-Net's default clip threshold (None for the point models).
-    rig : the SA-Net rig (``Rig`` for the paper's cap rig, ``RigSpec`` for a box-targeted rig) or None.
+    rig : the SA-Net's :class:`~spotlights.geometry.rig.RigSpec` (cap or box-targeted; a cap spec's
+        rays are ``rig.for_box(None)``) or None.
+    threshold : the hit-aware SA-Net's p(hit) threshold (chosen on validation, stored in the
+        checkpoint), else None.
     needs_box : True when :meth:`complete` needs each scan's box (SA-Net on a box-targeted rig).
     checkpoint : the loaded checkpoint dict (weights included).
+    domain : :class:`LearnedDomain`, the classes and box sizes the model learned.
     """
 
     def __init__(self, model, checkpoint: dict, device):
@@ -75,7 +132,9 @@ class Completer:
         self.n_params = int(self.param_counts["total"])
         self.rig = getattr(model, "rig", None)
         self.clip = getattr(model, "clip", None)
+        self.threshold = getattr(model, "threshold", None)
         self.needs_box = bool(getattr(model, "needs_box", False))
+        self.domain = LearnedDomain.from_checkpoint(checkpoint)
 
     def __repr__(self):
         return f"Completer({self.model_name}, {self.n_params:,} parameters, {self.device})"
@@ -88,7 +147,8 @@ class Completer:
         partials : (B, K, 3) float32 unit-frame points (K = 256 as in training; any K >= 1
             works, the encoder max-pools), or one (K, 3) scan.
         clip : SA-Net depth threshold: default = the checkpoint's (0.2), ``None`` = keep
-            every ray with depth > 0. Ignored by the point models.
+            every ray with depth > 0. Ignored by the point models. The hit-aware SA-Net keeps
+            the rays with p(hit) >= its stored threshold (:attr:`threshold`); its default clip is none.
         batch_size : forward passes are chunked to this many scans.
         extents : (B, 3) (or (3,) for all) box half-extents of each scan in its unit frame,
             ``size / |size|`` for a box of size (l, w, h) (:func:`~spotlights.learning.rays.extents_from_sizes`).
@@ -140,114 +200,52 @@ class Completer:
 
 
 def load_completer(checkpoint_path=None, device=None) -> Completer:
-    """Load a checkpoint (default: the shipped SA-Net) as a :class:`Completer`.
+    """Load a checkpoint as a :class:`Completer`.
 
+    ``checkpoint_path``: a file, a short name (``"default"``, ``"paper"``) or None (the
+    package's default model); see :func:`spotlights.learning.checkpoint.resolve_checkpoint`.
     ``device``: torch device or name; default CUDA when available, else CPU.
     Raises :class:`InputFileError` for a missing/invalid checkpoint.
     """
     from .checkpoint import load_checkpoint, model_from_checkpoint
     from .device import resolve_device
 
-    path = pretrained_checkpoint() if checkpoint_path is None else checkpoint_path
     dev = resolve_device(device)
-    ckpt = load_checkpoint(path)
+    ckpt = load_checkpoint(checkpoint_path)
     model = model_from_checkpoint(ckpt, dev)
     return Completer(model, ckpt, dev)
 
 
-# --- boxes and user scans -----------------------------------------------------------
+# --- user scans ------------------------------------------------------------------------
 
-@dataclass(frozen=True)
-class Box:
-    """An oriented detector box in the scan's frame.
+def prepare_partial(points_unit: np.ndarray, n: int = INPUT_POINTS, seed: int = 0, method: str = DEFAULT_RESAMPLE) -> np.ndarray:
+    """The network input of one observation: its unit-frame points (K, 3) resampled to exactly ``n`` (float32).
 
-    center : (3,) geometric centre; size : (3,) length, width, height along the box's
-    x (forward), y (left), z (up); yaw : heading in radians about the scan's z axis.
+    The points are first put in a canonical order (sorted by x, then y, then z), so the input
+    depends only on the *set* of points and ``seed``: the same observation gives the same
+    input, and so the same completion, whatever the order of its points or the file they came
+    from. Then (``geometry.sampling.resample``): more points than ``n``: a random subset
+    without replacement drawn with ``seed`` (``"random"``, the default: the training data's
+    partials are random subsets) or farthest-point sampling started from a seeded point
+    (``"fps"``); fewer: all points plus seeded random repeats (the encoders max-pool, so repeats
+    change nothing). Another ``seed`` gives another subset: ``real evaluate``'s noise floor
+    measures how much that alone moves a completion.
     """
+    from ..geometry.sampling import resample_set
 
-    center: tuple
-    size: tuple
-    yaw: float = 0.0
-
-    def normalization(self):
-        """The :class:`~spotlights.geometry.frames.Normalization` scan frame -> unit frame (R = half diagonal)."""
-        from ..geometry.frames import normalization_from_box
-
-        return normalization_from_box(np.asarray(self.center, float), np.asarray(self.size, float), float(self.yaw))
-
-    def to_dict(self) -> dict:
-        return {"center": list(map(float, self.center)), "size": list(map(float, self.size)), "yaw": float(self.yaw)}
-
-
-def _vec3(value, what: str, src) -> tuple:
-    try:
-        v = np.asarray(value, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        v = np.zeros(0)
-    if v.shape != (3,) or not np.all(np.isfinite(v)):
-        raise InputFileError(src, f"box {what} must be three finite numbers, got {value!r}")
-    return tuple(float(a) for a in v)
-
-
-def box_from_dict(d: dict, src="box") -> Box:
-    """A :class:`Box` from ``{"center": [x, y, z], "size": [l, w, h], "yaw": radians}``.
-
-    ``yaw_deg`` (degrees) may replace ``yaw``; ``"dimensions"``/``"extent"`` may replace ``"size"``.
-    """
-    if not isinstance(d, dict):
-        raise InputFileError(src, "a box must be a JSON object with center, size and yaw")
-    if "center" not in d:
-        raise InputFileError(src, "box has no 'center' [x, y, z]")
-    size = d.get("size", d.get("dimensions", d.get("extent")))
-    if size is None:
-        raise InputFileError(src, "box has no 'size' [length, width, height]")
-    if "yaw_deg" in d:
-        yaw = np.deg2rad(float(d["yaw_deg"]))
-    else:
-        yaw = d.get("yaw", 0.0)
-    try:
-        yaw = float(yaw)
-    except (TypeError, ValueError):
-        raise InputFileError(src, f"box yaw must be a number of radians, got {yaw!r}") from None
-    if not np.isfinite(yaw):
-        raise InputFileError(src, "box yaw must be finite")
-    center, size = _vec3(d["center"], "center", src), _vec3(size, "size", src)
-    if min(size) < 0 or max(size) <= 0:
-        raise InputFileError(src, f"box size must be non-negative and not all zero, got {list(size)}")
-    return Box(center, size, yaw)
-
-
-def load_box(path) -> Box:
-    """Read a box JSON file (see :func:`box_from_dict`)."""
-    p = Path(path)
-    if not p.is_file():
-        raise InputFileError(p, "no such box file")
-    try:
-        d = json.loads(p.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputFileError(p, f"not valid JSON ({exc})") from None
-    return box_from_dict(d, p)
-
-
-def prepare_partial(points_unit: np.ndarray, n: int = INPUT_POINTS, seed: int = 0, method: str = "random") -> np.ndarray:
-    """Resample a unit-frame scan (K, 3) to exactly ``n`` points (float32).
-
-    More points: farthest-point sampling (``"fps"``) or a random subset (``"random"``);
-    fewer: all points plus seeded random repeats (see ``geometry.sampling.resample``).
-    """
-    from ..geometry.sampling import resample
-
-    return resample(np.asarray(points_unit, dtype=np.float64), n, seed=seed, method=method).astype(np.float32)
+    if method not in RESAMPLE_METHODS:
+        raise ParameterError(f"unknown resampling method {method!r}; choose one of {', '.join(RESAMPLE_METHODS)}")
+    return resample_set(np.asarray(points_unit, dtype=np.float64).reshape(-1, 3), n, seed=seed, method=method).astype(np.float32)
 
 
 def complete_scan(points: np.ndarray, box: Box, completer: Completer, clip=DEFAULT, crop: float | None = None,
-                  seed: int = 0, resample_method: str = "random", n_input: int = INPUT_POINTS) -> dict:
+                  seed: int = 0, resample_method: str = DEFAULT_RESAMPLE, n_input: int = INPUT_POINTS) -> dict:
     """Complete one partial scan given in its own frame (sensor or world) with its box.
 
     Parameters
     ----------
     points : (K, 3) scan points in the box's frame (metres).
-    box : the object's detector box in the same frame.
+    box : the object's detector box in the same frame (:class:`spotlights.geometry.boxes.Box`).
     crop : if given, keep only points inside the box enlarged by this margin (metres
         per side) before completing; ``None`` keeps all points.
     seed, resample_method, n_input : resampling of the scan to the network's input size.
@@ -270,9 +268,7 @@ def complete_scan(points: np.ndarray, box: Box, completer: Completer, clip=DEFAU
     norm = box.normalization()
     unit = norm.to_unit(pts)
     if crop is not None:
-        local = (pts - norm.center) @ norm.rotation
-        half = np.asarray(box.size, float) / 2 + float(crop)
-        unit = unit[np.all(np.abs(local) <= half, axis=1)]
+        unit = unit[box.contains(pts, margin=float(crop))]
         if len(unit) == 0:
             raise ParameterError("no scan point lies inside the box (after --crop); check the box and the scan's frame")
     partial = prepare_partial(unit, n_input, seed=seed, method=resample_method)

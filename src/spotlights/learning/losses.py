@@ -20,7 +20,9 @@ computes a differentiable squared distance. Index back-ends:
 * ``"cdist"`` - the reference: autograd through ``torch.cdist`` + ``amin`` (slow on
   CPU, memory-hungry; used in tests).
 
-All back-ends give the same values (and the same gradients, barring exact ties).
+All back-ends give the same values (and the same gradients, barring exact ties), and the
+values of the numpy metrics that own these definitions
+(:func:`spotlights.geometry.distances.chamfer_l1` and ``chamfer_l2``; tests/test_losses.py).
 """
 
 from __future__ import annotations
@@ -41,8 +43,7 @@ def _check_clouds(pred: torch.Tensor, target: torch.Tensor) -> None:
 
 def _kdtree_indices(query: np.ndarray, data: np.ndarray) -> np.ndarray:
     """(B, Q) int64 index of the nearest ``data`` point (B, L, 3) for each ``query`` point (B, Q, 3)."""
-    from ..geometry.neighbors import serial_queries
-    from .metrics import NearestNeighbors
+    from ..geometry.neighbors import NearestNeighbors, serial_queries
 
     out = np.empty(query.shape[:2], dtype=np.int64)
     # One thread per query: pykdtree's OpenMP pool (a second libgomp beside torch's) split

@@ -1,9 +1,9 @@
-"""Point-cloud completion metrics (numpy + KD-trees; no torch).
+"""Point-cloud completion metrics of the learning layer: batched evaluation and aggregation (numpy; no torch).
 
-All distances are **unsquared Euclidean distances in the unit frame** (the
-object's circumscribed sphere has radius 1) unless a name says ``squared``.
-For a prediction ``P`` and a ground truth ``G`` (the paper: 16,384 dense
-surface samples):
+Every distance metric is defined once, in :mod:`spotlights.geometry.distances` (re-exported
+here): all distances are **unsquared Euclidean distances in the unit frame** (the object's
+circumscribed sphere has radius 1) unless a name says ``l2``. For a prediction ``P`` and a
+ground truth ``G`` (the paper: 16,384 dense surface samples):
 
 * ``accuracy(P, G)``      = mean over p in P of min_g ||p - g||       (one-sided
   Chamfer distance prediction -> ground truth; the paper's Table 1 metric)
@@ -15,8 +15,8 @@ surface samples):
   (Completion3D/TopNet's CD: sum of the two one-sided means of squared distances)
 * ``fscore(P, G, t)``     = 2 prec rec / (prec + rec), prec = share of P within
   ``t`` of G, rec = share of G within ``t`` of P (Tatarchenko et al.; t = 0.01)
-* ``hit_ratio(depths)``   = share of rays with depth > threshold (a Spotlights
-  array; the paper's Table 5 uses threshold 0, i.e. hits over cast rays).
+* ``kept_ratio(depths, clip)`` = share of rays a prediction keeps (depth > 0, or
+  >= the clip); with clip 0 the paper's hit ratio (Table 5 reports it after the clip).
 
 Nearest neighbours come from a KD-tree (``pykdtree`` when installed, else
 ``scipy.spatial.cKDTree``) built once per ground-truth model and queried with
@@ -30,7 +30,18 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..geometry.neighbors import NearestNeighbors, _as_points, nearest_distances  # noqa: F401  (re-exported)
+from ..geometry.distances import (  # noqa: F401  (re-exported: the metrics' one owner is geometry.distances)
+    accuracy,
+    chamfer_l1,
+    chamfer_l2,
+    combine_directions,
+    completeness,
+    fscore,
+    fscore_from_shares,
+    nearest_distances,
+    reduce_points,
+)
+from ..geometry.neighbors import NearestNeighbors, as_points
 
 METRIC_NAMES = ("accuracy", "completeness", "chamfer_l1", "chamfer_l2", "fscore")
 """Per-sample metrics computed by :func:`evaluate_completions`, in report order."""
@@ -46,64 +57,16 @@ METRIC_DESCRIPTIONS = {
 }
 
 
-def accuracy(pred: np.ndarray, gt: np.ndarray) -> float:
-    """One-sided Chamfer distance pred -> gt (the paper's accuracy, Table 1).
+def kept_ratio(depths: np.ndarray, clip: float = 0.0) -> np.ndarray | float:
+    """Share of rays a (predicted) depth array keeps, along its last axis.
 
-    Mean over the (K, 3) predicted points of the unsquared Euclidean distance to the
-    nearest of the (L, 3) ground-truth points. Same units as the inputs (unit frame).
-    NaN when ``pred`` is empty.
-    """
-    pred = _as_points(pred, "pred")
-    if len(pred) == 0:
-        return float("nan")
-    return float(nearest_distances(pred, gt).mean())
-
-
-def completeness(pred: np.ndarray, gt: np.ndarray) -> float:
-    """One-sided Chamfer distance gt -> pred: mean over gt points of the unsquared NN distance to pred.
-
-    NaN when ``pred`` is empty.
-    """
-    pred = _as_points(pred, "pred")
-    if len(pred) == 0:
-        return float("nan")
-    return float(nearest_distances(gt, pred).mean())
-
-
-def chamfer_l1(pred: np.ndarray, gt: np.ndarray) -> float:
-    """Symmetric CD-L1 (PCN convention): (accuracy + completeness) / 2, unsquared distances."""
-    return 0.5 * (accuracy(pred, gt) + completeness(pred, gt))
-
-
-def chamfer_l2(pred: np.ndarray, gt: np.ndarray) -> float:
-    """Symmetric CD-L2 (Completion3D convention): mean_p min_g |p-g|^2 + mean_g min_p |g-p|^2."""
-    pred = _as_points(pred, "pred")
-    if len(pred) == 0:
-        return float("nan")
-    return float(np.mean(nearest_distances(pred, gt) ** 2) + np.mean(nearest_distances(gt, pred) ** 2))
-
-
-def fscore(pred: np.ndarray, gt: np.ndarray, threshold: float = 0.01) -> float:
-    """F-score at ``threshold`` (unit-frame distance): 2PR/(P+R), 0 when P + R = 0.
-
-    Precision = share of predicted points within ``threshold`` of gt; recall = share
-    of gt points within ``threshold`` of pred (distances <= threshold count).
-    """
-    pred = _as_points(pred, "pred")
-    if len(pred) == 0:
-        return 0.0
-    p = float(np.mean(nearest_distances(pred, gt) <= threshold))
-    r = float(np.mean(nearest_distances(gt, pred) <= threshold))
-    return 2.0 * p * r / (p + r) if p + r > 0 else 0.0
-
-
-def hit_ratio(depths: np.ndarray, threshold: float = 0.0) -> np.ndarray | float:
-    """Share of rays kept along the last axis of a depth array.
+    Not :func:`spotlights.geometry.encode.hit_ratio` (the share of hits of an encoding, over
+    every entry): this one counts per array and knows SA-Net's clip.
 
     Parameters
     ----------
     depths : (..., N*M) depths (0 = miss).
-    threshold : with 0 (default) a ray counts when depth > 0 (the paper's hit ratio);
+    clip : with 0 (default) a ray counts when depth > 0 (the paper's hit ratio);
         with a clip value t > 0, when depth >= t (the rays an SA-Net prediction keeps).
 
     Returns
@@ -111,15 +74,9 @@ def hit_ratio(depths: np.ndarray, threshold: float = 0.0) -> np.ndarray | float:
     float for a 1-D array, else (...) float64 array.
     """
     d = np.asarray(depths)
-    kept = d > 0 if threshold <= 0 else d >= threshold
+    kept = d > 0 if clip <= 0 else d >= clip
     out = kept.mean(axis=-1)
     return float(out) if out.ndim == 0 else out
-
-
-def _fscore_from(p_within: np.ndarray, r_within: np.ndarray) -> np.ndarray:
-    p, r = p_within, r_within
-    s = p + r
-    return np.where(s > 0, 2.0 * p * r / np.where(s > 0, s, 1.0), 0.0)
 
 
 def evaluate_completions(
@@ -164,13 +121,12 @@ def evaluate_completions(
             continue
         if m not in trees:
             trees[m] = NearestNeighbors(gt_dense[m])
-        q = np.concatenate([_as_points(predictions[i], "prediction") for i in sel], axis=0)
-        d = trees[m].distances(q)
-        starts = np.concatenate([[0], np.cumsum(sizes[sel])[:-1]])
-        counts = sizes[sel]
-        acc[sel] = np.add.reduceat(d, starts) / counts
-        acc_sq[sel] = np.add.reduceat(d * d, starts) / counts
-        prec[sel] = np.add.reduceat((d <= fscore_threshold).astype(np.float64), starts) / counts
+        # one query of every prediction of this model, split again per sample
+        q = np.concatenate([as_points(predictions[i], "prediction") for i in sel], axis=0)
+        d = nearest_distances(q, trees[m])
+        acc[sel] = reduce_points(d, "mean", lengths=sizes[sel])
+        acc_sq[sel] = reduce_points(d * d, "mean", lengths=sizes[sel])
+        prec[sel] = reduce_points((d <= fscore_threshold).astype(np.float64), "mean", lengths=sizes[sel])
     out["accuracy"] = acc
     if not with_completeness:
         return out
@@ -179,14 +135,14 @@ def evaluate_completions(
     rec = np.zeros(s_total)
     for i in np.flatnonzero(sizes > 0):
         g = gt_dense[model_index[i]]
-        d = NearestNeighbors(predictions[i]).distances(g)
-        comp[i] = d.mean()
-        comp_sq[i] = np.mean(d * d)
-        rec[i] = np.mean(d <= fscore_threshold)
+        d = nearest_distances(g, predictions[i])
+        comp[i] = reduce_points(d, "mean")
+        comp_sq[i] = reduce_points(d * d, "mean")
+        rec[i] = reduce_points((d <= fscore_threshold).astype(np.float64), "mean")
     out["completeness"] = comp
-    out["chamfer_l1"] = 0.5 * (acc + comp)
-    out["chamfer_l2"] = acc_sq + comp_sq
-    out["fscore"] = _fscore_from(prec, rec)
+    out["chamfer_l1"] = combine_directions(acc, comp, "mean")
+    out["chamfer_l2"] = combine_directions(acc_sq, comp_sq, "sum")
+    out["fscore"] = fscore_from_shares(prec, rec)
     return out
 
 

@@ -1,32 +1,46 @@
-"""Real LiDAR data: dataset readers, vehicle extraction, consistency evaluation.
+"""Real LiDAR data: dataset readers, scan and box files, vehicle extraction.
 
-- :mod:`.base` - the reader interface (:class:`Box`, :class:`Frame`, :class:`SceneReader`).
-- :mod:`.kitti`, :mod:`.av2`, :mod:`.kitti360`, :mod:`.generic` - one module per format.
+- :mod:`.base` - the reader interface (:class:`Frame`, :class:`SceneReader`; boxes are
+  :class:`spotlights.geometry.boxes.Box`).
+- :mod:`.kitti`, :mod:`.av2`, :mod:`.kitti360`, :mod:`.nuscenes`, :mod:`.generic` - one module per format.
+- :mod:`.scans` - raw scan files of every kind; :mod:`.boxfiles` - box files users bring.
 - :mod:`.extract` - points inside vehicle boxes -> unit-frame partial observations (HDF5).
-- :mod:`.evaluate` - completion of the observations and the consistency table (paper Table 2).
 - :mod:`.show` - the paper's qualitative figure: raw scan, partial input, completion.
 
+Completion of real scans and the consistency report (they run models) live one layer up,
+in :mod:`spotlights.experiments.real_evaluation` and :mod:`spotlights.experiments.scene`.
 The file formats, frames and choices are documented in ``docs/real-data.md``.
 """
 
 from __future__ import annotations
 
 import os
+from typing import Sequence
 
-from .base import CLASSES, Box, Frame, SceneReader
+from ...geometry.boxes import Box
+from .base import CLASSES, PAPER_CLASSES, Frame, SceneReader
 
-FORMATS = ("kitti", "kitti360", "av2", "generic")
+FORMATS = ("kitti", "kitti360", "av2", "nuscenes", "generic")
 
 
-def open_reader(source: str | os.PathLike, format: str, **options) -> SceneReader:
+def open_reader(source: str | os.PathLike | Sequence, format: str, **options) -> SceneReader:
     """Open ``source`` with the reader of ``format`` (one of :data:`FORMATS`).
 
-    ``options`` go to the reader: ``velodyne`` (kitti), ``sequences`` and
-    ``frames`` (kitti360), ``boxes`` (generic). Raises
-    :class:`spotlights.errors.InputFileError` for a bad folder or file.
+    ``source`` may be a list of several sources of that format: their frames are read one
+    after another (:class:`MultiReader`). ``options`` go to the reader: ``velodyne`` (kitti),
+    ``sequences`` and ``frames`` (kitti360), ``sequences`` (nuscenes: scene names),
+    ``boxes`` (generic, one scan file). Raises :class:`spotlights.errors.InputFileError`
+    for a bad folder or file.
     """
     from ...errors import ParameterError
 
+    if isinstance(source, (list, tuple)):
+        if len(source) == 1:
+            source = source[0]
+        else:
+            if options.get("boxes") is not None:
+                raise ParameterError("--boxes names the box file of a single scan SOURCE, not of several")
+            return MultiReader([open_reader(s, format, **options) for s in source])
     if format == "kitti":
         from .kitti import KittiReader
 
@@ -39,6 +53,10 @@ def open_reader(source: str | os.PathLike, format: str, **options) -> SceneReade
         from .kitti360 import Kitti360Reader
 
         return Kitti360Reader(source, **options)
+    if format == "nuscenes":
+        from .nuscenes import NuScenesReader
+
+        return NuScenesReader(source, scenes=options.pop("sequences", None), **options)
     if format == "generic":
         from .generic import GenericReader
 
@@ -46,11 +64,43 @@ def open_reader(source: str | os.PathLike, format: str, **options) -> SceneReade
     raise ParameterError(f"unknown format {format!r}; choose one of {', '.join(FORMATS)}")
 
 
+class MultiReader(SceneReader):
+    """Several readers of one format as one dataset: their frames in the order of the readers.
+
+    Frames keep their own sequence names, so two sources that name the same sequence are one
+    sequence (tracks join across them: a drive split into several folders); a (sequence,
+    frame_id) key found in two sources is an error naming both.
+    """
+
+    def __init__(self, readers: Sequence[SceneReader]):
+        from ...errors import InputFileError
+
+        self.readers = list(readers)
+        self.format = self.readers[0].format
+        self.root = self.readers[0].root
+        self.roots = [r.root for r in self.readers]
+        self._owner: dict[tuple[str, str], SceneReader] = {}
+        for r in self.readers:
+            for key in r.frame_keys():
+                if key in self._owner:
+                    raise InputFileError(r.root, f"frame {key[1]!r} of sequence {key[0]!r} is also in {self._owner[key].root}: "
+                                                 "give the sources different sequence names")
+                self._owner[key] = r
+
+    def frame_keys(self) -> list[tuple[str, str]]:
+        keys = [k for r in self.readers for k in r.frame_keys()]
+        # frames of one sequence spread over several sources are put in time order on load; keep source order here
+        return keys
+
+    def load(self, key: tuple[str, str]) -> Frame:
+        return self._owner[key].load(key)
+
+
 def read_scan(path: str | os.PathLike):
-    """Read a raw scan file of any reader: (N, 3) float32, metres, its sensor frame."""
-    from .generic import read_points_file
+    """Read a raw scan file of any kind (see :mod:`.scans`): (N, 3) metres, its sensor frame."""
+    from .scans import read_scan as _read
 
-    return read_points_file(path)
+    return _read(path)
 
 
-__all__ = ["CLASSES", "Box", "Frame", "SceneReader", "FORMATS", "open_reader", "read_scan"]
+__all__ = ["CLASSES", "PAPER_CLASSES", "Box", "Frame", "SceneReader", "MultiReader", "FORMATS", "open_reader", "read_scan"]

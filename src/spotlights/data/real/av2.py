@@ -23,8 +23,9 @@ boxes and points of different sweeps can be put in one city frame.
 Classes (the AV2 taxonomy has no van class: vans are ``REGULAR_VEHICLE``):
 ``REGULAR_VEHICLE`` -> car; ``BOX_TRUCK``, ``TRUCK``, ``TRUCK_CAB`` -> truck;
 ``LARGE_VEHICLE`` (RVs, extended vans, per the AV2 definition) -> caravan;
-``VEHICULAR_TRAILER`` -> trailer. Buses, message-board trailers, two-wheelers
-and every other category are not vehicles of interest.
+``VEHICULAR_TRAILER`` -> trailer; ``BUS``, ``SCHOOL_BUS``, ``ARTICULATED_BUS`` -> bus
+(not a class of the paper's Table 2: left out by ``real extract``'s default classes).
+Message-board trailers, two-wheelers and every other category are not vehicles of interest.
 """
 
 from __future__ import annotations
@@ -35,7 +36,9 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import InputFileError
-from .base import Box, Frame, SceneReader, lookup_class, quaternion_to_matrix
+from ...geometry.boxes import Box
+from ...geometry.rotations import quaternion_to_matrix
+from .base import Frame, SceneReader, lookup_class
 
 CLASS_MAP: dict[str, str | None] = {
     "regular_vehicle": "car",
@@ -44,6 +47,9 @@ CLASS_MAP: dict[str, str | None] = {
     "truck_cab": "truck",
     "large_vehicle": "caravan",
     "vehicular_trailer": "trailer",
+    "bus": "bus",
+    "school_bus": "bus",
+    "articulated_bus": "bus",
 }
 
 ANNOTATION_COLUMNS = (

@@ -16,11 +16,15 @@ For every box of a vehicle class (:data:`~spotlights.data.real.base.CLASSES`):
    ``unit = p_obj / R``, R = half the box diagonal
    (:func:`spotlights.geometry.frames.normalization_from_box`), and resampled
    to ``n_points`` (default 256) by
-   :func:`spotlights.geometry.sampling.resample` (a random subset without
-   replacement, or all points plus random repeats when there are fewer). The
-   random generator of each observation is seeded with ``(seed, crc32 of
-   "sequence/frame_id/box index")``, so the output does not depend on the order
-   or the number of frames processed.
+   :func:`spotlights.geometry.sampling.resample_set`: the points in a canonical
+   (sorted) order, then a random subset without replacement drawn with ``seed``
+   (or all points plus random repeats when there are fewer). The input of an
+   observation depends only on its points and ``seed`` - not on the order or the
+   number of frames processed, nor on the command: ``spotlights complete`` on the
+   same scan and box feeds the model the same 256 points.
+5. Every kept point (before resampling, unit frame) is stored too
+   (``raw_points``/``raw_offsets``): ``real evaluate`` resamples them with a second
+   seed to measure the resampling noise floor.
 
 Skip reasons (counted, never silent): ``class_excluded`` (the label is not a
 vehicle of interest; also counted per source label), ``invalid_box``
@@ -35,7 +39,6 @@ from __future__ import annotations
 
 import json
 import os
-import zlib
 from collections import Counter
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -43,10 +46,13 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import InputFileError, ParameterError
-from .base import CLASSES, Box, Frame, SceneReader
+from ...geometry.boxes import Box
+from .base import CLASSES, PAPER_CLASSES, Frame, SceneReader
 
 FILE_FORMAT = "spotlights-real-observations"
-FILE_FORMAT_VERSION = 1
+FILE_FORMAT_VERSION = 2
+"""2: ``timestamp`` int64 or float64 (float keys are no longer cut), ``raw_points`` and ``raw_offsets``
+added. Version 1 files are read (timestamps int64, no raw points)."""
 SKIP_REASONS = ("class_excluded", "invalid_box", "empty_box", "too_few_points", "duplicate_box")
 DUPLICATE_TOLERANCE_M = 0.05
 """Two vehicle boxes of one frame whose centres and sizes agree within this (metres, per
@@ -63,7 +69,7 @@ class ExtractConfig:
     min_points: int = 10
     n_points: int = 256
     seed: int = 0
-    classes: tuple[str, ...] = CLASSES
+    classes: tuple[str, ...] = PAPER_CLASSES
 
     def __post_init__(self):
         if not (np.isfinite(self.margin) and self.margin >= 0):
@@ -92,7 +98,8 @@ class Observations:
 
     - ``partial`` (n, P, 3) float32: the resampled points, unit frame of the box.
     - ``n_points_raw`` (n,) int32: points inside the (grown, ground-cut) box before resampling.
-    - ``timestamp`` (n,) int64: the frame's order key (ns for AV2, frame index otherwise).
+    - ``timestamp`` (n,) int64 or float64: the frame's order key (ns for AV2, µs for nuScenes,
+      frame index for KITTI, as given for generic frames); float64 as soon as one key is not an integer.
     - ``box_center`` (n, 3), ``box_size`` (n, 3) = (l, w, h), ``box_yaw`` (n,) radians,
       ``box_rotation`` (n, 3, 3) (columns = box axes): float64, metres, sensor frame.
     - ``unit_to_sensor`` (n, 4, 4) float64: homogeneous unit frame -> sensor frame
@@ -100,6 +107,10 @@ class Observations:
     - ``sensor_to_world`` (n, 4, 4) float64: the scan's pose, all NaN when unknown.
     - strings (lists of n): ``sequence``, ``frame_id``, ``track_id`` ("" = untracked),
       ``cls`` (one of CLASSES), ``label`` (the dataset's label), ``scan_path``, ``label_path``.
+
+    - ``raw_points`` (total, 3) float32 and ``raw_offsets`` (n + 1,) int64: every kept point of
+      observation i (unit frame, before resampling) is ``raw_points[raw_offsets[i]:raw_offsets[i+1]]``
+      (:meth:`raw`); empty (offsets all 0) for files of format version 1.
 
     ``meta``: source format, source path, config dict, ``skipped`` {reason: count},
     ``skipped_labels`` {label: count}, ``n_frames``, ``n_boxes``.
@@ -122,9 +133,27 @@ class Observations:
     scan_path: list[str]
     label_path: list[str]
     meta: dict = field(default_factory=dict)
+    raw_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
+    raw_offsets: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.raw_offsets is None:
+            self.raw_offsets = np.zeros(len(self) + 1, dtype=np.int64)
 
     def __len__(self) -> int:
         return int(self.partial.shape[0])
+
+    @property
+    def has_raw(self) -> bool:
+        """True when every observation's kept points are stored (format version 2)."""
+        return len(self) > 0 and bool(np.all(np.diff(self.raw_offsets) > 0))
+
+    def raw(self, i: int) -> np.ndarray:
+        """(n_points_raw[i], 3) float32 unit-frame points of observation ``i`` before resampling."""
+        if not self.has_raw:
+            raise InputFileError(self.meta.get("file", "observations"), "holds no raw points (format version 1): "
+                                 "extract it again with this spotlights")
+        return self.raw_points[self.raw_offsets[i]:self.raw_offsets[i + 1]]
 
     def object_keys(self) -> list[tuple[str, str]]:
         """(sequence, track_id) of every observation ("" track ids stay distinct per row)."""
@@ -137,21 +166,17 @@ _STRINGS = ("sequence", "frame_id", "track_id", "cls", "label", "scan_path", "la
 
 def points_in_box(points: np.ndarray, box: Box, margin: float, ground_clearance: float) -> np.ndarray:
     """Boolean mask (N,) of the sensor-frame points (N, 3) inside ``box`` grown by ``margin``
-    (sides and top, metres) with its bottom raised by ``ground_clearance`` metres."""
-    p = box.to_object(points)
-    half = 0.5 * box.size
-    return (
-        (np.abs(p[:, 0]) <= half[0] + margin)
-        & (np.abs(p[:, 1]) <= half[1] + margin)
-        & (p[:, 2] <= half[2] + margin)
-        & (p[:, 2] >= -half[2] + ground_clearance)
-    )
+    (sides and top, metres) with its bottom raised by ``ground_clearance`` metres
+    (:meth:`spotlights.geometry.boxes.Box.contains`)."""
+    return box.contains(points, margin=margin, ground_clearance=ground_clearance)
 
 
-def observation_seed(seed: int, sequence: str, frame_id: str, box_index: int) -> np.random.Generator:
-    """The random generator of one observation: independent of processing order."""
-    key = zlib.crc32(f"{sequence}/{frame_id}/{box_index}".encode("utf-8"))
-    return np.random.default_rng([int(seed), key])
+def crop_box(points: np.ndarray, box: Box, margin: float, ground_clearance: float) -> np.ndarray:
+    """Indices (k,) int64 of the scan points (N, 3) float64 inside ``box`` as :func:`points_in_box` cuts it,
+    with a cheap distance pre-cut first (scans hold ~100k points)."""
+    reach = box.radius + max(float(margin), 0.0) + abs(float(ground_clearance))
+    near = np.flatnonzero(np.sum((points - box.center) ** 2, axis=1) <= reach * reach)
+    return near[points_in_box(points[near], box, margin, ground_clearance)]
 
 
 def duplicate_boxes(boxes: list[Box], tol: float = DUPLICATE_TOLERANCE_M) -> set[int]:
@@ -185,8 +210,7 @@ def duplicate_boxes(boxes: list[Box], tol: float = DUPLICATE_TOLERANCE_M) -> set
 
 def extract_frame(frame: Frame, config: ExtractConfig, skipped: Counter, skipped_labels: Counter) -> list[dict]:
     """Observations of one frame (a list of dicts, see :class:`Observations`); updates the skip counters."""
-    from ...geometry.frames import normalization_from_box
-    from ...geometry.sampling import resample
+    from ...geometry.sampling import resample_set
 
     out = []
     pts = np.asarray(frame.points, dtype=np.float64)
@@ -205,10 +229,7 @@ def extract_frame(frame: Frame, config: ExtractConfig, skipped: Counter, skipped
         if i in duplicates:
             skipped["duplicate_box"] += 1
             continue
-        # Cheap pre-cut by distance before the exact test (scans have ~100k points).
-        reach = box.radius + config.margin
-        near = np.flatnonzero(np.sum((pts - box.center) ** 2, axis=1) <= reach * reach)
-        inside = near[points_in_box(pts[near], box, config.margin, config.ground_clearance)]
+        inside = crop_box(pts, box, config.margin, config.ground_clearance)
         n = int(inside.size)
         if n == 0:
             skipped["empty_box"] += 1
@@ -216,15 +237,15 @@ def extract_frame(frame: Frame, config: ExtractConfig, skipped: Counter, skipped
         if n < config.min_points:
             skipped["too_few_points"] += 1
             continue
-        norm = normalization_from_box(box.center, box.size, rotation=box.rotation)
+        norm = box.normalization()
         unit = norm.to_unit(pts[inside])
-        rng = observation_seed(config.seed, frame.sequence, frame.frame_id, i)
-        partial = resample(unit, config.n_points, seed=rng).astype(np.float32)
+        partial = resample_set(unit, config.n_points, seed=config.seed).astype(np.float32)
         out.append(
             dict(
                 partial=partial,
+                raw=unit.astype(np.float32),
                 n_points_raw=n,
-                timestamp=int(frame.timestamp),
+                timestamp=frame.timestamp,
                 box_center=box.center,
                 box_size=box.size,
                 box_yaw=box.yaw,
@@ -288,10 +309,15 @@ def _stack(rows: list[dict], n_points: int, meta: dict) -> Observations:
             return np.zeros((0,) + shape, dtype=dtype)
         return np.stack([np.asarray(r[name], dtype=dtype) for r in rows]).reshape((n,) + shape)
 
+    ts_dtype = np.int64 if all(isinstance(r["timestamp"], (int, np.integer)) for r in rows) else np.float64
+    raw = [r["raw"] for r in rows] if all("raw" in r for r in rows) else []  # rows without raw points: none stored
+    offsets = np.zeros(n + 1, dtype=np.int64)
+    if raw:
+        offsets[1:] = np.cumsum([len(r) for r in raw])
     return Observations(
         partial=arr("partial", (n_points, 3), np.float32),
         n_points_raw=arr("n_points_raw", (), np.int32),
-        timestamp=arr("timestamp", (), np.int64),
+        timestamp=arr("timestamp", (), ts_dtype),
         box_center=arr("box_center", (3,), np.float64),
         box_size=arr("box_size", (3,), np.float64),
         box_yaw=arr("box_yaw", (), np.float64),
@@ -300,6 +326,8 @@ def _stack(rows: list[dict], n_points: int, meta: dict) -> Observations:
         sensor_to_world=arr("sensor_to_world", (4, 4), np.float64),
         **{s: [str(r[s]) for r in rows] for s in _STRINGS},
         meta=meta,
+        raw_points=np.concatenate(raw).astype(np.float32) if raw else np.zeros((0, 3), np.float32),
+        raw_offsets=offsets,
     )
 
 
@@ -332,6 +360,9 @@ def write_observations(path: str | os.PathLike, obs: Observations) -> Path:
                 if name == "partial" and n:
                     kw = dict(chunks=(1,) + a.shape[1:], compression="gzip", compression_opts=4, shuffle=True)
                 g.create_dataset(name, data=a, **kw)
+            raw_kw = dict(compression="gzip", compression_opts=4, shuffle=True) if len(obs.raw_points) else {}
+            g.create_dataset("raw_points", data=np.asarray(obs.raw_points, np.float32).reshape(-1, 3), **raw_kw)
+            g.create_dataset("raw_offsets", data=np.asarray(obs.raw_offsets, np.int64))
             st = h5py.string_dtype("utf-8")
             for name in _STRINGS:
                 g.create_dataset(name, data=np.array(getattr(obs, name), dtype=object), dtype=st, shape=(n,))
@@ -359,6 +390,10 @@ def read_observations(path: str | os.PathLike) -> Observations:
         if missing:
             raise InputFileError(path, f"missing dataset(s) {', '.join('observations/' + m for m in missing)}")
         arrays = {k: g[k][()] for k in _ARRAYS}
+        version = int(f.attrs.get("format_version", 1))
+        if version >= 2 and "raw_points" in g and "raw_offsets" in g:
+            arrays["raw_points"] = g["raw_points"][()]
+            arrays["raw_offsets"] = g["raw_offsets"][()]
         strings = {k: [s.decode("utf-8") if isinstance(s, bytes) else str(s) for s in g[k][()]] for k in _STRINGS}
         meta = dict(
             source_format=str(f.attrs.get("source_format", "")),
@@ -370,6 +405,12 @@ def read_observations(path: str | os.PathLike) -> Observations:
             n_boxes=int(f.attrs.get("n_boxes", 0)),
         )
     n = arrays["partial"].shape[0]
-    if any(len(v) != n for v in list(arrays.values()) + list(strings.values())):
+    if any(len(arrays[k]) != n for k in _ARRAYS) or any(len(v) != n for v in strings.values()):
         raise InputFileError(path, "observation datasets have different lengths")
+    if "raw_offsets" in arrays:
+        off = arrays["raw_offsets"]
+        if off.shape != (n + 1,) or off[0] != 0 or np.any(np.diff(off) < 0) or off[-1] != len(arrays["raw_points"]):
+            raise InputFileError(path, "observations/raw_offsets do not index observations/raw_points")
+    meta["file"] = str(path)
+    meta["format_version"] = version
     return Observations(**arrays, **strings, meta=meta)

@@ -1,128 +1,111 @@
-"""Generic reader: point-cloud files plus boxes in JSON.
+"""Generic reader: point-cloud files plus boxes in JSON, one frame or a whole sequence.
 
-Two ways to give the data:
+Three ways to give the data (``SOURCE``):
 
-1. ``SOURCE`` is a point-cloud file (``.bin`` KITTI-style N x 4 float32,
-   ``.feather`` with x, y, z columns, or anything
-   :func:`spotlights.geometry.io.load_points` reads: PLY, PCD, NPY, NPZ, XYZ,
-   TXT) and ``boxes`` is a JSON file holding a **list of boxes** (default: the
-   scan's name with ``.json``, e.g. ``scan.ply`` -> ``scan.json``). One frame.
+1. **A scan file** (any kind :func:`spotlights.data.real.scans.read_scan` reads: KITTI
+   ``.bin``, nuScenes ``.pcd.bin``, AV2 ``.feather``, PLY, PCD, NPY, NPZ, XYZ, TXT, LAS,
+   LAZ) and its box file ``boxes`` (default: the scan's name with ``.json``, e.g.
+   ``scan.ply`` -> ``scan.json``). One frame.
 
-2. ``SOURCE`` is a JSON **scene** file::
+2. **A folder of frames**: every scan file in it with a box file of the same name
+   (``0001.pcd`` + ``0001.json``, ``a.pcd.bin`` + ``a.json``). Each box file is a box list
+   or a per-frame object ``{"timestamp": 0.35, "frame_index": 7, "boxes": [...]}``
+   (:mod:`spotlights.data.real.boxfiles`). ``sequence`` defaults to the folder's name.
 
-       {"frames": [
-          {"scan": "scans/0001.ply",          # relative to the JSON file's folder
-           "frame_id": "0001",                 # optional (default: the scan's stem)
-           "timestamp": 1,                     # optional integer order key (default: the frame's index)
-           "sequence": "drive-a",              # optional (default: "")
-           "sensor_to_world": [[...4x4...]],   # optional
-           "boxes": [ ...boxes... ]},
+3. **A sequence (scene) JSON**::
+
+       {"sequence": "drive-a",                   # optional default for the frames
+        "frames": [
+          {"scan": "scans/0001.ply",           # relative to the JSON file's folder
+           "boxes": "boxes/0001.json",         # a per-frame box file, or the box list inline
+           "frame_id": "0001",                 # optional (default: the scan's name)
+           "timestamp": 0.1,                   # optional float order key (seconds, or any unit)
+           "frame_index": 1,                   # optional integer order key
+           "sequence": "drive-a",              # optional (default: the top-level one, else "")
+           "sensor_to_world": [[...4x4...]]},  # optional
           ...]}
+
+Order and time. Frames are ordered within a sequence by ``timestamp`` (kept as given,
+an integer or a float: 0.25 s and 0.5 s stay apart), else by ``frame_index``, else (folders only)
+by the scan's name in natural order (``2`` before ``10``); the frame's
+:attr:`~spotlights.data.real.base.Frame.timestamp` is that key (the position in the
+list when there is none). A sequence must use one kind of key for all its frames.
+Keys given in a per-frame box file fill those the sequence JSON leaves out.
 
 A box is an object with ``center`` [x, y, z] (metres, the box centre, in the
 scan's frame, z up), ``size`` [length, width, height] (metres), either ``yaw``
 (radians about +z, 0 = box x along the scan's x) or ``rotation`` (3x3 nested
-list, row-major, whose columns are the box's forward, left, up axes), a
-``label`` string, and optionally ``track_id`` (a string or integer; boxes with
-the same ``track_id`` in different frames of one sequence are the same object).
+list, row-major, whose columns are the box's forward, left, up axes; or a
+quaternion w, x, y, z), a ``label`` string, and optionally ``track_id`` (a
+string or integer; boxes with the same ``track_id`` in different frames of one
+sequence are the same object).
 
 Labels map to classes case-insensitively: the class names themselves (car,
-truck, caravan, van, trailer) and every label the other readers know (KITTI,
-KITTI-360, Argoverse 2) are accepted; anything else is not a vehicle of interest.
+truck, caravan, van, trailer, bus, construction, emergency) and every label the other
+readers know (KITTI, KITTI-360, Argoverse 2, nuScenes) are accepted; anything else is
+not a vehicle of interest.
 """
 
 from __future__ import annotations
 
-import json
 import os
+import re
 from pathlib import Path
 
 import numpy as np
 
 from ...errors import InputFileError
-from . import av2, kitti, kitti360
-from .base import Box, Frame, SceneReader, lookup_class, orthonormalize
+from .base import Frame, SceneReader
+from .boxfiles import CLASS_MAP, load_json, parse_boxes, parse_frame_keys, read_json_boxes  # noqa: F401  (CLASS_MAP re-exported)
+from .scans import read_scan, scan_kind
 
-CLASS_MAP: dict[str, str | None] = {
-    **{k: v for k, v in kitti360.CLASS_MAP.items()},
-    **{k: v for k, v in kitti.CLASS_MAP.items()},
-    **{k: v for k, v in av2.CLASS_MAP.items()},
-    "car": "car", "truck": "truck", "caravan": "caravan", "van": "caravan", "trailer": "trailer",
-}
+SCAN_NAME_SUFFIXES = (".pcd.bin", ".bin", ".feather", ".ply", ".pcd", ".npy", ".npz", ".xyz", ".txt", ".las", ".laz")
 
 
 def read_points_file(path: str | os.PathLike) -> np.ndarray:
-    """Read a point-cloud file of any supported kind: (N, 3) float32 metres."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputFileError(path, "scan file not found")
-    suffix = path.suffix.lower()
-    if suffix == ".bin":
-        return kitti.read_kitti_bin(path)
-    if suffix == ".feather":
-        return av2.read_av2_sweep(path)
-    from ...geometry.io import load_points
-
-    return np.asarray(load_points(path), dtype=np.float32)
+    """Read a point-cloud file of any supported kind: (N, 3) metres (see :func:`~spotlights.data.real.scans.read_scan`)."""
+    return read_scan(path)
 
 
-def _vec(v, n, path, what) -> np.ndarray:
-    try:
-        a = np.asarray(v, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputFileError(path, f"{what} is not numeric") from None
-    shape = (n,) if isinstance(n, int) else tuple(n)
-    if a.shape != shape:
-        raise InputFileError(path, f"{what} has shape {a.shape}, expected {shape}")
-    if not np.all(np.isfinite(a)):
-        raise InputFileError(path, f"{what} is not finite")
-    return a
+def frame_name(path: Path) -> str:
+    """A scan file's name without its scan suffix (``a.pcd.bin`` -> ``a``, ``0001.ply`` -> ``0001``)."""
+    low = path.name.lower()
+    for sfx in SCAN_NAME_SUFFIXES:
+        if low.endswith(sfx) and len(low) > len(sfx):
+            return path.name[: -len(sfx)]
+    return path.stem
 
 
-def parse_box(d, path, what: str) -> Box:
-    """One JSON box -> :class:`Box`; raises InputFileError naming ``path`` and ``what`` if malformed."""
-    if not isinstance(d, dict):
-        raise InputFileError(path, f"{what} is not an object")
-    for key in ("center", "size", "label"):
-        if key not in d:
-            raise InputFileError(path, f"{what} lacks {key!r}")
-    center = _vec(d["center"], 3, path, f"{what} center")
-    size = _vec(d["size"], 3, path, f"{what} size")
-    if "rotation" in d:
-        rot = _vec(d["rotation"], (3, 3), path, f"{what} rotation")
-        if not np.allclose(rot.T @ rot, np.eye(3), atol=1e-3) or np.linalg.det(rot) < 0:
-            raise InputFileError(path, f"{what} rotation is not a proper rotation matrix")
-        rot = orthonormalize(rot)
-    elif "yaw" in d:
-        try:
-            yaw = float(d["yaw"])
-        except (TypeError, ValueError):
-            raise InputFileError(path, f"{what} yaw is not a number") from None
-        rot = Box.from_yaw(center, size, yaw, "", None).rotation
-    else:
-        raise InputFileError(path, f"{what} needs 'yaw' or 'rotation'")
-    label = str(d["label"])
-    track = d.get("track_id", "")
-    return Box(center, size, rot, label, lookup_class(label, CLASS_MAP), "" if track is None else str(track))
+def natural_key(text: str) -> list:
+    """Sort key that orders digit runs by value (``frame2`` before ``frame10``)."""
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", text)]
 
 
-def _load_json(path: Path):
-    if not path.is_file():
-        raise InputFileError(path, "JSON file not found")
-    try:
-        with open(path, encoding="utf-8") as fh:
-            return json.load(fh)
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputFileError(path, f"not valid JSON ({exc})") from None
+def _order_sequence(frames: list[dict], source) -> None:
+    """Set each frame's ``timestamp`` (order key) from timestamp / frame_index / position; one kind per sequence."""
+    by_seq: dict[str, list[dict]] = {}
+    for f in frames:
+        by_seq.setdefault(f["sequence"], []).append(f)
+    for seq, fs in by_seq.items():
+        kinds = {("timestamp" if f.get("timestamp") is not None else "frame_index" if f.get("frame_index") is not None else "none")
+                 for f in fs}
+        if len(kinds) > 1:
+            first = next(f for f in fs if f.get("timestamp") is None)
+            raise InputFileError(source, f"sequence {seq!r} mixes frames with and without a timestamp (e.g. frame "
+                                         f"{first['frame_id']!r}); give every frame a timestamp, or every frame a frame_index")
+        kind = kinds.pop()
+        for pos, f in enumerate(fs):
+            f["timestamp"] = (f["timestamp"] if kind == "timestamp" else
+                              int(f["frame_index"]) if kind == "frame_index" else pos)
 
 
 class GenericReader(SceneReader):
-    """A point-cloud file with a JSON box list, or a JSON scene file (see the module doc).
+    """A scan file with its JSON boxes, a folder of frames, or a sequence JSON (see the module doc).
 
     Parameters
     ----------
-    source : the scan file or the scene JSON.
-    boxes : for a single scan, its JSON box list (default: ``source`` with ``.json``).
+    source : the scan file, the folder, or the sequence JSON.
+    boxes : for a single scan, its JSON box file (default: the scan's name with ``.json``).
     """
 
     format = "generic"
@@ -131,58 +114,99 @@ class GenericReader(SceneReader):
         source = Path(source)
         if not source.exists():
             raise InputFileError(source, "not found")
-        self.root = str(source.parent)
-        self._frames: list[dict] = []
-        if source.suffix.lower() == ".json":
-            data = _load_json(source)
-            if not isinstance(data, dict) or not isinstance(data.get("frames"), list):
-                raise InputFileError(source, 'a scene file must be {"frames": [...]} (a bare box list needs a scan file as SOURCE)')
-            for i, fr in enumerate(data["frames"]):
-                what = f"frames[{i}]"
-                if not isinstance(fr, dict) or "scan" not in fr or not isinstance(fr.get("boxes"), list):
-                    raise InputFileError(source, f"{what} needs 'scan' and a 'boxes' list")
-                scan = (source.parent / str(fr["scan"])).resolve()
-                if not scan.is_file():
-                    raise InputFileError(scan, f"scan file of {what} not found")
-                pose = fr.get("sensor_to_world")
-                self._frames.append(
-                    dict(
-                        scan=scan,
-                        label_path=source,
-                        frame_id=str(fr.get("frame_id", scan.stem)),
-                        timestamp=int(fr.get("timestamp", i)),
-                        sequence=str(fr.get("sequence", "")),
-                        pose=None if pose is None else _vec(pose, (4, 4), source, f"{what} sensor_to_world"),
-                        boxes=[parse_box(b, source, f"{what} box {j}") for j, b in enumerate(fr["boxes"])],
-                    )
-                )
+        self.root = str(source if source.is_dir() else source.parent)
+        if boxes is not None and (source.is_dir() or source.suffix.lower() == ".json"):
+            raise InputFileError(source, "--boxes applies to a single scan file SOURCE (a folder or sequence JSON names its own box files)")
+        if source.is_dir():
+            frames = self._folder(source)
+        elif source.suffix.lower() == ".json":
+            frames = self._sequence_json(source)
         else:
-            box_path = Path(boxes) if boxes is not None else source.with_suffix(".json")
-            data = _load_json(box_path)
-            if not isinstance(data, list):
-                raise InputFileError(box_path, "expected a JSON list of boxes")
-            self._frames.append(
-                dict(scan=source, label_path=box_path, frame_id=source.stem, timestamp=0, sequence="", pose=None,
-                     boxes=[parse_box(b, box_path, f"box {j}") for j, b in enumerate(data)])
-            )
-        if not self._frames:
+            box_path = Path(boxes) if boxes is not None else source.with_name(frame_name(source) + ".json")
+            bf = read_json_boxes(box_path)
+            frames = [dict(scan=source, label_path=box_path, frame_id=bf.frame_id or frame_name(source),
+                           timestamp=bf.timestamp, frame_index=bf.frame_index, sequence=bf.sequence or "",
+                           pose=bf.sensor_to_world, boxes=bf.boxes)]
+        if not frames:
             raise InputFileError(source, "no frames")
-        keys = [(f["sequence"], f["frame_id"]) for f in self._frames]
+        keys = [(f["sequence"], f["frame_id"]) for f in frames]
         if len(set(keys)) != len(keys):
-            raise InputFileError(source, "two frames share the same sequence and frame_id")
-        order = sorted(range(len(self._frames)), key=lambda i: (self._frames[i]["sequence"], self._frames[i]["timestamp"], i))
-        self._frames = [self._frames[i] for i in order]
+            dup = next(k for k in keys if keys.count(k) > 1)
+            raise InputFileError(source, f"two frames share the sequence {dup[0]!r} and frame_id {dup[1]!r}")
+        _order_sequence(frames, source)
+        order = sorted(range(len(frames)), key=lambda i: (frames[i]["sequence"], frames[i]["timestamp"], i))
+        self._frames = [frames[i] for i in order]
+        self._index = {(f["sequence"], f["frame_id"]): f for f in self._frames}
+
+    @staticmethod
+    def _folder(folder: Path) -> list[dict]:
+        scans = []
+        for p in folder.iterdir():
+            if not p.is_file() or p.suffix.lower() == ".json":
+                continue
+            try:
+                scan_kind(p)
+            except InputFileError:
+                continue  # not a scan (README, pictures, ...)
+            scans.append(p)
+        if not scans:
+            raise InputFileError(folder, "no scan files (.bin, .pcd.bin, .ply, .pcd, .npy, .las, ...) in this folder")
+        scans.sort(key=lambda p: natural_key(frame_name(p)))
+        frames = []
+        names = [frame_name(p) for p in scans]
+        if len(set(names)) != len(names):
+            dup = next(n for n in names if names.count(n) > 1)
+            raise InputFileError(folder, f"several scan files are named {dup!r}: one scan per frame name")
+        for p, name in zip(scans, names):
+            box_path = folder / f"{name}.json"
+            if not box_path.is_file():
+                raise InputFileError(box_path, f"box file of scan {p.name} not found (each scan needs NAME.json beside it)")
+            bf = read_json_boxes(box_path)
+            frames.append(dict(scan=p, label_path=box_path, frame_id=bf.frame_id or name, timestamp=bf.timestamp,
+                               frame_index=bf.frame_index, sequence=bf.sequence if bf.sequence is not None else folder.name,
+                               pose=bf.sensor_to_world, boxes=bf.boxes))
+        return frames
+
+    @staticmethod
+    def _sequence_json(source: Path) -> list[dict]:
+        data = load_json(source)
+        if not isinstance(data, dict) or not isinstance(data.get("frames"), list):
+            raise InputFileError(source, 'a sequence file must be {"frames": [...]} (a bare box list needs a scan file as SOURCE)')
+        default_seq = str(data["sequence"]) if data.get("sequence") is not None else ""
+        frames = []
+        for i, fr in enumerate(data["frames"]):
+            what = f"frames[{i}]"
+            if not isinstance(fr, dict) or "scan" not in fr or not isinstance(fr.get("boxes"), (list, str)):
+                raise InputFileError(source, f"{what} needs 'scan' and 'boxes' (a list of boxes, or a box file path)")
+            scan = (source.parent / str(fr["scan"])).resolve()
+            if not scan.is_file():
+                raise InputFileError(scan, f"scan file of {what} not found")
+            keys = parse_frame_keys(fr, source, what)
+            if isinstance(fr["boxes"], str):
+                box_path = (source.parent / fr["boxes"]).resolve()
+                bf = read_json_boxes(box_path)
+                boxes, label_path = bf.boxes, box_path
+                for k, v in (("timestamp", bf.timestamp), ("frame_index", bf.frame_index), ("frame_id", bf.frame_id),
+                             ("sequence", bf.sequence), ("sensor_to_world", bf.sensor_to_world)):
+                    if k not in keys and v is not None:
+                        keys[k] = v
+            else:
+                boxes, label_path = parse_boxes(fr["boxes"], source, what=f"{what} box"), source
+            frames.append(dict(scan=scan, label_path=label_path, frame_id=keys.get("frame_id", frame_name(scan)),
+                               timestamp=keys.get("timestamp"), frame_index=keys.get("frame_index"),
+                               sequence=keys.get("sequence", default_seq), pose=keys.get("sensor_to_world"), boxes=boxes))
+        return frames
 
     def frame_keys(self) -> list[tuple[str, str]]:
         return [(f["sequence"], f["frame_id"]) for f in self._frames]
 
     def load(self, key: tuple[str, str]) -> Frame:
-        f = next(f for f in self._frames if (f["sequence"], f["frame_id"]) == key)
+        f = self._index[key]
         return Frame(
             sequence=f["sequence"],
             frame_id=f["frame_id"],
             timestamp=f["timestamp"],
-            points=read_points_file(f["scan"]),
+            points=read_scan(f["scan"]),
             boxes=list(f["boxes"]),
             sensor_to_world=f["pose"],
             scan_path=str(f["scan"]),

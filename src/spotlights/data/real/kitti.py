@@ -38,27 +38,14 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import InputFileError
-from .base import Box, Frame, SceneReader, lookup_class, orthonormalize
+from ...geometry.boxes import Box
+from ...geometry.rotations import orthonormalize
+from .base import Frame, SceneReader, lookup_class
+from .scans import read_kitti_bin  # noqa: F401  (re-exported: the KITTI reader's scan format)
 
 CLASS_MAP: dict[str, str | None] = {"car": "car", "van": "caravan", "truck": "truck"}
 
 VELODYNE_FOLDERS = ("velodyne", "velodyne_reduced")
-
-
-def read_kitti_bin(path: str | os.PathLike) -> np.ndarray:
-    """Read a KITTI Velodyne ``.bin`` scan: returns (N, 3) float32 x, y, z in metres (sensor frame).
-
-    Raises :class:`InputFileError` if the file is missing or its size is not a
-    multiple of 16 bytes (4 float32 per point).
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise InputFileError(path, "scan file not found")
-    size = path.stat().st_size
-    if size % 16:
-        raise InputFileError(path, f"size {size} bytes is not a multiple of 16 (N x 4 float32 expected)")
-    data = np.fromfile(path, dtype="<f4").reshape(-1, 4)
-    return np.ascontiguousarray(data[:, :3])
 
 
 def read_calib(path: str | os.PathLike) -> dict[str, np.ndarray]:

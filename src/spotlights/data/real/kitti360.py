@@ -35,9 +35,9 @@ Velodyne -> world transform of frame f is
 and world boxes are moved into the Velodyne frame with its inverse. Frames
 without a pose or without a scan are left out. Track id = ``"<semanticId>-<instanceId>"``.
 
-Classes: car -> car, truck -> truck, caravan -> caravan, trailer -> trailer.
-Only objects of KITTI-360's vehicle category are read (the four above plus
-bus, train, motorcycle, bicycle, unknown vehicle, counted as excluded by the
+Classes: car -> car, truck -> truck, caravan -> caravan, trailer -> trailer, bus -> bus.
+Only objects of KITTI-360's vehicle category are read (the five above plus
+train, motorcycle, bicycle, unknown vehicle, counted as excluded by the
 extraction); scene objects such as buildings, poles or signs are ignored.
 """
 
@@ -50,10 +50,12 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import InputFileError
-from .base import Box, Frame, SceneReader, lookup_class, orthonormalize
-from .kitti import read_kitti_bin
+from ...geometry.boxes import Box
+from ...geometry.rotations import orthonormalize
+from .base import Frame, SceneReader, lookup_class
+from .scans import read_kitti_bin
 
-CLASS_MAP: dict[str, str | None] = {"car": "car", "truck": "truck", "caravan": "caravan", "trailer": "trailer"}
+CLASS_MAP: dict[str, str | None] = {"car": "car", "truck": "truck", "caravan": "caravan", "trailer": "trailer", "bus": "bus"}
 
 #: KITTI-360 ``semanticId`` (the "kittiId" of kitti360scripts' label table) -> label name,
 #: for the instance classes (used when an XML object has no ``label`` element).

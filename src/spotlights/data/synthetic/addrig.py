@@ -20,12 +20,12 @@ from ...errors import InputFileError, ParameterError
 from ...geometry.encode import MeshProbe
 from ...geometry.frames import normalization_from_mesh
 from ...geometry.rig import Rig, RigSpec
-from ...utils import atomic_output
+from ...utils import atomic_output, exclusive_lock
 from ..store import open_dataset, write_rig_group
 from .catalogue import apply_augment, discover_sources, load_model, source_root, source_scale
 from .config import BuildConfig, parse_rig
 from .ray_backend import RayBuild
-from .runner import default_log, exclusive_lock, map_units, worker_state
+from .runner import default_log, map_units, worker_state
 
 # ----------------------------------------------------------------------------------------------
 # adding a rig to an existing dataset file
@@ -116,7 +116,7 @@ def add_rig(path: str | os.PathLike, rig: "str | Rig | RigSpec", meshes: str | o
     open_dataset(path).close()  # a missing or foreign file fails before a lock file is made beside it
     # Two add-rig runs on one file would each copy it and rename their copy onto it: the last
     # rename would drop the other's rig. A lock beside the file makes the second one fail.
-    with exclusive_lock(path, path.with_name(f".{path.name}.lock"), "another 'dataset add-rig' is rewriting this file right now"):
+    with exclusive_lock(path.with_name(f".{path.name}.lock"), f"{path}: another 'dataset add-rig' is rewriting this file right now"):
         return _add_rig_locked(path, rig, meshes, workers, progress, log or default_log, backend, ray_address,
                                retries)
 

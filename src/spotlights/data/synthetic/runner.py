@@ -26,8 +26,8 @@ import numpy as np
 from tqdm import tqdm
 
 from ...distributed import DEFAULT_RETRIES, check_backend, import_ray, ray_session
-from ...errors import InputFileError, ParameterError, SpotlightsError
-from ...utils import atomic_output, process_pool_context
+from ...errors import InputFileError, ParameterError
+from ...utils import atomic_output, exclusive_lock, process_pool_context
 from ..store import open_dataset
 from .catalogue import build_catalogue
 from .config import PLAN_VERSION, BuildConfig
@@ -104,27 +104,6 @@ def _plan_units(n_models: int, views: int, block: int) -> list[tuple]:
     return units
 
 
-@contextlib.contextmanager
-def exclusive_lock(parts: Path, lock_file: Path | None = None, busy: str = "another build is writing this dataset right now"):
-    """Exclusive, non-blocking lock (``parts/.lock``, or ``lock_file``), so that two builds never
-    write the same shards and two ``add-rig`` runs never rewrite the same file; raises
-    SpotlightsError naming ``parts`` when another process holds it."""
-    try:
-        import fcntl
-    except ImportError:  # pragma: no cover - not POSIX: no lock
-        yield
-        return
-    fh = open(lock_file if lock_file is not None else parts / ".lock", "w")
-    try:
-        try:
-            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            raise SpotlightsError(f"{parts}: {busy}") from None
-        yield
-    finally:
-        fh.close()
-
-
 def default_log(msg: str) -> None:
     tqdm.write(msg, file=sys.stderr)
 
@@ -196,7 +175,8 @@ def build_dataset(cfg: BuildConfig, out: str | os.PathLike, workers: int | None 
         if overwrite and parts.exists():
             shutil.rmtree(parts)
         parts.mkdir(parents=True, exist_ok=True)
-        with exclusive_lock(parts):
+        # two builds never write the same parts
+        with exclusive_lock(parts / ".lock", f"{parts}: another build is writing this dataset right now"):
             block = _check_plan(parts, plan, block)
             for stale in parts.glob(".*.part*"):  # temporaries of a killed run
                 stale.unlink(missing_ok=True)

@@ -23,13 +23,17 @@ from ...errors import InputFileError, ParameterError
 
 MODEL_REGISTRY: dict[str, str] = {
     "sanet": "spotlights.learning.models.sanet:SANet",
+    "sanet-hit": "spotlights.learning.models.sanet_hit:HitSANet",
     "pcn": "spotlights.learning.models.pcn:PCN",
     "foldingnet": "spotlights.learning.models.foldingnet:FoldingNet",
     "topnet": "spotlights.learning.models.topnet:TopNet",
     "atlasnet": "spotlights.learning.models.atlasnet:AtlasNet",
 }
 MODEL_NAMES = tuple(MODEL_REGISTRY)
-DISPLAY_NAMES = {"sanet": "SA-Net", "pcn": "PCN", "foldingnet": "FoldingNet", "topnet": "TopNet", "atlasnet": "AtlasNet"}
+SCHEDULE_FALLBACK = {"sanet-hit": "sanet"}
+"""A schedule without a section for a model uses the section of the model named here (a variant trains
+like its parent unless the schedule says otherwise)."""
+DISPLAY_NAMES = {"sanet": "SA-Net", "sanet-hit": "SA-Net (hit-aware)", "pcn": "PCN", "foldingnet": "FoldingNet", "topnet": "TopNet", "atlasnet": "AtlasNet"}
 
 
 def check_model_name(name: str) -> str:
@@ -86,7 +90,7 @@ def deep_merge(base: dict, override: dict) -> dict:
 def schedule_path(schedule) -> Path:
     """Path of a training schedule: a packaged name (``cpu``, ``paper``) or a YAML file."""
     p = Path(str(schedule))
-    if p.suffix.lower() in (".yaml", ".yml") or p.exists():
+    if p.suffix.lower() in (".yaml", ".yml") or p.is_file():
         return p
     packaged = Path(str(resources.files("spotlights.learning") / "configs" / "schedules" / f"{schedule}.yaml"))
     if not packaged.is_file():
@@ -96,13 +100,20 @@ def schedule_path(schedule) -> Path:
 
 
 def load_schedule(schedule, name: str) -> dict:
-    """The overrides a schedule gives model ``name``: its ``default`` section merged with its ``name`` section."""
+    """The overrides a schedule gives model ``name``: its ``default`` section merged with its ``name`` section
+    (a variant without a section of its own uses its parent's, :data:`SCHEDULE_FALLBACK`)."""
     p = schedule_path(schedule)
     data = _read_yaml(p)
     unknown = set(data) - {"default", *MODEL_NAMES, "description"}
     if unknown:
         raise InputFileError(p, f"unknown schedule section(s) {', '.join(sorted(unknown))} (expected default or model names)")
-    return deep_merge(data.get("default") or {}, data.get(name) or {})
+    from ..config import check_keys
+
+    for sec in ("default", *MODEL_NAMES):
+        if data.get(sec) is not None:
+            check_keys(data[sec], p, None if sec == "default" else sec)
+    section = name if name in data or name not in SCHEDULE_FALLBACK else SCHEDULE_FALLBACK[name]
+    return deep_merge(data.get("default") or {}, data.get(section) or {})
 
 
 def load_config(name: str, path=None, overrides: dict | None = None, schedule=None) -> dict:
@@ -111,24 +122,32 @@ def load_config(name: str, path=None, overrides: dict | None = None, schedule=No
     Merge order (later wins): packaged defaults <- ``schedule`` (a packaged schedule
     name such as ``"cpu"`` or a schedule YAML) <- user YAML ``path`` <- ``overrides``.
 
-    Raises :class:`InputFileError` for a missing/invalid YAML and when the user YAML
-    names another model or has unknown top-level sections.
+    Every layer's keys are checked (:func:`spotlights.learning.config.check_keys`): an unknown
+    section or key (a typo such as ``epoch:``) is an error naming it and its file; the merged
+    values are checked by :func:`~spotlights.learning.config.train_config` and ``data_config``.
+
+    Raises :class:`InputFileError` for a missing/invalid YAML, an unknown key in a file, and when
+    the user YAML names another model; :class:`ParameterError` for unknown override keys and
+    invalid values.
     """
+    from ..config import check_keys, data_config, train_config
+
     cfg = _read_yaml(default_config_path(name))
     if schedule is not None:
         cfg = deep_merge(cfg, load_schedule(schedule, name))
     if path is not None:
         user = _read_yaml(path)
-        unknown = set(user) - {"model", "data", "train"}
-        if unknown:
-            raise InputFileError(path, f"unknown config section(s) {', '.join(sorted(unknown))} (expected model, data, train)")
+        check_keys(user, path, name)
         other = (user.get("model") or {}).get("name")
         if other is not None and other != name:
             raise InputFileError(path, f"config is for model {other!r}, not {name!r}")
         cfg = deep_merge(cfg, user)
     if overrides:
+        check_keys(overrides, "overrides", name)
         cfg = deep_merge(cfg, overrides)
     cfg["model"]["name"] = name
+    check_keys(cfg, "config", name)
+    data_config(cfg), train_config(cfg)
     return cfg
 
 
@@ -138,16 +157,25 @@ def build_model(config: dict, rig=None):
     Parameters
     ----------
     config : a config from :func:`load_config` (only ``config["model"]`` is used).
-    rig : ``Rig`` or ``Rig.to_dict()``; required for SA-Net (the depths' rig), ignored otherwise.
+    rig : ``RigSpec`` (or a ``Rig``, or the ``to_dict()`` of either); required for SA-Nets (the
+        depths' rig), ignored otherwise.
+
+    Raises :class:`ParameterError` for an unknown ``model.args`` key (naming it) or a value the
+    model refuses.
     """
+    from ..config import check_keys
+
     name = config["model"]["name"]
     cls = model_class(name)
     args = dict(config["model"].get("args") or {})
+    check_keys({"model": {"name": name, "args": args}}, "config", name)
     try:
         if cls.target == "depths":
             if rig is None:
                 raise ParameterError(f"model {name!r} needs a rig")
-            return cls(rig=rig if isinstance(rig, dict) else rig.to_dict(), **args)
+            from ..rays import rig_spec
+
+            return cls(rig=rig_spec(rig), **args)
         return cls(**args)
-    except TypeError as exc:
+    except (TypeError, ValueError) as exc:
         raise ParameterError(f"invalid arguments for model {name!r} in config: {exc}") from None

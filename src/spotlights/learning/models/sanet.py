@@ -34,7 +34,8 @@ class SANet(CompletionModel):
 
     Parameters
     ----------
-    rig : dict of ``Rig.to_dict()`` (the rig whose depths are regressed); required.
+    rig : the rig whose depths are regressed: a ``RigSpec`` (kept as ``self.rig``), a ``Rig`` or a
+        ``to_dict()`` of either; required.
     code_size : encoder code size (paper: 1024).
     hidden : hidden layer widths of the decoder (default [256, 256]: 0.85M parameters
         for 2048 rays, keeping the decoder under 1M).
@@ -47,23 +48,25 @@ class SANet(CompletionModel):
 
     name = "sanet"
     target = "depths"
+    outputs_per_ray = 1
+    """Decoder outputs per ray (the hit-aware variant has two: a hit logit and a depth)."""
 
-    def __init__(self, rig: dict, code_size: int = 1024, encoder_widths: Sequence[int] = (128, 256, 512),
+    def __init__(self, rig, code_size: int = 1024, encoder_widths: Sequence[int] = (128, 256, 512),
                  hidden: Sequence[int] = (256, 256),
                  output_activation: str = "none", clip: float | None = 0.2):
         super().__init__()
-        from ..rays import rig_from_dict, rig_needs_box, rig_rays
+        from ..rays import rig_rays, rig_spec
 
         if rig is None:
             raise ValueError("SA-Net needs a rig (the rig of the depths it regresses)")
-        self.rig = rig_from_dict(rig)  # cap: the Rig; box-targeted: its RigSpec
-        self.needs_box = rig_needs_box(self.rig)
+        self.rig = rig_spec(rig)  # the RigSpec (cap or box-targeted)
+        self.needs_box = self.rig.needs_box
         if output_activation not in ("none", "relu", "sigmoid"):
             raise ValueError(f"output_activation must be 'none', 'relu' or 'sigmoid', got {output_activation!r}")
         self.output_activation = output_activation
         self.clip = None if clip is None else float(clip)
         self.encoder = PCNEncoder(code_size, encoder_widths)
-        self.decoder = MLP([code_size, *hidden, self.rig.n_rays])
+        self.decoder = MLP([code_size, *hidden, self.outputs_per_ray * self.rig.n_rays])
         origins, directions = rig_rays(self.rig)
         self.register_buffer("origins", torch.from_numpy(origins), persistent=False)
         self.register_buffer("directions", None if directions is None else torch.from_numpy(directions),
@@ -81,12 +84,15 @@ class SANet(CompletionModel):
         loss = depth_l1(outputs["depths"], batch["depths"])
         return loss, {"l1": float(loss.detach())}
 
-    def decode(self, depths: torch.Tensor, clip=CLIP_DEFAULT, directions: torch.Tensor | None = None
-               ) -> tuple[torch.Tensor, torch.Tensor]:
+    def decode(self, depths: torch.Tensor, clip=CLIP_DEFAULT, directions: torch.Tensor | None = None,
+               keep: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """Depths (B, N*M) -> points (B, N*M, 3) float32 unit frame and kept mask (B, N*M) bool.
 
         Same convention as ``spotlights.geometry.encode.decode``: a ray is kept when
         depth > 0 and (with a clip) depth >= clip; dropped rays sit at their origin.
+        ``keep``: (B, N*M) bool rays to keep instead of ``depth > 0`` (the hit-aware SA-Net's
+        ``p(hit) >= threshold``); a clip still applies on top. Kept depths are clamped to half
+        the ray's chord through the unit sphere (<= 1): every point stays in the sphere.
         ``directions``: (B, N*M, 3) float32 per-sample unit ray directions (unit frame);
         required for a box-targeted rig (each sample's box), optional for a cap rig
         (default: the rig's fixed rays).
@@ -99,9 +105,14 @@ class SANet(CompletionModel):
             directions = self.directions
         elif directions.shape[-2:] != (self.rig.n_rays, 3) or (directions.dim() == 3 and directions.shape[0] != depths.shape[0]):
             raise ValueError(f"directions of shape {tuple(directions.shape)} do not fit depths of shape {tuple(depths.shape)}")
-        mask = depths > 0
+        mask = depths > 0 if keep is None else keep.clone()
         if clip is not None:
             mask &= depths >= float(clip)
+        # Safe outputs: a depth is clamped to [0, half the ray's chord through the unit sphere]
+        # (<= 1), so no decoded point can leave the sphere of the object's box, whatever the
+        # network regresses (a linear output is unbounded); true depths never exceed it.
+        half_chord = (-(self.origins * directions).sum(-1)).clamp(min=0.0)
+        depths = torch.minimum(depths.clamp(min=0.0), half_chord)
         dist = torch.where(mask, 2.0 * depths, torch.zeros_like(depths)).unsqueeze(-1)
         return self.origins + dist * directions, mask
 

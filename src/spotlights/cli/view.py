@@ -1,0 +1,94 @@
+"""``spotlights view``: meshes, encodings, point clouds, completions and scenes in one interactive HTML page."""
+
+from __future__ import annotations
+
+from ._util import add_command, positive_int, unit_interval
+
+
+def register(sub) -> None:
+    p = add_command(
+        sub,
+        "view",
+        "interactive 3-D view of meshes, encodings, point clouds, completions and scenes: "
+        "one self-contained HTML page that opens offline in any browser (rotate, zoom, toggle layers)",
+        "spotlights view scan.pcd completed.ply box.json --out view.html    # then open view.html",
+        _view,
+    )
+    p.add_argument(
+        "files",
+        nargs="+",
+        metavar="FILE",
+        help="meshes (OBJ PLY OFF STL GLB GLTF), point clouds (PLY PCD NPY XYZ TXT), encodings (.npz), "
+        "scenes (PLY with 'source'/'object' fields, from 'complete --boxes'), boxes (.json), "
+        "observations (.h5 from 'real extract': its busiest frame)",
+    )
+    p.add_argument("--out", "-o", default="view.html", metavar="HTML", help="output page (default ./view.html)")
+    p.add_argument(
+        "--rays",
+        type=int,
+        default=None,
+        metavar="I",
+        help="encodings: also draw viewpoint I's ray bundle (hits green, misses orange)",
+    )
+    p.add_argument(
+        "--clip", type=unit_interval, default=None, metavar="T", help="encodings: depths below T count as misses"
+    )
+    p.add_argument(
+        "--side-by-side",
+        action="store_true",
+        help="one 3-D panel per file (default: all files overlaid in one scene, e.g. a scan and its completion)",
+    )
+    p.add_argument("--title", default=None, help="page title (default: the file names)")
+    p.add_argument(
+        "--max-points",
+        type=positive_int,
+        default=400_000,
+        metavar="K",
+        help="points drawn at most per cloud (an even subsample beyond; default 400000)",
+    )
+    p.add_argument(
+        "--up", default="z", help="meshes: the file's up axis (x, y, z, -x, ...); glTF files are usually y (default z)"
+    )
+    p.add_argument("--forward", default="x", help="meshes: the file's forward axis (default x)")
+    p.add_argument("--quiet", "-q", action="store_true", help="no summary lines")
+
+
+def _view(args) -> int:
+    from pathlib import Path
+
+    from ..viz import html
+
+    html.require_plotly()
+    panels, lines = [], []
+    for f in args.files:
+        traces, what = html.file_traces(
+            f, rays=args.rays, clip=args.clip, up=args.up, forward=args.forward, max_points=args.max_points
+        )
+        panels.append((Path(f).name, traces))
+        lines.append(f"{f}: {what}")
+    title = args.title if args.title is not None else ", ".join(Path(f).name for f in args.files)
+    out = html.write_html(args.out, html.page(panels, title, side_by_side=args.side_by_side))
+    if not args.quiet:
+        for line in lines:
+            print(line)
+        print(f"page -> {out} ({out.stat().st_size / 1e6:.1f} MB, opens offline in a browser)")
+    return 0
+
+
+def add_html_argument(p) -> None:
+    """The ``--html PATH`` option of the commands that draw (show, real show, dataset show, complete)."""
+    p.add_argument(
+        "--html",
+        default=None,
+        metavar="HTML",
+        help="also write an interactive 3-D view: one self-contained HTML page (opens offline; needs plotly)",
+    )
+
+
+def write_page(path, panels, title: str, quiet: bool = False) -> None:
+    """Write ``panels`` ((title, traces) pairs) as one overlaid page and say where."""
+    from ..viz import html
+
+    out = html.write_html(path, html.page(panels, title))
+    if not quiet:
+        print(f"page -> {out}")

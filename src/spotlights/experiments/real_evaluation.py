@@ -1,0 +1,493 @@
+"""Completion of real observations and the consistency report (the paper's Table 2).
+
+:func:`evaluate_consistency` takes an observation file (from ``real extract``)
+and any number of *completers* - objects with ``model_name`` (str), optionally
+``n_params`` (int), and ``complete(partials (B, P, 3) float32 unit frame) ->
+list of B arrays (K_i, 3)`` in the unit frame (the interface of
+``spotlights.learning.inference.load_completer``). It completes every
+observation of every object seen in two or more frames, scores the
+consistency (:mod:`spotlights.data.consistency`), and returns a report dict;
+:func:`write_report` writes it as Markdown and JSON.
+
+Beside consistency (as the paper computes it, on the completions as the models give
+them) the report holds, per model:
+
+- **the resampling noise floor**: each tracked observation's kept points (stored by
+  ``real extract``) resampled with a second seed and completed again; the two-sided
+  Chamfer ``cd`` between the two completions of the *same* observation, in the
+  consistency's frame (object frame / the track's mean box radius), averaged like
+  consistency (observation -> track -> class). Part of any measured inconsistency is
+  this noise: it is what consistency would be if nothing but the 256-point
+  resampling changed between frames.
+- **consistency at equal point counts** (``equal_points``): every completion first
+  brought to one common count (default 512) by farthest-point sampling (fewer points:
+  all kept plus seeded repeats), then scored the same way (with its own noise floor and
+  diversity). A Chamfer distance between two sparse samplings of one surface is larger
+  than between two dense ones, so at native counts a model that outputs ~560 points is
+  penalised against one that outputs 2,048.
+- **heading flips**: each observation also completed with its box turned by 180 degrees
+  (the partial input rotated about the box's up axis); a flip is counted when that
+  completion is clearly closer to the observed points (fidelity lower by more than the
+  margin of :func:`spotlights.experiments.scene.heading_turns`) - what
+  ``spotlights complete --heading-check`` would do - and, separately, when it is closer at
+  all. On annotated boxes every flip is a false alarm of the check.
+- **out-of-domain boxes**: observations whose class or box size is outside what the
+  model learned (:class:`spotlights.learning.inference.LearnedDomain`), counted per reason.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from ..data.consistency import (DIVERSITY_DOC, METRIC_DOC, OBSERVATION_METRIC_DOC, aggregate, chamfer, consecutive_pairs,
+                                diversity, fidelity, minimal_matching_distance, track_consistency)
+from ..data.real.base import CLASSES
+from ..data.real.extract import Observations, read_observations
+from ..errors import InputFileError, SpotlightsError
+from ..geometry.boxes import FLIP_Z
+from ..geometry.neighbors import NearestNeighbors, serial_queries
+from ..geometry.sampling import farthest_point_sample, resample_set
+from .scene import HEADING_MARGIN, heading_turns
+
+EQUAL_POINTS = 512
+"""Common point count of the equal-count consistency (farthest-point sampling of every completion)."""
+
+NOISE_DOC = ("resampling noise floor: cd between the completions of the same observation resampled with two seeds "
+             "(stored partial vs its kept points resampled with seed + 1), consistency's frame; mean per track, then per class")
+EQUAL_DOC = ("every completion brought to {n} points by farthest-point sampling (seeded start; fewer points: all kept "
+             "plus seeded repeats) before scoring, so models with different output sizes compare at one density")
+HEADING_DOC = ("share of observations whose completion with the box turned by 180 degrees is closer to the observed "
+               "points than with the box as given - fidelity lower by more than the margin (rate; the check of "
+               "'complete --heading-check') or at all (rate_margin0): on annotated boxes, false alarms")
+
+
+def complete_all(completer, partials: np.ndarray, batch_size: int = 64, progress: bool = True, desc: str = "complete",
+                 clip: float | None = None, box_sizes: np.ndarray | None = None) -> list[np.ndarray]:
+    """Run ``completer.complete`` over (n, P, 3) float32 partials in batches; returns n (K_i, 3) float32 arrays.
+
+    ``clip`` is passed on as ``complete(batch, clip=clip)`` only when given (else the model's default).
+    ``box_sizes`` (n, 3): each observation's box (l, w, h); completers with ``needs_box``
+    (SA-Net on a box-targeted rig) get ``extents = size / |size|`` per observation, the
+    half-extents of the box in the observation's unit frame. Others never see it.
+    """
+    from tqdm import tqdm
+
+    out: list[np.ndarray] = []
+    n = len(partials)
+    extents = None
+    if getattr(completer, "needs_box", False):
+        if box_sizes is None:
+            raise SpotlightsError(f"completer {getattr(completer, 'model_name', '?')} decodes rays aimed at each object's "
+                                  "box: give the boxes' sizes")
+        sizes = np.asarray(box_sizes, dtype=np.float64).reshape(n, 3)
+        extents = sizes / np.linalg.norm(sizes, axis=1, keepdims=True)
+    for s in tqdm(range(0, n, batch_size), desc=desc, unit="batch", disable=not progress or n == 0):
+        batch = np.ascontiguousarray(partials[s : s + batch_size], dtype=np.float32)
+        kw = {} if clip is None else {"clip": clip}
+        if extents is not None:
+            kw["extents"] = extents[s : s + batch_size]
+        res = completer.complete(batch, **kw)
+        if len(res) != len(batch):
+            raise SpotlightsError(f"completer {getattr(completer, 'model_name', '?')} returned {len(res)} completions for {len(batch)} inputs")
+        for r in res:
+            r = np.asarray(r, dtype=np.float32)
+            if r.ndim != 2 or r.shape[1] != 3:
+                if r.size == 0:
+                    r = r.reshape(0, 3)
+                else:
+                    raise SpotlightsError(f"completer {getattr(completer, 'model_name', '?')} returned an array of shape {r.shape}, expected (K, 3)")
+            out.append(r)
+    return out
+
+
+def equal_count(points: np.ndarray, n: int = EQUAL_POINTS, seed: int = 0) -> np.ndarray:
+    """(n, 3) float32: ``points`` (K, 3) brought to ``n`` points by farthest-point sampling (first point
+    chosen with ``seed``); K < n: all points plus seeded repeats; K = 0: an empty (0, 3) array."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(p) == 0:
+        return np.zeros((0, 3), np.float32)
+    if len(p) > n:
+        return p[farthest_point_sample(p, n, seed=seed)].astype(np.float32)
+    return resample_set(p, n, seed=seed).astype(np.float32)
+
+
+def flip_heading(partials: np.ndarray) -> np.ndarray:
+    """Unit-frame partials (..., 3) as seen in the box turned by 180 degrees about its up axis (x, y negated)."""
+    return (np.asarray(partials) @ FLIP_Z).astype(np.float32)
+
+
+def same_observation_cd(a_list, b_list, scale) -> np.ndarray:
+    """(n,) two-sided Chamfer ``cd`` between a_i and b_i (unit frame) times ``scale[i]``; NaN when one is empty."""
+    out = np.full(len(a_list), np.nan)
+    for i, (a, b) in enumerate(zip(a_list, b_list)):
+        if len(a) and len(b):
+            out[i] = chamfer(a, b)["cd"] * float(scale[i])
+    return out
+
+
+def tracked_rows(obs: Observations, classes: Sequence[str] | None = None) -> np.ndarray:
+    """Sorted row indices of the observations that belong to a consecutive pair (of class in ``classes``, if given)."""
+    keep = np.arange(len(obs)) if classes is None else np.array([i for i, c in enumerate(obs.cls) if c in set(classes)], dtype=np.int64)
+    if keep.size == 0:
+        return keep
+    keys = obs.object_keys()
+    pairs = consecutive_pairs([keys[i] for i in keep], obs.timestamp[keep])
+    return np.array(sorted({int(keep[i]) for p in pairs for i in p}), dtype=np.int64)
+
+
+def reference_shapes(dataset: str | os.PathLike, split: str | None = None) -> tuple[list[np.ndarray], dict]:
+    """Complete reference cars for the minimal matching distance, from a completion dataset.
+
+    Returns the ground-truth surface points (``/models/gt_points``: R arrays (2048, 3) float32, each in
+    its model's unit frame, the frame of a real observation's completion) of every model, or of the
+    models of ``split`` ("train", "val", "test"), and a description dict (file, split, count).
+    """
+    from ..data.store import open_dataset
+
+    with open_dataset(dataset) as ds:
+        models = ds.split_models(split) if split else np.arange(ds.n_models)
+        gt = ds.models_array("gt_points", np.sort(models)) if len(models) else np.zeros((0, 0, 3), np.float32)
+        shapes = list(np.asarray(gt, dtype=np.float32))
+    if not shapes:
+        raise InputFileError(str(dataset), f"no reference model in split {split!r}")
+    return shapes, {"file": str(dataset), "split": split or "all", "n_shapes": len(shapes), "points_per_shape": int(len(shapes[0]))}
+
+
+def _track_radii(keys, radii) -> np.ndarray:
+    """(n,) the mean box radius of each row's track (the consistency's normaliser)."""
+    groups: dict = {}
+    for i, k in enumerate(keys):
+        groups.setdefault(k, []).append(i)
+    out = np.empty(len(keys))
+    for rows in groups.values():
+        out[rows] = float(np.mean(radii[rows]))
+    return out
+
+
+def _score(comps, partials, keys, ts, cls, radii, r_track, classes_present, ref_trees=None, noise=None):
+    """Consistency of one set of completions plus the per-observation scores; returns (tracks, aggregate, diversity)."""
+    with serial_queries():  # many small KD-tree queries
+        per_obs = {"fidelity": np.array([fidelity(p, c) for p, c in zip(partials, comps)])}
+        if ref_trees:
+            per_obs["mmd"] = np.array([minimal_matching_distance(c, ref_trees)[0] for c in comps])
+        per_obs["fidelity_m"] = per_obs["fidelity"] * radii
+        if noise is not None:
+            per_obs["noise_floor"] = same_observation_cd(comps, noise, radii / r_track)
+            per_obs["noise_floor_m"] = same_observation_cd(comps, noise, radii)
+        tracks = track_consistency(comps, keys, ts, cls, radii, per_observation=per_obs)
+        div, _ = diversity(comps, keys, ts)
+    return tracks, aggregate(tracks, classes=classes_present), div
+
+
+def evaluate_consistency(
+    source: str | os.PathLike | Observations,
+    completers: Sequence,
+    names: Sequence[str] | None = None,
+    checkpoints: Sequence[str] | None = None,
+    batch_size: int = 64,
+    progress: bool = True,
+    clip: float | None = None,
+    references: Sequence[np.ndarray] | None = None,
+    reference_info: dict | None = None,
+    classes: Sequence[str] | None = None,
+    equal_points: int | None = EQUAL_POINTS,
+    noise_floor: bool = True,
+    heading_check: bool = True,
+) -> dict:
+    """Consistency of each completer on the tracked objects of an observation file.
+
+    Parameters
+    ----------
+    source : an observation HDF5 path or loaded :class:`Observations`.
+    completers : objects with ``complete(partials) -> list of (K, 3)`` (see the module doc).
+    names : row names in the report (default: each completer's ``model_name``).
+    checkpoints : checkpoint paths to record in the report (optional).
+    clip : passed to ``complete`` when given (SA-Net's depth clip); None = each model's default.
+    references : optional complete shapes (R arrays (L, 3), unit frame; see :func:`reference_shapes`)
+        for the minimal matching distance ``mmd``; fidelity and diversity are always reported.
+    reference_info : description of ``references`` recorded in the report.
+    classes : score only observations of these classes (default: every class in the file).
+    equal_points : also score every completion resampled to this many points (None/0: not).
+    noise_floor : also complete each observation resampled with a second seed (needs the raw
+        points of a format-2 file; older files report no floor).
+    heading_check : also complete each observation with its box turned around and count flips.
+
+    Returns
+    -------
+    dict with ``data`` (file, counts, skip counts), ``metrics`` (definitions),
+    and ``models``: one entry per completer with ``name``, ``n_params``,
+    ``classes`` / ``average`` / ``all_objects`` (see
+    :func:`spotlights.data.consistency.aggregate`; per-observation keys ``fidelity``,
+    ``mmd``, ``noise_floor``), ``equal_points`` (the same at one point count),
+    ``heading`` (flip counts), ``out_of_domain`` and ``objects`` (per track).
+
+    Raises
+    ------
+    InputFileError if no object of the file is observed in two or more frames.
+    """
+    path = None
+    if isinstance(source, Observations):
+        obs = source
+    else:
+        path = str(source)
+        obs = read_observations(source)
+    rows = tracked_rows(obs, classes)
+    if rows.size == 0:
+        which = f" of class {', '.join(classes)}" if classes else ""
+        raise InputFileError(
+            path or "<observations>",
+            f"no object{which} is observed in two or more frames, so there is nothing to compare "
+            f"({len(obs)} observations; KITTI object frames carry no track ids - use Argoverse 2, nuScenes, KITTI-360 "
+            "or a generic sequence with track_id)",
+        )
+    if not completers:
+        raise SpotlightsError("no completer (checkpoint) given")
+    names = list(names) if names is not None else [str(getattr(c, "model_name", f"model{i}")) for i, c in enumerate(completers)]
+    keys = obs.object_keys()
+    sub_keys = [keys[i] for i in rows]
+    sub_ts = obs.timestamp[rows]
+    sub_cls = [obs.cls[i] for i in rows]
+    sizes = obs.box_size[rows]
+    radii = 0.5 * np.linalg.norm(sizes, axis=1)
+    r_track = _track_radii(sub_keys, radii)
+    classes_present = [c for c in CLASSES if c in set(sub_cls)]
+    ref_trees = None if references is None else [NearestNeighbors(np.asarray(r, dtype=np.float64)) for r in references]
+    partials = obs.partial[rows]
+    with_noise = bool(noise_floor) and obs.has_raw
+    seed = int((obs.meta.get("config") or {}).get("seed", 0))
+    n_in = partials.shape[1]
+    partials2 = (np.stack([resample_set(obs.raw(i), n_in, seed=seed + 1) for i in rows]).astype(np.float32)
+                 if with_noise else None)
+    eq = int(equal_points) if equal_points else 0
+    models = []
+    for k, completer in enumerate(completers):
+        run = dict(batch_size=batch_size, progress=progress, clip=clip, box_sizes=sizes)
+        comps = complete_all(completer, partials, desc=f"complete {names[k]}", **run)
+        comps2 = complete_all(completer, partials2, desc=f"noise floor {names[k]}", **run) if with_noise else None
+        tracks, agg, div = _score(comps, partials, sub_keys, sub_ts, sub_cls, radii, r_track, classes_present, ref_trees, comps2)
+        cons_all = agg["all_objects"]["cd"]
+        entry = dict(
+            name=names[k],
+            model_name=str(getattr(completer, "model_name", names[k])),
+            checkpoint=None if checkpoints is None else str(checkpoints[k]),
+            n_params=getattr(completer, "n_params", None),
+            mean_points_per_completion=float(np.mean([len(c) for c in comps])),
+            diversity=div,
+            consistency_over_diversity=(cons_all / div if cons_all is not None and np.isfinite(div) and div > 0 else None),
+            **agg,
+        )
+        if eq:
+            ce = [equal_count(c, eq) for c in comps]
+            ce2 = [equal_count(c, eq) for c in comps2] if with_noise else None
+            _, agg_e, div_e = _score(ce, partials, sub_keys, sub_ts, sub_cls, radii, r_track, classes_present, None, ce2)
+            cons_e = agg_e["all_objects"]["cd"]
+            entry["equal_points"] = dict(n_points=eq, diversity=div_e, **agg_e,
+                                         consistency_over_diversity=(cons_e / div_e if cons_e is not None and np.isfinite(div_e) and div_e > 0 else None))
+        if heading_check:
+            flipped = complete_all(completer, flip_heading(partials), desc=f"heading check {names[k]}", **run)
+            with serial_queries():
+                f0 = np.array([fidelity(p, c) for p, c in zip(partials, comps)])
+                f1 = np.array([fidelity(p, c) for p, c in zip(flip_heading(partials), flipped)])
+            ok = np.isfinite(f0) & np.isfinite(f1)
+            flips = ok & heading_turns(f0, f1, HEADING_MARGIN)
+            bare = ok & heading_turns(f0, f1, 0.0)
+            entry["heading"] = dict(margin=HEADING_MARGIN, n_observations=int(ok.sum()), n_flipped=int(flips.sum()),
+                                    rate=float(flips.sum() / ok.sum()) if ok.any() else None,
+                                    n_flipped_margin0=int(bare.sum()), rate_margin0=float(bare.sum() / ok.sum()) if ok.any() else None,
+                                    per_class={c: int(sum(1 for i in np.flatnonzero(flips) if sub_cls[i] == c)) for c in classes_present})
+        domain = getattr(completer, "domain", None)
+        if domain is not None:
+            reasons: dict = {}
+            n_out = 0
+            for c, sz in zip(sub_cls, sizes):
+                w = domain.warnings(c, sz)
+                n_out += bool(w)
+                for r in w:
+                    key = r.split(" (")[0] if r.startswith("size") else r
+                    reasons[key] = reasons.get(key, 0) + 1
+            entry["out_of_domain"] = dict(n_observations=n_out, reasons=reasons)
+        entry["objects"] = [
+            dict(sequence=t.key[0], track_id=t.key[1], cls=t.cls, n_observations=t.n_observations,
+                 n_pairs=t.n_pairs, n_pairs_empty=t.n_pairs_empty, **t.values)
+            for t in tracks
+        ]
+        models.append(entry)
+    n_tracks = len(set(sub_keys))
+    per_track = {}
+    for key in sub_keys:
+        per_track[key] = per_track.get(key, 0) + 1
+    return dict(
+        data=dict(
+            file=path,
+            source_format=obs.meta.get("source_format"),
+            source=obs.meta.get("source"),
+            n_observations=len(obs),
+            n_observations_tracked=int(rows.size),
+            n_objects_tracked=n_tracks,
+            n_objects_5_or_more=sum(1 for v in per_track.values() if v >= 5),
+            n_pairs=len(consecutive_pairs(sub_keys, sub_ts)),
+            objects_per_class={c: len({k for k, cc in zip(sub_keys, sub_cls) if cc == c}) for c in classes_present},
+            classes=list(classes) if classes else None,
+            extraction=obs.meta.get("config"),
+            clip=clip,
+            skipped=obs.meta.get("skipped"),
+            mmd_reference=reference_info if references is not None else None,
+            noise_floor=(f"kept points resampled with seed {seed + 1} (the file's partials: seed {seed})" if with_noise else
+                         ("not computed: the file holds no raw points (format version 1); extract it again" if noise_floor else None)),
+            equal_points=eq or None,
+        ),
+        metrics=dict(
+            headline="cd",
+            frame="consistency (cd*, d_*) and noise_floor: object frame divided by the track's mean box radius (half diagonal); "
+                  "fidelity and mmd: each observation's own unit frame (its box's half diagonal); '_m' keys in metres",
+            aggregation="pair -> mean per tracked object -> mean per class; average = mean over classes present; all_objects = mean over objects",
+            definitions={**METRIC_DOC, **OBSERVATION_METRIC_DOC, "diversity": DIVERSITY_DOC, "noise_floor": NOISE_DOC,
+                         "equal_points": EQUAL_DOC.format(n=eq or EQUAL_POINTS), "heading": HEADING_DOC},
+        ),
+        models=models,
+    )
+
+
+def _fmt(v, digits=4) -> str:
+    return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f"{v:.{digits}f}"
+
+
+def report_markdown(report: dict) -> str:
+    """The report as Markdown: a Table-2-style headline table, then the other metric variants."""
+    d = report["data"]
+    classes = list(d["objects_per_class"])
+    lines = ["# Consistency of completions on real scans (paper Table 2)", ""]
+    lines.append(
+        f"Source: `{d.get('source')}` ({d.get('source_format')}), file `{d.get('file')}`. "
+        f"{d['n_objects_tracked']} objects observed in two or more frames "
+        f"({d['n_observations_tracked']} of {d['n_observations']} observations, {d['n_pairs']} consecutive pairs; "
+        f"{d.get('n_objects_5_or_more', '?')} objects with 5 or more observations); "
+        "objects per class: " + ", ".join(f"{c} {n}" for c, n in d["objects_per_class"].items()) + "."
+    )
+    lines.append("")
+    lines.append(
+        "Headline: **CD = d(A->B) + d(B->A)**, the paper's Eq. (1) with unsquared Euclidean nearest-neighbour "
+        "distances, between completions of the same object in consecutive frames, in the object frame divided by "
+        "the track's mean box radius (half diagonal); mean per object, then per class; Average = mean of the class columns. "
+        "Lower is better."
+    )
+    lines.append("")
+    head = "| Model | " + " | ".join(c.capitalize() for c in classes) + " | Average | All objects |"
+    lines += [head, "|" + "---|" * (len(classes) + 3)]
+    for m in report["models"]:
+        cells = [_fmt(m["classes"][c]["cd"]) for c in classes]
+        lines.append(f"| {m['name']} | " + " | ".join(cells) + f" | {_fmt(m['average']['cd'])} | {_fmt(m['all_objects']['cd'])} |")
+    lines += ["", "## Other variants (Average over classes; All objects in brackets)", ""]
+    lines += ["| Model | CD (m) | CD/2 | d(A->B) | d(B->A) | CD-L2 (squared) | points per completion |", "|---|---|---|---|---|---|---|"]
+    for m in report["models"]:
+        a, o = m["average"], m["all_objects"]
+        lines.append(
+            f"| {m['name']} | {_fmt(a['cd_m'])} ({_fmt(o['cd_m'])}) | {_fmt(a['cd_half'])} ({_fmt(o['cd_half'])}) | "
+            f"{_fmt(a['d_ab'])} ({_fmt(o['d_ab'])}) | {_fmt(a['d_ba'])} ({_fmt(o['d_ba'])}) | "
+            f"{_fmt(a['cd_l2'], 5)} ({_fmt(o['cd_l2'], 5)}) | {m['mean_points_per_completion']:.0f} |"
+        )
+    has_mmd = any(m["average"].get("mmd") is not None for m in report["models"])
+    lines += ["", "## Consistency beside fidelity" + (" and minimal matching distance" if has_mmd else ""), ""]
+    lines.append("Consistency alone rewards a model that gives every scan the same shape; fidelity (does the completion "
+                 "keep the observed points?)" + (", MMD (is it close to some complete car?)" if has_mmd else "")
+                 + " and diversity tell such a model apart. Average over classes; All objects in brackets; lower is better "
+                 "(but for diversity).")
+    lines.append("")
+    head = "| Model | CD (consistency) | Fidelity | Fidelity (m) |" + (" MMD |" if has_mmd else "") + " Diversity | CD / Diversity |"
+    lines += [head, "|---|---|---|---|" + ("---|" if has_mmd else "") + "---|---|"]
+    for m in report["models"]:
+        a, o = m["average"], m["all_objects"]
+        row = (f"| {m['name']} | {_fmt(a['cd'])} ({_fmt(o['cd'])}) | {_fmt(a.get('fidelity'))} ({_fmt(o.get('fidelity'))}) | "
+               f"{_fmt(a.get('fidelity_m'))} ({_fmt(o.get('fidelity_m'))}) |")
+        if has_mmd:
+            row += f" {_fmt(a.get('mmd'))} ({_fmt(o.get('mmd'))}) |"
+        row += f" {_fmt(m.get('diversity'))} | {_fmt(m.get('consistency_over_diversity'), 3)} |"
+        lines.append(row)
+    lines += ["", "Diversity: how much completions of *different* objects differ (mean CD over pairs of tracked objects); "
+                  "a model that ignores its input has diversity ~0 and a perfect consistency. CD / Diversity = All objects "
+                  "CD over diversity (ours, not the paper's)."]
+    extra = any(k in m for m in report["models"] for k in ("equal_points", "heading")) or any(
+        m["average"].get("noise_floor") is not None for m in report["models"])
+    if extra:
+        eq = d.get("equal_points")
+        lines += ["", "## Noise floor, equal point counts, heading check", ""]
+        lines.append("Noise floor: consistency's CD between two completions of the *same* observation, its points "
+                     "resampled to the network's input with two seeds - the part of CD that resampling alone explains. "
+                     + (f"At {eq} points: every completion brought to {eq} points by farthest-point sampling first, "
+                        "so that models with different output sizes compare at one density. " if eq else "")
+                     + "Heading flips: observations whose completion with the box turned around is closer to the observed "
+                       "points (on annotated boxes, false alarms of `--heading-check`). Average over classes; All objects in brackets.")
+        lines.append("")
+        head = "| Model | CD | Noise floor |"
+        if eq:
+            head += f" CD @{eq} | Noise floor @{eq} | Diversity @{eq} | CD / Diversity @{eq} |"
+        head += " Heading flips | Out of domain |"
+        lines += [head, "|" + "---|" * (head.count("|") - 1)]
+        for m in report["models"]:
+            a, o = m["average"], m["all_objects"]
+            row = f"| {m['name']} | {_fmt(a['cd'])} ({_fmt(o['cd'])}) | {_fmt(a.get('noise_floor'))} ({_fmt(o.get('noise_floor'))}) |"
+            if eq:
+                e = m.get("equal_points") or {}
+                ea, eo = e.get("average", {}), e.get("all_objects", {})
+                row += (f" {_fmt(ea.get('cd'))} ({_fmt(eo.get('cd'))}) | {_fmt(ea.get('noise_floor'))} ({_fmt(eo.get('noise_floor'))}) |"
+                        f" {_fmt(e.get('diversity'))} | {_fmt(e.get('consistency_over_diversity'), 3)} |")
+            h = m.get("heading")
+            row += (f" {h['n_flipped']} / {h['n_observations']} ({100 * h['rate']:.1f}%; {100 * h['rate_margin0']:.1f}% at margin 0) |"
+                    if h and h.get("rate") is not None else " - |")
+            od = m.get("out_of_domain")
+            row += f" {od['n_observations']} / {d['n_observations_tracked']} |" if od else " - |"
+            lines.append(row)
+        for m in report["models"]:
+            od = m.get("out_of_domain")
+            if od and od["n_observations"]:
+                lines.append(f"\nWarning - {m['name']}: {od['n_observations']} of {d['n_observations_tracked']} observations are "
+                             "outside what the model learned (" + "; ".join(f"{k}: {v}" for k, v in od["reasons"].items())
+                             + "): their completions extrapolate.")
+        if d.get("noise_floor") and not str(d["noise_floor"]).startswith("kept"):
+            lines.append(f"\nNoise floor {d['noise_floor']}.")
+    ref = d.get("mmd_reference")
+    if ref:
+        lines += ["", f"MMD reference: {ref['n_shapes']} complete shapes ({ref['points_per_shape']} points each) of "
+                      f"`{ref['file']}` (split {ref['split']}), unit frame."]
+    lines += ["", "Definitions (A = earlier frame's completion, B = later frame's):", ""]
+    for k, v in report["metrics"]["definitions"].items():
+        lines.append(f"- `{k}`: {v}")
+    skipped = d.get("skipped") or {}
+    if skipped:
+        lines += ["", "Boxes skipped at extraction: " + ", ".join(f"{k} {v}" for k, v in skipped.items()) + "."]
+    for m in report["models"]:
+        unscored = sum(m["classes"][c]["n_objects_unscored"] for c in classes)
+        if unscored:
+            lines.append(f"\n{m['name']}: {unscored} object(s) had only empty completions and are not scored.")
+    return "\n".join(lines) + "\n"
+
+
+def write_report(report: dict, prefix: str | os.PathLike) -> tuple[Path, Path]:
+    """Write ``PREFIX.md`` and ``PREFIX.json`` atomically; returns both paths."""
+    from ..utils import atomic_output
+
+    prefix = Path(prefix)
+    md, js = prefix.with_name(prefix.name + ".md"), prefix.with_name(prefix.name + ".json")
+
+    def clean(x):
+        if isinstance(x, float) and not math.isfinite(x):
+            return None
+        if isinstance(x, dict):
+            return {str(k): clean(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [clean(v) for v in x]
+        if isinstance(x, np.generic):
+            return clean(x.item())
+        return x
+
+    with atomic_output(js) as tmp:
+        tmp.write_text(json.dumps(clean(report), indent=2, sort_keys=False) + "\n", encoding="utf-8")
+    with atomic_output(md) as tmp:
+        tmp.write_text(report_markdown(report), encoding="utf-8")
+    return md, js

@@ -1,0 +1,515 @@
+"""The work steps of ``spotlights reproduce``: the car dataset, training, evaluation, real scans, consistency, rig study.
+
+Each step is a ``run(ctx) -> info`` function, its equivalent command and, where artifacts
+made outside the reproduction can stand in for it, a ``reuse`` check; :func:`work_steps`
+lists them as :class:`~.pipeline.Step` records (the figures are in :mod:`.figures`, the
+table steps in :mod:`.tables`).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+
+from ...errors import SpotlightsError
+from ...utils import atomic_output
+from .pipeline import Context, Step, shell_quote
+from .settings import ABLATION_RAYS, BOX_RIG, BOX_RUNS, BOX_STUDY_LABELS, REQUIRED_RIGS, RUNS, TABLE1_RUNS, Settings
+
+
+# --- car dataset ------------------------------------------------------------------------------
+def _quick_manifest(ctx: Context) -> Path:
+    """--quick: the first cars of each body type (sorted by file), one per split, as a manifest CSV."""
+    src = Path(ctx.s.cars_meshes) / "manifest.csv"
+    if not src.is_file():
+        raise SpotlightsError(f"{src}: the car manifest is missing (is ../shared/data there?)")
+    with open(src, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    by_cat: dict = {}
+    for r in sorted(rows, key=lambda r: r["file"]):
+        by_cat.setdefault(r["category"], []).append(r["file"])
+    out = ctx.out / "data" / "quick-cars.csv"
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["file", "category", "split"])
+    splits = ("train", "val", "test")
+    for cat in sorted(by_cat):
+        for j, f in enumerate(by_cat[cat][: ctx.s.cars_per_category]):
+            w.writerow([f, cat, splits[j % 3]])
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if not out.exists() or out.read_text() != buf.getvalue():
+        with atomic_output(out, suffix=".csv") as tmp:
+            Path(tmp).write_text(buf.getvalue())
+    return out
+
+
+def _cars_config(ctx: Context):
+    from ...data.synthetic import BuildConfig
+
+    kw = dict(
+        meshes=str(ctx.s.cars_meshes), views=ctx.s.views, seed=ctx.s.seed, extra_rigs=["64x32@60", "256x64@60", BOX_RIG]
+    )
+    if ctx.s.quick:
+        kw.update(manifest=str(ctx.out / "data" / "quick-cars.csv"), split="3/3/3")
+    else:
+        kw.update(split="64/8/7")
+    return BuildConfig(**kw)
+
+
+def _cars_command(ctx: Context) -> str:
+    if ctx.s.cars_data is not None:
+        return f"(given with --cars-data {shell_quote(ctx.s.cars_data)})"
+    cmd = (
+        f"spotlights dataset build --meshes {shell_quote(ctx.s.cars_meshes)} --out {shell_quote(ctx.s.cars_path)} "
+        f"--views {ctx.s.views} --split {'3/3/3' if ctx.s.quick else '64/8/7'} --rig 64x32@60 --rig 256x64@60 --rig {BOX_RIG} "
+        f"--seed {ctx.s.seed}"
+    )
+    if ctx.s.quick:
+        cmd += f" --manifest {shell_quote(ctx.out / 'data' / 'quick-cars.csv')}"
+    return cmd
+
+
+def _check_cars(path: Path) -> dict:
+    from ...data.store import open_dataset
+
+    with open_dataset(path) as ds:
+        info = ds.info()
+    missing = [r for r in REQUIRED_RIGS if r not in info["rigs"]]
+    if missing:
+        raise SpotlightsError(
+            f"{path}: the car dataset lacks the rig(s) {', '.join(missing)} that Tables 1 and 5 need "
+            "(build it with --rig 64x32@60 --rig 256x64@60)"
+        )
+    return {
+        "n_models": info["n_models"],
+        "n_samples": info["n_samples"],
+        "views_per_model": info["views_per_model"],
+        "splits": {k: v["models"] for k, v in info["splits"].items()},
+        "categories": info["categories"],
+        "seed": info["seed"],
+        "rigs": list(info["rigs"]),
+    }
+
+
+def _has_rig(path: Path, name: str) -> bool:
+    from ...data.store import open_dataset
+
+    with open_dataset(path) as ds:
+        return name in ds.rig_names
+
+
+def _reuse_cars_box(ctx: Context):
+    if _has_rig(ctx.s.cars_path, BOX_RIG):
+        return f"the car dataset {ctx.s.cars_path} holds rig {BOX_RIG}", {"rig": BOX_RIG, "added": False}
+    return None
+
+
+def _cars_box_command(ctx: Context) -> str:
+    return f"spotlights dataset add-rig {shell_quote(ctx.s.cars_path)} --rig {BOX_RIG} -j {ctx.s.workers} (only if the file lacks it)"
+
+
+def _run_cars_box(ctx: Context) -> dict:
+    """Add the box rig's ground truth to a car dataset that lacks it (``spotlights dataset add-rig``; atomic)."""
+    from ...data.synthetic import add_rig
+
+    rep = add_rig(ctx.s.cars_path, BOX_RIG, workers=ctx.s.workers, progress=ctx.s.progress, log=ctx.log)
+    return {"rig": BOX_RIG, "added": not rep.already_present, "hit_ratio": rep.hit_ratio}
+
+
+def _reuse_cars(ctx: Context):
+    p = ctx.s.cars_path
+    if p.is_file():
+        return f"reusing the car dataset {p}", _check_cars(p)
+    if ctx.s.cars_data is not None:
+        raise SpotlightsError(f"{p}: --cars-data names no such file")
+    return None
+
+
+def _run_cars(ctx: Context) -> dict:
+    from ...data.synthetic import build_dataset
+
+    if ctx.s.quick:
+        _quick_manifest(ctx)
+    cfg = _cars_config(ctx)
+    ctx.s.cars_path.parent.mkdir(parents=True, exist_ok=True)
+    rep = build_dataset(cfg, ctx.s.cars_path, workers=ctx.s.workers, progress=ctx.s.progress, log=ctx.log)
+    return _check_cars(ctx.s.cars_path) | {"build_seconds": rep.seconds_total}
+
+
+# --- training ---------------------------------------------------------------------------------
+def run_state(run_dir: Path) -> dict:
+    """State of a training run folder without loading its weights.
+
+    Returns ``{"state": "missing" | "unfinished" | "finished", "epochs": done, "epochs_total": planned}``;
+    epochs done = rows of ``log.csv`` (written after ``last.pt`` each epoch), planned =
+    ``train.epochs`` of ``config.yaml``.
+    """
+    import yaml
+
+    last, cfg_path, log = run_dir / "last.pt", run_dir / "config.yaml", run_dir / "log.csv"
+    if not last.is_file():
+        return {"state": "missing", "epochs": 0, "epochs_total": None}
+    total = None
+    if cfg_path.is_file():
+        try:
+            total = int(yaml.safe_load(cfg_path.read_text())["train"]["epochs"])
+        except (yaml.YAMLError, KeyError, TypeError, ValueError):
+            total = None
+    done = 0
+    if log.is_file():
+        with open(log, newline="") as fh:
+            done = sum(1 for _ in csv.DictReader(fh))
+    if total is None or not log.is_file():  # fall back on the checkpoint itself
+        from ...learning.checkpoint import load_checkpoint
+
+        ck = load_checkpoint(last)
+        done, total = int(ck.get("epoch", 0)), int(ck["config"]["train"]["epochs"])
+    return {"state": "finished" if done >= total else "unfinished", "epochs": done, "epochs_total": total}
+
+
+def run_info(run_dir: Path) -> dict:
+    """Facts of a finished run for the report: model, rig, epochs, steps, schedule-relevant config, best epoch."""
+    import torch
+
+    ck = torch.load(run_dir / "last.pt", map_location="cpu", weights_only=True)
+    cfg = ck["config"]
+    hist = ck.get("history") or []
+    return {
+        "model": ck["model_name"],
+        "rig": (ck.get("dataset") or {}).get("rig"),
+        "epochs": int(ck["epoch"]),
+        "steps": int(ck["global_step"]),
+        "batch_size": int(cfg["train"]["batch_size"]),
+        "max_views": cfg["data"].get("max_views"),
+        "lr": cfg["train"].get("lr"),
+        "seed": cfg["train"].get("seed"),
+        "n_train": (ck.get("dataset") or {}).get("n_train"),
+        "best": ck.get("best"),
+        "train_seconds": float(sum(float(r.get("epoch_seconds") or 0) for r in hist)),
+        "data": (ck.get("dataset") or {}).get("path"),
+    }
+
+
+def _train_command(ctx: Context, run: str, resume: bool = False) -> str:
+    model, rig = RUNS[run]
+    cmd = (
+        f"spotlights train --model {model} --data {shell_quote(ctx.s.cars_path)} --out {shell_quote(ctx.run_dir(run))}"
+    )
+    if resume:
+        return cmd + " --resume"
+    cmd += f" --schedule {shell_quote(ctx.s.schedule)}"
+    return cmd + (f" --rig {rig}" if rig else "")
+
+
+def _reuse_train(ctx: Context, run: str):
+    st = run_state(ctx.run_dir(run))
+    if st["state"] == "finished":
+        info = run_info(ctx.run_dir(run))
+        msg = f"reusing run {run}: {st['epochs']}/{st['epochs_total']} epochs done"
+        if info.get("data") and Path(info["data"]).resolve() != Path(ctx.s.cars_path).resolve():
+            msg += f" (warning: trained on {info['data']}, not on {ctx.s.cars_path})"
+        return msg, info
+    return None
+
+
+def _run_train(ctx: Context, run: str) -> dict:
+    from ...learning.train import train
+
+    model, rig = RUNS[run]
+    d = ctx.run_dir(run)
+    st = run_state(d)
+    if st["state"] == "unfinished":
+        ctx.log(f"resuming run {run} after epoch {st['epochs']}/{st['epochs_total']}")
+        train(model, ctx.s.cars_path, d, resume=True, progress=ctx.s.progress, log=ctx.log)
+        ctx.records.setdefault(f"train-{run}", {})["command"] = _train_command(ctx, run, resume=True)
+    else:
+        train(
+            model,
+            ctx.s.cars_path,
+            d,
+            schedule=ctx.s.schedule,
+            overrides={"data": {"rig": rig}} if rig else None,
+            overwrite=(d / "last.pt").exists(),
+            progress=ctx.s.progress,
+            log=ctx.log,
+        )
+    return run_info(d)
+
+
+# --- evaluation -------------------------------------------------------------------------------
+def _eval_command(ctx: Context, run: str) -> str:
+    views = f" --max-views {ctx.s.eval_views}" if ctx.s.eval_views else ""
+    lat = " --no-latency" if run not in TABLE1_RUNS or ctx.s.quick else ""
+    return (
+        f"spotlights evaluate --data {shell_quote(ctx.s.cars_path)} --checkpoint {shell_quote(ctx.run_dir(run) / 'best.pt')} "
+        f"--split test{views}{lat} --out {shell_quote(ctx.out / 'eval' / run)}"
+    )
+
+
+def _run_eval(ctx: Context, run: str) -> dict:
+    from ...learning.evaluate import evaluate_checkpoints, write_report
+
+    timed = run in TABLE1_RUNS
+    rep = evaluate_checkpoints(
+        [ctx.run_dir(run) / "best.pt"],
+        ctx.s.cars_path,
+        split="test",
+        max_views=ctx.s.eval_views,
+        latency=timed and not ctx.s.quick,
+        latency_repeats=10,
+        progress=ctx.s.progress,
+    )
+    if timed and ctx.s.quick:  # a short timing at batch 1 (the full run times batch 1 and 32, 10 repeats)
+        import torch
+
+        from ...learning.bench import model_latency
+        from ...learning.checkpoint import load_checkpoint, model_from_checkpoint
+
+        dev = torch.device("cpu")
+        model = model_from_checkpoint(load_checkpoint(ctx.run_dir(run) / "best.pt"), dev)
+        res = rep["results"][0]
+        res["latency_ms"] = model_latency(model, dev, batches=(1,), repeats=3, warmup=1)
+        res["latency_device"], res["threads"] = str(dev), torch.get_num_threads()
+    write_report(rep, ctx.out / "eval" / run)
+    return {"n_samples": rep["n_samples"], "n_models": rep["n_models"]}
+
+
+def completers(ctx: Context, runs) -> list:
+    """The completers (``learning.inference``) of the ``best.pt`` of ``runs``, on the CPU."""
+    from ...learning.inference import load_completer
+
+    return [load_completer(ctx.run_dir(r) / "best.pt", device="cpu") for r in runs]
+
+
+# --- real data ----------------------------------------------------------------------------------
+REAL_SOURCES = {  # name -> (folder under --lidar, format)
+    "kitti": ("kitti-object/training-fov-cropped", "kitti"),
+    "av2": ("argoverse2", "av2"),
+}
+
+
+def _real_command(ctx: Context, name: str) -> str:
+    folder, fmt = REAL_SOURCES[name]
+    return f"spotlights real extract {shell_quote(Path(ctx.s.lidar) / folder)} --format {fmt} --out {shell_quote(ctx.out / 'data' / f'{name}.h5')}"
+
+
+def _run_real(ctx: Context, name: str) -> dict:
+    from ...data.real import open_reader
+    from ...data.real.extract import ExtractConfig, extract, write_observations
+
+    folder, fmt = REAL_SOURCES[name]
+    src = Path(ctx.s.lidar) / folder
+    if not src.exists():
+        raise SpotlightsError(
+            f"{src}: real LiDAR data not found (pass --lidar DIR, the folder of the shared lidar data)"
+        )
+    obs = extract(open_reader(src, fmt), ExtractConfig(seed=ctx.s.seed), progress=ctx.s.progress)
+    write_observations(ctx.out / "data" / f"{name}.h5", obs)
+    return {"observations": len(obs), "frames": int(obs.meta["n_frames"])}
+
+
+def _skip_reasons() -> list[str]:
+    """The extraction's skip reasons: a new one (e.g. duplicate_box) changes what is extracted, so it re-runs the step."""
+    from ...data.real.extract import SKIP_REASONS
+
+    return list(SKIP_REASONS)
+
+
+def _consistency_command(ctx: Context) -> str:
+    ck = " ".join(shell_quote(ctx.run_dir(r) / "best.pt") for r in TABLE1_RUNS)
+    return (
+        f"spotlights real evaluate {shell_quote(ctx.out / 'data' / 'av2.h5')} --checkpoint {ck} --out {shell_quote(ctx.out / 'eval' / 'av2_consistency')} "
+        f"--reference {shell_quote(ctx.s.cars_path)}"
+    )
+
+
+def _run_consistency(ctx: Context) -> dict:
+    from ...learning.inference import load_completer
+    from ..real_evaluation import evaluate_consistency, reference_shapes, write_report
+
+    completers = [load_completer(ctx.run_dir(r) / "best.pt", device="cpu") for r in TABLE1_RUNS]
+    refs, ref_info = reference_shapes(ctx.s.cars_path)
+    rep = evaluate_consistency(
+        ctx.out / "data" / "av2.h5",
+        completers,
+        names=list(TABLE1_RUNS),
+        checkpoints=[str(ctx.run_dir(r) / "best.pt") for r in TABLE1_RUNS],
+        progress=ctx.s.progress,
+        references=refs,
+        reference_info=ref_info,
+    )
+    write_report(rep, ctx.out / "eval" / "av2_consistency")
+    return {"objects": rep["data"]["n_objects_tracked"], "pairs": rep["data"]["n_pairs"]}
+
+
+def _consistency_box_command(ctx: Context) -> str:
+    ck = " ".join(shell_quote(ctx.run_dir(r) / "best.pt") for r in BOX_RUNS.values())
+    return (
+        f"spotlights real evaluate {shell_quote(ctx.out / 'data' / 'av2.h5')} --checkpoint {ck} "
+        f"--out {shell_quote(ctx.out / 'eval' / 'av2_consistency_box')}"
+    )
+
+
+def _run_consistency_box(ctx: Context) -> dict:
+    """Consistency on the AV2 tracks of SA-Net on the paper's rig and on the box rig (each observation's own box)."""
+    from ..real_evaluation import evaluate_consistency, write_report
+
+    runs = list(BOX_RUNS.values())
+    rep = evaluate_consistency(
+        ctx.out / "data" / "av2.h5",
+        completers(ctx, runs),
+        names=runs,
+        checkpoints=[str(ctx.run_dir(r) / "best.pt") for r in runs],
+        progress=ctx.s.progress,
+    )
+    write_report(rep, ctx.out / "eval" / "av2_consistency_box")
+    return {"objects": rep["data"]["n_objects_tracked"], "pairs": rep["data"]["n_pairs"]}
+
+
+# --- rig study (Tables 3 and 4) ------------------------------------------------------------------
+def study_meshes(s: Settings) -> list:
+    """The rig study's meshes: category folders with >= 5 meshes, then the cars (--quick: a few of each)."""
+    from ..rig_study import find_meshes
+
+    out = []
+    for folder in (s.category_meshes, s.cars_meshes):
+        entries = find_meshes([folder])
+        k = s.meshes_per_category
+        if k is not None:
+            taken: dict = {}
+            kept = []
+            for e in entries:
+                if taken.get(e.category, 0) < k:
+                    kept.append(e)
+                    taken[e.category] = taken.get(e.category, 0) + 1
+            entries = kept
+        out += entries
+    return out
+
+
+def study_variants() -> tuple:
+    """The rig study's variants: the paper's cap rigs (Tables 3, 4) and the box rigs of the box table, in one pass."""
+    from ..rig_study import BOX_RIGS, PAPER_RIGS
+
+    return tuple(PAPER_RIGS) + tuple(v for v in BOX_RIGS if v[0] in BOX_STUDY_LABELS)
+
+
+def _study_command(ctx: Context) -> str:
+    return (
+        "python -c 'from spotlights.experiments import rig_study as r; "
+        f'r.run_study(r.find_meshes(["{ctx.s.category_meshes}", "{ctx.s.cars_meshes}"]), '
+        f"r.study_rigs({list(ABLATION_RAYS)}, variants=r.PAPER_RIGS + [v for v in r.BOX_RIGS if v[0] in "
+        f"{list(BOX_STUDY_LABELS)}]), seed={ctx.s.seed})'"
+        + (" (--quick: the first 2 meshes of each category)" if ctx.s.quick else "")
+        + "; the same rigs are part of 'spotlights study rigs'"
+    )
+
+
+def _run_study(ctx: Context) -> dict:
+    from ..rig_study import run_study, study_rigs, summarize
+
+    meshes = study_meshes(ctx.s)
+    rigs = study_rigs(ABLATION_RAYS, variants=study_variants())
+    d = ctx.out / "rig_study"
+    df = run_study(
+        meshes, rigs, seed=ctx.s.seed, workers=ctx.s.workers, cache_dir=d / ".cache", progress=ctx.s.progress
+    )
+    summary = summarize(df)
+    d.mkdir(parents=True, exist_ok=True)
+    with atomic_output(d / "per_mesh.csv", suffix=".csv") as tmp:
+        df.to_csv(tmp, index=False, float_format="%.6f")
+    with atomic_output(d / "summary.csv", suffix=".csv") as tmp:
+        summary.to_csv(tmp, index=False, float_format="%.6f")
+    counts = df.drop_duplicates(["mesh_set", "mesh"]).groupby(["mesh_set", "category"]).size()
+    return {"meshes": {f"{a}/{b}": int(n) for (a, b), n in counts.items()}}
+
+
+def work_steps() -> list[Step]:
+    """The steps that compute (datasets, runs, evaluations, real data, consistency, rig study), in execution order."""
+    steps = [
+        Step("cars-data", _run_cars, _cars_command, lambda c: [c.s.cars_path], reuse=_reuse_cars),
+        # the box rig's ground truth: built into new datasets; added to an existing file that lacks it
+        Step(
+            "cars-data-box",
+            _run_cars_box,
+            _cars_box_command,
+            lambda c: [c.s.cars_path],
+            needs=("cars-data",),
+            inputs=lambda c: [c.s.cars_path],
+            reuse=_reuse_cars_box,
+        ),
+    ]
+    for run in RUNS:
+        needs = ("cars-data",) + (("cars-data-box",) if RUNS[run][1] == BOX_RIG else ())
+        steps.append(
+            Step(
+                f"train-{run}",
+                (lambda c, r=run: _run_train(c, r)),
+                (lambda c, r=run: _train_command(c, r)),
+                (lambda c, r=run: [c.run_dir(r) / "last.pt", c.run_dir(r) / "best.pt"]),
+                needs=needs,
+                reuse=(lambda c, r=run: _reuse_train(c, r)),
+            )
+        )
+    for run in RUNS:
+        steps.append(
+            Step(
+                f"eval-{run}",
+                (lambda c, r=run: _run_eval(c, r)),
+                (lambda c, r=run: _eval_command(c, r)),
+                (lambda c, r=run: [c.eval_json(r)]),
+                needs=("cars-data", f"train-{run}"),
+                inputs=(lambda c, r=run: [c.s.cars_path, c.run_dir(r) / "best.pt"]),
+                params=lambda c: {"eval_views": c.s.eval_views, "quick": c.s.quick},
+            )
+        )
+    for name in REAL_SOURCES:
+        steps.append(
+            Step(
+                f"real-{name}",
+                (lambda c, n=name: _run_real(c, n)),
+                (lambda c, n=name: _real_command(c, n)),
+                (lambda c, n=name: [c.out / "data" / f"{n}.h5"]),
+                params=lambda c: {"lidar": str(c.s.lidar), "skip_reasons": _skip_reasons()},
+            )
+        )
+    steps.append(
+        Step(
+            "consistency-av2",
+            _run_consistency,
+            _consistency_command,
+            lambda c: [c.out / "eval" / "av2_consistency.json"],
+            needs=("real-av2", "cars-data") + tuple(f"train-{r}" for r in TABLE1_RUNS),
+            inputs=lambda c: (
+                [c.out / "data" / "av2.h5", c.s.cars_path] + [c.run_dir(r) / "best.pt" for r in TABLE1_RUNS]
+            ),
+            params=lambda c: {"scores": ["consistency", "fidelity", "mmd", "diversity"]},
+        )
+    )
+    box_runs = tuple(BOX_RUNS.values())
+    steps.append(
+        Step(
+            "consistency-av2-box",
+            _run_consistency_box,
+            _consistency_box_command,
+            lambda c: [c.out / "eval" / "av2_consistency_box.json"],
+            needs=("real-av2",) + tuple(f"train-{r}" for r in box_runs),
+            inputs=lambda c: [c.out / "data" / "av2.h5"] + [c.run_dir(r) / "best.pt" for r in box_runs],
+        )
+    )
+    steps.append(
+        Step(
+            "rig-study",
+            _run_study,
+            _study_command,
+            lambda c: [c.out / "rig_study" / "summary.csv", c.out / "rig_study" / "per_mesh.csv"],
+            params=lambda c: {
+                "quick": c.s.quick,
+                "seed": c.s.seed,
+                "meshes": [str(c.s.category_meshes), str(c.s.cars_meshes)],
+                "rigs": [label for label, _ in study_variants()],
+            },
+        )
+    )
+    return steps

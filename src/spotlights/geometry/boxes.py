@@ -1,0 +1,290 @@
+"""The oriented 3-D box of an object: one class for detector boxes, annotations and the normalisation.
+
+Convention (everywhere in spotlights): ``center`` (3,) is the box's geometric
+centre (not its bottom), ``size`` = (length, width, height) along the box's own
+x (forward), y (left), z (up) axes, and ``rotation`` (3, 3) has as **columns**
+those three axes expressed in the frame of the scan (sensor, ego or world), so
+
+    p_object = (p_scan - center) @ rotation         p_scan = p_object @ rotation.T + center
+
+A box given by a heading has ``rotation = rotation_z(yaw)``. The box's unit
+frame (where the models work) is its object frame divided by R = half the box
+diagonal: :meth:`Box.normalization`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import ParameterError
+from .rotations import orthonormalize, rotation_z
+
+#: 180 degrees about the box's own z axis: the same box, heading turned around.
+FLIP_Z = np.diag([-1.0, -1.0, 1.0])
+
+
+class Box:
+    """An oriented 3-D box, optionally with the label, class and track id of its object.
+
+    Parameters
+    ----------
+    center : (3,) metres, the box centre in the scan's frame.
+    size : (3,) metres, (length, width, height) along the box's x, y, z.
+    rotation : (3, 3) proper rotation, columns = box forward, left, up axes in the scan's
+        frame; or a number, read as the heading ``yaw`` (radians about the scan's +z).
+        Default: the identity (axis-aligned box) unless ``yaw`` is given.
+    label : the source's own label (e.g. ``"Van"``, ``"vehicle.car"``); ``""`` when unknown.
+    cls : one of the vehicle classes of :mod:`spotlights.data.real` (``"car"``, ...) or None.
+    track_id : identity of the object across frames (``""`` when there is none).
+    yaw : keyword alternative to a numeric ``rotation``.
+
+    Attributes are read-only float64 arrays (``center``, ``size``, ``rotation``) and
+    strings. Sizes are not checked here (annotations may hold degenerate boxes; see
+    :meth:`is_valid`); shapes are.
+    """
+
+    __slots__ = ("center", "size", "rotation", "label", "cls", "track_id")
+
+    def __init__(self, center, size, rotation=None, label: str = "", cls: str | None = None, track_id: str = "",
+                 *, yaw: float | None = None):
+        c = np.array(center, dtype=np.float64).reshape(-1)
+        s = np.array(size, dtype=np.float64).reshape(-1)
+        if c.shape != (3,) or s.shape != (3,):
+            raise ParameterError(f"a box needs a 3-vector centre and size, got shapes {c.shape} and {s.shape}")
+        if rotation is not None and np.ndim(rotation) == 0:
+            if yaw is not None:
+                raise ParameterError("give a box either a rotation or a yaw, not both")
+            rotation, yaw = None, float(rotation)
+        if rotation is None:
+            r = rotation_z(0.0 if yaw is None else float(yaw))
+        else:
+            if yaw is not None:
+                raise ParameterError("give a box either a rotation or a yaw, not both")
+            r = np.array(rotation, dtype=np.float64)
+            if r.shape != (3, 3):
+                raise ParameterError(f"a box rotation must be (3, 3), got shape {r.shape}")
+        for name, v in (("center", c), ("size", s), ("rotation", r)):
+            v.setflags(write=False)
+            object.__setattr__(self, name, v)
+        object.__setattr__(self, "label", str(label))
+        object.__setattr__(self, "cls", None if cls is None else str(cls))
+        object.__setattr__(self, "track_id", "" if track_id is None else str(track_id))
+
+    def __setattr__(self, name, value):
+        raise AttributeError("Box is immutable; use Box.replace(...)")
+
+    def __repr__(self) -> str:
+        extra = "".join(f", {k}={getattr(self, k)!r}" for k in ("label", "cls", "track_id") if getattr(self, k))
+        return (f"Box(center={np.round(self.center, 3).tolist()}, size={np.round(self.size, 3).tolist()}, "
+                f"yaw={self.yaw:.4f}{extra})")
+
+    def __reduce__(self):  # picklable (process pools, Ray)
+        return (Box, (self.center, self.size, self.rotation, self.label, self.cls, self.track_id))
+
+    # --- construction -----------------------------------------------------------------
+
+    @classmethod
+    def from_yaw(cls_, center, size, yaw: float, label: str = "", cls: str | None = None, track_id: str = "") -> "Box":
+        """A box turned by ``yaw`` radians about the scan's +z axis."""
+        return cls_(center, size, rotation_z(float(yaw)), label, cls, track_id)
+
+    def replace(self, **changes) -> "Box":
+        """A copy with some of ``center``, ``size``, ``rotation``, ``label``, ``cls``, ``track_id`` changed."""
+        d = {k: getattr(self, k) for k in self.__slots__}
+        unknown = set(changes) - set(d)
+        if unknown:
+            raise ParameterError(f"unknown box field(s) {sorted(unknown)}")
+        d.update(changes)
+        return Box(**d)
+
+    # --- properties -----------------------------------------------------------------
+
+    @property
+    def yaw(self) -> float:
+        """Heading of the box's x axis about the scan's z axis, radians in (-pi, pi]."""
+        return math.atan2(self.rotation[1, 0], self.rotation[0, 0])
+
+    @property
+    def radius(self) -> float:
+        """Half the box diagonal, metres: the radius R of the circumscribed sphere (the unit frame's scale)."""
+        return 0.5 * float(np.linalg.norm(self.size))
+
+    def is_valid(self) -> bool:
+        """True when centre, size and rotation are finite, the rotation proper and every size positive."""
+        return bool(
+            np.all(np.isfinite(self.center))
+            and np.all(np.isfinite(self.size))
+            and np.all(np.isfinite(self.rotation))
+            and np.all(self.size > 0)
+        )
+
+    # --- geometry -------------------------------------------------------------------
+
+    def corners(self) -> np.ndarray:
+        """(8, 3) float64 corners in the scan's frame.
+
+        Order: index ``4*i + 2*j + k`` has object coordinates
+        ``(±l/2, ±w/2, ±h/2)`` with i, j, k = 0 for + and 1 for - along x, y, z.
+        """
+        signs = np.array([[sx, sy, sz] for sx in (1, -1) for sy in (1, -1) for sz in (1, -1)], dtype=np.float64)
+        return self.center + (signs * (0.5 * self.size)) @ self.rotation.T
+
+    def to_object(self, points: np.ndarray) -> np.ndarray:
+        """Scan-frame points (..., 3) -> object frame (..., 3) float64, metres."""
+        return (np.asarray(points, dtype=np.float64) - self.center) @ self.rotation
+
+    def from_object(self, points: np.ndarray) -> np.ndarray:
+        """Object-frame points (..., 3) -> scan frame (..., 3) float64, metres."""
+        return np.asarray(points, dtype=np.float64) @ self.rotation.T + self.center
+
+    def contains(self, points: np.ndarray, margin: float = 0.0, ground_clearance: float | None = None) -> np.ndarray:
+        """Boolean mask (N,) of the scan-frame points (N, 3) inside the box grown by ``margin`` metres.
+
+        ``ground_clearance`` (metres): when given, the bottom face is not grown but raised by it
+        (points with object z < -h/2 + ground_clearance are out): this drops the ground returns
+        under a vehicle. Faces are inclusive.
+        """
+        p = self.to_object(points)
+        half = 0.5 * self.size
+        inside = (np.abs(p[:, 0]) <= half[0] + margin) & (np.abs(p[:, 1]) <= half[1] + margin) & (p[:, 2] <= half[2] + margin)
+        bottom = -half[2] - margin if ground_clearance is None else -half[2] + ground_clearance
+        return inside & (p[:, 2] >= bottom)
+
+    def normalization(self):
+        """The :class:`~spotlights.geometry.frames.Normalization` scan frame -> unit frame (R = half diagonal)."""
+        from .frames import normalization_from_box
+
+        return normalization_from_box(self.center, self.size, rotation=self.rotation)
+
+    def flipped(self) -> "Box":
+        """The same box with its heading turned by 180 degrees (forward and left axes negated)."""
+        return self.replace(rotation=self.rotation @ FLIP_Z)
+
+    def transformed(self, t: np.ndarray) -> "Box":
+        """This box moved by the rigid (4, 4) transform ``t`` (new frame <- this box's frame)."""
+        t = np.asarray(t, dtype=np.float64)
+        rot = orthonormalize(t[:3, :3] @ self.rotation)
+        return self.replace(center=t[:3, :3] @ self.center + t[:3, 3], rotation=rot)
+
+    def to_dict(self) -> dict:
+        """JSON-ready description: centre, size, rotation (rows), yaw, label, class, track id."""
+        return {
+            "center": [float(v) for v in self.center],
+            "size": [float(v) for v in self.size],
+            "rotation": [[float(v) for v in row] for row in self.rotation],
+            "yaw": float(self.yaw),
+            "label": self.label,
+            "cls": self.cls,
+            "track_id": self.track_id,
+        }
+
+
+# --- boxes in JSON ---------------------------------------------------------------------
+
+SIZE_KEYS = ("size", "dimensions", "extent")
+LABEL_KEYS = ("label", "category", "class", "detection_name")
+ID_KEYS = ("track_id", "id", "instance_token", "tracking_id")
+
+
+def _vector(value, n, src, what: str) -> np.ndarray:
+    from ..errors import InputFileError
+
+    try:
+        a = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        a = None
+    shape = (n,) if isinstance(n, int) else tuple(n)
+    if a is None or a.shape != shape or not np.all(np.isfinite(a)):
+        desc = "three" if shape == (3,) else "x".join(map(str, shape))
+        got = f"shape {a.shape}" if a is not None and a.shape != shape else repr(value)[:60]
+        raise InputFileError(src, f"{what} must be {desc} finite numbers, got {got}")
+    return a
+
+
+def box_from_dict(d, src="box", what: str = "box", require_label: bool = False, axes=None) -> Box:
+    """A :class:`Box` from a JSON object (the generic box format of ``complete`` and ``real``).
+
+    Keys
+    ----
+    center : [x, y, z] metres, the geometric centre, in the scan's frame.
+    size : [length, width, height] metres (``dimensions`` or ``extent`` also accepted).
+    heading, one of: ``yaw`` (radians about the scan's up axis, 0 = box forward along the
+        scan's forward axis), ``yaw_deg`` (degrees), ``rotation`` (3x3 nested list, row-major,
+        whose columns are the box's forward, left, up axes; or 4 numbers, a scalar-first
+        quaternion w, x, y, z), ``quaternion`` (w, x, y, z).
+    label : the object's label (``category``, ``class`` or ``detection_name`` also accepted);
+        required when ``require_label``.
+    track_id : optional identity across frames (``id``, ``instance_token``, ``tracking_id``
+        also accepted), a string or an integer.
+
+    ``axes``: optional (3, 3) rotation taking the scan's coordinates to the object convention
+    (x forward, y left, z up), as :func:`spotlights.geometry.io.axes_rotation` gives for
+    ``--up/--forward``: a ``yaw`` then turns about the scan's up axis. The box returned is in
+    the scan's own coordinates. Errors are :class:`InputFileError` naming ``src`` and ``what``.
+    """
+    from ..errors import InputFileError
+    from .rotations import is_rotation, quaternion_to_matrix
+
+    if not isinstance(d, dict):
+        raise InputFileError(src, f"{what} is not a JSON object with center, size and a heading")
+    if "center" not in d:
+        raise InputFileError(src, f"{what} has no 'center' [x, y, z]")
+    size_key = next((k for k in SIZE_KEYS if k in d), None)
+    if size_key is None:
+        raise InputFileError(src, f"{what} has no 'size' [length, width, height]")
+    center = _vector(d["center"], 3, src, f"{what} center")
+    size = _vector(d[size_key], 3, src, f"{what} size")
+    a = np.eye(3) if axes is None else np.asarray(axes, dtype=np.float64)
+    rot_value = d.get("rotation", d.get("quaternion"))
+    if rot_value is not None:
+        if "yaw" in d or "yaw_deg" in d:
+            raise InputFileError(src, f"{what} has both a yaw and a rotation: give one")
+        flat = np.asarray(rot_value, dtype=object).reshape(-1) if isinstance(rot_value, list) else None
+        if flat is not None and flat.size == 4:
+            q = _vector(rot_value, 4, src, f"{what} quaternion")
+            if np.linalg.norm(q) < 1e-6:
+                raise InputFileError(src, f"{what} quaternion is zero")
+            rot = quaternion_to_matrix(*q)
+        else:
+            rot = _vector(rot_value, (3, 3), src, f"{what} rotation")
+            if not is_rotation(rot):
+                raise InputFileError(src, f"{what} rotation is not a proper rotation matrix (orthonormal, det +1)")
+            rot = orthonormalize(rot)
+    elif "yaw" in d or "yaw_deg" in d:
+        key = "yaw" if "yaw" in d else "yaw_deg"
+        try:
+            yaw = float(d[key])
+        except (TypeError, ValueError):
+            raise InputFileError(src, f"{what} {key} must be a number, got {d[key]!r}") from None
+        if not math.isfinite(yaw):
+            raise InputFileError(src, f"{what} {key} must be finite")
+        rot = a.T @ rotation_z(math.radians(yaw) if key == "yaw_deg" else yaw)
+    else:
+        raise InputFileError(src, f"{what} needs 'yaw' or 'rotation' (a box's heading is never assumed)")
+    label_key = next((k for k in LABEL_KEYS if k in d), None)
+    if label_key is None and require_label:
+        raise InputFileError(src, f"{what} has no 'label' (e.g. \"car\")")
+    label = "" if label_key is None else str(d[label_key])
+    track = next((d[k] for k in ID_KEYS if k in d), "")
+    if isinstance(track, float) and track.is_integer():
+        track = int(track)
+    return Box(center, size, rot, label, None, "" if track is None else str(track))
+
+
+def load_box(path) -> Box:
+    """Read a one-box JSON file (see :func:`box_from_dict`; the label is optional here)."""
+    import json
+    from pathlib import Path
+
+    from ..errors import InputFileError
+
+    p = Path(path)
+    if not p.is_file():
+        raise InputFileError(p, "no such box file")
+    try:
+        d = json.loads(p.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputFileError(p, f"not valid JSON ({exc})") from None
+    return box_from_dict(d, p)

@@ -1,0 +1,70 @@
+"""Rotations: about +z (yaw), from quaternions, and the nearest proper rotation.
+
+One owner for each: every module that turns a heading, a quaternion or an
+almost-rotation into a (3, 3) matrix calls these.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def rotation_z(yaw: float) -> np.ndarray:
+    """(3, 3) float64 rotation by ``yaw`` radians about +z (counter-clockwise seen from above).
+
+    Its columns are the rotated x, y, z axes: a box with heading ``yaw`` has its
+    forward (x) axis at angle ``yaw`` from the frame's x axis.
+    """
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def orthonormalize(m: np.ndarray) -> np.ndarray:
+    """Nearest proper rotation (3, 3) float64 to ``m`` (polar decomposition via SVD).
+
+    Calibration chains (e.g. KITTI's ``R0_rect`` times ``Tr_velo_to_cam``) are
+    rotations only up to rounding; boxes need an exact one.
+    """
+    u, _, vt = np.linalg.svd(np.asarray(m, dtype=np.float64))
+    r = u @ vt
+    if np.linalg.det(r) < 0:  # improper: flip the weakest axis
+        u[:, -1] = -u[:, -1]
+        r = u @ vt
+    return r
+
+
+def quaternion_to_matrix(qw, qx, qy, qz) -> np.ndarray:
+    """Rotation matrices from scalar-first unit quaternions (w, x, y, z), as Argoverse 2 and nuScenes store them.
+
+    Inputs are scalars or arrays of shape (n,); returns (3, 3) or (n, 3, 3)
+    float64. The quaternions are normalised first.
+    """
+    q = np.stack(np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in (qw, qx, qy, qz))), axis=-1)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    m = np.stack(
+        [
+            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+        ],
+        axis=-1,
+    )
+    return m.reshape(q.shape[:-1] + (3, 3))
+
+
+def rigid_transform(rotation, translation) -> np.ndarray:
+    """(4, 4) float64 homogeneous transform from a (3, 3) rotation and a (3,) translation."""
+    t = np.eye(4)
+    t[:3, :3] = np.asarray(rotation, dtype=np.float64)
+    t[:3, 3] = np.asarray(translation, dtype=np.float64).reshape(3)
+    return t
+
+
+def is_rotation(m, atol: float = 1e-3) -> bool:
+    """True when ``m`` (3, 3) is finite, orthonormal within ``atol`` and proper (det > 0)."""
+    m = np.asarray(m, dtype=np.float64)
+    return bool(m.shape == (3, 3) and np.all(np.isfinite(m)) and np.allclose(m.T @ m, np.eye(3), atol=atol)
+                and np.linalg.det(m) > 0)

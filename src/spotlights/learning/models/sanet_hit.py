@@ -1,0 +1,116 @@
+"""Hit-aware SA-Net: per ray a hit logit and a depth, so misses need no clip.
+
+The paper's SA-Net encodes a miss as depth 0 and regresses every ray with L1; at
+inference a clip (0.2) removes the rays predicted near 0, and with them every true hit
+closer than 0.2 (the paper's stated limitation). This variant separates the two
+questions. The decoder (same PCN encoder, same hidden layers) ends in ``2 N*M`` outputs:
+
+* ``hit_logits`` (B, N*M): trained with binary cross-entropy against the ground-truth
+  hit mask ``depth > 0``;
+* ``depths`` (B, N*M): trained with L1 on the ground-truth hits only (a miss has no depth).
+
+Loss = ``hit_weight * BCE + depth_weight * L1_hits`` where BCE is the mean over all rays
+of the batch and ``L1_hits = sum over hit rays |d - d*| / number of hit rays`` (batch-wide).
+
+At inference a ray is kept where ``sigmoid(logit) >= threshold``; its depth is clamped to
+[0, 1] and decoded with the rig exactly as SA-Net does (:meth:`SANet.decode`). The threshold
+is chosen during training on the validation split (the value of ``threshold_grid`` that
+minimises validation CD-L1, :func:`spotlights.learning.train.validate`) and stored in the
+checkpoint (``hit_threshold``); ``model_from_checkpoint`` sets it. ``clip`` (a depth clip on
+top) defaults to none.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+
+from .base import CLIP_DEFAULT
+from .sanet import SANet
+
+THRESHOLD_GRID = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
+"""Hit-probability thresholds tried on the validation split (the CD-L1 minimiser is kept)."""
+
+
+class HitSANet(SANet):
+    """SA-Net with a per-ray hit head (registry name ``sanet-hit``).
+
+    Parameters
+    ----------
+    rig, code_size, encoder_widths, hidden : as :class:`SANet` (the last decoder layer has
+        ``2 N*M`` outputs: hit logits, then depths).
+    threshold : p(hit) threshold used at inference until training chooses one (default 0.5).
+    threshold_grid : thresholds tried on the validation split; ``None`` or ``[]`` keeps ``threshold``.
+    hit_weight, depth_weight : loss weights of the BCE and the hit-only L1 terms.
+    clip : optional depth clip applied on top of the hit decision (default None: none).
+
+    forward: partial (B, K, 3) -> {"hit_logits": (B, N*M), "depths": (B, N*M)} (raw depths;
+    decoding clamps them to [0, 1]).
+    """
+
+    name = "sanet-hit"
+    outputs_per_ray = 2
+
+    def __init__(self, rig, code_size: int = 1024, encoder_widths: Sequence[int] = (128, 256, 512),
+                 hidden: Sequence[int] = (256, 256), threshold: float = 0.5,
+                 threshold_grid: Sequence[float] | None = THRESHOLD_GRID, hit_weight: float = 1.0,
+                 depth_weight: float = 1.0, clip: float | None = None):
+        super().__init__(rig, code_size=code_size, encoder_widths=encoder_widths, hidden=hidden,
+                         output_activation="none", clip=clip)
+        self.threshold = _check_probability(threshold, "threshold")
+        self.threshold_grid = tuple(_check_probability(t, "threshold_grid value") for t in (threshold_grid or ()))
+        self.hit_weight, self.depth_weight = float(hit_weight), float(depth_weight)
+        if self.hit_weight < 0 or self.depth_weight < 0 or self.hit_weight + self.depth_weight == 0:
+            raise ValueError(f"hit_weight and depth_weight must be >= 0 and not both 0, got {hit_weight}, {depth_weight}")
+
+    def forward(self, partial: torch.Tensor) -> dict[str, torch.Tensor]:
+        out = self.decoder(self.encoder(partial))
+        n = self.rig.n_rays
+        return {"hit_logits": out[..., :n], "depths": out[..., n:]}
+
+    def loss(self, outputs, batch, progress: float = 1.0):
+        return hit_depth_loss(outputs["hit_logits"], outputs["depths"], batch["depths"], self.hit_weight,
+                              self.depth_weight)
+
+    def hit_probabilities(self, outputs) -> torch.Tensor:
+        """(B, N*M) float32 p(hit) of every ray."""
+        return torch.sigmoid(outputs["hit_logits"].detach().float())
+
+    def outputs_to_points(self, outputs, clip=CLIP_DEFAULT, directions: torch.Tensor | None = None,
+                          threshold: float | None = None) -> list[torch.Tensor]:
+        """Completed clouds (list of B (K_b, 3) float32, unit frame): the rays with p(hit) >= ``threshold``
+        (default: the model's, i.e. the checkpoint's chosen threshold), in ray order."""
+        t = self.threshold if threshold is None else float(threshold)
+        keep = self.hit_probabilities(outputs) >= t
+        pts, mask = self.decode(outputs["depths"].detach().float(), clip, directions, keep=keep)
+        return [p[m] for p, m in zip(pts, mask)]
+
+
+def hit_depth_loss(hit_logits: torch.Tensor, depths: torch.Tensor, target: torch.Tensor, hit_weight: float = 1.0,
+                   depth_weight: float = 1.0):
+    """The hit-aware SA-Net's loss: ``hit_weight * BCE(logits, target > 0) + depth_weight * L1 on hits``.
+
+    hit_logits, depths, target : (B, N*M) float32; ``target`` are ground-truth normalised depths,
+    0 = miss. BCE is the mean over all B*N*M rays; the L1 term is the mean of ``|depth - target|``
+    over the rays whose target is a hit (batch-wide; 0 when the batch has no hit).
+    Returns (scalar loss tensor, {"bce", "l1_hits", "hit_accuracy"} floats).
+    """
+    if not (hit_logits.shape == depths.shape == target.shape):
+        raise ValueError(f"shapes differ: logits {tuple(hit_logits.shape)}, depths {tuple(depths.shape)}, "
+                         f"target {tuple(target.shape)}")
+    hit = target > 0
+    bce = torch.nn.functional.binary_cross_entropy_with_logits(hit_logits, hit.to(hit_logits.dtype))
+    n_hit = hit.sum()
+    l1 = torch.where(hit, (depths - target).abs(), torch.zeros_like(depths)).sum() / n_hit.clamp(min=1)
+    loss = hit_weight * bce + depth_weight * l1
+    with torch.no_grad():
+        acc = ((hit_logits >= 0) == hit).float().mean()
+    return loss, {"bce": float(bce.detach()), "l1_hits": float(l1.detach()), "hit_accuracy": float(acc)}
+
+
+def _check_probability(t, what: str) -> float:
+    t = float(t)
+    if not 0.0 < t < 1.0:
+        raise ValueError(f"{what} must lie strictly between 0 and 1, got {t}")
+    return t

@@ -1,0 +1,302 @@
+"""Whole scenes: raw scan (grey), partial inputs (purple), completions (green), boxes with their ids.
+
+Everything is drawn in the **sensor frame** of the scan. Left: a bird's-eye view of the
+scan around the objects (points subsampled, boxes outlined and labelled with their ids,
+a scale bar). Right: a 3-D close-up of each object seen from the sensor's side (as the
+LiDAR saw it), with its box as a wireframe, a 1 m ruler, and the raw points *around* the
+box (within 1 m, outside the box) as context: the raw points inside the box are the
+object's own, drawn as the purple partial input, so no grey point hides them.
+
+:func:`render_scene` takes arrays (any reader, ``complete --boxes``);
+:func:`render_frame` draws rows of an observation file (``spotlights real show``).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputFileError, ParameterError
+from ..geometry.frames import box_corners
+from ._figure import add_axes3d, add_scale_bar, new_figure, save_png
+
+GREY, PURPLE, GREEN = "#9a9a9a", "#8e44ad", "#27ae60"
+#: the 12 edges of a box as pairs of :func:`~spotlights.geometry.frames.box_corners` indices
+BOX_EDGES = ((0, 1), (2, 3), (4, 5), (6, 7), (0, 2), (1, 3), (4, 6), (5, 7), (0, 4), (1, 5), (2, 6), (3, 7))
+
+
+@dataclass
+class SceneObject:
+    """One object of a scene, everything in the scan's sensor frame (metres).
+
+    label : the id drawn beside its box (track id, object id).
+    center : (3,) box centre. size : (3,) length, width, height. rotation : (3, 3), columns = box axes.
+    partial : (K, 3) the points the model was given (purple).
+    completion : (L, 3) the model's completion (green), or None.
+    caption : a line under the close-up's id (class, point counts, ...).
+    """
+
+    label: str
+    center: np.ndarray
+    size: np.ndarray
+    rotation: np.ndarray
+    partial: np.ndarray
+    completion: np.ndarray | None = None
+    caption: str = ""
+
+    @property
+    def reach(self) -> float:
+        """Half the box diagonal, metres."""
+        return 0.5 * float(np.linalg.norm(self.size))
+
+    def corners(self) -> np.ndarray:
+        """(8, 3) box corners (order of :func:`~spotlights.geometry.frames.box_corners`)."""
+        return box_corners(self.center, self.size, rotation=self.rotation)
+
+    def inside(self, points: np.ndarray, margin: float = 0.15) -> np.ndarray:
+        """(N,) bool: points inside the box grown by ``margin`` metres on every side."""
+        p = (np.asarray(points, dtype=np.float64) - self.center) @ np.asarray(self.rotation, dtype=np.float64)
+        return np.all(np.abs(p) <= 0.5 * np.asarray(self.size) + margin, axis=1)
+
+
+def to_sensor(points_unit: np.ndarray, unit_to_sensor: np.ndarray) -> np.ndarray:
+    """(K, 3) unit-frame points -> (K, 3) float64 sensor frame, with a (4, 4) unit->sensor matrix."""
+    p = np.asarray(points_unit, dtype=np.float64).reshape(-1, 3)
+    return p @ unit_to_sensor[:3, :3].T + unit_to_sensor[:3, 3]
+
+
+def short_id(track_id: str, n: int = 8) -> str:
+    """A track id short enough to print beside a box (UUIDs: their first ``n`` characters)."""
+    t = str(track_id)
+    return t[:n] if len(t) > n + 2 else t
+
+
+def bev_window(objects: Sequence[SceneObject], margin: float = 8.0) -> tuple[np.ndarray, np.ndarray]:
+    """(lo (2,), hi (2,)) of the bird's-eye window: every box plus ``margin`` metres, and the sensor."""
+    centers = np.array([o.center[:2] for o in objects], dtype=np.float64).reshape(-1, 2)
+    reach = np.array([o.reach for o in objects]).reshape(-1, 1)
+    lo = np.minimum((centers - reach).min(axis=0) - margin, -3.0)
+    hi = np.maximum((centers + reach).max(axis=0) + margin, 3.0)
+    return lo, hi
+
+
+def draw_bev(
+    ax,
+    scan: np.ndarray,
+    objects: Sequence[SceneObject],
+    max_scan_points: int = 40000,
+    seed: int = 0,
+    window: tuple[np.ndarray, np.ndarray] | None = None,
+    legend: bool = True,
+) -> None:
+    """Bird's-eye view on a 2-D axes: grey scan, green completions, purple inputs, boxes with ids, sensor, scale bar."""
+    lo, hi = window if window is not None else bev_window(objects)
+    scan = np.asarray(scan, dtype=np.float64).reshape(-1, 3)
+    bev = scan[np.all((scan[:, :2] >= lo) & (scan[:, :2] <= hi), axis=1)]
+    if len(bev) > max_scan_points:
+        bev = bev[np.sort(np.random.default_rng(seed).choice(len(bev), max_scan_points, replace=False))]
+    ax.scatter(bev[:, 0], bev[:, 1], s=0.3, color=GREY, alpha=0.6, linewidths=0, label="raw scan", rasterized=True)
+    any_comp = False
+    for o in objects:
+        if o.completion is not None and len(o.completion):
+            ax.scatter(
+                o.completion[:, 0],
+                o.completion[:, 1],
+                s=1.0,
+                color=GREEN,
+                linewidths=0,
+                label=None if any_comp else "completion",
+            )
+            any_comp = True
+    for k, o in enumerate(objects):
+        p = np.asarray(o.partial, dtype=np.float64).reshape(-1, 3)
+        ax.scatter(p[:, 0], p[:, 1], s=2.5, color=PURPLE, linewidths=0, label="partial input" if k == 0 else None)
+    for o in objects:
+        c = o.corners()[[0, 1, 3, 2, 0], :2]  # bottom face, closed
+        ax.plot(c[:, 0], c[:, 1], color="black", lw=0.7)
+        ax.annotate(
+            o.label,
+            o.center[:2] + np.array([0.0, 0.6 * o.reach + 0.4]),
+            fontsize=7,
+            ha="center",
+            va="bottom",
+            color="black",
+            bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.7),
+        )
+    ax.plot([0], [0], marker="^", color="black", ms=6, ls="none")
+    ax.annotate("sensor", (0, 0), xytext=(0, -10), textcoords="offset points", fontsize=7, ha="center", va="top")
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m, sensor frame)")
+    ax.set_ylabel("y (m)")
+    add_scale_bar(ax, label="m", loc="lower left")
+    if legend:
+        ax.legend(loc="upper right", fontsize=7, markerscale=4, framealpha=0.85)
+
+
+def draw_closeup(ax, scan: np.ndarray, obj: SceneObject, context: float = 1.0) -> None:
+    """3-D close-up of one object from the sensor's side: context scan (grey, outside the box),
+    completion (green), partial input (purple) depth-sorted together; box wireframe; 1 m ruler."""
+    from .points import Layer, _stack
+
+    c = np.asarray(obj.center, dtype=np.float64)
+    reach = obj.reach
+    scan = np.asarray(scan, dtype=np.float64).reshape(-1, 3)
+    near = scan[np.sum((scan - c) ** 2, axis=1) <= (reach + context) ** 2]
+    near = near[~obj.inside(near)]  # the object's own points are its partial input
+    layers = [Layer(near, GREY, None, 0.8, 0.7)]
+    if obj.completion is not None:
+        layers.append(Layer(obj.completion, GREEN, None, 2.0, 1.0))
+    layers.append(Layer(obj.partial, PURPLE, None, 4.0, 1.0))
+    p, col, s = _stack(layers)
+    if len(p):
+        ax.scatter(p[:, 0], p[:, 1], p[:, 2], s=s, c=col, linewidths=0, depthshade=False)
+    k = obj.corners()
+    for a, b in BOX_EDGES:
+        ax.plot(*np.stack([k[a], k[b]]).T, color="black", lw=0.5, alpha=0.6)
+    # a 1 m ruler along the box's length, on the ground beside its bottom edge that faces the sensor
+    rot = np.asarray(obj.rotation, dtype=np.float64)
+    side = 1.0 if np.linalg.norm(k[2] + k[3]) < np.linalg.norm(k[0] + k[1]) else -1.0  # +y side nearer the sensor?
+    start = (k[2] if side > 0 else k[0]) + side * rot[:, 1] * 0.3
+    ruler = np.stack([start, start + rot[:, 0]])
+    ax.plot(*ruler.T, color="black", lw=2.0, solid_capstyle="butt")
+    ax.text(*(ruler.mean(axis=0) + side * rot[:, 1] * 0.35), "1 m", fontsize=7, ha="center", va="top")
+    r = reach + 0.3
+    ax.set_xlim(c[0] - r, c[0] + r)
+    ax.set_ylim(c[1] - r, c[1] + r)
+    ax.set_zlim(c[2] - r, c[2] + r)
+    ax.set_box_aspect((1, 1, 1), zoom=1.35)
+    azim = math.degrees(math.atan2(c[1], c[0])) + 180.0  # look from the sensor's side
+    ax.view_init(elev=20, azim=azim)
+    ax.set_axis_off()
+
+
+def figure_scene(
+    scan: np.ndarray,
+    objects: Sequence[SceneObject],
+    title: str | None = None,
+    max_scan_points: int = 40000,
+    seed: int = 0,
+    closeups: bool = True,
+    id_note: str = "boxes: object id",
+):
+    """The :class:`~matplotlib.figure.Figure` of :func:`render_scene` (not saved)."""
+    objects = list(objects)
+    if not objects:
+        raise ParameterError("no object to draw")
+    n_obj = len(objects) if closeups else 0
+    ncol = min(3, n_obj) if n_obj else 0
+    nrow = math.ceil(n_obj / ncol) if n_obj else 1
+    fig = new_figure(7.0 + 3.8 * ncol, max(6.5, 3.8 * nrow))
+    gs = fig.add_gridspec(nrow, ncol + 2)
+    ax = fig.add_subplot(gs[:, :2])
+    draw_bev(ax, scan, objects, max_scan_points, seed)
+    ax.set_title(f"bird's-eye view ({id_note})", fontsize=10)
+    for k, o in enumerate(objects[:n_obj]):
+        a3 = add_axes3d(fig, gs[k // ncol, 2 + k % ncol])
+        draw_closeup(a3, scan, o)
+        size = " x ".join(f"{x:.1f}" for x in o.size)
+        a3.set_title(f"{o.label}: {o.caption}\nbox {size} m" if o.caption else f"{o.label}: box {size} m", fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def render_scene(
+    path: str | os.PathLike,
+    scan: np.ndarray,
+    objects: Sequence[SceneObject],
+    title: str | None = None,
+    max_scan_points: int = 40000,
+    seed: int = 0,
+    closeups: bool = True,
+    dpi: int = 110,
+    id_note: str = "boxes: object id",
+) -> Path:
+    """Draw a scene into a PNG (atomic write): bird's-eye view, plus one close-up per object.
+
+    Parameters
+    ----------
+    scan : (N, 3) raw scan, sensor frame (metres).
+    objects : the objects, in the order of their close-ups.
+    max_scan_points : grey points drawn at most in the bird's-eye view (random subset, seeded).
+    closeups : False draws the bird's-eye view alone.
+    id_note : what the labels are, printed in the bird's-eye title.
+    """
+    return save_png(figure_scene(scan, objects, title, max_scan_points, seed, closeups, id_note), path, dpi)
+
+
+def observation_label(obs, i: int) -> str:
+    """The id printed for observation row ``i``: its track id (shortened), else ``#ROW`` in the file."""
+    t = obs.track_id[i]
+    return short_id(t) if t else f"#{i}"
+
+
+def frame_objects(obs, rows: Sequence[int], completions: Sequence[np.ndarray] | None = None) -> list[SceneObject]:
+    """Observation rows as :class:`SceneObject` (sensor frame): partials and completions mapped with
+    each row's ``unit_to_sensor``; labels from :func:`observation_label`."""
+    out = []
+    for k, i in enumerate(rows):
+        m = obs.unit_to_sensor[i]
+        comp = to_sensor(completions[k], m) if completions is not None else None
+        out.append(
+            SceneObject(
+                label=observation_label(obs, i),
+                center=np.asarray(obs.box_center[i], dtype=np.float64),
+                size=np.asarray(obs.box_size[i], dtype=np.float64),
+                rotation=np.asarray(obs.box_rotation[i], dtype=np.float64),
+                partial=to_sensor(obs.partial[i], m),
+                completion=comp,
+                caption=f"{obs.cls[i]} ({obs.label[i]}), {int(obs.n_points_raw[i])} raw pts, {len(obs.partial[i])} input",
+            )
+        )
+    return out
+
+
+def render_frame(
+    path: str | os.PathLike,
+    obs,
+    rows: Sequence[int],
+    completions: Sequence[np.ndarray] | None = None,
+    scan: np.ndarray | None = None,
+    title: str | None = None,
+    max_scan_points: int = 40000,
+    seed: int = 0,
+    dpi: int = 110,
+) -> Path:
+    """Draw one frame's observations into a PNG (atomic write); see :func:`render_scene`.
+
+    Parameters
+    ----------
+    obs, rows : the :class:`~spotlights.data.real.extract.Observations` and the rows to draw (all of one scan).
+    completions : one (K_i, 3) unit-frame array per row, or None (no green).
+    scan : (N, 3) raw scan in the sensor frame, or None to read ``obs.scan_path`` of the first row.
+    max_scan_points : grey points drawn at most in the bird's-eye view (random subset, seeded).
+    """
+    rows = list(rows)
+    if not rows:
+        raise ParameterError("no observation to draw")
+    if scan is None:
+        scan = read_frame_scan(obs, rows[0])
+    tracked = any(obs.track_id[i] for i in rows)
+    note = "boxes: track id" if tracked else "boxes: row in the observation file (no track ids)"
+    return render_scene(
+        path, scan, frame_objects(obs, rows, completions), title, max_scan_points, seed, True, dpi, note
+    )
+
+
+def read_frame_scan(obs, row: int) -> np.ndarray:
+    """(N, 3) float64 raw scan of observation ``row`` (sensor frame), read from its ``scan_path``."""
+    from ..data.real import read_scan
+
+    sp = obs.scan_path[row]
+    if not Path(sp).is_file():
+        raise InputFileError(sp, "raw scan not found (moved since extraction?)")
+    return np.asarray(read_scan(sp), dtype=np.float64)

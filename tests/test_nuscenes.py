@@ -1,0 +1,191 @@
+"""nuScenes reader: transforms against hand-computed corners, points known to lie inside, the real scene-0523,
+categories, malformed tables."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from helpers import LIDAR, assert_user_error, need
+from spotlights.cli import main
+from spotlights.data.real import open_reader
+from spotlights.data.real.extract import ExtractConfig, extract
+from spotlights.data.real.nuscenes import CLASS_MAP, NuScenesReader
+from spotlights.errors import InputFileError
+
+
+NUSCENES = LIDAR / "nuscenes"
+BOX_YAW = math.radians(30.0)
+CENTER_S = np.array([10.0, 0.0, -1.0])  # the box centre in the sensor frame, by construction below
+LWH = np.array([4.0, 2.0, 1.5])
+
+
+def quat_z(deg: float) -> list[float]:
+    """Scalar-first quaternion (w, x, y, z) of a rotation by ``deg`` degrees about +z."""
+    h = math.radians(deg) / 2
+    return [math.cos(h), 0.0, 0.0, math.sin(h)]
+
+
+def rz(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+
+
+def write_mini_nuscenes(root: Path, break_table: str | None = None) -> dict:
+    """A two-keyframe nuScenes folder in the release layout with one car, one bicycle and one truck.
+
+    Ego pose: yaw 90 degrees at (100, 200, 0); LIDAR_TOP mounted at (1, 0, 2) in the ego frame, turned
+    by -90 degrees (as the real sensor: x right, y forward). So global <- sensor has no rotation and the
+    sensor sits at (100, 201, 2): a global point (110, 201, 1) is (10, 0, -1) in the sensor frame.
+    """
+    tables = root / "v1.0-mini"
+    (root / "samples" / "LIDAR_TOP").mkdir(parents=True)
+    tables.mkdir()
+    rng = np.random.default_rng(0)
+    r = rz(BOX_YAW)
+    inside_obj = rng.uniform(-0.95, 0.95, (120, 3)) * (LWH / 2)
+    outside_obj = np.array([[2.3, 0, 0], [0, 1.2, 0], [0, 0, 0.9], [-2.1, 0.5, 0.0], [1.0, -1.1, 0.2]])
+    clutter = rng.uniform(-40, 40, (300, 3)) * [1, 1, 0] + [0, 0, -1.9] + [0, 30, 0]
+    pts = np.concatenate([inside_obj @ r.T + CENTER_S, outside_obj @ r.T + CENTER_S, clutter])
+    files = []
+    for k in range(2):
+        data = np.c_[pts + [0.1 * k, 0, 0], rng.uniform(0, 100, len(pts)), rng.integers(0, 32, len(pts))].astype("<f4")
+        name = f"samples/LIDAR_TOP/n000__LIDAR_TOP__{1000 + k}.pcd.bin"
+        data.tofile(root / name)
+        files.append(name)
+    t = {
+        "sensor": [{"token": "s-lidar", "channel": "LIDAR_TOP", "modality": "lidar"},
+                   {"token": "s-cam", "channel": "CAM_FRONT", "modality": "camera"}],
+        "calibrated_sensor": [{"token": "cs-lidar", "sensor_token": "s-lidar", "translation": [1.0, 0.0, 2.0], "rotation": quat_z(-90)},
+                              {"token": "cs-cam", "sensor_token": "s-cam", "translation": [1.5, 0.0, 1.5], "rotation": [0.5, -0.5, 0.5, -0.5]}],
+        "ego_pose": [{"token": f"e{k}", "timestamp": 1000 + k, "translation": [100.0 + 0.1 * k, 200.0, 0.0], "rotation": quat_z(90)}
+                     for k in range(2)],
+        "scene": [{"token": "sc", "name": "scene-0001", "first_sample_token": "smp0", "log_token": "l", "nbr_samples": 2}],
+        "sample": [{"token": f"smp{k}", "timestamp": 1000 + k, "scene_token": "sc", "prev": "", "next": ""} for k in range(2)],
+        "sample_data": [
+            *({"token": f"sd{k}", "sample_token": f"smp{k}", "ego_pose_token": f"e{k}", "calibrated_sensor_token": "cs-lidar",
+               "timestamp": 1000 + k, "is_key_frame": True, "filename": files[k], "fileformat": "pcd"} for k in range(2)),
+            {"token": "cam0", "sample_token": "smp0", "ego_pose_token": "e0", "calibrated_sensor_token": "cs-cam",
+             "timestamp": 1000, "is_key_frame": True, "filename": "samples/CAM_FRONT/x.jpg", "fileformat": "jpg"},
+            {"token": "sweep", "sample_token": "smp0", "ego_pose_token": "e0", "calibrated_sensor_token": "cs-lidar",
+             "timestamp": 1050, "is_key_frame": False, "filename": "sweeps/LIDAR_TOP/absent.pcd.bin", "fileformat": "pcd"},
+        ],
+        "category": [{"token": "c-car", "name": "vehicle.car"}, {"token": "c-bike", "name": "vehicle.bicycle"},
+                     {"token": "c-truck", "name": "vehicle.truck"}],
+        "instance": [{"token": "i-car", "category_token": "c-car"}, {"token": "i-bike", "category_token": "c-bike"},
+                     {"token": "i-truck", "category_token": "c-truck"}],
+        "sample_annotation": [],
+    }
+    for k in range(2):
+        t["sample_annotation"] += [
+            {"token": f"a-car{k}", "sample_token": f"smp{k}", "instance_token": "i-car", "translation": [110.0 + 0.1 * k, 201.0, 1.0],
+             "size": [2.0, 4.0, 1.5], "rotation": quat_z(30), "num_lidar_pts": 120},
+            {"token": f"a-bike{k}", "sample_token": f"smp{k}", "instance_token": "i-bike", "translation": [90.0, 190.0, 1.0],
+             "size": [0.6, 1.8, 1.4], "rotation": quat_z(0), "num_lidar_pts": 0},
+            {"token": f"a-truck{k}", "sample_token": f"smp{k}", "instance_token": "i-truck", "translation": [400.0, 600.0, 1.5],
+             "size": [2.5, 8.0, 3.0], "rotation": quat_z(0), "num_lidar_pts": 0},
+        ]
+    if break_table == "sample_annotation":
+        del t["sample_annotation"][0]["size"]
+    for name, rows in t.items():
+        (tables / f"{name}.json").write_text(json.dumps(rows))
+    if break_table == "ego_pose":
+        (tables / "ego_pose.json").write_text('[{"token": "e0", "translation": [1, 2')
+    return t
+
+
+def test_transforms_against_hand_computed_corners_and_inside_points(tmp_path):
+    write_mini_nuscenes(tmp_path)
+    reader = open_reader(tmp_path, "nuscenes")
+    assert reader.frame_keys() == [("scene-0001", "smp0"), ("scene-0001", "smp1")]
+    frame = reader.load(("scene-0001", "smp0"))
+    assert frame.timestamp == 1000 and frame.sequence == "scene-0001"
+    # global <- sensor: rotation 90 - 90 = 0, the sensor at (100, 201, 2)
+    np.testing.assert_allclose(frame.sensor_to_world[:3, :3], np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(frame.sensor_to_world[:3, 3], [100.0, 201.0, 2.0], atol=1e-12)
+    car = next(b for b in frame.boxes if b.cls == "car")
+    assert car.track_id == "i-car" and car.label == "vehicle.car"
+    np.testing.assert_allclose(car.size, LWH)  # nuScenes (w, l, h) -> our (l, w, h)
+    # hand: centre (110, 201, 1) - (100, 201, 2) = (10, 0, -1); corners = centre + Rz(30 deg) (+-2, +-1, +-0.75)
+    c, s = math.cos(BOX_YAW), math.sin(BOX_YAW)
+    hand = np.array([[10 + c * dx - s * dy, s * dx + c * dy, -1 + dz] for dx in (2, -2) for dy in (1, -1) for dz in (0.75, -0.75)])
+    np.testing.assert_allclose(car.corners(), hand, atol=1e-9)
+    assert car.yaw == pytest.approx(BOX_YAW)
+    # the 120 points built inside lie inside, the 5 built just outside do not
+    inside = car.contains(frame.points.astype(np.float64))
+    assert inside[:120].all() and not inside[120:].any()
+    assert int(inside.sum()) == 120
+    assert {b.label: b.cls for b in frame.boxes} == {"vehicle.car": "car", "vehicle.bicycle": None, "vehicle.truck": "truck"}
+
+
+def test_extract_counts_two_wheelers_as_excluded_and_tracks_by_instance(tmp_path):
+    write_mini_nuscenes(tmp_path)
+    obs = extract(open_reader(tmp_path, "nuscenes"), ExtractConfig(classes=("car", "truck", "trailer")), progress=False)
+    assert obs.track_id == ["i-car", "i-car"] and obs.cls == ["car", "car"]
+    assert obs.meta["skipped_labels"] == {"vehicle.bicycle": 2}
+    assert obs.meta["skipped"]["empty_box"] == 2  # the trucks hold no point
+    assert obs.timestamp.dtype == np.int64 and list(obs.timestamp) == [1000, 1001]
+    assert np.all(np.isfinite(obs.sensor_to_world))
+
+
+@pytest.mark.parametrize("table, message", [("sample_annotation", "sample_annotation.json: row 0 lacks 'size'"),
+                                            ("ego_pose", "ego_pose.json: not valid JSON")])
+def test_malformed_table_is_one_line_exit_2_nothing_written(tmp_path, capsys, table, message):
+    write_mini_nuscenes(tmp_path / "ns", break_table=table)
+    out = tmp_path / "o.h5"
+    assert main(["real", "extract", str(tmp_path / "ns"), "--format", "nuscenes", "--out", str(out), "-q"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and message in err and "Traceback" not in err
+    assert not out.exists() and not list(tmp_path.glob(".*part*"))
+
+
+def test_missing_keyframe_scan_names_the_file(tmp_path):
+    write_mini_nuscenes(tmp_path)
+    (tmp_path / "samples" / "LIDAR_TOP" / "n000__LIDAR_TOP__1001.pcd.bin").unlink()
+    with pytest.raises(InputFileError, match="n000__LIDAR_TOP__1001.pcd.bin: LIDAR_TOP keyframe scan"):
+        NuScenesReader(tmp_path)
+
+
+def test_category_map_documented_classes():
+    assert CLASS_MAP["vehicle.bus.rigid"] == CLASS_MAP["vehicle.bus.bendy"] == "bus"
+    assert CLASS_MAP["vehicle.construction"] == "construction"
+    assert CLASS_MAP["vehicle.emergency.police"] == CLASS_MAP["vehicle.emergency.ambulance"] == "emergency"
+    assert "vehicle.bicycle" not in CLASS_MAP and "vehicle.motorcycle" not in CLASS_MAP
+
+
+def test_real_scene_0523_boxes_hold_num_lidar_pts():
+    """Every annotation of the shared scene holds exactly its num_lidar_pts once sensor -> ego -> global is applied."""
+    reader = NuScenesReader(need(NUSCENES))
+    keys = reader.frame_keys()
+    assert len(keys) == 40 and {k[0] for k in keys} == {"scene-0523"}
+    ts = [reader.load(k).timestamp for k in keys[:3]]
+    assert ts == sorted(ts)
+    checked = 0
+    for key in keys[::8]:
+        frame = reader.load(key)
+        pts = frame.points.astype(np.float64)
+        for box, ann in zip(frame.boxes, reader.annotations(key)):
+            assert int(box.contains(pts).sum()) == ann["num_lidar_pts"], ann["token"]
+            checked += 1
+    assert checked > 300
+
+
+def test_real_scene_0523_extract_tracks():
+    reader = NuScenesReader(need(NUSCENES))
+    obs = extract(reader, ExtractConfig(classes=("car", "truck", "trailer")), progress=False)
+    per_track: dict = {}
+    for k in obs.object_keys():
+        per_track[k] = per_track.get(k, 0) + 1
+    assert len(per_track) == 48 and sum(v >= 5 for v in per_track.values()) == 26  # Table 2: >= 19 tracks with 5+ frames
+    assert obs.meta["skipped_labels"]["vehicle.bicycle"] == 28 and obs.meta["skipped_labels"]["vehicle.motorcycle"] == 19
+    # with the data README's count (50+ points per keyframe, every vehicle category): its 19 tracks
+    every = extract(reader, ExtractConfig(classes=("car", "truck", "trailer", "bus", "construction", "emergency"), min_points=50),
+                    progress=False)
+    per_track = {}
+    for k in every.object_keys():
+        per_track[k] = per_track.get(k, 0) + 1
+    assert sum(v >= 5 for v in per_track.values()) >= 19  # 20 here (the README counts 19)

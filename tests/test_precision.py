@@ -1,0 +1,84 @@
+"""Mixed precision training (bf16 autocast on CPU) and step-count epochs (train.steps_per_epoch)."""
+
+from __future__ import annotations
+
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from learning_fixtures import one_torch_thread, tiny_dataset_path, tiny_overrides  # noqa: E402
+
+from spotlights.errors import ParameterError  # noqa: E402
+from spotlights.learning.checkpoint import load_checkpoint, model_from_checkpoint  # noqa: E402
+from spotlights.learning.device import autocast, resolve_precision  # noqa: E402
+from spotlights.learning.train import _stream_indices, train  # noqa: E402
+
+_single_thread = pytest.fixture(autouse=True)(one_torch_thread)
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    return tiny_dataset_path(tmp_path_factory.getbasetemp() / "precision-data")
+
+
+def _run(name, path, out, epochs=2, **train_kw):
+    resume = train_kw.pop("resume", False)
+    stop_after = train_kw.pop("stop_after", None)
+    ov = tiny_overrides(name, epochs=epochs, **train_kw)
+    return train(name, path, out, overrides=ov, progress=False, log=lambda *a: None, resume=resume,
+                 stop_after=stop_after)
+
+
+def test_resolve_precision():
+    cpu = torch.device("cpu")
+    assert resolve_precision("fp32", cpu) == "fp32"
+    assert resolve_precision("bf16", cpu) == "bf16"
+    assert resolve_precision("auto", cpu) in ("bf16", "fp32")
+    with pytest.raises(ParameterError, match="unknown precision"):
+        resolve_precision("fp8", cpu)
+    with autocast("bf16", cpu):
+        y = torch.nn.Linear(4, 4)(torch.ones(2, 4))
+    assert y.dtype == torch.bfloat16
+    with autocast("fp32", cpu):
+        assert torch.nn.Linear(4, 4)(torch.ones(2, 4)).dtype == torch.float32
+
+
+def test_stream_indices_are_passes_and_do_not_depend_on_chunking():
+    n = 10
+    whole = _stream_indices(n, 3, 0, 35)
+    assert sorted(whole[:10]) == list(range(10)) and sorted(whole[10:20]) == list(range(10))
+    assert whole[:10] != whole[10:20]  # a new permutation each pass
+    chunks = _stream_indices(n, 3, 0, 7) + _stream_indices(n, 3, 7, 16) + _stream_indices(n, 3, 23, 12)
+    assert chunks == whole
+    assert _stream_indices(n, 4, 0, 10) != whole[:10]  # the seed matters
+
+
+@pytest.mark.parametrize("name", ["sanet", "foldingnet"])
+def test_bf16_training_decreases_the_loss_and_saves_float32_weights(data, tmp_path, name):
+    res = _run(name, data, tmp_path / name, epochs=6, precision="bf16")
+    ref = _run(name, data, tmp_path / f"{name}-fp32", epochs=6, precision="fp32")
+    losses = [h["train_loss"] for h in res["history"]]
+    ref_losses = [h["train_loss"] for h in ref["history"]]
+    assert all(torch.isfinite(torch.tensor(losses))) and losses[-1] < 0.95 * losses[0], losses
+    assert losses != ref_losses  # bf16 really ran
+    assert abs(losses[-1] - ref_losses[-1]) < 0.05 * ref_losses[-1], (losses, ref_losses)  # and learned as fp32 does
+    ckpt = load_checkpoint(tmp_path / name / "best.pt")
+    assert ckpt["precision"] == "bf16" and ckpt["config"]["train"]["precision"] == "bf16"
+    assert all(v.dtype == torch.float32 for v in ckpt["model_state"].values() if v.is_floating_point())
+    model = model_from_checkpoint(ckpt)  # evaluation and completion run in float32
+    out = model(torch.rand(2, 64, 3))
+    assert all(v.dtype == torch.float32 for v in out.values())
+
+
+def test_resume_continues_exactly_under_bf16_with_step_epochs(data, tmp_path):
+    kw = dict(precision="bf16", steps_per_epoch=3)
+    full = _run("atlasnet", data, tmp_path / "full", epochs=3, **kw)
+    _run("atlasnet", data, tmp_path / "part", epochs=3, stop_after=1, **kw)
+    resumed = train("atlasnet", data, tmp_path / "part", resume=True, progress=False, log=lambda *a: None)
+    a, b = load_checkpoint(tmp_path / "full" / "last.pt"), load_checkpoint(tmp_path / "part" / "last.pt")
+    for k in a["model_state"]:
+        assert torch.equal(a["model_state"][k], b["model_state"][k]), k
+    assert [h["train_loss"] for h in full["history"]] == [h["train_loss"] for h in resumed["history"]]
+    assert [h["global_step"] for h in full["history"]] == [3, 6, 9]
+    assert [h["samples_seen"] for h in full["history"]] == [24, 48, 72]
+    assert full["history"][-1]["wall_seconds"] >= full["history"][0]["wall_seconds"] > 0

@@ -1,0 +1,251 @@
+"""Hit-aware SA-Net (issue 13 item 2): loss, threshold chosen on validation and used, bf16, old checkpoints.
+
+Independent truths: the loss of a 2 x 3 batch computed by hand (BCE and the hit-only L1
+written out with ``math``); completions rebuilt in numpy from the raw logits and depths
+(``sigmoid >= t``, ``P = o + 2 clamp(d, 0, 1) dir``); the threshold the training stores is
+the CD-L1 minimiser of a brute-force scan (scipy KD-tree) over the grid; the shipped
+paper SA-Net checkpoint evaluated by a numpy re-implementation of its forward pass.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from learning_fixtures import TINY_MODEL_ARGS, one_torch_thread, tiny_dataset_path, tiny_overrides  # noqa: E402
+
+from spotlights.geometry.rig import make_rig  # noqa: E402
+from spotlights.learning.checkpoint import load_checkpoint, model_from_checkpoint  # noqa: E402
+from spotlights.learning.models import build_model, load_config  # noqa: E402
+from spotlights.learning.models.sanet_hit import hit_depth_loss  # noqa: E402
+from spotlights.learning.train import train, validate  # noqa: E402
+
+_single_thread = pytest.fixture(autouse=True)(one_torch_thread)
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    return tiny_dataset_path(tmp_path_factory.getbasetemp() / "hit-data")
+
+
+@pytest.fixture(scope="module")
+def run(data, tmp_path_factory):
+    out = tmp_path_factory.mktemp("hitrun")
+    res = train("sanet-hit", data, out, overrides=tiny_overrides("sanet-hit", epochs=3, precision="fp32"), progress=False,
+                log=lambda *a: None)
+    return out, res
+
+
+def tiny_model(rig=None, **args):
+    cfg = load_config("sanet-hit", overrides={"model": {"args": {**TINY_MODEL_ARGS["sanet-hit"], **args}}})
+    torch.manual_seed(0)
+    return build_model(cfg, rig=rig or make_rig(8, 16, 60.0))
+
+
+def sigmoid(x):
+    return 1.0 / (1.0 + math.exp(-x))
+
+
+def test_loss_matches_a_hand_computation():
+    logits = torch.tensor([[2.0, -1.0, 0.5], [-3.0, 0.0, 1.5]])
+    depths = torch.tensor([[0.40, 0.90, 0.10], [0.30, 0.25, -0.2]])
+    target = torch.tensor([[0.50, 0.00, 0.20], [0.00, 0.00, 0.10]])  # hits: (0,0), (0,2), (1,2)
+    labels = [[1, 0, 1], [0, 0, 1]]
+    bce = 0.0
+    for i in range(2):
+        for j in range(3):
+            p = sigmoid(float(logits[i, j]))
+            bce -= labels[i][j] * math.log(p) + (1 - labels[i][j]) * math.log(1 - p)
+    bce /= 6
+    l1 = (abs(0.40 - 0.50) + abs(0.10 - 0.20) + abs(-0.2 - 0.10)) / 3  # the misses' depths do not count
+    loss, terms = hit_depth_loss(logits, depths, target)
+    assert float(loss) == pytest.approx(bce + l1, rel=1e-6)
+    assert terms["bce"] == pytest.approx(bce, rel=1e-6) and terms["l1_hits"] == pytest.approx(l1, rel=1e-6)
+    assert terms["hit_accuracy"] == pytest.approx(5 / 6)  # logit >= 0 vs label: only (1,1) (logit 0) is wrong
+    loss2, _ = hit_depth_loss(logits, depths, target, hit_weight=0.5, depth_weight=3.0)
+    assert float(loss2) == pytest.approx(0.5 * bce + 3.0 * l1, rel=1e-6)
+    # a batch without hits: the L1 term is 0, not NaN; gradients reach both heads
+    lg, dp = logits.clone().requires_grad_(), depths.clone().requires_grad_()
+    loss3, t3 = hit_depth_loss(lg, dp, torch.zeros_like(target))
+    assert t3["l1_hits"] == 0.0 and math.isfinite(float(loss3.detach()))
+    loss, _ = hit_depth_loss(lg, dp, target)
+    loss.backward()
+    assert torch.all(dp.grad[target == 0] == 0) and torch.all(dp.grad[target > 0] != 0)
+    # d BCE / d logit = (p - y) / n
+    want = (torch.sigmoid(logits) - torch.tensor(labels, dtype=torch.float32)) / 6
+    torch.testing.assert_close(lg.grad, want)
+
+
+def test_parameter_counts_and_outputs():
+    model = build_model(load_config("sanet-hit"), rig=make_rig(32, 64, 60.0))
+    lin = lambda a, b: a * b + b  # noqa: E731
+    assert model.param_counts()["decoder"] == lin(1024, 256) + lin(256, 256) + lin(256, 2 * 2048)
+    out = model(torch.rand(2, 256, 3) - 0.5)
+    assert out["hit_logits"].shape == out["depths"].shape == (2, 2048)
+    assert model.clip is None and model.threshold == 0.5
+
+
+def test_completion_keeps_rays_with_p_at_or_above_the_threshold_and_clamps_depths():
+    rig = make_rig(8, 16, 60.0)
+    model = tiny_model(rig).eval()
+    rng = np.random.default_rng(0)
+    logits = rng.normal(size=(2, rig.n_rays)).astype(np.float32) * 2
+    depths = rng.uniform(-0.2, 1.3, size=(2, rig.n_rays)).astype(np.float32)
+    outs = {"hit_logits": torch.from_numpy(logits), "depths": torch.from_numpy(depths)}
+    for t in (0.3, 0.5, 0.8):
+        model.threshold = t
+        clouds = model.outputs_to_points(outs)
+        for b in range(2):
+            keep = 1 / (1 + np.exp(-logits[b].astype(np.float64))) >= t
+            half_chord = -np.sum(rig.origins[keep] * rig.directions[keep], axis=1)  # <= 1
+            d = np.minimum(np.clip(depths[b][keep], 0, None), half_chord)
+            want = rig.origins[keep] + 2 * d[:, None] * rig.directions[keep]
+            np.testing.assert_allclose(clouds[b].numpy(), want, atol=1e-6)
+            assert np.linalg.norm(clouds[b].numpy(), axis=1).max() <= 1 + 1e-6  # inside the unit sphere
+    # an explicit threshold wins over the stored one
+    a = model.outputs_to_points(outs, threshold=0.9)
+    assert all(len(x) < len(y) for x, y in zip(a, model.outputs_to_points(outs, threshold=0.1)))
+
+
+def test_threshold_is_chosen_on_validation_stored_and_used(run, data):
+    from scipy.spatial import cKDTree
+
+    from spotlights.learning.data import TorchCompletionDataset
+    from spotlights.learning.evaluate import evaluate_checkpoint
+    from spotlights.learning.inference import load_completer
+
+    out, res = run
+    best = load_checkpoint(out / "best.pt")
+    rec = best["hit_threshold"]
+    grid = [float(t) for t in rec["scan"]]
+    assert grid == list(load_config("sanet-hit")["model"]["args"]["threshold_grid"])
+    model = model_from_checkpoint(best)
+    assert model.threshold == rec["value"] == best["best"]["hit_threshold"]
+    assert res["history"][best["epoch"] - 1]["val_threshold"] == rec["value"]
+    # brute force: score every grid threshold on the val split with scipy, the stored one is the CD-L1 minimiser
+    val = TorchCompletionDataset(data, "val", rig=None, max_views=2)
+    dense = val.gt_dense()
+    batch = torch.utils.data.default_collate([val[i] for i in range(len(val))])
+    with torch.no_grad():
+        o = model(batch["partial"])
+    logits, depths = o["hit_logits"].numpy().astype(np.float64), o["depths"].numpy().astype(np.float64)
+    rig = model.rig.for_box(None)  # the model holds the RigSpec; a cap spec's rig needs no box
+    cd = {}
+    for t in grid:
+        acc, comp, n = 0.0, 0.0, 0
+        for b, m in enumerate(batch["model"].tolist()):
+            keep = 1 / (1 + np.exp(-logits[b])) >= t
+            if not keep.any():
+                continue
+            half_chord = -np.sum(rig.origins[keep] * rig.directions[keep], axis=1)
+            d = np.minimum(np.clip(depths[b][keep], 0, None), half_chord)
+            pts = rig.origins[keep] + 2 * d[:, None] * rig.directions[keep]
+            acc += cKDTree(dense[m]).query(pts)[0].mean()
+            comp += cKDTree(pts).query(dense[m])[0].mean()
+            n += 1
+        cd[t] = (acc + comp) / (2 * n) if n else math.inf
+        assert rec["scan"][f"{t:g}"]["chamfer_l1"] == pytest.approx(cd[t], rel=1e-4) if n else True
+    assert rec["value"] == min(grid, key=lambda t: cd[t])
+    assert best["best"]["value"] == pytest.approx(cd[rec["value"]], rel=1e-4)
+    # the Completer and evaluate use the stored threshold
+    comp = load_completer(out / "best.pt", device="cpu")
+    assert comp.model.threshold == rec["value"]
+    x = batch["partial"][:3].numpy()
+    clouds = comp.complete(x)
+    for b in range(3):
+        keep = 1 / (1 + np.exp(-logits[b])) >= rec["value"]
+        assert len(clouds[b]) == keep.sum()
+    ev = evaluate_checkpoint(out / "best.pt", data, "val", max_views=2, latency=False, progress=False)
+    assert [r["variant"] for r in ev["rows"]] == [f"p(hit) >= {rec['value']:g}"] and ev["rows"][0]["threshold"] == rec["value"]
+    assert ev["rows"][0]["summary"]["mean_over_samples"]["chamfer_l1"] == pytest.approx(cd[rec["value"]], rel=1e-4)
+
+
+def test_log_and_resume_keep_the_threshold(run, data):
+    import csv
+
+    out, res = run
+    rows = list(csv.DictReader((out / "log.csv").open()))
+    assert [float(r["val_threshold"]) for r in rows] == [h["val_threshold"] for h in res["history"]]
+    last = load_checkpoint(out / "last.pt")
+    assert last["hit_threshold"]["value"] == res["history"][-1]["val_threshold"]
+
+
+def test_bf16_training_is_finite_decreasing_and_float32_loadable(data, tmp_path):
+    ov = tiny_overrides("sanet-hit", epochs=6, precision="bf16")
+    res = train("sanet-hit", data, tmp_path / "bf16", overrides=ov, progress=False, log=lambda *a: None)
+    losses = [h["train_loss"] for h in res["history"]]
+    assert all(math.isfinite(v) for v in losses) and losses[-1] < 0.9 * losses[0], losses
+    ck = load_checkpoint(tmp_path / "bf16" / "best.pt")
+    assert ck["precision"] == "bf16"
+    assert all(v.dtype == torch.float32 for v in ck["model_state"].values() if v.is_floating_point())
+    out = model_from_checkpoint(ck)(torch.rand(2, 64, 3) - 0.5)
+    assert all(v.dtype == torch.float32 for v in out.values())
+
+
+def test_validate_scores_an_explicit_threshold_list(run, data):
+    out, _ = run
+    from spotlights.learning.data import TorchCompletionDataset
+
+    model = model_from_checkpoint(load_checkpoint(out / "best.pt"))
+    val = TorchCompletionDataset(data, "val", rig=None, max_views=2)
+    r = validate(model, val, 4, torch.device("cpu"), val.gt_dense(), thresholds=[0.5])
+    assert r["val_threshold"] == 0.5 and list(r["val_threshold_scan"]) == ["0.5"]
+    r2 = validate(model, val, 4, torch.device("cpu"), val.gt_dense(), thresholds=[0.99999, 0.5])
+    assert r2["val_chamfer_l1"] <= r2["val_threshold_scan"]["0.99999"]["chamfer_l1"] or \
+        math.isnan(r2["val_threshold_scan"]["0.99999"]["chamfer_l1"])
+
+
+def _numpy_sanet(state: dict, x: np.ndarray) -> np.ndarray:
+    """The paper SA-Net's forward pass in numpy float64 from a state dict: PCN encoder + FC decoder."""
+    w = {k: v.double().numpy() for k, v in state.items()}
+
+    def mlp(prefix, h, n):
+        for j in range(n):
+            h = h @ w[f"{prefix}.linears.{j}.weight"].T + w[f"{prefix}.linears.{j}.bias"]
+            if j < n - 1:
+                h = np.maximum(h, 0)
+        return h
+
+    f = mlp("encoder.first", x, 2)
+    f = np.concatenate([f, np.broadcast_to(f.max(axis=1, keepdims=True), f.shape)], axis=-1)
+    code = mlp("encoder.second", f, 2).max(axis=1)
+    n_dec = len({k.split(".")[2] for k in w if k.startswith("decoder.linears.")})
+    return mlp("decoder", code, n_dec)
+
+
+def test_the_shipped_paper_checkpoint_loads_and_gives_the_same_outputs():
+    from spotlights.geometry.encode import decode
+    from spotlights.learning.inference import load_completer, pretrained_checkpoint
+
+    from spotlights.errors import SpotlightsError
+
+    try:
+        path = pretrained_checkpoint()
+    except SpotlightsError:
+        pytest.skip("no pretrained checkpoint shipped in this checkout")
+    comp = load_completer(path, device="cpu")
+    assert comp.model_name == "sanet" and comp.clip == 0.2 and not hasattr(comp.model, "hit_probabilities")
+    x = (np.random.default_rng(5).normal(size=(3, 256, 3)) * 0.3).astype(np.float32)
+    ref = _numpy_sanet(load_checkpoint(path)["model_state"], x.astype(np.float64))
+    with torch.no_grad():
+        got = comp.model(torch.from_numpy(x))["depths"].numpy()
+    np.testing.assert_allclose(got, ref, atol=2e-4)
+    for clip in (0.2, None):
+        clouds = comp.complete(x, clip=clip)
+        for b in range(3):
+            pts, keep = decode(got[b], comp.rig.for_box(None), clip)  # both decodings clamp to half the ray's chord
+            np.testing.assert_allclose(clouds[b], pts[keep], atol=1e-5)
+
+
+def test_schedules_without_a_section_train_it_like_sanet(tmp_path):
+    from spotlights.learning.models import load_schedule
+
+    assert load_schedule("cpu", "sanet-hit") == load_schedule("cpu", "sanet")
+    own = tmp_path / "own.yaml"
+    own.write_text("default: {train: {lr: 0.002}}\nsanet: {train: {epochs: 3}}\nsanet-hit: {train: {epochs: 5}}\n")
+    assert load_schedule(own, "sanet-hit")["train"] == {"lr": 0.002, "epochs": 5}
+    assert load_schedule(own, "sanet")["train"] == {"lr": 0.002, "epochs": 3}
