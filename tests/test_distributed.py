@@ -244,3 +244,27 @@ def test_ray_build_resumes_after_the_driver_is_killed(meshes, local_ref, tmp_pat
         assert "resuming" in r.stderr, r.stderr
     assert out.exists() and not parts.exists()
     assert sha(out) == sha(local_ref)
+
+
+@pytest.mark.parametrize("crash", [False, True])
+def test_a_task_is_retried_a_bounded_number_of_times(tmp_path, ray_cluster, crash):
+    from spotlights.data.synthetic.ray_backend import RayBuild
+
+    def _flaky(counter: str, crash: bool):  # a local function: Ray ships it by value to the workers
+        """Fails on every attempt (an exception, or a dead worker process), counting attempts in a file."""
+        with open(counter, "a") as fh:
+            fh.write("x")
+        if crash:
+            os._exit(1)
+        raise RuntimeError("disk on fire")
+
+    runner = RayBuild(ray_cluster, retries=1)
+    task = ray_cluster.remote(num_cpus=1, max_retries=1, retry_exceptions=True)(_flaky)
+    counter = tmp_path / "attempts"
+    with pytest.raises(SpotlightsError) as err:
+        runner._stream(lambda i: task.remote(str(counter), crash), [0], lambda i: "cars/x.ply: views 0-9 of model x",
+                       lambda i, r: None)
+    msg = str(err.value)
+    assert "\n" not in msg and msg.startswith("cars/x.ply: views 0-9 of model x failed on the Ray cluster after 2 attempts")
+    assert ("disk on fire" in msg) if not crash else ("Worker" in msg or "died" in msg or "crash" in msg.lower()), msg
+    assert counter.read_text() == "xx"  # 1 + 1 retry, no more
