@@ -31,7 +31,7 @@ from ...utils import atomic_output, exclusive_lock, process_pool_context
 from ..store import open_dataset
 from .catalogue import build_catalogue
 from .config import PLAN_VERSION, BuildConfig
-from .consolidate import check_index_path, part_name, shard_jobs, write_index, write_output_file
+from .consolidate import check_index_path, part_name, shard_jobs, write_build_index, write_output_file
 from .ray_backend import RayBuild
 from .simulate import compute_unit
 
@@ -205,7 +205,7 @@ def build_dataset(cfg: BuildConfig, out: str | os.PathLike, workers: int | None 
                     for j in jobs:
                         write_output_file(j["path"], cfg, entries, j["rows"], parts, units, skipped, j["attrs"],
                                           recompute=recompute, progress=progress)
-                write_index(out, [j["path"] for j in jobs], [(len(j["rows"]), len(j["rows"]) * views) for j in jobs],
+                write_build_index(out, [j["path"] for j in jobs], [(len(j["rows"]), len(j["rows"]) * views) for j in jobs],
                             cfg)
             t_end = time.perf_counter()
     if not keep_parts:
