@@ -14,6 +14,11 @@ round, and rounds are repeated; the load average is recorded with each build):
 4. per-unit costs for a projection: CPU seconds per sample and per model ground truth (one
    process, this machine), bytes per sample.
 
+Besides wall times, every build's **CPU time** is measured: a sampler (psutil, every 0.2 s)
+sums the CPU seconds of this process, its pool and the Ray head's processes (scheduler,
+object store, workers). On a shared machine wall-time ratios depend on what the other users
+leave free; CPU time per sample does not, and gives the overhead of Ray's machinery.
+
 Ratios (median over rounds): ``speedup_ray = t(ray, 1) / t(ray, 2)`` (target >= 1.8),
 ``overhead_w = t(ray, w) / t(local, w) - 1`` (target <= 10%), for the units phase (the
 distributed part) and for the whole build (Ray's connection and the HDF5 writing included).
@@ -32,6 +37,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -51,6 +57,52 @@ print(ray.get_runtime_context().gcs_address, flush=True)
 sys.stdin.read()  # until the benchmark closes stdin
 ray.shutdown()
 """
+
+
+class CpuMeter:
+    """CPU seconds (user + system) used by the process trees under ``roots`` between start and stop,
+    sampled every ``period`` s (processes that end are counted up to their last sample)."""
+
+    def __init__(self, roots: list[int], period: float = 0.2):
+        import psutil
+
+        self.psutil, self.roots, self.period = psutil, roots, period
+        self.base: dict = {}
+        self.last: dict = {}
+
+    def _sample(self) -> dict:
+        out = {}
+        for r in self.roots:
+            try:
+                procs = [self.psutil.Process(r)]
+                procs += procs[0].children(recursive=True)
+            except self.psutil.Error:
+                continue
+            for p in procs:
+                try:
+                    t = p.cpu_times()
+                    out[(p.pid, p.create_time())] = t.user + t.system
+                except self.psutil.Error:
+                    pass
+        return out
+
+    def __enter__(self):
+        self.base = self._sample()
+        self.last = dict(self.base)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+        return self
+
+    def _run(self):
+        while not self._stop.wait(self.period):
+            self.last.update(self._sample())
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join()
+        self.last.update(self._sample())
+        self.seconds = sum(v - self.base.get(k, 0.0) for k, v in self.last.items())
 
 
 def sha(path: Path) -> str:
@@ -139,19 +191,22 @@ def main(argv=None) -> int:
                     out = tmp / (f"{backend}-{w}-{r}" + (".json" if backend == "ray-shards" else ".h5"))
                     load = os.getloadavg()
                     t0 = time.perf_counter()
-                    rep = build_dataset(cfg, out, workers=w, progress=False, log=lambda m: None,
-                                        backend="ray" if backend.startswith("ray") else "local",
-                                        ray_address=address if backend.startswith("ray") else None,
-                                        shard_size=args.views * 4 if backend == "ray-shards" else None)
+                    with CpuMeter([os.getpid(), head.pid]) as cpu:
+                        rep = build_dataset(cfg, out, workers=w, progress=False, log=lambda m: None,
+                                            backend="ray" if backend.startswith("ray") else "local",
+                                            ray_address=address if backend.startswith("ray") else None,
+                                            shard_size=args.views * 4 if backend == "ray-shards" else None)
                     wall = time.perf_counter() - t0
                     digest = sha(merge_shards(out, tmp / "merged.h5", progress=False, overwrite=True)["out"]) \
                         if backend == "ray-shards" else sha(out)
                     ref = ref or digest
-                    row = {"round": r, "backend": backend, "workers": w, "wall_s": wall, "units_s": rep.seconds_units,
+                    row = {"round": r, "backend": backend, "workers": w, "wall_s": wall, "cpu_s": cpu.seconds,
+                           "units_s": rep.seconds_units,
                            "write_s": rep.seconds_consolidate, "samples": rep.n_samples, "bytes": rep.file_size,
                            "identical_to_first": digest == ref, "load": list(load)}
                     result["builds"].append(row)
                     print(f"round {r} {backend:10s} workers {w}: units {rep.seconds_units:7.2f} s, total {wall:7.2f} s, "
+                          f"CPU {cpu.seconds:7.2f} s, "
                           f"identical {digest == ref}, load {load[0]:.1f}", flush=True)
                     for p in tmp.glob(out.stem + "*"):
                         p.unlink()
@@ -164,6 +219,10 @@ def main(argv=None) -> int:
         return statistics.median(b[key] for b in result["builds"] if b["backend"] == backend and b["workers"] == w)
 
     summary = {}
+    summary["cpu_s_per_1000_samples"] = {f"{b}-{w}": 1000 * med(b, w, "cpu_s") / (args.models * args.views)
+                                         for b, w in (("local", 1), ("ray", 1), ("local", w2), ("ray", w2))}
+    summary["cpu_overhead_ray_vs_local"] = {f"{w}_workers": med("ray", w, "cpu_s") / med("local", w, "cpu_s") - 1
+                                           for w in (1, w2)}
     for key in ("units_s", "wall_s"):
         summary[key] = {
             "ray_speedup_2_vs_1": med("ray", 1, key) / med("ray", w2, key),
