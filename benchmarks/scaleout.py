@@ -129,8 +129,14 @@ def unit_costs(root: Path, files: list[str], cfg: BuildConfig, views: int) -> di
     from spotlights.data.lidar import LidarSimulator
     from spotlights.data.synthetic import simulate_views
 
+    from spotlights.data.synthetic import save_npz_atomic
+
     entries = {e.file: e for e in discover_models(root)[0]}
-    gt_s, view_s, n_views = [], 0.0, 0
+    t0 = time.process_time()
+    for f in files:
+        load_model(root, entries[f])
+    load_s = (time.process_time() - t0) / len(files)
+    gt_s, view_s, n_views, part_bytes = [], 0.0, 0, 0
     for f in files[:3]:
         model = load_model(root, entries[f])
         t0 = time.process_time()
@@ -138,11 +144,46 @@ def unit_costs(root: Path, files: list[str], cfg: BuildConfig, views: int) -> di
         gt_s.append(time.process_time() - t0)
         sim = LidarSimulator(model.vertices, model.faces, cfg.sensor_model)
         t0 = time.process_time()
-        simulate_views(sim, model, cfg, range(views))
+        arrays = simulate_views(sim, model, cfg, range(views))
         view_s += time.process_time() - t0
         n_views += views
+        with tempfile.TemporaryDirectory() as tmp:
+            save_npz_atomic(Path(tmp) / "part.npz", arrays)
+            part_bytes += (Path(tmp) / "part.npz").stat().st_size
     return {"cpu_s_per_sample": view_s / n_views, "cpu_s_per_model_ground_truth": statistics.mean(gt_s),
-            "measured_on": f"{min(3, len(files))} cars x {views} views, one process"}
+            "cpu_s_per_mesh_load": load_s, "part_bytes_per_sample": part_bytes / n_views,
+            "measured_on": f"{min(3, len(files))} cars x {views} views, one process (loading: {len(files)} meshes)"}
+
+
+def project(result: dict, meshes: int = 50_000, views: int = 2_000, cores_per_node: int = 32,
+            nodes=(1, 10, 50), fs_gb_per_s: float = 1.0) -> dict:
+    """A build of ``meshes`` x ``views`` from the measured per-unit costs: CPU-hours (views,
+    ground truth, loading, HDF5 writing, Ray's CPU overhead), storage, and wall time on
+    ``nodes`` nodes of ``cores_per_node`` cores (the work spreads over every core; the shards'
+    writing over the cores too, limited by a shared filesystem of ``fs_gb_per_s``)."""
+    c = result["unit_costs"]
+    s = result["summary"]
+    samples = meshes * views
+    overhead = max(0.0, max(s["cpu_overhead_ray_vs_local"].values()))
+    builds = [b for b in result["builds"] if b["backend"] == "local"]
+    write_cpu_per_sample = statistics.median(b["write_s"] / b["samples"] for b in builds)
+    cpu = {
+        "views_h": samples * c["cpu_s_per_sample"] / 3600,
+        "ground_truth_h": meshes * c["cpu_s_per_model_ground_truth"] / 3600,
+        "loading_h": meshes * c["cpu_s_per_mesh_load"] / 3600,
+        "writing_h": samples * write_cpu_per_sample / 3600,
+    }
+    cpu["ray_overhead_h"] = overhead * (cpu["views_h"] + cpu["ground_truth_h"])
+    total_h = sum(cpu.values())
+    data_bytes = samples * s["bytes_per_sample"]
+    out = {"meshes": meshes, "views": views, "samples": samples, "cpu_hours": {**cpu, "total_h": total_h},
+           "storage_gb": data_bytes / 1e9, "temporary_parts_gb": samples * c["part_bytes_per_sample"] / 1e9,
+           "ray_cpu_overhead_used": overhead, "cores_per_node": cores_per_node, "wall_h": {}}
+    for n in nodes:
+        compute = total_h / (n * cores_per_node)
+        io = 2 * data_bytes / (fs_gb_per_s * 1e9) / 3600  # parts written and read back once
+        out["wall_h"][str(n)] = max(compute, io)
+    return out
 
 
 def main(argv=None) -> int:
@@ -154,7 +195,19 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=2, help="the larger worker count (default 2)")
     ap.add_argument("--nice", type=int, default=15, help="niceness of every build's compute (default 15)")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--from-json", type=Path, default=None, help="recompute the projection of an earlier run's JSON")
     args = ap.parse_args(argv)
+    if args.from_json:
+        result = json.loads(args.from_json.read_text())
+        if "cpu_s_per_mesh_load" not in result.get("unit_costs", {}):  # a run of an older version of this script
+            with tempfile.TemporaryDirectory() as tmp:
+                files = subset_folder(args.meshes, result["models"], Path(tmp))
+                cfg = BuildConfig(meshes=tmp, views=result["views"], split="0.8/0.1/0.1", seed=0)
+                result["unit_costs"] = unit_costs(Path(tmp), files, cfg, min(result["views"], 200))
+        result["projection"] = project(result)
+        print(json.dumps(result["projection"], indent=1))
+        (args.json or args.from_json).write_text(json.dumps(result, indent=1) + "\n")
+        return 0
     if not args.meshes.exists():
         print(f"meshes not found: {args.meshes} (set SPOTLIGHTS_SHARED)", file=sys.stderr)
         return 2
@@ -234,8 +287,10 @@ def main(argv=None) -> int:
     summary["bytes_per_sample"] = result["builds"][0]["bytes"] / result["builds"][0]["samples"]
     result["summary"] = summary
     result["machine"]["load_after"] = list(os.getloadavg())
+    result["projection"] = project(result)
     print(json.dumps(summary, indent=1))
     print(json.dumps(result["unit_costs"], indent=1))
+    print(json.dumps(result["projection"], indent=1))
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(result, indent=1) + "\n")
