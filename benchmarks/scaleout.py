@@ -127,9 +127,7 @@ def subset_folder(root: Path, n: int, dest: Path) -> list[str]:
 def unit_costs(root: Path, files: list[str], cfg: BuildConfig, views: int) -> dict:
     """CPU seconds (this process) per sample and per model ground truth, on a few cars."""
     from spotlights.data.lidar import LidarSimulator
-    from spotlights.data.synthetic import simulate_views
-
-    from spotlights.data.synthetic import save_npz_atomic
+    from spotlights.data.synthetic import save_npz_atomic, simulate_views
 
     entries = {e.file: e for e in discover_models(root)[0]}
     t0 = time.process_time()

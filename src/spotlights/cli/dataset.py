@@ -2,7 +2,16 @@
 
 from __future__ import annotations
 
-from ._util import add_command, add_group, add_quiet, check_picture, check_suffix, non_negative_int, positive_int, unit_interval
+from ._util import (
+    add_command,
+    add_group,
+    add_quiet,
+    check_picture,
+    check_suffix,
+    non_negative_int,
+    positive_int,
+    unit_interval,
+)
 from .view import add_html_argument
 
 
@@ -161,7 +170,6 @@ def _build(args) -> int:
     from ..data.synthetic import BuildConfig, build_dataset
     from ..data.synthetic.config import parse_range, parse_source
     from ..errors import ParameterError
-
     from ..utils import check_writable
 
     # SIGTERM unwinds like Ctrl-C (spotlights.cli.main): the workers stop, finished units are kept
@@ -284,16 +292,13 @@ def _pick(ds, split: str, index: int) -> int:
 
 def _export(args) -> int:
     import json
+    from pathlib import Path
 
     import numpy as np
 
-    from pathlib import Path
-
     from ..data.store import open_dataset
     from ..errors import SpotlightsError
-    from ..utils import atomic_output
-
-    from ..utils import check_writable
+    from ..utils import atomic_output, check_writable
 
     if Path(args.out).suffix.lower() != ".npz":
         raise SpotlightsError(f"{args.out}: the sample is written as .npz; name the output FILE.npz")
@@ -319,9 +324,8 @@ def _show(args) -> int:
     from pathlib import Path
 
     from ..data.store import open_dataset
-    from ..viz import render_sample
-
     from ..utils import check_writable
+    from ..viz import render_sample
 
     check_picture(args.out)
     check_suffix(args.html, (".html", ".htm"), "the page (HTML)", "--html")

@@ -12,7 +12,7 @@ computation (the same function on the same arrays; chunking does not change a sa
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

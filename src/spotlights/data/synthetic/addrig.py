@@ -6,9 +6,9 @@ import json
 import os
 import shutil
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable
 
 import h5py
 import numpy as np
@@ -26,6 +26,7 @@ from .catalogue import apply_augment, discover_sources, load_model, source_root,
 from .config import BuildConfig, parse_rig
 from .ray_backend import RayBuild
 from .runner import default_log, map_units, worker_state
+
 
 # ----------------------------------------------------------------------------------------------
 # adding a rig to an existing dataset file
@@ -70,7 +71,7 @@ def _add_rig_unit(m: int) -> tuple[int, np.ndarray]:
     return m, model_depths(job["cfg"], job["entries"][m], job["stored"], m, job["rig"])
 
 
-def add_rig(path: str | os.PathLike, rig: "str | Rig | RigSpec", meshes: str | os.PathLike | None = None,
+def add_rig(path: str | os.PathLike, rig: str | Rig | RigSpec, meshes: str | os.PathLike | None = None,
             workers: int | None = None, progress: bool = True, log: Callable[[str], None] | None = None,
             backend: str = "local", ray_address: str | None = None, retries: int = DEFAULT_RETRIES) -> AddRigReport:
     """Add the ground-truth depths of one more rig to an existing dataset file, without rebuilding it.

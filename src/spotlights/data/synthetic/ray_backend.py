@@ -48,7 +48,7 @@ class RemoteModel:
     ref: object
     size: np.ndarray
 
-    def derive(self, entry: ModelEntry) -> "RemoteModel":
+    def derive(self, entry: ModelEntry) -> RemoteModel:
         """An augmented copy: the same mesh in the store, transformed inside the unit tasks."""
         return RemoteModel(entry, self.ref, self.size * np.asarray(entry.augment["scale"], dtype=np.float64))
 

@@ -18,9 +18,9 @@ import shutil
 import signal
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 from tqdm import tqdm
@@ -34,6 +34,7 @@ from .config import PLAN_VERSION, BuildConfig
 from .consolidate import check_index_path, part_name, shard_jobs, write_build_index, write_output_file
 from .ray_backend import RayBuild
 from .simulate import compute_unit
+
 
 # ----------------------------------------------------------------------------------------------
 # the build: plan, parallel units, shards, consolidation
