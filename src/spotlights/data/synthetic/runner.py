@@ -175,9 +175,9 @@ def build_dataset(cfg: BuildConfig, out: str | os.PathLike, workers: int | None 
         # --- the parts folder: new, resumed, or refused ----------------------------------
         if overwrite and parts.exists():
             shutil.rmtree(parts)
-        parts.mkdir(parents=True, exist_ok=True)
         # two builds never write the same parts
-        with exclusive_lock(parts / ".lock", f"{parts}: another build is writing this dataset right now"):
+        with _parts_folder(parts), exclusive_lock(parts / ".lock", f"{parts}: another build is writing this dataset "
+                                                                   "right now"):
             block = _check_plan(parts, plan, block)
             for stale in parts.glob(".*.part*"):  # temporaries of a killed run
                 stale.unlink(missing_ok=True)
@@ -218,6 +218,21 @@ def build_dataset(cfg: BuildConfig, out: str | os.PathLike, workers: int | None 
         units_done_before=done_before, units_computed=len(pending), skipped=skipped,
         seconds_units=t_cons - t_units, seconds_consolidate=t_end - t_cons, seconds_total=t_end - t_start,
         file_size=size)
+
+
+@contextlib.contextmanager
+def _parts_folder(parts: Path):
+    """Create the parts folder for the body; if the body fails before any unit was saved (a full
+    disk while writing the plan, an interrupt at once), remove the folder this call created:
+    nothing is left behind that could not be resumed."""
+    created = not parts.exists()
+    parts.mkdir(parents=True, exist_ok=True)
+    try:
+        yield parts
+    except BaseException:
+        if created and not any(parts.glob("*.npz")):
+            shutil.rmtree(parts, ignore_errors=True)
+        raise
 
 
 def _check_plan(parts: Path, plan: dict, block: int) -> int:
