@@ -225,7 +225,7 @@ def test_resume_after_sigkill(meshes, tmp_path):
         done = len([p for p in parts.glob("*.npz") if not p.name.startswith(".")])
         r = subprocess.run(cmd, env=env, capture_output=True, text=True)
         assert r.returncode == 0, r.stderr
-        assert f"resuming" in r.stderr and f"{done} of" in r.stderr
+        assert "resuming" in r.stderr and f"{done} of" in r.stderr
     assert out.exists() and not parts.exists()
     ref = tmp_path / "ref.h5"
     cfg = BuildConfig(meshes=str(meshes), views=40, split="1/1/1", seed=5, gt_dense=4096)

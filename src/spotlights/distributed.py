@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import os
-from typing import Iterator
+from collections.abc import Iterator
 
 from .errors import SpotlightsError
 
@@ -47,8 +47,9 @@ def ray_session(address: str | None = None, workers: int | None = None) -> Itera
     local instance with ``workers`` CPUs (default: all cores). What this call started, it stops.
 
     The local instance gets no dashboard and a small object store (meshes and depth arrays are
-    small: a car is ~0.2 MB); worker processes inherit this process's environment (so the
-    same ``spotlights`` is imported by the workers).
+    small: a car is ~0.2 MB); its worker processes inherit this process's environment (so they
+    import the same ``spotlights``). ``RAY_worker_niceness=N`` in the environment runs the
+    workers at that niceness (a shared machine), the scheduler at the driver's.
     """
     ray = import_ray()
     if ray.is_initialized():
@@ -60,12 +61,16 @@ def ray_session(address: str | None = None, workers: int | None = None) -> Itera
             ray.init(address=address, **kw)
         else:
             n = max(1, int(workers or os.cpu_count() or 1))
-            env = {k: os.environ[k] for k in ("PYTHONPATH",) if k in os.environ}
-            ray.init(num_cpus=n, object_store_memory=_local_store_bytes(), runtime_env={"env_vars": env} if env else None,
-                     **kw)
-    except (ConnectionError, RuntimeError, ValueError) as exc:
-        where = f"the Ray cluster at {address}" if address else "a local Ray instance"
-        raise SpotlightsError(f"cannot connect to {where}: {str(exc).splitlines()[0][:160]}") from None
+            ray.init(num_cpus=n, object_store_memory=_local_store_bytes(), **kw)
+    except Exception as exc:  # ray.init raises bare Exceptions (e.g. a node that timed out during startup)
+        where = f"connect to the Ray cluster at {address}" if address else "start a local Ray instance"
+        reason = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
+        hint = ""
+        if address and os.environ.get("RAY_AUTH_MODE", "") != "token":
+            hint = ("; if the cluster uses token authentication (Ray's default for instances started by ray.init), "
+                    "set RAY_AUTH_MODE=token and give its token (RAY_AUTH_TOKEN or ~/.ray/auth_token), see "
+                    "docs/scale-out.md")
+        raise SpotlightsError(f"cannot {where}: {reason}{hint}") from None
     try:
         yield ray
     finally:

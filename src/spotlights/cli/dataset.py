@@ -2,12 +2,22 @@
 
 from __future__ import annotations
 
-from ._util import add_command, add_group, add_quiet, check_picture, check_suffix, non_negative_int, positive_int, unit_interval
+from ._util import (
+    add_command,
+    add_group,
+    add_quiet,
+    check_picture,
+    check_suffix,
+    non_negative_int,
+    positive_int,
+    unit_interval,
+)
 from .view import add_html_argument
 
 
 def register(sub) -> None:
-    dsub = add_group(sub, "dataset", "synthetic LiDAR completion dataset (paper Section 5.1): build, add-rig, info, export, show",
+    dsub = add_group(sub, "dataset", "synthetic LiDAR completion dataset (paper Section 5.1): build, add-rig, info, export, "
+                                     "show, merge",
                      "spotlights dataset build --meshes ../shared/data/meshes/apolloscape-cars --out cars.h5")
 
     b = add_command(dsub, "build", "simulate LiDAR scans of every mesh of a folder and write the dataset (resumable)",
@@ -73,6 +83,10 @@ def register(sub) -> None:
     r.add_argument("--block", type=positive_int, default=None, help="views per work unit (default ~views/8, at most 250)")
     r.add_argument("--keep-parts", action="store_true", help="keep FILE.parts after writing FILE")
     add_quiet(r, "no progress bars")
+    _add_backend_options(r)
+    r.add_argument("--shard-size", type=positive_int, default=None, metavar="N",
+                   help="write shards of at most N samples (whole models) plus an index: give --out NAME.json; "
+                        "every reader takes the index like a file; 'dataset merge' makes one file of them")
 
     a = add_command(dsub, "add-rig", "add one more rig's ground-truth depths to an existing dataset file (no rebuild; atomic)",
                     "spotlights dataset add-rig cars.h5 --rig box-32x64-ellipsoid-s1", _add_rig)
@@ -84,6 +98,14 @@ def register(sub) -> None:
                         "repeat once per source, in the build's order, for a multi-source dataset")
     a.add_argument("--workers", "-j", type=positive_int, default=None, help="processes (default: all cores); never changes the result")
     add_quiet(a)
+    _add_backend_options(a)
+
+    mg = add_command(dsub, "merge", "turn a sharded dataset (its index) into one HDF5 file (the same bytes as an unsharded build)",
+                     "spotlights dataset merge cars.json --out cars.h5", _merge)
+    mg.add_argument("file", metavar="INDEX", help="the shard index (.json) of a sharded dataset")
+    mg.add_argument("--out", "-o", required=True, metavar="FILE", help="the single dataset file to write (.h5)")
+    mg.add_argument("--overwrite", action="store_true", help="replace an existing FILE")
+    add_quiet(mg)
 
     i = add_command(dsub, "info", "print a dataset's splits, categories, counts and array shapes",
                     "spotlights dataset info cars.h5 --json", _info)
@@ -111,6 +133,28 @@ def register(sub) -> None:
     add_html_argument(s)
 
 
+def _add_backend_options(group) -> None:
+    group.add_argument("--backend", choices=("local", "ray"), default="local",
+                       help="local: a process pool on this machine (default); ray: tasks on a Ray cluster (pip install "
+                            "'spotlights[distributed]'); the bytes are the same")
+    group.add_argument("--ray-address", default=None, metavar="ADDR",
+                       help="with --backend ray: 'auto' joins the running cluster (ray start), HOST:PORT a given one; "
+                            "default: start a local instance with --workers CPUs")
+    group.add_argument("--task-retries", type=non_negative_int, default=2, metavar="N",
+                       help="with --backend ray: retries of a task that crashes or loses its node (default 2); bad input "
+                            "stops at once")
+
+
+def _merge(args) -> int:
+    from ..data.synthetic.consolidate import merge_shards
+
+    check_suffix(args.out, (".h5", ".hdf5"), "the merged dataset (HDF5)")
+    rep = merge_shards(args.file, args.out, progress=not args.quiet, overwrite=args.overwrite)
+    print(f"{args.out}: {rep['n_models']} models, {rep['n_samples']} samples from {rep['n_shards']} shards, "
+          f"{rep['file_size'] / 2**20:.1f} MiB")
+    return 0
+
+
 def _distance(text: str) -> tuple[float, float]:
     from ..errors import ParameterError
 
@@ -126,12 +170,14 @@ def _build(args) -> int:
     from ..data.synthetic import BuildConfig, build_dataset
     from ..data.synthetic.config import parse_range, parse_source
     from ..errors import ParameterError
+    from ..utils import check_writable
 
     # SIGTERM unwinds like Ctrl-C (spotlights.cli.main): the workers stop, finished units are kept
 
-    from ..utils import check_writable
-
-    check_suffix(args.out, (".h5", ".hdf5"), "the dataset (HDF5)")
+    if args.shard_size:
+        check_suffix(args.out, (".json",), "the shard index of a sharded dataset (--shard-size)")
+    else:
+        check_suffix(args.out, (".h5", ".hdf5"), "the dataset (HDF5)")
     check_writable(args.out)
     heights = None
     mount = args.mount_height
@@ -171,7 +217,8 @@ def _build(args) -> int:
         mount_height_range=heights,
     )
     rep = build_dataset(cfg, args.out, workers=args.workers, overwrite=args.overwrite, resume=args.resume,
-                        block=args.block, keep_parts=args.keep_parts, progress=not args.quiet)
+                        block=args.block, keep_parts=args.keep_parts, progress=not args.quiet, backend=args.backend,
+                        ray_address=args.ray_address, shard_size=args.shard_size, retries=args.task_retries)
     if rep.already_complete:
         print(f"{args.out}: already complete ({rep.n_models} models, {rep.n_samples} samples); nothing to do")
         return 0
@@ -190,7 +237,8 @@ def _add_rig(args) -> int:
     from ..data.synthetic import add_rig
 
     # SIGTERM unwinds like Ctrl-C (spotlights.cli.main): the file is left untouched
-    rep = add_rig(args.file, args.rig, meshes=args.meshes, workers=args.workers, progress=not args.quiet)
+    rep = add_rig(args.file, args.rig, meshes=args.meshes, workers=args.workers, progress=not args.quiet,
+                  backend=args.backend, ray_address=args.ray_address, retries=args.task_retries)
     if rep.already_present:
         print(f"{args.file}: already holds rig {rep.rig}; nothing to do")
         return 0
@@ -210,8 +258,9 @@ def _info(args) -> int:
         print(json.dumps(info, indent=1))
         return 0
     cfg = info["config"]
+    shards = f", {len(info['shards'])} shards" if info.get("shards") else ""
     print(f"{info['path']}: {info['format']} v{info['format_version']} (spotlights {info['spotlights_version']}), "
-          f"{info['file_size_bytes'] / 2**20:.1f} MiB, seed {info['seed']}")
+          f"{info['file_size_bytes'] / 2**20:.1f} MiB{shards}, seed {info['seed']}")
     print(f"  {info['n_models']} models x {info['views_per_model']} views = {info['n_samples']} samples; "
           f"categories: " + ", ".join(f"{k} {v}" for k, v in info["categories"].items()))
     for sp, d in info["splits"].items():
@@ -243,16 +292,13 @@ def _pick(ds, split: str, index: int) -> int:
 
 def _export(args) -> int:
     import json
+    from pathlib import Path
 
     import numpy as np
 
-    from pathlib import Path
-
     from ..data.store import open_dataset
     from ..errors import SpotlightsError
-    from ..utils import atomic_output
-
-    from ..utils import check_writable
+    from ..utils import atomic_output, check_writable
 
     if Path(args.out).suffix.lower() != ".npz":
         raise SpotlightsError(f"{args.out}: the sample is written as .npz; name the output FILE.npz")
@@ -278,9 +324,8 @@ def _show(args) -> int:
     from pathlib import Path
 
     from ..data.store import open_dataset
-    from ..viz import render_sample
-
     from ..utils import check_writable
+    from ..viz import render_sample
 
     check_picture(args.out)
     check_suffix(args.html, (".html", ".htm"), "the page (HTML)", "--html")

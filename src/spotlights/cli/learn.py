@@ -50,7 +50,7 @@ def register(sub) -> None:
     # ---- evaluate
     p = add_command(sub, "evaluate", "score checkpoints on a dataset split and write a Table-1 report (Markdown + JSON)",
                     "spotlights evaluate --data cars.h5 --checkpoint runs/*/best.pt --out report", _evaluate)
-    p.add_argument("--data", required=True, metavar="FILE.h5", help="dataset file")
+    p.add_argument("--data", required=True, metavar="FILE.h5", help="dataset file (or the index .json of a sharded dataset)")
     p.add_argument("--checkpoint", required=True, nargs="+", metavar="CKPT", help="one or more checkpoints")
     p.add_argument("--split", default="test", choices=("test", "val", "train"), help="split to score (default test)")
     p.add_argument("--out", "-o", default="report", metavar="PATH", help="report path without suffix: writes PATH.md and PATH.json (default ./report)")
@@ -66,6 +66,10 @@ def register(sub) -> None:
     p.add_argument("--device", default=None, help=DEVICE_HELP)
     p.add_argument("--threads", type=positive_int, default=None, help="torch CPU threads (default: torch's)")
     add_quiet(p)
+    p.add_argument("--backend", choices=("local", "ray"), default="local",
+                   help="ray: the per-model metric work (KD-trees per ground-truth model) as Ray tasks; same values")
+    p.add_argument("--ray-address", default=None, metavar="ADDR",
+                   help="with --backend ray: 'auto' joins the running cluster; default: a local instance")
 
     # ---- curves
     p = add_command(sub, "curves", "learning curves of training runs: validation CD-L1, accuracy and completeness "
@@ -148,7 +152,7 @@ def _evaluate(args) -> int:
     report = evaluate_checkpoints(args.checkpoint, args.data, split=args.split, max_views=args.max_views, clip=args.clip,
                                   batch_size=args.batch_size, device=args.device, fscore_threshold=args.fscore_threshold,
                                   with_completeness=not args.accuracy_only, latency=not args.no_latency,
-                                  progress=not args.quiet)
+                                  progress=not args.quiet, backend=args.backend, ray_address=args.ray_address)
     md, js = write_report(report, args.out)
     print(report_markdown(report).split("\n## ")[0].rstrip())
     print(f"\nreport -> {md}, {js}")

@@ -50,8 +50,8 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..geometry.frames import Normalization
-from ..geometry.rotations import rotation_z
 from ..geometry.raycast import RayCaster
+from ..geometry.rotations import rotation_z
 
 
 @dataclass(frozen=True)
@@ -136,7 +136,7 @@ class SensorModel:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> "SensorModel":
+    def from_dict(cls, d: dict) -> SensorModel:
         """Rebuild from :meth:`to_dict` output (unknown keys are an error)."""
         d = dict(d)
         if d.get("elevations") is not None:

@@ -52,6 +52,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputFileError, ParameterError
+from .shard_index import is_shard_index, read_shard_index, without_extra_rigs
 
 FORMAT = "spotlights-completion"
 FORMAT_VERSION = 1
@@ -146,47 +147,8 @@ def write_rig_group(rigs_group, rig, depths) -> None:
     sub.create_dataset("depths", data=d, chunks=(1, d.shape[1]), track_times=False, **COMPRESSION)
 
 
-HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
-INDEX_FORMAT = "spotlights-completion-shards"
-INDEX_FORMAT_VERSION = 1
-
-
 def _strings(ds) -> np.ndarray:
     return np.array([x.decode() if isinstance(x, bytes) else str(x) for x in ds[()]])
-
-
-def read_shard_index(path: Path) -> list[dict]:
-    """The shards of a sharded dataset's index (JSON, ``format = "spotlights-completion-shards"``).
-
-    Returns ``[{"path": Path, "n_models": int, "n_samples": int}, ...]`` in dataset order (shard
-    paths resolved against the index's folder). Raises InputFileError naming the index."""
-    try:
-        idx = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputFileError(path, f"not a readable shard index ({str(exc).splitlines()[0][:80]})") from None
-    if not isinstance(idx, dict) or idx.get("format") != INDEX_FORMAT:
-        raise InputFileError(path, f"not a spotlights shard index (format {idx.get('format') if isinstance(idx, dict) else None!r})")
-    if int(idx.get("format_version", -1)) != INDEX_FORMAT_VERSION:
-        raise InputFileError(path, f"shard index version {idx.get('format_version')}, this spotlights reads "
-                                   f"{INDEX_FORMAT_VERSION}")
-    try:
-        shards = [{"path": path.parent / str(s["file"]), "n_models": int(s["n_models"]), "n_samples": int(s["n_samples"])}
-                  for s in idx["shards"]]
-    except (KeyError, TypeError, ValueError):
-        raise InputFileError(path, "shard index without a valid 'shards' list") from None
-    if not shards:
-        raise InputFileError(path, "shard index lists no shards")
-    return shards
-
-
-def is_shard_index(path: str | os.PathLike) -> bool:
-    """True when ``path`` is a shard index (JSON) rather than an HDF5 file (looks at the first bytes)."""
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(64).lstrip()
-    except OSError:
-        return False
-    return head.startswith(b"{")
 
 
 class CompletionDataset:
@@ -226,7 +188,10 @@ class CompletionDataset:
         first = tables[0]
         for k, t in enumerate(tables[1:], 1):
             for key in ("config_json", "default_rig", "views_per_model", "sensor_json", "seed"):
-                if t["attrs"].get(key) != first["attrs"].get(key):
+                a, b = t["attrs"].get(key), first["attrs"].get(key)
+                if key == "config_json":  # an interrupted add-rig leaves some shards with one more rig
+                    a, b = without_extra_rigs(a), without_extra_rigs(b)
+                if a != b:
                     raise InputFileError(self.shards[k], f"shard differs from {self.shards[0].name} in {key}: "
                                                          "not a shard of the same dataset")
         self.model_offset = np.cumsum([0] + [len(t["names"]) for t in tables]).astype(np.int64)
@@ -244,6 +209,16 @@ class CompletionDataset:
         self.default_rig = str(attrs.get("default_rig", self.rig_names[0] if self.rig_names else ""))
         self.views_per_model = int(attrs.get("views_per_model", 0))
         self.config = json.loads(attrs.get("config_json", "{}"))
+        if self.sharded:  # the extra rigs of any shard that every shard holds (an add-rig may be half done)
+            from .synthetic.config import parse_rig
+
+            union = []
+            for t in tables:
+                for r in json.loads(t["attrs"].get("config_json", "{}")).get("extra_rigs") or []:
+                    if r not in union and parse_rig(r).name in self.rig_names:
+                        union.append(r)
+            if "extra_rigs" in self.config:
+                self.config["extra_rigs"] = union
         self.sensor = json.loads(attrs.get("sensor_json", "{}"))
         self.seed = int(attrs.get("seed", 0))
         if len(self.sample_model) and (self.sample_model.min() < 0 or self.sample_model.max() >= len(self.names)):

@@ -152,7 +152,7 @@ def reference_shapes(dataset: str | os.PathLike, split: str | None = None) -> tu
 
     with open_dataset(dataset) as ds:
         models = ds.split_models(split) if split else np.arange(ds.n_models)
-        gt = ds._h5()["models/gt_points"][np.sort(models)] if len(models) else np.zeros((0, 0, 3), np.float32)
+        gt = ds.models_array("gt_points", np.sort(models)) if len(models) else np.zeros((0, 0, 3), np.float32)
         shapes = list(np.asarray(gt, dtype=np.float32))
     if not shapes:
         raise InputFileError(str(dataset), f"no reference model in split {split!r}")

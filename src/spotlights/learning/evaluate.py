@@ -12,6 +12,7 @@ the table.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import time
@@ -29,7 +30,7 @@ TABLE_METRIC = "accuracy"
 def evaluate_checkpoint(checkpoint, data, split: str = "test", batch_size: int = 32, max_views: int | None = None,
                         clip=None, device=None, with_completeness: bool = True, fscore_threshold: float = 0.01,
                         latency: bool = True, latency_repeats: int = 10, num_workers: int = 0,
-                        progress: bool = True, dataset=None, gt_dense=None) -> dict:
+                        progress: bool = True, dataset=None, gt_dense=None, scorer=None) -> dict:
     """Score one checkpoint on one split.
 
     Parameters
@@ -41,6 +42,8 @@ def evaluate_checkpoint(checkpoint, data, split: str = "test", batch_size: int =
         CD-L2, F-score); costs one small KD-tree per prediction.
     latency : measure median latency at batch 1 and 32.
     dataset, gt_dense : an already opened split and its dense GT (to share across checkpoints).
+    scorer : the per-model metric work, ``evaluate_completions`` (default) or a drop-in such as
+        :class:`~spotlights.learning.ray_metrics.RayMetrics` (``evaluate --backend ray``).
 
     Returns
     -------
@@ -97,7 +100,8 @@ def evaluate_checkpoint(checkpoint, data, split: str = "test", batch_size: int =
     rows = []
     trees: dict = {}
     for v, c in variants:
-        per = evaluate_completions(preds[v], models, _DenseView(dense), fscore_threshold, with_completeness, trees)
+        per = (scorer or evaluate_completions)(preds[v], models, _DenseView(dense), fscore_threshold,
+                                               with_completeness, trees)
         if model.target == "depths":
             per["hit_ratio"] = np.asarray(kept[v], dtype=np.float64)
         rows.append({"variant": v, "clip": c, "summary": summarize(per, cats, order),
@@ -129,8 +133,12 @@ class _DenseView:
         return self.d[int(m)]
 
 
-def evaluate_checkpoints(checkpoints, data, split: str = "test", progress: bool = True, **kw) -> dict:
+def evaluate_checkpoints(checkpoints, data, split: str = "test", progress: bool = True, backend: str = "local",
+                         ray_address: str | None = None, **kw) -> dict:
     """Evaluate several checkpoints on the same split (the split and its dense GT are read once).
+
+    backend : ``"local"`` or ``"ray"`` (the per-model metric work as Ray tasks, on the cluster at
+        ``ray_address`` or a local instance; the same values).
 
     Returns a report dict: ``data``, ``split``, ``categories`` (report order), ``metric_descriptions``,
     ``results`` (one :func:`evaluate_checkpoint` dict per checkpoint).
@@ -141,7 +149,16 @@ def evaluate_checkpoints(checkpoints, data, split: str = "test", progress: bool 
         raise ParameterError("give at least one checkpoint to evaluate")
     ds = TorchCompletionDataset(data, split, rig=False, max_views=kw.pop("max_views", None), partials_in_memory=True)
     dense = ds.gt_dense()
-    results = [evaluate_checkpoint(c, data, split, dataset=ds, gt_dense=dense, progress=progress, **kw) for c in checkpoints]
+    from ..distributed import check_backend, ray_session
+
+    with ray_session(ray_address) if check_backend(backend) == "ray" else contextlib.nullcontext() as ray:
+        scorer = None
+        if ray is not None:
+            from .ray_metrics import RayMetrics
+
+            scorer = RayMetrics(ray)
+        results = [evaluate_checkpoint(c, data, split, dataset=ds, gt_dense=dense, progress=progress, scorer=scorer, **kw)
+                   for c in checkpoints]
     return {
         "data": str(data),
         "split": split,

@@ -30,8 +30,17 @@ nor which other meshes are in the folder.
 
 from .addrig import AddRigReport, add_rig
 from .catalogue import LoadedModel, ModelEntry, assign_splits, discover_models, load_model, model_key
-from .config import (PLAN_VERSION, SENSOR_CLEARANCE, STREAM_GT_DENSE, STREAM_GT_POINTS, STREAM_SPLIT, STREAM_VIEWS,
-                     BuildConfig, parse_rig, parse_split)
+from .config import (
+                     PLAN_VERSION,
+                     SENSOR_CLEARANCE,
+                     STREAM_GT_DENSE,
+                     STREAM_GT_POINTS,
+                     STREAM_SPLIT,
+                     STREAM_VIEWS,
+                     BuildConfig,
+                     parse_rig,
+                     parse_split,
+)
 from .runner import BuildReport, build_dataset, save_npz_atomic
 from .simulate import compute_unit, model_ground_truth, simulate_views, unit_rng
 

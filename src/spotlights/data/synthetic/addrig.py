@@ -6,25 +6,27 @@ import json
 import os
 import shutil
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable
 
 import h5py
 import numpy as np
 import trimesh
 from tqdm import tqdm
 
+from ...distributed import DEFAULT_RETRIES, check_backend, import_ray, ray_session
 from ...errors import InputFileError, ParameterError
 from ...geometry.encode import MeshProbe
 from ...geometry.frames import normalization_from_mesh
 from ...geometry.rig import Rig, RigSpec
-from ...utils import atomic_output
+from ...utils import atomic_output, exclusive_lock
 from ..store import open_dataset, write_rig_group
 from .catalogue import apply_augment, discover_sources, load_model, source_root, source_scale
 from .config import BuildConfig, parse_rig
-from ...utils import exclusive_lock
+from .ray_backend import RayBuild
 from .runner import default_log, map_units, worker_state
+
 
 # ----------------------------------------------------------------------------------------------
 # adding a rig to an existing dataset file
@@ -44,10 +46,9 @@ class AddRigReport:
     already_present: bool = False
 
 
-def _add_rig_unit(m: int) -> tuple[int, np.ndarray]:
-    """Worker: one model's depths for the rig being added (:func:`worker_state` holds the job)."""
-    job = worker_state()
-    cfg, entry, stored = job["cfg"], job["entries"][m], job["stored"]
+def model_depths(cfg: BuildConfig, entry, stored: dict, m: int, rig) -> np.ndarray:
+    """Model row ``m``'s depths (N*M,) float32 for ``rig``: its mesh loaded again (checked against
+    the stored SHA-256, centre and radius; an augmented copy made again from ``stored["augment"]``)."""
     root = source_root(cfg, entry)
     model = load_model(root, entry, source_scale(cfg, entry))
     want = stored["sha256"][m]
@@ -61,11 +62,18 @@ def _add_rig_unit(m: int) -> tuple[int, np.ndarray]:
     if not (np.array_equal(norm.center, stored["center"][m]) and float(norm.radius) == float(stored["radius"][m])):
         raise InputFileError(root / entry.file, "normalises differently from the dataset's /models/center and "
                                                 "/models/radius (other --scale/--up/--forward?)")
-    return m, MeshProbe(mesh, norm).encode(job["rig"])
+    return MeshProbe(mesh, norm).encode(rig)
 
 
-def add_rig(path: str | os.PathLike, rig: "str | Rig | RigSpec", meshes: str | os.PathLike | None = None,
-            workers: int | None = None, progress: bool = True, log: Callable[[str], None] | None = None) -> AddRigReport:
+def _add_rig_unit(m: int) -> tuple[int, np.ndarray]:
+    """Worker: one model's depths for the rig being added (:func:`worker_state` holds the job)."""
+    job = worker_state()
+    return m, model_depths(job["cfg"], job["entries"][m], job["stored"], m, job["rig"])
+
+
+def add_rig(path: str | os.PathLike, rig: str | Rig | RigSpec, meshes: str | os.PathLike | None = None,
+            workers: int | None = None, progress: bool = True, log: Callable[[str], None] | None = None,
+            backend: str = "local", ray_address: str | None = None, retries: int = DEFAULT_RETRIES) -> AddRigReport:
     """Add the ground-truth depths of one more rig to an existing dataset file, without rebuilding it.
 
     The depths are exactly those a build with ``--rig RIG`` would have stored: every model's
@@ -87,7 +95,13 @@ def add_rig(path: str | os.PathLike, rig: "str | Rig | RigSpec", meshes: str | o
     rig : rig name or shorthand (see :func:`parse_rig`), a Rig or a RigSpec.
     meshes : the meshes folder (default: the one ``config_json`` records); for a dataset built
         from several sources, a list with one folder per source, in the build's order.
-    workers : processes (default: all cores).
+    workers : processes (default: all cores); Ray: CPUs of the local instance it starts.
+    backend : ``"local"`` (process pool) or ``"ray"`` (one task per model on a Ray cluster).
+    ray_address : ``"auto"`` / ``"HOST:PORT"``: join that cluster; None: a local instance.
+    retries : Ray only: retries of a task that fails other than by bad input.
+
+    A sharded dataset (``path`` its index) gets the group in every shard (each rewritten
+    atomically; a rerun after an interruption completes the shards still without it).
 
     Returns
     -------
@@ -98,29 +112,36 @@ def add_rig(path: str | os.PathLike, rig: "str | Rig | RigSpec", meshes: str | o
     """
     path = Path(path)
     rig = parse_rig(rig)
+    if check_backend(backend) == "ray":
+        import_ray()  # before anything else: one line saying how to install it
     open_dataset(path).close()  # a missing or foreign file fails before a lock file is made beside it
     # Two add-rig runs on one file would each copy it and rename their copy onto it: the last
     # rename would drop the other's rig. A lock beside the file makes the second one fail.
     with exclusive_lock(path.with_name(f".{path.name}.lock"), f"{path}: another 'dataset add-rig' is rewriting this file right now"):
-        return _add_rig_locked(path, rig, meshes, workers, progress, log or default_log)
+        return _add_rig_locked(path, rig, meshes, workers, progress, log or default_log, backend, ray_address,
+                               retries)
 
 
-def _add_rig_locked(path: Path, rig, meshes, workers, progress, log) -> AddRigReport:
+def _add_rig_locked(path: Path, rig, meshes, workers, progress, log, backend="local", ray_address=None,
+                    retries=DEFAULT_RETRIES) -> AddRigReport:
     """:func:`add_rig` once the file's lock is held."""
     t0 = time.perf_counter()
+    want_json = json.loads(json.dumps(rig.to_dict()))
     with open_dataset(path) as ds:
         cfg_dict = dict(ds.config)
-        if rig.name in ds.rig_names:
-            have = json.loads(ds._h5()[f"rigs/{rig.name}"].attrs["rig_json"])
-            if have != json.loads(json.dumps(rig.to_dict())):
-                raise InputFileError(path, f"holds a different rig under the name {rig.name}")
+        shards = list(ds.shards)
+        offsets = [int(x) for x in ds.model_offset]
+        present = [f"rigs/{rig.name}" in ds.handle(k) for k in range(len(shards))]
+        for k in range(len(shards)):
+            if present[k] and json.loads(ds.handle(k)[f"rigs/{rig.name}"].attrs["rig_json"]) != want_json:
+                raise InputFileError(shards[k], f"holds a different rig under the name {rig.name}")
+        if all(present):
             return AddRigReport(str(path), rig.name, ds.n_models, rig.n_rays, float("nan"), already_present=True,
-                                file_size=path.stat().st_size)
-        f = ds._h5()
+                                file_size=ds.info()["file_size_bytes"])
         stored = {
             "names": [str(x) for x in ds.names],
-            "sha256": [x.decode() if isinstance(x, bytes) else str(x) for x in f["models/sha256"][()]]
-            if "models/sha256" in f else [""] * ds.n_models,
+            "sha256": [x.decode() if isinstance(x, bytes) else str(x) for x in ds.models_array("sha256")]
+            if ds.has("models/sha256") else [""] * ds.n_models,
             "center": np.asarray(ds.center, dtype=np.float64), "radius": np.asarray(ds.radius, dtype=np.float64),
             "origin": [str(x) for x in ds.origins] if ds.origins is not None else [""] * ds.n_models,
             "augment": [str(x) for x in ds.augments] if ds.augments is not None else [""] * ds.n_models,
@@ -149,24 +170,37 @@ def _add_rig_locked(path: Path, rig, meshes, workers, progress, log) -> AddRigRe
         where = ", ".join(s.path for s in cfg.mesh_sources())
         raise InputFileError(where, f"has no mesh for {len(missing)} of the dataset's models (first: {missing[0]}); "
                                     "pass the meshes folder the dataset was built from (--meshes)")
-    state = {"entries": [by_name[n] for n in wanted], "stored": stored, "cfg": cfg, "rig": rig}
+    entries = [by_name[n] for n in wanted]
     n = len(stored["names"])
     depths = np.zeros((n, rig.n_rays), dtype=np.float32)
-    workers = max(1, min(int(workers or os.cpu_count() or 1), n))
     bar = tqdm(total=n, desc=f"depths {rig.name}", unit="model", disable=not progress, dynamic_ncols=True)
     try:
-        for m, d in map_units(_add_rig_unit, list(range(n)), state, workers):
-            depths[m] = d
-            bar.update(1)
+        if check_backend(backend) == "ray":
+            with ray_session(ray_address, workers) as ray:
+                RayBuild(ray, workers if ray_address else None, retries).add_rig_depths(cfg, entries, stored, rig,
+                                                                                        depths, bar)
+        else:
+            state = {"entries": entries, "stored": stored, "cfg": cfg, "rig": rig}
+            workers = max(1, min(int(workers or os.cpu_count() or 1), n))
+            for m, d in map_units(_add_rig_unit, list(range(n)), state, workers):
+                depths[m] = d
+                bar.update(1)
     finally:
         bar.close()
     t1 = time.perf_counter()
-    cfg_dict["extra_rigs"] = list(cfg_dict.get("extra_rigs") or []) + [rig.name]
-    with atomic_output(path, suffix=".h5") as tmp:
-        shutil.copyfile(path, tmp)
-        with h5py.File(tmp, "r+") as f:
-            write_rig_group(f.require_group("rigs"), rig, depths)
-            f.attrs["config_json"] = json.dumps(cfg_dict, sort_keys=True)
+    cfg_dict["extra_rigs"] = [r for r in (cfg_dict.get("extra_rigs") or []) if r != rig.name] + [rig.name]
+    # shard by shard (a single file is one shard), each copied, completed and renamed: an
+    # interruption leaves every file whole; a rerun completes the shards still without the rig
+    for k, shard in enumerate(shards):
+        if present[k]:
+            continue
+        with atomic_output(shard, suffix=".h5") as tmp:
+            shutil.copyfile(shard, tmp)
+            with h5py.File(tmp, "r+") as f:
+                write_rig_group(f.require_group("rigs"), rig, depths[offsets[k]:offsets[k + 1]])
+                f.attrs["config_json"] = json.dumps(cfg_dict, sort_keys=True)
     hit = float(np.mean(depths > 0))
+    with open_dataset(path) as ds:
+        size = ds.info()["file_size_bytes"]
     return AddRigReport(str(path), rig.name, n, rig.n_rays, hit, seconds_depths=t1 - t0,
-                        seconds_write=time.perf_counter() - t1, file_size=path.stat().st_size)
+                        seconds_write=time.perf_counter() - t1, file_size=size)

@@ -23,6 +23,7 @@ from ...geometry.io import MESH_SUFFIXES, load_mesh
 from ..store import SPLITS
 from .config import STREAM_AUGMENT, STREAM_SPLIT, parse_split
 
+
 # ----------------------------------------------------------------------------------------------
 # models: discovery, loading, split
 # ----------------------------------------------------------------------------------------------
@@ -151,7 +152,7 @@ class LoadedModel:
         """(3,) float64 box size (length, width, height), metres."""
         return self.vertices.max(axis=0) - self.vertices.min(axis=0)
 
-    def derive(self, entry: ModelEntry) -> "LoadedModel":
+    def derive(self, entry: ModelEntry) -> LoadedModel:
         """The model of ``entry``, an augmented copy of this mesh (:func:`apply_augment`)."""
         return apply_augment(self, entry)
 

@@ -32,7 +32,7 @@ SENSOR_CLEARANCE = 0.5
 # ----------------------------------------------------------------------------------------------
 # configuration
 # ----------------------------------------------------------------------------------------------
-def parse_rig(spec: "str | Rig | RigSpec") -> "Rig | RigSpec":
+def parse_rig(spec: str | Rig | RigSpec) -> Rig | RigSpec:
     """A rig from ``"NxM"``, ``"NxM@DEG"`` (e.g. ``"64x32@60"``) or a rig name.
 
     Cap rigs (``"64x32@60"``, ``"cap-32x64-60"``) give the :class:`Rig` itself (its rays do
@@ -241,7 +241,7 @@ class BuildConfig:
     augment: dict | None = None
     mount_height_range: tuple | None = None
 
-    def validate(self) -> "BuildConfig":
+    def validate(self) -> BuildConfig:
         """Check every field (raises ParameterError); normalises rig specs and tuples."""
         for name in ("views", "n_points", "gt_points", "gt_dense", "max_draws"):
             v = getattr(self, name)
@@ -319,14 +319,14 @@ class BuildConfig:
         out["name"] = name
         return out
 
-    def mesh_sources(self) -> "list[MeshSource]":
+    def mesh_sources(self) -> list[MeshSource]:
         """The build's mesh folders: ``sources``, or the single folder ``meshes`` (name "")."""
         if self.sources:
             return [MeshSource(**s) for s in self.sources]
         return [MeshSource(self.meshes, self.manifest, self.up, self.forward, float(self.scale), None, "")]
 
     @property
-    def rigs(self) -> "list[Rig | RigSpec]":
+    def rigs(self) -> list[Rig | RigSpec]:
         """[default rig, extra rigs...]: cap :class:`Rig` objects, box-targeted :class:`RigSpec` objects."""
         return [parse_rig(self.default_rig)] + [parse_rig(r) for r in self.extra_rigs]
 
@@ -348,7 +348,7 @@ class BuildConfig:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> "BuildConfig":
+    def from_dict(cls, d: dict) -> BuildConfig:
         """Rebuild and validate a config from :meth:`to_dict` output (unknown keys ignored)."""
         cfg = cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
         return cfg.validate()

@@ -14,9 +14,8 @@ byte for byte.
 from __future__ import annotations
 
 import json
-import re
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 from tqdm import tqdm
@@ -25,8 +24,8 @@ from ..._version import __version__
 from ...errors import InputFileError, SpotlightsError
 from ...geometry.rig import RigSpec
 from ...utils import atomic_output
-from ..store import (FORMAT, FORMAT_VERSION, INDEX_FORMAT, INDEX_FORMAT_VERSION, OPTIONAL_MODEL_STRINGS, SAMPLE_FIELDS,
-                     open_dataset, write_dataset)
+from ..shard_index import shard_paths, write_index
+from ..store import FORMAT, FORMAT_VERSION, OPTIONAL_MODEL_STRINGS, SAMPLE_FIELDS, open_dataset, write_dataset
 from .config import BuildConfig, parse_rig
 
 
@@ -130,11 +129,6 @@ def shard_groups(n_models: int, views: int, shard_size: int) -> list[range]:
     return [range(a, min(n_models, a + per)) for a in range(0, n_models, per)]
 
 
-def shard_paths(index: Path, n: int) -> list[Path]:
-    """The shard files of an index ``DIR/NAME.json``: ``DIR/NAME-00000-of-0000N.h5``, ..."""
-    return [index.with_name(f"{index.stem}-{k:05d}-of-{n:05d}.h5") for k in range(n)]
-
-
 def check_index_path(out: Path) -> None:
     """A sharded dataset's ``--out`` is its index: a ``.json`` name."""
     if out.suffix.lower() != ".json":
@@ -142,24 +136,9 @@ def check_index_path(out: Path) -> None:
                                   "are written beside it as NAME-00000-of-0000N.h5)")
 
 
-def write_index(index: Path, shards: list[Path], counts: list[tuple[int, int]], cfg: BuildConfig) -> None:
-    """Write the index of a sharded dataset (atomically), then delete stale shards of an earlier
-    build with the same name that the new index does not list."""
-    doc = {
-        "format": INDEX_FORMAT, "format_version": INDEX_FORMAT_VERSION, "spotlights_version": __version__,
-        "dataset_format": FORMAT, "dataset_format_version": FORMAT_VERSION,
-        "n_models": int(sum(c[0] for c in counts)), "n_samples": int(sum(c[1] for c in counts)),
-        "views_per_model": int(cfg.views), "seed": int(cfg.seed),
-        "shards": [{"file": p.name, "n_models": int(c[0]), "n_samples": int(c[1]), "bytes": p.stat().st_size}
-                   for p, c in zip(shards, counts)],
-    }
-    with atomic_output(index, suffix=".json") as tmp:
-        tmp.write_text(json.dumps(doc, indent=1) + "\n")
-    keep = {p.name for p in shards}
-    pattern = re.compile(re.escape(index.stem) + r"-\d{5}-of-\d{5}\.h5")
-    for p in index.parent.glob(f"{index.stem}-*-of-*.h5"):
-        if pattern.fullmatch(p.name) and p.name not in keep:
-            p.unlink(missing_ok=True)
+def write_build_index(index: Path, shards: list[Path], counts: list[tuple[int, int]], cfg: BuildConfig) -> None:
+    """The index of a sharded build (:func:`spotlights.data.shard_index.write_index`)."""
+    write_index(index, shards, counts, cfg.views, cfg.seed, FORMAT, FORMAT_VERSION)
 
 
 def shard_jobs(index: Path, cfg: BuildConfig, n_models: int, shard_size: int) -> list[dict]:

@@ -10,6 +10,7 @@ file is written (streaming, one part at a time) under a temporary name and renam
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -17,21 +18,23 @@ import shutil
 import signal
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 from tqdm import tqdm
 
-from ..._version import __version__
-from ...errors import InputFileError, SpotlightsError
-from ...errors import OutputFileError
+from ...distributed import DEFAULT_RETRIES, check_backend, import_ray, ray_session
+from ...errors import InputFileError, OutputFileError, ParameterError
 from ...utils import atomic_output, check_can_start_processes, exclusive_lock, process_map
-from ..store import FORMAT, FORMAT_VERSION, open_dataset, write_dataset
+from ..store import open_dataset
 from .catalogue import build_catalogue
 from .config import PLAN_VERSION, BuildConfig
+from .consolidate import check_index_path, part_name, shard_jobs, write_build_index, write_output_file
+from .ray_backend import RayBuild
 from .simulate import compute_unit
+
 
 # ----------------------------------------------------------------------------------------------
 # the build: plan, parallel units, shards, consolidation
@@ -76,12 +79,6 @@ def worker_state() -> dict:
     return _WORKER
 
 
-def _shard_name(unit: tuple) -> str:
-    if unit[0] == "gt":
-        return f"gt-{unit[1]:05d}.npz"
-    return f"obs-{unit[1]:05d}-{unit[2]:07d}-{unit[3]:07d}.npz"
-
-
 def save_npz_atomic(path: Path, arrays: dict) -> None:
     with atomic_output(path, suffix=".npz") as tmp:
         with open(tmp, "wb") as fh:
@@ -94,7 +91,7 @@ def _run_unit(unit: tuple) -> tuple:
     """Compute one unit in a worker and write its part file; returns ``(unit, seconds)``."""
     t0 = time.perf_counter()
     arrays = compute_unit(unit, _WORKER["models"][unit[1]], _WORKER["cfg"], _WORKER["sims"])
-    save_npz_atomic(_WORKER["parts"] / _shard_name(unit), arrays)
+    save_npz_atomic(_WORKER["parts"] / part_name(unit), arrays)
     if _WORKER.get("parent") is not None and os.getppid() != _WORKER["parent"]:
         os._exit(0)  # the build was killed: the part is saved, leave quietly instead of a broken pipe
     return unit, time.perf_counter() - t0
@@ -114,14 +111,17 @@ def default_log(msg: str) -> None:
 
 def build_dataset(cfg: BuildConfig, out: str | os.PathLike, workers: int | None = None, overwrite: bool = False,
                   resume: bool = False, block: int | None = None, keep_parts: bool = False, progress: bool = True,
-                  log: Callable[[str], None] | None = None) -> BuildReport:
-    """Build (or finish) a completion dataset file.
+                  log: Callable[[str], None] | None = None, backend: str = "local", ray_address: str | None = None,
+                  shard_size: int | None = None, retries: int = DEFAULT_RETRIES) -> BuildReport:
+    """Build (or finish) a completion dataset: one HDF5 file, or HDF5 shards and their index.
 
     Parameters
     ----------
     cfg : the build configuration (validated here).
-    out : the HDF5 file to write; its work folder is ``OUT.parts``.
-    workers : processes (default: all cores). Results do not depend on it.
+    out : the HDF5 file to write (with ``shard_size``: the shard index, ``NAME.json``); its
+        work folder is ``OUT.parts``.
+    workers : processes (default: all cores); Ray: the CPUs of the local instance it starts
+        (with ``ray_address``: at most ``2 x workers`` tasks in flight). Results do not depend on it.
     overwrite : replace an existing ``out`` and discard unfinished parts.
     resume : accept an existing complete ``out`` (nothing to do). Unfinished parts of the same
         plan are always resumed.
@@ -129,6 +129,10 @@ def build_dataset(cfg: BuildConfig, out: str | os.PathLike, workers: int | None 
     keep_parts : keep ``OUT.parts`` after the file is written.
     progress : show progress bars.
     log : where warnings go (default: stderr).
+    backend : ``"local"`` (a process pool) or ``"ray"`` (tasks on a Ray cluster; needs Ray).
+    ray_address : ``"auto"`` / ``"HOST:PORT"``: join that cluster; None: a local instance.
+    shard_size : write shards of at most this many samples (whole models) and an index.
+    retries : Ray only: retries of a task that fails other than by bad input.
 
     Returns
     -------
@@ -136,11 +140,18 @@ def build_dataset(cfg: BuildConfig, out: str | os.PathLike, workers: int | None 
     """
     t_start = time.perf_counter()
     log = log or default_log
+    backend = check_backend(backend)
+    if backend == "ray":
+        import_ray()  # before anything else: one line saying how to install it
     cfg = cfg.validate()
     out = Path(out)
     parts = out.with_name(out.name + ".parts")
     if out.is_dir():
         raise InputFileError(out, "is a folder; give the dataset file to write (e.g. cars.h5)")
+    if shard_size is not None:
+        if int(shard_size) < 1:
+            raise ParameterError(f"shard size must be >= 1 samples, got {shard_size}")
+        check_index_path(out)
     if out.exists() and not overwrite:
         if not resume:
             raise InputFileError(out, "already exists; pass --overwrite to rebuild it (or --resume to accept it)")
@@ -148,75 +159,113 @@ def build_dataset(cfg: BuildConfig, out: str | os.PathLike, workers: int | None 
             if BuildConfig.from_dict(ds.config).to_dict() != cfg.to_dict():
                 raise InputFileError(out, "exists and was built with a different configuration; pass --overwrite")
             return BuildReport(str(out), ds.n_models, ds.n_samples, 0, 0, 0, [], already_complete=True,
-                               file_size=out.stat().st_size)
-    workers = max(1, int(workers or os.cpu_count() or 1))
-    if workers > 1:
+                               file_size=ds.info()["file_size_bytes"])
+    workers = max(1, int(workers or os.cpu_count() or 1)) if backend == "local" or not ray_address else workers
+    if backend == "local" and workers > 1:
         check_can_start_processes()  # an unguarded script fails here, before anything is written
 
-    models, skipped = build_catalogue(cfg, log, progress)
-    block = int(block or max(1, min(250, math.ceil(cfg.views / 8))))
-    plan = {
-        "plan_version": PLAN_VERSION, "config": cfg.to_dict(),
-        "models": [m.entry.plan_dict() for m in models], "skipped": skipped,
-    }
+    with (ray_session(ray_address, workers) if backend == "ray" else contextlib.nullcontext()) as ray:
+        runner = RayBuild(ray, workers if ray_address else None, retries) if backend == "ray" else None
+        models, skipped = build_catalogue(cfg, log, progress, loader=runner.loader if runner else None)
+        n_models, views = len(models), cfg.views
+        block = int(block or max(1, min(250, math.ceil(views / 8))))
+        plan = {
+            "plan_version": PLAN_VERSION, "config": cfg.to_dict(),
+            "models": [m.entry.plan_dict() for m in models], "skipped": skipped,
+        }
 
-    # --- the parts folder: new, resumed, or refused --------------------------------------
-    if overwrite and parts.exists():
-        shutil.rmtree(parts)
-    new_parts = not parts.exists()
-    parts.mkdir(parents=True, exist_ok=True)
-    try:
-        return _build_in(parts, out, cfg, models, skipped, plan, block, workers, progress, log, keep_parts, t_start)
-    except (OSError, OutputFileError):
-        # the disk refused a write (full, read-only): a parts folder this run made is removed, freeing its space
-        # (Ctrl-C, SIGTERM and other errors keep it: the next run resumes from it)
-        if new_parts:
-            shutil.rmtree(parts, ignore_errors=True)
-        raise
-
-
-def _build_in(parts, out, cfg, models, skipped, plan, block, workers, progress, log, keep_parts, t_start) -> BuildReport:
-    n_models, views = len(models), cfg.views
-    # two builds never write the same shards
-    with exclusive_lock(parts / ".lock", f"{parts}: another build is writing this dataset right now"):
-        plan_path = parts / "plan.json"
-        if plan_path.exists():
-            try:
-                old = json.loads(plan_path.read_text())
-            except (OSError, json.JSONDecodeError):
-                raise InputFileError(plan_path, "unreadable build plan; pass --overwrite to start again") from None
-            old_block = old.pop("block", block)
-            if old != plan:
-                diff = sorted(k for k in set(old.get("config", {})) | set(plan["config"])
-                              if old.get("config", {}).get(k) != plan["config"].get(k))
-                what = f"options differ: {', '.join(diff)}" if diff else "the meshes differ"
-                raise InputFileError(parts, f"holds an unfinished build with another plan ({what}); pass --overwrite "
-                                            "to discard it, or rerun with the original options")
-            block = int(old_block)
-        else:
-            with atomic_output(plan_path, suffix=".json") as tmp:
-                tmp.write_text(json.dumps({**plan, "block": block}, indent=1, sort_keys=True))
-        for stale in parts.glob(".*.part*"):  # temporaries of a killed run
-            stale.unlink(missing_ok=True)
-
-        units = _plan_units(n_models, views, block)
-        pending = [u for u in units if not (parts / _shard_name(u)).exists()]
-        done_before = len(units) - len(pending)
-        if done_before:
-            log(f"resuming {parts}: {done_before} of {len(units)} work units already done")
-        state = {"cfg": cfg, "models": models, "parts": parts}
-        t_units = time.perf_counter()
-        _run_units(pending, state, workers, progress, n_models, views)
-        t_cons = time.perf_counter()
-        _consolidate(out, parts, cfg, models, skipped, units, state, progress)
-        t_end = time.perf_counter()
+        # --- the parts folder: new, resumed, or refused ----------------------------------
+        if overwrite and parts.exists():
+            shutil.rmtree(parts)
+        # two builds never write the same parts
+        with _parts_folder(parts), exclusive_lock(parts / ".lock", f"{parts}: another build is writing this dataset "
+                                                                   "right now"):
+            block = _check_plan(parts, plan, block)
+            for stale in parts.glob(".*.part*"):  # temporaries of a killed run
+                stale.unlink(missing_ok=True)
+            units = _plan_units(n_models, views, block)
+            pending = [u for u in units if not (parts / part_name(u)).exists()]
+            done_before = len(units) - len(pending)
+            if done_before:
+                log(f"resuming {parts}: {done_before} of {len(units)} work units already done")
+            state = {"cfg": cfg, "models": models, "parts": parts}
+            t_units = time.perf_counter()
+            if runner is not None:
+                runner.run_units(pending, models, cfg, parts, progress)
+            else:
+                _run_units(pending, state, workers, progress, n_models, views)
+            t_cons = time.perf_counter()
+            entries = [m.entry for m in models]
+            recompute = (lambda unit: _recompute(unit, state)) if runner is None else None
+            if shard_size is None:
+                write_output_file(out, cfg, entries, range(n_models), parts, units, skipped, recompute=recompute,
+                                  progress=progress)
+            else:
+                jobs = shard_jobs(out, cfg, n_models, int(shard_size))
+                if runner is not None:
+                    runner.write_shards(jobs, cfg, entries, parts, units, skipped, progress)
+                else:
+                    for j in jobs:
+                        write_output_file(j["path"], cfg, entries, j["rows"], parts, units, skipped, j["attrs"],
+                                          recompute=recompute, progress=progress)
+                write_build_index(out, [j["path"] for j in jobs], [(len(j["rows"]), len(j["rows"]) * views) for j in jobs],
+                            cfg)
+            t_end = time.perf_counter()
     if not keep_parts:
         shutil.rmtree(parts, ignore_errors=True)
+    with open_dataset(out) as ds:
+        size = ds.info()["file_size_bytes"] if shard_size is not None else out.stat().st_size
     return BuildReport(
         out=str(out), n_models=n_models, n_samples=n_models * views, units_total=len(units),
         units_done_before=done_before, units_computed=len(pending), skipped=skipped,
         seconds_units=t_cons - t_units, seconds_consolidate=t_end - t_cons, seconds_total=t_end - t_start,
-        file_size=out.stat().st_size)
+        file_size=size)
+
+
+@contextlib.contextmanager
+def _parts_folder(parts: Path):
+    """Create the parts folder for the body; if the body fails before any unit was saved (a full
+    disk while writing the plan, an interrupt at once), remove the folder this call created:
+    nothing is left behind that could not be resumed."""
+    created = not parts.exists()
+    parts.mkdir(parents=True, exist_ok=True)
+    try:
+        yield parts
+    except BaseException as exc:
+        # a disk that refused a write (full, read-only): the folder this run made is removed, freeing its
+        # space; other errors (Ctrl-C, SIGTERM) keep saved units so that the next run resumes from them
+        if created and (isinstance(exc, (OSError, OutputFileError)) or not any(parts.glob("*.npz"))):
+            shutil.rmtree(parts, ignore_errors=True)
+        raise
+
+
+def _check_plan(parts: Path, plan: dict, block: int) -> int:
+    """Write ``parts/plan.json`` for a new build, or check that an unfinished one has the same plan;
+    returns the block size to use (the first run's)."""
+    plan_path = parts / "plan.json"
+    if plan_path.exists():
+        try:
+            old = json.loads(plan_path.read_text())
+        except (OSError, json.JSONDecodeError):
+            raise InputFileError(plan_path, "unreadable build plan; pass --overwrite to start again") from None
+        old_block = old.pop("block", block)
+        if old != plan:
+            diff = sorted(k for k in set(old.get("config", {})) | set(plan["config"])
+                          if old.get("config", {}).get(k) != plan["config"].get(k))
+            what = f"options differ: {', '.join(diff)}" if diff else "the meshes differ"
+            raise InputFileError(parts, f"holds an unfinished build with another plan ({what}); pass --overwrite "
+                                        "to discard it, or rerun with the original options")
+        return int(old_block)
+    with atomic_output(plan_path, suffix=".json") as tmp:
+        tmp.write_text(json.dumps({**plan, "block": block}, indent=1, sort_keys=True))
+    return block
+
+
+def _recompute(unit: tuple, state: dict) -> None:
+    """Compute one unit again in this process (its part could not be read)."""
+    if not _WORKER or _WORKER.get("parts") != state["parts"]:
+        init_worker(state, quiet_sigint=False)
+    _run_unit(unit)
 
 
 def _run_units(pending: list, state: dict, workers: int, progress: bool, n_models: int, views: int) -> None:
@@ -254,67 +303,3 @@ def map_units(fn, items: list, state: dict, workers: int):
         return
     yield from process_map(fn, items, workers, initializer=init_worker, initargs=(state, True), ordered=False,
                            what="work unit")
-
-
-def _load_shard(path: Path, unit: tuple, state: dict) -> dict:
-    """Read a shard; a shard that cannot be read (e.g. a damaged disk) is recomputed in-process."""
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
-    except Exception:
-        path.unlink(missing_ok=True)
-        if not _WORKER or _WORKER.get("parts") != state["parts"]:
-            init_worker(state, quiet_sigint=False)
-        _run_unit(unit)
-        with np.load(path, allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
-
-
-def _consolidate(out: Path, parts: Path, cfg: BuildConfig, models: list, skipped: list, units: list,
-                 state: dict, progress: bool) -> None:
-    """Stream the shards, in sample order, into ``out`` (written under a temporary name, then renamed)."""
-    n = len(models)
-    rigs = cfg.rigs
-    gts = [_load_shard(parts / _shard_name(("gt", m)), ("gt", m), state) for m in range(n)]
-    model_arrays = {
-        "name": [m.entry.name for m in models], "file": [m.entry.file for m in models],
-        "sha256": [m.entry.sha256 for m in models], "category": [m.entry.category for m in models],
-        "split": [m.entry.split for m in models],
-        "gt_points": np.stack([g["gt_points"] for g in gts]), "gt_dense": np.stack([g["gt_dense"] for g in gts]),
-        "center": np.stack([g["center"] for g in gts]), "radius": np.array([float(g["radius"]) for g in gts]),
-        "size": np.stack([g["size"] for g in gts]),
-    }
-    if cfg.sources:
-        model_arrays["source"] = [m.entry.source for m in models]
-    if cfg.augment:
-        model_arrays["origin"] = [m.entry.origin or m.entry.name for m in models]
-        model_arrays["augment"] = [json.dumps(m.entry.augment, sort_keys=True) if m.entry.augment else ""
-                                   for m in models]
-    rig_arrays = [(r, np.stack([g[f"depths_{i}"] for g in gts])) for i, r in enumerate(rigs)]
-    del gts
-    obs_units = [u for u in units if u[0] == "obs"]
-    attrs = {
-        "format": FORMAT, "format_version": FORMAT_VERSION, "spotlights_version": __version__,
-        "config_json": json.dumps(cfg.to_dict(), sort_keys=True), "seed": int(cfg.seed),
-        "sensor_json": json.dumps(cfg.sensor, sort_keys=True), "default_rig": rigs[0].name,
-        "views_per_model": int(cfg.views), "skipped_json": json.dumps(skipped, sort_keys=True),
-    }
-
-    def blocks():
-        bar = tqdm(total=n * cfg.views, desc="write " + out.name, unit="sample", disable=not progress,
-                   dynamic_ncols=True)
-        try:
-            for u in obs_units:
-                a = _load_shard(parts / _shard_name(u), u, state)
-                if a["partial"].shape != (u[3] - u[2], cfg.n_points, 3) or np.any(a["model"] != u[1]):
-                    raise SpotlightsError(f"{parts / _shard_name(u)}: shard does not match the plan; delete it and rerun")
-                a["start"] = u[1] * cfg.views + u[2]
-                yield a
-                bar.update(u[3] - u[2])
-        finally:
-            bar.close()
-
-    with atomic_output(out, suffix=".h5") as tmp:
-        write_dataset(tmp, attrs=attrs, models=model_arrays, rigs=rig_arrays, n_points=cfg.n_points,
-                      views_per_model=cfg.views, sample_blocks=blocks())
-

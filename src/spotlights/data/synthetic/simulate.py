@@ -22,8 +22,7 @@ from ...geometry.sampling import resample, sample_surface
 from ..lidar import LidarSimulator, VehiclePose
 from ..store import SAMPLE_FIELDS
 from .catalogue import LoadedModel, model_key
-from .config import (SENSOR_CLEARANCE, STREAM_GT_DENSE, STREAM_GT_POINTS, STREAM_MOUNT_HEIGHT, STREAM_VIEWS,
-                     BuildConfig)
+from .config import SENSOR_CLEARANCE, STREAM_GT_DENSE, STREAM_GT_POINTS, STREAM_MOUNT_HEIGHT, STREAM_VIEWS, BuildConfig
 
 
 def unit_rng(seed: int, name: str, *stream: int) -> np.random.Generator:
@@ -86,7 +85,7 @@ def simulate_views(sim: LidarSimulator, model: LoadedModel, cfg: BuildConfig, vi
         # and everything else stay those of a build without the range
         h = None if heights is None else float(unit_rng(cfg.seed, name, STREAM_MOUNT_HEIGHT, int(v)).uniform(*heights))
         t0 = time.perf_counter()
-        for draw in range(1, cfg.max_draws + 1):
+        for draw in range(1, cfg.max_draws + 1):  # noqa: B007 (draw is read after the loop)
             pose = VehiclePose(distance=float(rng.uniform(dmin, dmax)), azimuth=float(rng.uniform(-np.pi, np.pi)),
                                heading=float(rng.uniform(-np.pi, np.pi)), mount_height=h)
             scan = sim.scan(pose, rng, timings)
