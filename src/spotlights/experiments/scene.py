@@ -42,6 +42,7 @@ from ..data.real.extract import crop_box
 from ..data.real.scans import MIN_SCAN_POINTS
 from ..errors import InputFileError, ParameterError
 from ..geometry.boxes import FLIP_Z, Box
+from ..geometry.neighbors import serial_queries
 from ..geometry.rotations import rigid_transform
 
 SOURCE_RAW, SOURCE_PARTIAL, SOURCE_COMPLETION = 0, 1, 2
@@ -296,25 +297,8 @@ def complete_scene(points: np.ndarray, boxes: Sequence[Box], completer, config: 
             kw["extents"] = sizes / np.linalg.norm(sizes, axis=1, keepdims=True)
         outs = completer.complete(partials, **kw)
         t2 = time.perf_counter()
-        n = len(todo)
-        for k, o in enumerate(todo):
-            comp = np.asarray(outs[k], dtype=np.float32).reshape(-1, 3)
-            o.fidelity = fidelity(o.partial_unit, comp) if len(comp) else None
-            if config.heading_check:
-                comp_f = np.asarray(outs[n + k], dtype=np.float32).reshape(-1, 3)
-                flipped_partial = o.partial_unit @ FLIP_Z
-                o.fidelity_flipped = fidelity(flipped_partial, comp_f) if len(comp_f) else None
-                if o.fidelity_flipped is not None and bool(heading_turns(np.nan if o.fidelity is None else o.fidelity,
-                                                                         o.fidelity_flipped, config.heading_margin)):
-                    o.flipped, comp = True, comp_f
-                    o.used_box = o.used_box.flipped()
-                    o.partial_unit = flipped_partial.astype(np.float32)
-            o.completion_unit = comp
-            if len(comp) == 0:
-                o.status = "empty_completion"
-                continue
-            done = o.used_box.normalization().from_unit(comp.astype(np.float64))
-            o.completion = done if a is None else done @ a
+        with serial_queries():  # a few small KD-tree queries: OpenMP threads cost more than they save
+            _assemble(todo, outs, config, a)
         if a is not None:
             back = rigid_transform(a.T, np.zeros(3))
             for o in todo:
@@ -325,6 +309,29 @@ def complete_scene(points: np.ndarray, boxes: Sequence[Box], completer, config: 
     return SceneResult(scan, objects, str(getattr(completer, "model_name", "model")), checkpoint, config,
                        timings={"crop_s": t1 - t0, "model_s": t2 - t1, "assemble_s": t3 - t2, "total_s": t3 - t0},
                        member=member)
+
+
+def _assemble(todo: list, outs: list, config: SceneConfig, a) -> None:
+    """Fidelity, heading choice and the scan-frame completion of every completed object (in place)."""
+    n = len(todo)
+    for k, o in enumerate(todo):
+        comp = np.asarray(outs[k], dtype=np.float32).reshape(-1, 3)
+        o.fidelity = fidelity(o.partial_unit, comp) if len(comp) else None
+        if config.heading_check:
+            comp_f = np.asarray(outs[n + k], dtype=np.float32).reshape(-1, 3)
+            flipped_partial = o.partial_unit @ FLIP_Z
+            o.fidelity_flipped = fidelity(flipped_partial, comp_f) if len(comp_f) else None
+            if o.fidelity_flipped is not None and bool(heading_turns(np.nan if o.fidelity is None else o.fidelity,
+                                                                     o.fidelity_flipped, config.heading_margin)):
+                o.flipped, comp = True, comp_f
+                o.used_box = o.used_box.flipped()
+                o.partial_unit = flipped_partial.astype(np.float32)
+        o.completion_unit = comp
+        if len(comp) == 0:
+            o.status = "empty_completion"
+            continue
+        done = o.used_box.normalization().from_unit(comp.astype(np.float64))
+        o.completion = done if a is None else done @ a
 
 
 def check_completed(result: SceneResult, source) -> None:
