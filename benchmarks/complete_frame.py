@@ -54,8 +54,10 @@ def timed(fn, repeats: int, threads=(None,)) -> tuple[dict, object]:
             out = fn()
             wall[t].append(time.perf_counter() - t0)
             cpu[t].append(time.process_time() - c0)
-    res = {str(t): {"wall_s": statistics.median(wall[t]), "cpu_s": statistics.median(cpu[t]), "wall_min_s": min(wall[t])}
-           for t in threads}
+    res = {
+        str(t): {"wall_s": statistics.median(wall[t]), "cpu_s": statistics.median(cpu[t]), "wall_min_s": min(wall[t])}
+        for t in threads
+    }
     return (res[str(threads[0])] if threads == (None,) else res), out
 
 
@@ -79,8 +81,11 @@ def main() -> None:
     threads = tuple(args.threads)
     torch.set_num_threads(max(threads))
     root = Path(args.root)
-    scan_p, label_p, calib_p = (root / "velodyne_reduced" / f"{args.frame}.bin", root / "label_2" / f"{args.frame}.txt",
-                                root / "calib" / f"{args.frame}.txt")
+    scan_p, label_p, calib_p = (
+        root / "velodyne_reduced" / f"{args.frame}.bin",
+        root / "label_2" / f"{args.frame}.txt",
+        root / "calib" / f"{args.frame}.txt",
+    )
     t0 = time.perf_counter()
     completer = load_completer(args.checkpoint, device="cpu")
     load_s = time.perf_counter() - t0
@@ -100,24 +105,44 @@ def main() -> None:
         return write_scene(complete_scene(pts, bx, completer, plain), tmp)
 
     r_all, _ = timed(end_to_end, args.repeats, threads)
-    inside = all(np.linalg.norm(o.completion - o.used_box.center, axis=1).max() <= o.used_box.radius * (1 + 1e-6)
-                 for o in result.completed)
+    inside = all(
+        np.linalg.norm(o.completion - o.used_box.center, axis=1).max() <= o.used_box.radius * (1 + 1e-6)
+        for o in result.completed
+    )
     vehicles = sum(b.cls is not None for b in boxes)
     res = {
-        "frame": f"kitti-object/training-fov-cropped {args.frame}", "scan_points": int(len(points)), "boxes": len(boxes),
-        "vehicle_boxes": vehicles, "completed": len(result.completed), "skipped": result.skipped(),
+        "frame": f"kitti-object/training-fov-cropped {args.frame}",
+        "scan_points": int(len(points)),
+        "boxes": len(boxes),
+        "vehicle_boxes": vehicles,
+        "completed": len(result.completed),
+        "skipped": result.skipped(),
         "completion_points": int(sum(len(o.completion) for o in result.completed)),
         "every_completion_point_inside_its_sphere": bool(inside),
-        "model": completer.model_name, "checkpoint": args.checkpoint, "threads": args.threads, "repeats": args.repeats,
-        "model_load_s": load_s, "read": r_read, "complete": r_complete, "complete_heading_check": r_heading,
-        "write_ply": r_write, "end_to_end_no_picture": r_all, "cpu": _cpu_name(), "load_average": os.getloadavg(),
+        "model": completer.model_name,
+        "checkpoint": args.checkpoint,
+        "threads": args.threads,
+        "repeats": args.repeats,
+        "model_load_s": load_s,
+        "read": r_read,
+        "complete": r_complete,
+        "complete_heading_check": r_heading,
+        "write_ply": r_write,
+        "end_to_end_no_picture": r_all,
+        "cpu": _cpu_name(),
+        "load_average": os.getloadavg(),
     }
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(res, indent=2) + "\n")
-    print(f"{res['frame']}: {len(points)} points, {vehicles} vehicle boxes, {len(result.completed)} completed "
-          f"({res['completion_points']} points, all inside their spheres: {inside}); model load {load_s:.2f} s")
+    print(
+        f"{res['frame']}: {len(points)} points, {vehicles} vehicle boxes, {len(result.completed)} completed "
+        f"({res['completion_points']} points, all inside their spheres: {inside}); model load {load_s:.2f} s"
+    )
+
     def line(name, r):
-        print(f"  {name:34s} wall {1000 * r['wall_s']:7.1f} ms (min {1000 * r['wall_min_s']:.1f})   cpu {1000 * r['cpu_s']:7.1f} ms")
+        print(
+            f"  {name:34s} wall {1000 * r['wall_s']:7.1f} ms (min {1000 * r['wall_min_s']:.1f})   cpu {1000 * r['cpu_s']:7.1f} ms"
+        )
 
     for k in ("read", "write_ply"):
         line(k, res[k])

@@ -7,7 +7,6 @@ import argparse
 from ._util import add_command, add_group, positive_int, unit_interval
 from .view import add_html_argument
 
-
 FORMAT_CHOICES = ("kitti", "kitti360", "av2", "nuscenes", "generic")
 SOURCE_HELP = ("kitti: a training/ folder (velodyne[_reduced]/, label_2/, calib/); kitti360: the KITTI-360 folder; "
                "av2: a log folder or a folder of logs; nuscenes: the folder with samples/ and the v1.0-* tables; "
@@ -196,8 +195,8 @@ def _load_completers(paths, device):
 def _evaluate(args) -> int:
     from pathlib import Path
 
-    from ..experiments.real_evaluation import evaluate_consistency, report_markdown, write_report
     from ..data.real.extract import read_observations
+    from ..experiments.real_evaluation import evaluate_consistency, report_markdown, write_report
 
     if args.reference_split and not args.reference:
         from ..errors import ParameterError
