@@ -187,6 +187,30 @@ def test_multi_file_round_trip_sequence_json_and_several_sources(tmp_path, capsy
     np.testing.assert_allclose(np.c_[f["x"], f["y"], f["z"]][: len(clouds["f1"])], clouds["f1"], atol=1e-6)
     assert (res / "drive-a" / "f1.png").stat().st_size > 1000 and (res / "drive-a" / "f1.json").is_file()
     assert (res / "drive-b" / "0000.ply").is_file() and not (res / "drive-b" / "0001.ply").exists()  # --frames 0:4
+    # --resume: finished frames (their JSON written last) are read back, not recomputed
+    before = (res / "drive-a" / "f1.ply").stat().st_mtime_ns
+    (res / "drive-a" / "f2.json").unlink()
+    args = [
+        "real",
+        "complete",
+        str(seq_dir / "sequence.json"),
+        str(tmp_path / "drive-b"),
+        "--format",
+        "generic",
+        "--out",
+        str(res),
+        "-c",
+        str(ck),
+        "--no-clip",
+        "-q",
+        "--frames",
+        "0:4",
+        "--resume",
+    ]
+    assert main(args) == 0
+    again = json.loads((res / "summary.json").read_text())
+    assert again["totals"]["resumed"] == 3 and again["totals"]["completed"] == 8
+    assert (res / "drive-a" / "f1.ply").stat().st_mtime_ns == before and (res / "drive-a" / "f2.json").is_file()
 
 
 def test_rotation_boxes_honoured(tmp_path):
