@@ -180,8 +180,10 @@ def test_configs_override_and_errors(tmp_path):
         load_config("sanet", bad)
     with pytest.raises(ParameterError, match="unknown model"):
         load_config("pointr")
-    with pytest.raises(ParameterError, match="invalid arguments"):
+    with pytest.raises(ParameterError, match="unknown key 'model.args.bogus' for model 'pcn'"):
         build_model(load_config("pcn", overrides={"model": {"args": {"bogus": 1}}}))
+    with pytest.raises(ParameterError, match="invalid arguments for model 'sanet'"):
+        build_model(load_config("sanet", overrides={"model": {"args": {"output_activation": "tanh"}}}), rig=make_rig())
     with pytest.raises(ParameterError, match="needs a rig"):
         build_model(load_config("sanet"))
 

@@ -480,13 +480,13 @@ def render_result(result: SceneResult, path: str | Path, title: str | None = Non
     )
 
 
-def render_result_html(result: SceneResult, path: str | Path, title: str | None = None) -> Path:
-    """The same scene as one interactive, self-contained HTML page (:mod:`spotlights.viz.html`)."""
+def render_result_html(result: SceneResult, path: str | Path, title: str | None = None, plotlyjs: str | None = None) -> Path:
+    """The same scene as one interactive HTML page (:mod:`spotlights.viz.html`): self-contained, or with
+    ``plotlyjs`` a relative path to a shared local copy of plotly.js (:func:`spotlights.viz.html.write_plotlyjs`)."""
     from ..viz import html
 
-    return html.write_html(
-        path, html.page([("scene", html.scene_traces(result.points, scene_objects(result)))], title or "")
-    )
+    fig = html.page([("scene", html.scene_traces(result.points, scene_objects(result)))], title or "")
+    return html.write_html(path, fig, plotlyjs=plotlyjs)
 
 
 def _caption(o: ObjectResult) -> str:

@@ -114,7 +114,10 @@ class Completer:
     model_name : registry key ("sanet", "pcn", ...). n_params : trainable parameters.
     param_counts : {"encoder", "decoder", "total"}. device : torch device.
     clip : SA-Net's default clip threshold (None for the point models).
-    rig : the SA-Net rig (``Rig`` for the paper's cap rig, ``RigSpec`` for a box-targeted rig) or None.
+    rig : the SA-Net's :class:`~spotlights.geometry.rig.RigSpec` (cap or box-targeted; a cap spec's
+        rays are ``rig.for_box(None)``) or None.
+    threshold : the hit-aware SA-Net's p(hit) threshold (chosen on validation, stored in the
+        checkpoint), else None.
     needs_box : True when :meth:`complete` needs each scan's box (SA-Net on a box-targeted rig).
     checkpoint : the loaded checkpoint dict (weights included).
     domain : :class:`LearnedDomain`, the classes and box sizes the model learned.
@@ -129,6 +132,7 @@ class Completer:
         self.n_params = int(self.param_counts["total"])
         self.rig = getattr(model, "rig", None)
         self.clip = getattr(model, "clip", None)
+        self.threshold = getattr(model, "threshold", None)
         self.needs_box = bool(getattr(model, "needs_box", False))
         self.domain = LearnedDomain.from_checkpoint(checkpoint)
 
@@ -143,7 +147,8 @@ class Completer:
         partials : (B, K, 3) float32 unit-frame points (K = 256 as in training; any K >= 1
             works, the encoder max-pools), or one (K, 3) scan.
         clip : SA-Net depth threshold: default = the checkpoint's (0.2), ``None`` = keep
-            every ray with depth > 0. Ignored by the point models.
+            every ray with depth > 0. Ignored by the point models. The hit-aware SA-Net keeps
+            the rays with p(hit) >= its stored threshold (:attr:`threshold`); its default clip is none.
         batch_size : forward passes are chunked to this many scans.
         extents : (B, 3) (or (3,) for all) box half-extents of each scan in its unit frame,
             ``size / |size|`` for a box of size (l, w, h) (:func:`~spotlights.learning.rays.extents_from_sizes`).

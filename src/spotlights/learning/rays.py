@@ -21,30 +21,28 @@ import numpy as np
 from ..errors import ParameterError
 
 
-def rig_from_dict(d):
-    """The rig a model regresses, from the ``rig`` entry of a checkpoint or a dataset's ``rig_json``.
+def rig_spec(rig):
+    """The :class:`~spotlights.geometry.rig.RigSpec` of a rig description (the form rigs travel in learning).
 
-    Cap rigs give the :class:`~spotlights.geometry.rig.Rig` (exactly as before box rigs
-    existed); box-targeted rigs give the box-independent
-    :class:`~spotlights.geometry.rig.RigSpec` (a ``"box"`` key, if any, is dropped: every
-    sample decodes with its own box). Objects that are already a Rig or RigSpec pass through.
+    ``rig``: a ``RigSpec``, a ``Rig`` (its spec), a dict (``RigSpec.to_dict()`` / ``Rig.to_dict()``,
+    a box entry is dropped: every sample decodes with its own box: the ``rig`` entry of a
+    checkpoint or a dataset's ``rig_json``), or None (returned as None). A cap spec's ``to_dict()``
+    is exactly its rig's, so checkpoints written with either read back alike.
     """
     from ..geometry.rig import Rig, RigSpec
 
-    if isinstance(d, (Rig, RigSpec)):
-        return d.spec if isinstance(d, Rig) and d.kind == "box" else d
-    if not isinstance(d, dict):
-        raise ParameterError(f"a rig description must be a dict (Rig.to_dict / RigSpec.to_dict), got {type(d).__name__}")
-    if str(d.get("kind", "cap")) == "box":
-        return RigSpec.from_dict(d)
-    return Rig.from_dict(d)
+    if rig is None or isinstance(rig, RigSpec):
+        return rig
+    if isinstance(rig, Rig):
+        return rig.spec
+    if not isinstance(rig, dict):
+        raise ParameterError(f"a rig description must be a RigSpec, a Rig or a dict, got {type(rig).__name__}")
+    return RigSpec.from_dict(rig)
 
 
 def rig_needs_box(rig) -> bool:
     """True when ``rig`` (a dict, Rig or RigSpec) is box-targeted, i.e. decoding needs each sample's box."""
-    if isinstance(rig, dict):
-        return str(rig.get("kind", "cap")) == "box"
-    return getattr(rig, "kind", "cap") == "box"
+    return rig_spec(rig).needs_box
 
 
 def rig_rays(rig) -> tuple[np.ndarray, np.ndarray | None]:
@@ -53,11 +51,11 @@ def rig_rays(rig) -> tuple[np.ndarray, np.ndarray | None]:
     Box-targeted rigs return ``directions = None`` (they depend on each sample's box:
     :func:`directions_for_extents`).
     """
-    r = rig_from_dict(rig)
-    origins = r.origins.astype("float32")
-    if rig_needs_box(r):
+    spec = rig_spec(rig)
+    origins = spec.origins.astype("float32")
+    if spec.needs_box:
         return origins, None
-    return origins, r.directions.astype("float32")
+    return origins, spec.for_box(None).directions.astype("float32")
 
 
 def extents_from_sizes(sizes) -> np.ndarray:
@@ -80,13 +78,11 @@ def directions_for_extents(rig, extents) -> np.ndarray:
     rig : dict / Rig / RigSpec. extents : (B, 3) box half-extents ``size / 2R`` (``|e| = 1``).
     Row b equals ``spec.for_box(extents[b]).directions`` (cap rigs: the fixed rays, broadcast).
     """
-    from ..geometry.rig import Rig
-
-    r = rig_from_dict(rig)
+    spec = rig_spec(rig)
     e = np.asarray(extents, dtype=np.float64).reshape(-1, 3)
-    if isinstance(r, Rig):  # cap rig: the same rays for every sample
-        return np.broadcast_to(r.directions.astype("float32"), (len(e), r.n_rays, 3))
-    return r.directions_for_boxes(e).astype("float32")
+    if not spec.needs_box:  # cap rig: the same rays for every sample
+        return np.broadcast_to(spec.for_box(None).directions.astype("float32"), (len(e), spec.n_rays, 3))
+    return spec.directions_for_boxes(e).astype("float32")
 
 
 class DirectionTable:
@@ -105,8 +101,8 @@ class DirectionTable:
     """
 
     def __init__(self, rig, extents: np.ndarray | None):
-        self.rig = rig_from_dict(rig)
-        self.needs_box = rig_needs_box(self.rig)
+        self.rig = rig_spec(rig)
+        self.needs_box = self.rig.needs_box
         self.extents = None if extents is None else np.asarray(extents, dtype=np.float64).reshape(-1, 3)
         if self.needs_box and self.extents is None:
             raise ParameterError(f"rig {self.rig.name} is aimed at each object's box, but the data gives no box sizes")

@@ -24,14 +24,26 @@ import io
 import math
 import os
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch.utils.data import DataLoader
 
-from ..errors import ParameterError, SpotlightsError
+from ..errors import InputFileError, SpotlightsError
+from ..geometry.rig import RigSpec
 from .checkpoint import load_checkpoint, save_checkpoint
+from .config import (
+    SELECT_BY,
+    DataConfig,
+    TrainConfig,
+    build_optimizer,
+    build_scheduler,
+    check_keys,
+    data_config,
+    train_config,
+)
 from .data import TorchCompletionDataset
 from .models import build_model, load_config
 from .models.base import CLIP_DEFAULT
@@ -120,34 +132,6 @@ class _Dist:
     def close(self):
         if self.owned:
             torch.distributed.destroy_process_group()
-
-
-def _make_optimizer(model, tcfg: dict):
-    kind = str(tcfg.get("optimizer", "adam")).lower()
-    lr, wd = float(tcfg["lr"]), float(tcfg.get("weight_decay", 0.0) or 0.0)
-    if kind == "adam":
-        return torch.optim.Adam(model.parameters(), lr=lr, weight_decay=wd)
-    if kind == "adamw":
-        return torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=wd)
-    if kind == "sgd":
-        return torch.optim.SGD(model.parameters(), lr=lr, momentum=0.9, weight_decay=wd)
-    raise ParameterError(f"unknown optimizer {kind!r} (adam, adamw, sgd)")
-
-
-def _make_scheduler(opt, tcfg: dict):
-    sched = dict(tcfg.get("lr_schedule") or {"kind": "constant"})
-    kind = sched.get("kind", "constant")
-    epochs = int(tcfg["epochs"])
-    if kind == "step":
-        every, gamma = int(sched.get("every", 30)), float(sched.get("gamma", 0.5))
-        return torch.optim.lr_scheduler.LambdaLR(opt, lambda e: gamma ** (e // max(every, 1)))
-    if kind == "cosine":
-        floor = float(sched.get("min_factor", 0.01))
-        return torch.optim.lr_scheduler.LambdaLR(
-            opt, lambda e: floor + (1 - floor) * 0.5 * (1 + math.cos(math.pi * min(e, epochs) / max(epochs, 1))))
-    if kind == "constant":
-        return torch.optim.lr_scheduler.LambdaLR(opt, lambda e: 1.0)
-    raise ParameterError(f"unknown lr_schedule kind {kind!r} (step, cosine, constant)")
 
 
 def _write_csv(path: Path, history: list[dict]) -> None:
@@ -279,9 +263,6 @@ def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt
     return res
 
 
-SELECT_BY = {"chamfer_l1": "val_chamfer_l1", "accuracy": "val_accuracy", "loss": "val_loss"}
-
-
 def _print_flush(msg: str) -> None:
     print(msg, flush=True)
 
@@ -319,205 +300,305 @@ def train(model_name: str, data, out_dir, config=None, overrides: dict | None = 
         dist.close()
 
 
-def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, overwrite, device, progress, log, schedule,
-           stop_after):
-    from tqdm import tqdm
+@dataclass
+class _Run:
+    """What one training run holds between epochs (built by :func:`_prepare`)."""
 
-    from .device import autocast, resolve_device, resolve_precision
+    model_name: str
+    data: object
+    out_dir: Path
+    cfg: dict
+    dcfg: DataConfig
+    tcfg: TrainConfig
+    device: torch.device
+    precision: str
+    dist: _Dist
+    train_set: TorchCompletionDataset
+    val_set: TorchCompletionDataset
+    rig: RigSpec | None
+    gt_trees: dict
+    val_rays: object
+    model: torch.nn.Module
+    net: torch.nn.Module
+    opt: torch.optim.Optimizer
+    sched: object
+    scaler: object
+    param_counts: dict
+    start_epoch: int = 0
+    global_step: int = 0
+    history: list = field(default_factory=list)
+    best: dict = field(default_factory=dict)
+    wall: float = 0.0
+
+    @property
+    def last_path(self) -> Path:
+        return self.out_dir / "last.pt"
+
+    @property
+    def best_path(self) -> Path:
+        return self.out_dir / "best.pt"
+
+    @property
+    def n_train(self) -> int:
+        return len(self.train_set)
+
+    @property
+    def shard(self) -> int:
+        """Training samples per process and epoch (one pass split over the processes)."""
+        return self.n_train // self.dist.world
+
+    @property
+    def drop_last(self) -> bool:
+        return True if self.tcfg.steps_per_epoch is not None else self.shard >= self.tcfg.batch_size
+
+    @property
+    def steps_per_epoch(self) -> int:
+        if self.tcfg.steps_per_epoch is not None:  # an epoch = a fixed number of steps (_stream_indices)
+            return int(self.tcfg.steps_per_epoch)
+        b = self.tcfg.batch_size  # an epoch = one pass over the training set
+        return (self.shard // b) if self.drop_last else math.ceil(self.shard / b)
+
+    @property
+    def total_steps(self) -> int:
+        return max(1, self.steps_per_epoch * self.tcfg.epochs)
+
+
+def _resolve_config(model_name, out_dir: Path, config, overrides, resume, overwrite, schedule, dist, log):
+    """The run's config and, when resuming, the state of ``last.pt`` (its config is kept; only
+    ``train.epochs`` may change). Returns ``(cfg, state, extended)``."""
+    last_path = out_dir / "last.pt"
+    if not resume:
+        if last_path.exists() and not overwrite:
+            raise SpotlightsError(f"{out_dir}: holds a run already; pass --resume to continue it or --overwrite to start again")
+        return load_config(model_name, config, overrides, schedule=schedule), None, False
+    if not last_path.exists():
+        raise SpotlightsError(f"{last_path}: nothing to resume (no last.pt in the run folder)")
+    state = load_checkpoint(last_path, expect_model=model_name)
+    cfg = state["config"]
+    check_keys(cfg, last_path, model_name)
+    extended = False
+    if overrides and "train" in overrides and "epochs" in overrides["train"]:
+        extended = int(overrides["train"]["epochs"]) != int(cfg["train"]["epochs"])
+        cfg["train"]["epochs"] = int(overrides["train"]["epochs"])
+    ignored = [f"{sec}.{key}" for sec, vals in (overrides or {}).items() if isinstance(vals, dict)
+               for key, val in vals.items() if (sec, key) != ("train", "epochs")
+               and cfg.get(sec, {}).get(key) != val]
+    ignored += ["--config"] * (config is not None) + ["--schedule"] * (schedule is not None)
+    if ignored and dist.main:
+        log(f"warning: resuming keeps the run's own config; ignored: {', '.join(ignored)} "
+            "(only --epochs may change; start a new run with --overwrite to change the rest)")
+    return cfg, state, extended
+
+
+def _prepare(dist, model_name, data, out_dir: Path, config, overrides, resume, overwrite, device, log,
+             schedule) -> _Run:
+    """Config, device, precision, datasets, model, optimizer and schedule of a run (restored from
+    ``last.pt`` when resuming); writes ``config.yaml`` (rank 0)."""
+    from .device import resolve_device, resolve_precision
+    from .models import model_class
+    from .rays import DirectionTable, rig_spec
 
     device = resolve_device(device) if device is not None else default_device()
     if dist.active and device.type == "cuda" and device.index is None:
         device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))  # one GPU per process
-    last_path, best_path = out_dir / "last.pt", out_dir / "best.pt"
-    state = None
-    if resume:
-        if not last_path.exists():
-            raise SpotlightsError(f"{last_path}: nothing to resume (no last.pt in the run folder)")
-        state = load_checkpoint(last_path, expect_model=model_name)
-        cfg = state["config"]
-        extended = False
-        if overrides and "train" in overrides and "epochs" in overrides["train"]:
-            extended = int(overrides["train"]["epochs"]) != int(cfg["train"]["epochs"])
-            cfg["train"]["epochs"] = int(overrides["train"]["epochs"])
-        ignored = [f"{sec}.{key}" for sec, vals in (overrides or {}).items() if isinstance(vals, dict)
-                   for key, val in vals.items() if (sec, key) != ("train", "epochs")
-                   and cfg.get(sec, {}).get(key) != val]
-        ignored += ["--config"] * (config is not None) + ["--schedule"] * (schedule is not None)
-        if ignored and dist.main:
-            log(f"warning: resuming keeps the run's own config; ignored: {', '.join(ignored)} "
-                "(only --epochs may change; start a new run with --overwrite to change the rest)")
-    else:
-        if last_path.exists() and not overwrite:
-            raise SpotlightsError(f"{out_dir}: holds a run already; pass --resume to continue it or --overwrite to start again")
-        cfg = load_config(model_name, config, overrides, schedule=schedule)
-    dcfg, tcfg = cfg["data"], cfg["train"]
-    seed, epochs, batch_size = int(tcfg.get("seed", 0)), int(tcfg["epochs"]), int(tcfg["batch_size"])
-    if epochs < 0 or batch_size < 1:
-        raise ParameterError(f"epochs must be >= 0 and batch_size >= 1 (got {epochs}, {batch_size})")
-    steps_per_epoch_cfg = tcfg.get("steps_per_epoch")
-    if steps_per_epoch_cfg is not None and int(steps_per_epoch_cfg) < 1:
-        raise ParameterError(f"train.steps_per_epoch must be >= 1 or null (got {steps_per_epoch_cfg})")
-    precision = resolve_precision(tcfg.get("precision", "fp32"), device)
-
-    from .models import model_class
+    cfg, state, extended = _resolve_config(model_name, out_dir, config, overrides, resume, overwrite, schedule, dist, log)
+    dcfg, tcfg = data_config(cfg), train_config(cfg)
+    precision = resolve_precision(tcfg.precision, device)
 
     wants_depths = model_class(model_name).target == "depths"
-    rig_sel = dcfg.get("rig") if wants_depths else False
-    train_set = TorchCompletionDataset(data, "train", rig=rig_sel, max_views=dcfg.get("max_views"),
-                                  partials_in_memory=bool(dcfg.get("partials_in_memory", True)))
-    val_set = TorchCompletionDataset(data, "val", rig=rig_sel, max_views=dcfg.get("val_max_views"),
-                                partials_in_memory=bool(dcfg.get("partials_in_memory", True)))
-    rig = train_set.rig if wants_depths else None
-    if state is not None and wants_depths and state.get("rig") != rig:
-        raise SpotlightsError(f"{last_path}: was trained on rig {state.get('rig')}, the dataset serves {rig}")
-    gt_trees = val_set.gt_dense()
+    rig_sel = dcfg.rig if wants_depths else False
+    train_set = TorchCompletionDataset(data, "train", rig=rig_sel, max_views=dcfg.max_views,
+                                       partials_in_memory=dcfg.partials_in_memory)
+    val_set = TorchCompletionDataset(data, "val", rig=rig_sel, max_views=dcfg.val_max_views,
+                                     partials_in_memory=dcfg.partials_in_memory)
+    rig = rig_spec(train_set.rig) if wants_depths else None
+    if state is not None and wants_depths and rig_spec(state.get("rig")) != rig:
+        raise SpotlightsError(f"{out_dir / 'last.pt'}: was trained on rig {state.get('rig')}, the dataset serves "
+                              f"{rig.to_dict()}")
     val_rays = None
-    if wants_depths and rig is not None and rig.get("kind", "cap") == "box":
-        from .rays import DirectionTable
-
+    if rig is not None and rig.needs_box:
         val_rays = DirectionTable(rig, val_set.extents)  # each validation sample decodes with its model's box
 
-    torch.manual_seed(seed)
-    np.random.seed(seed % (2**32))
+    torch.manual_seed(tcfg.seed)
+    np.random.seed(tcfg.seed % (2**32))
     model = build_model(cfg, rig=rig).to(device)
-    param_counts = model.param_counts()
-    opt = _make_optimizer(model, tcfg)
-    sched = _make_scheduler(opt, tcfg)
-    select_by = str(tcfg.get("select_by", "chamfer_l1"))
-    if select_by not in SELECT_BY:
-        raise ParameterError(f"train.select_by must be one of {', '.join(SELECT_BY)}, got {select_by!r}")
-    start_epoch, global_step, history, best = 0, 0, [], {"epoch": None, "select_by": select_by, "value": float("inf")}
+    opt = build_optimizer(model.parameters(), tcfg)
+    sched = build_scheduler(opt, tcfg)
+    scaler = torch.amp.GradScaler(device.type) if precision == "fp16" else None
+    run = _Run(model_name, data, out_dir, cfg, dcfg, tcfg, device, precision, dist, train_set, val_set, rig,
+               val_set.gt_dense(), val_rays, model, model, opt, sched, scaler, model.param_counts(),
+               best={"epoch": None, "select_by": tcfg.select_by, "value": float("inf")})
     if state is not None:
-        model.load_state_dict(state["model_state"])
-        if state.get("hit_threshold") is not None:
-            model.threshold = float(state["hit_threshold"]["value"])
-        opt.load_state_dict(state["optimizer_state"])
-        sched.load_state_dict(state["scheduler_state"])
-        if extended:  # a new total length: the learning-rate schedule is recomputed from here on
-            for group, base, lam in zip(opt.param_groups, sched.base_lrs, sched.lr_lambdas):
-                group["lr"] = base * lam(sched.last_epoch)
-        start_epoch, global_step = int(state["epoch"]), int(state["global_step"])
-        history, best = list(state.get("history", [])), dict(state.get("best", best))
+        _restore(run, state, extended)
         if dist.main:
-            log(f"resuming {model_name} from {last_path} after epoch {start_epoch}")
-    net = model
+            log(f"resuming {model_name} from {run.last_path} after epoch {run.start_epoch}")
     if dist.active:
-        net = torch.nn.parallel.DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
+        run.net = torch.nn.parallel.DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
     if dist.main:
         out_dir.mkdir(parents=True, exist_ok=True)
         _write_yaml(out_dir / "config.yaml", cfg)
-        log(f"{model_name}: {param_counts['total']:,} parameters (encoder {param_counts['encoder']:,}, "
-            f"decoder {param_counts['decoder']:,}); {len(train_set)} train / {len(val_set)} val samples; "
-            f"device {device}; {dist.world} process(es)")
+        pc = run.param_counts
+        log(f"{model_name}: {pc['total']:,} parameters (encoder {pc['encoder']:,}, decoder {pc['decoder']:,}); "
+            f"{len(train_set)} train / {len(val_set)} val samples; device {device}; {dist.world} process(es)")
+        if precision != "fp32":
+            log(f"{model_name}: training at {precision} (autocast forward, float32 weights, losses and metrics)")
+    return run
 
-    n_train = len(train_set)
-    shard = n_train // dist.world
-    if steps_per_epoch_cfg is None:  # an epoch = one pass over the training set
-        drop_last = shard >= batch_size
-        steps_per_epoch = (shard // batch_size) if drop_last else math.ceil(shard / batch_size)
-    else:  # an epoch = a fixed number of steps drawn from a stream of passes (_stream_indices)
-        drop_last, steps_per_epoch = True, int(steps_per_epoch_cfg)
-    total_steps = max(1, steps_per_epoch * epochs)
-    scaler = torch.amp.GradScaler(device.type) if precision == "fp16" else None
-    if scaler is not None and state is not None and state.get("scaler_state"):
-        scaler.load_state_dict(state["scaler_state"])
-    wall = float(history[-1].get("wall_seconds") or 0.0) if history else 0.0
-    if dist.main and precision != "fp32":
-        log(f"{model_name}: training at {precision} (autocast forward, float32 weights, losses and metrics)")
-    grad_clip = tcfg.get("grad_clip")
-    num_workers = int(dcfg.get("num_workers", 0) or 0)
 
-    end_epoch = epochs if stop_after is None else min(epochs, start_epoch + max(int(stop_after), 0))
-    for epoch in range(start_epoch, end_epoch):
+def _restore(run: _Run, state: dict, extended: bool) -> None:
+    """Load model, optimizer, schedule, scaler, counters, history and best from a ``last.pt`` state.
+
+    Raises :class:`InputFileError` naming ``last.pt`` when the state does not fit (a damaged or
+    foreign checkpoint is a bad file, not a crash)."""
+    try:
+        run.model.load_state_dict(state["model_state"])
+        if state.get("hit_threshold") is not None:
+            run.model.threshold = float(state["hit_threshold"]["value"])
+        run.opt.load_state_dict(state["optimizer_state"])
+        run.sched.load_state_dict(state["scheduler_state"])
+        int(state["epoch"]), int(state["global_step"])
+    except (RuntimeError, KeyError, TypeError, ValueError) as exc:
+        first = (str(exc).splitlines() or [type(exc).__name__])[0][:160]
+        raise InputFileError(run.last_path, f"cannot resume from this checkpoint ({type(exc).__name__}: {first})") from None
+    if extended:  # a new total length: the learning-rate schedule is recomputed from here on
+        for group, base, lam in zip(run.opt.param_groups, run.sched.base_lrs, run.sched.lr_lambdas):
+            group["lr"] = base * lam(run.sched.last_epoch)
+    if run.scaler is not None and state.get("scaler_state"):
+        run.scaler.load_state_dict(state["scaler_state"])
+    run.start_epoch, run.global_step = int(state["epoch"]), int(state["global_step"])
+    run.history, run.best = list(state.get("history", [])), dict(state.get("best", run.best))
+    run.wall = float(run.history[-1].get("wall_seconds") or 0.0) if run.history else 0.0
+
+
+def _epoch_loader(run: _Run, epoch: int) -> DataLoader:
+    """This process's DataLoader for ``epoch``: a seeded permutation (one pass) or the next
+    ``steps_per_epoch`` batches of the seeded stream of passes, sharded over the processes."""
+    seed, dist, bs = run.tcfg.seed, run.dist, run.tcfg.batch_size
+    if run.tcfg.steps_per_epoch is None:
+        gen = torch.Generator().manual_seed(_epoch_seed(seed, epoch))
+        perm = torch.randperm(run.n_train, generator=gen)[: run.shard * dist.world]
+    else:
+        per_epoch = run.steps_per_epoch * bs * dist.world
+        perm = torch.tensor(_stream_indices(run.n_train, seed, epoch * per_epoch, per_epoch))
+    indices = perm[dist.rank::dist.world].tolist()
+    workers = run.dcfg.num_workers
+    return DataLoader(run.train_set, batch_size=bs, sampler=indices, num_workers=workers, drop_last=run.drop_last,
+                      collate_fn=_collate, pin_memory=run.device.type == "cuda",
+                      worker_init_fn=_worker_init if workers else None,
+                      generator=torch.Generator().manual_seed(_epoch_seed(seed, epoch)))
+
+
+def _train_epoch(run: _Run, loader: DataLoader, epoch: int, progress: bool) -> tuple[float, int]:
+    """One epoch of optimizer steps (autocast forward, float32 loss, [scaled] backward, [clipped] step).
+
+    Returns (sum of per-sample losses, samples) of this process."""
+    from tqdm import tqdm
+
+    from .device import autocast
+
+    model, tcfg = run.model, run.tcfg
+    run.net.train()
+    loss_sum, seen = 0.0, 0
+    bar = tqdm(loader, desc=f"{run.model_name} epoch {epoch + 1}/{tcfg.epochs}", unit="batch", leave=False,
+               disable=not (progress and run.dist.main), dynamic_ncols=True)
+    for batch in bar:
+        batch = _to(batch, run.device)
+        with autocast(run.precision, run.device):
+            out = run.net(batch["partial"])
+        loss, _ = model.loss(_float_outputs(out), batch, run.global_step / run.total_steps)
+        if not torch.isfinite(loss):
+            raise SpotlightsError(f"{run.model_name}: the training loss became {float(loss)} at epoch {epoch + 1}, "
+                                  f"step {run.global_step}; lower train.lr or set train.grad_clip")
+        _step(run, loss)
+        run.global_step += 1
+        b = batch["partial"].shape[0]
+        loss_sum += float(loss.detach()) * b
+        seen += b
+        bar.set_postfix(loss=f"{loss_sum / seen:.5f}")
+    bar.close()
+    return loss_sum, seen
+
+
+def _step(run: _Run, loss: torch.Tensor) -> None:
+    """Backward and optimizer step; fp16 (CUDA without bf16) scales the loss and unscales before clipping."""
+    opt, clip = run.opt, run.tcfg.grad_clip
+    opt.zero_grad(set_to_none=True)
+    if run.scaler is not None:
+        run.scaler.scale(loss).backward()
+        if clip:
+            run.scaler.unscale_(opt)
+            torch.nn.utils.clip_grad_norm_(run.model.parameters(), float(clip))
+        run.scaler.step(opt)
+        run.scaler.update()
+    else:
+        loss.backward()
+        if clip:
+            torch.nn.utils.clip_grad_norm_(run.model.parameters(), float(clip))
+        opt.step()
+
+
+def _save(run: _Run, epoch: int, val: dict, improved: bool) -> None:
+    """Write ``best.pt`` (when improved, first), ``last.pt`` and ``log.csv`` (rank 0)."""
+    payload = {
+        "model_name": run.model_name, "config": run.cfg, "rig": None if run.rig is None else run.rig.to_dict(),
+        "model_state": run.model.state_dict(), "optimizer_state": run.opt.state_dict(),
+        "scheduler_state": run.sched.state_dict(), "epoch": epoch + 1, "global_step": run.global_step,
+        "best": run.best, "history": run.history, "param_counts": run.param_counts, "precision": run.precision,
+        **({"hit_threshold": _threshold_record(val)} if "val_threshold" in val else {}),
+        **({"scaler_state": run.scaler.state_dict()} if run.scaler is not None else {}),
+        "dataset": {"path": str(run.data), "rig": run.train_set.rig_name, "n_train": run.n_train,
+                    "n_val": len(run.val_set)},
+    }
+    # best.pt first: a kill between the two writes must not leave a last.pt that names
+    # this epoch as best while best.pt still holds an older one.
+    if improved:
+        save_checkpoint(run.best_path, {k: v for k, v in payload.items()
+                                        if k not in ("optimizer_state", "scheduler_state", "scaler_state")})
+    save_checkpoint(run.last_path, payload)
+    _write_csv(run.out_dir / "log.csv", run.history)
+
+
+def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, overwrite, device, progress, log, schedule,
+           stop_after):
+    run = _prepare(dist, model_name, data, out_dir, config, overrides, resume, overwrite, device, log, schedule)
+    tcfg = run.tcfg
+    end_epoch = tcfg.epochs if stop_after is None else min(tcfg.epochs, run.start_epoch + max(int(stop_after), 0))
+    for epoch in range(run.start_epoch, end_epoch):
         t0 = time.perf_counter()
-        torch.manual_seed(_epoch_seed(seed, epoch))
-        if steps_per_epoch_cfg is None:
-            gen = torch.Generator().manual_seed(_epoch_seed(seed, epoch))
-            perm = torch.randperm(n_train, generator=gen)[: shard * dist.world]
-        else:
-            per_epoch = steps_per_epoch * batch_size * dist.world
-            perm = torch.tensor(_stream_indices(n_train, seed, epoch * per_epoch, per_epoch))
-        indices = perm[dist.rank::dist.world].tolist()
-        loader = DataLoader(train_set, batch_size=batch_size, sampler=indices, num_workers=num_workers,
-                            drop_last=drop_last, collate_fn=_collate, pin_memory=device.type == "cuda",
-                            worker_init_fn=_worker_init if num_workers else None,
-                            generator=torch.Generator().manual_seed(_epoch_seed(seed, epoch)))
-        net.train()
-        loss_sum, seen = 0.0, 0
-        bar = tqdm(loader, desc=f"{model_name} epoch {epoch + 1}/{epochs}", unit="batch", leave=False,
-                   disable=not (progress and dist.main), dynamic_ncols=True)
-        for batch in bar:
-            batch = _to(batch, device)
-            with autocast(precision, device):
-                out = net(batch["partial"])
-            loss, terms = model.loss(_float_outputs(out), batch, global_step / total_steps)
-            if not torch.isfinite(loss):
-                raise SpotlightsError(f"{model_name}: the training loss became {float(loss)} at epoch {epoch + 1}, "
-                                      f"step {global_step}; lower train.lr or set train.grad_clip")
-            opt.zero_grad(set_to_none=True)
-            if scaler is not None:  # fp16 on CUDA: scaled backward, unscale before clipping
-                scaler.scale(loss).backward()
-                if grad_clip:
-                    scaler.unscale_(opt)
-                    torch.nn.utils.clip_grad_norm_(model.parameters(), float(grad_clip))
-                scaler.step(opt)
-                scaler.update()
-            else:
-                loss.backward()
-                if grad_clip:
-                    torch.nn.utils.clip_grad_norm_(model.parameters(), float(grad_clip))
-                opt.step()
-            global_step += 1
-            b = batch["partial"].shape[0]
-            loss_sum += float(loss.detach()) * b
-            seen += b
-            bar.set_postfix(loss=f"{loss_sum / seen:.5f}")
-        bar.close()
-        lr = opt.param_groups[0]["lr"]
-        sched.step()
-        train_sum, train_n = dist.all_sum([loss_sum, float(seen)], device)
-        val = validate(model, val_set, batch_size, device, gt_trees, dist, rays=val_rays, precision=precision)
+        torch.manual_seed(_epoch_seed(tcfg.seed, epoch))
+        loss_sum, seen = _train_epoch(run, _epoch_loader(run, epoch), epoch, progress)
+        lr = run.opt.param_groups[0]["lr"]
+        run.sched.step()
+        train_sum, train_n = dist.all_sum([loss_sum, float(seen)], run.device)
+        val = validate(run.model, run.val_set, tcfg.batch_size, run.device, run.gt_trees, dist, rays=run.val_rays,
+                       precision=run.precision)
         dt = time.perf_counter() - t0
-        wall += dt
-        row = {"epoch": epoch + 1, "global_step": global_step, "samples_seen": global_step * batch_size * dist.world,
+        run.wall += dt
+        row = {"epoch": epoch + 1, "global_step": run.global_step,
+               "samples_seen": run.global_step * tcfg.batch_size * dist.world,
                "lr": lr, "train_loss": train_sum / max(train_n, 1),
                **{k: v for k, v in val.items() if k != "val_threshold_scan"},
                "epoch_seconds": round(dt, 3), "samples_per_second": round(train_n / dt, 2) if dt > 0 else 0.0,
-               "wall_seconds": round(wall, 3)}
-        history.append(row)
+               "wall_seconds": round(run.wall, 3)}
+        run.history.append(row)
         if "val_threshold" in val:  # hit-aware SA-Net: decode with the threshold chosen on validation
-            model.threshold = float(val["val_threshold"])
-        value, prev = val[SELECT_BY[select_by]], best["value"]
+            run.model.threshold = float(val["val_threshold"])
+        value, prev = val[SELECT_BY[tcfg.select_by]], run.best["value"]
         # The first epoch always gives a best.pt; later a finite value below the best so far.
-        improved = best["epoch"] is None or (math.isfinite(value) and not (math.isfinite(prev) and value >= prev))
+        improved = run.best["epoch"] is None or (math.isfinite(value) and not (math.isfinite(prev) and value >= prev))
         if improved:
-            best = {"epoch": epoch + 1, "select_by": select_by, "value": value, "val_accuracy": val["val_accuracy"]}
+            run.best = {"epoch": epoch + 1, "select_by": tcfg.select_by, "value": value, "val_accuracy": val["val_accuracy"]}
             if "val_threshold" in val:
-                best["hit_threshold"] = float(val["val_threshold"])
+                run.best["hit_threshold"] = float(val["val_threshold"])
         if dist.main:
-            payload = {
-                "model_name": model_name, "config": cfg, "rig": rig, "model_state": model.state_dict(),
-                "optimizer_state": opt.state_dict(), "scheduler_state": sched.state_dict(),
-                "epoch": epoch + 1, "global_step": global_step, "best": best, "history": history,
-                "param_counts": param_counts, "precision": precision,
-                **({"hit_threshold": _threshold_record(val)} if "val_threshold" in val else {}),
-                **({"scaler_state": scaler.state_dict()} if scaler is not None else {}),
-                "dataset": {"path": str(data), "rig": train_set.rig_name, "n_train": n_train, "n_val": len(val_set)},
-            }
-            # best.pt first: a kill between the two writes must not leave a last.pt that names
-            # this epoch as best while best.pt still holds an older one.
-            if improved:
-                save_checkpoint(best_path, {k: v for k, v in payload.items()
-                                            if k not in ("optimizer_state", "scheduler_state", "scaler_state")})
-            save_checkpoint(last_path, payload)
-            _write_csv(out_dir / "log.csv", history)
-            log(f"{model_name} epoch {epoch + 1}/{epochs}: train loss {row['train_loss']:.5f}, val loss "
+            _save(run, epoch, val, improved)
+            log(f"{model_name} epoch {epoch + 1}/{tcfg.epochs}: train loss {row['train_loss']:.5f}, val loss "
                 f"{row['val_loss']:.5f}, val accuracy {row['val_accuracy']:.5f}, completeness {row['val_completeness']:.5f}"
                 + (f" at p(hit) >= {row['val_threshold']:g}" if "val_threshold" in row else "") +
                 f"{' (best)' if improved else ''}, {dt:.1f} s")
         dist.barrier()
-    return {"out_dir": str(out_dir), "last": str(last_path), "best": str(best_path), "epochs": len(history),
-            "history": history, "param_counts": param_counts}
+    return {"out_dir": str(out_dir), "last": str(run.last_path), "best": str(run.best_path), "epochs": len(run.history),
+            "history": run.history, "param_counts": run.param_counts}
 
 
 def _threshold_record(val: dict) -> dict:

@@ -107,6 +107,11 @@ def load_schedule(schedule, name: str) -> dict:
     unknown = set(data) - {"default", *MODEL_NAMES, "description"}
     if unknown:
         raise InputFileError(p, f"unknown schedule section(s) {', '.join(sorted(unknown))} (expected default or model names)")
+    from ..config import check_keys
+
+    for sec in ("default", *MODEL_NAMES):
+        if data.get(sec) is not None:
+            check_keys(data[sec], p, None if sec == "default" else sec)
     section = name if name in data or name not in SCHEDULE_FALLBACK else SCHEDULE_FALLBACK[name]
     return deep_merge(data.get("default") or {}, data.get(section) or {})
 
@@ -117,24 +122,32 @@ def load_config(name: str, path=None, overrides: dict | None = None, schedule=No
     Merge order (later wins): packaged defaults <- ``schedule`` (a packaged schedule
     name such as ``"cpu"`` or a schedule YAML) <- user YAML ``path`` <- ``overrides``.
 
-    Raises :class:`InputFileError` for a missing/invalid YAML and when the user YAML
-    names another model or has unknown top-level sections.
+    Every layer's keys are checked (:func:`spotlights.learning.config.check_keys`): an unknown
+    section or key (a typo such as ``epoch:``) is an error naming it and its file; the merged
+    values are checked by :func:`~spotlights.learning.config.train_config` and ``data_config``.
+
+    Raises :class:`InputFileError` for a missing/invalid YAML, an unknown key in a file, and when
+    the user YAML names another model; :class:`ParameterError` for unknown override keys and
+    invalid values.
     """
+    from ..config import check_keys, data_config, train_config
+
     cfg = _read_yaml(default_config_path(name))
     if schedule is not None:
         cfg = deep_merge(cfg, load_schedule(schedule, name))
     if path is not None:
         user = _read_yaml(path)
-        unknown = set(user) - {"model", "data", "train"}
-        if unknown:
-            raise InputFileError(path, f"unknown config section(s) {', '.join(sorted(unknown))} (expected model, data, train)")
+        check_keys(user, path, name)
         other = (user.get("model") or {}).get("name")
         if other is not None and other != name:
             raise InputFileError(path, f"config is for model {other!r}, not {name!r}")
         cfg = deep_merge(cfg, user)
     if overrides:
+        check_keys(overrides, "overrides", name)
         cfg = deep_merge(cfg, overrides)
     cfg["model"]["name"] = name
+    check_keys(cfg, "config", name)
+    data_config(cfg), train_config(cfg)
     return cfg
 
 
@@ -144,16 +157,25 @@ def build_model(config: dict, rig=None):
     Parameters
     ----------
     config : a config from :func:`load_config` (only ``config["model"]`` is used).
-    rig : ``Rig`` or ``Rig.to_dict()``; required for SA-Net (the depths' rig), ignored otherwise.
+    rig : ``RigSpec`` (or a ``Rig``, or the ``to_dict()`` of either); required for SA-Nets (the
+        depths' rig), ignored otherwise.
+
+    Raises :class:`ParameterError` for an unknown ``model.args`` key (naming it) or a value the
+    model refuses.
     """
+    from ..config import check_keys
+
     name = config["model"]["name"]
     cls = model_class(name)
     args = dict(config["model"].get("args") or {})
+    check_keys({"model": {"name": name, "args": args}}, "config", name)
     try:
         if cls.target == "depths":
             if rig is None:
                 raise ParameterError(f"model {name!r} needs a rig")
-            return cls(rig=rig if isinstance(rig, dict) else rig.to_dict(), **args)
+            from ..rays import rig_spec
+
+            return cls(rig=rig_spec(rig), **args)
         return cls(**args)
-    except TypeError as exc:
+    except (TypeError, ValueError) as exc:
         raise ParameterError(f"invalid arguments for model {name!r} in config: {exc}") from None

@@ -34,7 +34,8 @@ class SANet(CompletionModel):
 
     Parameters
     ----------
-    rig : dict of ``Rig.to_dict()`` (the rig whose depths are regressed); required.
+    rig : the rig whose depths are regressed: a ``RigSpec`` (kept as ``self.rig``), a ``Rig`` or a
+        ``to_dict()`` of either; required.
     code_size : encoder code size (paper: 1024).
     hidden : hidden layer widths of the decoder (default [256, 256]: 0.85M parameters
         for 2048 rays, keeping the decoder under 1M).
@@ -50,16 +51,16 @@ class SANet(CompletionModel):
     outputs_per_ray = 1
     """Decoder outputs per ray (the hit-aware variant has two: a hit logit and a depth)."""
 
-    def __init__(self, rig: dict, code_size: int = 1024, encoder_widths: Sequence[int] = (128, 256, 512),
+    def __init__(self, rig, code_size: int = 1024, encoder_widths: Sequence[int] = (128, 256, 512),
                  hidden: Sequence[int] = (256, 256),
                  output_activation: str = "none", clip: float | None = 0.2):
         super().__init__()
-        from ..rays import rig_from_dict, rig_needs_box, rig_rays
+        from ..rays import rig_rays, rig_spec
 
         if rig is None:
             raise ValueError("SA-Net needs a rig (the rig of the depths it regresses)")
-        self.rig = rig_from_dict(rig)  # cap: the Rig; box-targeted: its RigSpec
-        self.needs_box = rig_needs_box(self.rig)
+        self.rig = rig_spec(rig)  # the RigSpec (cap or box-targeted)
+        self.needs_box = self.rig.needs_box
         if output_activation not in ("none", "relu", "sigmoid"):
             raise ValueError(f"output_activation must be 'none', 'relu' or 'sigmoid', got {output_activation!r}")
         self.output_activation = output_activation

@@ -52,7 +52,7 @@ class HitSANet(SANet):
     name = "sanet-hit"
     outputs_per_ray = 2
 
-    def __init__(self, rig: dict, code_size: int = 1024, encoder_widths: Sequence[int] = (128, 256, 512),
+    def __init__(self, rig, code_size: int = 1024, encoder_widths: Sequence[int] = (128, 256, 512),
                  hidden: Sequence[int] = (256, 256), threshold: float = 0.5,
                  threshold_grid: Sequence[float] | None = THRESHOLD_GRID, hit_weight: float = 1.0,
                  depth_weight: float = 1.0, clip: float | None = None):
