@@ -4,8 +4,17 @@ from __future__ import annotations
 
 import argparse
 
-from ._util import (DEVICE_HELP, add_command, add_group, add_quiet, check_picture, check_suffix, non_negative_int,
-                    positive_int, unit_interval)
+from ._util import (
+    DEVICE_HELP,
+    add_command,
+    add_group,
+    add_quiet,
+    check_picture,
+    check_suffix,
+    non_negative_int,
+    positive_int,
+    unit_interval,
+)
 from .view import add_html_argument
 
 FORMAT_CHOICES = ("kitti", "kitti360", "av2", "nuscenes", "generic")
@@ -173,7 +182,6 @@ def _print_summary(obs) -> None:
 
 def _extract(args) -> int:
     from ..data.real.extract import ExtractConfig, extract, write_observations
-
     from ..utils import check_writable
 
     check_suffix(args.out, (".h5", ".hdf5"), "the observations file (HDF5)")
