@@ -43,15 +43,20 @@ def rates(f_right: np.ndarray, f_turned: np.ndarray, margin: float) -> dict:
     'turn when the other fidelity < (1 - margin) x this one'."""
     ok = np.isfinite(f_right) & np.isfinite(f_turned)
     fr, ft = f_right[ok], f_turned[ok]
-    return {"margin": margin, "n": int(ok.sum()),
-            "false_alarm_rate": float(np.mean(ft < (1 - margin) * fr)) if ok.any() else None,
-            "recovery_rate": float(np.mean(fr < (1 - margin) * ft)) if ok.any() else None}
+    return {
+        "margin": margin,
+        "n": int(ok.sum()),
+        "false_alarm_rate": float(np.mean(ft < (1 - margin) * fr)) if ok.any() else None,
+        "recovery_rate": float(np.mean(fr < (1 - margin) * ft)) if ok.any() else None,
+    }
 
 
 def synthetic(completer, data: str, views: int, batch: int) -> dict:
     with open_dataset(data) as ds:
         models = ds.split_models("test")
-        idx = np.concatenate([ds.split_indices("test")[ds.sample_model[ds.split_indices("test")] == m][:views] for m in models])
+        idx = np.concatenate(
+            [ds.split_indices("test")[ds.sample_model[ds.split_indices("test")] == m][:views] for m in models]
+        )
         h5 = ds._h5()
         partial = np.asarray(h5["samples/partial"][np.sort(idx)], dtype=np.float32)
         model_of = np.asarray(h5["samples/model"][np.sort(idx)])
@@ -65,12 +70,19 @@ def synthetic(completer, data: str, views: int, batch: int) -> dict:
         f_t = np.array([fidelity(p, c) for p, c in zip(turned_in, turned)])
         # accuracy in the object's own (right) frame: a backward box's completion is turned back first
         acc_r = np.array([nn_distances(c, gt[int(m)]).mean() if len(c) else np.nan for c, m in zip(right, model_of)])
-        acc_t = np.array([nn_distances(flip_heading(c), gt[int(m)]).mean() if len(c) else np.nan for c, m in zip(turned, model_of)])
-    return {"n_scans": int(len(partial)), "n_models": int(len(gt)),
-            "accuracy_right_heading": float(np.nanmean(acc_r)), "accuracy_backward_box": float(np.nanmean(acc_t)),
-            "accuracy_ratio": float(np.nanmean(acc_t) / np.nanmean(acc_r)),
-            "fidelity_right": float(np.nanmean(f_r)), "fidelity_turned": float(np.nanmean(f_t)),
-            "rules": [rates(f_r, f_t, m) for m in MARGINS]}
+        acc_t = np.array(
+            [nn_distances(flip_heading(c), gt[int(m)]).mean() if len(c) else np.nan for c, m in zip(turned, model_of)]
+        )
+    return {
+        "n_scans": int(len(partial)),
+        "n_models": int(len(gt)),
+        "accuracy_right_heading": float(np.nanmean(acc_r)),
+        "accuracy_backward_box": float(np.nanmean(acc_t)),
+        "accuracy_ratio": float(np.nanmean(acc_t) / np.nanmean(acc_r)),
+        "fidelity_right": float(np.nanmean(f_r)),
+        "fidelity_turned": float(np.nanmean(f_t)),
+        "rules": [rates(f_r, f_t, m) for m in MARGINS],
+    }
 
 
 def real(completer, path: str, batch: int) -> dict:
@@ -82,8 +94,13 @@ def real(completer, path: str, batch: int) -> dict:
         f_r = np.array([fidelity(p, c) for p, c in zip(obs.partial, right)])
         f_t = np.array([fidelity(p, c) for p, c in zip(turned_in, turned)])
     cls = np.array(obs.cls)
-    out = {"file": str(path), "source_format": obs.meta.get("source_format"), "n_observations": len(obs),
-           "rules": [rates(f_r, f_t, m) for m in MARGINS], "per_class": {}}
+    out = {
+        "file": str(path),
+        "source_format": obs.meta.get("source_format"),
+        "n_observations": len(obs),
+        "rules": [rates(f_r, f_t, m) for m in MARGINS],
+        "per_class": {},
+    }
     for c in sorted(set(cls)):
         k = cls == c
         out["per_class"][c] = {"n": int(k.sum()), "rules": [rates(f_r[k], f_t[k], m) for m in MARGINS]}
@@ -115,13 +132,19 @@ def main() -> None:
     Path(args.json).write_text(json.dumps(res, indent=2) + "\n")
     if "synthetic" in res:
         s = res["synthetic"]
-        print(f"synthetic: {s['n_scans']} test scans of {s['n_models']} cars; accuracy right {s['accuracy_right_heading']:.4f}, "
-              f"backward box {s['accuracy_backward_box']:.4f} ({s['accuracy_ratio']:.2f}x)")
+        print(
+            f"synthetic: {s['n_scans']} test scans of {s['n_models']} cars; accuracy right {s['accuracy_right_heading']:.4f}, "
+            f"backward box {s['accuracy_backward_box']:.4f} ({s['accuracy_ratio']:.2f}x)"
+        )
         for r in s["rules"]:
-            print(f"  margin {r['margin']:.2f}: false alarms {r['false_alarm_rate']:.3f}, recoveries {r['recovery_rate']:.3f}")
+            print(
+                f"  margin {r['margin']:.2f}: false alarms {r['false_alarm_rate']:.3f}, recoveries {r['recovery_rate']:.3f}"
+            )
     for r in res["real"]:
-        print(f"{r['source_format']} ({r['n_observations']} observations): false alarms "
-              + ", ".join(f"m={x['margin']:.2f} {x['false_alarm_rate']:.3f}" for x in r["rules"]))
+        print(
+            f"{r['source_format']} ({r['n_observations']} observations): false alarms "
+            + ", ".join(f"m={x['margin']:.2f} {x['false_alarm_rate']:.3f}" for x in r["rules"])
+        )
         for c, v in r["per_class"].items():
             print(f"    {c} ({v['n']}): " + ", ".join(f"{x['false_alarm_rate']:.3f}" for x in v["rules"]))
     print(f"-> {args.json}")

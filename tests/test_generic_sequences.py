@@ -30,7 +30,9 @@ def write_frame(folder, name, t, rng, ext=".npy", key="timestamp", moving=True):
     folder.mkdir(parents=True, exist_ok=True)
     ca = [10.0 + (2.0 * t if moving else 0.0), 2.0, -0.9]
     cb = [-6.0, -5.0, -0.9]
-    pts = np.concatenate([car_points(rng, ca, 0.3), car_points(rng, cb, -1.0), rng.uniform(-30, 30, (500, 3)) * [1, 1, 0] - [0, 0, 1.7]])
+    pts = np.concatenate(
+        [car_points(rng, ca, 0.3), car_points(rng, cb, -1.0), rng.uniform(-30, 30, (500, 3)) * [1, 1, 0] - [0, 0, 1.7]]
+    )
     pts = pts.astype(np.float32)
     if ext == ".npy":
         np.save(folder / f"{name}.npy", pts)
@@ -38,8 +40,10 @@ def write_frame(folder, name, t, rng, ext=".npy", key="timestamp", moving=True):
         np.c_[pts, np.zeros(len(pts))].astype("<f4").tofile(folder / f"{name}.bin")
     elif ext == ".pcd.bin":
         np.c_[pts, np.zeros(len(pts)), rng.integers(0, 32, len(pts))].astype("<f4").tofile(folder / f"{name}.pcd.bin")
-    boxes = [{"center": ca, "size": SIZE, "yaw": 0.3, "label": "car", "track_id": "a"},
-             {"center": cb, "size": SIZE, "yaw": -1.0, "label": "Car", "track_id": "b"}]
+    boxes = [
+        {"center": ca, "size": SIZE, "yaw": 0.3, "label": "car", "track_id": "a"},
+        {"center": cb, "size": SIZE, "yaw": -1.0, "label": "Car", "track_id": "b"},
+    ]
     (folder / f"{name}.json").write_text(json.dumps({key: t, "boxes": boxes}))
     return pts
 
@@ -93,14 +97,30 @@ def test_multi_file_round_trip_sequence_json_and_several_sources(tmp_path, capsy
     for k, (name, ext) in enumerate((("f0", ".bin"), ("f1", ".pcd.bin"), ("f2", ".bin"))):
         clouds[name] = write_frame(seq_dir / "frames", name, 0.1 * k, rng, ext=ext)
         (seq_dir / "frames" / f"{name}.json").rename(seq_dir / f"boxes_{name}.json")
-    frames = [{"scan": f"frames/{n}{e}", "boxes": f"boxes_{n}.json", "frame_id": n}
-              for n, e in (("f0", ".bin"), ("f1", ".pcd.bin"), ("f2", ".bin"))]
+    frames = [
+        {"scan": f"frames/{n}{e}", "boxes": f"boxes_{n}.json", "frame_id": n}
+        for n, e in (("f0", ".bin"), ("f1", ".pcd.bin"), ("f2", ".bin"))
+    ]
     (seq_dir / "sequence.json").write_text(json.dumps({"sequence": "drive-a", "frames": frames}))
     for k in range(2):
         write_frame(tmp_path / "drive-b", f"{k:04d}", 0.05 * k, rng)
     out = tmp_path / "obs.h5"
-    assert main(["real", "extract", str(seq_dir / "sequence.json"), str(tmp_path / "drive-b"), "--format", "generic",
-                 "--out", str(out), "-q"]) == 0
+    assert (
+        main(
+            [
+                "real",
+                "extract",
+                str(seq_dir / "sequence.json"),
+                str(tmp_path / "drive-b"),
+                "--format",
+                "generic",
+                "--out",
+                str(out),
+                "-q",
+            ]
+        )
+        == 0
+    )
     obs = read_observations(out)
     assert len(obs) == 10 and set(obs.sequence) == {"drive-a", "drive-b"}
     assert obs.timestamp.dtype == np.float64  # 0.1 s steps kept
@@ -113,8 +133,22 @@ def test_multi_file_round_trip_sequence_json_and_several_sources(tmp_path, capsy
         assert np.linalg.norm(back - obs.box_center[i], axis=1).max() <= 0.5 * np.linalg.norm(SIZE) + 0.3
     # a frame id found in two sources of one sequence is refused
     write_frame(tmp_path / "dup" / "drive-b", "0000", 0.0, rng)
-    assert main(["real", "extract", str(tmp_path / "drive-b"), str(tmp_path / "dup" / "drive-b"), "--format", "generic",
-                 "--out", str(tmp_path / "x.h5"), "-q"]) == 2
+    assert (
+        main(
+            [
+                "real",
+                "extract",
+                str(tmp_path / "drive-b"),
+                str(tmp_path / "dup" / "drive-b"),
+                "--format",
+                "generic",
+                "--out",
+                str(tmp_path / "x.h5"),
+                "-q",
+            ]
+        )
+        == 2
+    )
     assert "also in" in capsys.readouterr().err and not (tmp_path / "x.h5").exists()
 
     # real complete over both sources: per-frame scene files, pictures and a summary
@@ -123,8 +157,27 @@ def test_multi_file_round_trip_sequence_json_and_several_sources(tmp_path, capsy
     pytest.importorskip("torch")
     ck = make_checkpoint(tmp_path / "tiny.pt", "sanet")
     res = tmp_path / "done"
-    assert main(["real", "complete", str(seq_dir / "sequence.json"), str(tmp_path / "drive-b"), "--format", "generic",
-                 "--out", str(res), "-c", str(ck), "--no-clip", "-q", "--frames", "0:4"]) == 0
+    assert (
+        main(
+            [
+                "real",
+                "complete",
+                str(seq_dir / "sequence.json"),
+                str(tmp_path / "drive-b"),
+                "--format",
+                "generic",
+                "--out",
+                str(res),
+                "-c",
+                str(ck),
+                "--no-clip",
+                "-q",
+                "--frames",
+                "0:4",
+            ]
+        )
+        == 0
+    )
     from spotlights.geometry.io import load_ply_fields
 
     summary = json.loads((res / "summary.json").read_text())
@@ -134,6 +187,30 @@ def test_multi_file_round_trip_sequence_json_and_several_sources(tmp_path, capsy
     np.testing.assert_allclose(np.c_[f["x"], f["y"], f["z"]][: len(clouds["f1"])], clouds["f1"], atol=1e-6)
     assert (res / "drive-a" / "f1.png").stat().st_size > 1000 and (res / "drive-a" / "f1.json").is_file()
     assert (res / "drive-b" / "0000.ply").is_file() and not (res / "drive-b" / "0001.ply").exists()  # --frames 0:4
+    # --resume: finished frames (their JSON written last) are read back, not recomputed
+    before = (res / "drive-a" / "f1.ply").stat().st_mtime_ns
+    (res / "drive-a" / "f2.json").unlink()
+    args = [
+        "real",
+        "complete",
+        str(seq_dir / "sequence.json"),
+        str(tmp_path / "drive-b"),
+        "--format",
+        "generic",
+        "--out",
+        str(res),
+        "-c",
+        str(ck),
+        "--no-clip",
+        "-q",
+        "--frames",
+        "0:4",
+        "--resume",
+    ]
+    assert main(args) == 0
+    again = json.loads((res / "summary.json").read_text())
+    assert again["totals"]["resumed"] == 3 and again["totals"]["completed"] == 8
+    assert (res / "drive-a" / "f1.ply").stat().st_mtime_ns == before and (res / "drive-a" / "f2.json").is_file()
 
 
 def test_rotation_boxes_honoured(tmp_path):

@@ -10,13 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from helpers import LIDAR, assert_user_error, need
 from spotlights.cli import main
 from spotlights.data.real import open_reader
 from spotlights.data.real.extract import ExtractConfig, extract
 from spotlights.data.real.nuscenes import CLASS_MAP, NuScenesReader
 from spotlights.errors import InputFileError
 
+from helpers import LIDAR, need
 
 NUSCENES = LIDAR / "nuscenes"
 BOX_YAW = math.radians(30.0)
@@ -58,36 +58,110 @@ def write_mini_nuscenes(root: Path, break_table: str | None = None) -> dict:
         data.tofile(root / name)
         files.append(name)
     t = {
-        "sensor": [{"token": "s-lidar", "channel": "LIDAR_TOP", "modality": "lidar"},
-                   {"token": "s-cam", "channel": "CAM_FRONT", "modality": "camera"}],
-        "calibrated_sensor": [{"token": "cs-lidar", "sensor_token": "s-lidar", "translation": [1.0, 0.0, 2.0], "rotation": quat_z(-90)},
-                              {"token": "cs-cam", "sensor_token": "s-cam", "translation": [1.5, 0.0, 1.5], "rotation": [0.5, -0.5, 0.5, -0.5]}],
-        "ego_pose": [{"token": f"e{k}", "timestamp": 1000 + k, "translation": [100.0 + 0.1 * k, 200.0, 0.0], "rotation": quat_z(90)}
-                     for k in range(2)],
-        "scene": [{"token": "sc", "name": "scene-0001", "first_sample_token": "smp0", "log_token": "l", "nbr_samples": 2}],
-        "sample": [{"token": f"smp{k}", "timestamp": 1000 + k, "scene_token": "sc", "prev": "", "next": ""} for k in range(2)],
-        "sample_data": [
-            *({"token": f"sd{k}", "sample_token": f"smp{k}", "ego_pose_token": f"e{k}", "calibrated_sensor_token": "cs-lidar",
-               "timestamp": 1000 + k, "is_key_frame": True, "filename": files[k], "fileformat": "pcd"} for k in range(2)),
-            {"token": "cam0", "sample_token": "smp0", "ego_pose_token": "e0", "calibrated_sensor_token": "cs-cam",
-             "timestamp": 1000, "is_key_frame": True, "filename": "samples/CAM_FRONT/x.jpg", "fileformat": "jpg"},
-            {"token": "sweep", "sample_token": "smp0", "ego_pose_token": "e0", "calibrated_sensor_token": "cs-lidar",
-             "timestamp": 1050, "is_key_frame": False, "filename": "sweeps/LIDAR_TOP/absent.pcd.bin", "fileformat": "pcd"},
+        "sensor": [
+            {"token": "s-lidar", "channel": "LIDAR_TOP", "modality": "lidar"},
+            {"token": "s-cam", "channel": "CAM_FRONT", "modality": "camera"},
         ],
-        "category": [{"token": "c-car", "name": "vehicle.car"}, {"token": "c-bike", "name": "vehicle.bicycle"},
-                     {"token": "c-truck", "name": "vehicle.truck"}],
-        "instance": [{"token": "i-car", "category_token": "c-car"}, {"token": "i-bike", "category_token": "c-bike"},
-                     {"token": "i-truck", "category_token": "c-truck"}],
+        "calibrated_sensor": [
+            {"token": "cs-lidar", "sensor_token": "s-lidar", "translation": [1.0, 0.0, 2.0], "rotation": quat_z(-90)},
+            {
+                "token": "cs-cam",
+                "sensor_token": "s-cam",
+                "translation": [1.5, 0.0, 1.5],
+                "rotation": [0.5, -0.5, 0.5, -0.5],
+            },
+        ],
+        "ego_pose": [
+            {
+                "token": f"e{k}",
+                "timestamp": 1000 + k,
+                "translation": [100.0 + 0.1 * k, 200.0, 0.0],
+                "rotation": quat_z(90),
+            }
+            for k in range(2)
+        ],
+        "scene": [
+            {"token": "sc", "name": "scene-0001", "first_sample_token": "smp0", "log_token": "l", "nbr_samples": 2}
+        ],
+        "sample": [
+            {"token": f"smp{k}", "timestamp": 1000 + k, "scene_token": "sc", "prev": "", "next": ""} for k in range(2)
+        ],
+        "sample_data": [
+            *(
+                {
+                    "token": f"sd{k}",
+                    "sample_token": f"smp{k}",
+                    "ego_pose_token": f"e{k}",
+                    "calibrated_sensor_token": "cs-lidar",
+                    "timestamp": 1000 + k,
+                    "is_key_frame": True,
+                    "filename": files[k],
+                    "fileformat": "pcd",
+                }
+                for k in range(2)
+            ),
+            {
+                "token": "cam0",
+                "sample_token": "smp0",
+                "ego_pose_token": "e0",
+                "calibrated_sensor_token": "cs-cam",
+                "timestamp": 1000,
+                "is_key_frame": True,
+                "filename": "samples/CAM_FRONT/x.jpg",
+                "fileformat": "jpg",
+            },
+            {
+                "token": "sweep",
+                "sample_token": "smp0",
+                "ego_pose_token": "e0",
+                "calibrated_sensor_token": "cs-lidar",
+                "timestamp": 1050,
+                "is_key_frame": False,
+                "filename": "sweeps/LIDAR_TOP/absent.pcd.bin",
+                "fileformat": "pcd",
+            },
+        ],
+        "category": [
+            {"token": "c-car", "name": "vehicle.car"},
+            {"token": "c-bike", "name": "vehicle.bicycle"},
+            {"token": "c-truck", "name": "vehicle.truck"},
+        ],
+        "instance": [
+            {"token": "i-car", "category_token": "c-car"},
+            {"token": "i-bike", "category_token": "c-bike"},
+            {"token": "i-truck", "category_token": "c-truck"},
+        ],
         "sample_annotation": [],
     }
     for k in range(2):
         t["sample_annotation"] += [
-            {"token": f"a-car{k}", "sample_token": f"smp{k}", "instance_token": "i-car", "translation": [110.0 + 0.1 * k, 201.0, 1.0],
-             "size": [2.0, 4.0, 1.5], "rotation": quat_z(30), "num_lidar_pts": 120},
-            {"token": f"a-bike{k}", "sample_token": f"smp{k}", "instance_token": "i-bike", "translation": [90.0, 190.0, 1.0],
-             "size": [0.6, 1.8, 1.4], "rotation": quat_z(0), "num_lidar_pts": 0},
-            {"token": f"a-truck{k}", "sample_token": f"smp{k}", "instance_token": "i-truck", "translation": [400.0, 600.0, 1.5],
-             "size": [2.5, 8.0, 3.0], "rotation": quat_z(0), "num_lidar_pts": 0},
+            {
+                "token": f"a-car{k}",
+                "sample_token": f"smp{k}",
+                "instance_token": "i-car",
+                "translation": [110.0 + 0.1 * k, 201.0, 1.0],
+                "size": [2.0, 4.0, 1.5],
+                "rotation": quat_z(30),
+                "num_lidar_pts": 120,
+            },
+            {
+                "token": f"a-bike{k}",
+                "sample_token": f"smp{k}",
+                "instance_token": "i-bike",
+                "translation": [90.0, 190.0, 1.0],
+                "size": [0.6, 1.8, 1.4],
+                "rotation": quat_z(0),
+                "num_lidar_pts": 0,
+            },
+            {
+                "token": f"a-truck{k}",
+                "sample_token": f"smp{k}",
+                "instance_token": "i-truck",
+                "translation": [400.0, 600.0, 1.5],
+                "size": [2.5, 8.0, 3.0],
+                "rotation": quat_z(0),
+                "num_lidar_pts": 0,
+            },
         ]
     if break_table == "sample_annotation":
         del t["sample_annotation"][0]["size"]
@@ -112,14 +186,20 @@ def test_transforms_against_hand_computed_corners_and_inside_points(tmp_path):
     np.testing.assert_allclose(car.size, LWH)  # nuScenes (w, l, h) -> our (l, w, h)
     # hand: centre (110, 201, 1) - (100, 201, 2) = (10, 0, -1); corners = centre + Rz(30 deg) (+-2, +-1, +-0.75)
     c, s = math.cos(BOX_YAW), math.sin(BOX_YAW)
-    hand = np.array([[10 + c * dx - s * dy, s * dx + c * dy, -1 + dz] for dx in (2, -2) for dy in (1, -1) for dz in (0.75, -0.75)])
+    hand = np.array(
+        [[10 + c * dx - s * dy, s * dx + c * dy, -1 + dz] for dx in (2, -2) for dy in (1, -1) for dz in (0.75, -0.75)]
+    )
     np.testing.assert_allclose(car.corners(), hand, atol=1e-9)
     assert car.yaw == pytest.approx(BOX_YAW)
     # the 120 points built inside lie inside, the 5 built just outside do not
     inside = car.contains(frame.points.astype(np.float64))
     assert inside[:120].all() and not inside[120:].any()
     assert int(inside.sum()) == 120
-    assert {b.label: b.cls for b in frame.boxes} == {"vehicle.car": "car", "vehicle.bicycle": None, "vehicle.truck": "truck"}
+    assert {b.label: b.cls for b in frame.boxes} == {
+        "vehicle.car": "car",
+        "vehicle.bicycle": None,
+        "vehicle.truck": "truck",
+    }
 
 
 def test_extract_counts_two_wheelers_as_excluded_and_tracks_by_instance(tmp_path):
@@ -132,8 +212,13 @@ def test_extract_counts_two_wheelers_as_excluded_and_tracks_by_instance(tmp_path
     assert np.all(np.isfinite(obs.sensor_to_world))
 
 
-@pytest.mark.parametrize("table, message", [("sample_annotation", "sample_annotation.json: row 0 lacks 'size'"),
-                                            ("ego_pose", "ego_pose.json: not valid JSON")])
+@pytest.mark.parametrize(
+    "table, message",
+    [
+        ("sample_annotation", "sample_annotation.json: row 0 lacks 'size'"),
+        ("ego_pose", "ego_pose.json: not valid JSON"),
+    ],
+)
 def test_malformed_table_is_one_line_exit_2_nothing_written(tmp_path, capsys, table, message):
     write_mini_nuscenes(tmp_path / "ns", break_table=table)
     out = tmp_path / "o.h5"
@@ -180,11 +265,18 @@ def test_real_scene_0523_extract_tracks():
     per_track: dict = {}
     for k in obs.object_keys():
         per_track[k] = per_track.get(k, 0) + 1
-    assert len(per_track) == 48 and sum(v >= 5 for v in per_track.values()) == 26  # Table 2: >= 19 tracks with 5+ frames
-    assert obs.meta["skipped_labels"]["vehicle.bicycle"] == 28 and obs.meta["skipped_labels"]["vehicle.motorcycle"] == 19
+    assert (
+        len(per_track) == 48 and sum(v >= 5 for v in per_track.values()) == 26
+    )  # Table 2: >= 19 tracks with 5+ frames
+    assert (
+        obs.meta["skipped_labels"]["vehicle.bicycle"] == 28 and obs.meta["skipped_labels"]["vehicle.motorcycle"] == 19
+    )
     # with the data README's count (50+ points per keyframe, every vehicle category): its 19 tracks
-    every = extract(reader, ExtractConfig(classes=("car", "truck", "trailer", "bus", "construction", "emergency"), min_points=50),
-                    progress=False)
+    every = extract(
+        reader,
+        ExtractConfig(classes=("car", "truck", "trailer", "bus", "construction", "emergency"), min_points=50),
+        progress=False,
+    )
     per_track = {}
     for k in every.object_keys():
         per_track[k] = per_track.get(k, 0) + 1

@@ -67,13 +67,13 @@ def fake_learning(monkeypatch, tmp_path):
 def test_cli_extract_evaluate_show(tmp_path, capsys, fake_learning):
     src = scene(tmp_path)
     out = tmp_path / "obs.h5"
-    assert main(["real", "extract", str(src), "--format", "generic", "--out", str(out)]) == 0  # (no -q: it silences the summary too)
+    assert main(["real", "extract", str(src), "--format", "generic", "--out", str(out)]) == 0  # -q would silence the summary
     text = capsys.readouterr().out
     assert "4 observations" in text and "objects observed in two or more frames: 2" in text
     assert "skipped boxes: class_excluded 0" in text
 
     prefix = tmp_path / "rep"
-    assert main(["real", "evaluate", str(out), "--checkpoint", *fake_learning, "--out", str(prefix), "-q"]) == 0
+    assert main(["real", "evaluate", str(out), "--checkpoint", *fake_learning, "--out", str(prefix)]) == 0
     text = capsys.readouterr().out
     assert "| sanet |" in text and "| pcn |" in text
     rep = json.loads((tmp_path / "rep.json").read_text())

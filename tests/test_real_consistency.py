@@ -245,3 +245,69 @@ def test_diversity_against_brute_force():
     same = [np.ones((4, 3))] * 3
     assert diversity(same, ["a", "b", "c"], [0, 0, 0]) == (0.0, 3)  # a template model
     assert math.isnan(diversity(same[:1], ["a"], [0])[0])
+
+
+def _brute_cd(a, b) -> float:
+    d = cdist(np.asarray(a, np.float64), np.asarray(b, np.float64))
+    return float(d.min(axis=1).mean() + d.min(axis=0).mean())
+
+
+def test_noise_floor_equal_points_and_heading_flips(tmp_path):
+    """Against brute force: the noise floor of a model that returns its input is the Chamfer between two
+    resamplings of the kept points; equal-count consistency compares FPS subsets; a model that ignores its
+    input has a zero floor; heading flips are counted by fidelity with the box turned."""
+    from spotlights.experiments.real_evaluation import EQUAL_POINTS, equal_count
+    from spotlights.geometry.sampling import resample_set
+
+    obs = tracked_scene(tmp_path)  # 150 points per car: the 256-point inputs hold every point (+ repeats)
+    rep = evaluate_consistency(obs, [Identity(), Ellipsoid()], progress=False, equal_points=64)
+    ident, ell = rep["models"]
+    assert ident["average"]["noise_floor"] == pytest.approx(0.0, abs=1e-12)  # same points, other repeats
+    # more points than inputs: keep 1000 per car
+    obs2 = tracked_scene_dense(tmp_path / "dense")
+    rep = evaluate_consistency(obs2, [Identity(), Ellipsoid()], progress=False, equal_points=64)
+    ident, ell = rep["models"]
+    rows = [i for i, t in enumerate(obs2.track_id) if t in ("a", "v")]
+    want = {}
+    for i in rows:
+        a = obs2.partial[i]
+        b = resample_set(obs2.raw(i), 256, seed=1)
+        want.setdefault(obs2.track_id[i], []).append(_brute_cd(a, b))
+    per_track = {o["track_id"]: o["noise_floor"] for o in ident["objects"]}
+    for t, vals in want.items():
+        assert per_track[t] == pytest.approx(np.mean(vals), rel=1e-9)  # one box size per track: R_i / R_track = 1
+    assert ident["average"]["noise_floor"] > 0.01 and ell["average"]["noise_floor"] == 0.0
+    # equal point counts: consistency of FPS subsets of 64 points
+    eq = ident["equal_points"]
+    assert eq["n_points"] == 64
+    pa = [i for i in rows if obs2.track_id[i] == "a"]
+    i, j = sorted(pa, key=lambda r: obs2.timestamp[r])
+    ca, cb = equal_count(obs2.partial[i], 64), equal_count(obs2.partial[j], 64)
+    assert len(ca) == 64 and len(np.unique(ca, axis=0)) == 64
+    assert eq["classes"]["car"]["cd"] == pytest.approx(_brute_cd(ca, cb), rel=1e-9)
+    assert EQUAL_POINTS == 512  # the default of real evaluate --equal-points
+    # heading: the identity completion is exact for both headings (fidelity 0): never flipped; the fixed ellipsoid
+    # is symmetric under the turn: the same fidelity, never flipped either (not *clearly* closer)
+    assert ident["heading"]["n_flipped"] == 0 and ell["heading"]["n_flipped"] == 0
+    write_report(rep, tmp_path / "r")
+    text = (tmp_path / "r.md").read_text()
+    assert "Noise floor @64" in text and "Heading flips" in text
+
+
+def tracked_scene_dense(tmp_path):
+    """tracked_scene with 1000 points per car (inputs are 256-point subsets)."""
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(6)
+    frames = []
+    for f in range(2):
+        pts, boxes = [rng.uniform(-50, 50, (200, 3)) + [0, 0, 30]], []
+        for tid, label, c, size in (("a", "Car", [10.0 + f, 2.0, -0.8], [4.2, 1.8, 1.5]),
+                                    ("v", "Van", [-8.0, 6.0 - f, -0.6], [5.0, 2.0, 2.0])):
+            obj = rng.uniform(-0.5, 0.5, (1000, 3)) * size
+            obj[:, 2] = np.abs(obj[:, 2])
+            pts.append(obj + c)
+            boxes.append({"center": c, "size": size, "yaw": 0.0, "label": label, "track_id": tid})
+        np.save(tmp_path / f"s{f}.npy", np.concatenate(pts).astype(np.float32))
+        frames.append({"scan": f"s{f}.npy", "timestamp": f, "sequence": "seq", "boxes": boxes})
+    (tmp_path / "scene.json").write_text(json.dumps({"frames": frames}))
+    return extract(open_reader(tmp_path / "scene.json", "generic"), ExtractConfig(), progress=False)

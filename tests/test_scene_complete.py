@@ -11,11 +11,11 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from helpers import LIDAR, assert_user_error, need  # noqa: E402
-from learning_fixtures import cli, make_checkpoint, one_torch_thread  # noqa: E402
-
 from spotlights.geometry.boxes import Box  # noqa: E402
 from spotlights.geometry.io import load_ply_fields  # noqa: E402
+
+from helpers import LIDAR, assert_user_error, need  # noqa: E402
+from learning_fixtures import cli, make_checkpoint, one_torch_thread  # noqa: E402
 
 _single_thread = pytest.fixture(autouse=True)(one_torch_thread)
 KITTI = LIDAR / "kitti-object" / "training-fov-cropped"
@@ -47,8 +47,22 @@ def car_scene(tmp_path, n=400, seed=0):
 def test_frame_scene_ply_fields_and_ids(tmp_path, capsys, tiny):
     scan, boxes = car_scene(tmp_path)
     out = tmp_path / "scene.ply"
-    proc = cli(capsys, "complete", tmp_path / "scan.npy", "--boxes", tmp_path / "boxes.json", "-c", tiny, "--out", out,
-               "--per-object", tmp_path / "objs", "--summary", tmp_path / "s.json", "--no-clip")
+    proc = cli(
+        capsys,
+        "complete",
+        tmp_path / "scan.npy",
+        "--boxes",
+        tmp_path / "boxes.json",
+        "-c",
+        tiny,
+        "--out",
+        out,
+        "--per-object",
+        tmp_path / "objs",
+        "--summary",
+        tmp_path / "s.json",
+        "--no-clip",
+    )
     assert proc.returncode == 0, proc.stderr
     f = load_ply_fields(out)
     src, obj = f["source"], f["object"]
@@ -73,8 +87,21 @@ def test_box_ids_fall_back_to_indices_with_string_track_ids(tmp_path, capsys, ti
     _, boxes = car_scene(tmp_path)
     boxes[0]["track_id"], boxes[1]["track_id"] = "9f2c", "a1"
     (tmp_path / "boxes.json").write_text(json.dumps(boxes))
-    assert cli(capsys, "complete", tmp_path / "scan.npy", "--boxes", tmp_path / "boxes.json", "-c", tiny, "--out",
-               tmp_path / "o.ply", "--no-clip").returncode == 0
+    assert (
+        cli(
+            capsys,
+            "complete",
+            tmp_path / "scan.npy",
+            "--boxes",
+            tmp_path / "boxes.json",
+            "-c",
+            tiny,
+            "--out",
+            tmp_path / "o.ply",
+            "--no-clip",
+        ).returncode
+        == 0
+    )
     f = load_ply_fields(tmp_path / "o.ply")
     assert set(np.unique(f["object"][f["source"] == 2])) == {0, 1}
     assert "track 9f2c" in (tmp_path / "o.ply").read_bytes()[:4000].decode("ascii", "replace")
@@ -85,9 +112,24 @@ def test_kitti_label_route_matches_real_extract(tmp_path, capsys, tiny):
     from spotlights.data.real.extract import ExtractConfig, extract
 
     root = need(KITTI)
-    proc = cli(capsys, "complete", root / "velodyne_reduced" / "002155.bin", "--boxes", root / "label_2" / "002155.txt",
-               "--calib", root / "calib" / "002155.txt", "-c", tiny, "--out", tmp_path / "k.ply", "--summary", tmp_path / "k.json",
-               "--min-points", "1", "--no-clip")
+    proc = cli(
+        capsys,
+        "complete",
+        root / "velodyne_reduced" / "002155.bin",
+        "--boxes",
+        root / "label_2" / "002155.txt",
+        "--calib",
+        root / "calib" / "002155.txt",
+        "-c",
+        tiny,
+        "--out",
+        tmp_path / "k.ply",
+        "--summary",
+        tmp_path / "k.json",
+        "--min-points",
+        "1",
+        "--no-clip",
+    )
     assert proc.returncode == 0, proc.stderr
     objs = json.loads((tmp_path / "k.json").read_text())["objects"]
     frame = open_reader(root, "kitti").load(("", "002155"))
@@ -96,7 +138,9 @@ def test_kitti_label_route_matches_real_extract(tmp_path, capsys, tiny):
         np.testing.assert_allclose(o["box"]["center"], b.center, atol=1e-9)
         np.testing.assert_allclose(o["box"]["size"], b.size, atol=1e-12)
         np.testing.assert_allclose(o["box"]["rotation"], b.rotation, atol=1e-9)
-    obs = extract(open_reader(root, "kitti"), ExtractConfig(classes=("car", "truck", "caravan"), min_points=1), progress=False)
+    obs = extract(
+        open_reader(root, "kitti"), ExtractConfig(classes=("car", "truck", "caravan"), min_points=1), progress=False
+    )
     rows = [i for i, f in enumerate(obs.frame_id) if f == "002155"]
     vehicles = [o for o in objs if o["status"] == "completed"]
     assert len(vehicles) == len(rows) == 11  # 13 vehicles, 2 of them without a single point
@@ -121,8 +165,9 @@ def test_clamping_keeps_every_point_in_the_sphere(tmp_path, tiny):
         assert len(out) == comp.rig.n_rays
         assert np.linalg.norm(out, axis=1).max() <= 1.0 + 1e-5
     scan, boxes = car_scene(tmp_path)
-    res = complete_scene(scan, [Box(b["center"], b["size"], b["yaw"], "car", "car") for b in boxes[:2]], comp,
-                         SceneConfig(clip=None))
+    res = complete_scene(
+        scan, [Box(b["center"], b["size"], b["yaw"], "car", "car") for b in boxes[:2]], comp, SceneConfig(clip=None)
+    )
     for o in res.completed:
         assert np.linalg.norm(o.completion - o.box.center, axis=1).max() <= o.box.radius * (1 + 1e-5)
 
@@ -177,9 +222,33 @@ def test_y_up_scan_with_rotation_and_quaternion_boxes(tmp_path, capsys, tiny):
         rows.append({**b, "center": (r @ np.array(b["center"])).tolist()})
     (tmp_path / "yup.json").write_text(json.dumps(rows))
     common = ["-c", tiny, "--no-clip"]
-    assert cli(capsys, "complete", tmp_path / "scan.npy", "--boxes", tmp_path / "boxes.json", "--out", tmp_path / "z.ply", *common).returncode == 0
-    proc = cli(capsys, "complete", tmp_path / "yup.npy", "--boxes", tmp_path / "yup.json", "--up", "y", "--forward", "x",
-               "--out", tmp_path / "y.ply", *common)
+    assert (
+        cli(
+            capsys,
+            "complete",
+            tmp_path / "scan.npy",
+            "--boxes",
+            tmp_path / "boxes.json",
+            "--out",
+            tmp_path / "z.ply",
+            *common,
+        ).returncode
+        == 0
+    )
+    proc = cli(
+        capsys,
+        "complete",
+        tmp_path / "yup.npy",
+        "--boxes",
+        tmp_path / "yup.json",
+        "--up",
+        "y",
+        "--forward",
+        "x",
+        "--out",
+        tmp_path / "y.ply",
+        *common,
+    )
     assert proc.returncode == 0, proc.stderr
     fz, fy = load_ply_fields(tmp_path / "z.ply"), load_ply_fields(tmp_path / "y.ply")
     pz = np.c_[fz["x"], fz["y"], fz["z"]].astype(np.float64)
@@ -193,8 +262,19 @@ def test_y_up_scan_with_rotation_and_quaternion_boxes(tmp_path, capsys, tiny):
         for row in rows:
             row.pop("yaw")
         (tmp_path / f"{name}.json").write_text(json.dumps(rows))
-        assert cli(capsys, "complete", tmp_path / "scan.npy", "--boxes", tmp_path / f"{name}.json", "--out",
-                   tmp_path / f"{name}.ply", *common).returncode == 0
+        assert (
+            cli(
+                capsys,
+                "complete",
+                tmp_path / "scan.npy",
+                "--boxes",
+                tmp_path / f"{name}.json",
+                "--out",
+                tmp_path / f"{name}.ply",
+                *common,
+            ).returncode
+            == 0
+        )
         f = load_ply_fields(tmp_path / f"{name}.ply")
         np.testing.assert_allclose(np.c_[f["x"], f["y"], f["z"]], pz, atol=1e-4)
 
@@ -256,53 +336,127 @@ def test_bad_inputs_one_line_exit_2_nothing_written(tmp_path, capsys, tiny):
     out = ["--out", tmp_path / "o.ply", "--show", tmp_path / "o.png", "-c", tiny]
     # a box file with no vehicle
     (tmp_path / "peds.json").write_text(json.dumps([b for b in boxes if b["label"] == "pedestrian"]))
-    assert_user_error(cli(capsys, "complete", tmp_path / "scan.npy", "--boxes", tmp_path / "peds.json", *out),
-                      "peds.json", "no vehicle box to complete", "class_excluded 1")
+    assert_user_error(
+        cli(capsys, "complete", tmp_path / "scan.npy", "--boxes", tmp_path / "peds.json", *out),
+        "peds.json",
+        "no vehicle box to complete",
+        "class_excluded 1",
+    )
     # --classes leaves none
-    assert_user_error(cli(capsys, "complete", tmp_path / "scan.npy", "--boxes", tmp_path / "boxes.json", "--classes", "truck", *out),
-                      "no vehicle box to complete")
+    assert_user_error(
+        cli(capsys, "complete", tmp_path / "scan.npy", "--boxes", tmp_path / "boxes.json", "--classes", "truck", *out),
+        "no vehicle box to complete",
+    )
     # a scan format mismatch: a nuScenes N x 5 sweep named .bin (read as KITTI N x 4)
     rng = np.random.default_rng(0)
     np.c_[scan[:400], rng.uniform(0, 255, 400), rng.integers(0, 32, 400)].astype("<f4").tofile(tmp_path / "sweep.bin")
-    assert_user_error(cli(capsys, "complete", tmp_path / "sweep.bin", "--boxes", tmp_path / "boxes.json", *out),
-                      "sweep.bin", "nuScenes sweep", "*.pcd.bin")
+    assert_user_error(
+        cli(capsys, "complete", tmp_path / "sweep.bin", "--boxes", tmp_path / "boxes.json", *out),
+        "sweep.bin",
+        "nuScenes sweep",
+        "*.pcd.bin",
+    )
     np.c_[scan[:401], rng.uniform(0, 1, 401)].astype("<f4").tofile(tmp_path / "kitti.pcd.bin")
-    assert_user_error(cli(capsys, "complete", tmp_path / "kitti.pcd.bin", "--boxes", tmp_path / "boxes.json", *out),
-                      "kitti.pcd.bin", "not a multiple of 20")
+    assert_user_error(
+        cli(capsys, "complete", tmp_path / "kitti.pcd.bin", "--boxes", tmp_path / "boxes.json", *out),
+        "kitti.pcd.bin",
+        "not a multiple of 20",
+    )
     # a KITTI label file without its calibration
     root = need(KITTI)
-    assert_user_error(cli(capsys, "complete", root / "velodyne_reduced" / "002155.bin", "--boxes", root / "label_2" / "002155.txt", *out),
-                      "002155.txt", "--calib")
+    assert_user_error(
+        cli(
+            capsys,
+            "complete",
+            root / "velodyne_reduced" / "002155.bin",
+            "--boxes",
+            root / "label_2" / "002155.txt",
+            *out,
+        ),
+        "002155.txt",
+        "--calib",
+    )
     # a scan too small to mean anything
     (tmp_path / "one.xyz").write_text("1 2 3\n")
-    assert_user_error(cli(capsys, "complete", tmp_path / "one.xyz", "--boxes", tmp_path / "boxes.json", *out),
-                      "one.xyz", "holds 1 point", "at least 10")
+    assert_user_error(
+        cli(capsys, "complete", tmp_path / "one.xyz", "--boxes", tmp_path / "boxes.json", *out),
+        "one.xyz",
+        "holds 1 point",
+        "at least 10",
+    )
     (tmp_path / "nan.xyz").write_text("0 0 0\nnan 1 2\n")
     assert_user_error(cli(capsys, "complete", tmp_path / "nan.xyz", "--box", tmp_path / "boxes.json", *out), "nan.xyz")
     # a box list entry without a label; both box forms at once
     (tmp_path / "nolabel.json").write_text(json.dumps([{k: v for k, v in boxes[0].items() if k != "label"}]))
-    assert_user_error(cli(capsys, "complete", tmp_path / "scan.npy", "--boxes", tmp_path / "nolabel.json", *out),
-                      "nolabel.json", "box 0 has no 'label'")
-    assert_user_error(cli(capsys, "complete", tmp_path / "scan.npy", "--boxes", tmp_path / "boxes.json", "--center", "0", "0", "0",
-                          "--size", "4", "2", "1.5", *out), "not both")
-    assert_user_error(cli(capsys, "complete", tmp_path / "scan.npy", "--boxes", tmp_path / "boxes.json", "-c", "nope",
-                          "--out", tmp_path / "o.ply"), "nope", "short names: default, paper")
+    assert_user_error(
+        cli(capsys, "complete", tmp_path / "scan.npy", "--boxes", tmp_path / "nolabel.json", *out),
+        "nolabel.json",
+        "box 0 has no 'label'",
+    )
+    assert_user_error(
+        cli(
+            capsys,
+            "complete",
+            tmp_path / "scan.npy",
+            "--boxes",
+            tmp_path / "boxes.json",
+            "--center",
+            "0",
+            "0",
+            "0",
+            "--size",
+            "4",
+            "2",
+            "1.5",
+            *out,
+        ),
+        "not both",
+    )
+    assert_user_error(
+        cli(
+            capsys,
+            "complete",
+            tmp_path / "scan.npy",
+            "--boxes",
+            tmp_path / "boxes.json",
+            "-c",
+            "nope",
+            "--out",
+            tmp_path / "o.ply",
+        ),
+        "nope",
+        "short names: default, paper",
+    )
     _nothing_written(tmp_path, "o.ply", "o.png")
 
 
 def test_single_object_form_crops_by_default(tmp_path, capsys, tiny):
     scan, boxes = car_scene(tmp_path)
     b = boxes[0]
-    common = ["--center", *map(str, b["center"]), "--size", *map(str, b["size"]), "--yaw", str(b["yaw"]), "-c", tiny, "--no-clip"]
+    common = [
+        "--center",
+        *map(str, b["center"]),
+        "--size",
+        *map(str, b["size"]),
+        "--yaw",
+        str(b["yaw"]),
+        "-c",
+        tiny,
+        "--no-clip",
+    ]
     assert cli(capsys, "complete", tmp_path / "scan.npy", *common, "--out", tmp_path / "a.ply").returncode == 0
     f = load_ply_fields(tmp_path / "a.ply")
     assert (f["source"] == 1).sum() == 400  # the car's points only: no ground, no clutter, not the other car
     # an already-cropped scan with --no-crop: every point is the input
     np.save(tmp_path / "car.npy", scan[f["source"][: len(scan)] == 1])
-    assert cli(capsys, "complete", tmp_path / "car.npy", *common, "--no-crop", "--out", tmp_path / "b.ply").returncode == 0
+    assert (
+        cli(capsys, "complete", tmp_path / "car.npy", *common, "--no-crop", "--out", tmp_path / "b.ply").returncode == 0
+    )
     g = load_ply_fields(tmp_path / "b.ply")
     assert (g["source"] == 1).sum() == 400
-    np.testing.assert_allclose(np.c_[g["x"], g["y"], g["z"]][g["source"] == 2], np.c_[f["x"], f["y"], f["z"]][f["source"] == 2], atol=1e-5)
+    np.testing.assert_allclose(
+        np.c_[g["x"], g["y"], g["z"]][g["source"] == 2], np.c_[f["x"], f["y"], f["z"]][f["source"] == 2], atol=1e-5
+    )
     # the old output formats hold the completion only
     assert cli(capsys, "complete", tmp_path / "car.npy", *common, "--out", tmp_path / "c.xyz").returncode == 0
     assert len(np.loadtxt(tmp_path / "c.xyz")) == (f["source"] == 2).sum()

@@ -4,10 +4,18 @@ from __future__ import annotations
 
 import argparse
 
-from ._util import (DEVICE_HELP, add_command, add_group, add_quiet, check_picture, check_suffix, non_negative_int,
-                    positive_int, unit_interval)
+from ._util import (
+    DEVICE_HELP,
+    add_command,
+    add_group,
+    add_quiet,
+    check_picture,
+    check_suffix,
+    non_negative_int,
+    positive_int,
+    unit_interval,
+)
 from .view import add_html_argument
-
 
 FORMAT_CHOICES = ("kitti", "kitti360", "av2", "nuscenes", "generic")
 SOURCE_HELP = ("kitti: a training/ folder (velodyne[_reduced]/, label_2/, calib/); kitti360: the KITTI-360 folder; "
@@ -70,6 +78,8 @@ def register(sub) -> None:
     p.add_argument("--html", action="store_true",
                    help="also write FRAME.html, an interactive 3-D page per frame (needs plotly); the pages share "
                         "OUT/plotly.min.js, so copy the folder as a whole: it opens offline")
+    p.add_argument("--resume", action="store_true",
+                   help="skip the frames an earlier run with the same model and options finished (their FRAME.json exists)")
     add_quiet(p)
 
     p = add_command(rs, "evaluate", "complete the tracked observations with each model and write the consistency table (Markdown + JSON)",
@@ -172,7 +182,6 @@ def _print_summary(obs) -> None:
 
 def _extract(args) -> int:
     from ..data.real.extract import ExtractConfig, extract, write_observations
-
     from ..utils import check_writable
 
     check_suffix(args.out, (".h5", ".hdf5"), "the observations file (HDF5)")
@@ -204,8 +213,8 @@ def _load_completers(paths, device):
 def _evaluate(args) -> int:
     from pathlib import Path
 
-    from ..experiments.real_evaluation import evaluate_consistency, report_markdown, write_report
     from ..data.real.extract import read_observations
+    from ..experiments.real_evaluation import evaluate_consistency, report_markdown, write_report
 
     if args.reference_split and not args.reference:
         from ..errors import ParameterError
@@ -338,9 +347,8 @@ def _safe_name(text: str) -> str:
 
 def _complete(args) -> int:
     from ..errors import ParameterError
-    from .complete import load_model, scene_config
-
     from ..utils import output_folder
+    from .complete import load_model, scene_config
 
     reader = _open(args)
     keys = _select_frames(reader.frame_keys(), args.frames)
@@ -359,54 +367,61 @@ def _complete_frames(args, reader, keys, config, completer, out) -> int:
 
     from tqdm import tqdm
 
-    from ..experiments.scene import complete_scene, describe, render_result, write_scene
+    from ..experiments.scene import complete_scene, render_result, write_scene
     from ..utils import atomic_output
     from .complete import warn
 
+    checkpoint = args.checkpoint or "default"
     out = Path(out)
     frames, warnings = [], []
-    totals = {"boxes": 0, "completed": 0, "flipped": 0, "completion_points": 0, "skipped": {}}
+    totals = {"boxes": 0, "completed": 0, "flipped": 0, "completion_points": 0, "skipped": {}, "resumed": 0}
     t_model = 0.0
     t0 = time.perf_counter()
     for key in tqdm(keys, desc="complete", unit="frame", disable=args.quiet):
-        frame = reader.load(key)
-        stem = (out / _safe_name(frame.sequence) if frame.sequence else out) / _safe_name(frame.frame_id)
-        info = dict(sequence=frame.sequence, frame_id=frame.frame_id, timestamp=frame.timestamp, scan=frame.scan_path,
-                    labels=frame.label_path)
-        if len(frame.points) < config.min_points:
-            frames.append({**info, "status": f"scan holds {len(frame.points)} points (< {config.min_points}): not completed"})
-            continue
-        result = complete_scene(frame.points, frame.boxes, completer, config, checkpoint=args.checkpoint or "default")
-        write_scene(result, stem.with_suffix(".ply"), per_object=stem.parent / (stem.name + "_objects") if args.per_object else None,
-                    scan_name=Path(frame.scan_path).name)
-        summ = {**info, **result.summary()}
-        if frame.sensor_to_world is not None:
-            summ["sensor_to_world"] = [[float(v) for v in row] for row in frame.sensor_to_world]
-        with atomic_output(stem.with_suffix(".json")) as tmp:
-            tmp.write_text(json.dumps(summ, indent=2, default=float) + "\n", encoding="utf-8")
-        seq = f"{frame.sequence}/" if frame.sequence else ""
-        if not args.no_pictures and result.completed:
-            render_result(result, stem.with_suffix(".png"), f"{reader.format} {seq}{frame.frame_id}: {result.model}")
-        if args.html:
-            import os
+        seq, fid = key
+        stem = (out / _safe_name(seq) if seq else out) / _safe_name(fid)
+        summ = _done_frame(stem.with_suffix(".json"), config, completer.model_name, checkpoint) if args.resume else None
+        if summ is not None:
+            totals["resumed"] += 1
+        else:
+            frame = reader.load(key)
+            info = dict(sequence=frame.sequence, frame_id=frame.frame_id, timestamp=frame.timestamp, scan=frame.scan_path,
+                        labels=frame.label_path)
+            if len(frame.points) < config.min_points:
+                frames.append({**info, "status": f"scan holds {len(frame.points)} points (< {config.min_points}): not completed"})
+                continue
+            result = complete_scene(frame.points, frame.boxes, completer, config, checkpoint=checkpoint)
+            write_scene(result, stem.with_suffix(".ply"), per_object=stem.parent / (stem.name + "_objects") if args.per_object else None,
+                        scan_name=Path(frame.scan_path).name)
+            prefix = f"{frame.sequence}/" if frame.sequence else ""
+            if not args.no_pictures and result.completed:
+                render_result(result, stem.with_suffix(".png"), f"{reader.format} {prefix}{frame.frame_id}: {result.model}")
+            if args.html:
+                import os
 
-            from ..experiments.scene import render_result_html
-            from ..viz.html import write_plotlyjs
+                from ..experiments.scene import render_result_html
+                from ..viz.html import write_plotlyjs
 
-            js = os.path.relpath(write_plotlyjs(out), stem.parent).replace(os.sep, "/")
-            render_result_html(result, stem.with_suffix(".html"), f"{reader.format} {seq}{frame.frame_id}: {result.model}", js)
-        totals["boxes"] += len(result.objects)
-        totals["completed"] += len(result.completed)
-        totals["flipped"] += sum(o.flipped for o in result.completed)
-        totals["completion_points"] += sum(len(o.completion) for o in result.completed)
-        for k, v in result.skipped().items():
+                js = os.path.relpath(write_plotlyjs(out), stem.parent).replace(os.sep, "/")
+                render_result_html(result, stem.with_suffix(".html"), f"{reader.format} {prefix}{frame.frame_id}: {result.model}", js)
+            summ = {**info, "ply": str(stem.with_suffix(".ply")), **result.summary()}
+            if frame.sensor_to_world is not None:
+                summ["sensor_to_world"] = [[float(v) for v in row] for row in frame.sensor_to_world]
+            with atomic_output(stem.with_suffix(".json")) as tmp:  # written last: a frame with its JSON is done (--resume)
+                tmp.write_text(json.dumps(summ, indent=2, default=float) + "\n", encoding="utf-8")
+        done = [o for o in summ["objects"] if o["status"] == "completed"]
+        totals["boxes"] += summ["n_boxes"]
+        totals["completed"] += summ["n_completed"]
+        totals["flipped"] += summ["n_flipped"]
+        totals["completion_points"] += sum(o["n_completion"] for o in done)
+        for k, v in summ["skipped"].items():
             totals["skipped"][k] = totals["skipped"].get(k, 0) + v
-        t_model += result.timings.get("total_s", 0.0)
-        warnings += [f"{frame.sequence + '/' if frame.sequence else ''}{frame.frame_id} {w}" for w in result.warnings()]
-        frames.append({**info, "status": describe(result), "ply": str(stem.with_suffix(".ply")), "n_completed": len(result.completed),
-                       "n_flipped": sum(o.flipped for o in result.completed), "n_warnings": len(result.warnings())})
+        t_model += summ["timings"].get("total_s", 0.0)
+        warnings += [f"{seq + '/' if seq else ''}{fid} {w}" for w in summ["warnings"]]
+        frames.append({k: summ.get(k) for k in ("sequence", "frame_id", "timestamp", "scan", "ply", "n_boxes", "n_completed",
+                                                "n_flipped", "skipped")} | {"n_warnings": len(summ["warnings"])})
     summary = dict(source=[str(s) for s in args.source], format=reader.format, model=completer.model_name,
-                   checkpoint=args.checkpoint or "default", n_frames=len(keys), totals=totals,
+                   checkpoint=checkpoint, n_frames=len(keys), totals=totals,
                    heading_check=config.heading_check, completion_seconds=t_model, wall_seconds=time.perf_counter() - t0,
                    warnings=warnings, frames=frames)
     with atomic_output(out / "summary.json") as tmp:
@@ -417,6 +432,22 @@ def _complete_frames(args, reader, keys, config, completer, out) -> int:
         warn(warnings)
     flips = f", {totals['flipped']} heading flip(s)" if config.heading_check else ""
     sk = ", ".join(f"{k} {v}" for k, v in sorted(totals["skipped"].items()))
+    resumed = f"; {totals['resumed']} frame(s) already done" if totals["resumed"] else ""
     print(f"{len(keys)} frame(s), {totals['boxes']} boxes: {totals['completed']} completed{flips}"
-          + (f", skipped {sk}" if sk else "") + f" ({completer.model_name}, {t_model:.1f} s of completion) -> {out}/")
+          + (f", skipped {sk}" if sk else "") + f" ({completer.model_name}, {t_model:.1f} s of completion{resumed}) -> {out}/")
     return 0
+
+
+def _done_frame(path, config, model: str, checkpoint: str):
+    """The summary of a frame finished by an earlier run with the same model and options, else None."""
+    import json
+    from dataclasses import asdict
+
+    try:
+        summ = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    cfg = asdict(config)
+    cfg["clip"] = str(cfg["clip"]) if cfg["clip"] is not None and not isinstance(cfg["clip"], float) else cfg["clip"]
+    same = summ.get("model") == model and summ.get("checkpoint") == checkpoint and json.loads(json.dumps(cfg)) == summ.get("config")
+    return summ if same else None

@@ -40,13 +40,23 @@ from __future__ import annotations
 import json
 import math
 import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
-from ..data.consistency import (DIVERSITY_DOC, METRIC_DOC, OBSERVATION_METRIC_DOC, aggregate, chamfer, consecutive_pairs,
-                                diversity, fidelity, minimal_matching_distance, track_consistency)
+from ..data.consistency import (
+    DIVERSITY_DOC,
+    METRIC_DOC,
+    OBSERVATION_METRIC_DOC,
+    aggregate,
+    chamfer,
+    consecutive_pairs,
+    diversity,
+    fidelity,
+    minimal_matching_distance,
+    track_consistency,
+)
 from ..data.real.base import CLASSES
 from ..data.real.extract import Observations, read_observations
 from ..errors import InputFileError, SpotlightsError
@@ -58,17 +68,30 @@ from .scene import HEADING_MARGIN, heading_turns
 EQUAL_POINTS = 512
 """Common point count of the equal-count consistency (farthest-point sampling of every completion)."""
 
-NOISE_DOC = ("resampling noise floor: cd between the completions of the same observation resampled with two seeds "
-             "(stored partial vs its kept points resampled with seed + 1), consistency's frame; mean per track, then per class")
-EQUAL_DOC = ("every completion brought to {n} points by farthest-point sampling (seeded start; fewer points: all kept "
-             "plus seeded repeats) before scoring, so models with different output sizes compare at one density")
-HEADING_DOC = ("share of observations whose completion with the box turned by 180 degrees is closer to the observed "
-               "points than with the box as given - fidelity lower by more than the margin (rate; the check of "
-               "'complete --heading-check') or at all (rate_margin0): on annotated boxes, false alarms")
+NOISE_DOC = (
+    "resampling noise floor: cd between the completions of the same observation resampled with two seeds "
+    "(stored partial vs its kept points resampled with seed + 1), consistency's frame; mean per track, then per class"
+)
+EQUAL_DOC = (
+    "every completion brought to {n} points by farthest-point sampling (seeded start; fewer points: all kept "
+    "plus seeded repeats) before scoring, so models with different output sizes compare at one density"
+)
+HEADING_DOC = (
+    "share of observations whose completion with the box turned by 180 degrees is closer to the observed "
+    "points than with the box as given - fidelity lower by more than the margin (rate; the check of "
+    "'complete --heading-check') or at all (rate_margin0): on annotated boxes, false alarms"
+)
 
 
-def complete_all(completer, partials: np.ndarray, batch_size: int = 64, progress: bool = True, desc: str = "complete",
-                 clip: float | None = None, box_sizes: np.ndarray | None = None) -> list[np.ndarray]:
+def complete_all(
+    completer,
+    partials: np.ndarray,
+    batch_size: int = 64,
+    progress: bool = True,
+    desc: str = "complete",
+    clip: float | None = None,
+    box_sizes: np.ndarray | None = None,
+) -> list[np.ndarray]:
     """Run ``completer.complete`` over (n, P, 3) float32 partials in batches; returns n (K_i, 3) float32 arrays.
 
     ``clip`` is passed on as ``complete(batch, clip=clip)`` only when given (else the model's default).
@@ -83,8 +106,10 @@ def complete_all(completer, partials: np.ndarray, batch_size: int = 64, progress
     extents = None
     if getattr(completer, "needs_box", False):
         if box_sizes is None:
-            raise SpotlightsError(f"completer {getattr(completer, 'model_name', '?')} decodes rays aimed at each object's "
-                                  "box: give the boxes' sizes")
+            raise SpotlightsError(
+                f"completer {getattr(completer, 'model_name', '?')} decodes rays aimed at each object's "
+                "box: give the boxes' sizes"
+            )
         sizes = np.asarray(box_sizes, dtype=np.float64).reshape(n, 3)
         extents = sizes / np.linalg.norm(sizes, axis=1, keepdims=True)
     for s in tqdm(range(0, n, batch_size), desc=desc, unit="batch", disable=not progress or n == 0):
@@ -94,14 +119,18 @@ def complete_all(completer, partials: np.ndarray, batch_size: int = 64, progress
             kw["extents"] = extents[s : s + batch_size]
         res = completer.complete(batch, **kw)
         if len(res) != len(batch):
-            raise SpotlightsError(f"completer {getattr(completer, 'model_name', '?')} returned {len(res)} completions for {len(batch)} inputs")
+            raise SpotlightsError(
+                f"completer {getattr(completer, 'model_name', '?')} returned {len(res)} completions for {len(batch)} inputs"
+            )
         for r in res:
             r = np.asarray(r, dtype=np.float32)
             if r.ndim != 2 or r.shape[1] != 3:
                 if r.size == 0:
                     r = r.reshape(0, 3)
                 else:
-                    raise SpotlightsError(f"completer {getattr(completer, 'model_name', '?')} returned an array of shape {r.shape}, expected (K, 3)")
+                    raise SpotlightsError(
+                        f"completer {getattr(completer, 'model_name', '?')} returned an array of shape {r.shape}, expected (K, 3)"
+                    )
             out.append(r)
     return out
 
@@ -133,7 +162,11 @@ def same_observation_cd(a_list, b_list, scale) -> np.ndarray:
 
 def tracked_rows(obs: Observations, classes: Sequence[str] | None = None) -> np.ndarray:
     """Sorted row indices of the observations that belong to a consecutive pair (of class in ``classes``, if given)."""
-    keep = np.arange(len(obs)) if classes is None else np.array([i for i, c in enumerate(obs.cls) if c in set(classes)], dtype=np.int64)
+    keep = (
+        np.arange(len(obs))
+        if classes is None
+        else np.array([i for i, c in enumerate(obs.cls) if c in set(classes)], dtype=np.int64)
+    )
     if keep.size == 0:
         return keep
     keys = obs.object_keys()
@@ -156,7 +189,12 @@ def reference_shapes(dataset: str | os.PathLike, split: str | None = None) -> tu
         shapes = list(np.asarray(gt, dtype=np.float32))
     if not shapes:
         raise InputFileError(str(dataset), f"no reference model in split {split!r}")
-    return shapes, {"file": str(dataset), "split": split or "all", "n_shapes": len(shapes), "points_per_shape": int(len(shapes[0]))}
+    return shapes, {
+        "file": str(dataset),
+        "split": split or "all",
+        "n_shapes": len(shapes),
+        "points_per_shape": int(len(shapes[0])),
+    }
 
 
 def _track_radii(keys, radii) -> np.ndarray:
@@ -248,7 +286,11 @@ def evaluate_consistency(
         )
     if not completers:
         raise SpotlightsError("no completer (checkpoint) given")
-    names = list(names) if names is not None else [str(getattr(c, "model_name", f"model{i}")) for i, c in enumerate(completers)]
+    names = (
+        list(names)
+        if names is not None
+        else [str(getattr(c, "model_name", f"model{i}")) for i, c in enumerate(completers)]
+    )
     keys = obs.object_keys()
     sub_keys = [keys[i] for i in rows]
     sub_ts = obs.timestamp[rows]
@@ -262,15 +304,20 @@ def evaluate_consistency(
     with_noise = bool(noise_floor) and obs.has_raw
     seed = int((obs.meta.get("config") or {}).get("seed", 0))
     n_in = partials.shape[1]
-    partials2 = (np.stack([resample_set(obs.raw(i), n_in, seed=seed + 1) for i in rows]).astype(np.float32)
-                 if with_noise else None)
+    partials2 = (
+        np.stack([resample_set(obs.raw(i), n_in, seed=seed + 1) for i in rows]).astype(np.float32)
+        if with_noise
+        else None
+    )
     eq = int(equal_points) if equal_points else 0
     models = []
     for k, completer in enumerate(completers):
         run = dict(batch_size=batch_size, progress=progress, clip=clip, box_sizes=sizes)
         comps = complete_all(completer, partials, desc=f"complete {names[k]}", **run)
         comps2 = complete_all(completer, partials2, desc=f"noise floor {names[k]}", **run) if with_noise else None
-        tracks, agg, div = _score(comps, partials, sub_keys, sub_ts, sub_cls, radii, r_track, classes_present, ref_trees, comps2)
+        tracks, agg, div = _score(
+            comps, partials, sub_keys, sub_ts, sub_cls, radii, r_track, classes_present, ref_trees, comps2
+        )
         cons_all = agg["all_objects"]["cd"]
         entry = dict(
             name=names[k],
@@ -279,16 +326,26 @@ def evaluate_consistency(
             n_params=getattr(completer, "n_params", None),
             mean_points_per_completion=float(np.mean([len(c) for c in comps])),
             diversity=div,
-            consistency_over_diversity=(cons_all / div if cons_all is not None and np.isfinite(div) and div > 0 else None),
+            consistency_over_diversity=(
+                cons_all / div if cons_all is not None and np.isfinite(div) and div > 0 else None
+            ),
             **agg,
         )
         if eq:
             ce = [equal_count(c, eq) for c in comps]
             ce2 = [equal_count(c, eq) for c in comps2] if with_noise else None
-            _, agg_e, div_e = _score(ce, partials, sub_keys, sub_ts, sub_cls, radii, r_track, classes_present, None, ce2)
+            _, agg_e, div_e = _score(
+                ce, partials, sub_keys, sub_ts, sub_cls, radii, r_track, classes_present, None, ce2
+            )
             cons_e = agg_e["all_objects"]["cd"]
-            entry["equal_points"] = dict(n_points=eq, diversity=div_e, **agg_e,
-                                         consistency_over_diversity=(cons_e / div_e if cons_e is not None and np.isfinite(div_e) and div_e > 0 else None))
+            entry["equal_points"] = dict(
+                n_points=eq,
+                diversity=div_e,
+                **agg_e,
+                consistency_over_diversity=(
+                    cons_e / div_e if cons_e is not None and np.isfinite(div_e) and div_e > 0 else None
+                ),
+            )
         if heading_check:
             flipped = complete_all(completer, flip_heading(partials), desc=f"heading check {names[k]}", **run)
             with serial_queries():
@@ -297,10 +354,15 @@ def evaluate_consistency(
             ok = np.isfinite(f0) & np.isfinite(f1)
             flips = ok & heading_turns(f0, f1, HEADING_MARGIN)
             bare = ok & heading_turns(f0, f1, 0.0)
-            entry["heading"] = dict(margin=HEADING_MARGIN, n_observations=int(ok.sum()), n_flipped=int(flips.sum()),
-                                    rate=float(flips.sum() / ok.sum()) if ok.any() else None,
-                                    n_flipped_margin0=int(bare.sum()), rate_margin0=float(bare.sum() / ok.sum()) if ok.any() else None,
-                                    per_class={c: int(sum(1 for i in np.flatnonzero(flips) if sub_cls[i] == c)) for c in classes_present})
+            entry["heading"] = dict(
+                margin=HEADING_MARGIN,
+                n_observations=int(ok.sum()),
+                n_flipped=int(flips.sum()),
+                rate=float(flips.sum() / ok.sum()) if ok.any() else None,
+                n_flipped_margin0=int(bare.sum()),
+                rate_margin0=float(bare.sum() / ok.sum()) if ok.any() else None,
+                per_class={c: int(sum(1 for i in np.flatnonzero(flips) if sub_cls[i] == c)) for c in classes_present},
+            )
         domain = getattr(completer, "domain", None)
         if domain is not None:
             reasons: dict = {}
@@ -313,8 +375,15 @@ def evaluate_consistency(
                     reasons[key] = reasons.get(key, 0) + 1
             entry["out_of_domain"] = dict(n_observations=n_out, reasons=reasons)
         entry["objects"] = [
-            dict(sequence=t.key[0], track_id=t.key[1], cls=t.cls, n_observations=t.n_observations,
-                 n_pairs=t.n_pairs, n_pairs_empty=t.n_pairs_empty, **t.values)
+            dict(
+                sequence=t.key[0],
+                track_id=t.key[1],
+                cls=t.cls,
+                n_observations=t.n_observations,
+                n_pairs=t.n_pairs,
+                n_pairs_empty=t.n_pairs_empty,
+                **t.values,
+            )
             for t in tracks
         ]
         models.append(entry)
@@ -338,17 +407,30 @@ def evaluate_consistency(
             clip=clip,
             skipped=obs.meta.get("skipped"),
             mmd_reference=reference_info if references is not None else None,
-            noise_floor=(f"kept points resampled with seed {seed + 1} (the file's partials: seed {seed})" if with_noise else
-                         ("not computed: the file holds no raw points (format version 1); extract it again" if noise_floor else None)),
+            noise_floor=(
+                f"kept points resampled with seed {seed + 1} (the file's partials: seed {seed})"
+                if with_noise
+                else (
+                    "not computed: the file holds no raw points (format version 1); extract it again"
+                    if noise_floor
+                    else None
+                )
+            ),
             equal_points=eq or None,
         ),
         metrics=dict(
             headline="cd",
             frame="consistency (cd*, d_*) and noise_floor: object frame divided by the track's mean box radius (half diagonal); "
-                  "fidelity and mmd: each observation's own unit frame (its box's half diagonal); '_m' keys in metres",
+            "fidelity and mmd: each observation's own unit frame (its box's half diagonal); '_m' keys in metres",
             aggregation="pair -> mean per tracked object -> mean per class; average = mean over classes present; all_objects = mean over objects",
-            definitions={**METRIC_DOC, **OBSERVATION_METRIC_DOC, "diversity": DIVERSITY_DOC, "noise_floor": NOISE_DOC,
-                         "equal_points": EQUAL_DOC.format(n=eq or EQUAL_POINTS), "heading": HEADING_DOC},
+            definitions={
+                **METRIC_DOC,
+                **OBSERVATION_METRIC_DOC,
+                "diversity": DIVERSITY_DOC,
+                "noise_floor": NOISE_DOC,
+                "equal_points": EQUAL_DOC.format(n=eq or EQUAL_POINTS),
+                "heading": HEADING_DOC,
+            },
         ),
         models=models,
     )
@@ -382,9 +464,16 @@ def report_markdown(report: dict) -> str:
     lines += [head, "|" + "---|" * (len(classes) + 3)]
     for m in report["models"]:
         cells = [_fmt(m["classes"][c]["cd"]) for c in classes]
-        lines.append(f"| {m['name']} | " + " | ".join(cells) + f" | {_fmt(m['average']['cd'])} | {_fmt(m['all_objects']['cd'])} |")
+        lines.append(
+            f"| {m['name']} | "
+            + " | ".join(cells)
+            + f" | {_fmt(m['average']['cd'])} | {_fmt(m['all_objects']['cd'])} |"
+        )
     lines += ["", "## Other variants (Average over classes; All objects in brackets)", ""]
-    lines += ["| Model | CD (m) | CD/2 | d(A->B) | d(B->A) | CD-L2 (squared) | points per completion |", "|---|---|---|---|---|---|---|"]
+    lines += [
+        "| Model | CD (m) | CD/2 | d(A->B) | d(B->A) | CD-L2 (squared) | points per completion |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for m in report["models"]:
         a, o = m["average"], m["all_objects"]
         lines.append(
@@ -394,35 +483,54 @@ def report_markdown(report: dict) -> str:
         )
     has_mmd = any(m["average"].get("mmd") is not None for m in report["models"])
     lines += ["", "## Consistency beside fidelity" + (" and minimal matching distance" if has_mmd else ""), ""]
-    lines.append("Consistency alone rewards a model that gives every scan the same shape; fidelity (does the completion "
-                 "keep the observed points?)" + (", MMD (is it close to some complete car?)" if has_mmd else "")
-                 + " and diversity tell such a model apart. Average over classes; All objects in brackets; lower is better "
-                 "(but for diversity).")
+    lines.append(
+        "Consistency alone rewards a model that gives every scan the same shape; fidelity (does the completion "
+        "keep the observed points?)"
+        + (", MMD (is it close to some complete car?)" if has_mmd else "")
+        + " and diversity tell such a model apart. Average over classes; All objects in brackets; lower is better "
+        "(but for diversity)."
+    )
     lines.append("")
-    head = "| Model | CD (consistency) | Fidelity | Fidelity (m) |" + (" MMD |" if has_mmd else "") + " Diversity | CD / Diversity |"
+    head = (
+        "| Model | CD (consistency) | Fidelity | Fidelity (m) |"
+        + (" MMD |" if has_mmd else "")
+        + " Diversity | CD / Diversity |"
+    )
     lines += [head, "|---|---|---|---|" + ("---|" if has_mmd else "") + "---|---|"]
     for m in report["models"]:
         a, o = m["average"], m["all_objects"]
-        row = (f"| {m['name']} | {_fmt(a['cd'])} ({_fmt(o['cd'])}) | {_fmt(a.get('fidelity'))} ({_fmt(o.get('fidelity'))}) | "
-               f"{_fmt(a.get('fidelity_m'))} ({_fmt(o.get('fidelity_m'))}) |")
+        row = (
+            f"| {m['name']} | {_fmt(a['cd'])} ({_fmt(o['cd'])}) | {_fmt(a.get('fidelity'))} ({_fmt(o.get('fidelity'))}) | "
+            f"{_fmt(a.get('fidelity_m'))} ({_fmt(o.get('fidelity_m'))}) |"
+        )
         if has_mmd:
             row += f" {_fmt(a.get('mmd'))} ({_fmt(o.get('mmd'))}) |"
         row += f" {_fmt(m.get('diversity'))} | {_fmt(m.get('consistency_over_diversity'), 3)} |"
         lines.append(row)
-    lines += ["", "Diversity: how much completions of *different* objects differ (mean CD over pairs of tracked objects); "
-                  "a model that ignores its input has diversity ~0 and a perfect consistency. CD / Diversity = All objects "
-                  "CD over diversity (ours, not the paper's)."]
+    lines += [
+        "",
+        "Diversity: how much completions of *different* objects differ (mean CD over pairs of tracked objects); "
+        "a model that ignores its input has diversity ~0 and a perfect consistency. CD / Diversity = All objects "
+        "CD over diversity (ours, not the paper's).",
+    ]
     extra = any(k in m for m in report["models"] for k in ("equal_points", "heading")) or any(
-        m["average"].get("noise_floor") is not None for m in report["models"])
+        m["average"].get("noise_floor") is not None for m in report["models"]
+    )
     if extra:
         eq = d.get("equal_points")
         lines += ["", "## Noise floor, equal point counts, heading check", ""]
-        lines.append("Noise floor: consistency's CD between two completions of the *same* observation, its points "
-                     "resampled to the network's input with two seeds - the part of CD that resampling alone explains. "
-                     + (f"At {eq} points: every completion brought to {eq} points by farthest-point sampling first, "
-                        "so that models with different output sizes compare at one density. " if eq else "")
-                     + "Heading flips: observations whose completion with the box turned around is closer to the observed "
-                       "points (on annotated boxes, false alarms of `--heading-check`). Average over classes; All objects in brackets.")
+        lines.append(
+            "Noise floor: consistency's CD between two completions of the *same* observation, its points "
+            "resampled to the network's input with two seeds - the part of CD that resampling alone explains. "
+            + (
+                f"At {eq} points: every completion brought to {eq} points by farthest-point sampling first, "
+                "so that models with different output sizes compare at one density. "
+                if eq
+                else ""
+            )
+            + "Heading flips: observations whose completion with the box turned around is closer to the observed "
+            "points (on annotated boxes, false alarms of `--heading-check`). Average over classes; All objects in brackets."
+        )
         lines.append("")
         head = "| Model | CD | Noise floor |"
         if eq:
@@ -435,26 +543,37 @@ def report_markdown(report: dict) -> str:
             if eq:
                 e = m.get("equal_points") or {}
                 ea, eo = e.get("average", {}), e.get("all_objects", {})
-                row += (f" {_fmt(ea.get('cd'))} ({_fmt(eo.get('cd'))}) | {_fmt(ea.get('noise_floor'))} ({_fmt(eo.get('noise_floor'))}) |"
-                        f" {_fmt(e.get('diversity'))} | {_fmt(e.get('consistency_over_diversity'), 3)} |")
+                row += (
+                    f" {_fmt(ea.get('cd'))} ({_fmt(eo.get('cd'))}) | {_fmt(ea.get('noise_floor'))} ({_fmt(eo.get('noise_floor'))}) |"
+                    f" {_fmt(e.get('diversity'))} | {_fmt(e.get('consistency_over_diversity'), 3)} |"
+                )
             h = m.get("heading")
-            row += (f" {h['n_flipped']} / {h['n_observations']} ({100 * h['rate']:.1f}%; {100 * h['rate_margin0']:.1f}% at margin 0) |"
-                    if h and h.get("rate") is not None else " - |")
+            row += (
+                f" {h['n_flipped']} / {h['n_observations']} ({100 * h['rate']:.1f}%; {100 * h['rate_margin0']:.1f}% at margin 0) |"
+                if h and h.get("rate") is not None
+                else " - |"
+            )
             od = m.get("out_of_domain")
             row += f" {od['n_observations']} / {d['n_observations_tracked']} |" if od else " - |"
             lines.append(row)
         for m in report["models"]:
             od = m.get("out_of_domain")
             if od and od["n_observations"]:
-                lines.append(f"\nWarning - {m['name']}: {od['n_observations']} of {d['n_observations_tracked']} observations are "
-                             "outside what the model learned (" + "; ".join(f"{k}: {v}" for k, v in od["reasons"].items())
-                             + "): their completions extrapolate.")
+                lines.append(
+                    f"\nWarning - {m['name']}: {od['n_observations']} of {d['n_observations_tracked']} observations are "
+                    "outside what the model learned ("
+                    + "; ".join(f"{k}: {v}" for k, v in od["reasons"].items())
+                    + "): their completions extrapolate."
+                )
         if d.get("noise_floor") and not str(d["noise_floor"]).startswith("kept"):
             lines.append(f"\nNoise floor {d['noise_floor']}.")
     ref = d.get("mmd_reference")
     if ref:
-        lines += ["", f"MMD reference: {ref['n_shapes']} complete shapes ({ref['points_per_shape']} points each) of "
-                      f"`{ref['file']}` (split {ref['split']}), unit frame."]
+        lines += [
+            "",
+            f"MMD reference: {ref['n_shapes']} complete shapes ({ref['points_per_shape']} points each) of "
+            f"`{ref['file']}` (split {ref['split']}), unit frame.",
+        ]
     lines += ["", "Definitions (A = earlier frame's completion, B = later frame's):", ""]
     for k, v in report["metrics"]["definitions"].items():
         lines.append(f"- `{k}`: {v}")

@@ -30,9 +30,9 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -42,6 +42,7 @@ from ..data.real.extract import crop_box
 from ..data.real.scans import MIN_SCAN_POINTS
 from ..errors import InputFileError, ParameterError
 from ..geometry.boxes import FLIP_Z, Box
+from ..geometry.neighbors import serial_queries
 from ..geometry.rotations import rigid_transform
 
 SOURCE_RAW, SOURCE_PARTIAL, SOURCE_COMPLETION = 0, 1, 2
@@ -52,8 +53,10 @@ docs/real-data.md): on 280 synthetic test scans every margin up to 0.1 is right 
 annotated boxes a bare comparison (margin 0) turns 15% (AV2), 37% (nuScenes) and 54% (KITTI) of *correct*
 boxes around; at 0.3 none of the 244 real cars is turned (trucks and trailers: 1-3%), and 11-22% of real
 backward cars (45% of synthetic ones) are turned back. A backward box triples the completion's error."""
-HEADING_DOC = ("complete each box also turned by 180 degrees and keep the heading whose completion is clearly closer "
-               "to the observed points (fidelity lower by more than the margin)")
+HEADING_DOC = (
+    "complete each box also turned by 180 degrees and keep the heading whose completion is clearly closer "
+    "to the observed points (fidelity lower by more than the margin)"
+)
 
 
 def heading_turns(f_given, f_turned, margin: float = HEADING_MARGIN):
@@ -99,7 +102,9 @@ class SceneConfig:
         if self.classes is not None:
             bad = [c for c in self.classes if c not in CLASSES]
             if bad or not self.classes:
-                raise ParameterError(f"unknown class(es) {', '.join(bad) or '(none given)'}; choose among {', '.join(CLASSES)}")
+                raise ParameterError(
+                    f"unknown class(es) {', '.join(bad) or '(none given)'}; choose among {', '.join(CLASSES)}"
+                )
 
 
 @dataclass
@@ -130,10 +135,19 @@ class ObjectResult:
     def summary(self) -> dict:
         """JSON-ready description (no point arrays)."""
         return dict(
-            index=self.index, object=self.object_id, status=self.status, label=self.box.label, cls=self.box.cls,
-            track_id=self.box.track_id, n_points=int(len(self.input_indices)), n_completion=int(len(self.completion)),
-            flipped=self.flipped, fidelity=self.fidelity, fidelity_flipped=self.fidelity_flipped,
-            warnings=list(self.warnings), box=(self.used_box or self.box).to_dict(),
+            index=self.index,
+            object=self.object_id,
+            status=self.status,
+            label=self.box.label,
+            cls=self.box.cls,
+            track_id=self.box.track_id,
+            n_points=int(len(self.input_indices)),
+            n_completion=int(len(self.completion)),
+            flipped=self.flipped,
+            fidelity=self.fidelity,
+            fidelity_flipped=self.fidelity_flipped,
+            warnings=list(self.warnings),
+            box=(self.used_box or self.box).to_dict(),
         )
 
 
@@ -163,8 +177,11 @@ class SceneResult:
 
     def warnings(self) -> list[str]:
         """One line per warned box: ``object ID (label): reason; reason``."""
-        return [f"object {o.object_id} ({o.box.label or o.box.cls or 'box'}): " + "; ".join(o.warnings)
-                for o in self.objects if o.warnings]
+        return [
+            f"object {o.object_id} ({o.box.label or o.box.cls or 'box'}): " + "; ".join(o.warnings)
+            for o in self.objects
+            if o.warnings
+        ]
 
     def fields(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The scene as arrays: xyz (M, 3) float64 scan frame, ``source`` (M,) uint8, ``object`` (M,) int32.
@@ -191,7 +208,9 @@ class SceneResult:
         from dataclasses import asdict
 
         cfg = asdict(self.config)
-        cfg["clip"] = str(cfg["clip"]) if cfg["clip"] is not None and not isinstance(cfg["clip"], float) else cfg["clip"]
+        cfg["clip"] = (
+            str(cfg["clip"]) if cfg["clip"] is not None and not isinstance(cfg["clip"], float) else cfg["clip"]
+        )
         return dict(
             n_points=int(len(self.points)),
             n_boxes=len(self.objects),
@@ -232,8 +251,14 @@ def _selected(box: Box, config: SceneConfig) -> bool:
     return config.classes is None or box.cls in config.classes
 
 
-def complete_scene(points: np.ndarray, boxes: Sequence[Box], completer, config: SceneConfig | None = None,
-                   axes: np.ndarray | None = None, checkpoint: str | None = None) -> SceneResult:
+def complete_scene(
+    points: np.ndarray,
+    boxes: Sequence[Box],
+    completer,
+    config: SceneConfig | None = None,
+    axes: np.ndarray | None = None,
+    checkpoint: str | None = None,
+) -> SceneResult:
     """Complete every selected box of one scan (see the module docstring).
 
     Parameters
@@ -253,8 +278,10 @@ def complete_scene(points: np.ndarray, boxes: Sequence[Box], completer, config: 
     t0 = time.perf_counter()
     scan = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if len(scan) < config.min_points:
-        raise ParameterError(f"the scan holds {len(scan)} point{'s' if len(scan) != 1 else ''}; at least "
-                             f"{config.min_points} are needed to complete anything")
+        raise ParameterError(
+            f"the scan holds {len(scan)} point{'s' if len(scan) != 1 else ''}; at least "
+            f"{config.min_points} are needed to complete anything"
+        )
     a = None if axes is None or np.allclose(axes, np.eye(3)) else np.asarray(axes, dtype=np.float64)
     work = scan if a is None else scan @ a.T
     to_work = None if a is None else rigid_transform(a, np.zeros(3))
@@ -296,25 +323,8 @@ def complete_scene(points: np.ndarray, boxes: Sequence[Box], completer, config: 
             kw["extents"] = sizes / np.linalg.norm(sizes, axis=1, keepdims=True)
         outs = completer.complete(partials, **kw)
         t2 = time.perf_counter()
-        n = len(todo)
-        for k, o in enumerate(todo):
-            comp = np.asarray(outs[k], dtype=np.float32).reshape(-1, 3)
-            o.fidelity = fidelity(o.partial_unit, comp) if len(comp) else None
-            if config.heading_check:
-                comp_f = np.asarray(outs[n + k], dtype=np.float32).reshape(-1, 3)
-                flipped_partial = o.partial_unit @ FLIP_Z
-                o.fidelity_flipped = fidelity(flipped_partial, comp_f) if len(comp_f) else None
-                if o.fidelity_flipped is not None and bool(heading_turns(np.nan if o.fidelity is None else o.fidelity,
-                                                                         o.fidelity_flipped, config.heading_margin)):
-                    o.flipped, comp = True, comp_f
-                    o.used_box = o.used_box.flipped()
-                    o.partial_unit = flipped_partial.astype(np.float32)
-            o.completion_unit = comp
-            if len(comp) == 0:
-                o.status = "empty_completion"
-                continue
-            done = o.used_box.normalization().from_unit(comp.astype(np.float64))
-            o.completion = done if a is None else done @ a
+        with serial_queries():  # a few small KD-tree queries: OpenMP threads cost more than they save
+            _assemble(todo, outs, config, a)
         if a is not None:
             back = rigid_transform(a.T, np.zeros(3))
             for o in todo:
@@ -322,9 +332,39 @@ def complete_scene(points: np.ndarray, boxes: Sequence[Box], completer, config: 
     else:
         t2 = time.perf_counter()
     t3 = time.perf_counter()
-    return SceneResult(scan, objects, str(getattr(completer, "model_name", "model")), checkpoint, config,
-                       timings={"crop_s": t1 - t0, "model_s": t2 - t1, "assemble_s": t3 - t2, "total_s": t3 - t0},
-                       member=member)
+    return SceneResult(
+        scan,
+        objects,
+        str(getattr(completer, "model_name", "model")),
+        checkpoint,
+        config,
+        timings={"crop_s": t1 - t0, "model_s": t2 - t1, "assemble_s": t3 - t2, "total_s": t3 - t0},
+        member=member,
+    )
+
+
+def _assemble(todo: list, outs: list, config: SceneConfig, a) -> None:
+    """Fidelity, heading choice and the scan-frame completion of every completed object (in place)."""
+    n = len(todo)
+    for k, o in enumerate(todo):
+        comp = np.asarray(outs[k], dtype=np.float32).reshape(-1, 3)
+        o.fidelity = fidelity(o.partial_unit, comp) if len(comp) else None
+        if config.heading_check:
+            comp_f = np.asarray(outs[n + k], dtype=np.float32).reshape(-1, 3)
+            flipped_partial = o.partial_unit @ FLIP_Z
+            o.fidelity_flipped = fidelity(flipped_partial, comp_f) if len(comp_f) else None
+            if o.fidelity_flipped is not None and bool(
+                heading_turns(np.nan if o.fidelity is None else o.fidelity, o.fidelity_flipped, config.heading_margin)
+            ):
+                o.flipped, comp = True, comp_f
+                o.used_box = o.used_box.flipped()
+                o.partial_unit = flipped_partial.astype(np.float32)
+        o.completion_unit = comp
+        if len(comp) == 0:
+            o.status = "empty_completion"
+            continue
+        done = o.used_box.normalization().from_unit(comp.astype(np.float64))
+        o.completion = done if a is None else done @ a
 
 
 def check_completed(result: SceneResult, source) -> None:
@@ -337,25 +377,34 @@ def check_completed(result: SceneResult, source) -> None:
     what = ", ".join(f"{k} {v}" for k, v in sorted(sk.items()))
     labels = sorted({o.box.label for o in result.objects if o.status == "class_excluded" and o.box.label})
     hint = f" (labels: {', '.join(labels[:6])})" if labels else ""
-    raise InputFileError(source, f"no vehicle box to complete: {len(result.objects)} box(es), {what}{hint}; "
-                                 f"classes completed: {', '.join(result.config.classes or CLASSES)}")
+    raise InputFileError(
+        source,
+        f"no vehicle box to complete: {len(result.objects)} box(es), {what}{hint}; "
+        f"classes completed: {', '.join(result.config.classes or CLASSES)}",
+    )
 
 
 def scene_comments(result: SceneResult, scan_name: str = "") -> list[str]:
     """PLY header comments describing a scene: fields, model, every object, warnings."""
-    lines = [f"spotlights scene{(' of ' + scan_name) if scan_name else ''}: scan frame, metres",
-             "source: 0 raw point, 1 partial input of an object, 2 completion; object: box index or track id, -1 none",
-             f"model {result.model}" + (f" ({result.checkpoint})" if result.checkpoint else "")]
+    lines = [
+        f"spotlights scene{(' of ' + scan_name) if scan_name else ''}: scan frame, metres",
+        "source: 0 raw point, 1 partial input of an object, 2 completion; object: box index or track id, -1 none",
+        f"model {result.model}" + (f" ({result.checkpoint})" if result.checkpoint else ""),
+    ]
     for o in result.objects:
         tid = f" track {o.box.track_id}" if o.box.track_id and str(o.object_id) != o.box.track_id else ""
-        lines.append(f"object {o.object_id}: box {o.index}{tid} {o.box.label or '-'} ({o.box.cls or '-'}) {o.status}, "
-                     f"{len(o.input_indices)} points in box, {len(o.completion)} completed"
-                     + (", heading flipped" if o.flipped else ""))
+        lines.append(
+            f"object {o.object_id}: box {o.index}{tid} {o.box.label or '-'} ({o.box.cls or '-'}) {o.status}, "
+            f"{len(o.input_indices)} points in box, {len(o.completion)} completed"
+            + (", heading flipped" if o.flipped else "")
+        )
     lines += [f"warning: {w}" for w in result.warnings()]
     return lines
 
 
-def write_scene(result: SceneResult, out: str | Path, per_object: str | Path | None = None, scan_name: str = "") -> list[Path]:
+def write_scene(
+    result: SceneResult, out: str | Path, per_object: str | Path | None = None, scan_name: str = ""
+) -> list[Path]:
     """Write the scene: ``out`` ``.ply`` with x y z, ``source``, ``object`` (any other suffix: the completion
     points only, as ``save_points`` writes them); ``per_object`` folder: ``object_<id>.ply`` per completed
     object (its input and completion, with ``source``). Atomic writes; returns the paths written."""
@@ -373,8 +422,13 @@ def write_scene(result: SceneResult, out: str | Path, per_object: str | Path | N
         folder = Path(per_object)
         for o in result.completed:
             xyz = np.concatenate([result.points[o.input_indices], o.completion])
-            src = np.r_[np.full(len(o.input_indices), SOURCE_PARTIAL, np.uint8), np.full(len(o.completion), SOURCE_COMPLETION, np.uint8)]
-            com = [f"object {o.object_id}: box {o.index} {o.box.label or '-'} ({o.box.cls or '-'}), model {result.model}"]
+            src = np.r_[
+                np.full(len(o.input_indices), SOURCE_PARTIAL, np.uint8),
+                np.full(len(o.completion), SOURCE_COMPLETION, np.uint8),
+            ]
+            com = [
+                f"object {o.object_id}: box {o.index} {o.box.label or '-'} ({o.box.cls or '-'}), model {result.model}"
+            ]
             com += [f"warning: {w}" for w in o.warnings]
             written.append(save_ply(folder / f"object_{o.object_id}.ply", xyz, {"source": src}, comments=com))
     return written
@@ -384,11 +438,13 @@ def describe(result: SceneResult) -> str:
     """One line: boxes, completed objects, skips, points, time."""
     sk = result.skipped()
     flips = sum(o.flipped for o in result.completed)
-    return (f"{len(result.objects)} box(es): {len(result.completed)} completed"
-            + (f" ({flips} heading flip{'s' if flips != 1 else ''})" if result.config.heading_check else "")
-            + (", skipped " + ", ".join(f"{k} {v}" for k, v in sorted(sk.items())) if sk else "")
-            + f"; {sum(len(o.completion) for o in result.completed)} completion points; "
-            f"{1000 * result.timings.get('total_s', 0):.0f} ms")
+    return (
+        f"{len(result.objects)} box(es): {len(result.completed)} completed"
+        + (f" ({flips} heading flip{'s' if flips != 1 else ''})" if result.config.heading_check else "")
+        + (", skipped " + ", ".join(f"{k} {v}" for k, v in sorted(sk.items())) if sk else "")
+        + f"; {sum(len(o.completion) for o in result.completed)} completion points; "
+        f"{1000 * result.timings.get('total_s', 0):.0f} ms"
+    )
 
 
 def scene_objects(result: SceneResult) -> list:
@@ -399,8 +455,17 @@ def scene_objects(result: SceneResult) -> list:
     objs = []
     for o in result.completed:
         b = o.used_box
-        objs.append(SceneObject(label=str(o.object_id), center=b.center, size=b.size, rotation=b.rotation,
-                                partial=result.points[o.input_indices], completion=o.completion, caption=_caption(o)))
+        objs.append(
+            SceneObject(
+                label=str(o.object_id),
+                center=b.center,
+                size=b.size,
+                rotation=b.rotation,
+                partial=result.points[o.input_indices],
+                completion=o.completion,
+                caption=_caption(o),
+            )
+        )
     return objs
 
 
@@ -410,7 +475,9 @@ def render_result(result: SceneResult, path: str | Path, title: str | None = Non
     completed object seen from the sensor (box wireframe, 1 m ruler). Uses :func:`spotlights.viz.render_scene`."""
     from ..viz import render_scene
 
-    return render_scene(path, result.points, scene_objects(result), title=title, id_note="boxes: object id, as in the PLY")
+    return render_scene(
+        path, result.points, scene_objects(result), title=title, id_note="boxes: object id, as in the PLY"
+    )
 
 
 def render_result_html(result: SceneResult, path: str | Path, title: str | None = None, plotlyjs: str | None = None) -> Path:
@@ -423,16 +490,34 @@ def render_result_html(result: SceneResult, path: str | Path, title: str | None 
 
 
 def _caption(o: ObjectResult) -> str:
-    return (f"{o.box.cls or o.box.label or 'box'}: {len(o.input_indices)} pts in box, {len(o.completion)} completed"
-            + (", heading flipped" if o.flipped else "") + (" [outside learned domain]" if o.warnings else ""))
+    return (
+        f"{o.box.cls or o.box.label or 'box'}: {len(o.input_indices)} pts in box, {len(o.completion)} completed"
+        + (", heading flipped" if o.flipped else "")
+        + (" [outside learned domain]" if o.warnings else "")
+    )
 
 
 def require_points(points: np.ndarray, min_points: int, source) -> None:
     """A one-line error naming ``source`` when a scan holds fewer than ``min_points`` points."""
     if len(points) < min_points:
-        raise InputFileError(source, f"holds {len(points)} point{'s' if len(points) != 1 else ''}; at least {min_points} "
-                                     "are needed to complete anything")
+        raise InputFileError(
+            source,
+            f"holds {len(points)} point{'s' if len(points) != 1 else ''}; at least {min_points} "
+            "are needed to complete anything",
+        )
 
 
-__all__ = ["SceneConfig", "SceneResult", "ObjectResult", "complete_scene", "write_scene", "check_completed",
-           "object_ids", "describe", "render_result", "render_result_html", "scene_objects", "HEADING_DOC"]
+__all__ = [
+    "SceneConfig",
+    "SceneResult",
+    "ObjectResult",
+    "complete_scene",
+    "write_scene",
+    "check_completed",
+    "object_ids",
+    "describe",
+    "render_result",
+    "render_result_html",
+    "scene_objects",
+    "HEADING_DOC",
+]

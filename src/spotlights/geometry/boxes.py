@@ -47,8 +47,17 @@ class Box:
 
     __slots__ = ("center", "size", "rotation", "label", "cls", "track_id")
 
-    def __init__(self, center, size, rotation=None, label: str = "", cls: str | None = None, track_id: str = "",
-                 *, yaw: float | None = None):
+    def __init__(
+        self,
+        center,
+        size,
+        rotation=None,
+        label: str = "",
+        cls: str | None = None,
+        track_id: str = "",
+        *,
+        yaw: float | None = None,
+    ):
         c = np.array(center, dtype=np.float64).reshape(-1)
         s = np.array(size, dtype=np.float64).reshape(-1)
         if c.shape != (3,) or s.shape != (3,):
@@ -77,8 +86,10 @@ class Box:
 
     def __repr__(self) -> str:
         extra = "".join(f", {k}={getattr(self, k)!r}" for k in ("label", "cls", "track_id") if getattr(self, k))
-        return (f"Box(center={np.round(self.center, 3).tolist()}, size={np.round(self.size, 3).tolist()}, "
-                f"yaw={self.yaw:.4f}{extra})")
+        return (
+            f"Box(center={np.round(self.center, 3).tolist()}, size={np.round(self.size, 3).tolist()}, "
+            f"yaw={self.yaw:.4f}{extra})"
+        )
 
     def __reduce__(self):  # picklable (process pools, Ray)
         return (Box, (self.center, self.size, self.rotation, self.label, self.cls, self.track_id))
@@ -86,11 +97,11 @@ class Box:
     # --- construction -----------------------------------------------------------------
 
     @classmethod
-    def from_yaw(cls_, center, size, yaw: float, label: str = "", cls: str | None = None, track_id: str = "") -> "Box":
+    def from_yaw(cls_, center, size, yaw: float, label: str = "", cls: str | None = None, track_id: str = "") -> Box:
         """A box turned by ``yaw`` radians about the scan's +z axis."""
         return cls_(center, size, rotation_z(float(yaw)), label, cls, track_id)
 
-    def replace(self, **changes) -> "Box":
+    def replace(self, **changes) -> Box:
         """A copy with some of ``center``, ``size``, ``rotation``, ``label``, ``cls``, ``track_id`` changed."""
         d = {k: getattr(self, k) for k in self.__slots__}
         unknown = set(changes) - set(d)
@@ -148,7 +159,11 @@ class Box:
         """
         p = self.to_object(points)
         half = 0.5 * self.size
-        inside = (np.abs(p[:, 0]) <= half[0] + margin) & (np.abs(p[:, 1]) <= half[1] + margin) & (p[:, 2] <= half[2] + margin)
+        inside = (
+            (np.abs(p[:, 0]) <= half[0] + margin)
+            & (np.abs(p[:, 1]) <= half[1] + margin)
+            & (p[:, 2] <= half[2] + margin)
+        )
         bottom = -half[2] - margin if ground_clearance is None else -half[2] + ground_clearance
         return inside & (p[:, 2] >= bottom)
 
@@ -158,11 +173,11 @@ class Box:
 
         return normalization_from_box(self.center, self.size, rotation=self.rotation)
 
-    def flipped(self) -> "Box":
+    def flipped(self) -> Box:
         """The same box with its heading turned by 180 degrees (forward and left axes negated)."""
         return self.replace(rotation=self.rotation @ FLIP_Z)
 
-    def transformed(self, t: np.ndarray) -> "Box":
+    def transformed(self, t: np.ndarray) -> Box:
         """This box moved by the rigid (4, 4) transform ``t`` (new frame <- this box's frame)."""
         t = np.asarray(t, dtype=np.float64)
         rot = orthonormalize(t[:3, :3] @ self.rotation)

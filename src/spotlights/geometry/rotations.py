@@ -46,9 +46,15 @@ def quaternion_to_matrix(qw, qx, qy, qz) -> np.ndarray:
     w, x, y, z = np.moveaxis(q, -1, 0)
     m = np.stack(
         [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+            1 - 2 * (y * y + z * z),
+            2 * (x * y - w * z),
+            2 * (x * z + w * y),
+            2 * (x * y + w * z),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z - w * x),
+            2 * (x * z - w * y),
+            2 * (y * z + w * x),
+            1 - 2 * (x * x + y * y),
         ],
         axis=-1,
     )
@@ -66,5 +72,9 @@ def rigid_transform(rotation, translation) -> np.ndarray:
 def is_rotation(m, atol: float = 1e-3) -> bool:
     """True when ``m`` (3, 3) is finite, orthonormal within ``atol`` and proper (det > 0)."""
     m = np.asarray(m, dtype=np.float64)
-    return bool(m.shape == (3, 3) and np.all(np.isfinite(m)) and np.allclose(m.T @ m, np.eye(3), atol=atol)
-                and np.linalg.det(m) > 0)
+    return bool(
+        m.shape == (3, 3)
+        and np.all(np.isfinite(m))
+        and np.allclose(m.T @ m, np.eye(3), atol=atol)
+        and np.linalg.det(m) > 0
+    )

@@ -66,7 +66,7 @@ class LearnedDomain:
     source: str = "the 79 ApolloScape cars (length, width, height ranges)"
 
     @classmethod
-    def from_checkpoint(cls, ckpt: dict) -> "LearnedDomain":
+    def from_checkpoint(cls, ckpt: dict) -> LearnedDomain:
         d = ckpt.get("domain") if isinstance(ckpt, dict) else None
         if not isinstance(d, dict):
             return cls()

@@ -15,7 +15,7 @@ The file formats, frames and choices are documented in ``docs/real-data.md``.
 from __future__ import annotations
 
 import os
-from typing import Sequence
+from collections.abc import Sequence
 
 from ...geometry.boxes import Box
 from .base import CLASSES, PAPER_CLASSES, Frame, SceneReader

@@ -80,7 +80,10 @@ def parse_boxes(items, path, require_label: bool = True, axes=None, what: str = 
     """A JSON list of boxes -> :class:`Box` list with classes (see :func:`box_from_dict`)."""
     if not isinstance(items, list):
         raise InputFileError(path, "expected a JSON list of boxes")
-    return [with_class(box_from_dict(d, path, f"{what} {j}", require_label=require_label, axes=axes)) for j, d in enumerate(items)]
+    return [
+        with_class(box_from_dict(d, path, f"{what} {j}", require_label=require_label, axes=axes))
+        for j, d in enumerate(items)
+    ]
 
 
 def _number(v, path, what, cast=float):
@@ -100,7 +103,9 @@ def parse_frame_keys(d: dict, path, what: str = "frame") -> dict:
     out = {}
     if d.get("timestamp") is not None:  # kept as given: an int stays exact, a float is not cut
         ts = d["timestamp"]
-        out["timestamp"] = ts if isinstance(ts, int) and not isinstance(ts, bool) else _number(ts, path, f"{what} timestamp")
+        out["timestamp"] = (
+            ts if isinstance(ts, int) and not isinstance(ts, bool) else _number(ts, path, f"{what} timestamp")
+        )
     if d.get("frame_index") is not None:
         out["frame_index"] = _number(d["frame_index"], path, f"{what} frame_index", int)
     if d.get("frame_id") is not None:
@@ -135,13 +140,16 @@ def read_kitti_label_file(path: str | os.PathLike, calib: str | os.PathLike | No
     """A KITTI ``label_2`` file in the Velodyne frame of its ``calib`` file (required)."""
     p = Path(path)
     if calib is None:
-        raise InputFileError(p, "a KITTI label file is in the camera frame: give its calibration with --calib calib/FRAME.txt")
+        raise InputFileError(
+            p, "a KITTI label file is in the camera frame: give its calibration with --calib calib/FRAME.txt"
+        )
     t = kitti.velo_from_rect(kitti.read_calib(calib))
     return BoxFile(p, kitti.read_labels(p, t))
 
 
-def read_box_file(path: str | os.PathLike, calib: str | os.PathLike | None = None, require_label: bool = True,
-                  axes=None) -> BoxFile:
+def read_box_file(
+    path: str | os.PathLike, calib: str | os.PathLike | None = None, require_label: bool = True, axes=None
+) -> BoxFile:
     """Any box file of the module docstring, by suffix: ``.json`` generic, ``.txt`` KITTI ``label_2``.
 
     ``calib`` is required for (and only allowed with) a KITTI label file. ``axes``: see

@@ -73,7 +73,15 @@ LIDAR_CHANNEL = "LIDAR_TOP"
 TABLE_KEYS: dict[str, tuple[str, ...]] = {
     "scene": ("token", "name", "first_sample_token"),
     "sample": ("token", "timestamp", "scene_token"),
-    "sample_data": ("token", "sample_token", "ego_pose_token", "calibrated_sensor_token", "timestamp", "is_key_frame", "filename"),
+    "sample_data": (
+        "token",
+        "sample_token",
+        "ego_pose_token",
+        "calibrated_sensor_token",
+        "timestamp",
+        "is_key_frame",
+        "filename",
+    ),
     "sample_annotation": ("token", "sample_token", "instance_token", "translation", "size", "rotation"),
     "instance": ("token", "category_token"),
     "category": ("token", "name"),
@@ -91,8 +99,9 @@ def find_table_folder(root: Path) -> Path:
     if not cands:
         raise InputFileError(root, "not a nuScenes folder: no sample_annotation.json here or in a sub-folder (v1.0-*/)")
     if len(cands) > 1:
-        raise InputFileError(root, f"several nuScenes table folders ({', '.join(p.name for p in cands)}); "
-                                   "give the one to read as SOURCE")
+        raise InputFileError(
+            root, f"several nuScenes table folders ({', '.join(p.name for p in cands)}); give the one to read as SOURCE"
+        )
     return cands[0]
 
 
@@ -125,9 +134,17 @@ def _pose(row: dict, path: Path, what: str) -> np.ndarray:
         q = np.asarray(row["rotation"], dtype=np.float64)
     except (TypeError, ValueError):
         raise InputFileError(path, f"{what} {row.get('token', '?')}: translation/rotation are not numbers") from None
-    if t.shape != (3,) or q.shape != (4,) or not (np.all(np.isfinite(t)) and np.all(np.isfinite(q))) or np.linalg.norm(q) < 1e-9:
-        raise InputFileError(path, f"{what} {row.get('token', '?')}: translation must be 3 numbers and rotation a "
-                                   "non-zero quaternion (w, x, y, z)")
+    if (
+        t.shape != (3,)
+        or q.shape != (4,)
+        or not (np.all(np.isfinite(t)) and np.all(np.isfinite(q)))
+        or np.linalg.norm(q) < 1e-9
+    ):
+        raise InputFileError(
+            path,
+            f"{what} {row.get('token', '?')}: translation must be 3 numbers and rotation a "
+            "non-zero quaternion (w, x, y, z)",
+        )
     return rigid_transform(quaternion_to_matrix(*q), t)
 
 
@@ -143,8 +160,14 @@ def annotation_box(row: dict, category: str, path: Path | str = "sample_annotati
     if wlh.shape != (3,):
         raise InputFileError(path, f"annotation {row.get('token', '?')}: size must be 3 numbers (w, l, h)")
     t = _pose(row, Path(path), "annotation")
-    return Box(t[:3, 3], (wlh[1], wlh[0], wlh[2]), t[:3, :3], category, lookup_class(category, CLASS_MAP),
-               str(row["instance_token"]))
+    return Box(
+        t[:3, 3],
+        (wlh[1], wlh[0], wlh[2]),
+        t[:3, :3],
+        category,
+        lookup_class(category, CLASS_MAP),
+        str(row["instance_token"]),
+    )
 
 
 class NuScenesReader(SceneReader):
@@ -175,7 +198,9 @@ class NuScenesReader(SceneReader):
         self._instance_category = {}
         for r in t["instance"]:
             if r["category_token"] not in category:
-                raise InputFileError(tables / "instance.json", f"instance {r['token']}: unknown category_token {r['category_token']}")
+                raise InputFileError(
+                    tables / "instance.json", f"instance {r['token']}: unknown category_token {r['category_token']}"
+                )
             self._instance_category[r["token"]] = category[r["category_token"]]
         self._annotations: dict[str, list[dict]] = defaultdict(list)
         for r in t["sample_annotation"]:
@@ -186,8 +211,10 @@ class NuScenesReader(SceneReader):
                 continue
             cs = self._calib.get(r["calibrated_sensor_token"])
             if cs is None:
-                raise InputFileError(tables / "sample_data.json",
-                                     f"sample_data {r['token']}: unknown calibrated_sensor_token {r['calibrated_sensor_token']}")
+                raise InputFileError(
+                    tables / "sample_data.json",
+                    f"sample_data {r['token']}: unknown calibrated_sensor_token {r['calibrated_sensor_token']}",
+                )
             if sensor_channel.get(cs["sensor_token"]) == LIDAR_CHANNEL:
                 lidar[r["sample_token"]] = r
         scene_names = {r["token"]: str(r["name"]) for r in t["scene"]}
@@ -195,27 +222,37 @@ class NuScenesReader(SceneReader):
         if wanted is not None:
             unknown = sorted(wanted - set(scene_names.values()))
             if unknown:
-                raise ParameterError(f"unknown nuScenes scene(s) {', '.join(unknown)}; the tables hold "
-                                     f"{', '.join(sorted(scene_names.values())[:10])}")
+                raise ParameterError(
+                    f"unknown nuScenes scene(s) {', '.join(unknown)}; the tables hold "
+                    f"{', '.join(sorted(scene_names.values())[:10])}"
+                )
         frames = []
         for s in t["sample"]:
             name = scene_names.get(s["scene_token"])
             if name is None:
-                raise InputFileError(tables / "sample.json", f"sample {s['token']}: unknown scene_token {s['scene_token']}")
+                raise InputFileError(
+                    tables / "sample.json", f"sample {s['token']}: unknown scene_token {s['scene_token']}"
+                )
             if wanted is not None and name not in wanted:
                 continue
             sd = lidar.get(s["token"])
             if sd is None:
-                raise InputFileError(tables / "sample_data.json", f"sample {s['token']} has no {LIDAR_CHANNEL} keyframe")
+                raise InputFileError(
+                    tables / "sample_data.json", f"sample {s['token']} has no {LIDAR_CHANNEL} keyframe"
+                )
             for key, table in (("ego_pose_token", self._ego),):
                 if sd[key] not in table:
-                    raise InputFileError(tables / "sample_data.json", f"sample_data {sd['token']}: unknown {key} {sd[key]}")
+                    raise InputFileError(
+                        tables / "sample_data.json", f"sample_data {sd['token']}: unknown {key} {sd[key]}"
+                    )
             scan = data_root / str(sd["filename"])
             if not scan.is_file():
                 raise InputFileError(scan, f"{LIDAR_CHANNEL} keyframe scan of sample {s['token']} not found")
             frames.append((name, int(sd["timestamp"]), s["token"], sd, scan))
         if not frames:
-            raise InputFileError(tables, "no LIDAR_TOP keyframe" + (f" in scene(s) {', '.join(sorted(wanted))}" if wanted else ""))
+            raise InputFileError(
+                tables, "no LIDAR_TOP keyframe" + (f" in scene(s) {', '.join(sorted(wanted))}" if wanted else "")
+            )
         frames.sort(key=lambda f: (f[0], f[1]))
         self._frames = {(f[0], f[2]): f for f in frames}
         self._keys = [(f[0], f[2]) for f in frames]
@@ -227,7 +264,9 @@ class NuScenesReader(SceneReader):
         """(4, 4) float64 global <- LIDAR_TOP sensor transform of one frame."""
         sd = self._frames[key][3]
         path = self.tables / "sample_data.json"
-        return _pose(self._ego[sd["ego_pose_token"]], path, "ego_pose") @ _pose(self._calib[sd["calibrated_sensor_token"]], path, "calibrated_sensor")
+        return _pose(self._ego[sd["ego_pose_token"]], path, "ego_pose") @ _pose(
+            self._calib[sd["calibrated_sensor_token"]], path, "calibrated_sensor"
+        )
 
     def annotations(self, key: tuple[str, str]) -> list[dict]:
         """The raw ``sample_annotation`` rows of one frame (global frame), in table order."""

@@ -42,8 +42,11 @@ def scan_kind(path: str | os.PathLike) -> str:
         return "av2"
     if suffix in POINT_SUFFIXES:
         return "points"
-    raise InputFileError(p, f"unknown scan format {suffix or name!r} (KITTI .bin, nuScenes .pcd.bin, AV2 .feather, "
-                            f"or {', '.join(POINT_SUFFIXES)})")
+    raise InputFileError(
+        p,
+        f"unknown scan format {suffix or name!r} (KITTI .bin, nuScenes .pcd.bin, AV2 .feather, "
+        f"or {', '.join(POINT_SUFFIXES)})",
+    )
 
 
 def _looks_like_nuscenes(raw: np.ndarray) -> bool:
@@ -81,8 +84,10 @@ def read_kitti_bin(path: str | os.PathLike) -> np.ndarray:
     """
     data = read_float_bin(path, 4, "KITTI scan")
     if len(data) >= 8 and os.path.getsize(path) % 20 == 0 and _looks_like_nuscenes(data.reshape(-1)):
-        raise InputFileError(path, "holds N x 5 float32 with a ring-index column: a nuScenes sweep, not a KITTI "
-                                   "N x 4 scan; name it *.pcd.bin")
+        raise InputFileError(
+            path,
+            "holds N x 5 float32 with a ring-index column: a nuScenes sweep, not a KITTI N x 4 scan; name it *.pcd.bin",
+        )
     return np.ascontiguousarray(data[:, :3])
 
 
