@@ -13,7 +13,7 @@ Loss = ``hit_weight * BCE + depth_weight * L1_hits`` where BCE is the mean over 
 of the batch and ``L1_hits = sum over hit rays |d - d*| / number of hit rays`` (batch-wide).
 
 At inference a ray is kept where ``sigmoid(logit) >= threshold``; its depth is clamped to
-[0, 1] and decoded with the rig exactly as SA-Net does (:meth:`SANet.decode`). The threshold
+[0, half the ray's chord] and decoded with the rig exactly as SA-Net does (:meth:`SANet.decode`). The threshold
 is chosen during training on the validation split (the value of ``threshold_grid`` that
 minimises validation CD-L1, :func:`spotlights.learning.train.validate`) and stored in the
 checkpoint (``hit_threshold``); ``model_from_checkpoint`` sets it. ``clip`` (a depth clip on
@@ -46,7 +46,7 @@ class HitSANet(SANet):
     clip : optional depth clip applied on top of the hit decision (default None: none).
 
     forward: partial (B, K, 3) -> {"hit_logits": (B, N*M), "depths": (B, N*M)} (raw depths;
-    decoding clamps them to [0, 1]).
+    decoding clamps them to [0, half the ray's chord]).
     """
 
     name = "sanet-hit"
