@@ -65,7 +65,9 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("checkpoint", help="trained checkpoint (RUN/best.pt)")
     ap.add_argument("--name", required=True, choices=sorted(PRETRAINED), help="short name to ship it as")
-    ap.add_argument("--data", default=None, help="dataset whose test scans check the float16 copy (default: random clouds)")
+    ap.add_argument(
+        "--data", default=None, help="dataset whose test scans check the float16 copy (default: random clouds)"
+    )
     ap.add_argument("--scans", type=int, default=64, help="scans for the check (default 64)")
     ap.add_argument("--max-mb", type=float, default=10.0, help="refuse a file larger than this (default 10 MB)")
     ap.add_argument("--tolerance", type=float, default=2e-2, help="largest raw output difference float16 vs float32")
@@ -84,13 +86,18 @@ def main() -> int:
         kw = {"extents": e} if ref.needs_box else {}
         n_ref = [len(c) for c in ref.complete(x, **kw)]
         n_new = [len(c) for c in new.complete(x, **kw)]
-        print(f"{args.checkpoint} -> {args.name}.pt: {size_mb:.2f} MB (float16), {ref.model_name}, "
-              f"{ref.n_params:,} parameters; max |float16 - float32| on {len(x)} scans: "
-              + ", ".join(f"{k} {v:.2e}" for k, v in diffs.items())
-              + f"; points per completion {np.mean(n_ref):.1f} (float32) vs {np.mean(n_new):.1f} (float16)")
+        print(
+            f"{args.checkpoint} -> {args.name}.pt: {size_mb:.2f} MB (float16), {ref.model_name}, "
+            f"{ref.n_params:,} parameters; max |float16 - float32| on {len(x)} scans: "
+            + ", ".join(f"{k} {v:.2e}" for k, v in diffs.items())
+            + f"; points per completion {np.mean(n_ref):.1f} (float32) vs {np.mean(n_new):.1f} (float16)"
+        )
         if size_mb > args.max_mb:
-            print(f"refused: {size_mb:.1f} MB is more than --max-mb {args.max_mb:g} (a smaller decoder, e.g. "
-                  "model.args.hidden [256, 64], shrinks a dense rig's last layer)", file=sys.stderr)
+            print(
+                f"refused: {size_mb:.1f} MB is more than --max-mb {args.max_mb:g} (a smaller decoder, e.g. "
+                "model.args.hidden [256, 64], shrinks a dense rig's last layer)",
+                file=sys.stderr,
+            )
             return 2
         if max(diffs.values()) > args.tolerance:
             print(f"refused: the float16 copy differs by more than --tolerance {args.tolerance:g}", file=sys.stderr)
@@ -102,10 +109,13 @@ def main() -> int:
     thr = (src.get("hit_threshold") or {}).get("value")
     print(f"-> {out} (sha256 {sha[:16]}...)")
     print(f"PRETRAINED[{args.name!r}] = {out.name!r}   # in src/spotlights/learning/checkpoint.py")
-    print(f"README facts: model {src['model_name']}, rig {(src.get('dataset') or {}).get('rig')}, "
-          f"{src.get('param_counts', {}).get('total', 0):,} parameters, {src.get('global_step')} steps, "
-          f"{src.get('epoch')} epochs, best epoch {best.get('epoch')} ({best.get('select_by')} {best.get('value')})"
-          + (f", p(hit) threshold {thr:g}" if thr is not None else "") + f", precision {src.get('precision', 'fp32')}")
+    print(
+        f"README facts: model {src['model_name']}, rig {(src.get('dataset') or {}).get('rig')}, "
+        f"{src.get('param_counts', {}).get('total', 0):,} parameters, {src.get('global_step')} steps, "
+        f"{src.get('epoch')} epochs, best epoch {best.get('epoch')} ({best.get('select_by')} {best.get('value')})"
+        + (f", p(hit) threshold {thr:g}" if thr is not None else "")
+        + f", precision {src.get('precision', 'fp32')}"
+    )
     return 0
 
 

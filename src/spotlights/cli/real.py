@@ -329,7 +329,7 @@ def _complete(args) -> int:
     if not keys:
         raise ParameterError("--frames selects no frame")
     config = scene_config(args, single=False)
-    completer = load_model(args.checkpoint, args.device)
+    completer = load_model(args.checkpoint, args.device, args.runtime)
     out = Path(args.out)
     frames, warnings = [], []
     totals = {"boxes": 0, "completed": 0, "flipped": 0, "completion_points": 0, "skipped": {}}

@@ -34,7 +34,16 @@ from torch.utils.data import DataLoader
 from ..errors import SpotlightsError
 from ..geometry.rig import RigSpec
 from .checkpoint import load_checkpoint, save_checkpoint
-from .config import SELECT_BY, DataConfig, TrainConfig, build_optimizer, build_scheduler, check_keys, data_config, train_config
+from .config import (
+    SELECT_BY,
+    DataConfig,
+    TrainConfig,
+    build_optimizer,
+    build_scheduler,
+    check_keys,
+    data_config,
+    train_config,
+)
 from .data import TorchCompletionDataset
 from .models import build_model, load_config
 from .models.base import CLIP_DEFAULT
