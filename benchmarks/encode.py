@@ -1,62 +1,64 @@
-"""Benchmark of the encode path (issue 2).
+"""Benchmark of the encode path: one thread against two, beside Open3D (issue 18).
 
-Measured side by side in one run (the machine is shared and noisy, so compare
-ratios, not absolute numbers):
+Measured side by side in one run (the machine is shared and noisy: compare the ratios
+of one run, not absolute numbers across runs):
 
-* the whole ``MeshProbe.encode`` path (rig rays, Embree call, chord test,
-  normalisation to depths) on one process, against a bare ``embreex`` scene call
-  on the same rays and the same BVH, for 2,048 / 8,192 / 32,768 rays on a ~5k-face
-  car and a ~190k-face chair (PartNet) -- BVH build excluded, reported apart;
-* the same path on both cores: ``MeshProbe(mesh, workers=2)`` (one forked helper
-  process sharing each query, see ``spotlights.geometry.raycast``);
-* Open3D's ``RaycastingScene.cast_rays`` (Embree on TBB threads) on the same rays
-  and mesh, when Open3D is installed: with its default thread pool (both cores
-  here) and with ``nthreads=2``;
-* the encode path on the optional Open3D engine (``MeshProbe(mesh, engine="open3d",
-  workers=2)``), same rays;
-* encoding all 79 ApolloScape cars at 32 x 64 / 60 degrees (loading included,
-  reported apart), with 1 and 2 worker processes.
+* ``path 1t``: the whole ``MeshProbe(mesh).encode(rig)`` call (cached float32 rig rays,
+  Embree distance query, chord test, depths) on one thread;
+* ``path 2t``: the same with ``MeshProbe(mesh, workers=2)``: queries of at least
+  ``raycast.SPLIT_MIN_RAYS`` rays are cast by two threads over the one committed scene;
+* ``bare 1t`` / ``bare 2t``: the engine call alone on the same rays and scene:
+  ``scene.run(o, d, query="DISTANCE")`` on one thread, and on two threads each casting
+  one half (one persistent helper thread): the yardstick of "the encode path keeps
+  >= 95% of a bare engine call";
+* ``split 2t`` at 2,048 and 4,096 rays: ``path 2t`` with the split forced below
+  ``SPLIT_MIN_RAYS``, to show where splitting stops paying;
+* Open3D's ``RaycastingScene.cast_rays`` on the same rays and mesh when Open3D is
+  installed (``nthreads=0``: its own pool, both cores here; and ``nthreads=2``), and the
+  encode path on the optional Open3D engine;
+* ``encode_mesh_files`` on all 79 ApolloScape cars (load + encode, 32 x 64 rays at 60
+  degrees) with ``workers=1`` and ``workers=2`` (threads over meshes), alternating.
 
-Timing: each repeat runs every engine once, in an order rotated per repeat, as a
-block of ``--block`` back-to-back calls after a 5 ms pause (so helper processes
-and TBB worker threads have gone idle). The first call of a block is *cold* (it
-pays the wake-up of the other core), the third and later ones are *warm* (a loop
-of encodes); medians over all repeats are reported. A load change hits all engines alike.
+Timing: every repeat runs each variant as a block of ``--block`` back-to-back calls, in an
+order rotated per repeat; a variant's time is the median over all repeats of its calls after
+the first of each block (the first pays waking the other core and is reported apart as
+*cold*). Meshes: the ~5k-face ApolloScape sedan and a ~190k-face PartNet chair. BVH builds
+are excluded (reported apart). The load average before and after is recorded.
 
-Usage: ``python benchmarks/encode.py [--repeat 20] [--block 10] [--json docs/results/bench_encode.json]``
+Usage::
+
+    PYTHONPATH=src python benchmarks/encode.py --repeat 30 --json docs/results/bench_encode.json
 """
 
 from __future__ import annotations
 
 import argparse
+import glob
 import json
 import os
 import platform
 import statistics
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
 from spotlights.geometry import MeshProbe, load_mesh, make_rig
+from spotlights.geometry import raycast
 from spotlights.geometry.encode import encode_mesh_files
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("SPOTLIGHTS_SHARED", ROOT.parent / "shared")) / "data" / "meshes"
 CAR = SHARED / "apolloscape-cars" / "sedan" / "037-CAR02.ply"
 BIG = SHARED / "categories" / "chair" / "partnet_chair_40096_7f539a84.ply"
-RIGS = {2048: (32, 64), 8192: (64, 128), 32768: (128, 256)}
+RIGS = {2048: (32, 64), 4096: (64, 64), 8192: (64, 128), 32768: (128, 256)}
+SIZES = (2048, 8192, 32768)
 
 
-def interleaved(fns: dict, repeat: int, block: int = 10, gap: float = 0.005) -> dict:
-    """Median wall time (s) of each callable: ``{name: (warm, cold)}``.
-
-    Each repeat runs every callable as a block of ``block`` timed calls after a ``gap``
-    pause, in an order rotated per repeat; *cold* is the first call of a block, *warm*
-    the third and later ones (the second may still be ramping up). One untimed warm-up
-    call each first.
-    """
+def interleaved(fns: dict, repeat: int, block: int) -> dict:
+    """``{name: (warm median s, cold median s)}``: blocks of ``block`` calls, order rotated per repeat."""
     for fn in fns.values():
         fn()
     names = list(fns)
@@ -64,119 +66,133 @@ def interleaved(fns: dict, repeat: int, block: int = 10, gap: float = 0.005) -> 
     cold = {n: [] for n in names}
     for r in range(repeat):
         for n in names[r % len(names):] + names[: r % len(names)]:
-            time.sleep(gap)
             fn = fns[n]
             for i in range(block):
                 t0 = time.perf_counter()
                 fn()
                 dt = time.perf_counter() - t0
-                if i == 0:
-                    cold[n].append(dt)
-                elif i >= 2:
-                    warm[n].append(dt)
+                (cold if i == 0 else warm)[n].append(dt)
     return {n: (statistics.median(warm[n] or cold[n]), statistics.median(cold[n])) for n in names}
 
 
-def bench_mesh(path: Path, repeat: int, block: int) -> list[dict]:
+def bench_mesh(path: Path, repeat: int, block: int, helper: ThreadPoolExecutor) -> list[dict]:
     mesh = load_mesh(path)
     t0 = time.perf_counter()
-    probe = MeshProbe(mesh)
+    probe1 = MeshProbe(mesh)
     build = time.perf_counter() - t0
-    scene = probe.caster._scene
-    probe2 = MeshProbe(mesh, workers=2)  # each query shared with one forked helper process
+    probe2 = MeshProbe(mesh, workers=2)
+    scene = probe1.caster.engine._scene  # the committed Embree scene of the 1-thread probe
+    o3d_scene = None
     try:
         import open3d as o3d
 
         o3d_scene = o3d.t.geometry.RaycastingScene()
-        o3d_scene.add_triangles(
-            o3d.core.Tensor(probe.normalization.to_unit(mesh.vertices).astype(np.float32)),
-            o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)),
-        )
-        probe_o3d = MeshProbe(mesh, engine="open3d", workers=2)  # the optional engine, both cores
+        o3d_scene.add_triangles(o3d.core.Tensor(probe1.normalization.to_unit(mesh.vertices).astype(np.float32)),
+                                o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)))
+        probe_o3d = MeshProbe(mesh, engine="open3d", workers=2)
     except ImportError:
-        o3d_scene = None
+        pass
     rows = []
-    for n_rays, (n, m) in RIGS.items():
-        rig = make_rig(n, m, 60)
-        o32, d32 = rig.rays32
-        fns = {"path": lambda: probe.encode(rig), "bare": lambda: scene.run(o32, d32, query="DISTANCE"),
-               "path2": lambda: probe2.encode(rig)}
-        if o3d_scene is not None:
-            rays = o3d.core.Tensor(np.concatenate([o32, d32], axis=1))
-            fns["open3d"] = lambda: o3d_scene.cast_rays(rays)["t_hit"].numpy()
-            fns["open3d_nt2"] = lambda: o3d_scene.cast_rays(rays, nthreads=2)["t_hit"].numpy()
-            fns["path_o3d"] = lambda: probe_o3d.encode(rig)
+    for n_rays in (2048, 4096, 8192, 32768):
+        rig = make_rig(*RIGS[n_rays], angle=60)
+        o, d = rig.rays32
+        h = n_rays // 2
+        ref = probe1.encode(rig)
+        assert probe2.encode(rig).tobytes() == ref.tobytes(), "two threads changed the bytes"
+
+        def bare2(o=o, d=d, h=h):
+            f = helper.submit(scene.run, o[h:], d[h:], query="DISTANCE")
+            a = scene.run(o[:h], d[:h], query="DISTANCE")
+            return a, f.result()
+
+        def forced(rig=rig):
+            keep = raycast.SPLIT_MIN_RAYS
+            raycast.SPLIT_MIN_RAYS = 1
+            try:
+                return probe2.encode(rig)
+            finally:
+                raycast.SPLIT_MIN_RAYS = keep
+
+        fns = {"path1": lambda rig=rig: probe1.encode(rig), "path2": lambda rig=rig: probe2.encode(rig),
+               "bare1": lambda o=o, d=d: scene.run(o, d, query="DISTANCE"), "bare2": bare2}
+        if n_rays < raycast.SPLIT_MIN_RAYS:
+            fns["split2"] = forced  # what splitting would give below the threshold
+        if o3d_scene is not None and n_rays in SIZES:
+            rays = o3d.core.Tensor(np.ascontiguousarray(np.hstack([o, d]), dtype=np.float32))
+            fns["o3d"] = lambda rays=rays: o3d_scene.cast_rays(rays, nthreads=0)
+            fns["o3d_nt2"] = lambda rays=rays: o3d_scene.cast_rays(rays, nthreads=2)
+            fns["path_o3d"] = lambda rig=rig: probe_o3d.encode(rig)
         t = interleaved(fns, repeat, block)
-        assert probe2.encode(rig).tobytes() == probe.encode(rig).tobytes()
         mr = {k: n_rays / v[0] / 1e6 for k, v in t.items()}
-        mr_cold = {k: n_rays / v[1] / 1e6 for k, v in t.items()}
-        row = {
-            "mesh": path.name, "faces": int(len(mesh.faces)), "rays": n_rays, "bvh_build_s": build,
-            "encode_path_mrays_s": mr["path"], "bare_embree_mrays_s": mr["bare"],
-            "path_over_bare": mr["path"] / mr["bare"],
-            "encode_path_2proc_mrays_s": mr["path2"], "path2_over_path": mr["path2"] / mr["path"],
-            "cold": {k: v for k, v in mr_cold.items()},
-        }
-        if o3d_scene is not None:
-            best = max(mr["open3d"], mr["open3d_nt2"])
-            row.update({"open3d_mrays_s": mr["open3d"], "open3d_nthreads2_mrays_s": mr["open3d_nt2"],
-                        "encode_path_open3d_engine_mrays_s": mr["path_o3d"],
-                        "path_over_open3d": mr["path"] / best, "path2_over_open3d": mr["path2"] / best,
-                        "path2_over_open3d_cold": mr_cold["path2"] / max(mr_cold["open3d"], mr_cold["open3d_nt2"])})
+        row = {"mesh": path.name, "faces": int(len(mesh.faces)), "rays": n_rays, "bvh_build_s": build,
+               "mrays_s": mr, "cold_mrays_s": {k: n_rays / v[1] / 1e6 for k, v in t.items()}}
+        if "path2" in mr:
+            row["path2_over_path1"] = mr["path2"] / mr["path1"]
+            row["path1_over_bare1"] = mr["path1"] / mr["bare1"]
+            row["path2_over_bare2"] = mr["path2"] / mr["bare2"]
+            row["bare2_over_bare1"] = mr["bare2"] / mr["bare1"]
+        if "split2" in mr:
+            row["split2_over_path1"] = mr["split2"] / mr["path1"]
+            row["split2_over_bare1"] = mr["split2"] / mr["bare1"]
+        if "o3d" in mr:
+            row["path2_over_best_open3d"] = mr["path2"] / max(mr["o3d"], mr["o3d_nt2"])
         rows.append(row)
-    probe2.close()
+        print(json.dumps({k: (round(v, 3) if isinstance(v, float) else v) for k, v in row.items()
+                          if k not in ("mrays_s", "cold_mrays_s")}), file=sys.stderr, flush=True)
     return rows
 
 
-def bench_cars(workers: int) -> dict:
-    files = sorted((SHARED / "apolloscape-cars").glob("*/*.ply"))
+def bench_cars(repeat: int) -> dict:
+    """``encode_mesh_files`` on the 79 cars with 1 and 2 workers, alternating; seconds per call."""
+    files = sorted(glob.glob(str(SHARED / "apolloscape-cars" / "*" / "*.ply")))
     rig = make_rig(32, 64, 60)
-    t0 = time.perf_counter()
-    meshes = [load_mesh(f) for f in files]
-    t_load = time.perf_counter() - t0
-    from spotlights.geometry import encode_meshes
-
-    t0 = time.perf_counter()
-    encode_meshes(meshes, rig)
-    t_encode = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    depths = encode_mesh_files(files, [rig], workers=workers)
-    t_files = time.perf_counter() - t0
-    return {"meshes": len(files), "workers": workers, "load_s": t_load, "encode_loaded_s": t_encode,
-            "load_and_encode_files_s": t_files, "mean_hit_ratio": float((depths[rig.name] > 0).mean())}
+    ref = encode_mesh_files(files, rig, workers=1)[rig.name]
+    times = {1: [], 2: []}
+    for r in range(repeat):
+        for w in ((1, 2) if r % 2 == 0 else (2, 1)):
+            t0 = time.perf_counter()
+            out = encode_mesh_files(files, rig, workers=w)[rig.name]
+            times[w].append(time.perf_counter() - t0)
+            assert out.tobytes() == ref.tobytes()
+    return {"meshes": len(files), "rig": rig.name, "seconds": {str(w): v for w, v in times.items()},
+            "median_s": {str(w): statistics.median(v) for w, v in times.items()},
+            "workers2_over_workers1": statistics.median(times[1]) / statistics.median(times[2]),
+            "mean_hit_ratio": float((ref > 0).mean())}
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--repeat", type=int, default=20)
-    ap.add_argument("--block", type=int, default=10, help="back-to-back calls per engine and repeat")
-    ap.add_argument("--json", default=str(ROOT / "docs" / "results" / "bench_encode.json"))
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--repeat", type=int, default=30, help="repeats (blocks per variant) per ray count")
+    ap.add_argument("--block", type=int, default=10, help="back-to-back calls per block")
+    ap.add_argument("--car-repeat", type=int, default=6, help="alternating runs of the 79-car encode per worker count")
+    ap.add_argument("--json", default=str(ROOT / "docs" / "results" / "bench_encode.json"), help="where the numbers go")
     args = ap.parse_args()
-    load = os.getloadavg()  # the 1-, 5- and 15-minute load averages before the run
-    if not CAR.exists():
-        print(f"shared data not found under {SHARED}; set SPOTLIGHTS_SHARED", file=sys.stderr)
-        return 2
-    rows = bench_mesh(CAR, args.repeat, args.block)
-    rows += bench_mesh(BIG, args.repeat, args.block) if BIG.exists() else []
-    print("million rays/s, warm (cold: first call after 5 ms idle)")
-    print(f"{'mesh':34s} {'faces':>7s} {'rays':>6s} {'path':>5s} {'bare':>5s} {'p/bare':>6s} "
-          f"{'2proc':>5s} {'o3d':>5s} {'o3d nt2':>7s} {'2proc/o3d':>9s}  cold: {'path':>5s} {'2proc':>5s} {'o3d':>5s}")
+    load_before = os.getloadavg()
+    helper = ThreadPoolExecutor(1)
+    rows = bench_mesh(CAR, args.repeat, args.block, helper)
+    rows += bench_mesh(BIG, args.repeat, args.block, helper) if BIG.exists() else []
+    cars = bench_cars(args.car_repeat)
+    load_after = os.getloadavg()
+    print(f"{'mesh':34s} {'faces':>7s} {'rays':>6s} {'path1':>6s} {'path2':>6s} {'2t/1t':>6s} {'bare1':>6s} "
+          f"{'bare2':>6s} {'p1/b1':>6s} {'p2/b2':>6s} {'o3d':>6s} {'o3d nt2':>7s} {'2t/o3d':>6s}  (M rays/s)")
     nan = float("nan")
     for r in rows:
-        c = r["cold"]
-        print(f"{r['mesh']:34s} {r['faces']:7d} {r['rays']:6d} {r['encode_path_mrays_s']:5.2f} "
-              f"{r['bare_embree_mrays_s']:5.2f} {r['path_over_bare']:6.2f} {r['encode_path_2proc_mrays_s']:5.2f} "
-              f"{r.get('open3d_mrays_s', nan):5.2f} {r.get('open3d_nthreads2_mrays_s', nan):7.2f} "
-              f"{r.get('path2_over_open3d', nan):9.2f}        {c['path']:5.2f} {c['path2']:5.2f} {c.get('open3d', nan):5.2f}")
-    cars = [bench_cars(w) for w in (1, 2)]
-    for c in cars:
-        print(f"79 cars, 32x64/60deg, workers={c['workers']}: load {c['load_s']:.2f} s, encode (loaded) "
-              f"{c['encode_loaded_s']:.2f} s, load+encode from files {c['load_and_encode_files_s']:.2f} s")
-    out = {"python": platform.python_version(), "cpus": os.cpu_count(), "machine": platform.machine(),
-           "repeat": args.repeat, "block": args.block, "load_before": load, "rays": rows,
-           "cars": cars}
+        m = r["mrays_s"]
+        print(f"{r['mesh']:34s} {r['faces']:7d} {r['rays']:6d} {m['path1']:6.2f} {m['path2']:6.2f} "
+              f"{r['path2_over_path1']:6.2f} {m['bare1']:6.2f} {m['bare2']:6.2f} {r['path1_over_bare1']:6.2f} "
+              f"{r['path2_over_bare2']:6.2f} {m.get('o3d', nan):6.2f} {m.get('o3d_nt2', nan):7.2f} "
+              f"{r.get('path2_over_best_open3d', nan):6.2f}"
+              + (f"  (split forced: {m['split2']:.2f} = {r['split2_over_path1']:.2f}x path1)" if "split2" in m else ""))
+    print(f"79 cars, encode_mesh_files: workers=1 {cars['median_s']['1']:.3f} s, workers=2 {cars['median_s']['2']:.3f} s "
+          f"({cars['workers2_over_workers1']:.2f}x), medians of {args.car_repeat} alternating runs each")
+    print(f"load average before {load_before[0]:.2f}, after {load_after[0]:.2f}")
+    out = {"command": "PYTHONPATH=src python benchmarks/encode.py " + " ".join(sys.argv[1:]),
+           "python": platform.python_version(), "cpus": os.cpu_count(), "machine": platform.machine(),
+           "split_min_rays": raycast.SPLIT_MIN_RAYS, "min_chunk": raycast.MIN_CHUNK,
+           "repeat": args.repeat, "block": args.block, "load_before": load_before, "load_after": load_after,
+           "rays": rows, "cars": cars}
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.json).write_text(json.dumps(out, indent=2))
+    Path(args.json).write_text(json.dumps(out, indent=1) + "\n")
     print(f"wrote {args.json}")
     return 0
 

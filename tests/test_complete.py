@@ -69,7 +69,10 @@ def test_complete_scan_round_trips_frames(ckpts, partial_unit):
     r = 0.5 * np.sqrt(4.2**2 + 1.8**2 + 1.5**2)
     world = (partial_unit.astype(np.float64) * r) @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]).T + box.center
     res = complete_scan(world, box, completer)
-    np.testing.assert_allclose(res["partial_unit"], partial_unit, atol=1e-5)  # exactly 256 points: no resampling
+    from spotlights.geometry.sampling import canonical_order
+
+    # exactly 256 points: no resampling, only the canonical (sorted) order
+    np.testing.assert_allclose(res["partial_unit"], partial_unit[canonical_order(partial_unit)], atol=1e-5)
     expected_unit = completer.complete(partial_unit[None])[0]
     np.testing.assert_allclose(res["completed_unit"], expected_unit, atol=1e-4)
     np.testing.assert_allclose(res["completed"], norm.from_unit(expected_unit), atol=1e-4)
@@ -94,7 +97,7 @@ def test_box_parsing(tmp_path):
     assert b.yaw == pytest.approx(np.pi / 2)
     f = tmp_path / "box.json"
     f.write_text(json.dumps({"center": [1, 2, 3], "dimensions": [4, 2, 1.5], "yaw": 0.3}))
-    assert load_box(f).size == (4.0, 2.0, 1.5)
+    assert tuple(load_box(f).size) == (4.0, 2.0, 1.5)
     f.write_text(json.dumps({"center": [1, 2], "size": [4, 2, 1.5]}))
     with pytest.raises(InputFileError, match="center must be three finite numbers"):
         load_box(f)
@@ -103,6 +106,10 @@ def test_box_parsing(tmp_path):
         load_box(f)
     with pytest.raises(InputFileError, match="no 'size'"):
         box_from_dict({"center": [0, 0, 0]})
+    with pytest.raises(InputFileError, match="needs 'yaw' or 'rotation'"):  # a heading is never assumed
+        box_from_dict({"center": [0, 0, 0], "size": [4, 2, 1.5]})
+    with pytest.raises(InputFileError, match="both a yaw and a rotation"):
+        box_from_dict({"center": [0, 0, 0], "size": [4, 2, 1.5], "yaw": 0, "rotation": np.eye(3).tolist()})
 
 
 def test_cli_complete_writes_the_scan_frame_and_a_picture(ckpts, partial_unit, tmp_path, capsys):
@@ -113,9 +120,13 @@ def test_cli_complete_writes_the_scan_frame_and_a_picture(ckpts, partial_unit, t
     save_points(scan, norm.from_unit(partial_unit))
     out, png = tmp_path / "done.ply", tmp_path / "done.png"
     proc = cli(capsys, "complete", scan, "--checkpoint", ckpts["sanet"], "--box", tmp_path / "box.json", "--out", out,
-                   "--show", png, "--no-clip")
+                   "--show", png, "--no-clip", "--no-crop")
     assert proc.returncode == 0, proc.stderr
-    got = load_points(out)
+    from spotlights.geometry.io import load_ply_fields
+
+    f = load_ply_fields(out)  # the scene: scan (source 1: every point is the object's input) + completion (2)
+    got = np.c_[f["x"], f["y"], f["z"]][f["source"] == 2].astype(np.float64)
+    assert (f["source"] == 1).sum() == 256
     # same result as the library on the unit-frame scan, mapped back into the scan's frame
     unit_scan = norm.to_unit(load_points(scan)).astype(np.float32)
     expect = norm.from_unit(load_completer(ckpts["sanet"]).complete(unit_scan[None], clip=None)[0])
@@ -123,13 +134,13 @@ def test_cli_complete_writes_the_scan_frame_and_a_picture(ckpts, partial_unit, t
     assert png.stat().st_size > 1000
     # flags instead of a JSON file
     proc = cli(capsys, "complete", scan, "--checkpoint", ckpts["pcn"], "--center", "5", "1", "0.8", "--size", "4", "1.7", "1.5",
-                   "--yaw", "-0.4", "--out", tmp_path / "pcn.xyz")
+                   "--yaw", "-0.4", "--out", tmp_path / "pcn.xyz", "--no-crop")
     assert proc.returncode == 0, proc.stderr
-    assert load_points(tmp_path / "pcn.xyz").shape == (128, 3)
+    assert load_points(tmp_path / "pcn.xyz").shape == (128, 3)  # other formats: the completion only
 
 
 def test_cli_complete_bad_inputs(ckpts, tmp_path, capsys):
-    (tmp_path / "box.json").write_text(json.dumps({"center": [0, 0, 0], "size": [4, 2, 1.5]}))
+    (tmp_path / "box.json").write_text(json.dumps({"center": [0, 0, 0], "size": [4, 2, 1.5], "yaw": 0.0}))
     empty = tmp_path / "empty.xyz"
     empty.write_text("")
     nan = tmp_path / "nan.xyz"
@@ -138,9 +149,9 @@ def test_cli_complete_bad_inputs(ckpts, tmp_path, capsys):
     np.save(good, np.random.default_rng(0).normal(size=(50, 3)))
     common = ["--checkpoint", str(ckpts["sanet"]), "--out", str(tmp_path / "o.ply")]
     assert_user_error(cli(capsys, "complete", empty, "--box", tmp_path / "box.json", *common), "empty.xyz", "empty")
-    assert_user_error(cli(capsys, "complete", nan, "--box", tmp_path / "box.json", *common), "nan.xyz", "NaN")
-    assert_user_error(cli(capsys, "complete", good, *common), "box is missing")
-    assert_user_error(cli(capsys, "complete", good, "--box", tmp_path / "nobox.json", *common), "nobox.json", "no such box file")
+    assert_user_error(cli(capsys, "complete", nan, "--box", tmp_path / "box.json", *common), "nan.xyz", "holds 1 point")
+    assert_user_error(cli(capsys, "complete", good, *common), "boxes are missing")
+    assert_user_error(cli(capsys, "complete", good, "--box", tmp_path / "nobox.json", *common), "nobox.json", "not found")
     assert_user_error(cli(capsys, "complete", good, "--box", tmp_path / "box.json", "--checkpoint", tmp_path / "box.json",
                               "--out", tmp_path / "o.ply"), "box.json", "not a readable checkpoint")
     assert not (tmp_path / "o.ply").exists()
@@ -161,16 +172,24 @@ def test_default_checkpoint_is_the_packaged_one(tmp_path, capsys):
     from spotlights.errors import SpotlightsError
     from spotlights.learning.inference import pretrained_checkpoint
 
+    from spotlights.learning.checkpoint import PRETRAINED, resolve_checkpoint
+
     try:
         path = pretrained_checkpoint()
     except SpotlightsError as exc:
-        assert "no pretrained checkpoint is shipped" in str(exc)
-        (tmp_path / "box.json").write_text(json.dumps({"center": [0, 0, 0], "size": [4, 2, 1.5]}))
+        assert "checkpoint is not shipped in this installation" in str(exc)
+        (tmp_path / "box.json").write_text(json.dumps({"center": [0, 0, 0], "size": [4, 2, 1.5], "yaw": 0}))
         np.save(tmp_path / "scan.npy", np.random.default_rng(0).normal(size=(50, 3)))
         proc = cli(capsys, "complete", tmp_path / "scan.npy", "--box", tmp_path / "box.json", "--out", tmp_path / "o.ply")
-        assert_user_error(proc, "no pretrained checkpoint is shipped", "--checkpoint")
+        assert_user_error(proc, "is not shipped in this installation", "checkpoint file")
     else:
         assert load_completer(path).model_name == "sanet"
+        # short names resolve to packaged files; None is the default; paths stay paths
+        assert resolve_checkpoint(None) == resolve_checkpoint("default") == path
+        assert set(PRETRAINED) >= {"default", "paper"} and resolve_checkpoint("paper").is_file()
+        assert resolve_checkpoint(str(path)) == path
+    with pytest.raises(InputFileError, match="short names: default, paper"):
+        resolve_checkpoint(tmp_path / "defualt")
 
 
 def test_short_checkpoint_names_resolve_to_shipped_float16_files(tmp_path, monkeypatch):

@@ -108,7 +108,7 @@ def test_cli_extract_evaluate_show(tmp_path, capsys, fake_learning):
     png = tmp_path / "pic.png"
     assert main(["real", "show", str(out), "--checkpoint", fake_learning[0], "--frame", "f1", "--out", str(png)]) == 0
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert main(["real", "show", str(out), "--out", str(tmp_path / "nocomp.png")]) == 0  # no model: raw + partial only
+    assert main(["real", "show", str(out), "--out", str(tmp_path / "nocomp.png"), "--no-completion"]) == 0  # raw + partial only
 
 
 @pytest.mark.parametrize(

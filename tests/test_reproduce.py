@@ -209,13 +209,10 @@ def test_table1_sanet_accuracy_by_brute_force(quick):
 
 def test_second_run_reuses_every_step_and_publishes(quick, tmp_path):
     out = quick["out"]
-    t0 = time.perf_counter()
     proc = run_cli("reproduce", "--quick", "--out", out, "--meshes", CARS, "--category-meshes", CATEGORIES,
                    "--lidar", LIDAR, "--no-progress", "--publish", tmp_path / "pub")
-    dt = time.perf_counter() - t0
     assert proc.returncode == 0, proc.stderr
-    assert "0 step(s) run, 35 reused" in proc.stdout
-    assert dt < 30, dt
+    assert "0 step(s) run, 35 reused" in proc.stdout  # nothing recomputed (no wall-clock bound: the machine is shared)
     steps = json.loads((out / "steps.json").read_text())
     assert all(r["reused"] for r in steps["steps"].values())
     assert len(steps["invocations"]) == 2

@@ -362,3 +362,28 @@ def test_complete_and_real_show_html(tmp_path):
     text = (tmp_path / "k.html").read_text()
     assert '"#' in text and "boxes" in text  # rows as ids: KITTI has no track ids
     assert not list(tmp_path.glob("*.png"))
+
+
+def test_real_complete_html_pages_share_one_local_script(tmp_path):
+    pytest.importorskip("plotly")
+    pytest.importorskip("torch")
+    src = need(LIDAR / "kitti-object" / "training-fov-cropped")
+    proc = run_cli(
+        "real", "complete", src, "--format", "kitti", "--out", tmp_path / "out", "--frames", "002155", "--html", "-q"
+    )
+    assert proc.returncode == 0, proc.stderr
+    page = (tmp_path / "out" / "002155.html").read_text()
+    assert '<script charset="utf-8" src="plotly.min.js"' in page and "http" not in page.split("<body>")[0]
+    assert (tmp_path / "out" / "plotly.min.js").stat().st_size > 3_000_000
+
+
+def test_view_without_plotly_says_how_to_install(tmp_path):
+    code = (
+        "import sys; sys.modules['plotly'] = None; sys.modules['plotly.graph_objects'] = None\n"
+        "from spotlights.cli import main\n"
+        f"sys.exit(main(['view', r'{REPO / 'src' / 'spotlights' / 'assets' / 'demo_scan.pcd'}', '-o', r'{tmp_path / 'v.html'}']))"
+    )
+    env = dict(os.environ, PYTHONPATH=str(REPO / "src"))
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert proc.returncode == 2 and "pip install 'spotlights[viewer]'" in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1 and not (tmp_path / "v.html").exists()

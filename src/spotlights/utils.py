@@ -139,6 +139,32 @@ def atomic_output(path: str | os.PathLike, suffix: str | None = None) -> Iterato
         raise
 
 
+def check_writable(*paths: str | os.PathLike | None) -> None:
+    """Fail now, before the work, when an output cannot be written: for each path (None is
+    skipped) create and remove a temporary file in its folder, or in the nearest folder that
+    exists (nothing is created for folders that do not exist yet).
+
+    Raises :class:`OutputFileError` naming the path and the reason (read-only, no permission).
+    """
+    for path in paths:
+        if path is None:
+            continue
+        p = Path(path)
+        if p.is_dir():
+            raise OutputFileError(p, "is a folder, expected a file name")
+        folder = p.parent
+        while not folder.exists() and folder != folder.parent:
+            folder = folder.parent
+        if not folder.is_dir():
+            raise OutputFileError(p, f"{folder} is not a folder")
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.{os.getpid()}-", suffix=".part", dir=folder)
+            os.close(fd)
+            os.unlink(tmp)
+        except OSError as exc:
+            raise OutputFileError(p, f"cannot write ({os_error_reason(exc)})") from None
+
+
 @contextlib.contextmanager
 def exclusive_lock(lock_file: str | os.PathLike, busy: str) -> Iterator[None]:
     """Hold an exclusive, non-blocking lock on ``lock_file`` (created if missing) for the body.

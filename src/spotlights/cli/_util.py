@@ -59,3 +59,39 @@ unit_interval = _number_type(float, lambda v: 0.0 <= v <= 1.0, "a number in [0, 
 """argparse type: a finite number in [0, 1] (depth clips; NaN is refused)."""
 positive_float = _number_type(float, lambda v: 0.0 < v < float("inf"), "a finite number > 0")
 """argparse type: a finite number > 0 (distance thresholds)."""
+non_negative_float = _number_type(float, lambda v: 0.0 <= v < float("inf"), "a finite number >= 0")
+"""argparse type: a finite number >= 0 (margins, noise levels)."""
+
+
+def add_quiet(p: argparse.ArgumentParser, what: str = "no progress bar") -> None:
+    """``-q/--quiet`` (progress bars and summary lines off; errors and warnings still on
+    stderr), with ``--no-progress`` kept as a hidden alias for older scripts."""
+    p.add_argument("--quiet", "-q", action="store_true", help=f"{what} and no summary lines (errors and warnings still shown)")
+    p.add_argument("--no-progress", dest="quiet", action="store_true", help=argparse.SUPPRESS)
+
+
+DEVICE_HELP = "torch device: cpu, cuda or cuda:N (default: cuda when available, else cpu)"
+PICTURE_SUFFIXES = (".png",)
+
+
+def check_suffix(path, suffixes: tuple, what: str, option: str = "--out") -> None:
+    """Refuse an output whose extension would not match what is written (one line naming it).
+
+    ``suffixes``: the accepted lower-case extensions, e.g. ``(".h5", ".hdf5")``.
+    """
+    from pathlib import Path
+
+    from ..errors import ParameterError
+
+    if path is None:
+        return
+    suffix = Path(path).suffix.lower()
+    if suffix not in suffixes:
+        shown = " or ".join(suffixes)
+        raise ParameterError(f"{option} {path}: {what} is written as {shown}; "
+                             f"name it {Path(path).stem or 'FILE'}{suffixes[0]}")
+
+
+def check_picture(path, option: str = "--out") -> None:
+    """Pictures are written as PNG: refuse another extension rather than write PNG bytes under it."""
+    check_suffix(path, PICTURE_SUFFIXES, "the picture", option)

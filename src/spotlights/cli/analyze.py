@@ -6,7 +6,7 @@ checked with real rigs and real ray casting, written as CSV, figures and a summa
 
 from __future__ import annotations
 
-from ._util import add_command, add_group
+from ._util import add_command, add_group, add_quiet, non_negative_int
 
 
 def register(sub) -> None:
@@ -33,8 +33,8 @@ def register(sub) -> None:
     d.add_argument("--rotations", type=int, default=24, metavar="K",
                    help="random rotations per disc placement; the error is their spread (default 24)")
     d.add_argument("--disc-radius", type=float, default=0.08, metavar="A", help="Monte-Carlo disc radius (default 0.08)")
-    d.add_argument("--seed", type=int, default=0, help="seed of the random rotations (default 0)")
-    d.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    d.add_argument("--seed", type=non_negative_int, default=0, help="seed of the random rotations (default 0)")
+    add_quiet(d)
 
 
 def _density(args) -> int:
@@ -45,7 +45,11 @@ def _density(args) -> int:
     cfg = DensityConfig(angles=tuple(args.angle), mc=not args.no_mc, mc_primary=args.mc_rays[0],
                         mc_secondary=args.mc_rays[1], mc_rotations=args.rotations, disc_radius=args.disc_radius,
                         seed=args.seed, r_step=args.r_step, alpha_step_deg=args.alpha_step)
-    summary, timings = run_density_analysis(args.out, cfg, progress=not args.quiet)
+    from ..utils import output_folder
+
+    cfg.validate()  # bad parameters fail before the folder is made
+    with output_folder(args.out):  # removed again if the analysis fails before writing anything
+        summary, timings = run_density_analysis(args.out, cfg, progress=not args.quiet)
     print(f"ray density per unit N*M (paper Section 3.3); outputs in {args.out}/")
     lim = f"{cfg.r_limit:g}"
     for key, s in summary["angles"].items():

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ._util import add_command, unit_interval
+from ._util import add_command, add_quiet, check_picture, check_suffix, unit_interval
 from .view import add_html_argument
 
 
@@ -62,10 +62,11 @@ def register(sub) -> None:
                    help="output .npz for one mesh, or a folder for several (one MESH_STEM.npz each)")
     add_rig_arguments(p)
     add_axes_arguments(p)
+    add_quiet(p, "no progress bar (several meshes)")
 
     p = add_command(sub, "decode", "turn an encoding back into its ordered point cloud",
                     "spotlights decode car.npz --out car_points.ply --frame original", _decode)
-    p.add_argument("encoding", metavar="FILE.npz")
+    p.add_argument("encoding", metavar="FILE.npz", help="an encoding written by 'spotlights encode'")
     p.add_argument("--out", "-o", required=True, metavar="CLOUD", help="output .ply, .pcd, .npy, .xyz or .txt")
     p.add_argument("--frame", choices=("original", "unit"), default="original",
                    help="original: the mesh's own frame (default); unit: the normalised unit sphere")
@@ -96,12 +97,19 @@ def _encode(args) -> int:
     if several and out.suffix.lower() == ".npz":
         raise SpotlightsError(f"{out}: several meshes need a folder for --out, not a .npz file")
     into_folder = several or out.is_dir()  # an existing folder receives MESH_STEM.npz
+    if not into_folder and out.suffix and out.suffix.lower() != ".npz":
+        raise SpotlightsError(f"--out {out}: an encoding is written as an .npz archive; name it {out.stem}.npz "
+                              "(or give a folder)")
     targets = ([out / (Path(m).stem + ".npz") for m in args.meshes] if into_folder
                else [out if out.suffix else out.with_suffix(".npz")])
     if several and len(set(targets)) != len(targets):
         raise SpotlightsError("several meshes share a file name; encode them into different folders")
+    from ..utils import check_writable
+
+    check_writable(*targets)
     meshes = [load_mesh(m, up=args.up, forward=args.forward) for m in args.meshes]  # validate all first
-    for path, mesh, target in tqdm(list(zip(args.meshes, meshes, targets)), desc="encode", unit="mesh", disable=not several):
+    for path, mesh, target in tqdm(list(zip(args.meshes, meshes, targets)), desc="encode", unit="mesh",
+                                   disable=not several or args.quiet):
         probe = MeshProbe(mesh)
         rig = probe.rig_for(spec)  # box rigs: aimed at this mesh's own box
         depths = probe.encode(rig)
@@ -115,8 +123,11 @@ def _decode(args) -> int:
     from ..geometry.encode import load_encoding
     from ..geometry.io import save_points
 
-    enc = load_encoding(args.encoding)
     from ..errors import InputFileError
+    from ..utils import check_writable
+
+    check_writable(args.out)
+    enc = load_encoding(args.encoding)
 
     pts = enc.points(frame=args.frame, clip=args.clip)
     if len(pts) == 0:
@@ -137,11 +148,16 @@ def _show(args) -> int:
     from ..geometry.encode import load_encoding
     from ..geometry.io import MESH_SUFFIXES, POINT_SUFFIXES, load_mesh, load_points, ply_has_faces
 
+    check_picture(args.out)
     src = Path(args.file)
     out = Path(args.out) if args.out else Path.cwd() / (src.stem + ".png")
     suffix = src.suffix.lower()
     if not src.exists():
         raise InputFileError(src, "no such file")
+    from ..utils import check_writable
+
+    check_suffix(args.html, (".html", ".htm"), "the page (HTML)", "--html")
+    check_writable(args.out or (None if args.html else out), args.html)
     if args.html:
         from ..viz import html
         from .view import write_page

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ._util import add_command, add_group, non_negative_int, positive_int, unit_interval
+from ._util import add_command, add_group, add_quiet, check_picture, check_suffix, non_negative_int, positive_int, unit_interval
 from .view import add_html_argument
 
 
@@ -24,7 +24,7 @@ def register(sub) -> None:
                    help="train/val/test: model counts (64/8/7) or fractions (0.8/0.1/0.1); default 0.81/0.1/0.09 "
                         "(= the paper's 64/8/7 for 79 models)")
     b.add_argument("--no-stratify", action="store_true", help="split over all models instead of per category")
-    b.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
+    b.add_argument("--seed", type=non_negative_int, default=0, help="root seed (default 0)")
     b.add_argument("--workers", "-j", type=positive_int, default=None, help="processes (default: all cores); never changes the result")
     b.add_argument("--rig", action="append", default=[], metavar="RIG",
                    help="extra Spotlights rig for the ground truth, repeatable: NxM[@DEG] cap rigs (e.g. --rig 64x32@60 "
@@ -70,38 +70,39 @@ def register(sub) -> None:
     r = b.add_argument_group("run")
     r.add_argument("--overwrite", action="store_true", help="replace an existing FILE and discard unfinished parts")
     r.add_argument("--resume", action="store_true", help="accept an existing complete FILE (unfinished parts resume anyway)")
-    r.add_argument("--block", type=int, default=None, help="views per work unit (default ~views/8, at most 250)")
+    r.add_argument("--block", type=positive_int, default=None, help="views per work unit (default ~views/8, at most 250)")
     r.add_argument("--keep-parts", action="store_true", help="keep FILE.parts after writing FILE")
-    r.add_argument("--quiet", "-q", action="store_true", help="no progress bars")
+    add_quiet(r, "no progress bars")
 
     a = add_command(dsub, "add-rig", "add one more rig's ground-truth depths to an existing dataset file (no rebuild; atomic)",
                     "spotlights dataset add-rig cars.h5 --rig box-32x64-ellipsoid-s1", _add_rig)
-    a.add_argument("file", metavar="FILE")
+    a.add_argument("file", metavar="FILE", help="dataset file (.h5) to extend in place")
     a.add_argument("--rig", required=True, metavar="RIG",
                    help="NxM[@DEG] or a rig name (cap-32x64-60, box-32x64-ellipsoid-s1, box-32x64-volume-s0.9, ...)")
     a.add_argument("--meshes", default=None, metavar="DIR", action="append",
                    help="the meshes folder the dataset was built from (default: the one its config records); "
                         "repeat once per source, in the build's order, for a multi-source dataset")
     a.add_argument("--workers", "-j", type=positive_int, default=None, help="processes (default: all cores); never changes the result")
-    a.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    add_quiet(a)
 
     i = add_command(dsub, "info", "print a dataset's splits, categories, counts and array shapes",
                     "spotlights dataset info cars.h5 --json", _info)
-    i.add_argument("file", metavar="FILE")
+    i.add_argument("file", metavar="FILE", help="dataset file (.h5)")
     i.add_argument("--json", action="store_true", help="machine-readable output")
 
     e = add_command(dsub, "export", "write one sample (partial scan + ground truth) to an .npz",
                     "spotlights dataset export cars.h5 --split test --index 0 --out sample.npz", _export)
-    e.add_argument("file", metavar="FILE")
-    e.add_argument("--split", required=True, choices=("train", "val", "test"))
+    e.add_argument("file", metavar="FILE", help="dataset file (.h5)")
+    e.add_argument("--split", required=True, choices=("train", "val", "test"), help="split of the sample")
     e.add_argument("--index", type=int, required=True, help="sample index within the split")
-    e.add_argument("--out", "-o", required=True, metavar="SAMPLE.npz")
+    e.add_argument("--out", "-o", required=True, metavar="SAMPLE.npz",
+                   help="output .npz: partial, gt_points, gt_dense, gt_depths and the sample's metadata")
     e.add_argument("--rig", default=None, help="rig of gt_depths (default: the dataset's default rig)")
 
     s = add_command(dsub, "show", "render a sample: partial (purple), ground truth (grey), Spotlights points (green)",
                     "spotlights dataset show cars.h5 --split test --index 0 --out sample.png", _show)
-    s.add_argument("file", metavar="FILE")
-    s.add_argument("--split", default="test", choices=("train", "val", "test"))
+    s.add_argument("file", metavar="FILE", help="dataset file (.h5)")
+    s.add_argument("--split", default="test", choices=("train", "val", "test"), help="split of the sample (default test)")
     s.add_argument("--index", type=int, default=0, help="sample index within the split (default 0)")
     s.add_argument("--out", "-o", default=None, metavar="PNG",
                    help="output picture (default: ./SPLIT-INDEX.png; with --html alone, no picture)")
@@ -128,6 +129,10 @@ def _build(args) -> int:
 
     # SIGTERM unwinds like Ctrl-C (spotlights.cli.main): the workers stop, finished units are kept
 
+    from ..utils import check_writable
+
+    check_suffix(args.out, (".h5", ".hdf5"), "the dataset (HDF5)")
+    check_writable(args.out)
     heights = None
     mount = args.mount_height
     if mount is not None and ":" in mount:
@@ -247,8 +252,11 @@ def _export(args) -> int:
     from ..errors import SpotlightsError
     from ..utils import atomic_output
 
+    from ..utils import check_writable
+
     if Path(args.out).suffix.lower() != ".npz":
         raise SpotlightsError(f"{args.out}: the sample is written as .npz; name the output FILE.npz")
+    check_writable(args.out)
     with open_dataset(args.file) as ds:
         i = _pick(ds, args.split, args.index)
         s = ds.sample(i, rig=args.rig)
@@ -272,7 +280,12 @@ def _show(args) -> int:
     from ..data.store import open_dataset
     from ..viz import render_sample
 
+    from ..utils import check_writable
+
+    check_picture(args.out)
+    check_suffix(args.html, (".html", ".htm"), "the page (HTML)", "--html")
     out = Path(args.out) if args.out else Path.cwd() / f"{args.split}-{args.index}.png"
+    check_writable(args.out or (None if args.html else out), args.html)
     with open_dataset(args.file) as ds:
         i = _pick(ds, args.split, args.index)
         s = ds.sample(i, rig=args.rig)

@@ -14,13 +14,18 @@ def register(sub) -> None:
 def _demo(args) -> int:
     from pathlib import Path
 
+    from ..utils import output_folder
+
+    with output_folder(args.out) as out:  # removed again if the demo fails before writing anything
+        return _run_demo(Path(out))
+
+
+def _run_demo(out) -> int:
     from .. import viz
     from ..assets import DEMO_VEHICLE, asset_path
     from ..geometry import MeshProbe, hit_ratio, load_mesh, make_rig, save_encoding, save_points
     from ..geometry.encode import load_encoding
 
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     name, up, forward = DEMO_VEHICLE
     mesh = load_mesh(asset_path(name), up=up, forward=forward)
     print(f"[1/4] loaded the bundled CC0 vehicle {name}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces")

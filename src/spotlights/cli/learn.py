@@ -8,7 +8,8 @@ from __future__ import annotations
 import sys
 
 from ..learning.models import MODEL_NAMES as MODEL_CHOICES  # registry keys (imports neither torch nor a model)
-from ._util import add_command, add_group, non_negative_int, positive_float, positive_int, unit_interval
+from ._util import (DEVICE_HELP, add_command, add_group, add_quiet, check_suffix, non_negative_int, positive_float,
+                    positive_int, unit_interval)
 
 
 def register(sub) -> None:
@@ -21,17 +22,17 @@ def register(sub) -> None:
     p.add_argument("--schedule", default=None, metavar="NAME|YAML",
                    help="training schedule applied before --config: 'cpu' (35-70 min per model on 2 cores), "
                         "'paper' (the paper-scale GPU run), or a schedule YAML")
-    p.add_argument("--out", metavar="DIR", default=None, help="run folder (default runs/MODEL): config.yaml, last.pt, best.pt, log.csv")
+    p.add_argument("--out", "-o", metavar="DIR", default=None, help="run folder (default runs/MODEL): config.yaml, last.pt, best.pt, log.csv")
     p.add_argument("--epochs", type=positive_int, default=None, help="number of epochs (with --resume: raise it to train longer)")
     p.add_argument("--batch-size", type=positive_int, default=None, help="batch size per process")
-    p.add_argument("--lr", type=float, default=None, help="learning rate")
+    p.add_argument("--lr", type=positive_float, default=None, help="learning rate, a finite number > 0 (default: the config's)")
     p.add_argument("--max-views", type=positive_int, default=None, metavar="V", help="use only views 0..V-1 of each training model")
     p.add_argument("--val-max-views", type=positive_int, default=None, metavar="V", help="validation views per model")
     p.add_argument("--rig", default=None, help="SA-Net: rig group of the dataset to regress (default: the file's default rig)")
     p.add_argument("--workers", type=non_negative_int, default=None, help="DataLoader worker processes (0: load in the main process)")
-    p.add_argument("--seed", type=int, default=None, help="random seed (same seed + config = same weights)")
-    p.add_argument("--device", default=None, help="torch device (default: cuda when available, else cpu)")
-    p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
+    p.add_argument("--seed", type=non_negative_int, default=None, help="random seed (same seed + config = same weights)")
+    p.add_argument("--device", default=None, help=DEVICE_HELP)
+    p.add_argument("--threads", type=positive_int, default=None, help="torch CPU threads (default: torch's)")
     p.add_argument("--precision", choices=("auto", "fp32", "bf16"), default=None,
                    help="forward-pass precision: auto (default: bf16 where the CPU or GPU supports it, else fp32), "
                         "fp32, or bf16 (fp16 with a gradient scaler on GPUs without bf16); weights, losses and "
@@ -42,9 +43,9 @@ def register(sub) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--resume", action="store_true", help="continue the run in --out from its last.pt")
     g.add_argument("--overwrite", action="store_true", help="start again even if --out holds a run")
-    p.add_argument("--stop-after", type=int, default=None, metavar="K",
+    p.add_argument("--stop-after", type=positive_int, default=None, metavar="K",
                    help="run at most K epochs now, then stop (continue later with --resume); the schedule spans --epochs")
-    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_quiet(p, "no progress bars")
 
     # ---- evaluate
     p = add_command(sub, "evaluate", "score checkpoints on a dataset split and write a Table-1 report (Markdown + JSON)",
@@ -52,10 +53,10 @@ def register(sub) -> None:
     p.add_argument("--data", required=True, metavar="FILE.h5", help="dataset file")
     p.add_argument("--checkpoint", required=True, nargs="+", metavar="CKPT", help="one or more checkpoints")
     p.add_argument("--split", default="test", choices=("test", "val", "train"), help="split to score (default test)")
-    p.add_argument("--out", default="report", metavar="PATH", help="report path without suffix: writes PATH.md and PATH.json (default ./report)")
+    p.add_argument("--out", "-o", default="report", metavar="PATH", help="report path without suffix: writes PATH.md and PATH.json (default ./report)")
     p.add_argument("--max-views", type=positive_int, default=None, metavar="V", help="score only views 0..V-1 of each model (faster)")
     p.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="SA-Net clip for the 'w/ clip' row (default: the checkpoint's, 0.2)")
-    p.add_argument("--batch-size", type=positive_int, default=32)
+    p.add_argument("--batch-size", type=positive_int, default=32, help="evaluation batch size (default 32)")
     p.add_argument("--fscore-threshold", type=positive_float, default=0.01, metavar="T", help="F-score distance threshold, unit frame (default 0.01)")
     p.add_argument("--accuracy-only", action="store_true", help="skip the GT -> prediction side (completeness, CD, F-score)")
     p.add_argument("--latency", action="store_true",
@@ -66,9 +67,9 @@ def register(sub) -> None:
     p.add_argument("--examples", type=non_negative_int, default=2, metavar="K",
                    help="figure PATH.png: K scans per category, each model's prediction beside the ground truth "
                         "(default 2; 0: no figure)")
-    p.add_argument("--device", default=None)
-    p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--device", default=None, help=DEVICE_HELP)
+    p.add_argument("--threads", type=positive_int, default=None, help="torch CPU threads (default: torch's)")
+    add_quiet(p)
 
     # ---- curves
     p = add_command(sub, "curves", "learning curves of training runs: validation CD-L1, accuracy and completeness "
@@ -96,7 +97,7 @@ def register(sub) -> None:
     p.add_argument("--opset", type=positive_int, default=18, help="ONNX opset (default 18)")
     p.add_argument("--no-check", action="store_true",
                    help="skip the parity check (onnxruntime against torch on 8 seeded random scans)")
-    p.add_argument("--quiet", "-q", action="store_true", help="print nothing but warnings and errors")
+    add_quiet(p, "no summary")
 
     # ---- bench models (reuses an existing 'bench' group if another module made one)
     bsub = add_group(sub, "bench", "benchmarks (bench models: parameters and latency of the five models)",
@@ -107,11 +108,18 @@ def register(sub) -> None:
                    help=f"models to measure (default all: {', '.join(MODEL_CHOICES)})")
     p.add_argument("--batch", type=positive_int, nargs="+", default=[1, 32], metavar="B", help="batch sizes (default 1 32)")
     p.add_argument("--repeats", type=positive_int, default=10, help="timed runs per measurement (median reported)")
-    p.add_argument("--warmup", type=int, default=2, help="untimed warm-up runs")
-    p.add_argument("--threads", type=int, default=None, help="torch threads for every model (default: torch's)")
-    p.add_argument("--device", default=None)
+    p.add_argument("--warmup", type=non_negative_int, default=2, help="untimed warm-up runs (default 2)")
+    p.add_argument("--threads", type=positive_int, default=None, help="torch threads for every model (default: torch's)")
+    p.add_argument("--device", default=None, help=DEVICE_HELP)
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    p.add_argument("--out", default=None, metavar="FILE.json", help="also write the JSON result here")
+    p.add_argument("--out", "-o", default=None, metavar="FILE.json", help="also write the JSON result here")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress lines and no table (with --out: only the file)")
+
+
+def _report_path(prefix) -> str:
+    """The Markdown file of a report written to PREFIX(.md/.json)."""
+    text = str(prefix)
+    return (text[: -len(".json")] if text.endswith(".json") else text[: -len(".md")] if text.endswith(".md") else text) + ".md"
 
 
 def _set_threads(n):
@@ -134,9 +142,13 @@ def _train(args) -> int:
                      ("num_workers", args.workers)):
         if val is not None:
             ov["data"][key] = val
+    from ..utils import output_folder
+
     out = args.out or f"runs/{args.model}"
-    res = train(args.model, args.data, out, config=args.config, overrides=ov, resume=args.resume, overwrite=args.overwrite,
-                device=args.device, progress=not args.no_progress, schedule=args.schedule, stop_after=args.stop_after)
+    with output_folder(out):  # a run that fails before writing anything leaves no empty folder
+        res = train(args.model, args.data, out, config=args.config, overrides=ov, resume=args.resume,
+                    overwrite=args.overwrite, device=args.device, progress=not args.quiet, schedule=args.schedule,
+                    stop_after=args.stop_after)
     h = res["history"][-1] if res["history"] else None
     if h:
         print(f"{args.model}: {res['epochs']} epochs, last val accuracy {h['val_accuracy']:.5f}; checkpoints {res['last']}, {res['best']}")
@@ -145,13 +157,15 @@ def _train(args) -> int:
 
 def _evaluate(args) -> int:
     from ..learning.evaluate import evaluate_checkpoints, report_markdown, write_report
+    from ..utils import check_writable
 
+    check_writable(_report_path(args.out))
     _set_threads(args.threads)
     report = evaluate_checkpoints(args.checkpoint, args.data, split=args.split, max_views=args.max_views, clip=args.clip,
                                   batch_size=args.batch_size, device=args.device, fscore_threshold=args.fscore_threshold,
                                   with_completeness=not args.accuracy_only,
                                   latency=args.latency and not args.no_latency, latency_repeats=args.latency_repeats,
-                                  progress=not args.no_progress)
+                                  progress=not args.quiet)
     md, js = write_report(report, args.out)
     print(report_markdown(report).split("\n## ")[0].rstrip())
     print(f"\nreport -> {md}, {js}")
@@ -180,12 +194,10 @@ def _curves(args) -> int:
 def _export(args) -> int:
     from pathlib import Path
 
-    from ..errors import ParameterError
     from ..learning.export import export_onnx, parity
 
     out = Path(args.out)
-    if out.suffix.lower() != ".onnx":
-        raise ParameterError(f"{out}: the output of 'spotlights export' is an ONNX file: name it *.onnx")
+    check_suffix(out, (".onnx",), "an ONNX model")
     path = export_onnx(args.checkpoint, out, opset=args.opset)
     if not args.quiet:
         from ..learning.export import load_onnx_completer
@@ -207,8 +219,13 @@ def _bench_models(args) -> int:
     from ..learning.bench import bench_markdown, bench_models
     from ..utils import atomic_output
 
+    from ..utils import check_writable
+
+    check_suffix(args.out, (".json",), "the result (JSON)")
+    check_writable(args.out)
     res = bench_models(args.models, args.batch, repeats=args.repeats, warmup=args.warmup, threads=args.threads,
-                       device=args.device, progress=None if args.json else (lambda m: print(m, file=sys.stderr)))
+                       device=args.device,
+                       progress=None if args.json or args.quiet else (lambda m: print(m, file=sys.stderr)))
     text = json.dumps(res, indent=2)
     if args.out:
         with atomic_output(args.out) as tmp:

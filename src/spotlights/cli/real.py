@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from ._util import add_command, add_group, positive_int, unit_interval
+from ._util import (DEVICE_HELP, add_command, add_group, add_quiet, check_picture, check_suffix, non_negative_int,
+                    positive_int, unit_interval)
 from .view import add_html_argument
 
 
@@ -44,13 +45,13 @@ def register(sub) -> None:
                    help="drop points less than M metres above the box bottom: ground returns (default 0.10)")
     p.add_argument("--min-points", type=int, default=10, metavar="K", help="skip boxes with fewer than K points (default 10)")
     p.add_argument("--points", type=int, default=256, metavar="P", help="points per observation after resampling (default 256)")
-    p.add_argument("--seed", type=int, default=0, help="resampling seed (default 0)")
+    p.add_argument("--seed", type=non_negative_int, default=0, help="resampling seed (default 0)")
     p.add_argument("--classes", default="car,truck,caravan,trailer",
                    help="comma-separated classes to keep (default: the paper's four, car,truck,caravan,trailer; also bus, "
                         "construction, emergency)")
     _reader_arguments(p)
     p.add_argument("--frames", type=_frames_range, default=None, metavar="START:STOP[:STEP]", help="kitti360: frame range")
-    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    add_quiet(p)
 
     p = add_command(rs, "complete", "complete every vehicle of every frame of a dataset: one scene PLY, JSON and picture per frame",
                     "spotlights real complete ../shared/data/lidar/nuscenes --format nuscenes --out nuscenes_completed", _complete)
@@ -66,10 +67,13 @@ def register(sub) -> None:
     add_completion_arguments(p, single=False)
     p.add_argument("--per-object", action="store_true", help="also write FRAME_objects/object_<id>.ply per completed object")
     p.add_argument("--no-pictures", action="store_true", help="do not draw FRAME.png (faster)")
-    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    p.add_argument("--html", action="store_true",
+                   help="also write FRAME.html, an interactive 3-D page per frame (needs plotly); the pages share "
+                        "OUT/plotly.min.js, so copy the folder as a whole: it opens offline")
+    add_quiet(p)
 
     p = add_command(rs, "evaluate", "complete the tracked observations with each model and write the consistency table (Markdown + JSON)",
-                    "spotlights real evaluate av2.h5 --checkpoint default runs/pcn.pt --out results/av2_consistency", _evaluate)
+                    "spotlights real evaluate av2.h5 --checkpoint default runs/pcn/best.pt --out results/av2_consistency", _evaluate)
     p.add_argument("file", metavar="FILE.h5", help="observations from 'spotlights real extract'")
     p.add_argument("--checkpoint", "-c", nargs="+", default=None, metavar="CKPT",
                    help="one or more models: checkpoint files or short names ('default', 'paper'); default: the package's default model")
@@ -83,16 +87,16 @@ def register(sub) -> None:
                    help="writes PREFIX.md and PREFIX.json (default: FILE without .h5 + '_consistency')")
     p.add_argument("--batch-size", type=positive_int, default=64, help="completion batch size (default 64)")
     p.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="depth clip passed to the models (default: each model's own)")
-    p.add_argument("--device", default=None, help="torch device for the models (default: the loader's choice)")
+    p.add_argument("--device", default=None, help=DEVICE_HELP)
     p.add_argument("--reference", default=None, metavar="DATASET.h5",
                    help="completion dataset whose ground-truth cars are the reference set of the minimal matching "
                         "distance (MMD) reported beside consistency and fidelity (default: no MMD)")
     p.add_argument("--reference-split", default=None, choices=["train", "val", "test"],
                    help="use only this split of --reference (default: every model)")
-    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    add_quiet(p)
 
     p = add_command(rs, "show", "draw one scan: raw points (grey), partial inputs (purple), completions (green), in the sensor frame",
-                    "spotlights real show kitti.h5 --checkpoint runs/sanet.pt --frame 002155 --out kitti_002155.png", _show)
+                    "spotlights real show kitti.h5 --checkpoint runs/sanet/best.pt --frame 002155 --out kitti_002155.png", _show)
     p.add_argument("file", metavar="FILE.h5", help="observations from 'spotlights real extract'")
     p.add_argument("--checkpoint", "-c", default=None, metavar="CKPT",
                    help="model: a checkpoint file or a short name ('default', 'paper'); default: the package's default model")
@@ -103,7 +107,7 @@ def register(sub) -> None:
     p.add_argument("--out", "-o", default=None, metavar="PNG",
                    help="output picture (default: FILE_FRAME.png beside FILE; with --html alone, no picture)")
     p.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="depth clip passed to the model (default: its own)")
-    p.add_argument("--device", default=None, help="torch device for the model")
+    p.add_argument("--device", default=None, help=DEVICE_HELP)
     add_html_argument(p)
 
 
@@ -169,6 +173,10 @@ def _print_summary(obs) -> None:
 def _extract(args) -> int:
     from ..data.real.extract import ExtractConfig, extract, write_observations
 
+    from ..utils import check_writable
+
+    check_suffix(args.out, (".h5", ".hdf5"), "the observations file (HDF5)")
+    check_writable(args.out)
     classes = tuple(c.strip() for c in args.classes.split(",") if c.strip())
     config = ExtractConfig(margin=args.margin, ground_clearance=args.ground_clearance, min_points=args.min_points,
                            n_points=args.points, seed=args.seed, classes=classes)
@@ -208,6 +216,10 @@ def _evaluate(args) -> int:
 
     if args.equal_points < 0:
         raise ParameterError(f"--equal-points must be >= 0, got {args.equal_points}")
+    from ..utils import check_writable
+
+    prefix = args.out or str(Path(args.file).with_suffix("")) + "_consistency"
+    check_writable(prefix + ".md")
     obs = read_observations(args.file)  # validate before loading models
     classes = classes_arg(args.classes)
     if classes:
@@ -228,13 +240,19 @@ def _evaluate(args) -> int:
     # two checkpoints of one model: tell them apart by file name, or by run folder for best.pt / last.pt
     tag = [Path(p).parent.name if Path(p).stem in ("best", "last") else Path(p).stem for p in checkpoints]
     names = [f"{n} ({t})" if n in dup else n for n, t in zip(names, tag)]
-    report = evaluate_consistency(obs, completers, names=names, checkpoints=checkpoints,
-                                  batch_size=args.batch_size, progress=not args.quiet, clip=args.clip,
-                                  references=refs, reference_info=ref_info, classes=classes,
-                                  equal_points=args.equal_points or None, noise_floor=not args.no_noise_floor,
-                                  heading_check=not args.no_heading_check)
+    from ..errors import InputFileError
+
+    try:
+        report = evaluate_consistency(obs, completers, names=names, checkpoints=checkpoints,
+                                      batch_size=args.batch_size, progress=not args.quiet, clip=args.clip,
+                                      references=refs, reference_info=ref_info, classes=classes,
+                                      equal_points=args.equal_points or None, noise_floor=not args.no_noise_floor,
+                                      heading_check=not args.no_heading_check)
+    except InputFileError as exc:
+        if exc.path != "<observations>":
+            raise
+        raise InputFileError(args.file, exc.problem) from None  # name the file the user gave
     report["data"]["file"] = str(args.file)
-    prefix = args.out or str(Path(args.file).with_suffix("")) + "_consistency"
     md, js = write_report(report, prefix)
     from .complete import warn
 
@@ -256,9 +274,15 @@ def _show(args) -> int:
 
     if args.max_objects < 1:
         raise ParameterError("--max-objects must be >= 1")
+    from ..utils import check_writable
+
+    check_picture(args.out)
+    check_suffix(args.html, (".html", ".htm"), "the page (HTML)", "--html")
     obs = read_observations(args.file)
     rows = frame_rows(obs, args.sequence, args.frame)
     rows = sorted(rows, key=lambda i: -int(obs.n_points_raw[i]))[: args.max_objects]
+    default_out = str(Path(args.file).with_suffix("")) + f"_{obs.frame_id[rows[0]]}.png"
+    check_writable(args.out or (None if args.html else default_out), args.html)
     completions, model = None, None
     if args.no_completion and args.checkpoint:
         raise ParameterError("--no-completion draws no model: it takes no --checkpoint")
@@ -313,16 +337,10 @@ def _safe_name(text: str) -> str:
 
 
 def _complete(args) -> int:
-    import json
-    import time
-    from pathlib import Path
-
-    from tqdm import tqdm
-
     from ..errors import ParameterError
-    from ..experiments.scene import complete_scene, describe, render_result, write_scene
-    from ..utils import atomic_output
-    from .complete import load_model, scene_config, warn
+    from .complete import load_model, scene_config
+
+    from ..utils import output_folder
 
     reader = _open(args)
     keys = _select_frames(reader.frame_keys(), args.frames)
@@ -330,7 +348,22 @@ def _complete(args) -> int:
         raise ParameterError("--frames selects no frame")
     config = scene_config(args, single=False)
     completer = load_model(args.checkpoint, args.device, args.runtime)
-    out = Path(args.out)
+    with output_folder(args.out) as out:  # removed again if nothing could be written
+        return _complete_frames(args, reader, keys, config, completer, out)
+
+
+def _complete_frames(args, reader, keys, config, completer, out) -> int:
+    import json
+    import time
+    from pathlib import Path
+
+    from tqdm import tqdm
+
+    from ..experiments.scene import complete_scene, describe, render_result, write_scene
+    from ..utils import atomic_output
+    from .complete import warn
+
+    out = Path(out)
     frames, warnings = [], []
     totals = {"boxes": 0, "completed": 0, "flipped": 0, "completion_points": 0, "skipped": {}}
     t_model = 0.0
@@ -351,9 +384,17 @@ def _complete(args) -> int:
             summ["sensor_to_world"] = [[float(v) for v in row] for row in frame.sensor_to_world]
         with atomic_output(stem.with_suffix(".json")) as tmp:
             tmp.write_text(json.dumps(summ, indent=2, default=float) + "\n", encoding="utf-8")
+        seq = f"{frame.sequence}/" if frame.sequence else ""
         if not args.no_pictures and result.completed:
-            seq = f"{frame.sequence}/" if frame.sequence else ""
             render_result(result, stem.with_suffix(".png"), f"{reader.format} {seq}{frame.frame_id}: {result.model}")
+        if args.html:
+            import os
+
+            from ..experiments.scene import render_result_html
+            from ..viz.html import write_plotlyjs
+
+            js = os.path.relpath(write_plotlyjs(out), stem.parent).replace(os.sep, "/")
+            render_result_html(result, stem.with_suffix(".html"), f"{reader.format} {seq}{frame.frame_id}: {result.model}", js)
         totals["boxes"] += len(result.objects)
         totals["completed"] += len(result.completed)
         totals["flipped"] += sum(o.flipped for o in result.completed)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ._util import add_command, positive_int
+from ._util import add_command, add_quiet, positive_int
 
 
 def register(sub) -> None:
@@ -17,7 +17,7 @@ def register(sub) -> None:
                    help="output folder: REPORT.md, results.json, tables/, figures/, steps.json, data/, runs/, eval/; "
                         "rerun with the same DIR to resume")
     p.add_argument("--tables", default=None, metavar="LIST",
-                   help="comma-separated tables to reproduce, from 1,2,3,4,5 and box (box-targeted rigs, issue 8; default: all)")
+                   help="comma-separated tables to reproduce, from 1,2,3,4,5 and box (box-targeted rigs, docs/box-rig.md; default: all)")
     p.add_argument("--quick", action="store_true",
                    help="small data (9 cars, 16 views), the tiny 'quick' schedule, a few meshes per category: every "
                         "stage in a few minutes; the numbers mean nothing")
@@ -37,7 +37,7 @@ def register(sub) -> None:
     p.add_argument("--publish", default=None, metavar="DIR",
                    help="afterwards, copy REPORT.md, results.json, steps.json, tables/ and figures/ into DIR "
                         "(e.g. docs/results/reproduction)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_quiet(p, "no progress bars")
 
 
 def _reproduce(args) -> int:
@@ -49,7 +49,7 @@ def _reproduce(args) -> int:
     res = reproduce(args.out, tables=args.tables, quick=args.quick, schedule=args.schedule, cars_data=args.cars_data,
                     cars_meshes=args.meshes, category_meshes=args.category_meshes, lidar=args.lidar,
                     eval_views=args.eval_views if args.eval_views is not None else "default", workers=args.workers,
-                    progress=not args.no_progress, argv=sys.argv[1:])
+                    progress=not args.quiet, argv=sys.argv[1:])
     print(f"{len(res.ran)} step(s) run, {len(res.reused)} reused, {res.seconds:.1f} s; report -> {res.report}, "
           f"numbers -> {res.results}")
     if args.publish:

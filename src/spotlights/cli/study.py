@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ._util import add_command, add_group, positive_int
+from ._util import add_command, add_group, add_quiet, non_negative_int, positive_int
 
 DEFAULT_MESHES = ("../shared/data/meshes/apolloscape-cars", "../shared/data/meshes/categories")
 
@@ -19,8 +19,9 @@ def register(sub) -> None:
                         "skipped (default: the shared cars and category meshes)")
     r.add_argument("--rays", nargs="+", type=int, default=[2048, 4096, 8192], metavar="K",
                    help="ray counts, multiples of 64 (N = K / 64 viewpoints x 64 rays; default 2048 4096 8192)")
-    r.add_argument("--seed", type=int, default=0, help="seed of the 16,384 surface samples per mesh (default 0)")
-    r.add_argument("--workers", type=positive_int, default=1, help="processes over meshes (results do not depend on it; default 1)")
+    r.add_argument("--seed", type=non_negative_int, default=0, help="seed of the 16,384 surface samples per mesh (default 0)")
+    r.add_argument("--workers", "-j", type=positive_int, default=1, help="processes over meshes (results do not depend on it; default 1)")
+    add_quiet(r)
 
 
 def _rigs(args) -> int:
@@ -29,7 +30,7 @@ def _rigs(args) -> int:
 
     if args.workers < 1:
         raise SpotlightsError(f"--workers must be >= 1, got {args.workers}")
-    res = rig_study(args.out, args.meshes, rays=args.rays, seed=args.seed, workers=args.workers)
+    res = rig_study(args.out, args.meshes, rays=args.rays, seed=args.seed, workers=args.workers, progress=not args.quiet)
     s = res.summary
     for mesh_set in dict.fromkeys(s.mesh_set):
         for rays in sorted(s.rays.unique()):

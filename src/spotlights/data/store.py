@@ -300,6 +300,11 @@ class CompletionDataset:
             self._files[k] = f
         return f
 
+    def handle(self, k: int = 0):
+        """The open h5py ``File`` of shard ``k`` (``0``: the file of a single-file dataset), read-only,
+        owned by this reader (do not close it)."""
+        return self._h5(k)
+
     def has(self, key: str) -> bool:
         """Whether every shard holds the HDF5 dataset or group ``key`` (e.g. ``"models/gt_dense"``)."""
         return all(key in self._h5(k) for k in range(len(self.shards)))

@@ -27,9 +27,10 @@ them) the report holds, per model:
   penalised against one that outputs 2,048.
 - **heading flips**: each observation also completed with its box turned by 180 degrees
   (the partial input rotated about the box's up axis); a flip is counted when that
-  completion is closer to the observed points (lower fidelity) - what
-  ``spotlights complete --heading-check`` would do. On annotated boxes every flip is a
-  false alarm of the check.
+  completion is clearly closer to the observed points (fidelity lower by more than the
+  margin of :func:`spotlights.experiments.scene.heading_turns`) - what
+  ``spotlights complete --heading-check`` would do - and, separately, when it is closer at
+  all. On annotated boxes every flip is a false alarm of the check.
 - **out-of-domain boxes**: observations whose class or box size is outside what the
   model learned (:class:`spotlights.learning.inference.LearnedDomain`), counted per reason.
 """
@@ -52,6 +53,7 @@ from ..errors import InputFileError, SpotlightsError
 from ..geometry.boxes import FLIP_Z
 from ..geometry.neighbors import NearestNeighbors, serial_queries
 from ..geometry.sampling import farthest_point_sample, resample_set
+from .scene import HEADING_MARGIN, heading_turns
 
 EQUAL_POINTS = 512
 """Common point count of the equal-count consistency (farthest-point sampling of every completion)."""
@@ -61,7 +63,8 @@ NOISE_DOC = ("resampling noise floor: cd between the completions of the same obs
 EQUAL_DOC = ("every completion brought to {n} points by farthest-point sampling (seeded start; fewer points: all kept "
              "plus seeded repeats) before scoring, so models with different output sizes compare at one density")
 HEADING_DOC = ("share of observations whose completion with the box turned by 180 degrees is closer to the observed "
-               "points (lower fidelity) than with the box as given: the heading check would flip them")
+               "points than with the box as given - fidelity lower by more than the margin (rate; the check of "
+               "'complete --heading-check') or at all (rate_margin0): on annotated boxes, false alarms")
 
 
 def complete_all(completer, partials: np.ndarray, batch_size: int = 64, progress: bool = True, desc: str = "complete",
@@ -292,9 +295,11 @@ def evaluate_consistency(
                 f0 = np.array([fidelity(p, c) for p, c in zip(partials, comps)])
                 f1 = np.array([fidelity(p, c) for p, c in zip(flip_heading(partials), flipped)])
             ok = np.isfinite(f0) & np.isfinite(f1)
-            flips = ok & (f1 < f0)
-            entry["heading"] = dict(n_observations=int(ok.sum()), n_flipped=int(flips.sum()),
+            flips = ok & heading_turns(f0, f1, HEADING_MARGIN)
+            bare = ok & heading_turns(f0, f1, 0.0)
+            entry["heading"] = dict(margin=HEADING_MARGIN, n_observations=int(ok.sum()), n_flipped=int(flips.sum()),
                                     rate=float(flips.sum() / ok.sum()) if ok.any() else None,
+                                    n_flipped_margin0=int(bare.sum()), rate_margin0=float(bare.sum() / ok.sum()) if ok.any() else None,
                                     per_class={c: int(sum(1 for i in np.flatnonzero(flips) if sub_cls[i] == c)) for c in classes_present})
         domain = getattr(completer, "domain", None)
         if domain is not None:
@@ -433,7 +438,8 @@ def report_markdown(report: dict) -> str:
                 row += (f" {_fmt(ea.get('cd'))} ({_fmt(eo.get('cd'))}) | {_fmt(ea.get('noise_floor'))} ({_fmt(eo.get('noise_floor'))}) |"
                         f" {_fmt(e.get('diversity'))} | {_fmt(e.get('consistency_over_diversity'), 3)} |")
             h = m.get("heading")
-            row += (f" {h['n_flipped']} / {h['n_observations']} ({100 * h['rate']:.1f}%) |" if h and h.get("rate") is not None else " - |")
+            row += (f" {h['n_flipped']} / {h['n_observations']} ({100 * h['rate']:.1f}%; {100 * h['rate_margin0']:.1f}% at margin 0) |"
+                    if h and h.get("rate") is not None else " - |")
             od = m.get("out_of_domain")
             row += f" {od['n_observations']} / {d['n_observations_tracked']} |" if od else " - |"
             lines.append(row)

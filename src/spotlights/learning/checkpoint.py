@@ -114,6 +114,11 @@ def load_checkpoint(path, expect_model: str | None = None, map_location="cpu") -
     for key in ("config", "model_state"):
         if key not in ckpt:
             raise InputFileError(p, f"checkpoint lacks its {key!r} entry")
+    cfg = ckpt["config"]
+    if not isinstance(cfg, dict) or not all(isinstance(cfg.get(k, {}), dict) for k in ("model", "data", "train")):
+        raise InputFileError(p, "damaged checkpoint: its 'config' entry is not a model/data/train mapping")
+    if not isinstance(ckpt["model_state"], dict) or not all(isinstance(v, torch.Tensor) for v in ckpt["model_state"].values()):
+        raise InputFileError(p, "damaged checkpoint: its 'model_state' entry is not a mapping of tensors")
     ckpt["path"] = os.fspath(p)
     return ckpt
 
@@ -127,10 +132,10 @@ def model_from_checkpoint(ckpt: dict, device=None):
 
     from .models import build_model
 
-    model = build_model(ckpt["config"], rig=ckpt.get("rig"))
     try:
+        model = build_model(ckpt["config"], rig=ckpt.get("rig"))
         model.load_state_dict(ckpt["model_state"])
-    except RuntimeError as exc:
+    except (RuntimeError, KeyError, TypeError, ValueError) as exc:
         first = str(exc).splitlines()[0][:160]
         raise InputFileError(ckpt.get("path", "checkpoint"), f"weights do not match the {ckpt['model_name']} config ({first})") from None
     model = model.float()

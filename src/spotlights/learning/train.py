@@ -31,7 +31,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader
 
-from ..errors import SpotlightsError
+from ..errors import InputFileError, SpotlightsError
 from ..geometry.rig import RigSpec
 from .checkpoint import load_checkpoint, save_checkpoint
 from .config import (
@@ -446,12 +446,20 @@ def _prepare(dist, model_name, data, out_dir: Path, config, overrides, resume, o
 
 
 def _restore(run: _Run, state: dict, extended: bool) -> None:
-    """Load model, optimizer, schedule, scaler, counters, history and best from a ``last.pt`` state."""
-    run.model.load_state_dict(state["model_state"])
-    if state.get("hit_threshold") is not None:
-        run.model.threshold = float(state["hit_threshold"]["value"])
-    run.opt.load_state_dict(state["optimizer_state"])
-    run.sched.load_state_dict(state["scheduler_state"])
+    """Load model, optimizer, schedule, scaler, counters, history and best from a ``last.pt`` state.
+
+    Raises :class:`InputFileError` naming ``last.pt`` when the state does not fit (a damaged or
+    foreign checkpoint is a bad file, not a crash)."""
+    try:
+        run.model.load_state_dict(state["model_state"])
+        if state.get("hit_threshold") is not None:
+            run.model.threshold = float(state["hit_threshold"]["value"])
+        run.opt.load_state_dict(state["optimizer_state"])
+        run.sched.load_state_dict(state["scheduler_state"])
+        int(state["epoch"]), int(state["global_step"])
+    except (RuntimeError, KeyError, TypeError, ValueError) as exc:
+        first = (str(exc).splitlines() or [type(exc).__name__])[0][:160]
+        raise InputFileError(run.last_path, f"cannot resume from this checkpoint ({type(exc).__name__}: {first})") from None
     if extended:  # a new total length: the learning-rate schedule is recomputed from here on
         for group, base, lam in zip(run.opt.param_groups, run.sched.base_lrs, run.sched.lr_lambdas):
             group["lr"] = base * lam(run.sched.last_epoch)

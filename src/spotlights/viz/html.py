@@ -358,28 +358,47 @@ def page(panels: Sequence[tuple[str, list]], title: str = "", side_by_side: bool
     return fig
 
 
-def write_html(path: str | os.PathLike, fig) -> Path:
-    """Write a plotly Figure as one self-contained page (plotly.js embedded, no network), atomically."""
-    html = fig.to_html(
-        include_plotlyjs=True,
+def write_html(path: str | os.PathLike, fig, plotlyjs: str | None = None) -> Path:
+    """Write a plotly Figure as one page, atomically.
+
+    ``plotlyjs`` None (default): plotly.js embedded, the page is self-contained (no network).
+    Otherwise a *relative* path from the page to a shared copy written by :func:`write_plotlyjs`
+    (for folders of many pages: one copy of the 4.7 MB script; the folder stays offline).
+    """
+    import html as _html
+
+    if plotlyjs is not None and ("://" in plotlyjs or plotlyjs.startswith("/")):
+        raise ValueError(f"plotlyjs must be a relative path to a local copy, got {plotlyjs!r}")
+    text = fig.to_html(
+        include_plotlyjs=True if plotlyjs is None else plotlyjs,
         full_html=True,
         include_mathjax=False,
         config={"displaylogo": False, "responsive": True, "scrollZoom": True},
         default_width="100%",
         default_height="100vh",
     )
-    import html as _html
-
     name = _html.escape(fig.layout.title.text or "spotlights view")
-    html = html.replace(
+    text = text.replace(
         "<head>",
         f'<head><meta charset="utf-8"><title>{name}</title>'
         "<style>html, body {margin: 0; height: 100%; overflow: hidden}</style>",
         1,
     )
     with atomic_output(path, suffix=".html") as tmp:
-        Path(tmp).write_text(html, encoding="utf-8")
+        Path(tmp).write_text(text, encoding="utf-8")
     return Path(path)
+
+
+def write_plotlyjs(folder: str | os.PathLike) -> Path:
+    """Write plotly.js (the version plotly.py embeds) as ``FOLDER/plotly.min.js`` once; returns its path."""
+    require_plotly()
+    from plotly.offline import get_plotlyjs
+
+    path = Path(folder) / "plotly.min.js"
+    if not path.exists():
+        with atomic_output(path, suffix=".js") as tmp:
+            Path(tmp).write_text(get_plotlyjs(), encoding="utf-8")
+    return path
 
 
 # --- files -> traces (``spotlights view``) -------------------------------------------------------

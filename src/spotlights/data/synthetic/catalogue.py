@@ -146,6 +146,15 @@ class LoadedModel:
     vertices: np.ndarray
     faces: np.ndarray
 
+    @property
+    def size(self) -> np.ndarray:
+        """(3,) float64 box size (length, width, height), metres."""
+        return self.vertices.max(axis=0) - self.vertices.min(axis=0)
+
+    def derive(self, entry: ModelEntry) -> "LoadedModel":
+        """The model of ``entry``, an augmented copy of this mesh (:func:`apply_augment`)."""
+        return apply_augment(self, entry)
+
 
 def load_model(root: Path, entry: ModelEntry, scale: float = 1.0) -> LoadedModel:
     """Load one mesh (validated by :func:`~spotlights.geometry.io.load_mesh`), drop unreferenced
@@ -278,8 +287,11 @@ def draw_scale_factors(size: np.ndarray, aug: dict, rng: np.random.Generator, tr
     return best
 
 
-def augmented_copies(model: LoadedModel, aug: dict, seed: int) -> list[LoadedModel]:
-    """The augmented copies of one model (not the model itself), in a fixed order.
+def augment_entries(entry: ModelEntry, size: np.ndarray, aug: dict, seed: int) -> list[ModelEntry]:
+    """The entries of the augmented copies of one mesh (not the mesh itself), in a fixed order.
+
+    entry : the mesh's entry; size : (3,) its box (l, w, h) in metres; aug : the normalised
+    augmentation (:func:`~spotlights.data.synthetic.config.normalize_augment`); seed : root seed.
 
     With ``copies = K`` and ``mirror``: ``NAME~mirror``, then for k = 1..K ``NAME~sK`` (scale
     factors from :func:`draw_scale_factors` with the stream ``(model_key(NAME), STREAM_AUGMENT,
@@ -287,23 +299,23 @@ def augmented_copies(model: LoadedModel, aug: dict, seed: int) -> list[LoadedMod
     category and split of their origin; ``entry.origin`` names it and ``entry.augment`` holds
     the transform (factors as floats: JSON keeps them exactly).
     """
-    out = []
-    size = model.vertices.max(axis=0) - model.vertices.min(axis=0)
     variants = []
     if aug["mirror"]:
         variants.append(("mirror", [1.0, 1.0, 1.0], True))
     for k in range(1, aug["copies"] + 1):
-        rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(model_key(model.entry.name),
+        rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(model_key(entry.name),
                                                                                  STREAM_AUGMENT, k)))
         f = [float(x) for x in draw_scale_factors(size, aug, rng)]
         variants.append((f"s{k}", f, False))
         if aug["mirror"]:
             variants.append((f"s{k}-mirror", f, True))
-    for tag, f, mirror in variants:
-        entry = replace(model.entry, name=f"{model.entry.name}~{tag}", origin=model.entry.name,
-                        augment={"scale": f, "mirror": mirror})
-        out.append(apply_augment(model, entry))
-    return out
+    return [replace(entry, name=f"{entry.name}~{tag}", origin=entry.name, augment={"scale": f, "mirror": mirror})
+            for tag, f, mirror in variants]
+
+
+def augmented_copies(model: LoadedModel, aug: dict, seed: int) -> list[LoadedModel]:
+    """The augmented copies of one loaded mesh (:func:`augment_entries`, meshes by :func:`apply_augment`)."""
+    return [apply_augment(model, e) for e in augment_entries(model.entry, model.size, aug, seed)]
 
 
 def apply_augment(origin: LoadedModel, entry: ModelEntry) -> LoadedModel:
@@ -400,21 +412,36 @@ def _deal(entries, idx, spec, cfg, out, where) -> None:
         out[i] = s
 
 
-def build_catalogue(cfg, log=None, progress: bool = False) -> tuple[list[LoadedModel], list[dict]]:
+def load_locally(cfg, entries: list[ModelEntry], progress: bool = False) -> list[tuple]:
+    """Load every entry in this process: ``[(LoadedModel or None, problem or None), ...]``."""
+    out = []
+    for e in tqdm(entries, desc="load meshes", unit="mesh", disable=not progress or len(entries) < 20, leave=False):
+        try:
+            out.append((load_model(source_root(cfg, e), e, source_scale(cfg, e)), None))
+        except InputFileError as exc:
+            out.append((None, exc.problem))
+    return out
+
+
+def build_catalogue(cfg, log=None, progress: bool = False, loader=None) -> tuple[list, list[dict]]:
     """Every model of a build, loaded, with its split: the meshes of every source (unreadable ones
     skipped and reported), then, after each mesh whose split ``cfg.augment`` covers, its
     augmented copies (same split: split by source mesh, never by copy).
+
+    loader : ``loader(cfg, entries, progress) -> [(model or None, problem or None)]`` (default
+        :func:`load_locally`); a model has ``entry`` (with ``sha256`` set), ``size`` and
+        ``derive(entry)`` (a Ray backend returns handles to meshes in its object store).
 
     Returns ``(models, skipped)``; ``skipped`` lists ``{"file", "problem"}``. Raises
     InputFileError when no mesh can be read, ParameterError when the splits do not add up.
     """
     entries, skipped = discover_sources(cfg)
-    models: list[LoadedModel] = []
-    for e in tqdm(entries, desc="load meshes", unit="mesh", disable=not progress or len(entries) < 20, leave=False):
-        try:
-            models.append(load_model(source_root(cfg, e), e, source_scale(cfg, e)))
-        except InputFileError as exc:
-            skipped.append({"file": (f"{e.source}/" if e.source else "") + e.file, "problem": exc.problem})
+    models = []
+    for e, (model, problem) in zip(entries, (loader or load_locally)(cfg, entries, progress)):
+        if model is None:
+            skipped.append({"file": (f"{e.source}/" if e.source else "") + e.file, "problem": problem})
+        else:
+            models.append(model)
     if log is not None:
         for s in skipped:
             log(f"warning: skipping {_skipped_path(cfg, s['file'])}: {s['problem']}")
@@ -430,7 +457,7 @@ def build_catalogue(cfg, log=None, progress: bool = False) -> tuple[list[LoadedM
     for m in models:
         out.append(m)
         if m.entry.split in cfg.augment["splits"]:
-            out.extend(augmented_copies(m, cfg.augment, cfg.seed))
+            out.extend(m.derive(e) for e in augment_entries(m.entry, m.size, cfg.augment, cfg.seed))
     return out, skipped
 
 

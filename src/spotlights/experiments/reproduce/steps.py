@@ -370,7 +370,7 @@ def _run_consistency_box(ctx: Context) -> dict:
 # --- rig study (Tables 3 and 4) ------------------------------------------------------------------
 def study_meshes(s: Settings) -> list:
     """The rig study's meshes: category folders with >= 5 meshes, then the cars (--quick: a few of each)."""
-    from .rig_study import find_meshes
+    from ..rig_study import find_meshes
 
     out = []
     for folder in (s.category_meshes, s.cars_meshes):
@@ -390,7 +390,7 @@ def study_meshes(s: Settings) -> list:
 
 def study_variants() -> tuple:
     """The rig study's variants: the paper's cap rigs (Tables 3, 4) and the box rigs of the box table, in one pass."""
-    from .rig_study import BOX_RIGS, PAPER_RIGS
+    from ..rig_study import BOX_RIGS, PAPER_RIGS
 
     return tuple(PAPER_RIGS) + tuple(v for v in BOX_RIGS if v[0] in BOX_STUDY_LABELS)
 
@@ -407,7 +407,7 @@ def _study_command(ctx: Context) -> str:
 
 
 def _run_study(ctx: Context) -> dict:
-    from .rig_study import run_study, study_rigs, summarize
+    from ..rig_study import run_study, study_rigs, summarize
 
     meshes = study_meshes(ctx.s)
     rigs = study_rigs(ABLATION_RAYS, variants=study_variants())

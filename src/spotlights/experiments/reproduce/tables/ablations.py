@@ -20,7 +20,7 @@ def _study_summary(ctx: Context):
 
 def _ablation_values(ctx: Context, metric: str, rays_list) -> tuple[dict, list, list, dict]:
     """{(rays, angle): {category: mean, "average": mean over the paper's 6, "average_all": over ours, "cars": ...}}."""
-    from ..rig_study import CARS
+    from ...rig_study import CARS
 
     s = _study_summary(ctx)
     cats_set = s[(s.mesh_set != CARS) & (s.category != "all")]

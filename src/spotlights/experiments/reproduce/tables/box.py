@@ -16,7 +16,7 @@ def box_study_values(ctx: Context) -> dict:
     set = "cars" (mean over the cars) or "categories" (mean of the category means)."""
     import pandas as pd
 
-    from ..rig_study import CARS
+    from ...rig_study import CARS
 
     s = pd.read_csv(ctx.out / "rig_study" / "summary.csv")
     s = s[(s.category == "all") & s.label.isin(list(ANGLE_LABELS) + list(BOX_STUDY_LABELS))]

@@ -46,7 +46,7 @@ def build_table2(ctx: Context) -> dict:
     kitti_obs = None
     kp = ctx.out / "data" / "kitti.h5"
     if kp.is_file():
-        from ...data.real.extract import read_observations
+        from ....data.real.extract import read_observations
 
         kitti_obs = len(read_observations(kp))
     checks = [

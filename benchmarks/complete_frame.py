@@ -1,0 +1,122 @@
+"""Time to complete a whole LiDAR frame once the model is loaded (``spotlights complete SCAN --boxes ...``).
+
+The frame: KITTI object 002155 (velodyne_reduced, 13 vehicles in its label_2 file, 8 with at least
+10 points) from ``../shared/data/lidar/kitti-object/training-fov-cropped``. Measured in one run,
+median of ``--repeats`` runs after a warm-up, torch on ``--threads`` threads (the target: < 0.5 s
+on 2 cores):
+
+* ``read``: the scan (.bin) and the label file with its calibration -> boxes in the Velodyne frame;
+* ``complete``: crop every box, one batched forward pass, map back (:func:`complete_scene`);
+* ``complete + heading check``: the same with both headings of every box (twice the batch);
+* ``write``: the scene PLY (x y z, source, object);
+* ``end to end``: read + complete + write (no picture);
+
+each as wall-clock seconds and as this process's CPU seconds (the machine is shared: CPU time
+shows what the work costs, wall time what a user waits). Also checks that every completion point
+lies inside its box's sphere. Writes ``--json`` (default ``docs/results/complete_frame.json``).
+
+Usage: ``python benchmarks/complete_frame.py [--threads 2] [--repeats 20] [--checkpoint default]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+SHARED = Path(os.environ.get("SPOTLIGHTS_SHARED", HERE.parent.parent / "shared")) / "data"
+
+
+def timed(fn, repeats: int) -> tuple[dict, object]:
+    fn()  # warm-up
+    wall, cpu = [], []
+    out = None
+    for _ in range(repeats):
+        t0, c0 = time.perf_counter(), time.process_time()
+        out = fn()
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+    return {"wall_s": statistics.median(wall), "cpu_s": statistics.median(cpu), "wall_min_s": min(wall)}, out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--root", default=str(SHARED / "lidar" / "kitti-object" / "training-fov-cropped"))
+    ap.add_argument("--frame", default="002155")
+    ap.add_argument("--checkpoint", default="default")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--repeats", type=int, default=20)
+    ap.add_argument("--json", default=str(HERE.parent / "docs" / "results" / "complete_frame.json"))
+    args = ap.parse_args()
+
+    import torch
+
+    from spotlights.data.real.boxfiles import read_box_file
+    from spotlights.data.real.scans import read_scan
+    from spotlights.experiments.scene import SceneConfig, complete_scene, write_scene
+    from spotlights.learning.inference import load_completer
+
+    torch.set_num_threads(args.threads)
+    root = Path(args.root)
+    scan_p, label_p, calib_p = (root / "velodyne_reduced" / f"{args.frame}.bin", root / "label_2" / f"{args.frame}.txt",
+                                root / "calib" / f"{args.frame}.txt")
+    t0 = time.perf_counter()
+    completer = load_completer(args.checkpoint, device="cpu")
+    load_s = time.perf_counter() - t0
+
+    def read():
+        return read_scan(scan_p), read_box_file(label_p, calib=calib_p).boxes
+
+    r_read, (points, boxes) = timed(read, args.repeats)
+    plain, heading = SceneConfig(), SceneConfig(heading_check=True)
+    r_complete, result = timed(lambda: complete_scene(points, boxes, completer, plain), args.repeats)
+    r_heading, _ = timed(lambda: complete_scene(points, boxes, completer, heading), args.repeats)
+    tmp = Path(tempfile.mkdtemp()) / "scene.ply"
+    r_write, _ = timed(lambda: write_scene(result, tmp), args.repeats)
+
+    def end_to_end():
+        pts, bx = read()
+        return write_scene(complete_scene(pts, bx, completer, plain), tmp)
+
+    r_all, _ = timed(end_to_end, args.repeats)
+    inside = all(np.linalg.norm(o.completion - o.used_box.center, axis=1).max() <= o.used_box.radius * (1 + 1e-6)
+                 for o in result.completed)
+    vehicles = sum(b.cls is not None for b in boxes)
+    res = {
+        "frame": f"kitti-object/training-fov-cropped {args.frame}", "scan_points": int(len(points)), "boxes": len(boxes),
+        "vehicle_boxes": vehicles, "completed": len(result.completed), "skipped": result.skipped(),
+        "completion_points": int(sum(len(o.completion) for o in result.completed)),
+        "every_completion_point_inside_its_sphere": bool(inside),
+        "model": completer.model_name, "checkpoint": args.checkpoint, "threads": args.threads, "repeats": args.repeats,
+        "model_load_s": load_s, "read": r_read, "complete": r_complete, "complete_heading_check": r_heading,
+        "write_ply": r_write, "end_to_end_no_picture": r_all, "cpu": _cpu_name(), "load_average": os.getloadavg(),
+    }
+    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.json).write_text(json.dumps(res, indent=2) + "\n")
+    print(f"{res['frame']}: {len(points)} points, {vehicles} vehicle boxes, {len(result.completed)} completed "
+          f"({res['completion_points']} points, all inside their spheres: {inside}); model load {load_s:.2f} s")
+    for k in ("read", "complete", "complete_heading_check", "write_ply", "end_to_end_no_picture"):
+        print(f"  {k:24s} wall {1000 * res[k]['wall_s']:7.1f} ms (min {1000 * res[k]['wall_min_s']:.1f})   "
+              f"cpu {1000 * res[k]['cpu_s']:7.1f} ms")
+    print(f"load average {res['load_average'][0]:.1f} on this machine -> {args.json}")
+
+
+def _cpu_name() -> str:
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return ""
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,97 @@
+"""Ray, the optional engine of the distributed backends (``--backend ray``).
+
+Ray is an optional dependency (``pip install 'spotlights[distributed]'``): nothing here
+imports it at module import; :func:`import_ray` does, and turns its absence into one
+line saying how to install it. :func:`ray_session` joins a running cluster
+(``address="auto"`` or ``"HOST:PORT"``) or starts a local instance with ``workers`` CPUs,
+and shuts down only what it started. Token authentication stays as Ray configures it
+(on by default for local instances since Ray 2.59; see docs/scale-out.md for clusters).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from typing import Iterator
+
+from .errors import SpotlightsError
+
+BACKENDS = ("local", "ray")
+INSTALL_HINT = "pip install 'spotlights[distributed]' (or: pip install 'ray>=2.52')"
+# A task that raises something other than a SpotlightsError (a crashed worker, a lost node, an
+# out-of-memory kill) is retried this many times before the run stops.
+DEFAULT_RETRIES = 2
+
+
+def import_ray():
+    """The ``ray`` module; raises SpotlightsError (one line: how to install it) when it is missing."""
+    try:
+        import ray
+    except ImportError:
+        raise SpotlightsError(f"--backend ray needs Ray, which is not installed: {INSTALL_HINT}") from None
+    return ray
+
+
+def check_backend(backend: str) -> str:
+    """Validate a ``--backend`` value (``local`` or ``ray``)."""
+    b = str(backend or "local").lower()
+    if b not in BACKENDS:
+        raise SpotlightsError(f"unknown backend {backend!r}; choose from {', '.join(BACKENDS)}")
+    return b
+
+
+@contextlib.contextmanager
+def ray_session(address: str | None = None, workers: int | None = None) -> Iterator[object]:
+    """Yield the ``ray`` module with a connection: the one already initialised in this process,
+    a running cluster (``address``: ``"auto"``, ``"HOST:PORT"`` or ``"ray://HOST:PORT"``), or a
+    local instance with ``workers`` CPUs (default: all cores). What this call started, it stops.
+
+    The local instance gets no dashboard and a small object store (meshes and depth arrays are
+    small: a car is ~0.2 MB); worker processes inherit this process's environment (so the
+    same ``spotlights`` is imported by the workers).
+    """
+    ray = import_ray()
+    if ray.is_initialized():
+        yield ray
+        return
+    kw = dict(include_dashboard=False, log_to_driver=False, logging_level="ERROR", configure_logging=True)
+    try:
+        if address:
+            ray.init(address=address, **kw)
+        else:
+            n = max(1, int(workers or os.cpu_count() or 1))
+            env = {k: os.environ[k] for k in ("PYTHONPATH",) if k in os.environ}
+            ray.init(num_cpus=n, object_store_memory=_local_store_bytes(), runtime_env={"env_vars": env} if env else None,
+                     **kw)
+    except (ConnectionError, RuntimeError, ValueError) as exc:
+        where = f"the Ray cluster at {address}" if address else "a local Ray instance"
+        raise SpotlightsError(f"cannot connect to {where}: {str(exc).splitlines()[0][:160]}") from None
+    try:
+        yield ray
+    finally:
+        ray.shutdown()
+
+
+def _local_store_bytes() -> int:
+    """Object store of a local instance: 10% of memory, between 256 MiB and 2 GiB (what a build
+    keeps there at once is one mesh per model plus the in-flight units' arguments)."""
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # pragma: no cover - not POSIX
+        total = 8 << 30
+    return int(min(2 << 30, max(256 << 20, total // 10)))
+
+
+def cluster_cpus(ray) -> int:
+    """CPUs of the connected cluster (at least 1)."""
+    return max(1, int(ray.cluster_resources().get("CPU", 1)))
+
+
+def error_reason(exc: BaseException) -> str:
+    """One line saying why a Ray task failed (the task's own exception when there is one)."""
+    cause = getattr(exc, "cause", None)
+    if isinstance(cause, BaseException):
+        exc = cause
+    text = str(exc).strip().splitlines()
+    first = next((line for line in text if line.strip() and not line.startswith("Traceback")), "")
+    return f"{type(exc).__name__}: {first[:200]}" if first else type(exc).__name__
