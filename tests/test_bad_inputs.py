@@ -31,7 +31,7 @@ from helpers import REPO
 
 from spotlights.cli import main
 
-CKPT = REPO / "src" / "spotlights" / "learning" / "pretrained" / "sanet.pt"
+CKPT = REPO / "src" / "spotlights" / "learning" / "pretrained" / "paper.pt"
 
 
 # ---------------------------------------------------------------------------- fixtures
