@@ -158,7 +158,7 @@ def test_complete_runtime_onnx_gives_the_torch_completion(tmp_path, capsys):
 def test_export_errors_are_one_line(tmp_path, capsys, monkeypatch):
     ckpt = _checkpoint(tmp_path, "sanet", make_rig(8, 16, 60.0))
     proc = cli(capsys, "export", ckpt, "--out", tmp_path / "model.pt")
-    assert_user_error(proc, "model.pt", "name it *.onnx")
+    assert_user_error(proc, "model.pt", "name it model.onnx")
     assert not (tmp_path / "model.pt").exists()
     not_onnx = tmp_path / "x.onnx"
     not_onnx.write_text("not a model")
