@@ -97,7 +97,7 @@ def _batch(n_rays: int, batch: int = 32) -> dict:
 def _step_fn(model, data: dict, precision: str, net=None):
     """One training step (forward under ``precision``, float32 loss, backward, Adam) as a closure."""
     opt = torch.optim.Adam(model.parameters(), lr=1e-4)
-    net = net or model
+    net = model if net is None else net
     cpu = torch.device("cpu")
 
     def step():

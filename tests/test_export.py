@@ -195,3 +195,20 @@ def test_export_errors_are_one_line(tmp_path, capsys, monkeypatch):
         tmp_path / "o.ply",
     )
     assert proc.returncode == 2 and "pip install 'spotlights[onnx]'" in proc.stderr, proc.stderr
+
+
+def test_bf16_inference_is_close_to_float32(tmp_path, test_scans):
+    """``load_completer(precision="bf16")``: autocast forward, float32 decoding; same rays kept up to rounding."""
+    ckpt = _checkpoint(tmp_path, "sanet-hit", make_rig(8, 16, 60.0), 0.5)
+    a = load_completer(ckpt, device="cpu")
+    b = load_completer(ckpt, device="cpu", precision="bf16")
+    assert a.precision == "fp32" and b.precision == "bf16"
+    x = torch.from_numpy(test_scans)
+    from spotlights.learning.device import autocast
+
+    with torch.inference_mode(), autocast("bf16", torch.device("cpu")):
+        raw = b.model(x)
+    assert raw["depths"].dtype == torch.bfloat16  # the forward really ran in bf16
+    pa, pb = a.complete(test_scans), b.complete(test_scans)
+    assert all(p.dtype == np.float32 for p in pb)
+    assert abs(sum(map(len, pa)) - sum(map(len, pb))) <= 0.02 * sum(map(len, pa)) + 2
