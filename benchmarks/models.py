@@ -20,7 +20,17 @@ picks some; the JSON file keeps the sections not rerun):
   parameters, the layer alone and the whole network, batch 1 and 32, inference;
 * ``quality`` (needs ``--data``): short training runs at fp32 and at bf16 with the same
   seed and the same number of steps (``spotlights.learning.train.train``), then the
-  validation CD-L1 / accuracy / completeness of both and their relative difference.
+  validation CD-L1 / accuracy / completeness of both and their relative difference;
+* ``runtime``: the shipped SA-Net (``--checkpoint``, default ``paper``) completing scans at
+  batch 1 and 32 with torch fp32, torch bf16 autocast and onnxruntime (``spotlights export``),
+  alternating, medians, per scan (forward + decoding + split into clouds).
+
+The ``precision``, ``dense`` and ``runtime`` sections report the **CPU time** of each call
+(``time.process_time``) beside its wall time: on a machine shared with other work, a
+low-priority benchmark's wall time mostly measures its waiting for a core, its CPU time the
+work. Run them with ``--threads 1`` there (CPU time = the latency on one idle core; with two
+threads OpenMP's spin-waiting would be counted); on a quiet machine the wall times are the
+latencies.
 
 Usage::
 
@@ -39,6 +49,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from spotlights.geometry.rig import RigSpec, make_rig
@@ -48,7 +59,7 @@ from spotlights.learning.losses import chamfer_distance
 from spotlights.learning.models import MODEL_NAMES, build_model, load_config
 from spotlights.learning.models.base import MLP
 
-SECTIONS = ("inference", "chamfer", "train", "precision", "dense", "quality")
+SECTIONS = ("inference", "chamfer", "train", "precision", "dense", "quality", "runtime")
 BOX, DENSE = "box-32x64-ellipsoid-s1", "box-128x128-ellipsoid-s1"
 
 
@@ -86,7 +97,7 @@ def _batch(n_rays: int, batch: int = 32) -> dict:
 def _step_fn(model, data: dict, precision: str, net=None):
     """One training step (forward under ``precision``, float32 loss, backward, Adam) as a closure."""
     opt = torch.optim.Adam(model.parameters(), lr=1e-4)
-    net = net or model
+    net = model if net is None else net
     cpu = torch.device("cpu")
 
     def step():
@@ -102,22 +113,38 @@ def _step_fn(model, data: dict, precision: str, net=None):
 
 
 def _alternate(fns: dict, repeats: int, warmup: int = 1, progress=None) -> dict:
-    """Median seconds of every closure, timed round-robin (every repeat runs each once, in order)."""
+    """Median seconds of every closure, timed round-robin (every repeat runs each once, in order).
+
+    Two clocks per call: wall time (``perf_counter``) and this process's CPU time (``process_time``,
+    all its threads). On a machine shared with other work the wall time of a low-priority process
+    mostly measures its waiting; its CPU time measures the work it did. With one torch thread the
+    CPU time is the latency on one otherwise idle core (no OpenMP spin-waiting is counted).
+    """
     for name, fn in fns.items():
         t0 = time.perf_counter()
         for _ in range(warmup):
             fn()
         if progress:
             progress(f"  warm-up {name}: {time.perf_counter() - t0:.1f} s")
-    times = {name: [] for name in fns}
+    wall = {name: [] for name in fns}
+    cpu = {name: [] for name in fns}
     for r in range(repeats):
         for name, fn in fns.items():
-            t0 = time.perf_counter()
+            c0, t0 = time.process_time(), time.perf_counter()
             fn()
-            times[name].append(time.perf_counter() - t0)
+            wall[name].append(time.perf_counter() - t0)
+            cpu[name].append(time.process_time() - c0)
         if progress:
             progress(f"  repeat {r + 1}/{repeats} done")
-    return {name: {"median_s": statistics.median(t), "all_s": t} for name, t in times.items()}
+    return {
+        name: {
+            "median_s": statistics.median(wall[name]),
+            "all_s": wall[name],
+            "median_cpu_s": statistics.median(cpu[name]),
+            "all_cpu_s": cpu[name],
+        }
+        for name in fns
+    }
 
 
 def _variants(include_dense: bool = True) -> dict:
@@ -145,6 +172,7 @@ def train_step_timing(batch: int = 32, steps: int = 3) -> dict:
         step = _step_fn(model, data, "fp32")
         fns[name] = step
         if model.target == "points":
+
             def concat_step(step=step):
                 MLP.materialise_concat = True
                 try:
@@ -179,9 +207,19 @@ def precision_timing(batch: int = 32, repeats: int = 5, compile_: bool = False, 
         for mode in ("eager", "compiled"):
             if (label, "fp32", mode) not in res:
                 continue
-            f32, b16 = res[(label, "fp32", mode)]["median_s"], res[(label, "bf16", mode)]["median_s"]
-            row[mode] = {"fp32_s": f32, "bf16_s": b16, "speedup": f32 / b16,
-                         "fp32_all_s": res[(label, "fp32", mode)]["all_s"], "bf16_all_s": res[(label, "bf16", mode)]["all_s"]}
+            a, b = res[(label, "fp32", mode)], res[(label, "bf16", mode)]
+            row[mode] = {
+                "fp32_s": a["median_cpu_s"],
+                "bf16_s": b["median_cpu_s"],
+                "speedup": a["median_cpu_s"] / b["median_cpu_s"],
+                "fp32_wall_s": a["median_s"],
+                "bf16_wall_s": b["median_s"],
+                "speedup_wall": a["median_s"] / b["median_s"],
+                "fp32_all_cpu_s": a["all_cpu_s"],
+                "bf16_all_cpu_s": b["all_cpu_s"],
+                "fp32_all_wall_s": a["all_s"],
+                "bf16_all_wall_s": b["all_s"],
+            }
         if "compiled" in row:
             row["compile_gain_fp32"] = row["eager"]["fp32_s"] / row["compiled"]["fp32_s"]
             row["compile_gain_bf16"] = row["eager"]["bf16_s"] / row["compiled"]["bf16_s"]
@@ -197,10 +235,14 @@ def dense_cost(repeats: int = 10) -> dict:
         m = build_model(load_config("sanet-hit"), rig=spec).eval()
         last = m.decoder.linears[-1]
         models[label] = m
-        out[label] = {"rig": spec.name, "rays": spec.n_rays, "params_total": m.param_counts()["total"],
-                      "params_decoder": m.param_counts()["decoder"],
-                      "params_last_layer": sum(p.numel() for p in last.parameters()),
-                      "float16_megabytes": 2 * m.param_counts()["total"] / 1e6}
+        out[label] = {
+            "rig": spec.name,
+            "rays": spec.n_rays,
+            "params_total": m.param_counts()["total"],
+            "params_decoder": m.param_counts()["decoder"],
+            "params_last_layer": sum(p.numel() for p in last.parameters()),
+            "float16_megabytes": 2 * m.param_counts()["total"] / 1e6,
+        }
     fns = {}
     g = torch.Generator().manual_seed(0)
     for b in (1, 32):
@@ -212,7 +254,9 @@ def dense_cost(repeats: int = 10) -> dict:
     with torch.inference_mode():
         res = _alternate(fns, repeats, warmup=2)
     for (label, b, what), v in res.items():
-        out[label].setdefault("latency_ms", {}).setdefault(str(b), {})[what] = v["median_s"] * 1e3
+        lat = out[label].setdefault("latency_ms", {}).setdefault(str(b), {})
+        lat[what] = v["median_cpu_s"] * 1e3
+        lat[f"{what}_wall"] = v["median_s"] * 1e3
     for b in ("1", "32"):
         for label in out:
             lat = out[label]["latency_ms"][b]
@@ -229,24 +273,88 @@ def quality_check(data: str, steps: dict, val_views: int = 10, seed: int = 0, pr
         for name, n in steps.items():
             row = {"steps": n}
             for prec in ("fp32", "bf16"):
-                ov = {"train": {"epochs": 1, "steps_per_epoch": n, "precision": prec, "seed": seed,
-                                "lr_schedule": {"kind": "constant"}},
-                      "data": {"val_max_views": val_views}}
+                ov = {
+                    "train": {
+                        "epochs": 1,
+                        "steps_per_epoch": n,
+                        "precision": prec,
+                        "seed": seed,
+                        "lr_schedule": {"kind": "constant"},
+                    },
+                    "data": {"val_max_views": val_views},
+                }
                 t0 = time.perf_counter()
-                res = train(name, data, Path(tmp) / f"{name}-{prec}", overrides=ov, schedule="cpu", progress=False,
-                            log=lambda m: None)
+                res = train(
+                    name,
+                    data,
+                    Path(tmp) / f"{name}-{prec}",
+                    overrides=ov,
+                    schedule="cpu",
+                    progress=False,
+                    log=lambda m: None,
+                )
                 h = res["history"][-1]
-                row[prec] = {k: h[k] for k in ("train_loss", "val_loss", "val_accuracy", "val_completeness",
-                                               "val_chamfer_l1", "val_n") if k in h}
+                row[prec] = {
+                    k: h[k]
+                    for k in ("train_loss", "val_loss", "val_accuracy", "val_completeness", "val_chamfer_l1", "val_n")
+                    if k in h
+                }
                 if "val_threshold" in h:
                     row[prec]["val_threshold"] = h["val_threshold"]
                 row[prec]["seconds"] = time.perf_counter() - t0
                 if progress:
-                    progress(f"  {name} {prec}: {n} steps, val CD-L1 {h['val_chamfer_l1']:.5f} "
-                             f"({row[prec]['seconds']:.0f} s)")
+                    progress(
+                        f"  {name} {prec}: {n} steps, val CD-L1 {h['val_chamfer_l1']:.5f} "
+                        f"({row[prec]['seconds']:.0f} s)"
+                    )
             for k in ("val_chamfer_l1", "val_accuracy", "val_completeness"):
                 row[f"{k}_rel_diff"] = (row["bf16"][k] - row["fp32"][k]) / row["fp32"][k]
             out[name] = row
+    return out
+
+
+def runtime_latency(
+    checkpoint: str = "paper", batches=(1, 32), repeats: int = 20, threads: int = 2, progress=None
+) -> dict:
+    """Per-scan completion latency of one checkpoint: torch fp32, torch bf16 autocast, onnxruntime; alternating."""
+    from spotlights.learning.export import export_onnx, load_onnx_completer, parity
+    from spotlights.learning.inference import load_completer
+
+    ref = load_completer(checkpoint, device="cpu")
+    cpu = torch.device("cpu")
+    with tempfile.TemporaryDirectory(prefix="bench-onnx-") as tmp:
+        t0 = time.perf_counter()
+        onx_path = export_onnx(checkpoint, Path(tmp) / "model.onnx")
+        export_s = time.perf_counter() - t0
+        onx = load_onnx_completer(onx_path, threads=threads)
+        g = np.random.default_rng(0)
+        inputs = {b: (g.normal(size=(b, 256, 3)) * 0.3).astype(np.float32) for b in batches}
+        diff = parity(checkpoint, onx, inputs[max(batches)])
+
+        def torch_call(x, prec):
+            def f():
+                with autocast(prec, cpu):
+                    ref.complete(x)
+
+            return f
+
+        fns = {}
+        for b, x in inputs.items():
+            fns[(b, "torch fp32")] = torch_call(x, "fp32")
+            fns[(b, "torch bf16")] = torch_call(x, "bf16")
+            fns[(b, "onnxruntime")] = lambda x=x: onx.complete(x)
+        res = _alternate(fns, repeats, warmup=3, progress=progress)
+    out = {
+        "checkpoint": str(checkpoint),
+        "model": ref.model_name,
+        "export_seconds": export_s,
+        "parity": diff,
+        "onnxruntime": __import__("onnxruntime").__version__,
+        "latency_ms_per_scan": {},
+    }
+    for (b, path), v in res.items():
+        out["latency_ms_per_scan"].setdefault(str(b), {})[path] = v["median_cpu_s"] * 1e3 / b
+        out.setdefault("wall_ms_per_scan", {}).setdefault(str(b), {})[path] = v["median_s"] * 1e3 / b
     return out
 
 
@@ -257,8 +365,13 @@ QUALITY_STEPS = {"sanet": 400, "sanet-hit": 400, "topnet": 120, "pcn": 80, "fold
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--only", nargs="+", choices=SECTIONS, default=None, help="sections to run (default: all but quality "
-                    "unless --data is given)")
+    ap.add_argument(
+        "--only",
+        nargs="+",
+        choices=SECTIONS,
+        default=None,
+        help="sections to run (default: all but quality unless --data is given)",
+    )
     ap.add_argument("--repeats", type=int, default=10, help="timed inference runs per model and batch")
     ap.add_argument("--train-steps", type=int, default=3, help="timed training steps per model (train section)")
     ap.add_argument("--precision-repeats", type=int, default=5, help="timed steps per model and precision")
@@ -268,6 +381,15 @@ def main() -> None:
     ap.add_argument("--views", type=int, nargs="+", default=[100, 200], help="views per model for the epoch estimate")
     ap.add_argument("--data", default=None, help="dataset for the quality section (e.g. cars.h5)")
     ap.add_argument("--quality-val-views", type=int, default=10, help="validation views per model (quality)")
+    ap.add_argument(
+        "--quality-steps",
+        nargs="+",
+        default=None,
+        metavar="MODEL=N",
+        help="quality section: steps per model (default: QUALITY_STEPS); only the models named are run",
+    )
+    ap.add_argument("--checkpoint", default="paper", help="runtime section: checkpoint or short name (default paper)")
+    ap.add_argument("--runtime-repeats", type=int, default=20, help="runtime section: timed completions per path")
     ap.add_argument("--json", default=None, help="write the numbers here (sections not rerun are kept)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -283,13 +405,21 @@ def main() -> None:
 
     def done(section: str, payload: dict, t_start: float, l_start):
         l_end = os.getloadavg()
-        result["sections"][section] = {"machine": {**machine, "load_average_1_5_15_at_start": list(l_start),
-                                                   "load_average_1_5_15_at_end": list(l_end),
-                                                   "nice": os.nice(0)},
-                                       "wall_seconds": time.time() - t_start, "date": time.strftime("%Y-%m-%d %H:%M"),
-                                       **payload}
-        log(f"[{section}] load average {l_start[0]:.1f} at start, {l_end[0]:.1f} at end ({os.cpu_count()} cores), "
-            f"{time.time() - t_start:.0f} s")
+        result["sections"][section] = {
+            "machine": {
+                **machine,
+                "load_average_1_5_15_at_start": list(l_start),
+                "load_average_1_5_15_at_end": list(l_end),
+                "nice": os.nice(0),
+            },
+            "wall_seconds": time.time() - t_start,
+            "date": time.strftime("%Y-%m-%d %H:%M"),
+            **payload,
+        }
+        log(
+            f"[{section}] load average {l_start[0]:.1f} at start, {l_end[0]:.1f} at end ({os.cpu_count()} cores), "
+            f"{time.time() - t_start:.0f} s"
+        )
 
     if "inference" in sections:
         ts, ls = time.time(), os.getloadavg()
@@ -311,25 +441,40 @@ def main() -> None:
             s = v["seconds_per_step"]
             est = {vw: s * args.train_models * vw / 32 / 60 for vw in args.views}
             v["epoch_minutes"] = {str(k): m for k, m in est.items()}
-            print(f"  {name:24s} {s * 1e3:8.0f} ms/step  " +
-                  "  ".join(f"{args.train_models}x{vw} views: {m:6.1f} min/epoch" for vw, m in est.items()))
-        ratios = {n: tr[f"{n} (concatenation)"]["seconds_per_step"] / tr[n]["seconds_per_step"]
-                  for n in MODEL_NAMES if f"{n} (concatenation)" in tr}
-        print("Training step, concatenated code / broadcast code (same run): "
-              + ", ".join(f"{n} {r:.2f}x" for n, r in ratios.items()))
-        done("train", {"train_step_batch32": tr, "train_step_concat_over_broadcast": ratios,
-                       "train_models": args.train_models}, ts, ls)
+            print(
+                f"  {name:24s} {s * 1e3:8.0f} ms/step  "
+                + "  ".join(f"{args.train_models}x{vw} views: {m:6.1f} min/epoch" for vw, m in est.items())
+            )
+        ratios = {
+            n: tr[f"{n} (concatenation)"]["seconds_per_step"] / tr[n]["seconds_per_step"]
+            for n in MODEL_NAMES
+            if f"{n} (concatenation)" in tr
+        }
+        print(
+            "Training step, concatenated code / broadcast code (same run): "
+            + ", ".join(f"{n} {r:.2f}x" for n, r in ratios.items())
+        )
+        done(
+            "train",
+            {"train_step_batch32": tr, "train_step_concat_over_broadcast": ratios, "train_models": args.train_models},
+            ts,
+            ls,
+        )
     if "precision" in sections:
         ts, ls = time.time(), os.getloadavg()
         log("Training step at batch 32, fp32 vs bf16 autocast, alternating:")
         pr = precision_timing(repeats=args.precision_repeats, compile_=args.compile, names=args.models, progress=log)
         for label, r in pr.items():
             e = r["eager"]
-            line = f"  {label:24s} fp32 {e['fp32_s'] * 1e3:8.0f} ms  bf16 {e['bf16_s'] * 1e3:8.0f} ms  {e['speedup']:.2f}x"
+            line = (
+                f"  {label:24s} fp32 {e['fp32_s'] * 1e3:8.0f} ms  bf16 {e['bf16_s'] * 1e3:8.0f} ms  {e['speedup']:.2f}x"
+            )
             if "compiled" in r:
                 c = r["compiled"]
-                line += (f" | compiled fp32 {c['fp32_s'] * 1e3:8.0f} ms ({r['compile_gain_fp32']:.2f}x), "
-                         f"bf16 {c['bf16_s'] * 1e3:8.0f} ms ({r['compile_gain_bf16']:.2f}x)")
+                line += (
+                    f" | compiled fp32 {c['fp32_s'] * 1e3:8.0f} ms ({r['compile_gain_fp32']:.2f}x), "
+                    f"bf16 {c['bf16_s'] * 1e3:8.0f} ms ({r['compile_gain_bf16']:.2f}x)"
+                )
             print(line)
         done("precision", {"train_step_fp32_vs_bf16": pr, "compile": bool(args.compile)}, ts, ls)
     if "dense" in sections:
@@ -337,29 +482,53 @@ def main() -> None:
         dc = dense_cost(args.repeats)
         for label, r in dc.items():
             lat = r["latency_ms"]
-            print(f"  sanet-hit {label} rays: {r['params_total']:,} parameters (last layer {r['params_last_layer']:,}); "
-                  + "; ".join(f"b{b}: network {lat[b]['network']:.2f} ms, last layer {lat[b]['last_layer']:.3f} ms "
-                              f"({100 * lat[b]['last_layer_share']:.0f}%)" for b in ("1", "32")))
+            print(
+                f"  sanet-hit {label} rays: {r['params_total']:,} parameters (last layer {r['params_last_layer']:,}); "
+                + "; ".join(
+                    f"b{b}: network {lat[b]['network']:.2f} ms, last layer {lat[b]['last_layer']:.3f} ms "
+                    f"({100 * lat[b]['last_layer_share']:.0f}%)"
+                    for b in ("1", "32")
+                )
+            )
         done("dense", {"sanet_hit_last_layer": dc}, ts, ls)
     if "quality" in sections:
         if not args.data:
             ap.error("the quality section needs --data DATASET.h5")
         ts, ls = time.time(), os.getloadavg()
         log("Short training runs, fp32 vs bf16, same seed and steps:")
-        q = quality_check(args.data, QUALITY_STEPS, args.quality_val_views, progress=log)
+        steps = QUALITY_STEPS
+        if args.quality_steps:
+            steps = {k: int(v) for k, v in (item.split("=", 1) for item in args.quality_steps)}
+        q = quality_check(args.data, steps, args.quality_val_views, progress=log)
         for name, r in q.items():
-            print(f"  {name:12s} {r['steps']:4d} steps: val CD-L1 fp32 {r['fp32']['val_chamfer_l1']:.5f}, "
-                  f"bf16 {r['bf16']['val_chamfer_l1']:.5f} ({100 * r['val_chamfer_l1_rel_diff']:+.1f}%)")
-        done("quality", {"data": str(args.data), "val_views_per_model": args.quality_val_views,
-                         "fp32_vs_bf16": q}, ts, ls)
+            print(
+                f"  {name:12s} {r['steps']:4d} steps: val CD-L1 fp32 {r['fp32']['val_chamfer_l1']:.5f}, "
+                f"bf16 {r['bf16']['val_chamfer_l1']:.5f} ({100 * r['val_chamfer_l1_rel_diff']:+.1f}%)"
+            )
+        done(
+            "quality",
+            {"data": str(args.data), "val_views_per_model": args.quality_val_views, "fp32_vs_bf16": q},
+            ts,
+            ls,
+        )
+    if "runtime" in sections:
+        ts, ls = time.time(), os.getloadavg()
+        log(f"Completion latency per scan, {args.checkpoint}: torch fp32, torch bf16, onnxruntime, alternating:")
+        rt = runtime_latency(args.checkpoint, repeats=args.runtime_repeats, threads=args.threads, progress=log)
+        for b, v in rt["latency_ms_per_scan"].items():
+            print(f"  batch {b:>2}: " + ", ".join(f"{k} {ms:.2f} ms" for k, ms in v.items()))
+        print("  parity: " + ", ".join(f"{k} {v:.1e}" for k, v in rt["parity"].items()))
+        done("runtime", {"runtime": rt}, ts, ls)
     if args.json:
         from spotlights.utils import atomic_output
 
         with atomic_output(args.json) as tmp:
             tmp.write_text(json.dumps(result, indent=2))
         print(f"-> {args.json}")
-    print(f"load average {load0[0]:.1f} at start, {os.getloadavg()[0]:.1f} at end ({os.cpu_count()} cores), "
-          f"{time.time() - t0:.0f} s")
+    print(
+        f"load average {load0[0]:.1f} at start, {os.getloadavg()[0]:.1f} at end ({os.cpu_count()} cores), "
+        f"{time.time() - t0:.0f} s"
+    )
 
 
 if __name__ == "__main__":

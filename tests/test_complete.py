@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -189,3 +190,27 @@ def test_default_checkpoint_is_the_packaged_one(tmp_path, capsys):
         assert resolve_checkpoint(str(path)) == path
     with pytest.raises(InputFileError, match="short names: default, paper"):
         resolve_checkpoint(tmp_path / "defualt")
+
+
+def test_short_checkpoint_names_resolve_to_shipped_float16_files(tmp_path, monkeypatch):
+    from spotlights.learning.checkpoint import PRETRAINED, load_checkpoint, resolve_checkpoint
+
+    assert set(PRETRAINED) == {"default", "paper"}
+    paper = resolve_checkpoint("paper")
+    assert paper.name == "paper.pt" and resolve_checkpoint(None) == resolve_checkpoint("default")
+    for name in PRETRAINED:
+        p = resolve_checkpoint(name)
+        ck = load_checkpoint(p)
+        assert 0.5e6 < p.stat().st_size < 10e6  # a few MB
+        assert all(v.dtype == torch.float16 for v in ck["model_state"].values() if v.is_floating_point())
+        assert "optimizer_state" not in ck and "scaler_state" not in ck
+    ck = load_checkpoint(paper)
+    assert ck["model_name"] == "sanet" and ck["rig"] == make_rig(32, 64, 60.0).to_dict()
+    assert ck["config"]["model"]["args"]["clip"] == 0.2
+    # a path is a path, a near-miss of a short name is a missing file naming the short names
+    assert resolve_checkpoint(str(paper)) == paper
+    with pytest.raises(InputFileError, match="short names: default, paper"):
+        resolve_checkpoint("papr")
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "paper.pt").write_bytes(paper.read_bytes())
+    assert resolve_checkpoint("paper.pt") == Path("paper.pt")  # a suffix makes it a file

@@ -10,18 +10,20 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from spotlights.errors import InputFileError, ParameterError  # noqa: E402
-from spotlights.learning.config import (  # noqa: E402
-    build_optimizer, build_scheduler, check_keys, data_config, train_config)
+from spotlights.learning.config import build_optimizer, build_scheduler, check_keys, data_config, train_config  # noqa: E402
 from spotlights.learning.models import load_config  # noqa: E402
 
 
-@pytest.mark.parametrize("text, key, hint", [
-    ("train:\n  epoch: 3\n", "train.epoch", "did you mean 'epochs'"),
-    ("data:\n  max_view: 3\n", "data.max_view", "did you mean 'max_views'"),
-    ("model:\n  args:\n    hiden: [64]\n", "model.args.hiden", "did you mean 'hidden'"),
-    ("model:\n  arg: {}\n", "model.arg", "did you mean 'args'"),
-    ("trian:\n  epochs: 3\n", "trian", "did you mean 'train'"),
-])
+@pytest.mark.parametrize(
+    "text, key, hint",
+    [
+        ("train:\n  epoch: 3\n", "train.epoch", "did you mean 'epochs'"),
+        ("data:\n  max_view: 3\n", "data.max_view", "did you mean 'max_views'"),
+        ("model:\n  args:\n    hiden: [64]\n", "model.args.hiden", "did you mean 'hidden'"),
+        ("model:\n  arg: {}\n", "model.arg", "did you mean 'args'"),
+        ("trian:\n  epochs: 3\n", "trian", "did you mean 'train'"),
+    ],
+)
 def test_an_unknown_key_is_an_error_naming_the_key_and_the_file(tmp_path, text, key, hint):
     user = tmp_path / "typo.yaml"
     user.write_text(text)
@@ -41,22 +43,31 @@ def test_unknown_keys_in_a_schedule_and_in_overrides(tmp_path):
         load_config("sanet", overrides={"data": {"rigg": "x"}})
 
 
-@pytest.mark.parametrize("train, match", [
-    ({"lr": -1}, "train.lr must be > 0"),
-    ({"lr": float("nan")}, "train.lr must be a finite number"),
-    ({"epochs": -1}, "train.epochs must be >= 0"),
-    ({"batch_size": 0}, "train.batch_size must be >= 1"),
-    ({"batch_size": 2.5}, "train.batch_size must be an integer"),
-    ({"steps_per_epoch": 0}, "train.steps_per_epoch must be >= 1"),
-    ({"precision": "fp8"}, "train.precision must be one of"),
-    ({"select_by": "f1"}, "train.select_by must be one of"),
-    ({"optimizer": "adagrad"}, "unknown type 'adagrad'"),
-    ({"optimizer": {"type": "adam", "betas": [0.9, 0.99], "momentum": 0.9}}, r"train.optimizer \(adam\): unknown argument 'momentum'"),
-    ({"optimizer": {"type": "adam", "lr": 0.1}}, "set train.lr instead"),
-    ({"lr_schedule": {"type": "cosine", "min_fator": 0.1}}, "unknown argument 'min_fator'.*did you mean 'min_factor'"),
-    ({"lr_schedule": {"type": "poly"}}, "unknown type 'poly'"),
-    ({"weight_decay": -0.1}, "train.weight_decay must be >= 0"),
-])
+@pytest.mark.parametrize(
+    "train, match",
+    [
+        ({"lr": -1}, "train.lr must be > 0"),
+        ({"lr": float("nan")}, "train.lr must be a finite number"),
+        ({"epochs": -1}, "train.epochs must be >= 0"),
+        ({"batch_size": 0}, "train.batch_size must be >= 1"),
+        ({"batch_size": 2.5}, "train.batch_size must be an integer"),
+        ({"steps_per_epoch": 0}, "train.steps_per_epoch must be >= 1"),
+        ({"precision": "fp8"}, "train.precision must be one of"),
+        ({"select_by": "f1"}, "train.select_by must be one of"),
+        ({"optimizer": "adagrad"}, "unknown type 'adagrad'"),
+        (
+            {"optimizer": {"type": "adam", "betas": [0.9, 0.99], "momentum": 0.9}},
+            r"train.optimizer \(adam\): unknown argument 'momentum'",
+        ),
+        ({"optimizer": {"type": "adam", "lr": 0.1}}, "set train.lr instead"),
+        (
+            {"lr_schedule": {"type": "cosine", "min_fator": 0.1}},
+            "unknown argument 'min_fator'.*did you mean 'min_factor'",
+        ),
+        ({"lr_schedule": {"type": "poly"}}, "unknown type 'poly'"),
+        ({"weight_decay": -0.1}, "train.weight_decay must be >= 0"),
+    ],
+)
 def test_values_are_checked_before_torch_sees_them(train, match):
     with pytest.raises(ParameterError, match=match):
         load_config("pcn", overrides={"train": train})
@@ -64,9 +75,18 @@ def test_values_are_checked_before_torch_sees_them(train, match):
 
 def test_optimizer_and_schedule_from_type_and_arguments():
     w = [torch.nn.Parameter(torch.zeros(3))]
-    cfg = load_config("pcn", overrides={"train": {"optimizer": {"type": "adamw", "betas": [0.8, 0.9]}, "lr": 0.01,
-                                                  "weight_decay": 0.1, "epochs": 10,
-                                                  "lr_schedule": {"type": "step", "every": 3, "gamma": 0.5}}})
+    cfg = load_config(
+        "pcn",
+        overrides={
+            "train": {
+                "optimizer": {"type": "adamw", "betas": [0.8, 0.9]},
+                "lr": 0.01,
+                "weight_decay": 0.1,
+                "epochs": 10,
+                "lr_schedule": {"type": "step", "every": 3, "gamma": 0.5},
+            }
+        },
+    )
     t = train_config(cfg)
     opt = build_optimizer(w, t)
     assert isinstance(opt, torch.optim.AdamW) and opt.defaults["betas"] == (0.8, 0.9)
@@ -79,8 +99,19 @@ def test_optimizer_and_schedule_from_type_and_arguments():
         sched.step()
     assert lrs == pytest.approx([0.01, 0.01, 0.01, 0.005, 0.005, 0.005, 0.0025])
     # the pre-existing spellings: optimizer by name, lr_schedule with 'kind'; cosine to min_factor
-    t = train_config(load_config("pcn", overrides={"train": {"optimizer": "sgd", "lr": 0.1, "epochs": 4,
-                                                             "lr_schedule": {"kind": "cosine", "min_factor": 0.1}}}))
+    t = train_config(
+        load_config(
+            "pcn",
+            overrides={
+                "train": {
+                    "optimizer": "sgd",
+                    "lr": 0.1,
+                    "epochs": 4,
+                    "lr_schedule": {"kind": "cosine", "min_factor": 0.1},
+                }
+            },
+        )
+    )
     opt = build_optimizer([torch.nn.Parameter(torch.zeros(1))], t)
     assert isinstance(opt, torch.optim.SGD) and opt.defaults["momentum"] == 0.9
     sched = build_scheduler(opt, t)
@@ -95,12 +126,24 @@ def test_optimizer_and_schedule_from_type_and_arguments():
 
 def test_configs_of_earlier_versions_load():
     """The shipped checkpoint's config (no precision, no steps_per_epoch) and fea188b's (all keys) are valid."""
-    old = {"model": {"name": "sanet", "args": {"code_size": 1024, "hidden": [256, 256], "output_activation": "none",
-                                               "clip": 0.2}},
-           "data": {"rig": None, "max_views": 200, "val_max_views": 10, "num_workers": 0, "partials_in_memory": True},
-           "train": {"epochs": 24, "batch_size": 32, "optimizer": "adam", "lr": 0.001, "weight_decay": 0.0,
-                     "lr_schedule": {"kind": "cosine", "min_factor": 0.05}, "grad_clip": None, "seed": 0,
-                     "select_by": "chamfer_l1"}}
+    old = {
+        "model": {
+            "name": "sanet",
+            "args": {"code_size": 1024, "hidden": [256, 256], "output_activation": "none", "clip": 0.2},
+        },
+        "data": {"rig": None, "max_views": 200, "val_max_views": 10, "num_workers": 0, "partials_in_memory": True},
+        "train": {
+            "epochs": 24,
+            "batch_size": 32,
+            "optimizer": "adam",
+            "lr": 0.001,
+            "weight_decay": 0.0,
+            "lr_schedule": {"kind": "cosine", "min_factor": 0.05},
+            "grad_clip": None,
+            "seed": 0,
+            "select_by": "chamfer_l1",
+        },
+    }
     check_keys(old, "old")
     t = train_config(old)
     assert t.precision == "fp32" and t.steps_per_epoch is None and t.epochs == 24

@@ -9,6 +9,7 @@ paper SA-Net checkpoint evaluated by a numpy re-implementation of its forward pa
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -16,13 +17,13 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from learning_fixtures import TINY_MODEL_ARGS, one_torch_thread, tiny_dataset_path, tiny_overrides  # noqa: E402
-
 from spotlights.geometry.rig import make_rig  # noqa: E402
 from spotlights.learning.checkpoint import load_checkpoint, model_from_checkpoint  # noqa: E402
 from spotlights.learning.models import build_model, load_config  # noqa: E402
 from spotlights.learning.models.sanet_hit import hit_depth_loss  # noqa: E402
 from spotlights.learning.train import train, validate  # noqa: E402
+
+from learning_fixtures import TINY_MODEL_ARGS, one_torch_thread, tiny_dataset_path, tiny_overrides  # noqa: E402
 
 _single_thread = pytest.fixture(autouse=True)(one_torch_thread)
 
@@ -35,8 +36,14 @@ def data(tmp_path_factory):
 @pytest.fixture(scope="module")
 def run(data, tmp_path_factory):
     out = tmp_path_factory.mktemp("hitrun")
-    res = train("sanet-hit", data, out, overrides=tiny_overrides("sanet-hit", epochs=3, precision="fp32"), progress=False,
-                log=lambda *a: None)
+    res = train(
+        "sanet-hit",
+        data,
+        out,
+        overrides=tiny_overrides("sanet-hit", epochs=3, precision="fp32"),
+        progress=False,
+        log=lambda *a: None,
+    )
     return out, res
 
 
@@ -160,7 +167,9 @@ def test_threshold_is_chosen_on_validation_stored_and_used(run, data):
         keep = 1 / (1 + np.exp(-logits[b])) >= rec["value"]
         assert len(clouds[b]) == keep.sum()
     ev = evaluate_checkpoint(out / "best.pt", data, "val", max_views=2, latency=False, progress=False)
-    assert [r["variant"] for r in ev["rows"]] == [f"p(hit) >= {rec['value']:g}"] and ev["rows"][0]["threshold"] == rec["value"]
+    assert [r["variant"] for r in ev["rows"]] == [f"p(hit) >= {rec['value']:g}"] and ev["rows"][0]["threshold"] == rec[
+        "value"
+    ]
     assert ev["rows"][0]["summary"]["mean_over_samples"]["chamfer_l1"] == pytest.approx(cd[rec["value"]], rel=1e-4)
 
 
@@ -195,8 +204,9 @@ def test_validate_scores_an_explicit_threshold_list(run, data):
     r = validate(model, val, 4, torch.device("cpu"), val.gt_dense(), thresholds=[0.5])
     assert r["val_threshold"] == 0.5 and list(r["val_threshold_scan"]) == ["0.5"]
     r2 = validate(model, val, 4, torch.device("cpu"), val.gt_dense(), thresholds=[0.99999, 0.5])
-    assert r2["val_chamfer_l1"] <= r2["val_threshold_scan"]["0.99999"]["chamfer_l1"] or \
-        math.isnan(r2["val_threshold_scan"]["0.99999"]["chamfer_l1"])
+    assert r2["val_chamfer_l1"] <= r2["val_threshold_scan"]["0.99999"]["chamfer_l1"] or math.isnan(
+        r2["val_threshold_scan"]["0.99999"]["chamfer_l1"]
+    )
 
 
 def _numpy_sanet(state: dict, x: np.ndarray) -> np.ndarray:
@@ -218,10 +228,9 @@ def _numpy_sanet(state: dict, x: np.ndarray) -> np.ndarray:
 
 
 def test_the_shipped_paper_checkpoint_loads_and_gives_the_same_outputs():
+    from spotlights.errors import SpotlightsError
     from spotlights.geometry.encode import decode
     from spotlights.learning.inference import load_completer, pretrained_checkpoint
-
-    from spotlights.errors import SpotlightsError
 
     try:
         path = pretrained_checkpoint()
@@ -249,3 +258,51 @@ def test_schedules_without_a_section_train_it_like_sanet(tmp_path):
     own.write_text("default: {train: {lr: 0.002}}\nsanet: {train: {epochs: 3}}\nsanet-hit: {train: {epochs: 5}}\n")
     assert load_schedule(own, "sanet-hit")["train"] == {"lr": 0.002, "epochs": 5}
     assert load_schedule(own, "sanet")["train"] == {"lr": 0.002, "epochs": 3}
+
+
+def test_evaluate_table1_columns_training_facts_and_opt_in_latency(run, data, tmp_path, capsys):
+    from spotlights.learning.evaluate import evaluate_checkpoints, report_markdown
+
+    from learning_fixtures import cli
+
+    out, res = run
+    rep = evaluate_checkpoints([out / "best.pt"], data, "test", max_views=2, progress=False)
+    r = rep["results"][0]
+    assert "latency_ms" not in r  # opt-in
+    ck = load_checkpoint(out / "best.pt")
+    h = res["history"][ck["epoch"] - 1]
+    assert r["training"] == {
+        "steps": ck["global_step"],
+        "epochs": ck["epoch"],
+        "best_epoch": ck["best"]["epoch"],
+        "samples_seen": h["samples_seen"],
+        "minutes": pytest.approx(h["wall_seconds"] / 60),
+        "precision": "fp32",
+    }
+    md = report_markdown(rep)
+    head = "| Method | Accuracy | Completeness | CD-L1 | F@0.01 | Points | #Params | Steps |"
+    assert head in md and "Latency not measured" in md
+    row = next(line for line in md.splitlines() if line.startswith("| SA-Net (hit-aware) (p(hit) >= "))
+    m = r["rows"][0]["summary"]["mean_over_samples"]
+    assert f"{m['accuracy']:.5f} | {m['completeness']:.5f} | {m['chamfer_l1']:.5f} | {m['fscore']:.4f}" in row
+    proc = cli(
+        capsys,
+        "evaluate",
+        "--data",
+        data,
+        "--checkpoint",
+        out / "best.pt",
+        "--max-views",
+        "1",
+        "--latency",
+        "--latency-repeats",
+        "1",
+        "--examples",
+        "0",
+        "--out",
+        tmp_path / "rep",
+        "--no-progress",
+    )
+    assert proc.returncode == 0, proc.stderr
+    timed = json.loads((tmp_path / "rep.json").read_text())["results"][0]
+    assert timed["latency_ms"]["1"]["complete_ms"] > 0 and timed["latency_ms"]["32"]["forward_ms"] > 0

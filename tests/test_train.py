@@ -173,7 +173,7 @@ def test_evaluate_writes_table1_report(data, tmp_path):
     _run("sanet", data, tmp_path / "sanet", epochs=1)
     _run("topnet", data, tmp_path / "topnet", epochs=1)
     ckpts = [tmp_path / "sanet" / "last.pt", tmp_path / "topnet" / "last.pt"]
-    report = evaluate_checkpoints(ckpts, data, "test", progress=False, latency_repeats=1)
+    report = evaluate_checkpoints(ckpts, data, "test", progress=False, latency=True, latency_repeats=1)
     md, js = write_report(report, tmp_path / "report")
     text = md.read_text()
     assert "| Method | Hatchback | Sedan | SUV | Average (samples) | Average (categories) |" in text

@@ -59,7 +59,11 @@ def register(sub) -> None:
     p.add_argument("--batch-size", type=positive_int, default=32, help="evaluation batch size (default 32)")
     p.add_argument("--fscore-threshold", type=positive_float, default=0.01, metavar="T", help="F-score distance threshold, unit frame (default 0.01)")
     p.add_argument("--accuracy-only", action="store_true", help="skip the GT -> prediction side (completeness, CD, F-score)")
-    p.add_argument("--no-latency", action="store_true", help="do not time the models")
+    p.add_argument("--latency", action="store_true",
+                   help="also time every model: median latency at batch 1 and 32 (opt-in: it costs minutes)")
+    p.add_argument("--latency-repeats", type=positive_int, default=10, metavar="R",
+                   help="timed runs per model and batch with --latency (default 10, after 2 warm-up runs)")
+    p.add_argument("--no-latency", action="store_true", help="do not time the models (the default; kept for scripts)")
     p.add_argument("--examples", type=non_negative_int, default=2, metavar="K",
                    help="figure PATH.png: K scans per category, each model's prediction beside the ground truth "
                         "(default 2; 0: no figure)")
@@ -86,6 +90,18 @@ def register(sub) -> None:
                    help="share of each run (by steps) judged for flatness (default 0.2: the last 20%%)")
     p.add_argument("--tolerance", type=positive_float, default=0.02, metavar="REL",
                    help="a curve has flattened when its tail improves it by less than this share (default 0.02)")
+
+    # ---- export
+    p = add_command(sub, "export", "export a trained model to ONNX (rig, clip and p(hit) threshold stored as metadata)",
+                    "spotlights export paper --out sanet.onnx\n  spotlights complete car.pcd --box box.json --checkpoint "
+                    "sanet.onnx --runtime onnx --out car.ply", _export)
+    p.add_argument("checkpoint", metavar="CHECKPOINT",
+                   help="a checkpoint file or a short name: 'default' (the package's default model) or 'paper'")
+    p.add_argument("--out", "-o", required=True, metavar="MODEL.onnx", help="the ONNX file to write (.onnx)")
+    p.add_argument("--opset", type=positive_int, default=18, help="ONNX opset (default 18)")
+    p.add_argument("--no-check", action="store_true",
+                   help="skip the parity check (onnxruntime against torch on 8 seeded random scans)")
+    add_quiet(p, "no summary")
 
     # ---- bench models (reuses an existing 'bench' group if another module made one)
     bsub = add_group(sub, "bench", "benchmarks (bench models: parameters and latency of the five models)",
@@ -151,7 +167,8 @@ def _evaluate(args) -> int:
     _set_threads(args.threads)
     report = evaluate_checkpoints(args.checkpoint, args.data, split=args.split, max_views=args.max_views, clip=args.clip,
                                   batch_size=args.batch_size, device=args.device, fscore_threshold=args.fscore_threshold,
-                                  with_completeness=not args.accuracy_only, latency=not args.no_latency,
+                                  with_completeness=not args.accuracy_only,
+                                  latency=args.latency and not args.no_latency, latency_repeats=args.latency_repeats,
                                   progress=not args.quiet, backend=args.backend, ray_address=args.ray_address)
     md, js = write_report(report, args.out)
     print(report_markdown(report).split("\n## ")[0].rstrip())
@@ -175,6 +192,28 @@ def _curves(args) -> int:
     summary = learning_curves(args.runs, args.names, args.out, args.budget_minutes, args.tail, args.tolerance)
     print(summary_markdown(summary).rstrip())
     print(f"\ncurves -> {args.out}/curves_samples.png, {args.out}/curves_minutes.png, {args.out}/curves.json")
+    return 0
+
+
+def _export(args) -> int:
+    from pathlib import Path
+
+    from ..learning.export import export_onnx, parity
+
+    out = Path(args.out)
+    check_suffix(out, (".onnx",), "an ONNX model")
+    path = export_onnx(args.checkpoint, out, opset=args.opset)
+    if not args.quiet:
+        from ..learning.export import load_onnx_completer
+
+        c = load_onnx_completer(path)
+        rig = f", rig {c.rig.name}" if c.rig is not None else ""
+        dec = (f", p(hit) >= {c.threshold:g}" if c.threshold is not None else "") + (f", clip {c.clip:g}" if c.clip is not None else "")
+        print(f"{args.checkpoint} -> {path} ({c.model_name}, {c.n_params:,} parameters{rig}{dec}; "
+              f"{path.stat().st_size / 1e6:.1f} MB)")
+        if not args.no_check:
+            diff = parity(args.checkpoint, c)
+            print("parity on 8 random scans, max |onnxruntime - torch|: " + ", ".join(f"{k} {v:.1e}" for k, v in diff.items()))
     return 0
 
 

@@ -355,7 +355,7 @@ def _complete(args) -> int:
     if not keys:
         raise ParameterError("--frames selects no frame")
     config = scene_config(args, single=False)
-    completer = load_model(args.checkpoint, args.device)
+    completer = load_model(args.checkpoint, args.device, args.runtime, args.precision)
     with output_folder(args.out) as out:  # removed again if nothing could be written
         return _complete_frames(args, reader, keys, config, completer, out)
 

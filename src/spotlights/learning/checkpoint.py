@@ -29,10 +29,11 @@ FORMAT = "spotlights-checkpoint"
 FORMAT_VERSION = 1
 
 #: Short checkpoint names -> files shipped in ``spotlights/learning/pretrained/``.
-#: ``default`` is the model every command uses when ``--checkpoint`` is not given;
-#: ``paper`` is the paper-faithful SA-Net (32 x 64 rays at 60 degrees, clip 0.2).
-#: Today both name the one shipped SA-Net.
-PRETRAINED: dict[str, str] = {"default": "sanet.pt", "paper": "sanet.pt"}
+#: ``default`` is the model every command uses when ``--checkpoint`` is not given (the best
+#: product model, ``default.pt`` once it ships); ``paper`` is the paper-faithful SA-Net
+#: (32 x 64 rays at 60 degrees, clip 0.2). Until the product model ships both name ``paper.pt``.
+#: ``scripts/ship_pretrained.py`` writes a file (float16 weights) and checks it.
+PRETRAINED: dict[str, str] = {"default": "paper.pt", "paper": "paper.pt"}
 
 
 def resolve_checkpoint(name=None) -> Path:
@@ -155,8 +156,8 @@ def export_weights(src, dst, half: bool = False) -> Path:
     import torch
 
     ckpt = load_checkpoint(src)
-    keep = {k: v for k, v in ckpt.items() if k not in ("optimizer_state", "scheduler_state", "path", "format",
-                                                          "format_version", "spotlights_version")}
+    keep = {k: v for k, v in ckpt.items() if k not in ("optimizer_state", "scheduler_state", "scaler_state", "path",
+                                                          "format", "format_version", "spotlights_version")}
     if half:
         keep["model_state"] = {k: (v.half() if torch.is_floating_point(v) else v) for k, v in ckpt["model_state"].items()}
     return save_checkpoint(dst, keep)

@@ -88,6 +88,7 @@ SELECT_BY = {"chamfer_l1": "val_chamfer_l1", "accuracy": "val_accuracy", "loss":
 
 # --- optimizers and schedules -------------------------------------------------------------
 
+
 def _adam(params, lr, weight_decay, **kw):
     import torch
 
@@ -106,8 +107,11 @@ def _sgd(params, lr, weight_decay, momentum=0.9, **kw):
     return torch.optim.SGD(params, lr=lr, momentum=momentum, weight_decay=weight_decay, **kw)
 
 
-OPTIMIZERS = {"adam": ("torch.optim.Adam", _adam), "adamw": ("torch.optim.AdamW", _adamw),
-              "sgd": ("torch.optim.SGD", _sgd)}
+OPTIMIZERS = {
+    "adam": ("torch.optim.Adam", _adam),
+    "adamw": ("torch.optim.AdamW", _adamw),
+    "sgd": ("torch.optim.SGD", _sgd),
+}
 """Optimizer type -> (torch class whose other arguments a config may set, builder)."""
 
 
@@ -145,7 +149,9 @@ def _schedule_spec(value) -> tuple[str, dict]:
     if value is None:
         return "constant", {}
     if not isinstance(value, dict):
-        raise ParameterError(f"train.lr_schedule must be a mapping such as {{type: cosine, min_factor: 0.01}}, got {value!r}")
+        raise ParameterError(
+            f"train.lr_schedule must be a mapping such as {{type: cosine, min_factor: 0.01}}, got {value!r}"
+        )
     args = dict(value)
     kind = args.pop("type", None)
     alias = args.pop("kind", None)
@@ -160,8 +166,9 @@ def _check_args(fn, args: dict, what: str, skip: int) -> None:
     names = [p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
     for key in args:
         if key not in names:
-            raise ParameterError(f"{what}: unknown argument {key!r}{_did_you_mean(key, names)}"
-                                 f" (known: {', '.join(names) or 'none'})")
+            raise ParameterError(
+                f"{what}: unknown argument {key!r}{_did_you_mean(key, names)} (known: {', '.join(names) or 'none'})"
+            )
 
 
 def check_optimizer(value) -> None:
@@ -171,8 +178,11 @@ def check_optimizer(value) -> None:
         raise ParameterError(f"train.optimizer: unknown type {kind!r} ({', '.join(OPTIMIZERS)})")
     for key in ("lr", "weight_decay", "params"):
         if key in args:
-            raise ParameterError(f"train.optimizer.{key}: set train.{key} instead" if key != "params"
-                                 else "train.optimizer.params: not a config argument")
+            raise ParameterError(
+                f"train.optimizer.{key}: set train.{key} instead"
+                if key != "params"
+                else "train.optimizer.params: not a config argument"
+            )
     import importlib
 
     mod, cls = OPTIMIZERS[kind][0].rsplit(".", 1)
@@ -205,6 +215,7 @@ def build_scheduler(opt, tcfg: TrainConfig):
 
 # --- key and value checks ---------------------------------------------------------------------
 
+
 def _did_you_mean(key: str, known) -> str:
     close = difflib.get_close_matches(str(key), list(known), n=1, cutoff=0.6)
     return f" (did you mean {close[0]!r}?)" if close else ""
@@ -230,7 +241,9 @@ def check_keys(cfg: dict, source=None, model_name: str | None = None) -> None:
         raise _fail(source, "a config must be a mapping with model, data and train sections")
     for sec, body in cfg.items():
         if sec not in SECTIONS:
-            raise _fail(source, f"unknown config section {sec!r}{_did_you_mean(sec, SECTIONS)} (expected model, data, train)")
+            raise _fail(
+                source, f"unknown config section {sec!r}{_did_you_mean(sec, SECTIONS)} (expected model, data, train)"
+            )
         if body is None:
             continue
         if not isinstance(body, dict):
@@ -251,8 +264,11 @@ def check_keys(cfg: dict, source=None, model_name: str | None = None) -> None:
                 known = model_arguments(model_class(name))
                 for key in args:
                     if key not in known:
-                        raise _fail(source, f"unknown key 'model.args.{key}'{_did_you_mean(key, known)} for model "
-                                            f"{name!r} (known: {', '.join(known)})")
+                        raise _fail(
+                            source,
+                            f"unknown key 'model.args.{key}'{_did_you_mean(key, known)} for model "
+                            f"{name!r} (known: {', '.join(known)})",
+                        )
 
 
 def model_arguments(cls) -> list[str]:
@@ -292,9 +308,13 @@ def data_config(cfg: dict) -> DataConfig:
     pim = d.get("partials_in_memory", True)
     if not isinstance(pim, bool):
         raise ParameterError(f"data.partials_in_memory must be true or false, got {pim!r}")
-    return DataConfig(rig=rig, max_views=_int(d.get("max_views"), "data.max_views", 1, none_ok=True),
-                      val_max_views=_int(d.get("val_max_views", 200), "data.val_max_views", 1, none_ok=True),
-                      num_workers=_int(d.get("num_workers", 0) or 0, "data.num_workers", 0), partials_in_memory=pim)
+    return DataConfig(
+        rig=rig,
+        max_views=_int(d.get("max_views"), "data.max_views", 1, none_ok=True),
+        val_max_views=_int(d.get("val_max_views", 200), "data.val_max_views", 1, none_ok=True),
+        num_workers=_int(d.get("num_workers", 0) or 0, "data.num_workers", 0),
+        partials_in_memory=pim,
+    )
 
 
 def train_config(cfg: dict) -> TrainConfig:
@@ -317,7 +337,9 @@ def train_config(cfg: dict) -> TrainConfig:
         lr=_float(t.get("lr", base.lr), "train.lr", 0.0, strict=True),
         weight_decay=_float(t.get("weight_decay", 0.0) or 0.0, "train.weight_decay", 0.0),
         lr_schedule=t.get("lr_schedule") or {"kind": "constant"},
-        grad_clip=_float(t.get("grad_clip"), "train.grad_clip", 0.0, strict=True, none_ok=True) if t.get("grad_clip") else None,
+        grad_clip=_float(t.get("grad_clip"), "train.grad_clip", 0.0, strict=True, none_ok=True)
+        if t.get("grad_clip")
+        else None,
         seed=_int(t.get("seed", 0), "train.seed"),
         precision=precision.lower(),
         steps_per_epoch=_int(t.get("steps_per_epoch"), "train.steps_per_epoch", 1, none_ok=True),

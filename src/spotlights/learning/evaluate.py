@@ -4,10 +4,15 @@ For each checkpoint the split's partial scans are completed, and every predictio
 is scored against its model's dense ground truth (16,384 points, unit frame) with
 the metrics of :mod:`spotlights.learning.metrics` (KD-tree per ground-truth model).
 SA-Net is reported twice, without clip (rays with depth > 0) and with its clip
-(default 0.2), as in the paper. Aggregates are given per category and overall,
-both as the mean over samples (the paper's "Average") and the mean over categories.
-Parameter counts and the median latency (batch 1 and 32, same threads) complete
-the table.
+(default 0.2), as in the paper; the hit-aware SA-Net once, at the p(hit) threshold its
+checkpoint stores (chosen on validation; no clip). Aggregates are given per category and
+overall, both as the mean over samples (the paper's "Average") and the mean over categories.
+
+The report's first table is Table 1 under one protocol: accuracy, completeness, CD-L1,
+F-score@0.01 and points per completion (means over samples), parameters, the training each
+checkpoint had (steps, samples seen, minutes, precision, read from the checkpoint) and, when
+asked (``latency=True``, ``spotlights evaluate --latency``), the median latency at batch 1
+and 32 (same threads for every model; opt-in because timing every model costs minutes).
 """
 
 from __future__ import annotations
@@ -29,7 +34,7 @@ TABLE_METRIC = "accuracy"
 
 def evaluate_checkpoint(checkpoint, data, split: str = "test", batch_size: int = 32, max_views: int | None = None,
                         clip=None, device=None, with_completeness: bool = True, fscore_threshold: float = 0.01,
-                        latency: bool = True, latency_repeats: int = 10, num_workers: int = 0,
+                        latency: bool = False, latency_repeats: int = 10, num_workers: int = 0,
                         progress: bool = True, dataset=None, gt_dense=None, scorer=None) -> dict:
     """Score one checkpoint on one split.
 
@@ -40,16 +45,19 @@ def evaluate_checkpoint(checkpoint, data, split: str = "test", batch_size: int =
     clip : SA-Net clip threshold for the "w/ clip" row (default: the checkpoint's, 0.2).
     with_completeness : also compute the GT -> prediction side (completeness, CD-L1,
         CD-L2, F-score); costs one small KD-tree per prediction.
-    latency : measure median latency at batch 1 and 32.
+    latency : measure the median latency at batch 1 and 32 (``latency_repeats`` timed runs each after
+        two warm-up runs; off by default: opt-in).
     dataset, gt_dense : an already opened split and its dense GT (to share across checkpoints).
     scorer : the per-model metric work, ``evaluate_completions`` (default) or a drop-in such as
         :class:`~spotlights.learning.ray_metrics.RayMetrics` (``evaluate --backend ray``).
 
     Returns
     -------
-    dict with ``model``, ``checkpoint``, ``params``, ``latency_ms``, ``rows`` (one per
-    variant: SA-Net "no clip" and "clip 0.2"; baselines one), each with ``summary``
-    (see :func:`~spotlights.learning.metrics.summarize`) and ``hit_ratio`` for SA-Net.
+    dict with ``model``, ``checkpoint``, ``params``, ``training`` ({"steps", "epochs", "best_epoch",
+    "samples_seen", "minutes", "precision"} of the checkpoint), ``latency_ms`` (when timed),
+    ``rows`` (one per variant: SA-Net "no clip" and "clip 0.2", the hit-aware SA-Net
+    "p(hit) >= t" with ``threshold``; baselines one), each with ``summary`` (see
+    :func:`~spotlights.learning.metrics.summarize`; SA-Nets add ``hit_ratio``).
     """
     import torch
     from torch.utils.data import DataLoader
@@ -57,7 +65,6 @@ def evaluate_checkpoint(checkpoint, data, split: str = "test", batch_size: int =
 
     from .checkpoint import load_checkpoint, model_from_checkpoint
     from .data import TorchCompletionDataset
-
     from .device import resolve_device
 
     dev = resolve_device(device)
@@ -115,12 +122,39 @@ def evaluate_checkpoint(checkpoint, data, split: str = "test", batch_size: int =
         "rows": rows,
         "predict_seconds": predict_s,
         "trained_epochs": int(ckpt.get("epoch", 0) or 0),
+        "training": training_facts(ckpt),
     }
     if latency:
         result["latency_ms"] = model_latency(model, dev, repeats=latency_repeats)
         result["latency_device"] = str(dev)
         result["threads"] = torch.get_num_threads()
     return result
+
+
+def training_facts(ckpt: dict) -> dict:
+    """What training a checkpoint had: {"steps", "epochs", "best_epoch", "samples_seen", "minutes", "precision"}.
+
+    ``minutes`` is the wall time of training and validation up to the checkpoint's epoch (``log.csv``'s
+    ``wall_seconds``; None for checkpoints written before it was logged); ``precision`` is ``fp32`` for
+    checkpoints written before ``--precision`` existed.
+    """
+    hist = ckpt.get("history") or []
+    last = hist[-1] if hist else {}
+    wall = last.get("wall_seconds")
+    if wall is None and hist and all("epoch_seconds" in h for h in hist):
+        wall = sum(float(h["epoch_seconds"]) for h in hist)
+    batch = ((ckpt.get("config") or {}).get("train") or {}).get("batch_size")
+    steps = ckpt.get("global_step")
+    seen = last.get("samples_seen", None if steps is None or batch is None else int(steps) * int(batch))
+    return {"steps": None if steps is None else int(steps), "epochs": int(ckpt.get("epoch", 0) or 0),
+            "best_epoch": (ckpt.get("best") or {}).get("epoch"), "samples_seen": seen,
+            "minutes": None if wall is None else float(wall) / 60.0, "precision": ckpt.get("precision", "fp32")}
+
+
+def latency_key(res: dict, row: dict) -> str:
+    """Which latency a row reports: the network alone for SA-Net without clip (its raw depths are the
+    completion), else forward + turning the output into clouds (``complete_ms``)."""
+    return "forward_ms" if row.get("clip") is None and res["model"] == "sanet" else "complete_ms"
 
 
 class _DenseView:
@@ -174,41 +208,63 @@ def _fmt(x: float, digits: int = 5) -> str:
     return "n/a" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}f}"
 
 
-def report_markdown(report: dict, metric: str = TABLE_METRIC) -> str:
-    """The Table-1 style Markdown report (accuracy per category, averages, parameters, latency) + other metrics."""
+def _label(res: dict, row: dict) -> str:
     from .models import DISPLAY_NAMES
 
+    return DISPLAY_NAMES.get(res["model"], res["model"]) + (f" ({row['variant']})" if row["variant"] else "")
+
+
+def _lat(res: dict, row: dict, batch: int) -> str:
+    lat = res.get("latency_ms") or {}
+    v = lat.get(batch, lat.get(str(batch)))
+    return f"{v[latency_key(res, row)]:.2f}" if v else "n/a"
+
+
+def report_markdown(report: dict, metric: str = TABLE_METRIC) -> str:
+    """The Markdown report: Table 1 (every metric, parameters, training, latency), the accuracy per
+    category (the paper's layout), all metrics, parameters and definitions."""
     cats = [c for c in report["categories"]]
-    lines = [f"# Completion accuracy on `{report['data']}` ({report['split']} split: "
+    lines = [f"# Completion on `{report['data']}` ({report['split']} split: "
              f"{report['n_samples']} samples of {report['n_models']} models)", "",
-             f"{metric}: {METRIC_DESCRIPTIONS[metric]}. Lower is better.", "",
-             "Average (samples) = mean over all samples (the paper's Average); Average (categories) = "
-             "unweighted mean of the per-category means.", ""]
+             "Means over samples, unit frame, lower is better except F-score; points = points per completion. "
+             "Training: optimizer steps, samples seen and minutes (training + validation) up to the checkpoint, "
+             "and its precision.", ""]
+    head = ["Method", "Accuracy", "Completeness", "CD-L1", "F@0.01", "Points", "#Params", "Steps", "Samples seen",
+            "Minutes", "Precision", "Latency b1 (ms)", "Latency b32 (ms)"]
+    lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for res in report["results"]:
+        tr = res.get("training") or {}
+        for row in res["rows"]:
+            m = row["summary"]["mean_over_samples"]
+            n = m.get("n_points")
+            cells = [_label(res, row), _fmt(m.get("accuracy")), _fmt(m.get("completeness")), _fmt(m.get("chamfer_l1")),
+                     _fmt(m.get("fscore"), 4), "n/a" if n is None else f"{n:.0f}", f"{res['params']['total'] / 1e6:.2f}M",
+                     "n/a" if tr.get("steps") is None else f"{tr['steps']:,}",
+                     "n/a" if tr.get("samples_seen") is None else f"{tr['samples_seen']:,}",
+                     "n/a" if tr.get("minutes") is None else f"{tr['minutes']:.0f}", tr.get("precision", "n/a"),
+                     _lat(res, row, 1), _lat(res, row, 32)]
+            lines.append("| " + " | ".join(cells) + " |")
+    timed = [r for r in report["results"] if "latency_ms" in r]
+    if timed:
+        lines += ["", "Latency: median forward time (SA-Net without clip) or forward + decoding (+ clip or p(hit) "
+                  f"threshold; baselines: forward + split into clouds), on {timed[0]['latency_device']} "
+                  f"with {timed[0]['threads']} threads."]
+    else:
+        lines += ["", "Latency not measured (opt-in: `spotlights evaluate --latency`)."]
+    lines += ["", "## Accuracy per category", "",
+              f"{metric}: {METRIC_DESCRIPTIONS[metric]}. Average (samples) = mean over all samples (the paper's "
+              "Average); Average (categories) = unweighted mean of the per-category means.", ""]
     head = ["Method", *[c.capitalize() if c != "suv" else "SUV" for c in cats], "Average (samples)", "Average (categories)",
             "#Params", "Latency b1 (ms)", "Latency b32 (ms)"]
     lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for res in report["results"]:
         for row in res["rows"]:
             s = row["summary"]
-            label = DISPLAY_NAMES.get(res["model"], res["model"]) + (f" ({row['variant']})" if row["variant"] else "")
-            lat = res.get("latency_ms", {})
-            key = "complete_ms" if row["clip"] is not None or res["model"] != "sanet" else "forward_ms"
-
-            def _lat(b):
-                v = lat.get(b, lat.get(str(b)))
-                return f"{v[key]:.2f}" if v else "n/a"
-
-            cells = [label, *[_fmt(s["per_category"].get(c, {}).get(metric)) for c in cats],
+            cells = [_label(res, row), *[_fmt(s["per_category"].get(c, {}).get(metric)) for c in cats],
                      _fmt(s["mean_over_samples"][metric]), _fmt(s["mean_over_categories"][metric]),
-                     f"{res['params']['total'] / 1e6:.2f}M", _lat(1), _lat(32)]
+                     f"{res['params']['total'] / 1e6:.2f}M", _lat(res, row, 1), _lat(res, row, 32)]
             lines.append("| " + " | ".join(cells) + " |")
-    timed = [r for r in report["results"] if "latency_ms" in r]
-    if timed:
-        lines += ["", "Latency: median forward time (SA-Net without clip) or forward + decoding + clip "
-                  f"(SA-Net with clip, baselines: forward + split into clouds), on {timed[0]['latency_device']} "
-                  f"with {timed[0]['threads']} threads."]
     lines += [""]
-    # Other metrics, mean over samples.
     others = [m for m in ("completeness", "chamfer_l1", "chamfer_l2", "fscore", "hit_ratio", "n_points")]
     lines += ["## All metrics (mean over samples; per category in the JSON report)", ""]
     head = ["Method", "accuracy", *others]
@@ -216,13 +272,14 @@ def report_markdown(report: dict, metric: str = TABLE_METRIC) -> str:
     for res in report["results"]:
         for row in res["rows"]:
             m = row["summary"]["mean_over_samples"]
-            label = DISPLAY_NAMES.get(res["model"], res["model"]) + (f" ({row['variant']})" if row["variant"] else "")
-            cells = [label, _fmt(m.get("accuracy"))]
+            cells = [_label(res, row), _fmt(m.get("accuracy"))]
             for k in others:
                 v = m.get(k)
                 cells.append("n/a" if v is None else (f"{v:.1f}" if k == "n_points" else _fmt(v, 4 if k in ("fscore", "hit_ratio") else 5)))
             lines.append("| " + " | ".join(cells) + " |")
     lines += ["", "Parameters (encoder / decoder / total):", ""]
+    from .models import DISPLAY_NAMES
+
     for res in report["results"]:
         p = res["params"]
         lines.append(f"- {DISPLAY_NAMES.get(res['model'], res['model'])}: {p['encoder']:,} / {p['decoder']:,} / {p['total']:,} "

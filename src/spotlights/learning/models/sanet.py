@@ -98,6 +98,19 @@ class SANet(CompletionModel):
         (default: the rig's fixed rays).
         """
         clip = self.clip if clip is CLIP_DEFAULT else clip
+        mask = depths > 0 if keep is None else keep.clone()
+        if clip is not None:
+            mask &= depths >= float(clip)
+        pts = self.ray_points(depths, directions)
+        return torch.where(mask.unsqueeze(-1), pts, self.origins.expand_as(pts)), mask
+
+    def ray_points(self, depths: torch.Tensor, directions: torch.Tensor | None = None) -> torch.Tensor:
+        """Every ray's point ``o + 2 d dir``, (B, N*M, 3) float32 unit frame, kept or not (see :meth:`decode`).
+
+        Safe outputs: a depth is clamped to [0, half the ray's chord through the unit sphere]
+        (<= 1), so no decoded point can leave the sphere of the object's box, whatever the
+        network regresses (a linear output is unbounded); true depths never exceed it.
+        """
         if directions is None:
             if self.directions is None:
                 raise ValueError(f"SA-Net regresses the box-targeted rig {self.rig.name}: decoding needs each sample's "
@@ -105,16 +118,9 @@ class SANet(CompletionModel):
             directions = self.directions
         elif directions.shape[-2:] != (self.rig.n_rays, 3) or (directions.dim() == 3 and directions.shape[0] != depths.shape[0]):
             raise ValueError(f"directions of shape {tuple(directions.shape)} do not fit depths of shape {tuple(depths.shape)}")
-        mask = depths > 0 if keep is None else keep.clone()
-        if clip is not None:
-            mask &= depths >= float(clip)
-        # Safe outputs: a depth is clamped to [0, half the ray's chord through the unit sphere]
-        # (<= 1), so no decoded point can leave the sphere of the object's box, whatever the
-        # network regresses (a linear output is unbounded); true depths never exceed it.
         half_chord = (-(self.origins * directions).sum(-1)).clamp(min=0.0)
-        depths = torch.minimum(depths.clamp(min=0.0), half_chord)
-        dist = torch.where(mask, 2.0 * depths, torch.zeros_like(depths)).unsqueeze(-1)
-        return self.origins + dist * directions, mask
+        d = torch.minimum(depths.clamp(min=0.0), half_chord)
+        return self.origins + (2.0 * d).unsqueeze(-1) * directions
 
     def outputs_to_points(self, outputs, clip=CLIP_DEFAULT, directions: torch.Tensor | None = None) -> list[torch.Tensor]:
         pts, mask = self.decode(outputs["depths"].detach().float(), clip, directions)

@@ -13,7 +13,7 @@ Loss = ``hit_weight * BCE + depth_weight * L1_hits`` where BCE is the mean over 
 of the batch and ``L1_hits = sum over hit rays |d - d*| / number of hit rays`` (batch-wide).
 
 At inference a ray is kept where ``sigmoid(logit) >= threshold``; its depth is clamped to
-[0, 1] and decoded with the rig exactly as SA-Net does (:meth:`SANet.decode`). The threshold
+[0, half the ray's chord] and decoded with the rig exactly as SA-Net does (:meth:`SANet.decode`). The threshold
 is chosen during training on the validation split (the value of ``threshold_grid`` that
 minimises validation CD-L1, :func:`spotlights.learning.train.validate`) and stored in the
 checkpoint (``hit_threshold``); ``model_from_checkpoint`` sets it. ``clip`` (a depth clip on
@@ -46,23 +46,34 @@ class HitSANet(SANet):
     clip : optional depth clip applied on top of the hit decision (default None: none).
 
     forward: partial (B, K, 3) -> {"hit_logits": (B, N*M), "depths": (B, N*M)} (raw depths;
-    decoding clamps them to [0, 1]).
+    decoding clamps them to [0, half the ray's chord]).
     """
 
     name = "sanet-hit"
     outputs_per_ray = 2
 
-    def __init__(self, rig, code_size: int = 1024, encoder_widths: Sequence[int] = (128, 256, 512),
-                 hidden: Sequence[int] = (256, 256), threshold: float = 0.5,
-                 threshold_grid: Sequence[float] | None = THRESHOLD_GRID, hit_weight: float = 1.0,
-                 depth_weight: float = 1.0, clip: float | None = None):
-        super().__init__(rig, code_size=code_size, encoder_widths=encoder_widths, hidden=hidden,
-                         output_activation="none", clip=clip)
+    def __init__(
+        self,
+        rig,
+        code_size: int = 1024,
+        encoder_widths: Sequence[int] = (128, 256, 512),
+        hidden: Sequence[int] = (256, 256),
+        threshold: float = 0.5,
+        threshold_grid: Sequence[float] | None = THRESHOLD_GRID,
+        hit_weight: float = 1.0,
+        depth_weight: float = 1.0,
+        clip: float | None = None,
+    ):
+        super().__init__(
+            rig, code_size=code_size, encoder_widths=encoder_widths, hidden=hidden, output_activation="none", clip=clip
+        )
         self.threshold = _check_probability(threshold, "threshold")
         self.threshold_grid = tuple(_check_probability(t, "threshold_grid value") for t in (threshold_grid or ()))
         self.hit_weight, self.depth_weight = float(hit_weight), float(depth_weight)
         if self.hit_weight < 0 or self.depth_weight < 0 or self.hit_weight + self.depth_weight == 0:
-            raise ValueError(f"hit_weight and depth_weight must be >= 0 and not both 0, got {hit_weight}, {depth_weight}")
+            raise ValueError(
+                f"hit_weight and depth_weight must be >= 0 and not both 0, got {hit_weight}, {depth_weight}"
+            )
 
     def forward(self, partial: torch.Tensor) -> dict[str, torch.Tensor]:
         out = self.decoder(self.encoder(partial))
@@ -70,15 +81,17 @@ class HitSANet(SANet):
         return {"hit_logits": out[..., :n], "depths": out[..., n:]}
 
     def loss(self, outputs, batch, progress: float = 1.0):
-        return hit_depth_loss(outputs["hit_logits"], outputs["depths"], batch["depths"], self.hit_weight,
-                              self.depth_weight)
+        return hit_depth_loss(
+            outputs["hit_logits"], outputs["depths"], batch["depths"], self.hit_weight, self.depth_weight
+        )
 
     def hit_probabilities(self, outputs) -> torch.Tensor:
         """(B, N*M) float32 p(hit) of every ray."""
         return torch.sigmoid(outputs["hit_logits"].detach().float())
 
-    def outputs_to_points(self, outputs, clip=CLIP_DEFAULT, directions: torch.Tensor | None = None,
-                          threshold: float | None = None) -> list[torch.Tensor]:
+    def outputs_to_points(
+        self, outputs, clip=CLIP_DEFAULT, directions: torch.Tensor | None = None, threshold: float | None = None
+    ) -> list[torch.Tensor]:
         """Completed clouds (list of B (K_b, 3) float32, unit frame): the rays with p(hit) >= ``threshold``
         (default: the model's, i.e. the checkpoint's chosen threshold), in ray order."""
         t = self.threshold if threshold is None else float(threshold)
@@ -87,8 +100,13 @@ class HitSANet(SANet):
         return [p[m] for p, m in zip(pts, mask)]
 
 
-def hit_depth_loss(hit_logits: torch.Tensor, depths: torch.Tensor, target: torch.Tensor, hit_weight: float = 1.0,
-                   depth_weight: float = 1.0):
+def hit_depth_loss(
+    hit_logits: torch.Tensor,
+    depths: torch.Tensor,
+    target: torch.Tensor,
+    hit_weight: float = 1.0,
+    depth_weight: float = 1.0,
+):
     """The hit-aware SA-Net's loss: ``hit_weight * BCE(logits, target > 0) + depth_weight * L1 on hits``.
 
     hit_logits, depths, target : (B, N*M) float32; ``target`` are ground-truth normalised depths,
@@ -97,8 +115,10 @@ def hit_depth_loss(hit_logits: torch.Tensor, depths: torch.Tensor, target: torch
     Returns (scalar loss tensor, {"bce", "l1_hits", "hit_accuracy"} floats).
     """
     if not (hit_logits.shape == depths.shape == target.shape):
-        raise ValueError(f"shapes differ: logits {tuple(hit_logits.shape)}, depths {tuple(depths.shape)}, "
-                         f"target {tuple(target.shape)}")
+        raise ValueError(
+            f"shapes differ: logits {tuple(hit_logits.shape)}, depths {tuple(depths.shape)}, "
+            f"target {tuple(target.shape)}"
+        )
     hit = target > 0
     bce = torch.nn.functional.binary_cross_entropy_with_logits(hit_logits, hit.to(hit_logits.dtype))
     n_hit = hit.sum()
