@@ -133,6 +133,15 @@ def write_tiny_dataset(path, rigs=None, views: int = 8, layout=DEFAULT_LAYOUT, s
         s.create_dataset("model", data=s_model)
         s.create_dataset("view", data=s_view)
         s.create_dataset("sensor_to_unit", data=s2u)
+        # the remaining per-sample fields of the format (data/store.py SAMPLE_FIELDS); the simulated
+        # sensor of simulate_partial is not a LiDAR pose, so these carry neutral values
+        unit_to_sensor = np.linalg.inv(s2u)
+        s.create_dataset("distance", data=np.linalg.norm(unit_to_sensor[:, :2, 3], axis=1).astype(np.float32))
+        s.create_dataset("azimuth", data=np.zeros(n * views, np.float32))
+        s.create_dataset("heading", data=np.zeros(n * views, np.float32))
+        s.create_dataset("n_raw", data=np.full(n * views, 256, np.int32))
+        s.create_dataset("n_draws", data=np.ones(n * views, np.int16))
+        s.create_dataset("n_rays", data=np.full(n * views, 4096, np.int32))
     return path
 
 

@@ -341,6 +341,10 @@ CASES = [
         "d.h5",
         fault="full",
     ),
+    # ---- dataset merge
+    C("merge-missing", "dataset merge {out}/nope.json -o {out}/m.h5 -q", "nope.json"),
+    C("merge-garbage", "dataset merge {garbage} -o {out}/m.h5 -q", "garbage.bin"),
+    C("merge-not-index", "dataset merge {data} -o {out}/m.h5 -q", "h5"),
     # ---- dataset add-rig / info / export / show
     C("add-rig-missing", "dataset add-rig {out}/nope.h5 --rig 8x8 -q", "nope.h5"),
     C("add-rig-garbage", "dataset add-rig {garbage} --rig 8x8 -q", "garbage.bin"),
@@ -357,6 +361,10 @@ CASES = [
     C("dshow-out-jpg", "dataset show {data} --index 0 -o {out}/s.jpg", "s.jpg"),
     C("dshow-garbage", "dataset show {garbage} -o {out}/s.png", "garbage.bin"),
     C("dshow-full-disk", "dataset show {data} --index 0 -o {out}/s.png", "s.png", fault="full"),
+    # ---- export (ONNX)
+    C("export-onnx-missing", "export {out}/nope.pt -o {out}/m.onnx", "nope.pt"),
+    C("export-onnx-garbage", "export {garbage} -o {out}/m.onnx", "garbage.bin"),
+    C("export-onnx-suffix", "export {ckpt} -o {out}/m.pt", "m.pt"),
     # ---- real extract / evaluate / show
     C("extract-missing", "real extract {out}/nope --format kitti -o {out}/k.h5 -q", "nope"),
     C("extract-not-kitti", "real extract {empty_dir} --format kitti -o {out}/k.h5 -q", "empty"),

@@ -210,7 +210,7 @@ def test_table1_sanet_accuracy_by_brute_force(quick):
 def test_second_run_reuses_every_step_and_publishes(quick, tmp_path):
     out = quick["out"]
     proc = run_cli("reproduce", "--quick", "--out", out, "--meshes", CARS, "--category-meshes", CATEGORIES,
-                   "--lidar", LIDAR, "--no-progress", "--publish", tmp_path / "pub")
+                   "--lidar", LIDAR, "--publish", tmp_path / "pub")
     assert proc.returncode == 0, proc.stderr
     assert "0 step(s) run, 35 reused" in proc.stdout  # nothing recomputed (no wall-clock bound: the machine is shared)
     steps = json.loads((out / "steps.json").read_text())

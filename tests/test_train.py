@@ -153,7 +153,7 @@ def test_ddp_with_torchrun_gloo_two_processes(data, tmp_path):
     env = dict(os.environ, PYTHONPATH=str(REPO / "src"), OMP_NUM_THREADS="1")
     cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc-per-node", "2", "--master-addr", "127.0.0.1",
            "--master-port", str(_free_port()), "-m", "spotlights", "train", "--model", "sanet", "--data", str(data),
-           "--config", str(cfg), "--out", str(tmp_path / "ddp"), "--no-progress", "--threads", "1"]
+           "--config", str(cfg), "--out", str(tmp_path / "ddp"), "--threads", "1"]
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=240)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
     assert "2 process(es)" in proc.stdout
@@ -208,10 +208,10 @@ def test_cli_train_evaluate_and_errors(data, tmp_path, capsys):
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "pcn" / "best.pt").exists()
     proc = cli(capsys, "evaluate", "--data", data, "--checkpoint", tmp_path / "pcn" / "best.pt", "--out", tmp_path / "rep",
-                   "--max-views", "2", "--no-latency", "--no-progress")
+                   "--max-views", "2", "--no-latency")
     assert proc.returncode == 0, proc.stderr
     assert "| PCN |" in proc.stdout and (tmp_path / "rep.json").exists()
-    proc = cli(capsys, "evaluate", "--data", data, "--checkpoint", cfg, "--no-progress")
+    proc = cli(capsys, "evaluate", "--data", data, "--checkpoint", cfg)
     assert_user_error(proc, "tiny.yaml", "not a readable checkpoint")
     proc = cli(capsys, "train", "--model", "pcn", "--data", data, "--config", cfg, "--out", tmp_path / "pcn", "--epochs", "1")
     assert_user_error(proc, "holds a run already")
