@@ -193,6 +193,7 @@ def evaluate_checkpoints(checkpoints, data, split: str = "test", progress: bool 
             scorer = RayMetrics(ray)
         results = [evaluate_checkpoint(c, data, split, dataset=ds, gt_dense=dense, progress=progress, scorer=scorer, **kw)
                    for c in checkpoints]
+    _tag_repeated_models(results)
     return {
         "data": str(data),
         "split": split,
@@ -211,7 +212,20 @@ def _fmt(x: float, digits: int = 5) -> str:
 def _label(res: dict, row: dict) -> str:
     from .models import DISPLAY_NAMES
 
-    return DISPLAY_NAMES.get(res["model"], res["model"]) + (f" ({row['variant']})" if row["variant"] else "")
+    name = DISPLAY_NAMES.get(res["model"], res["model"])
+    if res.get("tag"):  # two checkpoints of one model in a report: say which is which
+        name += f" [{res['tag']}]"
+    return name + (f" ({row['variant']})" if row["variant"] else "")
+
+
+def _tag_repeated_models(results: list[dict]) -> None:
+    """Give each result whose model appears more than once a ``tag``: its run folder's name
+    (``runs/NAME/best.pt``) or the checkpoint file's stem."""
+    models = [r["model"] for r in results]
+    for r in results:
+        if models.count(r["model"]) > 1:
+            p = Path(r["checkpoint"])
+            r["tag"] = p.parent.name if p.stem in ("best", "last") and p.parent.name else p.stem
 
 
 def _lat(res: dict, row: dict, batch: int) -> str:
