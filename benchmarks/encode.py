@@ -222,7 +222,6 @@ def main() -> int:
         "cpus": os.cpu_count(),
         "machine": platform.machine(),
         "split_min_rays": raycast.SPLIT_MIN_RAYS,
-        "min_chunk": raycast.MIN_CHUNK,
         "repeat": args.repeat,
         "block": args.block,
         "load_before": load_before,

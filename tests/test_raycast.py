@@ -117,15 +117,13 @@ def test_empty_and_bad_queries(annulus):
         RayCaster(annulus.vertices, annulus.faces, engine="optix")
 
 
-def test_guided_chunks_cover_every_ray_once():
-    for n in (4096, 5000, 32768, 262144, 1 << 20):
+def test_split_chunks_cover_every_ray_once():
+    for n in (4096, 5000, 32768, 262144, 1 << 20, 7):
         for parts in (2, 3, 8):
-            b = raycast._guided_bounds(n, parts)
+            b = raycast._split_bounds(n, parts)
             sizes = np.diff(b)
-            assert b[0] == 0 and b[-1] == n
-            assert (sizes > 0).all() and (sizes[:-1] >= sizes[1:]).all()  # big bites first
-            assert (sizes[:-1] >= raycast.MIN_CHUNK).all()
-            assert sizes[0] <= -(-n // (2 * parts))
+            assert b[0] == 0 and b[-1] == n and len(b) == parts + 1
+            assert (sizes >= 0).all() and sizes.max() - sizes.min() <= 1  # one equal chunk per thread
 
 
 def test_split_runs_every_chunk_once_and_raises_a_thread_error():

@@ -25,14 +25,18 @@ Both cores for one query (``workers=2``)
 ``embreex`` (4.4) releases the GIL around its loop over rays (``PyEval_SaveThread`` in the
 compiled ``rtcore_scene``), and a committed Embree scene answers queries from several threads
 at once. So with ``workers > 1`` a query of at least :data:`SPLIT_MIN_RAYS` rays is cut into
-chunks, handed out from the front in decreasing sizes (guided scheduling: the first chunks
-are big, the last ones :data:`MIN_CHUNK` rays, so the threads finish together), and cast by
-the calling thread and ``workers - 1`` threads of one shared pool, over the same scene.
-The calling thread never waits for a pool thread that has not claimed a chunk (a busy or
-slow-to-wake pool only means the caller casts more itself). Every ray is cast by the same
-single-ray code whatever the thread, so the results are the same bytes whatever ``workers``.
-Below :data:`SPLIT_MIN_RAYS` a query stays on one thread: there, handing work over costs
-about what it saves (measured: ``benchmarks/encode.py``, docs/benchmarks.md).
+``workers`` contiguous chunks of equal size, cast by the calling thread and ``workers - 1``
+threads of one shared pool, over the same scene. Chunks are claimed in order by whichever
+thread asks next, so the calling thread never waits for a pool thread that has not claimed a
+chunk (a busy or slow-to-wake pool only means the caller casts more itself). One chunk per
+thread is what pays: every engine call costs a fixed ~15-20 us with the GIL held, and finer
+(guided) chunking measured 0.1-0.2x slower at 8,192 rays (``benchmarks/encode.py``). Every ray
+is cast by the same single-ray code whatever the thread, so the results are the same bytes
+whatever ``workers``. Below :data:`SPLIT_MIN_RAYS` a query stays on one thread: there,
+handing work over costs about what it saves (measured: ``benchmarks/encode.py``,
+docs/benchmarks.md). Two threads stay short of two processes (measured here at 32,768 rays:
+1.7x against 1.94x for two independent processes): part of each ``embreex`` call runs with
+the GIL held.
 """
 
 from __future__ import annotations
@@ -49,8 +53,6 @@ from ..errors import ParameterError
 # Queries with fewer rays run on one thread: below this, splitting does not pay (measured in
 # benchmarks/encode.py: 2,048 rays, ~0.12 ms, gain nothing or lose; 4,096 rays gain a little).
 SPLIT_MIN_RAYS = 4096
-# Smallest chunk handed to a thread (rays): ~15 us of Embree work against ~2 us of overhead.
-MIN_CHUNK = 256
 # Rays per engine call without threads (bounds the temporaries of first_hit on huge queries).
 _CALL_RAYS = 1 << 22
 _MAX_THREADS = 64
@@ -121,14 +123,9 @@ def _pool(threads: int) -> ThreadPoolExecutor | None:
         return pool[1]
 
 
-def _guided_bounds(n: int, parts: int) -> list[int]:
-    """Chunk boundaries of ``n`` rays for ``parts`` threads: each chunk is 1/(2 parts) of the
-    rays left, at least :data:`MIN_CHUNK` (big bites first, small ones where the threads meet)."""
-    bounds = [0]
-    while bounds[-1] < n:
-        rest = n - bounds[-1]
-        bounds.append(bounds[-1] + min(rest, max(MIN_CHUNK, -(-rest // (2 * parts)))))
-    return bounds
+def _split_bounds(n: int, parts: int) -> list[int]:
+    """Boundaries of ``parts`` contiguous chunks of ``n`` rays whose sizes differ by at most one."""
+    return [n * i // parts for i in range(parts + 1)]
 
 
 class _Job:
@@ -168,7 +165,7 @@ class _Job:
 
 def _run_split(n: int, threads: int, cast) -> None:
     """``cast(a, b)`` over [0, n) in chunks on the calling thread and ``threads - 1`` pool threads."""
-    job = _Job(cast, _guided_bounds(n, threads))
+    job = _Job(cast, _split_bounds(n, threads))
     pool = _pool(threads - 1)
     if pool is not None:
         for _ in range(threads - 1):
