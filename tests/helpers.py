@@ -33,7 +33,11 @@ def run_cli(*args: str, cwd: Path | None = None, timeout: float = 300) -> subpro
     env.setdefault("MPLBACKEND", "Agg")
     return subprocess.run(
         [sys.executable, "-m", "spotlights", *map(str, args)],
-        capture_output=True, text=True, cwd=cwd, env=env, timeout=timeout,
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        env=env,
+        timeout=timeout,
     )
 
 

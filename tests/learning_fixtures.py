@@ -17,10 +17,18 @@ import numpy as np
 CATEGORIES = ("hatchback", "sedan", "suv")
 # (category, split) per model: one train/val/test model per category plus extra train models.
 DEFAULT_LAYOUT = (
-    ("hatchback", "train"), ("sedan", "train"), ("suv", "train"),
-    ("hatchback", "train"), ("sedan", "train"), ("suv", "train"),
-    ("hatchback", "val"), ("sedan", "val"), ("suv", "val"),
-    ("hatchback", "test"), ("sedan", "test"), ("suv", "test"),
+    ("hatchback", "train"),
+    ("sedan", "train"),
+    ("suv", "train"),
+    ("hatchback", "train"),
+    ("sedan", "train"),
+    ("suv", "train"),
+    ("hatchback", "val"),
+    ("sedan", "val"),
+    ("suv", "val"),
+    ("hatchback", "test"),
+    ("sedan", "test"),
+    ("suv", "test"),
 )
 
 
@@ -64,8 +72,9 @@ def simulate_partial(probe, rng: np.random.Generator, n_points: int = 256, n_ray
     return pts[idx].astype(np.float32), sensor_to_unit
 
 
-def write_tiny_dataset(path, rigs=None, views: int = 8, layout=DEFAULT_LAYOUT, seed: int = 0,
-                       n_gt: int = 2048, n_dense: int = 16384) -> Path:
+def write_tiny_dataset(
+    path, rigs=None, views: int = 8, layout=DEFAULT_LAYOUT, seed: int = 0, n_gt: int = 2048, n_dense: int = 16384
+) -> Path:
     """Write a valid ``spotlights-completion`` HDF5 file and return its path.
 
     Parameters
@@ -149,20 +158,33 @@ def write_tiny_dataset(path, rigs=None, views: int = 8, layout=DEFAULT_LAYOUT, s
 TINY_MODEL_ARGS = {
     "sanet": {"code_size": 64, "encoder_widths": [16, 32, 64], "hidden": [32]},
     "sanet-hit": {"code_size": 64, "encoder_widths": [16, 32, 64], "hidden": [32]},
-    "pcn": {"code_size": 64, "encoder_widths": [16, 32, 64], "num_coarse": 32, "grid_size": 2, "coarse_hidden": [64],
-            "folding_hidden": [32]},
+    "pcn": {
+        "code_size": 64,
+        "encoder_widths": [16, 32, 64],
+        "num_coarse": 32,
+        "grid_size": 2,
+        "coarse_hidden": [64],
+        "folding_hidden": [32],
+    },
     "foldingnet": {"code_size": 64, "encoder_widths": [16, 32, 64], "grid": [8, 16], "hidden": [32]},
-    "topnet": {"code_size": 64, "encoder_widths": [16, 32, 64], "degrees": [2, 4, 4, 4], "node_features": 4,
-               "root_hidden": [32]},
+    "topnet": {
+        "code_size": 64,
+        "encoder_widths": [16, 32, 64],
+        "degrees": [2, 4, 4, 4],
+        "node_features": 4,
+        "root_hidden": [32],
+    },
     "atlasnet": {"code_size": 64, "encoder_widths": [16, 32, 64], "n_patches": 2, "patch_grid": [8, 8]},
 }
 
 
 def tiny_overrides(name: str, epochs: int = 2, batch_size: int = 8, **train) -> dict:
     """Config overrides for a fast test run of model ``name``."""
-    return {"model": {"args": dict(TINY_MODEL_ARGS[name])},
-            "data": {"val_max_views": 2, "num_workers": 0},
-            "train": {"epochs": epochs, "batch_size": batch_size, "lr": 1e-3, **train}}
+    return {
+        "model": {"args": dict(TINY_MODEL_ARGS[name])},
+        "data": {"val_max_views": 2, "num_workers": 0},
+        "train": {"epochs": epochs, "batch_size": batch_size, "lr": 1e-3, **train},
+    }
 
 
 def make_checkpoint(path, name: str, rig=None, tiny: bool = True, seed: int = 0) -> Path:
@@ -177,8 +199,15 @@ def make_checkpoint(path, name: str, rig=None, tiny: bool = True, seed: int = 0)
     rig = rig or make_rig(8, 16, 60.0)
     torch.manual_seed(seed)
     model = build_model(cfg, rig=rig)
-    payload = {"model_name": name, "config": cfg, "rig": rig.to_dict() if model.target == "depths" else None,
-               "model_state": model.state_dict(), "param_counts": model.param_counts(), "epoch": 0, "global_step": 0}
+    payload = {
+        "model_name": name,
+        "config": cfg,
+        "rig": rig.to_dict() if model.target == "depths" else None,
+        "model_state": model.state_dict(),
+        "param_counts": model.param_counts(),
+        "epoch": 0,
+        "global_step": 0,
+    }
     return save_checkpoint(path, payload)
 
 

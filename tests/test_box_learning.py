@@ -21,15 +21,15 @@ import trimesh
 
 torch = pytest.importorskip("torch")
 
-from helpers import KENNEY, need, slab_interval  # noqa: E402
-from learning_fixtures import TINY_MODEL_ARGS, cli, one_torch_thread  # noqa: E402
-
 from spotlights.data.store import open_dataset  # noqa: E402
 from spotlights.data.synthetic import BuildConfig, add_rig, build_dataset  # noqa: E402
 from spotlights.errors import ParameterError  # noqa: E402
 from spotlights.geometry.encode import decode  # noqa: E402
 from spotlights.geometry.io import load_mesh  # noqa: E402
 from spotlights.geometry.rig import RigSpec  # noqa: E402
+
+from helpers import KENNEY, need, slab_interval  # noqa: E402
+from learning_fixtures import TINY_MODEL_ARGS, cli, one_torch_thread  # noqa: E402
 
 BOX = "box-32x64-ellipsoid-s1"
 SPEC = RigSpec.from_name(BOX)
@@ -54,7 +54,7 @@ def brute_force_depths(vertices, faces, origins, directions):
     v0, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
     best = np.full(len(origins), np.inf)
     for s in range(0, len(origins), 256):
-        o, d = origins[s:s + 256, None], directions[s:s + 256, None]
+        o, d = origins[s : s + 256, None], directions[s : s + 256, None]
         p = np.cross(d, e2)
         det = np.einsum("rfk,fk->rf", p, e1)
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
@@ -65,7 +65,7 @@ def brute_force_depths(vertices, faces, origins, directions):
             v = np.einsum("rfk,rfk->rf", np.broadcast_to(d, q.shape), q) * inv
             t = np.einsum("fk,rfk->rf", e2, q) * inv
             ok = (np.abs(det) > 1e-15) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)
-        best[s:s + 256] = np.where(ok, t, np.inf).min(axis=1)
+        best[s : s + 256] = np.where(ok, t, np.inf).min(axis=1)
     chord = np.clip(-2.0 * np.einsum("ij,ij->i", origins, directions), 0, 2)
     return np.where(best <= chord + 1e-6, best / 2.0, 0.0)
 
@@ -154,7 +154,9 @@ def test_add_rig_matches_a_build_and_is_atomic(built, meshes, tmp_path, capsys):
     shutil.copy(without, b)
     rep = add_rig(a, BOX, workers=1, progress=False)
     assert rep.rig == BOX and rep.n_models == 3 and 0.9 < rep.hit_ratio <= 1.0
-    r = cli(capsys, "dataset", "add-rig", b, "--rig", BOX, "--workers", "2")  # (no -q: it silences the summary line too)
+    r = cli(
+        capsys, "dataset", "add-rig", b, "--rig", BOX, "--workers", "2"
+    )  # (no -q: it silences the summary line too)
     assert r.returncode == 0 and f"added rig {BOX}" in r.stdout
     assert hashlib.sha256(a.read_bytes()).digest() == hashlib.sha256(b.read_bytes()).digest()  # workers never matter
     with h5py.File(a) as fa, h5py.File(with_box) as fw:
@@ -213,8 +215,11 @@ def box_run(built, tmp_path_factory):
 
     path, _ = built
     out = tmp_path_factory.mktemp("boxrun")
-    ov = {"model": {"args": dict(TINY_MODEL_ARGS["sanet"])}, "data": {"rig": BOX, "num_workers": 0},
-          "train": {"epochs": 1, "batch_size": 4, "lr": 1e-3}}
+    ov = {
+        "model": {"args": dict(TINY_MODEL_ARGS["sanet"])},
+        "data": {"rig": BOX, "num_workers": 0},
+        "train": {"epochs": 1, "batch_size": 4, "lr": 1e-3},
+    }
     res = train("sanet", path, out, overrides=ov, progress=False, log=lambda m: None)
     return path, Path(res["best"]), res
 
@@ -295,7 +300,9 @@ def test_box_checkpoint_in_evaluate_and_real_consistency(box_run, tmp_path, monk
 
     path, best, _ = box_run
     res = evaluate_checkpoint(best, path, "test", max_views=2, latency=True, latency_repeats=1, progress=False)
-    assert res["n_samples"] == 2 and all(np.isfinite(r["summary"]["mean_over_samples"]["accuracy"]) for r in res["rows"])
+    assert res["n_samples"] == 2 and all(
+        np.isfinite(r["summary"]["mean_over_samples"]["accuracy"]) for r in res["rows"]
+    )
     # the real-data path hands every observation's box to a box-rig completer: e = size / |size|
     comp = load_completer(best, device="cpu")
     seen = []
@@ -351,8 +358,11 @@ def test_hit_aware_sanet_on_a_box_rig(built, tmp_path):
     from spotlights.learning.train import train
 
     path, _ = built
-    ov = {"model": {"args": dict(TINY_MODEL_ARGS["sanet-hit"])}, "data": {"rig": BOX, "num_workers": 0},
-          "train": {"epochs": 1, "batch_size": 4, "lr": 1e-3, "precision": "fp32"}}
+    ov = {
+        "model": {"args": dict(TINY_MODEL_ARGS["sanet-hit"])},
+        "data": {"rig": BOX, "num_workers": 0},
+        "train": {"epochs": 1, "batch_size": 4, "lr": 1e-3, "precision": "fp32"},
+    }
     res = train("sanet-hit", path, tmp_path / "hit", overrides=ov, progress=False, log=lambda m: None)
     assert np.isfinite(res["history"][0]["train_loss"]) and np.isfinite(res["history"][0]["val_chamfer_l1"])
     ck = load_checkpoint(res["best"])

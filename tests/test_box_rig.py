@@ -10,17 +10,31 @@ import numpy as np
 import pytest
 import trimesh
 
-from helpers import REPO, assert_user_error, run_cli, slab_interval
 from spotlights.errors import ParameterError
 from spotlights.geometry.encode import MeshProbe, decode, load_encoding, save_encoding
 from spotlights.geometry.frames import Normalization, normalization_from_mesh
-from spotlights.geometry.rig import (BOX_TARGETS, Rig, RigSpec, box_face_solid_angles, fibonacci_sphere, halton,
-                                     make_rig, make_rig_spec)
+from spotlights.geometry.rig import (
+    BOX_TARGETS,
+    Rig,
+    RigSpec,
+    box_face_solid_angles,
+    fibonacci_sphere,
+    halton,
+    make_rig,
+    make_rig_spec,
+)
+
+from helpers import REPO, assert_user_error, run_cli, slab_interval
 
 PHI = (1 + 5**0.5) / 2
 CAR = np.array([4.6, 1.9, 1.5]) / np.linalg.norm([4.6, 1.9, 1.5])  # a car's box half-extents, |e| = 1
-BOXES = [CAR, np.ones(3) / math.sqrt(3), np.array([0.2, 0.3, 0.93]) / np.linalg.norm([0.2, 0.3, 0.93]),
-         np.array([0.9, 0.05, 0.1]), np.array([0.6, 0.8, 0.0])]  # last: a flat box
+BOXES = [
+    CAR,
+    np.ones(3) / math.sqrt(3),
+    np.array([0.2, 0.3, 0.93]) / np.linalg.norm([0.2, 0.3, 0.93]),
+    np.array([0.9, 0.05, 0.1]),
+    np.array([0.6, 0.8, 0.0]),
+]  # last: a flat box
 
 
 def radical_inverse(i: int, base: int) -> float:
@@ -133,7 +147,7 @@ def test_surface_targets_are_fixed_positions_on_the_faces():
         for i in range(3):
             t = s * e * u
             want = (t - rig.primary[i]) / np.linalg.norm(t - rig.primary[i], axis=1, keepdims=True)
-            assert np.allclose(d[i * m:(i + 1) * m], want, atol=1e-9)
+            assert np.allclose(d[i * m : (i + 1) * m], want, atol=1e-9)
         assert np.bincount(face, minlength=6).tolist() == [100] * 6
 
 
@@ -193,12 +207,19 @@ def test_rig_is_deterministic_for_a_given_box_even_across_processes():
     a = spec.for_box(CAR)
     b = Rig.from_dict(json.loads(json.dumps(a.to_dict())))
     assert a == b and np.array_equal(a.directions, b.directions) and a is spec.for_box(CAR.copy())
-    code = ("import numpy as np; from spotlights.geometry.rig import make_rig; import hashlib, json, sys; "
-            "r = make_rig(32, 64, kind='box', box=json.loads(sys.argv[1])); "
-            "print(hashlib.sha256(np.ascontiguousarray(r.directions).tobytes()).hexdigest())")
+    code = (
+        "import numpy as np; from spotlights.geometry.rig import make_rig; import hashlib, json, sys; "
+        "r = make_rig(32, 64, kind='box', box=json.loads(sys.argv[1])); "
+        "print(hashlib.sha256(np.ascontiguousarray(r.directions).tobytes()).hexdigest())"
+    )
     env_path = str(REPO / "src")
-    out = subprocess.run([sys.executable, "-c", code, json.dumps(CAR.tolist())], capture_output=True, text=True,
-                         env={"PYTHONPATH": env_path, "PATH": ""}, check=True).stdout.strip()
+    out = subprocess.run(
+        [sys.executable, "-c", code, json.dumps(CAR.tolist())],
+        capture_output=True,
+        text=True,
+        env={"PYTHONPATH": env_path, "PATH": ""},
+        check=True,
+    ).stdout.strip()
     assert out == _digest(a)
 
 
@@ -213,8 +234,16 @@ def test_cap_rigs_and_their_dicts_are_unchanged():
 def test_box_rig_dict_and_name():
     rig = make_rig(32, 64, kind="box", box=CAR, targets="volume", scale=0.9)
     d = rig.to_dict()
-    assert d == {"kind": "box", "n_primary": 32, "n_secondary": 64, "angle": 60.0, "scale": 0.9, "targets": "volume",
-                 "cap_share": 0.0, "box": CAR.tolist()}
+    assert d == {
+        "kind": "box",
+        "n_primary": 32,
+        "n_secondary": 64,
+        "angle": 60.0,
+        "scale": 0.9,
+        "targets": "volume",
+        "cap_share": 0.0,
+        "box": CAR.tolist(),
+    }
     assert rig.name == "box-32x64-volume-s0.9"
     assert RigSpec.from_name(rig.name) == rig.spec == RigSpec.from_dict(d)
     assert RigSpec.from_name("cap-32x64-60") == make_rig_spec()
@@ -242,11 +271,23 @@ def test_batched_directions_and_decoding_match_per_box_rigs():
         decode(depths, spec)
 
 
-@pytest.mark.parametrize("kw", [dict(kind="box"), dict(kind="box", box=[1, 1, 1]), dict(kind="box", box=[-0.1, 0.5, 0.5]),
-                                dict(kind="box", box=[0, 0, 0]), dict(kind="box", box=CAR, scale=0),
-                                dict(kind="box", box=CAR, scale=1.2), dict(kind="box", box=CAR, targets="cone"),
-                                dict(kind="box", box=CAR, cap_share=1.0), dict(scale=0.9), dict(targets="volume"),
-                                dict(kind="sphere"), dict(kind="box", box=[np.nan, 0.5, 0.5])])
+@pytest.mark.parametrize(
+    "kw",
+    [
+        dict(kind="box"),
+        dict(kind="box", box=[1, 1, 1]),
+        dict(kind="box", box=[-0.1, 0.5, 0.5]),
+        dict(kind="box", box=[0, 0, 0]),
+        dict(kind="box", box=CAR, scale=0),
+        dict(kind="box", box=CAR, scale=1.2),
+        dict(kind="box", box=CAR, targets="cone"),
+        dict(kind="box", box=CAR, cap_share=1.0),
+        dict(scale=0.9),
+        dict(targets="volume"),
+        dict(kind="sphere"),
+        dict(kind="box", box=[np.nan, 0.5, 0.5]),
+    ],
+)
 def test_bad_box_parameters_rejected(kw):
     with pytest.raises(ParameterError):
         make_rig(16, 16, **{k: v for k, v in kw.items() if k != "box"}, box=kw.get("box"))
@@ -300,11 +341,22 @@ def test_encoding_files_round_trip_and_old_files_still_load(tmp_path):
     cap = make_rig(8, 32, 45)
     cdepths = probe.encode(cap)
     norm = normalization_from_mesh(mesh)
-    common = dict(depths=cdepths, origins=cap.origins.astype(np.float32), directions=cap.directions.astype(np.float32),
-                  center=norm.center, radius=np.float64(norm.radius), rotation=norm.rotation,
-                  primary=np.int64(8), secondary=np.int64(32), angle=np.float64(45.0))
-    np.savez(tmp_path / "cap.npz", rig=np.array(json.dumps({"kind": "cap", "n_primary": 8, "n_secondary": 32,
-                                                            "angle": 45.0})), **common)
+    common = dict(
+        depths=cdepths,
+        origins=cap.origins.astype(np.float32),
+        directions=cap.directions.astype(np.float32),
+        center=norm.center,
+        radius=np.float64(norm.radius),
+        rotation=norm.rotation,
+        primary=np.int64(8),
+        secondary=np.int64(32),
+        angle=np.float64(45.0),
+    )
+    np.savez(
+        tmp_path / "cap.npz",
+        rig=np.array(json.dumps({"kind": "cap", "n_primary": 8, "n_secondary": 32, "angle": 45.0})),
+        **common,
+    )
     np.savez(tmp_path / "legacy.npz", **common)
     for name in ("cap.npz", "legacy.npz"):
         enc = load_encoding(tmp_path / name)
@@ -338,15 +390,18 @@ def test_cli_encode_decode_show_with_a_box_rig(tmp_path):
     r = run_cli("show", tmp_path / "b.npz", "--out", tmp_path / "b.png")
     assert r.returncode == 0 and "box half-extents" in r.stdout, r.stderr
     assert_user_error(run_cli("encode", ply, "--out", tmp_path / "c.npz", "--box-scale", "0.8"), "--rig-kind box")
-    assert_user_error(run_cli("encode", ply, "--out", tmp_path / "c.npz", "--rig-kind", "box", "--box-scale", "2"),
-                      "scale")
+    assert_user_error(
+        run_cli("encode", ply, "--out", tmp_path / "c.npz", "--rig-kind", "box", "--box-scale", "2"), "scale"
+    )
 
 
 def test_study_command_on_small_meshes(tmp_path):
     root = tmp_path / "shapes"
-    for cat, make in (("boxes", lambda j: trimesh.creation.box(extents=[1 + j, 1, 0.5])),
-                      ("spheres", lambda j: trimesh.creation.icosphere(subdivisions=2, radius=1 + j)),
-                      ("few", lambda j: trimesh.creation.box())):
+    for cat, make in (
+        ("boxes", lambda j: trimesh.creation.box(extents=[1 + j, 1, 0.5])),
+        ("spheres", lambda j: trimesh.creation.icosphere(subdivisions=2, radius=1 + j)),
+        ("few", lambda j: trimesh.creation.box()),
+    ):
         (root / cat).mkdir(parents=True)
         for j in range(5 if cat != "few" else 2):
             make(j).export(root / cat / f"{cat}{j}.ply")
@@ -369,8 +424,9 @@ def test_study_command_on_small_meshes(tmp_path):
     assert_user_error(run_cli("study", "rigs", "--out", out, "--meshes", root, "--rays", "100"), "multiple of")
     assert_user_error(run_cli("study", "rigs", "--out", out, "--meshes", tmp_path / "nope"), "nope")
     (root / "boxes" / "broken.ply").write_text("not a mesh")
-    assert_user_error(run_cli("study", "rigs", "--out", out, "--meshes", root, "--rays", "64", "--workers", "2"),
-                      "broken.ply")
+    assert_user_error(
+        run_cli("study", "rigs", "--out", out, "--meshes", root, "--rays", "64", "--workers", "2"), "broken.ply"
+    )
 
 
 def test_cli_offers_every_target_set_and_mixes_keep_a_box_ray():

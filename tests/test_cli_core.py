@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from helpers import KENNEY, assert_user_error, need, run_cli
 from spotlights.geometry import load_points
+
+from helpers import KENNEY, assert_user_error, need, run_cli
 
 
 @pytest.fixture(scope="module")
@@ -90,11 +91,17 @@ def test_bad_meshes_one_line_error_no_output(tmp_path, make, fragment):
     assert not list((tmp_path / "out").glob("*")) if (tmp_path / "out").exists() else True
 
 
-@pytest.mark.parametrize("args, fragment", [
-    (["-N", "0"], "N must be"), (["-M", "-3"], "M must be"), (["--angle", "95"], "(0, 90]"),
-    (["--angle", "0"], "(0, 90]"), (["--radius", "2.5"], "radius"),
-    (["-M", "100000000"], "rays is more than"),
-])
+@pytest.mark.parametrize(
+    "args, fragment",
+    [
+        (["-N", "0"], "N must be"),
+        (["-M", "-3"], "M must be"),
+        (["--angle", "95"], "(0, 90]"),
+        (["--angle", "0"], "(0, 90]"),
+        (["--radius", "2.5"], "radius"),
+        (["-M", "100000000"], "rays is more than"),
+    ],
+)
 def test_bad_rig_parameters(sphere_ply, tmp_path, args, fragment):
     r = run_cli("encode", sphere_ply, "--out", tmp_path / "x.npz", *args)
     assert_user_error(r, fragment)
@@ -109,8 +116,11 @@ def test_bad_decode_inputs(tmp_path):
     assert_user_error(run_cli("show", tmp_path / "nope.pcd"), "no such file")
     (tmp_path / "g.npz").write_text("garbage")
     assert_user_error(run_cli("show", tmp_path / "g.npz"), "g.npz", "not a readable")
-    _write(tmp_path / "h.ply", "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
-                               "property float z\nelement face abc\nend_header\n0 0 0\n")
+    _write(
+        tmp_path / "h.ply",
+        "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
+        "property float z\nelement face abc\nend_header\n0 0 0\n",
+    )
     assert_user_error(run_cli("show", tmp_path / "h.ply"), "h.ply")
     assert not (tmp_path / "a.ply").exists()
 

@@ -10,17 +10,17 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from helpers import assert_user_error  # noqa: E402
-from learning_fixtures import cli, make_checkpoint, one_torch_thread  # noqa: E402
-
 from spotlights.errors import InputFileError, ParameterError  # noqa: E402
 from spotlights.geometry.frames import normalization_from_box  # noqa: E402
 from spotlights.geometry.io import load_points, save_points  # noqa: E402
 from spotlights.geometry.rig import make_rig  # noqa: E402
 from spotlights.learning.inference import Box, box_from_dict, complete_scan, load_box, load_completer  # noqa: E402
 
+from helpers import assert_user_error  # noqa: E402
+from learning_fixtures import cli, make_checkpoint, one_torch_thread  # noqa: E402
 
 _single_thread = pytest.fixture(autouse=True)(one_torch_thread)
+
 
 @pytest.fixture(scope="module")
 def ckpts(tmp_path_factory):
@@ -119,8 +119,21 @@ def test_cli_complete_writes_the_scan_frame_and_a_picture(ckpts, partial_unit, t
     scan = tmp_path / "scan.pcd"
     save_points(scan, norm.from_unit(partial_unit))
     out, png = tmp_path / "done.ply", tmp_path / "done.png"
-    proc = cli(capsys, "complete", scan, "--checkpoint", ckpts["sanet"], "--box", tmp_path / "box.json", "--out", out,
-                   "--show", png, "--no-clip", "--no-crop")
+    proc = cli(
+        capsys,
+        "complete",
+        scan,
+        "--checkpoint",
+        ckpts["sanet"],
+        "--box",
+        tmp_path / "box.json",
+        "--out",
+        out,
+        "--show",
+        png,
+        "--no-clip",
+        "--no-crop",
+    )
     assert proc.returncode == 0, proc.stderr
     from spotlights.geometry.io import load_ply_fields
 
@@ -133,8 +146,26 @@ def test_cli_complete_writes_the_scan_frame_and_a_picture(ckpts, partial_unit, t
     np.testing.assert_allclose(got, expect, atol=1e-3)
     assert png.stat().st_size > 1000
     # flags instead of a JSON file
-    proc = cli(capsys, "complete", scan, "--checkpoint", ckpts["pcn"], "--center", "5", "1", "0.8", "--size", "4", "1.7", "1.5",
-                   "--yaw", "-0.4", "--out", tmp_path / "pcn.xyz", "--no-crop")
+    proc = cli(
+        capsys,
+        "complete",
+        scan,
+        "--checkpoint",
+        ckpts["pcn"],
+        "--center",
+        "5",
+        "1",
+        "0.8",
+        "--size",
+        "4",
+        "1.7",
+        "1.5",
+        "--yaw",
+        "-0.4",
+        "--out",
+        tmp_path / "pcn.xyz",
+        "--no-crop",
+    )
     assert proc.returncode == 0, proc.stderr
     assert load_points(tmp_path / "pcn.xyz").shape == (128, 3)  # other formats: the completion only
 
@@ -151,9 +182,24 @@ def test_cli_complete_bad_inputs(ckpts, tmp_path, capsys):
     assert_user_error(cli(capsys, "complete", empty, "--box", tmp_path / "box.json", *common), "empty.xyz", "empty")
     assert_user_error(cli(capsys, "complete", nan, "--box", tmp_path / "box.json", *common), "nan.xyz", "holds 1 point")
     assert_user_error(cli(capsys, "complete", good, *common), "boxes are missing")
-    assert_user_error(cli(capsys, "complete", good, "--box", tmp_path / "nobox.json", *common), "nobox.json", "not found")
-    assert_user_error(cli(capsys, "complete", good, "--box", tmp_path / "box.json", "--checkpoint", tmp_path / "box.json",
-                              "--out", tmp_path / "o.ply"), "box.json", "not a readable checkpoint")
+    assert_user_error(
+        cli(capsys, "complete", good, "--box", tmp_path / "nobox.json", *common), "nobox.json", "not found"
+    )
+    assert_user_error(
+        cli(
+            capsys,
+            "complete",
+            good,
+            "--box",
+            tmp_path / "box.json",
+            "--checkpoint",
+            tmp_path / "box.json",
+            "--out",
+            tmp_path / "o.ply",
+        ),
+        "box.json",
+        "not a readable checkpoint",
+    )
     assert not (tmp_path / "o.ply").exists()
 
 
@@ -170,9 +216,8 @@ def test_exported_half_precision_weights_complete_alike(ckpts, partial_unit, tmp
 
 def test_default_checkpoint_is_the_packaged_one(tmp_path, capsys):
     from spotlights.errors import SpotlightsError
-    from spotlights.learning.inference import pretrained_checkpoint
-
     from spotlights.learning.checkpoint import PRETRAINED, resolve_checkpoint
+    from spotlights.learning.inference import pretrained_checkpoint
 
     try:
         path = pretrained_checkpoint()
@@ -180,7 +225,9 @@ def test_default_checkpoint_is_the_packaged_one(tmp_path, capsys):
         assert "checkpoint is not shipped in this installation" in str(exc)
         (tmp_path / "box.json").write_text(json.dumps({"center": [0, 0, 0], "size": [4, 2, 1.5], "yaw": 0}))
         np.save(tmp_path / "scan.npy", np.random.default_rng(0).normal(size=(50, 3)))
-        proc = cli(capsys, "complete", tmp_path / "scan.npy", "--box", tmp_path / "box.json", "--out", tmp_path / "o.ply")
+        proc = cli(
+            capsys, "complete", tmp_path / "scan.npy", "--box", tmp_path / "box.json", "--out", tmp_path / "o.ply"
+        )
         assert_user_error(proc, "is not shipped in this installation", "checkpoint file")
     else:
         assert load_completer(path).model_name == "sanet"

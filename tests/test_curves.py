@@ -25,7 +25,9 @@ def test_flatness_of_known_curves():
     assert not line.flattened and line.verdict == "still improving"
     best_before = 0.05 * (1 - 0.4 * 2000 / 2500)  # the last point before the tail (steps < 2020)
     assert line.tail_improvement == pytest.approx((best_before - 0.05 * 0.6) / best_before)
-    assert line.tail_slope == pytest.approx(-0.05 * 0.4 / 2500 * 2400 * 0.2 / np.mean(0.05 * (1 - 0.4 * STEPS[-5:] / 2500)))
+    assert line.tail_slope == pytest.approx(
+        -0.05 * 0.4 / 2500 * 2400 * 0.2 / np.mean(0.05 * (1 - 0.4 * STEPS[-5:] / 2500))
+    )
     # a curve that rises again at the end: worsening
     v = 0.03 - 0.01 * np.minimum(STEPS, 1500) / 1500 + 0.004 * np.maximum(STEPS - 1500, 0) / 1000
     assert flatness(STEPS, v).verdict == "worsening"
@@ -35,12 +37,32 @@ def test_flatness_of_known_curves():
 def _write_run(folder, name, values, steps_per_epoch=100, epochs=25):
     run = folder / name
     run.mkdir()
-    cols = ["epoch", "lr", "val_accuracy", "val_completeness", "val_chamfer_l1", "global_step", "samples_seen", "wall_seconds"]
+    cols = [
+        "epoch",
+        "lr",
+        "val_accuracy",
+        "val_completeness",
+        "val_chamfer_l1",
+        "global_step",
+        "samples_seen",
+        "wall_seconds",
+    ]
     with open(run / "log.csv", "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(cols)
         for i, v in enumerate(values):
-            w.writerow([i + 1, 1e-3, v, 2 * v, 1.5 * v, (i + 1) * steps_per_epoch, (i + 1) * steps_per_epoch * 32, 60.0 * (i + 1)])
+            w.writerow(
+                [
+                    i + 1,
+                    1e-3,
+                    v,
+                    2 * v,
+                    1.5 * v,
+                    (i + 1) * steps_per_epoch,
+                    (i + 1) * steps_per_epoch * 32,
+                    60.0 * (i + 1),
+                ]
+            )
     (run / "config.yaml").write_text(f"train: {{epochs: {epochs}, steps_per_epoch: {steps_per_epoch}}}\n")
     return run
 

@@ -99,7 +99,7 @@ def test_schema_and_ground_truth_match_core_and_closed_form(reference, meshes):
         assert json.loads(f["rigs/cap-64x32-60"].attrs["rig_json"])["n_primary"] == 64
         with open_dataset(reference) as ds:
             rig = ds.rig()
-        for m, name in enumerate(names):
+        for m in range(len(names)):
             file = f["models/file"][m].decode()
             mesh = load_mesh(meshes / file)
             # Ground-truth depths = the core's encoding of the mesh, normalised by its box.
@@ -206,9 +206,30 @@ def test_resume_after_sigkill(meshes, tmp_path):
     """Kill a real build process mid-way, start it again: it finishes, equal to an uninterrupted build."""
     out = tmp_path / "kill.h5"
     parts = Path(str(out) + ".parts")
-    cmd = [sys.executable, "-m", "spotlights", "dataset", "build", "--meshes", str(meshes), "--out", str(out),
-           "--views", "40", "--split", "1/1/1", "--seed", "5", "--block", "1", "--workers", "2", "--quiet",
-           "--gt-dense", "4096"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "spotlights",
+        "dataset",
+        "build",
+        "--meshes",
+        str(meshes),
+        "--out",
+        str(out),
+        "--views",
+        "40",
+        "--split",
+        "1/1/1",
+        "--seed",
+        "5",
+        "--block",
+        "1",
+        "--workers",
+        "2",
+        "--quiet",
+        "--gt-dense",
+        "4096",
+    ]
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     deadline = time.time() + 60
@@ -325,9 +346,27 @@ def test_bad_input(meshes, reference, tmp_path, capsys):
     # Unfinished parts of another configuration are not mixed in.
     parts = tmp_path / "other.h5.parts"
     parts.mkdir()
-    (parts / "plan.json").write_text(json.dumps({"plan_version": 1, "config": {"views": 99}, "models": [], "skipped": []}))
-    assert main(["dataset", "build", "--meshes", str(meshes), "--out", str(tmp_path / "other.h5"), "--split", "1/1/1",
-                 "--views", "2", "-q"]) == 2
+    (parts / "plan.json").write_text(
+        json.dumps({"plan_version": 1, "config": {"views": 99}, "models": [], "skipped": []})
+    )
+    assert (
+        main(
+            [
+                "dataset",
+                "build",
+                "--meshes",
+                str(meshes),
+                "--out",
+                str(tmp_path / "other.h5"),
+                "--split",
+                "1/1/1",
+                "--views",
+                "2",
+                "-q",
+            ]
+        )
+        == 2
+    )
     assert "another plan" in capsys.readouterr().err
     with pytest.raises(SpotlightsError):
         open_dataset(tmp_path / "s-missing.h5")
@@ -348,8 +387,13 @@ def test_up_and_forward_axes_from_a_manifest(tmp_path):
     m2.export(root / "plain.ply")
     (root / "manifest.csv").write_text("file,category,up,forward\ncar.glb,van,y,z\nplain.ply,van,,\n")
     out = tmp_path / "gl.h5"
-    build_dataset(BuildConfig(meshes=str(root), views=2, split="2/0/0", gt_dense=1024), out, workers=1,
-                  progress=False, log=lambda m: None)
+    build_dataset(
+        BuildConfig(meshes=str(root), views=2, split="2/0/0", gt_dense=1024),
+        out,
+        workers=1,
+        progress=False,
+        log=lambda m: None,
+    )
     with h5py.File(out, "r") as f:
         assert np.allclose(f["models/size"][()], [[4.5, 1.8, 1.5], [4.5, 1.8, 1.5]])
         assert [c.decode() for c in f["models/category"][()]] == ["van", "van"]
@@ -363,8 +407,9 @@ def test_real_cars(tmp_path):
         (root / rel).parent.mkdir(parents=True, exist_ok=True)
         (root / rel).symlink_to((CARS / rel).resolve())
     out = tmp_path / "cars.h5"
-    build_dataset(BuildConfig(meshes=str(root), views=8, split="1/1/0"), out, workers=2, progress=False,
-                  log=lambda m: None)
+    build_dataset(
+        BuildConfig(meshes=str(root), views=8, split="1/1/0"), out, workers=2, progress=False, log=lambda m: None
+    )
     with open_dataset(out) as ds:
         assert sorted(set(ds.categories)) == ["sedan", "suv"]
         for m in range(2):

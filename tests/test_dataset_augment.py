@@ -40,8 +40,12 @@ def sources(tmp_path_factory):
     a manifest with a per-file scale)."""
     root = tmp_path_factory.mktemp("sources")
     cars = root / "cars"
-    for rel, dims in {"suv/a.ply": (4.8, 2.0, 1.8), "suv/b.ply": (4.6, 1.9, 1.7), "sedan/c.ply": (4.5, 1.8, 1.45),
-                      "sedan/d.ply": (4.2, 1.8, 1.4)}.items():
+    for rel, dims in {
+        "suv/a.ply": (4.8, 2.0, 1.8),
+        "suv/b.ply": (4.6, 1.9, 1.7),
+        "sedan/c.ply": (4.5, 1.8, 1.45),
+        "sedan/d.ply": (4.2, 1.8, 1.4),
+    }.items():
         (cars / rel).parent.mkdir(parents=True, exist_ok=True)
         wedge(*dims).export(cars / rel)
     toys = root / "toys"
@@ -53,8 +57,9 @@ def sources(tmp_path_factory):
 
 
 def cfg(root, **kw):
-    base = dict(meshes=str(root / "cars"), views=3, split="2/1/1", seed=2, gt_dense=1024, gt_points=512,
-                default_rig="8x16@60")
+    base = dict(
+        meshes=str(root / "cars"), views=3, split="2/1/1", seed=2, gt_dense=1024, gt_points=512, default_rig="8x16@60"
+    )
     base.update(kw)
     return BuildConfig(**base)
 
@@ -156,7 +161,7 @@ def test_augmented_copies_are_extra_models_in_their_mesh_split(sources, tmp_path
         pn = strings(f, "models/name")
         for i, n in enumerate(pn):
             j = names.index(n)
-            assert np.array_equal(f["samples/partial"][i * 3:(i + 1) * 3], g["samples/partial"][j * 3:(j + 1) * 3])
+            assert np.array_equal(f["samples/partial"][i * 3 : (i + 1) * 3], g["samples/partial"][j * 3 : (j + 1) * 3])
             assert np.array_equal(f["rigs/cap-8x16-60/depths"][i], g["rigs/cap-8x16-60/depths"][j])
 
 
@@ -181,7 +186,10 @@ def test_sensor_height_range_changes_only_the_height(sources, tmp_path):
 
 
 def test_two_sources_augmentation_and_add_rig(sources, tmp_path):
-    srcs = [f"{sources / 'cars'},split=2/1/1", f"{sources / 'toys'},manifest={sources / 'toys' / 'list.csv'},split=train"]
+    srcs = [
+        f"{sources / 'cars'},split=2/1/1",
+        f"{sources / 'toys'},manifest={sources / 'toys' / 'list.csv'},split=train",
+    ]
     c = cfg(sources, sources=srcs, augment={"copies": 1})
     out = build(c, tmp_path / "multi.h5", workers=2)
     with h5py.File(out, "r") as f:
@@ -189,12 +197,15 @@ def test_two_sources_augmentation_and_add_rig(sources, tmp_path):
         size = f["models/size"][()]
     assert {n.split("/")[0] for n in names} == {"cars", "toys"} and set(src) == {"cars", "toys"}
     assert [s for n, s in zip(names, splits) if n.startswith("toys/")] == ["train"] * 4  # 2 toys + 2 copies
-    assert splits[:len([n for n in names if n.startswith("cars/")])].count("test") == 1
+    assert splits[: len([n for n in names if n.startswith("cars/")])].count("test") == 1
     t1 = names.index("toys/t1")
     assert np.allclose(size[t1], [4.8, 2.0, 1.6])  # the manifest's per-file scale 2.0
     # add-rig rebuilds every model (copies from /models/origin + /models/augment) exactly
-    ref = build(cfg(sources, sources=srcs, augment={"copies": 1}, extra_rigs=["box-8x16-ellipsoid-s1"]),
-                tmp_path / "ref.h5", workers=1)
+    ref = build(
+        cfg(sources, sources=srcs, augment={"copies": 1}, extra_rigs=["box-8x16-ellipsoid-s1"]),
+        tmp_path / "ref.h5",
+        workers=1,
+    )
     add_rig(out, "box-8x16-ellipsoid-s1", workers=2, progress=False)
     with h5py.File(out, "r") as f, h5py.File(ref, "r") as g:
         assert np.array_equal(f["rigs/box-8x16-ellipsoid-s1/depths"][()], g["rigs/box-8x16-ellipsoid-s1/depths"][()])
@@ -204,27 +215,86 @@ def test_two_sources_augmentation_and_add_rig(sources, tmp_path):
 
 def test_category_split_and_exclusion(sources, tmp_path, capsys):
     out = tmp_path / "heldout.h5"
-    args = ["dataset", "build", "--meshes", str(sources / "cars"), "--out", str(out), "--views", "2",
-            "--gt-dense", "512", "--default-rig", "4x8@60", "--category-split", "suv=test", "--split", "1/1/0",
-            "--mirror", "-q"]
+    args = [
+        "dataset",
+        "build",
+        "--meshes",
+        str(sources / "cars"),
+        "--out",
+        str(out),
+        "--views",
+        "2",
+        "--gt-dense",
+        "512",
+        "--default-rig",
+        "4x8@60",
+        "--category-split",
+        "suv=test",
+        "--split",
+        "1/1/0",
+        "--mirror",
+        "-q",
+    ]
     assert main(args) == 0
     with open_dataset(out) as ds:
-        by_split = {s: sorted({str(o) for o, sp in zip(ds.origins, ds.splits) if sp == s}) for s in ("train", "val", "test")}
+        by_split = {
+            s: sorted({str(o) for o, sp in zip(ds.origins, ds.splits) if sp == s}) for s in ("train", "val", "test")
+        }
         assert by_split["test"] == ["suv/a", "suv/b"] and len(by_split["train"]) == 1 and len(by_split["val"]) == 1
         assert len(ds.names) == 5  # 4 meshes + the mirror of the one train mesh
     capsys.readouterr()
     out2 = tmp_path / "nosuv.h5"
-    assert main(args[:3] + [str(sources / "cars"), "--out", str(out2), "--views", "2", "--gt-dense", "512",
-                            "--default-rig", "4x8@60", "--exclude-category", "suv", "--split", "1/1/0", "-q"]) == 0
+    assert (
+        main(
+            args[:3]
+            + [
+                str(sources / "cars"),
+                "--out",
+                str(out2),
+                "--views",
+                "2",
+                "--gt-dense",
+                "512",
+                "--default-rig",
+                "4x8@60",
+                "--exclude-category",
+                "suv",
+                "--split",
+                "1/1/0",
+                "-q",
+            ]
+        )
+        == 0
+    )
     with open_dataset(out2) as ds:
         assert sorted(ds.categories) == ["sedan", "sedan"]
     capsys.readouterr()
     # one line, exit 2, for options that cannot work
-    bad = [["--category-split", "suv"], ["--category-split", "suv=holdout"], ["--scale-copies", "1", "--scale-factor-range", "1.2:1.5"],
-           ["--mount-height", "2:1"], ["--meshes", f"{sources / 'toys'},colour=red"]]
+    bad = [
+        ["--category-split", "suv"],
+        ["--category-split", "suv=holdout"],
+        ["--scale-copies", "1", "--scale-factor-range", "1.2:1.5"],
+        ["--mount-height", "2:1"],
+        ["--meshes", f"{sources / 'toys'},colour=red"],
+    ]
     for extra in bad:
-        assert main(["dataset", "build", "--meshes", str(sources / "cars"), "--out", str(tmp_path / "bad.h5"),
-                     "--split", "1/1/2", "-q", *extra]) == 2, extra
+        assert (
+            main(
+                [
+                    "dataset",
+                    "build",
+                    "--meshes",
+                    str(sources / "cars"),
+                    "--out",
+                    str(tmp_path / "bad.h5"),
+                    "--split",
+                    "1/1/2",
+                    "-q",
+                    *extra,
+                ]
+            )
+            == 2
+        ), extra
         err = capsys.readouterr().err.strip()
         assert err.count("\n") == 0 and "Traceback" not in err, err
     assert not (tmp_path / "bad.h5").exists()

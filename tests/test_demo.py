@@ -27,8 +27,13 @@ def _mean_nn(a, b):
 def test_demo_writes_pictures_and_completion(tmp_path):
     r = run_cli("demo", "--out", tmp_path)
     assert r.returncode == 0, r.stderr
-    for name in ("vehicle_mesh.png", "vehicle_cap-32x64-60.png", "vehicle_cap-32x64-60.npz", "scan_completed.ply",
-                 "scan_completed.png"):
+    for name in (
+        "vehicle_mesh.png",
+        "vehicle_cap-32x64-60.png",
+        "vehicle_cap-32x64-60.npz",
+        "scan_completed.ply",
+        "scan_completed.png",
+    ):
         assert (tmp_path / name).stat().st_size > 0, name
     assert "[4/4]" in r.stdout
 

@@ -19,6 +19,7 @@ ANGLES = (90.0, 83.0, 60.0, 30.0)
 
 # --- closed forms -------------------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("angle", ANGLES)
 def test_centre_value_is_one_over_8pi_for_every_alpha(angle):
     alpha = np.linspace(0.0, np.pi, 37)
@@ -53,6 +54,7 @@ def test_alpha_half_pi_elliptic_closed_form():
 
 # --- the paper's double integral, taken literally ------------------------------------------------
 
+
 @pytest.mark.parametrize("r,alpha", [(0.3, 1.2), (0.5, 0.7), (0.8, np.pi / 2), (0.8, 0.0), (0.9, 2.5)])
 def test_matches_the_papers_double_integral(r, alpha):
     brute = dens.rho_paper_integral(r, alpha, n_theta=1500, n_phi=1500)
@@ -67,6 +69,7 @@ def test_caps_match_the_double_integral_with_a_cap_mask(angle, r, alpha):
 
 
 # --- symmetry and the paper's range --------------------------------------------------------------
+
 
 @pytest.mark.parametrize("angle", ANGLES)
 def test_symmetric_under_alpha_to_pi_minus_alpha(angle):
@@ -117,6 +120,7 @@ def test_quadrature_error_shrinks_with_resolution():
 
 # --- the occlusion formula ------------------------------------------------------------------------
 
+
 def test_occlusion_formula_matches_explicit_geometry():
     """Build the surfel, the arrival direction and the source point as vectors; compare."""
     rng = np.random.default_rng(3)
@@ -157,6 +161,7 @@ def test_ring_density_central_ray_and_average():
 
 # --- API behaviour ----------------------------------------------------------------------------------
 
+
 def test_vectorised_shapes_match_scalar_calls():
     r = np.array([[0.0, 0.2], [0.6, 0.95]])
     alpha = np.array([0.1, 2.0])
@@ -167,8 +172,16 @@ def test_vectorised_shapes_match_scalar_calls():
             assert got[i, j] == float(dens.rho(r[i, j], alpha[j], angle=60.0))
 
 
-@pytest.mark.parametrize("kwargs", [dict(r=1.0, alpha=0.0), dict(r=-0.1, alpha=0.0), dict(r=0.5, alpha=0.0, angle=0.0),
-                                    dict(r=0.5, alpha=0.0, angle=95.0), dict(r=np.nan, alpha=0.0)])
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        dict(r=1.0, alpha=0.0),
+        dict(r=-0.1, alpha=0.0),
+        dict(r=0.5, alpha=0.0, angle=0.0),
+        dict(r=0.5, alpha=0.0, angle=95.0),
+        dict(r=np.nan, alpha=0.0),
+    ],
+)
 def test_bad_parameters_raise(kwargs):
     with pytest.raises(ParameterError):
         dens.rho(**kwargs)

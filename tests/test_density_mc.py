@@ -13,7 +13,6 @@ import json
 import numpy as np
 import pytest
 
-from helpers import assert_user_error, run_cli
 from spotlights.analysis import density as dens
 from spotlights.analysis.montecarlo import (
     RigRays,
@@ -23,6 +22,8 @@ from spotlights.analysis.montecarlo import (
     mc_density,
 )
 from spotlights.geometry.rig import make_rig
+
+from helpers import assert_user_error, run_cli
 
 
 @pytest.mark.parametrize("angle", [90.0, 60.0, 30.0])
@@ -62,7 +63,6 @@ def test_centre_disc_crossing_probability_against_random_lines():
     frac = np.mean(np.linalg.norm(x, axis=1) <= a)
     expected = 1.0 - 2.0 / np.pi * np.arcsin(b / a)
     assert abs(frac - expected) < 4 * np.sqrt(expected * (1 - expected) / k)
-
 
 
 def test_centre_disc_formula_tends_to_the_continuum_for_large_m():
@@ -121,12 +121,35 @@ def test_mc_is_reproducible():
 
 def test_cli_density_end_to_end(tmp_path):
     out = tmp_path / "density"
-    proc = run_cli("analyze", "density", "--out", out, "--angle", "90", "60", "--mc-rays", "128", "128",
-                   "--rotations", "3", "--r-step", "0.05", "--alpha-step", "5")  # (no -q: it silences the summary lines too)
+    proc = run_cli(
+        "analyze",
+        "density",
+        "--out",
+        out,
+        "--angle",
+        "90",
+        "60",
+        "--mc-rays",
+        "128",
+        "128",
+        "--rotations",
+        "3",
+        "--r-step",
+        "0.05",
+        "--alpha-step",
+        "5",
+    )  # (no -q: it silences the summary lines too)
     assert proc.returncode == 0, proc.stderr
     assert "min 0.03979" in proc.stdout and "max 0.05691" in proc.stdout
-    for name in ("density.csv", "density_heatmap.png", "density_directional.png", "density_mc.csv",
-                 "density_montecarlo.png", "density_caps.png", "summary.json"):
+    for name in (
+        "density.csv",
+        "density_heatmap.png",
+        "density_directional.png",
+        "density_mc.csv",
+        "density_montecarlo.png",
+        "density_caps.png",
+        "summary.json",
+    ):
         assert (out / name).stat().st_size > 0, name
     with open(out / "density.csv") as fh:
         rows = list(csv.DictReader(fh))

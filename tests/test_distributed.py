@@ -41,8 +41,16 @@ def meshes(tmp_path_factory):
 
 
 def cfg(root, **kw):
-    base = dict(meshes=str(root), views=12, split="1/1/1", seed=4, gt_dense=1024, gt_points=512, default_rig="8x16@60",
-                extra_rigs=["box-8x8-ellipsoid-s1"])
+    base = dict(
+        meshes=str(root),
+        views=12,
+        split="1/1/1",
+        seed=4,
+        gt_dense=1024,
+        gt_points=512,
+        default_rig="8x16@60",
+        extra_rigs=["box-8x8-ellipsoid-s1"],
+    )
     base.update(kw)
     return BuildConfig(**base)
 
@@ -67,8 +75,13 @@ def ray_cluster():
     """One local Ray instance of 2 CPUs for the module (the backends join it)."""
     ray = pytest.importorskip("ray")
     if not ray.is_initialized():
-        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, logging_level="ERROR",
-                 object_store_memory=256 << 20)
+        ray.init(
+            num_cpus=2,
+            include_dashboard=False,
+            log_to_driver=False,
+            logging_level="ERROR",
+            object_store_memory=256 << 20,
+        )
     yield ray
     ray.shutdown()
 
@@ -81,7 +94,9 @@ def test_shards_read_back_equal_to_a_single_file(meshes, local_ref, tmp_path, ca
     # 30 samples per shard = 2 models of 12 views: shards of 2 and 1 models
     rep = build_dataset(cfg(meshes), index, workers=2, block=5, shard_size=30, progress=False, log=quiet)
     assert rep.n_models == 3 and sorted(p.name for p in tmp_path.glob("cars-*.h5")) == [
-        "cars-00000-of-00002.h5", "cars-00001-of-00002.h5"]
+        "cars-00000-of-00002.h5",
+        "cars-00001-of-00002.h5",
+    ]
     with open_dataset(local_ref) as a, open_dataset(index) as b:
         assert b.sharded and len(b.shards) == 2 and list(b.model_offset) == [0, 2, 3]
         for key in ("names", "categories", "splits", "center", "radius", "size", "sample_model", "sample_view"):
@@ -95,8 +110,9 @@ def test_shards_read_back_equal_to_a_single_file(meshes, local_ref, tmp_path, ca
                 assert np.array_equal(sa[k], sb[k]), (i, k)
         idx = np.array([35, 0, 13, 12, 24, 11])
         assert np.array_equal(a.partials(idx), b.partials(idx))
-        assert np.array_equal(a.rig_depths(), b.rig_depths()) and np.array_equal(a.models_array("gt_dense", [2, 0]),
-                                                                                 b.models_array("gt_dense", [2, 0]))
+        assert np.array_equal(a.rig_depths(), b.rig_depths()) and np.array_equal(
+            a.models_array("gt_dense", [2, 0]), b.models_array("gt_dense", [2, 0])
+        )
         ia, ib = a.info(), b.info()
         assert ia["datasets"] == ib["datasets"] and ib["shards"] and ia["splits"] == ib["splits"]
     # every shard is a valid dataset of its own
@@ -120,7 +136,10 @@ def test_shards_read_back_equal_to_a_single_file(meshes, local_ref, tmp_path, ca
     # the CLI readers take the index like a file
     capsys.readouterr()
     assert main(["dataset", "info", str(index)]) == 0 and "2 shards" in capsys.readouterr().out
-    assert main(["dataset", "export", str(index), "--split", "test", "--index", "3", "--out", str(tmp_path / "s.npz")]) == 0
+    assert (
+        main(["dataset", "export", str(index), "--split", "test", "--index", "3", "--out", str(tmp_path / "s.npz")])
+        == 0
+    )
     # --resume accepts the complete sharded dataset; a .h5 name for an index is refused
     assert build_dataset(cfg(meshes), index, shard_size=30, resume=True, progress=False, log=quiet).already_complete
     with pytest.raises(SpotlightsError, match="NAME.json"):
@@ -160,9 +179,38 @@ def test_ray_build_is_byte_identical_to_local(meshes, local_ref, tmp_path, ray_c
     assert sha(one) == sha(local_ref)
     # sharded on Ray (shards written by Ray tasks), then merged: the same bytes again
     index = tmp_path / "ray.json"
-    assert main(["dataset", "build", "--meshes", str(meshes), "--out", str(index), "--views", "12", "--split", "1/1/1",
-                 "--seed", "4", "--gt-dense", "1024", "--gt-points", "512", "--default-rig", "8x16@60", "--rig",
-                 "box-8x8-ellipsoid-s1", "--backend", "ray", "--shard-size", "24", "-q"]) == 0
+    assert (
+        main(
+            [
+                "dataset",
+                "build",
+                "--meshes",
+                str(meshes),
+                "--out",
+                str(index),
+                "--views",
+                "12",
+                "--split",
+                "1/1/1",
+                "--seed",
+                "4",
+                "--gt-dense",
+                "1024",
+                "--gt-points",
+                "512",
+                "--default-rig",
+                "8x16@60",
+                "--rig",
+                "box-8x8-ellipsoid-s1",
+                "--backend",
+                "ray",
+                "--shard-size",
+                "24",
+                "-q",
+            ]
+        )
+        == 0
+    )
     assert sha(merge_shards(index, tmp_path / "m.h5", progress=False)["out"]) == sha(local_ref)
     # add-rig on Ray = add-rig locally
     a, b = tmp_path / "a.h5", tmp_path / "b.h5"
@@ -196,8 +244,25 @@ def test_a_failing_mesh_stops_a_ray_build_with_one_line(meshes, tmp_path, capsys
         (bad / rel).write_bytes((meshes / rel).read_bytes())
     trimesh.creation.box(extents=(0.01, 0.01, 0.01)).export(bad / "sedan" / "tiny.ply")  # loads, never gives 50 returns
     out = tmp_path / "bad.h5"
-    rc = main(["dataset", "build", "--meshes", str(bad), "--out", str(out), "--views", "4", "--split", "2/1/1",
-               "--gt-dense", "256", "--backend", "ray", "-q"])
+    rc = main(
+        [
+            "dataset",
+            "build",
+            "--meshes",
+            str(bad),
+            "--out",
+            str(out),
+            "--views",
+            "4",
+            "--split",
+            "2/1/1",
+            "--gt-dense",
+            "256",
+            "--backend",
+            "ray",
+            "-q",
+        ]
+    )
     err = capsys.readouterr().err.strip()
     assert rc == 2 and err.count("\n") == 0 and "Traceback" not in err, err
     assert "tiny.ply" in err and "no pose" in err
@@ -206,9 +271,10 @@ def test_a_failing_mesh_stops_a_ray_build_with_one_line(meshes, tmp_path, capsys
 
 def test_backend_ray_without_ray_says_how_to_install(meshes, tmp_path, capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # "import ray" raises ImportError
-    for args in (["dataset", "build", "--meshes", str(meshes), "--out", str(tmp_path / "x.h5"), "--backend", "ray",
-                  "-q"],
-                 ["dataset", "add-rig", str(tmp_path / "x.h5"), "--rig", "4x4", "--backend", "ray", "-q"]):
+    for args in (
+        ["dataset", "build", "--meshes", str(meshes), "--out", str(tmp_path / "x.h5"), "--backend", "ray", "-q"],
+        ["dataset", "add-rig", str(tmp_path / "x.h5"), "--rig", "4x4", "--backend", "ray", "-q"],
+    ):
         assert main(args) == 2
         err = capsys.readouterr().err.strip()
         assert err.count("\n") == 0 and "pip install 'spotlights[distributed]'" in err, err
@@ -220,10 +286,38 @@ def test_ray_build_resumes_after_the_driver_is_killed(meshes, local_ref, tmp_pat
     pytest.importorskip("ray")
     out = tmp_path / "killed.h5"
     parts = Path(str(out) + ".parts")
-    cmd = [sys.executable, "-m", "spotlights", "dataset", "build", "--meshes", str(meshes), "--out", str(out),
-           "--views", "12", "--split", "1/1/1", "--seed", "4", "--gt-dense", "1024", "--gt-points", "512",
-           "--default-rig", "8x16@60", "--rig", "box-8x8-ellipsoid-s1", "--block", "1", "--backend", "ray",
-           "--workers", "2", "-q"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "spotlights",
+        "dataset",
+        "build",
+        "--meshes",
+        str(meshes),
+        "--out",
+        str(out),
+        "--views",
+        "12",
+        "--split",
+        "1/1/1",
+        "--seed",
+        "4",
+        "--gt-dense",
+        "1024",
+        "--gt-points",
+        "512",
+        "--default-rig",
+        "8x16@60",
+        "--rig",
+        "box-8x8-ellipsoid-s1",
+        "--block",
+        "1",
+        "--backend",
+        "ray",
+        "--workers",
+        "2",
+        "-q",
+    ]
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src") + os.pathsep + os.environ.get("PYTHONPATH", "")}
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     deadline = time.time() + 240
@@ -262,9 +356,15 @@ def test_a_task_is_retried_a_bounded_number_of_times(tmp_path, ray_cluster, cras
     task = ray_cluster.remote(num_cpus=1, max_retries=1, retry_exceptions=True)(_flaky)
     counter = tmp_path / "attempts"
     with pytest.raises(SpotlightsError) as err:
-        runner._stream(lambda i: task.remote(str(counter), crash), [0], lambda i: "cars/x.ply: views 0-9 of model x",
-                       lambda i, r: None)
+        runner._stream(
+            lambda i: task.remote(str(counter), crash),
+            [0],
+            lambda i: "cars/x.ply: views 0-9 of model x",
+            lambda i, r: None,
+        )
     msg = str(err.value)
-    assert "\n" not in msg and msg.startswith("cars/x.ply: views 0-9 of model x failed on the Ray cluster after 2 attempts")
+    assert "\n" not in msg and msg.startswith(
+        "cars/x.ply: views 0-9 of model x failed on the Ray cluster after 2 attempts"
+    )
     assert ("disk on fire" in msg) if not crash else ("Worker" in msg or "died" in msg or "crash" in msg.lower()), msg
     assert counter.read_text() == "xx"  # 1 + 1 retry, no more

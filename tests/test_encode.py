@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 import trimesh
 
-from helpers import CARS, brute_force_first_hit, need, sphere_ray_depths
 from spotlights.geometry import (
     MeshProbe,
     RayCaster,
@@ -20,6 +19,8 @@ from spotlights.geometry import (
     make_rig,
     save_encoding,
 )
+
+from helpers import CARS, brute_force_first_hit, need, sphere_ray_depths
 
 # The icosphere is a polyhedron inscribed in the sphere: its faces lie up to
 # delta = rho - min(face-plane distance) inside it (computed from the mesh itself), so a

@@ -59,7 +59,9 @@ def test_window_culling_loses_no_return(seed):
     m = box_mesh()
     sim = LidarSimulator(m.vertices, m.faces, sensor)
     rng = np.random.default_rng(seed)
-    pose = VehiclePose(float(rng.uniform(3.5, 25)), float(rng.uniform(-np.pi, np.pi)), float(rng.uniform(-np.pi, np.pi)))
+    pose = VehiclePose(
+        float(rng.uniform(3.5, 25)), float(rng.uniform(-np.pi, np.pi)), float(rng.uniform(-np.pi, np.pi))
+    )
     scan = sim.scan(pose, np.random.default_rng(0))
     full = sim.scan_full(pose)
     assert len(full.points) > 20

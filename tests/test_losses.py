@@ -7,9 +7,9 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from learning_fixtures import one_torch_thread  # noqa: E402
-
 from spotlights.learning.losses import chamfer_distance, depth_l1, nearest_indices, nearest_squared_distances  # noqa: E402
+
+from learning_fixtures import one_torch_thread  # noqa: E402
 
 _single_thread = pytest.fixture(autouse=True)(one_torch_thread)
 

@@ -7,12 +7,21 @@ import sys
 
 import numpy as np
 import pytest
-from helpers import REPO
 
 from spotlights.learning.metrics import (
-    NearestNeighbors, accuracy, chamfer_l1, chamfer_l2, completeness, evaluate_completions, fscore, kept_ratio,
-    nearest_distances, summarize,
+    NearestNeighbors,
+    accuracy,
+    chamfer_l1,
+    chamfer_l2,
+    completeness,
+    evaluate_completions,
+    fscore,
+    kept_ratio,
+    nearest_distances,
+    summarize,
 )
+
+from helpers import REPO
 
 
 def brute(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -108,5 +117,7 @@ def test_summarize_means_over_samples_and_over_categories():
 
 def test_metrics_module_does_not_import_torch():
     code = "import sys, spotlights.learning.metrics; assert 'torch' not in sys.modules"
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env={"PYTHONPATH": str(REPO / "src")})
+    proc = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env={"PYTHONPATH": str(REPO / "src")}
+    )
     assert proc.returncode == 0, proc.stderr

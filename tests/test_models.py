@@ -10,14 +10,13 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from helpers import REPO  # noqa: E402
-from learning_fixtures import TINY_MODEL_ARGS, one_torch_thread  # noqa: E402
-
 from spotlights.errors import InputFileError, ParameterError  # noqa: E402
 from spotlights.geometry.encode import decode  # noqa: E402
 from spotlights.geometry.rig import make_rig  # noqa: E402
 from spotlights.learning.models import MODEL_NAMES, build_model, load_config  # noqa: E402
 
+from helpers import REPO  # noqa: E402
+from learning_fixtures import TINY_MODEL_ARGS, one_torch_thread  # noqa: E402
 
 _single_thread = pytest.fixture(autouse=True)(one_torch_thread)
 
@@ -189,9 +188,11 @@ def test_configs_override_and_errors(tmp_path):
 
 
 def test_registry_imports_no_model_or_torch_at_start_up():
-    code = ("import sys; import spotlights.learning.models as m; import spotlights.cli as c; c.build_parser(); "
-            "assert 'torch' not in sys.modules, 'torch imported'; "
-            "assert not any(k.startswith('spotlights.learning.models.') for k in sys.modules), 'a model imported'")
+    code = (
+        "import sys; import spotlights.learning.models as m; import spotlights.cli as c; c.build_parser(); "
+        "assert 'torch' not in sys.modules, 'torch imported'; "
+        "assert not any(k.startswith('spotlights.learning.models.') for k in sys.modules), 'a model imported'"
+    )
     env = {"PYTHONPATH": str(REPO / "src")}
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert proc.returncode == 0, proc.stderr
@@ -246,6 +247,7 @@ def test_mac_counts_match_closed_forms(rig):
 # --- Decoders that broadcast the code instead of concatenating it: checked against the
 # --- naive form of the original papers (code replicated on every point, then concatenated).
 
+
 def _naive(mlp, parts, n):
     """The MLP on the explicit concatenation, every part expanded to (B, n, C_i)."""
     b = max(p.shape[0] for p in parts)
@@ -294,7 +296,9 @@ def test_broadcast_decoders_match_the_naive_concatenation(name, train_mode):
     torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-5)
     if train_mode:  # same gradients for every parameter
         g_got = torch.autograd.grad(got.square().sum(), list(model.parameters()), allow_unused=True)
-        g_want = torch.autograd.grad(_naive_forward(model, x).square().sum(), list(model.parameters()), allow_unused=True)
+        g_want = torch.autograd.grad(
+            _naive_forward(model, x).square().sum(), list(model.parameters()), allow_unused=True
+        )
         # biases feeding a batch norm have a zero true gradient: compare at the gradients' scale
         scale = max(float(g.abs().max()) for g in g_want if g is not None)
         for a, b in zip(g_got, g_want):

@@ -6,12 +6,12 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from learning_fixtures import one_torch_thread, tiny_dataset_path, tiny_overrides  # noqa: E402
-
 from spotlights.errors import ParameterError  # noqa: E402
 from spotlights.learning.checkpoint import load_checkpoint, model_from_checkpoint  # noqa: E402
 from spotlights.learning.device import autocast, resolve_precision  # noqa: E402
 from spotlights.learning.train import _stream_indices, train  # noqa: E402
+
+from learning_fixtures import one_torch_thread, tiny_dataset_path, tiny_overrides  # noqa: E402
 
 _single_thread = pytest.fixture(autouse=True)(one_torch_thread)
 
@@ -25,8 +25,9 @@ def _run(name, path, out, epochs=2, **train_kw):
     resume = train_kw.pop("resume", False)
     stop_after = train_kw.pop("stop_after", None)
     ov = tiny_overrides(name, epochs=epochs, **train_kw)
-    return train(name, path, out, overrides=ov, progress=False, log=lambda *a: None, resume=resume,
-                 stop_after=stop_after)
+    return train(
+        name, path, out, overrides=ov, progress=False, log=lambda *a: None, resume=resume, stop_after=stop_after
+    )
 
 
 def test_resolve_precision():

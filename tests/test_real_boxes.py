@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import math
+
 import numpy as np
 import pytest
 
 from spotlights.data.real.base import Box, quaternion_to_matrix
-from helpers import LIDAR, need
 from spotlights.data.real.kitti import box_from_label, read_calib, velo_from_rect
+
+from helpers import LIDAR, need
 
 
 def same_corner_sets(a: np.ndarray, b: np.ndarray, atol: float) -> bool:
@@ -28,8 +30,8 @@ def _calib(t=(0.0, 0.0, 0.0)):
     return {"R0_rect": np.eye(3), "Tr_velo_to_cam": tr}
 
 
-def _label(h, w, l, x, y, z, ry):
-    return np.array([0, 0, 0, 0, 0, 0, 100, 100, h, w, l, x, y, z, ry], dtype=np.float64)[1:]
+def _label(h, w, length, x, y, z, ry):
+    return np.array([0, 0, 0, 0, 0, 0, 100, 100, h, w, length, x, y, z, ry], dtype=np.float64)[1:]
 
 
 def test_kitti_box_hand_corners_ry0():
@@ -72,9 +74,9 @@ def test_kitti_real_calib_matches_devkit_corners():
     t = velo_from_rect(calib)
     for line in (root / "label_2" / "000001.txt").read_text().splitlines()[:3]:
         f = line.split()
-        h, w, l, x, y, z, ry = (float(v) for v in f[8:15])
+        h, w, length, x, y, z, ry = (float(v) for v in f[8:15])
         ry_m = np.array([[math.cos(ry), 0, math.sin(ry)], [0, 1, 0], [-math.sin(ry), 0, math.cos(ry)]])
-        xc = [l / 2, l / 2, -l / 2, -l / 2, l / 2, l / 2, -l / 2, -l / 2]
+        xc = [length / 2, length / 2, -length / 2, -length / 2, length / 2, length / 2, -length / 2, -length / 2]
         yc = [0, 0, 0, 0, -h, -h, -h, -h]
         zc = [w / 2, -w / 2, -w / 2, w / 2, w / 2, -w / 2, -w / 2, w / 2]
         rect = (ry_m @ np.array([xc, yc, zc])).T + [x, y, z]

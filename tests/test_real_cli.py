@@ -10,9 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from spotlights.cli import main
+
 from helpers import LIDAR, assert_user_error, need, run_cli
 from learning_fixtures import tiny_dataset_path
-from spotlights.cli import main
 
 
 def scene(tmp_path) -> Path:
@@ -50,6 +51,7 @@ def fake_learning(monkeypatch, tmp_path):
             return [np.concatenate([ring, p[:32]]) for p in partials]  # depends a little on the input
 
     mod = types.ModuleType("spotlights.learning.inference")
+
     def load_completer(path, device=None):
         stem = Path(path).stem.split("_")[0]
         return Completer(Path(path).parent.name.split("-")[0] if stem in ("best", "last") else stem)
@@ -67,7 +69,9 @@ def fake_learning(monkeypatch, tmp_path):
 def test_cli_extract_evaluate_show(tmp_path, capsys, fake_learning):
     src = scene(tmp_path)
     out = tmp_path / "obs.h5"
-    assert main(["real", "extract", str(src), "--format", "generic", "--out", str(out)]) == 0  # -q would silence the summary
+    assert (
+        main(["real", "extract", str(src), "--format", "generic", "--out", str(out)]) == 0
+    )  # -q would silence the summary
     text = capsys.readouterr().out
     assert "4 observations" in text and "objects observed in two or more frames: 2" in text
     assert "skipped boxes: class_excluded 0" in text
@@ -82,21 +86,73 @@ def test_cli_extract_evaluate_show(tmp_path, capsys, fake_learning):
     assert (tmp_path / "rep.md").read_text().startswith("# Consistency")
     clips = sys.modules["spotlights.learning.inference"].Completer.clips
     assert set(clips) == {"default"}  # no --clip: the model's own default
-    assert main(["real", "evaluate", str(out), "--checkpoint", fake_learning[0], "--out", str(prefix), "-q", "--clip", "0.2"]) == 0
+    assert (
+        main(
+            [
+                "real",
+                "evaluate",
+                str(out),
+                "--checkpoint",
+                fake_learning[0],
+                "--out",
+                str(prefix),
+                "-q",
+                "--clip",
+                "0.2",
+            ]
+        )
+        == 0
+    )
     assert clips[-1] == 0.2
     capsys.readouterr()
     # two checkpoints of one model: named by their run folders (best.pt) or file names
     for run in ("sanet-a", "sanet-b"):
         (tmp_path / run).mkdir()
         (tmp_path / run / "best.pt").write_bytes(b"x")
-    assert main(["real", "evaluate", str(out), "-c", str(tmp_path / "sanet-a" / "best.pt"), str(tmp_path / "sanet-b" / "best.pt"),
-                 fake_learning[1], "--out", str(prefix), "-q"]) == 0
-    assert [m["name"] for m in json.loads((tmp_path / "rep.json").read_text())["models"]] == ["sanet (sanet-a)", "sanet (sanet-b)", "pcn"]
+    assert (
+        main(
+            [
+                "real",
+                "evaluate",
+                str(out),
+                "-c",
+                str(tmp_path / "sanet-a" / "best.pt"),
+                str(tmp_path / "sanet-b" / "best.pt"),
+                fake_learning[1],
+                "--out",
+                str(prefix),
+                "-q",
+            ]
+        )
+        == 0
+    )
+    assert [m["name"] for m in json.loads((tmp_path / "rep.json").read_text())["models"]] == [
+        "sanet (sanet-a)",
+        "sanet (sanet-b)",
+        "pcn",
+    ]
     capsys.readouterr()
     # --reference: the minimal matching distance against a completion dataset's cars
     ref = tiny_dataset_path(tmp_path / "ds")
-    assert main(["real", "evaluate", str(out), "-c", fake_learning[0], "--out", str(prefix), "-q", "--reference", str(ref),
-                 "--reference-split", "train"]) == 0
+    assert (
+        main(
+            [
+                "real",
+                "evaluate",
+                str(out),
+                "-c",
+                fake_learning[0],
+                "--out",
+                str(prefix),
+                "-q",
+                "--reference",
+                str(ref),
+                "--reference-split",
+                "train",
+            ]
+        )
+        == 0
+    )
     rep = json.loads((tmp_path / "rep.json").read_text())
     assert rep["models"][0]["average"]["mmd"] > 0 and rep["data"]["mmd_reference"]["file"] == str(ref)
     assert rep["data"]["mmd_reference"]["split"] == "train" and "MMD reference" in (tmp_path / "rep.md").read_text()
@@ -108,7 +164,9 @@ def test_cli_extract_evaluate_show(tmp_path, capsys, fake_learning):
     png = tmp_path / "pic.png"
     assert main(["real", "show", str(out), "--checkpoint", fake_learning[0], "--frame", "f1", "--out", str(png)]) == 0
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert main(["real", "show", str(out), "--out", str(tmp_path / "nocomp.png"), "--no-completion"]) == 0  # raw + partial only
+    assert (
+        main(["real", "show", str(out), "--out", str(tmp_path / "nocomp.png"), "--no-completion"]) == 0
+    )  # raw + partial only
 
 
 @pytest.mark.parametrize(
@@ -116,10 +174,15 @@ def test_cli_extract_evaluate_show(tmp_path, capsys, fake_learning):
     [
         (["real", "extract", "{tmp}/missing", "--format", "kitti", "--out", "{tmp}/o.h5"], "missing: not a folder"),
         (["real", "extract", "{tmp}", "--format", "av2", "--out", "{tmp}/o.h5"], "not an Argoverse 2 folder"),
-        (["real", "extract", "{tmp}", "--format", "kitti", "--out", "{tmp}/o.h5", "--boxes", "b.json"], "--boxes applies to --format generic only"),
+        (
+            ["real", "extract", "{tmp}", "--format", "kitti", "--out", "{tmp}/o.h5", "--boxes", "b.json"],
+            "--boxes applies to --format generic only",
+        ),
         (["real", "evaluate", "{tmp}/none.h5", "--checkpoint", "x.pt"], "none.h5: file not found"),
-        (["real", "evaluate", "{tmp}/none.h5", "--checkpoint", "x.pt", "--reference-split", "test"],
-         "--reference-split needs --reference"),
+        (
+            ["real", "evaluate", "{tmp}/none.h5", "--checkpoint", "x.pt", "--reference-split", "test"],
+            "--reference-split needs --reference",
+        ),
     ],
 )
 def test_cli_errors_one_line_exit_2(tmp_path, capsys, argv, message):
@@ -153,7 +216,12 @@ def test_cli_malformed_kitti_label_and_missing_calib(tmp_path, capsys):
 def test_cli_evaluate_untracked_file(tmp_path, capsys, fake_learning):
     need(LIDAR / "kitti-object")
     out = tmp_path / "k.h5"
-    assert main(["real", "extract", str(LIDAR / "kitti-object" / "training"), "--format", "kitti", "--out", str(out), "-q"]) == 0
+    assert (
+        main(
+            ["real", "extract", str(LIDAR / "kitti-object" / "training"), "--format", "kitti", "--out", str(out), "-q"]
+        )
+        == 0
+    )
     capsys.readouterr()
     assert main(["real", "evaluate", str(out), "--checkpoint", fake_learning[0]]) == 2
     assert "no object is observed in two or more frames" in capsys.readouterr().err

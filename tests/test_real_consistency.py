@@ -9,12 +9,20 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
 
-from spotlights.data.consistency import (aggregate, chamfer, consecutive_pairs, diversity, fidelity,
-                                         minimal_matching_distance, nn_distances, track_consistency)
+from spotlights.data.consistency import (
+    aggregate,
+    chamfer,
+    consecutive_pairs,
+    diversity,
+    fidelity,
+    minimal_matching_distance,
+    nn_distances,
+    track_consistency,
+)
 from spotlights.data.real import open_reader
-from spotlights.experiments.real_evaluation import evaluate_consistency, write_report
 from spotlights.data.real.extract import ExtractConfig, extract
 from spotlights.errors import InputFileError
+from spotlights.experiments.real_evaluation import evaluate_consistency, write_report
 
 
 def test_chamfer_matches_brute_force():
@@ -54,13 +62,22 @@ def test_track_consistency_frames_and_aggregation():
     keys, ts, cls, radii = [("s", "a")] * 2, [0, 1], ["car", "car"], [2.0, 2.0]
     # Track "b" (car): radii 1 and 3 but the same metric shape -> perfectly consistent.
     comps += [np.array([[0.3, 0, 0]]), np.array([[0.1, 0, 0]])]
-    keys += [("s", "b")] * 2; ts += [0, 1]; cls += ["car", "car"]; radii += [1.0, 3.0]
+    keys += [("s", "b")] * 2
+    ts += [0, 1]
+    cls += ["car", "car"]
+    radii += [1.0, 3.0]
     # Track "t" (truck), three frames, R = 1: shifts 0.1 then 0.3 -> cd 0.2 and 0.6, mean 0.4.
     comps += [pts, pts + [0.1, 0, 0], pts + [0.4, 0, 0]]
-    keys += [("s", "t")] * 3; ts += [0, 1, 2]; cls += ["truck"] * 3; radii += [1.0] * 3
+    keys += [("s", "t")] * 3
+    ts += [0, 1, 2]
+    cls += ["truck"] * 3
+    radii += [1.0] * 3
     # Track "e" (trailer): one completion empty -> unscored.
     comps += [pts, np.zeros((0, 3))]
-    keys += [("s", "e")] * 2; ts += [0, 1]; cls += ["trailer"] * 2; radii += [1.0, 1.0]
+    keys += [("s", "e")] * 2
+    ts += [0, 1]
+    cls += ["trailer"] * 2
+    radii += [1.0, 1.0]
     tracks = {t.key[1]: t for t in track_consistency(comps, keys, ts, cls, radii)}
     assert tracks["a"].values["cd"] == pytest.approx(0.2)
     assert tracks["a"].values["cd_m"] == pytest.approx(0.4)
@@ -103,15 +120,19 @@ def tracked_scene(tmp_path):
     frames = []
     for f in range(2):
         pts, boxes = [rng.uniform(-50, 50, (200, 3)) + [0, 0, 30]], []
-        for tid, label, c, size in (("a", "Car", [10.0 + f, 2.0, -0.8], [4.2, 1.8, 1.5]),
-                                    ("v", "Van", [-8.0, 6.0 - f, -0.6], [5.0, 2.0, 2.0])):
+        for tid, label, c, size in (
+            ("a", "Car", [10.0 + f, 2.0, -0.8], [4.2, 1.8, 1.5]),
+            ("v", "Van", [-8.0, 6.0 - f, -0.6], [5.0, 2.0, 2.0]),
+        ):
             obj = rng.uniform(-0.5, 0.5, (150, 3)) * size
             obj[:, 2] = np.abs(obj[:, 2])
             pts.append(obj + c)
             boxes.append({"center": c, "size": size, "yaw": 0.0, "label": label, "track_id": tid})
         if f == 0:
             pts.append(rng.uniform(-0.5, 0.5, (80, 3)) * [4, 1.8, 1.4] + [0, -10, -0.8])
-            boxes.append({"center": [0, -10, -0.8], "size": [4, 1.8, 1.4], "yaw": 0.0, "label": "Car", "track_id": "once"})
+            boxes.append(
+                {"center": [0, -10, -0.8], "size": [4, 1.8, 1.4], "yaw": 0.0, "label": "Car", "track_id": "once"}
+            )
         np.save(tmp_path / f"s{f}.npy", np.concatenate(pts).astype(np.float32))
         frames.append({"scan": f"s{f}.npy", "timestamp": f, "sequence": "seq", "boxes": boxes})
     (tmp_path / "scene.json").write_text(json.dumps({"frames": frames}))
@@ -131,11 +152,14 @@ def test_evaluate_consistency_with_fake_completers(tmp_path):
         d = cdist(obs.partial[rows[0]].astype(np.float64), obs.partial[rows[1]].astype(np.float64))
         want = d.min(axis=1).mean() + d.min(axis=0).mean()  # same box size in both frames: unit frames agree
         assert ident["classes"][cls]["cd"] == pytest.approx(want, rel=1e-6)
-    assert ident["average"]["cd"] == pytest.approx((ident["classes"]["car"]["cd"] + ident["classes"]["caravan"]["cd"]) / 2)
+    assert ident["average"]["cd"] == pytest.approx(
+        (ident["classes"]["car"]["cd"] + ident["classes"]["caravan"]["cd"]) / 2
+    )
     assert ell["average"]["cd"] == pytest.approx(0.0, abs=1e-12)  # the same prediction every time
     assert ell["diversity"] == pytest.approx(0.0, abs=1e-12) and ell["consistency_over_diversity"] is None
     assert ident["diversity"] > 0.1 and ident["consistency_over_diversity"] == pytest.approx(
-        ident["all_objects"]["cd"] / ident["diversity"])
+        ident["all_objects"]["cd"] / ident["diversity"]
+    )
     md, js = write_report(report, tmp_path / "out" / "rep")
     text = md.read_text()
     assert "| identity |" in text and "| Car | Caravan |" in text.replace("Model | ", "")
@@ -147,9 +171,30 @@ def test_evaluate_needs_tracks(tmp_path):
     keep = [i for i, t in enumerate(obs.track_id) if t == "once"]
     from spotlights.data.real.extract import _stack  # noqa: PLC2701 - build a one-observation file
 
-    rows = [{k: (getattr(obs, k)[i]) for k in ("partial", "n_points_raw", "timestamp", "box_center", "box_size", "box_yaw",
-             "box_rotation", "unit_to_sensor", "sensor_to_world", "sequence", "frame_id", "track_id", "cls", "label",
-             "scan_path", "label_path")} for i in keep]
+    rows = [
+        {
+            k: (getattr(obs, k)[i])
+            for k in (
+                "partial",
+                "n_points_raw",
+                "timestamp",
+                "box_center",
+                "box_size",
+                "box_yaw",
+                "box_rotation",
+                "unit_to_sensor",
+                "sensor_to_world",
+                "sequence",
+                "frame_id",
+                "track_id",
+                "cls",
+                "label",
+                "scan_path",
+                "label_path",
+            )
+        }
+        for i in keep
+    ]
     single = _stack(rows, 256, obs.meta)
     with pytest.raises(InputFileError, match="no object is observed in two or more frames"):
         evaluate_consistency(single, [Identity()], progress=False)
@@ -171,8 +216,10 @@ def test_fidelity_against_brute_force_and_closed_form():
 
 def test_minimal_matching_distance_against_brute_force():
     rng = np.random.default_rng(4)
-    refs = [rng.normal(size=(int(rng.integers(50, 200)), 3)) * s + o
-            for s, o in zip(rng.uniform(0.5, 2, 12), rng.normal(size=(12, 3)))]
+    refs = [
+        rng.normal(size=(int(rng.integers(50, 200)), 3)) * s + o
+        for s, o in zip(rng.uniform(0.5, 2, 12), rng.normal(size=(12, 3)))
+    ]
     for trial in range(5):
         comp = refs[(3 * trial + 5) % 12][rng.permutation(40)] + rng.normal(scale=0.05, size=(40, 3))
         cds = []
@@ -190,14 +237,23 @@ def test_evaluate_reports_fidelity_and_mmd(tmp_path):
     obs = tracked_scene(tmp_path)
     ell = Ellipsoid()
     refs = [ell.points.astype(np.float64), ell.points * 0.5]
-    report = evaluate_consistency(obs, [Identity(), ell], progress=False, references=refs,
-                                  reference_info={"file": "refs", "split": "all", "n_shapes": 2, "points_per_shape": 512})
+    report = evaluate_consistency(
+        obs,
+        [Identity(), ell],
+        progress=False,
+        references=refs,
+        reference_info={"file": "refs", "split": "all", "n_shapes": 2, "points_per_shape": 512},
+    )
     ident, e = report["models"]
     assert ident["average"]["fidelity"] == pytest.approx(0.0, abs=1e-12)  # the completion is the input
     # The fixed ellipsoid: brute-force fidelity per observation -> mean per track -> class -> average
     rows = {tid: [i for i, t in enumerate(obs.track_id) if t == tid] for tid in ("a", "v")}
-    per_track = {tid: np.mean([cdist(np.unique(obs.partial[i].astype(np.float64), axis=0), ell.points).min(axis=1).mean()
-                               for i in r]) for tid, r in rows.items()}
+    per_track = {
+        tid: np.mean(
+            [cdist(np.unique(obs.partial[i].astype(np.float64), axis=0), ell.points).min(axis=1).mean() for i in r]
+        )
+        for tid, r in rows.items()
+    }
     assert e["classes"]["car"]["fidelity"] == pytest.approx(per_track["a"], rel=1e-6)
     assert e["average"]["fidelity"] == pytest.approx((per_track["a"] + per_track["v"]) / 2, rel=1e-6)
     assert e["average"]["mmd"] == pytest.approx(0.0, abs=1e-12)  # it is reference 0
@@ -212,8 +268,9 @@ def test_per_observation_scores_skip_nan_and_follow_the_track_means():
     comps = [pts, pts, pts, pts]
     keys = [("s", "a"), ("s", "a"), ("s", "b"), ("s", "b")]
     fid = np.array([0.1, np.nan, np.nan, np.nan])  # track b: every observation empty -> no fidelity
-    tracks = track_consistency(comps, keys, [0, 1, 0, 1], ["car", "car", "truck", "truck"], [1.0] * 4,
-                               per_observation={"fidelity": fid})
+    tracks = track_consistency(
+        comps, keys, [0, 1, 0, 1], ["car", "car", "truck", "truck"], [1.0] * 4, per_observation={"fidelity": fid}
+    )
     by = {t.key[1]: t for t in tracks}
     assert by["a"].values["fidelity"] == pytest.approx(0.1) and math.isnan(by["b"].values["fidelity"])
     agg = aggregate(tracks, classes=["car", "truck"])
@@ -239,7 +296,9 @@ def test_diversity_against_brute_force():
     ts = [5, 1, 0, 0, 3]  # earliest: a -> row 1, b -> row 2, c -> row 3
     comps[3] = np.zeros((0, 3))  # c's earliest is empty: its next observation (row 4) stands for it
     reps = [comps[1], comps[2], comps[4]]
-    want = np.mean([cdist(x, y).min(1).mean() + cdist(x, y).min(0).mean() for i, x in enumerate(reps) for y in reps[i + 1:]])
+    want = np.mean(
+        [cdist(x, y).min(1).mean() + cdist(x, y).min(0).mean() for i, x in enumerate(reps) for y in reps[i + 1 :]]
+    )
     got, n = diversity(comps, keys, ts)
     assert n == 3 and got == pytest.approx(want, rel=1e-12)
     same = [np.ones((4, 3))] * 3
@@ -301,8 +360,10 @@ def tracked_scene_dense(tmp_path):
     frames = []
     for f in range(2):
         pts, boxes = [rng.uniform(-50, 50, (200, 3)) + [0, 0, 30]], []
-        for tid, label, c, size in (("a", "Car", [10.0 + f, 2.0, -0.8], [4.2, 1.8, 1.5]),
-                                    ("v", "Van", [-8.0, 6.0 - f, -0.6], [5.0, 2.0, 2.0])):
+        for tid, label, c, size in (
+            ("a", "Car", [10.0 + f, 2.0, -0.8], [4.2, 1.8, 1.5]),
+            ("v", "Van", [-8.0, 6.0 - f, -0.6], [5.0, 2.0, 2.0]),
+        ):
             obj = rng.uniform(-0.5, 0.5, (1000, 3)) * size
             obj[:, 2] = np.abs(obj[:, 2])
             pts.append(obj + c)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from spotlights.data.real import open_reader
-from spotlights.data.real.extract import (ExtractConfig, extract, read_observations, write_observations)
+from spotlights.data.real.extract import ExtractConfig, extract, read_observations, write_observations
 from spotlights.errors import InputFileError, ParameterError
 
 CENTER = np.array([12.0, -3.0, -0.8])
@@ -80,8 +80,13 @@ def test_synthetic_scan_round_trip(tmp_path):
     np.testing.assert_allclose(obs.box_size[0], SIZE)
     assert obs.box_yaw[0] == pytest.approx(YAW)
     assert np.all(np.isnan(obs.sensor_to_world[0]))
-    assert obs.meta["skipped"] == {"class_excluded": 1, "invalid_box": 1, "empty_box": 1, "too_few_points": 1,
-                                   "duplicate_box": 0}
+    assert obs.meta["skipped"] == {
+        "class_excluded": 1,
+        "invalid_box": 1,
+        "empty_box": 1,
+        "too_few_points": 1,
+        "duplicate_box": 0,
+    }
     assert obs.meta["skipped_labels"] == {"Pedestrian": 1}
     assert obs.meta["n_boxes"] == 5
 
@@ -89,7 +94,9 @@ def test_synthetic_scan_round_trip(tmp_path):
 def test_ground_removed_and_margin(tmp_path):
     make_scene(tmp_path)
     # no ground cut (bottom plane 0.1 m below the box bottom): the ground points under the footprint come in
-    loose = extract(open_reader(tmp_path / "scan.npy", "generic"), ExtractConfig(ground_clearance=-0.1, margin=0.01), progress=False)
+    loose = extract(
+        open_reader(tmp_path / "scan.npy", "generic"), ExtractConfig(ground_clearance=-0.1, margin=0.01), progress=False
+    )
     rng = np.random.default_rng(0)
     car_surface(rng, 500)  # replay the scene's generator up to the ground points
     g = np.c_[rng.uniform(-3, 3, (400, 2)), rng.uniform(-0.03, 0.03, 400) - SIZE[2] / 2]

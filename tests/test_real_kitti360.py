@@ -37,7 +37,11 @@ UNIT_CUBE = np.array([[x, y, z] for x in (0.5, -0.5) for y in (0.5, -0.5) for z 
 # Calibration: camera 0 looks forward (z) with x right, y down; the IMU frame is x forward, y left, z up.
 CAM_TO_POSE = rigid(np.array([[0, 0, 1.0], [-1, 0, 0], [0, -1, 0]]), [1.5, 0.0, 1.6])
 CAM_TO_VELO = rigid(np.array([[0, 0, 1.0], [-1, 0, 0], [0, -1, 0]]), [0.3, 0.0, -0.1])  # same axes, offset
-POSES = {0: rigid(rz(0.2), [1000.0, 2000.0, 100.0]), 1: rigid(rz(0.25), [1001.0, 2000.5, 100.0]), 3: rigid(rz(0.3), [1003.0, 2001.0, 100.0])}
+POSES = {
+    0: rigid(rz(0.2), [1000.0, 2000.0, 100.0]),
+    1: rigid(rz(0.25), [1001.0, 2000.5, 100.0]),
+    3: rigid(rz(0.3), [1003.0, 2001.0, 100.0]),
+}
 
 # A parked car (static, frames 0-5): world transform = rotation (yaw 1.0) times scale (4.2, 1.8, 1.5).
 CAR_T = rigid(rz(1.0) @ np.diag([4.2, 1.8, 1.5]), [1010.0, 2003.0, 100.5])
@@ -73,11 +77,15 @@ def write_dataset(root: Path, n_car_pts: int = 60) -> None:
     (root / "data_3d_bboxes" / "train" / f"{SEQ}.xml").write_text("\n".join(parts))
     (root / "calibration").mkdir()
     (root / "calibration" / "calib_cam_to_pose.txt").write_text(
-        "\n".join(f"image_0{i}: " + " ".join(f"{v:.9f}" for v in CAM_TO_POSE[:3].ravel()) for i in range(4)) + "\n")
-    (root / "calibration" / "calib_cam_to_velo.txt").write_text(" ".join(f"{v:.9f}" for v in CAM_TO_VELO[:3].ravel()) + "\n")
+        "\n".join(f"image_0{i}: " + " ".join(f"{v:.9f}" for v in CAM_TO_POSE[:3].ravel()) for i in range(4)) + "\n"
+    )
+    (root / "calibration" / "calib_cam_to_velo.txt").write_text(
+        " ".join(f"{v:.9f}" for v in CAM_TO_VELO[:3].ravel()) + "\n"
+    )
     (root / "data_poses" / SEQ).mkdir(parents=True)
     (root / "data_poses" / SEQ / "poses.txt").write_text(
-        "".join(f"{f} " + " ".join(f"{v:.9f}" for v in POSES[f][:3].ravel()) + "\n" for f in sorted(POSES)))
+        "".join(f"{f} " + " ".join(f"{v:.9f}" for v in POSES[f][:3].ravel()) + "\n" for f in sorted(POSES))
+    )
     data = root / "data_3d_raw" / SEQ / "velodyne_points" / "data"
     data.mkdir(parents=True)
     rng = np.random.default_rng(1)
@@ -124,8 +132,12 @@ def test_kitti360_boxes_in_velodyne_frame(tmp_path):
 def test_kitti360_extraction_tracks_static_and_dynamic(tmp_path):
     write_dataset(tmp_path)
     obs = extract(open_reader(tmp_path, "kitti360"), ExtractConfig(margin=0.0, ground_clearance=-1.0), progress=False)
-    assert sorted(zip(obs.track_id, obs.frame_id)) == [("13-7", "0000000000"), ("13-7", "0000000001"),
-                                                       ("14-2", "0000000000"), ("14-2", "0000000001")]
+    assert sorted(zip(obs.track_id, obs.frame_id)) == [
+        ("13-7", "0000000000"),
+        ("13-7", "0000000001"),
+        ("14-2", "0000000000"),
+        ("14-2", "0000000001"),
+    ]
     assert all(n in (60, 200) for n in obs.n_points_raw)
     # the static car's unit-frame partials in both frames are the same object points
     assert np.abs(obs.partial).max() <= 1.0 + 1e-6

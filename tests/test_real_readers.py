@@ -9,10 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from helpers import LIDAR, need
 from spotlights.data.real import open_reader
 from spotlights.data.real.extract import ExtractConfig, extract, points_in_box
 from spotlights.errors import InputFileError
+
+from helpers import LIDAR, need
 
 AV2 = LIDAR / "argoverse2"
 AV2_LOG = AV2 / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede"
@@ -51,7 +52,9 @@ def test_av2_track_pairing():
     a0, a1 = ann[ann.timestamp_ns == t0], ann[ann.timestamp_ns == t1]
     both = set(a0[a0.category.isin(vehicle)].track_uuid) & set(a1[a1.category.isin(vehicle)].track_uuid)
     assert len(both) == 47  # the data README's count
-    obs = extract(open_reader(AV2_LOG, "av2"), ExtractConfig(min_points=50, margin=0.0, ground_clearance=0.0), progress=False)
+    obs = extract(
+        open_reader(AV2_LOG, "av2"), ExtractConfig(min_points=50, margin=0.0, ground_clearance=0.0), progress=False
+    )
     from spotlights.data.consistency import consecutive_pairs
 
     pairs = consecutive_pairs(obs.object_keys(), obs.timestamp)
@@ -87,6 +90,7 @@ def test_kitti_shared_frames():
 
 
 # ---- malformed input -------------------------------------------------------------------------
+
 
 def kitti_copy(tmp_path) -> Path:
     need(KITTI)
@@ -147,8 +151,10 @@ def test_av2_missing_column(tmp_path):
 
     log = tmp_path / "log"
     (log / "sensors" / "lidar").mkdir(parents=True)
-    feather.write_feather(pa.table({"x": np.zeros(3, np.float32), "y": np.zeros(3, np.float32), "z": np.zeros(3, np.float32)}),
-                          log / "sensors" / "lidar" / "100.feather")
+    feather.write_feather(
+        pa.table({"x": np.zeros(3, np.float32), "y": np.zeros(3, np.float32), "z": np.zeros(3, np.float32)}),
+        log / "sensors" / "lidar" / "100.feather",
+    )
     feather.write_feather(pa.table({"timestamp_ns": np.array([100]), "track_uuid": ["t"]}), log / "annotations.feather")
     with pytest.raises(InputFileError, match=r"annotations.feather: annotations lacks column\(s\) category"):
         open_reader(log, "av2")
@@ -160,10 +166,24 @@ def test_generic_malformed_boxes(tmp_path):
         ("not json", "not valid JSON"),
         (json.dumps({"a": 1}), "expected a JSON list of boxes"),
         (json.dumps([{"center": [0, 0, 0], "label": "car", "yaw": 0}]), "box 0 has no 'size'"),
-        (json.dumps([{"center": [0, 0], "size": [1, 1, 1], "label": "car", "yaw": 0}]), r"box 0 center must be three finite numbers, got shape \(2,\)"),
+        (
+            json.dumps([{"center": [0, 0], "size": [1, 1, 1], "label": "car", "yaw": 0}]),
+            r"box 0 center must be three finite numbers, got shape \(2,\)",
+        ),
         (json.dumps([{"center": [0, 0, 0], "size": [1, 1, 1], "label": "car"}]), "needs 'yaw' or 'rotation'"),
-        (json.dumps([{"center": [0, 0, 0], "size": [1, 1, 1], "label": "car", "rotation": [[2, 0, 0], [0, 1, 0], [0, 0, 1]]}]),
-         "not a proper rotation"),
+        (
+            json.dumps(
+                [
+                    {
+                        "center": [0, 0, 0],
+                        "size": [1, 1, 1],
+                        "label": "car",
+                        "rotation": [[2, 0, 0], [0, 1, 0], [0, 0, 1]],
+                    }
+                ]
+            ),
+            "not a proper rotation",
+        ),
     ]
     for text, msg in cases:
         (tmp_path / "s.json").write_text(text)

@@ -35,8 +35,9 @@ def quick(tmp_path_factory):
 
     out = tmp_path_factory.mktemp("repro") / "quick"
     t0 = time.perf_counter()
-    res = reproduce(out, quick=True, progress=False, cars_meshes=CARS, category_meshes=CATEGORIES, lidar=LIDAR,
-                    log=lambda m: None)
+    res = reproduce(
+        out, quick=True, progress=False, cars_meshes=CARS, category_meshes=CATEGORIES, lidar=LIDAR, log=lambda m: None
+    )
     return {"out": out, "res": res, "seconds": time.perf_counter() - t0}
 
 
@@ -67,8 +68,14 @@ def _num(cell: str) -> float:
 
 
 def tex_table1() -> dict:
-    names = {"AtalsNet": "atlasnet", "PCN": "pcn", "FoldingNet": "foldingnet", "TopNet": "topnet",
-             "Ours (w/o clip)": "sanet (no clip)", "Ours (w/ clip)": "sanet (clip 0.2)"}
+    names = {
+        "AtalsNet": "atlasnet",
+        "PCN": "pcn",
+        "FoldingNet": "foldingnet",
+        "TopNet": "topnet",
+        "Ours (w/o clip)": "sanet (no clip)",
+        "Ours (w/ clip)": "sanet (clip 0.2)",
+    }
     keys = ["hatchback", "sedan", "suv", "average", "params_m", "runtime_ms"]
     return {names[r[0]]: dict(zip(keys, map(_num, r[1:]))) for r in _tex_rows("table:completion_accurarcy")}
 
@@ -91,7 +98,9 @@ def tex_table3() -> dict:
 
 def tex_table4() -> dict:
     keys = ["bathtub", "bottle", "cabinet", "chair", "lamp", "sofa", "average"]
-    return {int(re.search(r"(\d+)\^", r[0]).group(1)): dict(zip(keys, map(_num, r[1:]))) for r in _tex_rows("Tab:ratio")}
+    return {
+        int(re.search(r"(\d+)\^", r[0]).group(1)): dict(zip(keys, map(_num, r[1:]))) for r in _tex_rows("Tab:ratio")
+    }
 
 
 def tex_table5() -> dict:
@@ -142,8 +151,14 @@ def test_report_has_figures_steps_versions(quick):
     report = (out / "REPORT.md").read_text()
     for png in re.findall(r"\]\((figures/[^)]+\.png)\)", report):
         assert (out / png).stat().st_size > 5000, png
-    for name in ("rig.png", "density/density_heatmap.png", "gt_clouds.png", "completions_synthetic.png",
-                 "completions_kitti.png", "completions_av2.png"):
+    for name in (
+        "rig.png",
+        "density/density_heatmap.png",
+        "gt_clouds.png",
+        "completions_synthetic.png",
+        "completions_kitti.png",
+        "completions_av2.png",
+    ):
         assert f"figures/{name}" in report
     steps = json.loads((out / "steps.json").read_text())["steps"]
     assert len(steps) == 35
@@ -209,8 +224,20 @@ def test_table1_sanet_accuracy_by_brute_force(quick):
 
 def test_second_run_reuses_every_step_and_publishes(quick, tmp_path):
     out = quick["out"]
-    proc = run_cli("reproduce", "--quick", "--out", out, "--meshes", CARS, "--category-meshes", CATEGORIES,
-                   "--lidar", LIDAR, "--publish", tmp_path / "pub")
+    proc = run_cli(
+        "reproduce",
+        "--quick",
+        "--out",
+        out,
+        "--meshes",
+        CARS,
+        "--category-meshes",
+        CATEGORIES,
+        "--lidar",
+        LIDAR,
+        "--publish",
+        tmp_path / "pub",
+    )
     assert proc.returncode == 0, proc.stderr
     assert "0 step(s) run, 35 reused" in proc.stdout  # nothing recomputed (no wall-clock bound: the machine is shared)
     steps = json.loads((out / "steps.json").read_text())
@@ -255,8 +282,16 @@ def test_tables_3_and_4_alone_on_balls_match_the_closed_form(tmp_path):
 
     balls = _ball_folder(tmp_path)
     out = tmp_path / "t34"
-    res = reproduce(out, tables="3,4", quick=True, progress=False, cars_meshes=CARS, category_meshes=balls,
-                    lidar=tmp_path / "no-lidar", log=lambda m: None)
+    res = reproduce(
+        out,
+        tables="3,4",
+        quick=True,
+        progress=False,
+        cars_meshes=CARS,
+        category_meshes=balls,
+        lidar=tmp_path / "no-lidar",
+        log=lambda m: None,
+    )
     steps = json.loads((out / "steps.json").read_text())["steps"]
     assert set(steps) == {"rig-study", "fig-rig", "fig-density", "fig-gt", "table-3", "table-4"}
     assert not (out / "data").exists() and not (out / "runs").exists()
@@ -274,18 +309,25 @@ def test_tables_3_and_4_alone_on_balls_match_the_closed_form(tmp_path):
     for rays in (2048, 4096, 8192):
         for label in BOX_STUDY_LABELS:
             assert (boxes[(boxes.label == label) & (boxes.rays == rays)].hit_ratio == 1.0).all(), (label, rays)
-        for label, kw in (("cap 30", dict(angle=30.0)), ("cap 60", dict(angle=60.0)), ("cap 83 (r = R/4)", dict(radius=0.25))):
+        for label, kw in (
+            ("cap 30", dict(angle=30.0)),
+            ("cap 60", dict(angle=60.0)),
+            ("cap 83 (r = R/4)", dict(radius=0.25)),
+        ):
             rig = make_rig_spec(rays // 64, 64, **kw).for_box(None)
             got = boxes[(boxes.label == label) & (boxes.rays == rays)]
             assert len(got) == 2  # --quick: the first 2 meshes of each category
-            expect = [_slab_hit_ratio(rig.origins, rig.directions, np.array(sz) / np.linalg.norm(sz))
-                      for sz in (BOX_SIZES[int(m[len("box/box"):-len(".ply")])] for m in got.mesh)]
+            expect = [
+                _slab_hit_ratio(rig.origins, rig.directions, np.array(sz) / np.linalg.norm(sz))
+                for sz in (BOX_SIZES[int(m[len("box/box") : -len(".ply")])] for m in got.mesh)
+            ]
             assert got.hit_ratio.to_numpy() == pytest.approx(expect, abs=2e-3), (label, rays)
             assert min(expect) < 1.0 or label == "cap 30"
             # the box table's category mean = mean of the category means (ball and box)
             balls = per_mesh[(per_mesh.category == "ball") & (per_mesh.label == label) & (per_mesh.rays == rays)]
             assert vals[("categories", label, rays)]["hit_ratio"] == pytest.approx(
-                (np.mean(expect) + balls.hit_ratio.mean()) / 2, abs=2e-3)
+                (np.mean(expect) + balls.hit_ratio.mean()) / 2, abs=2e-3
+            )
     md, rows = box_study_section(vals, "categories", ctx)
     assert any("`box-32x64-ellipsoid-s1`" in line for line in md) and rows
     t4 = json.loads((out / "tables" / "table4.json").read_text())["ours"]
@@ -321,7 +363,11 @@ def test_box_table_in_the_report(quick):
 
     out = quick["out"]
     report = (out / "REPORT.md").read_text()
-    assert "## Beyond the paper: box-targeted rigs\n" in report and "(issue" not in report and "figures/box_rig_clouds.png" in report
+    assert (
+        "## Beyond the paper: box-targeted rigs\n" in report
+        and "(issue" not in report
+        and "figures/box_rig_clouds.png" in report
+    )
     tb = json.loads((out / "tables" / "tablebox.json").read_text())
     claims = [c["claim"] for c in tb["checks"]]
     assert sum("hit ratio >= 0.90" in c for c in claims) == 2 and sum("SA-Net" in c for c in claims) == 2
@@ -367,8 +413,19 @@ def test_box_table_plan_and_add_rig(quick, tmp_path):
     ctx = Context(Settings(out=tmp_path / "plan"))
     ctx.steps = all_steps(ctx)
     names = [st.name for st in plan(ctx, ["box"])]
-    assert set(names) == {"cars-data", "cars-data-box", "train-sanet", "train-sanet-box", "eval-sanet", "eval-sanet-box",
-                          "real-av2", "consistency-av2-box", "rig-study", "fig-box", "table-box"}
+    assert set(names) == {
+        "cars-data",
+        "cars-data-box",
+        "train-sanet",
+        "train-sanet-box",
+        "eval-sanet",
+        "eval-sanet-box",
+        "real-av2",
+        "consistency-av2-box",
+        "rig-study",
+        "fig-box",
+        "table-box",
+    }
     # a dataset that lacks the box rig: the cars-data-box step adds it (dataset add-rig), the check accepts it
     cars = tmp_path / "cars.h5"
     shutil.copyfile(quick["out"] / "data" / "cars.h5", cars)
@@ -396,11 +453,26 @@ def test_table1_names_the_clipped_row_after_the_checkpoint_clip(monkeypatch, tmp
     from spotlights.experiments.reproduce.tables import synthetic as rp
 
     def row(avg):
-        return {"hatchback": avg, "sedan": avg, "suv": avg, "average": avg, "params_m": 1.0, "runtime_ms": 1.0,
-                "n_samples": 7, "n_models": 1, "latency_device": "cpu", "threads": 1}
+        return {
+            "hatchback": avg,
+            "sedan": avg,
+            "suv": avg,
+            "average": avg,
+            "params_m": 1.0,
+            "runtime_ms": 1.0,
+            "n_samples": 7,
+            "n_models": 1,
+            "latency_device": "cpu",
+            "threads": 1,
+        }
 
-    fake = {"pcn": {"pcn": row(0.03)}, "atlasnet": {"atlasnet": row(0.04)}, "foldingnet": {"foldingnet": row(0.05)},
-            "topnet": {"topnet": row(0.035)}, "sanet": {"sanet (no clip)": row(0.2), "sanet (clip 0.3)": row(0.02)}}
+    fake = {
+        "pcn": {"pcn": row(0.03)},
+        "atlasnet": {"atlasnet": row(0.04)},
+        "foldingnet": {"foldingnet": row(0.05)},
+        "topnet": {"topnet": row(0.035)},
+        "sanet": {"sanet (no clip)": row(0.2), "sanet (clip 0.3)": row(0.02)},
+    }
     monkeypatch.setattr(rp, "eval_rows", lambda ctx, run: fake[run])
     ctx = SimpleNamespace(s=SimpleNamespace(schedule="budget"), records={}, run_dir=lambda r: tmp_path / r)
     t1 = rp.build_table1(ctx)

@@ -86,8 +86,18 @@ def test_rig_deterministic_and_serialisable():
     assert not a.directions.flags.writeable
 
 
-@pytest.mark.parametrize("kw", [dict(primary=0), dict(secondary=0), dict(angle=0), dict(angle=90.5),
-                                dict(angle=-10), dict(primary=2.5), dict(angle=float("nan"))])
+@pytest.mark.parametrize(
+    "kw",
+    [
+        dict(primary=0),
+        dict(secondary=0),
+        dict(angle=0),
+        dict(angle=90.5),
+        dict(angle=-10),
+        dict(primary=2.5),
+        dict(angle=float("nan")),
+    ],
+)
 def test_bad_parameters_rejected(kw):
     with pytest.raises(ParameterError):
         make_rig(**kw)

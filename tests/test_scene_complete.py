@@ -172,6 +172,45 @@ def test_clamping_keeps_every_point_in_the_sphere(tmp_path, tiny):
         assert np.linalg.norm(o.completion - o.box.center, axis=1).max() <= o.box.radius * (1 + 1e-5)
 
 
+class _PointModel:
+    """A fake point-set model (as PCN, FoldingNet, TopNet, AtlasNet: no depth to clamp) that predicts points up to
+    radius 4 in the unit frame; the first 100 lie inside the sphere."""
+
+    needs_box, domain, model_name = False, None, "fake-pcn"
+
+    def complete(self, partials, clip=None, **kw):
+        rng = np.random.default_rng(0)
+        outs = []
+        for _ in range(len(partials)):
+            d = rng.normal(size=(2048, 3))
+            d /= np.linalg.norm(d, axis=1, keepdims=True)
+            outs.append((d * np.r_[rng.uniform(0, 0.99, 100), rng.uniform(1.01, 4.0, 1948)][:, None]).astype(np.float32))
+        return outs
+
+
+def test_point_model_completions_are_clamped_to_the_sphere(tmp_path):
+    """A point model predicting points far outside the unit sphere: every completion point ends inside its box's
+    sphere (scan frame) and on or inside the unit sphere (unit frame), radially (directions kept); points inside are
+    unchanged; with the heading check too."""
+    from spotlights.experiments.scene import SceneConfig, clamp_to_unit_sphere, complete_scene
+
+    raw = _PointModel().complete(np.zeros((1, 256, 3)))[0]
+    clamped = clamp_to_unit_sphere(raw)
+    r = np.linalg.norm(clamped.astype(np.float64), axis=1)
+    assert r.max() <= 1.0 and np.allclose(r[100:], 1.0, atol=1e-6)
+    np.testing.assert_array_equal(clamped[:100], raw[:100])
+    cos = np.sum(clamped[100:] * raw[100:], axis=1) / (r[100:] * np.linalg.norm(raw[100:], axis=1))
+    assert cos.min() > 1 - 1e-6  # moved along the ray from the centre
+    scan, boxes = car_scene(tmp_path)
+    bxs = [Box(b["center"], b["size"], b["yaw"], "car", "car") for b in boxes[:2]]
+    for cfg in (SceneConfig(), SceneConfig(heading_check=True)):
+        res = complete_scene(scan, bxs, _PointModel(), cfg)
+        assert len(res.completed) == 2
+        for o in res.completed:
+            assert np.linalg.norm(o.completion_unit.astype(np.float64), axis=1).max() <= 1.0
+            assert np.linalg.norm(o.completion - o.box.center, axis=1).max() <= o.box.radius * (1 + 1e-6)
+
+
 def test_heading_check_turns_a_reversed_car_around(tmp_path):
     """The shipped model on the demo's simulated scan of the CC0 sedan: the box turned by 180 degrees is flipped
     back by the heading check, the right box is kept."""

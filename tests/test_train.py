@@ -14,16 +14,16 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from helpers import REPO, assert_user_error  # noqa: E402
-from learning_fixtures import TINY_MODEL_ARGS, cli, one_torch_thread, tiny_dataset_path, tiny_overrides  # noqa: E402
-
 from spotlights.errors import InputFileError, SpotlightsError  # noqa: E402
 from spotlights.learning.checkpoint import load_checkpoint  # noqa: E402
 from spotlights.learning.data import TorchCompletionDataset, read_info  # noqa: E402
 from spotlights.learning.train import train  # noqa: E402
 
+from helpers import REPO, assert_user_error  # noqa: E402
+from learning_fixtures import TINY_MODEL_ARGS, cli, one_torch_thread, tiny_dataset_path, tiny_overrides  # noqa: E402
 
 _single_thread = pytest.fixture(autouse=True)(one_torch_thread)
+
 
 @pytest.fixture(scope="module")
 def data(tmp_path_factory):
@@ -117,8 +117,15 @@ def test_resume_continues_exactly(data, tmp_path):
     assert [h["train_loss"] for h in full["history"]] == [h["train_loss"] for h in resumed["history"]]
     assert b["epoch"] == 3 and len((tmp_path / "part" / "log.csv").read_text().splitlines()) == 4
     # raising the number of epochs of a finished run continues it
-    more = train("atlasnet", data, tmp_path / "part", overrides={"train": {"epochs": 4}}, resume=True, progress=False,
-                 log=lambda *a: None)
+    more = train(
+        "atlasnet",
+        data,
+        tmp_path / "part",
+        overrides={"train": {"epochs": 4}},
+        resume=True,
+        progress=False,
+        log=lambda *a: None,
+    )
     assert more["epochs"] == 4 and more["history"][-1]["lr"] > 0
 
 
@@ -151,9 +158,30 @@ def test_ddp_with_torchrun_gloo_two_processes(data, tmp_path):
     cfg = tmp_path / "tiny.yaml"
     cfg.write_text(json.dumps(tiny_overrides("sanet", epochs=1, batch_size=4)))  # JSON is YAML
     env = dict(os.environ, PYTHONPATH=str(REPO / "src"), OMP_NUM_THREADS="1")
-    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc-per-node", "2", "--master-addr", "127.0.0.1",
-           "--master-port", str(_free_port()), "-m", "spotlights", "train", "--model", "sanet", "--data", str(data),
-           "--config", str(cfg), "--out", str(tmp_path / "ddp"), "--threads", "1"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--nproc-per-node",
+        "2",
+        "--master-addr",
+        "127.0.0.1",
+        "--master-port",
+        str(_free_port()),
+        "-m",
+        "spotlights",
+        "train",
+        "--model",
+        "sanet",
+        "--data",
+        str(data),
+        "--config",
+        str(cfg),
+        "--out",
+        str(tmp_path / "ddp"),
+        "--threads",
+        "1",
+    ]
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=240)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
     assert "2 process(es)" in proc.stdout
@@ -203,17 +231,47 @@ def test_evaluate_writes_table1_report(data, tmp_path):
 def test_cli_train_evaluate_and_errors(data, tmp_path, capsys):
     cfg = tmp_path / "tiny.yaml"
     cfg.write_text(json.dumps({"model": {"args": TINY_MODEL_ARGS["pcn"]}}))
-    proc = cli(capsys, "train", "--model", "pcn", "--data", data, "--config", cfg, "--epochs", "1", "--batch-size", "16",
-                   "--val-max-views", "1", "--out", tmp_path / "pcn", "--no-progress")
+    proc = cli(
+        capsys,
+        "train",
+        "--model",
+        "pcn",
+        "--data",
+        data,
+        "--config",
+        cfg,
+        "--epochs",
+        "1",
+        "--batch-size",
+        "16",
+        "--val-max-views",
+        "1",
+        "--out",
+        tmp_path / "pcn",
+        "--no-progress",
+    )
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "pcn" / "best.pt").exists()
-    proc = cli(capsys, "evaluate", "--data", data, "--checkpoint", tmp_path / "pcn" / "best.pt", "--out", tmp_path / "rep",
-                   "--max-views", "2", "--no-latency")
+    proc = cli(
+        capsys,
+        "evaluate",
+        "--data",
+        data,
+        "--checkpoint",
+        tmp_path / "pcn" / "best.pt",
+        "--out",
+        tmp_path / "rep",
+        "--max-views",
+        "2",
+        "--no-latency",
+    )
     assert proc.returncode == 0, proc.stderr
     assert "| PCN |" in proc.stdout and (tmp_path / "rep.json").exists()
     proc = cli(capsys, "evaluate", "--data", data, "--checkpoint", cfg)
     assert_user_error(proc, "tiny.yaml", "not a readable checkpoint")
-    proc = cli(capsys, "train", "--model", "pcn", "--data", data, "--config", cfg, "--out", tmp_path / "pcn", "--epochs", "1")
+    proc = cli(
+        capsys, "train", "--model", "pcn", "--data", data, "--config", cfg, "--out", tmp_path / "pcn", "--epochs", "1"
+    )
     assert_user_error(proc, "holds a run already")
 
 
@@ -237,8 +295,9 @@ def test_reads_and_trains_on_a_file_built_by_the_dataset_builder(tmp_path):
         (tmp_path / "meshes" / cat).mkdir(parents=True)
         for j in range(3):
             make_shape(cat, rng).export(tmp_path / "meshes" / cat / f"{cat}{j}.ply")
-    cfg = synthetic.BuildConfig(meshes=str(tmp_path / "meshes"), views=4, split="3/3/3", gt_dense=2048,
-                                default_rig="8x16@60")
+    cfg = synthetic.BuildConfig(
+        meshes=str(tmp_path / "meshes"), views=4, split="3/3/3", gt_dense=2048, default_rig="8x16@60"
+    )
     synthetic.build_dataset(cfg, tmp_path / "built.h5", workers=1, progress=False, log=lambda *a: None)
     ds = TorchCompletionDataset(tmp_path / "built.h5", "train")
     assert len(ds) == 12 and ds.rig_name == "cap-8x16-60" and ds[0]["depths"].shape == (128,)
@@ -282,10 +341,15 @@ def test_two_checkpoints_of_one_model_are_told_apart_in_the_report():
     """Rows of the same model get their run folder's name (or the file's stem); a lone model keeps its plain name."""
     from spotlights.learning.evaluate import _label, _tag_repeated_models
 
-    results = [{"model": "sanet", "checkpoint": "runs/fair/sanet/best.pt"},
-               {"model": "sanet", "checkpoint": "pretrained/paper.pt"},
-               {"model": "pcn", "checkpoint": "runs/pcn/best.pt"}]
+    results = [
+        {"model": "sanet", "checkpoint": "runs/fair/sanet/best.pt"},
+        {"model": "sanet", "checkpoint": "pretrained/paper.pt"},
+        {"model": "pcn", "checkpoint": "runs/pcn/best.pt"},
+    ]
     _tag_repeated_models(results)
     row = {"variant": "clip 0.2"}
-    assert [_label(r, row) for r in results] == ["SA-Net [sanet] (clip 0.2)", "SA-Net [paper] (clip 0.2)",
-                                                  "PCN (clip 0.2)"]
+    assert [_label(r, row) for r in results] == [
+        "SA-Net [sanet] (clip 0.2)",
+        "SA-Net [paper] (clip 0.2)",
+        "PCN (clip 0.2)",
+    ]

@@ -67,9 +67,11 @@ def ray_session(address: str | None = None, workers: int | None = None) -> Itera
         reason = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
         hint = ""
         if address and os.environ.get("RAY_AUTH_MODE", "") != "token":
-            hint = ("; if the cluster uses token authentication (Ray's default for instances started by ray.init), "
-                    "set RAY_AUTH_MODE=token and give its token (RAY_AUTH_TOKEN or ~/.ray/auth_token), see "
-                    "docs/scale-out.md")
+            hint = (
+                "; if the cluster uses token authentication (Ray's default for instances started by ray.init), "
+                "set RAY_AUTH_MODE=token and give its token (RAY_AUTH_TOKEN or ~/.ray/auth_token), see "
+                "docs/scale-out.md"
+            )
         raise SpotlightsError(f"cannot {where}: {reason}{hint}") from None
     try:
         yield ray

@@ -127,8 +127,13 @@ def atomic_output(path: str | os.PathLike, suffix: str | None = None) -> Iterato
             yield tmp_path
             os.replace(tmp_path, path)
         except OSError as exc:
-            if getattr(exc, "filename", None) not in (None, str(tmp_path), str(path), str(path.parent),
-                                                      *map(str, created)):
+            if getattr(exc, "filename", None) not in (
+                None,
+                str(tmp_path),
+                str(path),
+                str(path.parent),
+                *map(str, created),
+            ):
                 raise  # about another file: the caller's own error
             raise OutputFileError(path, f"cannot write ({os_error_reason(exc)})") from exc
     except BaseException:
@@ -222,8 +227,9 @@ def _is_main_guard(test: ast.expr) -> bool:
     if not (isinstance(test, ast.Compare) and len(test.ops) == 1 and isinstance(test.ops[0], ast.Eq)):
         return False
     sides = [test.left, test.comparators[0]]
-    return (any(isinstance(s, ast.Name) and s.id == "__name__" for s in sides)
-            and any(isinstance(s, ast.Constant) and s.value == "__main__" for s in sides))
+    return any(isinstance(s, ast.Name) and s.id == "__name__" for s in sides) and any(
+        isinstance(s, ast.Constant) and s.value == "__main__" for s in sides
+    )
 
 
 def unguarded_main_call() -> tuple[str, int] | None:
@@ -268,13 +274,17 @@ def check_can_start_processes(what: str = "worker processes") -> None:
     import multiprocessing as mp
 
     if getattr(mp.current_process(), "_inheriting", False):
-        raise SpotlightsError(f"cannot start {what} from a worker that is importing the main script; "
-                              "put the script's code under `if __name__ == \"__main__\":`")
+        raise SpotlightsError(
+            f"cannot start {what} from a worker that is importing the main script; "
+            'put the script\'s code under `if __name__ == "__main__":`'
+        )
     where = unguarded_main_call()
     if where is not None:
         script, line = where
-        raise SpotlightsError(f"{script}:{line}: this call starts {what}, which re-import the script; put the "
-                              "script's code under `if __name__ == \"__main__\":` (or use workers=1)")
+        raise SpotlightsError(
+            f"{script}:{line}: this call starts {what}, which re-import the script; put the "
+            'script\'s code under `if __name__ == "__main__":` (or use workers=1)'
+        )
 
 
 def process_pool_context(check: bool = True):
@@ -308,9 +318,17 @@ def _quiet_worker(initializer, initargs) -> None:
         initializer(*initargs)
 
 
-def process_map(fn: Callable, items: Iterable, workers: int, *, initializer: Callable | None = None,
-                initargs: tuple = (), ordered: bool = True, timeout: float | None = POOL_TIMEOUT_S,
-                what: str = "work unit") -> Iterator:
+def process_map(
+    fn: Callable,
+    items: Iterable,
+    workers: int,
+    *,
+    initializer: Callable | None = None,
+    initargs: tuple = (),
+    ordered: bool = True,
+    timeout: float | None = POOL_TIMEOUT_S,
+    what: str = "work unit",
+) -> Iterator:
     """Yield ``fn(item)`` for every item, on ``workers`` processes (in this process for one).
 
     For independent work units only (many meshes, dataset units, studies): results are the
@@ -332,8 +350,9 @@ def process_map(fn: Callable, items: Iterable, workers: int, *, initializer: Cal
     from concurrent.futures.process import BrokenProcessPool
 
     ctx = process_pool_context()
-    pool = ProcessPoolExecutor(min(workers, len(items)), mp_context=ctx, initializer=_quiet_worker,
-                               initargs=(initializer, initargs))
+    pool = ProcessPoolExecutor(
+        min(workers, len(items)), mp_context=ctx, initializer=_quiet_worker, initargs=(initializer, initargs)
+    )
     ok = False
     try:
         futures = {pool.submit(fn, item): i for i, item in enumerate(items)}
@@ -343,14 +362,18 @@ def process_map(fn: Callable, items: Iterable, workers: int, *, initializer: Cal
         while pending:
             done, pending = wait(pending, timeout=timeout, return_when=FIRST_COMPLETED)
             if not done:
-                raise SpotlightsError(f"no {what} finished within {timeout:.0f} s on {min(workers, len(items))} "
-                                      "worker processes: stopped (a worker hangs?)")
+                raise SpotlightsError(
+                    f"no {what} finished within {timeout:.0f} s on {min(workers, len(items))} "
+                    "worker processes: stopped (a worker hangs?)"
+                )
             for fut in done:
                 try:
                     res = fut.result()
                 except BrokenProcessPool:
-                    raise SpotlightsError(f"a worker process died while computing a {what} (killed, or out of "
-                                          "memory?); run again to resume, or with fewer workers") from None
+                    raise SpotlightsError(
+                        f"a worker process died while computing a {what} (killed, or out of "
+                        "memory?); run again to resume, or with fewer workers"
+                    ) from None
                 if ordered:
                     ready[futures[fut]] = res
                 else:

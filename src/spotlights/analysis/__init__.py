@@ -24,6 +24,14 @@ from .density import (
 )
 
 __all__ = [
-    "rho", "rho_at_points", "rho_closed_form_alpha0", "rho_closed_form_alpha_half_pi", "rho_closed_form_r0",
-    "rho_direction", "rho_direction_grid", "rho_grid", "rho_paper_integral", "rho_ring",
+    "rho",
+    "rho_at_points",
+    "rho_closed_form_alpha0",
+    "rho_closed_form_alpha_half_pi",
+    "rho_closed_form_r0",
+    "rho_direction",
+    "rho_direction_grid",
+    "rho_grid",
+    "rho_paper_integral",
+    "rho_ring",
 ]

@@ -93,9 +93,7 @@ def cap_solid_angle(angle_deg: float) -> float:
 def _check_angle(angle_deg: float) -> float:
     angle_deg = float(angle_deg)
     if not (0.0 < angle_deg <= 90.0):
-        raise ParameterError(
-            f"cap angle must be in (0, 90] degrees (the sources face the centre), got {angle_deg:g}"
-        )
+        raise ParameterError(f"cap angle must be in (0, 90] degrees (the sources face the centre), got {angle_deg:g}")
     return angle_deg
 
 

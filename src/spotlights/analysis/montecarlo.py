@@ -52,9 +52,15 @@ from ..errors import ParameterError
 from .density import gauss_legendre, rho, rho_at_points
 
 __all__ = [
-    "DiscPlacement", "MCResult", "RigRays", "centre_disc_expected_density", "count_disc_hits",
-    "disc_expected_density", "disc_mesh",
-    "finite_m_correction", "mc_density",
+    "DiscPlacement",
+    "MCResult",
+    "RigRays",
+    "centre_disc_expected_density",
+    "count_disc_hits",
+    "disc_expected_density",
+    "disc_mesh",
+    "finite_m_correction",
+    "mc_density",
 ]
 
 
@@ -409,7 +415,9 @@ def mc_density(
     nm = rig.n_rays
     rays = RigRays(rig)
     results: list[MCResult] = []
-    bar = tqdm(total=len(placements) * n_rotations, desc=f"MC {rig.name}", unit="disc", disable=not progress, leave=False)
+    bar = tqdm(
+        total=len(placements) * n_rotations, desc=f"MC {rig.name}", unit="disc", disable=not progress, leave=False
+    )
     for j, p in enumerate(placements):
         vertices, faces, normal = disc_mesh(p.r, p.alpha, disc_radius, segments)
         counts = np.zeros((n_rotations, 2), dtype=np.int64)
@@ -434,11 +442,25 @@ def mc_density(
             z = (rho_mc - expect) / se if se > 0 else (0.0 if rho_mc == expect else np.inf)
             results.append(
                 MCResult(
-                    angle=float(rig.angle), r=float(p.r), alpha=float(alpha), side=side, n_primary=int(rig.n_primary),
-                    n_secondary=int(rig.n_secondary), n_rotations=int(n_rotations), disc_radius=float(disc_radius),
-                    area=float(area), hits=int(c.sum()), rho_mc=rho_mc, se_mc=se, se_poisson=se_p,
-                    rho_quad=float(quad[col]), correction=float(corr[col]), rho_expected=float(expect),
-                    rho_center=float(rho(p.r, alpha, angle=rig.angle)), z=float(z), shells=float(shells),
+                    angle=float(rig.angle),
+                    r=float(p.r),
+                    alpha=float(alpha),
+                    side=side,
+                    n_primary=int(rig.n_primary),
+                    n_secondary=int(rig.n_secondary),
+                    n_rotations=int(n_rotations),
+                    disc_radius=float(disc_radius),
+                    area=float(area),
+                    hits=int(c.sum()),
+                    rho_mc=rho_mc,
+                    se_mc=se,
+                    se_poisson=se_p,
+                    rho_quad=float(quad[col]),
+                    correction=float(corr[col]),
+                    rho_expected=float(expect),
+                    rho_center=float(rho(p.r, alpha, angle=rig.angle)),
+                    z=float(z),
+                    shells=float(shells),
                 )
             )
     bar.close()

@@ -10,9 +10,9 @@ from __future__ import annotations
 import json
 import os
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -86,16 +86,23 @@ def extrema(angle: float, r_limit: float, r_values: np.ndarray, alpha_values: np
     inside = r_values <= r_limit + 1e-12
     g = grid[inside]
     out = {}
-    for name, sign, idx in (("min", 1.0, np.unravel_index(np.argmin(g), g.shape)),
-                            ("max", -1.0, np.unravel_index(np.argmax(g), g.shape))):
+    for name, sign, idx in (
+        ("min", 1.0, np.unravel_index(np.argmin(g), g.shape)),
+        ("max", -1.0, np.unravel_index(np.argmax(g), g.shape)),
+    ):
         x0 = np.array([r_values[inside][idx[0]], alpha_values[idx[1]]])
         best = (float(g[idx]), float(x0[0]), float(x0[1]))
 
         def f(x):
             return sign * float(dens.rho(x[0], x[1], angle=angle))
 
-        res = minimize(f, x0, method="L-BFGS-B", bounds=[(0.0, r_limit), (0.0, np.pi)],
-                       options={"ftol": 1e-14, "gtol": 1e-12, "maxiter": 200})
+        res = minimize(
+            f,
+            x0,
+            method="L-BFGS-B",
+            bounds=[(0.0, r_limit), (0.0, np.pi)],
+            options={"ftol": 1e-14, "gtol": 1e-12, "maxiter": 200},
+        )
         val = sign * float(res.fun)
         if sign * val < sign * best[0]:
             best = (val, float(res.x[0]), float(res.x[1]))
@@ -117,7 +124,9 @@ def hit_ratios(rig, radii: Sequence[float] = (0.5, 0.8)) -> dict[str, float]:
     return {f"hit_ratio_{str(b).replace('.', '')[:2]}": float(np.mean(dist <= b)) for b in radii}
 
 
-def _symmetric_grid(r_values: np.ndarray, alpha_values: np.ndarray, angle: float, nodes: int = dens.DEFAULT_NODES) -> np.ndarray:
+def _symmetric_grid(
+    r_values: np.ndarray, alpha_values: np.ndarray, angle: float, nodes: int = dens.DEFAULT_NODES
+) -> np.ndarray:
     """``rho_grid`` on a grid symmetric about pi/2, computing only alpha <= pi/2 and mirroring.
 
     ``rho(r, alpha) = rho(r, pi - alpha)`` exactly (see :mod:`.density`; tested independently).
@@ -139,13 +148,36 @@ def _write_csv(path: Path, header: str, columns: Sequence[np.ndarray], fmts: Seq
 
 
 def _write_mc_csv(path: Path, results) -> None:
-    keys = ["angle", "r", "alpha", "side", "n_primary", "n_secondary", "n_rotations", "disc_radius", "area", "hits",
-            "rho_mc", "se_mc", "se_poisson", "rho_quad", "correction", "rho_expected", "rho_center", "z", "shells"]
+    keys = [
+        "angle",
+        "r",
+        "alpha",
+        "side",
+        "n_primary",
+        "n_secondary",
+        "n_rotations",
+        "disc_radius",
+        "area",
+        "hits",
+        "rho_mc",
+        "se_mc",
+        "se_poisson",
+        "rho_quad",
+        "correction",
+        "rho_expected",
+        "rho_center",
+        "z",
+        "shells",
+    ]
     lines = [",".join(keys)]
     for x in results:
         d = x.to_dict()
-        lines.append(",".join(v if isinstance(v, str) else (str(v) if isinstance(v, int) else f"{v:.10g}")
-                              for v in (d[k] for k in keys)))
+        lines.append(
+            ",".join(
+                v if isinstance(v, str) else (str(v) if isinstance(v, int) else f"{v:.10g}")
+                for v in (d[k] for k in keys)
+            )
+        )
     with atomic_output(path) as tmp:
         tmp.write_text("\n".join(lines) + "\n")
 
@@ -168,8 +200,9 @@ def _mc_stats(results) -> dict:
     }
 
 
-def run_density_analysis(out_dir: str | os.PathLike, config: DensityConfig | None = None, progress: bool = True,
-                         log=print) -> tuple[dict, dict]:
+def run_density_analysis(
+    out_dir: str | os.PathLike, config: DensityConfig | None = None, progress: bool = True, log=print
+) -> tuple[dict, dict]:
     """Compute, check and draw the ray density of Spotlights rigs; write everything under ``out_dir``.
 
     Writes ``density.csv`` (columns ``r``, ``alpha`` [radians], ``rho_per_nm`` and, with several
@@ -204,8 +237,11 @@ def run_density_analysis(out_dir: str | os.PathLike, config: DensityConfig | Non
     grids = {a: _symmetric_grid(r_values, alpha_values, a) for a in angles}
     timings["quadrature_grid"] = time.perf_counter() - t
     t = time.perf_counter()
-    summary: dict = {"format": "spotlights-density-summary", "config": {
-        k: (list(v) if isinstance(v, (list, tuple)) else v) for k, v in config.__dict__.items()}, "angles": {}}
+    summary: dict = {
+        "format": "spotlights-density-summary",
+        "config": {k: (list(v) if isinstance(v, (list, tuple)) else v) for k, v in config.__dict__.items()},
+        "angles": {},
+    }
     for a in angles:
         ref = _symmetric_grid(r_values, alpha_values, a, nodes=2 * dens.DEFAULT_NODES)
         ext = extrema(a, config.r_limit, r_values, alpha_values, grids[a])
@@ -230,8 +266,12 @@ def run_density_analysis(out_dir: str | os.PathLike, config: DensityConfig | Non
     if len(angles) == 1:
         cols = [rr.ravel(), aa.ravel(), grids[angles[0]].ravel()]
     else:
-        cols = [np.tile(rr.ravel(), len(angles)), np.tile(aa.ravel(), len(angles)),
-                np.concatenate([grids[a].ravel() for a in angles]), np.repeat(angles, rr.size)]
+        cols = [
+            np.tile(rr.ravel(), len(angles)),
+            np.tile(aa.ravel(), len(angles)),
+            np.concatenate([grids[a].ravel() for a in angles]),
+            np.repeat(angles, rr.size),
+        ]
         fmts.append("%g")
         header += ",angle"
     _write_csv(out / "density.csv", header, cols, fmts)
@@ -239,8 +279,10 @@ def run_density_analysis(out_dir: str | os.PathLike, config: DensityConfig | Non
     dir_angle = 90.0 if 90.0 in angles else angles[0]
     beta = np.linspace(0.0, np.pi / 2, 121)
     gamma = np.linspace(0.0, 2 * np.pi, 2 * 121)
-    cases = [(r, a, dens.rho_direction_grid(r, a, beta, gamma, angle=dir_angle), float(dens.rho(r, a, angle=dir_angle)))
-             for r, a in [(0.0, 0.0), (0.5, np.radians(60.0)), (0.8, 0.0), (0.8, np.pi / 2), (0.8, np.pi)]]
+    cases = [
+        (r, a, dens.rho_direction_grid(r, a, beta, gamma, angle=dir_angle), float(dens.rho(r, a, angle=dir_angle)))
+        for r, a in [(0.0, 0.0), (0.5, np.radians(60.0)), (0.8, 0.0), (0.8, np.pi / 2), (0.8, np.pi)]
+    ]
     plots.plot_directional(out / "density_directional.png", cases, beta, gamma, angle=dir_angle)
     timings["csv_and_figures"] = time.perf_counter() - t
 
@@ -250,15 +292,22 @@ def run_density_analysis(out_dir: str | os.PathLike, config: DensityConfig | Non
 
     all_results = []
     t = time.perf_counter()
-    placements = [DiscPlacement(0.0, 0.0)] + [DiscPlacement(float(r), float(np.radians(ad)))
-                                              for r in config.mc_radii if r > 0 for ad in config.mc_alphas_deg]
+    placements = [DiscPlacement(0.0, 0.0)] + [
+        DiscPlacement(float(r), float(np.radians(ad))) for r in config.mc_radii if r > 0 for ad in config.mc_alphas_deg
+    ]
     for a in angles:
         rig = make_rig(config.mc_primary, config.mc_secondary, angle=a)
         summary["angles"][f"{a:g}"]["rig"] = rig.name
         summary["angles"][f"{a:g}"].update(hit_ratios(rig))
         if config.mc:
-            res = mc_density(rig, placements, disc_radius=config.disc_radius, n_rotations=config.mc_rotations,
-                             seed=config.seed + int(round(1000 * a)), progress=progress)
+            res = mc_density(
+                rig,
+                placements,
+                disc_radius=config.disc_radius,
+                n_rotations=config.mc_rotations,
+                seed=config.seed + int(round(1000 * a)),
+                progress=progress,
+            )
             all_results.extend(res)
             summary["angles"][f"{a:g}"]["montecarlo"] = _mc_stats(res)
     timings["montecarlo"] = time.perf_counter() - t
@@ -266,15 +315,22 @@ def run_density_analysis(out_dir: str | os.PathLike, config: DensityConfig | Non
     if config.mc:
         _write_mc_csv(out / "density_mc.csv", all_results)
         curve_r = np.linspace(0.0, 0.95, 96)
-        curves = {a: (curve_r, {ad: dens.rho(curve_r, np.radians(ad), angle=a) for ad in (0.0, 45.0, 90.0)})
-                  for a in angles}
+        curves = {
+            a: (curve_r, {ad: dens.rho(curve_r, np.radians(ad), angle=a) for ad in (0.0, 45.0, 90.0)}) for a in angles
+        }
         plots.plot_montecarlo(out / "density_montecarlo.png", all_results, curves)
         summary["montecarlo"] = _mc_stats(all_results)
     if len(angles) > 1:
-        table = [{"angle": a, "uniformity": summary["angles"][f"{a:g}"]["uniformity_max_over_min"],
-                  "uniformity_095": summary["angles"][f"{a:g}"]["uniformity_max_over_min_r_le_0.95"],
-                  "hit_ratio_05": summary["angles"][f"{a:g}"]["hit_ratio_05"],
-                  "hit_ratio_08": summary["angles"][f"{a:g}"]["hit_ratio_08"]} for a in angles]
+        table = [
+            {
+                "angle": a,
+                "uniformity": summary["angles"][f"{a:g}"]["uniformity_max_over_min"],
+                "uniformity_095": summary["angles"][f"{a:g}"]["uniformity_max_over_min_r_le_0.95"],
+                "hit_ratio_05": summary["angles"][f"{a:g}"]["hit_ratio_05"],
+                "hit_ratio_08": summary["angles"][f"{a:g}"]["hit_ratio_08"],
+            }
+            for a in angles
+        ]
         ia0 = 0
         ia90 = int(np.argmin(np.abs(alpha_values - np.pi / 2)))
         profiles = {a: {"alpha0": grids[a][:, ia0], "alpha90": grids[a][:, ia90]} for a in angles}

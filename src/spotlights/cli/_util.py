@@ -66,7 +66,9 @@ non_negative_float = _number_type(float, lambda v: 0.0 <= v < float("inf"), "a f
 def add_quiet(p: argparse.ArgumentParser, what: str = "no progress bar") -> None:
     """``-q/--quiet`` (progress bars and summary lines off; errors and warnings still on
     stderr), with ``--no-progress`` kept as a hidden alias for older scripts."""
-    p.add_argument("--quiet", "-q", action="store_true", help=f"{what} and no summary lines (errors and warnings still shown)")
+    p.add_argument(
+        "--quiet", "-q", action="store_true", help=f"{what} and no summary lines (errors and warnings still shown)"
+    )
     p.add_argument("--no-progress", dest="quiet", action="store_true", help=argparse.SUPPRESS)
 
 
@@ -88,8 +90,9 @@ def check_suffix(path, suffixes: tuple, what: str, option: str = "--out") -> Non
     suffix = Path(path).suffix.lower()
     if suffix not in suffixes:
         shown = " or ".join(suffixes)
-        raise ParameterError(f"{option} {path}: {what} is written as {shown}; "
-                             f"name it {Path(path).stem or 'FILE'}{suffixes[0]}")
+        raise ParameterError(
+            f"{option} {path}: {what} is written as {shown}; name it {Path(path).stem or 'FILE'}{suffixes[0]}"
+        )
 
 
 def check_picture(path, option: str = "--out") -> None:

@@ -11,25 +11,58 @@ from .view import add_html_argument
 def add_rig_arguments(p: argparse.ArgumentParser) -> None:
     """The rig options shared by every command that builds a rig."""
     g = p.add_argument_group("rig (paper defaults: 32 x 64 rays, 60 degrees)")
-    g.add_argument("--primary", "-N", type=int, default=32, metavar="N", help="viewpoints on the Fibonacci sphere (default 32)")
+    g.add_argument(
+        "--primary", "-N", type=int, default=32, metavar="N", help="viewpoints on the Fibonacci sphere (default 32)"
+    )
     g.add_argument("--secondary", "-M", type=int, default=64, metavar="M", help="rays per viewpoint (default 64)")
-    g.add_argument("--angle", type=float, default=60.0, metavar="DEG", help="cap polar half-angle omega in degrees, (0, 90] (default 60)")
-    g.add_argument("--radius", type=float, default=None, metavar="R",
-                   help="alternatively the paper's small-sphere radius r/R: omega = arccos(r/2R); 0.25 gives 82.8 degrees")
-    g.add_argument("--rig-kind", choices=("cap", "box"), default="cap",
-                   help="cap: the paper's rig (default); box: aim each viewpoint's rays at the object's box "
-                        "(beyond the paper; on the 79 cars at 2048-8192 rays: hit ratio 0.94 instead of 0.35 and 22-24%% better "
-                        "completeness than the 60-degree cap; docs/box-rig.md)")
-    g.add_argument("--box-targets", choices=("ellipsoid", "volume", "surface", "visible"), default=None,
-                   help="box rigs: target set (default ellipsoid: the tangent cone of the box's inscribed ellipsoid)")
-    g.add_argument("--box-scale", type=float, default=None, metavar="S",
-                   help="box rigs: targets within the box scaled by S, (0, 1] (default 1)")
-    g.add_argument("--box-cap-share", type=float, default=None, metavar="C",
-                   help="box rigs: share of each viewpoint's rays kept on the paper's cap of --angle, [0, 1) (default 0)")
+    g.add_argument(
+        "--angle",
+        type=float,
+        default=60.0,
+        metavar="DEG",
+        help="cap polar half-angle omega in degrees, (0, 90] (default 60)",
+    )
+    g.add_argument(
+        "--radius",
+        type=float,
+        default=None,
+        metavar="R",
+        help="alternatively the paper's small-sphere radius r/R: omega = arccos(r/2R); 0.25 gives 82.8 degrees",
+    )
+    g.add_argument(
+        "--rig-kind",
+        choices=("cap", "box"),
+        default="cap",
+        help="cap: the paper's rig (default); box: aim each viewpoint's rays at the object's box "
+        "(beyond the paper; on the 79 cars at 2048-8192 rays: hit ratio 0.94 instead of 0.35 and 22-24%% better "
+        "completeness than the 60-degree cap; docs/box-rig.md)",
+    )
+    g.add_argument(
+        "--box-targets",
+        choices=("ellipsoid", "volume", "surface", "visible"),
+        default=None,
+        help="box rigs: target set (default ellipsoid: the tangent cone of the box's inscribed ellipsoid)",
+    )
+    g.add_argument(
+        "--box-scale",
+        type=float,
+        default=None,
+        metavar="S",
+        help="box rigs: targets within the box scaled by S, (0, 1] (default 1)",
+    )
+    g.add_argument(
+        "--box-cap-share",
+        type=float,
+        default=None,
+        metavar="C",
+        help="box rigs: share of each viewpoint's rays kept on the paper's cap of --angle, [0, 1) (default 0)",
+    )
 
 
 def add_axes_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--up", default="z", help="the mesh file's up axis (x, y, z, -x, ...); glTF files are usually y (default z)")
+    p.add_argument(
+        "--up", default="z", help="the mesh file's up axis (x, y, z, -x, ...); glTF files are usually y (default z)"
+    )
     p.add_argument("--forward", default="x", help="the mesh file's forward axis (default x)")
 
 
@@ -55,29 +88,66 @@ def rig_from_args(args, box=None):
 
 
 def register(sub) -> None:
-    p = add_command(sub, "encode", "cast a Spotlights rig at meshes and write their depth arrays (.npz)",
-                    "spotlights encode car.glb --up y --forward z --out car.npz", _encode)
+    p = add_command(
+        sub,
+        "encode",
+        "cast a Spotlights rig at meshes and write their depth arrays (.npz)",
+        "spotlights encode car.glb --up y --forward z --out car.npz",
+        _encode,
+    )
     p.add_argument("meshes", nargs="+", metavar="MESH", help="mesh files (OBJ, PLY, OFF, STL, GLB, GLTF)")
-    p.add_argument("--out", "-o", required=True, metavar="PATH",
-                   help="output .npz for one mesh, or a folder for several (one MESH_STEM.npz each)")
+    p.add_argument(
+        "--out",
+        "-o",
+        required=True,
+        metavar="PATH",
+        help="output .npz for one mesh, or a folder for several (one MESH_STEM.npz each)",
+    )
     add_rig_arguments(p)
     add_axes_arguments(p)
     add_quiet(p, "no progress bar (several meshes)")
 
-    p = add_command(sub, "decode", "turn an encoding back into its ordered point cloud",
-                    "spotlights decode car.npz --out car_points.ply --frame original", _decode)
+    p = add_command(
+        sub,
+        "decode",
+        "turn an encoding back into its ordered point cloud",
+        "spotlights decode car.npz --out car_points.ply --frame original",
+        _decode,
+    )
     p.add_argument("encoding", metavar="FILE.npz", help="an encoding written by 'spotlights encode'")
     p.add_argument("--out", "-o", required=True, metavar="CLOUD", help="output .ply, .pcd, .npy, .xyz or .txt")
-    p.add_argument("--frame", choices=("original", "unit"), default="original",
-                   help="original: the mesh's own frame (default); unit: the normalised unit sphere")
-    p.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="treat depths below T as misses (the paper uses 0.2 on predictions)")
+    p.add_argument(
+        "--frame",
+        choices=("original", "unit"),
+        default="original",
+        help="original: the mesh's own frame (default); unit: the normalised unit sphere",
+    )
+    p.add_argument(
+        "--clip",
+        type=unit_interval,
+        default=None,
+        metavar="T",
+        help="treat depths below T as misses (the paper uses 0.2 on predictions)",
+    )
 
-    p = add_command(sub, "show", "render a mesh, a point cloud or an encoding to a PNG",
-                    "spotlights show car.npz --out car.png", _show)
+    p = add_command(
+        sub,
+        "show",
+        "render a mesh, a point cloud or an encoding to a PNG",
+        "spotlights show car.npz --out car.png",
+        _show,
+    )
     p.add_argument("file", metavar="FILE", help="mesh, point cloud (.ply .pcd .npy .xyz) or encoding (.npz)")
-    p.add_argument("--out", "-o", default=None, metavar="PNG",
-                   help="output picture (default: ./FILE_STEM.png; with --html alone, no picture)")
-    p.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="for encodings: depths below T count as misses")
+    p.add_argument(
+        "--out",
+        "-o",
+        default=None,
+        metavar="PNG",
+        help="output picture (default: ./FILE_STEM.png; with --html alone, no picture)",
+    )
+    p.add_argument(
+        "--clip", type=unit_interval, default=None, metavar="T", help="for encodings: depths below T count as misses"
+    )
     add_html_argument(p)
     add_axes_arguments(p)
 
@@ -98,18 +168,23 @@ def _encode(args) -> int:
         raise SpotlightsError(f"{out}: several meshes need a folder for --out, not a .npz file")
     into_folder = several or out.is_dir()  # an existing folder receives MESH_STEM.npz
     if not into_folder and out.suffix and out.suffix.lower() != ".npz":
-        raise SpotlightsError(f"--out {out}: an encoding is written as an .npz archive; name it {out.stem}.npz "
-                              "(or give a folder)")
-    targets = ([out / (Path(m).stem + ".npz") for m in args.meshes] if into_folder
-               else [out if out.suffix else out.with_suffix(".npz")])
+        raise SpotlightsError(
+            f"--out {out}: an encoding is written as an .npz archive; name it {out.stem}.npz (or give a folder)"
+        )
+    targets = (
+        [out / (Path(m).stem + ".npz") for m in args.meshes]
+        if into_folder
+        else [out if out.suffix else out.with_suffix(".npz")]
+    )
     if several and len(set(targets)) != len(targets):
         raise SpotlightsError("several meshes share a file name; encode them into different folders")
     from ..utils import check_writable
 
     check_writable(*targets)
     meshes = [load_mesh(m, up=args.up, forward=args.forward) for m in args.meshes]  # validate all first
-    for path, mesh, target in tqdm(list(zip(args.meshes, meshes, targets)), desc="encode", unit="mesh",
-                                   disable=not several or args.quiet):
+    for path, mesh, target in tqdm(
+        list(zip(args.meshes, meshes, targets)), desc="encode", unit="mesh", disable=not several or args.quiet
+    ):
         probe = MeshProbe(mesh)
         rig = probe.rig_for(spec)  # box rigs: aimed at this mesh's own box
         depths = probe.encode(rig)
@@ -120,10 +195,9 @@ def _encode(args) -> int:
 
 
 def _decode(args) -> int:
+    from ..errors import InputFileError
     from ..geometry.encode import load_encoding
     from ..geometry.io import save_points
-
-    from ..errors import InputFileError
     from ..utils import check_writable
 
     check_writable(args.out)
@@ -190,8 +264,15 @@ def _show(args) -> int:
         fields = read_ply_fields(src)
         if "source" in fields:  # a scene from 'complete --boxes': raw grey, partial purple, completion green
             xyz = np.stack([fields["x"], fields["y"], fields["z"]], axis=1).astype(np.float64)
-            layers = [viz.Layer(xyz[fields["source"] == code], color, f"{label} ({int((fields['source'] == code).sum())})",
-                                0.5 if code == 0 else 2.0) for code, (label, color, _) in SOURCES.items()]
+            layers = [
+                viz.Layer(
+                    xyz[fields["source"] == code],
+                    color,
+                    f"{label} ({int((fields['source'] == code).sum())})",
+                    0.5 if code == 0 else 2.0,
+                )
+                for code, (label, color, _) in SOURCES.items()
+            ]
             viz.render_layers(out, layers, title=f"{src.name}: scene of {len(xyz)} points")
             print(f"{src}: scene -> {out}")
             return 0

@@ -16,133 +16,281 @@ from .view import add_html_argument
 
 
 def register(sub) -> None:
-    dsub = add_group(sub, "dataset", "synthetic LiDAR completion dataset (paper Section 5.1): build, add-rig, info, export, "
-                                     "show, merge",
-                     "spotlights dataset build --meshes ../shared/data/meshes/apolloscape-cars --out cars.h5")
+    dsub = add_group(
+        sub,
+        "dataset",
+        "synthetic LiDAR completion dataset (paper Section 5.1): build, add-rig, info, export, show, merge",
+        "spotlights dataset build --meshes ../shared/data/meshes/apolloscape-cars --out cars.h5",
+    )
 
-    b = add_command(dsub, "build", "simulate LiDAR scans of every mesh of a folder and write the dataset (resumable)",
-                    "spotlights dataset build --meshes ../shared/data/meshes/apolloscape-cars --out cars.h5 "
-                    "--views 2000 --split 64/8/7 --rig 64x32@60 --rig 256x64@60", _build)
-    b.add_argument("--meshes", required=True, metavar="DIR[,KEY=VALUE...]", action="append",
-                   help="folder of meshes; categories = first sub-folder, or DIR/manifest.csv (file,category[,up,forward,"
-                        "split,scale]). Repeat for several sources (model names get the folder's name as prefix); "
-                        "per source: manifest=CSV, up=, forward=, scale=, split=A/B/C or train|val|test, name=")
-    b.add_argument("--out", "-o", required=True, metavar="FILE", help="dataset file to write (.h5); work folder FILE.parts")
-    b.add_argument("--manifest", default=None, metavar="CSV", help="manifest CSV (default: DIR/manifest.csv if present)")
+    b = add_command(
+        dsub,
+        "build",
+        "simulate LiDAR scans of every mesh of a folder and write the dataset (resumable)",
+        "spotlights dataset build --meshes ../shared/data/meshes/apolloscape-cars --out cars.h5 "
+        "--views 2000 --split 64/8/7 --rig 64x32@60 --rig 256x64@60",
+        _build,
+    )
+    b.add_argument(
+        "--meshes",
+        required=True,
+        metavar="DIR[,KEY=VALUE...]",
+        action="append",
+        help="folder of meshes; categories = first sub-folder, or DIR/manifest.csv (file,category[,up,forward,"
+        "split,scale]). Repeat for several sources (model names get the folder's name as prefix); "
+        "per source: manifest=CSV, up=, forward=, scale=, split=A/B/C or train|val|test, name=",
+    )
+    b.add_argument(
+        "--out", "-o", required=True, metavar="FILE", help="dataset file to write (.h5); work folder FILE.parts"
+    )
+    b.add_argument(
+        "--manifest", default=None, metavar="CSV", help="manifest CSV (default: DIR/manifest.csv if present)"
+    )
     b.add_argument("--views", type=positive_int, default=2000, help="partial observations per model (default 2000)")
-    b.add_argument("--split", default="0.81/0.1/0.09", metavar="A/B/C",
-                   help="train/val/test: model counts (64/8/7) or fractions (0.8/0.1/0.1); default 0.81/0.1/0.09 "
-                        "(= the paper's 64/8/7 for 79 models)")
+    b.add_argument(
+        "--split",
+        default="0.81/0.1/0.09",
+        metavar="A/B/C",
+        help="train/val/test: model counts (64/8/7) or fractions (0.8/0.1/0.1); default 0.81/0.1/0.09 "
+        "(= the paper's 64/8/7 for 79 models)",
+    )
     b.add_argument("--no-stratify", action="store_true", help="split over all models instead of per category")
     b.add_argument("--seed", type=non_negative_int, default=0, help="root seed (default 0)")
-    b.add_argument("--workers", "-j", type=positive_int, default=None, help="processes (default: all cores); never changes the result")
-    b.add_argument("--rig", action="append", default=[], metavar="RIG",
-                   help="extra Spotlights rig for the ground truth, repeatable: NxM[@DEG] cap rigs (e.g. --rig 64x32@60 "
-                        "--rig 256x64@60) or rig names, e.g. box-32x64-ellipsoid-s1 (box-targeted: each model's own box)")
+    b.add_argument(
+        "--workers",
+        "-j",
+        type=positive_int,
+        default=None,
+        help="processes (default: all cores); never changes the result",
+    )
+    b.add_argument(
+        "--rig",
+        action="append",
+        default=[],
+        metavar="RIG",
+        help="extra Spotlights rig for the ground truth, repeatable: NxM[@DEG] cap rigs (e.g. --rig 64x32@60 "
+        "--rig 256x64@60) or rig names, e.g. box-32x64-ellipsoid-s1 (box-targeted: each model's own box)",
+    )
     b.add_argument("--default-rig", default="32x64@60", metavar="RIG", help="the main rig (default 32x64@60)")
     b.add_argument("--points", type=int, default=256, help="points per partial observation (default 256)")
     b.add_argument("--gt-points", type=int, default=2048, help="uniform ground-truth points (default 2048)")
     b.add_argument("--gt-dense", type=int, default=16384, help="dense ground-truth points (default 16384)")
-    b.add_argument("--downsample", choices=("random", "fps"), default="random",
-                   help="how scans with more points are reduced: random subset (default) or farthest-point sampling")
+    b.add_argument(
+        "--downsample",
+        choices=("random", "fps"),
+        default="random",
+        help="how scans with more points are reduced: random subset (default) or farthest-point sampling",
+    )
     b.add_argument("--up", default="z", help="the mesh files' up axis (glTF: y; default z)")
     b.add_argument("--forward", default="x", help="the mesh files' forward axis (default x)")
-    b.add_argument("--scale", type=float, default=1.0, help="multiply mesh coordinates by this to get metres (default 1)")
+    b.add_argument(
+        "--scale", type=float, default=1.0, help="multiply mesh coordinates by this to get metres (default 1)"
+    )
     g = b.add_argument_group("LiDAR (default: Velodyne HDL-64E as in KITTI)")
     g.add_argument("--sensor", default="hdl64e", help="preset: hdl64e (default), hdl32e, vlp16")
     g.add_argument("--azimuth-step", type=float, default=None, metavar="DEG", help="horizontal step (hdl64e: 0.17)")
-    g.add_argument("--mount-height", default=None, metavar="M|MIN:MAX",
-                   help="sensor height above ground (hdl64e: 1.73); MIN:MAX draws each view's height uniformly "
-                        "(e.g. 1.5:2.1, from low roof mounts to tall SUVs and robotaxis)")
+    g.add_argument(
+        "--mount-height",
+        default=None,
+        metavar="M|MIN:MAX",
+        help="sensor height above ground (hdl64e: 1.73); MIN:MAX draws each view's height uniformly "
+        "(e.g. 1.5:2.1, from low roof mounts to tall SUVs and robotaxis)",
+    )
     g.add_argument("--range-noise", type=float, default=None, metavar="M", help="range noise sigma (hdl64e: 0.02)")
-    g.add_argument("--dropout", type=float, default=None, metavar="P", help="probability that a return is lost (default 0)")
-    g.add_argument("--beam-dropout", type=float, default=None, metavar="P",
-                   help="probability that a whole beam is dead during a scan (default 0)")
+    g.add_argument(
+        "--dropout", type=float, default=None, metavar="P", help="probability that a return is lost (default 0)"
+    )
+    g.add_argument(
+        "--beam-dropout",
+        type=float,
+        default=None,
+        metavar="P",
+        help="probability that a whole beam is dead during a scan (default 0)",
+    )
     g.add_argument("--max-range", type=float, default=None, metavar="M", help="range limit (hdl64e: 120)")
-    g.add_argument("--distance", default="4:40", metavar="MIN:MAX", help="vehicle distance range in metres (default 4:40)")
-    g.add_argument("--min-points", type=int, default=50, help="fewer returns than this and the pose is redrawn (default 50)")
+    g.add_argument(
+        "--distance", default="4:40", metavar="MIN:MAX", help="vehicle distance range in metres (default 4:40)"
+    )
+    g.add_argument(
+        "--min-points", type=int, default=50, help="fewer returns than this and the pose is redrawn (default 50)"
+    )
     sp = b.add_argument_group("splits by category")
-    sp.add_argument("--category-split", action="append", default=[], metavar="CAT=SPLIT",
-                    help="every model of category CAT goes to SPLIT (held-out body types, e.g. suv=test); the rest "
-                         "are split by --split; repeatable")
-    sp.add_argument("--exclude-category", action="append", default=[], metavar="CAT",
-                    help="leave the models of category CAT out; repeatable")
-    au = b.add_argument_group("augmentation (augmented copies of the meshes become extra models, in their mesh's split)")
+    sp.add_argument(
+        "--category-split",
+        action="append",
+        default=[],
+        metavar="CAT=SPLIT",
+        help="every model of category CAT goes to SPLIT (held-out body types, e.g. suv=test); the rest "
+        "are split by --split; repeatable",
+    )
+    sp.add_argument(
+        "--exclude-category",
+        action="append",
+        default=[],
+        metavar="CAT",
+        help="leave the models of category CAT out; repeatable",
+    )
+    au = b.add_argument_group(
+        "augmentation (augmented copies of the meshes become extra models, in their mesh's split)"
+    )
     au.add_argument("--mirror", action="store_true", help="add a copy mirrored across the car's x-z plane (y -> -y)")
-    au.add_argument("--scale-copies", type=non_negative_int, default=0, metavar="K",
-                    help="add K anisotropically scaled copies per mesh (with --mirror, each mirrored too)")
+    au.add_argument(
+        "--scale-copies",
+        type=non_negative_int,
+        default=0,
+        metavar="K",
+        help="add K anisotropically scaled copies per mesh (with --mirror, each mirrored too)",
+    )
     au.add_argument("--length-range", default=None, metavar="MIN:MAX", help="box length of scaled copies, m (2.6:5.8)")
     au.add_argument("--width-range", default=None, metavar="MIN:MAX", help="box width (mirrors included), m (1.5:2.45)")
     au.add_argument("--height-range", default=None, metavar="MIN:MAX", help="box height, m (1.3:2.0)")
     au.add_argument("--scale-factor-range", default=None, metavar="MIN:MAX", help="per-axis factor (0.7:1.3)")
-    au.add_argument("--augment-splits", default="train", metavar="SPLITS",
-                    help="splits whose meshes get copies, comma-separated (default train: val/test stay real meshes)")
+    au.add_argument(
+        "--augment-splits",
+        default="train",
+        metavar="SPLITS",
+        help="splits whose meshes get copies, comma-separated (default train: val/test stay real meshes)",
+    )
     r = b.add_argument_group("run")
     r.add_argument("--overwrite", action="store_true", help="replace an existing FILE and discard unfinished parts")
-    r.add_argument("--resume", action="store_true", help="accept an existing complete FILE (unfinished parts resume anyway)")
-    r.add_argument("--block", type=positive_int, default=None, help="views per work unit (default ~views/8, at most 250)")
+    r.add_argument(
+        "--resume", action="store_true", help="accept an existing complete FILE (unfinished parts resume anyway)"
+    )
+    r.add_argument(
+        "--block", type=positive_int, default=None, help="views per work unit (default ~views/8, at most 250)"
+    )
     r.add_argument("--keep-parts", action="store_true", help="keep FILE.parts after writing FILE")
     add_quiet(r, "no progress bars")
     _add_backend_options(r)
-    r.add_argument("--shard-size", type=positive_int, default=None, metavar="N",
-                   help="write shards of at most N samples (whole models) plus an index: give --out NAME.json; "
-                        "every reader takes the index like a file; 'dataset merge' makes one file of them")
+    r.add_argument(
+        "--shard-size",
+        type=positive_int,
+        default=None,
+        metavar="N",
+        help="write shards of at most N samples (whole models) plus an index: give --out NAME.json; "
+        "every reader takes the index like a file; 'dataset merge' makes one file of them",
+    )
 
-    a = add_command(dsub, "add-rig", "add one more rig's ground-truth depths to an existing dataset file (no rebuild; atomic)",
-                    "spotlights dataset add-rig cars.h5 --rig box-32x64-ellipsoid-s1", _add_rig)
+    a = add_command(
+        dsub,
+        "add-rig",
+        "add one more rig's ground-truth depths to an existing dataset file (no rebuild; atomic)",
+        "spotlights dataset add-rig cars.h5 --rig box-32x64-ellipsoid-s1",
+        _add_rig,
+    )
     a.add_argument("file", metavar="FILE", help="dataset file (.h5) to extend in place")
-    a.add_argument("--rig", required=True, metavar="RIG",
-                   help="NxM[@DEG] or a rig name (cap-32x64-60, box-32x64-ellipsoid-s1, box-32x64-volume-s0.9, ...)")
-    a.add_argument("--meshes", default=None, metavar="DIR", action="append",
-                   help="the meshes folder the dataset was built from (default: the one its config records); "
-                        "repeat once per source, in the build's order, for a multi-source dataset")
-    a.add_argument("--workers", "-j", type=positive_int, default=None, help="processes (default: all cores); never changes the result")
+    a.add_argument(
+        "--rig",
+        required=True,
+        metavar="RIG",
+        help="NxM[@DEG] or a rig name (cap-32x64-60, box-32x64-ellipsoid-s1, box-32x64-volume-s0.9, ...)",
+    )
+    a.add_argument(
+        "--meshes",
+        default=None,
+        metavar="DIR",
+        action="append",
+        help="the meshes folder the dataset was built from (default: the one its config records); "
+        "repeat once per source, in the build's order, for a multi-source dataset",
+    )
+    a.add_argument(
+        "--workers",
+        "-j",
+        type=positive_int,
+        default=None,
+        help="processes (default: all cores); never changes the result",
+    )
     add_quiet(a)
     _add_backend_options(a)
 
-    mg = add_command(dsub, "merge", "turn a sharded dataset (its index) into one HDF5 file (the same bytes as an unsharded build)",
-                     "spotlights dataset merge cars.json --out cars.h5", _merge)
+    mg = add_command(
+        dsub,
+        "merge",
+        "turn a sharded dataset (its index) into one HDF5 file (the same bytes as an unsharded build)",
+        "spotlights dataset merge cars.json --out cars.h5",
+        _merge,
+    )
     mg.add_argument("file", metavar="INDEX", help="the shard index (.json) of a sharded dataset")
     mg.add_argument("--out", "-o", required=True, metavar="FILE", help="the single dataset file to write (.h5)")
     mg.add_argument("--overwrite", action="store_true", help="replace an existing FILE")
     add_quiet(mg)
 
-    i = add_command(dsub, "info", "print a dataset's splits, categories, counts and array shapes",
-                    "spotlights dataset info cars.h5 --json", _info)
+    i = add_command(
+        dsub,
+        "info",
+        "print a dataset's splits, categories, counts and array shapes",
+        "spotlights dataset info cars.h5 --json",
+        _info,
+    )
     i.add_argument("file", metavar="FILE", help="dataset file (.h5)")
     i.add_argument("--json", action="store_true", help="machine-readable output")
 
-    e = add_command(dsub, "export", "write one sample (partial scan + ground truth) to an .npz",
-                    "spotlights dataset export cars.h5 --split test --index 0 --out sample.npz", _export)
+    e = add_command(
+        dsub,
+        "export",
+        "write one sample (partial scan + ground truth) to an .npz",
+        "spotlights dataset export cars.h5 --split test --index 0 --out sample.npz",
+        _export,
+    )
     e.add_argument("file", metavar="FILE", help="dataset file (.h5)")
     e.add_argument("--split", required=True, choices=("train", "val", "test"), help="split of the sample")
     e.add_argument("--index", type=int, required=True, help="sample index within the split")
-    e.add_argument("--out", "-o", required=True, metavar="SAMPLE.npz",
-                   help="output .npz: partial, gt_points, gt_dense, gt_depths and the sample's metadata")
+    e.add_argument(
+        "--out",
+        "-o",
+        required=True,
+        metavar="SAMPLE.npz",
+        help="output .npz: partial, gt_points, gt_dense, gt_depths and the sample's metadata",
+    )
     e.add_argument("--rig", default=None, help="rig of gt_depths (default: the dataset's default rig)")
 
-    s = add_command(dsub, "show", "render a sample: partial (purple), ground truth (grey), Spotlights points (green)",
-                    "spotlights dataset show cars.h5 --split test --index 0 --out sample.png", _show)
+    s = add_command(
+        dsub,
+        "show",
+        "render a sample: partial (purple), ground truth (grey), Spotlights points (green)",
+        "spotlights dataset show cars.h5 --split test --index 0 --out sample.png",
+        _show,
+    )
     s.add_argument("file", metavar="FILE", help="dataset file (.h5)")
-    s.add_argument("--split", default="test", choices=("train", "val", "test"), help="split of the sample (default test)")
+    s.add_argument(
+        "--split", default="test", choices=("train", "val", "test"), help="split of the sample (default test)"
+    )
     s.add_argument("--index", type=int, default=0, help="sample index within the split (default 0)")
-    s.add_argument("--out", "-o", default=None, metavar="PNG",
-                   help="output picture (default: ./SPLIT-INDEX.png; with --html alone, no picture)")
+    s.add_argument(
+        "--out",
+        "-o",
+        default=None,
+        metavar="PNG",
+        help="output picture (default: ./SPLIT-INDEX.png; with --html alone, no picture)",
+    )
     s.add_argument("--rig", default=None, help="rig whose points are drawn (default: the default rig)")
     s.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="depths below T count as misses")
     add_html_argument(s)
 
 
 def _add_backend_options(group) -> None:
-    group.add_argument("--backend", choices=("local", "ray"), default="local",
-                       help="local: a process pool on this machine (default); ray: tasks on a Ray cluster (pip install "
-                            "'spotlights[distributed]'); the bytes are the same")
-    group.add_argument("--ray-address", default=None, metavar="ADDR",
-                       help="with --backend ray: 'auto' joins the running cluster (ray start), HOST:PORT a given one; "
-                            "default: start a local instance with --workers CPUs")
-    group.add_argument("--task-retries", type=non_negative_int, default=2, metavar="N",
-                       help="with --backend ray: retries of a task that crashes or loses its node (default 2); bad input "
-                            "stops at once")
+    group.add_argument(
+        "--backend",
+        choices=("local", "ray"),
+        default="local",
+        help="local: a process pool on this machine (default); ray: tasks on a Ray cluster (pip install "
+        "'spotlights[distributed]'); the bytes are the same",
+    )
+    group.add_argument(
+        "--ray-address",
+        default=None,
+        metavar="ADDR",
+        help="with --backend ray: 'auto' joins the running cluster (ray start), HOST:PORT a given one; "
+        "default: start a local instance with --workers CPUs",
+    )
+    group.add_argument(
+        "--task-retries",
+        type=non_negative_int,
+        default=2,
+        metavar="N",
+        help="with --backend ray: retries of a task that crashes or loses its node (default 2); bad input "
+        "stops at once",
+    )
 
 
 def _merge(args) -> int:
@@ -150,8 +298,10 @@ def _merge(args) -> int:
 
     check_suffix(args.out, (".h5", ".hdf5"), "the merged dataset (HDF5)")
     rep = merge_shards(args.file, args.out, progress=not args.quiet, overwrite=args.overwrite)
-    print(f"{args.out}: {rep['n_models']} models, {rep['n_samples']} samples from {rep['n_shards']} shards, "
-          f"{rep['file_size'] / 2**20:.1f} MiB")
+    print(
+        f"{args.out}: {rep['n_models']} models, {rep['n_samples']} samples from {rep['n_shards']} shards, "
+        f"{rep['file_size'] / 2**20:.1f} MiB"
+    )
     return 0
 
 
@@ -187,15 +337,24 @@ def _build(args) -> int:
         try:
             mount = float(mount)
         except ValueError:
-            raise ParameterError(f"--mount-height {args.mount_height!r}: write metres (1.73) or MIN:MAX (1.5:2.1)") from None
-    sensor = sensor_preset(args.sensor, azimuth_step=args.azimuth_step, mount_height=mount,
-                           range_noise=args.range_noise, dropout=args.dropout, max_range=args.max_range,
-                           beam_dropout=args.beam_dropout)
+            raise ParameterError(
+                f"--mount-height {args.mount_height!r}: write metres (1.73) or MIN:MAX (1.5:2.1)"
+            ) from None
+    sensor = sensor_preset(
+        args.sensor,
+        azimuth_step=args.azimuth_step,
+        mount_height=mount,
+        range_noise=args.range_noise,
+        dropout=args.dropout,
+        max_range=args.max_range,
+        beam_dropout=args.beam_dropout,
+    )
     sources = [parse_source(m) for m in args.meshes]
     single = len(sources) == 1 and set(sources[0]) == {"path"}
     if not single and args.manifest:
-        raise ParameterError("--manifest applies to a single --meshes folder; give each source its own "
-                             "(--meshes DIR,manifest=CSV)")
+        raise ParameterError(
+            "--manifest applies to a single --meshes folder; give each source its own (--meshes DIR,manifest=CSV)"
+        )
     category_split = {}
     for item in args.category_split:
         cat, eq, split = item.partition("=")
@@ -204,28 +363,65 @@ def _build(args) -> int:
         category_split[cat.strip()] = split.strip()
     augment = None
     if args.mirror or args.scale_copies:
-        augment = {"mirror": args.mirror, "copies": args.scale_copies, "length": args.length_range,
-                   "width": args.width_range, "height": args.height_range, "factor": args.scale_factor_range,
-                   "splits": args.augment_splits}
+        augment = {
+            "mirror": args.mirror,
+            "copies": args.scale_copies,
+            "length": args.length_range,
+            "width": args.width_range,
+            "height": args.height_range,
+            "factor": args.scale_factor_range,
+            "splits": args.augment_splits,
+        }
     cfg = BuildConfig(
-        meshes=str(sources[0]["path"]), manifest=args.manifest, views=args.views, split=args.split, seed=args.seed,
-        n_points=args.points, gt_points=args.gt_points, gt_dense=args.gt_dense, default_rig=args.default_rig,
-        extra_rigs=list(args.rig), sensor=sensor.to_dict(), distance=_distance(args.distance),
-        min_points=args.min_points, downsample=args.downsample, up=args.up, forward=args.forward,
-        scale=args.scale, stratify=not args.no_stratify, sources=[] if single else sources,
-        category_split=category_split, exclude_categories=list(args.exclude_category), augment=augment,
+        meshes=str(sources[0]["path"]),
+        manifest=args.manifest,
+        views=args.views,
+        split=args.split,
+        seed=args.seed,
+        n_points=args.points,
+        gt_points=args.gt_points,
+        gt_dense=args.gt_dense,
+        default_rig=args.default_rig,
+        extra_rigs=list(args.rig),
+        sensor=sensor.to_dict(),
+        distance=_distance(args.distance),
+        min_points=args.min_points,
+        downsample=args.downsample,
+        up=args.up,
+        forward=args.forward,
+        scale=args.scale,
+        stratify=not args.no_stratify,
+        sources=[] if single else sources,
+        category_split=category_split,
+        exclude_categories=list(args.exclude_category),
+        augment=augment,
         mount_height_range=heights,
     )
-    rep = build_dataset(cfg, args.out, workers=args.workers, overwrite=args.overwrite, resume=args.resume,
-                        block=args.block, keep_parts=args.keep_parts, progress=not args.quiet, backend=args.backend,
-                        ray_address=args.ray_address, shard_size=args.shard_size, retries=args.task_retries)
+    rep = build_dataset(
+        cfg,
+        args.out,
+        workers=args.workers,
+        overwrite=args.overwrite,
+        resume=args.resume,
+        block=args.block,
+        keep_parts=args.keep_parts,
+        progress=not args.quiet,
+        backend=args.backend,
+        ray_address=args.ray_address,
+        shard_size=args.shard_size,
+        retries=args.task_retries,
+    )
     if rep.already_complete:
         print(f"{args.out}: already complete ({rep.n_models} models, {rep.n_samples} samples); nothing to do")
         return 0
-    rate = rep.units_computed and rep.n_samples * rep.units_computed / max(rep.units_total, 1) / max(rep.seconds_units, 1e-9)
-    print(f"{args.out}: {rep.n_models} models, {rep.n_samples} samples, {rep.file_size / 2**20:.1f} MiB; "
-          f"{rep.units_computed} of {rep.units_total} work units computed in {rep.seconds_units:.1f} s "
-          f"(~{rate:.0f} samples/s), file written in {rep.seconds_consolidate:.1f} s, total {rep.seconds_total:.1f} s")
+    rate = rep.units_computed and rep.n_samples * rep.units_computed / max(rep.units_total, 1) / max(
+        rep.seconds_units, 1e-9
+    )
+    print(
+        f"{args.out}: {rep.n_models} models, {rep.n_samples} samples, {rep.file_size / 2**20:.1f} MiB; "
+        f"{rep.units_computed} of {rep.units_total} work units computed in {rep.seconds_units:.1f} s "
+        f"(~{rate:.0f} samples/s), file written in {rep.seconds_consolidate:.1f} s, total {rep.seconds_total:.1f} s"
+    )
     if rep.skipped:
         print(f"skipped {len(rep.skipped)} mesh(es):")
         for s in rep.skipped:
@@ -237,13 +433,23 @@ def _add_rig(args) -> int:
     from ..data.synthetic import add_rig
 
     # SIGTERM unwinds like Ctrl-C (spotlights.cli.main): the file is left untouched
-    rep = add_rig(args.file, args.rig, meshes=args.meshes, workers=args.workers, progress=not args.quiet,
-                  backend=args.backend, ray_address=args.ray_address, retries=args.task_retries)
+    rep = add_rig(
+        args.file,
+        args.rig,
+        meshes=args.meshes,
+        workers=args.workers,
+        progress=not args.quiet,
+        backend=args.backend,
+        ray_address=args.ray_address,
+        retries=args.task_retries,
+    )
     if rep.already_present:
         print(f"{args.file}: already holds rig {rep.rig}; nothing to do")
         return 0
-    print(f"{args.file}: added rig {rep.rig} ({rep.n_models} models x {rep.n_rays} rays, hit ratio {rep.hit_ratio:.3f}); "
-          f"depths {rep.seconds_depths:.1f} s, file written in {rep.seconds_write:.1f} s, {rep.file_size / 2**20:.1f} MiB")
+    print(
+        f"{args.file}: added rig {rep.rig} ({rep.n_models} models x {rep.n_rays} rays, hit ratio {rep.hit_ratio:.3f}); "
+        f"depths {rep.seconds_depths:.1f} s, file written in {rep.seconds_write:.1f} s, {rep.file_size / 2**20:.1f} MiB"
+    )
     return 0
 
 
@@ -259,20 +465,30 @@ def _info(args) -> int:
         return 0
     cfg = info["config"]
     shards = f", {len(info['shards'])} shards" if info.get("shards") else ""
-    print(f"{info['path']}: {info['format']} v{info['format_version']} (spotlights {info['spotlights_version']}), "
-          f"{info['file_size_bytes'] / 2**20:.1f} MiB{shards}, seed {info['seed']}")
-    print(f"  {info['n_models']} models x {info['views_per_model']} views = {info['n_samples']} samples; "
-          f"categories: " + ", ".join(f"{k} {v}" for k, v in info["categories"].items()))
+    print(
+        f"{info['path']}: {info['format']} v{info['format_version']} (spotlights {info['spotlights_version']}), "
+        f"{info['file_size_bytes'] / 2**20:.1f} MiB{shards}, seed {info['seed']}"
+    )
+    print(
+        f"  {info['n_models']} models x {info['views_per_model']} views = {info['n_samples']} samples; "
+        f"categories: " + ", ".join(f"{k} {v}" for k, v in info["categories"].items())
+    )
     for sp, d in info["splits"].items():
         cats = ", ".join(f"{k} {v}" for k, v in d["categories"].items())
         print(f"  {sp:5s}: {d['models']:4d} models, {d['samples']:8d} samples ({cats})")
-    print("  rigs: " + ", ".join(f"{n} ({k} rays){' [default]' if n == info['default_rig'] else ''}"
-                                  for n, k in info["rigs"].items()))
+    print(
+        "  rigs: "
+        + ", ".join(
+            f"{n} ({k} rays){' [default]' if n == info['default_rig'] else ''}" for n, k in info["rigs"].items()
+        )
+    )
     sen = info["sensor"]
-    print(f"  sensor: {sen.get('name')} {sen.get('n_beams')} beams {sen.get('elevation_max')}..{sen.get('elevation_min')} deg, "
-          f"azimuth step {sen.get('azimuth_step')} deg, {sen.get('mount_height')} m high, noise {sen.get('range_noise')} m, "
-          f"dropout {sen.get('dropout')}, beam dropout {sen.get('beam_dropout', 0)}; distance {cfg.get('distance')} m, >= {cfg.get('min_points')} returns, "
-          f"{cfg.get('n_points')} points ({cfg.get('downsample')})")
+    print(
+        f"  sensor: {sen.get('name')} {sen.get('n_beams')} beams {sen.get('elevation_max')}..{sen.get('elevation_min')} deg, "
+        f"azimuth step {sen.get('azimuth_step')} deg, {sen.get('mount_height')} m high, noise {sen.get('range_noise')} m, "
+        f"dropout {sen.get('dropout')}, beam dropout {sen.get('beam_dropout', 0)}; distance {cfg.get('distance')} m, >= {cfg.get('min_points')} returns, "
+        f"{cfg.get('n_points')} points ({cfg.get('downsample')})"
+    )
     if info["skipped"]:
         print("  skipped meshes: " + "; ".join(f"{s['file']} ({s['problem']})" for s in info["skipped"]))
     print("  datasets:")
@@ -310,10 +526,20 @@ def _export(args) -> int:
     with atomic_output(args.out, suffix=".npz") as tmp:
         with open(tmp, "wb") as fh:
             np.savez_compressed(
-                fh, partial=s["partial"], gt_points=s["gt_points"], gt_dense=s["gt_dense"], gt_depths=s["gt_depths"],
-                model=np.array(s["model"]), category=np.array(s["category"]), split=np.array(s["split"]),
-                view=np.int32(s["view"]), sample_index=np.int64(i), sensor_to_unit=s["sensor_to_unit"],
-                distance=np.float32(s["distance"]), heading=np.float32(s["heading"]), n_raw=np.int32(s["n_raw"]),
+                fh,
+                partial=s["partial"],
+                gt_points=s["gt_points"],
+                gt_dense=s["gt_dense"],
+                gt_depths=s["gt_depths"],
+                model=np.array(s["model"]),
+                category=np.array(s["category"]),
+                split=np.array(s["split"]),
+                view=np.int32(s["view"]),
+                sample_index=np.int64(i),
+                sensor_to_unit=s["sensor_to_unit"],
+                distance=np.float32(s["distance"]),
+                heading=np.float32(s["heading"]),
+                n_raw=np.int32(s["n_raw"]),
                 rig=np.array(json.dumps(rig.to_dict())),
             )
     print(f"{args.file}: {args.split}[{args.index}] = sample {i} ({s['model']}, view {s['view']}) -> {args.out}")
@@ -340,8 +566,12 @@ def _show(args) -> int:
         from ..viz import html
         from .view import write_page
 
-        write_page(args.html, [("sample", html.sample_traces(s, rig, clip=args.clip))],
-                   f"{s['model']} ({s['category']}, {s['split']}), view {s['view']}, unit frame", quiet=True)
+        write_page(
+            args.html,
+            [("sample", html.sample_traces(s, rig, clip=args.clip))],
+            f"{s['model']} ({s['category']}, {s['split']}), view {s['view']}, unit frame",
+            quiet=True,
+        )
         print(f"{what} -> {args.html}")
         if not args.out:
             return 0

@@ -6,8 +6,13 @@ from ._util import add_command
 
 
 def register(sub) -> None:
-    p = add_command(sub, "demo", "run the end-to-end demo on a bundled CC0 vehicle and write pictures",
-                    "spotlights demo --out out/demo", _demo)
+    p = add_command(
+        sub,
+        "demo",
+        "run the end-to-end demo on a bundled CC0 vehicle and write pictures",
+        "spotlights demo --out out/demo",
+        _demo,
+    )
     p.add_argument("--out", "-o", default="out/demo", metavar="DIR", help="output folder (default out/demo)")
 
 
@@ -44,19 +49,26 @@ def _run_demo(out) -> int:
     print(f"[2/4] encoded with the paper's rig and a denser one: {'; '.join(written)}")
 
     # Completion of a shipped partial scan (sensor frame + detector box) with the pretrained SA-Net.
-    from ..learning.inference import complete_scan, load_box, load_completer
     from ..geometry import load_points
+    from ..learning.inference import complete_scan, load_box, load_completer
 
     scan = load_points(asset_path("demo_scan.pcd"))
     box = load_box(asset_path("demo_scan_box.json"))
     completer = load_completer()  # the pretrained SA-Net shipped in the package
     res = complete_scan(scan, box, completer)
     save_points(out / "scan_completed.ply", res["completed"])
-    layers = [viz.Layer(scan, "tab:purple", f"partial scan ({len(scan)} points)", 3.0, 0.8),
-              viz.Layer(res["completed"], "tab:green", f"SA-Net completion ({len(res['completed'])} points)", 3.0, 0.6)]
-    viz.render_layers(out / "scan_completed.png", layers,
-                      title="simulated HDL-64E scan of the CC0 sedan, completed by the pretrained SA-Net (sensor frame)")
-    print(f"[3/4] completed the shipped partial scan ({len(scan)} points, sensor frame) with the pretrained "
-          f"{completer.model_name}: {len(res['completed'])} points -> scan_completed.ply, scan_completed.png")
+    layers = [
+        viz.Layer(scan, "tab:purple", f"partial scan ({len(scan)} points)", 3.0, 0.8),
+        viz.Layer(res["completed"], "tab:green", f"SA-Net completion ({len(res['completed'])} points)", 3.0, 0.6),
+    ]
+    viz.render_layers(
+        out / "scan_completed.png",
+        layers,
+        title="simulated HDL-64E scan of the CC0 sedan, completed by the pretrained SA-Net (sensor frame)",
+    )
+    print(
+        f"[3/4] completed the shipped partial scan ({len(scan)} points, sensor frame) with the pretrained "
+        f"{completer.model_name}: {len(res['completed'])} points -> scan_completed.ply, scan_completed.png"
+    )
     print(f"[4/4] pictures and files written to {out}/")
     return 0

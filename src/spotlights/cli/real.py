@@ -18,10 +18,12 @@ from ._util import (
 from .view import add_html_argument
 
 FORMAT_CHOICES = ("kitti", "kitti360", "av2", "nuscenes", "generic")
-SOURCE_HELP = ("kitti: a training/ folder (velodyne[_reduced]/, label_2/, calib/); kitti360: the KITTI-360 folder; "
-               "av2: a log folder or a folder of logs; nuscenes: the folder with samples/ and the v1.0-* tables; "
-               "generic: a scan file (see --boxes), a folder of scans with NAME.json box files, or a sequence .json. "
-               "Several SOURCEs of one format are read one after another")
+SOURCE_HELP = (
+    "kitti: a training/ folder (velodyne[_reduced]/, label_2/, calib/); kitti360: the KITTI-360 folder; "
+    "av2: a log folder or a folder of logs; nuscenes: the folder with samples/ and the v1.0-* tables; "
+    "generic: a scan file (see --boxes), a folder of scans with NAME.json box files, or a sequence .json. "
+    "Several SOURCEs of one format are read one after another"
+)
 
 
 def _frames_range(text: str):
@@ -40,95 +42,236 @@ def _frames_range(text: str):
 
 
 def register(sub) -> None:
-    rs = add_group(sub, "real", "real LiDAR data: extract vehicles, complete whole frames, score consistency, draw them",
-                   "spotlights real extract ../shared/data/lidar/nuscenes --format nuscenes --out nuscenes.h5")
+    rs = add_group(
+        sub,
+        "real",
+        "real LiDAR data: extract vehicles, complete whole frames, score consistency, draw them",
+        "spotlights real extract ../shared/data/lidar/nuscenes --format nuscenes --out nuscenes.h5",
+    )
 
-    p = add_command(rs, "extract", "cut the points of every vehicle box out of real scans into unit-frame partial observations (HDF5)",
-                    "spotlights real extract ../shared/data/lidar/kitti-object/training --format kitti --out kitti.h5", _extract)
+    p = add_command(
+        rs,
+        "extract",
+        "cut the points of every vehicle box out of real scans into unit-frame partial observations (HDF5)",
+        "spotlights real extract ../shared/data/lidar/kitti-object/training --format kitti --out kitti.h5",
+        _extract,
+    )
     p.add_argument("source", nargs="+", metavar="SOURCE", help=SOURCE_HELP)
     p.add_argument("--format", "-f", required=True, choices=FORMAT_CHOICES, help="dataset format")
     p.add_argument("--out", "-o", required=True, metavar="FILE.h5", help="output HDF5 of observations")
-    p.add_argument("--margin", type=float, default=0.15, metavar="M", help="grow each box by M metres on the sides and top (default 0.15)")
-    p.add_argument("--ground-clearance", type=float, default=0.10, metavar="M",
-                   help="drop points less than M metres above the box bottom: ground returns (default 0.10)")
-    p.add_argument("--min-points", type=int, default=10, metavar="K", help="skip boxes with fewer than K points (default 10)")
-    p.add_argument("--points", type=int, default=256, metavar="P", help="points per observation after resampling (default 256)")
+    p.add_argument(
+        "--margin",
+        type=float,
+        default=0.15,
+        metavar="M",
+        help="grow each box by M metres on the sides and top (default 0.15)",
+    )
+    p.add_argument(
+        "--ground-clearance",
+        type=float,
+        default=0.10,
+        metavar="M",
+        help="drop points less than M metres above the box bottom: ground returns (default 0.10)",
+    )
+    p.add_argument(
+        "--min-points", type=int, default=10, metavar="K", help="skip boxes with fewer than K points (default 10)"
+    )
+    p.add_argument(
+        "--points", type=int, default=256, metavar="P", help="points per observation after resampling (default 256)"
+    )
     p.add_argument("--seed", type=non_negative_int, default=0, help="resampling seed (default 0)")
-    p.add_argument("--classes", default="car,truck,caravan,trailer",
-                   help="comma-separated classes to keep (default: the paper's four, car,truck,caravan,trailer; also bus, "
-                        "construction, emergency)")
+    p.add_argument(
+        "--classes",
+        default="car,truck,caravan,trailer",
+        help="comma-separated classes to keep (default: the paper's four, car,truck,caravan,trailer; also bus, "
+        "construction, emergency)",
+    )
     _reader_arguments(p)
-    p.add_argument("--frames", type=_frames_range, default=None, metavar="START:STOP[:STEP]", help="kitti360: frame range")
+    p.add_argument(
+        "--frames", type=_frames_range, default=None, metavar="START:STOP[:STEP]", help="kitti360: frame range"
+    )
     add_quiet(p)
 
-    p = add_command(rs, "complete", "complete every vehicle of every frame of a dataset: one scene PLY, JSON and picture per frame",
-                    "spotlights real complete ../shared/data/lidar/nuscenes --format nuscenes --out nuscenes_completed", _complete)
+    p = add_command(
+        rs,
+        "complete",
+        "complete every vehicle of every frame of a dataset: one scene PLY, JSON and picture per frame",
+        "spotlights real complete ../shared/data/lidar/nuscenes --format nuscenes --out nuscenes_completed",
+        _complete,
+    )
     p.add_argument("source", nargs="+", metavar="SOURCE", help=SOURCE_HELP)
     p.add_argument("--format", "-f", required=True, choices=FORMAT_CHOICES, help="dataset format")
-    p.add_argument("--out", "-o", required=True, metavar="DIR",
-                   help="output folder: [SEQUENCE/]FRAME.ply (x y z, source, object), FRAME.json, FRAME.png, and summary.json")
+    p.add_argument(
+        "--out",
+        "-o",
+        required=True,
+        metavar="DIR",
+        help="output folder: [SEQUENCE/]FRAME.ply (x y z, source, object), FRAME.json, FRAME.png, and summary.json",
+    )
     _reader_arguments(p)
-    p.add_argument("--frames", type=_frames_select, default=None, metavar="SPEC",
-                   help="frames to complete: START:STOP[:STEP] positions in the dataset's frame order, or frame ids separated by commas")
+    p.add_argument(
+        "--frames",
+        type=_frames_select,
+        default=None,
+        metavar="SPEC",
+        help="frames to complete: START:STOP[:STEP] positions in the dataset's frame order, or frame ids separated by commas",
+    )
     from .complete import add_completion_arguments
 
     add_completion_arguments(p, single=False)
-    p.add_argument("--per-object", action="store_true", help="also write FRAME_objects/object_<id>.ply per completed object")
+    p.add_argument(
+        "--per-object", action="store_true", help="also write FRAME_objects/object_<id>.ply per completed object"
+    )
     p.add_argument("--no-pictures", action="store_true", help="do not draw FRAME.png (faster)")
-    p.add_argument("--html", action="store_true",
-                   help="also write FRAME.html, an interactive 3-D page per frame (needs plotly); the pages share "
-                        "OUT/plotly.min.js, so copy the folder as a whole: it opens offline")
-    p.add_argument("--resume", action="store_true",
-                   help="skip the frames an earlier run with the same model and options finished (their FRAME.json exists)")
+    p.add_argument(
+        "--html",
+        action="store_true",
+        help="also write FRAME.html, an interactive 3-D page per frame (needs plotly); the pages share "
+        "OUT/plotly.min.js, so copy the folder as a whole: it opens offline",
+    )
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="skip the frames an earlier run with the same model and options finished (their FRAME.json exists)",
+    )
     add_quiet(p)
 
-    p = add_command(rs, "evaluate", "complete the tracked observations with each model and write the consistency table (Markdown + JSON)",
-                    "spotlights real evaluate av2.h5 --checkpoint default runs/pcn/best.pt --out results/av2_consistency", _evaluate)
+    p = add_command(
+        rs,
+        "evaluate",
+        "complete the tracked observations with each model and write the consistency table (Markdown + JSON)",
+        "spotlights real evaluate av2.h5 --checkpoint default runs/pcn/best.pt --out results/av2_consistency",
+        _evaluate,
+    )
     p.add_argument("file", metavar="FILE.h5", help="observations from 'spotlights real extract'")
-    p.add_argument("--checkpoint", "-c", nargs="+", default=None, metavar="CKPT",
-                   help="one or more models: checkpoint files or short names ('default', 'paper'); default: the package's default model")
-    p.add_argument("--classes", default=None, metavar="LIST", help="score only these classes, e.g. car,truck,trailer (default: every class in the file)")
-    p.add_argument("--equal-points", type=int, default=512, metavar="N",
-                   help="also score consistency with every completion brought to N points by farthest-point sampling (default 512; 0: not)")
-    p.add_argument("--no-noise-floor", action="store_true",
-                   help="skip the resampling noise floor (each observation completed again from a second 256-point resampling)")
-    p.add_argument("--no-heading-check", action="store_true", help="skip counting heading flips (each observation completed with its box turned)")
-    p.add_argument("--out", "-o", default=None, metavar="PREFIX",
-                   help="writes PREFIX.md and PREFIX.json (default: FILE without .h5 + '_consistency')")
+    p.add_argument(
+        "--checkpoint",
+        "-c",
+        nargs="+",
+        default=None,
+        metavar="CKPT",
+        help="one or more models: checkpoint files or short names ('default', 'paper'); default: the package's default model",
+    )
+    p.add_argument(
+        "--classes",
+        default=None,
+        metavar="LIST",
+        help="score only these classes, e.g. car,truck,trailer (default: every class in the file)",
+    )
+    p.add_argument(
+        "--equal-points",
+        type=int,
+        default=512,
+        metavar="N",
+        help="also score consistency with every completion brought to N points by farthest-point sampling (default 512; 0: not)",
+    )
+    p.add_argument(
+        "--no-noise-floor",
+        action="store_true",
+        help="skip the resampling noise floor (each observation completed again from a second 256-point resampling)",
+    )
+    p.add_argument(
+        "--no-heading-check",
+        action="store_true",
+        help="skip counting heading flips (each observation completed with its box turned)",
+    )
+    p.add_argument(
+        "--out",
+        "-o",
+        default=None,
+        metavar="PREFIX",
+        help="writes PREFIX.md and PREFIX.json (default: FILE without .h5 + '_consistency')",
+    )
     p.add_argument("--batch-size", type=positive_int, default=64, help="completion batch size (default 64)")
-    p.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="depth clip passed to the models (default: each model's own)")
+    p.add_argument(
+        "--clip",
+        type=unit_interval,
+        default=None,
+        metavar="T",
+        help="depth clip passed to the models (default: each model's own)",
+    )
     p.add_argument("--device", default=None, help=DEVICE_HELP)
-    p.add_argument("--reference", default=None, metavar="DATASET.h5",
-                   help="completion dataset whose ground-truth cars are the reference set of the minimal matching "
-                        "distance (MMD) reported beside consistency and fidelity (default: no MMD)")
-    p.add_argument("--reference-split", default=None, choices=["train", "val", "test"],
-                   help="use only this split of --reference (default: every model)")
+    p.add_argument(
+        "--reference",
+        default=None,
+        metavar="DATASET.h5",
+        help="completion dataset whose ground-truth cars are the reference set of the minimal matching "
+        "distance (MMD) reported beside consistency and fidelity (default: no MMD)",
+    )
+    p.add_argument(
+        "--reference-split",
+        default=None,
+        choices=["train", "val", "test"],
+        help="use only this split of --reference (default: every model)",
+    )
     add_quiet(p)
 
-    p = add_command(rs, "show", "draw one scan: raw points (grey), partial inputs (purple), completions (green), in the sensor frame",
-                    "spotlights real show kitti.h5 --checkpoint runs/sanet/best.pt --frame 002155 --out kitti_002155.png", _show)
+    p = add_command(
+        rs,
+        "show",
+        "draw one scan: raw points (grey), partial inputs (purple), completions (green), in the sensor frame",
+        "spotlights real show kitti.h5 --checkpoint runs/sanet/best.pt --frame 002155 --out kitti_002155.png",
+        _show,
+    )
     p.add_argument("file", metavar="FILE.h5", help="observations from 'spotlights real extract'")
-    p.add_argument("--checkpoint", "-c", default=None, metavar="CKPT",
-                   help="model: a checkpoint file or a short name ('default', 'paper'); default: the package's default model")
+    p.add_argument(
+        "--checkpoint",
+        "-c",
+        default=None,
+        metavar="CKPT",
+        help="model: a checkpoint file or a short name ('default', 'paper'); default: the package's default model",
+    )
     p.add_argument("--no-completion", action="store_true", help="draw the scan and the partial inputs only (no model)")
-    p.add_argument("--frame", default=None, metavar="ID", help="frame id (default: the frame with the most observations)")
+    p.add_argument(
+        "--frame", default=None, metavar="ID", help="frame id (default: the frame with the most observations)"
+    )
     p.add_argument("--sequence", default=None, metavar="SEQ", help="sequence / log of the frame, when frame ids repeat")
-    p.add_argument("--max-objects", type=int, default=6, metavar="K", help="close-ups of the K objects with most points (default 6)")
-    p.add_argument("--out", "-o", default=None, metavar="PNG",
-                   help="output picture (default: FILE_FRAME.png beside FILE; with --html alone, no picture)")
-    p.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="depth clip passed to the model (default: its own)")
+    p.add_argument(
+        "--max-objects",
+        type=int,
+        default=6,
+        metavar="K",
+        help="close-ups of the K objects with most points (default 6)",
+    )
+    p.add_argument(
+        "--out",
+        "-o",
+        default=None,
+        metavar="PNG",
+        help="output picture (default: FILE_FRAME.png beside FILE; with --html alone, no picture)",
+    )
+    p.add_argument(
+        "--clip",
+        type=unit_interval,
+        default=None,
+        metavar="T",
+        help="depth clip passed to the model (default: its own)",
+    )
     p.add_argument("--device", default=None, help=DEVICE_HELP)
     add_html_argument(p)
 
 
 def _reader_arguments(p) -> None:
-    p.add_argument("--velodyne", default="auto", choices=("auto", "velodyne", "velodyne_reduced"),
-                   help="kitti: which scan folder (default: velodyne/ if present, else velodyne_reduced/)")
-    p.add_argument("--sequence", action="append", default=None, metavar="SEQ",
-                   help="kitti360: a sequence to read (e.g. 2013_05_28_drive_0000_sync); nuscenes: a scene name (e.g. "
-                        "scene-0523); repeatable; default all")
-    p.add_argument("--boxes", default=None, metavar="JSON",
-                   help="generic: the box file of a single scan SOURCE (default: the scan's name with .json)")
+    p.add_argument(
+        "--velodyne",
+        default="auto",
+        choices=("auto", "velodyne", "velodyne_reduced"),
+        help="kitti: which scan folder (default: velodyne/ if present, else velodyne_reduced/)",
+    )
+    p.add_argument(
+        "--sequence",
+        action="append",
+        default=None,
+        metavar="SEQ",
+        help="kitti360: a sequence to read (e.g. 2013_05_28_drive_0000_sync); nuscenes: a scene name (e.g. "
+        "scene-0523); repeatable; default all",
+    )
+    p.add_argument(
+        "--boxes",
+        default=None,
+        metavar="JSON",
+        help="generic: the box file of a single scan SOURCE (default: the scan's name with .json)",
+    )
 
 
 def _frames_select(text: str):
@@ -151,13 +294,21 @@ def _open(args):
         options["velodyne"] = args.velodyne
     elif args.format in ("kitti360", "nuscenes"):
         options["sequences"] = args.sequence
-        if args.format == "kitti360" and getattr(args, "frames", None) is not None and not isinstance(args.frames[0], str):
+        if (
+            args.format == "kitti360"
+            and getattr(args, "frames", None) is not None
+            and not isinstance(args.frames[0], str)
+        ):
             options["frames"] = args.frames
     elif args.format == "generic":
         options["boxes"] = args.boxes
     frames_k360 = getattr(args, "frames", None) is not None and not isinstance(args.frames[0], str)
-    for name, val, fmts in (("--velodyne", args.velodyne != "auto", ("kitti",)), ("--sequence", args.sequence, ("kitti360", "nuscenes")),
-                            ("--frames", frames_k360, ("kitti360",)), ("--boxes", args.boxes, ("generic",))):
+    for name, val, fmts in (
+        ("--velodyne", args.velodyne != "auto", ("kitti",)),
+        ("--sequence", args.sequence, ("kitti360", "nuscenes")),
+        ("--frames", frames_k360, ("kitti360",)),
+        ("--boxes", args.boxes, ("generic",)),
+    ):
         if val and args.format not in fmts:
             raise ParameterError(f"{name} applies to --format {' or '.join(fmts)} only")
     return open_reader(args.source, args.format, **options)
@@ -171,8 +322,10 @@ def _print_summary(obs) -> None:
     classes = Counter(obs.cls)
     pairs = consecutive_pairs(obs.object_keys(), obs.timestamp)
     tracked = {obs.object_keys()[i] for p in pairs for i in p}
-    print(f"{len(obs)} observations from {obs.meta['n_frames']} frames ({obs.meta['n_boxes']} boxes): "
-          + (", ".join(f"{c} {n}" for c, n in sorted(classes.items())) or "none"))
+    print(
+        f"{len(obs)} observations from {obs.meta['n_frames']} frames ({obs.meta['n_boxes']} boxes): "
+        + (", ".join(f"{c} {n}" for c, n in sorted(classes.items())) or "none")
+    )
     print(f"objects observed in two or more frames: {len(tracked)} ({len(pairs)} consecutive pairs)")
     sk = obs.meta["skipped"]
     print("skipped boxes: " + ", ".join(f"{k} {v}" for k, v in sk.items()))
@@ -187,8 +340,14 @@ def _extract(args) -> int:
     check_suffix(args.out, (".h5", ".hdf5"), "the observations file (HDF5)")
     check_writable(args.out)
     classes = tuple(c.strip() for c in args.classes.split(",") if c.strip())
-    config = ExtractConfig(margin=args.margin, ground_clearance=args.ground_clearance, min_points=args.min_points,
-                           n_points=args.points, seed=args.seed, classes=classes)
+    config = ExtractConfig(
+        margin=args.margin,
+        ground_clearance=args.ground_clearance,
+        min_points=args.min_points,
+        n_points=args.points,
+        seed=args.seed,
+        classes=classes,
+    )
     reader = _open(args)
     obs = extract(reader, config, progress=not args.quiet)
     write_observations(args.out, obs)
@@ -252,11 +411,21 @@ def _evaluate(args) -> int:
     from ..errors import InputFileError
 
     try:
-        report = evaluate_consistency(obs, completers, names=names, checkpoints=checkpoints,
-                                      batch_size=args.batch_size, progress=not args.quiet, clip=args.clip,
-                                      references=refs, reference_info=ref_info, classes=classes,
-                                      equal_points=args.equal_points or None, noise_floor=not args.no_noise_floor,
-                                      heading_check=not args.no_heading_check)
+        report = evaluate_consistency(
+            obs,
+            completers,
+            names=names,
+            checkpoints=checkpoints,
+            batch_size=args.batch_size,
+            progress=not args.quiet,
+            clip=args.clip,
+            references=refs,
+            reference_info=ref_info,
+            classes=classes,
+            equal_points=args.equal_points or None,
+            noise_floor=not args.no_noise_floor,
+            heading_check=not args.no_heading_check,
+        )
     except InputFileError as exc:
         if exc.path != "<observations>":
             raise
@@ -265,9 +434,14 @@ def _evaluate(args) -> int:
     md, js = write_report(report, prefix)
     from .complete import warn
 
-    warn([f"{m['name']}: {m['out_of_domain']['n_observations']} of {report['data']['n_observations_tracked']} observations "
-          "are outside what the model learned (see the report)" for m in report["models"]
-          if m.get("out_of_domain", {}).get("n_observations")])
+    warn(
+        [
+            f"{m['name']}: {m['out_of_domain']['n_observations']} of {report['data']['n_observations_tracked']} observations "
+            "are outside what the model learned (see the report)"
+            for m in report["models"]
+            if m.get("out_of_domain", {}).get("n_observations")
+        ]
+    )
     print(report_markdown(report).split("\n## ")[0].strip())
     print(f"wrote {md} and {js}")
     return 0
@@ -299,12 +473,16 @@ def _show(args) -> int:
         completer = _load_completers([args.checkpoint or "default"], args.device)[0]
         from ..experiments.real_evaluation import complete_all
 
-        completions = complete_all(completer, obs.partial[rows], progress=False, clip=args.clip, box_sizes=obs.box_size[rows])
+        completions = complete_all(
+            completer, obs.partial[rows], progress=False, clip=args.clip, box_sizes=obs.box_size[rows]
+        )
         model = completer.model_name
     i0 = rows[0]
     frame = obs.frame_id[i0]
     out = args.out or str(Path(args.file).with_suffix("")) + f"_{frame}.png"
-    title = f"{obs.meta.get('source_format')} {obs.sequence[i0] + '/' if obs.sequence[i0] else ''}{frame}" + (f" - {model}" if model else "")
+    title = f"{obs.meta.get('source_format')} {obs.sequence[i0] + '/' if obs.sequence[i0] else ''}{frame}" + (
+        f" - {model}" if model else ""
+    )
     objects = f"{len(rows)} object{'' if len(rows) == 1 else 's'} of frame {frame}"
     if args.html:
         from ..viz import html
@@ -312,7 +490,9 @@ def _show(args) -> int:
         from .view import write_page
 
         scan = read_frame_scan(obs, i0)
-        write_page(args.html, [("scene", html.scene_traces(scan, frame_objects(obs, rows, completions)))], title, quiet=True)
+        write_page(
+            args.html, [("scene", html.scene_traces(scan, frame_objects(obs, rows, completions)))], title, quiet=True
+        )
         print(f"wrote {args.html} ({objects}, interactive)")
         if not args.out:
             return 0
@@ -335,7 +515,9 @@ def _select_frames(keys, spec):
     missing = [f for f in wanted if f not in known]
     if missing:
         ex = ", ".join(sorted(known)[:5])
-        raise ParameterError(f"frame(s) {', '.join(missing)} not in the dataset (frames: {ex}{', ...' if len(known) > 5 else ''})")
+        raise ParameterError(
+            f"frame(s) {', '.join(missing)} not in the dataset (frames: {ex}{', ...' if len(known) > 5 else ''})"
+        )
     return [k for k in keys if k[1] in set(wanted)]
 
 
@@ -385,17 +567,30 @@ def _complete_frames(args, reader, keys, config, completer, out) -> int:
             totals["resumed"] += 1
         else:
             frame = reader.load(key)
-            info = dict(sequence=frame.sequence, frame_id=frame.frame_id, timestamp=frame.timestamp, scan=frame.scan_path,
-                        labels=frame.label_path)
+            info = dict(
+                sequence=frame.sequence,
+                frame_id=frame.frame_id,
+                timestamp=frame.timestamp,
+                scan=frame.scan_path,
+                labels=frame.label_path,
+            )
             if len(frame.points) < config.min_points:
-                frames.append({**info, "status": f"scan holds {len(frame.points)} points (< {config.min_points}): not completed"})
+                frames.append(
+                    {**info, "status": f"scan holds {len(frame.points)} points (< {config.min_points}): not completed"}
+                )
                 continue
             result = complete_scene(frame.points, frame.boxes, completer, config, checkpoint=checkpoint)
-            write_scene(result, stem.with_suffix(".ply"), per_object=stem.parent / (stem.name + "_objects") if args.per_object else None,
-                        scan_name=Path(frame.scan_path).name)
+            write_scene(
+                result,
+                stem.with_suffix(".ply"),
+                per_object=stem.parent / (stem.name + "_objects") if args.per_object else None,
+                scan_name=Path(frame.scan_path).name,
+            )
             prefix = f"{frame.sequence}/" if frame.sequence else ""
             if not args.no_pictures and result.completed:
-                render_result(result, stem.with_suffix(".png"), f"{reader.format} {prefix}{frame.frame_id}: {result.model}")
+                render_result(
+                    result, stem.with_suffix(".png"), f"{reader.format} {prefix}{frame.frame_id}: {result.model}"
+                )
             if args.html:
                 import os
 
@@ -403,11 +598,15 @@ def _complete_frames(args, reader, keys, config, completer, out) -> int:
                 from ..viz.html import write_plotlyjs
 
                 js = os.path.relpath(write_plotlyjs(out), stem.parent).replace(os.sep, "/")
-                render_result_html(result, stem.with_suffix(".html"), f"{reader.format} {prefix}{frame.frame_id}: {result.model}", js)
+                render_result_html(
+                    result, stem.with_suffix(".html"), f"{reader.format} {prefix}{frame.frame_id}: {result.model}", js
+                )
             summ = {**info, "ply": str(stem.with_suffix(".ply")), **result.summary()}
             if frame.sensor_to_world is not None:
                 summ["sensor_to_world"] = [[float(v) for v in row] for row in frame.sensor_to_world]
-            with atomic_output(stem.with_suffix(".json")) as tmp:  # written last: a frame with its JSON is done (--resume)
+            with atomic_output(
+                stem.with_suffix(".json")
+            ) as tmp:  # written last: a frame with its JSON is done (--resume)
                 tmp.write_text(json.dumps(summ, indent=2, default=float) + "\n", encoding="utf-8")
         done = [o for o in summ["objects"] if o["status"] == "completed"]
         totals["boxes"] += summ["n_boxes"]
@@ -418,12 +617,36 @@ def _complete_frames(args, reader, keys, config, completer, out) -> int:
             totals["skipped"][k] = totals["skipped"].get(k, 0) + v
         t_model += summ["timings"].get("total_s", 0.0)
         warnings += [f"{seq + '/' if seq else ''}{fid} {w}" for w in summ["warnings"]]
-        frames.append({k: summ.get(k) for k in ("sequence", "frame_id", "timestamp", "scan", "ply", "n_boxes", "n_completed",
-                                                "n_flipped", "skipped")} | {"n_warnings": len(summ["warnings"])})
-    summary = dict(source=[str(s) for s in args.source], format=reader.format, model=completer.model_name,
-                   checkpoint=checkpoint, n_frames=len(keys), totals=totals,
-                   heading_check=config.heading_check, completion_seconds=t_model, wall_seconds=time.perf_counter() - t0,
-                   warnings=warnings, frames=frames)
+        frames.append(
+            {
+                k: summ.get(k)
+                for k in (
+                    "sequence",
+                    "frame_id",
+                    "timestamp",
+                    "scan",
+                    "ply",
+                    "n_boxes",
+                    "n_completed",
+                    "n_flipped",
+                    "skipped",
+                )
+            }
+            | {"n_warnings": len(summ["warnings"])}
+        )
+    summary = dict(
+        source=[str(s) for s in args.source],
+        format=reader.format,
+        model=completer.model_name,
+        checkpoint=checkpoint,
+        n_frames=len(keys),
+        totals=totals,
+        heading_check=config.heading_check,
+        completion_seconds=t_model,
+        wall_seconds=time.perf_counter() - t0,
+        warnings=warnings,
+        frames=frames,
+    )
     with atomic_output(out / "summary.json") as tmp:
         tmp.write_text(json.dumps(summary, indent=2, default=float) + "\n", encoding="utf-8")
     if len(warnings) > 10:
@@ -433,8 +656,11 @@ def _complete_frames(args, reader, keys, config, completer, out) -> int:
     flips = f", {totals['flipped']} heading flip(s)" if config.heading_check else ""
     sk = ", ".join(f"{k} {v}" for k, v in sorted(totals["skipped"].items()))
     resumed = f"; {totals['resumed']} frame(s) already done" if totals["resumed"] else ""
-    print(f"{len(keys)} frame(s), {totals['boxes']} boxes: {totals['completed']} completed{flips}"
-          + (f", skipped {sk}" if sk else "") + f" ({completer.model_name}, {t_model:.1f} s of completion{resumed}) -> {out}/")
+    print(
+        f"{len(keys)} frame(s), {totals['boxes']} boxes: {totals['completed']} completed{flips}"
+        + (f", skipped {sk}" if sk else "")
+        + f" ({completer.model_name}, {t_model:.1f} s of completion{resumed}) -> {out}/"
+    )
     return 0
 
 
@@ -449,5 +675,9 @@ def _done_frame(path, config, model: str, checkpoint: str):
         return None
     cfg = asdict(config)
     cfg["clip"] = str(cfg["clip"]) if cfg["clip"] is not None and not isinstance(cfg["clip"], float) else cfg["clip"]
-    same = summ.get("model") == model and summ.get("checkpoint") == checkpoint and json.loads(json.dumps(cfg)) == summ.get("config")
+    same = (
+        summ.get("model") == model
+        and summ.get("checkpoint") == checkpoint
+        and json.loads(json.dumps(cfg)) == summ.get("config")
+    )
     return summ if same else None

@@ -68,14 +68,16 @@ METRIC_DOC = {
 }
 
 
-DIVERSITY_DOC = ("mean two-sided unsquared Chamfer (d_ab + d_ba) between the completions of different tracked objects "
-                 "(each object's earliest observation, unit frames), over all pairs of objects; ~0 = the same shape for "
-                 "every input. consistency_over_diversity = all_objects cd / diversity")
+DIVERSITY_DOC = (
+    "mean two-sided unsquared Chamfer (d_ab + d_ba) between the completions of different tracked objects "
+    "(each object's earliest observation, unit frames), over all pairs of objects; ~0 = the same shape for "
+    "every input. consistency_over_diversity = all_objects cd / diversity"
+)
 OBSERVATION_METRIC_DOC = {
     "fidelity": "one-sided: mean over the observed (partial input) points of the unsquared distance to the nearest "
-                "completion point, unit frame of the observation (box half-diagonal units); lower = keeps the input",
+    "completion point, unit frame of the observation (box half-diagonal units); lower = keeps the input",
     "mmd": "minimal matching distance: min over the reference cars of the two-sided unsquared Chamfer (d_ab + d_ba) "
-           "between the completion and the reference car, unit frame; lower = closer to some complete car",
+    "between the completion and the reference car, unit frame; lower = closer to some complete car",
 }
 
 
@@ -130,7 +132,9 @@ def minimal_matching_distance(completion: np.ndarray, references) -> tuple[float
     c = np.asarray(completion, dtype=np.float64).reshape(-1, 3)
     if len(c) == 0:
         return float("nan"), -1
-    trees = [r if isinstance(r, NearestNeighbors) else NearestNeighbors(np.asarray(r, dtype=np.float64)) for r in references]
+    trees = [
+        r if isinstance(r, NearestNeighbors) else NearestNeighbors(np.asarray(r, dtype=np.float64)) for r in references
+    ]
     if not trees:
         raise ValueError("the minimal matching distance needs at least one reference shape")
     lower = np.array([chamfer_distance(c, t, single_directional=True) for t in trees])  # one side of each Chamfer
@@ -166,7 +170,7 @@ def diversity(completions, object_keys, timestamps) -> tuple[float, int]:
     rows = sorted(first.values())
     if len(rows) < 2:
         return float("nan"), len(rows)
-    vals = [chamfer(completions[a], completions[b])["cd"] for n, a in enumerate(rows) for b in rows[n + 1:]]
+    vals = [chamfer(completions[a], completions[b])["cd"] for n, a in enumerate(rows) for b in rows[n + 1 :]]
     return float(np.mean(vals)), len(rows)
 
 
@@ -200,8 +204,9 @@ class TrackResult:
     values: dict  # metric -> mean (track-normalised unit frame), metric + "_m" -> metres
 
 
-def track_consistency(completions, object_keys, timestamps, classes, radii,
-                      per_observation: dict | None = None) -> list[TrackResult]:
+def track_consistency(
+    completions, object_keys, timestamps, classes, radii, per_observation: dict | None = None
+) -> list[TrackResult]:
     """Per-track consistency.
 
     Parameters
@@ -244,7 +249,9 @@ def track_consistency(completions, object_keys, timestamps, classes, radii,
                 scale = r_track * r_track if m == "cd_l2" else r_track
                 vals[m].append(c[m] / scale)
                 vals[m + "_m"].append(c[m])
-        values = {m: (float(np.mean(vals[m])) if vals[m] else float("nan")) for m in [*METRICS, *(x + "_m" for x in METRICS)]}
+        values = {
+            m: (float(np.mean(vals[m])) if vals[m] else float("nan")) for m in [*METRICS, *(x + "_m" for x in METRICS)]
+        }
         for name, v in per_observation.items():
             finite = v[rows][np.isfinite(v[rows])]
             values[name] = float(finite.mean()) if finite.size else float("nan")
@@ -270,7 +277,11 @@ def aggregate(tracks: list[TrackResult], classes=None) -> dict:
     for c in names:
         ts = [t for t in tracks if t.cls == c]
         scored = [t for t in ts if np.isfinite(t.values["cd"])]
-        entry = {"n_objects": len(scored), "n_objects_unscored": len(ts) - len(scored), "n_pairs": sum(t.n_pairs - t.n_pairs_empty for t in ts)}
+        entry = {
+            "n_objects": len(scored),
+            "n_objects_unscored": len(ts) - len(scored),
+            "n_pairs": sum(t.n_pairs - t.n_pairs_empty for t in ts),
+        }
         for k in keys:
             entry[k] = _mean([t.values.get(k, np.nan) for t in scored])
         res["classes"][c] = entry

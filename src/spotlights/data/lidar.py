@@ -96,7 +96,8 @@ class SensorModel:
         elif not (int(self.n_beams) >= 1 and -90.0 < self.elevation_min <= self.elevation_max < 90.0):
             raise ParameterError(
                 f"sensor needs n_beams >= 1 and -90 < elevation_min <= elevation_max < 90, got "
-                f"{self.n_beams}, {self.elevation_min}, {self.elevation_max}")
+                f"{self.n_beams}, {self.elevation_min}, {self.elevation_max}"
+            )
         if not (0.0 < self.azimuth_step <= 90.0):
             raise ParameterError(f"azimuth step must be in (0, 90] degrees, got {self.azimuth_step}")
         if not (self.mount_height > 0.0):
@@ -155,11 +156,26 @@ def hdl64e(**overrides) -> SensorModel:
 SENSOR_PRESETS = {
     "hdl64e": dict(name="hdl64e"),
     # Velodyne HDL-32E: 32 beams +10.67..-30.67 deg, 0.16 deg at 10 Hz (nuScenes, roof at ~1.84 m).
-    "hdl32e": dict(name="hdl32e", n_beams=32, elevation_max=10.67, elevation_min=-30.67, azimuth_step=0.16,
-                   mount_height=1.84, max_range=100.0),
+    "hdl32e": dict(
+        name="hdl32e",
+        n_beams=32,
+        elevation_max=10.67,
+        elevation_min=-30.67,
+        azimuth_step=0.16,
+        mount_height=1.84,
+        max_range=100.0,
+    ),
     # Velodyne VLP-16: 16 beams +15..-15 deg, 0.2 deg at 10 Hz.
-    "vlp16": dict(name="vlp16", n_beams=16, elevation_max=15.0, elevation_min=-15.0, azimuth_step=0.2,
-                  mount_height=1.73, max_range=100.0, range_noise=0.03),
+    "vlp16": dict(
+        name="vlp16",
+        n_beams=16,
+        elevation_max=15.0,
+        elevation_min=-15.0,
+        azimuth_step=0.2,
+        mount_height=1.73,
+        max_range=100.0,
+        range_noise=0.03,
+    ),
 }
 
 
@@ -239,11 +255,13 @@ class LidarSimulator:
         """(3,) float64 box centre in the sensor frame (the box bottom on the ground ``z = -h``,
         ``h`` = ``pose.mount_height`` or the sensor's ``mount_height``)."""
         h = self.sensor.mount_height if pose.mount_height is None else float(pose.mount_height)
-        return np.array([
-            pose.distance * math.cos(pose.azimuth),
-            pose.distance * math.sin(pose.azimuth),
-            -h + self.size[2] / 2.0,
-        ])
+        return np.array(
+            [
+                pose.distance * math.cos(pose.azimuth),
+                pose.distance * math.sin(pose.azimuth),
+                -h + self.size[2] / 2.0,
+            ]
+        )
 
     def object_to_sensor(self, pose: VehiclePose) -> np.ndarray:
         """(4, 4) float64 homogeneous transform object frame -> sensor frame for ``pose``."""
@@ -259,8 +277,12 @@ class LidarSimulator:
         ``to_unit`` of a sensor-frame point equals ``(p_object - box centre) / R``, R = half the
         box diagonal: the same unit frame as the mesh's ground truth.
         """
-        return Normalization(center=self.box_center_in_sensor(pose), radius=0.5 * float(np.linalg.norm(self.size)),
-                             rotation=rotation_z(pose.heading), size=self.size)
+        return Normalization(
+            center=self.box_center_in_sensor(pose),
+            radius=0.5 * float(np.linalg.norm(self.size)),
+            rotation=rotation_z(pose.heading),
+            size=self.size,
+        )
 
     # --- scanning ----------------------------------------------------------------------------
     def window(self, pose: VehiclePose) -> tuple[np.ndarray, np.ndarray]:
@@ -321,7 +343,8 @@ class LidarSimulator:
         s = self.sensor
         if pose.distance <= self.footprint_radius:
             raise ParameterError(
-                f"vehicle at {pose.distance:.2f} m would contain the sensor (footprint radius {self.footprint_radius:.2f} m)")
+                f"vehicle at {pose.distance:.2f} m would contain the sensor (footprint radius {self.footprint_radius:.2f} m)"
+            )
         origin = self._sensor_in_object(pose)
         beams, columns = self.window(pose)
         if s.beam_dropout > 0.0:  # dead beams this scan (drawn for every beam: independent of the window)
@@ -380,4 +403,6 @@ class LidarSimulator:
         with np.errstate(divide="ignore", invalid="ignore"):
             t_ground = np.where(d[:, 2] < 0.0, (self.lo[2] - origin[2]) / d[:, 2], np.inf)
         keep = np.isfinite(t) & (t <= t_ground + 1e-6) & (t >= s.min_range) & (t <= s.max_range)
-        return Scan(points=origin + t[keep, None] * d[keep], beam=bb.ravel()[keep], column=cc.ravel()[keep], n_rays=len(d))
+        return Scan(
+            points=origin + t[keep, None] * d[keep], beam=bb.ravel()[keep], column=cc.ravel()[keep], n_rays=len(d)
+        )

@@ -33,13 +33,18 @@ def read_shard_index(path: Path) -> list[dict]:
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise InputFileError(path, f"not a readable shard index ({str(exc).splitlines()[0][:80]})") from None
     if not isinstance(idx, dict) or idx.get("format") != INDEX_FORMAT:
-        raise InputFileError(path, f"not a spotlights shard index (format {idx.get('format') if isinstance(idx, dict) else None!r})")
+        raise InputFileError(
+            path, f"not a spotlights shard index (format {idx.get('format') if isinstance(idx, dict) else None!r})"
+        )
     if str(idx.get("format_version")) != str(INDEX_FORMAT_VERSION):
-        raise InputFileError(path, f"shard index version {idx.get('format_version')}, this spotlights reads "
-                                   f"{INDEX_FORMAT_VERSION}")
+        raise InputFileError(
+            path, f"shard index version {idx.get('format_version')}, this spotlights reads {INDEX_FORMAT_VERSION}"
+        )
     try:
-        shards = [{"path": path.parent / str(s["file"]), "n_models": int(s["n_models"]), "n_samples": int(s["n_samples"])}
-                  for s in idx["shards"]]
+        shards = [
+            {"path": path.parent / str(s["file"]), "n_models": int(s["n_models"]), "n_samples": int(s["n_samples"])}
+            for s in idx["shards"]
+        ]
     except (KeyError, TypeError, ValueError):
         raise InputFileError(path, "shard index without a valid 'shards' list") from None
     if not shards:
@@ -68,20 +73,34 @@ def is_shard_index(path: str | os.PathLike) -> bool:
     return head.startswith(b"{")
 
 
-def write_index(index: Path, shards: list[Path], counts: list[tuple[int, int]], views_per_model: int, seed: int,
-                dataset_format: str, dataset_format_version: int) -> None:
+def write_index(
+    index: Path,
+    shards: list[Path],
+    counts: list[tuple[int, int]],
+    views_per_model: int,
+    seed: int,
+    dataset_format: str,
+    dataset_format_version: int,
+) -> None:
     """Write the index of a sharded dataset (atomically), then delete stale shards of an earlier
     build with the same name that the new index does not list.
 
     shards : the shard files (beside ``index``), in order; counts : ``(n_models, n_samples)`` of each.
     """
     doc = {
-        "format": INDEX_FORMAT, "format_version": INDEX_FORMAT_VERSION, "spotlights_version": __version__,
-        "dataset_format": dataset_format, "dataset_format_version": int(dataset_format_version),
-        "n_models": int(sum(c[0] for c in counts)), "n_samples": int(sum(c[1] for c in counts)),
-        "views_per_model": int(views_per_model), "seed": int(seed),
-        "shards": [{"file": p.name, "n_models": int(c[0]), "n_samples": int(c[1]), "bytes": p.stat().st_size}
-                   for p, c in zip(shards, counts)],
+        "format": INDEX_FORMAT,
+        "format_version": INDEX_FORMAT_VERSION,
+        "spotlights_version": __version__,
+        "dataset_format": dataset_format,
+        "dataset_format_version": int(dataset_format_version),
+        "n_models": int(sum(c[0] for c in counts)),
+        "n_samples": int(sum(c[1] for c in counts)),
+        "views_per_model": int(views_per_model),
+        "seed": int(seed),
+        "shards": [
+            {"file": p.name, "n_models": int(c[0]), "n_samples": int(c[1]), "bytes": p.stat().st_size}
+            for p, c in zip(shards, counts)
+        ],
     }
     with atomic_output(index, suffix=".json") as tmp:
         tmp.write_text(json.dumps(doc, indent=1) + "\n")

@@ -76,8 +76,9 @@ SAMPLE_FIELDS = {  # name -> (dtype, per-sample shape or None for scalars)
 }
 
 
-def write_dataset(path, *, attrs: dict, models: dict, rigs: list, n_points: int, views_per_model: int,
-                  sample_blocks) -> None:
+def write_dataset(
+    path, *, attrs: dict, models: dict, rigs: list, n_points: int, views_per_model: int, sample_blocks
+) -> None:
     """Write a complete dataset file at ``path`` (use a temporary name; the caller renames it).
 
     Parameters
@@ -115,12 +116,21 @@ def write_dataset(path, *, attrs: dict, models: dict, rigs: list, n_points: int,
         for rig, depths in rigs:
             write_rig_group(rg, rig, depths)
         s = f.create_group("samples")
-        ds = {"partial": s.create_dataset("partial", shape=(n_samples, n_points, 3), dtype="float32",
-                                          chunks=(1, n_points, 3), track_times=False, **COMPRESSION)}
+        ds = {
+            "partial": s.create_dataset(
+                "partial",
+                shape=(n_samples, n_points, 3),
+                dtype="float32",
+                chunks=(1, n_points, 3),
+                track_times=False,
+                **COMPRESSION,
+            )
+        }
         for k, (dt, shp) in SAMPLE_FIELDS.items():
             rows = max(1, min(n_samples, 4096 if not shp else 256))
-            ds[k] = s.create_dataset(k, shape=(n_samples,) + shp, dtype=dt, chunks=(rows,) + shp,
-                                     track_times=False, **COMPRESSION)
+            ds[k] = s.create_dataset(
+                k, shape=(n_samples,) + shp, dtype=dt, chunks=(rows,) + shp, track_times=False, **COMPRESSION
+            )
         written = 0
         for block in sample_blocks:
             a = int(block["start"])
@@ -192,8 +202,10 @@ class CompletionDataset:
                 if key == "config_json":  # an interrupted add-rig leaves some shards with one more rig
                     a, b = without_extra_rigs(a), without_extra_rigs(b)
                 if a != b:
-                    raise InputFileError(self.shards[k], f"shard differs from {self.shards[0].name} in {key}: "
-                                                         "not a shard of the same dataset")
+                    raise InputFileError(
+                        self.shards[k],
+                        f"shard differs from {self.shards[0].name} in {key}: not a shard of the same dataset",
+                    )
         self.model_offset = np.cumsum([0] + [len(t["names"]) for t in tables]).astype(np.int64)
         self.sample_offset = np.cumsum([0] + [len(t["sample_model"]) for t in tables]).astype(np.int64)
         cat = lambda key: np.concatenate([t[key] for t in tables]) if all(t[key] is not None for t in tables) else None  # noqa: E731
@@ -239,8 +251,12 @@ class CompletionDataset:
         try:
             m = f["models"]
             t = {
-                "names": _strings(m["name"]), "categories": _strings(m["category"]), "splits": _strings(m["split"]),
-                "center": m["center"][()], "radius": m["radius"][()], "size": m["size"][()] if "size" in m else None,
+                "names": _strings(m["name"]),
+                "categories": _strings(m["category"]),
+                "splits": _strings(m["split"]),
+                "center": m["center"][()],
+                "radius": m["radius"][()],
+                "size": m["size"][()] if "size" in m else None,
                 "sample_model": f["samples/model"][()].astype(np.int64),
                 "sample_view": f["samples/view"][()].astype(np.int64),
                 "rigs": list(f["rigs"].keys()),
@@ -250,10 +266,15 @@ class CompletionDataset:
         except KeyError as exc:
             raise InputFileError(path, f"incomplete dataset file: missing {exc}") from None
         t["attrs"] = {key: (v.item() if hasattr(v, "item") else v) for key, v in f.attrs.items()}
-        if entry["n_models"] is not None and (len(t["names"]), len(t["sample_model"])) != (entry["n_models"],
-                                                                                           entry["n_samples"]):
-            raise InputFileError(path, f"holds {len(t['names'])} models and {len(t['sample_model'])} samples, the "
-                                       f"index {self.path.name} says {entry['n_models']} and {entry['n_samples']}")
+        if entry["n_models"] is not None and (len(t["names"]), len(t["sample_model"])) != (
+            entry["n_models"],
+            entry["n_samples"],
+        ):
+            raise InputFileError(
+                path,
+                f"holds {len(t['names'])} models and {len(t['sample_model'])} samples, the "
+                f"index {self.path.name} says {entry['n_models']} and {entry['n_samples']}",
+            )
         return t
 
     # --- file handles ---------------------------------------------------------------------
@@ -335,7 +356,7 @@ class CompletionDataset:
             block = self._h5(k)[key][lo:hi]
             if out is None:
                 out = np.empty((len(rows),) + block.shape[1:], dtype=block.dtype)
-            out[order[pos:pos + len(run)]] = block
+            out[order[pos : pos + len(run)]] = block
             pos += len(run)
         if out is None:
             d = self._h5(0)[key]
@@ -399,8 +420,10 @@ class CompletionDataset:
         (``|e| = 1``): what a box-targeted rig is aimed at. Raises InputFileError for files
         without ``/models/size``."""
         if self.size is None:
-            raise InputFileError(self.path, "has no /models/size, so box-targeted rigs cannot be resolved "
-                                            "(rebuild it with this spotlights)")
+            raise InputFileError(
+                self.path,
+                "has no /models/size, so box-targeted rigs cannot be resolved (rebuild it with this spotlights)",
+            )
         return np.asarray(self.size, dtype=np.float64) / (2.0 * np.asarray(self.radius, dtype=np.float64)[:, None])
 
     def rig_spec(self, name: str | None = None):
@@ -432,8 +455,10 @@ class CompletionDataset:
         if not spec.needs_box:
             return spec.for_box(None)
         if model is None:
-            raise ParameterError(f"{self.path}: rig {spec.name} is aimed at each model's box; give the model row "
-                                 "(ds.rig(name, model)) or use ds.rig_spec(name) with ds.extents")
+            raise ParameterError(
+                f"{self.path}: rig {spec.name} is aimed at each model's box; give the model row "
+                "(ds.rig(name, model)) or use ds.rig_spec(name) with ds.extents"
+            )
         if not (0 <= int(model) < self.n_models):
             raise ParameterError(f"model row {model} out of range (the dataset has {self.n_models} models)")
         return spec.for_box(self.extents[int(model)])
@@ -497,13 +522,21 @@ class CompletionDataset:
         m = int(self.sample_model[i])
         out = {"partial": self.partial(i)}
         out.update(self.ground_truth(m, rig))
-        out.update({
-            "model": str(self.names[m]), "model_index": m, "category": str(self.categories[m]),
-            "split": str(self.splits[m]), "view": int(self.sample_view[i]),
-            "sensor_to_unit": meta["sensor_to_unit"][i].copy(), "distance": float(meta["distance"][i]),
-            "azimuth": float(meta["azimuth"][i]), "heading": float(meta["heading"][i]),
-            "n_raw": int(meta["n_raw"][i]), "rig": rig or self.default_rig,
-        })
+        out.update(
+            {
+                "model": str(self.names[m]),
+                "model_index": m,
+                "category": str(self.categories[m]),
+                "split": str(self.splits[m]),
+                "view": int(self.sample_view[i]),
+                "sensor_to_unit": meta["sensor_to_unit"][i].copy(),
+                "distance": float(meta["distance"][i]),
+                "azimuth": float(meta["azimuth"][i]),
+                "heading": float(meta["heading"][i]),
+                "n_raw": int(meta["n_raw"][i]),
+                "rig": rig or self.default_rig,
+            }
+        )
         if self.size is not None:
             out["extents"] = self.extents[m]
         return out
@@ -536,7 +569,10 @@ class CompletionDataset:
 
         def visit(name, obj):
             if isinstance(obj, h5py.Dataset):
-                shapes["/" + name] = {"shape": list(obj.shape), "dtype": str(obj.dtype) if obj.dtype.kind != "O" else "str"}
+                shapes["/" + name] = {
+                    "shape": list(obj.shape),
+                    "dtype": str(obj.dtype) if obj.dtype.kind != "O" else "str",
+                }
 
         f.visititems(visit)
         if self.sharded:
@@ -545,15 +581,20 @@ class CompletionDataset:
                     d["shape"][0] = self.n_samples
                 elif name.startswith(("/models/", "/rigs/")) and d["shape"]:
                     d["shape"][0] = self.n_models
-            shapes = {k: v for k, v in shapes.items() if not k.startswith("/rigs/") or k.split("/")[2] in self.rig_names}
+            shapes = {
+                k: v for k, v in shapes.items() if not k.startswith("/rigs/") or k.split("/")[2] in self.rig_names
+            }
         splits = {}
         for sp in SPLITS:
             rows = self.split_models(sp)
             cats = {}
             for c in self.categories[rows]:
                 cats[str(c)] = cats.get(str(c), 0) + 1
-            splits[sp] = {"models": int(len(rows)), "samples": int(len(rows) * self.views_per_model),
-                          "categories": dict(sorted(cats.items()))}
+            splits[sp] = {
+                "models": int(len(rows)),
+                "samples": int(len(rows) * self.views_per_model),
+                "categories": dict(sorted(cats.items())),
+            }
         cats = {}
         for c in self.categories:
             cats[str(c)] = cats.get(str(c), 0) + 1
@@ -561,10 +602,13 @@ class CompletionDataset:
         out = {
             "path": str(self.path),
             "file_size_bytes": size,
-            "format": FORMAT, "format_version": FORMAT_VERSION,
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
             "spotlights_version": str(f.attrs.get("spotlights_version", "")),
             "seed": self.seed,
-            "n_models": self.n_models, "n_samples": self.n_samples, "views_per_model": self.views_per_model,
+            "n_models": self.n_models,
+            "n_samples": self.n_samples,
+            "views_per_model": self.views_per_model,
             "categories": dict(sorted(cats.items())),
             "splits": splits,
             "default_rig": self.default_rig,

@@ -33,8 +33,11 @@ import numpy as np
 from ..errors import InputFileError, ParameterError
 from ..utils import atomic_output
 
-METRICS = (("val_chamfer_l1", "validation CD-L1 (unit frame)"), ("val_accuracy", "validation accuracy"),
-           ("val_completeness", "validation completeness"))
+METRICS = (
+    ("val_chamfer_l1", "validation CD-L1 (unit frame)"),
+    ("val_accuracy", "validation accuracy"),
+    ("val_completeness", "validation completeness"),
+)
 """Columns of ``log.csv`` drawn and judged, with their panel titles (lower is better for all)."""
 
 
@@ -82,8 +85,9 @@ def read_log(run_dir: str | os.PathLike) -> dict[str, np.ndarray]:
     return {k: np.array([num(r.get(k)) for r in rows], dtype=np.float64) for k in rows[0]}
 
 
-def flatness(steps: Sequence[float], values: Sequence[float], metric: str = "", tail: float = 0.2,
-             tolerance: float = 0.02) -> Flatness:
+def flatness(
+    steps: Sequence[float], values: Sequence[float], metric: str = "", tail: float = 0.2, tolerance: float = 0.02
+) -> Flatness:
     """Judge whether a curve (lower is better) has flattened over its last ``tail`` share of steps.
 
     Parameters
@@ -101,8 +105,15 @@ def flatness(steps: Sequence[float], values: Sequence[float], metric: str = "", 
     s, v = s[ok], v[ok]
     if len(v) < 3:
         nan = float("nan")
-        return Flatness(metric, float(v[-1]) if len(v) else nan, float(v.min()) if len(v) else nan, nan, nan, False,
-                        "too short to judge")
+        return Flatness(
+            metric,
+            float(v[-1]) if len(v) else nan,
+            float(v.min()) if len(v) else nan,
+            nan,
+            nan,
+            False,
+            "too short to judge",
+        )
     cut = s[0] + (1.0 - tail) * (s[-1] - s[0])
     head, tl = v[s < cut], v[s >= cut]
     if len(head) == 0 or len(tl) < 2:
@@ -117,8 +128,14 @@ def flatness(steps: Sequence[float], values: Sequence[float], metric: str = "", 
     return Flatness(metric, float(v[-1]), float(v.min()), float(improvement), float(rel_slope), bool(flat), verdict)
 
 
-def learning_curves(runs: Sequence[str | os.PathLike], names: Sequence[str] | None = None, out: str | os.PathLike = ".",
-                    budget_minutes: float | None = None, tail: float = 0.2, tolerance: float = 0.02) -> dict:
+def learning_curves(
+    runs: Sequence[str | os.PathLike],
+    names: Sequence[str] | None = None,
+    out: str | os.PathLike = ".",
+    budget_minutes: float | None = None,
+    tail: float = 0.2,
+    tolerance: float = 0.02,
+) -> dict:
     """Read runs, judge each curve, draw one figure per x axis, write CSVs and a JSON summary.
 
     Parameters
@@ -134,7 +151,9 @@ def learning_curves(runs: Sequence[str | os.PathLike], names: Sequence[str] | No
     """
     from ..viz.curves import render_learning_curves
 
-    names = list(names) if names is not None else [Path(r).name if Path(r).is_dir() else Path(r).parent.name for r in runs]
+    names = (
+        list(names) if names is not None else [Path(r).name if Path(r).is_dir() else Path(r).parent.name for r in runs]
+    )
     if len(names) != len(runs):
         raise ParameterError(f"{len(names)} names for {len(runs)} runs")
     if len(set(names)) != len(names):
@@ -154,17 +173,33 @@ def learning_curves(runs: Sequence[str | os.PathLike], names: Sequence[str] | No
         if "samples_seen" not in cols:
             cols["samples_seen"] = np.full_like(cols["epoch"], np.nan)
         judged = {m: asdict(flatness(steps, cols[m], m, tail, tolerance)) for m, _ in METRICS}
-        summary["runs"][n] = {"validations": int(len(cols["epoch"])), "steps": float(steps[-1]),
-                              "planned_steps": float(total_steps[n]), "samples_seen": float(cols["samples_seen"][-1]),
-                              "wall_minutes": float(cols["wall_seconds"][-1] / 60.0) if "wall_seconds" in cols else None,
-                              "flatness": judged}
+        summary["runs"][n] = {
+            "validations": int(len(cols["epoch"])),
+            "steps": float(steps[-1]),
+            "planned_steps": float(total_steps[n]),
+            "samples_seen": float(cols["samples_seen"][-1]),
+            "wall_minutes": float(cols["wall_seconds"][-1] / 60.0) if "wall_seconds" in cols else None,
+            "flatness": judged,
+        }
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     minutes_label = "budget minutes (quiet 2-core machine)" if budget_minutes is not None else "wall-clock minutes"
-    render_learning_curves(out / "curves_samples.png", logs, METRICS, "samples_seen", "training samples seen",
-                           "Validation metrics against samples seen")
-    render_learning_curves(out / "curves_minutes.png", logs, METRICS, "minutes", minutes_label,
-                           f"Validation metrics against {minutes_label}")
+    render_learning_curves(
+        out / "curves_samples.png",
+        logs,
+        METRICS,
+        "samples_seen",
+        "training samples seen",
+        "Validation metrics against samples seen",
+    )
+    render_learning_curves(
+        out / "curves_minutes.png",
+        logs,
+        METRICS,
+        "minutes",
+        minutes_label,
+        f"Validation metrics against {minutes_label}",
+    )
     for n, r in zip(names, runs):
         src = Path(r) / "log.csv" if Path(r).is_dir() else Path(r)
         with atomic_output(out / f"{n}.csv") as tmp:
@@ -201,5 +236,9 @@ def summary_markdown(summary: dict) -> str:
         for m, _ in METRICS:
             f = r["flatness"][m]
             cells.append(f"{f['last']:.5f}; {100 * f['tail_improvement']:+.1f}% ({f['verdict']})")
-        lines.append(f"| {n} | {r['steps']:,.0f} of {r['planned_steps']:,.0f} | {r['samples_seen']:,.0f} | " + " | ".join(cells) + " |")
+        lines.append(
+            f"| {n} | {r['steps']:,.0f} of {r['planned_steps']:,.0f} | {r['samples_seen']:,.0f} | "
+            + " | ".join(cells)
+            + " |"
+        )
     return "\n".join(lines) + "\n"

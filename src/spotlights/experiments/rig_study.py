@@ -23,9 +23,9 @@ import hashlib
 import json
 import os
 import zlib
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -162,13 +162,23 @@ def evaluate_mesh(entry: MeshEntry, rigs: Sequence[StudyRig], seed: int = 0, n_s
         depths = probe.encode(rig)
         points, mask = decode(depths, rig)
         hits = int(mask.sum())
-        rows.append({
-            "mesh_set": entry.mesh_set, "category": entry.category, "mesh": entry.mesh_id,
-            "rig": r.spec.name, "label": r.label, "family": r.family, "rays": rig.n_rays,
-            "hits": hits, "hit_ratio": hits / rig.n_rays,
-            # float64 queries: the distances do not depend on the decoded points' float32
-            "completeness": completeness(np.asarray(points[mask], dtype=np.float64), np.asarray(surface, dtype=np.float64)),
-        })
+        rows.append(
+            {
+                "mesh_set": entry.mesh_set,
+                "category": entry.category,
+                "mesh": entry.mesh_id,
+                "rig": r.spec.name,
+                "label": r.label,
+                "family": r.family,
+                "rays": rig.n_rays,
+                "hits": hits,
+                "hit_ratio": hits / rig.n_rays,
+                # float64 queries: the distances do not depend on the decoded points' float32
+                "completeness": completeness(
+                    np.asarray(points[mask], dtype=np.float64), np.asarray(surface, dtype=np.float64)
+                ),
+            }
+        )
     return rows
 
 
@@ -177,8 +187,17 @@ def _config_key(rigs: Sequence[StudyRig], seed: int, n_surface: int) -> str:
     # geometry code invalidates cached results.
     probe = np.array([0.8, 0.45, 0.4]) / np.linalg.norm([0.8, 0.45, 0.4])
     h = hashlib.sha256()
-    h.update(json.dumps({"v": CACHE_VERSION, "seed": seed, "n_surface": n_surface,
-                         "rigs": [[r.label, r.spec.to_dict()] for r in rigs]}, sort_keys=True).encode())
+    h.update(
+        json.dumps(
+            {
+                "v": CACHE_VERSION,
+                "seed": seed,
+                "n_surface": n_surface,
+                "rigs": [[r.label, r.spec.to_dict()] for r in rigs],
+            },
+            sort_keys=True,
+        ).encode()
+    )
     for r in rigs:
         h.update(np.ascontiguousarray(r.spec.for_box(probe).directions).tobytes())
     return h.hexdigest()[:16]
@@ -202,8 +221,15 @@ def _job(args):
     return rows
 
 
-def run_study(meshes: Sequence[MeshEntry], rigs: Sequence[StudyRig], seed: int = 0, n_surface: int = N_SURFACE,
-              workers: int = 1, cache_dir: str | os.PathLike | None = None, progress: bool = True):
+def run_study(
+    meshes: Sequence[MeshEntry],
+    rigs: Sequence[StudyRig],
+    seed: int = 0,
+    n_surface: int = N_SURFACE,
+    workers: int = 1,
+    cache_dir: str | os.PathLike | None = None,
+    progress: bool = True,
+):
     """Evaluate every rig on every mesh; returns a pandas DataFrame with one row per (mesh, rig).
 
     ``cache_dir``: per-mesh results are kept there (keyed by the study configuration)
@@ -244,17 +270,28 @@ def summarize(df):
     import pandas as pd
 
     keys = ["mesh_set", "category", "label", "family", "rig", "rays"]
-    per_cat = df.groupby(keys, sort=False).agg(n_meshes=("mesh", "size"), hit_ratio=("hit_ratio", "mean"),
-                                                completeness=("completeness", "mean")).reset_index()
+    per_cat = (
+        df.groupby(keys, sort=False)
+        .agg(n_meshes=("mesh", "size"), hit_ratio=("hit_ratio", "mean"), completeness=("completeness", "mean"))
+        .reset_index()
+    )
     rows = []
     for mesh_set, sub in df.groupby("mesh_set", sort=False):
         if mesh_set == CARS:  # one benchmark set: mean over the cars
-            agg = sub.groupby(keys[2:], sort=False).agg(n_meshes=("mesh", "size"), hit_ratio=("hit_ratio", "mean"),
-                                                         completeness=("completeness", "mean")).reset_index()
+            agg = (
+                sub.groupby(keys[2:], sort=False)
+                .agg(n_meshes=("mesh", "size"), hit_ratio=("hit_ratio", "mean"), completeness=("completeness", "mean"))
+                .reset_index()
+            )
         else:  # mean of the category means
             cats = per_cat[per_cat.mesh_set == mesh_set]
-            agg = cats.groupby(keys[2:], sort=False).agg(n_meshes=("n_meshes", "sum"), hit_ratio=("hit_ratio", "mean"),
-                                                          completeness=("completeness", "mean")).reset_index()
+            agg = (
+                cats.groupby(keys[2:], sort=False)
+                .agg(
+                    n_meshes=("n_meshes", "sum"), hit_ratio=("hit_ratio", "mean"), completeness=("completeness", "mean")
+                )
+                .reset_index()
+            )
         agg.insert(0, "category", "all")
         agg.insert(0, "mesh_set", mesh_set)
         rows.append(agg)
@@ -267,16 +304,24 @@ def best_box_variant(summary, mesh_set: str = CARS, rays: int = 2048, floor: flo
     ``floor=None``: among all box variants. Returns the summary row (a pandas Series),
     or None when no box variant reaches the floor.
     """
-    s = summary[(summary.mesh_set == mesh_set) & (summary.category == "all") & (summary.rays == rays)
-                & (summary.family == "box")]
+    s = summary[
+        (summary.mesh_set == mesh_set)
+        & (summary.category == "all")
+        & (summary.rays == rays)
+        & (summary.family == "box")
+    ]
     if floor is not None:
         s = s[s.hit_ratio >= floor]
     return None if s.empty else s.sort_values("completeness").iloc[0]
 
 
 def _ref_row(summary, mesh_set, rays, angle=REFERENCE_CAP_ANGLE):
-    s = summary[(summary.mesh_set == mesh_set) & (summary.category == "all") & (summary.rays == rays)
-                & (summary.rig == f"cap-{rays // SECONDARY}x{SECONDARY}-{angle:g}")]
+    s = summary[
+        (summary.mesh_set == mesh_set)
+        & (summary.category == "all")
+        & (summary.rays == rays)
+        & (summary.rig == f"cap-{rays // SECONDARY}x{SECONDARY}-{angle:g}")
+    ]
     return None if s.empty else s.iloc[0]
 
 
@@ -295,24 +340,32 @@ def verdict_lines(summary, mesh_set: str, rays: int) -> list[str]:
     if best is None:
         lines.append(f"No box variant reaches a hit ratio of {HIT_RATIO_FLOOR:.2f} on {mesh_set}.")
     else:
-        lines.append(f"Best box variant with hit ratio >= {HIT_RATIO_FLOOR:.2f}: {best.label} (`{best.rig}`), "
-                     f"hit ratio {best.hit_ratio:.3f}, completeness {best.completeness:.4f}, {_change(best, ref)} "
-                     f"(hit ratio {ref.hit_ratio:.3f}, completeness {ref.completeness:.4f}).")
+        lines.append(
+            f"Best box variant with hit ratio >= {HIT_RATIO_FLOOR:.2f}: {best.label} (`{best.rig}`), "
+            f"hit ratio {best.hit_ratio:.3f}, completeness {best.completeness:.4f}, {_change(best, ref)} "
+            f"(hit ratio {ref.hit_ratio:.3f}, completeness {ref.completeness:.4f})."
+        )
     top = best_box_variant(summary, mesh_set, rays, floor=None)
     if top is not None and (best is None or top.rig != best.rig):
-        lines.append(f"Best box variant by completeness alone: {top.label} (`{top.rig}`), hit ratio "
-                     f"{top.hit_ratio:.3f}, completeness {top.completeness:.4f}, {_change(top, ref)}.")
+        lines.append(
+            f"Best box variant by completeness alone: {top.label} (`{top.rig}`), hit ratio "
+            f"{top.hit_ratio:.3f}, completeness {top.completeness:.4f}, {_change(top, ref)}."
+        )
     return lines
 
 
 def markdown_report(summary, meshes: Sequence[MeshEntry], seed: int, n_surface: int) -> str:
     """The study's Markdown report: per mesh set and ray count, every rig's means and the gain over cap 60."""
-    lines = ["# Rig study: hit ratio and completeness", "",
-             f"Completeness: mean distance from {n_surface:,} uniform surface samples to the Spotlights hit points "
-             "(one-sided, not squared, unit frame; lower is better). Hit ratio: rays with a hit / all rays. "
-             f"Rigs of N x {SECONDARY} rays (N = rays / {SECONDARY}); every mesh normalised by its own "
-             f"axis-aligned box; surface samples seeded by seed {seed} and the mesh path. "
-             f"'vs cap 60' = completeness change relative to the paper's 60-degree rig (negative = better).", ""]
+    lines = [
+        "# Rig study: hit ratio and completeness",
+        "",
+        f"Completeness: mean distance from {n_surface:,} uniform surface samples to the Spotlights hit points "
+        "(one-sided, not squared, unit frame; lower is better). Hit ratio: rays with a hit / all rays. "
+        f"Rigs of N x {SECONDARY} rays (N = rays / {SECONDARY}); every mesh normalised by its own "
+        f"axis-aligned box; surface samples seeded by seed {seed} and the mesh path. "
+        f"'vs cap 60' = completeness change relative to the paper's 60-degree rig (negative = better).",
+        "",
+    ]
     sets = list(dict.fromkeys(e.mesh_set for e in meshes))
     for mesh_set in sets:
         cats = sorted({e.category for e in meshes if e.mesh_set == mesh_set})
@@ -322,8 +375,12 @@ def markdown_report(summary, meshes: Sequence[MeshEntry], seed: int, n_surface: 
         for rays in sorted(summary.rays.unique()):
             sub = summary[(summary.mesh_set == mesh_set) & (summary.category == "all") & (summary.rays == rays)]
             ref = _ref_row(summary, mesh_set, rays)
-            lines += [f"### {rays} rays", "", "| rig | name | hit ratio | completeness | vs cap 60 |",
-                      "|---|---|---|---|---|"]
+            lines += [
+                f"### {rays} rays",
+                "",
+                "| rig | name | hit ratio | completeness | vs cap 60 |",
+                "|---|---|---|---|---|",
+            ]
             for _, r in sub.iterrows():
                 gain = f"{100 * (r.completeness / ref.completeness - 1):+.1f}%" if ref is not None else ""
                 lines.append(f"| {r.label} | `{r.rig}` | {r.hit_ratio:.3f} | {r.completeness:.4f} | {gain} |")
@@ -337,8 +394,13 @@ def markdown_report(summary, meshes: Sequence[MeshEntry], seed: int, n_surface: 
                 lines += [f"{rays} rays:", "", "| rig | " + " | ".join(cats) + " |", "|---|" + "---|" * len(cats)]
                 for label in dict.fromkeys(p.label):
                     vals = [p[(p.label == label) & (p.category == c)] for c in cats]
-                    lines.append(f"| {label} | " + " | ".join(
-                        f"{v.completeness.iloc[0]:.4f} ({v.hit_ratio.iloc[0]:.2f})" if len(v) else "" for v in vals) + " |")
+                    lines.append(
+                        f"| {label} | "
+                        + " | ".join(
+                            f"{v.completeness.iloc[0]:.4f} ({v.hit_ratio.iloc[0]:.2f})" if len(v) else "" for v in vals
+                        )
+                        + " |"
+                    )
                 lines.append("")
             lines += ["(completeness, hit ratio in brackets)", ""]
     return "\n".join(lines) + "\n"
@@ -349,10 +411,18 @@ def plot_study(path, summary) -> Path:
     from ..viz.study import plot_rig_study
 
     def reference(r) -> bool:  # the paper's 60-degree cap and the default box rig at each ray count
-        return r.rig in (f"cap-{r.rays // SECONDARY}x{SECONDARY}-{REFERENCE_CAP_ANGLE:g}", default_box_spec(r.rays).name)
+        return r.rig in (
+            f"cap-{r.rays // SECONDARY}x{SECONDARY}-{REFERENCE_CAP_ANGLE:g}",
+            default_box_spec(r.rays).name,
+        )
 
-    return plot_rig_study(path, summary, annotate=reference, floor=HIT_RATIO_FLOOR,
-                          floor_note="the best box variant is chosen among the rigs at or above it")
+    return plot_rig_study(
+        path,
+        summary,
+        annotate=reference,
+        floor=HIT_RATIO_FLOOR,
+        floor_note="the best box variant is chosen among the rigs at or above it",
+    )
 
 
 @dataclass
@@ -366,8 +436,16 @@ class StudyResult:
     summary: object = field(repr=False)
 
 
-def rig_study(out_dir, mesh_dirs: Sequence, rays: Sequence[int] = DEFAULT_RAYS, seed: int = 0,
-              n_surface: int = N_SURFACE, workers: int = 1, variants=None, progress: bool = True) -> StudyResult:
+def rig_study(
+    out_dir,
+    mesh_dirs: Sequence,
+    rays: Sequence[int] = DEFAULT_RAYS,
+    seed: int = 0,
+    n_surface: int = N_SURFACE,
+    workers: int = 1,
+    variants=None,
+    progress: bool = True,
+) -> StudyResult:
     """Run the study and write ``OUT/rigs.csv`` (means), ``OUT/rigs_per_mesh.csv.gz``, ``OUT/rigs.md``, ``OUT/rigs.png``.
 
     Parameters
@@ -387,8 +465,9 @@ def rig_study(out_dir, mesh_dirs: Sequence, rays: Sequence[int] = DEFAULT_RAYS, 
         raise SpotlightsError("no category has enough meshes for the study")
     rigs = study_rigs(rays, variants=variants)
     with output_folder(out):  # created now, removed again if the study fails before writing anything
-        df = run_study(meshes, rigs, seed=seed, n_surface=n_surface, workers=workers, cache_dir=out / ".cache",
-                       progress=progress)
+        df = run_study(
+            meshes, rigs, seed=seed, n_surface=n_surface, workers=workers, cache_dir=out / ".cache", progress=progress
+        )
     summary = summarize(df)
     paths = StudyResult(out / "rigs.csv", out / "rigs_per_mesh.csv.gz", out / "rigs.md", out / "rigs.png", summary)
     with atomic_output(paths.csv, suffix=".csv") as tmp:

@@ -343,14 +343,36 @@ def complete_scene(
     )
 
 
+def clamp_to_unit_sphere(points: np.ndarray) -> np.ndarray:
+    """(K, 3) unit-frame points with every point farther than 1 from the origin moved radially onto
+    the unit sphere (the box's circumscribed sphere); float32. SA-Net's depths in [0, 1] keep its
+    points inside already; point-set models (PCN, FoldingNet, TopNet, AtlasNet) are not bounded."""
+    p = np.asarray(points, dtype=np.float32).reshape(-1, 3)
+    r = np.linalg.norm(p.astype(np.float64), axis=1)
+    out = r > 1.0
+    if not out.any():
+        return p
+    p = p.copy()
+    p[out] = (p[out] / r[out, None]).astype(np.float32)
+    # float32 rounding can leave |p| a hair above 1: shrink those by one ulp until inside
+    while True:
+        over = np.linalg.norm(p.astype(np.float64), axis=1) > 1.0
+        if not over.any():
+            return p
+        p[over] = np.nextafter(p[over], np.float32(0))
+
+
 def _assemble(todo: list, outs: list, config: SceneConfig, a) -> None:
-    """Fidelity, heading choice and the scan-frame completion of every completed object (in place)."""
+    """Fidelity, heading choice and the scan-frame completion of every completed object (in place).
+
+    Completions are clamped to the unit sphere first (:func:`clamp_to_unit_sphere`), so no
+    completion point of any model leaves its box's sphere."""
     n = len(todo)
     for k, o in enumerate(todo):
-        comp = np.asarray(outs[k], dtype=np.float32).reshape(-1, 3)
+        comp = clamp_to_unit_sphere(outs[k])
         o.fidelity = fidelity(o.partial_unit, comp) if len(comp) else None
         if config.heading_check:
-            comp_f = np.asarray(outs[n + k], dtype=np.float32).reshape(-1, 3)
+            comp_f = clamp_to_unit_sphere(outs[n + k])
             flipped_partial = o.partial_unit @ FLIP_Z
             o.fidelity_flipped = fidelity(flipped_partial, comp_f) if len(comp_f) else None
             if o.fidelity_flipped is not None and bool(
@@ -480,7 +502,9 @@ def render_result(result: SceneResult, path: str | Path, title: str | None = Non
     )
 
 
-def render_result_html(result: SceneResult, path: str | Path, title: str | None = None, plotlyjs: str | None = None) -> Path:
+def render_result_html(
+    result: SceneResult, path: str | Path, title: str | None = None, plotlyjs: str | None = None
+) -> Path:
     """The same scene as one interactive HTML page (:mod:`spotlights.viz.html`): self-contained, or with
     ``plotlyjs`` a relative path to a shared local copy of plotly.js (:func:`spotlights.viz.html.write_plotlyjs`)."""
     from ..viz import html

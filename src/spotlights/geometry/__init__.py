@@ -9,19 +9,63 @@ Knows nothing of learning (no torch). Main entry points::
 """
 
 from .boxes import Box, box_from_dict, load_box
-from .encode import Encoding, MeshProbe, decode, encode_mesh, encode_mesh_files, encode_meshes, hit_ratio, load_encoding, save_encoding
-from .frames import Normalization, box_corners, normalization_from_box, normalization_from_mesh, normalization_from_points
+from .encode import (
+    Encoding,
+    MeshProbe,
+    decode,
+    encode_mesh,
+    encode_mesh_files,
+    encode_meshes,
+    hit_ratio,
+    load_encoding,
+    save_encoding,
+)
+from .frames import (
+    Normalization,
+    box_corners,
+    normalization_from_box,
+    normalization_from_mesh,
+    normalization_from_points,
+)
 from .io import load_mesh, load_points, save_points
 from .raycast import RayCaster, first_hit
-from .rotations import orthonormalize, quaternion_to_matrix, rotation_z
 from .rig import Rig, RigSpec, cap_directions, fibonacci_sphere, make_rig, make_rig_spec
+from .rotations import orthonormalize, quaternion_to_matrix, rotation_z
 from .sampling import farthest_point_sample, resample, sample_surface
 
 __all__ = [
-    "Box", "box_from_dict", "load_box", "orthonormalize", "quaternion_to_matrix", "rotation_z",
-    "Encoding", "MeshProbe", "Normalization", "RayCaster", "Rig", "RigSpec",
-    "box_corners", "cap_directions", "decode", "encode_mesh", "encode_mesh_files", "encode_meshes", "farthest_point_sample",
-    "fibonacci_sphere", "first_hit", "hit_ratio", "load_encoding", "load_mesh", "load_points",
-    "make_rig", "make_rig_spec", "normalization_from_box", "normalization_from_mesh", "normalization_from_points",
-    "resample", "sample_surface", "save_encoding", "save_points",
+    "Box",
+    "box_from_dict",
+    "load_box",
+    "orthonormalize",
+    "quaternion_to_matrix",
+    "rotation_z",
+    "Encoding",
+    "MeshProbe",
+    "Normalization",
+    "RayCaster",
+    "Rig",
+    "RigSpec",
+    "box_corners",
+    "cap_directions",
+    "decode",
+    "encode_mesh",
+    "encode_mesh_files",
+    "encode_meshes",
+    "farthest_point_sample",
+    "fibonacci_sphere",
+    "first_hit",
+    "hit_ratio",
+    "load_encoding",
+    "load_mesh",
+    "load_points",
+    "make_rig",
+    "make_rig_spec",
+    "normalization_from_box",
+    "normalization_from_mesh",
+    "normalization_from_points",
+    "resample",
+    "sample_surface",
+    "save_encoding",
+    "save_points",
 ]

@@ -134,8 +134,9 @@ def _encode_file(job):
     return [probe.encode(r) for r in rigs]
 
 
-def encode_mesh_files(paths: Sequence, rigs: Rig | RigSpec | Sequence, workers: int | None = None, up: str = "z",
-                      forward: str = "x") -> dict[str, np.ndarray]:
+def encode_mesh_files(
+    paths: Sequence, rigs: Rig | RigSpec | Sequence, workers: int | None = None, up: str = "z", forward: str = "x"
+) -> dict[str, np.ndarray]:
     """Load and encode mesh files, over meshes with ``workers`` threads.
 
     Each mesh is normalised by its own bounding box (box specs are resolved for it).
@@ -161,8 +162,10 @@ def encode_mesh_files(paths: Sequence, rigs: Rig | RigSpec | Sequence, workers: 
             results = list(pool.map(_encode_file, jobs))
     else:
         results = [_encode_file(j) for j in jobs]
-    return {r.name: np.stack([res[j] for res in results]) if results else np.zeros((0, r.n_rays), np.float32)
-            for j, r in enumerate(rigs)}
+    return {
+        r.name: np.stack([res[j] for res in results]) if results else np.zeros((0, r.n_rays), np.float32)
+        for j, r in enumerate(rigs)
+    }
 
 
 def hit_ratio(depths: np.ndarray) -> float:
@@ -171,8 +174,9 @@ def hit_ratio(depths: np.ndarray) -> float:
     return float(np.count_nonzero(d > 0) / d.size) if d.size else 0.0
 
 
-def decode(depths: np.ndarray, rig: Rig | RigSpec, clip: float | None = None,
-           extents: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def decode(
+    depths: np.ndarray, rig: Rig | RigSpec, clip: float | None = None, extents: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Ordered point cloud from depths: ``P = P1 + 2 * depth * d`` (unit frame).
 
     Parameters
@@ -196,13 +200,19 @@ def decode(depths: np.ndarray, rig: Rig | RigSpec, clip: float | None = None,
     """
     d = np.asarray(depths, dtype=np.float64)
     if d.shape[-1:] != (rig.n_rays,):
-        raise ParameterError(f"depth array has {d.shape[-1] if d.ndim else 0} entries, the rig {rig.name} has {rig.n_rays} rays")
+        raise ParameterError(
+            f"depth array has {d.shape[-1] if d.ndim else 0} entries, the rig {rig.name} has {rig.n_rays} rays"
+        )
     if isinstance(rig, RigSpec) and rig.needs_box:
         if extents is None:
-            raise ParameterError(f"decoding with the box spec {rig.name} needs the box half-extents of each depth array")
+            raise ParameterError(
+                f"decoding with the box spec {rig.name} needs the box half-extents of each depth array"
+            )
         e = np.asarray(extents, dtype=np.float64)
         if e.shape != d.shape[:-1] + (3,):
-            raise ParameterError(f"extents must have shape {d.shape[:-1] + (3,)} for depths of shape {d.shape}, got {e.shape}")
+            raise ParameterError(
+                f"extents must have shape {d.shape[:-1] + (3,)} for depths of shape {d.shape}, got {e.shape}"
+            )
         origins = rig.origins
         directions = rig.directions_for_boxes(e.reshape(-1, 3)).reshape(d.shape + (3,))
     else:
@@ -285,8 +295,10 @@ def load_encoding(path: str | os.PathLike) -> Encoding:
     if missing:
         raise InputFileError(path, f"not a Spotlights encoding: missing key(s) {', '.join(missing)}")
     try:
-        rig = Rig.from_dict(json.loads(str(data["rig"]))) if "rig" in data else Rig(
-            int(data["primary"]), int(data["secondary"]), float(data["angle"])
+        rig = (
+            Rig.from_dict(json.loads(str(data["rig"])))
+            if "rig" in data
+            else Rig(int(data["primary"]), int(data["secondary"]), float(data["angle"]))
         )
         norm = Normalization(
             center=data["center"], radius=float(data["radius"]), rotation=data.get("rotation", np.eye(3))

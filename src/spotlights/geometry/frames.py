@@ -89,7 +89,7 @@ class Normalization:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Normalization":
+    def from_dict(cls, d: dict) -> Normalization:
         """Rebuild from :meth:`to_dict` output."""
         return cls(center=d["center"], radius=d["radius"], rotation=d["rotation"], size=d.get("size"))
 

@@ -154,7 +154,9 @@ def load_points(path: str | os.PathLike, drop_nonfinite: bool = False) -> np.nda
     except InputFileError:
         raise
     except Exception as exc:
-        raise InputFileError(p, f"cannot read point cloud ({type(exc).__name__}: {str(exc).splitlines()[0][:100] if str(exc) else ''})") from None
+        raise InputFileError(
+            p, f"cannot read point cloud ({type(exc).__name__}: {str(exc).splitlines()[0][:100] if str(exc) else ''})"
+        ) from None
     pts = np.asarray(pts)
     if pts.ndim != 2 or pts.shape[1] < 3:
         raise InputFileError(p, f"expected (K, 3) points, got shape {pts.shape}")
@@ -181,8 +183,10 @@ def _read_las(p: Path) -> np.ndarray:
         if p.suffix.lower() == ".laz" and "backend" in msg.lower():
             raise InputFileError(p, f"reading LAZ needs a decompressor (lazrs): {LAS_INSTALL_HINT}") from None
         raise InputFileError(p, f"not a readable LAS/LAZ file ({msg})") from None
-    return np.stack([np.asarray(las.x, dtype=np.float64), np.asarray(las.y, dtype=np.float64),
-                     np.asarray(las.z, dtype=np.float64)], axis=1)
+    return np.stack(
+        [np.asarray(las.x, dtype=np.float64), np.asarray(las.y, dtype=np.float64), np.asarray(las.z, dtype=np.float64)],
+        axis=1,
+    )
 
 
 def save_points(path: str | os.PathLike, points: np.ndarray) -> Path:
@@ -213,8 +217,13 @@ def save_points(path: str | os.PathLike, points: np.ndarray) -> Path:
     return p
 
 
-def save_ply(path: str | os.PathLike, points: np.ndarray, fields: dict[str, np.ndarray] | None = None,
-             comments: list[str] | None = None, precision: str = "auto") -> Path:
+def save_ply(
+    path: str | os.PathLike,
+    points: np.ndarray,
+    fields: dict[str, np.ndarray] | None = None,
+    comments: list[str] | None = None,
+    precision: str = "auto",
+) -> Path:
     """Write a binary little-endian PLY point cloud with extra per-point fields (atomic).
 
     Parameters
@@ -234,8 +243,16 @@ def save_ply(path: str | os.PathLike, points: np.ndarray, fields: dict[str, np.n
         precision = "double" if (len(pts) and float(np.abs(pts).max()) > 1e4) else "float"
     if precision not in ("float", "double"):
         raise ParameterError(f"precision must be 'float', 'double' or 'auto', got {precision!r}")
-    ply_types = {"u1": "uchar", "i1": "char", "u2": "ushort", "i2": "short", "u4": "uint", "i4": "int",
-                 "f4": "float", "f8": "double"}
+    ply_types = {
+        "u1": "uchar",
+        "i1": "char",
+        "u2": "ushort",
+        "i2": "short",
+        "u4": "uint",
+        "i4": "int",
+        "f4": "float",
+        "f8": "double",
+    }
     narrow = {"i8": "<i4", "u8": "<u4", "b1": "u1"}
     cdt = "<f8" if precision == "double" else "<f4"
     dtype = [("x", cdt), ("y", cdt), ("z", cdt)]

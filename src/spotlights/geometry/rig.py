@@ -314,14 +314,23 @@ def box_targets(primary: np.ndarray, m: int, extents: np.ndarray, scale: float, 
         rho = big / np.sqrt(np.maximum(big * big - 1.0, 1e-12))  # radius of the tangent cone at the centre
         lat = fibonacci_lattice_2d(m)  # the paper's lattice, mapped with equal area onto the unit disc
         r, psi = np.sqrt(lat[:, 1]), 2.0 * np.pi * lat[:, 0]
-        c = rho[..., None, :] * (r * np.cos(psi))[:, None] * u[..., None, :] \
-            + rho[..., None, :] * (r * np.sin(psi))[:, None] * v[..., None, :]  # (B, N, m, 3)
+        c = (
+            rho[..., None, :] * (r * np.cos(psi))[:, None] * u[..., None, :]
+            + rho[..., None, :] * (r * np.sin(psi))[:, None] * v[..., None, :]
+        )  # (B, N, m, 3)
         return se[:, None, None, :] * c
     raise ParameterError(f"unknown box target set {targets!r}; known: {', '.join(BOX_TARGETS)}")
 
 
-def box_directions(primary: np.ndarray, m: int, extents: np.ndarray, scale: float, targets: str,
-                   cap_share: float = 0.0, angle: float = 60.0) -> np.ndarray:
+def box_directions(
+    primary: np.ndarray,
+    m: int,
+    extents: np.ndarray,
+    scale: float,
+    targets: str,
+    cap_share: float = 0.0,
+    angle: float = 60.0,
+) -> np.ndarray:
     """Unit ray directions of box-targeted rigs, for one or many boxes at once.
 
     Parameters
@@ -386,15 +395,18 @@ class Rig:
     cap_share: float | None = None
 
     def __post_init__(self):
-        spec = RigSpec(self.n_primary, self.n_secondary, self.angle, self.kind, self.scale, self.targets,
-                       self.cap_share)  # validates, fills the box defaults
+        spec = RigSpec(
+            self.n_primary, self.n_secondary, self.angle, self.kind, self.scale, self.targets, self.cap_share
+        )  # validates, fills the box defaults
         for key in ("n_primary", "n_secondary", "angle", "scale", "targets", "cap_share"):
             object.__setattr__(self, key, getattr(spec, key))
         self.__dict__["spec"] = spec  # the cached property below
         if self.kind == "box":
             if self.box is None:
-                raise ParameterError("a box rig needs the box half-extents (box=...); a description without a box is a "
-                                 "RigSpec: RigSpec.from_dict(d).for_box(extents)")
+                raise ParameterError(
+                    "a box rig needs the box half-extents (box=...); a description without a box is a "
+                    "RigSpec: RigSpec.from_dict(d).for_box(extents)"
+                )
             object.__setattr__(self, "box", check_extents(self.box))
         elif self.box is not None:
             raise ParameterError("box half-extents are only for box rigs (kind='box')")
@@ -414,9 +426,11 @@ class Rig:
         return self.spec.name
 
     @cached_property
-    def spec(self) -> "RigSpec":
+    def spec(self) -> RigSpec:
         """The box-independent description of this rig (set on construction)."""
-        return RigSpec(self.n_primary, self.n_secondary, self.angle, self.kind, self.scale, self.targets, self.cap_share)
+        return RigSpec(
+            self.n_primary, self.n_secondary, self.angle, self.kind, self.scale, self.targets, self.cap_share
+        )
 
     @property
     def extents(self) -> np.ndarray | None:
@@ -447,8 +461,9 @@ class Rig:
     def directions(self) -> np.ndarray:
         """(N*M, 3) float64 unit ray directions: row ``i*M + k`` is sample k of viewpoint i."""
         if self.kind == "box":
-            d = box_directions(self.primary, self.n_secondary, self.extents, self.scale, self.targets,
-                               self.cap_share, self.angle)
+            d = box_directions(
+                self.primary, self.n_secondary, self.extents, self.scale, self.targets, self.cap_share, self.angle
+            )
             return _readonly(np.ascontiguousarray(d))
         return _readonly(cap_ray_directions(self.primary, self.n_secondary, self.angle).reshape(-1, 3))
 
@@ -484,12 +499,13 @@ class Rig:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Rig":
+    def from_dict(cls, d: dict) -> Rig:
         """Rebuild a rig from :meth:`to_dict` output (either kind)."""
         spec = RigSpec.from_dict(d)
         if spec.needs_box and d.get("box") is None:
-            raise ParameterError(f"rig description {d!r} has no box: it is a RigSpec "
-                                 "(RigSpec.from_dict(d).for_box(extents))")
+            raise ParameterError(
+                f"rig description {d!r} has no box: it is a RigSpec (RigSpec.from_dict(d).for_box(extents))"
+            )
         return spec.for_box(d.get("box"))
 
 
@@ -522,8 +538,10 @@ class RigSpec:
         object.__setattr__(self, "n_primary", _check_count(self.n_primary, "number of primary viewpoints N"))
         object.__setattr__(self, "n_secondary", _check_count(self.n_secondary, "number of secondary rays M"))
         if self.n_primary * self.n_secondary > MAX_RAYS:
-            raise ParameterError(f"N * M = {self.n_primary * self.n_secondary:,} rays is more than the {MAX_RAYS:,} "
-                                 "one rig may hold (its arrays alone would need > 1 GB)")
+            raise ParameterError(
+                f"N * M = {self.n_primary * self.n_secondary:,} rays is more than the {MAX_RAYS:,} "
+                "one rig may hold (its arrays alone would need > 1 GB)"
+            )
         object.__setattr__(self, "angle", float(_check_angle(self.angle)))
         for key, value in _check_box_params(self.kind, self.scale, self.targets, self.cap_share).items():
             object.__setattr__(self, key, value)
@@ -547,7 +565,7 @@ class RigSpec:
         return name + (f"-cap{self.cap_share:g}@{self.angle:g}" if self.cap_share else "")
 
     @classmethod
-    def from_name(cls, name: str) -> "RigSpec":
+    def from_name(cls, name: str) -> RigSpec:
         """Parse :attr:`name` (``"cap-32x64-60"``, ``"box-32x64-ellipsoid-s1"``, ``"box-32x64-volume-s0.8-cap0.25@60"``).
 
         Names print numbers with 6 significant digits, so only such parameters round-trip
@@ -559,8 +577,15 @@ class RigSpec:
             return cls(int(m.group(1)), int(m.group(2)), float(m.group(3)))
         m = re.fullmatch(r"box-(\d+)x(\d+)-([a-z]+)-s([0-9.]+)(?:-cap([0-9.]+)@([0-9.]+))?", s)
         if m:
-            return cls(int(m.group(1)), int(m.group(2)), float(m.group(6) or 60.0), "box", float(m.group(4)),
-                       m.group(3), float(m.group(5) or 0.0))
+            return cls(
+                int(m.group(1)),
+                int(m.group(2)),
+                float(m.group(6) or 60.0),
+                "box",
+                float(m.group(4)),
+                m.group(3),
+                float(m.group(5) or 0.0),
+            )
         raise ParameterError(f"rig name {name!r} not understood; e.g. cap-32x64-60 or box-32x64-visible-s0.9")
 
     @property
@@ -602,8 +627,9 @@ class RigSpec:
         if not self.needs_box:
             return np.broadcast_to(self.for_box(None).directions, (len(e), self.n_rays, 3))
         check_extents(e)
-        return box_directions(fibonacci_sphere(self.n_primary), self.n_secondary, e, self.scale, self.targets,
-                              self.cap_share, self.angle)
+        return box_directions(
+            fibonacci_sphere(self.n_primary), self.n_secondary, e, self.scale, self.targets, self.cap_share, self.angle
+        )
 
     def to_dict(self) -> dict:
         """JSON-serialisable description (cap specs: exactly a cap rig's ``to_dict()``)."""
@@ -613,11 +639,18 @@ class RigSpec:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> "RigSpec":
+    def from_dict(cls, d: dict) -> RigSpec:
         """Rebuild from :meth:`to_dict` output; a rig's ``to_dict()`` also works (its box is dropped)."""
         try:
-            return cls(int(d["n_primary"]), int(d["n_secondary"]), float(d["angle"]), str(d.get("kind", "cap")),
-                       _opt(float, d.get("scale")), _opt(str, d.get("targets")), _opt(float, d.get("cap_share")))
+            return cls(
+                int(d["n_primary"]),
+                int(d["n_secondary"]),
+                float(d["angle"]),
+                str(d.get("kind", "cap")),
+                _opt(float, d.get("scale")),
+                _opt(str, d.get("targets")),
+                _opt(float, d.get("cap_share")),
+            )
         except (KeyError, TypeError, ValueError) as exc:
             raise ParameterError(f"invalid rig description {d!r}: {exc}") from None
 
@@ -641,11 +674,15 @@ def check_extents(extents) -> tuple:
         raise ParameterError(f"box half-extents must be 3 numbers (or rows of 3), got {extents!r}") from None
     bad = ~np.all(np.isfinite(rows), axis=1) | np.any(rows < 0, axis=1) | ~np.any(rows > 0, axis=1)
     if np.any(bad):
-        raise ParameterError(f"box half-extents must be finite, >= 0 and not all 0, got {rows[np.argmax(bad)].tolist()}")
+        raise ParameterError(
+            f"box half-extents must be finite, >= 0 and not all 0, got {rows[np.argmax(bad)].tolist()}"
+        )
     norm = np.linalg.norm(rows, axis=1)
     if np.any(norm > 1.0 + 1e-6):
         j = int(np.argmax(norm))
-        raise ParameterError(f"box half-extents {rows[j].tolist()} reach outside the unit sphere (norm {norm[j]:.6g} > 1)")
+        raise ParameterError(
+            f"box half-extents {rows[j].tolist()} reach outside the unit sphere (norm {norm[j]:.6g} > 1)"
+        )
     out = tuple(tuple(float(x) for x in row) for row in rows)
     return out if e.ndim == 2 else out[0]
 
@@ -658,9 +695,18 @@ def extents_from_normalization(normalization) -> np.ndarray:
     return np.asarray(size, dtype=np.float64) / (2.0 * float(normalization.radius))
 
 
-def make_rig(primary: int = 32, secondary: int = 64, angle: float | None = 60.0, radius: float | None = None, *,
-             kind: str = "cap", box=None, scale: float | None = None, targets: str | None = None,
-             cap_share: float | None = None) -> Rig:
+def make_rig(
+    primary: int = 32,
+    secondary: int = 64,
+    angle: float | None = 60.0,
+    radius: float | None = None,
+    *,
+    kind: str = "cap",
+    box=None,
+    scale: float | None = None,
+    targets: str | None = None,
+    cap_share: float | None = None,
+) -> Rig:
     """Build a rig: the paper's cap rig by default, a box-targeted rig with ``kind="box"``.
 
     Parameters
@@ -674,13 +720,22 @@ def make_rig(primary: int = 32, secondary: int = 64, angle: float | None = 60.0,
     box : box rigs: (3,) box half-extents in the unit frame (required).
     scale, targets, cap_share : box rigs: see :class:`Rig` (defaults ``BOX_DEFAULTS``).
     """
-    return make_rig_spec(primary, secondary, angle, radius, kind=kind, scale=scale, targets=targets,
-                         cap_share=cap_share).for_box(box)
+    return make_rig_spec(
+        primary, secondary, angle, radius, kind=kind, scale=scale, targets=targets, cap_share=cap_share
+    ).for_box(box)
 
 
-def make_rig_spec(primary: int = 32, secondary: int = 64, angle: float | None = 60.0, radius: float | None = None, *,
-                  kind: str = "cap", scale: float | None = None, targets: str | None = None,
-                  cap_share: float | None = None) -> RigSpec:
+def make_rig_spec(
+    primary: int = 32,
+    secondary: int = 64,
+    angle: float | None = 60.0,
+    radius: float | None = None,
+    *,
+    kind: str = "cap",
+    scale: float | None = None,
+    targets: str | None = None,
+    cap_share: float | None = None,
+) -> RigSpec:
     """Build a :class:`RigSpec` (same parameters as :func:`make_rig`, without the box)."""
     if radius is not None:
         angle = angle_from_radius(float(radius))

@@ -86,12 +86,23 @@ def _model_calls(model, x, device) -> dict:
 
     dirs = timing_directions(model, x.shape[0])  # None, or the rays of one box for box-rig SA-Nets
     dirs = None if dirs is None else dirs.to(device)
-    return {"forward": (lambda: model(x)),
-            "complete": (lambda: model.complete(x, CLIP_DEFAULT) if dirs is None else model.complete(x, CLIP_DEFAULT, dirs))}
+    return {
+        "forward": (lambda: model(x)),
+        "complete": (
+            lambda: model.complete(x, CLIP_DEFAULT) if dirs is None else model.complete(x, CLIP_DEFAULT, dirs)
+        ),
+    }
 
 
-def model_latency(model, device, batches: Sequence[int] = (1, 32), repeats: int = 10, warmup: int = 2,
-                  n_input: int = 256, seed: int = 0) -> dict:
+def model_latency(
+    model,
+    device,
+    batches: Sequence[int] = (1, 32),
+    repeats: int = 10,
+    warmup: int = 2,
+    n_input: int = 256,
+    seed: int = 0,
+) -> dict:
     """Median latency of one model (the ``latency_ms`` of ``spotlights evaluate``), timed as :func:`bench_models` does.
 
     Returns {batch: {"forward_ms", "complete_ms"}} in milliseconds: the network alone, and
@@ -126,9 +137,18 @@ def count_macs(model, n_input: int = 256) -> int:
     return int(counter.get_total_flops()) // 2
 
 
-def bench_models(names: Sequence[str] = MODEL_NAMES, batches: Sequence[int] = (1, 32), repeats: int = 10,
-                 warmup: int = 2, threads: int | None = None, device=None, rig=None, seed: int = 0,
-                 n_input: int = 256, progress=None) -> dict:
+def bench_models(
+    names: Sequence[str] = MODEL_NAMES,
+    batches: Sequence[int] = (1, 32),
+    repeats: int = 10,
+    warmup: int = 2,
+    threads: int | None = None,
+    device=None,
+    rig=None,
+    seed: int = 0,
+    n_input: int = 256,
+    progress=None,
+) -> dict:
     """Measure parameters and median inference latency of several models.
 
     Parameters
@@ -166,19 +186,33 @@ def bench_models(names: Sequence[str] = MODEL_NAMES, batches: Sequence[int] = (1
     med = {}
     with torch.inference_mode():
         for b in batches:
-            calls = {(name, kind): fn for name, model in models.items()
-                     for kind, fn in _model_calls(model, inputs[b], dev).items()}
+            calls = {
+                (name, kind): fn
+                for name, model in models.items()
+                for kind, fn in _model_calls(model, inputs[b], dev).items()
+            }
             med.update({(name, b, kind): t for (name, kind), t in time_calls(calls, repeats, warmup, sync).items()})
             if progress:
                 for name in names:
-                    progress(f"{name} batch {b}: forward {med[(name, b, 'forward')] * 1e3:.2f} ms, "
-                             f"complete {med[(name, b, 'complete')] * 1e3:.2f} ms")
+                    progress(
+                        f"{name} batch {b}: forward {med[(name, b, 'forward')] * 1e3:.2f} ms, "
+                        f"complete {med[(name, b, 'complete')] * 1e3:.2f} ms"
+                    )
     rows = []
     for name, model in models.items():
-        lat = {int(b): {"forward_ms": med[(name, b, "forward")] * 1e3, "complete_ms": med[(name, b, "complete")] * 1e3}
-               for b in batches}
-        rows.append({"model": name, "display_name": DISPLAY_NAMES[name], "params": model.param_counts(),
-                     "macs_per_sample": count_macs(model, n_input), "latency_ms": lat})
+        lat = {
+            int(b): {"forward_ms": med[(name, b, "forward")] * 1e3, "complete_ms": med[(name, b, "complete")] * 1e3}
+            for b in batches
+        }
+        rows.append(
+            {
+                "model": name,
+                "display_name": DISPLAY_NAMES[name],
+                "params": model.param_counts(),
+                "macs_per_sample": count_macs(model, n_input),
+                "latency_ms": lat,
+            }
+        )
     return {
         "device": str(dev) if dev.type == "cpu" else f"{dev} ({torch.cuda.get_device_name(dev)})",
         "cpu": cpu_name(),
@@ -202,8 +236,13 @@ def bench_markdown(result: dict) -> str:
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in result["models"]:
         p = r["params"]
-        cells = [r["display_name"], f"{p['encoder'] / 1e6:.3f}M", f"{p['decoder'] / 1e6:.3f}M", f"{p['total'] / 1e6:.3f}M",
-                 f"{r['macs_per_sample'] / 1e9:.3f}" if "macs_per_sample" in r else "n/a"]
+        cells = [
+            r["display_name"],
+            f"{p['encoder'] / 1e6:.3f}M",
+            f"{p['decoder'] / 1e6:.3f}M",
+            f"{p['total'] / 1e6:.3f}M",
+            f"{r['macs_per_sample'] / 1e9:.3f}" if "macs_per_sample" in r else "n/a",
+        ]
         for b in batches:
             lt = r["latency_ms"][b] if b in r["latency_ms"] else r["latency_ms"][str(b)]
             cells += [f"{lt['forward_ms']:.2f}", f"{lt['complete_ms']:.2f}"]
@@ -216,19 +255,27 @@ def bench_markdown(result: dict) -> str:
             key = b if b in sanet["latency_ms"] else str(b)
             fastest = min(others, key=lambda r: r["latency_ms"][key]["complete_ms"])
             ratio = fastest["latency_ms"][key]["complete_ms"] / sanet["latency_ms"][key]["complete_ms"]
-            ratio_lines.append(f"batch {b}: fastest baseline {fastest['display_name']} "
-                               f"{fastest['latency_ms'][key]['complete_ms']:.2f} ms, SA-Net (w/ clip) "
-                               f"{sanet['latency_ms'][key]['complete_ms']:.2f} ms: {ratio:.1f}x faster")
+            ratio_lines.append(
+                f"batch {b}: fastest baseline {fastest['display_name']} "
+                f"{fastest['latency_ms'][key]['complete_ms']:.2f} ms, SA-Net (w/ clip) "
+                f"{sanet['latency_ms'][key]['complete_ms']:.2f} ms: {ratio:.1f}x faster"
+            )
         if "macs_per_sample" in sanet:
             least = min(others, key=lambda r: r["macs_per_sample"])
-            ratio_lines.append(f"compute: SA-Net {sanet['macs_per_sample'] / 1e9:.3f} GMAC/sample, the cheapest baseline "
-                               f"{least['display_name']} {least['macs_per_sample'] / 1e9:.3f} "
-                               f"({least['macs_per_sample'] / sanet['macs_per_sample']:.1f}x)")
+            ratio_lines.append(
+                f"compute: SA-Net {sanet['macs_per_sample'] / 1e9:.3f} GMAC/sample, the cheapest baseline "
+                f"{least['display_name']} {least['macs_per_sample'] / 1e9:.3f} "
+                f"({least['macs_per_sample'] / sanet['macs_per_sample']:.1f}x)"
+            )
         smallest = min(others, key=lambda r: r["params"]["total"])
-        ratio_lines.append(f"parameters: SA-Net {sanet['params']['total'] / 1e6:.3f}M = "
-                           f"{sanet['params']['total'] / smallest['params']['total']:.2f} x the smallest baseline "
-                           f"({smallest['display_name']}, {smallest['params']['total'] / 1e6:.3f}M)")
-    foot = (f"\n{result['device']} ({result.get('cpu', '?')}, {result.get('cpu_count', '?')} cores), "
-            f"{result['threads']} torch threads, torch {result['torch']}, median of {result['repeats']} round-robin runs "
-            f"after {result['warmup']} warm-up runs, SA-Net rig {result['rig']}.\n")
+        ratio_lines.append(
+            f"parameters: SA-Net {sanet['params']['total'] / 1e6:.3f}M = "
+            f"{sanet['params']['total'] / smallest['params']['total']:.2f} x the smallest baseline "
+            f"({smallest['display_name']}, {smallest['params']['total'] / 1e6:.3f}M)"
+        )
+    foot = (
+        f"\n{result['device']} ({result.get('cpu', '?')}, {result.get('cpu_count', '?')} cores), "
+        f"{result['threads']} torch threads, torch {result['torch']}, median of {result['repeats']} round-robin runs "
+        f"after {result['warmup']} warm-up runs, SA-Net rig {result['rig']}.\n"
+    )
     return "\n".join(lines) + "\n" + foot + "".join(f"\n- {r}" for r in ratio_lines) + ("\n" if ratio_lines else "")

@@ -53,8 +53,11 @@ def resolve_checkpoint(name=None) -> Path:
     if key in PRETRAINED:
         p = Path(str(resources.files("spotlights.learning") / "pretrained" / PRETRAINED[key]))
         if not p.is_file():
-            raise InputFileError(p, f"the '{key}' checkpoint is not shipped in this installation; pass a checkpoint "
-                                    "file (train one with 'spotlights train --model sanet --data DATASET.h5')")
+            raise InputFileError(
+                p,
+                f"the '{key}' checkpoint is not shipped in this installation; pass a checkpoint "
+                "file (train one with 'spotlights train --model sanet --data DATASET.h5')",
+            )
         return p
     p = Path(key).expanduser()
     if not p.exists():
@@ -105,7 +108,10 @@ def load_checkpoint(path, expect_model: str | None = None, map_location="cpu") -
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         raise InputFileError(p, "not a spotlights checkpoint (no 'format: spotlights-checkpoint' entry)")
     if int(ckpt.get("format_version", 0)) > FORMAT_VERSION:
-        raise InputFileError(p, f"checkpoint format version {ckpt.get('format_version')} is newer than this spotlights ({FORMAT_VERSION})")
+        raise InputFileError(
+            p,
+            f"checkpoint format version {ckpt.get('format_version')} is newer than this spotlights ({FORMAT_VERSION})",
+        )
     name = ckpt.get("model_name")
     if name not in MODEL_REGISTRY:
         raise InputFileError(p, f"checkpoint holds an unknown model {name!r}")
@@ -117,7 +123,9 @@ def load_checkpoint(path, expect_model: str | None = None, map_location="cpu") -
     cfg = ckpt["config"]
     if not isinstance(cfg, dict) or not all(isinstance(cfg.get(k, {}), dict) for k in ("model", "data", "train")):
         raise InputFileError(p, "damaged checkpoint: its 'config' entry is not a model/data/train mapping")
-    if not isinstance(ckpt["model_state"], dict) or not all(isinstance(v, torch.Tensor) for v in ckpt["model_state"].values()):
+    if not isinstance(ckpt["model_state"], dict) or not all(
+        isinstance(v, torch.Tensor) for v in ckpt["model_state"].values()
+    ):
         raise InputFileError(p, "damaged checkpoint: its 'model_state' entry is not a mapping of tensors")
     ckpt["path"] = os.fspath(p)
     return ckpt
@@ -137,7 +145,9 @@ def model_from_checkpoint(ckpt: dict, device=None):
         model.load_state_dict(ckpt["model_state"])
     except (RuntimeError, KeyError, TypeError, ValueError) as exc:
         first = str(exc).splitlines()[0][:160]
-        raise InputFileError(ckpt.get("path", "checkpoint"), f"weights do not match the {ckpt['model_name']} config ({first})") from None
+        raise InputFileError(
+            ckpt.get("path", "checkpoint"), f"weights do not match the {ckpt['model_name']} config ({first})"
+        ) from None
     model = model.float()
     chosen = ckpt.get("hit_threshold")
     if chosen is not None and hasattr(model, "threshold"):  # hit-aware SA-Net: the p(hit) threshold chosen on val
@@ -156,8 +166,22 @@ def export_weights(src, dst, half: bool = False) -> Path:
     import torch
 
     ckpt = load_checkpoint(src)
-    keep = {k: v for k, v in ckpt.items() if k not in ("optimizer_state", "scheduler_state", "scaler_state", "path",
-                                                          "format", "format_version", "spotlights_version")}
+    keep = {
+        k: v
+        for k, v in ckpt.items()
+        if k
+        not in (
+            "optimizer_state",
+            "scheduler_state",
+            "scaler_state",
+            "path",
+            "format",
+            "format_version",
+            "spotlights_version",
+        )
+    }
     if half:
-        keep["model_state"] = {k: (v.half() if torch.is_floating_point(v) else v) for k, v in ckpt["model_state"].items()}
+        keep["model_state"] = {
+            k: (v.half() if torch.is_floating_point(v) else v) for k, v in ckpt["model_state"].items()
+        }
     return save_checkpoint(dst, keep)

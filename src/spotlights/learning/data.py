@@ -78,7 +78,9 @@ class DatasetInfo:
         if name is None:
             if len(self.rigs) == 1:
                 return next(iter(self.rigs))
-            raise InputFileError(self.path, f"no default_rig attribute; choose a rig among: {', '.join(sorted(self.rigs)) or 'none'}")
+            raise InputFileError(
+                self.path, f"no default_rig attribute; choose a rig among: {', '.join(sorted(self.rigs)) or 'none'}"
+            )
         if name not in self.rigs:
             raise InputFileError(self.path, f"has no rig {name!r} (rigs: {', '.join(sorted(self.rigs)) or 'none'})")
         return name
@@ -104,9 +106,17 @@ def _info_of(ds: CompletionDataset) -> DatasetInfo:
             rigs[name] = ds.rig_dict(name)
         except (KeyError, ValueError):
             raise InputFileError(ds.path, f"/rigs/{name} lacks a valid rig_json attribute") from None
-    return DatasetInfo(path=ds.path, names=ds.names.astype(object), categories=ds.categories.astype(object),
-                       splits=ds.splits.astype(object), sample_model=ds.sample_model, sample_view=ds.sample_view,
-                       rigs=rigs, default_rig=ds.attrs.get("default_rig") or None, attrs=dict(ds.attrs))
+    return DatasetInfo(
+        path=ds.path,
+        names=ds.names.astype(object),
+        categories=ds.categories.astype(object),
+        splits=ds.splits.astype(object),
+        sample_model=ds.sample_model,
+        sample_view=ds.sample_view,
+        rigs=rigs,
+        default_rig=ds.attrs.get("default_rig") or None,
+        attrs=dict(ds.attrs),
+    )
 
 
 class TorchCompletionDataset(Dataset):
@@ -128,8 +138,14 @@ class TorchCompletionDataset(Dataset):
     each sample's rays from its ``model`` row.
     """
 
-    def __init__(self, path, split: str = "train", rig: str | None | bool = None, max_views: int | None = None,
-                 partials_in_memory: bool = False):
+    def __init__(
+        self,
+        path,
+        split: str = "train",
+        rig: str | None | bool = None,
+        max_views: int | None = None,
+        partials_in_memory: bool = False,
+    ):
         if split not in (*SPLITS, "all"):
             raise ParameterError(f"split must be one of {', '.join(SPLITS)} or all, got {split!r}")
         self.store = store = open_dataset(path)
@@ -145,20 +161,25 @@ class TorchCompletionDataset(Dataset):
                 keep &= info.sample_view < int(max_views)
             self.indices = np.flatnonzero(keep).astype(np.int64)  # rows of /samples, storage order (model-major)
             if len(self.indices) == 0:
-                raise InputFileError(self.path, f"split {split!r} has no samples" + (f" with view < {max_views}" if max_views else ""))
+                raise InputFileError(
+                    self.path, f"split {split!r} has no samples" + (f" with view < {max_views}" if max_views else "")
+                )
             self.rig_name = None if rig is False else info.resolve_rig(rig if rig is not True else None)
             self.rig = info.rigs[self.rig_name] if self.rig_name else None
             self.gt_points = np.ascontiguousarray(store.models_array("gt_points"), dtype=np.float32)
             self.depths = None
             if self.rig_name:
                 self.depths = np.ascontiguousarray(store.rig_depths(self.rig_name), dtype=np.float32)
-            self.partials = np.ascontiguousarray(store.partials(self.indices), dtype=np.float32) if partials_in_memory else None
+            self.partials = (
+                np.ascontiguousarray(store.partials(self.indices), dtype=np.float32) if partials_in_memory else None
+            )
             self.extents = store.extents if store.size is not None else None
         finally:
             store.close()  # DataLoader workers open their own handles
         if self.rig is not None and self.rig.get("kind", "cap") == "box" and self.extents is None:
-            raise InputFileError(self.path, f"rig {self.rig_name} is box-targeted but the file has no /models/size "
-                                            "(each model's box)")
+            raise InputFileError(
+                self.path, f"rig {self.rig_name} is box-targeted but the file has no /models/size (each model's box)"
+            )
 
     def close(self) -> None:
         """Close this process's file handles (they reopen on the next access)."""

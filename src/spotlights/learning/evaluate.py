@@ -32,10 +32,24 @@ from .metrics import METRIC_DESCRIPTIONS, evaluate_completions, summarize
 TABLE_METRIC = "accuracy"
 
 
-def evaluate_checkpoint(checkpoint, data, split: str = "test", batch_size: int = 32, max_views: int | None = None,
-                        clip=None, device=None, with_completeness: bool = True, fscore_threshold: float = 0.01,
-                        latency: bool = False, latency_repeats: int = 10, num_workers: int = 0,
-                        progress: bool = True, dataset=None, gt_dense=None, scorer=None) -> dict:
+def evaluate_checkpoint(
+    checkpoint,
+    data,
+    split: str = "test",
+    batch_size: int = 32,
+    max_views: int | None = None,
+    clip=None,
+    device=None,
+    with_completeness: bool = True,
+    fscore_threshold: float = 0.01,
+    latency: bool = False,
+    latency_repeats: int = 10,
+    num_workers: int = 0,
+    progress: bool = True,
+    dataset=None,
+    gt_dense=None,
+    scorer=None,
+) -> dict:
     """Score one checkpoint on one split.
 
     Parameters
@@ -75,8 +89,9 @@ def evaluate_checkpoint(checkpoint, data, split: str = "test", batch_size: int =
     dense = gt_dense if gt_dense is not None else ds.gt_dense()
     hit_aware = hasattr(model, "hit_probabilities")
     if hit_aware:  # hit-aware SA-Net: rays with p(hit) >= the checkpoint's threshold, no clip (a clip only if asked)
-        variants = [(f"p(hit) >= {model.threshold:g}", None)] + ([(f"p(hit) >= {model.threshold:g}, clip {float(clip):g}",
-                                                                    float(clip))] if clip is not None else [])
+        variants = [(f"p(hit) >= {model.threshold:g}", None)] + (
+            [(f"p(hit) >= {model.threshold:g}, clip {float(clip):g}", float(clip))] if clip is not None else []
+        )
     elif model.target == "depths":
         c = model.clip if clip is None else float(clip)
         variants = [("no clip", None)] + ([(f"clip {c:g}", c)] if c is not None else [])
@@ -107,12 +122,19 @@ def evaluate_checkpoint(checkpoint, data, split: str = "test", batch_size: int =
     rows = []
     trees: dict = {}
     for v, c in variants:
-        per = (scorer or evaluate_completions)(preds[v], models, _DenseView(dense), fscore_threshold,
-                                               with_completeness, trees)
+        per = (scorer or evaluate_completions)(
+            preds[v], models, _DenseView(dense), fscore_threshold, with_completeness, trees
+        )
         if model.target == "depths":
             per["hit_ratio"] = np.asarray(kept[v], dtype=np.float64)
-        rows.append({"variant": v, "clip": c, "summary": summarize(per, cats, order),
-                     **({"threshold": model.threshold} if hit_aware else {})})
+        rows.append(
+            {
+                "variant": v,
+                "clip": c,
+                "summary": summarize(per, cats, order),
+                **({"threshold": model.threshold} if hit_aware else {}),
+            }
+        )
     result = {
         "model": name,
         "checkpoint": str(checkpoint),
@@ -146,9 +168,14 @@ def training_facts(ckpt: dict) -> dict:
     batch = ((ckpt.get("config") or {}).get("train") or {}).get("batch_size")
     steps = ckpt.get("global_step")
     seen = last.get("samples_seen", None if steps is None or batch is None else int(steps) * int(batch))
-    return {"steps": None if steps is None else int(steps), "epochs": int(ckpt.get("epoch", 0) or 0),
-            "best_epoch": (ckpt.get("best") or {}).get("epoch"), "samples_seen": seen,
-            "minutes": None if wall is None else float(wall) / 60.0, "precision": ckpt.get("precision", "fp32")}
+    return {
+        "steps": None if steps is None else int(steps),
+        "epochs": int(ckpt.get("epoch", 0) or 0),
+        "best_epoch": (ckpt.get("best") or {}).get("epoch"),
+        "samples_seen": seen,
+        "minutes": None if wall is None else float(wall) / 60.0,
+        "precision": ckpt.get("precision", "fp32"),
+    }
 
 
 def latency_key(res: dict, row: dict) -> str:
@@ -167,8 +194,15 @@ class _DenseView:
         return self.d[int(m)]
 
 
-def evaluate_checkpoints(checkpoints, data, split: str = "test", progress: bool = True, backend: str = "local",
-                         ray_address: str | None = None, **kw) -> dict:
+def evaluate_checkpoints(
+    checkpoints,
+    data,
+    split: str = "test",
+    progress: bool = True,
+    backend: str = "local",
+    ray_address: str | None = None,
+    **kw,
+) -> dict:
     """Evaluate several checkpoints on the same split (the split and its dense GT are read once).
 
     backend : ``"local"`` or ``"ray"`` (the per-model metric work as Ray tasks, on the cluster at
@@ -191,8 +225,10 @@ def evaluate_checkpoints(checkpoints, data, split: str = "test", progress: bool 
             from .ray_metrics import RayMetrics
 
             scorer = RayMetrics(ray)
-        results = [evaluate_checkpoint(c, data, split, dataset=ds, gt_dense=dense, progress=progress, scorer=scorer, **kw)
-                   for c in checkpoints]
+        results = [
+            evaluate_checkpoint(c, data, split, dataset=ds, gt_dense=dense, progress=progress, scorer=scorer, **kw)
+            for c in checkpoints
+        ]
     _tag_repeated_models(results)
     return {
         "data": str(data),
@@ -238,45 +274,92 @@ def report_markdown(report: dict, metric: str = TABLE_METRIC) -> str:
     """The Markdown report: Table 1 (every metric, parameters, training, latency), the accuracy per
     category (the paper's layout), all metrics, parameters and definitions."""
     cats = [c for c in report["categories"]]
-    lines = [f"# Completion on `{report['data']}` ({report['split']} split: "
-             f"{report['n_samples']} samples of {report['n_models']} models)", "",
-             "Means over samples, unit frame, lower is better except F-score; points = points per completion. "
-             "Training: optimizer steps, samples seen and minutes (training + validation) up to the checkpoint, "
-             "and its precision.", ""]
-    head = ["Method", "Accuracy", "Completeness", "CD-L1", "F@0.01", "Points", "#Params", "Steps", "Samples seen",
-            "Minutes", "Precision", "Latency b1 (ms)", "Latency b32 (ms)"]
+    lines = [
+        f"# Completion on `{report['data']}` ({report['split']} split: "
+        f"{report['n_samples']} samples of {report['n_models']} models)",
+        "",
+        "Means over samples, unit frame, lower is better except F-score; points = points per completion. "
+        "Training: optimizer steps, samples seen and minutes (training + validation) up to the checkpoint, "
+        "and its precision.",
+        "",
+    ]
+    head = [
+        "Method",
+        "Accuracy",
+        "Completeness",
+        "CD-L1",
+        "F@0.01",
+        "Points",
+        "#Params",
+        "Steps",
+        "Samples seen",
+        "Minutes",
+        "Precision",
+        "Latency b1 (ms)",
+        "Latency b32 (ms)",
+    ]
     lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for res in report["results"]:
         tr = res.get("training") or {}
         for row in res["rows"]:
             m = row["summary"]["mean_over_samples"]
             n = m.get("n_points")
-            cells = [_label(res, row), _fmt(m.get("accuracy")), _fmt(m.get("completeness")), _fmt(m.get("chamfer_l1")),
-                     _fmt(m.get("fscore"), 4), "n/a" if n is None else f"{n:.0f}", f"{res['params']['total'] / 1e6:.2f}M",
-                     "n/a" if tr.get("steps") is None else f"{tr['steps']:,}",
-                     "n/a" if tr.get("samples_seen") is None else f"{tr['samples_seen']:,}",
-                     "n/a" if tr.get("minutes") is None else f"{tr['minutes']:.0f}", tr.get("precision", "n/a"),
-                     _lat(res, row, 1), _lat(res, row, 32)]
+            cells = [
+                _label(res, row),
+                _fmt(m.get("accuracy")),
+                _fmt(m.get("completeness")),
+                _fmt(m.get("chamfer_l1")),
+                _fmt(m.get("fscore"), 4),
+                "n/a" if n is None else f"{n:.0f}",
+                f"{res['params']['total'] / 1e6:.2f}M",
+                "n/a" if tr.get("steps") is None else f"{tr['steps']:,}",
+                "n/a" if tr.get("samples_seen") is None else f"{tr['samples_seen']:,}",
+                "n/a" if tr.get("minutes") is None else f"{tr['minutes']:.0f}",
+                tr.get("precision", "n/a"),
+                _lat(res, row, 1),
+                _lat(res, row, 32),
+            ]
             lines.append("| " + " | ".join(cells) + " |")
     timed = [r for r in report["results"] if "latency_ms" in r]
     if timed:
-        lines += ["", "Latency: median forward time (SA-Net without clip) or forward + decoding (+ clip or p(hit) "
-                  f"threshold; baselines: forward + split into clouds), on {timed[0]['latency_device']} "
-                  f"with {timed[0]['threads']} threads."]
+        lines += [
+            "",
+            "Latency: median forward time (SA-Net without clip) or forward + decoding (+ clip or p(hit) "
+            f"threshold; baselines: forward + split into clouds), on {timed[0]['latency_device']} "
+            f"with {timed[0]['threads']} threads.",
+        ]
     else:
         lines += ["", "Latency not measured (opt-in: `spotlights evaluate --latency`)."]
-    lines += ["", "## Accuracy per category", "",
-              f"{metric}: {METRIC_DESCRIPTIONS[metric]}. Average (samples) = mean over all samples (the paper's "
-              "Average); Average (categories) = unweighted mean of the per-category means.", ""]
-    head = ["Method", *[c.capitalize() if c != "suv" else "SUV" for c in cats], "Average (samples)", "Average (categories)",
-            "#Params", "Latency b1 (ms)", "Latency b32 (ms)"]
+    lines += [
+        "",
+        "## Accuracy per category",
+        "",
+        f"{metric}: {METRIC_DESCRIPTIONS[metric]}. Average (samples) = mean over all samples (the paper's "
+        "Average); Average (categories) = unweighted mean of the per-category means.",
+        "",
+    ]
+    head = [
+        "Method",
+        *[c.capitalize() if c != "suv" else "SUV" for c in cats],
+        "Average (samples)",
+        "Average (categories)",
+        "#Params",
+        "Latency b1 (ms)",
+        "Latency b32 (ms)",
+    ]
     lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for res in report["results"]:
         for row in res["rows"]:
             s = row["summary"]
-            cells = [_label(res, row), *[_fmt(s["per_category"].get(c, {}).get(metric)) for c in cats],
-                     _fmt(s["mean_over_samples"][metric]), _fmt(s["mean_over_categories"][metric]),
-                     f"{res['params']['total'] / 1e6:.2f}M", _lat(res, row, 1), _lat(res, row, 32)]
+            cells = [
+                _label(res, row),
+                *[_fmt(s["per_category"].get(c, {}).get(metric)) for c in cats],
+                _fmt(s["mean_over_samples"][metric]),
+                _fmt(s["mean_over_categories"][metric]),
+                f"{res['params']['total'] / 1e6:.2f}M",
+                _lat(res, row, 1),
+                _lat(res, row, 32),
+            ]
             lines.append("| " + " | ".join(cells) + " |")
     lines += [""]
     others = [m for m in ("completeness", "chamfer_l1", "chamfer_l2", "fscore", "hit_ratio", "n_points")]
@@ -289,15 +372,21 @@ def report_markdown(report: dict, metric: str = TABLE_METRIC) -> str:
             cells = [_label(res, row), _fmt(m.get("accuracy"))]
             for k in others:
                 v = m.get(k)
-                cells.append("n/a" if v is None else (f"{v:.1f}" if k == "n_points" else _fmt(v, 4 if k in ("fscore", "hit_ratio") else 5)))
+                cells.append(
+                    "n/a"
+                    if v is None
+                    else (f"{v:.1f}" if k == "n_points" else _fmt(v, 4 if k in ("fscore", "hit_ratio") else 5))
+                )
             lines.append("| " + " | ".join(cells) + " |")
     lines += ["", "Parameters (encoder / decoder / total):", ""]
     from .models import DISPLAY_NAMES
 
     for res in report["results"]:
         p = res["params"]
-        lines.append(f"- {DISPLAY_NAMES.get(res['model'], res['model'])}: {p['encoder']:,} / {p['decoder']:,} / {p['total']:,} "
-                     f"({res['checkpoint']}, {res['trained_epochs']} epochs)")
+        lines.append(
+            f"- {DISPLAY_NAMES.get(res['model'], res['model'])}: {p['encoder']:,} / {p['decoder']:,} / {p['total']:,} "
+            f"({res['checkpoint']}, {res['trained_epochs']} epochs)"
+        )
     lines += ["", "Metric definitions:", ""] + [f"- `{k}`: {v}" for k, v in METRIC_DESCRIPTIONS.items()]
     return "\n".join(lines) + "\n"
 
@@ -328,8 +417,9 @@ def write_report(report: dict, out) -> tuple[Path, Path]:
     return md, js
 
 
-def prediction_examples(checkpoints, data, split: str = "test", per_category: int = 2, clip=None,
-                        device=None) -> list[dict]:
+def prediction_examples(
+    checkpoints, data, split: str = "test", per_category: int = 2, clip=None, device=None
+) -> list[dict]:
     """A few scans per category with every checkpoint's prediction, for
     :func:`spotlights.viz.render_predictions` (``spotlights evaluate`` draws them beside the report).
 
@@ -343,7 +433,9 @@ def prediction_examples(checkpoints, data, split: str = "test", per_category: in
 
     completers = [load_completer(c, device=device) for c in checkpoints]
     names = [c.model_name for c in completers]
-    names = [f"{n} ({Path(c).parent.name or Path(c).stem})" if names.count(n) > 1 else n for n, c in zip(names, checkpoints)]
+    names = [
+        f"{n} ({Path(c).parent.name or Path(c).stem})" if names.count(n) > 1 else n for n, c in zip(names, checkpoints)
+    ]
     out = []
     with open_dataset(data) as ds:
         idx = ds.split_indices(split)
@@ -358,7 +450,15 @@ def prediction_examples(checkpoints, data, split: str = "test", per_category: in
                 preds = []
                 for name, c in zip(names, completers):
                     kw = {"extents": smp["extents"][None]} if c.needs_box else {}
-                    preds.append((name, c.complete(smp["partial"][None], clip=DEFAULT if clip is None else clip, **kw)[0]))
-                out.append({"label": f"{smp['model']} ({smp['category']}), view {smp['view']}", "partial": smp["partial"],
-                            "gt": smp["gt_dense"], "predictions": preds})
+                    preds.append(
+                        (name, c.complete(smp["partial"][None], clip=DEFAULT if clip is None else clip, **kw)[0])
+                    )
+                out.append(
+                    {
+                        "label": f"{smp['model']} ({smp['category']}), view {smp['view']}",
+                        "partial": smp["partial"],
+                        "gt": smp["gt_dense"],
+                        "predictions": preds,
+                    }
+                )
     return out

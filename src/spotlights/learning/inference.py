@@ -71,9 +71,13 @@ class LearnedDomain:
         if not isinstance(d, dict):
             return cls()
         try:
-            return cls(tuple(str(c) for c in d.get("classes", ("car",))), tuple(float(v) for v in d["size_min"]),
-                       tuple(float(v) for v in d["size_max"]), float(d.get("tolerance", 0.10)),
-                       str(d.get("source", "the checkpoint's training boxes")))
+            return cls(
+                tuple(str(c) for c in d.get("classes", ("car",))),
+                tuple(float(v) for v in d["size_min"]),
+                tuple(float(v) for v in d["size_max"]),
+                float(d.get("tolerance", 0.10)),
+                str(d.get("source", "the checkpoint's training boxes")),
+            )
         except (KeyError, TypeError, ValueError):
             return cls()
 
@@ -88,8 +92,13 @@ class LearnedDomain:
         sz = np.asarray(size, dtype=np.float64).reshape(3)
         bad = [f"{n} {v:.2f} m" for n, v, a, b in zip(("length", "width", "height"), sz, lo, hi) if not a <= v <= b]
         if bad:
-            out.append("size outside the learned range (" + ", ".join(bad) + "; learned "
-                       + " x ".join(f"{a:.1f}-{b:.1f}" for a, b in zip(lo, hi)) + " m)")
+            out.append(
+                "size outside the learned range ("
+                + ", ".join(bad)
+                + "; learned "
+                + " x ".join(f"{a:.1f}-{b:.1f}" for a, b in zip(lo, hi))
+                + " m)"
+            )
         return out
 
 
@@ -185,8 +194,10 @@ class Completer:
         e = None
         if self.needs_box:
             if extents is None:
-                raise ParameterError(f"this SA-Net regresses the box-targeted rig {self.rig.name}: give each scan's box "
-                                     "half-extents (extents = size / |size|)")
+                raise ParameterError(
+                    f"this SA-Net regresses the box-targeted rig {self.rig.name}: give each scan's box "
+                    "half-extents (extents = size / |size|)"
+                )
             e = np.asarray(extents, dtype=np.float64)
             e = np.broadcast_to(e, (len(x), 3)) if e.shape == (3,) else e
             if e.shape != (len(x), 3):
@@ -196,12 +207,12 @@ class Completer:
         out: list[np.ndarray] = []
         with torch.inference_mode(), autocast(self.precision, self.device):
             for s in range(0, len(x), batch_size):
-                t = torch.from_numpy(x[s:s + batch_size]).to(self.device)
+                t = torch.from_numpy(x[s : s + batch_size]).to(self.device)
                 dirs = None
                 if e is not None:
                     from .rays import directions_for_extents
 
-                    d = directions_for_extents(self.rig, e[s:s + batch_size])
+                    d = directions_for_extents(self.rig, e[s : s + batch_size])
                     dirs = torch.from_numpy(np.ascontiguousarray(d)).to(self.device)
                 out.extend(p.cpu().numpy().astype(np.float32) for p in self.model.complete(t, c, dirs))
         return out
@@ -228,7 +239,10 @@ def load_completer(checkpoint_path=None, device=None, precision: str = "fp32") -
 
 # --- user scans ------------------------------------------------------------------------
 
-def prepare_partial(points_unit: np.ndarray, n: int = INPUT_POINTS, seed: int = 0, method: str = DEFAULT_RESAMPLE) -> np.ndarray:
+
+def prepare_partial(
+    points_unit: np.ndarray, n: int = INPUT_POINTS, seed: int = 0, method: str = DEFAULT_RESAMPLE
+) -> np.ndarray:
     """The network input of one observation: its unit-frame points (K, 3) resampled to exactly ``n`` (float32).
 
     The points are first put in a canonical order (sorted by x, then y, then z), so the input
@@ -245,11 +259,21 @@ def prepare_partial(points_unit: np.ndarray, n: int = INPUT_POINTS, seed: int = 
 
     if method not in RESAMPLE_METHODS:
         raise ParameterError(f"unknown resampling method {method!r}; choose one of {', '.join(RESAMPLE_METHODS)}")
-    return resample_set(np.asarray(points_unit, dtype=np.float64).reshape(-1, 3), n, seed=seed, method=method).astype(np.float32)
+    return resample_set(np.asarray(points_unit, dtype=np.float64).reshape(-1, 3), n, seed=seed, method=method).astype(
+        np.float32
+    )
 
 
-def complete_scan(points: np.ndarray, box: Box, completer: Completer, clip=DEFAULT, crop: float | None = None,
-                  seed: int = 0, resample_method: str = DEFAULT_RESAMPLE, n_input: int = INPUT_POINTS) -> dict:
+def complete_scan(
+    points: np.ndarray,
+    box: Box,
+    completer: Completer,
+    clip=DEFAULT,
+    crop: float | None = None,
+    seed: int = 0,
+    resample_method: str = DEFAULT_RESAMPLE,
+    n_input: int = INPUT_POINTS,
+) -> dict:
     """Complete one partial scan given in its own frame (sensor or world) with its box.
 
     Parameters

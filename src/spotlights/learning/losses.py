@@ -60,7 +60,7 @@ def _argmin_indices(query: torch.Tensor, data: torch.Tensor, chunk: int = 4096) 
     """(B, Q) int64 nearest ``data`` index for each ``query`` point, batched cdist + argmin in query chunks."""
     parts = []
     for s in range(0, query.shape[1], chunk):
-        parts.append(torch.cdist(query[:, s:s + chunk], data).argmin(dim=2))
+        parts.append(torch.cdist(query[:, s : s + chunk], data).argmin(dim=2))
     return torch.cat(parts, dim=1)
 
 
@@ -93,7 +93,9 @@ def _gather(points: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
     return torch.gather(points, 1, idx.unsqueeze(-1).expand(-1, -1, 3))
 
 
-def nearest_squared_distances(pred: torch.Tensor, target: torch.Tensor, method: str = "auto") -> tuple[torch.Tensor, torch.Tensor]:
+def nearest_squared_distances(
+    pred: torch.Tensor, target: torch.Tensor, method: str = "auto"
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Differentiable squared NN distances in both directions.
 
     Parameters

@@ -24,8 +24,7 @@ CHUNK = 256  # samples per task: enough work per task (~0.1-1 s), enough tasks t
 
 
 def _score_task(preds: list, gt: np.ndarray, fscore_threshold: float, with_completeness: bool) -> dict:
-    return evaluate_completions(preds, np.zeros(len(preds), dtype=np.int64), [gt], fscore_threshold,
-                                with_completeness)
+    return evaluate_completions(preds, np.zeros(len(preds), dtype=np.int64), [gt], fscore_threshold, with_completeness)
 
 
 class RayMetrics:
@@ -42,8 +41,15 @@ class RayMetrics:
         self._task = ray.remote(num_cpus=1, max_retries=self.retries, retry_exceptions=True)(_score_task)
         self._gt_refs: dict = {}
 
-    def __call__(self, predictions: Sequence[np.ndarray], model_index: np.ndarray, gt_dense, fscore_threshold: float = 0.01,
-                 with_completeness: bool = True, trees: dict | None = None) -> dict[str, np.ndarray]:
+    def __call__(
+        self,
+        predictions: Sequence[np.ndarray],
+        model_index: np.ndarray,
+        gt_dense,
+        fscore_threshold: float = 0.01,
+        with_completeness: bool = True,
+        trees: dict | None = None,
+    ) -> dict[str, np.ndarray]:
         """Same arguments and result as ``evaluate_completions`` (``trees`` is ignored: the trees
         are built on the workers)."""
         ray = self.ray
@@ -56,16 +62,28 @@ class RayMetrics:
                 self._gt_refs[int(m)] = ray.put(np.asarray(gt_dense[int(m)]))
             sel = np.flatnonzero(model_index == m)
             for a in range(0, len(sel), self.chunk):
-                idx = sel[a:a + self.chunk]
-                jobs.append((int(m), idx, self._task.remote([predictions[i] for i in idx], self._gt_refs[int(m)],
-                                                            float(fscore_threshold), bool(with_completeness))))
+                idx = sel[a : a + self.chunk]
+                jobs.append(
+                    (
+                        int(m),
+                        idx,
+                        self._task.remote(
+                            [predictions[i] for i in idx],
+                            self._gt_refs[int(m)],
+                            float(fscore_threshold),
+                            bool(with_completeness),
+                        ),
+                    )
+                )
         out: dict[str, np.ndarray] = {}
         for m, idx, ref in jobs:
             try:
                 res = ray.get(ref)
             except ray.exceptions.RayError as exc:
-                raise SpotlightsError(f"metrics of ground-truth model row {m} failed on the Ray cluster after "
-                                      f"{self.retries + 1} attempts: {error_reason(exc)}") from None
+                raise SpotlightsError(
+                    f"metrics of ground-truth model row {m} failed on the Ray cluster after "
+                    f"{self.retries + 1} attempts: {error_reason(exc)}"
+                ) from None
             for k, v in res.items():
                 if k not in out:
                     out[k] = np.full(len(model_index), np.nan)

@@ -128,8 +128,10 @@ class DirectionTable:
         key = str(dev)
         if key not in self._device_cache:
             order = sorted(self._rows)
-            self._device_cache[key] = (torch.stack([self._rows[m] for m in order]).to(dev),
-                                       {m: i for i, m in enumerate(order)})
+            self._device_cache[key] = (
+                torch.stack([self._rows[m] for m in order]).to(dev),
+                {m: i for i, m in enumerate(order)},
+            )
         stacked, index = self._device_cache[key]
         idx = torch.as_tensor([index[m] for m in rows.tolist()], dtype=torch.int64, device=dev)
         return stacked.index_select(0, idx)

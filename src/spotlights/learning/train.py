@@ -48,9 +48,23 @@ from .data import TorchCompletionDataset
 from .models import build_model, load_config
 from .models.base import CLIP_DEFAULT
 
-LOG_COLUMNS = ("epoch", "lr", "train_loss", "val_loss", "val_accuracy", "val_completeness", "val_chamfer_l1", "val_n",
-               "val_empty", "epoch_seconds", "samples_per_second", "global_step", "samples_seen", "wall_seconds",
-               "val_threshold")
+LOG_COLUMNS = (
+    "epoch",
+    "lr",
+    "train_loss",
+    "val_loss",
+    "val_accuracy",
+    "val_completeness",
+    "val_chamfer_l1",
+    "val_n",
+    "val_empty",
+    "epoch_seconds",
+    "samples_per_second",
+    "global_step",
+    "samples_seen",
+    "wall_seconds",
+    "val_threshold",
+)
 """Columns of ``RUN/log.csv``; ``val_threshold`` (the hit-aware SA-Net's chosen p(hit) threshold) is
 empty for the other models."""
 
@@ -80,7 +94,7 @@ def _stream_indices(n: int, seed: int, start: int, count: int) -> list[int]:
         p, k = divmod(pos, n)
         gen = torch.Generator().manual_seed(_epoch_seed(seed + 1_000_000_007, p))
         perm = torch.randperm(n, generator=gen)
-        take = perm[k: k + (count - len(out))].tolist()
+        take = perm[k : k + (count - len(out))].tolist()
         out.extend(take)
         pos += len(take)
     return out
@@ -156,8 +170,18 @@ def _write_yaml(path: Path, cfg: dict) -> None:
 
 
 @torch.no_grad()
-def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt_trees: dict, dist: _Dist | None = None,
-             num_workers: int = 0, rays=None, precision: str = "fp32", thresholds=None) -> dict:
+def validate(
+    model,
+    dataset: TorchCompletionDataset,
+    batch_size: int,
+    device,
+    gt_trees: dict,
+    dist: _Dist | None = None,
+    num_workers: int = 0,
+    rays=None,
+    precision: str = "fp32",
+    thresholds=None,
+) -> dict:
     """Validation loss and point metrics of the completions (SA-Net clipped at its default).
 
     Parameters
@@ -238,13 +262,19 @@ def validate(model, dataset: TorchCompletionDataset, batch_size: int, device, gt
         sums = dist.all_sum(sums, device)
     k = len(grid)
     loss_sum, count = sums[0], sums[1]
-    acc_sum, comp_sum, scored = sums[2:2 + k], sums[2 + k:2 + 2 * k], sums[2 + 2 * k:2 + 3 * k]
+    acc_sum, comp_sum, scored = sums[2 : 2 + k], sums[2 + k : 2 + 2 * k], sums[2 + 2 * k : 2 + 3 * k]
     scan = []
     for j in range(k):
         acc = acc_sum[j] / scored[j] if scored[j] else float("nan")
         comp = comp_sum[j] / scored[j] if scored[j] else float("nan")
-        scan.append({"accuracy": acc, "completeness": comp, "chamfer_l1": combine_directions(acc, comp, "mean"),
-                     "empty": int(count - scored[j])})
+        scan.append(
+            {
+                "accuracy": acc,
+                "completeness": comp,
+                "chamfer_l1": combine_directions(acc, comp, "mean"),
+                "empty": int(count - scored[j]),
+            }
+        )
     # The chosen threshold: the lowest CD-L1 (the first on ties); NaN (every completion empty) never wins.
     finite = [j for j in range(k) if math.isfinite(scan[j]["chamfer_l1"])]
     best = min(finite, key=lambda j: scan[j]["chamfer_l1"]) if finite else 0
@@ -267,9 +297,20 @@ def _print_flush(msg: str) -> None:
     print(msg, flush=True)
 
 
-def train(model_name: str, data, out_dir, config=None, overrides: dict | None = None, resume: bool = False,
-          overwrite: bool = False, device=None, progress: bool = True, log=_print_flush, schedule=None,
-          stop_after: int | None = None) -> dict:
+def train(
+    model_name: str,
+    data,
+    out_dir,
+    config=None,
+    overrides: dict | None = None,
+    resume: bool = False,
+    overwrite: bool = False,
+    device=None,
+    progress: bool = True,
+    log=_print_flush,
+    schedule=None,
+    stop_after: int | None = None,
+) -> dict:
     """Train one model on a completion dataset file.
 
     Parameters
@@ -294,8 +335,21 @@ def train(model_name: str, data, out_dir, config=None, overrides: dict | None = 
     """
     dist = _Dist()
     try:
-        return _train(dist, model_name, data, Path(out_dir), config, overrides, resume, overwrite, device, progress, log,
-                      schedule, stop_after)
+        return _train(
+            dist,
+            model_name,
+            data,
+            Path(out_dir),
+            config,
+            overrides,
+            resume,
+            overwrite,
+            device,
+            progress,
+            log,
+            schedule,
+            stop_after,
+        )
     finally:
         dist.close()
 
@@ -369,7 +423,9 @@ def _resolve_config(model_name, out_dir: Path, config, overrides, resume, overwr
     last_path = out_dir / "last.pt"
     if not resume:
         if last_path.exists() and not overwrite:
-            raise SpotlightsError(f"{out_dir}: holds a run already; pass --resume to continue it or --overwrite to start again")
+            raise SpotlightsError(
+                f"{out_dir}: holds a run already; pass --resume to continue it or --overwrite to start again"
+            )
         return load_config(model_name, config, overrides, schedule=schedule), None, False
     if not last_path.exists():
         raise SpotlightsError(f"{last_path}: nothing to resume (no last.pt in the run folder)")
@@ -380,18 +436,25 @@ def _resolve_config(model_name, out_dir: Path, config, overrides, resume, overwr
     if overrides and "train" in overrides and "epochs" in overrides["train"]:
         extended = int(overrides["train"]["epochs"]) != int(cfg["train"]["epochs"])
         cfg["train"]["epochs"] = int(overrides["train"]["epochs"])
-    ignored = [f"{sec}.{key}" for sec, vals in (overrides or {}).items() if isinstance(vals, dict)
-               for key, val in vals.items() if (sec, key) != ("train", "epochs")
-               and cfg.get(sec, {}).get(key) != val]
+    ignored = [
+        f"{sec}.{key}"
+        for sec, vals in (overrides or {}).items()
+        if isinstance(vals, dict)
+        for key, val in vals.items()
+        if (sec, key) != ("train", "epochs") and cfg.get(sec, {}).get(key) != val
+    ]
     ignored += ["--config"] * (config is not None) + ["--schedule"] * (schedule is not None)
     if ignored and dist.main:
-        log(f"warning: resuming keeps the run's own config; ignored: {', '.join(ignored)} "
-            "(only --epochs may change; start a new run with --overwrite to change the rest)")
+        log(
+            f"warning: resuming keeps the run's own config; ignored: {', '.join(ignored)} "
+            "(only --epochs may change; start a new run with --overwrite to change the rest)"
+        )
     return cfg, state, extended
 
 
-def _prepare(dist, model_name, data, out_dir: Path, config, overrides, resume, overwrite, device, log,
-             schedule) -> _Run:
+def _prepare(
+    dist, model_name, data, out_dir: Path, config, overrides, resume, overwrite, device, log, schedule
+) -> _Run:
     """Config, device, precision, datasets, model, optimizer and schedule of a run (restored from
     ``last.pt`` when resuming); writes ``config.yaml`` (rank 0)."""
     from .device import resolve_device, resolve_precision
@@ -401,20 +464,25 @@ def _prepare(dist, model_name, data, out_dir: Path, config, overrides, resume, o
     device = resolve_device(device) if device is not None else default_device()
     if dist.active and device.type == "cuda" and device.index is None:
         device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))  # one GPU per process
-    cfg, state, extended = _resolve_config(model_name, out_dir, config, overrides, resume, overwrite, schedule, dist, log)
+    cfg, state, extended = _resolve_config(
+        model_name, out_dir, config, overrides, resume, overwrite, schedule, dist, log
+    )
     dcfg, tcfg = data_config(cfg), train_config(cfg)
     precision = resolve_precision(tcfg.precision, device)
 
     wants_depths = model_class(model_name).target == "depths"
     rig_sel = dcfg.rig if wants_depths else False
-    train_set = TorchCompletionDataset(data, "train", rig=rig_sel, max_views=dcfg.max_views,
-                                       partials_in_memory=dcfg.partials_in_memory)
-    val_set = TorchCompletionDataset(data, "val", rig=rig_sel, max_views=dcfg.val_max_views,
-                                     partials_in_memory=dcfg.partials_in_memory)
+    train_set = TorchCompletionDataset(
+        data, "train", rig=rig_sel, max_views=dcfg.max_views, partials_in_memory=dcfg.partials_in_memory
+    )
+    val_set = TorchCompletionDataset(
+        data, "val", rig=rig_sel, max_views=dcfg.val_max_views, partials_in_memory=dcfg.partials_in_memory
+    )
     rig = rig_spec(train_set.rig) if wants_depths else None
     if state is not None and wants_depths and rig_spec(state.get("rig")) != rig:
-        raise SpotlightsError(f"{out_dir / 'last.pt'}: was trained on rig {state.get('rig')}, the dataset serves "
-                              f"{rig.to_dict()}")
+        raise SpotlightsError(
+            f"{out_dir / 'last.pt'}: was trained on rig {state.get('rig')}, the dataset serves {rig.to_dict()}"
+        )
     val_rays = None
     if rig is not None and rig.needs_box:
         val_rays = DirectionTable(rig, val_set.extents)  # each validation sample decodes with its model's box
@@ -425,21 +493,45 @@ def _prepare(dist, model_name, data, out_dir: Path, config, overrides, resume, o
     opt = build_optimizer(model.parameters(), tcfg)
     sched = build_scheduler(opt, tcfg)
     scaler = torch.amp.GradScaler(device.type) if precision == "fp16" else None
-    run = _Run(model_name, data, out_dir, cfg, dcfg, tcfg, device, precision, dist, train_set, val_set, rig,
-               val_set.gt_dense(), val_rays, model, model, opt, sched, scaler, model.param_counts(),
-               best={"epoch": None, "select_by": tcfg.select_by, "value": float("inf")})
+    run = _Run(
+        model_name,
+        data,
+        out_dir,
+        cfg,
+        dcfg,
+        tcfg,
+        device,
+        precision,
+        dist,
+        train_set,
+        val_set,
+        rig,
+        val_set.gt_dense(),
+        val_rays,
+        model,
+        model,
+        opt,
+        sched,
+        scaler,
+        model.param_counts(),
+        best={"epoch": None, "select_by": tcfg.select_by, "value": float("inf")},
+    )
     if state is not None:
         _restore(run, state, extended)
         if dist.main:
             log(f"resuming {model_name} from {run.last_path} after epoch {run.start_epoch}")
     if dist.active:
-        run.net = torch.nn.parallel.DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
+        run.net = torch.nn.parallel.DistributedDataParallel(
+            model, device_ids=[device.index] if device.type == "cuda" else None
+        )
     if dist.main:
         out_dir.mkdir(parents=True, exist_ok=True)
         _write_yaml(out_dir / "config.yaml", cfg)
         pc = run.param_counts
-        log(f"{model_name}: {pc['total']:,} parameters (encoder {pc['encoder']:,}, decoder {pc['decoder']:,}); "
-            f"{len(train_set)} train / {len(val_set)} val samples; device {device}; {dist.world} process(es)")
+        log(
+            f"{model_name}: {pc['total']:,} parameters (encoder {pc['encoder']:,}, decoder {pc['decoder']:,}); "
+            f"{len(train_set)} train / {len(val_set)} val samples; device {device}; {dist.world} process(es)"
+        )
         if precision != "fp32":
             log(f"{model_name}: training at {precision} (autocast forward, float32 weights, losses and metrics)")
     return run
@@ -459,7 +551,9 @@ def _restore(run: _Run, state: dict, extended: bool) -> None:
         int(state["epoch"]), int(state["global_step"])
     except (RuntimeError, KeyError, TypeError, ValueError) as exc:
         first = (str(exc).splitlines() or [type(exc).__name__])[0][:160]
-        raise InputFileError(run.last_path, f"cannot resume from this checkpoint ({type(exc).__name__}: {first})") from None
+        raise InputFileError(
+            run.last_path, f"cannot resume from this checkpoint ({type(exc).__name__}: {first})"
+        ) from None
     if extended:  # a new total length: the learning-rate schedule is recomputed from here on
         for group, base, lam in zip(run.opt.param_groups, run.sched.base_lrs, run.sched.lr_lambdas):
             group["lr"] = base * lam(run.sched.last_epoch)
@@ -480,12 +574,19 @@ def _epoch_loader(run: _Run, epoch: int) -> DataLoader:
     else:
         per_epoch = run.steps_per_epoch * bs * dist.world
         perm = torch.tensor(_stream_indices(run.n_train, seed, epoch * per_epoch, per_epoch))
-    indices = perm[dist.rank::dist.world].tolist()
+    indices = perm[dist.rank :: dist.world].tolist()
     workers = run.dcfg.num_workers
-    return DataLoader(run.train_set, batch_size=bs, sampler=indices, num_workers=workers, drop_last=run.drop_last,
-                      collate_fn=_collate, pin_memory=run.device.type == "cuda",
-                      worker_init_fn=_worker_init if workers else None,
-                      generator=torch.Generator().manual_seed(_epoch_seed(seed, epoch)))
+    return DataLoader(
+        run.train_set,
+        batch_size=bs,
+        sampler=indices,
+        num_workers=workers,
+        drop_last=run.drop_last,
+        collate_fn=_collate,
+        pin_memory=run.device.type == "cuda",
+        worker_init_fn=_worker_init if workers else None,
+        generator=torch.Generator().manual_seed(_epoch_seed(seed, epoch)),
+    )
 
 
 def _train_epoch(run: _Run, loader: DataLoader, epoch: int, progress: bool) -> tuple[float, int]:
@@ -499,16 +600,24 @@ def _train_epoch(run: _Run, loader: DataLoader, epoch: int, progress: bool) -> t
     model, tcfg = run.model, run.tcfg
     run.net.train()
     loss_sum, seen = 0.0, 0
-    bar = tqdm(loader, desc=f"{run.model_name} epoch {epoch + 1}/{tcfg.epochs}", unit="batch", leave=False,
-               disable=not (progress and run.dist.main), dynamic_ncols=True)
+    bar = tqdm(
+        loader,
+        desc=f"{run.model_name} epoch {epoch + 1}/{tcfg.epochs}",
+        unit="batch",
+        leave=False,
+        disable=not (progress and run.dist.main),
+        dynamic_ncols=True,
+    )
     for batch in bar:
         batch = _to(batch, run.device)
         with autocast(run.precision, run.device):
             out = run.net(batch["partial"])
         loss, _ = model.loss(_float_outputs(out), batch, run.global_step / run.total_steps)
         if not torch.isfinite(loss):
-            raise SpotlightsError(f"{run.model_name}: the training loss became {float(loss)} at epoch {epoch + 1}, "
-                                  f"step {run.global_step}; lower train.lr or set train.grad_clip")
+            raise SpotlightsError(
+                f"{run.model_name}: the training loss became {float(loss)} at epoch {epoch + 1}, "
+                f"step {run.global_step}; lower train.lr or set train.grad_clip"
+            )
         _step(run, loss)
         run.global_step += 1
         b = batch["partial"].shape[0]
@@ -540,26 +649,53 @@ def _step(run: _Run, loss: torch.Tensor) -> None:
 def _save(run: _Run, epoch: int, val: dict, improved: bool) -> None:
     """Write ``best.pt`` (when improved, first), ``last.pt`` and ``log.csv`` (rank 0)."""
     payload = {
-        "model_name": run.model_name, "config": run.cfg, "rig": None if run.rig is None else run.rig.to_dict(),
-        "model_state": run.model.state_dict(), "optimizer_state": run.opt.state_dict(),
-        "scheduler_state": run.sched.state_dict(), "epoch": epoch + 1, "global_step": run.global_step,
-        "best": run.best, "history": run.history, "param_counts": run.param_counts, "precision": run.precision,
+        "model_name": run.model_name,
+        "config": run.cfg,
+        "rig": None if run.rig is None else run.rig.to_dict(),
+        "model_state": run.model.state_dict(),
+        "optimizer_state": run.opt.state_dict(),
+        "scheduler_state": run.sched.state_dict(),
+        "epoch": epoch + 1,
+        "global_step": run.global_step,
+        "best": run.best,
+        "history": run.history,
+        "param_counts": run.param_counts,
+        "precision": run.precision,
         **({"hit_threshold": _threshold_record(val)} if "val_threshold" in val else {}),
         **({"scaler_state": run.scaler.state_dict()} if run.scaler is not None else {}),
-        "dataset": {"path": str(run.data), "rig": run.train_set.rig_name, "n_train": run.n_train,
-                    "n_val": len(run.val_set)},
+        "dataset": {
+            "path": str(run.data),
+            "rig": run.train_set.rig_name,
+            "n_train": run.n_train,
+            "n_val": len(run.val_set),
+        },
     }
     # best.pt first: a kill between the two writes must not leave a last.pt that names
     # this epoch as best while best.pt still holds an older one.
     if improved:
-        save_checkpoint(run.best_path, {k: v for k, v in payload.items()
-                                        if k not in ("optimizer_state", "scheduler_state", "scaler_state")})
+        save_checkpoint(
+            run.best_path,
+            {k: v for k, v in payload.items() if k not in ("optimizer_state", "scheduler_state", "scaler_state")},
+        )
     save_checkpoint(run.last_path, payload)
     _write_csv(run.out_dir / "log.csv", run.history)
 
 
-def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, overwrite, device, progress, log, schedule,
-           stop_after):
+def _train(
+    dist,
+    model_name,
+    data,
+    out_dir: Path,
+    config,
+    overrides,
+    resume,
+    overwrite,
+    device,
+    progress,
+    log,
+    schedule,
+    stop_after,
+):
     run = _prepare(dist, model_name, data, out_dir, config, overrides, resume, overwrite, device, log, schedule)
     tcfg = run.tcfg
     end_epoch = tcfg.epochs if stop_after is None else min(tcfg.epochs, run.start_epoch + max(int(stop_after), 0))
@@ -570,16 +706,29 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
         lr = run.opt.param_groups[0]["lr"]
         run.sched.step()
         train_sum, train_n = dist.all_sum([loss_sum, float(seen)], run.device)
-        val = validate(run.model, run.val_set, tcfg.batch_size, run.device, run.gt_trees, dist, rays=run.val_rays,
-                       precision=run.precision)
+        val = validate(
+            run.model,
+            run.val_set,
+            tcfg.batch_size,
+            run.device,
+            run.gt_trees,
+            dist,
+            rays=run.val_rays,
+            precision=run.precision,
+        )
         dt = time.perf_counter() - t0
         run.wall += dt
-        row = {"epoch": epoch + 1, "global_step": run.global_step,
-               "samples_seen": run.global_step * tcfg.batch_size * dist.world,
-               "lr": lr, "train_loss": train_sum / max(train_n, 1),
-               **{k: v for k, v in val.items() if k != "val_threshold_scan"},
-               "epoch_seconds": round(dt, 3), "samples_per_second": round(train_n / dt, 2) if dt > 0 else 0.0,
-               "wall_seconds": round(run.wall, 3)}
+        row = {
+            "epoch": epoch + 1,
+            "global_step": run.global_step,
+            "samples_seen": run.global_step * tcfg.batch_size * dist.world,
+            "lr": lr,
+            "train_loss": train_sum / max(train_n, 1),
+            **{k: v for k, v in val.items() if k != "val_threshold_scan"},
+            "epoch_seconds": round(dt, 3),
+            "samples_per_second": round(train_n / dt, 2) if dt > 0 else 0.0,
+            "wall_seconds": round(run.wall, 3),
+        }
         run.history.append(row)
         if "val_threshold" in val:  # hit-aware SA-Net: decode with the threshold chosen on validation
             run.model.threshold = float(val["val_threshold"])
@@ -587,25 +736,42 @@ def _train(dist, model_name, data, out_dir: Path, config, overrides, resume, ove
         # The first epoch always gives a best.pt; later a finite value below the best so far.
         improved = run.best["epoch"] is None or (math.isfinite(value) and not (math.isfinite(prev) and value >= prev))
         if improved:
-            run.best = {"epoch": epoch + 1, "select_by": tcfg.select_by, "value": value, "val_accuracy": val["val_accuracy"]}
+            run.best = {
+                "epoch": epoch + 1,
+                "select_by": tcfg.select_by,
+                "value": value,
+                "val_accuracy": val["val_accuracy"],
+            }
             if "val_threshold" in val:
                 run.best["hit_threshold"] = float(val["val_threshold"])
         if dist.main:
             _save(run, epoch, val, improved)
-            log(f"{model_name} epoch {epoch + 1}/{tcfg.epochs}: train loss {row['train_loss']:.5f}, val loss "
+            log(
+                f"{model_name} epoch {epoch + 1}/{tcfg.epochs}: train loss {row['train_loss']:.5f}, val loss "
                 f"{row['val_loss']:.5f}, val accuracy {row['val_accuracy']:.5f}, completeness {row['val_completeness']:.5f}"
-                + (f" at p(hit) >= {row['val_threshold']:g}" if "val_threshold" in row else "") +
-                f"{' (best)' if improved else ''}, {dt:.1f} s")
+                + (f" at p(hit) >= {row['val_threshold']:g}" if "val_threshold" in row else "")
+                + f"{' (best)' if improved else ''}, {dt:.1f} s"
+            )
         dist.barrier()
-    return {"out_dir": str(out_dir), "last": str(run.last_path), "best": str(run.best_path), "epochs": len(run.history),
-            "history": run.history, "param_counts": run.param_counts}
+    return {
+        "out_dir": str(out_dir),
+        "last": str(run.last_path),
+        "best": str(run.best_path),
+        "epochs": len(run.history),
+        "history": run.history,
+        "param_counts": run.param_counts,
+    }
 
 
 def _threshold_record(val: dict) -> dict:
     """The ``hit_threshold`` entry of a hit-aware SA-Net's checkpoint: the chosen p(hit) threshold and the
     validation scan it was chosen from (CD-L1, accuracy, completeness per grid value)."""
-    return {"value": float(val["val_threshold"]), "chosen_on": "val", "criterion": "min val_chamfer_l1",
-            "scan": val["val_threshold_scan"]}
+    return {
+        "value": float(val["val_threshold"]),
+        "chosen_on": "val",
+        "criterion": "min val_chamfer_l1",
+        "scan": val["val_threshold_scan"],
+    }
 
 
 def _worker_init(worker_id: int) -> None:

@@ -11,12 +11,29 @@ import numpy as np
 from ._figure import new_figure, save_png
 
 # Distinct colours (matplotlib's tab10), in the order the runs are given.
-_COLOURS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf"]
+_COLOURS = [
+    "#1f77b4",
+    "#ff7f0e",
+    "#2ca02c",
+    "#d62728",
+    "#9467bd",
+    "#8c564b",
+    "#e377c2",
+    "#7f7f7f",
+    "#bcbd22",
+    "#17becf",
+]
 
 
-def render_learning_curves(path: str | os.PathLike, curves: Mapping[str, Mapping[str, Sequence[float]]],
-                           metrics: Sequence[tuple[str, str]], x: str, x_label: str, title: str,
-                           log_y: bool = True) -> Path:
+def render_learning_curves(
+    path: str | os.PathLike,
+    curves: Mapping[str, Mapping[str, Sequence[float]]],
+    metrics: Sequence[tuple[str, str]],
+    x: str,
+    x_label: str,
+    title: str,
+    log_y: bool = True,
+) -> Path:
     """One panel per metric, one line per run, written as a PNG.
 
     Parameters

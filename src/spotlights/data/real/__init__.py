@@ -83,8 +83,11 @@ class MultiReader(SceneReader):
         for r in self.readers:
             for key in r.frame_keys():
                 if key in self._owner:
-                    raise InputFileError(r.root, f"frame {key[1]!r} of sequence {key[0]!r} is also in {self._owner[key].root}: "
-                                                 "give the sources different sequence names")
+                    raise InputFileError(
+                        r.root,
+                        f"frame {key[1]!r} of sequence {key[0]!r} is also in {self._owner[key].root}: "
+                        "give the sources different sequence names",
+                    )
                 self._owner[key] = r
 
     def frame_keys(self) -> list[tuple[str, str]]:
@@ -103,4 +106,14 @@ def read_scan(path: str | os.PathLike):
     return _read(path)
 
 
-__all__ = ["CLASSES", "PAPER_CLASSES", "Box", "Frame", "SceneReader", "MultiReader", "FORMATS", "open_reader", "read_scan"]
+__all__ = [
+    "CLASSES",
+    "PAPER_CLASSES",
+    "Box",
+    "Frame",
+    "SceneReader",
+    "MultiReader",
+    "FORMATS",
+    "open_reader",
+    "read_scan",
+]

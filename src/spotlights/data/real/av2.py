@@ -53,8 +53,19 @@ CLASS_MAP: dict[str, str | None] = {
 }
 
 ANNOTATION_COLUMNS = (
-    "timestamp_ns", "track_uuid", "category", "length_m", "width_m", "height_m",
-    "qw", "qx", "qy", "qz", "tx_m", "ty_m", "tz_m",
+    "timestamp_ns",
+    "track_uuid",
+    "category",
+    "length_m",
+    "width_m",
+    "height_m",
+    "qw",
+    "qx",
+    "qy",
+    "qz",
+    "tx_m",
+    "ty_m",
+    "tz_m",
 )
 POSE_COLUMNS = ("timestamp_ns", "qw", "qx", "qy", "qz", "tx_m", "ty_m", "tz_m")
 POSE_TOLERANCE_NS = 50_000_000

@@ -109,5 +109,14 @@ def lookup_class(label: str, table: dict[str, str | None]) -> str | None:
     return table.get(label.strip().lower())
 
 
-__all__ = ["CLASSES", "PAPER_CLASSES", "Box", "Frame", "SceneReader", "lookup_class", "orthonormalize",
-           "quaternion_to_matrix", "rotation_z"]
+__all__ = [
+    "CLASSES",
+    "PAPER_CLASSES",
+    "Box",
+    "Frame",
+    "SceneReader",
+    "lookup_class",
+    "orthonormalize",
+    "quaternion_to_matrix",
+    "rotation_z",
+]

@@ -151,16 +151,28 @@ class Observations:
     def raw(self, i: int) -> np.ndarray:
         """(n_points_raw[i], 3) float32 unit-frame points of observation ``i`` before resampling."""
         if not self.has_raw:
-            raise InputFileError(self.meta.get("file", "observations"), "holds no raw points (format version 1): "
-                                 "extract it again with this spotlights")
-        return self.raw_points[self.raw_offsets[i]:self.raw_offsets[i + 1]]
+            raise InputFileError(
+                self.meta.get("file", "observations"),
+                "holds no raw points (format version 1): extract it again with this spotlights",
+            )
+        return self.raw_points[self.raw_offsets[i] : self.raw_offsets[i + 1]]
 
     def object_keys(self) -> list[tuple[str, str]]:
         """(sequence, track_id) of every observation ("" track ids stay distinct per row)."""
         return [(s, t) if t else (s, f"#{i}") for i, (s, t) in enumerate(zip(self.sequence, self.track_id))]
 
 
-_ARRAYS = ("partial", "n_points_raw", "timestamp", "box_center", "box_size", "box_yaw", "box_rotation", "unit_to_sensor", "sensor_to_world")
+_ARRAYS = (
+    "partial",
+    "n_points_raw",
+    "timestamp",
+    "box_center",
+    "box_size",
+    "box_yaw",
+    "box_rotation",
+    "unit_to_sensor",
+    "sensor_to_world",
+)
 _STRINGS = ("sequence", "frame_id", "track_id", "cls", "label", "scan_path", "label_path")
 
 
@@ -192,8 +204,11 @@ def duplicate_boxes(boxes: list[Box], tol: float = DUPLICATE_TOLERANCE_M) -> set
     c = np.array([b.center for b in boxes], dtype=np.float64)
     z = np.array([b.size for b in boxes], dtype=np.float64)
     r = np.array([b.rotation for b in boxes], dtype=np.float64).reshape(n, 9)
-    same = ((np.abs(c[:, None] - c[None]) <= tol).all(-1) & (np.abs(z[:, None] - z[None]) <= tol).all(-1)
-            & (np.abs(r[:, None] - r[None]) <= 0.01).all(-1))
+    same = (
+        (np.abs(c[:, None] - c[None]) <= tol).all(-1)
+        & (np.abs(z[:, None] - z[None]) <= tol).all(-1)
+        & (np.abs(r[:, None] - r[None]) <= 0.01).all(-1)
+    )
     # Greedy in (track id as text, index) order: a box is a duplicate when it matches a box
     # already kept (the relation is not transitive: a chain of boxes 4 cm apart keeps every
     # other one, never a box farther than the tolerance from every kept box).
@@ -382,9 +397,15 @@ def read_observations(path: str | os.PathLike) -> Observations:
         raise InputFileError(path, f"not an HDF5 file ({str(exc).splitlines()[0]})") from None
     with f:
         if f.attrs.get("format") != FILE_FORMAT:
-            raise InputFileError(path, f"not a real-observation file (format attribute {f.attrs.get('format')!r}, expected {FILE_FORMAT!r}; make one with 'spotlights real extract')")
+            raise InputFileError(
+                path,
+                f"not a real-observation file (format attribute {f.attrs.get('format')!r}, expected {FILE_FORMAT!r}; make one with 'spotlights real extract')",
+            )
         if int(f.attrs.get("format_version", -1)) > FILE_FORMAT_VERSION:
-            raise InputFileError(path, f"format version {int(f.attrs['format_version'])} is newer than this spotlights ({FILE_FORMAT_VERSION})")
+            raise InputFileError(
+                path,
+                f"format version {int(f.attrs['format_version'])} is newer than this spotlights ({FILE_FORMAT_VERSION})",
+            )
         g = f.get("observations")
         missing = [k for k in _ARRAYS + _STRINGS if g is None or k not in g]
         if missing:

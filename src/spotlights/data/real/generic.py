@@ -87,16 +87,28 @@ def _order_sequence(frames: list[dict], source) -> None:
     for f in frames:
         by_seq.setdefault(f["sequence"], []).append(f)
     for seq, fs in by_seq.items():
-        kinds = {("timestamp" if f.get("timestamp") is not None else "frame_index" if f.get("frame_index") is not None else "none")
-                 for f in fs}
+        kinds = {
+            (
+                "timestamp"
+                if f.get("timestamp") is not None
+                else "frame_index"
+                if f.get("frame_index") is not None
+                else "none"
+            )
+            for f in fs
+        }
         if len(kinds) > 1:
             first = next(f for f in fs if f.get("timestamp") is None)
-            raise InputFileError(source, f"sequence {seq!r} mixes frames with and without a timestamp (e.g. frame "
-                                         f"{first['frame_id']!r}); give every frame a timestamp, or every frame a frame_index")
+            raise InputFileError(
+                source,
+                f"sequence {seq!r} mixes frames with and without a timestamp (e.g. frame "
+                f"{first['frame_id']!r}); give every frame a timestamp, or every frame a frame_index",
+            )
         kind = kinds.pop()
         for pos, f in enumerate(fs):
-            f["timestamp"] = (f["timestamp"] if kind == "timestamp" else
-                              int(f["frame_index"]) if kind == "frame_index" else pos)
+            f["timestamp"] = (
+                f["timestamp"] if kind == "timestamp" else int(f["frame_index"]) if kind == "frame_index" else pos
+            )
 
 
 class GenericReader(SceneReader):
@@ -116,7 +128,10 @@ class GenericReader(SceneReader):
             raise InputFileError(source, "not found")
         self.root = str(source if source.is_dir() else source.parent)
         if boxes is not None and (source.is_dir() or source.suffix.lower() == ".json"):
-            raise InputFileError(source, "--boxes applies to a single scan file SOURCE (a folder or sequence JSON names its own box files)")
+            raise InputFileError(
+                source,
+                "--boxes applies to a single scan file SOURCE (a folder or sequence JSON names its own box files)",
+            )
         if source.is_dir():
             frames = self._folder(source)
         elif source.suffix.lower() == ".json":
@@ -124,9 +139,18 @@ class GenericReader(SceneReader):
         else:
             box_path = Path(boxes) if boxes is not None else source.with_name(frame_name(source) + ".json")
             bf = read_json_boxes(box_path)
-            frames = [dict(scan=source, label_path=box_path, frame_id=bf.frame_id or frame_name(source),
-                           timestamp=bf.timestamp, frame_index=bf.frame_index, sequence=bf.sequence or "",
-                           pose=bf.sensor_to_world, boxes=bf.boxes)]
+            frames = [
+                dict(
+                    scan=source,
+                    label_path=box_path,
+                    frame_id=bf.frame_id or frame_name(source),
+                    timestamp=bf.timestamp,
+                    frame_index=bf.frame_index,
+                    sequence=bf.sequence or "",
+                    pose=bf.sensor_to_world,
+                    boxes=bf.boxes,
+                )
+            ]
         if not frames:
             raise InputFileError(source, "no frames")
         keys = [(f["sequence"], f["frame_id"]) for f in frames]
@@ -160,18 +184,31 @@ class GenericReader(SceneReader):
         for p, name in zip(scans, names):
             box_path = folder / f"{name}.json"
             if not box_path.is_file():
-                raise InputFileError(box_path, f"box file of scan {p.name} not found (each scan needs NAME.json beside it)")
+                raise InputFileError(
+                    box_path, f"box file of scan {p.name} not found (each scan needs NAME.json beside it)"
+                )
             bf = read_json_boxes(box_path)
-            frames.append(dict(scan=p, label_path=box_path, frame_id=bf.frame_id or name, timestamp=bf.timestamp,
-                               frame_index=bf.frame_index, sequence=bf.sequence if bf.sequence is not None else folder.name,
-                               pose=bf.sensor_to_world, boxes=bf.boxes))
+            frames.append(
+                dict(
+                    scan=p,
+                    label_path=box_path,
+                    frame_id=bf.frame_id or name,
+                    timestamp=bf.timestamp,
+                    frame_index=bf.frame_index,
+                    sequence=bf.sequence if bf.sequence is not None else folder.name,
+                    pose=bf.sensor_to_world,
+                    boxes=bf.boxes,
+                )
+            )
         return frames
 
     @staticmethod
     def _sequence_json(source: Path) -> list[dict]:
         data = load_json(source)
         if not isinstance(data, dict) or not isinstance(data.get("frames"), list):
-            raise InputFileError(source, 'a sequence file must be {"frames": [...]} (a bare box list needs a scan file as SOURCE)')
+            raise InputFileError(
+                source, 'a sequence file must be {"frames": [...]} (a bare box list needs a scan file as SOURCE)'
+            )
         default_seq = str(data["sequence"]) if data.get("sequence") is not None else ""
         frames = []
         for i, fr in enumerate(data["frames"]):
@@ -186,15 +223,29 @@ class GenericReader(SceneReader):
                 box_path = (source.parent / fr["boxes"]).resolve()
                 bf = read_json_boxes(box_path)
                 boxes, label_path = bf.boxes, box_path
-                for k, v in (("timestamp", bf.timestamp), ("frame_index", bf.frame_index), ("frame_id", bf.frame_id),
-                             ("sequence", bf.sequence), ("sensor_to_world", bf.sensor_to_world)):
+                for k, v in (
+                    ("timestamp", bf.timestamp),
+                    ("frame_index", bf.frame_index),
+                    ("frame_id", bf.frame_id),
+                    ("sequence", bf.sequence),
+                    ("sensor_to_world", bf.sensor_to_world),
+                ):
                     if k not in keys and v is not None:
                         keys[k] = v
             else:
                 boxes, label_path = parse_boxes(fr["boxes"], source, what=f"{what} box"), source
-            frames.append(dict(scan=scan, label_path=label_path, frame_id=keys.get("frame_id", frame_name(scan)),
-                               timestamp=keys.get("timestamp"), frame_index=keys.get("frame_index"),
-                               sequence=keys.get("sequence", default_seq), pose=keys.get("sensor_to_world"), boxes=boxes))
+            frames.append(
+                dict(
+                    scan=scan,
+                    label_path=label_path,
+                    frame_id=keys.get("frame_id", frame_name(scan)),
+                    timestamp=keys.get("timestamp"),
+                    frame_index=keys.get("frame_index"),
+                    sequence=keys.get("sequence", default_seq),
+                    pose=keys.get("sensor_to_world"),
+                    boxes=boxes,
+                )
+            )
         return frames
 
     def frame_keys(self) -> list[tuple[str, str]]:

@@ -71,7 +71,10 @@ def read_calib(path: str | os.PathLike) -> dict[str, np.ndarray]:
             except ValueError:
                 raise InputFileError(path, f"line {lineno}: non-numeric value in {key.strip()!r}") from None
     out = {}
-    for name, aliases, shape in (("R0_rect", ("R0_rect", "R_rect"), (3, 3)), ("Tr_velo_to_cam", ("Tr_velo_to_cam", "Tr_velo_cam"), (3, 4))):
+    for name, aliases, shape in (
+        ("R0_rect", ("R0_rect", "R_rect"), (3, 3)),
+        ("Tr_velo_to_cam", ("Tr_velo_to_cam", "Tr_velo_cam"), (3, 4)),
+    ):
         found = next((values[a] for a in aliases if a in values), None)
         if found is None:
             raise InputFileError(path, f"missing {name} in calibration file")
@@ -94,7 +97,9 @@ def parse_label_line(line: str, path, lineno: int) -> tuple[str, np.ndarray]:
     """Split one ``label_2`` line into (type, 14 float64 values); raises InputFileError if malformed."""
     fields = line.split()
     if len(fields) not in (15, 16):
-        raise InputFileError(path, f"line {lineno}: expected 15 or 16 fields (type, 14 numbers[, score]), got {len(fields)}")
+        raise InputFileError(
+            path, f"line {lineno}: expected 15 or 16 fields (type, 14 numbers[, score]), got {len(fields)}"
+        )
     try:
         nums = np.array([float(v) for v in fields[1:15]], dtype=np.float64)
     except ValueError:
@@ -108,7 +113,7 @@ def box_from_label(kind: str, nums: np.ndarray, t_velo_rect: np.ndarray, track_i
     ``nums`` = truncated, occluded, alpha, x1, y1, x2, y2, h, w, l, x, y, z, rotation_y
     (camera-frame bottom centre); ``t_velo_rect`` from :func:`velo_from_rect`.
     """
-    h, w, l = nums[7:10]
+    h, w, length = nums[7:10]
     x, y, z = nums[10:13]
     ry = nums[13]
     c, s = np.cos(ry), np.sin(ry)
@@ -116,7 +121,7 @@ def box_from_label(kind: str, nums: np.ndarray, t_velo_rect: np.ndarray, track_i
     center_rect = np.array([x, y - h / 2.0, z])  # camera y points down: centre is h/2 above the bottom
     rot = orthonormalize(t_velo_rect[:3, :3] @ axes_rect)
     center = t_velo_rect[:3, :3] @ center_rect + t_velo_rect[:3, 3]
-    return Box(center, np.array([l, w, h], dtype=np.float64), rot, kind, lookup_class(kind, CLASS_MAP), track_id)
+    return Box(center, np.array([length, w, h], dtype=np.float64), rot, kind, lookup_class(kind, CLASS_MAP), track_id)
 
 
 def read_labels(path: str | os.PathLike, t_velo_rect: np.ndarray) -> list[Box]:

@@ -55,21 +55,48 @@ from ...geometry.rotations import orthonormalize
 from .base import Frame, SceneReader, lookup_class
 from .scans import read_kitti_bin
 
-CLASS_MAP: dict[str, str | None] = {"car": "car", "truck": "truck", "caravan": "caravan", "trailer": "trailer", "bus": "bus"}
+CLASS_MAP: dict[str, str | None] = {
+    "car": "car",
+    "truck": "truck",
+    "caravan": "caravan",
+    "trailer": "trailer",
+    "bus": "bus",
+}
 
 #: KITTI-360 ``semanticId`` (the "kittiId" of kitti360scripts' label table) -> label name,
 #: for the instance classes (used when an XML object has no ``label`` element).
 KITTI360_ID_NAMES: dict[int, str] = {
-    11: "building", 12: "garage", 13: "car", 14: "truck", 15: "trailer", 16: "caravan",
-    17: "motorcycle", 18: "bicycle", 19: "person", 20: "rider", 21: "pole", 22: "smallpole",
-    23: "traffic light", 24: "traffic sign", 25: "lamp", 26: "trash bin", 27: "vending machine",
-    28: "box", 29: "stop", 33: "train", 34: "bus", 35: "unknown construction",
-    36: "unknown vehicle", 37: "unknown object",
+    11: "building",
+    12: "garage",
+    13: "car",
+    14: "truck",
+    15: "trailer",
+    16: "caravan",
+    17: "motorcycle",
+    18: "bicycle",
+    19: "person",
+    20: "rider",
+    21: "pole",
+    22: "smallpole",
+    23: "traffic light",
+    24: "traffic sign",
+    25: "lamp",
+    26: "trash bin",
+    27: "vending machine",
+    28: "box",
+    29: "stop",
+    33: "train",
+    34: "bus",
+    35: "unknown construction",
+    36: "unknown vehicle",
+    37: "unknown object",
 }
 
 
 #: Labels of the KITTI-360 "vehicle" category: the only objects read as boxes.
-VEHICLE_LABELS = frozenset({"car", "truck", "bus", "caravan", "trailer", "train", "motorcycle", "bicycle", "unknown vehicle"})
+VEHICLE_LABELS = frozenset(
+    {"car", "truck", "bus", "caravan", "trailer", "train", "motorcycle", "bicycle", "unknown vehicle"}
+)
 
 
 def _matrix(node, path, what: str) -> np.ndarray:
@@ -239,7 +266,12 @@ class Kitti360Reader(SceneReader):
 
     format = "kitti360"
 
-    def __init__(self, root: str | os.PathLike, sequences: list[str] | None = None, frames: tuple[int, int | None, int] | None = None):
+    def __init__(
+        self,
+        root: str | os.PathLike,
+        sequences: list[str] | None = None,
+        frames: tuple[int, int | None, int] | None = None,
+    ):
         root = Path(root)
         if not root.is_dir():
             raise InputFileError(root, "not a folder")
@@ -247,9 +279,13 @@ class Kitti360Reader(SceneReader):
         if not raw.is_dir():
             raise InputFileError(root, "not a KITTI-360 folder: no data_3d_raw/ inside")
         if sequences is None:
-            sequences = sorted(p.name for p in raw.iterdir() if (p / "velodyne_points" / "data").is_dir() and _bbox_xml(root, p.name))
+            sequences = sorted(
+                p.name for p in raw.iterdir() if (p / "velodyne_points" / "data").is_dir() and _bbox_xml(root, p.name)
+            )
             if not sequences:
-                raise InputFileError(root, "no sequence has both data_3d_raw/<seq>/velodyne_points/data and data_3d_bboxes/*/<seq>.xml")
+                raise InputFileError(
+                    root, "no sequence has both data_3d_raw/<seq>/velodyne_points/data and data_3d_bboxes/*/<seq>.xml"
+                )
         calib = root / "calibration"
         cam_to_pose = _read_rigid(calib / "calib_cam_to_pose.txt", "image_00")
         cam_to_velo = _read_rigid(calib / "calib_cam_to_velo.txt", None)
@@ -299,7 +335,16 @@ class Kitti360Reader(SceneReader):
         for o in objs:
             center = velo_T_world[:3, :3] @ o["center"] + velo_T_world[:3, 3]
             rot, size = vehicle_axes(velo_T_world[:3, :3] @ o["rotation"], o["size"])
-            boxes.append(Box(center, size, rot, o["label"], lookup_class(o["label"], CLASS_MAP), f"{o['semantic_id']}-{o['instance_id']}"))
+            boxes.append(
+                Box(
+                    center,
+                    size,
+                    rot,
+                    o["label"],
+                    lookup_class(o["label"], CLASS_MAP),
+                    f"{o['semantic_id']}-{o['instance_id']}",
+                )
+            )
         return Frame(
             sequence=seq,
             frame_id=stem,

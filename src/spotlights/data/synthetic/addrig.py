@@ -53,15 +53,21 @@ def model_depths(cfg: BuildConfig, entry, stored: dict, m: int, rig) -> np.ndarr
     model = load_model(root, entry, source_scale(cfg, entry))
     want = stored["sha256"][m]
     if want and model.entry.sha256 != want:
-        raise InputFileError(root / entry.file, f"differs from the mesh the dataset was built from (SHA-256 "
-                                                f"{model.entry.sha256[:12]}..., the dataset recorded {want[:12]}...)")
+        raise InputFileError(
+            root / entry.file,
+            f"differs from the mesh the dataset was built from (SHA-256 "
+            f"{model.entry.sha256[:12]}..., the dataset recorded {want[:12]}...)",
+        )
     if stored["augment"][m]:
         model = apply_augment(model, replace(model.entry, augment=json.loads(stored["augment"][m])))
     mesh = trimesh.Trimesh(model.vertices, model.faces, process=False, validate=False)
     norm = normalization_from_mesh(mesh)
     if not (np.array_equal(norm.center, stored["center"][m]) and float(norm.radius) == float(stored["radius"][m])):
-        raise InputFileError(root / entry.file, "normalises differently from the dataset's /models/center and "
-                                                "/models/radius (other --scale/--up/--forward?)")
+        raise InputFileError(
+            root / entry.file,
+            "normalises differently from the dataset's /models/center and "
+            "/models/radius (other --scale/--up/--forward?)",
+        )
     return MeshProbe(mesh, norm).encode(rig)
 
 
@@ -71,9 +77,17 @@ def _add_rig_unit(m: int) -> tuple[int, np.ndarray]:
     return m, model_depths(job["cfg"], job["entries"][m], job["stored"], m, job["rig"])
 
 
-def add_rig(path: str | os.PathLike, rig: str | Rig | RigSpec, meshes: str | os.PathLike | None = None,
-            workers: int | None = None, progress: bool = True, log: Callable[[str], None] | None = None,
-            backend: str = "local", ray_address: str | None = None, retries: int = DEFAULT_RETRIES) -> AddRigReport:
+def add_rig(
+    path: str | os.PathLike,
+    rig: str | Rig | RigSpec,
+    meshes: str | os.PathLike | None = None,
+    workers: int | None = None,
+    progress: bool = True,
+    log: Callable[[str], None] | None = None,
+    backend: str = "local",
+    ray_address: str | None = None,
+    retries: int = DEFAULT_RETRIES,
+) -> AddRigReport:
     """Add the ground-truth depths of one more rig to an existing dataset file, without rebuilding it.
 
     The depths are exactly those a build with ``--rig RIG`` would have stored: every model's
@@ -117,13 +131,15 @@ def add_rig(path: str | os.PathLike, rig: str | Rig | RigSpec, meshes: str | os.
     open_dataset(path).close()  # a missing or foreign file fails before a lock file is made beside it
     # Two add-rig runs on one file would each copy it and rename their copy onto it: the last
     # rename would drop the other's rig. A lock beside the file makes the second one fail.
-    with exclusive_lock(path.with_name(f".{path.name}.lock"), f"{path}: another 'dataset add-rig' is rewriting this file right now"):
-        return _add_rig_locked(path, rig, meshes, workers, progress, log or default_log, backend, ray_address,
-                               retries)
+    with exclusive_lock(
+        path.with_name(f".{path.name}.lock"), f"{path}: another 'dataset add-rig' is rewriting this file right now"
+    ):
+        return _add_rig_locked(path, rig, meshes, workers, progress, log or default_log, backend, ray_address, retries)
 
 
-def _add_rig_locked(path: Path, rig, meshes, workers, progress, log, backend="local", ray_address=None,
-                    retries=DEFAULT_RETRIES) -> AddRigReport:
+def _add_rig_locked(
+    path: Path, rig, meshes, workers, progress, log, backend="local", ray_address=None, retries=DEFAULT_RETRIES
+) -> AddRigReport:
     """:func:`add_rig` once the file's lock is held."""
     t0 = time.perf_counter()
     want_json = json.loads(json.dumps(rig.to_dict()))
@@ -136,13 +152,22 @@ def _add_rig_locked(path: Path, rig, meshes, workers, progress, log, backend="lo
             if present[k] and json.loads(ds.handle(k)[f"rigs/{rig.name}"].attrs["rig_json"]) != want_json:
                 raise InputFileError(shards[k], f"holds a different rig under the name {rig.name}")
         if all(present):
-            return AddRigReport(str(path), rig.name, ds.n_models, rig.n_rays, float("nan"), already_present=True,
-                                file_size=ds.info()["file_size_bytes"])
+            return AddRigReport(
+                str(path),
+                rig.name,
+                ds.n_models,
+                rig.n_rays,
+                float("nan"),
+                already_present=True,
+                file_size=ds.info()["file_size_bytes"],
+            )
         stored = {
             "names": [str(x) for x in ds.names],
             "sha256": [x.decode() if isinstance(x, bytes) else str(x) for x in ds.models_array("sha256")]
-            if ds.has("models/sha256") else [""] * ds.n_models,
-            "center": np.asarray(ds.center, dtype=np.float64), "radius": np.asarray(ds.radius, dtype=np.float64),
+            if ds.has("models/sha256")
+            else [""] * ds.n_models,
+            "center": np.asarray(ds.center, dtype=np.float64),
+            "radius": np.asarray(ds.radius, dtype=np.float64),
             "origin": [str(x) for x in ds.origins] if ds.origins is not None else [""] * ds.n_models,
             "augment": [str(x) for x in ds.augments] if ds.augments is not None else [""] * ds.n_models,
         }
@@ -153,8 +178,10 @@ def _add_rig_locked(path: Path, rig, meshes, workers, progress, log, backend="lo
         meshes = [meshes] if isinstance(meshes, (str, os.PathLike)) else list(meshes)
         if cfg.sources:
             if len(meshes) != len(cfg.sources):
-                raise ParameterError(f"{path} was built from {len(cfg.sources)} mesh folders "
-                                     f"({', '.join(s['name'] for s in cfg.sources)}): give --meshes once for each, in order")
+                raise ParameterError(
+                    f"{path} was built from {len(cfg.sources)} mesh folders "
+                    f"({', '.join(s['name'] for s in cfg.sources)}): give --meshes once for each, in order"
+                )
             cfg.sources = [{**s, "path": str(p)} for s, p in zip(cfg.sources, meshes)]
         elif len(meshes) != 1:
             raise ParameterError(f"{path} was built from one mesh folder: give --meshes once")
@@ -168,8 +195,11 @@ def _add_rig_locked(path: Path, rig, meshes, workers, progress, log, backend="lo
     missing = [n for n in wanted if n not in by_name]
     if missing:
         where = ", ".join(s.path for s in cfg.mesh_sources())
-        raise InputFileError(where, f"has no mesh for {len(missing)} of the dataset's models (first: {missing[0]}); "
-                                    "pass the meshes folder the dataset was built from (--meshes)")
+        raise InputFileError(
+            where,
+            f"has no mesh for {len(missing)} of the dataset's models (first: {missing[0]}); "
+            "pass the meshes folder the dataset was built from (--meshes)",
+        )
     entries = [by_name[n] for n in wanted]
     n = len(stored["names"])
     depths = np.zeros((n, rig.n_rays), dtype=np.float32)
@@ -177,8 +207,9 @@ def _add_rig_locked(path: Path, rig, meshes, workers, progress, log, backend="lo
     try:
         if check_backend(backend) == "ray":
             with ray_session(ray_address, workers) as ray:
-                RayBuild(ray, workers if ray_address else None, retries).add_rig_depths(cfg, entries, stored, rig,
-                                                                                        depths, bar)
+                RayBuild(ray, workers if ray_address else None, retries).add_rig_depths(
+                    cfg, entries, stored, rig, depths, bar
+                )
         else:
             state = {"entries": entries, "stored": stored, "cfg": cfg, "rig": rig}
             workers = max(1, min(int(workers or os.cpu_count() or 1), n))
@@ -197,10 +228,18 @@ def _add_rig_locked(path: Path, rig, meshes, workers, progress, log, backend="lo
         with atomic_output(shard, suffix=".h5") as tmp:
             shutil.copyfile(shard, tmp)
             with h5py.File(tmp, "r+") as f:
-                write_rig_group(f.require_group("rigs"), rig, depths[offsets[k]:offsets[k + 1]])
+                write_rig_group(f.require_group("rigs"), rig, depths[offsets[k] : offsets[k + 1]])
                 f.attrs["config_json"] = json.dumps(cfg_dict, sort_keys=True)
     hit = float(np.mean(depths > 0))
     with open_dataset(path) as ds:
         size = ds.info()["file_size_bytes"]
-    return AddRigReport(str(path), rig.name, n, rig.n_rays, hit, seconds_depths=t1 - t0,
-                        seconds_write=time.perf_counter() - t1, file_size=size)
+    return AddRigReport(
+        str(path),
+        rig.name,
+        n,
+        rig.n_rays,
+        hit,
+        seconds_depths=t1 - t0,
+        seconds_write=time.perf_counter() - t1,
+        file_size=size,
+    )

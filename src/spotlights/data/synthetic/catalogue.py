@@ -66,8 +66,9 @@ def model_key(name: str) -> int:
     return int.from_bytes(hashlib.sha256(name.encode("utf-8")).digest()[:8], "little") >> 1
 
 
-def discover_models(folder: str | os.PathLike, manifest: str | os.PathLike | None = None, up: str = "z",
-                    forward: str = "x") -> tuple[list[ModelEntry], list[dict]]:
+def discover_models(
+    folder: str | os.PathLike, manifest: str | os.PathLike | None = None, up: str = "z", forward: str = "x"
+) -> tuple[list[ModelEntry], list[dict]]:
     """Find the meshes of a dataset and their categories.
 
     With a manifest (``manifest`` or ``FOLDER/manifest.csv``): its rows, columns ``file``
@@ -116,20 +117,37 @@ def discover_models(folder: str | os.PathLike, manifest: str | os.PathLike | Non
             if not p.is_file():
                 problems.append({"file": rel, "problem": "listed in the manifest but missing"})
                 continue
-            entries.append(ModelEntry(name=str(Path(rel).with_suffix("").as_posix()), file=Path(rel).as_posix(),
-                                      category=cat, up=(row.get("up") or "").strip() or up,
-                                      forward=(row.get("forward") or "").strip() or forward, split=split, scale=scale))
+            entries.append(
+                ModelEntry(
+                    name=str(Path(rel).with_suffix("").as_posix()),
+                    file=Path(rel).as_posix(),
+                    category=cat,
+                    up=(row.get("up") or "").strip() or up,
+                    forward=(row.get("forward") or "").strip() or forward,
+                    split=split,
+                    scale=scale,
+                )
+            )
     else:
-        files = sorted(p for p in root.rglob("*") if p.is_file() and p.suffix.lower() in MESH_SUFFIXES
-                       and not any(part.startswith(".") for part in p.relative_to(root).parts))
+        files = sorted(
+            p
+            for p in root.rglob("*")
+            if p.is_file()
+            and p.suffix.lower() in MESH_SUFFIXES
+            and not any(part.startswith(".") for part in p.relative_to(root).parts)
+        )
         for p in files:
             rel = p.relative_to(root)
             cat = rel.parts[0] if len(rel.parts) > 1 else root.name
-            entries.append(ModelEntry(name=rel.with_suffix("").as_posix(), file=rel.as_posix(), category=cat,
-                                      up=up, forward=forward))
+            entries.append(
+                ModelEntry(
+                    name=rel.with_suffix("").as_posix(), file=rel.as_posix(), category=cat, up=up, forward=forward
+                )
+            )
     if not entries and not problems:
-        raise InputFileError(root, f"no mesh files ({' '.join(MESH_SUFFIXES)}) found" +
-                             (f" from manifest {man}" if man else ""))
+        raise InputFileError(
+            root, f"no mesh files ({' '.join(MESH_SUFFIXES)}) found" + (f" from manifest {man}" if man else "")
+        )
     names = [e.name for e in entries]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
@@ -172,8 +190,9 @@ def load_model(root: Path, entry: ModelEntry, scale: float = 1.0) -> LoadedModel
     return LoadedModel(entry=entry, vertices=v, faces=f)
 
 
-def assign_splits(categories: list[str], spec: str, seed: int, stratify: bool = True,
-                  fixed: list[str | None] | None = None) -> list[str]:
+def assign_splits(
+    categories: list[str], spec: str, seed: int, stratify: bool = True, fixed: list[str | None] | None = None
+) -> list[str]:
     """Assign every model to train/val/test.
 
     Parameters
@@ -230,12 +249,12 @@ def assign_splits(categories: list[str], spec: str, seed: int, stratify: bool = 
     return out
 
 
-
 # ----------------------------------------------------------------------------------------------
 # augmented copies (extra models)
 # ----------------------------------------------------------------------------------------------
-def augment_mesh(vertices: np.ndarray, faces: np.ndarray, scale=(1.0, 1.0, 1.0),
-                 mirror: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def augment_mesh(
+    vertices: np.ndarray, faces: np.ndarray, scale=(1.0, 1.0, 1.0), mirror: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
     """An augmented copy of a mesh in its object frame (x forward, y left, z up, metres).
 
     vertices : (V, 3) float64; faces : (F, 3) int64.
@@ -279,8 +298,9 @@ def draw_scale_factors(size: np.ndarray, aug: dict, rng: np.random.Generator, tr
         f = np.exp(rng.uniform(np.log(lo), np.log(hi)))
         d = size * f
         lw, lh = d[0] / d[1], d[0] / d[2]
-        bad = (max(0.0, aug["length_width"][0] - lw, lw - aug["length_width"][1])
-               + max(0.0, aug["length_height"][0] - lh, lh - aug["length_height"][1]))
+        bad = max(0.0, aug["length_width"][0] - lw, lw - aug["length_width"][1]) + max(
+            0.0, aug["length_height"][0] - lh, lh - aug["length_height"][1]
+        )
         if bad == 0.0:
             return f
         if bad < best_bad:
@@ -304,14 +324,17 @@ def augment_entries(entry: ModelEntry, size: np.ndarray, aug: dict, seed: int) -
     if aug["mirror"]:
         variants.append(("mirror", [1.0, 1.0, 1.0], True))
     for k in range(1, aug["copies"] + 1):
-        rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(model_key(entry.name),
-                                                                                 STREAM_AUGMENT, k)))
+        rng = np.random.default_rng(
+            np.random.SeedSequence(int(seed), spawn_key=(model_key(entry.name), STREAM_AUGMENT, k))
+        )
         f = [float(x) for x in draw_scale_factors(size, aug, rng)]
         variants.append((f"s{k}", f, False))
         if aug["mirror"]:
             variants.append((f"s{k}-mirror", f, True))
-    return [replace(entry, name=f"{entry.name}~{tag}", origin=entry.name, augment={"scale": f, "mirror": mirror})
-            for tag, f, mirror in variants]
+    return [
+        replace(entry, name=f"{entry.name}~{tag}", origin=entry.name, augment={"scale": f, "mirror": mirror})
+        for tag, f, mirror in variants
+    ]
 
 
 def augmented_copies(model: LoadedModel, aug: dict, seed: int) -> list[LoadedModel]:
@@ -383,8 +406,9 @@ def assign_model_splits(entries: list[ModelEntry], cfg) -> list[str]:
                 out[i] = entries[i].split
             continue
         if any(s is not None for s in fixed):
-            raise ParameterError("the manifest gives a split for some models but not all" +
-                                 (f" (source {src.name})" if src.name else ""))
+            raise ParameterError(
+                "the manifest gives a split for some models but not all" + (f" (source {src.name})" if src.name else "")
+            )
         rest = []
         for i in idx:
             held = cfg.category_split.get(entries[i].category)
@@ -447,7 +471,11 @@ def build_catalogue(cfg, log=None, progress: bool = False, loader=None) -> tuple
         for s in skipped:
             log(f"warning: skipping {_skipped_path(cfg, s['file'])}: {s['problem']}")
     if not models:
-        root = cfg.mesh_sources()[0].path if len(cfg.mesh_sources()) == 1 else ", ".join(s.path for s in cfg.mesh_sources())
+        root = (
+            cfg.mesh_sources()[0].path
+            if len(cfg.mesh_sources()) == 1
+            else ", ".join(s.path for s in cfg.mesh_sources())
+        )
         raise InputFileError(root, f"none of the {len(entries) + len(skipped)} meshes could be read")
     splits = assign_model_splits([m.entry for m in models], cfg)
     for m, s in zip(models, splits):

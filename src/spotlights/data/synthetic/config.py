@@ -47,11 +47,15 @@ def parse_rig(spec: str | Rig | RigSpec) -> Rig | RigSpec:
     s = str(spec).strip().lower()
     if s.startswith("box-"):
         return RigSpec.from_name(s)
-    m = re.fullmatch(r"(\d+)x(\d+)(?:@(\d+(?:\.\d*)?|\.\d+))?", s) or re.fullmatch(r"cap-(\d+)x(\d+)-(\d+(?:\.\d*)?)", s)
+    m = re.fullmatch(r"(\d+)x(\d+)(?:@(\d+(?:\.\d*)?|\.\d+))?", s) or re.fullmatch(
+        r"cap-(\d+)x(\d+)-(\d+(?:\.\d*)?)", s
+    )
     if not m:
-        raise ParameterError(f"rig {spec!r} not understood; write NxM or NxM@DEG, e.g. 64x32@60 (N viewpoints, "
-                             "M rays each, cap half-angle in degrees, default 60), or a rig name such as "
-                             "cap-32x64-60 or box-32x64-ellipsoid-s1 (box-targeted, docs/box-rig.md)")
+        raise ParameterError(
+            f"rig {spec!r} not understood; write NxM or NxM@DEG, e.g. 64x32@60 (N viewpoints, "
+            "M rays each, cap half-angle in degrees, default 60), or a rig name such as "
+            "cap-32x64-60 or box-32x64-ellipsoid-s1 (box-targeted, docs/box-rig.md)"
+        )
     return make_rig(int(m.group(1)), int(m.group(2)), angle=float(m.group(3)) if m.group(3) else 60.0)
 
 
@@ -274,8 +278,10 @@ class BuildConfig:
         self.sources = [self._check_source(s) for s in self.sources]
         names = [s["name"] for s in self.sources]
         if len(set(names)) != len(names):
-            raise ParameterError(f"two mesh sources share the name {sorted(n for n in names if names.count(n) > 1)[0]!r};"
-                                 " give one a name=... ")
+            raise ParameterError(
+                f"two mesh sources share the name {sorted(n for n in names if names.count(n) > 1)[0]!r};"
+                " give one a name=... "
+            )
         if self.sources:
             self.meshes = self.sources[0]["path"]
         if not self.meshes:
@@ -298,9 +304,15 @@ class BuildConfig:
         d = parse_source(src) if isinstance(src, str) else dict(src)
         unknown = sorted(set(d) - {"path", *SOURCE_KEYS})
         if unknown or not d.get("path"):
-            raise ParameterError(f"mesh source {src!r}: needs a path" + (f", unknown keys {unknown}" if unknown else ""))
-        out = {"path": str(d["path"]), "manifest": d.get("manifest") or None, "up": str(d.get("up") or self.up),
-               "forward": str(d.get("forward") or self.forward)}
+            raise ParameterError(
+                f"mesh source {src!r}: needs a path" + (f", unknown keys {unknown}" if unknown else "")
+            )
+        out = {
+            "path": str(d["path"]),
+            "manifest": d.get("manifest") or None,
+            "up": str(d.get("up") or self.up),
+            "forward": str(d.get("forward") or self.forward),
+        }
         try:
             out["scale"] = float(d["scale"]) if d.get("scale") not in (None, "") else float(self.scale)
         except ValueError:
@@ -352,4 +364,3 @@ class BuildConfig:
         """Rebuild and validate a config from :meth:`to_dict` output (unknown keys ignored)."""
         cfg = cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
         return cfg.validate()
-

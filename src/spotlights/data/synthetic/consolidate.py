@@ -52,22 +52,46 @@ def read_part(parts: Path, unit: tuple, recompute: Callable[[tuple], None] | Non
             return {k: z[k] for k in z.files}
 
 
-ATTR_ORDER = ("format", "format_version", "spotlights_version", "config_json", "seed", "sensor_json", "default_rig",
-              "views_per_model", "skipped_json")
+ATTR_ORDER = (
+    "format",
+    "format_version",
+    "spotlights_version",
+    "config_json",
+    "seed",
+    "sensor_json",
+    "default_rig",
+    "views_per_model",
+    "skipped_json",
+)
 
 
 def root_attrs(cfg: BuildConfig, skipped: list) -> dict:
     """The root attributes of a dataset file of this build."""
     return {
-        "format": FORMAT, "format_version": FORMAT_VERSION, "spotlights_version": __version__,
-        "config_json": json.dumps(cfg.to_dict(), sort_keys=True), "seed": int(cfg.seed),
-        "sensor_json": json.dumps(cfg.sensor, sort_keys=True), "default_rig": cfg.rigs[0].name,
-        "views_per_model": int(cfg.views), "skipped_json": json.dumps(skipped, sort_keys=True),
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "spotlights_version": __version__,
+        "config_json": json.dumps(cfg.to_dict(), sort_keys=True),
+        "seed": int(cfg.seed),
+        "sensor_json": json.dumps(cfg.sensor, sort_keys=True),
+        "default_rig": cfg.rigs[0].name,
+        "views_per_model": int(cfg.views),
+        "skipped_json": json.dumps(skipped, sort_keys=True),
     }
 
 
-def write_output_file(path: Path, cfg: BuildConfig, entries: list, rows: range, parts: Path, units: list,
-                      skipped: list, extra_attrs: dict | None = None, recompute=None, progress: bool = False) -> None:
+def write_output_file(
+    path: Path,
+    cfg: BuildConfig,
+    entries: list,
+    rows: range,
+    parts: Path,
+    units: list,
+    skipped: list,
+    extra_attrs: dict | None = None,
+    recompute=None,
+    progress: bool = False,
+) -> None:
     """Write the models ``rows`` (global rows, consecutive) of a build into one dataset file ``path``
     (under a temporary name, renamed when complete).
 
@@ -81,11 +105,15 @@ def write_output_file(path: Path, cfg: BuildConfig, entries: list, rows: range, 
     rigs = cfg.rigs
     gts = [read_part(parts, ("gt", m), recompute) for m in rows]
     model_arrays = {
-        "name": [e.name for e in sel], "file": [e.file for e in sel],
-        "sha256": [e.sha256 for e in sel], "category": [e.category for e in sel],
+        "name": [e.name for e in sel],
+        "file": [e.file for e in sel],
+        "sha256": [e.sha256 for e in sel],
+        "category": [e.category for e in sel],
         "split": [e.split for e in sel],
-        "gt_points": np.stack([g["gt_points"] for g in gts]), "gt_dense": np.stack([g["gt_dense"] for g in gts]),
-        "center": np.stack([g["center"] for g in gts]), "radius": np.array([float(g["radius"]) for g in gts]),
+        "gt_points": np.stack([g["gt_points"] for g in gts]),
+        "gt_dense": np.stack([g["gt_dense"] for g in gts]),
+        "center": np.stack([g["center"] for g in gts]),
+        "radius": np.array([float(g["radius"]) for g in gts]),
         "size": np.stack([g["size"] for g in gts]),
     }
     if cfg.sources:
@@ -99,8 +127,13 @@ def write_output_file(path: Path, cfg: BuildConfig, entries: list, rows: range, 
     attrs = {**root_attrs(cfg, skipped), **(extra_attrs or {})}
 
     def blocks():
-        bar = tqdm(total=len(rows) * cfg.views, desc="write " + path.name, unit="sample", disable=not progress,
-                   dynamic_ncols=True)
+        bar = tqdm(
+            total=len(rows) * cfg.views,
+            desc="write " + path.name,
+            unit="sample",
+            disable=not progress,
+            dynamic_ncols=True,
+        )
         try:
             for u in obs_units:
                 a = read_part(parts, u, recompute)
@@ -115,8 +148,15 @@ def write_output_file(path: Path, cfg: BuildConfig, entries: list, rows: range, 
             bar.close()
 
     with atomic_output(path, suffix=".h5") as tmp:
-        write_dataset(tmp, attrs=attrs, models=model_arrays, rigs=rig_arrays, n_points=cfg.n_points,
-                      views_per_model=cfg.views, sample_blocks=blocks())
+        write_dataset(
+            tmp,
+            attrs=attrs,
+            models=model_arrays,
+            rigs=rig_arrays,
+            n_points=cfg.n_points,
+            views_per_model=cfg.views,
+            sample_blocks=blocks(),
+        )
 
 
 # ----------------------------------------------------------------------------------------------
@@ -132,8 +172,11 @@ def shard_groups(n_models: int, views: int, shard_size: int) -> list[range]:
 def check_index_path(out: Path) -> None:
     """A sharded dataset's ``--out`` is its index: a ``.json`` name."""
     if out.suffix.lower() != ".json":
-        raise InputFileError(out, "with --shard-size the output is the shard index: name it NAME.json (the shards "
-                                  "are written beside it as NAME-00000-of-0000N.h5)")
+        raise InputFileError(
+            out,
+            "with --shard-size the output is the shard index: name it NAME.json (the shards "
+            "are written beside it as NAME-00000-of-0000N.h5)",
+        )
 
 
 def write_build_index(index: Path, shards: list[Path], counts: list[tuple[int, int]], cfg: BuildConfig) -> None:
@@ -145,9 +188,19 @@ def shard_jobs(index: Path, cfg: BuildConfig, n_models: int, shard_size: int) ->
     """The shards of a build: ``[{"path", "rows", "attrs"}]`` (attrs: the shard's position)."""
     groups = shard_groups(n_models, cfg.views, shard_size)
     paths = shard_paths(index, len(groups))
-    return [{"path": p, "rows": g, "attrs": {"shard_index": k, "shard_count": len(groups),
-                                              "shard_model_offset": g.start, "shard_sample_offset": g.start * cfg.views}}
-            for k, (p, g) in enumerate(zip(paths, groups))]
+    return [
+        {
+            "path": p,
+            "rows": g,
+            "attrs": {
+                "shard_index": k,
+                "shard_count": len(groups),
+                "shard_model_offset": g.start,
+                "shard_sample_offset": g.start * cfg.views,
+            },
+        }
+        for k, (p, g) in enumerate(zip(paths, groups))
+    ]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -181,13 +234,16 @@ def merge_shards(index: str | Path, out: str | Path, progress: bool = True, over
             rigs.append((spec if spec.needs_box else spec.for_box(None), ds.rig_depths(name)))
         # the attributes in the order a build writes them (creation order shapes the file's bytes)
         first = [k for k in ATTR_ORDER if k in ds.attrs]
-        attrs = {k: ds.attrs[k] for k in first + sorted(k for k in ds.attrs if k not in first and not k.startswith("shard_"))}
+        attrs = {
+            k: ds.attrs[k] for k in first + sorted(k for k in ds.attrs if k not in first and not k.startswith("shard_"))
+        }
         views = ds.views_per_model
         fields = ["partial", *SAMPLE_FIELDS]
 
         def blocks():
-            bar = tqdm(total=ds.n_samples, desc="merge " + out.name, unit="sample", disable=not progress,
-                       dynamic_ncols=True)
+            bar = tqdm(
+                total=ds.n_samples, desc="merge " + out.name, unit="sample", disable=not progress, dynamic_ncols=True
+            )
             try:
                 for k in range(len(ds.shards)):
                     s = ds.handle(k)["samples"]
@@ -206,10 +262,22 @@ def merge_shards(index: str | Path, out: str | Path, progress: bool = True, over
         order = _rig_order(ds)
         rigs = [rigs[sorted(ds.rig_names).index(name)] for name in order]
         with atomic_output(out, suffix=".h5") as tmp:
-            write_dataset(tmp, attrs=attrs, models=model_arrays, rigs=rigs, n_points=ds.partial(0).shape[0],
-                          views_per_model=views, sample_blocks=blocks())
-        return {"out": str(out), "n_models": n, "n_samples": ds.n_samples, "n_shards": len(ds.shards),
-                "file_size": out.stat().st_size}
+            write_dataset(
+                tmp,
+                attrs=attrs,
+                models=model_arrays,
+                rigs=rigs,
+                n_points=ds.partial(0).shape[0],
+                views_per_model=views,
+                sample_blocks=blocks(),
+            )
+        return {
+            "out": str(out),
+            "n_models": n,
+            "n_samples": ds.n_samples,
+            "n_shards": len(ds.shards),
+            "file_size": out.stat().st_size,
+        }
 
 
 def _rig_order(ds) -> list[str]:

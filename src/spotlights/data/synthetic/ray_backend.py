@@ -75,8 +75,10 @@ def _cfg(cfg_dict: dict) -> BuildConfig:
 
 def _check_version(version: str) -> None:
     if version != __version__:
-        raise SpotlightsError(f"spotlights {__version__} on Ray node {os.uname().nodename}, the driver runs {version}: "
-                              "install the same version on every node (the bytes of a dataset depend on it)")
+        raise SpotlightsError(
+            f"spotlights {__version__} on Ray node {os.uname().nodename}, the driver runs {version}: "
+            "install the same version on every node (the bytes of a dataset depend on it)"
+        )
 
 
 def _load_task(entry: ModelEntry, root: str, scale: float, version: str):
@@ -100,8 +102,10 @@ def _unit_task(unit: tuple, origin: LoadedModel, entry: ModelEntry, cfg_dict: di
         _check_version(version)
         parts_dir = Path(parts)
         if not parts_dir.is_dir():
-            raise SpotlightsError(f"{parts}: the build's parts folder is not visible on Ray node {os.uname().nodename}; "
-                                  "the output must be on a filesystem every node mounts at the same path")
+            raise SpotlightsError(
+                f"{parts}: the build's parts folder is not visible on Ray node {os.uname().nodename}; "
+                "the output must be on a filesystem every node mounts at the same path"
+            )
         model = apply_augment(origin, entry) if entry.augment else LoadedModel(entry, origin.vertices, origin.faces)
         arrays = compute_unit(unit, model, _cfg(cfg_dict), _SIMS)
         save_npz_atomic(parts_dir / part_name(unit), arrays)
@@ -110,8 +114,17 @@ def _unit_task(unit: tuple, origin: LoadedModel, entry: ModelEntry, cfg_dict: di
     return ("ok", unit, time.perf_counter() - t0, os.uname().nodename)
 
 
-def _shard_task(path: str, cfg_dict: dict, entries: list, rows: tuple, parts: str, units: list, skipped: list,
-                attrs: dict, version: str):
+def _shard_task(
+    path: str,
+    cfg_dict: dict,
+    entries: list,
+    rows: tuple,
+    parts: str,
+    units: list,
+    skipped: list,
+    attrs: dict,
+    version: str,
+):
     """Write one shard file from the parts (no recomputation: an unreadable part is reported)."""
     try:
         _check_version(version)
@@ -162,8 +175,9 @@ class RayBuild:
         self._add_rig = ray.remote(**opts)(_add_rig_task)
 
     def _fail(self, what: str, exc: BaseException):
-        raise SpotlightsError(f"{what} failed on the Ray cluster after {self.retries + 1} attempts: "
-                              f"{error_reason(exc)}") from None
+        raise SpotlightsError(
+            f"{what} failed on the Ray cluster after {self.retries + 1} attempts: {error_reason(exc)}"
+        ) from None
 
     def _stream(self, submit, items, describe, on_done, bar=None):
         """Submit ``submit(item)`` for every item with at most ``in_flight`` pending; call
@@ -204,8 +218,9 @@ class RayBuild:
         object store; ``[(RemoteModel or None, problem or None)]`` in entry order."""
         out: list = [(None, "not loaded")] * len(entries)
         model_refs: dict = {}
-        bar = tqdm(total=len(entries), desc="load meshes", unit="mesh", disable=not progress or len(entries) < 20,
-                   leave=False)
+        bar = tqdm(
+            total=len(entries), desc="load meshes", unit="mesh", disable=not progress or len(entries) < 20, leave=False
+        )
 
         def submit(i):
             e = entries[i]
@@ -237,8 +252,9 @@ class RayBuild:
             left[u[1]] = left.get(u[1], 0) + 1
         n_obs = sum(u[3] - u[2] for u in pending if u[0] == "obs")
         n_gt = sum(1 for u in pending if u[0] == "gt")
-        bar = tqdm(total=n_obs, desc="build (ray)", unit="sample", disable=not progress, smoothing=0.05,
-                   dynamic_ncols=True)
+        bar = tqdm(
+            total=n_obs, desc="build (ray)", unit="sample", disable=not progress, smoothing=0.05, dynamic_ncols=True
+        )
         done_gt = 0
 
         def submit(u):
@@ -257,23 +273,48 @@ class RayBuild:
                 bar.update(u[3] - u[2])
 
         try:
-            self._stream(submit, pending, lambda u: f"{models[u[1]].entry.file}: {describe_unit(u)} of model "
-                                                    f"{models[u[1]].entry.name}", done)
+            self._stream(
+                submit,
+                pending,
+                lambda u: f"{models[u[1]].entry.file}: {describe_unit(u)} of model {models[u[1]].entry.name}",
+                done,
+            )
         finally:
             bar.close()
 
     # --- shards ---------------------------------------------------------------------------
-    def write_shards(self, jobs: list[dict], cfg: BuildConfig, entries: list, parts: Path, units: list,
-                     skipped: list, progress: bool = True) -> None:
+    def write_shards(
+        self,
+        jobs: list[dict],
+        cfg: BuildConfig,
+        entries: list,
+        parts: Path,
+        units: list,
+        skipped: list,
+        progress: bool = True,
+    ) -> None:
         """Write the shard files of a sharded dataset, one Ray task each."""
         cfg_ref = self.ray.put(cfg.to_dict())
         entries_ref = self.ray.put(entries)
         units_ref = self.ray.put(units)
         bar = tqdm(total=len(jobs), desc="write shards (ray)", unit="shard", disable=not progress, dynamic_ncols=True)
         try:
-            self._stream(lambda j: self._shard.remote(str(j["path"]), cfg_ref, entries_ref, (j["rows"].start, j["rows"].stop),
-                                                       str(parts), units_ref, skipped, j["attrs"], __version__),
-                         jobs, lambda j: f"{j['path']}: writing the shard", lambda j, r: bar.update(1))
+            self._stream(
+                lambda j: self._shard.remote(
+                    str(j["path"]),
+                    cfg_ref,
+                    entries_ref,
+                    (j["rows"].start, j["rows"].stop),
+                    str(parts),
+                    units_ref,
+                    skipped,
+                    j["attrs"],
+                    __version__,
+                ),
+                jobs,
+                lambda j: f"{j['path']}: writing the shard",
+                lambda j, r: bar.update(1),
+            )
         finally:
             bar.close()
 
@@ -288,6 +329,9 @@ class RayBuild:
             depths[m] = res[1]
             bar.update(1)
 
-        self._stream(lambda m: self._add_rig.remote(m, entries[m], cfg_ref, stored_ref, rig_dict, __version__),
-                     range(len(entries)), lambda m: f"{entries[m].file}: depths of model {stored['names'][m]}", done)
-
+        self._stream(
+            lambda m: self._add_rig.remote(m, entries[m], cfg_ref, stored_ref, rig_dict, __version__),
+            range(len(entries)),
+            lambda m: f"{entries[m].file}: depths of model {stored['names'][m]}",
+            done,
+        )

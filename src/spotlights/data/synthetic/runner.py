@@ -109,10 +109,21 @@ def default_log(msg: str) -> None:
     tqdm.write(msg, file=sys.stderr)
 
 
-def build_dataset(cfg: BuildConfig, out: str | os.PathLike, workers: int | None = None, overwrite: bool = False,
-                  resume: bool = False, block: int | None = None, keep_parts: bool = False, progress: bool = True,
-                  log: Callable[[str], None] | None = None, backend: str = "local", ray_address: str | None = None,
-                  shard_size: int | None = None, retries: int = DEFAULT_RETRIES) -> BuildReport:
+def build_dataset(
+    cfg: BuildConfig,
+    out: str | os.PathLike,
+    workers: int | None = None,
+    overwrite: bool = False,
+    resume: bool = False,
+    block: int | None = None,
+    keep_parts: bool = False,
+    progress: bool = True,
+    log: Callable[[str], None] | None = None,
+    backend: str = "local",
+    ray_address: str | None = None,
+    shard_size: int | None = None,
+    retries: int = DEFAULT_RETRIES,
+) -> BuildReport:
     """Build (or finish) a completion dataset: one HDF5 file, or HDF5 shards and their index.
 
     Parameters
@@ -158,28 +169,41 @@ def build_dataset(cfg: BuildConfig, out: str | os.PathLike, workers: int | None 
         with open_dataset(out) as ds:
             if BuildConfig.from_dict(ds.config).to_dict() != cfg.to_dict():
                 raise InputFileError(out, "exists and was built with a different configuration; pass --overwrite")
-            return BuildReport(str(out), ds.n_models, ds.n_samples, 0, 0, 0, [], already_complete=True,
-                               file_size=ds.info()["file_size_bytes"])
+            return BuildReport(
+                str(out),
+                ds.n_models,
+                ds.n_samples,
+                0,
+                0,
+                0,
+                [],
+                already_complete=True,
+                file_size=ds.info()["file_size_bytes"],
+            )
     workers = max(1, int(workers or os.cpu_count() or 1)) if backend == "local" or not ray_address else workers
     if backend == "local" and workers > 1:
         check_can_start_processes()  # an unguarded script fails here, before anything is written
 
-    with (ray_session(ray_address, workers) if backend == "ray" else contextlib.nullcontext()) as ray:
+    with ray_session(ray_address, workers) if backend == "ray" else contextlib.nullcontext() as ray:
         runner = RayBuild(ray, workers if ray_address else None, retries) if backend == "ray" else None
         models, skipped = build_catalogue(cfg, log, progress, loader=runner.loader if runner else None)
         n_models, views = len(models), cfg.views
         block = int(block or max(1, min(250, math.ceil(views / 8))))
         plan = {
-            "plan_version": PLAN_VERSION, "config": cfg.to_dict(),
-            "models": [m.entry.plan_dict() for m in models], "skipped": skipped,
+            "plan_version": PLAN_VERSION,
+            "config": cfg.to_dict(),
+            "models": [m.entry.plan_dict() for m in models],
+            "skipped": skipped,
         }
 
         # --- the parts folder: new, resumed, or refused ----------------------------------
         if overwrite and parts.exists():
             shutil.rmtree(parts)
         # two builds never write the same parts
-        with _parts_folder(parts), exclusive_lock(parts / ".lock", f"{parts}: another build is writing this dataset "
-                                                                   "right now"):
+        with (
+            _parts_folder(parts),
+            exclusive_lock(parts / ".lock", f"{parts}: another build is writing this dataset right now"),
+        ):
             block = _check_plan(parts, plan, block)
             for stale in parts.glob(".*.part*"):  # temporaries of a killed run
                 stale.unlink(missing_ok=True)
@@ -198,28 +222,48 @@ def build_dataset(cfg: BuildConfig, out: str | os.PathLike, workers: int | None 
             entries = [m.entry for m in models]
             recompute = (lambda unit: _recompute(unit, state)) if runner is None else None
             if shard_size is None:
-                write_output_file(out, cfg, entries, range(n_models), parts, units, skipped, recompute=recompute,
-                                  progress=progress)
+                write_output_file(
+                    out, cfg, entries, range(n_models), parts, units, skipped, recompute=recompute, progress=progress
+                )
             else:
                 jobs = shard_jobs(out, cfg, n_models, int(shard_size))
                 if runner is not None:
                     runner.write_shards(jobs, cfg, entries, parts, units, skipped, progress)
                 else:
                     for j in jobs:
-                        write_output_file(j["path"], cfg, entries, j["rows"], parts, units, skipped, j["attrs"],
-                                          recompute=recompute, progress=progress)
-                write_build_index(out, [j["path"] for j in jobs], [(len(j["rows"]), len(j["rows"]) * views) for j in jobs],
-                            cfg)
+                        write_output_file(
+                            j["path"],
+                            cfg,
+                            entries,
+                            j["rows"],
+                            parts,
+                            units,
+                            skipped,
+                            j["attrs"],
+                            recompute=recompute,
+                            progress=progress,
+                        )
+                write_build_index(
+                    out, [j["path"] for j in jobs], [(len(j["rows"]), len(j["rows"]) * views) for j in jobs], cfg
+                )
             t_end = time.perf_counter()
     if not keep_parts:
         shutil.rmtree(parts, ignore_errors=True)
     with open_dataset(out) as ds:
         size = ds.info()["file_size_bytes"] if shard_size is not None else out.stat().st_size
     return BuildReport(
-        out=str(out), n_models=n_models, n_samples=n_models * views, units_total=len(units),
-        units_done_before=done_before, units_computed=len(pending), skipped=skipped,
-        seconds_units=t_cons - t_units, seconds_consolidate=t_end - t_cons, seconds_total=t_end - t_start,
-        file_size=size)
+        out=str(out),
+        n_models=n_models,
+        n_samples=n_models * views,
+        units_total=len(units),
+        units_done_before=done_before,
+        units_computed=len(pending),
+        skipped=skipped,
+        seconds_units=t_cons - t_units,
+        seconds_consolidate=t_end - t_cons,
+        seconds_total=t_end - t_start,
+        file_size=size,
+    )
 
 
 @contextlib.contextmanager
@@ -250,11 +294,17 @@ def _check_plan(parts: Path, plan: dict, block: int) -> int:
             raise InputFileError(plan_path, "unreadable build plan; pass --overwrite to start again") from None
         old_block = old.pop("block", block)
         if old != plan:
-            diff = sorted(k for k in set(old.get("config", {})) | set(plan["config"])
-                          if old.get("config", {}).get(k) != plan["config"].get(k))
+            diff = sorted(
+                k
+                for k in set(old.get("config", {})) | set(plan["config"])
+                if old.get("config", {}).get(k) != plan["config"].get(k)
+            )
             what = f"options differ: {', '.join(diff)}" if diff else "the meshes differ"
-            raise InputFileError(parts, f"holds an unfinished build with another plan ({what}); pass --overwrite "
-                                        "to discard it, or rerun with the original options")
+            raise InputFileError(
+                parts,
+                f"holds an unfinished build with another plan ({what}); pass --overwrite "
+                "to discard it, or rerun with the original options",
+            )
         return int(old_block)
     with atomic_output(plan_path, suffix=".json") as tmp:
         tmp.write_text(json.dumps({**plan, "block": block}, indent=1, sort_keys=True))
@@ -301,5 +351,6 @@ def map_units(fn, items: list, state: dict, workers: int):
         for item in items:
             yield fn(item)
         return
-    yield from process_map(fn, items, workers, initializer=init_worker, initargs=(state, True), ordered=False,
-                           what="work unit")
+    yield from process_map(
+        fn, items, workers, initializer=init_worker, initargs=(state, True), ordered=False, what="work unit"
+    )

@@ -48,13 +48,16 @@ def model_ground_truth(model: LoadedModel, cfg: BuildConfig) -> dict:
     return {
         "gt_points": norm.to_unit(pts).astype(np.float32),
         "gt_dense": norm.to_unit(dense).astype(np.float32),
-        "center": norm.center, "radius": np.float64(norm.radius), "size": norm.size,
+        "center": norm.center,
+        "radius": np.float64(norm.radius),
+        "size": norm.size,
         "depths": [probe.encode(r) for r in cfg.rigs],
     }
 
 
-def simulate_views(sim: LidarSimulator, model: LoadedModel, cfg: BuildConfig, views: range,
-                   timings: dict | None = None) -> dict:
+def simulate_views(
+    sim: LidarSimulator, model: LoadedModel, cfg: BuildConfig, views: range, timings: dict | None = None
+) -> dict:
     """Partial observations ``views`` of one model.
 
     Each view: draw a pose (distance uniform in ``cfg.distance`` but at least the footprint's half
@@ -74,9 +77,11 @@ def simulate_views(sim: LidarSimulator, model: LoadedModel, cfg: BuildConfig, vi
     dmin = max(cfg.distance[0], sim.footprint_radius + SENSOR_CLEARANCE)
     dmax = cfg.distance[1]
     if dmin >= dmax:
-        raise SpotlightsError(f"{model.entry.file}: the mesh is too large ({sim.size[0]:.1f} x {sim.size[1]:.1f} m "
-                              f"footprint) for the distance range {cfg.distance[0]:g}-{dmax:g} m; is it in metres? "
-                              "(see --scale)")
+        raise SpotlightsError(
+            f"{model.entry.file}: the mesh is too large ({sim.size[0]:.1f} x {sim.size[1]:.1f} m "
+            f"footprint) for the distance range {cfg.distance[0]:g}-{dmax:g} m; is it in metres? "
+            "(see --scale)"
+        )
     center, radius = sim.center, 0.5 * float(np.linalg.norm(sim.size))
     heights = cfg.mount_height_range
     for j, v in enumerate(views):
@@ -86,8 +91,12 @@ def simulate_views(sim: LidarSimulator, model: LoadedModel, cfg: BuildConfig, vi
         h = None if heights is None else float(unit_rng(cfg.seed, name, STREAM_MOUNT_HEIGHT, int(v)).uniform(*heights))
         t0 = time.perf_counter()
         for draw in range(1, cfg.max_draws + 1):  # noqa: B007 (draw is read after the loop)
-            pose = VehiclePose(distance=float(rng.uniform(dmin, dmax)), azimuth=float(rng.uniform(-np.pi, np.pi)),
-                               heading=float(rng.uniform(-np.pi, np.pi)), mount_height=h)
+            pose = VehiclePose(
+                distance=float(rng.uniform(dmin, dmax)),
+                azimuth=float(rng.uniform(-np.pi, np.pi)),
+                heading=float(rng.uniform(-np.pi, np.pi)),
+                mount_height=h,
+            )
             scan = sim.scan(pose, rng, timings)
             if len(scan.points) >= cfg.min_points:
                 break
@@ -95,7 +104,8 @@ def simulate_views(sim: LidarSimulator, model: LoadedModel, cfg: BuildConfig, vi
             raise SpotlightsError(
                 f"{model.entry.file}: view {v}: no pose out of {cfg.max_draws} gave {cfg.min_points} LiDAR returns "
                 f"(last: {len(scan.points)}); the mesh may be too small or not in metres (see --scale), or lower "
-                "--min-points")
+                "--min-points"
+            )
         t1 = time.perf_counter()
         pts = resample(scan.points, cfg.n_points, rng, method=cfg.downsample)
         out["partial"][j] = (pts - center) / radius
@@ -114,7 +124,6 @@ def simulate_views(sim: LidarSimulator, model: LoadedModel, cfg: BuildConfig, vi
             timings["draws"] = timings.get("draws", 0) + draw
             timings["pose_loop"] = timings.get("pose_loop", 0.0) + (t1 - t0)
     return out
-
 
 
 def compute_unit(unit: tuple, model: LoadedModel, cfg: BuildConfig, sims: dict | None = None) -> dict:

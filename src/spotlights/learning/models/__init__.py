@@ -33,7 +33,14 @@ MODEL_NAMES = tuple(MODEL_REGISTRY)
 SCHEDULE_FALLBACK = {"sanet-hit": "sanet"}
 """A schedule without a section for a model uses the section of the model named here (a variant trains
 like its parent unless the schedule says otherwise)."""
-DISPLAY_NAMES = {"sanet": "SA-Net", "sanet-hit": "SA-Net (hit-aware)", "pcn": "PCN", "foldingnet": "FoldingNet", "topnet": "TopNet", "atlasnet": "AtlasNet"}
+DISPLAY_NAMES = {
+    "sanet": "SA-Net",
+    "sanet-hit": "SA-Net (hit-aware)",
+    "pcn": "PCN",
+    "foldingnet": "FoldingNet",
+    "topnet": "TopNet",
+    "atlasnet": "AtlasNet",
+}
 
 
 def check_model_name(name: str) -> str:
@@ -95,7 +102,9 @@ def schedule_path(schedule) -> Path:
     packaged = Path(str(resources.files("spotlights.learning") / "configs" / "schedules" / f"{schedule}.yaml"))
     if not packaged.is_file():
         names = sorted(q.stem for q in packaged.parent.glob("*.yaml"))
-        raise ParameterError(f"unknown schedule {schedule!r}; packaged schedules: {', '.join(names)} (or give a YAML file)")
+        raise ParameterError(
+            f"unknown schedule {schedule!r}; packaged schedules: {', '.join(names)} (or give a YAML file)"
+        )
     return packaged
 
 
@@ -106,7 +115,9 @@ def load_schedule(schedule, name: str) -> dict:
     data = _read_yaml(p)
     unknown = set(data) - {"default", *MODEL_NAMES, "description"}
     if unknown:
-        raise InputFileError(p, f"unknown schedule section(s) {', '.join(sorted(unknown))} (expected default or model names)")
+        raise InputFileError(
+            p, f"unknown schedule section(s) {', '.join(sorted(unknown))} (expected default or model names)"
+        )
     from ..config import check_keys
 
     for sec in ("default", *MODEL_NAMES):

@@ -28,9 +28,16 @@ class AtlasNet(CompletionModel):
     name = "atlasnet"
     target = "points"
 
-    def __init__(self, code_size: int = 1024, encoder_widths: Sequence[int] = (128, 256, 512),
-                 n_patches: int = 4, patch_grid: Sequence[int] = (16, 32),
-                 batch_norm: bool = True, chamfer: str = "l1", chamfer_method: str = "auto"):
+    def __init__(
+        self,
+        code_size: int = 1024,
+        encoder_widths: Sequence[int] = (128, 256, 512),
+        n_patches: int = 4,
+        patch_grid: Sequence[int] = (16, 32),
+        batch_norm: bool = True,
+        chamfer: str = "l1",
+        chamfer_method: str = "auto",
+    ):
         super().__init__()
         self.n_patches = int(n_patches)
         rows, cols = int(patch_grid[0]), int(patch_grid[1])
@@ -39,7 +46,9 @@ class AtlasNet(CompletionModel):
         self.chamfer, self.chamfer_method = chamfer, chamfer_method
         self.encoder = PCNEncoder(code_size, encoder_widths)
         b = code_size + 2
-        self.patches = nn.ModuleList(MLP([b, b, b // 2, b // 4, 3], batch_norm=batch_norm) for _ in range(self.n_patches))
+        self.patches = nn.ModuleList(
+            MLP([b, b, b // 2, b // 4, 3], batch_norm=batch_norm) for _ in range(self.n_patches)
+        )
         # Regular grid in [0, 1]^2 (cell centres), used at evaluation.
         g = regular_grid(rows, cols, 0.5 - 0.5 / rows, 0.5 - 0.5 / cols) + 0.5
         self.register_buffer("grid", g, persistent=False)

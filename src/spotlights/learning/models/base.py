@@ -66,7 +66,7 @@ class MLP(nn.Module):
         x = None
         start = 0
         for p, c in zip(parts, sizes):
-            y = torch.nn.functional.linear(p, lin.weight[:, start:start + c])
+            y = torch.nn.functional.linear(p, lin.weight[:, start : start + c])
             x = y if x is None else x + y
             start += c
         x = x + lin.bias
@@ -150,8 +150,9 @@ class CompletionModel(nn.Module):
     needs_box: bool = False
     """True when decoding needs each sample's box (SA-Net on a box-targeted rig): pass ``directions``."""
 
-    def outputs_to_points(self, outputs: dict[str, torch.Tensor], clip=CLIP_DEFAULT,
-                          directions: torch.Tensor | None = None) -> list[torch.Tensor]:
+    def outputs_to_points(
+        self, outputs: dict[str, torch.Tensor], clip=CLIP_DEFAULT, directions: torch.Tensor | None = None
+    ) -> list[torch.Tensor]:
         """Completed clouds from :meth:`forward` outputs: list of B tensors (K_b, 3) float32, unit frame.
 
         ``clip`` and ``directions`` only matter for SA-Net (depth threshold, ``None`` keeps
@@ -161,7 +162,9 @@ class CompletionModel(nn.Module):
         return list(outputs["points"].detach().float().unbind(0))
 
     @torch.no_grad()
-    def complete(self, partial: torch.Tensor, clip=CLIP_DEFAULT, directions: torch.Tensor | None = None) -> list[torch.Tensor]:
+    def complete(
+        self, partial: torch.Tensor, clip=CLIP_DEFAULT, directions: torch.Tensor | None = None
+    ) -> list[torch.Tensor]:
         """partial (B, K, 3) unit frame -> list of B completed clouds (K_b, 3) float32, unit frame.
 
         ``directions``: see :meth:`outputs_to_points` (box-targeted SA-Net only)."""

@@ -28,9 +28,16 @@ class FoldingNet(CompletionModel):
     name = "foldingnet"
     target = "points"
 
-    def __init__(self, code_size: int = 1024, encoder_widths: Sequence[int] = (128, 256, 512),
-                 grid: Sequence[int] = (32, 64), grid_scale: float = 0.3,
-                 hidden: Sequence[int] = (512, 512), chamfer: str = "l1", chamfer_method: str = "auto"):
+    def __init__(
+        self,
+        code_size: int = 1024,
+        encoder_widths: Sequence[int] = (128, 256, 512),
+        grid: Sequence[int] = (32, 64),
+        grid_scale: float = 0.3,
+        hidden: Sequence[int] = (512, 512),
+        chamfer: str = "l1",
+        chamfer_method: str = "auto",
+    ):
         super().__init__()
         rows, cols = int(grid[0]), int(grid[1])
         self.n_points = rows * cols

@@ -34,11 +34,19 @@ class PCN(CompletionModel):
     name = "pcn"
     target = "points"
 
-    def __init__(self, code_size: int = 1024, encoder_widths: Sequence[int] = (128, 256, 512),
-                 num_coarse: int = 512, grid_size: int = 2, grid_scale: float = 0.05,
-                 coarse_hidden: Sequence[int] = (1024, 1024), folding_hidden: Sequence[int] = (512, 512),
-                 chamfer: str = "l1", chamfer_method: str = "auto",
-                 alpha_schedule: Sequence[Sequence[float]] = DEFAULT_ALPHA_SCHEDULE):
+    def __init__(
+        self,
+        code_size: int = 1024,
+        encoder_widths: Sequence[int] = (128, 256, 512),
+        num_coarse: int = 512,
+        grid_size: int = 2,
+        grid_scale: float = 0.05,
+        coarse_hidden: Sequence[int] = (1024, 1024),
+        folding_hidden: Sequence[int] = (512, 512),
+        chamfer: str = "l1",
+        chamfer_method: str = "auto",
+        alpha_schedule: Sequence[Sequence[float]] = DEFAULT_ALPHA_SCHEDULE,
+    ):
         super().__init__()
         self.num_coarse = int(num_coarse)
         self.grid_size = int(grid_size)
@@ -48,7 +56,9 @@ class PCN(CompletionModel):
         self.encoder = PCNEncoder(code_size, encoder_widths)
         self.coarse_mlp = MLP([code_size, *coarse_hidden, self.num_coarse * 3])
         self.folding = MLP([2 + 3 + code_size, *folding_hidden, 3])
-        self.register_buffer("grid", regular_grid(self.grid_size, self.grid_size, grid_scale, grid_scale), persistent=False)
+        self.register_buffer(
+            "grid", regular_grid(self.grid_size, self.grid_size, grid_scale, grid_scale), persistent=False
+        )
 
     def forward(self, partial: torch.Tensor) -> dict[str, torch.Tensor]:
         code = self.encoder(partial)

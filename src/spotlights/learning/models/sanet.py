@@ -51,9 +51,15 @@ class SANet(CompletionModel):
     outputs_per_ray = 1
     """Decoder outputs per ray (the hit-aware variant has two: a hit logit and a depth)."""
 
-    def __init__(self, rig, code_size: int = 1024, encoder_widths: Sequence[int] = (128, 256, 512),
-                 hidden: Sequence[int] = (256, 256),
-                 output_activation: str = "none", clip: float | None = 0.2):
+    def __init__(
+        self,
+        rig,
+        code_size: int = 1024,
+        encoder_widths: Sequence[int] = (128, 256, 512),
+        hidden: Sequence[int] = (256, 256),
+        output_activation: str = "none",
+        clip: float | None = 0.2,
+    ):
         super().__init__()
         from ..rays import rig_rays, rig_spec
 
@@ -69,8 +75,9 @@ class SANet(CompletionModel):
         self.decoder = MLP([code_size, *hidden, self.outputs_per_ray * self.rig.n_rays])
         origins, directions = rig_rays(self.rig)
         self.register_buffer("origins", torch.from_numpy(origins), persistent=False)
-        self.register_buffer("directions", None if directions is None else torch.from_numpy(directions),
-                             persistent=False)
+        self.register_buffer(
+            "directions", None if directions is None else torch.from_numpy(directions), persistent=False
+        )
 
     def forward(self, partial: torch.Tensor) -> dict[str, torch.Tensor]:
         d = self.decoder(self.encoder(partial))
@@ -84,8 +91,13 @@ class SANet(CompletionModel):
         loss = depth_l1(outputs["depths"], batch["depths"])
         return loss, {"l1": float(loss.detach())}
 
-    def decode(self, depths: torch.Tensor, clip=CLIP_DEFAULT, directions: torch.Tensor | None = None,
-               keep: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def decode(
+        self,
+        depths: torch.Tensor,
+        clip=CLIP_DEFAULT,
+        directions: torch.Tensor | None = None,
+        keep: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Depths (B, N*M) -> points (B, N*M, 3) float32 unit frame and kept mask (B, N*M) bool.
 
         Same convention as ``spotlights.geometry.encode.decode``: a ray is kept when
@@ -113,15 +125,23 @@ class SANet(CompletionModel):
         """
         if directions is None:
             if self.directions is None:
-                raise ValueError(f"SA-Net regresses the box-targeted rig {self.rig.name}: decoding needs each sample's "
-                                 "ray directions (B, N*M, 3), e.g. spotlights.learning.rays.directions_for_extents")
+                raise ValueError(
+                    f"SA-Net regresses the box-targeted rig {self.rig.name}: decoding needs each sample's "
+                    "ray directions (B, N*M, 3), e.g. spotlights.learning.rays.directions_for_extents"
+                )
             directions = self.directions
-        elif directions.shape[-2:] != (self.rig.n_rays, 3) or (directions.dim() == 3 and directions.shape[0] != depths.shape[0]):
-            raise ValueError(f"directions of shape {tuple(directions.shape)} do not fit depths of shape {tuple(depths.shape)}")
+        elif directions.shape[-2:] != (self.rig.n_rays, 3) or (
+            directions.dim() == 3 and directions.shape[0] != depths.shape[0]
+        ):
+            raise ValueError(
+                f"directions of shape {tuple(directions.shape)} do not fit depths of shape {tuple(depths.shape)}"
+            )
         half_chord = (-(self.origins * directions).sum(-1)).clamp(min=0.0)
         d = torch.minimum(depths.clamp(min=0.0), half_chord)
         return self.origins + (2.0 * d).unsqueeze(-1) * directions
 
-    def outputs_to_points(self, outputs, clip=CLIP_DEFAULT, directions: torch.Tensor | None = None) -> list[torch.Tensor]:
+    def outputs_to_points(
+        self, outputs, clip=CLIP_DEFAULT, directions: torch.Tensor | None = None
+    ) -> list[torch.Tensor]:
         pts, mask = self.decode(outputs["depths"].detach().float(), clip, directions)
         return [p[m] for p, m in zip(pts, mask)]

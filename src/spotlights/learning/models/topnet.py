@@ -32,10 +32,17 @@ class TopNet(CompletionModel):
     name = "topnet"
     target = "points"
 
-    def __init__(self, code_size: int = 1024, encoder_widths: Sequence[int] = (128, 256, 512),
-                 degrees: Sequence[int] = (2, 4, 4, 4, 4, 4), node_features: int = 8,
-                 root_hidden: Sequence[int] = (256, 64), batch_norm: bool = True,
-                 chamfer: str = "l1", chamfer_method: str = "auto"):
+    def __init__(
+        self,
+        code_size: int = 1024,
+        encoder_widths: Sequence[int] = (128, 256, 512),
+        degrees: Sequence[int] = (2, 4, 4, 4, 4, 4),
+        node_features: int = 8,
+        root_hidden: Sequence[int] = (256, 64),
+        batch_norm: bool = True,
+        chamfer: str = "l1",
+        chamfer_method: str = "auto",
+    ):
         super().__init__()
         self.degrees = [int(d) for d in degrees]
         if len(self.degrees) < 2:
