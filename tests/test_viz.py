@@ -217,6 +217,77 @@ def test_view_kinds_and_errors(tmp_path):
     assert not (tmp_path / "x.html").exists()
 
 
+def test_view_serve_answers_the_page_over_loopback(tmp_path):
+    """'view --serve --port 0': the URL and the 'ssh -L' line are printed, the page is fetched over
+    loopback with urllib (the same self-contained page as --out), other paths are 404, and Ctrl-C
+    (SIGINT) stops the server with exit code 0; every step is bounded in time."""
+    pytest.importorskip("plotly")
+    import queue
+    import re
+    import signal
+    import threading
+    import urllib.error
+    import urllib.request
+
+    scan = REPO / "src" / "spotlights" / "assets" / "demo_scan.pcd"
+    env = dict(os.environ, PYTHONPATH=str(REPO / "src"), PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "spotlights", "view", str(scan), "--serve", "--port", "0"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        cwd=tmp_path,
+    )
+    lines: queue.Queue = queue.Queue()
+    threading.Thread(target=lambda: [lines.put(ln) for ln in proc.stdout], daemon=True).start()
+    try:
+        seen, url = [], None
+        while url is None:
+            line = lines.get(timeout=120)  # building the page: a few seconds
+            seen.append(line)
+            m = re.search(r"http://127\.0\.0\.1:(\d+)/", line)
+            if m:
+                url, port = m.group(0), int(m.group(1))
+        ssh = lines.get(timeout=10)
+        assert f"ssh -L {port}:localhost:{port} user@host" in ssh, seen + [ssh]
+        with urllib.request.urlopen(url, timeout=30) as resp:
+            assert resp.status == 200 and resp.headers["Content-Type"].startswith("text/html")
+            text = resp.read().decode("utf-8")
+        assert "Plotly.newPlot" in text and len(text) > 3_000_000
+        assert re.findall(r"<script[^>]*\bsrc\s*=", text, flags=re.I) == []  # self-contained
+        with pytest.raises(urllib.error.HTTPError) as err:
+            urllib.request.urlopen(url + "other.js", timeout=30)
+        assert err.value.code == 404
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=30) == 0, proc.stderr.read()
+        assert "Traceback" not in proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=30)
+    assert list(tmp_path.iterdir()) == []  # --serve without --out writes no file
+
+
+def test_view_serve_options(tmp_path):
+    """--port/--host need --serve; a busy port is a one-line error; loopback detection."""
+    pytest.importorskip("plotly")
+    import socket
+
+    from spotlights.viz import serve
+
+    scan = REPO / "src" / "spotlights" / "assets" / "demo_scan.pcd"
+    proc = run_cli("view", scan, "--port", "8123", "--out", tmp_path / "v.html")
+    assert proc.returncode == 2 and "--serve" in proc.stderr and not (tmp_path / "v.html").exists()
+    assert serve.is_loopback("127.0.0.1") and serve.is_loopback("::1") and serve.is_loopback("localhost")
+    assert not serve.is_loopback("0.0.0.0") and not serve.is_loopback("192.168.1.20")
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        with pytest.raises(serve.SpotlightsError, match="choose another --port"):
+            serve.make_server(b"x", "127.0.0.1", busy.getsockname()[1])
+
+
 def test_show_html_of_a_mesh(tmp_path):
     pytest.importorskip("plotly")
     mesh = next(need(CARS).rglob("*.ply"))

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ._util import add_command, positive_int, unit_interval
+from ._util import add_command, non_negative_int, positive_int, unit_interval
 
 
 def register(sub) -> None:
@@ -22,7 +22,13 @@ def register(sub) -> None:
         "scenes (PLY with 'source'/'object' fields, from 'complete --boxes'), boxes (.json), "
         "observations (.h5 from 'real extract': its busiest frame)",
     )
-    p.add_argument("--out", "-o", default="view.html", metavar="HTML", help="output page (default ./view.html)")
+    p.add_argument(
+        "--out",
+        "-o",
+        default=None,
+        metavar="HTML",
+        help="output page (default ./view.html; with --serve the page is written only when --out is given)",
+    )
     p.add_argument(
         "--rays",
         type=int,
@@ -50,18 +56,43 @@ def register(sub) -> None:
         "--up", default="z", help="meshes: the file's up axis (x, y, z, -x, ...); glTF files are usually y (default z)"
     )
     p.add_argument("--forward", default="x", help="meshes: the file's forward axis (default x)")
+    p.add_argument(
+        "--serve",
+        action="store_true",
+        help="serve the page with Python's http.server (loopback only by default) until Ctrl-C, "
+        "and print the URL and the 'ssh -L' line that forwards it to a laptop",
+    )
+    p.add_argument(
+        "--port",
+        type=non_negative_int,
+        default=None,
+        metavar="N",
+        help="--serve: the port (default 8000; 0 picks a free one)",
+    )
+    p.add_argument(
+        "--host",
+        default=None,
+        metavar="ADDR",
+        help="--serve: the address to bind (default 127.0.0.1, loopback: reach it through 'ssh -L'); "
+        "another address, e.g. 0.0.0.0, only when given here, with a warning (no authentication)",
+    )
     p.add_argument("--quiet", "-q", action="store_true", help="no summary lines")
 
 
 def _view(args) -> int:
     from pathlib import Path
 
+    from ..errors import SpotlightsError
     from ..utils import check_writable
     from ..viz import html
     from ._util import check_suffix
 
-    check_suffix(args.out, (".html", ".htm"), "the page (HTML)")
-    check_writable(args.out)
+    if not args.serve and (args.port is not None or args.host is not None):
+        raise SpotlightsError("--port and --host go with --serve")
+    out = args.out if args.out is not None or args.serve else "view.html"
+    if out is not None:
+        check_suffix(out, (".html", ".htm"), "the page (HTML)")
+        check_writable(out)
     html.require_plotly()
     panels, lines = [], []
     for f in args.files:
@@ -71,11 +102,20 @@ def _view(args) -> int:
         panels.append((Path(f).name, traces))
         lines.append(f"{f}: {what}")
     title = args.title if args.title is not None else ", ".join(Path(f).name for f in args.files)
-    out = html.write_html(args.out, html.page(panels, title, side_by_side=args.side_by_side))
+    fig = html.page(panels, title, side_by_side=args.side_by_side)
     if not args.quiet:
         for line in lines:
             print(line)
-        print(f"page -> {out} ({out.stat().st_size / 1e6:.1f} MB, opens offline in a browser)")
+    if out is not None:
+        out = html.write_html(out, fig)
+        if not args.quiet:
+            print(f"page -> {out} ({out.stat().st_size / 1e6:.1f} MB, opens offline in a browser)")
+    if args.serve:
+        from ..viz import serve
+
+        host = args.host if args.host is not None else serve.DEFAULT_HOST
+        port = args.port if args.port is not None else serve.DEFAULT_PORT
+        return serve.serve(html.page_text(fig).encode("utf-8"), host, port, quiet=args.quiet)
     return 0
 
 

@@ -365,6 +365,14 @@ def write_html(path: str | os.PathLike, fig, plotlyjs: str | None = None) -> Pat
     Otherwise a *relative* path from the page to a shared copy written by :func:`write_plotlyjs`
     (for folders of many pages: one copy of the 4.7 MB script; the folder stays offline).
     """
+    text = page_text(fig, plotlyjs)
+    with atomic_output(path, suffix=".html") as tmp:
+        Path(tmp).write_text(text, encoding="utf-8")
+    return Path(path)
+
+
+def page_text(fig, plotlyjs: str | None = None) -> str:
+    """The page :func:`write_html` writes, as a string (``view --serve`` answers it from memory)."""
     import html as _html
 
     if plotlyjs is not None and ("://" in plotlyjs or plotlyjs.startswith("/")):
@@ -384,9 +392,7 @@ def write_html(path: str | os.PathLike, fig, plotlyjs: str | None = None) -> Pat
         "<style>html, body {margin: 0; height: 100%; overflow: hidden}</style>",
         1,
     )
-    with atomic_output(path, suffix=".html") as tmp:
-        Path(tmp).write_text(text, encoding="utf-8")
-    return Path(path)
+    return text
 
 
 def write_plotlyjs(folder: str | os.PathLike) -> Path:
