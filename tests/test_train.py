@@ -267,6 +267,12 @@ def test_cli_train_evaluate_and_errors(data, tmp_path, capsys):
     )
     assert proc.returncode == 0, proc.stderr
     assert "| PCN |" in proc.stdout and (tmp_path / "rep.json").exists()
+    # the prediction-vs-ground-truth figure, written by default (--examples 2)
+    from PIL import Image
+
+    assert f"figure -> {tmp_path / 'rep.png'}" in proc.stdout
+    with Image.open(tmp_path / "rep.png") as im:
+        assert im.format == "PNG" and min(im.size) > 100
     proc = cli(capsys, "evaluate", "--data", data, "--checkpoint", cfg)
     assert_user_error(proc, "tiny.yaml", "not a readable checkpoint")
     proc = cli(
