@@ -150,6 +150,24 @@ def test_shards_read_back_equal_to_a_single_file(meshes, local_ref, tmp_path, ca
     assert sha(merge_shards(index, tmp_path / "m2.h5", progress=False)["out"]) == sha(local_ref)
 
 
+def test_dataset_show_reads_a_shard_index(meshes, local_ref, tmp_path, capsys):
+    """'dataset show INDEX.json' draws the same sample, and the same picture, as on the single file."""
+    from PIL import Image
+
+    index = tmp_path / "cars.json"
+    build_dataset(cfg(meshes), index, shard_size=12, progress=False, log=quiet)  # one model per shard: 3 shards
+    capsys.readouterr()
+    said, pixels = [], []
+    for src, png in ((local_ref, tmp_path / "file.png"), (index, tmp_path / "index.png")):
+        args = ["dataset", "show", str(src), "--split", "test", "--index", "5", "--out", str(png)]
+        assert main(args) == 0
+        said.append(capsys.readouterr().out.split(": ", 1)[1].split(" -> ")[0])
+        with Image.open(png) as im:
+            pixels.append(np.asarray(im.convert("RGB")))
+    assert said[0] == said[1] and "test[5] = sample" in said[1]
+    assert pixels[0].shape == pixels[1].shape and np.array_equal(pixels[0], pixels[1])
+
+
 def test_add_rig_on_shards_equals_add_rig_on_a_file(meshes, local_ref, tmp_path):
     single = tmp_path / "single.h5"
     single.write_bytes(local_ref.read_bytes())

@@ -242,6 +242,42 @@ def test_category_map_documented_classes():
     assert "vehicle.bicycle" not in CLASS_MAP and "vehicle.motorcycle" not in CLASS_MAP
 
 
+def test_real_complete_format_nuscenes_on_the_mini_folder(tmp_path, capsys):
+    """'real complete --format nuscenes' on the two-keyframe folder: one scene PLY, JSON and picture per keyframe
+    under the scene's name; the car is completed in the sensor frame inside its box's sphere, the bicycle is
+    excluded by class, the empty truck skipped; raw points kept."""
+    pytest.importorskip("torch")
+    from learning_fixtures import make_checkpoint
+
+    from spotlights.geometry.io import load_ply_fields
+
+    write_mini_nuscenes(tmp_path / "ns")
+    ck = make_checkpoint(tmp_path / "tiny.pt", "sanet")
+    out = tmp_path / "done"
+    args = ["real", "complete", str(tmp_path / "ns"), "--format", "nuscenes", "--out", str(out), "-c", str(ck)]
+    assert main([*args, "--no-clip", "-q"]) == 0  # an untrained model: no clip, so its rays are kept
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["format"] == "nuscenes" and summary["n_frames"] == 2
+    assert summary["totals"]["completed"] == 2
+    assert summary["totals"]["skipped"] == {"class_excluded": 2, "too_few_points": 2}
+    for k, frame in enumerate(("smp0", "smp1")):
+        rec = json.loads((out / "scene-0001" / f"{frame}.json").read_text())
+        assert (out / "scene-0001" / f"{frame}.png").stat().st_size > 1000
+        assert rec["timestamp"] == 1000 + k
+        (car,) = [o for o in rec["objects"] if o["status"] == "completed"]
+        assert car["track_id"] == "i-car" and car["cls"] == "car"
+        center = np.array(car["box"]["center"])
+        np.testing.assert_allclose(center, CENTER_S, atol=1e-9)  # the box in the sensor frame (the scan's)
+        f = load_ply_fields(out / "scene-0001" / f"{frame}.ply")
+        xyz = np.c_[f["x"], f["y"], f["z"]].astype(np.float64)
+        assert int((f["source"] == 0).sum()) + int((f["source"] == 1).sum()) == rec["n_points"] == 425
+        comp = xyz[f["source"] == 2]
+        assert len(comp) == car["n_completion"] > 0 and set(f["object"][f["source"] > 0]) == {car["object"]}
+        assert np.linalg.norm(comp - center, axis=1).max() <= np.linalg.norm(LWH) / 2 * (1 + 1e-6)
+        partial = xyz[f["source"] == 1]
+        assert len(partial) == car["n_points"] and np.abs((partial - center) @ rz(BOX_YAW)).max(axis=0).max() < 2.2
+
+
 def test_real_scene_0523_boxes_hold_num_lidar_pts():
     """Every annotation of the shared scene holds exactly its num_lidar_pts once sensor -> ego -> global is applied."""
     reader = NuScenesReader(need(NUSCENES))
