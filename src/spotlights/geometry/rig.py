@@ -5,66 +5,16 @@ Fibonacci lattice) each casting M rays toward the centre, the ray directions
 being M *secondary* points Fibonacci-sampled with equal area on a spherical cap
 of polar half-angle ``omega`` around the inward direction.
 
-Conventions (fixed forever: the ray order *is* the representation)
-------------------------------------------------------------------
-* Primary point i (0 <= i < N), paper lattice::
-
-      x_i = frac(i / Phi),  y_i = i / N,
-      phi_i = 2 pi x_i,     theta_i = arccos(1 - 2 y_i),
-      p_i = (sin theta_i cos phi_i, sin theta_i sin phi_i, cos theta_i)
-
-  so p_0 is the north pole (0, 0, 1).
-* Cap sample k (0 <= k < M), the same lattice on a cap of half-angle omega
-  (equal area: the cap area between polar angle 0 and t is proportional to
-  1 - cos t)::
-
-      cos t_k = 1 - (1 - cos omega) k / M,   psi_k = 2 pi frac(k / Phi)
-
-  so sample 0 is the central ray, straight toward the sphere's centre.
-* Local frame of viewpoint i: ``w = -p_i`` (toward the centre);
-  ``a = e_z`` unless ``|w . e_z| > 0.9``, then ``a = e_x``;
-  ``u = normalize(a x w)``, ``v = w x u``. Cap sample k maps to the direction
-  ``d = cos t_k w + sin t_k (cos psi_k u + sin psi_k v)``.
-* Ray ``i*M + k`` starts at ``p_i`` (on the unit sphere) with direction ``d``.
-  The paper's secondary point is ``P2 = p_i + r d`` on the small sphere of
-  radius ``r = 2 R cos omega`` around ``p_i`` (``omega = arccos(r / 2R)``).
+The module holds the rig types: :class:`RigSpec` (a rig's box-independent description, what
+datasets, models and the command line hold) and :class:`Rig` (a spec plus, for box-targeted
+rigs, the object's box: the concrete rays, cached), their constructors (:func:`make_rig`,
+:func:`make_rig_spec`, :func:`parse_rig`) and validation. The rays themselves come from
+:mod:`spotlights.geometry.lattice` (the paper's Fibonacci lattices and cap rays, with the
+conventions that fix the ray order) and :mod:`spotlights.geometry.box_rays` (box-targeted rays,
+beyond the paper: docs/box-rig.md); their public functions are importable from here too.
 
 All arrays are float64 in the *unit frame* (the object's circumscribed sphere
 scaled to radius 1).
-
-Box-targeted rigs (``kind="box"``, beyond the paper; docs/box-rig.md)
----------------------------------------------------------------------
-The same N viewpoints ``p_i``, but each viewpoint's M rays are aimed at the
-object's box instead of spread over a cap. In the unit frame the box is
-axis-aligned with half-extents ``e`` (``e = size / 2R``, so ``|e| = 1``); ``s``
-in (0, 1] scales it (``se = s * e``). Ray ``i*M + k`` starts at ``p_i`` with
-direction ``normalize(t_ik - p_i)`` toward a target ``t_ik = se * u_ik``, ``u_ik``
-a position in the normalised box ``[-1, 1]^3``. Target sets (``targets=``):
-
-* ``"ellipsoid"`` (the default): where the inscribed ellipsoid ``|x / se| <= 1``
-  is the unit ball, the viewpoint is ``q_i = p_i / se``; the ball's tangent cone
-  from ``q_i`` cuts the plane through the centre normal to ``q_i`` in a disc of
-  radius ``rho = L / sqrt(L^2 - 1)``, ``L = |q_i|``. Sample k is the paper's
-  lattice mapped with equal area onto that disc: ``u_ik = rho sqrt(k / M)
-  (cos psi_k a_i + sin psi_k b_i)``, ``psi_k = 2 pi frac(k / Phi)``, with ``a_i``
-  viewpoint i's ``u`` axis made orthogonal to ``q_i`` and ``b_i = (-q_i / L) x a_i``.
-  Every ray meets the ellipsoid (so the box); sample 0 is the central ray.
-* ``"volume"``: ``u_k = 2 H(k + 1) - 1``, H the Halton sequence in bases 2, 3, 5;
-  the same M targets for every viewpoint.
-* ``"surface"``: fixed points on the six faces of the cube, M / 6 per face.
-* ``"visible"``: per viewpoint, points on the faces of the scaled box that face
-  the viewpoint, face shares proportional to the solid angle each face subtends
-  there. Its face shares move with the box proportions, so a ray near a face
-  boundary can switch faces between two boxes: a study variant only.
-
-The face-based sets place the 2-D lattice ``(a_k, b_k) = (frac(k / Phi),
-(k + 1/2) / M)``: ``b`` is cut into consecutive intervals, one per face, of
-lengths equal to the face shares; sample k goes to the face whose interval holds
-``b_k``, at face coordinates ``(a_k, (b_k - start) / length)``. A mixed rig
-(``cap_share = c > 0``) gives the first ``C = min(round(c M), M - 1)`` rays of
-every viewpoint the paper's cap of half-angle ``angle`` (C cap samples) and aims
-the others at the box. The rays depend only on (N, M, the target parameters, e),
-and ray ``i*M + k`` always aims at the same normalised place of the box.
 """
 
 from __future__ import annotations
@@ -77,344 +27,145 @@ from functools import cached_property, lru_cache
 import numpy as np
 
 from ..errors import ParameterError
+from .box_rays import BOX_TARGETS, box_directions, box_face_solid_angles, box_targets
+from .lattice import (
+    GOLDEN_RATIO,
+    HALTON_BASES,
+    angle_from_radius,
+    cap_directions,
+    cap_ray_directions,
+    check_angle,
+    check_count,
+    fibonacci_lattice_2d,
+    fibonacci_sphere,
+    halton,
+    viewpoint_frames,
+)
 
-GOLDEN_RATIO = (1.0 + math.sqrt(5.0)) / 2.0
+__all__ = [
+    "BOX_DEFAULTS",
+    "BOX_TARGETS",
+    "GOLDEN_RATIO",
+    "HALTON_BASES",
+    "MAX_RAYS",
+    "RIG_KINDS",
+    "Rig",
+    "RigSpec",
+    "angle_from_radius",
+    "box_directions",
+    "box_face_solid_angles",
+    "box_targets",
+    "cap_directions",
+    "cap_ray_directions",
+    "check_extents",
+    "extents_from_normalization",
+    "fibonacci_lattice_2d",
+    "fibonacci_sphere",
+    "halton",
+    "make_rig",
+    "make_rig_spec",
+    "parse_rig",
+    "viewpoint_frames",
+]
+
 MAX_RAYS = 1 << 24
 """Most rays one rig may hold (N * M): 16.8 million, ~1.2 GB of float64 rays."""
 RIG_KINDS = ("cap", "box")
-BOX_TARGETS = ("volume", "surface", "visible", "ellipsoid")
 # Parameters of a box rig left unset (the best variant of docs/box-rig.md).
 BOX_DEFAULTS = {"scale": 1.0, "targets": "ellipsoid", "cap_share": 0.0}
-HALTON_BASES = (2, 3, 5)
 
 
-def fibonacci_lattice_2d(n: int) -> np.ndarray:
-    """The paper's 2-D Fibonacci lattice on [0, 1)^2.
-
-    Returns
-    -------
-    (n, 2) float64 array of ``(x_i, y_i) = (frac(i / Phi), i / n)``.
-    """
-    _check_count(n, "n")
-    i = np.arange(n, dtype=np.float64)
-    return np.stack([np.mod(i / GOLDEN_RATIO, 1.0), i / n], axis=1)
-
-
-def fibonacci_sphere(n: int) -> np.ndarray:
-    """N points on the unit sphere from the paper's spherical Fibonacci lattice.
-
-    ``phi = 2 pi x_i``, ``theta = arccos(1 - 2 y_i)``; point 0 is (0, 0, 1).
-
-    Returns
-    -------
-    (n, 3) float64 unit vectors.
-    """
-    lat = fibonacci_lattice_2d(n)
-    phi = 2.0 * np.pi * lat[:, 0]
-    theta = np.arccos(1.0 - 2.0 * lat[:, 1])
-    st = np.sin(theta)
-    return np.stack([st * np.cos(phi), st * np.sin(phi), np.cos(theta)], axis=1)
-
-
-def cap_directions(m: int, angle_deg: float) -> np.ndarray:
-    """M equal-area Fibonacci directions on the cap of half-angle ``angle_deg`` around +z.
-
-    Returns
-    -------
-    (m, 3) float64 unit vectors with polar angle <= ``angle_deg`` from +z;
-    direction 0 is +z itself.
-    """
-    _check_count(m, "m")
-    omega = math.radians(_check_angle(angle_deg))
-    lat = fibonacci_lattice_2d(m)
-    cos_t = 1.0 - (1.0 - math.cos(omega)) * lat[:, 1]
-    sin_t = np.sqrt(np.clip(1.0 - cos_t**2, 0.0, None))
-    psi = 2.0 * np.pi * lat[:, 0]
-    return np.stack([sin_t * np.cos(psi), sin_t * np.sin(psi), cos_t], axis=1)
-
-
-def viewpoint_frames(primary: np.ndarray) -> np.ndarray:
-    """Deterministic local frames ``(u, v, w)`` of viewpoints on the unit sphere.
-
-    Parameters
-    ----------
-    primary : (N, 3) float64 unit vectors (viewpoint positions).
-
-    Returns
-    -------
-    (N, 3, 3) float64; ``frames[i]`` has rows ``u, v, w`` with ``w = -p_i``
-    (see the module docstring for ``u`` and ``v``). Right-handed: ``u x v = w``.
-    """
-    w = -np.asarray(primary, dtype=np.float64)
-    a = np.zeros_like(w)
-    near_z = np.abs(w[:, 2]) > 0.9
-    a[~near_z, 2] = 1.0
-    a[near_z, 0] = 1.0
-    u = np.cross(a, w)
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    v = np.cross(w, u)
-    return np.stack([u, v, w], axis=1)
-
-
-def cap_ray_directions(primary: np.ndarray, m: int, angle_deg: float) -> np.ndarray:
-    """The paper's ray bundles: cap sample k of every viewpoint, in world coordinates.
-
-    Parameters
-    ----------
-    primary : (N, 3) float64 viewpoints on the unit sphere.
-    m : samples per cap; angle_deg : cap half-angle in degrees.
-
-    Returns
-    -------
-    (N, m, 3) float64 unit vectors; ``[i, k]`` is direction k of viewpoint i.
-    """
-    local = cap_directions(m, angle_deg)  # (m, 3) in (u, v, w) coordinates
-    d = np.einsum("mj,njc->nmc", local, viewpoint_frames(primary))
-    d /= np.linalg.norm(d, axis=-1, keepdims=True)
-    return d
-
-
-def angle_from_radius(radius: float) -> float:
-    """Cap half-angle in degrees from the small-sphere radius ``r / R`` (``omega = arccos(r / 2R)``)."""
-    if not (0.0 <= radius < 2.0) or not math.isfinite(radius):
-        raise ParameterError(f"small-sphere radius r/R must be in [0, 2), got {radius}")
-    return math.degrees(math.acos(radius / 2.0))
-
-
-def halton(n: int, bases: tuple[int, ...] = HALTON_BASES, start: int = 1) -> np.ndarray:
-    """The Halton sequence: radical inverses of the indices ``start .. start + n - 1``.
-
-    Returns
-    -------
-    (n, len(bases)) float64 in [0, 1); column j is the radical inverse in ``bases[j]``
-    (index 1 in base 2 is 0.5, index 2 is 0.25, ...).
-    """
-    _check_count(n, "n")
-    idx = np.arange(start, start + n, dtype=np.int64)
-    out = np.zeros((n, len(bases)), dtype=np.float64)
-    for j, b in enumerate(bases):
-        rest, f = idx.copy(), 1.0
-        while np.any(rest > 0):  # one pass per digit, vectorised over the indices
-            f /= b
-            out[:, j] += f * (rest % b)
-            rest //= b
-    return out
-
-
-def box_face_solid_angles(points: np.ndarray, extents: np.ndarray) -> np.ndarray:
-    """Solid angle each face of the box ``[-e, e]`` subtends at points outside it.
-
-    Faces are ordered ``+x, -x, +y, -y, +z, -z``. A face seen from behind (the
-    point not strictly on its outer side) counts 0. Exact closed form for a
-    rectangle ``[x1, x2] x [y1, y2]`` at height ``h`` below the point:
-    ``F(x2, y2) - F(x1, y2) - F(x2, y1) + F(x1, y1)``, ``F(x, y) = atan2(x y, h sqrt(x^2 + y^2 + h^2))``.
-
-    Parameters
-    ----------
-    points : (..., 3) float64, unit frame.
-    extents : (..., 3) float64 box half-extents (broadcast against ``points``).
-
-    Returns
-    -------
-    (..., 6) float64 steradians, >= 0.
-    """
-    p = np.asarray(points, dtype=np.float64)
-    e = np.asarray(extents, dtype=np.float64)
-    p, e = np.broadcast_arrays(p, e)
-    out = np.zeros(p.shape[:-1] + (6,), dtype=np.float64)
-    for face in range(6):
-        a, sign = face // 2, 1.0 - 2.0 * (face % 2)
-        b, c = (a + 1) % 3, (a + 2) % 3
-        h = sign * p[..., a] - e[..., a]
-        hp = np.where(h > 0, h, 1.0)
-        x1, x2 = -e[..., b] - p[..., b], e[..., b] - p[..., b]
-        y1, y2 = -e[..., c] - p[..., c], e[..., c] - p[..., c]
-
-        def f(x, y):
-            return np.arctan2(x * y, hp * np.sqrt(x * x + y * y + hp * hp))
-
-        out[..., face] = np.where(h > 0, f(x2, y2) - f(x1, y2) - f(x2, y1) + f(x1, y1), 0.0)
-    return out
-
-
-def _face_points(weights: np.ndarray, m: int) -> np.ndarray:
-    """Normalised positions on the cube's faces for the face-based target sets.
-
-    ``weights`` (..., 6) >= 0 (faces ``+x, -x, +y, -y, +z, -z``, not all 0) are the face
-    shares; sample k of the lattice ``(a_k, b_k) = (frac(k / Phi), (k + 1/2) / m)``
-    goes to the face whose interval of ``b`` holds ``b_k`` (see the module docstring).
-
-    Returns
-    -------
-    (..., m, 3) float64 positions ``u`` on the surface of ``[-1, 1]^3``.
-    """
-    c = np.cumsum(np.asarray(weights, dtype=np.float64), axis=-1)
-    upper = c / c[..., -1:]  # trailing empty faces get exactly 1.0
-    lower = np.concatenate([np.zeros_like(upper[..., :1]), upper[..., :-1]], axis=-1)
-    w = upper - lower
-    k = np.arange(m, dtype=np.float64)
-    a = np.mod(k / GOLDEN_RATIO, 1.0)
-    b = (k + 0.5) / m
-    face = np.count_nonzero(b[:, None] >= upper[..., None, :5], axis=-1)  # (..., m)
-    lo = np.take_along_axis(lower, face, axis=-1)
-    width = np.take_along_axis(w, face, axis=-1)
-    local = np.clip((b - lo) / np.where(width > 0, width, 1.0), 0.0, 1.0)
-    axis, sign = face // 2, 1.0 - 2.0 * (face % 2)
-    u = np.empty(face.shape + (3,), dtype=np.float64)
-    ax = axis[..., None] == np.arange(3)
-    u_b = (axis[..., None] + 1) % 3 == np.arange(3)
-    u[...] = np.where(ax, sign[..., None], 0.0)
-    u += np.where(u_b, 2.0 * np.broadcast_to(a, face.shape)[..., None] - 1.0, 0.0)
-    u += np.where(~ax & ~u_b, 2.0 * local[..., None] - 1.0, 0.0)
-    return u
-
-
-def box_targets(primary: np.ndarray, m: int, extents: np.ndarray, scale: float, targets: str) -> np.ndarray:
-    """The box-targeted rig's target points (see the module docstring).
-
-    Parameters
-    ----------
-    primary : (N, 3) float64 viewpoints on the unit sphere.
-    m : targets per viewpoint.
-    extents : (B, 3) float64 box half-extents in the unit frame.
-    scale : s in (0, 1]: targets lie in (or on) the box ``[-s e, s e]``.
-    targets : one of ``BOX_TARGETS`` (``"volume"``, ``"surface"``, ``"visible"``, ``"ellipsoid"``).
-
-    Returns
-    -------
-    (B, N, m, 3) float64 target points, unit frame (for ``"volume"`` and ``"surface"``
-    the N viewpoints share theirs: a broadcast view).
-    """
-    e = np.asarray(extents, dtype=np.float64).reshape(-1, 3)
-    p = np.asarray(primary, dtype=np.float64)
-    se = scale * e  # (B, 3)
-    if targets == "volume":
-        u = 2.0 * halton(m) - 1.0  # (m, 3)
-        t = se[:, None, :] * u[None]  # (B, m, 3)
-        return np.broadcast_to(t[:, None], (len(e), len(p), m, 3))
-    if targets == "surface":
-        u = _face_points(np.ones(6), m)  # (m, 3): fixed positions, M / 6 per face of the cube
-        return np.broadcast_to((se[:, None, :] * u[None])[:, None], (len(e), len(p), m, 3))
-    if targets == "visible":
-        omega = box_face_solid_angles(p[None, :, :], se[:, None, :])  # (B, N, 6)
-        empty = omega.sum(axis=-1) <= 0  # a viewpoint on the scaled box (only possible for s = 1)
-        omega[empty] = 1.0
-        u = _face_points(omega, m)  # (B, N, m, 3)
-        return se[:, None, None, :] * u
-    if targets == "ellipsoid":
-        # Work where the ellipsoid [x / (s e)]^2 <= 1 is the unit ball: the viewpoint is q = p / (s e).
-        se = np.maximum(se, 1e-12)  # a flat box: a flat ellipsoid
-        q = p[None, :, :] / se[:, None, :]  # (B, N, 3)
-        big = np.linalg.norm(q, axis=-1, keepdims=True)  # > 1: the viewpoint is outside the ellipsoid
-        w = -q / big
-        u = np.broadcast_to(viewpoint_frames(p)[None, :, 0, :], q.shape)  # viewpoint i's own u axis
-        u = u - np.sum(u * w, axis=-1, keepdims=True) * w  # never parallel to w (see docs/box-rig.md)
-        u = u / np.linalg.norm(u, axis=-1, keepdims=True)
-        v = np.cross(w, u)
-        rho = big / np.sqrt(np.maximum(big * big - 1.0, 1e-12))  # radius of the tangent cone at the centre
-        lat = fibonacci_lattice_2d(m)  # the paper's lattice, mapped with equal area onto the unit disc
-        r, psi = np.sqrt(lat[:, 1]), 2.0 * np.pi * lat[:, 0]
-        c = (
-            rho[..., None, :] * (r * np.cos(psi))[:, None] * u[..., None, :]
-            + rho[..., None, :] * (r * np.sin(psi))[:, None] * v[..., None, :]
-        )  # (B, N, m, 3)
-        return se[:, None, None, :] * c
-    raise ParameterError(f"unknown box target set {targets!r}; known: {', '.join(BOX_TARGETS)}")
-
-
-def box_directions(
-    primary: np.ndarray,
-    m: int,
-    extents: np.ndarray,
-    scale: float,
-    targets: str,
-    cap_share: float = 0.0,
-    angle: float = 60.0,
-) -> np.ndarray:
-    """Unit ray directions of box-targeted rigs, for one or many boxes at once.
-
-    Parameters
-    ----------
-    primary : (N, 3) float64 viewpoints on the unit sphere.
-    m : M rays per viewpoint.
-    extents : (B, 3) (or (3,)) float64 box half-extents, unit frame.
-    scale, targets : the target set (see :func:`box_targets`).
-    cap_share : share c in [0, 1) of each viewpoint's rays on the paper's cap
-        (the first ``min(round(c M), M - 1)``), the others aimed at the box.
-    angle : half-angle in degrees of that cap.
-
-    Returns
-    -------
-    (B, N*M, 3) float64 unit vectors (``(N*M, 3)`` when ``extents`` is (3,)), ray
-    ``i*M + k`` = viewpoint i, sample k.
-    """
-    single = np.ndim(extents) == 1
-    e = np.asarray(extents, dtype=np.float64).reshape(-1, 3)
-    p = np.asarray(primary, dtype=np.float64)
-    m_cap = min(int(round(cap_share * m)), m - 1)  # at least one ray aimed at the box
-    t = box_targets(p, m - m_cap, e, scale, targets)  # (B, N, m - m_cap, 3)
-    d = t - p[None, :, None, :]
-    norm = np.linalg.norm(d, axis=-1, keepdims=True)
-    d = np.where(norm > 1e-12, d / np.where(norm > 1e-12, norm, 1.0), -p[None, :, None, :])
-    if m_cap:
-        cap = cap_ray_directions(p, m_cap, angle)  # (N, m_cap, 3)
-        d = np.concatenate([np.broadcast_to(cap[None], (len(e),) + cap.shape), d], axis=2)
-    d = d.reshape(len(e), -1, 3)
-    return d[0] if single else d
-
-
-@dataclass(frozen=True)
+@dataclass(frozen=True, init=False)
 class Rig:
     """A Spotlights rig: N viewpoints x M rays, on the paper's cap or aimed at a box.
 
+    A rig is its box-independent :class:`RigSpec` plus, for box rigs, the box: ``spec.for_box(extents)``
+    or :meth:`from_spec` builds it from the two. The constructor takes the spec's fields and the box,
+    ``Rig(n_primary, n_secondary, angle, kind, box, scale, targets, cap_share)``.
+
     Attributes
     ----------
-    n_primary : N, number of viewpoints (>= 1).
-    n_secondary : M, rays per viewpoint (>= 1).
-    angle : cap polar half-angle omega in degrees, in (0, 90] (box rigs: the
-        half-angle of their cap part, used only when ``cap_share > 0``).
-    kind : ``"cap"`` (the paper's rig) or ``"box"`` (box-targeted, docs/box-rig.md).
+    spec : the :class:`RigSpec`; ``n_primary`` (N, >= 1), ``n_secondary`` (M, >= 1), ``angle`` (the cap
+        polar half-angle omega in degrees, in (0, 90]; box rigs: the half-angle of their cap part, used
+        only when ``cap_share > 0``), ``kind`` (``"cap"``, the paper's rig, or ``"box"``, box-targeted,
+        docs/box-rig.md), ``scale``, ``targets`` and ``cap_share`` (box rigs only: target scale s in
+        (0, 1], target set of ``BOX_TARGETS``, share of each viewpoint's rays on the cap in [0, 1);
+        defaults ``BOX_DEFAULTS``) read through to it.
     box : box rigs only: (3,) box half-extents ``e`` in the unit frame (``size / 2R``),
         a tuple of floats.
-    scale : box rigs only: target scale s in (0, 1] (default ``BOX_DEFAULTS``).
-    targets : box rigs only: target set, one of ``BOX_TARGETS``.
-    cap_share : box rigs only: share of each viewpoint's rays on the cap, in [0, 1).
 
-    Cap rigs leave the four box fields ``None``. The ray arrays are computed once
-    and cached; they are float64, unit frame. A box rig is usually built from its
-    box-independent :class:`RigSpec`: ``spec.for_box(extents)``.
+    Cap rigs have ``box`` and the three box parameters ``None``. The ray arrays are computed once
+    and cached; they are float64, unit frame.
     """
 
-    n_primary: int = 32
-    n_secondary: int = 64
-    angle: float = 60.0
-    kind: str = "cap"
+    spec: RigSpec
     box: tuple | None = None
-    scale: float | None = None
-    targets: str | None = None
-    cap_share: float | None = None
 
-    def __post_init__(self):
-        spec = RigSpec(
-            self.n_primary, self.n_secondary, self.angle, self.kind, self.scale, self.targets, self.cap_share
-        )  # validates, fills the box defaults
-        for key in ("n_primary", "n_secondary", "angle", "scale", "targets", "cap_share"):
-            object.__setattr__(self, key, getattr(spec, key))
-        self.__dict__["spec"] = spec  # the cached property below
-        if self.kind == "box":
-            if self.box is None:
-                raise ParameterError(
-                    "a box rig needs the box half-extents (box=...); a description without a box is a "
-                    "RigSpec: RigSpec.from_dict(d).for_box(extents)"
-                )
-            object.__setattr__(self, "box", check_extents(self.box))
-        elif self.box is not None:
-            raise ParameterError("box half-extents are only for box rigs (kind='box')")
+    def __init__(
+        self,
+        n_primary: int = 32,
+        n_secondary: int = 64,
+        angle: float = 60.0,
+        kind: str = "cap",
+        box: tuple | None = None,
+        scale: float | None = None,
+        targets: str | None = None,
+        cap_share: float | None = None,
+    ):
+        spec = RigSpec(n_primary, n_secondary, angle, kind, scale, targets, cap_share)  # validates, fills defaults
+        object.__setattr__(self, "spec", spec)
+        object.__setattr__(self, "box", _checked_box(spec, box))
+
+    @classmethod
+    def from_spec(cls, spec: RigSpec, box=None) -> Rig:
+        """The rig of ``spec`` for the box of half-extents ``box`` (3,) in the unit frame (box rigs; cap rigs:
+        None). :meth:`RigSpec.for_box` is the cached form of this."""
+        if not isinstance(spec, RigSpec):
+            raise ParameterError(f"Rig.from_spec needs a RigSpec, got {type(spec).__name__}")
+        rig = object.__new__(cls)
+        object.__setattr__(rig, "spec", spec)
+        object.__setattr__(rig, "box", _checked_box(spec, box))
+        return rig
+
+    @property
+    def n_primary(self) -> int:
+        """N, number of viewpoints (the spec's)."""
+        return self.spec.n_primary
+
+    @property
+    def n_secondary(self) -> int:
+        """M, rays per viewpoint (the spec's)."""
+        return self.spec.n_secondary
+
+    @property
+    def angle(self) -> float:
+        """Cap half-angle omega in degrees (the spec's)."""
+        return self.spec.angle
+
+    @property
+    def kind(self) -> str:
+        """``"cap"`` or ``"box"`` (the spec's)."""
+        return self.spec.kind
+
+    @property
+    def scale(self) -> float | None:
+        """Box rigs: the target scale s (the spec's); cap rigs: None."""
+        return self.spec.scale
+
+    @property
+    def targets(self) -> str | None:
+        """Box rigs: the target set (the spec's); cap rigs: None."""
+        return self.spec.targets
+
+    @property
+    def cap_share(self) -> float | None:
+        """Box rigs: the share of rays on the cap (the spec's); cap rigs: None."""
+        return self.spec.cap_share
 
     @property
     def n_rays(self) -> int:
         """N * M."""
-        return self.n_primary * self.n_secondary
+        return self.spec.n_rays
 
     @property
     def name(self) -> str:
@@ -424,13 +175,6 @@ class Rig:
         the box, so rigs of one spec for different boxes share it.
         """
         return self.spec.name
-
-    @cached_property
-    def spec(self) -> RigSpec:
-        """The box-independent description of this rig (set on construction)."""
-        return RigSpec(
-            self.n_primary, self.n_secondary, self.angle, self.kind, self.scale, self.targets, self.cap_share
-        )
 
     @property
     def extents(self) -> np.ndarray | None:
@@ -535,14 +279,14 @@ class RigSpec:
     def __post_init__(self):
         if self.kind not in RIG_KINDS:
             raise ParameterError(f"unknown rig kind {self.kind!r}; known: {', '.join(RIG_KINDS)}")
-        object.__setattr__(self, "n_primary", _check_count(self.n_primary, "number of primary viewpoints N"))
-        object.__setattr__(self, "n_secondary", _check_count(self.n_secondary, "number of secondary rays M"))
+        object.__setattr__(self, "n_primary", check_count(self.n_primary, "number of primary viewpoints N"))
+        object.__setattr__(self, "n_secondary", check_count(self.n_secondary, "number of secondary rays M"))
         if self.n_primary * self.n_secondary > MAX_RAYS:
             raise ParameterError(
                 f"N * M = {self.n_primary * self.n_secondary:,} rays is more than the {MAX_RAYS:,} "
                 "one rig may hold (its arrays alone would need > 1 GB)"
             )
-        object.__setattr__(self, "angle", float(_check_angle(self.angle)))
+        object.__setattr__(self, "angle", float(check_angle(self.angle)))
         for key, value in _check_box_params(self.kind, self.scale, self.targets, self.cap_share).items():
             object.__setattr__(self, key, value)
 
@@ -657,7 +401,21 @@ class RigSpec:
 
 @lru_cache(maxsize=64)
 def _spec_rig(spec: RigSpec, box: tuple | None) -> Rig:
-    return Rig(spec.n_primary, spec.n_secondary, spec.angle, spec.kind, box, spec.scale, spec.targets, spec.cap_share)
+    return Rig.from_spec(spec, box)
+
+
+def _checked_box(spec: RigSpec, box) -> tuple | None:
+    """A rig's box: validated half-extents (a tuple of 3 floats) for box specs, None for cap specs."""
+    if spec.kind == "box":
+        if box is None:
+            raise ParameterError(
+                "a box rig needs the box half-extents (box=...); a description without a box is a "
+                "RigSpec: RigSpec.from_dict(d).for_box(extents)"
+            )
+        return check_extents(box)
+    if box is not None:
+        raise ParameterError("box half-extents are only for box rigs (kind='box')")
+    return None
 
 
 def check_extents(extents) -> tuple:
@@ -744,6 +502,33 @@ def make_rig_spec(
     return RigSpec(primary, secondary, angle, kind, scale, targets, cap_share)
 
 
+def parse_rig(spec: str | Rig | RigSpec) -> Rig | RigSpec:
+    """A rig from ``"NxM"``, ``"NxM@DEG"`` (e.g. ``"64x32@60"``) or a rig name.
+
+    Cap rigs (``"64x32@60"``, ``"cap-32x64-60"``) give the :class:`Rig` itself (its rays do
+    not depend on the object). Box-targeted rig names (``"box-32x64-ellipsoid-s1"``, any
+    :attr:`RigSpec.name`) give a :class:`RigSpec`: each model's depths use the rig of its own
+    box (``spec.for_box(size / 2R)``, see docs/box-rig.md).
+    """
+    if isinstance(spec, Rig):
+        return spec
+    if isinstance(spec, RigSpec):
+        return spec if spec.needs_box else spec.for_box(None)
+    s = str(spec).strip().lower()
+    if s.startswith("box-"):
+        return RigSpec.from_name(s)
+    m = re.fullmatch(r"(\d+)x(\d+)(?:@(\d+(?:\.\d*)?|\.\d+))?", s) or re.fullmatch(
+        r"cap-(\d+)x(\d+)-(\d+(?:\.\d*)?)", s
+    )
+    if not m:
+        raise ParameterError(
+            f"rig {spec!r} not understood; write NxM or NxM@DEG, e.g. 64x32@60 (N viewpoints, "
+            "M rays each, cap half-angle in degrees, default 60), or a rig name such as "
+            "cap-32x64-60 or box-32x64-ellipsoid-s1 (box-targeted, docs/box-rig.md)"
+        )
+    return make_rig(int(m.group(1)), int(m.group(2)), angle=float(m.group(3)) if m.group(3) else 60.0)
+
+
 def _check_box_params(kind: str, scale, targets, cap_share) -> dict:
     """Validated box parameters (defaults filled in) for box kinds; all None for cap kinds."""
     if kind != "box":
@@ -768,26 +553,6 @@ def _check_box_params(kind: str, scale, targets, cap_share) -> dict:
 
 def _opt(cast, value):
     return None if value is None else cast(value)
-
-
-def _check_count(n, what: str) -> int:
-    try:
-        ok = float(n).is_integer() and int(n) >= 1
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        raise ParameterError(f"{what} must be an integer >= 1, got {n!r}")
-    return int(n)
-
-
-def _check_angle(angle) -> float:
-    try:
-        a = float(angle)
-    except (TypeError, ValueError):
-        raise ParameterError(f"cap angle must be a number of degrees in (0, 90], got {angle!r}") from None
-    if not (0.0 < a <= 90.0):
-        raise ParameterError(f"cap angle must be in (0, 90] degrees, got {angle!r}")
-    return a
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
