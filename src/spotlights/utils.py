@@ -181,8 +181,6 @@ def exclusive_lock(lock_file: str | os.PathLike, busy: str) -> Iterator[None]:
     instead of waiting. The lock is released when the body ends or the process dies (``flock``);
     the small lock file stays. Not POSIX (no ``fcntl``): no lock.
     """
-    from .errors import SpotlightsError
-
     try:
         import fcntl
     except ImportError:  # pragma: no cover - not POSIX: no lock

@@ -49,7 +49,9 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..errors import ParameterError
-from .density import gauss_legendre, rho, rho_at_points
+from ..geometry.raycast import RayCaster
+from ..geometry.rig import cap_directions
+from .density import gauss_legendre, rho, rho_at_points, rho_ring
 
 __all__ = [
     "DiscPlacement",
@@ -214,8 +216,6 @@ def finite_m_correction(
 
     Returns: ``(front, back)`` disc averages of the correction.
     """
-    from .density import rho_ring
-
     cos_om = float(np.cos(np.radians(angle)))
 
     def fn(p, n):
@@ -290,8 +290,6 @@ class RigRays:
     def __init__(self, rig):
         from scipy.spatial import cKDTree
 
-        from ..geometry.rig import cap_directions
-
         self.rig = rig
         self.primary = np.ascontiguousarray(rig.primary)
         self.frames = np.ascontiguousarray(rig.frames)
@@ -359,8 +357,6 @@ def count_disc_hits(
     Returns:
         ``(front_hits, back_hits)``: rays hitting against the normal / along it.
     """
-    from ..geometry.raycast import RayCaster
-
     origins, directions = rig.origins, rig.directions
     if cull:
         if rays is None:

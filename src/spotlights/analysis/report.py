@@ -17,8 +17,11 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ParameterError
+from ..geometry.rig import make_rig
 from ..utils import atomic_output
+from ..viz import density as plots
 from . import density as dens
+from .montecarlo import DiscPlacement, mc_density
 
 __all__ = ["DensityConfig", "run_density_analysis", "extrema", "hit_ratios", "MC_RADII", "MC_ALPHAS_DEG"]
 
@@ -220,7 +223,6 @@ def run_density_analysis(
     if out.exists() and not out.is_dir():
         raise ParameterError(f"{out}: exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
-    from ..viz import density as plots
 
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
@@ -287,8 +289,6 @@ def run_density_analysis(
     timings["csv_and_figures"] = time.perf_counter() - t
 
     # --- real rigs: hit ratios and Monte-Carlo ------------------------------------------------
-    from ..geometry.rig import make_rig
-    from .montecarlo import DiscPlacement, mc_density
 
     all_results = []
     t = time.perf_counter()

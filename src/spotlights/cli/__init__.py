@@ -1,8 +1,9 @@
 """The ``spotlights`` command line: a thin layer over the library.
 
 Each command group lives in its own module exposing ``register(subparsers)``;
-the modules import nothing heavy at import time (numpy, trimesh, torch are
-imported inside the handlers), so ``spotlights --help`` is instant.
+the modules import the library at their top, but none of its heavy optional
+dependencies (torch, matplotlib, plotly, pyarrow, ray, onnx are imported inside
+the handlers that need them), so ``spotlights --help`` loads no torch.
 
 Handlers return an exit code (0 on success). Any :class:`SpotlightsError`
 becomes one line on stderr and exit code 2; no traceback is shown.
@@ -16,6 +17,7 @@ import sys
 
 from .._version import __version__
 from ..errors import SpotlightsError
+from ..utils import os_error_reason
 
 # One line per command group; a new group is one module and one line here.
 COMMAND_MODULES = [
@@ -84,8 +86,6 @@ def _on_sigterm(signum, frame):
 
 
 def _os_error_line(exc: OSError) -> str:
-    from ..utils import os_error_reason
-
     name = exc.filename if exc.filename is not None else None
     reason = os_error_reason(exc)
     return f"{name}: {reason}" if name is not None else reason

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from ..errors import ParameterError
+
 
 def add_command(sub, name: str, help: str, example: str, func=None) -> argparse.ArgumentParser:
     """Add a sub-command whose ``--help`` ends with an example."""
@@ -82,8 +84,6 @@ def check_suffix(path, suffixes: tuple, what: str, option: str = "--out") -> Non
     ``suffixes``: the accepted lower-case extensions, e.g. ``(".h5", ".hdf5")``.
     """
     from pathlib import Path
-
-    from ..errors import ParameterError
 
     if path is None:
         return

@@ -6,6 +6,8 @@ checked with real rigs and real ray casting, written as CSV, figures and a summa
 
 from __future__ import annotations
 
+from ..analysis.report import DensityConfig, run_density_analysis
+from ..utils import output_folder
 from ._util import add_command, add_group, add_quiet, non_negative_int
 
 
@@ -80,8 +82,6 @@ def register(sub) -> None:
 def _density(args) -> int:
     import numpy as np
 
-    from ..analysis.report import DensityConfig, run_density_analysis
-
     cfg = DensityConfig(
         angles=tuple(args.angle),
         mc=not args.no_mc,
@@ -93,7 +93,6 @@ def _density(args) -> int:
         r_step=args.r_step,
         alpha_step_deg=args.alpha_step,
     )
-    from ..utils import output_folder
 
     cfg.validate()  # bad parameters fail before the folder is made
     with output_folder(args.out):  # removed again if the analysis fails before writing anything

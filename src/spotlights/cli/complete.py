@@ -4,6 +4,23 @@ from __future__ import annotations
 
 import sys
 
+from ..data.real.boxfiles import load_json, read_box_file, with_class
+from ..data.real.scans import read_scan
+from ..errors import ParameterError, SpotlightsError
+from ..experiments.scene import (
+    SceneConfig,
+    check_completed,
+    complete_scene,
+    describe,
+    render_result,
+    render_result_html,
+    require_points,
+    write_scene,
+)
+from ..geometry.boxes import box_from_dict
+from ..geometry.io import axes_rotation
+from ..learning.export import load_onnx_completer
+from ..utils import atomic_output, check_writable
 from ._util import DEVICE_HELP, add_command, check_picture, check_suffix, non_negative_int, positive_int, unit_interval
 from .view import add_html_argument
 
@@ -195,9 +212,6 @@ def classes_arg(text):
 
 def scene_config(args, single: bool):
     """The :class:`~spotlights.experiments.scene.SceneConfig` of the shared options."""
-    from ..errors import ParameterError
-    from ..experiments.scene import SceneConfig
-
     margin = args.margin
     if single and args.crop is not None:
         if margin is not None and margin != args.crop:
@@ -226,8 +240,6 @@ def scene_config(args, single: bool):
 def load_model(checkpoint, device, runtime=None, precision="fp32"):
     """A :class:`~spotlights.learning.inference.Completer` for a --checkpoint value (None = the default model);
     with ``runtime="onnx"`` (or a ``.onnx`` checkpoint) an :class:`~spotlights.learning.export.OnnxCompleter`."""
-    from ..errors import ParameterError, SpotlightsError
-
     if runtime == "onnx" or (runtime is None and str(checkpoint or "").lower().endswith(".onnx")):
         if checkpoint is None or not str(checkpoint).lower().endswith(".onnx"):
             raise ParameterError(
@@ -236,7 +248,6 @@ def load_model(checkpoint, device, runtime=None, precision="fp32"):
             )
         if precision not in (None, "fp32"):
             raise ParameterError("--precision applies to the torch runtime; an ONNX model runs as exported (float32)")
-        from ..learning.export import load_onnx_completer
 
         return load_onnx_completer(checkpoint)
     if runtime == "torch" and str(checkpoint or "").lower().endswith(".onnx"):
@@ -259,20 +270,6 @@ def _complete(args) -> int:
     from pathlib import Path
 
     import numpy as np
-
-    from ..data.real.boxfiles import load_json, read_box_file, with_class
-    from ..data.real.scans import read_scan
-    from ..errors import ParameterError
-    from ..experiments.scene import (
-        check_completed,
-        complete_scene,
-        describe,
-        render_result,
-        require_points,
-        write_scene,
-    )
-    from ..geometry.boxes import box_from_dict
-    from ..geometry.io import axes_rotation
 
     single_given = [
         n for n, v in (("--box", args.box), ("--center/--size", args.center is not None or args.size is not None)) if v
@@ -298,7 +295,6 @@ def _complete(args) -> int:
         if args.classes is not None:
             raise ParameterError("--classes chooses among the boxes of --boxes; one object's box is always completed")
         config = dataclasses.replace(config, any_label=True)
-    from ..utils import check_writable
 
     check_picture(args.show, "--show")
     check_suffix(args.html, (".html", ".htm"), "the page (HTML)", "--html")
@@ -362,8 +358,6 @@ def _complete(args) -> int:
         if not args.quiet:
             print(f"picture -> {args.show}")
     if args.html:
-        from ..experiments.scene import render_result_html
-
         render_result_html(result, args.html, title)
         if not args.quiet:
             print(f"page -> {args.html}")
@@ -372,8 +366,6 @@ def _complete(args) -> int:
 
 def _write_json(path, data) -> None:
     import json
-
-    from ..utils import atomic_output
 
     with atomic_output(path) as tmp:
         tmp.write_text(json.dumps(data, indent=2, default=float) + "\n", encoding="utf-8")

@@ -4,8 +4,16 @@ from __future__ import annotations
 
 import argparse
 
+from .. import viz
+from ..errors import InputFileError, ParameterError, SpotlightsError
+from ..geometry.encode import MeshProbe, hit_ratio, load_encoding, save_encoding
+from ..geometry.io import MESH_SUFFIXES, POINT_SUFFIXES, load_mesh, load_points, ply_has_faces, save_points
+from ..geometry.rig import make_rig_spec
+from ..utils import check_writable
+from ..viz import html
+from ..viz.html import SOURCES, read_ply_fields
 from ._util import add_command, add_quiet, check_picture, check_suffix, unit_interval
-from .view import add_html_argument
+from .view import add_html_argument, write_page
 
 
 def add_rig_arguments(p: argparse.ArgumentParser) -> None:
@@ -68,15 +76,11 @@ def add_axes_arguments(p: argparse.ArgumentParser) -> None:
 
 def spec_from_args(args):
     """The :class:`~spotlights.geometry.rig.RigSpec` the rig options describe (box rigs need a box to become rigs)."""
-    from ..geometry.rig import make_rig_spec
-
     kind = getattr(args, "rig_kind", "cap") or "cap"
     box = {k: getattr(args, f"box_{k}", None) for k in ("targets", "scale", "cap_share")}
     if kind == "cap":
         given = [f"--box-{k.replace('_', '-')}" for k, v in box.items() if v is not None]
         if given:
-            from ..errors import ParameterError
-
             raise ParameterError(f"{', '.join(given)} only apply with --rig-kind box")
         box = {}
     return make_rig_spec(args.primary, args.secondary, angle=args.angle, radius=args.radius, kind=kind, **box)
@@ -157,10 +161,6 @@ def _encode(args) -> int:
 
     from tqdm import tqdm
 
-    from ..errors import SpotlightsError
-    from ..geometry.encode import MeshProbe, hit_ratio, save_encoding
-    from ..geometry.io import load_mesh
-
     spec = spec_from_args(args)
     out = Path(args.out)
     several = len(args.meshes) > 1
@@ -178,7 +178,6 @@ def _encode(args) -> int:
     )
     if several and len(set(targets)) != len(targets):
         raise SpotlightsError("several meshes share a file name; encode them into different folders")
-    from ..utils import check_writable
 
     check_writable(*targets)
     meshes = [load_mesh(m, up=args.up, forward=args.forward) for m in args.meshes]  # validate all first
@@ -195,11 +194,6 @@ def _encode(args) -> int:
 
 
 def _decode(args) -> int:
-    from ..errors import InputFileError
-    from ..geometry.encode import load_encoding
-    from ..geometry.io import save_points
-    from ..utils import check_writable
-
     check_writable(args.out)
     enc = load_encoding(args.encoding)
 
@@ -217,25 +211,16 @@ def _show(args) -> int:
 
     import numpy as np
 
-    from .. import viz
-    from ..errors import InputFileError
-    from ..geometry.encode import load_encoding
-    from ..geometry.io import MESH_SUFFIXES, POINT_SUFFIXES, load_mesh, load_points, ply_has_faces
-
     check_picture(args.out)
     src = Path(args.file)
     out = Path(args.out) if args.out else Path.cwd() / (src.stem + ".png")
     suffix = src.suffix.lower()
     if not src.exists():
         raise InputFileError(src, "no such file")
-    from ..utils import check_writable
 
     check_suffix(args.html, (".html", ".htm"), "the page (HTML)", "--html")
     check_writable(args.out or (None if args.html else out), args.html)
     if args.html:
-        from ..viz import html
-        from .view import write_page
-
         traces, what = html.file_traces(src, clip=args.clip, up=args.up, forward=args.forward)
         write_page(args.html, [(src.name, traces)], f"{src.name}: {what}", quiet=True)
         print(f"{src}: {what} -> {args.html}")
@@ -259,8 +244,6 @@ def _show(args) -> int:
         print(f"{src}: mesh -> {out}")
         return 0
     if suffix == ".ply":
-        from ..viz.html import SOURCES, read_ply_fields
-
         fields = read_ply_fields(src)
         if "source" in fields:  # a scene from 'complete --boxes': raw grey, partial purple, completion green
             xyz = np.stack([fields["x"], fields["y"], fields["z"]], axis=1).astype(np.float64)

@@ -2,6 +2,14 @@
 
 from __future__ import annotations
 
+from ..data.lidar import sensor_preset
+from ..data.store import open_dataset
+from ..data.synthetic import BuildConfig, add_rig, build_dataset
+from ..data.synthetic.config import parse_range, parse_source
+from ..data.synthetic.consolidate import merge_shards
+from ..errors import ParameterError, SpotlightsError
+from ..utils import atomic_output, check_writable
+from ..viz import html, render_sample
 from ._util import (
     add_command,
     add_group,
@@ -12,7 +20,7 @@ from ._util import (
     positive_int,
     unit_interval,
 )
-from .view import add_html_argument
+from .view import add_html_argument, write_page
 
 
 def register(sub) -> None:
@@ -294,8 +302,6 @@ def _add_backend_options(group) -> None:
 
 
 def _merge(args) -> int:
-    from ..data.synthetic.consolidate import merge_shards
-
     check_suffix(args.out, (".h5", ".hdf5"), "the merged dataset (HDF5)")
     rep = merge_shards(args.file, args.out, progress=not args.quiet, overwrite=args.overwrite)
     print(
@@ -306,8 +312,6 @@ def _merge(args) -> int:
 
 
 def _distance(text: str) -> tuple[float, float]:
-    from ..errors import ParameterError
-
     try:
         a, b = (float(x) for x in text.replace(",", ":").split(":"))
     except ValueError:
@@ -316,11 +320,6 @@ def _distance(text: str) -> tuple[float, float]:
 
 
 def _build(args) -> int:
-    from ..data.lidar import sensor_preset
-    from ..data.synthetic import BuildConfig, build_dataset
-    from ..data.synthetic.config import parse_range, parse_source
-    from ..errors import ParameterError
-    from ..utils import check_writable
 
     # SIGTERM unwinds like Ctrl-C (spotlights.cli.main): the workers stop, finished units are kept
 
@@ -430,7 +429,6 @@ def _build(args) -> int:
 
 
 def _add_rig(args) -> int:
-    from ..data.synthetic import add_rig
 
     # SIGTERM unwinds like Ctrl-C (spotlights.cli.main): the file is left untouched
     rep = add_rig(
@@ -455,8 +453,6 @@ def _add_rig(args) -> int:
 
 def _info(args) -> int:
     import json
-
-    from ..data.store import open_dataset
 
     with open_dataset(args.file) as ds:
         info = ds.info()
@@ -498,8 +494,6 @@ def _info(args) -> int:
 
 
 def _pick(ds, split: str, index: int) -> int:
-    from ..errors import ParameterError
-
     idx = ds.split_indices(split)
     if not (0 <= index < len(idx)):
         raise ParameterError(f"{ds.path}: split {split!r} has {len(idx)} samples; --index {index} is out of range")
@@ -511,10 +505,6 @@ def _export(args) -> int:
     from pathlib import Path
 
     import numpy as np
-
-    from ..data.store import open_dataset
-    from ..errors import SpotlightsError
-    from ..utils import atomic_output, check_writable
 
     if Path(args.out).suffix.lower() != ".npz":
         raise SpotlightsError(f"{args.out}: the sample is written as .npz; name the output FILE.npz")
@@ -549,10 +539,6 @@ def _export(args) -> int:
 def _show(args) -> int:
     from pathlib import Path
 
-    from ..data.store import open_dataset
-    from ..utils import check_writable
-    from ..viz import render_sample
-
     check_picture(args.out)
     check_suffix(args.html, (".html", ".htm"), "the page (HTML)", "--html")
     out = Path(args.out) if args.out else Path.cwd() / f"{args.split}-{args.index}.png"
@@ -563,9 +549,6 @@ def _show(args) -> int:
         rig = ds.rig(s["rig"], s["model_index"])
     what = f"{args.file}: {args.split}[{args.index}] = sample {i} ({s['model']}, view {s['view']})"
     if args.html:
-        from ..viz import html
-        from .view import write_page
-
         write_page(
             args.html,
             [("sample", html.sample_traces(s, rig, clip=args.clip))],

@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+from .. import viz
+from ..assets import DEMO_VEHICLE, asset_path
+from ..geometry import MeshProbe, hit_ratio, load_mesh, load_points, make_rig, save_encoding, save_points
+from ..geometry.encode import load_encoding
+from ..learning.inference import complete_scan, load_box, load_completer
+from ..utils import output_folder
 from ._util import add_command
 
 
@@ -19,18 +25,11 @@ def register(sub) -> None:
 def _demo(args) -> int:
     from pathlib import Path
 
-    from ..utils import output_folder
-
     with output_folder(args.out) as out:  # removed again if the demo fails before writing anything
         return _run_demo(Path(out))
 
 
 def _run_demo(out) -> int:
-    from .. import viz
-    from ..assets import DEMO_VEHICLE, asset_path
-    from ..geometry import MeshProbe, hit_ratio, load_mesh, make_rig, save_encoding, save_points
-    from ..geometry.encode import load_encoding
-
     name, up, forward = DEMO_VEHICLE
     mesh = load_mesh(asset_path(name), up=up, forward=forward)
     print(f"[1/4] loaded the bundled CC0 vehicle {name}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces")
@@ -49,8 +48,6 @@ def _run_demo(out) -> int:
     print(f"[2/4] encoded with the paper's rig and a denser one: {'; '.join(written)}")
 
     # Completion of a shipped partial scan (sensor frame + detector box) with the pretrained SA-Net.
-    from ..geometry import load_points
-    from ..learning.inference import complete_scan, load_box, load_completer
 
     scan = load_points(asset_path("demo_scan.pcd"))
     box = load_box(asset_path("demo_scan_box.json"))

@@ -7,7 +7,13 @@ from __future__ import annotations
 
 import sys
 
+from ..experiments.curves import learning_curves, summary_markdown
+from ..learning.bench import bench_markdown, bench_models
+from ..learning.evaluate import evaluate_checkpoints, prediction_examples, report_markdown, write_report
+from ..learning.export import export_onnx, load_onnx_completer, parity
 from ..learning.models import MODEL_NAMES as MODEL_CHOICES  # registry keys (imports neither torch nor a model)
+from ..utils import atomic_output, check_writable, output_folder
+from ..viz import render_predictions
 from ._util import (
     DEVICE_HELP,
     add_command,
@@ -336,7 +342,6 @@ def _train(args) -> int:
     ):
         if val is not None:
             ov["data"][key] = val
-    from ..utils import output_folder
 
     out = args.out or f"runs/{args.model}"
     with output_folder(out):  # a run that fails before writing anything leaves no empty folder
@@ -362,9 +367,6 @@ def _train(args) -> int:
 
 
 def _evaluate(args) -> int:
-    from ..learning.evaluate import evaluate_checkpoints, report_markdown, write_report
-    from ..utils import check_writable
-
     check_writable(_report_path(args.out))
     _set_threads(args.threads)
     report = evaluate_checkpoints(
@@ -389,9 +391,6 @@ def _evaluate(args) -> int:
     if args.examples:
         from pathlib import Path
 
-        from ..learning.evaluate import prediction_examples
-        from ..viz import render_predictions
-
         png = render_predictions(
             md.with_suffix(".png"),
             prediction_examples(
@@ -404,8 +403,6 @@ def _evaluate(args) -> int:
 
 
 def _curves(args) -> int:
-    from ..experiments.curves import learning_curves, summary_markdown
-
     summary = learning_curves(args.runs, args.names, args.out, args.budget_minutes, args.tail, args.tolerance)
     print(summary_markdown(summary).rstrip())
     print(f"\ncurves -> {args.out}/curves_samples.png, {args.out}/curves_minutes.png, {args.out}/curves.json")
@@ -415,14 +412,10 @@ def _curves(args) -> int:
 def _export(args) -> int:
     from pathlib import Path
 
-    from ..learning.export import export_onnx, parity
-
     out = Path(args.out)
     check_suffix(out, (".onnx",), "an ONNX model")
     path = export_onnx(args.checkpoint, out, opset=args.opset)
     if not args.quiet:
-        from ..learning.export import load_onnx_completer
-
         c = load_onnx_completer(path)
         rig = f", rig {c.rig.name}" if c.rig is not None else ""
         dec = (f", p(hit) >= {c.threshold:g}" if c.threshold is not None else "") + (
@@ -443,9 +436,6 @@ def _export(args) -> int:
 
 def _bench_models(args) -> int:
     import json
-
-    from ..learning.bench import bench_markdown, bench_models
-    from ..utils import atomic_output, check_writable
 
     check_suffix(args.out, (".json",), "the result (JSON)")
     check_writable(args.out)

@@ -4,6 +4,24 @@ from __future__ import annotations
 
 import argparse
 
+from ..data.consistency import consecutive_pairs
+from ..data.real import open_reader
+from ..data.real.base import CLASSES
+from ..data.real.extract import ExtractConfig, extract, read_observations, write_observations
+from ..data.real.frames import frame_rows
+from ..errors import InputFileError, ParameterError, SpotlightsError
+from ..experiments.real_evaluation import (
+    complete_all,
+    evaluate_consistency,
+    reference_shapes,
+    report_markdown,
+    write_report,
+)
+from ..experiments.scene import complete_scene, render_result, render_result_html, write_scene
+from ..utils import atomic_output, check_writable, output_folder
+from ..viz import html, render_frame
+from ..viz.html import write_plotlyjs
+from ..viz.scene import frame_objects, read_frame_scan
 from ._util import (
     DEVICE_HELP,
     add_command,
@@ -15,7 +33,8 @@ from ._util import (
     positive_int,
     unit_interval,
 )
-from .view import add_html_argument
+from .complete import add_completion_arguments, classes_arg, load_model, scene_config, warn
+from .view import add_html_argument, write_page
 
 FORMAT_CHOICES = ("kitti", "kitti360", "av2", "nuscenes", "generic")
 SOURCE_HELP = (
@@ -116,7 +135,6 @@ def register(sub) -> None:
         metavar="SPEC",
         help="frames to complete: START:STOP[:STEP] positions in the dataset's frame order, or frame ids separated by commas",
     )
-    from .complete import add_completion_arguments
 
     add_completion_arguments(p, single=False)
     p.add_argument(
@@ -286,9 +304,6 @@ def _frames_select(text: str):
 
 def _open(args):
     """The reader of the shared dataset options (validated)."""
-    from ..data.real import open_reader
-    from ..errors import ParameterError
-
     options = {}
     if args.format == "kitti":
         options["velodyne"] = args.velodyne
@@ -317,8 +332,6 @@ def _open(args):
 def _print_summary(obs) -> None:
     from collections import Counter
 
-    from ..data.consistency import consecutive_pairs
-
     classes = Counter(obs.cls)
     pairs = consecutive_pairs(obs.object_keys(), obs.timestamp)
     tracked = {obs.object_keys()[i] for p in pairs for i in p}
@@ -334,9 +347,6 @@ def _print_summary(obs) -> None:
 
 
 def _extract(args) -> int:
-    from ..data.real.extract import ExtractConfig, extract, write_observations
-    from ..utils import check_writable
-
     check_suffix(args.out, (".h5", ".hdf5"), "the observations file (HDF5)")
     check_writable(args.out)
     classes = tuple(c.strip() for c in args.classes.split(",") if c.strip())
@@ -357,8 +367,6 @@ def _extract(args) -> int:
 
 
 def _load_completers(paths, device):
-    from ..errors import SpotlightsError
-
     try:
         from ..learning.checkpoint import resolve_checkpoint
         from ..learning.inference import load_completer
@@ -372,34 +380,22 @@ def _load_completers(paths, device):
 def _evaluate(args) -> int:
     from pathlib import Path
 
-    from ..data.real.extract import read_observations
-    from ..experiments.real_evaluation import evaluate_consistency, report_markdown, write_report
-
     if args.reference_split and not args.reference:
-        from ..errors import ParameterError
-
         raise ParameterError("--reference-split needs --reference DATASET.h5")
-    from ..errors import ParameterError
-    from .complete import classes_arg
 
     if args.equal_points < 0:
         raise ParameterError(f"--equal-points must be >= 0, got {args.equal_points}")
-    from ..utils import check_writable
 
     prefix = args.out or str(Path(args.file).with_suffix("")) + "_consistency"
     check_writable(prefix + ".md")
     obs = read_observations(args.file)  # validate before loading models
     classes = classes_arg(args.classes)
     if classes:
-        from ..data.real.base import CLASSES
-
         bad = [c for c in classes if c not in CLASSES]
         if bad:
             raise ParameterError(f"unknown class(es) {', '.join(bad)}; choose among {', '.join(CLASSES)}")
     refs, ref_info = (None, None)
     if args.reference:
-        from ..experiments.real_evaluation import reference_shapes
-
         refs, ref_info = reference_shapes(args.reference, args.reference_split)
     checkpoints = args.checkpoint or ["default"]
     completers = _load_completers(checkpoints, args.device)
@@ -408,7 +404,6 @@ def _evaluate(args) -> int:
     # two checkpoints of one model: tell them apart by file name, or by run folder for best.pt / last.pt
     tag = [Path(p).parent.name if Path(p).stem in ("best", "last") else Path(p).stem for p in checkpoints]
     names = [f"{n} ({t})" if n in dup else n for n, t in zip(names, tag)]
-    from ..errors import InputFileError
 
     try:
         report = evaluate_consistency(
@@ -432,7 +427,6 @@ def _evaluate(args) -> int:
         raise InputFileError(args.file, exc.problem) from None  # name the file the user gave
     report["data"]["file"] = str(args.file)
     md, js = write_report(report, prefix)
-    from .complete import warn
 
     warn(
         [
@@ -450,14 +444,8 @@ def _evaluate(args) -> int:
 def _show(args) -> int:
     from pathlib import Path
 
-    from ..data.real.extract import read_observations
-    from ..data.real.frames import frame_rows
-    from ..errors import ParameterError
-    from ..viz import render_frame
-
     if args.max_objects < 1:
         raise ParameterError("--max-objects must be >= 1")
-    from ..utils import check_writable
 
     check_picture(args.out)
     check_suffix(args.html, (".html", ".htm"), "the page (HTML)", "--html")
@@ -471,7 +459,6 @@ def _show(args) -> int:
         raise ParameterError("--no-completion draws no model: it takes no --checkpoint")
     if not args.no_completion:
         completer = _load_completers([args.checkpoint or "default"], args.device)[0]
-        from ..experiments.real_evaluation import complete_all
 
         completions = complete_all(
             completer, obs.partial[rows], progress=False, clip=args.clip, box_sizes=obs.box_size[rows]
@@ -485,10 +472,6 @@ def _show(args) -> int:
     )
     objects = f"{len(rows)} object{'' if len(rows) == 1 else 's'} of frame {frame}"
     if args.html:
-        from ..viz import html
-        from ..viz.scene import frame_objects, read_frame_scan
-        from .view import write_page
-
         scan = read_frame_scan(obs, i0)
         write_page(
             args.html, [("scene", html.scene_traces(scan, frame_objects(obs, rows, completions)))], title, quiet=True
@@ -502,8 +485,6 @@ def _show(args) -> int:
 
 
 def _select_frames(keys, spec):
-    from ..errors import ParameterError
-
     if spec is None:
         return keys
     kind, val = spec
@@ -528,10 +509,6 @@ def _safe_name(text: str) -> str:
 
 
 def _complete(args) -> int:
-    from ..errors import ParameterError
-    from ..utils import output_folder
-    from .complete import load_model, scene_config
-
     reader = _open(args)
     keys = _select_frames(reader.frame_keys(), args.frames)
     if not keys:
@@ -548,10 +525,6 @@ def _complete_frames(args, reader, keys, config, completer, out) -> int:
     from pathlib import Path
 
     from tqdm import tqdm
-
-    from ..experiments.scene import complete_scene, render_result, write_scene
-    from ..utils import atomic_output
-    from .complete import warn
 
     checkpoint = args.checkpoint or "default"
     out = Path(out)
@@ -593,9 +566,6 @@ def _complete_frames(args, reader, keys, config, completer, out) -> int:
                 )
             if args.html:
                 import os
-
-                from ..experiments.scene import render_result_html
-                from ..viz.html import write_plotlyjs
 
                 js = os.path.relpath(write_plotlyjs(out), stem.parent).replace(os.sep, "/")
                 render_result_html(

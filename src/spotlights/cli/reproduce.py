@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from ..experiments.reproduce import parse_tables, publish, reproduce
 from ._util import add_command, add_quiet, positive_int
 
 
@@ -85,8 +86,6 @@ def register(sub) -> None:
 
 def _reproduce(args) -> int:
     import sys
-
-    from ..experiments.reproduce import parse_tables, publish, reproduce
 
     parse_tables(args.tables)  # a bad --tables fails before anything runs
     res = reproduce(

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from ..errors import SpotlightsError
+from ..experiments.rig_study import rig_study, verdict_lines
 from ._util import add_command, add_group, add_quiet, non_negative_int, positive_int
 
 DEFAULT_MESHES = ("../shared/data/meshes/apolloscape-cars", "../shared/data/meshes/categories")
@@ -59,9 +61,6 @@ def register(sub) -> None:
 
 
 def _rigs(args) -> int:
-    from ..errors import SpotlightsError
-    from ..experiments.rig_study import rig_study, verdict_lines
-
     if args.workers < 1:
         raise SpotlightsError(f"--workers must be >= 1, got {args.workers}")
     res = rig_study(

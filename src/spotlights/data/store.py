@@ -52,6 +52,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputFileError, ParameterError
+from ..geometry.rig import RigSpec, parse_rig
 from .shard_index import is_shard_index, read_shard_index, without_extra_rigs
 
 FORMAT = "spotlights-completion"
@@ -222,8 +223,6 @@ class CompletionDataset:
         self.views_per_model = int(attrs.get("views_per_model", 0))
         self.config = json.loads(attrs.get("config_json", "{}"))
         if self.sharded:  # the extra rigs of any shard that every shard holds (an add-rig may be half done)
-            from .synthetic.config import parse_rig
-
             union = []
             for t in tables:
                 for r in json.loads(t["attrs"].get("config_json", "{}")).get("extra_rigs") or []:
@@ -431,8 +430,6 @@ class CompletionDataset:
 
         For a cap rig, ``rig_spec(name).for_box(None)`` is the rig; for a box-targeted rig
         each model's rig is ``rig_spec(name).for_box(extents[model])`` (:meth:`rig`)."""
-        from ..geometry.rig import RigSpec
-
         return RigSpec.from_dict(self.rig_dict(name))
 
     def rig_dict(self, name: str | None = None) -> dict:

@@ -32,6 +32,7 @@ import numpy as np
 
 from ..errors import InputFileError, ParameterError
 from ..utils import atomic_output
+from ..viz.curves import render_learning_curves
 
 METRICS = (
     ("val_chamfer_l1", "validation CD-L1 (unit frame)"),
@@ -149,8 +150,6 @@ def learning_curves(
 
     Returns the summary dict written to ``curves.json``.
     """
-    from ..viz.curves import render_learning_curves
-
     names = (
         list(names) if names is not None else [Path(r).name if Path(r).is_dir() else Path(r).parent.name for r in runs]
     )

@@ -31,9 +31,12 @@ import numpy as np
 
 from ..errors import ParameterError, SpotlightsError
 from ..geometry.distances import completeness
-from ..geometry.io import MESH_SUFFIXES
+from ..geometry.encode import MeshProbe, decode
+from ..geometry.io import MESH_SUFFIXES, load_mesh
 from ..geometry.rig import RigSpec, make_rig_spec
-from ..utils import atomic_output
+from ..geometry.sampling import sample_surface
+from ..utils import atomic_output, output_folder, process_map
+from ..viz.study import plot_rig_study
 
 CARS = "apolloscape-cars"
 DEFAULT_RAYS = (2048, 4096, 8192)
@@ -148,10 +151,6 @@ def evaluate_mesh(entry: MeshEntry, rigs: Sequence[StudyRig], seed: int = 0, n_s
     list of dicts, one per rig: ``mesh_set, category, mesh, rig, label, family, rays,
     hits, hit_ratio, completeness`` (completeness in unit-frame units).
     """
-    from ..geometry.encode import MeshProbe, decode
-    from ..geometry.io import load_mesh
-    from ..geometry.sampling import sample_surface
-
     mesh = load_mesh(entry.path, **mesh_axes(entry.path))
     probe = MeshProbe(mesh)
     mesh_seed = (int(seed) << 32) ^ zlib.crc32(f"{entry.mesh_set}/{entry.mesh_id}".encode())
@@ -251,8 +250,6 @@ def run_study(
     jobs = [(e, list(rigs), seed, n_surface, cache_file(e)) for e in meshes]
     results = []
     with tqdm(total=len(jobs), desc="rig study", unit="mesh", disable=not progress) as bar:
-        from ..utils import process_map
-
         for rows in process_map(_job, jobs, workers, what="mesh"):
             results.append(rows)
             bar.update()
@@ -408,7 +405,6 @@ def markdown_report(summary, meshes: Sequence[MeshEntry], seed: int, n_surface: 
 
 def plot_study(path, summary) -> Path:
     """Completeness against hit ratio, one panel per mesh set, one marker per rig and ray count (PNG)."""
-    from ..viz.study import plot_rig_study
 
     def reference(r) -> bool:  # the paper's 60-degree cap and the default box rig at each ray count
         return r.rig in (
@@ -457,8 +453,6 @@ def rig_study(
     workers : processes over meshes (results do not depend on it).
     variants : ``(label, make_rig_spec kwargs)`` pairs (default ``PAPER_RIGS + BOX_RIGS``).
     """
-    from ..utils import output_folder
-
     out = Path(out_dir)
     meshes = find_meshes(mesh_dirs)
     if not meshes:

@@ -42,8 +42,11 @@ from ..data.real.extract import crop_box
 from ..data.real.scans import MIN_SCAN_POINTS
 from ..errors import InputFileError, ParameterError
 from ..geometry.boxes import FLIP_Z, Box
+from ..geometry.io import save_ply, save_points
 from ..geometry.neighbors import serial_queries
 from ..geometry.rotations import rigid_transform
+from ..learning.inference import DEFAULT, prepare_partial
+from ..viz import SceneObject, html, render_scene
 
 SOURCE_RAW, SOURCE_PARTIAL, SOURCE_COMPLETION = 0, 1, 2
 HEADING_MARGIN = 0.3
@@ -272,8 +275,6 @@ def complete_scene(
     Returns a :class:`SceneResult`; raises :class:`ParameterError` for a scan with fewer than
     ``config.min_points`` points.
     """
-    from ..learning.inference import DEFAULT, prepare_partial
-
     config = config or SceneConfig()
     t0 = time.perf_counter()
     scan = np.asarray(points, dtype=np.float64).reshape(-1, 3)
@@ -430,8 +431,6 @@ def write_scene(
     """Write the scene: ``out`` ``.ply`` with x y z, ``source``, ``object`` (any other suffix: the completion
     points only, as ``save_points`` writes them); ``per_object`` folder: ``object_<id>.ply`` per completed
     object (its input and completion, with ``source``). Atomic writes; returns the paths written."""
-    from ..geometry.io import save_ply, save_points
-
     out = Path(out)
     written = []
     if out.suffix.lower() == ".ply":
@@ -472,8 +471,6 @@ def describe(result: SceneResult) -> str:
 def scene_objects(result: SceneResult) -> list:
     """The completed objects of a scene as :class:`spotlights.viz.SceneObject` (scan frame): box, partial
     input, completion, labelled with their ``object`` ids (as in the PLY)."""
-    from ..viz import SceneObject
-
     objs = []
     for o in result.completed:
         b = o.used_box
@@ -495,8 +492,6 @@ def render_result(result: SceneResult, path: str | Path, title: str | None = Non
     """Draw a completed scene into a PNG: a bird's-eye view (equal aspect, grey scan, purple inputs, green
     completions, box outlines labelled with their ``object`` ids, a scale bar) and a 3-D close-up of every
     completed object seen from the sensor (box wireframe, 1 m ruler). Uses :func:`spotlights.viz.render_scene`."""
-    from ..viz import render_scene
-
     return render_scene(
         path, result.points, scene_objects(result), title=title, id_note="boxes: object id, as in the PLY"
     )
@@ -507,8 +502,6 @@ def render_result_html(
 ) -> Path:
     """The same scene as one interactive HTML page (:mod:`spotlights.viz.html`): self-contained, or with
     ``plotlyjs`` a relative path to a shared local copy of plotly.js (:func:`spotlights.viz.html.write_plotlyjs`)."""
-    from ..viz import html
-
     fig = html.page([("scene", html.scene_traces(result.points, scene_objects(result)))], title or "")
     return html.write_html(path, fig, plotlyjs=plotlyjs)
 

@@ -18,8 +18,9 @@ import math
 
 import numpy as np
 
-from ..errors import ParameterError
-from .rotations import orthonormalize, rotation_z
+from ..errors import InputFileError, ParameterError
+from .frames import normalization_from_box
+from .rotations import is_rotation, orthonormalize, quaternion_to_matrix, rotation_z
 
 #: 180 degrees about the box's own z axis: the same box, heading turned around.
 FLIP_Z = np.diag([-1.0, -1.0, 1.0])
@@ -169,8 +170,6 @@ class Box:
 
     def normalization(self):
         """The :class:`~spotlights.geometry.frames.Normalization` scan frame -> unit frame (R = half diagonal)."""
-        from .frames import normalization_from_box
-
         return normalization_from_box(self.center, self.size, rotation=self.rotation)
 
     def flipped(self) -> Box:
@@ -204,8 +203,6 @@ ID_KEYS = ("track_id", "id", "instance_token", "tracking_id")
 
 
 def _vector(value, n, src, what: str) -> np.ndarray:
-    from ..errors import InputFileError
-
     try:
         a = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
@@ -239,9 +236,6 @@ def box_from_dict(d, src="box", what: str = "box", require_label: bool = False, 
     ``--up/--forward``: a ``yaw`` then turns about the scan's up axis. The box returned is in
     the scan's own coordinates. Errors are :class:`InputFileError` naming ``src`` and ``what``.
     """
-    from ..errors import InputFileError
-    from .rotations import is_rotation, quaternion_to_matrix
-
     if not isinstance(d, dict):
         raise InputFileError(src, f"{what} is not a JSON object with center, size and a heading")
     if "center" not in d:
@@ -292,8 +286,6 @@ def load_box(path) -> Box:
     """Read a one-box JSON file (see :func:`box_from_dict`; the label is optional here)."""
     import json
     from pathlib import Path
-
-    from ..errors import InputFileError
 
     p = Path(path)
     if not p.is_file():

@@ -21,6 +21,7 @@ import numpy as np
 from ..errors import InputFileError, ParameterError
 from ..utils import atomic_output
 from .frames import Normalization, normalization_from_mesh
+from .io import load_mesh
 from .raycast import RayCaster
 from .rig import Rig, RigSpec, extents_from_normalization
 
@@ -127,8 +128,6 @@ FILE_WORKERS = 2
 
 
 def _encode_file(job):
-    from .io import load_mesh
-
     path, rigs, up, forward = job
     probe = MeshProbe(load_mesh(path, up=up, forward=forward))
     return [probe.encode(r) for r in rigs]

@@ -22,7 +22,9 @@ import statistics
 import time
 from collections.abc import Sequence
 
+from ..geometry.rig import make_rig
 from .models import DISPLAY_NAMES, MODEL_NAMES, build_model, check_model_name, load_config
+from .rays import timing_directions
 
 
 def cpu_name() -> str:
@@ -82,7 +84,6 @@ def timing_inputs(batches: Sequence[int], n_input: int = 256, seed: int = 0, dev
 def _model_calls(model, x, device) -> dict:
     """{"forward": fn, "complete": fn} for one model and input batch (box-rig SA-Nets get one box's rays)."""
     from .models.base import CLIP_DEFAULT
-    from .rays import timing_directions
 
     dirs = timing_directions(model, x.shape[0])  # None, or the rays of one box for box-rig SA-Nets
     dirs = None if dirs is None else dirs.to(device)
@@ -167,7 +168,6 @@ def bench_models(
     """
     import torch
 
-    from ..geometry.rig import make_rig
     from .device import resolve_device
 
     if threads:

@@ -24,6 +24,8 @@ from pathlib import Path
 
 from .._version import __version__
 from ..errors import InputFileError
+from ..utils import atomic_output
+from .models import MODEL_REGISTRY, build_model
 
 FORMAT = "spotlights-checkpoint"
 FORMAT_VERSION = 1
@@ -69,8 +71,6 @@ def save_checkpoint(path, payload: dict) -> Path:
     """Write ``payload`` (plus format fields) to ``path`` atomically (temporary file, then rename)."""
     import torch
 
-    from ..utils import atomic_output
-
     data = {"format": FORMAT, "format_version": FORMAT_VERSION, "spotlights_version": __version__, **payload}
     with atomic_output(path) as tmp:
         torch.save(data, tmp)
@@ -94,8 +94,6 @@ def load_checkpoint(path, expect_model: str | None = None, map_location="cpu") -
     import zipfile
 
     import torch
-
-    from .models import MODEL_REGISTRY
 
     p = resolve_checkpoint(path)
     if p.is_dir():
@@ -137,8 +135,6 @@ def model_from_checkpoint(ckpt: dict, device=None):
     Raises :class:`InputFileError` when the weights do not fit the model the config describes.
     """
     import torch
-
-    from .models import build_model
 
     try:
         model = build_model(ckpt["config"], rig=ckpt.get("rig"))

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputFileError, ParameterError
+from .registry import MODEL_REGISTRY, model_class
 
 SECTIONS = ("model", "data", "train")
 MODEL_KEYS = ("name", "args")
@@ -258,8 +259,6 @@ def check_keys(cfg: dict, source=None, model_name: str | None = None) -> None:
         if not isinstance(args, dict):
             raise _fail(source, f"model.args must be a mapping, got {args!r}")
         if name is not None:
-            from .models import MODEL_REGISTRY, model_class
-
             if name in MODEL_REGISTRY:
                 known = model_arguments(model_class(name))
                 for key in args:

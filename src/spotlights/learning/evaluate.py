@@ -25,9 +25,17 @@ from pathlib import Path
 
 import numpy as np
 
+from ..data.store import open_dataset
+from ..distributed import check_backend, ray_session
 from ..errors import ParameterError
+from ..utils import atomic_output
 from .bench import model_latency
+from .checkpoint import load_checkpoint, model_from_checkpoint
+from .inference import DEFAULT, load_completer
 from .metrics import METRIC_DESCRIPTIONS, evaluate_completions, summarize
+from .models import DISPLAY_NAMES
+from .ray_metrics import RayMetrics
+from .rays import DirectionTable
 
 TABLE_METRIC = "accuracy"
 
@@ -77,7 +85,6 @@ def evaluate_checkpoint(
     from torch.utils.data import DataLoader
     from tqdm import tqdm
 
-    from .checkpoint import load_checkpoint, model_from_checkpoint
     from .data import TorchCompletionDataset
     from .device import resolve_device
 
@@ -101,8 +108,6 @@ def evaluate_checkpoint(
     kept = {v: [] for v, _ in variants}
     rays = None
     if getattr(model, "needs_box", False):  # box-targeted SA-Net: each sample decodes with its model's box
-        from .rays import DirectionTable
-
         rays = DirectionTable(model.rig, ds.extents)
     loader = DataLoader(ds, batch_size=batch_size, shuffle=False, num_workers=num_workers)
     t0 = time.perf_counter()
@@ -217,13 +222,10 @@ def evaluate_checkpoints(
         raise ParameterError("give at least one checkpoint to evaluate")
     ds = TorchCompletionDataset(data, split, rig=False, max_views=kw.pop("max_views", None), partials_in_memory=True)
     dense = ds.gt_dense()
-    from ..distributed import check_backend, ray_session
 
     with ray_session(ray_address) if check_backend(backend) == "ray" else contextlib.nullcontext() as ray:
         scorer = None
         if ray is not None:
-            from .ray_metrics import RayMetrics
-
             scorer = RayMetrics(ray)
         results = [
             evaluate_checkpoint(c, data, split, dataset=ds, gt_dense=dense, progress=progress, scorer=scorer, **kw)
@@ -246,8 +248,6 @@ def _fmt(x: float, digits: int = 5) -> str:
 
 
 def _label(res: dict, row: dict) -> str:
-    from .models import DISPLAY_NAMES
-
     name = DISPLAY_NAMES.get(res["model"], res["model"])
     if res.get("tag"):  # two checkpoints of one model in a report: say which is which
         name += f" [{res['tag']}]"
@@ -379,7 +379,6 @@ def report_markdown(report: dict, metric: str = TABLE_METRIC) -> str:
                 )
             lines.append("| " + " | ".join(cells) + " |")
     lines += ["", "Parameters (encoder / decoder / total):", ""]
-    from .models import DISPLAY_NAMES
 
     for res in report["results"]:
         p = res["params"]
@@ -405,8 +404,6 @@ def _jsonable(x):
 
 def write_report(report: dict, out) -> tuple[Path, Path]:
     """Write ``OUT.md`` and ``OUT.json`` (atomically; NaN written as null). ``out`` may end in .md/.json or not."""
-    from ..utils import atomic_output
-
     out = Path(out)
     stem = out.with_suffix("") if out.suffix.lower() in (".md", ".json") else out
     md, js = Path(f"{stem}.md"), Path(f"{stem}.json")
@@ -428,9 +425,6 @@ def prediction_examples(
     Returns dicts with ``label``, ``partial`` (K, 3), ``gt`` (the dense ground truth, (L, 3)),
     ``predictions`` [(model name, (M, 3))], all float, unit frame.
     """
-    from ..data.store import open_dataset
-    from .inference import DEFAULT, load_completer
-
     completers = [load_completer(c, device=device) for c in checkpoints]
     names = [c.model_name for c in completers]
     names = [

@@ -31,6 +31,11 @@ import numpy as np
 
 from .._version import __version__
 from ..errors import InputFileError, ParameterError, SpotlightsError
+from ..utils import atomic_output
+from .checkpoint import load_checkpoint, model_from_checkpoint, resolve_checkpoint
+from .inference import DEFAULT as TORCH_DEFAULT
+from .inference import LearnedDomain
+from .rays import TIMING_BOX_SIZE, directions_for_extents, extents_from_sizes, rig_spec, timing_directions
 
 FORMAT = "spotlights-onnx"
 FORMAT_VERSION = 1
@@ -121,10 +126,6 @@ def export_onnx(checkpoint, out, opset: int = OPSET, n_input: int = 256) -> Path
     with an install hint when onnx or its exporter is missing.
     """
     import torch
-
-    from ..utils import atomic_output
-    from .checkpoint import load_checkpoint, model_from_checkpoint, resolve_checkpoint
-    from .rays import timing_directions
 
     onnx = _require("onnx")
     _require("onnxscript")  # torch's ONNX exporter
@@ -230,14 +231,11 @@ class OnnxCompleter:
         self.n_params = int(self.param_counts["total"])
         rig = json.loads(meta.get("rig", "null"))
         if rig is not None:
-            from .rays import rig_spec
-
             rig = rig_spec(rig)
         self.rig = rig
         self.needs_box = bool(json.loads(meta.get("needs_box", "false")))
         self.clip = json.loads(meta.get("clip", "null"))
         self.threshold = json.loads(meta.get("threshold", "null"))
-        from .inference import LearnedDomain
 
         self.domain = LearnedDomain.from_checkpoint({"domain": json.loads(meta.get("domain", "null"))})
         self.outputs = json.loads(meta["outputs"])
@@ -265,8 +263,6 @@ class OnnxCompleter:
 
     def complete(self, partials: np.ndarray, clip=DEFAULT, batch_size: int = 256, extents=None) -> list[np.ndarray]:
         """Complete partial scans, as :meth:`Completer.complete` (same arguments, same results up to float rounding)."""
-        from .inference import DEFAULT as TORCH_DEFAULT
-
         x = np.asarray(partials, dtype=np.float32)
         if x.ndim == 2:
             x = x[None]
@@ -294,8 +290,6 @@ class OnnxCompleter:
         for s in range(0, len(x), batch_size):
             dirs = None
             if e is not None:
-                from .rays import directions_for_extents
-
                 dirs = directions_for_extents(self.rig, e[s : s + batch_size])
             out = self.run(x[s : s + batch_size], dirs)
             if "points" in out:
@@ -318,9 +312,6 @@ def parity(checkpoint, onnx_completer: OnnxCompleter, partials: np.ndarray | Non
     Returns {output name: max |onnx - torch|}, plus ``kept_rays_differ``: rays kept by one and not the other.
     """
     import torch
-
-    from .checkpoint import load_checkpoint, model_from_checkpoint, resolve_checkpoint
-    from .rays import TIMING_BOX_SIZE, directions_for_extents, extents_from_sizes
 
     model = model_from_checkpoint(load_checkpoint(resolve_checkpoint(checkpoint)), torch.device("cpu"))
     x = partials if partials is not None else (np.random.default_rng(0).normal(size=(8, 256, 3)) * 0.3)

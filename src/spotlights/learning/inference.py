@@ -24,6 +24,9 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..geometry.boxes import Box, box_from_dict, load_box  # noqa: F401  (the box of complete_scan; re-exported)
+from ..geometry.sampling import resample_set
+from .checkpoint import PRETRAINED, load_checkpoint, model_from_checkpoint, resolve_checkpoint
+from .rays import directions_for_extents, extents_from_sizes
 
 INPUT_POINTS = 256
 """Points per partial scan the models were trained with (the dataset's partial size)."""
@@ -41,8 +44,6 @@ def pretrained_checkpoint(name: str = "default") -> Path:
     See :func:`spotlights.learning.checkpoint.resolve_checkpoint`; raises
     :class:`~spotlights.errors.InputFileError` when this installation ships none.
     """
-    from .checkpoint import PRETRAINED, resolve_checkpoint
-
     if name not in PRETRAINED:
         raise ParameterError(f"unknown pretrained model {name!r}; choose one of {', '.join(PRETRAINED)}")
     return resolve_checkpoint(name)
@@ -210,8 +211,6 @@ class Completer:
                 t = torch.from_numpy(x[s : s + batch_size]).to(self.device)
                 dirs = None
                 if e is not None:
-                    from .rays import directions_for_extents
-
                     d = directions_for_extents(self.rig, e[s : s + batch_size])
                     dirs = torch.from_numpy(np.ascontiguousarray(d)).to(self.device)
                 out.extend(p.cpu().numpy().astype(np.float32) for p in self.model.complete(t, c, dirs))
@@ -228,7 +227,6 @@ def load_completer(checkpoint_path=None, device=None, precision: str = "fp32") -
     bfloat16) or ``"auto"`` (bf16 where supported).
     Raises :class:`InputFileError` for a missing/invalid checkpoint.
     """
-    from .checkpoint import load_checkpoint, model_from_checkpoint
     from .device import resolve_device
 
     dev = resolve_device(device)
@@ -255,8 +253,6 @@ def prepare_partial(
     change nothing). Another ``seed`` gives another subset: ``real evaluate``'s noise floor
     measures how much that alone moves a completion.
     """
-    from ..geometry.sampling import resample_set
-
     if method not in RESAMPLE_METHODS:
         raise ParameterError(f"unknown resampling method {method!r}; choose one of {', '.join(RESAMPLE_METHODS)}")
     return resample_set(np.asarray(points_unit, dtype=np.float64).reshape(-1, 3), n, seed=seed, method=method).astype(
@@ -307,8 +303,6 @@ def complete_scan(
             raise ParameterError("no scan point lies inside the box (after --crop); check the box and the scan's frame")
     partial = prepare_partial(unit, n_input, seed=seed, method=resample_method)
     if getattr(completer, "needs_box", False):  # box-targeted SA-Net: rays aimed at this box
-        from .rays import extents_from_sizes
-
         done = completer.complete(partial[None], clip=clip, extents=extents_from_sizes(box.size)[None])[0]
     else:
         done = completer.complete(partial[None], clip=clip)[0]

@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ParameterError
+from ..geometry.rig import Rig, RigSpec
 
 
 def rig_spec(rig):
@@ -29,8 +30,6 @@ def rig_spec(rig):
     checkpoint or a dataset's ``rig_json``), or None (returned as None). A cap spec's ``to_dict()``
     is exactly its rig's, so checkpoints written with either read back alike.
     """
-    from ..geometry.rig import Rig, RigSpec
-
     if rig is None or isinstance(rig, RigSpec):
         return rig
     if isinstance(rig, Rig):

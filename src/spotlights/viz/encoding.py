@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import ParameterError
 from ..geometry.encode import decode
 from .points import Layer, render_layers
 
@@ -57,8 +58,6 @@ def viewpoint_rays(encoding, index: int, clip: float | None = None) -> dict[str,
     """
     rig = encoding.rig
     if not 0 <= index < rig.n_primary:
-        from ..errors import ParameterError
-
         raise ParameterError(
             f"viewpoint {index} out of range: the rig has {rig.n_primary} viewpoints (0-{rig.n_primary - 1})"
         )

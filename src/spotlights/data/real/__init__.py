@@ -17,8 +17,15 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 
+from ...errors import InputFileError, ParameterError
 from ...geometry.boxes import Box
+from .av2 import Av2Reader
 from .base import CLASSES, PAPER_CLASSES, Frame, SceneReader
+from .generic import GenericReader
+from .kitti import KittiReader
+from .kitti360 import Kitti360Reader
+from .nuscenes import NuScenesReader
+from .scans import read_scan as _read
 
 FORMATS = ("kitti", "kitti360", "av2", "nuscenes", "generic")
 
@@ -32,8 +39,6 @@ def open_reader(source: str | os.PathLike | Sequence, format: str, **options) ->
     ``boxes`` (generic, one scan file). Raises :class:`spotlights.errors.InputFileError`
     for a bad folder or file.
     """
-    from ...errors import ParameterError
-
     if isinstance(source, (list, tuple)):
         if len(source) == 1:
             source = source[0]
@@ -42,24 +47,14 @@ def open_reader(source: str | os.PathLike | Sequence, format: str, **options) ->
                 raise ParameterError("--boxes names the box file of a single scan SOURCE, not of several")
             return MultiReader([open_reader(s, format, **options) for s in source])
     if format == "kitti":
-        from .kitti import KittiReader
-
         return KittiReader(source, **options)
     if format == "av2":
-        from .av2 import Av2Reader
-
         return Av2Reader(source, **options)
     if format == "kitti360":
-        from .kitti360 import Kitti360Reader
-
         return Kitti360Reader(source, **options)
     if format == "nuscenes":
-        from .nuscenes import NuScenesReader
-
         return NuScenesReader(source, scenes=options.pop("sequences", None), **options)
     if format == "generic":
-        from .generic import GenericReader
-
         return GenericReader(source, **options)
     raise ParameterError(f"unknown format {format!r}; choose one of {', '.join(FORMATS)}")
 
@@ -73,8 +68,6 @@ class MultiReader(SceneReader):
     """
 
     def __init__(self, readers: Sequence[SceneReader]):
-        from ...errors import InputFileError
-
         self.readers = list(readers)
         self.format = self.readers[0].format
         self.root = self.readers[0].root
@@ -101,8 +94,6 @@ class MultiReader(SceneReader):
 
 def read_scan(path: str | os.PathLike):
     """Read a raw scan file of any kind (see :mod:`.scans`): (N, 3) metres, its sensor frame."""
-    from .scans import read_scan as _read
-
     return _read(path)
 
 

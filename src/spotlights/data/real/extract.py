@@ -45,8 +45,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..._version import __version__
 from ...errors import InputFileError, ParameterError
 from ...geometry.boxes import Box
+from ...geometry.sampling import resample_set
+from ...utils import atomic_output
 from .base import CLASSES, PAPER_CLASSES, Frame, SceneReader
 
 FILE_FORMAT = "spotlights-real-observations"
@@ -225,8 +228,6 @@ def duplicate_boxes(boxes: list[Box], tol: float = DUPLICATE_TOLERANCE_M) -> set
 
 def extract_frame(frame: Frame, config: ExtractConfig, skipped: Counter, skipped_labels: Counter) -> list[dict]:
     """Observations of one frame (a list of dicts, see :class:`Observations`); updates the skip counters."""
-    from ...geometry.sampling import resample_set
-
     out = []
     pts = np.asarray(frame.points, dtype=np.float64)
     pose = frame.sensor_to_world if frame.sensor_to_world is not None else np.full((4, 4), np.nan)
@@ -349,9 +350,6 @@ def _stack(rows: list[dict], n_points: int, meta: dict) -> Observations:
 def write_observations(path: str | os.PathLike, obs: Observations) -> Path:
     """Write observations to HDF5 atomically (schema in ``docs/real-data.md``); returns the path."""
     import h5py
-
-    from ..._version import __version__
-    from ...utils import atomic_output
 
     path = Path(path)
     with atomic_output(path, suffix=".h5") as tmp:

@@ -20,6 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import InputFileError, ParameterError
+from ...geometry.io import POINT_SUFFIXES, load_points
+from .av2 import read_av2_sweep
 
 SCAN_KINDS = ("auto", "kitti", "nuscenes", "av2", "points")
 MIN_SCAN_POINTS = 10
@@ -29,8 +31,6 @@ vehicle's shape (the default of ``real extract --min-points`` and ``complete --m
 
 def scan_kind(path: str | os.PathLike) -> str:
     """The kind of a scan file from its name: ``kitti``, ``nuscenes``, ``av2`` or ``points``."""
-    from ...geometry.io import POINT_SUFFIXES
-
     p = Path(path)
     name = p.name.lower()
     if name.endswith(".pcd.bin"):
@@ -124,12 +124,8 @@ def read_scan(path: str | os.PathLike, kind: str = "auto") -> np.ndarray:
     elif kind == "nuscenes":
         pts = read_nuscenes_bin(p)
     elif kind == "av2":
-        from .av2 import read_av2_sweep
-
         pts = read_av2_sweep(p)
     else:
-        from ...geometry.io import load_points
-
         return load_points(p, drop_nonfinite=True)
     keep = np.all(np.isfinite(pts), axis=1)
     if not keep.all():

@@ -7,25 +7,23 @@ import os
 import shutil
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import h5py
 import numpy as np
-import trimesh
 from tqdm import tqdm
 
 from ...distributed import DEFAULT_RETRIES, check_backend, import_ray, ray_session
 from ...errors import InputFileError, ParameterError
-from ...geometry.encode import MeshProbe
-from ...geometry.frames import normalization_from_mesh
 from ...geometry.rig import Rig, RigSpec
 from ...utils import atomic_output, exclusive_lock
 from ..store import open_dataset, write_rig_group
-from .catalogue import apply_augment, discover_sources, load_model, source_root, source_scale
+from .catalogue import discover_sources
 from .config import BuildConfig, parse_rig
 from .ray_backend import RayBuild
 from .runner import default_log, map_units, worker_state
+from .simulate import model_depths
 
 
 # ----------------------------------------------------------------------------------------------
@@ -44,31 +42,6 @@ class AddRigReport:
     seconds_write: float = 0.0
     file_size: int = 0
     already_present: bool = False
-
-
-def model_depths(cfg: BuildConfig, entry, stored: dict, m: int, rig) -> np.ndarray:
-    """Model row ``m``'s depths (N*M,) float32 for ``rig``: its mesh loaded again (checked against
-    the stored SHA-256, centre and radius; an augmented copy made again from ``stored["augment"]``)."""
-    root = source_root(cfg, entry)
-    model = load_model(root, entry, source_scale(cfg, entry))
-    want = stored["sha256"][m]
-    if want and model.entry.sha256 != want:
-        raise InputFileError(
-            root / entry.file,
-            f"differs from the mesh the dataset was built from (SHA-256 "
-            f"{model.entry.sha256[:12]}..., the dataset recorded {want[:12]}...)",
-        )
-    if stored["augment"][m]:
-        model = apply_augment(model, replace(model.entry, augment=json.loads(stored["augment"][m])))
-    mesh = trimesh.Trimesh(model.vertices, model.faces, process=False, validate=False)
-    norm = normalization_from_mesh(mesh)
-    if not (np.array_equal(norm.center, stored["center"][m]) and float(norm.radius) == float(stored["radius"][m])):
-        raise InputFileError(
-            root / entry.file,
-            "normalises differently from the dataset's /models/center and "
-            "/models/radius (other --scale/--up/--forward?)",
-        )
-    return MeshProbe(mesh, norm).encode(rig)
 
 
 def _add_rig_unit(m: int) -> tuple[int, np.ndarray]:

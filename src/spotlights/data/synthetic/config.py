@@ -1,4 +1,5 @@
-"""Configuration of a synthetic dataset build: rig and split specs, :class:`BuildConfig`.
+"""Configuration of a synthetic dataset build: split specs, :class:`BuildConfig` (rig specs are parsed by
+:func:`spotlights.geometry.rig.parse_rig`, importable from here).
 
 Everything that determines a dataset's content is a field of :class:`BuildConfig`; it is
 stored in the file as ``config_json`` (and in ``OUT.parts/plan.json`` while a build runs),
@@ -15,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import ParameterError
-from ...geometry.rig import Rig, RigSpec, make_rig
+from ...geometry.rig import Rig, RigSpec, parse_rig
 from ..lidar import SensorModel, hdl64e
 
 PLAN_VERSION = 1
@@ -32,33 +33,6 @@ SENSOR_CLEARANCE = 0.5
 # ----------------------------------------------------------------------------------------------
 # configuration
 # ----------------------------------------------------------------------------------------------
-def parse_rig(spec: str | Rig | RigSpec) -> Rig | RigSpec:
-    """A rig from ``"NxM"``, ``"NxM@DEG"`` (e.g. ``"64x32@60"``) or a rig name.
-
-    Cap rigs (``"64x32@60"``, ``"cap-32x64-60"``) give the :class:`Rig` itself (its rays do
-    not depend on the object). Box-targeted rig names (``"box-32x64-ellipsoid-s1"``, any
-    :attr:`RigSpec.name`) give a :class:`RigSpec`: each model's depths use the rig of its own
-    box (``spec.for_box(size / 2R)``, see docs/box-rig.md).
-    """
-    if isinstance(spec, Rig):
-        return spec
-    if isinstance(spec, RigSpec):
-        return spec if spec.needs_box else spec.for_box(None)
-    s = str(spec).strip().lower()
-    if s.startswith("box-"):
-        return RigSpec.from_name(s)
-    m = re.fullmatch(r"(\d+)x(\d+)(?:@(\d+(?:\.\d*)?|\.\d+))?", s) or re.fullmatch(
-        r"cap-(\d+)x(\d+)-(\d+(?:\.\d*)?)", s
-    )
-    if not m:
-        raise ParameterError(
-            f"rig {spec!r} not understood; write NxM or NxM@DEG, e.g. 64x32@60 (N viewpoints, "
-            "M rays each, cap half-angle in degrees, default 60), or a rig name such as "
-            "cap-32x64-60 or box-32x64-ellipsoid-s1 (box-targeted, docs/box-rig.md)"
-        )
-    return make_rig(int(m.group(1)), int(m.group(2)), angle=float(m.group(3)) if m.group(3) else 60.0)
-
-
 def parse_split(spec: str) -> tuple[str, list[float]]:
     """Parse ``"64/8/7"`` (model counts: integers) or ``"0.8/0.1/0.1"`` (fractions summing to 1).
 

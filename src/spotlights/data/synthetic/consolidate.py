@@ -14,6 +14,7 @@ byte for byte.
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Callable
 from pathlib import Path
 
@@ -34,6 +35,14 @@ def part_name(unit: tuple) -> str:
     if unit[0] == "gt":
         return f"gt-{unit[1]:05d}.npz"
     return f"obs-{unit[1]:05d}-{unit[2]:07d}-{unit[3]:07d}.npz"
+
+
+def save_npz_atomic(path: Path, arrays: dict) -> None:
+    with atomic_output(path, suffix=".npz") as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, **arrays)
+            fh.flush()
+            os.fsync(fh.fileno())
 
 
 def read_part(parts: Path, unit: tuple, recompute: Callable[[tuple], None] | None = None) -> dict:

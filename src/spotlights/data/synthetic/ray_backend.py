@@ -31,12 +31,13 @@ import numpy as np
 from tqdm import tqdm
 
 from ..._version import __version__
-from ...distributed import DEFAULT_RETRIES, error_reason
+from ...distributed import DEFAULT_RETRIES, cluster_cpus, error_reason
 from ...errors import InputFileError, SpotlightsError
+from ...geometry.rig import RigSpec
 from .catalogue import LoadedModel, ModelEntry, apply_augment, load_model, source_root, source_scale
 from .config import BuildConfig
-from .consolidate import part_name, write_output_file
-from .simulate import compute_unit
+from .consolidate import part_name, save_npz_atomic, write_output_file
+from .simulate import compute_unit, model_depths
 
 
 @dataclass
@@ -95,8 +96,6 @@ def _load_task(entry: ModelEntry, root: str, scale: float, version: str):
 def _unit_task(unit: tuple, origin: LoadedModel, entry: ModelEntry, cfg_dict: dict, parts: str, version: str):
     """Compute one work unit on a worker and write its part; returns ``("ok", unit, seconds, node)``
     or ``("error", message)`` for a SpotlightsError (bad input: not retried)."""
-    from .runner import save_npz_atomic
-
     t0 = time.perf_counter()
     try:
         _check_version(version)
@@ -136,9 +135,6 @@ def _shard_task(
 
 def _add_rig_task(m: int, entry: ModelEntry, cfg_dict: dict, stored: dict, rig_dict: dict, version: str):
     """Model row ``m``'s depths for ``dataset add-rig`` (see :func:`.addrig.model_depths`)."""
-    from ...geometry.rig import RigSpec
-    from .addrig import model_depths
-
     try:
         _check_version(version)
         spec = RigSpec.from_dict(rig_dict)
@@ -162,8 +158,6 @@ class RayBuild:
     """
 
     def __init__(self, ray, workers: int | None = None, retries: int = DEFAULT_RETRIES):
-        from ...distributed import cluster_cpus
-
         self.ray = ray
         self.retries = int(retries)
         self.cpus = cluster_cpus(ray)

@@ -22,7 +22,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 from tqdm import tqdm
 
 from ...distributed import DEFAULT_RETRIES, check_backend, import_ray, ray_session
@@ -31,7 +30,7 @@ from ...utils import atomic_output, check_can_start_processes, exclusive_lock, p
 from ..store import open_dataset
 from .catalogue import build_catalogue
 from .config import PLAN_VERSION, BuildConfig
-from .consolidate import check_index_path, part_name, shard_jobs, write_build_index, write_output_file
+from .consolidate import check_index_path, part_name, save_npz_atomic, shard_jobs, write_build_index, write_output_file
 from .ray_backend import RayBuild
 from .simulate import compute_unit
 
@@ -77,14 +76,6 @@ def init_worker(state: dict, quiet_sigint: bool) -> None:
 def worker_state() -> dict:
     """The state a worker of :func:`map_units` was initialised with (config, models, ...)."""
     return _WORKER
-
-
-def save_npz_atomic(path: Path, arrays: dict) -> None:
-    with atomic_output(path, suffix=".npz") as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez(fh, **arrays)
-            fh.flush()
-            os.fsync(fh.fileno())
 
 
 def _run_unit(unit: tuple) -> tuple:

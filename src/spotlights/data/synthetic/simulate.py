@@ -10,18 +10,20 @@ the view (:func:`unit_rng`), so results depend on nothing else.
 
 from __future__ import annotations
 
+import json
 import time
+from dataclasses import replace
 
 import numpy as np
 import trimesh
 
-from ...errors import SpotlightsError
+from ...errors import InputFileError, SpotlightsError
 from ...geometry.encode import MeshProbe
 from ...geometry.frames import normalization_from_mesh
 from ...geometry.sampling import resample, sample_surface
 from ..lidar import LidarSimulator, VehiclePose
 from ..store import SAMPLE_FIELDS
-from .catalogue import LoadedModel, model_key
+from .catalogue import LoadedModel, apply_augment, load_model, model_key, source_root, source_scale
 from .config import SENSOR_CLEARANCE, STREAM_GT_DENSE, STREAM_GT_POINTS, STREAM_MOUNT_HEIGHT, STREAM_VIEWS, BuildConfig
 
 
@@ -152,3 +154,28 @@ def compute_unit(unit: tuple, model: LoadedModel, cfg: BuildConfig, sims: dict |
     arrays = simulate_views(sims[m], model, cfg, range(unit[2], unit[3]))
     arrays["model"][:] = m
     return arrays
+
+
+def model_depths(cfg: BuildConfig, entry, stored: dict, m: int, rig) -> np.ndarray:
+    """Model row ``m``'s depths (N*M,) float32 for ``rig``: its mesh loaded again (checked against
+    the stored SHA-256, centre and radius; an augmented copy made again from ``stored["augment"]``)."""
+    root = source_root(cfg, entry)
+    model = load_model(root, entry, source_scale(cfg, entry))
+    want = stored["sha256"][m]
+    if want and model.entry.sha256 != want:
+        raise InputFileError(
+            root / entry.file,
+            f"differs from the mesh the dataset was built from (SHA-256 "
+            f"{model.entry.sha256[:12]}..., the dataset recorded {want[:12]}...)",
+        )
+    if stored["augment"][m]:
+        model = apply_augment(model, replace(model.entry, augment=json.loads(stored["augment"][m])))
+    mesh = trimesh.Trimesh(model.vertices, model.faces, process=False, validate=False)
+    norm = normalization_from_mesh(mesh)
+    if not (np.array_equal(norm.center, stored["center"][m]) and float(norm.radius) == float(stored["radius"][m])):
+        raise InputFileError(
+            root / entry.file,
+            "normalises differently from the dataset's /models/center and "
+            "/models/radius (other --scale/--up/--forward?)",
+        )
+    return MeshProbe(mesh, norm).encode(rig)

@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ...errors import ParameterError, SpotlightsError
+from ...learning.models import schedule_path
 from ...utils import exclusive_lock
 from .figures import figure_steps
 from .pipeline import Context, Step, execute, load_records, now, resolve, save_records
@@ -146,7 +147,6 @@ def reproduce(
         progress=progress,
         **kw,
     )
-    from ...learning.models import schedule_path
 
     schedule_path(s.schedule)  # an unknown schedule fails now, not after an hour
     if s.out.exists() and not s.out.is_dir():

@@ -11,6 +11,17 @@ from pathlib import Path
 
 import numpy as np
 
+from ...analysis.report import DensityConfig, run_density_analysis
+from ...data.real.extract import read_observations
+from ...data.real.frames import frame_rows
+from ...data.store import open_dataset
+from ...geometry.encode import MeshProbe, decode
+from ...geometry.io import load_mesh
+from ...geometry.rig import make_rig, make_rig_spec
+from ...geometry.sampling import sample_surface
+from ...viz import render_cloud_grid, render_frame, render_rig_rays
+from ..real_evaluation import complete_all
+from ..rig_study import BOX_RIGS, find_meshes, mesh_axes
 from .pipeline import Context, Step, shell_quote
 from .settings import ABLATION_RAYS, BOX_STUDY_LABELS, DISPLAY, TABLE1_RUNS, Settings
 from .steps import completers
@@ -60,15 +71,11 @@ def _cloud_grid(
     azim: float = -60.0,
 ) -> Path:
     """A grid of 3-D scatter panels, axes fixed to the unit sphere (see :func:`spotlights.viz.render_cloud_grid`)."""
-    from ...viz import render_cloud_grid
-
     return render_cloud_grid(path, rows, title, row_labels, elev, azim)
 
 
 def _figure_meshes(s: Settings) -> list:
     """A car and two category meshes for the pictures (first of their folders, sorted)."""
-    from ..rig_study import find_meshes
-
     cars = find_meshes([s.cars_meshes])
     cats = find_meshes([s.category_meshes])
     pick = [cars[0]]
@@ -78,20 +85,12 @@ def _figure_meshes(s: Settings) -> list:
 
 
 def _load_unit_mesh(entry):
-    from ...geometry.encode import MeshProbe
-    from ...geometry.io import load_mesh
-    from ..rig_study import mesh_axes
-
     mesh = load_mesh(entry.path, **mesh_axes(entry.path))
     return mesh, MeshProbe(mesh)
 
 
 def _run_fig_rig(ctx: Context) -> dict:
     """The rig with one viewpoint's rays on a car: hits (green) end on the surface, misses (orange) cross the sphere."""
-    from ...geometry.rig import make_rig
-    from ...geometry.sampling import sample_surface
-    from ...viz import render_rig_rays
-
     entry = _figure_meshes(ctx.s)[0]
     mesh, probe = _load_unit_mesh(entry)
     rig = make_rig(32, 64, angle=60.0)
@@ -112,8 +111,6 @@ def _run_fig_rig(ctx: Context) -> dict:
 
 
 def _run_fig_density(ctx: Context) -> dict:
-    from ...analysis.report import DensityConfig, run_density_analysis
-
     summary, _ = run_density_analysis(
         ctx.figures / "density", DensityConfig(angles=(60.0, 90.0), mc=False), progress=False, log=lambda *a: None
     )
@@ -122,10 +119,6 @@ def _run_fig_density(ctx: Context) -> dict:
 
 def _run_fig_gt(ctx: Context) -> dict:
     """Uniform surface samples beside Spotlights points at 2048, 4096 and 8192 rays (cap 60)."""
-    from ...geometry.encode import decode
-    from ...geometry.rig import make_rig
-    from ...geometry.sampling import sample_surface
-
     rows, labels = [], []
     for entry in _figure_meshes(ctx.s):
         mesh, probe = _load_unit_mesh(entry)
@@ -148,11 +141,6 @@ def _run_fig_gt(ctx: Context) -> dict:
 
 def _run_fig_box(ctx: Context) -> dict:
     """One car's Spotlights points at 2048 rays: the paper's 60-degree cap rig beside the box rigs of the box table."""
-    from ...geometry.encode import decode
-    from ...geometry.rig import make_rig_spec
-    from ...geometry.sampling import sample_surface
-    from ..rig_study import BOX_RIGS
-
     entry = _figure_meshes(ctx.s)[0]
     mesh, probe = _load_unit_mesh(entry)
     uni = probe.normalization.to_unit(sample_surface(mesh, 2048, ctx.s.seed))
@@ -175,8 +163,6 @@ def _run_fig_box(ctx: Context) -> dict:
 
 def _run_fig_synthetic(ctx: Context) -> dict:
     """Test samples (one per car category): partial, each model's completion, ground truth."""
-    from ...data.store import open_dataset
-
     runs = ["sanet", "pcn", "foldingnet", "topnet", "atlasnet"]
     comps = completers(ctx, runs)
     rows, labels = [], []
@@ -203,11 +189,6 @@ def _run_fig_synthetic(ctx: Context) -> dict:
 
 def _run_fig_real(ctx: Context) -> dict:
     """KITTI and AV2: the frame with most vehicles, SA-Net completions drawn back in the scan."""
-    from ...data.real.extract import read_observations
-    from ...data.real.frames import frame_rows
-    from ...viz import render_frame
-    from ..real_evaluation import complete_all
-
     sanet = completers(ctx, ["sanet"])[0]
     done = {}
     for name in ("kitti", "av2"):

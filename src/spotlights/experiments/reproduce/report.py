@@ -20,9 +20,14 @@ from functools import lru_cache
 from importlib import resources
 from pathlib import Path
 
+from ..._version import __version__
+from ...data.synthetic import BuildConfig
 from ...errors import SpotlightsError
+from ...learning.bench import cpu_name
+from ...learning.models import load_config
 from ...utils import atomic_output
 from .. import paper_tables as paper
+from ..rig_study import N_SURFACE
 from .figures import EXTRA_FIGURES, FIGURES
 from .pipeline import Context, now, read_json, shell_quote, write_json
 from .settings import DISPLAY, HIT_RATIO_RAYS, TABLE1_RUNS, Settings
@@ -48,9 +53,6 @@ def _fill(block: str, **values) -> str:
 def versions() -> dict:
     """The machine and the versions of Python, spotlights and its main dependencies."""
     from importlib import metadata
-
-    from ..._version import __version__
-    from ...learning.bench import cpu_name
 
     out = {
         "python": platform.python_version(),
@@ -111,8 +113,6 @@ def _param_counts(ctx: Context, results: dict) -> str:
     )
     decoder = ""
     try:
-        from ...learning.models import load_config
-
         m = load_config("sanet")["model"]
         decoder = f"; SA-Net's decoder {'-'.join(str(w) for w in [m['code_size'], *m['hidden']])}-N*M"
     except Exception:  # noqa: BLE001 - a fact of the prose, never a reason to fail the report
@@ -155,9 +155,6 @@ def _av2_tracks(ctx: Context) -> str:
 
 def facts(ctx: Context, vers: dict) -> dict:
     """The computed facts the template's prose names."""
-    from ...data.synthetic import BuildConfig
-    from ..rig_study import N_SURFACE
-
     cfg = BuildConfig()
     results = _eval_results(ctx)
     cars_info = (ctx.records.get("cars-data") or {}).get("info") or {}

@@ -12,8 +12,20 @@ import csv
 import io
 from pathlib import Path
 
+from ...data.real import open_reader
+from ...data.real.extract import SKIP_REASONS, ExtractConfig, extract, write_observations
+from ...data.store import open_dataset
+from ...data.synthetic import BuildConfig, add_rig, build_dataset
 from ...errors import SpotlightsError
+from ...learning import evaluate as learning_evaluate
+from ...learning.bench import model_latency
+from ...learning.checkpoint import load_checkpoint, model_from_checkpoint
+from ...learning.evaluate import evaluate_checkpoints
+from ...learning.inference import load_completer
 from ...utils import atomic_output
+from .. import real_evaluation
+from ..real_evaluation import evaluate_consistency, reference_shapes
+from ..rig_study import BOX_RIGS, PAPER_RIGS, find_meshes, run_study, study_rigs, summarize
 from .pipeline import Context, Step, shell_quote
 from .settings import ABLATION_RAYS, BOX_RIG, BOX_RUNS, BOX_STUDY_LABELS, REQUIRED_RIGS, RUNS, TABLE1_RUNS, Settings
 
@@ -45,8 +57,6 @@ def _quick_manifest(ctx: Context) -> Path:
 
 
 def _cars_config(ctx: Context):
-    from ...data.synthetic import BuildConfig
-
     kw = dict(
         meshes=str(ctx.s.cars_meshes), views=ctx.s.views, seed=ctx.s.seed, extra_rigs=["64x32@60", "256x64@60", BOX_RIG]
     )
@@ -71,8 +81,6 @@ def _cars_command(ctx: Context) -> str:
 
 
 def _check_cars(path: Path) -> dict:
-    from ...data.store import open_dataset
-
     with open_dataset(path) as ds:
         info = ds.info()
     missing = [r for r in REQUIRED_RIGS if r not in info["rigs"]]
@@ -93,8 +101,6 @@ def _check_cars(path: Path) -> dict:
 
 
 def _has_rig(path: Path, name: str) -> bool:
-    from ...data.store import open_dataset
-
     with open_dataset(path) as ds:
         return name in ds.rig_names
 
@@ -111,8 +117,6 @@ def _cars_box_command(ctx: Context) -> str:
 
 def _run_cars_box(ctx: Context) -> dict:
     """Add the box rig's ground truth to a car dataset that lacks it (``spotlights dataset add-rig``; atomic)."""
-    from ...data.synthetic import add_rig
-
     rep = add_rig(ctx.s.cars_path, BOX_RIG, workers=ctx.s.workers, progress=ctx.s.progress, log=ctx.log)
     return {"rig": BOX_RIG, "added": not rep.already_present, "hit_ratio": rep.hit_ratio}
 
@@ -127,8 +131,6 @@ def _reuse_cars(ctx: Context):
 
 
 def _run_cars(ctx: Context) -> dict:
-    from ...data.synthetic import build_dataset
-
     if ctx.s.quick:
         _quick_manifest(ctx)
     cfg = _cars_config(ctx)
@@ -161,8 +163,6 @@ def run_state(run_dir: Path) -> dict:
         with open(log, newline="") as fh:
             done = sum(1 for _ in csv.DictReader(fh))
     if total is None or not log.is_file():  # fall back on the checkpoint itself
-        from ...learning.checkpoint import load_checkpoint
-
         ck = load_checkpoint(last)
         done, total = int(ck.get("epoch", 0)), int(ck["config"]["train"]["epochs"])
     return {"state": "finished" if done >= total else "unfinished", "epochs": done, "epochs_total": total}
@@ -248,8 +248,6 @@ def _eval_command(ctx: Context, run: str) -> str:
 
 
 def _run_eval(ctx: Context, run: str) -> dict:
-    from ...learning.evaluate import evaluate_checkpoints, write_report
-
     timed = run in TABLE1_RUNS
     rep = evaluate_checkpoints(
         [ctx.run_dir(run) / "best.pt"],
@@ -263,22 +261,17 @@ def _run_eval(ctx: Context, run: str) -> dict:
     if timed and ctx.s.quick:  # a short timing at batch 1 (the full run times batch 1 and 32, 10 repeats)
         import torch
 
-        from ...learning.bench import model_latency
-        from ...learning.checkpoint import load_checkpoint, model_from_checkpoint
-
         dev = torch.device("cpu")
         model = model_from_checkpoint(load_checkpoint(ctx.run_dir(run) / "best.pt"), dev)
         res = rep["results"][0]
         res["latency_ms"] = model_latency(model, dev, batches=(1,), repeats=3, warmup=1)
         res["latency_device"], res["threads"] = str(dev), torch.get_num_threads()
-    write_report(rep, ctx.out / "eval" / run)
+    learning_evaluate.write_report(rep, ctx.out / "eval" / run)
     return {"n_samples": rep["n_samples"], "n_models": rep["n_models"]}
 
 
 def completers(ctx: Context, runs) -> list:
     """The completers (``learning.inference``) of the ``best.pt`` of ``runs``, on the CPU."""
-    from ...learning.inference import load_completer
-
     return [load_completer(ctx.run_dir(r) / "best.pt", device="cpu") for r in runs]
 
 
@@ -295,9 +288,6 @@ def _real_command(ctx: Context, name: str) -> str:
 
 
 def _run_real(ctx: Context, name: str) -> dict:
-    from ...data.real import open_reader
-    from ...data.real.extract import ExtractConfig, extract, write_observations
-
     folder, fmt = REAL_SOURCES[name]
     src = Path(ctx.s.lidar) / folder
     if not src.exists():
@@ -311,8 +301,6 @@ def _run_real(ctx: Context, name: str) -> dict:
 
 def _skip_reasons() -> list[str]:
     """The extraction's skip reasons: a new one (e.g. duplicate_box) changes what is extracted, so it re-runs the step."""
-    from ...data.real.extract import SKIP_REASONS
-
     return list(SKIP_REASONS)
 
 
@@ -325,9 +313,6 @@ def _consistency_command(ctx: Context) -> str:
 
 
 def _run_consistency(ctx: Context) -> dict:
-    from ...learning.inference import load_completer
-    from ..real_evaluation import evaluate_consistency, reference_shapes, write_report
-
     completers = [load_completer(ctx.run_dir(r) / "best.pt", device="cpu") for r in TABLE1_RUNS]
     refs, ref_info = reference_shapes(ctx.s.cars_path)
     rep = evaluate_consistency(
@@ -339,7 +324,7 @@ def _run_consistency(ctx: Context) -> dict:
         references=refs,
         reference_info=ref_info,
     )
-    write_report(rep, ctx.out / "eval" / "av2_consistency")
+    real_evaluation.write_report(rep, ctx.out / "eval" / "av2_consistency")
     return {"objects": rep["data"]["n_objects_tracked"], "pairs": rep["data"]["n_pairs"]}
 
 
@@ -353,8 +338,6 @@ def _consistency_box_command(ctx: Context) -> str:
 
 def _run_consistency_box(ctx: Context) -> dict:
     """Consistency on the AV2 tracks of SA-Net on the paper's rig and on the box rig (each observation's own box)."""
-    from ..real_evaluation import evaluate_consistency, write_report
-
     runs = list(BOX_RUNS.values())
     rep = evaluate_consistency(
         ctx.out / "data" / "av2.h5",
@@ -363,15 +346,13 @@ def _run_consistency_box(ctx: Context) -> dict:
         checkpoints=[str(ctx.run_dir(r) / "best.pt") for r in runs],
         progress=ctx.s.progress,
     )
-    write_report(rep, ctx.out / "eval" / "av2_consistency_box")
+    real_evaluation.write_report(rep, ctx.out / "eval" / "av2_consistency_box")
     return {"objects": rep["data"]["n_objects_tracked"], "pairs": rep["data"]["n_pairs"]}
 
 
 # --- rig study (Tables 3 and 4) ------------------------------------------------------------------
 def study_meshes(s: Settings) -> list:
     """The rig study's meshes: category folders with >= 5 meshes, then the cars (--quick: a few of each)."""
-    from ..rig_study import find_meshes
-
     out = []
     for folder in (s.category_meshes, s.cars_meshes):
         entries = find_meshes([folder])
@@ -390,8 +371,6 @@ def study_meshes(s: Settings) -> list:
 
 def study_variants() -> tuple:
     """The rig study's variants: the paper's cap rigs (Tables 3, 4) and the box rigs of the box table, in one pass."""
-    from ..rig_study import BOX_RIGS, PAPER_RIGS
-
     return tuple(PAPER_RIGS) + tuple(v for v in BOX_RIGS if v[0] in BOX_STUDY_LABELS)
 
 
@@ -407,8 +386,6 @@ def _study_command(ctx: Context) -> str:
 
 
 def _run_study(ctx: Context) -> dict:
-    from ..rig_study import run_study, study_rigs, summarize
-
     meshes = study_meshes(ctx.s)
     rigs = study_rigs(ABLATION_RAYS, variants=study_variants())
     d = ctx.out / "rig_study"

@@ -1,7 +1,7 @@
 """Model registry and configurations.
 
 A model is one module (``spotlights/learning/models/<name>.py``) and one YAML
-config (``spotlights/learning/configs/<name>.yaml``); the registry maps a name to
+config (``spotlights/learning/configs/<name>.yaml``); the registry (:mod:`spotlights.learning.registry`, re-exported here) maps a name to
 ``"module:Class"`` and imports the module only when the model is built, so nothing
 imports every model (or torch) at start-up.
 
@@ -15,45 +15,28 @@ Config layout (every file is complete; a user YAML overrides any subset)::
 from __future__ import annotations
 
 import copy
-import importlib
 from importlib import resources
 from pathlib import Path
 
 from ...errors import InputFileError, ParameterError
+from ..config import check_keys, data_config, train_config
+from ..rays import rig_spec
+from ..registry import DISPLAY_NAMES, MODEL_NAMES, MODEL_REGISTRY, SCHEDULE_FALLBACK, check_model_name, model_class
 
-MODEL_REGISTRY: dict[str, str] = {
-    "sanet": "spotlights.learning.models.sanet:SANet",
-    "sanet-hit": "spotlights.learning.models.sanet_hit:HitSANet",
-    "pcn": "spotlights.learning.models.pcn:PCN",
-    "foldingnet": "spotlights.learning.models.foldingnet:FoldingNet",
-    "topnet": "spotlights.learning.models.topnet:TopNet",
-    "atlasnet": "spotlights.learning.models.atlasnet:AtlasNet",
-}
-MODEL_NAMES = tuple(MODEL_REGISTRY)
-SCHEDULE_FALLBACK = {"sanet-hit": "sanet"}
-"""A schedule without a section for a model uses the section of the model named here (a variant trains
-like its parent unless the schedule says otherwise)."""
-DISPLAY_NAMES = {
-    "sanet": "SA-Net",
-    "sanet-hit": "SA-Net (hit-aware)",
-    "pcn": "PCN",
-    "foldingnet": "FoldingNet",
-    "topnet": "TopNet",
-    "atlasnet": "AtlasNet",
-}
-
-
-def check_model_name(name: str) -> str:
-    """Return ``name`` if registered, else raise :class:`ParameterError` listing the known names."""
-    if name not in MODEL_REGISTRY:
-        raise ParameterError(f"unknown model {name!r}; known models: {', '.join(MODEL_NAMES)}")
-    return name
-
-
-def model_class(name: str):
-    """The model class registered under ``name`` (imports its module, and torch, now)."""
-    module, cls = MODEL_REGISTRY[check_model_name(name)].split(":")
-    return getattr(importlib.import_module(module), cls)
+__all__ = [
+    "DISPLAY_NAMES",
+    "MODEL_NAMES",
+    "MODEL_REGISTRY",
+    "SCHEDULE_FALLBACK",
+    "build_model",
+    "check_model_name",
+    "default_config_path",
+    "deep_merge",
+    "load_config",
+    "load_schedule",
+    "model_class",
+    "schedule_path",
+]
 
 
 def default_config_path(name: str) -> Path:
@@ -118,7 +101,6 @@ def load_schedule(schedule, name: str) -> dict:
         raise InputFileError(
             p, f"unknown schedule section(s) {', '.join(sorted(unknown))} (expected default or model names)"
         )
-    from ..config import check_keys
 
     for sec in ("default", *MODEL_NAMES):
         if data.get(sec) is not None:
@@ -141,8 +123,6 @@ def load_config(name: str, path=None, overrides: dict | None = None, schedule=No
     the user YAML names another model; :class:`ParameterError` for unknown override keys and
     invalid values.
     """
-    from ..config import check_keys, data_config, train_config
-
     cfg = _read_yaml(default_config_path(name))
     if schedule is not None:
         cfg = deep_merge(cfg, load_schedule(schedule, name))
@@ -174,8 +154,6 @@ def build_model(config: dict, rig=None):
     Raises :class:`ParameterError` for an unknown ``model.args`` key (naming it) or a value the
     model refuses.
     """
-    from ..config import check_keys
-
     name = config["model"]["name"]
     cls = model_class(name)
     args = dict(config["model"].get("args") or {})
@@ -184,8 +162,6 @@ def build_model(config: dict, rig=None):
         if cls.target == "depths":
             if rig is None:
                 raise ParameterError(f"model {name!r} needs a rig")
-            from ..rays import rig_spec
-
             return cls(rig=rig_spec(rig), **args)
         return cls(**args)
     except (TypeError, ValueError) as exc:

@@ -26,6 +26,7 @@ from collections.abc import Sequence
 import torch
 
 from ..losses import depth_l1
+from ..rays import rig_rays, rig_spec
 from .base import CLIP_DEFAULT, MLP, CompletionModel, PCNEncoder
 
 
@@ -61,7 +62,6 @@ class SANet(CompletionModel):
         clip: float | None = 0.2,
     ):
         super().__init__()
-        from ..rays import rig_rays, rig_spec
 
         if rig is None:
             raise ValueError("SA-Net needs a rig (the rig of the depths it regresses)")

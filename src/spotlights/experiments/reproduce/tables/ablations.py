@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ... import paper_tables as paper
+from ...rig_study import CARS
 from ..pipeline import Context
 from ..settings import ABLATION_RAYS, ANGLE_LABELS, HIT_RATIO_RAYS
 from .common import fmt, md_table
@@ -20,8 +21,6 @@ def _study_summary(ctx: Context):
 
 def _ablation_values(ctx: Context, metric: str, rays_list) -> tuple[dict, list, list, dict]:
     """{(rays, angle): {category: mean, "average": mean over the paper's 6, "average_all": over ours, "cars": ...}}."""
-    from ...rig_study import CARS
-
     s = _study_summary(ctx)
     cats_set = s[(s.mesh_set != CARS) & (s.category != "all")]
     cats = sorted(set(cats_set.category))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ... import paper_tables as paper
+from ...rig_study import CARS
 from ..pipeline import Context, read_json
 from ..settings import ABLATION_RAYS, ANGLE_LABELS, BOX_RIG, BOX_RUNS, BOX_STUDY_LABELS, RUNS
 from .common import diff, eval_rows, fmt, md_table, run_facts, training_note, value
@@ -15,8 +16,6 @@ def box_study_values(ctx: Context) -> dict:
     """{(set, label, rays): {"hit_ratio", "completeness", "rig", "n_meshes"}} for the box table's rigs;
     set = "cars" (mean over the cars) or "categories" (mean of the category means)."""
     import pandas as pd
-
-    from ...rig_study import CARS
 
     s = pd.read_csv(ctx.out / "rig_study" / "summary.csv")
     s = s[(s.category == "all") & s.label.isin(list(ANGLE_LABELS) + list(BOX_STUDY_LABELS))]

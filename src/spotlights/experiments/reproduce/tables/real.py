@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from ....data.real.extract import read_observations
 from ... import paper_tables as paper
 from ..pipeline import Context, read_json
 from ..settings import DISPLAY, TABLE1_RUNS
@@ -46,8 +47,6 @@ def build_table2(ctx: Context) -> dict:
     kitti_obs = None
     kp = ctx.out / "data" / "kitti.h5"
     if kp.is_file():
-        from ....data.real.extract import read_observations
-
         kitti_obs = len(read_observations(kp))
     checks = [
         {
