@@ -42,7 +42,7 @@ def _run(name, path, out, data_cfg=None, **kw):
 def test_dataset_reads_the_contract_schema(data):
     info = read_info(data)
     assert info.n_models == 12 and info.category_order() == ["hatchback", "sedan", "suv"]
-    assert info.default_rig == "cap-8x16-60" and info.rigs["cap-8x16-60"]["n_primary"] == 8
+    assert info.default_rig == "cap-8x16-60" and info.rigs["cap-8x16-60"].n_primary == 8
     tr = TorchCompletionDataset(data, "train")
     assert len(tr) == 6 * 8 and len(TorchCompletionDataset(data, "test", rig=False)) == 3 * 8
     item = tr[9]

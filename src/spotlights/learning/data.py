@@ -36,6 +36,7 @@ from torch.utils.data import Dataset
 
 from ..data.store import SPLITS, CompletionDataset, open_dataset
 from ..errors import InputFileError, ParameterError
+from ..geometry.rig import RigSpec
 
 CATEGORY_ORDER = ("hatchback", "sedan", "suv")
 """Report order of the paper's categories; other categories follow, sorted."""
@@ -48,8 +49,8 @@ class DatasetInfo:
     Attributes
     ----------
     path : the file. names, categories, splits : (n_models,) str arrays.
-    sample_model, sample_view : (n_samples,) int64. rigs : rig name -> ``rig_json`` dict
-    (``RigSpec.to_dict()``; cap rigs: ``Rig.to_dict()``).
+    sample_model, sample_view : (n_samples,) int64. rigs : rig name -> its
+    :class:`~spotlights.geometry.rig.RigSpec` (read from the group's ``rig_json``).
     default_rig : the file's default rig name. attrs : root attributes (str/int).
     """
 
@@ -59,7 +60,7 @@ class DatasetInfo:
     splits: np.ndarray
     sample_model: np.ndarray
     sample_view: np.ndarray
-    rigs: dict
+    rigs: dict[str, RigSpec]
     default_rig: str | None
     attrs: dict
 
@@ -103,8 +104,8 @@ def _info_of(ds: CompletionDataset) -> DatasetInfo:
     rigs = {}
     for name in ds.rig_names:
         try:
-            rigs[name] = ds.rig_dict(name)
-        except (KeyError, ValueError):
+            rigs[name] = ds.rig_spec(name)
+        except (KeyError, ValueError):  # ValueError: bad JSON, or a ParameterError of RigSpec.from_dict
             raise InputFileError(ds.path, f"/rigs/{name} lacks a valid rig_json attribute") from None
     return DatasetInfo(
         path=ds.path,
@@ -131,8 +132,8 @@ class TorchCompletionDataset(Dataset):
     max_views : keep only observations with view index < max_views (per model).
     partials_in_memory : read all the split's partial scans at construction.
 
-    Attributes: ``rig`` (the served rig's ``rig_json`` dict; box-targeted rigs hold the
-    spec, each model's rig is aimed at its own box), ``extents`` ((n_models, 3) float64
+    Attributes: ``rig`` (the served rig's :class:`~spotlights.geometry.rig.RigSpec`, or None; a
+    box-targeted spec's rig is aimed at each model's own box), ``extents`` ((n_models, 3) float64
     box half-extents ``size / 2R`` of every model row, or None for files without
     /models/size): ``spotlights.learning.rays.DirectionTable(rig, ds.extents)`` gives
     each sample's rays from its ``model`` row.
@@ -176,7 +177,7 @@ class TorchCompletionDataset(Dataset):
             self.extents = store.extents if store.size is not None else None
         finally:
             store.close()  # DataLoader workers open their own handles
-        if self.rig is not None and self.rig.get("kind", "cap") == "box" and self.extents is None:
+        if self.rig is not None and self.rig.needs_box and self.extents is None:
             raise InputFileError(
                 self.path, f"rig {self.rig_name} is box-targeted but the file has no /models/size (each model's box)"
             )
