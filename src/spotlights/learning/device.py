@@ -2,9 +2,18 @@
 
 from __future__ import annotations
 
+import os
+
 import torch
 
 from ..errors import ParameterError
+
+
+def default_device() -> torch.device:
+    """CUDA when available (this process's local rank under torchrun), else CPU."""
+    if torch.cuda.is_available():
+        return torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))
+    return torch.device("cpu")
 
 
 def resolve_device(device=None) -> torch.device:

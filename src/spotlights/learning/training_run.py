@@ -1,0 +1,238 @@
+"""The state of one training run and its preparation: config, device, datasets, model, optimizer, schedule.
+
+:func:`prepare_run` builds a :class:`TrainingRun` (restored from ``last.pt`` when resuming) that the
+loop of :mod:`spotlights.learning.train` carries from epoch to epoch.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+import yaml
+
+from ..errors import InputFileError, SpotlightsError
+from ..geometry.rig import RigSpec
+from ..utils import atomic_output
+from .checkpoint import load_checkpoint
+from .config import DataConfig, TrainConfig, build_optimizer, build_scheduler, check_keys, data_config, train_config
+from .data import TorchCompletionDataset
+from .device import default_device, resolve_device, resolve_precision
+from .models import build_model, load_config, model_class
+from .process_group import ProcessGroup
+from .rays import DirectionTable, rig_spec
+
+
+@dataclass
+class TrainingRun:
+    """What one training run holds between epochs (built by :func:`prepare_run`)."""
+
+    model_name: str
+    data: object
+    out_dir: Path
+    cfg: dict
+    dcfg: DataConfig
+    tcfg: TrainConfig
+    device: torch.device
+    precision: str
+    dist: ProcessGroup
+    train_set: TorchCompletionDataset
+    val_set: TorchCompletionDataset
+    rig: RigSpec | None
+    gt_trees: dict
+    val_rays: object
+    model: torch.nn.Module
+    net: torch.nn.Module
+    opt: torch.optim.Optimizer
+    sched: object
+    scaler: object
+    param_counts: dict
+    start_epoch: int = 0
+    global_step: int = 0
+    history: list = field(default_factory=list)
+    best: dict = field(default_factory=dict)
+    wall: float = 0.0
+
+    @property
+    def last_path(self) -> Path:
+        return self.out_dir / "last.pt"
+
+    @property
+    def best_path(self) -> Path:
+        return self.out_dir / "best.pt"
+
+    @property
+    def n_train(self) -> int:
+        return len(self.train_set)
+
+    @property
+    def shard(self) -> int:
+        """Training samples per process and epoch (one pass split over the processes)."""
+        return self.n_train // self.dist.world
+
+    @property
+    def drop_last(self) -> bool:
+        return True if self.tcfg.steps_per_epoch is not None else self.shard >= self.tcfg.batch_size
+
+    @property
+    def steps_per_epoch(self) -> int:
+        if self.tcfg.steps_per_epoch is not None:  # an epoch = a fixed number of steps (train._stream_indices)
+            return int(self.tcfg.steps_per_epoch)
+        b = self.tcfg.batch_size  # an epoch = one pass over the training set
+        return (self.shard // b) if self.drop_last else math.ceil(self.shard / b)
+
+    @property
+    def total_steps(self) -> int:
+        return max(1, self.steps_per_epoch * self.tcfg.epochs)
+
+
+def resolve_run_config(model_name, out_dir: Path, config, overrides, resume, overwrite, schedule, dist, log):
+    """The run's config and, when resuming, the state of ``last.pt`` (its config is kept; only
+    ``train.epochs`` may change). Returns ``(cfg, state, extended)``."""
+    last_path = out_dir / "last.pt"
+    if not resume:
+        if last_path.exists() and not overwrite:
+            raise SpotlightsError(
+                f"{out_dir}: holds a run already; pass --resume to continue it or --overwrite to start again"
+            )
+        return load_config(model_name, config, overrides, schedule=schedule), None, False
+    if not last_path.exists():
+        raise SpotlightsError(f"{last_path}: nothing to resume (no last.pt in the run folder)")
+    state = load_checkpoint(last_path, expect_model=model_name)
+    cfg = state["config"]
+    check_keys(cfg, last_path, model_name)
+    extended = False
+    if overrides and "train" in overrides and "epochs" in overrides["train"]:
+        extended = int(overrides["train"]["epochs"]) != int(cfg["train"]["epochs"])
+        cfg["train"]["epochs"] = int(overrides["train"]["epochs"])
+    ignored = [
+        f"{sec}.{key}"
+        for sec, vals in (overrides or {}).items()
+        if isinstance(vals, dict)
+        for key, val in vals.items()
+        if (sec, key) != ("train", "epochs") and cfg.get(sec, {}).get(key) != val
+    ]
+    ignored += ["--config"] * (config is not None) + ["--schedule"] * (schedule is not None)
+    if ignored and dist.main:
+        log(
+            f"warning: resuming keeps the run's own config; ignored: {', '.join(ignored)} "
+            "(only --epochs may change; start a new run with --overwrite to change the rest)"
+        )
+    return cfg, state, extended
+
+
+def prepare_run(
+    dist, model_name, data, out_dir: Path, config, overrides, resume, overwrite, device, log, schedule
+) -> TrainingRun:
+    """Config, device, precision, datasets, model, optimizer and schedule of a run (restored from
+    ``last.pt`` when resuming); writes ``config.yaml`` (rank 0)."""
+    device = resolve_device(device) if device is not None else default_device()
+    if dist.active and device.type == "cuda" and device.index is None:
+        device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))  # one GPU per process
+    cfg, state, extended = resolve_run_config(
+        model_name, out_dir, config, overrides, resume, overwrite, schedule, dist, log
+    )
+    dcfg, tcfg = data_config(cfg), train_config(cfg)
+    precision = resolve_precision(tcfg.precision, device)
+
+    wants_depths = model_class(model_name).target == "depths"
+    rig_sel = dcfg.rig if wants_depths else False
+    train_set = TorchCompletionDataset(
+        data, "train", rig=rig_sel, max_views=dcfg.max_views, partials_in_memory=dcfg.partials_in_memory
+    )
+    val_set = TorchCompletionDataset(
+        data, "val", rig=rig_sel, max_views=dcfg.val_max_views, partials_in_memory=dcfg.partials_in_memory
+    )
+    rig = train_set.rig if wants_depths else None  # the dataset's RigSpec
+    if state is not None and wants_depths and rig_spec(state.get("rig")) != rig:
+        raise SpotlightsError(
+            f"{out_dir / 'last.pt'}: was trained on rig {state.get('rig')}, the dataset serves {rig.to_dict()}"
+        )
+    val_rays = None
+    if rig is not None and rig.needs_box:
+        val_rays = DirectionTable(rig, val_set.extents)  # each validation sample decodes with its model's box
+
+    torch.manual_seed(tcfg.seed)
+    np.random.seed(tcfg.seed % (2**32))
+    model = build_model(cfg, rig=rig).to(device)
+    opt = build_optimizer(model.parameters(), tcfg)
+    sched = build_scheduler(opt, tcfg)
+    scaler = torch.amp.GradScaler(device.type) if precision == "fp16" else None
+    run = TrainingRun(
+        model_name,
+        data,
+        out_dir,
+        cfg,
+        dcfg,
+        tcfg,
+        device,
+        precision,
+        dist,
+        train_set,
+        val_set,
+        rig,
+        val_set.gt_dense(),
+        val_rays,
+        model,
+        model,
+        opt,
+        sched,
+        scaler,
+        model.param_counts(),
+        best={"epoch": None, "select_by": tcfg.select_by, "value": float("inf")},
+    )
+    if state is not None:
+        restore_run(run, state, extended)
+        if dist.main:
+            log(f"resuming {model_name} from {run.last_path} after epoch {run.start_epoch}")
+    if dist.active:
+        run.net = torch.nn.parallel.DistributedDataParallel(
+            model, device_ids=[device.index] if device.type == "cuda" else None
+        )
+    if dist.main:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        _write_yaml(out_dir / "config.yaml", cfg)
+        pc = run.param_counts
+        log(
+            f"{model_name}: {pc['total']:,} parameters (encoder {pc['encoder']:,}, decoder {pc['decoder']:,}); "
+            f"{len(train_set)} train / {len(val_set)} val samples; device {device}; {dist.world} process(es)"
+        )
+        if precision != "fp32":
+            log(f"{model_name}: training at {precision} (autocast forward, float32 weights, losses and metrics)")
+    return run
+
+
+def restore_run(run: TrainingRun, state: dict, extended: bool) -> None:
+    """Load model, optimizer, schedule, scaler, counters, history and best from a ``last.pt`` state.
+
+    Raises :class:`InputFileError` naming ``last.pt`` when the state does not fit (a damaged or
+    foreign checkpoint is a bad file, not a crash)."""
+    try:
+        run.model.load_state_dict(state["model_state"])
+        if state.get("hit_threshold") is not None:
+            run.model.threshold = float(state["hit_threshold"]["value"])
+        run.opt.load_state_dict(state["optimizer_state"])
+        run.sched.load_state_dict(state["scheduler_state"])
+        int(state["epoch"]), int(state["global_step"])
+    except (RuntimeError, KeyError, TypeError, ValueError) as exc:
+        first = (str(exc).splitlines() or [type(exc).__name__])[0][:160]
+        raise InputFileError(
+            run.last_path, f"cannot resume from this checkpoint ({type(exc).__name__}: {first})"
+        ) from None
+    if extended:  # a new total length: the learning-rate schedule is recomputed from here on
+        for group, base, lam in zip(run.opt.param_groups, run.sched.base_lrs, run.sched.lr_lambdas):
+            group["lr"] = base * lam(run.sched.last_epoch)
+    if run.scaler is not None and state.get("scaler_state"):
+        run.scaler.load_state_dict(state["scaler_state"])
+    run.start_epoch, run.global_step = int(state["epoch"]), int(state["global_step"])
+    run.history, run.best = list(state.get("history", [])), dict(state.get("best", run.best))
+    run.wall = float(run.history[-1].get("wall_seconds") or 0.0) if run.history else 0.0
+
+
+def _write_yaml(path: Path, cfg: dict) -> None:
+    with atomic_output(path) as tmp:
+        tmp.write_text(yaml.safe_dump(cfg, sort_keys=False))
