@@ -1,0 +1,187 @@
+"""The consistency report of :func:`spotlights.experiments.real_evaluation.evaluate_consistency` as Markdown
+and JSON (the paper's Table 2 and the columns beyond it)."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..utils import atomic_output
+
+
+def _fmt(v, digits=4) -> str:
+    return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f"{v:.{digits}f}"
+
+
+def report_markdown(report: dict) -> str:
+    """The report as Markdown: a Table-2-style headline table, then the other metric variants."""
+    d = report["data"]
+    classes = list(d["objects_per_class"])
+    lines = ["# Consistency of completions on real scans (paper Table 2)", ""]
+    lines.append(
+        f"Source: `{d.get('source')}` ({d.get('source_format')}), file `{d.get('file')}`. "
+        f"{d['n_objects_tracked']} objects observed in two or more frames "
+        f"({d['n_observations_tracked']} of {d['n_observations']} observations, {d['n_pairs']} consecutive pairs; "
+        f"{d.get('n_objects_5_or_more', '?')} objects with 5 or more observations); "
+        "objects per class: " + ", ".join(f"{c} {n}" for c, n in d["objects_per_class"].items()) + "."
+    )
+    lines.append("")
+    lines.append(
+        "Headline: **CD = d(A->B) + d(B->A)**, the paper's Eq. (1) with unsquared Euclidean nearest-neighbour "
+        "distances, between completions of the same object in consecutive frames, in the object frame divided by "
+        "the track's mean box radius (half diagonal); mean per object, then per class; Average = mean of the class columns. "
+        "Lower is better."
+    )
+    lines.append("")
+    head = "| Model | " + " | ".join(c.capitalize() for c in classes) + " | Average | All objects |"
+    lines += [head, "|" + "---|" * (len(classes) + 3)]
+    for m in report["models"]:
+        cells = [_fmt(m["classes"][c]["cd"]) for c in classes]
+        lines.append(
+            f"| {m['name']} | "
+            + " | ".join(cells)
+            + f" | {_fmt(m['average']['cd'])} | {_fmt(m['all_objects']['cd'])} |"
+        )
+    lines += ["", "## Other variants (Average over classes; All objects in brackets)", ""]
+    lines += [
+        "| Model | CD (m) | CD/2 | d(A->B) | d(B->A) | CD-L2 (squared) | points per completion |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for m in report["models"]:
+        a, o = m["average"], m["all_objects"]
+        lines.append(
+            f"| {m['name']} | {_fmt(a['cd_m'])} ({_fmt(o['cd_m'])}) | {_fmt(a['cd_half'])} ({_fmt(o['cd_half'])}) | "
+            f"{_fmt(a['d_ab'])} ({_fmt(o['d_ab'])}) | {_fmt(a['d_ba'])} ({_fmt(o['d_ba'])}) | "
+            f"{_fmt(a['cd_l2'], 5)} ({_fmt(o['cd_l2'], 5)}) | {m['mean_points_per_completion']:.0f} |"
+        )
+    has_mmd = any(m["average"].get("mmd") is not None for m in report["models"])
+    lines += ["", "## Consistency beside fidelity" + (" and minimal matching distance" if has_mmd else ""), ""]
+    lines.append(
+        "Consistency alone rewards a model that gives every scan the same shape; fidelity (does the completion "
+        "keep the observed points?)"
+        + (", MMD (is it close to some complete car?)" if has_mmd else "")
+        + " and diversity tell such a model apart. Average over classes; All objects in brackets; lower is better "
+        "(but for diversity)."
+    )
+    lines.append("")
+    head = (
+        "| Model | CD (consistency) | Fidelity | Fidelity (m) |"
+        + (" MMD |" if has_mmd else "")
+        + " Diversity | CD / Diversity |"
+    )
+    lines += [head, "|---|---|---|---|" + ("---|" if has_mmd else "") + "---|---|"]
+    for m in report["models"]:
+        a, o = m["average"], m["all_objects"]
+        row = (
+            f"| {m['name']} | {_fmt(a['cd'])} ({_fmt(o['cd'])}) | {_fmt(a.get('fidelity'))} ({_fmt(o.get('fidelity'))}) | "
+            f"{_fmt(a.get('fidelity_m'))} ({_fmt(o.get('fidelity_m'))}) |"
+        )
+        if has_mmd:
+            row += f" {_fmt(a.get('mmd'))} ({_fmt(o.get('mmd'))}) |"
+        row += f" {_fmt(m.get('diversity'))} | {_fmt(m.get('consistency_over_diversity'), 3)} |"
+        lines.append(row)
+    lines += [
+        "",
+        "Diversity: how much completions of *different* objects differ (mean CD over pairs of tracked objects); "
+        "a model that ignores its input has diversity ~0 and a perfect consistency. CD / Diversity = All objects "
+        "CD over diversity (ours, not the paper's).",
+    ]
+    extra = any(k in m for m in report["models"] for k in ("equal_points", "heading")) or any(
+        m["average"].get("noise_floor") is not None for m in report["models"]
+    )
+    if extra:
+        eq = d.get("equal_points")
+        lines += ["", "## Noise floor, equal point counts, heading check", ""]
+        lines.append(
+            "Noise floor: consistency's CD between two completions of the *same* observation, its points "
+            "resampled to the network's input with two seeds - the part of CD that resampling alone explains. "
+            + (
+                f"At {eq} points: every completion brought to {eq} points by farthest-point sampling first, "
+                "so that models with different output sizes compare at one density. "
+                if eq
+                else ""
+            )
+            + "Heading flips: observations whose completion with the box turned around is closer to the observed "
+            "points (on annotated boxes, false alarms of `--heading-check`). Average over classes; All objects in brackets."
+        )
+        lines.append("")
+        head = "| Model | CD | Noise floor |"
+        if eq:
+            head += f" CD @{eq} | Noise floor @{eq} | Diversity @{eq} | CD / Diversity @{eq} |"
+        head += " Heading flips | Out of domain |"
+        lines += [head, "|" + "---|" * (head.count("|") - 1)]
+        for m in report["models"]:
+            a, o = m["average"], m["all_objects"]
+            row = f"| {m['name']} | {_fmt(a['cd'])} ({_fmt(o['cd'])}) | {_fmt(a.get('noise_floor'))} ({_fmt(o.get('noise_floor'))}) |"
+            if eq:
+                e = m.get("equal_points") or {}
+                ea, eo = e.get("average", {}), e.get("all_objects", {})
+                row += (
+                    f" {_fmt(ea.get('cd'))} ({_fmt(eo.get('cd'))}) | {_fmt(ea.get('noise_floor'))} ({_fmt(eo.get('noise_floor'))}) |"
+                    f" {_fmt(e.get('diversity'))} | {_fmt(e.get('consistency_over_diversity'), 3)} |"
+                )
+            h = m.get("heading")
+            row += (
+                f" {h['n_flipped']} / {h['n_observations']} ({100 * h['rate']:.1f}%; {100 * h['rate_margin0']:.1f}% at margin 0) |"
+                if h and h.get("rate") is not None
+                else " - |"
+            )
+            od = m.get("out_of_domain")
+            row += f" {od['n_observations']} / {d['n_observations_tracked']} |" if od else " - |"
+            lines.append(row)
+        for m in report["models"]:
+            od = m.get("out_of_domain")
+            if od and od["n_observations"]:
+                lines.append(
+                    f"\nWarning - {m['name']}: {od['n_observations']} of {d['n_observations_tracked']} observations are "
+                    "outside what the model learned ("
+                    + "; ".join(f"{k}: {v}" for k, v in od["reasons"].items())
+                    + "): their completions extrapolate."
+                )
+        if d.get("noise_floor") and not str(d["noise_floor"]).startswith("kept"):
+            lines.append(f"\nNoise floor {d['noise_floor']}.")
+    ref = d.get("mmd_reference")
+    if ref:
+        lines += [
+            "",
+            f"MMD reference: {ref['n_shapes']} complete shapes ({ref['points_per_shape']} points each) of "
+            f"`{ref['file']}` (split {ref['split']}), unit frame.",
+        ]
+    lines += ["", "Definitions (A = earlier frame's completion, B = later frame's):", ""]
+    for k, v in report["metrics"]["definitions"].items():
+        lines.append(f"- `{k}`: {v}")
+    skipped = d.get("skipped") or {}
+    if skipped:
+        lines += ["", "Boxes skipped at extraction: " + ", ".join(f"{k} {v}" for k, v in skipped.items()) + "."]
+    for m in report["models"]:
+        unscored = sum(m["classes"][c]["n_objects_unscored"] for c in classes)
+        if unscored:
+            lines.append(f"\n{m['name']}: {unscored} object(s) had only empty completions and are not scored.")
+    return "\n".join(lines) + "\n"
+
+
+def write_report(report: dict, prefix: str | os.PathLike) -> tuple[Path, Path]:
+    """Write ``PREFIX.md`` and ``PREFIX.json`` atomically; returns both paths."""
+    prefix = Path(prefix)
+    md, js = prefix.with_name(prefix.name + ".md"), prefix.with_name(prefix.name + ".json")
+
+    def clean(x):
+        if isinstance(x, float) and not math.isfinite(x):
+            return None
+        if isinstance(x, dict):
+            return {str(k): clean(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [clean(v) for v in x]
+        if isinstance(x, np.generic):
+            return clean(x.item())
+        return x
+
+    with atomic_output(js) as tmp:
+        tmp.write_text(json.dumps(clean(report), indent=2, sort_keys=False) + "\n", encoding="utf-8")
+    with atomic_output(md) as tmp:
+        tmp.write_text(report_markdown(report), encoding="utf-8")
+    return md, js
