@@ -15,9 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import ParameterError
 from ..geometry.distances import nearest_distances
 from ._figure import add_axes3d, colormap, new_figure, save_png
-from .points import Layer, _stack
+from .points import Layer, merge_layers
 
 PARTIAL_COLOR, GT_COLOR = "#7b2cbf", "#8c8c8c"
 
@@ -48,8 +49,6 @@ def render_predictions(
 
     examples = list(examples)
     if not examples:
-        from ..errors import ParameterError
-
         raise ParameterError("no example to draw")
     dists = [
         [
@@ -79,7 +78,7 @@ def render_predictions(
         row.append((f"ground truth ({len(gt)} pts)", [Layer(shown_gt, GT_COLOR, None, 0.8, 1.0)]))
         for j, (ttl, layers) in enumerate(row):
             ax = add_axes3d(fig, nrow, ncol, i * ncol + j + 1)
-            p, c, s = _stack(layers)
+            p, c, s = merge_layers(layers)
             if len(p):
                 ax.scatter(p[:, 0], p[:, 1], p[:, 2], s=s, c=c, linewidths=0, depthshade=False)
             for setlim in (ax.set_xlim, ax.set_ylim, ax.set_zlim):

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ._figure import add_axes3d, new_figure, save_png
-from .points import Layer, _stack
+from .points import Layer, merge_layers
 
 
 def render_cloud_grid(
@@ -32,7 +32,7 @@ def render_cloud_grid(
     for i, row in enumerate(rows):
         for j, (ttl, layers) in enumerate(row):
             ax = add_axes3d(fig, nrow, ncol, i * ncol + j + 1)
-            p, c, s = _stack([Layer(pts, color, None, size, 1.0) for pts, color, size in layers])
+            p, c, s = merge_layers([Layer(pts, color, None, size, 1.0) for pts, color, size in layers])
             if len(p):
                 ax.scatter(p[:, 0], p[:, 1], p[:, 2], s=s, c=c, linewidths=0, depthshade=False)
             for setlim in (ax.set_xlim, ax.set_ylim, ax.set_zlim):

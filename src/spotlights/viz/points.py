@@ -74,7 +74,7 @@ class Layer:
         return Normalize(lo, hi if hi > lo else lo + 1.0)
 
 
-def _stack(layers: Sequence[Layer]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def merge_layers(layers: Sequence[Layer]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """All layers as one set: points (K, 3) float64, RGBA (K, 4), marker sizes (K,)."""
     pts, cols, sizes = [], [], []
     for layer in layers:
@@ -93,7 +93,7 @@ def draw_points3d(
     ax, layers: Sequence[Layer], elev: float, azim: float, center=None, half=None, labels=("x", "y", "z")
 ) -> None:
     """Draw layers on a 3-D axes as one depth-sorted scatter, with equal axes (cube around all points)."""
-    p, c, s = _stack(layers)
+    p, c, s = merge_layers(layers)
     if len(p):
         ax.scatter(p[:, 0], p[:, 1], p[:, 2], s=s, c=c, depthshade=False, linewidths=0)
     if center is None:
@@ -106,7 +106,7 @@ def draw_top(ax, layers: Sequence[Layer], center=None, half=None, labels=("x", "
     """Draw layers seen from +z on a 2-D axes (x right, y up, equal scales; highest point on top)."""
     from matplotlib.ticker import MaxNLocator
 
-    p, c, s = _stack(layers)
+    p, c, s = merge_layers(layers)
     if len(p):
         order = np.argsort(p[:, 2], kind="stable")
         ax.scatter(p[order, 0], p[order, 1], s=s[order], c=c[order], linewidths=0)
@@ -141,7 +141,7 @@ def figure_layers(
     """The :class:`~matplotlib.figure.Figure` of :func:`render_layers` (not saved)."""
     from matplotlib.cm import ScalarMappable
 
-    p, _, _ = _stack(layers)
+    p, _, _ = merge_layers(layers)
     center, half = cube_limits(p, 0.0)
     half *= 1.04  # a margin: points on the extremes stay whole
     bars = [layer for layer in layers if layer.colorbar]

@@ -21,9 +21,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..data.real import read_scan
 from ..errors import InputFileError, ParameterError
 from ..geometry.frames import box_corners
 from ._figure import add_axes3d, add_scale_bar, new_figure, save_png
+from .points import Layer, merge_layers
 
 GREY, PURPLE, GREEN = "#9a9a9a", "#8e44ad", "#27ae60"
 #: the 12 edges of a box as pairs of :func:`~spotlights.geometry.frames.box_corners` indices
@@ -143,8 +145,6 @@ def draw_bev(
 def draw_closeup(ax, scan: np.ndarray, obj: SceneObject, context: float = 1.0) -> None:
     """3-D close-up of one object from the sensor's side: context scan (grey, outside the box),
     completion (green), partial input (purple) depth-sorted together; box wireframe; 1 m ruler."""
-    from .points import Layer, _stack
-
     c = np.asarray(obj.center, dtype=np.float64)
     reach = obj.reach
     scan = np.asarray(scan, dtype=np.float64).reshape(-1, 3)
@@ -154,7 +154,7 @@ def draw_closeup(ax, scan: np.ndarray, obj: SceneObject, context: float = 1.0) -
     if obj.completion is not None:
         layers.append(Layer(obj.completion, GREEN, None, 2.0, 1.0))
     layers.append(Layer(obj.partial, PURPLE, None, 4.0, 1.0))
-    p, col, s = _stack(layers)
+    p, col, s = merge_layers(layers)
     if len(p):
         ax.scatter(p[:, 0], p[:, 1], p[:, 2], s=s, c=col, linewidths=0, depthshade=False)
     k = obj.corners()
@@ -294,8 +294,6 @@ def render_frame(
 
 def read_frame_scan(obs, row: int) -> np.ndarray:
     """(N, 3) float64 raw scan of observation ``row`` (sensor frame), read from its ``scan_path``."""
-    from ..data.real import read_scan
-
     sp = obs.scan_path[row]
     if not Path(sp).is_file():
         raise InputFileError(sp, "raw scan not found (moved since extraction?)")
