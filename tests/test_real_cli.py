@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from spotlights.cli import main
+from spotlights.cli import build_parser, main
 
 from helpers import LIDAR, assert_user_error, need, run_cli
 from learning_fixtures import tiny_dataset_path
@@ -36,6 +36,7 @@ def scene(tmp_path) -> Path:
 @pytest.fixture
 def fake_learning(monkeypatch, tmp_path):
     """Install a stand-in for spotlights.learning.inference whose completer returns a fixed ellipsoid."""
+    build_parser()  # the command modules import the library at their top: load them before the stand-in
 
     class Completer:
         n_params = 1
