@@ -247,9 +247,9 @@ def test_real_complete_format_nuscenes_on_the_mini_folder(tmp_path, capsys):
     under the scene's name; the car is completed in the sensor frame inside its box's sphere, the bicycle is
     excluded by class, the empty truck skipped; raw points kept."""
     pytest.importorskip("torch")
-    from learning_fixtures import make_checkpoint
-
     from spotlights.geometry.io import load_ply_fields
+
+    from learning_fixtures import make_checkpoint
 
     write_mini_nuscenes(tmp_path / "ns")
     ck = make_checkpoint(tmp_path / "tiny.pt", "sanet")

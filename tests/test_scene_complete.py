@@ -184,7 +184,9 @@ class _PointModel:
         for _ in range(len(partials)):
             d = rng.normal(size=(2048, 3))
             d /= np.linalg.norm(d, axis=1, keepdims=True)
-            outs.append((d * np.r_[rng.uniform(0, 0.99, 100), rng.uniform(1.01, 4.0, 1948)][:, None]).astype(np.float32))
+            outs.append(
+                (d * np.r_[rng.uniform(0, 0.99, 100), rng.uniform(1.01, 4.0, 1948)][:, None]).astype(np.float32)
+            )
         return outs
 
 

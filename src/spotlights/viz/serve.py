@@ -74,7 +74,9 @@ def make_server(body: bytes, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT)
     try:
         return Server((host.strip("[]"), port), Handler)
     except OSError as exc:
-        raise SpotlightsError(f"cannot serve on {host}:{port}: {os_error_reason(exc)} (choose another --port)") from None
+        raise SpotlightsError(
+            f"cannot serve on {host}:{port}: {os_error_reason(exc)} (choose another --port)"
+        ) from None
 
 
 def url_host(host: str) -> str:
