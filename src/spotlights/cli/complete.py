@@ -117,8 +117,8 @@ def add_completion_arguments(p, single: bool) -> None:
         "--precision",
         choices=("fp32", "bf16", "auto"),
         default="fp32",
-        help="torch runtime: fp32 (default) or bf16 autocast (about 3x faster on CPUs with AVX512-BF16/AMX; "
-        "depths move by up to ~0.01); auto = bf16 where supported",
+        help="torch runtime: fp32 (default) or bf16 autocast (4x faster per scan measured on a 2-core CPU with "
+        "AMX-BF16, docs/benchmarks.md; depths move by up to ~0.01); auto = bf16 where supported",
     )
     p.add_argument(
         "--runtime",
