@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from ._util import add_command, non_negative_int, positive_int, unit_interval
+from ..errors import SpotlightsError
+from ..utils import check_writable
+from ..viz import html, serve
+from ._util import add_command, check_suffix, non_negative_int, positive_int, unit_interval
 
 
 def register(sub) -> None:
@@ -82,11 +85,6 @@ def register(sub) -> None:
 def _view(args) -> int:
     from pathlib import Path
 
-    from ..errors import SpotlightsError
-    from ..utils import check_writable
-    from ..viz import html
-    from ._util import check_suffix
-
     if not args.serve and (args.port is not None or args.host is not None):
         raise SpotlightsError("--port and --host go with --serve")
     out = args.out if args.out is not None or args.serve else "view.html"
@@ -111,8 +109,6 @@ def _view(args) -> int:
         if not args.quiet:
             print(f"page -> {out} ({out.stat().st_size / 1e6:.1f} MB, opens offline in a browser)")
     if args.serve:
-        from ..viz import serve
-
         host = args.host if args.host is not None else serve.DEFAULT_HOST
         port = args.port if args.port is not None else serve.DEFAULT_PORT
         return serve.serve(html.page_text(fig).encode("utf-8"), host, port, quiet=args.quiet)
@@ -131,7 +127,6 @@ def add_html_argument(p) -> None:
 
 def write_page(path, panels, title: str, quiet: bool = False) -> None:
     """Write ``panels`` ((title, traces) pairs) as one overlaid page and say where."""
-    from ..viz import html
 
     out = html.write_html(path, html.page(panels, title))
     if not quiet:

@@ -20,9 +20,15 @@ from pathlib import Path
 
 import numpy as np
 
+from ..data.real.extract import read_observations
+from ..data.real.frames import frame_rows
 from ..errors import InputFileError, SpotlightsError
+from ..geometry.encode import decode, load_encoding
 from ..geometry.frames import box_corners
+from ..geometry.io import MESH_SUFFIXES, POINT_SUFFIXES, load_mesh, load_points, ply_has_faces
 from ..utils import atomic_output
+from .encoding import encoding_layers, viewpoint_rays
+from .scene import bev_window, frame_objects, read_frame_scan
 
 GREY, PURPLE, GREEN, BLUE = "#9a9a9a", "#8e44ad", "#27ae60", "#4a78c2"
 HIT, MISS = "#2a9d3f", "#f4a261"
@@ -198,7 +204,6 @@ def scene_traces(scan: np.ndarray | None, objects: Sequence, name: str = "", mar
     ``margin``: the raw scan is cut to the boxes' bird's-eye window grown by this many metres
     (and the sensor), so that the page opens on the objects; None keeps the whole scan.
     """
-    from .scene import bev_window
 
     pre = f"{name}: " if name else ""
     out = []
@@ -234,7 +239,6 @@ def scene_traces(scan: np.ndarray | None, objects: Sequence, name: str = "", mar
 def encoding_traces(encoding, name: str, clip: float | None = None, rays: int | None = None) -> list:
     """An encoding's decoded hits (unit frame) coloured by viewpoint (colour bar), the unit sphere's
     equator and meridians, and on request one viewpoint's ray bundle (hits green, misses orange)."""
-    from .encoding import encoding_layers, viewpoint_rays
 
     layers, mask = encoding_layers(encoding, clip)
     rig = encoding.rig
@@ -298,7 +302,6 @@ def sample_traces(sample: dict, rig, clip: float | None = None) -> list:
     """A dataset sample in its unit frame: ground truth (grey), Spotlights points decoded from the
     ground-truth depths with ``rig`` (green), partial scan (purple), and a line toward the sensor.
     ``sample``: a dict of :meth:`~spotlights.data.store.CompletionDataset.sample`."""
-    from ..geometry.encode import decode
 
     gt = np.asarray(sample["gt_points"], dtype=np.float64)
     spot, mask = decode(sample["gt_depths"], rig, clip)
@@ -498,7 +501,6 @@ def file_traces(
     """Traces of one file, by kind: mesh, encoding (.npz with ``depths``), point cloud, scene PLY
     (``source``/``object`` fields), boxes (.json), observations (.h5 from ``real extract``: its
     busiest frame). Returns (traces, a one-line description)."""
-    from ..geometry.io import MESH_SUFFIXES, POINT_SUFFIXES, load_mesh, load_points, ply_has_faces
 
     src = Path(path)
     name = src.name
@@ -515,8 +517,6 @@ def file_traces(
         except Exception as exc:
             raise InputFileError(src, f"not a readable .npz file ({type(exc).__name__})") from None
         if is_encoding:
-            from ..geometry.encode import load_encoding
-
             enc = load_encoding(src)
             return encoding_traces(enc, name, clip, rays), f"encoding ({enc.rig.name})"
     if rays is not None:
@@ -541,9 +541,6 @@ def file_traces(
 
 
 def _observation_traces(path: Path) -> tuple[list, str]:
-    from ..data.real.extract import read_observations
-    from ..data.real.frames import frame_rows
-    from .scene import frame_objects, read_frame_scan
 
     obs = read_observations(path)
     rows = frame_rows(obs)
