@@ -12,10 +12,6 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# Files another change was editing when this check came in; their function-level imports move with it (then
-# drop them from here).
-EDITED_ELSEWHERE: tuple[str, ...] = ()
-
 
 def _imports_script():
     spec = importlib.util.spec_from_file_location("imports_at_top", ROOT / "scripts" / "imports_at_top.py")
@@ -30,7 +26,7 @@ def test_light_project_modules_are_imported_at_the_top():
     inside = [
         f"{path.relative_to(ROOT)}:{node.lineno}: {', '.join(modules)}" + (f" (name clash: {clash})" if clash else "")
         for path, node, modules, heavy, _, clash in rows
-        if not heavy and path.relative_to(ROOT).as_posix() not in EDITED_ELSEWHERE
+        if not heavy
     ]
     assert not inside, (
         "project modules imported inside functions; only modules that import a heavy optional package "
