@@ -324,15 +324,17 @@ def test_box_checkpoint_in_evaluate_and_real_consistency(box_run, tmp_path, monk
 
 
 def test_cap_checkpoints_and_datasets_unchanged(built):
-    """The shipped (cap-rig) SA-Net needs no box and ignores one; cap rigs of a file need no model row."""
+    """The shipped paper (cap-rig) SA-Net needs no box and ignores one; the default (box-rig) model needs one;
+    cap rigs of a file need no model row."""
     from spotlights.learning.inference import load_completer, pretrained_checkpoint
 
     try:
-        pretrained_checkpoint()
+        pretrained_checkpoint("paper")
     except Exception:
         pytest.skip("no pretrained checkpoint shipped in this checkout")
-    comp = load_completer(device="cpu")
+    comp = load_completer("paper", device="cpu")
     assert not comp.needs_box and comp.rig.kind == "cap"
+    assert load_completer(device="cpu").needs_box  # the default: hit-aware SA-Net on a box-targeted rig
     x = np.random.default_rng(3).normal(size=(2, 256, 3)).astype(np.float32) * 0.3
     a = comp.complete(x)
     b = comp.complete(x, extents=np.ones((2, 3)) / np.sqrt(3))

@@ -230,7 +230,11 @@ def test_default_checkpoint_is_the_packaged_one(tmp_path, capsys):
         )
         assert_user_error(proc, "is not shipped in this installation", "checkpoint file")
     else:
-        assert load_completer(path).model_name == "sanet"
+        # the default: the hit-aware SA-Net on the dense box-targeted rig; the paper's SA-Net by its own name
+        default = load_completer(path)
+        assert path.name == "default.pt" and default.model_name == "sanet-hit" and default.needs_box
+        assert default.rig.n_rays == 128 * 128 and default.clip is None
+        assert load_completer("paper").model_name == "sanet"
         # short names resolve to packaged files; None is the default; paths stay paths
         assert resolve_checkpoint(None) == resolve_checkpoint("default") == path
         assert set(PRETRAINED) >= {"default", "paper"} and resolve_checkpoint("paper").is_file()

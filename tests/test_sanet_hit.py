@@ -233,7 +233,7 @@ def test_the_shipped_paper_checkpoint_loads_and_gives_the_same_outputs():
     from spotlights.learning.inference import load_completer, pretrained_checkpoint
 
     try:
-        path = pretrained_checkpoint()
+        path = pretrained_checkpoint("paper")
     except SpotlightsError:
         pytest.skip("no pretrained checkpoint shipped in this checkout")
     comp = load_completer(path, device="cpu")

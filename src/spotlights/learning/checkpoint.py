@@ -31,11 +31,11 @@ FORMAT = "spotlights-checkpoint"
 FORMAT_VERSION = 1
 
 #: Short checkpoint names -> files shipped in ``spotlights/learning/pretrained/``.
-#: ``default`` is the model every command uses when ``--checkpoint`` is not given (the best
-#: product model, ``default.pt`` once it ships); ``paper`` is the paper-faithful SA-Net
-#: (32 x 64 rays at 60 degrees, clip 0.2). Until the product model ships both name ``paper.pt``.
+#: ``default`` is the model every command uses when ``--checkpoint`` is not given: the product
+#: model, the hit-aware SA-Net on the dense box-targeted rig (16,384 rays, no clip); ``paper`` is
+#: the paper-faithful SA-Net (32 x 64 rays at 60 degrees, clip 0.2).
 #: ``scripts/ship_pretrained.py`` writes a file (float16 weights) and checks it.
-PRETRAINED: dict[str, str] = {"default": "paper.pt", "paper": "paper.pt"}
+PRETRAINED: dict[str, str] = {"default": "default.pt", "paper": "paper.pt"}
 
 
 def resolve_checkpoint(name=None) -> Path:
