@@ -502,6 +502,7 @@ CASES = [
     C("view-unknown-type", "view {garbage} -o {out}/v.html -q", "garbage.bin"),
     C("view-out-png", "view {mesh} -o {out}/v.png -q", "v.png"),
     C("view-readonly", "view {mesh} -o {out}/v.html -q", "v.html", fault="readonly"),
+    C("view-port-too-big", "view {mesh} --serve --port 70000 -q", "--port", usage=True),
     # ---- curves
     C("curves-missing", "curves {out}/nope -o {out}/cv", "nope"),
     C("curves-no-log", "curves {empty_dir} -o {out}/cv", "log.csv"),

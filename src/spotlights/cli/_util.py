@@ -63,6 +63,8 @@ positive_float = _number_type(float, lambda v: 0.0 < v < float("inf"), "a finite
 """argparse type: a finite number > 0 (distance thresholds)."""
 non_negative_float = _number_type(float, lambda v: 0.0 <= v < float("inf"), "a finite number >= 0")
 """argparse type: a finite number >= 0 (margins, noise levels)."""
+port_number = _number_type(int, lambda v: 0 <= v <= 65535, "a TCP port number in 0..65535")
+"""argparse type: a TCP port, 0 (the system picks a free one) to 65535."""
 
 
 def add_quiet(p: argparse.ArgumentParser, what: str = "no progress bar") -> None:

@@ -60,7 +60,7 @@ def add_completion_arguments(p, single: bool) -> None:
         metavar="M",
         help="the turned heading wins when its fidelity is below (1 - M) x the given one's (default 0.3: no "
         "annotated real car was turned at 0.3; 0 keeps whichever is closer, which turned 15-54%% of correct "
-        "real boxes with the shipped model; docs/real-data.md)",
+        "real boxes with the paper SA-Net; docs/real-data.md)",
     )
     g = p.add_argument_group("crop (" + CROP_DOC + ")")
     g.add_argument(
@@ -109,7 +109,7 @@ def add_completion_arguments(p, single: bool) -> None:
         type=unit_interval,
         default=None,
         metavar="T",
-        help="SA-Net: drop rays with depth < T (default: the checkpoint's, 0.2)",
+        help="SA-Net: drop rays with depth < T (default: the checkpoint's: 0.2 for the paper SA-Net, none for the hit-aware default)",
     )
     m.add_argument("--no-clip", action="store_true", help="SA-Net: keep every ray with depth > 0")
     p.add_argument("--device", default=None, help=DEVICE_HELP)

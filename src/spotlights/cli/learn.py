@@ -149,7 +149,7 @@ def register(sub) -> None:
         type=unit_interval,
         default=None,
         metavar="T",
-        help="SA-Net clip for the 'w/ clip' row (default: the checkpoint's, 0.2)",
+        help="SA-Net clip for the 'w/ clip' row (default: the checkpoint's: 0.2 for the paper SA-Net)",
     )
     p.add_argument("--batch-size", type=positive_int, default=32, help="evaluation batch size (default 32)")
     p.add_argument(

@@ -5,7 +5,7 @@ from __future__ import annotations
 from ..errors import SpotlightsError
 from ..utils import check_writable
 from ..viz import html, serve
-from ._util import add_command, check_suffix, non_negative_int, positive_int, unit_interval
+from ._util import add_command, check_suffix, port_number, positive_int, unit_interval
 
 
 def register(sub) -> None:
@@ -67,7 +67,7 @@ def register(sub) -> None:
     )
     p.add_argument(
         "--port",
-        type=non_negative_int,
+        type=port_number,
         default=None,
         metavar="N",
         help="--serve: the port (default 8000; 0 picks a free one)",

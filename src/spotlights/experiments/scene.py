@@ -51,7 +51,7 @@ from ..viz import SceneObject, html, render_scene
 SOURCE_RAW, SOURCE_PARTIAL, SOURCE_COMPLETION = 0, 1, 2
 HEADING_MARGIN = 0.3
 """The heading check turns a box around only when the turned completion's fidelity is lower by more than this
-share (0.3: below 70% of the given heading's). Measured with the shipped SA-Net (``benchmarks/heading.py``,
+share (0.3: below 70% of the given heading's). Measured with the paper SA-Net (``paper.pt``; not yet re-measured for the dense default; ``benchmarks/heading.py``,
 docs/real-data.md): on 280 synthetic test scans every margin up to 0.1 is right on every scan, but on real
 annotated boxes a bare comparison (margin 0) turns 15% (AV2), 37% (nuScenes) and 54% (KITTI) of *correct*
 boxes around; at 0.3 none of the 244 real cars is turned (trucks and trailers: 1-3%), and 11-22% of real
