@@ -55,6 +55,17 @@ def cfg(root, **kw):
     return BuildConfig(**base)
 
 
+def build_argv(root, out) -> list[str]:
+    """The ``spotlights dataset build`` arguments of the build :func:`cfg` describes, writing ``out``."""
+    c = cfg(root)
+    argv = ["dataset", "build", "--meshes", str(root), "--out", str(out), "--views", str(c.views)]
+    argv += ["--split", c.split, "--seed", str(c.seed), "--gt-dense", str(c.gt_dense), "--gt-points", str(c.gt_points)]
+    argv += ["--default-rig", c.default_rig]
+    for rig in c.extra_rigs:
+        argv += ["--rig", rig]
+    return argv
+
+
 def quiet(m):
     return None
 
@@ -197,38 +208,7 @@ def test_ray_build_is_byte_identical_to_local(meshes, local_ref, tmp_path, ray_c
     assert sha(one) == sha(local_ref)
     # sharded on Ray (shards written by Ray tasks), then merged: the same bytes again
     index = tmp_path / "ray.json"
-    assert (
-        main(
-            [
-                "dataset",
-                "build",
-                "--meshes",
-                str(meshes),
-                "--out",
-                str(index),
-                "--views",
-                "12",
-                "--split",
-                "1/1/1",
-                "--seed",
-                "4",
-                "--gt-dense",
-                "1024",
-                "--gt-points",
-                "512",
-                "--default-rig",
-                "8x16@60",
-                "--rig",
-                "box-8x8-ellipsoid-s1",
-                "--backend",
-                "ray",
-                "--shard-size",
-                "24",
-                "-q",
-            ]
-        )
-        == 0
-    )
+    assert main(build_argv(meshes, index) + ["--backend", "ray", "--shard-size", "24", "-q"]) == 0
     assert sha(merge_shards(index, tmp_path / "m.h5", progress=False)["out"]) == sha(local_ref)
     # add-rig on Ray = add-rig locally
     a, b = tmp_path / "a.h5", tmp_path / "b.h5"
@@ -304,38 +284,8 @@ def test_ray_build_resumes_after_the_driver_is_killed(meshes, local_ref, tmp_pat
     pytest.importorskip("ray")
     out = tmp_path / "killed.h5"
     parts = Path(str(out) + ".parts")
-    cmd = [
-        sys.executable,
-        "-m",
-        "spotlights",
-        "dataset",
-        "build",
-        "--meshes",
-        str(meshes),
-        "--out",
-        str(out),
-        "--views",
-        "12",
-        "--split",
-        "1/1/1",
-        "--seed",
-        "4",
-        "--gt-dense",
-        "1024",
-        "--gt-points",
-        "512",
-        "--default-rig",
-        "8x16@60",
-        "--rig",
-        "box-8x8-ellipsoid-s1",
-        "--block",
-        "1",
-        "--backend",
-        "ray",
-        "--workers",
-        "2",
-        "-q",
-    ]
+    cmd = [sys.executable, "-m", "spotlights", *build_argv(meshes, out)]
+    cmd += ["--block", "1", "--backend", "ray", "--workers", "2", "-q"]
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src") + os.pathsep + os.environ.get("PYTHONPATH", "")}
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     deadline = time.time() + 240

@@ -171,10 +171,8 @@ def _child_pool_check(conn):
     try:
         fresh = raycast._POOL is None
         seen = np.zeros(20000, dtype=np.int64)
-        names = set()
 
         def cast(a, b):
-            names.add(threading.current_thread().name)
             seen[a:b] += 1
 
         raycast._run_split(len(seen), 2, cast)
