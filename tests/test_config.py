@@ -54,6 +54,7 @@ def test_unknown_keys_in_a_schedule_and_in_overrides(tmp_path):
         ({"steps_per_epoch": 0}, "train.steps_per_epoch must be >= 1"),
         ({"precision": "fp8"}, "train.precision must be one of"),
         ({"select_by": "f1"}, "train.select_by must be one of"),
+        ({"compile": "yes"}, "train.compile must be true or false"),
         ({"optimizer": "adagrad"}, "unknown type 'adagrad'"),
         (
             {"optimizer": {"type": "adam", "betas": [0.9, 0.99], "momentum": 0.9}},

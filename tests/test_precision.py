@@ -83,3 +83,29 @@ def test_resume_continues_exactly_under_bf16_with_step_epochs(data, tmp_path):
     assert [h["global_step"] for h in full["history"]] == [3, 6, 9]
     assert [h["samples_seen"] for h in full["history"]] == [24, 48, 72]
     assert full["history"][-1]["wall_seconds"] >= full["history"][0]["wall_seconds"] > 0
+
+
+def test_compile_option_wraps_the_training_forward_only(data, tmp_path, monkeypatch):
+    """train.compile routes the training forward through torch.compile (recorded here with a pass-through
+    stand-in: a real compile costs minutes on CPU); checkpoints hold the eager model's keys."""
+    calls = []
+
+    class Recorded(torch.nn.Module):  # what torch.compile returns: a wrapper that calls the module
+        def __init__(self, mod):
+            super().__init__()
+            self._orig_mod = mod
+
+        def forward(self, *a, **kw):
+            calls.append(a[0].shape)
+            return self._orig_mod(*a, **kw)
+
+    monkeypatch.setattr(torch, "compile", lambda mod, **kw: Recorded(mod))
+    _run("sanet", data, tmp_path / "c", epochs=1, steps_per_epoch=2, compile=True)
+    assert len(calls) == 2  # one compiled forward per training step, none for validation
+    ck = load_checkpoint(tmp_path / "c" / "best.pt")
+    assert ck["config"]["train"]["compile"] is True
+    assert not any(k.startswith("_orig_mod") for k in ck["model_state"])
+    model_from_checkpoint(ck)  # loads as an eager model
+    calls.clear()
+    _run("sanet", data, tmp_path / "e", epochs=1, steps_per_epoch=2)
+    assert calls == []  # off by default

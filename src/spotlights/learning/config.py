@@ -68,6 +68,11 @@ class TrainConfig:
         configs say ``auto``, a config without the key (older checkpoints) means ``fp32``.
     steps_per_epoch : None (an epoch is one pass) or N steps per epoch (>= 1).
     select_by : ``chamfer_l1``, ``accuracy`` or ``loss``: the validation score ``best.pt`` minimises.
+    compile : run the training forward pass through ``torch.compile`` (default false). Measured on
+        the 2-core CPU at bf16 (docs/learning.md): SA-Net 1.38x, PCN 1.30x, the dense hit-aware
+        SA-Net 1.13x faster per step, after 1.5-2.5 minutes of compilation; fp32 gains 3-13%.
+        Weights and checkpoints are those of the eager model; results differ from an eager run
+        in the last bits (fused kernels), so a compiled run is reproducible with itself only.
     """
 
     epochs: int = 40
@@ -81,6 +86,7 @@ class TrainConfig:
     precision: str = "fp32"  # a config without the key (written before --precision existed) trained at fp32
     steps_per_epoch: int | None = None
     select_by: str = "chamfer_l1"
+    compile: bool = False
 
 
 SELECT_BY = {"chamfer_l1": "val_chamfer_l1", "accuracy": "val_accuracy", "loss": "val_loss"}
@@ -329,6 +335,9 @@ def train_config(cfg: dict) -> TrainConfig:
     select_by = str(t.get("select_by", base.select_by))
     if select_by not in SELECT_BY:
         raise ParameterError(f"train.select_by must be one of {', '.join(SELECT_BY)}, got {select_by!r}")
+    compile_ = t.get("compile", base.compile)
+    if not isinstance(compile_, bool):
+        raise ParameterError(f"train.compile must be true or false, got {compile_!r}")
     out = TrainConfig(
         epochs=_int(t.get("epochs", base.epochs), "train.epochs", 0),
         batch_size=_int(t.get("batch_size", base.batch_size), "train.batch_size", 1),
@@ -343,6 +352,7 @@ def train_config(cfg: dict) -> TrainConfig:
         precision=precision.lower(),
         steps_per_epoch=_int(t.get("steps_per_epoch"), "train.steps_per_epoch", 1, none_ok=True),
         select_by=select_by,
+        compile=compile_,
     )
     check_optimizer(out.optimizer)
     check_schedule(out.lr_schedule)

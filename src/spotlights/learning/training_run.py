@@ -193,6 +193,8 @@ def prepare_run(
         run.net = torch.nn.parallel.DistributedDataParallel(
             model, device_ids=[device.index] if device.type == "cuda" else None
         )
+    if tcfg.compile:  # the training forward only; validation and checkpoints use the eager model
+        run.net = torch.compile(run.net)
     if dist.main:
         out_dir.mkdir(parents=True, exist_ok=True)
         _write_yaml(out_dir / "config.yaml", cfg)
