@@ -195,7 +195,8 @@ def test_point_model_completions_are_clamped_to_the_sphere(tmp_path):
     """A point model predicting points far outside the unit sphere: every completion point ends inside its box's
     sphere (scan frame) and on or inside the unit sphere (unit frame), radially (directions kept); points inside are
     unchanged; with the heading check too."""
-    from spotlights.experiments.scene import SceneConfig, clamp_to_unit_sphere, complete_scene
+    from spotlights.experiments.scene import SceneConfig, complete_scene
+    from spotlights.geometry.frames import clamp_to_unit_sphere
 
     raw = _PointModel().complete(np.zeros((1, 256, 3)))[0]
     clamped = clamp_to_unit_sphere(raw)
@@ -212,6 +213,11 @@ def test_point_model_completions_are_clamped_to_the_sphere(tmp_path):
         for o in res.completed:
             assert np.linalg.norm(o.completion_unit.astype(np.float64), axis=1).max() <= 1.0
             assert np.linalg.norm(o.completion - o.box.center, axis=1).max() <= o.box.radius * (1 + 1e-6)
+    from spotlights.learning.inference import complete_scan  # the single-object path (Python API, demo)
+
+    one = complete_scan(scan, bxs[0], _PointModel(), crop=0.5)
+    assert np.linalg.norm(one["completed_unit"].astype(np.float64), axis=1).max() <= 1.0
+    assert np.linalg.norm(one["completed"] - bxs[0].center, axis=1).max() <= bxs[0].radius * (1 + 1e-6)
 
 
 def test_heading_check_turns_a_reversed_car_around(tmp_path):

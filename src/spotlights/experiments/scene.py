@@ -42,6 +42,7 @@ from ..data.real.extract import crop_box
 from ..data.real.scans import MIN_SCAN_POINTS
 from ..errors import InputFileError, ParameterError
 from ..geometry.boxes import FLIP_Z, Box
+from ..geometry.frames import clamp_to_unit_sphere
 from ..geometry.io import save_ply, save_points
 from ..geometry.neighbors import serial_queries
 from ..geometry.rotations import rigid_transform
@@ -342,25 +343,6 @@ def complete_scene(
         timings={"crop_s": t1 - t0, "model_s": t2 - t1, "assemble_s": t3 - t2, "total_s": t3 - t0},
         member=member,
     )
-
-
-def clamp_to_unit_sphere(points: np.ndarray) -> np.ndarray:
-    """(K, 3) unit-frame points with every point farther than 1 from the origin moved radially onto
-    the unit sphere (the box's circumscribed sphere); float32. SA-Net's depths in [0, 1] keep its
-    points inside already; point-set models (PCN, FoldingNet, TopNet, AtlasNet) are not bounded."""
-    p = np.asarray(points, dtype=np.float32).reshape(-1, 3)
-    r = np.linalg.norm(p.astype(np.float64), axis=1)
-    out = r > 1.0
-    if not out.any():
-        return p
-    p = p.copy()
-    p[out] = (p[out] / r[out, None]).astype(np.float32)
-    # float32 rounding can leave |p| a hair above 1: shrink those by one ulp until inside
-    while True:
-        over = np.linalg.norm(p.astype(np.float64), axis=1) > 1.0
-        if not over.any():
-            return p
-        p[over] = np.nextafter(p[over], np.float32(0))
 
 
 def _assemble(todo: list, outs: list, config: SceneConfig, a) -> None:

@@ -150,3 +150,22 @@ def box_corners(center, size, yaw: float = 0.0, rotation=None) -> np.ndarray:
     j = np.arange(8)
     signs = np.stack([(j >> b & 1) * 2 - 1 for b in range(3)], axis=1).astype(np.float64)
     return np.asarray(center, dtype=np.float64).reshape(3) + (signs * size / 2.0) @ rot.T
+
+
+def clamp_to_unit_sphere(points: np.ndarray) -> np.ndarray:
+    """(K, 3) unit-frame points with every point farther than 1 from the origin moved radially onto
+    the unit sphere (the box's circumscribed sphere); float32. SA-Net's depths in [0, 1] keep its
+    points inside already; point-set models (PCN, FoldingNet, TopNet, AtlasNet) are not bounded."""
+    p = np.asarray(points, dtype=np.float32).reshape(-1, 3)
+    r = np.linalg.norm(p.astype(np.float64), axis=1)
+    out = r > 1.0
+    if not out.any():
+        return p
+    p = p.copy()
+    p[out] = (p[out] / r[out, None]).astype(np.float32)
+    # float32 rounding can leave |p| a hair above 1: shrink those by one ulp until inside
+    while True:
+        over = np.linalg.norm(p.astype(np.float64), axis=1) > 1.0
+        if not over.any():
+            return p
+        p[over] = np.nextafter(p[over], np.float32(0))

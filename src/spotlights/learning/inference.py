@@ -24,6 +24,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..geometry.boxes import Box, box_from_dict, load_box  # noqa: F401  (the box of complete_scan; re-exported)
+from ..geometry.frames import clamp_to_unit_sphere
 from ..geometry.sampling import resample_set
 from .checkpoint import PRETRAINED, load_checkpoint, model_from_checkpoint, resolve_checkpoint
 from .rays import directions_for_extents, extents_from_sizes
@@ -283,7 +284,8 @@ def complete_scan(
     Returns
     -------
     dict with ``completed`` (M, 3) float64 in the scan's frame, ``completed_unit`` (M, 3)
-    float32, ``partial_unit`` (n_input, 3) float32 (the network input), ``used_points``
+    float32 (inside the unit sphere, i.e. the box's circumscribed sphere: points of point-set
+    models beyond it are moved radially onto it), ``partial_unit`` (n_input, 3) float32 (the network input), ``used_points``
     (number of scan points used), ``normalization`` (scan -> unit).
 
     Raises :class:`ParameterError` for an empty scan (or empty after cropping) or NaNs.
@@ -306,6 +308,7 @@ def complete_scan(
         done = completer.complete(partial[None], clip=clip, extents=extents_from_sizes(box.size)[None])[0]
     else:
         done = completer.complete(partial[None], clip=clip)[0]
+    done = clamp_to_unit_sphere(done)  # point-set models are unbounded; depth models are inside already
     return {
         "completed": norm.from_unit(done.astype(np.float64)),
         "completed_unit": done,
