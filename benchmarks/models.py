@@ -58,6 +58,7 @@ from spotlights.learning.device import autocast
 from spotlights.learning.losses import chamfer_distance
 from spotlights.learning.models import MODEL_NAMES, build_model, load_config
 from spotlights.learning.models.base import MLP
+from spotlights.learning.rays import TIMING_BOX_SIZE, extents_from_sizes
 
 SECTIONS = ("inference", "chamfer", "train", "precision", "dense", "quality", "runtime")
 BOX, DENSE = "box-32x64-ellipsoid-s1", "box-128x128-ellipsoid-s1"
@@ -321,6 +322,8 @@ def runtime_latency(
     from spotlights.learning.inference import load_completer
 
     ref = load_completer(checkpoint, device="cpu")
+    # box-targeted rigs aim each scan's rays at its box: time them on a typical car's box
+    ext = extents_from_sizes(TIMING_BOX_SIZE) if getattr(ref, "needs_box", False) else None
     cpu = torch.device("cpu")
     with tempfile.TemporaryDirectory(prefix="bench-onnx-") as tmp:
         t0 = time.perf_counter()
@@ -334,7 +337,7 @@ def runtime_latency(
         def torch_call(x, prec):
             def f():
                 with autocast(prec, cpu):
-                    ref.complete(x)
+                    ref.complete(x, extents=ext)
 
             return f
 
@@ -342,11 +345,12 @@ def runtime_latency(
         for b, x in inputs.items():
             fns[(b, "torch fp32")] = torch_call(x, "fp32")
             fns[(b, "torch bf16")] = torch_call(x, "bf16")
-            fns[(b, "onnxruntime")] = lambda x=x: onx.complete(x)
+            fns[(b, "onnxruntime")] = lambda x=x: onx.complete(x, extents=ext)
         res = _alternate(fns, repeats, warmup=3, progress=progress)
     out = {
         "checkpoint": str(checkpoint),
         "model": ref.model_name,
+        "box_size_m": list(TIMING_BOX_SIZE) if ext is not None else None,
         "export_seconds": export_s,
         "parity": diff,
         "onnxruntime": __import__("onnxruntime").__version__,
