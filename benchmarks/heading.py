@@ -35,7 +35,7 @@ from spotlights.experiments.real_evaluation import complete_all, flip_heading
 from spotlights.geometry.neighbors import serial_queries
 from spotlights.learning.inference import load_completer
 
-MARGINS = (0.0, 0.05, 0.10, 0.20, 0.30)
+MARGINS = (0.0, 0.05, 0.10, 0.20, 0.30, 0.40, 0.50, 0.60)
 
 
 def rates(f_right: np.ndarray, f_turned: np.ndarray, margin: float) -> dict:

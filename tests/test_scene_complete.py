@@ -232,14 +232,16 @@ def test_heading_check_turns_a_reversed_car_around(tmp_path):
     comp = load_completer("default", device="cpu")
     scan = read_scan(asset_path("demo_scan.pcd"))
     box = load_box(asset_path("demo_scan_box.json")).replace(label="car", cls="car")
-    cfg = SceneConfig(heading_check=True)
+    # the turned completion's fidelity is 0.54x the given one's here: turned at margin 0.3, kept at the default 0.5
+    cfg = SceneConfig(heading_check=True, heading_margin=0.3)
     right = complete_scene(scan, [box], comp, cfg).objects[0]
     wrong = complete_scene(scan, [box.flipped()], comp, cfg).objects[0]
     assert not right.flipped and wrong.flipped
     np.testing.assert_allclose(wrong.used_box.rotation, box.rotation, atol=1e-12)
     assert wrong.fidelity_flipped < wrong.fidelity and right.fidelity < right.fidelity_flipped
-    # without the check the reversed box keeps its heading
+    # without the check, or with the default (stricter) margin, the reversed box keeps its heading
     assert not complete_scene(scan, [box.flipped()], comp, SceneConfig()).objects[0].flipped
+    assert not complete_scene(scan, [box.flipped()], comp, SceneConfig(heading_check=True)).objects[0].flipped
 
 
 def test_same_observation_same_completion(tmp_path, tiny):
