@@ -167,3 +167,19 @@ def test_distances_module_does_not_import_torch():
         [sys.executable, "-c", code], capture_output=True, text=True, env={"PYTHONPATH": str(REPO / "src")}
     )
     assert proc.returncode == 0, proc.stderr
+
+
+@pytest.mark.timeout(60)
+def test_farthest_point_sample_against_the_definition():
+    """Each index after the seeded first one is a point farthest (full distance matrix) from those chosen before."""
+    from spotlights.geometry.sampling import farthest_point_sample
+
+    rng = np.random.default_rng(5)
+    p = rng.normal(size=(400, 3)) * [3.0, 1.0, 0.2]
+    idx = farthest_point_sample(p, 60, seed=2)
+    assert idx[0] == np.random.default_rng(2).integers(400) and len(set(idx.tolist())) == 60
+    d = np.sqrt(((p[:, None, :] - p[None, :, :]) ** 2).sum(-1))
+    for j in range(1, 60):
+        to_set = d[:, idx[:j]].min(axis=1)
+        assert to_set[idx[j]] == pytest.approx(to_set.max(), rel=1e-12)
+    assert np.array_equal(farthest_point_sample(p, 60, seed=2), idx)  # deterministic
