@@ -10,11 +10,14 @@ rig study, draw the figures) and writes, under ``OUT``::
     OUT/tables/table<K>.json|csv  one table each (CSV: table, row, column, ours, paper)
     OUT/figures/*.png             the figures
     OUT/steps.json                one record per step: status, seconds, command, inputs
-    OUT/data/cars.h5              the car dataset (or --cars-data FILE), kitti.h5, av2.h5
+    OUT/data/cars.h5              the car dataset (or --cars-data FILE), kitti.h5, av2.h5, nuscenes.h5
     OUT/runs/<run>/               checkpoints: sanet pcn foldingnet topnet atlasnet (Table 1),
+                                  sanet-hit-box sanet-hit-dense (Tables 1 and 2: the product's hit-aware
+                                  SA-Nets, 2,048 and 16,384 rays; the second is the default model),
                                   sanet-64x32 sanet-256x64 (Table 5; its 32x64 row is run sanet),
                                   sanet-box (the box table: SA-Net on box-32x64-ellipsoid-s1)
-    OUT/eval/<run>.md|json        'spotlights evaluate' report of each checkpoint
+    OUT/eval/<run>.md|json        'spotlights evaluate' report of each checkpoint;
+                                  av2_consistency, nuscenes_consistency (Table 2), av2_consistency_box
     OUT/rig_study/                the per-mesh rig study behind Tables 3, 4 and box (cached per mesh)
 
 Resuming: every output is written atomically and each finished step is recorded in
@@ -45,7 +48,17 @@ from ...utils import exclusive_lock
 from .figures import figure_steps
 from .pipeline import Context, Step, execute, load_records, now, resolve, save_records
 from .report import publish, write_report
-from .settings import BOX_RIG, BOX_RUNS, BOX_STUDY_LABELS, RUNS, TABLE1_RUNS, TABLE5_RUNS, Settings
+from .settings import (
+    BOX_RIG,
+    BOX_RUNS,
+    BOX_STUDY_LABELS,
+    PRODUCT_RUNS,
+    RUNS,
+    TABLE1_RUNS,
+    TABLE5_RUNS,
+    RunSpec,
+    Settings,
+)
 from .steps import run_state, work_steps
 from .tables import TABLES, Table, parse_tables, table_steps
 
@@ -53,12 +66,14 @@ __all__ = [
     "BOX_RIG",
     "BOX_RUNS",
     "BOX_STUDY_LABELS",
+    "PRODUCT_RUNS",
     "RUNS",
     "TABLE1_RUNS",
     "TABLE5_RUNS",
     "TABLES",
     "Context",
     "ReproduceResult",
+    "RunSpec",
     "Settings",
     "Step",
     "Table",
@@ -116,8 +131,9 @@ def reproduce(
     tables : keys of :data:`TABLES` or a "1,2,5" string (default: all).
     quick : small data and the ``quick`` schedule (minutes; its numbers only show that all runs).
     schedule : schedule of new training runs (default ``budget``; ``quick`` with ``quick``).
-    cars_data : an existing car dataset (with rigs cap-32x64-60, cap-64x32-60, cap-256x64-60; the box
-        table adds box-32x64-ellipsoid-s1 with dataset add-rig when the file lacks it).
+    cars_data : an existing car dataset (with rigs cap-32x64-60, cap-64x32-60, cap-256x64-60; the runs on
+        box-32x64-ellipsoid-s1 and box-128x128-ellipsoid-s1 add those rigs with dataset add-rig when the
+        file lacks them). Finished runs in ``OUT/runs/<run>/`` are reused whatever their schedule.
     cars_meshes, category_meshes, lidar : shared data folders (default ``../shared/data/...``).
     eval_views : test views per test car for Tables 1 and 5 (default 200, --quick 4; None = all).
     workers : processes for the dataset build and the rig study (default 1).

@@ -30,7 +30,7 @@ from .. import paper_tables as paper
 from ..rig_study import N_SURFACE
 from .figures import EXTRA_FIGURES, FIGURES
 from .pipeline import Context, now, read_json, shell_quote, write_json
-from .settings import DISPLAY, HIT_RATIO_RAYS, TABLE1_RUNS, Settings
+from .settings import DISPLAY, HIT_RATIO_RAYS, PRODUCT_RUNS, TABLE1_RUNS, Settings
 from .tables import TABLES
 
 RESULTS_FORMAT = "spotlights-reproduce-results"
@@ -97,9 +97,9 @@ def _category_meshes(ctx: Context) -> str:
 
 
 def _eval_results(ctx: Context) -> dict:
-    """{run: first result of its evaluate report} for the Table 1 runs that have one."""
+    """{run: first result of its evaluate report} for the Table 1 and product runs that have one."""
     out = {}
-    for r in TABLE1_RUNS:
+    for r in TABLE1_RUNS + PRODUCT_RUNS:
         p = ctx.eval_json(r)
         if p.is_file():
             out[r] = read_json(p)["results"][0]
@@ -144,13 +144,22 @@ def _machine(results: dict, vers: dict) -> str:
     return f"{what} time on this machine ({vers.get('cpu') or '?'}, {vers.get('cpus') or '?'} cores{threads})"
 
 
-def _av2_tracks(ctx: Context) -> str:
-    p = ctx.out / "eval" / "av2_consistency.json"
+def _real_tracks(ctx: Context, key: str, where: str) -> str:
+    """'21 tracked vehicles seen in both sweeps: car 20, truck 1' from the consistency report of real set ``key``."""
+    p = ctx.out / "eval" / f"{key}_consistency.json"
     if not p.is_file():
-        return "the vehicles seen in both sweeps"
+        return f"the vehicles seen in {where}"
     d = read_json(p)["data"]
     per = ", ".join(f"{c} {n}" for c, n in (d.get("objects_per_class") or {}).items())
-    return f"{d['n_objects_tracked']} tracked vehicles seen in both sweeps: {per}"
+    return f"{d['n_objects_tracked']} tracked vehicles seen in {where}: {per}"
+
+
+def _av2_tracks(ctx: Context) -> str:
+    return _real_tracks(ctx, "av2", "both sweeps")
+
+
+def _nuscenes_tracks(ctx: Context) -> str:
+    return _real_tracks(ctx, "nuscenes", "two or more keyframes")
 
 
 def facts(ctx: Context, vers: dict) -> dict:
@@ -168,6 +177,7 @@ def facts(ctx: Context, vers: dict) -> dict:
         "param_counts": _param_counts(ctx, results),
         "machine": _machine(results, vers),
         "av2_tracks": _av2_tracks(ctx),
+        "nuscenes_tracks": _nuscenes_tracks(ctx),
         "n_surface": f"{N_SURFACE:,}",
         "hit_ratio_rays": HIT_RATIO_RAYS,
         "seed": ctx.s.seed,

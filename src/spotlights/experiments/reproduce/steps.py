@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 from pathlib import Path
 
-from ...data.real import open_reader
+from ...data.real import SceneReader, open_reader
 from ...data.real.extract import SKIP_REASONS, ExtractConfig, extract, write_observations
 from ...data.store import open_dataset
 from ...data.synthetic import BuildConfig, add_rig, build_dataset
@@ -22,12 +23,28 @@ from ...learning.bench import model_latency
 from ...learning.checkpoint import load_checkpoint, model_from_checkpoint
 from ...learning.evaluate import evaluate_checkpoints
 from ...learning.inference import load_completer
+from ...learning.models import load_config, load_schedule
 from ...utils import atomic_output
 from .. import real_evaluation
 from ..real_evaluation import evaluate_consistency, reference_shapes
 from ..rig_study import BOX_RIGS, PAPER_RIGS, find_meshes, run_study, study_rigs, summarize
 from .pipeline import Context, Step, shell_quote
-from .settings import ABLATION_RAYS, BOX_RIG, BOX_RUNS, BOX_STUDY_LABELS, REQUIRED_RIGS, RUNS, TABLE1_RUNS, Settings
+from .settings import (
+    ABLATION_RAYS,
+    BOX_RIG,
+    BOX_RUNS,
+    BOX_STUDY_LABELS,
+    DENSE_RIG,
+    PRODUCT_RUNS,
+    REQUIRED_RIGS,
+    RIG_STEPS,
+    RUNS,
+    TABLE1_RUNS,
+    TABLE2_CLASSES,
+    TABLE2_RUNS,
+    TABLE2_SETS,
+    Settings,
+)
 
 
 # --- car dataset ------------------------------------------------------------------------------
@@ -58,7 +75,10 @@ def _quick_manifest(ctx: Context) -> Path:
 
 def _cars_config(ctx: Context):
     kw = dict(
-        meshes=str(ctx.s.cars_meshes), views=ctx.s.views, seed=ctx.s.seed, extra_rigs=["64x32@60", "256x64@60", BOX_RIG]
+        meshes=str(ctx.s.cars_meshes),
+        views=ctx.s.views,
+        seed=ctx.s.seed,
+        extra_rigs=["64x32@60", "256x64@60", BOX_RIG, DENSE_RIG],
     )
     if ctx.s.quick:
         kw.update(manifest=str(ctx.out / "data" / "quick-cars.csv"), split="3/3/3")
@@ -72,7 +92,7 @@ def _cars_command(ctx: Context) -> str:
         return f"(given with --cars-data {shell_quote(ctx.s.cars_data)})"
     cmd = (
         f"spotlights dataset build --meshes {shell_quote(ctx.s.cars_meshes)} --out {shell_quote(ctx.s.cars_path)} "
-        f"--views {ctx.s.views} --split {'3/3/3' if ctx.s.quick else '64/8/7'} --rig 64x32@60 --rig 256x64@60 --rig {BOX_RIG} "
+        f"--views {ctx.s.views} --split {'3/3/3' if ctx.s.quick else '64/8/7'} --rig 64x32@60 --rig 256x64@60 --rig {BOX_RIG} --rig {DENSE_RIG} "
         f"--seed {ctx.s.seed}"
     )
     if ctx.s.quick:
@@ -105,20 +125,20 @@ def _has_rig(path: Path, name: str) -> bool:
         return name in ds.rig_names
 
 
-def _reuse_cars_box(ctx: Context):
-    if _has_rig(ctx.s.cars_path, BOX_RIG):
-        return f"the car dataset {ctx.s.cars_path} holds rig {BOX_RIG}", {"rig": BOX_RIG, "added": False}
+def _reuse_cars_rig(ctx: Context, rig: str):
+    if _has_rig(ctx.s.cars_path, rig):
+        return f"the car dataset {ctx.s.cars_path} holds rig {rig}", {"rig": rig, "added": False}
     return None
 
 
-def _cars_box_command(ctx: Context) -> str:
-    return f"spotlights dataset add-rig {shell_quote(ctx.s.cars_path)} --rig {BOX_RIG} -j {ctx.s.workers} (only if the file lacks it)"
+def _cars_rig_command(ctx: Context, rig: str) -> str:
+    return f"spotlights dataset add-rig {shell_quote(ctx.s.cars_path)} --rig {rig} -j {ctx.s.workers} (only if the file lacks it)"
 
 
-def _run_cars_box(ctx: Context) -> dict:
-    """Add the box rig's ground truth to a car dataset that lacks it (``spotlights dataset add-rig``; atomic)."""
-    rep = add_rig(ctx.s.cars_path, BOX_RIG, workers=ctx.s.workers, progress=ctx.s.progress, log=ctx.log)
-    return {"rig": BOX_RIG, "added": not rep.already_present, "hit_ratio": rep.hit_ratio}
+def _run_cars_rig(ctx: Context, rig: str) -> dict:
+    """Add rig ``rig``'s ground truth to a car dataset that lacks it (``spotlights dataset add-rig``; atomic)."""
+    rep = add_rig(ctx.s.cars_path, rig, workers=ctx.s.workers, progress=ctx.s.progress, log=ctx.log)
+    return {"rig": rig, "added": not rep.already_present, "hit_ratio": rep.hit_ratio}
 
 
 def _reuse_cars(ctx: Context):
@@ -191,15 +211,64 @@ def run_info(run_dir: Path) -> dict:
     }
 
 
+def pass_steps_per_epoch(ctx: Context, run: str) -> int | None:
+    """The ``train.steps_per_epoch`` the reproduction sets for ``run``, or None (the run's config as it is).
+
+    A packaged run config may fix ``train.steps_per_epoch`` for the fair protocol (the default model's
+    ``variants/sanet-hit-dense.yaml``: 700, i.e. 17,500 steps in the fair schedule's 25 epochs). Under a
+    schedule that gives the model no ``steps_per_epoch`` of its own (``budget``, ``quick``, ``cpu``,
+    ``paper``: an epoch is one pass over the training views), that value would multiply the schedule's
+    budget, so the run gets the steps of one such pass instead (training samples of the car dataset
+    with view < the schedule's ``max_views``, divided by its batch size), as every other run of that
+    schedule. Reads the car dataset's sample table (it must exist).
+    """
+    import yaml
+
+    spec = RUNS[run]
+    if spec.config is None:
+        return None
+    fixed = ((yaml.safe_load(spec.config_path.read_text()) or {}).get("train") or {}).get("steps_per_epoch")
+    sched = load_schedule(ctx.s.schedule, spec.model)
+    if fixed is None or (sched.get("train") or {}).get("steps_per_epoch") is not None:
+        return None
+    cfg = load_config(spec.model, spec.config_path, schedule=ctx.s.schedule)
+    max_views, batch = cfg["data"].get("max_views"), int(cfg["train"]["batch_size"])
+    with open_dataset(ctx.s.cars_path) as ds:
+        views = ds.sample_view[ds.split_indices("train")]
+    n = int((views < int(max_views)).sum()) if max_views else len(views)
+    return n // batch if n >= batch else max(1, math.ceil(n / batch))
+
+
+def _train_overrides(ctx: Context, run: str) -> dict | None:
+    """The ``overrides`` of ``train()`` for ``run``: its rig and, where needed, :func:`pass_steps_per_epoch`."""
+    spec = RUNS[run]
+    out: dict = {}
+    if spec.rig:
+        out["data"] = {"rig": spec.rig}
+    steps = pass_steps_per_epoch(ctx, run)
+    if steps is not None:
+        out["train"] = {"steps_per_epoch": steps}
+    return out or None
+
+
 def _train_command(ctx: Context, run: str, resume: bool = False) -> str:
-    model, rig = RUNS[run]
-    cmd = (
-        f"spotlights train --model {model} --data {shell_quote(ctx.s.cars_path)} --out {shell_quote(ctx.run_dir(run))}"
-    )
+    spec = RUNS[run]
+    cmd = f"spotlights train --model {spec.model} --data {shell_quote(ctx.s.cars_path)} --out {shell_quote(ctx.run_dir(run))}"
     if resume:
         return cmd + " --resume"
     cmd += f" --schedule {shell_quote(ctx.s.schedule)}"
-    return cmd + (f" --rig {rig}" if rig else "")
+    if spec.config_path is not None:
+        cmd += f" --config {shell_quote(spec.config_path)}"
+    if spec.rig:
+        cmd += f" --rig {spec.rig}"
+    if spec.config is not None:
+        try:
+            steps = pass_steps_per_epoch(ctx, run)
+        except SpotlightsError:  # no car dataset yet: say what the number will be
+            return cmd + " [--steps-per-epoch <one pass of the training views>]"
+        if steps is not None:
+            cmd += f" --steps-per-epoch {steps}"
+    return cmd
 
 
 def _reuse_train(ctx: Context, run: str):
@@ -216,20 +285,21 @@ def _reuse_train(ctx: Context, run: str):
 def _run_train(ctx: Context, run: str) -> dict:
     from ...learning.train import train
 
-    model, rig = RUNS[run]
+    spec = RUNS[run]
     d = ctx.run_dir(run)
     st = run_state(d)
     if st["state"] == "unfinished":
         ctx.log(f"resuming run {run} after epoch {st['epochs']}/{st['epochs_total']}")
-        train(model, ctx.s.cars_path, d, resume=True, progress=ctx.s.progress, log=ctx.log)
+        train(spec.model, ctx.s.cars_path, d, resume=True, progress=ctx.s.progress, log=ctx.log)
         ctx.records.setdefault(f"train-{run}", {})["command"] = _train_command(ctx, run, resume=True)
     else:
         train(
-            model,
+            spec.model,
             ctx.s.cars_path,
             d,
+            config=spec.config_path,
             schedule=ctx.s.schedule,
-            overrides={"data": {"rig": rig}} if rig else None,
+            overrides=_train_overrides(ctx, run),
             overwrite=(d / "last.pt").exists(),
             progress=ctx.s.progress,
             log=ctx.log,
@@ -238,9 +308,13 @@ def _run_train(ctx: Context, run: str) -> dict:
 
 
 # --- evaluation -------------------------------------------------------------------------------
+TIMED_RUNS = TABLE1_RUNS + PRODUCT_RUNS
+"""The runs whose evaluation measures latency (Table 1's runtime columns)."""
+
+
 def _eval_command(ctx: Context, run: str) -> str:
     views = f" --max-views {ctx.s.eval_views}" if ctx.s.eval_views else ""
-    lat = " --no-latency" if run not in TABLE1_RUNS or ctx.s.quick else ""
+    lat = " --latency" if run in TIMED_RUNS and not ctx.s.quick else ""
     return (
         f"spotlights evaluate --data {shell_quote(ctx.s.cars_path)} --checkpoint {shell_quote(ctx.run_dir(run) / 'best.pt')} "
         f"--split test{views}{lat} --out {shell_quote(ctx.out / 'eval' / run)}"
@@ -248,7 +322,7 @@ def _eval_command(ctx: Context, run: str) -> str:
 
 
 def _run_eval(ctx: Context, run: str) -> dict:
-    timed = run in TABLE1_RUNS
+    timed = run in TIMED_RUNS
     rep = evaluate_checkpoints(
         [ctx.run_dir(run) / "best.pt"],
         ctx.s.cars_path,
@@ -279,12 +353,46 @@ def completers(ctx: Context, runs) -> list:
 REAL_SOURCES = {  # name -> (folder under --lidar, format)
     "kitti": ("kitti-object/training-fov-cropped", "kitti"),
     "av2": ("argoverse2", "av2"),
+    "nuscenes": ("nuscenes", "nuscenes"),
 }
+
+
+class FirstFrames(SceneReader):
+    """The first ``n`` frames of ``reader`` (in its time order): ``reproduce --quick`` scores a short stretch."""
+
+    def __init__(self, reader: SceneReader, n: int):
+        self.reader, self.n = reader, int(n)
+        self.format, self.root = reader.format, reader.root
+
+    def frame_keys(self) -> list[tuple[str, str]]:
+        """The first ``n`` (sequence, frame_id) keys of the wrapped reader."""
+        return self.reader.frame_keys()[: self.n]
+
+    def load(self, key: tuple[str, str]):
+        """One frame of the wrapped reader."""
+        return self.reader.load(key)
+
+
+def real_frames(ctx: Context, name: str) -> int | None:
+    """Frames extracted from source ``name``: --quick keeps the first few of each Table 2 set (None: all)."""
+    return ctx.s.real_frames if name in TABLE2_SETS else None
+
+
+def real_classes(name: str) -> tuple | None:
+    """Classes extracted from source ``name``: Table 2's (car, truck, trailer) for its sets, None (the
+    extraction's default, the paper's four classes) for KITTI (the qualitative figure)."""
+    return TABLE2_CLASSES if name in TABLE2_SETS else None
 
 
 def _real_command(ctx: Context, name: str) -> str:
     folder, fmt = REAL_SOURCES[name]
-    return f"spotlights real extract {shell_quote(Path(ctx.s.lidar) / folder)} --format {fmt} --out {shell_quote(ctx.out / 'data' / f'{name}.h5')}"
+    classes = real_classes(name)
+    return (
+        f"spotlights real extract {shell_quote(Path(ctx.s.lidar) / folder)} --format {fmt}"
+        + (f" --classes {','.join(classes)}" if classes else "")
+        + f" --out {shell_quote(ctx.out / 'data' / f'{name}.h5')}"
+        + (f" (--quick: the first {real_frames(ctx, name)} frames)" if real_frames(ctx, name) else "")
+    )
 
 
 def _run_real(ctx: Context, name: str) -> dict:
@@ -294,9 +402,14 @@ def _run_real(ctx: Context, name: str) -> dict:
         raise SpotlightsError(
             f"{src}: real LiDAR data not found (pass --lidar DIR, the folder of the shared lidar data)"
         )
-    obs = extract(open_reader(src, fmt), ExtractConfig(seed=ctx.s.seed), progress=ctx.s.progress)
+    classes = real_classes(name)
+    cfg = ExtractConfig(seed=ctx.s.seed, **({"classes": classes} if classes else {}))
+    reader = open_reader(src, fmt)
+    if real_frames(ctx, name):
+        reader = FirstFrames(reader, real_frames(ctx, name))
+    obs = extract(reader, cfg, progress=ctx.s.progress)
     write_observations(ctx.out / "data" / f"{name}.h5", obs)
-    return {"observations": len(obs), "frames": int(obs.meta["n_frames"])}
+    return {"observations": len(obs), "frames": int(obs.meta["n_frames"]), "classes": list(cfg.classes)}
 
 
 def _skip_reasons() -> list[str]:
@@ -304,27 +417,42 @@ def _skip_reasons() -> list[str]:
     return list(SKIP_REASONS)
 
 
-def _consistency_command(ctx: Context) -> str:
-    ck = " ".join(shell_quote(ctx.run_dir(r) / "best.pt") for r in TABLE1_RUNS)
+CONSISTENCY_OPTIONS = {
+    "classes": list(TABLE2_CLASSES),
+    "equal_points": real_evaluation.EQUAL_POINTS,
+    "noise_floor": True,
+    "heading_check": True,
+}
+"""What Table 2's consistency steps ask of :func:`evaluate_consistency`: Table 2's classes and the defaults of
+``spotlights real evaluate`` (equal point counts 512, the resampling noise floor, the heading check)."""
+
+
+def _consistency_command(ctx: Context, name: str) -> str:
+    ck = " ".join(shell_quote(ctx.run_dir(r) / "best.pt") for r in TABLE2_RUNS)
     return (
-        f"spotlights real evaluate {shell_quote(ctx.out / 'data' / 'av2.h5')} --checkpoint {ck} --out {shell_quote(ctx.out / 'eval' / 'av2_consistency')} "
-        f"--reference {shell_quote(ctx.s.cars_path)}"
+        f"spotlights real evaluate {shell_quote(ctx.out / 'data' / f'{name}.h5')} --checkpoint {ck} "
+        f"--classes {','.join(TABLE2_CLASSES)} --equal-points {real_evaluation.EQUAL_POINTS} "
+        f"--out {shell_quote(ctx.out / 'eval' / f'{name}_consistency')} --reference {shell_quote(ctx.s.cars_path)}"
+        " (report rows named after the runs)"
     )
 
 
-def _run_consistency(ctx: Context) -> dict:
-    completers = [load_completer(ctx.run_dir(r) / "best.pt", device="cpu") for r in TABLE1_RUNS]
+def _run_consistency(ctx: Context, name: str) -> dict:
+    """Table 2 on real set ``name``: consistency (native and at equal counts), noise floor, fidelity, MMD,
+    diversity, heading flips and out-of-domain counts of every Table 1 and product checkpoint."""
+    runs = list(TABLE2_RUNS)
     refs, ref_info = reference_shapes(ctx.s.cars_path)
     rep = evaluate_consistency(
-        ctx.out / "data" / "av2.h5",
-        completers,
-        names=list(TABLE1_RUNS),
-        checkpoints=[str(ctx.run_dir(r) / "best.pt") for r in TABLE1_RUNS],
+        ctx.out / "data" / f"{name}.h5",
+        completers(ctx, runs),
+        names=runs,
+        checkpoints=[str(ctx.run_dir(r) / "best.pt") for r in runs],
         progress=ctx.s.progress,
         references=refs,
         reference_info=ref_info,
+        **CONSISTENCY_OPTIONS,
     )
-    real_evaluation.write_report(rep, ctx.out / "eval" / "av2_consistency")
+    real_evaluation.write_report(rep, ctx.out / "eval" / f"{name}_consistency")
     return {"objects": rep["data"]["n_objects_tracked"], "pairs": rep["data"]["n_pairs"]}
 
 
@@ -406,19 +534,22 @@ def work_steps() -> list[Step]:
     """The steps that compute (datasets, runs, evaluations, real data, consistency, rig study), in execution order."""
     steps = [
         Step("cars-data", _run_cars, _cars_command, lambda c: [c.s.cars_path], reuse=_reuse_cars),
-        # the box rig's ground truth: built into new datasets; added to an existing file that lacks it
-        Step(
-            "cars-data-box",
-            _run_cars_box,
-            _cars_box_command,
-            lambda c: [c.s.cars_path],
-            needs=("cars-data",),
-            inputs=lambda c: [c.s.cars_path],
-            reuse=_reuse_cars_box,
-        ),
     ]
+    # the box rigs' ground truth: built into new datasets; added to an existing file that lacks them
+    for rig, name in RIG_STEPS.items():
+        steps.append(
+            Step(
+                name,
+                (lambda c, g=rig: _run_cars_rig(c, g)),
+                (lambda c, g=rig: _cars_rig_command(c, g)),
+                lambda c: [c.s.cars_path],
+                needs=("cars-data",),
+                inputs=lambda c: [c.s.cars_path],
+                reuse=(lambda c, g=rig: _reuse_cars_rig(c, g)),
+            )
+        )
     for run in RUNS:
-        needs = ("cars-data",) + (("cars-data-box",) if RUNS[run][1] == BOX_RIG else ())
+        needs = ("cars-data",) + ((RIG_STEPS[RUNS[run].rig],) if RUNS[run].rig in RIG_STEPS else ())
         steps.append(
             Step(
                 f"train-{run}",
@@ -448,22 +579,36 @@ def work_steps() -> list[Step]:
                 (lambda c, n=name: _run_real(c, n)),
                 (lambda c, n=name: _real_command(c, n)),
                 (lambda c, n=name: [c.out / "data" / f"{n}.h5"]),
-                params=lambda c: {"lidar": str(c.s.lidar), "skip_reasons": _skip_reasons()},
+                params=(
+                    lambda c, n=name: {
+                        "lidar": str(c.s.lidar),
+                        "skip_reasons": _skip_reasons(),
+                        "classes": list(real_classes(n) or ()),
+                        "frames": real_frames(c, n),
+                    }
+                ),
             )
         )
-    steps.append(
-        Step(
-            "consistency-av2",
-            _run_consistency,
-            _consistency_command,
-            lambda c: [c.out / "eval" / "av2_consistency.json"],
-            needs=("real-av2", "cars-data") + tuple(f"train-{r}" for r in TABLE1_RUNS),
-            inputs=lambda c: (
-                [c.out / "data" / "av2.h5", c.s.cars_path] + [c.run_dir(r) / "best.pt" for r in TABLE1_RUNS]
-            ),
-            params=lambda c: {"scores": ["consistency", "fidelity", "mmd", "diversity"]},
+    for name in TABLE2_SETS:
+        steps.append(
+            Step(
+                f"consistency-{name}",
+                (lambda c, n=name: _run_consistency(c, n)),
+                (lambda c, n=name: _consistency_command(c, n)),
+                (lambda c, n=name: [c.out / "eval" / f"{n}_consistency.json"]),
+                needs=(f"real-{name}", "cars-data") + tuple(f"train-{r}" for r in TABLE2_RUNS),
+                inputs=(
+                    lambda c, n=name: (
+                        [c.out / "data" / f"{n}.h5", c.s.cars_path] + [c.run_dir(r) / "best.pt" for r in TABLE2_RUNS]
+                    )
+                ),
+                params=lambda c: {
+                    "scores": ["consistency", "fidelity", "mmd", "diversity"],
+                    "runs": list(TABLE2_RUNS),
+                    **CONSISTENCY_OPTIONS,
+                },
+            )
         )
-    )
     box_runs = tuple(BOX_RUNS.values())
     steps.append(
         Step(

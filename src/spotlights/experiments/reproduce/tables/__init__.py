@@ -2,7 +2,7 @@
 
 A table is one :class:`Table` entry of :data:`TABLES`: its title, the steps it needs and a
 ``build(ctx) -> dict`` function (one module of this package each: :mod:`.synthetic` Tables 1
-and 5, :mod:`.real` Table 2, :mod:`.ablations` Tables 3 and 4, :mod:`.box` the box-rig
+and 5, :mod:`.real` Table 2 (Argoverse 2 and nuScenes), :mod:`.ablations` Tables 3 and 4, :mod:`.box` the box-rig
 table) that reads those steps' outputs (``OUT/eval/*.json``, ``OUT/rig_study/summary.csv``...)
 and returns ``markdown`` (its section of REPORT.md), ``rows`` (``{"row", "column", "ours",
 "paper"}`` for the CSV), ``checks`` (the paper's claims, each ``{"claim", "holds",
@@ -23,7 +23,7 @@ from ....errors import ParameterError
 from ....utils import atomic_output
 from ... import paper_tables as paper
 from ..pipeline import Context, Step, to_json, write_json
-from ..settings import BOX_RUNS, TABLE1_RUNS, TABLE5_RUNS
+from ..settings import BOX_RUNS, PRODUCT_RUNS, TABLE1_RUNS, TABLE2_SETS, TABLE5_RUNS
 from .ablations import build_table3, build_table4
 from .box import build_table_box
 from .real import build_table2
@@ -50,11 +50,16 @@ TABLES = {
     "1": Table(
         "1",
         "Table 1: completion accuracy and efficiency on the synthetic cars",
-        lambda s: [f"eval-{r}" for r in TABLE1_RUNS] + ["fig-synthetic"],
+        lambda s: [f"eval-{r}" for r in TABLE1_RUNS + PRODUCT_RUNS] + ["fig-synthetic"],
         build_table1,
     ),
     "2": Table(
-        "2", "Table 2: consistency on real scans", lambda s: ["consistency-av2", "real-kitti", "fig-real"], build_table2
+        "2",
+        "Table 2: consistency on real scans",
+        lambda s: (
+            [f"consistency-{k}" for k in TABLE2_SETS] + [f"real-{k}" for k in TABLE2_SETS] + ["real-kitti", "fig-real"]
+        ),
+        build_table2,
     ),
     "3": Table(
         "3",

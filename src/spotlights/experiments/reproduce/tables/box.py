@@ -130,7 +130,7 @@ def build_table_box(ctx: Context) -> dict:
         clip = variant.split("(", 1)[1].rstrip(")") if "(" in variant else "-"
         for k, run in BOX_RUNS.items():
             o = ev[k][variant]
-            rig = (facts.get(run) or {}).get("rig") or RUNS[run][1] or "cap-32x64-60"
+            rig = (facts.get(run) or {}).get("rig") or RUNS[run].rig or "cap-32x64-60"
             body.append(
                 [
                     f"{'paper rig' if k == 'paper' else '**box rig**'} `{rig}` ({run})",

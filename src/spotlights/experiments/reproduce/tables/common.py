@@ -33,13 +33,18 @@ def md_table(head: list, body: list) -> list:
     ]
 
 
-def eval_rows(ctx: Context, run: str) -> dict:
-    """{row name: {category..., average, n, params_m, latency}} from one run's evaluate report."""
+def eval_rows(ctx: Context, run: str, label: str | None = None) -> dict:
+    """{row name: {category..., average, completeness, chamfer_l1, fscore, n_points, params_m, latency...}}
+    from one run's evaluate report (means over the test scans, unit frame; runtimes in ms).
+
+    Rows are named ``model (variant)`` (``sanet (clip 0.2)``, ``sanet-hit (p(hit) >= 0.3)``), or
+    ``label (variant)`` with ``label`` given (two runs of one model: name them after the runs).
+    """
     rep = read_json(ctx.eval_json(run))
     res = rep["results"][0]
     out = {}
     for row in res["rows"]:
-        name = res["model"] + (f" ({row['variant']})" if row["variant"] else "")
+        name = (label or res["model"]) + (f" ({row['variant']})" if row["variant"] else "")
         s = row["summary"]
         lat = res.get("latency_ms") or {}
         key = "complete_ms" if (row["clip"] is not None or res["model"] != "sanet") else "forward_ms"
@@ -51,6 +56,7 @@ def eval_rows(ctx: Context, run: str) -> dict:
             "completeness_per_category": {c: s["per_category"].get(c, {}).get("completeness") for c in CAR_CATEGORIES},
             "n_points": s["mean_over_samples"].get("n_points"),
             "chamfer_l1": s["mean_over_samples"].get("chamfer_l1"),
+            "fscore": s["mean_over_samples"].get("fscore"),
             "hit_ratio": s["mean_over_samples"].get("hit_ratio"),
             "params_m": res["params"]["total"] / 1e6,
             "runtime_ms": (lat.get("1") or {}).get(key),
