@@ -183,3 +183,29 @@ def test_farthest_point_sample_against_the_definition():
         to_set = d[:, idx[:j]].min(axis=1)
         assert to_set[idx[j]] == pytest.approx(to_set.max(), rel=1e-12)
     assert np.array_equal(farthest_point_sample(p, 60, seed=2), idx)  # deterministic
+
+
+def test_voxel_downsample_against_the_definition():
+    """Centroid of each occupied cell (brute force over a dict of cells); order-independent, bit for bit; a dense and
+    a sparse sampling of one surface give nearly the same cloud, two fixed-count subsets of it do not."""
+    from spotlights.geometry.sampling import voxel_downsample
+
+    rng = np.random.default_rng(3)
+    p = rng.normal(size=(2000, 3)) * 0.4
+    got = voxel_downsample(p, 0.1)
+    cells: dict = {}
+    for q in p:
+        cells.setdefault(tuple(np.floor(q / 0.1).astype(int)), []).append(q)
+    want = np.array([np.mean(cells[k], axis=0) for k in sorted(cells)], dtype=np.float32)
+    assert got.shape == want.shape and np.allclose(got, want, atol=1e-6)
+    np.testing.assert_array_equal(voxel_downsample(p[rng.permutation(len(p))], 0.1), got)
+    assert voxel_downsample(np.zeros((0, 3)), 0.1).shape == (0, 3)
+    with pytest.raises(Exception, match="voxel size"):
+        voxel_downsample(p, 0.0)
+    # one plane z = 0 sampled at two densities: the voxel clouds nearly agree (centroids of 0.1 cells)
+    dense, sparse = rng.uniform(0, 1, (20000, 2)), rng.uniform(0, 1, (1500, 2))
+    dense, sparse = (np.c_[x, np.zeros(len(x))] for x in (dense, sparse))
+    vd, vs = voxel_downsample(dense, 0.1), voxel_downsample(sparse, 0.1)
+    cd = D.chamfer_distance(vd, vs)
+    sub = D.chamfer_distance(dense[rng.choice(20000, 100, replace=False)], dense[rng.choice(20000, 100, replace=False)])
+    assert len(vd) == len(vs) == 100 and cd < 0.5 * sub

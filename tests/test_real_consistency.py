@@ -315,8 +315,8 @@ def test_noise_floor_equal_points_and_heading_flips(tmp_path):
     """Against brute force: the noise floor of a model that returns its input is the Chamfer between two
     resamplings of the kept points; equal-count consistency compares FPS subsets; a model that ignores its
     input has a zero floor; heading flips are counted by fidelity with the box turned."""
-    from spotlights.experiments.real_evaluation import EQUAL_POINTS, equal_count
-    from spotlights.geometry.sampling import resample_set
+    from spotlights.experiments.real_evaluation import EQUAL_DENSITY, EQUAL_POINTS, equal_count
+    from spotlights.geometry.sampling import resample_set, voxel_downsample
 
     obs = tracked_scene(tmp_path)  # 150 points per car: the 256-point inputs hold every point (+ repeats)
     rep = evaluate_consistency(obs, [Identity(), Ellipsoid()], progress=False, equal_points=64)
@@ -345,12 +345,18 @@ def test_noise_floor_equal_points_and_heading_flips(tmp_path):
     assert len(ca) == 64 and len(np.unique(ca, axis=0)) == 64
     assert eq["classes"]["car"]["cd"] == pytest.approx(_brute_cd(ca, cb), rel=1e-9)
     assert EQUAL_POINTS == 512  # the default of real evaluate --equal-points
+    # equal density: consistency of the voxel-cell centroids (side 0.1, unit frame)
+    vd = ident["equal_density"]
+    va, vb = voxel_downsample(obs2.partial[i], 0.1), voxel_downsample(obs2.partial[j], 0.1)
+    assert vd["voxel"] == EQUAL_DENSITY == 0.1
+    assert vd["classes"]["car"]["cd"] == pytest.approx(_brute_cd(va, vb), rel=1e-9)
+    assert ell["equal_density"]["average"]["cd"] == pytest.approx(0.0, abs=1e-12)  # a fixed shape stays fixed
     # heading: the identity completion is exact for both headings (fidelity 0): never flipped; the fixed ellipsoid
     # is symmetric under the turn: the same fidelity, never flipped either (not *clearly* closer)
     assert ident["heading"]["n_flipped"] == 0 and ell["heading"]["n_flipped"] == 0
     write_report(rep, tmp_path / "r")
     text = (tmp_path / "r.md").read_text()
-    assert "Noise floor @64" in text and "Heading flips" in text
+    assert "Noise floor @64" in text and "Heading flips" in text and "CD @voxel 0.1" in text
 
 
 def tracked_scene_dense(tmp_path):

@@ -183,6 +183,15 @@ def register(sub) -> None:
         help="also score consistency with every completion brought to N points by farthest-point sampling (default 512; 0: not)",
     )
     p.add_argument(
+        "--equal-density",
+        type=float,
+        default=0.1,
+        metavar="V",
+        help="also score consistency with every completion voxel-downsampled to cells of side V (unit frame; "
+        "default 0.1; 0: not): shapes compared at one resolution whatever the models' output densities, the "
+        "headline for comparing models",
+    )
+    p.add_argument(
         "--no-noise-floor",
         action="store_true",
         help="skip the resampling noise floor (each observation completed again from a second 256-point resampling)",
@@ -384,6 +393,8 @@ def _evaluate(args) -> int:
 
     if args.equal_points < 0:
         raise ParameterError(f"--equal-points must be >= 0, got {args.equal_points}")
+    if not (args.equal_density >= 0 and args.equal_density < float("inf")):
+        raise ParameterError(f"--equal-density must be a voxel size >= 0, got {args.equal_density}")
 
     prefix = args.out or str(Path(args.file).with_suffix("")) + "_consistency"
     check_writable(prefix + ".md")
@@ -417,6 +428,7 @@ def _evaluate(args) -> int:
             reference_info=ref_info,
             classes=classes,
             equal_points=args.equal_points or None,
+            equal_density=args.equal_density or None,
             noise_floor=not args.no_noise_floor,
             heading_check=not args.no_heading_check,
         )

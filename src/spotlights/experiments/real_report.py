@@ -90,12 +90,13 @@ def report_markdown(report: dict) -> str:
         "a model that ignores its input has diversity ~0 and a perfect consistency. CD / Diversity = All objects "
         "CD over diversity (ours, not the paper's).",
     ]
-    extra = any(k in m for m in report["models"] for k in ("equal_points", "heading")) or any(
+    extra = any(k in m for m in report["models"] for k in ("equal_points", "equal_density", "heading")) or any(
         m["average"].get("noise_floor") is not None for m in report["models"]
     )
     if extra:
         eq = d.get("equal_points")
-        lines += ["", "## Noise floor, equal point counts, heading check", ""]
+        vox = d.get("equal_density")
+        lines += ["", "## Noise floor, equal density, equal point counts, heading check", ""]
         lines.append(
             "Noise floor: consistency's CD between two completions of the *same* observation, its points "
             "resampled to the network's input with two seeds - the part of CD that resampling alone explains. "
@@ -105,11 +106,21 @@ def report_markdown(report: dict) -> str:
                 if eq
                 else ""
             )
+            + (
+                f"At equal density (voxel {vox:g}): every completion replaced by the centroids of its occupied cells "
+                f"of one grid of side {vox:g} (unit frame), so shapes compare at one spatial resolution whatever each "
+                "model's output density - **the headline for comparing models** (a fixed count draws different points "
+                "from two nearly identical dense clouds, so for dense models it mostly measures subsampling noise). "
+                if vox
+                else ""
+            )
             + "Heading flips: observations whose completion with the box turned around is closer to the observed "
             "points (on annotated boxes, false alarms of `--heading-check`). Average over classes; All objects in brackets."
         )
         lines.append("")
         head = "| Model | CD | Noise floor |"
+        if vox:
+            head += f" **CD @voxel {vox:g}** | Noise floor @voxel | Diversity @voxel | points @voxel |"
         if eq:
             head += f" CD @{eq} | Noise floor @{eq} | Diversity @{eq} | CD / Diversity @{eq} |"
         head += " Heading flips | Out of domain |"
@@ -117,6 +128,13 @@ def report_markdown(report: dict) -> str:
         for m in report["models"]:
             a, o = m["average"], m["all_objects"]
             row = f"| {m['name']} | {_fmt(a['cd'])} ({_fmt(o['cd'])}) | {_fmt(a.get('noise_floor'))} ({_fmt(o.get('noise_floor'))}) |"
+            if vox:
+                v = m.get("equal_density") or {}
+                va, vo = v.get("average", {}), v.get("all_objects", {})
+                row += (
+                    f" **{_fmt(va.get('cd'))}** ({_fmt(vo.get('cd'))}) | {_fmt(va.get('noise_floor'))} ({_fmt(vo.get('noise_floor'))}) |"
+                    f" {_fmt(v.get('diversity'))} | {_fmt(v.get('mean_points_per_completion'), 0)} |"
+                )
             if eq:
                 e = m.get("equal_points") or {}
                 ea, eo = e.get("average", {}), e.get("all_objects", {})

@@ -18,8 +18,17 @@ from ..settings import BASELINE_RUNS, DEFAULT_RUN, DISPLAY, TABLE1_RUNS, TABLE2_
 from .common import fmt, md_table, value
 
 ELIGIBLE_DIVERSITY = 0.5
-"""A baseline takes part in the default model's consistency target when its diversity@512 is at least this
-fraction of the mean diversity@512 of the other models (below it, its completions hardly depend on the input)."""
+"""A baseline takes part in the default model's consistency target when its diversity (at the headline's
+resampling) is at least this fraction of the other models' mean diversity (below it, its completions hardly
+depend on the input)."""
+
+
+def headline(rep_data: dict) -> tuple[str, str]:
+    """(key suffix, label) of the headline consistency of a report's ``data``: equal density (``"_vox"``,
+    voxel-downsampled completions) when the report has it, else the equal count (``"_eq"``)."""
+    if rep_data.get("equal_density"):
+        return "_vox", f"equal density (voxel {rep_data['equal_density']:g})"
+    return "_eq", f"{rep_data.get('equal_points') or '?'} points"
 
 
 def consistency_values(rep: dict) -> dict:
@@ -30,13 +39,24 @@ def consistency_values(rep: dict) -> dict:
     ``average_eq``, ``all_objects_eq``), ``noise_floor`` / ``noise_floor_eq`` (Average), ``fidelity``,
     ``mmd`` (Average), ``diversity`` / ``diversity_eq``, ``cd_over_diversity_eq`` (all objects CD over
     diversity, at the equal count), ``points_per_completion``, ``out_of_domain`` (observations) and
-    ``objects`` (tracked objects per class). Distances in box half-diagonal units; None where not computed.
+    ``objects`` (tracked objects per class); the same at equal density with the suffix ``_vox`` (and
+    ``points_vox``, points per voxel-downsampled completion). Distances in box half-diagonal units; None
+    where not computed.
     """
     out = {}
     for m in rep["models"]:
         eq = m.get("equal_points") or {}
         eq_classes, eq_avg, eq_all = eq.get("classes") or {}, eq.get("average") or {}, eq.get("all_objects") or {}
+        vx = m.get("equal_density") or {}
+        vx_classes, vx_avg, vx_all = vx.get("classes") or {}, vx.get("average") or {}, vx.get("all_objects") or {}
         out[m["name"]] = {
+            **{f"{c}_vox": (vx_classes.get(c) or {}).get("cd") for c in TABLE2_CLASSES},
+            "average_vox": vx_avg.get("cd"),
+            "all_objects_vox": vx_all.get("cd"),
+            "noise_floor_vox": vx_avg.get("noise_floor"),
+            "diversity_vox": vx.get("diversity"),
+            "cd_over_diversity_vox": vx.get("consistency_over_diversity"),
+            "points_vox": vx.get("mean_points_per_completion"),
             **{c: (m["classes"].get(c) or {}).get("cd") for c in TABLE2_CLASSES},
             "average": m["average"]["cd"],
             "all_objects": m["all_objects"]["cd"],
@@ -57,14 +77,15 @@ def consistency_values(rep: dict) -> dict:
     return out
 
 
-def eligible_baselines(ours: dict, baselines=BASELINE_RUNS) -> tuple[list, dict]:
+def eligible_baselines(ours: dict, baselines=BASELINE_RUNS, suffix: str = "_eq") -> tuple[list, dict]:
     """The baselines whose completions depend on their input enough to take part in the default model's target.
 
-    A baseline ``b`` of ``ours`` (row -> :func:`consistency_values`) is eligible when its ``diversity_eq``
-    >= :data:`ELIGIBLE_DIVERSITY` x the mean ``diversity_eq`` of every *other* model of ``ours`` (finite
-    values only). Returns (eligible baselines, {baseline: (its diversity, the threshold)}).
+    A baseline ``b`` of ``ours`` (row -> :func:`consistency_values`) is eligible when its ``diversity<suffix>``
+    >= :data:`ELIGIBLE_DIVERSITY` x the mean ``diversity<suffix>`` of every *other* model of ``ours`` (finite
+    values only; ``suffix`` "_eq" or "_vox", :func:`headline`). Returns (eligible baselines, {baseline: (its
+    diversity, the threshold)}).
     """
-    div = {n: value(v.get("diversity_eq")) for n, v in ours.items()}
+    div = {n: value(v.get(f"diversity{suffix}")) for n, v in ours.items()}
     div = {n: d for n, d in div.items() if math.isfinite(d)}
     out, why = [], {}
     for b in baselines:
@@ -78,26 +99,27 @@ def eligible_baselines(ours: dict, baselines=BASELINE_RUNS) -> tuple[list, dict]
     return out, why
 
 
-def consistency_checks(ours: dict, set_label: str, n_eq) -> list:
-    """Table 2's checks on one set, at equal point counts (``average_eq``): (a) the paper's claim that
-    SA-Net (run ``sanet``) is the most consistent of the paper's five models; (b) the issue's target that
-    the default model is more consistent than every eligible baseline (:func:`eligible_baselines`)."""
-    eq = {n: value(v.get("average_eq")) for n, v in ours.items()}
+def consistency_checks(ours: dict, set_label: str, n_eq, suffix: str = "_eq") -> list:
+    """Table 2's checks on one set, at the headline's resampling (``average<suffix>``; ``n_eq`` names it in
+    the text, e.g. "512 points" or "equal density (voxel 0.1)"): (a) the paper's claim that SA-Net (run
+    ``sanet``) is the most consistent of the paper's five models; (b) the issue's target that the default
+    model is more consistent than every eligible baseline (:func:`eligible_baselines`)."""
+    eq = {n: value(v.get(f"average{suffix}")) for n, v in ours.items()}
     paper_models = {n: eq[n] for n in TABLE1_RUNS if n in eq}
     best = min(paper_models, key=lambda n: paper_models[n]) if paper_models else None
     checks = [
         {
             "claim": f"{set_label}: SA-Net's completions are the most consistent of the paper's five models "
-            f"(lowest Average at {n_eq} points)",
+            f"(lowest Average at {n_eq})",
             "holds": best == "sanet",
             "detail": ", ".join(f"{n} {fmt(v, 4)}" for n, v in paper_models.items()) if best else "no model scored",
         }
     ]
-    eligible, why = eligible_baselines(ours)
+    eligible, why = eligible_baselines(ours, suffix=suffix)
     d = eq.get(DEFAULT_RUN, math.inf)
     beaten = [b for b in eligible if d < eq[b]]
     rule = (
-        f"eligible baseline = diversity@{n_eq} >= {ELIGIBLE_DIVERSITY:g} x the mean diversity@{n_eq} of the other "
+        f"eligible baseline = diversity at {n_eq} >= {ELIGIBLE_DIVERSITY:g} x the mean diversity of the other "
         "models; "
         + ", ".join(
             f"{b} {fmt(dv, 4)} vs {fmt(thr, 4)} ({'eligible' if b in eligible else 'excluded'})"
@@ -109,13 +131,13 @@ def consistency_checks(ours: dict, set_label: str, n_eq) -> list:
     else:
         holds = len(beaten) == len(eligible)
         detail = (
-            f"{DEFAULT_RUN} CD@{n_eq} Average {fmt(d, 4)}; eligible: "
+            f"{DEFAULT_RUN} CD at {n_eq}: Average {fmt(d, 4)}; eligible: "
             + (", ".join(f"{b} {fmt(eq[b], 4)}" for b in eligible) or "none (the target holds vacuously)")
             + f"; {rule}"
         )
     checks.append(
         {
-            "claim": f"{set_label}: the default model ({DEFAULT_RUN}) is more consistent at {n_eq} points than every "
+            "claim": f"{set_label}: the default model ({DEFAULT_RUN}) is more consistent at {n_eq} than every "
             "baseline whose diversity is at least half the others' mean",
             "holds": bool(holds),
             "detail": detail,
@@ -139,16 +161,24 @@ def _set_section(ctx: Context, key: str, label: str) -> tuple[list, list, list, 
     ours = consistency_values(rep)
     d = rep["data"]
     n_eq = d.get("equal_points") or "?"
+    suffix, hl = headline(d)
+    vox = d.get("equal_density")
     runs = [r for r in TABLE2_RUNS if r in ours]
     cols = list(TABLE2_CLASSES) + ["average"]
     head = ["Model", "", *[c.capitalize() for c in TABLE2_CLASSES], "Average", "All objects"]
     body, rows = [], []
+    variants = ([("_vox", f"ours @voxel {vox:g}")] if vox else []) + [
+        ("_eq", f"ours @{n_eq}"),
+        ("", "ours (own count)"),
+    ]
     for run in runs:
         o, pp = ours[run], paper.TABLE2.get(run)
-        body.append(
-            [f"**{_name(run)}**", f"ours @{n_eq}", *[fmt(o[f"{c}_eq"], 4) for c in cols], fmt(o["all_objects_eq"], 4)]
-        )
-        body.append(["", "ours (own count)", *[fmt(o[c], 4) for c in cols], fmt(o["all_objects"], 4)])
+        for k, (suf, lab) in enumerate(variants):
+            body.append(
+                [f"**{_name(run)}**" if k == 0 else "", lab]
+                + [fmt(o[f"{c}{suf}"], 4) for c in cols]
+                + [fmt(o[f"all_objects{suf}"], 4)]
+            )
         if pp is not None:
             body.append(["", "paper (KITTI-360)", *[fmt(pp[c], 4) for c in cols], ""])
         row = f"{run} ({key})"
@@ -158,6 +188,8 @@ def _set_section(ctx: Context, key: str, label: str) -> tuple[list, list, list, 
             "all_objects",
             *[f"{c}_eq" for c in cols],
             "all_objects_eq",
+            *([f"{c}_vox" for c in cols] + ["all_objects_vox", "noise_floor_vox", "diversity_vox"] if vox else []),
+            *(["cd_over_diversity_vox", "points_vox"] if vox else []),
             "noise_floor",
             "noise_floor_eq",
             "fidelity",
@@ -170,29 +202,38 @@ def _set_section(ctx: Context, key: str, label: str) -> tuple[list, list, list, 
         ]:
             rows.append({"row": row, "column": c, "ours": o[c], "paper": None})
     per_class = ", ".join(f"{c} {n}" for c, n in (d.get("objects_per_class") or {}).items())
+    why = (
+        f"**Headline: consistency at equal density** (every completion replaced by the centroids of its occupied "
+        f"cells of one voxel grid of side {vox:g}, unit frame): two samplings of one surface at different densities "
+        "give nearly the same cells, so models that output 560, 2,048 or 16,384 points compare at one spatial "
+        "resolution. At the models' own counts (the paper's way) a sparse output is penalised against a dense one "
+        f"(a Chamfer between two sparse samplings of one surface is larger); at a fixed count ({n_eq} points, "
+        "farthest-point sampling) it is the other way round: the subset draws *different* points from two nearly "
+        "identical dense clouds, so a dense model's value there is mostly subsampling noise. Both are shown."
+        if vox
+        else f"**Headline: consistency at {n_eq} points** (every completion first brought to {n_eq} points by "
+        "farthest-point sampling), because a Chamfer distance between two sparse samplings of one surface is larger "
+        "than between two dense ones. The 'own count' rows are consistency as the paper computes it."
+    )
     md = [
         f"### {label}",
         "",
         f"{d['n_objects_tracked']} vehicles seen in two or more frames ({per_class}; "
         f"{d.get('n_objects_5_or_more', '?')} in 5 or more), {d['n_pairs']} consecutive pairs, "
-        f"{d['n_observations_tracked']} observations. **Headline: consistency at {n_eq} points** (every completion "
-        f"first brought to {n_eq} points by farthest-point sampling), because a Chamfer distance between two sparse "
-        "samplings of one surface is larger than between two dense ones: at the models' own counts a model that "
-        "outputs ~560 points is penalised against one that outputs 2,048 or 16,384. The 'own count' rows are "
-        "consistency as the paper computes it, on the completions as the models give them.",
+        f"{d['n_observations_tracked']} observations. " + why,
         "",
     ]
     md += md_table(head, body)
     md += [
         "",
-        f"Average over classes (All objects for CD / diversity @{n_eq}); lower is better except diversity and points.",
+        "Average over classes (All objects for CD / diversity); lower is better except diversity and points.",
         "",
     ]
+    vhead = ["CD @voxel", "noise floor @voxel", "diversity @voxel", "CD / diversity @voxel", "points @voxel"]
     md += md_table(
-        [
-            "Model",
-            "CD",
-            "noise floor",
+        ["Model", "CD", "noise floor"]
+        + (vhead if vox else [])
+        + [
             f"CD @{n_eq}",
             f"noise floor @{n_eq}",
             "fidelity",
@@ -204,10 +245,19 @@ def _set_section(ctx: Context, key: str, label: str) -> tuple[list, list, list, 
             "out of domain",
         ],
         [
-            [
-                f"**{_name(n)}**",
-                fmt(ours[n]["average"], 4),
-                fmt(ours[n]["noise_floor"], 4),
+            [f"**{_name(n)}**", fmt(ours[n]["average"], 4), fmt(ours[n]["noise_floor"], 4)]
+            + (
+                [
+                    fmt(ours[n]["average_vox"], 4),
+                    fmt(ours[n]["noise_floor_vox"], 4),
+                    fmt(ours[n]["diversity_vox"], 4),
+                    fmt(ours[n]["cd_over_diversity_vox"], 3),
+                    fmt(ours[n]["points_vox"], 0),
+                ]
+                if vox
+                else []
+            )
+            + [
                 fmt(ours[n]["average_eq"], 4),
                 fmt(ours[n]["noise_floor_eq"], 4),
                 fmt(ours[n]["fidelity"], 4),
@@ -223,12 +273,12 @@ def _set_section(ctx: Context, key: str, label: str) -> tuple[list, list, list, 
             for n in runs
         ],
     )
-    checks = consistency_checks(ours, label, n_eq)
-    eligible, _ = eligible_baselines(ours)
+    checks = consistency_checks(ours, label, hl, suffix)
+    eligible, _ = eligible_baselines(ours, suffix=suffix)
     md += [
         "",
-        f"The default model's target on {label}: at {n_eq} points its Average consistency is lower than that of every "
-        f"baseline whose diversity @{n_eq} is at least {ELIGIBLE_DIVERSITY:g} x the mean diversity @{n_eq} of the other "
+        f"The default model's target on {label}: at {hl} its Average consistency is lower than that of every "
+        f"baseline whose diversity there is at least {ELIGIBLE_DIVERSITY:g} x the mean diversity of the other "
         f"models (eligible here: {', '.join(eligible) or 'none'}): **{'met' if checks[1]['holds'] else 'not met'}**.",
         "",
     ]
