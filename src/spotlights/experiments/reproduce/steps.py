@@ -420,11 +420,13 @@ def _skip_reasons() -> list[str]:
 CONSISTENCY_OPTIONS = {
     "classes": list(TABLE2_CLASSES),
     "equal_points": real_evaluation.EQUAL_POINTS,
+    "equal_density": real_evaluation.EQUAL_DENSITY,
     "noise_floor": True,
     "heading_check": True,
 }
 """What Table 2's consistency steps ask of :func:`evaluate_consistency`: Table 2's classes and the defaults of
-``spotlights real evaluate`` (equal point counts 512, the resampling noise floor, the heading check)."""
+``spotlights real evaluate`` (equal density 0.1, equal point counts 512, the resampling noise floor, the heading
+check)."""
 
 
 def _consistency_command(ctx: Context, name: str) -> str:
@@ -432,6 +434,7 @@ def _consistency_command(ctx: Context, name: str) -> str:
     return (
         f"spotlights real evaluate {shell_quote(ctx.out / 'data' / f'{name}.h5')} --checkpoint {ck} "
         f"--classes {','.join(TABLE2_CLASSES)} --equal-points {real_evaluation.EQUAL_POINTS} "
+        f"--equal-density {real_evaluation.EQUAL_DENSITY:g} "
         f"--out {shell_quote(ctx.out / 'eval' / f'{name}_consistency')} --reference {shell_quote(ctx.s.cars_path)}"
         " (report rows named after the runs)"
     )
