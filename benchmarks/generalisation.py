@@ -56,16 +56,16 @@ def decode_ceiling(path, rig: str, split: str = "test") -> dict:
     one-sided unsquared nearest-neighbour distances decoded points -> dense GT and back),
     ``per_category`` {category: {accuracy, completeness, models}}.
     """
-    ds = open_dataset(path)
-    rows = ds.split_models(split)
     acc, comp, cats = [], [], []
-    for m in rows:
-        gt = ds.ground_truth(int(m), rig)
-        pts, hit = decode(gt["gt_depths"], ds.rig(rig, int(m)) if ds.rig_spec(rig).needs_box else ds.rig(rig))
-        pts = pts[hit]
-        acc.append(accuracy(pts, gt["gt_dense"]))
-        comp.append(completeness(pts, gt["gt_dense"]))
-        cats.append(str(ds.categories[m]))
+    with open_dataset(path) as ds:
+        rows = ds.split_models(split)
+        for m in rows:
+            gt = ds.ground_truth(int(m), rig)
+            pts, hit = decode(gt["gt_depths"], ds.rig(rig, int(m)) if ds.rig_spec(rig).needs_box else ds.rig(rig))
+            pts = pts[hit]
+            acc.append(accuracy(pts, gt["gt_dense"]))
+            comp.append(completeness(pts, gt["gt_dense"]))
+            cats.append(str(ds.categories[m]))
     per = {}
     for c in sorted(set(cats)):
         idx = [i for i, x in enumerate(cats) if x == c]
@@ -96,8 +96,17 @@ def _rows(report: dict) -> dict:
                     for k in ("accuracy", "completeness", "chamfer_l1", "fscore", "n_points")
                 },
                 "accuracy_per_category": {c: v.get("accuracy") for c, v in s["per_category"].items()},
+                "scans_per_category": {c: n for c, n in s["count"].items() if c != "all"},
             }
     return out
+
+
+def subset_accuracy(row: dict, categories) -> float | None:
+    """Mean accuracy over the scans of ``categories`` (scan-weighted mean of the per-category means of a
+    :func:`_rows` row); None when none of them was scored."""
+    cats = [c for c in categories if row["scans_per_category"].get(c)]
+    n = sum(row["scans_per_category"][c] for c in cats)
+    return sum(row["accuracy_per_category"][c] * row["scans_per_category"][c] for c in cats) / n if n else None
 
 
 def main() -> None:
@@ -107,6 +116,11 @@ def main() -> None:
     ap.add_argument("--checkpoint", nargs="+", default=["default", "paper"], help="checkpoints or short names")
     ap.add_argument("--max-views", type=int, default=50, help="views per test model on both sets (default 50)")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument(
+        "--subset",
+        default="hatchback,sedan,suv",
+        help="categories of the held-out set also scored on their own (default: the car-like Kenney vehicles)",
+    )
     ap.add_argument("--json", default=None, help="write the numbers here")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -129,17 +143,26 @@ def main() -> None:
             key: decode_ceiling(path, rig)
             for key, path in (("in_distribution", args.in_dist), ("held_out", args.held_out))
         }
+    subset = [c.strip() for c in args.subset.split(",") if c.strip()]
     ratios = {}
     for label, r in scores["in_distribution"]["rows"].items():
         h = scores["held_out"]["rows"].get(label)
         if h:
             ratios[label] = {k: h[k] / r[k] for k in ("accuracy", "completeness") if r.get(k) and h.get(k) is not None}
+            sub = subset_accuracy(h, subset)
+            h["subset_accuracy"] = sub
+            ratios[label]["subset_accuracy"] = sub / r["accuracy"] if sub is not None and r.get("accuracy") else None
     print(f"held-out / in-distribution (test splits, first {args.max_views} views per model):")
     for label, r in ratios.items():
         i, h = scores["in_distribution"]["rows"][label], scores["held_out"]["rows"][label]
         print(
             f"  {label:40s} accuracy {i['accuracy']:.4f} -> {h['accuracy']:.4f} ({r['accuracy']:.2f}x), "
             f"completeness {i['completeness']:.4f} -> {h['completeness']:.4f} ({r['completeness']:.2f}x)"
+            + (
+                f"; {','.join(subset)} only: {h['subset_accuracy']:.4f} ({r['subset_accuracy']:.2f}x)"
+                if r.get("subset_accuracy")
+                else ""
+            )
         )
     for rig, c in ceiling.items():
         i, h = c["in_distribution"], c["held_out"]
@@ -150,6 +173,7 @@ def main() -> None:
     out = {
         "date": time.strftime("%Y-%m-%d %H:%M"),
         "max_views": args.max_views,
+        "subset": subset,
         "checkpoints": args.checkpoint,
         "scores": scores,
         "ratio_held_out_over_in_distribution": ratios,

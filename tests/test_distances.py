@@ -202,6 +202,8 @@ def test_voxel_downsample_against_the_definition():
     assert voxel_downsample(np.zeros((0, 3)), 0.1).shape == (0, 3)
     with pytest.raises(Exception, match="voxel size"):
         voxel_downsample(p, 0.0)
+    with pytest.raises(Exception, match="too small"):
+        voxel_downsample(p, 1e-30)
     # one plane z = 0 sampled at two densities: the voxel clouds nearly agree (centroids of 0.1 cells)
     dense, sparse = rng.uniform(0, 1, (20000, 2)), rng.uniform(0, 1, (1500, 2))
     dense, sparse = (np.c_[x, np.zeros(len(x))] for x in (dense, sparse))

@@ -107,5 +107,16 @@ def test_compile_option_wraps_the_training_forward_only(data, tmp_path, monkeypa
     assert not any(k.startswith("_orig_mod") for k in ck["model_state"])
     model_from_checkpoint(ck)  # loads as an eager model
     calls.clear()
-    _run("sanet", data, tmp_path / "e", epochs=1, steps_per_epoch=2)
+    _run("sanet", data, tmp_path / "e", epochs=2, steps_per_epoch=2, stop_after=1)
     assert calls == []  # off by default
+    # an execution key: a resumed run takes it from the command line (train.epochs aside, the rest is kept)
+    train(
+        "sanet",
+        data,
+        tmp_path / "e",
+        resume=True,
+        overrides={"train": {"compile": True}},
+        progress=False,
+        log=lambda *a: None,
+    )
+    assert len(calls) == 2 and load_checkpoint(tmp_path / "e" / "last.pt")["config"]["train"]["compile"] is True

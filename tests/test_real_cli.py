@@ -133,6 +133,19 @@ def test_cli_extract_evaluate_show(tmp_path, capsys, fake_learning):
         "pcn",
     ]
     capsys.readouterr()
+    # --names: the rows named as given (reproduce names them after its runs); --heading-margin recorded
+    ck = [str(tmp_path / "sanet-a" / "best.pt"), fake_learning[1]]
+    argv = ["real", "evaluate", str(out), "-c", *ck, "--out", str(prefix), "-q", "--heading-margin", "0.3"]
+    assert main([*argv, "--names", "run-a", "run-b"]) == 0
+    rep = json.loads((tmp_path / "rep.json").read_text())
+    assert [m["name"] for m in rep["models"]] == ["run-a", "run-b"]
+    assert all(m["heading"]["margin"] == 0.3 for m in rep["models"])
+    assert "Heading flips (margin 0.3)" in (tmp_path / "rep.md").read_text()
+    for bad, msg in ((["--names", "x"], "give 2 distinct names"), (["--names", "x", "x"], "give 2 distinct names")):
+        assert main([*argv, *bad]) == 2
+        assert msg in capsys.readouterr().err
+    assert main([*argv[:-2], "--heading-margin", "1.0"]) == 2
+    assert "--heading-margin must be in [0, 1)" in capsys.readouterr().err
     # --reference: the minimal matching distance against a completion dataset's cars
     ref = tiny_dataset_path(tmp_path / "ds")
     assert (

@@ -351,6 +351,13 @@ def test_noise_floor_equal_points_and_heading_flips(tmp_path):
     assert vd["voxel"] == EQUAL_DENSITY == 0.1
     assert vd["classes"]["car"]["cd"] == pytest.approx(_brute_cd(va, vb), rel=1e-9)
     assert ell["equal_density"]["average"]["cd"] == pytest.approx(0.0, abs=1e-12)  # a fixed shape stays fixed
+    # the report's keys are the ones reproduce's Table 2 reads (producer -> consumer, no hand-made dict)
+    from spotlights.experiments.reproduce.tables.real import consistency_values
+
+    vals = consistency_values(rep)[ident["name"]]
+    for k in ("average_vox", "noise_floor_vox", "diversity_vox", "points_vox", "average_eq", "diversity_eq", "car_vox"):
+        assert vals[k] is not None and np.isfinite(vals[k]), k
+    assert vals["average_vox"] == pytest.approx(vd["average"]["cd"]) and vals["car_vox"] == vd["classes"]["car"]["cd"]
     # heading: the identity completion is exact for both headings (fidelity 0): never flipped; the fixed ellipsoid
     # is symmetric under the turn: the same fidelity, never flipped either (not *clearly* closer)
     assert ident["heading"]["n_flipped"] == 0 and ell["heading"]["n_flipped"] == 0

@@ -5,6 +5,7 @@ Thin over :mod:`spotlights.learning`; torch and numpy are imported inside the ha
 
 from __future__ import annotations
 
+import argparse
 import sys
 
 from ..experiments.curves import learning_curves, summary_markdown
@@ -103,10 +104,11 @@ def register(sub) -> None:
     )
     p.add_argument(
         "--compile",
-        action="store_true",
+        action=argparse.BooleanOptionalAction,
         default=None,
-        help="run the training forward pass through torch.compile (1.1-1.4x faster steps at bf16 on "
-        "CPU after 1.5-2.5 min of compilation; docs/learning.md)",
+        help="run the training forward pass through torch.compile (--no-compile: eager; may change on --resume; "
+        "1.1-1.4x faster steps at bf16 on "
+        "CPU after 1.3-2.5 min of compilation; docs/benchmarks.md)",
     )
     g = p.add_mutually_exclusive_group()
     g.add_argument("--resume", action="store_true", help="continue the run in --out from its last.pt")

@@ -17,6 +17,7 @@ from ..experiments.real_evaluation import (
     report_markdown,
     write_report,
 )
+from ..experiments.scene import HEADING_MARGIN
 from ..utils import check_writable, output_folder
 from ..viz import html, render_frame
 from ..viz.scene import frame_objects, read_frame_scan
@@ -200,6 +201,21 @@ def register(sub) -> None:
         "--no-heading-check",
         action="store_true",
         help="skip counting heading flips (each observation completed with its box turned)",
+    )
+    p.add_argument(
+        "--heading-margin",
+        type=float,
+        default=None,
+        metavar="M",
+        help="margin of the counted heading flips: the turned heading wins when its fidelity is below (1 - M) x "
+        f"the given one's (default {HEADING_MARGIN:g}, as 'complete --heading-check')",
+    )
+    p.add_argument(
+        "--names",
+        nargs="+",
+        default=None,
+        metavar="NAME",
+        help="report row names, one per --checkpoint (default: the model names, told apart by file or run folder)",
     )
     p.add_argument(
         "--out",
@@ -396,6 +412,15 @@ def _evaluate(args) -> int:
     if not (args.equal_density >= 0 and args.equal_density < float("inf")):
         raise ParameterError(f"--equal-density must be a voxel size >= 0, got {args.equal_density}")
 
+    margin = HEADING_MARGIN if args.heading_margin is None else args.heading_margin
+    if not 0.0 <= margin < 1.0:
+        raise ParameterError(f"--heading-margin must be in [0, 1), got {args.heading_margin}")
+    checkpoints = args.checkpoint or ["default"]
+    if args.names is not None and (len(args.names) != len(checkpoints) or len(set(args.names)) != len(args.names)):
+        raise ParameterError(
+            f"--names: give {len(checkpoints)} distinct names, one per checkpoint, got {len(args.names)}: "
+            + " ".join(args.names)
+        )
     prefix = args.out or str(Path(args.file).with_suffix("")) + "_consistency"
     check_writable(prefix + ".md")
     obs = read_observations(args.file)  # validate before loading models
@@ -407,13 +432,12 @@ def _evaluate(args) -> int:
     refs, ref_info = (None, None)
     if args.reference:
         refs, ref_info = reference_shapes(args.reference, args.reference_split)
-    checkpoints = args.checkpoint or ["default"]
     completers = _load_completers(checkpoints, args.device)
     names = [c.model_name for c in completers]
     dup = {n for n in names if names.count(n) > 1}
     # two checkpoints of one model: tell them apart by file name, or by run folder for best.pt / last.pt
     tag = [Path(p).parent.name if Path(p).stem in ("best", "last") else Path(p).stem for p in checkpoints]
-    names = [f"{n} ({t})" if n in dup else n for n, t in zip(names, tag)]
+    names = args.names or [f"{n} ({t})" if n in dup else n for n, t in zip(names, tag)]
 
     try:
         report = evaluate_consistency(
@@ -431,6 +455,7 @@ def _evaluate(args) -> int:
             equal_density=args.equal_density or None,
             noise_floor=not args.no_noise_floor,
             heading_check=not args.no_heading_check,
+            heading_margin=margin,
         )
     except InputFileError as exc:
         if exc.path != "<observations>":

@@ -271,6 +271,7 @@ def evaluate_consistency(
     noise_floor: bool = True,
     heading_check: bool = True,
     equal_density: float | None = EQUAL_DENSITY,
+    heading_margin: float = HEADING_MARGIN,
 ) -> dict:
     """Consistency of each completer on the tracked objects of an observation file.
 
@@ -288,6 +289,7 @@ def evaluate_consistency(
     equal_points : also score every completion resampled to this many points (None/0: not).
     equal_density : also score every completion voxel-downsampled with this cell side (unit frame;
         None/0: not) - the headline for comparing models of different output densities.
+    heading_margin : margin of the counted heading flips (:func:`~spotlights.experiments.scene.heading_turns`).
     noise_floor : also complete each observation resampled with a second seed (needs the raw
         points of a format-2 file; older files report no floor).
     heading_check : also complete each observation with its box turned around and count flips.
@@ -298,8 +300,11 @@ def evaluate_consistency(
     and ``models``: one entry per completer with ``name``, ``n_params``,
     ``classes`` / ``average`` / ``all_objects`` (see
     :func:`spotlights.data.consistency.aggregate`; per-observation keys ``fidelity``,
-    ``mmd``, ``noise_floor``), ``equal_points`` (the same at one point count),
-    ``heading`` (flip counts), ``out_of_domain`` and ``objects`` (per track).
+    ``mmd``, ``noise_floor``), ``mean_points_per_completion``, ``diversity``,
+    ``equal_points`` and ``equal_density`` (consistency, noise floor, diversity and
+    ``mean_points_per_completion`` after bringing every completion to one count / one voxel
+    grid; ``n_points`` / ``voxel`` say which), ``heading`` (flip counts and the ``margin``),
+    ``out_of_domain`` and ``objects`` (per track).
 
     Raises
     ------
@@ -397,10 +402,10 @@ def evaluate_consistency(
                 f0 = np.array([fidelity(p, c) for p, c in zip(partials, comps)])
                 f1 = np.array([fidelity(p, c) for p, c in zip(flip_heading(partials), flipped)])
             ok = np.isfinite(f0) & np.isfinite(f1)
-            flips = ok & heading_turns(f0, f1, HEADING_MARGIN)
+            flips = ok & heading_turns(f0, f1, heading_margin)
             bare = ok & heading_turns(f0, f1, 0.0)
             entry["heading"] = dict(
-                margin=HEADING_MARGIN,
+                margin=float(heading_margin),
                 n_observations=int(ok.sum()),
                 n_flipped=int(flips.sum()),
                 rate=float(flips.sum() / ok.sum()) if ok.any() else None,

@@ -123,7 +123,10 @@ def report_markdown(report: dict) -> str:
             head += f" **CD @voxel {vox:g}** | Noise floor @voxel | Diversity @voxel | points @voxel |"
         if eq:
             head += f" CD @{eq} | Noise floor @{eq} | Diversity @{eq} | CD / Diversity @{eq} |"
-        head += " Heading flips | Out of domain |"
+        margins = {m["heading"]["margin"] for m in report["models"] if m.get("heading")}
+        head += (
+            f" Heading flips (margin {margins.pop():g}) |" if len(margins) == 1 else " Heading flips |"
+        ) + " Out of domain |"
         lines += [head, "|" + "---|" * (head.count("|") - 1)]
         for m in report["models"]:
             a, o = m["average"], m["all_objects"]

@@ -88,6 +88,10 @@ def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if len(p) == 0:
         return np.zeros((0, 3), np.float32)
+    if np.abs(p).max() / v >= 2.0**52:  # cell indices beyond exact float64 integers (and int64) would collide
+        raise ParameterError(
+            f"the voxel size {voxel} is too small for points up to {np.abs(p).max():g} from the origin"
+        )
     p = p[canonical_order(p)]  # one summation order per set: bit-identical centroids whatever the input order
     cells, inverse, counts = np.unique(
         np.floor(p / v).astype(np.int64), axis=0, return_inverse=True, return_counts=True

@@ -69,8 +69,9 @@ class TrainConfig:
     steps_per_epoch : None (an epoch is one pass) or N steps per epoch (>= 1).
     select_by : ``chamfer_l1``, ``accuracy`` or ``loss``: the validation score ``best.pt`` minimises.
     compile : run the training forward pass through ``torch.compile`` (default false). Measured on
-        the 2-core CPU at bf16 (docs/learning.md): SA-Net 1.38x, PCN 1.30x, the dense hit-aware
-        SA-Net 1.13x faster per step, after 1.5-2.5 minutes of compilation; fp32 gains 3-13%.
+        the 2-core CPU at bf16 (docs/benchmarks.md): SA-Net 1.38x, PCN 1.30x, the hit-aware SA-Net
+        on 16,384 rays (9.57M) 1.13x faster per step, after 1.3-2.5 minutes of compilation; fp32
+        gains 3-13%.
         Weights and checkpoints are those of the eager model; results differ from an eager run
         in the last bits (fused kernels), so a compiled run is reproducible with itself only.
     """

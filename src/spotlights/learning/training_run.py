@@ -90,9 +90,13 @@ class TrainingRun:
         return max(1, self.steps_per_epoch * self.tcfg.epochs)
 
 
+RESUME_KEYS = (("train", "compile"),)
+"""Config keys that say how a run executes, not what it learns: a resumed run takes them from the command line."""
+
+
 def resolve_run_config(model_name, out_dir: Path, config, overrides, resume, overwrite, schedule, dist, log):
     """The run's config and, when resuming, the state of ``last.pt`` (its config is kept; only
-    ``train.epochs`` may change). Returns ``(cfg, state, extended)``."""
+    ``train.epochs`` and the execution keys of :data:`RESUME_KEYS` may change). Returns ``(cfg, state, extended)``."""
     last_path = out_dir / "last.pt"
     if not resume:
         if last_path.exists() and not overwrite:
@@ -109,18 +113,21 @@ def resolve_run_config(model_name, out_dir: Path, config, overrides, resume, ove
     if overrides and "train" in overrides and "epochs" in overrides["train"]:
         extended = int(overrides["train"]["epochs"]) != int(cfg["train"]["epochs"])
         cfg["train"]["epochs"] = int(overrides["train"]["epochs"])
+    for sec, key in RESUME_KEYS:
+        if key in ((overrides or {}).get(sec) or {}):
+            cfg.setdefault(sec, {})[key] = overrides[sec][key]
     ignored = [
         f"{sec}.{key}"
         for sec, vals in (overrides or {}).items()
         if isinstance(vals, dict)
         for key, val in vals.items()
-        if (sec, key) != ("train", "epochs") and cfg.get(sec, {}).get(key) != val
+        if (sec, key) != ("train", "epochs") and (sec, key) not in RESUME_KEYS and cfg.get(sec, {}).get(key) != val
     ]
     ignored += ["--config"] * (config is not None) + ["--schedule"] * (schedule is not None)
     if ignored and dist.main:
         log(
             f"warning: resuming keeps the run's own config; ignored: {', '.join(ignored)} "
-            "(only --epochs may change; start a new run with --overwrite to change the rest)"
+            "(only --epochs and --compile may change; start a new run with --overwrite to change the rest)"
         )
     return cfg, state, extended
 

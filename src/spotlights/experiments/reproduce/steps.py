@@ -435,8 +435,8 @@ def _consistency_command(ctx: Context, name: str) -> str:
         f"spotlights real evaluate {shell_quote(ctx.out / 'data' / f'{name}.h5')} --checkpoint {ck} "
         f"--classes {','.join(TABLE2_CLASSES)} --equal-points {real_evaluation.EQUAL_POINTS} "
         f"--equal-density {real_evaluation.EQUAL_DENSITY:g} "
+        f"--names {' '.join(TABLE2_RUNS)} "
         f"--out {shell_quote(ctx.out / 'eval' / f'{name}_consistency')} --reference {shell_quote(ctx.s.cars_path)}"
-        " (report rows named after the runs)"
     )
 
 

@@ -99,45 +99,45 @@ def eligible_baselines(ours: dict, baselines=BASELINE_RUNS, suffix: str = "_eq")
     return out, why
 
 
-def consistency_checks(ours: dict, set_label: str, n_eq, suffix: str = "_eq") -> list:
-    """Table 2's checks on one set, at the headline's resampling (``average<suffix>``; ``n_eq`` names it in
-    the text, e.g. "512 points" or "equal density (voxel 0.1)"): (a) the paper's claim that SA-Net (run
+def consistency_checks(ours: dict, set_label: str, resampling: str, suffix: str = "_eq") -> list:
+    """Table 2's checks on one set, at the headline's resampling (``average<suffix>``; ``resampling`` names it
+    in the text, e.g. "512 points" or "equal density (voxel 0.1)"): (a) the paper's claim that SA-Net (run
     ``sanet``) is the most consistent of the paper's five models; (b) the issue's target that the default
     model is more consistent than every eligible baseline (:func:`eligible_baselines`)."""
-    eq = {n: value(v.get(f"average{suffix}")) for n, v in ours.items()}
-    paper_models = {n: eq[n] for n in TABLE1_RUNS if n in eq}
+    values = {n: value(v.get(f"average{suffix}")) for n, v in ours.items()}
+    paper_models = {n: values[n] for n in TABLE1_RUNS if n in values}
     best = min(paper_models, key=lambda n: paper_models[n]) if paper_models else None
     checks = [
         {
             "claim": f"{set_label}: SA-Net's completions are the most consistent of the paper's five models "
-            f"(lowest Average at {n_eq})",
+            f"(lowest Average at {resampling})",
             "holds": best == "sanet",
             "detail": ", ".join(f"{n} {fmt(v, 4)}" for n, v in paper_models.items()) if best else "no model scored",
         }
     ]
     eligible, why = eligible_baselines(ours, suffix=suffix)
-    d = eq.get(DEFAULT_RUN, math.inf)
-    beaten = [b for b in eligible if d < eq[b]]
+    d = values.get(DEFAULT_RUN, math.inf)
+    beaten = [b for b in eligible if d < values[b]]
     rule = (
-        f"eligible baseline = diversity at {n_eq} >= {ELIGIBLE_DIVERSITY:g} x the mean diversity of the other "
+        f"eligible baseline = diversity at {resampling} >= {ELIGIBLE_DIVERSITY:g} x the mean diversity of the other "
         "models; "
         + ", ".join(
             f"{b} {fmt(dv, 4)} vs {fmt(thr, 4)} ({'eligible' if b in eligible else 'excluded'})"
             for b, (dv, thr) in why.items()
         )
     )
-    if DEFAULT_RUN not in ours:
+    if DEFAULT_RUN not in ours or not math.isfinite(d):
         detail, holds = f"{DEFAULT_RUN} not scored; {rule}", False
     else:
         holds = len(beaten) == len(eligible)
         detail = (
-            f"{DEFAULT_RUN} CD at {n_eq}: Average {fmt(d, 4)}; eligible: "
-            + (", ".join(f"{b} {fmt(eq[b], 4)}" for b in eligible) or "none (the target holds vacuously)")
+            f"{DEFAULT_RUN} CD at {resampling}: Average {fmt(d, 4)}; eligible: "
+            + (", ".join(f"{b} {fmt(values[b], 4)}" for b in eligible) or "none (the target holds vacuously)")
             + f"; {rule}"
         )
     checks.append(
         {
-            "claim": f"{set_label}: the default model ({DEFAULT_RUN}) is more consistent at {n_eq} than every "
+            "claim": f"{set_label}: the default model ({DEFAULT_RUN}) is more consistent at {resampling} than every "
             "baseline whose diversity is at least half the others' mean",
             "holds": bool(holds),
             "detail": detail,
