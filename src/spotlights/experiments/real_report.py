@@ -101,8 +101,8 @@ def report_markdown(report: dict) -> str:
             "Noise floor: consistency's CD between two completions of the *same* observation, its points "
             "resampled to the network's input with two seeds - the part of CD that resampling alone explains. "
             + (
-                f"At {eq} points: every completion brought to {eq} points by farthest-point sampling first, "
-                "so that models with different output sizes compare at one density. "
+                f"At {eq} points: every completion brought to {eq} points by farthest-point sampling first (one "
+                "count for every model). "
                 if eq
                 else ""
             )
