@@ -17,6 +17,17 @@ def _fmt(v, digits=4) -> str:
     return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f"{v:.{digits}f}"
 
 
+def _resampled_cells(entry: dict, last: str, bold: bool = False) -> str:
+    """Table cells of one resampled score (``equal_points`` / ``equal_density`` entry of a model): CD and noise
+    floor (Average, All objects in brackets), diversity, then ``last``."""
+    a, o = entry.get("average", {}), entry.get("all_objects", {})
+    cd = f"**{_fmt(a.get('cd'))}**" if bold else _fmt(a.get("cd"))
+    return (
+        f" {cd} ({_fmt(o.get('cd'))}) | {_fmt(a.get('noise_floor'))} ({_fmt(o.get('noise_floor'))}) |"
+        f" {_fmt(entry.get('diversity'))} | {last} |"
+    )
+
+
 def report_markdown(report: dict) -> str:
     """The report as Markdown: a Table-2-style headline table, then the other metric variants."""
     d = report["data"]
@@ -133,18 +144,10 @@ def report_markdown(report: dict) -> str:
             row = f"| {m['name']} | {_fmt(a['cd'])} ({_fmt(o['cd'])}) | {_fmt(a.get('noise_floor'))} ({_fmt(o.get('noise_floor'))}) |"
             if vox:
                 v = m.get("equal_density") or {}
-                va, vo = v.get("average", {}), v.get("all_objects", {})
-                row += (
-                    f" **{_fmt(va.get('cd'))}** ({_fmt(vo.get('cd'))}) | {_fmt(va.get('noise_floor'))} ({_fmt(vo.get('noise_floor'))}) |"
-                    f" {_fmt(v.get('diversity'))} | {_fmt(v.get('mean_points_per_completion'), 0)} |"
-                )
+                row += _resampled_cells(v, _fmt(v.get("mean_points_per_completion"), 0), bold=True)
             if eq:
                 e = m.get("equal_points") or {}
-                ea, eo = e.get("average", {}), e.get("all_objects", {})
-                row += (
-                    f" {_fmt(ea.get('cd'))} ({_fmt(eo.get('cd'))}) | {_fmt(ea.get('noise_floor'))} ({_fmt(eo.get('noise_floor'))}) |"
-                    f" {_fmt(e.get('diversity'))} | {_fmt(e.get('consistency_over_diversity'), 3)} |"
-                )
+                row += _resampled_cells(e, _fmt(e.get("consistency_over_diversity"), 3))
             h = m.get("heading")
             row += (
                 f" {h['n_flipped']} / {h['n_observations']} ({100 * h['rate']:.1f}%; {100 * h['rate_margin0']:.1f}% at margin 0) |"
