@@ -386,6 +386,12 @@ def main() -> None:
     ap.add_argument("--data", default=None, help="dataset for the quality section (e.g. cars.h5)")
     ap.add_argument("--quality-val-views", type=int, default=10, help="validation views per model (quality)")
     ap.add_argument(
+        "--quality-seed",
+        type=int,
+        default=0,
+        help="quality section: seed of both runs of a model (another seed tells a precision gap from run-to-run spread)",
+    )
+    ap.add_argument(
         "--quality-steps",
         nargs="+",
         default=None,
@@ -503,7 +509,7 @@ def main() -> None:
         steps = QUALITY_STEPS
         if args.quality_steps:
             steps = {k: int(v) for k, v in (item.split("=", 1) for item in args.quality_steps)}
-        q = quality_check(args.data, steps, args.quality_val_views, progress=log)
+        q = quality_check(args.data, steps, args.quality_val_views, seed=args.quality_seed, progress=log)
         for name, r in q.items():
             print(
                 f"  {name:12s} {r['steps']:4d} steps: val CD-L1 fp32 {r['fp32']['val_chamfer_l1']:.5f}, "
@@ -511,7 +517,12 @@ def main() -> None:
             )
         done(
             "quality",
-            {"data": str(args.data), "val_views_per_model": args.quality_val_views, "fp32_vs_bf16": q},
+            {
+                "data": str(args.data),
+                "val_views_per_model": args.quality_val_views,
+                "seed": args.quality_seed,
+                "fp32_vs_bf16": q,
+            },
             ts,
             ls,
         )
