@@ -306,3 +306,34 @@ def test_evaluate_table1_columns_training_facts_and_opt_in_latency(run, data, tm
     assert proc.returncode == 0, proc.stderr
     timed = json.loads((tmp_path / "rep.json").read_text())["results"][0]
     assert timed["latency_ms"]["1"]["complete_ms"] > 0 and timed["latency_ms"]["32"]["forward_ms"] > 0
+
+
+def test_float32_head_under_bf16_autocast():
+    """float32_head: the last decoder layer runs in float32 under a bf16 autocast (its output equals the float32
+    Linear applied to the bf16 hidden activations); without it the outputs are bf16. The packaged config sets it,
+    checkpoints without the key (the shipped default) keep the old bf16 head."""
+    torch.manual_seed(0)
+    rig = make_rig(4, 8, 60.0)
+    args = dict(TINY_MODEL_ARGS["sanet-hit"])
+    x = torch.rand(2, 64, 3)
+    outs = {}
+    for head in (False, True):
+        torch.manual_seed(0)
+        model = build_model(
+            load_config("sanet-hit", overrides={"model": {"args": {**args, "float32_head": head}}}), rig=rig
+        )
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            outs[head] = model(x)
+            code = model.encoder(x).reshape(-1, model.decoder.linears[0].in_features)
+            hidden = code
+            for lin in model.decoder.linears[:-1]:
+                hidden = torch.relu(lin(hidden))
+        last = model.decoder.linears[-1]
+        want = hidden.float() @ last.weight.T + last.bias  # plain float32 arithmetic, outside autocast
+        n = rig.n_rays
+        if head:
+            np.testing.assert_allclose(
+                outs[head]["hit_logits"].detach().numpy(), want[:, :n].detach().numpy(), rtol=1e-5, atol=1e-6
+            )
+    assert outs[True]["hit_logits"].dtype == torch.float32 and outs[False]["hit_logits"].dtype == torch.bfloat16
+    assert load_config("sanet-hit")["model"]["args"]["float32_head"] is True

@@ -26,14 +26,17 @@ class MLP(nn.Module):
     sizes : [C_in, C_1, ..., C_out] channel sizes.
     batch_norm : BatchNorm1d after every hidden Linear (TopNet, AtlasNet), over all
         leading axes flattened.
+    float32_last : run the last Linear in float32 even under a bf16/fp16 autocast (its input
+        cast to float32); no effect without autocast.
     """
 
     materialise_concat: ClassVar[bool] = False
     """Benchmarks only: when True, :meth:`forward_concat` builds the expanded concatenation
     (the original papers' form) instead of broadcasting; same outputs, slower."""
 
-    def __init__(self, sizes: Sequence[int], batch_norm: bool = False):
+    def __init__(self, sizes: Sequence[int], batch_norm: bool = False, float32_last: bool = False):
         super().__init__()
+        self.float32_last = bool(float32_last)
         sizes = [int(s) for s in sizes]
         if len(sizes) < 2:
             raise ValueError(f"an MLP needs at least an input and an output size, got {sizes}")
@@ -78,8 +81,13 @@ class MLP(nn.Module):
         pre-activation (normalise and activate it first)."""
         if first_done:
             x = self._activate(start - 1, x)
+        last = len(self.linears) - 1
         for j in range(start, len(self.linears)):
-            x = self._activate(j, self.linears[j](x))
+            if j == last and self.float32_last:
+                with torch.autocast(device_type=x.device.type, enabled=False):
+                    x = self.linears[j](x.float())
+            else:
+                x = self._activate(j, self.linears[j](x))
         return x
 
     def _activate(self, j: int, x: torch.Tensor) -> torch.Tensor:
