@@ -121,7 +121,7 @@ def resolve_run_config(model_name, out_dir: Path, config, overrides, resume, ove
         for sec, vals in (overrides or {}).items()
         if isinstance(vals, dict)
         for key, val in vals.items()
-        if (sec, key) != ("train", "epochs") and (sec, key) not in RESUME_KEYS and cfg.get(sec, {}).get(key) != val
+        if (sec, key) != ("train", "epochs") and cfg.get(sec, {}).get(key) != val  # RESUME_KEYS were taken above
     ]
     ignored += ["--config"] * (config is not None) + ["--schedule"] * (schedule is not None)
     if ignored and dist.main:

@@ -433,8 +433,8 @@ def _consistency_command(ctx: Context, name: str) -> str:
     ck = " ".join(shell_quote(ctx.run_dir(r) / "best.pt") for r in TABLE2_RUNS)
     return (
         f"spotlights real evaluate {shell_quote(ctx.out / 'data' / f'{name}.h5')} --checkpoint {ck} "
-        f"--classes {','.join(TABLE2_CLASSES)} --equal-points {real_evaluation.EQUAL_POINTS} "
-        f"--equal-density {real_evaluation.EQUAL_DENSITY:g} "
+        f"--classes {','.join(CONSISTENCY_OPTIONS['classes'])} --equal-points {CONSISTENCY_OPTIONS['equal_points']} "
+        f"--equal-density {CONSISTENCY_OPTIONS['equal_density']:g} "
         f"--names {' '.join(TABLE2_RUNS)} "
         f"--out {shell_quote(ctx.out / 'eval' / f'{name}_consistency')} --reference {shell_quote(ctx.s.cars_path)}"
     )

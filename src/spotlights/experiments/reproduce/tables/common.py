@@ -82,16 +82,17 @@ def run_facts(ctx: Context, runs) -> dict:
     return out
 
 
+def duration(seconds: float) -> str:
+    """A training time for the tables' text: '95 s' below two minutes, else whole minutes ('75 min')."""
+    return f"{seconds:.0f} s" if seconds < 120 else f"{seconds / 60:.0f} min"
+
+
 def training_note(ctx: Context, runs) -> str:
     """One line per run: steps, batch, epochs and minutes of training (for the text under a table)."""
     facts = run_facts(ctx, runs)
-
-    def dur(sec):
-        return f"{sec:.0f} s" if sec < 120 else f"{sec / 60:.0f} min"
-
     parts = [
         f"{r}: {f.get('steps', 0):,} steps of {f.get('batch_size', '?')} ({f.get('epochs', '?')} epochs, "
-        f"{dur(float(f.get('train_seconds') or 0))} of training)"
+        f"{duration(float(f.get('train_seconds') or 0))} of training)"
         if f
         else f"{r}: ?"
         for r, f in facts.items()

@@ -9,7 +9,7 @@ from ....errors import SpotlightsError
 from ... import paper_tables as paper
 from ..pipeline import Context
 from ..settings import BASELINE_RUNS, DISPLAY, PRODUCT_RUNS, TABLE1_RUNS, TABLE5_RUNS
-from .common import diff, eval_rows, fmt, md_table, run_facts, training_note, value
+from .common import diff, duration, eval_rows, fmt, md_table, run_facts, training_note, value
 
 ACCURACY_RATIO_TARGET = 0.90
 """The issue's target: the best SA-Net variant's accuracy at most 0.90 x the best baseline's (same protocol)."""
@@ -28,9 +28,8 @@ def _training_cell(f: dict) -> str:
     """'17,500 steps, 75 min' from a run's facts (:func:`.common.run_facts`); '-' when unknown."""
     if not f or not f.get("steps"):
         return "-"
-    sec = float(f.get("train_seconds") or 0)
     n = int(f["steps"])
-    return f"{n:,} step{'' if n == 1 else 's'}, " + (f"{sec:.0f} s" if sec < 120 else f"{sec / 60:.0f} min")
+    return f"{n:,} step{'' if n == 1 else 's'}, " + duration(float(f.get("train_seconds") or 0))
 
 
 def sanet_checks(ours: dict, sanet_rows: list, baseline_rows: list) -> list:
