@@ -69,7 +69,8 @@ from ..data.store import open_dataset
 from ..errors import InputFileError, SpotlightsError
 from ..geometry.boxes import FLIP_Z
 from ..geometry.neighbors import NearestNeighbors, serial_queries
-from ..geometry.sampling import farthest_point_sample, resample_set, voxel_downsample
+from ..geometry.sampling import resample_set, voxel_downsample
+from ..learning.rays import extents_from_sizes
 from .real_report import report_markdown, write_report
 from .scene import HEADING_MARGIN, heading_turns
 
@@ -145,8 +146,7 @@ def complete_all(
                 f"completer {getattr(completer, 'model_name', '?')} decodes rays aimed at each object's "
                 "box: give the boxes' sizes"
             )
-        sizes = np.asarray(box_sizes, dtype=np.float64).reshape(n, 3)
-        extents = sizes / np.linalg.norm(sizes, axis=1, keepdims=True)
+        extents = extents_from_sizes(np.asarray(box_sizes, dtype=np.float64).reshape(n, 3))
     for s in tqdm(range(0, n, batch_size), desc=desc, unit="batch", disable=not progress or n == 0):
         batch = np.ascontiguousarray(partials[s : s + batch_size], dtype=np.float32)
         kw = {} if clip is None else {"clip": clip}
@@ -171,14 +171,13 @@ def complete_all(
 
 
 def equal_count(points: np.ndarray, n: int = EQUAL_POINTS, seed: int = 0) -> np.ndarray:
-    """(n, 3) float32: ``points`` (K, 3) brought to ``n`` points by farthest-point sampling (first point
-    chosen with ``seed``); K < n: all points plus seeded repeats; K = 0: an empty (0, 3) array."""
+    """(n, 3) float32: ``points`` (K, 3) brought to ``n`` points by farthest-point sampling
+    (:func:`~spotlights.geometry.sampling.resample_set` with ``method="fps"``: canonical order, first
+    point chosen with ``seed``); K < n: all points plus seeded repeats; K = 0: an empty (0, 3) array."""
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if len(p) == 0:
         return np.zeros((0, 3), np.float32)
-    if len(p) > n:
-        return p[farthest_point_sample(p, n, seed=seed)].astype(np.float32)
-    return resample_set(p, n, seed=seed).astype(np.float32)
+    return resample_set(p, n, seed=seed, method="fps").astype(np.float32)
 
 
 def flip_heading(partials: np.ndarray) -> np.ndarray:

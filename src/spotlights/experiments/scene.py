@@ -42,11 +42,10 @@ from ..data.real.extract import crop_box
 from ..data.real.scans import MIN_SCAN_POINTS
 from ..errors import InputFileError, ParameterError
 from ..geometry.boxes import FLIP_Z, Box
-from ..geometry.frames import clamp_to_unit_sphere
 from ..geometry.io import save_ply, save_points
 from ..geometry.neighbors import serial_queries
 from ..geometry.rotations import rigid_transform
-from ..learning.inference import DEFAULT, prepare_partial
+from ..learning.inference import DEFAULT, complete_in_boxes, prepare_partial
 from ..viz import SceneObject, html, render_scene
 
 SOURCE_RAW, SOURCE_PARTIAL, SOURCE_COMPLETION = 0, 1, 2
@@ -322,10 +321,7 @@ def complete_scene(
         if config.heading_check:
             partials = np.concatenate([partials, (partials @ FLIP_Z).astype(np.float32)])
             sizes = np.concatenate([sizes, sizes])
-        kw = {"clip": DEFAULT if config.clip == "default" else config.clip}
-        if getattr(completer, "needs_box", False):
-            kw["extents"] = sizes / np.linalg.norm(sizes, axis=1, keepdims=True)
-        outs = completer.complete(partials, **kw)
+        outs = complete_in_boxes(completer, partials, sizes, clip=DEFAULT if config.clip == "default" else config.clip)
         t2 = time.perf_counter()
         with serial_queries():  # a few small KD-tree queries: OpenMP threads cost more than they save
             _assemble(todo, outs, config, a)
@@ -350,14 +346,14 @@ def complete_scene(
 def _assemble(todo: list, outs: list, config: SceneConfig, a) -> None:
     """Fidelity, heading choice and the scan-frame completion of every completed object (in place).
 
-    Completions are clamped to the unit sphere first (:func:`clamp_to_unit_sphere`), so no
-    completion point of any model leaves its box's sphere."""
+    ``outs`` come from :func:`complete_in_boxes`, clamped to the unit sphere: no completion point
+    of any model leaves its box's sphere."""
     n = len(todo)
     for k, o in enumerate(todo):
-        comp = clamp_to_unit_sphere(outs[k])
+        comp = outs[k]
         o.fidelity = fidelity(o.partial_unit, comp) if len(comp) else None
         if config.heading_check:
-            comp_f = clamp_to_unit_sphere(outs[n + k])
+            comp_f = outs[n + k]
             flipped_partial = o.partial_unit @ FLIP_Z
             o.fidelity_flipped = fidelity(flipped_partial, comp_f) if len(comp_f) else None
             if o.fidelity_flipped is not None and bool(

@@ -261,6 +261,29 @@ def prepare_partial(
     )
 
 
+def complete_in_boxes(completer, partials: np.ndarray, sizes: np.ndarray, clip=DEFAULT) -> list[np.ndarray]:
+    """Complete unit-frame partial scans, each with its box, every point inside its box's sphere.
+
+    The one step every completion path shares (``complete_scan``, ``complete_scene``, ``real
+    complete``): a box-targeted SA-Net (``completer.needs_box``) gets each scan's half-extents
+    ``size / |size|``; the result is clamped to the unit sphere (:func:`clamp_to_unit_sphere`:
+    point-set models are unbounded; depth models are inside already).
+
+    Parameters
+    ----------
+    completer : a :class:`Completer` (or any object with its ``complete`` and ``needs_box``).
+    partials : (B, K, 3) float32 unit-frame points (the box's object frame / half its diagonal).
+    sizes : (B, 3) box sizes (length, width, height), metres (only their ratios matter).
+    clip : passed to :meth:`Completer.complete`.
+
+    Returns a list of B arrays (K_i, 3) float32, unit frame, norms <= 1.
+    """
+    kw = {"clip": clip}
+    if getattr(completer, "needs_box", False):
+        kw["extents"] = extents_from_sizes(np.asarray(sizes, dtype=np.float64).reshape(-1, 3))
+    return [clamp_to_unit_sphere(c) for c in completer.complete(partials, **kw)]
+
+
 def complete_scan(
     points: np.ndarray,
     box: Box,
@@ -304,11 +327,7 @@ def complete_scan(
         if len(unit) == 0:
             raise ParameterError("no scan point lies inside the box (after --crop); check the box and the scan's frame")
     partial = prepare_partial(unit, n_input, seed=seed, method=resample_method)
-    if getattr(completer, "needs_box", False):  # box-targeted SA-Net: rays aimed at this box
-        done = completer.complete(partial[None], clip=clip, extents=extents_from_sizes(box.size)[None])[0]
-    else:
-        done = completer.complete(partial[None], clip=clip)[0]
-    done = clamp_to_unit_sphere(done)  # point-set models are unbounded; depth models are inside already
+    done = complete_in_boxes(completer, partial[None], box.size[None], clip=clip)[0]
     return {
         "completed": norm.from_unit(done.astype(np.float64)),
         "completed_unit": done,
