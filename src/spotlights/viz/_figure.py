@@ -28,15 +28,17 @@ def new_figure(width: float, height: float, layout: str | None = None):
     return fig
 
 
-def save_png(fig, path: str | os.PathLike, dpi: int = 110, deterministic: bool = False) -> Path:
+def save_png(fig, path: str | os.PathLike, dpi: int = 110, deterministic: bool = False, tight: bool = False) -> Path:
     """Write ``fig`` as a PNG atomically (temporary name, then rename); returns ``path``.
 
     ``deterministic`` drops the "Software" metadata (matplotlib's version) so that equal
-    figures give equal bytes across matplotlib versions.
+    figures give equal bytes across matplotlib versions. ``tight`` crops the page to what is
+    drawn (plus 0.1 inch), so no label that the layout pushed past the edge is cut off.
     """
     meta = {"Software": None} if deterministic else None
+    extra = {"bbox_inches": "tight", "pad_inches": 0.1} if tight else {}
     with atomic_output(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=dpi, format="png", metadata=meta)
+        fig.savefig(tmp, dpi=dpi, format="png", metadata=meta, **extra)
     return Path(path)
 
 

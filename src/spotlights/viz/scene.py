@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import os
+import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +29,8 @@ from ._figure import add_axes3d, add_scale_bar, new_figure, save_png
 from .points import Layer, merge_layers
 
 GREY, PURPLE, GREEN = "#9a9a9a", "#8e44ad", "#27ae60"
+CLOSEUP_TITLE_WIDTH = 44
+"""Characters per line of a close-up's title (wrapped beyond: three close-ups share a row)."""
 #: the 12 edges of a box as pairs of :func:`~spotlights.geometry.frames.box_corners` indices
 BOX_EDGES = ((0, 1), (2, 3), (4, 5), (6, 7), (0, 2), (1, 3), (4, 6), (5, 7), (0, 4), (1, 5), (2, 6), (3, 7))
 
@@ -123,7 +126,7 @@ def draw_bev(
         ax.plot(c[:, 0], c[:, 1], color="black", lw=0.7)
         ax.annotate(
             o.label,
-            o.center[:2] + np.array([0.0, 0.6 * o.reach + 0.4]),
+            (o.center[0], o.corners()[:, 1].max() + 0.4),  # just above the box's northmost corner
             fontsize=7,
             ha="center",
             va="bottom",
@@ -142,6 +145,13 @@ def draw_bev(
         ax.legend(loc="upper right", fontsize=7, markerscale=4, framealpha=0.85)
 
 
+def completion_marker_size(n: int) -> float:
+    """Marker area (points^2) of a close-up's completion of ``n`` points: 2.0 up to 2,048 points, then
+    shrinking as 1/sqrt(n) (0.75 at 15,000, floor 0.5), so a dense completion shows its surface's shape
+    instead of a solid blob and the purple input stays visible among it."""
+    return float(max(0.5, 2.0 * min(1.0, math.sqrt(2048.0 / max(int(n), 1)))))
+
+
 def draw_closeup(ax, scan: np.ndarray, obj: SceneObject, context: float = 1.0) -> None:
     """3-D close-up of one object from the sensor's side: context scan (grey, outside the box),
     completion (green), partial input (purple) depth-sorted together; box wireframe; 1 m ruler."""
@@ -152,7 +162,7 @@ def draw_closeup(ax, scan: np.ndarray, obj: SceneObject, context: float = 1.0) -
     near = near[~obj.inside(near)]  # the object's own points are its partial input
     layers = [Layer(near, GREY, None, 0.8, 0.7)]
     if obj.completion is not None:
-        layers.append(Layer(obj.completion, GREEN, None, 2.0, 1.0))
+        layers.append(Layer(obj.completion, GREEN, None, completion_marker_size(len(obj.completion)), 1.0))
     layers.append(Layer(obj.partial, PURPLE, None, 4.0, 1.0))
     p, col, s = merge_layers(layers)
     if len(p):
@@ -202,7 +212,8 @@ def figure_scene(
         a3 = add_axes3d(fig, gs[k // ncol, 2 + k % ncol])
         draw_closeup(a3, scan, o)
         size = " x ".join(f"{x:.1f}" for x in o.size)
-        a3.set_title(f"{o.label}: {o.caption}\nbox {size} m" if o.caption else f"{o.label}: box {size} m", fontsize=8)
+        head = textwrap.fill(f"{o.label}: {o.caption}", CLOSEUP_TITLE_WIDTH) if o.caption else str(o.label)
+        a3.set_title(f"{head}\nbox {size} m", fontsize=8)
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
@@ -230,7 +241,7 @@ def render_scene(
     closeups : False draws the bird's-eye view alone.
     id_note : what the labels are, printed in the bird's-eye title.
     """
-    return save_png(figure_scene(scan, objects, title, max_scan_points, seed, closeups, id_note), path, dpi)
+    return save_png(figure_scene(scan, objects, title, max_scan_points, seed, closeups, id_note), path, dpi, tight=True)
 
 
 def observation_label(obs, i: int) -> str:
