@@ -28,7 +28,19 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src"
 PACKAGE = "spotlights"
-HEAVY = ("torch", "matplotlib", "open3d", "pyarrow", "pandas", "ray", "plotly", "onnx", "onnxruntime", "laspy")
+HEAVY = (
+    "torch",
+    "matplotlib",
+    "open3d",
+    "pyarrow",
+    "pandas",
+    "ray",
+    "plotly",
+    "onnx",
+    "onnxruntime",
+    "laspy",
+    "trimesh",
+)
 
 
 def module_name(path: Path) -> str:

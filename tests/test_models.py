@@ -191,6 +191,7 @@ def test_registry_imports_no_model_or_torch_at_start_up():
     code = (
         "import sys; import spotlights.learning.models as m; import spotlights.cli as c; c.build_parser(); "
         "assert 'torch' not in sys.modules, 'torch imported'; "
+        "assert 'trimesh' not in sys.modules and 'scipy' not in sys.modules, 'trimesh/scipy imported'; "
         "assert not any(k.startswith('spotlights.learning.models.') for k in sys.modules), 'a model imported'"
     )
     env = {"PYTHONPATH": str(REPO / "src")}

@@ -15,7 +15,6 @@ import time
 from dataclasses import replace
 
 import numpy as np
-import trimesh
 
 from ...errors import InputFileError, SpotlightsError
 from ...geometry.encode import MeshProbe
@@ -33,6 +32,15 @@ def unit_rng(seed: int, name: str, *stream: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(model_key(name),) + tuple(stream)))
 
 
+def as_trimesh(model: LoadedModel):
+    """The :class:`trimesh.Trimesh` of a loaded model (vertices (V, 3) float64 metres, faces (F, 3) int),
+    unprocessed (no merging or reordering: indices stay the file's). trimesh is imported here, not at the
+    top: it costs about a second (with scipy and networkx), which ``spotlights --help`` should not pay."""
+    import trimesh
+
+    return trimesh.Trimesh(model.vertices, model.faces, process=False, validate=False)
+
+
 def model_ground_truth(model: LoadedModel, cfg: BuildConfig) -> dict:
     """Ground truth of one model in its unit frame (axis-aligned box, R = half diagonal).
 
@@ -41,7 +49,7 @@ def model_ground_truth(model: LoadedModel, cfg: BuildConfig) -> dict:
     (``MeshProbe(mesh).encode(rig)`` of the core; a box-targeted spec is resolved for this
     model's box, ``spec.for_box(size / 2R)``).
     """
-    mesh = trimesh.Trimesh(model.vertices, model.faces, process=False, validate=False)
+    mesh = as_trimesh(model)
     norm = normalization_from_mesh(mesh)
     name = model.entry.name
     pts = sample_surface(mesh, cfg.gt_points, unit_rng(cfg.seed, name, STREAM_GT_POINTS))
@@ -170,7 +178,7 @@ def model_depths(cfg: BuildConfig, entry, stored: dict, m: int, rig) -> np.ndarr
         )
     if stored["augment"][m]:
         model = apply_augment(model, replace(model.entry, augment=json.loads(stored["augment"][m])))
-    mesh = trimesh.Trimesh(model.vertices, model.faces, process=False, validate=False)
+    mesh = as_trimesh(model)
     norm = normalization_from_mesh(mesh)
     if not (np.array_equal(norm.center, stored["center"][m]) and float(norm.radius) == float(stored["radius"][m])):
         raise InputFileError(
