@@ -41,12 +41,17 @@ def fake_learning(monkeypatch, tmp_path):
     class Completer:
         n_params = 1
         clips: list = []
+        calls: list = []  # model name of every complete() call
+        interrupt = None  # a model name whose complete() acts as Ctrl-C
 
         def __init__(self, name):
             self.model_name = name
 
         def complete(self, partials, clip="default"):
             Completer.clips.append(clip)
+            Completer.calls.append(self.model_name)
+            if self.model_name == Completer.interrupt:
+                raise KeyboardInterrupt
             t = np.linspace(0, 2 * np.pi, 64)
             ring = np.c_[0.9 * np.cos(t), 0.38 * np.sin(t), np.zeros_like(t)].astype(np.float32)
             return [np.concatenate([ring, p[:32]]) for p in partials]  # depends a little on the input
@@ -225,6 +230,50 @@ def test_cli_malformed_kitti_label_and_missing_calib(tmp_path, capsys):
     (root / "calib" / "000001.txt").unlink()
     assert main(["real", "extract", str(root), "--format", "kitti", "--out", str(out), "-q"]) == 2
     assert "calib/000001.txt: calibration file not found" in capsys.readouterr().err
+
+
+def test_cli_evaluate_resume_reuses_only_matching_models(tmp_path, capsys, fake_learning):
+    """--resume copies a model's entry only for the same name, checkpoint bytes and settings; the result
+    equals a fresh run of every model; an interrupted run leaves PREFIX.partial.json to resume from."""
+    out = tmp_path / "obs.h5"
+    assert main(["real", "extract", str(scene(tmp_path)), "--format", "generic", "--out", str(out), "-q"]) == 0
+    sanet, pcn = fake_learning
+    Completer = sys.modules["spotlights.learning.inference"].Completer
+
+    def evaluate(prefix, *ckpts, extra=()):
+        Completer.calls.clear()
+        code = main(["real", "evaluate", str(out), "-c", *ckpts, "--out", str(tmp_path / prefix), "-q", *extra])
+        return code, list(Completer.calls), tmp_path / f"{prefix}.json"
+
+    code, _, fresh = evaluate("fresh", sanet, pcn)
+    assert code == 0
+    fresh_models = json.loads(fresh.read_text())["models"]
+
+    assert evaluate("rep", sanet)[0] == 0
+    code, calls, rep = evaluate("rep", sanet, pcn, extra=["--resume"])
+    assert code == 0 and set(calls) == {"pcn"}  # sanet copied from rep.json, not completed again
+    assert json.loads(rep.read_text())["models"] == fresh_models  # the same table as a fresh run
+    assert not (tmp_path / "rep.partial.json").exists()
+
+    Path(sanet).write_bytes(b"retrained")  # another checkpoint under the same name: scored again
+    code, calls, _ = evaluate("rep", sanet, pcn, extra=["--resume"])
+    assert code == 0 and set(calls) == {"sanet"}
+    capsys.readouterr()
+    code, calls, _ = evaluate("rep", sanet, pcn, extra=["--resume", "--equal-points", "64"])  # other settings
+    assert code == 0 and set(calls) == {"sanet", "pcn"}
+    assert "no model of" in capsys.readouterr().err
+
+    Completer.interrupt = "pcn"  # Ctrl-C while the second model runs: the first is kept aside
+    try:
+        code, _, _ = evaluate("cut", sanet, pcn)
+    finally:
+        Completer.interrupt = None
+    assert code == 130 and not (tmp_path / "cut.json").exists()
+    kept = json.loads((tmp_path / "cut.partial.json").read_text())
+    assert [m["name"] for m in kept["models"]] == ["sanet"]
+    code, calls, cut = evaluate("cut", sanet, pcn, extra=["--resume"])
+    assert code == 0 and set(calls) == {"pcn"} and not (tmp_path / "cut.partial.json").exists()
+    assert [m["name"] for m in json.loads(cut.read_text())["models"]] == ["sanet", "pcn"]
 
 
 def test_cli_evaluate_untracked_file(tmp_path, capsys, fake_learning):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 
 from ..data.consistency import consecutive_pairs
 from ..data.real import open_reader
@@ -16,6 +17,7 @@ from ..experiments.real_evaluation import (
     reference_shapes,
     report_markdown,
     write_report,
+    write_report_json,
 )
 from ..experiments.scene import HEADING_MARGIN
 from ..utils import check_writable, output_folder
@@ -246,6 +248,13 @@ def register(sub) -> None:
         choices=["train", "val", "test"],
         help="use only this split of --reference (default: every model)",
     )
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="reuse every model already scored in PREFIX.json (or in PREFIX.partial.json, which an interrupted "
+        "run leaves) with the same name, the same checkpoint file contents and the same settings; score only "
+        "the others (add a model to a table, or continue after Ctrl-C)",
+    )
     add_quiet(p)
 
     p = add_command(
@@ -439,6 +448,30 @@ def _evaluate(args) -> int:
     tag = [Path(p).parent.name if Path(p).stem in ("best", "last") else Path(p).stem for p in checkpoints]
     names = args.names or [f"{n} ({t})" if n in dup else n for n, t in zip(names, tag)]
 
+    js_path, partial = Path(prefix + ".json"), Path(prefix + ".partial.json")
+    previous = {"models": []}
+    if args.resume:
+        for f in (js_path, partial):  # entries of both: the finished table and an interrupted run's models
+            if f.is_file():
+                try:
+                    earlier = json.loads(f.read_text(encoding="utf-8"))
+                    settings = earlier["data"]["settings"]
+                    entries = list(earlier["models"])
+                except (OSError, ValueError, KeyError, TypeError):
+                    warn([f"{f}: not a report of 'real evaluate' with settings; not reused"])
+                    continue
+                previous["data"] = {"settings": settings}
+                previous["models"] += entries
+    reused = []
+
+    def save_partial(report_so_far: dict) -> None:
+        fresh = report_so_far["models"][-1]
+        if any(fresh is m for m in previous["models"]):
+            reused.append(fresh["name"])
+            if not args.quiet:
+                print(f"reusing {fresh['name']} (same checkpoint and settings) from {prefix}")
+        write_report_json(report_so_far, partial)
+
     try:
         report = evaluate_consistency(
             obs,
@@ -456,6 +489,8 @@ def _evaluate(args) -> int:
             noise_floor=not args.no_noise_floor,
             heading_check=not args.no_heading_check,
             heading_margin=margin,
+            previous=previous if args.resume else None,
+            on_model=save_partial,
         )
     except InputFileError as exc:
         if exc.path != "<observations>":
@@ -463,6 +498,9 @@ def _evaluate(args) -> int:
         raise InputFileError(args.file, exc.problem) from None  # name the file the user gave
     report["data"]["file"] = str(args.file)
     md, js = write_report(report, prefix)
+    partial.unlink(missing_ok=True)
+    if args.resume and previous["models"] and not reused:
+        warn([f"--resume: no model of {prefix} was reused (other settings, names or checkpoint files)"])
 
     warn(
         [

@@ -46,6 +46,8 @@ them) the report holds, per model:
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 from collections.abc import Sequence
 
@@ -70,8 +72,9 @@ from ..errors import InputFileError, SpotlightsError
 from ..geometry.boxes import FLIP_Z
 from ..geometry.neighbors import NearestNeighbors, serial_queries
 from ..geometry.sampling import resample_set, voxel_downsample
+from ..learning.checkpoint import resolve_checkpoint
 from ..learning.rays import extents_from_sizes
-from .real_report import report_markdown, write_report
+from .real_report import report_markdown, write_report, write_report_json
 from .scene import HEADING_MARGIN, heading_turns
 
 __all__ = [
@@ -90,6 +93,7 @@ __all__ = [
     "same_observation_cd",
     "tracked_rows",
     "write_report",
+    "write_report_json",
 ]
 
 EQUAL_POINTS = 512
@@ -271,6 +275,8 @@ def evaluate_consistency(
     heading_check: bool = True,
     equal_density: float | None = EQUAL_DENSITY,
     heading_margin: float = HEADING_MARGIN,
+    previous: dict | None = None,
+    on_model=None,
 ) -> dict:
     """Consistency of each completer on the tracked objects of an observation file.
 
@@ -292,6 +298,13 @@ def evaluate_consistency(
     noise_floor : also complete each observation resampled with a second seed (needs the raw
         points of a format-2 file; older files report no floor).
     heading_check : also complete each observation with its box turned around and count flips.
+    previous : an earlier report (the JSON of :func:`write_report`, loaded) to resume from: a model
+        whose entry there has the same name and checkpoint content (``checkpoint_sha256``) and
+        was scored with the same settings (``data["settings"]``: the observations scored, classes,
+        clip, resamplings, heading check, MMD reference) is copied, not computed again. Needs
+        ``checkpoints``; an entry without a digest is recomputed.
+    on_model : called with the report of the models done so far after each model (``real
+        evaluate`` writes it, so an interrupted run resumes where it stopped).
 
     Returns
     -------
@@ -351,8 +364,31 @@ def evaluate_consistency(
     )
     eq = int(equal_points) if equal_points else 0
     vox = float(equal_density) if equal_density else 0.0
+    settings = dict(
+        observations=observations_digest(obs, rows),
+        classes=list(classes) if classes else None,
+        clip=clip,
+        equal_points=eq or None,
+        equal_density=vox or None,
+        noise_floor=with_noise,
+        heading_margin=float(heading_margin) if heading_check else None,
+        mmd_reference=reference_info if references is not None else None,
+    )
+    data, metrics = _report_head(
+        obs, path, rows, sub_keys, sub_ts, sub_cls, classes_present, settings, seed, bool(noise_floor)
+    )
+    digests = [None] * len(completers) if checkpoints is None else [checkpoint_digest(c) for c in checkpoints]
+    reusable = {}
+    if previous and (previous.get("data") or {}).get("settings") == json.loads(json.dumps(settings)):
+        reusable = {(m.get("name"), m.get("checkpoint_sha256")): m for m in previous.get("models", [])}
     models = []
     for k, completer in enumerate(completers):
+        old = reusable.get((names[k], digests[k])) if digests[k] else None
+        if old is not None:
+            models.append(old)
+            if on_model is not None:
+                on_model(dict(data=data, metrics=metrics, models=list(models)))
+            continue
         run = dict(batch_size=batch_size, progress=progress, clip=clip, box_sizes=sizes)
         comps = complete_all(completer, partials, desc=f"complete {names[k]}", **run)
         comps2 = complete_all(completer, partials2, desc=f"noise floor {names[k]}", **run) if with_noise else None
@@ -364,6 +400,7 @@ def evaluate_consistency(
             name=names[k],
             model_name=str(getattr(completer, "model_name", names[k])),
             checkpoint=None if checkpoints is None else str(checkpoints[k]),
+            checkpoint_sha256=digests[k],
             n_params=getattr(completer, "n_params", None),
             mean_points_per_completion=float(np.mean([len(c) for c in comps])),
             diversity=div,
@@ -436,12 +473,50 @@ def evaluate_consistency(
             for t in tracks
         ]
         models.append(entry)
+        if on_model is not None:
+            on_model(dict(data=data, metrics=metrics, models=list(models)))
+    return dict(data=data, metrics=metrics, models=models)
+
+
+def observations_digest(obs: Observations, rows: np.ndarray) -> str:
+    """SHA-256 (hex) of what a consistency evaluation scores: the partials, raw points, boxes, track keys,
+    timestamps and classes of observation ``rows``; two files with the same content give the same digest."""
+    h = hashlib.sha256()
+    for a in (obs.partial[rows], obs.box_size[rows], obs.timestamp[rows]):
+        h.update(np.ascontiguousarray(a).tobytes())
+    keys = obs.object_keys()
+    h.update(json.dumps([[str(x) for x in keys[i]] + [str(obs.cls[i])] for i in rows]).encode())
+    if obs.has_raw:
+        for i in rows:
+            h.update(np.ascontiguousarray(obs.raw(i)).tobytes())
+    return h.hexdigest()
+
+
+def checkpoint_digest(checkpoint) -> str | None:
+    """SHA-256 (hex) of a checkpoint's file (a path or a short name such as ``default``); None when it names no file."""
+    try:
+        path = resolve_checkpoint(checkpoint)
+    except SpotlightsError:
+        return None
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _report_head(
+    obs, path, rows, sub_keys, sub_ts, sub_cls, classes_present, settings, seed, noise_requested
+) -> tuple[dict, dict]:
+    """The ``data`` and ``metrics`` parts of a consistency report (everything but the models)."""
+    eq, vox = settings["equal_points"], settings["equal_density"]
+    with_noise = settings["noise_floor"]
     n_tracks = len(set(sub_keys))
     per_track = {}
     for key in sub_keys:
         per_track[key] = per_track.get(key, 0) + 1
-    return dict(
-        data=dict(
+    return (
+        dict(
             file=path,
             source_format=obs.meta.get("source_format"),
             source=obs.meta.get("source"),
@@ -451,24 +526,25 @@ def evaluate_consistency(
             n_objects_5_or_more=sum(1 for v in per_track.values() if v >= 5),
             n_pairs=len(consecutive_pairs(sub_keys, sub_ts)),
             objects_per_class={c: len({k for k, cc in zip(sub_keys, sub_cls) if cc == c}) for c in classes_present},
-            classes=list(classes) if classes else None,
+            classes=settings["classes"],
             extraction=obs.meta.get("config"),
-            clip=clip,
+            clip=settings["clip"],
             skipped=obs.meta.get("skipped"),
-            mmd_reference=reference_info if references is not None else None,
+            mmd_reference=settings["mmd_reference"],
             noise_floor=(
                 f"kept points resampled with seed {seed + 1} (the file's partials: seed {seed})"
                 if with_noise
                 else (
                     "not computed: the file holds no raw points (format version 1); extract it again"
-                    if noise_floor
+                    if noise_requested
                     else None
                 )
             ),
-            equal_points=eq or None,
-            equal_density=vox or None,
+            equal_points=eq,
+            equal_density=vox,
+            settings=settings,
         ),
-        metrics=dict(
+        dict(
             headline="cd",
             frame="consistency (cd*, d_*) and noise_floor: object frame divided by the track's mean box radius (half diagonal); "
             "fidelity and mmd: each observation's own unit frame (its box's half diagonal); '_m' keys in metres",
@@ -483,5 +559,4 @@ def evaluate_consistency(
                 "heading": HEADING_DOC,
             },
         ),
-        models=models,
     )

@@ -188,24 +188,31 @@ def report_markdown(report: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _json_ready(x):
+    """``x`` with non-finite floats as None, numpy scalars as Python numbers, tuples as lists."""
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, dict):
+        return {str(k): _json_ready(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_json_ready(v) for v in x]
+    if isinstance(x, np.generic):
+        return _json_ready(x.item())
+    return x
+
+
+def write_report_json(report: dict, path: str | os.PathLike) -> Path:
+    """Write a consistency report as JSON at ``path`` atomically (NaN as null); returns the path."""
+    with atomic_output(path) as tmp:
+        tmp.write_text(json.dumps(_json_ready(report), indent=2, sort_keys=False) + "\n", encoding="utf-8")
+    return Path(path)
+
+
 def write_report(report: dict, prefix: str | os.PathLike) -> tuple[Path, Path]:
     """Write ``PREFIX.md`` and ``PREFIX.json`` atomically; returns both paths."""
     prefix = Path(prefix)
     md, js = prefix.with_name(prefix.name + ".md"), prefix.with_name(prefix.name + ".json")
-
-    def clean(x):
-        if isinstance(x, float) and not math.isfinite(x):
-            return None
-        if isinstance(x, dict):
-            return {str(k): clean(v) for k, v in x.items()}
-        if isinstance(x, (list, tuple)):
-            return [clean(v) for v in x]
-        if isinstance(x, np.generic):
-            return clean(x.item())
-        return x
-
-    with atomic_output(js) as tmp:
-        tmp.write_text(json.dumps(clean(report), indent=2, sort_keys=False) + "\n", encoding="utf-8")
+    write_report_json(report, js)
     with atomic_output(md) as tmp:
         tmp.write_text(report_markdown(report), encoding="utf-8")
     return md, js
