@@ -275,6 +275,17 @@ def test_cli_evaluate_resume_reuses_only_matching_models(tmp_path, capsys, fake_
     assert code == 0 and set(calls) == {"pcn"} and not (tmp_path / "cut.partial.json").exists()
     assert [m["name"] for m in json.loads(cut.read_text())["models"]] == ["sanet", "pcn"]
 
+    # a finished table and an interrupted run of other settings side by side: each file's entries are
+    # reused only under its own settings (pcn at 512 points is not taken for a run at 64)
+    Completer.interrupt = "pcn"
+    try:
+        assert evaluate("cut", sanet, pcn, extra=["--equal-points", "64"])[0] == 130
+    finally:
+        Completer.interrupt = None
+    code, calls, cut = evaluate("cut", sanet, pcn, extra=["--resume", "--equal-points", "64"])
+    assert code == 0 and set(calls) == {"pcn"}
+    assert [m["equal_points"]["n_points"] for m in json.loads(cut.read_text())["models"]] == [64, 64]
+
 
 def test_cli_evaluate_untracked_file(tmp_path, capsys, fake_learning):
     need(LIDAR / "kitti-object")

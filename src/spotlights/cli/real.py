@@ -449,27 +449,26 @@ def _evaluate(args) -> int:
     names = args.names or [f"{n} ({t})" if n in dup else n for n, t in zip(names, tag)]
 
     js_path, partial = Path(prefix + ".json"), Path(prefix + ".partial.json")
-    previous = {"models": []}
+    previous = []  # the finished table and an interrupted run's models, each with its own settings
     if args.resume:
-        for f in (js_path, partial):  # entries of both: the finished table and an interrupted run's models
+        for f in (js_path, partial):
             if f.is_file():
                 try:
                     earlier = json.loads(f.read_text(encoding="utf-8"))
-                    settings = earlier["data"]["settings"]
-                    entries = list(earlier["models"])
+                    if not isinstance(earlier["data"]["settings"], dict) or not isinstance(earlier["models"], list):
+                        raise TypeError
                 except (OSError, ValueError, KeyError, TypeError):
                     warn([f"{f}: not a report of 'real evaluate' with settings; not reused"])
                     continue
-                previous["data"] = {"settings": settings}
-                previous["models"] += entries
+                previous.append(earlier)
     reused = []
 
-    def save_partial(report_so_far: dict) -> None:
-        fresh = report_so_far["models"][-1]
-        if any(fresh is m for m in previous["models"]):
-            reused.append(fresh["name"])
+    def save_partial(report_so_far: dict, was_reused: bool) -> None:
+        if was_reused:
+            reused.append(report_so_far["models"][-1]["name"])
             if not args.quiet:
-                print(f"reusing {fresh['name']} (same checkpoint and settings) from {prefix}")
+                print(f"reusing {reused[-1]} (same checkpoint and settings) from {prefix}")
+        report_so_far["data"]["file"] = str(args.file)
         write_report_json(report_so_far, partial)
 
     try:
@@ -489,7 +488,7 @@ def _evaluate(args) -> int:
             noise_floor=not args.no_noise_floor,
             heading_check=not args.no_heading_check,
             heading_margin=margin,
-            previous=previous if args.resume else None,
+            previous=previous,
             on_model=save_partial,
         )
     except InputFileError as exc:
@@ -499,7 +498,7 @@ def _evaluate(args) -> int:
     report["data"]["file"] = str(args.file)
     md, js = write_report(report, prefix)
     partial.unlink(missing_ok=True)
-    if args.resume and previous["models"] and not reused:
+    if any(rep["models"] for rep in previous) and not reused:
         warn([f"--resume: no model of {prefix} was reused (other settings, names or checkpoint files)"])
 
     warn(

@@ -53,6 +53,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from .._version import __version__
 from ..data.consistency import (
     DIVERSITY_DOC,
     METRIC_DOC,
@@ -96,6 +97,9 @@ __all__ = [
     "write_report_json",
 ]
 
+SCORE_VERSION = 1
+"""Version of the scoring of a consistency report: raise it when a change of the code changes any number of
+a model's entry; ``real evaluate --resume`` reuses entries only of the same version (and package version)."""
 EQUAL_POINTS = 512
 """Common point count of the equal-count consistency (farthest-point sampling of every completion)."""
 
@@ -230,6 +234,7 @@ def reference_shapes(dataset: str | os.PathLike, split: str | None = None) -> tu
         "split": split or "all",
         "n_shapes": len(shapes),
         "points_per_shape": int(len(shapes[0])),
+        "sha256": hashlib.sha256(np.ascontiguousarray(np.stack(shapes)).tobytes()).hexdigest(),
     }
 
 
@@ -275,7 +280,7 @@ def evaluate_consistency(
     heading_check: bool = True,
     equal_density: float | None = EQUAL_DENSITY,
     heading_margin: float = HEADING_MARGIN,
-    previous: dict | None = None,
+    previous: Sequence[dict] | None = None,
     on_model=None,
 ) -> dict:
     """Consistency of each completer on the tracked objects of an observation file.
@@ -298,13 +303,16 @@ def evaluate_consistency(
     noise_floor : also complete each observation resampled with a second seed (needs the raw
         points of a format-2 file; older files report no floor).
     heading_check : also complete each observation with its box turned around and count flips.
-    previous : an earlier report (the JSON of :func:`write_report`, loaded) to resume from: a model
-        whose entry there has the same name and checkpoint content (``checkpoint_sha256``) and
-        was scored with the same settings (``data["settings"]``: the observations scored, classes,
-        clip, resamplings, heading check, MMD reference) is copied, not computed again. Needs
-        ``checkpoints``; an entry without a digest is recomputed.
-    on_model : called with the report of the models done so far after each model (``real
-        evaluate`` writes it, so an interrupted run resumes where it stopped).
+    previous : earlier reports (JSON of :func:`write_report`, loaded) to resume from: a model whose
+        entry in a report scored with the same settings (``data["settings"]``: the scoring code's
+        version, a digest of the observations scored, classes, clip, resamplings, heading check, the
+        MMD reference's content) has the same name and checkpoint content (``checkpoint_sha256``)
+        is copied (with the current checkpoint path), not computed again. Needs ``checkpoints``; an
+        entry without a digest is recomputed. The device is not part of the settings (CPU and CUDA
+        scores differ by float rounding only).
+    on_model : called as ``on_model(report_so_far, reused)`` after each model (``reused``: copied
+        from ``previous``); ``real evaluate`` writes the report so far, so an interrupted run
+        resumes where it stopped.
 
     Returns
     -------
@@ -365,6 +373,7 @@ def evaluate_consistency(
     eq = int(equal_points) if equal_points else 0
     vox = float(equal_density) if equal_density else 0.0
     settings = dict(
+        code=f"{__version__}/{SCORE_VERSION}",
         observations=observations_digest(obs, rows),
         classes=list(classes) if classes else None,
         clip=clip,
@@ -378,16 +387,18 @@ def evaluate_consistency(
         obs, path, rows, sub_keys, sub_ts, sub_cls, classes_present, settings, seed, bool(noise_floor)
     )
     digests = [None] * len(completers) if checkpoints is None else [checkpoint_digest(c) for c in checkpoints]
+    same = json.loads(json.dumps(settings))  # as it reads back from a report's JSON
     reusable = {}
-    if previous and (previous.get("data") or {}).get("settings") == json.loads(json.dumps(settings)):
-        reusable = {(m.get("name"), m.get("checkpoint_sha256")): m for m in previous.get("models", [])}
+    for rep in previous or ():
+        if (rep.get("data") or {}).get("settings") == same:
+            reusable.update({(m.get("name"), m.get("checkpoint_sha256")): m for m in rep.get("models", [])})
     models = []
     for k, completer in enumerate(completers):
         old = reusable.get((names[k], digests[k])) if digests[k] else None
         if old is not None:
-            models.append(old)
+            models.append(dict(old, checkpoint=str(checkpoints[k])))
             if on_model is not None:
-                on_model(dict(data=data, metrics=metrics, models=list(models)))
+                on_model(dict(data=data, metrics=metrics, models=list(models)), True)
             continue
         run = dict(batch_size=batch_size, progress=progress, clip=clip, box_sizes=sizes)
         comps = complete_all(completer, partials, desc=f"complete {names[k]}", **run)
@@ -474,7 +485,7 @@ def evaluate_consistency(
         ]
         models.append(entry)
         if on_model is not None:
-            on_model(dict(data=data, metrics=metrics, models=list(models)))
+            on_model(dict(data=data, metrics=metrics, models=list(models)), False)
     return dict(data=data, metrics=metrics, models=models)
 
 

@@ -264,10 +264,12 @@ def prepare_partial(
 def complete_in_boxes(completer, partials: np.ndarray, sizes: np.ndarray, clip=DEFAULT) -> list[np.ndarray]:
     """Complete unit-frame partial scans, each with its box, every point inside its box's sphere.
 
-    The one step every completion path shares (``complete_scan``, ``complete_scene``, ``real
-    complete``): a box-targeted SA-Net (``completer.needs_box``) gets each scan's half-extents
-    ``size / |size|``; the result is clamped to the unit sphere (:func:`clamp_to_unit_sphere`:
-    point-set models are unbounded; depth models are inside already).
+    The step that the user-facing completions share (``complete_scan``; ``complete_scene``, so
+    ``complete --boxes`` and ``real complete``): a box-targeted SA-Net (``completer.needs_box``) gets
+    each scan's half-extents ``size / |size|``; the result is clamped to the unit sphere
+    (:func:`clamp_to_unit_sphere`: point-set models are unbounded; depth models are inside
+    already). The evaluations (``evaluate``, ``real evaluate``) score the models' outputs as they
+    are, unclamped.
 
     Parameters
     ----------
