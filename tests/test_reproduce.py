@@ -141,7 +141,10 @@ def test_report_shows_the_tex_values_beside_ours(quick):
             elif k == "2":  # "sanet (av2)": one row per model and real set
                 key = key.split(" (")[0]
             assert table[key][r["column"]] == pytest.approx(r["paper"], abs=0), (k, r)
-            assert r["ours"] is None or math.isfinite(r["ours"])
+            if r["ours"] is None:  # only a class a real set does not hold (AV2 has no trailer) has no value
+                assert k == "2" and r["column"] in ("car", "truck", "trailer"), (k, r)
+            else:
+                assert math.isfinite(r["ours"]), (k, r)
         for vals in table.values():  # and is printed in REPORT.md
             for col in ("average",):
                 digits = 1 if k == "4" else (5 if k in "15" else 4)
