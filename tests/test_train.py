@@ -359,3 +359,22 @@ def test_two_checkpoints_of_one_model_are_told_apart_in_the_report():
         "SA-Net [paper] (clip 0.2)",
         "PCN (clip 0.2)",
     ]
+
+
+def test_overwrite_removes_the_old_runs_state_before_starting(tmp_path):
+    """A fresh start with --overwrite that stops before its first save must not leave the old run's
+    last.pt beside the new config (a later --resume would continue the old run)."""
+    from types import SimpleNamespace
+
+    from spotlights.learning.training_run import RUN_STATE_FILES, resolve_run_config
+
+    for name in RUN_STATE_FILES + ("config.yaml", "notes.txt"):
+        (tmp_path / name).write_bytes(b"old")
+    dist = SimpleNamespace(main=True, active=False)
+    with pytest.raises(SpotlightsError, match="--overwrite"):  # without it the old run is kept and refused
+        resolve_run_config("pcn", tmp_path, None, None, False, False, None, dist, print)
+    assert (tmp_path / "last.pt").exists()
+    cfg, state, _ = resolve_run_config("pcn", tmp_path, None, None, False, True, None, dist, print)
+    assert state is None and cfg["model"]["name"] == "pcn"
+    assert not any((tmp_path / name).exists() for name in RUN_STATE_FILES)
+    assert (tmp_path / "notes.txt").exists()  # only the run's own state goes

@@ -112,7 +112,11 @@ def register(sub) -> None:
     )
     g = p.add_mutually_exclusive_group()
     g.add_argument("--resume", action="store_true", help="continue the run in --out from its last.pt")
-    g.add_argument("--overwrite", action="store_true", help="start again even if --out holds a run")
+    g.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="start again even if --out holds a run (its last.pt, best.pt and log.csv are removed first)",
+    )
     p.add_argument(
         "--stop-after",
         type=positive_int,

@@ -129,7 +129,8 @@ def train(
         applied between the packaged config and ``config``.
     overrides : nested dict applied last (e.g. ``{"train": {"epochs": 5}}``).
     resume : continue from ``out_dir/last.pt`` (its config is kept; ``train.epochs`` may be raised).
-    overwrite : start afresh even if ``out_dir`` holds a run.
+    overwrite : start afresh even if ``out_dir`` holds a run (its ``last.pt``, ``best.pt`` and
+        ``log.csv`` are removed first).
     device : torch device (default CUDA when available, else CPU).
     progress : show tqdm bars (rank 0 only).
     stop_after : run at most this many epochs in this call, then return (resume later with

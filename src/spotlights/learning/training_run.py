@@ -94,6 +94,10 @@ RESUME_KEYS = (("train", "compile"),)
 """Config keys that say how a run executes, not what it learns: a resumed run takes them from the command line."""
 
 
+RUN_STATE_FILES = ("last.pt", "best.pt", "log.csv")
+"""The files of a run's progress (``--overwrite`` removes them before a fresh start)."""
+
+
 def resolve_run_config(model_name, out_dir: Path, config, overrides, resume, overwrite, schedule, dist, log):
     """The run's config and, when resuming, the state of ``last.pt`` (its config is kept; only
     ``train.epochs`` and the execution keys of :data:`RESUME_KEYS` may change). Returns ``(cfg, state, extended)``."""
@@ -103,7 +107,14 @@ def resolve_run_config(model_name, out_dir: Path, config, overrides, resume, ove
             raise SpotlightsError(
                 f"{out_dir}: holds a run already; pass --resume to continue it or --overwrite to start again"
             )
-        return load_config(model_name, config, overrides, schedule=schedule), None, False
+        cfg = load_config(model_name, config, overrides, schedule=schedule)
+        if overwrite and dist.main:
+            # the old run's state goes now, not at the new run's first save: a fresh start stopped before
+            # its first interval must not leave the old last.pt beside the new config.yaml (a --resume
+            # would then continue the old run)
+            for name in RUN_STATE_FILES:
+                (out_dir / name).unlink(missing_ok=True)
+        return cfg, None, False
     if not last_path.exists():
         raise SpotlightsError(f"{last_path}: nothing to resume (no last.pt in the run folder)")
     state = load_checkpoint(last_path, expect_model=model_name)
