@@ -509,11 +509,8 @@ def checkpoint_digest(checkpoint) -> str | None:
         path = resolve_checkpoint(checkpoint)
     except SpotlightsError:
         return None
-    h = hashlib.sha256()
     with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
+        return hashlib.file_digest(fh, "sha256").hexdigest()
 
 
 def _report_head(
