@@ -122,11 +122,12 @@ def draw_bev(
         p = np.asarray(o.partial, dtype=np.float64).reshape(-1, 3)
         ax.scatter(p[:, 0], p[:, 1], s=2.5, color=PURPLE, linewidths=0, label="partial input" if k == 0 else None)
     for o in objects:
-        c = o.corners()[[0, 1, 3, 2, 0], :2]  # bottom face, closed
+        k = o.corners()
+        c = k[[0, 1, 3, 2, 0], :2]  # bottom face, closed
         ax.plot(c[:, 0], c[:, 1], color="black", lw=0.7)
         ax.annotate(
             o.label,
-            (o.center[0], o.corners()[:, 1].max() + 0.4),  # just above the box's northmost corner
+            (o.center[0], k[:, 1].max() + 0.4),  # just above the box's northmost corner
             fontsize=7,
             ha="center",
             va="bottom",
