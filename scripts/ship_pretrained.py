@@ -13,6 +13,10 @@ Writes ``src/spotlights/learning/pretrained/NAME.pt``: the inference-only checkp
   ``--data`` when given, else seeded random clouds), reported and refused above ``--tolerance``;
 * the number of kept points per completion, float16 against float32.
 
+A checkpoint trained before training recorded its domain (the classes and box sizes it
+learned, ``checkpoint["domain"]``, read by ``LearnedDomain``) gets it here from the train split
+of the dataset it was trained on (``--domain-data``, default the path the checkpoint records).
+
 It prints the line of ``PRETRAINED`` (``spotlights/learning/checkpoint.py``) that makes the
 short name resolve to the new file and the facts for ``pretrained/README.md`` (model, rig,
 parameters, steps, best epoch, threshold, sha256, size). Nothing is written when a check fails.
@@ -59,8 +63,8 @@ def _raw(completer, x, e):
 
 
 def main() -> int:
-    from spotlights.learning.checkpoint import PRETRAINED, export_weights, load_checkpoint
-    from spotlights.learning.inference import load_completer
+    from spotlights.learning.checkpoint import PRETRAINED, export_weights, load_checkpoint, save_checkpoint
+    from spotlights.learning.inference import LearnedDomain, load_completer
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("checkpoint", help="trained checkpoint (RUN/best.pt)")
@@ -71,6 +75,12 @@ def main() -> int:
     ap.add_argument("--scans", type=int, default=64, help="scans for the check (default 64)")
     ap.add_argument("--max-mb", type=float, default=10.0, help="refuse a file larger than this (default 10 MB)")
     ap.add_argument("--tolerance", type=float, default=2e-2, help="largest raw output difference float16 vs float32")
+    ap.add_argument(
+        "--domain-data",
+        default=None,
+        help="dataset the checkpoint was trained on, for a checkpoint without a domain record "
+        "(default: the path recorded in the checkpoint)",
+    )
     ap.add_argument("--out-dir", default=str(PRETRAINED_DIR), help="where to write NAME.pt (default: the package)")
     args = ap.parse_args()
 
@@ -78,6 +88,19 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         half = Path(tmp) / f"{args.name}.pt"
         export_weights(args.checkpoint, half, half=True)
+        if not isinstance(src.get("domain"), dict):
+            ddata = args.domain_data or (src.get("dataset") or {}).get("path")
+            if not ddata or not Path(ddata).exists():
+                print(
+                    f"refused: {args.checkpoint} records no domain and its training data {ddata!r} is not here "
+                    "(pass --domain-data)",
+                    file=sys.stderr,
+                )
+                return 2
+            shipped = load_checkpoint(half)
+            shipped["domain"] = LearnedDomain.from_dataset(ddata).to_dict()
+            save_checkpoint(half, {k: v for k, v in shipped.items() if k != "path"})
+            print(f"domain from {ddata}: {shipped['domain']}")
         size_mb = half.stat().st_size / 1e6
         ref, new = load_completer(args.checkpoint, device="cpu"), load_completer(half, device="cpu")
         x, e = _scans(args.data, args.scans)

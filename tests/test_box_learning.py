@@ -234,6 +234,40 @@ def test_box_sanet_trains_and_records_its_spec(box_run):
     assert ck["rig"] == SPEC.to_dict() and ck["dataset"]["rig"] == BOX
 
 
+def test_checkpoint_records_the_train_splits_domain_and_the_completer_warns_outside_it(box_run, tmp_path):
+    from spotlights.learning.checkpoint import export_weights, load_checkpoint
+    from spotlights.learning.inference import LearnedDomain, load_completer
+
+    _, best, _ = box_run
+    d = load_checkpoint(best)["domain"]
+    # the train split is the solid box alone: its class is its category, its sizes the mesh's extents
+    assert d["classes"] == ["boxes"]
+    np.testing.assert_allclose(d["size_min"], BOX_SIZE, rtol=1e-6)
+    np.testing.assert_allclose(d["size_max"], BOX_SIZE, rtol=1e-6)
+    assert "train split (1 models)" in d["source"]
+    half = export_weights(best, tmp_path / "half.pt", half=True)  # shipping keeps it
+    for comp in (load_completer(best, device="cpu"), load_completer(half, device="cpu")):
+        assert comp.domain == LearnedDomain.from_checkpoint({"domain": d})
+        assert comp.domain.warnings("boxes", BOX_SIZE) == []
+        assert comp.domain.warnings("boxes", (4.4 * 1.09, 1.8, 1.5)) == []  # inside the 10% tolerance
+        (w,) = comp.domain.warnings("boxes", (4.4 * 1.12, 1.8, 1.5))
+        assert "length 4.93 m" in w and "width" not in w
+        assert any("class car" in m for m in comp.domain.warnings("car", BOX_SIZE))
+
+
+def test_learned_domain_maps_body_types_to_detector_classes():
+    from spotlights.learning.inference import CARS_DOMAIN, LearnedDomain
+
+    sizes = np.array([[4.0, 1.8, 1.5], [3.5, 1.7, 1.6], [6.0, 2.2, 2.5], [5.2, 2.0, 2.1]])
+    dom = LearnedDomain.from_training_set(["sedan", "Hatchback", "van", "tractor"], sizes, source="hand")
+    assert dom.classes == ("car", "caravan", "tractor")  # first-seen order; unknown categories kept
+    assert dom.size_min == (3.5, 1.7, 1.5) and dom.size_max == (6.0, 2.2, 2.5)
+    assert LearnedDomain.from_checkpoint({"domain": dom.to_dict()}) == dom
+    assert LearnedDomain.from_checkpoint({}) == CARS_DOMAIN  # checkpoints from before the record
+    with pytest.raises(ParameterError, match="one size per category"):
+        LearnedDomain.from_training_set(["sedan"], sizes, source="hand")
+
+
 def test_validation_decodes_each_sample_with_its_box(box_run):
     from spotlights.learning.checkpoint import load_checkpoint, model_from_checkpoint
     from spotlights.learning.data import TorchCompletionDataset

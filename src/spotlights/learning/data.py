@@ -136,7 +136,9 @@ class TorchCompletionDataset(Dataset):
     box-targeted spec's rig is aimed at each model's own box), ``extents`` ((n_models, 3) float64
     box half-extents ``size / 2R`` of every model row, or None for files without
     /models/size): ``spotlights.learning.rays.DirectionTable(rig, ds.extents)`` gives
-    each sample's rays from its ``model`` row.
+    each sample's rays from its ``model`` row; ``sizes`` ((n_models, 3) float64 box length, width,
+    height in metres, or None likewise) and ``info.categories`` ((n_models,) str) of every model
+    row, the split's rows being ``model_rows``.
     """
 
     def __init__(
@@ -175,6 +177,7 @@ class TorchCompletionDataset(Dataset):
                 np.ascontiguousarray(store.partials(self.indices), dtype=np.float32) if partials_in_memory else None
             )
             self.extents = store.extents if store.size is not None else None
+            self.sizes = None if store.size is None else np.asarray(store.size, dtype=np.float64)
         finally:
             store.close()  # DataLoader workers open their own handles
         if self.rig is not None and self.rig.needs_box and self.extents is None:

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ParameterError
+from ..errors import InputFileError, ParameterError
 from ..geometry.boxes import Box, box_from_dict, load_box  # noqa: F401  (the box of complete_scan; re-exported)
 from ..geometry.frames import clamp_to_unit_sphere
 from ..geometry.sampling import resample_set
@@ -50,6 +50,26 @@ def pretrained_checkpoint(name: str = "default") -> Path:
     return resolve_checkpoint(name)
 
 
+#: Body types of the synthetic datasets' categories -> the detector class a real box of that
+#: vehicle gets (the classes of :data:`spotlights.data.real.base.CLASSES`): a pickup or a race car is
+#: a ``car`` for KITTI, nuScenes and Argoverse 2 alike; a van is KITTI's ``Van`` (``caravan``).
+BODY_TYPE_CLASS: dict[str, str] = {
+    "hatchback": "car",
+    "sedan": "car",
+    "suv": "car",
+    "coupe": "car",
+    "wagon": "car",
+    "race": "car",
+    "pickup": "car",
+    "car": "car",
+    "van": "caravan",
+    "caravan": "caravan",
+    "truck": "truck",
+    "trailer": "trailer",
+    "bus": "bus",
+}
+
+
 @dataclass(frozen=True)
 class LearnedDomain:
     """What a model was trained on: the object classes and the box sizes (metres) it has seen.
@@ -58,7 +78,8 @@ class LearnedDomain:
     class is not in ``classes`` or whose size leaves the range widened by ``tolerance`` (a
     fraction: 0.1 = 10%) gets a warning: the completion is an extrapolation (a car stretched
     over a truck's box). Checkpoints may record it as ``checkpoint["domain"] = {"classes": [...],
-    "size_min": [l, w, h], "size_max": [l, w, h]}``; older ones get :data:`CARS_DOMAIN`.
+    "size_min": [l, w, h], "size_max": [l, w, h]}`` (training writes it from the train split,
+    :meth:`from_training_set`); older ones get :data:`CARS_DOMAIN`.
     """
 
     classes: tuple = ("car",)
@@ -66,6 +87,65 @@ class LearnedDomain:
     size_max: tuple = (5.593, 2.412, 1.894)
     tolerance: float = 0.10
     source: str = "the 79 ApolloScape cars (length, width, height ranges)"
+
+    @classmethod
+    def from_training_set(cls, categories, sizes, source: str, tolerance: float = 0.10) -> LearnedDomain:
+        """The domain of a training split: its body types mapped to detector classes and its box ranges.
+
+        Parameters
+        ----------
+        categories : (n,) str, each training model's category (body type, e.g. ``sedan``); mapped
+            through :data:`BODY_TYPE_CLASS` (a category not in it is kept as its own class name).
+        sizes : (n, 3) float, each training model's box (length, width, height) in metres (the
+            dataset's ``/models/size``: after any augmentation, so scaled copies widen the range).
+        source : what the domain was read from (e.g. the dataset path and split), kept in the record.
+        """
+        sizes = np.asarray(sizes, dtype=np.float64).reshape(-1, 3)
+        if len(sizes) == 0 or len(sizes) != len(categories):
+            raise ParameterError(
+                f"{source}: need one size per category and at least one model, got "
+                f"{len(categories)} categories and {len(sizes)} sizes"
+            )
+        classes = []
+        for c in categories:
+            name = BODY_TYPE_CLASS.get(str(c).lower(), str(c).lower())
+            if name not in classes:
+                classes.append(name)
+        return cls(
+            tuple(classes),
+            tuple(float(v) for v in sizes.min(axis=0)),
+            tuple(float(v) for v in sizes.max(axis=0)),
+            float(tolerance),
+            str(source),
+        )
+
+    @classmethod
+    def from_dataset(cls, path, split: str = "train") -> LearnedDomain:
+        """:meth:`from_training_set` of one split of a completion dataset file (``.h5`` or shard index)."""
+        from ..data.store import open_dataset
+
+        store = open_dataset(path)
+        try:
+            if store.size is None:
+                raise InputFileError(path, "the file has no /models/size (each model's box): no domain to read")
+            rows = np.flatnonzero(store.splits == split)
+            return cls.from_training_set(
+                store.categories[rows],
+                store.size[rows],
+                source=f"{Path(path).name}, {split} split ({len(rows)} models)",
+            )
+        finally:
+            store.close()
+
+    def to_dict(self) -> dict:
+        """The checkpoint record (``checkpoint["domain"]``) that :meth:`from_checkpoint` reads back."""
+        return {
+            "classes": list(self.classes),
+            "size_min": [float(v) for v in self.size_min],
+            "size_max": [float(v) for v in self.size_max],
+            "tolerance": float(self.tolerance),
+            "source": self.source,
+        }
 
     @classmethod
     def from_checkpoint(cls, ckpt: dict) -> LearnedDomain:

@@ -38,6 +38,7 @@ from ..utils import atomic_output
 from .checkpoint import save_checkpoint
 from .config import SELECT_BY
 from .device import autocast, default_device
+from .inference import LearnedDomain
 from .process_group import ProcessGroup
 from .training_run import TrainingRun, prepare_run
 from .validation import collate, float_outputs, to_device, validate
@@ -262,6 +263,7 @@ def _save(run: TrainingRun, epoch: int, val: dict, improved: bool) -> None:
             "n_train": run.n_train,
             "n_val": len(run.val_set),
         },
+        **({"domain": domain.to_dict()} if (domain := _learned_domain(run)) is not None else {}),
     }
     # best.pt first: a kill between the two writes must not leave a last.pt that names
     # this epoch as best while best.pt still holds an older one.
@@ -354,6 +356,17 @@ def _train(
         "history": run.history,
         "param_counts": run.param_counts,
     }
+
+
+def _learned_domain(run: TrainingRun) -> LearnedDomain | None:
+    """The classes and box sizes of the train split (None for a file without /models/size)."""
+    ts = run.train_set
+    if ts.sizes is None:
+        return None
+    rows = ts.model_rows
+    return LearnedDomain.from_training_set(
+        ts.info.categories[rows], ts.sizes[rows], source=f"{Path(str(run.data)).name}, train split ({len(rows)} models)"
+    )
 
 
 def _threshold_record(val: dict) -> dict:
