@@ -19,6 +19,17 @@ Build the held-out set first (test split only, the rigs of the checkpoints)::
     python benchmarks/generalisation.py --in-dist cars.h5 --held-out kenney-test.h5 \\
         --checkpoint default paper --max-views 50 --json docs/results/fair/generalisation.json
 
+A body type held out instead of a source (``--held-out-category``): build the set with that
+category all in test, train on it, and score its test split cut in two (the held-out
+category against the other test cars)::
+
+    spotlights dataset build --meshes ../shared/data/meshes/apolloscape-cars --category-split suv=test \
+        --split 0.8/0.1/0.1 --views 2000 --rig box-128x128-ellipsoid-s1 --out nosuv.h5
+    spotlights train --model sanet-hit --config src/spotlights/learning/configs/variants/sanet-hit-dense.yaml \
+        --data nosuv.h5 --schedule fair --compile --out runs/sanet-hit-dense-nosuv
+    python benchmarks/generalisation.py --in-dist nosuv.h5 --held-out-category suv \
+        --checkpoint runs/sanet-hit-dense-nosuv/best.pt --max-views 50 --json nosuv.json
+
 Numbers: unit frame (the box's half diagonal), means over scans; per category in the JSON.
 """
 
@@ -96,23 +107,59 @@ def _rows(report: dict) -> dict:
                     for k in ("accuracy", "completeness", "chamfer_l1", "fscore", "n_points")
                 },
                 "accuracy_per_category": {c: v.get("accuracy") for c, v in s["per_category"].items()},
+                "completeness_per_category": {c: v.get("completeness") for c, v in s["per_category"].items()},
                 "scans_per_category": {c: n for c, n in s["count"].items() if c != "all"},
             }
     return out
 
 
-def subset_accuracy(row: dict, categories) -> float | None:
-    """Mean accuracy over the scans of ``categories`` (scan-weighted mean of the per-category means of a
-    :func:`_rows` row); None when none of them was scored."""
+def subset_accuracy(row: dict, categories, metric: str = "accuracy") -> float | None:
+    """Mean ``metric`` (accuracy or completeness) over the scans of ``categories`` (scan-weighted mean of the
+    per-category means of a :func:`_rows` row); None when none of them was scored."""
     cats = [c for c in categories if row["scans_per_category"].get(c)]
     n = sum(row["scans_per_category"][c] for c in cats)
-    return sum(row["accuracy_per_category"][c] * row["scans_per_category"][c] for c in cats) / n if n else None
+    per = row[f"{metric}_per_category"]
+    return sum(per[c] * row["scans_per_category"][c] for c in cats) / n if n else None
+
+
+def split_by_category(row: dict, held: list[str]) -> tuple[dict, dict]:
+    """A :func:`_rows` row of one test split cut into (in-distribution, held-out) rows: the scans of the
+    categories in ``held`` against all the others (scan-weighted means)."""
+    rest = [c for c in row["scans_per_category"] if c not in held]
+    out = []
+    for cats in (rest, held):
+        r = {m: subset_accuracy(row, cats, m) for m in ("accuracy", "completeness")}
+        r["scans"] = sum(row["scans_per_category"].get(c, 0) for c in cats)
+        r["categories"] = cats
+        out.append(r)
+    return out[0], out[1]
+
+
+def check_held_out_category(path, held: list[str]) -> None:
+    """Refuse a file whose train split has a model of a held-out category (the hold-out would be a lie)."""
+    with open_dataset(path) as ds:
+        cats = {str(ds.categories[m]) for m in ds.split_models("train")}
+        test = {str(ds.categories[m]) for m in ds.split_models("test")}
+    seen = sorted(cats & set(held))
+    if seen:
+        raise SystemExit(
+            f"{path}: its train split has {', '.join(seen)} models; build it with --category-split CAT=test"
+        )
+    if not set(held) <= test:
+        raise SystemExit(f"{path}: its test split has no {', '.join(sorted(set(held) - test))} models")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--in-dist", required=True, help="in-distribution dataset (its test split), e.g. cars.h5")
-    ap.add_argument("--held-out", required=True, help="held-out dataset (its test split), e.g. kenney-test.h5")
+    ap.add_argument("--held-out", default=None, help="held-out dataset (its test split), e.g. kenney-test.h5")
+    ap.add_argument(
+        "--held-out-category",
+        default=None,
+        help="hold out body types instead of a source (comma-separated): the --in-dist file's test models of "
+        "these categories are the held-out set, its other test models the in-distribution set; its train split "
+        "must have none of them (build it with --category-split suv=test)",
+    )
     ap.add_argument("--checkpoint", nargs="+", default=["default", "paper"], help="checkpoints or short names")
     ap.add_argument("--max-views", type=int, default=50, help="views per test model on both sets (default 50)")
     ap.add_argument("--threads", type=int, default=2)
@@ -125,6 +172,10 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     t0 = time.time()
+    if (args.held_out is None) == (args.held_out_category is None):
+        ap.error("give exactly one of --held-out (a source) and --held-out-category (body types)")
+    if args.held_out_category:
+        return by_category(args, [c.strip() for c in args.held_out_category.split(",") if c.strip()], t0)
     scores = {}
     for key, path in (("in_distribution", args.in_dist), ("held_out", args.held_out)):
         rep = evaluate_checkpoints(args.checkpoint, path, split="test", max_views=args.max_views, progress=False)
@@ -181,10 +232,63 @@ def main() -> None:
         "machine": {"cores": os.cpu_count(), "threads": args.threads, "torch": torch.__version__},
         "wall_seconds": time.time() - t0,
     }
-    if args.json:
-        with atomic_output(Path(args.json), suffix=".json") as tmp:
+    _write(args.json, out)
+
+
+def _write(path, out: dict) -> None:
+    if path:
+        with atomic_output(Path(path), suffix=".json") as tmp:
             Path(tmp).write_text(json.dumps(out, indent=1) + "\n")
-        print(f"wrote {args.json}")
+        print(f"wrote {path}")
+
+
+def by_category(args, held: list[str], t0: float) -> None:
+    """The body-type hold-out: one evaluation of the test split, cut into held-out and other categories."""
+    check_held_out_category(args.in_dist, held)
+    rep = evaluate_checkpoints(args.checkpoint, args.in_dist, split="test", max_views=args.max_views, progress=False)
+    rows, ratios = {}, {}
+    print(f"held-out body types {', '.join(held)} / the other test models (first {args.max_views} views per model):")
+    for label, row in _rows(rep).items():
+        i, h = split_by_category(row, held)
+        rows[label] = {"in_distribution": i, "held_out": h}
+        ratios[label] = {k: h[k] / i[k] for k in ("accuracy", "completeness") if i[k] and h[k] is not None}
+        print(
+            f"  {label:40s} accuracy {i['accuracy']:.4f} -> {h['accuracy']:.4f} ({ratios[label]['accuracy']:.2f}x), "
+            f"completeness {i['completeness']:.4f} -> {h['completeness']:.4f} ({ratios[label]['completeness']:.2f}x)"
+        )
+    rigs = sorted(
+        {(load_checkpoint(resolve_checkpoint(c)).get("dataset") or {}).get("rig") or "" for c in args.checkpoint}
+    )
+    ceiling = {}
+    for rig in [r for r in rigs if r]:
+        per = decode_ceiling(args.in_dist, rig)["per_category"]
+        cut = {}
+        for key, cats in (("in_distribution", [c for c in per if c not in held]), ("held_out", held)):
+            n = sum(per[c]["models"] for c in cats)
+            cut[key] = {m: sum(per[c][m] * per[c]["models"] for c in cats) / n for m in ("accuracy", "completeness")}
+            cut[key]["models"] = n
+        ceiling[rig] = cut
+        i, h = cut["in_distribution"], cut["held_out"]
+        print(
+            f"  decoded ground truth, {rig}: accuracy {i['accuracy']:.4f} -> {h['accuracy']:.4f} "
+            f"({h['accuracy'] / i['accuracy']:.2f}x)"
+        )
+    _write(
+        args.json,
+        {
+            "date": time.strftime("%Y-%m-%d %H:%M"),
+            "data": str(args.in_dist),
+            "held_out_categories": held,
+            "max_views": args.max_views,
+            "checkpoints": args.checkpoint,
+            "n_samples": rep["n_samples"],
+            "rows": rows,
+            "ratio_held_out_over_in_distribution": ratios,
+            "decoded_ground_truth": ceiling,
+            "machine": {"cores": os.cpu_count(), "threads": args.threads, "torch": torch.__version__},
+            "wall_seconds": time.time() - t0,
+        },
+    )
 
 
 if __name__ == "__main__":
