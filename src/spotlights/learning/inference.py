@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..data.store import open_dataset
 from ..errors import InputFileError, ParameterError
 from ..geometry.boxes import Box, box_from_dict, load_box  # noqa: F401  (the box of complete_scan; re-exported)
 from ..geometry.frames import clamp_to_unit_sphere
@@ -122,8 +123,6 @@ class LearnedDomain:
     @classmethod
     def from_dataset(cls, path, split: str = "train") -> LearnedDomain:
         """:meth:`from_training_set` of one split of a completion dataset file (``.h5`` or shard index)."""
-        from ..data.store import open_dataset
-
         store = open_dataset(path)
         try:
             if store.size is None:
