@@ -38,6 +38,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -113,13 +114,18 @@ def _rows(report: dict) -> dict:
     return out
 
 
+def weighted_mean(values: dict, counts: dict, categories) -> float | None:
+    """Mean of the per-category means ``values`` over ``categories``, each weighted by its count in ``counts``
+    (scans or models); None when none of them has any."""
+    cats = [c for c in categories if counts.get(c)]
+    n = sum(counts[c] for c in cats)
+    return sum(values[c] * counts[c] for c in cats) / n if n else None
+
+
 def subset_accuracy(row: dict, categories, metric: str = "accuracy") -> float | None:
     """Mean ``metric`` (accuracy or completeness) over the scans of ``categories`` (scan-weighted mean of the
     per-category means of a :func:`_rows` row); None when none of them was scored."""
-    cats = [c for c in categories if row["scans_per_category"].get(c)]
-    n = sum(row["scans_per_category"][c] for c in cats)
-    per = row[f"{metric}_per_category"]
-    return sum(per[c] * row["scans_per_category"][c] for c in cats) / n if n else None
+    return weighted_mean(row[f"{metric}_per_category"], row["scans_per_category"], categories)
 
 
 def split_by_category(row: dict, held: list[str]) -> tuple[dict, dict]:
@@ -135,18 +141,24 @@ def split_by_category(row: dict, held: list[str]) -> tuple[dict, dict]:
     return out[0], out[1]
 
 
-def check_held_out_category(path, held: list[str]) -> None:
-    """Refuse a file whose train split has a model of a held-out category (the hold-out would be a lie)."""
+def held_out_category_problem(path, held: list[str]) -> str | None:
+    """Why ``path`` cannot serve a hold-out of the categories ``held`` (its train split has some of them, which
+    would make the hold-out a lie, or its test split lacks some), or None when it can."""
     with open_dataset(path) as ds:
         cats = {str(ds.categories[m]) for m in ds.split_models("train")}
         test = {str(ds.categories[m]) for m in ds.split_models("test")}
     seen = sorted(cats & set(held))
     if seen:
-        raise SystemExit(
-            f"{path}: its train split has {', '.join(seen)} models; build it with --category-split CAT=test"
-        )
+        return f"{path}: its train split has {', '.join(seen)} models; build it with --category-split CAT=test"
     if not set(held) <= test:
-        raise SystemExit(f"{path}: its test split has no {', '.join(sorted(set(held) - test))} models")
+        return f"{path}: its test split has no {', '.join(sorted(set(held) - test))} models"
+    return None
+
+
+def checkpoint_rigs(checkpoints) -> list[str]:
+    """The dataset rigs the checkpoints were trained on (sorted, each once; none for the point-set models)."""
+    rigs = {(load_checkpoint(resolve_checkpoint(c)).get("dataset") or {}).get("rig") for c in checkpoints}
+    return sorted(r for r in rigs if r)
 
 
 def main() -> None:
@@ -185,11 +197,8 @@ def main() -> None:
             "n_models": rep["n_models"],
             "rows": _rows(rep),
         }
-    rigs = sorted(
-        {(load_checkpoint(resolve_checkpoint(c)).get("dataset") or {}).get("rig") or "" for c in args.checkpoint}
-    )
     ceiling = {}
-    for rig in [r for r in rigs if r]:
+    for rig in checkpoint_rigs(args.checkpoint):
         ceiling[rig] = {
             key: decode_ceiling(path, rig)
             for key, path in (("in_distribution", args.in_dist), ("held_out", args.held_out))
@@ -244,7 +253,10 @@ def _write(path, out: dict) -> None:
 
 def by_category(args, held: list[str], t0: float) -> None:
     """The body-type hold-out: one evaluation of the test split, cut into held-out and other categories."""
-    check_held_out_category(args.in_dist, held)
+    problem = held_out_category_problem(args.in_dist, held)
+    if problem:
+        print(problem, file=sys.stderr)
+        raise SystemExit(2)
     rep = evaluate_checkpoints(args.checkpoint, args.in_dist, split="test", max_views=args.max_views, progress=False)
     rows, ratios = {}, {}
     print(f"held-out body types {', '.join(held)} / the other test models (first {args.max_views} views per model):")
@@ -256,17 +268,16 @@ def by_category(args, held: list[str], t0: float) -> None:
             f"  {label:40s} accuracy {i['accuracy']:.4f} -> {h['accuracy']:.4f} ({ratios[label]['accuracy']:.2f}x), "
             f"completeness {i['completeness']:.4f} -> {h['completeness']:.4f} ({ratios[label]['completeness']:.2f}x)"
         )
-    rigs = sorted(
-        {(load_checkpoint(resolve_checkpoint(c)).get("dataset") or {}).get("rig") or "" for c in args.checkpoint}
-    )
     ceiling = {}
-    for rig in [r for r in rigs if r]:
+    for rig in checkpoint_rigs(args.checkpoint):
         per = decode_ceiling(args.in_dist, rig)["per_category"]
+        models = {c: v["models"] for c, v in per.items()}
         cut = {}
         for key, cats in (("in_distribution", [c for c in per if c not in held]), ("held_out", held)):
-            n = sum(per[c]["models"] for c in cats)
-            cut[key] = {m: sum(per[c][m] * per[c]["models"] for c in cats) / n for m in ("accuracy", "completeness")}
-            cut[key]["models"] = n
+            cut[key] = {
+                m: weighted_mean({c: v[m] for c, v in per.items()}, models, cats) for m in ("accuracy", "completeness")
+            }
+            cut[key]["models"] = sum(models.get(c, 0) for c in cats)
         ceiling[rig] = cut
         i, h = cut["in_distribution"], cut["held_out"]
         print(

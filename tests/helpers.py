@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import subprocess
 import sys
@@ -17,6 +18,15 @@ CARS = DATA / "meshes" / "apolloscape-cars"
 KENNEY = DATA / "meshes" / "kenney-vehicles"
 CATEGORIES = DATA / "meshes" / "categories"
 LIDAR = DATA / "lidar"
+
+
+def load_script(relpath: str):
+    """Import a script of the repository that is not part of the package (``scripts/``, ``benchmarks/``) as a module."""
+    path = REPO / relpath
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def need(path: Path) -> Path:

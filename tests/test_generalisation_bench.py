@@ -3,21 +3,15 @@ categories, against hand-computed scan-weighted means."""
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import pytest
+
+from helpers import load_script
 
 pytest.importorskip("torch")
 
-ROOT = Path(__file__).resolve().parents[1]
-
 
 def _bench():
-    spec = importlib.util.spec_from_file_location("generalisation", ROOT / "benchmarks" / "generalisation.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("benchmarks/generalisation.py")
 
 
 def test_split_by_category_weights_each_category_by_its_scans():
@@ -33,3 +27,14 @@ def test_split_by_category_weights_each_category_by_its_scans():
     assert held["accuracy"] == pytest.approx(0.030) and held["scans"] == 150
     inside, held = _bench().split_by_category(row, ["pickup"])  # a category with no scans
     assert held["accuracy"] is None and held["scans"] == 0
+
+
+def test_a_hold_out_is_refused_when_its_category_was_trained_on_or_is_not_in_test(tmp_path):
+    from learning_fixtures import write_tiny_dataset
+
+    layout = (("sedan", "train"), ("hatchback", "train"), ("sedan", "val"), ("sedan", "test"), ("suv", "test"))
+    path = write_tiny_dataset(tmp_path / "d.h5", views=2, layout=layout, n_gt=64, n_dense=64)
+    bench = _bench()
+    assert bench.held_out_category_problem(path, ["suv"]) is None  # suv only in test: a true hold-out
+    assert "train split has sedan models" in bench.held_out_category_problem(path, ["sedan", "suv"])
+    assert "test split has no van models" in bench.held_out_category_problem(path, ["van"])

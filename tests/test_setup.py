@@ -7,7 +7,6 @@ Here: the decision, by `make -n` (a dry run, nothing installed), and the extras 
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import re
 import shutil
@@ -19,16 +18,13 @@ from pathlib import Path
 
 import pytest
 
-from helpers import REPO
+from helpers import REPO, load_script
 
 pytestmark = pytest.mark.timeout(60)
 
 
 def _load_detector():
-    spec = importlib.util.spec_from_file_location("externally_managed", REPO / "scripts" / "externally_managed.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("scripts/externally_managed.py")
 
 
 def test_externally_managed_follows_pep_668(tmp_path, monkeypatch):

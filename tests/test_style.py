@@ -10,14 +10,13 @@ from pathlib import Path
 
 import pytest
 
+from helpers import load_script
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _imports_script():
-    spec = importlib.util.spec_from_file_location("imports_at_top", ROOT / "scripts" / "imports_at_top.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("scripts/imports_at_top.py")
 
 
 def test_light_project_modules_are_imported_at_the_top():
