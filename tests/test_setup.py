@@ -48,12 +48,18 @@ def _fake_python(tmp_path: Path, answer: str) -> Path:
     return p
 
 
-def _dry_run(env_extra: dict, *args: str) -> list[str]:
-    """The commands `make -n install` would run (nothing is executed)."""
+def _dry_run(tmp_path: Path, env_extra: dict, *args: str) -> list[str]:
+    """The commands `make -n install` would run (nothing is executed), in a bare copy of the
+    Makefile and scripts/ under ``tmp_path``: the checkout's state (an existing ``.venv``) cannot
+    change the answer."""
+    work = tmp_path / "checkout"
+    work.mkdir()
+    shutil.copy2(REPO / "Makefile", work / "Makefile")
+    shutil.copytree(REPO / "scripts", work / "scripts")
     env = {k: v for k, v in os.environ.items() if k not in ("VIRTUAL_ENV", "CONDA_PREFIX", "PYTHON", "MAKEFLAGS")}
     env.update(env_extra)
     proc = subprocess.run(
-        ["make", "-n", "-s", "install", *args], cwd=REPO, env=env, capture_output=True, text=True, timeout=30
+        ["make", "-n", "-s", "install", *args], cwd=work, env=env, capture_output=True, text=True, timeout=30
     )
     assert proc.returncode == 0, proc.stderr
     return [line.strip() for line in proc.stdout.splitlines() if line.strip()]
@@ -69,7 +75,7 @@ def _pip_lines(cmds: list[str]) -> list[str]:
 @needs_make
 def test_make_uses_a_project_venv_on_an_externally_managed_python(tmp_path):
     managed = _fake_python(tmp_path, "yes")
-    cmds = _dry_run({"SYSTEM_PYTHON": str(managed)})
+    cmds = _dry_run(tmp_path, {"SYSTEM_PYTHON": str(managed)})
     assert any(f"{managed} -m venv .venv" in c for c in cmds), cmds
     pips = _pip_lines(cmds)
     assert [p.split()[0] for p in pips] == [".venv/bin/python", ".venv/bin/python"], pips
@@ -80,27 +86,27 @@ def test_make_uses_a_project_venv_on_an_externally_managed_python(tmp_path):
 @pytest.mark.parametrize("env", [{"VIRTUAL_ENV": "/some/venv"}, {"CONDA_PREFIX": "/some/conda"}])
 def test_make_installs_into_an_active_environment(tmp_path, env):
     managed = _fake_python(tmp_path, "yes")  # even where the base interpreter is externally managed
-    cmds = _dry_run({"SYSTEM_PYTHON": str(managed), **env})
+    cmds = _dry_run(tmp_path, {"SYSTEM_PYTHON": str(managed), **env})
     assert not any("-m venv" in c for c in cmds), cmds
     assert [p.split()[0] for p in _pip_lines(cmds)] == ["python3", "python3"]
 
 
 @needs_make
 def test_make_installs_into_a_python_that_allows_it(tmp_path):
-    cmds = _dry_run({"SYSTEM_PYTHON": str(_fake_python(tmp_path, "no"))})
+    cmds = _dry_run(tmp_path, {"SYSTEM_PYTHON": str(_fake_python(tmp_path, "no"))})
     assert not any("-m venv" in c for c in cmds), cmds
     assert [p.split()[0] for p in _pip_lines(cmds)] == ["python3", "python3"]
 
 
 @needs_make
 def test_an_explicit_python_wins(tmp_path):
-    cmds = _dry_run({"SYSTEM_PYTHON": str(_fake_python(tmp_path, "yes"))}, "PYTHON=/opt/py/bin/python")
+    cmds = _dry_run(tmp_path, {"SYSTEM_PYTHON": str(_fake_python(tmp_path, "yes"))}, "PYTHON=/opt/py/bin/python")
     assert not any("-m venv" in c for c in cmds), cmds
     assert [p.split()[0] for p in _pip_lines(cmds)] == ["/opt/py/bin/python", "/opt/py/bin/python"]
 
 
 @needs_make
-def test_debian_system_python_gets_the_venv():
+def test_debian_system_python_gets_the_venv(tmp_path):
     """Where Debian's own Python is here (marked externally managed), the real decision."""
     marker = Path("/usr/lib") / f"python3.{sys.version_info.minor}" / "EXTERNALLY-MANAGED"
     system = Path("/usr/bin/python3")
@@ -109,7 +115,7 @@ def test_debian_system_python_gets_the_venv():
     answer = subprocess.run(
         [str(system), str(REPO / "scripts" / "externally_managed.py")], capture_output=True, text=True, timeout=30
     ).stdout.strip()
-    cmds = _dry_run({"SYSTEM_PYTHON": str(system)})
+    cmds = _dry_run(tmp_path, {"SYSTEM_PYTHON": str(system)})
     assert answer == "yes" and any("-m venv .venv" in c for c in cmds), (answer, cmds)
 
 
