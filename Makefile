@@ -1,11 +1,9 @@
 # The two set-up commands of the README: `make demo` and `make test`.
-# Both install everything they need first, into the Python chosen here (3.11+):
-#   1. PYTHON=... on the command line: that interpreter (e.g. make test PYTHON=.venv/bin/python);
+# Both install everything they need first, into the Python chosen here (3.11+), on every system:
+#   1. PYTHON=... on the command line: that interpreter (e.g. make test PYTHON=python3);
 #   2. inside an active virtual environment or conda environment: its python3;
-#   3. a python3 marked externally managed (PEP 668: Debian 12, Ubuntu 23.04 and later, whose pip
-#      refuses to install into the system Python): a project environment .venv, created on first use
-#      (`python3 -m venv .venv`) and used by every later make command;
-#   4. otherwise the python3 first on the PATH (pyenv, CI's setup-python, a container's Python).
+#   3. otherwise a project environment .venv, created on first use (`python3 -m venv .venv`) and
+#      used by every later make command: nothing is installed into the system's or pyenv's Python.
 # torch==2.13.0 is installed on its own first: any other torch requirement that pip resolves by
 # itself may download a CUDA build of several GB.
 SYSTEM_PYTHON ?= python3
@@ -13,11 +11,8 @@ VENV ?= .venv
 
 ifndef PYTHON
 ifeq ($(VIRTUAL_ENV)$(CONDA_PREFIX),)
-EXTERNALLY_MANAGED := $(shell $(SYSTEM_PYTHON) scripts/externally_managed.py 2>/dev/null)
-ifeq ($(EXTERNALLY_MANAGED),yes)
 PYTHON := $(VENV)/bin/python
 MAKE_VENV := $(VENV)/bin/python
-endif
 endif
 endif
 PYTHON ?= python3
@@ -30,7 +25,7 @@ install: $(MAKE_VENV)
 	$(PIP) -e ".[all,test]"
 
 $(VENV)/bin/python:
-	@echo "$(SYSTEM_PYTHON) is externally managed (PEP 668): installing into a project environment $(VENV)"
+	@echo "creating the project environment $(VENV) with '$(SYSTEM_PYTHON) -m venv' (PYTHON=... or an active environment to use another)"
 	@$(SYSTEM_PYTHON) -m venv $(VENV) || { rm -rf $(VENV); echo "make: could not create $(VENV) with '$(SYSTEM_PYTHON) -m venv' (on Debian/Ubuntu: apt install python3-venv)" >&2; exit 1; }
 
 demo: install
@@ -53,4 +48,4 @@ format:
 
 # Which interpreter the commands above use, and why.
 where:
-	@echo "PYTHON=$(PYTHON) (virtual env: $(if $(VIRTUAL_ENV)$(CONDA_PREFIX),$(VIRTUAL_ENV)$(CONDA_PREFIX),none); $(SYSTEM_PYTHON) externally managed: $(if $(EXTERNALLY_MANAGED),$(EXTERNALLY_MANAGED),not checked))"
+	@echo "PYTHON=$(PYTHON) ($(if $(MAKE_VENV),the project environment $(VENV); made from $(SYSTEM_PYTHON),$(if $(VIRTUAL_ENV)$(CONDA_PREFIX),the active environment $(VIRTUAL_ENV)$(CONDA_PREFIX),given on the command line)))"

@@ -1,8 +1,10 @@
 """The README's two set-up commands: which Python `make demo` / `make test` install into, and what they install.
 
-The full path (a fresh clone, `make demo` on Debian's externally managed Python, creating .venv)
-needs minutes and the package registries: scripts/check_setup.sh runs it (docs/install.md).
-Here: the decision, by `make -n` (a dry run, nothing installed), and the extras CI exercises.
+The rule, on every system: `PYTHON=...` if given, else the active virtual/conda environment's
+python3, else a project environment .venv (created on first use). The full path (a fresh clone,
+`make demo` creating .venv and installing into it) needs minutes: scripts/check_setup.sh runs it
+(docs/install.md). Here: the decision, by `make -n` (a dry run, nothing installed) in a bare copy
+of the Makefile, and the extras CI exercises.
 """
 
 from __future__ import annotations
@@ -11,58 +13,39 @@ import os
 import re
 import shutil
 import subprocess
-import sys
-import sysconfig
 import tomllib
 from pathlib import Path
 
 import pytest
 
-from helpers import REPO, load_script
+from helpers import REPO
 
 pytestmark = pytest.mark.timeout(60)
 
-
-def _load_detector():
-    return load_script("scripts/externally_managed.py")
+SYSTEM = "/opt/some/python3"  # the interpreter .venv is made from (never run by a dry run)
 
 
-def test_externally_managed_follows_pep_668(tmp_path, monkeypatch):
-    det = _load_detector()
-    stdlib = tmp_path / "lib" / "python3"
-    stdlib.mkdir(parents=True)
-    monkeypatch.setattr(sysconfig, "get_path", lambda name, *a, **k: str(stdlib))
-    monkeypatch.setattr(sys, "prefix", sys.base_prefix)  # a base interpreter, no virtual environment
-    assert not det.externally_managed()
-    (stdlib / "EXTERNALLY-MANAGED").write_text("[externally-managed]\nError=use apt\n")
-    assert det.externally_managed()
-    monkeypatch.setattr(sys, "prefix", str(tmp_path / "venv"))  # inside a venv the marker does not count
-    assert not det.externally_managed()
-
-
-def _fake_python(tmp_path: Path, answer: str) -> Path:
-    """An interpreter stand-in whose scripts/externally_managed.py answer is ``answer``."""
-    p = tmp_path / f"python-{answer}"
-    p.write_text(f"#!/bin/sh\necho {answer}\n")
-    p.chmod(0o755)
-    return p
-
-
-def _dry_run(tmp_path: Path, env_extra: dict, *args: str) -> list[str]:
-    """The commands `make -n install` would run (nothing is executed), in a bare copy of the
-    Makefile and scripts/ under ``tmp_path``: the checkout's state (an existing ``.venv``) cannot
-    change the answer."""
+def _checkout(tmp_path: Path) -> Path:
+    """A bare copy of the Makefile under ``tmp_path``: the checkout's state (an existing ``.venv``)
+    cannot change what make decides."""
     work = tmp_path / "checkout"
-    work.mkdir()
+    work.mkdir(exist_ok=True)
     shutil.copy2(REPO / "Makefile", work / "Makefile")
-    shutil.copytree(REPO / "scripts", work / "scripts")
+    return work
+
+
+def _make(work: Path, env_extra: dict, *args: str) -> list[str]:
+    """The output lines of ``make -s ARGS`` in ``work`` with ``env_extra`` and no environment active."""
     env = {k: v for k, v in os.environ.items() if k not in ("VIRTUAL_ENV", "CONDA_PREFIX", "PYTHON", "MAKEFLAGS")}
-    env.update(env_extra)
-    proc = subprocess.run(
-        ["make", "-n", "-s", "install", *args], cwd=work, env=env, capture_output=True, text=True, timeout=30
-    )
+    env.update({"SYSTEM_PYTHON": SYSTEM, **env_extra})
+    proc = subprocess.run(["make", "-s", *args], cwd=work, env=env, capture_output=True, text=True, timeout=30)
     assert proc.returncode == 0, proc.stderr
     return [line.strip() for line in proc.stdout.splitlines() if line.strip()]
+
+
+def _dry_run(work: Path, env_extra: dict, *args: str) -> list[str]:
+    """The commands `make -n install` would run (nothing is executed)."""
+    return _make(work, env_extra, "-n", "install", *args)
 
 
 needs_make = pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
@@ -73,50 +56,40 @@ def _pip_lines(cmds: list[str]) -> list[str]:
 
 
 @needs_make
-def test_make_uses_a_project_venv_on_an_externally_managed_python(tmp_path):
-    managed = _fake_python(tmp_path, "yes")
-    cmds = _dry_run(tmp_path, {"SYSTEM_PYTHON": str(managed)})
-    assert any(f"{managed} -m venv .venv" in c for c in cmds), cmds
+def test_without_an_environment_make_creates_and_uses_a_project_venv(tmp_path):
+    """Any python3 (Debian's, pyenv's, a container's): .venv is made from it, everything goes into .venv."""
+    work = _checkout(tmp_path)
+    cmds = _dry_run(work, {})
+    assert any(f"{SYSTEM} -m venv .venv" in c for c in cmds), cmds
     pips = _pip_lines(cmds)
     assert [p.split()[0] for p in pips] == [".venv/bin/python", ".venv/bin/python"], pips
     assert pips[0].endswith("torch==2.13.0") and pips[1].endswith('-e ".[all,test]"'), pips  # torch first, alone
+    assert _make(work, {}, "where") == [f"PYTHON=.venv/bin/python (the project environment .venv; made from {SYSTEM})"]
+    # a later command reuses the environment: nothing is created again, the same interpreter is used
+    (work / ".venv" / "bin").mkdir(parents=True)
+    (work / ".venv" / "bin" / "python").touch()
+    cmds = _dry_run(work, {})
+    assert not any("-m venv" in c for c in cmds), cmds
+    assert [p.split()[0] for p in _pip_lines(cmds)] == [".venv/bin/python", ".venv/bin/python"]
 
 
 @needs_make
 @pytest.mark.parametrize("env", [{"VIRTUAL_ENV": "/some/venv"}, {"CONDA_PREFIX": "/some/conda"}])
 def test_make_installs_into_an_active_environment(tmp_path, env):
-    managed = _fake_python(tmp_path, "yes")  # even where the base interpreter is externally managed
-    cmds = _dry_run(tmp_path, {"SYSTEM_PYTHON": str(managed), **env})
+    work = _checkout(tmp_path)
+    cmds = _dry_run(work, env)
     assert not any("-m venv" in c for c in cmds), cmds
     assert [p.split()[0] for p in _pip_lines(cmds)] == ["python3", "python3"]
+    assert _make(work, env, "where") == [f"PYTHON=python3 (the active environment {next(iter(env.values()))})"]
 
 
 @needs_make
-def test_make_installs_into_a_python_that_allows_it(tmp_path):
-    cmds = _dry_run(tmp_path, {"SYSTEM_PYTHON": str(_fake_python(tmp_path, "no"))})
-    assert not any("-m venv" in c for c in cmds), cmds
-    assert [p.split()[0] for p in _pip_lines(cmds)] == ["python3", "python3"]
-
-
-@needs_make
-def test_an_explicit_python_wins(tmp_path):
-    cmds = _dry_run(tmp_path, {"SYSTEM_PYTHON": str(_fake_python(tmp_path, "yes"))}, "PYTHON=/opt/py/bin/python")
+@pytest.mark.parametrize("env", [{}, {"VIRTUAL_ENV": "/some/venv"}])
+def test_an_explicit_python_wins(tmp_path, env):
+    work = _checkout(tmp_path)
+    cmds = _dry_run(work, env, "PYTHON=/opt/py/bin/python")
     assert not any("-m venv" in c for c in cmds), cmds
     assert [p.split()[0] for p in _pip_lines(cmds)] == ["/opt/py/bin/python", "/opt/py/bin/python"]
-
-
-@needs_make
-def test_debian_system_python_gets_the_venv(tmp_path):
-    """Where Debian's own Python is here (marked externally managed), the real decision."""
-    marker = Path("/usr/lib") / f"python3.{sys.version_info.minor}" / "EXTERNALLY-MANAGED"
-    system = Path("/usr/bin/python3")
-    if not system.exists() or not any(Path("/usr/lib").glob("python3*/EXTERNALLY-MANAGED")):
-        pytest.skip(f"no externally managed system Python here ({marker} absent)")
-    answer = subprocess.run(
-        [str(system), str(REPO / "scripts" / "externally_managed.py")], capture_output=True, text=True, timeout=30
-    ).stdout.strip()
-    cmds = _dry_run(tmp_path, {"SYSTEM_PYTHON": str(system)})
-    assert answer == "yes" and any("-m venv .venv" in c for c in cmds), (answer, cmds)
 
 
 def test_the_test_command_installs_every_extra():
@@ -128,3 +101,11 @@ def test_the_test_command_installs_every_extra():
     assert inside == set(extras) - {"all", "test"}, f"'all' = {sorted(inside)}; extras: {sorted(extras)}"
     make = (REPO / "Makefile").read_text()
     assert '-e ".[all,test]"' in make and make.index("torch==2.13.0") < make.index('".[all,test]"')
+
+
+def test_the_readme_starts_with_the_two_commands_and_ci_runs_one_verbatim():
+    readme = (REPO / "README.md").read_text()
+    first = re.search(r"```bash\n(.*?)```", readme, re.S).group(1)
+    assert [ln.split("#")[0].strip() for ln in first.strip().splitlines()] == ["make demo", "make test"], first
+    ci = [ln.strip() for ln in (REPO / ".ci" / "run").read_text().splitlines()]
+    assert "make test" in ci, ci
