@@ -37,7 +37,72 @@ def need(path: Path) -> Path:
 
 
 def run_cli(*args: str, cwd: Path | None = None, timeout: float = 300) -> subprocess.CompletedProcess:
-    """Run ``python -m spotlights ARGS`` in a subprocess (the package from this checkout)."""
+    """Run ``spotlights ARGS`` in this process through ``spotlights.cli.main`` (no interpreter start-up).
+
+    The result looks like :func:`run_cli_subprocess`'s: ``returncode`` (main's return value; a
+    ``SystemExit``'s code; 1 for an uncaught exception, whose traceback is appended to ``stderr``
+    as the interpreter would print it), ``stdout`` and ``stderr`` as text. The working folder,
+    ``os.environ``, the warning filters (reset to a fresh interpreter's), the SIGINT/SIGTERM
+    handlers and torch's thread count are restored afterwards. Child processes the command starts
+    write to this process's real stdout/stderr (not captured). ``timeout`` is accepted for
+    compatibility; pytest-timeout bounds an in-process run. Use :func:`run_cli_subprocess` for
+    what needs a real process: signals, the interpreter's exit code, start-up imports.
+    """
+    import contextlib
+    import io
+    import signal
+    import threading
+    import traceback
+    import warnings
+
+    import torch
+
+    from spotlights.cli import main
+
+    argv = [str(a) for a in args]
+    out, err = io.StringIO(), io.StringIO()
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        err.write(warnings.formatwarning(message, category, filename, lineno, line))
+
+    old_cwd, old_env, old_threads = os.getcwd(), dict(os.environ), torch.get_num_threads()
+    main_thread = threading.current_thread() is threading.main_thread()  # only it may set handlers
+    old_handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)} if main_thread else {}
+    try:
+        if cwd is not None:
+            os.chdir(cwd)
+        os.environ.setdefault("MPLBACKEND", "Agg")
+        with warnings.catch_warnings(), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            warnings.resetwarnings()  # a fresh interpreter's filters (pytest's are stricter)
+            warnings.filterwarnings("ignore", category=DeprecationWarning)
+            warnings.filterwarnings("ignore", category=PendingDeprecationWarning)
+            warnings.filterwarnings("ignore", category=ImportWarning)
+            warnings.filterwarnings("ignore", category=ResourceWarning)
+            warnings.showwarning = show  # printed to the captured stderr, as a process would
+            try:
+                code = main(argv)
+            except SystemExit as exc:  # argparse (--help, usage errors)
+                if exc.code is None or isinstance(exc.code, int):
+                    code = exc.code or 0
+                else:
+                    err.write(f"{exc.code}\n")
+                    code = 1
+            except Exception:  # what the interpreter would do with an uncaught exception
+                err.write(traceback.format_exc())
+                code = 1
+    finally:
+        os.chdir(old_cwd)
+        os.environ.clear()
+        os.environ.update(old_env)
+        torch.set_num_threads(old_threads)
+        for sig, handler in old_handlers.items():
+            signal.signal(sig, handler)
+    return subprocess.CompletedProcess(["spotlights", *argv], int(code), out.getvalue(), err.getvalue())
+
+
+def run_cli_subprocess(*args: str, cwd: Path | None = None, timeout: float = 300) -> subprocess.CompletedProcess:
+    """Run ``python -m spotlights ARGS`` in a subprocess (the package from this checkout): for tests
+    of what needs a real process (signals, the interpreter's exit code, start-up imports)."""
     env = dict(os.environ)
     env["PYTHONPATH"] = str(REPO / "src") + os.pathsep + env.get("PYTHONPATH", "")
     env.setdefault("MPLBACKEND", "Agg")
