@@ -1,6 +1,33 @@
 import os
+import shutil
 import sys
+import tempfile
 from pathlib import Path
+
+import pytest
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _private_tmpdir(tmp_path_factory):
+    """Every temporary folder that the suite's own processes make outside pytest's ``tmp_path``
+    (multiprocessing's ``pymp-*``, torchrun's ``torchelastic_*``, Ray's session folders, ...) goes
+    into one private folder (``TMPDIR`` for child processes, ``tempfile.tempdir`` here), removed
+    when the session ends: nothing is left in /tmp, and no other program's folders are touched.
+    pytest's own ``tmp_path`` folders stay under its base folder (kept only for failed tests:
+    ``tmp_path_retention_policy`` in pyproject.toml)."""
+    tmp_path_factory.getbasetemp()  # fixed before TMPDIR changes
+    root = tempfile.mkdtemp(prefix="sl-suite-")  # short: Ray's socket paths must stay under 107 bytes
+    old_env, old_tempdir = os.environ.get("TMPDIR"), tempfile.tempdir
+    os.environ["TMPDIR"], tempfile.tempdir = root, root
+    try:
+        yield Path(root)
+    finally:
+        tempfile.tempdir = old_tempdir
+        if old_env is None:
+            os.environ.pop("TMPDIR", None)
+        else:
+            os.environ["TMPDIR"] = old_env
+        shutil.rmtree(root, ignore_errors=True)
