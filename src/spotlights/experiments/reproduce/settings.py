@@ -128,7 +128,7 @@ class Settings:
     @property
     def real_frames(self) -> int | None:
         """--quick: frames of each Table 2 set extracted (the first ones, in time order; None: all)."""
-        return 4 if self.quick else None
+        return 2 if self.quick else None
 
     @property
     def cars_path(self) -> Path:
