@@ -395,6 +395,7 @@ def test_cli_encode_decode_show_with_a_box_rig(tmp_path):
     )
 
 
+@pytest.mark.slow
 def test_study_command_on_small_meshes(tmp_path):
     root = tmp_path / "shapes"
     for cat, make in (

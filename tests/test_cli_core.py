@@ -20,6 +20,7 @@ def sphere_ply(tmp_path_factory):
     return d / "sphere.ply"
 
 
+@pytest.mark.slow
 def test_encode_decode_show_round_trip(sphere_ply, tmp_path):
     r = run_cli("encode", sphere_ply, "--out", tmp_path / "s.npz")
     assert r.returncode == 0, r.stderr

@@ -202,6 +202,7 @@ def test_resume_after_an_interruption(meshes, reference, tmp_path, monkeypatch):
             assert np.array_equal(a[k], b[k]), k
 
 
+@pytest.mark.slow
 def test_resume_after_sigkill(meshes, tmp_path):
     """Kill a real build process mid-way, start it again: it finishes, equal to an uninterrupted build."""
     out = tmp_path / "kill.h5"

@@ -24,6 +24,7 @@ def _mean_nn(a, b):
     return float(cKDTree(b).query(a)[0].mean())
 
 
+@pytest.mark.slow
 def test_demo_writes_pictures_and_completion(tmp_path):
     r = run_cli("demo", "--out", tmp_path)
     assert r.returncode == 0, r.stderr

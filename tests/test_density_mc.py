@@ -119,6 +119,7 @@ def test_mc_is_reproducible():
     assert [x.to_dict() for x in a] == [x.to_dict() for x in b]
 
 
+@pytest.mark.slow
 def test_cli_density_end_to_end(tmp_path):
     out = tmp_path / "density"
     proc = run_cli(

@@ -279,6 +279,7 @@ def test_backend_ray_without_ray_says_how_to_install(meshes, tmp_path, capsys, m
     assert not (tmp_path / "x.h5").exists()
 
 
+@pytest.mark.slow
 def test_ray_build_resumes_after_the_driver_is_killed(meshes, local_ref, tmp_path):
     """SIGKILL the driver (and its local Ray instance) mid-build; the rerun keeps the finished units."""
     pytest.importorskip("ray")

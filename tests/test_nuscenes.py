@@ -295,6 +295,7 @@ def test_real_scene_0523_boxes_hold_num_lidar_pts():
     assert checked > 300
 
 
+@pytest.mark.slow
 def test_real_scene_0523_extract_tracks():
     reader = NuScenesReader(need(NUSCENES))
     obs = extract(reader, ExtractConfig(classes=("car", "truck", "trailer")), progress=False)

@@ -20,8 +20,9 @@ import pytest
 
 from helpers import CARS, CATEGORIES, LIDAR, SHARED, assert_user_error, need, run_cli, slab_interval
 
-# The module fixture (one --quick reproduction, 42 steps) takes 3-5 minutes on a quiet 2-core machine and over
-# 10 beside two training runs; the test that first uses it runs it within its own timeout.
+# The module fixture (one --quick reproduction, 42 steps) takes about a minute on a quiet 2-core machine and
+# several beside training runs; the test that first uses it runs it within its own timeout. Its tests are
+# marked slow (`make test` runs them; `pytest -m "not slow"` leaves them out).
 pytestmark = [pytest.mark.filterwarnings("ignore::DeprecationWarning"), pytest.mark.timeout(1500)]
 
 TEX = SHARED / "paper" / "spotlights.tex"
@@ -29,7 +30,7 @@ TEX = SHARED / "paper" / "spotlights.tex"
 
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory):
-    """One `reproduce --quick` of every table (about 2-3 minutes on 2 cores)."""
+    """One `reproduce --quick` of every table (about a minute on 2 quiet cores)."""
     need(CARS)
     need(CATEGORIES)
     need(LIDAR)
@@ -121,6 +122,7 @@ def test_paper_values_equal_the_tex():
     assert [v["average"] for v in tex_table4().values()] == [78.6, 50.9, 34.8]  # the issue's numbers
 
 
+@pytest.mark.slow
 def test_report_shows_the_tex_values_beside_ours(quick):
     out = quick["out"]
     report = (out / "REPORT.md").read_text()
@@ -153,6 +155,7 @@ def test_report_shows_the_tex_values_beside_ours(quick):
         assert csv_file.read_text().startswith("table,row,column,ours,paper")
 
 
+@pytest.mark.slow
 def test_report_has_figures_steps_versions(quick):
     out = quick["out"]
     report = (out / "REPORT.md").read_text()
@@ -188,6 +191,7 @@ def test_report_has_figures_steps_versions(quick):
         assert (out / "eval" / f"{key}_consistency.json").is_file()
 
 
+@pytest.mark.slow
 def test_default_model_run_keeps_the_quick_budget(quick):
     """The default model's run is trained with its packaged config (decoder 256-64, the dense box rig) but
     at the quick schedule's budget: one pass over the training views per epoch, like SA-Net's run."""
@@ -210,6 +214,7 @@ def test_default_model_run_keeps_the_quick_budget(quick):
     assert ck["global_step"] == sanet["global_step"] == 3 * per_epoch
 
 
+@pytest.mark.slow
 def test_hit_ratio_falls_with_the_angle_on_every_mesh(quick):
     import pandas as pd
 
@@ -228,6 +233,7 @@ def test_hit_ratio_falls_with_the_angle_on_every_mesh(quick):
         assert t4[str(angle)]["average"] == pytest.approx(six.mean(), abs=1e-3)
 
 
+@pytest.mark.slow
 def test_table1_sanet_accuracy_by_brute_force(quick):
     """Complete the test scans again with the SA-Net checkpoint and score them with dense distance matrices."""
     from scipy.spatial.distance import cdist
@@ -255,6 +261,7 @@ def test_table1_sanet_accuracy_by_brute_force(quick):
     assert t1["average"] == pytest.approx(np.mean([v for vs in per_cat.values() for v in vs]), rel=1e-4)
 
 
+@pytest.mark.slow
 def test_second_run_reuses_every_step_and_publishes(quick, tmp_path):
     out = quick["out"]
     proc = run_cli(
@@ -306,6 +313,7 @@ def _slab_hit_ratio(origins, directions, half):
     return float(np.mean(t1 >= np.maximum(t0, 0.0)))
 
 
+@pytest.mark.slow
 def test_tables_3_and_4_alone_on_balls_match_the_closed_form(tmp_path):
     """A ball in its box's sphere has radius 1/sqrt(3); a cap ray of angle theta to the inward
     axis hits it iff sin(theta) < 1/sqrt(3), so the hit ratio of an equal-area cap of half-angle
@@ -386,6 +394,7 @@ def test_bad_tables_is_a_one_line_error(tmp_path):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_box_table_in_the_report(quick):
     """The box table: its checks stated, its study rows from the shared rig study, SA-Net on the box
     rig scored like Table 1 (brute force here, each scan decoded with its own model's box)."""
@@ -435,6 +444,7 @@ def test_box_table_in_the_report(quick):
     assert (out / "eval" / "av2_consistency_box.json").is_file() and set(tb["consistency"]) == {"paper", "box"}
 
 
+@pytest.mark.slow
 def test_box_table_plan_and_add_rig(quick, tmp_path):
     """`--tables box` plans only its own steps; an existing car dataset without the box rig gets it added."""
     import shutil

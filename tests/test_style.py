@@ -19,6 +19,7 @@ def _imports_script():
     return load_script("scripts/imports_at_top.py")
 
 
+@pytest.mark.slow
 def test_light_project_modules_are_imported_at_the_top():
     script = _imports_script()
     rows = script.scan(sorted(script.SRC.rglob("*.py")))

@@ -154,6 +154,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_ddp_with_torchrun_gloo_two_processes(data, tmp_path):
     cfg = tmp_path / "tiny.yaml"
     cfg.write_text(json.dumps(tiny_overrides("sanet", epochs=1, batch_size=4)))  # JSON is YAML

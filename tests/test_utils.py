@@ -152,6 +152,7 @@ def test_a_dead_worker_is_an_error_not_a_hang():
         list(process_map(_die, range(6), 2))
 
 
+@pytest.mark.slow
 def test_a_stuck_pool_times_out():
     with pytest.raises(SpotlightsError, match="no work unit finished within 3 s"):
         list(process_map(_hang, [1, 1], 2, timeout=3))

@@ -354,6 +354,7 @@ def _screenshot(page: Path, png: Path, timeout: float = 120) -> None:
     reason="Chromium not found: install it (Debian/Ubuntu: apt-get install chromium) "
     "or set SPOTLIGHTS_CHROMIUM to a Chrome/Chromium binary",
 )
+@pytest.mark.slow
 def test_page_draws_points_in_a_real_browser(tmp_path):
     """The page opens offline in headless Chromium and the points are drawn: pixels of the point
     colour fill the plot area; with the cloud hidden (legend-only) the same area has none."""
@@ -380,6 +381,7 @@ def test_page_draws_points_in_a_real_browser(tmp_path):
 @pytest.mark.skipif(
     _chromium() is None, reason="Chromium not found: apt-get install chromium (or set SPOTLIGHTS_CHROMIUM)"
 )
+@pytest.mark.slow
 def test_real_show_page_in_browser(tmp_path):
     """A whole real scene: the page of 'view observations.h5' draws the grey raw scan in Chromium."""
     pytest.importorskip("plotly")
@@ -447,6 +449,7 @@ def test_real_show_html(tmp_path):
     assert not list(tmp_path.glob("*.png"))
 
 
+@pytest.mark.slow
 def test_real_complete_html_pages_share_one_local_script(tmp_path):
     pytest.importorskip("plotly")
     pytest.importorskip("torch")
