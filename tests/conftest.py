@@ -1,3 +1,4 @@
+import multiprocessing.util
 import os
 import shutil
 import sys
@@ -15,11 +16,14 @@ def _private_tmpdir(tmp_path_factory):
     """Every temporary folder that the suite's own processes make outside pytest's ``tmp_path``
     (multiprocessing's ``pymp-*``, torchrun's ``torchelastic_*``, Ray's session folders, ...) goes
     into one private folder (``TMPDIR`` for child processes, ``tempfile.tempdir`` here), removed
-    when the session ends: nothing is left in /tmp, and no other program's folders are touched.
+    when this process exits: nothing is left in /tmp, and no other program's folders are touched.
     pytest's own ``tmp_path`` folders stay under its base folder (kept only for failed tests:
     ``tmp_path_retention_policy`` in pyproject.toml)."""
     tmp_path_factory.getbasetemp()  # fixed before TMPDIR changes
     root = tempfile.mkdtemp(prefix="sl-suite-")  # short: Ray's socket paths must stay under 107 bytes
+    # Removed at exit after multiprocessing's own clean-up (its temp folder, priority -100, lies in
+    # root: removing root at the end of the session would make that clean-up fail with a traceback).
+    multiprocessing.util.Finalize(None, shutil.rmtree, args=(root,), kwargs={"ignore_errors": True}, exitpriority=-200)
     old_env, old_tempdir = os.environ.get("TMPDIR"), tempfile.tempdir
     os.environ["TMPDIR"], tempfile.tempdir = root, root
     try:
@@ -30,4 +34,3 @@ def _private_tmpdir(tmp_path_factory):
             os.environ.pop("TMPDIR", None)
         else:
             os.environ["TMPDIR"] = old_env
-        shutil.rmtree(root, ignore_errors=True)
