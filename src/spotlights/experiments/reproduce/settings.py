@@ -131,6 +131,11 @@ class Settings:
         return 2 if self.quick else None
 
     @property
+    def real_min_points(self) -> int | None:
+        """--quick: points an object of a Table 2 set needs to be extracted (None: the extraction's default, 10)."""
+        return 50 if self.quick else None
+
+    @property
     def cars_path(self) -> Path:
         return Path(self.cars_data) if self.cars_data is not None else self.out / "data" / "cars.h5"
 

@@ -378,6 +378,12 @@ def real_frames(ctx: Context, name: str) -> int | None:
     return ctx.s.real_frames if name in TABLE2_SETS else None
 
 
+def real_min_points(ctx: Context, name: str) -> int | None:
+    """Points an extracted object of source ``name`` needs: --quick keeps the better-seen objects of each
+    Table 2 set (None: the extraction's default)."""
+    return ctx.s.real_min_points if name in TABLE2_SETS else None
+
+
 def real_classes(name: str) -> tuple | None:
     """Classes extracted from source ``name``: Table 2's (car, truck, trailer) for its sets, None (the
     extraction's default, the paper's four classes) for KITTI (the qualitative figure)."""
@@ -390,6 +396,7 @@ def _real_command(ctx: Context, name: str) -> str:
     return (
         f"spotlights real extract {shell_quote(Path(ctx.s.lidar) / folder)} --format {fmt}"
         + (f" --classes {','.join(classes)}" if classes else "")
+        + (f" --min-points {real_min_points(ctx, name)}" if real_min_points(ctx, name) else "")
         + f" --out {shell_quote(ctx.out / 'data' / f'{name}.h5')}"
         + (f" (--quick: the first {real_frames(ctx, name)} frames)" if real_frames(ctx, name) else "")
     )
@@ -403,7 +410,12 @@ def _run_real(ctx: Context, name: str) -> dict:
             f"{src}: real LiDAR data not found (pass --lidar DIR, the folder of the shared lidar data)"
         )
     classes = real_classes(name)
-    cfg = ExtractConfig(seed=ctx.s.seed, **({"classes": classes} if classes else {}))
+    min_points = real_min_points(ctx, name)
+    cfg = ExtractConfig(
+        seed=ctx.s.seed,
+        **({"classes": classes} if classes else {}),
+        **({"min_points": min_points} if min_points else {}),
+    )
     reader = open_reader(src, fmt)
     if real_frames(ctx, name):
         reader = FirstFrames(reader, real_frames(ctx, name))
@@ -588,6 +600,8 @@ def work_steps() -> list[Step]:
                         "skip_reasons": _skip_reasons(),
                         "classes": list(real_classes(n) or ()),
                         "frames": real_frames(c, n),
+                        # only when set: a full run's signature (and its finished steps) stays as it was
+                        **({"min_points": real_min_points(c, n)} if real_min_points(c, n) else {}),
                     }
                 ),
             )
