@@ -55,8 +55,9 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import InputFileError
+from ...inputs import read_json
 from .base import Frame, SceneReader
-from .boxfiles import CLASS_MAP, load_json, parse_boxes, parse_frame_keys, read_json_boxes  # noqa: F401  (CLASS_MAP re-exported)
+from .boxfiles import CLASS_MAP, parse_boxes, parse_frame_keys, read_json_boxes  # noqa: F401  (CLASS_MAP re-exported)
 from .scans import read_scan, scan_kind
 
 SCAN_NAME_SUFFIXES = (".pcd.bin", ".bin", ".feather", ".ply", ".pcd", ".npy", ".npz", ".xyz", ".txt", ".las", ".laz")
@@ -204,7 +205,7 @@ class GenericReader(SceneReader):
 
     @staticmethod
     def _sequence_json(source: Path) -> list[dict]:
-        data = load_json(source)
+        data = read_json(source)
         if not isinstance(data, dict) or not isinstance(data.get("frames"), list):
             raise InputFileError(
                 source, 'a sequence file must be {"frames": [...]} (a bare box list needs a scan file as SOURCE)'
