@@ -17,6 +17,7 @@ from pathlib import Path
 
 from .._version import __version__
 from ..errors import InputFileError
+from ..inputs import path_inside
 from ..utils import atomic_output
 
 INDEX_FORMAT = "spotlights-completion-shards"
@@ -42,7 +43,11 @@ def read_shard_index(path: Path) -> list[dict]:
         )
     try:
         shards = [
-            {"path": path.parent / str(s["file"]), "n_models": int(s["n_models"]), "n_samples": int(s["n_samples"])}
+            {
+                "path": path_inside(path.parent, s["file"], path, "shard file"),
+                "n_models": int(s["n_models"]),
+                "n_samples": int(s["n_samples"]),
+            }
             for s in idx["shards"]
         ]
     except (KeyError, TypeError, ValueError):
