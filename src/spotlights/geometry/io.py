@@ -132,6 +132,11 @@ def load_points(path: str | os.PathLike, drop_nonfinite: bool = False) -> np.nda
             pts = getattr(obj, "vertices", None)
             if pts is None:
                 raise InputFileError(p, "PLY holds no vertices")
+            declared = obj.metadata.get("_ply_raw", {}).get("vertex", {}).get("length", len(pts))
+            if declared != len(pts):
+                raise InputFileError(
+                    p, f"truncated PLY: its header declares {declared} vertices, the file holds {len(pts)}"
+                )
         elif suffix == ".npy":
             pts = np.load(p, allow_pickle=False)
         elif suffix == ".npz":
@@ -296,12 +301,23 @@ def load_ply_fields(path: str | os.PathLike) -> dict[str, np.ndarray]:
     try:
         with open(p, "rb") as fh:
             cloud = trimesh.exchange.ply.load_ply(fh, prefer_color=None)
-    except Exception as exc:
-        raise InputFileError(p, f"cannot read PLY ({type(exc).__name__})") from None
-    attrs = cloud.get("metadata", {}).get("_ply_raw", {}).get("vertex", {}).get("data")
-    if attrs is None:
-        raise InputFileError(p, "PLY holds no vertex element")
-    return {n: np.asarray(attrs[n]) for n in attrs.dtype.names}
+        vertex = cloud.get("metadata", {}).get("_ply_raw", {}).get("vertex", {})
+        attrs = vertex.get("data")
+        if attrs is None:
+            raise InputFileError(p, "PLY holds no vertex element")
+        # binary PLYs give a structured array, ASCII ones a dict of (K, 1) columns
+        names = attrs.dtype.names if hasattr(attrs, "dtype") else list(attrs)
+        fields = {n: np.asarray(attrs[n]) for n in names}
+        fields = {n: a[:, 0] if a.ndim == 2 and a.shape[1] == 1 else a for n, a in fields.items()}
+        declared = int(vertex.get("length", -1))
+    except InputFileError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - whatever the parser trips on is the file's fault
+        raise InputFileError(p, f"cannot read PLY ({type(exc).__name__}: {str(exc)[:100]})") from None
+    held = {len(a) for a in fields.values()}
+    if held != {declared}:
+        raise InputFileError(p, f"truncated PLY: its header declares {declared} vertices, the file holds {min(held)}")
+    return fields
 
 
 def ply_has_faces(path: str | os.PathLike) -> bool:

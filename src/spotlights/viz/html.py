@@ -25,7 +25,7 @@ from ..data.real.frames import frame_rows
 from ..errors import InputFileError, SpotlightsError
 from ..geometry.encode import decode, load_encoding
 from ..geometry.frames import box_corners
-from ..geometry.io import MESH_SUFFIXES, POINT_SUFFIXES, load_mesh, load_points, ply_has_faces
+from ..geometry.io import MESH_SUFFIXES, POINT_SUFFIXES, load_mesh, load_ply_fields, load_points, ply_has_faces
 from ..utils import atomic_output
 from .encoding import encoding_layers, viewpoint_rays
 from .scene import bev_window, frame_objects, read_frame_scan
@@ -411,22 +411,6 @@ def write_plotlyjs(folder: str | os.PathLike) -> Path:
 
 
 # --- files -> traces (``spotlights view``) -------------------------------------------------------
-def read_ply_fields(path: str | os.PathLike) -> dict[str, np.ndarray]:
-    """All per-vertex properties of a PLY point cloud: {name: (K,) array} (``x``, ``y``, ``z`` and any
-    others, e.g. ``source`` and ``object`` of a scene written by ``complete --boxes``)."""
-    import trimesh
-
-    try:
-        obj = trimesh.load(str(path), process=False)
-    except Exception as exc:
-        raise InputFileError(path, f"cannot read PLY ({type(exc).__name__})") from None
-    raw = getattr(obj, "metadata", {}).get("_ply_raw", {}).get("vertex", {}).get("data")
-    if raw is None:
-        v = np.asarray(getattr(obj, "vertices", np.zeros((0, 3))), dtype=np.float64)
-        return {"x": v[:, 0], "y": v[:, 1], "z": v[:, 2]}
-    return {k: np.asarray(raw[k]) for k in raw.dtype.names}
-
-
 def scene_ply_traces(fields: dict[str, np.ndarray], name: str) -> list:
     """Traces of a scene PLY with a ``source`` field (0 raw grey, 1 partial purple, 2 completion green);
     an ``object`` field names each object's points in the hover text."""
@@ -527,7 +511,7 @@ def file_traces(
         mesh = load_mesh(src, up=up, forward=forward)
         return mesh_traces(mesh, name), f"mesh ({len(mesh.vertices)} vertices, {len(mesh.faces)} faces)"
     if suffix == ".ply":
-        fields = read_ply_fields(src)
+        fields = load_ply_fields(src)
         if "source" in fields:
             return scene_ply_traces(fields, name), f"scene ({len(fields['x'])} points with sources)"
     if suffix in POINT_SUFFIXES:
