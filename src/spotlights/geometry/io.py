@@ -175,6 +175,30 @@ def load_points(path: str | os.PathLike, drop_nonfinite: bool = False) -> np.nda
     return pts
 
 
+#: The fewest bytes a LAZ file spends per point: 2 million identical points compress to 0.007-0.012
+#: bytes each (lazrs, point formats 0, 3, 6); a real scan takes 1-4. A header claiming more points
+#: than its data could hold at 0.004 bytes each is refused before anything is allocated.
+LAZ_MIN_BYTES_PER_POINT = 0.004
+
+
+def _check_las_size(p: Path, header) -> None:
+    """Refuse a LAS/LAZ header whose point count the file is too small to hold (a damaged or hostile
+    header would make the reader allocate gigabytes for minutes): LAS, count x record length must fit
+    after the header; LAZ, the compressed data must hold at least LAZ_MIN_BYTES_PER_POINT per point."""
+    n, record = int(header.point_count), int(header.point_format.size)
+    stored = p.stat().st_size - int(header.offset_to_point_data)
+    if header.are_points_compressed:
+        fits = n * LAZ_MIN_BYTES_PER_POINT <= stored
+    else:
+        fits = n * record <= stored
+    if not fits:
+        raise InputFileError(
+            p,
+            f"header declares {n:,} points but the file holds {max(stored, 0):,} bytes of point data "
+            "(truncated or damaged)",
+        )
+
+
 def _read_las(p: Path) -> np.ndarray:
     """x, y, z (K, 3) float64 of a LAS/LAZ file (scale and offset applied) via laspy."""
     try:
@@ -182,7 +206,9 @@ def _read_las(p: Path) -> np.ndarray:
     except ImportError:
         raise InputFileError(p, f"reading LAS/LAZ needs laspy: {LAS_INSTALL_HINT}") from None
     try:
-        las = laspy.read(str(p))
+        with laspy.open(str(p)) as reader:
+            _check_las_size(p, reader.header)
+            las = reader.read()
     except laspy.errors.LaspyException as exc:
         msg = str(exc).splitlines()[0][:100] if str(exc) else type(exc).__name__
         if p.suffix.lower() == ".laz" and "backend" in msg.lower():
