@@ -124,6 +124,11 @@ def load_points(path: str | os.PathLike, drop_nonfinite: bool = False) -> np.nda
             pc = PointCloud.from_path(p)
             if not all(k in pc.fields for k in ("x", "y", "z")):
                 raise InputFileError(p, f"PCD has no x, y, z fields (fields: {', '.join(pc.fields)})")
+            if len(pc.pc_data) != pc.metadata.points:
+                raise InputFileError(
+                    p,
+                    f"truncated PCD: its header declares {pc.metadata.points} points, the file holds {len(pc.pc_data)}",
+                )
             pts = pc.numpy(("x", "y", "z"))
         elif suffix == ".ply":
             import trimesh
