@@ -13,7 +13,6 @@ Functions return lists of plotly traces (``*_traces``); :func:`page` lays them o
 
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -26,6 +25,7 @@ from ..errors import InputFileError, SpotlightsError
 from ..geometry.encode import decode, load_encoding
 from ..geometry.frames import box_corners
 from ..geometry.io import MESH_SUFFIXES, POINT_SUFFIXES, load_mesh, load_ply_fields, load_points, ply_has_faces
+from ..inputs import read_json
 from ..utils import atomic_output
 from .encoding import encoding_layers, viewpoint_rays
 from .scene import bev_window, frame_objects, read_frame_scan
@@ -448,10 +448,7 @@ def scene_ply_traces(fields: dict[str, np.ndarray], name: str) -> list:
 def read_boxes_json(path: str | os.PathLike) -> list[dict]:
     """Boxes from JSON: one box ``{"center", "size", "yaw"|"rotation", ...}``, a list of them, or
     ``{"boxes": [...]}``. Each box's id: ``id``, ``track_id``, ``object`` or ``label``, else its index."""
-    try:
-        data = json.loads(Path(path).read_text())
-    except (OSError, ValueError) as exc:
-        raise InputFileError(path, f"not a readable JSON file ({type(exc).__name__})") from None
+    data = read_json(path)
     items = data.get("boxes", data.get("objects", [data])) if isinstance(data, dict) else data
     boxes = []
     for i, b in enumerate(items if isinstance(items, list) else []):
