@@ -738,6 +738,11 @@ def _shard_index(name):
     return build
 
 
+def _deep_index(inp, work):
+    (inp / "index.json").write_text('{"format": ' + "[" * 100_000 + "]" * 100_000 + "}")
+    return {"index": inp / "index.json"}
+
+
 def _manifest(name):
     def build(inp, work):
         (inp / "m" / "cars").mkdir(parents=True)
@@ -823,6 +828,7 @@ HOSTILE = [
     H("boxes-nested-deep", _hostile_json, "complete {pts} --boxes {deep} -o {out}/c.ply", "deep.json"),
     H("boxes-5000-digits", _hostile_json, "complete {pts} --boxes {bigint} -o {out}/c.ply", "bigint.json"),
     H("box-nested-deep", _hostile_json, "complete {pts} --box {deep} -o {out}/c.ply", "deep.json"),
+    H("view-boxes-nested-deep", _hostile_json, "view {deep} -o {out}/v.html -q", "deep.json"),
     H("box-5000-digits", _hostile_json, "complete {pts} --box {bigint} -o {out}/c.ply", "bigint.json"),
     H("calib-nan", _kitti_frame, "complete {scan} --boxes {label} --calib {calib_nan} -o {out}/c.ply", "calib_nan"),
     H(
@@ -871,6 +877,7 @@ HOSTILE = [
         "dataset info {index}",
         "index.json: shard file '../outside.h5'",
     ),
+    H("shard-index-nested-deep", _deep_index, "dataset info {index}", "index.json"),
     H(
         "manifest-dotdot",
         _manifest("../outside.ply"),
