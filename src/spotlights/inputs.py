@@ -53,5 +53,11 @@ def path_inside(
     real_root = os.path.realpath(base)
     real = os.path.realpath(candidate)
     if os.path.commonpath([real_root, real]) != real_root:
-        raise InputFileError(source, f"{what} {text!r} leads outside {root}")
+        plain = os.path.normpath(os.path.join(os.path.abspath(base), text))
+        how = (
+            " through a symbolic link"
+            if os.path.commonpath([os.path.abspath(base), plain]) == os.path.abspath(base)
+            else ""
+        )
+        raise InputFileError(source, f"{what} {text!r} leads outside {root}{how}")
     return candidate
