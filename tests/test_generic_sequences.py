@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -223,3 +224,58 @@ def test_rotation_boxes_honoured(tmp_path):
     obs = extract(open_reader(tmp_path / "r", "generic"), ExtractConfig(), progress=False)
     assert sorted(obs.box_yaw.round(6).tolist()) == [-1.0, 0.3] and all(n == 300 for n in obs.n_points_raw)
     assert math.isclose(float(obs.timestamp[0]), 0.0)
+
+
+# ids that sanitise alike ("a" and "../a"; "汽车", "日本", ".." and "frame"), that differ by a dot ("x.1", "x.2",
+# which with_suffix cut to "x"), that differ in letter case only, and one that is the run's own summary
+CLASHING_IDS = ["a", "../a", "汽车", "日本", "..", "frame", "x.1", "x.2", "B", "b", "summary", "000123"]
+
+
+def test_frame_stems_are_distinct_readable_and_stable():
+    from spotlights.cli.real_frames import frame_stems
+
+    keys = [("", f) for f in CLASHING_IDS] + [("scene-0523", "smp0"), ("../scene-0523", "smp0"), ("s", "a")]
+    stems = frame_stems(keys)
+    names = [str(stems[k]) for k in keys]
+    assert len({n.casefold() for n in names}) == len(keys)  # distinct, even where letter case is ignored
+    assert stems[("", "a")].as_posix() == "a" and stems[("", "000123")].as_posix() == "000123"  # safe ids kept
+    assert stems[("", "x.1")].as_posix() == "x.1" and stems[("scene-0523", "smp0")].as_posix() == "scene-0523/smp0"
+    assert stems[("s", "a")].as_posix() == "s/a"
+    for stem in stems.values():
+        assert ".." not in stem.parts and not stem.is_absolute() and stem.name != "summary"
+        assert all(len(p) <= 109 and p.isascii() for p in stem.parts)
+    assert stems[("", "../a")].as_posix().startswith("a-") and stems[("", "汽车")].as_posix().startswith("frame-")
+    # a frame's name does not depend on which other frames the run holds (resume and --frames find it again)
+    assert frame_stems([("", "../a")]) == {("", "../a"): stems[("", "../a")]}
+
+
+def test_real_complete_writes_one_file_set_per_frame_whatever_the_ids(tmp_path):
+    """Frame k's scan holds 1,000 + k points: each frame's JSON names its own id and PLY, and that PLY
+    holds that frame's raw points (none was overwritten by another frame of a like name)."""
+    pytest.importorskip("torch")
+    from spotlights.geometry.io import load_ply_fields
+
+    from learning_fixtures import make_checkpoint
+
+    rng = np.random.default_rng(5)
+    frames = []
+    for k, fid in enumerate(CLASHING_IDS):
+        pts = np.concatenate([car_points(rng, [10.0, 2.0, -0.9], 0.3), rng.uniform(-30, 30, (700 + k, 3))])
+        np.save(tmp_path / f"s{k}.npy", pts.astype(np.float32))
+        box = {"center": [10.0, 2.0, -0.9], "size": SIZE, "yaw": 0.3, "label": "car"}
+        frames.append({"scan": f"s{k}.npy", "frame_id": fid, "timestamp": k, "boxes": [box]})
+    (tmp_path / "seq.json").write_text(json.dumps({"frames": frames}, ensure_ascii=False))
+    ck = make_checkpoint(tmp_path / "tiny.pt", "sanet")
+    out = tmp_path / "out"
+    argv = ["real", "complete", str(tmp_path / "seq.json"), "--format", "generic", "-o", str(out), "-c", str(ck)]
+    assert main([*argv, "--no-pictures", "--no-clip", "-q"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["n_frames"] == len(CLASHING_IDS)
+    plys = [f["ply"] for f in summary["frames"]]
+    assert len(set(plys)) == len(CLASHING_IDS) and len(list(out.glob("*.ply"))) == len(CLASHING_IDS)
+    for rec in summary["frames"]:
+        k = CLASHING_IDS.index(rec["frame_id"])
+        own = json.loads(Path(rec["ply"][: -len(".ply")] + ".json").read_text())
+        assert own["frame_id"] == rec["frame_id"]
+        f = load_ply_fields(rec["ply"])
+        assert int((f["source"] < 2).sum()) == 300 + 700 + k

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from ..data.real.boxfiles import load_json, read_box_file, with_class
+from ..data.real.boxfiles import read_box_file, with_class
 from ..data.real.scans import read_scan
 from ..errors import ParameterError, SpotlightsError
 from ..experiments.scene import (
@@ -19,6 +19,7 @@ from ..experiments.scene import (
 )
 from ..geometry.boxes import box_from_dict
 from ..geometry.io import axes_rotation
+from ..inputs import read_json
 from ..learning.export import load_onnx_completer
 from ..utils import atomic_output, check_writable
 from ._util import DEVICE_HELP, add_command, check_picture, check_suffix, non_negative_int, positive_int, unit_interval
@@ -308,7 +309,7 @@ def _complete(args) -> int:
         box_src = args.boxes
     else:
         if args.box is not None:
-            box = box_from_dict(load_json(Path(args.box)), args.box, axes=axes)  # yaw: about the scan's up axis
+            box = box_from_dict(read_json(args.box), args.box, axes=axes)  # yaw: about the scan's up axis
             box_src = args.box
         else:
             box = box_from_dict(

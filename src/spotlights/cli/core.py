@@ -7,11 +7,19 @@ import argparse
 from .. import viz
 from ..errors import InputFileError, ParameterError, SpotlightsError
 from ..geometry.encode import MeshProbe, hit_ratio, load_encoding, save_encoding
-from ..geometry.io import MESH_SUFFIXES, POINT_SUFFIXES, load_mesh, load_points, ply_has_faces, save_points
+from ..geometry.io import (
+    MESH_SUFFIXES,
+    POINT_SUFFIXES,
+    load_mesh,
+    load_ply_fields,
+    load_points,
+    ply_has_faces,
+    save_points,
+)
 from ..geometry.rig import make_rig_spec
 from ..utils import check_writable
 from ..viz import html
-from ..viz.html import SOURCES, read_ply_fields
+from ..viz.html import SOURCES
 from ._util import add_command, add_quiet, check_picture, check_suffix, unit_interval
 from .view import add_html_argument, write_page
 
@@ -244,7 +252,7 @@ def _show(args) -> int:
         print(f"{src}: mesh -> {out}")
         return 0
     if suffix == ".ply":
-        fields = read_ply_fields(src)
+        fields = load_ply_fields(src)
         if "source" in fields:  # a scene from 'complete --boxes': raw grey, partial purple, completion green
             xyz = np.stack([fields["x"], fields["y"], fields["z"]], axis=1).astype(np.float64)
             layers = [

@@ -35,7 +35,7 @@ from ._util import (
     unit_interval,
 )
 from .complete import add_completion_arguments, classes_arg, load_model, scene_config, warn
-from .real_frames import complete_frames
+from .real_frames import complete_frames, file_stem
 from .view import add_html_argument, write_page
 
 FORMAT_CHOICES = ("kitti", "kitti360", "av2", "nuscenes", "generic")
@@ -525,7 +525,7 @@ def _show(args) -> int:
     obs = read_observations(args.file)
     rows = frame_rows(obs, args.sequence, args.frame)
     rows = sorted(rows, key=lambda i: -int(obs.n_points_raw[i]))[: args.max_objects]
-    default_out = str(Path(args.file).with_suffix("")) + f"_{obs.frame_id[rows[0]]}.png"
+    default_out = str(Path(args.file).with_suffix("")) + f"_{file_stem(obs.frame_id[rows[0]])}.png"
     check_writable(args.out or (None if args.html else default_out), args.html)
     completions, model = None, None
     if args.no_completion and args.checkpoint:
@@ -539,7 +539,7 @@ def _show(args) -> int:
         model = completer.model_name
     i0 = rows[0]
     frame = obs.frame_id[i0]
-    out = args.out or str(Path(args.file).with_suffix("")) + f"_{frame}.png"
+    out = args.out or default_out
     title = f"{obs.meta.get('source_format')} {obs.sequence[i0] + '/' if obs.sequence[i0] else ''}{frame}" + (
         f" - {model}" if model else ""
     )

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from .._version import __version__
 from ..errors import InputFileError
+from ..inputs import path_inside, read_json
 from ..utils import atomic_output
 
 INDEX_FORMAT = "spotlights-completion-shards"
@@ -28,10 +29,7 @@ def read_shard_index(path: Path) -> list[dict]:
 
     Returns ``[{"path": Path, "n_models": int, "n_samples": int}, ...]`` in dataset order (shard
     paths resolved against the index's folder). Raises InputFileError naming the index."""
-    try:
-        idx = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputFileError(path, f"not a readable shard index ({str(exc).splitlines()[0][:80]})") from None
+    idx = read_json(path, "shard index")
     if not isinstance(idx, dict) or idx.get("format") != INDEX_FORMAT:
         raise InputFileError(
             path, f"not a spotlights shard index (format {idx.get('format') if isinstance(idx, dict) else None!r})"
@@ -42,7 +40,11 @@ def read_shard_index(path: Path) -> list[dict]:
         )
     try:
         shards = [
-            {"path": path.parent / str(s["file"]), "n_models": int(s["n_models"]), "n_samples": int(s["n_samples"])}
+            {
+                "path": path_inside(path.parent, s["file"], path, "shard file"),
+                "n_models": int(s["n_models"]),
+                "n_samples": int(s["n_samples"]),
+            }
             for s in idx["shards"]
         ]
     except (KeyError, TypeError, ValueError):

@@ -19,6 +19,7 @@ import math
 import numpy as np
 
 from ..errors import InputFileError, ParameterError
+from ..inputs import read_json
 from .frames import normalization_from_box
 from .rotations import is_rotation, orthonormalize, quaternion_to_matrix, rotation_z
 
@@ -284,14 +285,9 @@ def box_from_dict(d, src="box", what: str = "box", require_label: bool = False, 
 
 def load_box(path) -> Box:
     """Read a one-box JSON file (see :func:`box_from_dict`; the label is optional here)."""
-    import json
     from pathlib import Path
 
     p = Path(path)
     if not p.is_file():
         raise InputFileError(p, "no such box file")
-    try:
-        d = json.loads(p.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputFileError(p, f"not valid JSON ({exc})") from None
-    return box_from_dict(d, p)
+    return box_from_dict(read_json(p, "box file"), p)

@@ -124,6 +124,11 @@ def load_points(path: str | os.PathLike, drop_nonfinite: bool = False) -> np.nda
             pc = PointCloud.from_path(p)
             if not all(k in pc.fields for k in ("x", "y", "z")):
                 raise InputFileError(p, f"PCD has no x, y, z fields (fields: {', '.join(pc.fields)})")
+            if len(pc.pc_data) != pc.metadata.points:
+                raise InputFileError(
+                    p,
+                    f"truncated PCD: its header declares {pc.metadata.points} points, the file holds {len(pc.pc_data)}",
+                )
             pts = pc.numpy(("x", "y", "z"))
         elif suffix == ".ply":
             import trimesh
@@ -132,6 +137,11 @@ def load_points(path: str | os.PathLike, drop_nonfinite: bool = False) -> np.nda
             pts = getattr(obj, "vertices", None)
             if pts is None:
                 raise InputFileError(p, "PLY holds no vertices")
+            declared = obj.metadata.get("_ply_raw", {}).get("vertex", {}).get("length", len(pts))
+            if declared != len(pts):
+                raise InputFileError(
+                    p, f"truncated PLY: its header declares {declared} vertices, the file holds {len(pts)}"
+                )
         elif suffix == ".npy":
             pts = np.load(p, allow_pickle=False)
         elif suffix == ".npz":
@@ -170,6 +180,30 @@ def load_points(path: str | os.PathLike, drop_nonfinite: bool = False) -> np.nda
     return pts
 
 
+#: The fewest bytes a LAZ file spends per point: 2 million identical points compress to 0.007-0.012
+#: bytes each (lazrs, point formats 0, 3, 6); a real scan takes 1-4. A header claiming more points
+#: than its data could hold at 0.004 bytes each is refused before anything is allocated.
+LAZ_MIN_BYTES_PER_POINT = 0.004
+
+
+def _check_las_size(p: Path, header) -> None:
+    """Refuse a LAS/LAZ header whose point count the file is too small to hold (a damaged or hostile
+    header would make the reader allocate gigabytes for minutes): LAS, count x record length must fit
+    after the header; LAZ, the compressed data must hold at least LAZ_MIN_BYTES_PER_POINT per point."""
+    n, record = int(header.point_count), int(header.point_format.size)
+    stored = p.stat().st_size - int(header.offset_to_point_data)
+    if header.are_points_compressed:
+        fits = n * LAZ_MIN_BYTES_PER_POINT <= stored
+    else:
+        fits = n * record <= stored
+    if not fits:
+        raise InputFileError(
+            p,
+            f"header declares {n:,} points but the file holds {max(stored, 0):,} bytes of point data "
+            "(truncated or damaged)",
+        )
+
+
 def _read_las(p: Path) -> np.ndarray:
     """x, y, z (K, 3) float64 of a LAS/LAZ file (scale and offset applied) via laspy."""
     try:
@@ -177,7 +211,9 @@ def _read_las(p: Path) -> np.ndarray:
     except ImportError:
         raise InputFileError(p, f"reading LAS/LAZ needs laspy: {LAS_INSTALL_HINT}") from None
     try:
-        las = laspy.read(str(p))
+        with laspy.open(str(p)) as reader:
+            _check_las_size(p, reader.header)
+            las = reader.read()
     except laspy.errors.LaspyException as exc:
         msg = str(exc).splitlines()[0][:100] if str(exc) else type(exc).__name__
         if p.suffix.lower() == ".laz" and "backend" in msg.lower():
@@ -296,12 +332,23 @@ def load_ply_fields(path: str | os.PathLike) -> dict[str, np.ndarray]:
     try:
         with open(p, "rb") as fh:
             cloud = trimesh.exchange.ply.load_ply(fh, prefer_color=None)
-    except Exception as exc:
-        raise InputFileError(p, f"cannot read PLY ({type(exc).__name__})") from None
-    attrs = cloud.get("metadata", {}).get("_ply_raw", {}).get("vertex", {}).get("data")
-    if attrs is None:
-        raise InputFileError(p, "PLY holds no vertex element")
-    return {n: np.asarray(attrs[n]) for n in attrs.dtype.names}
+        vertex = cloud.get("metadata", {}).get("_ply_raw", {}).get("vertex", {})
+        attrs = vertex.get("data")
+        if attrs is None:
+            raise InputFileError(p, "PLY holds no vertex element")
+        # binary PLYs give a structured array, ASCII ones a dict of (K, 1) columns
+        names = attrs.dtype.names if hasattr(attrs, "dtype") else list(attrs)
+        fields = {n: np.asarray(attrs[n]) for n in names}
+        fields = {n: a[:, 0] if a.ndim == 2 and a.shape[1] == 1 else a for n, a in fields.items()}
+        declared = int(vertex.get("length", -1))
+    except InputFileError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - whatever the parser trips on is the file's fault
+        raise InputFileError(p, f"cannot read PLY ({type(exc).__name__}: {str(exc)[:100]})") from None
+    held = {len(a) for a in fields.values()}
+    if held != {declared}:
+        raise InputFileError(p, f"truncated PLY: its header declares {declared} vertices, the file holds {min(held)}")
+    return fields
 
 
 def ply_has_faces(path: str | os.PathLike) -> bool:

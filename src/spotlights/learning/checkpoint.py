@@ -90,9 +90,6 @@ def load_checkpoint(path, expect_model: str | None = None, map_location="cpu") -
     InputFileError : missing file, not a torch file, not a spotlights checkpoint,
         unknown model, or a model other than ``expect_model``.
     """
-    import pickle
-    import zipfile
-
     import torch
 
     p = resolve_checkpoint(path)
@@ -100,18 +97,20 @@ def load_checkpoint(path, expect_model: str | None = None, map_location="cpu") -
         raise InputFileError(p, "is a folder, expected a checkpoint file (e.g. RUN/best.pt)")
     try:
         ckpt = torch.load(p, map_location=map_location, weights_only=True)
-    except (pickle.UnpicklingError, zipfile.BadZipFile, RuntimeError, EOFError, ValueError, OSError) as exc:
-        msg = str(exc).splitlines()[0][:100] if str(exc) else type(exc).__name__
-        raise InputFileError(p, f"not a readable checkpoint ({msg})") from None
+    except Exception as exc:  # noqa: BLE001 - any failure of unpickling garbage is the file's fault
+        msg = (str(exc).splitlines() or [""])[0][:100]
+        raise InputFileError(p, f"not a readable checkpoint ({type(exc).__name__}: {msg})") from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         raise InputFileError(p, "not a spotlights checkpoint (no 'format: spotlights-checkpoint' entry)")
-    if int(ckpt.get("format_version", 0)) > FORMAT_VERSION:
+    if not isinstance(ckpt.get("format_version", 0), int):
+        raise InputFileError(p, "damaged checkpoint: its 'format_version' entry is not an integer")
+    if ckpt.get("format_version", 0) > FORMAT_VERSION:
         raise InputFileError(
             p,
             f"checkpoint format version {ckpt.get('format_version')} is newer than this spotlights ({FORMAT_VERSION})",
         )
     name = ckpt.get("model_name")
-    if name not in MODEL_REGISTRY:
+    if not isinstance(name, str) or name not in MODEL_REGISTRY:
         raise InputFileError(p, f"checkpoint holds an unknown model {name!r}")
     if expect_model is not None and name != expect_model:
         raise InputFileError(p, f"checkpoint holds a {name!r} model, expected {expect_model!r}")
@@ -139,15 +138,15 @@ def model_from_checkpoint(ckpt: dict, device=None):
     try:
         model = build_model(ckpt["config"], rig=ckpt.get("rig"))
         model.load_state_dict(ckpt["model_state"])
-    except (RuntimeError, KeyError, TypeError, ValueError) as exc:
-        first = str(exc).splitlines()[0][:160]
+        chosen = ckpt.get("hit_threshold")
+        if chosen is not None and hasattr(model, "threshold"):  # hit-aware SA-Net: the p(hit) threshold chosen on val
+            model.threshold = float(chosen["value"] if isinstance(chosen, dict) else chosen)
+    except Exception as exc:  # noqa: BLE001 - any config or weights that do not build are the file's fault
+        first = (str(exc).splitlines() or [type(exc).__name__])[0][:160]
         raise InputFileError(
             ckpt.get("path", "checkpoint"), f"weights do not match the {ckpt['model_name']} config ({first})"
         ) from None
     model = model.float()
-    chosen = ckpt.get("hit_threshold")
-    if chosen is not None and hasattr(model, "threshold"):  # hit-aware SA-Net: the p(hit) threshold chosen on val
-        model.threshold = float(chosen["value"] if isinstance(chosen, dict) else chosen)
     if device is not None:
         model = model.to(torch.device(device))
     return model.eval()

@@ -188,6 +188,49 @@ class _Default:
 DEFAULT = _Default()
 
 
+def _onnx_fields(p: Path, meta: dict[str, str]) -> dict:
+    """The completer's fields from an export's metadata strings, checked: any missing, malformed
+    (not JSON) or inconsistent entry is an :class:`InputFileError` naming the file."""
+    try:
+        version = int(meta.get("spotlights_format_version", "0"))
+        f = {
+            "model_name": meta["model_name"],
+            "param_counts": json.loads(meta["param_counts"]),
+            "rig": json.loads(meta.get("rig", "null")),
+            "needs_box": json.loads(meta.get("needs_box", "false")),
+            "clip": json.loads(meta.get("clip", "null")),
+            "threshold": json.loads(meta.get("threshold", "null")),
+            "domain": LearnedDomain.from_checkpoint({"domain": json.loads(meta.get("domain", "null"))}),
+            "outputs": json.loads(meta["outputs"]),
+            "inputs": json.loads(meta["inputs"]),
+        }
+        if f["rig"] is not None:
+            f["rig"] = rig_spec(f["rig"])
+        int(f["param_counts"]["total"])
+    except KeyError as exc:
+        raise InputFileError(p, f"damaged spotlights metadata: no {exc.args[0]!r} entry") from None
+    except Exception as exc:  # noqa: BLE001 - any entry that does not parse is the file's fault
+        first = (str(exc).splitlines() or [type(exc).__name__])[0][:100]
+        raise InputFileError(p, f"damaged spotlights metadata ({type(exc).__name__}: {first})") from None
+    if version > FORMAT_VERSION:
+        raise InputFileError(p, f"ONNX export format {version} is newer than this spotlights ({FORMAT_VERSION})")
+    damaged = "damaged spotlights metadata"
+    if not all(isinstance(v, list) and all(isinstance(n, str) for n in v) for v in (f["inputs"], f["outputs"])):
+        raise InputFileError(p, f"{damaged}: inputs/outputs are not lists of names")
+    if "partial" not in f["inputs"]:
+        raise InputFileError(p, f"{damaged}: no 'partial' input")
+    if "points" not in f["outputs"] and not {"depths", "ray_points"} <= set(f["outputs"]):
+        raise InputFileError(p, f"{damaged}: outputs hold neither 'points' nor 'depths' with 'ray_points'")
+    if any(not isinstance(f[k], (int, float, type(None))) or isinstance(f[k], bool) for k in ("clip", "threshold")):
+        raise InputFileError(p, f"{damaged}: clip/threshold are not numbers")
+    if "hit_probability" in f["outputs"] and f["threshold"] is None:
+        raise InputFileError(p, f"{damaged}: a p(hit) output without a threshold")
+    if f["needs_box"] and (f["rig"] is None or "directions" not in f["inputs"]):
+        raise InputFileError(p, f"{damaged}: a box-targeted model without its rig or a 'directions' input")
+    f["needs_box"] = bool(f["needs_box"])
+    return f
+
+
 class OnnxCompleter:
     """A ``spotlights export`` ONNX file run with onnxruntime, with the interface of
     :class:`~spotlights.learning.inference.Completer`.
@@ -214,32 +257,26 @@ class OnnxCompleter:
                 "not a spotlights ONNX export (no spotlights_format metadata; make one with "
                 "'spotlights export CHECKPOINT --out model.onnx')",
             )
-        if int(meta.get("spotlights_format_version", 0)) > FORMAT_VERSION:
-            raise InputFileError(
-                p,
-                f"ONNX export format {meta.get('spotlights_format_version')} is newer than this "
-                f"spotlights ({FORMAT_VERSION})",
-            )
+        fields = _onnx_fields(p, meta)
         opts = ort.SessionOptions()
         if threads:
             opts.intra_op_num_threads = int(threads)
-        self.session = ort.InferenceSession(str(p), opts, providers=providers or ["CPUExecutionProvider"])
+        try:
+            self.session = ort.InferenceSession(str(p), opts, providers=providers or ["CPUExecutionProvider"])
+        except Exception as exc:  # noqa: BLE001 - a graph onnxruntime cannot run is a bad file
+            raise InputFileError(p, f"onnxruntime cannot load this graph ({str(exc).splitlines()[0][:100]})") from None
+        graph_inputs = {i.name for i in self.session.get_inputs()}
+        graph_outputs = {o.name for o in self.session.get_outputs()}
+        missing = [n for n in fields["inputs"] if n not in graph_inputs] + [
+            n for n in fields["outputs"] if n not in graph_outputs
+        ]
+        if missing:
+            raise InputFileError(p, f"damaged spotlights metadata: the graph has no {missing[0]!r} input or output")
         self.path = p
         self.meta = meta
-        self.model_name = meta["model_name"]
-        self.param_counts = json.loads(meta["param_counts"])
+        for key, value in fields.items():
+            setattr(self, key, value)
         self.n_params = int(self.param_counts["total"])
-        rig = json.loads(meta.get("rig", "null"))
-        if rig is not None:
-            rig = rig_spec(rig)
-        self.rig = rig
-        self.needs_box = bool(json.loads(meta.get("needs_box", "false")))
-        self.clip = json.loads(meta.get("clip", "null"))
-        self.threshold = json.loads(meta.get("threshold", "null"))
-
-        self.domain = LearnedDomain.from_checkpoint({"domain": json.loads(meta.get("domain", "null"))})
-        self.outputs = json.loads(meta["outputs"])
-        self.inputs = json.loads(meta["inputs"])
         self.device = f"onnxruntime:{self.session.get_providers()[0]}"
 
     def __repr__(self):

@@ -238,7 +238,7 @@ def restore_run(run: TrainingRun, state: dict, extended: bool) -> None:
         run.opt.load_state_dict(state["optimizer_state"])
         run.sched.load_state_dict(state["scheduler_state"])
         int(state["epoch"]), int(state["global_step"])
-    except (RuntimeError, KeyError, TypeError, ValueError) as exc:
+    except Exception as exc:  # noqa: BLE001 - whatever does not fit is the file's fault
         first = (str(exc).splitlines() or [type(exc).__name__])[0][:160]
         raise InputFileError(
             run.last_path, f"cannot resume from this checkpoint ({type(exc).__name__}: {first})"

@@ -13,7 +13,6 @@ Functions return lists of plotly traces (``*_traces``); :func:`page` lays them o
 
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -25,7 +24,8 @@ from ..data.real.frames import frame_rows
 from ..errors import InputFileError, SpotlightsError
 from ..geometry.encode import decode, load_encoding
 from ..geometry.frames import box_corners
-from ..geometry.io import MESH_SUFFIXES, POINT_SUFFIXES, load_mesh, load_points, ply_has_faces
+from ..geometry.io import MESH_SUFFIXES, POINT_SUFFIXES, load_mesh, load_ply_fields, load_points, ply_has_faces
+from ..inputs import read_json
 from ..utils import atomic_output
 from .encoding import encoding_layers, viewpoint_rays
 from .scene import bev_window, frame_objects, read_frame_scan
@@ -411,22 +411,6 @@ def write_plotlyjs(folder: str | os.PathLike) -> Path:
 
 
 # --- files -> traces (``spotlights view``) -------------------------------------------------------
-def read_ply_fields(path: str | os.PathLike) -> dict[str, np.ndarray]:
-    """All per-vertex properties of a PLY point cloud: {name: (K,) array} (``x``, ``y``, ``z`` and any
-    others, e.g. ``source`` and ``object`` of a scene written by ``complete --boxes``)."""
-    import trimesh
-
-    try:
-        obj = trimesh.load(str(path), process=False)
-    except Exception as exc:
-        raise InputFileError(path, f"cannot read PLY ({type(exc).__name__})") from None
-    raw = getattr(obj, "metadata", {}).get("_ply_raw", {}).get("vertex", {}).get("data")
-    if raw is None:
-        v = np.asarray(getattr(obj, "vertices", np.zeros((0, 3))), dtype=np.float64)
-        return {"x": v[:, 0], "y": v[:, 1], "z": v[:, 2]}
-    return {k: np.asarray(raw[k]) for k in raw.dtype.names}
-
-
 def scene_ply_traces(fields: dict[str, np.ndarray], name: str) -> list:
     """Traces of a scene PLY with a ``source`` field (0 raw grey, 1 partial purple, 2 completion green);
     an ``object`` field names each object's points in the hover text."""
@@ -464,10 +448,7 @@ def scene_ply_traces(fields: dict[str, np.ndarray], name: str) -> list:
 def read_boxes_json(path: str | os.PathLike) -> list[dict]:
     """Boxes from JSON: one box ``{"center", "size", "yaw"|"rotation", ...}``, a list of them, or
     ``{"boxes": [...]}``. Each box's id: ``id``, ``track_id``, ``object`` or ``label``, else its index."""
-    try:
-        data = json.loads(Path(path).read_text())
-    except (OSError, ValueError) as exc:
-        raise InputFileError(path, f"not a readable JSON file ({type(exc).__name__})") from None
+    data = read_json(path)
     items = data.get("boxes", data.get("objects", [data])) if isinstance(data, dict) else data
     boxes = []
     for i, b in enumerate(items if isinstance(items, list) else []):
@@ -527,7 +508,7 @@ def file_traces(
         mesh = load_mesh(src, up=up, forward=forward)
         return mesh_traces(mesh, name), f"mesh ({len(mesh.vertices)} vertices, {len(mesh.faces)} faces)"
     if suffix == ".ply":
-        fields = read_ply_fields(src)
+        fields = load_ply_fields(src)
         if "source" in fields:
             return scene_ply_traces(fields, name), f"scene ({len(fields['x'])} points with sources)"
     if suffix in POINT_SUFFIXES:

@@ -19,7 +19,6 @@ put in the Velodyne frame (:mod:`spotlights.data.real.kitti`).
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,6 +27,7 @@ import numpy as np
 
 from ...errors import InputFileError
 from ...geometry.boxes import Box, box_from_dict
+from ...inputs import read_json
 from . import av2, kitti, kitti360, nuscenes
 from .base import CLASSES, lookup_class
 
@@ -63,17 +63,6 @@ class BoxFile:
 def with_class(box: Box) -> Box:
     """The box with ``cls`` looked up from its label in :data:`CLASS_MAP` (None when not a vehicle class)."""
     return box.replace(cls=lookup_class(box.label, CLASS_MAP))
-
-
-def load_json(path: Path):
-    """Parse a JSON file; errors name it."""
-    if not path.is_file():
-        raise InputFileError(path, "JSON file not found")
-    try:
-        with open(path, encoding="utf-8") as fh:
-            return json.load(fh)
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputFileError(path, f"not valid JSON ({exc})") from None
 
 
 def parse_boxes(items, path, require_label: bool = True, axes=None, what: str = "box") -> list[Box]:
@@ -126,7 +115,7 @@ def parse_frame_keys(d: dict, path, what: str = "frame") -> dict:
 def read_json_boxes(path: str | os.PathLike, require_label: bool = True, axes=None) -> BoxFile:
     """Read a generic JSON box file (list, per-frame object, or one box): see the module docstring."""
     p = Path(path)
-    data = load_json(p)
+    data = read_json(p)
     if isinstance(data, list):
         return BoxFile(p, parse_boxes(data, p, require_label, axes))
     if isinstance(data, dict) and "boxes" in data:

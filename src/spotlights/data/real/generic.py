@@ -55,8 +55,9 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import InputFileError
+from ...inputs import path_inside, read_json
 from .base import Frame, SceneReader
-from .boxfiles import CLASS_MAP, load_json, parse_boxes, parse_frame_keys, read_json_boxes  # noqa: F401  (CLASS_MAP re-exported)
+from .boxfiles import CLASS_MAP, parse_boxes, parse_frame_keys, read_json_boxes  # noqa: F401  (CLASS_MAP re-exported)
 from .scans import read_scan, scan_kind
 
 SCAN_NAME_SUFFIXES = (".pcd.bin", ".bin", ".feather", ".ply", ".pcd", ".npy", ".npz", ".xyz", ".txt", ".las", ".laz")
@@ -204,7 +205,7 @@ class GenericReader(SceneReader):
 
     @staticmethod
     def _sequence_json(source: Path) -> list[dict]:
-        data = load_json(source)
+        data = read_json(source)
         if not isinstance(data, dict) or not isinstance(data.get("frames"), list):
             raise InputFileError(
                 source, 'a sequence file must be {"frames": [...]} (a bare box list needs a scan file as SOURCE)'
@@ -215,12 +216,12 @@ class GenericReader(SceneReader):
             what = f"frames[{i}]"
             if not isinstance(fr, dict) or "scan" not in fr or not isinstance(fr.get("boxes"), (list, str)):
                 raise InputFileError(source, f"{what} needs 'scan' and 'boxes' (a list of boxes, or a box file path)")
-            scan = (source.parent / str(fr["scan"])).resolve()
+            scan = path_inside(source.parent, fr["scan"], source, f"{what} scan").resolve()
             if not scan.is_file():
                 raise InputFileError(scan, f"scan file of {what} not found")
             keys = parse_frame_keys(fr, source, what)
             if isinstance(fr["boxes"], str):
-                box_path = (source.parent / fr["boxes"]).resolve()
+                box_path = path_inside(source.parent, fr["boxes"], source, f"{what} boxes").resolve()
                 bf = read_json_boxes(box_path)
                 boxes, label_path = bf.boxes, box_path
                 for k, v in (

@@ -80,7 +80,12 @@ def read_calib(path: str | os.PathLike) -> dict[str, np.ndarray]:
             raise InputFileError(path, f"missing {name} in calibration file")
         if len(found) != shape[0] * shape[1]:
             raise InputFileError(path, f"{name} has {len(found)} values, expected {shape[0] * shape[1]}")
-        out[name] = np.array(found, dtype=np.float64).reshape(shape)
+        m = np.array(found, dtype=np.float64).reshape(shape)
+        if not np.all(np.isfinite(m)):
+            raise InputFileError(path, f"{name} holds a non-finite value")
+        if np.linalg.cond(m[:, :3]) > 1e6:  # a rotation (condition number 1), never near singular
+            raise InputFileError(path, f"{name} is singular: its 3x3 part is not a rotation")
+        out[name] = m
     return out
 
 

@@ -41,7 +41,6 @@ per label by ``real extract``. nuScenes has no van/caravan class (vans are cars)
 
 from __future__ import annotations
 
-import json
 import os
 from collections import defaultdict
 from pathlib import Path
@@ -51,6 +50,7 @@ import numpy as np
 from ...errors import InputFileError, ParameterError
 from ...geometry.boxes import Box
 from ...geometry.rotations import quaternion_to_matrix, rigid_transform
+from ...inputs import path_inside, read_json
 from .base import Frame, SceneReader, lookup_class
 from .scans import read_nuscenes_bin
 
@@ -110,11 +110,7 @@ def read_table(folder: Path, name: str) -> list[dict]:
     path = folder / f"{name}.json"
     if not path.is_file():
         raise InputFileError(path, f"nuScenes table {name}.json not found")
-    try:
-        with open(path, encoding="utf-8") as fh:
-            rows = json.load(fh)
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputFileError(path, f"not valid JSON ({exc})") from None
+    rows = read_json(path)
     if not isinstance(rows, list):
         raise InputFileError(path, f"a nuScenes table is a JSON list of rows, got {type(rows).__name__}")
     keys = TABLE_KEYS[name]
@@ -124,6 +120,11 @@ def read_table(folder: Path, name: str) -> list[dict]:
         missing = [k for k in keys if k not in r]
         if missing:
             raise InputFileError(path, f"row {i} lacks {', '.join(repr(k) for k in missing)}")
+        bad = [k for k in keys if k.endswith("token") and not isinstance(r[k], str)]
+        bad += [k for k in keys if k == "timestamp" and (not isinstance(r[k], int) or isinstance(r[k], bool))]
+        if bad:
+            kind = "a string" if bad[0].endswith("token") else "an integer (microseconds)"
+            raise InputFileError(path, f"row {i}: {bad[0]} must be {kind}, got {r[bad[0]]!r:.40}")
     return rows
 
 
@@ -245,10 +246,12 @@ class NuScenesReader(SceneReader):
                     raise InputFileError(
                         tables / "sample_data.json", f"sample_data {sd['token']}: unknown {key} {sd[key]}"
                     )
-            scan = data_root / str(sd["filename"])
+            scan = path_inside(
+                data_root, sd["filename"], tables / "sample_data.json", f"sample_data {sd['token']} filename"
+            )
             if not scan.is_file():
                 raise InputFileError(scan, f"{LIDAR_CHANNEL} keyframe scan of sample {s['token']} not found")
-            frames.append((name, int(sd["timestamp"]), s["token"], sd, scan))
+            frames.append((name, sd["timestamp"], s["token"], sd, scan))
         if not frames:
             raise InputFileError(
                 tables, "no LIDAR_TOP keyframe" + (f" in scene(s) {', '.join(sorted(wanted))}" if wanted else "")

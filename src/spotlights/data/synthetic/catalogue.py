@@ -20,6 +20,7 @@ from tqdm import tqdm
 
 from ...errors import InputFileError, ParameterError
 from ...geometry.io import MESH_SUFFIXES, load_mesh
+from ...inputs import path_inside
 from ..store import SPLITS
 from .config import STREAM_AUGMENT, STREAM_SPLIT, parse_split
 
@@ -101,7 +102,7 @@ def discover_models(
             rel = (row.get("file") or "").strip()
             if not rel:
                 continue
-            p = root / rel
+            p = path_inside(root, rel, man, "mesh file")
             cat = (row.get("category") or "").strip() or (Path(rel).parts[0] if len(Path(rel).parts) > 1 else root.name)
             split = (row.get("split") or "").strip().lower() or None
             if split is not None and split not in SPLITS:

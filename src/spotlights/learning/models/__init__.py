@@ -51,9 +51,13 @@ def _read_yaml(path) -> dict:
     if not p.is_file():
         raise InputFileError(p, "no such config file")
     try:
-        data = yaml.safe_load(p.read_text())
+        data = yaml.safe_load(p.read_text(encoding="utf-8"))
     except yaml.YAMLError as exc:
         raise InputFileError(p, f"invalid YAML ({str(exc).splitlines()[0]})") from None
+    except UnicodeDecodeError:
+        raise InputFileError(p, "not a YAML text file (not UTF-8)") from None
+    except RecursionError:
+        raise InputFileError(p, "invalid YAML (nested too deeply)") from None
     if data is None:
         return {}
     if not isinstance(data, dict):

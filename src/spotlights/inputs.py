@@ -1,0 +1,63 @@
+"""Reading what users and datasets bring, for every layer: a JSON file parsed with one clear error
+whatever is wrong with it, and a path named inside a dataset kept inside that dataset's folder."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+from .errors import InputFileError
+
+
+def read_json(path: str | os.PathLike, what: str = "JSON file"):
+    """Parse the JSON file ``path``; any fault of its text is an :class:`InputFileError` naming it.
+
+    Besides a syntax error: text that is not UTF-8, nesting too deep for the parser
+    (``RecursionError``) and integers too long to convert (``ValueError``, Python's
+    4,300-digit limit). A missing file is an :class:`InputFileError` too (``what`` names it).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputFileError(p, f"{what} not found" if not p.exists() else f"is not a file, expected a {what}")
+    try:
+        with open(p, encoding="utf-8") as fh:
+            return json.load(fh)
+    except RecursionError:
+        raise InputFileError(p, "not valid JSON (nested too deeply)") from None
+    except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError, an integer of thousands of digits
+        first = (str(exc).splitlines() or [type(exc).__name__])[0][:160]
+        if "integer string conversion" in first:
+            first = "a number of thousands of digits"
+        raise InputFileError(p, f"not valid JSON ({first})") from None
+
+
+def path_inside(
+    root: str | os.PathLike, name: str | os.PathLike, source: str | os.PathLike, what: str = "file"
+) -> Path:
+    """The file a dataset names, ``root / name``, refused unless it lies inside ``root``.
+
+    ``name`` comes from inside a dataset (a table row, an index, a manifest) written by someone
+    else: an absolute path, a ``..`` that climbs out, or a symbolic link that leads out of
+    ``root`` (links are resolved) would make the tool read any file of the machine. Raises
+    :class:`InputFileError` naming ``source`` (the file that holds ``name``). The returned path
+    is ``root / name`` as written (not resolved), so messages show the dataset's own names.
+    """
+    text = os.fspath(name) if isinstance(name, (str, os.PathLike)) else None
+    if not isinstance(text, str) or not text or "\x00" in text:
+        raise InputFileError(source, f"{what} {name!r} is not a relative path inside {root}")
+    if os.path.isabs(text) or Path(text).anchor or text.startswith(("/", "\\")):
+        raise InputFileError(source, f"{what} {text!r} is an absolute path; it must lie inside {root}")
+    base = Path(root)
+    candidate = base / text
+    real_root = os.path.realpath(base)
+    real = os.path.realpath(candidate)
+    if os.path.commonpath([real_root, real]) != real_root:
+        plain = os.path.normpath(os.path.join(os.path.abspath(base), text))
+        how = (
+            " through a symbolic link"
+            if os.path.commonpath([os.path.abspath(base), plain]) == os.path.abspath(base)
+            else ""
+        )
+        raise InputFileError(source, f"{what} {text!r} leads outside {root}{how}")
+    return candidate
