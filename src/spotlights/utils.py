@@ -144,6 +144,102 @@ def atomic_output(path: str | os.PathLike, suffix: str | None = None) -> Iterato
         raise
 
 
+class _WriteGuard:
+    """A file for h5py's ``fileobj`` driver that never lets a failed write reach HDF5.
+
+    HDF5 (2.0, sec2 driver) does not survive a write error: the file's close fails as well,
+    and freeing its objects later crashes the interpreter (a segmentation fault after the
+    traceback, on a full disk). Here the first failed write is recorded (``error``) and that
+    write and every later one are kept in memory instead, so HDF5 sees a working file, closes
+    it cleanly, and the caller raises the recorded error. Reads see the bytes on disk with the
+    kept ones over them.
+    """
+
+    def __init__(self, path: Path, mode: str):
+        flags = os.O_RDWR | (0 if mode == "r+" else os.O_CREAT | os.O_TRUNC)
+        self.fd = os.open(path, flags | getattr(os, "O_CLOEXEC", 0), 0o666)
+        self.pos = 0
+        self.error: OSError | None = None
+        self.kept: list[tuple[int, bytes]] = []  # (offset, bytes) not written since the error
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        self.pos = offset if whence == 0 else self.pos + offset if whence == 1 else self._size() + offset
+        return self.pos
+
+    def tell(self) -> int:
+        return self.pos
+
+    def _size(self) -> int:
+        return max([os.fstat(self.fd).st_size] + [a + len(b) for a, b in self.kept])
+
+    def read(self, size: int = -1) -> bytes:
+        size = self._size() - self.pos if size < 0 else size
+        data = bytearray(os.pread(self.fd, size, self.pos))
+        if self.kept:
+            data.extend(bytes(max(0, min(size, self._size() - self.pos) - len(data))))
+            for a, b in self.kept:
+                lo, hi = max(a, self.pos), min(a + len(b), self.pos + len(data))
+                if lo < hi:
+                    data[lo - self.pos : hi - self.pos] = b[lo - a : hi - a]
+        self.pos += len(data)
+        return bytes(data)
+
+    def write(self, data) -> int:
+        data = memoryview(data).cast("B")
+        done = 0
+        while self.error is None and done < len(data):
+            try:
+                done += os.pwrite(self.fd, data[done:], self.pos + done)
+            except OSError as exc:
+                self.error = exc
+        if done < len(data):
+            self.kept.append((self.pos + done, bytes(data[done:])))
+        self.pos += len(data)
+        return len(data)
+
+    def truncate(self, size: int | None = None) -> int:
+        size = self.pos if size is None else size
+        if self.error is None:
+            try:
+                os.ftruncate(self.fd, size)
+            except OSError as exc:
+                self.error = exc
+        return size
+
+    def flush(self) -> None:
+        pass
+
+    def check(self) -> None:
+        """Raise the recorded write error, if any (a long write stops at once)."""
+        if self.error is not None:
+            raise self.error
+
+
+@contextlib.contextmanager
+def hdf5_output(path: str | os.PathLike, mode: str = "w", **kwargs) -> Iterator[tuple]:
+    """Open ``path`` (a temporary of :func:`atomic_output`) for writing with h5py; yields
+    ``(file, check)``. A write that fails (a full disk) never crashes the interpreter: the
+    file is closed cleanly and :class:`OSError` naming ``path`` is raised when the body ends,
+    or at once from ``check()``, which a long write calls after each step.
+
+    mode : ``"w"`` (create or truncate) or ``"r+"`` (an existing file); kwargs go to ``h5py.File``.
+    """
+    import h5py
+
+    guard = _WriteGuard(Path(path), mode)
+    try:
+        with h5py.File(guard, mode, **kwargs) as f:
+            yield f, guard.check
+    except OSError:
+        if guard.error is None:
+            raise
+    finally:
+        os.close(guard.fd)
+    if guard.error is not None:
+        exc = guard.error
+        raise OSError(exc.errno, exc.strerror, os.fspath(path)) from None
+
+
 def check_writable(*paths: str | os.PathLike | None) -> None:
     """Fail now, before the work, when an output cannot be written: for each path (None is
     skipped) create and remove a temporary file in its folder, or in the nearest folder that

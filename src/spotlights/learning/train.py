@@ -23,6 +23,7 @@ the process group :mod:`.process_group`.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import math
@@ -33,14 +34,14 @@ import torch
 from torch.utils.data import DataLoader
 from tqdm import tqdm
 
-from ..errors import SpotlightsError
-from ..utils import atomic_output
+from ..errors import OutputFileError, SpotlightsError
+from ..utils import atomic_output, output_folder
 from .checkpoint import save_checkpoint
 from .config import SELECT_BY
 from .device import autocast, default_device
 from .inference import LearnedDomain
 from .process_group import ProcessGroup
-from .training_run import TrainingRun, prepare_run
+from .training_run import RUN_STATE_FILES, TrainingRun, prepare_run
 from .validation import collate, float_outputs, to_device, validate
 
 __all__ = ["LOG_COLUMNS", "default_device", "train", "validate"]
@@ -142,22 +143,32 @@ def train(
     dict: out_dir, last, best (paths), epochs (completed), history (list of rows), param_counts.
     """
     dist = ProcessGroup()
+    out_dir = Path(out_dir)
     try:
-        return _train(
-            dist,
-            model_name,
-            data,
-            Path(out_dir),
-            config,
-            overrides,
-            resume,
-            overwrite,
-            device,
-            progress,
-            log,
-            schedule,
-            stop_after,
-        )
+        with output_folder(out_dir) if dist.main else contextlib.nullcontext():
+            try:
+                return _train(
+                    dist,
+                    model_name,
+                    data,
+                    Path(out_dir),
+                    config,
+                    overrides,
+                    resume,
+                    overwrite,
+                    device,
+                    progress,
+                    log,
+                    schedule,
+                    stop_after,
+                )
+            except (OSError, OutputFileError):
+                # a write failed (a full disk): a run with nothing to resume from leaves nothing
+                # behind (output_folder then removes the folders it created)
+                if dist.main and not (out_dir / "last.pt").exists():
+                    for name in ("config.yaml", *RUN_STATE_FILES):
+                        (out_dir / name).unlink(missing_ok=True)
+                raise
     finally:
         dist.close()
 
