@@ -395,19 +395,46 @@ def process_pool_context(check: bool = True):
     the pool respawn its workers without end (:func:`check_can_start_processes`).
     """
     import multiprocessing as mp
+    import threading
 
     if check:
         check_can_start_processes()
-    methods = mp.get_all_start_methods()
-    return mp.get_context("forkserver" if "forkserver" in methods else "spawn")
+    if "forkserver" not in mp.get_all_start_methods():
+        return mp.get_context("spawn")
+    ctx = mp.get_context("forkserver")
+    if threading.current_thread() is threading.main_thread():
+        # the fork server dies with this process (a parent-death signal follows the thread that
+        # started it: only the main thread lives as long as the process); see _parent_death
+        ctx.set_forkserver_preload(["__main__", "spotlights._parent_death"])
+    return ctx
+
+
+def die_with_parent() -> None:
+    """Linux: have this process killed (SIGKILL) when its parent dies (``PR_SET_PDEATHSIG``),
+    so that pool workers never outlive a killed build; elsewhere nothing. A process whose
+    parent is already gone exits at once."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+    import signal
+
+    try:
+        if ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL), 0, 0, 0) != 0:  # PR_SET_PDEATHSIG
+            return
+    except (OSError, AttributeError):
+        return
+    if os.getppid() == 1:  # the parent died before the call: the signal will not come
+        os._exit(1)
 
 
 def _quiet_worker(initializer, initargs) -> None:
-    """Pool workers leave Ctrl-C to the parent (which stops the pool), then run ``initializer``."""
+    """Pool workers leave Ctrl-C to the parent (which stops the pool), die with their parent,
+    then run ``initializer``."""
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    die_with_parent()  # the fork server, which dies with the pool's owner (process_pool_context)
     if initializer is not None:
         initializer(*initargs)
 
