@@ -124,6 +124,11 @@ def register(sub) -> None:
         metavar="K",
         help="run at most K epochs now, then stop (continue later with --resume); the schedule spans --epochs",
     )
+    p.add_argument(
+        "--allow-new-data",
+        action="store_true",
+        help="with --resume: continue even if --data is not the dataset the run was trained on (refused by default)",
+    )
     add_quiet(p, "no progress bars")
 
     # ---- evaluate
@@ -371,6 +376,7 @@ def _train(args) -> int:
             progress=not args.quiet,
             schedule=args.schedule,
             stop_after=args.stop_after,
+            allow_new_data=args.allow_new_data,
         )
     h = res["history"][-1] if res["history"] else None
     if h:
