@@ -275,7 +275,12 @@ def register(sub) -> None:
         help="a checkpoint file or a short name: 'default' (the package's default model) or 'paper'",
     )
     p.add_argument("--out", "-o", required=True, metavar="MODEL.onnx", help="the ONNX file to write (.onnx)")
-    p.add_argument("--opset", type=positive_int, default=18, help="ONNX opset (default 18)")
+    p.add_argument(
+        "--opset",
+        type=positive_int,
+        default=18,
+        help="ONNX opset, 15 to the newest the installed onnx knows (default 18)",
+    )
     p.add_argument(
         "--no-check",
         action="store_true",
