@@ -65,6 +65,24 @@ def sweep_temporaries(path: str | os.PathLike) -> list[Path]:
     return removed
 
 
+def sweep_folder_temporaries(folder: str | os.PathLike) -> list[Path]:
+    """Remove the stale temporaries of :func:`atomic_output` anywhere under ``folder``: files named
+    ``.NAME.PID-RANDOM.partSUFFIX`` whose process ``PID`` no longer exists (a killed run's
+    half-written outputs, whatever their target). Only names with a PID are touched, never
+    another program's files. Returns the removed paths."""
+    removed = []
+    for root, _dirs, files in os.walk(folder):
+        for name in files:
+            m = _TEMP_RE.match(name)
+            if m is None or m.group("pid") is None or _pid_alive(int(m.group("pid"))):
+                continue
+            path = Path(root) / name
+            with contextlib.suppress(OSError):
+                path.unlink()
+                removed.append(path)
+    return removed
+
+
 def _missing_parents(folder: Path) -> list[Path]:
     """The folders ``mkdir(parents=True)`` would create for ``folder``, outermost first."""
     missing = []
