@@ -285,7 +285,7 @@ def test_sigkill_of_a_build_leaves_no_process(meshes, tmp_path):
             "--out",
             str(out),
             "--views",
-            "2000",
+            "20000",
             "--block",
             "20",
             "--split",
@@ -499,6 +499,7 @@ def _loopback(hex_addr: str) -> bool:
     return ip == "0" * 31 + "1" or ip.startswith("0000000000000000FFFF0000") and ip.endswith("7F")  # ::1, ::ffff:127.x
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_local_ray_listens_on_loopback_and_sigterm_exits_143(meshes, tmp_path):
     """The local Ray instance of --backend ray listens on loopback only; SIGTERM gives 143 and one
@@ -524,7 +525,7 @@ def test_local_ray_listens_on_loopback_and_sigterm_exits_143(meshes, tmp_path):
             "1",
             *BUILD,
             "--views",  # after BUILD: the last one counts
-            "2000",
+            "20000",
             "--block",
             "20",
         ],
