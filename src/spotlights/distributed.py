@@ -68,7 +68,9 @@ def ray_session(address: str | None = None, workers: int | None = None) -> Itera
     try:
         if address:
             _check_reachable(ray, address)
-            ray.init(address=address, **kw)
+            # an address that accepts connections but is no Ray head: one try of 10 s (Ray: ~10 min, SIGTERM ignored)
+            with _env_defaults(RAY_py_gcs_connect_timeout_s="10", RAY_gcs_server_port_wait_time_s="1"):
+                ray.init(address=address, **kw)
         else:
             restore = _local_on_loopback(ray)
             n = max(1, int(workers or os.cpu_count() or 1))
@@ -129,6 +131,18 @@ def _check_reachable(ray, address: str) -> None:
             f"cannot connect to the Ray cluster at {address}: nothing answers at {target} within "
             f"{CONNECT_TIMEOUT_S:.0f} s ({reason}); is its head node running ('ray start --head')?"
         ) from None
+
+
+@contextlib.contextmanager
+def _env_defaults(**values: str) -> Iterator[None]:
+    """Set the environment variables ``values`` that the user has not set, for the body only."""
+    added = [k for k in values if k not in os.environ]
+    os.environ.update({k: values[k] for k in added})
+    try:
+        yield
+    finally:
+        for k in added:
+            os.environ.pop(k, None)
 
 
 def _local_on_loopback(ray):
