@@ -7,6 +7,8 @@ import json
 
 import numpy as np
 
+from ..utils import hdf5_output
+
 FORMAT = "spotlights-completion"
 FORMAT_VERSION = 1
 SPLITS = ("train", "val", "test")
@@ -49,8 +51,6 @@ def write_dataset(
         consumed one block at a time (streaming: memory stays one block).
     """
     import h5py
-
-    from ..utils import hdf5_output
 
     n_models = len(models["name"])
     n_samples = n_models * views_per_model

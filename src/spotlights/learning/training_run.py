@@ -15,6 +15,7 @@ import numpy as np
 import torch
 import yaml
 
+from ..data.shard_index import without_extra_rigs
 from ..errors import InputFileError, SpotlightsError
 from ..geometry.rig import RigSpec
 from ..utils import atomic_output
@@ -150,8 +151,6 @@ def data_identity(info) -> str:
     the same digest wherever it lies; another dataset has another."""
     import hashlib
     import json
-
-    from ..data.shard_index import without_extra_rigs
 
     key = {
         "names": [str(x) for x in info.names],
