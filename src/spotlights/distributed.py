@@ -52,7 +52,7 @@ def ray_session(address: str | None = None, workers: int | None = None) -> Itera
     workers at that niceness (a shared machine), the scheduler at the driver's. A local instance
     listens on the loopback interface only (set ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=1`` for Ray's
     default, every interface). A cluster address where nothing answers within
-    :data:`CONNECT_TIMEOUT_S` is a one-line error. SIGTERM keeps the caller's handler.
+    :data:`CONNECT_TIMEOUT_S` is a one-line error. A SIGTERM handler of the caller's (the CLI's) is kept.
     """
     import signal
     import threading
@@ -65,6 +65,8 @@ def ray_session(address: str | None = None, workers: int | None = None) -> Itera
     main_thread = threading.current_thread() is threading.main_thread()
     restore = None
     on_sigterm = signal.getsignal(signal.SIGTERM) if main_thread else None
+    if not callable(on_sigterm):  # no handler of the caller's (a library call): Ray's own stays
+        on_sigterm = None
     try:
         if address:
             _check_reachable(ray, address)
