@@ -49,19 +49,36 @@ def ray_session(address: str | None = None, workers: int | None = None) -> Itera
     The local instance gets no dashboard and a small object store (meshes and depth arrays are
     small: a car is ~0.2 MB); its worker processes inherit this process's environment (so they
     import the same ``spotlights``). ``RAY_worker_niceness=N`` in the environment runs the
-    workers at that niceness (a shared machine), the scheduler at the driver's.
+    workers at that niceness (a shared machine), the scheduler at the driver's. A local instance
+    listens on the loopback interface only (set ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=1`` for Ray's
+    default, every interface). A cluster address where nothing answers within
+    :data:`CONNECT_TIMEOUT_S` is a one-line error. A SIGTERM handler of the caller's (the CLI's) is kept.
     """
+    import signal
+    import threading
+
     ray = import_ray()
     if ray.is_initialized():
         yield ray
         return
     kw = dict(include_dashboard=False, log_to_driver=False, logging_level="ERROR", configure_logging=True)
+    main_thread = threading.current_thread() is threading.main_thread()
+    restore = None
+    on_sigterm = signal.getsignal(signal.SIGTERM) if main_thread else None
+    if not callable(on_sigterm):  # no handler of the caller's (a library call): Ray's own stays
+        on_sigterm = None
     try:
         if address:
-            ray.init(address=address, **kw)
+            _check_reachable(ray, address)
+            # an address that accepts connections but is no Ray head: one try of 10 s (Ray: ~10 min, SIGTERM ignored)
+            with _env_defaults(RAY_py_gcs_connect_timeout_s="10", RAY_gcs_server_port_wait_time_s="1"):
+                ray.init(address=address, **kw)
         else:
+            restore = _local_on_loopback(ray)
             n = max(1, int(workers or os.cpu_count() or 1))
             ray.init(num_cpus=n, object_store_memory=_local_store_bytes(), **kw)
+    except SpotlightsError:
+        raise
     except Exception as exc:  # ray.init raises bare Exceptions (e.g. a node that timed out during startup)
         where = f"connect to the Ray cluster at {address}" if address else "start a local Ray instance"
         reason = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
@@ -73,10 +90,81 @@ def ray_session(address: str | None = None, workers: int | None = None) -> Itera
                 "docs/scale-out.md"
             )
         raise SpotlightsError(f"cannot {where}: {reason}{hint}") from None
+    finally:
+        if on_sigterm is not None:  # ray.init takes SIGTERM over (exit code 15 or 1, a stack dump): give it back
+            signal.signal(signal.SIGTERM, on_sigterm)
+        if restore is not None and not ray.is_initialized():
+            restore()
     try:
         yield ray
     finally:
         ray.shutdown()
+        if restore is not None:
+            restore()
+
+
+# Seconds to wait for a TCP connection to a cluster's address before giving up (Ray itself retries for ever).
+CONNECT_TIMEOUT_S = 10.0
+# Ray's switch that, off, makes a node advertise (and bind) the loopback address instead of the host's.
+_RAY_CLUSTER_ENV = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+
+
+def _check_reachable(ray, address: str) -> None:
+    """Fail in seconds, with one line, when nothing accepts connections at a cluster's address
+    (``ray.init`` would retry for ever and ignore SIGTERM). ``ray://`` (Ray Client) addresses are
+    left to Ray."""
+    import socket
+
+    if str(address).startswith("ray://"):
+        return
+    try:  # the HOST:PORT Ray will dial ("auto": the running cluster; localhost: this node's address)
+        target = ray._private.services.canonicalize_bootstrap_address(address)
+    except Exception:  # private API or a bad address: check the address as given
+        target = None if address == "auto" else address
+    if not target:
+        return  # "auto" without a cluster: Ray says so itself
+    host, _, port = str(target).rpartition(":")
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_TIMEOUT_S):
+            pass
+    except (OSError, ValueError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc) or type(exc).__name__
+        raise SpotlightsError(
+            f"cannot connect to the Ray cluster at {address}: nothing answers at {target} within "
+            f"{CONNECT_TIMEOUT_S:.0f} s ({reason}); is its head node running ('ray start --head')?"
+        ) from None
+
+
+@contextlib.contextmanager
+def _env_defaults(**values: str) -> Iterator[None]:
+    """Set the environment variables ``values`` that the user has not set, for the body only."""
+    added = [k for k in values if k not in os.environ]
+    os.environ.update({k: values[k] for k in added})
+    try:
+        yield
+    finally:
+        for k in added:
+            os.environ.pop(k, None)
+
+
+def _local_on_loopback(ray):
+    """A local instance listens on the loopback interface only (Ray's default is every interface
+    with the host's address), unless the environment sets ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER``.
+    Returns the function that undoes it (after ``ray.shutdown``), or None."""
+    if _RAY_CLUSTER_ENV in os.environ:
+        return None  # the user chose
+    constants = getattr(getattr(ray, "_private", None), "ray_constants", None)
+    before = getattr(constants, "ENABLE_RAY_CLUSTER", None)
+    os.environ[_RAY_CLUSTER_ENV] = "0"  # Ray's own processes read it at start
+    if before is not None:
+        constants.ENABLE_RAY_CLUSTER = False  # this process imported Ray already
+
+    def restore() -> None:
+        os.environ.pop(_RAY_CLUSTER_ENV, None)
+        if before is not None:
+            constants.ENABLE_RAY_CLUSTER = before
+
+    return restore
 
 
 def _local_store_bytes() -> int:

@@ -65,6 +65,24 @@ def sweep_temporaries(path: str | os.PathLike) -> list[Path]:
     return removed
 
 
+def sweep_folder_temporaries(folder: str | os.PathLike) -> list[Path]:
+    """Remove the stale temporaries of :func:`atomic_output` anywhere under ``folder``: files named
+    ``.NAME.PID-RANDOM.partSUFFIX`` whose process ``PID`` no longer exists (a killed run's
+    half-written outputs, whatever their target). Only names with a PID are touched, never
+    another program's files. Returns the removed paths."""
+    removed = []
+    for root, _dirs, files in os.walk(folder):
+        for name in files:
+            m = _TEMP_RE.match(name)
+            if m is None or m.group("pid") is None or _pid_alive(int(m.group("pid"))):
+                continue
+            path = Path(root) / name
+            with contextlib.suppress(OSError):
+                path.unlink()
+                removed.append(path)
+    return removed
+
+
 def _missing_parents(folder: Path) -> list[Path]:
     """The folders ``mkdir(parents=True)`` would create for ``folder``, outermost first."""
     missing = []
@@ -142,6 +160,102 @@ def atomic_output(path: str | os.PathLike, suffix: str | None = None) -> Iterato
                 tmp_path.unlink()
         _remove_empty(created)
         raise
+
+
+class _WriteGuard:
+    """A file for h5py's ``fileobj`` driver that never lets a failed write reach HDF5.
+
+    HDF5 (2.0, sec2 driver) does not survive a write error: the file's close fails as well,
+    and freeing its objects later crashes the interpreter (a segmentation fault after the
+    traceback, on a full disk). Here the first failed write is recorded (``error``) and that
+    write and every later one are kept in memory instead, so HDF5 sees a working file, closes
+    it cleanly, and the caller raises the recorded error. Reads see the bytes on disk with the
+    kept ones over them.
+    """
+
+    def __init__(self, path: Path, mode: str):
+        flags = os.O_RDWR | (0 if mode == "r+" else os.O_CREAT | os.O_TRUNC)
+        self.fd = os.open(path, flags | getattr(os, "O_CLOEXEC", 0), 0o666)
+        self.pos = 0
+        self.error: OSError | None = None
+        self.kept: list[tuple[int, bytes]] = []  # (offset, bytes) not written since the error
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        self.pos = offset if whence == 0 else self.pos + offset if whence == 1 else self._size() + offset
+        return self.pos
+
+    def tell(self) -> int:
+        return self.pos
+
+    def _size(self) -> int:
+        return max([os.fstat(self.fd).st_size] + [a + len(b) for a, b in self.kept])
+
+    def read(self, size: int = -1) -> bytes:
+        size = self._size() - self.pos if size < 0 else size
+        data = bytearray(os.pread(self.fd, size, self.pos))
+        if self.kept:
+            data.extend(bytes(max(0, min(size, self._size() - self.pos) - len(data))))
+            for a, b in self.kept:
+                lo, hi = max(a, self.pos), min(a + len(b), self.pos + len(data))
+                if lo < hi:
+                    data[lo - self.pos : hi - self.pos] = b[lo - a : hi - a]
+        self.pos += len(data)
+        return bytes(data)
+
+    def write(self, data) -> int:
+        data = memoryview(data).cast("B")
+        done = 0
+        while self.error is None and done < len(data):
+            try:
+                done += os.pwrite(self.fd, data[done:], self.pos + done)
+            except OSError as exc:
+                self.error = exc
+        if done < len(data):
+            self.kept.append((self.pos + done, bytes(data[done:])))
+        self.pos += len(data)
+        return len(data)
+
+    def truncate(self, size: int | None = None) -> int:
+        size = self.pos if size is None else size
+        if self.error is None:
+            try:
+                os.ftruncate(self.fd, size)
+            except OSError as exc:
+                self.error = exc
+        return size
+
+    def flush(self) -> None:
+        pass
+
+    def check(self) -> None:
+        """Raise the recorded write error, if any (a long write stops at once)."""
+        if self.error is not None:
+            raise self.error
+
+
+@contextlib.contextmanager
+def hdf5_output(path: str | os.PathLike, mode: str = "w", **kwargs) -> Iterator[tuple]:
+    """Open ``path`` (a temporary of :func:`atomic_output`) for writing with h5py; yields
+    ``(file, check)``. A write that fails (a full disk) never crashes the interpreter: the
+    file is closed cleanly and :class:`OSError` naming ``path`` is raised when the body ends,
+    or at once from ``check()``, which a long write calls after each step.
+
+    mode : ``"w"`` (create or truncate) or ``"r+"`` (an existing file); kwargs go to ``h5py.File``.
+    """
+    import h5py
+
+    guard = _WriteGuard(Path(path), mode)
+    try:
+        with h5py.File(guard, mode, **kwargs) as f:
+            yield f, guard.check
+    except OSError:
+        if guard.error is None:
+            raise
+    finally:
+        os.close(guard.fd)
+    if guard.error is not None:
+        exc = guard.error
+        raise OSError(exc.errno, exc.strerror, os.fspath(path)) from None
 
 
 def check_writable(*paths: str | os.PathLike | None) -> None:
@@ -299,19 +413,46 @@ def process_pool_context(check: bool = True):
     the pool respawn its workers without end (:func:`check_can_start_processes`).
     """
     import multiprocessing as mp
+    import threading
 
     if check:
         check_can_start_processes()
-    methods = mp.get_all_start_methods()
-    return mp.get_context("forkserver" if "forkserver" in methods else "spawn")
+    if "forkserver" not in mp.get_all_start_methods():
+        return mp.get_context("spawn")
+    ctx = mp.get_context("forkserver")
+    if threading.current_thread() is threading.main_thread():
+        # the fork server dies with this process (a parent-death signal follows the thread that
+        # started it: only the main thread lives as long as the process); see _parent_death
+        ctx.set_forkserver_preload(["__main__", "spotlights._parent_death"])
+    return ctx
+
+
+def die_with_parent() -> None:
+    """Linux: have this process killed (SIGKILL) when its parent dies (``PR_SET_PDEATHSIG``),
+    so that pool workers never outlive a killed build; elsewhere nothing. A process whose
+    parent is already gone exits at once."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+    import signal
+
+    try:
+        if ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL), 0, 0, 0) != 0:  # PR_SET_PDEATHSIG
+            return
+    except (OSError, AttributeError):
+        return
+    if os.getppid() == 1:  # the parent died before the call: the signal will not come
+        os._exit(1)
 
 
 def _quiet_worker(initializer, initargs) -> None:
-    """Pool workers leave Ctrl-C to the parent (which stops the pool), then run ``initializer``."""
+    """Pool workers leave Ctrl-C to the parent (which stops the pool), die with their parent,
+    then run ``initializer``."""
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    die_with_parent()  # the fork server, which dies with the pool's owner (process_pool_context)
     if initializer is not None:
         initializer(*initargs)
 

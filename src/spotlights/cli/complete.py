@@ -301,6 +301,8 @@ def _complete(args) -> int:
     check_suffix(args.html, (".html", ".htm"), "the page (HTML)", "--html")
     check_suffix(args.summary, (".json",), "the summary (JSON)", "--summary")
     check_writable(args.out, args.show, args.html, args.summary)
+    if args.per_object is not None:  # every destination before anything is written
+        check_writable(Path(args.per_object) / "object_0.ply")
     axes = axes_rotation(args.up, args.forward)
     points = read_scan(args.input)
     require_points(points, config.min_points, args.input)

@@ -124,6 +124,11 @@ def register(sub) -> None:
         metavar="K",
         help="run at most K epochs now, then stop (continue later with --resume); the schedule spans --epochs",
     )
+    p.add_argument(
+        "--allow-new-data",
+        action="store_true",
+        help="with --resume: continue even if --data is not the dataset the run was trained on (refused by default)",
+    )
     add_quiet(p, "no progress bars")
 
     # ---- evaluate
@@ -270,7 +275,12 @@ def register(sub) -> None:
         help="a checkpoint file or a short name: 'default' (the package's default model) or 'paper'",
     )
     p.add_argument("--out", "-o", required=True, metavar="MODEL.onnx", help="the ONNX file to write (.onnx)")
-    p.add_argument("--opset", type=positive_int, default=18, help="ONNX opset (default 18)")
+    p.add_argument(
+        "--opset",
+        type=positive_int,
+        default=18,
+        help="ONNX opset, 15 to the newest the installed onnx knows (default 18)",
+    )
     p.add_argument(
         "--no-check",
         action="store_true",
@@ -371,6 +381,7 @@ def _train(args) -> int:
             progress=not args.quiet,
             schedule=args.schedule,
             stop_after=args.stop_after,
+            allow_new_data=args.allow_new_data,
         )
     h = res["history"][-1] if res["history"] else None
     if h:

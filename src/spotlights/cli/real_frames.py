@@ -15,7 +15,7 @@ from tqdm import tqdm
 
 from ..errors import SpotlightsError
 from ..experiments.scene import complete_scene, render_result, render_result_html, write_scene
-from ..utils import atomic_output
+from ..utils import atomic_output, sweep_folder_temporaries
 from ..viz.html import write_plotlyjs
 from .complete import warn
 
@@ -87,6 +87,7 @@ def complete_frames(args, reader, keys, config, completer, out) -> int:
     skips frames whose JSON says the same model and options); then ``summary.json`` and one line on stdout."""
     checkpoint = args.checkpoint or "default"
     out = Path(out)
+    sweep_folder_temporaries(out)  # what a killed run was writing (a 0-byte .FRAME.png.PID-X.part.png)
     frames, warnings = [], []
     totals = {"boxes": 0, "completed": 0, "flipped": 0, "completion_points": 0, "skipped": {}, "resumed": 0}
     t_model = 0.0

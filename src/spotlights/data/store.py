@@ -131,6 +131,8 @@ class CompletionDataset:
                         self.shards[k],
                         f"shard differs from {self.shards[0].name} in {key}: not a shard of the same dataset",
                     )
+        if self.sharded:
+            _check_shard_order(self.path, self.shards, [t["attrs"] for t in tables])
         self.model_offset = np.cumsum([0] + [len(t["names"]) for t in tables]).astype(np.int64)
         self.sample_offset = np.cumsum([0] + [len(t["sample_model"]) for t in tables]).astype(np.int64)
         cat = lambda key: np.concatenate([t[key] for t in tables]) if all(t[key] is not None for t in tables) else None  # noqa: E731
@@ -542,6 +544,36 @@ class CompletionDataset:
         if self.sharded:
             out["shards"] = [str(p) for p in self.shards]
         return out
+
+
+def _check_shard_order(index: Path, shards: list[Path], attrs: list[dict]) -> None:
+    """Refuse an index that does not list its build's shards once each, in order: every shard
+    records its position (``shard_index``, 0-based, of ``shard_count``). A shard listed twice, a
+    missing one or a swapped pair would silently change the dataset (its models, sample order and
+    bytes). Shards without a recorded position are not checked."""
+    pos = [(a.get("shard_index"), a.get("shard_count")) for a in attrs]
+    if any(k is None or n is None for k, n in pos):
+        return
+    counts = sorted({int(n) for _, n in pos})
+    if len(counts) > 1:
+        raise InputFileError(index, f"lists shards of different builds (shard counts {counts})")
+    count, first = counts[0], {}
+    for i, (k, _) in enumerate(pos):
+        if int(k) in first:
+            raise InputFileError(
+                index, f"lists shard {int(k)} of {count} twice ({shards[first[int(k)]].name} and {shards[i].name})"
+            )
+        first[int(k)] = i
+    missing = [k for k in range(count) if k not in first]
+    if missing:
+        raise InputFileError(
+            index, f"lacks shard {missing[0]} of {count} (it lists {len(pos)}): a shard file is missing from the index"
+        )
+    for i, (k, _) in enumerate(pos):
+        if int(k) != i:
+            raise InputFileError(
+                index, f"lists {shards[i].name} (shard {int(k)} of {count}) in place {i}: list the shards in order"
+            )
 
 
 def open_dataset(path: str | os.PathLike) -> CompletionDataset:

@@ -7,6 +7,8 @@ import json
 
 import numpy as np
 
+from ..utils import hdf5_output
+
 FORMAT = "spotlights-completion"
 FORMAT_VERSION = 1
 SPLITS = ("train", "val", "test")
@@ -53,7 +55,7 @@ def write_dataset(
     n_models = len(models["name"])
     n_samples = n_models * views_per_model
     strt = h5py.string_dtype("utf-8")
-    with h5py.File(path, "w", libver=("earliest", "v110")) as f:
+    with hdf5_output(path, "w", libver=("earliest", "v110")) as (f, check):
         for k, v in attrs.items():
             f.attrs[k] = v
         g = f.create_group("models", track_order=False)
@@ -92,6 +94,7 @@ def write_dataset(
                 raise RuntimeError(f"sample blocks out of order: got [{a}, {b}) after {written}")
             for k, d in ds.items():
                 d[a:b] = block[k]
+            check()  # a full disk stops the write here
             written = b
         if written != n_samples:
             raise RuntimeError(f"only {written} of {n_samples} samples were written")

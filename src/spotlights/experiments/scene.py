@@ -410,9 +410,20 @@ def write_scene(
 ) -> list[Path]:
     """Write the scene: ``out`` ``.ply`` with x y z, ``source``, ``object`` (any other suffix: the completion
     points only, as ``save_points`` writes them); ``per_object`` folder: ``object_<id>.ply`` per completed
-    object (its input and completion, with ``source``). Atomic writes; returns the paths written."""
+    object (its input and completion, with ``source``). Atomic writes, all or nothing: when one
+    fails, those already written are removed again; returns the paths written."""
     out = Path(out)
-    written = []
+    written: list[Path] = []
+    try:
+        _write_scene_files(result, out, per_object, scan_name, written)
+    except BaseException:
+        for p in written:
+            p.unlink(missing_ok=True)
+        raise
+    return written
+
+
+def _write_scene_files(result: SceneResult, out: Path, per_object, scan_name: str, written: list) -> None:
     if out.suffix.lower() == ".ply":
         xyz, src, obj = result.fields()
         written.append(save_ply(out, xyz, {"source": src, "object": obj}, comments=scene_comments(result, scan_name)))
@@ -432,7 +443,6 @@ def write_scene(
             ]
             com += [f"warning: {w}" for w in o.warnings]
             written.append(save_ply(folder / f"object_{o.object_id}.ply", xyz, {"source": src}, comments=com))
-    return written
 
 
 def describe(result: SceneResult) -> str:

@@ -19,6 +19,7 @@ A checkpoint is a ``torch.save`` dict (loadable with ``weights_only=True``)::
 
 from __future__ import annotations
 
+import io
 import os
 from pathlib import Path
 
@@ -72,8 +73,10 @@ def save_checkpoint(path, payload: dict) -> Path:
     import torch
 
     data = {"format": FORMAT, "format_version": FORMAT_VERSION, "spotlights_version": __version__, **payload}
+    buf = io.BytesIO()  # serialised in memory first: torch's file writer turns a full disk into a
+    torch.save(data, buf)  # RuntimeError ("unexpected pos"); a plain write raises OSError, one clean line
     with atomic_output(path) as tmp:
-        torch.save(data, tmp)
+        tmp.write_bytes(buf.getbuffer())
     return Path(path)
 
 

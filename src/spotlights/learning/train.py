@@ -23,6 +23,7 @@ the process group :mod:`.process_group`.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import math
@@ -33,14 +34,14 @@ import torch
 from torch.utils.data import DataLoader
 from tqdm import tqdm
 
-from ..errors import SpotlightsError
-from ..utils import atomic_output
+from ..errors import OutputFileError, SpotlightsError
+from ..utils import atomic_output, output_folder
 from .checkpoint import save_checkpoint
 from .config import SELECT_BY
 from .device import autocast, default_device
 from .inference import LearnedDomain
 from .process_group import ProcessGroup
-from .training_run import TrainingRun, prepare_run
+from .training_run import RUN_STATE_FILES, TrainingRun, data_identity, prepare_run
 from .validation import collate, float_outputs, to_device, validate
 
 __all__ = ["LOG_COLUMNS", "default_device", "train", "validate"]
@@ -117,6 +118,7 @@ def train(
     log=_print_flush,
     schedule=None,
     stop_after: int | None = None,
+    allow_new_data: bool = False,
 ) -> dict:
     """Train one model on a completion dataset file.
 
@@ -136,28 +138,41 @@ def train(
     progress : show tqdm bars (rank 0 only).
     stop_after : run at most this many epochs in this call, then return (resume later with
         ``resume=True``); the schedule still spans ``train.epochs``. For time-boxed sessions.
+    allow_new_data : with ``resume``, continue even if ``data`` is not the dataset the run was
+        trained on (by default refused: its models, splits or samples differ).
 
     Returns
     -------
     dict: out_dir, last, best (paths), epochs (completed), history (list of rows), param_counts.
     """
     dist = ProcessGroup()
+    out_dir = Path(out_dir)
     try:
-        return _train(
-            dist,
-            model_name,
-            data,
-            Path(out_dir),
-            config,
-            overrides,
-            resume,
-            overwrite,
-            device,
-            progress,
-            log,
-            schedule,
-            stop_after,
-        )
+        with output_folder(out_dir) if dist.main else contextlib.nullcontext():
+            try:
+                return _train(
+                    dist,
+                    model_name,
+                    data,
+                    Path(out_dir),
+                    config,
+                    overrides,
+                    resume,
+                    overwrite,
+                    device,
+                    progress,
+                    log,
+                    schedule,
+                    stop_after,
+                    allow_new_data,
+                )
+            except (OSError, OutputFileError):
+                # a write failed (a full disk): a run with nothing to resume from leaves nothing
+                # behind (output_folder then removes the folders it created)
+                if dist.main and not (out_dir / "last.pt").exists():
+                    for name in ("config.yaml", *RUN_STATE_FILES):
+                        (out_dir / name).unlink(missing_ok=True)
+                raise
     finally:
         dist.close()
 
@@ -259,6 +274,7 @@ def _save(run: TrainingRun, epoch: int, val: dict, improved: bool) -> None:
         **({"scaler_state": run.scaler.state_dict()} if run.scaler is not None else {}),
         "dataset": {
             "path": str(run.data),
+            "identity": data_identity(run.train_set.info),
             "rig": run.train_set.rig_name,
             "n_train": run.n_train,
             "n_val": len(run.val_set),
@@ -290,8 +306,11 @@ def _train(
     log,
     schedule,
     stop_after,
+    allow_new_data=False,
 ):
-    run = prepare_run(dist, model_name, data, out_dir, config, overrides, resume, overwrite, device, log, schedule)
+    run = prepare_run(
+        dist, model_name, data, out_dir, config, overrides, resume, overwrite, device, log, schedule, allow_new_data
+    )
     tcfg = run.tcfg
     end_epoch = tcfg.epochs if stop_after is None else min(tcfg.epochs, run.start_epoch + max(int(stop_after), 0))
     for epoch in range(run.start_epoch, end_epoch):

@@ -15,6 +15,7 @@ import numpy as np
 import torch
 import yaml
 
+from ..data.shard_index import without_extra_rigs
 from ..errors import InputFileError, SpotlightsError
 from ..geometry.rig import RigSpec
 from ..utils import atomic_output
@@ -143,11 +144,59 @@ def resolve_run_config(model_name, out_dir: Path, config, overrides, resume, ove
     return cfg, state, extended
 
 
+def data_identity(info) -> str:
+    """A digest (hex str) of the data a run learns from: the models (names and splits), the number
+    of samples, the build's seed and config (without ``extra_rigs``, which ``add-rig`` changes) of
+    a dataset's ``info`` (``TorchCompletionDataset.info``). A copy or a rebuild of a dataset has
+    the same digest wherever it lies; another dataset has another."""
+    import hashlib
+    import json
+
+    key = {
+        "names": [str(x) for x in info.names],
+        "splits": [str(x) for x in info.splits],
+        "n_samples": int(len(info.sample_model)),
+        "seed": str(info.attrs.get("seed")),
+        "config": without_extra_rigs(info.attrs.get("config_json")),
+    }
+    return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()
+
+
+def check_same_data(state: dict, last_path: Path, data, identity: str) -> None:
+    """Refuse to resume a run on other data than it was trained on (``--allow-new-data`` skips
+    this). Checkpoints without a data digest (older ones) compare the dataset's path."""
+    recorded = state.get("dataset") if isinstance(state.get("dataset"), dict) else {}
+    if recorded.get("identity") is not None:
+        same = recorded["identity"] == identity
+    elif recorded.get("path"):
+        same = os.path.abspath(str(recorded["path"])) == os.path.abspath(os.fspath(data))
+    else:
+        return
+    if not same:
+        raise InputFileError(
+            last_path,
+            f"was trained on {recorded.get('path')}, not on --data {data} (other models, splits or "
+            "samples); pass --allow-new-data to continue on it anyway, or train a new run",
+        )
+
+
 def prepare_run(
-    dist, model_name, data, out_dir: Path, config, overrides, resume, overwrite, device, log, schedule
+    dist,
+    model_name,
+    data,
+    out_dir: Path,
+    config,
+    overrides,
+    resume,
+    overwrite,
+    device,
+    log,
+    schedule,
+    allow_new_data: bool = False,
 ) -> TrainingRun:
     """Config, device, precision, datasets, model, optimizer and schedule of a run (restored from
-    ``last.pt`` when resuming); writes ``config.yaml`` (rank 0)."""
+    ``last.pt`` when resuming; a resume on other data than the run's is refused unless
+    ``allow_new_data``); writes ``config.yaml`` (rank 0)."""
     device = resolve_device(device) if device is not None else default_device()
     if dist.active and device.type == "cuda" and device.index is None:
         device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))  # one GPU per process
@@ -166,6 +215,8 @@ def prepare_run(
         data, "val", rig=rig_sel, max_views=dcfg.val_max_views, partials_in_memory=dcfg.partials_in_memory
     )
     rig = train_set.rig if wants_depths else None  # the dataset's RigSpec
+    if state is not None and not allow_new_data:
+        check_same_data(state, out_dir / "last.pt", data, data_identity(train_set.info))
     if state is not None and wants_depths and rig_spec(state.get("rig")) != rig:
         raise SpotlightsError(
             f"{out_dir / 'last.pt'}: was trained on rig {state.get('rig')}, the dataset serves {rig.to_dict()}"

@@ -49,7 +49,7 @@ from ..._version import __version__
 from ...errors import InputFileError, ParameterError
 from ...geometry.boxes import Box
 from ...geometry.sampling import resample_set
-from ...utils import atomic_output
+from ...utils import atomic_output, hdf5_output
 from .base import CLASSES, PAPER_CLASSES, Frame, SceneReader
 
 FILE_FORMAT = "spotlights-real-observations"
@@ -353,7 +353,7 @@ def write_observations(path: str | os.PathLike, obs: Observations) -> Path:
 
     path = Path(path)
     with atomic_output(path, suffix=".h5") as tmp:
-        with h5py.File(tmp, "w", track_order=False) as f:
+        with hdf5_output(tmp, "w", track_order=False) as (f, _):
             f.attrs["format"] = FILE_FORMAT
             f.attrs["format_version"] = FILE_FORMAT_VERSION
             f.attrs["spotlights_version"] = __version__

@@ -10,14 +10,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-import h5py
 import numpy as np
 from tqdm import tqdm
 
 from ...distributed import DEFAULT_RETRIES, check_backend, import_ray, ray_session
 from ...errors import InputFileError, ParameterError
 from ...geometry.rig import Rig, RigSpec
-from ...utils import atomic_output, exclusive_lock
+from ...utils import atomic_output, exclusive_lock, hdf5_output
 from ..store import open_dataset, write_rig_group
 from .catalogue import discover_sources
 from .config import BuildConfig, parse_rig
@@ -200,7 +199,7 @@ def _add_rig_locked(
             continue
         with atomic_output(shard, suffix=".h5") as tmp:
             shutil.copyfile(shard, tmp)
-            with h5py.File(tmp, "r+") as f:
+            with hdf5_output(tmp, "r+") as (f, _):
                 write_rig_group(f.require_group("rigs"), rig, depths[offsets[k] : offsets[k + 1]])
                 f.attrs["config_json"] = json.dumps(cfg_dict, sort_keys=True)
     hit = float(np.mean(depths > 0))

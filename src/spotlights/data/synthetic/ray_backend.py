@@ -201,9 +201,14 @@ class RayBuild:
                     if isinstance(res, tuple) and res and res[0] == "error":
                         raise SpotlightsError(res[1])
                     on_done(item, res)
-        except BaseException:
-            for ref in pending:
-                ray.cancel(ref, force=True)
+        except BaseException as exc:
+            # on Ctrl-C / SIGTERM no cancel: cancelling races with replies on their way and Ray 2.60's
+            # driver then dies in a failed check ("Tried to complete task that was not pending", exit 1,
+            # 1 run in 3); the driver's exit ends its job's tasks (ray.shutdown, or the cluster on a
+            # driver gone)
+            if not isinstance(exc, KeyboardInterrupt):
+                for ref in pending:
+                    ray.cancel(ref, force=True)
             raise
 
     # --- loading --------------------------------------------------------------------------

@@ -25,7 +25,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from ...distributed import DEFAULT_RETRIES, check_backend, import_ray, ray_session
-from ...errors import InputFileError, OutputFileError, ParameterError
+from ...errors import InputFileError, OutputFileError, ParameterError, SpotlightsError
 from ...utils import atomic_output, check_can_start_processes, exclusive_lock, process_map
 from ..store import open_dataset
 from .catalogue import build_catalogue
@@ -155,6 +155,8 @@ def build_dataset(
             raise ParameterError(f"shard size must be >= 1 samples, got {shard_size}")
         check_index_path(out)
     if out.exists() and not overwrite:
+        if not keep_parts:
+            _sweep_finished_parts(parts)
         if not resume:
             raise InputFileError(out, "already exists; pass --overwrite to rebuild it (or --resume to accept it)")
         with open_dataset(out) as ds:
@@ -255,6 +257,16 @@ def build_dataset(
         seconds_total=t_end - t_start,
         file_size=size,
     )
+
+
+def _sweep_finished_parts(parts: Path) -> None:
+    """A build killed between the final rename and the removal of its parts folder leaves that
+    folder beside its finished output: remove it (not while another build holds its lock)."""
+    if not parts.is_dir():
+        return
+    with contextlib.suppress(SpotlightsError, OSError):
+        with exclusive_lock(parts / ".lock", "busy"):
+            shutil.rmtree(parts)
 
 
 @contextlib.contextmanager
