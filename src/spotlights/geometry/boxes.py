@@ -47,6 +47,12 @@ class Box:
     """
 
     __slots__ = ("center", "size", "rotation", "label", "cls", "track_id")
+    center: np.ndarray
+    size: np.ndarray
+    rotation: np.ndarray
+    label: str
+    cls: str | None
+    track_id: str
 
     def __init__(
         self,
@@ -122,6 +128,11 @@ class Box:
     def radius(self) -> float:
         """Half the box diagonal, metres: the radius R of the circumscribed sphere (the unit frame's scale)."""
         return 0.5 * float(np.linalg.norm(self.size))
+
+    @property
+    def unit_extents(self) -> np.ndarray:
+        """(3,) float64 half-extents of the box in its unit frame, ``size / (2 R)`` = ``size / |size|`` (norm 1)."""
+        return self.size / (2.0 * self.radius)
 
     def is_valid(self) -> bool:
         """True when centre, size and rotation are finite, the rotation proper and every size positive."""
