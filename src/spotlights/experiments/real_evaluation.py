@@ -70,11 +70,10 @@ from ..data.real.base import CLASSES
 from ..data.real.extract import Observations, read_observations
 from ..data.store import open_dataset
 from ..errors import InputFileError, SpotlightsError
-from ..geometry.boxes import FLIP_Z
+from ..geometry.boxes import FLIP_Z, unit_extents
 from ..geometry.neighbors import NearestNeighbors, serial_queries
 from ..geometry.sampling import resample_set, voxel_downsample
 from ..learning.checkpoint import resolve_checkpoint
-from ..learning.rays import extents_from_sizes
 from .real_report import report_markdown, write_report, write_report_json
 from .scene import HEADING_MARGIN, heading_turns
 
@@ -154,7 +153,7 @@ def complete_all(
                 f"completer {getattr(completer, 'model_name', '?')} decodes rays aimed at each object's "
                 "box: give the boxes' sizes"
             )
-        extents = extents_from_sizes(np.asarray(box_sizes, dtype=np.float64).reshape(n, 3))
+        extents = unit_extents(np.asarray(box_sizes, dtype=np.float64).reshape(n, 3))
     for s in tqdm(range(0, n, batch_size), desc=desc, unit="batch", disable=not progress or n == 0):
         batch = np.ascontiguousarray(partials[s : s + batch_size], dtype=np.float32)
         kw = {} if clip is None else {"clip": clip}

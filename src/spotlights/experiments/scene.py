@@ -42,7 +42,6 @@ import numpy as np
 
 from ..data.consistency import fidelity
 from ..data.real.base import CLASSES
-from ..data.real.extract import crop_box
 from ..data.real.scans import MIN_SCAN_POINTS
 from ..errors import InputFileError, ParameterError
 from ..geometry.boxes import FLIP_Z, Box
@@ -323,7 +322,7 @@ def complete_scene(
         if not wb.is_valid():
             objects.append(ObjectResult(i, ids[i], b, "invalid_box" if _selected(b, config) else "class_excluded"))
             continue
-        idx = crop_box(work, wb, config.margin, config.ground_clearance) if config.crop else np.arange(len(work))
+        idx = wb.crop(work, config.margin, config.ground_clearance) if config.crop else np.arange(len(work))
         free = idx[member[idx] < 0]
         member[free] = i
         if not _selected(b, config):
@@ -570,9 +569,7 @@ def scene_objects(result: SceneResult) -> list:
         objs.append(
             SceneObject(
                 label=str(o.object_id),
-                center=b.center,
-                size=b.size,
-                rotation=b.rotation,
+                box=b,
                 partial=result.points[o.input_indices],
                 completion=o.completion,
                 caption=_caption(o),

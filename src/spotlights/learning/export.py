@@ -31,11 +31,12 @@ import numpy as np
 
 from .._version import __version__
 from ..errors import InputFileError, ParameterError, SpotlightsError
+from ..geometry.boxes import unit_extents
 from ..utils import atomic_output
 from .checkpoint import load_checkpoint, model_from_checkpoint, resolve_checkpoint
 from .inference import DEFAULT as TORCH_DEFAULT
 from .inference import LearnedDomain
-from .rays import TIMING_BOX_SIZE, directions_for_extents, extents_from_sizes, rig_spec, timing_directions
+from .rays import TIMING_BOX_SIZE, directions_for_extents, rig_spec, timing_directions
 
 FORMAT = "spotlights-onnx"
 FORMAT_VERSION = 1
@@ -318,7 +319,7 @@ def parity(checkpoint, onnx_completer: OnnxCompleter, partials: np.ndarray | Non
     x = np.ascontiguousarray(x, dtype=np.float32)
     dirs = None
     if getattr(model, "needs_box", False):
-        e = extents if extents is not None else extents_from_sizes(TIMING_BOX_SIZE)
+        e = extents if extents is not None else unit_extents(TIMING_BOX_SIZE)
         e = np.broadcast_to(np.asarray(e, dtype=np.float64), (len(x), 3))
         dirs = directions_for_extents(model.rig, e)
     graph, _, names = _graph_module(model)
