@@ -40,7 +40,6 @@ from typing import Any, cast
 
 import numpy as np
 
-from ..data.consistency import fidelity
 from ..data.real.base import CLASSES
 from ..data.real.scans import MIN_SCAN_POINTS
 from ..errors import InputFileError, ParameterError
@@ -50,6 +49,7 @@ from ..geometry.neighbors import serial_queries
 from ..geometry.rotations import rigid_transform
 from ..learning.inference import DEFAULT, complete_in_boxes, prepare_partial
 from ..learning.runtime import load_completer
+from ..metrics.consistency import fidelity
 from ..viz import SceneObject, html, render_scene
 
 SOURCE_RAW, SOURCE_PARTIAL, SOURCE_COMPLETION = 0, 1, 2

@@ -1,4 +1,4 @@
-"""Point-cloud completion metrics of the learning layer: batched evaluation and aggregation (numpy; no torch).
+"""Point-cloud completion metrics: batched evaluation and aggregation (numpy; no torch).
 
 Every distance metric is defined once, in :mod:`spotlights.geometry.distances` (re-exported
 here): all distances are **unsquared Euclidean distances in the unit frame** (the object's
@@ -30,7 +30,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..geometry.distances import (  # noqa: F401  (re-exported: the metrics' one owner is geometry.distances)
+from ..geometry.distances import (  # noqa: F401  (re-exported: the distance kernels' owner is geometry.distances)
     accuracy,
     chamfer_l1,
     chamfer_l2,

@@ -1,4 +1,6 @@
-"""Consistency of completions across frames (PCN's metric; the paper's Table 2). numpy + pykdtree only.
+"""Consistency of completions across frames (PCN's metric; the paper's Table 2), fidelity, MMD, the noise floor.
+
+numpy + pykdtree only.
 
 With no ground truth on real scans, a completion model is scored by how much
 its completions of the *same object* in *consecutive frames* agree. For two
@@ -172,6 +174,16 @@ def diversity(completions, object_keys, timestamps) -> tuple[float, int]:
         return float("nan"), len(rows)
     vals = [chamfer(completions[a], completions[b])["cd"] for n, a in enumerate(rows) for b in rows[n + 1 :]]
     return float(np.mean(vals)), len(rows)
+
+
+def same_observation_cd(a_list, b_list, scale) -> np.ndarray:
+    """The resampling noise floor: (n,) two-sided Chamfer ``cd`` between a_i and b_i (two completions of the same
+    observation, unit frame) times ``scale[i]``; NaN when one is empty."""
+    out = np.full(len(a_list), np.nan)
+    for i, (a, b) in enumerate(zip(a_list, b_list)):
+        if len(a) and len(b):
+            out[i] = chamfer(a, b)["cd"] * float(scale[i])
+    return out
 
 
 def consecutive_pairs(object_keys, timestamps) -> list[tuple[int, int]]:
