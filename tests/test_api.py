@@ -60,23 +60,11 @@ def test_api_page_examples_run():
     assert tried > 20 and failures == 0
 
 
+@pytest.mark.slow  # about 20 s of CPU with an empty cache (numpy's stubs), 2 s with .mypy_cache
 @pytest.mark.skipif(importlib.util.find_spec("mypy") is None, reason="mypy is not installed (pip install -e .[test])")
-def test_public_modules_type_check(tmp_path):
-    files = ["__init__.py", "api.py", "geometry/boxes.py", "learning/runtime.py", "experiments/scene.py"]
+def test_public_modules_type_check():
+    """``mypy`` as configured in pyproject.toml ([tool.mypy]: the API's modules, every function annotated)."""
     proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "mypy",
-            "--follow-imports=silent",
-            "--ignore-missing-imports",
-            "--no-error-summary",
-            "--cache-dir",
-            str(tmp_path / "mypy"),
-            *[str(ROOT / "src" / "spotlights" / f) for f in files],
-        ],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
+        [sys.executable, "-m", "mypy", "--no-error-summary"], capture_output=True, text=True, cwd=ROOT
     )
     assert proc.returncode == 0, proc.stdout + proc.stderr

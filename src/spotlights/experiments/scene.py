@@ -39,6 +39,7 @@ from pathlib import Path
 from typing import Any, cast
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..data.real.base import CLASSES
 from ..data.real.scans import MIN_SCAN_POINTS
@@ -68,7 +69,7 @@ HEADING_DOC = (
 )
 
 
-def heading_turns(f_given, f_turned, margin: float = HEADING_MARGIN):
+def heading_turns(f_given: ArrayLike, f_turned: ArrayLike, margin: float = HEADING_MARGIN) -> np.ndarray | np.bool_:
     """True where the turned heading wins: its fidelity is finite and below ``(1 - margin)`` x the given one's
     (a given heading with an empty completion loses to any turned one). Scalars or arrays."""
     fg = np.asarray(f_given, dtype=np.float64)
@@ -99,7 +100,7 @@ class SceneConfig:
     heading_margin: float = HEADING_MARGIN
     clip: object = "default"
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if not (math.isfinite(self.margin) and self.margin >= 0):
             raise ParameterError(f"margin must be >= 0 metres, got {self.margin}")
         if not math.isfinite(self.ground_clearance):
@@ -284,7 +285,7 @@ def _selected(box: Box, config: SceneConfig) -> bool:
 def complete_scene(
     points: np.ndarray,
     boxes: Sequence[Box],
-    completer,
+    completer: Any,
     config: SceneConfig | None = None,
     axes: np.ndarray | None = None,
     checkpoint: str | None = None,
@@ -455,7 +456,7 @@ def _scene_config(config: SceneConfig | None, options: dict) -> SceneConfig:
     return SceneConfig(**options)
 
 
-def _assemble(todo: list, outs: list, config: SceneConfig, a) -> None:
+def _assemble(todo: list, outs: list, config: SceneConfig, a: np.ndarray | None) -> None:
     """Fidelity, heading choice and the scan-frame completion of every completed object (in place).
 
     ``outs`` come from :func:`complete_in_boxes`, clamped to the unit sphere: no completion point
@@ -482,7 +483,7 @@ def _assemble(todo: list, outs: list, config: SceneConfig, a) -> None:
         o.completion = done if a is None else done @ a
 
 
-def check_completed(result: SceneResult, source) -> None:
+def check_completed(result: SceneResult, source: str | os.PathLike) -> None:
     """Raise a one-line :class:`InputFileError` (naming ``source``) when no box of the scene was completed."""
     if result.completed:
         return
@@ -604,7 +605,7 @@ def _caption(o: ObjectResult) -> str:
     )
 
 
-def require_points(points: np.ndarray, min_points: int, source) -> None:
+def require_points(points: np.ndarray, min_points: int, source: str | os.PathLike) -> None:
     """A one-line error naming ``source`` when a scan holds fewer than ``min_points`` points."""
     if len(points) < min_points:
         raise InputFileError(

@@ -13,8 +13,8 @@ import os
 from typing import Literal
 
 from ..errors import ParameterError
-from .export import OnnxCompleter, load_onnx_completer
-from .inference import Completer
+from .export import load_onnx_completer
+from .inference import BaseCompleter
 from .inference import load_completer as load_torch_completer
 
 RUNTIMES = ("torch", "onnx")
@@ -27,7 +27,7 @@ def load_completer(
     runtime: Runtime | None = None,
     device: str | None = None,
     precision: str | None = "fp32",
-) -> Completer | OnnxCompleter:
+) -> BaseCompleter:
     """A completion model ready for inference.
 
     Parameters
@@ -38,8 +38,8 @@ def load_completer(
     device : torch device or name (torch runtime; default CUDA when available, else CPU).
     precision : torch runtime: ``"fp32"`` (default), ``"bf16"`` or ``"auto"``; an ONNX model runs as exported.
 
-    Returns a :class:`~spotlights.learning.inference.Completer` or an
-    :class:`~spotlights.learning.export.OnnxCompleter`: ``complete(partials (B, K, 3) float32,
+    Returns a :class:`~spotlights.learning.inference.BaseCompleter` (a torch
+    :class:`~spotlights.learning.inference.Completer` or an :class:`~spotlights.learning.export.OnnxCompleter`): ``complete(partials (B, K, 3) float32,
     unit frame) -> B arrays (K_i, 3) float32, unit frame``. Raises :class:`~spotlights.errors.ParameterError`
     for a runtime that does not fit the file, :class:`~spotlights.errors.InputFileError` for a bad file, and
     :class:`~spotlights.errors.SpotlightsError` when the runtime's package is not installed.

@@ -197,7 +197,7 @@ def consecutive_pairs(object_keys, timestamps) -> list[tuple[int, int]]:
     for i, k in enumerate(object_keys):
         groups[k].append(i)
     ts = np.asarray(timestamps)
-    pairs = []
+    pairs: list[tuple[int, int]] = []
     for k in sorted(groups, key=lambda k: groups[k][0]):
         rows = sorted(groups[k], key=lambda i: (ts[i], i))
         pairs.extend(zip(rows[:-1], rows[1:]))
@@ -289,7 +289,7 @@ def aggregate(tracks: list[TrackResult], classes=None) -> dict:
     for c in names:
         ts = [t for t in tracks if t.cls == c]
         scored = [t for t in ts if np.isfinite(t.values["cd"])]
-        entry = {
+        entry: dict[str, float | None] = {
             "n_objects": len(scored),
             "n_objects_unscored": len(ts) - len(scored),
             "n_pairs": sum(t.n_pairs - t.n_pairs_empty for t in ts),
