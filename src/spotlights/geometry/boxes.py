@@ -254,14 +254,15 @@ class Box:
         bottom = -half[2] - margin if ground_clearance is None else -half[2] + ground_clearance
         return inside & (p[:, 2] >= bottom)
 
-    def crop(self, points: np.ndarray, margin: float = 0.0, ground_clearance: float | None = None) -> np.ndarray:
+    def crop(self, points: ArrayLike, margin: float = 0.0, ground_clearance: float | None = None) -> np.ndarray:
         """Indices (k,) int64 of the scan-frame points (N, 3) float64 inside the box as :meth:`contains` cuts it,
         with a cheap distance pre-cut first (scans hold ~100k points): the sphere around the box grown by
         ``margin + |ground_clearance|`` along each of its axes holds every point :meth:`contains` keeps."""
         grow = max(float(margin), 0.0) + abs(float(ground_clearance or 0.0))
         reach = float(np.linalg.norm(0.5 * self.size + grow))
-        near = np.flatnonzero(np.sum((points - self.center) ** 2, axis=1) <= reach * reach)
-        return near[self.contains(points[near], margin, ground_clearance)]
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        near = np.flatnonzero(np.sum((p - self.center) ** 2, axis=1) <= reach * reach)
+        return near[self.contains(p[near], margin, ground_clearance)]
 
     def normalization(self) -> Normalization:
         """The :class:`~spotlights.geometry.frames.Normalization` scan frame -> unit frame (R = half diagonal)."""
