@@ -10,7 +10,7 @@ from ..errors import ParameterError
 from ..experiments.scene import (
     SceneConfig,
     check_completed,
-    complete_frame,
+    complete_scene,
     describe,
     render_result,
     render_result_html,
@@ -302,7 +302,7 @@ def _complete(args) -> int:
             raise ParameterError(f"{box_src}: box size must be positive, got {box.size.tolist()}")
         boxes = [with_class(box)]
     completer = load_model(args.checkpoint, args.device, args.runtime, args.precision)
-    result = complete_frame(
+    result = complete_scene(
         points, boxes, completer, config, axes=axes, checkpoint=str(args.checkpoint) if args.checkpoint else "default"
     )
     if single:

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from ..experiments.scene import complete_frame, render_result, render_result_html, write_scene
+from ..experiments.scene import complete_scene, render_result, render_result_html, write_scene
 from ..utils import atomic_output
 from ..viz.html import write_plotlyjs
 from .complete import warn
@@ -52,7 +52,7 @@ def complete_frames(args, reader, keys, config, completer, out) -> int:
                     {**info, "status": f"scan holds {len(frame.points)} points (< {config.min_points}): not completed"}
                 )
                 continue
-            result = complete_frame(frame.points, frame.boxes, completer, config, checkpoint=checkpoint)
+            result = complete_scene(frame.points, frame.boxes, completer, config, checkpoint=checkpoint)
             write_scene(
                 result,
                 stem.with_suffix(".ply"),

@@ -379,7 +379,8 @@ def complete_frame(
     checkpoint: str | None = None,
     **options: Any,
 ) -> SceneResult:
-    """Complete every vehicle of one LiDAR frame: :func:`complete_scene` with the model given by name.
+    """Complete every vehicle of one LiDAR frame: :func:`complete_scene` (what ``spotlights complete`` and
+    ``real complete`` run) with the model given by name or object and the options as keywords.
 
     Parameters
     ----------
