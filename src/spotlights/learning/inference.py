@@ -26,11 +26,11 @@ import numpy as np
 
 from ..data.store import open_dataset
 from ..errors import InputFileError, ParameterError
-from ..geometry.boxes import Box, box_from_dict, load_box, unit_extents  # noqa: F401  (the box of complete_scan; re-exported)
+from ..geometry.boxes import Box, box_from_dict, load_box  # noqa: F401  (the box of complete_scan; re-exported)
 from ..geometry.frames import clamp_to_unit_sphere
 from ..geometry.sampling import resample_set
 from .checkpoint import PRETRAINED, load_checkpoint, model_from_checkpoint, resolve_checkpoint
-from .rays import directions_for_extents
+from .rays import directions_for_extents, extents_from_sizes
 
 INPUT_POINTS = 256
 """Points per partial scan the models were trained with (the dataset's partial size)."""
@@ -405,7 +405,7 @@ def complete_in_boxes(completer, partials: np.ndarray, sizes: np.ndarray, clip=D
     """
     kw = {"clip": clip}
     if getattr(completer, "needs_box", False):
-        kw["extents"] = unit_extents(np.asarray(sizes, dtype=np.float64).reshape(-1, 3))
+        kw["extents"] = extents_from_sizes(np.asarray(sizes, dtype=np.float64).reshape(-1, 3))
     return [clamp_to_unit_sphere(c) for c in completer.complete(partials, **kw)]
 
 
