@@ -47,8 +47,8 @@ _HOMES = {
     "encode_mesh": "spotlights.geometry.encode",
     "decode": "spotlights.geometry.encode",
     "load_completer": "spotlights.learning.runtime",
-    "complete": "spotlights.experiments.scene",
-    "complete_frame": "spotlights.experiments.scene",
+    "complete": "spotlights.api",
+    "complete_frame": "spotlights.api",
     "SceneResult": "spotlights.experiments.scene",
     "read_frames": "spotlights.api",
 }

@@ -28,18 +28,13 @@ scan whose up axis is not z into the object convention first and the results bac
 
 from __future__ import annotations
 
-import dataclasses
-import difflib
 import math
-import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, cast
 
 import numpy as np
-from numpy.typing import ArrayLike
 
 from ..data.real.base import CLASSES
 from ..data.real.scans import MIN_SCAN_POINTS
@@ -49,7 +44,6 @@ from ..geometry.io import save_ply, save_points
 from ..geometry.neighbors import serial_queries
 from ..geometry.rotations import rigid_transform
 from ..learning.inference import DEFAULT, complete_in_boxes, prepare_partial
-from ..learning.runtime import load_completer
 from ..metrics.consistency import fidelity
 from ..viz import SceneObject, html, render_scene
 
@@ -69,7 +63,7 @@ HEADING_DOC = (
 )
 
 
-def heading_turns(f_given: ArrayLike, f_turned: ArrayLike, margin: float = HEADING_MARGIN) -> np.ndarray | np.bool_:
+def heading_turns(f_given, f_turned, margin: float = HEADING_MARGIN):
     """True where the turned heading wins: its fidelity is finite and below ``(1 - margin)`` x the given one's
     (a given heading with an empty completion loses to any turned one). Scalars or arrays."""
     fg = np.asarray(f_given, dtype=np.float64)
@@ -100,7 +94,7 @@ class SceneConfig:
     heading_margin: float = HEADING_MARGIN
     clip: object = "default"
 
-    def __post_init__(self) -> None:
+    def __post_init__(self):
         if not (math.isfinite(self.margin) and self.margin >= 0):
             raise ParameterError(f"margin must be >= 0 metres, got {self.margin}")
         if not math.isfinite(self.ground_clearance):
@@ -142,11 +136,6 @@ class ObjectResult:
     fidelity_flipped: float | None = None
     warnings: list = field(default_factory=list)
 
-    @property
-    def completed_box(self) -> Box:
-        """The box completed (:attr:`used_box`), else the box as given."""
-        return self.box if self.used_box is None else self.used_box
-
     def summary(self) -> dict:
         """JSON-ready description (no point arrays)."""
         return dict(
@@ -180,7 +169,6 @@ class SceneResult:
 
     @property
     def completed(self) -> list[ObjectResult]:
-        """The objects whose status is ``"completed"``, in box order."""
         return [o for o in self.objects if o.status == "completed"]
 
     @property
@@ -285,7 +273,7 @@ def _selected(box: Box, config: SceneConfig) -> bool:
 def complete_scene(
     points: np.ndarray,
     boxes: Sequence[Box],
-    completer: Any,
+    completer,
     config: SceneConfig | None = None,
     axes: np.ndarray | None = None,
     checkpoint: str | None = None,
@@ -342,8 +330,8 @@ def complete_scene(
         todo.append(o)
     t1 = time.perf_counter()
     if todo:
-        partials = np.stack([cast(np.ndarray, o.partial_unit) for o in todo])
-        sizes = np.stack([o.completed_box.size for o in todo])
+        partials = np.stack([o.partial_unit for o in todo])
+        sizes = np.stack([o.used_box.size for o in todo])
         if config.heading_check:
             partials = np.concatenate([partials, (partials @ FLIP_Z).astype(np.float32)])
             sizes = np.concatenate([sizes, sizes])
@@ -354,7 +342,7 @@ def complete_scene(
         if a is not None:
             back = rigid_transform(a.T, np.zeros(3))
             for o in todo:
-                o.used_box = o.completed_box.transformed(back)
+                o.used_box = o.used_box.transformed(back)
     else:
         t2 = time.perf_counter()
     t3 = time.perf_counter()
@@ -369,95 +357,7 @@ def complete_scene(
     )
 
 
-def complete_frame(
-    points: np.ndarray,
-    boxes: Sequence[Box],
-    completer: Any = "default",
-    config: SceneConfig | None = None,
-    *,
-    axes: np.ndarray | None = None,
-    checkpoint: str | None = None,
-    **options: Any,
-) -> SceneResult:
-    """Complete every vehicle of one LiDAR frame: :func:`complete_scene` (what ``spotlights complete`` and
-    ``real complete`` run) with the model given by name or object and the options as keywords.
-
-    Parameters
-    ----------
-    points : (N, 3) scan points, metres, the scan's frame (float32 or float64).
-    boxes : the frame's :class:`~spotlights.geometry.boxes.Box` objects in the same frame; only boxes with a
-        vehicle ``cls`` are completed (``any_label=True`` completes every box).
-    completer : a loaded completer (:func:`spotlights.learning.runtime.load_completer`), or a checkpoint
-        name or file (``"default"``, ``"paper"``, ``model.pt``, ``model.onnx``) loaded on the CPU/GPU with
-        the runtime its suffix implies.
-    config : a :class:`SceneConfig`; or give its fields as keyword ``options`` (``margin=0.2``,
-        ``heading_check=True``, ...), not both.
-    axes : optional (3, 3) rotation scan coordinates -> object convention (x forward, y left, z up).
-    checkpoint : the model's name for the result's summary (default: ``completer`` when it is a name).
-
-    Returns a :class:`SceneResult` (scan frame, metres): :attr:`SceneResult.xyz`, ``source`` and ``object``
-    per point, one :class:`ObjectResult` per box. Raises :class:`~spotlights.errors.ParameterError` for
-    unknown options or a scan with fewer than ``min_points`` points.
-    """
-    config = _scene_config(config, options)
-    if completer is None or isinstance(completer, (str, os.PathLike)):
-        name = "default" if completer is None else str(completer)
-        completer = load_completer(name)
-        checkpoint = name if checkpoint is None else checkpoint
-    return complete_scene(points, boxes, completer, config, axes=axes, checkpoint=checkpoint)
-
-
-def complete(
-    points: np.ndarray,
-    box: Box,
-    completer: Any = "default",
-    *,
-    axes: np.ndarray | None = None,
-    **options: Any,
-) -> ObjectResult:
-    """Complete one object: the points of ``points`` (N, 3) inside ``box`` (scan frame, metres; grown by
-    ``margin``, bottom raised by ``ground_clearance``, as in :func:`complete_frame`; ``crop=False`` uses
-    every point), whatever the box's label.
-
-    ``completer`` and ``options`` (the fields of :class:`SceneConfig`) as in :func:`complete_frame`.
-    Returns the box's :class:`ObjectResult`: ``completion`` (K, 3) float64 in the scan's frame,
-    ``completion_unit`` (K, 3) float32 in the box's unit frame, ``partial_unit`` (256, 3) float32 (the
-    model's input), ``input_indices`` (the scan rows used). Raises
-    :class:`~spotlights.errors.ParameterError` when the box is invalid, holds fewer than ``min_points``
-    points or the completion is empty.
-    """
-    config = dataclasses.replace(_scene_config(None, options), any_label=True)
-    o = complete_frame(points, [box], completer, config, axes=axes).objects[0]
-    if o.status == "invalid_box":
-        raise ParameterError(f"the box is not valid (sizes must be positive and finite): {box!r}")
-    if o.status == "too_few_points":
-        raise ParameterError(
-            f"{len(o.input_indices)} point(s) lie in the box; at least {config.min_points} are needed "
-            "(is the box in the points' frame?)"
-        )
-    if o.status == "empty_completion":
-        raise ParameterError("the completion is empty (every ray was clipped); try clip=None")
-    return o
-
-
-def _scene_config(config: SceneConfig | None, options: dict) -> SceneConfig:
-    """``config``, or a :class:`SceneConfig` of the keyword ``options`` (unknown names: an error naming the nearest)."""
-    if config is not None:
-        if options:
-            raise ParameterError(f"give either a config or its fields ({', '.join(sorted(options))}), not both")
-        return config
-    known = [f.name for f in dataclasses.fields(SceneConfig)]
-    for name in options:
-        if name not in known:
-            near = difflib.get_close_matches(name, known, n=1)
-            hint = f" (did you mean {near[0]}?)" if near else f"; known: {', '.join(known)}"
-            raise ParameterError(f"unknown option {name!r}{hint}")
-    if isinstance(options.get("classes"), str):
-        options["classes"] = (options["classes"],)
-    return SceneConfig(**options)
-
-
-def _assemble(todo: list, outs: list, config: SceneConfig, a: np.ndarray | None) -> None:
+def _assemble(todo: list, outs: list, config: SceneConfig, a) -> None:
     """Fidelity, heading choice and the scan-frame completion of every completed object (in place).
 
     ``outs`` come from :func:`complete_in_boxes`, clamped to the unit sphere: no completion point
@@ -484,7 +384,7 @@ def _assemble(todo: list, outs: list, config: SceneConfig, a: np.ndarray | None)
         o.completion = done if a is None else done @ a
 
 
-def check_completed(result: SceneResult, source: str | os.PathLike) -> None:
+def check_completed(result: SceneResult, source) -> None:
     """Raise a one-line :class:`InputFileError` (naming ``source``) when no box of the scene was completed."""
     if result.completed:
         return
@@ -567,7 +467,7 @@ def scene_objects(result: SceneResult) -> list:
     input, completion, labelled with their ``object`` ids (as in the PLY)."""
     objs = []
     for o in result.completed:
-        b = o.completed_box
+        b = o.used_box
         objs.append(
             SceneObject(
                 label=str(o.object_id),
@@ -606,7 +506,7 @@ def _caption(o: ObjectResult) -> str:
     )
 
 
-def require_points(points: np.ndarray, min_points: int, source: str | os.PathLike) -> None:
+def require_points(points: np.ndarray, min_points: int, source) -> None:
     """A one-line error naming ``source`` when a scan holds fewer than ``min_points`` points."""
     if len(points) < min_points:
         raise InputFileError(
@@ -620,8 +520,6 @@ __all__ = [
     "SceneConfig",
     "SceneResult",
     "ObjectResult",
-    "complete",
-    "complete_frame",
     "complete_scene",
     "write_scene",
     "check_completed",
