@@ -28,12 +28,12 @@ from pathlib import Path
 
 import numpy as np
 
-from spotlights.data.consistency import fidelity, nn_distances
 from spotlights.data.real.extract import read_observations
 from spotlights.data.store import open_dataset
 from spotlights.experiments.real_evaluation import complete_all, flip_heading
 from spotlights.geometry.neighbors import serial_queries
 from spotlights.learning.inference import load_completer
+from spotlights.metrics.consistency import fidelity, nn_distances
 
 MARGINS = (0.0, 0.05, 0.10, 0.20, 0.30, 0.40, 0.50, 0.60)
 

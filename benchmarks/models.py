@@ -52,13 +52,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from spotlights.geometry.boxes import unit_extents
 from spotlights.geometry.rig import RigSpec, make_rig
 from spotlights.learning.bench import bench_markdown, bench_models, cpu_name, median_latency
 from spotlights.learning.device import autocast
 from spotlights.learning.losses import chamfer_distance
 from spotlights.learning.models import MODEL_NAMES, build_model, load_config
 from spotlights.learning.models.base import MLP
-from spotlights.learning.rays import TIMING_BOX_SIZE, extents_from_sizes
+from spotlights.learning.rays import TIMING_BOX_SIZE
 
 SECTIONS = ("inference", "chamfer", "train", "precision", "dense", "quality", "runtime")
 BOX, DENSE = "box-32x64-ellipsoid-s1", "box-128x128-ellipsoid-s1"
@@ -323,7 +324,7 @@ def runtime_latency(
 
     ref = load_completer(checkpoint, device="cpu")
     # box-targeted rigs aim each scan's rays at its box: time them on a typical car's box
-    ext = extents_from_sizes(TIMING_BOX_SIZE) if getattr(ref, "needs_box", False) else None
+    ext = unit_extents(TIMING_BOX_SIZE) if getattr(ref, "needs_box", False) else None
     cpu = torch.device("cpu")
     with tempfile.TemporaryDirectory(prefix="bench-onnx-") as tmp:
         t0 = time.perf_counter()

@@ -47,9 +47,10 @@ def _scans(data: str | None, n: int):
         e = ds.extents[[int(it["model"]) for it in items]] if ds.extents is not None else None
         return x, e
     x = (np.random.default_rng(0).normal(size=(n, 256, 3)) * 0.3).astype(np.float32)
-    from spotlights.learning.rays import TIMING_BOX_SIZE, extents_from_sizes
+    from spotlights.geometry.boxes import unit_extents
+    from spotlights.learning.rays import TIMING_BOX_SIZE
 
-    return x, np.tile(extents_from_sizes(TIMING_BOX_SIZE), (n, 1))
+    return x, np.tile(unit_extents(TIMING_BOX_SIZE), (n, 1))
 
 
 def _raw(completer, x, e):

@@ -300,21 +300,21 @@ def test_validation_decodes_each_sample_with_its_box(box_run):
 
 
 def test_box_completer_uses_each_scans_box(box_run):
+    from spotlights.geometry.boxes import unit_extents
     from spotlights.learning.inference import Box, complete_scan, load_completer
-    from spotlights.learning.rays import extents_from_sizes
 
     _, best, _ = box_run
     comp = load_completer(best, device="cpu")
     assert comp.needs_box and comp.rig == SPEC
     size = np.array([4.6, 1.9, 1.6])
-    e = extents_from_sizes(size)
+    e = unit_extents(size)
     rig = SPEC.for_box(e)
     t = slab(rig.origins, rig.directions, e) / 2  # depths that put every point on this box's surface
     force_depths(comp.model, t)
     partial = np.random.default_rng(0).normal(size=(2, 256, 3)).astype(np.float32) * 0.3
     with pytest.raises(ParameterError, match="box"):
         comp.complete(partial)
-    e2 = extents_from_sizes([3.0, 2.0, 2.0])
+    e2 = unit_extents([3.0, 2.0, 2.0])
     out = comp.complete(partial, clip=None, extents=np.stack([e, e2]))
     assert len(out[0]) == SPEC.n_rays
     np.testing.assert_allclose(np.abs(out[0] / e).max(1), 1.0, atol=2e-5)  # on the surface of its box
@@ -388,9 +388,9 @@ def test_bench_models_times_a_box_rig_sanet():
 
 def test_hit_aware_sanet_on_a_box_rig(built, tmp_path):
     """sanet-hit trains on a box rig, stores its threshold, and decodes each scan's kept rays on that scan's box."""
+    from spotlights.geometry.boxes import unit_extents
     from spotlights.learning.checkpoint import load_checkpoint
     from spotlights.learning.inference import load_completer
-    from spotlights.learning.rays import extents_from_sizes
     from spotlights.learning.train import train
 
     path, _ = built
@@ -405,7 +405,7 @@ def test_hit_aware_sanet_on_a_box_rig(built, tmp_path):
     assert ck["rig"] == SPEC.to_dict() and 0 < ck["hit_threshold"]["value"] < 1
     comp = load_completer(res["best"], device="cpu")
     assert comp.needs_box and comp.model.threshold == ck["hit_threshold"]["value"]
-    e = extents_from_sizes([4.6, 1.9, 1.6])
+    e = unit_extents([4.6, 1.9, 1.6])
     rig = SPEC.for_box(e)
     t = slab(rig.origins, rig.directions, e) / 2
     hit = np.isfinite(t) & (t > 0)

@@ -147,8 +147,8 @@ def test_bad_parameters_and_shapes():
 
 def test_every_caller_uses_the_same_numbers():
     """The consistency metric, the learning metrics and the rig study's completeness are the module's."""
-    from spotlights.data.consistency import chamfer, fidelity
-    from spotlights.learning import metrics
+    from spotlights.metrics import completion as metrics
+    from spotlights.metrics.consistency import chamfer, fidelity
 
     rng = np.random.default_rng(4)
     a, b = rng.normal(size=(60, 3)), rng.normal(size=(90, 3))

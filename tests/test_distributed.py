@@ -220,8 +220,8 @@ def test_ray_build_is_byte_identical_to_local(meshes, local_ref, tmp_path, ray_c
 
 
 def test_ray_metrics_equal_local(ray_cluster):
-    from spotlights.learning.metrics import evaluate_completions
     from spotlights.learning.ray_metrics import RayMetrics
+    from spotlights.metrics.completion import evaluate_completions
 
     rng = np.random.default_rng(0)
     gt = [rng.normal(size=(500, 3)) for _ in range(3)]

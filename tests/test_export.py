@@ -13,11 +13,11 @@ pytest.importorskip("onnx")
 pytest.importorskip("onnxruntime")
 pytest.importorskip("onnxscript")
 
+from spotlights.geometry.boxes import unit_extents  # noqa: E402
 from spotlights.geometry.rig import RigSpec, make_rig  # noqa: E402
 from spotlights.learning.checkpoint import load_checkpoint, model_from_checkpoint  # noqa: E402
 from spotlights.learning.export import export_onnx, load_onnx_completer, parity  # noqa: E402
 from spotlights.learning.inference import load_completer  # noqa: E402
-from spotlights.learning.rays import extents_from_sizes  # noqa: E402
 
 from helpers import assert_user_error  # noqa: E402
 from learning_fixtures import cli, make_checkpoint, one_torch_thread, tiny_dataset_path  # noqa: E402
@@ -69,9 +69,7 @@ def test_every_model_exports_and_onnxruntime_matches_torch(tmp_path, test_scans,
         assert onx.rig == model.rig and onx.needs_box == model.needs_box
         assert onx.clip == model.clip and onx.threshold == getattr(model, "threshold", None)
         assert threshold is None or onx.threshold == threshold
-    e = extents_from_sizes(np.array([[4.4, 1.8, 1.5], [3.9, 1.7, 1.6], [5.1, 2.0, 1.9]]))[
-        np.arange(len(test_scans)) % 3
-    ]
+    e = unit_extents(np.array([[4.4, 1.8, 1.5], [3.9, 1.7, 1.6], [5.1, 2.0, 1.9]]))[np.arange(len(test_scans)) % 3]
     diff = parity(ckpt, onx, test_scans, extents=e if onx.needs_box else None)
     assert all(v < 1e-4 for k, v in diff.items() if k != "kept_rays_differ"), diff
     assert diff.get("kept_rays_differ", 0) == 0, diff

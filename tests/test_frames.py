@@ -7,9 +7,9 @@ import pytest
 import trimesh
 
 from spotlights.errors import ParameterError
+from spotlights.geometry.boxes import Box
 from spotlights.geometry.frames import (
     Normalization,
-    box_corners,
     normalization_from_box,
     normalization_from_mesh,
     normalization_from_points,
@@ -50,10 +50,10 @@ def test_oriented_box_yaw():
     assert np.allclose(front, [2 / R, 0, 0])
     left = n.to_unit([[9, 5, 0.75]])[0]  # 1 m to the vehicle's left (source -x)
     assert np.allclose(left, [0, 1 / R, 0])
-    corners = box_corners([10, 5, 0.75], [4, 2, 1.5], yaw=math.pi / 2)
-    # hand-computed: corner 0 = (-,-,-) in box axes -> centre - 2*fwd - 1*left - 0.75*up
-    assert np.allclose(corners[0], [10 + 1, 5 - 2, 0])
-    assert np.allclose(corners[7], [10 - 1, 5 + 2, 1.5])
+    corners = Box([10, 5, 0.75], [4, 2, 1.5], yaw=math.pi / 2).corners()
+    # hand-computed: corner 7 = (-,-,-) in box axes -> centre - 2*fwd - 1*left - 0.75*up
+    assert np.allclose(corners[7], [10 + 1, 5 - 2, 0])
+    assert np.allclose(corners[0], [10 - 1, 5 + 2, 1.5])
     assert np.allclose(np.linalg.norm(n.to_unit(corners), axis=1), 1.0)
 
 

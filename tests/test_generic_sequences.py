@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from spotlights.cli import main
-from spotlights.data.consistency import consecutive_pairs
 from spotlights.data.real import open_reader
 from spotlights.data.real.extract import ExtractConfig, extract, read_observations, write_observations
 from spotlights.errors import InputFileError
 from spotlights.geometry.boxes import Box
+from spotlights.metrics.consistency import consecutive_pairs
 
 SIZE = [4.2, 1.8, 1.5]
 

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from spotlights.learning.metrics import (
+from spotlights.metrics.completion import (
     NearestNeighbors,
     accuracy,
     chamfer_l1,
@@ -116,7 +116,7 @@ def test_summarize_means_over_samples_and_over_categories():
 
 
 def test_metrics_module_does_not_import_torch():
-    code = "import sys, spotlights.learning.metrics; assert 'torch' not in sys.modules"
+    code = "import sys, spotlights.metrics.completion; assert 'torch' not in sys.modules"
     proc = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, env={"PYTHONPATH": str(REPO / "src")}
     )

@@ -106,10 +106,3 @@ def test_av2_style_box_hand_corners():
     hand = np.array([[x, y, z] for x in (0.0, 2.0) for y in (0.0, 4.0) for z in (2.25, 3.75)])
     assert same_corner_sets(box.corners(), hand, 1e-12)
     assert box.yaw == pytest.approx(math.pi / 2)
-
-
-def test_box_corners_match_core_geometry():
-    from spotlights.geometry.frames import box_corners
-
-    box = Box.from_yaw([3.0, -1.0, 0.5], [4.2, 1.8, 1.5], 0.7, "Car", "car")
-    assert same_corner_sets(box.corners(), box_corners(box.center, box.size, yaw=0.7), 1e-12)

@@ -9,7 +9,11 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
 
-from spotlights.data.consistency import (
+from spotlights.data.real import open_reader
+from spotlights.data.real.extract import ExtractConfig, extract
+from spotlights.errors import InputFileError
+from spotlights.experiments.real_evaluation import evaluate_consistency, write_report
+from spotlights.metrics.consistency import (
     aggregate,
     chamfer,
     consecutive_pairs,
@@ -19,10 +23,6 @@ from spotlights.data.consistency import (
     nn_distances,
     track_consistency,
 )
-from spotlights.data.real import open_reader
-from spotlights.data.real.extract import ExtractConfig, extract
-from spotlights.errors import InputFileError
-from spotlights.experiments.real_evaluation import evaluate_consistency, write_report
 
 
 def test_chamfer_matches_brute_force():

@@ -55,7 +55,7 @@ def test_av2_track_pairing():
     obs = extract(
         open_reader(AV2_LOG, "av2"), ExtractConfig(min_points=50, margin=0.0, ground_clearance=0.0), progress=False
     )
-    from spotlights.data.consistency import consecutive_pairs
+    from spotlights.metrics.consistency import consecutive_pairs
 
     pairs = consecutive_pairs(obs.object_keys(), obs.timestamp)
     # README: 16 vehicle tracks with >= 50 points in both sweeps; two of them are one car annotated

@@ -143,6 +143,7 @@ def test_render_mesh_top_view_is_opaque(tmp_path):
 
 
 def test_scene_picture_labels_ids(tmp_path):
+    from spotlights.geometry.boxes import Box
     from spotlights.viz.scene import SceneObject, render_scene
 
     rng = np.random.default_rng(0)
@@ -150,9 +151,7 @@ def test_scene_picture_labels_ids(tmp_path):
     objs = [
         SceneObject(
             "track-a",
-            np.array([8.0, 2.0, 0.0]),
-            np.array([4.0, 1.8, 1.5]),
-            np.eye(3),
+            Box([8.0, 2.0, 0.0], [4.0, 1.8, 1.5]),
             rng.normal([8, 2, 0], 0.4, (256, 3)),
             rng.normal([8, 2, 0], 0.6, (800, 3)),
             "car",

@@ -5,7 +5,6 @@
   closed forms, the paper's occlusion formula, caps narrower than the paper's hemisphere.
 * :mod:`.montecarlo` - a check with real rigs (``spotlights.geometry.rig``) and real ray
   casting (Embree) on small discs, with statistical errors from random rotations.
-* :mod:`.report` / :mod:`.plots` - the ``spotlights analyze density`` pipeline and figures.
 
 Uses ``spotlights.geometry``; knows nothing of learning or data. See ``docs/analysis.md``.
 """

@@ -6,7 +6,7 @@ checked with real rigs and real ray casting, written as CSV, figures and a summa
 
 from __future__ import annotations
 
-from ..analysis.report import DensityConfig, run_density_analysis
+from ..experiments.density_report import DensityConfig, run_density_analysis
 from ..utils import output_folder
 from ._util import add_command, add_group, add_quiet, non_negative_int
 

@@ -6,7 +6,7 @@ import sys
 
 from ..data.real.boxfiles import read_box_file, with_class
 from ..data.real.scans import read_scan
-from ..errors import ParameterError, SpotlightsError
+from ..errors import ParameterError
 from ..experiments.scene import (
     SceneConfig,
     check_completed,
@@ -20,7 +20,7 @@ from ..experiments.scene import (
 from ..geometry.boxes import box_from_dict
 from ..geometry.io import axes_rotation
 from ..inputs import read_json
-from ..learning.export import load_onnx_completer
+from ..learning.runtime import load_completer
 from ..utils import atomic_output, check_writable
 from ._util import DEVICE_HELP, add_command, check_picture, check_suffix, non_negative_int, positive_int, unit_interval
 from .view import add_html_argument
@@ -239,26 +239,9 @@ def scene_config(args, single: bool):
 
 
 def load_model(checkpoint, device, runtime=None, precision="fp32"):
-    """A :class:`~spotlights.learning.inference.Completer` for a --checkpoint value (None = the default model);
-    with ``runtime="onnx"`` (or a ``.onnx`` checkpoint) an :class:`~spotlights.learning.export.OnnxCompleter`."""
-    if runtime == "onnx" or (runtime is None and str(checkpoint or "").lower().endswith(".onnx")):
-        if checkpoint is None or not str(checkpoint).lower().endswith(".onnx"):
-            raise ParameterError(
-                "--runtime onnx runs an ONNX file: pass --checkpoint MODEL.onnx "
-                "(make one with 'spotlights export CHECKPOINT --out MODEL.onnx')"
-            )
-        if precision not in (None, "fp32"):
-            raise ParameterError("--precision applies to the torch runtime; an ONNX model runs as exported (float32)")
-
-        return load_onnx_completer(checkpoint)
-    if runtime == "torch" and str(checkpoint or "").lower().endswith(".onnx"):
-        raise ParameterError(f"{checkpoint} is an ONNX file: run it with --runtime onnx")
-
-    try:
-        from ..learning.inference import load_completer
-    except ImportError as exc:  # pragma: no cover - torch missing
-        raise SpotlightsError(f"model loading is not available ({exc}); install spotlights[learn]") from None
-    return load_completer(checkpoint, device=device, precision=precision)
+    """The completer of a --checkpoint value (None = the default model) and --runtime: see
+    :func:`spotlights.learning.runtime.load_completer`."""
+    return load_completer(checkpoint, runtime=runtime, device=device, precision=precision)
 
 
 def warn(lines) -> None:

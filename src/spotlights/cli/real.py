@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import json
 
-from ..data.consistency import consecutive_pairs
 from ..data.real import open_reader
 from ..data.real.base import CLASSES
 from ..data.real.extract import ExtractConfig, extract, read_observations, write_observations
@@ -20,6 +19,7 @@ from ..experiments.real_evaluation import (
     write_report_json,
 )
 from ..experiments.scene import HEADING_MARGIN
+from ..metrics.consistency import consecutive_pairs
 from ..utils import check_writable, output_folder
 from ..viz import html, render_frame
 from ..viz.scene import frame_objects, read_frame_scan

@@ -55,6 +55,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputFileError, ParameterError
+from ..geometry.boxes import unit_extents
 from ..geometry.rig import RigSpec, parse_rig
 from .shard_index import is_shard_index, read_shard_index, without_extra_rigs
 from .store_writer import (
@@ -349,7 +350,7 @@ class CompletionDataset:
                 self.path,
                 "has no /models/size, so box-targeted rigs cannot be resolved (rebuild it with this spotlights)",
             )
-        return np.asarray(self.size, dtype=np.float64) / (2.0 * np.asarray(self.radius, dtype=np.float64)[:, None])
+        return unit_extents(self.size, self.radius)
 
     def rig_spec(self, name: str | None = None):
         """The :class:`~spotlights.geometry.rig.RigSpec` stored under ``name`` (default: the default rig).

@@ -6,7 +6,7 @@ and any number of *completers* - objects with ``model_name`` (str), optionally
 list of B arrays (K_i, 3)`` in the unit frame (the interface of
 ``spotlights.learning.inference.load_completer``). It completes every
 observation of every object seen in two or more frames, scores the
-consistency (:mod:`spotlights.data.consistency`), and returns a report dict;
+consistency (:mod:`spotlights.metrics.consistency`), and returns a report dict;
 :func:`write_report` writes it as Markdown and JSON (:mod:`.real_report`, importable from here).
 
 Beside consistency (as the paper computes it, on the completions as the models give
@@ -54,27 +54,26 @@ from collections.abc import Sequence
 import numpy as np
 
 from .._version import __version__
-from ..data.consistency import (
-    DIVERSITY_DOC,
-    METRIC_DOC,
-    OBSERVATION_METRIC_DOC,
-    aggregate,
-    chamfer,
-    consecutive_pairs,
-    diversity,
-    fidelity,
-    minimal_matching_distance,
-    track_consistency,
-)
 from ..data.real.base import CLASSES
 from ..data.real.extract import Observations, read_observations
 from ..data.store import open_dataset
 from ..errors import InputFileError, SpotlightsError
-from ..geometry.boxes import FLIP_Z
+from ..geometry.boxes import FLIP_Z, unit_extents
 from ..geometry.neighbors import NearestNeighbors, serial_queries
 from ..geometry.sampling import resample_set, voxel_downsample
 from ..learning.checkpoint import resolve_checkpoint
-from ..learning.rays import extents_from_sizes
+from ..metrics.consistency import (
+    DIVERSITY_DOC,
+    METRIC_DOC,
+    OBSERVATION_METRIC_DOC,
+    aggregate,
+    consecutive_pairs,
+    diversity,
+    fidelity,
+    minimal_matching_distance,
+    same_observation_cd,
+    track_consistency,
+)
 from .real_report import report_markdown, write_report, write_report_json
 from .scene import HEADING_MARGIN, heading_turns
 
@@ -91,7 +90,6 @@ __all__ = [
     "flip_heading",
     "reference_shapes",
     "report_markdown",
-    "same_observation_cd",
     "tracked_rows",
     "write_report",
     "write_report_json",
@@ -154,7 +152,7 @@ def complete_all(
                 f"completer {getattr(completer, 'model_name', '?')} decodes rays aimed at each object's "
                 "box: give the boxes' sizes"
             )
-        extents = extents_from_sizes(np.asarray(box_sizes, dtype=np.float64).reshape(n, 3))
+        extents = unit_extents(np.asarray(box_sizes, dtype=np.float64).reshape(n, 3))
     for s in tqdm(range(0, n, batch_size), desc=desc, unit="batch", disable=not progress or n == 0):
         batch = np.ascontiguousarray(partials[s : s + batch_size], dtype=np.float32)
         kw = {} if clip is None else {"clip": clip}
@@ -191,15 +189,6 @@ def equal_count(points: np.ndarray, n: int = EQUAL_POINTS, seed: int = 0) -> np.
 def flip_heading(partials: np.ndarray) -> np.ndarray:
     """Unit-frame partials (..., 3) as seen in the box turned by 180 degrees about its up axis (x, y negated)."""
     return (np.asarray(partials) @ FLIP_Z).astype(np.float32)
-
-
-def same_observation_cd(a_list, b_list, scale) -> np.ndarray:
-    """(n,) two-sided Chamfer ``cd`` between a_i and b_i (unit frame) times ``scale[i]``; NaN when one is empty."""
-    out = np.full(len(a_list), np.nan)
-    for i, (a, b) in enumerate(zip(a_list, b_list)):
-        if len(a) and len(b):
-            out[i] = chamfer(a, b)["cd"] * float(scale[i])
-    return out
 
 
 def tracked_rows(obs: Observations, classes: Sequence[str] | None = None) -> np.ndarray:
@@ -319,7 +308,7 @@ def evaluate_consistency(
     dict with ``data`` (file, counts, skip counts), ``metrics`` (definitions),
     and ``models``: one entry per completer with ``name``, ``n_params``,
     ``classes`` / ``average`` / ``all_objects`` (see
-    :func:`spotlights.data.consistency.aggregate`; per-observation keys ``fidelity``,
+    :func:`spotlights.metrics.consistency.aggregate`; per-observation keys ``fidelity``,
     ``mmd``, ``noise_floor``), ``mean_points_per_completion``, ``diversity``,
     ``equal_points`` and ``equal_density`` (consistency, noise floor, diversity and
     ``mean_points_per_completion`` after bringing every completion to one count / one voxel

@@ -36,9 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data.consistency import fidelity
 from ..data.real.base import CLASSES
-from ..data.real.extract import crop_box
 from ..data.real.scans import MIN_SCAN_POINTS
 from ..errors import InputFileError, ParameterError
 from ..geometry.boxes import FLIP_Z, Box
@@ -46,6 +44,7 @@ from ..geometry.io import save_ply, save_points
 from ..geometry.neighbors import serial_queries
 from ..geometry.rotations import rigid_transform
 from ..learning.inference import DEFAULT, complete_in_boxes, prepare_partial
+from ..metrics.consistency import fidelity
 from ..viz import SceneObject, html, render_scene
 
 SOURCE_RAW, SOURCE_PARTIAL, SOURCE_COMPLETION = 0, 1, 2
@@ -172,6 +171,21 @@ class SceneResult:
     def completed(self) -> list[ObjectResult]:
         return [o for o in self.objects if o.status == "completed"]
 
+    @property
+    def xyz(self) -> np.ndarray:
+        """(M, 3) float64 scan frame, metres: every scan point, then every completion (see :meth:`fields`)."""
+        return self.fields()[0]
+
+    @property
+    def source(self) -> np.ndarray:
+        """(M,) uint8 per point of :attr:`xyz`: 0 raw point, 1 partial input of an object, 2 completion."""
+        return self.fields()[1]
+
+    @property
+    def object(self) -> np.ndarray:
+        """(M,) int32 per point of :attr:`xyz`: its object's id (:func:`object_ids`), -1 outside every box."""
+        return self.fields()[2]
+
     def skipped(self) -> dict:
         """{reason: count} of the boxes not completed."""
         out: dict = {}
@@ -297,7 +311,7 @@ def complete_scene(
         if not wb.is_valid():
             objects.append(ObjectResult(i, ids[i], b, "invalid_box" if _selected(b, config) else "class_excluded"))
             continue
-        idx = crop_box(work, wb, config.margin, config.ground_clearance) if config.crop else np.arange(len(work))
+        idx = wb.crop(work, config.margin, config.ground_clearance) if config.crop else np.arange(len(work))
         free = idx[member[idx] < 0]
         member[free] = i
         if not _selected(b, config):
@@ -467,9 +481,7 @@ def scene_objects(result: SceneResult) -> list:
         objs.append(
             SceneObject(
                 label=str(o.object_id),
-                center=b.center,
-                size=b.size,
-                rotation=b.rotation,
+                box=b,
                 partial=result.points[o.input_indices],
                 completion=o.completion,
                 caption=_caption(o),

@@ -22,7 +22,6 @@ from .encode import (
 )
 from .frames import (
     Normalization,
-    box_corners,
     normalization_from_box,
     normalization_from_mesh,
     normalization_from_points,
@@ -46,7 +45,6 @@ __all__ = [
     "RayCaster",
     "Rig",
     "RigSpec",
-    "box_corners",
     "cap_directions",
     "decode",
     "encode_mesh",

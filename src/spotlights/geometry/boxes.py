@@ -9,22 +9,82 @@ those three axes expressed in the frame of the scan (sensor, ego or world), so
 
 A box given by a heading has ``rotation = rotation_z(yaw)``. The box's unit
 frame (where the models work) is its object frame divided by R = half the box
-diagonal: :meth:`Box.normalization`.
+diagonal (:attr:`Box.radius`): :meth:`Box.normalization`; the box's half-extents
+there are ``size / (2 R)`` (:func:`unit_extents`, norm 1).
+
+**Corner order** (:data:`CORNER_SIGNS`, :func:`corners`, :meth:`Box.corners`): corner
+``4*i + 2*j + k`` is at object coordinates ``(sx l/2, sy w/2, sz h/2)`` with ``sx = +1``
+for i = 0 and -1 for i = 1 (likewise j for y, k for z): corner 0 is (+, +, +), corner 7
+(-, -, -); even corners are the top face, odd ones the bottom face. :data:`BOX_EDGES`
+lists the 12 edges as corner pairs. This module is the one owner of a box's corners,
+radius, unit extents, containment and crop; nothing else computes them.
 """
 
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..errors import InputFileError, ParameterError
 from ..inputs import read_json
-from .frames import normalization_from_box
+from .frames import Normalization, normalization_from_box
 from .rotations import is_rotation, orthonormalize, quaternion_to_matrix, rotation_z
 
 #: 180 degrees about the box's own z axis: the same box, heading turned around.
 FLIP_Z = np.diag([-1.0, -1.0, 1.0])
+
+#: (8, 3) float64 signs of the corners in the box's axes: row ``4*i + 2*j + k`` = (±1, ±1, ±1), + for 0, - for 1.
+CORNER_SIGNS = np.array([[sx, sy, sz] for sx in (1, -1) for sy in (1, -1) for sz in (1, -1)], dtype=np.float64)
+CORNER_SIGNS.setflags(write=False)
+
+#: The 12 edges of a box as pairs of corner indices (corners that differ in one sign).
+BOX_EDGES = ((0, 1), (2, 3), (4, 5), (6, 7), (0, 2), (1, 3), (4, 6), (5, 7), (0, 4), (1, 5), (2, 6), (3, 7))
+
+
+def corners(center: ArrayLike, size: ArrayLike, rotation: ArrayLike | None = None) -> np.ndarray:
+    """(..., 8, 3) float64 corners of boxes (vectorised over any leading shape), in the scan's frame.
+
+    Parameters
+    ----------
+    center : (..., 3) box centres, metres. size : (..., 3) (length, width, height), metres.
+    rotation : (..., 3, 3) rotations whose columns are the box axes (None: axis-aligned).
+
+    Corner order: :data:`CORNER_SIGNS` (corner 0 at (+l/2, +w/2, +h/2) in the box's axes, corner 7 at (-, -, -)).
+    """
+    c = np.asarray(center, dtype=np.float64)
+    half = 0.5 * np.asarray(size, dtype=np.float64)
+    local = CORNER_SIGNS * half[..., None, :]  # (..., 8, 3) object frame
+    if rotation is None:
+        return c[..., None, :] + local
+    r = np.asarray(rotation, dtype=np.float64)
+    return c[..., None, :] + local @ np.swapaxes(r, -1, -2)
+
+
+def unit_extents(size: ArrayLike, radius: ArrayLike | None = None) -> np.ndarray:
+    """(..., 3) float64 half-extents of boxes in their unit frames: ``size / (2 R)``, R = half the box diagonal.
+
+    Parameters
+    ----------
+    size : (..., 3) box length, width, height (any unit; only ratios matter).
+    radius : optional (...,) R of each box when it is known (a normalisation's or a dataset's stored radius);
+        by default ``2 R = |size|``, so the result is ``size / |size|`` (norm 1).
+
+    What a box-targeted rig is aimed at (:meth:`spotlights.geometry.rig.RigSpec.for_box`). Raises
+    :class:`ParameterError` for a shape other than (..., 3), or (without ``radius``) sizes that are not
+    finite, negative or all zero.
+    """
+    s = np.asarray(size, dtype=np.float64)
+    if s.shape[-1:] != (3,):
+        raise ParameterError(f"box sizes must have shape (..., 3), got {s.shape}")
+    if radius is not None:
+        return s / (2.0 * np.asarray(radius, dtype=np.float64)[..., None])
+    n = np.linalg.norm(s, axis=-1, keepdims=True)
+    if not np.all(np.isfinite(s)) or np.any(s < 0) or np.any(n <= 0):
+        raise ParameterError("box sizes must be finite, >= 0 and not all zero")
+    return s / n
 
 
 class Box:
@@ -48,18 +108,24 @@ class Box:
     """
 
     __slots__ = ("center", "size", "rotation", "label", "cls", "track_id")
+    center: np.ndarray
+    size: np.ndarray
+    rotation: np.ndarray
+    label: str
+    cls: str | None
+    track_id: str
 
     def __init__(
         self,
-        center,
-        size,
-        rotation=None,
+        center: ArrayLike,
+        size: ArrayLike,
+        rotation: ArrayLike | float | None = None,
         label: str = "",
         cls: str | None = None,
-        track_id: str = "",
+        track_id: str | None = "",
         *,
         yaw: float | None = None,
-    ):
+    ) -> None:
         c = np.array(center, dtype=np.float64).reshape(-1)
         s = np.array(size, dtype=np.float64).reshape(-1)
         if c.shape != (3,) or s.shape != (3,):
@@ -67,7 +133,7 @@ class Box:
         if rotation is not None and np.ndim(rotation) == 0:
             if yaw is not None:
                 raise ParameterError("give a box either a rotation or a yaw, not both")
-            rotation, yaw = None, float(rotation)
+            rotation, yaw = None, float(rotation)  # type: ignore[arg-type]
         if rotation is None:
             r = rotation_z(0.0 if yaw is None else float(yaw))
         else:
@@ -83,7 +149,7 @@ class Box:
         object.__setattr__(self, "cls", None if cls is None else str(cls))
         object.__setattr__(self, "track_id", "" if track_id is None else str(track_id))
 
-    def __setattr__(self, name, value):
+    def __setattr__(self, name: str, value: object) -> None:
         raise AttributeError("Box is immutable; use Box.replace(...)")
 
     def __repr__(self) -> str:
@@ -93,24 +159,32 @@ class Box:
             f"yaw={self.yaw:.4f}{extra})"
         )
 
-    def __reduce__(self):  # picklable (process pools, Ray)
+    def __reduce__(self) -> tuple:  # picklable (process pools, Ray)
         return (Box, (self.center, self.size, self.rotation, self.label, self.cls, self.track_id))
 
     # --- construction -----------------------------------------------------------------
 
     @classmethod
-    def from_yaw(cls_, center, size, yaw: float, label: str = "", cls: str | None = None, track_id: str = "") -> Box:
+    def from_yaw(
+        cls_,
+        center: ArrayLike,
+        size: ArrayLike,
+        yaw: float,
+        label: str = "",
+        cls: str | None = None,
+        track_id: str = "",
+    ) -> Box:
         """A box turned by ``yaw`` radians about the scan's +z axis."""
         return cls_(center, size, rotation_z(float(yaw)), label, cls, track_id)
 
-    def replace(self, **changes) -> Box:
+    def replace(self, **changes: object) -> Box:
         """A copy with some of ``center``, ``size``, ``rotation``, ``label``, ``cls``, ``track_id`` changed."""
         d = {k: getattr(self, k) for k in self.__slots__}
         unknown = set(changes) - set(d)
         if unknown:
             raise ParameterError(f"unknown box field(s) {sorted(unknown)}")
         d.update(changes)
-        return Box(**d)
+        return Box(**d)  # type: ignore[arg-type]
 
     # --- properties -----------------------------------------------------------------
 
@@ -123,6 +197,11 @@ class Box:
     def radius(self) -> float:
         """Half the box diagonal, metres: the radius R of the circumscribed sphere (the unit frame's scale)."""
         return 0.5 * float(np.linalg.norm(self.size))
+
+    @property
+    def unit_extents(self) -> np.ndarray:
+        """(3,) float64 half-extents of the box in its unit frame, ``size / (2 R)`` (norm 1; :func:`unit_extents`)."""
+        return unit_extents(self.size, self.radius)
 
     def is_valid(self) -> bool:
         """True when centre, size and rotation are finite, the rotation proper and every size positive."""
@@ -138,21 +217,28 @@ class Box:
     def corners(self) -> np.ndarray:
         """(8, 3) float64 corners in the scan's frame.
 
-        Order: index ``4*i + 2*j + k`` has object coordinates
+        Order (:data:`CORNER_SIGNS`): index ``4*i + 2*j + k`` has object coordinates
         ``(±l/2, ±w/2, ±h/2)`` with i, j, k = 0 for + and 1 for - along x, y, z.
         """
-        signs = np.array([[sx, sy, sz] for sx in (1, -1) for sy in (1, -1) for sz in (1, -1)], dtype=np.float64)
-        return self.center + (signs * (0.5 * self.size)) @ self.rotation.T
+        return corners(self.center, self.size, self.rotation)
 
-    def to_object(self, points: np.ndarray) -> np.ndarray:
+    def to_object(self, points: ArrayLike) -> np.ndarray:
         """Scan-frame points (..., 3) -> object frame (..., 3) float64, metres."""
         return (np.asarray(points, dtype=np.float64) - self.center) @ self.rotation
 
-    def from_object(self, points: np.ndarray) -> np.ndarray:
+    def from_object(self, points: ArrayLike) -> np.ndarray:
         """Object-frame points (..., 3) -> scan frame (..., 3) float64, metres."""
         return np.asarray(points, dtype=np.float64) @ self.rotation.T + self.center
 
-    def contains(self, points: np.ndarray, margin: float = 0.0, ground_clearance: float | None = None) -> np.ndarray:
+    def to_unit(self, points: ArrayLike) -> np.ndarray:
+        """Scan-frame points (..., 3) -> the box's unit frame (object frame / :attr:`radius`), float64."""
+        return self.normalization().to_unit(np.asarray(points, dtype=np.float64))
+
+    def from_unit(self, points: ArrayLike) -> np.ndarray:
+        """Unit-frame points (..., 3) -> the scan's frame, float64 metres."""
+        return self.normalization().from_unit(np.asarray(points, dtype=np.float64))
+
+    def contains(self, points: ArrayLike, margin: float = 0.0, ground_clearance: float | None = None) -> np.ndarray:
         """Boolean mask (N,) of the scan-frame points (N, 3) inside the box grown by ``margin`` metres.
 
         ``ground_clearance`` (metres): when given, the bottom face is not grown but raised by it
@@ -169,7 +255,17 @@ class Box:
         bottom = -half[2] - margin if ground_clearance is None else -half[2] + ground_clearance
         return inside & (p[:, 2] >= bottom)
 
-    def normalization(self):
+    def crop(self, points: ArrayLike, margin: float = 0.0, ground_clearance: float | None = None) -> np.ndarray:
+        """Indices (k,) int64 of the scan-frame points (N, 3) float64 inside the box as :meth:`contains` cuts it,
+        with a cheap distance pre-cut first (scans hold ~100k points): the sphere around the box grown by
+        ``margin + |ground_clearance|`` along each of its axes holds every point :meth:`contains` keeps."""
+        grow = max(float(margin), 0.0) + abs(float(ground_clearance or 0.0))
+        reach = float(np.linalg.norm(0.5 * self.size + grow))
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        near = np.flatnonzero(np.sum((p - self.center) ** 2, axis=1) <= reach * reach)
+        return near[self.contains(p[near], margin, ground_clearance)]
+
+    def normalization(self) -> Normalization:
         """The :class:`~spotlights.geometry.frames.Normalization` scan frame -> unit frame (R = half diagonal)."""
         return normalization_from_box(self.center, self.size, rotation=self.rotation)
 
@@ -203,7 +299,7 @@ LABEL_KEYS = ("label", "category", "class", "detection_name")
 ID_KEYS = ("track_id", "id", "instance_token", "tracking_id")
 
 
-def _vector(value, n, src, what: str) -> np.ndarray:
+def _vector(value: object, n: int | tuple[int, ...], src: str | os.PathLike, what: str) -> np.ndarray:
     try:
         a = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
@@ -216,7 +312,13 @@ def _vector(value, n, src, what: str) -> np.ndarray:
     return a
 
 
-def box_from_dict(d, src="box", what: str = "box", require_label: bool = False, axes=None) -> Box:
+def box_from_dict(
+    d: object,
+    src: str | os.PathLike = "box",
+    what: str = "box",
+    require_label: bool = False,
+    axes: ArrayLike | None = None,
+) -> Box:
     """A :class:`Box` from a JSON object (the generic box format of ``complete`` and ``real``).
 
     Keys
@@ -283,7 +385,7 @@ def box_from_dict(d, src="box", what: str = "box", require_label: bool = False, 
     return Box(center, size, rot, label, None, "" if track is None else str(track))
 
 
-def load_box(path) -> Box:
+def load_box(path: str | os.PathLike) -> Box:
     """Read a one-box JSON file (see :func:`box_from_dict`; the label is optional here)."""
     from pathlib import Path
 

@@ -35,7 +35,7 @@ Empty sets: a mean over no points is NaN, a sum over no points is 0.
 
 Batches: many query sets against one KD-tree are answered by one query of their concatenation
 and split again with ``lengths`` (:func:`reduce_points`), as
-:func:`spotlights.learning.metrics.evaluate_completions` does per ground-truth model.
+:func:`spotlights.metrics.completion.evaluate_completions` does per ground-truth model.
 """
 
 from __future__ import annotations

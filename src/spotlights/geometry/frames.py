@@ -138,20 +138,6 @@ def normalization_from_box(center, size, yaw: float = 0.0, rotation=None) -> Nor
     return Normalization(center=center, radius=0.5 * float(np.linalg.norm(size)), rotation=rot, size=size)
 
 
-def box_corners(center, size, yaw: float = 0.0, rotation=None) -> np.ndarray:
-    """(8, 3) float64 corners of an oriented box in the source frame.
-
-    Corner order: index bits (x, y, z) = (b0, b1, b2), ``+`` when the bit is set,
-    i.e. corner ``j`` is ``center + R @ (size / 2 * s_j)`` with
-    ``s_j = (±1, ±1, ±1)``.
-    """
-    size = np.asarray(size, dtype=np.float64).reshape(3)
-    rot = rotation_z(float(yaw)) if rotation is None else np.asarray(rotation, dtype=np.float64)
-    j = np.arange(8)
-    signs = np.stack([(j >> b & 1) * 2 - 1 for b in range(3)], axis=1).astype(np.float64)
-    return np.asarray(center, dtype=np.float64).reshape(3) + (signs * size / 2.0) @ rot.T
-
-
 def clamp_to_unit_sphere(points: np.ndarray) -> np.ndarray:
     """(K, 3) unit-frame points with every point farther than 1 from the origin moved radially onto
     the unit sphere (the box's circumscribed sphere); float32. SA-Net's depths in [0, 1] keep its

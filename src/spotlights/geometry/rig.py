@@ -28,6 +28,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from .box_rays import BOX_TARGETS, box_directions, box_face_solid_angles, box_targets
+from .boxes import unit_extents
 from .lattice import (
     GOLDEN_RATIO,
     HALTON_BASES,
@@ -450,7 +451,7 @@ def extents_from_normalization(normalization) -> np.ndarray:
     size = getattr(normalization, "size", None)
     if size is None:
         raise ParameterError("this normalisation has no box size; a box rig needs the object's box")
-    return np.asarray(size, dtype=np.float64) / (2.0 * float(normalization.radius))
+    return unit_extents(size, float(normalization.radius))
 
 
 def make_rig(

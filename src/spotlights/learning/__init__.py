@@ -1,7 +1,7 @@
 """Learning layer: SA-Net and the four point-cloud baselines, losses, training, evaluation.
 
-Nothing heavy is imported here: ``spotlights.learning.metrics`` is numpy-only (it is
-used without torch by the experiments layer); torch is imported by the modules that
+Nothing heavy is imported here (the metrics are numpy-only, one layer down in
+``spotlights.metrics``); torch is imported by the modules that
 need it (``models``, ``losses``, ``data``, ``train``, ``evaluate``, ``inference``).
 
 Main entry points::

@@ -2,7 +2,7 @@
 
 For each checkpoint the split's partial scans are completed, and every prediction
 is scored against its model's dense ground truth (16,384 points, unit frame) with
-the metrics of :mod:`spotlights.learning.metrics` (KD-tree per ground-truth model).
+the metrics of :mod:`spotlights.metrics.completion` (KD-tree per ground-truth model).
 SA-Net is reported twice, without clip (rays with depth > 0) and with its clip
 (default 0.2), as in the paper; the hit-aware SA-Net once, at the p(hit) threshold its
 checkpoint stores (chosen on validation; no clip). Aggregates are given per category and
@@ -28,11 +28,11 @@ import numpy as np
 from ..data.store import open_dataset
 from ..distributed import check_backend, ray_session
 from ..errors import ParameterError
+from ..metrics.completion import METRIC_DESCRIPTIONS, evaluate_completions, summarize
 from ..utils import atomic_output
 from .bench import model_latency
 from .checkpoint import load_checkpoint, model_from_checkpoint
 from .inference import DEFAULT, load_completer
-from .metrics import METRIC_DESCRIPTIONS, evaluate_completions, summarize
 from .models import DISPLAY_NAMES
 from .ray_metrics import RayMetrics
 from .rays import DirectionTable
@@ -79,7 +79,7 @@ def evaluate_checkpoint(
     "samples_seen", "minutes", "precision"} of the checkpoint), ``latency_ms`` (when timed),
     ``rows`` (one per variant: SA-Net "no clip" and "clip 0.2", the hit-aware SA-Net
     "p(hit) >= t" with ``threshold``; baselines one), each with ``summary`` (see
-    :func:`~spotlights.learning.metrics.summarize`; SA-Nets add ``hit_ratio``).
+    :func:`~spotlights.metrics.completion.summarize`; SA-Nets add ``hit_ratio``).
     """
     import torch
     from torch.utils.data import DataLoader

@@ -26,16 +26,17 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from .._version import __version__
 from ..errors import InputFileError, ParameterError, SpotlightsError
+from ..geometry.boxes import unit_extents
 from ..utils import atomic_output
 from .checkpoint import load_checkpoint, model_from_checkpoint, resolve_checkpoint
-from .inference import DEFAULT as TORCH_DEFAULT
-from .inference import LearnedDomain
-from .rays import TIMING_BOX_SIZE, directions_for_extents, extents_from_sizes, rig_spec, timing_directions
+from .inference import DEFAULT, BaseCompleter, LearnedDomain
+from .rays import TIMING_BOX_SIZE, directions_for_extents, rig_spec, timing_directions
 
 FORMAT = "spotlights-onnx"
 FORMAT_VERSION = 1
@@ -195,14 +196,6 @@ def export_onnx(checkpoint, out, opset: int = OPSET, n_input: int = 256) -> Path
     return Path(out)
 
 
-class _Default:
-    def __repr__(self):
-        return "default"
-
-
-DEFAULT = _Default()
-
-
 def _onnx_fields(p: Path, meta: dict[str, str]) -> dict:
     """The completer's fields from an export's metadata strings, checked: any missing, malformed
     (not JSON) or inconsistent entry is an :class:`InputFileError` naming the file."""
@@ -246,9 +239,10 @@ def _onnx_fields(p: Path, meta: dict[str, str]) -> dict:
     return f
 
 
-class OnnxCompleter:
-    """A ``spotlights export`` ONNX file run with onnxruntime, with the interface of
-    :class:`~spotlights.learning.inference.Completer`.
+class OnnxCompleter(BaseCompleter):
+    """A ``spotlights export`` ONNX file run with onnxruntime: a
+    :class:`~spotlights.learning.inference.BaseCompleter` (same ``complete``, same results as the torch
+    :class:`~spotlights.learning.inference.Completer` up to float rounding) whose forward pass is the graph.
 
     Attributes: ``model_name``, ``n_params``, ``param_counts``, ``rig`` (RigSpec or None),
     ``clip``, ``threshold``, ``needs_box``, ``path``, ``session`` (the onnxruntime session),
@@ -313,43 +307,13 @@ class OnnxCompleter:
             mask &= depths >= np.float32(c)
         return mask
 
-    def complete(self, partials: np.ndarray, clip=DEFAULT, batch_size: int = 256, extents=None) -> list[np.ndarray]:
-        """Complete partial scans, as :meth:`Completer.complete` (same arguments, same results up to float rounding)."""
-        x = np.asarray(partials, dtype=np.float32)
-        if x.ndim == 2:
-            x = x[None]
-        if x.ndim != 3 or x.shape[-1] != 3:
-            raise ParameterError(f"partials must have shape (B, K, 3), got {x.shape}")
-        if x.shape[0] == 0:
-            return []
-        if x.shape[1] == 0:
-            raise ParameterError("partial scans are empty (K = 0 points)")
-        if not np.all(np.isfinite(x)):
-            raise ParameterError("partial scans contain NaN or infinite coordinates")
-        clip = DEFAULT if clip is TORCH_DEFAULT else clip
-        e = None
-        if self.needs_box:
-            if extents is None:
-                raise ParameterError(
-                    f"this SA-Net regresses the box-targeted rig {self.rig.name}: give each scan's box "
-                    "half-extents (extents = size / |size|)"
-                )
-            e = np.asarray(extents, dtype=np.float64)
-            e = np.broadcast_to(e, (len(x), 3)) if e.shape == (3,) else e
-            if e.shape != (len(x), 3):
-                raise ParameterError(f"extents must have shape ({len(x)}, 3) or (3,), got {np.shape(extents)}")
-        result: list[np.ndarray] = []
-        for s in range(0, len(x), batch_size):
-            dirs = None
-            if e is not None:
-                dirs = directions_for_extents(self.rig, e[s : s + batch_size])
-            out = self.run(x[s : s + batch_size], dirs)
-            if "points" in out:
-                result.extend(np.ascontiguousarray(p, dtype=np.float32) for p in out["points"])
-                continue
-            mask = self.keep(out, clip)
-            result.extend(p[m].astype(np.float32) for p, m in zip(out["ray_points"], mask))
-        return result
+    def _forward(self, partials: np.ndarray, clip: Any, directions: np.ndarray | None) -> list[np.ndarray]:
+        """One batch through onnxruntime; the rays kept as the torch models keep them (:meth:`keep`)."""
+        out = self.run(partials, directions)
+        if "points" in out:
+            return [np.ascontiguousarray(p, dtype=np.float32) for p in out["points"]]
+        mask = self.keep(out, clip)
+        return [p[m].astype(np.float32) for p, m in zip(out["ray_points"], mask)]
 
 
 def load_onnx_completer(path, threads: int | None = None) -> OnnxCompleter:
@@ -370,7 +334,7 @@ def parity(checkpoint, onnx_completer: OnnxCompleter, partials: np.ndarray | Non
     x = np.ascontiguousarray(x, dtype=np.float32)
     dirs = None
     if getattr(model, "needs_box", False):
-        e = extents if extents is not None else extents_from_sizes(TIMING_BOX_SIZE)
+        e = extents if extents is not None else unit_extents(TIMING_BOX_SIZE)
         e = np.broadcast_to(np.asarray(e, dtype=np.float64), (len(x), 3))
         dirs = directions_for_extents(model.rig, e)
     graph, _, names = _graph_module(model)

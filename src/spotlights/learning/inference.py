@@ -17,8 +17,10 @@ network's input size, completes it and maps the result back into the scan's fram
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -188,35 +190,118 @@ CARS_DOMAIN = LearnedDomain()
 
 
 class _Default:
-    def __repr__(self):
+    def __repr__(self) -> str:
         return "default"
 
 
 DEFAULT = _Default()
-"""Sentinel for "the model's configured clip" (SA-Net: 0.2)."""
+"""Sentinel for "the model's configured clip" (SA-Net: 0.2), shared by every completer."""
 
 
-class Completer:
-    """A trained completion model ready for inference (eval mode, no gradients).
+class BaseCompleter:
+    """What every completer shares, whatever runs its network (torch: :class:`Completer`; onnxruntime:
+    :class:`~spotlights.learning.export.OnnxCompleter`): the input checks, the box handling (each scan's
+    rays aimed at its own box), batching, and :meth:`complete_boxes` (clamped to the unit sphere). A
+    runtime implements only :meth:`_forward`.
 
-    Attributes
-    ----------
+    Attributes (set by subclasses)
+    ------------------------------
     model_name : registry key ("sanet", "pcn", ...). n_params : trainable parameters.
-    param_counts : {"encoder", "decoder", "total"}. device : torch device.
+    param_counts : {"encoder", "decoder", "total"}. device : where it runs.
     clip : SA-Net's default clip threshold (None for the point models).
-    rig : the SA-Net's :class:`~spotlights.geometry.rig.RigSpec` (cap or box-targeted; a cap spec's
-        rays are ``rig.for_box(None)``) or None.
-    threshold : the hit-aware SA-Net's p(hit) threshold (chosen on validation, stored in the
-        checkpoint), else None.
+    rig : the SA-Net's :class:`~spotlights.geometry.rig.RigSpec` or None.
+    threshold : the hit-aware SA-Net's p(hit) threshold, else None.
     needs_box : True when :meth:`complete` needs each scan's box (SA-Net on a box-targeted rig).
-    checkpoint : the loaded checkpoint dict (weights included).
     domain : :class:`LearnedDomain`, the classes and box sizes the model learned.
-    precision : ``"fp32"`` (default) or ``"bf16"``: the forward pass under bfloat16 autocast
-        (weights stay float32; decoding in float32). On CPUs with AVX512-BF16/AMX about 3x
-        faster at batch 32; the depths move by up to ~1e-2 (docs/learning.md, "Inference speed").
     """
 
-    def __init__(self, model, checkpoint: dict, device, precision: str = "fp32"):
+    model_name: str
+    n_params: int
+    param_counts: dict
+    rig: Any
+    clip: float | None
+    threshold: float | None
+    needs_box: bool
+    domain: LearnedDomain
+    device: Any
+
+    def complete(
+        self, partials: np.ndarray, clip: Any = DEFAULT, batch_size: int = 256, extents: np.ndarray | None = None
+    ) -> list[np.ndarray]:
+        """Complete partial scans.
+
+        Parameters
+        ----------
+        partials : (B, K, 3) float32 unit-frame points (K = 256 as in training; any K >= 1
+            works, the encoder max-pools), or one (K, 3) scan.
+        clip : SA-Net depth threshold: :data:`DEFAULT` = the model's (0.2 for the paper SA-Net), ``None`` = keep
+            every ray with depth > 0. Ignored by the point models. The hit-aware SA-Net keeps
+            the rays with p(hit) >= its stored threshold (:attr:`threshold`); its default clip is none.
+        batch_size : forward passes are chunked to this many scans.
+        extents : (B, 3) (or (3,) for all) box half-extents of each scan in its unit frame,
+            ``size / |size|`` for a box of size (l, w, h) (:func:`~spotlights.geometry.boxes.unit_extents`).
+            Required when :attr:`needs_box` (SA-Net on a box-targeted rig: each scan decodes
+            with the rays aimed at its own box); ignored otherwise.
+
+        Returns
+        -------
+        list of B arrays (K_i, 3) float32, unit frame. SA-Net: the kept rays in ray
+        order (variable K_i); baselines: their 2048 points.
+        """
+        x = np.asarray(partials, dtype=np.float32)
+        if x.ndim == 2:
+            x = x[None]
+        if x.ndim != 3 or x.shape[-1] != 3:
+            raise ParameterError(f"partials must have shape (B, K, 3), got {x.shape}")
+        if x.shape[0] == 0:
+            return []
+        if x.shape[1] == 0:
+            raise ParameterError("partial scans are empty (K = 0 points)")
+        if not np.all(np.isfinite(x)):
+            raise ParameterError("partial scans contain NaN or infinite coordinates")
+        e = None
+        if self.needs_box:
+            if extents is None:
+                raise ParameterError(
+                    f"this SA-Net regresses the box-targeted rig {self.rig.name}: give each scan's box "
+                    "half-extents (extents = size / |size|)"
+                )
+            e = np.asarray(extents, dtype=np.float64)
+            e = np.broadcast_to(e, (len(x), 3)) if e.shape == (3,) else e
+            if e.shape != (len(x), 3):
+                raise ParameterError(f"extents must have shape ({len(x)}, 3) or (3,), got {np.shape(extents)}")
+        out: list[np.ndarray] = []
+        with self._session():
+            for s in range(0, len(x), batch_size):
+                dirs = None if e is None else directions_for_extents(self.rig, e[s : s + batch_size])
+                out.extend(self._forward(x[s : s + batch_size], clip, dirs))
+        return out
+
+    def complete_boxes(self, partials: np.ndarray, sizes: np.ndarray, clip: Any = DEFAULT) -> list[np.ndarray]:
+        """:func:`complete_in_boxes` with this completer: each scan with its box size (B, 3), every point clamped
+        into the unit sphere."""
+        return complete_in_boxes(self, partials, sizes, clip=clip)
+
+    def _session(self) -> contextlib.AbstractContextManager:
+        """The context every forward pass of one :meth:`complete` call runs in (torch: inference mode)."""
+        return contextlib.nullcontext()
+
+    def _forward(self, partials: np.ndarray, clip: Any, directions: np.ndarray | None) -> list[np.ndarray]:
+        """The network: (b, K, 3) float32 checked partials (and (b, N*M, 3) float32 ray directions for box rigs)
+        -> b arrays (K_i, 3) float32, unit frame, with ``clip`` as :meth:`complete` takes it."""
+        raise NotImplementedError
+
+
+class Completer(BaseCompleter):
+    """A trained completion model run with torch, ready for inference (eval mode, no gradients).
+
+    Attributes: those of :class:`BaseCompleter`, and ``device`` (a torch device), ``checkpoint`` (the loaded
+    checkpoint dict, weights included), ``precision``: ``"fp32"`` (default) or ``"bf16"``: the forward pass under
+    bfloat16 autocast (weights stay float32; decoding in float32). On CPUs with AVX512-BF16/AMX about 3x
+    faster at batch 32; the depths move by up to ~1e-2 (docs/learning.md, "Inference speed").
+    """
+
+    def __init__(self, model: Any, checkpoint: dict, device: Any, precision: str = "fp32") -> None:
         from .device import resolve_precision
 
         self.model = model
@@ -232,69 +317,28 @@ class Completer:
         self.needs_box = bool(getattr(model, "needs_box", False))
         self.domain = LearnedDomain.from_checkpoint(checkpoint)
 
-    def __repr__(self):
+    def __repr__(self) -> str:
         return f"Completer({self.model_name}, {self.n_params:,} parameters, {self.device})"
 
-    def complete(self, partials: np.ndarray, clip=DEFAULT, batch_size: int = 256, extents=None) -> list[np.ndarray]:
-        """Complete partial scans.
+    def _session(self) -> contextlib.AbstractContextManager:
+        import torch
 
-        Parameters
-        ----------
-        partials : (B, K, 3) float32 unit-frame points (K = 256 as in training; any K >= 1
-            works, the encoder max-pools), or one (K, 3) scan.
-        clip : SA-Net depth threshold: default = the checkpoint's (0.2), ``None`` = keep
-            every ray with depth > 0. Ignored by the point models. The hit-aware SA-Net keeps
-            the rays with p(hit) >= its stored threshold (:attr:`threshold`); its default clip is none.
-        batch_size : forward passes are chunked to this many scans.
-        extents : (B, 3) (or (3,) for all) box half-extents of each scan in its unit frame,
-            ``size / |size|`` for a box of size (l, w, h) (:func:`~spotlights.learning.rays.extents_from_sizes`).
-            Required when :attr:`needs_box` (SA-Net on a box-targeted rig: each scan decodes
-            with the rays aimed at its own box); ignored otherwise.
+        from .device import autocast
 
-        Returns
-        -------
-        list of B arrays (K_i, 3) float32, unit frame. SA-Net: the kept rays in ray
-        order (variable K_i); baselines: their 2048 points.
-        """
+        stack = contextlib.ExitStack()
+        stack.enter_context(torch.inference_mode())
+        stack.enter_context(autocast(self.precision, self.device))
+        return stack
+
+    def _forward(self, partials: np.ndarray, clip: Any, directions: np.ndarray | None) -> list[np.ndarray]:
         import torch
 
         from .models.base import CLIP_DEFAULT
 
-        x = np.asarray(partials, dtype=np.float32)
-        if x.ndim == 2:
-            x = x[None]
-        if x.ndim != 3 or x.shape[-1] != 3:
-            raise ParameterError(f"partials must have shape (B, K, 3), got {x.shape}")
-        if x.shape[0] == 0:
-            return []
-        if x.shape[1] == 0:
-            raise ParameterError("partial scans are empty (K = 0 points)")
-        if not np.all(np.isfinite(x)):
-            raise ParameterError("partial scans contain NaN or infinite coordinates")
+        t = torch.from_numpy(partials).to(self.device)
+        dirs = None if directions is None else torch.from_numpy(np.ascontiguousarray(directions)).to(self.device)
         c = CLIP_DEFAULT if clip is DEFAULT else clip
-        e = None
-        if self.needs_box:
-            if extents is None:
-                raise ParameterError(
-                    f"this SA-Net regresses the box-targeted rig {self.rig.name}: give each scan's box "
-                    "half-extents (extents = size / |size|)"
-                )
-            e = np.asarray(extents, dtype=np.float64)
-            e = np.broadcast_to(e, (len(x), 3)) if e.shape == (3,) else e
-            if e.shape != (len(x), 3):
-                raise ParameterError(f"extents must have shape ({len(x)}, 3) or (3,), got {np.shape(extents)}")
-        from .device import autocast
-
-        out: list[np.ndarray] = []
-        with torch.inference_mode(), autocast(self.precision, self.device):
-            for s in range(0, len(x), batch_size):
-                t = torch.from_numpy(x[s : s + batch_size]).to(self.device)
-                dirs = None
-                if e is not None:
-                    d = directions_for_extents(self.rig, e[s : s + batch_size])
-                    dirs = torch.from_numpy(np.ascontiguousarray(d)).to(self.device)
-                out.extend(p.cpu().numpy().astype(np.float32) for p in self.model.complete(t, c, dirs))
-        return out
+        return [p.cpu().numpy().astype(np.float32) for p in self.model.complete(t, c, dirs)]
 
 
 def load_completer(checkpoint_path=None, device=None, precision: str = "fp32") -> Completer:

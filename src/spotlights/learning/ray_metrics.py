@@ -1,6 +1,6 @@
 """``evaluate --backend ray``: the per-model metric work of an evaluation as Ray tasks.
 
-:func:`spotlights.learning.metrics.evaluate_completions` scores predictions model by model
+:func:`spotlights.metrics.completion.evaluate_completions` scores predictions model by model
 (one KD-tree per ground-truth model for accuracy, one per prediction for completeness);
 every sample's metrics depend only on its own prediction and its model's dense ground truth.
 :class:`RayMetrics` is a drop-in replacement with the same signature: each model's dense
@@ -18,7 +18,7 @@ import numpy as np
 
 from ..distributed import DEFAULT_RETRIES, error_reason
 from ..errors import SpotlightsError
-from .metrics import evaluate_completions
+from ..metrics.completion import evaluate_completions
 
 CHUNK = 256  # samples per task: enough work per task (~0.1-1 s), enough tasks to spread a split
 
@@ -28,7 +28,7 @@ def _score_task(preds: list, gt: np.ndarray, fscore_threshold: float, with_compl
 
 
 class RayMetrics:
-    """Callable like :func:`~spotlights.learning.metrics.evaluate_completions`, on Ray.
+    """Callable like :func:`~spotlights.metrics.completion.evaluate_completions`, on Ray.
 
     ray : the connected ``ray`` module (:func:`spotlights.distributed.ray_session`).
     chunk : samples per task. retries : Ray retries of a task that crashes.

@@ -19,6 +19,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ParameterError
+from ..geometry.boxes import unit_extents
+from ..geometry.boxes import unit_extents as extents_from_sizes  # noqa: F401  (the name the branches merging now use)
 from ..geometry.rig import Rig, RigSpec
 
 
@@ -55,20 +57,6 @@ def rig_rays(rig) -> tuple[np.ndarray, np.ndarray | None]:
     if spec.needs_box:
         return origins, None
     return origins, spec.for_box(None).directions.astype("float32")
-
-
-def extents_from_sizes(sizes) -> np.ndarray:
-    """Box half-extents in the unit frame from box sizes: ``size / |size|`` (= ``size / 2R``, R = half diagonal).
-
-    sizes : (..., 3) box length, width, height (any unit). Returns (..., 3) float64.
-    """
-    s = np.asarray(sizes, dtype=np.float64)
-    if s.shape[-1:] != (3,):
-        raise ParameterError(f"box sizes must have shape (..., 3), got {s.shape}")
-    n = np.linalg.norm(s, axis=-1, keepdims=True)
-    if not np.all(np.isfinite(s)) or np.any(s < 0) or np.any(n <= 0):
-        raise ParameterError("box sizes must be finite, >= 0 and not all zero")
-    return s / n
 
 
 def directions_for_extents(rig, extents) -> np.ndarray:
@@ -148,5 +136,5 @@ def timing_directions(model, batch: int):
         return None
     import torch
 
-    e = np.tile(extents_from_sizes(TIMING_BOX_SIZE), (int(batch), 1))
+    e = np.tile(unit_extents(TIMING_BOX_SIZE), (int(batch), 1))
     return torch.from_numpy(np.ascontiguousarray(directions_for_extents(model.rig, e)))

@@ -22,8 +22,8 @@ import numpy as np
 from ..data.real.extract import read_observations
 from ..data.real.frames import frame_rows
 from ..errors import InputFileError, SpotlightsError
+from ..geometry.boxes import BOX_EDGES, Box
 from ..geometry.encode import decode, load_encoding
-from ..geometry.frames import box_corners
 from ..geometry.io import MESH_SUFFIXES, POINT_SUFFIXES, load_mesh, load_ply_fields, load_points, ply_has_faces
 from ..inputs import read_json
 from ..utils import atomic_output
@@ -41,7 +41,6 @@ SOURCES = {
     2: ("completion", GREEN, "completion"),
 }
 MAX_POINTS = 400_000  # per trace, beyond which a cloud is subsampled (evenly, deterministic)
-_EDGES = ((0, 1), (2, 3), (4, 5), (6, 7), (0, 2), (1, 3), (4, 6), (5, 7), (0, 4), (1, 5), (2, 6), (3, 7))
 
 
 def require_plotly():
@@ -161,23 +160,19 @@ def mesh_traces(mesh, name: str, color: str = BLUE) -> list:
     ]
 
 
-def box_traces(boxes: Sequence[dict], name: str = "boxes", color: str = "black") -> list:
-    """Wireframes of oriented boxes with their ids as text.
-
-    ``boxes``: dicts with ``center`` (3,), ``size`` (3,) (length, width, height), ``rotation``
-    (3, 3) or ``yaw`` (radians about +z), and ``label`` (the id printed above the box).
-    """
+def box_traces(boxes: Sequence[Box], name: str = "boxes", color: str = "black") -> list:
+    """Wireframes of oriented boxes (:class:`~spotlights.geometry.boxes.Box`) with their ``label`` as text."""
     go = require_plotly()
     if not boxes:
         return []
     starts, ends, tops, labels = [], [], [], []
     for b in boxes:
-        k = box_corners(b["center"], b["size"], yaw=float(b.get("yaw", 0.0)), rotation=b.get("rotation"))
-        for a, c in _EDGES:
+        k = b.corners()
+        for a, c in BOX_EDGES:
             starts.append(k[a])
             ends.append(k[c])
-        tops.append(k[4:].mean(axis=0) + np.array([0.0, 0.0, 0.15 * float(np.max(b["size"]))]))
-        labels.append(str(b.get("label", "")))
+        tops.append(k[0::2].mean(axis=0) + np.array([0.0, 0.0, 0.15 * float(np.max(b.size))]))  # top face: even
+        labels.append(b.label)
     out = [segments_trace(np.array(starts), np.array(ends), name, color, 2.0, group=name)]
     t = np.array(tops)
     out.append(
@@ -230,9 +225,7 @@ def scene_traces(scan: np.ndarray | None, objects: Sequence, name: str = "", mar
         out.append(
             points_trace(p, f"{pre}partial input ({len(p)} pts)", PURPLE, SIZES["partial"], group=f"{pre}partial")
         )
-    out += box_traces(
-        [{"center": o.center, "size": o.size, "rotation": o.rotation, "label": o.label} for o in objects], f"{pre}boxes"
-    )
+    out += box_traces([o.box.replace(label=str(o.label)) for o in objects], f"{pre}boxes")
     return out
 
 
@@ -445,26 +438,26 @@ def scene_ply_traces(fields: dict[str, np.ndarray], name: str) -> list:
     return out
 
 
-def read_boxes_json(path: str | os.PathLike) -> list[dict]:
+def read_boxes_json(path: str | os.PathLike) -> list[Box]:
     """Boxes from JSON: one box ``{"center", "size", "yaw"|"rotation", ...}``, a list of them, or
-    ``{"boxes": [...]}``. Each box's id: ``id``, ``track_id``, ``object`` or ``label``, else its index."""
+    ``{"boxes": [...]}``. Each box's id (its ``label`` here): ``id``, ``track_id``, ``object`` or ``label``, else its
+    index."""
     data = read_json(path)
     items = data.get("boxes", data.get("objects", [data])) if isinstance(data, dict) else data
     boxes = []
     for i, b in enumerate(items if isinstance(items, list) else []):
         if not isinstance(b, dict) or "center" not in b or "size" not in b:
             raise InputFileError(path, f"box {i}: needs 'center' and 'size'")
+        label = str(next((b[k] for k in ("id", "track_id", "object", "label") if b.get(k) not in (None, "")), i))
         try:
-            box = {
-                "center": np.asarray(b["center"], dtype=np.float64).reshape(3),
-                "size": np.asarray(b["size"], dtype=np.float64).reshape(3),
-                "yaw": float(b.get("yaw", 0.0)),
-            }
+            center = np.asarray(b["center"], dtype=np.float64).reshape(3)
+            size = np.asarray(b["size"], dtype=np.float64).reshape(3)
             if b.get("rotation") is not None:
-                box["rotation"] = np.asarray(b["rotation"], dtype=np.float64).reshape(3, 3)
+                box = Box(center, size, np.asarray(b["rotation"], dtype=np.float64).reshape(3, 3), label=label)
+            else:
+                box = Box(center, size, yaw=float(b.get("yaw", 0.0)), label=label)
         except (TypeError, ValueError):
             raise InputFileError(path, f"box {i}: center/size must be 3 numbers (rotation 3 x 3)") from None
-        box["label"] = str(next((b[k] for k in ("id", "track_id", "object", "label") if b.get(k) not in (None, "")), i))
         boxes.append(box)
     if not boxes:
         raise InputFileError(path, "no box in the file (expected a box, a list of boxes, or {'boxes': [...]})")

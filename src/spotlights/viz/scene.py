@@ -24,15 +24,13 @@ import numpy as np
 
 from ..data.real import read_scan
 from ..errors import InputFileError, ParameterError
-from ..geometry.frames import box_corners
+from ..geometry.boxes import BOX_EDGES, Box
 from ._figure import add_axes3d, add_scale_bar, new_figure, save_png
 from .points import Layer, merge_layers
 
 GREY, PURPLE, GREEN = "#9a9a9a", "#8e44ad", "#27ae60"
 CLOSEUP_TITLE_WIDTH = 44
 """Characters per line of a close-up's title (wrapped beyond: three close-ups share a row)."""
-#: the 12 edges of a box as pairs of :func:`~spotlights.geometry.frames.box_corners` indices
-BOX_EDGES = ((0, 1), (2, 3), (4, 5), (6, 7), (0, 2), (1, 3), (4, 6), (5, 7), (0, 4), (1, 5), (2, 6), (3, 7))
 
 
 @dataclass
@@ -40,33 +38,42 @@ class SceneObject:
     """One object of a scene, everything in the scan's sensor frame (metres).
 
     label : the id drawn beside its box (track id, object id).
-    center : (3,) box centre. size : (3,) length, width, height. rotation : (3, 3), columns = box axes.
+    box : its :class:`~spotlights.geometry.boxes.Box` (``center``, ``size``, ``rotation`` read through).
     partial : (K, 3) the points the model was given (purple).
     completion : (L, 3) the model's completion (green), or None.
     caption : a line under the close-up's id (class, point counts, ...).
     """
 
     label: str
-    center: np.ndarray
-    size: np.ndarray
-    rotation: np.ndarray
+    box: Box
     partial: np.ndarray
     completion: np.ndarray | None = None
     caption: str = ""
 
     @property
+    def center(self) -> np.ndarray:
+        return self.box.center
+
+    @property
+    def size(self) -> np.ndarray:
+        return self.box.size
+
+    @property
+    def rotation(self) -> np.ndarray:
+        return self.box.rotation
+
+    @property
     def reach(self) -> float:
-        """Half the box diagonal, metres."""
-        return 0.5 * float(np.linalg.norm(self.size))
+        """Half the box diagonal, metres (:attr:`Box.radius <spotlights.geometry.boxes.Box.radius>`)."""
+        return self.box.radius
 
     def corners(self) -> np.ndarray:
-        """(8, 3) box corners (order of :func:`~spotlights.geometry.frames.box_corners`)."""
-        return box_corners(self.center, self.size, rotation=self.rotation)
+        """(8, 3) box corners (order of :data:`~spotlights.geometry.boxes.CORNER_SIGNS`)."""
+        return self.box.corners()
 
     def inside(self, points: np.ndarray, margin: float = 0.15) -> np.ndarray:
         """(N,) bool: points inside the box grown by ``margin`` metres on every side."""
-        p = (np.asarray(points, dtype=np.float64) - self.center) @ np.asarray(self.rotation, dtype=np.float64)
-        return np.all(np.abs(p) <= 0.5 * np.asarray(self.size) + margin, axis=1)
+        return self.box.contains(points, margin)
 
 
 def to_sensor(points_unit: np.ndarray, unit_to_sensor: np.ndarray) -> np.ndarray:
@@ -123,7 +130,7 @@ def draw_bev(
         ax.scatter(p[:, 0], p[:, 1], s=2.5, color=PURPLE, linewidths=0, label="partial input" if k == 0 else None)
     for o in objects:
         k = o.corners()
-        c = k[[0, 1, 3, 2, 0], :2]  # bottom face, closed
+        c = k[[1, 3, 7, 5, 1], :2]  # bottom face (odd corners), closed
         ax.plot(c[:, 0], c[:, 1], color="black", lw=0.7)
         ax.annotate(
             o.label,
@@ -173,8 +180,9 @@ def draw_closeup(ax, scan: np.ndarray, obj: SceneObject, context: float = 1.0) -
         ax.plot(*np.stack([k[a], k[b]]).T, color="black", lw=0.5, alpha=0.6)
     # a 1 m ruler along the box's length, on the ground beside its bottom edge that faces the sensor
     rot = np.asarray(obj.rotation, dtype=np.float64)
-    side = 1.0 if np.linalg.norm(k[2] + k[3]) < np.linalg.norm(k[0] + k[1]) else -1.0  # +y side nearer the sensor?
-    start = (k[2] if side > 0 else k[0]) + side * rot[:, 1] * 0.3
+    # bottom edges (corners: x- and x+ at z-): +y side 5, 1; -y side 7, 3. Is the +y side nearer the sensor?
+    side = 1.0 if np.linalg.norm(k[5] + k[1]) < np.linalg.norm(k[7] + k[3]) else -1.0
+    start = (k[5] if side > 0 else k[7]) + side * rot[:, 1] * 0.3
     ruler = np.stack([start, start + rot[:, 0]])
     ax.plot(*ruler.T, color="black", lw=2.0, solid_capstyle="butt")
     ax.text(*(ruler.mean(axis=0) + side * rot[:, 1] * 0.35), "1 m", fontsize=7, ha="center", va="top")
@@ -261,9 +269,7 @@ def frame_objects(obs, rows: Sequence[int], completions: Sequence[np.ndarray] | 
         out.append(
             SceneObject(
                 label=observation_label(obs, i),
-                center=np.asarray(obs.box_center[i], dtype=np.float64),
-                size=np.asarray(obs.box_size[i], dtype=np.float64),
-                rotation=np.asarray(obs.box_rotation[i], dtype=np.float64),
+                box=Box(obs.box_center[i], obs.box_size[i], obs.box_rotation[i]),
                 partial=to_sensor(obs.partial[i], m),
                 completion=comp,
                 caption=f"{obs.cls[i]} ({obs.label[i]}), {int(obs.n_points_raw[i])} raw pts, {len(obs.partial[i])} input",

@@ -186,14 +186,6 @@ def points_in_box(points: np.ndarray, box: Box, margin: float, ground_clearance:
     return box.contains(points, margin=margin, ground_clearance=ground_clearance)
 
 
-def crop_box(points: np.ndarray, box: Box, margin: float, ground_clearance: float) -> np.ndarray:
-    """Indices (k,) int64 of the scan points (N, 3) float64 inside ``box`` as :func:`points_in_box` cuts it,
-    with a cheap distance pre-cut first (scans hold ~100k points)."""
-    reach = box.radius + max(float(margin), 0.0) + abs(float(ground_clearance))
-    near = np.flatnonzero(np.sum((points - box.center) ** 2, axis=1) <= reach * reach)
-    return near[points_in_box(points[near], box, margin, ground_clearance)]
-
-
 def duplicate_boxes(boxes: list[Box], tol: float = DUPLICATE_TOLERANCE_M) -> set[int]:
     """Indices of the boxes that repeat another box of the list (same centre, size and axes).
 
@@ -245,7 +237,7 @@ def extract_frame(frame: Frame, config: ExtractConfig, skipped: Counter, skipped
         if i in duplicates:
             skipped["duplicate_box"] += 1
             continue
-        inside = crop_box(pts, box, config.margin, config.ground_clearance)
+        inside = box.crop(pts, config.margin, config.ground_clearance)
         n = int(inside.size)
         if n == 0:
             skipped["empty_box"] += 1

@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ...analysis.report import DensityConfig, run_density_analysis
 from ...data.real.extract import read_observations
 from ...data.real.frames import frame_rows
 from ...data.store import open_dataset
@@ -20,6 +19,7 @@ from ...geometry.io import load_mesh
 from ...geometry.rig import make_rig, make_rig_spec
 from ...geometry.sampling import sample_surface
 from ...viz import render_cloud_grid, render_frame, render_rig_rays
+from ..density_report import DensityConfig, run_density_analysis
 from ..real_evaluation import complete_all
 from ..rig_study import BOX_RIGS, find_meshes, mesh_axes
 from .pipeline import Context, Step, shell_quote

@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ..analysis import density as dens
+from ..analysis.montecarlo import DiscPlacement, mc_density
 from ..errors import ParameterError
 from ..geometry.rig import make_rig
 from ..utils import atomic_output
 from ..viz import density as plots
-from . import density as dens
-from .montecarlo import DiscPlacement, mc_density
 
 __all__ = ["DensityConfig", "run_density_analysis", "extrema", "hit_ratios", "MC_RADII", "MC_ALPHAS_DEG"]
 

@@ -1,4 +1,6 @@
-"""Consistency of completions across frames (PCN's metric; the paper's Table 2). numpy + pykdtree only.
+"""Consistency of completions across frames (PCN's metric; the paper's Table 2), fidelity, MMD, the noise floor.
+
+numpy + pykdtree only.
 
 With no ground truth on real scans, a completion model is scored by how much
 its completions of the *same object* in *consecutive frames* agree. For two
@@ -174,6 +176,16 @@ def diversity(completions, object_keys, timestamps) -> tuple[float, int]:
     return float(np.mean(vals)), len(rows)
 
 
+def same_observation_cd(a_list, b_list, scale) -> np.ndarray:
+    """The resampling noise floor: (n,) two-sided Chamfer ``cd`` between a_i and b_i (two completions of the same
+    observation, unit frame) times ``scale[i]``; NaN when one is empty."""
+    out = np.full(len(a_list), np.nan)
+    for i, (a, b) in enumerate(zip(a_list, b_list)):
+        if len(a) and len(b):
+            out[i] = chamfer(a, b)["cd"] * float(scale[i])
+    return out
+
+
 def consecutive_pairs(object_keys, timestamps) -> list[tuple[int, int]]:
     """Pairs (i, j) of rows that are consecutive observations of the same object.
 
@@ -185,7 +197,7 @@ def consecutive_pairs(object_keys, timestamps) -> list[tuple[int, int]]:
     for i, k in enumerate(object_keys):
         groups[k].append(i)
     ts = np.asarray(timestamps)
-    pairs = []
+    pairs: list[tuple[int, int]] = []
     for k in sorted(groups, key=lambda k: groups[k][0]):
         rows = sorted(groups[k], key=lambda i: (ts[i], i))
         pairs.extend(zip(rows[:-1], rows[1:]))
@@ -277,7 +289,7 @@ def aggregate(tracks: list[TrackResult], classes=None) -> dict:
     for c in names:
         ts = [t for t in tracks if t.cls == c]
         scored = [t for t in ts if np.isfinite(t.values["cd"])]
-        entry = {
+        entry: dict[str, float | None] = {
             "n_objects": len(scored),
             "n_objects_unscored": len(ts) - len(scored),
             "n_pairs": sum(t.n_pairs - t.n_pairs_empty for t in ts),

@@ -1,4 +1,4 @@
-"""Point-cloud completion metrics of the learning layer: batched evaluation and aggregation (numpy; no torch).
+"""Point-cloud completion metrics: batched evaluation and aggregation (numpy; no torch).
 
 Every distance metric is defined once, in :mod:`spotlights.geometry.distances` (re-exported
 here): all distances are **unsquared Euclidean distances in the unit frame** (the object's
@@ -30,7 +30,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..geometry.distances import (  # noqa: F401  (re-exported: the metrics' one owner is geometry.distances)
+from ..geometry.distances import (  # noqa: F401  (re-exported: the distance kernels' owner is geometry.distances)
     accuracy,
     chamfer_l1,
     chamfer_l2,
@@ -122,7 +122,7 @@ def evaluate_completions(
         if m not in trees:
             trees[m] = NearestNeighbors(gt_dense[m])
         # one query of every prediction of this model, split again per sample
-        q = np.concatenate([as_points(predictions[i], "prediction") for i in sel], axis=0)
+        q = np.concatenate([as_points(predictions[int(i)], "prediction") for i in sel], axis=0)
         d = nearest_distances(q, trees[m])
         acc[sel] = reduce_points(d, "mean", lengths=sizes[sel])
         acc_sq[sel] = reduce_points(d * d, "mean", lengths=sizes[sel])
@@ -135,7 +135,7 @@ def evaluate_completions(
     rec = np.zeros(s_total)
     for i in np.flatnonzero(sizes > 0):
         g = gt_dense[model_index[i]]
-        d = nearest_distances(g, predictions[i])
+        d = nearest_distances(g, predictions[int(i)])
         comp[i] = reduce_points(d, "mean")
         comp_sq[i] = reduce_points(d * d, "mean")
         rec[i] = reduce_points((d <= fscore_threshold).astype(np.float64), "mean")
@@ -167,7 +167,13 @@ def summarize(per_sample: dict[str, np.ndarray], categories: Sequence[str], orde
     """
     cats = np.asarray([str(c) for c in categories])
     names = sorted(set(cats.tolist())) if order is None else [c for c in order if c in set(cats.tolist())]
-    res = {"per_category": {}, "mean_over_samples": {}, "mean_over_categories": {}, "count": {}, "undefined": {}}
+    res: dict[str, dict] = {
+        "per_category": {},
+        "mean_over_samples": {},
+        "mean_over_categories": {},
+        "count": {},
+        "undefined": {},
+    }
     for c in names:
         res["count"][c] = int(np.sum(cats == c))
     res["count"]["all"] = int(len(cats))

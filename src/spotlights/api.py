@@ -1,0 +1,170 @@
+"""The public API: the handful of names a user of the library needs, importable from ``spotlights``.
+
+``import spotlights`` is light (numpy only): each name below is imported from its home module on
+first use (PEP 562, ``spotlights.__getattr__``). Examples of every name: ``docs/api.md``.
+
+=================  ============================================================================
+name               home
+=================  ============================================================================
+``Box``            :class:`spotlights.geometry.boxes.Box` (the one oriented box)
+``make_rig``       :func:`spotlights.geometry.rig.make_rig` (the paper's cap rig, box rigs)
+``load_mesh``      :func:`spotlights.geometry.io.load_mesh` (a mesh in the object frame)
+``encode_mesh``    :func:`spotlights.geometry.encode.encode_mesh` (mesh + rig -> depths)
+``decode``         :func:`spotlights.geometry.encode.decode` (depths + rig -> points)
+``load_completer`` :func:`spotlights.learning.runtime.load_completer` (torch or onnx runtime)
+``complete``       :func:`complete` (one object in its box)
+``complete_frame`` :func:`complete_frame` (every vehicle of a frame: ``experiments.scene.complete_scene``)
+``SceneResult``    :class:`spotlights.experiments.scene.SceneResult` (what ``complete_frame`` returns)
+``read_frames``    :func:`read_frames` (LiDAR frames with their boxes, any supported format)
+=================  ============================================================================
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import os
+from collections.abc import Iterator, Sequence
+from typing import Any
+
+import numpy as np
+
+from .data.real import FORMATS, open_reader
+from .data.real.base import Frame
+from .errors import ParameterError
+from .experiments.scene import ObjectResult, SceneConfig, SceneResult, complete_scene
+from .geometry.boxes import Box
+from .geometry.encode import decode, encode_mesh
+from .geometry.io import load_mesh
+from .geometry.rig import make_rig
+from .learning.runtime import load_completer
+
+
+def complete_frame(
+    points: np.ndarray,
+    boxes: Sequence[Box],
+    completer: Any = "default",
+    config: SceneConfig | None = None,
+    *,
+    axes: np.ndarray | None = None,
+    checkpoint: str | None = None,
+    **options: Any,
+) -> SceneResult:
+    """Complete every vehicle of one LiDAR frame: :func:`~spotlights.experiments.scene.complete_scene` (what
+    ``spotlights complete`` and ``real complete`` run) with the model given by name or object and the options
+    as keywords.
+
+    Parameters
+    ----------
+    points : (N, 3) scan points, metres, the scan's frame (float32 or float64).
+    boxes : the frame's :class:`~spotlights.geometry.boxes.Box` objects in the same frame; only boxes with a
+        vehicle ``cls`` are completed (``any_label=True`` completes every box).
+    completer : a loaded completer (:func:`spotlights.learning.runtime.load_completer`), or a checkpoint
+        name or file (``"default"``, ``"paper"``, ``model.pt``, ``model.onnx``) loaded on the CPU/GPU with
+        the runtime its suffix implies.
+    config : a :class:`~spotlights.experiments.scene.SceneConfig`; or give its fields as keyword ``options`` (``margin=0.2``,
+        ``heading_check=True``, ...), not both.
+    axes : optional (3, 3) rotation scan coordinates -> object convention (x forward, y left, z up).
+    checkpoint : the model's name for the result's summary (default: ``completer`` when it is a name).
+
+    Returns a :class:`~spotlights.experiments.scene.SceneResult` (scan frame, metres): ``xyz``, ``source`` and
+    ``object`` per point, one :class:`~spotlights.experiments.scene.ObjectResult` per box. Raises :class:`~spotlights.errors.ParameterError` for
+    unknown options or a scan with fewer than ``min_points`` points.
+    """
+    config = _scene_config(config, options)
+    if completer is None or isinstance(completer, (str, os.PathLike)):
+        name = "default" if completer is None else str(completer)
+        completer = load_completer(name)
+        checkpoint = name if checkpoint is None else checkpoint
+    return complete_scene(points, boxes, completer, config, axes=axes, checkpoint=checkpoint)
+
+
+def complete(
+    points: np.ndarray,
+    box: Box,
+    completer: Any = "default",
+    *,
+    axes: np.ndarray | None = None,
+    **options: Any,
+) -> ObjectResult:
+    """Complete one object: the points of ``points`` (N, 3) inside ``box`` (scan frame, metres; grown by
+    ``margin``, bottom raised by ``ground_clearance``, as in :func:`complete_frame`; ``crop=False`` uses
+    every point), whatever the box's label.
+
+    ``completer`` and ``options`` (the fields of :class:`~spotlights.experiments.scene.SceneConfig`) as in
+    :func:`complete_frame`. Returns the box's :class:`~spotlights.experiments.scene.ObjectResult`: ``completion`` (K, 3) float64 in the scan's frame,
+    ``completion_unit`` (K, 3) float32 in the box's unit frame, ``partial_unit`` (256, 3) float32 (the
+    model's input), ``input_indices`` (the scan rows used). Raises
+    :class:`~spotlights.errors.ParameterError` when the box is invalid, holds fewer than ``min_points``
+    points or the completion is empty.
+    """
+    config = dataclasses.replace(_scene_config(None, options), any_label=True)
+    o = complete_frame(points, [box], completer, config, axes=axes).objects[0]
+    if o.status == "invalid_box":
+        raise ParameterError(f"the box is not valid (sizes must be positive and finite): {box!r}")
+    if o.status == "too_few_points":
+        raise ParameterError(
+            f"{len(o.input_indices)} point(s) lie in the box; at least {config.min_points} are needed "
+            "(is the box in the points' frame?)"
+        )
+    if o.status == "empty_completion":
+        raise ParameterError("the completion is empty (every ray was clipped); try clip=None")
+    return o
+
+
+def _scene_config(config: SceneConfig | None, options: dict) -> SceneConfig:
+    """``config``, or a :class:`~spotlights.experiments.scene.SceneConfig` of the keyword ``options`` (unknown
+    names: an error naming the nearest)."""
+    if config is not None:
+        if options:
+            raise ParameterError(f"give either a config or its fields ({', '.join(sorted(options))}), not both")
+        return config
+    known = [f.name for f in dataclasses.fields(SceneConfig)]
+    for name in options:
+        if name not in known:
+            near = difflib.get_close_matches(name, known, n=1)
+            hint = f" (did you mean {near[0]}?)" if near else f"; known: {', '.join(known)}"
+            raise ParameterError(f"unknown option {name!r}{hint}")
+    if isinstance(options.get("classes"), str):
+        options["classes"] = (options["classes"],)
+    return SceneConfig(**options)
+
+
+def read_frames(
+    source: str | os.PathLike | Sequence[str | os.PathLike], format: str, **options: Any
+) -> Iterator[Frame]:
+    """The frames of a LiDAR dataset, one at a time, in sequence then time order.
+
+    Parameters
+    ----------
+    source : a dataset folder (or, for ``format="generic"``, a scan file or a folder of scans),
+        or a list of several of one format.
+    format : one of ``kitti``, ``kitti360``, ``av2``, ``nuscenes``, ``generic`` (see docs/real-data.md).
+    options : reader options: ``velodyne`` (kitti), ``sequences`` (kitti360, nuscenes), ``frames``
+        (kitti360), ``boxes`` (generic, the box file of one scan).
+
+    Yields :class:`~spotlights.data.real.base.Frame` objects: ``points`` (P, 3) float32 in the sensor
+    frame (metres), ``boxes`` (:class:`Box`, sensor frame, with ``cls``), ``sequence``, ``frame_id``,
+    ``timestamp``. The folder is checked before the first frame is read: a bad one raises
+    :class:`~spotlights.errors.InputFileError` naming the file.
+    """
+    reader = open_reader(list(source) if isinstance(source, (list, tuple)) else source, format, **options)
+    return reader.frames()
+
+
+__all__ = [
+    "FORMATS",
+    "Box",
+    "Frame",
+    "ObjectResult",
+    "SceneConfig",
+    "SceneResult",
+    "complete",
+    "complete_frame",
+    "decode",
+    "encode_mesh",
+    "load_completer",
+    "load_mesh",
+    "make_rig",
+    "read_frames",
+]
