@@ -235,7 +235,9 @@ class Completer:
     def __repr__(self):
         return f"Completer({self.model_name}, {self.n_params:,} parameters, {self.device})"
 
-    def complete(self, partials: np.ndarray, clip=DEFAULT, batch_size: int = 256, extents=None) -> list[np.ndarray]:
+    def complete(
+        self, partials: np.ndarray, clip=DEFAULT, batch_size: int = 256, extents=None, sensor_origins=None
+    ) -> list[np.ndarray]:
         """Complete partial scans.
 
         Parameters
@@ -250,6 +252,8 @@ class Completer:
             ``size / |size|`` for a box of size (l, w, h) (:func:`~spotlights.learning.rays.extents_from_sizes`).
             Required when :attr:`needs_box` (SA-Net on a box-targeted rig: each scan decodes
             with the rays aimed at its own box); ignored otherwise.
+        sensor_origins : (B, 3) (or (3,)) the LiDAR's optical centre in each scan's unit frame, for models that
+            read free space (``sanet-local``; None or NaN rows: no free-space evidence); ignored by the others.
 
         Returns
         -------
@@ -293,7 +297,11 @@ class Completer:
                 if e is not None:
                     d = directions_for_extents(self.rig, e[s : s + batch_size])
                     dirs = torch.from_numpy(np.ascontiguousarray(d)).to(self.device)
-                out.extend(p.cpu().numpy().astype(np.float32) for p in self.model.complete(t, c, dirs))
+                args = (t, c, dirs)
+                if getattr(self.model, "uses_evidence", False) and sensor_origins is not None:
+                    so = np.broadcast_to(np.asarray(sensor_origins, dtype=np.float32).reshape(-1, 3), (len(x), 3))
+                    args += (torch.from_numpy(np.ascontiguousarray(so[s : s + batch_size])).to(self.device),)
+                out.extend(p.cpu().numpy().astype(np.float32) for p in self.model.complete(*args))
         return out
 
 
