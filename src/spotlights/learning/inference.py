@@ -300,7 +300,7 @@ class Completer:
                 args = (t, c, dirs)
                 if getattr(self.model, "uses_evidence", False) and sensor_origins is not None:
                     so = np.broadcast_to(np.asarray(sensor_origins, dtype=np.float32).reshape(-1, 3), (len(x), 3))
-                    args += (torch.from_numpy(np.ascontiguousarray(so[s : s + batch_size])).to(self.device),)
+                    args += (torch.from_numpy(np.array(so[s : s + batch_size])).to(self.device),)
                 out.extend(p.cpu().numpy().astype(np.float32) for p in self.model.complete(*args))
         return out
 
