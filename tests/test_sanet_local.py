@@ -125,3 +125,38 @@ def test_mirror_encodes_the_points_and_their_mirror_image():
         on = build_model(cfg, rig=make_rig(8, 16, 60.0))
         off = build_model(load_config(name, overrides={"model": {"args": dict(args)}}), rig=make_rig(8, 16, 60.0))
         assert on.encoder.mirror and not off.encoder.mirror
+
+
+def test_scene_completion_gives_models_the_sensor_in_each_box_frame():
+    """complete_scene hands a model that reads free space the LiDAR in each box's unit frame (by hand: the box's
+    normalisation of the sensor position), the heading check's turned copy the turned sensor, and keeps the
+    observed points after the predicted ones when asked."""
+    from types import SimpleNamespace
+
+    from spotlights.experiments.scene import SceneConfig, complete_scene
+    from spotlights.geometry.boxes import Box
+
+    seen = {}
+
+    class Recorder:
+        model = SimpleNamespace(uses_evidence=True)
+        needs_box = False
+        model_name = "recorder"
+        domain = None
+
+        def complete(self, partials, clip=None, extents=None, sensor_origins=None):
+            seen["sensor"] = np.array(sensor_origins)
+            return [np.array([[0.1, 0.0, 0.0]], np.float32) for _ in partials]
+
+    rng = np.random.default_rng(0)
+    centre, size, yaw = np.array([9.0, 4.0, -0.9]), np.array([4.5, 1.8, 1.5]), 0.3
+    box = Box(centre, size, yaw, "car", "car")
+    scan = centre + rng.uniform(-0.4, 0.4, (200, 3)) * size
+    sensor = np.array([0.2, -0.1, 1.7])
+    res = complete_scene(scan, [box], Recorder(), SceneConfig(heading_check=True, keep_observed=True), sensor=sensor)
+    rot = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
+    want = (sensor - centre) @ rot / (0.5 * np.linalg.norm(size))
+    assert np.allclose(seen["sensor"][0], want, atol=1e-9)
+    assert np.allclose(seen["sensor"][1], want * [-1, -1, 1], atol=1e-9)  # turned by 180 degrees about z
+    obj = res.objects[0]
+    assert len(obj.completion_unit) == 1 + len(np.unique(obj.partial_unit, axis=0))

@@ -348,7 +348,9 @@ def prepare_partial(
     )
 
 
-def complete_in_boxes(completer, partials: np.ndarray, sizes: np.ndarray, clip=DEFAULT) -> list[np.ndarray]:
+def complete_in_boxes(
+    completer, partials: np.ndarray, sizes: np.ndarray, clip=DEFAULT, sensor_origins=None
+) -> list[np.ndarray]:
     """Complete unit-frame partial scans, each with its box, every point inside its box's sphere.
 
     The step that the user-facing completions share (``complete_scan``; ``complete_scene``, so
@@ -364,13 +366,23 @@ def complete_in_boxes(completer, partials: np.ndarray, sizes: np.ndarray, clip=D
     partials : (B, K, 3) float32 unit-frame points (the box's object frame / half its diagonal).
     sizes : (B, 3) box sizes (length, width, height), metres (only their ratios matter).
     clip : passed to :meth:`Completer.complete`.
+    sensor_origins : (B, 3) the LiDAR in each scan's unit frame, passed on to models that read free space.
 
     Returns a list of B arrays (K_i, 3) float32, unit frame, norms <= 1.
     """
     kw = {"clip": clip}
+    if sensor_origins is not None and getattr(getattr(completer, "model", None), "uses_evidence", False):
+        kw["sensor_origins"] = sensor_origins
     if getattr(completer, "needs_box", False):
         kw["extents"] = extents_from_sizes(np.asarray(sizes, dtype=np.float64).reshape(-1, 3))
     return [clamp_to_unit_sphere(c) for c in completer.complete(partials, **kw)]
+
+
+def with_observed(completion: np.ndarray, observed: np.ndarray) -> np.ndarray:
+    """The keep-observed output: (K + L, 3) float32, the predicted points (K, 3) then the observed points (the
+    model's input, repeats removed: L <= its rows), both unit frame (or both in any one frame)."""
+    obs = np.unique(np.asarray(observed, dtype=np.float32).reshape(-1, 3), axis=0)
+    return np.concatenate([np.asarray(completion, dtype=np.float32).reshape(-1, 3), obs])
 
 
 def complete_scan(
