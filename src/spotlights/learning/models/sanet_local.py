@@ -15,7 +15,8 @@ that ray's evidence:
   (shared point-wise layer, ReLU), max-pooled over the valid candidates (zeros without one);
 * the ray's input ``[code (1024, broadcast: one product per scan), global logit, global depth,
   pooled candidates, the raw evidence features (4 x 3 candidates, count, T carved bins)]`` ->
-  ``local_hidden`` (ReLU) -> 2: added to the global logit and depth.
+  ``local_hidden`` (ReLU) -> 2: added to the global logit and depth. Only the rays with evidence
+  (a counted candidate or a carved bin) go through it; the others keep the global prediction.
 
 Loss: the hit-aware SA-Net's (:func:`~spotlights.learning.models.sanet_hit.hit_depth_loss`) on the
 corrected outputs. Decoding: as ``sanet-hit`` (p(hit) >= the validation-chosen threshold), then the
@@ -139,13 +140,23 @@ class LocalSANet(HitSANet):
                 partial.float(), self.origins, dirs.float(), sensor_origin, self.n_secondary, self.evidence
             )
             feats = evidence_features(ev, self.evidence)  # (B, R, F) float32
-        cand = feats[..., : NEAR_CANDIDATES * FEATURES_PER_CANDIDATE].reshape(
-            b, n, NEAR_CANDIDATES, FEATURES_PER_CANDIDATE
-        )
-        valid = ev["valid"].unsqueeze(-1)
-        pooled = torch.where(valid, torch.relu(self.candidate(cand.to(code.dtype))), 0.0).amax(2)  # (B, R, c)
-        glob = torch.stack([logit, depth], -1).to(code.dtype)
-        delta = self.local.forward_concat([code.unsqueeze(1), glob, pooled.to(code.dtype), feats.to(code.dtype)])
+        # only the rays with evidence (a counted candidate or a carved bin) are corrected: the others keep the
+        # global prediction (their MLP input would hold no evidence), which saves most of the per-ray work
+        active = (ev["valid"].any(-1) | ev["carved"].any(-1)).reshape(-1)
+        rows = active.nonzero().squeeze(1)  # (A,) into (B*R)
+        f = feats.reshape(b * n, -1)[rows]  # (A, F)
+        cand = f[:, : NEAR_CANDIDATES * FEATURES_PER_CANDIDATE].reshape(-1, NEAR_CANDIDATES, FEATURES_PER_CANDIDATE)
+        valid = ev["valid"].reshape(b * n, NEAR_CANDIDATES, 1)[rows]
+        pooled = torch.where(valid, torch.relu(self.candidate(cand.to(code.dtype))), 0.0).amax(1)  # (A, c)
+        glob = torch.stack([logit, depth], -1).reshape(b * n, 2)[rows]
+        first = self.local.linears[0]
+        k = code.shape[-1]
+        per_scan = torch.nn.functional.linear(code, first.weight[:, :k])  # (B, H): the code's product, once per scan
+        rest = torch.cat([glob.to(code.dtype), pooled.to(code.dtype), f.to(code.dtype)], -1)
+        x = per_scan[rows // n] + torch.nn.functional.linear(rest, first.weight[:, k:], first.bias)
+        out_a = self.local._from_layer(x, 1, first_done=True)  # (A, 2)
+        delta = torch.zeros(b * n, 2, dtype=out_a.dtype, device=out_a.device).index_copy(0, rows, out_a)
+        delta = delta.reshape(b, n, 2)
         return {
             "hit_logits": logit + delta[..., 0].to(logit.dtype),
             "depths": depth + delta[..., 1].to(depth.dtype),
