@@ -110,6 +110,11 @@ def _graph_module(model):
         def forward(self, partial, directions):
             return self.outputs(partial, directions)
 
+    if getattr(model, "uses_evidence", False):
+        raise ParameterError(
+            f"{model.name} cannot be exported to ONNX yet (its per-ray evidence is gathered with scatter "
+            "reductions at run time); complete with the torch runtime"
+        )
     if model.target == "points":
         return PointGraph(model), ["partial"], ["points"]
     names = ["depths", "ray_points"] + (["hit_probability"] if hasattr(model, "hit_probabilities") else [])

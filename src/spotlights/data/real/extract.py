@@ -347,7 +347,7 @@ def _stack(rows: list[dict], n_points: int, meta: dict) -> Observations:
         box_rotation=arr("box_rotation", (3, 3), np.float64),
         unit_to_sensor=arr("unit_to_sensor", (4, 4), np.float64),
         sensor_to_world=arr("sensor_to_world", (4, 4), np.float64),
-        sensor_origin=arr("sensor_origin", (3,), np.float64),
+        sensor_origin=np.array([r.get("sensor_origin", (np.nan,) * 3) for r in rows], np.float64).reshape(n, 3),
         **{s: [str(r[s]) for r in rows] for s in _STRINGS},
         meta=meta,
         raw_points=np.concatenate(raw).astype(np.float32) if raw else np.zeros((0, 3), np.float32),
