@@ -85,8 +85,8 @@ def bench_evidence(batch: int, repeats: int) -> dict:
 
         res = timed({"torch_batch": torch_path, "numpy_one": numpy_path}, repeats)
         out[f"K{k}"] = {
-            "torch_per_scan_ms": {m: 1e3 * v / batch for m, v in res["torch_batch"].items()},
-            "numpy_per_scan_ms": {m: 1e3 * v for m, v in res["numpy_one"].items()},
+            "torch_per_scan": {m.replace("_s", "_ms"): 1e3 * v / batch for m, v in res["torch_batch"].items()},
+            "numpy_per_scan": {m.replace("_s", "_ms"): 1e3 * v for m, v in res["numpy_one"].items()},
         }
         print(
             f"evidence K={k}: torch batch {batch}: {out[f'K{k}']['torch_per_scan_ms']}, numpy one scan: "
