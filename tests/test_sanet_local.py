@@ -80,6 +80,15 @@ def test_trains_and_completes(data, tmp_path, precision):
     # free space only removes or moves points: never more points with it
     assert all(len(a) <= len(b) for a, b in zip(with_free, without))
     assert all(np.linalg.norm(p, axis=1).max() <= 1 + 1e-5 for p in with_free if len(p))
+    if precision == "fp32":  # no ONNX graph for it (yet): refused in one line, nothing written
+        pytest.importorskip("onnx")
+        pytest.importorskip("onnxscript")
+        from spotlights.errors import ParameterError
+        from spotlights.learning.export import export_onnx
+
+        with pytest.raises(ParameterError, match="cannot be exported"):
+            export_onnx(tmp_path / "best.pt", tmp_path / "local.onnx")
+        assert not (tmp_path / "local.onnx").exists()
 
 
 def test_old_datasets_train_old_models_and_refuse_the_new_one(old_data, tmp_path):
