@@ -143,7 +143,11 @@ def test_cli_complete_writes_the_scan_frame_and_a_picture(ckpts, partial_unit, t
     # same result as the library on the unit-frame scan, mapped back into the scan's frame
     unit_scan = norm.to_unit(load_points(scan)).astype(np.float32)
     expect = norm.from_unit(load_completer(ckpts["sanet"]).complete(unit_scan[None], clip=None)[0])
-    np.testing.assert_allclose(got, expect, atol=1e-3)
+    np.testing.assert_allclose(got[: len(expect)], expect, atol=1e-3)
+    # keep-observed (on by default): the observed points (the 256 input points, no repeats) follow the prediction
+    observed = np.unique(np.c_[f["x"], f["y"], f["z"]][f["source"] == 1], axis=0)
+    assert len(got) == len(expect) + len(observed)
+    np.testing.assert_allclose(np.unique(got[len(expect) :], axis=0), observed, atol=1e-3)
     assert png.stat().st_size > 1000
     # flags instead of a JSON file
     proc = cli(
@@ -165,6 +169,7 @@ def test_cli_complete_writes_the_scan_frame_and_a_picture(ckpts, partial_unit, t
         "--out",
         tmp_path / "pcn.xyz",
         "--no-crop",
+        "--no-keep-observed",
     )
     assert proc.returncode == 0, proc.stderr
     assert load_points(tmp_path / "pcn.xyz").shape == (128, 3)  # other formats: the completion only

@@ -435,3 +435,31 @@ def test_completion_goes_back_to_the_sensor_frame(reference):
             assert gt[:, 2].min() == pytest.approx(-1.73, abs=0.02)
             back = (s["sensor_to_unit"] @ np.c_[gt, np.ones(len(gt))].T).T[:, :3]
             assert np.allclose(back, s["gt_dense"], atol=1e-5)
+
+
+def test_sensor_origin_round_trips_to_the_training_batches(reference):
+    """The LiDAR's origin in each sample's unit frame, by hand from the pose (box centre at distance and bearing
+    on the ground z = -1.73 m, yaw heading) equals the reader's sensor_origins and the torch items' sensor_origin."""
+    import torch
+
+    from spotlights.learning.data import TorchCompletionDataset
+
+    with open_dataset(reference) as ds:
+        meta = ds.metadata()
+        got = ds.sensor_origins()
+        assert got.shape == (ds.n_samples, 3)
+        for i in range(ds.n_samples):
+            m = int(ds.sample_model[i])
+            dist, az, yaw = (float(meta[k][i]) for k in ("distance", "azimuth", "heading"))
+            centre = np.array([dist * np.cos(az), dist * np.sin(az), -1.73 + ds.size[m][2] / 2])
+            rot = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
+            want = (np.zeros(3) - centre) @ rot / ds.radius[m]
+            assert np.allclose(got[i], want, atol=1e-5)
+    train = TorchCompletionDataset(reference, "train", rig=False)
+    assert train.has_sensor_origin
+    with open_dataset(reference) as ds:
+        want = ds.sensor_origins(train.indices)
+    for j in (0, len(train) - 1):
+        item = train[j]
+        assert item["sensor_origin"].dtype == torch.float32
+        assert np.allclose(item["sensor_origin"].numpy(), want[j], atol=1e-6)

@@ -38,6 +38,10 @@ def expected_decoder(name: str) -> int:
         return lin(1024, 256) + lin(256, 256) + lin(256, 2048)
     if name == "sanet-hit":  # a hit logit and a depth per ray
         return lin(1024, 256) + lin(256, 256) + lin(256, 2 * 2048)
+    if name == "sanet-local":  # the dense default's hidden layers, then a shared per-ray MLP over the evidence
+        features = 4 * 3 + 1 + 8  # 4 near-ray candidates x (depth, distance, valid), their count, 8 carved bins
+        local = lin(3, 16) + lin(1024 + 2 + 16 + features, 32) + lin(32, 32) + lin(32, 2)
+        return lin(1024, 256) + lin(256, 64) + lin(64, 2 * 2048) + local
     if name == "pcn":
         return 2 * lin(1024, 1024) + lin(1024, 512 * 3) + lin(1024 + 5, 512) + lin(512, 512) + lin(512, 3)
     if name == "foldingnet":

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import sys
 
 from ..data.real.boxfiles import read_box_file, with_class
@@ -47,6 +48,13 @@ def add_completion_arguments(p, single: bool) -> None:
         metavar="LIST",
         help="comma-separated classes to complete (default: every vehicle class: car, truck, caravan, trailer, "
         "bus, construction, emergency; the model learned cars, others get a warning)",
+    )
+    p.add_argument(
+        "--keep-observed",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="return each object's observed points (the model's input) beside its predicted ones (default on; "
+        "fidelity and the heading check score the predicted points alone)",
     )
     p.add_argument(
         "--heading-check",
@@ -234,6 +242,7 @@ def scene_config(args, single: bool):
         seed=int(args.seed),
         heading_check=bool(args.heading_check),
         clip=clip,
+        keep_observed=bool(args.keep_observed),
         **({} if args.heading_margin is None else {"heading_margin": float(args.heading_margin)}),
     )
 

@@ -113,7 +113,9 @@ def complete_frames(args, reader, keys, config, completer, out) -> int:
                     {**info, "status": f"scan holds {len(frame.points)} points (< {config.min_points}): not completed"}
                 )
                 continue
-            result = complete_scene(frame.points, frame.boxes, completer, config, checkpoint=checkpoint)
+            result = complete_scene(
+                frame.points, frame.boxes, completer, config, checkpoint=checkpoint, sensor=frame.lidar_origin()
+            )
             write_scene(
                 result,
                 _with(stem, ".ply"),

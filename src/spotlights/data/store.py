@@ -33,7 +33,8 @@ dataset                    shape                  dtype    meaning
 /samples/partial           (n_samples, 256, 3)    float32  partial scan, unit frame; chunked per sample
 /samples/model             (n_samples,)           int32    row in /models
 /samples/view              (n_samples,)           int32    observation index within the model
-/samples/sensor_to_unit    (n_samples, 4, 4)      float64  sensor frame -> unit frame (column vectors)
+/samples/sensor_to_unit    (n_samples, 4, 4)      float64  sensor frame -> unit frame (column vectors); its
+                                                           translation is the sensor origin (sensor_origins())
 /samples/distance          (n_samples,)           float32  horizontal sensor -> box-centre distance, metres
 /samples/azimuth           (n_samples,)           float32  bearing of the box centre in the sensor frame, rad
 /samples/heading           (n_samples,)           float32  vehicle yaw in the sensor frame, rad
@@ -474,6 +475,17 @@ class CompletionDataset:
             if "model" in self._meta:
                 self._meta["model"] = self.sample_model.astype(self._meta["model"].dtype)  # global rows
         return self._meta
+
+    def sensor_origins(self, indices=None) -> np.ndarray:
+        """(K, 3) float64 position of the LiDAR's optical centre (the origin of the sensor frame) in the
+        unit frame of each of global samples ``indices`` (default: every sample): the translation column
+        of ``/samples/sensor_to_unit`` (no field of its own: it is that column, so it cannot disagree with
+        it). Every row NaN for a file without ``/samples/sensor_to_unit``."""
+        meta = self.metadata()
+        idx = np.arange(self.n_samples) if indices is None else np.asarray(indices, dtype=np.int64).reshape(-1)
+        if "sensor_to_unit" not in meta:
+            return np.full((len(idx), 3), np.nan)
+        return np.array(meta["sensor_to_unit"][idx, :3, 3], dtype=np.float64)
 
     def to_sensor(self, index: int, points: np.ndarray) -> np.ndarray:
         """Map (K, 3) unit-frame points of sample ``index`` (e.g. a completion) back into its LiDAR

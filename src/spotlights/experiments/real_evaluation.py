@@ -133,6 +133,7 @@ def complete_all(
     desc: str = "complete",
     clip: float | None = None,
     box_sizes: np.ndarray | None = None,
+    sensor_origins: np.ndarray | None = None,
 ) -> list[np.ndarray]:
     """Run ``completer.complete`` over (n, P, 3) float32 partials in batches; returns n (K_i, 3) float32 arrays.
 
@@ -140,6 +141,8 @@ def complete_all(
     ``box_sizes`` (n, 3): each observation's box (l, w, h); completers with ``needs_box``
     (SA-Net on a box-targeted rig) get ``extents = size / |size|`` per observation, the
     half-extents of the box in the observation's unit frame. Others never see it.
+    ``sensor_origins`` (n, 3): the LiDAR in each observation's unit frame, for models that read free
+    space (``sanet-local``; NaN rows: unknown); others never see it.
     """
     from tqdm import tqdm
 
@@ -158,6 +161,8 @@ def complete_all(
         kw = {} if clip is None else {"clip": clip}
         if extents is not None:
             kw["extents"] = extents[s : s + batch_size]
+        if sensor_origins is not None and getattr(getattr(completer, "model", None), "uses_evidence", False):
+            kw["sensor_origins"] = sensor_origins[s : s + batch_size]
         res = completer.complete(batch, **kw)
         if len(res) != len(batch):
             raise SpotlightsError(
@@ -346,6 +351,7 @@ def evaluate_consistency(
     sub_ts = obs.timestamp[rows]
     sub_cls = [obs.cls[i] for i in rows]
     sizes = obs.box_size[rows]
+    sensors = obs.sensor_origin[rows]
     radii = 0.5 * np.linalg.norm(sizes, axis=1)
     r_track = _track_radii(sub_keys, radii)
     classes_present = [c for c in CLASSES if c in set(sub_cls)]
@@ -389,7 +395,7 @@ def evaluate_consistency(
             if on_model is not None:
                 on_model(dict(data=data, metrics=metrics, models=list(models)), True)
             continue
-        run = dict(batch_size=batch_size, progress=progress, clip=clip, box_sizes=sizes)
+        run = dict(batch_size=batch_size, progress=progress, clip=clip, box_sizes=sizes, sensor_origins=sensors)
         comps = complete_all(completer, partials, desc=f"complete {names[k]}", **run)
         comps2 = complete_all(completer, partials2, desc=f"noise floor {names[k]}", **run) if with_noise else None
         tracks, agg, div = _score(
@@ -433,7 +439,12 @@ def evaluate_consistency(
         if vox:
             entry["equal_density"] = rescored(lambda c: voxel_downsample(c, vox), voxel=vox)
         if heading_check:
-            flipped = complete_all(completer, flip_heading(partials), desc=f"heading check {names[k]}", **run)
+            flipped = complete_all(
+                completer,
+                flip_heading(partials),
+                desc=f"heading check {names[k]}",
+                **dict(run, sensor_origins=flip_heading(sensors)),
+            )
             with serial_queries():
                 f0 = np.array([fidelity(p, c) for p, c in zip(partials, comps)])
                 f1 = np.array([fidelity(p, c) for p, c in zip(flip_heading(partials), flipped)])

@@ -43,7 +43,7 @@ from ..geometry.boxes import FLIP_Z, Box
 from ..geometry.io import save_ply, save_points
 from ..geometry.neighbors import serial_queries
 from ..geometry.rotations import rigid_transform
-from ..learning.inference import DEFAULT, complete_in_boxes, prepare_partial
+from ..learning.inference import DEFAULT, complete_in_boxes, prepare_partial, with_observed
 from ..metrics.consistency import fidelity
 from ..viz import SceneObject, html, render_scene
 
@@ -80,6 +80,10 @@ class SceneConfig:
     crop : False uses every scan point as the object's input (a scan that is already cropped).
     resample, seed : the 256-point input (see :func:`spotlights.learning.inference.prepare_partial`).
     clip : SA-Net depth clip (``DEFAULT`` = the checkpoint's; None = no clip).
+    keep_observed : return each object's observed points (the model's input points, repeats removed) after
+        its predicted ones in ``completion`` / ``completion_unit`` (PoinTr-style); fidelity and the heading
+        check are scored on the predicted points alone. Off here; ``complete`` and ``real complete`` turn it
+        on by default (``--no-keep-observed``).
     """
 
     margin: float = 0.15
@@ -93,6 +97,7 @@ class SceneConfig:
     heading_check: bool = False
     heading_margin: float = HEADING_MARGIN
     clip: object = "default"
+    keep_observed: bool = False
 
     def __post_init__(self):
         if not (math.isfinite(self.margin) and self.margin >= 0):
@@ -118,8 +123,8 @@ class ObjectResult:
     ``status``: ``"completed"`` or the reason it was not (``class_excluded``, ``invalid_box``,
     ``too_few_points``, ``empty_completion``). Arrays (scan frame, float64, metres):
     ``completion`` (K, 3); ``input_indices`` (k,) int64 rows of the scan used as the input.
-    ``partial_unit`` (256, 3) and ``completion_unit`` (K, 3) float32: the box's unit frame.
-    ``box`` as given; ``used_box`` the box completed (turned around when ``flipped``).
+    ``partial_unit`` (256, 3) and ``completion_unit`` (K, 3) float32: the box's unit frame; ``sensor_unit`` (3,)
+    float64 the LiDAR in that frame. ``box`` as given; ``used_box`` the box completed (turned around when ``flipped``).
     """
 
     index: int
@@ -130,6 +135,7 @@ class ObjectResult:
     input_indices: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     partial_unit: np.ndarray | None = None
     completion_unit: np.ndarray | None = None
+    sensor_unit: np.ndarray | None = None
     completion: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     flipped: bool = False
     fidelity: float | None = None
@@ -277,6 +283,7 @@ def complete_scene(
     config: SceneConfig | None = None,
     axes: np.ndarray | None = None,
     checkpoint: str | None = None,
+    sensor: np.ndarray | None = None,
 ) -> SceneResult:
     """Complete every selected box of one scan (see the module docstring).
 
@@ -287,6 +294,8 @@ def complete_scene(
     completer : a :class:`~spotlights.learning.inference.Completer` (or any object with its
         ``complete``/``needs_box``/``domain``/``model_name``).
     axes : optional (3, 3) rotation scan coordinates -> object convention (x forward, y left, z up).
+    sensor : (3,) the LiDAR's optical centre in the scan's frame, metres (default: the scan's origin); models
+        that read free space (``sanet-local``) get it in each box's unit frame.
 
     Returns a :class:`SceneResult`; raises :class:`ParameterError` for a scan with fewer than
     ``config.min_points`` points.
@@ -301,6 +310,8 @@ def complete_scene(
         )
     a = None if axes is None or np.allclose(axes, np.eye(3)) else np.asarray(axes, dtype=np.float64)
     work = scan if a is None else scan @ a.T
+    lidar = np.zeros(3) if sensor is None else np.asarray(sensor, dtype=np.float64).reshape(3)
+    lidar = lidar if a is None else a @ lidar
     to_work = None if a is None else rigid_transform(a, np.zeros(3))
     ids = object_ids(boxes)
     objects: list[ObjectResult] = []
@@ -323,6 +334,7 @@ def complete_scene(
         unit = wb.normalization().to_unit(work[idx])
         partial = prepare_partial(unit, seed=config.seed, method=config.resample)
         o = ObjectResult(i, ids[i], b, "completed", used_box=wb, input_indices=idx, partial_unit=partial)
+        o.sensor_unit = wb.normalization().to_unit(lidar)
         domain = getattr(completer, "domain", None)
         if domain is not None:
             o.warnings.extend(domain.warnings(b.cls, b.size))
@@ -332,10 +344,18 @@ def complete_scene(
     if todo:
         partials = np.stack([o.partial_unit for o in todo])
         sizes = np.stack([o.used_box.size for o in todo])
+        sensors = np.stack([o.sensor_unit for o in todo])
         if config.heading_check:
             partials = np.concatenate([partials, (partials @ FLIP_Z).astype(np.float32)])
             sizes = np.concatenate([sizes, sizes])
-        outs = complete_in_boxes(completer, partials, sizes, clip=DEFAULT if config.clip == "default" else config.clip)
+            sensors = np.concatenate([sensors, sensors @ FLIP_Z])
+        outs = complete_in_boxes(
+            completer,
+            partials,
+            sizes,
+            clip=DEFAULT if config.clip == "default" else config.clip,
+            sensor_origins=sensors,
+        )
         t2 = time.perf_counter()
         with serial_queries():  # a few small KD-tree queries: OpenMP threads cost more than they save
             _assemble(todo, outs, config, a)
@@ -380,6 +400,8 @@ def _assemble(todo: list, outs: list, config: SceneConfig, a) -> None:
         if len(comp) == 0:
             o.status = "empty_completion"
             continue
+        if config.keep_observed:  # scored above on the predicted points alone
+            comp = o.completion_unit = with_observed(comp, o.partial_unit)
         done = o.used_box.normalization().from_unit(comp.astype(np.float64))
         o.completion = done if a is None else done @ a
 

@@ -81,12 +81,22 @@ def timing_inputs(batches: Sequence[int], n_input: int = 256, seed: int = 0, dev
     return {b: (torch.rand(b, n_input, 3, generator=gen) * 2 - 1).mul(0.57).to(device) for b in batches}
 
 
+TIMING_SENSOR = (2.4, 1.2, 0.35)
+"""The LiDAR (unit frame, front left and a little above the box) with which models that read free space are timed."""
+
+
 def _model_calls(model, x, device) -> dict:
     """{"forward": fn, "complete": fn} for one model and input batch (box-rig SA-Nets get one box's rays)."""
     from .models.base import CLIP_DEFAULT
 
     dirs = timing_directions(model, x.shape[0])  # None, or the rays of one box for box-rig SA-Nets
     dirs = None if dirs is None else dirs.to(device)
+    if getattr(model, "uses_evidence", False):  # the ray-local SA-Net also reads the scan along its rays
+        sensor = x.new_tensor(TIMING_SENSOR).expand(x.shape[0], 3)
+        return {
+            "forward": (lambda: model(x, dirs, sensor)),
+            "complete": (lambda: model.complete(x, CLIP_DEFAULT, dirs, sensor)),
+        }
     return {
         "forward": (lambda: model(x)),
         "complete": (

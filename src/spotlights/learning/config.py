@@ -29,7 +29,7 @@ from ..errors import InputFileError, ParameterError
 from .registry import MODEL_REGISTRY, model_class
 
 SECTIONS = ("model", "data", "train")
-MODEL_KEYS = ("name", "args")
+MODEL_KEYS = ("name", "args", "mirror")
 
 
 @dataclass(frozen=True)

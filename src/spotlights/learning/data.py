@@ -20,6 +20,8 @@ Items are dicts of tensors::
     gt_points (2048, 3) float32, unit frame (the model's uniform surface samples)
     depths    (N*M,) float32 in [0, 1], 0 = miss (only when a rig is selected)
     model     () int64, row in /models;  view () int64;  index () int64 row in /samples
+    sensor_origin (3,) float32, unit frame: the LiDAR's optical centre (NaN for files without
+              /samples/sensor_to_unit; ``has_sensor_origin`` tells)
 
 The dataset holds no randomness: the same index always gives the same bytes, so
 results do not depend on the number of workers.
@@ -138,7 +140,9 @@ class TorchCompletionDataset(Dataset):
     /models/size): ``spotlights.learning.rays.DirectionTable(rig, ds.extents)`` gives
     each sample's rays from its ``model`` row; ``sizes`` ((n_models, 3) float64 box length, width,
     height in metres, or None likewise) and ``info.categories`` ((n_models,) str) of every model
-    row, the split's rows being ``model_rows``.
+    row, the split's rows being ``model_rows``; ``sensor_origins`` ((len, 3) float32, unit frame: each
+    item's LiDAR origin, NaN rows for files without /samples/sensor_to_unit) and ``has_sensor_origin``
+    (every item has one).
     """
 
     def __init__(
@@ -176,6 +180,8 @@ class TorchCompletionDataset(Dataset):
             self.partials = (
                 np.ascontiguousarray(store.partials(self.indices), dtype=np.float32) if partials_in_memory else None
             )
+            self.sensor_origins = store.sensor_origins(self.indices).astype(np.float32)
+            self.has_sensor_origin = bool(np.all(np.isfinite(self.sensor_origins)))
             self.extents = store.extents if store.size is not None else None
             self.sizes = None if store.size is None else np.asarray(store.size, dtype=np.float64)
         finally:
@@ -203,6 +209,7 @@ class TorchCompletionDataset(Dataset):
             "model": torch.tensor(model, dtype=torch.int64),
             "view": torch.tensor(int(self.info.sample_view[row]), dtype=torch.int64),
             "index": torch.tensor(row, dtype=torch.int64),
+            "sensor_origin": torch.from_numpy(self.sensor_origins[i]),
         }
         if self.depths is not None:
             item["depths"] = torch.from_numpy(self.depths[model])

@@ -115,6 +115,11 @@ def _graph_module(model):
         def forward(self, partial, directions):
             return self.outputs(partial, directions)
 
+    if getattr(model, "uses_evidence", False):
+        raise ParameterError(
+            f"{model.name} cannot be exported to ONNX yet (its per-ray evidence is gathered with scatter "
+            "reductions at run time); complete with the torch runtime"
+        )
     if model.target == "points":
         return PointGraph(model), ["partial"], ["points"]
     names = ["depths", "ray_points"] + (["hit_probability"] if hasattr(model, "hit_probabilities") else [])
@@ -307,8 +312,11 @@ class OnnxCompleter(BaseCompleter):
             mask &= depths >= np.float32(c)
         return mask
 
-    def _forward(self, partials: np.ndarray, clip: Any, directions: np.ndarray | None) -> list[np.ndarray]:
-        """One batch through onnxruntime; the rays kept as the torch models keep them (:meth:`keep`)."""
+    def _forward(
+        self, partials: np.ndarray, clip: Any, directions: np.ndarray | None, sensor_origins: np.ndarray | None = None
+    ) -> list[np.ndarray]:
+        """One batch through onnxruntime; the rays kept as the torch models keep them (:meth:`keep`). Exports hold
+        no free-space model (``spotlights export`` refuses ``sanet-local``), so ``sensor_origins`` is unused."""
         out = self.run(partials, directions)
         if "points" in out:
             return [np.ascontiguousarray(p, dtype=np.float32) for p in out["points"]]

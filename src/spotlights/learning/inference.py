@@ -30,7 +30,7 @@ from ..geometry.boxes import Box, box_from_dict, load_box  # noqa: F401  (the bo
 from ..geometry.frames import clamp_to_unit_sphere
 from ..geometry.sampling import resample_set
 from .checkpoint import PRETRAINED, load_checkpoint, model_from_checkpoint, resolve_checkpoint
-from .rays import directions_for_extents, extents_from_sizes
+from .rays import directions_for_extents, unit_extents
 
 INPUT_POINTS = 256
 """Points per partial scan the models were trained with (the dataset's partial size)."""
@@ -226,7 +226,12 @@ class BaseCompleter:
     device: Any
 
     def complete(
-        self, partials: np.ndarray, clip: Any = DEFAULT, batch_size: int = 256, extents: np.ndarray | None = None
+        self,
+        partials: np.ndarray,
+        clip: Any = DEFAULT,
+        batch_size: int = 256,
+        extents: np.ndarray | None = None,
+        sensor_origins: np.ndarray | None = None,
     ) -> list[np.ndarray]:
         """Complete partial scans.
 
@@ -242,6 +247,8 @@ class BaseCompleter:
             ``size / |size|`` for a box of size (l, w, h) (:func:`~spotlights.geometry.boxes.unit_extents`).
             Required when :attr:`needs_box` (SA-Net on a box-targeted rig: each scan decodes
             with the rays aimed at its own box); ignored otherwise.
+        sensor_origins : (B, 3) (or (3,)) the LiDAR's optical centre in each scan's unit frame, for models that
+            read free space (``sanet-local``; None or NaN rows: no free-space evidence); ignored by the others.
 
         Returns
         -------
@@ -270,11 +277,15 @@ class BaseCompleter:
             e = np.broadcast_to(e, (len(x), 3)) if e.shape == (3,) else e
             if e.shape != (len(x), 3):
                 raise ParameterError(f"extents must have shape ({len(x)}, 3) or (3,), got {np.shape(extents)}")
+        so = None
+        if sensor_origins is not None:
+            so = np.broadcast_to(np.asarray(sensor_origins, dtype=np.float32).reshape(-1, 3), (len(x), 3))
         out: list[np.ndarray] = []
         with self._session():
             for s in range(0, len(x), batch_size):
                 dirs = None if e is None else directions_for_extents(self.rig, e[s : s + batch_size])
-                out.extend(self._forward(x[s : s + batch_size], clip, dirs))
+                sb = None if so is None else np.array(so[s : s + batch_size])
+                out.extend(self._forward(x[s : s + batch_size], clip, dirs, sb))
         return out
 
     def complete_boxes(self, partials: np.ndarray, sizes: np.ndarray, clip: Any = DEFAULT) -> list[np.ndarray]:
@@ -286,8 +297,11 @@ class BaseCompleter:
         """The context every forward pass of one :meth:`complete` call runs in (torch: inference mode)."""
         return contextlib.nullcontext()
 
-    def _forward(self, partials: np.ndarray, clip: Any, directions: np.ndarray | None) -> list[np.ndarray]:
-        """The network: (b, K, 3) float32 checked partials (and (b, N*M, 3) float32 ray directions for box rigs)
+    def _forward(
+        self, partials: np.ndarray, clip: Any, directions: np.ndarray | None, sensor_origins: np.ndarray | None = None
+    ) -> list[np.ndarray]:
+        """The network: (b, K, 3) float32 checked partials (and (b, N*M, 3) float32 ray directions for box rigs,
+        (b, 3) float32 sensor origins in the unit frame for models that read free space)
         -> b arrays (K_i, 3) float32, unit frame, with ``clip`` as :meth:`complete` takes it."""
         raise NotImplementedError
 
@@ -330,7 +344,9 @@ class Completer(BaseCompleter):
         stack.enter_context(autocast(self.precision, self.device))
         return stack
 
-    def _forward(self, partials: np.ndarray, clip: Any, directions: np.ndarray | None) -> list[np.ndarray]:
+    def _forward(
+        self, partials: np.ndarray, clip: Any, directions: np.ndarray | None, sensor_origins: np.ndarray | None = None
+    ) -> list[np.ndarray]:
         import torch
 
         from .models.base import CLIP_DEFAULT
@@ -338,7 +354,10 @@ class Completer(BaseCompleter):
         t = torch.from_numpy(partials).to(self.device)
         dirs = None if directions is None else torch.from_numpy(np.ascontiguousarray(directions)).to(self.device)
         c = CLIP_DEFAULT if clip is DEFAULT else clip
-        return [p.cpu().numpy().astype(np.float32) for p in self.model.complete(t, c, dirs)]
+        args = (t, c, dirs)
+        if getattr(self.model, "uses_evidence", False) and sensor_origins is not None:
+            args += (torch.from_numpy(np.ascontiguousarray(sensor_origins, dtype=np.float32)).to(self.device),)
+        return [p.cpu().numpy().astype(np.float32) for p in self.model.complete(*args)]
 
 
 def load_completer(checkpoint_path=None, device=None, precision: str = "fp32") -> Completer:
@@ -384,7 +403,9 @@ def prepare_partial(
     )
 
 
-def complete_in_boxes(completer, partials: np.ndarray, sizes: np.ndarray, clip=DEFAULT) -> list[np.ndarray]:
+def complete_in_boxes(
+    completer, partials: np.ndarray, sizes: np.ndarray, clip=DEFAULT, sensor_origins=None
+) -> list[np.ndarray]:
     """Complete unit-frame partial scans, each with its box, every point inside its box's sphere.
 
     The step that the user-facing completions share (``complete_scan``; ``complete_scene``, so
@@ -400,13 +421,23 @@ def complete_in_boxes(completer, partials: np.ndarray, sizes: np.ndarray, clip=D
     partials : (B, K, 3) float32 unit-frame points (the box's object frame / half its diagonal).
     sizes : (B, 3) box sizes (length, width, height), metres (only their ratios matter).
     clip : passed to :meth:`Completer.complete`.
+    sensor_origins : (B, 3) the LiDAR in each scan's unit frame, passed on to models that read free space.
 
     Returns a list of B arrays (K_i, 3) float32, unit frame, norms <= 1.
     """
     kw = {"clip": clip}
+    if sensor_origins is not None and getattr(getattr(completer, "model", None), "uses_evidence", False):
+        kw["sensor_origins"] = sensor_origins
     if getattr(completer, "needs_box", False):
-        kw["extents"] = extents_from_sizes(np.asarray(sizes, dtype=np.float64).reshape(-1, 3))
+        kw["extents"] = unit_extents(np.asarray(sizes, dtype=np.float64).reshape(-1, 3))
     return [clamp_to_unit_sphere(c) for c in completer.complete(partials, **kw)]
+
+
+def with_observed(completion: np.ndarray, observed: np.ndarray) -> np.ndarray:
+    """The keep-observed output: (K + L, 3) float32, the predicted points (K, 3) then the observed points (the
+    model's input, repeats removed: L <= its rows), both unit frame (or both in any one frame)."""
+    obs = np.unique(np.asarray(observed, dtype=np.float32).reshape(-1, 3), axis=0)
+    return np.concatenate([np.asarray(completion, dtype=np.float32).reshape(-1, 3), obs])
 
 
 def complete_scan(

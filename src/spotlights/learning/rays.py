@@ -20,7 +20,6 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..geometry.boxes import unit_extents
-from ..geometry.boxes import unit_extents as extents_from_sizes  # noqa: F401  (the name the branches merging now use)
 from ..geometry.rig import Rig, RigSpec
 
 

@@ -15,18 +15,20 @@ from ..errors import ParameterError
 MODEL_REGISTRY: dict[str, str] = {
     "sanet": "spotlights.learning.models.sanet:SANet",
     "sanet-hit": "spotlights.learning.models.sanet_hit:HitSANet",
+    "sanet-local": "spotlights.learning.models.sanet_local:LocalSANet",
     "pcn": "spotlights.learning.models.pcn:PCN",
     "foldingnet": "spotlights.learning.models.foldingnet:FoldingNet",
     "topnet": "spotlights.learning.models.topnet:TopNet",
     "atlasnet": "spotlights.learning.models.atlasnet:AtlasNet",
 }
 MODEL_NAMES = tuple(MODEL_REGISTRY)
-SCHEDULE_FALLBACK = {"sanet-hit": "sanet"}
+SCHEDULE_FALLBACK = {"sanet-hit": "sanet", "sanet-local": "sanet-hit"}
 """A schedule without a section for a model uses the section of the model named here (a variant trains
 like its parent unless the schedule says otherwise)."""
 DISPLAY_NAMES = {
     "sanet": "SA-Net",
     "sanet-hit": "SA-Net (hit-aware)",
+    "sanet-local": "SA-Net (ray-local)",
     "pcn": "PCN",
     "foldingnet": "FoldingNet",
     "topnet": "TopNet",

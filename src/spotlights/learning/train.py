@@ -220,7 +220,7 @@ def _train_epoch(run: TrainingRun, loader: DataLoader, epoch: int, progress: boo
     for batch in bar:
         batch = to_device(batch, run.device)
         with autocast(run.precision, run.device):
-            out = run.net(batch["partial"])
+            out = run.net(*model.forward_inputs(batch, run.train_rays))
         loss, _ = model.loss(float_outputs(out), batch, run.global_step / run.total_steps)
         if not torch.isfinite(loss):
             raise SpotlightsError(

@@ -57,6 +57,7 @@ class TrainingRun:
     history: list = field(default_factory=list)
     best: dict = field(default_factory=dict)
     wall: float = 0.0
+    train_rays: object = None
 
     @property
     def last_path(self) -> Path:
@@ -221,9 +222,18 @@ def prepare_run(
         raise SpotlightsError(
             f"{out_dir / 'last.pt'}: was trained on rig {state.get('rig')}, the dataset serves {rig.to_dict()}"
         )
-    val_rays = None
+    val_rays = train_rays = None
     if rig is not None and rig.needs_box:
         val_rays = DirectionTable(rig, val_set.extents)  # each validation sample decodes with its model's box
+    if getattr(model_class(model_name), "uses_evidence", False):
+        if not (train_set.has_sensor_origin and val_set.has_sensor_origin):
+            raise InputFileError(
+                train_set.path,
+                f"has no sensor origin per sample (/samples/sensor_to_unit), which {model_name} needs; "
+                "rebuild the dataset with `spotlights dataset build`",
+            )
+        if rig.needs_box:
+            train_rays = DirectionTable(rig, train_set.extents)  # its forward looks along each sample's rays
 
     torch.manual_seed(tcfg.seed)
     np.random.seed(tcfg.seed % (2**32))
@@ -253,6 +263,7 @@ def prepare_run(
         scaler,
         model.param_counts(),
         best={"epoch": None, "select_by": tcfg.select_by, "value": float("inf")},
+        train_rays=train_rays,
     )
     if state is not None:
         restore_run(run, state, extended)

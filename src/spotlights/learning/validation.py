@@ -95,7 +95,7 @@ def validate(
     for batch in loader:
         batch = to_device(batch, device)
         with autocast(precision, device):
-            out = model(batch["partial"])
+            out = model(*model.forward_inputs(batch, rays))
         out = float_outputs(out)
         b = batch["partial"].shape[0]
         loss, _ = model.loss(out, batch, 1.0)

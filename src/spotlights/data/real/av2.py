@@ -16,6 +16,11 @@ frame (x forward, y left, z up), and so are the cuboids of the same
 translation is its centre; its rotation (scalar-first quaternion) maps the
 cuboid's x (length), y (width), z (height) axes into the ego frame.
 
+The LiDAR's optical centre (``Frame.sensor_origin``, for free-space reasoning) is the translation
+of ``up_lidar`` in ``LOG/calibration/egovehicle_SE3_sensor.feather`` (a sweep merges the roof's
+two lidars, ``up_lidar`` and ``down_lidar``, about 0.1 m apart; the upper one stands for both);
+all NaN when the log has no calibration file.
+
 ``sensor_to_world`` is the pose ``city_SE3_egovehicle`` at the sweep's
 timestamp (exact match, else the nearest pose within 50 ms, else ``None``), so
 boxes and points of different sweeps can be put in one city frame.
@@ -69,6 +74,8 @@ ANNOTATION_COLUMNS = (
 )
 POSE_COLUMNS = ("timestamp_ns", "qw", "qx", "qy", "qz", "tx_m", "ty_m", "tz_m")
 POSE_TOLERANCE_NS = 50_000_000
+CALIBRATION_COLUMNS = ("sensor_name", "tx_m", "ty_m", "tz_m")
+LIDAR_SENSOR = "up_lidar"
 
 
 def _read_feather(path: Path, columns, what: str):
@@ -137,6 +144,14 @@ class _Log:
         else:
             self.pose_ts = np.zeros(0, np.int64)
             self.poses = np.zeros((0, 4, 4))
+        self.lidar_origin = np.full(3, np.nan)
+        calib = path / "calibration" / "egovehicle_SE3_sensor.feather"
+        if calib.is_file():
+            cols = _read_feather(calib, CALIBRATION_COLUMNS, "sensor calibration")
+            rows = np.flatnonzero(cols["sensor_name"].astype(str) == LIDAR_SENSOR)
+            if len(rows) == 0:
+                raise InputFileError(calib, f"sensor calibration has no {LIDAR_SENSOR} row")
+            self.lidar_origin = np.array([cols[c][rows[0]] for c in ("tx_m", "ty_m", "tz_m")], dtype=np.float64)
 
     def pose_at(self, ts: int) -> np.ndarray | None:
         """city_SE3_egovehicle at ``ts`` (nearest within 50 ms), or None."""
@@ -215,4 +230,5 @@ class Av2Reader(SceneReader):
             sensor_to_world=lg.pose_at(ts),
             scan_path=str(scan_path),
             label_path=str(lg.ann_path),
+            sensor_origin=lg.lidar_origin.copy(),
         )

@@ -61,6 +61,10 @@ class Frame:
     sensor_to_world : (4, 4) float64 pose of the sensor frame in a fixed world
         frame (Argoverse 2 city frame, KITTI-360 world frame), or ``None``.
     scan_path, label_path : the files read (for provenance and ``real show``).
+    sensor_origin : (3,) float64 position of the LiDAR's optical centre in the sensor frame, metres;
+        ``None`` (the default) means the sensor frame's origin (KITTI, KITTI-360, nuScenes, generic:
+        the points are stored in the LiDAR's own frame). Argoverse 2 sweeps are in the ego frame: its
+        reader gives the ``up_lidar`` position from the log's calibration (all NaN when the log has none).
     """
 
     sequence: str
@@ -71,6 +75,11 @@ class Frame:
     sensor_to_world: np.ndarray | None = None
     scan_path: str = ""
     label_path: str = ""
+    sensor_origin: np.ndarray | None = None
+
+    def lidar_origin(self) -> np.ndarray:
+        """(3,) float64 the LiDAR's optical centre in the sensor frame (zeros when :attr:`sensor_origin` is None)."""
+        return np.zeros(3) if self.sensor_origin is None else np.asarray(self.sensor_origin, dtype=np.float64)
 
 
 class SceneReader(abc.ABC):

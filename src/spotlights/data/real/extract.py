@@ -108,6 +108,9 @@ class Observations:
     - ``unit_to_sensor`` (n, 4, 4) float64: homogeneous unit frame -> sensor frame
       (``p_sensor = M[:3,:3] @ q + M[:3,3]``).
     - ``sensor_to_world`` (n, 4, 4) float64: the scan's pose, all NaN when unknown.
+    - ``sensor_origin`` (n, 3) float64: the LiDAR's optical centre in the unit frame of the box
+      (``Frame.lidar_origin()`` mapped by the box's normalisation), for free-space reasoning; a NaN
+      row when unknown (an Argoverse 2 log without calibration, a file written before the field).
     - strings (lists of n): ``sequence``, ``frame_id``, ``track_id`` ("" = untracked),
       ``cls`` (one of CLASSES), ``label`` (the dataset's label), ``scan_path``, ``label_path``.
 
@@ -138,10 +141,13 @@ class Observations:
     meta: dict = field(default_factory=dict)
     raw_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
     raw_offsets: np.ndarray | None = None
+    sensor_origin: np.ndarray | None = None
 
     def __post_init__(self):
         if self.raw_offsets is None:
             self.raw_offsets = np.zeros(len(self) + 1, dtype=np.int64)
+        if self.sensor_origin is None:
+            self.sensor_origin = np.full((len(self), 3), np.nan)
 
     def __len__(self) -> int:
         return int(self.partial.shape[0])
@@ -260,6 +266,7 @@ def extract_frame(frame: Frame, config: ExtractConfig, skipped: Counter, skipped
                 box_rotation=box.rotation,
                 unit_to_sensor=norm.inverse_matrix,
                 sensor_to_world=pose,
+                sensor_origin=norm.to_unit(frame.lidar_origin()),
                 sequence=frame.sequence,
                 frame_id=frame.frame_id,
                 track_id=box.track_id,
@@ -332,6 +339,7 @@ def _stack(rows: list[dict], n_points: int, meta: dict) -> Observations:
         box_rotation=arr("box_rotation", (3, 3), np.float64),
         unit_to_sensor=arr("unit_to_sensor", (4, 4), np.float64),
         sensor_to_world=arr("sensor_to_world", (4, 4), np.float64),
+        sensor_origin=np.array([r.get("sensor_origin", (np.nan,) * 3) for r in rows], np.float64).reshape(n, 3),
         **{s: [str(r[s]) for r in rows] for s in _STRINGS},
         meta=meta,
         raw_points=np.concatenate(raw).astype(np.float32) if raw else np.zeros((0, 3), np.float32),
@@ -368,6 +376,7 @@ def write_observations(path: str | os.PathLike, obs: Observations) -> Path:
             raw_kw = dict(compression="gzip", compression_opts=4, shuffle=True) if len(obs.raw_points) else {}
             g.create_dataset("raw_points", data=np.asarray(obs.raw_points, np.float32).reshape(-1, 3), **raw_kw)
             g.create_dataset("raw_offsets", data=np.asarray(obs.raw_offsets, np.int64))
+            g.create_dataset("sensor_origin", data=np.asarray(obs.sensor_origin, np.float64).reshape(n, 3))
             st = h5py.string_dtype("utf-8")
             for name in _STRINGS:
                 g.create_dataset(name, data=np.array(getattr(obs, name), dtype=object), dtype=st, shape=(n,))
@@ -405,6 +414,8 @@ def read_observations(path: str | os.PathLike) -> Observations:
         if version >= 2 and "raw_points" in g and "raw_offsets" in g:
             arrays["raw_points"] = g["raw_points"][()]
             arrays["raw_offsets"] = g["raw_offsets"][()]
+        if "sensor_origin" in g:  # absent from files written before it: NaN rows (Observations)
+            arrays["sensor_origin"] = g["sensor_origin"][()]
         strings = {k: [s.decode("utf-8") if isinstance(s, bytes) else str(s) for s in g[k][()]] for k in _STRINGS}
         meta = dict(
             source_format=str(f.attrs.get("source_format", "")),
@@ -418,6 +429,10 @@ def read_observations(path: str | os.PathLike) -> Observations:
     n = arrays["partial"].shape[0]
     if any(len(arrays[k]) != n for k in _ARRAYS) or any(len(v) != n for v in strings.values()):
         raise InputFileError(path, "observation datasets have different lengths")
+    if "sensor_origin" in arrays and arrays["sensor_origin"].shape != (n, 3):
+        raise InputFileError(
+            path, f"observations/sensor_origin has shape {arrays['sensor_origin'].shape}, expected ({n}, 3)"
+        )
     if "raw_offsets" in arrays:
         off = arrays["raw_offsets"]
         if off.shape != (n + 1,) or off[0] != 0 or np.any(np.diff(off) < 0) or off[-1] != len(arrays["raw_points"]):

@@ -7,7 +7,7 @@ imports every model (or torch) at start-up.
 
 Config layout (every file is complete; a user YAML overrides any subset)::
 
-    model: {name: sanet, args: {...}}      # constructor arguments of the class
+    model: {name: sanet, args: {...}, mirror: false}   # constructor arguments; mirror: y -> -y copies of the input
     data:  {rig, max_views, val_max_views, num_workers, partials_in_memory}
     train: {epochs, batch_size, lr, weight_decay, lr_schedule, grad_clip, seed}
 """
@@ -109,7 +109,9 @@ def load_schedule(schedule, name: str) -> dict:
     for sec in ("default", *MODEL_NAMES):
         if data.get(sec) is not None:
             check_keys(data[sec], p, None if sec == "default" else sec)
-    section = name if name in data or name not in SCHEDULE_FALLBACK else SCHEDULE_FALLBACK[name]
+    section = name
+    while section not in data and section in SCHEDULE_FALLBACK:  # sanet-local -> sanet-hit -> sanet
+        section = SCHEDULE_FALLBACK[section]
     return deep_merge(data.get("default") or {}, data.get(section) or {})
 
 
@@ -162,11 +164,20 @@ def build_model(config: dict, rig=None):
     cls = model_class(name)
     args = dict(config["model"].get("args") or {})
     check_keys({"model": {"name": name, "args": args}}, "config", name)
+    mirror = config["model"].get("mirror", False) or False
+    if not isinstance(mirror, bool):
+        raise ParameterError(f"model.mirror must be true or false, got {mirror!r}")
     try:
         if cls.target == "depths":
             if rig is None:
                 raise ParameterError(f"model {name!r} needs a rig")
-            return cls(rig=rig_spec(rig), **args)
-        return cls(**args)
+            model = cls(rig=rig_spec(rig), **args)
+        else:
+            model = cls(**args)
     except (TypeError, ValueError) as exc:
         raise ParameterError(f"invalid arguments for model {name!r} in config: {exc}") from None
+    if mirror:  # every model's encoder input: the points and their mirror image (y -> -y)
+        if not hasattr(getattr(model, "encoder", None), "mirror"):
+            raise ParameterError(f"model {name!r} has no encoder that takes model.mirror")
+        model.encoder.mirror = True
+    return model

@@ -110,8 +110,14 @@ class PCNEncoder(nn.Module):
     ``widths`` = (128, 256, 512) are PCN's; they are parameters only so that tests can
     use a narrower encoder.
 
+    ``mirror`` (attribute, default False; the config's ``model.mirror``, set by ``build_model``):
+    encode the points together with their mirror image across the x-z plane of the box frame
+    (``y -> -y``; vehicles are left-right symmetric), 2K points; no parameter changes.
+
     forward: (B, K, 3) float32 unit-frame points (any K >= 1) -> (B, code_size) code.
     """
+
+    mirror: bool = False
 
     def __init__(self, code_size: int = 1024, widths: Sequence[int] = (128, 256, 512)):
         super().__init__()
@@ -121,10 +127,17 @@ class PCNEncoder(nn.Module):
         self.second = MLP([2 * w2, w3, self.code_size])
 
     def forward(self, points: torch.Tensor) -> torch.Tensor:
+        if self.mirror:
+            points = torch.cat([points, mirror_y(points)], dim=1)
         f = self.first(points)  # (B, K, 256)
         g = f.amax(dim=1, keepdim=True)  # (B, 1, 256)
         f = torch.cat([f, g.expand_as(f)], dim=-1)  # (B, K, 512)
         return self.second(f).amax(dim=1)  # (B, code)
+
+
+def mirror_y(points: torch.Tensor) -> torch.Tensor:
+    """(..., 3) points mirrored across the x-z plane of the box frame: ``(x, y, z) -> (x, -y, z)``."""
+    return points * points.new_tensor([1.0, -1.0, 1.0])
 
 
 def count_parameters(module: nn.Module) -> int:
@@ -157,6 +170,15 @@ class CompletionModel(nn.Module):
 
     needs_box: bool = False
     """True when decoding needs each sample's box (SA-Net on a box-targeted rig): pass ``directions``."""
+
+    uses_evidence: bool = False
+    """True when :meth:`forward` also takes each scan's ray directions and sensor origin (``sanet-local``)."""
+
+    def forward_inputs(self, batch: dict, rays=None) -> tuple:
+        """The positional arguments of :meth:`forward` for a training or validation batch: ``(partial,)``
+        (models with evidence add each scan's ray directions, from ``rays`` (a
+        :class:`~spotlights.learning.rays.DirectionTable` or None), and its sensor origin)."""
+        return (batch["partial"],)
 
     def outputs_to_points(
         self, outputs: dict[str, torch.Tensor], clip=CLIP_DEFAULT, directions: torch.Tensor | None = None

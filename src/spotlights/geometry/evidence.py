@@ -1,0 +1,254 @@
+"""Per-ray evidence of a partial scan: the observed points near each ray, and the free space it crosses.
+
+No learning (numpy only). The ray-local SA-Net (``sanet-local``, :mod:`spotlights.learning.evidence`
+batches the same definitions in torch) gives every ray of a rig what the scan says along its line.
+Everything is in the unit frame of the object's box; a ray is ``P = o + 2 t d`` (``o`` on the unit
+sphere, ``d`` a unit direction, ``t`` the rig's normalised depth, ``0 <= t <= h = -o . d``, half
+the ray's chord through the unit sphere).
+
+Angular grids
+-------------
+Both kinds of evidence look the scan up in an *angular grid* around a centre of projection ``c``
+(a rig viewpoint, or the LiDAR): with the frame ``(u, v, w)`` of :func:`spotlights.geometry.lattice.viewpoint_frames`
+for ``c / |c|`` (``w`` points from ``c`` toward the box centre), a direction ``x`` maps to its
+stereographic coordinates ``s = (x.u, x.v) / (1 + x.w)`` (conformal, finite for every direction
+but ``-w``), and ``s`` to the cell ``floor((s + a) / (2a) * G)`` of a ``G x G`` grid over
+``[-a, a]^2`` (directions outside it fall in no cell). A cell keeps, of the scan points whose
+direction from ``c`` falls in it, the one nearest to ``c`` (the first surface seen in that
+direction; ties: the lower point index).
+
+Near-ray evidence (:func:`near_ray_evidence`)
+---------------------------------------------
+Viewpoint ``i``'s grid has ``a`` = the largest stereographic radius of the rig's rays (over every
+viewpoint; ``grid_extent``), ``G = near_cells``. A ray of viewpoint ``i`` with direction ``d``
+looks at the 2 x 2 cells nearest to ``s(d)`` (the cells ``floor(q - 1/2) + {0, 1}`` per axis,
+``q`` its grid coordinate): up to 4 *candidates*, each the point of its cell nearest to ``o_i``.
+A candidate ``x`` has depth ``t = (x - o).d / 2`` and distance to the line ``delta = |x - o - 2 t d|``;
+it counts when ``t > 0`` and ``delta <= radius``. Returned per ray: the candidates sorted by
+``delta`` (counted ones first; ``depth``, ``distance``, ``valid`` (R, 4)) and ``count`` (R,) in 0..4.
+This is an angular-grid stand-in for "the k points nearest to the line": exact for the points it
+returns, but a point hidden behind a nearer one of the same cell (seen from ``o_i``) is not
+returned (it is occluded from there anyway).
+
+Free space (:func:`carved_depths`)
+----------------------------------
+The segment from the LiDAR at ``S`` to each observed point is empty. The LiDAR's grid has
+``G = carve_cells`` over the stereographic disc of the unit sphere seen from ``S``
+(``a = tan(alpha / 2)``, ``sin alpha = 1 / |S|``; ``a = 1`` when ``|S| <= 1``). A place ``y`` is
+*carved* (observed empty) when its direction from ``S`` falls in a cell that holds a point and
+``|y - S| < rho_cell - margin``, ``rho_cell`` the distance from ``S`` to that cell's nearest
+point. Each ray is sampled at ``T = carve_samples`` depths, the centres of ``T`` equal bins of
+``[0, h]``: ``t_j = (j + 1/2) h / T``; bin ``j`` is carved when its centre is. A NaN ``S``
+(unknown sensor) carves nothing. :func:`free_space_decode` uses the bins at decoding: a predicted
+surface inside a carved bin moves to the start of the next bin that is not carved, or is
+dropped when every bin after it is carved.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .lattice import viewpoint_frames
+
+NEAR_CANDIDATES = 4
+"""Candidates per ray: the 2 x 2 cells around the ray's direction in its viewpoint's grid."""
+
+
+@dataclass(frozen=True)
+class EvidenceParams:
+    """Parameters of the per-ray evidence (see the module docstring).
+
+    near_cells : G of each viewpoint's angular grid (default 32). radius : largest distance of a
+    counted point to the ray's line, unit frame (0.05, about 13 cm on a car). carve_cells : G of the
+    LiDAR's grid (32). carve_samples : T depth bins per ray (8). margin : unit-frame distance in front
+    of an observed point that is not carved (0.02: LiDAR noise).
+    """
+
+    near_cells: int = 32
+    radius: float = 0.05
+    carve_cells: int = 32
+    carve_samples: int = 8
+    margin: float = 0.02
+
+    def __post_init__(self):
+        for name in ("near_cells", "carve_cells", "carve_samples"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if not self.radius > 0 or not self.margin >= 0:
+            raise ValueError(f"radius must be > 0 and margin >= 0, got {self.radius}, {self.margin}")
+
+
+def stereo_frames(centres: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) float64 frames (rows u, v, w; ``w = -c / |c|``) of centres of projection ``c`` (..., 3).
+
+    The rig's own viewpoint frames (:func:`~spotlights.geometry.lattice.viewpoint_frames` of ``c / |c|``)."""
+    c = np.asarray(centres, dtype=np.float64)
+    flat = c.reshape(-1, 3)
+    n = np.linalg.norm(flat, axis=1, keepdims=True)
+    return viewpoint_frames(flat / np.where(n > 0, n, 1.0)).reshape(c.shape[:-1] + (3, 3))
+
+
+def stereo_coords(directions: np.ndarray, frames: np.ndarray) -> np.ndarray:
+    """(..., 2) float64 stereographic coordinates ``(x.u, x.v) / (1 + x.w)`` of unit directions (..., 3)
+    in ``frames`` (..., 3, 3) (broadcast); ``inf`` for the direction ``-w``."""
+    x = np.asarray(directions, dtype=np.float64)
+    f = np.asarray(frames, dtype=np.float64)
+    comp = np.einsum("...j,...ij->...i", x, f)
+    den = 1.0 + comp[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where((den > 1e-12)[..., None], comp[..., :2] / den[..., None], np.inf)
+
+
+def grid_extent(origins: np.ndarray, directions: np.ndarray) -> float:
+    """``a`` of the viewpoint grids: the largest stereographic radius of any ray (origins (R, 3), directions
+    (..., R, 3)) in its origin's frame, at least 1e-6."""
+    s = stereo_coords(directions, stereo_frames(origins))
+    return float(max(np.max(np.abs(s)), 1e-6))
+
+
+def sensor_extent(sensor: np.ndarray) -> float:
+    """``a`` of the LiDAR's grid: the stereographic radius ``tan(alpha / 2)`` of the unit sphere seen
+    from ``sensor`` (3,) (``sin alpha = 1 / |S|``), 1 when the sensor is inside the sphere."""
+    r = float(np.linalg.norm(sensor))
+    if not r > 1.0:
+        return 1.0
+    return float(np.tan(0.5 * np.arcsin(1.0 / r)))
+
+
+def cell_of(s: np.ndarray, extent: float, cells: int) -> tuple[np.ndarray, np.ndarray]:
+    """Cells of stereographic coordinates ``s`` (..., 2) in a ``cells x cells`` grid over ``[-extent, extent]^2``:
+    (..., 2) int64 indices and an (...) bool mask of the coordinates inside the grid."""
+    q = (np.asarray(s, dtype=np.float64) + extent) / (2.0 * extent) * cells
+    with np.errstate(invalid="ignore"):
+        inside = np.all((q >= 0) & (q < cells), axis=-1)
+    idx = np.floor(np.where(np.isfinite(q), q, -1.0)).astype(np.int64)
+    return idx, inside
+
+
+def nearest_per_cell(keys: np.ndarray, ranges: np.ndarray, n_keys: int) -> np.ndarray:
+    """(n_keys,) int64 index of the entry nearest (smallest ``ranges``, ties: lowest index) among the
+    entries of each key; -1 for keys without entries. ``keys`` (E,) int64 in [0, n_keys) or -1 (no cell)."""
+    out = np.full(n_keys, -1, dtype=np.int64)
+    ok = np.flatnonzero(keys >= 0)
+    if len(ok) == 0:
+        return out
+    order = ok[np.lexsort((ok, ranges[ok], keys[ok]))]
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = keys[order][1:] != keys[order][:-1]
+    out[keys[order][first]] = order[first]
+    return out
+
+
+def near_ray_evidence(
+    points: np.ndarray, origins: np.ndarray, directions: np.ndarray, n_secondary: int, params: EvidenceParams
+) -> dict:
+    """Near-ray evidence of one scan (module docstring), vectorised over rays.
+
+    Parameters
+    ----------
+    points : (K, 3) observed points, unit frame. origins : (R, 3) ray origins (viewpoint ``r // n_secondary``),
+    directions : (R, 3) unit directions, unit frame. n_secondary : M, rays per viewpoint.
+
+    Returns ``depth`` (R, 4) float64 normalised depths, ``distance`` (R, 4) float64 unit-frame distances to
+    the line, ``valid`` (R, 4) bool (counted candidates first, each group by increasing distance; not counted
+    entries hold their values or 0 without a candidate), ``count`` (R,) int64.
+    """
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+    d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    r, m, g = len(o), int(n_secondary), int(params.near_cells)
+    views = o[::m]
+    frames = stereo_frames(views)  # (N, 3, 3)
+    a = grid_extent(o, d)
+    rel = p[None] - views[:, None]  # (N, K, 3)
+    rho = np.linalg.norm(rel, axis=-1)
+    u = rel / np.where(rho > 0, rho, 1.0)[..., None]
+    cell, inside = cell_of(stereo_coords(u, frames[:, None]), a, g)
+    n = len(views)
+    keys = np.where(inside, (np.arange(n)[:, None] * g + cell[..., 0]) * g + cell[..., 1], -1).reshape(-1)
+    flat = nearest_per_cell(keys, rho.reshape(-1), n * g * g)  # index into the (N, K) pairs
+    first = np.where(flat >= 0, flat % max(len(p), 1), -1)  # (N * g * g,) point index or -1
+    view = np.arange(r) // m
+    q = (stereo_coords(d, frames[view]) + a) / (2.0 * a) * g
+    base = np.floor(q - 0.5).astype(np.int64)
+    cand = np.full((r, NEAR_CANDIDATES), -1, dtype=np.int64)
+    for j, (dx, dy) in enumerate(((0, 0), (0, 1), (1, 0), (1, 1))):  # the 4 cells, not the rays
+        cx, cy = base[:, 0] + dx, base[:, 1] + dy
+        ok = (cx >= 0) & (cx < g) & (cy >= 0) & (cy < g)
+        key = (view * g + np.clip(cx, 0, g - 1)) * g + np.clip(cy, 0, g - 1)
+        cand[:, j] = np.where(ok, first[key], -1)
+    x = p[np.maximum(cand, 0)] if len(p) else np.zeros((r, NEAR_CANDIDATES, 3))
+    rel = x - o[:, None]
+    t = 0.5 * np.einsum("rkj,rj->rk", rel, d)
+    dist = np.linalg.norm(rel - (2.0 * t)[..., None] * d[:, None], axis=-1)
+    has = cand >= 0
+    valid = has & (t > 0) & (dist <= params.radius)
+    t, dist = np.where(has, t, 0.0), np.where(has, dist, 0.0)
+    order = np.lexsort((np.arange(NEAR_CANDIDATES)[None].repeat(r, 0), dist, ~valid), axis=-1)
+    take = lambda a_: np.take_along_axis(a_, order, axis=-1)  # noqa: E731
+    return {"depth": take(t), "distance": take(dist), "valid": take(valid), "count": valid.sum(-1).astype(np.int64)}
+
+
+def carved_depths(
+    points: np.ndarray, origins: np.ndarray, directions: np.ndarray, sensor: np.ndarray, params: EvidenceParams
+) -> dict:
+    """Free-space evidence of one scan (module docstring), vectorised over rays.
+
+    Parameters
+    ----------
+    points : (K, 3) observed points, unit frame. origins, directions : (R, 3) rays, unit frame.
+    sensor : (3,) the LiDAR's optical centre, unit frame (NaN: unknown, nothing is carved).
+
+    Returns ``carved`` (R, T) bool (bin j of ray r observed empty), ``sample_depth`` (R, T) float64 the
+    bins' centre depths ``(j + 1/2) h / T`` and ``half_chord`` (R,) float64 ``h``.
+    """
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+    d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    s = np.asarray(sensor, dtype=np.float64).reshape(3)
+    n_t, g = int(params.carve_samples), int(params.carve_cells)
+    h = np.clip(-np.einsum("rj,rj->r", o, d), 0.0, None)
+    depth = (np.arange(n_t) + 0.5)[None] / n_t * h[:, None]
+    carved = np.zeros(depth.shape, dtype=bool)
+    if not np.all(np.isfinite(s)) or len(p) == 0:
+        return {"carved": carved, "sample_depth": depth, "half_chord": h}
+    frame = stereo_frames(s)
+    a = sensor_extent(s)
+    rel = p - s
+    rho = np.linalg.norm(rel, axis=-1)
+    cell, inside = cell_of(stereo_coords(rel / np.where(rho > 0, rho, 1.0)[:, None], frame), a, g)
+    keys = np.where(inside, cell[:, 0] * g + cell[:, 1], -1)
+    first = nearest_per_cell(keys, rho, g * g)
+    limit = np.where(first >= 0, rho[np.maximum(first, 0)], -np.inf)  # (g*g,) nearest range per cell
+    y = o[:, None] + 2.0 * depth[..., None] * d[:, None]  # (R, T, 3)
+    rel = y - s
+    dist = np.linalg.norm(rel, axis=-1)
+    cy, iny = cell_of(stereo_coords(rel / np.where(dist > 0, dist, 1.0)[..., None], frame), a, g)
+    key = np.clip(cy[..., 0], 0, g - 1) * g + np.clip(cy[..., 1], 0, g - 1)
+    carved = iny & (dist < limit[key] - params.margin)
+    return {"carved": carved, "sample_depth": depth, "half_chord": h}
+
+
+def free_space_decode(depth: np.ndarray, keep: np.ndarray, carved: np.ndarray, half_chord: np.ndarray):
+    """Move predicted surfaces out of observed free space (module docstring), vectorised.
+
+    depth : (..., R) predicted normalised depths; keep : (..., R) bool kept rays; carved : (..., R, T) bool;
+    half_chord : (..., R) ``h``. A kept ray whose depth (clamped to [0, h]) lies in a carved bin
+    ``j = min(floor(depth / h * T), T - 1)`` moves to ``i h / T``, ``i`` the first bin >= j not carved, or
+    is dropped when there is none. Returns (depth, keep) with the same shapes.
+    """
+    c = np.asarray(carved, dtype=bool)
+    n_t = c.shape[-1]
+    h = np.asarray(half_chord, dtype=np.float64)
+    dd = np.clip(np.asarray(depth, dtype=np.float64), 0.0, h)
+    j = np.minimum(np.floor(np.where(h > 0, dd / np.where(h > 0, h, 1.0), 0.0) * n_t), n_t - 1).astype(np.int64)
+    # next free bin at or after each bin: n_t when none
+    idx = np.where(~c, np.arange(n_t), n_t)
+    nxt = np.minimum.accumulate(idx[..., ::-1], axis=-1)[..., ::-1]
+    i = np.take_along_axis(nxt, j[..., None], axis=-1)[..., 0]
+    inside = np.take_along_axis(c, j[..., None], axis=-1)[..., 0]
+    new_depth = np.where(inside, i * h / n_t, dd)
+    new_keep = np.asarray(keep, dtype=bool) & ~(inside & (i >= n_t))
+    return new_depth, new_keep

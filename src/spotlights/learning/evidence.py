@@ -1,0 +1,197 @@
+"""Per-ray evidence for a batch of scans, in torch: the definitions of :mod:`spotlights.geometry.evidence`.
+
+:func:`ray_evidence` computes, for B scans at once and without a Python loop over rays or scans,
+the near-ray candidates and the carved depth bins of every ray of a rig (the geometry layer's
+:func:`~spotlights.geometry.evidence.near_ray_evidence` and
+:func:`~spotlights.geometry.evidence.carved_depths` for one scan; tests check all three against a
+brute-force loop). Angular grids are dense tensors filled with ``scatter_reduce`` (B x N x G x G
+cells for the viewpoints, B x G x G for the LiDAR). No gradients flow through the evidence.
+:func:`free_space_decode` is the geometry layer's decoding constraint on tensors.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..geometry.evidence import NEAR_CANDIDATES, EvidenceParams, sensor_extent, stereo_frames
+
+FEATURES_PER_CANDIDATE = 3
+"""(depth, distance / radius, valid) of each near-ray candidate."""
+
+
+def feature_count(params: EvidenceParams) -> int:
+    """Per-ray features of :func:`evidence_features`: 4 candidates x 3, the count, T carved bins."""
+    return NEAR_CANDIDATES * FEATURES_PER_CANDIDATE + 1 + int(params.carve_samples)
+
+
+def _stereo_of(comp: torch.Tensor, length: torch.Tensor) -> torch.Tensor:
+    """Stereographic coordinates (..., 2) of vectors whose components in a frame are comp (..., 3) and whose
+    lengths are ``length`` (...): ``(x.u, x.v) / (|x| + x.w)`` (the direction's, scale-free); inf for ``-w``."""
+    den = (length + comp[..., 2]).unsqueeze(-1)
+    ok = den > 1e-12 * length.unsqueeze(-1).clamp(min=1e-30)
+    return torch.where(
+        ok, comp[..., :2] / torch.where(ok, den, torch.ones_like(den)), torch.full_like(den, float("inf"))
+    )
+
+
+def _cells(s: torch.Tensor, extent: torch.Tensor, cells: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Grid cells (..., 2) int64 and inside mask (...) of stereographic coordinates s (..., 2); extent broadcasts
+    against s[..., 0]."""
+    q = (s + extent.unsqueeze(-1)) * (cells / (2.0 * extent.unsqueeze(-1)))
+    inside = ((q >= 0) & (q < cells)).all(-1)
+    q = torch.where(inside.unsqueeze(-1), q, torch.full_like(q, -1.0))
+    return torch.floor(q).long(), inside
+
+
+def _nearest_per_cell(keys: torch.Tensor, ranges: torch.Tensor, n_keys: int) -> torch.Tensor:
+    """(n_keys,) int64 entry index of the smallest range per key (ties: the lowest index), -1 if none.
+    keys (E,) int64, -1 = no cell; ranges (E,)."""
+    ok = keys >= 0
+    k = torch.where(ok, keys, torch.zeros_like(keys))
+    inf = torch.full((n_keys,), float("inf"), dtype=ranges.dtype, device=ranges.device)
+    best = inf.scatter_reduce(0, k, torch.where(ok, ranges, torch.full_like(ranges, float("inf"))), "amin")
+    e = torch.arange(len(keys), device=keys.device)
+    win = ok & (ranges == best[k])
+    big = torch.full((n_keys,), len(keys), dtype=torch.int64, device=keys.device)
+    first = big.scatter_reduce(0, k, torch.where(win, e, torch.full_like(e, len(keys))), "amin")
+    return torch.where(first < len(keys), first, torch.full_like(first, -1))
+
+
+@torch.no_grad()
+def ray_evidence(
+    points: torch.Tensor,
+    origins: torch.Tensor,
+    directions: torch.Tensor,
+    sensor: torch.Tensor | None,
+    n_secondary: int,
+    params: EvidenceParams,
+) -> dict:
+    """Near-ray and free-space evidence of B scans (definitions: :mod:`spotlights.geometry.evidence`).
+
+    Parameters
+    ----------
+    points : (B, K, 3) observed points, unit frame. origins : (R, 3) ray origins (viewpoint ``r // M``).
+    directions : (B, R, 3) or (R, 3) unit ray directions, unit frame. sensor : (B, 3) LiDAR origins,
+        unit frame (NaN rows, or None: nothing carved). n_secondary : M, rays per viewpoint.
+
+    Returns (dtype of ``points``, on its device): ``depth``, ``distance`` (B, R, 4), ``valid`` (B, R, 4) bool,
+    ``count`` (B, R) int64, ``carved`` (B, R, T) bool, ``half_chord`` (B, R).
+    """
+    dev, dt = points.device, points.dtype
+    b, k = points.shape[0], points.shape[1]
+    o = origins.to(dt)
+    r, m = o.shape[0], int(n_secondary)
+    d = directions.to(dt).expand(b, r, 3)
+    n = r // m
+    g = int(params.near_cells)
+    views = o[::m]  # (N, 3)
+    ft = torch.from_numpy(stereo_frames(views.detach().cpu().double().numpy())).to(dev, dt).transpose(1, 2)  # (N, 3, 3)
+    comp = torch.matmul(d.reshape(b, n, m, 3), ft).reshape(b, r, 3)  # ray directions in their viewpoint's frame
+    s_ray = _stereo_of(comp, torch.ones_like(comp[..., 0]))  # (B, R, 2)
+    extent = s_ray.abs().flatten(1).amax(1).clamp(min=1e-6)  # (B,)
+    rel = points[:, None] - views[None, :, None]  # (B, N, K, 3)
+    rho = rel.norm(dim=-1)
+    cell, inside = _cells(_stereo_of(torch.matmul(rel, ft), rho), extent[:, None, None], g)
+    bn = torch.arange(b * n, device=dev).reshape(b, n, 1)
+    keys = torch.where(inside, (bn * g + cell[..., 0]) * g + cell[..., 1], -1).reshape(-1)
+    flat = _nearest_per_cell(keys, rho.reshape(-1), b * n * g * g)
+    first = torch.where(flat >= 0, flat % max(k, 1) + (flat // (n * k)) * k, -1)  # index into (B*K) or -1
+    q = (s_ray + extent[:, None, None]) * (g / (2.0 * extent[:, None, None]))
+    base = torch.floor(q - 0.5).long()
+    row = (torch.arange(b, device=dev)[:, None] * n + torch.arange(r, device=dev)[None] // m) * g
+    cands = []
+    for dx, dy in ((0, 0), (0, 1), (1, 0), (1, 1)):  # the 4 cells, not the rays
+        cx, cy = base[..., 0] + dx, base[..., 1] + dy
+        ok = (cx >= 0) & (cx < g) & (cy >= 0) & (cy < g)
+        cands.append(torch.where(ok, first[(row + cx.clamp(0, g - 1)) * g + cy.clamp(0, g - 1)], -1))
+    cand = torch.stack(cands, -1)  # (B, R, 4) into (B*K)
+    has = cand >= 0
+    if k:
+        x = points.reshape(-1, 3)[cand.clamp(min=0)]  # (B, R, 4, 3)
+    else:
+        x = torch.zeros(b, r, NEAR_CANDIDATES, 3, dtype=dt, device=dev)
+    relx = x - o[None, :, None]
+    t = 0.5 * (relx * d.unsqueeze(2)).sum(-1)
+    dist = (relx - (2.0 * t).unsqueeze(-1) * d.unsqueeze(2)).norm(dim=-1)
+    valid = has & (t > 0) & (dist <= params.radius)
+    t = torch.where(has, t, 0.0)
+    dist = torch.where(has, dist, 0.0)
+    key = dist + (~valid).to(dt) * (4.0 + 4.0 * float(params.radius))  # distances are < 4 (inside the sphere)
+    order = torch.sort(key, dim=-1, stable=True).indices
+    out = {
+        "depth": t.gather(-1, order),
+        "distance": dist.gather(-1, order),
+        "valid": valid.gather(-1, order),
+        "count": valid.sum(-1),
+    }
+    out.update(_carve(points, o, d, sensor, params))
+    return out
+
+
+def _carve(points, o, d, sensor, params: EvidenceParams) -> dict:
+    """The carved bins of every ray of B scans (see :func:`ray_evidence`)."""
+    dev, dt = points.device, points.dtype
+    b, k = points.shape[0], points.shape[1]
+    n_t, g = int(params.carve_samples), int(params.carve_cells)
+    h = (-(o[None] * d).sum(-1)).clamp(min=0.0)  # (B, R)
+    depth = (torch.arange(n_t, device=dev, dtype=dt) + 0.5) / n_t * h.unsqueeze(-1)  # (B, R, T)
+    if sensor is None or k == 0:
+        return {"carved": torch.zeros(depth.shape, dtype=torch.bool, device=dev), "half_chord": h}
+    s_np = sensor.detach().cpu().double().numpy().reshape(b, 3)
+    known_np = np.all(np.isfinite(s_np), axis=1)
+    if not known_np.any():
+        return {"carved": torch.zeros(depth.shape, dtype=torch.bool, device=dev), "half_chord": h}
+    s_safe = np.where(known_np[:, None], s_np, 2.0)  # a place outside the sphere: its rows are masked out
+    ft = torch.from_numpy(stereo_frames(s_safe)).to(dev, dt).transpose(1, 2)  # (B, 3, 3)
+    extent = torch.tensor([sensor_extent(s) for s in s_safe], dtype=dt, device=dev)
+    known = torch.from_numpy(known_np).to(dev)
+    s = torch.from_numpy(s_safe).to(dev, dt)
+    rel = points - s[:, None]
+    rho = rel.norm(dim=-1)  # (B, K)
+    cell, inside = _cells(_stereo_of(torch.bmm(rel, ft), rho), extent[:, None], g)
+    keys = torch.where(
+        inside & known[:, None], (torch.arange(b, device=dev)[:, None] * g + cell[..., 0]) * g + cell[..., 1], -1
+    )
+    flat = _nearest_per_cell(keys.reshape(-1), rho.reshape(-1), b * g * g)
+    limit = torch.where(flat >= 0, rho.reshape(-1)[flat.clamp(min=0)], -float("inf"))  # nearest range per cell
+    # y = o + 2 t d, seen from S: y - S = (o - S) + 2 t d, in the sensor's frame A + 2 t Bv
+    os_ = o[None] - s[:, None]  # (B, R, 3)
+    a_ = torch.bmm(os_, ft)
+    bv = torch.bmm(d.contiguous(), ft)
+    two_t = 2.0 * depth  # (B, R, T)
+    comp = a_.unsqueeze(2) + two_t.unsqueeze(-1) * bv.unsqueeze(2)  # (B, R, T, 3)
+    dist = (
+        ((os_ * os_).sum(-1).unsqueeze(-1) + two_t * (2.0 * (os_ * d).sum(-1).unsqueeze(-1) + two_t))
+        .clamp(min=0)
+        .sqrt()
+    )
+    cy, iny = _cells(_stereo_of(comp, dist), extent[:, None, None], g)
+    key = (torch.arange(b, device=dev)[:, None, None] * g + cy[..., 0].clamp(min=0)) * g + cy[..., 1].clamp(min=0)
+    carved = iny & (dist < limit[key] - params.margin) & known[:, None, None]
+    return {"carved": carved, "half_chord": h}
+
+
+def evidence_features(ev: dict, params: EvidenceParams) -> torch.Tensor:
+    """(B, R, F) float features of :func:`ray_evidence` (F = :func:`feature_count`): per candidate (depth,
+    distance / radius, valid), the count / 4, the T carved bins as 0 / 1."""
+    v = ev["valid"].to(ev["depth"].dtype)
+    cand = torch.stack([ev["depth"] * v, ev["distance"] / float(params.radius) * v, v], -1).flatten(-2)
+    count = (ev["count"].to(cand.dtype) / NEAR_CANDIDATES).unsqueeze(-1)
+    return torch.cat([cand, count, ev["carved"].to(cand.dtype)], -1)
+
+
+def free_space_decode(depth: torch.Tensor, keep: torch.Tensor, carved: torch.Tensor, half_chord: torch.Tensor):
+    """:func:`spotlights.geometry.evidence.free_space_decode` on tensors: depth, keep, half_chord (B, R),
+    carved (B, R, T) bool -> (depth, keep) (B, R)."""
+    n_t = carved.shape[-1]
+    h = half_chord.to(depth.dtype)
+    dd = torch.minimum(depth.clamp(min=0.0), h)
+    frac = torch.where(h > 0, dd / torch.where(h > 0, h, torch.ones_like(h)), torch.zeros_like(h))
+    j = torch.floor(frac * n_t).long().clamp(max=n_t - 1)
+    idx = torch.where(~carved, torch.arange(n_t, device=depth.device), torch.full_like(carved, n_t, dtype=torch.long))
+    nxt = torch.flip(torch.cummin(torch.flip(idx, [-1]), -1).values, [-1])
+    i = nxt.gather(-1, j.unsqueeze(-1)).squeeze(-1)
+    inside = carved.gather(-1, j.unsqueeze(-1)).squeeze(-1)
+    new_depth = torch.where(inside, i.to(dd.dtype) * h / n_t, dd)
+    return new_depth, keep & ~(inside & (i >= n_t))

@@ -1,0 +1,250 @@
+"""Per-ray evidence (geometry/evidence.py, learning/evidence.py) against brute-force loops and hand computations,
+and the ray-local SA-Net's free-space decoding."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from spotlights.geometry.boxes import unit_extents
+from spotlights.geometry.evidence import (
+    EvidenceParams,
+    carved_depths,
+    free_space_decode,
+    near_ray_evidence,
+    sensor_extent,
+    stereo_frames,
+)
+from spotlights.geometry.rig import RigSpec
+from spotlights.learning import evidence as tev
+
+PARAMS = EvidenceParams(near_cells=6, radius=0.3, carve_cells=5, carve_samples=6, margin=0.02)
+
+
+def tiny_scan(seed=0, k=12):
+    """A small box rig (4 viewpoints x 8 rays aimed at a car-like box) and points on two of its faces."""
+    spec = RigSpec.from_name("box-4x8-ellipsoid-s1")
+    e = unit_extents([4.6, 1.9, 1.6])
+    rig = spec.for_box(e)
+    rng = np.random.default_rng(seed)
+    p = rng.uniform(-1, 1, (k, 3)) * e
+    p[: k // 2, 0] = e[0]
+    p[k // 2 :, 1] = e[1]
+    return np.array(rig.origins), np.array(rig.directions), p, spec.n_secondary
+
+
+def brute_cell(x, centre, extent, cells):
+    """Grid cell of the direction from ``centre`` to ``x``, by the definition, one vector at a time."""
+    u, v, w = stereo_frames(np.asarray(centre, dtype=np.float64))
+    dvec = np.asarray(x, dtype=np.float64) - centre
+    dvec = dvec / np.linalg.norm(dvec)
+    s = np.array([dvec @ u, dvec @ v]) / (1.0 + dvec @ w)
+    q = (s + extent) / (2 * extent) * cells
+    if not (0 <= q[0] < cells and 0 <= q[1] < cells):
+        return None
+    return int(math.floor(q[0])), int(math.floor(q[1]))
+
+
+def brute_near(points, origins, directions, m, params):
+    """The near-ray evidence by loops over rays and points (the module docstring's definition)."""
+    g = params.near_cells
+    extent = 0.0
+    for o, d in zip(origins, directions):  # the largest stereographic radius of any ray
+        u, v, w = stereo_frames(o)
+        extent = max(extent, abs(d @ u) / (1 + d @ w), abs(d @ v) / (1 + d @ w))
+    out = []
+    for r, (o, d) in enumerate(zip(origins, directions)):
+        view = origins[(r // m) * m]
+        cells = {}
+        for j, x in enumerate(points):
+            c = brute_cell(x, view, extent, g)
+            if c is None:
+                continue
+            rho = np.linalg.norm(x - view)
+            if c not in cells or rho < cells[c][0]:
+                cells[c] = (rho, j)
+        u, v, w = stereo_frames(view)
+        s = np.array([d @ u, d @ v]) / (1.0 + d @ w)
+        q = (s + extent) / (2 * extent) * g
+        bx, by = math.floor(q[0] - 0.5), math.floor(q[1] - 0.5)
+        cands = []
+        for dx, dy in ((0, 0), (0, 1), (1, 0), (1, 1)):
+            c = (bx + dx, by + dy)
+            if c in cells:
+                x = points[cells[c][1]]
+                t = 0.5 * (x - o) @ d
+                delta = np.linalg.norm(x - o - 2 * t * d)
+                if t > 0 and delta <= params.radius:
+                    cands.append((delta, t))
+        out.append(sorted(cands))
+    return out
+
+
+def test_near_ray_evidence_matches_a_brute_force_loop():
+    o, d, p, m = tiny_scan()
+    ev = near_ray_evidence(p, o, d, m, PARAMS)
+    te = tev.ray_evidence(
+        torch.from_numpy(p)[None], torch.from_numpy(o), torch.from_numpy(d)[None], None, m, PARAMS
+    )  # float64 tensors: the same arithmetic as numpy
+    want = brute_near(p, o, d, m, PARAMS)
+    assert sum(len(w) for w in want) >= 5  # the case exercises candidates
+    for r, w in enumerate(want):
+        assert ev["count"][r] == len(w) == int(te["count"][0, r])
+        for i, (delta, t) in enumerate(w):
+            assert ev["valid"][r, i] and bool(te["valid"][0, r, i])
+            assert ev["distance"][r, i] == pytest.approx(delta, abs=1e-12)
+            assert ev["depth"][r, i] == pytest.approx(t, abs=1e-12)
+            assert float(te["distance"][0, r, i]) == pytest.approx(delta, abs=1e-12)
+            assert float(te["depth"][0, r, i]) == pytest.approx(t, abs=1e-12)
+        assert not ev["valid"][r, len(w) :].any()
+
+
+def test_a_point_on_a_ray_is_found_at_its_depth():
+    """Hand case: a point placed on a ray's line at depth 0.3 is that ray's first candidate, distance 0."""
+    o, d, p, m = tiny_scan()
+    r = 5
+    x = o[r] + 2 * 0.3 * d[r]
+    ev = near_ray_evidence(np.vstack([p, x]), o, d, m, PARAMS)
+    assert ev["valid"][r, 0]
+    assert ev["depth"][r, 0] == pytest.approx(0.3, abs=1e-12)
+    assert ev["distance"][r, 0] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_carved_bins_from_a_hand_placed_sensor():
+    """Sensor at S = (3, 0, 0), one observed point X = (0.5, 0, 0): the segment S-X is empty. The ray from
+    o = (0.8, 0.6, 0) along -y (|o| = 1) crosses it at (0.8, 0, 0), 2.2 from S, in front of X: carved there."""
+    params = EvidenceParams(carve_cells=9, carve_samples=10, margin=0.02)
+    s = np.array([3.0, 0.0, 0.0])
+    x = np.array([[0.5, 0.0, 0.0]])
+    o = np.array([[0.8, 0.6, 0.0]])
+    d = np.array([[0.0, -1.0, 0.0]])
+    res = carved_depths(x, o, d, s, params)
+    h = 0.6  # half chord: -o.d
+    assert res["half_chord"][0] == pytest.approx(h)
+    t = (np.arange(10) + 0.5) / 10 * h
+    assert np.allclose(res["sample_depth"][0], t)
+    # by hand: sample y = o + 2 t d = (0.8, 0.6 - 2t, 0); seen from S its direction is (-2.2, 0.6 - 2t, 0), and X's
+    # is (-2.5, 0, 0) (the axis). X's cell is the central one (9 cells over [-a, a], a = tan(asin(1/3) / 2)); y
+    # falls in it when |stereo| < a / 9, i.e. |0.6 - 2t| / (|y - S| + 2.2) < a / 9 (for the axis frame w = -x)
+    a = math.tan(0.5 * math.asin(1 / 3))
+    assert sensor_extent(s) == pytest.approx(a)
+    dist = np.hypot(2.2, 0.6 - 2 * t)
+    in_cell = np.abs(0.6 - 2 * t) / (dist + 2.2) < a / 9
+    want = in_cell & (dist < 2.5 - 0.02)
+    assert want.any() and not want.all()
+    assert np.array_equal(res["carved"][0], want)
+    te = tev.ray_evidence(
+        torch.from_numpy(x)[None], torch.from_numpy(o), torch.from_numpy(d)[None], torch.from_numpy(s)[None], 1, params
+    )
+    assert np.array_equal(te["carved"][0, 0].numpy(), want)
+    # unknown sensor: nothing carved
+    assert not carved_depths(x, o, d, np.full(3, np.nan), params)["carved"].any()
+    # behind the observed point (the ray from (-0.8, 0.6, 0)): never carved
+    assert not carved_depths(x, -o * [1, -1, 1], d, s, params)["carved"].any()
+
+
+def test_carved_depths_match_a_brute_force_loop():
+    o, d, p, _ = tiny_scan(seed=1, k=40)
+    s = np.array([2.5, 1.5, 0.4])
+    res = carved_depths(p, o, d, s, PARAMS)
+    a = sensor_extent(s)
+    nearest = {}
+    for xj in p:
+        c = brute_cell(xj, s, a, PARAMS.carve_cells)
+        rho = np.linalg.norm(xj - s)
+        if c is not None and rho < nearest.get(c, np.inf):
+            nearest[c] = rho
+    want = np.zeros_like(res["carved"])
+    for r in range(len(o)):
+        h = max(0.0, -(o[r] @ d[r]))
+        for j in range(PARAMS.carve_samples):
+            y = o[r] + 2 * (j + 0.5) / PARAMS.carve_samples * h * d[r]
+            c = brute_cell(y, s, a, PARAMS.carve_cells)
+            want[r, j] = c in nearest and np.linalg.norm(y - s) < nearest[c] - PARAMS.margin
+    assert want.sum() >= 3
+    assert np.array_equal(res["carved"], want)
+    te = tev.ray_evidence(
+        torch.from_numpy(p)[None].float(),
+        torch.from_numpy(o).float(),
+        torch.from_numpy(d)[None].float(),
+        torch.from_numpy(s)[None].float(),
+        8,
+        PARAMS,
+    )
+    assert (te["carved"][0].numpy() != want).mean() < 0.02  # float32: a sample on a cell border may flip
+
+
+def test_free_space_decode_moves_surfaces_out_of_carved_bins():
+    carved = np.array([[False, True, True, False], [False, True, True, True], [True, False, False, False]])
+    h = np.array([1.0, 1.0, 0.8])
+    depth = np.array([0.3, 0.6, 0.5])  # bins 1, 2 and 2 (of 4)
+    keep = np.array([True, True, True])
+    nd, nk = free_space_decode(depth, keep, carved, h)
+    assert nd[0] == pytest.approx(0.75)  # next free bin 3 starts at 3/4 h
+    assert not nk[1]  # every bin after it is carved: dropped
+    assert nd[2] == pytest.approx(0.5) and nk[2]  # not in a carved bin: unchanged
+    td, tk = tev.free_space_decode(torch.tensor(depth), torch.tensor(keep), torch.tensor(carved), torch.tensor(h))
+    assert np.allclose(td.numpy()[[0, 2]], nd[[0, 2]]) and np.array_equal(tk.numpy(), nk)
+
+
+def test_sanet_local_puts_no_surface_inside_observed_free_space():
+    """A ray whose line crosses the LiDAR's view of a wall in front of the wall: whatever the network predicts
+    there, the decoded point is not inside the carved interval."""
+    from spotlights.geometry.rig import make_rig
+    from spotlights.learning.models import build_model, load_config
+
+    rig = make_rig(8, 16, 60.0)
+    cfg = load_config(
+        "sanet-local",
+        overrides={
+            "model": {"args": {"code_size": 32, "encoder_widths": [8, 16, 32], "hidden": [16], "local_hidden": [8]}}
+        },
+    )
+    torch.manual_seed(0)
+    model = build_model(cfg, rig=rig).eval()
+    # a wall of points at x = -0.5 (y, z in [-0.3, 0.3]) seen by a LiDAR at (3, 0, 0): free space x in (-0.5, 3)
+    g = np.linspace(-0.3, 0.3, 16)
+    wall = np.array([[-0.5, y, z] for y in g for z in g])[::1]
+    wall = wall[np.random.default_rng(0).choice(len(wall), 256, replace=False)]
+    sensor = np.array([3.0, 0.0, 0.0])
+    partial = torch.from_numpy(wall).float()[None]
+    out = model(partial, None, torch.from_numpy(sensor).float()[None])
+    carved = out["carved"][0].numpy()
+    assert carved.any()
+    o, d = rig.origins, rig.directions
+    h = out["half_chord"][0].numpy()
+    t_bins = carved.shape[1]
+    # force every ray to hit at the centre of its first carved bin (or 0.5 h if it has none)
+    first = np.where(carved.any(1), carved.argmax(1), -1)
+    depth = np.where(first >= 0, (first + 0.5) / t_bins * h, 0.5 * h)
+    forced = dict(
+        out, hit_logits=torch.full_like(out["hit_logits"], 10.0), depths=torch.from_numpy(depth)[None].float()
+    )
+    pts = model.outputs_to_points(forced)[0].numpy()
+    moved = 0
+    for r in np.flatnonzero(first >= 0):
+        run_end = first[r]
+        while run_end < t_bins and carved[r, run_end]:
+            run_end += 1
+        lo, hi = first[r] / t_bins * h[r], run_end / t_bins * h[r]
+        assert lo <= depth[r] < hi  # the forced surface lay inside the carved interval
+        forced_hit = o[r] + 2 * depth[r] * d[r]
+        assert not np.any(np.all(np.isclose(pts, forced_hit, atol=1e-5), axis=1))
+        if run_end < t_bins:  # moved to the far end of the carved interval
+            assert np.any(np.all(np.isclose(pts, o[r] + 2 * hi * d[r], atol=1e-5), axis=1))
+            moved += 1
+    assert moved > 0
+    assert len(pts) == int((first < 0).sum()) + moved  # rays without free space keep their hit
+
+
+def test_evidence_features_shape():
+    o, d, p, m = tiny_scan()
+    ev = tev.ray_evidence(
+        torch.from_numpy(p)[None].float(), torch.from_numpy(o), torch.from_numpy(d)[None], None, m, PARAMS
+    )
+    f = tev.evidence_features(ev, PARAMS)
+    assert f.shape == (1, len(o), tev.feature_count(PARAMS))
+    assert not f[..., -PARAMS.carve_samples :].any()  # no sensor: nothing carved
