@@ -285,7 +285,15 @@ def test_bench_models_cli_json(capsys):
     proc = cli(capsys, "bench", "models", "--batch", "1", "--repeats", "1", "--warmup", "0", "--json", "--threads", "1")
     assert proc.returncode == 0, proc.stderr
     res = json.loads(proc.stdout)
-    assert [r["model"] for r in res["models"]] == ["sanet", "sanet-hit", "pcn", "foldingnet", "topnet", "atlasnet"]
+    assert [r["model"] for r in res["models"]] == [
+        "sanet",
+        "sanet-hit",
+        "pcn",
+        "foldingnet",
+        "topnet",
+        "atlasnet",
+        "snowflakenet",
+    ]
     sanet = res["models"][0]
     assert sanet["params"]["encoder"] == 821_504 and sanet["latency_ms"]["1"]["forward_ms"] > 0
     assert res["threads"] == 1

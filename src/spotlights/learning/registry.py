@@ -19,6 +19,7 @@ MODEL_REGISTRY: dict[str, str] = {
     "foldingnet": "spotlights.learning.models.foldingnet:FoldingNet",
     "topnet": "spotlights.learning.models.topnet:TopNet",
     "atlasnet": "spotlights.learning.models.atlasnet:AtlasNet",
+    "snowflakenet": "spotlights.learning.models.snowflakenet:SnowflakeNet",
 }
 MODEL_NAMES = tuple(MODEL_REGISTRY)
 SCHEDULE_FALLBACK = {"sanet-hit": "sanet"}
@@ -31,6 +32,7 @@ DISPLAY_NAMES = {
     "foldingnet": "FoldingNet",
     "topnet": "TopNet",
     "atlasnet": "AtlasNet",
+    "snowflakenet": "SnowflakeNet",
 }
 
 
