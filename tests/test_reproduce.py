@@ -168,7 +168,7 @@ def test_report_has_figures_steps_versions(quick):
     ):
         assert f"figures/{name}" in report
     steps = json.loads((out / "steps.json").read_text())["steps"]
-    assert len(steps) == 42
+    assert len(steps) == 44  # 42 + the modern peer's train-snowflakenet and eval-snowflakenet
     for name, rec in steps.items():
         assert rec["status"] == "done" and rec["seconds"] >= 0 and rec["command"], name
         assert f"| {name} |" in report
