@@ -75,6 +75,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--cpu", action="store_true", help="force the CPU (tests; the GPU otherwise)")
     ap.add_argument("--precision", default="bf16", choices=["bf16", "fp32"], help="autocast of training")
     ap.add_argument("--batch-size", type=int, default=None, help="batch size (default the fair protocol's 32)")
+    ap.add_argument(
+        "--loader-workers", type=int, default=None, help="DataLoader processes (default 4 on GPU, 0 on CPU)"
+    )
     ap.add_argument("--probe-steps", type=int, default=20, help="timed steps of the step-time probe")
     ap.add_argument("--steps", type=int, default=None, help="train exactly this many steps (no planning)")
     ap.add_argument("--intervals", type=int, default=10, help="validation intervals (checkpoints) of the run")
@@ -238,26 +241,32 @@ def main(argv=None) -> int:
     if not args.out:
         print("gpu_train: error: no output folder: set $OUT or pass --out", file=sys.stderr)
         return 2
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    log = Log(out / "gpu_train.log")
-    from spotlights.errors import SpotlightsError
+    from spotlights.errors import ParameterError, SpotlightsError
 
     try:
-        return run(args, out, log, t_start)
+        # the inputs first, before any folder is made or torch imported
+        name, cfg_path = resolve_model(args.model_config, args.model)
+        if args.minutes <= 0:
+            raise ParameterError(f"MINUTES must be > 0, got {args.minutes}")
+        meshes = find_meshes(args.meshes)
+        if not args.cpu:
+            import torch
+
+            if not torch.cuda.is_available():
+                raise ParameterError("no CUDA device here; pass --cpu to train on the CPU")
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        return run(args, name, cfg_path, meshes, out, Log(out / "gpu_train.log"), t_start)
     except SpotlightsError as exc:
+        print(f"gpu_train: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
         print(f"gpu_train: error: {exc}", file=sys.stderr)
         return 2
 
 
-def run(args, out: Path, log, t_start: float) -> int:
-    from spotlights.errors import ParameterError
-
-    name, cfg_path = resolve_model(args.model_config, args.model)  # the inputs first, before torch is imported
-    if args.minutes <= 0:
-        raise ParameterError(f"MINUTES must be > 0, got {args.minutes}")
-    meshes = find_meshes(args.meshes)
-
+def run(args, name: str, cfg_path: Path | None, meshes: Path, out: Path, log, t_start: float) -> int:
+    """Build, probe, plan, train and copy (the inputs checked by :func:`main`); returns 0."""
     import torch
 
     from spotlights.learning.models import load_config
@@ -265,14 +274,16 @@ def run(args, out: Path, log, t_start: float) -> int:
 
     deadline = t_start + 60.0 * args.minutes
     reserve = args.reserve if args.reserve is not None else max(20.0, 0.08 * 60.0 * args.minutes)
-    if not args.cpu and not torch.cuda.is_available():
-        raise ParameterError("no CUDA device here; pass --cpu to train on the CPU")
     device = torch.device("cpu" if args.cpu else "cuda")
     dev_name = "cpu" if args.cpu else torch.cuda.get_device_name(0)
     train_over = {"precision": args.precision, "seed": args.seed}
     if args.batch_size:
         train_over["batch_size"] = args.batch_size
-    overrides = {"data": {"max_views": None, "val_max_views": args.val_views}, "train": train_over}
+    loader = args.loader_workers if args.loader_workers is not None else (0 if args.cpu else 4)
+    overrides = {
+        "data": {"max_views": None, "val_max_views": args.val_views, "num_workers": loader},
+        "train": train_over,
+    }
     cfg = load_config(name, cfg_path, overrides, schedule="fair")
     rig = cfg["data"].get("rig")
     log(

@@ -67,13 +67,26 @@ def test_tiny_cpu_run_writes_a_loadable_checkpoint_log_and_config(tmp_path, mesh
     assert "step time:" in (out / "gpu_train.log").read_text()
 
 
-def test_bad_inputs_exit_2_with_one_line(tmp_path, meshes):
+def test_bad_inputs_exit_2_with_one_line(tmp_path, meshes, capsys, monkeypatch):
     proc = _run(tmp_path, "no-such-model", 1, "--cpu", "--out", tmp_path / "o")
     assert_user_error(proc, "unknown model 'no-such-model'")
-    proc = _run(tmp_path, "pcn", 1, "--cpu", "--meshes", tmp_path / "nothing", "--out", tmp_path / "o")
-    assert_user_error(proc, "no such mesh folder")
-    proc = _run(tmp_path, "pcn", 1, "--cpu")
-    assert_user_error(proc, "no output folder")
+    gpu = load_script("scripts/gpu_train.py")  # the same checks in-process (no torch is imported before them)
+    monkeypatch.delenv("OUT", raising=False)
+    no_gpu = not torch.cuda.is_available()
+    for argv, message in (
+        (
+            ["pcn", "1", "--cpu", "--meshes", str(tmp_path / "nothing"), "--out", str(tmp_path / "o")],
+            "no such mesh folder",
+        ),
+        (["pcn", "0", "--cpu", "--meshes", str(meshes), "--out", str(tmp_path / "o")], "MINUTES must be > 0"),
+        ([str(tmp_path / "missing.yaml"), "--out", str(tmp_path / "o")], "no such config file"),
+        (["pcn", "1", "--cpu"], "no output folder"),
+        *([(["pcn", "1", "--meshes", str(meshes), "--out", str(tmp_path / "o")], "no CUDA device")] * no_gpu),
+    ):
+        assert gpu.main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and message in err[0] and err[0].startswith("gpu_train: error:"), err
+    assert not (tmp_path / "o").exists() and not (tmp_path / "o-work").exists()  # refused before any work
 
 
 def test_plan_fits_the_time_left_and_caps_at_the_paper_scale():
