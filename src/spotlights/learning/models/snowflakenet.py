@@ -16,8 +16,9 @@ fine, every child point being its parent moved by a learned displacement:
   transposed convolution of kernel and stride r) gives r child features, joined with the
   parent's H in a shared MLP to K_i; the displacement tanh(MLP(ReLU(K_i))) moves each of the r
   copies of its parent: P_i = repeat(P_{i-1}, r) + dP_i.
-* **Loss**: the sum over the seeds and every stage of the Chamfer distance to the ground truth,
-  farthest-point sampled to the stage's count (the full ground truth where the stage has more
+* **Loss**: the sum over the seeds and every stage of the Chamfer distance to the ground truth cut
+  to the stage's count (its first n points: the dataset's uniform samples are i.i.d., so a prefix is
+  a uniform subset; the paper samples by FPS; the whole ground truth where the stage has more
   points), plus the paper's partial-matching term: the one-sided distance from the partial input
   to the final cloud (``partial_weight``).
 
