@@ -18,7 +18,7 @@ endif
 PYTHON ?= python3
 PIP := $(PYTHON) -m pip install --quiet --disable-pip-version-check
 
-.PHONY: install demo test bench lint format where
+.PHONY: install demo test bench lint format where gpu-bundle
 
 install: $(MAKE_VENV)
 	$(PIP) torch==2.13.0
@@ -49,3 +49,9 @@ format:
 # Which interpreter the commands above use, and why.
 where:
 	@echo "PYTHON=$(PYTHON) ($(if $(MAKE_VENV),the project environment $(VENV); made from $(SYSTEM_PYTHON),$(if $(VIRTUAL_ENV)$(CONDA_PREFIX),the active environment $(VIRTUAL_ENV)$(CONDA_PREFIX),given on the command line)))"
+
+# The GPU recipe's bundle (docs/learning.md, "GPU recipe"): the project's wheel, the wheels of the packages a GPU
+# machine without internet may lack (never torch) and the car meshes, into .whl/ (git-ignored) for
+# scripts/gpu_train.sh there.
+gpu-bundle: install
+	PYTHON=$(PYTHON) scripts/gpu_bundle.sh

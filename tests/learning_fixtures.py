@@ -175,6 +175,16 @@ TINY_MODEL_ARGS = {
         "root_hidden": [32],
     },
     "atlasnet": {"code_size": 64, "encoder_widths": [16, 32, 64], "n_patches": 2, "patch_grid": [8, 8]},
+    "snowflakenet": {
+        "code_size": 64,
+        "encoder_widths": [16, 32, 64],
+        "n_seeds": 12,
+        "seed_code": 16,
+        "n_start": 16,
+        "up_factors": [2, 4],
+        "dim": 8,
+        "k": 4,
+    },
 }
 
 

@@ -57,6 +57,14 @@ def expected_decoder(name: str) -> int:
     if name == "atlasnet":
         b = 1026
         return 4 * (lin(b, b) + bn(b) + lin(b, b // 2) + bn(b // 2) + lin(b // 2, b // 4) + bn(b // 4) + lin(b // 4, 3))
+    if name == "snowflakenet":  # dim 32, 256 seeds from a 256-d split code, up factors 1, 4, 8
+        d = 32
+        seeds = lin(1024, 256) + lin(256, 256 * d) + lin(d + 1024, 2 * d) + lin(2 * d, d) + lin(d, 3)
+        transformer = lin(2 * d, d) + lin(d, d) + 2 * lin(d, d) + lin(3, 32) + lin(32, d) + 2 * lin(d, d) + lin(d, d)
+        spd = (
+            lin(1027, 2 * d) + lin(2 * d, d) + transformer + lin(2 * d, d) + lin(d, d) + lin(d, d // 2) + lin(d // 2, 3)
+        )
+        return seeds + sum(spd + lin(d, r * d) for r in (1, 4, 8))
     raise KeyError(name)
 
 
@@ -79,7 +87,7 @@ def test_default_model_shapes_and_parameter_counts(name, rig):
     if name.startswith("sanet"):
         assert out["depths"].shape == (2, 2048)
     else:
-        assert out["points"].shape == (2, 2048, 3)
+        assert out["points"].shape == (2, 16_384 if name == "snowflakenet" else 2048, 3)
     clouds = model.complete(x)
     assert len(clouds) == 2 and all(c.ndim == 2 and c.shape[1] == 3 and c.dtype == torch.float32 for c in clouds)
 

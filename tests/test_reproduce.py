@@ -171,7 +171,7 @@ def test_report_has_figures_steps_versions(quick):
     ):
         assert f"figures/{name}" in report
     steps = json.loads((out / "steps.json").read_text())["steps"]
-    assert len(steps) == 42
+    assert len(steps) == 44  # 42 + the modern peer's train-snowflakenet and eval-snowflakenet
     for name, rec in steps.items():
         assert rec["status"] == "done" and rec["seconds"] >= 0 and rec["command"], name
         assert f"| {name} |" in report
@@ -279,7 +279,7 @@ def test_second_run_reuses_every_step_and_publishes(quick, tmp_path):
         tmp_path / "pub",
     )
     assert proc.returncode == 0, proc.stderr
-    assert "0 step(s) run, 42 reused" in proc.stdout  # nothing recomputed (no wall-clock bound: the machine is shared)
+    assert "0 step(s) run, 44 reused" in proc.stdout  # nothing recomputed (no wall-clock bound: the machine is shared)
     steps = json.loads((out / "steps.json").read_text())
     assert all(r["reused"] for r in steps["steps"].values())
     assert len(steps["invocations"]) == 2

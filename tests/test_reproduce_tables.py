@@ -13,7 +13,7 @@ import pytest
 from spotlights.experiments import paper_tables as paper
 from spotlights.experiments.reproduce import Context, Settings, all_steps, plan
 from spotlights.experiments.reproduce import steps as rsteps
-from spotlights.experiments.reproduce.settings import PRODUCT_RUNS, RUNS, TABLE1_RUNS, TABLE2_RUNS
+from spotlights.experiments.reproduce.settings import PEER_RUNS, PRODUCT_RUNS, RUNS, TABLE1_RUNS, TABLE2_RUNS
 from spotlights.experiments.reproduce.tables.real import build_table2, eligible_baselines
 from spotlights.experiments.reproduce.tables.synthetic import build_table1
 
@@ -80,6 +80,7 @@ def _table1_out(tmp_path: Path, acc: dict, comp: dict, skip=()) -> Context:
         "sanet-hit-dense": _eval_report(
             "sanet-hit", {hit: (acc["sanet-hit-dense"], comp["sanet-hit-dense"])}, 3_230_272, 3.0, 96.0
         ),
+        "snowflakenet": _eval_report("snowflakenet", {"": (acc["snowflakenet"], comp["snowflakenet"])}, 3_516_364),
     }
     for run, rep in reports.items():
         if run in skip:
@@ -103,6 +104,7 @@ BASE_ACC = {
     "sanet": 0.011,
     "sanet-hit-box": 0.0095,
     "sanet-hit-dense": 0.009,
+    "snowflakenet": 0.008,  # the peer beats every SA-Net here: the SA-Net claims must not count it
 }
 BASE_COMP = {
     "atlasnet": 0.050,
@@ -112,6 +114,7 @@ BASE_COMP = {
     "sanet": 0.050,
     "sanet-hit-box": 0.025,
     "sanet-hit-dense": 0.020,
+    "snowflakenet": 0.015,
 }
 
 
@@ -129,6 +132,7 @@ def test_table1_product_rows_columns_and_checks(tmp_path):
     # the product rows: in the paper-style table with '-' for the paper, and in the table of every model
     assert md.count("SA-Net hit-aware (box, 16,384 rays; default) (p(hit) >= 0.3)") == 2
     assert md.count("SA-Net hit-aware (box, 2,048 rays) (p(hit) >= 0.3)") == 2
+    assert md.count("**SnowflakeNet (modern peer, 16,384 points)**") == 2 and "`snowflakenet` = SnowflakeNet" in md
     assert "|  | paper | - | - | - | - | - | - |" in md
     head = (
         "| Model | Accuracy | Completeness | CD-L1 | F-score@0.01 | points per completion | #Params | "
@@ -142,7 +146,7 @@ def test_table1_product_rows_columns_and_checks(tmp_path):
         "1000 | 3.23M | 3.00 | 3.00 | 7,500 steps, 70 min |"
     ) in md
     # every run's budget in the training note
-    for run in TABLE1_RUNS + PRODUCT_RUNS:
+    for run in TABLE1_RUNS + PRODUCT_RUNS + PEER_RUNS:
         assert f"{run}: " in md.split("Training (schedule")[1]
     rows = {(r["row"], r["column"]): r for r in t1["rows"]}
     assert rows[(dense, "fscore")]["ours"] == 0.25 and rows[(dense, "fscore")]["paper"] is None

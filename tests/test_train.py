@@ -294,6 +294,7 @@ def test_bench_models_cli_json(capsys):
         "foldingnet",
         "topnet",
         "atlasnet",
+        "snowflakenet",
     ]
     sanet = res["models"][0]
     assert sanet["params"]["encoder"] == 821_504 and sanet["latency_ms"]["1"]["forward_ms"] > 0

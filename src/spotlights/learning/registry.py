@@ -20,6 +20,7 @@ MODEL_REGISTRY: dict[str, str] = {
     "foldingnet": "spotlights.learning.models.foldingnet:FoldingNet",
     "topnet": "spotlights.learning.models.topnet:TopNet",
     "atlasnet": "spotlights.learning.models.atlasnet:AtlasNet",
+    "snowflakenet": "spotlights.learning.models.snowflakenet:SnowflakeNet",
 }
 MODEL_NAMES = tuple(MODEL_REGISTRY)
 SCHEDULE_FALLBACK = {"sanet-hit": "sanet", "sanet-local": "sanet-hit"}
@@ -33,6 +34,7 @@ DISPLAY_NAMES = {
     "foldingnet": "FoldingNet",
     "topnet": "TopNet",
     "atlasnet": "AtlasNet",
+    "snowflakenet": "SnowflakeNet",
 }
 
 

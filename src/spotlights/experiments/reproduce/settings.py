@@ -49,10 +49,14 @@ RUNS = {
     "sanet-box": RunSpec("sanet", BOX_RIG),
     "sanet-hit-box": RunSpec("sanet-hit", BOX_RIG),
     "sanet-hit-dense": RunSpec("sanet-hit", DENSE_RIG, DENSE_CONFIG),
+    "snowflakenet": RunSpec("snowflakenet"),
 }
 PRODUCT_RUNS = ("sanet-hit-box", "sanet-hit-dense")
 """The product's models beside the paper's in Tables 1 and 2: the hit-aware SA-Net on the box rig (2,048 rays)
 and the default model (the hit-aware SA-Net on the dense box rig, 16,384 rays)."""
+PEER_RUNS = ("snowflakenet",)
+"""The modern peer beside the paper's models in Table 1 (SnowflakeNet, 16,384 points): trained and scored like them,
+no paper values, not part of the SA-Net claims."""
 DEFAULT_RUN = "sanet-hit-dense"
 """The run of the package's default model."""
 BASELINE_RUNS = ("atlasnet", "pcn", "foldingnet", "topnet")
@@ -75,6 +79,7 @@ DISPLAY = {
     "foldingnet": "FoldingNet",
     "topnet": "TopNet",
     "atlasnet": "AtlasNet",
+    "snowflakenet": "SnowflakeNet (modern peer, 16,384 points)",
 }
 ANGLE_LABELS = {"cap 30": 30, "cap 60": 60, "cap 83 (r = R/4)": 83}
 BOX_STUDY_LABELS = ("box ellipsoid s1", "box volume s0.9")

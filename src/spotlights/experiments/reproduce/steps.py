@@ -35,6 +35,7 @@ from .settings import (
     BOX_RUNS,
     BOX_STUDY_LABELS,
     DENSE_RIG,
+    PEER_RUNS,
     PRODUCT_RUNS,
     REQUIRED_RIGS,
     RIG_STEPS,
@@ -308,7 +309,7 @@ def _run_train(ctx: Context, run: str) -> dict:
 
 
 # --- evaluation -------------------------------------------------------------------------------
-TIMED_RUNS = TABLE1_RUNS + PRODUCT_RUNS
+TIMED_RUNS = TABLE1_RUNS + PRODUCT_RUNS + PEER_RUNS
 """The runs whose evaluation measures latency (Table 1's runtime columns)."""
 
 

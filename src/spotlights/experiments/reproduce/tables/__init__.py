@@ -23,7 +23,7 @@ from ....errors import ParameterError
 from ....utils import atomic_output
 from ... import paper_tables as paper
 from ..pipeline import Context, Step, to_json, write_json
-from ..settings import BOX_RUNS, PRODUCT_RUNS, TABLE1_RUNS, TABLE2_SETS, TABLE5_RUNS
+from ..settings import BOX_RUNS, PEER_RUNS, PRODUCT_RUNS, TABLE1_RUNS, TABLE2_SETS, TABLE5_RUNS
 from .ablations import build_table3, build_table4
 from .box import build_table_box
 from .real import build_table2
@@ -50,7 +50,7 @@ TABLES = {
     "1": Table(
         "1",
         "Table 1: completion accuracy and efficiency on the synthetic cars",
-        lambda s: [f"eval-{r}" for r in TABLE1_RUNS + PRODUCT_RUNS] + ["fig-synthetic"],
+        lambda s: [f"eval-{r}" for r in TABLE1_RUNS + PRODUCT_RUNS + PEER_RUNS] + ["fig-synthetic"],
         build_table1,
     ),
     "2": Table(

@@ -8,7 +8,7 @@ import math
 from ....errors import SpotlightsError
 from ... import paper_tables as paper
 from ..pipeline import Context
-from ..settings import BASELINE_RUNS, DISPLAY, PRODUCT_RUNS, TABLE1_RUNS, TABLE5_RUNS
+from ..settings import BASELINE_RUNS, DISPLAY, PEER_RUNS, PRODUCT_RUNS, TABLE1_RUNS, TABLE5_RUNS
 from .common import diff, duration, eval_rows, fmt, md_table, run_facts, training_note, value
 
 ACCURACY_RATIO_TARGET = 0.90
@@ -84,21 +84,21 @@ def build_table1(ctx: Context) -> dict:
     for run in TABLE1_RUNS:
         for name, row in eval_rows(ctx, run).items():
             ours[name], row_run[name] = row, run
-    product, not_evaluated = [], []
-    for run in PRODUCT_RUNS:
+    product, peer, not_evaluated = [], [], []
+    for run in PRODUCT_RUNS + PEER_RUNS:
         if not ctx.eval_json(run).is_file():  # not part of this table's steps (an older output folder)
             not_evaluated.append(run)
             continue
         for name, row in eval_rows(ctx, run, label=run).items():
             ours[name], row_run[name] = row, run
-            product.append(name)
+            (peer if run in PEER_RUNS else product).append(name)
     # the clipped SA-Net row is named after the checkpoint's clip (the paper's is 0.2)
     clipped = next((k for k in ours if k.startswith("sanet (clip")), "sanet (clip 0.2)")
     order = ["atlasnet", "pcn", "foldingnet", "topnet", "sanet (no clip)", clipped]
     cols = list(paper.CAR_CATEGORIES) + ["average"]
     head = ["Method", "", "Hatchback", "Sedan", "SUV", "Average", "#Params", "Runtime b1 (ms)"]
     body, rows = [], []
-    for name in order + product:
+    for name in order + product + peer:
         o = ours.get(name)
         if o is None:
             continue
@@ -148,9 +148,9 @@ def build_table1(ctx: Context) -> dict:
         },
         *sanet_checks(ours, ["sanet (no clip)", clipped, *product], list(BASELINE_RUNS)),
     ]
-    facts = run_facts(ctx, [*TABLE1_RUNS, *PRODUCT_RUNS])
+    facts = run_facts(ctx, [*TABLE1_RUNS, *PRODUCT_RUNS, *PEER_RUNS])
     every = []
-    for name in order + product:
+    for name in order + product + peer:
         o = ours.get(name)
         if o is None:
             continue
@@ -178,7 +178,9 @@ def build_table1(ctx: Context) -> dict:
         "(the paper: a GPU). Beyond the paper's rows, the product's hit-aware SA-Nets (no paper values: '-'): "
         + ", ".join(f"`{r}` = {DISPLAY[r]}" for r in PRODUCT_RUNS)
         + "; each keeps the rays whose predicted hit probability reaches the checkpoint's threshold (no clip), "
-        "decoded with each scan's own box.",
+        "decoded with each scan's own box. The modern peer: "
+        + ", ".join(f"`{r}` = {DISPLAY[r]}" for r in PEER_RUNS)
+        + ".",
         "",
     ]
     md += md_table(head, body)
@@ -212,7 +214,7 @@ def build_table1(ctx: Context) -> dict:
     md += [
         "",
         f"Training (schedule `{ctx.s.schedule}` for new runs; each run's own config kept when reused): "
-        + training_note(ctx, [*TABLE1_RUNS, *PRODUCT_RUNS])
+        + training_note(ctx, [*TABLE1_RUNS, *PRODUCT_RUNS, *PEER_RUNS])
         + ".",
     ]
     return {"ours": ours, "paper": paper.TABLE1, "rows": rows, "checks": checks, "markdown": "\n".join(md)}

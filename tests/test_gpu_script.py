@@ -1,0 +1,99 @@
+"""The GPU recipe (scripts/gpu_train.sh) at a tiny scale on the CPU: build, probe, plan, train, outputs."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("embreex")
+
+from helpers import REPO, assert_user_error, load_script  # noqa: E402
+from learning_fixtures import TINY_MODEL_ARGS, make_shape  # noqa: E402
+
+SCRIPT = REPO / "scripts" / "gpu_train.sh"
+
+
+def _run(tmp_path, *args, env=None):
+    full = dict(os.environ, GPU_BUNDLE=str(tmp_path / "no-wheels"), OMP_NUM_THREADS="1", **(env or {}))
+    full.pop("OUT", None)
+    return subprocess.run(["bash", str(SCRIPT), *map(str, args)], capture_output=True, text=True, env=full, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def meshes(tmp_path_factory):
+    root = tmp_path_factory.mktemp("gpu-meshes")
+    rng = np.random.default_rng(0)
+    for cat in ("hatchback", "sedan", "suv"):
+        (root / cat).mkdir()
+        for j in range(3):
+            make_shape(cat, rng).export(root / cat / f"{cat}{j}.ply")
+    return root
+
+
+def test_tiny_cpu_run_writes_a_loadable_checkpoint_log_and_config(tmp_path, meshes):
+    from spotlights.learning.checkpoint import load_checkpoint, model_from_checkpoint
+
+    cfg = tmp_path / "tiny.yaml"
+    cfg.write_text(json.dumps({"model": {"name": "snowflakenet", "args": TINY_MODEL_ARGS["snowflakenet"]}}))
+    out = tmp_path / "out"
+    proc = _run(
+        tmp_path, cfg, 1, "--cpu", "--meshes", meshes, "--split", "3/3/3", "--views", 4, "--steps", 20,
+        "--intervals", 2, "--batch-size", 4, "--probe-steps", 2, "--val-views", 2, "--workers", 1,
+        "--out", out, "--work", tmp_path / "work",
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr + proc.stdout
+    assert {"best.pt", "last.pt", "log.csv", "config.yaml", "gpu_train.log", "plan.json"} <= {
+        p.name for p in out.iterdir()
+    }
+    plan = json.loads((out / "plan.json").read_text())
+    assert plan["device"] == "cpu" and plan["planned_steps"] == plan["steps_done"] == 20
+    assert plan["dataset"]["samples"] == 9 * 4 and plan["step_seconds"] > 0
+    rows = list(csv.DictReader((out / "log.csv").open()))
+    assert [int(r["epoch"]) for r in rows] == [1, 2]
+    ck = load_checkpoint(out / "best.pt", expect_model="snowflakenet")
+    assert ck["config"]["train"]["steps_per_epoch"] == 10 and ck["config"]["train"]["precision"] == "bf16"
+    assert ck["global_step"] in (10, 20)
+    assert load_checkpoint(out / "last.pt")["global_step"] == 20
+    model = model_from_checkpoint(ck)
+    clouds = model.complete(torch.rand(1, 40, 3) - 0.5)
+    assert clouds[0].shape == (16 * 2 * 4, 3)
+    assert "step time:" in (out / "gpu_train.log").read_text()
+
+
+def test_bad_inputs_exit_2_with_one_line(tmp_path, meshes, capsys, monkeypatch):
+    proc = _run(tmp_path, "no-such-model", 1, "--cpu", "--out", tmp_path / "o")
+    assert_user_error(proc, "unknown model 'no-such-model'")
+    gpu = load_script("scripts/gpu_train.py")  # the same checks in-process (no torch is imported before them)
+    monkeypatch.delenv("OUT", raising=False)
+    no_gpu = not torch.cuda.is_available()
+    for argv, message in (
+        (
+            ["pcn", "1", "--cpu", "--meshes", str(tmp_path / "nothing"), "--out", str(tmp_path / "o")],
+            "no such mesh folder",
+        ),
+        (["pcn", "0", "--cpu", "--meshes", str(meshes), "--out", str(tmp_path / "o")], "MINUTES must be > 0"),
+        ([str(tmp_path / "missing.yaml"), "--out", str(tmp_path / "o")], "no such config file"),
+        (["pcn", "1", "--cpu"], "no output folder"),
+        *([(["pcn", "1", "--meshes", str(meshes), "--out", str(tmp_path / "o")], "no CUDA device")] * no_gpu),
+    ):
+        assert gpu.main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and message in err[0] and err[0].startswith("gpu_train: error:"), err
+    assert not (tmp_path / "o").exists() and not (tmp_path / "o-work").exists()  # refused before any work
+
+
+def test_plan_fits_the_time_left_and_caps_at_the_paper_scale():
+    gpu = load_script("scripts/gpu_train.py")
+    args = SimpleNamespace(steps=None, overhead=1.25, intervals=10)
+    # 300 s at 0.02 s x 1.25 per step: 12,000 steps in 10 intervals of 1,200
+    assert gpu.plan_steps(args, 0.02, 300.0) == (10, 1200)
+    assert gpu.plan_steps(args, 1e-5, 3600.0) == (10, 16_000)  # capped at 160,000 steps
+    assert gpu.plan_steps(args, 1.0, 3.0) == (2, 1)  # 2 steps fit: 2 intervals of one step
+    assert gpu.plan_steps(SimpleNamespace(steps=25, overhead=1.0, intervals=10), 9.0, 0.0) == (10, 3)
