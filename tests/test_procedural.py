@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from spotlights.data.real.base import CLASSES as READER_CLASSES
 from spotlights.data.synthetic.procedural import (
     BODY_TYPES,
     CLASS_BODIES,
@@ -109,7 +110,8 @@ def test_box_truck_ray_hits_where_hand_computed():
 
 
 def test_classes_and_bodies():
-    assert set(CLASS_BODIES) == {"car", "van", "truck", "bus", "trailer"}
+    assert set(CLASS_BODIES) == {"car", "caravan", "truck", "bus", "trailer"}
+    assert set(CLASS_BODIES) <= set(READER_CLASSES)  # the names the real readers give boxes
     assert {b for bodies in CLASS_BODIES.values() for b in bodies} == set(BODY_TYPES)
     assert "pickup" in CLASS_BODIES["car"] and "pickup" in CLASS_BODIES["truck"]
     with pytest.raises(ParameterError, match="unknown vehicle body"):

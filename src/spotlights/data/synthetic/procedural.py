@@ -75,10 +75,11 @@ bus             9.0-13.7   2.45-2.55   2.90-3.60   4.5-7.0     0.25-0.35    city
                                                                             13.7 x 2.55 x 3.5-3.9; 40/45 ft
 ============== ========== =========== =========== =========== ============ =================================
 
-Detector classes (:data:`CLASS_BODIES`): ``car`` = sedan, hatchback, SUV, pickup; ``van`` = van;
-``truck`` = pickup, box truck, semi-tractor; ``bus`` = bus; ``trailer`` = box and flatbed
-trailers. Pickups are in both car and truck: datasets disagree (nuScenes labels pickups
-``vehicle.truck``; Argoverse 2 ``REGULAR_VEHICLE``, KITTI ``Car``).
+Detector classes (:data:`~spotlights.data.vehicle_classes.CLASS_BODIES`, the real readers' names):
+``car`` = sedan, hatchback, SUV, pickup; ``caravan`` (vans; ``van`` is accepted) = van; ``truck`` =
+box truck, semi-tractor, pickup; ``bus`` = bus; ``trailer`` = box and flatbed trailers. Pickups are
+in both car and truck: datasets disagree (nuScenes labels pickups ``vehicle.truck``; Argoverse 2
+``REGULAR_VEHICLE``, KITTI ``Car``).
 """
 
 from __future__ import annotations
@@ -89,6 +90,22 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ...errors import ParameterError
+from ..vehicle_classes import CATEGORY_CLASS, CLASS_BODIES, VEHICLE_CLASSES, class_of_category
+
+__all__ = [
+    "BODY_TYPES",
+    "CATEGORY_CLASS",
+    "CLASS_BODIES",
+    "DIMENSIONS",
+    "VEHICLE_CLASSES",
+    "VehicleParams",
+    "class_of_category",
+    "draw_params",
+    "generate_vehicle",
+    "generate_trimesh",
+    "mesh_digest",
+    "vehicle_arrays",
+]
 
 BODY_TYPES = (
     "sedan",
@@ -102,35 +119,6 @@ BODY_TYPES = (
     "trailer_flatbed",
     "bus",
 )
-
-#: detector class -> body types the generator draws for it, in round-robin order
-CLASS_BODIES = {
-    "car": ("sedan", "hatchback", "suv", "pickup"),
-    "van": ("van",),
-    "truck": ("box_truck", "semi_tractor", "pickup"),
-    "bus": ("bus",),
-    "trailer": ("trailer_box", "trailer_flatbed"),
-}
-VEHICLE_CLASSES = tuple(CLASS_BODIES)
-
-#: mesh category (folder name or manifest category) -> detector class; categories not listed are
-#: ``"other"`` (e.g. the Kenney farm tractors)
-CATEGORY_CLASS = {
-    "sedan": "car",
-    "hatchback": "car",
-    "suv": "car",
-    "pickup": "car",
-    "race": "car",
-    "car": "car",
-    "van": "van",
-    "truck": "truck",
-    "box_truck": "truck",
-    "semi_tractor": "truck",
-    "bus": "bus",
-    "trailer": "trailer",
-    "trailer_box": "trailer",
-    "trailer_flatbed": "trailer",
-}
 
 #: per body type: (min, max) of length, width, height, wheelbase, ground clearance (metres);
 #: trailers: wheelbase unused, clearance = floor height (box) or deck thickness (flatbed)
@@ -216,11 +204,6 @@ def check_body(body: str) -> str:
     if body not in DIMENSIONS:
         raise ParameterError(f"unknown vehicle body {body!r}; known: {', '.join(BODY_TYPES)}")
     return body
-
-
-def class_of_category(category: str) -> str:
-    """The detector class of a mesh category (:data:`CATEGORY_CLASS`; ``"other"`` when unknown)."""
-    return CATEGORY_CLASS.get(str(category).lower(), "other")
 
 
 def _rng(seed) -> np.random.Generator:
