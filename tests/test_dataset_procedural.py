@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import shutil
 
 import h5py
 import numpy as np
@@ -10,8 +11,10 @@ import pytest
 import trimesh
 
 from spotlights.data.store import open_dataset
+from spotlights.data.synthetic import add_rig, parse_rig
 from spotlights.data.synthetic.catalogue import model_key
 from spotlights.data.synthetic.procedural import DIMENSIONS, generate_vehicle, mesh_digest
+from spotlights.geometry.encode import encode_mesh
 
 from helpers import assert_user_error, run_cli
 
@@ -70,6 +73,22 @@ def test_procedural_build_stores_the_class_of_every_sample(built):
             v, f, _ = generate_vehicle(body, np.random.SeedSequence(4, spawn_key=(model_key(str(name)), 7)))
             assert ds.models_array("sha256", [m])[0].decode() == mesh_digest(v, f)
             np.testing.assert_allclose(ds.size[m], v.max(0) - v.min(0))
+
+
+def test_add_rig_regenerates_the_vehicles(built, tmp_path):
+    """``dataset add-rig`` on a procedural dataset generates the meshes again (checked against their
+    stored hashes) and stores the depths the core's encoder gives each regenerated vehicle."""
+    path = tmp_path / "copy.h5"
+    shutil.copyfile(built[1], path)
+    add_rig(path, "8x8@60", workers=1, progress=False, log=lambda m: None)
+    rig = parse_rig("8x8@60")
+    with open_dataset(path) as ds:
+        depths = ds.rig_depths(rig.name)
+        for m, name in enumerate(ds.names):
+            v, f, _ = generate_vehicle(ds.categories[m], np.random.SeedSequence(4, spawn_key=(model_key(str(name)), 7)))
+            mesh = trimesh.Trimesh(v, f, process=False)
+            np.testing.assert_array_equal(depths[m], encode_mesh(mesh, rig))
+        assert ds.info()["classes"] == {"bus": 2, "car": 2, "caravan": 2, "trailer": 2, "truck": 2}
 
 
 def test_procedural_mixed_with_a_mesh_folder_and_old_files(tmp_path):

@@ -495,6 +495,8 @@ def _info(args) -> int:
         f"  {info['n_models']} models x {info['views_per_model']} views = {info['n_samples']} samples; "
         f"categories: " + ", ".join(f"{k} {v}" for k, v in info["categories"].items())
     )
+    if info.get("classes"):
+        print("  classes: " + ", ".join(f"{k} {v}" for k, v in info["classes"].items()))
     for sp, d in info["splits"].items():
         cats = ", ".join(f"{k} {v}" for k, v in d["categories"].items())
         print(f"  {sp:5s}: {d['models']:4d} models, {d['samples']:8d} samples ({cats})")

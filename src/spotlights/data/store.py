@@ -550,6 +550,7 @@ class CompletionDataset:
             "n_samples": self.n_samples,
             "views_per_model": self.views_per_model,
             "categories": dict(sorted(cats.items())),
+            "classes": {str(c): int(k) for c, k in zip(*np.unique(self.classes, return_counts=True))},
             "splits": splits,
             "default_rig": self.default_rig,
             "rigs": {n: int(f[f"rigs/{n}/depths"].shape[1]) for n in self.rig_names},
