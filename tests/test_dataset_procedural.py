@@ -11,7 +11,7 @@ import pytest
 import trimesh
 
 from spotlights.data.store import open_dataset
-from spotlights.data.synthetic import add_rig, parse_rig
+from spotlights.data.synthetic import BuildConfig, add_rig, build_dataset, parse_rig
 from spotlights.data.synthetic.catalogue import model_key
 from spotlights.data.synthetic.procedural import DIMENSIONS, generate_vehicle, mesh_digest
 from spotlights.geometry.encode import encode_mesh
@@ -27,17 +27,19 @@ def sha(path):
 
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
+    """The same tiny procedural build twice: by the CLI with one worker, and in this process with two
+    workers and one view per work unit (the configuration the CLI stored)."""
     root = tmp_path_factory.mktemp("proc")
-    outs = {}
-    for w, extra in ((1, []), (2, ["--block", "1"])):
-        out = root / f"w{w}.h5"
-        proc = run_cli(
-            "dataset", "build", "--procedural", "2", "--classes", "truck,car,bus,trailer,van",
-            "--out", out, "--workers", w, *TINY, *extra,
-        )  # fmt: skip
-        assert proc.returncode == 0, proc.stderr
-        outs[w] = out
-    return outs
+    out = root / "w1.h5"
+    proc = run_cli(
+        "dataset", "build", "--procedural", "2", "--classes", "truck,car,bus,trailer,van",
+        "--out", out, "--workers", 1, *TINY,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    with open_dataset(out) as ds:
+        cfg = BuildConfig.from_dict(ds.config)
+    build_dataset(cfg, root / "w2.h5", workers=2, block=1, progress=False, log=lambda m: None)
+    return {1: out, 2: root / "w2.h5"}
 
 
 def test_procedural_build_same_bytes_whatever_the_workers(built):
@@ -112,8 +114,8 @@ def test_procedural_mixed_with_a_mesh_folder_and_old_files(tmp_path):
     # a build without --procedural writes no class column (its bytes are those of before); its
     # classes come from the categories
     old = tmp_path / "old.h5"
-    proc = run_cli("dataset", "build", "--meshes", root, "--split", "2/0/0", "--out", old, "--workers", "1", *TINY)
-    assert proc.returncode == 0, proc.stderr
+    cfg = BuildConfig(meshes=str(root), views=3, split="2/0/0", seed=4, gt_points=64, gt_dense=256)
+    build_dataset(cfg, old, workers=1, progress=False, log=lambda m: None)
     with h5py.File(old, "r") as f:
         assert "class" not in f["models"] and '"procedural"' not in f.attrs["config_json"]
     with open_dataset(old) as ds:
