@@ -132,4 +132,7 @@ def test_procedural_bad_input(tmp_path):
     assert_user_error(
         run_cli("dataset", "build", "--procedural", "1", "--procedural-split", "1/2", "--out", out), "split"
     )
+    assert_user_error(
+        run_cli("dataset", "build", "--meshes", tmp_path, "--classes", "bus", "--out", out), "--procedural"
+    )
     assert not out.exists() and not (tmp_path / "x.h5.parts").exists()

@@ -133,7 +133,7 @@ def register(sub) -> None:
     )
     pg.add_argument(
         "--classes",
-        default="car,van,truck,bus,trailer",
+        default=None,
         metavar="LIST",
         help="classes of --procedural (the real readers' names): car (sedan, hatchback, SUV, pickup), van "
         "(stored as caravan), truck (box truck, semi-tractor, pickup), bus, trailer (box, flatbed); default all",
@@ -373,6 +373,8 @@ def _build(args) -> int:
     )
     if not args.meshes and not args.procedural:
         raise ParameterError("give --meshes DIR (repeatable) or --procedural N (or both)")
+    if not args.procedural and (args.classes or args.procedural_split):
+        raise ParameterError("--classes and --procedural-split apply to --procedural N (vehicles per class)")
     sources = [parse_source(m) for m in args.meshes]
     single = len(sources) <= 1 and all(set(s) == {"path"} for s in sources)
     if not single and args.manifest:
