@@ -46,7 +46,7 @@ def real_mesh(body: str):
     m = load_mesh(path, up=up, forward=fwd)
     v = np.asarray(m.vertices, dtype=np.float64) * scale
     used = np.unique(m.faces)
-    return v[used] - 0.0, np.searchsorted(used, np.asarray(m.faces)), f"{path.parent.name}/{path.stem}"
+    return v[used], np.searchsorted(used, np.asarray(m.faces)), f"{path.parent.name}/{path.stem}"
 
 
 def main() -> None:
