@@ -41,7 +41,7 @@ def register(sub) -> None:
     )
     b.add_argument(
         "--meshes",
-        required=True,
+        default=[],
         metavar="DIR[,KEY=VALUE...]",
         action="append",
         help="folder of meshes; categories = first sub-folder, or DIR/manifest.csv (file,category[,up,forward,"
@@ -121,6 +121,29 @@ def register(sub) -> None:
     )
     g.add_argument(
         "--min-points", type=int, default=50, help="fewer returns than this and the pose is redrawn (default 50)"
+    )
+    pg = b.add_argument_group("procedural vehicles (every class a real frame holds; docs/dataset.md)")
+    pg.add_argument(
+        "--procedural",
+        type=non_negative_int,
+        default=0,
+        metavar="N",
+        help="add N generated vehicles per class of --classes (models procedural/CLASS/BODY-IIII; with or "
+        "without --meshes); stores every model's detector class",
+    )
+    pg.add_argument(
+        "--classes",
+        default=None,
+        metavar="LIST",
+        help="classes of --procedural (the real readers' names): car (sedan, hatchback, SUV, pickup), van "
+        "(stored as caravan), truck (box truck, semi-tractor, pickup), bus, trailer (box, flatbed); default all",
+    )
+    pg.add_argument(
+        "--procedural-split",
+        default=None,
+        metavar="A/B/C|SPLIT",
+        help="split of the procedural vehicles alone (counts, fractions or train|val|test); default: "
+        "pooled with the sources without split= and dealt by --split",
     )
     sp = b.add_argument_group("splits by category")
     sp.add_argument(
@@ -348,8 +371,12 @@ def _build(args) -> int:
         max_range=args.max_range,
         beam_dropout=args.beam_dropout,
     )
+    if not args.meshes and not args.procedural:
+        raise ParameterError("give --meshes DIR (repeatable) or --procedural N (or both)")
+    if not args.procedural and (args.classes or args.procedural_split):
+        raise ParameterError("--classes and --procedural-split apply to --procedural N (vehicles per class)")
     sources = [parse_source(m) for m in args.meshes]
-    single = len(sources) == 1 and set(sources[0]) == {"path"}
+    single = len(sources) <= 1 and all(set(s) == {"path"} for s in sources)
     if not single and args.manifest:
         raise ParameterError(
             "--manifest applies to a single --meshes folder; give each source its own (--meshes DIR,manifest=CSV)"
@@ -372,7 +399,7 @@ def _build(args) -> int:
             "splits": args.augment_splits,
         }
     cfg = BuildConfig(
-        meshes=str(sources[0]["path"]),
+        meshes=str(sources[0]["path"]) if sources else "",
         manifest=args.manifest,
         views=args.views,
         split=args.split,
@@ -395,6 +422,7 @@ def _build(args) -> int:
         exclude_categories=list(args.exclude_category),
         augment=augment,
         mount_height_range=heights,
+        procedural={"count": args.procedural, "classes": args.classes, "split": args.procedural_split},
     )
     rep = build_dataset(
         cfg,
@@ -469,6 +497,8 @@ def _info(args) -> int:
         f"  {info['n_models']} models x {info['views_per_model']} views = {info['n_samples']} samples; "
         f"categories: " + ", ".join(f"{k} {v}" for k, v in info["categories"].items())
     )
+    if info.get("classes"):
+        print("  classes: " + ", ".join(f"{k} {v}" for k, v in info["classes"].items()))
     for sp, d in info["splits"].items():
         cats = ", ".join(f"{k} {v}" for k, v in d["categories"].items())
         print(f"  {sp:5s}: {d['models']:4d} models, {d['samples']:8d} samples ({cats})")

@@ -28,6 +28,9 @@ dataset                    shape                  dtype    meaning
                                                            file; an augmented copy's origin); augmented builds only
 /models/augment            (n_models,)            utf-8    a copy's transform as JSON ({"mirror", "scale": [sx, sy,
                                                            sz]}), "" for a mesh file; augmented builds only
+/models/class              (n_models,)            utf-8    detector class (car, caravan, truck, bus, trailer, other);
+                                                           builds with procedural vehicles only (older files: the
+                                                           class of the category, see ``classes``)
 /rigs/<rig_name>/depths    (n_models, N*M)        float32  Spotlights depths; attr ``rig_json`` (RigSpec.to_dict;
                                                            box-targeted rigs: each model's own box, see rig())
 /samples/partial           (n_samples, 256, 3)    float32  partial scan, unit frame; chunked per sample
@@ -69,6 +72,7 @@ from .store_writer import (
     write_dataset,
     write_rig_group,
 )
+from .vehicle_classes import class_of_category
 
 __all__ = [
     "COMPRESSION",
@@ -141,6 +145,8 @@ class CompletionDataset:
         self.names, self.categories, self.splits = cat("names"), cat("categories"), cat("splits")
         self.center, self.radius, self.size = cat("center"), cat("radius"), cat("size")
         self.sources, self.origins, self.augments = cat("source"), cat("origin"), cat("augment")
+        self.stored_classes = cat("class")
+        self._classes = None
         self.sample_model = np.concatenate([t["sample_model"] + self.model_offset[k] for k, t in enumerate(tables)])
         self.sample_view = cat("sample_view")
         # a rig is the dataset's when every shard holds it (an interrupted add-rig adds it to some only)
@@ -397,6 +403,18 @@ class CompletionDataset:
             return spec.directions_for_boxes(np.zeros((len(rows), 3)))
         return spec.directions_for_boxes(self.extents[rows])
 
+    @property
+    def classes(self) -> np.ndarray:
+        """(n_models,) str detector class of every model (``car``, ``caravan``, ``truck``, ``bus``,
+        ``trailer``, ``other``): ``/models/class`` where the file has it, else the class of each
+        model's category (sedan, hatchback, suv: car; files built before classes existed)."""
+        if self._classes is None:
+            if self.stored_classes is not None:
+                self._classes = self.stored_classes
+            else:
+                self._classes = np.array([class_of_category(c) for c in self.categories])
+        return self._classes
+
     # --- arrays ---------------------------------------------------------------------------
     # Per-model ground truth is shared by all views: keep the most recent models in memory
     # (0.2 MB each at the default sizes).
@@ -434,7 +452,7 @@ class CompletionDataset:
 
         Returns a dict: ``partial`` (256, 3) f32, ``gt_points`` (2048, 3) f32, ``gt_dense`` (16384, 3) f32,
         ``gt_depths`` (N*M,) f32 (unit frame / depths), ``model`` (name), ``model_index``, ``category``,
-        ``split``, ``view``, ``sensor_to_unit`` (4, 4) f64, ``distance``, ``azimuth``, ``heading``, ``n_raw``,
+        ``class`` (detector class, :attr:`classes`), ``split``, ``view``, ``sensor_to_unit`` (4, 4) f64, ``distance``, ``azimuth``, ``heading``, ``n_raw``,
         ``rig`` (rig name), ``extents`` (3,) f64: the model's box half-extents in the unit frame
         (``size / 2R``; absent for files without /models/size). Decode ``gt_depths`` with
         ``rig(out["rig"], out["model_index"])`` (box-targeted rigs use the model's own box).
@@ -452,6 +470,7 @@ class CompletionDataset:
                 "model": str(self.names[m]),
                 "model_index": m,
                 "category": str(self.categories[m]),
+                "class": str(self.classes[m]),
                 "split": str(self.splits[m]),
                 "view": int(self.sample_view[i]),
                 "sensor_to_unit": meta["sensor_to_unit"][i].copy(),
@@ -546,6 +565,7 @@ class CompletionDataset:
             "n_samples": self.n_samples,
             "views_per_model": self.views_per_model,
             "categories": dict(sorted(cats.items())),
+            "classes": {str(c): int(k) for c, k in zip(*np.unique(self.classes, return_counts=True))},
             "splits": splits,
             "default_rig": self.default_rig,
             "rigs": {n: int(f[f"rigs/{n}/depths"].shape[1]) for n in self.rig_names},

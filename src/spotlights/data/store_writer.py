@@ -15,8 +15,9 @@ SPLITS = ("train", "val", "test")
 # HDF5 compression of every array dataset (portable: gzip is in every HDF5 build).
 COMPRESSION = dict(compression="gzip", compression_opts=4, shuffle=True)
 
-# Per-model string columns written only by builds that use them (multi-source, augmentation).
-OPTIONAL_MODEL_STRINGS = ("source", "origin", "augment")
+# Per-model string columns written only by builds that use them (multi-source, augmentation,
+# procedural vehicles: the detector class of every model).
+OPTIONAL_MODEL_STRINGS = ("source", "origin", "augment", "class")
 
 SAMPLE_FIELDS = {  # name -> (dtype, per-sample shape or None for scalars)
     "model": ("int32", ()),
@@ -40,7 +41,7 @@ def write_dataset(
     ----------
     attrs : root attributes (str / int values).
     models : ``name, file, sha256, category, split`` (lists of str, one per model), optionally
-        :data:`OPTIONAL_MODEL_STRINGS` (``source``, ``origin``, ``augment``), and
+        :data:`OPTIONAL_MODEL_STRINGS` (``source``, ``origin``, ``augment``, ``class``), and
         ``gt_points`` (n, G, 3) f32, ``gt_dense`` (n, D, 3) f32, ``center`` (n, 3), ``radius`` (n,),
         ``size`` (n, 3) arrays.
     rigs : list of ``(Rig, depths (n_models, N*M) float32)``.

@@ -26,8 +26,8 @@ import numpy as np
 
 from ..data.store import open_dataset
 from ..errors import InputFileError, ParameterError
+from ..geometry.box_clamp import clamp_to_grown_boxes
 from ..geometry.boxes import Box, box_from_dict, load_box  # noqa: F401  (the box of complete_scan; re-exported)
-from ..geometry.frames import clamp_to_unit_sphere
 from ..geometry.sampling import resample_set
 from .checkpoint import PRETRAINED, load_checkpoint, model_from_checkpoint, resolve_checkpoint
 from .rays import directions_for_extents, unit_extents
@@ -404,9 +404,16 @@ def prepare_partial(
 
 
 def complete_in_boxes(
-    completer, partials: np.ndarray, sizes: np.ndarray, clip=DEFAULT, sensor_origins=None
+    completer,
+    partials: np.ndarray,
+    sizes: np.ndarray,
+    clip=DEFAULT,
+    sensor_origins=None,
+    inside: list | None = None,
 ) -> list[np.ndarray]:
-    """Complete unit-frame partial scans, each with its box, every point inside its box's sphere.
+    """Complete unit-frame partial scans, each with its box, every point inside its box grown by
+    0.15 m and inside the box's sphere (:func:`~spotlights.geometry.box_clamp.clamp_to_grown_boxes`;
+    ``inside``, when given, gets each completion's share of points the network put in the grown box).
 
     The step that the user-facing completions share (``complete_scan``; ``complete_scene``, so
     ``complete --boxes`` and ``real complete``): a box-targeted SA-Net (``completer.needs_box``) gets
@@ -419,18 +426,21 @@ def complete_in_boxes(
     ----------
     completer : a :class:`Completer` (or any object with its ``complete`` and ``needs_box``).
     partials : (B, K, 3) float32 unit-frame points (the box's object frame / half its diagonal).
-    sizes : (B, 3) box sizes (length, width, height), metres (only their ratios matter).
+    sizes : (B, 3) box sizes (length, width, height), metres.
     clip : passed to :meth:`Completer.complete`.
     sensor_origins : (B, 3) the LiDAR in each scan's unit frame, passed on to models that read free space.
 
-    Returns a list of B arrays (K_i, 3) float32, unit frame, norms <= 1.
+    Returns a list of B arrays (K_i, 3) float32, unit frame, norms <= 1, inside the grown boxes.
     """
     kw = {"clip": clip}
     if sensor_origins is not None and getattr(getattr(completer, "model", None), "uses_evidence", False):
         kw["sensor_origins"] = sensor_origins
     if getattr(completer, "needs_box", False):
         kw["extents"] = unit_extents(np.asarray(sizes, dtype=np.float64).reshape(-1, 3))
-    return [clamp_to_unit_sphere(c) for c in completer.complete(partials, **kw)]
+    done, shares = clamp_to_grown_boxes(completer.complete(partials, **kw), sizes)
+    if inside is not None:
+        inside.extend(shares)
+    return done
 
 
 def with_observed(completion: np.ndarray, observed: np.ndarray) -> np.ndarray:

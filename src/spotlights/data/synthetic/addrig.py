@@ -143,7 +143,7 @@ def _add_rig_locked(
             "origin": [str(x) for x in ds.origins] if ds.origins is not None else [""] * ds.n_models,
             "augment": [str(x) for x in ds.augments] if ds.augments is not None else [""] * ds.n_models,
         }
-    if not cfg_dict.get("meshes") and not meshes:
+    if not cfg_dict.get("meshes") and not meshes and not cfg_dict.get("procedural"):
         raise InputFileError(path, "config_json records no meshes folder; pass --meshes DIR")
     cfg = BuildConfig.from_dict(cfg_dict)
     if meshes:

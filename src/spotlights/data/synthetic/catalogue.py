@@ -22,7 +22,8 @@ from ...errors import InputFileError, ParameterError
 from ...geometry.io import MESH_SUFFIXES, load_mesh
 from ...inputs import path_inside
 from ..store import SPLITS
-from .config import STREAM_AUGMENT, STREAM_SPLIT, parse_split
+from .config import PROCEDURAL_SOURCE, STREAM_AUGMENT, STREAM_PROCEDURAL, STREAM_SPLIT, MeshSource, parse_split
+from .procedural import CLASS_BODIES, class_of_category, generate_vehicle, mesh_digest
 
 
 # ----------------------------------------------------------------------------------------------
@@ -38,6 +39,9 @@ class ModelEntry:
     source : the source's name ("" in a single-source build). origin : for an augmented copy,
     the name of the model it was made from ("" for a mesh file itself). augment : the copy's
     transform, ``{"scale": [sx, sy, sz], "mirror": bool}`` (None for a mesh file itself).
+    vclass : the detector class (``car``, ``van``, ``truck``, ``bus``, ``trailer``, ``other``;
+    "" when the build does not store classes). generator : a procedural vehicle's ``{"body",
+    "seed"}`` (:mod:`.procedural`; None for a mesh file): its mesh is generated, not read.
     """
 
     name: str
@@ -51,12 +55,14 @@ class ModelEntry:
     source: str = ""
     origin: str = ""
     augment: dict | None = None
+    vclass: str = ""
+    generator: dict | None = None
 
     def plan_dict(self) -> dict:
         """The entry as recorded in ``plan.json`` (the fields added for multi-source builds and
         augmentation only when set, so plans of older builds still match)."""
         d = asdict(self)
-        for k in ("scale", "source", "origin", "augment"):
+        for k in ("scale", "source", "origin", "augment", "vclass", "generator"):
             if not d[k]:
                 del d[k]
         return d
@@ -179,7 +185,18 @@ class LoadedModel:
 def load_model(root: Path, entry: ModelEntry, scale: float = 1.0) -> LoadedModel:
     """Load one mesh (validated by :func:`~spotlights.geometry.io.load_mesh`), drop unreferenced
     vertices (they would enlarge the box), scale it (``entry.scale`` when the manifest gives one,
-    else ``scale``) and hash its file. Raises InputFileError."""
+    else ``scale``) and hash its file. Raises InputFileError.
+
+    A procedural entry (``entry.generator``) is generated instead (``root`` and ``scale`` unused):
+    :func:`~.procedural.generate_vehicle` seeded by ``(generator["seed"], model_key(name),
+    STREAM_PROCEDURAL)``; its ``sha256`` is the mesh's bytes' (:func:`~.procedural.mesh_digest`)."""
+    if entry.generator:
+        seed = np.random.SeedSequence(
+            int(entry.generator["seed"]), spawn_key=(model_key(entry.name), STREAM_PROCEDURAL)
+        )
+        v, f, _ = generate_vehicle(entry.generator["body"], seed)
+        entry.sha256 = mesh_digest(v, f)
+        return LoadedModel(entry=entry, vertices=v, faces=f)
     path = root / entry.file
     mesh = load_mesh(path, up=entry.up, forward=entry.forward)
     used = np.unique(mesh.faces)
@@ -359,6 +376,7 @@ def discover_sources(cfg) -> tuple[list[ModelEntry], list[dict]]:
     Returns ``(entries, problems)``; entries in source order, each source's sorted by name;
     problems ``{"file", "problem"}`` (``file`` prefixed like the names)."""
     entries, problems = [], []
+    procedural = getattr(cfg, "procedural", None)
     for src in cfg.mesh_sources():
         found, probs = discover_models(src.path, src.manifest, src.up, src.forward)
         prefix = f"{src.name}/" if src.name else ""
@@ -366,16 +384,48 @@ def discover_sources(cfg) -> tuple[list[ModelEntry], list[dict]]:
             if e.category in cfg.exclude_categories:
                 continue
             e.name, e.source = prefix + e.name, src.name
+            if procedural:
+                e.vclass = class_of_category(e.category)
             entries.append(e)
         problems.extend({"file": prefix + p["file"], "problem": p["problem"]} for p in probs)
+    if procedural:
+        entries.extend(e for e in procedural_entries(procedural, cfg.seed) if e.category not in cfg.exclude_categories)
     names = [e.name for e in entries]
     if len(set(names)) != len(names):
         raise ParameterError(f"two models are named {sorted(n for n in names if names.count(n) > 1)[0]!r}")
     return entries, problems
 
 
+def procedural_entries(procedural: dict, seed: int) -> list[ModelEntry]:
+    """The entries of a build's procedural vehicles (``BuildConfig.procedural``): for each class,
+    ``count`` vehicles ``procedural/CLASS/BODY-IIII`` whose body types take turns through
+    :data:`~.procedural.CLASS_BODIES` (vehicle ``i`` of a class is the same whatever ``count``);
+    category = body type, ``vclass`` = the class, ``generator = {"body", "seed"}``."""
+    out = []
+    for cls in procedural["classes"]:
+        bodies = CLASS_BODIES[cls]
+        for i in range(procedural["count"]):
+            body = bodies[i % len(bodies)]
+            name = f"{PROCEDURAL_SOURCE}/{cls}/{body}-{i:04d}"
+            out.append(
+                ModelEntry(
+                    name=name,
+                    file=f"{cls}/{body}-{i:04d}",
+                    category=body,
+                    up="z",
+                    forward="x",
+                    source=PROCEDURAL_SOURCE,
+                    vclass=cls,
+                    generator={"body": body, "seed": int(seed)},
+                )
+            )
+    return out
+
+
 def source_root(cfg, entry: ModelEntry) -> Path:
-    """The folder ``entry.file`` is relative to."""
+    """The folder ``entry.file`` is relative to (for a procedural vehicle, a name only: nothing is read)."""
+    if entry.generator:
+        return Path(PROCEDURAL_SOURCE)
     for src in cfg.mesh_sources():
         if src.name == entry.source:
             return Path(src.path)
@@ -384,6 +434,8 @@ def source_root(cfg, entry: ModelEntry) -> Path:
 
 def source_scale(cfg, entry: ModelEntry) -> float:
     """The scale of ``entry``'s source (a manifest's per-file ``scale`` overrides it in load_model)."""
+    if entry.generator:
+        return 1.0
     return next(s.scale for s in cfg.mesh_sources() if s.name == entry.source)
 
 
@@ -399,7 +451,9 @@ def assign_model_splits(entries: list[ModelEntry], cfg) -> list[str]:
     """
     out: list[str | None] = [None] * len(entries)
     pool = []
-    for src in cfg.mesh_sources():
+    proc = getattr(cfg, "procedural", None)
+    pseudo = [MeshSource("", split=proc["split"], name=PROCEDURAL_SOURCE)] if proc else []
+    for src in cfg.mesh_sources() + pseudo:
         idx = [i for i, e in enumerate(entries) if e.source == src.name]
         fixed = [entries[i].split for i in idx]
         if idx and all(s is not None for s in fixed):
@@ -486,7 +540,7 @@ def build_catalogue(cfg, log=None, progress: bool = False, loader=None) -> tuple
     out = []
     for m in models:
         out.append(m)
-        if m.entry.split in cfg.augment["splits"]:
+        if m.entry.split in cfg.augment["splits"] and not m.entry.generator:  # procedural: fresh draws instead
             out.extend(m.derive(e) for e in augment_entries(m.entry, m.size, cfg.augment, cfg.seed))
     return out, skipped
 

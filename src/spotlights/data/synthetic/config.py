@@ -18,11 +18,14 @@ import numpy as np
 from ...errors import ParameterError
 from ...geometry.rig import Rig, RigSpec, parse_rig
 from ..lidar import SensorModel, hdl64e
+from ..vehicle_classes import VEHICLE_CLASSES, canonical_class
 
 PLAN_VERSION = 1
 # Seed streams (the second spawn-key word).
 STREAM_VIEWS, STREAM_GT_POINTS, STREAM_GT_DENSE, STREAM_SPLIT = 1, 2, 3, 4
 STREAM_AUGMENT, STREAM_MOUNT_HEIGHT = 5, 6  # augmented copies' scale factors; per-view sensor height
+STREAM_PROCEDURAL = 7  # a procedural vehicle's parameters
+PROCEDURAL_SOURCE = "procedural"  # the source name (and name prefix) of procedural vehicles
 SPLIT_NAMES = ("train", "val", "test")
 # Keys of a mesh source (``--meshes DIR,key=value,...``), see :class:`MeshSource`.
 SOURCE_KEYS = ("manifest", "up", "forward", "scale", "split", "name")
@@ -155,6 +158,37 @@ def normalize_augment(aug: dict | None) -> dict | None:
     return a
 
 
+def normalize_procedural(proc: dict | None) -> dict | None:
+    """Validate the procedural-vehicles option of :class:`BuildConfig` (None or a count of 0: none).
+
+    Returns ``{"count": N, "classes": [classes in :data:`~.procedural.VEHICLE_CLASSES` order],
+    "split": None | split name | spec}``; raises ParameterError."""
+    if not proc:
+        return None
+    unknown = sorted(set(proc) - {"count", "classes", "split"})
+    if unknown:
+        raise ParameterError(f"unknown procedural option(s): {', '.join(unknown)}")
+    n = proc.get("count")
+    if not (isinstance(n, (int, np.integer)) and not isinstance(n, bool) and n >= 0):
+        raise ParameterError(f"--procedural must be a count of vehicles per class >= 0, got {n!r}")
+    if n == 0:
+        return None
+    classes = proc.get("classes") or list(VEHICLE_CLASSES)
+    classes = classes.split(",") if isinstance(classes, str) else list(classes)
+    classes = [canonical_class(c) for c in classes if str(c).strip()]
+    bad = [c for c in classes if c not in VEHICLE_CLASSES]
+    if bad or not classes:
+        raise ParameterError(
+            f"--classes: unknown vehicle class {bad[0] if bad else ''!r}; known: {', '.join(VEHICLE_CLASSES)} (van = caravan)"
+        )
+    split = proc.get("split") or None
+    if split is not None:
+        split = str(split).strip().lower()
+        if split not in SPLIT_NAMES:
+            parse_split(split)
+    return {"count": int(n), "classes": [c for c in VEHICLE_CLASSES if c in classes], "split": split}
+
+
 @dataclass
 class BuildConfig:
     """Everything that determines a dataset's content (stored as ``config_json``).
@@ -189,6 +223,11 @@ class BuildConfig:
         ``length_width``/``length_height`` ratio ranges; only for models of ``splits``.
     mount_height_range : (min, max) metres: each view's sensor height drawn uniformly from it
         (None: the sensor's ``mount_height``).
+    procedural : procedural vehicles as extra models (:mod:`.procedural`): ``{"count": N,
+        "classes": [...], "split": None | "train" | "A/B/C"}``, N per detector class
+        (``car``, ``caravan``, ``truck``, ``bus``, ``trailer``; ``van`` = ``caravan``); split None: pooled
+        with ``split``.
+        With it, every model's detector class is stored (``/models/class``).
 
     The options after ``stratify`` are left out of :meth:`to_dict` at their defaults, so a
     build without them stores the same ``config_json`` (and bytes) as before they existed.
@@ -218,6 +257,7 @@ class BuildConfig:
     exclude_categories: list = field(default_factory=list)
     augment: dict | None = None
     mount_height_range: tuple | None = None
+    procedural: dict | None = None
 
     def validate(self) -> BuildConfig:
         """Check every field (raises ParameterError); normalises rig specs and tuples."""
@@ -258,8 +298,11 @@ class BuildConfig:
             )
         if self.sources:
             self.meshes = self.sources[0]["path"]
-        if not self.meshes:
-            raise ParameterError("no meshes folder given (--meshes DIR)")
+        self.procedural = normalize_procedural(self.procedural)
+        if not self.meshes and not self.procedural:
+            raise ParameterError("no meshes folder given (--meshes DIR or --procedural N)")
+        if self.procedural and PROCEDURAL_SOURCE in names:
+            raise ParameterError(f"a mesh source is named {PROCEDURAL_SOURCE!r}, the name of the procedural vehicles")
         cs = {}
         for cat, sp in dict(self.category_split).items():
             if str(sp).lower() not in SPLIT_NAMES:
@@ -309,6 +352,8 @@ class BuildConfig:
         """The build's mesh folders: ``sources``, or the single folder ``meshes`` (name "")."""
         if self.sources:
             return [MeshSource(**s) for s in self.sources]
+        if not self.meshes:  # procedural vehicles only
+            return []
         return [MeshSource(self.meshes, self.manifest, self.up, self.forward, float(self.scale), None, "")]
 
     @property
@@ -326,7 +371,7 @@ class BuildConfig:
         ``stratify`` only when set."""
         d = asdict(self)
         d["distance"] = list(self.distance)
-        for k in ("sources", "category_split", "exclude_categories", "augment", "mount_height_range"):
+        for k in ("sources", "category_split", "exclude_categories", "augment", "mount_height_range", "procedural"):
             if not d[k]:
                 del d[k]
         if "mount_height_range" in d:

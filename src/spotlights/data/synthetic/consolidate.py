@@ -125,8 +125,10 @@ def write_output_file(
         "radius": np.array([float(g["radius"]) for g in gts]),
         "size": np.stack([g["size"] for g in gts]),
     }
-    if cfg.sources:
+    if cfg.sources or cfg.procedural:
         model_arrays["source"] = [e.source for e in sel]
+    if cfg.procedural:
+        model_arrays["class"] = [e.vclass for e in sel]
     if cfg.augment:
         model_arrays["origin"] = [e.origin or e.name for e in sel]
         model_arrays["augment"] = [json.dumps(e.augment, sort_keys=True) if e.augment else "" for e in sel]

@@ -1,0 +1,54 @@
+"""Detector classes of the synthetic models: which procedural bodies make each class, and the class of a
+mesh category.
+
+The class names are those the real-data readers give boxes (:data:`spotlights.data.real.base.CLASSES`:
+``caravan`` is the van class, KITTI ``Van``, Argoverse 2 ``LARGE_VEHICLE``), so a model trained on these
+classes can be matched with a detector's boxes. ``van`` is accepted as another name of ``caravan``.
+"""
+
+from __future__ import annotations
+
+#: detector class -> procedural body types drawn for it, in round-robin order. Pickups are in both car
+#: and truck: nuScenes labels pickups ``vehicle.truck``, Argoverse 2 ``REGULAR_VEHICLE`` and KITTI ``Car``.
+CLASS_BODIES: dict[str, tuple[str, ...]] = {
+    "car": ("sedan", "hatchback", "suv", "pickup"),
+    "caravan": ("van",),
+    "truck": ("box_truck", "semi_tractor", "pickup"),
+    "bus": ("bus",),
+    "trailer": ("trailer_box", "trailer_flatbed"),
+}
+#: the classes the procedural generator makes
+VEHICLE_CLASSES: tuple[str, ...] = tuple(CLASS_BODIES)
+#: other names accepted for a class (``--classes van``)
+CLASS_ALIASES: dict[str, str] = {"van": "caravan"}
+
+#: mesh category (sub-folder or manifest category; procedural body type) -> detector class; categories not
+#: listed are ``"other"`` (e.g. the Kenney farm tractors)
+CATEGORY_CLASS: dict[str, str] = {
+    "sedan": "car",
+    "hatchback": "car",
+    "suv": "car",
+    "pickup": "car",
+    "race": "car",
+    "car": "car",
+    "van": "caravan",
+    "caravan": "caravan",
+    "truck": "truck",
+    "box_truck": "truck",
+    "semi_tractor": "truck",
+    "bus": "bus",
+    "trailer": "trailer",
+    "trailer_box": "trailer",
+    "trailer_flatbed": "trailer",
+}
+
+
+def class_of_category(category: str) -> str:
+    """The detector class of a mesh category (:data:`CATEGORY_CLASS`; ``"other"`` when unknown)."""
+    return CATEGORY_CLASS.get(str(category).lower(), "other")
+
+
+def canonical_class(name: str) -> str:
+    """A class name as stored: lower case, aliases resolved (``van`` -> ``caravan``)."""
+    n = str(name).strip().lower()
+    return CLASS_ALIASES.get(n, n)
