@@ -38,6 +38,7 @@ from scipy.spatial import cKDTree
 from ..errors import ParameterError
 from ..geometry.boxes import Box
 from ..geometry.rotations import rotation_z
+from ..geometry.sampling import voxel_downsample
 
 #: Seconds per unit of each reader's ``Frame.timestamp`` (KITTI object frames have no time order
 #: and no tracks: None). KITTI-360 keys are frame indices of its 10 Hz Velodyne; generic
@@ -277,13 +278,15 @@ class _LazyNormals:
 
     A point's plane is the PCA of its k nearest neighbours; it is usable when the neighbourhood is a
     surface (the two largest spreads comparable, the smallest clearly below them: not a scan line) and
-    the normal is not mostly vertical (a roof tells nothing about x, y or yaw). Only the target points
+    the normal is not mostly vertical (``flat``: a roof or a bonnet tells nothing about x, y or yaw, and such
+    pairs are left out; points of no surface, edges and scan lines, pair point to point). Only the target points
     that become correspondences are ever computed (a fused track holds many more)."""
 
     def __init__(self, target: np.ndarray, tree: cKDTree, k: int = 10):
         self.target, self.tree, self.k = target, tree, min(k, len(target))
         self.normals = np.zeros((len(target), 2))
         self.ok = np.zeros(len(target), bool)
+        self.flat = np.zeros(len(target), bool)
         self.done = np.zeros(len(target), bool)
 
     def __call__(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -294,10 +297,12 @@ class _LazyNormals:
             w, v = np.linalg.eigh(np.einsum("mki,mkj->mij", q, q) / self.k)  # ascending
             normal = v[:, :, 0]
             horiz = np.linalg.norm(normal[:, :2], axis=1)
-            self.ok[todo] = (w[:, 1] > 0.05 * w[:, 2]) & (w[:, 0] < 0.3 * w[:, 1]) & (horiz > 0.5)
+            surface = (w[:, 1] > 0.05 * w[:, 2]) & (w[:, 0] < 0.3 * w[:, 1])
+            self.ok[todo] = surface & (horiz > 0.5)
+            self.flat[todo] = surface & (horiz <= 0.5)
             self.normals[todo] = normal[:, :2] / np.maximum(horiz, 1e-12)[:, None]
         self.done[todo] = True
-        return self.normals[rows], self.ok[rows]
+        return self.normals[rows], self.ok[rows], self.flat[rows]
 
 
 def _moved(s_xy: np.ndarray, z: np.ndarray, t: np.ndarray, yaw: float) -> np.ndarray:
@@ -310,8 +315,8 @@ def register_xy_yaw(
     target: np.ndarray,
     max_correspondence: float = 0.75,
     huber: float = 0.05,
-    max_iterations: int = 60,
-    tolerance: float = 1e-5,
+    max_iterations: int = 30,
+    tolerance: float = 1e-4,
     prior: float = 1e-3,
 ) -> Registration:
     """Align ``source`` to ``target`` by a rigid motion in the horizontal plane (x, y, yaw about z).
@@ -366,7 +371,9 @@ def register_xy_yaw(
                 break
             p, q, jj = moved[keep, :2], tgt[j[keep], :2], j[keep]
             perp = np.c_[-(p[:, 1] - t[1]), p[:, 0] - t[0]]  # d p / d yaw
-            nrm, pl = normals_of(jj)
+            nrm, pl, flat = normals_of(jj)
+            if (~flat).sum() >= 3:
+                p, q, jj, perp, nrm, pl = p[~flat], q[~flat], jj[~flat], perp[~flat], nrm[~flat], pl[~flat]
             rows_j, rows_r = [], []
             if pl.any():
                 nrm = nrm[pl]
@@ -396,7 +403,7 @@ def register_xy_yaw(
                 done = True
                 break
         settled.append(done)
-    converged = len(settled) == 2 and all(settled)
+    converged = len(settled) == 2 and settled[1]  # the trimmed phase settled (the coarse one may stop at its cap)
     it = its
     dist, _ = tree.query(_moved(s_xy, src[:, 2], t, yaw), k=1)
     keep = dist <= max_correspondence
@@ -454,9 +461,10 @@ def refine_track(
     max_translation: float = MAX_TRANSLATION_M,
     max_yaw: float = MAX_YAW_RAD,
     rounds: int = 2,
-    min_points: int = 10,
+    min_points: int = 30,
     margin: float | None = None,
     ground_clearance: float | None = None,
+    voxel: float | None = 0.1,
 ) -> Refinement:
     """Refine a track's boxes by registering each frame to the other frames of its window.
 
@@ -466,9 +474,14 @@ def refine_track(
     (:func:`corrected_box`). With ``past:K`` only earlier frames are ever used (causal). The correction
     is bounded: above ``max_translation`` metres or ``max_yaw`` radians (counted from the given box), or
     without convergence, the frame keeps its given box and is flagged. One pass sweeps frames in order,
-    so later frames see earlier frames' refined boxes. ``margin``/``ground_clearance`` select each frame's
+    so later frames see earlier frames' refined boxes (with a causal window a second pass would repeat the
+    first: one is made). ``margin``/``ground_clearance`` select each frame's
     points as in :func:`fuse_track` (use a wider crop than the completion's: a box off by 0.3 m cuts
-    its object). Only x, y and yaw change: heights and sizes are kept.
+    its object). Only x, y and yaw change: heights and sizes are kept. ``voxel`` (metres): the frame and its
+    reference are registered as the centroids of their occupied cells of that side
+    (:func:`spotlights.geometry.sampling.voxel_downsample`; None: every point): dense close-range crops cost
+    less, and a dense frame does not outweigh a sparse one. ``min_points`` counts the cells (default 30: a
+    registration of fewer is at the mercy of a few returns).
 
     Raises :class:`ParameterError` for a track of fewer than 2 frames (nothing to register to) or a
     ``none`` policy.
@@ -481,6 +494,8 @@ def refine_track(
         raise ParameterError("a box refinement needs a window of several frames (all, past:K or centered:K)")
     if rounds < 1:
         raise ParameterError(f"rounds must be >= 1, got {rounds}")
+    if pol.causal:
+        rounds = 1
     given = [f.box for f in frames]
     boxes = list(given)
     status = ["no_reference"] * n
@@ -490,6 +505,8 @@ def refine_track(
     objs = [None] * n  # each frame's points in its given box's frame (selected once)
     for i, f in enumerate(frames):
         objs[i] = _object_points(f, given[i], margin, ground_clearance)
+        if voxel is not None:
+            objs[i] = voxel_downsample(objs[i], voxel).astype(np.float64)
     # current correction of each frame relative to its given box (points p' = Rz p + t)
     corr = [(np.zeros(2), 0.0) for _ in range(n)]
 
@@ -505,6 +522,8 @@ def refine_track(
             if not others:
                 continue
             ref = np.concatenate([in_current(j) for j in others])
+            if voxel is not None and len(others) > 1:
+                ref = voxel_downsample(ref, voxel).astype(np.float64)
             if len(objs[i]) < min_points or len(ref) < min_points:
                 status[i] = "too_few_points"
                 continue
