@@ -22,10 +22,12 @@ def safe_name(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", str(text)).strip("._") or "frame"
 
 
-def complete_frames(args, reader, keys, config, completer, out) -> int:
+def complete_frames(args, reader, keys, config, completer, out, tracks=None) -> int:
     """Complete the frames ``keys`` of ``reader`` into the folder ``out`` (the options of ``real complete`` in
     ``args``): per frame a PLY (+ PNG, HTML, per-object files) and, written last, its JSON summary (``--resume``
-    skips frames whose JSON says the same model and options); then ``summary.json`` and one line on stdout."""
+    skips frames whose JSON says the same model and options); then ``summary.json`` and one line on stdout.
+    ``tracks``: a built :class:`spotlights.experiments.tracks.TrackPlan` (``--fuse``): its boxes and fused
+    inputs are completed, and its per-track files written."""
     checkpoint = args.checkpoint or "default"
     out = Path(out)
     frames, warnings = [], []
@@ -52,7 +54,10 @@ def complete_frames(args, reader, keys, config, completer, out) -> int:
                     {**info, "status": f"scan holds {len(frame.points)} points (< {config.min_points}): not completed"}
                 )
                 continue
-            result = complete_scene(frame.points, frame.boxes, completer, config, checkpoint=checkpoint)
+            boxes, extra = (frame.boxes, None) if tracks is None else tracks.frame_inputs(key, frame.boxes)
+            result = complete_scene(frame.points, boxes, completer, config, checkpoint=checkpoint, extra_points=extra)
+            if tracks is not None:
+                tracks.record(key, result)
             write_scene(
                 result,
                 stem.with_suffix(".ply"),
@@ -115,6 +120,9 @@ def complete_frames(args, reader, keys, config, completer, out) -> int:
         warnings=warnings,
         frames=frames,
     )
+    if tracks is not None:
+        tracks.write(out, completer.model_name)
+        summary["tracks"] = {k: v for k, v in tracks.summary().items() if k != "tracks"}
     with atomic_output(out / "summary.json") as tmp:
         tmp.write_text(json.dumps(summary, indent=2, default=float) + "\n", encoding="utf-8")
     if len(warnings) > 10:
