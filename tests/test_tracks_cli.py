@@ -124,6 +124,7 @@ def test_fuse_and_refine_on_shared_nuscenes(tmp_path):
         "not_converged",
         "exceeds_bound",
         "single_frame",
+        "no_gain",
     }
     # the bound holds on the correction in the box frame; a tilted box's heading about the scan z differs slightly
     assert all(r["moved_m"] <= 0.5 + 1e-9 and abs(r["turned_deg"]) <= 10.1 for r in rows)

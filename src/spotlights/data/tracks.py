@@ -262,7 +262,8 @@ class Registration:
 
     translation : (2,) float64 metres (tx, ty); yaw : radians; converged : the iterations settled with at
     least half of the source points matched; iterations; rms : root mean square distance (metres) of the
-    matched points after the correction; inliers : their share.
+    matched points after the correction; inliers : their share; gain : 1 - (mean truncated squared distance
+    after / before the correction), distances capped at ``2 * huber`` (0: no better, 1: perfect).
     """
 
     translation: np.ndarray
@@ -271,6 +272,7 @@ class Registration:
     iterations: int
     rms: float
     inliers: float
+    gain: float = 0.0
 
 
 class _LazyNormals:
@@ -307,7 +309,10 @@ class _LazyNormals:
 
 def _moved(s_xy: np.ndarray, z: np.ndarray, t: np.ndarray, yaw: float) -> np.ndarray:
     c, s = math.cos(yaw), math.sin(yaw)
-    return np.c_[s_xy @ np.array([[c, s], [-s, c]]) + t, z]
+    out = np.empty((len(z), 3))
+    out[:, :2] = s_xy @ np.array([[c, s], [-s, c]]) + t
+    out[:, 2] = z
+    return out
 
 
 def register_xy_yaw(
@@ -317,7 +322,7 @@ def register_xy_yaw(
     huber: float = 0.05,
     max_iterations: int = 30,
     tolerance: float = 1e-4,
-    prior: float = 1e-3,
+    prior: float = 1e-2,
 ) -> Registration:
     """Align ``source`` to ``target`` by a rigid motion in the horizontal plane (x, y, yaw about z).
 
@@ -370,20 +375,22 @@ def register_xy_yaw(
             if keep.sum() < 3:
                 break
             p, q, jj = moved[keep, :2], tgt[j[keep], :2], j[keep]
-            perp = np.c_[-(p[:, 1] - t[1]), p[:, 0] - t[0]]  # d p / d yaw
+            perp = np.column_stack((t[1] - p[:, 1], p[:, 0] - t[0]))  # d p / d yaw
             nrm, pl, flat = normals_of(jj)
             if (~flat).sum() >= 3:
                 p, q, jj, perp, nrm, pl = p[~flat], q[~flat], jj[~flat], perp[~flat], nrm[~flat], pl[~flat]
             rows_j, rows_r = [], []
             if pl.any():
                 nrm = nrm[pl]
-                rows_j.append(np.c_[nrm, np.sum(nrm * perp[pl], axis=1)])
+                rows_j.append(np.column_stack((nrm, np.einsum("ij,ij->i", nrm, perp[pl]))))
                 rows_r.append(np.sum(nrm * (p[pl] - q[pl]), axis=1))
             if (~pl).any():
                 pp, dd, pe = p[~pl], (p - q)[~pl], perp[~pl]
                 ones, zeros = np.ones(len(pp)), np.zeros(len(pp))
-                rows_j.append(np.r_[np.c_[ones, zeros, pe[:, 0]], np.c_[zeros, ones, pe[:, 1]]])
-                rows_r.append(np.r_[dd[:, 0], dd[:, 1]])
+                rows_j.append(
+                    np.concatenate((np.column_stack((ones, zeros, pe[:, 0])), np.column_stack((zeros, ones, pe[:, 1]))))
+                )
+                rows_r.append(np.concatenate((dd[:, 0], dd[:, 1])))
             jac, res = np.concatenate(rows_j), np.concatenate(rows_r)
             w = np.where(np.abs(res) <= huber, 1.0, huber / np.maximum(np.abs(res), 1e-12))
             lam = prior * float(w.sum())
@@ -409,7 +416,12 @@ def register_xy_yaw(
     keep = dist <= max_correspondence
     inl = float(keep.mean())
     rms = float(np.sqrt(np.mean(dist[keep] ** 2))) if keep.any() else float("inf")
-    return Registration(t, float(yaw), bool(converged and inl >= 0.5), it, rms, inl)
+    # gain: how much the correction lowers the truncated squared distance (pairs beyond 2 x huber count as 2 x huber)
+    cap = 2.0 * huber
+    before = float(np.mean(np.minimum(tree.query(src, k=1)[0], cap) ** 2))
+    after = float(np.mean(np.minimum(dist, cap) ** 2))
+    gain = 0.0 if before <= 0 else 1.0 - after / before
+    return Registration(t, float(yaw), bool(converged and inl >= 0.5), it, rms, inl, gain)
 
 
 def corrected_box(box: Box, translation: np.ndarray, yaw: float) -> Box:
@@ -433,7 +445,7 @@ class Refinement:
 
     boxes : the refined boxes (the given box where not refined).
     status : ``refined``; ``no_reference`` (no other frame in its window, e.g. the first frame of a causal
-        window: kept); ``too_few_points`` (the frame or its reference holds fewer than ``min_points``: kept);
+        window: kept); ``no_gain`` (the correction barely improved the fit: kept); ``too_few_points`` (the frame or its reference holds fewer than ``min_points``: kept);
         ``not_converged`` and ``exceeds_bound`` (kept, flagged: see :data:`FLAGGED`).
     translation : (F,) float64 metres, horizontal distance between the given and the refined box centre.
     yaw : (F,) float64 radians, the refined minus the given heading (wrapped to (-pi, pi]).
@@ -465,6 +477,7 @@ def refine_track(
     margin: float | None = None,
     ground_clearance: float | None = None,
     voxel: float | None = 0.1,
+    min_gain: float = 0.1,
 ) -> Refinement:
     """Refine a track's boxes by registering each frame to the other frames of its window.
 
@@ -481,7 +494,10 @@ def refine_track(
     reference are registered as the centroids of their occupied cells of that side
     (:func:`spotlights.geometry.sampling.voxel_downsample`; None: every point): dense close-range crops cost
     less, and a dense frame does not outweigh a sparse one. ``min_points`` counts the cells (default 30: a
-    registration of fewer is at the mercy of a few returns).
+    registration of fewer is at the mercy of a few returns). A correction that lowers the frame's distance
+    to its reference by less than ``min_gain`` (:attr:`Registration.gain`) is not worth its risk: the frame
+    keeps its box (``no_gain``, not flagged): sparse frames otherwise slide along directions their few points
+    barely determine.
 
     Raises :class:`ParameterError` for a track of fewer than 2 frames (nothing to register to) or a
     ``none`` policy.
@@ -512,9 +528,7 @@ def refine_track(
 
     def in_current(i: int) -> np.ndarray:
         t, y = corr[i]
-        c, s = math.cos(y), math.sin(y)
-        p = objs[i]
-        return np.c_[p[:, :2] @ np.array([[c, s], [-s, c]]) + t, p[:, 2]]
+        return _moved(objs[i][:, :2], objs[i][:, 2], t, y)
 
     for _ in range(rounds):
         for i in range(n):
@@ -536,6 +550,8 @@ def refine_track(
                 status[i], corr[i] = "not_converged", (np.zeros(2), 0.0)
             elif prop_t[i] > max_translation or abs(reg.yaw) > max_yaw:
                 status[i], corr[i] = "exceeds_bound", (np.zeros(2), 0.0)
+            elif reg.gain < min_gain:
+                status[i], corr[i] = "no_gain", (np.zeros(2), 0.0)
             else:
                 status[i], corr[i] = "refined", (reg.translation, reg.yaw)
     for i in range(n):
