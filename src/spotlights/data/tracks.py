@@ -472,7 +472,7 @@ def refine_track(
     policy: WindowPolicy | str = "all",
     max_translation: float = MAX_TRANSLATION_M,
     max_yaw: float = MAX_YAW_RAD,
-    rounds: int = 2,
+    rounds: int = 4,
     min_points: int = 30,
     margin: float | None = None,
     ground_clearance: float | None = None,
@@ -481,7 +481,8 @@ def refine_track(
 ) -> Refinement:
     """Refine a track's boxes by registering each frame to the other frames of its window.
 
-    For each frame ``t`` in time order (``rounds`` passes): its points in its current box's frame are
+    For each frame ``t`` in time order (``rounds`` passes, default 4: on simulated drive-past sequences with
+    noisy boxes, 2 passes cut the box error by a third, 4 by 42%, ``benchmarks/track_sequences.py``): its points in its current box's frame are
     registered (:func:`register_xy_yaw`) to the fused points of the *other* frames of ``policy.select(t)``
     under their current boxes (refined ones once refined), and its box is corrected
     (:func:`corrected_box`). With ``past:K`` only earlier frames are ever used (causal). The correction
