@@ -5,7 +5,10 @@ For one dataset (default: the shared nuScenes scene-0523, 40 keyframes) and one 
 1. load the model (not timed);
 2. **single frames** (``--fuse none``, today's path): read every frame, crop and complete every vehicle;
 3. **fused**: build the track plan (read every frame, crop each tracked vehicle, refine the boxes with
-   ``--refine-boxes``), then per frame read it, fuse each vehicle's window and complete it.
+   ``--refine-boxes``), then per frame read it, fuse each vehicle's window and complete it;
+4. on the observations of Table 2's classes (car, truck, trailer) completed by both: consistency between
+   consecutive completions of a track at equal density (voxel 0.1, unit frame: ``real evaluate``'s headline)
+   and fidelity to each frame's own points (unit frame), single vs fused.
 
 Both loops do what ``real complete`` does minus writing files and pictures, and are timed in wall-clock
 seconds and in CPU seconds of this process (``time.process_time``: on a shared machine the wall clock
@@ -27,13 +30,39 @@ import os
 import time
 from pathlib import Path
 
+import numpy as np
+
+from spotlights.data.consistency import aggregate, fidelity, track_consistency
 from spotlights.data.real import open_reader
 from spotlights.data.tracks import parse_window
 from spotlights.experiments.scene import SceneConfig, complete_scene
 from spotlights.experiments.tracks import TrackPlan
+from spotlights.geometry.sampling import voxel_downsample
 from spotlights.learning.inference import load_completer
 
 DEFAULT_SOURCE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lidar" / "nuscenes"
+
+
+TABLE2 = ("car", "truck", "trailer")
+
+
+def consistency_of(rows) -> dict:
+    """Consistency between consecutive completions of each track at equal density (voxel 0.1 in the unit frame,
+    ``real evaluate``'s headline), class average and over all objects, and fidelity to each frame's own points
+    (unit frame, mean over observations)."""
+    comps = [voxel_downsample(r[0], 0.1) for r in rows]
+    tracks = track_consistency(
+        comps, [r[3] for r in rows], [r[4] for r in rows], [r[2] for r in rows], [r[1] for r in rows]
+    )
+    agg = aggregate(tracks, classes=TABLE2)
+    fid = [fidelity(r[5], r[0]) for r in rows]
+    return dict(
+        consistency_voxel_average=agg["average"]["cd"],
+        consistency_voxel_all_objects=agg["all_objects"]["cd"],
+        n_tracks=agg["all_objects"]["n_objects"],
+        n_pairs=agg["all_objects"]["n_pairs"],
+        fidelity_own_points=float(np.nanmean(fid)),
+    )
 
 
 def timed(fn):
@@ -60,11 +89,30 @@ def main(argv=None) -> int:
     config = SceneConfig()
     completer = load_completer(args.checkpoint)
 
+    kept = {"single": {}, "fused": {}}
+
+    def keep(mode, key, frame, result):
+        for o in result.completed:
+            b = o.used_box
+            if not b.track_id or b.cls not in TABLE2:
+                continue
+            own = b.normalization().to_unit(result.points[o.input_indices])
+            kept[mode][(key, o.index)] = (
+                o.completion_unit,
+                b.radius,
+                b.cls,
+                (key[0], b.track_id),
+                frame.timestamp,
+                own,
+            )
+
     def single():
         n = 0
         for key in keys:
             frame = reader.load(key)
-            n += len(complete_scene(frame.points, frame.boxes, completer, config).completed)
+            result = complete_scene(frame.points, frame.boxes, completer, config)
+            keep("single", key, frame, result)
+            n += len(result.completed)
         return n
 
     def fused():
@@ -75,11 +123,14 @@ def main(argv=None) -> int:
             boxes, extra = plan.frame_inputs(key, frame.boxes)
             result = complete_scene(frame.points, boxes, completer, config, extra_points=extra)
             plan.record(key, result)
+            keep("fused", key, frame, result)
             n += len(result.completed)
         return plan, n
 
     n_single, w_single, c_single = timed(single)
     (plan, n_fused), w_fused, c_fused = timed(fused)
+    both = sorted(set(kept["single"]) & set(kept["fused"]))
+    quality = {mode: consistency_of([kept[mode][k] for k in both]) for mode in kept}
     summ = plan.summary()
     rows = [r for tr in summ["tracks"] for r in tr["frames"]]
     statuses = collections.Counter(r["status"] for r in rows)
@@ -110,6 +161,7 @@ def main(argv=None) -> int:
             fps_cpu=len(keys) / c_fused,
             plan_timings=summ["timings"],
         ),
+        quality_on_common_observations=dict(n_observations=len(both), classes=list(TABLE2), **quality),
         tracks=summ["n_tracks"],
         vehicle_boxes_in_tracks=len(rows),
         statuses=dict(statuses),
