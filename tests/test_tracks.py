@@ -183,11 +183,11 @@ def test_frame_that_cannot_converge_keeps_its_box_and_is_flagged():
     # frame 2's box is 3 m off its points: nothing within reach of the reference shape
     bad = frames[2].box.replace(center=frames[2].box.center + [3.0, 0.0, 0.0])
     frames[2] = TrackFrame(frames[2].points, bad, frames[2].origin, frames[2].timestamp)
-    ref = refine_track(frames, "all", margin=5.0, ground_clearance=0.1)
+    ref = refine_track(frames, "all", margin=5.0, ground_clearance=0.1, rounds=1)
     assert ref.status[2] in FLAGGED and ref.flagged[2]
     assert ref.boxes[2] is bad and ref.translation[2] == 0.0
     # a correction beyond the bound is refused too: 0.3 m with a 0.1 m bound
     frames, truth = drive_past({1: (0.3, 0.0, 0.0)})
-    ref = refine_track(frames, "all", max_translation=0.1, margin=0.8, ground_clearance=0.1)
+    ref = refine_track(frames, "all", max_translation=0.1, margin=0.8, ground_clearance=0.1, rounds=1)
     assert ref.status[1] == "exceeds_bound" and ref.boxes[1] is frames[1].box
     assert ref.proposed_translation[1] == pytest.approx(0.3, abs=0.03)
