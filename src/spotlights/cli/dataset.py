@@ -20,6 +20,7 @@ from ._util import (
     positive_int,
     unit_interval,
 )
+from .sequences import register as register_sequences
 from .view import add_html_argument, write_page
 
 
@@ -201,6 +202,8 @@ def register(sub) -> None:
         help="write shards of at most N samples (whole models) plus an index: give --out NAME.json; "
         "every reader takes the index like a file; 'dataset merge' makes one file of them",
     )
+
+    register_sequences(dsub)
 
     a = add_command(
         dsub,

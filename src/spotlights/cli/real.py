@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 
 from ..data.real import open_reader
 from ..data.real.base import CLASSES
 from ..data.real.extract import ExtractConfig, extract, read_observations, write_observations
 from ..data.real.frames import frame_rows
+from ..data.tracks import MAX_GAP_S, MAX_TRANSLATION_M, MAX_YAW_RAD, WINDOW_HELP, parse_window
 from ..errors import InputFileError, ParameterError, SpotlightsError
 from ..experiments.real_evaluation import (
     complete_all,
@@ -19,6 +21,7 @@ from ..experiments.real_evaluation import (
     write_report_json,
 )
 from ..experiments.scene import HEADING_MARGIN
+from ..experiments.tracks import TrackPlan
 from ..metrics.consistency import consecutive_pairs
 from ..utils import check_writable, output_folder
 from ..viz import html, render_frame
@@ -154,6 +157,7 @@ def register(sub) -> None:
         action="store_true",
         help="skip the frames an earlier run with the same model and options finished (their FRAME.json exists)",
     )
+    _track_arguments(p)
     add_quiet(p)
 
     p = add_command(
@@ -300,6 +304,39 @@ def register(sub) -> None:
     )
     p.add_argument("--device", default=None, help=DEVICE_HELP)
     add_html_argument(p)
+
+
+def _window(text: str):
+    try:
+        return parse_window(text)
+    except ParameterError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _track_arguments(p) -> None:
+    g = p.add_argument_group("tracks (fuse each vehicle's frames in its box frame; docs/real-data.md)")
+    g.add_argument(
+        "--fuse",
+        type=_window,
+        default=parse_window("none"),
+        metavar="WINDOW",
+        help="which frames of a vehicle's track are fused into its input: " + WINDOW_HELP + "; default none. "
+        "Also writes [SEQUENCE/]tracks/TRACK.ply (fused input and completion, box frame) and tracks.json",
+    )
+    g.add_argument(
+        "--refine-boxes",
+        action="store_true",
+        help="with --fuse: register each frame's points to the other frames of its window and correct its box "
+        f"(x, y, yaw; at most {MAX_TRANSLATION_M:g} m and {math.degrees(MAX_YAW_RAD):g} degrees, else kept and "
+        "flagged); the refined boxes are used and written to tracks.json",
+    )
+    g.add_argument(
+        "--max-gap",
+        type=float,
+        default=MAX_GAP_S,
+        metavar="S",
+        help=f"with --fuse: the longest time between two frames of one track, seconds (default {MAX_GAP_S:g})",
+    )
 
 
 def _reader_arguments(p) -> None:
@@ -581,6 +618,13 @@ def _complete(args) -> int:
     if not keys:
         raise ParameterError("--frames selects no frame")
     config = scene_config(args, single=False)
+    tracks = None
+    if args.fuse.fuses:
+        if args.resume:
+            raise ParameterError("--resume does not apply with --fuse (a frame's input depends on its track)")
+        tracks = TrackPlan(args.fuse, config, args.refine_boxes, args.max_gap).build(reader, keys)
+    elif args.refine_boxes:
+        raise ParameterError("--refine-boxes needs --fuse all, past:K or centered:K (the frames to register to)")
     completer = load_model(args.checkpoint, args.device, args.runtime, args.precision)
     with output_folder(args.out) as out:  # removed again if nothing could be written
-        return complete_frames(args, reader, keys, config, completer, out)
+        return complete_frames(args, reader, keys, config, completer, out, tracks=tracks)

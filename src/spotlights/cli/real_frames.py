@@ -81,10 +81,12 @@ def _with(stem: Path, suffix: str) -> Path:
     return stem.parent / (stem.name + suffix)
 
 
-def complete_frames(args, reader, keys, config, completer, out) -> int:
+def complete_frames(args, reader, keys, config, completer, out, tracks=None) -> int:
     """Complete the frames ``keys`` of ``reader`` into the folder ``out`` (the options of ``real complete`` in
     ``args``): per frame a PLY (+ PNG, HTML, per-object files) and, written last, its JSON summary (``--resume``
-    skips frames whose JSON says the same model and options); then ``summary.json`` and one line on stdout."""
+    skips frames whose JSON says the same model and options); then ``summary.json`` and one line on stdout.
+    ``tracks``: a built :class:`spotlights.experiments.tracks.TrackPlan` (``--fuse``): its boxes and fused
+    inputs are completed, and its per-track files written."""
     checkpoint = args.checkpoint or "default"
     out = Path(out)
     sweep_folder_temporaries(out)  # what a killed run was writing (a 0-byte .FRAME.png.PID-X.part.png)
@@ -113,9 +115,18 @@ def complete_frames(args, reader, keys, config, completer, out) -> int:
                     {**info, "status": f"scan holds {len(frame.points)} points (< {config.min_points}): not completed"}
                 )
                 continue
+            boxes, extra = (frame.boxes, None) if tracks is None else tracks.frame_inputs(key, frame.boxes)
             result = complete_scene(
-                frame.points, frame.boxes, completer, config, checkpoint=checkpoint, sensor=frame.lidar_origin()
+                frame.points,
+                boxes,
+                completer,
+                config,
+                checkpoint=checkpoint,
+                sensor=frame.lidar_origin(),
+                extra_points=extra,
             )
+            if tracks is not None:
+                tracks.record(key, result)
             write_scene(
                 result,
                 _with(stem, ".ply"),
@@ -174,6 +185,9 @@ def complete_frames(args, reader, keys, config, completer, out) -> int:
         warnings=warnings,
         frames=frames,
     )
+    if tracks is not None:
+        tracks.write(out, completer.model_name)
+        summary["tracks"] = {k: v for k, v in tracks.summary().items() if k != "tracks"}
     with atomic_output(out / "summary.json") as tmp:
         tmp.write_text(json.dumps(summary, indent=2, default=float) + "\n", encoding="utf-8")
     if len(warnings) > 10:

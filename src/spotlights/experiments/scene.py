@@ -141,6 +141,7 @@ class ObjectResult:
     fidelity: float | None = None
     fidelity_flipped: float | None = None
     warnings: list = field(default_factory=list)
+    n_fused: int | None = None  # input points with other frames' fused in (``extra_points``), else None
 
     def summary(self) -> dict:
         """JSON-ready description (no point arrays)."""
@@ -158,7 +159,7 @@ class ObjectResult:
             fidelity_flipped=self.fidelity_flipped,
             warnings=list(self.warnings),
             box=(self.used_box or self.box).to_dict(),
-        )
+        ) | ({} if self.n_fused is None else {"n_fused": self.n_fused})
 
 
 @dataclass
@@ -284,6 +285,7 @@ def complete_scene(
     axes: np.ndarray | None = None,
     checkpoint: str | None = None,
     sensor: np.ndarray | None = None,
+    extra_points: dict | None = None,
 ) -> SceneResult:
     """Complete every selected box of one scan (see the module docstring).
 
@@ -296,6 +298,9 @@ def complete_scene(
     axes : optional (3, 3) rotation scan coordinates -> object convention (x forward, y left, z up).
     sensor : (3,) the LiDAR's optical centre in the scan's frame, metres (default: the scan's origin); models
         that read free space (``sanet-local``) get it in each box's unit frame.
+    extra_points : optional {box index: (k, 3) points, metres, scan frame}: more evidence of that object
+        (other frames of its track, :mod:`spotlights.experiments.tracks`) added to its crop for the model
+        input (and counted towards ``min_points``); the scene's ``source``/``object`` fields keep the scan's own.
 
     Returns a :class:`SceneResult`; raises :class:`ParameterError` for a scan with fewer than
     ``config.min_points`` points.
@@ -328,13 +333,16 @@ def complete_scene(
         if not _selected(b, config):
             objects.append(ObjectResult(i, ids[i], b, "class_excluded", input_indices=idx))
             continue
-        if len(idx) < config.min_points:
+        more = None if extra_points is None else extra_points.get(i)
+        pts = work[idx] if more is None else np.concatenate([work[idx], more if a is None else more @ a.T])
+        if len(pts) < config.min_points:
             objects.append(ObjectResult(i, ids[i], b, "too_few_points", input_indices=idx))
             continue
-        unit = wb.normalization().to_unit(work[idx])
+        unit = wb.normalization().to_unit(pts)
         partial = prepare_partial(unit, seed=config.seed, method=config.resample)
         o = ObjectResult(i, ids[i], b, "completed", used_box=wb, input_indices=idx, partial_unit=partial)
         o.sensor_unit = wb.normalization().to_unit(lidar)
+        o.n_fused = None if more is None else len(pts)
         domain = getattr(completer, "domain", None)
         if domain is not None:
             o.warnings.extend(domain.warnings(b.cls, b.size))

@@ -1,0 +1,62 @@
+"""``spotlights dataset sequences``: simulated drive-past sequences with true and noisy boxes (generic format)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..data.lidar import SENSOR_PRESETS
+from ..data.synthetic.sequences import BoxNoise, SequenceSpec, write_sequences
+from ..errors import ParameterError
+from ..utils import output_folder
+from ._util import add_command, add_quiet, non_negative_int, positive_int
+
+MESH_SUFFIXES = (".ply", ".obj", ".off", ".stl", ".glb", ".gltf")
+
+
+def register(dsub) -> None:
+    """Add ``sequences`` to the ``dataset`` group ``dsub``."""
+    p = add_command(
+        dsub,
+        "sequences",
+        "simulate vehicles driving past the sensor at 10 Hz: scans, true boxes and detector-like noisy boxes, "
+        "in the generic multi-frame format ('real complete --format generic --fuse ...' reads them)",
+        "spotlights dataset sequences --meshes ../shared/data/meshes/apolloscape-cars/sedan --sequences 4 "
+        "--frames 20 --out seqs",
+        _sequences,
+    )
+    p.add_argument(
+        "--meshes", required=True, metavar="PATH", help="a mesh file or a folder of them (z up, x forward, metres)"
+    )
+    p.add_argument("--out", "-o", required=True, metavar="DIR", help="output folder: DIR/seqNNNN/ per sequence")
+    p.add_argument("--sequences", type=positive_int, default=4, metavar="N", help="sequences (default 4)")
+    p.add_argument("--frames", type=positive_int, default=20, metavar="F", help="frames per sequence (default 20)")
+    p.add_argument("--hz", type=float, default=10.0, help="frame rate (default 10 Hz)")
+    p.add_argument("--sensor", default="hdl64e", choices=tuple(SENSOR_PRESETS), help="LiDAR (default hdl64e)")
+    p.add_argument("--seed", type=non_negative_int, default=0, help="seed (default 0): the same seed, the same bytes")
+    g = p.add_argument_group("noisy boxes (independent per frame)")
+    g.add_argument("--translation-sigma", type=float, default=0.10, metavar="M", help="per horizontal axis (0.10 m)")
+    g.add_argument("--yaw-sigma", type=float, default=2.0, metavar="DEG", help="heading (2 degrees)")
+    g.add_argument("--size-sigma", type=float, default=0.03, metavar="REL", help="relative, per dimension (0.03)")
+    add_quiet(p)
+
+
+def _sequences(args) -> int:
+    src = Path(args.meshes)
+    if src.is_dir():
+        meshes = sorted(p for p in src.rglob("*") if p.suffix.lower() in MESH_SUFFIXES)
+        if not meshes:
+            raise ParameterError(f"{src}: no mesh file ({', '.join(MESH_SUFFIXES)}) in the folder")
+    elif src.is_file():
+        meshes = [src]
+    else:
+        raise ParameterError(f"{src}: no such mesh file or folder")
+    spec = SequenceSpec(
+        n_frames=args.frames,
+        hz=args.hz,
+        noise=BoxNoise(args.translation_sigma, args.yaw_sigma, args.size_sigma),
+    )
+    with output_folder(args.out) as out:
+        written = write_sequences(meshes, out, args.sequences, spec, seed=args.seed, sensor=args.sensor)
+    if not args.quiet:
+        print(f"{len(written)} sequence(s) of {args.frames} frames -> {args.out}/seqNNNN/ (sequence.json, truth.json)")
+    return 0
