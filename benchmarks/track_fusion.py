@@ -32,13 +32,13 @@ from pathlib import Path
 
 import numpy as np
 
-from spotlights.metrics.consistency import aggregate, fidelity, track_consistency
 from spotlights.data.real import open_reader
 from spotlights.data.tracks import parse_window
 from spotlights.experiments.scene import SceneConfig, complete_scene
 from spotlights.experiments.tracks import TrackPlan
 from spotlights.geometry.sampling import voxel_downsample
 from spotlights.learning.inference import load_completer
+from spotlights.metrics.consistency import aggregate, fidelity, track_consistency
 
 DEFAULT_SOURCE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lidar" / "nuscenes"
 

@@ -256,6 +256,19 @@ class _Faulty:
             return real_file_init(obj, name, mode, *a, **kw)
 
         mp.setattr(h5py.File, "__init__", fake_h5)
+        if full:  # a file-like HDF5 writer (utils.hdf5_output) writes with os.pwrite: the disk fills there
+            real_pwrite = os.pwrite
+
+            def fake_pwrite(fd, data, offset):
+                try:
+                    target = os.readlink(f"/proc/self/fd/{fd}")
+                except OSError:
+                    target = None
+                if target is not None and self._inside(target):
+                    self._fail(target)
+                return real_pwrite(fd, data, offset)
+
+            mp.setattr(os, "pwrite", fake_pwrite)
 
 
 FAULTS = {"readonly": errno.EROFS, "noperm": errno.EACCES, "full": errno.ENOSPC}
@@ -319,6 +332,15 @@ CASES = [
     C("demo-readonly", "demo -o {out}/demo", "demo", fault="readonly"),
     # ---- dataset build
     C("build-missing-meshes", "dataset build --meshes {out}/nope -o {out}/d.h5 -q", "nope"),
+    # ---- dataset sequences
+    C("sequences-missing-meshes", "dataset sequences --meshes {out}/nope -o {out}/seq", "nope"),
+    C("sequences-garbage-mesh", "dataset sequences --meshes {garbage_ply} -o {out}/seq --frames 2", "garbage.ply"),
+    C(
+        "sequences-readonly",
+        "dataset sequences --meshes {mesh} -o {out}/seq --frames 2 --sequences 1",
+        "seq",
+        fault="readonly",
+    ),
     C("build-no-meshes", "dataset build --meshes {empty_dir} -o {out}/d.h5 -q", "empty"),
     C("build-split", "dataset build --meshes {meshes} -o {out}/d.h5 --split a/b -q", "split"),
     C("build-views-0", "dataset build --meshes {meshes} -o {out}/d.h5 --views 0 -q", "--views", usage=True),

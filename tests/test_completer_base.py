@@ -1,5 +1,5 @@
 """The completer base class: a runtime that implements only ``_forward`` gets the input checks, the box handling,
-batching, the default-clip placeholder and the clamping into the unit sphere."""
+batching, the default-clip placeholder and the clamping into the grown box and the unit sphere."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ class Scaled(BaseCompleter):
         self.rig = make_rig_spec(4, 8, kind="box") if needs_box else None
         self.calls: list = []
 
-    def _forward(self, partials, clip, directions):
+    def _forward(self, partials, clip, directions, sensor_origins=None):
         self.calls.append((partials.shape, partials.dtype, clip, None if directions is None else directions.shape))
         return [3.0 * p for p in partials]
 
@@ -60,8 +60,13 @@ def test_box_rigs_get_each_scans_directions_and_results_are_clamped():
     sizes = np.array([[4.0, 2.0, 1.5], [4.5, 1.8, 1.6], [3.0, 3.0, 3.0]])
     out = c.complete_boxes(x, sizes, clip=0.1)
     assert c.calls[-1][2:] == (0.1, (3, 32, 3))  # 4 viewpoints x 8 rays, one set per scan
-    for p, q in zip(out, x):
-        r = np.linalg.norm(q, axis=1) * 3.0
-        # points inside the sphere kept as they are, the others moved radially onto it
-        np.testing.assert_allclose(np.linalg.norm(p.astype(np.float64), axis=1), np.minimum(r, 1.0), rtol=1e-6)
-        assert np.linalg.norm(p.astype(np.float64), axis=1).max() <= 1.0
+    for p, q, size in zip(out, x, sizes):
+        # by hand: each coordinate clipped to the box grown by 0.15 m (unit frame: metres / R, R = half the
+        # diagonal), then points outside the unit sphere moved radially onto it
+        radius = np.linalg.norm(size) / 2
+        half = (size / 2 + 0.15) / radius
+        inbox = np.clip(q * 3.0, -half, half)
+        r = np.linalg.norm(inbox, axis=1, keepdims=True)
+        expect = inbox / np.maximum(r, 1.0)
+        np.testing.assert_allclose(p.astype(np.float64), expect, rtol=1e-5, atol=1e-6)
+        assert np.linalg.norm(p.astype(np.float64), axis=1).max() <= 1.0 + 1e-6

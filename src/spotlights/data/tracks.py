@@ -31,14 +31,17 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..errors import ParameterError
 from ..geometry.boxes import Box
 from ..geometry.rotations import rotation_z
 from ..geometry.sampling import voxel_downsample
+
+if TYPE_CHECKING:  # scipy is imported where it is used: ``spotlights --help`` loads no scipy
+    from scipy.spatial import cKDTree
 
 #: Seconds per unit of each reader's ``Frame.timestamp`` (KITTI object frames have no time order
 #: and no tracks: None). KITTI-360 keys are frame indices of its 10 Hz Velodyne; generic
@@ -348,6 +351,8 @@ def register_xy_yaw(
     tgt = np.asarray(target, dtype=np.float64).reshape(-1, 3)
     if len(src) == 0 or len(tgt) == 0:
         raise ParameterError("registration needs points in both the frame and the reference")
+    from scipy.spatial import cKDTree
+
     tree = cKDTree(tgt)
     normals_of = _LazyNormals(tgt, tree)
     t = np.zeros(2)
