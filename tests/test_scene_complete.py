@@ -510,3 +510,26 @@ def test_single_object_form_crops_by_default(tmp_path, capsys, tiny):
     # the old output formats hold the completion only
     assert cli(capsys, "complete", tmp_path / "car.npy", *common, "--out", tmp_path / "c.xyz").returncode == 0
     assert len(np.loadtxt(tmp_path / "c.xyz")) == (f["source"] == 2).sum()
+
+
+def test_long_box_completion_stays_in_the_grown_box_and_reports_the_share_before_the_clamp():
+    """A 16 x 2.5 x 4 m truck box and a point model spraying points over the whole unit sphere: every completion
+    point lies inside the box grown by 0.15 m (box frame, by hand), and the object's ``inside_box`` is the share of
+    the raw prediction inside that grown box, counted by hand in the unit frame."""
+    from spotlights.experiments.scene import SceneConfig, complete_scene
+
+    size = np.array([16.0, 2.5, 4.0])
+    box = Box([20.0, -4.0, 1.0], size, 0.3, "truck", "truck")
+    rng = np.random.default_rng(3)
+    local = rng.uniform(-0.5, 0.5, (600, 3)) * size
+    scan = np.r_[local @ box.rotation.T + box.center, rng.uniform(-40, 40, (500, 3)) * [1, 1, 0] + [0, 0, -1.0]]
+    res = complete_scene(scan, [box], _PointModel(), SceneConfig(ground_clearance=0.0))
+    (o,) = res.completed
+    radius = np.linalg.norm(size) / 2
+    half_unit = (size / 2 + 0.15) / radius
+    raw = _PointModel().complete(np.zeros((1, 256, 3)))[0].astype(np.float64)
+    expect = np.mean(np.all(np.abs(raw) <= half_unit + 1e-9, axis=1))
+    assert 0.005 < expect < 0.5  # the case means something: most raw points lie outside the long box
+    assert o.summary()["inside_box"] == pytest.approx(expect, abs=1e-4)
+    in_box = (o.completion - box.center) @ box.rotation  # scan frame -> box frame
+    assert np.all(np.abs(in_box) <= size / 2 + 0.15 + 1e-4)

@@ -142,24 +142,29 @@ class ObjectResult:
     fidelity_flipped: float | None = None
     warnings: list = field(default_factory=list)
     n_fused: int | None = None  # input points with other frames' fused in (``extra_points``), else None
+    inside_box: float | None = None  # share of the network's points inside the box grown by 0.15 m, before the clamp
 
     def summary(self) -> dict:
         """JSON-ready description (no point arrays)."""
-        return dict(
-            index=self.index,
-            object=self.object_id,
-            status=self.status,
-            label=self.box.label,
-            cls=self.box.cls,
-            track_id=self.box.track_id,
-            n_points=int(len(self.input_indices)),
-            n_completion=int(len(self.completion)),
-            flipped=self.flipped,
-            fidelity=self.fidelity,
-            fidelity_flipped=self.fidelity_flipped,
-            warnings=list(self.warnings),
-            box=(self.used_box or self.box).to_dict(),
-        ) | ({} if self.n_fused is None else {"n_fused": self.n_fused})
+        return (
+            dict(
+                index=self.index,
+                object=self.object_id,
+                status=self.status,
+                label=self.box.label,
+                cls=self.box.cls,
+                track_id=self.box.track_id,
+                n_points=int(len(self.input_indices)),
+                n_completion=int(len(self.completion)),
+                flipped=self.flipped,
+                fidelity=self.fidelity,
+                fidelity_flipped=self.fidelity_flipped,
+                warnings=list(self.warnings),
+                box=(self.used_box or self.box).to_dict(),
+            )
+            | ({} if self.n_fused is None else {"n_fused": self.n_fused})
+            | ({} if self.inside_box is None else {"inside_box": round(float(self.inside_box), 4)})
+        )
 
 
 @dataclass
@@ -357,16 +362,20 @@ def complete_scene(
             partials = np.concatenate([partials, (partials @ FLIP_Z).astype(np.float32)])
             sizes = np.concatenate([sizes, sizes])
             sensors = np.concatenate([sensors, sensors @ FLIP_Z])
+        shares: list[float] = []  # per completion: the share the network put inside its grown box (before the clamp)
         outs = complete_in_boxes(
             completer,
             partials,
             sizes,
             clip=DEFAULT if config.clip == "default" else config.clip,
             sensor_origins=sensors,
+            inside=shares,
         )
         t2 = time.perf_counter()
         with serial_queries():  # a few small KD-tree queries: OpenMP threads cost more than they save
             _assemble(todo, outs, config, a)
+        for k, o in enumerate(todo):  # the share of the completion kept (turned around when the heading flipped)
+            o.inside_box = shares[len(todo) + k] if o.flipped else shares[k]
         if a is not None:
             back = rigid_transform(a.T, np.zeros(3))
             for o in todo:
