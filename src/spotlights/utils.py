@@ -1,18 +1,22 @@
 """Small utilities shared by every layer: atomic writes (and sweeping their stale temporaries),
-an exclusive lock, process pools that fail instead of hanging."""
+an exclusive lock, process pools that fail instead of hanging, the one stage timer
+(:class:`StageTimer`) and the one strict reader of settings mappings (:func:`settings_from_dict`)."""
 
 from __future__ import annotations
 
 import ast
 import contextlib
+import dataclasses
+import difflib
 import os
 import re
 import sys
 import tempfile
-from collections.abc import Callable, Iterable, Iterator
+import time
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 
-from .errors import OutputFileError, SpotlightsError
+from .errors import InputFileError, OutputFileError, ParameterError, SpotlightsError
 
 # ---------------------------------------------------------------------------- atomic writes
 
@@ -540,3 +544,94 @@ def _stop(pool) -> None:
             p.join(5)
             if p.is_alive():
                 p.kill()
+
+
+# ---------------------------------------------------------------------------- stage timing
+
+
+class StageTimer:
+    """The one stage timer: wall seconds spent in named stages, summed over repeated entries.
+
+    ``with timer("read"): ...`` adds the block's wall time (``time.perf_counter``, seconds) to
+    ``timer.seconds["read"]``; stages keep the order of their first entry. ``timer.add(name, s)``
+    adds a time measured elsewhere; ``timer.total`` is the sum. Latency of repeated calls (medians,
+    round-robin) is :func:`spotlights.learning.bench.time_calls`'s job, not this one's.
+
+    >>> t = StageTimer()
+    >>> with t("a"):
+    ...     pass
+    >>> list(t.seconds), t.seconds["a"] >= 0.0
+    (['a'], True)
+    """
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+        self.counts: dict[str, int] = {}
+
+    @contextlib.contextmanager
+    def __call__(self, name: str) -> Iterator[None]:
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.add(name, time.perf_counter() - t0)
+
+    def add(self, name: str, seconds: float) -> None:
+        """Add ``seconds`` (float, wall seconds) to stage ``name`` and count one entry."""
+        self.seconds[name] = self.seconds.get(name, 0.0) + float(seconds)
+        self.counts[name] = self.counts.get(name, 0) + 1
+
+    @property
+    def total(self) -> float:
+        """Sum of every stage's seconds."""
+        return float(sum(self.seconds.values()))
+
+    def rounded(self, digits: int = 3) -> dict[str, float]:
+        """``{stage: seconds}`` rounded to ``digits`` (for JSON reports)."""
+        return {k: round(v, digits) for k, v in self.seconds.items()}
+
+
+def now() -> float:
+    """A monotonic clock in seconds (``time.perf_counter``) for the rare span a :class:`StageTimer` cannot wrap."""
+    return time.perf_counter()
+
+
+# ---------------------------------------------------------------------------- settings
+
+
+def did_you_mean(key: object, known: Iterable[str]) -> str:
+    """``" (did you mean 'x'?)"`` for the closest known name to ``key``, or ``""``."""
+    close = difflib.get_close_matches(str(key), list(known), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def settings_from_dict(cls: type, d: object, where: str | os.PathLike | None = None, **fixed: object):
+    """The one policy for reading a settings dataclass from a mapping (a YAML file, a JSON
+    record, a dataset's attributes): every key must be a field of ``cls``; an unknown key is an
+    error naming ``where`` and suggesting the closest field; a non-mapping is an error too.
+
+    Parameters
+    ----------
+    cls : a dataclass type.
+    d : the mapping (None reads as empty).
+    where : a file path (the error is an :class:`InputFileError` naming it) or a label such as
+        ``"sensor"`` (a :class:`ParameterError` prefixed with it).
+    fixed : values passed to ``cls`` beside ``d``'s (not checked against ``d``).
+
+    Returns ``cls(**d, **fixed)``; a wrong value that ``cls`` itself rejects keeps its own error.
+    """
+
+    def fail(msg: str) -> SpotlightsError:
+        if where is not None and Path(os.fspath(where)).suffix.lower() in (".yaml", ".yml", ".json", ".h5", ".hdf5"):
+            return InputFileError(where, msg)
+        return ParameterError(f"{where}: {msg}" if where else msg)
+
+    if d is None:
+        d = {}
+    if not isinstance(d, Mapping):
+        raise fail(f"expected a mapping of {cls.__name__} settings, got {type(d).__name__}")
+    names = [f.name for f in dataclasses.fields(cls) if f.init]
+    for key in d:
+        if key not in names:
+            raise fail(f"unknown setting {key!r}{did_you_mean(key, names)} (known: {', '.join(names)})")
+    return cls(**dict(d), **fixed)

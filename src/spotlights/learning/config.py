@@ -18,7 +18,6 @@ subset of these keys and load unchanged; missing keys take the defaults below.
 
 from __future__ import annotations
 
-import difflib
 import inspect
 import math
 from dataclasses import dataclass, field, fields
@@ -26,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputFileError, ParameterError
+from ..utils import did_you_mean
 from .registry import MODEL_REGISTRY, model_class
 
 SECTIONS = ("model", "data", "train")
@@ -225,8 +225,7 @@ def build_scheduler(opt, tcfg: TrainConfig):
 
 
 def _did_you_mean(key: str, known) -> str:
-    close = difflib.get_close_matches(str(key), list(known), n=1, cutoff=0.6)
-    return f" (did you mean {close[0]!r}?)" if close else ""
+    return did_you_mean(key, known)
 
 
 def _fail(source, msg: str):
