@@ -14,8 +14,10 @@ the default) with ``PYTHONPATH`` pointing at its ``src``; the jobs:
    without times.
 
 Writes ``{job: {"old": digest, "new": digest, "same": bool}}`` to ``--out`` and prints a table.
-Timing-like keys (``seconds``, ``time``, ``minutes``, ``fps``, ``latency``, ``date``, ``version``,
-``commit``) are left out of the JSON digests: they differ from run to run by nature.
+Timing-like keys (``seconds``, ``time``, ``minutes``, ``fps``, ``latency``, ``*_ms``, ``*_s``, ``date``,
+``version``, ``commit``), timing rows of the tables, the tables' rendered text and checks (they print the
+timings) and reproduce's step bookkeeping (file times) are left out of the JSON digests: they differ from
+run to run by nature. A self-check (``--ref X --new X``) must say "same" everywhere.
 """
 
 from __future__ import annotations
@@ -35,13 +37,18 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("SPOTLIGHTS_SHARED", REPO.parent / "shared")) / "data"
 KITTI = SHARED / "lidar" / "kitti-object" / "training-fov-cropped"
-VOLATILE = re.compile(r"second|time|minute|fps|latency|date|version|commit|host|path|elapsed|wall", re.I)
+VOLATILE = re.compile(
+    r"second|time|minute|fps|latency|runtime|_ms$|_s$|date|version|commit|host|elapsed|wall|^steps$", re.I
+)
 
 
 def _strip(obj):
-    """The JSON value without timing-like keys (recursively)."""
+    """The JSON value without timing-like keys (recursively): keys matching :data:`VOLATILE`, table
+    rows of a timing column, and the text of tables (it prints the timings too)."""
     if isinstance(obj, dict):
-        return {k: _strip(v) for k, v in obj.items() if not VOLATILE.search(str(k))}
+        if VOLATILE.search(str(obj.get("column", ""))):
+            return None
+        return {k: _strip(v) for k, v in obj.items() if not VOLATILE.search(str(k)) and k not in ("markdown", "checks")}
     if isinstance(obj, list):
         return [_strip(v) for v in obj]
     return obj
@@ -67,7 +74,8 @@ def _h5_digest(path: Path) -> str:
             if not VOLATILE.search(k):
                 h.update(k.encode() + repr(np.asarray(obj.attrs[k]).tolist()).encode())
         if isinstance(obj, h5py.Dataset):
-            h.update(np.ascontiguousarray(obj[()]).tobytes())
+            v = np.asarray(obj[()])
+            h.update(repr(v.tolist()).encode() if v.dtype.kind == "O" else np.ascontiguousarray(v).tobytes())
 
     with h5py.File(path, "r") as f:
         visit("/", f)
@@ -79,12 +87,17 @@ def _weights_digest(path: Path) -> str:
     import torch
 
     ck = torch.load(path, map_location="cpu", weights_only=False)
-    state = ck.get("model", ck.get("state_dict", ck)) if isinstance(ck, dict) else ck
     h = hashlib.sha256()
-    for k in sorted(state):
-        v = state[k]
-        if hasattr(v, "detach"):
-            h.update(k.encode() + v.detach().float().contiguous().numpy().tobytes())
+
+    def visit(prefix, obj):
+        if hasattr(obj, "detach"):
+            h.update(prefix.encode() + obj.detach().float().contiguous().numpy().tobytes())
+        elif isinstance(obj, dict):
+            for k in sorted(obj, key=str):
+                if not VOLATILE.search(str(k)):
+                    visit(f"{prefix}/{k}", obj[k])
+
+    visit("", ck.get("model_state", ck.get("state_dict", ck)))
     return h.hexdigest()[:16]
 
 
@@ -153,7 +166,19 @@ def run_side(src: Path, work: Path, quiet: bool) -> dict:
     )
     out["train: log.csv (no times)"] = _log_digest(work / "run" / "log.csv")
     out["train: best.pt weights"] = _weights_digest(work / "run" / "best.pt")
-    cli("reproduce", "--quick", "--out", "rep", "--quiet")
+    cli(
+        "reproduce",
+        "--quick",
+        "--out",
+        "rep",
+        "--meshes",
+        SHARED / "meshes" / "apolloscape-cars",
+        "--category-meshes",
+        SHARED / "meshes" / "categories",
+        "--lidar",
+        SHARED / "lidar",
+        "--quiet",
+    )
     out["reproduce --quick: results.json"] = _json_digest(work / "rep" / "results.json")
     cli(
         "complete",
@@ -178,13 +203,21 @@ def main(argv=None) -> int:
     ap.add_argument("--new", default=None, help="the new commit (default: this working tree)")
     ap.add_argument("--out", type=Path, default=Path("same_outputs.json"))
     ap.add_argument("--keep", action="store_true", help="keep the work folders")
+    ap.add_argument("--old-digests", type=Path, help="a previous report whose 'old' side was --ref: reuse it")
     ap.add_argument("--quiet", action="store_true")
     a = ap.parse_args(argv)
     tmp = Path(tempfile.mkdtemp(prefix="same-outputs-"))
     trees = []
     try:
         sides = {}
+        if a.old_digests:
+            prev = json.loads(a.old_digests.read_text())
+            if prev["_refs"]["old"] != a.ref:
+                raise SystemExit(f"{a.old_digests}: its old side is {prev['_refs']['old']}, not {a.ref}")
+            sides["old"] = {job: r["old"] for job, r in prev.items() if not job.startswith("_")}
         for label, ref in (("old", a.ref), ("new", a.new)):
+            if label in sides:
+                continue
             if ref is None:
                 src = REPO / "src"
             else:
@@ -197,7 +230,9 @@ def main(argv=None) -> int:
                 trees.append(tree)
                 src = tree / "src"
             print(f"{label}: {ref or 'working tree'}", flush=True)
-            sides[label] = run_side(src, tmp / f"work-{label}", a.quiet)
+            # one work folder path for both sides: outputs that name their folder stay comparable
+            sides[label] = run_side(src, tmp / "work", a.quiet)
+            (tmp / "work").rename(tmp / f"work-{label}")
         report = {
             job: {
                 "old": sides["old"][job],
