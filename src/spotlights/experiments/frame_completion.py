@@ -352,7 +352,9 @@ class _FrameRun:
         )
 
 
-def complete_frames(s: FramesSettings, say: Say = silent, warn: Say = silent) -> dict:
+def complete_frames(
+    s: FramesSettings, say: Say = silent, warn: Say = silent, completer: BaseCompleter | None = None
+) -> dict:
     """Complete the selected frames of a dataset into the folder ``s.out`` as ``spotlights real complete`` does.
 
     Opens the dataset (:meth:`ReaderOptions.open`), selects ``s.frames``, builds the track plan (``s.fuse``),
@@ -360,7 +362,8 @@ def complete_frames(s: FramesSettings, say: Say = silent, warn: Say = silent) ->
     metres), PNG, HTML, per-object files and, last, its JSON (``s.resume`` skips frames whose JSON says the same
     model and options); then ``summary.json`` (+ per-track files with ``fuse``). The output folder is removed
     again when nothing could be written. ``warn`` receives the out-of-domain warnings (ten at most: the rest
-    are counted), ``say`` the summary line. Returns the run's summary (the content of ``summary.json``).
+    are counted), ``say`` the summary line; ``completer``: a model already loaded (default: the one ``s``
+    names). Returns the run's summary (the content of ``summary.json``).
     """
     reader = s.open()
     keys = select_frames(reader.frame_keys(), s.frames)
@@ -368,7 +371,7 @@ def complete_frames(s: FramesSettings, say: Say = silent, warn: Say = silent) ->
         raise ParameterError("--frames selects no frame")
     config = s.scene_config()
     tracks = s.track_plan(reader, keys, config)
-    completer = s.load_completer()
+    completer = s.load_completer() if completer is None else completer
     with output_folder(s.out) as out:  # removed again if nothing could be written
         return _run_frames(s, reader, keys, config, completer, out, tracks, say, warn)
 

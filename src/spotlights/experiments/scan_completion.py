@@ -263,14 +263,17 @@ def write_json(path: str | Path, data: dict) -> None:
         tmp.write_text(json.dumps(data, indent=2, default=float) + "\n", encoding="utf-8")
 
 
-def complete_scan(s: ScanSettings, say: Say = silent, warn: Say = silent) -> SceneResult:
+def complete_scan(
+    s: ScanSettings, say: Say = silent, warn: Say = silent, completer: BaseCompleter | None = None
+) -> SceneResult:
     """Complete the vehicles of one scan file as ``spotlights complete`` does.
 
     Checks every option and destination first (one-line :class:`~spotlights.errors.SpotlightsError` naming the
     option or file), reads the scan ((N, 3) metres, scan frame) and its boxes, loads the model
     (:meth:`CompletionOptions.load_completer`), completes (:func:`~spotlights.experiments.scene.complete_scene`)
     and writes ``s.out`` (+ per-object files, JSON summary, PNG, HTML). ``say`` receives the summary lines,
-    ``warn`` one line per warning (out-of-domain boxes). Returns the :class:`SceneResult` (scan frame, metres).
+    ``warn`` one line per warning (out-of-domain boxes); ``completer``: a model already loaded (default: the
+    one ``s`` names). Returns the :class:`SceneResult` (scan frame, metres).
     """
     s.check_boxes()
     config = s.scan_config()
@@ -279,7 +282,7 @@ def complete_scan(s: ScanSettings, say: Say = silent, warn: Say = silent) -> Sce
     points = read_scan(s.input)
     require_points(points, config.min_points, s.input)
     boxes = s.read_boxes(axes)
-    completer = s.load_completer()
+    completer = s.load_completer() if completer is None else completer
     result = complete_scene(points, boxes, completer, config, axes=axes, checkpoint=s.checkpoint_name)
     if s.single:
         _check_single(s, result, points, axes, warn)
