@@ -196,10 +196,9 @@ def register(sub) -> None:
     p.add_argument("--quiet", "-q", action="store_true", help="print nothing but warnings and errors")
 
 
-def warn(lines) -> None:
-    """Print each line as a warning on stderr."""
-    for w in [lines] if isinstance(lines, str) else lines:
-        print(f"spotlights: warning: {w}", file=sys.stderr)
+def warn(line: str) -> None:
+    """Print ``line`` as a warning on stderr."""
+    print(f"spotlights: warning: {line}", file=sys.stderr)
 
 
 def _complete(args) -> int:
