@@ -58,12 +58,19 @@ class RigOptions:
         """The :class:`~spotlights.geometry.rig.RigSpec` (box rigs become rigs with an object's box)."""
         kind = self.rig_kind or "cap"
         box = {"targets": self.box_targets, "scale": self.box_scale, "cap_share": self.box_cap_share}
-        if kind == "cap":
-            given = [f"--box-{k.replace('_', '-')}" for k, v in box.items() if v is not None]
-            if given:
-                raise ParameterError(f"{', '.join(given)} only apply with --rig-kind box")
-            box = {}
-        return make_rig_spec(self.primary, self.secondary, angle=self.angle, radius=self.radius, kind=kind, **box)
+        given = [f"--box-{k.replace('_', '-')}" for k, v in box.items() if v is not None]
+        if kind == "cap" and given:
+            raise ParameterError(f"{', '.join(given)} only apply with --rig-kind box")
+        return make_rig_spec(
+            self.primary,
+            self.secondary,
+            angle=self.angle,
+            radius=self.radius,
+            kind=kind,
+            targets=self.box_targets,
+            scale=self.box_scale,
+            cap_share=self.box_cap_share,
+        )
 
 
 @dataclass(kw_only=True)
@@ -274,8 +281,8 @@ def view_files(s: ViewSettings, say: Say = silent) -> int:
     for line in lines:
         say(line)
     if out is not None:
-        out = html.write_html(out, fig)
-        say(f"page -> {out} ({out.stat().st_size / 1e6:.1f} MB, opens offline in a browser)")
+        page = html.write_html(out, fig)
+        say(f"page -> {page} ({page.stat().st_size / 1e6:.1f} MB, opens offline in a browser)")
     if s.serve:
         host = s.host if s.host is not None else serve.DEFAULT_HOST
         port = s.port if s.port is not None else serve.DEFAULT_PORT

@@ -51,6 +51,7 @@ import json
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -418,10 +419,12 @@ def _model_entry(
     t: _Tracked, completer, name: str, checkpoint, digest, s: RealEvaluationSettings, progress: bool
 ) -> dict:
     """The report entry of one model: its completions of the tracked observations, scored."""
-    run = dict(batch_size=s.batch_size, progress=progress, clip=s.clip, box_sizes=t.sizes, sensor_origins=t.sensors)
+    run: dict[str, Any] = dict(
+        batch_size=s.batch_size, progress=progress, clip=s.clip, box_sizes=t.sizes, sensor_origins=t.sensors
+    )
     comps = complete_all(completer, t.partials, desc=f"complete {name}", **run)
-    with_noise = t.partials2 is not None
-    comps2 = complete_all(completer, t.partials2, desc=f"noise floor {name}", **run) if with_noise else None
+    p2 = t.partials2
+    comps2 = complete_all(completer, p2, desc=f"noise floor {name}", **run) if p2 is not None else None
     tracks, agg, div = _score(t, comps, t.ref_trees, comps2)
     entry = dict(
         name=name,
@@ -571,10 +574,10 @@ def evaluate_consistency(
     models = []
     for k, completer in enumerate(completers):
         old = reusable.get((names[k], digests[k])) if digests[k] else None
+        ck = None if checkpoints is None else checkpoints[k]  # a digest means a checkpoint
         if old is not None:
-            models.append(dict(old, checkpoint=str(checkpoints[k])))
+            models.append(dict(old, checkpoint=str(ck)))
         else:
-            ck = None if checkpoints is None else checkpoints[k]
             models.append(_model_entry(t, completer, names[k], ck, digests[k], settings, progress))
         if on_model is not None:
             on_model(dict(data=data, metrics=metrics, models=list(models)), old is not None)
@@ -611,7 +614,7 @@ def _report_head(obs, path, rows, t: _Tracked, settings: dict, noise_requested: 
     eq, vox = settings["equal_points"], settings["equal_density"]
     with_noise = settings["noise_floor"]
     n_tracks = len(set(sub_keys))
-    per_track = {}
+    per_track: dict = {}
     for key in sub_keys:
         per_track[key] = per_track.get(key, 0) + 1
     return (

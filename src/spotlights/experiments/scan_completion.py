@@ -32,9 +32,10 @@ from ..geometry.boxes import Box, box_from_dict
 from ..geometry.io import axes_rotation
 from ..inputs import read_json
 from ..learning.inference import BaseCompleter
-from ..learning.runtime import load_completer
+from ..learning.runtime import Runtime, load_completer
 from ..utils import atomic_output, check_suffix, check_writable
 from .scene import (
+    HEADING_MARGIN,
     SceneConfig,
     SceneResult,
     check_completed,
@@ -94,7 +95,7 @@ class CompletionOptions:
     no_clip: bool = False
     device: str | None = None
     precision: str = "fp32"
-    runtime: str | None = None
+    runtime: Runtime | None = None
 
     @property
     def checkpoint_name(self) -> str:
@@ -122,7 +123,7 @@ class CompletionOptions:
             heading_check=bool(self.heading_check),
             clip=clip,
             keep_observed=bool(self.keep_observed),
-            **({} if self.heading_margin is None else {"heading_margin": float(self.heading_margin)}),
+            heading_margin=HEADING_MARGIN if self.heading_margin is None else float(self.heading_margin),
         )
 
     def load_completer(self) -> BaseCompleter:
@@ -251,7 +252,7 @@ def _check_single(s: ScanSettings, result: SceneResult, points: np.ndarray, axes
             f"{s.input}: the completion is empty (every ray was clipped); try --no-clip or a lower --clip"
         )
     if not config.crop:
-        unit = o.used_box.normalization().to_unit(np.asarray(points, dtype=np.float64) @ axes.T)
+        unit = (o.used_box or o.box).normalization().to_unit(np.asarray(points, dtype=np.float64) @ axes.T)
         outside = float(np.mean(np.linalg.norm(unit, axis=1) > 1.2))
         if outside > 0.5:
             warn(f"{outside:.0%} of the scan lies outside the box's sphere; is the box in the scan's frame?")
