@@ -15,8 +15,11 @@ import tempfile
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
+from typing import TypeVar
 
 from .errors import InputFileError, OutputFileError, ParameterError, SpotlightsError
+
+_T = TypeVar("_T")
 
 # ---------------------------------------------------------------------------- atomic writes
 
@@ -286,6 +289,20 @@ def check_writable(*paths: str | os.PathLike | None) -> None:
             os.unlink(tmp)
         except OSError as exc:
             raise OutputFileError(p, f"cannot write ({os_error_reason(exc)})") from None
+
+
+def check_suffix(path: str | os.PathLike | None, suffixes: tuple[str, ...], what: str, option: str = "--out") -> None:
+    """Refuse an output whose extension would not match what is written: a :class:`ParameterError` naming
+    ``option`` and ``path`` (None is skipped). ``suffixes``: the accepted lower-case extensions, e.g.
+    ``(".h5", ".hdf5")``; ``what``: the kind of file, e.g. ``"the picture"``."""
+    if path is None:
+        return
+    suffix = Path(path).suffix.lower()
+    if suffix not in suffixes:
+        shown = " or ".join(suffixes)
+        raise ParameterError(
+            f"{option} {path}: {what} is written as {shown}; name it {Path(path).stem or 'FILE'}{suffixes[0]}"
+        )
 
 
 @contextlib.contextmanager
@@ -635,3 +652,11 @@ def settings_from_dict(cls: type, d: object, where: str | os.PathLike | None = N
         if key not in names:
             raise fail(f"unknown setting {key!r}{did_you_mean(key, names)} (known: {', '.join(names)})")
     return cls(**dict(d), **fixed)
+
+
+def settings_from_namespace(cls: type[_T], namespace: object) -> _T:
+    """The settings dataclass ``cls`` of an object with one attribute per field (an ``argparse.Namespace``):
+    each field the namespace has is taken from the attribute of its name, the others keep their defaults;
+    attributes that are no field are ignored (the command-line options map one to one onto the fields)."""
+    names = [f.name for f in dataclasses.fields(cls) if f.init]  # type: ignore[arg-type]
+    return cls(**{n: getattr(namespace, n) for n in names if hasattr(namespace, n)})

@@ -5,25 +5,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ..data.real.boxfiles import read_box_file, with_class
-from ..data.real.scans import read_scan
-from ..errors import ParameterError
-from ..experiments.scene import (
-    SceneConfig,
-    check_completed,
-    complete_scene,
-    describe,
-    render_result,
-    render_result_html,
-    require_points,
-    write_scene,
-)
-from ..geometry.boxes import box_from_dict
-from ..geometry.io import axes_rotation
-from ..inputs import read_json
-from ..learning.runtime import load_completer
-from ..utils import atomic_output, check_writable
-from ._util import DEVICE_HELP, add_command, check_picture, check_suffix, non_negative_int, positive_int, unit_interval
+from ..experiments.scan_completion import ScanSettings, complete_scan
+from ..utils import settings_from_namespace
+from ._util import DEVICE_HELP, add_command, non_negative_int, positive_int, unit_interval
 from .view import add_html_argument
 
 CROP_DOC = (
@@ -212,155 +196,11 @@ def register(sub) -> None:
     p.add_argument("--quiet", "-q", action="store_true", help="print nothing but warnings and errors")
 
 
-def classes_arg(text):
-    """``--classes`` text -> tuple of class names, or None."""
-    if text is None:
-        return None
-    return tuple(c.strip().lower() for c in text.split(",") if c.strip())
-
-
-def scene_config(args, single: bool):
-    """The :class:`~spotlights.experiments.scene.SceneConfig` of the shared options."""
-    margin = args.margin
-    if single and args.crop is not None:
-        if margin is not None and margin != args.crop:
-            raise ParameterError("give the crop margin once: --margin or --crop")
-        margin = args.crop
-    clip = None if args.no_clip else ("default" if args.clip is None else float(args.clip))
-    no_crop = bool(single and args.no_crop)
-    if args.heading_margin is not None and not args.heading_check:
-        raise ParameterError("--heading-margin goes with --heading-check")
-    if no_crop and margin is not None:
-        raise ParameterError("--no-crop uses every point: it takes no --margin/--crop")
-    return SceneConfig(
-        margin=0.15 if margin is None else float(margin),
-        ground_clearance=float(args.ground_clearance),
-        min_points=int(args.min_points),
-        classes=classes_arg(args.classes),
-        crop=not no_crop,
-        resample=args.resample,
-        seed=int(args.seed),
-        heading_check=bool(args.heading_check),
-        clip=clip,
-        keep_observed=bool(args.keep_observed),
-        **({} if args.heading_margin is None else {"heading_margin": float(args.heading_margin)}),
-    )
-
-
-def load_model(checkpoint, device, runtime=None, precision="fp32"):
-    """The completer of a --checkpoint value (None = the default model) and --runtime: see
-    :func:`spotlights.learning.runtime.load_completer`."""
-    return load_completer(checkpoint, runtime=runtime, device=device, precision=precision)
-
-
-def warn(lines) -> None:
-    for w in lines:
-        print(f"spotlights: warning: {w}", file=sys.stderr)
+def warn(line: str) -> None:
+    """Print ``line`` as a warning on stderr."""
+    print(f"spotlights: warning: {line}", file=sys.stderr)
 
 
 def _complete(args) -> int:
-    import dataclasses
-    from pathlib import Path
-
-    import numpy as np
-
-    single_given = [
-        n for n, v in (("--box", args.box), ("--center/--size", args.center is not None or args.size is not None)) if v
-    ]
-    if args.boxes is not None and single_given:
-        raise ParameterError(f"give the boxes either as --boxes or as {single_given[0]} (one object), not both")
-    if len(single_given) > 1:
-        raise ParameterError("give the box either as --box BOX.json or as --center/--size/--yaw, not both")
-    if args.calib is not None and args.boxes is None:
-        raise ParameterError("--calib goes with a KITTI label_2 file in --boxes")
-    single = args.boxes is None
-    if single and (args.center is None) != (args.size is None) and args.box is None:
-        raise ParameterError("one object's box needs both --center X Y Z and --size L W H")
-    if single and args.box is None and args.center is None:
-        raise ParameterError(
-            "the boxes are missing: pass --boxes BOXES (a frame), or one object's --box BOX.json or "
-            "--center X Y Z --size L W H [--yaw RAD]"
-        )
-    if not single and args.no_crop:
-        raise ParameterError("--no-crop is for one object already cropped; the boxes of a frame are always cropped")
-    config = scene_config(args, single)
-    if single:
-        if args.classes is not None:
-            raise ParameterError("--classes chooses among the boxes of --boxes; one object's box is always completed")
-        config = dataclasses.replace(config, any_label=True)
-
-    check_picture(args.show, "--show")
-    check_suffix(args.html, (".html", ".htm"), "the page (HTML)", "--html")
-    check_suffix(args.summary, (".json",), "the summary (JSON)", "--summary")
-    check_writable(args.out, args.show, args.html, args.summary)
-    if args.per_object is not None:  # every destination before anything is written
-        check_writable(Path(args.per_object) / "object_0.ply")
-    axes = axes_rotation(args.up, args.forward)
-    points = read_scan(args.input)
-    require_points(points, config.min_points, args.input)
-    if args.boxes is not None:
-        boxes = read_box_file(args.boxes, calib=args.calib, axes=axes).boxes
-        box_src = args.boxes
-    else:
-        if args.box is not None:
-            box = box_from_dict(read_json(args.box), args.box, axes=axes)  # yaw: about the scan's up axis
-            box_src = args.box
-        else:
-            box = box_from_dict(
-                {"center": args.center, "size": args.size, "yaw": args.yaw}, "--center/--size", axes=axes
-            )
-            box_src = "--center/--size"
-        if not box.is_valid():
-            raise ParameterError(f"{box_src}: box size must be positive, got {box.size.tolist()}")
-        boxes = [with_class(box)]
-    completer = load_model(args.checkpoint, args.device, args.runtime, args.precision)
-    result = complete_scene(
-        points, boxes, completer, config, axes=axes, checkpoint=str(args.checkpoint) if args.checkpoint else "default"
-    )
-    if single:
-        o = result.objects[0]
-        if o.status == "too_few_points":
-            raise ParameterError(
-                f"{box_src}: {len(o.input_indices)} scan point(s) lie in the box (grown by {config.margin} m, "
-                f"bottom raised {config.ground_clearance} m); at least {config.min_points} are needed - check "
-                "the box and the scan's frame (--no-crop for an already cropped scan)"
-            )
-        if o.status == "empty_completion":
-            raise ParameterError(
-                f"{args.input}: the completion is empty (every ray was clipped); try --no-clip or a lower --clip"
-            )
-        if not config.crop:
-            unit = o.used_box.normalization().to_unit(np.asarray(points, dtype=np.float64) @ axes.T)
-            outside = float(np.mean(np.linalg.norm(unit, axis=1) > 1.2))
-            if outside > 0.5:
-                warn([f"{outside:.0%} of the scan lies outside the box's sphere; is the box in the scan's frame?"])
-    else:
-        check_completed(result, box_src)
-    written = write_scene(result, args.out, per_object=args.per_object, scan_name=Path(args.input).name)
-    warn(result.warnings())
-    if args.summary:
-        _write_json(
-            args.summary, {"scan": str(args.input), "boxes": str(box_src), "out": str(args.out), **result.summary()}
-        )
-    if not args.quiet:
-        print(
-            f"{args.input}: {len(points)} points, {describe(result)} ({result.model}) -> {args.out}"
-            + (f" (+{len(written) - 1} per-object files in {args.per_object})" if args.per_object else "")
-        )
-    title = f"{Path(args.input).name}: {result.model} completion of {len(result.completed)} object(s), scan frame"
-    if args.show:
-        render_result(result, args.show, title)
-        if not args.quiet:
-            print(f"picture -> {args.show}")
-    if args.html:
-        render_result_html(result, args.html, title)
-        if not args.quiet:
-            print(f"page -> {args.html}")
+    complete_scan(settings_from_namespace(ScanSettings, args), say=print, warn=warn)
     return 0
-
-
-def _write_json(path, data) -> None:
-    import json
-
-    with atomic_output(path) as tmp:
-        tmp.write_text(json.dumps(data, indent=2, default=float) + "\n", encoding="utf-8")

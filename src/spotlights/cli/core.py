@@ -4,24 +4,17 @@ from __future__ import annotations
 
 import argparse
 
-from .. import viz
-from ..errors import InputFileError, ParameterError, SpotlightsError
-from ..geometry.encode import MeshProbe, hit_ratio, load_encoding, save_encoding
-from ..geometry.io import (
-    MESH_SUFFIXES,
-    POINT_SUFFIXES,
-    load_mesh,
-    load_ply_fields,
-    load_points,
-    ply_has_faces,
-    save_points,
+from ..experiments.files import (
+    DecodeSettings,
+    EncodeSettings,
+    ShowSettings,
+    decode_file,
+    encode_meshes,
+    show_file,
 )
-from ..geometry.rig import make_rig_spec
-from ..utils import check_writable
-from ..viz import html
-from ..viz.html import SOURCES
-from ._util import add_command, add_quiet, check_picture, check_suffix, unit_interval
-from .view import add_html_argument, write_page
+from ..utils import settings_from_namespace
+from ._util import add_command, add_quiet, unit_interval
+from .view import add_html_argument
 
 
 def add_rig_arguments(p: argparse.ArgumentParser) -> None:
@@ -80,23 +73,6 @@ def add_axes_arguments(p: argparse.ArgumentParser) -> None:
         "--up", default="z", help="the mesh file's up axis (x, y, z, -x, ...); glTF files are usually y (default z)"
     )
     p.add_argument("--forward", default="x", help="the mesh file's forward axis (default x)")
-
-
-def spec_from_args(args):
-    """The :class:`~spotlights.geometry.rig.RigSpec` the rig options describe (box rigs need a box to become rigs)."""
-    kind = getattr(args, "rig_kind", "cap") or "cap"
-    box = {k: getattr(args, f"box_{k}", None) for k in ("targets", "scale", "cap_share")}
-    if kind == "cap":
-        given = [f"--box-{k.replace('_', '-')}" for k, v in box.items() if v is not None]
-        if given:
-            raise ParameterError(f"{', '.join(given)} only apply with --rig-kind box")
-        box = {}
-    return make_rig_spec(args.primary, args.secondary, angle=args.angle, radius=args.radius, kind=kind, **box)
-
-
-def rig_from_args(args, box=None):
-    """The concrete rig of the rig options; box rigs need ``box``, the object's (3,) half-extents in the unit frame."""
-    return spec_from_args(args).for_box(box)
 
 
 def register(sub) -> None:
@@ -165,111 +141,15 @@ def register(sub) -> None:
 
 
 def _encode(args) -> int:
-    from pathlib import Path
-
-    from tqdm import tqdm
-
-    spec = spec_from_args(args)
-    out = Path(args.out)
-    several = len(args.meshes) > 1
-    if several and out.suffix.lower() == ".npz":
-        raise SpotlightsError(f"{out}: several meshes need a folder for --out, not a .npz file")
-    into_folder = several or out.is_dir()  # an existing folder receives MESH_STEM.npz
-    if not into_folder and out.suffix and out.suffix.lower() != ".npz":
-        raise SpotlightsError(
-            f"--out {out}: an encoding is written as an .npz archive; name it {out.stem}.npz (or give a folder)"
-        )
-    targets = (
-        [out / (Path(m).stem + ".npz") for m in args.meshes]
-        if into_folder
-        else [out if out.suffix else out.with_suffix(".npz")]
-    )
-    if several and len(set(targets)) != len(targets):
-        raise SpotlightsError("several meshes share a file name; encode them into different folders")
-
-    check_writable(*targets)
-    meshes = [load_mesh(m, up=args.up, forward=args.forward) for m in args.meshes]  # validate all first
-    for path, mesh, target in tqdm(
-        list(zip(args.meshes, meshes, targets)), desc="encode", unit="mesh", disable=not several or args.quiet
-    ):
-        probe = MeshProbe(mesh)
-        rig = probe.rig_for(spec)  # box rigs: aimed at this mesh's own box
-        depths = probe.encode(rig)
-        save_encoding(target, depths, rig, probe.normalization)
-        msg = f"{path}: {rig.name}, hit ratio {hit_ratio(depths):.3f} ({int((depths > 0).sum())}/{rig.n_rays} rays) -> {target}"
-        (tqdm.write if several else print)(msg)
+    encode_meshes(settings_from_namespace(EncodeSettings, args), say=print)
     return 0
 
 
 def _decode(args) -> int:
-    check_writable(args.out)
-    enc = load_encoding(args.encoding)
-
-    pts = enc.points(frame=args.frame, clip=args.clip)
-    if len(pts) == 0:
-        why = f" at or above the clip {args.clip}" if args.clip is not None else ""
-        raise InputFileError(args.encoding, f"no ray hit{why}: the point cloud would be empty (nothing written)")
-    save_points(args.out, pts)
-    print(f"{args.encoding}: {len(pts)} points ({args.frame} frame) -> {args.out}")
+    decode_file(settings_from_namespace(DecodeSettings, args), say=print)
     return 0
 
 
 def _show(args) -> int:
-    from pathlib import Path
-
-    import numpy as np
-
-    check_picture(args.out)
-    src = Path(args.file)
-    out = Path(args.out) if args.out else Path.cwd() / (src.stem + ".png")
-    suffix = src.suffix.lower()
-    if not src.exists():
-        raise InputFileError(src, "no such file")
-
-    check_suffix(args.html, (".html", ".htm"), "the page (HTML)", "--html")
-    check_writable(args.out or (None if args.html else out), args.html)
-    if args.html:
-        traces, what = html.file_traces(src, clip=args.clip, up=args.up, forward=args.forward)
-        write_page(args.html, [(src.name, traces)], f"{src.name}: {what}", quiet=True)
-        print(f"{src}: {what} -> {args.html}")
-        if not args.out:
-            return 0
-    if suffix == ".npz":
-        try:
-            with np.load(src, allow_pickle=False) as z:
-                is_encoding = "depths" in z.files
-        except Exception as exc:
-            raise InputFileError(src, f"not a readable .npz file ({type(exc).__name__})") from None
-        if is_encoding:
-            enc = load_encoding(src)
-            viz.render_encoding(out, enc, clip=args.clip)
-            box = "" if enc.rig.box is None else ", box half-extents " + " x ".join(f"{x:.3f}" for x in enc.rig.box)
-            print(f"{src}: encoding ({enc.rig.name}{box}) -> {out}")
-            return 0
-    if suffix in MESH_SUFFIXES and suffix != ".ply" or (suffix == ".ply" and ply_has_faces(src)):
-        mesh = load_mesh(src, up=args.up, forward=args.forward)
-        viz.render_mesh(out, mesh, title=f"{src.name}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces")
-        print(f"{src}: mesh -> {out}")
-        return 0
-    if suffix == ".ply":
-        fields = load_ply_fields(src)
-        if "source" in fields:  # a scene from 'complete --boxes': raw grey, partial purple, completion green
-            xyz = np.stack([fields["x"], fields["y"], fields["z"]], axis=1).astype(np.float64)
-            layers = [
-                viz.Layer(
-                    xyz[fields["source"] == code],
-                    color,
-                    f"{label} ({int((fields['source'] == code).sum())})",
-                    0.5 if code == 0 else 2.0,
-                )
-                for code, (label, color, _) in SOURCES.items()
-            ]
-            viz.render_layers(out, layers, title=f"{src.name}: scene of {len(xyz)} points")
-            print(f"{src}: scene -> {out}")
-            return 0
-    if suffix in POINT_SUFFIXES:
-        pts = load_points(src)
-        viz.render_layers(out, [viz.Layer(pts, "tab:blue", None, 2.0)], title=f"{src.name}: {len(pts)} points")
-        print(f"{src}: point cloud -> {out}")
-        return 0
-    raise InputFileError(src, f"unknown file type {suffix!r} (a mesh, a point cloud or an encoding .npz)")
+    show_file(settings_from_namespace(ShowSettings, args), say=print)
+    return 0

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from ..errors import SpotlightsError
-from ..utils import check_writable
-from ..viz import html, serve
-from ._util import add_command, check_suffix, port_number, positive_int, unit_interval
+from ..experiments.files import ViewSettings, view_files
+from ..utils import settings_from_namespace
+from ..viz import html
+from ._util import add_command, port_number, positive_int, unit_interval
 
 
 def register(sub) -> None:
@@ -83,36 +83,7 @@ def register(sub) -> None:
 
 
 def _view(args) -> int:
-    from pathlib import Path
-
-    if not args.serve and (args.port is not None or args.host is not None):
-        raise SpotlightsError("--port and --host go with --serve")
-    out = args.out if args.out is not None or args.serve else "view.html"
-    if out is not None:
-        check_suffix(out, (".html", ".htm"), "the page (HTML)")
-        check_writable(out)
-    html.require_plotly()
-    panels, lines = [], []
-    for f in args.files:
-        traces, what = html.file_traces(
-            f, rays=args.rays, clip=args.clip, up=args.up, forward=args.forward, max_points=args.max_points
-        )
-        panels.append((Path(f).name, traces))
-        lines.append(f"{f}: {what}")
-    title = args.title if args.title is not None else ", ".join(Path(f).name for f in args.files)
-    fig = html.page(panels, title, side_by_side=args.side_by_side)
-    if not args.quiet:
-        for line in lines:
-            print(line)
-    if out is not None:
-        out = html.write_html(out, fig)
-        if not args.quiet:
-            print(f"page -> {out} ({out.stat().st_size / 1e6:.1f} MB, opens offline in a browser)")
-    if args.serve:
-        host = args.host if args.host is not None else serve.DEFAULT_HOST
-        port = args.port if args.port is not None else serve.DEFAULT_PORT
-        return serve.serve(html.page_text(fig).encode("utf-8"), host, port, quiet=args.quiet)
-    return 0
+    return view_files(settings_from_namespace(ViewSettings, args), say=print)
 
 
 def add_html_argument(p) -> None:

@@ -49,7 +49,9 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -57,7 +59,7 @@ from .._version import __version__
 from ..data.real.base import CLASSES
 from ..data.real.extract import Observations, read_observations
 from ..data.store import open_dataset
-from ..errors import InputFileError, SpotlightsError
+from ..errors import InputFileError, ParameterError, SpotlightsError
 from ..geometry.boxes import FLIP_Z, unit_extents
 from ..geometry.neighbors import NearestNeighbors, serial_queries
 from ..geometry.sampling import resample_set, voxel_downsample
@@ -74,6 +76,7 @@ from ..metrics.consistency import (
     same_observation_cd,
     track_consistency,
 )
+from ..utils import settings_from_dict
 from .real_report import report_markdown, write_report, write_report_json
 from .scene import HEADING_MARGIN, heading_turns
 
@@ -84,6 +87,7 @@ __all__ = [
     "EQUAL_POINTS",
     "HEADING_DOC",
     "NOISE_DOC",
+    "RealEvaluationSettings",
     "complete_all",
     "equal_count",
     "evaluate_consistency",
@@ -243,39 +247,258 @@ def _track_radii(keys, radii) -> np.ndarray:
     return out
 
 
-def _score(comps, partials, keys, ts, cls, radii, r_track, classes_present, ref_trees=None, noise=None):
+@dataclass(frozen=True, kw_only=True)
+class RealEvaluationSettings:
+    """What :func:`evaluate_consistency` scores and how (the scoring options of ``real evaluate``).
+
+    classes : score only observations of these classes (a tuple or list; None: every class in the file).
+    clip : SA-Net's depth clip in [0, 1], passed to ``complete`` when given; None: each model's default.
+    equal_points : also score every completion resampled to this many points (None/0: not).
+    equal_density : also score every completion voxel-downsampled with this cell side (unit frame;
+        None/0: not) - the headline for comparing models of different output densities.
+    noise_floor : also complete each observation resampled with a second seed (needs the raw
+        points of a format-2 file; older files report no floor).
+    heading_check : also complete each observation with its box turned around and count flips.
+    heading_margin : margin of the counted heading flips (:func:`~spotlights.experiments.scene.heading_turns`),
+        in [0, 1).
+    batch_size : observations per ``complete`` call.
+
+    Read from a mapping with :meth:`from_dict` (unknown keys are errors naming the closest field).
+    """
+
+    classes: Sequence[str] | None = None
+    clip: float | None = None
+    equal_points: int | None = EQUAL_POINTS
+    equal_density: float | None = EQUAL_DENSITY
+    noise_floor: bool = True
+    heading_check: bool = True
+    heading_margin: float = HEADING_MARGIN
+    batch_size: int = 64
+
+    @classmethod
+    def from_dict(cls, d: object, where: str = "evaluate_consistency") -> RealEvaluationSettings:
+        """The settings of mapping ``d`` (:func:`spotlights.utils.settings_from_dict`: unknown keys are errors
+        naming ``where`` and the closest field)."""
+        return settings_from_dict(cls, d, where)
+
+    @property
+    def n_equal_points(self) -> int:
+        """:attr:`equal_points` as an int, 0 when not scored."""
+        return int(self.equal_points) if self.equal_points else 0
+
+    @property
+    def voxel(self) -> float:
+        """:attr:`equal_density` as a float, 0.0 when not scored."""
+        return float(self.equal_density) if self.equal_density else 0.0
+
+
+@dataclass
+class _Tracked:
+    """The tracked observations one evaluation scores (``n`` rows), and what every model's scoring shares."""
+
+    keys: list  # (n,) (sequence, track id)
+    ts: np.ndarray  # (n,) float64 timestamps, seconds
+    cls: list  # (n,) class names
+    sizes: np.ndarray  # (n, 3) box sizes, metres
+    sensors: np.ndarray  # (n, 3) the LiDAR in each unit frame
+    radii: np.ndarray  # (n,) box radii (half diagonals), metres
+    r_track: np.ndarray  # (n,) the mean box radius of each row's track
+    classes_present: list
+    partials: np.ndarray  # (n, P, 3) float32 unit frame
+    partials2: np.ndarray | None  # the same resampled with seed + 1 (noise floor), or None
+    ref_trees: list | None
+    seed: int
+
+
+def _tracked(obs: Observations, rows: np.ndarray, references, noise_floor: bool) -> _Tracked:
+    """The :class:`_Tracked` of observation ``rows`` (``references``: MMD shapes or None)."""
+    keys = obs.object_keys()
+    sub_keys = [keys[i] for i in rows]
+    sub_cls = [obs.cls[i] for i in rows]
+    sizes = obs.box_size[rows]
+    radii = 0.5 * np.linalg.norm(sizes, axis=1)
+    partials = obs.partial[rows]
+    seed = int((obs.meta.get("config") or {}).get("seed", 0))
+    n_in = partials.shape[1]
+    partials2 = (
+        np.stack([resample_set(obs.raw(i), n_in, seed=seed + 1) for i in rows]).astype(np.float32)
+        if bool(noise_floor) and obs.has_raw
+        else None
+    )
+    return _Tracked(
+        keys=sub_keys,
+        ts=obs.timestamp[rows],
+        cls=sub_cls,
+        sizes=sizes,
+        sensors=obs.sensor_origin[rows],
+        radii=radii,
+        r_track=_track_radii(sub_keys, radii),
+        classes_present=[c for c in CLASSES if c in set(sub_cls)],
+        partials=partials,
+        partials2=partials2,
+        ref_trees=None
+        if references is None
+        else [NearestNeighbors(np.asarray(r, dtype=np.float64)) for r in references],
+        seed=seed,
+    )
+
+
+def _score(t: _Tracked, comps, ref_trees=None, noise=None):
     """Consistency of one set of completions plus the per-observation scores; returns (tracks, aggregate, diversity)."""
     with serial_queries():  # many small KD-tree queries
-        per_obs = {"fidelity": np.array([fidelity(p, c) for p, c in zip(partials, comps)])}
+        per_obs = {"fidelity": np.array([fidelity(p, c) for p, c in zip(t.partials, comps)])}
         if ref_trees:
             per_obs["mmd"] = np.array([minimal_matching_distance(c, ref_trees)[0] for c in comps])
-        per_obs["fidelity_m"] = per_obs["fidelity"] * radii
+        per_obs["fidelity_m"] = per_obs["fidelity"] * t.radii
         if noise is not None:
-            per_obs["noise_floor"] = same_observation_cd(comps, noise, radii / r_track)
-            per_obs["noise_floor_m"] = same_observation_cd(comps, noise, radii)
-        tracks = track_consistency(comps, keys, ts, cls, radii, per_observation=per_obs)
-        div, _ = diversity(comps, keys, ts)
-    return tracks, aggregate(tracks, classes=classes_present), div
+            per_obs["noise_floor"] = same_observation_cd(comps, noise, t.radii / t.r_track)
+            per_obs["noise_floor_m"] = same_observation_cd(comps, noise, t.radii)
+        tracks = track_consistency(comps, t.keys, t.ts, t.cls, t.radii, per_observation=per_obs)
+        div, _ = diversity(comps, t.keys, t.ts)
+    return tracks, aggregate(tracks, classes=t.classes_present), div
+
+
+def _ratio(consistency, div) -> float | None:
+    """Consistency over diversity, None when either is missing or diversity is not positive."""
+    return consistency / div if consistency is not None and np.isfinite(div) and div > 0 else None
+
+
+def _rescored(t: _Tracked, comps: list, comps2: list | None, fn, **info) -> dict:
+    """Consistency, noise floor and diversity of the completions mapped by ``fn`` (same aggregation)."""
+    ce = [fn(c) for c in comps]
+    ce2 = [fn(c) for c in comps2] if comps2 is not None else None
+    _, agg_e, div_e = _score(t, ce, None, ce2)
+    return dict(
+        **info,
+        mean_points_per_completion=float(np.mean([len(c) for c in ce])) if ce else None,
+        diversity=div_e,
+        **agg_e,
+        consistency_over_diversity=_ratio(agg_e["all_objects"]["cd"], div_e),
+    )
+
+
+def _heading_entry(t: _Tracked, completer, name: str, comps: list, run: dict, margin: float) -> dict:
+    """Heading flips: each observation completed with its box turned around, counted when closer (``margin``)."""
+    flipped = complete_all(
+        completer,
+        flip_heading(t.partials),
+        desc=f"heading check {name}",
+        **dict(run, sensor_origins=flip_heading(t.sensors)),
+    )
+    with serial_queries():
+        f0 = np.array([fidelity(p, c) for p, c in zip(t.partials, comps)])
+        f1 = np.array([fidelity(p, c) for p, c in zip(flip_heading(t.partials), flipped)])
+    ok = np.isfinite(f0) & np.isfinite(f1)
+    flips = ok & heading_turns(f0, f1, margin)
+    bare = ok & heading_turns(f0, f1, 0.0)
+    return dict(
+        margin=float(margin),
+        n_observations=int(ok.sum()),
+        n_flipped=int(flips.sum()),
+        rate=float(flips.sum() / ok.sum()) if ok.any() else None,
+        n_flipped_margin0=int(bare.sum()),
+        rate_margin0=float(bare.sum() / ok.sum()) if ok.any() else None,
+        per_class={c: int(sum(1 for i in np.flatnonzero(flips) if t.cls[i] == c)) for c in t.classes_present},
+    )
+
+
+def _domain_entry(domain, t: _Tracked) -> dict:
+    """How many observations lie outside what the model learned, counted per reason."""
+    reasons: dict = {}
+    n_out = 0
+    for c, sz in zip(t.cls, t.sizes):
+        w = domain.warnings(c, sz)
+        n_out += bool(w)
+        for r in w:
+            key = r.split(" (")[0] if r.startswith("size") else r
+            reasons[key] = reasons.get(key, 0) + 1
+    return dict(n_observations=n_out, reasons=reasons)
+
+
+def _model_entry(
+    t: _Tracked, completer, name: str, checkpoint, digest, s: RealEvaluationSettings, progress: bool
+) -> dict:
+    """The report entry of one model: its completions of the tracked observations, scored."""
+    run: dict[str, Any] = dict(
+        batch_size=s.batch_size, progress=progress, clip=s.clip, box_sizes=t.sizes, sensor_origins=t.sensors
+    )
+    comps = complete_all(completer, t.partials, desc=f"complete {name}", **run)
+    p2 = t.partials2
+    comps2 = complete_all(completer, p2, desc=f"noise floor {name}", **run) if p2 is not None else None
+    tracks, agg, div = _score(t, comps, t.ref_trees, comps2)
+    entry = dict(
+        name=name,
+        model_name=str(getattr(completer, "model_name", name)),
+        checkpoint=None if checkpoint is None else str(checkpoint),
+        checkpoint_sha256=digest,
+        n_params=getattr(completer, "n_params", None),
+        mean_points_per_completion=float(np.mean([len(c) for c in comps])),
+        diversity=div,
+        consistency_over_diversity=_ratio(agg["all_objects"]["cd"], div),
+        **agg,
+    )
+    eq, vox = s.n_equal_points, s.voxel
+    if eq:
+        entry["equal_points"] = _rescored(t, comps, comps2, lambda c: equal_count(c, eq), n_points=eq)
+    if vox:
+        entry["equal_density"] = _rescored(t, comps, comps2, lambda c: voxel_downsample(c, vox), voxel=vox)
+    if s.heading_check:
+        entry["heading"] = _heading_entry(t, completer, name, comps, run, s.heading_margin)
+    domain = getattr(completer, "domain", None)
+    if domain is not None:
+        entry["out_of_domain"] = _domain_entry(domain, t)
+    entry["objects"] = [
+        dict(
+            sequence=tr.key[0],
+            track_id=tr.key[1],
+            cls=tr.cls,
+            n_observations=tr.n_observations,
+            n_pairs=tr.n_pairs,
+            n_pairs_empty=tr.n_pairs_empty,
+            **tr.values,
+        )
+        for tr in tracks
+    ]
+    return entry
+
+
+def _tracked_rows_or_fail(obs: Observations, classes, path: str | None) -> np.ndarray:
+    """:func:`tracked_rows`, or a one-line :class:`InputFileError` when no object is seen twice."""
+    rows = tracked_rows(obs, classes)
+    if rows.size == 0:
+        which = f" of class {', '.join(classes)}" if classes else ""
+        raise InputFileError(
+            path or "<observations>",
+            f"no object{which} is observed in two or more frames, so there is nothing to compare "
+            f"({len(obs)} observations; KITTI object frames carry no track ids - use Argoverse 2, nuScenes, KITTI-360 "
+            "or a generic sequence with track_id)",
+        )
+    return rows
+
+
+def _reusable(previous: Sequence[dict] | None, scored: dict) -> dict:
+    """{(name, checkpoint digest): model entry} of the earlier reports scored with the settings ``scored``."""
+    same = json.loads(json.dumps(scored))  # as it reads back from a report's JSON
+    reusable = {}
+    for rep in previous or ():
+        if (rep.get("data") or {}).get("settings") == same:
+            reusable.update({(m.get("name"), m.get("checkpoint_sha256")): m for m in rep.get("models", [])})
+    return reusable
 
 
 def evaluate_consistency(
     source: str | os.PathLike | Observations,
     completers: Sequence,
+    settings: RealEvaluationSettings | None = None,
+    *,
     names: Sequence[str] | None = None,
     checkpoints: Sequence[str] | None = None,
-    batch_size: int = 64,
     progress: bool = True,
-    clip: float | None = None,
     references: Sequence[np.ndarray] | None = None,
     reference_info: dict | None = None,
-    classes: Sequence[str] | None = None,
-    equal_points: int | None = EQUAL_POINTS,
-    noise_floor: bool = True,
-    heading_check: bool = True,
-    equal_density: float | None = EQUAL_DENSITY,
-    heading_margin: float = HEADING_MARGIN,
     previous: Sequence[dict] | None = None,
-    on_model=None,
+    on_model: Callable[[dict, bool], None] | None = None,
+    **options,
 ) -> dict:
     """Consistency of each completer on the tracked objects of an observation file.
 
@@ -283,20 +506,15 @@ def evaluate_consistency(
     ----------
     source : an observation HDF5 path or loaded :class:`Observations`.
     completers : objects with ``complete(partials) -> list of (K, 3)`` (see the module doc).
+    settings : what is scored (:class:`RealEvaluationSettings`: classes, clip, equal points / density, noise
+        floor, heading check and margin, batch size); or give its fields as keyword ``options``
+        (``equal_points=64``, ``classes=["car"]``; unknown names are errors), not both.
     names : row names in the report (default: each completer's ``model_name``).
     checkpoints : checkpoint paths to record in the report (optional).
-    clip : passed to ``complete`` when given (SA-Net's depth clip); None = each model's default.
+    progress : show progress bars.
     references : optional complete shapes (R arrays (L, 3), unit frame; see :func:`reference_shapes`)
         for the minimal matching distance ``mmd``; fidelity and diversity are always reported.
     reference_info : description of ``references`` recorded in the report.
-    classes : score only observations of these classes (default: every class in the file).
-    equal_points : also score every completion resampled to this many points (None/0: not).
-    equal_density : also score every completion voxel-downsampled with this cell side (unit frame;
-        None/0: not) - the headline for comparing models of different output densities.
-    heading_margin : margin of the counted heading flips (:func:`~spotlights.experiments.scene.heading_turns`).
-    noise_floor : also complete each observation resampled with a second seed (needs the raw
-        points of a format-2 file; older files report no floor).
-    heading_check : also complete each observation with its box turned around and count flips.
     previous : earlier reports (JSON of :func:`write_report`, loaded) to resume from: a model whose
         entry in a report scored with the same settings (``data["settings"]``: the scoring code's
         version, a digest of the observations scored, classes, clip, resamplings, heading check, the
@@ -324,21 +542,13 @@ def evaluate_consistency(
     ------
     InputFileError if no object of the file is observed in two or more frames.
     """
-    path = None
-    if isinstance(source, Observations):
-        obs = source
-    else:
-        path = str(source)
-        obs = read_observations(source)
-    rows = tracked_rows(obs, classes)
-    if rows.size == 0:
-        which = f" of class {', '.join(classes)}" if classes else ""
-        raise InputFileError(
-            path or "<observations>",
-            f"no object{which} is observed in two or more frames, so there is nothing to compare "
-            f"({len(obs)} observations; KITTI object frames carry no track ids - use Argoverse 2, nuScenes, KITTI-360 "
-            "or a generic sequence with track_id)",
-        )
+    if settings is None:
+        settings = RealEvaluationSettings.from_dict(options)
+    elif options:
+        raise ParameterError(f"give either settings or their fields ({', '.join(sorted(options))}), not both")
+    path = None if isinstance(source, Observations) else str(source)
+    obs = source if isinstance(source, Observations) else read_observations(source)
+    rows = _tracked_rows_or_fail(obs, settings.classes, path)
     if not completers:
         raise SpotlightsError("no completer (checkpoint) given")
     names = (
@@ -346,146 +556,31 @@ def evaluate_consistency(
         if names is not None
         else [str(getattr(c, "model_name", f"model{i}")) for i, c in enumerate(completers)]
     )
-    keys = obs.object_keys()
-    sub_keys = [keys[i] for i in rows]
-    sub_ts = obs.timestamp[rows]
-    sub_cls = [obs.cls[i] for i in rows]
-    sizes = obs.box_size[rows]
-    sensors = obs.sensor_origin[rows]
-    radii = 0.5 * np.linalg.norm(sizes, axis=1)
-    r_track = _track_radii(sub_keys, radii)
-    classes_present = [c for c in CLASSES if c in set(sub_cls)]
-    ref_trees = None if references is None else [NearestNeighbors(np.asarray(r, dtype=np.float64)) for r in references]
-    partials = obs.partial[rows]
-    with_noise = bool(noise_floor) and obs.has_raw
-    seed = int((obs.meta.get("config") or {}).get("seed", 0))
-    n_in = partials.shape[1]
-    partials2 = (
-        np.stack([resample_set(obs.raw(i), n_in, seed=seed + 1) for i in rows]).astype(np.float32)
-        if with_noise
-        else None
-    )
-    eq = int(equal_points) if equal_points else 0
-    vox = float(equal_density) if equal_density else 0.0
-    settings = dict(
+    t = _tracked(obs, rows, references, settings.noise_floor)
+    scored = dict(
         code=f"{__version__}/{SCORE_VERSION}",
         observations=observations_digest(obs, rows),
-        classes=list(classes) if classes else None,
-        clip=clip,
-        equal_points=eq or None,
-        equal_density=vox or None,
-        noise_floor=with_noise,
-        heading_margin=float(heading_margin) if heading_check else None,
+        classes=list(settings.classes) if settings.classes else None,
+        clip=settings.clip,
+        equal_points=settings.n_equal_points or None,
+        equal_density=settings.voxel or None,
+        noise_floor=t.partials2 is not None,
+        heading_margin=float(settings.heading_margin) if settings.heading_check else None,
         mmd_reference=reference_info if references is not None else None,
     )
-    data, metrics = _report_head(
-        obs, path, rows, sub_keys, sub_ts, sub_cls, classes_present, settings, seed, bool(noise_floor)
-    )
+    data, metrics = _report_head(obs, path, rows, t, scored, bool(settings.noise_floor))
     digests = [None] * len(completers) if checkpoints is None else [checkpoint_digest(c) for c in checkpoints]
-    same = json.loads(json.dumps(settings))  # as it reads back from a report's JSON
-    reusable = {}
-    for rep in previous or ():
-        if (rep.get("data") or {}).get("settings") == same:
-            reusable.update({(m.get("name"), m.get("checkpoint_sha256")): m for m in rep.get("models", [])})
+    reusable = _reusable(previous, scored)
     models = []
     for k, completer in enumerate(completers):
         old = reusable.get((names[k], digests[k])) if digests[k] else None
+        ck = None if checkpoints is None else checkpoints[k]  # a digest means a checkpoint
         if old is not None:
-            models.append(dict(old, checkpoint=str(checkpoints[k])))
-            if on_model is not None:
-                on_model(dict(data=data, metrics=metrics, models=list(models)), True)
-            continue
-        run = dict(batch_size=batch_size, progress=progress, clip=clip, box_sizes=sizes, sensor_origins=sensors)
-        comps = complete_all(completer, partials, desc=f"complete {names[k]}", **run)
-        comps2 = complete_all(completer, partials2, desc=f"noise floor {names[k]}", **run) if with_noise else None
-        tracks, agg, div = _score(
-            comps, partials, sub_keys, sub_ts, sub_cls, radii, r_track, classes_present, ref_trees, comps2
-        )
-        cons_all = agg["all_objects"]["cd"]
-        entry = dict(
-            name=names[k],
-            model_name=str(getattr(completer, "model_name", names[k])),
-            checkpoint=None if checkpoints is None else str(checkpoints[k]),
-            checkpoint_sha256=digests[k],
-            n_params=getattr(completer, "n_params", None),
-            mean_points_per_completion=float(np.mean([len(c) for c in comps])),
-            diversity=div,
-            consistency_over_diversity=(
-                cons_all / div if cons_all is not None and np.isfinite(div) and div > 0 else None
-            ),
-            **agg,
-        )
-
-        def rescored(fn, **info) -> dict:
-            """Consistency, noise floor and diversity of the completions mapped by ``fn`` (same aggregation)."""
-            ce = [fn(c) for c in comps]
-            ce2 = [fn(c) for c in comps2] if with_noise else None
-            _, agg_e, div_e = _score(
-                ce, partials, sub_keys, sub_ts, sub_cls, radii, r_track, classes_present, None, ce2
-            )
-            cons_e = agg_e["all_objects"]["cd"]
-            return dict(
-                **info,
-                mean_points_per_completion=float(np.mean([len(c) for c in ce])) if ce else None,
-                diversity=div_e,
-                **agg_e,
-                consistency_over_diversity=(
-                    cons_e / div_e if cons_e is not None and np.isfinite(div_e) and div_e > 0 else None
-                ),
-            )
-
-        if eq:
-            entry["equal_points"] = rescored(lambda c: equal_count(c, eq), n_points=eq)
-        if vox:
-            entry["equal_density"] = rescored(lambda c: voxel_downsample(c, vox), voxel=vox)
-        if heading_check:
-            flipped = complete_all(
-                completer,
-                flip_heading(partials),
-                desc=f"heading check {names[k]}",
-                **dict(run, sensor_origins=flip_heading(sensors)),
-            )
-            with serial_queries():
-                f0 = np.array([fidelity(p, c) for p, c in zip(partials, comps)])
-                f1 = np.array([fidelity(p, c) for p, c in zip(flip_heading(partials), flipped)])
-            ok = np.isfinite(f0) & np.isfinite(f1)
-            flips = ok & heading_turns(f0, f1, heading_margin)
-            bare = ok & heading_turns(f0, f1, 0.0)
-            entry["heading"] = dict(
-                margin=float(heading_margin),
-                n_observations=int(ok.sum()),
-                n_flipped=int(flips.sum()),
-                rate=float(flips.sum() / ok.sum()) if ok.any() else None,
-                n_flipped_margin0=int(bare.sum()),
-                rate_margin0=float(bare.sum() / ok.sum()) if ok.any() else None,
-                per_class={c: int(sum(1 for i in np.flatnonzero(flips) if sub_cls[i] == c)) for c in classes_present},
-            )
-        domain = getattr(completer, "domain", None)
-        if domain is not None:
-            reasons: dict = {}
-            n_out = 0
-            for c, sz in zip(sub_cls, sizes):
-                w = domain.warnings(c, sz)
-                n_out += bool(w)
-                for r in w:
-                    key = r.split(" (")[0] if r.startswith("size") else r
-                    reasons[key] = reasons.get(key, 0) + 1
-            entry["out_of_domain"] = dict(n_observations=n_out, reasons=reasons)
-        entry["objects"] = [
-            dict(
-                sequence=t.key[0],
-                track_id=t.key[1],
-                cls=t.cls,
-                n_observations=t.n_observations,
-                n_pairs=t.n_pairs,
-                n_pairs_empty=t.n_pairs_empty,
-                **t.values,
-            )
-            for t in tracks
-        ]
-        models.append(entry)
+            models.append(dict(old, checkpoint=str(ck)))
+        else:
+            models.append(_model_entry(t, completer, names[k], ck, digests[k], settings, progress))
         if on_model is not None:
-            on_model(dict(data=data, metrics=metrics, models=list(models)), False)
+            on_model(dict(data=data, metrics=metrics, models=list(models)), old is not None)
     return dict(data=data, metrics=metrics, models=models)
 
 
@@ -513,14 +608,13 @@ def checkpoint_digest(checkpoint) -> str | None:
         return hashlib.file_digest(fh, "sha256").hexdigest()
 
 
-def _report_head(
-    obs, path, rows, sub_keys, sub_ts, sub_cls, classes_present, settings, seed, noise_requested
-) -> tuple[dict, dict]:
+def _report_head(obs, path, rows, t: _Tracked, settings: dict, noise_requested: bool) -> tuple[dict, dict]:
     """The ``data`` and ``metrics`` parts of a consistency report (everything but the models)."""
+    sub_keys, sub_ts, sub_cls, classes_present, seed = t.keys, t.ts, t.cls, t.classes_present, t.seed
     eq, vox = settings["equal_points"], settings["equal_density"]
     with_noise = settings["noise_floor"]
     n_tracks = len(set(sub_keys))
-    per_track = {}
+    per_track: dict = {}
     for key in sub_keys:
         per_track[key] = per_track.get(key, 0) + 1
     return (

@@ -30,6 +30,12 @@ def _resampled_cells(entry: dict, last: str, bold: bool = False) -> str:
 
 def report_markdown(report: dict) -> str:
     """The report as Markdown: a Table-2-style headline table, then the other metric variants."""
+    lines = _headline_lines(report) + _variant_lines(report) + _fidelity_lines(report) + _extra_lines(report)
+    return "\n".join(lines + _closing_lines(report)) + "\n"
+
+
+def _headline_lines(report: dict) -> list[str]:
+    """The title, the data's description and the Table-2-style headline table (CD per class)."""
     d = report["data"]
     classes = list(d["objects_per_class"])
     lines = ["# Consistency of completions on real scans (paper Table 2)", ""]
@@ -57,7 +63,12 @@ def report_markdown(report: dict) -> str:
             + " | ".join(cells)
             + f" | {_fmt(m['average']['cd'])} | {_fmt(m['all_objects']['cd'])} |"
         )
-    lines += ["", "## Other variants (Average over classes; All objects in brackets)", ""]
+    return lines
+
+
+def _variant_lines(report: dict) -> list[str]:
+    """The CD variants: in metres, halved, one-sided, squared; points per completion."""
+    lines = ["", "## Other variants (Average over classes; All objects in brackets)", ""]
     lines += [
         "| Model | CD (m) | CD/2 | d(A->B) | d(B->A) | CD-L2 (squared) | points per completion |",
         "|---|---|---|---|---|---|---|",
@@ -69,8 +80,13 @@ def report_markdown(report: dict) -> str:
             f"{_fmt(a['d_ab'])} ({_fmt(o['d_ab'])}) | {_fmt(a['d_ba'])} ({_fmt(o['d_ba'])}) | "
             f"{_fmt(a['cd_l2'], 5)} ({_fmt(o['cd_l2'], 5)}) | {m['mean_points_per_completion']:.0f} |"
         )
+    return lines
+
+
+def _fidelity_lines(report: dict) -> list[str]:
+    """Consistency beside fidelity, MMD (when a reference was given) and diversity."""
     has_mmd = any(m["average"].get("mmd") is not None for m in report["models"])
-    lines += ["", "## Consistency beside fidelity" + (" and minimal matching distance" if has_mmd else ""), ""]
+    lines = ["", "## Consistency beside fidelity" + (" and minimal matching distance" if has_mmd else ""), ""]
     lines.append(
         "Consistency alone rewards a model that gives every scan the same shape; fidelity (does the completion "
         "keep the observed points?)"
@@ -101,73 +117,89 @@ def report_markdown(report: dict) -> str:
         "a model that ignores its input has diversity ~0 and a perfect consistency. CD / Diversity = All objects "
         "CD over diversity (ours, not the paper's).",
     ]
+    return lines
+
+
+def _extra_lines(report: dict) -> list[str]:
+    """Noise floor, equal density, equal point counts, heading flips and out-of-domain counts (when scored)."""
+    d = report["data"]
+    lines: list[str] = []
     extra = any(k in m for m in report["models"] for k in ("equal_points", "equal_density", "heading")) or any(
         m["average"].get("noise_floor") is not None for m in report["models"]
     )
-    if extra:
-        eq = d.get("equal_points")
-        vox = d.get("equal_density")
-        lines += ["", "## Noise floor, equal density, equal point counts, heading check", ""]
-        lines.append(
-            "Noise floor: consistency's CD between two completions of the *same* observation, its points "
-            "resampled to the network's input with two seeds - the part of CD that resampling alone explains. "
-            + (
-                f"At {eq} points: every completion brought to {eq} points by farthest-point sampling first (one "
-                "count for every model). "
-                if eq
-                else ""
-            )
-            + (
-                f"At equal density (voxel {vox:g}): every completion replaced by the centroids of its occupied cells "
-                f"of one grid of side {vox:g} (unit frame), so shapes compare at one spatial resolution whatever each "
-                "model's output density - **the headline for comparing models** (a fixed count draws different points "
-                "from two nearly identical dense clouds, so for dense models it mostly measures subsampling noise). "
-                if vox
-                else ""
-            )
-            + "Heading flips: observations whose completion with the box turned around is closer to the observed "
-            "points (on annotated boxes, false alarms of `--heading-check`). Average over classes; All objects in brackets."
+    if not extra:
+        return lines
+    eq = d.get("equal_points")
+    vox = d.get("equal_density")
+    lines += ["", "## Noise floor, equal density, equal point counts, heading check", ""]
+    lines.append(
+        "Noise floor: consistency's CD between two completions of the *same* observation, its points "
+        "resampled to the network's input with two seeds - the part of CD that resampling alone explains. "
+        + (
+            f"At {eq} points: every completion brought to {eq} points by farthest-point sampling first (one "
+            "count for every model). "
+            if eq
+            else ""
         )
-        lines.append("")
-        head = "| Model | CD | Noise floor |"
+        + (
+            f"At equal density (voxel {vox:g}): every completion replaced by the centroids of its occupied cells "
+            f"of one grid of side {vox:g} (unit frame), so shapes compare at one spatial resolution whatever each "
+            "model's output density - **the headline for comparing models** (a fixed count draws different points "
+            "from two nearly identical dense clouds, so for dense models it mostly measures subsampling noise). "
+            if vox
+            else ""
+        )
+        + "Heading flips: observations whose completion with the box turned around is closer to the observed "
+        "points (on annotated boxes, false alarms of `--heading-check`). Average over classes; All objects in brackets."
+    )
+    lines.append("")
+    head = "| Model | CD | Noise floor |"
+    if vox:
+        head += f" **CD @voxel {vox:g}** | Noise floor @voxel | Diversity @voxel | points @voxel |"
+    if eq:
+        head += f" CD @{eq} | Noise floor @{eq} | Diversity @{eq} | CD / Diversity @{eq} |"
+    margins = {m["heading"]["margin"] for m in report["models"] if m.get("heading")}
+    head += (
+        f" Heading flips (margin {margins.pop():g}) |" if len(margins) == 1 else " Heading flips |"
+    ) + " Out of domain |"
+    lines += [head, "|" + "---|" * (head.count("|") - 1)]
+    for m in report["models"]:
+        a, o = m["average"], m["all_objects"]
+        row = f"| {m['name']} | {_fmt(a['cd'])} ({_fmt(o['cd'])}) | {_fmt(a.get('noise_floor'))} ({_fmt(o.get('noise_floor'))}) |"
         if vox:
-            head += f" **CD @voxel {vox:g}** | Noise floor @voxel | Diversity @voxel | points @voxel |"
+            v = m.get("equal_density") or {}
+            row += _resampled_cells(v, _fmt(v.get("mean_points_per_completion"), 0), bold=True)
         if eq:
-            head += f" CD @{eq} | Noise floor @{eq} | Diversity @{eq} | CD / Diversity @{eq} |"
-        margins = {m["heading"]["margin"] for m in report["models"] if m.get("heading")}
-        head += (
-            f" Heading flips (margin {margins.pop():g}) |" if len(margins) == 1 else " Heading flips |"
-        ) + " Out of domain |"
-        lines += [head, "|" + "---|" * (head.count("|") - 1)]
-        for m in report["models"]:
-            a, o = m["average"], m["all_objects"]
-            row = f"| {m['name']} | {_fmt(a['cd'])} ({_fmt(o['cd'])}) | {_fmt(a.get('noise_floor'))} ({_fmt(o.get('noise_floor'))}) |"
-            if vox:
-                v = m.get("equal_density") or {}
-                row += _resampled_cells(v, _fmt(v.get("mean_points_per_completion"), 0), bold=True)
-            if eq:
-                e = m.get("equal_points") or {}
-                row += _resampled_cells(e, _fmt(e.get("consistency_over_diversity"), 3))
-            h = m.get("heading")
-            row += (
-                f" {h['n_flipped']} / {h['n_observations']} ({100 * h['rate']:.1f}%; {100 * h['rate_margin0']:.1f}% at margin 0) |"
-                if h and h.get("rate") is not None
-                else " - |"
+            e = m.get("equal_points") or {}
+            row += _resampled_cells(e, _fmt(e.get("consistency_over_diversity"), 3))
+        h = m.get("heading")
+        row += (
+            f" {h['n_flipped']} / {h['n_observations']} ({100 * h['rate']:.1f}%; {100 * h['rate_margin0']:.1f}% at margin 0) |"
+            if h and h.get("rate") is not None
+            else " - |"
+        )
+        od = m.get("out_of_domain")
+        row += f" {od['n_observations']} / {d['n_observations_tracked']} |" if od else " - |"
+        lines.append(row)
+    for m in report["models"]:
+        od = m.get("out_of_domain")
+        if od and od["n_observations"]:
+            lines.append(
+                f"\nWarning - {m['name']}: {od['n_observations']} of {d['n_observations_tracked']} observations are "
+                "outside what the model learned ("
+                + "; ".join(f"{k}: {v}" for k, v in od["reasons"].items())
+                + "): their completions extrapolate."
             )
-            od = m.get("out_of_domain")
-            row += f" {od['n_observations']} / {d['n_observations_tracked']} |" if od else " - |"
-            lines.append(row)
-        for m in report["models"]:
-            od = m.get("out_of_domain")
-            if od and od["n_observations"]:
-                lines.append(
-                    f"\nWarning - {m['name']}: {od['n_observations']} of {d['n_observations_tracked']} observations are "
-                    "outside what the model learned ("
-                    + "; ".join(f"{k}: {v}" for k, v in od["reasons"].items())
-                    + "): their completions extrapolate."
-                )
-        if d.get("noise_floor") and not str(d["noise_floor"]).startswith("kept"):
-            lines.append(f"\nNoise floor {d['noise_floor']}.")
+    if d.get("noise_floor") and not str(d["noise_floor"]).startswith("kept"):
+        lines.append(f"\nNoise floor {d['noise_floor']}.")
+    return lines
+
+
+def _closing_lines(report: dict) -> list[str]:
+    """The MMD reference, the metric definitions, the boxes skipped at extraction and the unscored objects."""
+    d = report["data"]
+    classes = list(d["objects_per_class"])
+    lines: list[str] = []
     ref = d.get("mmd_reference")
     if ref:
         lines += [
@@ -185,7 +217,7 @@ def report_markdown(report: dict) -> str:
         unscored = sum(m["classes"][c]["n_objects_unscored"] for c in classes)
         if unscored:
             lines.append(f"\n{m['name']}: {unscored} object(s) had only empty completions and are not scored.")
-    return "\n".join(lines) + "\n"
+    return lines
 
 
 def _json_ready(x):

@@ -29,7 +29,6 @@ scan whose up axis is not z into the object convention first and the results bac
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,6 +44,7 @@ from ..geometry.neighbors import serial_queries
 from ..geometry.rotations import rigid_transform
 from ..learning.inference import DEFAULT, complete_in_boxes, prepare_partial, with_observed
 from ..metrics.consistency import fidelity
+from ..utils import StageTimer
 from ..viz import SceneObject, html, render_scene
 
 SOURCE_RAW, SOURCE_PARTIAL, SOURCE_COMPLETION = 0, 1, 2
@@ -311,7 +311,7 @@ def complete_scene(
     ``config.min_points`` points.
     """
     config = config or SceneConfig()
-    t0 = time.perf_counter()
+    timer = StageTimer()
     scan = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if len(scan) < config.min_points:
         raise ParameterError(
@@ -319,14 +319,44 @@ def complete_scene(
             f"{config.min_points} are needed to complete anything"
         )
     a = None if axes is None or np.allclose(axes, np.eye(3)) else np.asarray(axes, dtype=np.float64)
-    work = scan if a is None else scan @ a.T
-    lidar = np.zeros(3) if sensor is None else np.asarray(sensor, dtype=np.float64).reshape(3)
-    lidar = lidar if a is None else a @ lidar
+    with timer("crop"):
+        work = scan if a is None else scan @ a.T
+        lidar = np.zeros(3) if sensor is None else np.asarray(sensor, dtype=np.float64).reshape(3)
+        lidar = lidar if a is None else a @ lidar
+        member = np.full(len(scan), -1, np.int64)
+        objects = _crop_objects(work, boxes, a, lidar, member, completer, config, extra_points)
+    todo = [o for o in objects if o.status == "completed"]
+    shares: list[float] = []  # per completion: the share the network put inside its grown box (before the clamp)
+    with timer("model"):
+        outs = _complete_objects(todo, completer, config, shares) if todo else []
+    with timer("assemble"):
+        if todo:
+            with serial_queries():  # a few small KD-tree queries: OpenMP threads cost more than they save
+                _assemble(todo, outs, config, a)
+            for k, o in enumerate(todo):  # the share of the completion kept (turned around when the heading flipped)
+                o.inside_box = shares[len(todo) + k] if o.flipped else shares[k]
+            if a is not None:
+                back = rigid_transform(a.T, np.zeros(3))
+                for o in todo:
+                    o.used_box = o.used_box.transformed(back)
+    return SceneResult(
+        scan,
+        objects,
+        str(getattr(completer, "model_name", "model")),
+        checkpoint,
+        config,
+        timings={f"{k}_s": v for k, v in timer.seconds.items()} | {"total_s": timer.total},
+        member=member,
+    )
+
+
+def _crop_objects(work, boxes, a, lidar, member, completer, config: SceneConfig, extra_points) -> list[ObjectResult]:
+    """Every box's :class:`ObjectResult`: its crop of ``work`` (N, 3) (the scan in the object convention,
+    metres), its 256-point model input (unit frame) and out-of-domain warnings, or why it is skipped.
+    ``member`` (N,) int64 receives each point's first box index (-1: none); ``lidar`` (3,) the sensor."""
     to_work = None if a is None else rigid_transform(a, np.zeros(3))
     ids = object_ids(boxes)
     objects: list[ObjectResult] = []
-    member = np.full(len(scan), -1, np.int64)
-    todo = []
     for i, b in enumerate(boxes):
         wb = b if to_work is None else b.transformed(to_work)
         if not wb.is_valid():
@@ -352,45 +382,26 @@ def complete_scene(
         if domain is not None:
             o.warnings.extend(domain.warnings(b.cls, b.size))
         objects.append(o)
-        todo.append(o)
-    t1 = time.perf_counter()
-    if todo:
-        partials = np.stack([o.partial_unit for o in todo])
-        sizes = np.stack([o.used_box.size for o in todo])
-        sensors = np.stack([o.sensor_unit for o in todo])
-        if config.heading_check:
-            partials = np.concatenate([partials, (partials @ FLIP_Z).astype(np.float32)])
-            sizes = np.concatenate([sizes, sizes])
-            sensors = np.concatenate([sensors, sensors @ FLIP_Z])
-        shares: list[float] = []  # per completion: the share the network put inside its grown box (before the clamp)
-        outs = complete_in_boxes(
-            completer,
-            partials,
-            sizes,
-            clip=DEFAULT if config.clip == "default" else config.clip,
-            sensor_origins=sensors,
-            inside=shares,
-        )
-        t2 = time.perf_counter()
-        with serial_queries():  # a few small KD-tree queries: OpenMP threads cost more than they save
-            _assemble(todo, outs, config, a)
-        for k, o in enumerate(todo):  # the share of the completion kept (turned around when the heading flipped)
-            o.inside_box = shares[len(todo) + k] if o.flipped else shares[k]
-        if a is not None:
-            back = rigid_transform(a.T, np.zeros(3))
-            for o in todo:
-                o.used_box = o.used_box.transformed(back)
-    else:
-        t2 = time.perf_counter()
-    t3 = time.perf_counter()
-    return SceneResult(
-        scan,
-        objects,
-        str(getattr(completer, "model_name", "model")),
-        checkpoint,
-        config,
-        timings={"crop_s": t1 - t0, "model_s": t2 - t1, "assemble_s": t3 - t2, "total_s": t3 - t0},
-        member=member,
+    return objects
+
+
+def _complete_objects(todo: list[ObjectResult], completer, config: SceneConfig, shares: list) -> list:
+    """The completions (unit frame, clamped to the grown box) of every object of ``todo`` in one batch, then
+    (heading check) of every object turned around; ``shares`` receives each one's share inside its box."""
+    partials = np.stack([o.partial_unit for o in todo])
+    sizes = np.stack([o.used_box.size for o in todo])
+    sensors = np.stack([o.sensor_unit for o in todo])
+    if config.heading_check:
+        partials = np.concatenate([partials, (partials @ FLIP_Z).astype(np.float32)])
+        sizes = np.concatenate([sizes, sizes])
+        sensors = np.concatenate([sensors, sensors @ FLIP_Z])
+    return complete_in_boxes(
+        completer,
+        partials,
+        sizes,
+        clip=DEFAULT if config.clip == "default" else config.clip,
+        sensor_origins=sensors,
+        inside=shares,
     )
 
 

@@ -1,0 +1,433 @@
+"""Completing every frame of a LiDAR dataset into a folder: what ``spotlights real complete`` runs.
+
+:class:`ReaderOptions` opens a dataset of any supported format with its format's options checked;
+:class:`FramesSettings` adds the frame selection, the outputs, the track fusion (``fuse``) and the
+:class:`~spotlights.experiments.scan_completion.CompletionOptions`; :func:`complete_frames` runs the
+resumable per-frame loop and writes, per frame, ``[SEQUENCE/]FRAME.ply`` (x y z, ``source``, ``object``;
+scan frame, metres), ``FRAME.png``, ``FRAME.html``, ``FRAME_objects/`` and, last, ``FRAME.json`` (a frame
+with its JSON is done: ``resume`` skips it), then ``summary.json``.
+
+File names: :func:`frame_stems` gives every frame a name no other frame (or file of the run) maps to.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from tqdm import tqdm
+
+from ..data.real import open_reader
+from ..data.real.base import SceneReader
+from ..data.tracks import MAX_GAP_S, WindowPolicy, parse_window
+from ..errors import ParameterError, SpotlightsError
+from ..learning.inference import BaseCompleter
+from ..utils import StageTimer, output_folder, sweep_folder_temporaries
+from ..viz.html import write_plotlyjs
+from .scan_completion import CompletionOptions, Say, silent, write_json
+from .scene import SceneConfig, complete_scene, render_result, render_result_html, write_scene
+from .tracks import TrackPlan
+
+
+def safe_name(text: str) -> str:
+    """``text`` as a file name: runs of characters other than letters, digits, ``.``, ``_`` and ``-`` become ``_``."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", str(text)).strip("._") or "frame"
+
+
+#: Files of the run itself in the output folder, and what each frame adds to its stem.
+RUN_FILES = ("summary.json", "plotly.min.js")
+FRAME_SUFFIXES = (".ply", ".png", ".html", ".json", "_objects")
+
+
+def _digest(text) -> str:
+    return hashlib.sha256(str(text).encode("utf-8", "surrogatepass")).hexdigest()[:8]
+
+
+def file_stem(text) -> str:
+    """``text`` (a frame id, a sequence name) as a file name that no other text maps to: :func:`safe_name`,
+    plus ``-`` and 8 hex digits of the SHA-256 of ``text`` when sanitising changed it (``../a`` -> ``a-3b1d...``,
+    ``汽车`` -> ``frame-...``, a name of over 100 characters cut there); a safe name is kept as it is
+    (``000123``, ``scene-0523``)."""
+    name = safe_name(text)[:100]
+    return name if name == str(text) else f"{name}-{_digest(text)}"
+
+
+def _unique(texts, reserved=()) -> dict[str, str]:
+    """{text: file name}: :func:`file_stem` of each, with the digest added as well to names that would
+    coincide with another or with ``reserved`` when letter case is ignored (macOS, Windows)."""
+    names = {t: file_stem(t) for t in texts}
+    count = Counter(n.casefold() for n in names.values())
+    taken = {r.casefold() for r in reserved}
+    out = {
+        t: f"{safe_name(t)[:100]}-{_digest(t)}" if count[n.casefold()] > 1 or n.casefold() in taken else n
+        for t, n in names.items()
+    }
+    if len({n.casefold() for n in out.values()} | taken) != len(out) + len(taken):
+        raise SpotlightsError("frame or sequence names map to one output file; rename them")  # needs a SHA-256 clash
+    return out
+
+
+def frame_stems(keys) -> dict[tuple, Path]:
+    """The output stem of each frame key ``(sequence, frame_id)``, relative to the output folder:
+    ``SEQUENCE/FRAME`` (``FRAME`` without a sequence). Distinct frames never share a file, none is a file of
+    the run (``summary.json``); a frame's name depends on the other frames only when two names differ in
+    letter case alone (``A`` and ``a`` both take the digest)."""
+    seqs = _unique(sorted({str(s) for s, _ in keys if s}), reserved=RUN_FILES)
+    # a frame beside the sequence folders must not take a folder's name with one of its suffixes
+    beside = [d[: -len(x)] for d in seqs.values() for x in FRAME_SUFFIXES if d.endswith(x)]
+    by_seq: dict[str, list[str]] = {}
+    for s, f in keys:
+        by_seq.setdefault(str(s) if s else "", []).append(str(f))
+    stems = {}
+    for s, fids in by_seq.items():
+        names = _unique(fids, reserved=() if s else ["summary", *beside])
+        stems.update({(s, f): Path(seqs[s]) / names[f] if s else Path(names[f]) for f in fids})
+    return {(s, f): stems[(str(s) if s else "", str(f))] for s, f in keys}
+
+
+def _with(stem: Path, suffix: str) -> Path:
+    """``stem`` + ``suffix`` (not ``with_suffix``: a frame id ``x.1`` keeps its ``.1``)."""
+    return stem.parent / (stem.name + suffix)
+
+
+# ---------------------------------------------------------------------------- frame selection
+
+
+def parse_frames_range(text: str) -> tuple[int, int | None, int]:
+    """``"START:STOP[:STEP]"`` (each part may be empty: ``":10"``, ``"5:"``) -> ``(start, stop, step)``, as a
+    Python slice (stop None: to the end; step >= 1). Raises :class:`ParameterError` for anything else."""
+    parts = text.split(":")
+    try:
+        if len(parts) not in (2, 3):
+            raise ValueError
+        start = int(parts[0]) if parts[0] else 0
+        stop = int(parts[1]) if parts[1] else None
+        step = int(parts[2]) if len(parts) == 3 and parts[2] else 1
+        if step < 1:
+            raise ValueError
+    except ValueError:
+        raise ParameterError(f"expected START:STOP[:STEP] with integers, got {text!r}") from None
+    return (start, stop, step)
+
+
+def parse_frames(text: str) -> tuple[str, object]:
+    """``--frames`` of ``real complete``: ``("range", (start, stop, step))`` for ``START:STOP[:STEP]``
+    (positions in the dataset's frame order), ``("ids", [frame ids])`` for ids separated by commas."""
+    if ":" in text:
+        return ("range", parse_frames_range(text))
+    ids = [t.strip() for t in text.split(",") if t.strip()]
+    if not ids:
+        raise ParameterError(f"expected START:STOP[:STEP] or frame ids separated by commas, got {text!r}")
+    return ("ids", ids)
+
+
+def select_frames(keys: list[tuple], spec: tuple | None) -> list[tuple]:
+    """The frame keys ``(sequence, frame_id)`` a :func:`parse_frames` ``spec`` selects (None: all), in order.
+    Raises :class:`ParameterError` naming frame ids that are not in ``keys``."""
+    if spec is None:
+        return keys
+    kind, val = spec
+    if kind == "range":
+        start, stop, step = val
+        return keys[start:stop:step]
+    wanted = list(val)
+    known = {k[1] for k in keys}
+    missing = [f for f in wanted if f not in known]
+    if missing:
+        ex = ", ".join(sorted(known)[:5])
+        raise ParameterError(
+            f"frame(s) {', '.join(missing)} not in the dataset (frames: {ex}{', ...' if len(known) > 5 else ''})"
+        )
+    return [k for k in keys if k[1] in set(wanted)]
+
+
+@dataclass(kw_only=True)
+class ReaderOptions:
+    """A dataset and its format's options (``real extract``, ``real complete``).
+
+    source : one or more dataset folders or files of one format; format : kitti, kitti360, av2, nuscenes or
+    generic; velodyne : kitti's scan folder (``auto``, ``velodyne``, ``velodyne_reduced``); sequence : kitti360
+    sequences or nuScenes scene names (None: all); boxes : generic, the box file of a single scan.
+    """
+
+    source: Sequence[str]
+    format: str
+    velodyne: str = "auto"
+    sequence: list | None = None
+    boxes: str | None = None
+
+    def open(self, frames: tuple | None = None) -> SceneReader:
+        """The dataset's reader (``frames``: kitti360's ``(start, stop, step)`` range). Raises a one-line
+        :class:`ParameterError` for an option of another format."""
+        options: dict = {}
+        if self.format == "kitti":
+            options["velodyne"] = self.velodyne
+        elif self.format in ("kitti360", "nuscenes"):
+            options["sequences"] = self.sequence
+            if self.format == "kitti360" and frames is not None:
+                options["frames"] = frames
+        elif self.format == "generic":
+            options["boxes"] = self.boxes
+        for name, val, fmts in (
+            ("--velodyne", self.velodyne != "auto", ("kitti",)),
+            ("--sequence", self.sequence, ("kitti360", "nuscenes")),
+            ("--frames", frames is not None, ("kitti360",)),
+            ("--boxes", self.boxes, ("generic",)),
+        ):
+            if val and self.format not in fmts:
+                raise ParameterError(f"{name} applies to --format {' or '.join(fmts)} only")
+        return open_reader(self.source, self.format, **options)
+
+
+# ---------------------------------------------------------------------------- the frame loop
+
+
+@dataclass(kw_only=True)
+class FramesSettings(ReaderOptions, CompletionOptions):
+    """What ``spotlights real complete`` does: a dataset (:class:`ReaderOptions`), the model and its options
+    (:class:`~spotlights.experiments.scan_completion.CompletionOptions`), and
+
+    out : the output folder; frames : a :func:`parse_frames` selection (None: every frame);
+    per_object, no_pictures, html : per-object PLYs, no PNGs, an HTML page per frame;
+    resume : skip frames an earlier run with the same model and options finished;
+    fuse : the frames of a track fused into its input (``"none"``, ``"all"``, ``"past:K"``, ``"centered:K"`` or a
+    :class:`~spotlights.data.tracks.WindowPolicy`); refine_boxes : register and correct the boxes (with fuse);
+    max_gap : the longest time between two frames of one track, seconds; quiet : no progress bar.
+    """
+
+    out: str
+    frames: tuple | None = None
+    per_object: bool = False
+    no_pictures: bool = False
+    html: bool = False
+    resume: bool = False
+    fuse: WindowPolicy | str = field(default_factory=lambda: parse_window("none"))
+    refine_boxes: bool = False
+    max_gap: float = MAX_GAP_S
+    quiet: bool = False
+
+    @property
+    def window(self) -> WindowPolicy:
+        """:attr:`fuse` as a :class:`~spotlights.data.tracks.WindowPolicy`."""
+        return parse_window(self.fuse) if isinstance(self.fuse, str) else self.fuse
+
+    def track_plan(self, reader: SceneReader, keys: list, config: SceneConfig) -> TrackPlan | None:
+        """The built :class:`~spotlights.experiments.tracks.TrackPlan` of ``fuse`` (None without fusion)."""
+        if self.window.fuses:
+            if self.resume:
+                raise ParameterError("--resume does not apply with --fuse (a frame's input depends on its track)")
+            return TrackPlan(self.window, config, self.refine_boxes, self.max_gap).build(reader, keys)
+        if self.refine_boxes:
+            raise ParameterError("--refine-boxes needs --fuse all, past:K or centered:K (the frames to register to)")
+        return None
+
+
+def done_frame(path: Path, config: SceneConfig, model: str, checkpoint: str) -> dict | None:
+    """The summary of a frame finished by an earlier run with the same model and options, else None."""
+    try:
+        summ = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    cfg = asdict(config)
+    cfg["clip"] = str(cfg["clip"]) if cfg["clip"] is not None and not isinstance(cfg["clip"], float) else cfg["clip"]
+    same = (
+        summ.get("model") == model
+        and summ.get("checkpoint") == checkpoint
+        and json.loads(json.dumps(cfg)) == summ.get("config")
+    )
+    return summ if same else None
+
+
+#: The keys of a frame's summary that ``summary.json`` lists per frame.
+FRAME_KEYS = ("sequence", "frame_id", "timestamp", "scan", "ply", "n_boxes", "n_completed", "n_flipped", "skipped")
+
+
+class _FrameRun:
+    """The state of one ``real complete`` run: settings, reader, model, output folder, totals."""
+
+    def __init__(self, s: FramesSettings, reader, config: SceneConfig, completer, out: Path, tracks) -> None:
+        self.s, self.reader, self.config = s, reader, config
+        self.completer, self.out, self.tracks = completer, out, tracks
+        self.frames: list[dict] = []
+        self.warnings: list[str] = []
+        self.totals: dict = {"boxes": 0, "completed": 0, "flipped": 0, "completion_points": 0, "skipped": {}}
+        self.totals["resumed"] = 0
+        self.t_model = 0.0
+
+    def complete(self, key: tuple, stem: Path) -> dict | None:
+        """Complete frame ``key`` and write its files; its summary, or None for a scan with too few points."""
+        s, config = self.s, self.config
+        frame = self.reader.load(key)
+        info = dict(
+            sequence=frame.sequence,
+            frame_id=frame.frame_id,
+            timestamp=frame.timestamp,
+            scan=frame.scan_path,
+            labels=frame.label_path,
+        )
+        if len(frame.points) < config.min_points:
+            self.frames.append(
+                {**info, "status": f"scan holds {len(frame.points)} points (< {config.min_points}): not completed"}
+            )
+            return None
+        tracks = self.tracks
+        boxes, extra = (frame.boxes, None) if tracks is None else tracks.frame_inputs(key, frame.boxes)
+        result = complete_scene(
+            frame.points,
+            boxes,
+            self.completer,
+            config,
+            checkpoint=s.checkpoint_name,
+            sensor=frame.lidar_origin(),
+            extra_points=extra,
+        )
+        if tracks is not None:
+            tracks.record(key, result)
+        write_scene(
+            result,
+            _with(stem, ".ply"),
+            per_object=_with(stem, "_objects") if s.per_object else None,
+            scan_name=Path(frame.scan_path).name,
+        )
+        prefix = f"{frame.sequence}/" if frame.sequence else ""
+        title = f"{self.reader.format} {prefix}{frame.frame_id}: {result.model}"
+        if not s.no_pictures and result.completed:
+            render_result(result, _with(stem, ".png"), title)
+        if s.html:
+            js = os.path.relpath(write_plotlyjs(self.out), stem.parent).replace(os.sep, "/")
+            render_result_html(result, _with(stem, ".html"), title, js)
+        summ = {**info, "ply": str(_with(stem, ".ply")), **result.summary()}
+        if frame.sensor_to_world is not None:
+            summ["sensor_to_world"] = [[float(v) for v in row] for row in frame.sensor_to_world]
+        write_json(_with(stem, ".json"), summ)  # written last: a frame with its JSON is done (resume)
+        return summ
+
+    def count(self, key: tuple, summ: dict) -> None:
+        """Add a frame's summary to the run's totals, warnings and frame list."""
+        seq, fid = key
+        totals = self.totals
+        done = [o for o in summ["objects"] if o["status"] == "completed"]
+        totals["boxes"] += summ["n_boxes"]
+        totals["completed"] += summ["n_completed"]
+        totals["flipped"] += summ["n_flipped"]
+        totals["completion_points"] += sum(o["n_completion"] for o in done)
+        for k, v in summ["skipped"].items():
+            totals["skipped"][k] = totals["skipped"].get(k, 0) + v
+        self.t_model += summ["timings"].get("total_s", 0.0)
+        self.warnings += [f"{seq + '/' if seq else ''}{fid} {w}" for w in summ["warnings"]]
+        self.frames.append({k: summ.get(k) for k in FRAME_KEYS} | {"n_warnings": len(summ["warnings"])})
+
+    def run(self, keys: list[tuple]) -> None:
+        """Every frame of ``keys``: skipped when done (``resume``), else completed; then counted."""
+        stems = frame_stems(keys)
+        model = self.completer.model_name
+        for key in tqdm(keys, desc="complete", unit="frame", disable=self.s.quiet):
+            stem = self.out / stems[key]
+            summ = (
+                done_frame(_with(stem, ".json"), self.config, model, self.s.checkpoint_name) if self.s.resume else None
+            )
+            if summ is not None:
+                self.totals["resumed"] += 1
+            else:
+                summ = self.complete(key, stem)
+            if summ is not None:
+                self.count(key, summ)
+
+    def line(self, n_frames: int) -> str:
+        """The run's one summary line."""
+        totals = self.totals
+        flips = f", {totals['flipped']} heading flip(s)" if self.config.heading_check else ""
+        sk = ", ".join(f"{k} {v}" for k, v in sorted(totals["skipped"].items()))
+        resumed = f"; {totals['resumed']} frame(s) already done" if totals["resumed"] else ""
+        return (
+            f"{n_frames} frame(s), {totals['boxes']} boxes: {totals['completed']} completed{flips}"
+            + (f", skipped {sk}" if sk else "")
+            + f" ({self.completer.model_name}, {self.t_model:.1f} s of completion{resumed}) -> {self.out}/"
+        )
+
+
+def complete_frames(
+    s: FramesSettings, say: Say = silent, warn: Say = silent, completer: BaseCompleter | None = None
+) -> dict:
+    """Complete the selected frames of a dataset into the folder ``s.out`` as ``spotlights real complete`` does.
+
+    Opens the dataset (:meth:`ReaderOptions.open`), selects ``s.frames``, builds the track plan (``s.fuse``),
+    loads the model (:meth:`CompletionOptions.load_completer`), then per frame writes its PLY (scan frame,
+    metres), PNG, HTML, per-object files and, last, its JSON (``s.resume`` skips frames whose JSON says the same
+    model and options); then ``summary.json`` (+ per-track files with ``fuse``). The output folder is removed
+    again when nothing could be written. ``warn`` receives the out-of-domain warnings (ten at most: the rest
+    are counted), ``say`` the summary line; ``completer``: a model already loaded (default: the one ``s``
+    names). Returns the run's summary (the content of ``summary.json``).
+    """
+    reader = s.open()
+    keys = select_frames(reader.frame_keys(), s.frames)
+    if not keys:
+        raise ParameterError("--frames selects no frame")
+    config = s.scene_config()
+    tracks = s.track_plan(reader, keys, config)
+    completer = s.load_completer() if completer is None else completer
+    with output_folder(s.out) as out:  # removed again if nothing could be written
+        return _run_frames(s, reader, keys, config, completer, out, tracks, say, warn)
+
+
+def _run_frames(
+    s: FramesSettings,
+    reader,
+    keys: list,
+    config: SceneConfig,
+    completer: BaseCompleter,
+    out: Path,
+    tracks: TrackPlan | None,
+    say: Say,
+    warn: Say,
+) -> dict:
+    """The loop of :func:`complete_frames` in the folder ``out`` that exists, and its summary."""
+    sweep_folder_temporaries(out)  # what a killed run was writing (a 0-byte .FRAME.png.PID-X.part.png)
+    run = _FrameRun(s, reader, config, completer, out, tracks)
+    timer = StageTimer()
+    with timer("frames"):
+        run.run(keys)
+    summary = dict(
+        source=[str(x) for x in s.source],
+        format=reader.format,
+        model=completer.model_name,
+        checkpoint=s.checkpoint_name,
+        n_frames=len(keys),
+        totals=run.totals,
+        heading_check=config.heading_check,
+        completion_seconds=run.t_model,
+        wall_seconds=timer.total,
+        warnings=run.warnings,
+        frames=run.frames,
+    )
+    if tracks is not None:
+        tracks.write(out, completer.model_name)
+        summary["tracks"] = {k: v for k, v in tracks.summary().items() if k != "tracks"}
+    write_json(out / "summary.json", summary)
+    shown = run.warnings
+    if len(shown) > 10:
+        shown = shown[:5] + [f"... and {len(shown) - 5} more out-of-domain boxes (see {out / 'summary.json'})"]
+    for w in shown:
+        warn(w)
+    say(run.line(len(keys)))
+    return summary
+
+
+__all__ = [
+    "FramesSettings",
+    "ReaderOptions",
+    "complete_frames",
+    "done_frame",
+    "file_stem",
+    "frame_stems",
+    "parse_frames",
+    "parse_frames_range",
+    "safe_name",
+    "select_frames",
+]

@@ -1,0 +1,311 @@
+"""Completing one scan from files: what ``spotlights complete`` runs, as settings and one function.
+
+:class:`CompletionOptions` holds the options ``complete`` and ``real complete`` share (model, runtime,
+class selection, crop, model input, heading check), one field per command-line option, with the same
+defaults; :meth:`CompletionOptions.scene_config` turns them into the
+:class:`~spotlights.experiments.scene.SceneConfig` of :func:`~spotlights.experiments.scene.complete_scene`
+and :meth:`CompletionOptions.load_completer` loads the model with the runtime
+(:func:`spotlights.learning.runtime.load_completer`, the one place that chooses torch or ONNX).
+
+:class:`ScanSettings` adds the scan, its boxes (a box file of the whole frame, or one object's box) and the
+outputs; :func:`complete_scan` checks every option and destination, reads, completes, writes
+(``OUT.ply``, per-object files, a JSON summary, a PNG, an HTML page) and reports through callbacks.
+
+Frames: the scan's points and boxes are in the scan's frame (metres); ``up``/``forward`` name the scan's
+axes (:func:`spotlights.geometry.io.axes_rotation`), and every output is in the scan's frame.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..data.real.boxfiles import read_box_file, with_class
+from ..data.real.scans import read_scan
+from ..errors import ParameterError
+from ..geometry.boxes import Box, box_from_dict
+from ..geometry.io import axes_rotation
+from ..inputs import read_json
+from ..learning.inference import BaseCompleter
+from ..learning.runtime import Runtime, load_completer
+from ..utils import atomic_output, check_suffix, check_writable
+from .scene import (
+    HEADING_MARGIN,
+    SceneConfig,
+    SceneResult,
+    check_completed,
+    complete_scene,
+    describe,
+    render_result,
+    render_result_html,
+    require_points,
+    write_scene,
+)
+
+Say = Callable[[str], None]
+"""A callback taking one line of text (``print`` for the summary lines; a warning printer for warnings)."""
+
+
+def silent(line: str) -> None:
+    """The default :data:`Say` callback: say nothing."""
+
+
+def parse_classes(text: str | tuple | list | None) -> tuple[str, ...] | None:
+    """``--classes`` text (``"car, Truck"``) -> a tuple of lower-case class names (``("car", "truck")``);
+    None stays None, a tuple or list is taken as it is."""
+    if text is None:
+        return None
+    if isinstance(text, (tuple, list)):
+        return tuple(text)
+    return tuple(c.strip().lower() for c in text.split(",") if c.strip())
+
+
+@dataclass(kw_only=True)
+class CompletionOptions:
+    """The options of ``complete`` and ``real complete`` (one field per command-line option, same defaults).
+
+    checkpoint : a checkpoint file, a short name (``"default"``, ``"paper"``) or a ``.onnx`` file; None: default.
+    classes : comma-separated classes to complete (text or tuple); None: every vehicle class.
+    keep_observed : return each object's observed points beside its predicted ones.
+    heading_check, heading_margin : complete each box also turned by 180 degrees (margin None: 0.5).
+    margin : metres the box is grown by on its sides and top (None: 0.15).
+    ground_clearance : metres above the box bottom under which points are dropped (ground returns).
+    min_points : boxes with fewer points are not completed; a scan needs at least this many.
+    resample, seed : how the 256-point model input is drawn (``"random"`` or ``"fps"``) and its seed.
+    clip, no_clip : SA-Net depth clip in [0, 1] (None: the checkpoint's); ``no_clip`` keeps every ray.
+    device, precision, runtime : torch device, ``fp32``/``bf16``/``auto``, ``torch``/``onnx`` (None: by suffix).
+    """
+
+    checkpoint: str | None = None
+    classes: str | tuple | None = None
+    keep_observed: bool = True
+    heading_check: bool = False
+    heading_margin: float | None = None
+    margin: float | None = None
+    ground_clearance: float = 0.10
+    min_points: int = 10
+    resample: str = "random"
+    seed: int = 0
+    clip: float | None = None
+    no_clip: bool = False
+    device: str | None = None
+    precision: str = "fp32"
+    runtime: Runtime | None = None
+
+    @property
+    def checkpoint_name(self) -> str:
+        """The checkpoint as recorded in summaries: the given text, or ``"default"``."""
+        return str(self.checkpoint) if self.checkpoint else "default"
+
+    def scene_config(self, margin: float | None = None, crop: bool = True) -> SceneConfig:
+        """The :class:`~spotlights.experiments.scene.SceneConfig` of these options (``margin``: the crop
+        margin in metres when given another way, else :attr:`margin`; ``crop=False``: every scan point is the
+        object's input). Raises :class:`ParameterError` for options that do not go together."""
+        margin = self.margin if margin is None else margin
+        clip = None if self.no_clip else ("default" if self.clip is None else float(self.clip))
+        if self.heading_margin is not None and not self.heading_check:
+            raise ParameterError("--heading-margin goes with --heading-check")
+        if not crop and margin is not None:
+            raise ParameterError("--no-crop uses every point: it takes no --margin/--crop")
+        return SceneConfig(
+            margin=0.15 if margin is None else float(margin),
+            ground_clearance=float(self.ground_clearance),
+            min_points=int(self.min_points),
+            classes=parse_classes(self.classes),
+            crop=crop,
+            resample=self.resample,
+            seed=int(self.seed),
+            heading_check=bool(self.heading_check),
+            clip=clip,
+            keep_observed=bool(self.keep_observed),
+            heading_margin=HEADING_MARGIN if self.heading_margin is None else float(self.heading_margin),
+        )
+
+    def load_completer(self) -> BaseCompleter:
+        """The model of :attr:`checkpoint` run with :attr:`runtime` on :attr:`device` at :attr:`precision`
+        (:func:`spotlights.learning.runtime.load_completer`)."""
+        return load_completer(self.checkpoint, runtime=self.runtime, device=self.device, precision=self.precision)
+
+
+@dataclass(kw_only=True)
+class ScanSettings(CompletionOptions):
+    """What ``spotlights complete`` does: the scan, its boxes, the outputs, and the :class:`CompletionOptions`.
+
+    input : the scan file (KITTI ``.bin``, nuScenes ``.pcd.bin``, AV2 ``.feather``, PLY, PCD, NPY, ...).
+    out : the scene (``.ply`` with ``source`` and ``object`` fields; other suffixes: completion points only).
+    boxes, calib : every box of the frame (JSON, or a KITTI ``label_2`` file with its calib file); or
+    box : one object's box file (JSON); or center, size, yaw : one object's box given inline (metres, radians).
+    crop : the crop margin's older name (same as ``margin``); no_crop : one object, every scan point used.
+    up, forward : the scan's axes; per_object : folder of ``object_<id>.ply``; summary : JSON file;
+    show : PNG picture; html : interactive page; quiet : no summary lines.
+    """
+
+    input: str
+    out: str
+    boxes: str | None = None
+    calib: str | None = None
+    box: str | None = None
+    center: list | None = None
+    size: list | None = None
+    yaw: float = 0.0
+    crop: float | None = None
+    no_crop: bool = False
+    up: str = "z"
+    forward: str = "x"
+    per_object: str | None = None
+    summary: str | None = None
+    show: str | None = None
+    html: str | None = None
+    quiet: bool = False
+
+    @property
+    def single(self) -> bool:
+        """One object (``box`` or ``center``/``size``) rather than a frame's box file."""
+        return self.boxes is None
+
+    def check_boxes(self) -> None:
+        """Raise a one-line :class:`ParameterError` when the box options do not describe one frame or one object."""
+        single_given = [
+            n
+            for n, v in (("--box", self.box), ("--center/--size", self.center is not None or self.size is not None))
+            if v
+        ]
+        if self.boxes is not None and single_given:
+            raise ParameterError(f"give the boxes either as --boxes or as {single_given[0]} (one object), not both")
+        if len(single_given) > 1:
+            raise ParameterError("give the box either as --box BOX.json or as --center/--size/--yaw, not both")
+        if self.calib is not None and self.boxes is None:
+            raise ParameterError("--calib goes with a KITTI label_2 file in --boxes")
+        if self.single and (self.center is None) != (self.size is None) and self.box is None:
+            raise ParameterError("one object's box needs both --center X Y Z and --size L W H")
+        if self.single and self.box is None and self.center is None:
+            raise ParameterError(
+                "the boxes are missing: pass --boxes BOXES (a frame), or one object's --box BOX.json or "
+                "--center X Y Z --size L W H [--yaw RAD]"
+            )
+        if not self.single and self.no_crop:
+            raise ParameterError("--no-crop is for one object already cropped; the boxes of a frame are always cropped")
+
+    def scan_config(self) -> SceneConfig:
+        """The :class:`SceneConfig` of a scan: :meth:`scene_config` with ``--crop`` (an alias of ``--margin``) and
+        ``--no-crop`` for one object, whose box is completed whatever its label."""
+        if not self.single:
+            return self.scene_config()
+        margin = self.margin
+        if self.crop is not None:
+            if margin is not None and margin != self.crop:
+                raise ParameterError("give the crop margin once: --margin or --crop")
+            margin = self.crop
+        config = self.scene_config(margin, crop=not self.no_crop)
+        if self.classes is not None:
+            raise ParameterError("--classes chooses among the boxes of --boxes; one object's box is always completed")
+        return dataclasses.replace(config, any_label=True)
+
+    def check_outputs(self) -> None:
+        """Refuse, before any work, an output whose suffix does not fit or that cannot be written."""
+        check_suffix(self.show, (".png",), "the picture", "--show")
+        check_suffix(self.html, (".html", ".htm"), "the page (HTML)", "--html")
+        check_suffix(self.summary, (".json",), "the summary (JSON)", "--summary")
+        check_writable(self.out, self.show, self.html, self.summary)
+        if self.per_object is not None:  # every destination before anything is written
+            check_writable(Path(self.per_object) / "object_0.ply")
+
+    @property
+    def box_source(self) -> str:
+        """Where the boxes come from, as errors name it: the box file, or ``--center/--size``."""
+        return self.boxes or self.box or "--center/--size"
+
+    def read_boxes(self, axes: np.ndarray) -> list[Box]:
+        """The boxes (scan frame, metres, with ``cls``): every box of :attr:`boxes`, or the one object's box
+        (its yaw about the scan's up axis, ``axes`` the (3, 3) rotation of :func:`axes_rotation`)."""
+        if self.boxes is not None:
+            return read_box_file(self.boxes, calib=self.calib, axes=axes).boxes
+        if self.box is not None:
+            box = box_from_dict(read_json(self.box), self.box, axes=axes)
+        else:
+            box = box_from_dict(
+                {"center": self.center, "size": self.size, "yaw": self.yaw}, "--center/--size", axes=axes
+            )
+        if not box.is_valid():
+            raise ParameterError(f"{self.box_source}: box size must be positive, got {box.size.tolist()}")
+        return [with_class(box)]
+
+
+def _check_single(s: ScanSettings, result: SceneResult, points: np.ndarray, axes: np.ndarray, warn: Say) -> None:
+    """One object: a one-line error when its box held too few points or its completion is empty; a warning
+    when most of an uncropped scan lies outside the box's sphere."""
+    config = result.config
+    o = result.objects[0]
+    if o.status == "too_few_points":
+        raise ParameterError(
+            f"{s.box_source}: {len(o.input_indices)} scan point(s) lie in the box (grown by {config.margin} m, "
+            f"bottom raised {config.ground_clearance} m); at least {config.min_points} are needed - check "
+            "the box and the scan's frame (--no-crop for an already cropped scan)"
+        )
+    if o.status == "empty_completion":
+        raise ParameterError(
+            f"{s.input}: the completion is empty (every ray was clipped); try --no-clip or a lower --clip"
+        )
+    if not config.crop:
+        unit = (o.used_box or o.box).normalization().to_unit(np.asarray(points, dtype=np.float64) @ axes.T)
+        outside = float(np.mean(np.linalg.norm(unit, axis=1) > 1.2))
+        if outside > 0.5:
+            warn(f"{outside:.0%} of the scan lies outside the box's sphere; is the box in the scan's frame?")
+
+
+def write_json(path: str | Path, data: dict) -> None:
+    """``data`` as indented JSON (numpy scalars as floats), written atomically to ``path``."""
+    with atomic_output(path) as tmp:
+        tmp.write_text(json.dumps(data, indent=2, default=float) + "\n", encoding="utf-8")
+
+
+def complete_scan(
+    s: ScanSettings, say: Say = silent, warn: Say = silent, completer: BaseCompleter | None = None
+) -> SceneResult:
+    """Complete the vehicles of one scan file as ``spotlights complete`` does.
+
+    Checks every option and destination first (one-line :class:`~spotlights.errors.SpotlightsError` naming the
+    option or file), reads the scan ((N, 3) metres, scan frame) and its boxes, loads the model
+    (:meth:`CompletionOptions.load_completer`), completes (:func:`~spotlights.experiments.scene.complete_scene`)
+    and writes ``s.out`` (+ per-object files, JSON summary, PNG, HTML). ``say`` receives the summary lines,
+    ``warn`` one line per warning (out-of-domain boxes); ``completer``: a model already loaded (default: the
+    one ``s`` names). Returns the :class:`SceneResult` (scan frame, metres).
+    """
+    s.check_boxes()
+    config = s.scan_config()
+    s.check_outputs()
+    axes = axes_rotation(s.up, s.forward)
+    points = read_scan(s.input)
+    require_points(points, config.min_points, s.input)
+    boxes = s.read_boxes(axes)
+    completer = s.load_completer() if completer is None else completer
+    result = complete_scene(points, boxes, completer, config, axes=axes, checkpoint=s.checkpoint_name)
+    if s.single:
+        _check_single(s, result, points, axes, warn)
+    else:
+        check_completed(result, s.boxes)
+    written = write_scene(result, s.out, per_object=s.per_object, scan_name=Path(s.input).name)
+    for w in result.warnings():
+        warn(w)
+    if s.summary:
+        write_json(s.summary, {"scan": str(s.input), "boxes": str(s.box_source), "out": str(s.out), **result.summary()})
+    say(
+        f"{s.input}: {len(points)} points, {describe(result)} ({result.model}) -> {s.out}"
+        + (f" (+{len(written) - 1} per-object files in {s.per_object})" if s.per_object else "")
+    )
+    title = f"{Path(s.input).name}: {result.model} completion of {len(result.completed)} object(s), scan frame"
+    if s.show:
+        render_result(result, s.show, title)
+        say(f"picture -> {s.show}")
+    if s.html:
+        render_result_html(result, s.html, title)
+        say(f"page -> {s.html}")
+    return result
+
+
+__all__ = ["CompletionOptions", "Say", "ScanSettings", "complete_scan", "parse_classes", "silent", "write_json"]
