@@ -76,6 +76,15 @@ def add_quiet(p: argparse.ArgumentParser, what: str = "no progress bar") -> None
     p.add_argument("--no-progress", dest="quiet", action="store_true", help=argparse.SUPPRESS)
 
 
+def settings_of(cls, args: argparse.Namespace, **values):
+    """The settings dataclass ``cls`` of a command: each field from the parsed option of the same
+    name (``--gt-points`` -> ``gt_points``), or from ``values`` (fields named otherwise)."""
+    import dataclasses
+
+    names = [f.name for f in dataclasses.fields(cls) if f.init and f.name not in values]
+    return cls(**{n: getattr(args, n) for n in names if hasattr(args, n)}, **values)
+
+
 DEVICE_HELP = "torch device: cpu, cuda or cuda:N (default: cuda when available, else cpu)"
 PICTURE_SUFFIXES = (".png",)
 

@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-from ..data.lidar import sensor_preset
 from ..data.store import open_dataset
-from ..data.synthetic import BuildConfig, add_rig, build_dataset
-from ..data.synthetic.config import parse_range, parse_source
+from ..data.synthetic import BuildRequest, add_rig, build_from_request, build_summary
 from ..data.synthetic.consolidate import merge_shards
 from ..errors import ParameterError, SpotlightsError
 from ..utils import atomic_output, check_writable
@@ -18,6 +16,7 @@ from ._util import (
     check_suffix,
     non_negative_int,
     positive_int,
+    settings_of,
     unit_interval,
 )
 from .sequences import register as register_sequences
@@ -337,125 +336,15 @@ def _merge(args) -> int:
     return 0
 
 
-def _distance(text: str) -> tuple[float, float]:
-    try:
-        a, b = (float(x) for x in text.replace(",", ":").split(":"))
-    except ValueError:
-        raise ParameterError(f"--distance {text!r}: write MIN:MAX in metres, e.g. 4:40") from None
-    return a, b
-
-
 def _build(args) -> int:
-
     # SIGTERM unwinds like Ctrl-C (spotlights.cli.main): the workers stop, finished units are kept
-
     if args.shard_size:
         check_suffix(args.out, (".json",), "the shard index of a sharded dataset (--shard-size)")
     else:
         check_suffix(args.out, (".h5", ".hdf5"), "the dataset (HDF5)")
     check_writable(args.out)
-    heights = None
-    mount = args.mount_height
-    if mount is not None and ":" in mount:
-        heights, mount = parse_range(mount, "--mount-height"), None
-    elif mount is not None:
-        try:
-            mount = float(mount)
-        except ValueError:
-            raise ParameterError(
-                f"--mount-height {args.mount_height!r}: write metres (1.73) or MIN:MAX (1.5:2.1)"
-            ) from None
-    sensor = sensor_preset(
-        args.sensor,
-        azimuth_step=args.azimuth_step,
-        mount_height=mount,
-        range_noise=args.range_noise,
-        dropout=args.dropout,
-        max_range=args.max_range,
-        beam_dropout=args.beam_dropout,
-    )
-    if not args.meshes and not args.procedural:
-        raise ParameterError("give --meshes DIR (repeatable) or --procedural N (or both)")
-    if not args.procedural and (args.classes or args.procedural_split):
-        raise ParameterError("--classes and --procedural-split apply to --procedural N (vehicles per class)")
-    sources = [parse_source(m) for m in args.meshes]
-    single = len(sources) <= 1 and all(set(s) == {"path"} for s in sources)
-    if not single and args.manifest:
-        raise ParameterError(
-            "--manifest applies to a single --meshes folder; give each source its own (--meshes DIR,manifest=CSV)"
-        )
-    category_split = {}
-    for item in args.category_split:
-        cat, eq, split = item.partition("=")
-        if not eq or not cat.strip():
-            raise ParameterError(f"--category-split {item!r}: write CATEGORY=SPLIT, e.g. suv=test")
-        category_split[cat.strip()] = split.strip()
-    augment = None
-    if args.mirror or args.scale_copies:
-        augment = {
-            "mirror": args.mirror,
-            "copies": args.scale_copies,
-            "length": args.length_range,
-            "width": args.width_range,
-            "height": args.height_range,
-            "factor": args.scale_factor_range,
-            "splits": args.augment_splits,
-        }
-    cfg = BuildConfig(
-        meshes=str(sources[0]["path"]) if sources else "",
-        manifest=args.manifest,
-        views=args.views,
-        split=args.split,
-        seed=args.seed,
-        n_points=args.points,
-        gt_points=args.gt_points,
-        gt_dense=args.gt_dense,
-        default_rig=args.default_rig,
-        extra_rigs=list(args.rig),
-        sensor=sensor.to_dict(),
-        distance=_distance(args.distance),
-        min_points=args.min_points,
-        downsample=args.downsample,
-        up=args.up,
-        forward=args.forward,
-        scale=args.scale,
-        stratify=not args.no_stratify,
-        sources=[] if single else sources,
-        category_split=category_split,
-        exclude_categories=list(args.exclude_category),
-        augment=augment,
-        mount_height_range=heights,
-        procedural={"count": args.procedural, "classes": args.classes, "split": args.procedural_split},
-    )
-    rep = build_dataset(
-        cfg,
-        args.out,
-        workers=args.workers,
-        overwrite=args.overwrite,
-        resume=args.resume,
-        block=args.block,
-        keep_parts=args.keep_parts,
-        progress=not args.quiet,
-        backend=args.backend,
-        ray_address=args.ray_address,
-        shard_size=args.shard_size,
-        retries=args.task_retries,
-    )
-    if rep.already_complete:
-        print(f"{args.out}: already complete ({rep.n_models} models, {rep.n_samples} samples); nothing to do")
-        return 0
-    rate = rep.units_computed and rep.n_samples * rep.units_computed / max(rep.units_total, 1) / max(
-        rep.seconds_units, 1e-9
-    )
-    print(
-        f"{args.out}: {rep.n_models} models, {rep.n_samples} samples, {rep.file_size / 2**20:.1f} MiB; "
-        f"{rep.units_computed} of {rep.units_total} work units computed in {rep.seconds_units:.1f} s "
-        f"(~{rate:.0f} samples/s), file written in {rep.seconds_consolidate:.1f} s, total {rep.seconds_total:.1f} s"
-    )
-    if rep.skipped:
-        print(f"skipped {len(rep.skipped)} mesh(es):")
-        for s in rep.skipped:
-            print(f"  {s['file']}: {s['problem']}")
+    report = build_from_request(settings_of(BuildRequest, args))
+    print("\n".join(build_summary(report, args.out)))
     return 0
 
 

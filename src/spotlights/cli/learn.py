@@ -13,7 +13,7 @@ from ..learning.bench import bench_markdown, bench_models
 from ..learning.evaluate import evaluate_checkpoints, prediction_examples, report_markdown, write_report
 from ..learning.export import export_onnx, load_onnx_completer, parity
 from ..learning.models import MODEL_NAMES as MODEL_CHOICES  # registry keys (imports neither torch nor a model)
-from ..utils import atomic_output, check_writable, output_folder
+from ..utils import atomic_output, check_writable
 from ..viz import render_predictions
 from ._util import (
     DEVICE_HELP,
@@ -24,6 +24,7 @@ from ._util import (
     non_negative_int,
     positive_float,
     positive_int,
+    settings_of,
     unit_interval,
 )
 
@@ -343,46 +344,12 @@ def _set_threads(n):
 
 
 def _train(args) -> int:
-    from ..learning.train import train
+    from ..learning.train import TrainSettings, run_training
 
-    _set_threads(args.threads)
-    ov: dict = {"train": {}, "data": {}}
-    for key, val in (
-        ("epochs", args.epochs),
-        ("batch_size", args.batch_size),
-        ("lr", args.lr),
-        ("seed", args.seed),
-        ("precision", args.precision),
-        ("steps_per_epoch", args.steps_per_epoch),
-        ("compile", args.compile),
-    ):
-        if val is not None:
-            ov["train"][key] = val
-    for key, val in (
-        ("max_views", args.max_views),
-        ("val_max_views", args.val_max_views),
-        ("rig", args.rig),
-        ("num_workers", args.workers),
-    ):
-        if val is not None:
-            ov["data"][key] = val
-
-    out = args.out or f"runs/{args.model}"
-    with output_folder(out):  # a run that fails before writing anything leaves no empty folder
-        res = train(
-            args.model,
-            args.data,
-            out,
-            config=args.config,
-            overrides=ov,
-            resume=args.resume,
-            overwrite=args.overwrite,
-            device=args.device,
-            progress=not args.quiet,
-            schedule=args.schedule,
-            stop_after=args.stop_after,
-            allow_new_data=args.allow_new_data,
-        )
+    settings = settings_of(
+        TrainSettings, args, model_name=args.model, out_dir=args.out, num_workers=args.workers, progress=not args.quiet
+    )
+    res = run_training(settings)
     h = res["history"][-1] if res["history"] else None
     if h:
         print(
