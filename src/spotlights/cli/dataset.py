@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-from ..data.store import open_dataset
+from ..data.dataset_report import dataset_info, export_sample, info_lines, read_sample
 from ..data.synthetic import BuildRequest, add_rig, build_from_request, build_summary
 from ..data.synthetic.consolidate import merge_shards
-from ..errors import ParameterError, SpotlightsError
-from ..utils import atomic_output, check_writable
+from ..utils import check_writable
 from ..viz import html, render_sample
 from ._util import (
     add_command,
@@ -374,86 +373,13 @@ def _add_rig(args) -> int:
 def _info(args) -> int:
     import json
 
-    with open_dataset(args.file) as ds:
-        info = ds.info()
-    if args.json:
-        print(json.dumps(info, indent=1))
-        return 0
-    cfg = info["config"]
-    shards = f", {len(info['shards'])} shards" if info.get("shards") else ""
-    print(
-        f"{info['path']}: {info['format']} v{info['format_version']} (spotlights {info['spotlights_version']}), "
-        f"{info['file_size_bytes'] / 2**20:.1f} MiB{shards}, seed {info['seed']}"
-    )
-    print(
-        f"  {info['n_models']} models x {info['views_per_model']} views = {info['n_samples']} samples; "
-        f"categories: " + ", ".join(f"{k} {v}" for k, v in info["categories"].items())
-    )
-    if info.get("classes"):
-        print("  classes: " + ", ".join(f"{k} {v}" for k, v in info["classes"].items()))
-    for sp, d in info["splits"].items():
-        cats = ", ".join(f"{k} {v}" for k, v in d["categories"].items())
-        print(f"  {sp:5s}: {d['models']:4d} models, {d['samples']:8d} samples ({cats})")
-    print(
-        "  rigs: "
-        + ", ".join(
-            f"{n} ({k} rays){' [default]' if n == info['default_rig'] else ''}" for n, k in info["rigs"].items()
-        )
-    )
-    sen = info["sensor"]
-    print(
-        f"  sensor: {sen.get('name')} {sen.get('n_beams')} beams {sen.get('elevation_max')}..{sen.get('elevation_min')} deg, "
-        f"azimuth step {sen.get('azimuth_step')} deg, {sen.get('mount_height')} m high, noise {sen.get('range_noise')} m, "
-        f"dropout {sen.get('dropout')}, beam dropout {sen.get('beam_dropout', 0)}; distance {cfg.get('distance')} m, >= {cfg.get('min_points')} returns, "
-        f"{cfg.get('n_points')} points ({cfg.get('downsample')})"
-    )
-    if info["skipped"]:
-        print("  skipped meshes: " + "; ".join(f"{s['file']} ({s['problem']})" for s in info["skipped"]))
-    print("  datasets:")
-    for name, d in info["datasets"].items():
-        print(f"    {name:28s} {str(tuple(d['shape'])):20s} {d['dtype']}")
+    info = dataset_info(args.file)
+    print(json.dumps(info, indent=1) if args.json else "\n".join(info_lines(info)))
     return 0
 
 
-def _pick(ds, split: str, index: int) -> int:
-    idx = ds.split_indices(split)
-    if not (0 <= index < len(idx)):
-        raise ParameterError(f"{ds.path}: split {split!r} has {len(idx)} samples; --index {index} is out of range")
-    return int(idx[index])
-
-
 def _export(args) -> int:
-    import json
-    from pathlib import Path
-
-    import numpy as np
-
-    if Path(args.out).suffix.lower() != ".npz":
-        raise SpotlightsError(f"{args.out}: the sample is written as .npz; name the output FILE.npz")
-    check_writable(args.out)
-    with open_dataset(args.file) as ds:
-        i = _pick(ds, args.split, args.index)
-        s = ds.sample(i, rig=args.rig)
-        rig = ds.rig(s["rig"], s["model_index"])
-    with atomic_output(args.out, suffix=".npz") as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(
-                fh,
-                partial=s["partial"],
-                gt_points=s["gt_points"],
-                gt_dense=s["gt_dense"],
-                gt_depths=s["gt_depths"],
-                model=np.array(s["model"]),
-                category=np.array(s["category"]),
-                split=np.array(s["split"]),
-                view=np.int32(s["view"]),
-                sample_index=np.int64(i),
-                sensor_to_unit=s["sensor_to_unit"],
-                distance=np.float32(s["distance"]),
-                heading=np.float32(s["heading"]),
-                n_raw=np.int32(s["n_raw"]),
-                rig=np.array(json.dumps(rig.to_dict())),
-            )
+    i, s = export_sample(args.file, args.split, args.index, args.out, args.rig)
     print(f"{args.file}: {args.split}[{args.index}] = sample {i} ({s['model']}, view {s['view']}) -> {args.out}")
     return 0
 
@@ -465,10 +391,7 @@ def _show(args) -> int:
     check_suffix(args.html, (".html", ".htm"), "the page (HTML)", "--html")
     out = Path(args.out) if args.out else Path.cwd() / f"{args.split}-{args.index}.png"
     check_writable(args.out or (None if args.html else out), args.html)
-    with open_dataset(args.file) as ds:
-        i = _pick(ds, args.split, args.index)
-        s = ds.sample(i, rig=args.rig)
-        rig = ds.rig(s["rig"], s["model_index"])
+    i, s, rig = read_sample(args.file, args.split, args.index, args.rig)
     what = f"{args.file}: {args.split}[{args.index}] = sample {i} ({s['model']}, view {s['view']})"
     if args.html:
         write_page(

@@ -10,11 +10,10 @@ import sys
 
 from ..experiments.curves import learning_curves, summary_markdown
 from ..learning.bench import bench_markdown, bench_models
-from ..learning.evaluate import evaluate_checkpoints, prediction_examples, report_markdown, write_report
-from ..learning.export import export_onnx, load_onnx_completer, parity
+from ..learning.evaluate import EvaluateSettings, run_evaluation
+from ..learning.export import export_model
 from ..learning.models import MODEL_NAMES as MODEL_CHOICES  # registry keys (imports neither torch nor a model)
 from ..utils import atomic_output, check_writable
-from ..viz import render_predictions
 from ._util import (
     DEVICE_HELP,
     add_command,
@@ -328,21 +327,6 @@ def register(sub) -> None:
     )
 
 
-def _report_path(prefix) -> str:
-    """The Markdown file of a report written to PREFIX(.md/.json)."""
-    text = str(prefix)
-    return (
-        text[: -len(".json")] if text.endswith(".json") else text[: -len(".md")] if text.endswith(".md") else text
-    ) + ".md"
-
-
-def _set_threads(n):
-    if n:
-        import torch
-
-        torch.set_num_threads(int(n))
-
-
 def _train(args) -> int:
     from ..learning.train import TrainSettings, run_training
 
@@ -359,38 +343,7 @@ def _train(args) -> int:
 
 
 def _evaluate(args) -> int:
-    check_writable(_report_path(args.out))
-    _set_threads(args.threads)
-    report = evaluate_checkpoints(
-        args.checkpoint,
-        args.data,
-        split=args.split,
-        max_views=args.max_views,
-        clip=args.clip,
-        batch_size=args.batch_size,
-        device=args.device,
-        fscore_threshold=args.fscore_threshold,
-        with_completeness=not args.accuracy_only,
-        latency=args.latency and not args.no_latency,
-        latency_repeats=args.latency_repeats,
-        progress=not args.quiet,
-        backend=args.backend,
-        ray_address=args.ray_address,
-    )
-    md, js = write_report(report, args.out)
-    print(report_markdown(report).split("\n## ")[0].rstrip())
-    print(f"\nreport -> {md}, {js}")
-    if args.examples:
-        from pathlib import Path
-
-        png = render_predictions(
-            md.with_suffix(".png"),
-            prediction_examples(
-                args.checkpoint, args.data, args.split, per_category=args.examples, clip=args.clip, device=args.device
-            ),
-            title=f"{args.split} scans of {Path(args.data).name}: predictions beside the ground truth (unit frame)",
-        )
-        print(f"figure -> {png}")
+    run_evaluation(settings_of(EvaluateSettings, args))
     return 0
 
 
@@ -404,25 +357,8 @@ def _curves(args) -> int:
 def _export(args) -> int:
     from pathlib import Path
 
-    out = Path(args.out)
-    check_suffix(out, (".onnx",), "an ONNX model")
-    path = export_onnx(args.checkpoint, out, opset=args.opset)
-    if not args.quiet:
-        c = load_onnx_completer(path)
-        rig = f", rig {c.rig.name}" if c.rig is not None else ""
-        dec = (f", p(hit) >= {c.threshold:g}" if c.threshold is not None else "") + (
-            f", clip {c.clip:g}" if c.clip is not None else ""
-        )
-        print(
-            f"{args.checkpoint} -> {path} ({c.model_name}, {c.n_params:,} parameters{rig}{dec}; "
-            f"{path.stat().st_size / 1e6:.1f} MB)"
-        )
-        if not args.no_check:
-            diff = parity(args.checkpoint, c)
-            print(
-                "parity on 8 random scans, max |onnxruntime - torch|: "
-                + ", ".join(f"{k} {v:.1e}" for k, v in diff.items())
-            )
+    check_suffix(Path(args.out), (".onnx",), "an ONNX model")
+    export_model(args.checkpoint, args.out, args.opset, describe=not args.quiet, check=not args.no_check)
     return 0
 
 

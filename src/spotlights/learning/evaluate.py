@@ -20,7 +20,10 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import os
 import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +32,7 @@ from ..data.store import open_dataset
 from ..distributed import check_backend, ray_session
 from ..errors import ParameterError
 from ..metrics.completion import METRIC_DESCRIPTIONS, evaluate_completions, summarize
-from ..utils import atomic_output
+from ..utils import atomic_output, check_writable, settings_from_dict
 from .bench import model_latency
 from .checkpoint import load_checkpoint, model_from_checkpoint
 from .inference import DEFAULT, load_completer
@@ -458,3 +461,95 @@ def prediction_examples(
                     }
                 )
     return out
+
+
+@dataclass(frozen=True)
+class EvaluateSettings:
+    """What ``spotlights evaluate`` is asked to do (its options as one object).
+
+    checkpoint : checkpoint files (or short names) to score, one report row group each.
+    data : dataset file or shard index. split : ``test``, ``val`` or ``train``.
+    out : report path without suffix: ``OUT.md``, ``OUT.json`` and the figure ``OUT.png``.
+    max_views : score only views ``0..V-1`` of each model (None: all).
+    clip : SA-Net depth clip in [0, 1] for the 'w/ clip' row (None: the checkpoint's).
+    batch_size : evaluation batch size. fscore_threshold : F-score distance, unit frame.
+    accuracy_only : skip the ground truth -> prediction side (completeness, CD, F-score).
+    latency, latency_repeats, no_latency : time each model (median ms at batch 1 and 32) when
+        ``latency`` and not ``no_latency``, ``latency_repeats`` timed runs after 2 warm-ups.
+    examples : scans per category in the figure (0: no figure).
+    device, threads : torch device and CPU threads (None: the defaults).
+    quiet : no progress bars. backend, ray_address : ``"local"`` or ``"ray"`` metric work.
+    """
+
+    checkpoint: list
+    data: str | os.PathLike
+    split: str = "test"
+    out: str | os.PathLike = "report"
+    max_views: int | None = None
+    clip: float | None = None
+    batch_size: int = 32
+    fscore_threshold: float = 0.01
+    accuracy_only: bool = False
+    latency: bool = False
+    latency_repeats: int = 10
+    no_latency: bool = False
+    examples: int = 2
+    device: str | None = None
+    threads: int | None = None
+    quiet: bool = False
+    backend: str = "local"
+    ray_address: str | None = None
+
+    @classmethod
+    def from_dict(cls, d: Mapping, where: str | os.PathLike | None = None) -> EvaluateSettings:
+        """Read settings by the one strict policy (:func:`spotlights.utils.settings_from_dict`)."""
+        return settings_from_dict(cls, d, where)
+
+
+def report_path(prefix: str | os.PathLike) -> str:
+    """The Markdown file of a report written to ``PREFIX`` (``.md``/``.json`` suffix or none)."""
+    text = str(prefix)
+    return (
+        text[: -len(".json")] if text.endswith(".json") else text[: -len(".md")] if text.endswith(".md") else text
+    ) + ".md"
+
+
+def run_evaluation(s: EvaluateSettings, log: Callable[[str], None] = print) -> dict:
+    """``spotlights evaluate``: score ``s.checkpoint`` on ``s.data``, write the report (Markdown
+    and JSON) and, with ``s.examples``, the figure of predictions beside the ground truth (PNG).
+    ``log`` receives the Table-1 summary and the paths as they are written. Returns the report
+    dict of :func:`evaluate_checkpoints`."""
+    check_writable(report_path(s.out))
+    if s.threads:
+        import torch
+
+        torch.set_num_threads(int(s.threads))
+    report = evaluate_checkpoints(
+        s.checkpoint,
+        s.data,
+        split=s.split,
+        max_views=s.max_views,
+        clip=s.clip,
+        batch_size=s.batch_size,
+        device=s.device,
+        fscore_threshold=s.fscore_threshold,
+        with_completeness=not s.accuracy_only,
+        latency=s.latency and not s.no_latency,
+        latency_repeats=s.latency_repeats,
+        progress=not s.quiet,
+        backend=s.backend,
+        ray_address=s.ray_address,
+    )
+    md, js = write_report(report, s.out)
+    log(report_markdown(report).split("\n## ")[0].rstrip())
+    log(f"\nreport -> {md}, {js}")
+    if s.examples:
+        from ..viz import render_predictions
+
+        png = render_predictions(
+            md.with_suffix(".png"),
+            prediction_examples(s.checkpoint, s.data, s.split, per_category=s.examples, clip=s.clip, device=s.device),
+            title=f"{s.split} scans of {Path(s.data).name}: predictions beside the ground truth (unit frame)",
+        )
+        log(f"figure -> {png}")
+    return report
