@@ -18,6 +18,7 @@ from ._util import (
     DEVICE_HELP,
     add_command,
     add_group,
+    add_options,
     add_quiet,
     check_suffix,
     non_negative_int,
@@ -140,82 +141,7 @@ def register(sub) -> None:
         "spotlights evaluate --data cars.h5 --checkpoint runs/*/best.pt --out report",
         _evaluate,
     )
-    p.add_argument(
-        "--data",
-        required=True,
-        metavar="FILE.h5|INDEX.json",
-        help="dataset file (or the index .json of a sharded dataset)",
-    )
-    p.add_argument("--checkpoint", required=True, nargs="+", metavar="CKPT", help="one or more checkpoints")
-    p.add_argument("--split", default="test", choices=("test", "val", "train"), help="split to score (default test)")
-    p.add_argument(
-        "--out",
-        "-o",
-        default="report",
-        metavar="PATH",
-        help="report path without suffix: writes PATH.md, PATH.json and the figure PATH.png (see --examples; default ./report)",
-    )
-    p.add_argument(
-        "--max-views",
-        type=positive_int,
-        default=None,
-        metavar="V",
-        help="score only views 0..V-1 of each model (faster)",
-    )
-    p.add_argument(
-        "--clip",
-        type=unit_interval,
-        default=None,
-        metavar="T",
-        help="SA-Net clip for the 'w/ clip' row (default: the checkpoint's: 0.2 for the paper SA-Net)",
-    )
-    p.add_argument("--batch-size", type=positive_int, default=32, help="evaluation batch size (default 32)")
-    p.add_argument(
-        "--fscore-threshold",
-        type=positive_float,
-        default=0.01,
-        metavar="T",
-        help="F-score distance threshold, unit frame (default 0.01)",
-    )
-    p.add_argument(
-        "--accuracy-only", action="store_true", help="skip the GT -> prediction side (completeness, CD, F-score)"
-    )
-    p.add_argument(
-        "--latency",
-        action="store_true",
-        help="also time every model: median latency at batch 1 and 32 (opt-in: it costs minutes)",
-    )
-    p.add_argument(
-        "--latency-repeats",
-        type=positive_int,
-        default=10,
-        metavar="R",
-        help="timed runs per model and batch with --latency (default 10, after 2 warm-up runs)",
-    )
-    p.add_argument("--no-latency", action="store_true", help="do not time the models (the default; kept for scripts)")
-    p.add_argument(
-        "--examples",
-        type=non_negative_int,
-        default=2,
-        metavar="K",
-        help="figure PATH.png: K scans per category, each model's prediction beside the ground truth "
-        "(default 2; 0: no figure)",
-    )
-    p.add_argument("--device", default=None, help=DEVICE_HELP)
-    p.add_argument("--threads", type=positive_int, default=None, help="torch CPU threads (default: torch's)")
-    add_quiet(p)
-    p.add_argument(
-        "--backend",
-        choices=("local", "ray"),
-        default="local",
-        help="ray: the per-model metric work (KD-trees per ground-truth model) as Ray tasks; same values",
-    )
-    p.add_argument(
-        "--ray-address",
-        default=None,
-        metavar="ADDR",
-        help="with --backend ray: 'auto' joins the running cluster; default: a local instance",
-    )
+    add_options(p, EvaluateSettings)
 
     # ---- curves
     p = add_command(

@@ -32,6 +32,7 @@ from ..data.store import open_dataset
 from ..distributed import check_backend, ray_session
 from ..errors import ParameterError
 from ..metrics.completion import METRIC_DESCRIPTIONS, evaluate_completions, summarize
+from ..options import DEVICE_HELP, REQUIRED, non_negative_int, option, positive_float, positive_int, unit_interval
 from ..utils import atomic_output, check_writable, settings_from_dict
 from .bench import model_latency
 from .checkpoint import load_checkpoint, model_from_checkpoint
@@ -463,9 +464,10 @@ def prediction_examples(
     return out
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class EvaluateSettings:
-    """What ``spotlights evaluate`` is asked to do (its options as one object).
+    """What ``spotlights evaluate`` is asked to do: its options as one object, each field declaring
+    its option (:func:`spotlights.options.option`: default and help written once).
 
     checkpoint : checkpoint files (or short names) to score, one report row group each.
     data : dataset file or shard index. split : ``test``, ``val`` or ``train``.
@@ -481,24 +483,67 @@ class EvaluateSettings:
     quiet : no progress bars. backend, ray_address : ``"local"`` or ``"ray"`` metric work.
     """
 
-    checkpoint: list
-    data: str | os.PathLike
-    split: str = "test"
-    out: str | os.PathLike = "report"
-    max_views: int | None = None
-    clip: float | None = None
-    batch_size: int = 32
-    fscore_threshold: float = 0.01
-    accuracy_only: bool = False
-    latency: bool = False
-    latency_repeats: int = 10
-    no_latency: bool = False
-    examples: int = 2
-    device: str | None = None
-    threads: int | None = None
-    quiet: bool = False
-    backend: str = "local"
-    ray_address: str | None = None
+    data: str | os.PathLike = option(
+        default=REQUIRED, metavar="FILE.h5|INDEX.json", help="dataset file (or the index .json of a sharded dataset)"
+    )
+    checkpoint: list = option(default=REQUIRED, nargs="+", metavar="CKPT", help="one or more checkpoints")
+    split: str = option(default="test", choices=("test", "val", "train"), help="split to score (default test)")
+    out: str | os.PathLike = option(
+        "--out",
+        "-o",
+        default="report",
+        metavar="PATH",
+        help="report path without suffix: writes PATH.md, PATH.json and the figure PATH.png (see --examples; default ./report)",
+    )
+    max_views: int | None = option(
+        default=None, type=positive_int, metavar="V", help="score only views 0..V-1 of each model (faster)"
+    )
+    clip: float | None = option(
+        default=None,
+        type=unit_interval,
+        metavar="T",
+        help="SA-Net clip for the 'w/ clip' row (default: the checkpoint's: 0.2 for the paper SA-Net)",
+    )
+    batch_size: int = option(default=32, type=positive_int, help="evaluation batch size (default 32)")
+    fscore_threshold: float = option(
+        default=0.01, type=positive_float, metavar="T", help="F-score distance threshold, unit frame (default 0.01)"
+    )
+    accuracy_only: bool = option(
+        default=False, action="store_true", help="skip the GT -> prediction side (completeness, CD, F-score)"
+    )
+    latency: bool = option(
+        default=False,
+        action="store_true",
+        help="also time every model: median latency at batch 1 and 32 (opt-in: it costs minutes)",
+    )
+    latency_repeats: int = option(
+        default=10,
+        type=positive_int,
+        metavar="R",
+        help="timed runs per model and batch with --latency (default 10, after 2 warm-up runs)",
+    )
+    no_latency: bool = option(
+        default=False, action="store_true", help="do not time the models (the default; kept for scripts)"
+    )
+    examples: int = option(
+        default=2,
+        type=non_negative_int,
+        metavar="K",
+        help="figure PATH.png: K scans per category, each model's prediction beside the ground truth (default 2; 0: no figure)",
+    )
+    device: str | None = option(default=None, help=DEVICE_HELP)
+    threads: int | None = option(default=None, type=positive_int, help="torch CPU threads (default: torch's)")
+    quiet: bool = option(default=False, quiet=True, help="no progress bar")
+    backend: str = option(
+        default="local",
+        choices=("local", "ray"),
+        help="ray: the per-model metric work (KD-trees per ground-truth model) as Ray tasks; same values",
+    )
+    ray_address: str | None = option(
+        default=None,
+        metavar="ADDR",
+        help="with --backend ray: 'auto' joins the running cluster; default: a local instance",
+    )
 
     @classmethod
     def from_dict(cls, d: Mapping, where: str | os.PathLike | None = None) -> EvaluateSettings:

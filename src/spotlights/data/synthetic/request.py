@@ -11,19 +11,27 @@ from __future__ import annotations
 
 import os
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from ...errors import ParameterError
+from ...options import REQUIRED, non_negative_int, option, positive_int
 from ...utils import settings_from_dict
 from ..lidar import SensorModel, sensor_preset
 from .config import BuildConfig, parse_range, parse_source
 from .runner import BuildReport, BuildSettings, build_dataset
 
+LIDAR = "LiDAR (default: Velodyne HDL-64E as in KITTI)"
+PROCEDURAL = "procedural vehicles (every class a real frame holds; docs/dataset.md)"
+CATEGORY_SPLITS = "splits by category"
+AUGMENTATION = "augmentation (augmented copies of the meshes become extra models, in their mesh's split)"
+RUN = "run"
 
-@dataclass(frozen=True)
+
+@dataclass(frozen=True, kw_only=True)
 class BuildRequest:
     """Every option of ``spotlights dataset build``, named as the option (``--gt-points`` is
-    ``gt_points``), with the command's defaults; see ``spotlights dataset build --help``.
+    ``gt_points``): each field declares its option (:func:`spotlights.options.option`: default,
+    help, sections ``LIDAR`` ... ``RUN`` of ``--help``), so the command and this object agree.
 
     Units: metres for ``distance``, ``mount_height``, ``range_noise``, ``max_range`` and the
     ``*_range`` box sizes; degrees for ``azimuth_step``; probabilities for the dropouts.
@@ -32,53 +40,187 @@ class BuildRequest:
     items ``"CAT=SPLIT"``.
     """
 
-    out: str
-    meshes: list = field(default_factory=list)
-    manifest: str | None = None
-    views: int = 2000
-    split: str = "0.81/0.1/0.09"
-    no_stratify: bool = False
-    seed: int = 0
-    workers: int | None = None
-    rig: list = field(default_factory=list)
-    default_rig: str = "32x64@60"
-    points: int = 256
-    gt_points: int = 2048
-    gt_dense: int = 16384
-    downsample: str = "random"
-    up: str = "z"
-    forward: str = "x"
-    scale: float = 1.0
-    sensor: str = "hdl64e"
-    azimuth_step: float | None = None
-    mount_height: str | float | None = None
-    range_noise: float | None = None
-    dropout: float | None = None
-    beam_dropout: float | None = None
-    max_range: float | None = None
-    distance: str = "4:40"
-    min_points: int = 50
-    procedural: int = 0
-    classes: str | None = None
-    procedural_split: str | None = None
-    category_split: list = field(default_factory=list)
-    exclude_category: list = field(default_factory=list)
-    mirror: bool = False
-    scale_copies: int = 0
-    length_range: str | None = None
-    width_range: str | None = None
-    height_range: str | None = None
-    scale_factor_range: str | None = None
-    augment_splits: str = "train"
-    overwrite: bool = False
-    resume: bool = False
-    block: int | None = None
-    keep_parts: bool = False
-    quiet: bool = False
-    backend: str = "local"
-    ray_address: str | None = None
-    task_retries: int = 2
-    shard_size: int | None = None
+    meshes: list = option(
+        default=[],
+        metavar="DIR[,KEY=VALUE...]",
+        action="append",
+        help="folder of meshes; categories = first sub-folder, or DIR/manifest.csv (file,category[,up,forward,split,scale]). Repeat for several sources (model names get the folder's name as prefix); per source: manifest=CSV, up=, forward=, scale=, split=A/B/C or train|val|test, name=",
+    )
+    out: str = option(
+        "--out", "-o", default=REQUIRED, metavar="FILE", help="dataset file to write (.h5); work folder FILE.parts"
+    )
+    manifest: str | None = option(
+        default=None, metavar="CSV", help="manifest CSV (default: DIR/manifest.csv if present)"
+    )
+    views: int = option(default=2000, type=positive_int, help="partial observations per model (default 2000)")
+    split: str = option(
+        default="0.81/0.1/0.09",
+        metavar="A/B/C",
+        help="train/val/test: model counts (64/8/7) or fractions (0.8/0.1/0.1); default 0.81/0.1/0.09 (= the paper's 64/8/7 for 79 models)",
+    )
+    no_stratify: bool = option(default=False, action="store_true", help="split over all models instead of per category")
+    seed: int = option(default=0, type=non_negative_int, help="root seed (default 0)")
+    workers: int | None = option(
+        "--workers",
+        "-j",
+        default=None,
+        type=positive_int,
+        help="processes (default: all cores); never changes the result",
+    )
+    rig: list = option(
+        default=[],
+        action="append",
+        metavar="RIG",
+        help="extra Spotlights rig for the ground truth, repeatable: NxM[@DEG] cap rigs (e.g. --rig 64x32@60 --rig 256x64@60) or rig names, e.g. box-32x64-ellipsoid-s1 (box-targeted: each model's own box)",
+    )
+    default_rig: str = option(default="32x64@60", metavar="RIG", help="the main rig (default 32x64@60)")
+    points: int = option(default=256, type=int, help="points per partial observation (default 256)")
+    gt_points: int = option(default=2048, type=int, help="uniform ground-truth points (default 2048)")
+    gt_dense: int = option(default=16384, type=int, help="dense ground-truth points (default 16384)")
+    downsample: str = option(
+        default="random",
+        choices=("random", "fps"),
+        help="how scans with more points are reduced: random subset (default) or farthest-point sampling",
+    )
+    up: str = option(default="z", help="the mesh files' up axis (glTF: y; default z)")
+    forward: str = option(default="x", help="the mesh files' forward axis (default x)")
+    scale: float = option(default=1.0, type=float, help="multiply mesh coordinates by this to get metres (default 1)")
+    sensor: str = option(default="hdl64e", group=LIDAR, help="preset: hdl64e (default), hdl32e, vlp16")
+    azimuth_step: float | None = option(
+        default=None, group=LIDAR, type=float, metavar="DEG", help="horizontal step (hdl64e: 0.17)"
+    )
+    mount_height: str | float | None = option(
+        default=None,
+        group=LIDAR,
+        metavar="M|MIN:MAX",
+        help="sensor height above ground (hdl64e: 1.73); MIN:MAX draws each view's height uniformly (e.g. 1.5:2.1, from low roof mounts to tall SUVs and robotaxis)",
+    )
+    range_noise: float | None = option(
+        default=None, group=LIDAR, type=float, metavar="M", help="range noise sigma (hdl64e: 0.02)"
+    )
+    dropout: float | None = option(
+        default=None, group=LIDAR, type=float, metavar="P", help="probability that a return is lost (default 0)"
+    )
+    beam_dropout: float | None = option(
+        default=None,
+        group=LIDAR,
+        type=float,
+        metavar="P",
+        help="probability that a whole beam is dead during a scan (default 0)",
+    )
+    max_range: float | None = option(
+        default=None, group=LIDAR, type=float, metavar="M", help="range limit (hdl64e: 120)"
+    )
+    distance: str = option(
+        default="4:40", group=LIDAR, metavar="MIN:MAX", help="vehicle distance range in metres (default 4:40)"
+    )
+    min_points: int = option(
+        default=50, group=LIDAR, type=int, help="fewer returns than this and the pose is redrawn (default 50)"
+    )
+    procedural: int = option(
+        default=0,
+        group=PROCEDURAL,
+        type=non_negative_int,
+        metavar="N",
+        help="add N generated vehicles per class of --classes (models procedural/CLASS/BODY-IIII; with or without --meshes); stores every model's detector class",
+    )
+    classes: str | None = option(
+        default=None,
+        group=PROCEDURAL,
+        metavar="LIST",
+        help="classes of --procedural (the real readers' names): car (sedan, hatchback, SUV, pickup), van (stored as caravan), truck (box truck, semi-tractor, pickup), bus, trailer (box, flatbed); default all",
+    )
+    procedural_split: str | None = option(
+        default=None,
+        group=PROCEDURAL,
+        metavar="A/B/C|SPLIT",
+        help="split of the procedural vehicles alone (counts, fractions or train|val|test); default: pooled with the sources without split= and dealt by --split",
+    )
+    category_split: list = option(
+        default=[],
+        group=CATEGORY_SPLITS,
+        action="append",
+        metavar="CAT=SPLIT",
+        help="every model of category CAT goes to SPLIT (held-out body types, e.g. suv=test); the rest are split by --split; repeatable",
+    )
+    exclude_category: list = option(
+        default=[],
+        group=CATEGORY_SPLITS,
+        action="append",
+        metavar="CAT",
+        help="leave the models of category CAT out; repeatable",
+    )
+    mirror: bool = option(
+        default=False,
+        group=AUGMENTATION,
+        action="store_true",
+        help="add a copy mirrored across the car's x-z plane (y -> -y)",
+    )
+    scale_copies: int = option(
+        default=0,
+        group=AUGMENTATION,
+        type=non_negative_int,
+        metavar="K",
+        help="add K anisotropically scaled copies per mesh (with --mirror, each mirrored too)",
+    )
+    length_range: str | None = option(
+        default=None, group=AUGMENTATION, metavar="MIN:MAX", help="box length of scaled copies, m (2.6:5.8)"
+    )
+    width_range: str | None = option(
+        default=None, group=AUGMENTATION, metavar="MIN:MAX", help="box width (mirrors included), m (1.5:2.45)"
+    )
+    height_range: str | None = option(
+        default=None, group=AUGMENTATION, metavar="MIN:MAX", help="box height, m (1.3:2.0)"
+    )
+    scale_factor_range: str | None = option(
+        default=None, group=AUGMENTATION, metavar="MIN:MAX", help="per-axis factor (0.7:1.3)"
+    )
+    augment_splits: str = option(
+        default="train",
+        group=AUGMENTATION,
+        metavar="SPLITS",
+        help="splits whose meshes get copies, comma-separated (default train: val/test stay real meshes)",
+    )
+    overwrite: bool = option(
+        default=False, group=RUN, action="store_true", help="replace an existing FILE and discard unfinished parts"
+    )
+    resume: bool = option(
+        default=False,
+        group=RUN,
+        action="store_true",
+        help="accept an existing complete FILE (unfinished parts resume anyway)",
+    )
+    block: int | None = option(
+        default=None, group=RUN, type=positive_int, help="views per work unit (default ~views/8, at most 250)"
+    )
+    keep_parts: bool = option(default=False, group=RUN, action="store_true", help="keep FILE.parts after writing FILE")
+    quiet: bool = option(default=False, group=RUN, quiet=True, help="no progress bars")
+    backend: str = option(
+        default="local",
+        group=RUN,
+        choices=("local", "ray"),
+        help="local: a process pool on this machine (default); ray: tasks on a Ray cluster (pip install 'spotlights[distributed]'); the bytes are the same",
+    )
+    ray_address: str | None = option(
+        default=None,
+        group=RUN,
+        metavar="ADDR",
+        help="with --backend ray: 'auto' joins the running cluster (ray start), HOST:PORT a given one; default: start a local instance with --workers CPUs",
+    )
+    task_retries: int = option(
+        default=2,
+        group=RUN,
+        type=non_negative_int,
+        metavar="N",
+        help="with --backend ray: retries of a task that crashes or loses its node (default 2); bad input stops at once",
+    )
+    shard_size: int | None = option(
+        default=None,
+        group=RUN,
+        type=positive_int,
+        metavar="N",
+        help="write shards of at most N samples (whole models) plus an index: give --out NAME.json; every reader takes the index like a file; 'dataset merge' makes one file of them",
+    )
 
     @classmethod
     def from_dict(cls, d: Mapping, where: str | os.PathLike | None = None) -> BuildRequest:
