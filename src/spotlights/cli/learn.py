@@ -6,14 +6,12 @@ Thin over :mod:`spotlights.learning`; torch and numpy are imported inside the ha
 from __future__ import annotations
 
 import argparse
-import sys
 
 from ..experiments.curves import learning_curves, summary_markdown
-from ..learning.bench import bench_markdown, bench_models
+from ..learning.bench import BenchSettings, run_bench
 from ..learning.evaluate import EvaluateSettings, run_evaluation
 from ..learning.export import export_model
 from ..learning.models import MODEL_NAMES as MODEL_CHOICES  # registry keys (imports neither torch nor a model)
-from ..utils import atomic_output, check_writable
 from ._util import (
     DEVICE_HELP,
     add_command,
@@ -229,28 +227,7 @@ def register(sub) -> None:
         "spotlights bench models --batch 1 32 --json",
         _bench_models,
     )
-    p.add_argument(
-        "--models",
-        nargs="+",
-        default=list(MODEL_CHOICES),
-        choices=MODEL_CHOICES,
-        metavar="MODEL",
-        help=f"models to measure (default all: {', '.join(MODEL_CHOICES)})",
-    )
-    p.add_argument(
-        "--batch", type=positive_int, nargs="+", default=[1, 32], metavar="B", help="batch sizes (default 1 32)"
-    )
-    p.add_argument("--repeats", type=positive_int, default=10, help="timed runs per measurement (median reported)")
-    p.add_argument("--warmup", type=non_negative_int, default=2, help="untimed warm-up runs (default 2)")
-    p.add_argument(
-        "--threads", type=positive_int, default=None, help="torch threads for every model (default: torch's)"
-    )
-    p.add_argument("--device", default=None, help=DEVICE_HELP)
-    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    p.add_argument("--out", "-o", default=None, metavar="FILE.json", help="also write the JSON result here")
-    p.add_argument(
-        "--quiet", "-q", action="store_true", help="no progress lines and no table (with --out: only the file)"
-    )
+    add_options(p, BenchSettings)
 
 
 def _train(args) -> int:
@@ -289,22 +266,6 @@ def _export(args) -> int:
 
 
 def _bench_models(args) -> int:
-    import json
-
     check_suffix(args.out, (".json",), "the result (JSON)")
-    check_writable(args.out)
-    res = bench_models(
-        args.models,
-        args.batch,
-        repeats=args.repeats,
-        warmup=args.warmup,
-        threads=args.threads,
-        device=args.device,
-        progress=None if args.json or args.quiet else (lambda m: print(m, file=sys.stderr)),
-    )
-    text = json.dumps(res, indent=2)
-    if args.out:
-        with atomic_output(args.out) as tmp:
-            tmp.write_text(text)
-    print(text if args.json else bench_markdown(res))
+    run_bench(settings_of(BenchSettings, args))
     return 0

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from ..errors import SpotlightsError
-from ..experiments.rig_study import rig_study, verdict_lines
+from ..experiments.rig_study import rig_study, study_summary_lines
 from ._util import add_command, add_group, add_quiet, non_negative_int, positive_int
 
 DEFAULT_MESHES = ("../shared/data/meshes/apolloscape-cars", "../shared/data/meshes/categories")
@@ -66,10 +66,5 @@ def _rigs(args) -> int:
     res = rig_study(
         args.out, args.meshes, rays=args.rays, seed=args.seed, workers=args.workers, progress=not args.quiet
     )
-    s = res.summary
-    for mesh_set in dict.fromkeys(s.mesh_set):
-        for rays in sorted(s.rays.unique()):
-            for line in verdict_lines(s, mesh_set, rays):
-                print(f"{mesh_set}, {rays} rays: {line}")
-    print(f"wrote {res.csv}, {res.per_mesh_csv}, {res.markdown}, {res.figure}")
+    print("\n".join(study_summary_lines(res)))
     return 0

@@ -472,3 +472,16 @@ def rig_study(
         Path(tmp).write_text(markdown_report(summary, meshes, seed, n_surface))
     plot_study(paths.figure, summary)
     return paths
+
+
+def study_summary_lines(res) -> list[str]:
+    """The lines ``spotlights study rigs`` prints for a :func:`rig_study` result: every mesh set's
+    and ray count's verdicts (:func:`verdict_lines`), then the files written."""
+    s = res.summary
+    lines = [
+        f"{mesh_set}, {rays} rays: {line}"
+        for mesh_set in dict.fromkeys(s.mesh_set)
+        for rays in sorted(s.rays.unique())
+        for line in verdict_lines(s, mesh_set, rays)
+    ]
+    return lines + [f"wrote {res.csv}, {res.per_mesh_csv}, {res.markdown}, {res.figure}"]
