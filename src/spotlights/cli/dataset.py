@@ -5,6 +5,7 @@ from __future__ import annotations
 from ..data.dataset_report import dataset_info, export_sample, info_lines, read_sample
 from ..data.synthetic import BuildRequest, add_rig, build_from_request, build_summary
 from ..data.synthetic.consolidate import merge_shards
+from ..data.synthetic.request import read_request_yaml
 from ..utils import check_writable
 from ..viz import html, render_sample
 from ._util import (
@@ -38,6 +39,7 @@ def register(sub) -> None:
         _build,
     )
     add_options(b, BuildRequest)
+    b.set_defaults(config_reader=read_request_yaml, command_parser=b)
 
     register_sequences(dsub)
 

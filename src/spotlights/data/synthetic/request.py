@@ -12,8 +12,9 @@ from __future__ import annotations
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 
-from ...errors import ParameterError
+from ...errors import InputFileError, ParameterError
 from ...options import REQUIRED, non_negative_int, option, positive_int
 from ...utils import settings_from_dict
 from ..lidar import SensorModel, sensor_preset
@@ -221,6 +222,14 @@ class BuildRequest:
         metavar="N",
         help="write shards of at most N samples (whole models) plus an index: give --out NAME.json; every reader takes the index like a file; 'dataset merge' makes one file of them",
     )
+    config: str | None = option(
+        default=None,
+        group=RUN,
+        metavar="YAML",
+        help="read options from a YAML file, keys named like the options (views: 200, gt_points: 1024, "
+        "meshes: [DIR], rig: [64x32@60]); an option given on the command line wins (a repeatable one adds to the "
+        "file's); an unknown key is an error",
+    )
 
     @classmethod
     def from_dict(cls, d: Mapping, where: str | os.PathLike | None = None) -> BuildRequest:
@@ -251,7 +260,7 @@ class BuildRequest:
         )
         return sensor, heights
 
-    def config(self) -> BuildConfig:
+    def build_config(self) -> BuildConfig:
         """The :class:`BuildConfig` of this request (not yet validated: :func:`build_dataset` does);
         raises ParameterError naming the option at fault."""
         sensor, heights = self.sensor_model()
@@ -331,6 +340,27 @@ class BuildRequest:
         )
 
 
+def read_request_yaml(path: str | os.PathLike) -> dict:
+    """The :class:`BuildRequest` fields a build YAML (``dataset build --config``) sets: a mapping
+    whose keys are fields other than ``config``, read by the one strict policy (an unknown key is
+    a one-line error naming the file, with the closest field suggested). Values are not checked
+    here: the build checks them as it checks the command line's."""
+    import yaml
+
+    p = Path(path)
+    try:
+        data = yaml.safe_load(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputFileError(p, "no such config file") from None
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise InputFileError(p, f"invalid YAML ({(str(exc).splitlines() or [type(exc).__name__])[0]})") from None
+    data = {} if data is None else data
+    if isinstance(data, Mapping) and "config" in data:
+        raise InputFileError(p, "a build YAML cannot name another one (key 'config')")
+    settings_from_dict(BuildRequest, data, p, **({} if isinstance(data, Mapping) and "out" in data else {"out": ""}))
+    return dict(data)
+
+
 def _distance(text: str) -> tuple[float, float]:
     """``"MIN:MAX"`` (or ``"MIN,MAX"``) metres -> ``(min, max)``; checked by :meth:`BuildConfig.validate`."""
     try:
@@ -342,7 +372,7 @@ def _distance(text: str) -> tuple[float, float]:
 
 def build_from_request(request: BuildRequest) -> BuildReport:
     """Build the dataset a :class:`BuildRequest` describes into ``request.out`` (see :func:`build_dataset`)."""
-    return build_dataset(request.config(), request.out, request.settings())
+    return build_dataset(request.build_config(), request.out, request.settings())
 
 
 def build_summary(report: BuildReport, out: str | os.PathLike) -> list[str]:
