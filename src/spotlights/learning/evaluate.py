@@ -34,6 +34,7 @@ from ..errors import ParameterError
 from ..metrics.completion import METRIC_DESCRIPTIONS, evaluate_completions, summarize
 from ..options import DEVICE_HELP, REQUIRED, non_negative_int, option, positive_float, positive_int, unit_interval
 from ..utils import atomic_output, check_writable, settings_from_dict
+from ..viz import render_predictions
 from .bench import model_latency
 from .checkpoint import load_checkpoint, model_from_checkpoint
 from .inference import DEFAULT, load_completer
@@ -589,8 +590,6 @@ def run_evaluation(s: EvaluateSettings, log: Callable[[str], None] = print) -> d
     log(report_markdown(report).split("\n## ")[0].rstrip())
     log(f"\nreport -> {md}, {js}")
     if s.examples:
-        from ..viz import render_predictions
-
         png = render_predictions(
             md.with_suffix(".png"),
             prediction_examples(s.checkpoint, s.data, s.split, per_category=s.examples, clip=s.clip, device=s.device),
