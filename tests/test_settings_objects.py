@@ -16,6 +16,8 @@ from spotlights.cli import build_parser
 from spotlights.data.lidar import SensorModel, hdl64e, sensor_preset
 from spotlights.data.synthetic import BuildConfig, BuildRequest, BuildSettings, build_dataset, config
 from spotlights.errors import InputFileError, ParameterError
+from spotlights.experiments.rig_study import RigStudySettings
+from spotlights.learning.bench import BenchSettings
 from spotlights.learning.evaluate import EvaluateSettings
 from spotlights.learning.train import TrainSettings
 
@@ -143,6 +145,8 @@ def test_train_settings_merge_the_single_key_options_by_hand():
             EvaluateSettings,
             {"data": "d.h5", "checkpoint": ["a.pt"]},
         ),
+        (["bench", "models"], BenchSettings, {}),
+        (["study", "rigs", "--out", "s"], RigStudySettings, {"out": "s"}),
     ],
 )
 def test_a_commands_defaults_are_its_settings_objects(argv, cls, given):
