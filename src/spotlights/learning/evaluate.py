@@ -494,7 +494,8 @@ class EvaluateSettings:
         "-o",
         default="report",
         metavar="PATH",
-        help="report path without suffix: writes PATH.md, PATH.json and the figure PATH.png (see --examples; default ./report)",
+        help="report path without suffix: writes PATH.md, PATH.json and the figure PATH.png (see --examples; "
+        "default ./report)",
     )
     max_views: int | None = option(
         default=None, type=positive_int, metavar="V", help="score only views 0..V-1 of each model (faster)"
@@ -530,7 +531,8 @@ class EvaluateSettings:
         default=2,
         type=non_negative_int,
         metavar="K",
-        help="figure PATH.png: K scans per category, each model's prediction beside the ground truth (default 2; 0: no figure)",
+        help="figure PATH.png: K scans per category, each model's prediction beside the ground truth (default 2; "
+        "0: no figure)",
     )
     device: str | None = option(default=None, help=DEVICE_HELP)
     threads: int | None = option(default=None, type=positive_int, help="torch CPU threads (default: torch's)")

@@ -153,14 +153,17 @@ class TrainingRun:
 
     @property
     def model_name(self) -> str:
+        """The registry key of the model trained (``settings.model_name``)."""
         return self.settings.model_name
 
     @property
     def data(self) -> str | os.PathLike:
+        """The dataset file or shard index trained on (``settings.data``)."""
         return self.settings.data
 
     @property
     def out_dir(self) -> Path:
+        """The run folder (``settings.run_dir``)."""
         return self.settings.run_dir
 
     @property

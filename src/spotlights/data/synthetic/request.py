@@ -45,7 +45,10 @@ class BuildRequest:
         default=[],
         metavar="DIR[,KEY=VALUE...]",
         action="append",
-        help="folder of meshes; categories = first sub-folder, or DIR/manifest.csv (file,category[,up,forward,split,scale]). Repeat for several sources (model names get the folder's name as prefix); per source: manifest=CSV, up=, forward=, scale=, split=A/B/C or train|val|test, name=",
+        help="folder of meshes; categories = first sub-folder, or DIR/manifest.csv "
+        "(file,category[,up,forward,split,scale]). Repeat for several sources (model names get the folder's "
+        "name as prefix); per source: manifest=CSV, up=, forward=, scale=, split=A/B/C or train|val|test, "
+        "name=",
     )
     out: str = option(
         "--out", "-o", default=REQUIRED, metavar="FILE", help="dataset file to write (.h5); work folder FILE.parts"
@@ -57,7 +60,8 @@ class BuildRequest:
     split: str = option(
         default="0.81/0.1/0.09",
         metavar="A/B/C",
-        help="train/val/test: model counts (64/8/7) or fractions (0.8/0.1/0.1); default 0.81/0.1/0.09 (= the paper's 64/8/7 for 79 models)",
+        help="train/val/test: model counts (64/8/7) or fractions (0.8/0.1/0.1); default 0.81/0.1/0.09 (= the "
+        "paper's 64/8/7 for 79 models)",
     )
     no_stratify: bool = option(default=False, action="store_true", help="split over all models instead of per category")
     seed: int = option(default=0, type=non_negative_int, help="root seed (default 0)")
@@ -72,7 +76,8 @@ class BuildRequest:
         default=[],
         action="append",
         metavar="RIG",
-        help="extra Spotlights rig for the ground truth, repeatable: NxM[@DEG] cap rigs (e.g. --rig 64x32@60 --rig 256x64@60) or rig names, e.g. box-32x64-ellipsoid-s1 (box-targeted: each model's own box)",
+        help="extra Spotlights rig for the ground truth, repeatable: NxM[@DEG] cap rigs (e.g. --rig 64x32@60 "
+        "--rig 256x64@60) or rig names, e.g. box-32x64-ellipsoid-s1 (box-targeted: each model's own box)",
     )
     default_rig: str = option(default="32x64@60", metavar="RIG", help="the main rig (default 32x64@60)")
     points: int = option(default=256, type=int, help="points per partial observation (default 256)")
@@ -94,7 +99,8 @@ class BuildRequest:
         default=None,
         group=LIDAR,
         metavar="M|MIN:MAX",
-        help="sensor height above ground (hdl64e: 1.73); MIN:MAX draws each view's height uniformly (e.g. 1.5:2.1, from low roof mounts to tall SUVs and robotaxis)",
+        help="sensor height above ground (hdl64e: 1.73); MIN:MAX draws each view's height uniformly (e.g. "
+        "1.5:2.1, from low roof mounts to tall SUVs and robotaxis)",
     )
     range_noise: float | None = option(
         default=None, group=LIDAR, type=float, metavar="M", help="range noise sigma (hdl64e: 0.02)"
@@ -123,26 +129,30 @@ class BuildRequest:
         group=PROCEDURAL,
         type=non_negative_int,
         metavar="N",
-        help="add N generated vehicles per class of --classes (models procedural/CLASS/BODY-IIII; with or without --meshes); stores every model's detector class",
+        help="add N generated vehicles per class of --classes (models procedural/CLASS/BODY-IIII; with or without "
+        "--meshes); stores every model's detector class",
     )
     classes: str | None = option(
         default=None,
         group=PROCEDURAL,
         metavar="LIST",
-        help="classes of --procedural (the real readers' names): car (sedan, hatchback, SUV, pickup), van (stored as caravan), truck (box truck, semi-tractor, pickup), bus, trailer (box, flatbed); default all",
+        help="classes of --procedural (the real readers' names): car (sedan, hatchback, SUV, pickup), van (stored "
+        "as caravan), truck (box truck, semi-tractor, pickup), bus, trailer (box, flatbed); default all",
     )
     procedural_split: str | None = option(
         default=None,
         group=PROCEDURAL,
         metavar="A/B/C|SPLIT",
-        help="split of the procedural vehicles alone (counts, fractions or train|val|test); default: pooled with the sources without split= and dealt by --split",
+        help="split of the procedural vehicles alone (counts, fractions or train|val|test); default: pooled with "
+        "the sources without split= and dealt by --split",
     )
     category_split: list = option(
         default=[],
         group=CATEGORY_SPLITS,
         action="append",
         metavar="CAT=SPLIT",
-        help="every model of category CAT goes to SPLIT (held-out body types, e.g. suv=test); the rest are split by --split; repeatable",
+        help="every model of category CAT goes to SPLIT (held-out body types, e.g. suv=test); the rest are split "
+        "by --split; repeatable",
     )
     exclude_category: list = option(
         default=[],
@@ -200,27 +210,31 @@ class BuildRequest:
         default="local",
         group=RUN,
         choices=("local", "ray"),
-        help="local: a process pool on this machine (default); ray: tasks on a Ray cluster (pip install 'spotlights[distributed]'); the bytes are the same",
+        help="local: a process pool on this machine (default); ray: tasks on a Ray cluster (pip install "
+        "'spotlights[distributed]'); the bytes are the same",
     )
     ray_address: str | None = option(
         default=None,
         group=RUN,
         metavar="ADDR",
-        help="with --backend ray: 'auto' joins the running cluster (ray start), HOST:PORT a given one; default: start a local instance with --workers CPUs",
+        help="with --backend ray: 'auto' joins the running cluster (ray start), HOST:PORT a given one; default: "
+        "start a local instance with --workers CPUs",
     )
     task_retries: int = option(
         default=2,
         group=RUN,
         type=non_negative_int,
         metavar="N",
-        help="with --backend ray: retries of a task that crashes or loses its node (default 2); bad input stops at once",
+        help="with --backend ray: retries of a task that crashes or loses its node (default 2); bad input stops "
+        "at once",
     )
     shard_size: int | None = option(
         default=None,
         group=RUN,
         type=positive_int,
         metavar="N",
-        help="write shards of at most N samples (whole models) plus an index: give --out NAME.json; every reader takes the index like a file; 'dataset merge' makes one file of them",
+        help="write shards of at most N samples (whole models) plus an index: give --out NAME.json; every reader "
+        "takes the index like a file; 'dataset merge' makes one file of them",
     )
     config: str | None = option(
         default=None,
