@@ -27,7 +27,8 @@ def option(*flags: str, default: Any = REQUIRED, help: str, group: str | None = 
     default (a list is copied per instance; :data:`REQUIRED`: no default, a required option).
     help : the option's help. group : title of the ``--help`` section it is listed under (None:
     the command's own options). argparse_kw : ``type``, ``metavar``, ``choices``, ``action``,
-    ``nargs``; ``quiet=True`` declares ``-q/--quiet`` with its hidden alias ``--no-progress``.
+    ``nargs``; ``quiet=True`` declares ``-q/--quiet`` with its hidden alias ``--no-progress``;
+    ``mutex=NAME``: options naming the same NAME exclude each other.
     """
     md = {"cli": {"flags": flags, "help": help, "group": group, **argparse_kw}}
     if isinstance(default, list):

@@ -57,7 +57,8 @@ def add_quiet(p: argparse.ArgumentParser, what: str = "no progress bar") -> None
 
 def add_options(parser: argparse.ArgumentParser, cls, only: tuple = (), grouped: bool = True) -> None:
     """Add the options declared on the settings dataclass ``cls`` (:func:`spotlights.options.option`),
-    in field order (``only``: these fields alone); ``grouped``: under their sections' titles."""
+    in field order (``only``: these fields alone); ``grouped``: under their sections' titles; options
+    naming the same ``mutex`` exclude each other."""
     import dataclasses
 
     sections: dict = {}
@@ -69,6 +70,11 @@ def add_options(parser: argparse.ArgumentParser, cls, only: tuple = (), grouped:
         if title is not None and grouped and title not in sections:
             sections[title] = parser.add_argument_group(title)
         target = sections[title] if title is not None and grouped else parser
+        if "mutex" in kw:  # options that exclude each other share a mutually exclusive group
+            key = ("mutex", kw.pop("mutex"))
+            if key not in sections:
+                sections[key] = target.add_mutually_exclusive_group()
+            target = sections[key]
         if kw.pop("quiet", False):
             add_quiet(target, kw["help"])
         elif f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING:

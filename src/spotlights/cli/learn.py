@@ -5,21 +5,17 @@ Thin over :mod:`spotlights.learning`; torch and numpy are imported inside the ha
 
 from __future__ import annotations
 
-import argparse
-
 from ..experiments.curves import learning_curves, summary_markdown
 from ..learning.bench import BenchSettings, run_bench
 from ..learning.evaluate import EvaluateSettings, run_evaluation
 from ..learning.export import export_model
-from ..learning.models import MODEL_NAMES as MODEL_CHOICES  # registry keys (imports neither torch nor a model)
+from ..learning.settings import TrainSettings
 from ._util import (
-    DEVICE_HELP,
     add_command,
     add_group,
     add_options,
     add_quiet,
     check_suffix,
-    non_negative_int,
     positive_float,
     positive_int,
     settings_of,
@@ -36,99 +32,7 @@ def register(sub) -> None:
         "spotlights train --model sanet --data cars.h5 --epochs 40 --out runs/sanet",
         _train,
     )
-    p.add_argument("--model", required=True, choices=MODEL_CHOICES, help="which model to train")
-    p.add_argument(
-        "--data",
-        required=True,
-        metavar="FILE.h5|INDEX.json",
-        help="dataset file (spotlights dataset build), or the index .json of a sharded dataset (--shard-size)",
-    )
-    p.add_argument(
-        "--config", metavar="YAML", default=None, help="YAML overriding the packaged config (model/data/train sections)"
-    )
-    p.add_argument(
-        "--schedule",
-        default=None,
-        metavar="NAME|YAML",
-        help="training schedule applied before --config: 'cpu' (35-70 min per model on 2 cores), "
-        "'paper' (the paper-scale GPU run), or a schedule YAML",
-    )
-    p.add_argument(
-        "--out",
-        "-o",
-        metavar="DIR",
-        default=None,
-        help="run folder (default runs/MODEL): config.yaml, last.pt, best.pt, log.csv",
-    )
-    p.add_argument(
-        "--epochs", type=positive_int, default=None, help="number of epochs (with --resume: raise it to train longer)"
-    )
-    p.add_argument("--batch-size", type=positive_int, default=None, help="batch size per process")
-    p.add_argument(
-        "--lr", type=positive_float, default=None, help="learning rate, a finite number > 0 (default: the config's)"
-    )
-    p.add_argument(
-        "--max-views", type=positive_int, default=None, metavar="V", help="use only views 0..V-1 of each training model"
-    )
-    p.add_argument("--val-max-views", type=positive_int, default=None, metavar="V", help="validation views per model")
-    p.add_argument(
-        "--rig", default=None, help="SA-Net: rig group of the dataset to regress (default: the file's default rig)"
-    )
-    p.add_argument(
-        "--workers",
-        type=non_negative_int,
-        default=None,
-        help="DataLoader worker processes (0: load in the main process)",
-    )
-    p.add_argument(
-        "--seed", type=non_negative_int, default=None, help="random seed (same seed + config = same weights)"
-    )
-    p.add_argument("--device", default=None, help=DEVICE_HELP)
-    p.add_argument("--threads", type=positive_int, default=None, help="torch CPU threads (default: torch's)")
-    p.add_argument(
-        "--precision",
-        choices=("auto", "fp32", "bf16"),
-        default=None,
-        help="forward-pass precision: auto (default: bf16 where the CPU or GPU supports it, else fp32), "
-        "fp32, or bf16 (fp16 with a gradient scaler on GPUs without bf16); weights, losses and "
-        "metrics stay float32",
-    )
-    p.add_argument(
-        "--steps-per-epoch",
-        type=positive_int,
-        default=None,
-        metavar="N",
-        help="make an epoch N optimizer steps drawn from shuffled passes over the training set "
-        "(a validation and checkpoint interval) instead of one full pass",
-    )
-    p.add_argument(
-        "--compile",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="run the training forward pass through torch.compile (--no-compile: eager; may change on --resume; "
-        "1.1-1.4x faster steps at bf16 on "
-        "CPU after 1.3-2.5 min of compilation; docs/benchmarks.md)",
-    )
-    g = p.add_mutually_exclusive_group()
-    g.add_argument("--resume", action="store_true", help="continue the run in --out from its last.pt")
-    g.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="start again even if --out holds a run (its last.pt, best.pt and log.csv are removed first)",
-    )
-    p.add_argument(
-        "--stop-after",
-        type=positive_int,
-        default=None,
-        metavar="K",
-        help="run at most K epochs now, then stop (continue later with --resume); the schedule spans --epochs",
-    )
-    p.add_argument(
-        "--allow-new-data",
-        action="store_true",
-        help="with --resume: continue even if --data is not the dataset the run was trained on (refused by default)",
-    )
-    add_quiet(p, "no progress bars")
+    add_options(p, TrainSettings)
 
     # ---- evaluate
     p = add_command(
@@ -231,12 +135,9 @@ def register(sub) -> None:
 
 
 def _train(args) -> int:
-    from ..learning.train import TrainSettings, run_training
+    from ..learning.train import run_training
 
-    settings = settings_of(
-        TrainSettings, args, model_name=args.model, out_dir=args.out, num_workers=args.workers, progress=not args.quiet
-    )
-    res = run_training(settings)
+    res = run_training(settings_of(TrainSettings, args))
     h = res["history"][-1] if res["history"] else None
     if h:
         print(

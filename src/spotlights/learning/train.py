@@ -40,7 +40,8 @@ from .config import SELECT_BY
 from .device import autocast, default_device
 from .inference import LearnedDomain
 from .process_group import ProcessGroup
-from .training_run import RUN_STATE_FILES, TrainingRun, TrainSettings, data_identity, prepare_run
+from .settings import TrainSettings
+from .training_run import RUN_STATE_FILES, TrainingRun, data_identity, prepare_run
 from .validation import collate, float_outputs, to_device, validate
 
 __all__ = ["LOG_COLUMNS", "TrainSettings", "default_device", "run_training", "train", "train_with", "validate"]
@@ -129,16 +130,16 @@ def train(
     settings = TrainSettings(
         model_name,
         data,
-        out_dir,
         config=config,
         schedule=schedule,
-        overrides=overrides,
+        out=out_dir,
         resume=resume,
         overwrite=overwrite,
         device=device,
-        progress=progress,
         stop_after=stop_after,
         allow_new_data=allow_new_data,
+        quiet=not progress,
+        overrides=overrides,
     )
     return train_with(settings, log)
 
@@ -296,7 +297,7 @@ def _save(run: TrainingRun, epoch: int, val: dict, improved: bool) -> None:
 def _train(dist: ProcessGroup, settings: TrainSettings, log) -> dict:
     run = prepare_run(dist, settings, log)
     tcfg = run.tcfg
-    stop_after, model_name, progress = settings.stop_after, settings.model_name, settings.progress
+    stop_after, model_name, progress = settings.stop_after, settings.model, not settings.quiet
     end_epoch = tcfg.epochs if stop_after is None else min(tcfg.epochs, run.start_epoch + max(int(stop_after), 0))
     for epoch in range(run.start_epoch, end_epoch):
         timer = StageTimer()

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -19,7 +18,7 @@ import yaml
 from ..data.shard_index import without_extra_rigs
 from ..errors import InputFileError, SpotlightsError
 from ..geometry.rig import RigSpec
-from ..utils import atomic_output, settings_from_dict
+from ..utils import atomic_output
 from .checkpoint import load_checkpoint
 from .config import DataConfig, TrainConfig, build_optimizer, build_scheduler, check_keys, data_config, train_config
 from .data import TorchCompletionDataset
@@ -27,87 +26,7 @@ from .device import default_device, resolve_device, resolve_precision
 from .models import build_model, load_config, model_class
 from .process_group import ProcessGroup
 from .rays import DirectionTable, rig_spec
-
-# The options that override one key of the config, by section (None: the config's value).
-CONFIG_OVERRIDES = {
-    "train": ("epochs", "batch_size", "lr", "seed", "precision", "steps_per_epoch", "compile"),
-    "data": ("max_views", "val_max_views", "rig", "num_workers"),
-}
-
-
-@dataclass(frozen=True)
-class TrainSettings:
-    """Everything one training run is asked to do (``spotlights train``'s options as one object).
-
-    model_name : registry key (sanet, sanet-hit, pcn, foldingnet, topnet, atlasnet).
-    data : HDF5 dataset file or the index ``.json`` of a sharded one (splits train and val are used).
-    out_dir : run folder (config.yaml, last.pt, best.pt, log.csv); None: ``runs/MODEL``.
-    config : optional user YAML overriding the packaged config.
-    schedule : optional training schedule (packaged ``"cpu"`` / ``"paper"`` or a YAML file),
-        applied between the packaged config and ``config``.
-    overrides : nested dict applied last (e.g. ``{"train": {"epochs": 5}}``), before the
-        single-key overrides below.
-    resume : continue from ``out_dir/last.pt`` (its config is kept; ``train.epochs`` may be raised).
-    overwrite : start afresh even if ``out_dir`` holds a run (its ``last.pt``, ``best.pt`` and
-        ``log.csv`` are removed first).
-    device : torch device (default CUDA when available, else CPU).
-    progress : show tqdm bars (rank 0 only).
-    stop_after : run at most this many epochs in this call, then return (resume later with
-        ``resume=True``); the schedule still spans ``train.epochs``. For time-boxed sessions.
-    allow_new_data : with ``resume``, continue even if ``data`` is not the dataset the run was
-        trained on (by default refused: its models, splits or samples differ).
-    threads : torch CPU threads (None: torch's default), set by :func:`~.train.run_training`.
-    epochs, batch_size, lr (> 0), seed, precision (auto/fp32/bf16), steps_per_epoch, compile :
-        ``train.*`` keys of the config; max_views, val_max_views, rig, num_workers : ``data.*``
-        keys (:data:`CONFIG_OVERRIDES`); None keeps the config's value.
-    """
-
-    model_name: str
-    data: str | os.PathLike
-    out_dir: str | os.PathLike | None = None
-    config: str | os.PathLike | None = None
-    schedule: str | os.PathLike | None = None
-    overrides: dict | None = None
-    resume: bool = False
-    overwrite: bool = False
-    device: str | None = None
-    progress: bool = True
-    stop_after: int | None = None
-    allow_new_data: bool = False
-    threads: int | None = None
-    epochs: int | None = None
-    batch_size: int | None = None
-    lr: float | None = None
-    seed: int | None = None
-    precision: str | None = None
-    steps_per_epoch: int | None = None
-    compile: bool | None = None
-    max_views: int | None = None
-    val_max_views: int | None = None
-    rig: str | None = None
-    num_workers: int | None = None
-
-    @classmethod
-    def from_dict(cls, d: Mapping, where: str | os.PathLike | None = None) -> TrainSettings:
-        """Read settings by the one strict policy (:func:`spotlights.utils.settings_from_dict`)."""
-        return settings_from_dict(cls, d, where)
-
-    @property
-    def run_dir(self) -> Path:
-        """The run folder: ``out_dir``, or ``runs/MODEL``."""
-        return Path(self.out_dir if self.out_dir is not None else f"runs/{self.model_name}")
-
-    def config_overrides(self) -> dict | None:
-        """``overrides`` with the single-key options that are set merged in (sections ``train``
-        and ``data``); just ``overrides`` when none is set."""
-        extra = {
-            sec: {k: getattr(self, k) for k in keys if getattr(self, k) is not None}
-            for sec, keys in CONFIG_OVERRIDES.items()
-        }
-        if not any(extra.values()):
-            return self.overrides
-        base = dict(self.overrides or {})
-        return {**base, **{sec: {**(base.get(sec) or {}), **vals} for sec, vals in extra.items()}}
+from .settings import TrainSettings
 
 
 @dataclass
@@ -153,8 +72,8 @@ class TrainingRun:
 
     @property
     def model_name(self) -> str:
-        """The registry key of the model trained (``settings.model_name``)."""
-        return self.settings.model_name
+        """The registry key of the model trained (``settings.model``)."""
+        return self.settings.model
 
     @property
     def data(self) -> str | os.PathLike:
@@ -214,7 +133,7 @@ def resolve_run_config(
     settings = TrainSettings(
         model_name,
         "",
-        out_dir,
+        out=out_dir,
         config=config,
         schedule=schedule,
         overrides=overrides,
@@ -227,7 +146,7 @@ def resolve_run_config(
 def run_config(settings: TrainSettings, dist: ProcessGroup, log) -> tuple[dict, dict | None, bool]:
     """The run's config and, when resuming, the state of ``last.pt`` (its config is kept; only
     ``train.epochs`` and the execution keys of :data:`RESUME_KEYS` may change). Returns ``(cfg, state, extended)``."""
-    model_name, out_dir, config, schedule = settings.model_name, settings.run_dir, settings.config, settings.schedule
+    model_name, out_dir, config, schedule = settings.model, settings.run_dir, settings.config, settings.schedule
     overrides, resume, overwrite = settings.config_overrides(), settings.resume, settings.overwrite
     last_path = out_dir / "last.pt"
     if not resume:
@@ -311,7 +230,7 @@ def prepare_run(dist: ProcessGroup, settings: TrainSettings, log) -> TrainingRun
     """Config, device, precision, datasets, model, optimizer and schedule of a run (restored from
     ``last.pt`` when resuming; a resume on other data than the run's is refused unless
     ``settings.allow_new_data``); writes ``config.yaml`` (rank 0)."""
-    model_name, data, out_dir, device = settings.model_name, settings.data, settings.run_dir, settings.device
+    model_name, data, out_dir, device = settings.model, settings.data, settings.run_dir, settings.device
     device = resolve_device(device) if device is not None else default_device()
     if dist.active and device.type == "cuda" and device.index is None:
         device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))  # one GPU per process
