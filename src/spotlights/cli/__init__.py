@@ -113,6 +113,7 @@ def main(argv: list[str] | None = None) -> int:
         previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         with contextlib.ExitStack() as stack:
+            args = _with_config_file(parser, args, argv)
             if getattr(args, "quiet", False):
                 stack.enter_context(contextlib.redirect_stdout(stack.enter_context(open(os.devnull, "w"))))
             return int(args.func(args) or 0)
@@ -133,6 +134,16 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _with_config_file(parser: argparse.ArgumentParser, args: argparse.Namespace, argv) -> argparse.Namespace:
+    """A command that reads options from a YAML (``dataset build --config``): parse ``argv`` again
+    with the file's values as the command's defaults, so that the command line wins."""
+    reader = getattr(args, "config_reader", None)
+    if reader is None or not args.config:
+        return args
+    args.command_parser.set_defaults(**reader(args.config))
+    return parser.parse_args(argv)
 
 
 def threading_is_main() -> bool:

@@ -5,6 +5,15 @@ from __future__ import annotations
 import argparse
 
 from ..errors import ParameterError
+from ..options import (  # noqa: F401 - the argparse types, importable from here by every command module
+    DEVICE_HELP,
+    non_negative_float,
+    non_negative_int,
+    port_number,
+    positive_float,
+    positive_int,
+    unit_interval,
+)
 
 
 def add_command(sub, name: str, help: str, example: str, func=None) -> argparse.ArgumentParser:
@@ -37,36 +46,6 @@ def add_group(sub, name: str, help: str, example: str, metavar: str = "SUBCOMMAN
     return group.add_subparsers(dest=f"{name}_command", metavar=metavar, parser_class=type(group))
 
 
-def _number_type(cast, accept, expected: str):
-    """An argparse type: ``cast(text)`` that must satisfy ``accept``, else a usage error saying ``expected``."""
-
-    def parse(text: str):
-        try:
-            value = cast(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
-        if not accept(value):
-            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
-        return value
-
-    parse.__name__ = expected
-    return parse
-
-
-positive_int = _number_type(int, lambda v: v >= 1, "a whole number >= 1")
-"""argparse type: an integer >= 1 (counts, batch sizes, epochs)."""
-non_negative_int = _number_type(int, lambda v: v >= 0, "a whole number >= 0")
-"""argparse type: an integer >= 0 (e.g. DataLoader workers, 0 = in-process)."""
-unit_interval = _number_type(float, lambda v: 0.0 <= v <= 1.0, "a number in [0, 1]")
-"""argparse type: a finite number in [0, 1] (depth clips; NaN is refused)."""
-positive_float = _number_type(float, lambda v: 0.0 < v < float("inf"), "a finite number > 0")
-"""argparse type: a finite number > 0 (distance thresholds)."""
-non_negative_float = _number_type(float, lambda v: 0.0 <= v < float("inf"), "a finite number >= 0")
-"""argparse type: a finite number >= 0 (margins, noise levels)."""
-port_number = _number_type(int, lambda v: 0 <= v <= 65535, "a TCP port number in 0..65535")
-"""argparse type: a TCP port, 0 (the system picks a free one) to 65535."""
-
-
 def add_quiet(p: argparse.ArgumentParser, what: str = "no progress bar") -> None:
     """``-q/--quiet`` (progress bars and summary lines off; errors and warnings still on
     stderr), with ``--no-progress`` kept as a hidden alias for older scripts."""
@@ -76,7 +55,44 @@ def add_quiet(p: argparse.ArgumentParser, what: str = "no progress bar") -> None
     p.add_argument("--no-progress", dest="quiet", action="store_true", help=argparse.SUPPRESS)
 
 
-DEVICE_HELP = "torch device: cpu, cuda or cuda:N (default: cuda when available, else cpu)"
+def add_options(parser: argparse.ArgumentParser, cls, only: tuple = (), grouped: bool = True) -> None:
+    """Add the options declared on the settings dataclass ``cls`` (:func:`spotlights.options.option`),
+    in field order (``only``: these fields alone); ``grouped``: under their sections' titles; options
+    naming the same ``mutex`` exclude each other."""
+    import dataclasses
+
+    sections: dict = {}
+    for f in dataclasses.fields(cls):
+        kw = dict(f.metadata.get("cli") or {})
+        if not kw or (only and f.name not in only):
+            continue
+        flags, title = kw.pop("flags") or (f"--{f.name.replace('_', '-')}",), kw.pop("group")
+        if title is not None and grouped and title not in sections:
+            sections[title] = parser.add_argument_group(title)
+        target = sections[title] if title is not None and grouped else parser
+        if "mutex" in kw:  # options that exclude each other share a mutually exclusive group
+            key = ("mutex", kw.pop("mutex"))
+            if key not in sections:
+                sections[key] = target.add_mutually_exclusive_group()
+            target = sections[key]
+        if kw.pop("quiet", False):
+            add_quiet(target, kw["help"])
+        elif f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING:
+            default = f.default if f.default_factory is dataclasses.MISSING else f.default_factory()
+            target.add_argument(*flags, default=default, **kw)
+        else:
+            target.add_argument(*flags, required=True, **kw)
+
+
+def settings_of(cls, args: argparse.Namespace, **values):
+    """The settings dataclass ``cls`` of a command: each field from the parsed option of the same
+    name (``--gt-points`` -> ``gt_points``), or from ``values`` (fields named otherwise)."""
+    import dataclasses
+
+    names = [f.name for f in dataclasses.fields(cls) if f.init and f.name not in values]
+    return cls(**{n: getattr(args, n) for n in names if hasattr(args, n)}, **values)
+
+
 PICTURE_SUFFIXES = (".png",)
 
 

@@ -6,7 +6,7 @@ checked with real rigs and real ray casting, written as CSV, figures and a summa
 
 from __future__ import annotations
 
-from ..experiments.density_report import DensityConfig, run_density_analysis
+from ..experiments.density_report import DensityConfig, density_summary_lines, run_density_analysis
 from ..utils import output_folder
 from ._util import add_command, add_group, add_quiet, non_negative_int
 
@@ -80,8 +80,6 @@ def register(sub) -> None:
 
 
 def _density(args) -> int:
-    import numpy as np
-
     cfg = DensityConfig(
         angles=tuple(args.angle),
         mc=not args.no_mc,
@@ -97,40 +95,5 @@ def _density(args) -> int:
     cfg.validate()  # bad parameters fail before the folder is made
     with output_folder(args.out):  # removed again if the analysis fails before writing anything
         summary, timings = run_density_analysis(args.out, cfg, progress=not args.quiet)
-    print(f"ray density per unit N*M (paper Section 3.3); outputs in {args.out}/")
-    lim = f"{cfg.r_limit:g}"
-    for key, s in summary["angles"].items():
-        ext = s[f"range_r_le_{lim}"]
-
-        def where(k):
-            r = ext[f"{k}_r"]
-            return f"r={r:.2f}, " + ("any alpha" if r < 1e-9 else f"alpha={np.degrees(ext[f'{k}_alpha']):.0f} deg")
-
-        print(
-            f"omega = {key:>4} deg: r <= {lim}: min {ext['min']:.5f} ({where('min')}), "
-            f"max {ext['max']:.5f} ({where('max')}), max/min {s['uniformity_max_over_min']:.2f} "
-            f"({s['uniformity_max_over_min_r_le_0.95']:.2f} over r <= 0.95); "
-            f"r=0: {s['rho_r0']:.5f} (closed form {s['rho_r0_closed_form']:.5f}); "
-            f"quadrature error < {s['quadrature_max_abs_error']:.1e}"
-        )
-        print(
-            f"                 real rig {s['rig']}: {s['hit_ratio_05']:.1%} of rays enter the ball r <= 0.5, "
-            f"{s['hit_ratio_08']:.1%} the ball r <= 0.8"
-        )
-        if "montecarlo" in s:
-            m = s["montecarlo"]
-            print(
-                f"                 Monte-Carlo: {m['comparisons']} disc faces, max |z| {m['max_abs_z']:.2f}, "
-                f"rms z {m['rms_z']:.2f}, {m['within_2_sigma']:.0%} within 2 sigma, "
-                f"median |deviation| {m['median_abs_rel_deviation']:.2%} (median 1-sigma {m['median_rel_se']:.2%})"
-            )
-            if m["min_shells"] < 3.0:
-                print(
-                    f"                 note: some discs span only {m['min_shells']:.1f} cap steps (< 3): the finite-M "
-                    "term is unreliable there; use more rays per viewpoint (M) or a larger disc"
-                )
-    print(
-        f"done in {timings['total']:.1f} s (quadrature {timings['quadrature_grid']:.1f} s, "
-        f"Monte-Carlo {timings['montecarlo']:.1f} s)"
-    )
+    print("\n".join(density_summary_lines(summary, timings, cfg, args.out)))
     return 0

@@ -2,22 +2,20 @@
 
 from __future__ import annotations
 
-from ..data.lidar import sensor_preset
-from ..data.store import open_dataset
-from ..data.synthetic import BuildConfig, add_rig, build_dataset
-from ..data.synthetic.config import parse_range, parse_source
+from ..data.dataset_report import dataset_info, export_sample, info_lines, read_sample
+from ..data.synthetic import BuildRequest, add_rig, build_from_request, build_summary
 from ..data.synthetic.consolidate import merge_shards
-from ..errors import ParameterError, SpotlightsError
-from ..utils import atomic_output, check_writable
+from ..data.synthetic.request import read_request_yaml
+from ..utils import check_writable
 from ..viz import html, render_sample
 from ._util import (
     add_command,
     add_group,
+    add_options,
     add_quiet,
     check_picture,
     check_suffix,
-    non_negative_int,
-    positive_int,
+    settings_of,
     unit_interval,
 )
 from .sequences import register as register_sequences
@@ -40,168 +38,8 @@ def register(sub) -> None:
         "--views 2000 --split 64/8/7 --rig 64x32@60 --rig 256x64@60",
         _build,
     )
-    b.add_argument(
-        "--meshes",
-        default=[],
-        metavar="DIR[,KEY=VALUE...]",
-        action="append",
-        help="folder of meshes; categories = first sub-folder, or DIR/manifest.csv (file,category[,up,forward,"
-        "split,scale]). Repeat for several sources (model names get the folder's name as prefix); "
-        "per source: manifest=CSV, up=, forward=, scale=, split=A/B/C or train|val|test, name=",
-    )
-    b.add_argument(
-        "--out", "-o", required=True, metavar="FILE", help="dataset file to write (.h5); work folder FILE.parts"
-    )
-    b.add_argument(
-        "--manifest", default=None, metavar="CSV", help="manifest CSV (default: DIR/manifest.csv if present)"
-    )
-    b.add_argument("--views", type=positive_int, default=2000, help="partial observations per model (default 2000)")
-    b.add_argument(
-        "--split",
-        default="0.81/0.1/0.09",
-        metavar="A/B/C",
-        help="train/val/test: model counts (64/8/7) or fractions (0.8/0.1/0.1); default 0.81/0.1/0.09 "
-        "(= the paper's 64/8/7 for 79 models)",
-    )
-    b.add_argument("--no-stratify", action="store_true", help="split over all models instead of per category")
-    b.add_argument("--seed", type=non_negative_int, default=0, help="root seed (default 0)")
-    b.add_argument(
-        "--workers",
-        "-j",
-        type=positive_int,
-        default=None,
-        help="processes (default: all cores); never changes the result",
-    )
-    b.add_argument(
-        "--rig",
-        action="append",
-        default=[],
-        metavar="RIG",
-        help="extra Spotlights rig for the ground truth, repeatable: NxM[@DEG] cap rigs (e.g. --rig 64x32@60 "
-        "--rig 256x64@60) or rig names, e.g. box-32x64-ellipsoid-s1 (box-targeted: each model's own box)",
-    )
-    b.add_argument("--default-rig", default="32x64@60", metavar="RIG", help="the main rig (default 32x64@60)")
-    b.add_argument("--points", type=int, default=256, help="points per partial observation (default 256)")
-    b.add_argument("--gt-points", type=int, default=2048, help="uniform ground-truth points (default 2048)")
-    b.add_argument("--gt-dense", type=int, default=16384, help="dense ground-truth points (default 16384)")
-    b.add_argument(
-        "--downsample",
-        choices=("random", "fps"),
-        default="random",
-        help="how scans with more points are reduced: random subset (default) or farthest-point sampling",
-    )
-    b.add_argument("--up", default="z", help="the mesh files' up axis (glTF: y; default z)")
-    b.add_argument("--forward", default="x", help="the mesh files' forward axis (default x)")
-    b.add_argument(
-        "--scale", type=float, default=1.0, help="multiply mesh coordinates by this to get metres (default 1)"
-    )
-    g = b.add_argument_group("LiDAR (default: Velodyne HDL-64E as in KITTI)")
-    g.add_argument("--sensor", default="hdl64e", help="preset: hdl64e (default), hdl32e, vlp16")
-    g.add_argument("--azimuth-step", type=float, default=None, metavar="DEG", help="horizontal step (hdl64e: 0.17)")
-    g.add_argument(
-        "--mount-height",
-        default=None,
-        metavar="M|MIN:MAX",
-        help="sensor height above ground (hdl64e: 1.73); MIN:MAX draws each view's height uniformly "
-        "(e.g. 1.5:2.1, from low roof mounts to tall SUVs and robotaxis)",
-    )
-    g.add_argument("--range-noise", type=float, default=None, metavar="M", help="range noise sigma (hdl64e: 0.02)")
-    g.add_argument(
-        "--dropout", type=float, default=None, metavar="P", help="probability that a return is lost (default 0)"
-    )
-    g.add_argument(
-        "--beam-dropout",
-        type=float,
-        default=None,
-        metavar="P",
-        help="probability that a whole beam is dead during a scan (default 0)",
-    )
-    g.add_argument("--max-range", type=float, default=None, metavar="M", help="range limit (hdl64e: 120)")
-    g.add_argument(
-        "--distance", default="4:40", metavar="MIN:MAX", help="vehicle distance range in metres (default 4:40)"
-    )
-    g.add_argument(
-        "--min-points", type=int, default=50, help="fewer returns than this and the pose is redrawn (default 50)"
-    )
-    pg = b.add_argument_group("procedural vehicles (every class a real frame holds; docs/dataset.md)")
-    pg.add_argument(
-        "--procedural",
-        type=non_negative_int,
-        default=0,
-        metavar="N",
-        help="add N generated vehicles per class of --classes (models procedural/CLASS/BODY-IIII; with or "
-        "without --meshes); stores every model's detector class",
-    )
-    pg.add_argument(
-        "--classes",
-        default=None,
-        metavar="LIST",
-        help="classes of --procedural (the real readers' names): car (sedan, hatchback, SUV, pickup), van "
-        "(stored as caravan), truck (box truck, semi-tractor, pickup), bus, trailer (box, flatbed); default all",
-    )
-    pg.add_argument(
-        "--procedural-split",
-        default=None,
-        metavar="A/B/C|SPLIT",
-        help="split of the procedural vehicles alone (counts, fractions or train|val|test); default: "
-        "pooled with the sources without split= and dealt by --split",
-    )
-    sp = b.add_argument_group("splits by category")
-    sp.add_argument(
-        "--category-split",
-        action="append",
-        default=[],
-        metavar="CAT=SPLIT",
-        help="every model of category CAT goes to SPLIT (held-out body types, e.g. suv=test); the rest "
-        "are split by --split; repeatable",
-    )
-    sp.add_argument(
-        "--exclude-category",
-        action="append",
-        default=[],
-        metavar="CAT",
-        help="leave the models of category CAT out; repeatable",
-    )
-    au = b.add_argument_group(
-        "augmentation (augmented copies of the meshes become extra models, in their mesh's split)"
-    )
-    au.add_argument("--mirror", action="store_true", help="add a copy mirrored across the car's x-z plane (y -> -y)")
-    au.add_argument(
-        "--scale-copies",
-        type=non_negative_int,
-        default=0,
-        metavar="K",
-        help="add K anisotropically scaled copies per mesh (with --mirror, each mirrored too)",
-    )
-    au.add_argument("--length-range", default=None, metavar="MIN:MAX", help="box length of scaled copies, m (2.6:5.8)")
-    au.add_argument("--width-range", default=None, metavar="MIN:MAX", help="box width (mirrors included), m (1.5:2.45)")
-    au.add_argument("--height-range", default=None, metavar="MIN:MAX", help="box height, m (1.3:2.0)")
-    au.add_argument("--scale-factor-range", default=None, metavar="MIN:MAX", help="per-axis factor (0.7:1.3)")
-    au.add_argument(
-        "--augment-splits",
-        default="train",
-        metavar="SPLITS",
-        help="splits whose meshes get copies, comma-separated (default train: val/test stay real meshes)",
-    )
-    r = b.add_argument_group("run")
-    r.add_argument("--overwrite", action="store_true", help="replace an existing FILE and discard unfinished parts")
-    r.add_argument(
-        "--resume", action="store_true", help="accept an existing complete FILE (unfinished parts resume anyway)"
-    )
-    r.add_argument(
-        "--block", type=positive_int, default=None, help="views per work unit (default ~views/8, at most 250)"
-    )
-    r.add_argument("--keep-parts", action="store_true", help="keep FILE.parts after writing FILE")
-    add_quiet(r, "no progress bars")
-    _add_backend_options(r)
-    r.add_argument(
-        "--shard-size",
-        type=positive_int,
-        default=None,
-        metavar="N",
-        help="write shards of at most N samples (whole models) plus an index: give --out NAME.json; "
-        "every reader takes the index like a file; 'dataset merge' makes one file of them",
-    )
+    add_options(b, BuildRequest)
+    b.set_defaults(config_reader=read_request_yaml, command_parser=b)
 
     register_sequences(dsub)
 
@@ -227,15 +65,9 @@ def register(sub) -> None:
         help="the meshes folder the dataset was built from (default: the one its config records); "
         "repeat once per source, in the build's order, for a multi-source dataset",
     )
-    a.add_argument(
-        "--workers",
-        "-j",
-        type=positive_int,
-        default=None,
-        help="processes (default: all cores); never changes the result",
-    )
+    add_options(a, BuildRequest, only=("workers",), grouped=False)
     add_quiet(a)
-    _add_backend_options(a)
+    add_options(a, BuildRequest, only=("backend", "ray_address", "task_retries"), grouped=False)
 
     mg = add_command(
         dsub,
@@ -302,31 +134,6 @@ def register(sub) -> None:
     add_html_argument(s)
 
 
-def _add_backend_options(group) -> None:
-    group.add_argument(
-        "--backend",
-        choices=("local", "ray"),
-        default="local",
-        help="local: a process pool on this machine (default); ray: tasks on a Ray cluster (pip install "
-        "'spotlights[distributed]'); the bytes are the same",
-    )
-    group.add_argument(
-        "--ray-address",
-        default=None,
-        metavar="ADDR",
-        help="with --backend ray: 'auto' joins the running cluster (ray start), HOST:PORT a given one; "
-        "default: start a local instance with --workers CPUs",
-    )
-    group.add_argument(
-        "--task-retries",
-        type=non_negative_int,
-        default=2,
-        metavar="N",
-        help="with --backend ray: retries of a task that crashes or loses its node (default 2); bad input "
-        "stops at once",
-    )
-
-
 def _merge(args) -> int:
     check_suffix(args.out, (".h5", ".hdf5"), "the merged dataset (HDF5)")
     rep = merge_shards(args.file, args.out, progress=not args.quiet, overwrite=args.overwrite)
@@ -337,125 +144,15 @@ def _merge(args) -> int:
     return 0
 
 
-def _distance(text: str) -> tuple[float, float]:
-    try:
-        a, b = (float(x) for x in text.replace(",", ":").split(":"))
-    except ValueError:
-        raise ParameterError(f"--distance {text!r}: write MIN:MAX in metres, e.g. 4:40") from None
-    return a, b
-
-
 def _build(args) -> int:
-
     # SIGTERM unwinds like Ctrl-C (spotlights.cli.main): the workers stop, finished units are kept
-
     if args.shard_size:
         check_suffix(args.out, (".json",), "the shard index of a sharded dataset (--shard-size)")
     else:
         check_suffix(args.out, (".h5", ".hdf5"), "the dataset (HDF5)")
     check_writable(args.out)
-    heights = None
-    mount = args.mount_height
-    if mount is not None and ":" in mount:
-        heights, mount = parse_range(mount, "--mount-height"), None
-    elif mount is not None:
-        try:
-            mount = float(mount)
-        except ValueError:
-            raise ParameterError(
-                f"--mount-height {args.mount_height!r}: write metres (1.73) or MIN:MAX (1.5:2.1)"
-            ) from None
-    sensor = sensor_preset(
-        args.sensor,
-        azimuth_step=args.azimuth_step,
-        mount_height=mount,
-        range_noise=args.range_noise,
-        dropout=args.dropout,
-        max_range=args.max_range,
-        beam_dropout=args.beam_dropout,
-    )
-    if not args.meshes and not args.procedural:
-        raise ParameterError("give --meshes DIR (repeatable) or --procedural N (or both)")
-    if not args.procedural and (args.classes or args.procedural_split):
-        raise ParameterError("--classes and --procedural-split apply to --procedural N (vehicles per class)")
-    sources = [parse_source(m) for m in args.meshes]
-    single = len(sources) <= 1 and all(set(s) == {"path"} for s in sources)
-    if not single and args.manifest:
-        raise ParameterError(
-            "--manifest applies to a single --meshes folder; give each source its own (--meshes DIR,manifest=CSV)"
-        )
-    category_split = {}
-    for item in args.category_split:
-        cat, eq, split = item.partition("=")
-        if not eq or not cat.strip():
-            raise ParameterError(f"--category-split {item!r}: write CATEGORY=SPLIT, e.g. suv=test")
-        category_split[cat.strip()] = split.strip()
-    augment = None
-    if args.mirror or args.scale_copies:
-        augment = {
-            "mirror": args.mirror,
-            "copies": args.scale_copies,
-            "length": args.length_range,
-            "width": args.width_range,
-            "height": args.height_range,
-            "factor": args.scale_factor_range,
-            "splits": args.augment_splits,
-        }
-    cfg = BuildConfig(
-        meshes=str(sources[0]["path"]) if sources else "",
-        manifest=args.manifest,
-        views=args.views,
-        split=args.split,
-        seed=args.seed,
-        n_points=args.points,
-        gt_points=args.gt_points,
-        gt_dense=args.gt_dense,
-        default_rig=args.default_rig,
-        extra_rigs=list(args.rig),
-        sensor=sensor.to_dict(),
-        distance=_distance(args.distance),
-        min_points=args.min_points,
-        downsample=args.downsample,
-        up=args.up,
-        forward=args.forward,
-        scale=args.scale,
-        stratify=not args.no_stratify,
-        sources=[] if single else sources,
-        category_split=category_split,
-        exclude_categories=list(args.exclude_category),
-        augment=augment,
-        mount_height_range=heights,
-        procedural={"count": args.procedural, "classes": args.classes, "split": args.procedural_split},
-    )
-    rep = build_dataset(
-        cfg,
-        args.out,
-        workers=args.workers,
-        overwrite=args.overwrite,
-        resume=args.resume,
-        block=args.block,
-        keep_parts=args.keep_parts,
-        progress=not args.quiet,
-        backend=args.backend,
-        ray_address=args.ray_address,
-        shard_size=args.shard_size,
-        retries=args.task_retries,
-    )
-    if rep.already_complete:
-        print(f"{args.out}: already complete ({rep.n_models} models, {rep.n_samples} samples); nothing to do")
-        return 0
-    rate = rep.units_computed and rep.n_samples * rep.units_computed / max(rep.units_total, 1) / max(
-        rep.seconds_units, 1e-9
-    )
-    print(
-        f"{args.out}: {rep.n_models} models, {rep.n_samples} samples, {rep.file_size / 2**20:.1f} MiB; "
-        f"{rep.units_computed} of {rep.units_total} work units computed in {rep.seconds_units:.1f} s "
-        f"(~{rate:.0f} samples/s), file written in {rep.seconds_consolidate:.1f} s, total {rep.seconds_total:.1f} s"
-    )
-    if rep.skipped:
-        print(f"skipped {len(rep.skipped)} mesh(es):")
-        for s in rep.skipped:
-            print(f"  {s['file']}: {s['problem']}")
+    report = build_from_request(settings_of(BuildRequest, args))
+    print("\n".join(build_summary(report, args.out)))
     return 0
 
 
@@ -485,86 +182,13 @@ def _add_rig(args) -> int:
 def _info(args) -> int:
     import json
 
-    with open_dataset(args.file) as ds:
-        info = ds.info()
-    if args.json:
-        print(json.dumps(info, indent=1))
-        return 0
-    cfg = info["config"]
-    shards = f", {len(info['shards'])} shards" if info.get("shards") else ""
-    print(
-        f"{info['path']}: {info['format']} v{info['format_version']} (spotlights {info['spotlights_version']}), "
-        f"{info['file_size_bytes'] / 2**20:.1f} MiB{shards}, seed {info['seed']}"
-    )
-    print(
-        f"  {info['n_models']} models x {info['views_per_model']} views = {info['n_samples']} samples; "
-        f"categories: " + ", ".join(f"{k} {v}" for k, v in info["categories"].items())
-    )
-    if info.get("classes"):
-        print("  classes: " + ", ".join(f"{k} {v}" for k, v in info["classes"].items()))
-    for sp, d in info["splits"].items():
-        cats = ", ".join(f"{k} {v}" for k, v in d["categories"].items())
-        print(f"  {sp:5s}: {d['models']:4d} models, {d['samples']:8d} samples ({cats})")
-    print(
-        "  rigs: "
-        + ", ".join(
-            f"{n} ({k} rays){' [default]' if n == info['default_rig'] else ''}" for n, k in info["rigs"].items()
-        )
-    )
-    sen = info["sensor"]
-    print(
-        f"  sensor: {sen.get('name')} {sen.get('n_beams')} beams {sen.get('elevation_max')}..{sen.get('elevation_min')} deg, "
-        f"azimuth step {sen.get('azimuth_step')} deg, {sen.get('mount_height')} m high, noise {sen.get('range_noise')} m, "
-        f"dropout {sen.get('dropout')}, beam dropout {sen.get('beam_dropout', 0)}; distance {cfg.get('distance')} m, >= {cfg.get('min_points')} returns, "
-        f"{cfg.get('n_points')} points ({cfg.get('downsample')})"
-    )
-    if info["skipped"]:
-        print("  skipped meshes: " + "; ".join(f"{s['file']} ({s['problem']})" for s in info["skipped"]))
-    print("  datasets:")
-    for name, d in info["datasets"].items():
-        print(f"    {name:28s} {str(tuple(d['shape'])):20s} {d['dtype']}")
+    info = dataset_info(args.file)
+    print(json.dumps(info, indent=1) if args.json else "\n".join(info_lines(info)))
     return 0
 
 
-def _pick(ds, split: str, index: int) -> int:
-    idx = ds.split_indices(split)
-    if not (0 <= index < len(idx)):
-        raise ParameterError(f"{ds.path}: split {split!r} has {len(idx)} samples; --index {index} is out of range")
-    return int(idx[index])
-
-
 def _export(args) -> int:
-    import json
-    from pathlib import Path
-
-    import numpy as np
-
-    if Path(args.out).suffix.lower() != ".npz":
-        raise SpotlightsError(f"{args.out}: the sample is written as .npz; name the output FILE.npz")
-    check_writable(args.out)
-    with open_dataset(args.file) as ds:
-        i = _pick(ds, args.split, args.index)
-        s = ds.sample(i, rig=args.rig)
-        rig = ds.rig(s["rig"], s["model_index"])
-    with atomic_output(args.out, suffix=".npz") as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(
-                fh,
-                partial=s["partial"],
-                gt_points=s["gt_points"],
-                gt_dense=s["gt_dense"],
-                gt_depths=s["gt_depths"],
-                model=np.array(s["model"]),
-                category=np.array(s["category"]),
-                split=np.array(s["split"]),
-                view=np.int32(s["view"]),
-                sample_index=np.int64(i),
-                sensor_to_unit=s["sensor_to_unit"],
-                distance=np.float32(s["distance"]),
-                heading=np.float32(s["heading"]),
-                n_raw=np.int32(s["n_raw"]),
-                rig=np.array(json.dumps(rig.to_dict())),
-            )
+    i, s = export_sample(args.file, args.split, args.index, args.out, args.rig)
     print(f"{args.file}: {args.split}[{args.index}] = sample {i} ({s['model']}, view {s['view']}) -> {args.out}")
     return 0
 
@@ -576,10 +200,7 @@ def _show(args) -> int:
     check_suffix(args.html, (".html", ".htm"), "the page (HTML)", "--html")
     out = Path(args.out) if args.out else Path.cwd() / f"{args.split}-{args.index}.png"
     check_writable(args.out or (None if args.html else out), args.html)
-    with open_dataset(args.file) as ds:
-        i = _pick(ds, args.split, args.index)
-        s = ds.sample(i, rig=args.rig)
-        rig = ds.rig(s["rig"], s["model_index"])
+    i, s, rig = read_sample(args.file, args.split, args.index, args.rig)
     what = f"{args.file}: {args.split}[{args.index}] = sample {i} ({s['model']}, view {s['view']})"
     if args.html:
         write_page(

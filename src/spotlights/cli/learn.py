@@ -5,25 +5,20 @@ Thin over :mod:`spotlights.learning`; torch and numpy are imported inside the ha
 
 from __future__ import annotations
 
-import argparse
-import sys
-
 from ..experiments.curves import learning_curves, summary_markdown
-from ..learning.bench import bench_markdown, bench_models
-from ..learning.evaluate import evaluate_checkpoints, prediction_examples, report_markdown, write_report
-from ..learning.export import export_onnx, load_onnx_completer, parity
-from ..learning.models import MODEL_NAMES as MODEL_CHOICES  # registry keys (imports neither torch nor a model)
-from ..utils import atomic_output, check_writable, output_folder
-from ..viz import render_predictions
+from ..learning.bench import BenchSettings, run_bench
+from ..learning.evaluate import EvaluateSettings, run_evaluation
+from ..learning.export import export_model
+from ..learning.settings import TrainSettings
 from ._util import (
-    DEVICE_HELP,
     add_command,
     add_group,
+    add_options,
     add_quiet,
     check_suffix,
-    non_negative_int,
     positive_float,
     positive_int,
+    settings_of,
     unit_interval,
 )
 
@@ -37,99 +32,7 @@ def register(sub) -> None:
         "spotlights train --model sanet --data cars.h5 --epochs 40 --out runs/sanet",
         _train,
     )
-    p.add_argument("--model", required=True, choices=MODEL_CHOICES, help="which model to train")
-    p.add_argument(
-        "--data",
-        required=True,
-        metavar="FILE.h5|INDEX.json",
-        help="dataset file (spotlights dataset build), or the index .json of a sharded dataset (--shard-size)",
-    )
-    p.add_argument(
-        "--config", metavar="YAML", default=None, help="YAML overriding the packaged config (model/data/train sections)"
-    )
-    p.add_argument(
-        "--schedule",
-        default=None,
-        metavar="NAME|YAML",
-        help="training schedule applied before --config: 'cpu' (35-70 min per model on 2 cores), "
-        "'paper' (the paper-scale GPU run), or a schedule YAML",
-    )
-    p.add_argument(
-        "--out",
-        "-o",
-        metavar="DIR",
-        default=None,
-        help="run folder (default runs/MODEL): config.yaml, last.pt, best.pt, log.csv",
-    )
-    p.add_argument(
-        "--epochs", type=positive_int, default=None, help="number of epochs (with --resume: raise it to train longer)"
-    )
-    p.add_argument("--batch-size", type=positive_int, default=None, help="batch size per process")
-    p.add_argument(
-        "--lr", type=positive_float, default=None, help="learning rate, a finite number > 0 (default: the config's)"
-    )
-    p.add_argument(
-        "--max-views", type=positive_int, default=None, metavar="V", help="use only views 0..V-1 of each training model"
-    )
-    p.add_argument("--val-max-views", type=positive_int, default=None, metavar="V", help="validation views per model")
-    p.add_argument(
-        "--rig", default=None, help="SA-Net: rig group of the dataset to regress (default: the file's default rig)"
-    )
-    p.add_argument(
-        "--workers",
-        type=non_negative_int,
-        default=None,
-        help="DataLoader worker processes (0: load in the main process)",
-    )
-    p.add_argument(
-        "--seed", type=non_negative_int, default=None, help="random seed (same seed + config = same weights)"
-    )
-    p.add_argument("--device", default=None, help=DEVICE_HELP)
-    p.add_argument("--threads", type=positive_int, default=None, help="torch CPU threads (default: torch's)")
-    p.add_argument(
-        "--precision",
-        choices=("auto", "fp32", "bf16"),
-        default=None,
-        help="forward-pass precision: auto (default: bf16 where the CPU or GPU supports it, else fp32), "
-        "fp32, or bf16 (fp16 with a gradient scaler on GPUs without bf16); weights, losses and "
-        "metrics stay float32",
-    )
-    p.add_argument(
-        "--steps-per-epoch",
-        type=positive_int,
-        default=None,
-        metavar="N",
-        help="make an epoch N optimizer steps drawn from shuffled passes over the training set "
-        "(a validation and checkpoint interval) instead of one full pass",
-    )
-    p.add_argument(
-        "--compile",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="run the training forward pass through torch.compile (--no-compile: eager; may change on --resume; "
-        "1.1-1.4x faster steps at bf16 on "
-        "CPU after 1.3-2.5 min of compilation; docs/benchmarks.md)",
-    )
-    g = p.add_mutually_exclusive_group()
-    g.add_argument("--resume", action="store_true", help="continue the run in --out from its last.pt")
-    g.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="start again even if --out holds a run (its last.pt, best.pt and log.csv are removed first)",
-    )
-    p.add_argument(
-        "--stop-after",
-        type=positive_int,
-        default=None,
-        metavar="K",
-        help="run at most K epochs now, then stop (continue later with --resume); the schedule spans --epochs",
-    )
-    p.add_argument(
-        "--allow-new-data",
-        action="store_true",
-        help="with --resume: continue even if --data is not the dataset the run was trained on (refused by default)",
-    )
-    add_quiet(p, "no progress bars")
+    add_options(p, TrainSettings)
 
     # ---- evaluate
     p = add_command(
@@ -140,82 +43,7 @@ def register(sub) -> None:
         "spotlights evaluate --data cars.h5 --checkpoint runs/*/best.pt --out report",
         _evaluate,
     )
-    p.add_argument(
-        "--data",
-        required=True,
-        metavar="FILE.h5|INDEX.json",
-        help="dataset file (or the index .json of a sharded dataset)",
-    )
-    p.add_argument("--checkpoint", required=True, nargs="+", metavar="CKPT", help="one or more checkpoints")
-    p.add_argument("--split", default="test", choices=("test", "val", "train"), help="split to score (default test)")
-    p.add_argument(
-        "--out",
-        "-o",
-        default="report",
-        metavar="PATH",
-        help="report path without suffix: writes PATH.md, PATH.json and the figure PATH.png (see --examples; default ./report)",
-    )
-    p.add_argument(
-        "--max-views",
-        type=positive_int,
-        default=None,
-        metavar="V",
-        help="score only views 0..V-1 of each model (faster)",
-    )
-    p.add_argument(
-        "--clip",
-        type=unit_interval,
-        default=None,
-        metavar="T",
-        help="SA-Net clip for the 'w/ clip' row (default: the checkpoint's: 0.2 for the paper SA-Net)",
-    )
-    p.add_argument("--batch-size", type=positive_int, default=32, help="evaluation batch size (default 32)")
-    p.add_argument(
-        "--fscore-threshold",
-        type=positive_float,
-        default=0.01,
-        metavar="T",
-        help="F-score distance threshold, unit frame (default 0.01)",
-    )
-    p.add_argument(
-        "--accuracy-only", action="store_true", help="skip the GT -> prediction side (completeness, CD, F-score)"
-    )
-    p.add_argument(
-        "--latency",
-        action="store_true",
-        help="also time every model: median latency at batch 1 and 32 (opt-in: it costs minutes)",
-    )
-    p.add_argument(
-        "--latency-repeats",
-        type=positive_int,
-        default=10,
-        metavar="R",
-        help="timed runs per model and batch with --latency (default 10, after 2 warm-up runs)",
-    )
-    p.add_argument("--no-latency", action="store_true", help="do not time the models (the default; kept for scripts)")
-    p.add_argument(
-        "--examples",
-        type=non_negative_int,
-        default=2,
-        metavar="K",
-        help="figure PATH.png: K scans per category, each model's prediction beside the ground truth "
-        "(default 2; 0: no figure)",
-    )
-    p.add_argument("--device", default=None, help=DEVICE_HELP)
-    p.add_argument("--threads", type=positive_int, default=None, help="torch CPU threads (default: torch's)")
-    add_quiet(p)
-    p.add_argument(
-        "--backend",
-        choices=("local", "ray"),
-        default="local",
-        help="ray: the per-model metric work (KD-trees per ground-truth model) as Ray tasks; same values",
-    )
-    p.add_argument(
-        "--ray-address",
-        default=None,
-        metavar="ADDR",
-        help="with --backend ray: 'auto' joins the running cluster; default: a local instance",
-    )
+    add_options(p, EvaluateSettings)
 
     # ---- curves
     p = add_command(
@@ -303,86 +131,13 @@ def register(sub) -> None:
         "spotlights bench models --batch 1 32 --json",
         _bench_models,
     )
-    p.add_argument(
-        "--models",
-        nargs="+",
-        default=list(MODEL_CHOICES),
-        choices=MODEL_CHOICES,
-        metavar="MODEL",
-        help=f"models to measure (default all: {', '.join(MODEL_CHOICES)})",
-    )
-    p.add_argument(
-        "--batch", type=positive_int, nargs="+", default=[1, 32], metavar="B", help="batch sizes (default 1 32)"
-    )
-    p.add_argument("--repeats", type=positive_int, default=10, help="timed runs per measurement (median reported)")
-    p.add_argument("--warmup", type=non_negative_int, default=2, help="untimed warm-up runs (default 2)")
-    p.add_argument(
-        "--threads", type=positive_int, default=None, help="torch threads for every model (default: torch's)"
-    )
-    p.add_argument("--device", default=None, help=DEVICE_HELP)
-    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    p.add_argument("--out", "-o", default=None, metavar="FILE.json", help="also write the JSON result here")
-    p.add_argument(
-        "--quiet", "-q", action="store_true", help="no progress lines and no table (with --out: only the file)"
-    )
-
-
-def _report_path(prefix) -> str:
-    """The Markdown file of a report written to PREFIX(.md/.json)."""
-    text = str(prefix)
-    return (
-        text[: -len(".json")] if text.endswith(".json") else text[: -len(".md")] if text.endswith(".md") else text
-    ) + ".md"
-
-
-def _set_threads(n):
-    if n:
-        import torch
-
-        torch.set_num_threads(int(n))
+    add_options(p, BenchSettings)
 
 
 def _train(args) -> int:
-    from ..learning.train import train
+    from ..learning.train import run_training
 
-    _set_threads(args.threads)
-    ov: dict = {"train": {}, "data": {}}
-    for key, val in (
-        ("epochs", args.epochs),
-        ("batch_size", args.batch_size),
-        ("lr", args.lr),
-        ("seed", args.seed),
-        ("precision", args.precision),
-        ("steps_per_epoch", args.steps_per_epoch),
-        ("compile", args.compile),
-    ):
-        if val is not None:
-            ov["train"][key] = val
-    for key, val in (
-        ("max_views", args.max_views),
-        ("val_max_views", args.val_max_views),
-        ("rig", args.rig),
-        ("num_workers", args.workers),
-    ):
-        if val is not None:
-            ov["data"][key] = val
-
-    out = args.out or f"runs/{args.model}"
-    with output_folder(out):  # a run that fails before writing anything leaves no empty folder
-        res = train(
-            args.model,
-            args.data,
-            out,
-            config=args.config,
-            overrides=ov,
-            resume=args.resume,
-            overwrite=args.overwrite,
-            device=args.device,
-            progress=not args.quiet,
-            schedule=args.schedule,
-            stop_after=args.stop_after,
-            allow_new_data=args.allow_new_data,
-        )
+    res = run_training(settings_of(TrainSettings, args))
     h = res["history"][-1] if res["history"] else None
     if h:
         print(
@@ -392,38 +147,7 @@ def _train(args) -> int:
 
 
 def _evaluate(args) -> int:
-    check_writable(_report_path(args.out))
-    _set_threads(args.threads)
-    report = evaluate_checkpoints(
-        args.checkpoint,
-        args.data,
-        split=args.split,
-        max_views=args.max_views,
-        clip=args.clip,
-        batch_size=args.batch_size,
-        device=args.device,
-        fscore_threshold=args.fscore_threshold,
-        with_completeness=not args.accuracy_only,
-        latency=args.latency and not args.no_latency,
-        latency_repeats=args.latency_repeats,
-        progress=not args.quiet,
-        backend=args.backend,
-        ray_address=args.ray_address,
-    )
-    md, js = write_report(report, args.out)
-    print(report_markdown(report).split("\n## ")[0].rstrip())
-    print(f"\nreport -> {md}, {js}")
-    if args.examples:
-        from pathlib import Path
-
-        png = render_predictions(
-            md.with_suffix(".png"),
-            prediction_examples(
-                args.checkpoint, args.data, args.split, per_category=args.examples, clip=args.clip, device=args.device
-            ),
-            title=f"{args.split} scans of {Path(args.data).name}: predictions beside the ground truth (unit frame)",
-        )
-        print(f"figure -> {png}")
+    run_evaluation(settings_of(EvaluateSettings, args))
     return 0
 
 
@@ -437,45 +161,12 @@ def _curves(args) -> int:
 def _export(args) -> int:
     from pathlib import Path
 
-    out = Path(args.out)
-    check_suffix(out, (".onnx",), "an ONNX model")
-    path = export_onnx(args.checkpoint, out, opset=args.opset)
-    if not args.quiet:
-        c = load_onnx_completer(path)
-        rig = f", rig {c.rig.name}" if c.rig is not None else ""
-        dec = (f", p(hit) >= {c.threshold:g}" if c.threshold is not None else "") + (
-            f", clip {c.clip:g}" if c.clip is not None else ""
-        )
-        print(
-            f"{args.checkpoint} -> {path} ({c.model_name}, {c.n_params:,} parameters{rig}{dec}; "
-            f"{path.stat().st_size / 1e6:.1f} MB)"
-        )
-        if not args.no_check:
-            diff = parity(args.checkpoint, c)
-            print(
-                "parity on 8 random scans, max |onnxruntime - torch|: "
-                + ", ".join(f"{k} {v:.1e}" for k, v in diff.items())
-            )
+    check_suffix(Path(args.out), (".onnx",), "an ONNX model")
+    export_model(args.checkpoint, args.out, args.opset, describe=not args.quiet, check=not args.no_check)
     return 0
 
 
 def _bench_models(args) -> int:
-    import json
-
     check_suffix(args.out, (".json",), "the result (JSON)")
-    check_writable(args.out)
-    res = bench_models(
-        args.models,
-        args.batch,
-        repeats=args.repeats,
-        warmup=args.warmup,
-        threads=args.threads,
-        device=args.device,
-        progress=None if args.json or args.quiet else (lambda m: print(m, file=sys.stderr)),
-    )
-    text = json.dumps(res, indent=2)
-    if args.out:
-        with atomic_output(args.out) as tmp:
-            tmp.write_text(text)
-    print(text if args.json else bench_markdown(res))
+    run_bench(settings_of(BenchSettings, args))
     return 0

@@ -2,15 +2,10 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from ..data.lidar import SENSOR_PRESETS
-from ..data.synthetic.sequences import BoxNoise, SequenceSpec, write_sequences
-from ..errors import ParameterError
+from ..data.synthetic.sequences import BoxNoise, SequenceSpec, mesh_files, write_sequences
 from ..utils import output_folder
 from ._util import add_command, add_quiet, non_negative_int, positive_int
-
-MESH_SUFFIXES = (".ply", ".obj", ".off", ".stl", ".glb", ".gltf")
 
 
 def register(dsub) -> None:
@@ -41,15 +36,7 @@ def register(dsub) -> None:
 
 
 def _sequences(args) -> int:
-    src = Path(args.meshes)
-    if src.is_dir():
-        meshes = sorted(p for p in src.rglob("*") if p.suffix.lower() in MESH_SUFFIXES)
-        if not meshes:
-            raise ParameterError(f"{src}: no mesh file ({', '.join(MESH_SUFFIXES)}) in the folder")
-    elif src.is_file():
-        meshes = [src]
-    else:
-        raise ParameterError(f"{src}: no such mesh file or folder")
+    meshes = mesh_files(args.meshes)
     spec = SequenceSpec(
         n_frames=args.frames,
         hz=args.hz,

@@ -43,7 +43,9 @@ The ground is intersected analytically.
 from __future__ import annotations
 
 import math
+import os
 import time
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -52,6 +54,7 @@ from ..errors import ParameterError
 from ..geometry.frames import Normalization
 from ..geometry.raycast import RayCaster
 from ..geometry.rotations import rotation_z
+from ..utils import settings_from_dict
 
 
 @dataclass(frozen=True)
@@ -137,15 +140,14 @@ class SensorModel:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> SensorModel:
-        """Rebuild from :meth:`to_dict` output (unknown keys are an error)."""
-        d = dict(d)
-        if d.get("elevations") is not None:
+    def from_dict(cls, d: dict, where: str | os.PathLike = "sensor") -> SensorModel:
+        """Rebuild from :meth:`to_dict` output by the one strict policy
+        (:func:`spotlights.utils.settings_from_dict`): an unknown key is a one-line error naming
+        ``where`` (a file path or a label, default ``"sensor"``) with the closest field suggested."""
+        d = dict(d) if isinstance(d, Mapping) else d
+        if isinstance(d, dict) and d.get("elevations") is not None:
             d["elevations"] = tuple(d["elevations"])
-        try:
-            return cls(**d)
-        except TypeError as exc:
-            raise ParameterError(f"invalid sensor description: {exc}") from None
+        return settings_from_dict(cls, d, where)
 
 
 def hdl64e(**overrides) -> SensorModel:

@@ -340,3 +340,48 @@ def run_density_analysis(
     timings["mc_figures_and_summary"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_start
     return summary, timings
+
+
+def density_summary_lines(summary: dict, timings: dict, cfg: DensityConfig, out: str | os.PathLike) -> list[str]:
+    """The lines ``spotlights analyze density`` prints: per cap angle (degrees) the density's
+    extremes over ``r <= cfg.r_limit`` (per unit ``N*M``, with where they lie: r, alpha in degrees),
+    its uniformity, the value at the centre beside the closed form, the real rig's hit ratios and
+    the Monte-Carlo agreement; then the timings (seconds). ``summary``/``timings``: what
+    :func:`run_density_analysis` returns; ``out``: its output folder."""
+    out_lines = [f"ray density per unit N*M (paper Section 3.3); outputs in {out}/"]
+    lim = f"{cfg.r_limit:g}"
+    for key, s in summary["angles"].items():
+        ext = s[f"range_r_le_{lim}"]
+
+        def where(k):
+            r = ext[f"{k}_r"]
+            return f"r={r:.2f}, " + ("any alpha" if r < 1e-9 else f"alpha={np.degrees(ext[f'{k}_alpha']):.0f} deg")
+
+        out_lines.append(
+            f"omega = {key:>4} deg: r <= {lim}: min {ext['min']:.5f} ({where('min')}), "
+            f"max {ext['max']:.5f} ({where('max')}), max/min {s['uniformity_max_over_min']:.2f} "
+            f"({s['uniformity_max_over_min_r_le_0.95']:.2f} over r <= 0.95); "
+            f"r=0: {s['rho_r0']:.5f} (closed form {s['rho_r0_closed_form']:.5f}); "
+            f"quadrature error < {s['quadrature_max_abs_error']:.1e}"
+        )
+        out_lines.append(
+            f"                 real rig {s['rig']}: {s['hit_ratio_05']:.1%} of rays enter the ball r <= 0.5, "
+            f"{s['hit_ratio_08']:.1%} the ball r <= 0.8"
+        )
+        if "montecarlo" in s:
+            m = s["montecarlo"]
+            out_lines.append(
+                f"                 Monte-Carlo: {m['comparisons']} disc faces, max |z| {m['max_abs_z']:.2f}, "
+                f"rms z {m['rms_z']:.2f}, {m['within_2_sigma']:.0%} within 2 sigma, "
+                f"median |deviation| {m['median_abs_rel_deviation']:.2%} (median 1-sigma {m['median_rel_se']:.2%})"
+            )
+            if m["min_shells"] < 3.0:
+                out_lines.append(
+                    f"                 note: some discs span only {m['min_shells']:.1f} cap steps (< 3): the finite-M "
+                    "term is unreliable there; use more rays per viewpoint (M) or a larger disc"
+                )
+    out_lines.append(
+        f"done in {timings['total']:.1f} s (quadrature {timings['quadrature_grid']:.1f} s, "
+        f"Monte-Carlo {timings['montecarlo']:.1f} s)"
+    )
+    return out_lines

@@ -35,11 +35,14 @@ from ..geometry.encode import MeshProbe, decode
 from ..geometry.io import MESH_SUFFIXES, load_mesh
 from ..geometry.rig import RigSpec, make_rig_spec
 from ..geometry.sampling import sample_surface
+from ..options import REQUIRED, non_negative_int, option, positive_int
 from ..utils import atomic_output, output_folder, process_map
 from ..viz.study import plot_rig_study
 
 CARS = "apolloscape-cars"
 DEFAULT_RAYS = (2048, 4096, 8192)
+DEFAULT_STUDY_MESHES = ("../shared/data/meshes/apolloscape-cars", "../shared/data/meshes/categories")
+"""The mesh folders of ``spotlights study rigs`` (relative to the working folder)."""
 SECONDARY = 64  # M; N = rays / M (the paper's 32 x 64 at 2048 rays)
 N_SURFACE = 16384
 MIN_PER_CATEGORY = 5
@@ -472,3 +475,60 @@ def rig_study(
         Path(tmp).write_text(markdown_report(summary, meshes, seed, n_surface))
     plot_study(paths.figure, summary)
     return paths
+
+
+def study_summary_lines(res) -> list[str]:
+    """The lines ``spotlights study rigs`` prints for a :func:`rig_study` result: every mesh set's
+    and ray count's verdicts (:func:`verdict_lines`), then the files written."""
+    s = res.summary
+    lines = [
+        f"{mesh_set}, {rays} rays: {line}"
+        for mesh_set in dict.fromkeys(s.mesh_set)
+        for rays in sorted(s.rays.unique())
+        for line in verdict_lines(s, mesh_set, rays)
+    ]
+    return lines + [f"wrote {res.csv}, {res.per_mesh_csv}, {res.markdown}, {res.figure}"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class RigStudySettings:
+    """What ``spotlights study rigs`` is asked to do: its options as one object, each field
+    declaring its option (:func:`spotlights.options.option`)."""
+
+    out: str = option(
+        "--out",
+        "-o",
+        default=REQUIRED,
+        metavar="DIR",
+        help="output folder: rigs.csv (means), rigs_per_mesh.csv.gz, rigs.md, rigs.png; DIR/.cache resumes a run",
+    )
+    meshes: list = option(
+        nargs="+",
+        default=list(DEFAULT_STUDY_MESHES),
+        metavar="DIR",
+        help="mesh folders, one sub-folder per category; categories with fewer than 5 meshes are "
+        "skipped (default: the shared cars and category meshes)",
+    )
+    rays: list = option(
+        nargs="+",
+        type=int,
+        default=[2048, 4096, 8192],
+        metavar="K",
+        help="ray counts, multiples of 64 (N = K / 64 viewpoints x 64 rays; default 2048 4096 8192)",
+    )
+    seed: int = option(default=0, type=non_negative_int, help="seed of the 16,384 surface samples per mesh (default 0)")
+    workers: int = option(
+        "--workers",
+        "-j",
+        type=positive_int,
+        default=1,
+        help="processes over meshes (results do not depend on it; default 1)",
+    )
+    quiet: bool = option(default=False, quiet=True, help="no progress bar")
+
+
+def run_rig_study(s: RigStudySettings) -> StudyResult:
+    """``spotlights study rigs``: :func:`rig_study` as ``s`` says (``s.workers`` >= 1)."""
+    if s.workers < 1:
+        raise SpotlightsError(f"--workers must be >= 1, got {s.workers}")
+    return rig_study(s.out, s.meshes, rays=s.rays, seed=s.seed, workers=s.workers, progress=not s.quiet)

@@ -20,9 +20,12 @@ import os
 import platform
 import statistics
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 from ..geometry.rig import make_rig
+from ..options import DEVICE_HELP, non_negative_int, option, positive_int
+from ..utils import atomic_output, check_writable
 from .models import DISPLAY_NAMES, MODEL_NAMES, build_model, check_model_name, load_config
 from .rays import timing_directions
 
@@ -289,3 +292,58 @@ def bench_markdown(result: dict) -> str:
         f"after {result['warmup']} warm-up runs, SA-Net rig {result['rig']}.\n"
     )
     return "\n".join(lines) + "\n" + foot + "".join(f"\n- {r}" for r in ratio_lines) + ("\n" if ratio_lines else "")
+
+
+@dataclass(frozen=True, kw_only=True)
+class BenchSettings:
+    """What ``spotlights bench models`` is asked to do: its options as one object, each field
+    declaring its option (:func:`spotlights.options.option`). Latencies are milliseconds."""
+
+    models: list = option(
+        default=list(MODEL_NAMES),
+        nargs="+",
+        choices=MODEL_NAMES,
+        metavar="MODEL",
+        help=f"models to measure (default all: {', '.join(MODEL_NAMES)})",
+    )
+    batch: list = option(default=[1, 32], type=positive_int, nargs="+", metavar="B", help="batch sizes (default 1 32)")
+    repeats: int = option(default=10, type=positive_int, help="timed runs per measurement (median reported)")
+    warmup: int = option(default=2, type=non_negative_int, help="untimed warm-up runs (default 2)")
+    threads: int | None = option(
+        default=None, type=positive_int, help="torch threads for every model (default: torch's)"
+    )
+    device: str | None = option(default=None, help=DEVICE_HELP)
+    json: bool = option(default=False, action="store_true", help="print JSON instead of a table")
+    out: str | None = option("--out", "-o", default=None, metavar="FILE.json", help="also write the JSON result here")
+    quiet: bool = option(
+        "--quiet",
+        "-q",
+        default=False,
+        action="store_true",
+        help="no progress lines and no table (with --out: only the file)",
+    )
+
+
+def run_bench(s: BenchSettings, log: Callable[[str], None] = print) -> dict:
+    """``spotlights bench models``: :func:`bench_models` as ``s`` says (progress lines on stderr
+    unless ``s.json`` or ``s.quiet``), the JSON result written to ``s.out`` (atomically) when
+    given, then ``log`` gets the JSON (``s.json``) or the Markdown table. Returns the result."""
+    import json
+    import sys
+
+    check_writable(s.out)
+    res = bench_models(
+        s.models,
+        s.batch,
+        repeats=s.repeats,
+        warmup=s.warmup,
+        threads=s.threads,
+        device=s.device,
+        progress=None if s.json or s.quiet else (lambda m: print(m, file=sys.stderr)),
+    )
+    text = json.dumps(res, indent=2)
+    if s.out:
+        with atomic_output(s.out) as tmp:
+            tmp.write_text(text)
+    log(text if s.json else bench_markdown(res))
+    return res

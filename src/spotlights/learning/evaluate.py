@@ -20,7 +20,10 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import os
 import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +32,9 @@ from ..data.store import open_dataset
 from ..distributed import check_backend, ray_session
 from ..errors import ParameterError
 from ..metrics.completion import METRIC_DESCRIPTIONS, evaluate_completions, summarize
-from ..utils import atomic_output
+from ..options import DEVICE_HELP, REQUIRED, non_negative_int, option, positive_float, positive_int, unit_interval
+from ..utils import atomic_output, check_writable, settings_from_dict
+from ..viz import render_predictions
 from .bench import model_latency
 from .checkpoint import load_checkpoint, model_from_checkpoint
 from .inference import DEFAULT, load_completer
@@ -458,3 +463,139 @@ def prediction_examples(
                     }
                 )
     return out
+
+
+@dataclass(frozen=True, kw_only=True)
+class EvaluateSettings:
+    """What ``spotlights evaluate`` is asked to do: its options as one object, each field declaring
+    its option (:func:`spotlights.options.option`: default and help written once).
+
+    checkpoint : checkpoint files (or short names) to score, one report row group each.
+    data : dataset file or shard index. split : ``test``, ``val`` or ``train``.
+    out : report path without suffix: ``OUT.md``, ``OUT.json`` and the figure ``OUT.png``.
+    max_views : score only views ``0..V-1`` of each model (None: all).
+    clip : SA-Net depth clip in [0, 1] for the 'w/ clip' row (None: the checkpoint's).
+    batch_size : evaluation batch size. fscore_threshold : F-score distance, unit frame.
+    accuracy_only : skip the ground truth -> prediction side (completeness, CD, F-score).
+    latency, latency_repeats, no_latency : time each model (median ms at batch 1 and 32) when
+        ``latency`` and not ``no_latency``, ``latency_repeats`` timed runs after 2 warm-ups.
+    examples : scans per category in the figure (0: no figure).
+    device, threads : torch device and CPU threads (None: the defaults).
+    quiet : no progress bars. backend, ray_address : ``"local"`` or ``"ray"`` metric work.
+    """
+
+    data: str | os.PathLike = option(
+        default=REQUIRED, metavar="FILE.h5|INDEX.json", help="dataset file (or the index .json of a sharded dataset)"
+    )
+    checkpoint: list = option(default=REQUIRED, nargs="+", metavar="CKPT", help="one or more checkpoints")
+    split: str = option(default="test", choices=("test", "val", "train"), help="split to score (default test)")
+    out: str | os.PathLike = option(
+        "--out",
+        "-o",
+        default="report",
+        metavar="PATH",
+        help="report path without suffix: writes PATH.md, PATH.json and the figure PATH.png (see --examples; "
+        "default ./report)",
+    )
+    max_views: int | None = option(
+        default=None, type=positive_int, metavar="V", help="score only views 0..V-1 of each model (faster)"
+    )
+    clip: float | None = option(
+        default=None,
+        type=unit_interval,
+        metavar="T",
+        help="SA-Net clip for the 'w/ clip' row (default: the checkpoint's: 0.2 for the paper SA-Net)",
+    )
+    batch_size: int = option(default=32, type=positive_int, help="evaluation batch size (default 32)")
+    fscore_threshold: float = option(
+        default=0.01, type=positive_float, metavar="T", help="F-score distance threshold, unit frame (default 0.01)"
+    )
+    accuracy_only: bool = option(
+        default=False, action="store_true", help="skip the GT -> prediction side (completeness, CD, F-score)"
+    )
+    latency: bool = option(
+        default=False,
+        action="store_true",
+        help="also time every model: median latency at batch 1 and 32 (opt-in: it costs minutes)",
+    )
+    latency_repeats: int = option(
+        default=10,
+        type=positive_int,
+        metavar="R",
+        help="timed runs per model and batch with --latency (default 10, after 2 warm-up runs)",
+    )
+    no_latency: bool = option(
+        default=False, action="store_true", help="do not time the models (the default; kept for scripts)"
+    )
+    examples: int = option(
+        default=2,
+        type=non_negative_int,
+        metavar="K",
+        help="figure PATH.png: K scans per category, each model's prediction beside the ground truth (default 2; "
+        "0: no figure)",
+    )
+    device: str | None = option(default=None, help=DEVICE_HELP)
+    threads: int | None = option(default=None, type=positive_int, help="torch CPU threads (default: torch's)")
+    quiet: bool = option(default=False, quiet=True, help="no progress bar")
+    backend: str = option(
+        default="local",
+        choices=("local", "ray"),
+        help="ray: the per-model metric work (KD-trees per ground-truth model) as Ray tasks; same values",
+    )
+    ray_address: str | None = option(
+        default=None,
+        metavar="ADDR",
+        help="with --backend ray: 'auto' joins the running cluster; default: a local instance",
+    )
+
+    @classmethod
+    def from_dict(cls, d: Mapping, where: str | os.PathLike | None = None) -> EvaluateSettings:
+        """Read settings by the one strict policy (:func:`spotlights.utils.settings_from_dict`)."""
+        return settings_from_dict(cls, d, where)
+
+
+def report_path(prefix: str | os.PathLike) -> str:
+    """The Markdown file of a report written to ``PREFIX`` (``.md``/``.json`` suffix or none)."""
+    text = str(prefix)
+    return (
+        text[: -len(".json")] if text.endswith(".json") else text[: -len(".md")] if text.endswith(".md") else text
+    ) + ".md"
+
+
+def run_evaluation(s: EvaluateSettings, log: Callable[[str], None] = print) -> dict:
+    """``spotlights evaluate``: score ``s.checkpoint`` on ``s.data``, write the report (Markdown
+    and JSON) and, with ``s.examples``, the figure of predictions beside the ground truth (PNG).
+    ``log`` receives the Table-1 summary and the paths as they are written. Returns the report
+    dict of :func:`evaluate_checkpoints`."""
+    check_writable(report_path(s.out))
+    if s.threads:
+        import torch
+
+        torch.set_num_threads(int(s.threads))
+    report = evaluate_checkpoints(
+        s.checkpoint,
+        s.data,
+        split=s.split,
+        max_views=s.max_views,
+        clip=s.clip,
+        batch_size=s.batch_size,
+        device=s.device,
+        fscore_threshold=s.fscore_threshold,
+        with_completeness=not s.accuracy_only,
+        latency=s.latency and not s.no_latency,
+        latency_repeats=s.latency_repeats,
+        progress=not s.quiet,
+        backend=s.backend,
+        ray_address=s.ray_address,
+    )
+    md, js = write_report(report, s.out)
+    log(report_markdown(report).split("\n## ")[0].rstrip())
+    log(f"\nreport -> {md}, {js}")
+    if s.examples:
+        png = render_predictions(
+            md.with_suffix(".png"),
+            prediction_examples(s.checkpoint, s.data, s.split, per_category=s.examples, clip=s.clip, device=s.device),
+            title=f"{s.split} scans of {Path(s.data).name}: predictions beside the ground truth (unit frame)",
+        )
+        log(f"figure -> {png}")
+    return report

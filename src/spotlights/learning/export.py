@@ -25,6 +25,7 @@ the ONNX runtime. :class:`OnnxCompleter` runs a file with onnxruntime (the optio
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -357,3 +358,30 @@ def parity(checkpoint, onnx_completer: OnnxCompleter, partials: np.ndarray | Non
         keep_ref = onnx_completer.keep(ref)
         out["kept_rays_differ"] = int((onnx_completer.keep(got) != keep_ref).sum())
     return out
+
+
+def export_model(
+    checkpoint, out, opset: int = OPSET, describe: bool = True, check: bool = True, log: Callable[[str], None] = print
+) -> Path:
+    """``spotlights export``: :func:`export_onnx`, then (``describe``) one line about the model
+    written (parameters, rig, p(hit) threshold, clip, size in MB) and, with ``check`` as well,
+    the :func:`parity` of onnxruntime against torch on 8 seeded random scans (max abs difference
+    per output). Returns the ``.onnx`` path."""
+    path = export_onnx(checkpoint, Path(out), opset=opset)
+    if not describe:
+        return path
+    c = load_onnx_completer(path)
+    rig = f", rig {c.rig.name}" if c.rig is not None else ""
+    dec = (f", p(hit) >= {c.threshold:g}" if c.threshold is not None else "") + (
+        f", clip {c.clip:g}" if c.clip is not None else ""
+    )
+    log(
+        f"{checkpoint} -> {path} ({c.model_name}, {c.n_params:,} parameters{rig}{dec}; "
+        f"{path.stat().st_size / 1e6:.1f} MB)"
+    )
+    if check:
+        diff = parity(checkpoint, c)
+        log(
+            "parity on 8 random scans, max |onnxruntime - torch|: " + ", ".join(f"{k} {v:.1e}" for k, v in diff.items())
+        )
+    return path

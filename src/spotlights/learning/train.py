@@ -27,7 +27,6 @@ import contextlib
 import csv
 import io
 import math
-import time
 from pathlib import Path
 
 import torch
@@ -35,16 +34,17 @@ from torch.utils.data import DataLoader
 from tqdm import tqdm
 
 from ..errors import OutputFileError, SpotlightsError
-from ..utils import atomic_output, output_folder
+from ..utils import StageTimer, atomic_output, output_folder
 from .checkpoint import save_checkpoint
 from .config import SELECT_BY
 from .device import autocast, default_device
 from .inference import LearnedDomain
 from .process_group import ProcessGroup
+from .settings import TrainSettings
 from .training_run import RUN_STATE_FILES, TrainingRun, data_identity, prepare_run
 from .validation import collate, float_outputs, to_device, validate
 
-__all__ = ["LOG_COLUMNS", "default_device", "train", "validate"]
+__all__ = ["LOG_COLUMNS", "TrainSettings", "default_device", "run_training", "train", "train_with", "validate"]
 
 LOG_COLUMNS = (
     "epoch",
@@ -120,52 +120,54 @@ def train(
     stop_after: int | None = None,
     allow_new_data: bool = False,
 ) -> dict:
-    """Train one model on a completion dataset file.
+    """Train one model on a completion dataset file: :func:`train_with` of the
+    :class:`TrainSettings` these arguments name (see it for each one).
 
-    Parameters
-    ----------
-    model_name : registry key (sanet, pcn, foldingnet, topnet, atlasnet).
-    data : HDF5 dataset file (splits train and val are used).
-    out_dir : run folder (config.yaml, last.pt, best.pt, log.csv).
-    config : optional user YAML overriding the packaged config.
-    schedule : optional training schedule (packaged ``"cpu"`` / ``"paper"`` or a YAML file),
-        applied between the packaged config and ``config``.
-    overrides : nested dict applied last (e.g. ``{"train": {"epochs": 5}}``).
-    resume : continue from ``out_dir/last.pt`` (its config is kept; ``train.epochs`` may be raised).
-    overwrite : start afresh even if ``out_dir`` holds a run (its ``last.pt``, ``best.pt`` and
-        ``log.csv`` are removed first).
-    device : torch device (default CUDA when available, else CPU).
-    progress : show tqdm bars (rank 0 only).
-    stop_after : run at most this many epochs in this call, then return (resume later with
-        ``resume=True``); the schedule still spans ``train.epochs``. For time-boxed sessions.
-    allow_new_data : with ``resume``, continue even if ``data`` is not the dataset the run was
-        trained on (by default refused: its models, splits or samples differ).
+    Returns
+    -------
+    dict: out_dir, last, best (paths), epochs (completed), history (list of rows), param_counts.
+    """
+    settings = TrainSettings(
+        model_name,
+        data,
+        config=config,
+        schedule=schedule,
+        out=out_dir,
+        resume=resume,
+        overwrite=overwrite,
+        device=device,
+        stop_after=stop_after,
+        allow_new_data=allow_new_data,
+        quiet=not progress,
+        overrides=overrides,
+    )
+    return train_with(settings, log)
+
+
+def run_training(settings: TrainSettings, log=_print_flush) -> dict:
+    """``spotlights train``: set ``settings.threads`` torch CPU threads, then :func:`train_with`
+    inside the run folder (``settings.run_dir``; a run that fails before writing anything leaves
+    no empty folder). Returns :func:`train_with`'s dict."""
+    if settings.threads:
+        torch.set_num_threads(int(settings.threads))
+    with output_folder(settings.run_dir):
+        return train_with(settings, log)
+
+
+def train_with(settings: TrainSettings, log=_print_flush) -> dict:
+    """Train one model as ``settings`` say (:class:`TrainSettings`; single process, or one rank
+    of a torchrun job); ``log`` receives the per-epoch lines (rank 0).
 
     Returns
     -------
     dict: out_dir, last, best (paths), epochs (completed), history (list of rows), param_counts.
     """
     dist = ProcessGroup()
-    out_dir = Path(out_dir)
+    out_dir = settings.run_dir
     try:
         with output_folder(out_dir) if dist.main else contextlib.nullcontext():
             try:
-                return _train(
-                    dist,
-                    model_name,
-                    data,
-                    Path(out_dir),
-                    config,
-                    overrides,
-                    resume,
-                    overwrite,
-                    device,
-                    progress,
-                    log,
-                    schedule,
-                    stop_after,
-                    allow_new_data,
-                )
+                return _train(dist, settings, log)
             except (OSError, OutputFileError):
                 # a write failed (a full disk): a run with nothing to resume from leaves nothing
                 # behind (output_folder then removes the folders it created)
@@ -292,45 +294,30 @@ def _save(run: TrainingRun, epoch: int, val: dict, improved: bool) -> None:
     _write_csv(run.out_dir / "log.csv", run.history)
 
 
-def _train(
-    dist,
-    model_name,
-    data,
-    out_dir: Path,
-    config,
-    overrides,
-    resume,
-    overwrite,
-    device,
-    progress,
-    log,
-    schedule,
-    stop_after,
-    allow_new_data=False,
-):
-    run = prepare_run(
-        dist, model_name, data, out_dir, config, overrides, resume, overwrite, device, log, schedule, allow_new_data
-    )
+def _train(dist: ProcessGroup, settings: TrainSettings, log) -> dict:
+    run = prepare_run(dist, settings, log)
     tcfg = run.tcfg
+    stop_after, model_name, progress = settings.stop_after, settings.model, not settings.quiet
     end_epoch = tcfg.epochs if stop_after is None else min(tcfg.epochs, run.start_epoch + max(int(stop_after), 0))
     for epoch in range(run.start_epoch, end_epoch):
-        t0 = time.perf_counter()
-        torch.manual_seed(_epoch_seed(tcfg.seed, epoch))
-        loss_sum, seen = _train_epoch(run, _epoch_loader(run, epoch), epoch, progress)
-        lr = run.opt.param_groups[0]["lr"]
-        run.sched.step()
-        train_sum, train_n = dist.all_sum([loss_sum, float(seen)], run.device)
-        val = validate(
-            run.model,
-            run.val_set,
-            tcfg.batch_size,
-            run.device,
-            run.gt_trees,
-            dist,
-            rays=run.val_rays,
-            precision=run.precision,
-        )
-        dt = time.perf_counter() - t0
+        timer = StageTimer()
+        with timer("epoch"):
+            torch.manual_seed(_epoch_seed(tcfg.seed, epoch))
+            loss_sum, seen = _train_epoch(run, _epoch_loader(run, epoch), epoch, progress)
+            lr = run.opt.param_groups[0]["lr"]
+            run.sched.step()
+            train_sum, train_n = dist.all_sum([loss_sum, float(seen)], run.device)
+            val = validate(
+                run.model,
+                run.val_set,
+                tcfg.batch_size,
+                run.device,
+                run.gt_trees,
+                dist,
+                rays=run.val_rays,
+                precision=run.precision,
+            )
+        dt = timer.seconds["epoch"]
         run.wall += dt
         row = {
             "epoch": epoch + 1,
@@ -368,7 +355,7 @@ def _train(
             )
         dist.barrier()
     return {
-        "out_dir": str(out_dir),
+        "out_dir": str(settings.run_dir),
         "last": str(run.last_path),
         "best": str(run.best_path),
         "epochs": len(run.history),

@@ -26,38 +26,64 @@ from .device import default_device, resolve_device, resolve_precision
 from .models import build_model, load_config, model_class
 from .process_group import ProcessGroup
 from .rays import DirectionTable, rig_spec
+from .settings import TrainSettings
 
 
 @dataclass
 class TrainingRun:
-    """What one training run holds between epochs (built by :func:`prepare_run`)."""
+    """What one training run holds between epochs (built by :func:`prepare_run`).
 
-    model_name: str
-    data: object
-    out_dir: Path
+    ``dcfg``, ``tcfg`` (the checked sections of ``cfg``), ``gt_trees`` (the validation models'
+    dense ground truth), ``net`` (the module the training forward runs: ``model``, wrapped
+    for DDP or ``torch.compile`` by :func:`prepare_run`) and ``param_counts`` follow from the
+    fields given."""
+
+    settings: TrainSettings
     cfg: dict
-    dcfg: DataConfig
-    tcfg: TrainConfig
     device: torch.device
     precision: str
     dist: ProcessGroup
     train_set: TorchCompletionDataset
     val_set: TorchCompletionDataset
     rig: RigSpec | None
-    gt_trees: dict
     val_rays: object
     model: torch.nn.Module
-    net: torch.nn.Module
     opt: torch.optim.Optimizer
     sched: object
     scaler: object
-    param_counts: dict
+    train_rays: object = None
+    dcfg: DataConfig = field(init=False)
+    tcfg: TrainConfig = field(init=False)
+    gt_trees: dict = field(init=False)
+    net: torch.nn.Module = field(init=False)
+    param_counts: dict = field(init=False)
     start_epoch: int = 0
     global_step: int = 0
     history: list = field(default_factory=list)
     best: dict = field(default_factory=dict)
     wall: float = 0.0
-    train_rays: object = None
+
+    def __post_init__(self) -> None:
+        self.dcfg, self.tcfg = data_config(self.cfg), train_config(self.cfg)
+        self.gt_trees = self.val_set.gt_dense()
+        self.net = self.model
+        self.param_counts = self.model.param_counts()
+        self.best = self.best or {"epoch": None, "select_by": self.tcfg.select_by, "value": float("inf")}
+
+    @property
+    def model_name(self) -> str:
+        """The registry key of the model trained (``settings.model``)."""
+        return self.settings.model
+
+    @property
+    def data(self) -> str | os.PathLike:
+        """The dataset file or shard index trained on (``settings.data``)."""
+        return self.settings.data
+
+    @property
+    def out_dir(self) -> Path:
+        """The run folder (``settings.run_dir``)."""
+        return self.settings.run_dir
 
     @property
     def last_path(self) -> Path:
@@ -100,9 +126,28 @@ RUN_STATE_FILES = ("last.pt", "best.pt", "log.csv")
 """The files of a run's progress (``--overwrite`` removes them before a fresh start)."""
 
 
-def resolve_run_config(model_name, out_dir: Path, config, overrides, resume, overwrite, schedule, dist, log):
+def resolve_run_config(
+    model_name: str, out_dir: Path, config, overrides, resume: bool, overwrite: bool, schedule, dist, log
+) -> tuple[dict, dict | None, bool]:
+    """:func:`run_config` of these :class:`TrainSettings` fields (the positional form)."""
+    settings = TrainSettings(
+        model_name,
+        "",
+        out=out_dir,
+        config=config,
+        schedule=schedule,
+        overrides=overrides,
+        resume=resume,
+        overwrite=overwrite,
+    )
+    return run_config(settings, dist, log)
+
+
+def run_config(settings: TrainSettings, dist: ProcessGroup, log) -> tuple[dict, dict | None, bool]:
     """The run's config and, when resuming, the state of ``last.pt`` (its config is kept; only
     ``train.epochs`` and the execution keys of :data:`RESUME_KEYS` may change). Returns ``(cfg, state, extended)``."""
+    model_name, out_dir, config, schedule = settings.model, settings.run_dir, settings.config, settings.schedule
+    overrides, resume, overwrite = settings.config_overrides(), settings.resume, settings.overwrite
     last_path = out_dir / "last.pt"
     if not resume:
         if last_path.exists() and not overwrite:
@@ -181,29 +226,15 @@ def check_same_data(state: dict, last_path: Path, data, identity: str) -> None:
         )
 
 
-def prepare_run(
-    dist,
-    model_name,
-    data,
-    out_dir: Path,
-    config,
-    overrides,
-    resume,
-    overwrite,
-    device,
-    log,
-    schedule,
-    allow_new_data: bool = False,
-) -> TrainingRun:
+def prepare_run(dist: ProcessGroup, settings: TrainSettings, log) -> TrainingRun:
     """Config, device, precision, datasets, model, optimizer and schedule of a run (restored from
     ``last.pt`` when resuming; a resume on other data than the run's is refused unless
-    ``allow_new_data``); writes ``config.yaml`` (rank 0)."""
+    ``settings.allow_new_data``); writes ``config.yaml`` (rank 0)."""
+    model_name, data, out_dir, device = settings.model, settings.data, settings.run_dir, settings.device
     device = resolve_device(device) if device is not None else default_device()
     if dist.active and device.type == "cuda" and device.index is None:
         device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))  # one GPU per process
-    cfg, state, extended = resolve_run_config(
-        model_name, out_dir, config, overrides, resume, overwrite, schedule, dist, log
-    )
+    cfg, state, extended = run_config(settings, dist, log)
     dcfg, tcfg = data_config(cfg), train_config(cfg)
     precision = resolve_precision(tcfg.precision, device)
 
@@ -216,7 +247,7 @@ def prepare_run(
         data, "val", rig=rig_sel, max_views=dcfg.val_max_views, partials_in_memory=dcfg.partials_in_memory
     )
     rig = train_set.rig if wants_depths else None  # the dataset's RigSpec
-    if state is not None and not allow_new_data:
+    if state is not None and not settings.allow_new_data:
         check_same_data(state, out_dir / "last.pt", data, data_identity(train_set.info))
     if state is not None and wants_depths and rig_spec(state.get("rig")) != rig:
         raise SpotlightsError(
@@ -242,27 +273,19 @@ def prepare_run(
     sched = build_scheduler(opt, tcfg)
     scaler = torch.amp.GradScaler(device.type) if precision == "fp16" else None
     run = TrainingRun(
-        model_name,
-        data,
-        out_dir,
+        settings,
         cfg,
-        dcfg,
-        tcfg,
         device,
         precision,
         dist,
         train_set,
         val_set,
         rig,
-        val_set.gt_dense(),
         val_rays,
-        model,
         model,
         opt,
         sched,
         scaler,
-        model.param_counts(),
-        best={"epoch": None, "select_by": tcfg.select_by, "value": float("inf")},
         train_rays=train_rays,
     )
     if state is not None:

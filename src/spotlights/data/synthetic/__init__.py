@@ -15,7 +15,9 @@ The package, one concern per module:
 * :mod:`.catalogue` -- the mesh catalogue: discovery (folders, manifests), loading, splits;
 * :mod:`.simulate` -- one work unit, arrays in and arrays out (ground truth of a model, a block
   of its views);
-* :mod:`.runner` -- the resumable build: plan, process pool, parts folder, consolidation;
+* :mod:`.runner` -- the resumable build: plan, process pool, parts folder, consolidation
+  (:class:`BuildSettings`: how a build runs);
+* :mod:`.request` -- :class:`BuildRequest`: the options of ``spotlights dataset build`` as one object;
 * :mod:`.addrig` -- ``dataset add-rig``.
 
 Work and determinism
@@ -41,13 +43,16 @@ from .config import (
     parse_rig,
     parse_split,
 )
-from .runner import BuildReport, build_dataset, save_npz_atomic
+from .request import BuildRequest, build_from_request, build_summary
+from .runner import BuildReport, BuildSettings, build_dataset, save_npz_atomic
 from .simulate import compute_unit, model_ground_truth, simulate_views, unit_rng
 
 __all__ = [
     "AddRigReport",
     "BuildConfig",
     "BuildReport",
+    "BuildRequest",
+    "BuildSettings",
     "LoadedModel",
     "ModelEntry",
     "PLAN_VERSION",
@@ -59,6 +64,8 @@ __all__ = [
     "add_rig",
     "assign_splits",
     "build_dataset",
+    "build_from_request",
+    "build_summary",
     "compute_unit",
     "discover_models",
     "load_model",

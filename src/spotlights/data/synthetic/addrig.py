@@ -145,7 +145,7 @@ def _add_rig_locked(
         }
     if not cfg_dict.get("meshes") and not meshes and not cfg_dict.get("procedural"):
         raise InputFileError(path, "config_json records no meshes folder; pass --meshes DIR")
-    cfg = BuildConfig.from_dict(cfg_dict)
+    cfg = BuildConfig.from_dict(cfg_dict, path)
     if meshes:
         meshes = [meshes] if isinstance(meshes, (str, os.PathLike)) else list(meshes)
         if cfg.sources:

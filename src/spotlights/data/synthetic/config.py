@@ -9,7 +9,9 @@ so a file says how to rebuild it byte for byte.
 from __future__ import annotations
 
 import math
+import os
 import re
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -17,6 +19,7 @@ import numpy as np
 
 from ...errors import ParameterError
 from ...geometry.rig import Rig, RigSpec, parse_rig
+from ...utils import settings_from_dict
 from ..lidar import SensorModel, hdl64e
 from ..vehicle_classes import VEHICLE_CLASSES, canonical_class
 
@@ -29,6 +32,10 @@ PROCEDURAL_SOURCE = "procedural"  # the source name (and name prefix) of procedu
 SPLIT_NAMES = ("train", "val", "test")
 # Keys of a mesh source (``--meshes DIR,key=value,...``), see :class:`MeshSource`.
 SOURCE_KEYS = ("manifest", "up", "forward", "scale", "split", "name")
+# Keys that an older dataset file's ``config_json`` may carry but :class:`BuildConfig` no longer has,
+# each with the reason it is dropped; :meth:`BuildConfig.from_dict` drops exactly these (every other
+# unknown key is an error). None so far: every key ever stored is still a field.
+RETIRED_KEYS: dict[str, str] = {}
 # Clearance between the sensor and the vehicle's footprint (metres), on top of its half diagonal.
 SENSOR_CLEARANCE = 0.5
 
@@ -259,8 +266,39 @@ class BuildConfig:
     mount_height_range: tuple | None = None
     procedural: dict | None = None
 
-    def validate(self) -> BuildConfig:
-        """Check every field (raises ParameterError); normalises rig specs and tuples."""
+    def validate(self, where: str | os.PathLike | None = None) -> BuildConfig:
+        """Check every field (raises ParameterError); normalises rig specs and tuples.
+
+        ``where`` (a file or a label) names the origin of a config read from a file in the
+        error about an unknown sensor key."""
+        self._check_numbers()
+        parse_split(self.split)
+        self.default_rig = parse_rig(self.default_rig).name
+        extra = []
+        for r in self.extra_rigs:
+            name = parse_rig(r).name
+            if name != self.default_rig and name not in extra:
+                extra.append(name)
+        self.extra_rigs = extra
+        sensor = SensorModel.from_dict(self.sensor, "sensor" if where is None else f"{where} (sensor)")
+        self.sensor = sensor.to_dict()
+        if sensor.max_range <= self.distance[0]:
+            raise ParameterError(f"the sensor's range ({sensor.max_range} m) does not reach {self.distance[0]} m")
+        self._check_sources()
+        cs = {}
+        for cat, sp in dict(self.category_split).items():
+            if str(sp).lower() not in SPLIT_NAMES:
+                raise ParameterError(f"category split {cat}={sp}: the split must be one of {', '.join(SPLIT_NAMES)}")
+            cs[str(cat)] = str(sp).lower()
+        self.category_split = dict(sorted(cs.items()))
+        self.exclude_categories = sorted({str(c) for c in self.exclude_categories})
+        self.augment = normalize_augment(self.augment)
+        if self.mount_height_range is not None:
+            self.mount_height_range = parse_range(self.mount_height_range, "mount height range")
+        return self
+
+    def _check_numbers(self) -> None:
+        """Counts, seed, distance range (normalised to a float pair), downsampling and scale."""
         for name in ("views", "n_points", "gt_points", "gt_dense", "max_draws"):
             v = getattr(self, name)
             if not (isinstance(v, (int, np.integer)) and v >= 1):
@@ -277,18 +315,9 @@ class BuildConfig:
             raise ParameterError(f"downsample must be 'random' or 'fps', got {self.downsample!r}")
         if not (math.isfinite(self.scale) and self.scale > 0):
             raise ParameterError(f"scale must be > 0, got {self.scale!r}")
-        parse_split(self.split)
-        self.default_rig = parse_rig(self.default_rig).name
-        extra = []
-        for r in self.extra_rigs:
-            name = parse_rig(r).name
-            if name != self.default_rig and name not in extra:
-                extra.append(name)
-        self.extra_rigs = extra
-        sensor = SensorModel.from_dict(self.sensor)
-        self.sensor = sensor.to_dict()
-        if sensor.max_range <= d[0]:
-            raise ParameterError(f"the sensor's range ({sensor.max_range} m) does not reach {d[0]} m")
+
+    def _check_sources(self) -> None:
+        """The mesh sources (unique names), ``meshes`` from the first, and the procedural vehicles."""
         self.sources = [self._check_source(s) for s in self.sources]
         names = [s["name"] for s in self.sources]
         if len(set(names)) != len(names):
@@ -303,17 +332,6 @@ class BuildConfig:
             raise ParameterError("no meshes folder given (--meshes DIR or --procedural N)")
         if self.procedural and PROCEDURAL_SOURCE in names:
             raise ParameterError(f"a mesh source is named {PROCEDURAL_SOURCE!r}, the name of the procedural vehicles")
-        cs = {}
-        for cat, sp in dict(self.category_split).items():
-            if str(sp).lower() not in SPLIT_NAMES:
-                raise ParameterError(f"category split {cat}={sp}: the split must be one of {', '.join(SPLIT_NAMES)}")
-            cs[str(cat)] = str(sp).lower()
-        self.category_split = dict(sorted(cs.items()))
-        self.exclude_categories = sorted({str(c) for c in self.exclude_categories})
-        self.augment = normalize_augment(self.augment)
-        if self.mount_height_range is not None:
-            self.mount_height_range = parse_range(self.mount_height_range, "mount height range")
-        return self
 
     def _check_source(self, src) -> dict:
         """A validated source dict with every :class:`MeshSource` field (defaults: the global axes
@@ -379,7 +397,12 @@ class BuildConfig:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> BuildConfig:
-        """Rebuild and validate a config from :meth:`to_dict` output (unknown keys ignored)."""
-        cfg = cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
-        return cfg.validate()
+    def from_dict(cls, d: Mapping, where: str | os.PathLike | None = None) -> BuildConfig:
+        """Rebuild and validate a config from :meth:`to_dict` output (a dataset's ``config_json``,
+        a build plan) by the one strict policy (:func:`spotlights.utils.settings_from_dict`): an
+        unknown key, here or in ``sensor``, is a one-line error naming ``where`` (a file path or a
+        label) with the closest field suggested. Keys of :data:`RETIRED_KEYS` (written by older
+        versions, no longer fields) are dropped explicitly."""
+        if isinstance(d, Mapping):
+            d = {k: v for k, v in d.items() if k not in RETIRED_KEYS}
+        return settings_from_dict(cls, d, where).validate(where)

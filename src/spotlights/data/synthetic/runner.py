@@ -17,16 +17,22 @@ import os
 import shutil
 import signal
 import sys
-import time
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from tqdm import tqdm
 
 from ...distributed import DEFAULT_RETRIES, check_backend, import_ray, ray_session
 from ...errors import InputFileError, OutputFileError, ParameterError, SpotlightsError
-from ...utils import atomic_output, check_can_start_processes, exclusive_lock, process_map
+from ...utils import (
+    StageTimer,
+    atomic_output,
+    check_can_start_processes,
+    exclusive_lock,
+    process_map,
+    settings_from_dict,
+)
 from ..store import open_dataset
 from .catalogue import build_catalogue
 from .config import PLAN_VERSION, BuildConfig
@@ -80,12 +86,13 @@ def worker_state() -> dict:
 
 def _run_unit(unit: tuple) -> tuple:
     """Compute one unit in a worker and write its part file; returns ``(unit, seconds)``."""
-    t0 = time.perf_counter()
-    arrays = compute_unit(unit, _WORKER["models"][unit[1]], _WORKER["cfg"], _WORKER["sims"])
-    save_npz_atomic(_WORKER["parts"] / part_name(unit), arrays)
+    timer = StageTimer()
+    with timer("unit"):
+        arrays = compute_unit(unit, _WORKER["models"][unit[1]], _WORKER["cfg"], _WORKER["sims"])
+        save_npz_atomic(_WORKER["parts"] / part_name(unit), arrays)
     if _WORKER.get("parent") is not None and os.getppid() != _WORKER["parent"]:
         os._exit(0)  # the build was killed: the part is saved, leave quietly instead of a broken pipe
-    return unit, time.perf_counter() - t0
+    return unit, timer.total
 
 
 def _plan_units(n_models: int, views: int, block: int) -> list[tuple]:
@@ -100,28 +107,11 @@ def default_log(msg: str) -> None:
     tqdm.write(msg, file=sys.stderr)
 
 
-def build_dataset(
-    cfg: BuildConfig,
-    out: str | os.PathLike,
-    workers: int | None = None,
-    overwrite: bool = False,
-    resume: bool = False,
-    block: int | None = None,
-    keep_parts: bool = False,
-    progress: bool = True,
-    log: Callable[[str], None] | None = None,
-    backend: str = "local",
-    ray_address: str | None = None,
-    shard_size: int | None = None,
-    retries: int = DEFAULT_RETRIES,
-) -> BuildReport:
-    """Build (or finish) a completion dataset: one HDF5 file, or HDF5 shards and their index.
+@dataclass(frozen=True)
+class BuildSettings:
+    """How a build runs, never what it builds (that is :class:`BuildConfig`): the same config
+    gives the same bytes whatever these are.
 
-    Parameters
-    ----------
-    cfg : the build configuration (validated here).
-    out : the HDF5 file to write (with ``shard_size``: the shard index, ``NAME.json``); its
-        work folder is ``OUT.parts``.
     workers : processes (default: all cores); Ray: the CPUs of the local instance it starts
         (with ``ray_address``: at most ``2 x workers`` tasks in flight). Results do not depend on it.
     overwrite : replace an existing ``out`` and discard unfinished parts.
@@ -135,115 +125,102 @@ def build_dataset(
     ray_address : ``"auto"`` / ``"HOST:PORT"``: join that cluster; None: a local instance.
     shard_size : write shards of at most this many samples (whole models) and an index.
     retries : Ray only: retries of a task that fails other than by bad input.
+    """
+
+    workers: int | None = None
+    overwrite: bool = False
+    resume: bool = False
+    block: int | None = None
+    keep_parts: bool = False
+    progress: bool = True
+    log: Callable[[str], None] | None = None
+    backend: str = "local"
+    ray_address: str | None = None
+    shard_size: int | None = None
+    retries: int = DEFAULT_RETRIES
+
+    @classmethod
+    def from_dict(cls, d: Mapping, where: str | os.PathLike | None = None) -> BuildSettings:
+        """Read the settings by the one strict policy (:func:`spotlights.utils.settings_from_dict`)."""
+        return settings_from_dict(cls, d, where)
+
+
+def build_dataset(
+    cfg: BuildConfig, out: str | os.PathLike, settings: BuildSettings | None = None, **options
+) -> BuildReport:
+    """Build (or finish) a completion dataset: one HDF5 file, or HDF5 shards and their index.
+
+    Parameters
+    ----------
+    cfg : the build configuration (validated here).
+    out : the HDF5 file to write (with ``shard_size``: the shard index, ``NAME.json``); its
+        work folder is ``OUT.parts``.
+    settings : how the build runs (:class:`BuildSettings`; default: its defaults).
+    options : :class:`BuildSettings` fields given one by one (``workers=2``), applied over ``settings``.
 
     Returns
     -------
-    :class:`BuildReport`.
+    :class:`BuildReport` (its seconds from a :class:`~spotlights.utils.StageTimer`).
     """
-    t_start = time.perf_counter()
-    log = log or default_log
-    backend = check_backend(backend)
-    if backend == "ray":
-        import_ray()  # before anything else: one line saying how to install it
-    cfg = cfg.validate()
-    out = Path(out)
-    parts = out.with_name(out.name + ".parts")
-    if out.is_dir():
-        raise InputFileError(out, "is a folder; give the dataset file to write (e.g. cars.h5)")
-    if shard_size is not None:
-        if int(shard_size) < 1:
-            raise ParameterError(f"shard size must be >= 1 samples, got {shard_size}")
-        check_index_path(out)
-    if out.exists() and not overwrite:
-        if not keep_parts:
-            _sweep_finished_parts(parts)
-        if not resume:
-            raise InputFileError(out, "already exists; pass --overwrite to rebuild it (or --resume to accept it)")
-        with open_dataset(out) as ds:
-            if BuildConfig.from_dict(ds.config).to_dict() != cfg.to_dict():
-                raise InputFileError(out, "exists and was built with a different configuration; pass --overwrite")
-            return BuildReport(
-                str(out),
-                ds.n_models,
-                ds.n_samples,
-                0,
-                0,
-                0,
-                [],
-                already_complete=True,
-                file_size=ds.info()["file_size_bytes"],
-            )
-    workers = max(1, int(workers or os.cpu_count() or 1)) if backend == "local" or not ray_address else workers
-    if backend == "local" and workers > 1:
-        check_can_start_processes()  # an unguarded script fails here, before anything is written
+    s = replace(settings or BuildSettings(), **options)
+    timer = StageTimer()
+    with timer("total"):
+        log = s.log or default_log
+        backend = check_backend(s.backend)
+        if backend == "ray":
+            import_ray()  # before anything else: one line saying how to install it
+        cfg = cfg.validate()
+        out = Path(out)
+        parts = out.with_name(out.name + ".parts")
+        complete = _check_output(out, parts, cfg, s)
+        if complete is not None:
+            return complete
+        workers = (
+            max(1, int(s.workers or os.cpu_count() or 1)) if backend == "local" or not s.ray_address else s.workers
+        )
+        if backend == "local" and workers > 1:
+            check_can_start_processes()  # an unguarded script fails here, before anything is written
 
-    with ray_session(ray_address, workers) if backend == "ray" else contextlib.nullcontext() as ray:
-        runner = RayBuild(ray, workers if ray_address else None, retries) if backend == "ray" else None
-        models, skipped = build_catalogue(cfg, log, progress, loader=runner.loader if runner else None)
-        n_models, views = len(models), cfg.views
-        block = int(block or max(1, min(250, math.ceil(views / 8))))
-        plan = {
-            "plan_version": PLAN_VERSION,
-            "config": cfg.to_dict(),
-            "models": [m.entry.plan_dict() for m in models],
-            "skipped": skipped,
-        }
+        with ray_session(s.ray_address, workers) if backend == "ray" else contextlib.nullcontext() as ray:
+            runner = RayBuild(ray, workers if s.ray_address else None, s.retries) if backend == "ray" else None
+            models, skipped = build_catalogue(cfg, log, s.progress, loader=runner.loader if runner else None)
+            n_models, views = len(models), cfg.views
+            block = int(s.block or max(1, min(250, math.ceil(views / 8))))
+            plan = {
+                "plan_version": PLAN_VERSION,
+                "config": cfg.to_dict(),
+                "models": [m.entry.plan_dict() for m in models],
+                "skipped": skipped,
+            }
 
-        # --- the parts folder: new, resumed, or refused ----------------------------------
-        if overwrite and parts.exists():
-            shutil.rmtree(parts)
-        # two builds never write the same parts
-        with (
-            _parts_folder(parts),
-            exclusive_lock(parts / ".lock", f"{parts}: another build is writing this dataset right now"),
-        ):
-            block = _check_plan(parts, plan, block)
-            for stale in parts.glob(".*.part*"):  # temporaries of a killed run
-                stale.unlink(missing_ok=True)
-            units = _plan_units(n_models, views, block)
-            pending = [u for u in units if not (parts / part_name(u)).exists()]
-            done_before = len(units) - len(pending)
-            if done_before:
-                log(f"resuming {parts}: {done_before} of {len(units)} work units already done")
-            state = {"cfg": cfg, "models": models, "parts": parts}
-            t_units = time.perf_counter()
-            if runner is not None:
-                runner.run_units(pending, models, cfg, parts, progress)
-            else:
-                _run_units(pending, state, workers, progress, n_models, views)
-            t_cons = time.perf_counter()
-            entries = [m.entry for m in models]
-            recompute = (lambda unit: _recompute(unit, state)) if runner is None else None
-            if shard_size is None:
-                write_output_file(
-                    out, cfg, entries, range(n_models), parts, units, skipped, recompute=recompute, progress=progress
-                )
-            else:
-                jobs = shard_jobs(out, cfg, n_models, int(shard_size))
-                if runner is not None:
-                    runner.write_shards(jobs, cfg, entries, parts, units, skipped, progress)
-                else:
-                    for j in jobs:
-                        write_output_file(
-                            j["path"],
-                            cfg,
-                            entries,
-                            j["rows"],
-                            parts,
-                            units,
-                            skipped,
-                            j["attrs"],
-                            recompute=recompute,
-                            progress=progress,
-                        )
-                write_build_index(
-                    out, [j["path"] for j in jobs], [(len(j["rows"]), len(j["rows"]) * views) for j in jobs], cfg
-                )
-            t_end = time.perf_counter()
-    if not keep_parts:
+            # --- the parts folder: new, resumed, or refused ----------------------------------
+            if s.overwrite and parts.exists():
+                shutil.rmtree(parts)
+            # two builds never write the same parts
+            with (
+                _parts_folder(parts),
+                exclusive_lock(parts / ".lock", f"{parts}: another build is writing this dataset right now"),
+            ):
+                block = _check_plan(parts, plan, block)
+                for stale in parts.glob(".*.part*"):  # temporaries of a killed run
+                    stale.unlink(missing_ok=True)
+                units = _plan_units(n_models, views, block)
+                pending = [u for u in units if not (parts / part_name(u)).exists()]
+                done_before = len(units) - len(pending)
+                if done_before:
+                    log(f"resuming {parts}: {done_before} of {len(units)} work units already done")
+                state = {"cfg": cfg, "models": models, "parts": parts}
+                with timer("units"):
+                    if runner is not None:
+                        runner.run_units(pending, models, cfg, parts, s.progress)
+                    else:
+                        _run_units(pending, state, workers, s.progress, n_models, views)
+                with timer("consolidate"):
+                    _write_outputs(out, cfg, [m.entry for m in models], parts, units, skipped, state, runner, s)
+    if not s.keep_parts:
         shutil.rmtree(parts, ignore_errors=True)
     with open_dataset(out) as ds:
-        size = ds.info()["file_size_bytes"] if shard_size is not None else out.stat().st_size
+        size = ds.info()["file_size_bytes"] if s.shard_size is not None else out.stat().st_size
     return BuildReport(
         out=str(out),
         n_models=n_models,
@@ -252,11 +229,76 @@ def build_dataset(
         units_done_before=done_before,
         units_computed=len(pending),
         skipped=skipped,
-        seconds_units=t_cons - t_units,
-        seconds_consolidate=t_end - t_cons,
-        seconds_total=t_end - t_start,
+        seconds_units=timer.seconds["units"],
+        seconds_consolidate=timer.seconds["consolidate"],
+        seconds_total=timer.seconds["total"],
         file_size=size,
     )
+
+
+def _check_output(out: Path, parts: Path, cfg: BuildConfig, s: BuildSettings) -> BuildReport | None:
+    """Refuse an output path that cannot be built (a folder, a bad index name, an existing file
+    without ``overwrite``/``resume``); an existing complete file of the same config with
+    ``resume`` gives its report (nothing to do), else None (build it)."""
+    if out.is_dir():
+        raise InputFileError(out, "is a folder; give the dataset file to write (e.g. cars.h5)")
+    if s.shard_size is not None:
+        if int(s.shard_size) < 1:
+            raise ParameterError(f"shard size must be >= 1 samples, got {s.shard_size}")
+        check_index_path(out)
+    if not out.exists() or s.overwrite:
+        return None
+    if not s.keep_parts:
+        _sweep_finished_parts(parts)
+    if not s.resume:
+        raise InputFileError(out, "already exists; pass --overwrite to rebuild it (or --resume to accept it)")
+    with open_dataset(out) as ds:
+        try:
+            same = BuildConfig.from_dict(ds.config, out).to_dict() == cfg.to_dict()
+        except SpotlightsError:  # not a config of this version's builds (another kind of dataset)
+            same = False
+        if not same:
+            raise InputFileError(out, "exists and was built with a different configuration; pass --overwrite")
+        return BuildReport(
+            str(out),
+            ds.n_models,
+            ds.n_samples,
+            0,
+            0,
+            0,
+            [],
+            already_complete=True,
+            file_size=ds.info()["file_size_bytes"],
+        )
+
+
+def _write_outputs(out: Path, cfg, entries, parts: Path, units, skipped, state, runner, s: BuildSettings) -> None:
+    """Consolidate the parts into the HDF5 file ``out``, or (``shard_size``) into shards and their index."""
+    recompute = (lambda unit: _recompute(unit, state)) if runner is None else None
+    n_models = len(entries)
+    if s.shard_size is None:
+        write_output_file(
+            out, cfg, entries, range(n_models), parts, units, skipped, recompute=recompute, progress=s.progress
+        )
+        return
+    jobs = shard_jobs(out, cfg, n_models, int(s.shard_size))
+    if runner is not None:
+        runner.write_shards(jobs, cfg, entries, parts, units, skipped, s.progress)
+    else:
+        for j in jobs:
+            write_output_file(
+                j["path"],
+                cfg,
+                entries,
+                j["rows"],
+                parts,
+                units,
+                skipped,
+                j["attrs"],
+                recompute=recompute,
+                progress=s.progress,
+            )
+    write_build_index(out, [j["path"] for j in jobs], [(len(j["rows"]), len(j["rows"]) * cfg.views) for j in jobs], cfg)
 
 
 def _sweep_finished_parts(parts: Path) -> None:

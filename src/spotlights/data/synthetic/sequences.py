@@ -121,6 +121,24 @@ def _box_json(b: Box) -> dict:
     }
 
 
+SEQUENCE_MESH_SUFFIXES = (".ply", ".obj", ".off", ".stl", ".glb", ".gltf")
+"""Files ``dataset sequences --meshes FOLDER`` takes (the order its error message lists them in)."""
+
+
+def mesh_files(path: str | Path) -> list[Path]:
+    """The mesh file ``path``, or the mesh files anywhere under the folder ``path`` (sorted);
+    ParameterError when there is none."""
+    src = Path(path)
+    if src.is_dir():
+        meshes = sorted(p for p in src.rglob("*") if p.suffix.lower() in SEQUENCE_MESH_SUFFIXES)
+        if not meshes:
+            raise ParameterError(f"{src}: no mesh file ({', '.join(SEQUENCE_MESH_SUFFIXES)}) in the folder")
+        return meshes
+    if src.is_file():
+        return [src]
+    raise ParameterError(f"{src}: no such mesh file or folder")
+
+
 def write_sequences(
     meshes: list, out, n_sequences: int, spec: SequenceSpec, seed: int = 0, sensor: str = "hdl64e"
 ) -> list[Path]:
