@@ -654,9 +654,10 @@ def settings_from_dict(cls: type, d: object, where: str | os.PathLike | None = N
     return cls(**dict(d), **fixed)
 
 
-def settings_from_namespace(cls: type[_T], namespace: object) -> _T:
+def settings_from_namespace(cls: type[_T], namespace: object, **values: object) -> _T:
     """The settings dataclass ``cls`` of an object with one attribute per field (an ``argparse.Namespace``):
-    each field the namespace has is taken from the attribute of its name, the others keep their defaults;
-    attributes that are no field are ignored (the command-line options map one to one onto the fields)."""
-    names = [f.name for f in dataclasses.fields(cls) if f.init]  # type: ignore[arg-type]
-    return cls(**{n: getattr(namespace, n) for n in names if hasattr(namespace, n)})
+    each field the namespace has is taken from the attribute of its name (or from ``values``, for fields
+    named otherwise), the others keep their defaults; attributes that are no field are ignored (the
+    command-line options map one to one onto the fields)."""
+    names = [f.name for f in dataclasses.fields(cls) if f.init and f.name not in values]  # type: ignore[arg-type]
+    return cls(**{n: getattr(namespace, n) for n in names if hasattr(namespace, n)}, **values)

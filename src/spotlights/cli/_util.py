@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 
-from ..errors import ParameterError
 from ..options import (  # noqa: F401 - the argparse types, importable from here by every command module
     DEVICE_HELP,
     non_negative_float,
@@ -14,6 +13,7 @@ from ..options import (  # noqa: F401 - the argparse types, importable from here
     positive_int,
     unit_interval,
 )
+from ..utils import check_suffix, settings_from_namespace  # noqa: F401 - check_suffix: used by the command modules
 
 
 def add_command(sub, name: str, help: str, example: str, func=None) -> argparse.ArgumentParser:
@@ -86,31 +86,12 @@ def add_options(parser: argparse.ArgumentParser, cls, only: tuple = (), grouped:
 
 def settings_of(cls, args: argparse.Namespace, **values):
     """The settings dataclass ``cls`` of a command: each field from the parsed option of the same
-    name (``--gt-points`` -> ``gt_points``), or from ``values`` (fields named otherwise)."""
-    import dataclasses
-
-    names = [f.name for f in dataclasses.fields(cls) if f.init and f.name not in values]
-    return cls(**{n: getattr(args, n) for n in names if hasattr(args, n)}, **values)
+    name (``--gt-points`` -> ``gt_points``), or from ``values`` (fields named otherwise);
+    :func:`spotlights.utils.settings_from_namespace`."""
+    return settings_from_namespace(cls, args, **values)
 
 
 PICTURE_SUFFIXES = (".png",)
-
-
-def check_suffix(path, suffixes: tuple, what: str, option: str = "--out") -> None:
-    """Refuse an output whose extension would not match what is written (one line naming it).
-
-    ``suffixes``: the accepted lower-case extensions, e.g. ``(".h5", ".hdf5")``.
-    """
-    from pathlib import Path
-
-    if path is None:
-        return
-    suffix = Path(path).suffix.lower()
-    if suffix not in suffixes:
-        shown = " or ".join(suffixes)
-        raise ParameterError(
-            f"{option} {path}: {what} is written as {shown}; name it {Path(path).stem or 'FILE'}{suffixes[0]}"
-        )
 
 
 def check_picture(path, option: str = "--out") -> None:
