@@ -13,6 +13,7 @@ import re
 import sys
 import tempfile
 import time
+import types
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import TypeVar
@@ -49,7 +50,7 @@ def sweep_temporaries(path: str | os.PathLike) -> list[Path]:
     (a concurrent write of the same target) are left alone. Returns the removed paths.
     """
     path = Path(path)
-    removed = []
+    removed: list[Path] = []
     try:
         entries = list(os.scandir(path.parent))
     except OSError:
@@ -77,8 +78,8 @@ def sweep_folder_temporaries(folder: str | os.PathLike) -> list[Path]:
     ``.NAME.PID-RANDOM.partSUFFIX`` whose process ``PID`` no longer exists (a killed run's
     half-written outputs, whatever their target). Only names with a PID are touched, never
     another program's files. Returns the removed paths."""
-    removed = []
-    for root, _dirs, files in os.walk(folder):
+    removed: list[Path] = []
+    for root, _dirs, files in os.walk(os.fspath(folder)):
         for name in files:
             m = _TEMP_RE.match(name)
             if m is None or m.group("pid") is None or _pid_alive(int(m.group("pid"))):
@@ -382,7 +383,7 @@ def unguarded_main_call() -> tuple[str, int] | None:
     script = getattr(main, "__file__", None)
     if not script:
         return None
-    frame = sys._getframe(1)
+    frame: types.FrameType | None = sys._getframe(1)
     while frame is not None and not (frame.f_globals is main.__dict__ and frame.f_code.co_name == "<module>"):
         frame = frame.f_back
     if frame is None:
