@@ -325,7 +325,7 @@ def test_a_task_is_retried_a_bounded_number_of_times(tmp_path, ray_cluster, cras
     task = ray_cluster.remote(num_cpus=1, max_retries=1, retry_exceptions=True)(_flaky)
     counter = tmp_path / "attempts"
     with pytest.raises(SpotlightsError) as err:
-        runner._stream(
+        runner.stream(
             lambda i: task.remote(str(counter), crash),
             [0],
             lambda i: "cars/x.ply: views 0-9 of model x",
