@@ -74,7 +74,7 @@ def test_command(repo: Path) -> list[str]:
 def run_suite(repo: Path, pytest_args: list[str], timeout: float) -> dict:
     """One run of the suite in ``repo``: wall seconds, pytest's summary line, exit code, load averages."""
     env = dict(os.environ)
-    env["PYTHONPATH"] = str(repo / "src")
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(repo / "src"), env.get("PYTHONPATH")) if p)
     env["SPOTLIGHTS_SHARED"] = str((repo.parent / "shared").resolve())
     env.pop("PYTEST_ADDOPTS", None)
     cmd = [*test_command(repo), "-p", "no:cacheprovider", *pytest_args]
@@ -86,7 +86,7 @@ def run_suite(repo: Path, pytest_args: list[str], timeout: float) -> dict:
     return {
         "command": shlex.join(cmd[1:]),
         "wall_s": round(wall, 1),
-        "summary": tail[-1].strip("= ") if tail else r.stdout[-300:],
+        "summary": tail[-1].strip("= ") if tail else (r.stdout + r.stderr)[-300:],
         "returncode": r.returncode,
         "load_before": round(load0, 2),
         "load_after": round(os.getloadavg()[0], 2),
