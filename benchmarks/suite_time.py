@@ -135,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
         best = min(walls)
         print(
             f"{c:>12}: best {best:.1f} s, median {statistics.median(walls):.1f} s over {len(walls)} run(s); "
-            f"best / best of {args.commits[0]}: {best / ref:.2f} ({(1 - best / ref) * 100:+.0f}% faster)"
+            f"{best / ref:.2f} x the best of {args.commits[0]} ({(1 - best / ref) * 100:.0f}% less time)"
         )
     if args.json:
         args.json.write_text(json.dumps(runs, indent=2) + "\n")
