@@ -223,7 +223,7 @@ def run_density_analysis(
         raise ParameterError(f"{out}: exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
 
-    timer = StageTimer()
+    timer = StageTimer()  # laps, one per stage
     angles = [float(a) for a in config.angles]
     n_r = int(round(0.99 / config.r_step)) + 1
     r_values = np.round(np.linspace(0.0, config.r_step * (n_r - 1), n_r), 12)
@@ -233,106 +233,104 @@ def run_density_analysis(
     alpha_values = alpha_values[alpha_values <= np.pi + 1e-12]
 
     # --- quadrature on the grid -------------------------------------------------------------
-    with timer("quadrature_grid"):
-        grids = {a: _symmetric_grid(r_values, alpha_values, a) for a in angles}
-    with timer("extrema_and_error"):
-        summary: dict = {
-            "format": "spotlights-density-summary",
-            "config": {k: (list(v) if isinstance(v, (list, tuple)) else v) for k, v in config.__dict__.items()},
-            "angles": {},
+    timer.lap("setup")
+    grids = {a: _symmetric_grid(r_values, alpha_values, a) for a in angles}
+    timer.lap("quadrature_grid")
+    summary: dict = {
+        "format": "spotlights-density-summary",
+        "config": {k: (list(v) if isinstance(v, (list, tuple)) else v) for k, v in config.__dict__.items()},
+        "angles": {},
+    }
+    for a in angles:
+        ref = _symmetric_grid(r_values, alpha_values, a, nodes=2 * dens.DEFAULT_NODES)
+        ext = extrema(a, config.r_limit, r_values, alpha_values, grids[a])
+        ext_wide = extrema(a, 0.95, r_values, alpha_values, grids[a])
+        summary["angles"][f"{a:g}"] = {
+            "angle": a,
+            "rho_r0": float(grids[a][0, 0]),
+            "rho_r0_closed_form": dens.rho_closed_form_r0(a),
+            "quadrature_max_abs_error": float(np.max(np.abs(grids[a] - ref))),
+            "quadrature_max_rel_error": float(np.max(np.abs(grids[a] - ref) / ref)),
+            f"range_r_le_{config.r_limit:g}": ext,
+            "uniformity_max_over_min": ext["max"] / ext["min"],
+            "range_r_le_0.95": ext_wide,
+            "uniformity_max_over_min_r_le_0.95": ext_wide["max"] / ext_wide["min"],
         }
-        for a in angles:
-            ref = _symmetric_grid(r_values, alpha_values, a, nodes=2 * dens.DEFAULT_NODES)
-            ext = extrema(a, config.r_limit, r_values, alpha_values, grids[a])
-            ext_wide = extrema(a, 0.95, r_values, alpha_values, grids[a])
-            summary["angles"][f"{a:g}"] = {
-                "angle": a,
-                "rho_r0": float(grids[a][0, 0]),
-                "rho_r0_closed_form": dens.rho_closed_form_r0(a),
-                "quadrature_max_abs_error": float(np.max(np.abs(grids[a] - ref))),
-                "quadrature_max_rel_error": float(np.max(np.abs(grids[a] - ref) / ref)),
-                f"range_r_le_{config.r_limit:g}": ext,
-                "uniformity_max_over_min": ext["max"] / ext["min"],
-                "range_r_le_0.95": ext_wide,
-                "uniformity_max_over_min_r_le_0.95": ext_wide["max"] / ext_wide["min"],
-            }
+    timer.lap("extrema_and_error")
 
     # --- CSV + heat maps + occlusion figure ---------------------------------------------------
-    with timer("csv_and_figures"):
-        rr, aa = np.meshgrid(r_values, alpha_values, indexing="ij")
-        cols, fmts, header = [], ["%.4f", "%.10f", "%.12e"], "r,alpha,rho_per_nm"
-        if len(angles) == 1:
-            cols = [rr.ravel(), aa.ravel(), grids[angles[0]].ravel()]
-        else:
-            cols = [
-                np.tile(rr.ravel(), len(angles)),
-                np.tile(aa.ravel(), len(angles)),
-                np.concatenate([grids[a].ravel() for a in angles]),
-                np.repeat(angles, rr.size),
-            ]
-            fmts.append("%g")
-            header += ",angle"
-        _write_csv(out / "density.csv", header, cols, fmts)
-        plots.plot_heatmaps(out / "density_heatmap.png", r_values, alpha_values, grids, r_limit=config.r_limit)
-        dir_angle = 90.0 if 90.0 in angles else angles[0]
-        beta = np.linspace(0.0, np.pi / 2, 121)
-        gamma = np.linspace(0.0, 2 * np.pi, 2 * 121)
-        cases = [
-            (r, a, dens.rho_direction_grid(r, a, beta, gamma, angle=dir_angle), float(dens.rho(r, a, angle=dir_angle)))
-            for r, a in [(0.0, 0.0), (0.5, np.radians(60.0)), (0.8, 0.0), (0.8, np.pi / 2), (0.8, np.pi)]
+    rr, aa = np.meshgrid(r_values, alpha_values, indexing="ij")
+    cols, fmts, header = [], ["%.4f", "%.10f", "%.12e"], "r,alpha,rho_per_nm"
+    if len(angles) == 1:
+        cols = [rr.ravel(), aa.ravel(), grids[angles[0]].ravel()]
+    else:
+        cols = [
+            np.tile(rr.ravel(), len(angles)),
+            np.tile(aa.ravel(), len(angles)),
+            np.concatenate([grids[a].ravel() for a in angles]),
+            np.repeat(angles, rr.size),
         ]
-        plots.plot_directional(out / "density_directional.png", cases, beta, gamma, angle=dir_angle)
+        fmts.append("%g")
+        header += ",angle"
+    _write_csv(out / "density.csv", header, cols, fmts)
+    plots.plot_heatmaps(out / "density_heatmap.png", r_values, alpha_values, grids, r_limit=config.r_limit)
+    dir_angle = 90.0 if 90.0 in angles else angles[0]
+    beta = np.linspace(0.0, np.pi / 2, 121)
+    gamma = np.linspace(0.0, 2 * np.pi, 2 * 121)
+    cases = [
+        (r, a, dens.rho_direction_grid(r, a, beta, gamma, angle=dir_angle), float(dens.rho(r, a, angle=dir_angle)))
+        for r, a in [(0.0, 0.0), (0.5, np.radians(60.0)), (0.8, 0.0), (0.8, np.pi / 2), (0.8, np.pi)]
+    ]
+    plots.plot_directional(out / "density_directional.png", cases, beta, gamma, angle=dir_angle)
+    timer.lap("csv_and_figures")
 
     # --- real rigs: hit ratios and Monte-Carlo ------------------------------------------------
 
     all_results = []
-    with timer("montecarlo"):
-        placements = [DiscPlacement(0.0, 0.0)] + [
-            DiscPlacement(float(r), float(np.radians(ad)))
-            for r in config.mc_radii
-            if r > 0
-            for ad in config.mc_alphas_deg
-        ]
-        for a in angles:
-            rig = make_rig(config.mc_primary, config.mc_secondary, angle=a)
-            summary["angles"][f"{a:g}"]["rig"] = rig.name
-            summary["angles"][f"{a:g}"].update(hit_ratios(rig))
-            if config.mc:
-                res = mc_density(
-                    rig,
-                    placements,
-                    disc_radius=config.disc_radius,
-                    n_rotations=config.mc_rotations,
-                    seed=config.seed + int(round(1000 * a)),
-                    progress=progress,
-                )
-                all_results.extend(res)
-                summary["angles"][f"{a:g}"]["montecarlo"] = _mc_stats(res)
-    with timer("mc_figures_and_summary"):
+    placements = [DiscPlacement(0.0, 0.0)] + [
+        DiscPlacement(float(r), float(np.radians(ad))) for r in config.mc_radii if r > 0 for ad in config.mc_alphas_deg
+    ]
+    for a in angles:
+        rig = make_rig(config.mc_primary, config.mc_secondary, angle=a)
+        summary["angles"][f"{a:g}"]["rig"] = rig.name
+        summary["angles"][f"{a:g}"].update(hit_ratios(rig))
         if config.mc:
-            _write_mc_csv(out / "density_mc.csv", all_results)
-            curve_r = np.linspace(0.0, 0.95, 96)
-            curves = {
-                a: (curve_r, {ad: dens.rho(curve_r, np.radians(ad), angle=a) for ad in (0.0, 45.0, 90.0)})
-                for a in angles
+            res = mc_density(
+                rig,
+                placements,
+                disc_radius=config.disc_radius,
+                n_rotations=config.mc_rotations,
+                seed=config.seed + int(round(1000 * a)),
+                progress=progress,
+            )
+            all_results.extend(res)
+            summary["angles"][f"{a:g}"]["montecarlo"] = _mc_stats(res)
+    timer.lap("montecarlo")
+    if config.mc:
+        _write_mc_csv(out / "density_mc.csv", all_results)
+        curve_r = np.linspace(0.0, 0.95, 96)
+        curves = {
+            a: (curve_r, {ad: dens.rho(curve_r, np.radians(ad), angle=a) for ad in (0.0, 45.0, 90.0)}) for a in angles
+        }
+        plots.plot_montecarlo(out / "density_montecarlo.png", all_results, curves)
+        summary["montecarlo"] = _mc_stats(all_results)
+    if len(angles) > 1:
+        table = [
+            {
+                "angle": a,
+                "uniformity": summary["angles"][f"{a:g}"]["uniformity_max_over_min"],
+                "uniformity_095": summary["angles"][f"{a:g}"]["uniformity_max_over_min_r_le_0.95"],
+                "hit_ratio_05": summary["angles"][f"{a:g}"]["hit_ratio_05"],
+                "hit_ratio_08": summary["angles"][f"{a:g}"]["hit_ratio_08"],
             }
-            plots.plot_montecarlo(out / "density_montecarlo.png", all_results, curves)
-            summary["montecarlo"] = _mc_stats(all_results)
-        if len(angles) > 1:
-            table = [
-                {
-                    "angle": a,
-                    "uniformity": summary["angles"][f"{a:g}"]["uniformity_max_over_min"],
-                    "uniformity_095": summary["angles"][f"{a:g}"]["uniformity_max_over_min_r_le_0.95"],
-                    "hit_ratio_05": summary["angles"][f"{a:g}"]["hit_ratio_05"],
-                    "hit_ratio_08": summary["angles"][f"{a:g}"]["hit_ratio_08"],
-                }
-                for a in angles
-            ]
-            ia0 = 0
-            ia90 = int(np.argmin(np.abs(alpha_values - np.pi / 2)))
-            profiles = {a: {"alpha0": grids[a][:, ia0], "alpha90": grids[a][:, ia90]} for a in angles}
-            plots.plot_caps(out / "density_caps.png", r_values, profiles, table)
-        with atomic_output(out / "summary.json") as tmp:
-            tmp.write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
-    return summary, {**timer.seconds, "total": timer.total}
+            for a in angles
+        ]
+        ia0 = 0
+        ia90 = int(np.argmin(np.abs(alpha_values - np.pi / 2)))
+        profiles = {a: {"alpha0": grids[a][:, ia0], "alpha90": grids[a][:, ia90]} for a in angles}
+        plots.plot_caps(out / "density_caps.png", r_values, profiles, table)
+    with atomic_output(out / "summary.json") as tmp:
+        tmp.write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
+    timer.lap("mc_figures_and_summary")
+    timings = {k: v for k, v in timer.seconds.items() if k != "setup"}
+    return summary, {**timings, "total": timer.total}
