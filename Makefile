@@ -31,8 +31,11 @@ $(VENV)/bin/python:
 demo: install
 	$(PYTHON) -m spotlights demo --out out/demo
 
+# Two test processes (pytest-xdist; one torch thread each, tests/conftest.py), whole files to one process
+# (module fixtures run once): the suite keeps one core busy, so this uses the second of a 2-core machine.
+# `python -m pytest` alone runs the same tests in one process.
 test: install
-	$(PYTHON) -m pytest -q
+	$(PYTHON) -m pytest -q -n 2 --dist loadfile
 
 bench: install
 	$(PYTHON) benchmarks/encode.py

@@ -34,6 +34,7 @@ import numpy as np
 from spotlights.data.lidar import LidarSimulator
 from spotlights.data.synthetic import (BuildConfig, save_npz_atomic, build_dataset, discover_models, load_model,
                                        model_ground_truth, simulate_views)
+from spotlights.utils import StageTimer
 
 ROOT = Path(__file__).resolve().parents[1]
 CARS = Path(os.environ.get("SPOTLIGHTS_SHARED", ROOT.parent / "shared")) / "data" / "meshes" / "apolloscape-cars"
@@ -56,19 +57,19 @@ def stage_profile(root: Path, file: str, cfg: BuildConfig, views: int) -> dict:
     t_gt = time.perf_counter() - t0
     sim = LidarSimulator(model.vertices, model.faces, cfg.sensor_model)
     simulate_views(sim, model, cfg, range(5))  # warm-up
-    tm: dict = {}
-    t0 = time.perf_counter()
-    arrays = simulate_views(sim, model, cfg, range(views), tm)
-    t_views = time.perf_counter() - t0
+    tm = StageTimer()
+    with tm("views"):
+        arrays = simulate_views(sim, model, cfg, range(views), tm)
+    t_views = tm.seconds["views"]
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         save_npz_atomic(Path(tmp) / "shard.npz", arrays)
         t_write = time.perf_counter() - t0
-    per = {k: tm[k] / views * 1e3 for k in ("rays", "cast", "returns", "resample")}
+    per = {k: tm.seconds[k] / views * 1e3 for k in ("rays", "cast", "returns", "resample")}
     per["other"] = t_views / views * 1e3 - sum(per.values())
     return {
         "model": file, "views": views, "ms_per_view": t_views / views * 1e3, "ms_per_view_by_stage": per,
-        "draws_per_view": tm["draws"] / views, "mean_rays_per_view": float(arrays["n_rays"].mean()),
+        "draws_per_view": float(arrays["n_draws"].sum()) / views, "mean_rays_per_view": float(arrays["n_rays"].mean()),
         "mean_returns_per_view": float(arrays["n_raw"].mean()),
         "ground_truth_s_per_model": t_gt, "rigs": cfg.rigs and [r.name for r in cfg.rigs],
         "shard_write_ms_per_view": t_write / views * 1e3, "gt_hit_ratio": float((gt["depths"][0] > 0).mean()),

@@ -34,3 +34,21 @@ def _private_tmpdir(tmp_path_factory):
             os.environ.pop("TMPDIR", None)
         else:
             os.environ["TMPDIR"] = old_env
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _one_torch_thread_per_worker():
+    """Under pytest-xdist (``-n N``: one process per CPU), each worker computes with one torch thread,
+    so that N workers keep N CPUs busy instead of N x CPUs threads fighting over them (the suite's
+    models are tiny: one thread is also the fastest for them). A single-process run is left as it is."""
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        yield
+        return
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)

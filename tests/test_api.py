@@ -60,7 +60,7 @@ def test_api_page_examples_run():
     assert tried > 20 and failures == 0
 
 
-@pytest.mark.slow  # about 20 s of CPU with an empty cache (numpy's stubs), 2 s with .mypy_cache
+@pytest.mark.slow  # about 3 s of CPU with an empty cache (as on CI), 1 s with .mypy_cache
 @pytest.mark.skipif(importlib.util.find_spec("mypy") is None, reason="mypy is not installed (pip install -e .[test])")
 def test_public_modules_type_check():
     """``mypy`` as configured in pyproject.toml ([tool.mypy]: the API's modules, every function annotated)."""

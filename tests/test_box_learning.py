@@ -105,9 +105,10 @@ def built(meshes, tmp_path_factory):
 
 def test_box_rig_depths_equal_independent_truth(built, meshes):
     path, _ = built
+    with h5py.File(path, "r") as f:  # the file as written (docs/dataset.md: the group attr rig_json of /rigs/NAME)
+        stored = json.loads(f[f"rigs/{BOX}"].attrs["rig_json"])
     with open_dataset(path) as ds:
         assert BOX in ds.rig_names
-        stored = json.loads(ds._h5()[f"rigs/{BOX}"].attrs["rig_json"])
         assert stored == SPEC.to_dict() and "box" not in stored  # the spec: each model has its own box
         e = ds.extents
         np.testing.assert_allclose(np.linalg.norm(e, axis=1), 1.0, atol=1e-12)

@@ -178,19 +178,19 @@ def test_same_arrays_and_bytes_whatever_the_workers(meshes, reference, tmp_path)
 def test_resume_after_an_interruption(meshes, reference, tmp_path, monkeypatch):
     out = tmp_path / "int.h5"
     parts = Path(str(out) + ".parts")
-    real = synthetic.runner._run_unit
+    real = synthetic.runner.compute_unit  # the public per-unit computation the build calls
     calls = {"n": 0}
 
-    def dying(unit):
+    def dying(*args, **kwargs):
         if calls["n"] == 7:
             raise KeyboardInterrupt
         calls["n"] += 1
-        return real(unit)
+        return real(*args, **kwargs)
 
-    monkeypatch.setattr(synthetic.runner, "_run_unit", dying)
+    monkeypatch.setattr(synthetic.runner, "compute_unit", dying)
     with pytest.raises(KeyboardInterrupt):
         build_dataset(small_cfg(meshes), out, workers=1, block=1, progress=False, log=lambda m: None)
-    monkeypatch.setattr(synthetic.runner, "_run_unit", real)
+    monkeypatch.setattr(synthetic.runner, "compute_unit", real)
     assert not out.exists() and len(list(parts.glob("*.npz"))) == 7
     (parts / ".obs-00001-0000003-0000004.npz.abc.part.npz").write_bytes(b"half a shard")  # a killed write
     rep = build_dataset(small_cfg(meshes), out, workers=1, block=1, progress=False, log=lambda m: None)

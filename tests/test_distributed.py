@@ -202,6 +202,7 @@ def test_add_rig_on_shards_equals_add_rig_on_a_file(meshes, local_ref, tmp_path)
 # ---------------------------------------------------------------- Ray
 
 
+@pytest.mark.slow  # a local Ray instance (seconds to start)
 def test_ray_build_is_byte_identical_to_local(meshes, local_ref, tmp_path, ray_cluster):
     one = tmp_path / "ray1.h5"
     build_dataset(cfg(meshes), one, backend="ray", workers=1, block=4, progress=False, log=quiet)
@@ -219,6 +220,7 @@ def test_ray_build_is_byte_identical_to_local(meshes, local_ref, tmp_path, ray_c
     assert sha(a) == sha(b)
 
 
+@pytest.mark.slow  # a local Ray instance (seconds to start)
 def test_ray_metrics_equal_local(ray_cluster):
     from spotlights.learning.ray_metrics import RayMetrics
     from spotlights.metrics.completion import evaluate_completions
@@ -235,6 +237,7 @@ def test_ray_metrics_equal_local(ray_cluster):
         np.testing.assert_array_equal(want[k], got[k])
 
 
+@pytest.mark.slow  # a local Ray instance (seconds to start)
 def test_a_failing_mesh_stops_a_ray_build_with_one_line(meshes, tmp_path, capsys, ray_cluster):
     bad = tmp_path / "bad"
     for rel in MESHES:
@@ -309,6 +312,7 @@ def test_ray_build_resumes_after_the_driver_is_killed(meshes, local_ref, tmp_pat
     assert sha(out) == sha(local_ref)
 
 
+@pytest.mark.slow  # a local Ray instance (seconds to start)
 @pytest.mark.parametrize("crash", [False, True])
 def test_a_task_is_retried_a_bounded_number_of_times(tmp_path, ray_cluster, crash):
     from spotlights.data.synthetic.ray_backend import RayBuild
@@ -325,7 +329,7 @@ def test_a_task_is_retried_a_bounded_number_of_times(tmp_path, ray_cluster, cras
     task = ray_cluster.remote(num_cpus=1, max_retries=1, retry_exceptions=True)(_flaky)
     counter = tmp_path / "attempts"
     with pytest.raises(SpotlightsError) as err:
-        runner._stream(
+        runner.stream(
             lambda i: task.remote(str(counter), crash),
             [0],
             lambda i: "cars/x.ply: views 0-9 of model x",

@@ -10,6 +10,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -178,9 +179,10 @@ def _writer_case(name: str, meshes: Path, built: Path, work: Path) -> list:
 def test_every_writer_fails_cleanly_when_a_write_fails(writer, meshes, built, tmp_path):
     """A write that fails (files limited to 40 kB: EFBIG, as ENOSPC on a full disk) is one line, exit 2,
     nothing left: no half-written file, no parts, no pymp-* folder; HDF5 writers used to segfault (-11)."""
-    work, tmp = tmp_path / "work", tmp_path / "tmp"
+    # the child's TMPDIR: a short path (the suite's private temporary folder, tests/conftest.py), since
+    # multiprocessing's socket paths inside it must stay under 107 bytes (pytest-xdist's tmp_path is deeper)
+    work, tmp = tmp_path / "work", Path(tempfile.mkdtemp(prefix="w-"))
     work.mkdir()
-    tmp.mkdir()
     args = _writer_case(writer, meshes, built, work)
     before = listing(work)
     proc = run_limited(LIMIT if writer != "real-extract" else 4096, *args, cwd=tmp_path, tmp=tmp)

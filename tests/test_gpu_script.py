@@ -37,6 +37,7 @@ def meshes(tmp_path_factory):
     return root
 
 
+@pytest.mark.slow  # the recipe end to end: a dataset build and a training (seconds)
 def test_tiny_cpu_run_writes_a_loadable_checkpoint_log_and_config(tmp_path, meshes):
     from spotlights.learning.checkpoint import load_checkpoint, model_from_checkpoint
 

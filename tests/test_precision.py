@@ -6,10 +6,12 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from spotlights.data.store import open_dataset  # noqa: E402
 from spotlights.errors import ParameterError  # noqa: E402
+from spotlights.learning import train as train_module  # noqa: E402
 from spotlights.learning.checkpoint import load_checkpoint, model_from_checkpoint  # noqa: E402
 from spotlights.learning.device import autocast, resolve_precision  # noqa: E402
-from spotlights.learning.train import _stream_indices, train  # noqa: E402
+from spotlights.learning.train import train  # noqa: E402
 
 from learning_fixtures import one_torch_thread, tiny_dataset_path, tiny_overrides  # noqa: E402
 
@@ -44,16 +46,6 @@ def test_resolve_precision():
         assert torch.nn.Linear(4, 4)(torch.ones(2, 4)).dtype == torch.float32
 
 
-def test_stream_indices_are_passes_and_do_not_depend_on_chunking():
-    n = 10
-    whole = _stream_indices(n, 3, 0, 35)
-    assert sorted(whole[:10]) == list(range(10)) and sorted(whole[10:20]) == list(range(10))
-    assert whole[:10] != whole[10:20]  # a new permutation each pass
-    chunks = _stream_indices(n, 3, 0, 7) + _stream_indices(n, 3, 7, 16) + _stream_indices(n, 3, 23, 12)
-    assert chunks == whole
-    assert _stream_indices(n, 4, 0, 10) != whole[:10]  # the seed matters
-
-
 @pytest.mark.parametrize("name", ["sanet", "foldingnet"])
 def test_bf16_training_decreases_the_loss_and_saves_float32_weights(data, tmp_path, name):
     res = _run(name, data, tmp_path / name, epochs=6, precision="bf16")
@@ -71,11 +63,32 @@ def test_bf16_training_decreases_the_loss_and_saves_float32_weights(data, tmp_pa
     assert all(v.dtype == torch.float32 for v in out.values())
 
 
-def test_resume_continues_exactly_under_bf16_with_step_epochs(data, tmp_path):
+def test_resume_continues_exactly_under_bf16_with_step_epochs(data, tmp_path, monkeypatch):
+    """Step-count epochs draw the next batches of one stream of shuffled passes over the training set:
+    every sample once per pass, a new order each pass, the same stream whether resumed or not."""
+    drawn: dict[str, list[list[int]]] = {}  # run -> the training sample indices of each epoch, in order
+    real_loader = train_module.DataLoader
+
+    def recording_loader(dataset, *a, sampler=None, **kw):
+        if isinstance(sampler, list):  # a training epoch's indices (validation draws no sampler)
+            drawn.setdefault(run_name, []).append(list(sampler))
+        return real_loader(dataset, *a, sampler=sampler, **kw)
+
+    monkeypatch.setattr(train_module, "DataLoader", recording_loader)
     kw = dict(precision="bf16", steps_per_epoch=3)
+    run_name = "full"
     full = _run("atlasnet", data, tmp_path / "full", epochs=3, **kw)
+    run_name = "part"
     _run("atlasnet", data, tmp_path / "part", epochs=3, stop_after=1, **kw)
     resumed = train("atlasnet", data, tmp_path / "part", resume=True, progress=False, log=lambda *a: None)
+    with open_dataset(data) as ds:
+        n_train = len(ds.split_indices("train"))
+    stream = [i for epoch in drawn["full"] for i in epoch]
+    assert [len(e) for e in drawn["full"]] == [24, 24, 24] and drawn["part"] == drawn["full"]  # 3 steps of 8
+    assert n_train < len(stream) < 2 * n_train, n_train  # one whole pass and the start of the next
+    first, second = stream[:n_train], stream[n_train:]
+    assert sorted(first) == list(range(n_train)), stream  # every sample once per pass
+    assert len(set(second)) == len(second) and second != first[: len(second)]  # a new permutation
     a, b = load_checkpoint(tmp_path / "full" / "last.pt"), load_checkpoint(tmp_path / "part" / "last.pt")
     for k in a["model_state"]:
         assert torch.equal(a["model_state"][k], b["model_state"][k]), k

@@ -5,7 +5,6 @@ byte-for-byte identity. No test here depends on timing.
 """
 
 import multiprocessing as mp
-import os
 import threading
 
 import numpy as np
@@ -17,7 +16,7 @@ from spotlights.geometry import MeshProbe, RayCaster, make_rig, raycast
 
 from helpers import brute_force_first_hit
 
-needs_embree = pytest.mark.skipif(not raycast._embree_available(), reason="embreex is not installed")
+needs_embree = pytest.mark.skipif(not raycast.embree_available(), reason="embreex is not installed")
 
 
 @pytest.fixture(scope="module")
@@ -121,7 +120,7 @@ def test_empty_and_bad_queries(annulus):
 def test_split_chunks_cover_every_ray_once():
     for n in (4096, 5000, 32768, 262144, 1 << 20, 7):
         for parts in (2, 3, 8):
-            b = raycast._split_bounds(n, parts)
+            b = raycast.split_bounds(n, parts)
             sizes = np.diff(b)
             assert b[0] == 0 and b[-1] == n and len(b) == parts + 1
             assert (sizes >= 0).all() and sizes.max() - sizes.min() <= 1  # one equal chunk per thread
@@ -135,7 +134,7 @@ def test_split_runs_every_chunk_once_and_raises_a_thread_error():
         with lock:
             seen[a:b] += 1
 
-    raycast._run_split(len(seen), 3, cast)
+    raycast.run_split(len(seen), 3, cast)
     assert (seen == 1).all()
 
     def boom(a, b):
@@ -143,8 +142,8 @@ def test_split_runs_every_chunk_once_and_raises_a_thread_error():
             raise ValueError("chunk failed")
 
     with pytest.raises(ValueError, match="chunk failed"):
-        raycast._run_split(50000, 2, boom)
-    raycast._run_split(len(seen), 2, cast)  # the pool is still usable
+        raycast.run_split(50000, 2, boom)
+    raycast.run_split(len(seen), 2, cast)  # the pool is still usable
     assert (seen == 2).all()
 
 
@@ -166,17 +165,23 @@ def test_threads_sharing_one_caster(annulus):
     assert len(outs) == 30 and all(o == ref for o in outs)
 
 
+def _pool_threads() -> list[threading.Thread]:
+    """The live threads of this process's ray pool (named ``spotlights-rays...``)."""
+    return [t for t in threading.enumerate() if t.name.startswith("spotlights-rays") and t.is_alive()]
+
+
 def _child_pool_check(conn):
-    """In a forked child: the parent's pool is forgotten, and a split runs on a new pool of this process."""
+    """In a forked child: no pool thread came along, and a split starts a new pool thread of this process
+    (a child that kept the parent's pool object would hand its chunks to threads that do not exist here)."""
     try:
-        fresh = raycast._POOL is None
+        fresh = not _pool_threads()
         seen = np.zeros(20000, dtype=np.int64)
 
         def cast(a, b):
             seen[a:b] += 1
 
-        raycast._run_split(len(seen), 2, cast)
-        conn.send((fresh, bool((seen == 1).all()), raycast._POOL[0] == os.getpid()))
+        raycast.run_split(len(seen), 2, cast)
+        conn.send((fresh, bool((seen == 1).all()), bool(_pool_threads())))
     except BaseException as exc:  # reported to the parent, never left hanging
         conn.send(repr(exc))
     finally:
@@ -193,7 +198,7 @@ def test_forked_children_build_their_own_thread_pool(annulus):
     rig = make_rig(64, 128, 60)
     probe = MeshProbe(annulus, workers=2)
     ref = probe.encode(rig).tobytes()  # starts the pool in this process
-    assert raycast._POOL is not None and raycast._POOL[0] == os.getpid()
+    assert _pool_threads()  # the pool runs in this process
     ctx = mp.get_context("fork")
     children = []
     for _ in range(2):

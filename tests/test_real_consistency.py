@@ -167,35 +167,15 @@ def test_evaluate_consistency_with_fake_completers(tmp_path):
 
 
 def test_evaluate_needs_tracks(tmp_path):
-    obs = tracked_scene(tmp_path)
-    keep = [i for i, t in enumerate(obs.track_id) if t == "once"]
-    from spotlights.data.real.extract import _stack  # noqa: PLC2701 - build a one-observation file
-
-    rows = [
-        {
-            k: (getattr(obs, k)[i])
-            for k in (
-                "partial",
-                "n_points_raw",
-                "timestamp",
-                "box_center",
-                "box_size",
-                "box_yaw",
-                "box_rotation",
-                "unit_to_sensor",
-                "sensor_to_world",
-                "sequence",
-                "frame_id",
-                "track_id",
-                "cls",
-                "label",
-                "scan_path",
-                "label_path",
-            )
-        }
-        for i in keep
-    ]
-    single = _stack(rows, 256, obs.meta)
+    """A scene whose only object is seen in one frame (tracked_scene's "once" car, alone) has no pair to compare."""
+    rng = np.random.default_rng(5)
+    obj = rng.uniform(-0.5, 0.5, (80, 3)) * [4, 1.8, 1.4] + [0, -10, -0.8]
+    np.save(tmp_path / "s0.npy", np.concatenate([rng.uniform(-50, 50, (200, 3)) + [0, 0, 30], obj]).astype(np.float32))
+    box = {"center": [0, -10, -0.8], "size": [4, 1.8, 1.4], "yaw": 0.0, "label": "Car", "track_id": "once"}
+    frame = {"scan": "s0.npy", "timestamp": 0, "sequence": "seq", "boxes": [box]}
+    (tmp_path / "scene.json").write_text(json.dumps({"frames": [frame]}))
+    single = extract(open_reader(tmp_path / "scene.json", "generic"), ExtractConfig(), progress=False)
+    assert list(single.track_id) == ["once"]
     with pytest.raises(InputFileError, match="no object is observed in two or more frames"):
         evaluate_consistency(single, [Identity()], progress=False)
 

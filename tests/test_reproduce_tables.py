@@ -414,8 +414,8 @@ def test_dense_run_keeps_the_schedules_budget(monkeypatch, tmp_path, schedule, n
     ctx = Context(Settings(out=tmp_path, schedule=schedule))
     assert rsteps.pass_steps_per_epoch(ctx, "sanet-hit-dense") == expect
     assert rsteps.pass_steps_per_epoch(ctx, "sanet-hit-box") is None  # no config of its own
-    cmd = rsteps._train_command(ctx, "sanet-hit-dense")
+    cmd = rsteps.train_command(ctx, "sanet-hit-dense")
     assert (f"--steps-per-epoch {expect}" in cmd) == (expect is not None)
-    over = rsteps._train_overrides(ctx, "sanet-hit-dense")
+    over = rsteps.train_overrides(ctx, "sanet-hit-dense")
     assert over["data"] == {"rig": "box-128x128-ellipsoid-s1"}
     assert over.get("train", {}).get("steps_per_epoch") == expect

@@ -49,3 +49,16 @@ def test_stage_timer_sums_repeated_stages_against_a_sleep():
     assert t.total == pytest.approx(t.seconds["sleep"] + t.seconds["nothing"])
     t.add("outside", 1.5)
     assert t.rounded(1)["outside"] == 1.5
+
+
+def test_stage_timer_laps_split_straight_line_code_against_sleeps():
+    t = StageTimer()
+    time.sleep(0.02)
+    first = t.lap("a")
+    with t("inside"):  # a block inside a lap counts for both
+        time.sleep(0.01)
+    t.lap("b")
+    t.lap("b")  # an immediate lap: about nothing
+    assert list(t.seconds) == ["a", "inside", "b"] and t.counts["b"] == 2
+    assert first == t.seconds["a"] and 0.02 <= first < 1.0
+    assert 0.01 <= t.seconds["b"] < 1.0 and t.seconds["inside"] <= t.seconds["b"]

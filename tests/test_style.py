@@ -76,3 +76,88 @@ def test_ruff_check_passes():
 def test_ruff_format_leaves_every_file_as_it_is():
     proc = _ruff("format", "--check", "--no-cache", ".")
     assert proc.returncode == 0, f"files ruff format would change (run make format):\n{proc.stdout}{proc.stderr}"
+
+
+# ---------------------------------------------------------------------------------------------
+# tests use the public API only (issue 29): no private spotlights name is imported or reached
+# ---------------------------------------------------------------------------------------------
+# Private attributes of other libraries that tests may reach, each for a reason (nothing public does it).
+FOREIGN_PRIVATE = {
+    "_exit": "os._exit: a child that dies at once, as a killed worker does",
+    "_actions": "argparse keeps a parser's options only there",
+    "_subparsers": "argparse: the sub-commands of a parser",
+    "_group_actions": "argparse: the sub-commands of a parser",
+    "_SubParsersAction": "argparse: the class of a sub-command action",
+}
+
+
+def _is_private(name: str) -> bool:
+    return name.startswith("_") and not (name.startswith("__") and name.endswith("__"))
+
+
+def private_uses(source: str) -> list[tuple[int, str]]:
+    """(line, what) for every private spotlights name a test module imports or reaches.
+
+    Flagged: ``from spotlights.x import _y`` and private modules; ``obj._y`` on anything but ``self``
+    and ``cls`` (unless ``_y`` is in FOREIGN_PRIVATE); ``setattr``/``getattr``/``monkeypatch.setattr``
+    with a private attribute name; strings naming ``spotlights....._y`` (monkeypatch targets)."""
+    import ast
+    import re
+
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] == "spotlights":
+            parts = node.module.split(".") + [a.name for a in node.names]
+            found += [(node.lineno, f"imports {node.module}.{p}") for p in parts if _is_private(p)]
+        elif isinstance(node, ast.Import):
+            found += [
+                (node.lineno, f"imports {a.name}")
+                for a in node.names
+                if a.name.split(".")[0] == "spotlights" and any(_is_private(p) for p in a.name.split("."))
+            ]
+        elif isinstance(node, ast.Attribute) and _is_private(node.attr) and node.attr not in FOREIGN_PRIVATE:
+            root = node.value
+            while isinstance(root, (ast.Attribute, ast.Call, ast.Subscript)):
+                root = root.func if isinstance(root, ast.Call) else root.value
+            if not (isinstance(root, ast.Name) and root.id in ("self", "cls")):
+                found.append((node.lineno, f"reaches {ast.unparse(node)}"))
+        elif isinstance(node, ast.Call) and getattr(node.func, "attr", getattr(node.func, "id", "")) in (
+            "setattr",
+            "getattr",
+            "delattr",
+            "hasattr",
+        ):
+            names = [a.value for a in node.args[1:2] if isinstance(a, ast.Constant) and isinstance(a.value, str)]
+            found += [(node.lineno, f"{ast.unparse(node.func)} of {n}") for n in names if _is_private(n)]
+        elif isinstance(node, ast.Constant) and isinstance(node.value, str):
+            m = re.search(r"\bspotlights(?:\.\w+)*\.(_\w+)", node.value)
+            if m and _is_private(m.group(1)):
+                found.append((node.lineno, f"names {m.group(0)}"))
+    return sorted(found)
+
+
+def test_the_private_name_check_finds_each_kind_of_reach():
+    src = (  # SL stands for the package's name (this file's own strings name nothing private)
+        "from SL.learning.train import _stream_indices, train\n"
+        "import SL.geometry._hidden as h\n"
+        "from SL.geometry import raycast\n"
+        "raycast._run_split(3, 2, print)\n"
+        "ds = open_dataset(p); ds._h5()['rigs']\n"
+        "monkeypatch.setattr(runner, '_run_unit', f)\n"
+        "monkeypatch.setattr('SL.data.synthetic.runner._run_unit', f)\n"
+        "os._exit(1); self._cache = 1; parser._actions\n"
+        "raycast.run_split(3, 2, print); Dunder.__init__\n"
+    ).replace("SL", "spotlights")
+    lines = [line for line, _ in private_uses(src)]
+    assert lines == [1, 2, 4, 5, 6, 7], private_uses(src)
+
+
+def test_no_test_imports_or_reaches_a_private_name():
+    """Tests check public behaviour: a private name (``_foo``) of spotlights is not imported, reached or
+    monkeypatched (issue 29); a unit worth testing on its own is made public (documented, annotated)."""
+    bad = [
+        f"{path.relative_to(ROOT)}:{line}: {what}"
+        for path in sorted((ROOT / "tests").glob("*.py"))
+        for line, what in private_uses(path.read_text())
+    ]
+    assert not bad, "private names in tests:\n" + "\n".join(bad)

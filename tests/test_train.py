@@ -355,16 +355,16 @@ def make_checkpoint_cached(data):
 
 def test_two_checkpoints_of_one_model_are_told_apart_in_the_report():
     """Rows of the same model get their run folder's name (or the file's stem); a lone model keeps its plain name."""
-    from spotlights.learning.evaluate import _label, _tag_repeated_models
+    from spotlights.learning.evaluate import model_label, tag_repeated_models
 
     results = [
         {"model": "sanet", "checkpoint": "runs/fair/sanet/best.pt"},
         {"model": "sanet", "checkpoint": "pretrained/paper.pt"},
         {"model": "pcn", "checkpoint": "runs/pcn/best.pt"},
     ]
-    _tag_repeated_models(results)
+    tag_repeated_models(results)
     row = {"variant": "clip 0.2"}
-    assert [_label(r, row) for r in results] == [
+    assert [model_label(r, row) for r in results] == [
         "SA-Net [sanet] (clip 0.2)",
         "SA-Net [paper] (clip 0.2)",
         "PCN (clip 0.2)",

@@ -572,7 +572,9 @@ class StageTimer:
 
     ``with timer("read"): ...`` adds the block's wall time (``time.perf_counter``, seconds) to
     ``timer.seconds["read"]``; stages keep the order of their first entry. ``timer.add(name, s)``
-    adds a time measured elsewhere; ``timer.total`` is the sum. Latency of repeated calls (medians,
+    adds a time measured elsewhere; ``timer.lap(name)`` adds the time since the previous lap (or since
+    the timer was made) to ``name``, for consecutive stages of straight-line code (early returns, no
+    block to indent); ``timer.total`` is the sum. Latency of repeated calls (medians,
     round-robin) is :func:`spotlights.learning.bench.time_calls`'s job, not this one's.
 
     >>> t = StageTimer()
@@ -585,6 +587,7 @@ class StageTimer:
     def __init__(self) -> None:
         self.seconds: dict[str, float] = {}
         self.counts: dict[str, int] = {}
+        self._mark = time.perf_counter()  # where the next lap starts
 
     @contextlib.contextmanager
     def __call__(self, name: str) -> Iterator[None]:
@@ -598,6 +601,14 @@ class StageTimer:
         """Add ``seconds`` (float, wall seconds) to stage ``name`` and count one entry."""
         self.seconds[name] = self.seconds.get(name, 0.0) + float(seconds)
         self.counts[name] = self.counts.get(name, 0) + 1
+
+    def lap(self, name: str) -> float:
+        """Add the wall seconds since the previous :meth:`lap` (or since this timer was made) to stage
+        ``name`` and return them (float, seconds). Laps ignore ``with`` blocks and :meth:`add`."""
+        t = time.perf_counter()
+        seconds, self._mark = t - self._mark, t
+        self.add(name, seconds)
+        return seconds
 
     @property
     def total(self) -> float:

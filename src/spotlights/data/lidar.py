@@ -44,7 +44,6 @@ from __future__ import annotations
 
 import math
 import os
-import time
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 
@@ -54,7 +53,7 @@ from ..errors import ParameterError
 from ..geometry.frames import Normalization
 from ..geometry.raycast import RayCaster
 from ..geometry.rotations import rotation_z
-from ..utils import settings_from_dict
+from ..utils import StageTimer, settings_from_dict
 
 
 @dataclass(frozen=True)
@@ -328,20 +327,21 @@ class LidarSimulator:
         b = self.box_center_in_sensor(pose)
         return rotation_z(pose.heading).T @ (-b) + self.center
 
-    def scan(self, pose: VehiclePose, rng: np.random.Generator, timings: dict | None = None) -> Scan:
+    def scan(self, pose: VehiclePose, rng: np.random.Generator, timings: StageTimer | None = None) -> Scan:
         """Simulate one scan of the vehicle at ``pose``.
 
         Parameters
         ----------
         pose : vehicle placement; the sensor must be outside the box's footprint.
         rng : random generator for dropout and range noise (consumed deterministically).
-        timings : optional dict; seconds spent in ``rays``, ``cast`` and ``returns`` are added to it.
+        timings : optional :class:`~spotlights.utils.StageTimer`; the seconds spent in its stages ``rays``,
+            ``cast`` and ``returns`` are added to it.
 
         Returns
         -------
         :class:`Scan` with the returns in the object frame (metres).
         """
-        t0 = time.perf_counter()
+        timer = StageTimer()
         s = self.sensor
         if pose.distance <= self.footprint_radius:
             raise ParameterError(
@@ -365,9 +365,9 @@ class LidarSimulator:
         d[..., 2] = se[:, None]
         d = d.reshape(-1, 3)
         o = np.broadcast_to(origin, d.shape)
-        t1 = time.perf_counter()
+        timer.lap("rays")
         t = self.caster.distances(o, d).astype(np.float64)
-        t2 = time.perf_counter()
+        timer.lap("cast")
         # Ground plane z = lo_z (the box bottom) in the object frame; it occludes what lies beyond.
         with np.errstate(divide="ignore", invalid="ignore"):
             t_ground = np.where(d[:, 2] < 0.0, (self.lo[2] - origin[2]) / d[:, 2], np.inf)
@@ -382,10 +382,9 @@ class LidarSimulator:
         nb = len(columns)
         scan = Scan(points=pts, beam=beams[idx // nb], column=columns[idx % nb], n_rays=len(d))
         if timings is not None:
-            t3 = time.perf_counter()
-            timings["rays"] = timings.get("rays", 0.0) + (t1 - t0)
-            timings["cast"] = timings.get("cast", 0.0) + (t2 - t1)
-            timings["returns"] = timings.get("returns", 0.0) + (t3 - t2)
+            timer.lap("returns")
+            for stage, seconds in timer.seconds.items():
+                timings.add(stage, seconds)
         return scan
 
     def scan_full(self, pose: VehiclePose) -> Scan:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,7 +19,7 @@ from ..analysis import density as dens
 from ..analysis.montecarlo import DiscPlacement, mc_density
 from ..errors import ParameterError
 from ..geometry.rig import make_rig
-from ..utils import atomic_output
+from ..utils import StageTimer, atomic_output
 from ..viz import density as plots
 
 __all__ = ["DensityConfig", "run_density_analysis", "extrema", "hit_ratios", "MC_RADII", "MC_ALPHAS_DEG"]
@@ -224,8 +223,7 @@ def run_density_analysis(
         raise ParameterError(f"{out}: exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
 
-    t_start = time.perf_counter()
-    timings: dict[str, float] = {}
+    timer = StageTimer()  # laps, one per stage
     angles = [float(a) for a in config.angles]
     n_r = int(round(0.99 / config.r_step)) + 1
     r_values = np.round(np.linspace(0.0, config.r_step * (n_r - 1), n_r), 12)
@@ -235,10 +233,9 @@ def run_density_analysis(
     alpha_values = alpha_values[alpha_values <= np.pi + 1e-12]
 
     # --- quadrature on the grid -------------------------------------------------------------
-    t = time.perf_counter()
+    timer.lap("setup")
     grids = {a: _symmetric_grid(r_values, alpha_values, a) for a in angles}
-    timings["quadrature_grid"] = time.perf_counter() - t
-    t = time.perf_counter()
+    timer.lap("quadrature_grid")
     summary: dict = {
         "format": "spotlights-density-summary",
         "config": {k: (list(v) if isinstance(v, (list, tuple)) else v) for k, v in config.__dict__.items()},
@@ -259,10 +256,9 @@ def run_density_analysis(
             "range_r_le_0.95": ext_wide,
             "uniformity_max_over_min_r_le_0.95": ext_wide["max"] / ext_wide["min"],
         }
-    timings["extrema_and_error"] = time.perf_counter() - t
+    timer.lap("extrema_and_error")
 
     # --- CSV + heat maps + occlusion figure ---------------------------------------------------
-    t = time.perf_counter()
     rr, aa = np.meshgrid(r_values, alpha_values, indexing="ij")
     cols, fmts, header = [], ["%.4f", "%.10f", "%.12e"], "r,alpha,rho_per_nm"
     if len(angles) == 1:
@@ -286,12 +282,11 @@ def run_density_analysis(
         for r, a in [(0.0, 0.0), (0.5, np.radians(60.0)), (0.8, 0.0), (0.8, np.pi / 2), (0.8, np.pi)]
     ]
     plots.plot_directional(out / "density_directional.png", cases, beta, gamma, angle=dir_angle)
-    timings["csv_and_figures"] = time.perf_counter() - t
+    timer.lap("csv_and_figures")
 
     # --- real rigs: hit ratios and Monte-Carlo ------------------------------------------------
 
     all_results = []
-    t = time.perf_counter()
     placements = [DiscPlacement(0.0, 0.0)] + [
         DiscPlacement(float(r), float(np.radians(ad))) for r in config.mc_radii if r > 0 for ad in config.mc_alphas_deg
     ]
@@ -310,8 +305,7 @@ def run_density_analysis(
             )
             all_results.extend(res)
             summary["angles"][f"{a:g}"]["montecarlo"] = _mc_stats(res)
-    timings["montecarlo"] = time.perf_counter() - t
-    t = time.perf_counter()
+    timer.lap("montecarlo")
     if config.mc:
         _write_mc_csv(out / "density_mc.csv", all_results)
         curve_r = np.linspace(0.0, 0.95, 96)
@@ -337,9 +331,9 @@ def run_density_analysis(
         plots.plot_caps(out / "density_caps.png", r_values, profiles, table)
     with atomic_output(out / "summary.json") as tmp:
         tmp.write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
-    timings["mc_figures_and_summary"] = time.perf_counter() - t
-    timings["total"] = time.perf_counter() - t_start
-    return summary, timings
+    timer.lap("mc_figures_and_summary")
+    timings = {k: v for k, v in timer.seconds.items() if k != "setup"}
+    return summary, {**timings, "total": timer.total}
 
 
 def density_summary_lines(summary: dict, timings: dict, cfg: DensityConfig, out: str | os.PathLike) -> list[str]:

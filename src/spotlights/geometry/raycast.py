@@ -44,6 +44,7 @@ from __future__ import annotations
 import os
 import threading
 import warnings
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -58,7 +59,8 @@ _CALL_RAYS = 1 << 22
 _MAX_THREADS = 64
 
 
-def _embree_available() -> bool:
+def embree_available() -> bool:
+    """Whether Embree's Python binding (``embreex``) imports here: the default ``"embree"`` engine is usable."""
     try:
         import embreex.mesh_construction  # noqa: F401
         import embreex.rtcore_scene  # noqa: F401
@@ -123,8 +125,12 @@ def _pool(threads: int) -> ThreadPoolExecutor | None:
         return pool[1]
 
 
-def _split_bounds(n: int, parts: int) -> list[int]:
-    """Boundaries of ``parts`` contiguous chunks of ``n`` rays whose sizes differ by at most one."""
+def split_bounds(n: int, parts: int) -> list[int]:
+    """Boundaries of ``parts`` contiguous chunks of ``n`` rays whose sizes differ by at most one.
+
+    ``n`` rays, ``parts`` >= 1 chunks. Returns ``parts + 1`` ints from 0 to ``n``, non-decreasing:
+    chunk ``i`` is ``[b[i], b[i + 1])``.
+    """
     return [n * i // parts for i in range(parts + 1)]
 
 
@@ -163,9 +169,12 @@ class _Job:
                     self.done.set()
 
 
-def _run_split(n: int, threads: int, cast) -> None:
-    """``cast(a, b)`` over [0, n) in chunks on the calling thread and ``threads - 1`` pool threads."""
-    job = _Job(cast, _split_bounds(n, threads))
+def run_split(n: int, threads: int, cast: Callable[[int, int], object]) -> None:
+    r"""``cast(a, b)`` once for each of :func:`split_bounds`\ ``(n, threads)``'s chunks ``[a, b)`` of ``[0, n)``,
+    on the calling thread and ``threads - 1`` threads of the process's shared ray pool; returns when
+    every chunk is done. The first exception of any chunk is raised here (later chunks are not
+    started); the pool stays usable. A process forked after the pool exists builds its own."""
+    job = _Job(cast, split_bounds(n, threads))
     pool = _pool(threads - 1)
     if pool is not None:
         for _ in range(threads - 1):
@@ -256,7 +265,7 @@ class EmbreeEngine(RayEngine):
             def cast(a, b):
                 run(o[a:b], d[a:b], dists=out[a:b], query="DISTANCE")
 
-            _run_split(n, self.threads, cast)
+            run_split(n, self.threads, cast)
         elif n:
             run(o, d, dists=out, query="DISTANCE")
         return out
@@ -277,7 +286,7 @@ class EmbreeEngine(RayEngine):
                 face[s:e][hit] = res["primID"][hit]
 
         if self.threads > 1 and n >= SPLIT_MIN_RAYS:
-            _run_split(n, self.threads, cast)
+            run_split(n, self.threads, cast)
         elif n:
             cast(0, n)
         return t, face
@@ -390,7 +399,7 @@ class RayCaster:
         if int(workers) < 1:
             raise ParameterError(f"workers must be >= 1, got {workers}")
         if engine is None:
-            engine = "embree" if _embree_available() else "trimesh"
+            engine = "embree" if embree_available() else "trimesh"
             if engine == "trimesh":  # pragma: no cover - platform dependent
                 warnings.warn("embreex is not installed: using trimesh's slow ray engine", RuntimeWarning, stacklevel=2)
         if engine not in ENGINES:

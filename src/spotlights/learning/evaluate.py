@@ -21,7 +21,6 @@ import contextlib
 import json
 import math
 import os
-import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,7 +32,7 @@ from ..distributed import check_backend, ray_session
 from ..errors import ParameterError
 from ..metrics.completion import METRIC_DESCRIPTIONS, evaluate_completions, summarize
 from ..options import DEVICE_HELP, REQUIRED, non_negative_int, option, positive_float, positive_int, unit_interval
-from ..utils import atomic_output, check_writable, settings_from_dict
+from ..utils import StageTimer, atomic_output, check_writable, settings_from_dict
 from ..viz import render_predictions
 from .bench import model_latency
 from .checkpoint import load_checkpoint, model_from_checkpoint
@@ -115,8 +114,8 @@ def evaluate_checkpoint(
     if getattr(model, "needs_box", False):  # box-targeted SA-Net: each sample decodes with its model's box
         rays = DirectionTable(model.rig, ds.extents)
     loader = DataLoader(ds, batch_size=batch_size, shuffle=False, num_workers=num_workers)
-    t0 = time.perf_counter()
-    with torch.inference_mode():
+    timer = StageTimer()
+    with timer("predict"), torch.inference_mode():
         for batch in tqdm(loader, desc=f"evaluate {name}", unit="batch", disable=not progress, leave=False):
             out = model(
                 *model.forward_inputs({k: (v.to(dev) if torch.is_tensor(v) else v) for k, v in batch.items()}, rays)
@@ -127,7 +126,7 @@ def evaluate_checkpoint(
                 preds[v].extend(p.cpu().numpy() for p in pts)
                 if model.target == "depths":
                     kept[v].extend(len(p) / model.rig.n_rays for p in pts)
-    predict_s = time.perf_counter() - t0
+    predict_s = timer.seconds["predict"]
     models = ds.sample_models
     cats = ds.sample_categories
     order = ds.info.category_order()
@@ -238,7 +237,7 @@ def evaluate_checkpoints(
             evaluate_checkpoint(c, data, split, dataset=ds, gt_dense=dense, progress=progress, scorer=scorer, **kw)
             for c in checkpoints
         ]
-    _tag_repeated_models(results)
+    tag_repeated_models(results)
     return {
         "data": str(data),
         "split": split,
@@ -254,14 +253,16 @@ def _fmt(x: float, digits: int = 5) -> str:
     return "n/a" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}f}"
 
 
-def _label(res: dict, row: dict) -> str:
+def model_label(res: dict, row: dict) -> str:
+    """A report row's model name: the display name of ``res["model"]``, its ``res["tag"]`` in brackets
+    when :func:`tag_repeated_models` gave one, and the row's ``row["variant"]`` in parentheses when set."""
     name = DISPLAY_NAMES.get(res["model"], res["model"])
     if res.get("tag"):  # two checkpoints of one model in a report: say which is which
         name += f" [{res['tag']}]"
     return name + (f" ({row['variant']})" if row["variant"] else "")
 
 
-def _tag_repeated_models(results: list[dict]) -> None:
+def tag_repeated_models(results: list[dict]) -> None:
     """Give each result whose model appears more than once a ``tag``: its run folder's name
     (``runs/NAME/best.pt``) or the checkpoint file's stem."""
     models = [r["model"] for r in results]
@@ -312,7 +313,7 @@ def report_markdown(report: dict, metric: str = TABLE_METRIC) -> str:
             m = row["summary"]["mean_over_samples"]
             n = m.get("n_points")
             cells = [
-                _label(res, row),
+                model_label(res, row),
                 _fmt(m.get("accuracy")),
                 _fmt(m.get("completeness")),
                 _fmt(m.get("chamfer_l1")),
@@ -359,7 +360,7 @@ def report_markdown(report: dict, metric: str = TABLE_METRIC) -> str:
         for row in res["rows"]:
             s = row["summary"]
             cells = [
-                _label(res, row),
+                model_label(res, row),
                 *[_fmt(s["per_category"].get(c, {}).get(metric)) for c in cats],
                 _fmt(s["mean_over_samples"][metric]),
                 _fmt(s["mean_over_categories"][metric]),
@@ -376,7 +377,7 @@ def report_markdown(report: dict, metric: str = TABLE_METRIC) -> str:
     for res in report["results"]:
         for row in res["rows"]:
             m = row["summary"]["mean_over_samples"]
-            cells = [_label(res, row), _fmt(m.get("accuracy"))]
+            cells = [model_label(res, row), _fmt(m.get("accuracy"))]
             for k in others:
                 v = m.get(k)
                 cells.append(

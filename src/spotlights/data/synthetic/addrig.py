@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,7 +15,7 @@ from tqdm import tqdm
 from ...distributed import DEFAULT_RETRIES, check_backend, import_ray, ray_session
 from ...errors import InputFileError, ParameterError
 from ...geometry.rig import Rig, RigSpec
-from ...utils import atomic_output, exclusive_lock, hdf5_output
+from ...utils import StageTimer, atomic_output, exclusive_lock, hdf5_output
 from ..store import open_dataset, write_rig_group
 from .catalogue import discover_sources
 from .config import BuildConfig, parse_rig
@@ -113,7 +112,7 @@ def _add_rig_locked(
     path: Path, rig, meshes, workers, progress, log, backend="local", ray_address=None, retries=DEFAULT_RETRIES
 ) -> AddRigReport:
     """:func:`add_rig` once the file's lock is held."""
-    t0 = time.perf_counter()
+    timer = StageTimer()
     want_json = json.loads(json.dumps(rig.to_dict()))
     with open_dataset(path) as ds:
         cfg_dict = dict(ds.config)
@@ -190,7 +189,7 @@ def _add_rig_locked(
                 bar.update(1)
     finally:
         bar.close()
-    t1 = time.perf_counter()
+    timer.lap("depths")
     cfg_dict["extra_rigs"] = [r for r in (cfg_dict.get("extra_rigs") or []) if r != rig.name] + [rig.name]
     # shard by shard (a single file is one shard), each copied, completed and renamed: an
     # interruption leaves every file whole; a rerun completes the shards still without the rig
@@ -211,7 +210,7 @@ def _add_rig_locked(
         n,
         rig.n_rays,
         hit,
-        seconds_depths=t1 - t0,
-        seconds_write=time.perf_counter() - t1,
+        seconds_depths=timer.seconds["depths"],
+        seconds_write=timer.lap("write"),
         file_size=size,
     )

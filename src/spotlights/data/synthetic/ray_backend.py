@@ -23,9 +23,10 @@ one line naming the mesh, the unit and the reason.
 from __future__ import annotations
 
 import os
-import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
@@ -34,6 +35,7 @@ from ..._version import __version__
 from ...distributed import DEFAULT_RETRIES, cluster_cpus, error_reason
 from ...errors import InputFileError, SpotlightsError
 from ...geometry.rig import RigSpec
+from ...utils import StageTimer
 from .catalogue import LoadedModel, ModelEntry, apply_augment, load_model, source_root, source_scale
 from .config import BuildConfig
 from .consolidate import part_name, save_npz_atomic, write_output_file
@@ -96,7 +98,7 @@ def _load_task(entry: ModelEntry, root: str, scale: float, version: str):
 def _unit_task(unit: tuple, origin: LoadedModel, entry: ModelEntry, cfg_dict: dict, parts: str, version: str):
     """Compute one work unit on a worker and write its part; returns ``("ok", unit, seconds, node)``
     or ``("error", message)`` for a SpotlightsError (bad input: not retried)."""
-    t0 = time.perf_counter()
+    timer = StageTimer()
     try:
         _check_version(version)
         parts_dir = Path(parts)
@@ -110,7 +112,7 @@ def _unit_task(unit: tuple, origin: LoadedModel, entry: ModelEntry, cfg_dict: di
         save_npz_atomic(parts_dir / part_name(unit), arrays)
     except SpotlightsError as exc:
         return ("error", str(exc))
-    return ("ok", unit, time.perf_counter() - t0, os.uname().nodename)
+    return ("ok", unit, timer.lap("unit"), os.uname().nodename)
 
 
 def _shard_task(
@@ -173,9 +175,20 @@ class RayBuild:
             f"{what} failed on the Ray cluster after {self.retries + 1} attempts: {error_reason(exc)}"
         ) from None
 
-    def _stream(self, submit, items, describe, on_done, bar=None):
-        """Submit ``submit(item)`` for every item with at most ``in_flight`` pending; call
-        ``on_done(item, result)`` as results arrive (any order); stop at the first failure."""
+    def stream(
+        self,
+        submit: Callable[[Any], Any],
+        items: Iterable,
+        describe: Callable[[Any], str],
+        on_done: Callable[[Any, Any], None],
+        bar=None,
+    ) -> None:
+        """Submit ``submit(item)`` (returns a Ray object ref) for every item with at most ``in_flight``
+        pending; call ``on_done(item, result)`` as results arrive (any order); stop at the first failure.
+
+        A task that fails after its ``retries`` is a one-line :class:`SpotlightsError` starting with
+        ``describe(item)`` and saying the attempts and the reason; a task result ``("error", message)``
+        is a SpotlightsError with that message. The other pending tasks are cancelled (not on Ctrl-C)."""
         ray = self.ray
         pending: dict = {}
         it = iter(items)
@@ -236,7 +249,7 @@ class RayBuild:
             bar.update(1)
 
         try:
-            self._stream(submit, range(len(entries)), lambda i: f"{entries[i].file}: loading", done)
+            self.stream(submit, range(len(entries)), lambda i: f"{entries[i].file}: loading", done)
         finally:
             bar.close()
         return out
@@ -272,7 +285,7 @@ class RayBuild:
                 bar.update(u[3] - u[2])
 
         try:
-            self._stream(
+            self.stream(
                 submit,
                 pending,
                 lambda u: f"{models[u[1]].entry.file}: {describe_unit(u)} of model {models[u[1]].entry.name}",
@@ -298,7 +311,7 @@ class RayBuild:
         units_ref = self.ray.put(units)
         bar = tqdm(total=len(jobs), desc="write shards (ray)", unit="shard", disable=not progress, dynamic_ncols=True)
         try:
-            self._stream(
+            self.stream(
                 lambda j: self._shard.remote(
                     str(j["path"]),
                     cfg_ref,
@@ -328,7 +341,7 @@ class RayBuild:
             depths[m] = res[1]
             bar.update(1)
 
-        self._stream(
+        self.stream(
             lambda m: self._add_rig.remote(m, entries[m], cfg_ref, stored_ref, rig_dict, __version__),
             range(len(entries)),
             lambda m: f"{entries[m].file}: depths of model {stored['names'][m]}",

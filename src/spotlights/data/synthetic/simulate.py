@@ -11,7 +11,6 @@ the view (:func:`unit_rng`), so results depend on nothing else.
 from __future__ import annotations
 
 import json
-import time
 from dataclasses import replace
 
 import numpy as np
@@ -20,6 +19,7 @@ from ...errors import InputFileError, SpotlightsError
 from ...geometry.encode import MeshProbe
 from ...geometry.frames import normalization_from_mesh
 from ...geometry.sampling import resample, sample_surface
+from ...utils import StageTimer
 from ..lidar import LidarSimulator, VehiclePose
 from ..store import SAMPLE_FIELDS
 from .catalogue import LoadedModel, apply_augment, load_model, model_key, source_root, source_scale
@@ -66,7 +66,7 @@ def model_ground_truth(model: LoadedModel, cfg: BuildConfig) -> dict:
 
 
 def simulate_views(
-    sim: LidarSimulator, model: LoadedModel, cfg: BuildConfig, views: range, timings: dict | None = None
+    sim: LidarSimulator, model: LoadedModel, cfg: BuildConfig, views: range, timings: StageTimer | None = None
 ) -> dict:
     """Partial observations ``views`` of one model.
 
@@ -78,6 +78,8 @@ def simulate_views(
 
     Returns arrays over the B views: ``partial`` (B, n_points, 3) f32 unit frame and the per-sample
     fields of :data:`~spotlights.data.store.SAMPLE_FIELDS` (``sensor_to_unit`` (B, 4, 4) f64, ...).
+    ``timings`` (optional StageTimer) gets the seconds of the stages ``pose_loop`` (one entry per view:
+    the draws and their scans), ``resample`` and the scans' ``rays``, ``cast`` and ``returns``.
     """
     name = model.entry.name
     b = len(views)
@@ -99,7 +101,7 @@ def simulate_views(
         # the sensor height of a view (when ranged) comes from its own stream: the pose draws
         # and everything else stay those of a build without the range
         h = None if heights is None else float(unit_rng(cfg.seed, name, STREAM_MOUNT_HEIGHT, int(v)).uniform(*heights))
-        t0 = time.perf_counter()
+        view_timer = StageTimer()
         for draw in range(1, cfg.max_draws + 1):  # noqa: B007 (draw is read after the loop)
             pose = VehiclePose(
                 distance=float(rng.uniform(dmin, dmax)),
@@ -116,7 +118,7 @@ def simulate_views(
                 f"(last: {len(scan.points)}); the mesh may be too small or not in metres (see --scale), or lower "
                 "--min-points"
             )
-        t1 = time.perf_counter()
+        pose_s = view_timer.lap("pose_loop")
         pts = resample(scan.points, cfg.n_points, rng, method=cfg.downsample)
         out["partial"][j] = (pts - center) / radius
         out["sensor_to_unit"][j] = sim.box_normalization(pose).matrix
@@ -129,10 +131,8 @@ def simulate_views(
         out["n_draws"][j] = draw
         out["n_rays"][j] = scan.n_rays
         if timings is not None:
-            timings["resample"] = timings.get("resample", 0.0) + (time.perf_counter() - t1)
-            timings["views"] = timings.get("views", 0) + 1
-            timings["draws"] = timings.get("draws", 0) + draw
-            timings["pose_loop"] = timings.get("pose_loop", 0.0) + (t1 - t0)
+            timings.add("resample", view_timer.lap("resample"))
+            timings.add("pose_loop", pose_s)
     return out
 
 

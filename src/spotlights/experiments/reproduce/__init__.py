@@ -37,14 +37,13 @@ builder (and its steps, if they are new): see docs/architecture.md.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from ...errors import ParameterError, SpotlightsError
 from ...learning.models import schedule_path
-from ...utils import exclusive_lock
+from ...utils import StageTimer, exclusive_lock
 from .figures import figure_steps
 from .pipeline import Context, Step, execute, load_records, now, resolve, save_records
 from .report import publish, write_report
@@ -139,7 +138,7 @@ def reproduce(
     workers : processes for the dataset build and the rig study (default 1).
     argv : the command line, recorded in the report.
     """
-    t_start = time.perf_counter()
+    timer = StageTimer()  # laps: prepare, steps, records, report
     keys = parse_tables(tables)
     if eval_views == "default":
         eval_views = 4 if quick else 200
@@ -179,6 +178,7 @@ def reproduce(
         inv = {"started": now(), "argv": list(argv) if argv is not None else None, "tables": keys, "seconds": None}
         ctx.invocations.append(inv)
         todo = plan(ctx, keys)
+        timer.lap("prepare")
         ran, reused = [], []
         from tqdm import tqdm
 
@@ -190,9 +190,13 @@ def reproduce(
                 bar.update()
         finally:
             bar.close()
-            inv["seconds"] = round(time.perf_counter() - t_start, 2)
+            timer.lap("steps")
+            inv["seconds"] = round(timer.total, 2)
             save_records(ctx)
-        report, results = write_report(ctx, keys, time.perf_counter() - t_start)
-        inv["seconds"] = round(time.perf_counter() - t_start, 2)
+        timer.lap("records")
+        report, results = write_report(ctx, keys, timer.total)
+        timer.lap("report")
+        inv["seconds"] = round(timer.total, 2)
         save_records(ctx)
-    return ReproduceResult(report, results, ran, reused, time.perf_counter() - t_start)
+    timer.lap("records")
+    return ReproduceResult(report, results, ran, reused, timer.total)

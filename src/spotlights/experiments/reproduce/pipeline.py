@@ -13,7 +13,6 @@ import json
 import math
 import shlex
 import sys
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -22,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import SpotlightsError
-from ...utils import atomic_output
+from ...utils import StageTimer, atomic_output
 from .settings import Settings
 
 STEPS_FORMAT = "spotlights-reproduce-steps"
@@ -192,9 +191,10 @@ def execute(ctx: Context, st: Step) -> str:
     ctx.log(f"[{st.name}] running: {st.command(ctx)}")
     ctx.records[st.name] = {"status": "running", "started": now(), "command": st.command(ctx), "key": key}
     save_records(ctx)
-    t0 = time.perf_counter()
-    info = st.run(ctx)
-    dt = time.perf_counter() - t0
+    timer = StageTimer()
+    with timer(st.name):
+        info = st.run(ctx)
+    dt = timer.seconds[st.name]
     cmd = ctx.records[st.name].get("command", st.command(ctx))
     # a step's inputs may be its own products (train -> best.pt): sign them after the run
     key = {"inputs": signature(st.inputs(ctx)), "params": to_json(st.params(ctx))}

@@ -240,7 +240,7 @@ def pass_steps_per_epoch(ctx: Context, run: str) -> int | None:
     return n // batch if n >= batch else max(1, math.ceil(n / batch))
 
 
-def _train_overrides(ctx: Context, run: str) -> dict | None:
+def train_overrides(ctx: Context, run: str) -> dict | None:
     """The ``overrides`` of ``train()`` for ``run``: its rig and, where needed, :func:`pass_steps_per_epoch`."""
     spec = RUNS[run]
     out: dict = {}
@@ -252,7 +252,10 @@ def _train_overrides(ctx: Context, run: str) -> dict | None:
     return out or None
 
 
-def _train_command(ctx: Context, run: str, resume: bool = False) -> str:
+def train_command(ctx: Context, run: str, resume: bool = False) -> str:
+    """The shell command that trains ``run`` as this reproduction does (shown in the report's steps):
+    ``spotlights train`` with its model, data, output folder, schedule, config, rig and, where the run
+    needs one, ``--steps-per-epoch`` (:func:`pass_steps_per_epoch`); with ``resume`` the command that continues it."""
     spec = RUNS[run]
     cmd = f"spotlights train --model {spec.model} --data {shell_quote(ctx.s.cars_path)} --out {shell_quote(ctx.run_dir(run))}"
     if resume:
@@ -292,7 +295,7 @@ def _run_train(ctx: Context, run: str) -> dict:
     if st["state"] == "unfinished":
         ctx.log(f"resuming run {run} after epoch {st['epochs']}/{st['epochs_total']}")
         train(spec.model, ctx.s.cars_path, d, resume=True, progress=ctx.s.progress, log=ctx.log)
-        ctx.records.setdefault(f"train-{run}", {})["command"] = _train_command(ctx, run, resume=True)
+        ctx.records.setdefault(f"train-{run}", {})["command"] = train_command(ctx, run, resume=True)
     else:
         train(
             spec.model,
@@ -300,7 +303,7 @@ def _run_train(ctx: Context, run: str) -> dict:
             d,
             config=spec.config_path,
             schedule=ctx.s.schedule,
-            overrides=_train_overrides(ctx, run),
+            overrides=train_overrides(ctx, run),
             overwrite=(d / "last.pt").exists(),
             progress=ctx.s.progress,
             log=ctx.log,
@@ -570,7 +573,7 @@ def work_steps() -> list[Step]:
             Step(
                 f"train-{run}",
                 (lambda c, r=run: _run_train(c, r)),
-                (lambda c, r=run: _train_command(c, r)),
+                (lambda c, r=run: train_command(c, r)),
                 (lambda c, r=run: [c.run_dir(r) / "last.pt", c.run_dir(r) / "best.pt"]),
                 needs=needs,
                 reuse=(lambda c, r=run: _reuse_train(c, r)),
