@@ -78,6 +78,17 @@ def test_ruff_format_leaves_every_file_as_it_is():
     assert proc.returncode == 0, f"files ruff format would change (run make format):\n{proc.stdout}{proc.stderr}"
 
 
+def test_the_cli_stays_thin():
+    """Issue 29: the CLI parses, builds settings, calls one library function and prints: under 2,000 lines
+    in all and no function over cyclomatic complexity 15 (ruff's mccabe count)."""
+    lines = sum(len(f.read_text().splitlines()) for f in (ROOT / "src" / "spotlights" / "cli").glob("*.py"))
+    assert lines < 2000, f"the CLI has {lines} lines: move logic into the library"
+    proc = _ruff(
+        "check", "--no-cache", "--select", "C901", "--config", "lint.mccabe.max-complexity=15", "src/spotlights/cli"
+    )
+    assert proc.returncode == 0, f"CLI functions over complexity 15:\n{proc.stdout}{proc.stderr}"
+
+
 # ---------------------------------------------------------------------------------------------
 # tests use the public API only (issue 29): no private spotlights name is imported or reached
 # ---------------------------------------------------------------------------------------------
