@@ -122,7 +122,7 @@ def main(argv=None) -> int:
         loss.backward()
         opt.step()
         step += 1
-        run_loss += float(loss)
+        run_loss += float(loss.detach())
         n_run += 1
         if step % args.val_every == 0 or step == args.steps:
             v = val_loss(model, val_batches)
@@ -153,8 +153,13 @@ def main(argv=None) -> int:
                 best = v
                 save_checkpoint(out / "best.pt", payload)
             torch.save(
-                dict(model_state=model.state_dict(), optimizer=opt.state_dict(), global_step=step, best_val=best,
-                     history=history),
+                dict(
+                    model_state=model.state_dict(),
+                    optimizer=opt.state_dict(),
+                    global_step=step,
+                    best_val=best,
+                    history=history,
+                ),
                 out / "last.tmp",
             )
             (out / "last.tmp").replace(out / "last.pt")

@@ -324,7 +324,7 @@ def register_xy_yaw(
     max_correspondence: float = 0.75,
     huber: float = 0.05,
     max_iterations: int = 30,
-    tolerance: float = 1e-4,
+    tolerance: float = 1e-3,
     prior: float = 1e-2,
 ) -> Registration:
     """Align ``source`` to ``target`` by a rigid motion in the horizontal plane (x, y, yaw about z).
@@ -339,7 +339,8 @@ def register_xy_yaw(
     huber : metres; residuals beyond it are down-weighted (Huber IRLS).
     max_iterations : ICP iterations (nearest neighbours, then one Gauss-Newton step) per phase (coarse,
         then trimmed).
-    tolerance : stop when the step is below it (metres, and radians times 1 m); the iterations have also
+    tolerance : stop when the step is below it (metres, and radians times 1 m; default 1 mm: 1e-4 cost 36% more
+        iterations on nuScenes scene-0523 for the same statuses but one); the iterations have also
         settled when 5 steps moved less than 1 mm / 1 mrad in all (correspondences cycling).
     prior : weight of a pull towards no correction, relative to the data's: keeps directions the points
         do not determine (a car seen from straight behind slides sideways freely) at zero.

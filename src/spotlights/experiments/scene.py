@@ -39,7 +39,7 @@ import numpy as np
 from ..data.real.base import CLASSES
 from ..data.real.scans import MIN_SCAN_POINTS
 from ..errors import InputFileError, ParameterError
-from ..geometry.boxes import FLIP_Z, Box
+from ..geometry.boxes import FLIP_Z, Box, crop_boxes
 from ..geometry.io import save_ply, save_points
 from ..geometry.neighbors import serial_queries
 from ..geometry.rotations import rigid_transform
@@ -327,12 +327,19 @@ def complete_scene(
     objects: list[ObjectResult] = []
     member = np.full(len(scan), -1, np.int64)
     todo = []
+    wbs = [b if to_work is None else b.transformed(to_work) for b in boxes]
+    valid = [i for i, wb in enumerate(wbs) if wb.is_valid()]
+    crops = (
+        dict(zip(valid, crop_boxes(work, [wbs[i] for i in valid], config.margin, config.ground_clearance)))
+        if config.crop
+        else {}
+    )
     for i, b in enumerate(boxes):
-        wb = b if to_work is None else b.transformed(to_work)
+        wb = wbs[i]
         if not wb.is_valid():
             objects.append(ObjectResult(i, ids[i], b, "invalid_box" if _selected(b, config) else "class_excluded"))
             continue
-        idx = wb.crop(work, config.margin, config.ground_clearance) if config.crop else np.arange(len(work))
+        idx = crops[i] if config.crop else np.arange(len(work))
         free = idx[member[idx] < 0]
         member[free] = i
         if not _selected(b, config):
