@@ -10,7 +10,7 @@ from ..data.real import open_reader
 from ..data.real.base import CLASSES
 from ..data.real.extract import ExtractConfig, extract, read_observations, write_observations
 from ..data.real.frames import frame_rows
-from ..data.tracks import MAX_GAP_S, MAX_TRANSLATION_M, MAX_YAW_RAD, WINDOW_HELP, parse_window
+from ..data.tracks import MAX_GAP_S, MAX_TRANSLATION_M, MAX_YAW_RAD, TIME_UNIT_S, WINDOW_HELP, parse_window
 from ..errors import InputFileError, ParameterError, SpotlightsError
 from ..experiments.real_evaluation import (
     complete_all,
@@ -25,6 +25,7 @@ from ..experiments.tracks import TrackPlan
 from ..metrics.consistency import consecutive_pairs
 from ..utils import check_writable, output_folder
 from ..viz import html, render_frame
+from ..viz.rerun_log import check_rerun_path, open_recording
 from ..viz.scene import frame_objects, read_frame_scan
 from ._util import (
     DEVICE_HELP,
@@ -337,6 +338,13 @@ def _track_arguments(p) -> None:
         metavar="S",
         help=f"with --fuse: the longest time between two frames of one track, seconds (default {MAX_GAP_S:g})",
     )
+    g.add_argument(
+        "--rerun",
+        default=None,
+        metavar="FILE.rrd",
+        help="also log every frame (scan, given and used boxes, fused inputs, completions) on a time line into a "
+        "rerun recording (needs the rerun extra; docs/viewer.md)",
+    )
 
 
 def _reader_arguments(p) -> None:
@@ -618,6 +626,8 @@ def _complete(args) -> int:
     if not keys:
         raise ParameterError("--frames selects no frame")
     config = scene_config(args, single=False)
+    if args.rerun is not None:
+        check_rerun_path(args.rerun)
     tracks = None
     if args.fuse.fuses:
         if args.resume:
@@ -626,5 +636,5 @@ def _complete(args) -> int:
     elif args.refine_boxes:
         raise ParameterError("--refine-boxes needs --fuse all, past:K or centered:K (the frames to register to)")
     completer = load_model(args.checkpoint, args.device, args.runtime, args.precision)
-    with output_folder(args.out) as out:  # removed again if nothing could be written
-        return complete_frames(args, reader, keys, config, completer, out, tracks=tracks)
+    with output_folder(args.out) as out, open_recording(args.rerun, TIME_UNIT_S.get(reader.format)) as rec:
+        return complete_frames(args, reader, keys, config, completer, out, tracks=tracks, recorder=rec)

@@ -81,7 +81,7 @@ def _with(stem: Path, suffix: str) -> Path:
     return stem.parent / (stem.name + suffix)
 
 
-def complete_frames(args, reader, keys, config, completer, out, tracks=None) -> int:
+def complete_frames(args, reader, keys, config, completer, out, tracks=None, recorder=None) -> int:
     """Complete the frames ``keys`` of ``reader`` into the folder ``out`` (the options of ``real complete`` in
     ``args``): per frame a PLY (+ PNG, HTML, per-object files) and, written last, its JSON summary (``--resume``
     skips frames whose JSON says the same model and options); then ``summary.json`` and one line on stdout.
@@ -127,6 +127,8 @@ def complete_frames(args, reader, keys, config, completer, out, tracks=None) -> 
             )
             if tracks is not None:
                 tracks.record(key, result)
+            if recorder is not None:  # --rerun (spotlights.viz.rerun_log)
+                recorder.log_frame(result, frame.boxes, frame.timestamp, frame.sequence, extra)
             write_scene(
                 result,
                 _with(stem, ".ply"),
