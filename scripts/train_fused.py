@@ -61,6 +61,35 @@ def val_loss(model, val_batches) -> float:
     return tot / len(val_batches)
 
 
+def choose_threshold(model, val, max_window: int, p_true: float, seed: int, n: int = 96) -> dict:
+    """The p(hit) threshold with the lowest validation CD-L1 ((accuracy + completeness) / 2, unit frame) on ``n``
+    fixed fused samples of the VAL cars, the truth being the target depths decoded (every true hit), as
+    ``spotlights train`` chooses it on its validation split. Returns the checkpoint's ``hit_threshold`` entry."""
+    from spotlights.geometry.boxes import unit_extents
+    from spotlights.geometry.distances import accuracy, completeness
+    from spotlights.learning.rays import directions_for_extents
+
+    rng = np.random.default_rng([seed, 4242])
+    x, y, sz = draw_batch(val, rng, n, max_window, p_true)
+    dirs = torch.from_numpy(directions_for_extents(model.rig, unit_extents(sz)))
+    yt = torch.from_numpy(y)
+    model.eval()
+    with torch.no_grad():
+        out = model(torch.from_numpy(x))
+        gt_pts, gt_mask = model.decode(yt, None, dirs, keep=yt > 0)
+    truth = [p[m].numpy() for p, m in zip(gt_pts, gt_mask)]
+    scan = {}
+    for t in model.threshold_grid:
+        preds = model.outputs_to_points(out, clip=None, directions=dirs, threshold=t)
+        acc = [accuracy(p.numpy(), g) if len(p) else np.nan for p, g in zip(preds, truth)]
+        com = [completeness(p.numpy(), g) if len(p) else np.nan for p, g in zip(preds, truth)]
+        a, c = float(np.nanmean(acc)), float(np.nanmean(com))
+        scan[t] = dict(accuracy=a, completeness=c, chamfer_l1=(a + c) / 2, empty=int(np.isnan(acc).sum()))
+    best = min(scan, key=lambda t: scan[t]["chamfer_l1"])
+    model.train()
+    return dict(value=float(best), chosen_on="val (fused samples)", criterion="chamfer_l1", scan=scan)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--init", default="default", help="checkpoint to start from (default: the shipped default)")
@@ -79,6 +108,9 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--precision", choices=("bf16", "fp32"), default="bf16")
     ap.add_argument("--resume", action="store_true")
+    ap.add_argument(
+        "--threshold-only", action="store_true", help="choose best.pt's p(hit) threshold on validation and stop"
+    )
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
@@ -96,6 +128,8 @@ def main(argv=None) -> int:
         step, best, history = st["global_step"], st["best_val"], st["history"]
         print(f"resumed at step {step} (best val {best:.5f})")
     train, val = pools(args, out)
+    if args.threshold_only:
+        return write_threshold(out, val, args)
     vrng = np.random.default_rng([args.seed, 999])
     val_batches = []
     for _ in range(4):
@@ -165,6 +199,17 @@ def main(argv=None) -> int:
             (out / "last.tmp").replace(out / "last.pt")
     log.close()
     print(f"stopped at step {step}; best val {best:.5f}")
+    return write_threshold(out, val, args)
+
+
+def write_threshold(out: Path, val, args) -> int:
+    """Choose ``best.pt``'s p(hit) threshold on validation and store it in the checkpoint."""
+    ck = load_checkpoint(out / "best.pt")
+    model = model_from_checkpoint(ck)
+    chosen = choose_threshold(model, val, args.max_window, args.p_true, args.seed)
+    print(f"p(hit) threshold {chosen['value']} (default's {ck['hit_threshold']['value']})", flush=True)
+    ck["hit_threshold"] = chosen
+    save_checkpoint(out / "best.pt", {k: v for k, v in ck.items() if k not in DROP})
     return 0
 
 
