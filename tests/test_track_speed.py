@@ -4,6 +4,7 @@ box rig's rays kept per box size."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from spotlights.geometry.boxes import Box, crop_boxes
 from spotlights.geometry.rig import parse_rig
@@ -52,3 +53,15 @@ def test_kept_rays_equal_fresh_rays_in_any_batch_order():
         np.testing.assert_array_equal(first[k], fresh)
         np.testing.assert_array_equal(again[k], fresh)
     np.testing.assert_allclose(np.linalg.norm(first, axis=-1), 1.0, atol=1e-6)
+
+
+def test_few_query_tree_gives_brute_force_distances():
+    from spotlights.geometry.neighbors import NearestNeighbors
+    from spotlights.metrics.consistency import fidelity
+
+    rng = np.random.default_rng(1)
+    c = rng.normal(size=(3000, 3))
+    p = rng.normal(size=(40, 3))
+    brute = np.sqrt(((p[:, None, :] - c[None]) ** 2).sum(-1)).min(axis=1)
+    np.testing.assert_allclose(NearestNeighbors(c, few_queries=True).distances(p), brute, rtol=0, atol=1e-12)
+    assert fidelity(p, c) == pytest.approx(brute.mean(), abs=1e-12)
