@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ParameterError
+from ..geometry.sampling import voxel_downsample
 
 GREY, BLUE, GREEN, ORANGE, RED, WHITE = (
     (150, 150, 150),
@@ -78,10 +79,16 @@ class SceneRecording:
 
     path : the ``.rrd`` file (written as ``path``'s temporary sibling, renamed on a clean close).
     time_unit_s : seconds per unit of the timestamps given to :meth:`log_frame` (None: no ``time`` timeline).
+    voxel : metres; completions and fused points are logged as the centroids of their occupied cells of this
+        side (:func:`spotlights.geometry.sampling.voxel_downsample`; None: every point). 0.1 m keeps a car's
+        shape and cuts nuScenes scene-0523's recording (40 frames, ``--fuse past:5``) from 150 to 90 MB (72 MB
+        completions, 22 MB scans).
     application : the rerun application id.
     """
 
-    def __init__(self, path, time_unit_s: float | None = 1.0, application: str = "spotlights"):
+    def __init__(
+        self, path, time_unit_s: float | None = 1.0, voxel: float | None = 0.1, application: str = "spotlights"
+    ):
         rr = _rerun()
         self.rr = rr
         self.path = check_rerun_path(path)
@@ -90,6 +97,7 @@ class SceneRecording:
         self.rec.save(str(self.tmp))
         self.n_frames = 0
         self.unit = time_unit_s
+        self.voxel = voxel
         self.t0: float | None = None
 
     def log_frame(
@@ -125,12 +133,15 @@ class SceneRecording:
             _boxes(rr, [o.used_box for o in done], GREEN, [labels[o.index] for o in done] if done else None),
         )
         fused = [np.asarray(v, dtype=np.float32).reshape(-1, 3) for v in (extra_points or {}).values()]
-        fused_pts = np.concatenate(fused) if fused else np.zeros((0, 3), np.float32)
+        fused_pts = self._thin(np.concatenate(fused) if fused else np.zeros((0, 3), np.float32))
         rec.log(f"{root}fused", rr.Points3D(fused_pts, colors=ORANGE, radii=0.03))
-        comps = [np.asarray(o.completion, dtype=np.float32).reshape(-1, 3) for o in done]
+        comps = [self._thin(np.asarray(o.completion, dtype=np.float32).reshape(-1, 3)) for o in done]
         comp = np.concatenate(comps) if comps else np.zeros((0, 3), np.float32)
         rec.log(f"{root}completion", rr.Points3D(comp, colors=RED, radii=0.02))
         self.n_frames += 1
+
+    def _thin(self, pts: np.ndarray) -> np.ndarray:
+        return pts if self.voxel is None or len(pts) == 0 else voxel_downsample(pts, self.voxel)
 
     def close(self, ok: bool = True) -> None:
         """Finish the file: renamed to ``path`` when ``ok``, removed otherwise."""
