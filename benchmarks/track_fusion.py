@@ -79,6 +79,7 @@ def main(argv=None) -> int:
     ap.add_argument("--fuse", default="past:5")
     ap.add_argument("--refine-boxes", action="store_true")
     ap.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    ap.add_argument("--precision", default="fp32", help="model forward: fp32 (default) or bf16")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     import torch
@@ -87,7 +88,7 @@ def main(argv=None) -> int:
     reader = open_reader(args.source, args.format)
     keys = reader.frame_keys()
     config = SceneConfig()
-    completer = load_completer(args.checkpoint)
+    completer = load_completer(args.checkpoint, precision=args.precision)
 
     kept = {"single": {}, "fused": {}}
 
@@ -139,6 +140,7 @@ def main(argv=None) -> int:
         source=args.source,
         format=args.format,
         checkpoint=args.checkpoint,
+        precision=args.precision,
         model=completer.model_name,
         torch_threads=args.threads,
         cpu_count=os.cpu_count(),
@@ -168,6 +170,12 @@ def main(argv=None) -> int:
         moved_over_0_3_m=len(moved),
         moved_share_of_boxes=len(moved) / max(len(rows), 1),
         moved_share_of_refined=len(moved) / max(statuses.get("refined", 0), 1),
+        moved_refined_m=dict(
+            zip(
+                ("median", "p90", "max"),
+                np.percentile([r["moved_m"] for r in rows if r["status"] == "refined"] or [0.0], [50, 90, 100]),
+            )
+        ),
         moved_examples=[
             dict(
                 track=r["box"]["track_id"][:8],

@@ -87,3 +87,26 @@ def test_dataset_sequences_same_seed_same_bytes_and_readable(box_mesh, tmp_path,
     # a bad mesh path is one line, nothing written
     assert main(["dataset", "sequences", "--meshes", str(tmp_path / "none.ply"), "--out", str(tmp_path / "d")]) == 2
     assert "no such mesh file or folder" in capsys.readouterr().err and not (tmp_path / "d").exists()
+
+
+def test_hdf5_sequences_same_bytes_for_any_worker_count(box_mesh, tmp_path):
+    """One HDF5 file: the same bytes with 1 and 2 workers; read back, each frame's points lie on its true box,
+    the noisy box differs from it, times are k / 10 s, the sensor origin is the scan's origin."""
+    from spotlights.data.synthetic.sequences import read_sequences_h5
+
+    _, path = box_mesh
+    args = ["dataset", "sequences", "--meshes", str(path), "--sequences", "3", "--frames", "3", "--sensor", "hdl32e"]
+    assert main([*args, "--out", str(tmp_path / "one.h5"), "--workers", "1", "-q"]) == 0
+    assert main([*args, "--out", str(tmp_path / "two.h5"), "--workers", "2", "-q"]) == 0
+    assert (tmp_path / "one.h5").read_bytes() == (tmp_path / "two.h5").read_bytes()
+    seqs = read_sequences_h5(tmp_path / "two.h5")
+    assert [s["track_id"] for s in seqs] == ["0", "1", "2"] and all(len(s["frames"]) == 3 for s in seqs)
+    for s in seqs:
+        assert s["gt"].shape == (2048, 3)
+        for k, f in enumerate(s["frames"]):
+            assert f["timestamp"] == pytest.approx(k / 10.0)
+            assert len(f["points"]) > 10 and f["true_box"].contains(f["points"].astype(np.float64), margin=0.1).all()
+            np.testing.assert_allclose(f["true_box"].size, EXTENTS, atol=1e-9)
+            assert not np.allclose(f["noisy_box"].center, f["true_box"].center)
+            assert np.array_equal(f["sensor_origin"], np.zeros(3))
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]

@@ -315,6 +315,13 @@ def _track_arguments(p) -> None:
         metavar="S",
         help=f"with --fuse: the longest time between two frames of one track, seconds (default {MAX_GAP_S:g})",
     )
+    g.add_argument(
+        "--rerun",
+        default=None,
+        metavar="FILE.rrd",
+        help="also log every frame (scan, given and used boxes, fused inputs, completions) on a time line into a "
+        "rerun recording (needs the rerun extra; docs/viewer.md)",
+    )
 
 
 def _reader_arguments(p) -> None:

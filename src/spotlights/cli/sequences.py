@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 from ..data.lidar import SENSOR_PRESETS
-from ..data.synthetic.sequences import BoxNoise, SequenceSpec, mesh_files, write_sequences
-from ..utils import output_folder
+from ..data.synthetic.sequences import BoxNoise, SequenceSpec, simulate_sequences
 from ._util import add_command, add_quiet, non_negative_int, positive_int
 
 
@@ -22,7 +21,16 @@ def register(dsub) -> None:
     p.add_argument(
         "--meshes", required=True, metavar="PATH", help="a mesh file or a folder of them (z up, x forward, metres)"
     )
-    p.add_argument("--out", "-o", required=True, metavar="DIR", help="output folder: DIR/seqNNNN/ per sequence")
+    p.add_argument(
+        "--out",
+        "-o",
+        required=True,
+        metavar="DIR|FILE.h5",
+        help="output folder (DIR/seqNNNN/ per sequence) or one HDF5 file (.h5: track ids, both boxes, sensor origins)",
+    )
+    p.add_argument(
+        "--workers", type=positive_int, default=1, help="processes simulating (.h5 output; same bytes for any number)"
+    )
     p.add_argument("--sequences", type=positive_int, default=4, metavar="N", help="sequences (default 4)")
     p.add_argument("--frames", type=positive_int, default=20, metavar="F", help="frames per sequence (default 20)")
     p.add_argument("--hz", type=float, default=10.0, help="frame rate (default 10 Hz)")
@@ -36,14 +44,12 @@ def register(dsub) -> None:
 
 
 def _sequences(args) -> int:
-    meshes = mesh_files(args.meshes)
     spec = SequenceSpec(
         n_frames=args.frames,
         hz=args.hz,
         noise=BoxNoise(args.translation_sigma, args.yaw_sigma, args.size_sigma),
     )
-    with output_folder(args.out) as out:
-        written = write_sequences(meshes, out, args.sequences, spec, seed=args.seed, sensor=args.sensor)
+    simulate_sequences(args.meshes, args.out, args.sequences, spec, args.seed, args.sensor, args.workers)
     if not args.quiet:
-        print(f"{len(written)} sequence(s) of {args.frames} frames -> {args.out}/seqNNNN/ (sequence.json, truth.json)")
+        print(f"{args.sequences} sequence(s) of {args.frames} frames -> {args.out}")
     return 0

@@ -310,6 +310,12 @@ class _LazyNormals:
         return self.normals[rows], self.ok[rows], self.flat[rows]
 
 
+def _above(r: float) -> float:
+    """A KD-tree search bound just above ``r`` (its bound is exclusive): pairs farther than ``r`` come back as
+    infinite distances, which every use below drops or caps at ``r`` - the same result, far fewer tree visits."""
+    return float(r) * (1.0 + 1e-9) + 1e-12
+
+
 def _moved(s_xy: np.ndarray, z: np.ndarray, t: np.ndarray, yaw: float) -> np.ndarray:
     c, s = math.cos(yaw), math.sin(yaw)
     out = np.empty((len(z), 3))
@@ -324,7 +330,7 @@ def register_xy_yaw(
     max_correspondence: float = 0.75,
     huber: float = 0.05,
     max_iterations: int = 30,
-    tolerance: float = 1e-4,
+    tolerance: float = 1e-3,
     prior: float = 1e-2,
 ) -> Registration:
     """Align ``source`` to ``target`` by a rigid motion in the horizontal plane (x, y, yaw about z).
@@ -339,7 +345,8 @@ def register_xy_yaw(
     huber : metres; residuals beyond it are down-weighted (Huber IRLS).
     max_iterations : ICP iterations (nearest neighbours, then one Gauss-Newton step) per phase (coarse,
         then trimmed).
-    tolerance : stop when the step is below it (metres, and radians times 1 m); the iterations have also
+    tolerance : stop when the step is below it (metres, and radians times 1 m; default 1 mm: 1e-4 cost 36% more
+        iterations on nuScenes scene-0523 for the same statuses but one); the iterations have also
         settled when 5 steps moved less than 1 mm / 1 mrad in all (correspondences cycling).
     prior : weight of a pull towards no correction, relative to the data's: keeps directions the points
         do not determine (a car seen from straight behind slides sideways freely) at zero.
@@ -365,7 +372,7 @@ def register_xy_yaw(
     for phase in range(2):
         reach = max_correspondence
         if phase == 1:
-            dist, _ = tree.query(_moved(s_xy, src[:, 2], t, yaw), k=1)
+            dist, _ = tree.query(_moved(s_xy, src[:, 2], t, yaw), k=1, distance_upper_bound=_above(max_correspondence))
             near = dist[dist <= max_correspondence]
             if len(near) == 0:
                 break
@@ -375,7 +382,7 @@ def register_xy_yaw(
         for _ in range(max_iterations):
             its += 1
             moved = _moved(s_xy, src[:, 2], t, yaw)
-            dist, j = tree.query(moved, k=1)
+            dist, j = tree.query(moved, k=1, distance_upper_bound=_above(reach))  # farther pairs are dropped anyway
             keep = dist <= reach
             if keep.sum() < 3:
                 break
@@ -417,13 +424,15 @@ def register_xy_yaw(
         settled.append(done)
     converged = len(settled) == 2 and settled[1]  # the trimmed phase settled (the coarse one may stop at its cap)
     it = its
-    dist, _ = tree.query(_moved(s_xy, src[:, 2], t, yaw), k=1)
+    cap = 2.0 * huber
+    dist, _ = tree.query(
+        _moved(s_xy, src[:, 2], t, yaw), k=1, distance_upper_bound=_above(max(max_correspondence, cap))
+    )
     keep = dist <= max_correspondence
     inl = float(keep.mean())
     rms = float(np.sqrt(np.mean(dist[keep] ** 2))) if keep.any() else float("inf")
     # gain: how much the correction lowers the truncated squared distance (pairs beyond 2 x huber count as 2 x huber)
-    cap = 2.0 * huber
-    before = float(np.mean(np.minimum(tree.query(src, k=1)[0], cap) ** 2))
+    before = float(np.mean(np.minimum(tree.query(src, k=1, distance_upper_bound=_above(cap))[0], cap) ** 2))
     after = float(np.mean(np.minimum(dist, cap) ** 2))
     gain = 0.0 if before <= 0 else 1.0 - after / before
     return Registration(t, float(yaw), bool(converged and inl >= 0.5), it, rms, inl, gain)

@@ -25,11 +25,12 @@ from tqdm import tqdm
 
 from ..data.real import open_reader
 from ..data.real.base import SceneReader
-from ..data.tracks import MAX_GAP_S, WindowPolicy, parse_window
+from ..data.tracks import MAX_GAP_S, TIME_UNIT_S, WindowPolicy, parse_window
 from ..errors import ParameterError, SpotlightsError
 from ..learning.inference import BaseCompleter
 from ..utils import StageTimer, output_folder, sweep_folder_temporaries
 from ..viz.html import write_plotlyjs
+from ..viz.rerun_log import check_rerun_path, open_recording
 from .scan_completion import CompletionOptions, Say, silent, write_json
 from .scene import SceneConfig, complete_scene, render_result, render_result_html, write_scene
 from .tracks import TrackPlan
@@ -198,7 +199,8 @@ class FramesSettings(ReaderOptions, CompletionOptions):
     resume : skip frames an earlier run with the same model and options finished;
     fuse : the frames of a track fused into its input (``"none"``, ``"all"``, ``"past:K"``, ``"centered:K"`` or a
     :class:`~spotlights.data.tracks.WindowPolicy`); refine_boxes : register and correct the boxes (with fuse);
-    max_gap : the longest time between two frames of one track, seconds; quiet : no progress bar.
+    max_gap : the longest time between two frames of one track, seconds; rerun : a ``.rrd`` file that also
+    receives every frame on a time line (:mod:`spotlights.viz.rerun_log`; None: none); quiet : no progress bar.
     """
 
     out: str
@@ -210,6 +212,7 @@ class FramesSettings(ReaderOptions, CompletionOptions):
     fuse: WindowPolicy | str = field(default_factory=lambda: parse_window("none"))
     refine_boxes: bool = False
     max_gap: float = MAX_GAP_S
+    rerun: str | None = None
     quiet: bool = False
 
     @property
@@ -251,9 +254,11 @@ FRAME_KEYS = ("sequence", "frame_id", "timestamp", "scan", "ply", "n_boxes", "n_
 class _FrameRun:
     """The state of one ``real complete`` run: settings, reader, model, output folder, totals."""
 
-    def __init__(self, s: FramesSettings, reader, config: SceneConfig, completer, out: Path, tracks) -> None:
+    def __init__(
+        self, s: FramesSettings, reader, config: SceneConfig, completer, out: Path, tracks, recorder=None
+    ) -> None:
         self.s, self.reader, self.config = s, reader, config
-        self.completer, self.out, self.tracks = completer, out, tracks
+        self.completer, self.out, self.tracks, self.recorder = completer, out, tracks, recorder
         self.frames: list[dict] = []
         self.warnings: list[str] = []
         self.totals: dict = {"boxes": 0, "completed": 0, "flipped": 0, "completion_points": 0, "skipped": {}}
@@ -289,6 +294,8 @@ class _FrameRun:
         )
         if tracks is not None:
             tracks.record(key, result)
+        if self.recorder is not None:  # rerun (spotlights.viz.rerun_log)
+            self.recorder.log_frame(result, frame.boxes, frame.timestamp, frame.sequence, extra)
         write_scene(
             result,
             _with(stem, ".ply"),
@@ -370,10 +377,13 @@ def complete_frames(
     if not keys:
         raise ParameterError("--frames selects no frame")
     config = s.scene_config()
+    if s.rerun is not None:
+        check_rerun_path(s.rerun)
     tracks = s.track_plan(reader, keys, config)
     completer = s.load_completer() if completer is None else completer
-    with output_folder(s.out) as out:  # removed again if nothing could be written
-        return _run_frames(s, reader, keys, config, completer, out, tracks, say, warn)
+    # the folder is removed again if nothing could be written; the recording is written only when the run ends
+    with output_folder(s.out) as out, open_recording(s.rerun, TIME_UNIT_S.get(reader.format)) as rec:
+        return _run_frames(s, reader, keys, config, completer, out, tracks, say, warn, rec)
 
 
 def _run_frames(
@@ -386,10 +396,11 @@ def _run_frames(
     tracks: TrackPlan | None,
     say: Say,
     warn: Say,
+    recorder=None,
 ) -> dict:
     """The loop of :func:`complete_frames` in the folder ``out`` that exists, and its summary."""
     sweep_folder_temporaries(out)  # what a killed run was writing (a 0-byte .FRAME.png.PID-X.part.png)
-    run = _FrameRun(s, reader, config, completer, out, tracks)
+    run = _FrameRun(s, reader, config, completer, out, tracks, recorder)
     timer = StageTimer()
     with timer("frames"):
         run.run(keys)

@@ -38,7 +38,7 @@ import numpy as np
 from ..data.real.base import CLASSES
 from ..data.real.scans import MIN_SCAN_POINTS
 from ..errors import InputFileError, ParameterError
-from ..geometry.boxes import FLIP_Z, Box
+from ..geometry.boxes import FLIP_Z, Box, crop_boxes
 from ..geometry.io import save_ply, save_points
 from ..geometry.neighbors import serial_queries
 from ..geometry.rotations import rigid_transform
@@ -357,12 +357,19 @@ def _crop_objects(work, boxes, a, lidar, member, completer, config: SceneConfig,
     to_work = None if a is None else rigid_transform(a, np.zeros(3))
     ids = object_ids(boxes)
     objects: list[ObjectResult] = []
+    wbs = [b if to_work is None else b.transformed(to_work) for b in boxes]
+    valid = [i for i, wb in enumerate(wbs) if wb.is_valid()]
+    crops = (  # one KD-tree crop of the scan for every box (geometry.boxes.crop_boxes: Box.crop's indices)
+        dict(zip(valid, crop_boxes(work, [wbs[i] for i in valid], config.margin, config.ground_clearance)))
+        if config.crop
+        else {}
+    )
     for i, b in enumerate(boxes):
-        wb = b if to_work is None else b.transformed(to_work)
+        wb = wbs[i]
         if not wb.is_valid():
             objects.append(ObjectResult(i, ids[i], b, "invalid_box" if _selected(b, config) else "class_excluded"))
             continue
-        idx = wb.crop(work, config.margin, config.ground_clearance) if config.crop else np.arange(len(work))
+        idx = crops[i] if config.crop else np.arange(len(work))
         free = idx[member[idx] < 0]
         member[free] = i
         if not _selected(b, config):

@@ -299,6 +299,27 @@ LABEL_KEYS = ("label", "category", "class", "detection_name")
 ID_KEYS = ("track_id", "id", "instance_token", "tracking_id")
 
 
+def crop_boxes(
+    points: ArrayLike, boxes: list[Box], margin: float = 0.0, ground_clearance: float | None = None
+) -> list[np.ndarray]:
+    """Per box, the indices (k,) int64 that :meth:`Box.crop` gives for the scan points (N, 3), metres, with one
+    KD-tree over the scan for all boxes (its pre-cut sphere; a scan of 35k points and 60 boxes: one tree
+    instead of 60 passes over every point). Same indices, same order (increasing) as :meth:`Box.crop`."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if not boxes or len(p) == 0:
+        return [np.zeros(0, np.int64) for _ in boxes]
+    from scipy.spatial import cKDTree
+
+    grow = max(float(margin), 0.0) + abs(float(ground_clearance or 0.0))
+    reach = np.array([float(np.linalg.norm(0.5 * b.size + grow)) for b in boxes])
+    hits = cKDTree(p).query_ball_point(np.array([b.center for b in boxes]), reach * (1 + 1e-9))
+    out = []
+    for b, h in zip(boxes, hits):
+        near = np.sort(np.asarray(h, dtype=np.int64))
+        out.append(near[b.contains(p[near], margin, ground_clearance)])
+    return out
+
+
 def _vector(value: object, n: int | tuple[int, ...], src: str | os.PathLike, what: str) -> np.ndarray:
     try:
         a = np.asarray(value, dtype=np.float64)

@@ -31,14 +31,23 @@ class NearestNeighbors:
     Parameters
     ----------
     points : (K, 3) float32 or float64, K >= 1, in any frame (queries must use the same).
+    few_queries : the tree will answer few queries (a 256-point partial against a 16k-point completion):
+        built by ``cKDTree`` without balancing or node compaction, about 2x cheaper to build than
+        pykdtree's (1.8 against 3.8 ms for 15k points), the same nearest distances.
     """
 
-    def __init__(self, points: np.ndarray):
+    def __init__(self, points: np.ndarray, few_queries: bool = False):
         pts = as_points(points)
         if len(pts) == 0:
             raise ValueError("cannot build a KD-tree over an empty point set")
         self.points = pts
         self.dtype = pts.dtype
+        if few_queries:
+            from scipy.spatial import cKDTree
+
+            self._tree = cKDTree(pts, balanced_tree=False, compact_nodes=False)
+            self._pykd = False
+            return
         try:
             from pykdtree.kdtree import KDTree
         except ImportError:  # pragma: no cover - pykdtree is a dependency

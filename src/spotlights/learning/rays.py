@@ -16,6 +16,8 @@ buffer (cap rigs) or a ``(B, N*M, 3)`` direction tensor per batch (box rigs).
 
 from __future__ import annotations
 
+import collections
+
 import numpy as np
 
 from ..errors import ParameterError
@@ -68,7 +70,23 @@ def directions_for_extents(rig, extents) -> np.ndarray:
     e = np.asarray(extents, dtype=np.float64).reshape(-1, 3)
     if not spec.needs_box:  # cap rig: the same rays for every sample
         return np.broadcast_to(spec.for_box(None).directions.astype("float32"), (len(e), spec.n_rays, 3))
-    return spec.directions_for_boxes(e).astype("float32")
+    # a tracked object keeps its box size from frame to frame: its rays are computed once (exact extents as key)
+    keys = [(repr(spec), row.tobytes()) for row in e]
+    missing = [k for k, key in enumerate(keys) if key not in _RAYS]
+    if missing:
+        fresh = spec.directions_for_boxes(e[missing]).astype("float32")
+        for k, d in zip(missing, fresh):
+            _RAYS[keys[k]] = d
+            _RAYS.move_to_end(keys[k])
+        while len(_RAYS) > RAY_CACHE_SIZE:
+            _RAYS.popitem(last=False)
+    return np.stack([_RAYS[key] for key in keys])
+
+
+#: Box rigs' rays kept by :func:`directions_for_extents` (least recently computed dropped first); 196 kB each
+#: at 16,384 rays.
+RAY_CACHE_SIZE = 128
+_RAYS: collections.OrderedDict = collections.OrderedDict()
 
 
 class DirectionTable:

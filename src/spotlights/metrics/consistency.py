@@ -118,7 +118,7 @@ def fidelity(partial: np.ndarray, completion: np.ndarray) -> float:
     c = np.asarray(completion, dtype=np.float64).reshape(-1, 3)
     if len(c) == 0 or len(p) == 0:
         return float("nan")
-    return chamfer_distance(p, c, single_directional=True)
+    return chamfer_distance(p, NearestNeighbors(c, few_queries=len(p) * 8 < len(c)), single_directional=True)
 
 
 def minimal_matching_distance(completion: np.ndarray, references) -> tuple[float, int]:

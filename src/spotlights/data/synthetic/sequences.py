@@ -23,6 +23,23 @@ docs/real-data.md) - per sequence ``DIR/seqNNNN/``: ``FFFF.npy`` scans ((K, 3) f
 (2,048 points sampled uniformly on the mesh surface, float32, in the box frame: x forward, y left,
 z up, box centre, metres). One seed gives the same bytes (sequence ``i`` draws from
 ``numpy.random.default_rng([seed, i])``).
+
+Or in one HDF5 file (:func:`write_sequences_h5`, ``dataset sequences --out FILE.h5 [--workers N]``; read with
+:func:`read_sequences_h5`), format ``spotlights-sequences`` version 1, written like the completion dataset
+(gzip, no time stamps, HDF5 1.10 layout: the same seed gives the same bytes whatever the number of workers):
+
+* root attributes: ``format``, ``format_version``, ``seed``, ``sensor``, ``noise`` (JSON: the sigmas of
+  :class:`BoxNoise`), ``spec`` (JSON: frames, rate, ranges), ``n_sequences``, ``n_frames``;
+* ``/sequences`` (S rows): ``mesh`` (str), ``track_id`` (str), ``trajectory`` (JSON str), ``first_frame``
+  (int64, its first row of ``/frames``), ``n_frames`` (int32), ``gt`` (S, 2048, 3) float32 (the mesh surface,
+  box frame, metres);
+* ``/frames`` (F rows, sequence after sequence): ``sequence``, ``frame`` (int32), ``timestamp`` (float64, s),
+  ``track_id`` (str), ``point_start`` (int64), ``n_points`` (int32), ``true_box`` and ``noisy_box`` ((F, 7)
+  float64: centre x, y, z, length, width, height, yaw, sensor frame), ``sensor_origin`` ((F, 3) float64, sensor
+  frame: zeros), ``sensor_in_true_unit`` and ``sensor_in_noisy_unit`` ((F, 3) float64: the sensor in each
+  box's unit frame, object frame / half the box diagonal);
+* ``/points`` (P, 3) float32, sensor frame, metres: frame ``f``'s scan is rows
+  ``point_start[f] : point_start[f] + n_points[f]``.
 """
 
 from __future__ import annotations
@@ -34,12 +51,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ...errors import ParameterError
+from ...errors import InputFileError, ParameterError
 from ...geometry.boxes import Box
 from ...geometry.io import load_mesh
 from ...geometry.sampling import sample_surface
-from ...utils import atomic_output
+from ...utils import atomic_output, hdf5_output, output_folder, process_map
 from ..lidar import LidarSimulator, SensorModel, VehiclePose, sensor_preset
+from ..store_writer import COMPRESSION
 
 
 @dataclass(frozen=True)
@@ -204,4 +222,166 @@ def write_sequences(
     return written
 
 
-__all__ = ["BoxNoise", "SequenceSpec", "simulate_sequence", "write_sequences"]
+H5_FORMAT = "spotlights-sequences"
+H5_FORMAT_VERSION = 1
+_MESHES: dict = {}
+
+
+def _box_row(b: Box) -> list[float]:
+    return [*map(float, b.center), *map(float, b.size), float(b.yaw)]
+
+
+def _sequence_arrays(job: tuple) -> dict:
+    """Sequence ``i`` of a build (a :func:`process_map` unit): its frames as arrays (see the module docstring)."""
+    mesh_path, i, seed, spec, sensor = job
+    if mesh_path not in _MESHES:
+        _MESHES.clear()
+        mesh = load_mesh(mesh_path)
+        _MESHES[mesh_path] = (mesh, np.asarray(mesh.vertices), np.asarray(mesh.faces))
+    mesh, v, f = _MESHES[mesh_path]
+    rng = np.random.default_rng([seed, i])
+    seq = simulate_sequence(v, f, sensor_preset(sensor), spec, rng)
+    gt = (sample_surface(mesh, 2048, seed=rng) - seq["center_in_mesh"]).astype(np.float32)
+    frs = seq["frames"]
+    return dict(
+        gt=gt,
+        trajectory=json.dumps(seq["trajectory"], sort_keys=True),
+        timestamp=np.array([fr["timestamp"] for fr in frs], np.float64),
+        n_points=np.array([len(fr["points"]) for fr in frs], np.int32),
+        points=np.concatenate([fr["points"] for fr in frs]).astype(np.float32).reshape(-1, 3),
+        true_box=np.array([_box_row(fr["true_box"]) for fr in frs], np.float64),
+        noisy_box=np.array([_box_row(fr["noisy_box"]) for fr in frs], np.float64),
+        sensor_in_true_unit=np.stack([fr["true_box"].to_unit(np.zeros(3)) for fr in frs]),
+        sensor_in_noisy_unit=np.stack([fr["noisy_box"].to_unit(np.zeros(3)) for fr in frs]),
+    )
+
+
+def write_sequences_h5(
+    meshes: list, out, n_sequences: int, spec: SequenceSpec, seed: int = 0, sensor: str = "hdl64e", workers: int = 1
+) -> Path:
+    """Simulate ``n_sequences`` sequences (mesh ``i % len(meshes)`` for sequence ``i``) into one HDF5 file ``out``
+    (the module docstring's layout; written atomically). ``workers`` processes simulate; the bytes do not
+    depend on their number. Returns ``out``."""
+    if n_sequences < 1:
+        raise ParameterError(f"--sequences must be >= 1, got {n_sequences}")
+    if not meshes:
+        raise ParameterError("no mesh to simulate")
+    sensor_preset(sensor)  # an unknown sensor fails before any work
+    import h5py
+
+    jobs = [(str(meshes[i % len(meshes)]), i, seed, spec, sensor) for i in range(n_sequences)]
+    seqs = list(process_map(_sequence_arrays, jobs, workers, what="sequence"))
+    counts = np.array([len(s["timestamp"]) for s in seqs], np.int64)
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    n_pts = np.concatenate([s["n_points"] for s in seqs])
+    strt = h5py.string_dtype("utf-8")
+    out = Path(out)
+    with atomic_output(out) as tmp, hdf5_output(tmp, "w", libver=("earliest", "v110")) as (f, _check):
+        f.attrs["format"] = H5_FORMAT
+        f.attrs["format_version"] = H5_FORMAT_VERSION
+        f.attrs["seed"] = int(seed)
+        f.attrs["sensor"] = sensor
+        f.attrs["noise"] = json.dumps(asdict(spec.noise), sort_keys=True)
+        f.attrs["spec"] = json.dumps(
+            dict(n_frames=spec.n_frames, hz=spec.hz, lateral_m=list(spec.lateral_m), speed_mps=list(spec.speed_mps)),
+            sort_keys=True,
+        )
+        f.attrs["n_sequences"] = int(n_sequences)
+        f.attrs["n_frames"] = int(counts.sum())
+
+        def put(g, name, data, dtype=None):
+            a = np.asarray(data, dtype=dtype) if dtype is not strt else np.array(data, dtype=object)
+            kw = {} if dtype is strt or a.ndim == 0 else COMPRESSION
+            g.create_dataset(name, data=a, dtype=dtype or a.dtype, track_times=False, **kw)
+
+        g = f.create_group("sequences")
+        put(g, "mesh", [j[0] for j in jobs], strt)
+        put(g, "track_id", [str(i) for i in range(n_sequences)], strt)
+        put(g, "trajectory", [s["trajectory"] for s in seqs], strt)
+        put(g, "first_frame", first, np.int64)
+        put(g, "n_frames", counts, np.int32)
+        put(g, "gt", np.stack([s["gt"] for s in seqs]), np.float32)
+        g = f.create_group("frames")
+        put(g, "sequence", np.repeat(np.arange(n_sequences), counts), np.int32)
+        put(g, "frame", np.concatenate([np.arange(c) for c in counts]), np.int32)
+        put(g, "timestamp", np.concatenate([s["timestamp"] for s in seqs]), np.float64)
+        put(g, "track_id", [str(i) for i, c in enumerate(counts) for _ in range(c)], strt)
+        put(g, "point_start", np.concatenate([[0], np.cumsum(n_pts)[:-1]]), np.int64)
+        put(g, "n_points", n_pts, np.int32)
+        for k in ("true_box", "noisy_box", "sensor_in_true_unit", "sensor_in_noisy_unit"):
+            put(g, k, np.concatenate([s[k] for s in seqs]), np.float64)
+        put(g, "sensor_origin", np.zeros((int(counts.sum()), 3)), np.float64)
+        put(f, "points", np.concatenate([s["points"] for s in seqs]), np.float32)
+    return out
+
+
+def read_sequences_h5(path) -> list[dict]:
+    """The sequences of a :func:`write_sequences_h5` file: per sequence {"mesh", "track_id", "gt" (2048, 3),
+    "frames": [{"points" (K, 3) float32 sensor frame, "true_box", "noisy_box": Box, "timestamp": s,
+    "sensor_origin" (3,)}]}. One-line :class:`InputFileError` for a file of another format."""
+    import h5py
+
+    try:
+        f = h5py.File(path, "r")
+    except OSError as exc:
+        raise InputFileError(path, f"is not an HDF5 file ({exc})") from None
+    with f:
+        if f.attrs.get("format") != H5_FORMAT:
+            raise InputFileError(path, f"is not a {H5_FORMAT} file (format {f.attrs.get('format')!r})")
+        s, fr = f["sequences"], f["frames"]
+        pts = f["points"][:]
+        start, npt = fr["point_start"][:], fr["n_points"][:]
+        rows = {k: fr[k][:] for k in ("true_box", "noisy_box", "timestamp", "sensor_origin")}
+        out = []
+        for q in range(len(s["n_frames"])):
+            a, n = int(s["first_frame"][q]), int(s["n_frames"][q])
+            tid = s["track_id"][q].decode()
+            frames = []
+            for r in range(a, a + n):
+                boxes = [
+                    Box.from_yaw(rows[k][r, :3], rows[k][r, 3:6], float(rows[k][r, 6]), "car", "car", tid)
+                    for k in ("true_box", "noisy_box")
+                ]
+                frames.append(
+                    dict(
+                        points=pts[start[r] : start[r] + npt[r]],
+                        true_box=boxes[0],
+                        noisy_box=boxes[1],
+                        timestamp=float(rows["timestamp"][r]),
+                        sensor_origin=rows["sensor_origin"][r],
+                    )
+                )
+            out.append(dict(mesh=s["mesh"][q].decode(), track_id=tid, gt=s["gt"][q], frames=frames))
+    return out
+
+
+__all__ = [
+    "BoxNoise",
+    "SequenceSpec",
+    "simulate_sequence",
+    "write_sequences",
+    "write_sequences_h5",
+    "read_sequences_h5",
+]
+
+
+def simulate_sequences(
+    meshes: str | Path,
+    out: str | Path,
+    n_sequences: int,
+    spec: SequenceSpec,
+    seed: int = 0,
+    sensor: str = "hdl64e",
+    workers: int = 1,
+) -> Path:
+    """What ``spotlights dataset sequences`` does: the meshes of ``meshes`` (a file or a folder,
+    :func:`mesh_files`) driven past the sensor into ``out``, one HDF5 file when it ends in ``.h5``/``.hdf5``
+    (:func:`write_sequences_h5`, ``workers`` processes, the same bytes for any number), else a folder with one
+    ``seqNNNN/`` per sequence (:func:`write_sequences`; removed again if nothing could be written).
+    Returns ``out``."""
+    files = mesh_files(meshes)
+    if Path(out).suffix.lower() in (".h5", ".hdf5"):
+        return write_sequences_h5(files, out, n_sequences, spec, seed, sensor, workers)
+    with output_folder(out) as folder:
+        write_sequences(files, folder, n_sequences, spec, seed=seed, sensor=sensor)
+    return Path(out)
