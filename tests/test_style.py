@@ -78,6 +78,19 @@ def test_ruff_format_leaves_every_file_as_it_is():
     assert proc.returncode == 0, f"files ruff format would change (run make format):\n{proc.stdout}{proc.stderr}"
 
 
+def test_one_stage_timer():
+    """Issue 29: stages are timed by utils.StageTimer; time.perf_counter appears only there and in
+    learning.bench (the latency timer of repeated calls)."""
+    allowed = {"utils.py", "learning/bench.py"}
+    src = ROOT / "src" / "spotlights"
+    found = [
+        str(f.relative_to(src))
+        for f in src.rglob("*.py")
+        if "perf_counter" in f.read_text() and str(f.relative_to(src)) not in allowed
+    ]
+    assert not found, f"hand-written stage timing (use spotlights.utils.StageTimer) in: {found}"
+
+
 def test_the_cli_stays_thin():
     """Issue 29: the CLI parses, builds settings, calls one library function and prints: under 2,000 lines
     in all and no function over cyclomatic complexity 15 (ruff's mccabe count)."""

@@ -620,11 +620,6 @@ class StageTimer:
         return {k: round(v, digits) for k, v in self.seconds.items()}
 
 
-def now() -> float:
-    """A monotonic clock in seconds (``time.perf_counter``) for the rare span a :class:`StageTimer` cannot wrap."""
-    return time.perf_counter()
-
-
 # ---------------------------------------------------------------------------- settings
 
 

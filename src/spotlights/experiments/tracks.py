@@ -29,7 +29,6 @@ from __future__ import annotations
 import json
 import math
 import re
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -50,7 +49,7 @@ from ..data.tracks import (
 from ..errors import ParameterError
 from ..geometry.boxes import Box
 from ..geometry.io import save_ply
-from ..utils import atomic_output
+from ..utils import StageTimer, atomic_output
 from .scene import SOURCE_COMPLETION, SOURCE_PARTIAL, SceneConfig, SceneResult, _selected
 
 
@@ -106,7 +105,12 @@ class TrackPlan:
         self.max_gap_s, self.max_translation, self.max_yaw = max_gap_s, max_translation, max_yaw
         self.tracks: dict[tuple[str, str], _Track] = {}
         self.where: dict[tuple[str, str], dict[int, tuple[_Track, int]]] = {}  # frame key -> box -> (track, pos)
-        self.timings = {"read_s": 0.0, "refine_s": 0.0, "fuse_s": 0.0}
+        self.timer = StageTimer()  # read_s, refine_s (build), fuse_s (every frame_inputs)
+
+    @property
+    def timings(self) -> dict[str, float]:
+        """Wall seconds spent reading the frames, refining the boxes and fusing the windows."""
+        return {k: self.timer.seconds.get(k, 0.0) for k in ("read_s", "refine_s", "fuse_s")}
 
     # --- building ---------------------------------------------------------------------------
 
@@ -118,7 +122,7 @@ class TrackPlan:
             raise ParameterError(f"--format {reader.format} has no tracks over time: --fuse needs a sequence format")
         if len(keys) < 2:
             raise ParameterError(f"--fuse needs a sequence of at least 2 frames; the selection holds {len(keys)}")
-        t0 = time.perf_counter()
+        laps = StageTimer()
         grow = self.config.margin + (self.max_translation if self.refine else 0.0)
         for key in keys:
             frame = reader.load(key)
@@ -154,7 +158,7 @@ class TrackPlan:
                 self.max_gap_s,
                 name=f"track {tr.track_id}" + (f" of {tr.sequence}" if tr.sequence else ""),
             )
-        t1 = time.perf_counter()
+        self.timer.add("read_s", laps.lap("read"))
         for tr in self.tracks.values():
             tr.boxes = [f.box for f in tr.frames]
             tr.status = ["given"] * len(tr.frames)
@@ -173,8 +177,7 @@ class TrackPlan:
                 tr.status = ["single_frame"]
             tr.n_points = [0] * len(tr.frames)
             tr.n_fused = [0] * len(tr.frames)
-        self.timings["read_s"] = t1 - t0
-        self.timings["refine_s"] = time.perf_counter() - t1
+        self.timer.add("refine_s", laps.lap("refine"))
         return self
 
     # --- per frame ----------------------------------------------------------------------------
@@ -188,7 +191,7 @@ class TrackPlan:
     def frame_inputs(self, key, boxes: list[Box]) -> tuple[list[Box], dict[int, np.ndarray]]:
         """For one frame: its boxes with the refined ones in place, and {box index: (k, 3) scan-frame points of
         the other frames of the box's window, fused in its box frame and put in this frame}."""
-        t0 = time.perf_counter()
+        laps = StageTimer()
         out = list(boxes)
         extra: dict[int, np.ndarray] = {}
         for i, (tr, pos) in self.where.get(key, {}).items():
@@ -211,7 +214,7 @@ class TrackPlan:
             extra[i] = box.from_object(fused)
             tr.n_points[pos] = own
             tr.n_fused[pos] = own + len(fused)
-        self.timings["fuse_s"] += time.perf_counter() - t0
+        self.timer.add("fuse_s", laps.lap("fuse"))
         return out, extra
 
     def record(self, key, result: SceneResult) -> None:
