@@ -50,6 +50,12 @@ def add_completion_arguments(p, single: bool) -> None:
         "bus, construction, emergency; the model learned cars, others get a warning)",
     )
     p.add_argument(
+        "--complete-unknown",
+        action="store_true",
+        help="also complete boxes whose class (or size, far outside its class's range) the model did not learn "
+        "(default: left as their observed points and counted as not_learned)",
+    )
+    p.add_argument(
         "--keep-observed",
         action=argparse.BooleanOptionalAction,
         default=True,
@@ -243,6 +249,7 @@ def scene_config(args, single: bool):
         heading_check=bool(args.heading_check),
         clip=clip,
         keep_observed=bool(args.keep_observed),
+        complete_unknown=bool(args.complete_unknown),
         **({} if args.heading_margin is None else {"heading_margin": float(args.heading_margin)}),
     )
 

@@ -153,6 +153,8 @@ def complete_frames(args, reader, keys, config, completer, out, tracks=None) -> 
         totals["completion_points"] += sum(o["n_completion"] for o in done)
         for k, v in summ["skipped"].items():
             totals["skipped"][k] = totals["skipped"].get(k, 0) + v
+        for k, v in summ.get("not_completed", {}).items():  # boxes the model did not learn, per class
+            totals.setdefault("not_completed", {})[k] = totals.get("not_completed", {}).get(k, 0) + v
         t_model += summ["timings"].get("total_s", 0.0)
         warnings += [f"{seq + '/' if seq else ''}{fid} {w}" for w in summ["warnings"]]
         frames.append(
@@ -200,6 +202,7 @@ def complete_frames(args, reader, keys, config, completer, out, tracks=None) -> 
     print(
         f"{len(keys)} frame(s), {totals['boxes']} boxes: {totals['completed']} completed{flips}"
         + (f", skipped {sk}" if sk else "")
+        + (" (not_learned: left as observed points; --complete-unknown completes them)" if "not_learned" in sk else "")
         + f" ({completer.model_name}, {t_model:.1f} s of completion{resumed}) -> {out}/"
     )
     return 0

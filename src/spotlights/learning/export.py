@@ -120,6 +120,11 @@ def _graph_module(model):
             f"{model.name} cannot be exported to ONNX yet (its per-ray evidence is gathered with scatter "
             "reductions at run time); complete with the torch runtime"
         )
+    if getattr(model, "class_embedding", None) is not None:
+        raise ParameterError(
+            f"this {model.name} is class-conditioned (classes {', '.join(model.classes)}); its ONNX export "
+            "has no class input yet: complete with the torch runtime"
+        )
     if model.target == "points":
         return PointGraph(model), ["partial"], ["points"]
     names = ["depths", "ray_points"] + (["hit_probability"] if hasattr(model, "hit_probabilities") else [])
@@ -313,10 +318,19 @@ class OnnxCompleter(BaseCompleter):
         return mask
 
     def _forward(
-        self, partials: np.ndarray, clip: Any, directions: np.ndarray | None, sensor_origins: np.ndarray | None = None
+        self,
+        partials: np.ndarray,
+        clip: Any,
+        directions: np.ndarray | None,
+        sensor_origins: np.ndarray | None = None,
+        classes=None,
+        box_half: np.ndarray | None = None,
+        inside: list | None = None,
     ) -> list[np.ndarray]:
         """One batch through onnxruntime; the rays kept as the torch models keep them (:meth:`keep`). Exports hold
-        no free-space model (``spotlights export`` refuses ``sanet-local``), so ``sensor_origins`` is unused."""
+        no free-space model (``spotlights export`` refuses ``sanet-local``), so ``sensor_origins`` is unused, nor
+        a class-conditioned one (``classes`` unused); ``box_half``/``inside`` are left to the projection of
+        :func:`~spotlights.learning.inference.complete_in_boxes`."""
         out = self.run(partials, directions)
         if "points" in out:
             return [np.ascontiguousarray(p, dtype=np.float32) for p in out["points"]]
