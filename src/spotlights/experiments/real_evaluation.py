@@ -58,6 +58,7 @@ from ..data.real.base import CLASSES
 from ..data.real.extract import Observations, read_observations
 from ..data.store import open_dataset
 from ..errors import InputFileError, SpotlightsError
+from ..geometry.box_clamp import GROWN_BOX_MARGIN, grown_half_extents
 from ..geometry.boxes import FLIP_Z, unit_extents
 from ..geometry.neighbors import NearestNeighbors, serial_queries
 from ..geometry.sampling import resample_set, voxel_downsample
@@ -134,6 +135,7 @@ def complete_all(
     clip: float | None = None,
     box_sizes: np.ndarray | None = None,
     sensor_origins: np.ndarray | None = None,
+    classes=None,
 ) -> list[np.ndarray]:
     """Run ``completer.complete`` over (n, P, 3) float32 partials in batches; returns n (K_i, 3) float32 arrays.
 
@@ -143,6 +145,7 @@ def complete_all(
     half-extents of the box in the observation's unit frame. Others never see it.
     ``sensor_origins`` (n, 3): the LiDAR in each observation's unit frame, for models that read free
     space (``sanet-local``; NaN rows: unknown); others never see it.
+    ``classes`` (n,): each observation's class, for class-conditioned models (others never see it).
     """
     from tqdm import tqdm
 
@@ -163,6 +166,8 @@ def complete_all(
             kw["extents"] = extents[s : s + batch_size]
         if sensor_origins is not None and getattr(getattr(completer, "model", None), "uses_evidence", False):
             kw["sensor_origins"] = sensor_origins[s : s + batch_size]
+        if classes is not None and getattr(completer, "classes", ()):
+            kw["classes"] = list(classes[s : s + batch_size])
         res = completer.complete(batch, **kw)
         if len(res) != len(batch):
             raise SpotlightsError(
@@ -395,13 +400,21 @@ def evaluate_consistency(
             if on_model is not None:
                 on_model(dict(data=data, metrics=metrics, models=list(models)), True)
             continue
-        run = dict(batch_size=batch_size, progress=progress, clip=clip, box_sizes=sizes, sensor_origins=sensors)
+        run = dict(
+            batch_size=batch_size,
+            progress=progress,
+            clip=clip,
+            box_sizes=sizes,
+            sensor_origins=sensors,
+            classes=sub_cls,
+        )
         comps = complete_all(completer, partials, desc=f"complete {names[k]}", **run)
         comps2 = complete_all(completer, partials2, desc=f"noise floor {names[k]}", **run) if with_noise else None
         tracks, agg, div = _score(
             comps, partials, sub_keys, sub_ts, sub_cls, radii, r_track, classes_present, ref_trees, comps2
         )
         cons_all = agg["all_objects"]["cd"]
+        inside = inside_shares(comps, sizes)
         entry = dict(
             name=names[k],
             model_name=str(getattr(completer, "model_name", names[k])),
@@ -414,6 +427,9 @@ def evaluate_consistency(
                 cons_all / div if cons_all is not None and np.isfinite(div) and div > 0 else None
             ),
             **agg,
+            inside_box={
+                c: float(np.nanmean([v for v, cc in zip(inside, sub_cls) if cc == c])) for c in classes_present
+            },
         )
 
         def rescored(fn, **info) -> dict:
@@ -487,6 +503,13 @@ def evaluate_consistency(
         if on_model is not None:
             on_model(dict(data=data, metrics=metrics, models=list(models)), False)
     return dict(data=data, metrics=metrics, models=models)
+
+
+def inside_shares(completions, sizes, margin: float = GROWN_BOX_MARGIN) -> np.ndarray:
+    """(n,) float64 each unit-frame completion's share of points inside its box (sizes (n, 3), metres) grown by
+    ``margin`` metres (NaN for an empty completion): what the network put inside, before any clamp."""
+    half = grown_half_extents(np.asarray(sizes, dtype=np.float64).reshape(-1, 3), margin)
+    return np.array([np.mean(np.all(np.abs(c) <= h, axis=1)) if len(c) else np.nan for c, h in zip(completions, half)])
 
 
 def observations_digest(obs: Observations, rows: np.ndarray) -> str:
