@@ -140,3 +140,19 @@ def test_reader_labels_map_to_the_one_vocabulary(label, cls):
     got = lookup_class(label, CLASS_MAP)
     assert got == cls
     assert (canonical_class(got) in VEHICLE_CLASSES) == (cls != "construction")
+
+
+def test_learned_domain_keeps_a_size_range_per_class_and_gates_far_outside_it():
+    from spotlights.learning.inference import LearnedDomain
+
+    sizes = np.array([[4.0, 1.8, 1.5], [5.0, 2.0, 1.7], [12.0, 2.5, 3.2], [10.0, 2.5, 3.0]])
+    dom = LearnedDomain.from_training_set(
+        ["sedan", "suv", "bus", "bus"], sizes, "hand", classes=["car", "car", "bus", "bus"]
+    )
+    assert dom.class_sizes == {"car": ((4.0, 1.8, 1.5), (5.0, 2.0, 1.7)), "bus": ((10.0, 2.5, 3.0), (12.0, 2.5, 3.2))}
+    assert LearnedDomain.from_checkpoint({"domain": dom.to_dict()}) == dom
+    assert dom.gate("car", (5.4, 1.9, 1.6)) is None and dom.warnings("car", (5.4, 1.9, 1.6)) == []  # within 10%
+    assert dom.gate("car", (7.4, 1.9, 1.6)) is None and dom.warnings("car", (7.4, 1.9, 1.6))  # 48% over: a warning
+    assert dom.gate("car", (7.6, 1.9, 1.6)) == "size"  # 52% over the car range (5.0 m): not completed
+    assert dom.gate("bus", (11.0, 2.5, 3.1)) is None and dom.gate("truck", (11.0, 2.5, 3.1)) == "class"
+    assert dom.gate(None, (11.0, 2.5, 3.1)) is None  # no class given: the overall range decides

@@ -191,6 +191,7 @@ class TorchCompletionDataset(Dataset):
             self.extents = store.extents if store.size is not None else None
             self.sizes = None if store.size is None else np.asarray(store.size, dtype=np.float64)
             self.classes = np.asarray(store.classes).astype(str)  # (n_models,) detector class of every model
+            self.has_stored_classes = store.stored_classes is not None  # /models/class (else from categories)
             self.class_rows = None
             if class_vocab:
                 table = {canonical_class(c): i for i, c in enumerate(class_vocab)}

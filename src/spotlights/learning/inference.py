@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from ..data.store import open_dataset
-from ..data.vehicle_classes import canonical_class
+from ..data.vehicle_classes import CATEGORY_CLASS, canonical_class
 from ..errors import InputFileError, ParameterError
 from ..geometry.box_clamp import clamp_to_grown_boxes, grown_half_extents
 from ..geometry.boxes import Box, box_from_dict, load_box  # noqa: F401  (the box of complete_scan; re-exported)
@@ -55,24 +55,10 @@ def pretrained_checkpoint(name: str = "default") -> Path:
     return resolve_checkpoint(name)
 
 
-#: Body types of the synthetic datasets' categories -> the detector class a real box of that
-#: vehicle gets (the classes of :data:`spotlights.data.real.base.CLASSES`): a pickup or a race car is
-#: a ``car`` for KITTI, nuScenes and Argoverse 2 alike; a van is KITTI's ``Van`` (``caravan``).
-BODY_TYPE_CLASS: dict[str, str] = {
-    "hatchback": "car",
-    "sedan": "car",
-    "suv": "car",
-    "coupe": "car",
-    "wagon": "car",
-    "race": "car",
-    "pickup": "car",
-    "car": "car",
-    "van": "caravan",
-    "caravan": "caravan",
-    "truck": "truck",
-    "trailer": "trailer",
-    "bus": "bus",
-}
+#: Body types of the synthetic datasets' categories -> the detector class a real box of that vehicle gets: the
+#: one mapping, :data:`spotlights.data.vehicle_classes.CATEGORY_CLASS` (a pickup or a race car is a ``car`` for
+#: KITTI, nuScenes and Argoverse 2 alike; a van is KITTI's ``Van``, ``caravan``).
+BODY_TYPE_CLASS: dict[str, str] = CATEGORY_CLASS
 
 
 GATE_TOLERANCE = 0.5

@@ -387,7 +387,7 @@ def _learned_domain(run: TrainingRun) -> LearnedDomain | None:
         ts.info.categories[rows],
         ts.sizes[rows],
         source=f"{Path(str(run.data)).name}, train split ({len(rows)} models)",
-        classes=ts.classes[rows],
+        classes=ts.classes[rows] if ts.has_stored_classes else None,
     )
 
 
