@@ -11,11 +11,17 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from spotlights.errors import InputFileError, ParameterError  # noqa: E402
-from spotlights.geometry.box_clamp import clamp_to_grown_boxes  # noqa: E402
 from spotlights.geometry.frames import normalization_from_box  # noqa: E402
 from spotlights.geometry.io import load_points, save_points  # noqa: E402
 from spotlights.geometry.rig import make_rig  # noqa: E402
-from spotlights.learning.inference import Box, box_from_dict, complete_scan, load_box, load_completer  # noqa: E402
+from spotlights.learning.inference import (  # noqa: E402
+    Box,
+    box_from_dict,
+    complete_in_boxes,
+    complete_scan,
+    load_box,
+    load_completer,
+)
 
 from helpers import assert_user_error  # noqa: E402
 from learning_fixtures import cli, make_checkpoint, one_torch_thread  # noqa: E402
@@ -143,8 +149,9 @@ def test_cli_complete_writes_the_scan_frame_and_a_picture(ckpts, partial_unit, t
     assert (f["source"] == 1).sum() == 256
     # same result as the library on the unit-frame scan, mapped back into the scan's frame
     unit_scan = norm.to_unit(load_points(scan)).astype(np.float32)
-    raw = load_completer(ckpts["sanet"]).complete(unit_scan[None], clip=None)
-    expect = norm.from_unit(clamp_to_grown_boxes(raw, [box["size"]])[0][0])  # inside the box grown by 0.15 m
+    # every ray clipped to the box grown by 0.15 m at decoding, then projected (complete_in_boxes)
+    done = complete_in_boxes(load_completer(ckpts["sanet"]), unit_scan[None], np.array([box["size"]]), clip=None)
+    expect = norm.from_unit(done[0])
     np.testing.assert_allclose(got[: len(expect)], expect, atol=1e-3)
     # keep-observed (on by default): the observed points (the 256 input points, no repeats) follow the prediction
     observed = np.unique(np.c_[f["x"], f["y"], f["z"]][f["source"] == 1], axis=0)

@@ -107,6 +107,11 @@ def complete(
             f"{len(o.input_indices)} point(s) lie in the box; at least {config.min_points} are needed "
             "(is the box in the points' frame?)"
         )
+    if o.status == "not_learned":
+        raise ParameterError(
+            f"the model did not learn this box ({'; '.join(o.warnings[:-1])}); pass complete_unknown=True to "
+            "complete it anyway"
+        )
     if o.status == "empty_completion":
         raise ParameterError("the completion is empty (every ray was clipped); try clip=None")
     return o

@@ -34,6 +34,12 @@ def add_completion_arguments(p, single: bool) -> None:
         "bus, construction, emergency; the model learned cars, others get a warning)",
     )
     p.add_argument(
+        "--complete-unknown",
+        action="store_true",
+        help="also complete boxes whose class (or size, far outside its class's range) the model did not learn "
+        "(default: left as their observed points and counted as not_learned)",
+    )
+    p.add_argument(
         "--keep-observed",
         action=argparse.BooleanOptionalAction,
         default=True,

@@ -17,7 +17,9 @@ CLASS_BODIES: dict[str, tuple[str, ...]] = {
     "bus": ("bus",),
     "trailer": ("trailer_box", "trailer_flatbed"),
 }
-#: the classes the procedural generator makes
+#: the classes the procedural generator makes: the one class vocabulary of the models (a class-conditioned
+#: SA-Net's ``classes``); every reader's labels map onto these (``data.real.boxfiles.CLASS_MAP`` merges the
+#: readers' tables) or onto a class no model learns (``construction``, ``emergency``: gated, not completed)
 VEHICLE_CLASSES: tuple[str, ...] = tuple(CLASS_BODIES)
 #: other names accepted for a class (``--classes van``)
 CLASS_ALIASES: dict[str, str] = {"van": "caravan"}
@@ -28,6 +30,8 @@ CATEGORY_CLASS: dict[str, str] = {
     "sedan": "car",
     "hatchback": "car",
     "suv": "car",
+    "coupe": "car",
+    "wagon": "car",
     "pickup": "car",
     "race": "car",
     "car": "car",

@@ -326,6 +326,8 @@ class _FrameRun:
         totals["completion_points"] += sum(o["n_completion"] for o in done)
         for k, v in summ["skipped"].items():
             totals["skipped"][k] = totals["skipped"].get(k, 0) + v
+        for k, v in summ.get("not_completed", {}).items():  # boxes the model did not learn, per class
+            totals.setdefault("not_completed", {})[k] = totals.get("not_completed", {}).get(k, 0) + v
         self.t_model += summ["timings"].get("total_s", 0.0)
         self.warnings += [f"{seq + '/' if seq else ''}{fid} {w}" for w in summ["warnings"]]
         self.frames.append({k: summ.get(k) for k in FRAME_KEYS} | {"n_warnings": len(summ["warnings"])})
@@ -355,6 +357,11 @@ class _FrameRun:
         return (
             f"{n_frames} frame(s), {totals['boxes']} boxes: {totals['completed']} completed{flips}"
             + (f", skipped {sk}" if sk else "")
+            + (
+                " (not_learned: left as observed points; --complete-unknown completes them)"
+                if "not_learned" in sk
+                else ""
+            )
             + f" ({self.completer.model_name}, {self.t_model:.1f} s of completion{resumed}) -> {self.out}/"
         )
 

@@ -60,6 +60,7 @@ from ..data.real.base import CLASSES
 from ..data.real.extract import Observations, read_observations
 from ..data.store import open_dataset
 from ..errors import InputFileError, ParameterError, SpotlightsError
+from ..geometry.box_clamp import GROWN_BOX_MARGIN, grown_half_extents
 from ..geometry.boxes import FLIP_Z, unit_extents
 from ..geometry.neighbors import NearestNeighbors, serial_queries
 from ..geometry.sampling import resample_set, voxel_downsample
@@ -138,6 +139,7 @@ def complete_all(
     clip: float | None = None,
     box_sizes: np.ndarray | None = None,
     sensor_origins: np.ndarray | None = None,
+    classes=None,
 ) -> list[np.ndarray]:
     """Run ``completer.complete`` over (n, P, 3) float32 partials in batches; returns n (K_i, 3) float32 arrays.
 
@@ -147,6 +149,7 @@ def complete_all(
     half-extents of the box in the observation's unit frame. Others never see it.
     ``sensor_origins`` (n, 3): the LiDAR in each observation's unit frame, for models that read free
     space (``sanet-local``; NaN rows: unknown); others never see it.
+    ``classes`` (n,): each observation's class, for class-conditioned models (others never see it).
     """
     from tqdm import tqdm
 
@@ -167,6 +170,8 @@ def complete_all(
             kw["extents"] = extents[s : s + batch_size]
         if sensor_origins is not None and getattr(getattr(completer, "model", None), "uses_evidence", False):
             kw["sensor_origins"] = sensor_origins[s : s + batch_size]
+        if classes is not None and getattr(completer, "classes", ()):
+            kw["classes"] = list(classes[s : s + batch_size])
         res = completer.complete(batch, **kw)
         if len(res) != len(batch):
             raise SpotlightsError(
@@ -420,7 +425,12 @@ def _model_entry(
 ) -> dict:
     """The report entry of one model: its completions of the tracked observations, scored."""
     run: dict[str, Any] = dict(
-        batch_size=s.batch_size, progress=progress, clip=s.clip, box_sizes=t.sizes, sensor_origins=t.sensors
+        batch_size=s.batch_size,
+        progress=progress,
+        clip=s.clip,
+        box_sizes=t.sizes,
+        sensor_origins=t.sensors,
+        classes=t.cls,
     )
     comps = complete_all(completer, t.partials, desc=f"complete {name}", **run)
     p2 = t.partials2
@@ -437,6 +447,10 @@ def _model_entry(
         consistency_over_diversity=_ratio(agg["all_objects"]["cd"], div),
         **agg,
     )
+    inside = inside_shares(comps, t.sizes)  # per class: the share of the network's points inside the grown box
+    entry["inside_box"] = {
+        c: float(np.nanmean([v for v, cc in zip(inside, t.cls) if cc == c])) for c in t.classes_present
+    }
     eq, vox = s.n_equal_points, s.voxel
     if eq:
         entry["equal_points"] = _rescored(t, comps, comps2, lambda c: equal_count(c, eq), n_points=eq)
@@ -582,6 +596,13 @@ def evaluate_consistency(
         if on_model is not None:
             on_model(dict(data=data, metrics=metrics, models=list(models)), old is not None)
     return dict(data=data, metrics=metrics, models=models)
+
+
+def inside_shares(completions, sizes, margin: float = GROWN_BOX_MARGIN) -> np.ndarray:
+    """(n,) float64 each unit-frame completion's share of points inside its box (sizes (n, 3), metres) grown by
+    ``margin`` metres (NaN for an empty completion): what the network put inside, before any clamp."""
+    half = grown_half_extents(np.asarray(sizes, dtype=np.float64).reshape(-1, 3), margin)
+    return np.array([np.mean(np.all(np.abs(c) <= h, axis=1)) if len(c) else np.nan for c, h in zip(completions, half)])
 
 
 def observations_digest(obs: Observations, rows: np.ndarray) -> str:

@@ -72,6 +72,8 @@ class CompletionOptions:
     checkpoint : a checkpoint file, a short name (``"default"``, ``"paper"``) or a ``.onnx`` file; None: default.
     classes : comma-separated classes to complete (text or tuple); None: every vehicle class.
     keep_observed : return each object's observed points beside its predicted ones.
+    complete_unknown : also complete boxes whose class (or size, far outside its class's range) the model did not
+        learn (default: left as their observed points, status ``not_learned``, counted per class).
     heading_check, heading_margin : complete each box also turned by 180 degrees (margin None: 0.5).
     margin : metres the box is grown by on its sides and top (None: 0.15).
     ground_clearance : metres above the box bottom under which points are dropped (ground returns).
@@ -84,6 +86,7 @@ class CompletionOptions:
     checkpoint: str | None = None
     classes: str | tuple | None = None
     keep_observed: bool = True
+    complete_unknown: bool = False
     heading_check: bool = False
     heading_margin: float | None = None
     margin: float | None = None
@@ -123,6 +126,7 @@ class CompletionOptions:
             heading_check=bool(self.heading_check),
             clip=clip,
             keep_observed=bool(self.keep_observed),
+            complete_unknown=bool(self.complete_unknown),
             heading_margin=HEADING_MARGIN if self.heading_margin is None else float(self.heading_margin),
         )
 

@@ -84,6 +84,9 @@ class SceneConfig:
         its predicted ones in ``completion`` / ``completion_unit`` (PoinTr-style); fidelity and the heading
         check are scored on the predicted points alone. Off here; ``complete`` and ``real complete`` turn it
         on by default (``--no-keep-observed``).
+    complete_unknown : also complete the boxes the model did not learn (``LearnedDomain.gate``: a class
+        outside its classes, or a size far outside its class's range); by default they are left as their
+        observed points, status ``not_learned`` (counted per class in the summary's ``not_completed``).
     """
 
     margin: float = 0.15
@@ -98,6 +101,7 @@ class SceneConfig:
     heading_margin: float = HEADING_MARGIN
     clip: object = "default"
     keep_observed: bool = False
+    complete_unknown: bool = False
 
     def __post_init__(self):
         if not (math.isfinite(self.margin) and self.margin >= 0):
@@ -121,7 +125,8 @@ class ObjectResult:
     """One box of the scene and what happened to it.
 
     ``status``: ``"completed"`` or the reason it was not (``class_excluded``, ``invalid_box``,
-    ``too_few_points``, ``empty_completion``). Arrays (scan frame, float64, metres):
+    ``too_few_points``, ``not_learned``: a class or size the model did not learn, left as observed points,
+    ``empty_completion``). Arrays (scan frame, float64, metres):
     ``completion`` (K, 3); ``input_indices`` (k,) int64 rows of the scan used as the input.
     ``partial_unit`` (256, 3) and ``completion_unit`` (K, 3) float32: the box's unit frame; ``sensor_unit`` (3,)
     float64 the LiDAR in that frame. ``box`` as given; ``used_box`` the box completed (turned around when ``flipped``).
@@ -206,6 +211,16 @@ class SceneResult:
                 out[o.status] = out.get(o.status, 0) + 1
         return out
 
+    def not_completed(self) -> dict:
+        """{class: count} of the boxes left as observed points because the model did not learn them (status
+        ``not_learned``; a box without a class counts as ``"unknown"``)."""
+        out: dict = {}
+        for o in self.objects:
+            if o.status == "not_learned":
+                key = o.box.cls or "unknown"
+                out[key] = out.get(key, 0) + 1
+        return out
+
     def warnings(self) -> list[str]:
         """One line per warned box: ``object ID (label): reason; reason``."""
         return [
@@ -248,6 +263,7 @@ class SceneResult:
             n_completed=len(self.completed),
             n_flipped=sum(o.flipped for o in self.completed),
             skipped=self.skipped(),
+            not_completed=self.not_completed(),
             model=self.model,
             checkpoint=self.checkpoint,
             config=cfg,
@@ -388,6 +404,11 @@ def _crop_objects(work, boxes, a, lidar, member, completer, config: SceneConfig,
         domain = getattr(completer, "domain", None)
         if domain is not None:
             o.warnings.extend(domain.warnings(b.cls, b.size))
+            if not config.complete_unknown and domain.gate(b.cls, b.size) is not None:
+                o.status, o.used_box, o.partial_unit = "not_learned", None, None
+                o.warnings.append("not completed (left as observed points; --complete-unknown completes it)")
+                objects.append(o)
+                continue
         objects.append(o)
     return objects
 
@@ -398,7 +419,9 @@ def _complete_objects(todo: list[ObjectResult], completer, config: SceneConfig, 
     partials = np.stack([o.partial_unit for o in todo])
     sizes = np.stack([o.used_box.size for o in todo])
     sensors = np.stack([o.sensor_unit for o in todo])
+    classes = [o.box.cls for o in todo]
     if config.heading_check:
+        classes = classes + classes
         partials = np.concatenate([partials, (partials @ FLIP_Z).astype(np.float32)])
         sizes = np.concatenate([sizes, sizes])
         sensors = np.concatenate([sensors, sensors @ FLIP_Z])
@@ -409,6 +432,7 @@ def _complete_objects(todo: list[ObjectResult], completer, config: SceneConfig, 
         clip=DEFAULT if config.clip == "default" else config.clip,
         sensor_origins=sensors,
         inside=shares,
+        classes=classes,
     )
 
 
@@ -451,6 +475,8 @@ def check_completed(result: SceneResult, source) -> None:
     what = ", ".join(f"{k} {v}" for k, v in sorted(sk.items()))
     labels = sorted({o.box.label for o in result.objects if o.status == "class_excluded" and o.box.label})
     hint = f" (labels: {', '.join(labels[:6])})" if labels else ""
+    if sk.get("not_learned"):
+        hint += " (not_learned: a class or size the model did not learn; --complete-unknown completes them)"
     raise InputFileError(
         source,
         f"no vehicle box to complete: {len(result.objects)} box(es), {what}{hint}; "
@@ -524,6 +550,13 @@ def describe(result: SceneResult) -> str:
         f"{len(result.objects)} box(es): {len(result.completed)} completed"
         + (f" ({flips} heading flip{'s' if flips != 1 else ''})" if result.config.heading_check else "")
         + (", skipped " + ", ".join(f"{k} {v}" for k, v in sorted(sk.items())) if sk else "")
+        + (
+            " (not_learned: left as observed points, "
+            + ", ".join(f"{k} {v}" for k, v in sorted(result.not_completed().items()))
+            + "; --complete-unknown completes them)"
+            if sk.get("not_learned")
+            else ""
+        )
         + f"; {sum(len(o.completion) for o in result.completed)} completion points; "
         f"{1000 * result.timings.get('total_s', 0):.0f} ms"
     )

@@ -29,7 +29,9 @@ from ..utils import did_you_mean
 from .registry import MODEL_REGISTRY, model_class
 
 SECTIONS = ("model", "data", "train")
-MODEL_KEYS = ("name", "args", "mirror")
+MODEL_KEYS = ("name", "args", "mirror", "init")
+"""``model.init``: a checkpoint whose weights a new run starts from (a fine-tune; parameters it lacks, such as a
+new class embedding, keep their initialisation)."""
 
 
 @dataclass(frozen=True)

@@ -20,6 +20,8 @@ Items are dicts of tensors::
     gt_points (2048, 3) float32, unit frame (the model's uniform surface samples)
     depths    (N*M,) float32 in [0, 1], 0 = miss (only when a rig is selected)
     model     () int64, row in /models;  view () int64;  index () int64 row in /samples
+    cls       () int64, the model's class as a row of ``class_vocab`` (-1: not in it; only when a
+              ``class_vocab`` is given: a class-conditioned model's)
     sensor_origin (3,) float32, unit frame: the LiDAR's optical centre (NaN for files without
               /samples/sensor_to_unit; ``has_sensor_origin`` tells)
 
@@ -37,6 +39,7 @@ import torch
 from torch.utils.data import Dataset
 
 from ..data.store import SPLITS, CompletionDataset, open_dataset
+from ..data.vehicle_classes import canonical_class
 from ..errors import InputFileError, ParameterError
 from ..geometry.rig import RigSpec
 
@@ -133,6 +136,8 @@ class TorchCompletionDataset(Dataset):
         ``False`` = no depths.
     max_views : keep only observations with view index < max_views (per model).
     partials_in_memory : read all the split's partial scans at construction.
+    class_vocab : a class-conditioned model's class names: items get ``cls``, the row of their model's
+        class (``/models/class``, or the class of its category for older files) in it, -1 when absent.
 
     Attributes: ``rig`` (the served rig's :class:`~spotlights.geometry.rig.RigSpec`, or None; a
     box-targeted spec's rig is aimed at each model's own box), ``extents`` ((n_models, 3) float64
@@ -152,6 +157,7 @@ class TorchCompletionDataset(Dataset):
         rig: str | None | bool = None,
         max_views: int | None = None,
         partials_in_memory: bool = False,
+        class_vocab=None,
     ):
         if split not in (*SPLITS, "all"):
             raise ParameterError(f"split must be one of {', '.join(SPLITS)} or all, got {split!r}")
@@ -184,6 +190,12 @@ class TorchCompletionDataset(Dataset):
             self.has_sensor_origin = bool(np.all(np.isfinite(self.sensor_origins)))
             self.extents = store.extents if store.size is not None else None
             self.sizes = None if store.size is None else np.asarray(store.size, dtype=np.float64)
+            self.classes = np.asarray(store.classes).astype(str)  # (n_models,) detector class of every model
+            self.has_stored_classes = store.stored_classes is not None  # /models/class (else from categories)
+            self.class_rows = None
+            if class_vocab:
+                table = {canonical_class(c): i for i, c in enumerate(class_vocab)}
+                self.class_rows = np.array([table.get(canonical_class(c), -1) for c in self.classes], np.int64)
         finally:
             store.close()  # DataLoader workers open their own handles
         if self.rig is not None and self.rig.needs_box and self.extents is None:
@@ -211,6 +223,8 @@ class TorchCompletionDataset(Dataset):
             "index": torch.tensor(row, dtype=torch.int64),
             "sensor_origin": torch.from_numpy(self.sensor_origins[i]),
         }
+        if self.class_rows is not None:
+            item["cls"] = torch.tensor(int(self.class_rows[model]), dtype=torch.int64)
         if self.depths is not None:
             item["depths"] = torch.from_numpy(self.depths[model])
         return item

@@ -117,9 +117,10 @@ def evaluate_checkpoint(
     timer = StageTimer()
     with timer("predict"), torch.inference_mode():
         for batch in tqdm(loader, desc=f"evaluate {name}", unit="batch", disable=not progress, leave=False):
-            out = model(
-                *model.forward_inputs({k: (v.to(dev) if torch.is_tensor(v) else v) for k, v in batch.items()}, rays)
-            )
+            b = {k: (v.to(dev) if torch.is_tensor(v) else v) for k, v in batch.items()}
+            if getattr(model, "class_embedding", None) is not None:  # each sample's class, from its model row
+                b["cls"] = model.class_indices(ds.classes[batch["model"].numpy()]).to(dev)
+            out = model(*model.forward_inputs(b, rays))
             dirs = rays.directions(batch["model"].to(dev)) if rays is not None else None
             for v, c in variants:
                 pts = model.outputs_to_points(out, c, dirs)

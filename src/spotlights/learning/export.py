@@ -33,11 +33,12 @@ import numpy as np
 
 from .._version import __version__
 from ..errors import InputFileError, ParameterError, SpotlightsError
+from ..geometry.box_clamp import ray_box_interval
 from ..geometry.boxes import unit_extents
 from ..utils import atomic_output
 from .checkpoint import load_checkpoint, model_from_checkpoint, resolve_checkpoint
 from .inference import DEFAULT, BaseCompleter, LearnedDomain
-from .rays import TIMING_BOX_SIZE, directions_for_extents, rig_spec, timing_directions
+from .rays import TIMING_BOX_SIZE, directions_for_extents, rig_rays, rig_spec, timing_directions
 
 FORMAT = "spotlights-onnx"
 FORMAT_VERSION = 1
@@ -120,6 +121,11 @@ def _graph_module(model):
         raise ParameterError(
             f"{model.name} cannot be exported to ONNX yet (its per-ray evidence is gathered with scatter "
             "reductions at run time); complete with the torch runtime"
+        )
+    if getattr(model, "class_embedding", None) is not None:
+        raise ParameterError(
+            f"this {model.name} is class-conditioned (classes {', '.join(model.classes)}); its ONNX export "
+            "has no class input yet: complete with the torch runtime"
         )
     if model.target == "points":
         return PointGraph(model), ["partial"], ["points"]
@@ -314,15 +320,56 @@ class OnnxCompleter(BaseCompleter):
         return mask
 
     def _forward(
-        self, partials: np.ndarray, clip: Any, directions: np.ndarray | None, sensor_origins: np.ndarray | None = None
+        self,
+        partials: np.ndarray,
+        clip: Any,
+        directions: np.ndarray | None,
+        sensor_origins: np.ndarray | None = None,
+        classes=None,
+        box_half: np.ndarray | None = None,
+        inside: list | None = None,
     ) -> list[np.ndarray]:
         """One batch through onnxruntime; the rays kept as the torch models keep them (:meth:`keep`). Exports hold
-        no free-space model (``spotlights export`` refuses ``sanet-local``), so ``sensor_origins`` is unused."""
+        no free-space model (``spotlights export`` refuses ``sanet-local``), so ``sensor_origins`` is unused, nor
+        a class-conditioned one (``classes`` unused); with ``box_half`` the kept rays are clipped to each box
+        along the rays as the torch SA-Nets clip them (:func:`clip_rays_to_boxes`)."""
         out = self.run(partials, directions)
         if "points" in out:
             return [np.ascontiguousarray(p, dtype=np.float32) for p in out["points"]]
         mask = self.keep(out, clip)
-        return [p[m].astype(np.float32) for p, m in zip(out["ray_points"], mask)]
+        points = out["ray_points"]
+        if box_half is not None and self.rig is not None:
+            origins, fixed = rig_rays(self.rig)
+            dirs = fixed if directions is None else directions
+            points, mask, share = clip_rays_to_boxes(out["depths"], mask, origins, dirs, box_half)
+            if inside is not None:
+                inside.extend(float(v) for v in share)
+        return [p[m].astype(np.float32) for p, m in zip(points, mask)]
+
+
+def clip_rays_to_boxes(depths, keep, origins, directions, box_half) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The numpy form of :meth:`spotlights.learning.models.sanet.SANet.clip_to_boxes` then its ray points.
+
+    depths (B, R) raw regressed depths; keep (B, R) bool kept rays; origins (R, 3); directions (R, 3) or
+    (B, R, 3) unit rays; box_half (B, 3) unit-frame box half-extents. Returns ``(points (B, R, 3) float32,
+    keep (B, R) bool, inside (B,) float64)``: each kept depth clipped into ``[max(t_in, 0), t_out] / 2`` of its
+    ray through the box (a kept ray that misses the box dropped), then to half the ray's chord through the unit
+    sphere, decoded as ``o + 2 d u``; ``inside`` the share of kept rays inside before the clip.
+    """
+    o = np.asarray(origins, dtype=np.float64)
+    u = np.broadcast_to(np.asarray(directions, dtype=np.float64), (len(depths), *o.shape))
+    t_in, t_out = ray_box_interval(o, u, np.asarray(box_half, dtype=np.float64)[:, None, :])
+    meets = (t_in <= t_out) & (t_out > 0)
+    t = 2.0 * np.maximum(np.asarray(depths, dtype=np.float64), 0.0)
+    was_in = keep & meets & (t >= t_in) & (t <= t_out)
+    n = keep.sum(-1)
+    inside = np.where(n > 0, was_in.sum(-1) / np.maximum(n, 1), 1.0)
+    keep = keep & meets
+    d = np.where(keep, np.minimum(np.maximum(t, np.maximum(t_in, 0.0)), t_out) / 2.0, depths).astype(np.float32)
+    o32, u32 = o.astype(np.float32), u.astype(np.float32)
+    half_chord = np.maximum(-(o32 * u32).sum(-1), 0.0)
+    d = np.minimum(np.maximum(d, 0.0), half_chord)
+    return o32 + (2.0 * d)[..., None] * u32, keep, inside
 
 
 def load_onnx_completer(path, threads: int | None = None) -> OnnxCompleter:

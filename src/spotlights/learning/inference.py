@@ -18,15 +18,17 @@ network's input size, completes it and maps the result back into the scan's fram
 from __future__ import annotations
 
 import contextlib
-from dataclasses import dataclass
+import inspect
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..data.store import open_dataset
+from ..data.vehicle_classes import CATEGORY_CLASS, canonical_class
 from ..errors import InputFileError, ParameterError
-from ..geometry.box_clamp import clamp_to_grown_boxes
+from ..geometry.box_clamp import clamp_to_grown_boxes, grown_half_extents
 from ..geometry.boxes import Box, box_from_dict, load_box  # noqa: F401  (the box of complete_scan; re-exported)
 from ..geometry.sampling import resample_set
 from .checkpoint import PRETRAINED, load_checkpoint, model_from_checkpoint, resolve_checkpoint
@@ -53,36 +55,30 @@ def pretrained_checkpoint(name: str = "default") -> Path:
     return resolve_checkpoint(name)
 
 
-#: Body types of the synthetic datasets' categories -> the detector class a real box of that
-#: vehicle gets (the classes of :data:`spotlights.data.real.base.CLASSES`): a pickup or a race car is
-#: a ``car`` for KITTI, nuScenes and Argoverse 2 alike; a van is KITTI's ``Van`` (``caravan``).
-BODY_TYPE_CLASS: dict[str, str] = {
-    "hatchback": "car",
-    "sedan": "car",
-    "suv": "car",
-    "coupe": "car",
-    "wagon": "car",
-    "race": "car",
-    "pickup": "car",
-    "car": "car",
-    "van": "caravan",
-    "caravan": "caravan",
-    "truck": "truck",
-    "trailer": "trailer",
-    "bus": "bus",
-}
+#: Body types of the synthetic datasets' categories -> the detector class a real box of that vehicle gets: the
+#: one mapping, :data:`spotlights.data.vehicle_classes.CATEGORY_CLASS` (a pickup or a race car is a ``car`` for
+#: KITTI, nuScenes and Argoverse 2 alike; a van is KITTI's ``Van``, ``caravan``).
+BODY_TYPE_CLASS: dict[str, str] = CATEGORY_CLASS
+
+
+GATE_TOLERANCE = 0.5
+"""How far outside its class's learned size range a box may be and still be completed: 0.5 = a length,
+width or height 50% beyond the range (a 16.7 m truck against cars' 3.4-5.6 m is far outside; a 6 m pickup is
+not). Inside :attr:`LearnedDomain.tolerance` (10%) nothing is said; between the two, a warning."""
 
 
 @dataclass(frozen=True)
 class LearnedDomain:
     """What a model was trained on: the object classes and the box sizes (metres) it has seen.
 
-    ``size_min``/``size_max``: (length, width, height) ranges of the training boxes. A box whose
-    class is not in ``classes`` or whose size leaves the range widened by ``tolerance`` (a
-    fraction: 0.1 = 10%) gets a warning: the completion is an extrapolation (a car stretched
-    over a truck's box). Checkpoints may record it as ``checkpoint["domain"] = {"classes": [...],
-    "size_min": [l, w, h], "size_max": [l, w, h]}`` (training writes it from the train split,
-    :meth:`from_training_set`); older ones get :data:`CARS_DOMAIN`.
+    ``size_min``/``size_max``: (length, width, height) ranges of all the training boxes;
+    ``class_sizes``: ``{class: ((l, w, h) min, (l, w, h) max)}`` per class (empty in older checkpoints: the
+    overall range serves every class). A box whose class is not in ``classes`` or whose size leaves its
+    class's range widened by ``tolerance`` (a fraction: 0.1 = 10%) gets a warning: the completion is an
+    extrapolation (a car stretched over a truck's box). :meth:`gate` says which boxes are not completed at all.
+    Checkpoints record it as ``checkpoint["domain"] = {"classes": [...], "size_min": [l, w, h],
+    "size_max": [l, w, h], "class_sizes": {class: [[l, w, h], [l, w, h]]}}`` (training writes it from the
+    train split, :meth:`from_training_set`); older ones get :data:`CARS_DOMAIN` (car only).
     """
 
     classes: tuple = ("car",)
@@ -90,18 +86,21 @@ class LearnedDomain:
     size_max: tuple = (5.593, 2.412, 1.894)
     tolerance: float = 0.10
     source: str = "the 79 ApolloScape cars (length, width, height ranges)"
+    class_sizes: dict = field(default_factory=dict)
 
     @classmethod
-    def from_training_set(cls, categories, sizes, source: str, tolerance: float = 0.10) -> LearnedDomain:
-        """The domain of a training split: its body types mapped to detector classes and its box ranges.
+    def from_training_set(cls, categories, sizes, source: str, tolerance: float = 0.10, classes=None) -> LearnedDomain:
+        """The domain of a training split: its classes, its box ranges, overall and per class.
 
         Parameters
         ----------
         categories : (n,) str, each training model's category (body type, e.g. ``sedan``); mapped
-            through :data:`BODY_TYPE_CLASS` (a category not in it is kept as its own class name).
+            through :data:`BODY_TYPE_CLASS` (a category not in it is kept as its own class name) unless
+            ``classes`` is given.
         sizes : (n, 3) float, each training model's box (length, width, height) in metres (the
             dataset's ``/models/size``: after any augmentation, so scaled copies widen the range).
         source : what the domain was read from (e.g. the dataset path and split), kept in the record.
+        classes : (n,) str, each training model's detector class (the dataset's ``/models/class``), or None.
         """
         sizes = np.asarray(sizes, dtype=np.float64).reshape(-1, 3)
         if len(sizes) == 0 or len(sizes) != len(categories):
@@ -109,17 +108,22 @@ class LearnedDomain:
                 f"{source}: need one size per category and at least one model, got "
                 f"{len(categories)} categories and {len(sizes)} sizes"
             )
-        classes = []
-        for c in categories:
-            name = BODY_TYPE_CLASS.get(str(c).lower(), str(c).lower())
-            if name not in classes:
-                classes.append(name)
+        if classes is None:
+            names = [BODY_TYPE_CLASS.get(str(c).lower(), str(c).lower()) for c in categories]
+        else:
+            names = [canonical_class(c) for c in classes]
+        order = list(dict.fromkeys(names))
+        per = {}
+        for c in order:
+            rows = sizes[[n == c for n in names]]
+            per[c] = (tuple(float(v) for v in rows.min(axis=0)), tuple(float(v) for v in rows.max(axis=0)))
         return cls(
-            tuple(classes),
+            tuple(order),
             tuple(float(v) for v in sizes.min(axis=0)),
             tuple(float(v) for v in sizes.max(axis=0)),
             float(tolerance),
             str(source),
+            per,
         )
 
     @classmethod
@@ -134,19 +138,23 @@ class LearnedDomain:
                 store.categories[rows],
                 store.size[rows],
                 source=f"{Path(path).name}, {split} split ({len(rows)} models)",
+                classes=None if store.stored_classes is None else store.classes[rows],
             )
         finally:
             store.close()
 
     def to_dict(self) -> dict:
         """The checkpoint record (``checkpoint["domain"]``) that :meth:`from_checkpoint` reads back."""
-        return {
+        out = {
             "classes": list(self.classes),
             "size_min": [float(v) for v in self.size_min],
             "size_max": [float(v) for v in self.size_max],
             "tolerance": float(self.tolerance),
             "source": self.source,
         }
+        if self.class_sizes:
+            out["class_sizes"] = {c: [list(lo), list(hi)] for c, (lo, hi) in self.class_sizes.items()}
+        return out
 
     @classmethod
     def from_checkpoint(cls, ckpt: dict) -> LearnedDomain:
@@ -154,35 +162,63 @@ class LearnedDomain:
         if not isinstance(d, dict):
             return cls()
         try:
+            per = {
+                str(c): (tuple(float(v) for v in lo), tuple(float(v) for v in hi))
+                for c, (lo, hi) in (d.get("class_sizes") or {}).items()
+            }
             return cls(
                 tuple(str(c) for c in d.get("classes", ("car",))),
                 tuple(float(v) for v in d["size_min"]),
                 tuple(float(v) for v in d["size_max"]),
                 float(d.get("tolerance", 0.10)),
                 str(d.get("source", "the checkpoint's training boxes")),
+                per,
             )
         except (KeyError, TypeError, ValueError):
             return cls()
+
+    def size_range(self, cls_name: str | None) -> tuple[np.ndarray, np.ndarray]:
+        """(3,) float64 min and max (length, width, height) the model learned for class ``cls_name`` (its own
+        range where recorded, else the overall one)."""
+        lo, hi = self.class_sizes.get(canonical_class(cls_name) if cls_name else "", (self.size_min, self.size_max))
+        return np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+
+    def _outside(self, cls_name, size, tolerance: float) -> list[str]:
+        lo, hi = self.size_range(cls_name)
+        lo, hi = lo * (1.0 - tolerance), hi * (1.0 + tolerance)
+        sz = np.asarray(size, dtype=np.float64).reshape(3)
+        bad = [f"{n} {v:.2f} m" for n, v, a, b in zip(("length", "width", "height"), sz, lo, hi) if not a <= v <= b]
+        if not bad:
+            return []
+        return [
+            "size outside the learned range ("
+            + ", ".join(bad)
+            + "; learned "
+            + " x ".join(f"{a:.1f}-{b:.1f}" for a, b in zip(lo, hi))
+            + " m)"
+        ]
+
+    def learned(self, cls_name: str | None) -> bool:
+        """True when the model learned class ``cls_name`` (``None``, no class given: True, the size decides)."""
+        return cls_name is None or canonical_class(cls_name) in self.classes
 
     def warnings(self, cls_name: str | None, size) -> list[str]:
         """Human-readable reasons why a box of class ``cls_name`` (None = unknown) and ``size`` (l, w, h) is
         outside what the model learned; empty when it is inside."""
         out = []
-        if cls_name is not None and cls_name not in self.classes:
+        if not self.learned(cls_name):
             out.append(f"class {cls_name} is not one the model learned ({', '.join(self.classes)})")
-        lo = np.asarray(self.size_min) * (1.0 - self.tolerance)
-        hi = np.asarray(self.size_max) * (1.0 + self.tolerance)
-        sz = np.asarray(size, dtype=np.float64).reshape(3)
-        bad = [f"{n} {v:.2f} m" for n, v, a, b in zip(("length", "width", "height"), sz, lo, hi) if not a <= v <= b]
-        if bad:
-            out.append(
-                "size outside the learned range ("
-                + ", ".join(bad)
-                + "; learned "
-                + " x ".join(f"{a:.1f}-{b:.1f}" for a, b in zip(lo, hi))
-                + " m)"
-            )
-        return out
+        return out + self._outside(cls_name if self.learned(cls_name) else None, size, self.tolerance)
+
+    def gate(self, cls_name: str | None, size, tolerance: float = GATE_TOLERANCE) -> str | None:
+        """Why a box must not be completed (it would be an extrapolation), or None when it may be.
+
+        ``"class"``: its class is not one the model learned; ``"size"``: a length, width or height beyond
+        its class's learned range widened by ``tolerance`` (:data:`GATE_TOLERANCE`). A box without a class
+        (``None``) is judged by the overall size range."""
+        if not self.learned(cls_name):
+            return "class"
+        return "size" if self._outside(cls_name, size, tolerance) else None
 
 
 CARS_DOMAIN = LearnedDomain()
@@ -232,6 +268,9 @@ class BaseCompleter:
         batch_size: int = 256,
         extents: np.ndarray | None = None,
         sensor_origins: np.ndarray | None = None,
+        classes=None,
+        box_half: np.ndarray | None = None,
+        inside: list | None = None,
     ) -> list[np.ndarray]:
         """Complete partial scans.
 
@@ -249,6 +288,11 @@ class BaseCompleter:
             with the rays aimed at its own box); ignored otherwise.
         sensor_origins : (B, 3) (or (3,)) the LiDAR's optical centre in each scan's unit frame, for models that
             read free space (``sanet-local``; None or NaN rows: no free-space evidence); ignored by the others.
+        classes : B class names (or None each) for a class-conditioned model (its :attr:`classes`; a name it
+            lacks: no class input); ignored by the others.
+        box_half : (B, 3) half-extents of a box per scan in its unit frame (e.g. the box grown by 0.15 m):
+            the SA-Nets clip every kept ray's depth to it, exactly along the ray (``inside``, a list, gets each
+            scan's share of points inside before the clip); the point models ignore both.
 
         Returns
         -------
@@ -280,12 +324,23 @@ class BaseCompleter:
         so = None
         if sensor_origins is not None:
             so = np.broadcast_to(np.asarray(sensor_origins, dtype=np.float32).reshape(-1, 3), (len(x), 3))
+        names = None if classes is None else list(classes)
+        if names is not None and len(names) != len(x):
+            raise ParameterError(f"{len(names)} class names for {len(x)} scans")
+        bh = None
+        if box_half is not None:
+            bh = np.broadcast_to(np.asarray(box_half, dtype=np.float32).reshape(-1, 3), (len(x), 3))
         out: list[np.ndarray] = []
         with self._session():
             for s in range(0, len(x), batch_size):
                 dirs = None if e is None else directions_for_extents(self.rig, e[s : s + batch_size])
                 sb = None if so is None else np.array(so[s : s + batch_size])
-                out.extend(self._forward(x[s : s + batch_size], clip, dirs, sb))
+                kw: dict = {}
+                if names is not None and accepts(self._forward, "classes"):
+                    kw["classes"] = names[s : s + batch_size]
+                if bh is not None and accepts(self._forward, "box_half"):
+                    kw["box_half"], kw["inside"] = np.array(bh[s : s + batch_size]), inside
+                out.extend(self._forward(x[s : s + batch_size], clip, dirs, sb, **kw))
         return out
 
     def complete_boxes(self, partials: np.ndarray, sizes: np.ndarray, clip: Any = DEFAULT) -> list[np.ndarray]:
@@ -298,11 +353,20 @@ class BaseCompleter:
         return contextlib.nullcontext()
 
     def _forward(
-        self, partials: np.ndarray, clip: Any, directions: np.ndarray | None, sensor_origins: np.ndarray | None = None
+        self,
+        partials: np.ndarray,
+        clip: Any,
+        directions: np.ndarray | None,
+        sensor_origins: np.ndarray | None = None,
+        classes=None,
+        box_half: np.ndarray | None = None,
+        inside: list | None = None,
     ) -> list[np.ndarray]:
         """The network: (b, K, 3) float32 checked partials (and (b, N*M, 3) float32 ray directions for box rigs,
-        (b, 3) float32 sensor origins in the unit frame for models that read free space)
-        -> b arrays (K_i, 3) float32, unit frame, with ``clip`` as :meth:`complete` takes it."""
+        (b, 3) float32 sensor origins in the unit frame for models that read free space, b class names, (b, 3)
+        box half-extents to clip the rays to) -> b arrays (K_i, 3) float32, unit frame, with ``clip`` as
+        :meth:`complete` takes it. A runtime that cannot condition on classes or clip to boxes ignores them
+        (and leaves ``inside`` as it is)."""
         raise NotImplementedError
 
 
@@ -330,6 +394,7 @@ class Completer(BaseCompleter):
         self.threshold = getattr(model, "threshold", None)
         self.needs_box = bool(getattr(model, "needs_box", False))
         self.domain = LearnedDomain.from_checkpoint(checkpoint)
+        self.classes = tuple(getattr(model, "classes", ()) or ())
 
     def __repr__(self) -> str:
         return f"Completer({self.model_name}, {self.n_params:,} parameters, {self.device})"
@@ -345,7 +410,14 @@ class Completer(BaseCompleter):
         return stack
 
     def _forward(
-        self, partials: np.ndarray, clip: Any, directions: np.ndarray | None, sensor_origins: np.ndarray | None = None
+        self,
+        partials: np.ndarray,
+        clip: Any,
+        directions: np.ndarray | None,
+        sensor_origins: np.ndarray | None = None,
+        classes=None,
+        box_half: np.ndarray | None = None,
+        inside: list | None = None,
     ) -> list[np.ndarray]:
         import torch
 
@@ -355,9 +427,16 @@ class Completer(BaseCompleter):
         dirs = None if directions is None else torch.from_numpy(np.ascontiguousarray(directions)).to(self.device)
         c = CLIP_DEFAULT if clip is DEFAULT else clip
         args = (t, c, dirs)
-        if getattr(self.model, "uses_evidence", False) and sensor_origins is not None:
-            args += (torch.from_numpy(np.ascontiguousarray(sensor_origins, dtype=np.float32)).to(self.device),)
-        return [p.cpu().numpy().astype(np.float32) for p in self.model.complete(*args)]
+        if getattr(self.model, "uses_evidence", False):
+            so = None if sensor_origins is None else np.ascontiguousarray(sensor_origins, dtype=np.float32)
+            args += (None if so is None else torch.from_numpy(so).to(self.device),)
+        kw: dict = {}
+        if classes is not None and getattr(self.model, "class_embedding", None) is not None:
+            kw["classes"] = self.model.class_indices(classes).to(self.device)
+        if box_half is not None and hasattr(self.model, "clip_to_boxes"):
+            kw["box_half"] = torch.from_numpy(np.ascontiguousarray(box_half, dtype=np.float32)).to(self.device)
+            kw["inside"] = inside
+        return [p.cpu().numpy().astype(np.float32) for p in self.model.complete(*args, **kw)]
 
 
 def load_completer(checkpoint_path=None, device=None, precision: str = "fp32") -> Completer:
@@ -403,6 +482,16 @@ def prepare_partial(
     )
 
 
+def accepts(fn, name: str) -> bool:
+    """True when callable ``fn`` takes a keyword argument ``name`` (or ``**kwargs``): the optional inputs
+    (``classes``, ``box_half``) go only to completers and runtimes that take them."""
+    try:
+        params = inspect.signature(fn).parameters
+    except (TypeError, ValueError):
+        return False
+    return name in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
+
+
 def complete_in_boxes(
     completer,
     partials: np.ndarray,
@@ -410,10 +499,17 @@ def complete_in_boxes(
     clip=DEFAULT,
     sensor_origins=None,
     inside: list | None = None,
+    classes=None,
 ) -> list[np.ndarray]:
     """Complete unit-frame partial scans, each with its box, every point inside its box grown by
-    0.15 m and inside the box's sphere (:func:`~spotlights.geometry.box_clamp.clamp_to_grown_boxes`;
-    ``inside``, when given, gets each completion's share of points the network put in the grown box).
+    0.15 m and inside the box's sphere (``inside``, when given, gets each completion's share of points the
+    network put in the grown box, before any clamp).
+
+    SA-Nets clip every kept ray's depth to the grown box exactly along the ray at decoding
+    (:meth:`~spotlights.learning.models.sanet.SANet.clip_to_boxes`); then every completion (the point
+    models' too) is projected onto its grown box and into the unit sphere
+    (:func:`~spotlights.geometry.box_clamp.clamp_to_grown_boxes`; a no-op for the clipped rays, up to float
+    rounding). ``classes``: B class names for a class-conditioned model (the others ignore them).
 
     The step that the user-facing completions share (``complete_scan``; ``complete_scene``, so
     ``complete --boxes`` and ``real complete``): a box-targeted SA-Net (``completer.needs_box``) gets
@@ -435,11 +531,17 @@ def complete_in_boxes(
     kw = {"clip": clip}
     if sensor_origins is not None and getattr(getattr(completer, "model", None), "uses_evidence", False):
         kw["sensor_origins"] = sensor_origins
+    sz = np.asarray(sizes, dtype=np.float64).reshape(-1, 3)
     if getattr(completer, "needs_box", False):
-        kw["extents"] = unit_extents(np.asarray(sizes, dtype=np.float64).reshape(-1, 3))
+        kw["extents"] = unit_extents(sz)
+    if classes is not None and accepts(completer.complete, "classes"):
+        kw["classes"] = list(classes)
+    decoded: list[float] = []
+    if len(sz) and getattr(completer, "rig", None) is not None and accepts(completer.complete, "box_half"):
+        kw["box_half"], kw["inside"] = grown_half_extents(sz), decoded  # depth models: clipped along the rays
     done, shares = clamp_to_grown_boxes(completer.complete(partials, **kw), sizes)
     if inside is not None:
-        inside.extend(shares)
+        inside.extend(decoded if len(decoded) == len(shares) else shares)
     return done
 
 

@@ -371,7 +371,10 @@ def _learned_domain(run: TrainingRun) -> LearnedDomain | None:
         return None
     rows = ts.model_rows
     return LearnedDomain.from_training_set(
-        ts.info.categories[rows], ts.sizes[rows], source=f"{Path(str(run.data)).name}, train split ({len(rows)} models)"
+        ts.info.categories[rows],
+        ts.sizes[rows],
+        source=f"{Path(str(run.data)).name}, train split ({len(rows)} models)",
+        classes=ts.classes[rows] if ts.has_stored_classes else None,
     )
 
 

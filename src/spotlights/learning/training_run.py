@@ -240,11 +240,22 @@ def prepare_run(dist: ProcessGroup, settings: TrainSettings, log) -> TrainingRun
 
     wants_depths = model_class(model_name).target == "depths"
     rig_sel = dcfg.rig if wants_depths else False
+    vocab = ((cfg.get("model") or {}).get("args") or {}).get("classes")
     train_set = TorchCompletionDataset(
-        data, "train", rig=rig_sel, max_views=dcfg.max_views, partials_in_memory=dcfg.partials_in_memory
+        data,
+        "train",
+        rig=rig_sel,
+        max_views=dcfg.max_views,
+        partials_in_memory=dcfg.partials_in_memory,
+        class_vocab=vocab,
     )
     val_set = TorchCompletionDataset(
-        data, "val", rig=rig_sel, max_views=dcfg.val_max_views, partials_in_memory=dcfg.partials_in_memory
+        data,
+        "val",
+        rig=rig_sel,
+        max_views=dcfg.val_max_views,
+        partials_in_memory=dcfg.partials_in_memory,
+        class_vocab=vocab,
     )
     rig = train_set.rig if wants_depths else None  # the dataset's RigSpec
     if state is not None and not settings.allow_new_data:
@@ -269,6 +280,11 @@ def prepare_run(dist: ProcessGroup, settings: TrainSettings, log) -> TrainingRun
     torch.manual_seed(tcfg.seed)
     np.random.seed(tcfg.seed % (2**32))
     model = build_model(cfg, rig=rig).to(device)
+    init = (cfg.get("model") or {}).get("init")
+    if state is None and init:
+        init_from_checkpoint(model, init)
+        if dist.main:
+            log(f"{model_name}: weights initialised from {init}")
     opt = build_optimizer(model.parameters(), tcfg)
     sched = build_scheduler(opt, tcfg)
     scaler = torch.amp.GradScaler(device.type) if precision == "fp16" else None
@@ -309,6 +325,26 @@ def prepare_run(dist: ProcessGroup, settings: TrainSettings, log) -> TrainingRun
         if precision != "fp32":
             log(f"{model_name}: training at {precision} (autocast forward, float32 weights, losses and metrics)")
     return run
+
+
+def init_from_checkpoint(model: torch.nn.Module, path) -> None:
+    """Load a checkpoint's weights into a new run's ``model`` (config ``model.init``, a fine-tune).
+
+    Every weight of the checkpoint must fit; the model's parameters it lacks must be new ones that start
+    neutral (a class embedding, zero-initialised), so the model starts as the checkpoint's. Its hit threshold
+    is taken too. Raises :class:`InputFileError` naming the checkpoint otherwise."""
+    ckpt = load_checkpoint(path)
+    try:
+        missing, unexpected = model.load_state_dict(ckpt["model_state"], strict=False)
+    except RuntimeError as exc:
+        first = (str(exc).splitlines() or [""])[0][:160]
+        raise InputFileError(ckpt["path"], f"its weights do not fit the model of this run ({first})") from None
+    bad = [k for k in missing if not k.startswith("class_embedding.")] + list(unexpected)
+    if bad:
+        raise InputFileError(ckpt["path"], f"its weights do not fit the model of this run ({', '.join(bad[:3])})")
+    chosen = ckpt.get("hit_threshold")
+    if chosen is not None and hasattr(model, "threshold"):
+        model.threshold = float(chosen["value"] if isinstance(chosen, dict) else chosen)
 
 
 def restore_run(run: TrainingRun, state: dict, extended: bool) -> None:

@@ -25,6 +25,7 @@ from collections.abc import Sequence
 
 import torch
 
+from ...data.vehicle_classes import canonical_class
 from ..losses import depth_l1
 from ..rays import rig_rays, rig_spec
 from .base import CLIP_DEFAULT, MLP, CompletionModel, PCNEncoder
@@ -43,8 +44,14 @@ class SANet(CompletionModel):
     output_activation : ``"none"`` (linear, default), ``"relu"`` (exact zeros for misses: a
         ray the decoder drives below 0 decodes as a miss even without a clip) or ``"sigmoid"``.
     clip : default inference threshold on predicted depths (paper: 0.2); ``None`` = no clip.
+    classes : the class vocabulary of a class-conditioned model (e.g. ``["car", "caravan", "truck", "bus",
+        "trailer"]``, :data:`spotlights.data.vehicle_classes.VEHICLE_CLASSES`); ``None`` (default): no class
+        input (every checkpoint before it: a car model). With a vocabulary, a learned embedding per class
+        (``class_embedding``, (C, code_size), **zero-initialised**) is added to the encoder's global code, so
+        a model fine-tuned from a checkpoint without it starts as exactly that checkpoint.
 
-    forward: partial (B, K, 3) -> {"depths": (B, N*M)}.
+    forward: partial (B, K, 3), classes (B,) int64 or None -> {"depths": (B, N*M)}; a class index is a row of
+    ``classes`` (-1 or ``None``: no class, the code as the encoder gives it).
     """
 
     name = "sanet"
@@ -60,6 +67,7 @@ class SANet(CompletionModel):
         hidden: Sequence[int] = (256, 256),
         output_activation: str = "none",
         clip: float | None = 0.2,
+        classes: Sequence[str] | None = None,
     ):
         super().__init__()
 
@@ -73,14 +81,92 @@ class SANet(CompletionModel):
         self.clip = None if clip is None else float(clip)
         self.encoder = PCNEncoder(code_size, encoder_widths)
         self.decoder = MLP([code_size, *hidden, self.outputs_per_ray * self.rig.n_rays])
+        self.classes = tuple(canonical_class(c) for c in (classes or ()))
+        if len(set(self.classes)) != len(self.classes):
+            raise ValueError(f"classes must be distinct, got {list(classes or ())}")
+        self.class_embedding = None
+        if self.classes:
+            self.class_embedding = torch.nn.Embedding(len(self.classes), int(code_size))
+            torch.nn.init.zeros_(self.class_embedding.weight)  # starts as the model without classes
         origins, directions = rig_rays(self.rig)
         self.register_buffer("origins", torch.from_numpy(origins), persistent=False)
         self.register_buffer(
             "directions", None if directions is None else torch.from_numpy(directions), persistent=False
         )
 
-    def forward(self, partial: torch.Tensor) -> dict[str, torch.Tensor]:
-        d = self.decoder(self.encoder(partial))
+    def encode(self, partial: torch.Tensor, classes: torch.Tensor | None = None) -> torch.Tensor:
+        """The global code (B, code_size): the encoder's, plus the class embedding of each scan's class
+        (``classes`` (B,) int64 rows of :attr:`classes`; -1 or ``None``: nothing added)."""
+        code = self.encoder(partial)
+        if self.class_embedding is None or classes is None:
+            return code
+        idx = torch.as_tensor(classes, device=code.device).long().reshape(-1)
+        emb = self.class_embedding(idx.clamp(min=0)) * (idx >= 0).unsqueeze(-1)
+        return code + emb.to(code.dtype)
+
+    def class_indices(self, names) -> torch.Tensor:
+        """(B,) int64 rows of :attr:`classes` of class names (aliases resolved; ``None`` or an unknown class: -1)."""
+        table = {c: i for i, c in enumerate(self.classes)}
+        return torch.tensor([-1 if n is None else table.get(canonical_class(n), -1) for n in names], dtype=torch.int64)
+
+    def forward_inputs(self, batch: dict, rays=None) -> tuple:
+        """``(partial,)``, and each scan's class index (``batch["cls"]``) for a class-conditioned model."""
+        if self.class_embedding is not None:
+            return batch["partial"], batch.get("cls")
+        return (batch["partial"],)
+
+    @torch.no_grad()
+    def complete(
+        self, partial, clip=CLIP_DEFAULT, directions=None, classes=None, box_half=None, inside=None
+    ) -> list[torch.Tensor]:
+        """As :meth:`CompletionModel.complete`, with each scan's class index ``classes`` (B,) (see :meth:`encode`)
+        and, with ``box_half`` (B, 3), every kept ray's depth clipped to that box (:meth:`clip_to_boxes`;
+        ``inside``, a list, gets each scan's share of kept rays inside before the clip)."""
+        return self.outputs_to_points(
+            self.forward(partial, classes), clip, directions, box_half=box_half, inside=inside
+        )
+
+    def clip_to_boxes(
+        self, depths: torch.Tensor, keep: torch.Tensor, directions: torch.Tensor | None, box_half: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Clip every ray's depth to an axis-aligned box of the unit frame, exactly along the ray.
+
+        depths : (B, R) float32 regressed depths (a point is ``o + 2 d u``); keep : (B, R) bool kept rays;
+        directions : (B, R, 3) per-scan unit ray directions (None: the rig's fixed ones); box_half : (B, 3)
+        half-extents of each scan's box in its unit frame (e.g. the box grown by 0.15 m,
+        :func:`spotlights.geometry.box_clamp.grown_half_extents`).
+
+        Each ray meets the box on ``t in [t_in, t_out]`` (slab method, as
+        :func:`spotlights.geometry.box_clamp.ray_box_interval`); a kept depth moves to the nearest end of
+        that interval (``t`` clipped into ``[max(t_in, 0), t_out]``) and a kept ray that never meets the box
+        is dropped. Returns ``(depths (B, R), keep (B, R), inside (B,) float32)``: ``inside`` is each scan's
+        share of kept rays whose point was inside the box before the clip (1 for a scan with no kept ray).
+        """
+        dirs = self.directions if directions is None else directions
+        if dirs is None:
+            raise ValueError("clipping to a box needs each scan's ray directions (B, N*M, 3)")
+        o = self.origins.double()
+        u = dirs.double().expand(depths.shape[0], -1, -1)
+        h = box_half.double().reshape(-1, 1, 3)
+        zero = u == 0
+        safe = torch.where(zero, torch.ones_like(u), u)
+        t1, t2 = (-h - o) / safe, (h - o) / safe
+        slab_in = (o.abs() <= h).expand_as(u)
+        inf = torch.full_like(u, float("inf"))
+        lo = torch.where(zero, torch.where(slab_in, -inf, inf), torch.minimum(t1, t2))
+        hi = torch.where(zero, torch.where(slab_in, inf, -inf), torch.maximum(t1, t2))
+        t_in, t_out = lo.amax(-1), hi.amin(-1)
+        meets = (t_in <= t_out) & (t_out > 0)
+        t = 2.0 * depths.double().clamp(min=0.0)
+        was_in = keep & meets & (t >= t_in) & (t <= t_out)
+        n_keep = keep.sum(-1)
+        inside = torch.where(n_keep > 0, was_in.sum(-1) / n_keep.clamp(min=1), torch.ones_like(n_keep, dtype=t.dtype))
+        t = torch.minimum(torch.maximum(t, t_in.clamp(min=0.0)), t_out)
+        keep = keep & meets
+        return torch.where(keep, t / 2.0, depths.double()).to(depths.dtype), keep, inside.float()
+
+    def forward(self, partial: torch.Tensor, classes: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        d = self.decoder(self.encode(partial, classes))
         if self.output_activation == "sigmoid":
             d = torch.sigmoid(d)
         elif self.output_activation == "relu":
@@ -141,7 +227,22 @@ class SANet(CompletionModel):
         return self.origins + (2.0 * d).unsqueeze(-1) * directions
 
     def outputs_to_points(
-        self, outputs, clip=CLIP_DEFAULT, directions: torch.Tensor | None = None
+        self, outputs, clip=CLIP_DEFAULT, directions: torch.Tensor | None = None, box_half=None, inside=None
     ) -> list[torch.Tensor]:
-        pts, mask = self.decode(outputs["depths"].detach().float(), clip, directions)
+        depths = outputs["depths"].detach().float()
+        return self.kept_points(depths, None, clip, directions, box_half, inside)
+
+    def kept_points(self, depths, keep, clip, directions, box_half=None, inside=None) -> list[torch.Tensor]:
+        """The decoded clouds (list of B (K_b, 3) float32, unit frame) of depths (B, R) and kept rays (B, R)
+        (None: ``depth > 0``), with the clip, and with ``box_half`` the box clip (:meth:`clip_to_boxes`;
+        ``inside`` gets its shares)."""
+        clip = self.clip if clip is CLIP_DEFAULT else clip
+        mask = depths > 0 if keep is None else keep.clone()
+        if clip is not None:
+            mask &= depths >= float(clip)
+        if box_half is not None:
+            depths, mask, share = self.clip_to_boxes(depths, mask, directions, box_half)
+            if inside is not None:
+                inside.extend(float(v) for v in share)
+        pts, mask = self.decode(depths, None, directions, keep=mask)
         return [p[m] for p, m in zip(pts, mask)]

@@ -44,6 +44,7 @@ class HitSANet(SANet):
     threshold_grid : thresholds tried on the validation split; ``None`` or ``[]`` keeps ``threshold``.
     hit_weight, depth_weight : loss weights of the BCE and the hit-only L1 terms.
     clip : optional depth clip applied on top of the hit decision (default None: none).
+    classes : class vocabulary of a class-conditioned model (:class:`~spotlights.learning.models.sanet.SANet`).
     float32_head : compute the last decoder layer (the logits and depths) in float32 under a
         bf16 autocast (default False: the layout of checkpoints written before it existed; the
         packaged config sets true). Measured: 400 bf16 steps with it reach a validation CD-L1
@@ -68,9 +69,16 @@ class HitSANet(SANet):
         depth_weight: float = 1.0,
         clip: float | None = None,
         float32_head: bool = False,
+        classes: Sequence[str] | None = None,
     ):
         super().__init__(
-            rig, code_size=code_size, encoder_widths=encoder_widths, hidden=hidden, output_activation="none", clip=clip
+            rig,
+            code_size=code_size,
+            encoder_widths=encoder_widths,
+            hidden=hidden,
+            output_activation="none",
+            clip=clip,
+            classes=classes,
         )
         self.decoder.float32_last = bool(float32_head)
         self.threshold = _check_probability(threshold, "threshold")
@@ -81,8 +89,8 @@ class HitSANet(SANet):
                 f"hit_weight and depth_weight must be >= 0 and not both 0, got {hit_weight}, {depth_weight}"
             )
 
-    def forward(self, partial: torch.Tensor) -> dict[str, torch.Tensor]:
-        out = self.decoder(self.encoder(partial))
+    def forward(self, partial: torch.Tensor, classes: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        out = self.decoder(self.encode(partial, classes))
         n = self.rig.n_rays
         return {"hit_logits": out[..., :n], "depths": out[..., n:]}
 
@@ -96,14 +104,20 @@ class HitSANet(SANet):
         return torch.sigmoid(outputs["hit_logits"].detach().float())
 
     def outputs_to_points(
-        self, outputs, clip=CLIP_DEFAULT, directions: torch.Tensor | None = None, threshold: float | None = None
+        self,
+        outputs,
+        clip=CLIP_DEFAULT,
+        directions: torch.Tensor | None = None,
+        threshold: float | None = None,
+        box_half=None,
+        inside=None,
     ) -> list[torch.Tensor]:
         """Completed clouds (list of B (K_b, 3) float32, unit frame): the rays with p(hit) >= ``threshold``
-        (default: the model's, i.e. the checkpoint's chosen threshold), in ray order."""
+        (default: the model's, i.e. the checkpoint's chosen threshold), in ray order; ``box_half``, ``inside``:
+        see :meth:`~spotlights.learning.models.sanet.SANet.kept_points`."""
         t = self.threshold if threshold is None else float(threshold)
         keep = self.hit_probabilities(outputs) >= t
-        pts, mask = self.decode(outputs["depths"].detach().float(), clip, directions, keep=keep)
-        return [p[m] for p, m in zip(pts, mask)]
+        return self.kept_points(outputs["depths"].detach().float(), keep, clip, directions, box_half, inside)
 
 
 def hit_depth_loss(

@@ -56,6 +56,7 @@ class LocalSANet(HitSANet):
     candidate_width : width of the shared layer over each near-ray candidate (16).
     local_hidden : hidden widths of the per-ray correction MLP (default [32, 32]).
     free_space_decoding : apply the free-space constraint when decoding (default True).
+    classes : class vocabulary of a class-conditioned model (:class:`~spotlights.learning.models.sanet.SANet`).
 
     forward: (partial (B, K, 3), directions (B, N*M, 3) or None, sensor_origin (B, 3) or None) ->
     ``hit_logits``, ``depths`` (B, N*M) and, for decoding, ``carved`` (B, N*M, T) bool and
@@ -86,6 +87,7 @@ class LocalSANet(HitSANet):
         candidate_width: int = 16,
         local_hidden: Sequence[int] = (32, 32),
         free_space_decoding: bool = True,
+        classes: Sequence[str] | None = None,
     ):
         super().__init__(
             rig,
@@ -98,6 +100,7 @@ class LocalSANet(HitSANet):
             depth_weight=depth_weight,
             clip=clip,
             float32_head=float32_head,
+            classes=classes,
         )
         self.evidence = EvidenceParams(
             int(near_cells), float(radius), int(carve_cells), int(carve_samples), float(margin)
@@ -116,6 +119,8 @@ class LocalSANet(HitSANet):
         """Forward arguments for a batch: ``(partial, directions, sensor_origin)`` (directions from ``rays``, a
         :class:`~spotlights.learning.rays.DirectionTable`, for box-targeted rigs)."""
         dirs = rays.directions(batch["model"]) if rays is not None else None
+        if self.class_embedding is not None:
+            return batch["partial"], dirs, batch.get("sensor_origin"), batch.get("cls")
         return batch["partial"], dirs, batch.get("sensor_origin")
 
     def _directions(self, directions: torch.Tensor | None, b: int) -> torch.Tensor:
@@ -128,9 +133,11 @@ class LocalSANet(HitSANet):
             return self.directions.expand(b, -1, -1)
         return directions
 
-    def forward(self, partial: torch.Tensor, directions=None, sensor_origin=None) -> dict[str, torch.Tensor]:
+    def forward(
+        self, partial: torch.Tensor, directions=None, sensor_origin=None, classes=None
+    ) -> dict[str, torch.Tensor]:
         b = partial.shape[0]
-        code = self.encoder(partial)
+        code = self.encode(partial, classes)
         out = self.decoder(code)
         n = self.rig.n_rays
         logit, depth = out[..., :n], out[..., n:]
@@ -165,13 +172,23 @@ class LocalSANet(HitSANet):
         }
 
     @torch.no_grad()
-    def complete(self, partial, clip=CLIP_DEFAULT, directions=None, sensor_origin=None) -> list[torch.Tensor]:
+    def complete(
+        self, partial, clip=CLIP_DEFAULT, directions=None, sensor_origin=None, classes=None, box_half=None, inside=None
+    ) -> list[torch.Tensor]:
         """partial (B, K, 3) -> list of B clouds (K_b, 3) float32, unit frame; ``sensor_origin`` (B, 3) unit frame
-        or None (no free-space evidence)."""
-        return self.outputs_to_points(self.forward(partial, directions, sensor_origin), clip, directions)
+        or None (no free-space evidence); ``classes`` (B,) int64 class indices (class-conditioned models);
+        ``box_half``, ``inside``: the box clip (:meth:`~spotlights.learning.models.sanet.SANet.kept_points`)."""
+        out = self.forward(partial, directions, sensor_origin, classes)
+        return self.outputs_to_points(out, clip, directions, box_half=box_half, inside=inside)
 
     def outputs_to_points(
-        self, outputs, clip=CLIP_DEFAULT, directions: torch.Tensor | None = None, threshold: float | None = None
+        self,
+        outputs,
+        clip=CLIP_DEFAULT,
+        directions: torch.Tensor | None = None,
+        threshold: float | None = None,
+        box_half=None,
+        inside=None,
     ) -> list[torch.Tensor]:
         """As the hit-aware SA-Net's, with the free-space constraint (when ``free_space_decoding``)."""
         t = self.threshold if threshold is None else float(threshold)
@@ -179,5 +196,4 @@ class LocalSANet(HitSANet):
         depths = outputs["depths"].detach().float()
         if self.free_space_decoding and "carved" in outputs:
             depths, keep = free_space_decode(depths, keep, outputs["carved"], outputs["half_chord"].float())
-        pts, mask = self.decode(depths, clip, directions, keep=keep)
-        return [p[m] for p, m in zip(pts, mask)]
+        return self.kept_points(depths, keep, clip, directions, box_half, inside)

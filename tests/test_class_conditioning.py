@@ -1,0 +1,158 @@
+"""Issue 27: a model that knows the class (a zero-initialised class embedding), the learned-domain gate
+(an unknown class is left as observed points and counted) and every SA-Net ray clipped to the box grown by
+0.15 m at decoding (checked against a hand-computed ray/box intersection)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from spotlights.api import complete_frame
+from spotlights.data.real.base import lookup_class
+from spotlights.data.real.boxfiles import CLASS_MAP
+from spotlights.data.vehicle_classes import VEHICLE_CLASSES, canonical_class
+from spotlights.experiments.scene import SceneConfig
+from spotlights.geometry.boxes import Box
+from spotlights.geometry.rig import make_rig_spec
+from spotlights.learning.inference import Completer, complete_in_boxes, load_completer
+from spotlights.learning.models.sanet_hit import HitSANet
+
+VOCAB = ["car", "caravan", "truck", "bus", "trailer"]
+
+
+def tiny(classes=None, seed=0) -> HitSANet:
+    torch.manual_seed(seed)
+    m = HitSANet(
+        make_rig_spec(8, 8, kind="box"), code_size=32, encoder_widths=(8, 16, 16), hidden=(16,), classes=classes
+    )
+    return m.eval()
+
+
+def box(center, size, label, cls) -> Box:
+    return Box(np.asarray(center, float), np.asarray(size, float), np.eye(3), label, cls, None)
+
+
+def test_zero_embedding_starts_as_the_model_without_classes_and_classes_then_differ():
+    plain, cond = tiny(), tiny(VOCAB)
+    cond.load_state_dict(plain.state_dict(), strict=False)  # the embedding keeps its zeros
+    x = torch.rand(2, 40, 3) - 0.5
+    with torch.no_grad():
+        ref = plain(x)["depths"]
+        same = cond(x, torch.tensor([0, 3]))["depths"]
+        assert torch.equal(ref, same)
+        torch.nn.init.normal_(cond.class_embedding.weight)
+        car, bus = (cond(x, torch.tensor([k, k]))["depths"] for k in (0, 3))
+        none = cond(x, torch.tensor([-1, -1]))["depths"]
+    assert (car - bus).abs().max() > 1e-3  # two classes, two outputs for the same input
+    assert torch.equal(none, ref)  # no class (-1): the code as the encoder gives it
+    assert cond.class_indices(["van", "bus", None, "construction"]).tolist() == [1, 3, -1, -1]
+
+
+def test_depths_clipped_to_a_long_box_match_a_hand_computed_intersection():
+    m = tiny()
+    half = torch.tensor([[0.95, 0.15, 0.25]], dtype=torch.float64)  # a long, thin box in the unit frame
+    o = m.origins.double()  # (R, 3) ray origins on the unit sphere
+    r = 5
+    # three rays through the centre (u = -o): p(t) = o (1 - t) is inside iff |1 - t| <= s, s = min_i h_i / |o_i|
+    s = float(torch.min(half[0] / o[r].abs()))
+    u = torch.zeros(1, len(o), 3, dtype=torch.float64)
+    u[0] = -o  # every ray through the centre
+    t_in, t_out = 1.0 - s, 1.0 + s
+    depths = torch.zeros(1, len(o), dtype=torch.float64)
+    depths[0, r] = 0.99  # t = 1.98 > t_out: moves back to the exit
+    keep = torch.zeros(1, len(o), dtype=torch.bool)
+    keep[0, r] = True
+    d, k, inside = m.clip_to_boxes(depths.float(), keep, u.float(), half.float())
+    assert bool(k[0, r]) and float(inside[0]) == 0.0
+    assert float(d[0, r]) == pytest.approx(t_out / 2.0, abs=1e-6)
+    depths[0, r] = 0.5 * (t_in + 0.5 * (t_out - t_in))  # inside: unchanged
+    d, _, inside = m.clip_to_boxes(depths.float(), keep, u.float(), half.float())
+    assert float(d[0, r]) == pytest.approx(float(depths[0, r]), abs=1e-7) and float(inside[0]) == 1.0
+    depths[0, r] = 0.01  # t = 0.02 < t_in: moves forward to the entry
+    d, _, _ = m.clip_to_boxes(depths.float(), keep, u.float(), half.float())
+    assert float(d[0, r]) == pytest.approx(t_in / 2.0, abs=1e-6)
+    # a ray along x from an origin above the box's top (|o_z| > 0.25) stays at that height: it never meets the box
+    q = int(torch.nonzero(o[:, 2].abs() > 0.3)[0])
+    u[0, q] = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
+    depths[0, q], keep[0, q] = 0.3, True
+    depths[0, r] = 0.5 * (t_in + 0.5 * (t_out - t_in))  # inside: 1 of the 2 kept rays was inside
+    _, k, inside = m.clip_to_boxes(depths.float(), keep, u.float(), half.float())
+    assert not bool(k[0, q]) and bool(k[0, r]) and float(inside[0]) == 0.5
+
+
+def test_every_completion_point_lies_in_the_grown_long_box():
+    m = tiny()
+    comp = Completer(m, {"model_name": "sanet-hit"}, torch.device("cpu"))
+    sizes = np.array([[16.0, 2.5, 4.0], [4.5, 1.8, 1.5]])
+    x = (np.random.default_rng(0).uniform(-0.4, 0.4, (2, 50, 3))).astype(np.float32)
+    shares: list = []
+    out = complete_in_boxes(comp, x, sizes, inside=shares)
+    r = np.linalg.norm(sizes, axis=1) / 2
+    for pts, s, rr in zip(out, sizes, r):
+        h = (s / 2 + 0.15) / rr  # the grown box's half-extents in the unit frame, by hand
+        assert len(pts) and np.all(np.abs(pts) <= h + 1e-6)
+    assert len(shares) == 2 and all(0.0 <= v <= 1.0 for v in shares)
+
+
+def test_unknown_class_is_left_as_observed_points_and_counted():
+    comp = Completer(tiny(VOCAB[:1]), {"model_name": "sanet-hit"}, torch.device("cpu"))  # old domain: cars only
+    rng = np.random.default_rng(1)
+    boxes = [box([8, 0, 0.8], [4.4, 1.8, 1.5], "car", "car"), box([-15, 4, 1.5], [4.6, 1.9, 1.6], "Bus", "bus")]
+    pts = np.concatenate([rng.uniform(-0.45, 0.45, (200, 3)) * b.size + b.center for b in boxes])
+    res = complete_frame(pts, boxes, comp)
+    assert [o.status for o in res.objects] == ["completed", "not_learned"]
+    summ = res.summary()
+    assert summ["not_completed"] == {"bus": 1} and summ["skipped"] == {"not_learned": 1}
+    assert np.sum(res.source == 2) == len(res.objects[0].completion)  # only the car has completion points
+    res = complete_frame(pts, boxes, comp, SceneConfig(complete_unknown=True))
+    assert [o.status for o in res.objects] == ["completed", "completed"] and res.summary()["not_completed"] == {}
+
+
+def test_old_checkpoint_without_classes_still_completes_cars():
+    comp = load_completer("default")
+    assert comp.classes == () and comp.domain.classes == ("car",)
+    rng = np.random.default_rng(2)
+    car = box([10, 2, 0.8], [4.5, 1.9, 1.6], "Car", "car")
+    truck = box([-20, 0, 1.8], [16.7, 2.9, 3.9], "vehicle.truck", "truck")
+    pts = np.concatenate([rng.uniform(-0.45, 0.45, (300, 3)) * b.size + b.center for b in (car, truck)])
+    res = complete_frame(pts, [car, truck], comp)
+    assert [o.status for o in res.objects] == ["completed", "not_learned"]
+    assert len(res.objects[0].completion) > 1000
+
+
+@pytest.mark.parametrize(
+    "label, cls",
+    [
+        ("Van", "caravan"),  # KITTI
+        ("caravan", "caravan"),  # KITTI-360
+        ("LARGE_VEHICLE", "caravan"),  # Argoverse 2
+        ("ARTICULATED_BUS", "bus"),
+        ("VEHICULAR_TRAILER", "trailer"),
+        ("vehicle.bus.rigid", "bus"),  # nuScenes
+        ("vehicle.trailer", "trailer"),
+        ("vehicle.truck", "truck"),
+        ("Truck", "truck"),  # generic
+        ("vehicle.construction", "construction"),  # a reader class no model learns
+    ],
+)
+def test_reader_labels_map_to_the_one_vocabulary(label, cls):
+    got = lookup_class(label, CLASS_MAP)
+    assert got == cls
+    assert (canonical_class(got) in VEHICLE_CLASSES) == (cls != "construction")
+
+
+def test_learned_domain_keeps_a_size_range_per_class_and_gates_far_outside_it():
+    from spotlights.learning.inference import LearnedDomain
+
+    sizes = np.array([[4.0, 1.8, 1.5], [5.0, 2.0, 1.7], [12.0, 2.5, 3.2], [10.0, 2.5, 3.0]])
+    dom = LearnedDomain.from_training_set(
+        ["sedan", "suv", "bus", "bus"], sizes, "hand", classes=["car", "car", "bus", "bus"]
+    )
+    assert dom.class_sizes == {"car": ((4.0, 1.8, 1.5), (5.0, 2.0, 1.7)), "bus": ((10.0, 2.5, 3.0), (12.0, 2.5, 3.2))}
+    assert LearnedDomain.from_checkpoint({"domain": dom.to_dict()}) == dom
+    assert dom.gate("car", (5.4, 1.9, 1.6)) is None and dom.warnings("car", (5.4, 1.9, 1.6)) == []  # within 10%
+    assert dom.gate("car", (7.4, 1.9, 1.6)) is None and dom.warnings("car", (7.4, 1.9, 1.6))  # 48% over: a warning
+    assert dom.gate("car", (7.6, 1.9, 1.6)) == "size"  # 52% over the car range (5.0 m): not completed
+    assert dom.gate("bus", (11.0, 2.5, 3.1)) is None and dom.gate("truck", (11.0, 2.5, 3.1)) == "class"
+    assert dom.gate(None, (11.0, 2.5, 3.1)) is None  # no class given: the overall range decides
