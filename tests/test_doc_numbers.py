@@ -42,8 +42,8 @@ def test_kitti_002155_completion_count():
     frame = _json("complete_frame_default.json")
     assert frame["checkpoint"] == "default" and frame["every_completion_point_inside_its_sphere"]
     n = f"{frame['completion_points']:,}"
-    _says("docs/real-data.md", f"8 cars completed, {n} completion points with the default model")
-    _says("docs/real-data.md", f"({n} completion points with today's default")
+    _says("docs/real-data.md", f"{frame['completed']} cars completed, {n} completion points with the default model")
+    _says("docs/real-data.md", f"the van left as observed points ({n} completion points")
     paper = _json("complete_frame.json")
     assert paper["checkpoint"] == "paper"
     _says("docs/real-data.md", f"({paper['completion_points']:,} with `--checkpoint paper`)")
