@@ -12,7 +12,7 @@ from spotlights.api import complete_frame
 from spotlights.data.real.base import lookup_class
 from spotlights.data.real.boxfiles import CLASS_MAP
 from spotlights.data.vehicle_classes import VEHICLE_CLASSES, canonical_class
-from spotlights.experiments.scene import SceneConfig
+from spotlights.experiments.scene import SceneConfig, scene_objects
 from spotlights.geometry.boxes import Box
 from spotlights.geometry.rig import make_rig_spec
 from spotlights.learning.inference import Completer, complete_in_boxes, load_completer
@@ -105,6 +105,9 @@ def test_unknown_class_is_left_as_observed_points_and_counted():
     summ = res.summary()
     assert summ["not_completed"] == {"bus": 1} and summ["skipped"] == {"not_learned": 1}
     assert np.sum(res.source == 2) == len(res.objects[0].completion)  # only the car has completion points
+    drawn = scene_objects(res)  # the picture shows the bus too: its box and its 200 points, no completion
+    assert [(d.label, d.completion is None) for d in drawn] == [("0", False), ("1", True)]
+    assert len(drawn[1].partial) == 200 and np.allclose(drawn[1].box.center, boxes[1].center)
     res = complete_frame(pts, boxes, comp, SceneConfig(complete_unknown=True))
     assert [o.status for o in res.objects] == ["completed", "completed"] and res.summary()["not_completed"] == {}
 

@@ -564,19 +564,32 @@ def describe(result: SceneResult) -> str:
 
 def scene_objects(result: SceneResult) -> list:
     """The completed objects of a scene as :class:`spotlights.viz.SceneObject` (scan frame): box, partial
-    input, completion, labelled with their ``object`` ids (as in the PLY)."""
+    input, completion, labelled with their ``object`` ids (as in the PLY); then the objects left as their
+    observed points because the model did not learn them (status ``not_learned``: box and points, no
+    completion), so a picture shows what was not completed too."""
     objs = []
     for o in result.completed:
-        b = o.used_box
         objs.append(
             SceneObject(
                 label=str(o.object_id),
-                box=b,
+                box=o.used_box,
                 partial=result.points[o.input_indices],
                 completion=o.completion,
                 caption=_caption(o),
             )
         )
+    for o in result.objects:
+        if o.status == "not_learned":
+            objs.append(
+                SceneObject(
+                    label=str(o.object_id),
+                    box=o.box,
+                    partial=result.points[o.input_indices],
+                    completion=None,
+                    caption=f"{o.box.cls or o.box.label or 'box'}: {len(o.input_indices)} pts in box, not learned: "
+                    "left as observed",
+                )
+            )
     return objs
 
 
