@@ -105,9 +105,11 @@ def test_unknown_class_is_left_as_observed_points_and_counted():
     summ = res.summary()
     assert summ["not_completed"] == {"bus": 1} and summ["skipped"] == {"not_learned": 1}
     assert np.sum(res.source == 2) == len(res.objects[0].completion)  # only the car has completion points
-    drawn = scene_objects(res)  # the picture shows the bus too: its box and its 200 points, no completion
+    drawn = scene_objects(res)  # the picture shows the bus too: its box and its points, no completion
     assert [(d.label, d.completion is None) for d in drawn] == [("0", False), ("1", True)]
-    assert len(drawn[1].partial) == 200 and np.allclose(drawn[1].box.center, boxes[1].center)
+    bus = pts[200:]  # its points above the ground clearance (0.10 m over the box bottom) are the crop
+    above = np.sum(bus[:, 2] >= boxes[1].center[2] - boxes[1].size[2] / 2 + 0.10)
+    assert len(drawn[1].partial) == above and np.allclose(drawn[1].box.center, boxes[1].center)
     res = complete_frame(pts, boxes, comp, SceneConfig(complete_unknown=True))
     assert [o.status for o in res.objects] == ["completed", "completed"] and res.summary()["not_completed"] == {}
 
