@@ -32,6 +32,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
@@ -354,7 +355,7 @@ def complete_scene(
             if a is not None:
                 back = rigid_transform(a.T, np.zeros(3))
                 for o in todo:
-                    o.used_box = o.used_box.transformed(back)
+                    o.used_box = _set(o.used_box).transformed(back)
     return SceneResult(
         scan,
         objects,
@@ -413,12 +414,22 @@ def _crop_objects(work, boxes, a, lidar, member, completer, config: SceneConfig,
     return objects
 
 
+_T = TypeVar("_T")
+
+
+def _set(value: _T | None) -> _T:
+    """``value``, which a completed object always has (its used box, model input, sensor); a bug otherwise."""
+    if value is None:
+        raise RuntimeError("a completed object lacks its box, input or sensor (a bug in complete_scene)")
+    return value
+
+
 def _complete_objects(todo: list[ObjectResult], completer, config: SceneConfig, shares: list) -> list:
     """The completions (unit frame, clamped to the grown box) of every object of ``todo`` in one batch, then
     (heading check) of every object turned around; ``shares`` receives each one's share inside its box."""
-    partials = np.stack([o.partial_unit for o in todo])
-    sizes = np.stack([o.used_box.size for o in todo])
-    sensors = np.stack([o.sensor_unit for o in todo])
+    partials = np.stack([_set(o.partial_unit) for o in todo])
+    sizes = np.stack([_set(o.used_box).size for o in todo])
+    sensors = np.stack([_set(o.sensor_unit) for o in todo])
     classes = [o.box.cls for o in todo]
     if config.heading_check:
         classes = classes + classes
@@ -572,7 +583,7 @@ def scene_objects(result: SceneResult) -> list:
         objs.append(
             SceneObject(
                 label=str(o.object_id),
-                box=o.used_box,
+                box=_set(o.used_box),
                 partial=result.points[o.input_indices],
                 completion=o.completion,
                 caption=_caption(o),
