@@ -161,3 +161,23 @@ def test_learned_domain_keeps_a_size_range_per_class_and_gates_far_outside_it():
     assert dom.gate("car", (7.6, 1.9, 1.6)) == "size"  # 52% over the car range (5.0 m): not completed
     assert dom.gate("bus", (11.0, 2.5, 3.1)) is None and dom.gate("truck", (11.0, 2.5, 3.1)) == "class"
     assert dom.gate(None, (11.0, 2.5, 3.1)) is None  # no class given: the overall range decides
+
+
+def test_shipped_classes_model_completes_a_bus_the_default_leaves_as_observed():
+    """`--checkpoint classes` (pretrained/classes.pt, issue 27's class-conditioned fine-tune) learned buses: it
+    completes a 12 x 2.5 x 3.2 m bus that the car-only default leaves as its observed points; every completion
+    point lies in the box grown by 0.15 m (checked by hand in the box frame)."""
+    rng = np.random.default_rng(3)
+    bus = box([14.0, -3.0, 1.6], [12.0, 2.5, 3.2], "bus", "bus")
+    side = rng.uniform([-6.0, -1.25, -1.5], [6.0, -1.2, 1.6], (600, 3))  # the side facing the sensor
+    back = rng.uniform([-6.0, -1.25, -1.5], [-5.95, 1.25, 1.6], (200, 3))
+    pts = np.concatenate([side, back]) + bus.center
+    default = complete_frame(pts, [bus], load_completer("default"))
+    assert default.objects[0].status == "not_learned" and default.summary()["not_completed"] == {"bus": 1}
+    cls = load_completer("classes")
+    assert cls.classes == VEHICLE_CLASSES and "bus" in cls.domain.class_sizes
+    res = complete_frame(pts, [bus], cls)
+    (o,) = res.objects
+    assert o.status == "completed" and len(o.completion) > 1000
+    local = o.completion - bus.center  # the box is axis-aligned: its frame is the scan's, shifted
+    assert np.all(np.abs(local) <= bus.size / 2 + 0.15 + 1e-6)

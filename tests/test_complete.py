@@ -260,7 +260,7 @@ def test_default_checkpoint_is_the_packaged_one(tmp_path, capsys):
 def test_short_checkpoint_names_resolve_to_shipped_float16_files(tmp_path, monkeypatch):
     from spotlights.learning.checkpoint import PRETRAINED, load_checkpoint, resolve_checkpoint
 
-    assert set(PRETRAINED) == {"default", "paper"}
+    assert set(PRETRAINED) == {"default", "paper", "classes"}
     paper = resolve_checkpoint("paper")
     assert paper.name == "paper.pt" and resolve_checkpoint(None) == resolve_checkpoint("default")
     for name in PRETRAINED:

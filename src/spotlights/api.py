@@ -60,7 +60,7 @@ def complete_frame(
     boxes : the frame's :class:`~spotlights.geometry.boxes.Box` objects in the same frame; only boxes with a
         vehicle ``cls`` are completed (``any_label=True`` completes every box).
     completer : a loaded completer (:func:`spotlights.learning.runtime.load_completer`), or a checkpoint
-        name or file (``"default"``, ``"paper"``, ``model.pt``, ``model.onnx``) loaded on the CPU/GPU with
+        name or file (``"default"``, ``"paper"``, ``"classes"``, ``model.pt``, ``model.onnx``) loaded on the CPU/GPU with
         the runtime its suffix implies.
     config : a :class:`~spotlights.experiments.scene.SceneConfig`; or give its fields as keyword ``options`` (``margin=0.2``,
         ``heading_check=True``, ...), not both.

@@ -23,8 +23,9 @@ def add_completion_arguments(p, single: bool) -> None:
         "-c",
         default=None,
         metavar="CKPT",
-        help="model: a checkpoint file or a short name, 'default' (the package's default model, used when "
-        "this is not given) or 'paper' (the paper-faithful SA-Net)",
+        help="model: a checkpoint file or a short name, 'default' (the package's default model, cars, used when "
+        "this is not given), 'paper' (the paper-faithful SA-Net) or 'classes' (opt-in: cars, vans, trucks, buses, "
+        "trailers)",
     )
     p.add_argument(
         "--classes",

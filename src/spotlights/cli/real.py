@@ -159,7 +159,7 @@ def register(sub) -> None:
         nargs="+",
         default=None,
         metavar="CKPT",
-        help="one or more models: checkpoint files or short names ('default', 'paper'); default: the package's default model",
+        help="one or more models: checkpoint files or short names ('default', 'paper', 'classes'); default: the package's default model",
     )
     p.add_argument(
         "--classes",
@@ -259,7 +259,7 @@ def register(sub) -> None:
         "-c",
         default=None,
         metavar="CKPT",
-        help="model: a checkpoint file or a short name ('default', 'paper'); default: the package's default model",
+        help="model: a checkpoint file or a short name ('default', 'paper', 'classes'); default: the package's default model",
     )
     p.add_argument("--no-completion", action="store_true", help="draw the scan and the partial inputs only (no model)")
     p.add_argument(

@@ -69,7 +69,7 @@ def parse_classes(text: str | tuple | list | None) -> tuple[str, ...] | None:
 class CompletionOptions:
     """The options of ``complete`` and ``real complete`` (one field per command-line option, same defaults).
 
-    checkpoint : a checkpoint file, a short name (``"default"``, ``"paper"``) or a ``.onnx`` file; None: default.
+    checkpoint : a checkpoint file, a short name (``"default"``, ``"paper"``, ``"classes"``) or a ``.onnx`` file; None: default.
     classes : comma-separated classes to complete (text or tuple); None: every vehicle class.
     keep_observed : return each object's observed points beside its predicted ones.
     complete_unknown : also complete boxes whose class (or size, far outside its class's range) the model did not

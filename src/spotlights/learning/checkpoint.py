@@ -36,7 +36,7 @@ FORMAT_VERSION = 1
 #: model, the hit-aware SA-Net on the dense box-targeted rig (16,384 rays, no clip); ``paper`` is
 #: the paper-faithful SA-Net (32 x 64 rays at 60 degrees, clip 0.2).
 #: ``scripts/ship_pretrained.py`` writes a file (float16 weights) and checks it.
-PRETRAINED: dict[str, str] = {"default": "default.pt", "paper": "paper.pt"}
+PRETRAINED: dict[str, str] = {"default": "default.pt", "paper": "paper.pt", "classes": "classes.pt"}
 
 
 def resolve_checkpoint(name=None) -> Path:

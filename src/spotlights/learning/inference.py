@@ -442,7 +442,7 @@ class Completer(BaseCompleter):
 def load_completer(checkpoint_path=None, device=None, precision: str = "fp32") -> Completer:
     """Load a checkpoint as a :class:`Completer`.
 
-    ``checkpoint_path``: a file, a short name (``"default"``, ``"paper"``) or None (the
+    ``checkpoint_path``: a file, a short name (``"default"``, ``"paper"``, ``"classes"``) or None (the
     package's default model); see :func:`spotlights.learning.checkpoint.resolve_checkpoint`.
     ``device``: torch device or name; default CUDA when available, else CPU.
     ``precision``: ``"fp32"`` (default), ``"bf16"`` (autocast forward, faster on CPUs with native

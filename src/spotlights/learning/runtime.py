@@ -3,7 +3,7 @@
 :func:`load_completer` is the one place that decides which runtime runs a model (``spotlights complete``,
 ``real complete`` and the public :func:`spotlights.load_completer` call it): a ``.onnx`` file (a
 ``spotlights export``) runs with onnxruntime (:class:`~spotlights.learning.export.OnnxCompleter`), anything
-else (a checkpoint file, ``"default"``, ``"paper"``) with torch (:class:`~spotlights.learning.inference.Completer`).
+else (a checkpoint file, ``"default"``, ``"paper"``, ``"classes"``) with torch (:class:`~spotlights.learning.inference.Completer`).
 Neither runtime is imported before it is needed.
 """
 
