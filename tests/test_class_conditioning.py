@@ -4,6 +4,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -17,6 +19,8 @@ from spotlights.geometry.boxes import Box
 from spotlights.geometry.rig import make_rig_spec
 from spotlights.learning.inference import Completer, complete_in_boxes, load_completer
 from spotlights.learning.models.sanet_hit import HitSANet
+
+from helpers import run_cli
 
 VOCAB = ["car", "caravan", "truck", "bus", "trailer"]
 
@@ -181,3 +185,57 @@ def test_shipped_classes_model_completes_a_bus_the_default_leaves_as_observed():
     assert o.status == "completed" and len(o.completion) > 1000
     local = o.completion - bus.center  # the box is axis-aligned: its frame is the scan's, shifted
     assert np.all(np.abs(local) <= bus.size / 2 + 0.15 + 1e-6)
+
+
+def test_fallback_model_completes_what_the_main_model_did_not_learn_and_leaves_the_rest_alone():
+    """`--fallback classes` beside the car-only default: the car is completed by the default exactly as without a
+    fallback (same points), the bus by the fallback (named in completed_by, inside its grown box), nothing left."""
+    rng = np.random.default_rng(5)
+    car = box([8.0, 3.0, 0.8], [4.4, 1.8, 1.5], "car", "car")
+    bus = box([14.0, -3.0, 1.6], [12.0, 2.5, 3.2], "bus", "bus")
+    pts = np.concatenate(
+        [
+            rng.uniform([-2.2, -0.9, -0.6], [2.2, -0.85, 0.7], (300, 3)) + car.center,
+            rng.uniform([-6.0, -1.25, -1.5], [6.0, -1.2, 1.6], (600, 3)) + bus.center,
+        ]
+    )
+    default = load_completer("default")
+    alone = complete_frame(pts, [car, bus], default)
+    both = complete_frame(pts, [car, bus], default, fallback="classes", heading_check=False)
+    assert [o.status for o in alone.objects] == ["completed", "not_learned"]
+    assert [o.status for o in both.objects] == ["completed", "completed"]
+    assert both.objects[0].completed_by is None and both.objects[1].completed_by == "classes"
+    np.testing.assert_array_equal(both.objects[0].completion, alone.objects[0].completion)
+    assert both.summary()["objects"][1]["completed_by"] == "classes" and both.summary()["not_completed"] == {}
+    local = both.objects[1].completion - bus.center
+    assert len(local) > 1000 and np.all(np.abs(local) <= bus.size / 2 + 0.15 + 1e-6)
+    # with the heading check both models' batches double and come back in order: the car is still the default's
+    checked = complete_frame(pts, [car, bus], default, fallback="classes", heading_check=True)
+    ref = complete_frame(pts, [car, bus], default, heading_check=True)
+    np.testing.assert_array_equal(checked.objects[0].completion, ref.objects[0].completion)
+    assert checked.objects[1].status == "completed" and checked.objects[1].inside_box is not None
+
+
+def test_complete_cli_fallback_option(tmp_path):
+    """`spotlights complete SCAN --boxes B --fallback classes`: the summary says who completed which box."""
+    rng = np.random.default_rng(6)
+    scan = np.concatenate(
+        [
+            rng.uniform([5.8, 2.1, 0.2], [10.2, 2.15, 1.5], (300, 3)),  # a car's side
+            rng.uniform([8.0, -4.25, 0.1], [20.0, -4.2, 3.2], (600, 3)),  # a bus's side
+        ]
+    )
+    np.save(tmp_path / "scan.npy", scan)
+    boxes = [
+        {"center": [8.0, 3.0, 0.8], "size": [4.4, 1.8, 1.5], "yaw": 0.0, "label": "car"},
+        {"center": [14.0, -3.0, 1.6], "size": [12.0, 2.5, 3.2], "yaw": 0.0, "label": "bus"},
+    ]
+    (tmp_path / "boxes.json").write_text(json.dumps(boxes))
+    args = ["complete", tmp_path / "scan.npy", "--boxes", tmp_path / "boxes.json", "--out", tmp_path / "o.ply"]
+    proc = run_cli(*args, "--summary", tmp_path / "s.json", "--fallback", "classes")
+    assert proc.returncode == 0, proc.stderr
+    objs = json.loads((tmp_path / "s.json").read_text())["objects"]
+    assert [(o["status"], o.get("completed_by")) for o in objs] == [("completed", None), ("completed", "classes")]
+    proc = run_cli(*args, "--summary", tmp_path / "t.json")
+    objs = json.loads((tmp_path / "t.json").read_text())["objects"]
+    assert [o["status"] for o in objs] == ["completed", "not_learned"]

@@ -48,6 +48,7 @@ def complete_frame(
     *,
     axes: np.ndarray | None = None,
     checkpoint: str | None = None,
+    fallback: Any = None,
     **options: Any,
 ) -> SceneResult:
     """Complete every vehicle of one LiDAR frame: :func:`~spotlights.experiments.scene.complete_scene` (what
@@ -66,6 +67,8 @@ def complete_frame(
         ``heading_check=True``, ...), not both.
     axes : optional (3, 3) rotation scan coordinates -> object convention (x forward, y left, z up).
     checkpoint : the model's name for the result's summary (default: ``completer`` when it is a name).
+    fallback : a second model (loaded, or a name such as ``"classes"``) for the boxes ``completer`` did not learn
+        but it did (``ObjectResult.completed_by`` names it); None: such boxes are left as observed points.
 
     Returns a :class:`~spotlights.experiments.scene.SceneResult` (scan frame, metres): ``xyz``, ``source`` and
     ``object`` per point, one :class:`~spotlights.experiments.scene.ObjectResult` per box. Raises :class:`~spotlights.errors.ParameterError` for
@@ -76,7 +79,19 @@ def complete_frame(
         name = "default" if completer is None else str(completer)
         completer = load_completer(name)
         checkpoint = name if checkpoint is None else checkpoint
-    return complete_scene(points, boxes, completer, config, axes=axes, checkpoint=checkpoint)
+    fallback_name = None
+    if isinstance(fallback, (str, os.PathLike)):
+        fallback_name, fallback = str(fallback), load_completer(str(fallback))
+    return complete_scene(
+        points,
+        boxes,
+        completer,
+        config,
+        axes=axes,
+        checkpoint=checkpoint,
+        fallback=fallback,
+        fallback_name=fallback_name,
+    )
 
 
 def complete(

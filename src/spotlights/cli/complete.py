@@ -35,6 +35,13 @@ def add_completion_arguments(p, single: bool) -> None:
         "bus, construction, emergency; the model learned cars, others get a warning)",
     )
     p.add_argument(
+        "--fallback",
+        default=None,
+        metavar="CKPT",
+        help="a second model for the boxes --checkpoint's model did not learn but it did (e.g. 'classes' beside the "
+        "car-only default: vans, trucks, buses, trailers); default: none, such boxes are left as observed points",
+    )
+    p.add_argument(
         "--complete-unknown",
         action="store_true",
         help="also complete boxes whose class (or size, far outside its class's range) the model did not learn "

@@ -259,6 +259,7 @@ class _FrameRun:
     ) -> None:
         self.s, self.reader, self.config = s, reader, config
         self.completer, self.out, self.tracks, self.recorder = completer, out, tracks, recorder
+        self.fallback = s.load_fallback()  # the model of --fallback, or None
         self.frames: list[dict] = []
         self.warnings: list[str] = []
         self.totals: dict = {"boxes": 0, "completed": 0, "flipped": 0, "completion_points": 0, "skipped": {}}
@@ -291,6 +292,8 @@ class _FrameRun:
             checkpoint=s.checkpoint_name,
             sensor=frame.lidar_origin(),
             extra_points=extra,
+            fallback=self.fallback,
+            fallback_name=s.fallback,
         )
         if tracks is not None:
             tracks.record(key, result)

@@ -74,6 +74,8 @@ class CompletionOptions:
     keep_observed : return each object's observed points beside its predicted ones.
     complete_unknown : also complete boxes whose class (or size, far outside its class's range) the model did not
         learn (default: left as their observed points, status ``not_learned``, counted per class).
+    fallback : a second model (file or short name, e.g. ``"classes"``) for the boxes :attr:`checkpoint`'s model
+        did not learn but it did; None: such boxes are left as observed points (or ``complete_unknown``).
     heading_check, heading_margin : complete each box also turned by 180 degrees (margin None: 0.5).
     margin : metres the box is grown by on its sides and top (None: 0.15).
     ground_clearance : metres above the box bottom under which points are dropped (ground returns).
@@ -87,6 +89,7 @@ class CompletionOptions:
     classes: str | tuple | None = None
     keep_observed: bool = True
     complete_unknown: bool = False
+    fallback: str | None = None
     heading_check: bool = False
     heading_margin: float | None = None
     margin: float | None = None
@@ -134,6 +137,12 @@ class CompletionOptions:
         """The model of :attr:`checkpoint` run with :attr:`runtime` on :attr:`device` at :attr:`precision`
         (:func:`spotlights.learning.runtime.load_completer`)."""
         return load_completer(self.checkpoint, runtime=self.runtime, device=self.device, precision=self.precision)
+
+    def load_fallback(self) -> BaseCompleter | None:
+        """The model of :attr:`fallback` (torch, same device and precision), or None."""
+        if self.fallback is None:
+            return None
+        return load_completer(self.fallback, device=self.device, precision=self.precision)
 
 
 @dataclass(kw_only=True)
@@ -288,7 +297,16 @@ def complete_scan(
     require_points(points, config.min_points, s.input)
     boxes = s.read_boxes(axes)
     completer = s.load_completer() if completer is None else completer
-    result = complete_scene(points, boxes, completer, config, axes=axes, checkpoint=s.checkpoint_name)
+    result = complete_scene(
+        points,
+        boxes,
+        completer,
+        config,
+        axes=axes,
+        checkpoint=s.checkpoint_name,
+        fallback=s.load_fallback(),
+        fallback_name=s.fallback,
+    )
     if s.single:
         _check_single(s, result, points, axes, warn)
     else:

@@ -149,6 +149,7 @@ class ObjectResult:
     warnings: list = field(default_factory=list)
     n_fused: int | None = None  # input points with other frames' fused in (``extra_points``), else None
     inside_box: float | None = None  # share of the network's points inside the box grown by 0.15 m, before the clamp
+    completed_by: str | None = None  # the fallback model's name when it, not the main model, completed the box
 
     def summary(self) -> dict:
         """JSON-ready description (no point arrays)."""
@@ -170,6 +171,7 @@ class ObjectResult:
             )
             | ({} if self.n_fused is None else {"n_fused": self.n_fused})
             | ({} if self.inside_box is None else {"inside_box": round(float(self.inside_box), 4)})
+            | ({} if self.completed_by is None else {"completed_by": self.completed_by})
         )
 
 
@@ -308,6 +310,8 @@ def complete_scene(
     checkpoint: str | None = None,
     sensor: np.ndarray | None = None,
     extra_points: dict | None = None,
+    fallback=None,
+    fallback_name: str | None = None,
 ) -> SceneResult:
     """Complete every selected box of one scan (see the module docstring).
 
@@ -323,6 +327,10 @@ def complete_scene(
     extra_points : optional {box index: (k, 3) points, metres, scan frame}: more evidence of that object
         (other frames of its track, :mod:`spotlights.experiments.tracks`) added to its crop for the model
         input (and counted towards ``min_points``); the scene's ``source``/``object`` fields keep the scan's own.
+    fallback : optional second completer for the boxes whose class or size ``completer`` did not learn (its
+        learned domain gates them) but ``fallback`` did, e.g. ``load_completer("classes")`` beside the car-only
+        default: those boxes are completed by it (``ObjectResult.completed_by``: ``fallback_name``, else its
+        model's name), the others by ``completer``.
 
     Returns a :class:`SceneResult`; raises :class:`ParameterError` for a scan with fewer than
     ``config.min_points`` points.
@@ -341,11 +349,12 @@ def complete_scene(
         lidar = np.zeros(3) if sensor is None else np.asarray(sensor, dtype=np.float64).reshape(3)
         lidar = lidar if a is None else a @ lidar
         member = np.full(len(scan), -1, np.int64)
-        objects = _crop_objects(work, boxes, a, lidar, member, completer, config, extra_points)
+        fb = None if fallback is None else (fallback, fallback_name or str(getattr(fallback, "model_name", "fallback")))
+        objects = _crop_objects(work, boxes, a, lidar, member, completer, config, extra_points, fb)
     todo = [o for o in objects if o.status == "completed"]
     shares: list[float] = []  # per completion: the share the network put inside its grown box (before the clamp)
     with timer("model"):
-        outs = _complete_objects(todo, completer, config, shares) if todo else []
+        outs = _complete_objects(todo, completer, config, shares, fallback) if todo else []
     with timer("assemble"):
         if todo:
             with serial_queries():  # a few small KD-tree queries: OpenMP threads cost more than they save
@@ -367,7 +376,9 @@ def complete_scene(
     )
 
 
-def _crop_objects(work, boxes, a, lidar, member, completer, config: SceneConfig, extra_points) -> list[ObjectResult]:
+def _crop_objects(
+    work, boxes, a, lidar, member, completer, config: SceneConfig, extra_points, fallback: tuple | None = None
+) -> list[ObjectResult]:
     """Every box's :class:`ObjectResult`: its crop of ``work`` (N, 3) (the scan in the object convention,
     metres), its 256-point model input (unit frame) and out-of-domain warnings, or why it is skipped.
     ``member`` (N,) int64 receives each point's first box index (-1: none); ``lidar`` (3,) the sensor."""
@@ -404,12 +415,17 @@ def _crop_objects(work, boxes, a, lidar, member, completer, config: SceneConfig,
         o.n_fused = None if more is None else len(pts)
         domain = getattr(completer, "domain", None)
         if domain is not None:
-            o.warnings.extend(domain.warnings(b.cls, b.size))
-            if not config.complete_unknown and domain.gate(b.cls, b.size) is not None:
-                o.status, o.used_box, o.partial_unit = "not_learned", None, None
-                o.warnings.append("not completed (left as observed points; --complete-unknown completes it)")
+            gated = not config.complete_unknown and domain.gate(b.cls, b.size) is not None
+            fb = getattr(fallback[0], "domain", None) if gated and fallback is not None else None
+            if fallback is not None and fb is not None and fb.gate(b.cls, b.size) is None:  # the fallback learned it
+                o.completed_by = fallback[1]
+                o.warnings.extend(fb.warnings(b.cls, b.size))
                 objects.append(o)
                 continue
+            o.warnings.extend(domain.warnings(b.cls, b.size))
+            if gated:
+                o.status, o.used_box, o.partial_unit = "not_learned", None, None
+                o.warnings.append("not completed (left as observed points; --complete-unknown completes it)")
         objects.append(o)
     return objects
 
@@ -424,9 +440,34 @@ def _set(value: _T | None) -> _T:
     return value
 
 
-def _complete_objects(todo: list[ObjectResult], completer, config: SceneConfig, shares: list) -> list:
-    """The completions (unit frame, clamped to the grown box) of every object of ``todo`` in one batch, then
-    (heading check) of every object turned around; ``shares`` receives each one's share inside its box."""
+def _complete_objects(todo: list[ObjectResult], completer, config: SceneConfig, shares: list, fallback=None) -> list:
+    """The completions (unit frame, clamped to the grown box) of every object of ``todo``, then (heading check)
+    of every object turned around, in that order; ``shares`` receives each one's share inside its box. The
+    objects the ``fallback`` model completes (``completed_by``) go through it in a batch of their own."""
+    own = [k for k, o in enumerate(todo) if o.completed_by is None]
+    if len(own) == len(todo) or fallback is None:
+        return _complete_batch(todo, completer, config, shares)
+    n = len(todo)
+    width = 2 * n if config.heading_check else n
+    outs: list = [None] * width
+    inside: list = [float("nan")] * width
+    others = sorted(set(range(n)) - set(own))
+    for model, idx in ((completer, own), (fallback, others)):
+        if not idx:
+            continue
+        part: list[float] = []
+        res = _complete_batch([todo[k] for k in idx], model, config, part)
+        m = len(idx)
+        for j, k in enumerate(idx):
+            outs[k], inside[k] = res[j], part[j]
+            if config.heading_check:
+                outs[n + k], inside[n + k] = res[m + j], part[m + j]
+    shares.extend(inside)
+    return outs
+
+
+def _complete_batch(todo: list[ObjectResult], completer, config: SceneConfig, shares: list) -> list:
+    """:func:`_complete_objects` for objects that one model completes: one batch."""
     partials = np.stack([_set(o.partial_unit) for o in todo])
     sizes = np.stack([_set(o.used_box).size for o in todo])
     sensors = np.stack([_set(o.sensor_unit) for o in todo])
