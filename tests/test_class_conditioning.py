@@ -234,8 +234,10 @@ def test_complete_cli_fallback_option(tmp_path):
     args = ["complete", tmp_path / "scan.npy", "--boxes", tmp_path / "boxes.json", "--out", tmp_path / "o.ply"]
     proc = run_cli(*args, "--summary", tmp_path / "s.json", "--fallback", "classes")
     assert proc.returncode == 0, proc.stderr
-    objs = json.loads((tmp_path / "s.json").read_text())["objects"]
+    summ = json.loads((tmp_path / "s.json").read_text())
+    objs = summ["objects"]
     assert [(o["status"], o.get("completed_by")) for o in objs] == [("completed", None), ("completed", "classes")]
+    assert summ["checkpoint"] == "default + fallback classes"  # what real complete --resume compares
     proc = run_cli(*args, "--summary", tmp_path / "t.json")
     objs = json.loads((tmp_path / "t.json").read_text())["objects"]
     assert [o["status"] for o in objs] == ["completed", "not_learned"]

@@ -105,8 +105,10 @@ class CompletionOptions:
 
     @property
     def checkpoint_name(self) -> str:
-        """The checkpoint as recorded in summaries: the given text, or ``"default"``."""
-        return str(self.checkpoint) if self.checkpoint else "default"
+        """The checkpoint as recorded in summaries (and compared by ``real complete --resume``): the given text, or
+        ``"default"``; with a :attr:`fallback`, ``"NAME + fallback FALLBACK"``."""
+        name = str(self.checkpoint) if self.checkpoint else "default"
+        return name if self.fallback is None else f"{name} + fallback {self.fallback}"
 
     def scene_config(self, margin: float | None = None, crop: bool = True) -> SceneConfig:
         """The :class:`~spotlights.experiments.scene.SceneConfig` of these options (``margin``: the crop
