@@ -20,7 +20,7 @@ from spotlights.geometry.rig import make_rig_spec
 from spotlights.learning.inference import Completer, complete_in_boxes, load_completer
 from spotlights.learning.models.sanet_hit import HitSANet
 
-from helpers import run_cli
+from helpers import assert_user_error, run_cli
 
 VOCAB = ["car", "caravan", "truck", "bus", "trailer"]
 
@@ -241,3 +241,6 @@ def test_complete_cli_fallback_option(tmp_path):
     proc = run_cli(*args, "--summary", tmp_path / "t.json")
     objs = json.loads((tmp_path / "t.json").read_text())["objects"]
     assert [o["status"] for o in objs] == ["completed", "not_learned"]
+    bad = [*args[:-1], tmp_path / "bad.ply", "--fallback", tmp_path / "nope.pt"]
+    assert_user_error(run_cli(*bad), "nope.pt", "no such checkpoint file")
+    assert not (tmp_path / "bad.ply").exists()

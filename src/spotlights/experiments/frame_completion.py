@@ -255,11 +255,11 @@ class _FrameRun:
     """The state of one ``real complete`` run: settings, reader, model, output folder, totals."""
 
     def __init__(
-        self, s: FramesSettings, reader, config: SceneConfig, completer, out: Path, tracks, recorder=None
+        self, s: FramesSettings, reader, config: SceneConfig, completer, out: Path, tracks, recorder=None, fallback=None
     ) -> None:
         self.s, self.reader, self.config = s, reader, config
         self.completer, self.out, self.tracks, self.recorder = completer, out, tracks, recorder
-        self.fallback = s.load_fallback()  # the model of --fallback, or None
+        self.fallback = fallback  # the model of --fallback, or None
         self.frames: list[dict] = []
         self.warnings: list[str] = []
         self.totals: dict = {"boxes": 0, "completed": 0, "flipped": 0, "completion_points": 0, "skipped": {}}
@@ -391,9 +391,10 @@ def complete_frames(
         check_rerun_path(s.rerun)
     tracks = s.track_plan(reader, keys, config)
     completer = s.load_completer() if completer is None else completer
+    fallback = s.load_fallback()  # loaded beside the main model, before any output exists
     # the folder is removed again if nothing could be written; the recording is written only when the run ends
     with output_folder(s.out) as out, open_recording(s.rerun, TIME_UNIT_S.get(reader.format)) as rec:
-        return _run_frames(s, reader, keys, config, completer, out, tracks, say, warn, rec)
+        return _run_frames(s, reader, keys, config, completer, out, tracks, say, warn, rec, fallback)
 
 
 def _run_frames(
@@ -407,10 +408,11 @@ def _run_frames(
     say: Say,
     warn: Say,
     recorder=None,
+    fallback=None,
 ) -> dict:
     """The loop of :func:`complete_frames` in the folder ``out`` that exists, and its summary."""
     sweep_folder_temporaries(out)  # what a killed run was writing (a 0-byte .FRAME.png.PID-X.part.png)
-    run = _FrameRun(s, reader, config, completer, out, tracks, recorder)
+    run = _FrameRun(s, reader, config, completer, out, tracks, recorder, fallback)
     timer = StageTimer()
     with timer("frames"):
         run.run(keys)

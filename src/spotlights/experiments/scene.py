@@ -417,7 +417,7 @@ def _crop_objects(
         if domain is not None:
             gated = not config.complete_unknown and domain.gate(b.cls, b.size) is not None
             fb = getattr(fallback[0], "domain", None) if gated and fallback is not None else None
-            if fallback is not None and fb is not None and fb.gate(b.cls, b.size) is None:  # the fallback learned it
+            if fb is not None and fallback is not None and fb.gate(b.cls, b.size) is None:  # the fallback learned it
                 o.completed_by = fallback[1]
                 o.warnings.extend(fb.warnings(b.cls, b.size))
                 objects.append(o)
