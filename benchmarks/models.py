@@ -23,7 +23,8 @@ picks some; the JSON file keeps the sections not rerun):
   validation CD-L1 / accuracy / completeness of both and their relative difference;
 * ``runtime``: the shipped SA-Net (``--checkpoint``, default ``paper``) completing scans at
   batch 1 and 32 with torch fp32, torch bf16 autocast and onnxruntime (``spotlights export``),
-  alternating, medians, per scan (forward + decoding + split into clouds).
+  alternating, medians, per scan (forward + decoding + split into clouds); a class-conditioned
+  model (``--checkpoint classes``) gets each scan's class (its vocabulary in turn) in both runtimes.
 
 The ``precision``, ``dense`` and ``runtime`` sections report the **CPU time** of each call
 (``time.process_time``) beside its wall time: on a machine shared with other work, a
@@ -335,10 +336,13 @@ def runtime_latency(
         inputs = {b: (g.normal(size=(b, 256, 3)) * 0.3).astype(np.float32) for b in batches}
         diff = parity(checkpoint, onx, inputs[max(batches)])
 
+        def names(b):  # a class-conditioned model: each scan its class, the vocabulary in turn (both runtimes)
+            return [ref.classes[i % len(ref.classes)] for i in range(b)] if ref.classes else None
+
         def torch_call(x, prec):
             def f():
                 with autocast(prec, cpu):
-                    ref.complete(x, extents=ext)
+                    ref.complete(x, extents=ext, classes=names(len(x)))
 
             return f
 
@@ -346,7 +350,7 @@ def runtime_latency(
         for b, x in inputs.items():
             fns[(b, "torch fp32")] = torch_call(x, "fp32")
             fns[(b, "torch bf16")] = torch_call(x, "bf16")
-            fns[(b, "onnxruntime")] = lambda x=x: onx.complete(x, extents=ext)
+            fns[(b, "onnxruntime")] = lambda x=x: onx.complete(x, extents=ext, classes=names(len(x)))
         res = _alternate(fns, repeats, warmup=3, progress=progress)
     out = {
         "checkpoint": str(checkpoint),

@@ -92,7 +92,7 @@ def register(sub) -> None:
     p = add_command(
         sub,
         "export",
-        "export a trained model to ONNX (rig, clip and p(hit) threshold stored as metadata)",
+        "export a trained model to ONNX (rig, clip, p(hit) threshold and class vocabulary stored as metadata)",
         "spotlights export paper --out sanet.onnx\n  spotlights complete car.pcd --box box.json --checkpoint "
         "sanet.onnx --runtime onnx --out car.ply",
         _export,
@@ -100,7 +100,8 @@ def register(sub) -> None:
     p.add_argument(
         "checkpoint",
         metavar="CHECKPOINT",
-        help="a checkpoint file or a short name: 'default' (the package's default model) or 'paper'",
+        help="a checkpoint file or a short name: 'default' (the package's default model), 'paper' or 'classes' "
+        "(class-conditioned: the graph takes each scan's class row too)",
     )
     p.add_argument("--out", "-o", required=True, metavar="MODEL.onnx", help="the ONNX file to write (.onnx)")
     p.add_argument(

@@ -8,6 +8,10 @@ classes can be matched with a detector's boxes. ``van`` is accepted as another n
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+
 #: detector class -> procedural body types drawn for it, in round-robin order. Pickups are in both car
 #: and truck: nuScenes labels pickups ``vehicle.truck``, Argoverse 2 ``REGULAR_VEHICLE`` and KITTI ``Car``.
 CLASS_BODIES: dict[str, tuple[str, ...]] = {
@@ -56,3 +60,11 @@ def canonical_class(name: str) -> str:
     """A class name as stored: lower case, aliases resolved (``van`` -> ``caravan``)."""
     n = str(name).strip().lower()
     return CLASS_ALIASES.get(n, n)
+
+
+def class_rows(names: Iterable[str | None], vocabulary: Sequence[str]) -> np.ndarray:
+    """(B,) int64 row of each class name in a class-conditioned model's ``vocabulary`` (its embedding rows, in
+    order); names are compared as :func:`canonical_class` gives them (``van`` is ``caravan``), and ``None`` or a
+    class the vocabulary lacks is -1 (no class input: the model's code as its encoder gives it)."""
+    table = {canonical_class(c): i for i, c in enumerate(vocabulary)}
+    return np.array([-1 if n is None else table.get(canonical_class(n), -1) for n in names], dtype=np.int64)

@@ -4,22 +4,30 @@
 
 * **inputs**: ``partial`` (B, K, 3) float32 unit-frame points (B and K dynamic; the models were
   trained with K = 256); box-rig SA-Nets also take ``directions`` (B, N*M, 3) float32, each
-  scan's ray directions (:func:`spotlights.learning.rays.directions_for_extents`);
+  scan's ray directions (:func:`spotlights.learning.rays.directions_for_extents`); class-conditioned
+  SA-Nets (a ``classes`` vocabulary) also take ``classes`` (B,) int64, each scan's row of the vocabulary
+  (-1: no class, the code as the encoder gives it), the last input;
 * **outputs**: point models ``points`` (B, P, 3); SA-Nets ``depths`` (B, N*M) (the raw
   regression) and ``ray_points`` (B, N*M, 3), every ray decoded at its clamped depth
   (:meth:`SANet.ray_points`); the hit-aware SA-Net also ``hit_probability`` (B, N*M);
 * **metadata** (``metadata_props``): ``spotlights_format`` = ``spotlights-onnx``,
   ``spotlights_format_version``, ``model_name``, ``rig`` (the RigSpec as JSON), ``needs_box``,
-  ``clip`` and ``threshold`` (JSON; null when none), ``param_counts``, ``outputs``,
-  ``input_points``, ``checkpoint`` and ``spotlights_version``.
+  ``clip`` and ``threshold`` (JSON; null when none), ``param_counts``, ``outputs``, ``inputs``,
+  ``input_points``, ``checkpoint``, ``spotlights_version``, ``domain`` (the checkpoint's learned domain:
+  classes and per-class size ranges) and, for a class-conditioned model only, ``classes`` (its vocabulary in
+  embedding-row order, JSON). A file with a class input is format version 2 (a reader of version 1 refuses
+  it in one line instead of failing to feed it); every other export is still version 1, byte for byte.
 
 Which rays a completion keeps is decided outside the graph, from those outputs, exactly as
 the torch models decide it: SA-Net ``depth > 0`` and ``depth >= clip``; the hit-aware SA-Net
 ``p(hit) >= threshold`` (and ``depth >= clip`` when it has a clip). So ``--clip`` still works with
 the ONNX runtime. :class:`OnnxCompleter` runs a file with onnxruntime (the optional extra
 ``spotlights[onnx]``) and has the :class:`~spotlights.learning.inference.Completer` interface
-(``complete(partials, clip=..., extents=...)``, ``needs_box``, ``model_name``, ``rig``, ``clip``,
-``threshold``), so ``complete_scan`` and ``spotlights complete --runtime onnx`` use it unchanged.
+(``complete(partials, clip=..., extents=..., classes=..., box_half=...)``, ``needs_box``, ``model_name``,
+``rig``, ``clip``, ``threshold``, ``classes``, ``domain``), so ``complete_scan``, ``complete_frame`` (the
+learned-domain gate, ``--fallback``) and ``spotlights complete --runtime onnx`` use it unchanged: class names
+become vocabulary rows as the torch ``Completer`` makes them
+(:func:`spotlights.data.vehicle_classes.class_rows`).
 """
 
 from __future__ import annotations
@@ -32,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from .._version import __version__
+from ..data.vehicle_classes import class_rows
 from ..errors import InputFileError, ParameterError, SpotlightsError
 from ..geometry.box_clamp import ray_box_interval
 from ..geometry.boxes import unit_extents
@@ -41,7 +50,10 @@ from .inference import DEFAULT, BaseCompleter, LearnedDomain
 from .rays import TIMING_BOX_SIZE, directions_for_extents, rig_rays, rig_spec, timing_directions
 
 FORMAT = "spotlights-onnx"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+"""The newest export format this spotlights reads (and writes for a graph with a ``classes`` input)."""
+BASE_FORMAT_VERSION = 1
+"""The format of an export without a class input (unchanged since version 1)."""
 OPSET = 18
 # The lowest opset torch's exporter converts its graphs to (it writes 18 and converts; below 15 it
 # kept 18 without a word, measured with torch 2.13 / onnxscript); the highest is the newest the
@@ -102,8 +114,8 @@ def _graph_module(model):
             self.m = m
             self.hit = hasattr(m, "hit_probabilities")
 
-        def outputs(self, partial, directions):
-            out = self.m(partial)
+        def outputs(self, partial, directions, classes=None):
+            out = self.m(partial) if classes is None else self.m(partial, classes)
             res = (out["depths"], self.m.ray_points(out["depths"], directions))
             if self.hit:
                 res = (*res, torch.sigmoid(out["hit_logits"]))
@@ -117,19 +129,26 @@ def _graph_module(model):
         def forward(self, partial, directions):
             return self.outputs(partial, directions)
 
+    class ClassCapGraph(DepthGraph):
+        def forward(self, partial, classes):
+            return self.outputs(partial, None, classes)
+
+    class ClassBoxGraph(DepthGraph):
+        def forward(self, partial, directions, classes):
+            return self.outputs(partial, directions, classes)
+
     if getattr(model, "uses_evidence", False):
         raise ParameterError(
             f"{model.name} cannot be exported to ONNX yet (its per-ray evidence is gathered with scatter "
             "reductions at run time); complete with the torch runtime"
         )
-    if getattr(model, "class_embedding", None) is not None:
-        raise ParameterError(
-            f"this {model.name} is class-conditioned (classes {', '.join(model.classes)}); its ONNX export "
-            "has no class input yet: complete with the torch runtime"
-        )
     if model.target == "points":
         return PointGraph(model), ["partial"], ["points"]
     names = ["depths", "ray_points"] + (["hit_probability"] if hasattr(model, "hit_probabilities") else [])
+    if getattr(model, "class_embedding", None) is not None:
+        if model.needs_box:
+            return ClassBoxGraph(model), ["partial", "directions", "classes"], names
+        return ClassCapGraph(model), ["partial", "classes"], names
     if model.needs_box:
         return BoxGraph(model), ["partial", "directions"], names
     return CapGraph(model), ["partial"], names
@@ -139,7 +158,8 @@ def export_onnx(checkpoint, out, opset: int = OPSET, n_input: int = 256) -> Path
     """Export a checkpoint (path or short name) to ONNX at ``out``; returns ``out``.
 
     The graph is checked with ``onnx.checker`` before the file is renamed into place (written to
-    a temporary name first, nothing is left behind on failure). ``opset`` must be one of
+    a temporary name first, nothing is left behind on failure). A class-conditioned SA-Net gets a
+    ``classes`` (B,) int64 input and its vocabulary in the ``classes`` metadata (see the module docstring). ``opset`` must be one of
     :data:`MIN_OPSET` to the newest the installed onnx knows, and the graph must really be
     written at it (else :class:`ParameterError`, one line). Raises :class:`SpotlightsError`
     with an install hint when onnx or its exporter is missing.
@@ -163,9 +183,12 @@ def export_onnx(checkpoint, out, opset: int = OPSET, n_input: int = 256) -> Path
     if model.target == "depths" and model.needs_box:
         args = (x, timing_directions(model, 2))
         shapes["directions"] = {0: b}
+    vocab = list(model.classes) if getattr(model, "class_embedding", None) is not None else None
+    if vocab is not None:  # a class row and "no class" (-1): both paths of SANet.encode are traced
+        args, shapes["classes"] = (*args, torch.tensor([0, -1], dtype=torch.int64)), {0: b}
     meta = {
         "spotlights_format": FORMAT,
-        "spotlights_format_version": str(FORMAT_VERSION),
+        "spotlights_format_version": str(BASE_FORMAT_VERSION if vocab is None else FORMAT_VERSION),
         "model_name": ckpt["model_name"],
         "rig": json.dumps(model.rig.to_dict() if model.target == "depths" else None),
         "needs_box": json.dumps(bool(getattr(model, "needs_box", False))),
@@ -179,6 +202,8 @@ def export_onnx(checkpoint, out, opset: int = OPSET, n_input: int = 256) -> Path
         "spotlights_version": __version__,
         "domain": json.dumps(ckpt.get("domain") if isinstance(ckpt.get("domain"), dict) else None),
     }
+    if vocab is not None:
+        meta["classes"] = json.dumps(vocab)
     with atomic_output(out) as tmp:
         with torch.no_grad(), _quiet():
             prog = torch.onnx.export(
@@ -223,6 +248,7 @@ def _onnx_fields(p: Path, meta: dict[str, str]) -> dict:
             "domain": LearnedDomain.from_checkpoint({"domain": json.loads(meta.get("domain", "null"))}),
             "outputs": json.loads(meta["outputs"]),
             "inputs": json.loads(meta["inputs"]),
+            "classes": json.loads(meta.get("classes", "[]")),
         }
         if f["rig"] is not None:
             f["rig"] = rig_spec(f["rig"])
@@ -247,7 +273,13 @@ def _onnx_fields(p: Path, meta: dict[str, str]) -> dict:
         raise InputFileError(p, f"{damaged}: a p(hit) output without a threshold")
     if f["needs_box"] and (f["rig"] is None or "directions" not in f["inputs"]):
         raise InputFileError(p, f"{damaged}: a box-targeted model without its rig or a 'directions' input")
+    vocab = f["classes"]
+    if not isinstance(vocab, list) or not all(isinstance(c, str) for c in vocab) or len(set(vocab)) != len(vocab):
+        raise InputFileError(p, f"{damaged}: classes is not a list of distinct class names")
+    if bool(vocab) != ("classes" in f["inputs"]):
+        raise InputFileError(p, f"{damaged}: a class vocabulary without a 'classes' input, or the reverse")
     f["needs_box"] = bool(f["needs_box"])
+    f["classes"] = tuple(vocab)
     return f
 
 
@@ -257,7 +289,9 @@ class OnnxCompleter(BaseCompleter):
     :class:`~spotlights.learning.inference.Completer` up to float rounding) whose forward pass is the graph.
 
     Attributes: ``model_name``, ``n_params``, ``param_counts``, ``rig`` (RigSpec or None),
-    ``clip``, ``threshold``, ``needs_box``, ``path``, ``session`` (the onnxruntime session),
+    ``clip``, ``threshold``, ``needs_box``, ``domain`` (:class:`~spotlights.learning.inference.LearnedDomain`),
+    ``classes`` (the class vocabulary of a class-conditioned export, in row order; ``()`` for the others, which
+    complete every box as the car models they are), ``path``, ``session`` (the onnxruntime session),
     ``device`` (``"onnxruntime:CPUExecutionProvider"`` or the first provider used).
     """
 
@@ -303,12 +337,38 @@ class OnnxCompleter(BaseCompleter):
     def __repr__(self):
         return f"OnnxCompleter({self.model_name}, {self.n_params:,} parameters, {self.path})"
 
-    def run(self, partials: np.ndarray, directions: np.ndarray | None = None) -> dict:
-        """Raw graph outputs {name: array} of (B, K, 3) float32 partials (and (B, N*M, 3) directions for box rigs)."""
+    def run(self, partials: np.ndarray, directions: np.ndarray | None = None, classes=None) -> dict:
+        """Raw graph outputs {name: array} of (B, K, 3) float32 partials (and (B, N*M, 3) directions for box rigs;
+        for a class-conditioned export (B,) integer ``classes``, rows of :attr:`classes`, -1 or None: no class).
+
+        Raises :class:`ParameterError` (one line) for class rows that are not a (B,) integer array of -1 to
+        C - 1, or given to an export without a class input."""
         feed = {"partial": np.ascontiguousarray(partials, dtype=np.float32)}
         if "directions" in self.inputs:
             feed["directions"] = np.ascontiguousarray(directions, dtype=np.float32)
+        if "classes" in self.inputs:
+            feed["classes"] = self.class_input(classes, len(feed["partial"]))
+        elif classes is not None:
+            raise ParameterError(
+                f"{self.path.name} has no class input (not a class-conditioned model): run it without classes"
+            )
         return dict(zip(self.outputs, self.session.run(self.outputs, feed)))
+
+    def class_input(self, classes, n: int) -> np.ndarray:
+        """The graph's ``classes`` input: (n,) int64 rows of :attr:`classes` (None: -1 each, no class), checked."""
+        if classes is None:
+            return np.full(n, -1, dtype=np.int64)
+        a = np.asarray(classes)
+        rows = f"-1 (no class) or 0..{len(self.classes) - 1} ({', '.join(self.classes)})"
+        if a.dtype.kind not in "iu" or a.shape != (n,):
+            raise ParameterError(
+                f"{self.path.name}: classes must be a ({n},) integer array of class rows {rows}, got "
+                f"{a.dtype} of shape {a.shape} (class names go through complete(classes=...))"
+            )
+        bad = a[(a < -1) | (a >= len(self.classes))]
+        if len(bad):
+            raise ParameterError(f"{self.path.name}: class row {int(bad[0])} is not one of {rows}")
+        return a.astype(np.int64)
 
     def keep(self, out: dict, clip=DEFAULT) -> np.ndarray:
         """(B, N*M) bool rays a completion keeps (the torch models' rule; see the module docstring)."""
@@ -330,10 +390,13 @@ class OnnxCompleter(BaseCompleter):
         inside: list | None = None,
     ) -> list[np.ndarray]:
         """One batch through onnxruntime; the rays kept as the torch models keep them (:meth:`keep`). Exports hold
-        no free-space model (``spotlights export`` refuses ``sanet-local``), so ``sensor_origins`` is unused, nor
-        a class-conditioned one (``classes`` unused); with ``box_half`` the kept rays are clipped to each box
-        along the rays as the torch SA-Nets clip them (:func:`clip_rays_to_boxes`)."""
-        out = self.run(partials, directions)
+        no free-space model (``spotlights export`` refuses ``sanet-local``), so ``sensor_origins`` is unused;
+        ``classes`` (b names or None) feed a class-conditioned export's ``classes`` input as the torch
+        ``Completer`` feeds its model (:func:`~spotlights.data.vehicle_classes.class_rows`; other exports ignore
+        them); with ``box_half`` the kept rays are clipped to each box along the rays as the torch SA-Nets clip
+        them (:func:`clip_rays_to_boxes`)."""
+        rows = class_rows(classes, self.classes) if classes is not None and self.classes else None
+        out = self.run(partials, directions, rows)
         if "points" in out:
             return [np.ascontiguousarray(p, dtype=np.float32) for p in out["points"]]
         mask = self.keep(out, clip)
@@ -377,9 +440,13 @@ def load_onnx_completer(path, threads: int | None = None) -> OnnxCompleter:
     return OnnxCompleter(path, threads=threads)
 
 
-def parity(checkpoint, onnx_completer: OnnxCompleter, partials: np.ndarray | None = None, extents=None) -> dict:
+def parity(
+    checkpoint, onnx_completer: OnnxCompleter, partials: np.ndarray | None = None, extents=None, classes=None
+) -> dict:
     """Largest absolute difference of every graph output, onnxruntime against the torch model of ``checkpoint``
-    (float32, CPU), on ``partials`` (default: 8 seeded random clouds; box rigs: a car's box, or ``extents``).
+    (float32, CPU), on ``partials`` (default: 8 seeded random clouds; box rigs: a car's box, or ``extents``;
+    class-conditioned models: the (B,) int64 class rows ``classes``, default -1, 0, 1, ... in turn: no class
+    and every class).
 
     Returns {output name: max |onnx - torch|}, plus ``kept_rays_differ``: rays kept by one and not the other.
     """
@@ -393,13 +460,18 @@ def parity(checkpoint, onnx_completer: OnnxCompleter, partials: np.ndarray | Non
         e = extents if extents is not None else unit_extents(TIMING_BOX_SIZE)
         e = np.broadcast_to(np.asarray(e, dtype=np.float64), (len(x), 3))
         dirs = directions_for_extents(model.rig, e)
-    graph, _, names = _graph_module(model)
+    graph, inputs, names = _graph_module(model)
+    rows = None
+    if "classes" in inputs:
+        c = len(model.classes)
+        rows = np.asarray(np.arange(len(x)) % (c + 1) - 1 if classes is None else classes, dtype=np.int64)
     with torch.inference_mode():
         args = (torch.from_numpy(x),) + ((torch.from_numpy(np.ascontiguousarray(dirs)),) if dirs is not None else ())
+        args += (torch.from_numpy(rows),) if rows is not None else ()
         ref = graph(*args)
     ref = ref if isinstance(ref, tuple) else (ref,)
     ref = {n: t.numpy() for n, t in zip(names, ref)}
-    got = onnx_completer.run(x, dirs)
+    got = onnx_completer.run(x, dirs, rows)
     out = {n: float(np.abs(got[n] - ref[n]).max()) for n in names}
     if "depths" in ref:
         keep_ref = onnx_completer.keep(ref)
@@ -422,6 +494,7 @@ def export_model(
     dec = (f", p(hit) >= {c.threshold:g}" if c.threshold is not None else "") + (
         f", clip {c.clip:g}" if c.clip is not None else ""
     )
+    dec += f", class input: {', '.join(c.classes)}" if c.classes else ""
     log(
         f"{checkpoint} -> {path} ({c.model_name}, {c.n_params:,} parameters{rig}{dec}; "
         f"{path.stat().st_size / 1e6:.1f} MB)"

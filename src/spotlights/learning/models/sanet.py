@@ -25,7 +25,7 @@ from collections.abc import Sequence
 
 import torch
 
-from ...data.vehicle_classes import canonical_class
+from ...data.vehicle_classes import canonical_class, class_rows
 from ..losses import depth_l1
 from ..rays import rig_rays, rig_spec
 from .base import CLIP_DEFAULT, MLP, CompletionModel, PCNEncoder
@@ -106,8 +106,7 @@ class SANet(CompletionModel):
 
     def class_indices(self, names) -> torch.Tensor:
         """(B,) int64 rows of :attr:`classes` of class names (aliases resolved; ``None`` or an unknown class: -1)."""
-        table = {c: i for i, c in enumerate(self.classes)}
-        return torch.tensor([-1 if n is None else table.get(canonical_class(n), -1) for n in names], dtype=torch.int64)
+        return torch.from_numpy(class_rows(names, self.classes))
 
     def forward_inputs(self, batch: dict, rays=None) -> tuple:
         """``(partial,)``, and each scan's class index (``batch["cls"]``) for a class-conditioned model."""
