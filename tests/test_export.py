@@ -4,6 +4,7 @@ threshold travel as metadata, ``complete --runtime onnx`` gives torch's completi
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -209,3 +210,19 @@ def test_bf16_inference_is_close_to_float32(tmp_path, test_scans):
     pa, pb = a.complete(test_scans), b.complete(test_scans)
     assert all(p.dtype == np.float32 for p in pb)
     assert abs(sum(map(len, pa)) - sum(map(len, pb))) <= 0.02 * sum(map(len, pa)) + 2
+
+
+def test_an_export_holds_no_source_locations_so_its_bytes_do_not_depend_on_the_install(tmp_path):
+    """The exporter notes each node's Python stack (absolute paths, line numbers); they are stripped, so the
+    same checkpoint gives the same bytes wherever spotlights is installed (checked on the file itself)."""
+    import onnx
+
+    import spotlights
+
+    ckpt = _checkpoint(tmp_path, "pcn", None, None)
+    proto = onnx.load(str(export_onnx(ckpt, tmp_path / "p.onnx")))
+    assert len(proto.graph.node) > 10
+    assert all(len(n.metadata_props) == 0 for n in proto.graph.node)
+    raw = (tmp_path / "p.onnx").read_bytes()
+    assert b"stack_trace" not in raw
+    assert str(Path(spotlights.__file__).parent).encode() not in raw.replace(str(ckpt).encode(), b"")

@@ -224,6 +224,7 @@ def export_onnx(checkpoint, out, opset: int = OPSET, n_input: int = 256) -> Path
                 f"--opset {opset}: the exporter cannot write this model at opset {opset} "
                 f"(it wrote {', '.join(map(str, sorted(written)))}); try {OPSET} or higher"
             )
+        strip_node_metadata(proto)
         del proto.metadata_props[:]
         for key, value in meta.items():
             entry = proto.metadata_props.add()
@@ -231,6 +232,30 @@ def export_onnx(checkpoint, out, opset: int = OPSET, n_input: int = 256) -> Path
         onnx.checker.check_model(proto)
         onnx.save(proto, str(tmp))
     return Path(out)
+
+
+def strip_node_metadata(proto) -> None:
+    """Remove the exporter's per-node notes (``pkg.torch.onnx.stack_trace``, name scopes, FX node names:
+    absolute source paths and line numbers of this package) from every node of ``proto`` (an
+    ``onnx.ModelProto``), its functions and subgraphs, in place. They are not read by any runtime; without
+    them an export's bytes depend on the checkpoint and the options only, not on where spotlights is
+    installed or on edits to its source."""
+
+    def nodes(graph):
+        for node in graph.node:
+            yield node
+            for attr in node.attribute:
+                if attr.g.node:
+                    yield from nodes(attr.g)
+                for g in attr.graphs:
+                    yield from nodes(g)
+
+    for node in nodes(proto.graph):
+        del node.metadata_props[:]
+    for fn in proto.functions:
+        for node in fn.node:
+            del node.metadata_props[:]
+    del proto.graph.metadata_props[:]
 
 
 def _onnx_fields(p: Path, meta: dict[str, str]) -> dict:
