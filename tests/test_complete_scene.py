@@ -123,24 +123,27 @@ def test_one_scan_is_unchanged_by_the_track_options(tmp_path, ckpt):
 
 
 @pytest.mark.parametrize(
-    "single,extra,message",
+    "kind,extra,message",
     [
-        (True, ["--fuse", "past:2"], "--fuse past:2 needs a multi-frame scene"),
-        (True, ["--refine-boxes"], "--refine-boxes needs a multi-frame scene"),
-        (True, ["--rerun", "rec.rrd"], "--rerun needs a multi-frame scene"),
-        (False, ["--out", "scene.ply"], "is a multi-frame scene, written to a folder: give --out DIR"),
-        (False, ["--boxes", "b.json"], "--boxes/--calib/--box/--center/--size/--yaw apply to one scan"),
-        (False, ["--show", "x.png"], "--per-object/--summary/--show/--html apply to one scan"),
-        (False, ["--up", "y"], "--up/--forward apply to one scan"),
-        (False, ["--refine-boxes"], "--refine-boxes needs --fuse"),
-        (False, ["--fuse", "all", "--rerun", "rec.txt"], "a rerun recording's name must end in .rrd"),
+        ("scan", ["--fuse", "past:2"], "--fuse past:2 needs a multi-frame scene"),
+        ("scan", ["--refine-boxes"], "--refine-boxes needs a multi-frame scene"),
+        ("scan", ["--rerun", "rec.rrd"], "--rerun needs a multi-frame scene"),
+        ("scene", ["--out", "scene.ply"], "is a multi-frame scene, written to a folder: give --out DIR"),
+        ("scene", ["--boxes", "b.json"], "--boxes/--calib/--box/--center/--size/--yaw apply to one scan"),
+        ("scene", ["--show", "x.png"], "--per-object/--summary/--show/--html apply to one scan"),
+        ("scene", ["--up", "y"], "--up/--forward apply to one scan"),
+        ("scene", ["--refine-boxes"], "--refine-boxes needs --fuse"),
+        ("scene", ["--fuse", "all", "--rerun", "rec.txt"], "a rerun recording's name must end in .rrd"),
+        ("folder", [], "box file of scan 0000.npy not found (each scan needs NAME.json beside it; or give this seq"),
     ],
 )
-def test_refusals_are_one_line_and_write_nothing(tmp_path, single, extra, message):
+def test_refusals_are_one_line_and_write_nothing(tmp_path, kind, extra, message):
     src = write_scene(tmp_path / "drive")
-    if single:
+    if kind == "scan":
         src = tmp_path / "drive" / "0000.npy"
         extra = [*extra, "--boxes", tmp_path / "drive" / "sequence.json"]
+    elif kind == "folder":  # the folder of a sequence .json is no folder of frames
+        src = tmp_path / "drive"
     before = sorted(tmp_path.rglob("*"))
     argv = ["complete", src, "--out", tmp_path / "out", *extra]
     assert_user_error(run_cli(*argv, cwd=tmp_path), message)
