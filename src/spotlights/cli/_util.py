@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from ..errors import ParameterError
 from ..options import (  # noqa: F401 - the argparse types, importable from here by every command module
     DEVICE_HELP,
     non_negative_float,
@@ -14,6 +15,20 @@ from ..options import (  # noqa: F401 - the argparse types, importable from here
     unit_interval,
 )
 from ..utils import check_suffix, settings_from_namespace  # noqa: F401 - check_suffix: used by the command modules
+
+
+def argparse_type(parse):
+    """``parse`` (text -> value, raising :class:`~spotlights.errors.ParameterError`) as an argparse type: its
+    message becomes the usage error ``argument --OPTION: MESSAGE`` (exit code 2)."""
+
+    def convert(text: str):
+        try:
+            return parse(text)
+        except ParameterError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    convert.__name__ = parse.__name__
+    return convert
 
 
 def add_command(sub, name: str, help: str, example: str, func=None) -> argparse.ArgumentParser:

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 
-from ..experiments.scan_completion import ScanSettings, complete_scan
+from ..data.tracks import MAX_GAP_S, MAX_TRANSLATION_M, MAX_YAW_RAD, WINDOW_HELP, parse_window
+from ..experiments.frame_completion import complete_input
+from ..experiments.scan_completion import ScanSettings
 from ..utils import settings_from_namespace
-from ._util import DEVICE_HELP, add_command, non_negative_int, positive_int, unit_interval
+from ._util import DEVICE_HELP, add_command, argparse_type, non_negative_int, positive_int, unit_interval
 from .view import add_html_argument
 
 CROP_DOC = (
@@ -136,30 +139,71 @@ def add_completion_arguments(p, single: bool) -> None:
     )
 
 
+def add_track_arguments(p) -> None:
+    """Options of multi-frame input shared by ``complete`` and ``real complete``: track fusion, box refinement,
+    the longest gap in a track, the rerun recording."""
+    g = p.add_argument_group(
+        "tracks of a multi-frame input (fuse each vehicle's frames in its box frame; docs/real-data.md)"
+    )
+    g.add_argument(
+        "--fuse",
+        type=argparse_type(parse_window),
+        default=parse_window("none"),
+        metavar="WINDOW",
+        help="which frames of a vehicle's track are fused into its input: " + WINDOW_HELP + "; default none. "
+        "Also writes [SEQUENCE/]tracks/TRACK.ply (fused input and completion, box frame) and tracks.json",
+    )
+    g.add_argument(
+        "--refine-boxes",
+        action="store_true",
+        help="with --fuse: register each frame's points to the other frames of its window and correct its box "
+        f"(x, y, yaw; at most {MAX_TRANSLATION_M:g} m and {math.degrees(MAX_YAW_RAD):g} degrees, else kept and "
+        "flagged); the refined boxes are used and written to tracks.json",
+    )
+    g.add_argument(
+        "--max-gap",
+        type=float,
+        default=MAX_GAP_S,
+        metavar="S",
+        help=f"with --fuse: the longest time between two frames of one track, seconds (default {MAX_GAP_S:g})",
+    )
+    g.add_argument(
+        "--rerun",
+        default=None,
+        metavar="FILE.rrd",
+        help="also log every frame (scan, given and used boxes, fused inputs, completions) on a time line into a "
+        "rerun recording (needs the rerun extra; docs/viewer.md)",
+    )
+
+
 def register(sub) -> None:
     p = add_command(
         sub,
         "complete",
-        "complete the vehicles of a LiDAR scan given their 3-D boxes (a whole frame, or one object); "
-        "output in the scan's frame",
+        "complete the vehicles of a LiDAR scan given their 3-D boxes (a whole frame, or one object), or of every "
+        "frame of a multi-frame generic scene (with --fuse: each vehicle's track fused); output in the scan's frame",
         "spotlights complete 002155.bin --boxes label_2/002155.txt --calib calib/002155.txt --out 002155.ply --show 002155.png\n"
-        "  spotlights complete car.pcd --center 12.1 -3.4 0.9 --size 4.3 1.8 1.5 --yaw 0.52 --out car_completed.ply",
+        "  spotlights complete car.pcd --center 12.1 -3.4 0.9 --size 4.3 1.8 1.5 --yaw 0.52 --out car_completed.ply\n"
+        "  spotlights complete seqs/seq0000/sequence.json --fuse past:5 --refine-boxes --out seq0000_completed",
         _complete,
     )
     p.add_argument(
         "input",
         metavar="SCAN",
         help="the scan: KITTI .bin (N x 4), nuScenes .pcd.bin (N x 5), AV2 .feather, .ply .pcd .npy .npz .xyz .txt, "
-        ".las .laz (pip install 'spotlights[las]')",
+        ".las .laz (pip install 'spotlights[las]'); or a multi-frame generic scene: a folder of scans with NAME.json "
+        "box files, or a sequence .json ('dataset sequences' writes DIR/seqNNNN/sequence.json; docs/real-data.md)",
     )
     p.add_argument(
         "--out",
         "-o",
         required=True,
-        metavar="OUT.ply",
+        metavar="OUT",
         help="the scene: .ply with x y z, 'source' (0 raw point, 1 partial input of an object, 2 completion) and "
         "'object' (box index, or integer track id; -1 outside every box); other suffixes (.pcd .npy .xyz .txt) "
-        "hold the completion points only",
+        "hold the completion points only. A multi-frame scene: a folder, as 'real complete' writes it: "
+        "[SEQUENCE/]FRAME.ply (these fields) and FRAME.json per frame, summary.json; with --fuse "
+        "[SEQUENCE/]tracks/TRACK.ply and tracks.json",
     )
     g = p.add_argument_group("boxes (one of)")
     g.add_argument(
@@ -207,6 +251,7 @@ def register(sub) -> None:
         help="also draw the scene: bird's-eye view with box outlines and ids, close-ups with a 1 m ruler",
     )
     add_html_argument(p)
+    add_track_arguments(p)
     p.add_argument("--quiet", "-q", action="store_true", help="print nothing but warnings and errors")
 
 
@@ -216,5 +261,5 @@ def warn(line: str) -> None:
 
 
 def _complete(args) -> int:
-    complete_scan(settings_from_namespace(ScanSettings, args), say=print, warn=warn)
+    complete_input(settings_from_namespace(ScanSettings, args), say=print, warn=warn)
     return 0

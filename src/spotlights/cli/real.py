@@ -2,11 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
-import math
-
-from ..data.tracks import MAX_GAP_S, MAX_TRANSLATION_M, MAX_YAW_RAD, WINDOW_HELP, parse_window
-from ..errors import ParameterError
 from ..experiments.frame_completion import FramesSettings, complete_frames, parse_frames, parse_frames_range
 from ..experiments.real_runs import (
     EvaluateSettings,
@@ -18,8 +13,17 @@ from ..experiments.real_runs import (
 )
 from ..experiments.scene import HEADING_MARGIN
 from ..utils import settings_from_namespace
-from ._util import DEVICE_HELP, add_command, add_group, add_quiet, non_negative_int, positive_int, unit_interval
-from .complete import add_completion_arguments, warn
+from ._util import (
+    DEVICE_HELP,
+    add_command,
+    add_group,
+    add_quiet,
+    argparse_type,
+    non_negative_int,
+    positive_int,
+    unit_interval,
+)
+from .complete import add_completion_arguments, add_track_arguments, warn
 from .view import add_html_argument
 
 FORMAT_CHOICES = ("kitti", "kitti360", "av2", "nuscenes", "generic")
@@ -31,23 +35,8 @@ SOURCE_HELP = (
 )
 
 
-def _argparse_type(parse):
-    """``parse`` (text -> value, raising :class:`ParameterError`) as an argparse type: its message becomes the
-    usage error ``argument --OPTION: MESSAGE`` (exit code 2)."""
-
-    def convert(text: str):
-        try:
-            return parse(text)
-        except ParameterError as exc:
-            raise argparse.ArgumentTypeError(str(exc)) from None
-
-    convert.__name__ = parse.__name__
-    return convert
-
-
-_frames_range = _argparse_type(parse_frames_range)
-_frames_select = _argparse_type(parse_frames)
-_window = _argparse_type(parse_window)
+_frames_range = argparse_type(parse_frames_range)
+_frames_select = argparse_type(parse_frames)
 
 
 def register(sub) -> None:
@@ -142,7 +131,7 @@ def register(sub) -> None:
         action="store_true",
         help="skip the frames an earlier run with the same model and options finished (their FRAME.json exists)",
     )
-    _track_arguments(p)
+    add_track_arguments(p)
     add_quiet(p)
 
     p = add_command(
@@ -289,39 +278,6 @@ def register(sub) -> None:
     )
     p.add_argument("--device", default=None, help=DEVICE_HELP)
     add_html_argument(p)
-
-
-def _track_arguments(p) -> None:
-    g = p.add_argument_group("tracks (fuse each vehicle's frames in its box frame; docs/real-data.md)")
-    g.add_argument(
-        "--fuse",
-        type=_window,
-        default=parse_window("none"),
-        metavar="WINDOW",
-        help="which frames of a vehicle's track are fused into its input: " + WINDOW_HELP + "; default none. "
-        "Also writes [SEQUENCE/]tracks/TRACK.ply (fused input and completion, box frame) and tracks.json",
-    )
-    g.add_argument(
-        "--refine-boxes",
-        action="store_true",
-        help="with --fuse: register each frame's points to the other frames of its window and correct its box "
-        f"(x, y, yaw; at most {MAX_TRANSLATION_M:g} m and {math.degrees(MAX_YAW_RAD):g} degrees, else kept and "
-        "flagged); the refined boxes are used and written to tracks.json",
-    )
-    g.add_argument(
-        "--max-gap",
-        type=float,
-        default=MAX_GAP_S,
-        metavar="S",
-        help=f"with --fuse: the longest time between two frames of one track, seconds (default {MAX_GAP_S:g})",
-    )
-    g.add_argument(
-        "--rerun",
-        default=None,
-        metavar="FILE.rrd",
-        help="also log every frame (scan, given and used boxes, fused inputs, completions) on a time line into a "
-        "rerun recording (needs the rerun extra; docs/viewer.md)",
-    )
 
 
 def _reader_arguments(p) -> None:

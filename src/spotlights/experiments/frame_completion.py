@@ -18,7 +18,7 @@ import os
 import re
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 from tqdm import tqdm
@@ -27,12 +27,13 @@ from ..data.real import open_reader
 from ..data.real.base import SceneReader
 from ..data.tracks import MAX_GAP_S, TIME_UNIT_S, WindowPolicy, parse_window
 from ..errors import ParameterError, SpotlightsError
+from ..geometry.io import POINT_SUFFIXES
 from ..learning.inference import BaseCompleter
 from ..utils import StageTimer, output_folder, sweep_folder_temporaries
 from ..viz.html import write_plotlyjs
 from ..viz.rerun_log import check_rerun_path, open_recording
-from .scan_completion import CompletionOptions, Say, silent, write_json
-from .scene import SceneConfig, complete_scene, render_result, render_result_html, write_scene
+from .scan_completion import CompletionOptions, Say, ScanSettings, complete_scan, silent, write_json
+from .scene import SceneConfig, SceneResult, complete_scene, render_result, render_result_html, write_scene
 from .tracks import TrackPlan
 
 
@@ -214,6 +215,42 @@ class FramesSettings(ReaderOptions, CompletionOptions):
     max_gap: float = MAX_GAP_S
     rerun: str | None = None
     quiet: bool = False
+
+    @classmethod
+    def of_scene(cls, s: ScanSettings) -> FramesSettings:
+        """What ``spotlights complete SCENE`` does with a multi-frame generic scene (``s.multi_frame``): the
+        settings of ``real complete SCENE --format generic --no-pictures`` with ``s``'s model options, track
+        options and output folder ``s.out``. Raises a one-line :class:`ParameterError` for an ``--out`` that names
+        a point-cloud file and for the options of one scan (its boxes, axes, crop, per-file outputs)."""
+        if Path(s.out).suffix.lower() in POINT_SUFFIXES:
+            raise ParameterError(
+                f"--out {s.out}: {s.input} is a multi-frame scene, written to a folder: give --out DIR "
+                "(DIR/[SEQUENCE/]FRAME.ply per frame, summary.json; with --fuse tracks/ and tracks.json)"
+            )
+        for name, given in (
+            ("--boxes/--calib/--box/--center/--size/--yaw", (s.boxes, s.calib, s.box, s.center, s.size, s.yaw or None)),
+            ("--crop/--no-crop", (s.crop, s.no_crop or None)),
+            ("--up/--forward", (None if s.up == "z" else s.up, None if s.forward == "x" else s.forward)),
+            ("--per-object/--summary/--show/--html", (s.per_object, s.summary, s.show, s.html)),
+        ):
+            if any(v is not None for v in given):
+                raise ParameterError(
+                    f"{name} apply to one scan; {s.input} is a multi-frame scene (its box files name the boxes, z "
+                    "up; DIR gets FRAME.json per frame and summary.json; 'real complete --format generic' draws "
+                    "pictures, per-object files and pages)"
+                )
+        return cls(
+            **{f.name: getattr(s, f.name) for f in fields(CompletionOptions)},
+            source=[s.input],
+            format="generic",
+            out=s.out,
+            no_pictures=True,
+            fuse=s.fuse,
+            refine_boxes=s.refine_boxes,
+            max_gap=s.max_gap,
+            rerun=s.rerun,
+            quiet=s.quiet,
+        )
 
     @property
     def window(self) -> WindowPolicy:
@@ -397,6 +434,19 @@ def complete_frames(
         return _run_frames(s, reader, keys, config, completer, out, tracks, say, warn, rec, fallback)
 
 
+def complete_input(
+    s: ScanSettings, say: Say = silent, warn: Say = silent, completer: BaseCompleter | None = None
+) -> SceneResult | dict:
+    """What ``spotlights complete INPUT`` runs: one scan file (:func:`~spotlights.experiments.scan_completion.
+    complete_scan`: ``s.out`` is its scene file; returns its :class:`SceneResult`), or a multi-frame generic scene
+    (a folder of frames or a sequence ``.json``: :func:`complete_frames` of :meth:`FramesSettings.of_scene`,
+    ``s.out`` a folder, with ``s.fuse``, ``s.refine_boxes``, ``s.max_gap`` and ``s.rerun``; returns the run's
+    summary). ``say``, ``warn`` and ``completer`` as those functions take them."""
+    if s.multi_frame:
+        return complete_frames(FramesSettings.of_scene(s), say=say, warn=warn, completer=completer)
+    return complete_scan(s, say=say, warn=warn, completer=completer)
+
+
 def _run_frames(
     s: FramesSettings,
     reader,
@@ -446,6 +496,7 @@ __all__ = [
     "FramesSettings",
     "ReaderOptions",
     "complete_frames",
+    "complete_input",
     "done_frame",
     "file_stem",
     "frame_stems",

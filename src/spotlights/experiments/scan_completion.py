@@ -20,13 +20,14 @@ from __future__ import annotations
 import dataclasses
 import json
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from ..data.real.boxfiles import read_box_file, with_class
 from ..data.real.scans import read_scan
+from ..data.tracks import MAX_GAP_S, WindowPolicy, parse_window
 from ..errors import ParameterError
 from ..geometry.boxes import Box, box_from_dict
 from ..geometry.io import axes_rotation
@@ -158,6 +159,10 @@ class ScanSettings(CompletionOptions):
     crop : the crop margin's older name (same as ``margin``); no_crop : one object, every scan point used.
     up, forward : the scan's axes; per_object : folder of ``object_<id>.ply``; summary : JSON file;
     show : PNG picture; html : interactive page; quiet : no summary lines.
+    fuse, refine_boxes, max_gap, rerun : for a multi-frame scene (:attr:`multi_frame`: ``input`` a folder of
+    frames or a sequence ``.json`` of the generic format), as :class:`~spotlights.experiments.frame_completion.
+    FramesSettings` has them; a single scan refuses a fusing window, ``refine_boxes`` and ``rerun``
+    (:meth:`check_single_scan`).
     """
 
     input: str
@@ -177,6 +182,33 @@ class ScanSettings(CompletionOptions):
     show: str | None = None
     html: str | None = None
     quiet: bool = False
+    fuse: WindowPolicy | str = field(default_factory=lambda: parse_window("none"))
+    refine_boxes: bool = False
+    max_gap: float = MAX_GAP_S
+    rerun: str | None = None
+
+    @property
+    def multi_frame(self) -> bool:
+        """``input`` is a multi-frame generic scene (a folder of frames or a sequence ``.json``), not one scan."""
+        return Path(self.input).is_dir() or Path(self.input).suffix.lower() == ".json"
+
+    def check_single_scan(self) -> None:
+        """Refuse in one line the options of a multi-frame scene (track fusion, rerun) for one scan."""
+        window = parse_window(self.fuse) if isinstance(self.fuse, str) else self.fuse
+        given = [
+            name
+            for name, on in (
+                (f"--fuse {window}", window.fuses),
+                ("--refine-boxes", self.refine_boxes),
+                ("--rerun", self.rerun is not None),
+            )
+            if on
+        ]
+        if given:
+            raise ParameterError(
+                f"{self.input}: {given[0]} needs a multi-frame scene (a folder of scans with NAME.json box files, or "
+                "a sequence .json); this is one scan"
+            )
 
     @property
     def single(self) -> bool:
@@ -291,6 +323,7 @@ def complete_scan(
     ``warn`` one line per warning (out-of-domain boxes); ``completer``: a model already loaded (default: the
     one ``s`` names). Returns the :class:`SceneResult` (scan frame, metres).
     """
+    s.check_single_scan()
     s.check_boxes()
     config = s.scan_config()
     s.check_outputs()

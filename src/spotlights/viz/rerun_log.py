@@ -1,4 +1,4 @@
-"""Scenes over time in a rerun recording (``.rrd``): ``real complete --rerun FILE.rrd``.
+"""Scenes over time in a rerun recording (``.rrd``): ``real complete --rerun FILE.rrd`` (and ``complete SCENE --rerun``).
 
 A completed frame (the scene's result, :func:`spotlights.experiments.scene.complete_scene`) is logged at its
 place on two timelines, ``frame`` (its position in the run, 0, 1, ...) and ``time`` (its timestamp, seconds, as a

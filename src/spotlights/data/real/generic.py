@@ -185,8 +185,9 @@ class GenericReader(SceneReader):
         for p, name in zip(scans, names):
             box_path = folder / f"{name}.json"
             if not box_path.is_file():
+                hint = "; or give this sequence's sequence.json" if (folder / "sequence.json").is_file() else ""
                 raise InputFileError(
-                    box_path, f"box file of scan {p.name} not found (each scan needs NAME.json beside it)"
+                    box_path, f"box file of scan {p.name} not found (each scan needs NAME.json beside it{hint})"
                 )
             bf = read_json_boxes(box_path)
             frames.append(
