@@ -11,10 +11,9 @@ cells for the viewpoints, B x G x G for the LiDAR). No gradients flow through th
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 
-from ..geometry.evidence import NEAR_CANDIDATES, EvidenceParams, sensor_extent, stereo_frames
+from ..geometry.evidence import NEAR_CANDIDATES, EvidenceParams
 
 FEATURES_PER_CANDIDATE = 3
 """(depth, distance / radius, valid) of each near-ray candidate."""
@@ -33,6 +32,39 @@ def _stereo_of(comp: torch.Tensor, length: torch.Tensor) -> torch.Tensor:
     return torch.where(
         ok, comp[..., :2] / torch.where(ok, den, torch.ones_like(den)), torch.full_like(den, float("inf"))
     )
+
+
+def _norm3(x: torch.Tensor) -> torch.Tensor:
+    """(...) Euclidean length of x (..., 3), summed in numpy's order (the geometry layer's ``np.linalg.norm``)."""
+    sq = x * x
+    return torch.sqrt(sq[..., 0] + sq[..., 1] + sq[..., 2])
+
+
+def stereo_frames_torch(centres: torch.Tensor) -> torch.Tensor:
+    """:func:`spotlights.geometry.evidence.stereo_frames` on tensors: (..., 3, 3) frames (rows u, v, w;
+    ``w = -c / |c|``) of centres of projection ``c`` (..., 3), in the dtype and on the device of ``centres``
+    (float64 in :func:`ray_evidence`: numpy's frames to the last bit or two)."""
+    n = _norm3(centres).unsqueeze(-1)
+    w = -(centres / torch.where(n > 0, n, torch.ones_like(n)))
+    near_z = (w[..., 2].abs() > 0.9).unsqueeze(-1)
+    ex = torch.tensor([1.0, 0.0, 0.0], dtype=w.dtype, device=w.device)
+    ez = torch.tensor([0.0, 0.0, 1.0], dtype=w.dtype, device=w.device)
+    u = torch.linalg.cross(torch.where(near_z, ex, ez).expand_as(w), w)
+    u = u / _norm3(u).unsqueeze(-1)
+    return torch.stack([u, torch.linalg.cross(w, u), w], -2)
+
+
+def sensor_extent_torch(sensor: torch.Tensor) -> torch.Tensor:
+    """:func:`spotlights.geometry.evidence.sensor_extent` of B sensors (B, 3) at once: (B,) ``tan(alpha / 2)``,
+    ``sin alpha = 1 / |S|``, 1 where ``|S| <= 1`` (or NaN), in the dtype of ``sensor``."""
+    r = torch.linalg.vector_norm(sensor, dim=-1)  # numpy's norm of a vector, bit for bit
+    outside = r > 1.0
+    return torch.where(outside, torch.tan(0.5 * torch.asin(1.0 / torch.where(outside, r, 2.0))), 1.0)
+
+
+def _wide(device: torch.device) -> torch.dtype:
+    """The dtype the frames and extents are computed in: float64 (as numpy), float32 on Apple's MPS (no float64)."""
+    return torch.float32 if device.type == "mps" else torch.float64
 
 
 def _cells(s: torch.Tensor, extent: torch.Tensor, cells: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -86,7 +118,7 @@ def ray_evidence(
     n = r // m
     g = int(params.near_cells)
     views = o[::m]  # (N, 3)
-    ft = torch.from_numpy(stereo_frames(views.detach().cpu().double().numpy())).to(dev, dt).transpose(1, 2)  # (N, 3, 3)
+    ft = stereo_frames_torch(views.detach().to(_wide(dev))).to(dt).transpose(1, 2)  # (N, 3, 3)
     comp = torch.matmul(d.reshape(b, n, m, 3), ft).reshape(b, r, 3)  # ray directions in their viewpoint's frame
     s_ray = _stereo_of(comp, torch.ones_like(comp[..., 0]))  # (B, R, 2)
     extent = s_ray.abs().flatten(1).amax(1).clamp(min=1e-6)  # (B,)
@@ -138,15 +170,13 @@ def _carve(points, o, d, sensor, params: EvidenceParams) -> dict:
     depth = (torch.arange(n_t, device=dev, dtype=dt) + 0.5) / n_t * h.unsqueeze(-1)  # (B, R, T)
     if sensor is None or k == 0:
         return {"carved": torch.zeros(depth.shape, dtype=torch.bool, device=dev), "half_chord": h}
-    s_np = sensor.detach().cpu().double().numpy().reshape(b, 3)
-    known_np = np.all(np.isfinite(s_np), axis=1)
-    if not known_np.any():
-        return {"carved": torch.zeros(depth.shape, dtype=torch.bool, device=dev), "half_chord": h}
-    s_safe = np.where(known_np[:, None], s_np, 2.0)  # a place outside the sphere: its rows are masked out
-    ft = torch.from_numpy(stereo_frames(s_safe)).to(dev, dt).transpose(1, 2)  # (B, 3, 3)
-    extent = torch.tensor([sensor_extent(s) for s in s_safe], dtype=dt, device=dev)
-    known = torch.from_numpy(known_np).to(dev)
-    s = torch.from_numpy(s_safe).to(dev, dt)
+    # all in torch (no host round trip, no Python float per scan): torch.compile traces it once for every batch
+    s64 = sensor.detach().to(dev, _wide(dev)).reshape(b, 3)
+    known = torch.isfinite(s64).all(-1)  # (B,) an unknown sensor's rows carve nothing
+    s_safe = torch.where(known[:, None], s64, 2.0)  # a place outside the sphere: its rows are masked out
+    ft = stereo_frames_torch(s_safe).to(dt).transpose(1, 2)  # (B, 3, 3)
+    extent = sensor_extent_torch(s_safe).to(dt)  # (B,)
+    s = s_safe.to(dt)
     rel = points - s[:, None]
     rho = rel.norm(dim=-1)  # (B, K)
     cell, inside = _cells(_stereo_of(torch.bmm(rel, ft), rho), extent[:, None], g)
