@@ -29,9 +29,7 @@ def _stereo_of(comp: torch.Tensor, length: torch.Tensor) -> torch.Tensor:
     lengths are ``length`` (...): ``(x.u, x.v) / (|x| + x.w)`` (the direction's, scale-free); inf for ``-w``."""
     den = (length + comp[..., 2]).unsqueeze(-1)
     ok = den > 1e-12 * length.unsqueeze(-1).clamp(min=1e-30)
-    return torch.where(
-        ok, comp[..., :2] / torch.where(ok, den, torch.ones_like(den)), torch.full_like(den, float("inf"))
-    )
+    return torch.where(ok, comp[..., :2] / torch.where(ok, den, 1.0), float("inf"))
 
 
 def _norm3(x: torch.Tensor) -> torch.Tensor:
@@ -72,22 +70,25 @@ def _cells(s: torch.Tensor, extent: torch.Tensor, cells: int) -> tuple[torch.Ten
     against s[..., 0]."""
     q = (s + extent.unsqueeze(-1)) * (cells / (2.0 * extent.unsqueeze(-1)))
     inside = ((q >= 0) & (q < cells)).all(-1)
-    q = torch.where(inside.unsqueeze(-1), q, torch.full_like(q, -1.0))
+    q = torch.where(inside.unsqueeze(-1), q, -1.0)
     return torch.floor(q).long(), inside
 
 
-def _nearest_per_cell(keys: torch.Tensor, ranges: torch.Tensor, n_keys: int) -> torch.Tensor:
-    """(n_keys,) int64 entry index of the smallest range per key (ties: the lowest index), -1 if none.
-    keys (E,) int64, -1 = no cell; ranges (E,)."""
+def _nearest_per_cell(
+    keys: torch.Tensor, ranges: torch.Tensor, n_keys: int, ids: torch.Tensor | None = None
+) -> torch.Tensor:
+    """(n_keys,) int64 entry index (or its ``ids``) of the smallest range per key (ties: the lowest index), -1 if
+    none. keys (E,) int64, -1 = no cell; ranges (E,); ids (E,) int64 in [0, E), increasing with the entry index
+    among the entries of any one key (default: the entry index)."""
     ok = keys >= 0
-    k = torch.where(ok, keys, torch.zeros_like(keys))
+    k = torch.where(ok, keys, 0)
     inf = torch.full((n_keys,), float("inf"), dtype=ranges.dtype, device=ranges.device)
-    best = inf.scatter_reduce(0, k, torch.where(ok, ranges, torch.full_like(ranges, float("inf"))), "amin")
-    e = torch.arange(len(keys), device=keys.device)
+    best = inf.scatter_reduce(0, k, torch.where(ok, ranges, float("inf")), "amin")
+    e = torch.arange(len(keys), device=keys.device) if ids is None else ids
     win = ok & (ranges == best[k])
     big = torch.full((n_keys,), len(keys), dtype=torch.int64, device=keys.device)
-    first = big.scatter_reduce(0, k, torch.where(win, e, torch.full_like(e, len(keys))), "amin")
-    return torch.where(first < len(keys), first, torch.full_like(first, -1))
+    first = big.scatter_reduce(0, k, torch.where(win, e, len(keys)), "amin")
+    return torch.where(first < len(keys), first, -1)
 
 
 @torch.no_grad()
@@ -127,8 +128,10 @@ def ray_evidence(
     cell, inside = _cells(_stereo_of(torch.matmul(rel, ft), rho), extent[:, None, None], g)
     bn = torch.arange(b * n, device=dev).reshape(b, n, 1)
     keys = torch.where(inside, (bn * g + cell[..., 0]) * g + cell[..., 1], -1).reshape(-1)
-    flat = _nearest_per_cell(keys, rho.reshape(-1), b * n * g * g)
-    first = torch.where(flat >= 0, flat % max(k, 1) + (flat // (n * k)) * k, -1)  # index into (B*K) or -1
+    # the entries of one cell share their scan and viewpoint, so the lowest point index is the lowest entry:
+    # the cells keep their point's index into (B*K) directly (no integer division over every cell)
+    ids = (torch.arange(b, device=dev)[:, None, None] * k + torch.arange(k, device=dev)).expand(b, n, k)
+    first = _nearest_per_cell(keys, rho.reshape(-1), b * n * g * g, ids.reshape(-1))  # index into (B*K) or -1
     q = (s_ray + extent[:, None, None]) * (g / (2.0 * extent[:, None, None]))
     base = torch.floor(q - 0.5).long()
     row = (torch.arange(b, device=dev)[:, None] * n + torch.arange(r, device=dev)[None] // m) * g
