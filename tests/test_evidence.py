@@ -190,6 +190,25 @@ def test_free_space_decode_moves_surfaces_out_of_carved_bins():
     assert np.allclose(td.numpy()[[0, 2]], nd[[0, 2]]) and np.array_equal(tk.numpy(), nk)
 
 
+def test_batched_free_space_decode_matches_the_numpy_reference():
+    """The torch decoding (only the rays whose surface is in a carved bin are moved) against the geometry layer's
+    (a reversed running minimum over every ray) on random carved bins: depths outside [0, h], h = 0, kept and
+    dropped rays, a batch and a single scan."""
+    rng = np.random.default_rng(0)
+    carved = rng.random((3, 200, 5)) < 0.5
+    carved[:, :10] = True  # every bin carved: dropped when kept
+    h = rng.uniform(0.2, 1.0, (3, 200))
+    h[:, 10:15] = 0.0
+    depth = rng.uniform(-0.2, 1.2, (3, 200))
+    keep = rng.random((3, 200)) < 0.7
+    nd, nk = free_space_decode(depth, keep, carved, h)
+    td, tk = tev.free_space_decode(*(torch.from_numpy(a) for a in (depth, keep, carved, h)))
+    assert np.array_equal(td.numpy(), nd) and np.array_equal(tk.numpy(), nk)
+    assert (nd != np.clip(depth, 0, h)).sum() > 100 and (keep & ~nk).sum() > 10  # moved and dropped rays
+    one = tev.free_space_decode(*(torch.from_numpy(a[1]) for a in (depth, keep, carved, h)))
+    assert np.array_equal(one[0].numpy(), nd[1]) and np.array_equal(one[1].numpy(), nk[1])
+
+
 def test_sanet_local_puts_no_surface_inside_observed_free_space():
     """A ray whose line crosses the LiDAR's view of a wall in front of the wall: whatever the network predicts
     there, the decoded point is not inside the carved interval."""
