@@ -99,8 +99,8 @@ def bench_evidence(batch: int, repeats: int) -> dict:
             "numpy_per_scan": {m.replace("_s", "_ms"): 1e3 * v for m, v in res["numpy_one"].items()},
         }
         print(
-            f"evidence K={k}: torch batch {batch}: {out[f'K{k}']['torch_per_scan_ms']}, numpy one scan: "
-            f"{out[f'K{k}']['numpy_per_scan_ms']}"
+            f"evidence K={k}: torch batch {batch}: {out[f'K{k}']['torch_per_scan']}, numpy one scan: "
+            f"{out[f'K{k}']['numpy_per_scan']}"
         )
     return out
 
