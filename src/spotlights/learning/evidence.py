@@ -77,18 +77,22 @@ def _cells(s: torch.Tensor, extent: torch.Tensor, cells: int) -> tuple[torch.Ten
 def _nearest_per_cell(
     keys: torch.Tensor, ranges: torch.Tensor, n_keys: int, ids: torch.Tensor | None = None
 ) -> torch.Tensor:
-    """(n_keys,) int64 entry index (or its ``ids``) of the smallest range per key (ties: the lowest index), -1 if
-    none. keys (E,) int64, -1 = no cell; ranges (E,); ids (E,) int64 in [0, E), increasing with the entry index
-    among the entries of any one key (default: the entry index)."""
+    """(n_keys,) entry index (or its ``ids``) of the smallest range per key (ties: the lowest index), -1 if none;
+    int32 (int64 from 2**31 entries on). keys (E,) int64, -1 = no cell; ranges (E,), not NaN where keys >= 0;
+    ids (E,) int64 in [0, E), increasing with the entry index among the entries of any one key (default: the entry
+    index)."""
     ok = keys >= 0
-    k = torch.where(ok, keys, 0)
-    inf = torch.full((n_keys,), float("inf"), dtype=ranges.dtype, device=ranges.device)
-    best = inf.scatter_reduce(0, k, torch.where(ok, ranges, float("inf")), "amin")
-    e = torch.arange(len(keys), device=keys.device) if ids is None else ids
-    win = ok & (ranges == best[k])
-    big = torch.full((n_keys,), len(keys), dtype=torch.int64, device=keys.device)
-    first = big.scatter_reduce(0, k, torch.where(win, e, len(keys)), "amin")
-    return torch.where(first < len(keys), first, -1)
+    k = torch.where(ok, keys, n_keys)  # the entries in no cell go to one more key, dropped at the end
+    best = torch.full((n_keys + 1,), float("inf"), dtype=ranges.dtype, device=ranges.device)
+    best = best.scatter_reduce(0, k, ranges, "amin")
+    small = len(keys) < 2**31 - 1
+    itype = torch.int32 if small else torch.int64  # half the memory traffic of the (n_keys,) table
+    e = torch.arange(len(keys), device=keys.device, dtype=itype) if ids is None else ids.to(itype)
+    # a key's entries include its nearest (their ranges are not NaN), so only the keys without entries keep the -1
+    # they start with: no pass over every key after the scatter
+    first = torch.full((n_keys + 1,), -1, dtype=itype, device=keys.device)
+    first = first.scatter_reduce(0, k, torch.where(ranges == best[k], e, len(keys)), "amin", include_self=False)
+    return first[:n_keys]
 
 
 @torch.no_grad()
