@@ -190,6 +190,25 @@ def test_free_space_decode_moves_surfaces_out_of_carved_bins():
     assert np.allclose(td.numpy()[[0, 2]], nd[[0, 2]]) and np.array_equal(tk.numpy(), nk)
 
 
+def test_batched_free_space_decode_matches_the_numpy_reference():
+    """The torch decoding (only the rays whose surface is in a carved bin are moved) against the geometry layer's
+    (a reversed running minimum over every ray) on random carved bins: depths outside [0, h], h = 0, kept and
+    dropped rays, a batch and a single scan."""
+    rng = np.random.default_rng(0)
+    carved = rng.random((3, 200, 5)) < 0.5
+    carved[:, :10] = True  # every bin carved: dropped when kept
+    h = rng.uniform(0.2, 1.0, (3, 200))
+    h[:, 10:15] = 0.0
+    depth = rng.uniform(-0.2, 1.2, (3, 200))
+    keep = rng.random((3, 200)) < 0.7
+    nd, nk = free_space_decode(depth, keep, carved, h)
+    td, tk = tev.free_space_decode(*(torch.from_numpy(a) for a in (depth, keep, carved, h)))
+    assert np.array_equal(td.numpy(), nd) and np.array_equal(tk.numpy(), nk)
+    assert (nd != np.clip(depth, 0, h)).sum() > 100 and (keep & ~nk).sum() > 10  # moved and dropped rays
+    one = tev.free_space_decode(*(torch.from_numpy(a[1]) for a in (depth, keep, carved, h)))
+    assert np.array_equal(one[0].numpy(), nd[1]) and np.array_equal(one[1].numpy(), nk[1])
+
+
 def test_sanet_local_puts_no_surface_inside_observed_free_space():
     """A ray whose line crosses the LiDAR's view of a wall in front of the wall: whatever the network predicts
     there, the decoded point is not inside the carved interval."""
@@ -248,3 +267,105 @@ def test_evidence_features_shape():
     f = tev.evidence_features(ev, PARAMS)
     assert f.shape == (1, len(o), tev.feature_count(PARAMS))
     assert not f[..., -PARAMS.carve_samples :].any()  # no sensor: nothing carved
+
+
+def batch_of_scans(seed=2, b=4, k=40):
+    """b scans of the tiny rig (each with its own box directions) and one sensor each: outside the sphere, inside
+    it (|S| < 1: the whole disc), unknown (NaN) and outside again."""
+    spec = RigSpec.from_name("box-4x8-ellipsoid-s1")
+    rng = np.random.default_rng(seed)
+    o = np.array(spec.origins)
+    dirs, pts = [], []
+    for _ in range(b):
+        e = unit_extents(rng.uniform([3.5, 1.6, 1.3], [5.2, 2.1, 2.0]))
+        dirs.append(np.array(spec.for_box(e).directions))
+        p = rng.uniform(-1, 1, (k, 3)) * e
+        p[: k // 2, 0] = e[0]
+        p[k // 2 :, 1] = e[1]
+        pts.append(p)
+    sensors = np.array([[2.5, 1.5, 0.4], [0.6, 0.2, 0.1], [np.nan, 0.0, 0.0], [-1.8, 2.2, 0.9]])[:b]
+    return o, np.stack(dirs), np.stack(pts), sensors, spec.n_secondary
+
+
+def test_batched_carving_matches_the_numpy_reference_for_every_sensor():
+    """The torch path (one batch, the sensor handled in torch for torch.compile) against the geometry layer's numpy
+    carving of each scan alone: float64, bin for bin; the LiDAR grid's extent and frame match numpy's."""
+    o, d, p, s, m = batch_of_scans()
+    te = tev.ray_evidence(torch.from_numpy(p), torch.from_numpy(o), torch.from_numpy(d), torch.from_numpy(s), m, PARAMS)
+    total = 0
+    for i in range(len(p)):
+        want = carved_depths(p[i], o, d[i], s[i], PARAMS)
+        assert np.array_equal(te["carved"][i].numpy(), want["carved"])
+        assert np.allclose(te["half_chord"][i].numpy(), want["half_chord"], rtol=0, atol=1e-15)
+        total += int(want["carved"].sum())
+    assert total >= 5 and not te["carved"][2].any()  # the case carves, and an unknown sensor carves nothing
+    known = s[[0, 1, 3]]
+    ext = tev.sensor_extent_torch(torch.from_numpy(known)).numpy()
+    assert ext.tolist() == [sensor_extent(x) for x in known]  # bit for bit: 1 inside the sphere
+    assert ext[1] == 1.0 and ext[0] == pytest.approx(math.tan(0.5 * math.asin(1 / np.linalg.norm(known[0]))))
+    assert np.allclose(tev.stereo_frames_torch(torch.from_numpy(known)).numpy(), stereo_frames(known), atol=1e-15)
+
+
+class GraphCounter:
+    """A torch.compile backend that runs each captured graph as it is and counts them (public API only)."""
+
+    def __init__(self):
+        self.graphs = 0
+
+    def __call__(self, gm, example_inputs):
+        self.graphs += 1
+        return gm.forward
+
+
+def test_evidence_traces_into_one_graph_for_any_batch_of_the_same_shape():
+    """torch.compile captures the whole evidence (fullgraph: no host round trip, no graph break) and new values
+    (points, boxes, sensors, an unknown one) reuse that graph: no recompilation, the eager results."""
+    o, d, p, s, m = batch_of_scans(seed=3)
+    torch.compiler.reset()
+    counter = GraphCounter()
+    fn = torch.compile(tev.ray_evidence, fullgraph=True, backend=counter, dynamic=False)
+    ot = torch.from_numpy(o).float()
+    fn(torch.from_numpy(p).float(), ot, torch.from_numpy(d).float(), torch.from_numpy(s).float(), m, PARAMS)
+    with torch.compiler.set_stance("fail_on_recompile"):
+        for seed in (4, 5, 6):
+            o2, d2, p2, s2, _ = batch_of_scans(seed=seed)
+            s2 = s2[::-1].copy() * (1.0 + 0.1 * seed)  # other sensors, the unknown one elsewhere
+            args = (torch.from_numpy(p2).float(), ot, torch.from_numpy(d2).float(), torch.from_numpy(s2).float(), m)
+            got, want = fn(*args, PARAMS), tev.ray_evidence(*args, PARAMS)
+            assert want["carved"].any() and want["valid"].any()
+            for key in want:
+                assert torch.equal(got[key], want[key]), key
+    assert counter.graphs == 1
+    torch.compiler.reset()
+
+
+def test_compiled_sanet_local_does_not_recompile_per_batch():
+    """The training forward and backward of a compiled ray-local SA-Net over 12 random batches (boxes, sensors,
+    unknown sensors): after the second batch (the per-ray MLP's row count becomes dynamic) nothing is traced
+    again, 3 graphs in all, and the outputs are the eager model's."""
+    from spotlights.learning.models import build_model, load_config
+    from spotlights.learning.rays import directions_for_extents
+
+    spec = RigSpec.from_name("box-4x8-ellipsoid-s1")
+    args = {"code_size": 16, "encoder_widths": [8, 8, 16], "hidden": [8], "candidate_width": 4, "local_hidden": [4]}
+    torch.manual_seed(0)
+    model = build_model(load_config("sanet-local", overrides={"model": {"args": args}}), rig=spec).train()
+    torch.compiler.reset()
+    counter = GraphCounter()
+    compiled = torch.compile(model, backend=counter)
+    rng = np.random.default_rng(0)
+    for i in range(12):
+        e = unit_extents(rng.uniform([3.5, 1.6, 1.3], [5.2, 2.1, 2.0], (2, 3)))
+        dirs = torch.from_numpy(directions_for_extents(spec, e)).float()
+        x = torch.from_numpy((rng.uniform(-1, 1, (2, 32, 3)) * e[:, None]).astype(np.float32))
+        s = torch.from_numpy(rng.normal(size=(2, 3)).astype(np.float32) * 3)
+        if i % 3 == 2:
+            s[1] = float("nan")
+        with torch.compiler.set_stance("fail_on_recompile" if i >= 2 else "default"):
+            out = compiled(x, dirs, s)
+        (out["hit_logits"].sum() + out["depths"].sum()).backward()
+        with torch.no_grad():
+            ref = model(x, dirs, s)
+        assert torch.allclose(out["depths"], ref["depths"], atol=1e-6) and torch.equal(out["carved"], ref["carved"])
+    assert counter.graphs == 3
+    torch.compiler.reset()

@@ -11,10 +11,9 @@ cells for the viewpoints, B x G x G for the LiDAR). No gradients flow through th
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 
-from ..geometry.evidence import NEAR_CANDIDATES, EvidenceParams, sensor_extent, stereo_frames
+from ..geometry.evidence import NEAR_CANDIDATES, EvidenceParams
 
 FEATURES_PER_CANDIDATE = 3
 """(depth, distance / radius, valid) of each near-ray candidate."""
@@ -30,9 +29,40 @@ def _stereo_of(comp: torch.Tensor, length: torch.Tensor) -> torch.Tensor:
     lengths are ``length`` (...): ``(x.u, x.v) / (|x| + x.w)`` (the direction's, scale-free); inf for ``-w``."""
     den = (length + comp[..., 2]).unsqueeze(-1)
     ok = den > 1e-12 * length.unsqueeze(-1).clamp(min=1e-30)
-    return torch.where(
-        ok, comp[..., :2] / torch.where(ok, den, torch.ones_like(den)), torch.full_like(den, float("inf"))
-    )
+    return torch.where(ok, comp[..., :2] / torch.where(ok, den, 1.0), float("inf"))
+
+
+def _norm3(x: torch.Tensor) -> torch.Tensor:
+    """(...) Euclidean length of x (..., 3), summed in numpy's order (the geometry layer's ``np.linalg.norm``)."""
+    sq = x * x
+    return torch.sqrt(sq[..., 0] + sq[..., 1] + sq[..., 2])
+
+
+def stereo_frames_torch(centres: torch.Tensor) -> torch.Tensor:
+    """:func:`spotlights.geometry.evidence.stereo_frames` on tensors: (..., 3, 3) frames (rows u, v, w;
+    ``w = -c / |c|``) of centres of projection ``c`` (..., 3), in the dtype and on the device of ``centres``
+    (float64 in :func:`ray_evidence`: numpy's frames to the last bit or two)."""
+    n = _norm3(centres).unsqueeze(-1)
+    w = -(centres / torch.where(n > 0, n, torch.ones_like(n)))
+    near_z = (w[..., 2].abs() > 0.9).unsqueeze(-1)
+    ex = torch.tensor([1.0, 0.0, 0.0], dtype=w.dtype, device=w.device)
+    ez = torch.tensor([0.0, 0.0, 1.0], dtype=w.dtype, device=w.device)
+    u = torch.linalg.cross(torch.where(near_z, ex, ez).expand_as(w), w)
+    u = u / _norm3(u).unsqueeze(-1)
+    return torch.stack([u, torch.linalg.cross(w, u), w], -2)
+
+
+def sensor_extent_torch(sensor: torch.Tensor) -> torch.Tensor:
+    """:func:`spotlights.geometry.evidence.sensor_extent` of B sensors (B, 3) at once: (B,) ``tan(alpha / 2)``,
+    ``sin alpha = 1 / |S|``, 1 where ``|S| <= 1`` (or NaN), in the dtype of ``sensor``."""
+    r = torch.linalg.vector_norm(sensor, dim=-1)  # numpy's norm of a vector, bit for bit
+    outside = r > 1.0
+    return torch.where(outside, torch.tan(0.5 * torch.asin(1.0 / torch.where(outside, r, 2.0))), 1.0)
+
+
+def _wide(device: torch.device) -> torch.dtype:
+    """The dtype the frames and extents are computed in: float64 (as numpy), float32 on Apple's MPS (no float64)."""
+    return torch.float32 if device.type == "mps" else torch.float64
 
 
 def _cells(s: torch.Tensor, extent: torch.Tensor, cells: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -40,22 +70,29 @@ def _cells(s: torch.Tensor, extent: torch.Tensor, cells: int) -> tuple[torch.Ten
     against s[..., 0]."""
     q = (s + extent.unsqueeze(-1)) * (cells / (2.0 * extent.unsqueeze(-1)))
     inside = ((q >= 0) & (q < cells)).all(-1)
-    q = torch.where(inside.unsqueeze(-1), q, torch.full_like(q, -1.0))
+    q = torch.where(inside.unsqueeze(-1), q, -1.0)
     return torch.floor(q).long(), inside
 
 
-def _nearest_per_cell(keys: torch.Tensor, ranges: torch.Tensor, n_keys: int) -> torch.Tensor:
-    """(n_keys,) int64 entry index of the smallest range per key (ties: the lowest index), -1 if none.
-    keys (E,) int64, -1 = no cell; ranges (E,)."""
+def _nearest_per_cell(
+    keys: torch.Tensor, ranges: torch.Tensor, n_keys: int, ids: torch.Tensor | None = None
+) -> torch.Tensor:
+    """(n_keys,) entry index (or its ``ids``) of the smallest range per key (ties: the lowest index), -1 if none;
+    int32 (int64 from 2**31 entries on). keys (E,) int64, -1 = no cell; ranges (E,), not NaN where keys >= 0;
+    ids (E,) int64 in [0, E), increasing with the entry index among the entries of any one key (default: the entry
+    index)."""
     ok = keys >= 0
-    k = torch.where(ok, keys, torch.zeros_like(keys))
-    inf = torch.full((n_keys,), float("inf"), dtype=ranges.dtype, device=ranges.device)
-    best = inf.scatter_reduce(0, k, torch.where(ok, ranges, torch.full_like(ranges, float("inf"))), "amin")
-    e = torch.arange(len(keys), device=keys.device)
-    win = ok & (ranges == best[k])
-    big = torch.full((n_keys,), len(keys), dtype=torch.int64, device=keys.device)
-    first = big.scatter_reduce(0, k, torch.where(win, e, torch.full_like(e, len(keys))), "amin")
-    return torch.where(first < len(keys), first, torch.full_like(first, -1))
+    k = torch.where(ok, keys, n_keys)  # the entries in no cell go to one more key, dropped at the end
+    best = torch.full((n_keys + 1,), float("inf"), dtype=ranges.dtype, device=ranges.device)
+    best = best.scatter_reduce(0, k, ranges, "amin")
+    small = len(keys) < 2**31 - 1
+    itype = torch.int32 if small else torch.int64  # half the memory traffic of the (n_keys,) table
+    e = torch.arange(len(keys), device=keys.device, dtype=itype) if ids is None else ids.to(itype)
+    # a key's entries include its nearest (their ranges are not NaN), so only the keys without entries keep the -1
+    # they start with: no pass over every key after the scatter
+    first = torch.full((n_keys + 1,), -1, dtype=itype, device=keys.device)
+    first = first.scatter_reduce(0, k, torch.where(ranges == best[k], e, len(keys)), "amin", include_self=False)
+    return first[:n_keys]
 
 
 @torch.no_grad()
@@ -86,7 +123,7 @@ def ray_evidence(
     n = r // m
     g = int(params.near_cells)
     views = o[::m]  # (N, 3)
-    ft = torch.from_numpy(stereo_frames(views.detach().cpu().double().numpy())).to(dev, dt).transpose(1, 2)  # (N, 3, 3)
+    ft = stereo_frames_torch(views.detach().to(_wide(dev))).to(dt).transpose(1, 2)  # (N, 3, 3)
     comp = torch.matmul(d.reshape(b, n, m, 3), ft).reshape(b, r, 3)  # ray directions in their viewpoint's frame
     s_ray = _stereo_of(comp, torch.ones_like(comp[..., 0]))  # (B, R, 2)
     extent = s_ray.abs().flatten(1).amax(1).clamp(min=1e-6)  # (B,)
@@ -95,8 +132,10 @@ def ray_evidence(
     cell, inside = _cells(_stereo_of(torch.matmul(rel, ft), rho), extent[:, None, None], g)
     bn = torch.arange(b * n, device=dev).reshape(b, n, 1)
     keys = torch.where(inside, (bn * g + cell[..., 0]) * g + cell[..., 1], -1).reshape(-1)
-    flat = _nearest_per_cell(keys, rho.reshape(-1), b * n * g * g)
-    first = torch.where(flat >= 0, flat % max(k, 1) + (flat // (n * k)) * k, -1)  # index into (B*K) or -1
+    # the entries of one cell share their scan and viewpoint, so the lowest point index is the lowest entry:
+    # the cells keep their point's index into (B*K) directly (no integer division over every cell)
+    ids = (torch.arange(b, device=dev)[:, None, None] * k + torch.arange(k, device=dev)).expand(b, n, k)
+    first = _nearest_per_cell(keys, rho.reshape(-1), b * n * g * g, ids.reshape(-1))  # index into (B*K) or -1
     q = (s_ray + extent[:, None, None]) * (g / (2.0 * extent[:, None, None]))
     base = torch.floor(q - 0.5).long()
     row = (torch.arange(b, device=dev)[:, None] * n + torch.arange(r, device=dev)[None] // m) * g
@@ -138,15 +177,13 @@ def _carve(points, o, d, sensor, params: EvidenceParams) -> dict:
     depth = (torch.arange(n_t, device=dev, dtype=dt) + 0.5) / n_t * h.unsqueeze(-1)  # (B, R, T)
     if sensor is None or k == 0:
         return {"carved": torch.zeros(depth.shape, dtype=torch.bool, device=dev), "half_chord": h}
-    s_np = sensor.detach().cpu().double().numpy().reshape(b, 3)
-    known_np = np.all(np.isfinite(s_np), axis=1)
-    if not known_np.any():
-        return {"carved": torch.zeros(depth.shape, dtype=torch.bool, device=dev), "half_chord": h}
-    s_safe = np.where(known_np[:, None], s_np, 2.0)  # a place outside the sphere: its rows are masked out
-    ft = torch.from_numpy(stereo_frames(s_safe)).to(dev, dt).transpose(1, 2)  # (B, 3, 3)
-    extent = torch.tensor([sensor_extent(s) for s in s_safe], dtype=dt, device=dev)
-    known = torch.from_numpy(known_np).to(dev)
-    s = torch.from_numpy(s_safe).to(dev, dt)
+    # all in torch (no host round trip, no Python float per scan): torch.compile traces it once for every batch
+    s64 = sensor.detach().to(dev, _wide(dev)).reshape(b, 3)
+    known = torch.isfinite(s64).all(-1)  # (B,) an unknown sensor's rows carve nothing
+    s_safe = torch.where(known[:, None], s64, 2.0)  # a place outside the sphere: its rows are masked out
+    ft = stereo_frames_torch(s_safe).to(dt).transpose(1, 2)  # (B, 3, 3)
+    extent = sensor_extent_torch(s_safe).to(dt)  # (B,)
+    s = s_safe.to(dt)
     rel = points - s[:, None]
     rho = rel.norm(dim=-1)  # (B, K)
     cell, inside = _cells(_stereo_of(torch.bmm(rel, ft), rho), extent[:, None], g)
@@ -160,14 +197,25 @@ def _carve(points, o, d, sensor, params: EvidenceParams) -> dict:
     a_ = torch.bmm(os_, ft)
     bv = torch.bmm(d.contiguous(), ft)
     two_t = 2.0 * depth  # (B, R, T)
-    comp = a_.unsqueeze(2) + two_t.unsqueeze(-1) * bv.unsqueeze(2)  # (B, R, T, 3)
     dist = (
         ((os_ * os_).sum(-1).unsqueeze(-1) + two_t * (2.0 * (os_ * d).sum(-1).unsqueeze(-1) + two_t))
         .clamp(min=0)
         .sqrt()
     )
-    cy, iny = _cells(_stereo_of(comp, dist), extent[:, None, None], g)
-    key = (torch.arange(b, device=dev)[:, None, None] * g + cy[..., 0].clamp(min=0)) * g + cy[..., 1].clamp(min=0)
+    # the samples' cells, one (B, R, T) component at a time (the arithmetic of _stereo_of and _cells, without
+    # their (B, R, T, 3) and (B, R, T, 2) copies): 4 million samples at batch 32, the evidence's largest tensors
+    cu, cv, cw = (a_[..., c].unsqueeze(-1) + two_t * bv[..., c].unsqueeze(-1) for c in range(3))
+    den = dist + cw
+    ok = den > 1e-12 * dist.clamp(min=1e-30)
+    den = torch.where(ok, den, 1.0)
+    e = extent[:, None, None]
+    scale = g / (2.0 * e)
+    qu = (torch.where(ok, cu / den, float("inf")) + e) * scale
+    qv = (torch.where(ok, cv / den, float("inf")) + e) * scale
+    iny = (qu >= 0) & (qu < g) & (qv >= 0) & (qv < g)
+    # a cell inside the grid: q >= 0, so truncation is the floor; outside: cell (0, 0), masked by iny
+    cx, cy = torch.where(iny, qu, 0.0).int(), torch.where(iny, qv, 0.0).int()
+    key = (torch.arange(b, device=dev, dtype=torch.int32)[:, None, None] * g + cx) * g + cy
     carved = iny & (dist < limit[key] - params.margin) & known[:, None, None]
     return {"carved": carved, "half_chord": h}
 
@@ -187,11 +235,16 @@ def free_space_decode(depth: torch.Tensor, keep: torch.Tensor, carved: torch.Ten
     n_t = carved.shape[-1]
     h = half_chord.to(depth.dtype)
     dd = torch.minimum(depth.clamp(min=0.0), h)
-    frac = torch.where(h > 0, dd / torch.where(h > 0, h, torch.ones_like(h)), torch.zeros_like(h))
+    frac = torch.where(h > 0, dd / torch.where(h > 0, h, 1.0), 0.0)
     j = torch.floor(frac * n_t).long().clamp(max=n_t - 1)
-    idx = torch.where(~carved, torch.arange(n_t, device=depth.device), torch.full_like(carved, n_t, dtype=torch.long))
-    nxt = torch.flip(torch.cummin(torch.flip(idx, [-1]), -1).values, [-1])
-    i = nxt.gather(-1, j.unsqueeze(-1)).squeeze(-1)
     inside = carved.gather(-1, j.unsqueeze(-1)).squeeze(-1)
-    new_depth = torch.where(inside, i.to(dd.dtype) * h / n_t, dd)
-    return new_depth, keep & ~(inside & (i >= n_t))
+    # only the rays whose surface lies in a carved bin move: the first bin at or after j that is not carved (n_t:
+    # none, the ray is dropped), by one masked minimum over their T bins (over every ray, a reversed running
+    # minimum (flip, cummin, flip, gather) cost as much as the default model's whole forward pass)
+    c, ji = carved[inside], j[inside]  # (A, T), (A,)
+    bins = torch.arange(n_t, device=depth.device)
+    i = torch.where(~c & (bins >= ji.unsqueeze(-1)), bins, n_t).amin(-1)
+    new_depth, new_keep = dd.clone(), keep.clone()
+    new_depth[inside] = i.to(dd.dtype) * h[inside] / n_t
+    new_keep[inside] = keep[inside] & (i < n_t)
+    return new_depth, new_keep
