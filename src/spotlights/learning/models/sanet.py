@@ -144,31 +144,28 @@ class SANet(CompletionModel):
         dirs = self.directions if directions is None else directions
         if dirs is None:
             raise ValueError("clipping to a box needs each scan's ray directions (B, N*M, 3)")
-        # only the kept rays (b, r): a dropped ray's depth and keep come back as they were (a third of the work)
-        b, r = torch.nonzero(keep, as_tuple=True)
-        o = self.origins.double()[r]
-        u = dirs.double().expand(depths.shape[0], -1, -1)[b, r]
-        h = box_half.double().reshape(-1, 3)[b]
+        o = self.origins.double()
+        u = dirs.double()  # (R, 3) or (B, R, 3): broadcast against the boxes (B, 1, 3)
+        h = box_half.double().reshape(-1, 1, 3)
         zero = u == 0
-        safe = torch.where(zero, torch.ones_like(u), u)
+        axial = bool(zero.any())  # a ray parallel to a slab (rare): that slab holds it everywhere or nowhere
+        safe = torch.where(zero, torch.ones_like(u), u) if axial else u
         t1, t2 = (-h - o) / safe, (h - o) / safe
-        slab_in = o.abs() <= h
-        inf = torch.full_like(u, float("inf"))
-        lo = torch.where(zero, torch.where(slab_in, -inf, inf), torch.minimum(t1, t2))
-        hi = torch.where(zero, torch.where(slab_in, inf, -inf), torch.maximum(t1, t2))
+        lo, hi = torch.minimum(t1, t2), torch.maximum(t1, t2)
+        if axial:
+            slab_in = o.abs() <= h
+            inf = torch.full_like(lo, float("inf"))
+            lo = torch.where(zero, torch.where(slab_in, -inf, inf), lo)
+            hi = torch.where(zero, torch.where(slab_in, inf, -inf), hi)
         t_in, t_out = lo.amax(-1), hi.amin(-1)
         meets = (t_in <= t_out) & (t_out > 0)
-        given = depths.double()[b, r]
-        t = 2.0 * given.clamp(min=0.0)
-        was_in = meets & (t >= t_in) & (t <= t_out)
+        t = 2.0 * depths.double().clamp(min=0.0)
+        was_in = keep & meets & (t >= t_in) & (t <= t_out)
         n_keep = keep.sum(-1)
-        n_in = torch.zeros(depths.shape[0], dtype=torch.int64, device=depths.device).index_add_(0, b, was_in.long())
-        inside = torch.where(n_keep > 0, n_in / n_keep.clamp(min=1), torch.ones_like(n_keep, dtype=t.dtype))
+        inside = torch.where(n_keep > 0, was_in.sum(-1) / n_keep.clamp(min=1), torch.ones_like(n_keep, dtype=t.dtype))
         t = torch.minimum(torch.maximum(t, t_in.clamp(min=0.0)), t_out)
-        out, kept = depths.clone(), torch.zeros_like(keep)
-        out[b, r] = torch.where(meets, t / 2.0, given).to(depths.dtype)
-        kept[b, r] = meets
-        return out, kept, inside.float()
+        keep = keep & meets
+        return torch.where(keep, t / 2.0, depths.double()).to(depths.dtype), keep, inside.float()
 
     def forward(self, partial: torch.Tensor, classes: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         d = self.decoder(self.encode(partial, classes))
