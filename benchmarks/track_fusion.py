@@ -5,7 +5,7 @@ For one dataset (default: the shared nuScenes scene-0523, 40 keyframes) and one 
 1. load the model (not timed);
 2. **single frames** (``--fuse none``, today's path): read every frame, crop and complete every vehicle;
 3. **fused**: build the track plan (read every frame, crop each tracked vehicle, refine the boxes with
-   ``--refine-boxes``), then per frame read it, fuse each vehicle's window and complete it;
+   ``--refine-boxes``), then per frame take it from the plan, fuse each vehicle's window and complete it;
 4. on the observations of Table 2's classes (car, truck, trailer) completed by both: consistency between
    consecutive completions of a track at equal density (voxel 0.1, unit frame: ``real evaluate``'s headline)
    and fidelity to each frame's own points (unit frame), single vs fused.
@@ -19,6 +19,16 @@ Usage::
 
     OMP_NUM_THREADS=1 python benchmarks/track_fusion.py --fuse past:5 --refine-boxes --threads 1 \\
         --json docs/results/real/track_fusion_nuscenes.json
+
+**The command side by side** (``--against OTHER_SRC``): the whole ``real complete SOURCE --fuse ... --no-pictures``
+(:func:`~spotlights.experiments.frame_completion.complete_frames`, every file written), timed after the model
+loads, in a fresh process per run, alternating this checkout's ``src`` and ``OTHER_SRC`` (e.g. main's) for each
+torch thread count of ``--speed-threads``, ``--repeats`` times: CPU seconds per frame of the process, wall
+frames per second, the load average, and the ratios of this code to the other measured side by side (on a
+shared machine the honest number)::
+
+    nice -n 10 python benchmarks/track_fusion.py --against /work/main/src --refine-boxes --precision bf16 \\
+        --speed-threads 1 2 --json docs/results/real/track_fusion_speed_side_by_side.json
 """
 
 from __future__ import annotations
@@ -27,6 +37,9 @@ import argparse
 import collections
 import json
 import os
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -81,7 +94,15 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     ap.add_argument("--precision", default="fp32", help="model forward: fp32 (default) or bf16")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--against", default=None, help="another checkout's src folder: time the command side by side")
+    ap.add_argument("--speed-threads", type=int, nargs="+", default=[1, 2], help="torch thread counts (--against)")
+    ap.add_argument("--repeats", type=int, default=1, help="side-by-side rounds (--against)")
+    ap.add_argument("--command-run", action="store_true", help=argparse.SUPPRESS)  # one timed run (child)
     args = ap.parse_args(argv)
+    if args.against:
+        return side_by_side(args)
+    if args.command_run:
+        return command_run(args)
     import torch
 
     torch.set_num_threads(args.threads)
@@ -120,7 +141,8 @@ def main(argv=None) -> int:
         plan = TrackPlan(parse_window(args.fuse), config, refine=args.refine_boxes).build(reader, keys)
         n = 0
         for key in keys:
-            frame = reader.load(key)
+            frame = plan.take(key)  # the frame the plan read (real complete reads each frame once)
+            frame = reader.load(key) if frame is None else frame
             boxes, extra = plan.frame_inputs(key, frame.boxes)
             result = complete_scene(frame.points, boxes, completer, config, extra_points=extra)
             plan.record(key, result)
@@ -186,6 +208,81 @@ def main(argv=None) -> int:
             )
             for r in sorted(moved, key=lambda r: -r["moved_m"])[:10]
         ],
+    )
+    text = json.dumps(report, indent=2, default=float)
+    print(text)
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(text + "\n", encoding="utf-8")
+    return 0
+
+
+def command_run(args) -> int:
+    """One timed ``real complete`` (child of :func:`side_by_side`): prints a JSON line."""
+    import torch
+
+    from spotlights.experiments.frame_completion import FramesSettings, complete_frames
+
+    torch.set_num_threads(args.threads)
+    with tempfile.TemporaryDirectory() as tmp:
+        s = FramesSettings(
+            source=[args.source],
+            format=args.format,
+            checkpoint=args.checkpoint,
+            precision=args.precision,
+            out=str(Path(tmp) / "out"),
+            no_pictures=True,
+            fuse=args.fuse,
+            refine_boxes=args.refine_boxes,
+            quiet=True,
+        )
+        completer = s.load_completer()  # not timed
+        w0, c0 = time.perf_counter(), time.process_time()
+        summ = complete_frames(s, completer=completer)
+        wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+    n = summ["n_frames"]
+    row = dict(n_frames=n, cpu_s=cpu, wall_s=wall, cpu_ms_per_frame=1e3 * cpu / n, fps_wall=n / wall)
+    print(json.dumps(row | {"torch_threads": torch.get_num_threads(), "load_average": os.getloadavg()}))
+    return 0
+
+
+def side_by_side(args) -> int:
+    """Alternate runs of this checkout's src and ``args.against`` (fresh processes), per torch thread count."""
+    here = str(Path(__file__).resolve().parents[1] / "src")
+    codes = {"other": str(Path(args.against).resolve()), "this": here}
+    runs = []
+    for rep in range(args.repeats):
+        for threads in args.speed_threads:
+            for name, src in codes.items():
+                env = dict(os.environ, PYTHONPATH=src, OMP_NUM_THREADS=str(threads))
+                cmd = [sys.executable, __file__, "--command-run", "--threads", str(threads)]
+                cmd += ["--source", args.source, "--format", args.format, "--checkpoint", args.checkpoint]
+                cmd += ["--fuse", args.fuse, "--precision", args.precision] + (["--refine-boxes"] * args.refine_boxes)
+                out = subprocess.run(cmd, env=env, capture_output=True, text=True, check=True).stdout
+                row = json.loads(out.strip().splitlines()[-1]) | dict(code=name, src=src, repeat=rep)
+                print(json.dumps(row), flush=True)
+                runs.append(row)
+    table = {}
+    for threads in args.speed_threads:
+        pick = {n: [r for r in runs if r["code"] == n and r["torch_threads"] == threads] for n in codes}
+        med = {
+            n: {k: float(np.median([r[k] for r in rs])) for k in ("cpu_ms_per_frame", "fps_wall")}
+            for n, rs in pick.items()
+        }
+        pairs = list(zip(pick["other"], pick["this"]))  # run back to back: the ratio of each pair
+        table[f"threads_{threads}"] = dict(
+            median=med,
+            cpu_ratio_this_over_other=[b["cpu_s"] / a["cpu_s"] for a, b in pairs],
+            wall_ratio_this_over_other=[b["wall_s"] / a["wall_s"] for a, b in pairs],
+        )
+    report = dict(
+        command=f"real complete {args.source} --format {args.format} --fuse {args.fuse}"
+        + (" --refine-boxes" if args.refine_boxes else "")
+        + f" --no-pictures --precision {args.precision} (after the model loads)",
+        cpu_count=os.cpu_count(),
+        codes=codes,
+        runs=runs,
+        summary=table,
     )
     text = json.dumps(report, indent=2, default=float)
     print(text)

@@ -295,8 +295,11 @@ class _LazyNormals:
         self.done = np.zeros(len(target), bool)
 
     def __call__(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        todo = np.unique(rows[~self.done[rows]])
-        if len(todo) and self.k >= 4:
+        todo = rows[~self.done[rows]]
+        if len(todo) == 0:  # every row known (most iterations): no np.unique of nothing
+            return self.normals[rows], self.ok[rows], self.flat[rows]
+        todo = np.unique(todo)
+        if self.k >= 4:
             _, nb = self.tree.query(self.target[todo], k=self.k)
             q = self.target[nb] - self.target[nb].mean(axis=1, keepdims=True)
             w, v = np.linalg.eigh(np.einsum("mki,mkj->mij", q, q) / self.k)  # ascending
@@ -308,6 +311,9 @@ class _LazyNormals:
             self.normals[todo] = normal[:, :2] / np.maximum(horiz, 1e-12)[:, None]
         self.done[todo] = True
         return self.normals[rows], self.ok[rows], self.flat[rows]
+
+
+_EYE3 = np.eye(3)
 
 
 def _above(r: float) -> float:
@@ -383,30 +389,38 @@ def register_xy_yaw(
             its += 1
             moved = _moved(s_xy, src[:, 2], t, yaw)
             dist, j = tree.query(moved, k=1, distance_upper_bound=_above(reach))  # farther pairs are dropped anyway
-            keep = dist <= reach
-            if keep.sum() < 3:
+            sel = np.flatnonzero(dist <= reach)
+            if len(sel) < 3:
                 break
-            p, q, jj = moved[keep, :2], tgt[j[keep], :2], j[keep]
-            perp = np.column_stack((t[1] - p[:, 1], p[:, 0] - t[0]))  # d p / d yaw
+            jj = j[sel]
             nrm, pl, flat = normals_of(jj)
-            if (~flat).sum() >= 3:
-                p, q, jj, perp, nrm, pl = p[~flat], q[~flat], jj[~flat], perp[~flat], nrm[~flat], pl[~flat]
-            rows_j, rows_r = [], []
-            if pl.any():
-                nrm = nrm[pl]
-                rows_j.append(np.column_stack((nrm, np.einsum("ij,ij->i", nrm, perp[pl]))))
-                rows_r.append(np.sum(nrm * (p[pl] - q[pl]), axis=1))
-            if (~pl).any():
-                pp, dd, pe = p[~pl], (p - q)[~pl], perp[~pl]
-                ones, zeros = np.ones(len(pp)), np.zeros(len(pp))
-                rows_j.append(
-                    np.concatenate((np.column_stack((ones, zeros, pe[:, 0])), np.column_stack((zeros, ones, pe[:, 1]))))
-                )
-                rows_r.append(np.concatenate((dd[:, 0], dd[:, 1])))
-            jac, res = np.concatenate(rows_j), np.concatenate(rows_r)
+            if len(flat) - np.count_nonzero(flat) >= 3 and flat.any():
+                keep = ~flat
+                sel, jj, nrm, pl = sel[keep], jj[keep], nrm[keep], pl[keep]
+            # the pairs' rows, filled in place (the same numbers, in the same order, as stacking them)
+            p, q = moved[sel, :2], tgt[jj, :2]
+            perp = np.empty((len(sel), 2))  # d p / d yaw
+            np.subtract(t[1], p[:, 1], out=perp[:, 0])
+            np.subtract(p[:, 0], t[0], out=perp[:, 1])
+            n_pl = int(np.count_nonzero(pl))
+            n_pp = len(pl) - n_pl
+            jac = np.empty((n_pl + 2 * n_pp, 3))
+            res = np.empty(n_pl + 2 * n_pp)
+            if n_pl:
+                nrm = nrm[pl] if n_pp else nrm
+                jac[:n_pl, :2] = nrm
+                jac[:n_pl, 2] = np.einsum("ij,ij->i", nrm, perp[pl] if n_pp else perp)
+                res[:n_pl] = np.sum(nrm * ((p[pl] - q[pl]) if n_pp else (p - q)), axis=1)
+            if n_pp:
+                pp = ~pl if n_pl else slice(None)
+                dd, pe = (p - q)[pp], perp[pp]
+                a0, a1 = n_pl, n_pl + n_pp
+                jac[a0:a1, 0], jac[a0:a1, 1], jac[a0:a1, 2] = 1.0, 0.0, pe[:, 0]
+                jac[a1:, 0], jac[a1:, 1], jac[a1:, 2] = 0.0, 1.0, pe[:, 1]
+                res[a0:a1], res[a1:] = dd[:, 0], dd[:, 1]
             w = np.where(np.abs(res) <= huber, 1.0, huber / np.maximum(np.abs(res), 1e-12))
             lam = prior * float(w.sum())
-            h = jac.T @ (jac * w[:, None]) + lam * np.eye(3)
+            h = jac.T @ (jac * w[:, None]) + lam * _EYE3
             g = jac.T @ (w * res) + lam * np.array([t[0], t[1], yaw])
             try:
                 step = -np.linalg.solve(h, g)

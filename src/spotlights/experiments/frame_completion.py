@@ -306,7 +306,8 @@ class _FrameRun:
     def complete(self, key: tuple, stem: Path) -> dict | None:
         """Complete frame ``key`` and write its files; its summary, or None for a scan with too few points."""
         s, config = self.s, self.config
-        frame = self.reader.load(key)
+        frame = None if self.tracks is None else self.tracks.take(key)  # read once: the track plan kept it
+        frame = self.reader.load(key) if frame is None else frame
         info = dict(
             sequence=frame.sequence,
             frame_id=frame.frame_id,

@@ -21,6 +21,8 @@ same for both kinds: N*M depths in a fixed ray order.
 
 from __future__ import annotations
 
+import hashlib
+from collections import OrderedDict
 from collections.abc import Sequence
 
 import torch
@@ -29,6 +31,13 @@ from ...data.vehicle_classes import canonical_class, class_rows
 from ..losses import depth_l1
 from ..rays import rig_rays, rig_spec
 from .base import CLIP_DEFAULT, MLP, CompletionModel, PCNEncoder
+
+
+def _digest(x: torch.Tensor) -> bytes:
+    """16 bytes of BLAKE2b of a CPU tensor's dtype, shape and values."""
+    h = hashlib.blake2b(f"{x.dtype} {tuple(x.shape)}".encode(), digest_size=16)
+    h.update(x.detach().contiguous().numpy().tobytes())
+    return h.digest()
 
 
 class SANet(CompletionModel):
@@ -144,17 +153,14 @@ class SANet(CompletionModel):
         dirs = self.directions if directions is None else directions
         if dirs is None:
             raise ValueError("clipping to a box needs each scan's ray directions (B, N*M, 3)")
-        o = self.origins.double()
-        u = dirs.double().expand(depths.shape[0], -1, -1)
         h = box_half.double().reshape(-1, 1, 3)
-        zero = u == 0
-        safe = torch.where(zero, torch.ones_like(u), u)
-        t1, t2 = (-h - o) / safe, (h - o) / safe
-        slab_in = (o.abs() <= h).expand_as(u)
-        inf = torch.full_like(u, float("inf"))
-        lo = torch.where(zero, torch.where(slab_in, -inf, inf), torch.minimum(t1, t2))
-        hi = torch.where(zero, torch.where(slab_in, inf, -inf), torch.maximum(t1, t2))
-        t_in, t_out = lo.amax(-1), hi.amin(-1)
+        if dirs.device.type == "cpu":  # each box's interval once per box size and rays (a track keeps both)
+            rig = _digest(self.origins)
+            per_box = dirs.dim() == 3 and len(dirs) > 1
+            rows = [self._interval(rig, dirs[b] if per_box else dirs.reshape(-1, 3), h[b]) for b in range(len(h))]
+            t_in, t_out = torch.stack([r[0] for r in rows]), torch.stack([r[1] for r in rows])
+        else:
+            t_in, t_out = self._ray_box_interval(dirs.double(), h)
         meets = (t_in <= t_out) & (t_out > 0)
         t = 2.0 * depths.double().clamp(min=0.0)
         was_in = keep & meets & (t >= t_in) & (t <= t_out)
@@ -163,6 +169,39 @@ class SANet(CompletionModel):
         t = torch.minimum(torch.maximum(t, t_in.clamp(min=0.0)), t_out)
         keep = keep & meets
         return torch.where(keep, t / 2.0, depths.double()).to(depths.dtype), keep, inside.float()
+
+    #: Ray-box intervals kept by :meth:`_interval` (least recently used dropped first; 256 kB each at 16,384 rays).
+    INTERVAL_CACHE_SIZE = 64
+
+    def _ray_box_interval(self, u: torch.Tensor, h: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Slab method: each ray ``o + t u`` (origins (R, 3), directions ``u`` (R, 3) or (B, R, 3), float64) meets
+        the box of half-extents ``h`` ((B, 1, 3) or (1, 3), float64) on ``t in [t_in, t_out]`` ((B, R) or (R,))."""
+        o = self.origins.double()
+        zero = u == 0
+        axial = bool(zero.any())  # a ray parallel to a slab (rare): that slab holds it everywhere or nowhere
+        safe = torch.where(zero, torch.ones_like(u), u) if axial else u
+        t1, t2 = (-h - o) / safe, (h - o) / safe
+        lo, hi = torch.minimum(t1, t2), torch.maximum(t1, t2)
+        if axial:
+            slab_in = o.abs() <= h
+            inf = torch.full_like(lo, float("inf"))
+            lo = torch.where(zero, torch.where(slab_in, -inf, inf), lo)
+            hi = torch.where(zero, torch.where(slab_in, inf, -inf), hi)
+        return lo.amax(-1), hi.amin(-1)
+
+    def _interval(self, rig: bytes, u: torch.Tensor, h: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`_ray_box_interval` of one box (rays ``u`` (R, 3) float32, half-extents ``h`` (1, 3) float64, CPU),
+        kept by the bytes of the box, the rays and the rays' origins (``rig``: their digest): a tracked vehicle
+        keeps its size, so its rays and box, frame after frame. The same numbers as computing them again."""
+        cache = self.__dict__.setdefault("_intervals", OrderedDict())
+        key = (rig, h.numpy().tobytes(), _digest(u))
+        hit = cache.pop(key, None)
+        if hit is None:
+            hit = self._ray_box_interval(u.double(), h)
+        cache[key] = hit  # the most recently used last
+        while len(cache) > self.INTERVAL_CACHE_SIZE:
+            cache.popitem(last=False)
+        return hit
 
     def forward(self, partial: torch.Tensor, classes: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         d = self.decoder(self.encode(partial, classes))
