@@ -78,6 +78,16 @@ def consistency_of(rows) -> dict:
     )
 
 
+def emit(report: dict, path: str | None) -> int:
+    """Print ``report`` as JSON and, with ``path``, write it there too (its folder made); returns 0."""
+    text = json.dumps(report, indent=2, default=float)
+    print(text)
+    if path:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        Path(path).write_text(text + "\n", encoding="utf-8")
+    return 0
+
+
 def timed(fn):
     w0, c0 = time.perf_counter(), time.process_time()
     out = fn()
@@ -209,12 +219,7 @@ def main(argv=None) -> int:
             for r in sorted(moved, key=lambda r: -r["moved_m"])[:10]
         ],
     )
-    text = json.dumps(report, indent=2, default=float)
-    print(text)
-    if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(text + "\n", encoding="utf-8")
-    return 0
+    return emit(report, args.json)
 
 
 def command_run(args) -> int:
@@ -284,12 +289,7 @@ def side_by_side(args) -> int:
         runs=runs,
         summary=table,
     )
-    text = json.dumps(report, indent=2, default=float)
-    print(text)
-    if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(text + "\n", encoding="utf-8")
-    return 0
+    return emit(report, args.json)
 
 
 if __name__ == "__main__":
