@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
+from typing import Any
 
 from ..errors import ParameterError
 from ..options import (  # noqa: F401 - the argparse types, importable from here by every command module
@@ -17,7 +19,7 @@ from ..options import (  # noqa: F401 - the argparse types, importable from here
 from ..utils import check_suffix, settings_from_namespace  # noqa: F401 - check_suffix: used by the command modules
 
 
-def argparse_type(parse):
+def argparse_type(parse: Callable[[str], Any]) -> Callable[[str], Any]:
     """``parse`` (text -> value, raising :class:`~spotlights.errors.ParameterError`) as an argparse type: its
     message becomes the usage error ``argument --OPTION: MESSAGE`` (exit code 2)."""
 

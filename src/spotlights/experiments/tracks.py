@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..data.real.base import Frame
 from ..data.real.extract import points_in_box
 from ..data.tracks import (
     MAX_GAP_S,
@@ -192,7 +193,7 @@ class TrackPlan:
 
     # --- per frame ----------------------------------------------------------------------------
 
-    def take(self, key):
+    def take(self, key: tuple) -> Frame | None:
         """The frame ``key`` as :meth:`build` read it (its reader's ``Frame``), handed out once: the frame loop
         reads each frame once, not twice. None when it was not kept (beyond :data:`KEEP_POINTS`) or was taken."""
         return self.kept.pop(key, None)
