@@ -99,7 +99,9 @@ def _rows(report: dict) -> dict:
     out = {}
     for res in report["results"]:
         for row in res["rows"]:
-            label = Path(res["checkpoint"]).name + (f" ({row['variant']})" if row["variant"] else "")
+            ck = Path(res["checkpoint"])  # a run's best.pt / last.pt named with its run folder: two runs differ
+            name = f"{ck.parent.name}/{ck.name}" if ck.stem in ("best", "last") else ck.name
+            label = name + (f" ({row['variant']})" if row["variant"] else "")
             s = row["summary"]
             out[label] = {
                 "model": res["model"],
