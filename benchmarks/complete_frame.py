@@ -97,14 +97,15 @@ def main() -> None:
     plain, heading = SceneConfig(), SceneConfig(heading_check=True)
     r_complete, result = timed(lambda: complete_scene(points, boxes, completer, plain), args.repeats, threads)
     r_heading, _ = timed(lambda: complete_scene(points, boxes, completer, heading), args.repeats, threads)
-    tmp = Path(tempfile.mkdtemp()) / "scene.ply"
-    r_write, _ = timed(lambda: write_scene(result, tmp), args.repeats)
+    with tempfile.TemporaryDirectory() as scratch:  # the timed PLY writes, removed afterwards
+        tmp = Path(scratch) / "scene.ply"
+        r_write, _ = timed(lambda: write_scene(result, tmp), args.repeats)
 
-    def end_to_end():
-        pts, bx = read()
-        return write_scene(complete_scene(pts, bx, completer, plain), tmp)
+        def end_to_end():
+            pts, bx = read()
+            return write_scene(complete_scene(pts, bx, completer, plain), tmp)
 
-    r_all, _ = timed(end_to_end, args.repeats, threads)
+        r_all, _ = timed(end_to_end, args.repeats, threads)
     inside = all(
         np.linalg.norm(o.completion - o.used_box.center, axis=1).max() <= o.used_box.radius * (1 + 1e-6)
         for o in result.completed
