@@ -130,6 +130,8 @@ def test_one_scan_is_unchanged_by_the_track_options(tmp_path, ckpt):
         ("scan", ["--rerun", "rec.rrd"], "--rerun needs a multi-frame scene"),
         ("scene", ["--out", "scene.ply"], "is a multi-frame scene, written to a folder: give --out DIR"),
         ("scene", ["--boxes", "b.json"], "--boxes/--calib/--box/--center/--size/--yaw apply to one scan"),
+        ("scene", ["--yaw", "0"], "--boxes/--calib/--box/--center/--size/--yaw apply to one scan"),  # 0 too
+        ("scan", ["--yaw", "0.3"], "--yaw goes with --center/--size (a box file gives its own heading)"),
         ("scene", ["--show", "x.png"], "--per-object/--summary/--show/--html apply to one scan"),
         ("scene", ["--up", "y"], "--up/--forward apply to one scan"),
         ("scene", ["--refine-boxes"], "--refine-boxes needs --fuse"),

@@ -233,7 +233,7 @@ def register(sub) -> None:
         "--size", type=float, nargs=3, default=None, metavar=("L", "W", "H"), help="its length, width, height (metres)"
     )
     g.add_argument(
-        "--yaw", type=float, default=0.0, metavar="RAD", help="its heading in radians about the up axis (default 0)"
+        "--yaw", type=float, default=None, metavar="RAD", help="its heading in radians about the up axis (default 0)"
     )
     add_completion_arguments(p, single=True)
     p.add_argument("--up", default="z", help="the scan's up axis (x, y, z, -x, ...); PCN-style scans are y (default z)")

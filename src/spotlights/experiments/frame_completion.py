@@ -228,7 +228,7 @@ class FramesSettings(ReaderOptions, CompletionOptions):
                 "(DIR/[SEQUENCE/]FRAME.ply per frame, summary.json; with --fuse tracks/ and tracks.json)"
             )
         for name, given in (
-            ("--boxes/--calib/--box/--center/--size/--yaw", (s.boxes, s.calib, s.box, s.center, s.size, s.yaw or None)),
+            ("--boxes/--calib/--box/--center/--size/--yaw", (s.boxes, s.calib, s.box, s.center, s.size, s.yaw)),
             ("--crop/--no-crop", (s.crop, s.no_crop or None)),
             ("--up/--forward", (None if s.up == "z" else s.up, None if s.forward == "x" else s.forward)),
             ("--per-object/--summary/--show/--html", (s.per_object, s.summary, s.show, s.html)),

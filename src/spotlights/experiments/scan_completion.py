@@ -155,7 +155,8 @@ class ScanSettings(CompletionOptions):
     input : the scan file (KITTI ``.bin``, nuScenes ``.pcd.bin``, AV2 ``.feather``, PLY, PCD, NPY, ...).
     out : the scene (``.ply`` with ``source`` and ``object`` fields; other suffixes: completion points only).
     boxes, calib : every box of the frame (JSON, or a KITTI ``label_2`` file with its calib file); or
-    box : one object's box file (JSON); or center, size, yaw : one object's box given inline (metres, radians).
+    box : one object's box file (JSON); or center, size, yaw : one object's box given inline (metres, radians;
+    yaw None: 0, and refused without center/size).
     crop : the crop margin's older name (same as ``margin``); no_crop : one object, every scan point used.
     up, forward : the scan's axes; per_object : folder of ``object_<id>.ply``; summary : JSON file;
     show : PNG picture; html : interactive page; quiet : no summary lines.
@@ -172,7 +173,7 @@ class ScanSettings(CompletionOptions):
     box: str | None = None
     center: list | None = None
     size: list | None = None
-    yaw: float = 0.0
+    yaw: float | None = None
     crop: float | None = None
     no_crop: bool = False
     up: str = "z"
@@ -228,6 +229,8 @@ class ScanSettings(CompletionOptions):
             raise ParameterError("give the box either as --box BOX.json or as --center/--size/--yaw, not both")
         if self.calib is not None and self.boxes is None:
             raise ParameterError("--calib goes with a KITTI label_2 file in --boxes")
+        if self.yaw is not None and self.center is None:
+            raise ParameterError("--yaw goes with --center/--size (a box file gives its own heading)")
         if self.single and (self.center is None) != (self.size is None) and self.box is None:
             raise ParameterError("one object's box needs both --center X Y Z and --size L W H")
         if self.single and self.box is None and self.center is None:
@@ -276,7 +279,7 @@ class ScanSettings(CompletionOptions):
             box = box_from_dict(read_json(self.box), self.box, axes=axes)
         else:
             box = box_from_dict(
-                {"center": self.center, "size": self.size, "yaw": self.yaw}, "--center/--size", axes=axes
+                {"center": self.center, "size": self.size, "yaw": self.yaw or 0.0}, "--center/--size", axes=axes
             )
         if not box.is_valid():
             raise ParameterError(f"{self.box_source}: box size must be positive, got {box.size.tolist()}")
