@@ -118,3 +118,17 @@ def test_readme_table2_fidelity():
         fid.append(f"{models['sanet-hit-dense-f32']['average']['fidelity']:.3f}")
         baselines += [models[b]["average"]["fidelity"] for b in ("atlasnet", "pcn", "foldingnet", "topnet")]
     _says("README.md", f"(fidelity {fid[0]} / {fid[1]}; baselines {min(baselines):.3f} or more)")
+
+
+def test_suv_hold_out_of_the_ray_local_model():
+    gen = _json("fair/i26/generalisation_suv_i26.json")
+    (local,) = [k for k in gen["rows"] if k.startswith("sanet-local-nosuv")]
+    row, ratio = gen["rows"][local], gen["ratio_held_out_over_in_distribution"][local]
+    _says(
+        "docs/learning.md",
+        f"| ray-local, trained without SUVs (p(hit) >= 0.5) | {row['in_distribution']['accuracy']:.4f} "
+        f"({row['in_distribution']['completeness']:.4f}) | {row['held_out']['accuracy']:.4f} "
+        f"({row['held_out']['completeness']:.4f}) | **{ratio['accuracy']:.2f}x** ({ratio['completeness']:.2f}x) |",
+    )
+    default = gen["rows"]["default (p(hit) >= 0.4)"]["held_out"]["accuracy"]
+    _says("docs/learning.md", f"the one of stop 23 ({default:.6f} on the SUVs)")
