@@ -201,7 +201,9 @@ class FramesSettings(ReaderOptions, CompletionOptions):
     fuse : the frames of a track fused into its input (``"none"``, ``"all"``, ``"past:K"``, ``"centered:K"`` or a
     :class:`~spotlights.data.tracks.WindowPolicy`); refine_boxes : register and correct the boxes (with fuse);
     max_gap : the longest time between two frames of one track, seconds; rerun : a ``.rrd`` file that also
-    receives every frame on a time line (:mod:`spotlights.viz.rerun_log`; None: none); quiet : no progress bar.
+    receives every frame on a time line (:mod:`spotlights.viz.rerun_log`; None: none); quiet : no progress bar;
+    track_worker : with fuse, refine the boxes and fuse the windows in a second process, a frame ahead of the
+    completion (:class:`~spotlights.experiments.tracks.TrackWorker`: the same outputs, two cores).
     """
 
     out: str
@@ -215,6 +217,7 @@ class FramesSettings(ReaderOptions, CompletionOptions):
     max_gap: float = MAX_GAP_S
     rerun: str | None = None
     quiet: bool = False
+    track_worker: bool = True
 
     @classmethod
     def of_scene(cls, s: ScanSettings) -> FramesSettings:
@@ -262,7 +265,12 @@ class FramesSettings(ReaderOptions, CompletionOptions):
         if self.window.fuses:
             if self.resume:
                 raise ParameterError("--resume does not apply with --fuse (a frame's input depends on its track)")
-            return TrackPlan(self.window, config, self.refine_boxes, self.max_gap).build(reader, keys)
+            plan = TrackPlan(self.window, config, self.refine_boxes, self.max_gap, worker=self.track_worker)
+            try:
+                return plan.build(reader, keys)
+            except BaseException:
+                plan.close()
+                raise
         if self.refine_boxes:
             raise ParameterError("--refine-boxes needs --fuse all, past:K or centered:K (the frames to register to)")
         return None
@@ -428,11 +436,15 @@ def complete_frames(
     if s.rerun is not None:
         check_rerun_path(s.rerun)
     tracks = s.track_plan(reader, keys, config)
-    completer = s.load_completer() if completer is None else completer
-    fallback = s.load_fallback()  # loaded beside the main model, before any output exists
-    # the folder is removed again if nothing could be written; the recording is written only when the run ends
-    with output_folder(s.out) as out, open_recording(s.rerun, TIME_UNIT_S.get(reader.format)) as rec:
-        return _run_frames(s, reader, keys, config, completer, out, tracks, say, warn, rec, fallback)
+    try:
+        completer = s.load_completer() if completer is None else completer
+        fallback = s.load_fallback()  # loaded beside the main model, before any output exists
+        # the folder is removed again if nothing could be written; the recording is written only when the run ends
+        with output_folder(s.out) as out, open_recording(s.rerun, TIME_UNIT_S.get(reader.format)) as rec:
+            return _run_frames(s, reader, keys, config, completer, out, tracks, say, warn, rec, fallback)
+    finally:
+        if tracks is not None:
+            tracks.close()  # the worker process, if any (done by now unless something failed)
 
 
 def complete_input(
