@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import dataclasses
 import json
 import os
 import subprocess
@@ -103,6 +104,12 @@ def main(argv=None) -> int:
     ap.add_argument("--refine-boxes", action="store_true")
     ap.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     ap.add_argument("--precision", default="fp32", help="model forward: fp32 (default) or bf16")
+    ap.add_argument(
+        "--track-worker",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="refine and fuse in a second process a frame ahead (FramesSettings.track_worker; default on)",
+    )
     ap.add_argument("--json", default=None)
     ap.add_argument("--against", default=None, help="another checkout's src folder: time the command side by side")
     ap.add_argument("--speed-threads", type=int, nargs="+", default=[1, 2], help="torch thread counts (--against)")
@@ -148,7 +155,8 @@ def main(argv=None) -> int:
         return n
 
     def fused():
-        plan = TrackPlan(parse_window(args.fuse), config, refine=args.refine_boxes).build(reader, keys)
+        plan = TrackPlan(parse_window(args.fuse), config, refine=args.refine_boxes, worker=args.track_worker)
+        plan.build(reader, keys)
         n = 0
         for key in keys:
             frame = plan.take(key)  # the frame the plan read (real complete reads each frame once)
@@ -158,6 +166,7 @@ def main(argv=None) -> int:
             plan.record(key, result)
             keep("fused", key, frame, result)
             n += len(result.completed)
+        plan.finish()  # the worker's final boxes and statuses (with a worker)
         return plan, n
 
     n_single, w_single, c_single = timed(single)
@@ -175,6 +184,7 @@ def main(argv=None) -> int:
         precision=args.precision,
         model=completer.model_name,
         torch_threads=args.threads,
+        track_worker=args.track_worker,
         cpu_count=os.cpu_count(),
         load_average=os.getloadavg(),
         n_frames=len(keys),
@@ -193,6 +203,7 @@ def main(argv=None) -> int:
             cpu_s=c_fused,
             fps_wall=len(keys) / w_fused,
             fps_cpu=len(keys) / c_fused,
+            cpu_s_worker=summ["timings"]["worker_cpu_s"],
             plan_timings=summ["timings"],
         ),
         quality_on_common_observations=dict(n_observations=len(both), classes=list(TABLE2), **quality),
@@ -229,6 +240,7 @@ def command_run(args) -> int:
     from spotlights.experiments.frame_completion import FramesSettings, complete_frames
 
     torch.set_num_threads(args.threads)
+    has_worker = "track_worker" in {f.name for f in dataclasses.fields(FramesSettings)}  # an older checkout: none
     with tempfile.TemporaryDirectory() as tmp:
         s = FramesSettings(
             source=[args.source],
@@ -240,45 +252,51 @@ def command_run(args) -> int:
             fuse=args.fuse,
             refine_boxes=args.refine_boxes,
             quiet=True,
+            **({"track_worker": args.track_worker} if has_worker else {}),
         )
         completer = s.load_completer()  # not timed
         w0, c0 = time.perf_counter(), time.process_time()
         summ = complete_frames(s, completer=completer)
         wall, cpu = time.perf_counter() - w0, time.process_time() - c0
     n = summ["n_frames"]
+    worker = summ.get("tracks", {}).get("timings", {}).get("worker_cpu_s", 0.0)
     row = dict(n_frames=n, cpu_s=cpu, wall_s=wall, cpu_ms_per_frame=1e3 * cpu / n, fps_wall=n / wall)
+    row |= dict(track_worker=has_worker and args.track_worker, worker_cpu_ms_per_frame=1e3 * worker / n)
     print(json.dumps(row | {"torch_threads": torch.get_num_threads(), "load_average": os.getloadavg()}))
     return 0
 
 
 def side_by_side(args) -> int:
-    """Alternate runs of this checkout's src and ``args.against`` (fresh processes), per torch thread count."""
+    """Alternate runs of ``args.against``, this checkout's src in one process (``this_serial``) and with its track
+    worker (``this``) (fresh processes), per torch thread count."""
     here = str(Path(__file__).resolve().parents[1] / "src")
-    codes = {"other": str(Path(args.against).resolve()), "this": here}
+    codes = {"other": str(Path(args.against).resolve()), "this_serial": here, "this": here}
     runs = []
     for rep in range(args.repeats):
         for threads in args.speed_threads:
             for name, src in codes.items():
                 env = dict(os.environ, PYTHONPATH=src, OMP_NUM_THREADS=str(threads))
+                load = os.getloadavg()
                 cmd = [sys.executable, __file__, "--command-run", "--threads", str(threads)]
+                cmd += ["--no-track-worker"] if name == "this_serial" else []
                 cmd += ["--source", args.source, "--format", args.format, "--checkpoint", args.checkpoint]
                 cmd += ["--fuse", args.fuse, "--precision", args.precision] + (["--refine-boxes"] * args.refine_boxes)
                 out = subprocess.run(cmd, env=env, capture_output=True, text=True, check=True).stdout
                 row = json.loads(out.strip().splitlines()[-1]) | dict(code=name, src=src, repeat=rep)
+                row["load_average_before"] = load
                 print(json.dumps(row), flush=True)
                 runs.append(row)
     table = {}
     for threads in args.speed_threads:
         pick = {n: [r for r in runs if r["code"] == n and r["torch_threads"] == threads] for n in codes}
-        med = {
-            n: {k: float(np.median([r[k] for r in rs])) for k in ("cpu_ms_per_frame", "fps_wall")}
-            for n, rs in pick.items()
-        }
-        pairs = list(zip(pick["other"], pick["this"]))  # run back to back: the ratio of each pair
+        keys = ("cpu_ms_per_frame", "worker_cpu_ms_per_frame", "fps_wall")
+        med = {n: {k: float(np.median([r.get(k, 0.0) for r in rs])) for k in keys} for n, rs in pick.items()}
+        pairs = list(zip(pick["other"], pick["this_serial"], pick["this"]))  # run back to back: each triple's ratios
         table[f"threads_{threads}"] = dict(
             median=med,
-            cpu_ratio_this_over_other=[b["cpu_s"] / a["cpu_s"] for a, b in pairs],
-            wall_ratio_this_over_other=[b["wall_s"] / a["wall_s"] for a, b in pairs],
+            cpu_ratio_this_serial_over_other=[b["cpu_s"] / a["cpu_s"] for a, b, _ in pairs],
+            wall_ratio_this_serial_over_other=[b["wall_s"] / a["wall_s"] for a, b, _ in pairs],
+            wall_ratio_this_over_other=[c["wall_s"] / a["wall_s"] for a, _, c in pairs],
         )
     report = dict(
         command=f"real complete {args.source} --format {args.format} --fuse {args.fuse}"

@@ -29,6 +29,7 @@ from __future__ import annotations
 import json
 import math
 import re
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from queue import Empty
@@ -124,8 +125,9 @@ class TrackPlan:
     @property
     def timings(self) -> dict[str, float]:
         """Wall seconds spent reading the frames, refining the boxes, fusing the windows (in the worker process
-        when there is one) and, with a worker, waiting for it."""
-        return {k: self.timer.seconds.get(k, 0.0) for k in ("read_s", "refine_s", "fuse_s", "wait_s")}
+        when there is one) and, with a worker, waiting for it and the CPU seconds of its work (``worker_cpu_s``)."""
+        names = ("read_s", "refine_s", "fuse_s", "wait_s", "worker_cpu_s")
+        return {k: self.timer.seconds.get(k, 0.0) for k in names}
 
     # --- building ---------------------------------------------------------------------------
 
@@ -198,8 +200,24 @@ class TrackPlan:
             tr.n_points = [0] * len(tr.frames)
             tr.n_fused = [0] * len(tr.frames)
         if self._worker is not None:
-            self._worker.send(self, list(keys))
+            self.start_worker(keys, self._worker)
         return self
+
+    def start_worker(self, keys, worker: TrackWorker | None = None) -> bool:
+        """Hand the built plan to a worker process (``worker``, else a new :class:`TrackWorker`) that refines and
+        fuses the frames ``keys`` in that order, ahead of :meth:`frame_inputs`; False where no process can be
+        started (the plan then works alone)."""
+        worker = TrackWorker.start() if worker is None else worker
+        if worker is None:
+            return False
+        self._worker = worker
+        worker.send(self, list(keys))
+        return True
+
+    @property
+    def worker_process(self):
+        """The worker's ``multiprocessing`` process while one works for this plan, else None."""
+        return None if self._worker is None else self._worker.proc
 
     # --- per frame ----------------------------------------------------------------------------
 
@@ -394,13 +412,14 @@ def _worker_main(jobs, results) -> None:
         job = jobs.get()
         if job is None:  # stopped before a plan came
             return
+        cpu0 = time.process_time()
         plan = TrackPlan(job["policy"], job["config"], job["refine"], None, job["max_translation"], job["max_yaw"])
         plan.tracks, plan.where = job["tracks"], job["where"]
         for key in job["keys"]:
             results.put(("frame", key, *plan._inputs(key)))
         plan.finish()
         state = {k: (tr.boxes, tr.status, tr.n_points, tr.n_fused) for k, tr in plan.tracks.items()}
-        results.put(("done", state, dict(plan.timer.seconds)))
+        results.put(("done", state, dict(plan.timer.seconds) | {"worker_cpu_s": time.process_time() - cpu0}))
     except BaseException as exc:  # noqa: BLE001 - handed to the parent, which raises it
         try:
             results.put(("error", exc))

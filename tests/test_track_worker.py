@@ -1,0 +1,128 @@
+"""Track completion on two cores: the box refinement made frame by frame (``TrackRefiner``) and the worker process
+that refines and fuses a frame ahead of the completion (``TrackWorker``) give the answers of the one-process path,
+and a failing or dying worker ends the run with its error instead of hanging."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from spotlights.data.real import open_reader
+from spotlights.data.tracks import TrackFrame, TrackRefiner, parse_window, refine_track
+from spotlights.experiments.scene import SceneConfig
+from spotlights.experiments.tracks import TrackPlan, TrackWorker
+from test_tracks import drive_past
+from test_tracks_cli import write_drive
+
+
+def test_frame_by_frame_causal_refinement_sees_no_later_frame_and_recovers_the_perturbation():
+    """past:3, frame 5 given 0.2 m / 4 degrees off: each frame's box is final once the loop reaches it, equals
+    the box the frames up to it alone give (a later frame changes nothing), and frame 5 lands on its true box."""
+    frames, truth = drive_past({5: (0.2, 0.1, math.radians(-4.0))})
+    kw = dict(margin=0.8, ground_clearance=0.1)
+    ref = TrackRefiner(frames, "past:3", **kw)
+    for t in range(len(frames)):
+        ref.upto(t)
+        assert ref.done == t
+        alone = refine_track(frames[: t + 1], "past:3", **kw) if t else None  # the frames up to t only
+        box = ref.box(t)
+        if alone is not None:
+            np.testing.assert_array_equal(box.center, alone.boxes[t].center)
+            np.testing.assert_array_equal(box.rotation, alone.boxes[t].rotation)
+            assert ref.status[t] == alone.status[t]
+    assert ref.status[0] == "no_reference" and ref.status[5] == "refined"
+    assert np.linalg.norm(ref.box(5).center - truth[5].center) < 0.03
+    assert abs(math.degrees(math.remainder(ref.box(5).yaw - truth[5].yaw, 2 * math.pi))) < 0.5
+    whole = refine_track(frames, "past:3", **kw)
+    assert [b.center.tolist() for b in ref.result().boxes] == [b.center.tolist() for b in whole.boxes]
+
+
+def test_a_window_that_looks_ahead_refines_the_whole_track_at_the_first_frame():
+    """all: frame 0's box needs every frame, so the first upto(0) refines the track (every round); frame 1, given
+    0.3 m and 5 degrees off, is recovered within 2 cm / 0.5 degree."""
+    d = 0.3 / math.sqrt(2)
+    frames, truth = drive_past({1: (d, -d, math.radians(5.0))})
+    ref = TrackRefiner(frames, "all", margin=0.8, ground_clearance=0.1)
+    ref.upto(0)
+    assert ref.done == len(frames) - 1 and ref.status[1] == "refined"
+    assert np.linalg.norm(ref.box(1).center - truth[1].center) < 0.02
+    assert abs(math.degrees(math.remainder(ref.box(1).yaw - truth[1].yaw, 2 * math.pi))) < 0.5
+
+
+def _plan(src, window: str, worker: bool) -> tuple[TrackPlan, list]:
+    reader = open_reader(src, "generic")
+    keys = reader.frame_keys()
+    return TrackPlan(parse_window(window), SceneConfig(), refine=True, worker=worker).build(reader, keys), keys
+
+
+def _inputs(plan: TrackPlan, keys) -> list:
+    """Per frame (in order): its boxes (centre, rotation) and fused points, as the frame loop gets them."""
+    out = []
+    for key in keys:
+        boxes, extra = plan.frame_inputs(key, plan.take(key).boxes)
+        out.append(
+            ([(b.center.tolist(), b.rotation.tolist()) for b in boxes], {i: v.tolist() for i, v in extra.items()})
+        )
+    return out
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize("window", ["past:2", "centered:3"])
+def test_worker_gives_the_inputs_boxes_and_statuses_of_one_process(tmp_path, window):
+    """Two tracked cars over four frames, one of them given turned by 0.08 rad in frame 2: the worker process hands the
+    frame loop the same boxes and fused points, and the plan ends with the same refined boxes and statuses, as
+    the plan working alone; the worker did the refinement (its CPU seconds are counted)."""
+    src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0, 1.5])
+    boxes = json.loads((src / "f2.json").read_text())
+    boxes["boxes"][0]["yaw"] = 0.08
+    (src / "f2.json").write_text(json.dumps(boxes))
+    alone, keys = _plan(src, window, worker=False)
+    paired, _ = _plan(src, window, worker=True)
+    assert paired.worker_process is not None  # a worker process started
+    assert _inputs(paired, keys) == _inputs(alone, keys)
+    sa, sp = alone.summary(), paired.summary()
+    assert sa["timings"]["worker_cpu_s"] == 0.0 and sp["timings"]["worker_cpu_s"] > 0.0
+    for s in (sa, sp):
+        s.pop("timings")
+    assert sp == sa
+    assert sa["n_refined"] >= 1  # the turned box was corrected
+    assert paired.worker_process is None  # ended
+
+
+@pytest.mark.timeout(60)
+def test_a_dying_worker_ends_the_run_with_an_error(tmp_path):
+    """A worker process killed before its first result: the frame loop raises at once (no wait forever)."""
+    src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0])
+    plan, keys = _plan(src, "past:2", worker=False)
+    w = TrackWorker.start()
+    assert w is not None
+    w.proc.kill()
+    w.proc.join(10)
+    assert plan.start_worker(keys, w)
+    with pytest.raises(RuntimeError, match="track worker process ended"):
+        plan.frame_inputs(keys[0], plan.take(keys[0]).boxes)
+    plan.close()
+    assert plan.worker_process is None
+
+
+@pytest.mark.timeout(60)
+def test_an_error_in_the_worker_is_raised_in_the_run(tmp_path):
+    """A track whose frame holds points of the wrong shape: the worker's ValueError is raised by the frame loop,
+    and the worker has ended."""
+    src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0])
+    plan, keys = _plan(src, "past:2", worker=False)
+    tr = next(iter(plan.tracks.values()))
+    f = tr.frames[1]
+    tr.frames[1] = TrackFrame(np.zeros((7, 2)), f.box, f.origin, f.timestamp)  # 14 numbers: not (N, 3)
+    assert plan.start_worker(keys)
+    proc = plan.worker_process
+    with pytest.raises(ValueError):
+        for key in keys:
+            plan.frame_inputs(key, plan.take(key).boxes)
+        plan.finish()
+    plan.close()
+    proc.join(10)
+    assert not proc.is_alive()
