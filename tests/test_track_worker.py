@@ -13,7 +13,7 @@ import pytest
 from spotlights.data.real import open_reader
 from spotlights.data.tracks import TrackFrame, TrackRefiner, parse_window, refine_track
 from spotlights.experiments.scene import SceneConfig
-from spotlights.experiments.tracks import TrackPlan, TrackWorker
+from spotlights.experiments.tracks import TrackPlan, TrackWorker, usable_cpus
 from test_tracks import drive_past
 from test_tracks_cli import write_drive
 
@@ -52,6 +52,9 @@ def test_a_window_that_looks_ahead_refines_the_whole_track_at_the_first_frame():
     assert abs(math.degrees(math.remainder(ref.box(1).yaw - truth[1].yaw, 2 * math.pi))) < 0.5
 
 
+needs_two_cpus = pytest.mark.skipif(usable_cpus() < 2, reason="a worker process is started with 2+ usable CPUs only")
+
+
 def _plan(src, window: str, worker: bool) -> tuple[TrackPlan, list]:
     reader = open_reader(src, "generic")
     keys = reader.frame_keys()
@@ -69,6 +72,7 @@ def _inputs(plan: TrackPlan, keys) -> list:
     return out
 
 
+@needs_two_cpus
 @pytest.mark.timeout(120)
 @pytest.mark.parametrize("window", ["past:2", "centered:3"])
 def test_worker_gives_the_inputs_boxes_and_statuses_of_one_process(tmp_path, window):
@@ -92,6 +96,7 @@ def test_worker_gives_the_inputs_boxes_and_statuses_of_one_process(tmp_path, win
     assert paired.worker_process is None  # ended
 
 
+@needs_two_cpus
 @pytest.mark.timeout(60)
 def test_a_dying_worker_ends_the_run_with_an_error(tmp_path):
     """A worker process killed before its first result: the frame loop raises at once (no wait forever)."""
@@ -108,6 +113,7 @@ def test_a_dying_worker_ends_the_run_with_an_error(tmp_path):
     assert plan.worker_process is None
 
 
+@needs_two_cpus
 @pytest.mark.timeout(60)
 def test_an_error_in_the_worker_is_raised_in_the_run(tmp_path):
     """A track whose frame holds points of the wrong shape: the worker's ValueError is raised by the frame loop,

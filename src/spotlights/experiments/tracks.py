@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 import time
 from dataclasses import dataclass, field
@@ -43,6 +44,7 @@ from ..data.tracks import (
     MAX_TRANSLATION_M,
     MAX_YAW_RAD,
     TIME_UNIT_S,
+    FusedTrack,
     TrackFrame,
     TrackRefiner,
     WindowPolicy,
@@ -75,6 +77,7 @@ class _Track:
     completion: np.ndarray | None = None  # latest completion, box frame of ``completion_frame``
     completion_frame: int = -1
     refiner: TrackRefiner | None = None  # the box refinement, made as the frames are reached (None: none)
+    fused: FusedTrack | None = None  # the whole track fused under its final boxes (from the worker), for write()
 
 
 def file_stem(text: str) -> str:
@@ -96,6 +99,14 @@ def _near_boxes(points: np.ndarray, boxes: list[Box], margin: float, ground_clea
     tree = cKDTree(points, balanced_tree=False, compact_nodes=False)
     hits = tree.query_ball_point(np.array([b.center for b in boxes]), reach)
     return [np.sort(np.asarray(h, dtype=np.int64)) for h in hits]
+
+
+def _crops(points: np.ndarray, boxes: list[Box], grow: float, ground_clearance: float) -> list[np.ndarray]:
+    """Per box, its points (k, 3) float64 of the scan ``points`` (N, 3), the scan's frame: those inside the box grown
+    by ``grow`` with its bottom raised by ``ground_clearance`` (the plan's crop of a tracked box)."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    near = _near_boxes(pts, boxes, grow, ground_clearance)
+    return [pts[cand[points_in_box(pts[cand], b, grow, ground_clearance)]] for b, cand in zip(boxes, near)]
 
 
 class TrackPlan:
@@ -149,7 +160,6 @@ class TrackPlan:
             if len(frame.points) <= budget:
                 self.kept[key] = frame
                 budget -= len(frame.points)
-            pts = np.asarray(frame.points, dtype=np.float64).reshape(-1, 3)
             so = getattr(frame, "sensor_origin", None)
             origin = np.zeros(3) if so is None else np.asarray(so, dtype=np.float64).reshape(3)
             todo = [
@@ -160,14 +170,17 @@ class TrackPlan:
             untracked = sum(
                 1 for b in frame.boxes if _selected(b, self.config) and b.is_valid() and not b.track_id.strip()
             )
-            near = _near_boxes(pts, [frame.boxes[i] for i in todo], grow, self.config.ground_clearance)
-            for i, cand in zip(todo, near):
-                b = frame.boxes[i]
+            todo_boxes = [frame.boxes[i] for i in todo]
+            if self._worker is not None:  # the worker crops (its frames' points are None here)
+                self._worker.crop(key, frame.points, todo, todo_boxes, grow, self.config.ground_clearance)
+                crops: list = [None] * len(todo)
+            else:
+                crops = _crops(frame.points, todo_boxes, grow, self.config.ground_clearance)
+            for i, b, crop in zip(todo, todo_boxes, crops):
                 tr = self.tracks.setdefault((frame.sequence, b.track_id), _Track(frame.sequence, b.track_id))
-                idx = cand[points_in_box(pts[cand], b, grow, self.config.ground_clearance)]
                 tr.keys.append(key)
                 tr.box_index.append(i)
-                tr.frames.append(TrackFrame(pts[idx], b, origin, float(frame.timestamp) * unit))
+                tr.frames.append(TrackFrame(crop, b, origin, float(frame.timestamp) * unit))
                 self.where.setdefault(key, {})[i] = (tr, len(tr.frames) - 1)
             if untracked:
                 where = f"{frame.sequence}/{frame.frame_id}" if frame.sequence else frame.frame_id
@@ -206,7 +219,7 @@ class TrackPlan:
     def start_worker(self, keys, worker: TrackWorker | None = None) -> bool:
         """Hand the built plan to a worker process (``worker``, else a new :class:`TrackWorker`) that refines and
         fuses the frames ``keys`` in that order, ahead of :meth:`frame_inputs`; False where no process can be
-        started (the plan then works alone)."""
+        started (the plan then works alone). A plan built with a worker (``worker=True``) was cropped there."""
         worker = TrackWorker.start() if worker is None else worker
         if worker is None:
             return False
@@ -277,9 +290,9 @@ class TrackPlan:
     def frame_inputs(self, key, boxes: list[Box]) -> tuple[list[Box], dict[int, np.ndarray]]:
         """For one frame: its boxes with the refined ones in place, and {box index: (k, 3) scan-frame points of
         the other frames of the box's window, fused in its box frame and put in this frame}. With a worker
-        process, what it computed for the frame (the frames are asked for in the order given to :meth:`build`)."""
-        got = None if self._worker is None else self._worker.inputs(self, key)
-        repl, extra = self._inputs(key) if got is None else got
+        process, what it computed for the frame (the frames are asked for in the order given to :meth:`build`,
+        some may be passed over)."""
+        repl, extra = self._inputs(key) if self._worker is None else self._worker.inputs(self, key)
         out = list(boxes)
         for i, box in repl.items():
             out[i] = box
@@ -366,7 +379,7 @@ class TrackPlan:
         written = []
         for tr in self.tracks.values():
             last = len(tr.frames) - 1
-            pts = fuse_track(
+            pts = tr.fused or fuse_track(
                 tr.frames, boxes=tr.boxes, margin=self.config.margin, ground_clearance=self.config.ground_clearance
             )
             comp = np.zeros((0, 3)) if tr.completion is None else tr.completion
@@ -403,22 +416,54 @@ class TrackPlan:
 POLL_S = 0.5
 
 
+def usable_cpus() -> int:
+    """The CPUs this process may run on (its affinity where the platform tells it, else ``os.cpu_count()``)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # macOS, Windows
+        return os.cpu_count() or 1
+
+
 def _worker_main(jobs, results) -> None:
     """The worker process: receive a plan (:meth:`TrackWorker.send`), then for each frame key in order put
     ``("frame", key, repl, extra)`` (:meth:`TrackPlan._inputs`), then ``("done", state, timer seconds)``;
     ``("error", exception)`` instead when something fails."""
     die_with_parent()
     try:
-        job = jobs.get()
-        if job is None:  # stopped before a plan came
-            return
+        crops: dict = {}  # frame key -> {box index: its crop}
         cpu0 = time.process_time()
+        while True:
+            msg = jobs.get()
+            if msg is None:  # stopped before a plan came
+                return
+            if msg[0] == "plan":
+                job = msg[1]
+                break
+            _, key, points, todo, boxes, grow, clearance = msg
+            crops[key] = dict(zip(todo, _crops(points, boxes, grow, clearance)))
         plan = TrackPlan(job["policy"], job["config"], job["refine"], None, job["max_translation"], job["max_yaw"])
         plan.tracks, plan.where = job["tracks"], job["where"]
+        for tr in plan.tracks.values():  # the crops made here go where the plan left None
+            for pos, (key, i, f) in enumerate(zip(tr.keys, tr.box_index, tr.frames)):
+                if f.points is None:
+                    tr.frames[pos] = TrackFrame(crops[key][i], f.box, f.origin, f.timestamp)
+            if tr.refiner is not None:
+                tr.refiner.frames = tr.frames
+        del crops
         for key in job["keys"]:
             results.put(("frame", key, *plan._inputs(key)))
         plan.finish()
-        state = {k: (tr.boxes, tr.status, tr.n_points, tr.n_fused) for k, tr in plan.tracks.items()}
+        cfg = plan.config
+        state = {
+            k: (
+                tr.boxes,
+                tr.status,
+                tr.n_points,
+                tr.n_fused,
+                fuse_track(tr.frames, boxes=tr.boxes, margin=cfg.margin, ground_clearance=cfg.ground_clearance),
+            )
+            for k, tr in plan.tracks.items()
+        }
         results.put(("done", state, dict(plan.timer.seconds) | {"worker_cpu_s": time.process_time() - cpu0}))
     except BaseException as exc:  # noqa: BLE001 - handed to the parent, which raises it
         try:
@@ -443,7 +488,10 @@ class TrackWorker:
 
     @classmethod
     def start(cls) -> TrackWorker | None:
-        """A started worker process, or None where none can be started (the caller then works alone)."""
+        """A started worker process, or None where none can be started or this process may use one CPU only
+        (:func:`usable_cpus`: a second process would only take turns with it; the caller then works alone)."""
+        if usable_cpus() < 2:
+            return None
         try:
             ctx = process_pool_context()
             jobs, results = ctx.Queue(), ctx.Queue()
@@ -453,18 +501,29 @@ class TrackWorker:
             return None
         return cls(proc, jobs, results)
 
+    def crop(
+        self, key, points: np.ndarray, todo: list[int], boxes: list[Box], grow: float, ground_clearance: float
+    ) -> None:
+        """Have the worker crop the tracked ``boxes`` (the frame's boxes ``todo``) of frame ``key`` from its scan
+        ``points`` (N, 3), the plan's crops (:meth:`TrackPlan.build` leaves their points None), while the frames
+        are still being read."""
+        self.jobs.put(("scan", key, points, todo, boxes, grow, ground_clearance))
+
     def send(self, plan: TrackPlan, keys: list) -> None:
         """Hand the worker the built ``plan`` (its tracks, their frames and refiners) and the frame order."""
         self.jobs.put(
-            dict(
-                policy=plan.policy,
-                config=plan.config,
-                refine=plan.refine,
-                max_translation=plan.max_translation,
-                max_yaw=plan.max_yaw,
-                tracks=plan.tracks,
-                where=plan.where,
-                keys=keys,
+            (
+                "plan",
+                dict(
+                    policy=plan.policy,
+                    config=plan.config,
+                    refine=plan.refine,
+                    max_translation=plan.max_translation,
+                    max_yaw=plan.max_yaw,
+                    tracks=plan.tracks,
+                    where=plan.where,
+                    keys=keys,
+                ),
             )
         )
 
@@ -492,8 +551,8 @@ class TrackWorker:
             tr.boxes[pos] = box
 
     def inputs(self, plan: TrackPlan, key):
-        """``(repl, extra)`` of frame ``key`` as :meth:`TrackPlan._inputs` gives them, or None when the worker
-        has finished without it (a frame not in the order sent: the plan computes it itself)."""
+        """``(repl, extra)`` of frame ``key`` as :meth:`TrackPlan._inputs` gives them (the frames come in the order
+        sent; those the frame loop skips are passed over). RuntimeError for a frame the worker was not sent."""
         while key not in self.pending and not self.done:
             msg = self._next(plan)
             if msg[0] == "done":
@@ -501,14 +560,16 @@ class TrackWorker:
                 break
             _, k, repl, extra = msg
             self._apply(plan, k, repl)
-            self.pending[k] = (repl, extra)
-        return self.pending.pop(key, None)
+            self.pending = {k: (repl, extra)}  # only the latest: the loop asks in order
+        if key not in self.pending:
+            raise RuntimeError(f"frame {key} was not planned, or asked for out of the order given to build()")
+        return self.pending.pop(key)
 
     def _final(self, plan: TrackPlan, msg) -> None:
         _, state, seconds = msg
-        for k, (boxes, status, n_points, n_fused) in state.items():
+        for k, (boxes, status, n_points, n_fused, fused) in state.items():
             tr = plan.tracks[k]
-            tr.boxes, tr.status, tr.n_points, tr.n_fused = boxes, status, n_points, n_fused
+            tr.boxes, tr.status, tr.n_points, tr.n_fused, tr.fused = boxes, status, n_points, n_fused, fused
             tr.refiner = None  # the worker refined every frame
         for name, sec in seconds.items():
             plan.timer.add(name, sec)
@@ -540,4 +601,4 @@ class TrackWorker:
             q.close()
 
 
-__all__ = ["TrackPlan", "TrackWorker", "file_stem"]
+__all__ = ["TrackPlan", "TrackWorker", "file_stem", "usable_cpus"]
