@@ -74,7 +74,7 @@ class _Track:
     status: list = field(default_factory=list)
     n_points: list = field(default_factory=list)  # the frame's own points in the completion's crop
     n_fused: list = field(default_factory=list)
-    completion: np.ndarray | None = None  # latest completion, box frame of ``completion_frame``
+    completion: np.ndarray | None = None  # latest completion (scan frame of ``completion_frame``: box frame in write)
     completion_frame: int = -1
     refiner: TrackRefiner | None = None  # the box refinement, made as the frames are reached (None: none)
     fused: FusedTrack | None = None  # the whole track fused under its final boxes (from the worker), for write()
@@ -314,14 +314,15 @@ class TrackPlan:
             self._worker = None
 
     def record(self, key, result: SceneResult) -> None:
-        """Keep each track's completion of this frame (box frame), the latest frame's winning."""
+        """Keep each track's completion of this frame (scan frame; :meth:`write` puts it in its box frame), the
+        latest frame's winning."""
         for o in result.completed:
             hit = self.where.get(key, {}).get(o.index)
             if hit is None:
                 continue
             tr, pos = hit
-            if pos >= tr.completion_frame:
-                tr.completion = tr.boxes[pos].to_object(o.completion)
+            if pos >= tr.completion_frame:  # moved into its box frame once, by write()
+                tr.completion = o.completion
                 tr.completion_frame = pos
 
     # --- outputs ------------------------------------------------------------------------------
@@ -382,7 +383,7 @@ class TrackPlan:
             pts = tr.fused or fuse_track(
                 tr.frames, boxes=tr.boxes, margin=self.config.margin, ground_clearance=self.config.ground_clearance
             )
-            comp = np.zeros((0, 3)) if tr.completion is None else tr.completion
+            comp = np.zeros((0, 3)) if tr.completion is None else tr.boxes[tr.completion_frame].to_object(tr.completion)
             # the completion is in the box frame of its frame's box; the fused points in each frame's own box
             # frame: both are the object frame, the one all the track's boxes share
             xyz = np.concatenate([pts.points, comp])
