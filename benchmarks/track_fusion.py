@@ -4,8 +4,10 @@ For one dataset (default: the shared nuScenes scene-0523, 40 keyframes) and one 
 
 1. load the model (not timed);
 2. **single frames** (``--fuse none``, today's path): read every frame, crop and complete every vehicle;
-3. **fused**: build the track plan (read every frame, crop each tracked vehicle, refine the boxes with
-   ``--refine-boxes``), then per frame take it from the plan, fuse each vehicle's window and complete it;
+3. **fused**: build the track plan (read every frame, crop each tracked vehicle), then per frame take it from
+   the plan, refine its boxes (``--refine-boxes``), fuse each vehicle's window and complete it; with
+   ``--track-worker`` (default) the cropping, refinement and fusion run in a second process a frame ahead
+   (``TrackPlan(worker=True)``: the same outputs; its CPU seconds are reported as ``cpu_s_worker``);
 4. on the observations of Table 2's classes (car, truck, trailer) completed by both: consistency between
    consecutive completions of a track at equal density (voxel 0.1, unit frame: ``real evaluate``'s headline)
    and fidelity to each frame's own points (unit frame), single vs fused.
@@ -22,10 +24,11 @@ Usage::
 
 **The command side by side** (``--against OTHER_SRC``): the whole ``real complete SOURCE --fuse ... --no-pictures``
 (:func:`~spotlights.experiments.frame_completion.complete_frames`, every file written), timed after the model
-loads, in a fresh process per run, alternating this checkout's ``src`` and ``OTHER_SRC`` (e.g. main's) for each
-torch thread count of ``--speed-threads``, ``--repeats`` times: CPU seconds per frame of the process, wall
-frames per second, the load average, and the ratios of this code to the other measured side by side (on a
-shared machine the honest number)::
+loads, in a fresh process per run, alternating ``OTHER_SRC`` (e.g. main's), this checkout's ``src`` in one
+process (``this_serial``: ``--no-track-worker``) and with its track worker (``this``) for each torch thread count
+of ``--speed-threads``, ``--repeats`` times: CPU seconds per frame of the process (and of the worker), wall
+frames per second, the load average before and after each run, and the ratios of this code to the other
+measured side by side (on a shared machine the honest number)::
 
     nice -n 10 python benchmarks/track_fusion.py --against /work/main/src --refine-boxes --precision bf16 \\
         --speed-threads 1 2 --json docs/results/real/track_fusion_speed_side_by_side.json

@@ -7,12 +7,17 @@ The plan behind ``spotlights real complete ... --fuse POLICY [--refine-boxes]``:
    the sensor origin and the time (seconds: :data:`spotlights.data.tracks.TIME_UNIT_S`). A vehicle box
    without a track id, a track with a gap or two boxes at one instant, or a selection of fewer than two
    frames is refused with one line before anything is written.
-2. With ``refine``: :func:`spotlights.data.tracks.refine_track` per track, with the same window policy
-   (``past:K`` stays causal).
+2. With ``refine``: a :class:`spotlights.data.tracks.TrackRefiner` per track (the numbers of
+   :func:`spotlights.data.tracks.refine_track`, with the same window policy: ``past:K`` stays causal), run as the
+   frames are reached: with ``past:K`` frame ``t``'s box is refined when frame ``t`` is asked for, other windows
+   refine the whole track at its first frame.
 3. Per frame, :meth:`TrackPlan.frame_inputs` gives the boxes (refined where refined) and, per vehicle box,
    the other frames of its window fused in its box frame (:func:`spotlights.data.tracks.fuse_track`, the
    completion's crop) and put in this frame's scan frame: :func:`spotlights.experiments.scene.complete_scene`
    adds them to the box's own crop for the model input. The completion is the existing one, on more points.
+   With ``worker=True`` (and two usable CPUs) a :class:`TrackWorker` process crops the tracked boxes while the
+   frames are read, then refines and fuses the frames ahead of the frame loop, which completes them meanwhile:
+   a two-stage pipeline with the same outputs, byte for byte.
 4. :meth:`TrackPlan.record` keeps each track's latest completion; :meth:`TrackPlan.write` writes per track
    ``tracks/<track>.ply`` (box frame of the track's last frame: the whole track's fused input, ``source`` 1
    with ``frame`` = the frame's position in the track, then the completion of the last frame's window,
