@@ -118,3 +118,14 @@ def test_readme_table2_fidelity():
         fid.append(f"{models['sanet-hit-dense-f32']['average']['fidelity']:.3f}")
         baselines += [models[b]["average"]["fidelity"] for b in ("atlasnet", "pcn", "foldingnet", "topnet")]
     _says("README.md", f"(fidelity {fid[0]} / {fid[1]}; baselines {min(baselines):.3f} or more)")
+
+
+def test_track_worker_speed():
+    """docs/real-data.md's "Two cores" table: the frame loop's and the worker's CPU a frame and the wall rate."""
+    row = {}
+    for name in ("one_process", "worker"):
+        f = _json(f"real/track_fusion_speed_{name}_1thread_bf16.json")["fused"]
+        row[name] = (round(1e3 * f["cpu_s"] / 40), round(1e3 * f["cpu_s_worker"] / 40), f"{f['fps_wall']:.2f}")
+    _says("docs/real-data.md", f"| one process, 1 torch thread | {row['one_process'][0]} | - | {row['one_process'][2]}")
+    w = row["worker"]
+    _says("docs/real-data.md", f"| with the worker, 1 torch thread | **{w[0]}** | {w[1]} | **{w[2]}**")
