@@ -493,8 +493,9 @@ def _run_frames(
         frames=run.frames,
     )
     if tracks is not None:
-        tracks.write(out, completer.model_name)
-        summary["tracks"] = {k: v for k, v in tracks.summary().items() if k != "tracks"}
+        per_track = tracks.summary()  # made once: tracks.json and summary.json's totals
+        tracks.write(out, completer.model_name, summary=per_track)
+        summary["tracks"] = {k: v for k, v in per_track.items() if k != "tracks"}
     write_json(out / "summary.json", summary)
     shown = run.warnings
     if len(shown) > 10:

@@ -378,8 +378,9 @@ class TrackPlan:
             tracks=tracks,
         )
 
-    def write(self, out: str | Path, model: str = "") -> list[Path]:
-        """Write ``OUT/[SEQUENCE/]tracks/<track>.ply`` per track and ``OUT/tracks.json``; returns the paths."""
+    def write(self, out: str | Path, model: str = "", summary: dict | None = None) -> list[Path]:
+        """Write ``OUT/[SEQUENCE/]tracks/<track>.ply`` per track and ``OUT/tracks.json`` (``summary``: the
+        :meth:`summary` the caller already made, else made here); returns the paths."""
         self.finish()
         out = Path(out)
         written = []
@@ -411,7 +412,8 @@ class TrackPlan:
                 save_ply(folder / f"{file_stem(tr.track_id)}.ply", xyz, {"source": src, "frame": frm}, comments=com)
             )
         with atomic_output(out / "tracks.json") as tmp:
-            tmp.write_text(json.dumps(self.summary(), indent=2, default=float) + "\n", encoding="utf-8")
+            text = json.dumps(self.summary() if summary is None else summary, indent=2, default=float)
+            tmp.write_text(text + "\n", encoding="utf-8")
         written.append(out / "tracks.json")
         return written
 
