@@ -34,6 +34,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import pickle
 import re
 import time
 from dataclasses import dataclass, field
@@ -177,7 +178,8 @@ class TrackPlan:
             )
             todo_boxes = [frame.boxes[i] for i in todo]
             if self._worker is not None:  # the worker crops (its frames' points are None here)
-                self._worker.crop(key, frame.points, todo, todo_boxes, grow, self.config.ground_clearance)
+                if todo:
+                    self._worker.crop(key, frame.points, todo, todo_boxes, grow, self.config.ground_clearance)
                 crops: list = [None] * len(todo)
             else:
                 crops = _crops(frame.points, todo_boxes, grow, self.config.ground_clearance)
@@ -386,8 +388,12 @@ class TrackPlan:
         written = []
         for tr in self.tracks.values():
             last = len(tr.frames) - 1
-            pts = tr.fused or fuse_track(
-                tr.frames, boxes=tr.boxes, margin=self.config.margin, ground_clearance=self.config.ground_clearance
+            pts = (
+                tr.fused
+                if tr.fused is not None
+                else fuse_track(
+                    tr.frames, boxes=tr.boxes, margin=self.config.margin, ground_clearance=self.config.ground_clearance
+                )
             )
             comp = np.zeros((0, 3)) if tr.completion is None else tr.boxes[tr.completion_frame].to_object(tr.completion)
             # the completion is in the box frame of its frame's box; the fused points in each frame's own box
@@ -475,9 +481,10 @@ def _worker_main(jobs, results) -> None:
         results.put(("done", state, dict(plan.timer.seconds) | {"worker_cpu_s": time.process_time() - cpu0}))
     except BaseException as exc:  # noqa: BLE001 - handed to the parent, which raises it
         try:
-            results.put(("error", exc))
+            pickle.dumps(exc)  # the queue pickles in a thread of its own, where a failure would be lost
         except Exception:  # an exception that does not pickle
-            results.put(("error", RuntimeError(f"the track worker failed: {exc!r}")))
+            exc = RuntimeError(f"the track worker failed: {exc!r}")
+        results.put(("error", exc))
 
 
 class TrackWorker:
