@@ -52,7 +52,7 @@ import numpy as np
 from spotlights.data.real import open_reader
 from spotlights.data.tracks import parse_window
 from spotlights.experiments.scene import SceneConfig, complete_scene
-from spotlights.experiments.tracks import TrackPlan
+from spotlights.experiments.tracks import TrackPlan, TrackWorker
 from spotlights.geometry.sampling import voxel_downsample
 from spotlights.learning.inference import load_completer
 from spotlights.metrics.consistency import aggregate, fidelity, track_consistency
@@ -129,6 +129,7 @@ def main(argv=None) -> int:
     reader = open_reader(args.source, args.format)
     keys = reader.frame_keys()
     config = SceneConfig()
+    early = TrackWorker.start() if args.track_worker else None  # as real complete: started before the model loads
     completer = load_completer(args.checkpoint, precision=args.precision)
 
     kept = {"single": {}, "fused": {}}
@@ -158,7 +159,8 @@ def main(argv=None) -> int:
         return n
 
     def fused():
-        plan = TrackPlan(parse_window(args.fuse), config, refine=args.refine_boxes, worker=args.track_worker)
+        worker = early if early is not None else args.track_worker
+        plan = TrackPlan(parse_window(args.fuse), config, refine=args.refine_boxes, worker=worker)
         plan.build(reader, keys)
         n = 0
         for key in keys:

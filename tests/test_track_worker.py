@@ -132,3 +132,21 @@ def test_an_error_in_the_worker_is_raised_in_the_run(tmp_path):
     plan.close()
     proc.join(10)
     assert not proc.is_alive()
+
+
+@needs_two_cpus
+@pytest.mark.timeout(60)
+def test_a_refused_run_leaves_no_worker_behind(tmp_path):
+    """complete_frames starts the worker while it opens the dataset; a refusal (a vehicle box without a track id)
+    is the usual one line, and the worker process has ended."""
+    import multiprocessing
+
+    from spotlights.errors import ParameterError
+    from spotlights.experiments.frame_completion import FramesSettings, complete_frames
+
+    src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0], ("a", ""))
+    s = FramesSettings(source=[str(src)], format="generic", out=str(tmp_path / "out"), fuse="past:2", quiet=True)
+    with pytest.raises(ParameterError, match="without a track id"):
+        complete_frames(s)
+    assert not [p for p in multiprocessing.active_children() if p.name == "spotlights-tracks"]
+    assert not (tmp_path / "out").exists()

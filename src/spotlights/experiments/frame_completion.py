@@ -34,7 +34,7 @@ from ..viz.html import write_plotlyjs
 from ..viz.rerun_log import check_rerun_path, open_recording
 from .scan_completion import CompletionOptions, Say, ScanSettings, complete_scan, silent, write_json
 from .scene import SceneConfig, SceneResult, complete_scene, render_result, render_result_html, write_scene
-from .tracks import TrackPlan
+from .tracks import TrackPlan, TrackWorker
 
 
 def safe_name(text: str) -> str:
@@ -260,12 +260,17 @@ class FramesSettings(ReaderOptions, CompletionOptions):
         """:attr:`fuse` as a :class:`~spotlights.data.tracks.WindowPolicy`."""
         return parse_window(self.fuse) if isinstance(self.fuse, str) else self.fuse
 
-    def track_plan(self, reader: SceneReader, keys: list, config: SceneConfig) -> TrackPlan | None:
-        """The built :class:`~spotlights.experiments.tracks.TrackPlan` of ``fuse`` (None without fusion)."""
+    def track_plan(
+        self, reader: SceneReader, keys: list, config: SceneConfig, worker: TrackWorker | None = None
+    ) -> TrackPlan | None:
+        """The built :class:`~spotlights.experiments.tracks.TrackPlan` of ``fuse`` (None without fusion); ``worker``:
+        its :class:`~spotlights.experiments.tracks.TrackWorker`, started earlier (default: one started here with
+        ``track_worker``)."""
         if self.window.fuses:
             if self.resume:
                 raise ParameterError("--resume does not apply with --fuse (a frame's input depends on its track)")
-            plan = TrackPlan(self.window, config, self.refine_boxes, self.max_gap, worker=self.track_worker)
+            use = worker if worker is not None else self.track_worker
+            plan = TrackPlan(self.window, config, self.refine_boxes, self.max_gap, worker=use)
             try:
                 return plan.build(reader, keys)
             except BaseException:
@@ -428,14 +433,21 @@ def complete_frames(
     are counted), ``say`` the summary line; ``completer``: a model already loaded (default: the one ``s``
     names). Returns the run's summary (the content of ``summary.json``).
     """
-    reader = s.open()
-    keys = select_frames(reader.frame_keys(), s.frames)
-    if not keys:
-        raise ParameterError("--frames selects no frame")
-    config = s.scene_config()
-    if s.rerun is not None:
-        check_rerun_path(s.rerun)
-    tracks = s.track_plan(reader, keys, config)
+    # the track worker's interpreter starts while the dataset is opened and read (refusals stop it)
+    early = TrackWorker.start() if s.track_worker and s.window.fuses and not s.resume else None
+    try:
+        reader = s.open()
+        keys = select_frames(reader.frame_keys(), s.frames)
+        if not keys:
+            raise ParameterError("--frames selects no frame")
+        config = s.scene_config()
+        if s.rerun is not None:
+            check_rerun_path(s.rerun)
+        tracks = s.track_plan(reader, keys, config, early)
+    except BaseException:
+        if early is not None:
+            early.stop()
+        raise
     try:
         completer = s.load_completer() if completer is None else completer
         fallback = s.load_fallback()  # loaded beside the main model, before any output exists

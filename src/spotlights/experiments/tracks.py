@@ -126,7 +126,7 @@ class TrackPlan:
         max_gap_s: float | None = MAX_GAP_S,
         max_translation: float = MAX_TRANSLATION_M,
         max_yaw: float = MAX_YAW_RAD,
-        worker: bool = False,
+        worker: bool | TrackWorker = False,
     ):
         if not policy.fuses:
             raise ParameterError("a track plan needs a window that fuses frames (all, past:K or centered:K)")
@@ -136,8 +136,10 @@ class TrackPlan:
         self.where: dict[tuple[str, str], dict[int, tuple[_Track, int]]] = {}  # frame key -> box -> (track, pos)
         self.timer = StageTimer()  # read_s (build), refine_s and fuse_s (frame_inputs), wait_s (for the worker)
         self.kept: dict = {}  # frame key -> the Frame build read, until the frame loop takes it (KEEP_POINTS)
-        self.worker = worker  # refine and fuse in a worker process (TrackWorker) while this one completes
-        self._worker: TrackWorker | None = None
+        # refine and fuse in a worker process (TrackWorker) while this one completes: True starts one in build, a
+        # TrackWorker started earlier (its interpreter ready by then) is used as it is
+        self.worker = bool(worker)
+        self._worker: TrackWorker | None = worker if isinstance(worker, TrackWorker) else None
 
     @property
     def timings(self) -> dict[str, float]:
