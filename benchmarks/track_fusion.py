@@ -113,6 +113,11 @@ def main(argv=None) -> int:
         default=True,
         help="refine and fuse in a second process a frame ahead (FramesSettings.track_worker; default on)",
     )
+    ap.add_argument(
+        "--compare-worker",
+        action="store_true",
+        help="then --repeats rounds of the fused loop with the track worker and in one process, in turn",
+    )
     ap.add_argument("--json", default=None)
     ap.add_argument("--against", default=None, help="another checkout's src folder: time the command side by side")
     ap.add_argument("--speed-threads", type=int, nargs="+", default=[1, 2], help="torch thread counts (--against)")
@@ -158,8 +163,8 @@ def main(argv=None) -> int:
             n += len(result.completed)
         return n
 
-    def fused():
-        worker = early if early is not None else args.track_worker
+    def fused(worker=None):
+        worker = (early if early is not None else args.track_worker) if worker is None else worker
         plan = TrackPlan(parse_window(args.fuse), config, refine=args.refine_boxes, worker=worker)
         plan.build(reader, keys)
         n = 0
@@ -176,6 +181,7 @@ def main(argv=None) -> int:
 
     n_single, w_single, c_single = timed(single)
     (plan, n_fused), w_fused, c_fused = timed(fused)
+    pairs = compare_worker(args, fused, kept, len(keys)) if args.compare_worker else None
     both = sorted(set(kept["single"]) & set(kept["fused"]))
     quality = {mode: consistency_of([kept[mode][k] for k in both]) for mode in kept}
     summ = plan.summary()
@@ -211,6 +217,7 @@ def main(argv=None) -> int:
             cpu_s_worker=summ["timings"]["worker_cpu_s"],
             plan_timings=summ["timings"],
         ),
+        worker_and_one_process=pairs,
         quality_on_common_observations=dict(n_observations=len(both), classes=list(TABLE2), **quality),
         tracks=summ["n_tracks"],
         vehicle_boxes_in_tracks=len(rows),
@@ -236,6 +243,49 @@ def main(argv=None) -> int:
         ],
     )
     return emit(report, args.json)
+
+
+def compare_worker(args, fused, kept, n_frames: int) -> dict:
+    """``--compare-worker``: ``--repeats`` rounds of the fused loop with its track worker (started 1 s before, as
+    ``real complete`` starts it before the model loads) and in one process, in turn: wall and CPU seconds (this
+    process; the worker's own), the load average; the outputs of every round equal the first run's."""
+    first = dict(kept["fused"])
+    runs = []
+    for rep in range(args.repeats):
+        for name in ("worker", "one_process"):
+            worker = False
+            if name == "worker":
+                worker = TrackWorker.start() or False
+                time.sleep(1.0)  # its interpreter starts (not timed)
+            load = os.getloadavg()
+            kept["fused"].clear()
+            (plan, _), wall, cpu = timed(lambda: fused(worker))
+            same = kept["fused"].keys() == first.keys() and all(
+                np.array_equal(kept["fused"][k][0], first[k][0]) for k in first
+            )
+            runs.append(
+                dict(
+                    mode=name,
+                    repeat=rep,
+                    wall_s=wall,
+                    cpu_s=cpu,
+                    cpu_s_worker=plan.timings["worker_cpu_s"],
+                    wait_s=plan.timings["wait_s"],
+                    load_average_before=load,
+                    same_completions=bool(same),
+                )
+            )
+            print(json.dumps(runs[-1]), file=sys.stderr, flush=True)
+    med = {}
+    for name in ("worker", "one_process"):
+        rs = [r for r in runs if r["mode"] == name]
+        med[name] = {k: float(np.median([r[k] for r in rs])) for k in ("wall_s", "cpu_s", "cpu_s_worker")}
+        med[name] |= dict(
+            fps_wall=n_frames / med[name]["wall_s"],
+            cpu_ms_per_frame=1e3 * med[name]["cpu_s"] / n_frames,
+            worker_cpu_ms_per_frame=1e3 * med[name]["cpu_s_worker"] / n_frames,
+        )
+    return dict(runs=runs, median=med)
 
 
 def command_run(args) -> int:

@@ -445,6 +445,8 @@ def _worker_main(jobs, results) -> None:
     ``("frame", key, repl, extra)`` (:meth:`TrackPlan._inputs`), then ``("done", state, timer seconds)``;
     ``("error", exception)`` instead when something fails."""
     die_with_parent()
+    import scipy.spatial  # noqa: F401 - imported now, while the parent opens and reads (0.25 s), not at the first crop
+
     try:
         crops: dict = {}  # frame key -> {box index: its crop}
         cpu0 = time.process_time()
