@@ -22,6 +22,14 @@ Usage::
     OMP_NUM_THREADS=1 python benchmarks/track_fusion.py --fuse past:5 --refine-boxes --threads 1 \\
         --json docs/results/real/track_fusion_nuscenes.json
 
+**The track worker against one process** (``--compare-worker --repeats R``): after the runs above, ``R`` rounds of
+the fused loop with its worker (started 1 s before, as ``real complete`` starts it before the model loads) and in one
+process, in turn (``worker_and_one_process``: per round wall and CPU seconds, the worker's, the time waited for it,
+the load average, whether the completions equal the first run's; medians)::
+
+    OMP_NUM_THREADS=1 python benchmarks/track_fusion.py --fuse past:5 --refine-boxes --precision bf16 --threads 1 \\
+        --compare-worker --repeats 3 --json docs/results/real/track_fusion_speed_worker_1thread_bf16.json
+
 **The command side by side** (``--against OTHER_SRC``): the whole ``real complete SOURCE --fuse ... --no-pictures``
 (:func:`~spotlights.experiments.frame_completion.complete_frames`, every file written), timed after the model
 loads, in a fresh process per run, alternating ``OTHER_SRC`` (e.g. main's), this checkout's ``src`` in one
@@ -52,7 +60,7 @@ import numpy as np
 from spotlights.data.real import open_reader
 from spotlights.data.tracks import parse_window
 from spotlights.experiments.scene import SceneConfig, complete_scene
-from spotlights.experiments.tracks import TrackPlan, TrackWorker
+from spotlights.experiments.tracks import TrackPlan
 from spotlights.geometry.sampling import voxel_downsample
 from spotlights.learning.inference import load_completer
 from spotlights.metrics.consistency import aggregate, fidelity, track_consistency
@@ -134,6 +142,8 @@ def main(argv=None) -> int:
     reader = open_reader(args.source, args.format)
     keys = reader.frame_keys()
     config = SceneConfig()
+    from spotlights.experiments.tracks import TrackWorker  # this checkout's (--against runs an older one's command)
+
     early = TrackWorker.start() if args.track_worker else None  # as real complete: started before the model loads
     completer = load_completer(args.checkpoint, precision=args.precision)
 
@@ -249,6 +259,8 @@ def compare_worker(args, fused, kept, n_frames: int) -> dict:
     """``--compare-worker``: ``--repeats`` rounds of the fused loop with its track worker (started 1 s before, as
     ``real complete`` starts it before the model loads) and in one process, in turn: wall and CPU seconds (this
     process; the worker's own), the load average; the outputs of every round equal the first run's."""
+    from spotlights.experiments.tracks import TrackWorker
+
     first = dict(kept["fused"])
     runs = []
     for rep in range(args.repeats):
