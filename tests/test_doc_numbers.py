@@ -118,19 +118,3 @@ def test_readme_table2_fidelity():
         fid.append(f"{models['sanet-hit-dense-f32']['average']['fidelity']:.3f}")
         baselines += [models[b]["average"]["fidelity"] for b in ("atlasnet", "pcn", "foldingnet", "topnet")]
     _says("README.md", f"(fidelity {fid[0]} / {fid[1]}; baselines {min(baselines):.3f} or more)")
-
-
-def test_track_worker_speed():
-    """docs/real-data.md's "Two cores" table: the frame loop's and the worker's CPU a frame and the wall rate (the
-    medians of ``benchmarks/track_fusion.py --compare-worker``)."""
-    med = _json("real/track_fusion_speed_worker_1thread_bf16.json")["worker_and_one_process"]["median"]
-    one, two = med["one_process"], med["worker"]
-    _says(
-        "docs/real-data.md",
-        f"| one process, 1 torch thread | {one['cpu_ms_per_frame']:.0f} | - | {one['fps_wall']:.2f}",
-    )
-    _says(
-        "docs/real-data.md",
-        f"| with the worker, 1 torch thread | **{two['cpu_ms_per_frame']:.0f}** | {two['worker_cpu_ms_per_frame']:.0f} "
-        f"| **{two['fps_wall']:.2f}**",
-    )
