@@ -169,3 +169,41 @@ def test_docs_quote_the_measured_worker_speed():
         f"| **{two['fps_wall']:.2f}**"
     )
     assert want in doc
+
+
+@needs_two_cpus
+@pytest.mark.timeout(120)
+def test_real_complete_with_and_without_the_worker_writes_the_same_files(tmp_path):
+    """``real complete --fuse past:2 --refine-boxes``: the worker does the track work (its CPU is counted in
+    tracks.json) unless ``--no-track-worker``; every PLY is the same bytes, the JSON the same but clock readings."""
+    pytest.importorskip("torch")
+    from spotlights.cli import main
+
+    from learning_fixtures import make_checkpoint
+
+    src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0, 1.5])
+    ck = make_checkpoint(tmp_path / "tiny.pt", "sanet")
+    common = ["--format", "generic", "-c", str(ck), "--no-clip", "-q", "--no-pictures", "--fuse", "past:2"]
+    for name, extra in (("two", []), ("one", ["--no-track-worker"])):
+        argv = ["real", "complete", str(src), "--out", str(tmp_path / name), *common, "--refine-boxes", *extra]
+        assert main(argv) == 0
+    t = {n: json.loads((tmp_path / n / "tracks.json").read_text()) for n in ("two", "one")}
+    assert t["two"]["timings"]["worker_cpu_s"] > 0.0 and t["one"]["timings"]["worker_cpu_s"] == 0.0
+    files = sorted(p.relative_to(tmp_path / "one") for p in (tmp_path / "one").rglob("*") if p.is_file())
+    assert files == sorted(p.relative_to(tmp_path / "two") for p in (tmp_path / "two").rglob("*") if p.is_file())
+    assert sum(f.suffix == ".ply" for f in files) >= 6  # four frames and two tracks
+    clocks = ("timings", "wall_seconds", "completion_seconds")
+
+    def strip(x, out):
+        if isinstance(x, dict):
+            return {k: strip(v, out) for k, v in x.items() if k not in clocks}
+        if isinstance(x, list):
+            return [strip(v, out) for v in x]
+        return x.replace(out, "OUT") if isinstance(x, str) else x
+
+    for f in files:
+        a, b = (tmp_path / "one" / f).read_bytes(), (tmp_path / "two" / f).read_bytes()
+        if f.suffix == ".json":
+            assert strip(json.loads(a), str(tmp_path / "one")) == strip(json.loads(b), str(tmp_path / "two")), f
+        else:
+            assert a == b, f
