@@ -182,7 +182,8 @@ def main(argv=None) -> int:
             frame = plan.take(key)  # the frame the plan read (real complete reads each frame once)
             frame = reader.load(key) if frame is None else frame
             boxes, extra = plan.frame_inputs(key, frame.boxes)
-            result = complete_scene(frame.points, boxes, completer, config, extra_points=extra)
+            crops = plan.frame_crops(key)  # the scene's crops the worker made (None without one)
+            result = complete_scene(frame.points, boxes, completer, config, extra_points=extra, crops=crops)
             plan.record(key, result)
             keep("fused", key, frame, result)
             n += len(result.completed)

@@ -207,3 +207,25 @@ def test_real_complete_with_and_without_the_worker_writes_the_same_files(tmp_pat
             assert strip(json.loads(a), str(tmp_path / "one")) == strip(json.loads(b), str(tmp_path / "two")), f
         else:
             assert a == b, f
+
+
+@needs_two_cpus
+@pytest.mark.timeout(60)
+def test_the_worker_crops_each_scene_as_complete_scene_would(tmp_path):
+    """With a worker, each frame's scene crops come from it: for every valid box (the refined ones in place) the
+    indices of the scan points inside the box grown by 0.15 m with its bottom raised by 0.10 m, by hand."""
+    from test_track_speed import brute_force_crop
+
+    src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0])
+    plan, keys = _plan(src, "past:2", worker=True)
+    for key in keys:
+        frame = plan.take(key)
+        boxes, _ = plan.frame_inputs(key, frame.boxes)
+        crops = plan.frame_crops(key)
+        assert crops is not None and sorted(crops) == [i for i, b in enumerate(boxes) if b.is_valid()]
+        pts = np.asarray(frame.points, dtype=np.float64)
+        for i, idx in crops.items():
+            np.testing.assert_array_equal(idx, brute_force_crop(pts, boxes[i], 0.15, 0.10))
+        assert sum(len(c) for c in crops.values()) > 0
+        assert plan.frame_crops(key) is None  # handed out once
+    plan.finish()

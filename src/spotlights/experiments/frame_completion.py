@@ -345,6 +345,7 @@ class _FrameRun:
             extra_points=extra,
             fallback=self.fallback,
             fallback_name=s.fallback,
+            crops=None if tracks is None else tracks.frame_crops(key),  # made by the track worker, if any
         )
         if tracks is not None:
             tracks.record(key, result)

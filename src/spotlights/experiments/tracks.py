@@ -61,7 +61,7 @@ from ..errors import ParameterError
 from ..geometry.boxes import Box
 from ..geometry.io import save_ply
 from ..utils import StageTimer, atomic_output, die_with_parent, process_pool_context
-from .scene import SOURCE_COMPLETION, SOURCE_PARTIAL, SceneConfig, SceneResult, _selected
+from .scene import SOURCE_COMPLETION, SOURCE_PARTIAL, SceneConfig, SceneResult, _selected, scene_crops
 
 #: The most scan points :meth:`TrackPlan.build` keeps of the frames it read, for the frame loop to take
 #: (:meth:`TrackPlan.take`) instead of reading them again (2^24: ~200 MB; 480 nuScenes keyframes). Frames
@@ -140,6 +140,7 @@ class TrackPlan:
         # TrackWorker started earlier (its interpreter ready by then) is used as it is
         self.worker = bool(worker)
         self._worker: TrackWorker | None = worker if isinstance(worker, TrackWorker) else None
+        self.scene_crops: dict = {}  # frame key -> the worker's crops of its scene (frame_crops), the latest only
 
     @property
     def timings(self) -> dict[str, float]:
@@ -180,8 +181,9 @@ class TrackPlan:
             )
             todo_boxes = [frame.boxes[i] for i in todo]
             if self._worker is not None:  # the worker crops (its frames' points are None here)
-                if todo:
-                    self._worker.crop(key, frame.points, todo, todo_boxes, grow, self.config.ground_clearance)
+                keep = key in self.kept  # the frame loop takes this frame: the worker also makes its scene's crops
+                if todo or keep:
+                    self._worker.crop(key, frame.points, todo, frame.boxes, grow, self.config.ground_clearance, keep)
                 crops: list = [None] * len(todo)
             else:
                 crops = _crops(frame.points, todo_boxes, grow, self.config.ground_clearance)
@@ -306,6 +308,12 @@ class TrackPlan:
         for i, box in repl.items():
             out[i] = box
         return out, extra
+
+    def frame_crops(self, key) -> dict | None:
+        """The crops of frame ``key``'s scene that the worker made with its (refined) boxes ({box index: (k,) int64},
+        :func:`spotlights.experiments.scene.scene_crops`), for ``complete_scene(..., crops=...)``; None without (no
+        worker, or a frame it was not sent the scan of). Asked for after :meth:`frame_inputs`, handed out once."""
+        return self.scene_crops.pop(key, None)
 
     def finish(self) -> None:
         """Refine what no frame reached (the boxes of frames left out of the frame loop) and, with a worker
@@ -449,6 +457,7 @@ def _worker_main(jobs, results) -> None:
 
     try:
         crops: dict = {}  # frame key -> {box index: its crop}
+        scans: dict = {}  # frame key -> (its scan, its boxes): for the scene's crops of the frames the loop takes
         cpu0 = time.process_time()
         while True:
             msg = jobs.get()
@@ -457,8 +466,10 @@ def _worker_main(jobs, results) -> None:
             if msg[0] == "plan":
                 job = msg[1]
                 break
-            _, key, points, todo, boxes, grow, clearance = msg
-            crops[key] = dict(zip(todo, _crops(points, boxes, grow, clearance)))
+            _, key, points, todo, boxes, grow, clearance, keep = msg
+            crops[key] = dict(zip(todo, _crops(points, [boxes[i] for i in todo], grow, clearance)))
+            if keep:
+                scans[key] = (points, boxes)
         plan = TrackPlan(job["policy"], job["config"], job["refine"], None, job["max_translation"], job["max_yaw"])
         plan.tracks, plan.where = job["tracks"], job["where"]
         for tr in plan.tracks.values():  # the crops made here go where the plan left None
@@ -469,7 +480,12 @@ def _worker_main(jobs, results) -> None:
                 tr.refiner.frames = tr.frames
         del crops
         for key in job["keys"]:
-            results.put(("frame", key, *plan._inputs(key)))
+            repl, extra = plan._inputs(key)
+            scene = None
+            if key in scans and plan.config.crop:  # complete_scene's crops, of the boxes the loop will use
+                points, boxes = scans.pop(key)
+                scene = scene_crops(points, [repl.get(i, b) for i, b in enumerate(boxes)], plan.config)
+            results.put(("frame", key, repl, extra, scene))
         plan.finish()
         cfg = plan.config
         state = {
@@ -521,12 +537,20 @@ class TrackWorker:
         return cls(proc, jobs, results)
 
     def crop(
-        self, key, points: np.ndarray, todo: list[int], boxes: list[Box], grow: float, ground_clearance: float
+        self,
+        key,
+        points: np.ndarray,
+        todo: list[int],
+        boxes: list[Box],
+        grow: float,
+        ground_clearance: float,
+        keep: bool = False,
     ) -> None:
-        """Have the worker crop the tracked ``boxes`` (the frame's boxes ``todo``) of frame ``key`` from its scan
-        ``points`` (N, 3), the plan's crops (:meth:`TrackPlan.build` leaves their points None), while the frames
-        are still being read."""
-        self.jobs.put(("scan", key, points, todo, boxes, grow, ground_clearance))
+        """Have the worker crop the tracked boxes ``todo`` (indices into the frame's ``boxes``) of frame ``key`` from
+        its scan ``points`` (N, 3): the plan's crops (:meth:`TrackPlan.build` leaves their points None), made while
+        the frames are still being read. ``keep``: the worker keeps the scan and, when it prepares the frame,
+        makes its scene's crops too (:func:`spotlights.experiments.scene.scene_crops`, :meth:`TrackPlan.frame_crops`)."""
+        self.jobs.put(("scan", key, points, todo, boxes, grow, ground_clearance, keep))
 
     def send(self, plan: TrackPlan, keys: list) -> None:
         """Hand the worker the built ``plan`` (its tracks, their frames and refiners) and the frame order."""
@@ -577,9 +601,10 @@ class TrackWorker:
             if msg[0] == "done":
                 self._final(plan, msg)
                 break
-            _, k, repl, extra = msg
+            _, k, repl, extra, scene = msg
             self._apply(plan, k, repl)
             self.pending = {k: (repl, extra)}  # only the latest: the loop asks in order
+            plan.scene_crops = {k: scene} if scene is not None else {}
         if key not in self.pending:
             raise RuntimeError(f"frame {key} was not planned, or asked for out of the order given to build()")
         return self.pending.pop(key)
