@@ -185,6 +185,26 @@ def test_farthest_point_sample_against_the_definition():
     assert np.array_equal(farthest_point_sample(p, 60, seed=2), idx)  # deterministic
 
 
+def test_voxel_downsample_sums_in_canonical_order_bit_for_bit():
+    """Each centroid is its cell's points added up one by one in canonical order (x, then y, then z), divided by
+    their count, then float32: bit for bit, for a compact cloud and for one whose cells span more than an int64
+    can index (1 mm cells over 2 km)."""
+    from spotlights.geometry.sampling import voxel_downsample
+
+    rng = np.random.default_rng(7)
+    for p, v in ((rng.normal(size=(3000, 3)) * 0.4, 0.1), (rng.uniform(-1000, 1000, (500, 3)), 1e-3)):
+        q = p[np.lexsort((p[:, 2], p[:, 1], p[:, 0]))]
+        sums: dict = {}
+        for row in q:
+            k = tuple(int(x) for x in np.floor(row / v))
+            acc = sums.setdefault(k, [0.0, 0.0, 0.0, 0])
+            for j in range(3):
+                acc[j] += float(row[j])
+            acc[3] += 1
+        want = np.array([[acc[j] / acc[3] for j in range(3)] for _, acc in sorted(sums.items())]).astype(np.float32)
+        np.testing.assert_array_equal(voxel_downsample(p, v), want)
+
+
 def test_voxel_downsample_against_the_definition():
     """Centroid of each occupied cell (brute force over a dict of cells); order-independent, bit for bit; a dense and
     a sparse sampling of one surface give nearly the same cloud, two fixed-count subsets of it do not."""

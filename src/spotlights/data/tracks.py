@@ -495,6 +495,117 @@ class Refinement:
         return np.array([s in FLAGGED for s in self.status], dtype=bool)
 
 
+class TrackRefiner:
+    """The box refinement of :func:`refine_track`, made frame by frame: :meth:`upto` ``(t)`` makes the boxes of the
+    frames ``0..t`` final, :meth:`result` gives the :class:`Refinement`. With a causal window (``past:K``) frame
+    ``t`` is registered to earlier frames only, so the frames are refined one at a time, in order, as a frame loop
+    reaches them (a streaming caller gets frame ``t``'s box after ``t + 1`` registrations, not after the whole
+    track's); other windows look ahead, so the first :meth:`upto` refines the whole track (every round). Either
+    way the numbers are those of :func:`refine_track` (the same registrations in the same order). Parameters and
+    errors: :func:`refine_track`."""
+
+    def __init__(
+        self,
+        frames: Sequence[TrackFrame],
+        policy: WindowPolicy | str = "all",
+        max_translation: float = MAX_TRANSLATION_M,
+        max_yaw: float = MAX_YAW_RAD,
+        rounds: int = 4,
+        min_points: int = 30,
+        margin: float | None = None,
+        ground_clearance: float | None = None,
+        voxel: float | None = 0.1,
+        min_gain: float = 0.1,
+    ):
+        pol = parse_window(policy) if isinstance(policy, str) else policy
+        n = len(frames)
+        if n < 2:
+            raise ParameterError(f"a box refinement needs a track of at least 2 frames, got {n}")
+        if not pol.fuses:
+            raise ParameterError("a box refinement needs a window of several frames (all, past:K or centered:K)")
+        if rounds < 1:
+            raise ParameterError(f"rounds must be >= 1, got {rounds}")
+        self.frames, self.policy, self.rounds = frames, pol, 1 if pol.causal else rounds
+        self.max_translation, self.max_yaw, self.min_points = max_translation, max_yaw, min_points
+        self.margin, self.ground_clearance, self.voxel, self.min_gain = margin, ground_clearance, voxel, min_gain
+        self.given = [f.box for f in frames]
+        self.status = ["no_reference"] * n
+        self.prop_t = np.zeros(n)
+        self.prop_y = np.zeros(n)
+        self.rms = np.full(n, np.nan)
+        self.objs: list = [None] * n  # each frame's points in its given box's frame (selected once, when needed)
+        # current correction of each frame relative to its given box (points p' = Rz p + t)
+        self.corr = [(np.zeros(2), 0.0) for _ in range(n)]
+        self.done = -1  # frames 0..done are final
+
+    def _obj(self, i: int) -> np.ndarray:
+        if self.objs[i] is None:
+            o = _object_points(self.frames[i], self.given[i], self.margin, self.ground_clearance)
+            self.objs[i] = o if self.voxel is None else voxel_downsample(o, self.voxel).astype(np.float64)
+        return self.objs[i]
+
+    def _in_current(self, i: int) -> np.ndarray:
+        t, y = self.corr[i]
+        o = self._obj(i)
+        return _moved(o[:, :2], o[:, 2], t, y)
+
+    def _step(self, i: int) -> None:
+        """Register frame ``i`` to the other frames of its window under their current corrections."""
+        n, voxel = len(self.frames), self.voxel
+        others = [j for j in self.policy.select(n, i) if j != i]
+        if not others:
+            return
+        ref = np.concatenate([self._in_current(j) for j in others])
+        if voxel is not None and len(others) > 1:
+            ref = voxel_downsample(ref, voxel).astype(np.float64)
+        obj = self._obj(i)
+        if len(obj) < self.min_points or len(ref) < self.min_points:
+            self.status[i] = "too_few_points"
+            return
+        # register the frame as given (not as last corrected): the bound is counted from the given box
+        reg = register_xy_yaw(obj, ref, max_correspondence=self.max_translation + 0.25)
+        self.prop_t[i] = float(np.hypot(*reg.translation))
+        self.prop_y[i] = reg.yaw
+        self.rms[i] = reg.rms
+        if not reg.converged:
+            self.status[i], self.corr[i] = "not_converged", (np.zeros(2), 0.0)
+        elif self.prop_t[i] > self.max_translation or abs(reg.yaw) > self.max_yaw:
+            self.status[i], self.corr[i] = "exceeds_bound", (np.zeros(2), 0.0)
+        elif reg.gain < self.min_gain:
+            self.status[i], self.corr[i] = "no_gain", (np.zeros(2), 0.0)
+        else:
+            self.status[i], self.corr[i] = "refined", (reg.translation, reg.yaw)
+
+    def upto(self, t: int) -> None:
+        """Make the boxes of frames ``0..t`` final (causal: register the frames up to ``t`` not yet registered;
+        otherwise: refine the whole track, once)."""
+        n = len(self.frames)
+        if t <= self.done:
+            return
+        if self.policy.causal:
+            for i in range(self.done + 1, min(t, n - 1) + 1):
+                self._step(i)
+                self.done = i
+            return
+        for _ in range(self.rounds):
+            for i in range(n):
+                self._step(i)
+        self.done = n - 1
+
+    def box(self, i: int) -> Box:
+        """Frame ``i``'s box: refined when its registration was kept, else the given one (final once
+        :meth:`upto` has reached ``i``)."""
+        return corrected_box(self.given[i], *self.corr[i]) if self.status[i] == "refined" else self.given[i]
+
+    def result(self) -> Refinement:
+        """The :class:`Refinement` of the whole track (refining what is left)."""
+        self.upto(len(self.frames) - 1)
+        boxes = [self.box(i) for i in range(len(self.frames))]
+        moved = np.array([float(np.hypot(*(b.center - g.center)[:2])) for b, g in zip(boxes, self.given)])
+        dyaw = np.array([math.remainder(b.yaw - g.yaw, 2 * math.pi) for b, g in zip(boxes, self.given)])
+        return Refinement(boxes, list(self.status), moved, dyaw, self.prop_t, self.prop_y, self.rms)
+
+
 def refine_track(
     frames: Sequence[TrackFrame],
     policy: WindowPolicy | str = "all",
@@ -531,64 +642,9 @@ def refine_track(
     Raises :class:`ParameterError` for a track of fewer than 2 frames (nothing to register to) or a
     ``none`` policy.
     """
-    pol = parse_window(policy) if isinstance(policy, str) else policy
-    n = len(frames)
-    if n < 2:
-        raise ParameterError(f"a box refinement needs a track of at least 2 frames, got {n}")
-    if not pol.fuses:
-        raise ParameterError("a box refinement needs a window of several frames (all, past:K or centered:K)")
-    if rounds < 1:
-        raise ParameterError(f"rounds must be >= 1, got {rounds}")
-    if pol.causal:
-        rounds = 1
-    given = [f.box for f in frames]
-    boxes = list(given)
-    status = ["no_reference"] * n
-    prop_t = np.zeros(n)
-    prop_y = np.zeros(n)
-    rms = np.full(n, np.nan)
-    objs = [None] * n  # each frame's points in its given box's frame (selected once)
-    for i, f in enumerate(frames):
-        objs[i] = _object_points(f, given[i], margin, ground_clearance)
-        if voxel is not None:
-            objs[i] = voxel_downsample(objs[i], voxel).astype(np.float64)
-    # current correction of each frame relative to its given box (points p' = Rz p + t)
-    corr = [(np.zeros(2), 0.0) for _ in range(n)]
-
-    def in_current(i: int) -> np.ndarray:
-        t, y = corr[i]
-        return _moved(objs[i][:, :2], objs[i][:, 2], t, y)
-
-    for _ in range(rounds):
-        for i in range(n):
-            others = [j for j in pol.select(n, i) if j != i]
-            if not others:
-                continue
-            ref = np.concatenate([in_current(j) for j in others])
-            if voxel is not None and len(others) > 1:
-                ref = voxel_downsample(ref, voxel).astype(np.float64)
-            if len(objs[i]) < min_points or len(ref) < min_points:
-                status[i] = "too_few_points"
-                continue
-            # register the frame as given (not as last corrected): the bound is counted from the given box
-            reg = register_xy_yaw(objs[i], ref, max_correspondence=max_translation + 0.25)
-            prop_t[i] = float(np.hypot(*reg.translation))
-            prop_y[i] = reg.yaw
-            rms[i] = reg.rms
-            if not reg.converged:
-                status[i], corr[i] = "not_converged", (np.zeros(2), 0.0)
-            elif prop_t[i] > max_translation or abs(reg.yaw) > max_yaw:
-                status[i], corr[i] = "exceeds_bound", (np.zeros(2), 0.0)
-            elif reg.gain < min_gain:
-                status[i], corr[i] = "no_gain", (np.zeros(2), 0.0)
-            else:
-                status[i], corr[i] = "refined", (reg.translation, reg.yaw)
-    for i in range(n):
-        if status[i] == "refined":
-            boxes[i] = corrected_box(given[i], *corr[i])
-    moved = np.array([float(np.hypot(*(b.center - g.center)[:2])) for b, g in zip(boxes, given)])
-    dyaw = np.array([math.remainder(b.yaw - g.yaw, 2 * math.pi) for b, g in zip(boxes, given)])
-    return Refinement(boxes, status, moved, dyaw, prop_t, prop_y, rms)
+    return TrackRefiner(
+        frames, policy, max_translation, max_yaw, rounds, min_points, margin, ground_clearance, voxel, min_gain
+    ).result()
 
 
 __all__ = [
@@ -607,6 +663,7 @@ __all__ = [
     "register_xy_yaw",
     "corrected_box",
     "Refinement",
+    "TrackRefiner",
     "refine_track",
     "FLAGGED",
 ]

@@ -34,7 +34,7 @@ from ..viz.html import write_plotlyjs
 from ..viz.rerun_log import check_rerun_path, open_recording
 from .scan_completion import CompletionOptions, Say, ScanSettings, complete_scan, silent, write_json
 from .scene import SceneConfig, SceneResult, complete_scene, render_result, render_result_html, write_scene
-from .tracks import TrackPlan
+from .tracks import TrackPlan, TrackWorker
 
 
 def safe_name(text: str) -> str:
@@ -201,7 +201,9 @@ class FramesSettings(ReaderOptions, CompletionOptions):
     fuse : the frames of a track fused into its input (``"none"``, ``"all"``, ``"past:K"``, ``"centered:K"`` or a
     :class:`~spotlights.data.tracks.WindowPolicy`); refine_boxes : register and correct the boxes (with fuse);
     max_gap : the longest time between two frames of one track, seconds; rerun : a ``.rrd`` file that also
-    receives every frame on a time line (:mod:`spotlights.viz.rerun_log`; None: none); quiet : no progress bar.
+    receives every frame on a time line (:mod:`spotlights.viz.rerun_log`; None: none); quiet : no progress bar;
+    track_worker : with fuse, refine the boxes and fuse the windows in a second process, a frame ahead of the
+    completion (:class:`~spotlights.experiments.tracks.TrackWorker`: the same outputs, two cores).
     """
 
     out: str
@@ -215,6 +217,7 @@ class FramesSettings(ReaderOptions, CompletionOptions):
     max_gap: float = MAX_GAP_S
     rerun: str | None = None
     quiet: bool = False
+    track_worker: bool = True
 
     @classmethod
     def of_scene(cls, s: ScanSettings) -> FramesSettings:
@@ -257,12 +260,22 @@ class FramesSettings(ReaderOptions, CompletionOptions):
         """:attr:`fuse` as a :class:`~spotlights.data.tracks.WindowPolicy`."""
         return parse_window(self.fuse) if isinstance(self.fuse, str) else self.fuse
 
-    def track_plan(self, reader: SceneReader, keys: list, config: SceneConfig) -> TrackPlan | None:
-        """The built :class:`~spotlights.experiments.tracks.TrackPlan` of ``fuse`` (None without fusion)."""
+    def track_plan(
+        self, reader: SceneReader, keys: list, config: SceneConfig, worker: TrackWorker | None = None
+    ) -> TrackPlan | None:
+        """The built :class:`~spotlights.experiments.tracks.TrackPlan` of ``fuse`` (None without fusion); ``worker``:
+        its :class:`~spotlights.experiments.tracks.TrackWorker`, started earlier (default: one started here with
+        ``track_worker``)."""
         if self.window.fuses:
             if self.resume:
                 raise ParameterError("--resume does not apply with --fuse (a frame's input depends on its track)")
-            return TrackPlan(self.window, config, self.refine_boxes, self.max_gap).build(reader, keys)
+            use = worker if worker is not None else self.track_worker
+            plan = TrackPlan(self.window, config, self.refine_boxes, self.max_gap, worker=use)
+            try:
+                return plan.build(reader, keys)
+            except BaseException:
+                plan.close()
+                raise
         if self.refine_boxes:
             raise ParameterError("--refine-boxes needs --fuse all, past:K or centered:K (the frames to register to)")
         return None
@@ -332,6 +345,7 @@ class _FrameRun:
             extra_points=extra,
             fallback=self.fallback,
             fallback_name=s.fallback,
+            crops=None if tracks is None else tracks.frame_crops(key),  # made by the track worker, if any
         )
         if tracks is not None:
             tracks.record(key, result)
@@ -420,19 +434,30 @@ def complete_frames(
     are counted), ``say`` the summary line; ``completer``: a model already loaded (default: the one ``s``
     names). Returns the run's summary (the content of ``summary.json``).
     """
-    reader = s.open()
-    keys = select_frames(reader.frame_keys(), s.frames)
-    if not keys:
-        raise ParameterError("--frames selects no frame")
-    config = s.scene_config()
-    if s.rerun is not None:
-        check_rerun_path(s.rerun)
-    tracks = s.track_plan(reader, keys, config)
-    completer = s.load_completer() if completer is None else completer
-    fallback = s.load_fallback()  # loaded beside the main model, before any output exists
-    # the folder is removed again if nothing could be written; the recording is written only when the run ends
-    with output_folder(s.out) as out, open_recording(s.rerun, TIME_UNIT_S.get(reader.format)) as rec:
-        return _run_frames(s, reader, keys, config, completer, out, tracks, say, warn, rec, fallback)
+    # the track worker's interpreter starts while the dataset is opened and read (refusals stop it)
+    early = TrackWorker.start() if s.track_worker and s.window.fuses and not s.resume else None
+    try:
+        reader = s.open()
+        keys = select_frames(reader.frame_keys(), s.frames)
+        if not keys:
+            raise ParameterError("--frames selects no frame")
+        config = s.scene_config()
+        if s.rerun is not None:
+            check_rerun_path(s.rerun)
+        tracks = s.track_plan(reader, keys, config, early)
+    except BaseException:
+        if early is not None:
+            early.stop()
+        raise
+    try:
+        completer = s.load_completer() if completer is None else completer
+        fallback = s.load_fallback()  # loaded beside the main model, before any output exists
+        # the folder is removed again if nothing could be written; the recording is written only when the run ends
+        with output_folder(s.out) as out, open_recording(s.rerun, TIME_UNIT_S.get(reader.format)) as rec:
+            return _run_frames(s, reader, keys, config, completer, out, tracks, say, warn, rec, fallback)
+    finally:
+        if tracks is not None:
+            tracks.close()  # the worker process, if any (done by now unless something failed)
 
 
 def complete_input(
@@ -481,8 +506,9 @@ def _run_frames(
         frames=run.frames,
     )
     if tracks is not None:
-        tracks.write(out, completer.model_name)
-        summary["tracks"] = {k: v for k, v in tracks.summary().items() if k != "tracks"}
+        per_track = tracks.summary()  # made once: tracks.json and summary.json's totals
+        tracks.write(out, completer.model_name, summary=per_track)
+        summary["tracks"] = {k: v for k, v in per_track.items() if k != "tracks"}
     write_json(out / "summary.json", summary)
     shown = run.warnings
     if len(shown) > 10:

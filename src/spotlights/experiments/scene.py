@@ -312,6 +312,7 @@ def complete_scene(
     extra_points: dict | None = None,
     fallback=None,
     fallback_name: str | None = None,
+    crops: dict | None = None,
 ) -> SceneResult:
     """Complete every selected box of one scan (see the module docstring).
 
@@ -331,6 +332,9 @@ def complete_scene(
         learned domain gates them) but ``fallback`` did, e.g. ``load_completer("classes")`` beside the car-only
         default: those boxes are completed by it (``ObjectResult.completed_by``: ``fallback_name``, else its
         model's name), the others by ``completer``.
+    crops : optional {box index: (k,) int64 scan indices} of every valid box, :func:`scene_crops` of these
+        ``points`` and ``boxes`` made elsewhere (a track worker process, :mod:`spotlights.experiments.tracks`);
+        used without ``axes`` and with ``config.crop``, else ignored.
 
     Returns a :class:`SceneResult`; raises :class:`ParameterError` for a scan with fewer than
     ``config.min_points`` points.
@@ -350,7 +354,8 @@ def complete_scene(
         lidar = lidar if a is None else a @ lidar
         member = np.full(len(scan), -1, np.int64)
         fb = None if fallback is None else (fallback, fallback_name or str(getattr(fallback, "model_name", "fallback")))
-        objects = _crop_objects(work, boxes, a, lidar, member, completer, config, extra_points, fb)
+        given = crops if a is None and config.crop else None
+        objects = _crop_objects(work, boxes, a, lidar, member, completer, config, extra_points, fb, given)
     todo = [o for o in objects if o.status == "completed"]
     shares: list[float] = []  # per completion: the share the network put inside its grown box (before the clamp)
     with timer("model"):
@@ -376,8 +381,26 @@ def complete_scene(
     )
 
 
+def scene_crops(points: np.ndarray, boxes: Sequence[Box], config: SceneConfig) -> dict[int, np.ndarray]:
+    """{box index: (k,) int64 indices of the scan ``points`` (N, 3), metres, the boxes' frame} for every valid box:
+    the crop :func:`complete_scene` makes (the box grown by ``config.margin``, bottom raised by
+    ``config.ground_clearance``; one KD-tree, :func:`spotlights.geometry.boxes.crop_boxes`)."""
+    work = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    valid = [i for i, b in enumerate(boxes) if b.is_valid()]
+    return dict(zip(valid, crop_boxes(work, [boxes[i] for i in valid], config.margin, config.ground_clearance)))
+
+
 def _crop_objects(
-    work, boxes, a, lidar, member, completer, config: SceneConfig, extra_points, fallback: tuple | None = None
+    work,
+    boxes,
+    a,
+    lidar,
+    member,
+    completer,
+    config: SceneConfig,
+    extra_points,
+    fallback: tuple | None = None,
+    given: dict | None = None,
 ) -> list[ObjectResult]:
     """Every box's :class:`ObjectResult`: its crop of ``work`` (N, 3) (the scan in the object convention,
     metres), its 256-point model input (unit frame) and out-of-domain warnings, or why it is skipped.
@@ -386,12 +409,8 @@ def _crop_objects(
     ids = object_ids(boxes)
     objects: list[ObjectResult] = []
     wbs = [b if to_work is None else b.transformed(to_work) for b in boxes]
-    valid = [i for i, wb in enumerate(wbs) if wb.is_valid()]
-    crops = (  # one KD-tree crop of the scan for every box (geometry.boxes.crop_boxes: Box.crop's indices)
-        dict(zip(valid, crop_boxes(work, [wbs[i] for i in valid], config.margin, config.ground_clearance)))
-        if config.crop
-        else {}
-    )
+    # one KD-tree crop of the scan for every box (geometry.boxes.crop_boxes: Box.crop's indices), unless given
+    crops = (given if given is not None else scene_crops(work, wbs, config)) if config.crop else {}
     for i, b in enumerate(boxes):
         wb = wbs[i]
         if not wb.is_valid():
@@ -686,6 +705,7 @@ __all__ = [
     "SceneResult",
     "ObjectResult",
     "complete_scene",
+    "scene_crops",
     "write_scene",
     "check_completed",
     "object_ids",

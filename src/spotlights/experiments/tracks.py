@@ -7,12 +7,17 @@ The plan behind ``spotlights real complete ... --fuse POLICY [--refine-boxes]``:
    the sensor origin and the time (seconds: :data:`spotlights.data.tracks.TIME_UNIT_S`). A vehicle box
    without a track id, a track with a gap or two boxes at one instant, or a selection of fewer than two
    frames is refused with one line before anything is written.
-2. With ``refine``: :func:`spotlights.data.tracks.refine_track` per track, with the same window policy
-   (``past:K`` stays causal).
+2. With ``refine``: a :class:`spotlights.data.tracks.TrackRefiner` per track (the numbers of
+   :func:`spotlights.data.tracks.refine_track`, with the same window policy: ``past:K`` stays causal), run as the
+   frames are reached: with ``past:K`` frame ``t``'s box is refined when frame ``t`` is asked for, other windows
+   refine the whole track at its first frame.
 3. Per frame, :meth:`TrackPlan.frame_inputs` gives the boxes (refined where refined) and, per vehicle box,
    the other frames of its window fused in its box frame (:func:`spotlights.data.tracks.fuse_track`, the
    completion's crop) and put in this frame's scan frame: :func:`spotlights.experiments.scene.complete_scene`
    adds them to the box's own crop for the model input. The completion is the existing one, on more points.
+   With ``worker=True`` (and two usable CPUs) a :class:`TrackWorker` process crops the tracked boxes while the
+   frames are read, then refines and fuses the frames ahead of the frame loop, which completes them meanwhile:
+   a two-stage pipeline with the same outputs, byte for byte.
 4. :meth:`TrackPlan.record` keeps each track's latest completion; :meth:`TrackPlan.write` writes per track
    ``tracks/<track>.ply`` (box frame of the track's last frame: the whole track's fused input, ``source`` 1
    with ``frame`` = the frame's position in the track, then the completion of the last frame's window,
@@ -28,9 +33,13 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import pickle
 import re
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from queue import Empty
 
 import numpy as np
 
@@ -41,17 +50,18 @@ from ..data.tracks import (
     MAX_TRANSLATION_M,
     MAX_YAW_RAD,
     TIME_UNIT_S,
+    FusedTrack,
     TrackFrame,
+    TrackRefiner,
     WindowPolicy,
     check_track,
     fuse_track,
-    refine_track,
 )
 from ..errors import ParameterError
 from ..geometry.boxes import Box
 from ..geometry.io import save_ply
-from ..utils import StageTimer, atomic_output
-from .scene import SOURCE_COMPLETION, SOURCE_PARTIAL, SceneConfig, SceneResult, _selected
+from ..utils import StageTimer, atomic_output, die_with_parent, process_pool_context
+from .scene import SOURCE_COMPLETION, SOURCE_PARTIAL, SceneConfig, SceneResult, _selected, scene_crops
 
 #: The most scan points :meth:`TrackPlan.build` keeps of the frames it read, for the frame loop to take
 #: (:meth:`TrackPlan.take`) instead of reading them again (2^24: ~200 MB; 480 nuScenes keyframes). Frames
@@ -70,8 +80,10 @@ class _Track:
     status: list = field(default_factory=list)
     n_points: list = field(default_factory=list)  # the frame's own points in the completion's crop
     n_fused: list = field(default_factory=list)
-    completion: np.ndarray | None = None  # latest completion, box frame of ``completion_frame``
+    completion: np.ndarray | None = None  # latest completion (scan frame of ``completion_frame``: box frame in write)
     completion_frame: int = -1
+    refiner: TrackRefiner | None = None  # the box refinement, made as the frames are reached (None: none)
+    fused: FusedTrack | None = None  # the whole track fused under its final boxes (from the worker), for write()
 
 
 def file_stem(text: str) -> str:
@@ -89,8 +101,18 @@ def _near_boxes(points: np.ndarray, boxes: list[Box], margin: float, ground_clea
     from scipy.spatial import cKDTree
 
     reach = np.array([b.radius + max(margin, 0.0) + abs(ground_clearance) for b in boxes])
-    hits = cKDTree(points).query_ball_point(np.array([b.center for b in boxes]), reach)
+    # one query per box: a tree built without balancing is ~2x cheaper to build and finds the same points
+    tree = cKDTree(points, balanced_tree=False, compact_nodes=False)
+    hits = tree.query_ball_point(np.array([b.center for b in boxes]), reach)
     return [np.sort(np.asarray(h, dtype=np.int64)) for h in hits]
+
+
+def _crops(points: np.ndarray, boxes: list[Box], grow: float, ground_clearance: float) -> list[np.ndarray]:
+    """Per box, its points (k, 3) float64 of the scan ``points`` (N, 3), the scan's frame: those inside the box grown
+    by ``grow`` with its bottom raised by ``ground_clearance`` (the plan's crop of a tracked box)."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    near = _near_boxes(pts, boxes, grow, ground_clearance)
+    return [pts[cand[points_in_box(pts[cand], b, grow, ground_clearance)]] for b, cand in zip(boxes, near)]
 
 
 class TrackPlan:
@@ -104,6 +126,7 @@ class TrackPlan:
         max_gap_s: float | None = MAX_GAP_S,
         max_translation: float = MAX_TRANSLATION_M,
         max_yaw: float = MAX_YAW_RAD,
+        worker: bool | TrackWorker = False,
     ):
         if not policy.fuses:
             raise ParameterError("a track plan needs a window that fuses frames (all, past:K or centered:K)")
@@ -111,13 +134,20 @@ class TrackPlan:
         self.max_gap_s, self.max_translation, self.max_yaw = max_gap_s, max_translation, max_yaw
         self.tracks: dict[tuple[str, str], _Track] = {}
         self.where: dict[tuple[str, str], dict[int, tuple[_Track, int]]] = {}  # frame key -> box -> (track, pos)
-        self.timer = StageTimer()  # read_s, refine_s (build), fuse_s (every frame_inputs)
+        self.timer = StageTimer()  # read_s (build), refine_s and fuse_s (frame_inputs), wait_s (for the worker)
         self.kept: dict = {}  # frame key -> the Frame build read, until the frame loop takes it (KEEP_POINTS)
+        # refine and fuse in a worker process (TrackWorker) while this one completes: True starts one in build, a
+        # TrackWorker started earlier (its interpreter ready by then) is used as it is
+        self.worker = bool(worker)
+        self._worker: TrackWorker | None = worker if isinstance(worker, TrackWorker) else None
+        self.scene_crops: dict = {}  # frame key -> the worker's crops of its scene (frame_crops), the latest only
 
     @property
     def timings(self) -> dict[str, float]:
-        """Wall seconds spent reading the frames, refining the boxes and fusing the windows."""
-        return {k: self.timer.seconds.get(k, 0.0) for k in ("read_s", "refine_s", "fuse_s")}
+        """Wall seconds spent reading the frames, refining the boxes, fusing the windows (in the worker process
+        when there is one) and, with a worker, waiting for it and the CPU seconds of its work (``worker_cpu_s``)."""
+        names = ("read_s", "refine_s", "fuse_s", "wait_s", "worker_cpu_s")
+        return {k: self.timer.seconds.get(k, 0.0) for k in names}
 
     # --- building ---------------------------------------------------------------------------
 
@@ -132,12 +162,13 @@ class TrackPlan:
         laps = StageTimer()
         grow = self.config.margin + (self.max_translation if self.refine else 0.0)
         budget = KEEP_POINTS
+        if self.worker and self._worker is None:
+            self._worker = TrackWorker.start()  # its interpreter starts while the frames are read (None: cannot)
         for key in keys:
             frame = reader.load(key)
             if len(frame.points) <= budget:
                 self.kept[key] = frame
                 budget -= len(frame.points)
-            pts = np.asarray(frame.points, dtype=np.float64).reshape(-1, 3)
             so = getattr(frame, "sensor_origin", None)
             origin = np.zeros(3) if so is None else np.asarray(so, dtype=np.float64).reshape(3)
             todo = [
@@ -148,14 +179,19 @@ class TrackPlan:
             untracked = sum(
                 1 for b in frame.boxes if _selected(b, self.config) and b.is_valid() and not b.track_id.strip()
             )
-            near = _near_boxes(pts, [frame.boxes[i] for i in todo], grow, self.config.ground_clearance)
-            for i, cand in zip(todo, near):
-                b = frame.boxes[i]
+            todo_boxes = [frame.boxes[i] for i in todo]
+            if self._worker is not None:  # the worker crops (its frames' points are None here)
+                keep = key in self.kept  # the frame loop takes this frame: the worker also makes its scene's crops
+                if todo or keep:
+                    self._worker.crop(key, frame.points, todo, frame.boxes, grow, self.config.ground_clearance, keep)
+                crops: list = [None] * len(todo)
+            else:
+                crops = _crops(frame.points, todo_boxes, grow, self.config.ground_clearance)
+            for i, b, crop in zip(todo, todo_boxes, crops):
                 tr = self.tracks.setdefault((frame.sequence, b.track_id), _Track(frame.sequence, b.track_id))
-                idx = cand[points_in_box(pts[cand], b, grow, self.config.ground_clearance)]
                 tr.keys.append(key)
                 tr.box_index.append(i)
-                tr.frames.append(TrackFrame(pts[idx], b, origin, float(frame.timestamp) * unit))
+                tr.frames.append(TrackFrame(crop, b, origin, float(frame.timestamp) * unit))
                 self.where.setdefault(key, {})[i] = (tr, len(tr.frames) - 1)
             if untracked:
                 where = f"{frame.sequence}/{frame.frame_id}" if frame.sequence else frame.frame_id
@@ -173,8 +209,8 @@ class TrackPlan:
         for tr in self.tracks.values():
             tr.boxes = [f.box for f in tr.frames]
             tr.status = ["given"] * len(tr.frames)
-            if self.refine and len(tr.frames) >= 2:
-                ref = refine_track(
+            if self.refine and len(tr.frames) >= 2:  # refined as the frames are reached (frame_inputs)
+                tr.refiner = TrackRefiner(
                     tr.frames,
                     self.policy,
                     max_translation=self.max_translation,
@@ -183,13 +219,29 @@ class TrackPlan:
                     margin=grow,
                     ground_clearance=self.config.ground_clearance,
                 )
-                tr.boxes, tr.status = ref.boxes, ref.status
             elif self.refine:
                 tr.status = ["single_frame"]
             tr.n_points = [0] * len(tr.frames)
             tr.n_fused = [0] * len(tr.frames)
-        self.timer.add("refine_s", laps.lap("refine"))
+        if self._worker is not None:
+            self.start_worker(keys, self._worker)
         return self
+
+    def start_worker(self, keys, worker: TrackWorker | None = None) -> bool:
+        """Hand the built plan to a worker process (``worker``, else a new :class:`TrackWorker`) that refines and
+        fuses the frames ``keys`` in that order, ahead of :meth:`frame_inputs`; False where no process can be
+        started (the plan then works alone). A plan built with a worker (``worker=True``) was cropped there."""
+        worker = TrackWorker.start() if worker is None else worker
+        if worker is None:
+            return False
+        self._worker = worker
+        worker.send(self, list(keys))
+        return True
+
+    @property
+    def worker_process(self):
+        """The worker's ``multiprocessing`` process while one works for this plan, else None."""
+        return None if self._worker is None else self._worker.proc
 
     # --- per frame ----------------------------------------------------------------------------
 
@@ -204,16 +256,28 @@ class TrackPlan:
             tr.frames, [pos], boxes=tr.boxes, margin=self.config.margin, ground_clearance=self.config.ground_clearance
         ).points
 
-    def frame_inputs(self, key, boxes: list[Box]) -> tuple[list[Box], dict[int, np.ndarray]]:
-        """For one frame: its boxes with the refined ones in place, and {box index: (k, 3) scan-frame points of
-        the other frames of the box's window, fused in its box frame and put in this frame}."""
-        laps = StageTimer()
-        out = list(boxes)
+    def _refine_upto(self, tr: _Track, pos: int) -> None:
+        """Make the refined boxes that frame ``pos`` of ``tr`` and its window use final (causal windows: the
+        frames up to ``pos``; others: the whole track), copied into ``tr.boxes`` / ``tr.status``."""
+        ref = tr.refiner
+        if ref is None or pos <= ref.done:
+            return
+        before = ref.done
+        with self.timer("refine_s"):
+            ref.upto(pos)
+        for j in range(before + 1, ref.done + 1):
+            tr.boxes[j], tr.status[j] = ref.box(j), ref.status[j]
+
+    def _inputs(self, key) -> tuple[dict[int, Box], dict[int, np.ndarray]]:
+        """For one frame: {box index: its (refined) box} and {box index: (k, 3) scan-frame points of the other
+        frames of its window, fused in its box frame and put in this frame} (refining what they need)."""
+        repl: dict[int, Box] = {}
         extra: dict[int, np.ndarray] = {}
         for i, (tr, pos) in self.where.get(key, {}).items():
-            box = tr.boxes[pos]
-            out[i] = box
             window = self.policy.select(len(tr.frames), pos)
+            self._refine_upto(tr, int(window[-1]))
+            laps = StageTimer()
+            box = tr.boxes[pos]
             others = [j for j in window if j != pos]
             own = len(self._own(tr, pos))
             fused = (
@@ -227,21 +291,55 @@ class TrackPlan:
                 if others
                 else np.zeros((0, 3))
             )
+            repl[i] = box
             extra[i] = box.from_object(fused)
             tr.n_points[pos] = own
             tr.n_fused[pos] = own + len(fused)
-        self.timer.add("fuse_s", laps.lap("fuse"))
+            self.timer.add("fuse_s", laps.lap("fuse"))
+        return repl, extra
+
+    def frame_inputs(self, key, boxes: list[Box]) -> tuple[list[Box], dict[int, np.ndarray]]:
+        """For one frame: its boxes with the refined ones in place, and {box index: (k, 3) scan-frame points of
+        the other frames of the box's window, fused in its box frame and put in this frame}. With a worker
+        process, what it computed for the frame (the frames are asked for in the order given to :meth:`build`,
+        some may be passed over)."""
+        repl, extra = self._inputs(key) if self._worker is None else self._worker.inputs(self, key)
+        out = list(boxes)
+        for i, box in repl.items():
+            out[i] = box
         return out, extra
 
+    def frame_crops(self, key) -> dict | None:
+        """The crops of frame ``key``'s scene that the worker made with its (refined) boxes ({box index: (k,) int64},
+        :func:`spotlights.experiments.scene.scene_crops`), for ``complete_scene(..., crops=...)``; None without (no
+        worker, or a frame it was not sent the scan of). Asked for after :meth:`frame_inputs`, handed out once."""
+        return self.scene_crops.pop(key, None)
+
+    def finish(self) -> None:
+        """Refine what no frame reached (the boxes of frames left out of the frame loop) and, with a worker
+        process, take its final boxes, statuses, point counts and timings and end it. Idempotent."""
+        if self._worker is not None:
+            self._worker.finish(self)
+            self._worker = None
+        for tr in self.tracks.values():
+            self._refine_upto(tr, len(tr.frames) - 1)
+
+    def close(self) -> None:
+        """End the worker process, if any, without waiting for its results (after an error)."""
+        if self._worker is not None:
+            self._worker.stop()
+            self._worker = None
+
     def record(self, key, result: SceneResult) -> None:
-        """Keep each track's completion of this frame (box frame), the latest frame's winning."""
+        """Keep each track's completion of this frame (scan frame; :meth:`write` puts it in its box frame), the
+        latest frame's winning."""
         for o in result.completed:
             hit = self.where.get(key, {}).get(o.index)
             if hit is None:
                 continue
             tr, pos = hit
-            if pos >= tr.completion_frame:
-                tr.completion = tr.boxes[pos].to_object(o.completion)
+            if pos >= tr.completion_frame:  # moved into its box frame once, by write()
+                tr.completion = o.completion
                 tr.completion_frame = pos
 
     # --- outputs ------------------------------------------------------------------------------
@@ -249,6 +347,7 @@ class TrackPlan:
     def summary(self) -> dict:
         """JSON-ready: policy, refinement settings, per track and frame the boxes, statuses and point counts,
         and the totals (frames refined, flagged, moved by more than 0.3 m)."""
+        self.finish()
         tracks = []
         moved = flagged = refined = n = 0
         for tr in self.tracks.values():
@@ -291,16 +390,22 @@ class TrackPlan:
             tracks=tracks,
         )
 
-    def write(self, out: str | Path, model: str = "") -> list[Path]:
-        """Write ``OUT/[SEQUENCE/]tracks/<track>.ply`` per track and ``OUT/tracks.json``; returns the paths."""
+    def write(self, out: str | Path, model: str = "", summary: dict | None = None) -> list[Path]:
+        """Write ``OUT/[SEQUENCE/]tracks/<track>.ply`` per track and ``OUT/tracks.json`` (``summary``: the
+        :meth:`summary` the caller already made, else made here); returns the paths."""
+        self.finish()
         out = Path(out)
         written = []
         for tr in self.tracks.values():
             last = len(tr.frames) - 1
-            pts = fuse_track(
-                tr.frames, boxes=tr.boxes, margin=self.config.margin, ground_clearance=self.config.ground_clearance
+            pts = (
+                tr.fused
+                if tr.fused is not None
+                else fuse_track(
+                    tr.frames, boxes=tr.boxes, margin=self.config.margin, ground_clearance=self.config.ground_clearance
+                )
             )
-            comp = np.zeros((0, 3)) if tr.completion is None else tr.completion
+            comp = np.zeros((0, 3)) if tr.completion is None else tr.boxes[tr.completion_frame].to_object(tr.completion)
             # the completion is in the box frame of its frame's box; the fused points in each frame's own box
             # frame: both are the object frame, the one all the track's boxes share
             xyz = np.concatenate([pts.points, comp])
@@ -323,9 +428,221 @@ class TrackPlan:
                 save_ply(folder / f"{file_stem(tr.track_id)}.ply", xyz, {"source": src, "frame": frm}, comments=com)
             )
         with atomic_output(out / "tracks.json") as tmp:
-            tmp.write_text(json.dumps(self.summary(), indent=2, default=float) + "\n", encoding="utf-8")
+            text = json.dumps(self.summary() if summary is None else summary, indent=2, default=float)
+            tmp.write_text(text + "\n", encoding="utf-8")
         written.append(out / "tracks.json")
         return written
 
 
-__all__ = ["TrackPlan", "file_stem"]
+# --- the worker process ---------------------------------------------------------------------------
+
+#: Seconds :class:`TrackWorker` waits between checks that its process is still alive.
+POLL_S = 0.5
+
+
+def usable_cpus() -> int:
+    """The CPUs this process may run on (its affinity where the platform tells it, else ``os.cpu_count()``)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # macOS, Windows
+        return os.cpu_count() or 1
+
+
+def _worker_main(jobs, results) -> None:
+    """The worker process: receive a plan (:meth:`TrackWorker.send`), then for each frame key in order put
+    ``("frame", key, repl, extra)`` (:meth:`TrackPlan._inputs`), then ``("done", state, timer seconds)``;
+    ``("error", exception)`` instead when something fails."""
+    die_with_parent()
+    import scipy.spatial  # noqa: F401 - imported now, while the parent opens and reads (0.25 s), not at the first crop
+
+    try:
+        crops: dict = {}  # frame key -> {box index: its crop}
+        scans: dict = {}  # frame key -> (its scan, its boxes): for the scene's crops of the frames the loop takes
+        cpu0 = time.process_time()
+        while True:
+            msg = jobs.get()
+            if msg is None:  # stopped before a plan came
+                return
+            if msg[0] == "plan":
+                job = msg[1]
+                break
+            _, key, points, todo, boxes, grow, clearance, keep = msg
+            crops[key] = dict(zip(todo, _crops(points, [boxes[i] for i in todo], grow, clearance)))
+            if keep:
+                scans[key] = (points, boxes)
+        plan = TrackPlan(job["policy"], job["config"], job["refine"], None, job["max_translation"], job["max_yaw"])
+        plan.tracks, plan.where = job["tracks"], job["where"]
+        for tr in plan.tracks.values():  # the crops made here go where the plan left None
+            for pos, (key, i, f) in enumerate(zip(tr.keys, tr.box_index, tr.frames)):
+                if f.points is None:
+                    tr.frames[pos] = TrackFrame(crops[key][i], f.box, f.origin, f.timestamp)
+            if tr.refiner is not None:
+                tr.refiner.frames = tr.frames
+        del crops
+        for key in job["keys"]:
+            repl, extra = plan._inputs(key)
+            scene = None
+            if key in scans and plan.config.crop:  # complete_scene's crops, of the boxes the loop will use
+                points, boxes = scans.pop(key)
+                scene = scene_crops(points, [repl.get(i, b) for i, b in enumerate(boxes)], plan.config)
+            results.put(("frame", key, repl, extra, scene))
+        plan.finish()
+        cfg = plan.config
+        state = {
+            k: (
+                tr.boxes,
+                tr.status,
+                tr.n_points,
+                tr.n_fused,
+                fuse_track(tr.frames, boxes=tr.boxes, margin=cfg.margin, ground_clearance=cfg.ground_clearance),
+            )
+            for k, tr in plan.tracks.items()
+        }
+        results.put(("done", state, dict(plan.timer.seconds) | {"worker_cpu_s": time.process_time() - cpu0}))
+    except BaseException as exc:  # noqa: BLE001 - handed to the parent, which raises it
+        try:
+            pickle.dumps(exc)  # the queue pickles in a thread of its own, where a failure would be lost
+        except Exception:  # an exception that does not pickle
+            exc = RuntimeError(f"the track worker failed: {exc!r}")
+        results.put(("error", exc))
+
+
+class TrackWorker:
+    """One worker process that refines the boxes and fuses the windows of a :class:`TrackPlan` frame by frame,
+    ahead of the process that completes the frames (a two-stage pipeline on two cores: the frame loop completes
+    frame ``t`` while the worker prepares frame ``t + 1``). It computes what :meth:`TrackPlan.frame_inputs` would
+    (the same functions on the same inputs: the same numbers); the plan's frames (the crops of its tracked
+    boxes) are sent to it once, after :meth:`TrackPlan.build` has read them. Started from the fork server of
+    :func:`spotlights.utils.process_pool_context` (never a fork of a process holding a model), it ends with its
+    parent."""
+
+    def __init__(self, proc, jobs, results):
+        self.proc, self.jobs, self.results = proc, jobs, results
+        self.pending: dict = {}  # frame key -> (repl, extra) received before it was asked for
+        self.done = False
+
+    @classmethod
+    def start(cls) -> TrackWorker | None:
+        """A started worker process, or None where none can be started or this process may use one CPU only
+        (:func:`usable_cpus`: a second process would only take turns with it; the caller then works alone)."""
+        if usable_cpus() < 2:
+            return None
+        try:
+            ctx = process_pool_context()
+            jobs, results = ctx.Queue(), ctx.Queue()
+            proc = ctx.Process(target=_worker_main, args=(jobs, results), daemon=True, name="spotlights-tracks")
+            proc.start()
+        except Exception:  # no processes here (an unguarded script, a sandbox): the plan works in this process
+            return None
+        return cls(proc, jobs, results)
+
+    def crop(
+        self,
+        key,
+        points: np.ndarray,
+        todo: list[int],
+        boxes: list[Box],
+        grow: float,
+        ground_clearance: float,
+        keep: bool = False,
+    ) -> None:
+        """Have the worker crop the tracked boxes ``todo`` (indices into the frame's ``boxes``) of frame ``key`` from
+        its scan ``points`` (N, 3): the plan's crops (:meth:`TrackPlan.build` leaves their points None), made while
+        the frames are still being read. ``keep``: the worker keeps the scan and, when it prepares the frame,
+        makes its scene's crops too (:func:`spotlights.experiments.scene.scene_crops`, :meth:`TrackPlan.frame_crops`)."""
+        self.jobs.put(("scan", key, points, todo, boxes, grow, ground_clearance, keep))
+
+    def send(self, plan: TrackPlan, keys: list) -> None:
+        """Hand the worker the built ``plan`` (its tracks, their frames and refiners) and the frame order."""
+        self.jobs.put(
+            (
+                "plan",
+                dict(
+                    policy=plan.policy,
+                    config=plan.config,
+                    refine=plan.refine,
+                    max_translation=plan.max_translation,
+                    max_yaw=plan.max_yaw,
+                    tracks=plan.tracks,
+                    where=plan.where,
+                    keys=keys,
+                ),
+            )
+        )
+
+    def _next(self, plan: TrackPlan):
+        """The worker's next message (waiting for it: ``wait_s``); raises what the worker raised, or a
+        RuntimeError when its process ended without a word."""
+        with plan.timer("wait_s"):
+            while True:
+                try:
+                    msg = self.results.get(timeout=POLL_S)
+                    break
+                except Empty:
+                    if not self.proc.is_alive():
+                        raise RuntimeError(
+                            f"the track worker process ended (exit code {self.proc.exitcode}) before its results"
+                        ) from None
+        if msg[0] == "error":
+            self.stop()
+            raise msg[1]
+        return msg
+
+    def _apply(self, plan: TrackPlan, key, repl: dict) -> None:
+        for i, box in repl.items():  # the frame's refined boxes (record() maps its completions with them)
+            tr, pos = plan.where[key][i]
+            tr.boxes[pos] = box
+
+    def inputs(self, plan: TrackPlan, key):
+        """``(repl, extra)`` of frame ``key`` as :meth:`TrackPlan._inputs` gives them (the frames come in the order
+        sent; those the frame loop skips are passed over). RuntimeError for a frame the worker was not sent."""
+        while key not in self.pending and not self.done:
+            msg = self._next(plan)
+            if msg[0] == "done":
+                self._final(plan, msg)
+                break
+            _, k, repl, extra, scene = msg
+            self._apply(plan, k, repl)
+            self.pending = {k: (repl, extra)}  # only the latest: the loop asks in order
+            plan.scene_crops = {k: scene} if scene is not None else {}
+        if key not in self.pending:
+            raise RuntimeError(f"frame {key} was not planned, or asked for out of the order given to build()")
+        return self.pending.pop(key)
+
+    def _final(self, plan: TrackPlan, msg) -> None:
+        _, state, seconds = msg
+        for k, (boxes, status, n_points, n_fused, fused) in state.items():
+            tr = plan.tracks[k]
+            tr.boxes, tr.status, tr.n_points, tr.n_fused, tr.fused = boxes, status, n_points, n_fused, fused
+            tr.refiner = None  # the worker refined every frame
+        for name, sec in seconds.items():
+            plan.timer.add(name, sec)
+        self.done = True
+        self.pending.clear()
+        self.stop()
+
+    def finish(self, plan: TrackPlan) -> None:
+        """Take the worker's remaining messages and its final state into ``plan``; end the process."""
+        while not self.done:
+            msg = self._next(plan)
+            if msg[0] == "done":
+                self._final(plan, msg)
+            else:
+                self._apply(plan, msg[1], msg[2])
+
+    def stop(self) -> None:
+        """End the process (now, when it has not finished)."""
+        try:
+            self.jobs.put(None)  # a worker still waiting for its plan returns
+        except Exception:  # noqa: S110 - a closed queue: the process is ending anyway
+            pass
+        self.proc.join(timeout=POLL_S)
+        if self.proc.is_alive():
+            self.proc.terminate()
+            self.proc.join(timeout=5)
+        for q in (self.jobs, self.results):
+            q.cancel_join_thread()
+            q.close()
+
+
+__all__ = ["TrackPlan", "TrackWorker", "file_stem", "usable_cpus"]

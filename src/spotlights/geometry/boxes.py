@@ -312,7 +312,9 @@ def crop_boxes(
 
     grow = max(float(margin), 0.0) + abs(float(ground_clearance or 0.0))
     reach = np.array([float(np.linalg.norm(0.5 * b.size + grow)) for b in boxes])
-    hits = cKDTree(p).query_ball_point(np.array([b.center for b in boxes]), reach * (1 + 1e-9))
+    # one query per box: a tree built without balancing is ~2x cheaper to build and finds the same points
+    tree = cKDTree(p, balanced_tree=False, compact_nodes=False)
+    hits = tree.query_ball_point(np.array([b.center for b in boxes]), reach * (1 + 1e-9))
     out = []
     for b, h in zip(boxes, hits):
         near = np.sort(np.asarray(h, dtype=np.int64))

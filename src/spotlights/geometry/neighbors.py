@@ -32,8 +32,9 @@ class NearestNeighbors:
     ----------
     points : (K, 3) float32 or float64, K >= 1, in any frame (queries must use the same).
     few_queries : the tree will answer few queries (a 256-point partial against a 16k-point completion):
-        built by ``cKDTree`` without balancing or node compaction, about 2x cheaper to build than
-        pykdtree's (1.8 against 3.8 ms for 15k points), the same nearest distances.
+        built by ``cKDTree`` without balancing or node compaction, with leaves of 128 points, about 2x cheaper
+        to build than pykdtree's (1.8 against 3.8 ms for 15k points; leaves of 128 instead of 16: 20% less
+        for build and 256 queries on scene-0523's completions), the same nearest distances.
     """
 
     def __init__(self, points: np.ndarray, few_queries: bool = False):
@@ -45,7 +46,7 @@ class NearestNeighbors:
         if few_queries:
             from scipy.spatial import cKDTree
 
-            self._tree = cKDTree(pts, balanced_tree=False, compact_nodes=False)
+            self._tree = cKDTree(pts, leafsize=128, balanced_tree=False, compact_nodes=False)
             self._pykd = False
             return
         try:
