@@ -118,3 +118,17 @@ def test_readme_table2_fidelity():
         fid.append(f"{models['sanet-hit-dense-f32']['average']['fidelity']:.3f}")
         baselines += [models[b]["average"]["fidelity"] for b in ("atlasnet", "pcn", "foldingnet", "topnet")]
     _says("README.md", f"(fidelity {fid[0]} / {fid[1]}; baselines {min(baselines):.3f} or more)")
+
+
+def test_issue27_box_term_rows():
+    """docs/real-data.md's box-term table: each class's inside / fidelity / consistency of the three models."""
+
+    def cell(name: str, cls: str) -> str:
+        m = _json(f"i27/{name}-nuscenes.json")["models"][0]
+        ins, fid = m["inside_box"][cls], m["classes"][cls]["fidelity"]
+        cd = m["equal_density"]["classes"][cls]["cd"]
+        return f"{100 * ins:.1f}% / {fid:.4f} / {cd:.4f}"
+
+    for cls, objects in (("trailer", 12), ("car", 23)):
+        row = " | ".join(cell(n, cls) for n in ("classes", "classes-box", "classes-box30"))
+        _says("docs/real-data.md", f"| nuScenes {cls} ({objects}) | {row} |")
