@@ -415,3 +415,38 @@ def test_hit_aware_sanet_on_a_box_rig(built, tmp_path):
     out = comp.complete(np.random.default_rng(0).normal(size=(1, 256, 3)).astype(np.float32) * 0.3, extents=e[None])[0]
     assert len(out) == hit.sum()
     np.testing.assert_allclose(np.abs(out / e).max(1), 1.0, atol=2e-5)  # every kept ray on the box's surface
+
+
+def test_box_term_trains_on_a_box_rig_with_each_samples_grown_box(built, tmp_path):
+    """sanet-hit with ``box_weight`` (issue 27): the batch carries each model's rays and its box grown by 0.15 m
+    (in its unit frame, by hand), the run trains and its checkpoint keeps the weight."""
+    from spotlights.learning.checkpoint import load_checkpoint
+    from spotlights.learning.data import TorchCompletionDataset
+    from spotlights.learning.rays import DirectionTable
+    from spotlights.learning.train import train
+    from spotlights.learning.validation import collate, with_boxes
+
+    path, _ = built
+    ds = TorchCompletionDataset(path, "train", rig=BOX)
+    batch = collate([ds[0], ds[1]])
+    rays = DirectionTable(SPEC, ds.extents)
+
+    class Boxed:
+        box_weight = 0.5
+
+    got = with_boxes(batch, Boxed(), rays, ds.sizes)
+    r = np.linalg.norm(BOX_SIZE) / 2  # the block's unit frame: metres / half its diagonal
+    want = (np.array(BOX_SIZE) / 2 + 0.15) / r
+    np.testing.assert_allclose(got["box_half"].numpy(), np.stack([want, want]), rtol=1e-6)
+    assert got["directions"].shape == (2, SPEC.n_rays, 3)
+    assert with_boxes(batch, object(), rays, ds.sizes) is batch  # any other model: the batch as it is
+
+    ov = {
+        "model": {"args": {**TINY_MODEL_ARGS["sanet-hit"], "box_weight": 2.0}},
+        "data": {"rig": BOX, "num_workers": 0},
+        "train": {"epochs": 1, "batch_size": 4, "lr": 1e-3, "precision": "fp32"},
+    }
+    res = train("sanet-hit", path, tmp_path / "boxed", overrides=ov, progress=False, log=lambda m: None)
+    h = res["history"][0]
+    assert np.isfinite(h["train_loss"]) and np.isfinite(h["val_loss"]) and np.isfinite(h["val_chamfer_l1"])
+    assert load_checkpoint(res["best"])["config"]["model"]["args"]["box_weight"] == 2.0

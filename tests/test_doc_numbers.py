@@ -132,3 +132,17 @@ def test_suv_hold_out_of_the_ray_local_model():
     )
     default = gen["rows"]["default (p(hit) >= 0.4)"]["held_out"]["accuracy"]
     _says("docs/learning.md", f"the one of stop 23 ({default:.6f} on the SUVs)")
+
+
+def test_issue27_box_term_rows():
+    """docs/real-data.md's box-term table: each class's inside / fidelity / consistency of the three models."""
+
+    def cell(name: str, cls: str) -> str:
+        m = _json(f"i27/{name}-nuscenes.json")["models"][0]
+        ins, fid = m["inside_box"][cls], m["classes"][cls]["fidelity"]
+        cd = m["equal_density"]["classes"][cls]["cd"]
+        return f"{100 * ins:.1f}% / {fid:.4f} / {cd:.4f}"
+
+    for cls, objects in (("trailer", 12), ("car", 23)):
+        row = " | ".join(cell(n, cls) for n in ("classes", "classes-box", "classes-box30"))
+        _says("docs/real-data.md", f"| nuScenes {cls} ({objects}) | {row} |")

@@ -20,7 +20,7 @@ torch = pytest.importorskip("torch")
 from spotlights.geometry.rig import make_rig  # noqa: E402
 from spotlights.learning.checkpoint import load_checkpoint, model_from_checkpoint  # noqa: E402
 from spotlights.learning.models import build_model, load_config  # noqa: E402
-from spotlights.learning.models.sanet_hit import hit_depth_loss  # noqa: E402
+from spotlights.learning.models.sanet_hit import box_outside_term, hit_depth_loss  # noqa: E402
 from spotlights.learning.train import train, validate  # noqa: E402
 
 from learning_fixtures import TINY_MODEL_ARGS, one_torch_thread, tiny_dataset_path, tiny_overrides  # noqa: E402
@@ -85,6 +85,66 @@ def test_loss_matches_a_hand_computation():
     # d BCE / d logit = (p - y) / n
     want = (torch.sigmoid(logits) - torch.tensor(labels, dtype=torch.float32)) / 6
     torch.testing.assert_close(lg.grad, want)
+
+
+def test_box_term_matches_a_hand_computation_and_pushes_points_into_the_box():
+    """Issue 27's box term: p(hit) * Euclidean distance outside the grown box, over the number of true hits."""
+    half = torch.tensor([[0.2, 0.5, 0.5]])  # the box [-0.2, 0.2] x [-0.5, 0.5]^2
+    origins = torch.tensor([[-1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]])
+    s = 1 / math.sqrt(1.5**2 + 0.9**2)
+    dirs = torch.tensor([[[1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.5 * s, 0.9 * s, 0.0]]])
+    # ray 0: x = -1 + 2 d = 0.5, 0.3 beyond the face x = 0.2; ray 1: x = 0.1, inside;
+    # ray 2: the point (0.5, 0.9, 0): 0.3 beyond x = 0.2 and 0.4 beyond y = 0.5 -> 0.5 from the box's edge
+    d2 = 0.5 * math.hypot(1.5, 0.9)
+    depths = torch.tensor([[0.75, 0.55, d2]], requires_grad=True)
+    logits = torch.tensor([[0.4, 3.0, -1.0]], requires_grad=True)
+    target = torch.tensor([[0.6, 0.5, 0.0]])  # two true hits: the normaliser
+    p = [sigmoid(0.4), sigmoid(3.0), sigmoid(-1.0)]
+    one = box_outside_term(logits[:, :1], depths[:, :1], target[:, :1], origins[:1], dirs[:, :1], half)
+    assert float(one.detach()) == pytest.approx(p[0] * 0.3, rel=1e-6)  # one ray, one hit: exactly p * 0.3
+    inside = box_outside_term(logits[:, 1:2], depths[:, 1:2], target[:, 1:2], origins[1:2], dirs[:, 1:2], half)
+    assert float(inside.detach()) == 0.0
+    term = box_outside_term(logits, depths, target, origins, dirs, half)
+    assert float(term.detach()) == pytest.approx((p[0] * 0.3 + p[2] * 0.5) / 2, rel=1e-6)
+    term.backward()
+    g = depths.grad[0]
+    assert torch.all(torch.isfinite(g)) and float(g[1]) == 0.0  # inside: no pull (and no NaN at distance 0)
+    # d/dd of p * |x - 0.2| / 2 with x = -1 + 2 d: p; a descent step moves the point toward the box
+    assert float(g[0]) == pytest.approx(p[0], rel=1e-6)
+    # ray 2: d/dd = p * 2 u . n / 2 with n = (0.3, 0.4) / 0.5 the outward normal at the point
+    assert float(g[2]) == pytest.approx(p[2] * (1.5 * s * 0.6 + 0.9 * s * 0.8), rel=1e-5)
+    assert float(logits.grad[0, 0]) > 0 and float(logits.grad[0, 1]) == 0.0  # turned off, not the inside one
+    with torch.no_grad():
+        moved = box_outside_term(logits, depths - 0.1 * depths.grad, target, origins, dirs, half)
+    assert float(moved) < float(term.detach())
+
+
+def test_box_weight_adds_the_box_term_and_zero_leaves_the_loss_exactly_as_before():
+    model = tiny_model()
+    r = model.rig.n_rays
+    g = torch.Generator().manual_seed(0)
+    out = {"hit_logits": torch.randn(2, r, generator=g), "depths": torch.rand(2, r, generator=g)}
+    target = torch.where(torch.rand(2, r, generator=g) > 0.5, torch.rand(2, r, generator=g), torch.zeros(2, r))
+    dirs = model.directions.expand(2, r, 3)
+    half = torch.tensor([[0.8, 0.4, 0.3], [0.6, 0.5, 0.4]])
+    base, base_terms = hit_depth_loss(out["hit_logits"], out["depths"], target)
+    loss0, terms0 = model.loss(out, {"depths": target})  # box_weight 0 (the default): no box needed
+    assert torch.equal(loss0, base) and terms0 == base_terms
+    # the box term by hand in numpy: each ray's point, its distance outside each sample's box
+    o, u = model.origins.numpy().astype(np.float64), dirs.numpy().astype(np.float64)
+    pts = o + 2.0 * out["depths"].numpy()[..., None] * u
+    outside = np.linalg.norm(np.maximum(np.abs(pts) - half.numpy()[:, None, :], 0.0), axis=-1)
+    p = 1.0 / (1.0 + np.exp(-out["hit_logits"].numpy().astype(np.float64)))
+    box = (p * outside).sum() / (target.numpy() > 0).sum()
+    assert box > 0
+    model.box_weight = 0.7
+    loss, terms = model.loss(out, {"depths": target, "directions": dirs, "box_half": half})
+    assert float(loss) == pytest.approx(float(base) + 0.7 * box, rel=1e-5)
+    assert terms["box"] == pytest.approx(box, rel=1e-5)
+    with pytest.raises(ValueError, match="grown box"):
+        model.loss(out, {"depths": target})
+    with pytest.raises(ValueError, match="box_weight"):
+        tiny_model(box_weight=-1.0)
 
 
 def test_parameter_counts_and_outputs():

@@ -42,7 +42,7 @@ from .inference import LearnedDomain
 from .process_group import ProcessGroup
 from .settings import TrainSettings
 from .training_run import RUN_STATE_FILES, TrainingRun, data_identity, prepare_run
-from .validation import collate, float_outputs, to_device, validate
+from .validation import collate, float_outputs, to_device, validate, with_boxes
 
 __all__ = ["LOG_COLUMNS", "TrainSettings", "default_device", "run_training", "train", "train_with", "validate"]
 
@@ -220,7 +220,7 @@ def _train_epoch(run: TrainingRun, loader: DataLoader, epoch: int, progress: boo
         dynamic_ncols=True,
     )
     for batch in bar:
-        batch = to_device(batch, run.device)
+        batch = with_boxes(to_device(batch, run.device), model, run.train_rays, run.train_set.sizes)
         with autocast(run.precision, run.device):
             out = run.net(*model.forward_inputs(batch, run.train_rays))
         loss, _ = model.loss(float_outputs(out), batch, run.global_step / run.total_steps)

@@ -280,6 +280,8 @@ def prepare_run(dist: ProcessGroup, settings: TrainSettings, log) -> TrainingRun
     torch.manual_seed(tcfg.seed)
     np.random.seed(tcfg.seed % (2**32))
     model = build_model(cfg, rig=rig).to(device)
+    if train_rays is None and rig is not None and rig.needs_box and getattr(model, "box_weight", 0.0):
+        train_rays = DirectionTable(rig, train_set.extents)  # its loss scores each ray's point against the box
     init = (cfg.get("model") or {}).get("init")
     if state is None and init:
         init_from_checkpoint(model, init)

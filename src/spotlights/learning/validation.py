@@ -12,6 +12,7 @@ import torch
 from torch.utils.data import DataLoader
 
 from ..errors import SpotlightsError
+from ..geometry.box_clamp import grown_half_extents
 from ..geometry.distances import accuracy, combine_directions, completeness
 from ..geometry.neighbors import NearestNeighbors
 from .data import TorchCompletionDataset
@@ -34,6 +35,25 @@ def collate(batch_list):
 def to_device(batch: dict, device) -> dict:
     """The batch's tensors moved to ``device`` (non-blocking); other values as they are."""
     return {k: (v.to(device, non_blocking=True) if torch.is_tensor(v) else v) for k, v in batch.items()}
+
+
+def with_boxes(batch: dict, model, rays, sizes) -> dict:
+    """The batch with each sample's rays and grown box when ``model``'s loss keeps points in the box.
+
+    For a model with ``box_weight > 0`` (:class:`~spotlights.learning.models.sanet_hit.HitSANet`), adds
+    ``directions`` (B, N*M, 3) float32 (``rays``, a :class:`~spotlights.learning.rays.DirectionTable`, at the
+    batch's ``model`` rows) and ``box_half`` (B, 3) float32: each model's box (``sizes``, (n_models, 3) metres)
+    grown by 0.15 m, in its unit frame (:func:`~spotlights.geometry.box_clamp.grown_half_extents`, the box of
+    the decoding clamp). Any other model: the batch as it is.
+    """
+    if not getattr(model, "box_weight", 0.0):
+        return batch
+    if rays is None or sizes is None:
+        raise SpotlightsError("box_weight > 0 needs a box-targeted rig and a dataset with each model's box size")
+    rows = batch["model"]
+    half = grown_half_extents(sizes[rows.cpu().numpy()])
+    box_half = torch.from_numpy(half.astype("float32")).to(rows.device)
+    return {**batch, "directions": rays.directions(rows), "box_half": box_half}
 
 
 @torch.no_grad()
@@ -93,7 +113,7 @@ def validate(
     count = 0
     acc_sum, comp_sum, scored = [0.0] * len(grid), [0.0] * len(grid), [0] * len(grid)
     for batch in loader:
-        batch = to_device(batch, device)
+        batch = with_boxes(to_device(batch, device), model, rays, dataset.sizes)
         with autocast(precision, device):
             out = model(*model.forward_inputs(batch, rays))
         out = float_outputs(out)

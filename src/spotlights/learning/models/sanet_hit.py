@@ -11,6 +11,10 @@ questions. The decoder (same PCN encoder, same hidden layers) ends in ``2 N*M`` 
 
 Loss = ``hit_weight * BCE + depth_weight * L1_hits`` where BCE is the mean over all rays
 of the batch and ``L1_hits = sum over hit rays |d - d*| / number of hit rays`` (batch-wide).
+With ``box_weight > 0`` (opt-in, issue 27) it adds ``box_weight * BOX``: every ray's point
+``o + 2 d u`` is scored by its Euclidean distance outside the sample's box grown by 0.15 m
+(the decoding clamp's box), weighted by p(hit) and divided by the number of hit rays
+(:func:`box_outside_term`): a hit drawn outside the box is pushed in or turned off.
 
 At inference a ray is kept where ``sigmoid(logit) >= threshold``; its depth is clamped to
 [0, half the ray's chord] and decoded with the rig exactly as SA-Net does (:meth:`SANet.decode`). The threshold
@@ -45,6 +49,10 @@ class HitSANet(SANet):
     hit_weight, depth_weight : loss weights of the BCE and the hit-only L1 terms.
     clip : optional depth clip applied on top of the hit decision (default None: none).
     classes : class vocabulary of a class-conditioned model (:class:`~spotlights.learning.models.sanet.SANet`).
+    box_weight : weight of the opt-in box term (default 0: the loss as before, exactly): the p(hit)-weighted
+        distance of each ray's point outside its sample's grown box (:func:`box_outside_term`); the batch must
+        then carry ``directions`` (B, N*M, 3) and ``box_half`` (B, 3) (the training loop adds them,
+        :func:`spotlights.learning.validation.with_boxes`).
     float32_head : compute the last decoder layer (the logits and depths) in float32 under a
         bf16 autocast (default False: the layout of checkpoints written before it existed; the
         packaged config sets true). Measured: 400 bf16 steps with it reach a validation CD-L1
@@ -70,6 +78,7 @@ class HitSANet(SANet):
         clip: float | None = None,
         float32_head: bool = False,
         classes: Sequence[str] | None = None,
+        box_weight: float = 0.0,
     ):
         super().__init__(
             rig,
@@ -88,6 +97,9 @@ class HitSANet(SANet):
             raise ValueError(
                 f"hit_weight and depth_weight must be >= 0 and not both 0, got {hit_weight}, {depth_weight}"
             )
+        self.box_weight = float(box_weight)
+        if not self.box_weight >= 0:
+            raise ValueError(f"box_weight must be >= 0, got {box_weight}")
 
     def forward(self, partial: torch.Tensor, classes: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         out = self.decoder(self.encode(partial, classes))
@@ -95,9 +107,23 @@ class HitSANet(SANet):
         return {"hit_logits": out[..., :n], "depths": out[..., n:]}
 
     def loss(self, outputs, batch, progress: float = 1.0):
-        return hit_depth_loss(
+        loss, parts = hit_depth_loss(
             outputs["hit_logits"], outputs["depths"], batch["depths"], self.hit_weight, self.depth_weight
         )
+        if self.box_weight > 0:
+            if batch.get("directions") is None or batch.get("box_half") is None:
+                raise ValueError("box_weight > 0 needs each sample's ray directions and grown box in the batch")
+            box = box_outside_term(
+                outputs["hit_logits"],
+                outputs["depths"],
+                batch["depths"],
+                self.origins,
+                batch["directions"],
+                batch["box_half"],
+            )
+            loss = loss + self.box_weight * box
+            parts["box"] = float(box.detach())
+        return loss, parts
 
     def hit_probabilities(self, outputs) -> torch.Tensor:
         """(B, N*M) float32 p(hit) of every ray."""
@@ -147,6 +173,36 @@ def hit_depth_loss(
     with torch.no_grad():
         acc = ((hit_logits >= 0) == hit).float().mean()
     return loss, {"bce": float(bce.detach()), "l1_hits": float(l1.detach()), "hit_accuracy": float(acc)}
+
+
+def box_outside_term(
+    hit_logits: torch.Tensor,
+    depths: torch.Tensor,
+    target: torch.Tensor,
+    origins: torch.Tensor,
+    directions: torch.Tensor,
+    box_half: torch.Tensor,
+) -> torch.Tensor:
+    """The box term of the hit-aware loss: ``sum over rays of p(hit) * outside / number of hit rays``.
+
+    hit_logits, depths, target : (B, R) float32 (``target`` as in :func:`hit_depth_loss`: 0 = miss; it
+    only gives the normaliser, the batch's number of true hits, as the L1 term's, so a weight of 1 prices
+    a point 1 unit outside the box like a depth 1 unit off); origins : (R, 3) ray origins, directions :
+    (B, R, 3) or (R, 3) unit directions, unit frame; box_half : (B, 3) half-extents of each sample's box
+    grown by the margin, in its unit frame (:func:`spotlights.geometry.box_clamp.grown_half_extents`).
+
+    ``outside`` is the Euclidean distance of the ray's point ``o + 2 d u`` (the raw depth, unclamped, so
+    a negative or over-long depth is pulled back too) to the box ``[-box_half, box_half]``: 0 inside, so
+    the points the network keeps inside cost nothing; an L1 form (not squared): a pull of constant size
+    along the box's outward normal, like the depth L1, neither vanishing near the box nor dominated by
+    a few far points. ``p(hit) = sigmoid(logit)`` is not detached: a point outside is pushed toward the
+    box through its depth and turned off through its logit (the BCE keeps true hits on). Returns a
+    scalar tensor (0 for a batch without a true hit).
+    """
+    points = origins + (2.0 * depths).unsqueeze(-1) * directions
+    outside = torch.linalg.vector_norm(torch.relu(points.abs() - box_half.unsqueeze(-2)), dim=-1)
+    n_hit = (target > 0).sum().clamp(min=1)
+    return (torch.sigmoid(hit_logits) * outside).sum() / n_hit
 
 
 def _check_probability(t, what: str) -> float:
