@@ -95,6 +95,21 @@ def test_fused_track_covers_both_sides(tmp_path, ckpt):
     assert {p.name for p in out.iterdir()} == {"drive", "summary.json", "tracks.json"}
 
 
+def test_no_track_worker_on_a_scene_is_passed_on(tmp_path, ckpt):
+    """``complete SCENE --fuse past:2 --no-track-worker`` does the track work in its own process (tracks.json
+    counts no worker CPU) and writes the same track file as with the worker (or without it, one usable CPU)."""
+    src = write_scene(tmp_path / "drive")
+    runs = {"default": [], "one": ["--no-track-worker"]}
+    for name, extra in runs.items():
+        argv = ["complete", src, "--out", tmp_path / name, "--fuse", "past:2", *extra, *model(ckpt)]
+        proc = run_cli(*argv)
+        assert proc.returncode == 0, proc.stderr
+    one = json.loads((tmp_path / "one" / "tracks.json").read_text())
+    assert one["timings"]["worker_cpu_s"] == 0.0
+    a, b = (tmp_path / n / "drive" / "tracks" / "a.ply" for n in runs)
+    assert a.read_bytes() == b.read_bytes()
+
+
 def test_fuse_none_is_real_complete_generic(tmp_path, ckpt):
     """Without --fuse a folder of frames gives the files of 'real complete --format generic --no-pictures': the
     same names and the same scene PLY bytes."""
@@ -128,6 +143,7 @@ def test_one_scan_is_unchanged_by_the_track_options(tmp_path, ckpt):
         ("scan", ["--fuse", "past:2"], "--fuse past:2 needs a multi-frame scene"),
         ("scan", ["--refine-boxes"], "--refine-boxes needs a multi-frame scene"),
         ("scan", ["--rerun", "rec.rrd"], "--rerun needs a multi-frame scene"),
+        ("scan", ["--no-track-worker"], "--no-track-worker needs a multi-frame scene"),
         ("scene", ["--out", "scene.ply"], "is a multi-frame scene, written to a folder: give --out DIR"),
         ("scene", ["--boxes", "b.json"], "--boxes/--calib/--box/--center/--size/--yaw apply to one scan"),
         ("scene", ["--yaw", "0"], "--boxes/--calib/--box/--center/--size/--yaw apply to one scan"),  # 0 too

@@ -141,7 +141,7 @@ def add_completion_arguments(p, single: bool) -> None:
 
 def add_track_arguments(p) -> None:
     """Options of multi-frame input shared by ``complete`` and ``real complete``: track fusion, box refinement,
-    the longest gap in a track, the rerun recording."""
+    the longest gap in a track, the track worker process, the rerun recording."""
     g = p.add_argument_group(
         "tracks of a multi-frame input (fuse each vehicle's frames in its box frame; docs/real-data.md)"
     )
@@ -166,6 +166,13 @@ def add_track_arguments(p) -> None:
         default=MAX_GAP_S,
         metavar="S",
         help=f"with --fuse: the longest time between two frames of one track, seconds (default {MAX_GAP_S:g})",
+    )
+    g.add_argument(
+        "--no-track-worker",
+        dest="track_worker",
+        action="store_false",
+        help="with --fuse: crop, refine and fuse the tracks in this process (default: in a second process a frame "
+        "ahead of the completion, where two CPUs are usable; the same outputs)",
     )
     g.add_argument(
         "--rerun",

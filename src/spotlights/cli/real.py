@@ -132,13 +132,6 @@ def register(sub) -> None:
         help="skip the frames an earlier run with the same model and options finished (their FRAME.json exists)",
     )
     add_track_arguments(p)
-    p.add_argument(
-        "--no-track-worker",
-        dest="track_worker",
-        action="store_false",
-        help="with --fuse: crop, refine and fuse the tracks in this process (default: in a second process a frame "
-        "ahead of the completion, where two CPUs are usable; the same outputs)",
-    )
     add_quiet(p)
 
     p = add_command(

@@ -252,6 +252,7 @@ class FramesSettings(ReaderOptions, CompletionOptions):
             refine_boxes=s.refine_boxes,
             max_gap=s.max_gap,
             rerun=s.rerun,
+            track_worker=s.track_worker,
             quiet=s.quiet,
         )
 
@@ -466,7 +467,7 @@ def complete_input(
     """What ``spotlights complete INPUT`` runs: one scan file (:func:`~spotlights.experiments.scan_completion.
     complete_scan`: ``s.out`` is its scene file; returns its :class:`SceneResult`), or a multi-frame generic scene
     (a folder of frames or a sequence ``.json``: :func:`complete_frames` of :meth:`FramesSettings.of_scene`,
-    ``s.out`` a folder, with ``s.fuse``, ``s.refine_boxes``, ``s.max_gap`` and ``s.rerun``; returns the run's
+    ``s.out`` a folder, with ``s.fuse``, ``s.refine_boxes``, ``s.max_gap``, ``s.rerun`` and ``s.track_worker``; returns the run's
     summary). ``say``, ``warn`` and ``completer`` as those functions take them."""
     if s.multi_frame:
         return complete_frames(FramesSettings.of_scene(s), say=say, warn=warn, completer=completer)

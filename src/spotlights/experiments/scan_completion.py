@@ -160,9 +160,10 @@ class ScanSettings(CompletionOptions):
     crop : the crop margin's older name (same as ``margin``); no_crop : one object, every scan point used.
     up, forward : the scan's axes; per_object : folder of ``object_<id>.ply``; summary : JSON file;
     show : PNG picture; html : interactive page; quiet : no summary lines.
-    fuse, refine_boxes, max_gap, rerun : for a multi-frame scene (:attr:`multi_frame`: ``input`` a folder of
+    fuse, refine_boxes, max_gap, rerun, track_worker : for a multi-frame scene (:attr:`multi_frame`: ``input`` a folder of
     frames or a sequence ``.json`` of the generic format), as :class:`~spotlights.experiments.frame_completion.
-    FramesSettings` has them; a single scan refuses a fusing window, ``refine_boxes`` and ``rerun``
+    FramesSettings` has them; a single scan refuses a fusing window, ``refine_boxes``, ``rerun`` and
+    ``track_worker=False``
     (:meth:`check_single_scan`).
     """
 
@@ -187,6 +188,7 @@ class ScanSettings(CompletionOptions):
     refine_boxes: bool = False
     max_gap: float = MAX_GAP_S
     rerun: str | None = None
+    track_worker: bool = True
 
     @property
     def multi_frame(self) -> bool:
@@ -202,6 +204,7 @@ class ScanSettings(CompletionOptions):
                 (f"--fuse {window}", window.fuses),
                 ("--refine-boxes", self.refine_boxes),
                 ("--rerun", self.rerun is not None),
+                ("--no-track-worker", not self.track_worker),
             )
             if on
         ]
