@@ -229,3 +229,23 @@ def test_the_worker_crops_each_scene_as_complete_scene_would(tmp_path):
         assert sum(len(c) for c in crops.values()) > 0
         assert plan.frame_crops(key) is None  # handed out once
     plan.finish()
+
+
+@needs_two_cpus
+@pytest.mark.timeout(60)
+def test_a_frame_the_loop_passes_over_counts_no_points_with_the_worker_either(tmp_path):
+    """The frame loop passes over a frame (a scan of fewer than ``min_points`` points is not completed): with or
+    without the worker, tracks.json counts none of its points (n_points, n_fused 0), the other frames' counts the
+    same; the worker prepared the frame all the same."""
+    src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0, 1.5])
+    counts = {}
+    for worker in (False, True):
+        plan, keys = _plan(src, "past:2", worker=worker)
+        assert (plan.worker_process is not None) == worker
+        for key in keys[:2] + keys[3:]:  # frame 2 passed over
+            plan.frame_inputs(key, plan.take(key).boxes)
+        rows = [f for tr in plan.summary()["tracks"] for f in tr["frames"]]
+        counts[worker] = [(f["frame_id"], f["n_points"], f["n_fused"]) for f in rows]
+    assert [c for c in counts[False] if c[0] == "f2"] == [("f2", 0, 0)] * 2  # two cars, nothing counted
+    assert all(c[1] == 300 for c in counts[False] if c[0] != "f2")  # each car: 300 points of its own a frame
+    assert counts[True] == counts[False]

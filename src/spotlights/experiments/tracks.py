@@ -141,6 +141,7 @@ class TrackPlan:
         self.worker = bool(worker)
         self._worker: TrackWorker | None = worker if isinstance(worker, TrackWorker) else None
         self.scene_crops: dict = {}  # frame key -> the worker's crops of its scene (frame_crops), the latest only
+        self.asked: set = set()  # frame keys frame_inputs was called for (the frames whose points are counted)
 
     @property
     def timings(self) -> dict[str, float]:
@@ -303,6 +304,7 @@ class TrackPlan:
         the other frames of the box's window, fused in its box frame and put in this frame}. With a worker
         process, what it computed for the frame (the frames are asked for in the order given to :meth:`build`,
         some may be passed over)."""
+        self.asked.add(key)
         repl, extra = self._inputs(key) if self._worker is None else self._worker.inputs(self, key)
         out = list(boxes)
         for i, box in repl.items():
@@ -613,7 +615,11 @@ class TrackWorker:
         _, state, seconds = msg
         for k, (boxes, status, n_points, n_fused, fused) in state.items():
             tr = plan.tracks[k]
-            tr.boxes, tr.status, tr.n_points, tr.n_fused, tr.fused = boxes, status, n_points, n_fused, fused
+            tr.boxes, tr.status, tr.fused = boxes, status, fused
+            # the worker prepared every frame; the counts are those of the frames the loop asked for, as in one process
+            asked = [key in plan.asked for key in tr.keys]
+            tr.n_points = [c if a else 0 for c, a in zip(n_points, asked)]
+            tr.n_fused = [c if a else 0 for c, a in zip(n_fused, asked)]
             tr.refiner = None  # the worker refined every frame
         for name, sec in seconds.items():
             plan.timer.add(name, sec)
