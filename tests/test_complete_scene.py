@@ -9,6 +9,7 @@ import json
 import numpy as np
 import pytest
 
+from spotlights.experiments.tracks import usable_cpus
 from spotlights.geometry.boxes import Box
 
 from helpers import assert_user_error, run_cli
@@ -106,6 +107,8 @@ def test_no_track_worker_on_a_scene_is_passed_on(tmp_path, ckpt):
         assert proc.returncode == 0, proc.stderr
     one = json.loads((tmp_path / "one" / "tracks.json").read_text())
     assert one["timings"]["worker_cpu_s"] == 0.0
+    default = json.loads((tmp_path / "default" / "tracks.json").read_text())
+    assert (default["timings"]["worker_cpu_s"] > 0.0) == (usable_cpus() >= 2)  # the default used the worker
     a, b = (tmp_path / n / "drive" / "tracks" / "a.ply" for n in runs)
     assert a.read_bytes() == b.read_bytes()
 
