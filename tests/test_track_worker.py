@@ -249,3 +249,44 @@ def test_a_frame_the_loop_passes_over_counts_no_points_with_the_worker_either(tm
     assert [c for c in counts[False] if c[0] == "f2"] == [("f2", 0, 0)] * 2  # two cars, nothing counted
     assert all(c[1] == 300 for c in counts[False] if c[0] != "f2")  # each car: 300 points of its own a frame
     assert counts[True] == counts[False]
+
+
+def _ignores_sigint(pid: int) -> bool:
+    """Whether process ``pid`` ignores SIGINT (Linux: the SigIgn mask of /proc/PID/status, bit 1)."""
+    for line in open(f"/proc/{pid}/status", encoding="ascii"):
+        if line.startswith("SigIgn:"):
+            return bool(int(line.split()[1], 16) >> 1 & 1)
+    return False
+
+
+@needs_two_cpus
+@pytest.mark.timeout(60)
+def test_the_worker_leaves_ctrl_c_to_the_run(tmp_path):
+    """Ctrl-C reaches every process of the terminal's group: the worker ignores it, as the pool workers do (the run
+    stops it; before, it printed its own traceback beside the run's one line, or failed the run's next frame with
+    a KeyboardInterrupt of its own). A SIGINT sent to it alone changes nothing: the frames come as without. (Under a
+    parent that ignores SIGINT itself, e.g. a background job, the worker inherits that and this passes either way.)"""
+    import os
+    import signal
+    import sys
+    import time
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("reads the signal mask in /proc (Linux)")
+    src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0])
+    alone, keys = _plan(src, "past:2", worker=False)
+    want = _inputs(alone, keys)
+    plan, _ = _plan(src, "past:2", worker=False)
+    w = TrackWorker.start()
+    assert w is not None
+    # a process just forked by the fork server ignores SIGINT for a moment, then gets its parent's handlers back:
+    # the worker, waiting for its plan, must ignore it for half a second in a row
+    end, streak = time.monotonic() + 10, 0
+    while streak < 10 and time.monotonic() < end:
+        streak = streak + 1 if _ignores_sigint(w.proc.pid) else 0
+        time.sleep(0.05)
+    assert streak == 10
+    os.kill(w.proc.pid, signal.SIGINT)
+    assert plan.start_worker(keys, w)
+    assert _inputs(plan, keys) == want
+    plan.finish()

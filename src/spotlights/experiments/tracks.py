@@ -60,7 +60,7 @@ from ..data.tracks import (
 from ..errors import ParameterError
 from ..geometry.boxes import Box
 from ..geometry.io import save_ply
-from ..utils import StageTimer, atomic_output, die_with_parent, process_pool_context
+from ..utils import StageTimer, _quiet_worker, atomic_output, process_pool_context
 from .scene import SOURCE_COMPLETION, SOURCE_PARTIAL, SceneConfig, SceneResult, _selected, scene_crops
 
 #: The most scan points :meth:`TrackPlan.build` keeps of the frames it read, for the frame loop to take
@@ -454,7 +454,7 @@ def _worker_main(jobs, results) -> None:
     """The worker process: receive a plan (:meth:`TrackWorker.send`), then for each frame key in order put
     ``("frame", key, repl, extra)`` (:meth:`TrackPlan._inputs`), then ``("done", state, timer seconds)``;
     ``("error", exception)`` instead when something fails."""
-    die_with_parent()
+    _quiet_worker(None, ())  # as a pool worker: Ctrl-C is the parent's (which stops this one); dies with it
     import scipy.spatial  # noqa: F401 - imported now, while the parent opens and reads (0.25 s), not at the first crop
 
     try:
