@@ -98,6 +98,24 @@ def test_worker_gives_the_inputs_boxes_and_statuses_of_one_process(tmp_path, win
 
 @needs_two_cpus
 @pytest.mark.timeout(60)
+def test_a_plan_dropped_without_finishing_ends_its_worker(tmp_path):
+    """Library use: a plan with a worker, dropped half-way (no finish, no close): collecting it ends the process."""
+    import gc
+
+    src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0])
+    plan, keys = _plan(src, "past:2", worker=False)
+    assert plan.start_worker(keys)
+    proc = plan.worker_process
+    plan.frame_inputs(keys[0], plan.take(keys[0]).boxes)
+    assert proc.is_alive()
+    del plan
+    gc.collect()
+    proc.join(10)
+    assert not proc.is_alive()
+
+
+@needs_two_cpus
+@pytest.mark.timeout(60)
 def test_a_dying_worker_ends_the_run_with_an_error(tmp_path):
     """A worker process killed before its first result: the frame loop raises at once (no wait forever)."""
     src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0])
@@ -125,10 +143,13 @@ def test_an_error_in_the_worker_is_raised_in_the_run(tmp_path):
     tr.frames[1] = TrackFrame(np.zeros((7, 2)), f.box, f.origin, f.timestamp)  # 14 numbers: not (N, 3)
     assert plan.start_worker(keys)
     proc = plan.worker_process
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError) as caught:
         for key in keys:
             plan.frame_inputs(key, plan.take(key).boxes)
         plan.finish()
+    # the worker's own traceback travels with the error (else only its message would be left)
+    (note,) = getattr(caught.value, "__notes__", [None])
+    assert note.startswith("in the track worker process:\nTraceback") and "_worker_main" in note
     plan.close()
     proc.join(10)
     assert not proc.is_alive()

@@ -37,6 +37,8 @@ import os
 import pickle
 import re
 import time
+import traceback
+import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
 from queue import Empty
@@ -502,6 +504,7 @@ def _worker_main(jobs, results) -> None:
         }
         results.put(("done", state, dict(plan.timer.seconds) | {"worker_cpu_s": time.process_time() - cpu0}))
     except BaseException as exc:  # noqa: BLE001 - handed to the parent, which raises it
+        exc.add_note("in the track worker process:\n" + traceback.format_exc().rstrip())  # its frames are lost else
         try:
             pickle.dumps(exc)  # the queue pickles in a thread of its own, where a failure would be lost
         except Exception:  # an exception that does not pickle
@@ -522,6 +525,9 @@ class TrackWorker:
         self.proc, self.jobs, self.results = proc, jobs, results
         self.pending: dict = {}  # frame key -> (repl, extra) received before it was asked for
         self.done = False
+        # a plan used from Python and dropped without finish()/close(): its worker (and the scans it holds) ends
+        # when this object is collected, not only with the parent process
+        self._finalizer = weakref.finalize(self, _end_worker, proc, jobs, results)
 
     @classmethod
     def start(cls) -> TrackWorker | None:
@@ -637,18 +643,23 @@ class TrackWorker:
                 self._apply(plan, msg[1], msg[2])
 
     def stop(self) -> None:
-        """End the process (now, when it has not finished)."""
-        try:
-            self.jobs.put(None)  # a worker still waiting for its plan returns
-        except Exception:  # noqa: S110 - a closed queue: the process is ending anyway
-            pass
-        self.proc.join(timeout=POLL_S)
-        if self.proc.is_alive():
-            self.proc.terminate()
-            self.proc.join(timeout=5)
-        for q in (self.jobs, self.results):
-            q.cancel_join_thread()
-            q.close()
+        """End the process (now, when it has not finished). Idempotent."""
+        self._finalizer()
+
+
+def _end_worker(proc, jobs, results) -> None:
+    """End a :class:`TrackWorker`'s process ``proc`` and close its queues (its ``stop``, and its finalizer)."""
+    try:
+        jobs.put(None)  # a worker still waiting for its plan returns
+    except Exception:  # noqa: S110 - a closed queue: the process is ending anyway
+        pass
+    proc.join(timeout=POLL_S)
+    if proc.is_alive():
+        proc.terminate()
+        proc.join(timeout=5)
+    for q in (jobs, results):
+        q.cancel_join_thread()
+        q.close()
 
 
 __all__ = ["TrackPlan", "TrackWorker", "file_stem", "usable_cpus"]
