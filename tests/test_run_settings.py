@@ -71,6 +71,11 @@ def test_scan_settings_check_the_box_options():
         scan(boxes="b.json", box="one.json").check_boxes()
     with pytest.raises(ParameterError, match="needs both --center"):
         scan(center=[0, 0, 0]).check_boxes()
+    with pytest.raises(ParameterError, match="needs both --center"):  # the missing centre first, not the yaw
+        scan(size=[4, 2, 1.5], yaw=0.3).check_boxes()
+    with pytest.raises(ParameterError, match="--yaw goes with --center/--size"):
+        scan(box="one.json", yaw=0.0).check_boxes()
+    scan(center=[0, 0, 0], size=[4, 2, 1.5], yaw=0.0).check_boxes()  # given with its box: fine
     with pytest.raises(ParameterError, match="give the crop margin once"):
         scan(box="one.json", margin=0.1, crop=0.2).scan_config()
     config = scan(box="one.json", crop=0.3).scan_config()

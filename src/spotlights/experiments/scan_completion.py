@@ -232,10 +232,10 @@ class ScanSettings(CompletionOptions):
             raise ParameterError("give the box either as --box BOX.json or as --center/--size/--yaw, not both")
         if self.calib is not None and self.boxes is None:
             raise ParameterError("--calib goes with a KITTI label_2 file in --boxes")
-        if self.yaw is not None and self.center is None:
-            raise ParameterError("--yaw goes with --center/--size (a box file gives its own heading)")
         if self.single and (self.center is None) != (self.size is None) and self.box is None:
             raise ParameterError("one object's box needs both --center X Y Z and --size L W H")
+        if self.yaw is not None and self.center is None:
+            raise ParameterError("--yaw goes with --center/--size (a box file gives its own heading)")
         if self.single and self.box is None and self.center is None:
             raise ParameterError(
                 "the boxes are missing: pass --boxes BOXES (a frame), or one object's --box BOX.json or "
