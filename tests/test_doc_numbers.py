@@ -146,3 +146,18 @@ def test_issue27_box_term_rows():
     for cls, objects in (("trailer", 12), ("car", 23)):
         row = " | ".join(cell(n, cls) for n in ("classes", "classes-box", "classes-box30"))
         _says("docs/real-data.md", f"| nuScenes {cls} ({objects}) | {row} |")
+
+
+def test_track_worker_speed_on_a_quiet_machine():
+    for threads, row in ((1, "**with the worker, 1 torch thread**"), (2, "with the worker, 2 torch threads")):
+        med = _json(f"real/track_fusion_speed_worker_quiet_{threads}thread_bf16.json")["worker_and_one_process"]
+        w, one = med["median"]["worker"], med["median"]["one_process"]
+        fps = f"**{w['fps_wall']:.1f}**" if threads == 1 else f"{w['fps_wall']:.1f}"
+        _says(
+            "docs/real-data.md", f"| {row} | {w['cpu_ms_per_frame']:.0f} | {w['worker_cpu_ms_per_frame']:.0f} | {fps} ("
+        )
+        _says(
+            "docs/real-data.md",
+            f"| one process, {threads} torch thread{'s' if threads == 2 else ''} | "
+            f"{one['cpu_ms_per_frame']:.0f} | - | {one['fps_wall']:.2f} (",
+        )

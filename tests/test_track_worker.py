@@ -98,6 +98,32 @@ def test_worker_gives_the_inputs_boxes_and_statuses_of_one_process(tmp_path, win
 
 @needs_two_cpus
 @pytest.mark.timeout(60)
+def test_torch_leaves_a_core_to_the_worker_while_it_runs(tmp_path):
+    """With a worker, torch runs on the usable CPUs less one (not fewer than the caller's count), restored after."""
+    torch = pytest.importorskip("torch")
+    from spotlights.experiments.tracks import threads_beside_worker
+
+    src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0])
+    plan, keys = _plan(src, "past:2", worker=False)
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(usable_cpus())
+        with threads_beside_worker(plan):  # no worker yet: nothing changes
+            assert torch.get_num_threads() == usable_cpus()
+        assert plan.start_worker(keys)
+        with threads_beside_worker(plan):
+            assert torch.get_num_threads() == usable_cpus() - 1
+        assert torch.get_num_threads() == usable_cpus()
+        torch.set_num_threads(1)
+        with threads_beside_worker(plan):  # a lower count set by the caller is kept
+            assert torch.get_num_threads() == 1
+    finally:
+        plan.close()
+        torch.set_num_threads(before)
+
+
+@needs_two_cpus
+@pytest.mark.timeout(60)
 def test_a_plan_dropped_without_finishing_ends_its_worker(tmp_path):
     """Library use: a plan with a worker, dropped half-way (no finish, no close): collecting it ends the process."""
     import gc

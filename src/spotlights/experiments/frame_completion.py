@@ -34,7 +34,7 @@ from ..viz.html import write_plotlyjs
 from ..viz.rerun_log import check_rerun_path, open_recording
 from .scan_completion import CompletionOptions, Say, ScanSettings, complete_scan, silent, write_json
 from .scene import SceneConfig, SceneResult, complete_scene, render_result, render_result_html, write_scene
-from .tracks import TrackPlan, TrackWorker
+from .tracks import TrackPlan, TrackWorker, threads_beside_worker
 
 
 def safe_name(text: str) -> str:
@@ -454,7 +454,11 @@ def complete_frames(
         completer = s.load_completer() if completer is None else completer
         fallback = s.load_fallback()  # loaded beside the main model, before any output exists
         # the folder is removed again if nothing could be written; the recording is written only when the run ends
-        with output_folder(s.out) as out, open_recording(s.rerun, TIME_UNIT_S.get(reader.format)) as rec:
+        with (
+            output_folder(s.out) as out,
+            open_recording(s.rerun, TIME_UNIT_S.get(reader.format)) as rec,
+            threads_beside_worker(tracks),  # a core left to the track worker, if any
+        ):
             return _run_frames(s, reader, keys, config, completer, out, tracks, say, warn, rec, fallback)
     finally:
         if tracks is not None:

@@ -31,6 +31,7 @@ box centre, metres). The sensor origin is the scan frame's origin unless the fra
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -452,6 +453,27 @@ def usable_cpus() -> int:
         return os.cpu_count() or 1
 
 
+@contextlib.contextmanager
+def threads_beside_worker(plan: TrackPlan | None):
+    """While ``plan`` has a worker process, run torch on at most the usable CPUs less one (restored on exit).
+
+    The worker takes one core for the whole run; torch's OpenMP threads spin for every core it was given, so on
+    two cores a second torch thread only competes with the worker (scene-0523, ``past:5 --refine-boxes``, bf16, a
+    quiet 2-core machine: 14.4 frames/s with one torch thread against 11.0 with two; docs/real-data.md). A lower
+    thread count set by the caller is kept; without a worker nothing changes."""
+    if plan is None or plan.worker_process is None:
+        yield
+        return
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(max(1, min(before, usable_cpus() - 1)))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
 def _worker_main(jobs, results) -> None:
     """The worker process: receive a plan (:meth:`TrackWorker.send`), then for each frame key in order put
     ``("frame", key, repl, extra)`` (:meth:`TrackPlan._inputs`), then ``("done", state, timer seconds)``;
@@ -662,4 +684,4 @@ def _end_worker(proc, jobs, results) -> None:
         q.close()
 
 
-__all__ = ["TrackPlan", "TrackWorker", "file_stem", "usable_cpus"]
+__all__ = ["TrackPlan", "TrackWorker", "file_stem", "threads_beside_worker", "usable_cpus"]
