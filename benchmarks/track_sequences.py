@@ -109,7 +109,7 @@ def main(argv=None) -> int:
         for kind, bx in boxes.items():
             for k in WINDOWS:
                 pol = parse_window("all" if k == "all" else f"past:{k}")
-                partials, sizes, used = [], [], []
+                partials, sizes, origins, used = [], [], [], []
                 for t in range(k_max - 1, len(frs)):
                     fused = fuse_track(noisy, pol.select(len(frs), t), boxes=bx, margin=0.15, ground_clearance=0.10)
                     if len(fused.points) < 10:
@@ -117,9 +117,13 @@ def main(argv=None) -> int:
                     b = bx[t]
                     partials.append(prepare_partial(fused.points / b.radius))
                     sizes.append(b.size)
+                    origins.append(b.normalization().to_unit(np.zeros((1, 3)))[0])  # the sensor: its frame's origin
                     used.append(t)
                 for name, completer in completers.items():
-                    outs = complete_in_boxes(completer, np.stack(partials), np.stack(sizes))
+                    # frame t's sensor in its box's unit frame: the free space a ray-local model reads
+                    outs = complete_in_boxes(
+                        completer, np.stack(partials), np.stack(sizes), sensor_origins=np.stack(origins)
+                    )
                     for t, c in zip(used, outs):
                         b, tb = bx[t], frs[t]["true_box"]
                         pred = tb.to_object(b.from_object(c.astype(np.float64) * b.radius))  # into the true box frame
