@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 
 import numpy as np
 import pytest
@@ -337,3 +338,19 @@ def test_the_worker_leaves_ctrl_c_to_the_run(tmp_path):
     assert plan.start_worker(keys, w)
     assert _inputs(plan, keys) == want
     plan.finish()
+
+
+@pytest.mark.timeout(30)
+def test_a_container_cpu_quota_bounds_the_usable_cpus(tmp_path):
+    """cgroup v2 cpu.max: "100000 100000" (docker --cpus=1) is 1 CPU, "150000 100000" 2, "max 100000" no limit;
+    an unreadable or malformed file is no limit."""
+    from spotlights.experiments.tracks import cgroup_cpu_limit
+
+    f = tmp_path / "cpu.max"
+    for text, expected in (("100000 100000\n", 1), ("150000 100000\n", 2), ("50000 100000", 1), ("max 100000", None)):
+        f.write_text(text)
+        assert cgroup_cpu_limit(f) == expected, text
+    f.write_text("garbage")
+    assert cgroup_cpu_limit(f) is None
+    assert cgroup_cpu_limit(tmp_path / "absent") is None
+    assert 1 <= usable_cpus() <= (os.cpu_count() or 1)

@@ -40,9 +40,11 @@ import re
 import time
 import traceback
 import weakref
+from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from queue import Empty
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -65,6 +67,10 @@ from ..geometry.boxes import Box
 from ..geometry.io import save_ply
 from ..utils import StageTimer, _quiet_worker, atomic_output, process_pool_context
 from .scene import SOURCE_COMPLETION, SOURCE_PARTIAL, SceneConfig, SceneResult, _selected, scene_crops
+
+if TYPE_CHECKING:
+    from multiprocessing.process import BaseProcess
+    from multiprocessing.queues import Queue
 
 #: The most scan points :meth:`TrackPlan.build` keeps of the frames it read, for the frame loop to take
 #: (:meth:`TrackPlan.take`) instead of reading them again (2^24: ~200 MB; 480 nuScenes keyframes). Frames
@@ -231,7 +237,7 @@ class TrackPlan:
             self.start_worker(keys, self._worker)
         return self
 
-    def start_worker(self, keys, worker: TrackWorker | None = None) -> bool:
+    def start_worker(self, keys: Sequence[Hashable], worker: TrackWorker | None = None) -> bool:
         """Hand the built plan to a worker process (``worker``, else a new :class:`TrackWorker`) that refines and
         fuses the frames ``keys`` in that order, ahead of :meth:`frame_inputs`; False where no process can be
         started (the plan then works alone). A plan built with a worker (``worker=True``) was cropped there."""
@@ -243,7 +249,7 @@ class TrackPlan:
         return True
 
     @property
-    def worker_process(self):
+    def worker_process(self) -> BaseProcess | None:
         """The worker's ``multiprocessing`` process while one works for this plan, else None."""
         return None if self._worker is None else self._worker.proc
 
@@ -314,7 +320,7 @@ class TrackPlan:
             out[i] = box
         return out, extra
 
-    def frame_crops(self, key) -> dict | None:
+    def frame_crops(self, key: Hashable) -> dict | None:
         """The crops of frame ``key``'s scene that the worker made with its (refined) boxes ({box index: (k,) int64},
         :func:`spotlights.experiments.scene.scene_crops`), for ``complete_scene(..., crops=...)``; None without (no
         worker, or a frame it was not sent the scan of). Asked for after :meth:`frame_inputs`, handed out once."""
@@ -445,12 +451,29 @@ class TrackPlan:
 POLL_S = 0.5
 
 
-def usable_cpus() -> int:
-    """The CPUs this process may run on (its affinity where the platform tells it, else ``os.cpu_count()``)."""
+#: Linux cgroup v2 file of this process's CPU quota ("QUOTA PERIOD" in microseconds, or "max PERIOD").
+CGROUP_CPU_MAX = "/sys/fs/cgroup/cpu.max"
+
+
+def cgroup_cpu_limit(path: str | Path = CGROUP_CPU_MAX) -> int | None:
+    """The whole CPUs a cgroup v2 quota allows (``ceil(quota / period)``, at least 1; ``docker --cpus=1`` writes
+    ``100000 100000``), or None without a quota (``max``) or without a readable file (other systems)."""
     try:
-        return len(os.sched_getaffinity(0))
+        quota, period = Path(path).read_text().split()[:2]
+        return None if quota == "max" else max(1, math.ceil(int(quota) / int(period)))
+    except (OSError, ValueError, ZeroDivisionError):
+        return None
+
+
+def usable_cpus() -> int:
+    """The CPUs this process may run on: its affinity where the platform tells it (else ``os.cpu_count()``), no
+    more than its container's CPU quota (:func:`cgroup_cpu_limit`)."""
+    try:
+        n = len(os.sched_getaffinity(0))
     except AttributeError:  # macOS, Windows
-        return os.cpu_count() or 1
+        n = os.cpu_count() or 1
+    limit = cgroup_cpu_limit()
+    return n if limit is None else min(n, limit)
 
 
 @contextlib.contextmanager
@@ -543,7 +566,7 @@ class TrackWorker:
     :func:`spotlights.utils.process_pool_context` (never a fork of a process holding a model), it ends with its
     parent."""
 
-    def __init__(self, proc, jobs, results):
+    def __init__(self, proc: BaseProcess, jobs: Queue, results: Queue):
         self.proc, self.jobs, self.results = proc, jobs, results
         self.pending: dict = {}  # frame key -> (repl, extra) received before it was asked for
         self.done = False
@@ -623,7 +646,7 @@ class TrackWorker:
             tr, pos = plan.where[key][i]
             tr.boxes[pos] = box
 
-    def inputs(self, plan: TrackPlan, key):
+    def inputs(self, plan: TrackPlan, key: Hashable) -> tuple[dict[int, Box], dict[int, np.ndarray]]:
         """``(repl, extra)`` of frame ``key`` as :meth:`TrackPlan._inputs` gives them (the frames come in the order
         sent; those the frame loop skips are passed over). RuntimeError for a frame the worker was not sent."""
         while key not in self.pending and not self.done:
