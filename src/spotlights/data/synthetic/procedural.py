@@ -2,8 +2,9 @@
 
 A source of *variety* for the completion dataset, not of beauty (docs/dataset.md, "Procedural
 vehicles"): sedans, hatchbacks, SUVs, pickups (with an open cargo bed), vans, box trucks,
-semi-tractors, box and flatbed trailers and buses, each with wheels in wheel arches and, where
-the body has one, a narrower greenhouse (cabin) on top of the beltline.
+semi-tractors, box and flatbed trailers (semi-trailers, and drawbar trailers below 9 m), buses and
+articulated trucks (a semi-tractor coupled to a box semi-trailer), each with wheels in wheel arches
+and, where the body has one, a narrower greenhouse (cabin) on top of the beltline.
 
 Construction
 ------------
@@ -17,7 +18,8 @@ extra dependency and no interior faces):
   function of the distance from the front; the floor rises over every wheel into a **wheel
   arch**: a circular tunnel of radius ``wheel radius + 4 cm`` over the full width, so the
   wheel stands inside it without touching the body.
-* **boxes** (cargo boxes, trailer bodies, frames, pickup bed walls, landing legs, fifth wheels).
+* **boxes** (cargo boxes, trailer bodies, frames, pickup bed walls, landing legs, fifth wheels);
+  a drawbar trailer's A-frame drawbar is one solid trapezoidal slab (0.2 m wide at the eye).
 * **wheels**: 16-sided cylinders along y, tyre bottoms on the ground, inside the body's width.
 
 Components are separated by gaps (1-10 cm), so the concatenation is watertight (every edge in
@@ -31,7 +33,8 @@ of the mesh's axis-aligned box, like the ApolloScape meshes. The box is exactly
 Dimension ranges (metres; :data:`DIMENSIONS`)
 ---------------------------------------------
 Legal limits: EU Directive (EU) 2015/719 amending Council Directive 96/53/EC, Annex I: width
-<= 2.55 m (2.60 m for refrigerated bodies), height 4.00 m, articulated vehicle 16.50 m, a
+<= 2.55 m (2.60 m for refrigerated bodies), height 4.00 m, motor vehicle (rigid truck) 12.00 m,
+trailer 12.00 m, articulated vehicle 16.50 m, road train 18.75 m (Annex I 1.1), a
 semi-trailer's kingpin-to-rear 12.00 m (13.6 m bodies), a two-axle bus 13.50 m, a three-axle bus
 15.00 m; US: 23 CFR 658.15 width 102 in (2.59 m), 53 ft (16.15 m) semi-trailers in most states,
 heights set by states, mostly 13 ft 6 in (4.11 m). Here widths stay <= 2.55 m and heights <=
@@ -60,24 +63,42 @@ van             4.8-7.0    1.90-2.05   1.90-2.80   3.0-4.3     0.15-0.20    VW T
                                                                             6.70 x 2.06 (body 2.05) x 2.06-
                                                                             2.78, Sprinter 5.27-7.37 x 2.02
                                                                             x 2.36-2.83 (3.26-4.33)
-box_truck       6.5-10.5   2.30-2.55   3.00-4.00   3.4-6.0     0.25-0.35    7.5-18 t rigid trucks (MAN TGL /
+box_truck       6.5-12.0   2.30-2.55   3.00-4.00   3.4-6.8     0.25-0.35    7.5-18 t rigid trucks (MAN TGL /
                                                                             TGM, Isuzu N/F series): bodies
-                                                                            6-8.5 m, legal width/height caps
+                                                                            6-8.5 m, legal width/height caps;
+                                                                            from 10 m 3-axle rigids (26 t
+                                                                            6x2/6x4, rear tandem 1.35 m,
+                                                                            wheelbase to ~6.5-7 m) up to the
+                                                                            EU rigid maximum 12.00 m (96/53/EC
+                                                                            Annex I 1.1; US straight trucks
+                                                                            similar)
 semi_tractor    5.8-7.5    2.45-2.55   3.20-4.00   3.6-5.0     0.25-0.35    EU cab-over 4x2 (Volvo FH, MAN
                                                                             TGX: ~6.0 x 2.50 x 3.5-4.0, wb
                                                                             3.6-3.9), US conventional 6x4
                                                                             (~7 m, wb 4.5-5.8)
-trailer_box     8.0-16.2   2.45-2.55   3.60-4.10   (axles)     floor 1.1-   EU 13.6 m semi-trailer, US 48-53
-                                                                1.3         ft (14.6-16.15 m), 13 ft 6 in
-trailer_flatbed 8.0-16.2   2.45-2.55   1.40-1.70   (axles)     deck top     US flatbed deck ~60 in (1.52 m)
+trailer_box     5.0-16.2   2.45-2.55   3.60-4.10   (axles)     floor 1.1-   EU 13.6 m semi-trailer, US 48-53
+                                                                1.3         ft (14.6-16.15 m), 13 ft 6 in; below
+                                                                            9 m drawbar trailers: EU centre-axle
+                                                                            trailers behind rigid trucks 7-8.5
+                                                                            m, US enclosed cargo trailers 16-28
+                                                                            ft (4.9-8.5 m); drawbar included
+trailer_flatbed 5.0-16.2   2.45-2.55   1.40-1.70   (axles)     deck top     US flatbed deck ~60 in (1.52 m);
+                                                                            below 9 m as the box trailers
 bus             9.0-13.7   2.45-2.55   2.90-3.60   4.5-7.0     0.25-0.35    city buses 12.0 x 2.55 x 3.0-3.3
                                                                             (Citaro wb 5.85), coaches 12-
                                                                             13.7 x 2.55 x 3.5-3.9; 40/45 ft
+articulated_   13.5-18.75 2.45-2.55   3.60-4.10   3.6-5.0     0.25-0.35    EU articulated 16.50 m, road train
+truck                                             (tractor)   (tractor)    18.75 m (96/53/EC Annex I 1.1):
+                                                                            a semi_tractor 5.8-7.5 m (at most
+                                                                            5.8 + L - 13.5) and a box semi-
+                                                                            trailer (the rest, 9.8-15.7 m),
+                                                                            kingpin 0.9-1.7 m behind its front
+                                                                            (EU swing radius <= 2.04 m)
 ============== ========== =========== =========== =========== ============ =================================
 
 Detector classes (:data:`~spotlights.data.vehicle_classes.CLASS_BODIES`, the real readers' names):
 ``car`` = sedan, hatchback, SUV, pickup; ``caravan`` (vans; ``van`` is accepted) = van; ``truck`` =
-box truck, semi-tractor, pickup; ``bus`` = bus; ``trailer`` = box and flatbed trailers. Pickups are
+box truck, semi-tractor, pickup, articulated truck; ``bus`` = bus; ``trailer`` = box and flatbed trailers. Pickups are
 in both car and truck: datasets disagree (nuScenes labels pickups ``vehicle.truck``; Argoverse 2
 ``REGULAR_VEHICLE``, KITTI ``Car``).
 """
@@ -188,7 +209,9 @@ WHEEL_SECTIONS = 16
 @dataclass(frozen=True)
 class VehicleParams:
     """The drawn parameters of one procedural vehicle (metres; ``variant`` picks a sub-shape:
-    semi-tractor 0 cab-over / 1 conventional; box truck 0 cab-over / 1 short hood)."""
+    semi-tractor 0 cab-over / 1 conventional; box truck 0 cab-over / 1 short hood). An articulated
+    truck's wheelbase, front overhang, clearance, wheel radius and variant are its tractor's, and its
+    ``shape`` has 9 fractions (the last three: tractor length, kingpin setback, tractor height)."""
 
     body: str
     length: float
@@ -567,7 +590,7 @@ def _articulated(p: VehicleParams) -> list:
     variant; length :func:`_tractor_length`, height 3.2 m up to the trailer's by ``shape[8]``) and a
     box semi-trailer (the rest of the length, full height) whose floor rests 2 cm above the fifth
     wheel's plate, its front 0.9-1.7 m ahead of the kingpin (``shape[7]``; less where the cab leaves
-    less room, keeping a gap of up to 0.5 m behind the cab), its landing legs behind the tractor."""
+    less room: the gap behind the cab is 0.5-2.4 m, half the room if under 1 m), its landing legs behind the tractor."""
     f = p.shape
     lt = _tractor_length(p.length, f[6])
     h_lo, h_hi = DIMENSIONS["semi_tractor"]["height"]
