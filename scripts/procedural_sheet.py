@@ -1,6 +1,8 @@
 """A sheet of procedural vehicles beside real meshes of the same body (docs/dataset.md, "Procedural vehicles").
 
     PYTHONPATH=src python3 scripts/procedural_sheet.py --out docs/results/procedural_sheet.png
+    PYTHONPATH=src python3 scripts/procedural_sheet.py --bodies box_truck,articulated_truck,trailer_box,trailer_flatbed \
+        --per-body 6 --out docs/results/i27/procedural_long_short.png
 
 Rows: the body types of spotlights.data.synthetic.procedural; columns: generated vehicles
 (seeds 0..N-1) and, where the shared data holds one, a real mesh of that body (ApolloScape car
@@ -53,13 +55,15 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="docs/results/procedural_sheet.png")
     ap.add_argument("--per-body", type=int, default=4)
+    ap.add_argument("--bodies", default=",".join(BODY_TYPES), help="comma-separated body types, one row each")
     args = ap.parse_args()
+    bodies = args.bodies.split(",")
     n = args.per_body
     cols = n + 1
-    fig = new_figure(2.3 * cols, 1.45 * len(BODY_TYPES), layout=None)
-    fig.subplots_adjust(0.01, 0.01, 0.99, 0.955, 0.02, 0.3)
+    fig = new_figure(2.3 * cols, 1.45 * len(bodies), layout=None)
+    fig.subplots_adjust(0.01, 0.01, 0.99, min(0.955, 1 - 0.5 / (1.45 * len(bodies))), 0.02, 0.3)
     elev, azim = 20.0, -60.0
-    for r, body in enumerate(BODY_TYPES):
+    for r, body in enumerate(bodies):
         meshes = []
         for s in range(n):
             v, f, p = generate_vehicle(body, s)
@@ -71,7 +75,7 @@ def main() -> None:
             meshes.append((v, f, f"real: {label} {size[0]:.1f}x{size[1]:.2f}x{size[2]:.2f}"))
         half = max(float(v.max(0)[0] - v.min(0)[0]) for v, _, _ in meshes) / 2 * 0.95
         for c, (v, f, label) in enumerate(meshes):
-            ax = fig.add_subplot(len(BODY_TYPES), cols, r * cols + c + 1)
+            ax = fig.add_subplot(len(bodies), cols, r * cols + c + 1)
             centre = (v.min(0) + v.max(0)) / 2
             rgba, extent = shade_mesh(v - centre, f, elev, azim, size=260, center=np.zeros(3), half=half)
             ax.imshow(rgba, extent=extent, interpolation="antialiased", origin="upper")
@@ -80,7 +84,7 @@ def main() -> None:
             ax.set_title(label, fontsize=6.5, color="#8b0000" if label.startswith("real") else "black")
             for sp in ax.spines.values():
                 sp.set_visible(False)
-    fig.suptitle("procedural vehicles (seeds 0-3 per body) and a real mesh of the body (red title)", fontsize=9)
+    fig.suptitle(f"procedural vehicles (seeds 0-{n - 1} per body) and a real mesh of the body (red title)", fontsize=9)
     save_png(fig, args.out, dpi=100, deterministic=True)
     print(args.out)
 

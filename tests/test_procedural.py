@@ -122,3 +122,74 @@ def test_classes_and_bodies():
     t, face = RayCaster(v, f).first_hit(np.array([[-p.length / 2 + 0.5, 0.0, 10.0]]), np.array([[0, 0, -1.0]]))
     z = 10.0 - t[0]
     assert face[0] >= 0 and z < p.height / 2 - 0.5
+
+
+def test_long_box_trucks_are_three_axle_rigids():
+    """Box trucks reach the EU rigid maximum (12.00 m); from 10 m they stand on a rear tandem: a ray
+    along -y at axle height through the second rear axle (1.35 m behind the first, wheelbase behind the
+    front axle) hits the outer face of its left tyre, 2 cm inside the body's side."""
+    lengths = []
+    for seed in range(40):
+        v, f, p = generate_vehicle("box_truck", seed)
+        lengths.append(p.length)
+        if p.length < 10.0:
+            continue
+        x = p.length / 2 - (p.front_overhang + p.wheelbase + 1.35)
+        t, face = RayCaster(v, f).first_hit(
+            np.array([[x, 5.0, -p.height / 2 + p.wheel_radius]]), np.array([[0, -1.0, 0]])
+        )
+        assert face[0] >= 0 and 5.0 - t[0] == pytest.approx(p.width / 2 - 0.02, abs=1e-5), (seed, p)
+    assert max(lengths) > 11.5 and sum(x >= 10.0 for x in lengths) >= 5
+
+
+def test_articulated_truck_is_a_tractor_coupled_to_a_semi_trailer():
+    """An articulated truck is longer than any semi-tractor; a ray from behind along +x at y = 0, 10 cm
+    above the tractor's frame (whose top is 2 r + 0.28 m above the ground), passes under the whole
+    semi-trailer (floor 2 r + 0.48 m) and hits the rear edge of the fifth-wheel plate: 0.45 m behind
+    the kingpin, which is 0.3 m ahead of the middle of the rear axle(s) (front overhang + wheelbase,
+    + 1.35 / 2 m on a 6x4 tractor). On a cab-over tractor (variant 0) a ray down over the front axle
+    hits the cab roof, 3.2 m up to the trailer's height at fraction shape[8]."""
+    longest_tractor = DIMENSIONS["semi_tractor"]["length"][1]
+    seen = set()
+    for seed in range(6):
+        v, f, p = generate_vehicle("articulated_truck", seed)
+        assert p.length > longest_tractor + 6.0
+        L, H, r = p.length, p.height, p.wheel_radius
+        kingpin = p.front_overhang + p.wheelbase + (1.35 / 2 if p.variant else 0.0) - 0.3
+        origins = np.array([[-L, 0.0, -H / 2 + 2 * r + 0.38], [L / 2 - p.front_overhang, 0.0, 10.0]])
+        dirs = np.array([[1.0, 0, 0], [0, 0, -1.0]])
+        t, face = RayCaster(v, f).first_hit(origins, dirs)
+        assert face[0] >= 0
+        assert -L + t[0] == pytest.approx(L / 2 - (kingpin + 0.45), abs=1e-5), (seed, p)
+        assert kingpin + 0.45 < L - 8.0  # the hit is far ahead of the trailer's rear
+        if p.variant == 0:
+            cab = 3.2 + (min(4.0, H) - 3.2) * p.shape[8]
+            assert 10.0 - t[1] == pytest.approx(-H / 2 + cab, abs=1e-5), (seed, p)
+        seen.add(p.variant)
+    assert seen == {0, 1}  # both tractors (EU cab-over 4x2, US conventional 6x4) among the seeds
+
+
+@pytest.mark.parametrize("body", ["trailer_box", "trailer_flatbed"])
+def test_short_trailers_have_a_drawbar_and_no_landing_gear(body):
+    """Trailers shorter than 9 m are drawbar trailers: a ray down 15 cm behind the front hits the drawbar's
+    top, 0.85 + 0.15 shape[3] m above the ground; rays along -y 0.3 m above the ground through the front
+    30% of the length hit nothing (no landing legs; the axles are behind the middle). On trailers of
+    9 m and more the same rays hit the landing legs (1.6-2.4 m from the front)."""
+    short = long = 0
+    for seed in range(30):
+        v, f, p = generate_vehicle(body, seed)
+        L, H = p.length, p.height
+        xs = L / 2 - np.linspace(0.05, 0.3 * L, 120)
+        origins = np.column_stack([xs, np.full_like(xs, 5.0), np.full_like(xs, -H / 2 + 0.3)])
+        dirs = np.tile([0, -1.0, 0], (len(xs), 1))
+        caster = RayCaster(v, f)
+        _, face = caster.first_hit(origins, dirs)
+        if L < 9.0:
+            short += 1
+            assert not (face >= 0).any(), (seed, p)
+            t, face = caster.first_hit(np.array([[L / 2 - 0.15, 0.0, 10.0]]), np.array([[0, 0, -1.0]]))
+            assert face[0] >= 0 and 10.0 - t[0] == pytest.approx(-H / 2 + 0.85 + 0.15 * p.shape[3], abs=1e-5)
+        else:
+            long += 1
+            assert (face >= 0).any(), (seed, p)
+    assert short >= 3 and long >= 3

@@ -14,10 +14,12 @@ import numpy as np
 
 #: detector class -> procedural body types drawn for it, in round-robin order. Pickups are in both car
 #: and truck: nuScenes labels pickups ``vehicle.truck``, Argoverse 2 ``REGULAR_VEHICLE`` and KITTI ``Car``.
+#: Vehicle ``i`` of a class is body ``i % len(bodies)``: a body appended to a class changes which body (and
+#: name, hence seed) the indices from ``len(bodies)`` on draw (``articulated_truck`` was appended to truck).
 CLASS_BODIES: dict[str, tuple[str, ...]] = {
     "car": ("sedan", "hatchback", "suv", "pickup"),
     "caravan": ("van",),
-    "truck": ("box_truck", "semi_tractor", "pickup"),
+    "truck": ("box_truck", "semi_tractor", "pickup", "articulated_truck"),
     "bus": ("bus",),
     "trailer": ("trailer_box", "trailer_flatbed"),
 }
@@ -44,6 +46,7 @@ CATEGORY_CLASS: dict[str, str] = {
     "truck": "truck",
     "box_truck": "truck",
     "semi_tractor": "truck",
+    "articulated_truck": "truck",
     "bus": "bus",
     "trailer": "trailer",
     "trailer_box": "trailer",

@@ -2,8 +2,9 @@
 
 A source of *variety* for the completion dataset, not of beauty (docs/dataset.md, "Procedural
 vehicles"): sedans, hatchbacks, SUVs, pickups (with an open cargo bed), vans, box trucks,
-semi-tractors, box and flatbed trailers and buses, each with wheels in wheel arches and, where
-the body has one, a narrower greenhouse (cabin) on top of the beltline.
+semi-tractors, box and flatbed trailers (semi-trailers, and drawbar trailers below 9 m), buses and
+articulated trucks (a semi-tractor coupled to a box semi-trailer), each with wheels in wheel arches
+and, where the body has one, a narrower greenhouse (cabin) on top of the beltline.
 
 Construction
 ------------
@@ -17,7 +18,8 @@ extra dependency and no interior faces):
   function of the distance from the front; the floor rises over every wheel into a **wheel
   arch**: a circular tunnel of radius ``wheel radius + 4 cm`` over the full width, so the
   wheel stands inside it without touching the body.
-* **boxes** (cargo boxes, trailer bodies, frames, pickup bed walls, landing legs, fifth wheels).
+* **boxes** (cargo boxes, trailer bodies, frames, pickup bed walls, landing legs, fifth wheels);
+  a drawbar trailer's A-frame drawbar is one solid trapezoidal slab (0.2 m wide at the eye).
 * **wheels**: 16-sided cylinders along y, tyre bottoms on the ground, inside the body's width.
 
 Components are separated by gaps (1-10 cm), so the concatenation is watertight (every edge in
@@ -31,7 +33,8 @@ of the mesh's axis-aligned box, like the ApolloScape meshes. The box is exactly
 Dimension ranges (metres; :data:`DIMENSIONS`)
 ---------------------------------------------
 Legal limits: EU Directive (EU) 2015/719 amending Council Directive 96/53/EC, Annex I: width
-<= 2.55 m (2.60 m for refrigerated bodies), height 4.00 m, articulated vehicle 16.50 m, a
+<= 2.55 m (2.60 m for refrigerated bodies), height 4.00 m, motor vehicle (rigid truck) 12.00 m,
+trailer 12.00 m, articulated vehicle 16.50 m, road train 18.75 m (Annex I 1.1), a
 semi-trailer's kingpin-to-rear 12.00 m (13.6 m bodies), a two-axle bus 13.50 m, a three-axle bus
 15.00 m; US: 23 CFR 658.15 width 102 in (2.59 m), 53 ft (16.15 m) semi-trailers in most states,
 heights set by states, mostly 13 ft 6 in (4.11 m). Here widths stay <= 2.55 m and heights <=
@@ -60,24 +63,42 @@ van             4.8-7.0    1.90-2.05   1.90-2.80   3.0-4.3     0.15-0.20    VW T
                                                                             6.70 x 2.06 (body 2.05) x 2.06-
                                                                             2.78, Sprinter 5.27-7.37 x 2.02
                                                                             x 2.36-2.83 (3.26-4.33)
-box_truck       6.5-10.5   2.30-2.55   3.00-4.00   3.4-6.0     0.25-0.35    7.5-18 t rigid trucks (MAN TGL /
+box_truck       6.5-12.0   2.30-2.55   3.00-4.00   3.4-6.8     0.25-0.35    7.5-18 t rigid trucks (MAN TGL /
                                                                             TGM, Isuzu N/F series): bodies
-                                                                            6-8.5 m, legal width/height caps
+                                                                            6-8.5 m, legal width/height caps;
+                                                                            from 10 m 3-axle rigids (26 t
+                                                                            6x2/6x4, rear tandem 1.35 m,
+                                                                            wheelbase to ~6.5-7 m) up to the
+                                                                            EU rigid maximum 12.00 m (96/53/EC
+                                                                            Annex I 1.1; US straight trucks
+                                                                            similar)
 semi_tractor    5.8-7.5    2.45-2.55   3.20-4.00   3.6-5.0     0.25-0.35    EU cab-over 4x2 (Volvo FH, MAN
                                                                             TGX: ~6.0 x 2.50 x 3.5-4.0, wb
                                                                             3.6-3.9), US conventional 6x4
                                                                             (~7 m, wb 4.5-5.8)
-trailer_box     8.0-16.2   2.45-2.55   3.60-4.10   (axles)     floor 1.1-   EU 13.6 m semi-trailer, US 48-53
-                                                                1.3         ft (14.6-16.15 m), 13 ft 6 in
-trailer_flatbed 8.0-16.2   2.45-2.55   1.40-1.70   (axles)     deck top     US flatbed deck ~60 in (1.52 m)
+trailer_box     5.0-16.2   2.45-2.55   3.60-4.10   (axles)     floor 1.1-   EU 13.6 m semi-trailer, US 48-53
+                                                                1.3         ft (14.6-16.15 m), 13 ft 6 in; below
+                                                                            9 m drawbar trailers: EU centre-axle
+                                                                            trailers behind rigid trucks 7-8.5
+                                                                            m, US enclosed cargo trailers 16-28
+                                                                            ft (4.9-8.5 m); drawbar included
+trailer_flatbed 5.0-16.2   2.45-2.55   1.40-1.70   (axles)     deck top     US flatbed deck ~60 in (1.52 m);
+                                                                            below 9 m as the box trailers
 bus             9.0-13.7   2.45-2.55   2.90-3.60   4.5-7.0     0.25-0.35    city buses 12.0 x 2.55 x 3.0-3.3
                                                                             (Citaro wb 5.85), coaches 12-
                                                                             13.7 x 2.55 x 3.5-3.9; 40/45 ft
+articulated_   13.5-18.75 2.45-2.55   3.60-4.10   3.6-5.0     0.25-0.35    EU articulated 16.50 m, road train
+truck                                             (tractor)   (tractor)    18.75 m (96/53/EC Annex I 1.1):
+                                                                            a semi_tractor 5.8-7.5 m (at most
+                                                                            5.8 + L - 13.5) and a box semi-
+                                                                            trailer (the rest, 9.8-15.7 m),
+                                                                            kingpin 0.9-1.7 m behind its front
+                                                                            (EU swing radius <= 2.04 m)
 ============== ========== =========== =========== =========== ============ =================================
 
 Detector classes (:data:`~spotlights.data.vehicle_classes.CLASS_BODIES`, the real readers' names):
 ``car`` = sedan, hatchback, SUV, pickup; ``caravan`` (vans; ``van`` is accepted) = van; ``truck`` =
-box truck, semi-tractor, pickup; ``bus`` = bus; ``trailer`` = box and flatbed trailers. Pickups are
+box truck, semi-tractor, pickup, articulated truck; ``bus`` = bus; ``trailer`` = box and flatbed trailers. Pickups are
 in both car and truck: datasets disagree (nuScenes labels pickups ``vehicle.truck``; Argoverse 2
 ``REGULAR_VEHICLE``, KITTI ``Car``).
 """
@@ -118,6 +139,7 @@ BODY_TYPES = (
     "trailer_box",
     "trailer_flatbed",
     "bus",
+    "articulated_truck",
 )
 
 #: per body type: (min, max) of length, width, height, wheelbase, ground clearance (metres);
@@ -128,11 +150,12 @@ DIMENSIONS = {
     "suv": {"length": (4.2, 5.4), "width": (1.78, 2.06), "height": (1.60, 1.95), "wheelbase": (2.55, 3.1), "clearance": (0.18, 0.25)},
     "pickup": {"length": (5.0, 6.2), "width": (1.80, 2.10), "height": (1.75, 2.00), "wheelbase": (3.0, 3.9), "clearance": (0.21, 0.28)},
     "van": {"length": (4.8, 7.0), "width": (1.90, 2.05), "height": (1.90, 2.80), "wheelbase": (3.0, 4.3), "clearance": (0.15, 0.20)},
-    "box_truck": {"length": (6.5, 10.5), "width": (2.30, 2.55), "height": (3.00, 4.00), "wheelbase": (3.4, 6.0), "clearance": (0.25, 0.35)},
+    "box_truck": {"length": (6.5, 12.0), "width": (2.30, 2.55), "height": (3.00, 4.00), "wheelbase": (3.4, 6.8), "clearance": (0.25, 0.35)},
     "semi_tractor": {"length": (5.8, 7.5), "width": (2.45, 2.55), "height": (3.20, 4.00), "wheelbase": (3.6, 5.0), "clearance": (0.25, 0.35)},
-    "trailer_box": {"length": (8.0, 16.2), "width": (2.45, 2.55), "height": (3.60, 4.10), "wheelbase": (0.0, 0.0), "clearance": (1.10, 1.30)},
-    "trailer_flatbed": {"length": (8.0, 16.2), "width": (2.45, 2.55), "height": (1.40, 1.70), "wheelbase": (0.0, 0.0), "clearance": (0.15, 0.22)},
+    "trailer_box": {"length": (5.0, 16.2), "width": (2.45, 2.55), "height": (3.60, 4.10), "wheelbase": (0.0, 0.0), "clearance": (1.10, 1.30)},
+    "trailer_flatbed": {"length": (5.0, 16.2), "width": (2.45, 2.55), "height": (1.40, 1.70), "wheelbase": (0.0, 0.0), "clearance": (0.15, 0.22)},
     "bus": {"length": (9.0, 13.7), "width": (2.45, 2.55), "height": (2.90, 3.60), "wheelbase": (4.5, 7.0), "clearance": (0.25, 0.35)},
+    "articulated_truck": {"length": (13.5, 18.75), "width": (2.45, 2.55), "height": (3.60, 4.10), "wheelbase": (3.6, 5.0), "clearance": (0.25, 0.35)},
 }  # fmt: skip
 
 #: wheel radius range per body type (m): passenger tyres 0.30-0.42, truck and bus 22.5 in rims 0.48-0.53
@@ -147,6 +170,7 @@ WHEEL_RADIUS = {
     "trailer_box": (0.45, 0.52),
     "trailer_flatbed": (0.45, 0.52),
     "bus": (0.49, 0.53),
+    "articulated_truck": (0.49, 0.53),
 }
 #: wheelbase / length range per body type (cars 0.55-0.66: Golf 0.62, BMW 5 0.60; buses ~0.49)
 WHEELBASE_RATIO = {
@@ -174,6 +198,10 @@ OVERHANG_MIN = {
 FRONT_SHARE = {"sedan": 0.45, "hatchback": 0.5, "suv": 0.45, "pickup": 0.4, "van": 0.4, "box_truck": 0.1, "semi_tractor": 0.1, "bus": 0.25}  # fmt: skip
 TANDEM_MIN_LENGTH = 6.8  # semi-tractors at least this long get a tandem rear axle (6x4)
 TANDEM_SPACING = 1.35  # m between the two rear axles of a tandem
+BOX_TANDEM_MIN_LENGTH = 10.0  # box trucks at least this long are 3-axle rigids (6x2/6x4: a rear tandem)
+DRAWBAR_MAX_LENGTH = 9.0  # trailers shorter than this are drawbar / centre-axle trailers (A-frame drawbar)
+DRAWBAR_TANDEM_MIN_LENGTH = 6.5  # drawbar trailers at least this long have two axles (else one)
+DRAWBAR_AXLE_SPACING = 1.1  # m between the two axles of a drawbar trailer
 ARCH_GAP = 0.04  # wheel arch radius = wheel radius + this (m)
 WHEEL_SECTIONS = 16
 
@@ -181,7 +209,9 @@ WHEEL_SECTIONS = 16
 @dataclass(frozen=True)
 class VehicleParams:
     """The drawn parameters of one procedural vehicle (metres; ``variant`` picks a sub-shape:
-    semi-tractor 0 cab-over / 1 conventional; box truck 0 cab-over / 1 short hood)."""
+    semi-tractor 0 cab-over / 1 conventional; box truck 0 cab-over / 1 short hood). An articulated
+    truck's wheelbase, front overhang, clearance, wheel radius and variant are its tractor's, and its
+    ``shape`` has 9 fractions (the last three: tractor length, kingpin setback, tractor height)."""
 
     body: str
     length: float
@@ -230,10 +260,24 @@ def draw_params(body: str, seed) -> VehicleParams:
     x = float(rng.uniform())
     if body in ("trailer_box", "trailer_flatbed"):
         return VehicleParams(body, length, width, height, 0.0, clearance, r, 0.0, variant, shape)
+    if body == "articulated_truck":
+        # the tractor's: shape[6] its length, shape[7] the kingpin setback, shape[8] its height
+        shape = shape + tuple(float(x) for x in rng.uniform(0.0, 1.0, size=3))
+        variant = int(_tractor_length(length, shape[6]) >= TANDEM_MIN_LENGTH)
+        wheelbase, front = _wheelbase_front("semi_tractor", _tractor_length(length, shape[6]), r, variant, x, shape[5])
+        return VehicleParams(body, length, width, height, wheelbase, clearance, r, front, variant, shape)
     if body == "semi_tractor":
         variant = int(length >= TANDEM_MIN_LENGTH)  # long tractors: US conventional 6x4, else EU cab-over 4x2
+    wheelbase, front = _wheelbase_front(body, length, r, variant, x, shape[5])
+    return VehicleParams(body, length, width, height, wheelbase, clearance, r, front, variant, shape)
+
+
+def _wheelbase_front(body: str, length: float, r: float, variant: int, x: float, f5: float) -> tuple[float, float]:
+    """(wheelbase, front overhang) of a body of ``length`` with wheel radius ``r``: the wheelbase at
+    fraction ``x`` of its allowed range (:func:`draw_params`), the front overhang from ``f5``."""
+    d = DIMENSIONS[body]
     fm, rm = OVERHANG_MIN[body]
-    if body == "semi_tractor" and variant:
+    if (body == "semi_tractor" and variant) or (body == "box_truck" and length >= BOX_TANDEM_MIN_LENGTH):
         rm = TANDEM_SPACING + r + 0.1
     a, b = WHEELBASE_RATIO[body]
     lo = max(d["wheelbase"][0], a * length)
@@ -241,8 +285,16 @@ def draw_params(body: str, seed) -> VehicleParams:
     if lo > hi:
         lo = hi = min(max(d["wheelbase"][0], (a + b) / 2 * length), d["wheelbase"][1], length - fm - rm)
     wheelbase = lo + (hi - lo) * x
-    front = fm + (length - wheelbase - fm - rm) * FRONT_SHARE[body] * (0.8 + 0.4 * shape[5])
-    return VehicleParams(body, length, width, height, wheelbase, clearance, r, front, variant, shape)
+    front = fm + (length - wheelbase - fm - rm) * FRONT_SHARE[body] * (0.8 + 0.4 * f5)
+    return wheelbase, front
+
+
+def _tractor_length(length: float, f: float) -> float:
+    """The tractor length of an articulated truck ``length`` long, at fraction ``f`` of the semi-tractor
+    range; capped at 5.8 + (length - 13.5) m so that the semi-trailer keeps >= 7.7 m behind the tractor."""
+    lo, hi = DIMENSIONS["semi_tractor"]["length"]
+    hi = min(hi, lo + length - DIMENSIONS["articulated_truck"]["length"][0])
+    return lo + (hi - lo) * f
 
 
 # ----------------------------------------------------------------------------------------------
@@ -429,9 +481,7 @@ def _components(p: VehicleParams) -> list:
         semi = p.body == "semi_tractor"
         cab_h = H if semi else min(H - 0.15, 2.6 + 0.4 * f[1])
         hooded = p.variant == 1
-        ra = r + ARCH_GAP
-        cab_len = max(2.0 + 0.4 * f[2], sf + ra + 0.3) if not hooded else sf + ra + 1.7 + 0.3 * f[2]
-        cab_len = min(cab_len, sr - ra - 0.1)
+        cab_len = _cab_length(p)
         belt = max(cab_h * (0.50 if semi else 0.55), arch_top + 0.25)
         if hooded:
             hood_h = max(arch_top + 0.3, 0.42 * cab_h)
@@ -445,8 +495,8 @@ def _components(p: VehicleParams) -> list:
         frame_from = cab_len + 0.05
         if semi:
             parts.append(_box((x_of(L)[()], -0.45, frame_z[0]), (x_of(frame_from)[()], 0.45, frame_z[1])))
-            rear = [sr, sr + TANDEM_SPACING] if p.variant else [sr]
-            fw = float(np.mean(rear)) - 0.3  # the fifth wheel, just ahead of the rear axle(s)
+            rear = _rear_axles(p)
+            fw = _fifth_wheel(p)
             parts.append(
                 _box((x_of(fw + 0.45)[()], -0.6, frame_z[1] + 0.01), (x_of(fw - 0.45)[()], 0.6, frame_z[1] + 0.18))
             )
@@ -456,30 +506,108 @@ def _components(p: VehicleParams) -> list:
             floor_z = frame_z[1] + 0.01
             parts.append(_box((x_of(L)[()], -0.45, frame_z[0]), (x_of(frame_from)[()], 0.45, frame_z[1])))
             parts.append(_box((x_of(L)[()], -W / 2, floor_z), (x_of(cab_len + 0.12)[()], W / 2, H)))
-            parts += _wheel_pair(sr, p, 0.6, x_of)
+            for a in _rear_axles(p):
+                parts += _wheel_pair(a, p, 0.6, x_of)
         parts += _wheel_pair(sf, p, 0.32, x_of)
         return parts
-    # trailers: front at s = 0, three axles (two on short trailers) near the rear, landing legs
-    n_axles = 3 if L > 11.0 else 2
-    last = L - 1.0 - 0.6 * f[1]
-    axles = [last - 1.31 * k for k in range(n_axles)]
-    legs_s = 1.6 + 0.8 * f[2]
+    if p.body == "articulated_truck":
+        return _articulated(p)
+    return _trailer(p, semi=L >= DRAWBAR_MAX_LENGTH)
+
+
+def _rear_axles(p: VehicleParams) -> list:
+    """Distances from the front of a box truck's or semi-tractor's rear axles (a tandem on 6x4
+    tractors and on box trucks from :data:`BOX_TANDEM_MIN_LENGTH`)."""
+    sr = p.front_overhang + p.wheelbase
+    tandem = p.variant if p.body == "semi_tractor" else p.length >= BOX_TANDEM_MIN_LENGTH
+    return [sr, sr + TANDEM_SPACING] if tandem else [sr]
+
+
+def _fifth_wheel(p: VehicleParams) -> float:
+    """Distance from the front of a semi-tractor's fifth wheel (the kingpin): 0.3 m ahead of the
+    middle of the rear axle(s); its plate is 0.9 m long, its top 2 r + 0.46 m above the ground."""
+    return float(np.mean(_rear_axles(p))) - 0.3
+
+
+def _cab_length(p: VehicleParams) -> float:
+    """Length (m) of a box truck's or semi-tractor's cab (cab-over, or hooded for ``variant`` 1)."""
+    sf, sr, ra = p.front_overhang, p.front_overhang + p.wheelbase, p.wheel_radius + ARCH_GAP
+    f = p.shape
+    cab_len = max(2.0 + 0.4 * f[2], sf + ra + 0.3) if p.variant != 1 else sf + ra + 1.7 + 0.3 * f[2]
+    return min(cab_len, sr - ra - 0.1)
+
+
+def _trailer(p: VehicleParams, semi: bool, legs_from: float = 0.0) -> list:
+    """The components of a trailer (front at s = 0, x = L - s). ``semi``: a semi-trailer (two axles,
+    three from 11 m, near the rear; landing legs 1.6-2.4 m from the front, or ``legs_from`` + 0-0.8 m
+    when that is further back); else a drawbar trailer: an A-frame drawbar (a solid trapezoid, 1.0-1.6 m
+    long, 0.12 m thick, its top 0.85-1.0 m above the ground) ahead of the body, one axle (two 1.1 m
+    apart from 6.5 m) 50-60% of the body's length behind its front, no landing legs."""
+    L, W, H, r, cl, f = p.length, p.width, p.height, p.wheel_radius, p.clearance, p.shape
+    x_of = lambda s: L - np.asarray(s, dtype=np.float64)  # noqa: E731
+    arch_top = 2 * r + ARCH_GAP
+    parts = []
+    if semi:
+        front = 0.0
+        n_axles = 3 if L > 11.0 else 2
+        last = L - 1.0 - 0.6 * f[1]
+        axles = [last - 1.31 * k for k in range(n_axles)]
+    else:
+        front = 1.0 + 0.6 * f[4]  # the drawbar's length: the body starts behind it
+        centre = front + (0.5 + 0.1 * f[1]) * (L - front)
+        half = DRAWBAR_AXLE_SPACING / 2 if L >= DRAWBAR_TANDEM_MIN_LENGTH else 0.0
+        axles = sorted({centre - half, centre + half})
     if p.body == "trailer_box":
         floor_z = max(cl, arch_top + 0.05)
-        parts.append(_box((x_of(L)[()], -W / 2, floor_z), (x_of(0.0)[()], W / 2, H)))
+        parts.append(_box((x_of(L)[()], -W / 2, floor_z), (x_of(front)[()], W / 2, H)))
         under = floor_z - 0.01
     else:
         deck = cl
-        parts.append(_box((x_of(L)[()], -W / 2, H - deck), (x_of(0.0)[()], W / 2, H)))
+        parts.append(_box((x_of(L)[()], -W / 2, H - deck), (x_of(front)[()], W / 2, H)))
         beam_top = H - deck - 0.01
         beam_bottom = max(arch_top + 0.02, beam_top - 0.35)
-        parts.append(_box((x_of(L - 0.2)[()], -0.45, beam_bottom), (x_of(0.2)[()], 0.45, beam_top)))
+        parts.append(_box((x_of(L - 0.2)[()], -0.45, beam_bottom), (x_of(front + 0.2)[()], 0.45, beam_top)))
         under = beam_bottom - 0.01
-    for y in (0.9, -0.9):
-        parts.append(_box((x_of(legs_s + 0.1)[()], y - 0.06, 0.0), (x_of(legs_s - 0.1)[()], y + 0.06, under)))
+    if semi:
+        legs_s = max(1.6, legs_from) + 0.8 * f[2]
+        for y in (0.9, -0.9):
+            parts.append(_box((x_of(legs_s + 0.1)[()], y - 0.06, 0.0), (x_of(legs_s - 0.1)[()], y + 0.06, under)))
+    else:
+        top = 0.85 + 0.15 * f[3]
+        base = min(0.6, W / 2 - 0.1)
+        xs = x_of([0.0, front - 0.02])
+        secs = np.array(
+            [[[y0, z0] for y0, z0 in ((-h, top - 0.12), (h, top - 0.12), (h, top), (-h, top))] for h in (0.1, base)]
+        )
+        parts.append(_loft(xs, secs))
     for a in axles:
         parts += _wheel_pair(a, p, 0.6, x_of)
     return parts
+
+
+def _articulated(p: VehicleParams) -> list:
+    """An articulated truck: a semi-tractor (``p``'s wheelbase, front overhang, wheel radius and
+    variant; length :func:`_tractor_length`, height 3.2 m up to the trailer's by ``shape[8]``) and a
+    box semi-trailer (the rest of the length, full height) whose floor rests 2 cm above the fifth
+    wheel's plate, its front 0.9-1.7 m ahead of the kingpin (``shape[7]``; less where the cab leaves
+    less room: the gap behind the cab is 0.5-2.4 m, half the room if under 1 m), its landing legs behind the tractor."""
+    f = p.shape
+    lt = _tractor_length(p.length, f[6])
+    h_lo, h_hi = DIMENSIONS["semi_tractor"]["height"]
+    ht = h_lo + (min(h_hi, p.height) - h_lo) * f[8]
+    tractor = VehicleParams(
+        "semi_tractor", lt, p.width, ht, p.wheelbase, p.clearance, p.wheel_radius, p.front_overhang, p.variant, f[:6]
+    )
+    kingpin = _fifth_wheel(tractor)
+    room = kingpin - _cab_length(tractor)
+    front = kingpin - min(0.9 + 0.8 * f[7], room - min(0.5, room / 2))
+    floor = 2 * p.wheel_radius + 0.48  # the fifth wheel's top + 0.02
+    trailer = VehicleParams(
+        "trailer_box", p.length - front, p.width, p.height, 0.0, floor, p.wheel_radius, 0.0, 0, f[:6]
+    )
+    shift = np.array([p.length - lt, 0.0, 0.0])
+    parts = [(v + shift, fc) for v, fc in _components(tractor)]
+    return parts + _trailer(trailer, semi=True, legs_from=lt - front + 0.4)
 
 
 def vehicle_arrays(params: VehicleParams) -> tuple[np.ndarray, np.ndarray]:
