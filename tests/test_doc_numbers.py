@@ -148,6 +148,17 @@ def test_issue27_box_term_rows():
         _says("docs/real-data.md", f"| nuScenes {cls} ({objects}) | {row} |")
 
 
+def test_issue27_weight0_control():
+    """docs/learning.md's weight-0 control table: nuScenes inside per class of the three fine-tunes, from their JSONs."""
+
+    def inside(name: str) -> str:
+        m = _json(f"i27/{name}-nuscenes.json")["models"][0]
+        return " / ".join(f"{100 * m['inside_box'][c]:.1f}" for c in ("trailer", "bus", "truck", "car")) + "%"
+
+    row = " | ".join(inside(n) for n in ("classes", "classes-w0", "classes-box30"))
+    _says("docs/learning.md", f"| nuScenes inside: trailer / bus / truck / car | {row} |")
+
+
 def test_track_worker_speed_on_a_quiet_machine():
     for threads, row in ((1, "**with the worker, 1 torch thread**"), (2, "with the worker, 2 torch threads")):
         med = _json(f"real/track_fusion_speed_worker_quiet_{threads}thread_bf16.json")["worker_and_one_process"]
