@@ -224,3 +224,52 @@ def test_ctrl_c_at_any_moment_of_a_fused_run_is_130_and_one_line(tmp_path):
     assert outcomes, "every run finished before its Ctrl-C"
     for delay, code, err, stale in outcomes:
         assert (code, err, stale) == (130, ["spotlights: interrupted"], []), (delay, code, err, stale)
+
+
+# --- --threads -----------------------------------------------------------------------------------------------------
+
+
+@needs_two_cpus
+@pytest.mark.timeout(120)
+def test_threads_option_wins_over_the_core_left_to_the_worker(tmp_path, monkeypatch):
+    """``real complete --fuse past:2``: torch completes on the usable CPUs less one beside the worker, on N with
+    ``--threads N`` (N = the usable CPUs here: more than the default), and on N without the worker too; the
+    caller's count is restored after; ``--threads 0`` is a usage error."""
+    torch = pytest.importorskip("torch")
+    from spotlights.experiments import frame_completion
+
+    from helpers import run_cli
+    from learning_fixtures import make_checkpoint
+
+    seen: list[int] = []
+    real = frame_completion.complete_scene
+
+    def counting(*args, **kwargs):
+        seen.append(torch.get_num_threads())
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(frame_completion, "complete_scene", counting)
+    src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0])
+    ck = make_checkpoint(tmp_path / "tiny.pt", "sanet")
+    n = usable_cpus()
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(n)
+        got = {}
+        for name, extra in (("default", []), ("given", ["--threads", str(n)]), ("alone", ["--threads", "1"])):
+            seen.clear()
+            argv = ["real", "complete", src, "--format", "generic", "-c", ck, "--out", tmp_path / name, "-q"]
+            proc = run_cli(*argv, "--fuse", "past:2", "--no-pictures", *extra)
+            assert proc.returncode == 0, proc.stderr
+            got[name] = sorted(set(seen))
+            assert torch.get_num_threads() == n  # restored
+        assert got == {"default": [n - 1], "given": [n], "alone": [1]}
+        seen.clear()
+        argv = ["real", "complete", src, "--format", "generic", "-c", ck, "--out", tmp_path / "one", "-q"]
+        assert run_cli(*argv, "--fuse", "past:2", "--no-track-worker", "--threads", str(n)).returncode == 0
+        assert sorted(set(seen)) == [n]
+    finally:
+        torch.set_num_threads(before)
+    proc = run_cli("real", "complete", src, "--format", "generic", "--out", tmp_path / "bad", "--threads", "0")
+    assert proc.returncode == 2 and "--threads" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "bad").exists()

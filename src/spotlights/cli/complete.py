@@ -131,6 +131,14 @@ def add_completion_arguments(p, single: bool) -> None:
         "AMX-BF16, docs/benchmarks.md; depths move by up to ~0.01); auto = bf16 where supported",
     )
     p.add_argument(
+        "--threads",
+        type=positive_int,
+        default=None,
+        metavar="N",
+        help="torch CPU threads (default: torch's, one per core; with the track worker of --fuse, one less, "
+        "leaving a core to it); N is used as it is",
+    )
+    p.add_argument(
         "--runtime",
         choices=("torch", "onnx"),
         default=None,

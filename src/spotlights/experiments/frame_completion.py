@@ -457,7 +457,7 @@ def complete_frames(
         with (
             output_folder(s.out) as out,
             open_recording(s.rerun, TIME_UNIT_S.get(reader.format)) as rec,
-            threads_beside_worker(tracks),  # a core left to the track worker, if any
+            threads_beside_worker(tracks, s.threads),  # a core left to the track worker, if any (or --threads)
         ):
             return _run_frames(s, reader, keys, config, completer, out, tracks, say, warn, rec, fallback)
     finally:

@@ -498,20 +498,21 @@ def usable_cpus() -> int:
 
 
 @contextlib.contextmanager
-def threads_beside_worker(plan: TrackPlan | None):
-    """While ``plan`` has a worker process, run torch on at most the usable CPUs less one (restored on exit).
+def threads_beside_worker(plan: TrackPlan | None, threads: int | None = None):
+    """While ``plan`` has a worker process, run torch on at most the usable CPUs less one (restored on exit); with
+    ``threads`` (``--threads``), on that many, worker or not (the user's count wins; restored on exit too).
 
     The worker takes one core for the whole run; torch's OpenMP threads spin for every core it was given, so on
     two cores a second torch thread only competes with the worker (scene-0523, ``past:5 --refine-boxes``, bf16, a
     quiet 2-core machine: 14.4 frames/s with one torch thread against 11.0 with two; docs/real-data.md). A lower
-    thread count set by the caller is kept; without a worker nothing changes."""
-    if plan is None or plan.worker_process is None:
+    thread count set by the caller is kept; without a worker (and ``threads``) nothing changes."""
+    if not threads and (plan is None or plan.worker_process is None):
         yield
         return
     import torch
 
     before = torch.get_num_threads()
-    torch.set_num_threads(max(1, min(before, usable_cpus() - 1)))
+    torch.set_num_threads(int(threads) if threads else max(1, min(before, usable_cpus() - 1)))
     try:
         yield
     finally:
