@@ -1,6 +1,16 @@
+import signal
+
+# Ctrl-C held back while the command line's modules load (numpy's C extension turns a KeyboardInterrupt during its
+# import into an ImportError with a page of advice): it arrives once they are loaded, as one line and exit code 130
+held = hasattr(signal, "pthread_sigmask")
+before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT}) if held else None
 try:
-    from .cli import main
-except KeyboardInterrupt:  # Ctrl-C while the command line's modules load: one line and 130, as main() gives
+    try:
+        from .cli import main
+    finally:
+        if held:
+            signal.pthread_sigmask(signal.SIG_SETMASK, before)
+except KeyboardInterrupt:
     import sys
 
     print("spotlights: interrupted", file=sys.stderr)

@@ -17,7 +17,7 @@ import sys
 
 from .._version import __version__
 from ..errors import SpotlightsError
-from ..utils import os_error_reason
+from ..utils import os_error_reason, sigint_held
 
 # One line per command group; a new group is one module and one line here.
 COMMAND_MODULES = [
@@ -104,7 +104,8 @@ def main(argv: list[str] | None = None) -> int:
     import signal
 
     try:
-        parser = build_parser()  # imports every command's module: a second or more
+        with sigint_held():  # imports every command's module (C extensions may turn a Ctrl-C into an ImportError)
+            parser = build_parser()
     except KeyboardInterrupt:
         return _interrupted()
     args = parser.parse_args(argv)

@@ -65,7 +65,7 @@ from ..data.tracks import (
 from ..errors import ParameterError, SpotlightsError
 from ..geometry.boxes import Box
 from ..geometry.io import save_ply
-from ..utils import StageTimer, _quiet_worker, atomic_output, process_pool_context
+from ..utils import StageTimer, _quiet_worker, atomic_output, process_pool_context, sigint_held
 from .scene import SOURCE_COMPLETION, SOURCE_PARTIAL, SceneConfig, SceneResult, _selected, scene_crops
 
 if TYPE_CHECKING:
@@ -618,7 +618,7 @@ class TrackWorker:
             # worker) and the worker inherit the blocked signal (they ignore it), so a Ctrl-C in their first
             # milliseconds prints no traceback of theirs, and none lands half-way through the start; this process gets
             # it when unblocked (CPython's resource tracker starts the same way)
-            with _sigint_blocked():
+            with sigint_held():
                 proc = ctx.Process(target=worker_main, args=(jobs, results), daemon=True, name="spotlights-tracks")
                 proc.start()
                 worker = cls(proc, jobs, results)
@@ -738,21 +738,6 @@ class TrackWorker:
     def stop(self) -> None:
         """End the process (now, when it has not finished). Idempotent."""
         self._finalizer()
-
-
-@contextlib.contextmanager
-def _sigint_blocked():
-    """SIGINT blocked in this thread (POSIX), delivered when unblocked: processes started meanwhile inherit it blocked."""
-    import signal
-
-    if not hasattr(signal, "pthread_sigmask"):
-        yield
-        return
-    before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, before)
 
 
 def _end_worker(proc, jobs, results) -> None:
