@@ -273,3 +273,71 @@ def test_threads_option_wins_over_the_core_left_to_the_worker(tmp_path, monkeypa
     proc = run_cli("real", "complete", src, "--format", "generic", "--out", tmp_path / "bad", "--threads", "0")
     assert proc.returncode == 2 and "--threads" in proc.stderr and "Traceback" not in proc.stderr
     assert not (tmp_path / "bad").exists()
+
+
+# --- --resume with --fuse ------------------------------------------------------------------------------------------
+
+CLOCKS = ("timings", "wall_seconds", "completion_seconds")
+
+
+def _same(a, b, root_a: str, root_b: str) -> None:
+    """JSON ``a`` equals ``b`` but for clock readings, the output folder in paths and the count of resumed frames."""
+
+    def strip(x, root):
+        if isinstance(x, dict):
+            return {k: strip(v, root) for k, v in x.items() if k not in CLOCKS and k != "resumed"}
+        if isinstance(x, list):
+            return [strip(v, root) for v in x]
+        return x.replace(root, "OUT") if isinstance(x, str) else x
+
+    assert strip(a, root_a) == strip(b, root_b)
+
+
+@pytest.mark.timeout(180)
+@pytest.mark.parametrize("gone,worker", [((1, 2), True), ((3, 4), False)])
+def test_a_resumed_fused_run_writes_what_one_run_writes(tmp_path, gone, worker):
+    """``real complete --fuse past:2 --refine-boxes``, run once; run again into a second folder, frames ``gone``
+    removed (as a run stopped before them; (1, 2): the last frames, which hold the tracks' latest completions, are
+    the resumed ones), then ``--resume``: every PLY the same bytes as the one run (scenes, tracks/<track>.ply: the
+    latest completion, completed again in memory), every JSON the same but clocks (tracks.json: every frame's points
+    counted, resumed or not), the resumed frames counted; a folder done without --fuse is not reused by a fused run."""
+    import json
+
+    pytest.importorskip("torch")
+    from helpers import run_cli
+    from learning_fixtures import make_checkpoint
+
+    src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0, 1.5, 2.0])
+    ck = make_checkpoint(tmp_path / "tiny.pt", "sanet")
+    common = ["--format", "generic", "-c", ck, "--no-clip", "-q", "--no-pictures", "--fuse", "past:2", "--refine-boxes"]
+    common += [] if worker else ["--no-track-worker"]
+    one, two = tmp_path / "one", tmp_path / "two"
+    for out in (one, two):
+        assert run_cli("real", "complete", src, "--out", out, *common).returncode == 0
+    files = sorted(p.relative_to(one) for p in one.rglob("*") if p.is_file())
+    for k in gone:
+        for suffix in (".json", ".ply"):
+            (two / "drive" / f"f{k}{suffix}").unlink()
+    (two / "summary.json").unlink()
+    (two / "tracks.json").unlink()
+    for p in (two / "drive" / "tracks").iterdir():
+        p.unlink()
+    proc = run_cli("real", "complete", src, "--out", two, *common, "--resume")
+    assert proc.returncode == 0, proc.stderr
+    assert sorted(p.relative_to(two) for p in two.rglob("*") if p.is_file()) == files
+    assert sum(f.suffix == ".ply" for f in files) == 7  # five frames and two tracks
+    for f in files:
+        a, b = (one / f).read_bytes(), (two / f).read_bytes()
+        if f.suffix == ".json":
+            _same(json.loads(a), json.loads(b), str(one), str(two))
+        else:
+            assert a == b, f
+    summary = json.loads((two / "summary.json").read_text())
+    assert summary["totals"]["resumed"] == 5 - len(gone)
+    counted = [f["n_points"] for t in json.loads((two / "tracks.json").read_text())["tracks"] for f in t["frames"]]
+    assert counted == [300] * 10  # every frame of both cars counted (300 points each), resumed or not
+    # frames completed without fusion are not reused by a fused run (their inputs differ)
+    plain = tmp_path / "plain"
+    assert run_cli("real", "complete", src, "--out", plain, *common[:7]).returncode == 0
+    assert run_cli("real", "complete", src, "--out", plain, *common, "--resume").returncode == 0
+    assert json.loads((plain / "summary.json").read_text())["totals"]["resumed"] == 0

@@ -360,6 +360,17 @@ class TrackPlan:
 
     # --- outputs ------------------------------------------------------------------------------
 
+    def settings(self) -> dict:
+        """JSON-ready: what decides each frame's inputs (window, refinement and its bounds, longest gap); each
+        frame's JSON records it and ``real complete --resume`` reuses only frames done with the same."""
+        return dict(
+            fuse=str(self.policy),
+            refine_boxes=self.refine,
+            max_gap_s=self.max_gap_s,
+            max_translation_m=self.max_translation,
+            max_yaw_deg=math.degrees(self.max_yaw),
+        )
+
     def summary(self) -> dict:
         """JSON-ready: policy, refinement settings, per track and frame the boxes, statuses and point counts,
         and the totals (frames refined, flagged, moved by more than 0.3 m)."""
