@@ -180,7 +180,8 @@ def add_track_arguments(p) -> None:
         dest="track_worker",
         action="store_false",
         help="with --fuse: crop, refine and fuse the tracks in this process (default: in a second process a frame "
-        "ahead of the completion, where two CPUs are usable; the same outputs)",
+        "ahead of the completion, where two CPUs are usable; the same outputs; a worker silent for 120 s ends the "
+        "run)",
     )
     g.add_argument(
         "--rerun",
