@@ -45,12 +45,12 @@ def hanging_worker(jobs, results) -> None:
 
 
 def slow_worker(jobs, results) -> None:
-    """The track worker, fusing slowly (0.3 s a fused window: ~1.2 s a frame of two cars) with a sign of life every
+    """The track worker, fusing slowly (0.4 s a fused window: ~1.6 s a frame of two cars) with a sign of life every
     0.1 s at most (in the worker process)."""
     real = tracks.fuse_track
 
     def slow(*args, **kwargs):
-        time.sleep(0.3)
+        time.sleep(0.4)
         return real(*args, **kwargs)
 
     tracks.fuse_track = slow
@@ -98,8 +98,9 @@ def test_a_hung_worker_ends_the_run_with_one_line_after_the_stall_limit(tmp_path
 @needs_two_cpus
 @pytest.mark.timeout(120)
 def test_a_slow_worker_that_shows_signs_of_life_is_not_taken_for_hung(tmp_path, monkeypatch):
-    """A worker taking ~1.2 s a frame (0.3 s a fused window) under a 1 s stall limit: its signs of life (every 0.1 s
-    at most here) keep the run going, and the frames get the inputs of the plan working alone."""
+    """A worker taking ~1.6 s a frame (0.4 s a fused window) under a 1 s stall limit: its signs of life (every 0.1 s
+    at most here) keep the run going, and the frames get the inputs of the plan working alone. (The worker's start,
+    before it can send anything, is given 3 s: the default limit, 120 s, covers it.)"""
     src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0])
     alone, keys = _plan(src, "past:2", worker=False)
     want = _inputs(alone, keys)
@@ -107,6 +108,7 @@ def test_a_slow_worker_that_shows_signs_of_life_is_not_taken_for_hung(tmp_path, 
     monkeypatch.setattr(tracks, "STALL_S", 1.0)
     plan, _ = _plan(src, "past:2", worker=False)
     assert plan.start_worker(keys)
+    time.sleep(3.0)
     t0 = time.monotonic()
     got = _inputs(plan, keys)
     plan.finish()
@@ -122,12 +124,12 @@ def test_a_stalled_plan_raises_and_ends_its_worker(tmp_path, monkeypatch):
     from spotlights.errors import SpotlightsError
 
     monkeypatch.setattr(tracks, "worker_main", hanging_worker)
-    monkeypatch.setattr(tracks, "STALL_S", 1.0)
     src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0])
     plan, keys = _plan(src, "past:2", worker=False)
     assert plan.start_worker(keys)
     proc = plan.worker_process
-    plan.frame_inputs(keys[0], plan.take(keys[0]).boxes)  # the first frame comes
+    plan.frame_inputs(keys[0], plan.take(keys[0]).boxes)  # the first frame comes (the worker started)
+    monkeypatch.setattr(tracks, "STALL_S", 1.0)
     with pytest.raises(TrackWorkerStalled, match="made no progress for 1 s") as caught:
         plan.frame_inputs(keys[1], plan.take(keys[1]).boxes)
     assert isinstance(caught.value, SpotlightsError)

@@ -471,7 +471,8 @@ POLL_S = 0.5
 #: works (after each frame it registers and each box it fuses), so this bounds one such step, not a whole frame:
 #: scene-0523 (nuScenes, 40 keyframes, 91 tracks, 2-core machine under load) took at most 0.07 s a frame with
 #: ``past:5 --refine-boxes`` and 0.6 s for its longest track's whole refinement with ``all`` (one step: ~5 ms); the
-#: worker's start (a fresh interpreter importing numpy and scipy) ~1 s. 120 s is over 100 times the longest of these:
+#: worker's start to its first frame (fork server and worker: fresh interpreters importing numpy and scipy) 0.45 s.
+#: 120 s is over 100 times the longest of these:
 #: a slow or busy machine gets no false alarm, a hung worker costs two minutes instead of a run that never ends.
 STALL_S = 120.0
 
