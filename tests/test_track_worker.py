@@ -176,7 +176,7 @@ def test_an_error_in_the_worker_is_raised_in_the_run(tmp_path):
         plan.finish()
     # the worker's own traceback travels with the error (else only its message would be left)
     (note,) = getattr(caught.value, "__notes__", [None])
-    assert note.startswith("in the track worker process:\nTraceback") and "_worker_main" in note
+    assert note.startswith("in the track worker process:\nTraceback") and "worker_main" in note
     plan.close()
     proc.join(10)
     assert not proc.is_alive()

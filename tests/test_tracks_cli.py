@@ -41,7 +41,6 @@ def write_drive(folder, times, track_ids=("a", "b"), rng=None):
         ([0.0, 0.5, 5.0], ("a", "b"), [], "track a of drive has a gap of 4.5 s between its frames 1 and 2 (limit 2 s"),
         ([0.0, 0.5, 1.0], ("a", "b"), ["--frames", "0:1"], "--fuse needs a sequence of at least 2 frames"),
         ([0.0, 0.5, 1.0], ("a", "b"), ["--fuse", "none", "--refine-boxes"], "--refine-boxes needs --fuse"),
-        ([0.0, 0.5, 1.0], ("a", "b"), ["--resume"], "--resume does not apply with --fuse"),
     ],
 )
 def test_fuse_refusals_are_one_line_and_write_nothing(tmp_path, capsys, times, ids, extra, message):

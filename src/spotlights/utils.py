@@ -449,6 +449,26 @@ def process_pool_context(check: bool = True):
     return ctx
 
 
+@contextlib.contextmanager
+def sigint_held() -> Iterator[None]:
+    """Ctrl-C (SIGINT) blocked in this thread for the body, delivered when it ends (POSIX; elsewhere nothing).
+
+    For what a Ctrl-C must not land in the middle of: processes started meanwhile inherit the signal blocked (the
+    fork server of :func:`process_pool_context` and its workers, which ignore it: no traceback of theirs; CPython's
+    resource tracker starts the same way), and imports of C extensions that turn a KeyboardInterrupt into an
+    ImportError (numpy). The interrupt then comes as a KeyboardInterrupt where the body ends."""
+    import signal
+
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, before)
+
+
 def die_with_parent() -> None:
     """Linux: have this process killed (SIGKILL) when its parent dies (``PR_SET_PDEATHSIG``),
     so that pool workers never outlive a killed build; elsewhere nothing. A process whose

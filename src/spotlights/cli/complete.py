@@ -131,6 +131,14 @@ def add_completion_arguments(p, single: bool) -> None:
         "AMX-BF16, docs/benchmarks.md; depths move by up to ~0.01); auto = bf16 where supported",
     )
     p.add_argument(
+        "--threads",
+        type=positive_int,
+        default=None,
+        metavar="N",
+        help="torch CPU threads (default: torch's, one per core; with the track worker of --fuse, one less, "
+        "leaving a core to it); N is used as it is",
+    )
+    p.add_argument(
         "--runtime",
         choices=("torch", "onnx"),
         default=None,
@@ -172,7 +180,8 @@ def add_track_arguments(p) -> None:
         dest="track_worker",
         action="store_false",
         help="with --fuse: crop, refine and fuse the tracks in this process (default: in a second process a frame "
-        "ahead of the completion, where two CPUs are usable; the same outputs)",
+        "ahead of the completion, where two CPUs are usable; the same outputs; a worker silent for 120 s ends the "
+        "run)",
     )
     g.add_argument(
         "--rerun",

@@ -129,7 +129,8 @@ def register(sub) -> None:
     p.add_argument(
         "--resume",
         action="store_true",
-        help="skip the frames an earlier run with the same model and options finished (their FRAME.json exists)",
+        help="skip the frames an earlier run with the same model and options finished (their FRAME.json exists; "
+        "with --fuse, done with the same fusion: the outputs are those of one run)",
     )
     add_track_arguments(p)
     add_quiet(p)

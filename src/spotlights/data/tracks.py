@@ -29,7 +29,7 @@ Times are seconds (the caller converts: :data:`TIME_UNIT_S` gives each reader's 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -576,9 +576,10 @@ class TrackRefiner:
         else:
             self.status[i], self.corr[i] = "refined", (reg.translation, reg.yaw)
 
-    def upto(self, t: int) -> None:
+    def upto(self, t: int, progress: Callable[[], None] | None = None) -> None:
         """Make the boxes of frames ``0..t`` final (causal: register the frames up to ``t`` not yet registered;
-        otherwise: refine the whole track, once)."""
+        otherwise: refine the whole track, once). ``progress``: called after each frame's registration (the track
+        worker's sign of life, :class:`spotlights.experiments.tracks.TrackWorker`)."""
         n = len(self.frames)
         if t <= self.done:
             return
@@ -586,10 +587,14 @@ class TrackRefiner:
             for i in range(self.done + 1, min(t, n - 1) + 1):
                 self._step(i)
                 self.done = i
+                if progress is not None:
+                    progress()
             return
         for _ in range(self.rounds):
             for i in range(n):
                 self._step(i)
+                if progress is not None:
+                    progress()
         self.done = n - 1
 
     def box(self, i: int) -> Box:

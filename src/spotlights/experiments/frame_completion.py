@@ -268,8 +268,6 @@ class FramesSettings(ReaderOptions, CompletionOptions):
         its :class:`~spotlights.experiments.tracks.TrackWorker`, started earlier (default: one started here with
         ``track_worker``)."""
         if self.window.fuses:
-            if self.resume:
-                raise ParameterError("--resume does not apply with --fuse (a frame's input depends on its track)")
             use = worker if worker is not None else self.track_worker
             plan = TrackPlan(self.window, config, self.refine_boxes, self.max_gap, worker=use)
             try:
@@ -282,8 +280,9 @@ class FramesSettings(ReaderOptions, CompletionOptions):
         return None
 
 
-def done_frame(path: Path, config: SceneConfig, model: str, checkpoint: str) -> dict | None:
-    """The summary of a frame finished by an earlier run with the same model and options, else None."""
+def done_frame(path: Path, config: SceneConfig, model: str, checkpoint: str, fuse: dict | None = None) -> dict | None:
+    """The summary of a frame finished by an earlier run with the same model and options (``fuse``: the track
+    fusion's, :meth:`~spotlights.experiments.tracks.TrackPlan.settings`; None: none), else None."""
     try:
         summ = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError):
@@ -294,6 +293,7 @@ def done_frame(path: Path, config: SceneConfig, model: str, checkpoint: str) -> 
         summ.get("model") == model
         and summ.get("checkpoint") == checkpoint
         and json.loads(json.dumps(cfg)) == summ.get("config")
+        and summ.get("fuse") == fuse
     )
     return summ if same else None
 
@@ -316,6 +316,10 @@ class _FrameRun:
         self.totals: dict = {"boxes": 0, "completed": 0, "flipped": 0, "completion_points": 0, "skipped": {}}
         self.totals["resumed"] = 0
         self.t_model = 0.0
+        # with fuse, frames skipped by resume whose completions a track may still need (its latest completion, for
+        # tracks/<track>.ply): key -> (boxes, fused inputs, crops, the tracks it is the latest completed frame of)
+        self.resumed: dict = {}
+        self.latest: dict = {}  # track key -> the resumed frame holding its latest completion so far
 
     def complete(self, key: tuple, stem: Path) -> dict | None:
         """Complete frame ``key`` and write its files; its summary, or None for a scan with too few points."""
@@ -336,20 +340,14 @@ class _FrameRun:
             return None
         tracks = self.tracks
         boxes, extra = (frame.boxes, None) if tracks is None else tracks.frame_inputs(key, frame.boxes)
-        result = complete_scene(
-            frame.points,
-            boxes,
-            self.completer,
-            config,
-            checkpoint=s.checkpoint_name,
-            sensor=frame.lidar_origin(),
-            extra_points=extra,
-            fallback=self.fallback,
-            fallback_name=s.fallback,
-            crops=None if tracks is None else tracks.frame_crops(key),  # made by the track worker, if any
-        )
+        crops = None if tracks is None else tracks.frame_crops(key)  # made by the track worker, if any
+        result = self._scene(frame, boxes, extra, crops)
         if tracks is not None:
             tracks.record(key, result)
+            for o in result.completed:  # a resumed frame before this one no longer holds these tracks' latest
+                hit = tracks.where.get(key, {}).get(o.index)
+                if hit is not None:
+                    self._not_latest(hit[0], key)
         if self.recorder is not None:  # rerun (spotlights.viz.rerun_log)
             self.recorder.log_frame(result, frame.boxes, frame.timestamp, frame.sequence, extra)
         write_scene(
@@ -366,10 +364,63 @@ class _FrameRun:
             js = os.path.relpath(write_plotlyjs(self.out), stem.parent).replace(os.sep, "/")
             render_result_html(result, _with(stem, ".html"), title, js)
         summ = {**info, "ply": str(_with(stem, ".ply")), **result.summary()}
+        if tracks is not None:
+            summ["fuse"] = tracks.settings()  # compared by resume
         if frame.sensor_to_world is not None:
             summ["sensor_to_world"] = [[float(v) for v in row] for row in frame.sensor_to_world]
         write_json(_with(stem, ".json"), summ)  # written last: a frame with its JSON is done (resume)
         return summ
+
+    def _scene(self, frame, boxes, extra, crops) -> SceneResult:
+        """The completion of one frame (its boxes, fused inputs and crops as the track plan gives them)."""
+        s = self.s
+        return complete_scene(
+            frame.points,
+            boxes,
+            self.completer,
+            self.config,
+            checkpoint=s.checkpoint_name,
+            sensor=frame.lidar_origin(),
+            extra_points=extra,
+            fallback=self.fallback,
+            fallback_name=s.fallback,
+            crops=crops,
+        )
+
+    def _not_latest(self, tr, key) -> None:
+        """A frame after the resumed one that held ``tr``'s latest completion completed it: that one is not needed."""
+        old = self.latest.pop(id(tr), None)
+        if old is not None and old != key:
+            held = self.resumed[old][3]
+            held.discard(id(tr))
+            if not held:
+                del self.resumed[old]
+
+    def skip_fused(self, key: tuple, summ: dict) -> None:
+        """A frame done by an earlier run, with fuse: its track inputs are asked for all the same (counted in
+        tracks.json as in one run; the worker's order kept) and kept while it holds a track's latest completion
+        (:meth:`finish_tracks` completes it again, in memory, for that track's file)."""
+        tracks = self.tracks
+        frame = tracks.take(key)
+        frame = self.reader.load(key) if frame is None else frame
+        boxes, extra = tracks.frame_inputs(key, frame.boxes)
+        crops = tracks.frame_crops(key)
+        completed = {o["index"] for o in summ["objects"] if o["status"] == "completed"}
+        held = set()
+        for i, (tr, _) in tracks.where.get(key, {}).items():
+            if i in completed:
+                self._not_latest(tr, key)
+                self.latest[id(tr)] = key
+                held.add(id(tr))
+        if held:
+            self.resumed[key] = (boxes, extra, crops, held)
+
+    def finish_tracks(self) -> None:
+        """Complete again the resumed frames that hold a track's latest completion (the same inputs: the same
+        completion as the run that wrote them) and record it, so that tracks/<track>.ply is that of one run."""
+        for key, (boxes, extra, crops, _) in self.resumed.items():
+            self.tracks.record(key, self._scene(self.reader.load(key), boxes, extra, crops))
+        self.resumed.clear()
 
     def count(self, key: tuple, summ: dict) -> None:
         """Add a frame's summary to the run's totals, warnings and frame list."""
@@ -392,17 +443,24 @@ class _FrameRun:
         """Every frame of ``keys``: skipped when done (``resume``), else completed; then counted."""
         stems = frame_stems(keys)
         model = self.completer.model_name
+        fuse = None if self.tracks is None else self.tracks.settings()
         for key in tqdm(keys, desc="complete", unit="frame", disable=self.s.quiet):
             stem = self.out / stems[key]
             summ = (
-                done_frame(_with(stem, ".json"), self.config, model, self.s.checkpoint_name) if self.s.resume else None
+                done_frame(_with(stem, ".json"), self.config, model, self.s.checkpoint_name, fuse)
+                if self.s.resume
+                else None
             )
             if summ is not None:
                 self.totals["resumed"] += 1
+                if self.tracks is not None:
+                    self.skip_fused(key, summ)
             else:
                 summ = self.complete(key, stem)
             if summ is not None:
                 self.count(key, summ)
+        if self.tracks is not None:
+            self.finish_tracks()
 
     def line(self, n_frames: int) -> str:
         """The run's one summary line."""
@@ -436,7 +494,7 @@ def complete_frames(
     names). Returns the run's summary (the content of ``summary.json``).
     """
     # the track worker's interpreter starts while the dataset is opened and read (refusals stop it)
-    early = TrackWorker.start() if s.track_worker and s.window.fuses and not s.resume else None
+    early = TrackWorker.start() if s.track_worker and s.window.fuses else None
     try:
         reader = s.open()
         keys = select_frames(reader.frame_keys(), s.frames)
@@ -457,7 +515,7 @@ def complete_frames(
         with (
             output_folder(s.out) as out,
             open_recording(s.rerun, TIME_UNIT_S.get(reader.format)) as rec,
-            threads_beside_worker(tracks),  # a core left to the track worker, if any
+            threads_beside_worker(tracks, s.threads),  # a core left to the track worker, if any (or --threads)
         ):
             return _run_frames(s, reader, keys, config, completer, out, tracks, say, warn, rec, fallback)
     finally:

@@ -47,6 +47,7 @@ from .scene import (
     require_points,
     write_scene,
 )
+from .tracks import threads_beside_worker
 
 Say = Callable[[str], None]
 """A callback taking one line of text (``print`` for the summary lines; a warning printer for warnings)."""
@@ -84,6 +85,8 @@ class CompletionOptions:
     resample, seed : how the 256-point model input is drawn (``"random"`` or ``"fps"``) and its seed.
     clip, no_clip : SA-Net depth clip in [0, 1] (None: the checkpoint's); ``no_clip`` keeps every ray.
     device, precision, runtime : torch device, ``fp32``/``bf16``/``auto``, ``torch``/``onnx`` (None: by suffix).
+    threads : torch CPU threads for the run (None: torch's default; with a track worker process, the usable CPUs less
+        one: :func:`spotlights.experiments.tracks.threads_beside_worker`); a given count is used as it is.
     """
 
     checkpoint: str | None = None
@@ -103,6 +106,7 @@ class CompletionOptions:
     device: str | None = None
     precision: str = "fp32"
     runtime: Runtime | None = None
+    threads: int | None = None
 
     @property
     def checkpoint_name(self) -> str:
@@ -338,16 +342,17 @@ def complete_scan(
     require_points(points, config.min_points, s.input)
     boxes = s.read_boxes(axes)
     completer = s.load_completer() if completer is None else completer
-    result = complete_scene(
-        points,
-        boxes,
-        completer,
-        config,
-        axes=axes,
-        checkpoint=s.checkpoint_name,
-        fallback=s.load_fallback(),
-        fallback_name=s.fallback,
-    )
+    with threads_beside_worker(None, s.threads):  # --threads, if given
+        result = complete_scene(
+            points,
+            boxes,
+            completer,
+            config,
+            axes=axes,
+            checkpoint=s.checkpoint_name,
+            fallback=s.load_fallback(),
+            fallback_name=s.fallback,
+        )
     if s.single:
         _check_single(s, result, points, axes, warn)
     else:

@@ -40,7 +40,7 @@ import re
 import time
 import traceback
 import weakref
-from collections.abc import Hashable, Sequence
+from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from queue import Empty
@@ -62,10 +62,10 @@ from ..data.tracks import (
     check_track,
     fuse_track,
 )
-from ..errors import ParameterError
+from ..errors import ParameterError, SpotlightsError
 from ..geometry.boxes import Box
 from ..geometry.io import save_ply
-from ..utils import StageTimer, _quiet_worker, atomic_output, process_pool_context
+from ..utils import StageTimer, _quiet_worker, atomic_output, process_pool_context, sigint_held
 from .scene import SOURCE_COMPLETION, SOURCE_PARTIAL, SceneConfig, SceneResult, _selected, scene_crops
 
 if TYPE_CHECKING:
@@ -151,6 +151,9 @@ class TrackPlan:
         self._worker: TrackWorker | None = worker if isinstance(worker, TrackWorker) else None
         self.scene_crops: dict = {}  # frame key -> the worker's crops of its scene (frame_crops), the latest only
         self.asked: set = set()  # frame keys frame_inputs was called for (the frames whose points are counted)
+        # called as the refinement and fusion go (each frame registered, each box fused): the track worker's sign of
+        # life (worker_main); None: nothing
+        self.progress: Callable[[], None] | None = None
 
     @property
     def timings(self) -> dict[str, float]:
@@ -274,7 +277,7 @@ class TrackPlan:
             return
         before = ref.done
         with self.timer("refine_s"):
-            ref.upto(pos)
+            ref.upto(pos, self.progress)
         for j in range(before + 1, ref.done + 1):
             tr.boxes[j], tr.status[j] = ref.box(j), ref.status[j]
 
@@ -306,6 +309,8 @@ class TrackPlan:
             tr.n_points[pos] = own
             tr.n_fused[pos] = own + len(fused)
             self.timer.add("fuse_s", laps.lap("fuse"))
+            if self.progress is not None:
+                self.progress()
         return repl, extra
 
     def frame_inputs(self, key, boxes: list[Box]) -> tuple[list[Box], dict[int, np.ndarray]]:
@@ -354,6 +359,17 @@ class TrackPlan:
                 tr.completion_frame = pos
 
     # --- outputs ------------------------------------------------------------------------------
+
+    def settings(self) -> dict:
+        """JSON-ready: what decides each frame's inputs (window, refinement and its bounds, longest gap); each
+        frame's JSON records it and ``real complete --resume`` reuses only frames done with the same."""
+        return dict(
+            fuse=str(self.policy),
+            refine_boxes=self.refine,
+            max_gap_s=self.max_gap_s,
+            max_translation_m=self.max_translation,
+            max_yaw_deg=math.degrees(self.max_yaw),
+        )
 
     def summary(self) -> dict:
         """JSON-ready: policy, refinement settings, per track and frame the boxes, statuses and point counts,
@@ -450,6 +466,23 @@ class TrackPlan:
 #: Seconds :class:`TrackWorker` waits between checks that its process is still alive.
 POLL_S = 0.5
 
+#: Seconds the worker process may go without a message before it is taken for hung: the run then stops it and fails
+#: with one line (:class:`TrackWorkerStalled`). The worker sends a sign of life at least every :data:`BEAT_S` while it
+#: works (after each frame it registers and each box it fuses), so this bounds one such step, not a whole frame:
+#: scene-0523 (nuScenes, 40 keyframes, 91 tracks, 2-core machine under load) took at most 0.07 s a frame with
+#: ``past:5 --refine-boxes`` and 0.6 s for its longest track's whole refinement with ``all`` (one step: ~5 ms); the
+#: worker's start to its first frame (fork server and worker: fresh interpreters importing numpy and scipy) 0.45 s.
+#: 120 s is over 100 times the longest of these:
+#: a slow or busy machine gets no false alarm, a hung worker costs two minutes instead of a run that never ends.
+STALL_S = 120.0
+
+#: Seconds between the worker's signs of life (``("beat",)`` messages) while it works without another message.
+BEAT_S = 1.0
+
+
+class TrackWorkerStalled(SpotlightsError):
+    """The track worker process sent nothing for :data:`STALL_S` seconds while alive: it was stopped."""
+
 
 #: Linux cgroup v2 file of this process's CPU quota ("QUOTA PERIOD" in microseconds, or "max PERIOD").
 CGROUP_CPU_MAX = "/sys/fs/cgroup/cpu.max"
@@ -477,32 +510,44 @@ def usable_cpus() -> int:
 
 
 @contextlib.contextmanager
-def threads_beside_worker(plan: TrackPlan | None):
-    """While ``plan`` has a worker process, run torch on at most the usable CPUs less one (restored on exit).
+def threads_beside_worker(plan: TrackPlan | None, threads: int | None = None):
+    """While ``plan`` has a worker process, run torch on at most the usable CPUs less one (restored on exit); with
+    ``threads`` (``--threads``), on that many, worker or not (the user's count wins; restored on exit too).
 
     The worker takes one core for the whole run; torch's OpenMP threads spin for every core it was given, so on
     two cores a second torch thread only competes with the worker (scene-0523, ``past:5 --refine-boxes``, bf16, a
     quiet 2-core machine: 14.4 frames/s with one torch thread against 11.0 with two; docs/real-data.md). A lower
-    thread count set by the caller is kept; without a worker nothing changes."""
-    if plan is None or plan.worker_process is None:
+    thread count set by the caller is kept; without a worker (and ``threads``) nothing changes."""
+    if not threads and (plan is None or plan.worker_process is None):
         yield
         return
     import torch
 
     before = torch.get_num_threads()
-    torch.set_num_threads(max(1, min(before, usable_cpus() - 1)))
+    torch.set_num_threads(int(threads) if threads else max(1, min(before, usable_cpus() - 1)))
     try:
         yield
     finally:
         torch.set_num_threads(before)
 
 
-def _worker_main(jobs, results) -> None:
-    """The worker process: receive a plan (:meth:`TrackWorker.send`), then for each frame key in order put
-    ``("frame", key, repl, extra)`` (:meth:`TrackPlan._inputs`), then ``("done", state, timer seconds)``;
-    ``("error", exception)`` instead when something fails."""
+def worker_main(jobs: Queue, results: Queue) -> None:
+    """What the :class:`TrackWorker` process runs: receive a plan (:meth:`TrackWorker.send`), then for each frame key
+    in order put ``("frame", key, repl, extra, scene)`` (:meth:`TrackPlan._inputs`), then ``("done", state, timer
+    seconds)``; ``("error", exception)`` instead when something fails; ``("beat",)`` at most every :data:`BEAT_S`
+    seconds while it works without another message (read by :data:`STALL_S`)."""
     _quiet_worker(None, ())  # as a pool worker: Ctrl-C is the parent's (which stops this one); dies with it
     import scipy.spatial  # noqa: F401 - imported now, while the parent opens and reads (0.25 s), not at the first crop
+
+    last = [time.monotonic()]
+
+    def put(msg) -> None:
+        results.put(msg)
+        last[0] = time.monotonic()
+
+    def beat() -> None:
+        if time.monotonic() - last[0] >= BEAT_S:
+            put(("beat",))
 
     try:
         crops: dict = {}  # frame key -> {box index: its crop}
@@ -519,7 +564,9 @@ def _worker_main(jobs, results) -> None:
             crops[key] = dict(zip(todo, _crops(points, [boxes[i] for i in todo], grow, clearance)))
             if keep:
                 scans[key] = (points, boxes)
+            beat()
         plan = TrackPlan(job["policy"], job["config"], job["refine"], None, job["max_translation"], job["max_yaw"])
+        plan.progress = beat
         plan.tracks, plan.where = job["tracks"], job["where"]
         for tr in plan.tracks.values():  # the crops made here go where the plan left None
             for pos, (key, i, f) in enumerate(zip(tr.keys, tr.box_index, tr.frames)):
@@ -534,20 +581,15 @@ def _worker_main(jobs, results) -> None:
             if key in scans and plan.config.crop:  # complete_scene's crops, of the boxes the loop will use
                 points, boxes = scans.pop(key)
                 scene = scene_crops(points, [repl.get(i, b) for i, b in enumerate(boxes)], plan.config)
-            results.put(("frame", key, repl, extra, scene))
+            put(("frame", key, repl, extra, scene))
         plan.finish()
         cfg = plan.config
-        state = {
-            k: (
-                tr.boxes,
-                tr.status,
-                tr.n_points,
-                tr.n_fused,
-                fuse_track(tr.frames, boxes=tr.boxes, margin=cfg.margin, ground_clearance=cfg.ground_clearance),
-            )
-            for k, tr in plan.tracks.items()
-        }
-        results.put(("done", state, dict(plan.timer.seconds) | {"worker_cpu_s": time.process_time() - cpu0}))
+        state = {}
+        for k, tr in plan.tracks.items():
+            fused = fuse_track(tr.frames, boxes=tr.boxes, margin=cfg.margin, ground_clearance=cfg.ground_clearance)
+            state[k] = (tr.boxes, tr.status, tr.n_points, tr.n_fused, fused)
+            beat()
+        put(("done", state, dict(plan.timer.seconds) | {"worker_cpu_s": time.process_time() - cpu0}))
     except BaseException as exc:  # noqa: BLE001 - handed to the parent, which raises it
         exc.add_note("in the track worker process:\n" + traceback.format_exc().rstrip())  # its frames are lost else
         try:
@@ -582,12 +624,19 @@ class TrackWorker:
             return None
         try:
             ctx = process_pool_context()
+            # the queues first: they start the resource tracker, whose start unblocks SIGINT
             jobs, results = ctx.Queue(), ctx.Queue()
-            proc = ctx.Process(target=_worker_main, args=(jobs, results), daemon=True, name="spotlights-tracks")
-            proc.start()
+            # Ctrl-C held back while the processes start: the fork server (a fresh interpreter, started with the first
+            # worker) and the worker inherit the blocked signal (they ignore it), so a Ctrl-C in their first
+            # milliseconds prints no traceback of theirs, and none lands half-way through the start; this process gets
+            # it when unblocked (CPython's resource tracker starts the same way)
+            with sigint_held():
+                proc = ctx.Process(target=worker_main, args=(jobs, results), daemon=True, name="spotlights-tracks")
+                proc.start()
+                worker = cls(proc, jobs, results)
         except Exception:  # no processes here (an unguarded script, a sandbox): the plan works in this process
             return None
-        return cls(proc, jobs, results)
+        return worker
 
     def crop(
         self,
@@ -624,18 +673,29 @@ class TrackWorker:
         )
 
     def _next(self, plan: TrackPlan):
-        """The worker's next message (waiting for it: ``wait_s``); raises what the worker raised, or a
-        RuntimeError when its process ended without a word."""
+        """The worker's next message (waiting for it: ``wait_s``); raises what the worker raised, a RuntimeError
+        when its process ended without a word, or :class:`TrackWorkerStalled` (one line; the process stopped) when it
+        sent nothing, not even a sign of life, for :data:`STALL_S` seconds."""
         with plan.timer("wait_s"):
+            since = time.monotonic()
             while True:
                 try:
                     msg = self.results.get(timeout=POLL_S)
-                    break
                 except Empty:
                     if not self.proc.is_alive():
                         raise RuntimeError(
                             f"the track worker process ended (exit code {self.proc.exitcode}) before its results"
                         ) from None
+                    if time.monotonic() - since > STALL_S:
+                        self.stop()
+                        raise TrackWorkerStalled(
+                            f"the track worker process made no progress for {STALL_S:g} s and was stopped; "
+                            "--no-track-worker refines and fuses the tracks in this process instead"
+                        ) from None
+                    continue
+                if msg[0] != "beat":
+                    break
+                since = time.monotonic()
         if msg[0] == "error":
             self.stop()
             raise msg[1]
@@ -702,9 +762,22 @@ def _end_worker(proc, jobs, results) -> None:
     if proc.is_alive():
         proc.terminate()
         proc.join(timeout=5)
+    if proc.is_alive():  # stuck where SIGTERM does not reach it
+        proc.kill()
+        proc.join(timeout=5)
     for q in (jobs, results):
         q.cancel_join_thread()
         q.close()
 
 
-__all__ = ["TrackPlan", "TrackWorker", "file_stem", "threads_beside_worker", "usable_cpus"]
+__all__ = [
+    "BEAT_S",
+    "STALL_S",
+    "TrackPlan",
+    "TrackWorker",
+    "TrackWorkerStalled",
+    "file_stem",
+    "threads_beside_worker",
+    "usable_cpus",
+    "worker_main",
+]
