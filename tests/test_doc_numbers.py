@@ -159,6 +159,24 @@ def test_issue27_weight0_control():
     _says("docs/learning.md", f"| nuScenes inside: trailer / bus / truck / car | {row} |")
 
 
+def test_issue27_wider_coverage_candidate():
+    """docs/real-data.md's wider-coverage table: the trailers' and AV2 truck's rows from the two models' JSONs."""
+
+    def cell(name: str, where: str, cls: str) -> str:
+        m = _json(f"i27/{name}-{where}.json")["models"][0]
+        ins, fid = m["inside_box"][cls], m["classes"][cls]["fidelity"]
+        cd = m["equal_density"]["classes"][cls]["cd"]
+        return f"{100 * ins:.1f}% / {fid:.4f} / {cd:.4f}"
+
+    old, new = cell("classes-box30", "nuscenes", "trailer"), cell("classes-v2", "nuscenes", "trailer")
+    _says(
+        "docs/real-data.md", f"| nuScenes trailer (12) | {old} | **{new.split(' / ')[0]}** / {new.split(' / ', 1)[1]} |"
+    )
+    old, new = cell("classes-box30", "av2", "truck"), cell("classes-v2", "av2", "truck")
+    ins, fid, cd = new.split(" / ")
+    _says("docs/real-data.md", f"| AV2 truck (1) | {old} | {ins} / **{fid}** / {cd} |")
+
+
 def test_track_worker_speed_on_a_quiet_machine():
     for threads, row in ((1, "**with the worker, 1 torch thread**"), (2, "with the worker, 2 torch threads")):
         med = _json(f"real/track_fusion_speed_worker_quiet_{threads}thread_bf16.json")["worker_and_one_process"]
