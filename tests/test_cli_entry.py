@@ -1,0 +1,65 @@
+"""The ``spotlights`` command's entry point (``spotlights._entry.main``: the console script and ``python -m
+spotlights``): a Ctrl-C while the command line's modules load gives one line and exit code 130, never a traceback."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+# A Ctrl-C sent to the process at the moment `spotlights.cli` starts to load (an import hook sends it), then the
+# entry point called as the console script calls it. Deterministic: no race with a timer.
+CHILD = textwrap.dedent(
+    """
+    import importlib.abc, os, signal, sys
+
+    class CtrlCOnImport(importlib.abc.MetaPathFinder):
+        def find_spec(self, name, path=None, target=None):
+            if name == "spotlights.cli":
+                sys.meta_path.remove(self)
+                os.kill(os.getpid(), signal.SIGINT)
+            return None
+
+    sys.meta_path.insert(0, CtrlCOnImport())
+    sys.argv = ["spotlights", "--version"]
+    from {module} import main
+    sys.exit(main())
+    """
+)
+
+
+def _run(module: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-c", CHILD.format(module=module)], capture_output=True, text=True, timeout=60
+    )
+
+
+@pytest.mark.timeout(90)
+def test_ctrl_c_while_the_command_line_loads_gives_one_line_and_130():
+    r = _run("spotlights._entry")
+    assert r.returncode == 130, (r.returncode, r.stderr)
+    assert r.stderr.strip().splitlines() == ["spotlights: interrupted"]
+    assert "Traceback" not in r.stderr and r.stdout == ""
+
+
+@pytest.mark.timeout(90)
+def test_the_same_ctrl_c_through_cli_main_directly_is_a_traceback():
+    """The check above can fail: importing ``spotlights.cli`` unguarded (the console script's target before) lets
+    the same Ctrl-C out as a traceback."""
+    r = _run("spotlights.cli")
+    assert r.returncode != 130 and "KeyboardInterrupt" in r.stderr
+
+
+@pytest.mark.timeout(90)
+def test_the_console_script_and_python_m_use_the_guarded_entry():
+    import tomllib
+    from pathlib import Path
+
+    project = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())
+    assert project["project"]["scripts"]["spotlights"] == "spotlights._entry:main"
+    main = (Path(__file__).resolve().parents[1] / "src" / "spotlights" / "__main__.py").read_text()
+    assert "from ._entry import main" in main
+    r = subprocess.run([sys.executable, "-m", "spotlights", "--version"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and r.stdout.strip()
