@@ -403,11 +403,7 @@ class TrackPlan:
                 refined += st == "refined"
             tracks.append(dict(sequence=tr.sequence, track_id=tr.track_id, n_frames=len(tr.frames), frames=rows))
         return dict(
-            fuse=str(self.policy),
-            refine_boxes=self.refine,
-            max_gap_s=self.max_gap_s,
-            max_translation_m=self.max_translation,
-            max_yaw_deg=math.degrees(self.max_yaw),
+            **self.settings(),
             n_tracks=len(tracks),
             n_track_frames=n,
             n_refined=refined,
