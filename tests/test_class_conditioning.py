@@ -216,6 +216,28 @@ def test_fallback_model_completes_what_the_main_model_did_not_learn_and_leaves_t
     assert checked.objects[1].status == "completed" and checked.objects[1].inside_box is not None
 
 
+def test_a_vehicle_class_the_default_did_not_learn_points_to_the_class_model():
+    """A bus left as observed points by the car-only default: its warning names `--fallback classes` (the packaged
+    class model learned buses); an emergency vehicle (learned by neither) and a bus with a fallback given do not."""
+    rng = np.random.default_rng(7)
+    bus = box([14.0, -3.0, 1.6], [12.0, 2.5, 3.2], "bus", "bus")
+    police = box([8.0, 3.0, 0.8], [4.9, 1.9, 1.9], "police", "emergency")
+    pts = np.concatenate(
+        [
+            rng.uniform([-6.0, -1.25, -1.5], [6.0, -1.2, 1.6], (600, 3)) + bus.center,
+            rng.uniform([-2.4, -0.95, -0.8], [2.4, -0.9, 0.9], (300, 3)) + police.center,
+        ]
+    )
+    default = load_completer("default")
+    res = complete_frame(pts, [bus, police], default, heading_check=False)
+    assert [o.status for o in res.objects] == ["not_learned", "not_learned"]
+    assert any("--fallback classes" in w for w in res.objects[0].warnings)
+    assert not any("--fallback classes" in w for w in res.objects[1].warnings)
+    both = complete_frame(pts, [bus, police], default, fallback="classes", heading_check=False)
+    assert [o.status for o in both.objects] == ["completed", "not_learned"]
+    assert not any("--fallback classes" in w for o in both.objects for w in o.warnings)
+
+
 def test_complete_cli_fallback_option(tmp_path):
     """`spotlights complete SCAN --boxes B --fallback classes`: the summary says who completed which box."""
     rng = np.random.default_rng(6)

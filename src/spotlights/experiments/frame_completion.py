@@ -33,7 +33,15 @@ from ..utils import StageTimer, output_folder, sweep_folder_temporaries
 from ..viz.html import write_plotlyjs
 from ..viz.rerun_log import check_rerun_path, open_recording
 from .scan_completion import CompletionOptions, Say, ScanSettings, complete_scan, silent, write_json
-from .scene import SceneConfig, SceneResult, complete_scene, render_result, render_result_html, write_scene
+from .scene import (
+    SceneConfig,
+    SceneResult,
+    complete_scene,
+    fallback_hint,
+    render_result,
+    render_result_html,
+    write_scene,
+)
 from .tracks import TrackPlan, TrackWorker, threads_beside_worker
 
 
@@ -462,6 +470,14 @@ class _FrameRun:
         if self.tracks is not None:
             self.finish_tracks()
 
+    def _fallback_hint(self) -> bool:
+        """True when, without a fallback model, some box was left as observed points for a vehicle class that the
+        main model did not learn and the packaged class model did (:func:`spotlights.experiments.scene.fallback_hint`)."""
+        domain = getattr(self.completer, "domain", None)
+        if self.fallback is not None or domain is None:
+            return False
+        return any(fallback_hint(c, domain) for c in self.totals.get("not_completed", {}))
+
     def line(self, n_frames: int) -> str:
         """The run's one summary line."""
         totals = self.totals
@@ -472,7 +488,9 @@ class _FrameRun:
             f"{n_frames} frame(s), {totals['boxes']} boxes: {totals['completed']} completed{flips}"
             + (f", skipped {sk}" if sk else "")
             + (
-                " (not_learned: left as observed points; --complete-unknown completes them)"
+                " (not_learned: left as observed points; "
+                + ("--fallback classes completes trucks, buses, vans and trailers; " if self._fallback_hint() else "")
+                + "--complete-unknown completes them)"
                 if "not_learned" in sk
                 else ""
             )

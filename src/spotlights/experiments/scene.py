@@ -38,6 +38,7 @@ import numpy as np
 
 from ..data.real.base import CLASSES
 from ..data.real.scans import MIN_SCAN_POINTS
+from ..data.vehicle_classes import VEHICLE_CLASSES, canonical_class
 from ..errors import InputFileError, ParameterError
 from ..geometry.boxes import FLIP_Z, Box, crop_boxes
 from ..geometry.io import save_ply, save_points
@@ -444,9 +445,23 @@ def _crop_objects(
             o.warnings.extend(domain.warnings(b.cls, b.size))
             if gated:
                 o.status, o.used_box, o.partial_unit = "not_learned", None, None
-                o.warnings.append("not completed (left as observed points; --complete-unknown completes it)")
+                hint = (
+                    "--fallback classes completes it with the class model; "
+                    if fallback is None and fallback_hint(b.cls, domain)
+                    else ""
+                )
+                o.warnings.append(f"not completed (left as observed points; {hint}--complete-unknown completes it)")
         objects.append(o)
     return objects
+
+
+def fallback_hint(cls: str | None, domain) -> bool:
+    """True when a box of class ``cls`` that the model of ``domain`` (a
+    :class:`~spotlights.learning.inference.LearnedDomain`) did not learn is of a vehicle class the packaged class
+    model (``--fallback classes``: car, caravan, truck, bus, trailer) did learn: the hint a user needs beside a
+    car-only model."""
+    c = canonical_class(cls) if cls else None
+    return c in VEHICLE_CLASSES and not domain.learned(c)
 
 
 _T = TypeVar("_T")
