@@ -344,3 +344,26 @@ def test_a_resumed_fused_run_writes_what_one_run_writes(tmp_path, gone, worker):
     assert run_cli("real", "complete", src, "--out", plain, *common[:7]).returncode == 0
     assert run_cli("real", "complete", src, "--out", plain, *common, "--resume").returncode == 0
     assert json.loads((plain / "summary.json").read_text())["totals"]["resumed"] == 0
+
+
+@pytest.mark.timeout(180)
+def test_resume_does_not_reuse_frames_fused_over_another_selection(tmp_path):
+    """Frames done by a fused run over another selection (``--frames 2:5``: frame 2's past window then lacked frame 1)
+    are not reused by ``--resume`` over every frame: the files are those of one run over every frame. Before, the
+    fusion settings matched and frames 2-4 kept their inputs of the smaller selection."""
+    pytest.importorskip("torch")
+    from helpers import run_cli
+    from learning_fixtures import make_checkpoint
+
+    src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0, 1.5, 2.0])
+    ck = make_checkpoint(tmp_path / "tiny.pt", "sanet")
+    common = ["--format", "generic", "-c", ck, "--no-clip", "-q", "--no-pictures", "--fuse", "past:2"]
+    common += ["--no-track-worker"]
+    one, two = tmp_path / "one", tmp_path / "two"
+    assert run_cli("real", "complete", src, "--out", one, *common).returncode == 0
+    assert run_cli("real", "complete", src, "--out", two, *common, "--frames", "2:5").returncode == 0
+    proc = run_cli("real", "complete", src, "--out", two, *common, "--resume")
+    assert proc.returncode == 0, proc.stderr
+    for k in range(5):
+        f = f"drive/f{k}.ply"
+        assert (one / f).read_bytes() == (two / f).read_bytes(), f

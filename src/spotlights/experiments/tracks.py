@@ -32,6 +32,7 @@ box centre, metres). The sensor origin is the scan frame's origin unless the fra
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import math
 import os
@@ -154,6 +155,7 @@ class TrackPlan:
         # called as the refinement and fusion go (each frame registered, each box fused): the track worker's sign of
         # life (worker_main); None: nothing
         self.progress: Callable[[], None] | None = None
+        self._tracks_digest: str | None = None  # settings(): the digest of the tracks' frame keys
 
     @property
     def timings(self) -> dict[str, float]:
@@ -361,14 +363,20 @@ class TrackPlan:
     # --- outputs ------------------------------------------------------------------------------
 
     def settings(self) -> dict:
-        """JSON-ready: what decides each frame's inputs (window, refinement and its bounds, longest gap); each
-        frame's JSON records it and ``real complete --resume`` reuses only frames done with the same."""
+        """JSON-ready: what decides each frame's inputs (window, refinement and its bounds, longest gap, and the
+        tracks' frames: ``tracks``, a digest of every track's frame keys, which another ``--frames`` selection
+        changes); each frame's JSON records it and ``real complete --resume`` reuses only frames done with the same."""
+        if self._tracks_digest is None:  # the tracks are fixed once built: computed once
+            keys = [[list(k), [list(x) for x in tr.keys]] for k, tr in self.tracks.items()]  # in the frames' order
+            text = json.dumps(keys, default=str, separators=(",", ":"))
+            self._tracks_digest = hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
         return dict(
             fuse=str(self.policy),
             refine_boxes=self.refine,
             max_gap_s=self.max_gap_s,
             max_translation_m=self.max_translation,
             max_yaw_deg=math.degrees(self.max_yaw),
+            tracks=self._tracks_digest,
         )
 
     def summary(self) -> dict:
