@@ -480,7 +480,7 @@ POLL_S = 0.5
 #: scene-0523 (nuScenes, 40 keyframes, 91 tracks, 2-core machine under load) took at most 0.07 s a frame with
 #: ``past:5 --refine-boxes`` and 0.6 s for its longest track's whole refinement with ``all`` (one step: ~5 ms); the
 #: worker's start to its first frame (fork server and worker: fresh interpreters importing numpy and scipy) 0.45 s.
-#: 120 s is over 100 times the longest of these:
+#: A pause of the whole run (Ctrl-Z, then ``fg``) is not counted. 120 s is over 100 times the longest of these:
 #: a slow or busy machine gets no false alarm, a hung worker costs two minutes instead of a run that never ends.
 STALL_S = 120.0
 
@@ -685,7 +685,9 @@ class TrackWorker:
         when its process ended without a word, or :class:`TrackWorkerStalled` (one line; the process stopped) when it
         sent nothing, not even a sign of life, for :data:`STALL_S` seconds."""
         with plan.timer("wait_s"):
-            since = time.monotonic()
+            # seconds of silence, each poll counted for at most 2 POLL_S: a pause of this process (Ctrl-Z then fg, a
+            # debugger; its worker paused with it) is not the worker's silence
+            silent, before = 0.0, time.monotonic()
             while True:
                 try:
                     msg = self.results.get(timeout=POLL_S)
@@ -694,7 +696,9 @@ class TrackWorker:
                         raise RuntimeError(
                             f"the track worker process ended (exit code {self.proc.exitcode}) before its results"
                         ) from None
-                    if time.monotonic() - since > STALL_S:
+                    now = time.monotonic()
+                    silent, before = silent + min(now - before, 2 * POLL_S), now
+                    if silent > STALL_S:
                         self.stop()
                         raise TrackWorkerStalled(
                             f"the track worker process made no progress for {STALL_S:g} s and was stopped; "
@@ -703,7 +707,7 @@ class TrackWorker:
                     continue
                 if msg[0] != "beat":
                     break
-                since = time.monotonic()
+                silent, before = 0.0, time.monotonic()
         if msg[0] == "error":
             self.stop()
             raise msg[1]
