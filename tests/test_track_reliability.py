@@ -275,7 +275,12 @@ def test_ctrl_c_at_any_moment_of_a_fused_run_is_130_and_one_line(tmp_path):
             os.killpg(proc.pid, signal.SIGINT)
         except ProcessLookupError:  # already done (a fast machine): nothing to check at this delay
             pass
-        _, err = proc.communicate(timeout=60)
+        try:
+            _, err = proc.communicate(timeout=60)
+        finally:  # a run that hangs is not left behind (nor its worker, fork server and resource tracker)
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
         if (out / "summary.json").exists() and not err:  # done before the Ctrl-C (0), or in the interpreter's exit
             continue  # (handlers back to the default: ended by the signal): nothing to check at this delay
         outcomes.append((delay, proc.returncode, err.strip().splitlines(), _stale(out)))
