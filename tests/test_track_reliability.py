@@ -139,6 +139,61 @@ def test_a_stalled_plan_raises_and_ends_its_worker(tmp_path, monkeypatch):
     plan.close()
 
 
+SUSPENDED = """
+import pathlib
+import sys
+
+from spotlights.experiments import tracks
+from test_track_reliability import slow_worker
+from test_track_worker import _plan
+from test_tracks_cli import write_drive
+
+if __name__ == "__main__":
+    tracks.worker_main = slow_worker
+    src = write_drive(pathlib.Path(sys.argv[1]), [0.0, 0.5, 1.0])
+    plan, keys = _plan(src, "past:2", worker=False)
+    assert plan.start_worker(keys)
+    plan.frame_inputs(keys[0], plan.take(keys[0]).boxes)  # the worker started (its start is not timed here)
+    tracks.STALL_S = 2.0
+    print("ready", flush=True)
+    for key in keys[1:]:
+        plan.frame_inputs(key, plan.take(key).boxes)
+    plan.finish()
+    print("done", flush=True)
+"""
+
+
+@needs_two_cpus
+@pytest.mark.timeout(90)
+def test_a_suspended_run_is_not_taken_for_a_hung_worker(tmp_path):
+    """Ctrl-Z (SIGSTOP to the run's process group: it and its worker) for 3 s, then ``fg`` (SIGCONT), while the run
+    waits for a slow worker that shows signs of life (stall limit 2 s here): the run goes on and finishes. Before, the
+    pause counted as silence: the first poll after SIGCONT found the limit passed and stopped the worker."""
+    (tmp_path / "suspended_probe.py").write_text(SUSPENDED)
+    env = _env()
+    env["PYTHONPATH"] = os.pathsep.join([str(tmp_path), str(REPO / "tests"), env["PYTHONPATH"]])
+    proc = subprocess.Popen(
+        [sys.executable, str(tmp_path / "suspended_probe.py"), str(tmp_path / "drive")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        start_new_session=True,
+    )
+    try:
+        assert proc.stdout.readline().strip() == "ready", proc.stderr.read()
+        time.sleep(0.3)  # the run waits for frame 1 (the slow worker fuses it for ~0.8 s)
+        os.killpg(proc.pid, signal.SIGSTOP)
+        time.sleep(3.0)
+        os.killpg(proc.pid, signal.SIGCONT)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 0 and out.strip() == "done", err
+
+
 def test_the_stall_limit_is_generous():
     """The default stall limit leaves a slow machine 100 times the measured slowest step of the worker (0.6 s: the
     longest track's whole refinement of scene-0523 with ``all``), and signs of life come far more often than it."""
@@ -220,7 +275,12 @@ def test_ctrl_c_at_any_moment_of_a_fused_run_is_130_and_one_line(tmp_path):
             os.killpg(proc.pid, signal.SIGINT)
         except ProcessLookupError:  # already done (a fast machine): nothing to check at this delay
             pass
-        _, err = proc.communicate(timeout=60)
+        try:
+            _, err = proc.communicate(timeout=60)
+        finally:  # a run that hangs is not left behind (nor its worker, fork server and resource tracker)
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
         if (out / "summary.json").exists() and not err:  # done before the Ctrl-C (0), or in the interpreter's exit
             continue  # (handlers back to the default: ended by the signal): nothing to check at this delay
         outcomes.append((delay, proc.returncode, err.strip().splitlines(), _stale(out)))
@@ -344,3 +404,26 @@ def test_a_resumed_fused_run_writes_what_one_run_writes(tmp_path, gone, worker):
     assert run_cli("real", "complete", src, "--out", plain, *common[:7]).returncode == 0
     assert run_cli("real", "complete", src, "--out", plain, *common, "--resume").returncode == 0
     assert json.loads((plain / "summary.json").read_text())["totals"]["resumed"] == 0
+
+
+@pytest.mark.timeout(180)
+def test_resume_does_not_reuse_frames_fused_over_another_selection(tmp_path):
+    """Frames done by a fused run over another selection (``--frames 2:5``: frame 2's past window then lacked frame 1)
+    are not reused by ``--resume`` over every frame: the files are those of one run over every frame. Before, the
+    fusion settings matched and frames 2-4 kept their inputs of the smaller selection."""
+    pytest.importorskip("torch")
+    from helpers import run_cli
+    from learning_fixtures import make_checkpoint
+
+    src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0, 1.5, 2.0])
+    ck = make_checkpoint(tmp_path / "tiny.pt", "sanet")
+    common = ["--format", "generic", "-c", ck, "--no-clip", "-q", "--no-pictures", "--fuse", "past:2"]
+    common += ["--no-track-worker"]
+    one, two = tmp_path / "one", tmp_path / "two"
+    assert run_cli("real", "complete", src, "--out", one, *common).returncode == 0
+    assert run_cli("real", "complete", src, "--out", two, *common, "--frames", "2:5").returncode == 0
+    proc = run_cli("real", "complete", src, "--out", two, *common, "--resume")
+    assert proc.returncode == 0, proc.stderr
+    for k in range(5):
+        f = f"drive/f{k}.ply"
+        assert (one / f).read_bytes() == (two / f).read_bytes(), f

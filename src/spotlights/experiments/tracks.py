@@ -32,6 +32,7 @@ box centre, metres). The sensor origin is the scan frame's origin unless the fra
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import math
 import os
@@ -154,6 +155,7 @@ class TrackPlan:
         # called as the refinement and fusion go (each frame registered, each box fused): the track worker's sign of
         # life (worker_main); None: nothing
         self.progress: Callable[[], None] | None = None
+        self._tracks_digest: str | None = None  # settings(): the digest of the tracks' frame keys
 
     @property
     def timings(self) -> dict[str, float]:
@@ -361,14 +363,20 @@ class TrackPlan:
     # --- outputs ------------------------------------------------------------------------------
 
     def settings(self) -> dict:
-        """JSON-ready: what decides each frame's inputs (window, refinement and its bounds, longest gap); each
-        frame's JSON records it and ``real complete --resume`` reuses only frames done with the same."""
+        """JSON-ready: what decides each frame's inputs (window, refinement and its bounds, longest gap, and the
+        tracks' frames: ``tracks``, a digest of every track's frame keys, which another ``--frames`` selection
+        changes); each frame's JSON records it and ``real complete --resume`` reuses only frames done with the same."""
+        if self._tracks_digest is None:  # the tracks are fixed once built: computed once
+            keys = [[list(k), [list(x) for x in tr.keys]] for k, tr in self.tracks.items()]  # in the frames' order
+            text = json.dumps(keys, default=str, separators=(",", ":"))
+            self._tracks_digest = hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
         return dict(
             fuse=str(self.policy),
             refine_boxes=self.refine,
             max_gap_s=self.max_gap_s,
             max_translation_m=self.max_translation,
             max_yaw_deg=math.degrees(self.max_yaw),
+            tracks=self._tracks_digest,
         )
 
     def summary(self) -> dict:
@@ -468,7 +476,7 @@ POLL_S = 0.5
 #: scene-0523 (nuScenes, 40 keyframes, 91 tracks, 2-core machine under load) took at most 0.07 s a frame with
 #: ``past:5 --refine-boxes`` and 0.6 s for its longest track's whole refinement with ``all`` (one step: ~5 ms); the
 #: worker's start to its first frame (fork server and worker: fresh interpreters importing numpy and scipy) 0.45 s.
-#: 120 s is over 100 times the longest of these:
+#: A pause of the whole run (Ctrl-Z, then ``fg``) is not counted. 120 s is over 100 times the longest of these:
 #: a slow or busy machine gets no false alarm, a hung worker costs two minutes instead of a run that never ends.
 STALL_S = 120.0
 
@@ -673,7 +681,9 @@ class TrackWorker:
         when its process ended without a word, or :class:`TrackWorkerStalled` (one line; the process stopped) when it
         sent nothing, not even a sign of life, for :data:`STALL_S` seconds."""
         with plan.timer("wait_s"):
-            since = time.monotonic()
+            # seconds of silence, each poll counted for at most 2 POLL_S: a pause of this process (Ctrl-Z then fg, a
+            # debugger; its worker paused with it) is not the worker's silence
+            silent, before = 0.0, time.monotonic()
             while True:
                 try:
                     msg = self.results.get(timeout=POLL_S)
@@ -682,7 +692,9 @@ class TrackWorker:
                         raise RuntimeError(
                             f"the track worker process ended (exit code {self.proc.exitcode}) before its results"
                         ) from None
-                    if time.monotonic() - since > STALL_S:
+                    now = time.monotonic()
+                    silent, before = silent + min(now - before, 2 * POLL_S), now
+                    if silent > STALL_S:
                         self.stop()
                         raise TrackWorkerStalled(
                             f"the track worker process made no progress for {STALL_S:g} s and was stopped; "
@@ -691,7 +703,7 @@ class TrackWorker:
                     continue
                 if msg[0] != "beat":
                     break
-                since = time.monotonic()
+                silent, before = 0.0, time.monotonic()
         if msg[0] == "error":
             self.stop()
             raise msg[1]
