@@ -410,8 +410,9 @@ class TrackPlan:
                 flagged += st in ("not_converged", "exceeds_bound")
                 refined += st == "refined"
             tracks.append(dict(sequence=tr.sequence, track_id=tr.track_id, n_frames=len(tr.frames), frames=rows))
+        fixed = {k: v for k, v in self.settings().items() if k != "tracks"}  # the tracks themselves follow, in full
         return dict(
-            **self.settings(),
+            **fixed,
             n_tracks=len(tracks),
             n_track_frames=n,
             n_refined=refined,
