@@ -108,6 +108,17 @@ def test_the_shipped_paper_sanet_exports_with_its_rig_and_matches_on_test_scans(
     assert diff["depths"] < 1e-4 and diff["ray_points"] < 1e-4 and diff["kept_rays_differ"] == 0, diff
 
 
+def test_threads_reach_onnxruntime(tmp_path, capsys):
+    """`complete --runtime onnx --threads N`: N is the session's intra-op thread count (it was ignored)."""
+    from spotlights.experiments.scan_completion import CompletionOptions
+
+    ckpt = _checkpoint(tmp_path, "sanet-hit", make_rig(8, 16, 60.0), 0.4)
+    assert cli(capsys, "export", ckpt, "-o", tmp_path / "hit.onnx", "-q").returncode == 0
+    for n in (1, 3):
+        onx = CompletionOptions(checkpoint=str(tmp_path / "hit.onnx"), runtime="onnx", threads=n).load_completer()
+        assert onx.session.get_session_options().intra_op_num_threads == n
+
+
 def test_complete_runtime_onnx_gives_the_torch_completion(tmp_path, capsys):
     ckpt = _checkpoint(tmp_path, "sanet-hit", make_rig(8, 16, 60.0), 0.4)
     onnx_path = tmp_path / "hit.onnx"

@@ -135,8 +135,8 @@ def add_completion_arguments(p, single: bool) -> None:
         type=positive_int,
         default=None,
         metavar="N",
-        help="torch CPU threads (default: torch's, one per core; with the track worker of --fuse, one less, "
-        "leaving a core to it); N is used as it is",
+        help="CPU threads of the model: torch's (default: one per core; with the track worker of --fuse, one less, "
+        "leaving a core to it) or, with --runtime onnx, onnxruntime's intra-op threads; N is used as it is",
     )
     p.add_argument(
         "--runtime",

@@ -86,7 +86,8 @@ class CompletionOptions:
     clip, no_clip : SA-Net depth clip in [0, 1] (None: the checkpoint's); ``no_clip`` keeps every ray.
     device, precision, runtime : torch device, ``fp32``/``bf16``/``auto``, ``torch``/``onnx`` (None: by suffix).
     threads : torch CPU threads for the run (None: torch's default; with a track worker process, the usable CPUs less
-        one: :func:`spotlights.experiments.tracks.threads_beside_worker`); a given count is used as it is.
+        one: :func:`spotlights.experiments.tracks.threads_beside_worker`); a given count is used as it is, and with
+        ``runtime="onnx"`` it is onnxruntime's intra-op thread count too.
     """
 
     checkpoint: str | None = None
@@ -143,7 +144,9 @@ class CompletionOptions:
     def load_completer(self) -> BaseCompleter:
         """The model of :attr:`checkpoint` run with :attr:`runtime` on :attr:`device` at :attr:`precision`
         (:func:`spotlights.learning.runtime.load_completer`)."""
-        return load_completer(self.checkpoint, runtime=self.runtime, device=self.device, precision=self.precision)
+        return load_completer(
+            self.checkpoint, runtime=self.runtime, device=self.device, precision=self.precision, threads=self.threads
+        )
 
     def load_fallback(self) -> BaseCompleter | None:
         """The model of :attr:`fallback` (torch, same device and precision), or None."""

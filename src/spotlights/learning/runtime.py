@@ -27,6 +27,7 @@ def load_completer(
     runtime: Runtime | None = None,
     device: str | None = None,
     precision: str | None = "fp32",
+    threads: int | None = None,
 ) -> BaseCompleter:
     """A completion model ready for inference.
 
@@ -37,6 +38,8 @@ def load_completer(
     runtime : ``"torch"`` or ``"onnx"``; None (default) picks onnx for a ``.onnx`` file, torch otherwise.
     device : torch device or name (torch runtime; default CUDA when available, else CPU).
     precision : torch runtime: ``"fp32"`` (default), ``"bf16"`` or ``"auto"``; an ONNX model runs as exported.
+    threads : onnx runtime: onnxruntime's intra-op threads (None: its default); the torch runtime's threads are the
+        process's (``torch.set_num_threads``).
 
     Returns a :class:`~spotlights.learning.inference.BaseCompleter` (a torch
     :class:`~spotlights.learning.inference.Completer` or an :class:`~spotlights.learning.export.OnnxCompleter`): ``complete(partials (B, K, 3) float32,
@@ -55,7 +58,7 @@ def load_completer(
             )
         if precision not in (None, "fp32"):
             raise ParameterError("--precision applies to the torch runtime; an ONNX model runs as exported (float32)")
-        return load_onnx_completer(name_or_path)
+        return load_onnx_completer(name_or_path, threads=threads)
     if runtime == "torch" and is_onnx:
         raise ParameterError(f"{name_or_path} is an ONNX file: run it with --runtime onnx")
     return load_torch_completer(name_or_path, device=device, precision=precision or "fp32")
