@@ -87,11 +87,15 @@ trailer_flatbed 5.0-16.2   2.45-2.55   1.40-1.70   (axles)     deck top     US f
 bus             9.0-13.7   2.45-2.55   2.90-3.60   4.5-7.0     0.25-0.35    city buses 12.0 x 2.55 x 3.0-3.3
                                                                             (Citaro wb 5.85), coaches 12-
                                                                             13.7 x 2.55 x 3.5-3.9; 40/45 ft
-articulated_   13.5-18.75 2.45-2.55   3.60-4.10   3.6-5.0     0.25-0.35    EU articulated 16.50 m, road train
-truck                                             (tractor)   (tractor)    18.75 m (96/53/EC Annex I 1.1):
-                                                                            a semi_tractor 5.8-7.5 m (at most
+articulated_   13.5-18.75 2.45-2.55   3.60-4.10   3.6-5.0     0.25-0.35    EU articulated vehicle 16.50 m
+truck                                             (tractor)   (tractor)    (96/53/EC Annex I 1.1); above it US
+                                                                            tractors with 48-53 ft semi-
+                                                                            trailers (19-22 m overall: no US
+                                                                            federal overall limit, 23 CFR
+                                                                            658.13), capped at 18.75 m; a
+                                                                            semi_tractor 5.8-7.5 m (at most
                                                                             5.8 + L - 13.5) and a box semi-
-                                                                            trailer (the rest, 9.8-15.7 m),
+                                                                            trailer (the rest, 9.7-15.8 m),
                                                                             kingpin 0.9-1.7 m behind its front
                                                                             (EU swing radius <= 2.04 m)
 ============== ========== =========== =========== =========== ============ =================================
@@ -590,7 +594,7 @@ def _articulated(p: VehicleParams) -> list:
     variant; length :func:`_tractor_length`, height 3.2 m up to the trailer's by ``shape[8]``) and a
     box semi-trailer (the rest of the length, full height) whose floor rests 2 cm above the fifth
     wheel's plate, its front 0.9-1.7 m ahead of the kingpin (``shape[7]``; less where the cab leaves
-    less room: the gap behind the cab is 0.5-2.4 m, half the room if under 1 m), its landing legs behind the tractor."""
+    less room: the gap behind the cab is 0.5-2.5 m, half the room if under 1 m), its landing legs behind the tractor."""
     f = p.shape
     lt = _tractor_length(p.length, f[6])
     h_lo, h_hi = DIMENSIONS["semi_tractor"]["height"]
