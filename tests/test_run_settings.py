@@ -150,6 +150,17 @@ def test_complete_frames_from_python_writes_every_frame_and_resumes(tmp_path):
     )
     assert again["totals"]["resumed"] == 2 and Ring.calls == 2  # nothing completed again
     assert again["totals"]["completed"] == 4
+    assert "precision" not in json.loads((out / "f0.json").read_text())  # fp32: as frames of older runs
+
+    class RingBf16(Ring):
+        precision = "bf16"
+
+    third = complete_frames(
+        FramesSettings(source=[str(src)], format="generic", out=str(out), no_pictures=True, quiet=True, resume=True),
+        completer=RingBf16(),
+    )
+    assert third["totals"]["resumed"] == 0 and Ring.calls == 4  # frames made at fp32 are made again at bf16
+    assert json.loads((out / "f0.json").read_text())["precision"] == "bf16"
 
 
 def test_real_evaluation_settings_are_strict_and_scored_as_given(tmp_path):

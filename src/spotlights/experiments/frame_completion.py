@@ -288,9 +288,12 @@ class FramesSettings(ReaderOptions, CompletionOptions):
         return None
 
 
-def done_frame(path: Path, config: SceneConfig, model: str, checkpoint: str, fuse: dict | None = None) -> dict | None:
+def done_frame(
+    path: Path, config: SceneConfig, model: str, checkpoint: str, fuse: dict | None = None, precision: str = "fp32"
+) -> dict | None:
     """The summary of a frame finished by an earlier run with the same model and options (``fuse``: the track
-    fusion's, :meth:`~spotlights.experiments.tracks.TrackPlan.settings`; None: none), else None."""
+    fusion's, :meth:`~spotlights.experiments.tracks.TrackPlan.settings`; None: none; ``precision``: the model's,
+    ``fp32`` or ``bf16``), else None."""
     try:
         summ = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError):
@@ -302,6 +305,7 @@ def done_frame(path: Path, config: SceneConfig, model: str, checkpoint: str, fus
         and summ.get("checkpoint") == checkpoint
         and json.loads(json.dumps(cfg)) == summ.get("config")
         and summ.get("fuse") == fuse
+        and summ.get("precision", "fp32") == precision
     )
     return summ if same else None
 
@@ -319,6 +323,7 @@ class _FrameRun:
         self.s, self.reader, self.config = s, reader, config
         self.completer, self.out, self.tracks, self.recorder = completer, out, tracks, recorder
         self.fallback = fallback  # the model of --fallback, or None
+        self.precision = str(getattr(completer, "precision", "fp32"))  # the model's, resolved ("auto": bf16 or fp32)
         self.frames: list[dict] = []
         self.warnings: list[str] = []
         self.totals: dict = {"boxes": 0, "completed": 0, "flipped": 0, "completion_points": 0, "skipped": {}}
@@ -372,6 +377,8 @@ class _FrameRun:
             js = os.path.relpath(write_plotlyjs(self.out), stem.parent).replace(os.sep, "/")
             render_result_html(result, _with(stem, ".html"), title, js)
         summ = {**info, "ply": str(_with(stem, ".ply")), **result.summary()}
+        if self.precision != "fp32":
+            summ["precision"] = self.precision  # compared by resume (absent: fp32, as frames of older runs)
         if tracks is not None:
             summ["fuse"] = tracks.settings()  # compared by resume
         if frame.sensor_to_world is not None:
@@ -455,7 +462,7 @@ class _FrameRun:
         for key in tqdm(keys, desc="complete", unit="frame", disable=self.s.quiet):
             stem = self.out / stems[key]
             summ = (
-                done_frame(_with(stem, ".json"), self.config, model, self.s.checkpoint_name, fuse)
+                done_frame(_with(stem, ".json"), self.config, model, self.s.checkpoint_name, fuse, self.precision)
                 if self.s.resume
                 else None
             )
