@@ -1,4 +1,4 @@
-"""The ``spotlights`` command's entry point (``spotlights._entry.main``: the console script and ``python -m
+"""The ``spotlights`` command's entry point (``spotlights.entry.main``: the console script and ``python -m
 spotlights``): a Ctrl-C while the command line's modules load gives one line and exit code 130, never a traceback."""
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ def _run(module: str) -> subprocess.CompletedProcess:
 
 @pytest.mark.timeout(90)
 def test_ctrl_c_while_the_command_line_loads_gives_one_line_and_130():
-    r = _run("spotlights._entry")
+    r = _run("spotlights.entry")
     assert r.returncode == 130, (r.returncode, r.stderr)
     assert r.stderr.strip().splitlines() == ["spotlights: interrupted"]
     assert "Traceback" not in r.stderr and r.stdout == ""
@@ -58,8 +58,8 @@ def test_the_console_script_and_python_m_use_the_guarded_entry():
     from pathlib import Path
 
     project = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())
-    assert project["project"]["scripts"]["spotlights"] == "spotlights._entry:main"
+    assert project["project"]["scripts"]["spotlights"] == "spotlights.entry:main"
     main = (Path(__file__).resolve().parents[1] / "src" / "spotlights" / "__main__.py").read_text()
-    assert "from ._entry import main" in main
+    assert "from .entry import main" in main
     r = subprocess.run([sys.executable, "-m", "spotlights", "--version"], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0 and r.stdout.strip()
