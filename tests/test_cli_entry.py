@@ -63,3 +63,46 @@ def test_the_console_script_and_python_m_use_the_guarded_entry():
     assert "from .entry import main" in main
     r = subprocess.run([sys.executable, "-m", "spotlights", "--version"], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0 and r.stdout.strip()
+
+
+FAKE_HEAVY = textwrap.dedent(
+    """
+    import os, signal, time
+    os.kill(os.getpid(), signal.SIGINT)  # a Ctrl-C in the middle of this package's first import
+    total = sum(range(100000))  # bytecodes run: an interrupt not deferred is raised here
+    time.sleep(0.05)
+    open(os.environ["MARKER"], "w").write(str(total))  # the import ran to its end
+    """
+)
+
+IMPORTER = textwrap.dedent(
+    """
+    import sys
+    from spotlights.entry import guard_imports
+    if sys.argv[1] == "guarded":
+        guard_imports(["fakeheavy"])
+    try:
+        import fakeheavy
+    except KeyboardInterrupt:
+        print("interrupted")
+    """
+)
+
+
+@pytest.mark.timeout(90)
+@pytest.mark.parametrize("mode", ["guarded", "plain"])
+def test_a_ctrl_c_during_a_guarded_import_comes_once_the_import_is_complete(tmp_path, mode):
+    """guard_imports: the package's first import runs to its end (the marker is written), then the Ctrl-C comes as
+    a KeyboardInterrupt; without the guard it lands in the middle (no marker). (torch's C++ initialisers abort the
+    process on an interrupt in their middle; this package stands in for them.)"""
+    import os
+
+    (tmp_path / "fakeheavy").mkdir()
+    (tmp_path / "fakeheavy" / "__init__.py").write_text(FAKE_HEAVY)
+    marker = tmp_path / "marker"
+    env = {**os.environ, "MARKER": str(marker), "PYTHONPATH": os.pathsep.join([str(tmp_path), *sys.path])}
+    r = subprocess.run(
+        [sys.executable, "-c", IMPORTER, mode], capture_output=True, text=True, timeout=60, env=env, cwd=tmp_path
+    )
+    assert r.returncode == 0 and r.stdout.strip() == "interrupted", (r.returncode, r.stdout, r.stderr)
+    assert marker.exists() == (mode == "guarded")
