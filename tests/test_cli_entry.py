@@ -106,3 +106,23 @@ def test_a_ctrl_c_during_a_guarded_import_comes_once_the_import_is_complete(tmp_
     )
     assert r.returncode == 0 and r.stdout.strip() == "interrupted", (r.returncode, r.stdout, r.stderr)
     assert marker.exists() == (mode == "guarded")
+
+
+@pytest.mark.timeout(90)
+def test_outside_guarded_imports_a_ctrl_c_is_a_keyboard_interrupt_even_when_guarded_twice():
+    code = textwrap.dedent(
+        """
+        import os, signal
+        from spotlights.entry import guard_imports
+        guard_imports()
+        guard_imports(["json"])
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            for _ in range(100000):
+                pass
+        except KeyboardInterrupt:
+            print("interrupted")
+        """
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and r.stdout.strip() == "interrupted", (r.returncode, r.stderr[-500:])

@@ -43,7 +43,7 @@ class _Deferral:
         handler = self.previous
         if handler == signal.SIG_IGN:
             return
-        if callable(handler) and handler is not self.on_sigint:
+        if callable(handler) and handler != self.on_sigint:  # bound methods: equal, never the same object
             handler(signum, frame)
             return
         raise KeyboardInterrupt  # the default handler's (and SIG_DFL's, as Python starts)
@@ -124,7 +124,7 @@ def guard_imports(packages: Iterable[str] = DEFERRED_IMPORTS) -> None:
     runs signal handlers there); calling it again adds ``packages``."""
     if threading.current_thread() is not threading.main_thread():
         raise RuntimeError("guard_imports: signal handlers can be set in the main thread only")
-    if signal.getsignal(signal.SIGINT) is not _STATE.on_sigint:
+    if signal.getsignal(signal.SIGINT) != _STATE.on_sigint:
         _STATE.previous = signal.getsignal(signal.SIGINT)
         signal.signal(signal.SIGINT, _STATE.on_sigint)
     sys.meta_path.insert(0, _GuardFinder(packages))
