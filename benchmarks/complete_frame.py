@@ -7,7 +7,9 @@ median of ``--repeats`` runs after a warm-up, for each torch thread count of ``-
 < 0.5 s on 2 cores):
 
 * ``read``: the scan (.bin) and the label file with its calibration -> boxes in the Velodyne frame;
-* ``complete``: crop every box, one batched forward pass, map back (:func:`complete_scene`);
+* ``complete``: crop every box, one batched forward pass per model (the main one, and ``--fallback``'s for the
+  boxes only it learned: by default the class model beside the default, as ``complete``), map back
+  (:func:`complete_scene`);
 * ``complete + heading check``: the same with both headings of every box (twice the batch);
 * ``write``: the scene PLY (x y z, source, object);
 * ``end to end``: read + complete + write (no picture);
@@ -66,6 +68,9 @@ def main() -> None:
     ap.add_argument("--root", default=str(SHARED / "lidar" / "kitti-object" / "training-fov-cropped"))
     ap.add_argument("--frame", default="002155")
     ap.add_argument("--checkpoint", default="default")
+    ap.add_argument(
+        "--fallback", default="auto", help="as `complete --fallback` (auto: the class model beside the default)"
+    )
     ap.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--repeats", type=int, default=20)
     ap.add_argument("--json", default=str(HERE.parent / "docs" / "results" / "complete_frame.json"))
@@ -75,6 +80,7 @@ def main() -> None:
 
     from spotlights.data.real.boxfiles import read_box_file
     from spotlights.data.real.scans import read_scan
+    from spotlights.experiments.scan_completion import resolve_fallback
     from spotlights.experiments.scene import SceneConfig, complete_scene, write_scene
     from spotlights.learning.inference import load_completer
 
@@ -88,22 +94,25 @@ def main() -> None:
     )
     t0 = time.perf_counter()
     completer = load_completer(args.checkpoint, device="cpu")
+    fallback_name = resolve_fallback(args.fallback, args.checkpoint)
+    fallback = None if fallback_name is None else load_completer(fallback_name, device="cpu")
     load_s = time.perf_counter() - t0
+    fb = {"fallback": fallback, "fallback_name": fallback_name}
 
     def read():
         return read_scan(scan_p), read_box_file(label_p, calib=calib_p).boxes
 
     r_read, (points, boxes) = timed(read, args.repeats)
     plain, heading = SceneConfig(), SceneConfig(heading_check=True)
-    r_complete, result = timed(lambda: complete_scene(points, boxes, completer, plain), args.repeats, threads)
-    r_heading, _ = timed(lambda: complete_scene(points, boxes, completer, heading), args.repeats, threads)
+    r_complete, result = timed(lambda: complete_scene(points, boxes, completer, plain, **fb), args.repeats, threads)
+    r_heading, _ = timed(lambda: complete_scene(points, boxes, completer, heading, **fb), args.repeats, threads)
     with tempfile.TemporaryDirectory() as scratch:  # the timed PLY writes, removed afterwards
         tmp = Path(scratch) / "scene.ply"
         r_write, _ = timed(lambda: write_scene(result, tmp), args.repeats)
 
         def end_to_end():
             pts, bx = read()
-            return write_scene(complete_scene(pts, bx, completer, plain), tmp)
+            return write_scene(complete_scene(pts, bx, completer, plain, **fb), tmp)
 
         r_all, _ = timed(end_to_end, args.repeats, threads)
     inside = all(
@@ -122,6 +131,8 @@ def main() -> None:
         "every_completion_point_inside_its_sphere": bool(inside),
         "model": completer.model_name,
         "checkpoint": args.checkpoint,
+        "fallback": fallback_name,
+        "completed_by_fallback": sum(o.completed_by is not None for o in result.completed),
         "threads": args.threads,
         "repeats": args.repeats,
         "model_load_s": load_s,

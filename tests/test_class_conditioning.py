@@ -14,6 +14,7 @@ from spotlights.api import complete_frame
 from spotlights.data.real.base import lookup_class
 from spotlights.data.real.boxfiles import CLASS_MAP
 from spotlights.data.vehicle_classes import VEHICLE_CLASSES, canonical_class
+from spotlights.experiments.scan_completion import CompletionOptions, resolve_fallback
 from spotlights.experiments.scene import SceneConfig, scene_objects
 from spotlights.geometry.boxes import Box
 from spotlights.geometry.rig import make_rig_spec
@@ -260,9 +261,51 @@ def test_complete_cli_fallback_option(tmp_path):
     objs = summ["objects"]
     assert [(o["status"], o.get("completed_by")) for o in objs] == [("completed", None), ("completed", "classes")]
     assert summ["checkpoint"] == "default + fallback classes"  # what real complete --resume compares
-    proc = run_cli(*args, "--summary", tmp_path / "t.json")
-    objs = json.loads((tmp_path / "t.json").read_text())["objects"]
-    assert [o["status"] for o in objs] == ["completed", "not_learned"]
+    proc = run_cli(*args[:-1], tmp_path / "none.ply", "--summary", tmp_path / "t.json", "--fallback", "none")
+    summ = json.loads((tmp_path / "t.json").read_text())
+    assert [o["status"] for o in summ["objects"]] == ["completed", "not_learned"]
+    assert summ["checkpoint"] == "default"
+    # no --fallback: 'auto', the class model beside the default, the same bytes as '--fallback classes'
+    proc = run_cli(*args[:-1], tmp_path / "auto.ply", "--summary", tmp_path / "u.json")
+    assert proc.returncode == 0, proc.stderr
+    auto = json.loads((tmp_path / "u.json").read_text())
+    assert auto["checkpoint"] == "default + fallback classes"
+    assert [(o["status"], o.get("completed_by")) for o in auto["objects"]] == [
+        ("completed", None),
+        ("completed", "classes"),
+    ]
+    assert (tmp_path / "auto.ply").read_bytes() == (tmp_path / "o.ply").read_bytes()
+    # a model the user chose gets no fallback unless asked for one
+    proc = run_cli(*args[:-1], tmp_path / "cls.ply", "--summary", tmp_path / "v.json", "--checkpoint", "classes")
+    assert json.loads((tmp_path / "v.json").read_text())["checkpoint"] == "classes"
     bad = [*args[:-1], tmp_path / "bad.ply", "--fallback", tmp_path / "nope.pt"]
     assert_user_error(run_cli(*bad), "nope.pt", "no such checkpoint file")
     assert not (tmp_path / "bad.ply").exists()
+
+
+def test_resolve_fallback_auto_is_the_class_model_beside_the_default_only():
+    """``--fallback auto`` (the default): the packaged class model beside the packaged default (no --checkpoint,
+    or 'default') on the torch runtime; nothing beside a model the user chose or an ONNX run; 'none' is none."""
+    assert resolve_fallback("auto") == "classes" and resolve_fallback("AUTO", "default") == "classes"
+    assert resolve_fallback("auto", "default", "torch") == "classes"
+    assert resolve_fallback("auto", "paper") is None and resolve_fallback("auto", "runs/x/best.pt") is None
+    assert resolve_fallback("auto", "classes") is None and resolve_fallback("auto", None, "onnx") is None
+    assert resolve_fallback("none") is None and resolve_fallback("None", "default") is None
+    assert resolve_fallback(None) is None
+    assert resolve_fallback("my.pt", "paper") == "my.pt"  # an explicit model is used as given
+    opts = CompletionOptions()
+    assert opts.fallback_model == "classes" and opts.checkpoint_name == "default + fallback classes"
+    assert CompletionOptions(fallback="none").checkpoint_name == "default"
+    assert CompletionOptions(checkpoint="paper").checkpoint_name == "paper"
+
+
+def test_api_complete_frame_by_name_completes_a_bus_with_the_class_model():
+    """``spotlights.complete_frame(points, boxes)`` (the default model by name, fallback 'auto') completes a bus with
+    the packaged class model; fallback='none', or a loaded model without a fallback, leaves it as observed points."""
+    rng = np.random.default_rng(8)
+    bus = box([14.0, -3.0, 1.6], [12.0, 2.5, 3.2], "bus", "bus")
+    pts = rng.uniform([-6.0, -1.25, -1.5], [6.0, -1.2, 1.6], (600, 3)) + bus.center
+    res = complete_frame(pts, [bus], heading_check=False)
+    assert res.objects[0].status == "completed" and res.objects[0].completed_by == "classes"
+    assert complete_frame(pts, [bus], "default", fallback="none").objects[0].status == "not_learned"
+    assert complete_frame(pts, [bus], load_completer("default")).objects[0].status == "not_learned"

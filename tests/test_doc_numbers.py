@@ -190,3 +190,15 @@ def test_track_worker_speed_on_a_quiet_machine():
             f"| one process, {threads} torch thread{'s' if threads == 2 else ''} | "
             f"{one['cpu_ms_per_frame']:.0f} | - | {one['fps_wall']:.2f} (",
         )
+
+
+def test_track_sequences_truth_floor():
+    """The representation's floor under the fused-window targets (issue 28), as docs/learning.md and real-data.md say."""
+    rep = _json("real/track_sequences_floor_2hz.json")
+    floor, one = rep["truth_floor"], rep["completion"]["default"]["true past:1"]
+    acc, comp = f"{floor['accuracy_m']:.4f}", f"{floor['completeness_m']:.4f}"
+    _says("docs/learning.md", f"**accuracy {acc} m, completeness {comp} m**")
+    _says("docs/real-data.md", f"score {comp} m completeness (accuracy {acc} m)")
+    target = 0.6 * one["completeness_m"]
+    assert target < floor["completeness_m"]  # 40% better than one true-box frame lies below the floor
+    _says("docs/real-data.md", f"better than one true-box frame ({one['completeness_m']:.4f} m) is {target:.4f} m")

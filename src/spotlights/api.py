@@ -32,6 +32,7 @@ import numpy as np
 from .data.real import FORMATS, open_reader
 from .data.real.base import Frame
 from .errors import ParameterError
+from .experiments.scan_completion import AUTO_FALLBACK, resolve_fallback
 from .experiments.scene import ObjectResult, SceneConfig, SceneResult, complete_scene
 from .geometry.boxes import Box
 from .geometry.encode import decode, encode_mesh
@@ -48,7 +49,7 @@ def complete_frame(
     *,
     axes: np.ndarray | None = None,
     checkpoint: str | None = None,
-    fallback: Any = None,
+    fallback: Any = AUTO_FALLBACK,
     **options: Any,
 ) -> SceneResult:
     """Complete every vehicle of one LiDAR frame: :func:`~spotlights.experiments.scene.complete_scene` (what
@@ -68,20 +69,29 @@ def complete_frame(
     axes : optional (3, 3) rotation scan coordinates -> object convention (x forward, y left, z up).
     checkpoint : the model's name for the result's summary (default: ``completer`` when it is a name).
     fallback : a second model (loaded, or a name such as ``"classes"``) for the boxes ``completer`` did not learn
-        but it did (``ObjectResult.completed_by`` names it); None: such boxes are left as observed points.
+        but it did (``ObjectResult.completed_by`` names it); ``"auto"`` (default): the packaged class model
+        ``"classes"`` when ``completer`` is the name ``"default"`` (or None), else none
+        (:func:`~spotlights.experiments.scan_completion.resolve_fallback`, as ``--fallback``); ``"none"`` or None:
+        such boxes are left as observed points.
 
     Returns a :class:`~spotlights.experiments.scene.SceneResult` (scan frame, metres): ``xyz``, ``source`` and
     ``object`` per point, one :class:`~spotlights.experiments.scene.ObjectResult` per box. Raises :class:`~spotlights.errors.ParameterError` for
     unknown options or a scan with fewer than ``min_points`` points.
     """
     config = _scene_config(config, options)
-    if completer is None or isinstance(completer, (str, os.PathLike)):
+    by_name = completer is None or isinstance(completer, (str, os.PathLike))
+    if isinstance(fallback, (str, os.PathLike)) or fallback is None:
+        # a loaded main model is not the packaged default as far as "auto" knows: no fallback beside it
+        fallback = resolve_fallback(
+            None if fallback is None else str(fallback), str(completer or "default") if by_name else ""
+        )
+    if by_name:
         name = "default" if completer is None else str(completer)
         completer = load_completer(name)
         checkpoint = name if checkpoint is None else checkpoint
     fallback_name = None
-    if isinstance(fallback, (str, os.PathLike)):
-        fallback_name, fallback = str(fallback), load_completer(str(fallback))
+    if isinstance(fallback, str):
+        fallback_name, fallback = fallback, load_completer(fallback)
     return complete_scene(
         points,
         boxes,

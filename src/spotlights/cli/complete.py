@@ -27,8 +27,8 @@ def add_completion_arguments(p, single: bool) -> None:
         default=None,
         metavar="CKPT",
         help="model: a checkpoint file or a short name, 'default' (the package's default model, cars, used when "
-        "this is not given), 'paper' (the paper-faithful SA-Net) or 'classes' (opt-in: cars, vans, trucks, buses, "
-        "trailers)",
+        "this is not given), 'paper' (the paper-faithful SA-Net) or 'classes' (cars, vans, trucks, buses, "
+        "trailers; the default model's --fallback)",
     )
     p.add_argument(
         "--classes",
@@ -39,10 +39,11 @@ def add_completion_arguments(p, single: bool) -> None:
     )
     p.add_argument(
         "--fallback",
-        default=None,
+        default="auto",
         metavar="CKPT",
-        help="a second model for the boxes --checkpoint's model did not learn but it did (e.g. 'classes' beside the "
-        "car-only default: vans, trucks, buses, trailers); default: none, such boxes are left as observed points",
+        help="a second model for the boxes --checkpoint's model did not learn but it did (a checkpoint file or short "
+        "name); 'auto' (default): 'classes', the packaged class model (vans, trucks, buses, trailers), beside the "
+        "car-only default model, none beside a model you chose; 'none': such boxes are left as observed points",
     )
     p.add_argument(
         "--complete-unknown",

@@ -398,7 +398,7 @@ class _FrameRun:
             sensor=frame.lidar_origin(),
             extra_points=extra,
             fallback=self.fallback,
-            fallback_name=s.fallback,
+            fallback_name=s.fallback_model,
             crops=crops,
         )
 

@@ -67,6 +67,28 @@ def parse_classes(text: str | tuple | list | None) -> tuple[str, ...] | None:
     return tuple(c.strip().lower() for c in text.split(",") if c.strip())
 
 
+#: ``--fallback``'s default: the packaged class model beside the default model (:func:`resolve_fallback`)
+AUTO_FALLBACK = "auto"
+#: the packaged model that ``"auto"`` picks: cars, vans, trucks, buses and trailers (docs/real-data.md)
+CLASS_MODEL = "classes"
+
+
+def resolve_fallback(fallback: str | None, checkpoint: str | None = None, runtime: str | None = None) -> str | None:
+    """The fallback model a completion runs, from ``--fallback`` and the main model.
+
+    ``"auto"`` (the default) is the packaged class model (``"classes"``) when the main model is the packaged
+    car-only default (``checkpoint`` None or ``"default"``) on the torch runtime (``runtime`` None or
+    ``"torch"``), else no fallback: a model the user chose is not second-guessed, and an ONNX run stays
+    torch-free. ``"none"`` (any case) or None: no fallback. Any other text is a checkpoint file or short name,
+    returned as it is."""
+    if fallback is None or str(fallback).strip().lower() == "none":
+        return None
+    if str(fallback).strip().lower() != AUTO_FALLBACK:
+        return str(fallback)
+    is_default = checkpoint is None or str(checkpoint) == "default"
+    return CLASS_MODEL if is_default and runtime in (None, "torch") else None
+
+
 @dataclass(kw_only=True)
 class CompletionOptions:
     """The options of ``complete`` and ``real complete`` (one field per command-line option, same defaults).
@@ -77,7 +99,9 @@ class CompletionOptions:
     complete_unknown : also complete boxes whose class (or size, far outside its class's range) the model did not
         learn (default: left as their observed points, status ``not_learned``, counted per class).
     fallback : a second model (file or short name, e.g. ``"classes"``) for the boxes :attr:`checkpoint`'s model
-        did not learn but it did; None: such boxes are left as observed points (or ``complete_unknown``).
+        did not learn but it did; ``"auto"`` (default): the packaged class model beside the default model
+        (:func:`resolve_fallback`); ``"none"`` or None: such boxes are left as observed points (or
+        ``complete_unknown``).
     heading_check, heading_margin : complete each box also turned by 180 degrees (margin None: 0.5).
     margin : metres the box is grown by on its sides and top (None: 0.15).
     ground_clearance : metres above the box bottom under which points are dropped (ground returns).
@@ -94,7 +118,7 @@ class CompletionOptions:
     classes: str | tuple | None = None
     keep_observed: bool = True
     complete_unknown: bool = False
-    fallback: str | None = None
+    fallback: str | None = AUTO_FALLBACK
     heading_check: bool = False
     heading_margin: float | None = None
     margin: float | None = None
@@ -112,9 +136,15 @@ class CompletionOptions:
     @property
     def checkpoint_name(self) -> str:
         """The checkpoint as recorded in summaries (and compared by ``real complete --resume``): the given text, or
-        ``"default"``; with a :attr:`fallback`, ``"NAME + fallback FALLBACK"``."""
+        ``"default"``; with a fallback model (:attr:`fallback_model`), ``"NAME + fallback FALLBACK"``."""
         name = str(self.checkpoint) if self.checkpoint else "default"
-        return name if self.fallback is None else f"{name} + fallback {self.fallback}"
+        fb = self.fallback_model
+        return name if fb is None else f"{name} + fallback {fb}"
+
+    @property
+    def fallback_model(self) -> str | None:
+        """The fallback model these options run (:func:`resolve_fallback` of :attr:`fallback`), or None."""
+        return resolve_fallback(self.fallback, self.checkpoint, self.runtime)
 
     def scene_config(self, margin: float | None = None, crop: bool = True) -> SceneConfig:
         """The :class:`~spotlights.experiments.scene.SceneConfig` of these options (``margin``: the crop
@@ -149,10 +179,11 @@ class CompletionOptions:
         )
 
     def load_fallback(self) -> BaseCompleter | None:
-        """The model of :attr:`fallback` (torch, same device and precision), or None."""
-        if self.fallback is None:
+        """The model of :attr:`fallback_model` (torch, same device and precision), or None."""
+        fb = self.fallback_model
+        if fb is None:
             return None
-        return load_completer(self.fallback, device=self.device, precision=self.precision)
+        return load_completer(fb, device=self.device, precision=self.precision)
 
 
 @dataclass(kw_only=True)
@@ -354,7 +385,7 @@ def complete_scan(
             axes=axes,
             checkpoint=s.checkpoint_name,
             fallback=s.load_fallback(),
-            fallback_name=s.fallback,
+            fallback_name=s.fallback_model,
         )
     if s.single:
         _check_single(s, result, points, axes, warn)
