@@ -42,8 +42,12 @@ def test_kitti_002155_completion_count():
     frame = _json("complete_frame_default.json")
     assert frame["checkpoint"] == "default" and frame["every_completion_point_inside_its_sphere"]
     n = f"{frame['completion_points']:,}"
-    _says("docs/real-data.md", f"{frame['completed']} cars completed, {n} completion points with the default model")
-    _says("docs/real-data.md", f"the van left as observed points ({n} completion points")
+    assert frame["fallback"] == "classes" and frame["completed_by_fallback"] == 1  # the van, by the class model
+    _says("docs/real-data.md", f"{frame['completed']} vehicles completed, {n} completion points: 7 cars by the default")
+    _says("docs/real-data.md", f"the van by the class model in a batch of its own ({n} completion points")
+    for threads in ("1", "2"):
+        ms = f"{1000 * frame['end_to_end_no_picture'][threads]['wall_s']:.0f} ms"
+        _says("docs/real-data.md", f"| end to end without the picture | {ms}" if threads == "1" else f"**{ms}** |")
     paper = _json("complete_frame.json")
     assert paper["checkpoint"] == "paper"
     _says("docs/real-data.md", f"({paper['completion_points']:,} with `--checkpoint paper`)")
@@ -202,3 +206,33 @@ def test_track_sequences_truth_floor():
     target = 0.6 * one["completeness_m"]
     assert target < floor["completeness_m"]  # 40% better than one true-box frame lies below the floor
     _says("docs/real-data.md", f"better than one true-box frame ({one['completeness_m']:.4f} m) is {target:.4f} m")
+
+
+def test_issue27_weight60_rows():
+    """docs/real-data.md's weight-60 table: each class's inside / fidelity / consistency of both models, from the JSONs."""
+
+    def cell(name: str, where: str, cls: str) -> str:
+        m = _json(f"i27/{name}-{where}.json")["models"][0]
+        ins, fid = m["inside_box"][cls], m["classes"][cls]["fidelity"]
+        cd = m["equal_density"]["classes"][cls]["cd"]
+        return f"{100 * ins:.1f}% / {fid:.4f} / {cd:.4f}"
+
+    rows = (
+        ("nuscenes", "nuScenes", "car", 23),
+        ("nuscenes", "nuScenes", "truck", 7),
+        ("nuscenes", "nuScenes", "bus", 1),
+    )
+    rows += (("av2", "AV2", "car", 20), ("av2", "AV2", "truck", 1))
+    for where, label, cls, n in rows:
+        _says(
+            "docs/real-data.md",
+            f"| {label} {cls} ({n}) | {cell('classes-box30', where, cls)} | {cell('classes-w60', where, cls)} |",
+        )
+    new = cell("classes-w60", "nuscenes", "trailer")
+    ins, rest = new.split(" / ", 1)
+    _says(
+        "docs/real-data.md",
+        f"| nuScenes trailer (12) | {cell('classes-box30', 'nuscenes', 'trailer')} | **{ins}** / {rest} |",
+    )
+    acc = _summary(_json("i27/cars-test_classes-w60.json"), "sanet-hit")["accuracy"]
+    _says("docs/real-data.md", f"cars are slightly more accurate ({acc:.5f} against 0.01738")

@@ -700,6 +700,7 @@ def render_result_html(
 def _caption(o: ObjectResult) -> str:
     return (
         f"{o.box.cls or o.box.label or 'box'}: {len(o.input_indices)} pts in box, {len(o.completion)} completed"
+        + (f" by {o.completed_by}" if o.completed_by else "")
         + (", heading flipped" if o.flipped else "")
         + (" [outside learned domain]" if o.warnings else "")
     )
