@@ -30,9 +30,22 @@ CHILD = textwrap.dedent(
 )
 
 
+def _as_from_a_terminal() -> None:
+    """Child processes start with SIGINT at its default, as a command typed in a terminal does: a test run launched
+    as a background job (``make test &``) passes SIG_IGN down, and Python then keeps ignoring Ctrl-C (rightly so
+    for a background command), which would leave nothing to test."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _run(module: str) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-c", CHILD.format(module=module)], capture_output=True, text=True, timeout=60
+        [sys.executable, "-c", CHILD.format(module=module)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        preexec_fn=_as_from_a_terminal,
     )
 
 
@@ -102,7 +115,13 @@ def test_a_ctrl_c_during_a_guarded_import_comes_once_the_import_is_complete(tmp_
     marker = tmp_path / "marker"
     env = {**os.environ, "MARKER": str(marker), "PYTHONPATH": os.pathsep.join([str(tmp_path), *sys.path])}
     r = subprocess.run(
-        [sys.executable, "-c", IMPORTER, mode], capture_output=True, text=True, timeout=60, env=env, cwd=tmp_path
+        [sys.executable, "-c", IMPORTER, mode],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=env,
+        cwd=tmp_path,
+        preexec_fn=_as_from_a_terminal,
     )
     assert r.returncode == 0 and r.stdout.strip() == "interrupted", (r.returncode, r.stdout, r.stderr)
     assert marker.exists() == (mode == "guarded")
@@ -124,5 +143,7 @@ def test_outside_guarded_imports_a_ctrl_c_is_a_keyboard_interrupt_even_when_guar
             print("interrupted")
         """
     )
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    r = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, preexec_fn=_as_from_a_terminal
+    )
     assert r.returncode == 0 and r.stdout.strip() == "interrupted", (r.returncode, r.stderr[-500:])
