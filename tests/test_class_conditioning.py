@@ -54,6 +54,70 @@ def test_zero_embedding_starts_as_the_model_without_classes_and_classes_then_dif
     assert cond.class_indices(["van", "bus", None, "construction"]).tolist() == [1, 3, -1, -1]
 
 
+def test_class_templates_start_neutral_add_their_class_row_and_learn_only_it():
+    """``class_templates``: zero rows give the model without them (and a checkpoint without them loads as a
+    fine-tune's start); a row is added, exactly, to the outputs of its class only (-1: nothing); the loss's
+    gradient reaches only the rows of the batch's classes."""
+    cond = tiny(VOCAB)
+    torch.manual_seed(0)
+    tmpl = HitSANet(
+        make_rig_spec(8, 8, kind="box"),
+        code_size=32,
+        encoder_widths=(8, 16, 16),
+        hidden=(16,),
+        classes=VOCAB,
+        class_templates=True,
+    ).eval()
+    missing, unexpected = tmpl.load_state_dict(cond.state_dict(), strict=False)
+    assert missing == ["class_template.weight"] and not unexpected
+    x = torch.rand(3, 40, 3) - 0.5
+    rows = torch.tensor([0, 4, -1])
+    with torch.no_grad():
+        ref = cond(x, rows)
+        out = tmpl(x, rows)
+        assert all(torch.equal(ref[k], out[k]) for k in ("hit_logits", "depths"))
+        w = torch.randn_like(tmpl.class_template.weight)
+        tmpl.class_template.weight.copy_(w)
+        out = tmpl(x, rows)
+    n = tmpl.rig.n_rays
+    for b, r in enumerate(rows.tolist()):  # logits then depths: the row's two halves, by hand
+        add = w[r] if r >= 0 else torch.zeros(2 * n)
+        torch.testing.assert_close(out["hit_logits"][b], ref["hit_logits"][b] + add[:n], rtol=0, atol=1e-6)
+        torch.testing.assert_close(out["depths"][b], ref["depths"][b] + add[n:], rtol=0, atol=1e-6)
+    tmpl.train()
+    o = tmpl(x, rows)
+    (o["hit_logits"].sum() + o["depths"].sum()).backward()
+    g = tmpl.class_template.weight.grad
+    assert g[0].abs().sum() > 0 and g[4].abs().sum() > 0 and g[1:4].abs().sum() == 0
+    with pytest.raises(ValueError, match="class vocabulary"):
+        HitSANet(make_rig_spec(8, 8, kind="box"), code_size=32, hidden=(16,), class_templates=True)
+
+
+def test_init_from_a_checkpoint_without_templates_starts_as_it(tmp_path):
+    """``model.init`` of a run with ``class_templates`` from a checkpoint without them: the new rows start at zero
+    and the model gives the checkpoint's outputs."""
+    from spotlights.learning.checkpoint import save_checkpoint
+    from spotlights.learning.training_run import init_from_checkpoint
+
+    cond = tiny(VOCAB, seed=3)
+    path = tmp_path / "c.pt"
+    save_checkpoint(path, {"model_name": "sanet-hit", "model_state": cond.state_dict(), "config": {}})
+    torch.manual_seed(1)
+    tmpl = HitSANet(
+        make_rig_spec(8, 8, kind="box"),
+        code_size=32,
+        encoder_widths=(8, 16, 16),
+        hidden=(16,),
+        classes=VOCAB,
+        class_templates=True,
+    ).eval()
+    init_from_checkpoint(tmpl, path)
+    x = torch.rand(2, 40, 3) - 0.5
+    with torch.no_grad():
+        assert torch.equal(tmpl(x, torch.tensor([2, 3]))["depths"], cond(x, torch.tensor([2, 3]))["depths"])
+    assert float(tmpl.class_template.weight.detach().abs().sum()) == 0.0
+
+
 def test_depths_clipped_to_a_long_box_match_a_hand_computed_intersection():
     m = tiny()
     half = torch.tensor([[0.95, 0.15, 0.25]], dtype=torch.float64)  # a long, thin box in the unit frame

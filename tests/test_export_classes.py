@@ -38,13 +38,17 @@ DOMAIN = {
 }
 
 
-def class_checkpoint(path, name="sanet-hit", rig=BOX):
+def class_checkpoint(path, name="sanet-hit", rig=BOX, templates=False):
     """A tiny class-conditioned checkpoint whose class embedding is random (zero-initialised, classes would not
-    differ), with a learned domain of cars and buses and, for the hit-aware model, a p(hit) threshold."""
-    cfg = load_config(name, overrides={"model": {"args": {**TINY_MODEL_ARGS[name], "classes": VOCAB}}})
+    differ), with a learned domain of cars and buses and, for the hit-aware model, a p(hit) threshold;
+    ``templates``: with random per-class output templates too."""
+    args = {**TINY_MODEL_ARGS[name], "classes": VOCAB, **({"class_templates": True} if templates else {})}
+    cfg = load_config(name, overrides={"model": {"args": args}})
     torch.manual_seed(0)
     model = build_model(cfg, rig=rig)
     torch.nn.init.normal_(model.class_embedding.weight, std=2.0)
+    if templates:
+        torch.nn.init.normal_(model.class_template.weight, std=0.5)
     payload = {
         "model_name": name,
         "config": cfg,
@@ -76,9 +80,12 @@ def scans(n=4, k=200, seed=0) -> np.ndarray:
     return (np.random.default_rng(seed).uniform(-0.5, 0.5, (n, k, 3)) * [0.9, 0.4, 0.3]).astype(np.float32)
 
 
-@pytest.mark.parametrize("name, rig", [("sanet-hit", BOX), ("sanet", make_rig(8, 16, 60.0))])
-def test_class_input_gives_the_torch_outputs_of_each_class(tmp_path, name, rig):
-    ckpt = class_checkpoint(tmp_path / "m.pt", name, rig)
+@pytest.mark.parametrize(
+    "name, rig, templates",
+    [("sanet-hit", BOX, False), ("sanet", make_rig(8, 16, 60.0), False), ("sanet-hit", BOX, True)],
+)
+def test_class_input_gives_the_torch_outputs_of_each_class(tmp_path, name, rig, templates):
+    ckpt = class_checkpoint(tmp_path / "m.pt", name, rig, templates)
     onx = load_onnx_completer(export_onnx(ckpt, tmp_path / "m.onnx"))
     assert onx.classes == tuple(VOCAB) and onx.inputs[-1] == "classes" and onx.domain.classes == ("car", "bus")
     assert onx.meta["spotlights_format_version"] == "2" and json.loads(onx.meta["classes"]) == VOCAB

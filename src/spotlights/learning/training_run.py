@@ -333,7 +333,7 @@ def init_from_checkpoint(model: torch.nn.Module, path) -> None:
     """Load a checkpoint's weights into a new run's ``model`` (config ``model.init``, a fine-tune).
 
     Every weight of the checkpoint must fit; the model's parameters it lacks must be new ones that start
-    neutral (a class embedding, zero-initialised), so the model starts as the checkpoint's. Its hit threshold
+    neutral (a class embedding or class templates, zero-initialised), so the model starts as the checkpoint's. Its hit threshold
     is taken too. Raises :class:`InputFileError` naming the checkpoint otherwise."""
     ckpt = load_checkpoint(path)
     try:
@@ -341,7 +341,7 @@ def init_from_checkpoint(model: torch.nn.Module, path) -> None:
     except RuntimeError as exc:
         first = (str(exc).splitlines() or [""])[0][:160]
         raise InputFileError(ckpt["path"], f"its weights do not fit the model of this run ({first})") from None
-    bad = [k for k in missing if not k.startswith("class_embedding.")] + list(unexpected)
+    bad = [k for k in missing if not k.startswith(("class_embedding.", "class_template."))] + list(unexpected)
     if bad:
         raise InputFileError(ckpt["path"], f"its weights do not fit the model of this run ({', '.join(bad[:3])})")
     chosen = ckpt.get("hit_threshold")

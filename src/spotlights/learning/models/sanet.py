@@ -58,6 +58,11 @@ class SANet(CompletionModel):
         input (every checkpoint before it: a car model). With a vocabulary, a learned embedding per class
         (``class_embedding``, (C, code_size), **zero-initialised**) is added to the encoder's global code, so
         a model fine-tuned from a checkpoint without it starts as exactly that checkpoint.
+    class_templates : with ``classes``, also a learned **template per class** added to the decoder's outputs
+        (``class_template``, (C, outputs_per_ray * N*M), zero-initialised): each class's own offset of every
+        ray's outputs, so a class is not only a shift of the 1,024-d code that the decoder's narrow last hidden
+        layer (64 by default) must turn into a shape, but can hold a mean shape of its own (a box trailer is
+        not a sum of car shapes). Off by default; a model fine-tuned with it from one without starts as that one.
 
     forward: partial (B, K, 3), classes (B,) int64 or None -> {"depths": (B, N*M)}; a class index is a row of
     ``classes`` (-1 or ``None``: no class, the code as the encoder gives it).
@@ -77,6 +82,7 @@ class SANet(CompletionModel):
         output_activation: str = "none",
         clip: float | None = 0.2,
         classes: Sequence[str] | None = None,
+        class_templates: bool = False,
     ):
         super().__init__()
 
@@ -97,6 +103,12 @@ class SANet(CompletionModel):
         if self.classes:
             self.class_embedding = torch.nn.Embedding(len(self.classes), int(code_size))
             torch.nn.init.zeros_(self.class_embedding.weight)  # starts as the model without classes
+        if class_templates and not self.classes:
+            raise ValueError("class_templates needs a class vocabulary (classes)")
+        self.class_template = None
+        if class_templates:
+            self.class_template = torch.nn.Embedding(len(self.classes), self.outputs_per_ray * self.rig.n_rays)
+            torch.nn.init.zeros_(self.class_template.weight)  # starts as the model without templates
         origins, directions = rig_rays(self.rig)
         self.register_buffer("origins", torch.from_numpy(origins), persistent=False)
         self.register_buffer(
@@ -112,6 +124,15 @@ class SANet(CompletionModel):
         idx = torch.as_tensor(classes, device=code.device).long().reshape(-1)
         emb = self.class_embedding(idx.clamp(min=0)) * (idx >= 0).unsqueeze(-1)
         return code + emb.to(code.dtype)
+
+    def add_template(self, out: torch.Tensor, classes: torch.Tensor | None) -> torch.Tensor:
+        """The decoder's outputs ``out`` (B, outputs_per_ray * N*M) plus each scan's class template (``classes``
+        (B,) rows of :attr:`classes`; -1 or ``None``: nothing added); ``out`` itself without templates."""
+        if self.class_template is None or classes is None:
+            return out
+        idx = torch.as_tensor(classes, device=out.device).long().reshape(-1)
+        t = self.class_template(idx.clamp(min=0)) * (idx >= 0).unsqueeze(-1)
+        return out + t.to(out.dtype)
 
     def class_indices(self, names) -> torch.Tensor:
         """(B,) int64 rows of :attr:`classes` of class names (aliases resolved; ``None`` or an unknown class: -1)."""
@@ -204,7 +225,7 @@ class SANet(CompletionModel):
         return hit
 
     def forward(self, partial: torch.Tensor, classes: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
-        d = self.decoder(self.encode(partial, classes))
+        d = self.add_template(self.decoder(self.encode(partial, classes)), classes)
         if self.output_activation == "sigmoid":
             d = torch.sigmoid(d)
         elif self.output_activation == "relu":

@@ -48,7 +48,8 @@ class HitSANet(SANet):
     threshold_grid : thresholds tried on the validation split; ``None`` or ``[]`` keeps ``threshold``.
     hit_weight, depth_weight : loss weights of the BCE and the hit-only L1 terms.
     clip : optional depth clip applied on top of the hit decision (default None: none).
-    classes : class vocabulary of a class-conditioned model (:class:`~spotlights.learning.models.sanet.SANet`).
+    classes, class_templates : class vocabulary of a class-conditioned model and its optional per-class output
+        templates (:class:`~spotlights.learning.models.sanet.SANet`).
     box_weight : weight of the opt-in box term (default 0: the loss as before, exactly): the p(hit)-weighted
         distance of each ray's point outside its sample's grown box (:func:`box_outside_term`); the batch must
         then carry ``directions`` (B, N*M, 3) and ``box_half`` (B, 3) (the training loop adds them,
@@ -79,6 +80,7 @@ class HitSANet(SANet):
         float32_head: bool = False,
         classes: Sequence[str] | None = None,
         box_weight: float = 0.0,
+        class_templates: bool = False,
     ):
         super().__init__(
             rig,
@@ -88,6 +90,7 @@ class HitSANet(SANet):
             output_activation="none",
             clip=clip,
             classes=classes,
+            class_templates=class_templates,
         )
         self.decoder.float32_last = bool(float32_head)
         self.threshold = _check_probability(threshold, "threshold")
@@ -102,7 +105,7 @@ class HitSANet(SANet):
             raise ValueError(f"box_weight must be >= 0, got {box_weight}")
 
     def forward(self, partial: torch.Tensor, classes: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
-        out = self.decoder(self.encode(partial, classes))
+        out = self.add_template(self.decoder(self.encode(partial, classes)), classes)
         n = self.rig.n_rays
         return {"hit_logits": out[..., :n], "depths": out[..., n:]}
 
