@@ -135,7 +135,7 @@ def main() -> None:
         "completed_by_fallback": sum(o.completed_by is not None for o in result.completed),
         "threads": args.threads,
         "repeats": args.repeats,
-        "model_load_s": load_s,
+        "model_load_s": load_s,  # the main model and the fallback, if any
         "read": r_read,
         "complete": r_complete,
         "complete_heading_check": r_heading,

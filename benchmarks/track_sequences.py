@@ -123,7 +123,8 @@ def main(argv=None) -> int:
         gt = sample_surface(mesh, args.gt_points, seed=np.random.default_rng([args.seed, i, 1])) - seq["center_in_mesh"]
         frs = seq["frames"]
         # the representation's own floor: the mesh itself encoded on the model's rig in its true box, decoded
-        floor.append(truth_floor(mesh, seq["center_in_mesh"], frs[0]["true_box"].size, rig, gt))
+        if rig is not None:  # point-set models only: no rig, no floor
+            floor.append(truth_floor(mesh, seq["center_in_mesh"], frs[0]["true_box"].size, rig, gt))
         noisy = [TrackFrame(f["points"].astype(np.float64), f["noisy_box"], np.zeros(3), f["timestamp"]) for f in frs]
         boxes = {"true": [f["true_box"] for f in frs], "noisy": [f["noisy_box"] for f in frs]}
         for pol in refine:

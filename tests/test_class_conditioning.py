@@ -373,3 +373,36 @@ def test_api_complete_frame_by_name_completes_a_bus_with_the_class_model():
     assert res.objects[0].status == "completed" and res.objects[0].completed_by == "classes"
     assert complete_frame(pts, [bus], "default", fallback="none").objects[0].status == "not_learned"
     assert complete_frame(pts, [bus], load_completer("default")).objects[0].status == "not_learned"
+
+
+def test_complete_unknown_leaves_what_the_fallback_learned_to_the_fallback():
+    """``--complete-unknown`` is for what neither model learned: a bus still goes to the class model beside the
+    default (not to the car model), an emergency vehicle (learned by neither) to the main model."""
+    rng = np.random.default_rng(9)
+    bus = box([14.0, -3.0, 1.6], [12.0, 2.5, 3.2], "bus", "bus")
+    police = box([8.0, 3.0, 0.8], [4.9, 1.9, 1.9], "police", "emergency")
+    pts = np.concatenate(
+        [
+            rng.uniform([-6.0, -1.25, -1.5], [6.0, -1.2, 1.6], (600, 3)) + bus.center,
+            rng.uniform([-2.4, -0.95, -0.8], [2.4, -0.9, 0.9], (300, 3)) + police.center,
+        ]
+    )
+    res = complete_frame(pts, [bus, police], complete_unknown=True, heading_check=False)
+    assert [(o.status, o.completed_by) for o in res.objects] == [("completed", "classes"), ("completed", None)]
+    res = complete_frame(pts, [bus, police], heading_check=False)
+    assert [(o.status, o.completed_by) for o in res.objects] == [("completed", "classes"), ("not_learned", None)]
+
+
+def test_api_complete_one_object_takes_the_fallback_option():
+    """``spotlights.complete`` completes a bus with the class model by default; ``fallback="none"`` refuses it in one
+    line (the car-only default did not learn it)."""
+    from spotlights.api import complete
+    from spotlights.errors import ParameterError
+
+    rng = np.random.default_rng(10)
+    bus = box([14.0, -3.0, 1.6], [12.0, 2.5, 3.2], "bus", "bus")
+    pts = rng.uniform([-6.0, -1.25, -1.5], [6.0, -1.2, 1.6], (600, 3)) + bus.center
+    o = complete(pts, bus, heading_check=False)
+    assert o.status == "completed" and o.completed_by == "classes" and len(o.completion) > 1000
+    with pytest.raises(ParameterError, match="did not learn this box"):
+        complete(pts, bus, fallback="none")

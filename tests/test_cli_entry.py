@@ -3,6 +3,7 @@ spotlights``): a Ctrl-C while the command line's modules load gives one line and
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
 import textwrap
@@ -34,8 +35,6 @@ def _as_from_a_terminal() -> None:
     """Child processes start with SIGINT at its default, as a command typed in a terminal does: a test run launched
     as a background job (``make test &``) passes SIG_IGN down, and Python then keeps ignoring Ctrl-C (rightly so
     for a background command), which would leave nothing to test."""
-    import signal
-
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 

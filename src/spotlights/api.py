@@ -110,21 +110,23 @@ def complete(
     completer: Any = "default",
     *,
     axes: np.ndarray | None = None,
+    fallback: Any = AUTO_FALLBACK,
     **options: Any,
 ) -> ObjectResult:
     """Complete one object: the points of ``points`` (N, 3) inside ``box`` (scan frame, metres; grown by
     ``margin``, bottom raised by ``ground_clearance``, as in :func:`complete_frame`; ``crop=False`` uses
     every point), whatever the box's label.
 
-    ``completer`` and ``options`` (the fields of :class:`~spotlights.experiments.scene.SceneConfig`) as in
-    :func:`complete_frame`. Returns the box's :class:`~spotlights.experiments.scene.ObjectResult`: ``completion`` (K, 3) float64 in the scan's frame,
+    ``completer``, ``fallback`` (``"auto"``: the packaged class model completes a van, truck, bus or trailer beside
+    the default model; ``"none"``: no second model) and ``options`` (the fields of
+    :class:`~spotlights.experiments.scene.SceneConfig`) as in :func:`complete_frame`. Returns the box's :class:`~spotlights.experiments.scene.ObjectResult`: ``completion`` (K, 3) float64 in the scan's frame,
     ``completion_unit`` (K, 3) float32 in the box's unit frame, ``partial_unit`` (256, 3) float32 (the
     model's input), ``input_indices`` (the scan rows used). Raises
     :class:`~spotlights.errors.ParameterError` when the box is invalid, holds fewer than ``min_points``
     points or the completion is empty.
     """
     config = dataclasses.replace(_scene_config(None, options), any_label=True)
-    o = complete_frame(points, [box], completer, config, axes=axes).objects[0]
+    o = complete_frame(points, [box], completer, config, axes=axes, fallback=fallback).objects[0]
     if o.status == "invalid_box":
         raise ParameterError(f"the box is not valid (sizes must be positive and finite): {box!r}")
     if o.status == "too_few_points":

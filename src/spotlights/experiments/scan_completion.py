@@ -179,7 +179,8 @@ class CompletionOptions:
         )
 
     def load_fallback(self) -> BaseCompleter | None:
-        """The model of :attr:`fallback_model` (torch, same device and precision), or None."""
+        """The model of :attr:`fallback_model` (same device and precision; its runtime follows its file: a
+        ``.onnx`` runs with onnxruntime), or None."""
         fb = self.fallback_model
         if fb is None:
             return None

@@ -435,15 +435,17 @@ def _crop_objects(
         o.n_fused = None if more is None else len(pts)
         domain = getattr(completer, "domain", None)
         if domain is not None:
-            gated = not config.complete_unknown and domain.gate(b.cls, b.size) is not None
-            fb = getattr(fallback[0], "domain", None) if gated and fallback is not None else None
+            unlearned = domain.gate(b.cls, b.size) is not None
+            # a box the main model did not learn goes to a fallback that did, whatever --complete-unknown says
+            # (which is for what neither learned)
+            fb = getattr(fallback[0], "domain", None) if unlearned and fallback is not None else None
             if fb is not None and fallback is not None and fb.gate(b.cls, b.size) is None:  # the fallback learned it
                 o.completed_by = fallback[1]
                 o.warnings.extend(fb.warnings(b.cls, b.size))
                 objects.append(o)
                 continue
             o.warnings.extend(domain.warnings(b.cls, b.size))
-            if gated:
+            if unlearned and not config.complete_unknown:
                 o.status, o.used_box, o.partial_unit = "not_learned", None, None
                 hint = (
                     "--fallback classes completes it with the class model; "

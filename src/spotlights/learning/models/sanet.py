@@ -60,9 +60,10 @@ class SANet(CompletionModel):
         a model fine-tuned from a checkpoint without it starts as exactly that checkpoint.
     class_templates : with ``classes``, also a learned **template per class** added to the decoder's outputs
         (``class_template``, (C, outputs_per_ray * N*M), zero-initialised): each class's own offset of every
-        ray's outputs, so a class is not only a shift of the 1,024-d code that the decoder's narrow last hidden
-        layer (64 by default) must turn into a shape, but can hold a mean shape of its own (a box trailer is
-        not a sum of car shapes). Off by default; a model fine-tuned with it from one without starts as that one.
+        ray's outputs, so a class is not only a shift of the 1,024-d code that the decoder's last hidden
+        layer (64 wide in the shipped default.pt) must turn into a shape, but can hold a mean shape of its
+        own (a box trailer is not a sum of car shapes). Off by default; a model fine-tuned with it from one
+        without starts as that one.
 
     forward: partial (B, K, 3), classes (B,) int64 or None -> {"depths": (B, N*M)}; a class index is a row of
     ``classes`` (-1 or ``None``: no class, the code as the encoder gives it).
