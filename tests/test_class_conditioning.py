@@ -301,6 +301,8 @@ def test_a_vehicle_class_the_default_did_not_learn_points_to_the_class_model():
     both = complete_frame(pts, [bus, police], default, fallback="classes", heading_check=False)
     assert [o.status for o in both.objects] == ["completed", "not_learned"]
     assert not any("--fallback classes" in w for o in both.objects for w in o.warnings)
+    # the emergency vehicle's warning says the fallback did not learn it either
+    assert any("nor did the fallback classes learn it" in w for w in both.objects[1].warnings)
 
 
 def test_complete_cli_fallback_option(tmp_path):

@@ -447,11 +447,12 @@ def _crop_objects(
             o.warnings.extend(domain.warnings(b.cls, b.size))
             if unlearned and not config.complete_unknown:
                 o.status, o.used_box, o.partial_unit = "not_learned", None, None
-                hint = (
-                    "--fallback classes completes it with the class model; "
-                    if fallback is None and fallback_hint(b.cls, domain)
-                    else ""
-                )
+                if fallback is not None:
+                    hint = f"nor did the fallback {fallback[1]} learn it; "
+                elif fallback_hint(b.cls, domain):
+                    hint = "--fallback classes completes it with the class model; "
+                else:
+                    hint = ""
                 o.warnings.append(f"not completed (left as observed points; {hint}--complete-unknown completes it)")
         objects.append(o)
     return objects
