@@ -447,7 +447,9 @@ def _crop_objects(
             o.warnings.extend(domain.warnings(b.cls, b.size))
             if unlearned and not config.complete_unknown:
                 o.status, o.used_box, o.partial_unit = "not_learned", None, None
-                if fallback is not None:
+                if fallback is not None and fb is None:
+                    hint = f"the fallback {fallback[1]} records no learned domain, so it is not used; "
+                elif fallback is not None:
                     hint = f"nor did the fallback {fallback[1]} learn it; "
                 elif fallback_hint(b.cls, domain):
                     hint = "--fallback classes completes it with the class model; "
