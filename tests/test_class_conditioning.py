@@ -26,10 +26,15 @@ from helpers import assert_user_error, run_cli
 VOCAB = ["car", "caravan", "truck", "bus", "trailer"]
 
 
-def tiny(classes=None, seed=0) -> HitSANet:
+def tiny(classes=None, seed=0, templates=False) -> HitSANet:
     torch.manual_seed(seed)
     m = HitSANet(
-        make_rig_spec(8, 8, kind="box"), code_size=32, encoder_widths=(8, 16, 16), hidden=(16,), classes=classes
+        make_rig_spec(8, 8, kind="box"),
+        code_size=32,
+        encoder_widths=(8, 16, 16),
+        hidden=(16,),
+        classes=classes,
+        class_templates=templates,
     )
     return m.eval()
 
@@ -59,15 +64,7 @@ def test_class_templates_start_neutral_add_their_class_row_and_learn_only_it():
     fine-tune's start); a row is added, exactly, to the outputs of its class only (-1: nothing); the loss's
     gradient reaches only the rows of the batch's classes."""
     cond = tiny(VOCAB)
-    torch.manual_seed(0)
-    tmpl = HitSANet(
-        make_rig_spec(8, 8, kind="box"),
-        code_size=32,
-        encoder_widths=(8, 16, 16),
-        hidden=(16,),
-        classes=VOCAB,
-        class_templates=True,
-    ).eval()
+    tmpl = tiny(VOCAB, seed=0, templates=True)
     missing, unexpected = tmpl.load_state_dict(cond.state_dict(), strict=False)
     assert missing == ["class_template.weight"] and not unexpected
     x = torch.rand(3, 40, 3) - 0.5
@@ -102,15 +99,7 @@ def test_init_from_a_checkpoint_without_templates_starts_as_it(tmp_path):
     cond = tiny(VOCAB, seed=3)
     path = tmp_path / "c.pt"
     save_checkpoint(path, {"model_name": "sanet-hit", "model_state": cond.state_dict(), "config": {}})
-    torch.manual_seed(1)
-    tmpl = HitSANet(
-        make_rig_spec(8, 8, kind="box"),
-        code_size=32,
-        encoder_widths=(8, 16, 16),
-        hidden=(16,),
-        classes=VOCAB,
-        class_templates=True,
-    ).eval()
+    tmpl = tiny(VOCAB, seed=1, templates=True)
     init_from_checkpoint(tmpl, path)
     x = torch.rand(2, 40, 3) - 0.5
     with torch.no_grad():

@@ -138,14 +138,20 @@ def test_suv_hold_out_of_the_ray_local_model():
     _says("docs/learning.md", f"the one of stop 23 ({default:.6f} on the SUVs)")
 
 
+def _real_cell(name: str, where: str, cls: str) -> str:
+    """One cell of the issue-27 real-data tables: inside / fidelity / consistency at equal density of class ``cls``
+    in ``docs/results/i27/{name}-{where}.json``, as the docs print it."""
+    m = _json(f"i27/{name}-{where}.json")["models"][0]
+    ins, fid = m["inside_box"][cls], m["classes"][cls]["fidelity"]
+    cd = m["equal_density"]["classes"][cls]["cd"]
+    return f"{100 * ins:.1f}% / {fid:.4f} / {cd:.4f}"
+
+
 def test_issue27_box_term_rows():
     """docs/real-data.md's box-term table: each class's inside / fidelity / consistency of the three models."""
 
     def cell(name: str, cls: str) -> str:
-        m = _json(f"i27/{name}-nuscenes.json")["models"][0]
-        ins, fid = m["inside_box"][cls], m["classes"][cls]["fidelity"]
-        cd = m["equal_density"]["classes"][cls]["cd"]
-        return f"{100 * ins:.1f}% / {fid:.4f} / {cd:.4f}"
+        return _real_cell(name, "nuscenes", cls)
 
     for cls, objects in (("trailer", 12), ("car", 23)):
         row = " | ".join(cell(n, cls) for n in ("classes", "classes-box", "classes-box30"))
@@ -166,11 +172,7 @@ def test_issue27_weight0_control():
 def test_issue27_wider_coverage_candidate():
     """docs/real-data.md's wider-coverage table: the trailers' and AV2 truck's rows from the two models' JSONs."""
 
-    def cell(name: str, where: str, cls: str) -> str:
-        m = _json(f"i27/{name}-{where}.json")["models"][0]
-        ins, fid = m["inside_box"][cls], m["classes"][cls]["fidelity"]
-        cd = m["equal_density"]["classes"][cls]["cd"]
-        return f"{100 * ins:.1f}% / {fid:.4f} / {cd:.4f}"
+    cell = _real_cell
 
     old, new = cell("classes-box30", "nuscenes", "trailer"), cell("classes-v2", "nuscenes", "trailer")
     _says(
@@ -211,11 +213,7 @@ def test_track_sequences_truth_floor():
 def test_issue27_weight60_rows():
     """docs/real-data.md's weight-60 table: each class's inside / fidelity / consistency of both models, from the JSONs."""
 
-    def cell(name: str, where: str, cls: str) -> str:
-        m = _json(f"i27/{name}-{where}.json")["models"][0]
-        ins, fid = m["inside_box"][cls], m["classes"][cls]["fidelity"]
-        cd = m["equal_density"]["classes"][cls]["cd"]
-        return f"{100 * ins:.1f}% / {fid:.4f} / {cd:.4f}"
+    cell = _real_cell
 
     rows = (
         ("nuscenes", "nuScenes", "car", 23),
@@ -242,11 +240,7 @@ def test_issue27_class_template_rows():
     """docs/real-data.md's class-template table (four models, six rows) and the test cars, from their JSONs."""
     names = ("classes-w60", "classes-ctl", "classes-tmpl", "classes-tmpl100")
 
-    def cell(name: str, where: str, cls: str) -> str:
-        m = _json(f"i27/{name}-{where}.json")["models"][0]
-        ins, fid = m["inside_box"][cls], m["classes"][cls]["fidelity"]
-        cd = m["equal_density"]["classes"][cls]["cd"]
-        return f"{100 * ins:.1f}% / {fid:.4f} / {cd:.4f}"
+    cell = _real_cell
 
     rows = [("nuscenes", "nuScenes", c, n) for c, n in (("car", 23), ("truck", 7), ("trailer", 12), ("bus", 1))]
     for where, label, cls, n in rows + [("av2", "AV2", "car", 20)]:
