@@ -324,6 +324,7 @@ def test_complete_cli_fallback_option(tmp_path):
     proc = run_cli(*args[:-1], tmp_path / "auto.ply", "--summary", tmp_path / "u.json")
     assert proc.returncode == 0, proc.stderr
     auto = json.loads((tmp_path / "u.json").read_text())
+    assert "2 completed (1 by the fallback classes)" in proc.stdout + proc.stderr  # the one summary line says so
     assert auto["checkpoint"] == "default + fallback classes"
     assert [(o["status"], o.get("completed_by")) for o in auto["objects"]] == [
         ("completed", None),
@@ -397,3 +398,23 @@ def test_api_complete_one_object_takes_the_fallback_option():
     assert o.status == "completed" and o.completed_by == "classes" and len(o.completion) > 1000
     with pytest.raises(ParameterError, match="did not learn this box"):
         complete(pts, bus, fallback="none")
+
+
+def test_real_complete_counts_the_boxes_the_fallback_completed(tmp_path):
+    """`real complete` on two nuScenes keyframes, the default with its fallback: summary.json's totals count the
+    boxes the class model completed (equal to the frames' objects marked completed_by) and the line says so."""
+    from helpers import LIDAR, need
+
+    src = need(LIDAR / "nuscenes")
+    out = tmp_path / "o"
+    proc = run_cli("real", "complete", src, "--format", "nuscenes", "--frames", "0:2", "--no-pictures", "--out", out)
+    assert proc.returncode == 0, proc.stderr
+    summ = json.loads((out / "summary.json").read_text())
+    by = [
+        o["completed_by"]
+        for p in sorted(out.glob("*/*.json"))
+        for o in json.loads(p.read_text())["objects"]
+        if o.get("completed_by")
+    ]
+    assert by and set(by) == {"classes"} and summ["totals"]["completed_by"] == {"classes": len(by)}
+    assert f"({len(by)} by the fallback classes)" in proc.stdout + proc.stderr

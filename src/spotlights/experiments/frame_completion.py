@@ -446,6 +446,10 @@ class _FrameRun:
         totals["completed"] += summ["n_completed"]
         totals["flipped"] += summ["n_flipped"]
         totals["completion_points"] += sum(o["n_completion"] for o in done)
+        for o in done:  # boxes a fallback model completed, per model
+            if o.get("completed_by"):
+                by = totals.setdefault("completed_by", {})
+                by[o["completed_by"]] = by.get(o["completed_by"], 0) + 1
         for k, v in summ["skipped"].items():
             totals["skipped"][k] = totals["skipped"].get(k, 0) + v
         for k, v in summ.get("not_completed", {}).items():  # boxes the model did not learn, per class
@@ -491,8 +495,11 @@ class _FrameRun:
         flips = f", {totals['flipped']} heading flip(s)" if self.config.heading_check else ""
         sk = ", ".join(f"{k} {v}" for k, v in sorted(totals["skipped"].items()))
         resumed = f"; {totals['resumed']} frame(s) already done" if totals["resumed"] else ""
+        by = ", ".join(f"{v} by the fallback {k}" for k, v in sorted(totals.get("completed_by", {}).items()))
         return (
-            f"{n_frames} frame(s), {totals['boxes']} boxes: {totals['completed']} completed{flips}"
+            f"{n_frames} frame(s), {totals['boxes']} boxes: {totals['completed']} completed"
+            + (f" ({by})" if by else "")
+            + flips
             + (f", skipped {sk}" if sk else "")
             + (
                 " (not_learned: left as observed points; "

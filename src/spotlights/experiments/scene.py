@@ -637,8 +637,13 @@ def describe(result: SceneResult) -> str:
     """One line: boxes, completed objects, skips, points, time."""
     sk = result.skipped()
     flips = sum(o.flipped for o in result.completed)
+    by: dict = {}
+    for o in result.completed:
+        if o.completed_by:
+            by[o.completed_by] = by.get(o.completed_by, 0) + 1
     return (
         f"{len(result.objects)} box(es): {len(result.completed)} completed"
+        + ("".join(f" ({v} by the fallback {k})" for k, v in sorted(by.items())))
         + (f" ({flips} heading flip{'s' if flips != 1 else ''})" if result.config.heading_check else "")
         + (", skipped " + ", ".join(f"{k} {v}" for k, v in sorted(sk.items())) if sk else "")
         + (
