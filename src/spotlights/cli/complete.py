@@ -35,7 +35,8 @@ def add_completion_arguments(p, single: bool) -> None:
         default=None,
         metavar="LIST",
         help="comma-separated classes to complete (default: every vehicle class: car, truck, caravan, trailer, "
-        "bus, construction, emergency; the model learned cars, others get a warning)",
+        "bus, construction, emergency; the default model learned cars, its --fallback the others but construction "
+        "and emergency vehicles, which are left as observed points)",
     )
     p.add_argument(
         "--fallback",
