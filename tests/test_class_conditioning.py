@@ -383,6 +383,12 @@ def test_complete_unknown_leaves_what_the_fallback_learned_to_the_fallback():
     assert [(o.status, o.completed_by) for o in res.objects] == [("completed", "classes"), ("completed", None)]
     res = complete_frame(pts, [bus, police], heading_check=False)
     assert [(o.status, o.completed_by) for o in res.objects] == [("completed", "classes"), ("not_learned", None)]
+    # with the heading check, both models' doubled batches stay in order: the same completions as each box alone
+    both = complete_frame(pts, [bus, police], complete_unknown=True, heading_check=True)
+    assert [(o.status, o.completed_by) for o in both.objects] == [("completed", "classes"), ("completed", None)]
+    for k, b in enumerate((bus, police)):
+        alone = complete_frame(pts, [b], complete_unknown=True, heading_check=True).objects[0]
+        np.testing.assert_array_equal(both.objects[k].completion, alone.completion)
 
 
 def test_api_complete_one_object_takes_the_fallback_option():
