@@ -424,3 +424,40 @@ def test_real_complete_counts_the_boxes_the_fallback_completed(tmp_path):
     ]
     assert by and set(by) == {"classes"} and summ["totals"]["completed_by"] == {"classes": len(by)}
     assert f"({len(by)} by the fallback classes)" in proc.stdout + proc.stderr
+
+
+def test_data_classes_keeps_one_class_family_and_its_learned_domain(tmp_path):
+    """``data.classes`` (one model per class family): the split keeps only the models of those classes (their
+    samples, model by model), the learned domain a training run records is theirs alone, a class with no model in
+    the split is a one-line error naming the file, and the config key must be a list of names."""
+    from spotlights.errors import InputFileError, ParameterError
+    from spotlights.learning.config import data_config
+    from spotlights.learning.data import TorchCompletionDataset
+    from spotlights.learning.inference import LearnedDomain
+
+    from learning_fixtures import write_tiny_dataset
+
+    layout = (
+        ("sedan", "train"),
+        ("bus", "train"),
+        ("suv", "train"),
+        ("bus", "train"),
+        ("bus", "val"),
+        ("sedan", "val"),
+    )
+    path = write_tiny_dataset(tmp_path / "mix.h5", views=3, layout=layout)
+    every = TorchCompletionDataset(path, "train", rig=False)
+    buses = TorchCompletionDataset(path, "train", rig=False, only_classes=["Bus"])
+    assert every.model_rows.tolist() == [0, 1, 2, 3] and buses.model_rows.tolist() == [1, 3]
+    assert len(buses) == 6 and sorted(set(buses.sample_models.tolist())) == [1, 3]
+    assert TorchCompletionDataset(path, "val", rig=False, only_classes=["bus"]).model_rows.tolist() == [4]
+    rows = buses.model_rows  # what training records as the learned domain (train._learned_domain)
+    dom = LearnedDomain.from_training_set(buses.info.categories[rows], np.ones((2, 3)) * 10, "mix.h5")
+    assert dom.classes == ("bus",)
+    with pytest.raises(InputFileError, match="mix.h5.*no models of class trailer"):
+        TorchCompletionDataset(path, "train", rig=False, only_classes=["trailer"])
+    assert data_config({"data": {"classes": ["trailer"]}}).classes == ("trailer",)
+    assert data_config({"data": {}}).classes is None
+    for bad in ("trailer", [], [3]):
+        with pytest.raises(ParameterError, match="data.classes must be a list"):
+            data_config({"data": {"classes": bad}})

@@ -43,6 +43,8 @@ class DataConfig:
     val_max_views : validation views per model (None = all).
     num_workers : DataLoader worker processes (0: load in the main process).
     partials_in_memory : read a split's partial scans into memory once (else lazily per sample).
+    classes : train and validate on these classes' models only (a class family's model, e.g. ``[trailer]``);
+        None: every model.
     """
 
     rig: str | None = None
@@ -50,6 +52,7 @@ class DataConfig:
     val_max_views: int | None = 200
     num_workers: int = 0
     partials_in_memory: bool = True
+    classes: tuple | None = None
 
 
 @dataclass(frozen=True)
@@ -321,7 +324,17 @@ def data_config(cfg: dict) -> DataConfig:
         val_max_views=_int(d.get("val_max_views", 200), "data.val_max_views", 1, none_ok=True),
         num_workers=_int(d.get("num_workers", 0) or 0, "data.num_workers", 0),
         partials_in_memory=pim,
+        classes=_class_list(d.get("classes")),
     )
+
+
+def _class_list(value) -> tuple | None:
+    """``data.classes``: a list of class names (None: every model)."""
+    if value is None:
+        return None
+    if not isinstance(value, (list, tuple)) or not value or not all(isinstance(c, str) and c for c in value):
+        raise ParameterError(f"data.classes must be a list of class names (e.g. [trailer]), got {value!r}")
+    return tuple(value)
 
 
 def train_config(cfg: dict) -> TrainConfig:

@@ -138,6 +138,8 @@ class TorchCompletionDataset(Dataset):
     partials_in_memory : read all the split's partial scans at construction.
     class_vocab : a class-conditioned model's class names: items get ``cls``, the row of their model's
         class (``/models/class``, or the class of its category for older files) in it, -1 when absent.
+    only_classes : keep only the models of these classes (config ``data.classes``: one model per class family;
+        the learned domain recorded at training then holds only them); None: every model of the split.
 
     Attributes: ``rig`` (the served rig's :class:`~spotlights.geometry.rig.RigSpec`, or None; a
     box-targeted spec's rig is aimed at each model's own box), ``extents`` ((n_models, 3) float64
@@ -158,6 +160,7 @@ class TorchCompletionDataset(Dataset):
         max_views: int | None = None,
         partials_in_memory: bool = False,
         class_vocab=None,
+        only_classes=None,
     ):
         if split not in (*SPLITS, "all"):
             raise ParameterError(f"split must be one of {', '.join(SPLITS)} or all, got {split!r}")
@@ -167,6 +170,12 @@ class TorchCompletionDataset(Dataset):
             self.path = str(info.path)
             self.split = split
             self.model_rows = np.flatnonzero(info.splits == split) if split != "all" else np.arange(info.n_models)
+            if only_classes:  # a class family's model: only these classes' models of the split
+                want = {canonical_class(c) for c in only_classes}
+                of = np.array([canonical_class(c) in want for c in np.asarray(store.classes).astype(str)])
+                self.model_rows = self.model_rows[of[self.model_rows]]
+                if len(self.model_rows) == 0:
+                    raise InputFileError(self.path, f"split {split!r} has no models of class {', '.join(sorted(want))}")
             keep = np.isin(info.sample_model, self.model_rows)
             if max_views is not None:
                 if int(max_views) < 1:

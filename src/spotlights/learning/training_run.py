@@ -248,6 +248,7 @@ def prepare_run(dist: ProcessGroup, settings: TrainSettings, log) -> TrainingRun
         max_views=dcfg.max_views,
         partials_in_memory=dcfg.partials_in_memory,
         class_vocab=vocab,
+        only_classes=dcfg.classes,
     )
     val_set = TorchCompletionDataset(
         data,
@@ -256,6 +257,7 @@ def prepare_run(dist: ProcessGroup, settings: TrainSettings, log) -> TrainingRun
         max_views=dcfg.val_max_views,
         partials_in_memory=dcfg.partials_in_memory,
         class_vocab=vocab,
+        only_classes=dcfg.classes,
     )
     rig = train_set.rig if wants_depths else None  # the dataset's RigSpec
     if state is not None and not settings.allow_new_data:
