@@ -43,6 +43,21 @@ def box(center, size, label, cls) -> Box:
     return Box(np.asarray(center, float), np.asarray(size, float), np.eye(3), label, cls, None)
 
 
+def bus_and_police(seed: int) -> tuple[Box, Box, np.ndarray]:
+    """A 12 m bus (learned by the class model only) and a police car (class emergency: learned by neither model),
+    each with points on the side facing the sensor: (bus, police, (900, 3) points)."""
+    rng = np.random.default_rng(seed)
+    bus = box([14.0, -3.0, 1.6], [12.0, 2.5, 3.2], "bus", "bus")
+    police = box([8.0, 3.0, 0.8], [4.9, 1.9, 1.9], "police", "emergency")
+    pts = np.concatenate(
+        [
+            rng.uniform([-6.0, -1.25, -1.5], [6.0, -1.2, 1.6], (600, 3)) + bus.center,
+            rng.uniform([-2.4, -0.95, -0.8], [2.4, -0.9, 0.9], (300, 3)) + police.center,
+        ]
+    )
+    return bus, police, pts
+
+
 def test_zero_embedding_starts_as_the_model_without_classes_and_classes_then_differ():
     plain, cond = tiny(), tiny(VOCAB)
     cond.load_state_dict(plain.state_dict(), strict=False)  # the embedding keeps its zeros
@@ -273,15 +288,7 @@ def test_fallback_model_completes_what_the_main_model_did_not_learn_and_leaves_t
 def test_a_vehicle_class_the_default_did_not_learn_points_to_the_class_model():
     """A bus left as observed points by the car-only default: its warning names `--fallback classes` (the packaged
     class model learned buses); an emergency vehicle (learned by neither) and a bus with a fallback given do not."""
-    rng = np.random.default_rng(7)
-    bus = box([14.0, -3.0, 1.6], [12.0, 2.5, 3.2], "bus", "bus")
-    police = box([8.0, 3.0, 0.8], [4.9, 1.9, 1.9], "police", "emergency")
-    pts = np.concatenate(
-        [
-            rng.uniform([-6.0, -1.25, -1.5], [6.0, -1.2, 1.6], (600, 3)) + bus.center,
-            rng.uniform([-2.4, -0.95, -0.8], [2.4, -0.9, 0.9], (300, 3)) + police.center,
-        ]
-    )
+    bus, police, pts = bus_and_police(seed=7)
     default = load_completer("default")
     res = complete_frame(pts, [bus, police], default, heading_check=False)
     assert [o.status for o in res.objects] == ["not_learned", "not_learned"]
@@ -370,15 +377,7 @@ def test_api_complete_frame_by_name_completes_a_bus_with_the_class_model():
 def test_complete_unknown_leaves_what_the_fallback_learned_to_the_fallback():
     """``--complete-unknown`` is for what neither model learned: a bus still goes to the class model beside the
     default (not to the car model), an emergency vehicle (learned by neither) to the main model."""
-    rng = np.random.default_rng(9)
-    bus = box([14.0, -3.0, 1.6], [12.0, 2.5, 3.2], "bus", "bus")
-    police = box([8.0, 3.0, 0.8], [4.9, 1.9, 1.9], "police", "emergency")
-    pts = np.concatenate(
-        [
-            rng.uniform([-6.0, -1.25, -1.5], [6.0, -1.2, 1.6], (600, 3)) + bus.center,
-            rng.uniform([-2.4, -0.95, -0.8], [2.4, -0.9, 0.9], (300, 3)) + police.center,
-        ]
-    )
+    bus, police, pts = bus_and_police(seed=9)
     res = complete_frame(pts, [bus, police], complete_unknown=True, heading_check=False)
     assert [(o.status, o.completed_by) for o in res.objects] == [("completed", "classes"), ("completed", None)]
     res = complete_frame(pts, [bus, police], heading_check=False)

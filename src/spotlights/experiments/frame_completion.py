@@ -37,6 +37,7 @@ from .scene import (
     SceneConfig,
     SceneResult,
     complete_scene,
+    fallback_counts,
     fallback_hint,
     render_result,
     render_result_html,
@@ -446,10 +447,9 @@ class _FrameRun:
         totals["completed"] += summ["n_completed"]
         totals["flipped"] += summ["n_flipped"]
         totals["completion_points"] += sum(o["n_completion"] for o in done)
-        for o in done:  # boxes a fallback model completed, per model
-            if o.get("completed_by"):
-                by = totals.setdefault("completed_by", {})
-                by[o["completed_by"]] = by.get(o["completed_by"], 0) + 1
+        by = Counter(o["completed_by"] for o in done if o.get("completed_by"))  # boxes a fallback completed
+        if by:
+            totals["completed_by"] = dict(Counter(totals.get("completed_by", {})) + by)
         for k, v in summ["skipped"].items():
             totals["skipped"][k] = totals["skipped"].get(k, 0) + v
         for k, v in summ.get("not_completed", {}).items():  # boxes the model did not learn, per class
@@ -495,7 +495,7 @@ class _FrameRun:
         flips = f", {totals['flipped']} heading flip(s)" if self.config.heading_check else ""
         sk = ", ".join(f"{k} {v}" for k, v in sorted(totals["skipped"].items()))
         resumed = f"; {totals['resumed']} frame(s) already done" if totals["resumed"] else ""
-        by = ", ".join(f"{v} by the fallback {k}" for k, v in sorted(totals.get("completed_by", {}).items()))
+        by = fallback_counts(totals.get("completed_by", {}))
         return (
             f"{n_frames} frame(s), {totals['boxes']} boxes: {totals['completed']} completed"
             + (f" ({by})" if by else "")

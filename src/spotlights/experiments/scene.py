@@ -29,6 +29,7 @@ scan whose up axis is not z into the object convention first and the results bac
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -460,6 +461,11 @@ def _crop_objects(
     return objects
 
 
+def fallback_counts(by: dict) -> str:
+    """``{fallback name: boxes it completed}`` as the summary lines say it ("4 by the fallback classes"; "" for none)."""
+    return ", ".join(f"{v} by the fallback {k}" for k, v in sorted(by.items()))
+
+
 def fallback_hint(cls: str | None, domain) -> bool:
     """True when a box of class ``cls`` that the model of ``domain`` (a
     :class:`~spotlights.learning.inference.LearnedDomain`) did not learn is of a vehicle class the packaged class
@@ -637,13 +643,10 @@ def describe(result: SceneResult) -> str:
     """One line: boxes, completed objects, skips, points, time."""
     sk = result.skipped()
     flips = sum(o.flipped for o in result.completed)
-    by: dict = {}
-    for o in result.completed:
-        if o.completed_by:
-            by[o.completed_by] = by.get(o.completed_by, 0) + 1
+    by = fallback_counts(Counter(o.completed_by for o in result.completed if o.completed_by))
     return (
         f"{len(result.objects)} box(es): {len(result.completed)} completed"
-        + ("".join(f" ({v} by the fallback {k})" for k, v in sorted(by.items())))
+        + (f" ({by})" if by else "")
         + (f" ({flips} heading flip{'s' if flips != 1 else ''})" if result.config.heading_check else "")
         + (", skipped " + ", ".join(f"{k} {v}" for k, v in sorted(sk.items())) if sk else "")
         + (

@@ -40,6 +40,16 @@ def _digest(x: torch.Tensor) -> bytes:
     return h.digest()
 
 
+def _plus_class_rows(x: torch.Tensor, table, classes) -> torch.Tensor:
+    """``x`` (B, D) plus row ``classes[b]`` of ``table`` (an ``Embedding`` with D columns) for each scan ``b``; a class
+    of -1 adds nothing; ``x`` itself when ``table`` or ``classes`` is None. The row is cast to ``x``'s dtype."""
+    if table is None or classes is None:
+        return x
+    idx = torch.as_tensor(classes, device=x.device).long().reshape(-1)
+    rows = table(idx.clamp(min=0)) * (idx >= 0).unsqueeze(-1)
+    return x + rows.to(x.dtype)
+
+
 class SANet(CompletionModel):
     """Spotlights Array Network.
 
@@ -119,21 +129,12 @@ class SANet(CompletionModel):
     def encode(self, partial: torch.Tensor, classes: torch.Tensor | None = None) -> torch.Tensor:
         """The global code (B, code_size): the encoder's, plus the class embedding of each scan's class
         (``classes`` (B,) int64 rows of :attr:`classes`; -1 or ``None``: nothing added)."""
-        code = self.encoder(partial)
-        if self.class_embedding is None or classes is None:
-            return code
-        idx = torch.as_tensor(classes, device=code.device).long().reshape(-1)
-        emb = self.class_embedding(idx.clamp(min=0)) * (idx >= 0).unsqueeze(-1)
-        return code + emb.to(code.dtype)
+        return _plus_class_rows(self.encoder(partial), self.class_embedding, classes)
 
     def add_template(self, out: torch.Tensor, classes: torch.Tensor | None) -> torch.Tensor:
         """The decoder's outputs ``out`` (B, outputs_per_ray * N*M) plus each scan's class template (``classes``
         (B,) rows of :attr:`classes`; -1 or ``None``: nothing added); ``out`` itself without templates."""
-        if self.class_template is None or classes is None:
-            return out
-        idx = torch.as_tensor(classes, device=out.device).long().reshape(-1)
-        t = self.class_template(idx.clamp(min=0)) * (idx >= 0).unsqueeze(-1)
-        return out + t.to(out.dtype)
+        return _plus_class_rows(out, self.class_template, classes)
 
     def class_indices(self, names) -> torch.Tensor:
         """(B,) int64 rows of :attr:`classes` of class names (aliases resolved; ``None`` or an unknown class: -1)."""
