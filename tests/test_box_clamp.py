@@ -123,3 +123,29 @@ def test_complete_in_boxes_holds_the_grown_box_and_reports_the_share():
     # the same through the geometry function
     again, shares2 = clamp_to_grown_boxes(_Outside().complete([0, 0]), sizes)
     assert shares2 == shares and all(np.array_equal(a, b) for a, b in zip(again, outs))
+
+
+def test_clamp_points_at_the_float32_edge_of_the_box():
+    """Points on, one float32 step inside and one step outside the box's face (float64 half-extents that are not
+    float32 numbers): inside exactly when |p| <= half in float64, as the definition says."""
+    half = np.array([HX, HY, HZ])
+    h32 = half.astype(np.float32)
+    below = np.where(h32.astype(np.float64) > half, np.nextafter(h32, np.float32(0)), h32)  # largest float32 <= half
+    above = np.nextafter(below, np.float32(2))
+    p = np.zeros((6, 3), np.float32)
+    for axis in range(3):
+        p[2 * axis, axis] = below[axis]
+        p[2 * axis + 1, axis] = -above[axis]
+    truth = np.all(np.abs(p.astype(np.float64)) <= half, axis=1)  # the definition, in float64
+    assert truth.tolist() == [True, False] * 3
+    out, share = clamp_points_to_box(p, half)
+    assert share == pytest.approx(truth.mean())
+    assert np.array_equal(out[truth], p[truth])
+    assert np.all(np.abs(out.astype(np.float64)) <= half)
+    # all inside: the points come back unchanged, share 1
+    same, share = clamp_points_to_box(p[truth], half)
+    assert share == 1.0 and np.array_equal(same, p[truth])
+    # NaN stays NaN and counts as outside
+    nan = np.array([[np.nan, 0, 0], [0.0, 0, 0]], np.float32)
+    out, share = clamp_points_to_box(nan, half)
+    assert share == 0.5 and np.isnan(out[0, 0]) and np.array_equal(out[1], nan[1])

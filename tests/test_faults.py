@@ -193,6 +193,58 @@ def test_every_writer_fails_cleanly_when_a_write_fails(writer, meshes, built, tm
     assert not list(tmp.glob("pymp-*")), "multiprocessing's folder left behind"
 
 
+@pytest.mark.timeout(300)
+def test_real_complete_fails_cleanly_when_a_frame_write_fails(tmp_path):
+    """``real complete`` writes each frame's PLY and JSON on a thread while the next frame is completed: a write
+    that fails there (files limited to 40 kB: EFBIG, as ENOSPC) still ends the run with one line, exit 2, and
+    nothing left (no frame could be written: no output folder either)."""
+    scans = three_frames(tmp_path / "scans")
+    work, tmp = tmp_path / "work", Path(tempfile.mkdtemp(prefix="w-"))
+    work.mkdir()
+    args = ["real", "complete", scans, "--format", "generic", "--out", work / "out", "--no-pictures", "-q"]
+    proc = run_limited(LIMIT, *args, cwd=tmp_path, tmp=tmp)
+    assert_user_error(proc, "cannot write")
+    assert not listing(work), (listing(work), proc.stderr)
+
+
+@pytest.mark.timeout(300)
+def test_a_failed_frame_write_stops_the_run_at_the_next_frame(tmp_path, monkeypatch):
+    """The second frame's PLY fails on the writer thread: the run stops with that error before a third frame is
+    written; the first frame's PLY and JSON stay (a resumed run continues from them), the second has neither
+    (nor a temporary)."""
+    from spotlights.cli import main
+    from spotlights.errors import OutputFileError
+    from spotlights.experiments import frame_completion
+
+    scans = three_frames(tmp_path / "scans")
+    real_write, calls = frame_completion.write_scene, []
+
+    def failing(result, out, *a, **k):
+        calls.append(Path(out).name)
+        if len(calls) == 2:
+            raise OutputFileError(out, "cannot write (no space left on device)")
+        return real_write(result, out, *a, **k)
+
+    monkeypatch.setattr(frame_completion, "write_scene", failing)
+    out = tmp_path / "out"
+    code = main(["real", "complete", str(scans), "--format", "generic", "--out", str(out), "--no-pictures", "-q"])
+    assert code == 2
+    assert calls == ["f0.ply", "f1.ply"]  # the third frame's files were never started
+    names = {p.name for p in out.rglob("*")}
+    assert {"f0.ply", "f0.json"} <= names
+    assert not names & {"f1.ply", "f1.json", "f2.ply", "f2.json", "summary.json"}
+    assert not [n for n in names if ".part" in n], names
+
+
+def three_frames(root: Path) -> Path:
+    """:func:`scan_folder` with its frame copied twice: f0, f1, f2."""
+    scans = scan_folder(root)
+    for k in (1, 2):
+        shutil.copy(scans / "f0.npy", scans / f"f{k}.npy")
+        shutil.copy(scans / "f0.json", scans / f"f{k}.json")
+    return scans
+
+
 def test_build_on_a_full_tmpfs(meshes, tmp_path):
     """The same on a real full disk (ENOSPC): a 1 MiB tmpfs; needs root and mount (else skipped)."""
     if os.geteuid() != 0 or not shutil.which("mount"):

@@ -78,3 +78,41 @@ def test_oriented_box_full_rotation_equals_yaw():
 def test_degenerate_inputs_rejected(call):
     with pytest.raises(ParameterError):
         call()
+
+
+def test_clamp_to_unit_sphere_near_the_sphere():
+    """Points just inside, on and just outside the unit sphere, and far inside: every point whose float64 norm
+    exceeds 1 moves onto (just inside) the sphere along its ray; the others come back bit for bit."""
+    from spotlights.geometry.frames import clamp_to_unit_sphere
+
+    rng = np.random.default_rng(3)
+    u = rng.normal(size=(2000, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    radii = np.concatenate(
+        [rng.uniform(0.0, 0.998, 500), 1.0 + rng.uniform(-1e-6, 1e-6, 1000), rng.uniform(1.001, 3, 500)]
+    )
+    p = (u * radii[:, None]).astype(np.float32)
+    r = np.linalg.norm(p.astype(np.float64), axis=1)  # the definition: float64 norms of the float32 points
+    out = clamp_to_unit_sphere(p)
+    outside = r > 1.0
+    assert 0 < outside[500:1500].sum() < 1000  # the band straddles the sphere
+    assert np.array_equal(out[~outside], p[~outside])
+    assert np.all(np.linalg.norm(out.astype(np.float64), axis=1) <= 1.0)
+    moved = out[outside].astype(np.float64)
+    np.testing.assert_allclose(np.linalg.norm(moved, axis=1), 1.0, atol=1e-6)
+    np.testing.assert_allclose(moved / np.linalg.norm(moved, axis=1, keepdims=True), u[outside], atol=1e-5)
+
+
+def test_box_normalization_is_made_once_and_follows_replace():
+    """Box.normalization() is computed once per (immutable) box; a replaced box gets its own."""
+    import pickle
+
+    b = Box([1.0, 2.0, 0.5], [4.0, 2.0, 1.5], yaw=0.3)
+    n = b.normalization()
+    assert b.normalization() is n
+    assert n.radius == pytest.approx(0.5 * math.sqrt(16 + 4 + 2.25))
+    moved = b.replace(center=[5.0, 2.0, 0.5])
+    np.testing.assert_allclose(moved.normalization().center, [5.0, 2.0, 0.5])
+    np.testing.assert_allclose(n.center, [1.0, 2.0, 0.5])
+    back = pickle.loads(pickle.dumps(b))
+    np.testing.assert_allclose(back.normalization().to_unit(np.array([[1.0, 2.0, 0.5]])), 0.0, atol=1e-15)

@@ -534,3 +534,37 @@ def test_long_box_completion_stays_in_the_grown_box_and_reports_the_share_before
     assert o.summary()["inside_box"] == pytest.approx(expect, abs=1e-4)
     in_box = (o.completion - box.center) @ box.rotation  # scan frame -> box frame
     assert np.all(np.abs(in_box) <= size / 2 + 0.15 + 1e-4)
+
+
+def test_fidelities_on_threads_equal_a_brute_force_loop():
+    """The frame's fidelities, scored on threads as each batch is added (in any order, in two batches), equal a
+    brute-force mean of nearest distances over the distinct observed points, position by position; the turned
+    positions (heading check) score the partial turned around; an empty completion scores None."""
+    from types import SimpleNamespace
+
+    from spotlights.experiments.scene import Fidelities
+    from spotlights.geometry.boxes import FLIP_Z
+
+    rng = np.random.default_rng(5)
+    todo = [SimpleNamespace(partial_unit=rng.uniform(-0.5, 0.5, (40, 3)).astype(np.float32)) for _ in range(5)]
+    todo[1].partial_unit[20:] = todo[1].partial_unit[:20]  # repeated points count once
+    comps = [rng.uniform(-0.6, 0.6, (n, 3)).astype(np.float32) for n in (300, 50, 0, 700, 120)] * 2
+
+    def brute(partial, comp):
+        if len(comp) == 0:
+            return None
+        p = np.unique(partial.astype(np.float64), axis=0)
+        d = np.sqrt(((p[:, None, :] - comp[None, :, :].astype(np.float64)) ** 2).sum(-1))
+        return float(d.min(axis=1).mean())
+
+    scores = Fidelities(todo, heading_check=True)
+    scores.add([7, 3, 9, 0], [comps[k] for k in (7, 3, 9, 0)])  # one model's batch
+    scores.add([1, 2, 4, 5, 6, 8], [comps[k] for k in (1, 2, 4, 5, 6, 8)])  # the other's
+    for k in range(10):
+        partial = todo[k].partial_unit if k < 5 else todo[k - 5].partial_unit @ FLIP_Z
+        want = brute(partial, comps[k])
+        got = scores.get(k)
+        if want is None:
+            assert got is None
+        else:
+            assert got == pytest.approx(want, rel=1e-12)

@@ -18,6 +18,7 @@ import os
 import re
 from collections import Counter
 from collections.abc import Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
@@ -334,6 +335,9 @@ class _FrameRun:
         # tracks/<track>.ply): key -> (boxes, fused inputs, crops, the tracks it is the latest completed frame of)
         self.resumed: dict = {}
         self.latest: dict = {}  # track key -> the resumed frame holding its latest completion so far
+        # a frame's PLY and JSON are written by one thread while the next frame is completed (one frame in flight)
+        self._writer: ThreadPoolExecutor | None = None
+        self._written: Future | None = None
 
     def complete(self, key: tuple, stem: Path) -> dict | None:
         """Complete frame ``key`` and write its files; its summary, or None for a scan with too few points."""
@@ -364,12 +368,6 @@ class _FrameRun:
                     self._not_latest(hit[0], key)
         if self.recorder is not None:  # rerun (spotlights.viz.rerun_log)
             self.recorder.log_frame(result, frame.boxes, frame.timestamp, frame.sequence, extra)
-        write_scene(
-            result,
-            _with(stem, ".ply"),
-            per_object=_with(stem, "_objects") if s.per_object else None,
-            scan_name=Path(frame.scan_path).name,
-        )
         prefix = f"{frame.sequence}/" if frame.sequence else ""
         title = f"{self.reader.format} {prefix}{frame.frame_id}: {result.model}"
         if not s.no_pictures and result.completed:
@@ -384,8 +382,40 @@ class _FrameRun:
             summ["fuse"] = tracks.settings()  # compared by resume
         if frame.sensor_to_world is not None:
             summ["sensor_to_world"] = [[float(v) for v in row] for row in frame.sensor_to_world]
-        write_json(_with(stem, ".json"), summ)  # written last: a frame with its JSON is done (resume)
+        self._write(result, stem, Path(frame.scan_path).name, summ)
         return summ
+
+    def _write(self, result: SceneResult, stem: Path, scan_name: str, summ: dict) -> None:
+        """Write a frame's PLY (+ per-object files), then its JSON (last: a frame with its JSON is done, for
+        resume), on the writer thread while the next frame is completed; waits for the frame before first, so
+        that at most one frame is in flight and a failed write stops the run at the next frame."""
+        self.wait_writes()
+        if self._writer is None:
+            self._writer = ThreadPoolExecutor(1, thread_name_prefix="spotlights-write")
+        per_object = _with(stem, "_objects") if self.s.per_object else None
+
+        def files() -> None:
+            write_scene(result, _with(stem, ".ply"), per_object=per_object, scan_name=scan_name)
+            write_json(_with(stem, ".json"), summ)
+
+        self._written = self._writer.submit(files)
+
+    def wait_writes(self) -> None:
+        """Wait until the frame in flight is on disk (its write's error, if any, raised here)."""
+        pending, self._written = self._written, None
+        if pending is not None:
+            pending.result()
+
+    def close(self) -> None:
+        """Wait for the frame in flight (also after an error or Ctrl-C: nothing half-written is left), end the
+        writer thread."""
+        try:
+            if self._written is not None:
+                self._written.exception()  # finished either way; its error, if any, is the run's only if raised
+        finally:
+            if self._writer is not None:
+                self._writer.shutdown(wait=True)
+                self._writer = None
 
     def _scene(self, frame, boxes, extra, crops) -> SceneResult:
         """The completion of one frame (its boxes, fused inputs and crops as the track plan gives them)."""
@@ -463,6 +493,13 @@ class _FrameRun:
         stems = frame_stems(keys)
         model = self.completer.model_name
         fuse = None if self.tracks is None else self.tracks.settings()
+        try:
+            self._run(keys, stems, model, fuse)
+            self.wait_writes()  # the last frame's files: part of the run (and of its wall time)
+        finally:
+            self.close()
+
+    def _run(self, keys: list[tuple], stems: dict, model: str, fuse: dict | None) -> None:
         for key in tqdm(keys, desc="complete", unit="frame", disable=self.s.quiet):
             stem = self.out / stems[key]
             summ = (

@@ -107,13 +107,15 @@ class Box:
     :meth:`is_valid`); shapes are.
     """
 
-    __slots__ = ("center", "size", "rotation", "label", "cls", "track_id")
+    __slots__ = ("center", "size", "rotation", "label", "cls", "track_id", "_normalization")
+    FIELDS = ("center", "size", "rotation", "label", "cls", "track_id")
     center: np.ndarray
     size: np.ndarray
     rotation: np.ndarray
     label: str
     cls: str | None
     track_id: str
+    _normalization: Normalization | None
 
     def __init__(
         self,
@@ -148,6 +150,7 @@ class Box:
         object.__setattr__(self, "label", str(label))
         object.__setattr__(self, "cls", None if cls is None else str(cls))
         object.__setattr__(self, "track_id", "" if track_id is None else str(track_id))
+        object.__setattr__(self, "_normalization", None)  # made once by normalization() (the box is immutable)
 
     def __setattr__(self, name: str, value: object) -> None:
         raise AttributeError("Box is immutable; use Box.replace(...)")
@@ -179,7 +182,7 @@ class Box:
 
     def replace(self, **changes: object) -> Box:
         """A copy with some of ``center``, ``size``, ``rotation``, ``label``, ``cls``, ``track_id`` changed."""
-        d = {k: getattr(self, k) for k in self.__slots__}
+        d = {k: getattr(self, k) for k in self.FIELDS}
         unknown = set(changes) - set(d)
         if unknown:
             raise ParameterError(f"unknown box field(s) {sorted(unknown)}")
@@ -266,8 +269,13 @@ class Box:
         return near[self.contains(p[near], margin, ground_clearance)]
 
     def normalization(self) -> Normalization:
-        """The :class:`~spotlights.geometry.frames.Normalization` scan frame -> unit frame (R = half diagonal)."""
-        return normalization_from_box(self.center, self.size, rotation=self.rotation)
+        """The :class:`~spotlights.geometry.frames.Normalization` scan frame -> unit frame (R = half diagonal); made
+        once per box (both are immutable)."""
+        made = self._normalization
+        if made is None:
+            made = normalization_from_box(self.center, self.size, rotation=self.rotation)
+            object.__setattr__(self, "_normalization", made)
+        return made
 
     def flipped(self) -> Box:
         """The same box with its heading turned by 180 degrees (forward and left axes negated)."""
