@@ -329,6 +329,9 @@ def command_run(args) -> int:
     n = summ["n_frames"]
     worker = summ.get("tracks", {}).get("timings", {}).get("worker_cpu_s", 0.0)
     row = dict(n_frames=n, cpu_s=cpu, wall_s=wall, cpu_ms_per_frame=1e3 * cpu / n, fps_wall=n / wall)
+    # the frame loop alone (summary.json's wall_seconds: what "frames per second after the model loads" counts)
+    row |= dict(loop_wall_s=summ["wall_seconds"], fps_loop=n / summ["wall_seconds"])
+    row |= dict(completed=summ["totals"]["completed"], completed_by=summ["totals"].get("completed_by", {}))
     row |= dict(track_worker=has_worker and args.track_worker, worker_cpu_ms_per_frame=1e3 * worker / n)
     print(json.dumps(row | {"torch_threads": torch.get_num_threads(), "load_average": os.getloadavg()}))
     return 0
@@ -357,7 +360,7 @@ def side_by_side(args) -> int:
     table = {}
     for threads in args.speed_threads:
         pick = {n: [r for r in runs if r["code"] == n and r["torch_threads"] == threads] for n in codes}
-        keys = ("cpu_ms_per_frame", "worker_cpu_ms_per_frame", "fps_wall")
+        keys = ("cpu_ms_per_frame", "worker_cpu_ms_per_frame", "fps_wall", "fps_loop")
         med = {n: {k: float(np.median([r.get(k, 0.0) for r in rs])) for k in keys} for n, rs in pick.items()}
         pairs = list(zip(pick["other"], pick["this_serial"], pick["this"]))  # run back to back: each triple's ratios
         table[f"threads_{threads}"] = dict(
@@ -365,6 +368,7 @@ def side_by_side(args) -> int:
             cpu_ratio_this_serial_over_other=[b["cpu_s"] / a["cpu_s"] for a, b, _ in pairs],
             wall_ratio_this_serial_over_other=[b["wall_s"] / a["wall_s"] for a, b, _ in pairs],
             wall_ratio_this_over_other=[c["wall_s"] / a["wall_s"] for a, _, c in pairs],
+            loop_ratio_this_over_other=[c.get("loop_wall_s", 0) / a.get("loop_wall_s", 1) for a, _, c in pairs],
         )
     report = dict(
         command=f"real complete {args.source} --format {args.format} --fuse {args.fuse}"
