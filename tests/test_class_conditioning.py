@@ -460,3 +460,45 @@ def test_data_classes_keeps_one_class_family_and_its_learned_domain(tmp_path):
     for bad in ("trailer", [], [3]):
         with pytest.raises(ParameterError, match="data.classes must be a list"):
             data_config({"data": {"classes": bad}})
+
+
+def test_complete_frame_loads_a_named_model_once(tmp_path, monkeypatch):
+    """``complete_frame`` by name loads the default and its fallback on the first call only; the next calls use the
+    same models (the same completions as with models loaded by the caller); a checkpoint file that is rewritten
+    is loaded again."""
+    import os
+
+    from spotlights import api
+    from spotlights.learning.runtime import load_completer as real_load
+
+    from learning_fixtures import make_checkpoint
+
+    loads = []
+    monkeypatch.setattr(
+        api, "load_completer", lambda name, *a, **k: loads.append(str(name)) or real_load(name, *a, **k)
+    )
+    monkeypatch.setattr(api, "_NAMED", {})
+    rng = np.random.default_rng(11)
+    car = box([8.0, 2.0, 0.7], [4.3, 1.8, 1.5], "car", "car")
+    bus = box([14.0, -3.0, 1.6], [12.0, 2.5, 3.2], "bus", "bus")
+    pts = np.concatenate(
+        [
+            rng.uniform(-0.5, 0.5, (400, 3)) * car.size + car.center,
+            rng.uniform(-0.5, 0.5, (600, 3)) * bus.size + bus.center,
+        ]
+    )
+    first = complete_frame(pts, [car, bus])
+    again = complete_frame(pts, [car, bus])
+    assert loads == ["default", "classes"]
+    mine = complete_frame(pts, [car, bus], real_load("default"), fallback=real_load("classes"))
+    for a, b, c in zip(first.objects, again.objects, mine.objects):
+        assert a.completed_by == b.completed_by and (a.completed_by is None) == (c.completed_by is None)
+        assert np.array_equal(a.completion, b.completion) and np.array_equal(a.completion, c.completion)
+    path = make_checkpoint(tmp_path / "m.pt", "sanet-hit")
+    complete_frame(pts, [car], str(path), fallback="none")
+    complete_frame(pts, [car], str(path), fallback="none")
+    assert loads.count(str(path)) == 1
+    make_checkpoint(path, "sanet-hit", seed=1)  # rewritten
+    os.utime(path, ns=(os.stat(path).st_atime_ns, os.stat(path).st_mtime_ns + 10**9))
+    complete_frame(pts, [car], str(path), fallback="none")
+    assert loads.count(str(path)) == 2

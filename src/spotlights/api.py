@@ -63,7 +63,8 @@ def complete_frame(
         vehicle ``cls`` are completed (``any_label=True`` completes every box).
     completer : a loaded completer (:func:`spotlights.learning.runtime.load_completer`), or a checkpoint
         name or file (``"default"``, ``"paper"``, ``"classes"``, ``model.pt``, ``model.onnx``) loaded on the CPU/GPU with
-        the runtime its suffix implies.
+        the runtime its suffix implies, on the first call only (a model given by name, and the fallback, are kept
+        for the next calls: :data:`NAMED_MODELS_KEPT`; a file that changed is loaded again).
     config : a :class:`~spotlights.experiments.scene.SceneConfig`; or give its fields as keyword ``options`` (``margin=0.2``,
         ``heading_check=True``, ...), not both.
     axes : optional (3, 3) rotation scan coordinates -> object convention (x forward, y left, z up).
@@ -86,12 +87,12 @@ def complete_frame(
             None if fallback is None else str(fallback), str(completer or "default") if by_name else ""
         )
     if by_name:
-        name = "default" if completer is None else str(completer)
-        completer = load_completer(name)
+        name = "default" if completer is None else os.fspath(completer)
+        completer = _named_completer(name)
         checkpoint = name if checkpoint is None else checkpoint
     fallback_name = None
     if isinstance(fallback, str):
-        fallback_name, fallback = fallback, load_completer(fallback)
+        fallback_name, fallback = fallback, _named_completer(fallback)
     return complete_scene(
         points,
         boxes,
@@ -102,6 +103,35 @@ def complete_frame(
         fallback=fallback,
         fallback_name=fallback_name,
     )
+
+
+#: models that :func:`complete_frame` and :func:`complete` loaded by name, kept for the next call
+_NAMED: dict[tuple, Any] = {}
+NAMED_MODELS_KEPT = 4
+"""At most this many models given by name are kept (the least recently used is dropped first)."""
+
+
+def _named_completer(name: str) -> Any:
+    """The model ``name`` (a packaged name or a checkpoint/ONNX file) as :func:`load_completer` loads it, loaded once
+    and kept for later calls (a frame loop of ``complete_frame(points, boxes)`` loaded the default and the class
+    model on every call: 0.14 s a nuScenes frame against 0.08 s with models loaded once). A file is loaded again
+    when it changed (its size or modification time)."""
+    from .learning.checkpoint import PRETRAINED
+
+    key: tuple = (name,)
+    if name not in PRETRAINED:
+        try:
+            st = os.stat(os.path.expanduser(name))
+            key = (os.path.realpath(os.path.expanduser(name)), st.st_size, st.st_mtime_ns)
+        except OSError:  # load_completer names the missing file
+            return load_completer(name)
+    model = _NAMED.pop(key, None)
+    if model is None:
+        model = load_completer(name)
+    _NAMED[key] = model  # the most recently used last
+    while len(_NAMED) > NAMED_MODELS_KEPT:
+        _NAMED.pop(next(iter(_NAMED)))
+    return model
 
 
 def complete(
