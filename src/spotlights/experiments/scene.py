@@ -44,7 +44,6 @@ from ..data.vehicle_classes import VEHICLE_CLASSES, canonical_class
 from ..errors import InputFileError, ParameterError
 from ..geometry.boxes import FLIP_Z, Box, crop_boxes
 from ..geometry.io import save_ply, save_points
-from ..geometry.neighbors import serial_queries
 from ..geometry.rotations import rigid_transform
 from ..learning.inference import DEFAULT, complete_in_boxes, prepare_partial, with_observed
 from ..metrics.consistency import fidelity
@@ -366,8 +365,9 @@ def complete_scene(
         outs = _complete_objects(todo, completer, config, shares, fallback, scores) if todo else []
     with timer("assemble"):
         if todo:
-            with serial_queries():  # a few small KD-tree queries: OpenMP threads cost more than they save
-                _assemble(todo, outs, config, a, scores)
+            # no KD-tree query runs here (Fidelities' threads build scipy trees, which use no OpenMP): no
+            # threadpool limit is needed (threadpoolctl's scan of the loaded libraries took ~5 ms a frame)
+            _assemble(todo, outs, config, a, scores)
             for k, o in enumerate(todo):  # the share of the completion kept (turned around when the heading flipped)
                 o.inside_box = shares[len(todo) + k] if o.flipped else shares[k]
             if a is not None:
@@ -506,11 +506,14 @@ def _complete_objects(
     outs: list = [None] * width
     inside: list = [float("nan")] * width
     others = sorted(set(range(n)) - set(own))
-    for model, idx in ((completer, own), (fallback, others)):
+    # the fallback's batch runs on a thread beside the main model's (torch computes without the GIL)
+    batches = {}
+    if own and others:
+        batches[1] = _model_thread().submit(_complete_batch_shares, [todo[k] for k in others], fallback, config)
+    for b, (model, idx) in enumerate(((completer, own), (fallback, others))):
         if not idx:
             continue
-        part: list[float] = []
-        res = _complete_batch([todo[k] for k in idx], model, config, part)
+        part, res = batches[b].result() if b in batches else _complete_batch_shares([todo[k] for k in idx], model, config)
         at = list(idx) + ([n + k for k in idx] if config.heading_check else [])  # positions of res in outs
         for j, k in enumerate(at):
             outs[k], inside[k] = res[j], part[j]
@@ -518,6 +521,22 @@ def _complete_objects(
             scores.add(at, res)
     shares.extend(inside)
     return outs
+
+
+_model_pool: ThreadPoolExecutor | None = None
+
+
+def _model_thread() -> ThreadPoolExecutor:
+    global _model_pool
+    if _model_pool is None:
+        _model_pool = ThreadPoolExecutor(1, thread_name_prefix="spotlights-fallback")
+    return _model_pool
+
+
+def _complete_batch_shares(todo: list[ObjectResult], completer, config: SceneConfig) -> tuple[list, list]:
+    """(shares inside the box, completions) of :func:`_complete_batch`."""
+    part: list[float] = []
+    return part, _complete_batch(todo, completer, config, part)
 
 
 def _complete_batch(todo: list[ObjectResult], completer, config: SceneConfig, shares: list) -> list:
