@@ -276,6 +276,10 @@ def test_fallback_model_completes_what_the_main_model_did_not_learn_and_leaves_t
     assert both.objects[0].completed_by is None and both.objects[1].completed_by == "classes"
     np.testing.assert_array_equal(both.objects[0].completion, alone.objects[0].completion)
     assert both.summary()["objects"][1]["completed_by"] == "classes" and both.summary()["not_completed"] == {}
+    # the bus, completed on the fallback's thread beside the car's batch, is what the class model alone makes of it
+    only = complete_frame(pts, [bus], load_completer("classes"), fallback="none", heading_check=False)
+    np.testing.assert_array_equal(both.objects[1].completion, only.objects[0].completion)
+    assert both.objects[1].fidelity == only.objects[0].fidelity
     local = both.objects[1].completion - bus.center
     assert len(local) > 1000 and np.all(np.abs(local) <= bus.size / 2 + 0.15 + 1e-6)
     # with the heading check both models' batches double and come back in order: the car is still the default's

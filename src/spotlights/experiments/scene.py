@@ -513,7 +513,9 @@ def _complete_objects(
     for b, (model, idx) in enumerate(((completer, own), (fallback, others))):
         if not idx:
             continue
-        part, res = batches[b].result() if b in batches else _complete_batch_shares([todo[k] for k in idx], model, config)
+        part, res = (
+            batches[b].result() if b in batches else _complete_batch_shares([todo[k] for k in idx], model, config)
+        )
         at = list(idx) + ([n + k for k in idx] if config.heading_check else [])  # positions of res in outs
         for j, k in enumerate(at):
             outs[k], inside[k] = res[j], part[j]
