@@ -506,3 +506,47 @@ def test_complete_frame_loads_a_named_model_once(tmp_path, monkeypatch):
     os.utime(path, ns=(os.stat(path).st_atime_ns, os.stat(path).st_mtime_ns + 10**9))
     complete_frame(pts, [car], str(path), fallback="none")
     assert loads.count(str(path)) == 2
+
+
+def _forked_frame(conn, pts, boxes):
+    """In a forked child: complete the frame (the fallback's thread and the fidelity threads are this process's)."""
+    try:
+        res = complete_frame(pts, boxes, heading_check=False)
+        conn.send([None if o.completion is None else o.completion.tobytes() for o in res.objects])
+    except BaseException as exc:  # reported to the parent, never left hanging
+        conn.send(repr(exc))
+    finally:
+        conn.close()
+
+
+@pytest.mark.timeout(300)
+def test_a_process_forked_after_a_frame_completes_frames_too():
+    """A process forked after ``complete_frame`` ran (a multiprocessing pool of frames) completes frames as the
+    parent does: the fallback's and the fidelity's thread pools are rebuilt in the child, not inherited without
+    their threads (which would wait forever). A child that does not answer in time is killed."""
+    import multiprocessing as mp
+
+    from spotlights.utils import _THREAD_POOLS
+
+    rng = np.random.default_rng(12)
+    car = box([8.0, 2.0, 0.7], [4.3, 1.8, 1.5], "car", "car")
+    bus = box([14.0, -3.0, 1.6], [12.0, 2.5, 3.2], "bus", "bus")
+    pts = np.concatenate(
+        [
+            rng.uniform(-0.5, 0.5, (400, 3)) * car.size + car.center,
+            rng.uniform(-0.5, 0.5, (600, 3)) * bus.size + bus.center,
+        ]
+    )
+    ref = complete_frame(pts, [car, bus], heading_check=False)
+    assert {"fallback", "fidelity"} <= set(_THREAD_POOLS)  # the parent's pools exist
+    ctx = mp.get_context("fork")
+    parent, child = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_forked_frame, args=(child, pts, [car, bus]))
+    proc.start()
+    child.close()
+    answer = parent.recv() if parent.poll(120) else "no answer in 120 s"
+    proc.join(10)
+    if proc.is_alive():
+        proc.kill()
+        proc.join()
+    assert answer == [o.completion.tobytes() for o in ref.objects], answer

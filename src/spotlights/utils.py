@@ -12,9 +12,11 @@ import os
 import re
 import sys
 import tempfile
+import threading
 import time
 import types
 from collections.abc import Callable, Iterable, Iterator, Mapping
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import TypeVar
 
@@ -641,6 +643,37 @@ class StageTimer:
 
 
 # ---------------------------------------------------------------------------- settings
+
+
+_THREAD_POOLS: dict[str, tuple] = {}  # name -> (owner pid, executor, threads)
+_THREAD_POOLS_LOCK = threading.Lock()
+
+
+def _forget_thread_pools_after_fork() -> None:
+    """In a forked child: the parent's pool threads do not exist here, and the lock may have been held by one of
+    them at the fork; start from nothing (a pool that kept them would take jobs and never run them)."""
+    global _THREAD_POOLS_LOCK
+    _THREAD_POOLS_LOCK = threading.Lock()
+    _THREAD_POOLS.clear()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_thread_pools_after_fork)
+
+
+def shared_thread_pool(name: str, threads: int) -> ThreadPoolExecutor:
+    """The process-wide pool of threads called ``spotlights-NAME...`` with at least ``threads`` workers (one per
+    name, made on first use; a larger request replaces it). A process forked after the pool exists builds its own.
+    For work that runs without the GIL (Embree's ray casts, scipy's KD-trees, torch): the callers wait for their
+    futures; the idle threads cost nothing and end with the interpreter."""
+    with _THREAD_POOLS_LOCK:
+        pool = _THREAD_POOLS.get(name)
+        if pool is None or pool[0] != os.getpid() or pool[2] < threads:
+            if pool is not None and pool[0] == os.getpid():
+                pool[1].shutdown(wait=False)
+            pool = (os.getpid(), ThreadPoolExecutor(threads, thread_name_prefix=f"spotlights-{name}"), threads)
+            _THREAD_POOLS[name] = pool
+        return pool[1]
 
 
 def did_you_mean(key: object, known: Iterable[str]) -> str:

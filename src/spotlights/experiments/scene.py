@@ -31,7 +31,6 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TypeVar
@@ -47,7 +46,7 @@ from ..geometry.io import save_ply, save_points
 from ..geometry.rotations import rigid_transform
 from ..learning.inference import DEFAULT, complete_in_boxes, prepare_partial, with_observed
 from ..metrics.consistency import fidelity
-from ..utils import StageTimer
+from ..utils import StageTimer, shared_thread_pool
 from ..viz import SceneObject, html, render_scene
 
 SOURCE_RAW, SOURCE_PARTIAL, SOURCE_COMPLETION = 0, 1, 2
@@ -509,7 +508,9 @@ def _complete_objects(
     # the fallback's batch runs on a thread beside the main model's (torch computes without the GIL)
     batches = {}
     if own and others:
-        batches[1] = _model_thread().submit(_complete_batch_shares, [todo[k] for k in others], fallback, config)
+        batches[1] = shared_thread_pool("fallback", 1).submit(
+            _complete_batch_shares, [todo[k] for k in others], fallback, config
+        )
     for b, (model, idx) in enumerate(((completer, own), (fallback, others))):
         if not idx:
             continue
@@ -523,16 +524,6 @@ def _complete_objects(
             scores.add(at, res)
     shares.extend(inside)
     return outs
-
-
-_model_pool: ThreadPoolExecutor | None = None
-
-
-def _model_thread() -> ThreadPoolExecutor:
-    global _model_pool
-    if _model_pool is None:
-        _model_pool = ThreadPoolExecutor(1, thread_name_prefix="spotlights-fallback")
-    return _model_pool
 
 
 def _complete_batch_shares(todo: list[ObjectResult], completer, config: SceneConfig) -> tuple[list, list]:
@@ -597,7 +588,6 @@ def _assemble(todo: list, outs: list, config: SceneConfig, a, scores: Fidelities
 
 #: threads that score the completions' fidelity (:class:`Fidelities`)
 FIDELITY_THREADS = 2
-_fidelity_pool: ThreadPoolExecutor | None = None
 
 
 def _fidelity_or_none(partial: np.ndarray, completion: np.ndarray) -> float | None:
@@ -627,11 +617,9 @@ class Fidelities:
 
     def add(self, positions, completions: list) -> None:
         """Start scoring ``completions`` ((K, 3) each), at ``positions`` (same length)."""
-        global _fidelity_pool
-        if _fidelity_pool is None:
-            _fidelity_pool = ThreadPoolExecutor(FIDELITY_THREADS, thread_name_prefix="spotlights-fidelity")
+        pool = shared_thread_pool("fidelity", FIDELITY_THREADS)
         for k, comp in zip(positions, completions):
-            self.pending[k] = _fidelity_pool.submit(_fidelity_or_none, self.partial(k), comp)
+            self.pending[k] = pool.submit(_fidelity_or_none, self.partial(k), comp)
 
     def get(self, position: int) -> float | None:
         """The fidelity at ``position`` (waits for it; None for an empty completion)."""

@@ -50,6 +50,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from ..errors import ParameterError
+from ..utils import shared_thread_pool
 
 # Queries with fewer rays run on one thread: below this, splitting does not pay (measured in
 # benchmarks/encode.py: 2,048 rays, ~0.12 ms, gain nothing or lose; 4,096 rays gain a little).
@@ -93,36 +94,12 @@ def _as_rays(origins, directions) -> tuple[np.ndarray, np.ndarray]:
 
 # ---------------------------------------------------------------------------- thread pool
 
-_POOL_LOCK = threading.Lock()
-_POOL: tuple | None = None  # (owner pid, executor, threads)
 
-
-def _forget_pool_after_fork() -> None:
-    """In a forked child: the parent's pool threads do not exist here, and the lock may have
-    been held by one of them at the fork; start from nothing."""
-    global _POOL, _POOL_LOCK
-    _POOL_LOCK = threading.Lock()
-    _POOL = None
-
-
-if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_forget_pool_after_fork)
-
-
-def _pool(threads: int) -> ThreadPoolExecutor | None:
-    """The process-wide pool of ray-casting threads (at least ``threads``), or None at shutdown.
-
-    One pool for every caster of the process; a forked child builds its own (threads do not
-    survive a fork).
-    """
-    global _POOL
-    with _POOL_LOCK:
-        pool = _POOL
-        if pool is None or pool[0] != os.getpid() or pool[2] < threads:
-            if pool is not None and pool[0] == os.getpid():
-                pool[1].shutdown(wait=False)
-            pool = _POOL = (os.getpid(), ThreadPoolExecutor(threads, thread_name_prefix="spotlights-rays"), threads)
-        return pool[1]
+def _pool(threads: int) -> ThreadPoolExecutor:
+    """The process-wide pool of ray-casting threads (at least ``threads``;
+    :func:`spotlights.utils.shared_thread_pool`: one pool for every caster of the process, a forked child builds
+    its own)."""
+    return shared_thread_pool("rays", threads)
 
 
 def split_bounds(n: int, parts: int) -> list[int]:
@@ -176,12 +153,11 @@ def run_split(n: int, threads: int, cast: Callable[[int, int], object]) -> None:
     started); the pool stays usable. A process forked after the pool exists builds its own."""
     job = _Job(cast, split_bounds(n, threads))
     pool = _pool(threads - 1)
-    if pool is not None:
-        for _ in range(threads - 1):
-            try:
-                pool.submit(job.work)
-            except RuntimeError:  # interpreter shutting down: the caller casts everything
-                break
+    for _ in range(threads - 1):
+        try:
+            pool.submit(job.work)
+        except RuntimeError:  # interpreter shutting down: the caller casts everything
+            break
     try:
         job.work()
         job.done.wait()

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import inspect
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,6 +34,22 @@ from ..geometry.boxes import Box, box_from_dict, load_box  # noqa: F401  (the bo
 from ..geometry.sampling import resample_set
 from .checkpoint import PRETRAINED, load_checkpoint, model_from_checkpoint, resolve_checkpoint
 from .rays import directions_for_extents, unit_extents
+
+
+def _one_torch_thread_after_fork() -> None:
+    """In a process forked from one whose torch ran on several threads (a ``multiprocessing`` pool of frames started
+    with ``fork``, Linux's default): torch on one thread, as PyTorch's DataLoader workers do. GNU OpenMP's thread
+    team does not survive a fork: the child's first multi-threaded torch operation waited forever (measured:
+    ``complete_frame`` in such a child never returned, before and after stop 36's threads; with one thread it does)."""
+    import sys
+
+    torch = sys.modules.get("torch")
+    if torch is not None and torch.get_num_threads() > 1:
+        torch.set_num_threads(1)
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_one_torch_thread_after_fork)
 
 INPUT_POINTS = 256
 """Points per partial scan the models were trained with (the dataset's partial size)."""
