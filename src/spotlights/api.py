@@ -38,6 +38,7 @@ from .geometry.boxes import Box
 from .geometry.encode import decode, encode_mesh
 from .geometry.io import load_mesh
 from .geometry.rig import make_rig
+from .learning.checkpoint import PRETRAINED
 from .learning.runtime import load_completer
 
 
@@ -116,8 +117,6 @@ def _named_completer(name: str) -> Any:
     and kept for later calls (a frame loop of ``complete_frame(points, boxes)`` loaded the default and the class
     model on every call: 0.14 s a nuScenes frame against 0.08 s with models loaded once). A file is loaded again
     when it changed (its size or modification time)."""
-    from .learning.checkpoint import PRETRAINED
-
     key: tuple = (name,)
     if name not in PRETRAINED:
         try:
