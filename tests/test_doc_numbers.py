@@ -283,3 +283,10 @@ def test_frame_loop_speed_stop36_side_by_side():
     a, b, c = (f"{r:.2f}" for r in d["loop_ratio_this_over_other"])
     _says("docs/real-data.md", f"per round {a}, {b} and {c} of the")
     assert new < 10  # the docs say the target is not met
+    runs = _json("real/track_fusion_speed_stop36.json")["runs"]
+    assert {r["completed"] for r in runs} == {631} and {r["completed_by"]["classes"] for r in runs} == {320}
+    _says("docs/real-data.md", "631 objects completed by both (320 by the class model)")
+    cpu = {k: d["median"][k]["cpu_ms_per_frame"] for k in ("this", "other")}
+    work = {k: d["median"][k]["worker_cpu_ms_per_frame"] for k in ("this", "other")}
+    _says("docs/real-data.md", f"the main process {cpu['this']:.0f} against {cpu['other']:.0f} ms a frame")
+    _says("docs/real-data.md", f"the worker {work['this']:.0f} against {work['other']:.0f} ms")

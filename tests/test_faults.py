@@ -208,10 +208,14 @@ def test_real_complete_fails_cleanly_when_a_frame_write_fails(tmp_path):
 
 
 @pytest.mark.timeout(300)
-def test_a_failed_frame_write_stops_the_run_at_the_next_frame(tmp_path, monkeypatch):
-    """The second frame's PLY fails on the writer thread: the run stops with that error before a third frame is
-    written; the first frame's PLY and JSON stay (a resumed run continues from them), the second has neither
-    (nor a temporary)."""
+@pytest.mark.parametrize("pictures", [False, True])
+def test_a_failed_frame_write_stops_the_run_at_the_next_frame(tmp_path, monkeypatch, pictures):
+    """The second frame's PLY fails on the writer thread (each frame's PLY and JSON are written there, while the
+    next frame is completed): the run stops with that error before the third frame writes anything, its picture
+    included; the first frame's PLY, JSON (and PNG) stay (a resumed run continues from them), the second has
+    none of its files (nor a temporary)."""
+    import threading
+
     from spotlights.cli import main
     from spotlights.errors import OutputFileError
     from spotlights.experiments import frame_completion
@@ -220,19 +224,21 @@ def test_a_failed_frame_write_stops_the_run_at_the_next_frame(tmp_path, monkeypa
     real_write, calls = frame_completion.write_scene, []
 
     def failing(result, out, *a, **k):
-        calls.append(Path(out).name)
+        calls.append((Path(out).name, threading.current_thread().name.rsplit("_", 1)[0]))
         if len(calls) == 2:
             raise OutputFileError(out, "cannot write (no space left on device)")
         return real_write(result, out, *a, **k)
 
     monkeypatch.setattr(frame_completion, "write_scene", failing)
     out = tmp_path / "out"
-    code = main(["real", "complete", str(scans), "--format", "generic", "--out", str(out), "--no-pictures", "-q"])
+    args = ["real", "complete", str(scans), "--format", "generic", "--out", str(out), "-q"]
+    code = main(args + ([] if pictures else ["--no-pictures"]))
     assert code == 2
-    assert calls == ["f0.ply", "f1.ply"]  # the third frame's files were never started
+    # the third frame's files were never started; the writes ran on the writer thread, not the frame loop's
+    assert calls == [("f0.ply", "spotlights-write"), ("f1.ply", "spotlights-write")]
     names = {p.name for p in out.rglob("*")}
-    assert {"f0.ply", "f0.json"} <= names
-    assert not names & {"f1.ply", "f1.json", "f2.ply", "f2.json", "summary.json"}
+    assert {"f0.ply", "f0.json"} | ({"f0.png"} if pictures else set()) <= names
+    assert not names & {"f1.ply", "f1.png", "f1.json", "f2.ply", "f2.png", "f2.json", "summary.json"}, names
     assert not [n for n in names if ".part" in n], names
 
 

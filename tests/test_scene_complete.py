@@ -557,7 +557,7 @@ def test_fidelities_on_threads_equal_a_brute_force_loop():
         d = np.sqrt(((p[:, None, :] - comp[None, :, :].astype(np.float64)) ** 2).sum(-1))
         return float(d.min(axis=1).mean())
 
-    scores = Fidelities(todo, heading_check=True)
+    scores = Fidelities(todo)
     scores.add([7, 3, 9, 0], [comps[k] for k in (7, 3, 9, 0)])  # one model's batch
     scores.add([1, 2, 4, 5, 6, 8], [comps[k] for k in (1, 2, 4, 5, 6, 8)])  # the other's
     for k in range(10):
@@ -568,3 +568,29 @@ def test_fidelities_on_threads_equal_a_brute_force_loop():
             assert got is None
         else:
             assert got == pytest.approx(want, rel=1e-12)
+
+
+@pytest.mark.timeout(120)
+def test_fidelity_threads_run_openmp_on_one_thread_each():
+    """Small completions are scored with pykdtree, whose OpenMP split costs more than it saves: the fidelity threads
+    run it on one thread each (a child process with OMP_NUM_THREADS=4 holds the main thread, the two fidelity
+    threads and at most one more afterwards; without the limit it held 10)."""
+    import os
+    import subprocess
+    import sys
+
+    code = """
+import os, numpy as np
+from types import SimpleNamespace
+from spotlights.experiments.scene import Fidelities
+rng = np.random.default_rng(0)
+todo = [SimpleNamespace(partial_unit=rng.random((256, 3)).astype(np.float32)) for _ in range(4)]
+f = Fidelities(todo)
+f.add(range(4), [rng.random((1500, 3)).astype(np.float32) for _ in range(4)])
+assert all(f.get(k) > 0 for k in range(4))
+print(len(os.listdir('/proc/self/task')))
+"""
+    env = dict(os.environ, OMP_NUM_THREADS="4")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=100)
+    assert out.returncode == 0, out.stderr
+    assert int(out.stdout.split()[-1]) <= 4, out.stdout

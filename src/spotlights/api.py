@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import os
+import threading
 from collections.abc import Iterator, Sequence
 from typing import Any
 
@@ -108,6 +109,7 @@ def complete_frame(
 
 #: models that :func:`complete_frame` and :func:`complete` loaded by name, kept for the next call
 _NAMED: dict[tuple, Any] = {}
+_NAMED_LOCK = threading.Lock()
 NAMED_MODELS_KEPT = 4
 """At most this many models given by name are kept (the least recently used is dropped first)."""
 
@@ -116,20 +118,24 @@ def _named_completer(name: str) -> Any:
     """The model ``name`` (a packaged name or a checkpoint/ONNX file) as :func:`load_completer` loads it, loaded once
     and kept for later calls (a frame loop of ``complete_frame(points, boxes)`` loaded the default and the class
     model on every call: 0.14 s a nuScenes frame against 0.08 s with models loaded once). A file is loaded again
-    when it changed (its size or modification time)."""
+    when it changed (its inode, size, modification or change time); its older model is dropped then."""
     key: tuple = (name,)
     if name not in PRETRAINED:
         try:
-            st = os.stat(os.path.expanduser(name))
-            key = (os.path.realpath(os.path.expanduser(name)), st.st_size, st.st_mtime_ns)
+            path = os.path.realpath(os.path.expanduser(name))
+            st = os.stat(path)
         except OSError:  # load_completer names the missing file
             return load_completer(name)
-    model = _NAMED.pop(key, None)
-    if model is None:
-        model = load_completer(name)
-    _NAMED[key] = model  # the most recently used last
-    while len(_NAMED) > NAMED_MODELS_KEPT:
-        _NAMED.pop(next(iter(_NAMED)))
+        key = (path, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+    with _NAMED_LOCK:  # one load per key, whatever the callers' threads
+        model = _NAMED.pop(key, None)
+        if model is None:
+            for old in [k for k in _NAMED if k[0] == key[0]]:  # an older version of the same file
+                del _NAMED[old]
+            model = load_completer(name)
+        _NAMED[key] = model  # the most recently used last
+        while len(_NAMED) > NAMED_MODELS_KEPT:
+            _NAMED.pop(next(iter(_NAMED)))
     return model
 
 

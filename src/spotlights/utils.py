@@ -661,17 +661,19 @@ if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_forget_thread_pools_after_fork)
 
 
-def shared_thread_pool(name: str, threads: int) -> ThreadPoolExecutor:
+def shared_thread_pool(name: str, threads: int, initializer: Callable[[], object] | None = None) -> ThreadPoolExecutor:
     """The process-wide pool of threads called ``spotlights-NAME...`` with at least ``threads`` workers (one per
-    name, made on first use; a larger request replaces it). A process forked after the pool exists builds its own.
-    For work that runs without the GIL (Embree's ray casts, scipy's KD-trees, torch): the callers wait for their
-    futures; the idle threads cost nothing and end with the interpreter."""
+    name, made on first use; a larger request replaces it), each thread starting with ``initializer()``. A process
+    forked after the pool exists builds its own. For work that runs without the GIL (Embree's ray casts, scipy's
+    KD-trees, torch): the callers wait for their futures; the idle threads cost nothing and end with the
+    interpreter."""
     with _THREAD_POOLS_LOCK:
         pool = _THREAD_POOLS.get(name)
         if pool is None or pool[0] != os.getpid() or pool[2] < threads:
             if pool is not None and pool[0] == os.getpid():
                 pool[1].shutdown(wait=False)
-            pool = (os.getpid(), ThreadPoolExecutor(threads, thread_name_prefix=f"spotlights-{name}"), threads)
+            executor = ThreadPoolExecutor(threads, thread_name_prefix=f"spotlights-{name}", initializer=initializer)
+            pool = (os.getpid(), executor, threads)
             _THREAD_POOLS[name] = pool
         return pool[1]
 

@@ -341,7 +341,7 @@ class _FrameRun:
 
     def complete(self, key: tuple, stem: Path) -> dict | None:
         """Complete frame ``key`` and write its files; its summary, or None for a scan with too few points."""
-        s, config = self.s, self.config
+        config = self.config
         frame = None if self.tracks is None else self.tracks.take(key)  # read once: the track plan kept it
         frame = self.reader.load(key) if frame is None else frame
         info = dict(
@@ -360,6 +360,9 @@ class _FrameRun:
         boxes, extra = (frame.boxes, None) if tracks is None else tracks.frame_inputs(key, frame.boxes)
         crops = None if tracks is None else tracks.frame_crops(key)  # made by the track worker, if any
         result = self._scene(frame, boxes, extra, crops)
+        # the frame before this one is on disk before this one writes anything (its PNG too): a failed write stops
+        # the run here, with no file of a later frame
+        self.wait_writes()
         if tracks is not None:
             tracks.record(key, result)
             for o in result.completed:  # a resumed frame before this one no longer holds these tracks' latest
@@ -370,11 +373,6 @@ class _FrameRun:
             self.recorder.log_frame(result, frame.boxes, frame.timestamp, frame.sequence, extra)
         prefix = f"{frame.sequence}/" if frame.sequence else ""
         title = f"{self.reader.format} {prefix}{frame.frame_id}: {result.model}"
-        if not s.no_pictures and result.completed:
-            render_result(result, _with(stem, ".png"), title)
-        if s.html:
-            js = os.path.relpath(write_plotlyjs(self.out), stem.parent).replace(os.sep, "/")
-            render_result_html(result, _with(stem, ".html"), title, js)
         summ = {**info, "ply": str(_with(stem, ".ply")), **result.summary()}
         if self.precision != "fp32":
             summ["precision"] = self.precision  # compared by resume (absent: fp32, as frames of older runs)
@@ -382,20 +380,27 @@ class _FrameRun:
             summ["fuse"] = tracks.settings()  # compared by resume
         if frame.sensor_to_world is not None:
             summ["sensor_to_world"] = [[float(v) for v in row] for row in frame.sensor_to_world]
-        self._write(result, stem, Path(frame.scan_path).name, summ)
+        self._write(result, stem, Path(frame.scan_path).name, title, summ)
         return summ
 
-    def _write(self, result: SceneResult, stem: Path, scan_name: str, summ: dict) -> None:
-        """Write a frame's PLY (+ per-object files), then its JSON (last: a frame with its JSON is done, for
-        resume), on the writer thread while the next frame is completed; waits for the frame before first, so
-        that at most one frame is in flight and a failed write stops the run at the next frame."""
-        self.wait_writes()
+    def _write(self, result: SceneResult, stem: Path, scan_name: str, title: str, summ: dict) -> None:
+        """Write a frame's files in the order of one process - its PLY (+ per-object files), PNG, HTML, then its
+        JSON (last: a frame with its JSON is done, for resume) - on the writer thread while the next frame is
+        completed (:meth:`complete` waits for them before that frame writes anything: at most one frame is in
+        flight, and a failed write stops the run there, leaving no file of a later frame). The pictures are
+        matplotlib ``Figure`` objects drawn by Agg, without pyplot's global state (:mod:`spotlights.viz`)."""
         if self._writer is None:
             self._writer = ThreadPoolExecutor(1, thread_name_prefix="spotlights-write")
-        per_object = _with(stem, "_objects") if self.s.per_object else None
+        s, out = self.s, self.out
+        per_object = _with(stem, "_objects") if s.per_object else None
 
         def files() -> None:
             write_scene(result, _with(stem, ".ply"), per_object=per_object, scan_name=scan_name)
+            if not s.no_pictures and result.completed:
+                render_result(result, _with(stem, ".png"), title)
+            if s.html:
+                js = os.path.relpath(write_plotlyjs(out), stem.parent).replace(os.sep, "/")
+                render_result_html(result, _with(stem, ".html"), title, js)
             write_json(_with(stem, ".json"), summ)
 
         self._written = self._writer.submit(files)
@@ -411,7 +416,9 @@ class _FrameRun:
         writer thread."""
         try:
             if self._written is not None:
-                self._written.exception()  # finished either way; its error, if any, is the run's only if raised
+                # finished either way; reached after the run raised (an error of its own, Ctrl-C), so a write error
+                # too is dropped here: the run's own error is the one reported
+                self._written.exception()
         finally:
             if self._writer is not None:
                 self._writer.shutdown(wait=True)

@@ -360,12 +360,12 @@ def complete_scene(
     todo = [o for o in objects if o.status == "completed"]
     shares: list[float] = []  # per completion: the share the network put inside its grown box (before the clamp)
     with timer("model"):
-        scores = Fidelities(todo, config.heading_check)  # scored on threads as each model's batch is decoded
+        scores = Fidelities(todo)  # scored on threads as each model's batch is decoded
         outs = _complete_objects(todo, completer, config, shares, fallback, scores) if todo else []
     with timer("assemble"):
         if todo:
-            # no KD-tree query runs here (Fidelities' threads build scipy trees, which use no OpenMP): no
-            # threadpool limit is needed (threadpoolctl's scan of the loaded libraries took ~5 ms a frame)
+            # no KD-tree query runs here (Fidelities' threads do, each limited to one OpenMP thread once): no
+            # threadpool limit around it (threadpoolctl's scan of the loaded libraries took ~5 ms a frame)
             _assemble(todo, outs, config, a, scores)
             for k, o in enumerate(todo):  # the share of the completion kept (turned around when the heading flipped)
                 o.inside_box = shares[len(todo) + k] if o.flipped else shares[k]
@@ -487,19 +487,17 @@ def _set(value: _T | None) -> _T:
 
 
 def _complete_objects(
-    todo: list[ObjectResult], completer, config: SceneConfig, shares: list, fallback=None, scores=None
+    todo: list[ObjectResult], completer, config: SceneConfig, shares: list, fallback, scores: Fidelities
 ) -> list:
     """The completions (unit frame, clamped to the grown box) of every object of ``todo``, then (heading check)
     of every object turned around, in that order; ``shares`` receives each one's share inside its box. The
     objects the ``fallback`` model completes (``completed_by``) go through it in a batch of their own.
-    ``scores`` (:class:`Fidelities`), when given, starts scoring each batch's completions as soon as it is decoded
-    (while the next batch runs)."""
+    ``scores`` (:class:`Fidelities`) starts scoring each batch's completions as soon as it is decoded."""
     own = [k for k, o in enumerate(todo) if o.completed_by is None]
     n = len(todo)
     if len(own) == len(todo) or fallback is None:
         res = _complete_batch(todo, completer, config, shares)
-        if scores is not None:
-            scores.add(range(len(res)), res)
+        scores.add(range(len(res)), res)
         return res
     width = 2 * n if config.heading_check else n
     outs: list = [None] * width
@@ -520,8 +518,7 @@ def _complete_objects(
         at = list(idx) + ([n + k for k in idx] if config.heading_check else [])  # positions of res in outs
         for j, k in enumerate(at):
             outs[k], inside[k] = res[j], part[j]
-        if scores is not None:
-            scores.add(at, res)
+        scores.add(at, res)
     shares.extend(inside)
     return outs
 
@@ -554,15 +551,12 @@ def _complete_batch(todo: list[ObjectResult], completer, config: SceneConfig, sh
     )
 
 
-def _assemble(todo: list, outs: list, config: SceneConfig, a, scores: Fidelities | None = None) -> None:
+def _assemble(todo: list, outs: list, config: SceneConfig, a, scores: Fidelities) -> None:
     """Fidelity, heading choice and the scan-frame completion of every completed object (in place).
 
     ``outs`` come from :func:`complete_in_boxes`, clamped to the unit sphere: no completion point
-    of any model leaves its box's sphere. ``scores``: their fidelities, started already (else scored here)."""
+    of any model leaves its box's sphere. ``scores``: their fidelities (:class:`Fidelities`, started already)."""
     n = len(todo)
-    if scores is None:
-        scores = Fidelities(todo, config.heading_check)
-        scores.add(range(len(outs)), outs)
     for k, o in enumerate(todo):
         comp = outs[k]
         o.fidelity = scores.get(k)
@@ -590,6 +584,19 @@ def _assemble(todo: list, outs: list, config: SceneConfig, a, scores: Fidelities
 FIDELITY_THREADS = 2
 
 
+def _one_openmp_thread() -> None:
+    """A fidelity thread's start: OpenMP on one thread in it (the limit is per thread). A small completion is scored
+    with pykdtree (:class:`~spotlights.geometry.neighbors.NearestNeighbors`), whose OpenMP split of small queries
+    costs more than it saves and on busy cores ten times more (:func:`~spotlights.geometry.neighbors.serial_queries`)."""
+    from threadpoolctl import threadpool_limits
+
+    try:  # loaded first: threadpoolctl limits the OpenMP libraries loaded when it is called
+        import pykdtree.kdtree  # noqa: F401
+    except ImportError:  # pragma: no cover - pykdtree is a dependency
+        pass
+    threadpool_limits(limits=1, user_api="openmp")
+
+
 def _fidelity_or_none(partial: np.ndarray, completion: np.ndarray) -> float | None:
     return fidelity(partial, completion) if len(completion) else None
 
@@ -606,8 +613,8 @@ class Fidelities:
     turned by :data:`~spotlights.geometry.boxes.FLIP_Z`).
     """
 
-    def __init__(self, todo: list, heading_check: bool) -> None:
-        self.todo, self.heading_check = todo, heading_check
+    def __init__(self, todo: list) -> None:
+        self.todo = todo
         self.pending: dict = {}
 
     def partial(self, position: int) -> np.ndarray:
@@ -617,7 +624,7 @@ class Fidelities:
 
     def add(self, positions, completions: list) -> None:
         """Start scoring ``completions`` ((K, 3) each), at ``positions`` (same length)."""
-        pool = shared_thread_pool("fidelity", FIDELITY_THREADS)
+        pool = shared_thread_pool("fidelity", FIDELITY_THREADS, initializer=_one_openmp_thread)
         for k, comp in zip(positions, completions):
             self.pending[k] = pool.submit(_fidelity_or_none, self.partial(k), comp)
 
