@@ -466,6 +466,20 @@ def test_data_classes_keeps_one_class_family_and_its_learned_domain(tmp_path):
             data_config({"data": {"classes": bad}})
 
 
+def car_and_bus(seed: int):
+    """A car box and a bus box with points filling each (scan frame, metres): (car, bus, (1000, 3) points)."""
+    rng = np.random.default_rng(seed)
+    car = box([8.0, 2.0, 0.7], [4.3, 1.8, 1.5], "car", "car")
+    bus = box([14.0, -3.0, 1.6], [12.0, 2.5, 3.2], "bus", "bus")
+    pts = np.concatenate(
+        [
+            rng.uniform(-0.5, 0.5, (400, 3)) * car.size + car.center,
+            rng.uniform(-0.5, 0.5, (600, 3)) * bus.size + bus.center,
+        ]
+    )
+    return car, bus, pts
+
+
 def test_complete_frame_loads_a_named_model_once(tmp_path, monkeypatch):
     """``complete_frame`` by name loads the default and its fallback on the first call only; the next calls use the
     same models (the same completions as with models loaded by the caller); a checkpoint file that is rewritten
@@ -480,15 +494,7 @@ def test_complete_frame_loads_a_named_model_once(tmp_path, monkeypatch):
     monkeypatch.setattr(
         api, "load_completer", lambda name, *a, **k: loads.append(str(name)) or real_load(name, *a, **k)
     )
-    rng = np.random.default_rng(11)
-    car = box([8.0, 2.0, 0.7], [4.3, 1.8, 1.5], "car", "car")
-    bus = box([14.0, -3.0, 1.6], [12.0, 2.5, 3.2], "bus", "bus")
-    pts = np.concatenate(
-        [
-            rng.uniform(-0.5, 0.5, (400, 3)) * car.size + car.center,
-            rng.uniform(-0.5, 0.5, (600, 3)) * bus.size + bus.center,
-        ]
-    )
+    car, bus, pts = car_and_bus(seed=11)
     first = complete_frame(pts, [car, bus])
     assert set(loads) <= {"default", "classes"}  # none if an earlier test of this process loaded them by name
     n = len(loads)
@@ -525,15 +531,7 @@ def test_a_process_forked_after_a_frame_completes_frames_too():
     their threads (which would wait forever). A child that does not answer in time is killed."""
     import multiprocessing as mp
 
-    rng = np.random.default_rng(12)
-    car = box([8.0, 2.0, 0.7], [4.3, 1.8, 1.5], "car", "car")
-    bus = box([14.0, -3.0, 1.6], [12.0, 2.5, 3.2], "bus", "bus")
-    pts = np.concatenate(
-        [
-            rng.uniform(-0.5, 0.5, (400, 3)) * car.size + car.center,
-            rng.uniform(-0.5, 0.5, (600, 3)) * bus.size + bus.center,
-        ]
-    )
+    car, bus, pts = car_and_bus(seed=12)
     ref = complete_frame(pts, [car, bus], heading_check=False)
     import threading
 
