@@ -335,7 +335,7 @@ class _FrameRun:
         # tracks/<track>.ply): key -> (boxes, fused inputs, crops, the tracks it is the latest completed frame of)
         self.resumed: dict = {}
         self.latest: dict = {}  # track key -> the resumed frame holding its latest completion so far
-        # a frame's PLY and JSON are written by one thread while the next frame is completed (one frame in flight)
+        # a frame's files are written by one thread while the next frame is completed (one frame in flight)
         self._writer: ThreadPoolExecutor | None = None
         self._written: Future | None = None
 
