@@ -290,3 +290,18 @@ def test_frame_loop_speed_stop36_side_by_side():
     work = {k: d["median"][k]["worker_cpu_ms_per_frame"] for k in ("this", "other")}
     _says("docs/real-data.md", f"the main process {cpu['this']:.0f} against {cpu['other']:.0f} ms a frame")
     _says("docs/real-data.md", f"the worker {work['this']:.0f} against {work['other']:.0f} ms")
+
+
+def test_fused_consistency_with_every_vehicle_stop36():
+    """The per-class fused/single consistency with the class model as fallback, as docs/real-data.md quotes it."""
+    d = _json("real/track_fusion_fallback_stop36.json")
+    assert d["fallback"] == "classes"
+    q = d["quality_on_common_observations"]
+    single, fused = q["single"]["consistency_voxel_per_class"], q["fused"]["consistency_voxel_per_class"]
+    names = {"car": "cars", "truck": "trucks", "trailer": "trailers"}
+    for cls, name in names.items():
+        f, s = fused[cls][0], single[cls][0]
+        _says("docs/real-data.md", f"{name} {f:.4f} against {s:.4f} ({f / s:.2f}x)")
+    a, b = q["fused"]["consistency_voxel_all_objects"], q["single"]["consistency_voxel_all_objects"]
+    _says("docs/real-data.md", f"all objects {a:.4f} against {b:.4f} ({a / b:.2f}x)")
+    _says("docs/real-data.md", f"the {q['n_observations']} observations of Table 2's")
