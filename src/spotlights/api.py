@@ -114,6 +114,16 @@ NAMED_MODELS_KEPT = 4
 """At most this many models given by name are kept (the least recently used is dropped first)."""
 
 
+def _new_named_lock_after_fork() -> None:
+    """In a forked child: the lock may have been held by a thread of the parent (loading a model) at the fork."""
+    global _NAMED_LOCK
+    _NAMED_LOCK = threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_new_named_lock_after_fork)
+
+
 def _named_completer(name: str) -> Any:
     """The model ``name`` (a packaged name or a checkpoint/ONNX file) as :func:`load_completer` loads it, loaded once
     and kept for later calls (a frame loop of ``complete_frame(points, boxes)`` loaded the default and the class

@@ -642,7 +642,7 @@ class StageTimer:
         return {k: round(v, digits) for k, v in self.seconds.items()}
 
 
-# ---------------------------------------------------------------------------- settings
+# ---------------------------------------------------------------------------- thread pools
 
 
 _THREAD_POOLS: dict[str, tuple] = {}  # name -> (owner pid, executor, threads)
@@ -676,6 +676,9 @@ def shared_thread_pool(name: str, threads: int, initializer: Callable[[], object
             pool = (os.getpid(), executor, threads)
             _THREAD_POOLS[name] = pool
         return pool[1]
+
+
+# ---------------------------------------------------------------------------- settings
 
 
 def did_you_mean(key: object, known: Iterable[str]) -> str:
