@@ -18,7 +18,7 @@ import os
 import re
 from collections import Counter
 from collections.abc import Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
@@ -30,7 +30,7 @@ from ..data.tracks import MAX_GAP_S, TIME_UNIT_S, WindowPolicy, parse_window
 from ..errors import ParameterError, SpotlightsError
 from ..geometry.io import POINT_SUFFIXES
 from ..learning.inference import BaseCompleter
-from ..utils import StageTimer, output_folder, sweep_folder_temporaries
+from ..utils import StageTimer, output_folder, shared_thread_pool, sweep_folder_temporaries
 from ..viz.html import write_plotlyjs
 from ..viz.rerun_log import check_rerun_path, open_recording
 from .scan_completion import CompletionOptions, Say, ScanSettings, complete_scan, silent, write_json
@@ -336,7 +336,6 @@ class _FrameRun:
         self.resumed: dict = {}
         self.latest: dict = {}  # track key -> the resumed frame holding its latest completion so far
         # a frame's files are written by one thread while the next frame is completed (one frame in flight)
-        self._writer: ThreadPoolExecutor | None = None
         self._written: Future | None = None
 
     def complete(self, key: tuple, stem: Path) -> dict | None:
@@ -389,8 +388,6 @@ class _FrameRun:
         completed (:meth:`complete` waits for them before that frame writes anything: at most one frame is in
         flight, and a failed write stops the run there, leaving no file of a later frame). The pictures are
         matplotlib ``Figure`` objects drawn by Agg, without pyplot's global state (:mod:`spotlights.viz`)."""
-        if self._writer is None:
-            self._writer = ThreadPoolExecutor(1, thread_name_prefix="spotlights-write")
         s, out = self.s, self.out
         per_object = _with(stem, "_objects") if s.per_object else None
 
@@ -403,7 +400,7 @@ class _FrameRun:
                 render_result_html(result, _with(stem, ".html"), title, js)
             write_json(_with(stem, ".json"), summ)
 
-        self._written = self._writer.submit(files)
+        self._written = shared_thread_pool("write", 1).submit(files)
 
     def wait_writes(self) -> None:
         """Wait until the frame in flight is on disk (its write's error, if any, raised here)."""
@@ -412,17 +409,12 @@ class _FrameRun:
             pending.result()
 
     def close(self) -> None:
-        """Wait for the frame in flight (also after an error or Ctrl-C: nothing half-written is left), end the
-        writer thread."""
-        try:
-            if self._written is not None:
-                # finished either way; reached after the run raised (an error of its own, Ctrl-C), so a write error
-                # too is dropped here: the run's own error is the one reported
-                self._written.exception()
-        finally:
-            if self._writer is not None:
-                self._writer.shutdown(wait=True)
-                self._writer = None
+        """Wait for the frame in flight (also after an error or Ctrl-C: nothing half-written is left)."""
+        if self._written is not None:
+            # finished either way; reached after the run raised (an error of its own, Ctrl-C), so a write error
+            # too is dropped here: the run's own error is the one reported
+            self._written.exception()
+            self._written = None
 
     def _scene(self, frame, boxes, extra, crops) -> SceneResult:
         """The completion of one frame (its boxes, fused inputs and crops as the track plan gives them)."""

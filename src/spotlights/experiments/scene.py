@@ -43,6 +43,7 @@ from ..data.vehicle_classes import VEHICLE_CLASSES, canonical_class
 from ..errors import InputFileError, ParameterError
 from ..geometry.boxes import FLIP_Z, Box, crop_boxes
 from ..geometry.io import save_ply, save_points
+from ..geometry.neighbors import serial_queries
 from ..geometry.rotations import rigid_transform
 from ..learning.inference import DEFAULT, complete_in_boxes, prepare_partial, with_observed
 from ..metrics.consistency import fidelity
@@ -504,16 +505,16 @@ def _complete_objects(
     inside: list = [float("nan")] * width
     others = sorted(set(range(n)) - set(own))
     # the fallback's batch runs on a thread beside the main model's (torch computes without the GIL)
-    batches = {}
+    beside = None
     if own and others:
-        batches[1] = shared_thread_pool("fallback", 1).submit(
+        beside = shared_thread_pool("fallback", 1).submit(
             _complete_batch_shares, [todo[k] for k in others], fallback, config
         )
-    for b, (model, idx) in enumerate(((completer, own), (fallback, others))):
+    for model, idx, ready in ((completer, own, None), (fallback, others, beside)):
         if not idx:
             continue
         part, res = (
-            batches[b].result() if b in batches else _complete_batch_shares([todo[k] for k in idx], model, config)
+            ready.result() if ready is not None else _complete_batch_shares([todo[k] for k in idx], model, config)
         )
         at = list(idx) + ([n + k for k in idx] if config.heading_check else [])  # positions of res in outs
         for j, k in enumerate(at):
@@ -585,16 +586,10 @@ FIDELITY_THREADS = 2
 
 
 def _one_openmp_thread() -> None:
-    """A fidelity thread's start: OpenMP on one thread in it (the limit is per thread). A small completion is scored
-    with pykdtree (:class:`~spotlights.geometry.neighbors.NearestNeighbors`), whose OpenMP split of small queries
-    costs more than it saves and on busy cores ten times more (:func:`~spotlights.geometry.neighbors.serial_queries`)."""
-    from threadpoolctl import threadpool_limits
-
-    try:  # loaded first: threadpoolctl limits the OpenMP libraries loaded when it is called
-        import pykdtree.kdtree  # noqa: F401
-    except ImportError:  # pragma: no cover - pykdtree is a dependency
-        pass
-    threadpool_limits(limits=1, user_api="openmp")
+    """A fidelity thread's start: OpenMP on one thread in it for good (the limit is per thread;
+    :func:`~spotlights.geometry.neighbors.serial_queries`, never restored): a small completion is scored with
+    pykdtree, whose OpenMP split of small queries costs more than it saves."""
+    serial_queries()
 
 
 def _fidelity_or_none(partial: np.ndarray, completion: np.ndarray) -> float | None:

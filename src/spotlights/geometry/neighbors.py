@@ -91,8 +91,13 @@ def serial_queries():
     machine whose cores are busy (a training run beside it) each call can become ten times
     slower (measured: 1.2 s instead of 0.13 s per minimal-matching search). Limits every
     OpenMP pool of the process (threadpoolctl) for the duration; use it around loops of
-    small queries, not around torch work.
+    small queries, not around torch work. pykdtree is imported first: threadpoolctl limits only the
+    OpenMP libraries loaded when it is called, and pykdtree brings its own.
     """
     from threadpoolctl import threadpool_limits
 
+    try:
+        import pykdtree.kdtree  # noqa: F401
+    except ImportError:  # pragma: no cover - pykdtree is a dependency
+        pass
     return threadpool_limits(limits=1, user_api="openmp")

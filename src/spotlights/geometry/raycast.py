@@ -45,7 +45,6 @@ import os
 import threading
 import warnings
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -90,16 +89,6 @@ def _as_rays(origins, directions) -> tuple[np.ndarray, np.ndarray]:
     if o.shape != d.shape or o.ndim != 2 or o.shape[1] != 3:
         raise ParameterError(f"origins and directions must both be (K, 3), got {o.shape} and {d.shape}")
     return o, d
-
-
-# ---------------------------------------------------------------------------- thread pool
-
-
-def _pool(threads: int) -> ThreadPoolExecutor:
-    """The process-wide pool of ray-casting threads (at least ``threads``;
-    :func:`spotlights.utils.shared_thread_pool`: one pool for every caster of the process, a forked child builds
-    its own)."""
-    return shared_thread_pool("rays", threads)
 
 
 def split_bounds(n: int, parts: int) -> list[int]:
@@ -152,7 +141,7 @@ def run_split(n: int, threads: int, cast: Callable[[int, int], object]) -> None:
     every chunk is done. The first exception of any chunk is raised here (later chunks are not
     started); the pool stays usable. A process forked after the pool exists builds its own."""
     job = _Job(cast, split_bounds(n, threads))
-    pool = _pool(threads - 1)
+    pool = shared_thread_pool("rays", threads - 1)  # one for every caster of the process; a forked child's own
     for _ in range(threads - 1):
         try:
             pool.submit(job.work)
