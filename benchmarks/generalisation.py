@@ -182,6 +182,14 @@ def main() -> None:
         default="hatchback,sedan,suv",
         help="categories of the held-out set also scored on their own (default: the car-like Kenney vehicles)",
     )
+    ap.add_argument(
+        "--snap",
+        type=float,
+        nargs="+",
+        default=[],
+        metavar="R",
+        help="also score every SA-Net with its rays snapped to the input within R (unit frame; rows '..., snap R')",
+    )
     ap.add_argument("--json", default=None, help="write the numbers here")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -192,12 +200,17 @@ def main() -> None:
         return by_category(args, [c.strip() for c in args.held_out_category.split(",") if c.strip()], t0)
     scores = {}
     for key, path in (("in_distribution", args.in_dist), ("held_out", args.held_out)):
-        rep = evaluate_checkpoints(args.checkpoint, path, split="test", max_views=args.max_views, progress=False)
+        rows: dict = {}
+        for snap in [None, *args.snap]:
+            rep = evaluate_checkpoints(
+                args.checkpoint, path, split="test", max_views=args.max_views, progress=False, snap=snap
+            )
+            rows.update(_rows(rep))
         scores[key] = {
             "data": str(path),
             "n_samples": rep["n_samples"],
             "n_models": rep["n_models"],
-            "rows": _rows(rep),
+            "rows": rows,
         }
     ceiling = {}
     for rig in checkpoint_rigs(args.checkpoint):
@@ -237,6 +250,7 @@ def main() -> None:
         "max_views": args.max_views,
         "subset": subset,
         "checkpoints": args.checkpoint,
+        "snap": args.snap,
         "scores": scores,
         "ratio_held_out_over_in_distribution": ratios,
         "decoded_ground_truth": ceiling,

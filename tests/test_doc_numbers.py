@@ -305,3 +305,22 @@ def test_fused_consistency_with_every_vehicle_stop36():
     a, b = q["fused"]["consistency_voxel_all_objects"], q["single"]["consistency_voxel_all_objects"]
     _says("docs/real-data.md", f"all objects {a:.4f} against {b:.4f} ({a / b:.2f}x)")
     _says("docs/real-data.md", f"the {q['n_observations']} observations of Table 2's")
+
+
+def test_snap_rows_stop37():
+    """The --snap 0.05 table of docs/learning.md: test cars, Kenney vehicles and the real sets, from their reports."""
+    t = _summary(_json("fair/snap/table1_snap.json"), "sanet-hit")
+    _says(
+        "docs/learning.md",
+        f"{t['accuracy']:.5f} / {t['completeness']:.5f} / {t['chamfer_l1']:.5f} / {t['fscore']:.3f}",
+    )
+    g = _json("fair/snap/generalisation_snap.json")
+    rows, ratio = g["scores"]["held_out"]["rows"], g["ratio_held_out_over_in_distribution"]
+    plain, snap = "default (p(hit) >= 0.4)", "default (p(hit) >= 0.4, snap 0.05)"
+    assert g["snap"] == [0.05]
+    _says("docs/learning.md", f"{rows[plain]['accuracy']:.4f} ({ratio[plain]['accuracy']:.2f}x the test cars')")
+    _says("docs/learning.md", f"{rows[snap]['accuracy']:.4f} ({ratio[snap]['accuracy']:.2f}x)")
+    _says("docs/learning.md", f"{1 - rows[snap]['accuracy'] / rows[plain]['accuracy']:.0%} better")
+    for name in ("av2", "nuscenes"):
+        (m,) = _json(f"real/snap/{name}_snap.json")["models"]
+        _says("docs/learning.md", f"{m['equal_density']['average']['cd']:.4f} / {m['average']['fidelity']:.4f}")

@@ -10,12 +10,28 @@ from ..data.tracks import MAX_GAP_S, MAX_TRANSLATION_M, MAX_YAW_RAD, WINDOW_HELP
 from ..experiments.frame_completion import complete_input
 from ..experiments.scan_completion import ScanSettings
 from ..utils import settings_from_namespace
-from ._util import DEVICE_HELP, add_command, argparse_type, non_negative_int, positive_int, unit_interval
+from ._util import (
+    DEVICE_HELP,
+    add_command,
+    argparse_type,
+    non_negative_float,
+    non_negative_int,
+    positive_int,
+    unit_interval,
+)
 from .view import add_html_argument
 
 CROP_DOC = (
     "each box's points: the box grown by --margin on its sides and top, its bottom raised by --ground-clearance "
     "(ground returns)"
+)
+
+
+SNAP_HELP = (
+    "SA-Nets: a predicted ray that passes within R (unit frame: the box's half diagonal; 0.05 is ~13 cm on a car) of "
+    "an observed point takes its depth from the scan, so the completion keeps what the LiDAR saw instead of the "
+    "shape the model remembers (default 0: off; docs/learning.md, 'Snapping to the observed points': more accurate "
+    "on vehicles of an unseen source, less consistent from frame to frame on real scans)"
 )
 
 
@@ -58,6 +74,13 @@ def add_completion_arguments(p, single: bool) -> None:
         default=True,
         help="return each object's observed points (the model's input) beside its predicted ones (default on; "
         "fidelity and the heading check score the predicted points alone)",
+    )
+    p.add_argument(
+        "--snap",
+        type=non_negative_float,
+        default=0.0,
+        metavar="R",
+        help=SNAP_HELP + "; not with --heading-check",
     )
     p.add_argument(
         "--heading-check",

@@ -19,11 +19,12 @@ from ._util import (
     add_group,
     add_quiet,
     argparse_type,
+    non_negative_float,
     non_negative_int,
     positive_int,
     unit_interval,
 )
-from .complete import add_completion_arguments, add_track_arguments, warn
+from .complete import SNAP_HELP, add_completion_arguments, add_track_arguments, warn
 from .view import add_html_argument
 
 FORMAT_CHOICES = ("kitti", "kitti360", "av2", "nuscenes", "generic")
@@ -212,6 +213,9 @@ def register(sub) -> None:
         default=None,
         metavar="T",
         help="depth clip passed to the models (default: each model's own)",
+    )
+    p.add_argument(
+        "--snap", type=non_negative_float, default=0.0, metavar="R", help=SNAP_HELP + "; needs --no-heading-check"
     )
     p.add_argument("--device", default=None, help=DEVICE_HELP)
     p.add_argument(

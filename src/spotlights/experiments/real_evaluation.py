@@ -140,6 +140,7 @@ def complete_all(
     box_sizes: np.ndarray | None = None,
     sensor_origins: np.ndarray | None = None,
     classes=None,
+    snap: float | None = None,
 ) -> list[np.ndarray]:
     """Run ``completer.complete`` over (n, P, 3) float32 partials in batches; returns n (K_i, 3) float32 arrays.
 
@@ -150,6 +151,7 @@ def complete_all(
     ``sensor_origins`` (n, 3): the LiDAR in each observation's unit frame, for models that read free
     space (``sanet-local``; NaN rows: unknown); others never see it.
     ``classes`` (n,): each observation's class, for class-conditioned models (others never see it).
+    ``snap``: radius (unit frame) of snapping each completion's rays to its partial (SA-Nets; None: off).
     """
     from tqdm import tqdm
 
@@ -172,6 +174,8 @@ def complete_all(
             kw["sensor_origins"] = sensor_origins[s : s + batch_size]
         if classes is not None and getattr(completer, "classes", ()):
             kw["classes"] = list(classes[s : s + batch_size])
+        if snap:
+            kw["snap"] = snap
         res = completer.complete(batch, **kw)
         if len(res) != len(batch):
             raise SpotlightsError(
@@ -267,6 +271,9 @@ class RealEvaluationSettings:
     heading_margin : margin of the counted heading flips (:func:`~spotlights.experiments.scene.heading_turns`),
         in [0, 1).
     batch_size : observations per ``complete`` call.
+    snap : > 0: the SA-Nets' rays snapped to each observation's input points within this radius (unit frame;
+        :meth:`~spotlights.learning.inference.BaseCompleter.complete`); 0: off. Not with ``heading_check`` (which
+        compares fidelities that snapping puts near 0 for both headings).
 
     Read from a mapping with :meth:`from_dict` (unknown keys are errors naming the closest field).
     """
@@ -279,6 +286,16 @@ class RealEvaluationSettings:
     heading_check: bool = True
     heading_margin: float = HEADING_MARGIN
     batch_size: int = 64
+    snap: float = 0.0
+
+    def __post_init__(self):
+        if not (np.isfinite(self.snap) and self.snap >= 0):
+            raise ParameterError(f"the snap radius must be >= 0 (unit frame), got {self.snap}")
+        if self.snap > 0 and self.heading_check:
+            raise ParameterError(
+                "--snap does not go with the heading check (add --no-heading-check): the flips are counted by "
+                "fidelity, which snapping puts near 0 for both headings"
+            )
 
     @classmethod
     def from_dict(cls, d: object, where: str = "evaluate_consistency") -> RealEvaluationSettings:
@@ -431,6 +448,7 @@ def _model_entry(
         box_sizes=t.sizes,
         sensor_origins=t.sensors,
         classes=t.cls,
+        snap=s.snap or None,
     )
     comps = complete_all(completer, t.partials, desc=f"complete {name}", **run)
     p2 = t.partials2

@@ -96,6 +96,8 @@ class CompletionOptions:
     checkpoint : a checkpoint file, a short name (``"default"``, ``"paper"``, ``"classes"``) or a ``.onnx`` file; None: default.
     classes : comma-separated classes to complete (text or tuple); None: every vehicle class.
     keep_observed : return each object's observed points beside its predicted ones.
+    snap : > 0: snap the SA-Nets' rays to each object's observed points within this radius (unit frame; 0: off;
+        :class:`~spotlights.experiments.scene.SceneConfig`).
     complete_unknown : also complete boxes whose class (or size, far outside its class's range) the model did not
         learn (default: left as their observed points, status ``not_learned``, counted per class).
     fallback : a second model (file or short name, e.g. ``"classes"``) for the boxes :attr:`checkpoint`'s model
@@ -117,6 +119,7 @@ class CompletionOptions:
     checkpoint: str | None = None
     classes: str | tuple | None = None
     keep_observed: bool = True
+    snap: float = 0.0
     complete_unknown: bool = False
     fallback: str | None = AUTO_FALLBACK
     heading_check: bool = False
@@ -167,6 +170,7 @@ class CompletionOptions:
             heading_check=bool(self.heading_check),
             clip=clip,
             keep_observed=bool(self.keep_observed),
+            snap=float(self.snap),
             complete_unknown=bool(self.complete_unknown),
             heading_margin=HEADING_MARGIN if self.heading_margin is None else float(self.heading_margin),
         )

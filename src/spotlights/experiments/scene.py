@@ -90,6 +90,10 @@ class SceneConfig:
     complete_unknown : also complete the boxes the model did not learn (``LearnedDomain.gate``: a class
         outside its classes, or a size far outside its class's range); by default they are left as their
         observed points, status ``not_learned`` (counted per class in the summary's ``not_completed``).
+    snap : > 0: the SA-Nets' rays that pass within ``snap`` (unit frame: the box's half diagonal) of one of the
+        object's input points take their depth from the scan
+        (:func:`spotlights.geometry.evidence.snap_to_observed`); 0: off (default). Fidelity is then scored on
+        the snapped completion (near 0 by construction), so it does not go with the heading check.
     """
 
     margin: float = 0.15
@@ -105,6 +109,7 @@ class SceneConfig:
     clip: object = "default"
     keep_observed: bool = False
     complete_unknown: bool = False
+    snap: float = 0.0
 
     def __post_init__(self):
         if not (math.isfinite(self.margin) and self.margin >= 0):
@@ -115,6 +120,13 @@ class SceneConfig:
             raise ParameterError(f"the heading margin must be in [0, 1), got {self.heading_margin}")
         if self.min_points < 1:
             raise ParameterError(f"the minimum point count must be >= 1, got {self.min_points}")
+        if not (math.isfinite(self.snap) and self.snap >= 0):
+            raise ParameterError(f"the snap radius must be >= 0 (unit frame), got {self.snap}")
+        if self.snap > 0 and self.heading_check:
+            raise ParameterError(
+                "--snap does not go with --heading-check: the check compares how close each heading's completion "
+                "comes to the observed points, and snapping puts both on them"
+            )
         if self.classes is not None:
             bad = [c for c in self.classes if c not in CLASSES]
             if bad or not self.classes:
@@ -549,6 +561,7 @@ def _complete_batch(todo: list[ObjectResult], completer, config: SceneConfig, sh
         sensor_origins=sensors,
         inside=shares,
         classes=classes,
+        snap=config.snap or None,
     )
 
 

@@ -42,6 +42,16 @@ point. Each ray is sampled at ``T = carve_samples`` depths, the centres of ``T``
 (unknown sensor) carves nothing. :func:`free_space_decode` uses the bins at decoding: a predicted
 surface inside a carved bin moves to the start of the next bin that is not carved, or is
 dropped when every bin after it is carved.
+
+Snapping to the observed points (:func:`snap_to_observed`)
+----------------------------------------------------------
+At decoding (no learning, off unless asked: ``--snap R``), a ray that passes within ``R`` of an observed
+point takes its depth from the scan instead of the network: of the ray's counted near-ray candidates
+(above, radius ``R``) the one nearest to its line, ``x`` with normal ``n`` (:func:`point_normals`: the
+least-variance axis of its 8 nearest observed points), gives the depth where the ray meets the plane
+through ``x`` normal to ``n`` when that meeting point is within ``R`` of ``x``, ahead of the origin, and
+the ray is not grazing (``|d . n| >= 0.3``); else the depth of ``x``'s foot on the line (``t`` above). The
+ray is kept (a hit) whatever the network said. Rays without a candidate keep the network's depth and hit.
 """
 
 from __future__ import annotations
@@ -141,23 +151,10 @@ def nearest_per_cell(keys: np.ndarray, ranges: np.ndarray, n_keys: int) -> np.nd
     return out
 
 
-def near_ray_evidence(
-    points: np.ndarray, origins: np.ndarray, directions: np.ndarray, n_secondary: int, params: EvidenceParams
-) -> dict:
-    """Near-ray evidence of one scan (module docstring), vectorised over rays.
-
-    Parameters
-    ----------
-    points : (K, 3) observed points, unit frame. origins : (R, 3) ray origins (viewpoint ``r // n_secondary``),
-    directions : (R, 3) unit directions, unit frame. n_secondary : M, rays per viewpoint.
-
-    Returns ``depth`` (R, 4) float64 normalised depths, ``distance`` (R, 4) float64 unit-frame distances to
-    the line, ``valid`` (R, 4) bool (counted candidates first, each group by increasing distance; not counted
-    entries hold their values or 0 without a candidate), ``count`` (R,) int64.
-    """
-    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
-    d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+def _near_candidates(p: np.ndarray, o: np.ndarray, d: np.ndarray, n_secondary: int, params: EvidenceParams):
+    """The 4 candidates of every ray (:func:`near_ray_evidence`, unsorted): ``index`` (R, 4) int64 point row or -1,
+    ``t`` (R, 4) float64 depth, ``dist`` (R, 4) float64 distance to the line (0 without a candidate), ``valid``
+    (R, 4) bool. ``p`` (K, 3), ``o`` and ``d`` (R, 3) float64, unit frame."""
     r, m, g = len(o), int(n_secondary), int(params.near_cells)
     views = o[::m]
     frames = stereo_frames(views)  # (N, 3, 3)
@@ -185,7 +182,28 @@ def near_ray_evidence(
     dist = np.linalg.norm(rel - (2.0 * t)[..., None] * d[:, None], axis=-1)
     has = cand >= 0
     valid = has & (t > 0) & (dist <= params.radius)
-    t, dist = np.where(has, t, 0.0), np.where(has, dist, 0.0)
+    return cand, np.where(has, t, 0.0), np.where(has, dist, 0.0), valid
+
+
+def near_ray_evidence(
+    points: np.ndarray, origins: np.ndarray, directions: np.ndarray, n_secondary: int, params: EvidenceParams
+) -> dict:
+    """Near-ray evidence of one scan (module docstring), vectorised over rays.
+
+    Parameters
+    ----------
+    points : (K, 3) observed points, unit frame. origins : (R, 3) ray origins (viewpoint ``r // n_secondary``),
+    directions : (R, 3) unit directions, unit frame. n_secondary : M, rays per viewpoint.
+
+    Returns ``depth`` (R, 4) float64 normalised depths, ``distance`` (R, 4) float64 unit-frame distances to
+    the line, ``valid`` (R, 4) bool (counted candidates first, each group by increasing distance; not counted
+    entries hold their values or 0 without a candidate), ``count`` (R,) int64.
+    """
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+    d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    _, t, dist, valid = _near_candidates(p, o, d, n_secondary, params)
+    r = len(o)
     order = np.lexsort((np.arange(NEAR_CANDIDATES)[None].repeat(r, 0), dist, ~valid), axis=-1)
     take = lambda a_: np.take_along_axis(a_, order, axis=-1)  # noqa: E731
     return {"depth": take(t), "distance": take(dist), "valid": take(valid), "count": valid.sum(-1).astype(np.int64)}
@@ -252,3 +270,76 @@ def free_space_decode(depth: np.ndarray, keep: np.ndarray, carved: np.ndarray, h
     new_depth = np.where(inside, i * h / n_t, dd)
     new_keep = np.asarray(keep, dtype=bool) & ~(inside & (i >= n_t))
     return new_depth, new_keep
+
+
+SNAP_MIN_COSINE = 0.3
+"""A ray meets an observed point's tangent plane only when ``|d . n|`` is at least this (not grazing)."""
+
+NORMAL_NEIGHBOURS = 8
+"""Observed points (the point included) whose least-variance axis is a point's normal."""
+
+
+def point_normals(points: np.ndarray, k: int = NORMAL_NEIGHBOURS) -> np.ndarray:
+    """(K, 3) float64 unit normals (sign arbitrary) of (K, 3) points: the eigenvector of the smallest
+    eigenvalue of the covariance of each point's ``min(k, K)`` nearest points (itself included). Fewer
+    than 3 points: zeros (no plane)."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(p) < 3:
+        return np.zeros_like(p)
+    from scipy.spatial import cKDTree
+
+    _, idx = cKDTree(p).query(p, k=min(int(k), len(p)))
+    nb = p[idx] - p[idx].mean(axis=1, keepdims=True)
+    _, vec = np.linalg.eigh(np.einsum("kni,knj->kij", nb, nb))
+    return vec[:, :, 0]
+
+
+def snap_to_observed(
+    points: np.ndarray,
+    origins: np.ndarray,
+    directions: np.ndarray,
+    n_secondary: int,
+    depth: np.ndarray,
+    keep: np.ndarray,
+    radius: float,
+    near_cells: int = 32,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Snap the rays that pass near observed points onto them (module docstring), one scan, vectorised.
+
+    Parameters
+    ----------
+    points : (K, 3) observed points, unit frame (repeats removed here). origins, directions : (R, 3) the
+        rays (viewpoint ``r // n_secondary``), unit frame. depth : (R,) predicted normalised depths (a point is
+        ``o + 2 t d``). keep : (R,) bool predicted hits. radius : R > 0, unit frame. near_cells : the
+        viewpoint grids' G (:class:`EvidenceParams`).
+
+    Returns ``(depth (R,) float64, keep (R,) bool, snapped (R,) bool)``: the snapped rays' depths from the
+    scan and kept; the others as given.
+    """
+    if not radius > 0:
+        raise ValueError(f"the snap radius must be > 0, got {radius}")
+    dep = np.array(depth, dtype=np.float64).reshape(-1)
+    kp = np.array(keep, dtype=bool).reshape(-1)
+    p = np.unique(np.asarray(points, dtype=np.float64).reshape(-1, 3), axis=0)
+    o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+    d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    if not (len(dep) == len(kp) == len(o) == len(d)):
+        raise ValueError(f"depth {dep.shape}, keep {kp.shape}, origins {o.shape}, directions {d.shape} differ in rays")
+    if len(p) == 0:
+        return dep, kp, np.zeros(len(dep), dtype=bool)
+    cand, t, dist, valid = _near_candidates(p, o, d, n_secondary, EvidenceParams(near_cells=near_cells, radius=radius))
+    snapped = valid.any(axis=1)
+    rows = np.flatnonzero(snapped)
+    best = np.argmin(np.where(valid[rows], dist[rows], np.inf), axis=1)
+    j = cand[rows, best]
+    t_foot = t[rows, best]
+    x, n = p[j], point_normals(p)[j]
+    o_r, d_r = o[rows], d[rows]
+    dn = np.einsum("ij,ij->i", d_r, n)
+    facing = np.abs(dn) >= SNAP_MIN_COSINE
+    t_plane = np.einsum("ij,ij->i", x - o_r, n) / (2.0 * np.where(facing, dn, 1.0))
+    meet = o_r + (2.0 * t_plane)[:, None] * d_r
+    on_plane = facing & (t_plane > 0) & (np.linalg.norm(meet - x, axis=1) <= radius)
+    dep[rows] = np.where(on_plane, t_plane, t_foot)
+    kp[rows] = True
+    return dep, kp, snapped

@@ -31,7 +31,16 @@ from ..data.store import open_dataset
 from ..distributed import check_backend, ray_session
 from ..errors import ParameterError
 from ..metrics.completion import METRIC_DESCRIPTIONS, evaluate_completions, summarize
-from ..options import DEVICE_HELP, REQUIRED, non_negative_int, option, positive_float, positive_int, unit_interval
+from ..options import (
+    DEVICE_HELP,
+    REQUIRED,
+    non_negative_float,
+    non_negative_int,
+    option,
+    positive_float,
+    positive_int,
+    unit_interval,
+)
 from ..utils import StageTimer, atomic_output, check_writable, settings_from_dict
 from ..viz import render_predictions
 from .bench import model_latency
@@ -61,6 +70,7 @@ def evaluate_checkpoint(
     dataset=None,
     gt_dense=None,
     scorer=None,
+    snap: float | None = None,
 ) -> dict:
     """Score one checkpoint on one split.
 
@@ -76,6 +86,8 @@ def evaluate_checkpoint(
     dataset, gt_dense : an already opened split and its dense GT (to share across checkpoints).
     scorer : the per-model metric work, ``evaluate_completions`` (default) or a drop-in such as
         :class:`~spotlights.learning.ray_metrics.RayMetrics` (``evaluate --backend ray``).
+    snap : > 0: every SA-Net row with its rays snapped to each scan's partial within this radius (unit frame;
+        :func:`spotlights.geometry.evidence.snap_to_observed`; the rows' names say so); None or 0: off.
 
     Returns
     -------
@@ -99,6 +111,9 @@ def evaluate_checkpoint(
     ds = dataset or TorchCompletionDataset(data, split, rig=False, max_views=max_views, partials_in_memory=True)
     dense = gt_dense if gt_dense is not None else ds.gt_dense()
     hit_aware = hasattr(model, "hit_probabilities")
+    snap = float(snap) if snap else None
+    if snap is not None and not hasattr(model, "snap_rays"):
+        raise ParameterError(f"{checkpoint}: {name} has no rays to snap: --snap needs an SA-Net")
     if hit_aware:  # hit-aware SA-Net: rays with p(hit) >= the checkpoint's threshold, no clip (a clip only if asked)
         variants = [(f"p(hit) >= {model.threshold:g}", None)] + (
             [(f"p(hit) >= {model.threshold:g}, clip {float(clip):g}", float(clip))] if clip is not None else []
@@ -108,6 +123,8 @@ def evaluate_checkpoint(
         variants = [("no clip", None)] + ([(f"clip {c:g}", c)] if c is not None else [])
     else:
         variants = [("", None)]
+    if snap is not None:
+        variants = [((v + ", " if v else "") + f"snap {snap:g}", c) for v, c in variants]
     preds = {v: [] for v, _ in variants}
     kept = {v: [] for v, _ in variants}
     rays = None
@@ -122,8 +139,9 @@ def evaluate_checkpoint(
                 b["cls"] = model.class_indices(ds.classes[batch["model"].numpy()]).to(dev)
             out = model(*model.forward_inputs(b, rays))
             dirs = rays.directions(batch["model"].to(dev)) if rays is not None else None
+            snap_kw = {} if snap is None else {"snap": ([p.numpy() for p in batch["partial"]], snap)}
             for v, c in variants:
-                pts = model.outputs_to_points(out, c, dirs)
+                pts = model.outputs_to_points(out, c, dirs, **snap_kw)
                 preds[v].extend(p.cpu().numpy() for p in pts)
                 if model.target == "depths":
                     kept[v].extend(len(p) / model.rig.n_rays for p in pts)
@@ -155,6 +173,7 @@ def evaluate_checkpoint(
         "params": model.param_counts(),
         "rows": rows,
         "predict_seconds": predict_s,
+        "snap": snap,
         "trained_epochs": int(ckpt.get("epoch", 0) or 0),
         "training": training_facts(ckpt),
     }
@@ -483,6 +502,7 @@ class EvaluateSettings:
         ``latency`` and not ``no_latency``, ``latency_repeats`` timed runs after 2 warm-ups.
     examples : scans per category in the figure (0: no figure).
     device, threads : torch device and CPU threads (None: the defaults).
+    snap : > 0: SA-Net rows with their rays snapped to each scan's partial within this radius (unit frame); 0: off.
     quiet : no progress bars. backend, ray_address : ``"local"`` or ``"ray"`` metric work.
     """
 
@@ -535,6 +555,13 @@ class EvaluateSettings:
         metavar="K",
         help="figure PATH.png: K scans per category, each model's prediction beside the ground truth (default 2; "
         "0: no figure)",
+    )
+    snap: float = option(
+        default=0.0,
+        type=non_negative_float,
+        metavar="R",
+        help="SA-Nets: score the completions with every ray that passes within R (unit frame) of an input point "
+        "snapped to it, as 'complete --snap R' (default 0: off; the figure shows the models' own outputs)",
     )
     device: str | None = option(default=None, help=DEVICE_HELP)
     threads: int | None = option(default=None, type=positive_int, help="torch CPU threads (default: torch's)")
@@ -589,6 +616,7 @@ def run_evaluation(s: EvaluateSettings, log: Callable[[str], None] = print) -> d
         progress=not s.quiet,
         backend=s.backend,
         ray_address=s.ray_address,
+        snap=s.snap or None,
     )
     md, js = write_report(report, s.out)
     log(report_markdown(report).split("\n## ")[0].rstrip())

@@ -413,8 +413,11 @@ class OnnxCompleter(BaseCompleter):
         classes=None,
         box_half: np.ndarray | None = None,
         inside: list | None = None,
+        snap=None,
     ) -> list[np.ndarray]:
-        """One batch through onnxruntime; the rays kept as the torch models keep them (:meth:`keep`). Exports hold
+        """One batch through onnxruntime; the rays kept as the torch models keep them (:meth:`keep`), snapped to
+        the observed points with ``snap = (observed, radius)`` as the torch SA-Nets snap them
+        (:func:`~spotlights.geometry.evidence.snap_to_observed`). Exports hold
         no free-space model (``spotlights export`` refuses ``sanet-local``), so ``sensor_origins`` is unused;
         ``classes`` (b names or None) feed a class-conditioned export's ``classes`` input as the torch
         ``Completer`` feeds its model (:func:`~spotlights.data.vehicle_classes.class_rows`; other exports ignore
@@ -424,15 +427,58 @@ class OnnxCompleter(BaseCompleter):
         out = self.run(partials, directions, rows)
         if "points" in out:
             return [np.ascontiguousarray(p, dtype=np.float32) for p in out["points"]]
+        if snap is not None and self.rig is None:
+            raise ParameterError(f"{self.path.name}: snapping to the observed points needs a ray model (an SA-Net)")
         mask = self.keep(out, clip)
-        points = out["ray_points"]
+        points, depths = out["ray_points"], out["depths"]
+        if snap is not None:
+            depths, mask = snap_rays(depths, mask, self.rig, directions, *snap)
+            points = ray_points(depths, self.rig, directions)
         if box_half is not None and self.rig is not None:
             origins, fixed = rig_rays(self.rig)
             dirs = fixed if directions is None else directions
-            points, mask, share = clip_rays_to_boxes(out["depths"], mask, origins, dirs, box_half)
+            points, mask, share = clip_rays_to_boxes(depths, mask, origins, dirs, box_half)
             if inside is not None:
                 inside.extend(float(v) for v in share)
         return [p[m].astype(np.float32) for p, m in zip(points, mask)]
+
+
+def snap_rays(depths, keep, rig, directions, observed, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """The numpy form of :meth:`spotlights.learning.models.sanet.SANet.snap_rays`: depths (B, R), keep (B, R) bool,
+    ``rig`` the export's rig, directions (B, R, 3) or None (the rig's fixed rays), observed B (K_b, 3) arrays,
+    radius (unit frame). Returns ``(depths (B, R) float32, keep (B, R) bool)``."""
+    from ..geometry.evidence import snap_to_observed
+
+    origins, fixed = rig_rays(rig)
+    dirs = np.asarray(fixed if directions is None else directions, dtype=np.float64)
+    if len(observed) != len(depths):
+        raise ParameterError(f"{len(observed)} observed point sets for {len(depths)} scans")
+    rows = [
+        snap_to_observed(
+            observed[b],
+            origins,
+            dirs[b] if dirs.ndim == 3 else dirs,
+            rig_spec(rig).n_secondary,
+            depths[b],
+            keep[b],
+            radius,
+        )
+        for b in range(len(depths))
+    ]
+    return np.stack([r[0] for r in rows]).astype(np.float32), np.stack([r[1] for r in rows])
+
+
+def ray_points(depths, rig, directions) -> np.ndarray:
+    """(B, R, 3) float32 ``o + 2 d u`` of depths (B, R), each clamped to [0, half the ray's chord through the unit
+    sphere] (the torch SA-Nets' :meth:`~spotlights.learning.models.sanet.SANet.ray_points`)."""
+    origins, fixed = rig_rays(rig)
+    o = np.asarray(origins, dtype=np.float32)
+    u = np.broadcast_to(
+        np.asarray(fixed if directions is None else directions, dtype=np.float32), (len(depths), *o.shape)
+    )
+    half_chord = np.maximum(-(o * u).sum(-1), 0.0)
+    d = np.minimum(np.maximum(np.asarray(depths, dtype=np.float32), 0.0), half_chord)
+    return o + (2.0 * d)[..., None] * u
 
 
 def clip_rays_to_boxes(depths, keep, origins, directions, box_half) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import inspect
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -288,6 +289,8 @@ class BaseCompleter:
         classes=None,
         box_half: np.ndarray | None = None,
         inside: list | None = None,
+        snap: float | None = None,
+        observed: Sequence[np.ndarray] | None = None,
     ) -> list[np.ndarray]:
         """Complete partial scans.
 
@@ -310,6 +313,11 @@ class BaseCompleter:
         box_half : (B, 3) half-extents of a box per scan in its unit frame (e.g. the box grown by 0.15 m):
             the SA-Nets clip every kept ray's depth to it, exactly along the ray (``inside``, a list, gets each
             scan's share of points inside before the clip); the point models ignore both.
+        snap : radius R > 0 (unit frame) to snap each scan's rays to its observed points (SA-Nets only;
+            :func:`spotlights.geometry.evidence.snap_to_observed`: a ray passing within R of an observed point
+            takes its depth from the scan); None or 0: off (default).
+        observed : with ``snap``, B arrays (K_b, 3) of each scan's observed points, unit frame (default: the
+            partials themselves).
 
         Returns
         -------
@@ -347,6 +355,16 @@ class BaseCompleter:
         bh = None
         if box_half is not None:
             bh = np.broadcast_to(np.asarray(box_half, dtype=np.float32).reshape(-1, 3), (len(x), 3))
+        snap = float(snap) if snap else None
+        if snap is not None:
+            if not (np.isfinite(snap) and snap > 0):
+                raise ParameterError(f"the snap radius must be a finite number > 0, got {snap}")
+            if self.rig is None or not accepts(self._forward, "snap"):
+                raise ParameterError(
+                    f"{self.model_name} has no rays to snap: snapping to the observed points needs an SA-Net"
+                )
+            if observed is not None and len(observed) != len(x):
+                raise ParameterError(f"{len(observed)} observed point sets for {len(x)} scans")
         out: list[np.ndarray] = []
         with self._session():
             for s in range(0, len(x), batch_size):
@@ -357,6 +375,9 @@ class BaseCompleter:
                     kw["classes"] = names[s : s + batch_size]
                 if bh is not None and accepts(self._forward, "box_half"):
                     kw["box_half"], kw["inside"] = np.array(bh[s : s + batch_size]), inside
+                if snap is not None:
+                    obs = x[s : s + batch_size] if observed is None else observed[s : s + batch_size]
+                    kw["snap"] = ([np.asarray(o, dtype=np.float64).reshape(-1, 3) for o in obs], snap)
                 out.extend(self._forward(x[s : s + batch_size], clip, dirs, sb, **kw))
         return out
 
@@ -435,6 +456,7 @@ class Completer(BaseCompleter):
         classes=None,
         box_half: np.ndarray | None = None,
         inside: list | None = None,
+        snap=None,
     ) -> list[np.ndarray]:
         import torch
 
@@ -453,6 +475,10 @@ class Completer(BaseCompleter):
         if box_half is not None and hasattr(self.model, "clip_to_boxes"):
             kw["box_half"] = torch.from_numpy(np.ascontiguousarray(box_half, dtype=np.float32)).to(self.device)
             kw["inside"] = inside
+        if snap is not None:
+            if not hasattr(self.model, "snap_rays"):
+                raise ParameterError(f"{self.model_name} has no rays to snap: snapping needs an SA-Net")
+            kw["snap"] = snap
         return [p.cpu().numpy().astype(np.float32) for p in self.model.complete(*args, **kw)]
 
 
@@ -517,6 +543,7 @@ def complete_in_boxes(
     sensor_origins=None,
     inside: list | None = None,
     classes=None,
+    snap: float | None = None,
 ) -> list[np.ndarray]:
     """Complete unit-frame partial scans, each with its box, every point inside its box grown by
     0.15 m and inside the box's sphere (``inside``, when given, gets each completion's share of points the
@@ -542,10 +569,14 @@ def complete_in_boxes(
     sizes : (B, 3) box sizes (length, width, height), metres.
     clip : passed to :meth:`Completer.complete`.
     sensor_origins : (B, 3) the LiDAR in each scan's unit frame, passed on to models that read free space.
+    snap : radius (unit frame) to snap the SA-Nets' rays to each scan's partial (:meth:`Completer.complete`);
+        None or 0: off.
 
     Returns a list of B arrays (K_i, 3) float32, unit frame, norms <= 1, inside the grown boxes.
     """
     kw = {"clip": clip}
+    if snap:
+        kw["snap"] = snap
     if sensor_origins is not None and getattr(getattr(completer, "model", None), "uses_evidence", False):
         kw["sensor_origins"] = sensor_origins
     sz = np.asarray(sizes, dtype=np.float64).reshape(-1, 3)

@@ -25,6 +25,7 @@ import hashlib
 from collections import OrderedDict
 from collections.abc import Sequence
 
+import numpy as np
 import torch
 
 from ...data.vehicle_classes import canonical_class, class_rows
@@ -148,13 +149,14 @@ class SANet(CompletionModel):
 
     @torch.no_grad()
     def complete(
-        self, partial, clip=CLIP_DEFAULT, directions=None, classes=None, box_half=None, inside=None
+        self, partial, clip=CLIP_DEFAULT, directions=None, classes=None, box_half=None, inside=None, snap=None
     ) -> list[torch.Tensor]:
         """As :meth:`CompletionModel.complete`, with each scan's class index ``classes`` (B,) (see :meth:`encode`)
         and, with ``box_half`` (B, 3), every kept ray's depth clipped to that box (:meth:`clip_to_boxes`;
-        ``inside``, a list, gets each scan's share of kept rays inside before the clip)."""
+        ``inside``, a list, gets each scan's share of kept rays inside before the clip); ``snap``: see
+        :meth:`kept_points`."""
         return self.outputs_to_points(
-            self.forward(partial, classes), clip, directions, box_half=box_half, inside=inside
+            self.forward(partial, classes), clip, directions, box_half=box_half, inside=inside, snap=snap
         )
 
     def clip_to_boxes(
@@ -192,6 +194,38 @@ class SANet(CompletionModel):
         t = torch.minimum(torch.maximum(t, t_in.clamp(min=0.0)), t_out)
         keep = keep & meets
         return torch.where(keep, t / 2.0, depths.double()).to(depths.dtype), keep, inside.float()
+
+    def snap_rays(
+        self, depths: torch.Tensor, keep: torch.Tensor, directions: torch.Tensor | None, observed, radius: float
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Snap every scan's rays to its observed points (:func:`spotlights.geometry.evidence.snap_to_observed`).
+
+        depths : (B, R) float32 regressed depths; keep : (B, R) bool kept rays; directions : (B, R, 3) per-scan
+        unit ray directions (None: the rig's fixed ones); observed : B arrays (K_b, 3) of observed points, unit
+        frame; radius : unit frame. Returns ``(depths (B, R) float32, keep (B, R) bool)`` on the inputs' device.
+        """
+        from ...geometry.evidence import snap_to_observed
+
+        dirs = self.directions if directions is None else directions
+        if dirs is None:
+            raise ValueError("snapping needs each scan's ray directions (B, N*M, 3)")
+        if len(observed) != len(depths):
+            raise ValueError(f"{len(observed)} observed point sets for {len(depths)} scans")
+        o = self.origins.detach().cpu().double().numpy()
+        per_scan = dirs.dim() == 3
+        d_np = dirs.detach().cpu().double().numpy()
+        dep_np, keep_np = depths.detach().cpu().double().numpy(), keep.detach().cpu().numpy()
+        out_d, out_k = [], []
+        for b in range(len(depths)):
+            db, kb, _ = snap_to_observed(
+                observed[b], o, d_np[b] if per_scan else d_np, self.rig.n_secondary, dep_np[b], keep_np[b], radius
+            )
+            out_d.append(db)
+            out_k.append(kb)
+        return (
+            torch.from_numpy(np.stack(out_d)).to(depths.device, depths.dtype),
+            torch.from_numpy(np.stack(out_k)).to(keep.device),
+        )
 
     #: Ray-box intervals kept by :meth:`_interval` (least recently used dropped first; 256 kB each at 16,384 rays).
     INTERVAL_CACHE_SIZE = 64
@@ -288,19 +322,22 @@ class SANet(CompletionModel):
         return self.origins + (2.0 * d).unsqueeze(-1) * directions
 
     def outputs_to_points(
-        self, outputs, clip=CLIP_DEFAULT, directions: torch.Tensor | None = None, box_half=None, inside=None
+        self, outputs, clip=CLIP_DEFAULT, directions: torch.Tensor | None = None, box_half=None, inside=None, snap=None
     ) -> list[torch.Tensor]:
         depths = outputs["depths"].detach().float()
-        return self.kept_points(depths, None, clip, directions, box_half, inside)
+        return self.kept_points(depths, None, clip, directions, box_half, inside, snap)
 
-    def kept_points(self, depths, keep, clip, directions, box_half=None, inside=None) -> list[torch.Tensor]:
+    def kept_points(self, depths, keep, clip, directions, box_half=None, inside=None, snap=None) -> list[torch.Tensor]:
         """The decoded clouds (list of B (K_b, 3) float32, unit frame) of depths (B, R) and kept rays (B, R)
-        (None: ``depth > 0``), with the clip, and with ``box_half`` the box clip (:meth:`clip_to_boxes`;
+        (None: ``depth > 0``), with the clip, then with ``snap = (observed, radius)`` the rays snapped to each
+        scan's observed points (:meth:`snap_rays`), and with ``box_half`` the box clip (:meth:`clip_to_boxes`;
         ``inside`` gets its shares)."""
         clip = self.clip if clip is CLIP_DEFAULT else clip
         mask = depths > 0 if keep is None else keep.clone()
         if clip is not None:
             mask &= depths >= float(clip)
+        if snap is not None:
+            depths, mask = self.snap_rays(depths, mask, directions, *snap)
         if box_half is not None:
             depths, mask, share = self.clip_to_boxes(depths, mask, directions, box_half)
             if inside is not None:

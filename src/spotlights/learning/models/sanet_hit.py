@@ -140,13 +140,14 @@ class HitSANet(SANet):
         threshold: float | None = None,
         box_half=None,
         inside=None,
+        snap=None,
     ) -> list[torch.Tensor]:
         """Completed clouds (list of B (K_b, 3) float32, unit frame): the rays with p(hit) >= ``threshold``
         (default: the model's, i.e. the checkpoint's chosen threshold), in ray order; ``box_half``, ``inside``:
         see :meth:`~spotlights.learning.models.sanet.SANet.kept_points`."""
         t = self.threshold if threshold is None else float(threshold)
         keep = self.hit_probabilities(outputs) >= t
-        return self.kept_points(outputs["depths"].detach().float(), keep, clip, directions, box_half, inside)
+        return self.kept_points(outputs["depths"].detach().float(), keep, clip, directions, box_half, inside, snap)
 
 
 def hit_depth_loss(

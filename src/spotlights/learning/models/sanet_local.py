@@ -173,13 +173,22 @@ class LocalSANet(HitSANet):
 
     @torch.no_grad()
     def complete(
-        self, partial, clip=CLIP_DEFAULT, directions=None, sensor_origin=None, classes=None, box_half=None, inside=None
+        self,
+        partial,
+        clip=CLIP_DEFAULT,
+        directions=None,
+        sensor_origin=None,
+        classes=None,
+        box_half=None,
+        inside=None,
+        snap=None,
     ) -> list[torch.Tensor]:
         """partial (B, K, 3) -> list of B clouds (K_b, 3) float32, unit frame; ``sensor_origin`` (B, 3) unit frame
         or None (no free-space evidence); ``classes`` (B,) int64 class indices (class-conditioned models);
-        ``box_half``, ``inside``: the box clip (:meth:`~spotlights.learning.models.sanet.SANet.kept_points`)."""
+        ``box_half``, ``inside``: the box clip, ``snap``: snapping to the observed points
+        (:meth:`~spotlights.learning.models.sanet.SANet.kept_points`)."""
         out = self.forward(partial, directions, sensor_origin, classes)
-        return self.outputs_to_points(out, clip, directions, box_half=box_half, inside=inside)
+        return self.outputs_to_points(out, clip, directions, box_half=box_half, inside=inside, snap=snap)
 
     def outputs_to_points(
         self,
@@ -189,6 +198,7 @@ class LocalSANet(HitSANet):
         threshold: float | None = None,
         box_half=None,
         inside=None,
+        snap=None,
     ) -> list[torch.Tensor]:
         """As the hit-aware SA-Net's, with the free-space constraint (when ``free_space_decoding``)."""
         t = self.threshold if threshold is None else float(threshold)
@@ -196,4 +206,4 @@ class LocalSANet(HitSANet):
         depths = outputs["depths"].detach().float()
         if self.free_space_decoding and "carved" in outputs:
             depths, keep = free_space_decode(depths, keep, outputs["carved"], outputs["half_chord"].float())
-        return self.kept_points(depths, keep, clip, directions, box_half, inside)
+        return self.kept_points(depths, keep, clip, directions, box_half, inside, snap)

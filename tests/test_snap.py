@@ -1,0 +1,221 @@
+"""Snapping the SA-Nets' rays to the observed points (geometry.evidence.snap_to_observed, ``--snap R``): against
+closed forms (a ray meeting a plane, a point's foot on a line, a plane's normal), then through the completers
+(torch and onnxruntime alike), the scene completion, the evaluations and the command line."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from spotlights.errors import ParameterError
+from spotlights.geometry.boxes import unit_extents
+from spotlights.geometry.evidence import (
+    SNAP_MIN_COSINE,
+    EvidenceParams,
+    near_ray_evidence,
+    point_normals,
+    snap_to_observed,
+)
+from spotlights.geometry.rig import RigSpec
+
+torch = pytest.importorskip("torch")
+
+from helpers import assert_user_error, run_cli  # noqa: E402
+from learning_fixtures import cli, make_checkpoint, one_torch_thread  # noqa: E402
+
+_single_thread = pytest.fixture(autouse=True)(one_torch_thread)
+
+SPEC = RigSpec.from_name("box-16x64-ellipsoid-s1")
+E = unit_extents([4.6, 1.9, 1.6])
+
+
+def rays():
+    rig = SPEC.for_box(E)
+    return np.array(rig.origins, dtype=np.float64), np.array(rig.directions, dtype=np.float64)
+
+
+def side_points(k=400, seed=0, x=None):
+    """``k`` points on the plane y = 0.8 e_y (a car's left side), spread over the side's x-z extent."""
+    rng = np.random.default_rng(seed)
+    p = rng.uniform(-1, 1, (k, 3)) * E * [0.9, 1.0, 0.9]
+    p[:, 1] = 0.8 * E[1]
+    return p
+
+
+def test_normals_of_points_on_a_plane_are_the_plane_normal():
+    p = side_points(200)
+    n = point_normals(p)
+    assert n.shape == p.shape
+    assert np.allclose(np.abs(n[:, 1]), 1.0, atol=1e-9)  # the normal of y = c is +-y
+    assert np.array_equal(point_normals(p[:2]), np.zeros((2, 3)))  # fewer than 3 points: no plane
+
+
+def test_snapped_rays_meet_the_observed_plane_exactly_and_the_others_keep_the_network():
+    o, d = rays()
+    p = side_points()
+    r = 0.05
+    depth = np.full(len(o), 0.3)
+    keep = np.arange(len(o)) % 2 == 0
+    dep, kp, snapped = snap_to_observed(p, o, d, SPEC.n_secondary, depth, keep, r)
+    ev = near_ray_evidence(p, o, d, SPEC.n_secondary, EvidenceParams(radius=r))
+    assert np.array_equal(snapped, ev["count"] > 0)  # the rays with a counted candidate (tested by brute force)
+    assert 50 < snapped.sum() < len(o)
+    # the rays without evidence keep the network's depth and hit
+    assert np.array_equal(dep[~snapped], depth[~snapped]) and np.array_equal(kp[~snapped], keep[~snapped])
+    assert kp[snapped].all()
+    # a snapped ray that faces the plane meets it where the closed form says: o_y + 2 t d_y = c
+    c = 0.8 * E[1]
+    facing = snapped & (np.abs(d[:, 1]) >= SNAP_MIN_COSINE)
+    t_plane = (c - o[:, 1]) / (2.0 * np.where(facing, d[:, 1], 1.0))
+    pt = o + 2.0 * dep[:, None] * d
+    near = facing & (np.abs(dep - t_plane) < 1e-9)
+    assert near.sum() > 0.8 * facing.sum()  # the others met the plane farther than r from their point: foot
+    assert np.allclose(pt[near, 1], c, atol=1e-9)
+    # every snapped point is within r of the plane's observed points (the foot of a point is within r of it)
+    from scipy.spatial import cKDTree
+
+    dist, _ = cKDTree(p).query(pt[snapped])
+    assert dist.max() <= 2 * r + 1e-9
+
+
+def test_a_lone_point_snaps_the_rays_to_its_foot():
+    o, d = rays()
+    x = np.array([[0.2, 0.8 * E[1], 0.05]])
+    dep, kp, snapped = snap_to_observed(x, o, d, SPEC.n_secondary, np.zeros(len(o)), np.zeros(len(o), bool), 0.08)
+    assert snapped.any()
+    foot = 0.5 * np.einsum("rj,rj->r", x - o, d)  # (x - o) . d / 2: the point's depth along each ray
+    assert np.allclose(dep[snapped], foot[snapped], atol=1e-12)
+    line = o + 2 * dep[:, None] * d
+    assert np.linalg.norm(line[snapped] - x, axis=1).max() <= 0.08 + 1e-12
+    assert kp.sum() == snapped.sum()
+
+
+def test_snap_inputs_are_checked_and_no_points_change_nothing():
+    o, d = rays()
+    dep, keep = np.full(len(o), 0.4), np.ones(len(o), bool)
+    with pytest.raises(ValueError, match="radius"):
+        snap_to_observed(side_points(), o, d, SPEC.n_secondary, dep, keep, 0.0)
+    with pytest.raises(ValueError, match="rays"):
+        snap_to_observed(side_points(), o, d, SPEC.n_secondary, dep[:-1], keep, 0.05)
+    a, b, s = snap_to_observed(np.zeros((0, 3)), o, d, SPEC.n_secondary, dep, keep, 0.05)
+    assert np.array_equal(a, dep) and np.array_equal(b, keep) and not s.any()
+    # repeats (a resampled input) do not change the result
+    p = side_points(100)
+    a1 = snap_to_observed(p, o, d, SPEC.n_secondary, dep, keep, 0.05)
+    a2 = snap_to_observed(np.concatenate([p, p[:50]]), o, d, SPEC.n_secondary, dep, keep, 0.05)
+    assert all(np.array_equal(u, v) for u, v in zip(a1, a2))
+
+
+@pytest.fixture(scope="module")
+def hit_ckpt(tmp_path_factory):
+    return make_checkpoint(tmp_path_factory.mktemp("snap") / "hit.pt", "sanet-hit", rig=SPEC)
+
+
+def _scans(n=3):
+    s = np.stack([side_points(256, seed=i) for i in range(n)]).astype(np.float32)
+    return s, np.broadcast_to(E, (n, 3))
+
+
+def test_the_completer_snaps_only_when_asked_and_onto_the_scan(hit_ckpt):
+    from spotlights.learning.inference import load_completer
+
+    c = load_completer(hit_ckpt, device="cpu")
+    x, e = _scans()
+    plain = c.complete(x, extents=e)
+    again = c.complete(x, extents=e, snap=None)
+    assert all(np.array_equal(a, b) for a, b in zip(plain, again))
+    snapped = c.complete(x, extents=e, snap=0.05)
+    for a, b in zip(plain, snapped):
+        on_side = lambda q: np.mean(np.abs(q[:, 1] - 0.8 * E[1]) < 1e-5)  # noqa: E731
+        assert on_side(b) > on_side(a) + 0.05  # an untrained net does not draw that side; the snap does
+    # other observed points than the input: the snap follows them
+    other = [side_points(300, seed=9) * [1, -1, 1] for _ in range(3)]  # the right side instead
+    mirrored = c.complete(x, extents=e, snap=0.05, observed=other)
+    assert all(np.mean(np.abs(q[:, 1] + 0.8 * E[1]) < 1e-5) > 0.05 for q in mirrored)
+    with pytest.raises(ParameterError, match="radius"):
+        c.complete(x, extents=e, snap=-0.1)
+    with pytest.raises(ParameterError, match="observed point sets"):
+        c.complete(x, extents=e, snap=0.05, observed=other[:2])
+
+
+def test_a_point_model_refuses_to_snap(tmp_path):
+    from spotlights.learning.inference import load_completer
+
+    c = load_completer(make_checkpoint(tmp_path / "pcn.pt", "pcn"), device="cpu")
+    with pytest.raises(ParameterError, match="no rays to snap"):
+        c.complete(_scans()[0], snap=0.05)
+
+
+def test_onnxruntime_snaps_like_torch(tmp_path, hit_ckpt):
+    pytest.importorskip("onnxruntime")
+    pytest.importorskip("onnxscript")
+    from spotlights.learning.export import export_onnx, load_onnx_completer
+    from spotlights.learning.inference import load_completer
+
+    onx = load_onnx_completer(export_onnx(hit_ckpt, tmp_path / "hit.onnx"))
+    ref = load_completer(hit_ckpt, device="cpu")
+    x, e = _scans()
+    half = np.broadcast_to(E + 0.03, (len(x), 3))
+    for kw in ({}, {"box_half": half}):
+        a = ref.complete(x, extents=e, snap=0.05, **kw)
+        b = onx.complete(x, extents=e, snap=0.05, **kw)
+        assert [len(p) for p in a] == [len(p) for p in b]
+        assert max(float(np.abs(p - q).max()) for p, q in zip(a, b)) < 1e-4
+
+
+def test_scene_options_and_real_evaluation_refuse_snap_with_the_heading_check():
+    from spotlights.experiments.real_evaluation import RealEvaluationSettings
+    from spotlights.experiments.scene import SceneConfig
+
+    assert SceneConfig(snap=0.05).snap == 0.05
+    for bad in (-0.1, float("nan")):
+        with pytest.raises(ParameterError, match="snap radius"):
+            SceneConfig(snap=bad)
+    with pytest.raises(ParameterError, match="heading-check"):
+        SceneConfig(snap=0.05, heading_check=True)
+    with pytest.raises(ParameterError, match="no-heading-check"):
+        RealEvaluationSettings(snap=0.05)
+    assert RealEvaluationSettings(snap=0.05, heading_check=False).snap == 0.05
+
+
+def test_complete_snap_from_the_command_line(tmp_path, capsys, hit_ckpt):
+    rng = np.random.default_rng(0)
+    side = rng.uniform(-1, 1, (600, 3)) * [2.0, 0.0, 0.7] + [10.0, 2.0 + 0.85, 0.8]  # a car's left side, y = 2.85
+    np.save(tmp_path / "scan.npy", side)
+    box = ["--center", "10", "2", "0.8", "--size", "4.6", "1.9", "1.6", "--no-crop", "--checkpoint", hit_ckpt]
+    out = {}
+    for name, extra in (("plain", []), ("snap", ["--snap", "0.05"])):
+        res = cli(
+            capsys, "complete", tmp_path / "scan.npy", *box, *extra, "--no-keep-observed",
+            "--out", tmp_path / f"{name}.npy", "--summary", tmp_path / f"{name}.json", "-q",
+        )  # fmt: skip
+        assert res.returncode == 0, res.stderr
+        out[name] = (np.load(tmp_path / f"{name}.npy"), json.loads((tmp_path / f"{name}.json").read_text()))
+    assert out["plain"][1]["config"]["snap"] == 0.0 and out["snap"][1]["config"]["snap"] == 0.05
+    on_side = lambda q: np.mean(np.abs(q[:, 1] - 2.85) < 1e-3)  # noqa: E731 - scan frame, metres
+    assert on_side(out["snap"][0]) > on_side(out["plain"][0]) + 0.05
+    assert out["snap"][1]["objects"][0]["fidelity"] < out["plain"][1]["objects"][0]["fidelity"]
+    bad = cli(capsys, "complete", tmp_path / "scan.npy", *box, "--snap", "0.05", "--heading-check",
+              "--out", tmp_path / "x.npy")  # fmt: skip
+    assert_user_error(bad, "--heading-check")
+    assert not (tmp_path / "x.npy").exists()
+    neg = run_cli(
+        "complete", str(tmp_path / "scan.npy"), *map(str, box), "--snap", "-1", "--out", str(tmp_path / "y.npy")
+    )
+    assert neg.returncode == 2 and "argument --snap" in neg.stderr and "Traceback" not in neg.stderr
+
+
+def test_evaluate_names_the_snapped_rows(tmp_path, hit_ckpt):
+    from learning_fixtures import tiny_dataset_path
+
+    from spotlights.learning.evaluate import evaluate_checkpoint
+
+    data = tiny_dataset_path(tmp_path / "data")
+    ck = make_checkpoint(tmp_path / "cap.pt", "sanet-hit")
+    res = evaluate_checkpoint(ck, data, progress=False, snap=0.05)
+    assert res["snap"] == 0.05 and all("snap 0.05" in r["variant"] for r in res["rows"])
+    plain = evaluate_checkpoint(ck, data, progress=False)
+    assert plain["snap"] is None and not any("snap" in r["variant"] for r in plain["rows"])
+    assert res["rows"][0]["summary"] != plain["rows"][0]["summary"]
