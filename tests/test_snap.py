@@ -208,9 +208,9 @@ def test_complete_snap_from_the_command_line(tmp_path, capsys, hit_ckpt):
 
 
 def test_evaluate_names_the_snapped_rows(tmp_path, hit_ckpt):
-    from learning_fixtures import tiny_dataset_path
-
     from spotlights.learning.evaluate import evaluate_checkpoint
+
+    from learning_fixtures import tiny_dataset_path
 
     data = tiny_dataset_path(tmp_path / "data")
     ck = make_checkpoint(tmp_path / "cap.pt", "sanet-hit")
@@ -219,3 +219,18 @@ def test_evaluate_names_the_snapped_rows(tmp_path, hit_ckpt):
     plain = evaluate_checkpoint(ck, data, progress=False)
     assert plain["snap"] is None and not any("snap" in r["variant"] for r in plain["rows"])
     assert res["rows"][0]["summary"] != plain["rows"][0]["summary"]
+
+
+def test_resume_reuses_frames_written_before_snap_existed(tmp_path):
+    from dataclasses import asdict
+
+    from spotlights.experiments.frame_completion import done_frame
+    from spotlights.experiments.scene import SceneConfig
+
+    cfg = asdict(SceneConfig())
+    cfg["clip"] = str(cfg["clip"])
+    old = {k: v for k, v in cfg.items() if k != "snap"}  # a frame of a run before --snap
+    f = tmp_path / "frame.json"
+    f.write_text(json.dumps({"model": "sanet-hit", "checkpoint": "default", "config": old}))
+    assert done_frame(f, SceneConfig(), "sanet-hit", "default") is not None
+    assert done_frame(f, SceneConfig(snap=0.05), "sanet-hit", "default") is None  # snapping: computed again

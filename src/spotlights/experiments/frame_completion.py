@@ -302,10 +302,13 @@ def done_frame(
         return None
     cfg = asdict(config)
     cfg["clip"] = str(cfg["clip"]) if cfg["clip"] is not None and not isinstance(cfg["clip"], float) else cfg["clip"]
+    earlier = summ.get("config")
+    if isinstance(earlier, dict):
+        earlier = {"snap": 0.0} | earlier  # frames of runs before --snap existed did not snap
     same = (
         summ.get("model") == model
         and summ.get("checkpoint") == checkpoint
-        and json.loads(json.dumps(cfg)) == summ.get("config")
+        and json.loads(json.dumps(cfg)) == earlier
         and summ.get("fuse") == fuse
         and summ.get("precision", "fp32") == precision
     )

@@ -599,6 +599,7 @@ def evaluate_consistency(
         noise_floor=t.partials2 is not None,
         heading_margin=float(settings.heading_margin) if settings.heading_check else None,
         mmd_reference=reference_info if references is not None else None,
+        snap=float(settings.snap),
     )
     data, metrics = _report_head(obs, path, rows, t, scored, bool(settings.noise_floor))
     digests = [None] * len(completers) if checkpoints is None else [checkpoint_digest(c) for c in checkpoints]

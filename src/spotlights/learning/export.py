@@ -44,6 +44,7 @@ from ..data.vehicle_classes import class_rows
 from ..errors import InputFileError, ParameterError, SpotlightsError
 from ..geometry.box_clamp import ray_box_interval
 from ..geometry.boxes import unit_extents
+from ..geometry.evidence import snap_to_observed
 from ..utils import atomic_output
 from .checkpoint import load_checkpoint, model_from_checkpoint, resolve_checkpoint
 from .inference import DEFAULT, BaseCompleter, LearnedDomain
@@ -447,8 +448,6 @@ def snap_rays(depths, keep, rig, directions, observed, radius: float) -> tuple[n
     """The numpy form of :meth:`spotlights.learning.models.sanet.SANet.snap_rays`: depths (B, R), keep (B, R) bool,
     ``rig`` the export's rig, directions (B, R, 3) or None (the rig's fixed rays), observed B (K_b, 3) arrays,
     radius (unit frame). Returns ``(depths (B, R) float32, keep (B, R) bool)``."""
-    from ..geometry.evidence import snap_to_observed
-
     origins, fixed = rig_rays(rig)
     dirs = np.asarray(fixed if directions is None else directions, dtype=np.float64)
     if len(observed) != len(depths):

@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from ...data.vehicle_classes import canonical_class, class_rows
+from ...geometry.evidence import snap_to_observed
 from ..losses import depth_l1
 from ..rays import rig_rays, rig_spec
 from .base import CLIP_DEFAULT, MLP, CompletionModel, PCNEncoder
@@ -204,8 +205,6 @@ class SANet(CompletionModel):
         unit ray directions (None: the rig's fixed ones); observed : B arrays (K_b, 3) of observed points, unit
         frame; radius : unit frame. Returns ``(depths (B, R) float32, keep (B, R) bool)`` on the inputs' device.
         """
-        from ...geometry.evidence import snap_to_observed
-
         dirs = self.directions if directions is None else directions
         if dirs is None:
             raise ValueError("snapping needs each scan's ray directions (B, N*M, 3)")
