@@ -324,3 +324,12 @@ def test_snap_rows_stop37():
     for name in ("av2", "nuscenes"):
         (m,) = _json(f"real/snap/{name}_snap.json")["models"]
         _says("docs/learning.md", f"{m['equal_density']['average']['cd']:.4f} / {m['average']['fidelity']:.4f}")
+
+
+def test_frame_pictures_side_by_side_stop37():
+    """The pictures' speed-up of docs/real-data.md, from benchmarks/frame_pictures.py's report."""
+    d = _json("real/frame_pictures_stop37.json")
+    m = d["median_frames_per_second"]
+    _says("docs/real-data.md", f"{m['this']:.2f} against {m['other']:.2f} frames/s ({d['speedup_median']:.2f}x)")
+    lo, hi = min(d["time_ratio_this_over_other_per_round"]), max(d["time_ratio_this_over_other_per_round"])
+    _says("docs/real-data.md", f"each of the three rounds {1 / hi:.1f}-{1 / lo:.1f}x")

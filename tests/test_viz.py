@@ -142,6 +142,35 @@ def test_render_mesh_top_view_is_opaque(tmp_path):
     assert _png(out).shape == (416, 800, 3)
 
 
+def test_splat_points_matches_a_per_pixel_loop():
+    """Each pixel shows the nearest of the points whose disc covers it (brute force over pixels and points)."""
+    from spotlights.viz.raster import splat_points
+
+    rng = np.random.default_rng(0)
+    k, w, h = 60, 23, 17
+    xy = rng.uniform(-2, [w + 2, h + 2], (k, 2))
+    depth = rng.permutation(k).astype(float)  # distinct depths: no ties
+    rgb = rng.uniform(0, 1, (k, 3))
+    dia = rng.choice([0.4, 1.0, 2.0, 3.0, 4.6], k)
+    img = splat_points(xy, depth, rgb, dia, w, h)
+    assert img.shape == (h, w, 4) and img.dtype == np.float32
+    want = np.zeros((h, w, 4), dtype=np.float32)
+    best = np.full((h, w), -np.inf)
+    for i in range(k):
+        d = max(int(np.rint(dia[i])), 1)
+        off = np.arange(d) - (d - 1) / 2.0
+        for ox in off:
+            for oy in off:
+                if ox * ox + oy * oy > (d / 2.0) ** 2 + 1e-9:
+                    continue
+                c, r = int(np.floor(xy[i, 0] + ox)), int(np.floor(xy[i, 1] + oy))
+                if 0 <= c < w and 0 <= r < h and depth[i] > best[r, c]:
+                    best[r, c] = depth[i]
+                    want[r, c] = [*rgb[i], 1.0]
+    assert np.array_equal(img, want)
+    assert np.array_equal(splat_points(np.zeros((0, 2)), [], np.zeros((0, 3)), [], 4, 3), np.zeros((3, 4, 4)))
+
+
 def test_scene_picture_labels_ids(tmp_path):
     from spotlights.geometry.boxes import Box
     from spotlights.viz.scene import SceneObject, render_scene

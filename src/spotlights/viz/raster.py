@@ -147,3 +147,46 @@ def shade_mesh(
     rgba[hit, 3] = 1.0
     cr, cu = float(np.dot(center, basis[0])), float(np.dot(center, basis[1]))
     return rgba, (cr - half, cr + half, cu - half, cu + half)
+
+
+def splat_points(
+    xy: np.ndarray, depth: np.ndarray, rgb: np.ndarray, diameter: np.ndarray, width: int, height: int
+) -> np.ndarray:
+    """Points drawn as small discs into an RGBA image with a depth test (the nearest point wins each pixel).
+
+    Parameters
+    ----------
+    xy : (K, 2) float pixel coordinates (x right, y down; pixel (i, j) covers ``[j, j+1) x [i, i+1)``).
+    depth : (K,) float, larger = nearer the viewer. rgb : (K, 3) float colours in [0, 1].
+    diameter : (K,) float disc diameters in pixels (at least one pixel is drawn per point).
+    width, height : the image size in pixels.
+
+    Returns (height, width, 4) float32 RGBA, alpha 1 where a point was drawn and 0 elsewhere.
+    """
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    depth = np.asarray(depth, dtype=np.float64).reshape(-1)
+    rgb = np.asarray(rgb, dtype=np.float32).reshape(-1, 3)
+    dia = np.maximum(np.rint(np.asarray(diameter, dtype=np.float64).reshape(-1)), 1).astype(np.int64)
+    img = np.zeros((height, width, 4), dtype=np.float32)
+    if len(xy) == 0:
+        return img
+    cols, rows, src = [], [], []
+    for d in np.unique(dia):  # a few marker sizes: one set of disc offsets each
+        idx = np.flatnonzero(dia == d)
+        off = np.arange(d) - (d - 1) / 2.0
+        ox, oy = np.meshgrid(off, off)
+        keep = ox**2 + oy**2 <= (d / 2.0) ** 2 + 1e-9
+        ox, oy = ox[keep], oy[keep]
+        cx = np.floor(xy[idx, 0][:, None] + ox[None]).astype(np.int64)
+        cy = np.floor(xy[idx, 1][:, None] + oy[None]).astype(np.int64)
+        cols.append(cx.ravel())
+        rows.append(cy.ravel())
+        src.append(np.repeat(idx, len(ox)))
+    c, r, s = np.concatenate(cols), np.concatenate(rows), np.concatenate(src)
+    ok = (c >= 0) & (c < width) & (r >= 0) & (r < height)
+    c, r, s = c[ok], r[ok], s[ok]
+    order = np.argsort(depth[s], kind="stable")  # far first: the nearest is written last and stays
+    r, c, s = r[order], c[order], s[order]
+    img[r, c, :3] = rgb[s]
+    img[r, c, 3] = 1.0
+    return img

@@ -2,7 +2,7 @@
 
 Everything is drawn in the **sensor frame** of the scan. Left: a bird's-eye view of the
 scan around the objects (points subsampled, boxes outlined and labelled with their ids,
-a scale bar). Right: a 3-D close-up of each object seen from the sensor's side (as the
+a scale bar). Right: a close-up of each object seen from the sensor's side (as the
 LiDAR saw it), with its box as a wireframe, a 1 m ruler, and the raw points *around* the
 box (within 1 m, outside the box) as context: the raw points inside the box are the
 object's own, drawn as the purple partial input, so no grey point hides them.
@@ -25,7 +25,7 @@ import numpy as np
 from ..data.real import read_scan
 from ..errors import InputFileError, ParameterError
 from ..geometry.boxes import BOX_EDGES, Box
-from ._figure import add_axes3d, add_scale_bar, new_figure, save_png
+from ._figure import add_scale_bar, new_figure, save_png
 from .points import Layer, merge_layers
 
 GREY, PURPLE, GREEN = "#9a9a9a", "#8e44ad", "#27ae60"
@@ -113,25 +113,19 @@ def draw_bev(
     if len(bev) > max_scan_points:
         bev = bev[np.sort(np.random.default_rng(seed).choice(len(bev), max_scan_points, replace=False))]
     ax.scatter(bev[:, 0], bev[:, 1], s=0.3, color=GREY, alpha=0.6, linewidths=0, label="raw scan", rasterized=True)
-    any_comp = False
-    for o in objects:
-        if o.completion is not None and len(o.completion):
-            ax.scatter(
-                o.completion[:, 0],
-                o.completion[:, 1],
-                s=1.0,
-                color=GREEN,
-                linewidths=0,
-                label=None if any_comp else "completion",
-            )
-            any_comp = True
-    for k, o in enumerate(objects):
-        p = np.asarray(o.partial, dtype=np.float64).reshape(-1, 3)
-        ax.scatter(p[:, 0], p[:, 1], s=2.5, color=PURPLE, linewidths=0, label="partial input" if k == 0 else None)
+    # one scatter for every completion, then one for every input (the order each object's used to be drawn in)
+    comps = [np.asarray(o.completion)[:, :2] for o in objects if o.completion is not None and len(o.completion)]
+    if comps:
+        c2 = np.concatenate(comps)
+        ax.scatter(c2[:, 0], c2[:, 1], s=1.0, color=GREEN, linewidths=0, label="completion")
+    if objects:
+        p2 = np.concatenate([np.asarray(o.partial, dtype=np.float64).reshape(-1, 3)[:, :2] for o in objects])
+        ax.scatter(p2[:, 0], p2[:, 1], s=2.5, color=PURPLE, linewidths=0, label="partial input")
+    outlines = [np.vstack([o.corners()[[1, 3, 7, 5, 1], :2], np.full(2, np.nan)]) for o in objects]  # bottom faces
+    if outlines:
+        ax.plot(*np.concatenate(outlines).T, color="black", lw=0.7)  # one line for every box
     for o in objects:
         k = o.corners()
-        c = k[[1, 3, 7, 5, 1], :2]  # bottom face (odd corners), closed
-        ax.plot(c[:, 0], c[:, 1], color="black", lw=0.7)
         ax.annotate(
             o.label,
             (o.center[0], k[:, 1].max() + 0.4),  # just above the box's northmost corner
@@ -160,9 +154,17 @@ def completion_marker_size(n: int) -> float:
     return float(max(0.5, 2.0 * min(1.0, math.sqrt(2048.0 / max(int(n), 1)))))
 
 
-def draw_closeup(ax, scan: np.ndarray, obj: SceneObject, context: float = 1.0) -> None:
-    """3-D close-up of one object from the sensor's side: context scan (grey, outside the box),
-    completion (green), partial input (purple) depth-sorted together; box wireframe; 1 m ruler."""
+CLOSEUP_ELEVATION = 20.0
+"""Degrees above the horizon of a close-up's view."""
+
+
+def draw_closeup(ax, scan: np.ndarray, obj: SceneObject, context: float = 1.0, dpi: float = 110.0) -> None:
+    """Close-up of one object from the sensor's side, on a 2-D axes whose size is final (after the layout):
+    context scan (grey, outside the box), completion (green), partial input (purple) splatted into one image
+    with a depth test (orthographic view, :data:`CLOSEUP_ELEVATION` degrees up; each point a disc of its
+    marker's size at ``dpi``: :func:`~spotlights.viz.raster.splat_points`), the box wireframe and a 1 m ruler."""
+    from .raster import splat_points, view_basis
+
     c = np.asarray(obj.center, dtype=np.float64)
     reach = obj.reach
     scan = np.asarray(scan, dtype=np.float64).reshape(-1, 3)
@@ -172,27 +174,39 @@ def draw_closeup(ax, scan: np.ndarray, obj: SceneObject, context: float = 1.0) -
     if obj.completion is not None:
         layers.append(Layer(obj.completion, GREEN, None, completion_marker_size(len(obj.completion)), 1.0))
     layers.append(Layer(obj.partial, PURPLE, None, 4.0, 1.0))
-    p, col, s = merge_layers(layers)
+    p, col, size = merge_layers(layers)
+    azim = math.degrees(math.atan2(c[1], c[0])) + 180.0  # look from the sensor's side
+    basis = view_basis(CLOSEUP_ELEVATION, azim)
+    project = lambda q: (np.asarray(q, dtype=np.float64) - c) @ basis[:2].T  # noqa: E731 - (K, 2): right, up
+    # the axes' size in pixels, and limits of equal scale that hold the sphere of radius reach + 0.3
+    fig = ax.figure
+    w_in, h_in = fig.get_size_inches()
+    pos = ax.get_position()
+    width, height = max(int(round(pos.width * w_in * dpi)), 1), max(int(round(pos.height * h_in * dpi)), 1)
+    half = reach + 0.3
+    hu, hv = (half * width / height, half) if width >= height else (half, half * height / width)
     if len(p):
-        ax.scatter(p[:, 0], p[:, 1], p[:, 2], s=s, c=col, linewidths=0, depthshade=False)
-    k = obj.corners()
-    for a, b in BOX_EDGES:
-        ax.plot(*np.stack([k[a], k[b]]).T, color="black", lw=0.5, alpha=0.6)
+        uv = project(p)
+        px = np.stack([(uv[:, 0] + hu) / (2 * hu) * width, (hv - uv[:, 1]) / (2 * hv) * height], axis=1)
+        rgb = col[:, :3] * col[:, 3:4] + (1.0 - col[:, 3:4])  # alpha over the white page
+        image = splat_points(px, (p - c) @ basis[2], rgb, np.sqrt(size) * dpi / 72.0, width, height)
+        ax.imshow(image, extent=(-hu, hu, -hv, hv), origin="upper", interpolation="nearest", zorder=1)
+    k = project(obj.corners())
+    edges = np.concatenate([np.stack([k[a], k[b], np.full(2, np.nan)]) for a, b in BOX_EDGES])  # one line
+    ax.plot(*edges.T, color="black", lw=0.5, alpha=0.6, zorder=2)
     # a 1 m ruler along the box's length, on the ground beside its bottom edge that faces the sensor
+    k3 = obj.corners()
     rot = np.asarray(obj.rotation, dtype=np.float64)
     # bottom edges (corners: x- and x+ at z-): +y side 5, 1; -y side 7, 3. Is the +y side nearer the sensor?
-    side = 1.0 if np.linalg.norm(k[5] + k[1]) < np.linalg.norm(k[7] + k[3]) else -1.0
-    start = (k[5] if side > 0 else k[7]) + side * rot[:, 1] * 0.3
-    ruler = np.stack([start, start + rot[:, 0]])
-    ax.plot(*ruler.T, color="black", lw=2.0, solid_capstyle="butt")
-    ax.text(*(ruler.mean(axis=0) + side * rot[:, 1] * 0.35), "1 m", fontsize=7, ha="center", va="top")
-    r = reach + 0.3
-    ax.set_xlim(c[0] - r, c[0] + r)
-    ax.set_ylim(c[1] - r, c[1] + r)
-    ax.set_zlim(c[2] - r, c[2] + r)
-    ax.set_box_aspect((1, 1, 1), zoom=1.35)
-    azim = math.degrees(math.atan2(c[1], c[0])) + 180.0  # look from the sensor's side
-    ax.view_init(elev=20, azim=azim)
+    side = 1.0 if np.linalg.norm(k3[5] + k3[1]) < np.linalg.norm(k3[7] + k3[3]) else -1.0
+    start = (k3[5] if side > 0 else k3[7]) + side * rot[:, 1] * 0.3
+    ruler = project(np.stack([start, start + rot[:, 0]]))
+    ax.plot(*ruler.T, color="black", lw=2.0, solid_capstyle="butt", zorder=3)
+    label = project(np.stack([start + 0.5 * rot[:, 0] + side * rot[:, 1] * 0.35]))[0]
+    ax.text(*label, "1 m", fontsize=7, ha="center", va="top", zorder=3)
+    ax.set_xlim(-hu, hu)
+    ax.set_ylim(-hv, hv)
+    ax.set_aspect("equal", adjustable="box")
     ax.set_axis_off()
 
 
@@ -204,8 +218,10 @@ def figure_scene(
     seed: int = 0,
     closeups: bool = True,
     id_note: str = "boxes: object id",
+    dpi: float = 110.0,
 ):
-    """The :class:`~matplotlib.figure.Figure` of :func:`render_scene` (not saved)."""
+    """The :class:`~matplotlib.figure.Figure` of :func:`render_scene` (not saved; ``dpi``: the resolution it
+    will be saved at, which the close-ups' images are drawn for)."""
     objects = list(objects)
     if not objects:
         raise ParameterError("no object to draw")
@@ -217,15 +233,19 @@ def figure_scene(
     ax = fig.add_subplot(gs[:, :2])
     draw_bev(ax, scan, objects, max_scan_points, seed)
     ax.set_title(f"bird's-eye view ({id_note})", fontsize=10)
+    closeups = []
     for k, o in enumerate(objects[:n_obj]):
-        a3 = add_axes3d(fig, gs[k // ncol, 2 + k % ncol])
-        draw_closeup(a3, scan, o)
+        a2 = fig.add_subplot(gs[k // ncol, 2 + k % ncol], xticks=[], yticks=[])  # no ticks to lay out
+        a2.set_axis_off()
         size = " x ".join(f"{x:.1f}" for x in o.size)
         head = textwrap.fill(f"{o.label}: {o.caption}", CLOSEUP_TITLE_WIDTH) if o.caption else str(o.label)
-        a3.set_title(f"{head}\nbox {size} m", fontsize=8)
+        a2.set_title(f"{head}\nbox {size} m", fontsize=8, y=1.0)  # placed, not fitted above tick labels
+        closeups.append((a2, o))
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
+    for a2, o in closeups:  # drawn once the layout fixed each axes' size in pixels
+        draw_closeup(a2, scan, o, dpi=dpi)
     return fig
 
 
@@ -250,7 +270,8 @@ def render_scene(
     closeups : False draws the bird's-eye view alone.
     id_note : what the labels are, printed in the bird's-eye title.
     """
-    return save_png(figure_scene(scan, objects, title, max_scan_points, seed, closeups, id_note), path, dpi, tight=True)
+    fig = figure_scene(scan, objects, title, max_scan_points, seed, closeups, id_note, dpi)
+    return save_png(fig, path, dpi)  # tight_layout placed everything: no second draw to crop the page
 
 
 def observation_label(obs, i: int) -> str:
