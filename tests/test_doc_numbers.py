@@ -333,3 +333,24 @@ def test_frame_pictures_side_by_side_stop37():
     _says("docs/real-data.md", f"{m['this']:.2f} against {m['other']:.2f} frames/s ({d['speedup_median']:.2f}x)")
     lo, hi = min(d["time_ratio_this_over_other_per_round"]), max(d["time_ratio_this_over_other_per_round"])
     _says("docs/real-data.md", f"each of the three rounds {1 / hi:.1f}-{1 / lo:.1f}x")
+
+
+def test_snap_with_track_fusion_stop37():
+    """Consistency and fidelity with and without --snap under past:5 fusion, as docs/learning.md quotes them."""
+    q = {s: _json(f"real/track_fusion_{s}_stop37.json")["quality_on_common_observations"] for s in ("nosnap", "snap")}
+    assert _json("real/track_fusion_snap_stop37.json")["snap"] == 0.05
+    assert q["snap"]["n_observations"] == q["nosnap"]["n_observations"]
+    c = {
+        s: (v["single"]["consistency_voxel_all_objects"], v["fused"]["consistency_voxel_all_objects"])
+        for s, v in q.items()
+    }
+    f = {s: (v["single"]["fidelity_own_points"], v["fused"]["fidelity_own_points"]) for s, v in q.items()}
+    _says(
+        "docs/learning.md",
+        f"is {c['nosnap'][0]:.4f} / {c['nosnap'][1]:.4f} without the snap and {c['snap'][0]:.4f} / {c['snap'][1]:.4f}",
+    )
+    _says(
+        "docs/learning.md",
+        f"{f['nosnap'][0]:.4f} / {f['nosnap'][1]:.4f} without and {f['snap'][0]:.4f} / {f['snap'][1]:.4f} with",
+    )
+    _says("docs/learning.md", f"still {c['snap'][1] / c['nosnap'][0]:.2f}x as inconsistent")
