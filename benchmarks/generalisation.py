@@ -190,6 +190,7 @@ def main() -> None:
         metavar="R",
         help="also score every SA-Net with its rays snapped to the input within R (unit frame; rows '..., snap R')",
     )
+    ap.add_argument("--snap-mirror", action="store_true", help="the --snap rows snap to the mirrored input too")
     ap.add_argument("--json", default=None, help="write the numbers here")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -203,7 +204,13 @@ def main() -> None:
         rows: dict = {}
         for snap in [None, *args.snap]:
             rep = evaluate_checkpoints(
-                args.checkpoint, path, split="test", max_views=args.max_views, progress=False, snap=snap
+                args.checkpoint,
+                path,
+                split="test",
+                max_views=args.max_views,
+                progress=False,
+                snap=snap,
+                snap_mirror=args.snap_mirror and snap is not None,
             )
             rows.update(_rows(rep))
         scores[key] = {
@@ -251,6 +258,7 @@ def main() -> None:
         "subset": subset,
         "checkpoints": args.checkpoint,
         "snap": args.snap,
+        "snap_mirror": args.snap_mirror,
         "scores": scores,
         "ratio_held_out_over_in_distribution": ratios,
         "decoded_ground_truth": ceiling,

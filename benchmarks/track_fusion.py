@@ -127,6 +127,7 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--snap", type=float, default=0.0, help="snap the rays to each input within R (unit frame), as --snap R"
     )
+    ap.add_argument("--snap-mirror", action="store_true", help="with --snap: the mirrored input too")
     ap.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     ap.add_argument("--precision", default="fp32", help="model forward: fp32 (default) or bf16")
     ap.add_argument(
@@ -155,7 +156,7 @@ def main(argv=None) -> int:
     torch.set_num_threads(args.threads)
     reader = open_reader(args.source, args.format)
     keys = reader.frame_keys()
-    config = SceneConfig(snap=args.snap)
+    config = SceneConfig(snap=args.snap, snap_mirror=args.snap_mirror)
     from spotlights.experiments.tracks import TrackWorker  # this checkout's (--against runs an older one's command)
 
     early = TrackWorker.start() if args.track_worker else None  # as real complete: started before the model loads
@@ -225,6 +226,7 @@ def main(argv=None) -> int:
         fallback=fallback_name,
         precision=args.precision,
         snap=args.snap,
+        snap_mirror=args.snap_mirror,
         model=completer.model_name,
         torch_threads=args.threads,
         track_worker=args.track_worker,

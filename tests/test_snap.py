@@ -216,6 +216,10 @@ def test_evaluate_names_the_snapped_rows(tmp_path, hit_ckpt):
     ck = make_checkpoint(tmp_path / "cap.pt", "sanet-hit")
     res = evaluate_checkpoint(ck, data, progress=False, snap=0.05)
     assert res["snap"] == 0.05 and all("snap 0.05" in r["variant"] for r in res["rows"])
+    both = evaluate_checkpoint(ck, data, progress=False, snap=0.05, snap_mirror=True)
+    assert both["snap_mirror"] and all(r["variant"].endswith("snap 0.05 mirrored") for r in both["rows"])
+    with pytest.raises(ParameterError, match="--snap-mirror goes with --snap R"):
+        evaluate_checkpoint(ck, data, progress=False, snap_mirror=True)
     plain = evaluate_checkpoint(ck, data, progress=False)
     assert plain["snap"] is None and not any("snap" in r["variant"] for r in plain["rows"])
     assert res["rows"][0]["summary"] != plain["rows"][0]["summary"]
@@ -234,3 +238,40 @@ def test_resume_reuses_frames_written_before_snap_existed(tmp_path):
     f.write_text(json.dumps({"model": "sanet-hit", "checkpoint": "default", "config": old}))
     assert done_frame(f, SceneConfig(), "sanet-hit", "default") is not None
     assert done_frame(f, SceneConfig(snap=0.05), "sanet-hit", "default") is None  # snapping: computed again
+
+
+def test_mirrored_snapping_draws_the_side_the_lidar_did_not_see(hit_ckpt):
+    from spotlights.learning.inference import load_completer, mirrored
+
+    p = np.array([[0.1, 0.2, 0.3], [-0.4, 0.5, 0.0]], dtype=np.float32)
+    m = mirrored(p)
+    want = np.array([[0.1, 0.2, 0.3], [-0.4, 0.5, 0.0], [0.1, -0.2, 0.3], [-0.4, -0.5, 0.0]], dtype=np.float32)
+    assert m.dtype == np.float32 and np.array_equal(m, want)
+    c = load_completer(hit_ckpt, device="cpu")
+    x, e = _scans()  # the left side (y = +0.8 e_y) only
+    right = lambda q: np.mean(np.abs(q[:, 1] + 0.8 * E[1]) < 1e-5)  # noqa: E731 - the unseen side
+    plain = c.complete(x, extents=e, snap=0.05)
+    both = c.complete(x, extents=e, snap=0.05, snap_mirror=True)
+    for a, b in zip(plain, both):
+        assert right(a) == 0.0 and right(b) > 0.05
+    with pytest.raises(ParameterError, match="snap_mirror goes with"):
+        c.complete(x, extents=e, snap_mirror=True)
+
+
+def test_snap_mirror_needs_a_radius_everywhere(tmp_path, capsys, hit_ckpt):
+    from spotlights.experiments.real_evaluation import RealEvaluationSettings
+    from spotlights.experiments.scene import SceneConfig
+
+    assert SceneConfig(snap=0.08, snap_mirror=True).snap_mirror
+    with pytest.raises(ParameterError, match="--snap-mirror goes with --snap R"):
+        SceneConfig(snap_mirror=True)
+    with pytest.raises(ParameterError, match="--snap-mirror goes with --snap R"):
+        RealEvaluationSettings(snap_mirror=True, heading_check=False)
+    np.save(tmp_path / "scan.npy", side_points(300) * 2.5 + [10.0, 2.0, 0.8])
+    box = ["--center", "10", "2", "0.8", "--size", "4.6", "1.9", "1.6", "--no-crop", "--checkpoint", hit_ckpt]
+    bad = cli(capsys, "complete", tmp_path / "scan.npy", *box, "--snap-mirror", "--out", tmp_path / "x.npy")
+    assert_user_error(bad, "--snap-mirror goes with --snap R")
+    ok = cli(capsys, "complete", tmp_path / "scan.npy", *box, "--snap", "0.05", "--snap-mirror",
+             "--out", tmp_path / "y.npy", "--summary", tmp_path / "y.json", "-q")  # fmt: skip
+    assert ok.returncode == 0, ok.stderr
+    assert json.loads((tmp_path / "y.json").read_text())["config"]["snap_mirror"] is True

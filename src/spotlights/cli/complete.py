@@ -35,6 +35,12 @@ SNAP_HELP = (
 )
 
 
+SNAP_MIRROR_HELP = (
+    "with --snap R: also snap to the observed points' mirror image across the box's length-height plane (vehicles "
+    "are left-right symmetric), so the side the LiDAR did not see follows the side it saw (docs/learning.md)"
+)
+
+
 def add_completion_arguments(p, single: bool) -> None:
     """Options shared by ``complete`` and ``real complete``: model, selection, crop, input, heading check."""
     p.add_argument(
@@ -82,6 +88,7 @@ def add_completion_arguments(p, single: bool) -> None:
         metavar="R",
         help=SNAP_HELP + "; not with --heading-check",
     )
+    p.add_argument("--snap-mirror", action="store_true", help=SNAP_MIRROR_HELP)
     p.add_argument(
         "--heading-check",
         action="store_true",

@@ -24,7 +24,7 @@ from ._util import (
     positive_int,
     unit_interval,
 )
-from .complete import SNAP_HELP, add_completion_arguments, add_track_arguments, warn
+from .complete import SNAP_HELP, SNAP_MIRROR_HELP, add_completion_arguments, add_track_arguments, warn
 from .view import add_html_argument
 
 FORMAT_CHOICES = ("kitti", "kitti360", "av2", "nuscenes", "generic")
@@ -217,6 +217,7 @@ def register(sub) -> None:
     p.add_argument(
         "--snap", type=non_negative_float, default=0.0, metavar="R", help=SNAP_HELP + "; needs --no-heading-check"
     )
+    p.add_argument("--snap-mirror", action="store_true", help=SNAP_MIRROR_HELP)
     p.add_argument("--device", default=None, help=DEVICE_HELP)
     p.add_argument(
         "--reference",

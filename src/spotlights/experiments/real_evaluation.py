@@ -141,6 +141,7 @@ def complete_all(
     sensor_origins: np.ndarray | None = None,
     classes=None,
     snap: float | None = None,
+    snap_mirror: bool = False,
 ) -> list[np.ndarray]:
     """Run ``completer.complete`` over (n, P, 3) float32 partials in batches; returns n (K_i, 3) float32 arrays.
 
@@ -151,7 +152,8 @@ def complete_all(
     ``sensor_origins`` (n, 3): the LiDAR in each observation's unit frame, for models that read free
     space (``sanet-local``; NaN rows: unknown); others never see it.
     ``classes`` (n,): each observation's class, for class-conditioned models (others never see it).
-    ``snap``: radius (unit frame) of snapping each completion's rays to its partial (SA-Nets; None: off).
+    ``snap``: radius (unit frame) of snapping each completion's rays to its partial (SA-Nets; None: off), with
+    ``snap_mirror`` to its mirror image too.
     """
     from tqdm import tqdm
 
@@ -175,7 +177,7 @@ def complete_all(
         if classes is not None and getattr(completer, "classes", ()):
             kw["classes"] = list(classes[s : s + batch_size])
         if snap:
-            kw["snap"] = snap
+            kw["snap"], kw["snap_mirror"] = snap, bool(snap_mirror)
         res = completer.complete(batch, **kw)
         if len(res) != len(batch):
             raise SpotlightsError(
@@ -273,7 +275,8 @@ class RealEvaluationSettings:
     batch_size : observations per ``complete`` call.
     snap : > 0: the SA-Nets' rays snapped to each observation's input points within this radius (unit frame;
         :meth:`~spotlights.learning.inference.BaseCompleter.complete`); 0: off. Not with ``heading_check`` (which
-        compares fidelities that snapping puts near 0 for both headings).
+        compares fidelities that snapping puts near 0 for both headings). snap_mirror : also snap to the partial's
+        mirror image (``y -> -y``).
 
     Read from a mapping with :meth:`from_dict` (unknown keys are errors naming the closest field).
     """
@@ -287,8 +290,11 @@ class RealEvaluationSettings:
     heading_margin: float = HEADING_MARGIN
     batch_size: int = 64
     snap: float = 0.0
+    snap_mirror: bool = False
 
     def __post_init__(self):
+        if self.snap_mirror and not self.snap > 0:
+            raise ParameterError("--snap-mirror goes with --snap R")
         if not (np.isfinite(self.snap) and self.snap >= 0):
             raise ParameterError(f"the snap radius must be >= 0 (unit frame), got {self.snap}")
         if self.snap > 0 and self.heading_check:
@@ -449,6 +455,7 @@ def _model_entry(
         sensor_origins=t.sensors,
         classes=t.cls,
         snap=s.snap or None,
+        snap_mirror=s.snap_mirror,
     )
     comps = complete_all(completer, t.partials, desc=f"complete {name}", **run)
     p2 = t.partials2
@@ -600,6 +607,7 @@ def evaluate_consistency(
         heading_margin=float(settings.heading_margin) if settings.heading_check else None,
         mmd_reference=reference_info if references is not None else None,
         snap=float(settings.snap),
+        snap_mirror=bool(settings.snap_mirror),
     )
     data, metrics = _report_head(obs, path, rows, t, scored, bool(settings.noise_floor))
     digests = [None] * len(completers) if checkpoints is None else [checkpoint_digest(c) for c in checkpoints]

@@ -97,7 +97,7 @@ class CompletionOptions:
     classes : comma-separated classes to complete (text or tuple); None: every vehicle class.
     keep_observed : return each object's observed points beside its predicted ones.
     snap : > 0: snap the SA-Nets' rays to each object's observed points within this radius (unit frame; 0: off;
-        :class:`~spotlights.experiments.scene.SceneConfig`).
+        :class:`~spotlights.experiments.scene.SceneConfig`); snap_mirror : and to their mirror image (``y -> -y``).
     complete_unknown : also complete boxes whose class (or size, far outside its class's range) the model did not
         learn (default: left as their observed points, status ``not_learned``, counted per class).
     fallback : a second model (file or short name, e.g. ``"classes"``) for the boxes :attr:`checkpoint`'s model
@@ -120,6 +120,7 @@ class CompletionOptions:
     classes: str | tuple | None = None
     keep_observed: bool = True
     snap: float = 0.0
+    snap_mirror: bool = False
     complete_unknown: bool = False
     fallback: str | None = AUTO_FALLBACK
     heading_check: bool = False
@@ -171,6 +172,7 @@ class CompletionOptions:
             clip=clip,
             keep_observed=bool(self.keep_observed),
             snap=float(self.snap),
+            snap_mirror=bool(self.snap_mirror),
             complete_unknown=bool(self.complete_unknown),
             heading_margin=HEADING_MARGIN if self.heading_margin is None else float(self.heading_margin),
         )

@@ -94,6 +94,7 @@ class SceneConfig:
         object's input points take their depth from the scan
         (:func:`spotlights.geometry.evidence.snap_to_observed`); 0: off (default). Fidelity is then scored on
         the snapped completion (near 0 by construction), so it does not go with the heading check.
+    snap_mirror : with ``snap``, also snap to the input's mirror image across the box's x-z plane (``y -> -y``).
     """
 
     margin: float = 0.15
@@ -110,6 +111,7 @@ class SceneConfig:
     keep_observed: bool = False
     complete_unknown: bool = False
     snap: float = 0.0
+    snap_mirror: bool = False
 
     def __post_init__(self):
         if not (math.isfinite(self.margin) and self.margin >= 0):
@@ -122,6 +124,8 @@ class SceneConfig:
             raise ParameterError(f"the minimum point count must be >= 1, got {self.min_points}")
         if not (math.isfinite(self.snap) and self.snap >= 0):
             raise ParameterError(f"the snap radius must be >= 0 (unit frame), got {self.snap}")
+        if self.snap_mirror and not self.snap > 0:
+            raise ParameterError("--snap-mirror goes with --snap R")
         if self.snap > 0 and self.heading_check:
             raise ParameterError(
                 "--snap does not go with --heading-check: the check compares how close each heading's completion "
@@ -562,6 +566,7 @@ def _complete_batch(todo: list[ObjectResult], completer, config: SceneConfig, sh
         inside=shares,
         classes=classes,
         snap=config.snap or None,
+        snap_mirror=config.snap_mirror,
     )
 
 

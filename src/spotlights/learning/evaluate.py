@@ -45,7 +45,7 @@ from ..utils import StageTimer, atomic_output, check_writable, settings_from_dic
 from ..viz import render_predictions
 from .bench import model_latency
 from .checkpoint import load_checkpoint, model_from_checkpoint
-from .inference import DEFAULT, load_completer
+from .inference import DEFAULT, load_completer, mirrored
 from .models import DISPLAY_NAMES
 from .ray_metrics import RayMetrics
 from .rays import DirectionTable
@@ -71,6 +71,7 @@ def evaluate_checkpoint(
     gt_dense=None,
     scorer=None,
     snap: float | None = None,
+    snap_mirror: bool = False,
 ) -> dict:
     """Score one checkpoint on one split.
 
@@ -88,6 +89,7 @@ def evaluate_checkpoint(
         :class:`~spotlights.learning.ray_metrics.RayMetrics` (``evaluate --backend ray``).
     snap : > 0: every SA-Net row with its rays snapped to each scan's partial within this radius (unit frame;
         :func:`spotlights.geometry.evidence.snap_to_observed`; the rows' names say so); None or 0: off.
+        snap_mirror : and to the partial's mirror image (``y -> -y``).
 
     Returns
     -------
@@ -112,6 +114,8 @@ def evaluate_checkpoint(
     dense = gt_dense if gt_dense is not None else ds.gt_dense()
     hit_aware = hasattr(model, "hit_probabilities")
     snap = float(snap) if snap else None
+    if snap_mirror and snap is None:
+        raise ParameterError("--snap-mirror goes with --snap R")
     if snap is not None and not hasattr(model, "snap_rays"):
         raise ParameterError(f"{checkpoint}: {name} has no rays to snap: --snap needs an SA-Net")
     if hit_aware:  # hit-aware SA-Net: rays with p(hit) >= the checkpoint's threshold, no clip (a clip only if asked)
@@ -124,7 +128,8 @@ def evaluate_checkpoint(
     else:
         variants = [("", None)]
     if snap is not None:
-        variants = [((v + ", " if v else "") + f"snap {snap:g}", c) for v, c in variants]
+        tag = f"snap {snap:g}" + (" mirrored" if snap_mirror else "")
+        variants = [((v + ", " if v else "") + tag, c) for v, c in variants]
     preds = {v: [] for v, _ in variants}
     kept = {v: [] for v, _ in variants}
     rays = None
@@ -139,7 +144,8 @@ def evaluate_checkpoint(
                 b["cls"] = model.class_indices(ds.classes[batch["model"].numpy()]).to(dev)
             out = model(*model.forward_inputs(b, rays))
             dirs = rays.directions(batch["model"].to(dev)) if rays is not None else None
-            snap_kw = {} if snap is None else {"snap": ([p.numpy() for p in batch["partial"]], snap)}
+            observed = [mirrored(p.numpy()) if snap_mirror else p.numpy() for p in batch["partial"]]
+            snap_kw = {} if snap is None else {"snap": (observed, snap)}
             for v, c in variants:
                 pts = model.outputs_to_points(out, c, dirs, **snap_kw)
                 preds[v].extend(p.cpu().numpy() for p in pts)
@@ -174,6 +180,7 @@ def evaluate_checkpoint(
         "rows": rows,
         "predict_seconds": predict_s,
         "snap": snap,
+        "snap_mirror": bool(snap_mirror),
         "trained_epochs": int(ckpt.get("epoch", 0) or 0),
         "training": training_facts(ckpt),
     }
@@ -503,6 +510,7 @@ class EvaluateSettings:
     examples : scans per category in the figure (0: no figure).
     device, threads : torch device and CPU threads (None: the defaults).
     snap : > 0: SA-Net rows with their rays snapped to each scan's partial within this radius (unit frame); 0: off.
+    snap_mirror : with ``snap``, to the partial's mirror image too.
     quiet : no progress bars. backend, ray_address : ``"local"`` or ``"ray"`` metric work.
     """
 
@@ -563,6 +571,12 @@ class EvaluateSettings:
         help="SA-Nets: score the completions with every ray that passes within R (unit frame) of an input point "
         "snapped to it, as 'complete --snap R' (default 0: off; the figure shows the models' own outputs)",
     )
+    snap_mirror: bool = option(
+        default=False,
+        action="store_true",
+        help="with --snap R: also snap to the input's mirror image across the box's x-z plane, as 'complete "
+        "--snap-mirror'",
+    )
     device: str | None = option(default=None, help=DEVICE_HELP)
     threads: int | None = option(default=None, type=positive_int, help="torch CPU threads (default: torch's)")
     quiet: bool = option(default=False, quiet=True, help="no progress bar")
@@ -617,6 +631,7 @@ def run_evaluation(s: EvaluateSettings, log: Callable[[str], None] = print) -> d
         backend=s.backend,
         ray_address=s.ray_address,
         snap=s.snap or None,
+        snap_mirror=s.snap_mirror,
     )
     md, js = write_report(report, s.out)
     log(report_markdown(report).split("\n## ")[0].rstrip())

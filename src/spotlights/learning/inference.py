@@ -291,6 +291,7 @@ class BaseCompleter:
         inside: list | None = None,
         snap: float | None = None,
         observed: Sequence[np.ndarray] | None = None,
+        snap_mirror: bool = False,
     ) -> list[np.ndarray]:
         """Complete partial scans.
 
@@ -318,6 +319,9 @@ class BaseCompleter:
             takes its depth from the scan); None or 0: off (default).
         observed : with ``snap``, B arrays (K_b, 3) of each scan's observed points, unit frame (default: the
             partials themselves).
+        snap_mirror : with ``snap``, also snap to the observed points' mirror image across the box's x-z plane
+            (``y -> -y``: vehicles are left-right symmetric), so the side the LiDAR did not see follows the one
+            it saw.
 
         Returns
         -------
@@ -365,6 +369,8 @@ class BaseCompleter:
                 )
             if observed is not None and len(observed) != len(x):
                 raise ParameterError(f"{len(observed)} observed point sets for {len(x)} scans")
+        elif snap_mirror:
+            raise ParameterError("snap_mirror goes with a snap radius (snap=R)")
         out: list[np.ndarray] = []
         with self._session():
             for s in range(0, len(x), batch_size):
@@ -377,7 +383,8 @@ class BaseCompleter:
                     kw["box_half"], kw["inside"] = np.array(bh[s : s + batch_size]), inside
                 if snap is not None:
                     obs = x[s : s + batch_size] if observed is None else observed[s : s + batch_size]
-                    kw["snap"] = ([np.asarray(o, dtype=np.float64).reshape(-1, 3) for o in obs], snap)
+                    pts = [np.asarray(o, dtype=np.float64).reshape(-1, 3) for o in obs]
+                    kw["snap"] = ([mirrored(p) for p in pts] if snap_mirror else pts, snap)
                 out.extend(self._forward(x[s : s + batch_size], clip, dirs, sb, **kw))
         return out
 
@@ -544,6 +551,7 @@ def complete_in_boxes(
     inside: list | None = None,
     classes=None,
     snap: float | None = None,
+    snap_mirror: bool = False,
 ) -> list[np.ndarray]:
     """Complete unit-frame partial scans, each with its box, every point inside its box grown by
     0.15 m and inside the box's sphere (``inside``, when given, gets each completion's share of points the
@@ -570,13 +578,15 @@ def complete_in_boxes(
     clip : passed to :meth:`Completer.complete`.
     sensor_origins : (B, 3) the LiDAR in each scan's unit frame, passed on to models that read free space.
     snap : radius (unit frame) to snap the SA-Nets' rays to each scan's partial (:meth:`Completer.complete`);
-        None or 0: off.
+        None or 0: off. snap_mirror : also to its mirror image (``y -> -y``).
 
     Returns a list of B arrays (K_i, 3) float32, unit frame, norms <= 1, inside the grown boxes.
     """
     kw = {"clip": clip}
     if snap:
         kw["snap"] = snap
+        if snap_mirror:
+            kw["snap_mirror"] = True
     if sensor_origins is not None and getattr(getattr(completer, "model", None), "uses_evidence", False):
         kw["sensor_origins"] = sensor_origins
     sz = np.asarray(sizes, dtype=np.float64).reshape(-1, 3)
@@ -591,6 +601,13 @@ def complete_in_boxes(
     if inside is not None:
         inside.extend(decoded if len(decoded) == len(shares) else shares)
     return done
+
+
+def mirrored(points: np.ndarray) -> np.ndarray:
+    """(2K, 3) the points (K, 3) of a box's unit (or object) frame, then their mirror image across its x-z plane
+    (``y -> -y``), same dtype."""
+    p = np.asarray(points).reshape(-1, 3)
+    return np.concatenate([p, p * np.array([1, -1, 1], dtype=p.dtype)])
 
 
 def with_observed(completion: np.ndarray, observed: np.ndarray) -> np.ndarray:
