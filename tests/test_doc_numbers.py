@@ -354,3 +354,25 @@ def test_snap_with_track_fusion_stop37():
         f"{f['nosnap'][0]:.4f} / {f['nosnap'][1]:.4f} without and {f['snap'][0]:.4f} / {f['snap'][1]:.4f} with",
     )
     _says("docs/learning.md", f"still {c['snap'][1] / c['nosnap'][0]:.2f}x as inconsistent")
+
+
+def test_mirrored_snap_rows_stop37():
+    """The --snap 0.08 --snap-mirror table of docs/learning.md, from its reports."""
+    t = _summary(_json("fair/snap/table1_snap0.08_mirror.json"), "sanet-hit")
+    _says(
+        "docs/learning.md",
+        f"{t['accuracy']:.5f} / {t['completeness']:.5f} / {t['chamfer_l1']:.5f} / {t['fscore']:.3f}",
+    )
+    g = _json("fair/snap/generalisation_snap0.08_mirror.json")
+    assert g["snap"] == [0.08] and g["snap_mirror"]
+    rows, ratio = g["scores"]["held_out"]["rows"], g["ratio_held_out_over_in_distribution"]
+    plain, snap = "default (p(hit) >= 0.4)", "default (p(hit) >= 0.4, snap 0.08 mirrored)"
+    _says("docs/learning.md", f"**{rows[snap]['accuracy']:.4f} ({ratio[snap]['accuracy']:.2f}x)**")
+    _says("docs/learning.md", f"**{1 - rows[snap]['accuracy'] / rows[plain]['accuracy']:.0%} better**")
+    _says("docs/learning.md", f"{rows[snap]['subset_accuracy']:.4f} ({ratio[snap]['subset_accuracy']:.2f}x)")
+    for name in ("av2", "nuscenes"):
+        (m,) = _json(f"real/snap/{name}_snap0.08_mirror.json")["models"]
+        _says("docs/learning.md", f"{m['equal_density']['average']['cd']:.4f} / {m['average']['fidelity']:.4f}")
+    q = _json("real/track_fusion_snap0.08_mirror_stop37.json")["quality_on_common_observations"]
+    c = (q["single"]["consistency_voxel_all_objects"], q["fused"]["consistency_voxel_all_objects"])
+    _says("docs/learning.md", f"| 0.0469 / 0.0225 | {c[0]:.4f} / {c[1]:.4f} |")
