@@ -233,11 +233,12 @@ def test_resume_reuses_frames_written_before_snap_existed(tmp_path):
 
     cfg = asdict(SceneConfig())
     cfg["clip"] = str(cfg["clip"])
-    old = {k: v for k, v in cfg.items() if k != "snap"}  # a frame of a run before --snap
+    old = {k: v for k, v in cfg.items() if k not in ("snap", "snap_mirror")}  # a frame of a run before --snap
     f = tmp_path / "frame.json"
     f.write_text(json.dumps({"model": "sanet-hit", "checkpoint": "default", "config": old}))
     assert done_frame(f, SceneConfig(), "sanet-hit", "default") is not None
     assert done_frame(f, SceneConfig(snap=0.05), "sanet-hit", "default") is None  # snapping: computed again
+    assert done_frame(f, SceneConfig(snap=0.05, snap_mirror=True), "sanet-hit", "default") is None
 
 
 def test_mirrored_snapping_draws_the_side_the_lidar_did_not_see(hit_ckpt):

@@ -304,7 +304,7 @@ def done_frame(
     cfg["clip"] = str(cfg["clip"]) if cfg["clip"] is not None and not isinstance(cfg["clip"], float) else cfg["clip"]
     earlier = summ.get("config")
     if isinstance(earlier, dict):
-        earlier = {"snap": 0.0} | earlier  # frames of runs before --snap existed did not snap
+        earlier = {"snap": 0.0, "snap_mirror": False} | earlier  # runs before --snap existed did not snap
     same = (
         summ.get("model") == model
         and summ.get("checkpoint") == checkpoint

@@ -27,6 +27,7 @@ from ..errors import InputFileError, ParameterError
 from ..geometry.boxes import BOX_EDGES, Box
 from ._figure import add_scale_bar, new_figure, save_png
 from .points import Layer, merge_layers
+from .raster import splat_points, view_basis
 
 GREY, PURPLE, GREEN = "#9a9a9a", "#8e44ad", "#27ae60"
 CLOSEUP_TITLE_WIDTH = 44
@@ -163,8 +164,6 @@ def draw_closeup(ax, scan: np.ndarray, obj: SceneObject, context: float = 1.0, d
     context scan (grey, outside the box), completion (green), partial input (purple) splatted into one image
     with a depth test (orthographic view, :data:`CLOSEUP_ELEVATION` degrees up; each point a disc of its
     marker's size at ``dpi``: :func:`~spotlights.viz.raster.splat_points`), the box wireframe and a 1 m ruler."""
-    from .raster import splat_points, view_basis
-
     c = np.asarray(obj.center, dtype=np.float64)
     reach = obj.reach
     scan = np.asarray(scan, dtype=np.float64).reshape(-1, 3)
