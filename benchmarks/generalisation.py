@@ -197,6 +197,12 @@ def main() -> None:
     t0 = time.time()
     if (args.held_out is None) == (args.held_out_category is None):
         ap.error("give exactly one of --held-out (a source) and --held-out-category (body types)")
+    if args.snap_mirror and not args.snap:
+        ap.error("--snap-mirror goes with --snap R")
+    if any(not (r > 0 and r < float("inf")) for r in args.snap):
+        ap.error("--snap radii must be finite numbers > 0")
+    if args.held_out_category and args.snap:
+        ap.error("--snap is not scored with --held-out-category (only with --held-out)")
     if args.held_out_category:
         return by_category(args, [c.strip() for c in args.held_out_category.split(",") if c.strip()], t0)
     scores = {}

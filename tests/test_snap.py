@@ -255,7 +255,7 @@ def test_mirrored_snapping_draws_the_side_the_lidar_did_not_see(hit_ckpt):
     both = c.complete(x, extents=e, snap=0.05, snap_mirror=True)
     for a, b in zip(plain, both):
         assert right(a) == 0.0 and right(b) > 0.05
-    with pytest.raises(ParameterError, match="snap_mirror goes with"):
+    with pytest.raises(ParameterError, match="snap_mirror and observed go with"):
         c.complete(x, extents=e, snap_mirror=True)
 
 
@@ -276,3 +276,15 @@ def test_snap_mirror_needs_a_radius_everywhere(tmp_path, capsys, hit_ckpt):
              "--out", tmp_path / "y.npy", "--summary", tmp_path / "y.json", "-q")  # fmt: skip
     assert ok.returncode == 0, ok.stderr
     assert json.loads((tmp_path / "y.json").read_text())["config"]["snap_mirror"] is True
+
+
+def test_evaluate_scores_a_point_model_unsnapped_beside_a_snapped_sanet(tmp_path, hit_ckpt):
+    from spotlights.learning.evaluate import evaluate_checkpoint
+
+    from learning_fixtures import tiny_dataset_path
+
+    data = tiny_dataset_path(tmp_path / "data")
+    pcn = evaluate_checkpoint(make_checkpoint(tmp_path / "pcn.pt", "pcn"), data, progress=False, snap=0.05)
+    assert pcn["snap"] is None and not any("snap" in r["variant"] for r in pcn["rows"])
+    with pytest.raises(ParameterError, match="snap radius"):
+        evaluate_checkpoint(make_checkpoint(tmp_path / "cap.pt", "sanet-hit"), data, progress=False, snap=float("nan"))

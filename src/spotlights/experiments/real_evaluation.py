@@ -454,8 +454,9 @@ def _model_entry(
         box_sizes=t.sizes,
         sensor_origins=t.sensors,
         classes=t.cls,
-        snap=s.snap or None,
-        snap_mirror=s.snap_mirror,
+        # the SA-Nets snap; a point-set model has no rays and is scored as it is (its entry says so)
+        snap=(s.snap or None) if getattr(completer, "rig", None) is not None else None,
+        snap_mirror=s.snap_mirror and getattr(completer, "rig", None) is not None,
     )
     comps = complete_all(completer, t.partials, desc=f"complete {name}", **run)
     p2 = t.partials2
@@ -468,6 +469,7 @@ def _model_entry(
         checkpoint_sha256=digest,
         n_params=getattr(completer, "n_params", None),
         mean_points_per_completion=float(np.mean([len(c) for c in comps])),
+        snapped=run["snap"] is not None,
         diversity=div,
         consistency_over_diversity=_ratio(agg["all_objects"]["cd"], div),
         **agg,
@@ -520,7 +522,10 @@ def _reusable(previous: Sequence[dict] | None, scored: dict) -> dict:
     same = json.loads(json.dumps(scored))  # as it reads back from a report's JSON
     reusable = {}
     for rep in previous or ():
-        if (rep.get("data") or {}).get("settings") == same:
+        earlier = (rep.get("data") or {}).get("settings")
+        if isinstance(earlier, dict):  # reports from before --snap existed did not snap
+            earlier = {"snap": 0.0, "snap_mirror": False} | earlier
+        if earlier == same:
             reusable.update({(m.get("name"), m.get("checkpoint_sha256")): m for m in rep.get("models", [])})
     return reusable
 

@@ -88,7 +88,8 @@ def evaluate_checkpoint(
     scorer : the per-model metric work, ``evaluate_completions`` (default) or a drop-in such as
         :class:`~spotlights.learning.ray_metrics.RayMetrics` (``evaluate --backend ray``).
     snap : > 0: every SA-Net row with its rays snapped to each scan's partial within this radius (unit frame;
-        :func:`spotlights.geometry.evidence.snap_to_observed`; the rows' names say so); None or 0: off.
+        :func:`spotlights.geometry.evidence.snap_to_observed`; the rows' names say so); None or 0: off. Models
+        without rays (the point-set baselines) are scored unsnapped (their result's ``snap`` is None).
         snap_mirror : and to the partial's mirror image (``y -> -y``).
 
     Returns
@@ -116,8 +117,10 @@ def evaluate_checkpoint(
     snap = float(snap) if snap else None
     if snap_mirror and snap is None:
         raise ParameterError("--snap-mirror goes with --snap R")
-    if snap is not None and not hasattr(model, "snap_rays"):
-        raise ParameterError(f"{checkpoint}: {name} has no rays to snap: --snap needs an SA-Net")
+    if snap is not None and not (math.isfinite(snap) and snap > 0):
+        raise ParameterError(f"the snap radius must be a finite number > 0 (unit frame), got {snap}")
+    if not hasattr(model, "snap_rays"):  # a point model has no rays: scored as it is beside the snapped SA-Nets
+        snap, snap_mirror = None, False
     if hit_aware:  # hit-aware SA-Net: rays with p(hit) >= the checkpoint's threshold, no clip (a clip only if asked)
         variants = [(f"p(hit) >= {model.threshold:g}", None)] + (
             [(f"p(hit) >= {model.threshold:g}, clip {float(clip):g}", float(clip))] if clip is not None else []

@@ -369,8 +369,8 @@ class BaseCompleter:
                 )
             if observed is not None and len(observed) != len(x):
                 raise ParameterError(f"{len(observed)} observed point sets for {len(x)} scans")
-        elif snap_mirror:
-            raise ParameterError("snap_mirror goes with a snap radius (snap=R)")
+        elif snap_mirror or observed is not None:
+            raise ParameterError("snap_mirror and observed go with a snap radius (snap=R)")
         out: list[np.ndarray] = []
         with self._session():
             for s in range(0, len(x), batch_size):
@@ -585,8 +585,8 @@ def complete_in_boxes(
     kw = {"clip": clip}
     if snap:
         kw["snap"] = snap
-        if snap_mirror:
-            kw["snap_mirror"] = True
+    if snap_mirror:
+        kw["snap_mirror"] = True  # without a radius, complete() says so
     if sensor_origins is not None and getattr(getattr(completer, "model", None), "uses_evidence", False):
         kw["sensor_origins"] = sensor_origins
     sz = np.asarray(sizes, dtype=np.float64).reshape(-1, 3)

@@ -185,8 +185,12 @@ def splat_points(
     c, r, s = np.concatenate(cols), np.concatenate(rows), np.concatenate(src)
     ok = (c >= 0) & (c < width) & (r >= 0) & (r < height)
     c, r, s = c[ok], r[ok], s[ok]
-    order = np.argsort(depth[s], kind="stable")  # far first: the nearest is written last and stays
+    order = np.argsort(depth[s], kind="stable")  # far first: the nearest comes last
     r, c, s = r[order], c[order], s[order]
+    flat = (r * width + c)[::-1]
+    _, last = np.unique(flat, return_index=True)  # each pixel's last (nearest) writer, whatever numpy's write order
+    last = len(flat) - 1 - last
+    r, c, s = r[last], c[last], s[last]
     img[r, c, :3] = rgb[s]
     img[r, c, 3] = 1.0
     return img
