@@ -309,11 +309,7 @@ def test_fused_consistency_with_every_vehicle_stop36():
 
 def test_snap_rows_stop37():
     """The --snap 0.05 table of docs/learning.md: test cars, Kenney vehicles and the real sets, from their reports."""
-    t = _summary(_json("fair/snap/table1_snap.json"), "sanet-hit")
-    _says(
-        "docs/learning.md",
-        f"{t['accuracy']:.5f} / {t['completeness']:.5f} / {t['chamfer_l1']:.5f} / {t['fscore']:.3f}",
-    )
+    _says_snap_test_and_real_rows("table1_snap.json", "snap")
     g = _json("fair/snap/generalisation_snap.json")
     rows, ratio = g["scores"]["held_out"]["rows"], g["ratio_held_out_over_in_distribution"]
     plain, snap = "default (p(hit) >= 0.4)", "default (p(hit) >= 0.4, snap 0.05)"
@@ -321,8 +317,17 @@ def test_snap_rows_stop37():
     _says("docs/learning.md", f"{rows[plain]['accuracy']:.4f} ({ratio[plain]['accuracy']:.2f}x the test cars')")
     _says("docs/learning.md", f"{rows[snap]['accuracy']:.4f} ({ratio[snap]['accuracy']:.2f}x)")
     _says("docs/learning.md", f"{1 - rows[snap]['accuracy'] / rows[plain]['accuracy']:.0%} better")
+
+
+def _says_snap_test_and_real_rows(table: str, real: str) -> None:
+    """A snap table's test-car row (docs/results/fair/snap/TABLE) and its real-set rows (real/snap/SET_REAL.json)."""
+    t = _summary(_json(f"fair/snap/{table}"), "sanet-hit")
+    _says(
+        "docs/learning.md",
+        f"{t['accuracy']:.5f} / {t['completeness']:.5f} / {t['chamfer_l1']:.5f} / {t['fscore']:.3f}",
+    )
     for name in ("av2", "nuscenes"):
-        (m,) = _json(f"real/snap/{name}_snap.json")["models"]
+        (m,) = _json(f"real/snap/{name}_{real}.json")["models"]
         _says("docs/learning.md", f"{m['equal_density']['average']['cd']:.4f} / {m['average']['fidelity']:.4f}")
 
 
@@ -358,11 +363,7 @@ def test_snap_with_track_fusion_stop37():
 
 def test_mirrored_snap_rows_stop37():
     """The --snap 0.08 --snap-mirror table of docs/learning.md, from its reports."""
-    t = _summary(_json("fair/snap/table1_snap0.08_mirror.json"), "sanet-hit")
-    _says(
-        "docs/learning.md",
-        f"{t['accuracy']:.5f} / {t['completeness']:.5f} / {t['chamfer_l1']:.5f} / {t['fscore']:.3f}",
-    )
+    _says_snap_test_and_real_rows("table1_snap0.08_mirror.json", "snap0.08_mirror")
     g = _json("fair/snap/generalisation_snap0.08_mirror.json")
     assert g["snap"] == [0.08] and g["snap_mirror"]
     rows, ratio = g["scores"]["held_out"]["rows"], g["ratio_held_out_over_in_distribution"]
@@ -370,9 +371,6 @@ def test_mirrored_snap_rows_stop37():
     _says("docs/learning.md", f"**{rows[snap]['accuracy']:.4f} ({ratio[snap]['accuracy']:.2f}x)**")
     _says("docs/learning.md", f"**{1 - rows[snap]['accuracy'] / rows[plain]['accuracy']:.0%} better**")
     _says("docs/learning.md", f"{rows[snap]['subset_accuracy']:.4f} ({ratio[snap]['subset_accuracy']:.2f}x)")
-    for name in ("av2", "nuscenes"):
-        (m,) = _json(f"real/snap/{name}_snap0.08_mirror.json")["models"]
-        _says("docs/learning.md", f"{m['equal_density']['average']['cd']:.4f} / {m['average']['fidelity']:.4f}")
     q = _json("real/track_fusion_snap0.08_mirror_stop37.json")["quality_on_common_observations"]
     c = (q["single"]["consistency_voxel_all_objects"], q["fused"]["consistency_voxel_all_objects"])
     _says("docs/learning.md", f"| 0.0469 / 0.0225 | {c[0]:.4f} / {c[1]:.4f} |")

@@ -158,11 +158,13 @@ def test_onnxruntime_snaps_like_torch(tmp_path, hit_ckpt):
     ref = load_completer(hit_ckpt, device="cpu")
     x, e = _scans()
     half = np.broadcast_to(E + 0.03, (len(x), 3))
-    for kw in ({}, {"box_half": half}):
-        a = ref.complete(x, extents=e, snap=0.05, **kw)
-        b = onx.complete(x, extents=e, snap=0.05, **kw)
+    for kw in ({"snap": 0.05}, {"snap": 0.05, "box_half": half}, {"snap": 0.08, "snap_mirror": True}):
+        a = ref.complete(x, extents=e, **kw)
+        b = onx.complete(x, extents=e, **kw)
         assert [len(p) for p in a] == [len(p) for p in b]
         assert max(float(np.abs(p - q).max()) for p, q in zip(a, b)) < 1e-4
+        if kw.get("snap_mirror"):
+            assert all(np.mean(np.abs(q[:, 1] + 0.8 * E[1]) < 1e-4) > 0.05 for q in b)  # the mirrored side, drawn
 
 
 def test_scene_options_and_real_evaluation_refuse_snap_with_the_heading_check():
@@ -288,22 +290,6 @@ def test_evaluate_scores_a_point_model_unsnapped_beside_a_snapped_sanet(tmp_path
     assert pcn["snap"] is None and not any("snap" in r["variant"] for r in pcn["rows"])
     with pytest.raises(ParameterError, match="snap radius"):
         evaluate_checkpoint(make_checkpoint(tmp_path / "cap.pt", "sanet-hit"), data, progress=False, snap=float("nan"))
-
-
-def test_onnxruntime_snaps_mirrored_like_torch(tmp_path, hit_ckpt):
-    pytest.importorskip("onnxruntime")
-    pytest.importorskip("onnxscript")
-    from spotlights.learning.export import export_onnx, load_onnx_completer
-    from spotlights.learning.inference import load_completer
-
-    onx = load_onnx_completer(export_onnx(hit_ckpt, tmp_path / "hit.onnx"))
-    ref = load_completer(hit_ckpt, device="cpu")
-    x, e = _scans()
-    a = ref.complete(x, extents=e, snap=0.08, snap_mirror=True)
-    b = onx.complete(x, extents=e, snap=0.08, snap_mirror=True)
-    assert [len(p) for p in a] == [len(p) for p in b]
-    assert max(float(np.abs(p - q).max()) for p, q in zip(a, b)) < 1e-4
-    assert all(np.mean(np.abs(q[:, 1] + 0.8 * E[1]) < 1e-4) > 0.05 for q in b)  # the mirrored side, drawn
 
 
 def test_evaluate_snap_from_the_command_line(tmp_path, capsys):

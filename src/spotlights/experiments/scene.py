@@ -166,9 +166,8 @@ class ObjectResult:
     fidelity_flipped: float | None = None
     warnings: list = field(default_factory=list)
     n_fused: int | None = None  # input points with other frames' fused in (``extra_points``), else None
-    inside_box: float | None = (
-        None  # share of the points inside the box grown by 0.15 m before the clamp (the network's, or with --snap snapped)
-    )
+    # share of the points inside the box grown by 0.15 m before the clamp (the network's; with --snap, snapped)
+    inside_box: float | None = None
     completed_by: str | None = None  # the fallback model's name when it, not the main model, completed the box
 
     def summary(self) -> dict:

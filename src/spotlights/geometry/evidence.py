@@ -343,3 +343,26 @@ def snap_to_observed(
     dep[rows] = np.where(on_plane, t_plane, t_foot)
     kp[rows] = True
     return dep, kp, snapped
+
+
+def snap_batch_to_observed(
+    observed,
+    origins: np.ndarray,
+    directions: np.ndarray,
+    n_secondary: int,
+    depth: np.ndarray,
+    keep: np.ndarray,
+    radius: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`snap_to_observed` of B scans: ``observed`` B arrays (K_b, 3), origins (R, 3), directions (R, 3) (shared)
+    or (B, R, 3), depth (B, R), keep (B, R) bool; unit frame. Returns ``(depth (B, R) float64, keep (B, R) bool)``."""
+    dirs = np.asarray(directions, dtype=np.float64)
+    if len(observed) != len(depth):
+        raise ValueError(f"{len(observed)} observed point sets for {len(depth)} scans")
+    rows = [
+        snap_to_observed(
+            observed[b], origins, dirs[b] if dirs.ndim == 3 else dirs, n_secondary, depth[b], keep[b], radius
+        )
+        for b in range(len(depth))
+    ]
+    return np.stack([r[0] for r in rows]), np.stack([r[1] for r in rows])

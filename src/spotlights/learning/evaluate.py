@@ -147,8 +147,10 @@ def evaluate_checkpoint(
                 b["cls"] = model.class_indices(ds.classes[batch["model"].numpy()]).to(dev)
             out = model(*model.forward_inputs(b, rays))
             dirs = rays.directions(batch["model"].to(dev)) if rays is not None else None
-            observed = [mirrored(p.numpy()) if snap_mirror else p.numpy() for p in batch["partial"]]
-            snap_kw = {} if snap is None else {"snap": (observed, snap)}
+            snap_kw = {}
+            if snap is not None:
+                observed = [mirrored(p.numpy()) if snap_mirror else p.numpy() for p in batch["partial"]]
+                snap_kw = {"snap": (observed, snap)}
             for v, c in variants:
                 pts = model.outputs_to_points(out, c, dirs, **snap_kw)
                 preds[v].extend(p.cpu().numpy() for p in pts)

@@ -44,7 +44,7 @@ from ..data.vehicle_classes import class_rows
 from ..errors import InputFileError, ParameterError, SpotlightsError
 from ..geometry.box_clamp import ray_box_interval
 from ..geometry.boxes import unit_extents
-from ..geometry.evidence import snap_to_observed
+from ..geometry.evidence import snap_batch_to_observed
 from ..utils import atomic_output
 from .checkpoint import load_checkpoint, model_from_checkpoint, resolve_checkpoint
 from .inference import DEFAULT, BaseCompleter, LearnedDomain
@@ -432,49 +432,29 @@ class OnnxCompleter(BaseCompleter):
             raise ParameterError(f"{self.path.name}: snapping to the observed points needs a ray model (an SA-Net)")
         mask = self.keep(out, clip)
         points, depths = out["ray_points"], out["depths"]
-        if snap is not None:
-            depths, mask = snap_rays(depths, mask, self.rig, directions, *snap)
-            points = ray_points(depths, self.rig, directions)
-        if box_half is not None and self.rig is not None:
+        if self.rig is not None and (snap is not None or box_half is not None):
             origins, fixed = rig_rays(self.rig)
             dirs = fixed if directions is None else directions
+        if snap is not None:  # as the torch SA-Nets snap (SANet.snap_rays), then decoded as they decode
+            observed, radius = snap
+            depths, mask = snap_batch_to_observed(
+                observed, origins, dirs, rig_spec(self.rig).n_secondary, depths, mask, radius
+            )
+            depths = depths.astype(np.float32)  # as the torch models keep their depths
+            points = ray_points(depths, origins, dirs)
+        if box_half is not None and self.rig is not None:
             points, mask, share = clip_rays_to_boxes(depths, mask, origins, dirs, box_half)
             if inside is not None:
                 inside.extend(float(v) for v in share)
         return [p[m].astype(np.float32) for p, m in zip(points, mask)]
 
 
-def snap_rays(depths, keep, rig, directions, observed, radius: float) -> tuple[np.ndarray, np.ndarray]:
-    """The numpy form of :meth:`spotlights.learning.models.sanet.SANet.snap_rays`: depths (B, R), keep (B, R) bool,
-    ``rig`` the export's rig, directions (B, R, 3) or None (the rig's fixed rays), observed B (K_b, 3) arrays,
-    radius (unit frame). Returns ``(depths (B, R) float32, keep (B, R) bool)``."""
-    origins, fixed = rig_rays(rig)
-    dirs = np.asarray(fixed if directions is None else directions, dtype=np.float64)
-    if len(observed) != len(depths):
-        raise ParameterError(f"{len(observed)} observed point sets for {len(depths)} scans")
-    rows = [
-        snap_to_observed(
-            observed[b],
-            origins,
-            dirs[b] if dirs.ndim == 3 else dirs,
-            rig_spec(rig).n_secondary,
-            depths[b],
-            keep[b],
-            radius,
-        )
-        for b in range(len(depths))
-    ]
-    return np.stack([r[0] for r in rows]).astype(np.float32), np.stack([r[1] for r in rows])
-
-
-def ray_points(depths, rig, directions) -> np.ndarray:
-    """(B, R, 3) float32 ``o + 2 d u`` of depths (B, R), each clamped to [0, half the ray's chord through the unit
-    sphere] (the torch SA-Nets' :meth:`~spotlights.learning.models.sanet.SANet.ray_points`)."""
-    origins, fixed = rig_rays(rig)
+def ray_points(depths, origins, directions) -> np.ndarray:
+    """(B, R, 3) float32 ``o + 2 d u`` of depths (B, R) on rays ``origins`` (R, 3) and ``directions`` (R, 3) or
+    (B, R, 3), each depth clamped to [0, half the ray's chord through the unit sphere] (the torch SA-Nets'
+    :meth:`~spotlights.learning.models.sanet.SANet.ray_points`)."""
     o = np.asarray(origins, dtype=np.float32)
-    u = np.broadcast_to(
-        np.asarray(fixed if directions is None else directions, dtype=np.float32), (len(depths), *o.shape)
-    )
+    u = np.broadcast_to(np.asarray(directions, dtype=np.float32), (len(depths), *o.shape))
     half_chord = np.maximum(-(o * u).sum(-1), 0.0)
     d = np.minimum(np.maximum(np.asarray(depths, dtype=np.float32), 0.0), half_chord)
     return o + (2.0 * d)[..., None] * u
@@ -499,10 +479,7 @@ def clip_rays_to_boxes(depths, keep, origins, directions, box_half) -> tuple[np.
     inside = np.where(n > 0, was_in.sum(-1) / np.maximum(n, 1), 1.0)
     keep = keep & meets
     d = np.where(keep, np.minimum(np.maximum(t, np.maximum(t_in, 0.0)), t_out) / 2.0, depths).astype(np.float32)
-    o32, u32 = o.astype(np.float32), u.astype(np.float32)
-    half_chord = np.maximum(-(o32 * u32).sum(-1), 0.0)
-    d = np.minimum(np.maximum(d, 0.0), half_chord)
-    return o32 + (2.0 * d)[..., None] * u32, keep, inside
+    return ray_points(d, o, u), keep, inside
 
 
 def load_onnx_completer(path, threads: int | None = None) -> OnnxCompleter:

@@ -25,11 +25,10 @@ import hashlib
 from collections import OrderedDict
 from collections.abc import Sequence
 
-import numpy as np
 import torch
 
 from ...data.vehicle_classes import canonical_class, class_rows
-from ...geometry.evidence import snap_to_observed
+from ...geometry.evidence import snap_batch_to_observed
 from ..losses import depth_l1
 from ..rays import rig_rays, rig_spec
 from .base import CLIP_DEFAULT, MLP, CompletionModel, PCNEncoder
@@ -199,7 +198,7 @@ class SANet(CompletionModel):
     def snap_rays(
         self, depths: torch.Tensor, keep: torch.Tensor, directions: torch.Tensor | None, observed, radius: float
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Snap every scan's rays to its observed points (:func:`spotlights.geometry.evidence.snap_to_observed`).
+        """Snap every scan's rays to its observed points (:func:`spotlights.geometry.evidence.snap_batch_to_observed`).
 
         depths : (B, R) float32 regressed depths; keep : (B, R) bool kept rays; directions : (B, R, 3) per-scan
         unit ray directions (None: the rig's fixed ones); observed : B arrays (K_b, 3) of observed points, unit
@@ -208,23 +207,16 @@ class SANet(CompletionModel):
         dirs = self.directions if directions is None else directions
         if dirs is None:
             raise ValueError("snapping needs each scan's ray directions (B, N*M, 3)")
-        if len(observed) != len(depths):
-            raise ValueError(f"{len(observed)} observed point sets for {len(depths)} scans")
-        o = self.origins.detach().cpu().double().numpy()
-        per_scan = dirs.dim() == 3
-        d_np = dirs.detach().cpu().double().numpy()
-        dep_np, keep_np = depths.detach().cpu().double().numpy(), keep.detach().cpu().numpy()
-        out_d, out_k = [], []
-        for b in range(len(depths)):
-            db, kb, _ = snap_to_observed(
-                observed[b], o, d_np[b] if per_scan else d_np, self.rig.n_secondary, dep_np[b], keep_np[b], radius
-            )
-            out_d.append(db)
-            out_k.append(kb)
-        return (
-            torch.from_numpy(np.stack(out_d)).to(depths.device, depths.dtype),
-            torch.from_numpy(np.stack(out_k)).to(keep.device),
+        dep, kp = snap_batch_to_observed(
+            observed,
+            self.origins.detach().cpu().double().numpy(),
+            dirs.detach().cpu().double().numpy(),
+            self.rig.n_secondary,
+            depths.detach().cpu().double().numpy(),
+            keep.detach().cpu().numpy(),
+            radius,
         )
+        return torch.from_numpy(dep).to(depths.device, depths.dtype), torch.from_numpy(kp).to(keep.device)
 
     #: Ray-box intervals kept by :meth:`_interval` (least recently used dropped first; 256 kB each at 16,384 rays).
     INTERVAL_CACHE_SIZE = 64
