@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Prepare, on a machine with PyPI, what scripts/gpu_train.sh needs on a GPU machine without internet
 # (docs/learning.md, "GPU recipe"): into .whl/ (git-ignored; carry it to the GPU machine)
-#   - the project's wheel (pip wheel of this checkout),
+#   - not the project's own wheel: gpu_train.sh runs the checkout's src/ (the wheel, 16 MB with its
+#     pretrained checkpoints, would push the call past the 64 MiB a device call carries),
 #   - the wheels of its dependencies that the GPU image may lack (trimesh, embreex, pykdtree, rtree,
 #     pypcd4 and its needs: python-neo-lzf, pydantic..., tqdm, pyyaml), at the versions installed here, for the GPU machine's
 #     Python (GPU_PYTHON_VERSION, default 3.12) on x86-64 manylinux; never torch;
@@ -14,7 +15,6 @@ DEST=${GPU_BUNDLE:-.whl}
 PYV=${GPU_PYTHON_VERSION:-3.12}
 MESHES=${GPU_MESHES:-../shared/data/meshes/apolloscape-cars}
 rm -rf "$DEST.tmp" && mkdir -p "$DEST.tmp"
-"$PY" -m pip wheel --quiet --no-deps -w "$DEST.tmp" .
 pins=$("$PY" - <<'PY'
 from importlib.metadata import version
 names = ["trimesh", "embreex", "pykdtree", "rtree", "pypcd4", "python-neo-lzf", "pydantic", "pydantic-core",

@@ -164,7 +164,8 @@ def probe_step(name: str, cfg: dict, data: Path, device, precision: str, steps: 
     from spotlights.learning.data import TorchCompletionDataset
     from spotlights.learning.device import autocast
     from spotlights.learning.models import build_model, model_class
-    from spotlights.learning.validation import collate, float_outputs, to_device
+    from spotlights.learning.training_run import training_rays
+    from spotlights.learning.validation import collate, float_outputs, to_device, with_boxes
 
     wants_depths = model_class(name).target == "depths"
     ds = TorchCompletionDataset(
@@ -172,6 +173,7 @@ def probe_step(name: str, cfg: dict, data: Path, device, precision: str, steps: 
     )
     torch.manual_seed(0)
     model = build_model(cfg, rig=ds.rig).to(device).train()
+    rays = training_rays(model, ds.rig if wants_depths else None, ds)  # as the training loop: evidence, box loss
     opt = torch.optim.Adam(model.parameters(), lr=1e-4)
     loader = DataLoader(ds, batch_size=int(cfg["train"]["batch_size"]), shuffle=True, collate_fn=collate)
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
@@ -182,9 +184,9 @@ def probe_step(name: str, cfg: dict, data: Path, device, precision: str, steps: 
         except StopIteration:
             it = iter(loader)
             batch = next(it)
-        batch = to_device(batch, device)
+        batch = with_boxes(to_device(batch, device), model, rays, ds.sizes)
         with autocast(precision, device):
-            out = model(batch["partial"])
+            out = model(*model.forward_inputs(batch, rays))
         loss, _ = model.loss(float_outputs(out), batch, 0.5)
         opt.zero_grad(set_to_none=True)
         loss.backward()

@@ -126,6 +126,20 @@ RUN_STATE_FILES = ("last.pt", "best.pt", "log.csv")
 """The files of a run's progress (``--overwrite`` removes them before a fresh start)."""
 
 
+
+def training_rays(model, rig, train_set):
+    """The training batches' ray table, or None: a
+    :class:`~spotlights.learning.rays.DirectionTable` over ``train_set``'s boxes (``train_set.extents``) when
+    ``rig`` (the dataset's :class:`~spotlights.geometry.rig.RigSpec`, or None for point models) is box-targeted
+    and ``model`` needs each sample's rays in training: its forward looks along them (``uses_evidence``) or its
+    loss scores each ray's point against the box (``box_weight > 0``). One owner for the training loop and the
+    GPU recipe's step-time probe (scripts/gpu_train.py)."""
+    if rig is None or not rig.needs_box:
+        return None
+    if getattr(model, "uses_evidence", False) or getattr(model, "box_weight", 0.0):
+        return DirectionTable(rig, train_set.extents)
+    return None
+
 def resolve_run_config(
     model_name: str, out_dir: Path, config, overrides, resume: bool, overwrite: bool, schedule, dist, log
 ) -> tuple[dict, dict | None, bool]:
@@ -266,7 +280,7 @@ def prepare_run(dist: ProcessGroup, settings: TrainSettings, log) -> TrainingRun
         raise SpotlightsError(
             f"{out_dir / 'last.pt'}: was trained on rig {state.get('rig')}, the dataset serves {rig.to_dict()}"
         )
-    val_rays = train_rays = None
+    val_rays = None
     if rig is not None and rig.needs_box:
         val_rays = DirectionTable(rig, val_set.extents)  # each validation sample decodes with its model's box
     if getattr(model_class(model_name), "uses_evidence", False):
@@ -276,14 +290,11 @@ def prepare_run(dist: ProcessGroup, settings: TrainSettings, log) -> TrainingRun
                 f"has no sensor origin per sample (/samples/sensor_to_unit), which {model_name} needs; "
                 "rebuild the dataset with `spotlights dataset build`",
             )
-        if rig.needs_box:
-            train_rays = DirectionTable(rig, train_set.extents)  # its forward looks along each sample's rays
 
     torch.manual_seed(tcfg.seed)
     np.random.seed(tcfg.seed % (2**32))
     model = build_model(cfg, rig=rig).to(device)
-    if train_rays is None and rig is not None and rig.needs_box and getattr(model, "box_weight", 0.0):
-        train_rays = DirectionTable(rig, train_set.extents)  # its loss scores each ray's point against the box
+    train_rays = training_rays(model, rig, train_set)
     init = (cfg.get("model") or {}).get("init")
     if state is None and init:
         init_from_checkpoint(model, init)
