@@ -13,7 +13,10 @@ the carried wheels); docs/learning.md, "GPU recipe". On a machine with one GPU a
    ``--intervals`` validation intervals (checkpoints);
 4. **training**: the fair protocol (``configs/schedules/fair.yaml``: Adam 1e-3, cosine to 5e-5, batch 32, bf16
    autocast) with the planned steps, one interval per call of ``spotlights.learning.train.train`` (resumed
-   from ``last.pt``), stopping early when the next interval would pass the deadline;
+   from ``last.pt``); after the first interval, whose wall time (its steps, data loading, validation and
+   checkpoint) is measured, the schedule is shortened to the intervals that fit (the learning-rate schedule is
+   recomputed for the new total, so the cosine decay still ends), and the run stops early when the next interval
+   would pass the deadline;
 5. **outputs** in ``--out`` (default ``$OUT``): ``best.pt`` (the project's checkpoint, loadable with
    ``spotlights.learning.checkpoint.load_checkpoint``; float16 weights when the float32 file would pass
    ``--max-file-mb``), ``last.pt`` when it fits that size too, ``log.csv``, ``config.yaml``, ``gpu_train.log``
@@ -212,6 +215,14 @@ def plan_steps(args, step_s: float, left_s: float) -> tuple[int, int]:
     return intervals, math.ceil(steps / intervals)
 
 
+def fit_intervals(intervals: int, done: int, interval_s: float, left_s: float, margin: float = 1.05) -> int:
+    """The total intervals of the run once ``done`` intervals took ``interval_s`` seconds each (measured wall
+    time, validation and checkpoint included) and ``left_s`` seconds are left: ``done`` plus those that fit at
+    ``margin`` x that time, at most ``intervals`` (the plan; never lengthened) and at least ``done``."""
+    more = int(max(left_s, 0.0) // (margin * max(interval_s, 1e-9)))
+    return max(done, min(intervals, done + more))
+
+
 def copy_outputs(run: Path, out: Path, max_mb: float, log) -> list[str]:
     """best.pt (float16 when too large), last.pt when small enough, log.csv, config.yaml -> ``out``."""
     from spotlights.learning.checkpoint import export_weights
@@ -319,15 +330,15 @@ def run(args, name: str, cfg_path: Path | None, meshes: Path, out: Path, log, t_
     }
     run_dir = work / "run"
     run_over = {**overrides, "train": {**train_over, "epochs": intervals, "steps_per_epoch": per}}
-    done, t_train = 0, time.perf_counter()
-    for k in range(intervals):
+    done, t_train, k, resize = 0, time.perf_counter(), 0, None
+    while k < intervals:
         t0 = time.perf_counter()
         res = train(
             name,
             data["path"],
             run_dir,
             config=cfg_path if k == 0 else None,
-            overrides=run_over if k == 0 else None,
+            overrides=run_over if k == 0 else resize,
             schedule="fair" if k == 0 else None,
             resume=k > 0,
             overwrite=k == 0,
@@ -336,9 +347,23 @@ def run(args, name: str, cfg_path: Path | None, meshes: Path, out: Path, log, t_
             log=log,
             stop_after=1,
         )
-        done = int(res["epochs"])
+        done, k = int(res["epochs"]), k + 1
         took = time.perf_counter() - t0
-        if k + 1 < intervals and time.perf_counter() + 1.1 * took > deadline - reserve / 2:
+        if k == 1 and args.steps is None and intervals > 1:
+            # the probe times bare steps; an interval also loads data, validates and saves: re-plan on its wall time
+            fit = fit_intervals(intervals, 1, took, deadline - reserve / 2 - time.perf_counter())
+            plan["first_interval_seconds"] = took
+            plan["interval_over_probe"] = took / (per * step_s)
+            if fit < intervals:
+                log(
+                    f"re-plan: the first interval took {took:.1f} s ({took / (per * step_s):.2f} x its probed "
+                    f"steps): {fit} intervals of {per} steps fit; the schedule now ends there"
+                )
+                intervals, resize = fit, {"train": {"epochs": fit}}
+                plan["replanned_intervals"] = fit
+            continue
+        resize = None
+        if k < intervals and time.perf_counter() + 1.1 * took > deadline - reserve / 2:
             log(f"stopping after interval {done} of {intervals}: the next ({took:.0f} s) would pass the budget")
             break
     plan.update(

@@ -98,3 +98,40 @@ def test_plan_fits_the_time_left_and_caps_at_the_paper_scale():
     assert gpu.plan_steps(args, 1e-5, 3600.0) == (10, 16_000)  # capped at 160,000 steps
     assert gpu.plan_steps(args, 1.0, 3.0) == (2, 1)  # 2 steps fit: 2 intervals of one step
     assert gpu.plan_steps(SimpleNamespace(steps=25, overhead=1.0, intervals=10), 9.0, 0.0) == (10, 3)
+
+
+def test_fit_intervals_shortens_to_what_the_measured_interval_leaves_room_for():
+    gpu = load_script("scripts/gpu_train.py")
+    # 10 planned; the first took 27 s; 190 s left: 190 // (1.05 * 27) = 6 more -> 7 in all
+    assert gpu.fit_intervals(10, 1, 27.0, 190.0) == 7
+    assert gpu.fit_intervals(10, 1, 10.0, 1e6) == 10  # never lengthened
+    assert gpu.fit_intervals(10, 1, 30.0, -5.0) == 1  # nothing fits: the done one
+    assert gpu.fit_intervals(10, 1, 20.0, 21.0) == 2  # exactly one more at 1.05 x 20 s
+
+
+@pytest.mark.slow  # a tiny build and 10 steps on the CPU (seconds)
+def test_replanned_run_ends_its_cosine_schedule(tmp_path, meshes, monkeypatch):
+    """The first interval shows fewer intervals fit: the run trains those and its learning rate still ends at
+    the fair schedule's floor (5e-5), instead of stopping midway down the cosine."""
+    gpu = load_script("scripts/gpu_train.py")
+    monkeypatch.setattr(gpu, "plan_steps", lambda args, step_s, left_s: (3, 5))
+    monkeypatch.setattr(gpu, "fit_intervals", lambda intervals, done, took, left: 2)
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    cfg = tmp_path / "tiny.yaml"
+    cfg.write_text(json.dumps({"model": {"name": "snowflakenet", "args": TINY_MODEL_ARGS["snowflakenet"]}}))
+    out = tmp_path / "out"
+    argv = [
+        str(cfg), "1", "--cpu", "--meshes", str(meshes), "--split", "3/3/3", "--views", "2", "--batch-size", "4",
+        "--probe-steps", "1", "--val-views", "1", "--workers", "1", "--out", str(out), "--work", str(tmp_path / "w"),
+    ]  # fmt: skip
+    assert gpu.main(argv) == 0
+    from spotlights.learning.checkpoint import load_checkpoint
+
+    plan = json.loads((out / "plan.json").read_text())
+    assert plan["replanned_intervals"] == 2 and plan["intervals_done"] == 2 and plan["steps_done"] == 10
+    assert plan["first_interval_seconds"] > 0
+    last = load_checkpoint(out / "last.pt")
+    assert last["global_step"] == 10 and last["config"]["train"]["epochs"] == 2
+    lr = last["optimizer_state"]["param_groups"][0]["lr"]
+    assert lr == pytest.approx(5e-5, rel=1e-6), lr  # the cosine ended (3 intervals kept: ~3.8e-4)
+    assert "re-plan:" in (out / "gpu_train.log").read_text()

@@ -108,6 +108,38 @@ def test_snap_inputs_are_checked_and_no_points_change_nothing():
     assert all(np.array_equal(u, v) for u, v in zip(a1, a2))
 
 
+def test_a_ray_does_not_snap_through_its_predicted_surface_unless_the_lidar_saw_through_it():
+    """The left side (y = +c) observed; the network draws the right side (y = -c). A ray entering from the right
+    passes its predicted right side, then the observed left side: it keeps its prediction when the LiDAR stood on
+    the left (the right side hidden from it), and snaps when the LiDAR stood on the right (it saw through there)."""
+    o, d = rays()
+    p = side_points(2000)  # dense: every cell of the LiDAR's grid over the side holds a point
+    c, r = 0.8 * E[1], 0.05
+    t_right = (-c - o[:, 1]) / (2.0 * np.where(d[:, 1] > 0, d[:, 1], 1.0))  # where they meet y = -c (closed form)
+    cross = o + 2.0 * t_right[:, None] * d
+    # rays entering from the right (y < 0) toward +y that meet the drawn right side within the observed side's
+    # x-z extent (elsewhere the LiDAR saw nothing behind it, so nothing there is carved)
+    rightward = (d[:, 1] > SNAP_MIN_COSINE) & (t_right > 0) & np.all(np.abs(cross[:, [0, 2]]) < 0.6 * E[[0, 2]], axis=1)
+    depth = np.where(rightward, t_right, 0.3)
+    keep = rightward.copy()
+    base = snap_to_observed(p, o, d, SPEC.n_secondary, depth, keep, r)  # no sensor: no occlusion rule
+    through = rightward & base[2]  # rightward rays snapped (onto the left side, 2c = 0.6 beyond the right)
+    assert through.sum() > 20 and np.all(2.0 * (base[0][through] - depth[through]) > r)
+    left = snap_to_observed(p, o, d, SPEC.n_secondary, depth, keep, r, sensor=np.array([0.0, 3.0, 0.0]))
+    assert np.array_equal(left[0][through], depth[through]) and left[1][through].all() and not left[2][through].any()
+    others = ~through  # every other ray as without the rule
+    assert all(np.array_equal(a[others], b[others]) for a, b in zip(left, base))
+    right = snap_to_observed(p, o, d, SPEC.n_secondary, depth, keep, r, sensor=np.array([0.0, -3.0, 0.0]))
+    seen_through = np.abs(right[0][through] - base[0][through]) == 0
+    assert seen_through.mean() > 0.9, seen_through.mean()  # the right side was carved: snapped onto the left
+    # a NaN sensor (unknown) applies no rule; the carving uses the points seen, not the snap targets
+    nan = snap_to_observed(p, o, d, SPEC.n_secondary, depth, keep, r, sensor=np.full(3, np.nan))
+    assert all(np.array_equal(a, b) for a, b in zip(nan, base))
+    far = side_points(2000) + [0.0, -10.0, 0.0]  # "seen" points nowhere near: nothing carved, every such ray kept
+    unseen = snap_to_observed(p, o, d, SPEC.n_secondary, depth, keep, r, sensor=np.array([0.0, -3.0, 0.0]), seen=far)
+    assert np.array_equal(unseen[0][through], depth[through])
+
+
 @pytest.fixture(scope="module")
 def hit_ckpt(tmp_path_factory):
     return make_checkpoint(tmp_path_factory.mktemp("snap") / "hit.pt", "sanet-hit", rig=SPEC)
@@ -158,7 +190,13 @@ def test_onnxruntime_snaps_like_torch(tmp_path, hit_ckpt):
     ref = load_completer(hit_ckpt, device="cpu")
     x, e = _scans()
     half = np.broadcast_to(E + 0.03, (len(x), 3))
-    for kw in ({"snap": 0.05}, {"snap": 0.05, "box_half": half}, {"snap": 0.08, "snap_mirror": True}):
+    sensors = np.broadcast_to([0.0, 3.0, 0.5], (len(x), 3))  # the occlusion rule, in both runtimes
+    for kw in (
+        {"snap": 0.05},
+        {"snap": 0.05, "box_half": half},
+        {"snap": 0.08, "snap_mirror": True},
+        {"snap": 0.08, "snap_mirror": True, "sensor_origins": sensors},
+    ):
         a = ref.complete(x, extents=e, **kw)
         b = onx.complete(x, extents=e, **kw)
         assert [len(p) for p in a] == [len(p) for p in b]

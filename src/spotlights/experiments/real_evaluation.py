@@ -150,7 +150,7 @@ def complete_all(
     (SA-Net on a box-targeted rig) get ``extents = size / |size|`` per observation, the
     half-extents of the box in the observation's unit frame. Others never see it.
     ``sensor_origins`` (n, 3): the LiDAR in each observation's unit frame, for models that read free
-    space (``sanet-local``; NaN rows: unknown); others never see it.
+    space (``sanet-local``; NaN rows: unknown) and for ``snap``'s occlusion rule; others never see it.
     ``classes`` (n,): each observation's class, for class-conditioned models (others never see it).
     ``snap``: radius (unit frame) of snapping each completion's rays to its partial (SA-Nets; None: off), with
     ``snap_mirror`` to its mirror image too.
@@ -172,7 +172,7 @@ def complete_all(
         kw = {} if clip is None else {"clip": clip}
         if extents is not None:
             kw["extents"] = extents[s : s + batch_size]
-        if sensor_origins is not None and getattr(getattr(completer, "model", None), "uses_evidence", False):
+        if sensor_origins is not None and (snap or getattr(getattr(completer, "model", None), "uses_evidence", False)):
             kw["sensor_origins"] = sensor_origins[s : s + batch_size]
         if classes is not None and getattr(completer, "classes", ()):
             kw["classes"] = list(classes[s : s + batch_size])

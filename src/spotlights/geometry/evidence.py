@@ -52,6 +52,13 @@ least-variance axis of its 8 nearest observed points), gives the depth where the
 through ``x`` normal to ``n`` when that meeting point is within ``R`` of ``x``, ahead of the origin, and
 the ray is not grazing (``|d . n| >= 0.3``); else the depth of ``x``'s foot on the line (``t`` above). The
 ray is kept (a hit) whatever the network said. Rays without a candidate keep the network's depth and hit.
+
+*Occlusion* (when the LiDAR's origin ``S`` is known): a ray's candidate is the first observed point seen from
+the ray's *viewpoint*, which may lie on the far side of the object, behind a near surface the network drew
+rightly. So a ray the network kept is not snapped onto a candidate more than ``R`` beyond its predicted
+surface (``2 (t_snap - t_pred) > R``) unless that surface lies in observed free space (its bin is carved,
+above, from the points actually observed: not their mirror image): a surface the LiDAR saw through is wrong,
+one it did not is kept. Without a sensor origin (NaN) the rule cannot be applied and every candidate snaps.
 """
 
 from __future__ import annotations
@@ -303,15 +310,20 @@ def snap_to_observed(
     keep: np.ndarray,
     radius: float,
     near_cells: int = 32,
+    sensor: np.ndarray | None = None,
+    seen: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Snap the rays that pass near observed points onto them (module docstring), one scan, vectorised.
 
     Parameters
     ----------
-    points : (K, 3) observed points, unit frame (repeats removed here). origins, directions : (R, 3) the
-        rays (viewpoint ``r // n_secondary``), unit frame. depth : (R,) predicted normalised depths (a point is
-        ``o + 2 t d``). keep : (R,) bool predicted hits. radius : R > 0, unit frame. near_cells : the
-        viewpoint grids' G (:class:`EvidenceParams`).
+    points : (K, 3) points to snap to, unit frame (repeats removed here): the observed points, with their mirror
+        image when asked. origins, directions : (R, 3) the rays (viewpoint ``r // n_secondary``), unit frame.
+        depth : (R,) predicted normalised depths (a point is ``o + 2 t d``). keep : (R,) bool predicted hits.
+        radius : R > 0, unit frame. near_cells : the viewpoint grids' G (:class:`EvidenceParams`).
+    sensor : (3,) the LiDAR's optical centre, unit frame: applies the occlusion rule (module docstring); None
+        or NaN: not applied. seen : (K', 3) the points actually observed, whose free space is carved (default
+        ``points``).
 
     Returns ``(depth (R,) float64, keep (R,) bool, snapped (R,) bool)``: the snapped rays' depths from the
     scan and kept; the others as given.
@@ -340,29 +352,70 @@ def snap_to_observed(
     t_plane = np.einsum("ij,ij->i", x - o_r, n) / (2.0 * np.where(facing, dn, 1.0))
     meet = o_r + (2.0 * t_plane)[:, None] * d_r
     on_plane = facing & (t_plane > 0) & (np.linalg.norm(meet - x, axis=1) <= radius)
-    dep[rows] = np.where(on_plane, t_plane, t_foot)
+    t_snap = np.where(on_plane, t_plane, t_foot)
+    if sensor is not None and np.all(np.isfinite(sensor)):
+        # occlusion: a kept prediction stays unless the LiDAR saw through it (module docstring)
+        behind = kp[rows] & (2.0 * (t_snap - dep[rows]) > radius)
+        if behind.any():
+            b = rows[behind]
+            obs = p if seen is None else np.asarray(seen, dtype=np.float64).reshape(-1, 3)
+            carve = carved_depths(obs, o[b], d[b], np.asarray(sensor, dtype=np.float64), EvidenceParams())
+            h, n_t = carve["half_chord"], carve["carved"].shape[1]
+            j = np.minimum(np.floor(np.clip(dep[b], 0.0, h) / np.where(h > 0, h, 1.0) * n_t), n_t - 1).astype(int)
+            hidden = ~carve["carved"][np.arange(len(b)), j]
+            t_snap[np.flatnonzero(behind)[hidden]] = dep[b[hidden]]
+            snapped[b[hidden]] = False
+    dep[rows] = t_snap
     kp[rows] = True
     return dep, kp, snapped
 
 
+@dataclass(frozen=True)
+class SnapTargets:
+    """What a batch of B scans snaps to (:func:`snap_batch_to_observed`), unit frames.
+
+    observed : B arrays (K_b, 3), the points each scan's rays snap to (with their mirror image when asked).
+    radius : R > 0. sensors : (B, 3) the LiDAR in each unit frame (the occlusion rule; None or a NaN row: not
+    applied). seen : B arrays (K'_b, 3), the points actually observed, carved for the rule (None: ``observed``).
+    """
+
+    observed: list
+    radius: float
+    sensors: np.ndarray | None = None
+    seen: list | None = None
+
+
 def snap_batch_to_observed(
-    observed,
+    targets: SnapTargets,
     origins: np.ndarray,
     directions: np.ndarray,
     n_secondary: int,
     depth: np.ndarray,
     keep: np.ndarray,
-    radius: float,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`snap_to_observed` of B scans: ``observed`` B arrays (K_b, 3), origins (R, 3), directions (R, 3) (shared)
-    or (B, R, 3), depth (B, R), keep (B, R) bool; unit frame. Returns ``(depth (B, R) float64, keep (B, R) bool)``."""
+    """:func:`snap_to_observed` of B scans: ``targets`` (:class:`SnapTargets`), origins (R, 3), directions (R, 3)
+    (shared) or (B, R, 3), depth (B, R), keep (B, R) bool; unit frame. Returns ``(depth (B, R) float64, keep
+    (B, R) bool)``."""
     dirs = np.asarray(directions, dtype=np.float64)
-    if len(observed) != len(depth):
-        raise ValueError(f"{len(observed)} observed point sets for {len(depth)} scans")
+    n = len(depth)
+    for name, value in (("observed point sets", targets.observed), ("seen point sets", targets.seen)):
+        if value is not None and len(value) != n:
+            raise ValueError(f"{len(value)} {name} for {n} scans")
+    sensors = None if targets.sensors is None else np.asarray(targets.sensors, dtype=np.float64).reshape(-1, 3)
+    if sensors is not None and len(sensors) != n:
+        raise ValueError(f"{len(sensors)} sensor origins for {n} scans")
     rows = [
         snap_to_observed(
-            observed[b], origins, dirs[b] if dirs.ndim == 3 else dirs, n_secondary, depth[b], keep[b], radius
+            targets.observed[b],
+            origins,
+            dirs[b] if dirs.ndim == 3 else dirs,
+            n_secondary,
+            depth[b],
+            keep[b],
+            targets.radius,
+            sensor=None if sensors is None else sensors[b],
+            seen=None if targets.seen is None else targets.seen[b],
         )
-        for b in range(len(depth))
+        for b in range(n)
     ]
     return np.stack([r[0] for r in rows]), np.stack([r[1] for r in rows])

@@ -30,6 +30,7 @@ import numpy as np
 from ..data.store import open_dataset
 from ..distributed import check_backend, ray_session
 from ..errors import ParameterError
+from ..geometry.evidence import SnapTargets
 from ..metrics.completion import METRIC_DESCRIPTIONS, evaluate_completions, summarize
 from ..options import (
     DEVICE_HELP,
@@ -149,8 +150,9 @@ def evaluate_checkpoint(
             dirs = rays.directions(batch["model"].to(dev)) if rays is not None else None
             snap_kw = {}
             if snap is not None:
-                observed = [mirrored(p.numpy()) if snap_mirror else p.numpy() for p in batch["partial"]]
-                snap_kw = {"snap": (observed, snap)}
+                seen = [p.numpy() for p in batch["partial"]]
+                observed = [mirrored(p) for p in seen] if snap_mirror else seen
+                snap_kw = {"snap": SnapTargets(observed, snap, batch["sensor_origin"].numpy(), seen)}
             for v, c in variants:
                 pts = model.outputs_to_points(out, c, dirs, **snap_kw)
                 preds[v].extend(p.cpu().numpy() for p in pts)

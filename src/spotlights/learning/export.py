@@ -417,8 +417,8 @@ class OnnxCompleter(BaseCompleter):
         snap=None,
     ) -> list[np.ndarray]:
         """One batch through onnxruntime; the rays kept as the torch models keep them (:meth:`keep`), snapped to
-        the observed points with ``snap = (observed, radius)`` as the torch SA-Nets snap them
-        (:func:`~spotlights.geometry.evidence.snap_to_observed`). Exports hold
+        the observed points with ``snap`` (a :class:`~spotlights.geometry.evidence.SnapTargets`) as the torch
+        SA-Nets snap them (:func:`~spotlights.geometry.evidence.snap_to_observed`). Exports hold
         no free-space model (``spotlights export`` refuses ``sanet-local``), so ``sensor_origins`` is unused;
         ``classes`` (b names or None) feed a class-conditioned export's ``classes`` input as the torch
         ``Completer`` feeds its model (:func:`~spotlights.data.vehicle_classes.class_rows`; other exports ignore
@@ -436,10 +436,7 @@ class OnnxCompleter(BaseCompleter):
             origins, fixed = rig_rays(self.rig)
             dirs = fixed if directions is None else directions
         if snap is not None:  # as the torch SA-Nets snap (SANet.snap_rays), then decoded as they decode
-            observed, radius = snap
-            depths, mask = snap_batch_to_observed(
-                observed, origins, dirs, rig_spec(self.rig).n_secondary, depths, mask, radius
-            )
+            depths, mask = snap_batch_to_observed(snap, origins, dirs, rig_spec(self.rig).n_secondary, depths, mask)
             depths = depths.astype(np.float32)  # as the torch models keep their depths
             points = ray_points(depths, origins, dirs)
         if box_half is not None and self.rig is not None:

@@ -32,6 +32,7 @@ from ..data.vehicle_classes import CATEGORY_CLASS, canonical_class
 from ..errors import InputFileError, ParameterError
 from ..geometry.box_clamp import clamp_to_grown_boxes, grown_half_extents
 from ..geometry.boxes import Box, box_from_dict, load_box  # noqa: F401  (the box of complete_scan; re-exported)
+from ..geometry.evidence import SnapTargets
 from ..geometry.sampling import resample_set
 from .checkpoint import PRETRAINED, load_checkpoint, model_from_checkpoint, resolve_checkpoint
 from .rays import directions_for_extents, unit_extents
@@ -308,7 +309,8 @@ class BaseCompleter:
             Required when :attr:`needs_box` (SA-Net on a box-targeted rig: each scan decodes
             with the rays aimed at its own box); ignored otherwise.
         sensor_origins : (B, 3) (or (3,)) the LiDAR's optical centre in each scan's unit frame, for models that
-            read free space (``sanet-local``; None or NaN rows: no free-space evidence); ignored by the others.
+            read free space (``sanet-local``; None or NaN rows: no free-space evidence) and for ``snap``'s
+            occlusion rule; ignored by the others.
         classes : B class names (or None each) for a class-conditioned model (its :attr:`classes`; a name it
             lacks: no class input); ignored by the others.
         box_half : (B, 3) half-extents of a box per scan in its unit frame (e.g. the box grown by 0.15 m):
@@ -316,7 +318,8 @@ class BaseCompleter:
             scan's share of points inside before the clip); the point models ignore both.
         snap : radius R > 0 (unit frame) to snap each scan's rays to its observed points (SA-Nets only;
             :func:`spotlights.geometry.evidence.snap_to_observed`: a ray passing within R of an observed point
-            takes its depth from the scan); None or 0: off (default).
+            takes its depth from the scan; with ``sensor_origins``, not onto a point hidden behind the predicted
+            surface unless the LiDAR saw through it); None or 0: off (default).
         observed : with ``snap``, B arrays (K_b, 3) of each scan's observed points, unit frame (default: the
             partials themselves).
         snap_mirror : with ``snap``, also snap to the observed points' mirror image across the box's x-z plane
@@ -384,7 +387,7 @@ class BaseCompleter:
                 if snap is not None:
                     obs = x[s : s + batch_size] if observed is None else observed[s : s + batch_size]
                     pts = [np.asarray(o, dtype=np.float64).reshape(-1, 3) for o in obs]
-                    kw["snap"] = ([mirrored(p) for p in pts] if snap_mirror else pts, snap)
+                    kw["snap"] = SnapTargets([mirrored(p) for p in pts] if snap_mirror else pts, snap, sb, pts)
                 out.extend(self._forward(x[s : s + batch_size], clip, dirs, sb, **kw))
         return out
 

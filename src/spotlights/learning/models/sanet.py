@@ -28,7 +28,7 @@ from collections.abc import Sequence
 import torch
 
 from ...data.vehicle_classes import canonical_class, class_rows
-from ...geometry.evidence import snap_batch_to_observed
+from ...geometry.evidence import SnapTargets, snap_batch_to_observed
 from ..losses import depth_l1
 from ..rays import rig_rays, rig_spec
 from .base import CLIP_DEFAULT, MLP, CompletionModel, PCNEncoder
@@ -196,25 +196,25 @@ class SANet(CompletionModel):
         return torch.where(keep, t / 2.0, depths.double()).to(depths.dtype), keep, inside.float()
 
     def snap_rays(
-        self, depths: torch.Tensor, keep: torch.Tensor, directions: torch.Tensor | None, observed, radius: float
+        self, depths: torch.Tensor, keep: torch.Tensor, directions: torch.Tensor | None, targets: SnapTargets
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Snap every scan's rays to its observed points (:func:`spotlights.geometry.evidence.snap_batch_to_observed`).
 
         depths : (B, R) float32 regressed depths; keep : (B, R) bool kept rays; directions : (B, R, 3) per-scan
-        unit ray directions (None: the rig's fixed ones); observed : B arrays (K_b, 3) of observed points, unit
-        frame; radius : unit frame. Returns ``(depths (B, R) float32, keep (B, R) bool)`` on the inputs' device.
+        unit ray directions (None: the rig's fixed ones); targets : :class:`~spotlights.geometry.evidence.SnapTargets`
+        (observed points, radius, sensor origins; unit frame). Returns ``(depths (B, R) float32, keep (B, R)
+        bool)`` on the inputs' device.
         """
         dirs = self.directions if directions is None else directions
         if dirs is None:
             raise ValueError("snapping needs each scan's ray directions (B, N*M, 3)")
         dep, kp = snap_batch_to_observed(
-            observed,
+            targets,
             self.origins.detach().cpu().double().numpy(),
             dirs.detach().cpu().double().numpy(),
             self.rig.n_secondary,
             depths.detach().cpu().double().numpy(),
             keep.detach().cpu().numpy(),
-            radius,
         )
         return torch.from_numpy(dep).to(depths.device, depths.dtype), torch.from_numpy(kp).to(keep.device)
 
@@ -320,15 +320,15 @@ class SANet(CompletionModel):
 
     def kept_points(self, depths, keep, clip, directions, box_half=None, inside=None, snap=None) -> list[torch.Tensor]:
         """The decoded clouds (list of B (K_b, 3) float32, unit frame) of depths (B, R) and kept rays (B, R)
-        (None: ``depth > 0``), with the clip, then with ``snap = (observed, radius)`` the rays snapped to each
-        scan's observed points (:meth:`snap_rays`), and with ``box_half`` the box clip (:meth:`clip_to_boxes`;
+        (None: ``depth > 0``), with the clip, then with ``snap`` (a :class:`~spotlights.geometry.evidence.SnapTargets`)
+        the rays snapped to each scan's observed points (:meth:`snap_rays`), and with ``box_half`` the box clip (:meth:`clip_to_boxes`;
         ``inside`` gets its shares)."""
         clip = self.clip if clip is CLIP_DEFAULT else clip
         mask = depths > 0 if keep is None else keep.clone()
         if clip is not None:
             mask &= depths >= float(clip)
         if snap is not None:
-            depths, mask = self.snap_rays(depths, mask, directions, *snap)
+            depths, mask = self.snap_rays(depths, mask, directions, snap)
         if box_half is not None:
             depths, mask, share = self.clip_to_boxes(depths, mask, directions, box_half)
             if inside is not None:
