@@ -374,3 +374,20 @@ def test_mirrored_snap_rows_stop37():
     q = _json("real/track_fusion_snap0.08_mirror_stop37.json")["quality_on_common_observations"]
     c = (q["single"]["consistency_voxel_all_objects"], q["fused"]["consistency_voxel_all_objects"])
     _says("docs/learning.md", f"| 0.0469 / 0.0225 | {c[0]:.4f} / {c[1]:.4f} |")
+
+
+def test_gpu_trained_rows_stop38():
+    """The GPU-trained rows of docs/learning.md (H100 runs of scripts/gpu_train.sh), from their plans and reports."""
+    rep = _json("fair/gpu/table1_gpu.json")
+    gen = _json("fair/gpu/generalisation_gpu.json")["ratio_held_out_over_in_distribution"]
+    for model, run, gen_row in (
+        ("sanet-local", "sanet-local", "local/best.pt (p(hit) >= 0.4)"),
+        ("snowflakenet", "snowflakenet", "snow/best.pt"),
+    ):
+        plan = _json(f"fair/gpu/{run}-h100.plan.json")
+        assert plan["device"].startswith("NVIDIA H100") and plan["precision"] == "bf16"
+        t = _summary(rep, model)
+        row = f"{t['accuracy']:.5f} | {t['completeness']:.5f} | {t['chamfer_l1']:.5f} | {t['fscore']:.3f} |"
+        _says("docs/learning.md", f"{plan['steps_done']:,} | {row}")
+        _says("docs/learning.md", f"({gen[gen_row]['accuracy']:.2f}x)")
+        _says("docs/learning.md", f"{plan['step_seconds'] * 1e3:.1f} ms | 10 x {plan['steps_per_interval']:,}")
