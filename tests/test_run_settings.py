@@ -141,6 +141,11 @@ def test_complete_frames_from_python_writes_every_frame_and_resumes(tmp_path):
     assert len(fields["x"]) == 1100 + 2 * (64 + 256)  # every scan point once, then the completions
     assert (fields["source"] == 2).sum() == 2 * (64 + 256)
     assert json.loads((out / "summary.json").read_text())["totals"] == summary["totals"]
+    assert summary["snap"] == 0.0 and summary["snap_mirror"] is False  # the run-level record of --snap
+    with pytest.raises(ParameterError, match="ring has no rays to snap"):  # refused before any output
+        complete_frames(FramesSettings(source=[str(src)], format="generic", out=str(tmp_path / "o2"), snap=0.05,
+                                       no_pictures=True, quiet=True), completer=Ring())  # fmt: skip
+    assert not (tmp_path / "o2").exists()
     (line,) = said
     assert line.startswith("2 frame(s), 6 boxes: 4 completed, skipped class_excluded 2 (ring, ")
     assert line.endswith(f" s of completion) -> {out}/")

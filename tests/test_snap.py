@@ -178,6 +178,29 @@ def test_a_point_model_refuses_to_snap(tmp_path):
     c = load_completer(make_checkpoint(tmp_path / "pcn.pt", "pcn"), device="cpu")
     with pytest.raises(ParameterError, match="no rays to snap"):
         c.complete(_scans()[0], snap=0.05)
+    # in a scene (the path of a point-set --fallback) it completes its boxes unsnapped instead of failing there
+    from spotlights.experiments.scene import SceneConfig, complete_scene
+    from spotlights.geometry.boxes import Box
+
+    rng = np.random.default_rng(0)
+    scan = rng.uniform(-1, 1, (400, 3)) * [2.0, 0.9, 0.7] + [10.0, 2.0, 0.8]
+    box = Box(center=np.array([10.0, 2.0, 0.8]), size=np.array([4.6, 1.9, 1.6]), yaw=0.0, cls="car")
+    plain, snapped = (
+        complete_scene(scan, [box], c, SceneConfig(crop=False, any_label=True, snap=r)) for r in (0.0, 0.05)
+    )
+    (a,), (b,) = plain.objects, snapped.objects
+    assert a.status == b.status == "completed" and np.array_equal(a.completion, b.completion)
+
+
+def test_complete_refuses_snap_for_a_point_model_before_any_work(tmp_path, capsys):
+    np.save(tmp_path / "scan.npy", np.random.default_rng(0).uniform(-1, 1, (300, 3)) + [10.0, 2.0, 0.8])
+    pcn = make_checkpoint(tmp_path / "pcn.pt", "pcn")
+    bad = cli(
+        capsys, "complete", tmp_path / "scan.npy", "--center", "10", "2", "0.8", "--size", "4.6", "1.9", "1.6",
+        "--no-crop", "--checkpoint", pcn, "--snap", "0.05", "--out", tmp_path / "x.npy",
+    )  # fmt: skip
+    assert_user_error(bad, "has no rays to snap")
+    assert not (tmp_path / "x.npy").exists()
 
 
 def test_onnxruntime_snaps_like_torch(tmp_path, hit_ckpt):

@@ -30,8 +30,10 @@ CROP_DOC = (
 SNAP_HELP = (
     "SA-Nets: a predicted ray that passes within R (unit frame: the box's half diagonal; 0.05 is ~13 cm on a car) of "
     "an observed point takes its depth from the scan, so the completion keeps what the LiDAR saw instead of the "
-    "shape the model remembers (default 0: off; docs/learning.md, 'Snapping to the observed points': more complete "
-    "on vehicles of an unseen source, less consistent from frame to frame on real scans)"
+    "shape the model remembers; not onto a point hidden behind the predicted surface unless the LiDAR saw through "
+    "it; a point-set model (a --fallback baseline) completes unsnapped (default 0: off; docs/learning.md, 'Snapping "
+    "to the observed points': more complete on vehicles of an unseen source, less consistent from frame to frame "
+    "on real scans)"
 )
 
 

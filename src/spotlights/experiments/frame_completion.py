@@ -581,6 +581,7 @@ def complete_frames(
         raise
     try:
         completer = s.load_completer() if completer is None else completer
+        s.check_snap(completer)
         fallback = s.load_fallback()  # loaded beside the main model, before any output exists
         # the folder is removed again if nothing could be written; the recording is written only when the run ends
         with (
@@ -634,6 +635,8 @@ def _run_frames(
         n_frames=len(keys),
         totals=run.totals,
         heading_check=config.heading_check,
+        snap=config.snap,  # the snap radius (0: off) and its mirror, as every frame's JSON says
+        snap_mirror=config.snap_mirror,
         completion_seconds=run.t_model,
         wall_seconds=timer.total,
         warnings=run.warnings,

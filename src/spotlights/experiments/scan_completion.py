@@ -184,6 +184,15 @@ class CompletionOptions:
             self.checkpoint, runtime=self.runtime, device=self.device, precision=self.precision, threads=self.threads
         )
 
+    def check_snap(self, completer: BaseCompleter) -> None:
+        """Refuse ``--snap`` for a main model without rays (a point-set model): it could not snap a single box.
+        (A point-set ``--fallback`` completes its boxes unsnapped.) Raises :class:`ParameterError`."""
+        if self.snap and getattr(completer, "rig", None) is None:
+            raise ParameterError(
+                f"--snap: {getattr(completer, 'model_name', 'this model')} has no rays to snap; snapping to the "
+                "observed points needs an SA-Net"
+            )
+
     def load_fallback(self) -> BaseCompleter | None:
         """The model of :attr:`fallback_model` (same device and precision; its runtime follows its file: a
         ``.onnx`` runs with onnxruntime), or None."""
@@ -383,6 +392,7 @@ def complete_scan(
     require_points(points, config.min_points, s.input)
     boxes = s.read_boxes(axes)
     completer = s.load_completer() if completer is None else completer
+    s.check_snap(completer)
     with threads_beside_worker(None, s.threads):  # --threads, if given
         result = complete_scene(
             points,

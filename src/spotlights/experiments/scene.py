@@ -566,8 +566,9 @@ def _complete_batch(todo: list[ObjectResult], completer, config: SceneConfig, sh
         sensor_origins=sensors,
         inside=shares,
         classes=classes,
-        snap=config.snap or None,
-        snap_mirror=config.snap_mirror,
+        # a point-set model has no rays to snap: it completes unsnapped (as evaluate scores it)
+        snap=(config.snap or None) if getattr(completer, "rig", None) is not None else None,
+        snap_mirror=config.snap_mirror and getattr(completer, "rig", None) is not None,
     )
 
 
