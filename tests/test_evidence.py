@@ -15,6 +15,7 @@ from spotlights.geometry.evidence import (
     carved_depths,
     free_space_decode,
     near_ray_evidence,
+    nearest_per_cell,
     sensor_extent,
     stereo_frames,
 )
@@ -369,3 +370,15 @@ def test_compiled_sanet_local_does_not_recompile_per_batch():
         assert torch.allclose(out["depths"], ref["depths"], atol=1e-6) and torch.equal(out["carved"], ref["carved"])
     assert counter.graphs == 3
     torch.compiler.reset()
+
+
+def test_nearest_per_cell_against_a_loop_with_ties():
+    rng = np.random.default_rng(3)
+    keys = rng.integers(-1, 40, 2000)
+    ranges = np.round(rng.uniform(0.0, 1.0, 2000), 2)  # rounded: many ties within a key
+    got = nearest_per_cell(keys, ranges, 50)
+    for key in range(50):
+        rows = [i for i in range(len(keys)) if keys[i] == key]
+        want = min(rows, key=lambda i: (ranges[i], i)) if rows else -1  # smallest range, then lowest index
+        assert got[key] == want, key
+    assert np.array_equal(nearest_per_cell(np.full(5, -1), np.ones(5), 3), [-1, -1, -1])
