@@ -50,7 +50,8 @@ def test_completer_contract(ckpts, partial_unit):
     assert isinstance(out, list) and len(out) == 2
     assert all(o.dtype == np.float32 and o.ndim == 2 and o.shape[1] == 3 for o in out)
     # clipped rays are dropped; without clip every ray with depth > 0 is kept
-    raw = sanet.model(torch.from_numpy(batch))["depths"].detach().numpy()
+    dev = next(sanet.model.parameters()).device  # the default device: CUDA where there is one
+    raw = sanet.model(torch.from_numpy(batch).to(dev))["depths"].detach().cpu().numpy()
     assert [len(o) for o in out] == list((raw >= 0.2).sum(1))
     assert [len(o) for o in sanet.complete(batch, clip=None)] == list((raw > 0).sum(1))
     # the points are the rig's rays at the predicted depths
@@ -223,8 +224,9 @@ def test_exported_half_precision_weights_complete_alike(ckpts, partial_unit, tmp
     small = export_weights(ckpts["sanet"], tmp_path / "sanet_half.pt", half=True)
     full, half = load_completer(ckpts["sanet"]), load_completer(small)
     assert half.model_name == "sanet" and half.n_params == full.n_params
-    a = full.model(torch.from_numpy(partial_unit[None]))["depths"]
-    b = half.model(torch.from_numpy(partial_unit[None]))["depths"]
+    x = torch.from_numpy(partial_unit[None])
+    a = full.model(x.to(next(full.model.parameters()).device))["depths"].cpu()
+    b = half.model(x.to(next(half.model.parameters()).device))["depths"].cpu()
     torch.testing.assert_close(a, b, atol=5e-3, rtol=0)
 
 

@@ -340,7 +340,7 @@ def test_every_scan_format_reads_the_same_points(tmp_path):
     np.c_[pts, rng.uniform(0, 255, 50), rng.integers(0, 32, 50)].astype("<f4").tofile(tmp_path / "n.pcd.bin")
     for name in ("p.ply", "p.pcd", "p.npy", "p.xyz"):
         save_points(tmp_path / name, pts)
-    import laspy
+    laspy = pytest.importorskip("laspy")  # the las extra (a GPU image without it: seen on an H100)
 
     las = laspy.LasData(laspy.LasHeader(point_format=3, version="1.2"))
     las.header.scales = [0.0001] * 3
@@ -573,8 +573,9 @@ def test_fidelities_on_threads_equal_a_brute_force_loop():
 @pytest.mark.timeout(120)
 def test_fidelity_threads_run_openmp_on_one_thread_each():
     """Small completions are scored with pykdtree, whose OpenMP split costs more than it saves: the fidelity threads
-    run it on one thread each (a child process with OMP_NUM_THREADS=4 holds the main thread, the two fidelity
-    threads and at most one more afterwards; without the limit it held 10)."""
+    run it on one thread each (a child process with OMP_NUM_THREADS=4 gains the two fidelity threads and at most
+    one more from scoring; without the limit it gained 8. Counted as a difference: the imports' own threads, e.g.
+    a CUDA build's, are not the scoring's)."""
     import os
     import subprocess
     import sys
@@ -585,12 +586,13 @@ from types import SimpleNamespace
 from spotlights.experiments.scene import Fidelities
 rng = np.random.default_rng(0)
 todo = [SimpleNamespace(partial_unit=rng.random((256, 3)).astype(np.float32)) for _ in range(4)]
+before = len(os.listdir('/proc/self/task'))
 f = Fidelities(todo)
 f.add(range(4), [rng.random((1500, 3)).astype(np.float32) for _ in range(4)])
 assert all(f.get(k) > 0 for k in range(4))
-print(len(os.listdir('/proc/self/task')))
+print(len(os.listdir('/proc/self/task')) - before)
 """
     env = dict(os.environ, OMP_NUM_THREADS="4")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=100)
     assert out.returncode == 0, out.stderr
-    assert int(out.stdout.split()[-1]) <= 4, out.stdout
+    assert int(out.stdout.split()[-1]) <= 3, out.stdout

@@ -182,6 +182,8 @@ def test_ddp_with_torchrun_gloo_two_processes(data, tmp_path):
         str(tmp_path / "ddp"),
         "--threads",
         "1",
+        "--device",
+        "cpu",  # gloo on CPU processes, also where a GPU is (2 processes would need 2 GPUs)
     ]
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=240)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
@@ -388,3 +390,14 @@ def test_overwrite_removes_the_old_runs_state_before_starting(tmp_path):
     assert state is None and cfg["model"]["name"] == "pcn"
     assert not any((tmp_path / name).exists() for name in RUN_STATE_FILES)
     assert (tmp_path / "notes.txt").exists()  # only the run's own state goes
+
+
+def test_process_group_backend_follows_the_run_device_and_refuses_missing_gpus():
+    from spotlights.errors import ParameterError
+    from spotlights.learning.process_group import group_backend
+
+    assert group_backend(torch.device("cpu"), 1, 1) == ("gloo", None)  # --device cpu on a GPU node: gloo
+    assert group_backend(torch.device("cuda"), 1, 2) == ("nccl", 1)  # one GPU per local rank
+    assert group_backend(torch.device("cuda", 0), 1, 2) == ("nccl", 0)  # an explicit index wins
+    with pytest.raises(ParameterError, match="--nproc-per-node 1"):  # 2 processes on a 1-GPU node (seen on an H100)
+        group_backend(torch.device("cuda"), 1, 1)

@@ -6,21 +6,45 @@ import os
 
 import torch
 
+from ..errors import ParameterError
+from .device import resolve_device
+
+
+def group_backend(device: torch.device, local_rank: int, n_gpus: int) -> tuple[str, int | None]:
+    """The process-group backend of a rank that trains on ``device`` (its type decides: ``cuda`` -> NCCL, else
+    gloo) and, for NCCL, the CUDA device index it takes (``device.index``, else its ``local_rank``). Raises
+    :class:`ParameterError` when that index is not one of the ``n_gpus`` devices of the node (torchrun started
+    more processes per node than it has GPUs)."""
+    if device.type != "cuda":
+        return "gloo", None
+    index = local_rank if device.index is None else int(device.index)
+    if not 0 <= index < n_gpus:
+        raise ParameterError(
+            f"torchrun rank with local rank {local_rank} would train on cuda:{index}, but this node has {n_gpus} "
+            f"CUDA device(s): start one process per GPU (--nproc-per-node {n_gpus}) or train on the CPU with "
+            "--device cpu (gloo)"
+        )
+    return "nccl", index
+
 
 class ProcessGroup:
     """Process-group facts of a training run (torchrun: ``WORLD_SIZE``, ``RANK``, ``LOCAL_RANK``); a no-op shell in
-    a single process. Sets the group up (NCCL on GPUs, gloo on CPU) when torchrun started several processes and no
-    group exists yet, and :meth:`close` destroys only a group it set up."""
+    a single process. Sets the group up (:func:`group_backend`: NCCL when the run trains on CUDA, gloo otherwise)
+    when torchrun started several processes and no group exists yet, and :meth:`close` destroys only a group it set
+    up. ``device``: the run's (``--device``; None: CUDA when available, else the CPU)."""
 
-    def __init__(self):
+    def __init__(self, device=None):
         self.world = int(os.environ.get("WORLD_SIZE", "1"))
         self.rank = int(os.environ.get("RANK", "0"))
         self.active = self.world > 1
         self.owned = False
         if self.active and not torch.distributed.is_initialized():
-            backend = "nccl" if torch.cuda.is_available() else "gloo"
-            if torch.cuda.is_available():
-                torch.cuda.set_device(int(os.environ.get("LOCAL_RANK", 0)))
+            local = int(os.environ.get("LOCAL_RANK", 0))
+            dev = resolve_device(device)
+            n_gpus = torch.cuda.device_count() if dev.type == "cuda" else 0
+            backend, index = group_backend(dev, local, n_gpus)
+            if index is not None:
+                torch.cuda.set_device(index)
             torch.distributed.init_process_group(backend=backend)
             self.owned = True
 

@@ -162,7 +162,7 @@ def train_with(settings: TrainSettings, log=_print_flush) -> dict:
     -------
     dict: out_dir, last, best (paths), epochs (completed), history (list of rows), param_counts.
     """
-    dist = ProcessGroup()
+    dist = ProcessGroup(settings.device)
     out_dir = settings.run_dir
     try:
         with output_folder(out_dir) if dist.main else contextlib.nullcontext():
