@@ -366,3 +366,25 @@ def test_evaluate_snap_from_the_command_line(tmp_path, capsys):
     assert r["snap"] == 0.05 and r["snap_mirror"] and r["rows"][0]["variant"].endswith("snap 0.05 mirrored")
     bad = cli(capsys, "evaluate", "--data", data, "--checkpoint", ck, "--snap-mirror", "--out", tmp_path / "x")
     assert_user_error(bad, "--snap-mirror goes with --snap R")
+
+
+def test_complete_in_boxes_hands_the_sensor_to_the_snap():
+    """The scene path (complete, real complete, track fusion) gives the occlusion rule its sensor origins."""
+    from spotlights.learning.inference import complete_in_boxes
+
+    class Recorder:
+        rig, needs_box, model_name = SPEC, False, "recorder"
+
+        def __init__(self):
+            self.kw = []
+
+        def complete(self, partials, **kw):
+            self.kw.append(kw)
+            return [np.zeros((1, 3), np.float32) for _ in partials]
+
+    rec, x = Recorder(), _scans(2)[0]
+    sensors = np.array([[0.0, 3.0, 0.5], [0.0, -3.0, 0.5]])
+    complete_in_boxes(rec, x, np.full((2, 3), 2.0), sensor_origins=sensors, snap=0.05)
+    complete_in_boxes(rec, x, np.full((2, 3), 2.0), sensor_origins=sensors)
+    assert np.array_equal(rec.kw[0]["sensor_origins"], sensors) and rec.kw[0]["snap"] == 0.05
+    assert "sensor_origins" not in rec.kw[1]  # a model without evidence, no snap: not given

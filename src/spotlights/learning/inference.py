@@ -579,7 +579,8 @@ def complete_in_boxes(
     partials : (B, K, 3) float32 unit-frame points (the box's object frame / half its diagonal).
     sizes : (B, 3) box sizes (length, width, height), metres.
     clip : passed to :meth:`Completer.complete`.
-    sensor_origins : (B, 3) the LiDAR in each scan's unit frame, passed on to models that read free space.
+    sensor_origins : (B, 3) the LiDAR in each scan's unit frame, passed on to models that read free space and,
+        with ``snap``, to every model (the occlusion rule).
     snap : radius (unit frame) to snap the SA-Nets' rays to each scan's partial (:meth:`Completer.complete`);
         None or 0: off. snap_mirror : also to its mirror image (``y -> -y``).
 
@@ -590,8 +591,8 @@ def complete_in_boxes(
         kw["snap"] = snap
     if snap_mirror:
         kw["snap_mirror"] = True  # without a radius, complete() says so
-    if sensor_origins is not None and getattr(getattr(completer, "model", None), "uses_evidence", False):
-        kw["sensor_origins"] = sensor_origins
+    if sensor_origins is not None and (snap or getattr(getattr(completer, "model", None), "uses_evidence", False)):
+        kw["sensor_origins"] = sensor_origins  # free space: the evidence of sanet-local, the snap's occlusion rule
     sz = np.asarray(sizes, dtype=np.float64).reshape(-1, 3)
     if getattr(completer, "needs_box", False):
         kw["extents"] = unit_extents(sz)
