@@ -391,3 +391,17 @@ def test_gpu_trained_rows_stop38():
         _says("docs/learning.md", f"{plan['steps_done']:,} | {row}")
         _says("docs/learning.md", f"({gen[gen_row]['accuracy']:.2f}x)")
         _says("docs/learning.md", f"{plan['step_seconds'] * 1e3:.1f} ms | 10 x {plan['steps_per_interval']:,}")
+
+
+def test_gpu_trained_real_rows_stop38():
+    """The GPU-trained rows of the real-set table (docs/learning.md), from the Table 2 reports they were added to."""
+    for name in ("av2", "nuscenes"):
+        models = {m["name"]: m for m in _json(f"real/table2_fair_i26/{name}.json")["models"]}
+        for run, label in (("sanet-local-gpu", "ray-local SA-Net"), ("snowflakenet-gpu", "SnowflakeNet")):
+            m = models[run]
+            row = (
+                f"| {label}, **GPU-trained** (H100) | {m['equal_density']['average']['cd']:.4f} | "
+                f"{m['average']['cd']:.4f} | {m['equal_density']['diversity']:.4f} | {m['average']['fidelity']:.4f} | "
+                f"{m['average']['mmd']:.4f} | {m['heading']['rate']:.1%} |"
+            )
+            _says("docs/learning.md", row)
