@@ -272,7 +272,7 @@ def test_evidence_features_shape():
 
 def batch_of_scans(seed=2, b=4, k=40):
     """b scans of the tiny rig (each with its own box directions) and one sensor each: outside the sphere, inside
-    it (|S| < 1: the whole disc), unknown (NaN) and outside again."""
+    it (|S| < 1: the whole disc), unknown (NaN), outside again and (b = 5) at the box's centre."""
     spec = RigSpec.from_name("box-4x8-ellipsoid-s1")
     rng = np.random.default_rng(seed)
     o = np.array(spec.origins)
@@ -284,14 +284,15 @@ def batch_of_scans(seed=2, b=4, k=40):
         p[: k // 2, 0] = e[0]
         p[k // 2 :, 1] = e[1]
         pts.append(p)
-    sensors = np.array([[2.5, 1.5, 0.4], [0.6, 0.2, 0.1], [np.nan, 0.0, 0.0], [-1.8, 2.2, 0.9]])[:b]
+    sensors = np.array([[2.5, 1.5, 0.4], [0.6, 0.2, 0.1], [np.nan, 0.0, 0.0], [-1.8, 2.2, 0.9], [0.0, 0.0, 0.0]])[:b]
     return o, np.stack(dirs), np.stack(pts), sensors, spec.n_secondary
 
 
 def test_batched_carving_matches_the_numpy_reference_for_every_sensor():
     """The torch path (one batch, the sensor handled in torch for torch.compile) against the geometry layer's numpy
     carving of each scan alone: float64, bin for bin; the LiDAR grid's extent and frame match numpy's."""
-    o, d, p, s, m = batch_of_scans()
+    o, d, p, s, m = batch_of_scans(b=5)
+    assert not carved_depths(p[4], o, d[4], s[4], PARAMS)["carved"].any()  # a sensor at the centre carves nothing
     te = tev.ray_evidence(torch.from_numpy(p), torch.from_numpy(o), torch.from_numpy(d), torch.from_numpy(s), m, PARAMS)
     total = 0
     for i in range(len(p)):

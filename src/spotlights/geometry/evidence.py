@@ -233,7 +233,7 @@ def carved_depths(
     Parameters
     ----------
     points : (K, 3) observed points, unit frame. origins, directions : (R, 3) rays, unit frame.
-    sensor : (3,) the LiDAR's optical centre, unit frame (NaN: unknown, nothing is carved).
+    sensor : (3,) the LiDAR's optical centre, unit frame (NaN: unknown, or the origin: nothing is carved).
 
     Returns ``carved`` (R, T) bool (bin j of ray r observed empty), ``sample_depth`` (R, T) float64 the
     bins' centre depths ``(j + 1/2) h / T`` and ``half_chord`` (R,) float64 ``h``.
@@ -246,7 +246,8 @@ def carved_depths(
     h = np.clip(-np.einsum("rj,rj->r", o, d), 0.0, None)
     depth = (np.arange(n_t) + 0.5)[None] / n_t * h[:, None]
     carved = np.zeros(depth.shape, dtype=bool)
-    if not np.all(np.isfinite(s)) or len(p) == 0:
+    if not np.all(np.isfinite(s)) or not np.linalg.norm(s) > 0 or len(p) == 0:
+        # unknown, or at the box's centre (a scan given in its object's frame: no direction to look from)
         return {"carved": carved, "sample_depth": depth, "half_chord": h}
     frame = stereo_frames(s)
     a = sensor_extent(s)

@@ -179,7 +179,8 @@ def _carve(points, o, d, sensor, params: EvidenceParams) -> dict:
         return {"carved": torch.zeros(depth.shape, dtype=torch.bool, device=dev), "half_chord": h}
     # all in torch (no host round trip, no Python float per scan): torch.compile traces it once for every batch
     s64 = sensor.detach().to(dev, _wide(dev)).reshape(b, 3)
-    known = torch.isfinite(s64).all(-1)  # (B,) an unknown sensor's rows carve nothing
+    # (B,) an unknown sensor's rows carve nothing, nor one at the box's centre (no direction to look from; numpy's)
+    known = torch.isfinite(s64).all(-1) & (s64.norm(dim=-1) > 0)
     s_safe = torch.where(known[:, None], s64, 2.0)  # a place outside the sphere: its rows are masked out
     ft = stereo_frames_torch(s_safe).to(dt).transpose(1, 2)  # (B, 3, 3)
     extent = sensor_extent_torch(s_safe).to(dt)  # (B,)
