@@ -409,7 +409,10 @@ def test_gpu_trained_real_rows_stop38():
 
 def test_snap_with_the_occlusion_rule_stop38():
     """The stop-38 table of docs/learning.md (the package's snap with the occlusion rule), from its reports."""
-    for variant, key, real in (("snap", "snap 0.05", "snap"), ("snap0.08_mirror", "snap 0.08 mirrored", "snap0.08_mirror")):
+    for variant, key, real in (
+        ("snap", "snap 0.05", "snap"),
+        ("snap0.08_mirror", "snap 0.08 mirrored", "snap0.08_mirror"),
+    ):
         t = _summary(_json(f"fair/snap/stop38/table1_{variant}.json"), "sanet-hit")
         test_row = f"{t['accuracy']:.5f} / {t['completeness']:.5f} / {t['chamfer_l1']:.5f} / {t['fscore']:.3f}"
         g = _json(f"fair/snap/stop38/generalisation_{variant}.json")
@@ -423,11 +426,16 @@ def test_snap_with_the_occlusion_rule_stop38():
             assert m["snapped"]
             reals.append(f"{m['equal_density']['average']['cd']:.4f} / {m['average']['fidelity']:.4f}")
         q = _json(f"real/track_fusion_{variant}_stop38.json")["quality_on_common_observations"]
-        fused = f"{q['single']['consistency_voxel_all_objects']:.4f} / {q['fused']['consistency_voxel_all_objects']:.4f}"
+        fused = (
+            f"{q['single']['consistency_voxel_all_objects']:.4f} / {q['fused']['consistency_voxel_all_objects']:.4f}"
+        )
         for expected in (test_row, kenney, *reals, fused):
             _says("docs/learning.md", expected)
     speed = _json("fair/snap/stop38/snap_speed_stop38.json")
     m = speed["median_ms_per_box"]
-    _says("docs/learning.md", f"{m['this']['no sensor']:.1f} ms of CPU a box plain, {m['this']['sensor (occlusion rule)']:.1f} ms")
+    _says(
+        "docs/learning.md",
+        f"{m['this']['no sensor']:.1f} ms of CPU a box plain, {m['this']['sensor (occlusion rule)']:.1f} ms",
+    )
     _says("docs/learning.md", f"was {m['other']['no sensor']:.1f} ms before")
     _says("docs/learning.md", f"{speed['speedup_no_sensor']:.2f}x; `python benchmarks/snap_speed.py")

@@ -126,7 +126,6 @@ RUN_STATE_FILES = ("last.pt", "best.pt", "log.csv")
 """The files of a run's progress (``--overwrite`` removes them before a fresh start)."""
 
 
-
 def training_rays(model, rig, train_set):
     """The training batches' ray table, or None: a
     :class:`~spotlights.learning.rays.DirectionTable` over ``train_set``'s boxes (``train_set.extents``) when
@@ -139,6 +138,7 @@ def training_rays(model, rig, train_set):
     if getattr(model, "uses_evidence", False) or getattr(model, "box_weight", 0.0):
         return DirectionTable(rig, train_set.extents)
     return None
+
 
 def resolve_run_config(
     model_name: str, out_dir: Path, config, overrides, resume: bool, overwrite: bool, schedule, dist, log
