@@ -13,10 +13,10 @@ the carried wheels); docs/learning.md, "GPU recipe". On a machine with one GPU a
    ``--intervals`` validation intervals (checkpoints);
 4. **training**: the fair protocol (``configs/schedules/fair.yaml``: Adam 1e-3, cosine to 5e-5, batch 32, bf16
    autocast) with the planned steps, one interval per call of ``spotlights.learning.train.train`` (resumed
-   from ``last.pt``); after the first interval, whose wall time (its steps, data loading, validation and
-   checkpoint) is measured, the schedule is shortened to the intervals that fit (the learning-rate schedule is
-   recomputed for the new total, so the cosine decay still ends), and the run stops early when the next interval
-   would pass the deadline;
+   from ``last.pt``); after every interval, whose wall time (its steps, data loading, validation and checkpoint)
+   is measured, the schedule is shortened to the intervals that fit at the slowest interval so far (the
+   learning-rate schedule is recomputed for the new total, so the cosine decay still ends); with ``--steps``, the
+   run stops early when the next interval would pass the deadline;
 5. **outputs** in ``--out`` (default ``$OUT``): ``best.pt`` (the project's checkpoint, loadable with
    ``spotlights.learning.checkpoint.load_checkpoint``; float16 weights when the float32 file would pass
    ``--max-file-mb``), ``last.pt`` when it fits that size too, ``log.csv``, ``config.yaml``, ``gpu_train.log``
@@ -330,7 +330,7 @@ def run(args, name: str, cfg_path: Path | None, meshes: Path, out: Path, log, t_
     }
     run_dir = work / "run"
     run_over = {**overrides, "train": {**train_over, "epochs": intervals, "steps_per_epoch": per}}
-    done, t_train, k, resize = 0, time.perf_counter(), 0, None
+    done, t_train, k, resize, slowest = 0, time.perf_counter(), 0, None, 0.0
     while k < intervals:
         t0 = time.perf_counter()
         res = train(
@@ -347,25 +347,31 @@ def run(args, name: str, cfg_path: Path | None, meshes: Path, out: Path, log, t_
             log=log,
             stop_after=1,
         )
-        done, k = int(res["epochs"]), k + 1
+        done, k, resize = int(res["epochs"]), k + 1, None
         took = time.perf_counter() - t0
-        if k == 1 and args.steps is None and intervals > 1:
-            # the probe times bare steps; an interval also loads data, validates and saves: re-plan on its wall time
-            fit = fit_intervals(intervals, 1, took, deadline - reserve / 2 - time.perf_counter())
+        slowest = max(slowest, took)
+        if k == 1:
             plan["first_interval_seconds"] = took
             plan["interval_over_probe"] = took / (per * step_s)
-            if fit < intervals:
-                log(
-                    f"re-plan: the first interval took {took:.1f} s ({took / (per * step_s):.2f} x its probed "
-                    f"steps): {fit} intervals of {per} steps fit; the schedule now ends there"
-                )
-                intervals, resize = fit, {"train": {"epochs": fit}}
-                plan["replanned_intervals"] = fit
-            continue
-        resize = None
-        if k < intervals and time.perf_counter() + 1.1 * took > deadline - reserve / 2:
-            log(f"stopping after interval {done} of {intervals}: the next ({took:.0f} s) would pass the budget")
+        if k >= intervals:
             break
+        left = deadline - reserve / 2 - time.perf_counter()
+        if args.steps is not None:  # the steps asked for, exactly: stop only at the budget
+            if 1.1 * took > left:
+                log(f"stopping after interval {done} of {intervals}: the next ({took:.0f} s) would pass the budget")
+                break
+            continue
+        # the probe times bare steps; an interval also loads data, validates and saves: after every interval, the
+        # schedule is shortened to the intervals that fit at the slowest one so far (its cosine then still ends)
+        fit = fit_intervals(intervals, done, slowest, left)
+        if fit < intervals:
+            log(
+                f"re-plan after interval {done}: an interval takes up to {slowest:.1f} s ({slowest / (per * step_s):.2f}"
+                f" x its probed steps): {fit} intervals of {per} steps fit"
+                + ("; the schedule now ends there" if fit > done else "; no further interval fits")
+            )
+            intervals, resize = fit, {"train": {"epochs": fit}}
+            plan["replanned_intervals"] = fit
     plan.update(
         {
             "intervals_done": done,

@@ -109,13 +109,20 @@ def test_fit_intervals_shortens_to_what_the_measured_interval_leaves_room_for():
     assert gpu.fit_intervals(10, 1, 20.0, 21.0) == 2  # exactly one more at 1.05 x 20 s
 
 
-@pytest.mark.slow  # a tiny build and 10 steps on the CPU (seconds)
-def test_replanned_run_ends_its_cosine_schedule(tmp_path, meshes, monkeypatch):
-    """The first interval shows fewer intervals fit: the run trains those and its learning rate still ends at
-    the fair schedule's floor (5e-5), instead of stopping midway down the cosine."""
+@pytest.mark.slow  # a tiny build and 10-15 steps on the CPU (seconds)
+@pytest.mark.parametrize(
+    "planned, fits, kept",
+    [
+        (3, {1: 2}, 2),  # the first interval shows 2 fit
+        (4, {1: 4, 2: 3}, 3),  # all 4 seem to fit after the first; after the second, 3
+    ],
+)
+def test_replanned_run_ends_its_cosine_schedule(tmp_path, meshes, monkeypatch, planned, fits, kept):
+    """An interval shows fewer intervals fit than planned: the run trains those and its learning rate still ends
+    at the fair schedule's floor (5e-5), instead of stopping midway down the cosine."""
     gpu = load_script("scripts/gpu_train.py")
-    monkeypatch.setattr(gpu, "plan_steps", lambda args, step_s, left_s: (3, 5))
-    monkeypatch.setattr(gpu, "fit_intervals", lambda intervals, done, took, left: 2)
+    monkeypatch.setattr(gpu, "plan_steps", lambda args, step_s, left_s: (planned, 5))
+    monkeypatch.setattr(gpu, "fit_intervals", lambda intervals, done, took, left: fits[done])
     monkeypatch.setenv("OMP_NUM_THREADS", "1")
     cfg = tmp_path / "tiny.yaml"
     cfg.write_text(json.dumps({"model": {"name": "snowflakenet", "args": TINY_MODEL_ARGS["snowflakenet"]}}))
@@ -128,10 +135,10 @@ def test_replanned_run_ends_its_cosine_schedule(tmp_path, meshes, monkeypatch):
     from spotlights.learning.checkpoint import load_checkpoint
 
     plan = json.loads((out / "plan.json").read_text())
-    assert plan["replanned_intervals"] == 2 and plan["intervals_done"] == 2 and plan["steps_done"] == 10
+    assert plan["replanned_intervals"] == kept and plan["intervals_done"] == kept and plan["steps_done"] == 5 * kept
     assert plan["first_interval_seconds"] > 0
     last = load_checkpoint(out / "last.pt")
-    assert last["global_step"] == 10 and last["config"]["train"]["epochs"] == 2
+    assert last["global_step"] == 5 * kept and last["config"]["train"]["epochs"] == kept
     lr = last["optimizer_state"]["param_groups"][0]["lr"]
-    assert lr == pytest.approx(5e-5, rel=1e-6), lr  # the cosine ended (3 intervals kept: ~3.8e-4)
-    assert "re-plan:" in (out / "gpu_train.log").read_text()
+    assert lr == pytest.approx(5e-5, rel=1e-6), lr  # the cosine ended (the planned intervals kept: it would not)
+    assert f"re-plan after interval {kept - 1}: " in (out / "gpu_train.log").read_text()

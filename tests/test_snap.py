@@ -132,9 +132,10 @@ def test_a_ray_does_not_snap_through_its_predicted_surface_unless_the_lidar_saw_
     right = snap_to_observed(p, o, d, SPEC.n_secondary, depth, keep, r, sensor=np.array([0.0, -3.0, 0.0]))
     seen_through = np.abs(right[0][through] - base[0][through]) == 0
     assert seen_through.mean() > 0.9, seen_through.mean()  # the right side was carved: snapped onto the left
-    # a NaN sensor (unknown) applies no rule; the carving uses the points seen, not the snap targets
-    nan = snap_to_observed(p, o, d, SPEC.n_secondary, depth, keep, r, sensor=np.full(3, np.nan))
-    assert all(np.array_equal(a, b) for a, b in zip(nan, base))
+    # a sensor unknown or at the centre applies no rule; the carving uses the points seen, not the snap targets
+    for unknown in (np.full(3, np.nan), np.zeros(3)):  # unknown, or at the box's centre (an object-frame scan)
+        got = snap_to_observed(p, o, d, SPEC.n_secondary, depth, keep, r, sensor=unknown)
+        assert all(np.array_equal(a, b) for a, b in zip(got, base))
     far = side_points(2000) + [0.0, -10.0, 0.0]  # "seen" points nowhere near: nothing carved, every such ray kept
     unseen = snap_to_observed(p, o, d, SPEC.n_secondary, depth, keep, r, sensor=np.array([0.0, -3.0, 0.0]), seen=far)
     assert np.array_equal(unseen[0][through], depth[through])
@@ -178,18 +179,19 @@ def test_a_point_model_refuses_to_snap(tmp_path):
     c = load_completer(make_checkpoint(tmp_path / "pcn.pt", "pcn"), device="cpu")
     with pytest.raises(ParameterError, match="no rays to snap"):
         c.complete(_scans()[0], snap=0.05)
-    # in a scene (the path of a point-set --fallback) it completes its boxes unsnapped instead of failing there
-    from spotlights.experiments.scene import SceneConfig, complete_scene
+    # in a scene: refused as the main model; as a --fallback it completes its boxes unsnapped (an SA-Net snaps)
+    from spotlights.experiments.scene import SceneConfig, complete_scene, snap_options
     from spotlights.geometry.boxes import Box
 
-    rng = np.random.default_rng(0)
-    scan = rng.uniform(-1, 1, (400, 3)) * [2.0, 0.9, 0.7] + [10.0, 2.0, 0.8]
+    scan = np.random.default_rng(0).uniform(-1, 1, (400, 3)) * [2.0, 0.9, 0.7] + [10.0, 2.0, 0.8]
     box = Box(center=np.array([10.0, 2.0, 0.8]), size=np.array([4.6, 1.9, 1.6]), yaw=0.0, cls="car")
-    plain, snapped = (
-        complete_scene(scan, [box], c, SceneConfig(crop=False, any_label=True, snap=r)) for r in (0.0, 0.05)
-    )
-    (a,), (b,) = plain.objects, snapped.objects
-    assert a.status == b.status == "completed" and np.array_equal(a.completion, b.completion)
+    with pytest.raises(ParameterError, match="pcn has no rays to snap"):
+        complete_scene(scan, [box], c, SceneConfig(crop=False, any_label=True, snap=0.05))
+    cfg = SceneConfig(snap=0.05, snap_mirror=True)
+    assert snap_options(c, cfg) == {"snap": None, "snap_mirror": False}
+    sanet = load_completer(make_checkpoint(tmp_path / "hit.pt", "sanet-hit", rig=SPEC), device="cpu")
+    assert snap_options(sanet, cfg) == {"snap": 0.05, "snap_mirror": True}
+    assert snap_options(sanet, SceneConfig()) == {"snap": None, "snap_mirror": False}
 
 
 def test_complete_refuses_snap_for_a_point_model_before_any_work(tmp_path, capsys):
@@ -222,6 +224,9 @@ def test_onnxruntime_snaps_like_torch(tmp_path, hit_ckpt):
     ):
         a = ref.complete(x, extents=e, **kw)
         b = onx.complete(x, extents=e, **kw)
+        if "sensor_origins" in kw:  # the rule ran: not the output without the sensor
+            plain = ref.complete(x, extents=e, **{k: v for k, v in kw.items() if k != "sensor_origins"})
+            assert any(len(p) != len(q) or not np.array_equal(p, q) for p, q in zip(a, plain))
         assert [len(p) for p in a] == [len(p) for p in b]
         assert max(float(np.abs(p - q).max()) for p, q in zip(a, b)) < 1e-4
         if kw.get("snap_mirror"):

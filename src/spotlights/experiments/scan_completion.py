@@ -45,6 +45,7 @@ from .scene import (
     render_result,
     render_result_html,
     require_points,
+    require_rays_to_snap,
     write_scene,
 )
 from .tracks import threads_beside_worker
@@ -185,13 +186,9 @@ class CompletionOptions:
         )
 
     def check_snap(self, completer: BaseCompleter) -> None:
-        """Refuse ``--snap`` for a main model without rays (a point-set model): it could not snap a single box.
-        (A point-set ``--fallback`` completes its boxes unsnapped.) Raises :class:`ParameterError`."""
-        if self.snap and getattr(completer, "rig", None) is None:
-            raise ParameterError(
-                f"--snap: {getattr(completer, 'model_name', 'this model')} has no rays to snap; snapping to the "
-                "observed points needs an SA-Net"
-            )
+        """Refuse ``--snap`` for a main model without rays before any work (:func:`~spotlights.experiments.scene.
+        require_rays_to_snap`, which :func:`~spotlights.experiments.scene.complete_scene` runs again per scan)."""
+        require_rays_to_snap(completer, self.snap)
 
     def load_fallback(self) -> BaseCompleter | None:
         """The model of :attr:`fallback_model` (same device and precision; its runtime follows its file: a

@@ -366,6 +366,7 @@ def complete_scene(
             f"the scan holds {len(scan)} point{'s' if len(scan) != 1 else ''}; at least "
             f"{config.min_points} are needed to complete anything"
         )
+    require_rays_to_snap(completer, config.snap)
     a = None if axes is None or np.allclose(axes, np.eye(3)) else np.asarray(axes, dtype=np.float64)
     with timer("crop"):
         work = scan if a is None else scan @ a.T
@@ -566,10 +567,26 @@ def _complete_batch(todo: list[ObjectResult], completer, config: SceneConfig, sh
         sensor_origins=sensors,
         inside=shares,
         classes=classes,
-        # a point-set model has no rays to snap: it completes unsnapped (as evaluate scores it)
-        snap=(config.snap or None) if getattr(completer, "rig", None) is not None else None,
-        snap_mirror=config.snap_mirror and getattr(completer, "rig", None) is not None,
+        **snap_options(completer, config),
     )
+
+
+def require_rays_to_snap(completer, snap: float | None) -> None:
+    """Raise :class:`ParameterError` when ``snap`` (a radius; 0 or None: off) asks a main model without rays (a
+    point-set model) to snap: it could not snap a single box. (A point-set fallback completes unsnapped.)"""
+    if snap and getattr(completer, "rig", None) is None:
+        raise ParameterError(
+            f"--snap: {getattr(completer, 'model_name', 'this model')} has no rays to snap; snapping to the observed "
+            "points needs an SA-Net (a point-set fallback completes its boxes unsnapped)"
+        )
+
+
+def snap_options(completer, config: SceneConfig) -> dict:
+    """``snap`` and ``snap_mirror`` of :func:`~spotlights.learning.inference.complete_in_boxes` for one model: the
+    config's for an SA-Net (it has a rig), off for a point-set model (a ``--fallback`` baseline completes its boxes
+    unsnapped, as ``evaluate`` scores such models; :func:`complete_scene` refuses one as the main model)."""
+    rays = getattr(completer, "rig", None) is not None
+    return {"snap": (config.snap or None) if rays else None, "snap_mirror": bool(config.snap_mirror) and rays}
 
 
 def _assemble(todo: list, outs: list, config: SceneConfig, a, scores: Fidelities) -> None:

@@ -58,7 +58,8 @@ the ray's *viewpoint*, which may lie on the far side of the object, behind a nea
 rightly. So a ray the network kept is not snapped onto a candidate more than ``R`` beyond its predicted
 surface (``2 (t_snap - t_pred) > R``) unless that surface lies in observed free space (its bin is carved,
 above, from the points actually observed: not their mirror image): a surface the LiDAR saw through is wrong,
-one it did not is kept. Without a sensor origin (NaN) the rule cannot be applied and every candidate snaps.
+one it did not is kept. Without a sensor origin (NaN, or at the box's centre: a scan given in its object's own
+frame) the rule cannot be applied and every candidate snaps.
 """
 
 from __future__ import annotations
@@ -146,7 +147,8 @@ def cell_of(s: np.ndarray, extent: float, cells: int) -> tuple[np.ndarray, np.nd
 
 def nearest_per_cell(keys: np.ndarray, ranges: np.ndarray, n_keys: int) -> np.ndarray:
     """(n_keys,) int64 index of the entry nearest (smallest ``ranges``, ties: lowest index) among the
-    entries of each key; -1 for keys without entries. ``keys`` (E,) int64 in [0, n_keys) or -1 (no cell)."""
+    entries of each key; -1 for keys without entries. ``keys`` (E,) int64 in [0, n_keys) or -1 (no cell);
+    ``ranges`` (E,) finite (a NaN range would leave its key without an entry)."""
     out = np.full(n_keys, -1, dtype=np.int64)
     ok = np.flatnonzero(keys >= 0)
     if len(ok) == 0:
@@ -170,6 +172,8 @@ def _near_candidates(p: np.ndarray, o: np.ndarray, d: np.ndarray, n_secondary: i
     ``t`` (R, 4) float64 depth, ``dist`` (R, 4) float64 distance to the line (0 without a candidate), ``valid``
     (R, 4) bool. ``p`` (K, 3), ``o`` and ``d`` (R, 3) float64, unit frame."""
     r, m, g = len(o), int(n_secondary), int(params.near_cells)
+    if m < 1 or r % m:
+        raise ValueError(f"{r} rays are not whole viewpoints of {m} rays each (the rig's n_secondary)")
     views = o[::m]
     frames = stereo_frames(views)  # (N, 3, 3)
     # the rays' coordinates in their viewpoint's frame, once (grid_extent's and the cells'), view by view
@@ -331,8 +335,8 @@ def snap_to_observed(
         image when asked. origins, directions : (R, 3) the rays (viewpoint ``r // n_secondary``), unit frame.
         depth : (R,) predicted normalised depths (a point is ``o + 2 t d``). keep : (R,) bool predicted hits.
         radius : R > 0, unit frame. near_cells : the viewpoint grids' G (:class:`EvidenceParams`).
-    sensor : (3,) the LiDAR's optical centre, unit frame: applies the occlusion rule (module docstring); None
-        or NaN: not applied. seen : (K', 3) the points actually observed, whose free space is carved (default
+    sensor : (3,) the LiDAR's optical centre, unit frame: applies the occlusion rule (module docstring); None,
+        NaN or the origin (the box's centre): not applied. seen : (K', 3) the points actually observed, whose free space is carved (default
         ``points``).
 
     Returns ``(depth (R,) float64, keep (R,) bool, snapped (R,) bool)``: the snapped rays' depths from the
@@ -363,7 +367,7 @@ def snap_to_observed(
     meet = o_r + (2.0 * t_plane)[:, None] * d_r
     on_plane = facing & (t_plane > 0) & (np.linalg.norm(meet - x, axis=1) <= radius)
     t_snap = np.where(on_plane, t_plane, t_foot)
-    if sensor is not None and np.all(np.isfinite(sensor)):
+    if sensor is not None and np.all(np.isfinite(sensor)) and np.linalg.norm(sensor) > 0:
         # occlusion: a kept prediction stays unless the LiDAR saw through it (module docstring)
         behind = kp[rows] & (2.0 * (t_snap - dep[rows]) > radius)
         if behind.any():
@@ -385,8 +389,8 @@ class SnapTargets:
     """What a batch of B scans snaps to (:func:`snap_batch_to_observed`), unit frames.
 
     observed : B arrays (K_b, 3), the points each scan's rays snap to (with their mirror image when asked).
-    radius : R > 0. sensors : (B, 3) the LiDAR in each unit frame (the occlusion rule; None or a NaN row: not
-    applied). seen : B arrays (K'_b, 3), the points actually observed, carved for the rule (None: ``observed``).
+    radius : R > 0. sensors : (B, 3) the LiDAR in each unit frame (the occlusion rule; None, a NaN row or the
+    origin: not applied). seen : B arrays (K'_b, 3), the points actually observed, carved for the rule (None: ``observed``).
     """
 
     observed: list
