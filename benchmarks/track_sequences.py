@@ -92,6 +92,13 @@ def main(argv=None) -> int:
         help="how a fused window is brought to the model's input (as `real complete --resample`)",
     )
     ap.add_argument("--input-points", type=int, default=256, help="points per model input (the models learned 256)")
+    ap.add_argument(
+        "--snap",
+        type=float,
+        default=0.0,
+        help="snap the rays to each window's input within R (unit frame), as --snap R",
+    )
+    ap.add_argument("--snap-mirror", action="store_true", help="with --snap: the mirrored input too")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     import torch
@@ -151,8 +158,15 @@ def main(argv=None) -> int:
                     used.append(t)
                 for name, completer in completers.items():
                     # frame t's sensor in its box's unit frame: the free space a ray-local model reads
+                    # (with --snap, the occlusion rule carves from frame t's sensor to every fused point: the
+                    # other frames' points were seen from elsewhere, so it may carve too much and snap more)
                     outs = complete_in_boxes(
-                        completer, np.stack(partials), np.stack(sizes), sensor_origins=np.stack(origins)
+                        completer,
+                        np.stack(partials),
+                        np.stack(sizes),
+                        sensor_origins=np.stack(origins),
+                        snap=args.snap or None,
+                        snap_mirror=args.snap_mirror,
                     )
                     for t, c in zip(used, outs):
                         b, tb = bx[t], frs[t]["true_box"]
@@ -169,6 +183,8 @@ def main(argv=None) -> int:
         precision=args.precision,
         resample=args.resample,
         input_points=args.input_points,
+        snap=args.snap,
+        snap_mirror=args.snap_mirror,
         noise={"translation_m": 0.10, "yaw_deg": 2.0, "size_rel": 0.03},
         refinement={
             pol: dict(
