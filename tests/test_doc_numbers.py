@@ -439,3 +439,16 @@ def test_snap_with_the_occlusion_rule_stop38():
     )
     _says("docs/learning.md", f"was {m['other']['no sensor']:.1f} ms before")
     _says("docs/learning.md", f"{speed['speedup_no_sensor']:.2f}x; `python benchmarks/snap_speed.py")
+
+
+def test_snapped_track_windows_stop38():
+    """The snapped drive-past windows' table of docs/learning.md, from benchmarks/track_sequences.py's reports."""
+    for name in ("track_sequences_snap_2hz", "track_sequences_snap0.08_mirror_2hz"):
+        rows = _json(f"real/{name}.json")["completion"]["default"]
+        for boxes in ("true", "refined"):
+            one, five = rows[f"{boxes} past:1"], rows[f"{boxes} past:5"]
+            _says(
+                "docs/learning.md",
+                f"{one['accuracy_m']:.4f} / {one['completeness_m']:.4f} -> {five['accuracy_m']:.4f} / "
+                f"{five['completeness_m']:.4f} ({five['accuracy_gain']:.0%} / {five['completeness_gain']:.0%})",
+            )
