@@ -398,6 +398,8 @@ def test_process_group_backend_follows_the_run_device_and_refuses_missing_gpus()
 
     assert group_backend(torch.device("cpu"), 1, 1) == ("gloo", None)  # --device cpu on a GPU node: gloo
     assert group_backend(torch.device("cuda"), 1, 2) == ("nccl", 1)  # one GPU per local rank
-    assert group_backend(torch.device("cuda", 0), 1, 2) == ("nccl", 0)  # an explicit index wins
+    assert group_backend(torch.device("cuda", 0), 0, 2) == ("nccl", 0)  # an explicit index: one process per node
+    with pytest.raises(ParameterError, match="would share one GPU"):  # NCCL cannot run two ranks on one GPU
+        group_backend(torch.device("cuda", 0), 1, 2, local_world=2)
     with pytest.raises(ParameterError, match="--nproc-per-node 1"):  # 2 processes on a 1-GPU node (seen on an H100)
         group_backend(torch.device("cuda"), 1, 1)

@@ -10,13 +10,19 @@ from ..errors import ParameterError
 from .device import resolve_device
 
 
-def group_backend(device: torch.device, local_rank: int, n_gpus: int) -> tuple[str, int | None]:
+def group_backend(device: torch.device, local_rank: int, n_gpus: int, local_world: int = 1) -> tuple[str, int | None]:
     """The process-group backend of a rank that trains on ``device`` (its type decides: ``cuda`` -> NCCL, else
     gloo) and, for NCCL, the CUDA device index it takes (``device.index``, else its ``local_rank``). Raises
     :class:`ParameterError` when that index is not one of the ``n_gpus`` devices of the node (torchrun started
-    more processes per node than it has GPUs)."""
+    more processes per node than it has GPUs), or when an explicit index would be shared by the ``local_world``
+    processes of the node (NCCL needs one GPU per process)."""
     if device.type != "cuda":
         return "gloo", None
+    if device.index is not None and local_world > 1:
+        raise ParameterError(
+            f"--device {device}: the {local_world} processes of this node would share one GPU; give --device cuda "
+            "(each process takes the GPU of its local rank)"
+        )
     index = local_rank if device.index is None else int(device.index)
     if not 0 <= index < n_gpus:
         raise ParameterError(
@@ -42,7 +48,7 @@ class ProcessGroup:
             local = int(os.environ.get("LOCAL_RANK", 0))
             dev = resolve_device(device)
             n_gpus = torch.cuda.device_count() if dev.type == "cuda" else 0
-            backend, index = group_backend(dev, local, n_gpus)
+            backend, index = group_backend(dev, local, n_gpus, int(os.environ.get("LOCAL_WORLD_SIZE", 1)))
             if index is not None:
                 torch.cuda.set_device(index)
             torch.distributed.init_process_group(backend=backend)
