@@ -6,6 +6,7 @@ import csv
 import json
 import os
 import subprocess
+import sys
 from types import SimpleNamespace
 
 import numpy as np
@@ -142,3 +143,21 @@ def test_replanned_run_ends_its_cosine_schedule(tmp_path, meshes, monkeypatch, p
     lr = last["optimizer_state"]["param_groups"][0]["lr"]
     assert lr == pytest.approx(5e-5, rel=1e-6), lr  # the cosine ended (the planned intervals kept: it would not)
     assert f"re-plan after interval {kept - 1}: " in (out / "gpu_train.log").read_text()
+
+
+@pytest.mark.slow  # a pytest run inside the suite (seconds)
+def test_gpu_check_runs_pytest_and_writes_its_log_and_junit(tmp_path):
+    """scripts/gpu_check.sh (the suite where CUDA is) on a tiny selection here: pytest's status, log and XML."""
+    env = dict(os.environ, OUT=str(tmp_path / "out"), GPU_BUNDLE=str(tmp_path / "no-wheels"), PYTHON=sys.executable)
+    script = REPO / "scripts" / "gpu_check.sh"
+    proc = subprocess.run(
+        ["bash", str(script), "tests/test_device.py", "-p", "no:randomly"],
+        capture_output=True, text=True, env=env, timeout=240, cwd=REPO,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    assert proc.stdout.startswith("torch ") and "passed" in (tmp_path / "out" / "gpu_check.log").read_text()
+    assert "<testsuite" in (tmp_path / "out" / "gpu_check.xml").read_text()
+    bad = subprocess.run(
+        ["bash", str(script), "tests/no_such_test.py"], capture_output=True, text=True, env=env, timeout=240, cwd=REPO
+    )
+    assert bad.returncode != 0  # pytest's status passes through
