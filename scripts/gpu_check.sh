@@ -3,7 +3,8 @@
 # completion path defaults to CUDA when it is there, so run this once whenever a GPU machine is lent:
 #   make gpu-bundle                         # here, with PyPI: the wheels the GPU image lacks, into .whl/
 #   scripts/gpu_check.sh [PYTEST ARGS]      # there, from the checkout's root, .whl/ carried beside it
-# Default PYTEST ARGS: the whole suite on 12 processes (-n 12), 300 s a test. It installs the carried wheels the
+# Default PYTEST ARGS: the whole suite on 12 processes by file (-n 12 --dist loadfile, as make test: the README
+# commands' test shares one folder), 300 s a test. It installs the carried wheels the
 # machine lacks (as scripts/gpu_train.sh does), puts the checkout's src/ first, prints the device, runs pytest
 # with CUDA visible and writes the log and a JUnit XML to $OUT (or ./gpu-check). Tests that need the shared data
 # or an optional extra the image lacks skip with their reason. Exit status: pytest's.
@@ -27,6 +28,6 @@ if ! "$PY" -c "$NEEDED" 2>/dev/null; then
     "$PY" -c "$NEEDED" || { echo "gpu_check.sh: error: still missing after installing $BUNDLE: $NEEDED" >&2; exit 2; }
 fi
 "$PY" -c "import torch; print('torch', torch.__version__, 'cuda', torch.cuda.is_available(), torch.cuda.get_device_name(0) if torch.cuda.is_available() else '')"
-if [ $# -eq 0 ]; then set -- tests -n 12 --timeout 300; fi
+if [ $# -eq 0 ]; then set -- tests -n 12 --dist loadfile --timeout 300; fi
 "$PY" -m pytest -q -p no:cacheprovider -rfs --junitxml "$DEST/gpu_check.xml" "$@" 2>&1 | tee "$DEST/gpu_check.log"
 exit "${PIPESTATUS[0]}"

@@ -20,6 +20,17 @@ CATEGORIES = DATA / "meshes" / "categories"
 LIDAR = DATA / "lidar"
 
 
+def src_pythonpath() -> str:
+    """PYTHONPATH for a child Python: the checkout's src/ first, then the parent's own PYTHONPATH (where a machine
+    has its packages, e.g. wheels installed with --target on a GPU machine; replacing it lost them)."""
+    return os.pathsep.join(p for p in (str(REPO / "src"), os.environ.get("PYTHONPATH", "")) if p)
+
+
+def has_module(name: str) -> bool:
+    """Whether ``name`` can be imported here (an optional extra such as plotly)."""
+    return importlib.util.find_spec(name) is not None
+
+
 def load_script(relpath: str):
     """Import a script of the repository that is not part of the package (``scripts/``, ``benchmarks/``) as a module."""
     path = REPO / relpath

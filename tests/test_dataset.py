@@ -25,7 +25,7 @@ from spotlights.errors import ParameterError, SpotlightsError
 from spotlights.geometry.encode import encode_mesh
 from spotlights.geometry.io import load_mesh
 
-from helpers import CARS, need
+from helpers import CARS, need, src_pythonpath
 
 ROOT = Path(__file__).resolve().parents[1]
 BOXES = {  # file -> (extents, centre) in the object frame, metres
@@ -231,7 +231,7 @@ def test_resume_after_sigkill(meshes, tmp_path):
         "--gt-dense",
         "4096",
     ]
-    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    env = {**os.environ, "PYTHONPATH": src_pythonpath()}
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     deadline = time.time() + 60
     killed = False

@@ -19,7 +19,7 @@ from spotlights.learning.checkpoint import load_checkpoint  # noqa: E402
 from spotlights.learning.data import TorchCompletionDataset, read_info  # noqa: E402
 from spotlights.learning.train import train  # noqa: E402
 
-from helpers import REPO, assert_user_error  # noqa: E402
+from helpers import assert_user_error, src_pythonpath  # noqa: E402
 from learning_fixtures import TINY_MODEL_ARGS, cli, one_torch_thread, tiny_dataset_path, tiny_overrides  # noqa: E402
 
 _single_thread = pytest.fixture(autouse=True)(one_torch_thread)
@@ -158,7 +158,7 @@ def _free_port() -> int:
 def test_ddp_with_torchrun_gloo_two_processes(data, tmp_path):
     cfg = tmp_path / "tiny.yaml"
     cfg.write_text(json.dumps(tiny_overrides("sanet", epochs=1, batch_size=4)))  # JSON is YAML
-    env = dict(os.environ, PYTHONPATH=str(REPO / "src"), OMP_NUM_THREADS="1")
+    env = dict(os.environ, PYTHONPATH=src_pythonpath(), OMP_NUM_THREADS="1")
     cmd = [
         sys.executable,
         "-m",

@@ -26,7 +26,7 @@ from spotlights.utils import (
     unguarded_main_call,
 )
 
-from helpers import REPO
+from helpers import src_pythonpath
 
 
 def _dead_pid() -> int:
@@ -188,7 +188,7 @@ print(d["cap-4x8-60"].shape)
 def _run_script(tmp_path: Path, text: str) -> subprocess.CompletedProcess:
     script = tmp_path / "user_script.py"
     script.write_text(text)
-    env = {**os.environ, "PYTHONPATH": str(REPO / "src")}
+    env = {**os.environ, "PYTHONPATH": src_pythonpath()}
     return subprocess.run(
         [sys.executable, str(script)], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300
     )

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from helpers import CARS, LIDAR, REPO, need, run_cli
+from helpers import CARS, LIDAR, REPO, need, run_cli, src_pythonpath
 
 
 def _png(path) -> np.ndarray:
@@ -52,7 +52,7 @@ density.plot_caps(r"{tmp_path}/c.png", np.linspace(0, 0.9, 10),
                   [{{"angle": 60.0, "uniformity": 2.0, "uniformity_095": 3.0, "hit_ratio_05": 0.5}}])
 print(before, matplotlib.get_backend(), len(calls), "matplotlib.pyplot" in sys.modules)
 """
-    env = dict(os.environ, MPLBACKEND="svg", PYTHONPATH=str(REPO / "src"))
+    env = dict(os.environ, MPLBACKEND="svg", PYTHONPATH=src_pythonpath())
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=240)
     assert out.returncode == 0, out.stderr
     before, after, n_use, pyplot = out.stdout.split()
@@ -258,7 +258,7 @@ def test_view_serve_answers_the_page_over_loopback(tmp_path):
     import urllib.request
 
     scan = REPO / "src" / "spotlights" / "assets" / "demo_scan.pcd"
-    env = dict(os.environ, PYTHONPATH=str(REPO / "src"), PYTHONUNBUFFERED="1", PYTHONFAULTHANDLER="1")
+    env = dict(os.environ, PYTHONPATH=src_pythonpath(), PYTHONUNBUFFERED="1", PYTHONFAULTHANDLER="1")
     proc = subprocess.Popen(
         [sys.executable, "-m", "spotlights", "view", str(scan), "--serve", "--port", "0"],
         stdout=subprocess.PIPE,
@@ -497,7 +497,7 @@ def test_view_without_plotly_says_how_to_install(tmp_path):
         "from spotlights.cli import main\n"
         f"sys.exit(main(['view', r'{REPO / 'src' / 'spotlights' / 'assets' / 'demo_scan.pcd'}', '-o', r'{tmp_path / 'v.html'}']))"
     )
-    env = dict(os.environ, PYTHONPATH=str(REPO / "src"))
+    env = dict(os.environ, PYTHONPATH=src_pythonpath())
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
     assert proc.returncode == 2 and "pip install 'spotlights[viewer]'" in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1 and not (tmp_path / "v.html").exists()
