@@ -27,7 +27,8 @@ if ! "$PY" -c "$NEEDED" 2>/dev/null; then
     export PYTHONPATH="$PWD/src:$SITE${PYTHONPATH#"$PWD/src"}"
     "$PY" -c "$NEEDED" || { echo "gpu_check.sh: error: still missing after installing $BUNDLE: $NEEDED" >&2; exit 2; }
 fi
-"$PY" -c "import torch; print('torch', torch.__version__, 'cuda', torch.cuda.is_available(), torch.cuda.get_device_name(0) if torch.cuda.is_available() else '')"
+"$PY" -c "import torch; print('torch', torch.__version__, 'cuda', torch.cuda.is_available(), torch.cuda.get_device_name(0) if torch.cuda.is_available() else '')" \
+    | tee "$DEST/gpu_check.log"
 if [ $# -eq 0 ]; then set -- tests -n 12 --dist loadfile --timeout 300; fi
-"$PY" -m pytest -q -p no:cacheprovider -rfs --junitxml "$DEST/gpu_check.xml" "$@" 2>&1 | tee "$DEST/gpu_check.log"
+"$PY" -m pytest -q -p no:cacheprovider -rfs --junitxml "$DEST/gpu_check.xml" "$@" 2>&1 | tee -a "$DEST/gpu_check.log"
 exit "${PIPESTATUS[0]}"

@@ -554,13 +554,13 @@ def _snapshot(folder: Path) -> dict:
     return {str(p.relative_to(folder)): (p.stat().st_size if p.is_file() else -1) for p in sorted(folder.rglob("*"))}
 
 
-@pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])
 def _needs_viewer(name: str) -> None:
     """Skip a ``view`` case where plotly (the viewer extra) is missing: the command asks for it first."""
     if name.startswith("view-") and not has_module("plotly"):
         pytest.skip("plotly (the viewer extra) is not installed: `spotlights view` asks for it before the inputs")
 
 
+@pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])
 def test_bad_input_answered(case: Case, fx, tmp_path, monkeypatch, capsys, request):
     _needs_viewer(case.id)
     if case.xfail:

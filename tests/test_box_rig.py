@@ -24,7 +24,7 @@ from spotlights.geometry.rig import (
     make_rig_spec,
 )
 
-from helpers import REPO, assert_user_error, run_cli, slab_interval
+from helpers import assert_user_error, run_cli, slab_interval, src_pythonpath
 
 PHI = (1 + 5**0.5) / 2
 CAR = np.array([4.6, 1.9, 1.5]) / np.linalg.norm([4.6, 1.9, 1.5])  # a car's box half-extents, |e| = 1
@@ -212,7 +212,7 @@ def test_rig_is_deterministic_for_a_given_box_even_across_processes():
         "r = make_rig(32, 64, kind='box', box=json.loads(sys.argv[1])); "
         "print(hashlib.sha256(np.ascontiguousarray(r.directions).tobytes()).hexdigest())"
     )
-    env_path = str(REPO / "src")
+    env_path = src_pythonpath()
     out = subprocess.run(
         [sys.executable, "-c", code, json.dumps(CAR.tolist())],
         capture_output=True,

@@ -13,7 +13,7 @@ import pytest
 from spotlights.geometry import distances as D
 from spotlights.geometry.neighbors import NearestNeighbors
 
-from helpers import REPO
+from helpers import src_pythonpath
 
 
 def naive_chamfer(x, y, squared=False, single_directional=False, point_reduction="mean", direction_reduction="sum"):
@@ -164,7 +164,7 @@ def test_every_caller_uses_the_same_numbers():
 def test_distances_module_does_not_import_torch():
     code = "import sys, spotlights.geometry.distances; assert 'torch' not in sys.modules"
     proc = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, env={"PYTHONPATH": str(REPO / "src")}
+        [sys.executable, "-c", code], capture_output=True, text=True, env={"PYTHONPATH": src_pythonpath()}
     )
     assert proc.returncode == 0, proc.stderr
 

@@ -21,7 +21,7 @@ from spotlights.metrics.completion import (
     summarize,
 )
 
-from helpers import REPO
+from helpers import src_pythonpath
 
 
 def brute(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -118,6 +118,6 @@ def test_summarize_means_over_samples_and_over_categories():
 def test_metrics_module_does_not_import_torch():
     code = "import sys, spotlights.metrics.completion; assert 'torch' not in sys.modules"
     proc = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, env={"PYTHONPATH": str(REPO / "src")}
+        [sys.executable, "-c", code], capture_output=True, text=True, env={"PYTHONPATH": src_pythonpath()}
     )
     assert proc.returncode == 0, proc.stderr

@@ -15,7 +15,7 @@ from spotlights.geometry.encode import decode  # noqa: E402
 from spotlights.geometry.rig import make_rig  # noqa: E402
 from spotlights.learning.models import MODEL_NAMES, build_model, load_config  # noqa: E402
 
-from helpers import REPO  # noqa: E402
+from helpers import src_pythonpath  # noqa: E402
 from learning_fixtures import TINY_MODEL_ARGS, one_torch_thread  # noqa: E402
 
 _single_thread = pytest.fixture(autouse=True)(one_torch_thread)
@@ -206,7 +206,7 @@ def test_registry_imports_no_model_or_torch_at_start_up():
         "assert 'trimesh' not in sys.modules and 'scipy' not in sys.modules, 'trimesh/scipy imported'; "
         "assert not any(k.startswith('spotlights.learning.models.') for k in sys.modules), 'a model imported'"
     )
-    env = {"PYTHONPATH": str(REPO / "src")}
+    env = {"PYTHONPATH": src_pythonpath()}
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert proc.returncode == 0, proc.stderr
 
