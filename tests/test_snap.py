@@ -393,3 +393,32 @@ def test_complete_in_boxes_hands_the_sensor_to_the_snap():
     complete_in_boxes(rec, x, np.full((2, 3), 2.0), sensor_origins=sensors)
     assert np.array_equal(rec.kw[0]["sensor_origins"], sensors) and rec.kw[0]["snap"] == 0.05
     assert "sensor_origins" not in rec.kw[1]  # a model without evidence, no snap: not given
+
+
+def test_complete_sensor_option_reaches_the_occlusion_rule(tmp_path, capsys, hit_ckpt):
+    """``complete --sensor X Y Z``: the LiDAR's place decides which snaps the occlusion rule refuses (the scan's
+    origin by default); a bad value or a multi-frame scene is refused in one line."""
+    rng = np.random.default_rng(0)
+    side = rng.uniform(-1, 1, (600, 3)) * [2.0, 0.0, 0.7] + [10.0, 2.0 + 0.85, 0.8]  # a car's left side, y = 2.85
+    np.save(tmp_path / "scan.npy", side)
+    box = ["--center", "10", "2", "0.8", "--size", "4.6", "1.9", "1.6", "--no-crop", "--checkpoint", hit_ckpt]
+    out = {}
+    for name, sensor in (
+        ("origin", []),
+        ("left", ["--sensor", "10", "12", "0.8"]),
+        ("same", ["--sensor", "0", "0", "0"]),
+    ):
+        res = cli(
+            capsys, "complete", tmp_path / "scan.npy", *box, "--snap", "0.08", *sensor, "--no-keep-observed",
+            "--out", tmp_path / f"{name}.npy", "-q",
+        )  # fmt: skip
+        assert res.returncode == 0, res.stderr
+        out[name] = np.load(tmp_path / f"{name}.npy")
+    assert np.array_equal(out["origin"], out["same"])  # the default is the scan's origin
+    assert out["origin"].shape != out["left"].shape or not np.array_equal(out["origin"], out["left"])
+    bad = cli(capsys, "complete", tmp_path / "scan.npy", *box, "--sensor", "nan", "0", "0", "--out", tmp_path / "x.npy")
+    assert_user_error(bad, "--sensor")
+    assert not (tmp_path / "x.npy").exists()
+    (tmp_path / "scene").mkdir()
+    multi = cli(capsys, "complete", tmp_path / "scene", "--sensor", "0", "0", "0", "--out", tmp_path / "o", "-q")
+    assert_user_error(multi, "--sensor is for one scan")

@@ -286,6 +286,15 @@ def register(sub) -> None:
         "--yaw", type=float, default=None, metavar="RAD", help="its heading in radians about the up axis (default 0)"
     )
     add_completion_arguments(p, single=True)
+    p.add_argument(
+        "--sensor",
+        type=float,
+        nargs=3,
+        default=None,
+        metavar=("X", "Y", "Z"),
+        help="the LiDAR's position in the scan's frame, metres (default: the scan's origin, as in a sensor-frame "
+        "scan): the free space that the ray-local model and --snap's occlusion rule read; one scan only",
+    )
     p.add_argument("--up", default="z", help="the scan's up axis (x, y, z, -x, ...); PCN-style scans are y (default z)")
     p.add_argument("--forward", default="x", help="the scan's forward axis: a box's yaw 0 points along it (default x)")
     p.add_argument(

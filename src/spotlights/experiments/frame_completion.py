@@ -604,6 +604,8 @@ def complete_input(
     ``s.out`` a folder, with ``s.fuse``, ``s.refine_boxes``, ``s.max_gap``, ``s.rerun`` and ``s.track_worker``; returns the run's
     summary). ``say``, ``warn`` and ``completer`` as those functions take them."""
     if s.multi_frame:
+        if s.sensor is not None:
+            raise ParameterError(f"{s.input}: --sensor is for one scan; a multi-frame scene's frames give their own")
         return complete_frames(FramesSettings.of_scene(s), say=say, warn=warn, completer=completer)
     return complete_scan(s, say=say, warn=warn, completer=completer)
 

@@ -209,6 +209,8 @@ class ScanSettings(CompletionOptions):
     box : one object's box file (JSON); or center, size, yaw : one object's box given inline (metres, radians;
     yaw None: 0, and refused without center/size).
     crop : the crop margin's older name (same as ``margin``); no_crop : one object, every scan point used.
+    sensor : the LiDAR's position in the scan's frame (metres; None: the scan's origin, as a sensor-frame scan
+    has it): the free space the ray-local model reads and ``--snap``'s occlusion rule; one scan only.
     up, forward : the scan's axes; per_object : folder of ``object_<id>.ply``; summary : JSON file;
     show : PNG picture; html : interactive page; quiet : no summary lines.
     fuse, refine_boxes, max_gap, rerun, track_worker : for a multi-frame scene (:attr:`multi_frame`: ``input`` a folder of
@@ -228,6 +230,7 @@ class ScanSettings(CompletionOptions):
     yaw: float | None = None
     crop: float | None = None
     no_crop: bool = False
+    sensor: list | None = None
     up: str = "z"
     forward: str = "x"
     per_object: str | None = None
@@ -259,6 +262,8 @@ class ScanSettings(CompletionOptions):
             )
             if on
         ]
+        if self.sensor is not None and (len(self.sensor) != 3 or not np.all(np.isfinite(self.sensor))):
+            raise ParameterError(f"--sensor: give the LiDAR's X Y Z in the scan's frame (metres), got {self.sensor}")
         if given:
             raise ParameterError(
                 f"{self.input}: {given[0]} needs a multi-frame scene (a folder of scans with NAME.json box files, or "
@@ -398,6 +403,7 @@ def complete_scan(
             config,
             axes=axes,
             checkpoint=s.checkpoint_name,
+            sensor=None if s.sensor is None else np.asarray(s.sensor, dtype=np.float64),
             fallback=s.load_fallback(),
             fallback_name=s.fallback_model,
         )
