@@ -422,3 +422,20 @@ def test_complete_sensor_option_reaches_the_occlusion_rule(tmp_path, capsys, hit
     (tmp_path / "scene").mkdir()
     multi = cli(capsys, "complete", tmp_path / "scene", "--sensor", "0", "0", "0", "--out", tmp_path / "o", "-q")
     assert_user_error(multi, "--sensor is for one scan")
+
+
+def test_complete_frame_passes_the_sensor(hit_ckpt):
+    """The API's complete_frame hands ``sensor`` to the scene (the snap's occlusion rule reads it)."""
+    from spotlights.api import complete_frame
+    from spotlights.geometry.boxes import Box
+    from spotlights.learning.inference import load_completer
+
+    c = load_completer(hit_ckpt, device="cpu")
+    rng = np.random.default_rng(0)
+    side = rng.uniform(-1, 1, (600, 3)) * [2.0, 0.0, 0.7] + [10.0, 2.85, 0.8]
+    box = Box(center=np.array([10.0, 2.0, 0.8]), size=np.array([4.6, 1.9, 1.6]), yaw=0.0, cls="car")
+    kw = dict(fallback="none", crop=False, any_label=True, snap=0.08, keep_observed=False)
+    origin = complete_frame(side, [box], c, **kw).objects[0].completion
+    same = complete_frame(side, [box], c, sensor=np.zeros(3), **kw).objects[0].completion
+    left = complete_frame(side, [box], c, sensor=np.array([10.0, 12.0, 0.8]), **kw).objects[0].completion
+    assert np.array_equal(origin, same) and (origin.shape != left.shape or not np.array_equal(origin, left))

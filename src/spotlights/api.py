@@ -52,6 +52,7 @@ def complete_frame(
     axes: np.ndarray | None = None,
     checkpoint: str | None = None,
     fallback: Any = AUTO_FALLBACK,
+    sensor: np.ndarray | None = None,
     **options: Any,
 ) -> SceneResult:
     """Complete every vehicle of one LiDAR frame: :func:`~spotlights.experiments.scene.complete_scene` (what
@@ -76,6 +77,8 @@ def complete_frame(
         ``"classes"`` when ``completer`` is the name ``"default"`` (or None), else none
         (:func:`~spotlights.experiments.scan_completion.resolve_fallback`, as ``--fallback``); ``"none"`` or None:
         such boxes are left as observed points.
+    sensor : (3,) the LiDAR's position in the scan's frame, metres (default: the scan's origin, as in a sensor-frame
+        scan): the free space of the ray-local model and the ``snap`` option's occlusion rule.
 
     Returns a :class:`~spotlights.experiments.scene.SceneResult` (scan frame, metres): ``xyz``, ``source`` and
     ``object`` per point, one :class:`~spotlights.experiments.scene.ObjectResult` per box. Raises :class:`~spotlights.errors.ParameterError` for
@@ -102,6 +105,7 @@ def complete_frame(
         config,
         axes=axes,
         checkpoint=checkpoint,
+        sensor=sensor,
         fallback=fallback,
         fallback_name=fallback_name,
     )
