@@ -171,6 +171,15 @@ def test_the_completer_snaps_only_when_asked_and_onto_the_scan(hit_ckpt):
         c.complete(x, extents=e, snap=-0.1)
     with pytest.raises(ParameterError, match="observed point sets"):
         c.complete(x, extents=e, snap=0.05, observed=other[:2])
+    with pytest.raises(ParameterError, match="seen point sets"):
+        c.complete(x, extents=e, snap=0.05, seen=other[:2])
+    with pytest.raises(ParameterError, match="go with a snap radius"):
+        c.complete(x, extents=e, seen=other)
+    # what the LiDAR saw decides the rule: seen far away carves nothing, so more snaps are refused than with x
+    sensors = np.broadcast_to([0.0, -3.0, 0.5], (len(x), 3))
+    near = c.complete(x, extents=e, snap=0.05, sensor_origins=sensors)
+    far = c.complete(x, extents=e, snap=0.05, sensor_origins=sensors, seen=[p + [0.0, 0.0, 9.0] for p in x])
+    assert any(len(a) != len(b) or not np.array_equal(a, b) for a, b in zip(near, far))
 
 
 def test_a_point_model_refuses_to_snap(tmp_path):
@@ -323,7 +332,7 @@ def test_mirrored_snapping_draws_the_side_the_lidar_did_not_see(hit_ckpt):
     both = c.complete(x, extents=e, snap=0.05, snap_mirror=True)
     for a, b in zip(plain, both):
         assert right(a) == 0.0 and right(b) > 0.05
-    with pytest.raises(ParameterError, match="snap_mirror and observed go with"):
+    with pytest.raises(ParameterError, match="snap_mirror, observed and seen go with"):
         c.complete(x, extents=e, snap_mirror=True)
 
 
@@ -439,3 +448,35 @@ def test_complete_frame_passes_the_sensor(hit_ckpt):
     same = complete_frame(side, [box], c, sensor=np.zeros(3), **kw).objects[0].completion
     left = complete_frame(side, [box], c, sensor=np.array([10.0, 12.0, 0.8]), **kw).objects[0].completion
     assert np.array_equal(origin, same) and (origin.shape != left.shape or not np.array_equal(origin, left))
+
+
+def test_fused_windows_carve_only_from_the_scans_own_points():
+    """With other frames fused in (``extra_points``), the occlusion rule's free space is carved from the scan's own
+    points (seen from its sensor), not from the fused ones (seen from elsewhere): complete_scene hands them over."""
+    from spotlights.experiments.scene import SceneConfig, complete_scene
+    from spotlights.geometry.boxes import Box
+
+    class Recorder:
+        rig, needs_box, model_name = SPEC, False, "recorder"
+
+        def __init__(self):
+            self.kw = []
+
+        def complete(self, partials, **kw):
+            self.kw.append(kw)
+            return [np.zeros((1, 3), np.float32) for _ in partials]
+
+    rng = np.random.default_rng(1)
+    box = Box(center=np.array([10.0, 2.0, 0.8]), size=np.array([4.6, 1.9, 1.6]), yaw=0.0, cls="car")
+    own = rng.uniform(-1, 1, (300, 3)) * [2.0, 0.0, 0.7] + [10.0, 2.85, 0.8]  # this frame: the left side
+    other = rng.uniform(-1, 1, (200, 3)) * [2.0, 0.0, 0.7] + [10.0, 1.15, 0.8]  # another frame's: the right side
+    cfg = SceneConfig(crop=False, any_label=True, snap=0.05)
+    rec = Recorder()
+    res = complete_scene(own, [box], rec, cfg, extra_points={0: other})
+    (o,) = res.objects
+    want = box.normalization().to_unit(own).astype(np.float32)
+    assert o.n_fused == 500 and np.array_equal(o.seen_unit, want)
+    (kw,) = rec.kw
+    assert kw["snap"] == 0.05 and len(kw["seen"]) == 1 and np.array_equal(kw["seen"][0], want)
+    complete_scene(own, [box], rec, cfg)  # a single frame: its input is what it saw (no separate set)
+    assert "seen" not in rec.kw[-1]

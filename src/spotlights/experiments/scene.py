@@ -166,6 +166,9 @@ class ObjectResult:
     fidelity_flipped: float | None = None
     warnings: list = field(default_factory=list)
     n_fused: int | None = None  # input points with other frames' fused in (``extra_points``), else None
+    # with other frames fused in: this scan's own points, unit frame (float32), the free space --snap's occlusion
+    # rule carves from this scan's sensor (the other frames' points were seen from elsewhere); else None
+    seen_unit: np.ndarray | None = None
     # share of the points inside the box grown by 0.15 m before the clamp (the network's; with --snap, snapped)
     inside_box: float | None = None
     completed_by: str | None = None  # the fallback model's name when it, not the main model, completed the box
@@ -454,6 +457,8 @@ def _crop_objects(
         o = ObjectResult(i, ids[i], b, "completed", used_box=wb, input_indices=idx, partial_unit=partial)
         o.sensor_unit = wb.normalization().to_unit(lidar)
         o.n_fused = None if more is None else len(pts)
+        if more is not None and config.snap:
+            o.seen_unit = wb.normalization().to_unit(work[idx]).astype(np.float32)
         domain = getattr(completer, "domain", None)
         if domain is not None:
             unlearned = domain.gate(b.cls, b.size) is not None
@@ -567,7 +572,7 @@ def _complete_batch(todo: list[ObjectResult], completer, config: SceneConfig, sh
         sensor_origins=sensors,
         inside=shares,
         classes=classes,
-        **snap_options(completer, config),
+        **snap_options(completer, config, todo),
     )
 
 
@@ -581,12 +586,17 @@ def require_rays_to_snap(completer, snap: float | None) -> None:
         )
 
 
-def snap_options(completer, config: SceneConfig) -> dict:
-    """``snap`` and ``snap_mirror`` of :func:`~spotlights.learning.inference.complete_in_boxes` for one model: the
-    config's for an SA-Net (it has a rig), off for a point-set model (a ``--fallback`` baseline completes its boxes
-    unsnapped, as ``evaluate`` scores such models; :func:`complete_scene` refuses one as the main model)."""
+def snap_options(completer, config: SceneConfig, todo: Sequence[ObjectResult] = ()) -> dict:
+    """``snap``, ``snap_mirror`` and ``seen`` of :func:`~spotlights.learning.inference.complete_in_boxes` for one
+    model and its objects ``todo``: the config's for an SA-Net (it has a rig), off for a point-set model (a
+    ``--fallback`` baseline completes its boxes unsnapped, as ``evaluate`` scores such models; :func:`complete_scene`
+    refuses one as the main model); ``seen``, when some objects have other frames fused in, each object's own
+    points (:attr:`ObjectResult.seen_unit`, else its input) for the occlusion rule's free space."""
     rays = getattr(completer, "rig", None) is not None
-    return {"snap": (config.snap or None) if rays else None, "snap_mirror": bool(config.snap_mirror) and rays}
+    out = {"snap": (config.snap or None) if rays else None, "snap_mirror": bool(config.snap_mirror) and rays}
+    if out["snap"] and any(o.seen_unit is not None for o in todo):
+        out["seen"] = [o.partial_unit if o.seen_unit is None else o.seen_unit for o in todo]
+    return out
 
 
 def _assemble(todo: list, outs: list, config: SceneConfig, a, scores: Fidelities) -> None:

@@ -293,6 +293,7 @@ class BaseCompleter:
         snap: float | None = None,
         observed: Sequence[np.ndarray] | None = None,
         snap_mirror: bool = False,
+        seen: Sequence[np.ndarray] | None = None,
     ) -> list[np.ndarray]:
         """Complete partial scans.
 
@@ -325,6 +326,9 @@ class BaseCompleter:
         snap_mirror : with ``snap``, also snap to the observed points' mirror image across the box's x-z plane
             (``y -> -y``: vehicles are left-right symmetric), so the side the LiDAR did not see follows the one
             it saw.
+        seen : with ``snap`` and ``sensor_origins``, B arrays (K'_b, 3) of the points each scan's LiDAR saw from
+            its sensor origin, unit frame: the free space the occlusion rule carves (default: the observed points;
+            give them when other frames' points were fused into the input, which were seen from elsewhere).
 
         Returns
         -------
@@ -370,10 +374,11 @@ class BaseCompleter:
                 raise ParameterError(
                     f"{self.model_name} has no rays to snap: snapping to the observed points needs an SA-Net"
                 )
-            if observed is not None and len(observed) != len(x):
-                raise ParameterError(f"{len(observed)} observed point sets for {len(x)} scans")
-        elif snap_mirror or observed is not None:
-            raise ParameterError("snap_mirror and observed go with a snap radius (snap=R)")
+            for name, sets in (("observed", observed), ("seen", seen)):
+                if sets is not None and len(sets) != len(x):
+                    raise ParameterError(f"{len(sets)} {name} point sets for {len(x)} scans")
+        elif snap_mirror or observed is not None or seen is not None:
+            raise ParameterError("snap_mirror, observed and seen go with a snap radius (snap=R)")
         out: list[np.ndarray] = []
         with self._session():
             for s in range(0, len(x), batch_size):
@@ -387,7 +392,12 @@ class BaseCompleter:
                 if snap is not None:
                     obs = x[s : s + batch_size] if observed is None else observed[s : s + batch_size]
                     pts = [np.asarray(o, dtype=np.float64).reshape(-1, 3) for o in obs]
-                    kw["snap"] = SnapTargets([mirrored(p) for p in pts] if snap_mirror else pts, snap, sb, pts)
+                    carve = (
+                        pts
+                        if seen is None
+                        else [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in seen[s : s + batch_size]]
+                    )
+                    kw["snap"] = SnapTargets([mirrored(p) for p in pts] if snap_mirror else pts, snap, sb, carve)
                 out.extend(self._forward(x[s : s + batch_size], clip, dirs, sb, **kw))
         return out
 
@@ -555,6 +565,7 @@ def complete_in_boxes(
     classes=None,
     snap: float | None = None,
     snap_mirror: bool = False,
+    seen=None,
 ) -> list[np.ndarray]:
     """Complete unit-frame partial scans, each with its box, every point inside its box grown by
     0.15 m and inside the box's sphere (``inside``, when given, gets each completion's share of points the
@@ -582,7 +593,8 @@ def complete_in_boxes(
     sensor_origins : (B, 3) the LiDAR in each scan's unit frame, passed on to models that read free space and,
         with ``snap``, to every model (the occlusion rule).
     snap : radius (unit frame) to snap the SA-Nets' rays to each scan's partial (:meth:`Completer.complete`);
-        None or 0: off. snap_mirror : also to its mirror image (``y -> -y``).
+        None or 0: off. snap_mirror : also to its mirror image (``y -> -y``). seen : B arrays, the points each
+        scan's LiDAR saw itself (the occlusion rule's free space; default the partials).
 
     Returns a list of B arrays (K_i, 3) float32, unit frame, norms <= 1, inside the grown boxes.
     """
@@ -591,6 +603,8 @@ def complete_in_boxes(
         kw["snap"] = snap
     if snap_mirror:
         kw["snap_mirror"] = True  # without a radius, complete() says so
+    if seen is not None:
+        kw["seen"] = seen  # without a radius, complete() says so
     if sensor_origins is not None and (snap or getattr(getattr(completer, "model", None), "uses_evidence", False)):
         kw["sensor_origins"] = sensor_origins  # free space: the evidence of sanet-local, the snap's occlusion rule
     sz = np.asarray(sizes, dtype=np.float64).reshape(-1, 3)
