@@ -146,20 +146,22 @@ def main(argv=None) -> int:
         for kind, bx in boxes.items():
             for k in WINDOWS:
                 pol = parse_window("all" if k == "all" else f"past:{k}")
-                partials, sizes, origins, used = [], [], [], []
+                partials, sizes, origins, used, seen = [], [], [], [], []
                 for t in range(k_max - 1, len(frs)):
                     fused = fuse_track(noisy, pol.select(len(frs), t), boxes=bx, margin=0.15, ground_clearance=0.10)
                     if len(fused.points) < 10:
                         continue
                     b = bx[t]
                     partials.append(prepare_partial(fused.points / b.radius, args.input_points, method=args.resample))
+                    if args.snap:  # as real complete: a fused window's rule carves from frame t's own points only
+                        window = pol.select(len(frs), t)
+                        own = fuse_track(noisy, [t], boxes=bx, margin=0.15, ground_clearance=0.10).points / b.radius
+                        seen.append(own if len(window) > 1 and len(own) else partials[-1])
                     sizes.append(b.size)
                     origins.append(b.normalization().to_unit(np.zeros((1, 3)))[0])  # the sensor: its frame's origin
                     used.append(t)
                 for name, completer in completers.items():
                     # frame t's sensor in its box's unit frame: the free space a ray-local model reads
-                    # (with --snap, the occlusion rule carves from frame t's sensor to every fused point: the
-                    # other frames' points were seen from elsewhere, so it may carve too much and snap more)
                     outs = complete_in_boxes(
                         completer,
                         np.stack(partials),
@@ -167,6 +169,7 @@ def main(argv=None) -> int:
                         sensor_origins=np.stack(origins),
                         snap=args.snap or None,
                         snap_mirror=args.snap_mirror,
+                        seen=seen if args.snap else None,
                     )
                     for t, c in zip(used, outs):
                         b, tb = bx[t], frs[t]["true_box"]
