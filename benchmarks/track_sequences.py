@@ -156,7 +156,7 @@ def main(argv=None) -> int:
                     if args.snap:  # as real complete: a fused window's rule carves from frame t's own points only
                         window = pol.select(len(frs), t)
                         own = fuse_track(noisy, [t], boxes=bx, margin=0.15, ground_clearance=0.10).points / b.radius
-                        seen.append(own if len(window) > 1 and len(own) else partials[-1])
+                        seen.append(own if len(window) > 1 else partials[-1])  # no own points: none carved
                     sizes.append(b.size)
                     origins.append(b.normalization().to_unit(np.zeros((1, 3)))[0])  # the sensor: its frame's origin
                     used.append(t)

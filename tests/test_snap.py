@@ -419,10 +419,11 @@ def test_complete_sensor_option_reaches_the_occlusion_rule(tmp_path, capsys, hit
     ):
         res = cli(
             capsys, "complete", tmp_path / "scan.npy", *box, "--snap", "0.08", *sensor, "--no-keep-observed",
-            "--out", tmp_path / f"{name}.npy", "-q",
+            "--out", tmp_path / f"{name}.npy", "--summary", tmp_path / f"{name}.json", "-q",
         )  # fmt: skip
         assert res.returncode == 0, res.stderr
         out[name] = np.load(tmp_path / f"{name}.npy")
+        assert json.loads((tmp_path / f"{name}.json").read_text())["sensor"] == ([float(v) for v in sensor[1:]] or None)
     assert np.array_equal(out["origin"], out["same"])  # the default is the scan's origin
     assert out["origin"].shape != out["left"].shape or not np.array_equal(out["origin"], out["left"])
     bad = cli(capsys, "complete", tmp_path / "scan.npy", *box, "--sensor", "nan", "0", "0", "--out", tmp_path / "x.npy")
@@ -448,6 +449,9 @@ def test_complete_frame_passes_the_sensor(hit_ckpt):
     same = complete_frame(side, [box], c, sensor=np.zeros(3), **kw).objects[0].completion
     left = complete_frame(side, [box], c, sensor=np.array([10.0, 12.0, 0.8]), **kw).objects[0].completion
     assert np.array_equal(origin, same) and (origin.shape != left.shape or not np.array_equal(origin, left))
+    for bad in (np.array([np.nan, 0.0, 0.0]), np.zeros(2)):
+        with pytest.raises(ParameterError, match="sensor"):
+            complete_frame(side, [box], c, sensor=bad, **kw)
 
 
 def test_fused_windows_carve_only_from_the_scans_own_points():

@@ -415,7 +415,9 @@ def complete_scan(
     for w in result.warnings():
         warn(w)
     if s.summary:
-        write_json(s.summary, {"scan": str(s.input), "boxes": str(s.box_source), "out": str(s.out), **result.summary()})
+        sensor = None if s.sensor is None else [float(v) for v in s.sensor]  # None: the scan's origin
+        head = {"scan": str(s.input), "boxes": str(s.box_source), "out": str(s.out), "sensor": sensor}
+        write_json(s.summary, {**head, **result.summary()})
     say(
         f"{s.input}: {len(points)} points, {describe(result)} ({result.model}) -> {s.out}"
         + (f" (+{len(written) - 1} per-object files in {s.per_object})" if s.per_object else "")

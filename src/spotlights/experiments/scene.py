@@ -148,7 +148,9 @@ class ObjectResult:
     ``empty_completion``). Arrays (scan frame, float64, metres):
     ``completion`` (K, 3); ``input_indices`` (k,) int64 rows of the scan used as the input.
     ``partial_unit`` (256, 3) and ``completion_unit`` (K, 3) float32: the box's unit frame; ``sensor_unit`` (3,)
-    float64 the LiDAR in that frame. ``box`` as given; ``used_box`` the box completed (turned around when ``flipped``).
+    float64 the LiDAR in that frame; ``seen_unit`` (K', 3) float32, with other frames fused in and ``snap``, the
+    scan's own points in that frame (the occlusion rule's free space). ``box`` as given; ``used_box`` the box
+    completed (turned around when ``flipped``).
     """
 
     index: int
@@ -370,10 +372,12 @@ def complete_scene(
             f"{config.min_points} are needed to complete anything"
         )
     require_rays_to_snap(completer, config.snap)
+    if sensor is not None and (np.shape(sensor) != (3,) or not np.all(np.isfinite(sensor))):
+        raise ParameterError(f"sensor: give the LiDAR's (x, y, z) in the scan's frame, metres; got {sensor!r}")
     a = None if axes is None or np.allclose(axes, np.eye(3)) else np.asarray(axes, dtype=np.float64)
     with timer("crop"):
         work = scan if a is None else scan @ a.T
-        lidar = np.zeros(3) if sensor is None else np.asarray(sensor, dtype=np.float64).reshape(3)
+        lidar = np.zeros(3) if sensor is None else np.asarray(sensor, dtype=np.float64)
         lidar = lidar if a is None else a @ lidar
         member = np.full(len(scan), -1, np.int64)
         fb = None if fallback is None else (fallback, fallback_name or str(getattr(fallback, "model_name", "fallback")))
