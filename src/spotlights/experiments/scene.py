@@ -33,7 +33,7 @@ from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -597,7 +597,10 @@ def snap_options(completer, config: SceneConfig, todo: Sequence[ObjectResult] = 
     refuses one as the main model); ``seen``, when some objects have other frames fused in, each object's own
     points (:attr:`ObjectResult.seen_unit`, else its input) for the occlusion rule's free space."""
     rays = getattr(completer, "rig", None) is not None
-    out = {"snap": (config.snap or None) if rays else None, "snap_mirror": bool(config.snap_mirror) and rays}
+    out: dict[str, Any] = {
+        "snap": (config.snap or None) if rays else None,
+        "snap_mirror": bool(config.snap_mirror) and rays,
+    }
     if out["snap"] and any(o.seen_unit is not None for o in todo):
         out["seen"] = [o.partial_unit if o.seen_unit is None else o.seen_unit for o in todo]
     return out
