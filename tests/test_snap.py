@@ -382,19 +382,22 @@ def test_evaluate_snap_from_the_command_line(tmp_path, capsys):
     assert_user_error(bad, "--snap-mirror goes with --snap R")
 
 
+class Recorder:
+    """A stand-in SA-Net (it has a rig) that records the keywords of every ``complete`` call."""
+
+    rig, needs_box, model_name = SPEC, False, "recorder"
+
+    def __init__(self):
+        self.kw = []
+
+    def complete(self, partials, **kw):
+        self.kw.append(kw)
+        return [np.zeros((1, 3), np.float32) for _ in partials]
+
+
 def test_complete_in_boxes_hands_the_sensor_to_the_snap():
     """The scene path (complete, real complete, track fusion) gives the occlusion rule its sensor origins."""
     from spotlights.learning.inference import complete_in_boxes
-
-    class Recorder:
-        rig, needs_box, model_name = SPEC, False, "recorder"
-
-        def __init__(self):
-            self.kw = []
-
-        def complete(self, partials, **kw):
-            self.kw.append(kw)
-            return [np.zeros((1, 3), np.float32) for _ in partials]
 
     rec, x = Recorder(), _scans(2)[0]
     sensors = np.array([[0.0, 3.0, 0.5], [0.0, -3.0, 0.5]])
@@ -459,16 +462,6 @@ def test_fused_windows_carve_only_from_the_scans_own_points():
     points (seen from its sensor), not from the fused ones (seen from elsewhere): complete_scene hands them over."""
     from spotlights.experiments.scene import SceneConfig, complete_scene
     from spotlights.geometry.boxes import Box
-
-    class Recorder:
-        rig, needs_box, model_name = SPEC, False, "recorder"
-
-        def __init__(self):
-            self.kw = []
-
-        def complete(self, partials, **kw):
-            self.kw.append(kw)
-            return [np.zeros((1, 3), np.float32) for _ in partials]
 
     rng = np.random.default_rng(1)
     box = Box(center=np.array([10.0, 2.0, 0.8]), size=np.array([4.6, 1.9, 1.6]), yaw=0.0, cls="car")
