@@ -75,6 +75,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--views", type=int, default=400, help="views per car of the training set (default 400)")
     ap.add_argument("--split", default="64/8/7", help="train/val/test models (default the paper's 64/8/7)")
     ap.add_argument("--workers", type=int, default=None, help="dataset build processes (default all cores)")
+    ap.add_argument(
+        "--reuse-data",
+        action="store_true",
+        help="keep WORK/cars.h5 when an earlier run built it from the same meshes, views, split and seed with the rig "
+        "this model needs (a second model in the same call: no second build)",
+    )
     ap.add_argument("--cpu", action="store_true", help="force the CPU (tests; the GPU otherwise)")
     ap.add_argument("--precision", default="bf16", choices=["bf16", "fp32"], help="autocast of training")
     ap.add_argument("--batch-size", type=int, default=None, help="batch size (default the fair protocol's 32)")
@@ -138,8 +144,32 @@ def find_meshes(given: str | None) -> Path:
     )
 
 
+def reuse_problem(path: Path, cfg, rig: str | None) -> str | None:
+    """Why the dataset at ``path`` cannot stand in for a build of ``cfg`` (a ``BuildConfig``) with ``rig``, or None
+    when it can: built from the same meshes, views, split and seed, and holding ``rig`` (None: any)."""
+    from spotlights.data.store import open_dataset
+    from spotlights.errors import SpotlightsError
+    from spotlights.geometry.rig import parse_rig
+
+    if not path.is_file():
+        return "none there yet"
+    try:
+        store = open_dataset(path)
+    except SpotlightsError as exc:
+        return str(exc)
+    want, have = cfg.to_dict(), store.config
+    for key in ("meshes", "views", "split", "seed"):
+        if have.get(key) != want.get(key):
+            return f"its {key} is {have.get(key)!r}, not {want.get(key)!r}"
+    if rig and parse_rig(rig).name not in store.rig_names:
+        return f"it has no rig {rig} (rigs: {', '.join(store.rig_names)})"
+    return None
+
+
 def build_data(meshes: Path, out: Path, args, rig: str | None, log) -> dict:
-    """Build the training set; returns {path, seconds, samples, views, rig}."""
+    """Build the training set (or, with ``--reuse-data``, keep one built the same way); returns {path, seconds,
+    samples, views, rig, reused}."""
+    from spotlights.data.store import open_dataset
     from spotlights.data.synthetic.config import BuildConfig
     from spotlights.data.synthetic.runner import build_dataset
 
@@ -151,11 +181,25 @@ def build_data(meshes: Path, out: Path, args, rig: str | None, log) -> dict:
         seed=int(args.seed),
         extra_rigs=[rig] if rig else [],
     )
+    if getattr(args, "reuse_data", False):
+        why = reuse_problem(out, cfg, rig)
+        if why is None:
+            n = int(open_dataset(out).n_samples)
+            log(f"dataset: {out} reused ({n:,} samples, {args.views} views per model, split {args.split})")
+            return {
+                "path": str(out),
+                "seconds": 0.0,
+                "views": int(args.views),
+                "samples": n,
+                "rig": rig,
+                "reused": True,
+            }
+        log(f"dataset: {out} built again: {why}")
     rep = build_dataset(cfg, out, workers=args.workers or os.cpu_count(), overwrite=True, progress=False, log=log)
     seconds = time.perf_counter() - t0
     n = int(rep.n_samples)
     log(f"dataset: {out} built in {seconds:.1f} s ({args.views} views per model, split {args.split})")
-    return {"path": str(out), "seconds": seconds, "views": int(args.views), "samples": n, "rig": rig}
+    return {"path": str(out), "seconds": seconds, "views": int(args.views), "samples": n, "rig": rig, "reused": False}
 
 
 def probe_step(name: str, cfg: dict, data: Path, device, precision: str, steps: int, log) -> float:

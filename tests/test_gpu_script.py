@@ -162,3 +162,29 @@ def test_gpu_check_runs_pytest_and_writes_its_log_and_junit(tmp_path):
         ["bash", str(script), "tests/no_such_test.py"], capture_output=True, text=True, env=env, timeout=240, cwd=REPO
     )
     assert bad.returncode == 4  # pytest's own status passes through (4: no such test file), not the script's 2
+
+
+@pytest.mark.slow  # two tiny builds (seconds)
+def test_reuse_data_keeps_a_dataset_built_the_same_way(tmp_path, meshes):
+    """--reuse-data: a second model in the same call keeps WORK/cars.h5 when it was built from the same meshes,
+    views, split and seed with the rig it needs; anything else is built again, and the log says why."""
+    gpu = load_script("scripts/gpu_train.py")
+    lines: list[str] = []
+    args = SimpleNamespace(views=2, split="3/3/3", seed=0, workers=1, reuse_data=True)
+    out = tmp_path / "cars.h5"
+
+    def said(start: int, text: str) -> bool:
+        return any(text in ln for ln in lines[start:])
+
+    first = gpu.build_data(meshes, out, args, "box-4x8-ellipsoid-s1", lines.append)
+    assert first["reused"] is False and said(0, "built again: none there yet")
+    n = len(lines)
+    again = gpu.build_data(meshes, out, args, None, lines.append)  # a point model: any rig will do
+    assert again["reused"] is True and again["samples"] == first["samples"] == 9 * 2 and said(n, " reused (")
+    n = len(lines)
+    more = SimpleNamespace(**{**vars(args), "views": 3})
+    other = gpu.build_data(meshes, out, more, None, lines.append)
+    assert other["reused"] is False and other["samples"] == 9 * 3 and said(n, "its views is 2, not 3")
+    n = len(lines)
+    rig = gpu.build_data(meshes, out, more, "box-8x8-ellipsoid-s1", lines.append)
+    assert rig["reused"] is False and said(n, "has no rig box-8x8-ellipsoid-s1")
