@@ -197,10 +197,10 @@ def test_a_point_model_refuses_to_snap(tmp_path):
     with pytest.raises(ParameterError, match="pcn has no rays to snap"):
         complete_scene(scan, [box], c, SceneConfig(crop=False, any_label=True, snap=0.05))
     cfg = SceneConfig(snap=0.05, snap_mirror=True)
-    assert snap_options(c, cfg) == {"snap": None, "snap_mirror": False}
+    assert snap_options(c, cfg.snap, cfg.snap_mirror) == {"snap": None, "snap_mirror": False}
     sanet = load_completer(make_checkpoint(tmp_path / "hit.pt", "sanet-hit", rig=SPEC), device="cpu")
-    assert snap_options(sanet, cfg) == {"snap": 0.05, "snap_mirror": True}
-    assert snap_options(sanet, SceneConfig()) == {"snap": None, "snap_mirror": False}
+    assert snap_options(sanet, cfg.snap, cfg.snap_mirror) == {"snap": 0.05, "snap_mirror": True}
+    assert snap_options(sanet, 0.0, False) == {"snap": None, "snap_mirror": False}
 
 
 def test_complete_refuses_snap_for_a_point_model_before_any_work(tmp_path, capsys):

@@ -79,7 +79,7 @@ from ..metrics.consistency import (
 )
 from ..utils import settings_from_dict
 from .real_report import report_markdown, write_report, write_report_json
-from .scene import HEADING_MARGIN, heading_turns
+from .scene import HEADING_MARGIN, heading_turns, snap_options
 
 __all__ = [
     "EQUAL_DENSITY",
@@ -454,9 +454,7 @@ def _model_entry(
         box_sizes=t.sizes,
         sensor_origins=t.sensors,
         classes=t.cls,
-        # the SA-Nets snap; a point-set model has no rays and is scored as it is (its entry says so)
-        snap=(s.snap or None) if getattr(completer, "rig", None) is not None else None,
-        snap_mirror=s.snap_mirror and getattr(completer, "rig", None) is not None,
+        **snap_options(completer, s.snap, s.snap_mirror),  # a point-set model unsnapped (its entry says so)
     )
     comps = complete_all(completer, t.partials, desc=f"complete {name}", **run)
     p2 = t.partials2

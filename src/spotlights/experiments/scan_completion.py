@@ -46,6 +46,7 @@ from .scene import (
     render_result_html,
     require_points,
     require_rays_to_snap,
+    require_sensor,
     write_scene,
 )
 from .tracks import threads_beside_worker
@@ -262,8 +263,7 @@ class ScanSettings(CompletionOptions):
             )
             if on
         ]
-        if self.sensor is not None and (len(self.sensor) != 3 or not np.all(np.isfinite(self.sensor))):
-            raise ParameterError(f"--sensor: give the LiDAR's X Y Z in the scan's frame (metres), got {self.sensor}")
+        require_sensor(None if self.sensor is None else tuple(self.sensor), "--sensor")  # before any work
         if given:
             raise ParameterError(
                 f"{self.input}: {given[0]} needs a multi-frame scene (a folder of scans with NAME.json box files, or "

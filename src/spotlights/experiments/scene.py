@@ -372,8 +372,7 @@ def complete_scene(
             f"{config.min_points} are needed to complete anything"
         )
     require_rays_to_snap(completer, config.snap)
-    if sensor is not None and (np.shape(sensor) != (3,) or not np.all(np.isfinite(sensor))):
-        raise ParameterError(f"sensor: give the LiDAR's (x, y, z) in the scan's frame, metres; got {sensor!r}")
+    require_sensor(sensor)
     a = None if axes is None or np.allclose(axes, np.eye(3)) else np.asarray(axes, dtype=np.float64)
     with timer("crop"):
         work = scan if a is None else scan @ a.T
@@ -576,7 +575,7 @@ def _complete_batch(todo: list[ObjectResult], completer, config: SceneConfig, sh
         sensor_origins=sensors,
         inside=shares,
         classes=classes,
-        **snap_options(completer, config, todo),
+        **snap_options(completer, config.snap, config.snap_mirror, todo),
     )
 
 
@@ -590,17 +589,22 @@ def require_rays_to_snap(completer, snap: float | None) -> None:
         )
 
 
-def snap_options(completer, config: SceneConfig, todo: Sequence[ObjectResult] = ()) -> dict:
-    """``snap``, ``snap_mirror`` and ``seen`` of :func:`~spotlights.learning.inference.complete_in_boxes` for one
-    model and its objects ``todo``: the config's for an SA-Net (it has a rig), off for a point-set model (a
-    ``--fallback`` baseline completes its boxes unsnapped, as ``evaluate`` scores such models; :func:`complete_scene`
-    refuses one as the main model); ``seen``, when some objects have other frames fused in, each object's own
-    points (:attr:`ObjectResult.seen_unit`, else its input) for the occlusion rule's free space."""
+def require_sensor(sensor, name: str = "sensor") -> None:
+    """Raise :class:`ParameterError` unless ``sensor`` (the LiDAR's place in the scan's frame, metres; option
+    ``name``) is None or three finite numbers."""
+    if sensor is not None and (np.shape(sensor) != (3,) or not np.all(np.isfinite(np.asarray(sensor, dtype=float)))):
+        raise ParameterError(f"{name}: give the LiDAR's X Y Z in the scan's frame (metres), got {sensor!r}")
+
+
+def snap_options(completer, snap: float | None, snap_mirror: bool, todo: Sequence[ObjectResult] = ()) -> dict:
+    """``snap``, ``snap_mirror`` and ``seen`` for one model's ``complete`` (through
+    :func:`~spotlights.learning.inference.complete_in_boxes` or ``real evaluate``'s batches) and its objects
+    ``todo``: the radius and mirror asked for an SA-Net (it has a rig), off for a point-set model (a ``--fallback``
+    baseline completes its boxes unsnapped and ``real evaluate`` scores one as it is, as ``evaluate`` does;
+    :func:`complete_scene` refuses one as the main model); ``seen``, when some objects have other frames fused in,
+    each object's own points (:attr:`ObjectResult.seen_unit`, else its input) for the occlusion rule's free space."""
     rays = getattr(completer, "rig", None) is not None
-    out: dict[str, Any] = {
-        "snap": (config.snap or None) if rays else None,
-        "snap_mirror": bool(config.snap_mirror) and rays,
-    }
+    out: dict[str, Any] = {"snap": (snap or None) if rays else None, "snap_mirror": bool(snap_mirror) and rays}
     if out["snap"] and any(o.seen_unit is not None for o in todo):
         out["seen"] = [o.partial_unit if o.seen_unit is None else o.seen_unit for o in todo]
     return out

@@ -19,8 +19,8 @@ direction; ties: the lower point index).
 
 Near-ray evidence (:func:`near_ray_evidence`)
 ---------------------------------------------
-Viewpoint ``i``'s grid has ``a`` = the largest stereographic radius of the rig's rays (over every
-viewpoint; ``grid_extent``), ``G = near_cells``. A ray of viewpoint ``i`` with direction ``d``
+Viewpoint ``i``'s grid has ``a`` = the largest stereographic coordinate (in absolute value, at least 1e-6) of
+the rig's rays, each in its own viewpoint's frame, over every viewpoint; ``G = near_cells``. A ray of viewpoint ``i`` with direction ``d``
 looks at the 2 x 2 cells nearest to ``s(d)`` (the cells ``floor(q - 1/2) + {0, 1}`` per axis,
 ``q`` its grid coordinate): up to 4 *candidates*, each the point of its cell nearest to ``o_i``.
 A candidate ``x`` has depth ``t = (x - o).d / 2`` and distance to the line ``delta = |x - o - 2 t d|``;
@@ -119,13 +119,6 @@ def stereo_coords(directions: np.ndarray, frames: np.ndarray) -> np.ndarray:
         return np.where((den > 1e-12)[..., None], comp[..., :2] / den[..., None], np.inf)
 
 
-def grid_extent(origins: np.ndarray, directions: np.ndarray) -> float:
-    """``a`` of the viewpoint grids: the largest stereographic radius of any ray (origins (R, 3), directions
-    (..., R, 3)) in its origin's frame, at least 1e-6."""
-    s = stereo_coords(directions, stereo_frames(origins))
-    return float(max(np.max(np.abs(s)), 1e-6))
-
-
 def sensor_extent(sensor: np.ndarray) -> float:
     """``a`` of the LiDAR's grid: the stereographic radius ``tan(alpha / 2)`` of the unit sphere seen
     from ``sensor`` (3,) (``sin alpha = 1 / |S|``), 1 when the sensor is inside the sphere."""
@@ -176,9 +169,9 @@ def _near_candidates(p: np.ndarray, o: np.ndarray, d: np.ndarray, n_secondary: i
         raise ValueError(f"{r} rays are not whole viewpoints of {m} rays each (the rig's n_secondary)")
     views = o[::m]
     frames = stereo_frames(views)  # (N, 3, 3)
-    # the rays' coordinates in their viewpoint's frame, once (grid_extent's and the cells'), view by view
+    # the rays' coordinates in their viewpoint's frame, view by view: the grid's extent and the rays' cells
     s_rays = stereo_coords(d.reshape(len(views), m, 3), frames[:, None]).reshape(r, 2)
-    a = float(max(np.max(np.abs(s_rays)), 1e-6))  # grid_extent(o, d)
+    a = float(max(np.max(np.abs(s_rays)), 1e-6))
     rel = p[None] - views[:, None]  # (N, K, 3)
     rho = np.linalg.norm(rel, axis=-1)
     u = rel / np.where(rho > 0, rho, 1.0)[..., None]
@@ -375,8 +368,8 @@ def snap_to_observed(
             obs = p if seen is None else np.asarray(seen, dtype=np.float64).reshape(-1, 3)
             carve = carved_depths(obs, o[b], d[b], np.asarray(sensor, dtype=np.float64), EvidenceParams())
             h, n_t = carve["half_chord"], carve["carved"].shape[1]
-            j = np.minimum(np.floor(np.clip(dep[b], 0.0, h) / np.where(h > 0, h, 1.0) * n_t), n_t - 1).astype(int)
-            hidden = ~carve["carved"][np.arange(len(b)), j]
+            bin_ = np.minimum(np.floor(np.clip(dep[b], 0.0, h) / np.where(h > 0, h, 1.0) * n_t), n_t - 1).astype(int)
+            hidden = ~carve["carved"][np.arange(len(b)), bin_]  # the predicted surface's bin was not seen empty
             t_snap[np.flatnonzero(behind)[hidden]] = dep[b[hidden]]
             snapped[b[hidden]] = False
     dep[rows] = t_snap
