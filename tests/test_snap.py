@@ -242,6 +242,40 @@ def test_onnxruntime_snaps_like_torch(tmp_path, hit_ckpt):
             assert all(np.mean(np.abs(q[:, 1] + 0.8 * E[1]) < 1e-4) > 0.05 for q in b)  # the mirrored side, drawn
 
 
+@pytest.mark.parametrize(
+    "value, radius", [(None, None), (0, None), (0.0, None), (0.05, 0.05), ("0.08", 0.08), (np.float32(0.5), 0.5)]
+)
+def test_snap_radius_reads_off_and_radii(value, radius):
+    from spotlights.geometry.evidence import snap_radius
+
+    assert snap_radius(value) == (None if radius is None else pytest.approx(radius))
+
+
+@pytest.mark.parametrize("value", [-0.1, float("nan"), float("inf"), -float("inf"), "abc", [0.1, 0.2]])
+def test_snap_radius_refuses_other_values_naming_the_option(value):
+    from spotlights.geometry.evidence import snap_radius
+
+    with pytest.raises(ParameterError, match=r"^--snap: the snap radius must be a finite number > 0"):
+        snap_radius(value)
+    with pytest.raises(ParameterError, match=r"^snap: the snap radius"):
+        snap_radius(value, option="snap")
+
+
+def test_every_surface_checks_the_snap_radius_and_mirror_alike():
+    """SceneConfig (complete, real complete, the API), RealEvaluationSettings (real evaluate) and the completer's
+    own check answer the same values with the same messages (one owner: geometry.evidence.snap_radius)."""
+    from spotlights.experiments.real_evaluation import RealEvaluationSettings
+    from spotlights.experiments.scene import SceneConfig
+
+    for make in (lambda **k: SceneConfig(**k), lambda **k: RealEvaluationSettings(heading_check=False, **k)):
+        for bad in (-1.0, float("inf")):
+            with pytest.raises(ParameterError, match=r"^--snap: the snap radius must be a finite number > 0"):
+                make(snap=bad)
+        with pytest.raises(ParameterError, match="^--snap-mirror goes with --snap R$"):
+            make(snap=0.0, snap_mirror=True)
+        assert make(snap=0.0).snap == 0.0 and make(snap=0.05, snap_mirror=True).snap_mirror
+
+
 def test_scene_options_and_real_evaluation_refuse_snap_with_the_heading_check():
     from spotlights.experiments.real_evaluation import RealEvaluationSettings
     from spotlights.experiments.scene import SceneConfig

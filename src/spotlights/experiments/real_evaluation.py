@@ -62,6 +62,7 @@ from ..data.store import open_dataset
 from ..errors import InputFileError, ParameterError, SpotlightsError
 from ..geometry.box_clamp import GROWN_BOX_MARGIN, grown_half_extents
 from ..geometry.boxes import FLIP_Z, unit_extents
+from ..geometry.evidence import snap_radius
 from ..geometry.neighbors import NearestNeighbors, serial_queries
 from ..geometry.sampling import resample_set, voxel_downsample
 from ..learning.checkpoint import resolve_checkpoint
@@ -293,10 +294,7 @@ class RealEvaluationSettings:
     snap_mirror: bool = False
 
     def __post_init__(self):
-        if self.snap_mirror and not self.snap > 0:
-            raise ParameterError("--snap-mirror goes with --snap R")
-        if not (np.isfinite(self.snap) and self.snap >= 0):
-            raise ParameterError(f"the snap radius must be >= 0 (unit frame), got {self.snap}")
+        snap_radius(self.snap, self.snap_mirror)
         if self.snap > 0 and self.heading_check:
             raise ParameterError(
                 "--snap does not go with the heading check (add --no-heading-check): the flips are counted by "

@@ -42,6 +42,7 @@ from ..data.real.scans import MIN_SCAN_POINTS
 from ..data.vehicle_classes import VEHICLE_CLASSES, canonical_class
 from ..errors import InputFileError, ParameterError
 from ..geometry.boxes import FLIP_Z, Box, crop_boxes
+from ..geometry.evidence import snap_radius
 from ..geometry.io import save_ply, save_points
 from ..geometry.neighbors import serial_queries
 from ..geometry.rotations import rigid_transform
@@ -122,10 +123,7 @@ class SceneConfig:
             raise ParameterError(f"the heading margin must be in [0, 1), got {self.heading_margin}")
         if self.min_points < 1:
             raise ParameterError(f"the minimum point count must be >= 1, got {self.min_points}")
-        if not (math.isfinite(self.snap) and self.snap >= 0):
-            raise ParameterError(f"the snap radius must be >= 0 (unit frame), got {self.snap}")
-        if self.snap_mirror and not self.snap > 0:
-            raise ParameterError("--snap-mirror goes with --snap R")
+        snap_radius(self.snap, self.snap_mirror)
         if self.snap > 0 and self.heading_check:
             raise ParameterError(
                 "--snap does not go with --heading-check: the check compares how close each heading's completion "

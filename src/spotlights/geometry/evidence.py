@@ -68,6 +68,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import ParameterError
 from .lattice import viewpoint_frames
 
 NEAR_CANDIDATES = 4
@@ -306,6 +307,27 @@ def point_normals(points: np.ndarray, k: int = NORMAL_NEIGHBOURS) -> np.ndarray:
     nb = p[idx] - p[idx].mean(axis=1, keepdims=True)
     _, vec = np.linalg.eigh(np.einsum("kni,knj->kij", nb, nb))
     return vec[:, :, 0]
+
+
+def snap_radius(snap, snap_mirror: bool = False, option: str = "--snap", mirror_option: str = "--snap-mirror"):
+    """The radius that a ``--snap`` value asks for, checked once for every surface that snaps (``complete``,
+    ``real complete``, ``evaluate``, ``real evaluate``, the API): ``None`` (snapping off) for ``None`` or 0, else
+    a float > 0 (unit frame of a box: its half-diagonal is 1).
+
+    Raises :class:`~spotlights.errors.ParameterError` naming ``option`` for any other value (negative, NaN,
+    infinite, not a number), and naming ``mirror_option`` when ``snap_mirror`` is asked without a radius.
+    """
+    try:
+        r = float(snap) if snap is not None else 0.0
+    except (TypeError, ValueError):
+        r = float("nan")
+    if not (np.isfinite(r) and r >= 0):
+        raise ParameterError(
+            f"{option}: the snap radius must be a finite number > 0 (unit frame; 0: off), got {snap!r}"
+        )
+    if snap_mirror and r == 0:
+        raise ParameterError(f"{mirror_option} goes with {option} R")
+    return r if r > 0 else None
 
 
 def snap_to_observed(

@@ -30,7 +30,7 @@ import numpy as np
 from ..data.store import open_dataset
 from ..distributed import check_backend, ray_session
 from ..errors import ParameterError
-from ..geometry.evidence import SnapTargets
+from ..geometry.evidence import SnapTargets, snap_radius
 from ..metrics.completion import METRIC_DESCRIPTIONS, evaluate_completions, summarize
 from ..options import (
     DEVICE_HELP,
@@ -115,11 +115,7 @@ def evaluate_checkpoint(
     ds = dataset or TorchCompletionDataset(data, split, rig=False, max_views=max_views, partials_in_memory=True)
     dense = gt_dense if gt_dense is not None else ds.gt_dense()
     hit_aware = hasattr(model, "hit_probabilities")
-    snap = float(snap) if snap else None
-    if snap_mirror and snap is None:
-        raise ParameterError("--snap-mirror goes with --snap R")
-    if snap is not None and not (math.isfinite(snap) and snap > 0):
-        raise ParameterError(f"the snap radius must be a finite number > 0 (unit frame), got {snap}")
+    snap = snap_radius(snap, snap_mirror)
     if not hasattr(model, "snap_rays"):  # a point model has no rays: scored as it is beside the snapped SA-Nets
         snap, snap_mirror = None, False
     if hit_aware:  # hit-aware SA-Net: rays with p(hit) >= the checkpoint's threshold, no clip (a clip only if asked)

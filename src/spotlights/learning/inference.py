@@ -32,7 +32,7 @@ from ..data.vehicle_classes import CATEGORY_CLASS, canonical_class
 from ..errors import InputFileError, ParameterError
 from ..geometry.box_clamp import clamp_to_grown_boxes, grown_half_extents
 from ..geometry.boxes import Box, box_from_dict, load_box  # noqa: F401  (the box of complete_scan; re-exported)
-from ..geometry.evidence import SnapTargets
+from ..geometry.evidence import SnapTargets, snap_radius
 from ..geometry.sampling import resample_set
 from .checkpoint import PRETRAINED, load_checkpoint, model_from_checkpoint, resolve_checkpoint
 from .rays import directions_for_extents, unit_extents
@@ -366,10 +366,8 @@ class BaseCompleter:
         bh = None
         if box_half is not None:
             bh = np.broadcast_to(np.asarray(box_half, dtype=np.float32).reshape(-1, 3), (len(x), 3))
-        snap = float(snap) if snap else None
+        snap = snap_radius(snap, option="snap")
         if snap is not None:
-            if not (np.isfinite(snap) and snap > 0):
-                raise ParameterError(f"the snap radius must be a finite number > 0, got {snap}")
             if self.rig is None or not accepts(self._forward, "snap"):
                 raise ParameterError(
                     f"{self.model_name} has no rays to snap: snapping to the observed points needs an SA-Net"
