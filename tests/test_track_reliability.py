@@ -44,6 +44,22 @@ def hanging_worker(jobs, results) -> None:
     WORKER_MAIN(jobs, _StuckAfterOneFrame(results))
 
 
+class _DiesAfterOneFrame(_StuckAfterOneFrame):
+    """The worker's result queue, but the worker process ends at once (as if killed) when it has a second frame."""
+
+    def put(self, msg) -> None:
+        self.frames += msg[0] == "frame"
+        if self.frames > 1:
+            time.sleep(0.2)  # the first frame's message leaves the queue's feeder thread
+            os._exit(9)
+        self.queue.put(msg)
+
+
+def dying_worker(jobs, results) -> None:
+    """The track worker, its process ending without a word after its first frame (in the worker process)."""
+    WORKER_MAIN(jobs, _DiesAfterOneFrame(results))
+
+
 def slow_worker(jobs, results) -> None:
     """The track worker, fusing slowly (0.4 s a fused window: ~1.6 s a frame of two cars) with a sign of life every
     0.1 s at most (in the worker process)."""
@@ -66,8 +82,9 @@ def _stale(folder) -> list:
 @pytest.mark.timeout(120)
 def test_a_hung_worker_ends_the_run_with_one_line_after_the_stall_limit(tmp_path, monkeypatch):
     """``real complete --fuse past:2``, the worker hanging after its first frame (STALL_S 2 s here, 120 s by default):
-    exit code 2 within seconds, one line naming the stall and --no-track-worker, no traceback, no temporaries, no
-    summary or tracks files, the worker process ended. Before, the run waited forever."""
+    exit code 1 (not the input's fault: a ProcessFailure) within seconds, one line naming the stall and
+    --no-track-worker, no traceback, no temporaries, no summary or tracks files, the worker process ended. Before,
+    the run waited forever."""
     import multiprocessing
 
     pytest.importorskip("torch")
@@ -86,13 +103,40 @@ def test_a_hung_worker_ends_the_run_with_one_line_after_the_stall_limit(tmp_path
     )  # fmt: skip
     took = time.monotonic() - t0
     err = proc.stderr.strip().splitlines()
-    assert proc.returncode == 2, proc.stderr
+    assert proc.returncode == 1, proc.stderr
     assert len(err) == 1 and "Traceback" not in proc.stderr, err
     assert "track worker process made no progress for 2 s" in err[0] and "--no-track-worker" in err[0], err
     assert 2.0 <= took < 60.0
     assert not _stale(out)
     assert not (out / "summary.json").exists() and not (out / "tracks.json").exists()
     assert not [p for p in multiprocessing.active_children() if p.name == "spotlights-tracks"]
+
+
+@needs_two_cpus
+@pytest.mark.timeout(120)
+def test_a_worker_that_dies_ends_the_run_with_one_line_and_exit_code_1(tmp_path, monkeypatch):
+    """``real complete --fuse past:2``, the worker process ending without a word after its first frame (killed, say
+    for memory): exit code 1 at once (before: a RuntimeError's traceback), one line with the worker's exit code and
+    --no-track-worker, no temporaries, no summary or tracks files."""
+    pytest.importorskip("torch")
+    from helpers import run_cli
+    from learning_fixtures import make_checkpoint
+
+    monkeypatch.setattr(tracks, "worker_main", dying_worker)
+    src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0, 1.5])
+    ck = make_checkpoint(tmp_path / "tiny.pt", "sanet")
+    out = tmp_path / "out"
+    proc = run_cli(
+        "real", "complete", src, "--format", "generic", "-c", ck, "--out", out, "--fuse", "past:2", "-q",
+        "--no-pictures",
+    )  # fmt: skip
+    err = proc.stderr.strip().splitlines()
+    assert proc.returncode == 1, proc.stderr
+    assert len(err) == 1 and "Traceback" not in proc.stderr, err
+    assert "track worker process ended (exit code 9) before its results" in err[0], err
+    assert "--no-track-worker" in err[0], err
+    assert not _stale(out)
+    assert not (out / "summary.json").exists() and not (out / "tracks.json").exists()
 
 
 @needs_two_cpus

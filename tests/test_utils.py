@@ -148,8 +148,11 @@ def test_process_map_ordered_and_same_whatever_the_workers():
 
 
 def test_a_dead_worker_is_an_error_not_a_hang():
-    with pytest.raises(SpotlightsError, match="worker process died"):
+    from spotlights.errors import ProcessFailure
+
+    with pytest.raises(ProcessFailure, match="worker process died") as caught:
         list(process_map(_die, range(6), 2))
+    assert caught.value.exit_code == 1  # not the input's fault
 
 
 @pytest.mark.slow

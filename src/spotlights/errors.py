@@ -2,7 +2,9 @@
 
 Every error a user can cause (bad file, bad parameter) is raised as a
 :class:`SpotlightsError`; the CLI prints its one-line message and exits with
-code 2, without a traceback.
+its :attr:`~SpotlightsError.exit_code`, without a traceback: 2 for the input's
+fault, 1 for a :class:`ProcessFailure` (the program's own machinery failed: a
+helper process that died or hung), so that a script can tell the two apart.
 """
 
 from __future__ import annotations
@@ -12,6 +14,16 @@ import os
 
 class SpotlightsError(Exception):
     """An error caused by the user's input, with a one-line message."""
+
+    #: The command line's exit code for it (2: the input's fault).
+    exit_code: int = 2
+
+
+class ProcessFailure(SpotlightsError):
+    """Not the input's fault: a process the command started to help it ended or hung (killed by the system for
+    memory, say). One line naming what failed and what to try, exit code 1; running again may succeed."""
+
+    exit_code = 1
 
 
 class InputFileError(SpotlightsError):

@@ -20,7 +20,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import TypeVar
 
-from .errors import InputFileError, OutputFileError, ParameterError, SpotlightsError
+from .errors import InputFileError, OutputFileError, ParameterError, ProcessFailure, SpotlightsError
 
 _T = TypeVar("_T")
 
@@ -545,7 +545,7 @@ def process_map(
         while pending:
             done, pending = wait(pending, timeout=timeout, return_when=FIRST_COMPLETED)
             if not done:
-                raise SpotlightsError(
+                raise ProcessFailure(
                     f"no {what} finished within {timeout:.0f} s on {min(workers, len(items))} "
                     "worker processes: stopped (a worker hangs?)"
                 )
@@ -553,7 +553,7 @@ def process_map(
                 try:
                     res = fut.result()
                 except BrokenProcessPool:
-                    raise SpotlightsError(
+                    raise ProcessFailure(
                         f"a worker process died while computing a {what} (killed, or out of "
                         "memory?); run again to resume, or with fewer workers"
                     ) from None

@@ -96,7 +96,8 @@ def main(argv: list[str] | None = None) -> int:
 
     0 success; 2 a user error (bad file, bad parameter, an output that cannot be written: one
     line on stderr naming the file or parameter, no traceback; argparse's usage errors keep
-    their usage block); 130 Ctrl-C; 143 SIGTERM. ``-q`` silences stdout (summary lines) as
+    their usage block); 1 a :class:`~spotlights.errors.ProcessFailure` (a helper process died or
+    hung: one line, no traceback); 130 Ctrl-C; 143 SIGTERM. ``-q`` silences stdout (summary lines) as
     well as progress bars; warnings and errors still go to stderr.
     """
     import contextlib
@@ -123,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
             return int(args.func(args) or 0)
     except SpotlightsError as exc:
         print(f"spotlights: error: {exc}", file=sys.stderr)
-        return 2
+        return exc.exit_code
     except Terminated:
         print("spotlights: terminated", file=sys.stderr)
         _forget_interrupt()

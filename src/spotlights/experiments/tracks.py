@@ -63,7 +63,7 @@ from ..data.tracks import (
     check_track,
     fuse_track,
 )
-from ..errors import ParameterError, SpotlightsError
+from ..errors import ParameterError, ProcessFailure
 from ..geometry.boxes import Box
 from ..geometry.io import save_ply
 from ..utils import StageTimer, _quiet_worker, atomic_output, process_pool_context, sigint_held
@@ -485,8 +485,12 @@ STALL_S = 120.0
 BEAT_S = 1.0
 
 
-class TrackWorkerStalled(SpotlightsError):
-    """The track worker process sent nothing for :data:`STALL_S` seconds while alive: it was stopped."""
+class TrackWorkerStalled(ProcessFailure):
+    """The track worker process sent nothing for :data:`STALL_S` seconds while alive: it was stopped (exit code 1)."""
+
+
+class TrackWorkerDied(ProcessFailure):
+    """The track worker process ended without sending its results (killed, say for memory): exit code 1."""
 
 
 #: Linux cgroup v2 file of this process's CPU quota ("QUOTA PERIOD" in microseconds, or "max PERIOD").
@@ -678,8 +682,8 @@ class TrackWorker:
         )
 
     def _next(self, plan: TrackPlan):
-        """The worker's next message (waiting for it: ``wait_s``); raises what the worker raised, a RuntimeError
-        when its process ended without a word, or :class:`TrackWorkerStalled` (one line; the process stopped) when it
+        """The worker's next message (waiting for it: ``wait_s``); raises what the worker raised,
+        :class:`TrackWorkerDied` (one line) when its process ended without a word, or :class:`TrackWorkerStalled` (one line; the process stopped) when it
         sent nothing, not even a sign of life, for :data:`STALL_S` seconds."""
         with plan.timer("wait_s"):
             # seconds of silence, each poll counted for at most 2 POLL_S: a pause of this process (Ctrl-Z then fg, a
@@ -690,8 +694,9 @@ class TrackWorker:
                     msg = self.results.get(timeout=POLL_S)
                 except Empty:
                     if not self.proc.is_alive():
-                        raise RuntimeError(
-                            f"the track worker process ended (exit code {self.proc.exitcode}) before its results"
+                        raise TrackWorkerDied(
+                            f"the track worker process ended (exit code {self.proc.exitcode}) before its results; "
+                            "--no-track-worker refines and fuses the tracks in this process instead"
                         ) from None
                     now = time.monotonic()
                     silent, before = silent + min(now - before, 2 * POLL_S), now
@@ -784,6 +789,7 @@ __all__ = [
     "STALL_S",
     "TrackPlan",
     "TrackWorker",
+    "TrackWorkerDied",
     "TrackWorkerStalled",
     "file_stem",
     "threads_beside_worker",
