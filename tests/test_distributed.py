@@ -336,6 +336,7 @@ def test_a_task_is_retried_a_bounded_number_of_times(tmp_path, ray_cluster, cras
             lambda i, r: None,
         )
     msg = str(err.value)
+    assert err.value.exit_code == 1  # a task that failed every attempt: not the input's fault (ProcessFailure)
     assert "\n" not in msg and msg.startswith(
         "cars/x.ply: views 0-9 of model x failed on the Ray cluster after 2 attempts"
     )

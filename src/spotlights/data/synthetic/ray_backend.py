@@ -33,7 +33,7 @@ from tqdm import tqdm
 
 from ..._version import __version__
 from ...distributed import DEFAULT_RETRIES, cluster_cpus, error_reason
-from ...errors import InputFileError, SpotlightsError
+from ...errors import InputFileError, ProcessFailure, SpotlightsError
 from ...geometry.rig import RigSpec
 from ...utils import StageTimer
 from .catalogue import LoadedModel, ModelEntry, apply_augment, load_model, source_root, source_scale
@@ -171,7 +171,7 @@ class RayBuild:
         self._add_rig = ray.remote(**opts)(_add_rig_task)
 
     def _fail(self, what: str, exc: BaseException):
-        raise SpotlightsError(
+        raise ProcessFailure(
             f"{what} failed on the Ray cluster after {self.retries + 1} attempts: {error_reason(exc)}"
         ) from None
 
