@@ -144,7 +144,10 @@ def test_a_plan_dropped_without_finishing_ends_its_worker(tmp_path):
 @needs_two_cpus
 @pytest.mark.timeout(60)
 def test_a_dying_worker_ends_the_run_with_an_error(tmp_path):
-    """A worker process killed before its first result: the frame loop raises at once (no wait forever)."""
+    """A worker process killed before its first result: the frame loop raises at once (no wait forever) a
+    TrackWorkerDied (a ProcessFailure: one line, exit code 1 on the command line)."""
+    from spotlights.experiments.tracks import TrackWorkerDied
+
     src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0])
     plan, keys = _plan(src, "past:2", worker=False)
     w = TrackWorker.start()
@@ -152,8 +155,9 @@ def test_a_dying_worker_ends_the_run_with_an_error(tmp_path):
     w.proc.kill()
     w.proc.join(10)
     assert plan.start_worker(keys, w)
-    with pytest.raises(RuntimeError, match="track worker process ended"):
+    with pytest.raises(TrackWorkerDied, match="track worker process ended") as caught:
         plan.frame_inputs(keys[0], plan.take(keys[0]).boxes)
+    assert caught.value.exit_code == 1
     plan.close()
     assert plan.worker_process is None
 
