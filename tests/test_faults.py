@@ -208,12 +208,13 @@ def test_real_complete_fails_cleanly_when_a_frame_write_fails(tmp_path):
 
 
 @pytest.mark.timeout(300)
-@pytest.mark.parametrize("pictures", [False, True])
+@pytest.mark.parametrize("pictures", [False, "0", "2"])
 def test_a_failed_frame_write_stops_the_run_at_the_next_frame(tmp_path, monkeypatch, pictures):
     """The second frame's PLY fails on the writer thread (each frame's PLY and JSON are written there, while the
     next frame is completed): the run stops with that error before the third frame writes anything, its picture
     included; the first frame's PLY, JSON (and PNG) stay (a resumed run continues from them), the second has
-    none of its files (nor a temporary)."""
+    none of its files (nor a temporary). With 2 picture processes (``--picture-workers 2``: two frames in flight)
+    the third frame may be completed and queued, but writes nothing either."""
     import threading
 
     from spotlights.cli import main
@@ -232,7 +233,7 @@ def test_a_failed_frame_write_stops_the_run_at_the_next_frame(tmp_path, monkeypa
     monkeypatch.setattr(frame_completion, "write_scene", failing)
     out = tmp_path / "out"
     args = ["real", "complete", str(scans), "--format", "generic", "--out", str(out), "-q"]
-    code = main(args + ([] if pictures else ["--no-pictures"]))
+    code = main(args + (["--picture-workers", pictures] if pictures else ["--no-pictures"]))
     assert code == 2
     # the third frame's files were never started; the writes ran on the writer thread, not the frame loop's
     assert calls == [("f0.ply", "spotlights-write"), ("f1.ply", "spotlights-write")]

@@ -529,13 +529,10 @@ def process_map(
         for item in items:
             yield fn(item)
         return
-    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    from concurrent.futures import FIRST_COMPLETED, wait
     from concurrent.futures.process import BrokenProcessPool
 
-    ctx = process_pool_context()
-    pool = ProcessPoolExecutor(
-        min(workers, len(items)), mp_context=ctx, initializer=_quiet_worker, initargs=(initializer, initargs)
-    )
+    pool = start_process_pool(min(workers, len(items)), initializer, initargs)
     ok = False
     try:
         futures = {pool.submit(fn, item): i for i, item in enumerate(items)}
@@ -567,12 +564,24 @@ def process_map(
         ok = True
     finally:
         if not ok:
-            _stop(pool)
+            stop_process_pool(pool)
         else:
             pool.shutdown(wait=True)
 
 
-def _stop(pool) -> None:
+def start_process_pool(workers: int, initializer: Callable | None = None, initargs: tuple = ()):
+    """A ``ProcessPoolExecutor`` of ``workers`` processes as every pool of the package starts one: from the fork
+    server of :func:`process_pool_context` (refusing where processes cannot start), its workers ignoring Ctrl-C
+    (the owner stops the pool: :func:`stop_process_pool`) and dying with their parent, then running
+    ``initializer(*initargs)``. Workers start as tasks come (the executor's rule)."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    return ProcessPoolExecutor(
+        workers, mp_context=process_pool_context(), initializer=_quiet_worker, initargs=(initializer, initargs)
+    )
+
+
+def stop_process_pool(pool) -> None:
     """Stop a ProcessPoolExecutor now: cancel what has not started, end the workers."""
     processes = list(getattr(pool, "_processes", {}).values())
     pool.shutdown(wait=False, cancel_futures=True)

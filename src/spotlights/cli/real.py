@@ -122,6 +122,15 @@ def register(sub) -> None:
     )
     p.add_argument("--no-pictures", action="store_true", help="do not draw FRAME.png (faster)")
     p.add_argument(
+        "--picture-workers",
+        type=non_negative_int,
+        default=None,
+        metavar="N",
+        help="processes that draw the frames' PNGs, N frames at once while the next frames are completed "
+        "(default: one per CPU, at most 8, none on one CPU; 0: drawn in this process, one frame at a time; "
+        "the same bytes either way)",
+    )
+    p.add_argument(
         "--html",
         action="store_true",
         help="also write FRAME.html, an interactive 3-D page per frame (needs plotly); the pages share "

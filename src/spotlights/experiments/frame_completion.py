@@ -16,7 +16,7 @@ import hashlib
 import json
 import os
 import re
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Sequence
 from concurrent.futures import Future
 from dataclasses import asdict, dataclass, field, fields
@@ -27,10 +27,19 @@ from tqdm import tqdm
 from ..data.real import open_reader
 from ..data.real.base import SceneReader
 from ..data.tracks import MAX_GAP_S, TIME_UNIT_S, WindowPolicy, parse_window
-from ..errors import ParameterError, SpotlightsError
+from ..errors import ParameterError, ProcessFailure, SpotlightsError
 from ..geometry.io import POINT_SUFFIXES
 from ..learning.inference import BaseCompleter
-from ..utils import StageTimer, output_folder, shared_thread_pool, sweep_folder_temporaries
+from ..utils import (
+    StageTimer,
+    output_folder,
+    shared_thread_pool,
+    sigint_held,
+    start_process_pool,
+    stop_process_pool,
+    sweep_folder_temporaries,
+)
+from ..viz import write_png
 from ..viz.html import write_plotlyjs
 from ..viz.rerun_log import check_rerun_path, open_recording
 from .scan_completion import CompletionOptions, Say, ScanSettings, complete_scan, silent, write_json
@@ -42,9 +51,10 @@ from .scene import (
     fallback_hint,
     render_result,
     render_result_html,
+    result_png,
     write_scene,
 )
-from .tracks import TrackPlan, TrackWorker, threads_beside_worker
+from .tracks import TrackPlan, TrackWorker, threads_beside_worker, usable_cpus
 
 
 def safe_name(text: str) -> str:
@@ -206,7 +216,9 @@ class FramesSettings(ReaderOptions, CompletionOptions):
     (:class:`~spotlights.experiments.scan_completion.CompletionOptions`), and
 
     out : the output folder; frames : a :func:`parse_frames` selection (None: every frame);
-    per_object, no_pictures, html : per-object PLYs, no PNGs, an HTML page per frame;
+    per_object, no_pictures, html : per-object PLYs, no PNGs, an HTML page per frame; picture_workers : processes
+    that draw the PNGs, several frames at once (None: :func:`picture_workers`' default; 0: the writer thread draws
+    them, one frame at a time);
     resume : skip frames an earlier run with the same model and options finished;
     fuse : the frames of a track fused into its input (``"none"``, ``"all"``, ``"past:K"``, ``"centered:K"`` or a
     :class:`~spotlights.data.tracks.WindowPolicy`); refine_boxes : register and correct the boxes (with fuse);
@@ -220,6 +232,7 @@ class FramesSettings(ReaderOptions, CompletionOptions):
     frames: tuple | None = None
     per_object: bool = False
     no_pictures: bool = False
+    picture_workers: int | None = None
     html: bool = False
     resume: bool = False
     fuse: WindowPolicy | str = field(default_factory=lambda: parse_window("none"))
@@ -319,11 +332,99 @@ def done_frame(
 FRAME_KEYS = ("sequence", "frame_id", "timestamp", "scan", "ply", "n_boxes", "n_completed", "n_flipped", "skipped")
 
 
+#: The most processes that draw PNGs by default (:func:`picture_workers`).
+PICTURE_WORKERS_MAX = 8
+
+
+def picture_workers(asked: int | None, n_frames: int) -> int:
+    """How many processes draw a run's PNGs (:class:`PictureProcesses`): ``asked`` (``--picture-workers``), by
+    default one per usable CPU (:func:`~spotlights.experiments.tracks.usable_cpus`: drawing a frame costs several
+    times its completion, so the frame loop's own CPU is mostly free), at most :data:`PICTURE_WORKERS_MAX`, none on
+    one CPU; never more than ``n_frames`` and none for a single frame (0: the writer thread draws them, one frame
+    at a time, as before)."""
+    n = (lambda c: c if c >= 2 else 0)(min(usable_cpus(), PICTURE_WORKERS_MAX)) if asked is None else int(asked)
+    if n < 0:
+        raise ParameterError(f"--picture-workers must be >= 0, got {n}")
+    return 0 if n_frames < 2 else min(n, n_frames)
+
+
+def _ready_to_draw() -> None:
+    """In a picture process: import matplotlib's Agg and the drawing code (while the frame loop's model loads)."""
+    import matplotlib.backends.backend_agg  # noqa: F401
+
+    from ..viz import scene  # noqa: F401
+
+
+class PictureProcesses:
+    """Worker processes (:func:`~spotlights.utils.start_process_pool`: the fork server, Ctrl-C left to this
+    process) that draw frames' PNGs (:func:`~spotlights.experiments.scene.result_png`), ``workers`` frames at once,
+    while the frame loop completes the next ones. The bytes are those of drawing in this process (the same
+    function; matplotlib's defaults in both: rcParams changed in this process do not reach the workers); the
+    writer thread writes them in frame order."""
+
+    def __init__(self, workers: int) -> None:
+        self.workers = int(workers)
+        # Ctrl-C held back while they start (as the track worker's start): the fork server and the workers inherit
+        # the blocked signal (they ignore it), and none lands half-way through the start
+        with sigint_held():
+            self.pool = start_process_pool(self.workers)
+            try:
+                for _ in range(self.workers):  # each task starts a process: their imports overlap the model's load
+                    self.pool.submit(_ready_to_draw)
+            except BaseException:
+                stop_process_pool(self.pool)
+                raise
+
+    @classmethod
+    def start(cls, s: FramesSettings, n_frames: int) -> PictureProcesses | None:
+        """The processes of a run of ``s`` over ``n_frames`` frames, started; None when no picture is drawn,
+        :func:`picture_workers` says 0, or no process can be started here (an unguarded script, a sandbox: the
+        writer thread draws the pictures, as with 0)."""
+        n = 0 if s.no_pictures else picture_workers(s.picture_workers, n_frames)
+        if n == 0:
+            return None
+        try:
+            return cls(n)
+        except Exception:
+            return None
+
+    def draw(self, result: SceneResult, title: str) -> Future:
+        """Start drawing ``result``'s PNG; a future of its bytes (:meth:`png`)."""
+        return self.pool.submit(result_png, result, title)
+
+    @staticmethod
+    def png(drawn: Future, path: Path) -> bytes:
+        """The bytes of ``drawn`` (waiting for them); a one-line :class:`~spotlights.errors.ProcessFailure` naming
+        ``path`` when the process drawing it ended first (killed, say for memory)."""
+        from concurrent.futures.process import BrokenProcessPool
+
+        try:
+            return drawn.result()
+        except BrokenProcessPool:
+            raise ProcessFailure(
+                f"{path}: the process drawing it ended before it was done (killed, or out of memory?); "
+                "--picture-workers 0 draws the pictures in this process"
+            ) from None
+
+    def close(self) -> None:
+        """Stop the processes now (what is left to draw is dropped)."""
+        stop_process_pool(self.pool)
+
+
 class _FrameRun:
     """The state of one ``real complete`` run: settings, reader, model, output folder, totals."""
 
     def __init__(
-        self, s: FramesSettings, reader, config: SceneConfig, completer, out: Path, tracks, recorder=None, fallback=None
+        self,
+        s: FramesSettings,
+        reader,
+        config: SceneConfig,
+        completer,
+        out: Path,
+        tracks,
+        recorder=None,
+        fallback=None,
+        pictures: PictureProcesses | None = None,
     ) -> None:
         self.s, self.reader, self.config = s, reader, config
         self.completer, self.out, self.tracks, self.recorder = completer, out, tracks, recorder
@@ -338,8 +439,12 @@ class _FrameRun:
         # tracks/<track>.ply): key -> (boxes, fused inputs, crops, the tracks it is the latest completed frame of)
         self.resumed: dict = {}
         self.latest: dict = {}  # track key -> the resumed frame holding its latest completion so far
-        # a frame's files are written by one thread while the next frame is completed (one frame in flight)
-        self._written: Future | None = None
+        # a frame's files are written by one thread, in frame order, while the next frames are completed: one frame
+        # in flight, or as many as there are picture processes (each drawing one frame's PNG)
+        self.pictures = pictures
+        self.in_flight = max(1, pictures.workers) if pictures is not None else 1
+        self._written: deque[Future] = deque()
+        self._stopped = False  # a write failed, or the run ends early: the frames not yet written write nothing
 
     def complete(self, key: tuple, stem: Path) -> dict | None:
         """Complete frame ``key`` and write its files; its summary, or None for a scan with too few points."""
@@ -362,9 +467,9 @@ class _FrameRun:
         boxes, extra = (frame.boxes, None) if tracks is None else tracks.frame_inputs(key, frame.boxes)
         crops = None if tracks is None else tracks.frame_crops(key)  # made by the track worker, if any
         result = self._scene(frame, boxes, extra, crops)
-        # the frame before this one is on disk before this one writes anything (its PNG too): a failed write stops
-        # the run here, with no file of a later frame
-        self.wait_writes()
+        # at most in_flight - 1 frames before this one are not on disk yet (one: the frame before is, its PNG too); a
+        # failed write stops the run at the next wait, and no later frame writes a file
+        self.wait_writes(keep=self.in_flight - 1)
         if tracks is not None:
             tracks.record(key, result)
             for o in result.completed:  # a resumed frame before this one no longer holds these tracks' latest
@@ -387,37 +492,50 @@ class _FrameRun:
 
     def _write(self, result: SceneResult, stem: Path, scan_name: str, title: str, summ: dict) -> None:
         """Write a frame's files in the order of one process - its PLY (+ per-object files), PNG, HTML, then its
-        JSON (last: a frame with its JSON is done, for resume) - on the writer thread while the next frame is
-        completed (:meth:`complete` waits for them before that frame writes anything: at most one frame is in
-        flight, and a failed write stops the run there, leaving no file of a later frame). The pictures are
-        matplotlib ``Figure`` objects drawn by Agg, without pyplot's global state (:mod:`spotlights.viz`)."""
+        JSON (last: a frame with its JSON is done, for resume) - on the writer thread (one: the frames are written
+        in their order) while the next frames are completed (:meth:`complete` lets at most :attr:`in_flight`
+        frames wait to be written; a failed write stops the run, and no later frame writes a file). The PNG is
+        drawn by a picture process (:class:`PictureProcesses`) as soon as the frame is complete, else by the
+        writer thread; the pictures are matplotlib ``Figure`` objects drawn by Agg, without pyplot's global state
+        (:mod:`spotlights.viz`)."""
         s, out = self.s, self.out
         per_object = _with(stem, "_objects") if s.per_object else None
+        png = _with(stem, ".png")
+        picture = not s.no_pictures and bool(result.completed)
+        drawn = self.pictures.draw(result, title) if picture and self.pictures is not None else None
 
         def files() -> None:
-            write_scene(result, _with(stem, ".ply"), per_object=per_object, scan_name=scan_name)
-            if not s.no_pictures and result.completed:
-                render_result(result, _with(stem, ".png"), title)
-            if s.html:
-                js = os.path.relpath(write_plotlyjs(out), stem.parent).replace(os.sep, "/")
-                render_result_html(result, _with(stem, ".html"), title, js)
-            write_json(_with(stem, ".json"), summ)
+            if self._stopped:  # an earlier frame's write failed, or the run stopped: this frame writes nothing
+                return
+            try:
+                write_scene(result, _with(stem, ".ply"), per_object=per_object, scan_name=scan_name)
+                if drawn is not None:
+                    write_png(PictureProcesses.png(drawn, png), png)
+                elif picture:
+                    render_result(result, png, title)
+                if s.html:
+                    js = os.path.relpath(write_plotlyjs(out), stem.parent).replace(os.sep, "/")
+                    render_result_html(result, _with(stem, ".html"), title, js)
+                write_json(_with(stem, ".json"), summ)
+            except BaseException:
+                self._stopped = True
+                raise
 
-        self._written = shared_thread_pool("write", 1).submit(files)
+        self._written.append(shared_thread_pool("write", 1).submit(files))
 
-    def wait_writes(self) -> None:
-        """Wait until the frame in flight is on disk (its write's error, if any, raised here)."""
-        pending, self._written = self._written, None
-        if pending is not None:
-            pending.result()
+    def wait_writes(self, keep: int = 0) -> None:
+        """Wait until at most ``keep`` frames are not on disk yet, oldest first (a write's error raised here)."""
+        while len(self._written) > keep:
+            self._written.popleft().result()
 
     def close(self) -> None:
-        """Wait for the frame in flight (also after an error or Ctrl-C: nothing half-written is left)."""
-        if self._written is not None:
+        """Stop: the frames not yet written write nothing, the one being written is finished (also after an error
+        or Ctrl-C: nothing half-written is left)."""
+        self._stopped = True
+        while self._written:
             # finished either way; reached after the run raised (an error of its own, Ctrl-C), so a write error
             # too is dropped here: the run's own error is the one reported
-            self._written.exception()
-            self._written = None
+            self._written.popleft().exception()
 
     def _scene(self, frame, boxes, extra, crops) -> SceneResult:
         """The completion of one frame (its boxes, fused inputs and crops as the track plan gives them)."""
@@ -579,7 +697,9 @@ def complete_frames(
         if early is not None:
             early.stop()
         raise
+    pictures = None
     try:
+        pictures = PictureProcesses.start(s, len(keys))  # their start and imports overlap the model's load
         completer = s.load_completer() if completer is None else completer
         s.check_snap(completer)
         fallback = s.load_fallback()  # loaded beside the main model, before any output exists
@@ -589,8 +709,10 @@ def complete_frames(
             open_recording(s.rerun, TIME_UNIT_S.get(reader.format)) as rec,
             threads_beside_worker(tracks, s.threads),  # a core left to the track worker, if any (or --threads)
         ):
-            return _run_frames(s, reader, keys, config, completer, out, tracks, say, warn, rec, fallback)
+            return _run_frames(s, reader, keys, config, completer, out, tracks, say, warn, rec, fallback, pictures)
     finally:
+        if pictures is not None:
+            pictures.close()  # idle by now unless something failed
         if tracks is not None:
             tracks.close()  # the worker process, if any (done by now unless something failed)
 
@@ -622,10 +744,11 @@ def _run_frames(
     warn: Say,
     recorder=None,
     fallback=None,
+    pictures: PictureProcesses | None = None,
 ) -> dict:
     """The loop of :func:`complete_frames` in the folder ``out`` that exists, and its summary."""
     sweep_folder_temporaries(out)  # what a killed run was writing (a 0-byte .FRAME.png.PID-X.part.png)
-    run = _FrameRun(s, reader, config, completer, out, tracks, recorder, fallback)
+    run = _FrameRun(s, reader, config, completer, out, tracks, recorder, fallback, pictures)
     timer = StageTimer()
     with timer("frames"):
         run.run(keys)
@@ -660,6 +783,7 @@ def _run_frames(
 
 __all__ = [
     "FramesSettings",
+    "PictureProcesses",
     "ReaderOptions",
     "complete_frames",
     "complete_input",
@@ -668,6 +792,7 @@ __all__ = [
     "frame_stems",
     "parse_frames",
     "parse_frames_range",
+    "picture_workers",
     "safe_name",
     "select_frames",
 ]

@@ -49,7 +49,7 @@ from ..geometry.rotations import rigid_transform
 from ..learning.inference import DEFAULT, complete_in_boxes, prepare_partial, with_observed
 from ..metrics.consistency import fidelity
 from ..utils import StageTimer, shared_thread_pool
-from ..viz import SceneObject, html, render_scene
+from ..viz import SceneObject, html, scene_png, write_png
 
 SOURCE_RAW, SOURCE_PARTIAL, SOURCE_COMPLETION = 0, 1, 2
 HEADING_MARGIN = 0.5
@@ -815,12 +815,16 @@ def scene_objects(result: SceneResult) -> list:
 
 
 def render_result(result: SceneResult, path: str | Path, title: str | None = None) -> Path:
-    """Draw a completed scene into a PNG: a bird's-eye view (equal aspect, grey scan, purple inputs, green
-    completions, box outlines labelled with their ``object`` ids, a scale bar) and a 3-D close-up of every
-    completed object seen from the sensor (box wireframe, 1 m ruler). Uses :func:`spotlights.viz.render_scene`."""
-    return render_scene(
-        path, result.points, scene_objects(result), title=title, id_note="boxes: object id, as in the PLY"
-    )
+    """Draw a completed scene into a PNG (atomic write): a bird's-eye view (equal aspect, grey scan, purple inputs,
+    green completions, box outlines labelled with their ``object`` ids, a scale bar) and a 3-D close-up of every
+    completed object seen from the sensor (box wireframe, 1 m ruler): the bytes of :func:`result_png`."""
+    return write_png(result_png(result, title), path)
+
+
+def result_png(result: SceneResult, title: str | None = None) -> bytes:
+    """The PNG bytes :func:`render_result` writes (:func:`spotlights.viz.scene_png`); a picklable function of a
+    picklable :class:`SceneResult`, so another process can draw them (``real complete``'s picture processes)."""
+    return scene_png(result.points, scene_objects(result), title=title, id_note="boxes: object id, as in the PLY")
 
 
 def render_result_html(

@@ -18,13 +18,14 @@ Modules by topic:
 - :mod:`.html` the interactive viewer (:func:`write_html`, ``spotlights view``)
 """
 
+from ._figure import png_bytes, write_png
 from .completion import render_predictions
 from .encoding import render_encoding, viewpoint_rays
 from .grid import render_cloud_grid, render_rig_rays
 from .mesh import render_mesh
 from .points import DEFAULT_VIEWS, Layer, render_layers
 from .sample import render_sample
-from .scene import SceneObject, render_frame, render_scene
+from .scene import SceneObject, render_frame, render_scene, scene_png
 from .study import plot_rig_study
 
 __all__ = [
@@ -32,6 +33,7 @@ __all__ = [
     "Layer",
     "SceneObject",
     "plot_rig_study",
+    "png_bytes",
     "render_cloud_grid",
     "render_encoding",
     "render_frame",
@@ -41,5 +43,7 @@ __all__ = [
     "render_rig_rays",
     "render_sample",
     "render_scene",
+    "scene_png",
     "viewpoint_rays",
+    "write_png",
 ]

@@ -28,18 +28,33 @@ def new_figure(width: float, height: float, layout: str | None = None):
     return fig
 
 
-def save_png(fig, path: str | os.PathLike, dpi: int = 110, deterministic: bool = False, tight: bool = False) -> Path:
-    """Write ``fig`` as a PNG atomically (temporary name, then rename); returns ``path``.
+def png_bytes(fig, dpi: int = 110, deterministic: bool = False, tight: bool = False) -> bytes:
+    """``fig`` drawn by Agg and encoded as PNG: the bytes :func:`save_png` writes.
 
     ``deterministic`` drops the "Software" metadata (matplotlib's version) so that equal
     figures give equal bytes across matplotlib versions. ``tight`` crops the page to what is
     drawn (plus 0.1 inch), so no label that the layout pushed past the edge is cut off.
     """
+    import io
+
     meta = {"Software": None} if deterministic else None
     extra = {"bbox_inches": "tight", "pad_inches": 0.1} if tight else {}
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=dpi, format="png", metadata=meta, **extra)
+    return buf.getvalue()
+
+
+def write_png(data: bytes, path: str | os.PathLike) -> Path:
+    """Write PNG bytes (:func:`png_bytes`) atomically (temporary name, then rename); returns ``path``."""
     with atomic_output(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=dpi, format="png", metadata=meta, **extra)
+        Path(tmp).write_bytes(data)
     return Path(path)
+
+
+def save_png(fig, path: str | os.PathLike, dpi: int = 110, deterministic: bool = False, tight: bool = False) -> Path:
+    """Write ``fig`` as a PNG atomically (temporary name, then rename); returns ``path``. ``deterministic`` and
+    ``tight``: see :func:`png_bytes`."""
+    return write_png(png_bytes(fig, dpi, deterministic, tight), path)
 
 
 def colormap(name: str):

@@ -25,7 +25,7 @@ import numpy as np
 from ..data.real import read_scan
 from ..errors import InputFileError, ParameterError
 from ..geometry.boxes import BOX_EDGES, Box
-from ._figure import add_scale_bar, new_figure, save_png
+from ._figure import add_scale_bar, new_figure, png_bytes, write_png
 from .points import Layer, merge_layers
 from .raster import splat_points, view_basis
 
@@ -269,8 +269,22 @@ def render_scene(
     closeups : False draws the bird's-eye view alone.
     id_note : what the labels are, printed in the bird's-eye title.
     """
+    return write_png(scene_png(scan, objects, title, max_scan_points, seed, closeups, dpi, id_note), path)
+
+
+def scene_png(
+    scan: np.ndarray,
+    objects: Sequence[SceneObject],
+    title: str | None = None,
+    max_scan_points: int = 40000,
+    seed: int = 0,
+    closeups: bool = True,
+    dpi: int = 110,
+    id_note: str = "boxes: object id",
+) -> bytes:
+    """The PNG bytes :func:`render_scene` writes (same parameters, no path): for drawing in another process."""
     fig = figure_scene(scan, objects, title, max_scan_points, seed, closeups, id_note, dpi)
-    return save_png(fig, path, dpi)  # tight_layout placed everything: no second draw to crop the page
+    return png_bytes(fig, dpi)  # tight_layout placed everything: no second draw to crop the page
 
 
 def observation_label(obs, i: int) -> str:
