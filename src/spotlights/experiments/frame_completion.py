@@ -12,10 +12,8 @@ File names: :func:`frame_stems` gives every frame a name no other frame (or file
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
-import re
 from collections import Counter, deque
 from collections.abc import Sequence
 from concurrent.futures import Future
@@ -27,7 +25,7 @@ from tqdm import tqdm
 from ..data.real import open_reader
 from ..data.real.base import SceneReader
 from ..data.tracks import MAX_GAP_S, TIME_UNIT_S, WindowPolicy, parse_window
-from ..errors import ParameterError, ProcessFailure, SpotlightsError
+from ..errors import ParameterError, ProcessFailure
 from ..geometry.io import POINT_SUFFIXES
 from ..learning.inference import BaseCompleter
 from ..utils import (
@@ -42,6 +40,7 @@ from ..utils import (
 from ..viz import write_png
 from ..viz.html import write_plotlyjs
 from ..viz.rerun_log import check_rerun_path, open_recording
+from .names import FRAME_SUFFIXES, RESERVED_FRAMES, file_stem, safe_name, sequence_folders, unique_names
 from .scan_completion import CompletionOptions, Say, ScanSettings, complete_scan, silent, write_json
 from .scene import (
     SceneConfig,
@@ -57,50 +56,12 @@ from .scene import (
 from .tracks import TrackPlan, TrackWorker, threads_beside_worker, usable_cpus
 
 
-def safe_name(text: str) -> str:
-    """``text`` as a file name: runs of characters other than letters, digits, ``.``, ``_`` and ``-`` become ``_``."""
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", str(text)).strip("._") or "frame"
-
-
-#: Files of the run itself in the output folder, and what each frame adds to its stem.
-RUN_FILES = ("summary.json", "plotly.min.js")
-FRAME_SUFFIXES = (".ply", ".png", ".html", ".json", "_objects")
-
-
-def _digest(text) -> str:
-    return hashlib.sha256(str(text).encode("utf-8", "surrogatepass")).hexdigest()[:8]
-
-
-def file_stem(text) -> str:
-    """``text`` (a frame id, a sequence name) as a file name that no other text maps to: :func:`safe_name`,
-    plus ``-`` and 8 hex digits of the SHA-256 of ``text`` when sanitising changed it (``../a`` -> ``a-3b1d...``,
-    ``汽车`` -> ``frame-...``, a name of over 100 characters cut there); a safe name is kept as it is
-    (``000123``, ``scene-0523``)."""
-    name = safe_name(text)[:100]
-    return name if name == str(text) else f"{name}-{_digest(text)}"
-
-
-def _unique(texts, reserved=()) -> dict[str, str]:
-    """{text: file name}: :func:`file_stem` of each, with the digest added as well to names that would
-    coincide with another or with ``reserved`` when letter case is ignored (macOS, Windows)."""
-    names = {t: file_stem(t) for t in texts}
-    count = Counter(n.casefold() for n in names.values())
-    taken = {r.casefold() for r in reserved}
-    out = {
-        t: f"{safe_name(t)[:100]}-{_digest(t)}" if count[n.casefold()] > 1 or n.casefold() in taken else n
-        for t, n in names.items()
-    }
-    if len({n.casefold() for n in out.values()} | taken) != len(out) + len(taken):
-        raise SpotlightsError("frame or sequence names map to one output file; rename them")  # needs a SHA-256 clash
-    return out
-
-
 def frame_stems(keys) -> dict[tuple, Path]:
     """The output stem of each frame key ``(sequence, frame_id)``, relative to the output folder:
-    ``SEQUENCE/FRAME`` (``FRAME`` without a sequence). Distinct frames never share a file, none is a file of
-    the run (``summary.json``); a frame's name depends on the other frames only when two names differ in
-    letter case alone (``A`` and ``a`` both take the digest)."""
-    seqs = _unique(sorted({str(s) for s, _ in keys if s}), reserved=RUN_FILES)
+    ``SEQUENCE/FRAME`` (``FRAME`` without a sequence; :mod:`spotlights.experiments.names`). Distinct frames never
+    share a file, none is a file of the run (``summary.json``, ``tracks.json``); a frame's name depends on the other
+    frames only when two names differ in letter case alone (``A`` and ``a`` both take the digest)."""
+    seqs = sequence_folders(keys)
     # a frame beside the sequence folders must not take a folder's name with one of its suffixes
     beside = [d[: -len(x)] for d in seqs.values() for x in FRAME_SUFFIXES if d.endswith(x)]
     by_seq: dict[str, list[str]] = {}
@@ -108,7 +69,7 @@ def frame_stems(keys) -> dict[tuple, Path]:
         by_seq.setdefault(str(s) if s else "", []).append(str(f))
     stems = {}
     for s, fids in by_seq.items():
-        names = _unique(fids, reserved=() if s else ["summary", *beside])
+        names = unique_names(fids, reserved=() if s else [*RESERVED_FRAMES, *beside])
         stems.update({(s, f): Path(seqs[s]) / names[f] if s else Path(names[f]) for f in fids})
     return {(s, f): stems[(str(s) if s else "", str(f))] for s, f in keys}
 

@@ -37,7 +37,6 @@ import json
 import math
 import os
 import pickle
-import re
 import time
 import traceback
 import weakref
@@ -67,6 +66,7 @@ from ..errors import ParameterError, ProcessFailure
 from ..geometry.boxes import Box
 from ..geometry.io import save_ply
 from ..utils import StageTimer, _quiet_worker, atomic_output, process_pool_context, sigint_held
+from .names import file_stem, sequence_folders, unique_names
 from .scene import SOURCE_COMPLETION, SOURCE_PARTIAL, SceneConfig, SceneResult, _selected, scene_crops
 
 if TYPE_CHECKING:
@@ -94,12 +94,6 @@ class _Track:
     completion_frame: int = -1
     refiner: TrackRefiner | None = None  # the box refinement, made as the frames are reached (None: none)
     fused: FusedTrack | None = None  # the whole track fused under its final boxes (from the worker), for write()
-
-
-def file_stem(text: str) -> str:
-    """``text`` (a track id, a sequence name) as a file name: runs of characters other than letters, digits,
-    ``.``, ``_`` and ``-`` become ``_``."""
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", str(text)).strip("._") or "track"
 
 
 def _near_boxes(points: np.ndarray, boxes: list[Box], margin: float, ground_clearance: float) -> list[np.ndarray]:
@@ -145,6 +139,7 @@ class TrackPlan:
         self.tracks: dict[tuple[str, str], _Track] = {}
         self.where: dict[tuple[str, str], dict[int, tuple[_Track, int]]] = {}  # frame key -> box -> (track, pos)
         self.timer = StageTimer()  # read_s (build), refine_s and fuse_s (frame_inputs), wait_s (for the worker)
+        self.folders: dict[str, str] | None = None  # sequence -> its folder, for the frames' keys (build)
         self.kept: dict = {}  # frame key -> the Frame build read, until the frame loop takes it (KEEP_POINTS)
         # refine and fuse in a worker process (TrackWorker) while this one completes: True starts one in build, a
         # TrackWorker started earlier (its interpreter ready by then) is used as it is
@@ -175,6 +170,7 @@ class TrackPlan:
         if len(keys) < 2:
             raise ParameterError(f"--fuse needs a sequence of at least 2 frames; the selection holds {len(keys)}")
         laps = StageTimer()
+        self.folders = sequence_folders(keys)  # the frames' sequence folders (frame_completion.frame_stems) are theirs
         grow = self.config.margin + (self.max_translation if self.refine else 0.0)
         budget = KEEP_POINTS
         if self.worker and self._worker is None:
@@ -428,6 +424,14 @@ class TrackPlan:
         self.finish()
         out = Path(out)
         written = []
+        folders = self.folders
+        if folders is None:  # a plan not built from frame keys
+            folders = sequence_folders((tr.sequence, "") for tr in self.tracks.values())
+        # one file per track in each folder: ids that sanitise alike ("a/b", "a_b") or differ in case take a digest
+        ids: dict[str, list] = {}
+        for tr in self.tracks.values():
+            ids.setdefault(tr.sequence or "", []).append(tr.track_id)
+        names = {s: unique_names(v, empty="track") for s, v in ids.items()}
         for tr in self.tracks.values():
             last = len(tr.frames) - 1
             pts = (
@@ -445,7 +449,7 @@ class TrackPlan:
                 np.full(len(pts.points), SOURCE_PARTIAL, np.uint8), np.full(len(comp), SOURCE_COMPLETION, np.uint8)
             ]
             frm = np.r_[pts.frame_index.astype(np.int32), np.full(len(comp), -1, np.int32)]
-            folder = out / file_stem(tr.sequence) / "tracks" if tr.sequence else out / "tracks"
+            folder = out / folders[tr.sequence] / "tracks" if tr.sequence else out / "tracks"
             com = [
                 f"spotlights track {tr.track_id}"
                 + (f" of {tr.sequence}" if tr.sequence else "")
@@ -457,7 +461,12 @@ class TrackPlan:
                 + (f", model {model}" if model else ""),
             ]
             written.append(
-                save_ply(folder / f"{file_stem(tr.track_id)}.ply", xyz, {"source": src, "frame": frm}, comments=com)
+                save_ply(
+                    folder / f"{names[tr.sequence or ''][tr.track_id]}.ply",
+                    xyz,
+                    {"source": src, "frame": frm},
+                    comments=com,
+                )
             )
         with atomic_output(out / "tracks.json") as tmp:
             text = json.dumps(self.summary() if summary is None else summary, indent=2, default=float)
