@@ -29,6 +29,7 @@ scan whose up axis is not z into the object convention first and the results bac
 from __future__ import annotations
 
 import math
+import numbers
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -115,6 +116,27 @@ class SceneConfig:
     snap_mirror: bool = False
 
     def __post_init__(self):
+        for name in ("margin", "ground_clearance", "heading_margin", "snap"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, numbers.Real):
+                raise ParameterError(f"{name} must be a number, got {v!r}")
+        for name in ("min_points", "seed"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+                raise ParameterError(f"{name} must be a whole number, got {v!r}")
+        if self.seed < 0:
+            raise ParameterError(f"the seed must be >= 0, got {self.seed}")
+        clip = self.clip
+        number = isinstance(clip, numbers.Real) and not isinstance(clip, bool)
+        if not (
+            clip is None
+            or clip is DEFAULT
+            or (isinstance(clip, str) and clip == "default")
+            or (number and 0 <= clip <= 1)
+        ):
+            raise ParameterError(
+                f"clip must be a depth threshold in [0, 1] (unit frame), None (no clip) or 'default', got {clip!r}"
+            )
         if not (math.isfinite(self.margin) and self.margin >= 0):
             raise ParameterError(f"margin must be >= 0 metres, got {self.margin}")
         if not math.isfinite(self.ground_clearance):
@@ -323,6 +345,69 @@ def _selected(box: Box, config: SceneConfig) -> bool:
     return config.classes is None or box.cls in config.classes
 
 
+def scene_points(points) -> np.ndarray:
+    """``points`` as the (N, 3) float64 scan :func:`complete_scene` works on; a one-line :class:`ParameterError`
+    for anything else: another shape ((N, 4) with intensity: pass ``points[:, :3]``), a type that is not real
+    numbers, or rows that are not finite (the command line's readers drop them; an array given here is not
+    changed behind the caller's back)."""
+    try:
+        a = np.asarray(points)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(f"points must be an (N, 3) array of x y z in metres: {exc}") from None
+    if a.ndim != 2 or a.shape[1] != 3:
+        hint = (
+            " (pass points[:, :3]: the other columns, such as intensity, are not used)"
+            if a.ndim == 2 and a.shape[1] > 3
+            else ""
+        )
+        raise ParameterError(f"points must be an (N, 3) array of x y z in metres, got shape {a.shape}{hint}")
+    if a.dtype.kind not in "fiu":
+        raise ParameterError(f"points must be real numbers (float or int), got dtype {a.dtype}")
+    scan = a.astype(np.float64, copy=False)
+    bad = ~np.isfinite(scan).all(axis=1)
+    if bad.any():
+        raise ParameterError(
+            f"{int(bad.sum())} of the {len(scan)} points are not finite (NaN or inf); drop them first: "
+            "points[np.isfinite(points).all(axis=1)]"
+        )
+    return scan
+
+
+def check_scene_inputs(boxes, completer, config, axes) -> None:
+    """One-line :class:`ParameterError` for what :func:`complete_scene` cannot use: ``boxes`` not a sequence of
+    :class:`~spotlights.geometry.boxes.Box`, a ``completer`` without ``complete``, a ``config`` that is not a
+    :class:`SceneConfig`, ``axes`` that are not a (3, 3) rotation (orthonormal, determinant +1, to 1e-3)."""
+    if isinstance(boxes, Box) or not isinstance(boxes, Sequence) or isinstance(boxes, str):
+        raise ParameterError(
+            f"boxes must be a list of Box objects (for one box: [box], or spotlights.complete), got {type(boxes).__name__}"
+        )
+    for i, b in enumerate(boxes):
+        if not isinstance(b, Box):
+            raise ParameterError(
+                f"boxes[{i}] is a {type(b).__name__}, not a Box (spotlights.geometry.boxes.box_from_dict makes one "
+                "from a dict with center, size and yaw)"
+            )
+    if not callable(getattr(completer, "complete", None)):
+        raise ParameterError(
+            f"completer must be a loaded model (spotlights.learning.runtime.load_completer) or a checkpoint name, "
+            f"got {type(completer).__name__}"
+        )
+    if not isinstance(config, SceneConfig):
+        raise ParameterError(f"config must be a SceneConfig, got {type(config).__name__}")
+    if axes is not None:
+        try:
+            r = np.asarray(axes, dtype=np.float64)
+        except (TypeError, ValueError):
+            r = np.full((1,), np.nan)
+        if (
+            r.shape != (3, 3)
+            or not np.isfinite(r).all()
+            or not np.allclose(r @ r.T, np.eye(3), atol=1e-3)
+            or np.linalg.det(r) < 0
+        ):
+            raise ParameterError(f"axes must be a (3, 3) rotation (orthonormal, determinant +1), got {axes!r}")
+
+
 def complete_scene(
     points: np.ndarray,
     boxes: Sequence[Box],
@@ -361,9 +446,10 @@ def complete_scene(
     Returns a :class:`SceneResult`; raises :class:`ParameterError` for a scan with fewer than
     ``config.min_points`` points.
     """
-    config = config or SceneConfig()
+    config = SceneConfig() if config is None else config
     timer = StageTimer()
-    scan = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    scan = scene_points(points)
+    check_scene_inputs(boxes, completer, config, axes)
     if len(scan) < config.min_points:
         raise ParameterError(
             f"the scan holds {len(scan)} point{'s' if len(scan) != 1 else ''}; at least "
