@@ -11,8 +11,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 from collections.abc import Callable
 from typing import Any
+
+from .errors import ParameterError
 
 REQUIRED: Any = dataclasses.MISSING
 """The default of an :func:`option` the command line must give (argparse ``required=True``)."""
@@ -64,3 +67,28 @@ non_negative_float = _number_type(float, lambda v: 0.0 <= v < float("inf"), "a f
 """argparse type: a finite number >= 0 (margins, noise levels)."""
 port_number = _number_type(int, lambda v: 0 <= v <= 65535, "a TCP port number in 0..65535")
 """argparse type: a TCP port, 0 (the system picks a free one) to 65535."""
+
+MAX_THREADS = max(64, 4 * (os.cpu_count() or 1))
+"""The most CPU threads a ``--threads`` option (or a ``threads`` argument) takes: 4 per CPU here, at least 64.
+More is no speed-up, and OpenMP fails to start (or segfaults) at tens of thousands of threads."""
+
+_THREADS_EXPECTED = f"a whole number of threads in 1..{MAX_THREADS} (the bound: 4 per CPU, at least 64)"
+
+
+def check_threads(threads: Any, option: str = "--threads") -> int | None:
+    """``threads`` as an int (None stays None: the default count), or a one-line :class:`ParameterError` naming
+    ``option`` when it is not a whole number in 1..:data:`MAX_THREADS` (the one bound of every thread count)."""
+    if threads is None:
+        return None
+    try:
+        n = int(threads)
+        whole = not isinstance(threads, bool) and n == threads
+    except (TypeError, ValueError, OverflowError):
+        whole = False
+    if not whole or not 1 <= n <= MAX_THREADS:
+        raise ParameterError(f"{option}: expected {_THREADS_EXPECTED}, got {threads!r}")
+    return n
+
+
+thread_count = _number_type(int, lambda v: 1 <= v <= MAX_THREADS, _THREADS_EXPECTED)
+"""argparse type: a thread count, 1..:data:`MAX_THREADS` (``--threads`` of every command; :func:`check_threads`)."""

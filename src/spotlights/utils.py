@@ -735,3 +735,54 @@ def settings_from_namespace(cls: type[_T], namespace: object, **values: object) 
     command-line options map one to one onto the fields)."""
     names = [f.name for f in dataclasses.fields(cls) if f.init and f.name not in values]  # type: ignore[arg-type]
     return cls(**{n: getattr(namespace, n) for n in names if hasattr(namespace, n)}, **values)
+
+
+# ---------------------------------------------------------------------------- inputs and outputs that collide
+
+
+def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """Whether the paths ``a`` and ``b`` name one file: :func:`os.path.samefile` where both exist (hard links,
+    symbolic links, ``./x`` and ``x``), else their resolved absolute paths are equal."""
+    try:
+        if os.path.exists(a) and os.path.exists(b):
+            return os.path.samefile(a, b)
+        return Path(a).resolve() == Path(b).resolve()
+    except (OSError, RuntimeError):  # a symlink loop, a name too long: not the same as anything
+        return False
+
+
+def check_distinct_paths(
+    inputs: Iterable[tuple[str, str | os.PathLike | None]], outputs: Iterable[tuple[str, str | os.PathLike | None]]
+) -> None:
+    """Refuse, before any work, an output that is one of the inputs (it would be overwritten) or two outputs that
+    are one file (one would replace the other): a one-line :class:`ParameterError` naming both options.
+
+    inputs, outputs : ``(option, path)`` pairs, e.g. ``("--box", "box.json")`` (the command's positional argument
+    named as its metavar, e.g. ``"SCAN"``); a None path (option not given) is skipped."""
+    ins = [(o, p) for o, p in inputs if p is not None]
+    outs = [(o, p) for o, p in outputs if p is not None]
+    for i, (option, path) in enumerate(outs):
+        for in_option, in_path in ins:
+            if same_file(path, in_path):
+                raise ParameterError(
+                    f"{option} {path} is the input {in_option} {in_path}: it would be overwritten; write elsewhere"
+                )
+        for other_option, other in outs[:i]:
+            if same_file(path, other):
+                raise ParameterError(
+                    f"{other_option} {other} and {option} {path} are the same file: one would replace the other"
+                )
+
+
+def check_regular_file(path: str | os.PathLike, what: str = "file") -> Path:
+    """``path`` as a :class:`Path` when it is a regular file (or a link to one), else a one-line
+    :class:`InputFileError`: missing, a folder, or not a regular file (a FIFO, socket or device, which reading
+    would block on or never end)."""
+    p = Path(path)
+    if not p.exists():
+        raise InputFileError(p, "no such file")
+    if p.is_dir():
+        raise InputFileError(p, f"is a folder, expected a {what}")
+    if not p.is_file():
+        raise InputFileError(p, f"not a regular file (a FIFO, socket or device), expected a {what}")
+    return p

@@ -14,6 +14,7 @@ from ..options import (  # noqa: F401 - the argparse types, importable from here
     port_number,
     positive_float,
     positive_int,
+    thread_count,
     unit_interval,
 )
 from ..utils import check_suffix, settings_from_namespace  # noqa: F401 - check_suffix: used by the command modules
@@ -72,10 +73,15 @@ def add_quiet(p: argparse.ArgumentParser, what: str = "no progress bar") -> None
     p.add_argument("--no-progress", dest="quiet", action="store_true", help=argparse.SUPPRESS)
 
 
+#: Settings fields whose command-line type is fixed here whatever their declaration says: every ``--threads``
+#: is bounded by :data:`spotlights.options.MAX_THREADS` (torch's OpenMP crashes on absurd counts).
+FIELD_TYPES = {"threads": thread_count}
+
+
 def add_options(parser: argparse.ArgumentParser, cls, only: tuple = (), grouped: bool = True) -> None:
     """Add the options declared on the settings dataclass ``cls`` (:func:`spotlights.options.option`),
     in field order (``only``: these fields alone); ``grouped``: under their sections' titles; options
-    naming the same ``mutex`` exclude each other."""
+    naming the same ``mutex`` exclude each other; a field of :data:`FIELD_TYPES` takes its type from there."""
     import dataclasses
 
     sections: dict = {}
@@ -83,6 +89,8 @@ def add_options(parser: argparse.ArgumentParser, cls, only: tuple = (), grouped:
         kw = dict(f.metadata.get("cli") or {})
         if not kw or (only and f.name not in only):
             continue
+        if f.name in FIELD_TYPES and "type" in kw:
+            kw["type"] = FIELD_TYPES[f.name]
         flags, title = kw.pop("flags") or (f"--{f.name.replace('_', '-')}",), kw.pop("group")
         if title is not None and grouped and title not in sections:
             sections[title] = parser.add_argument_group(title)

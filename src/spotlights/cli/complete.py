@@ -7,6 +7,7 @@ import math
 import sys
 
 from ..data.tracks import MAX_GAP_S, MAX_TRANSLATION_M, MAX_YAW_RAD, WINDOW_HELP, parse_window
+from ..errors import ParameterError
 from ..experiments.frame_completion import complete_input
 from ..experiments.scan_completion import ScanSettings
 from ..utils import settings_from_namespace
@@ -16,7 +17,9 @@ from ._util import (
     argparse_type,
     non_negative_float,
     non_negative_int,
+    positive_float,
     positive_int,
+    thread_count,
     unit_interval,
 )
 from .view import add_html_argument
@@ -166,11 +169,12 @@ def add_completion_arguments(p, single: bool) -> None:
     )
     p.add_argument(
         "--threads",
-        type=positive_int,
+        type=thread_count,
         default=None,
         metavar="N",
         help="CPU threads of the model: torch's (default: one per core; with the track worker of --fuse, one less, "
-        "leaving a core to it) or, with --runtime onnx, onnxruntime's intra-op threads; N is used as it is",
+        "leaving a core to it) or, with --runtime onnx, onnxruntime's intra-op threads; N is used as it is, up to 4 "
+        "per CPU (at least 64)",
     )
     p.add_argument(
         "--runtime",
@@ -204,8 +208,8 @@ def add_track_arguments(p) -> None:
     )
     g.add_argument(
         "--max-gap",
-        type=float,
-        default=MAX_GAP_S,
+        type=positive_float,
+        default=argparse.SUPPRESS,  # not given: the settings' default, MAX_GAP_S (check_track_arguments)
         metavar="S",
         help=f"with --fuse: the longest time between two frames of one track, seconds (default {MAX_GAP_S:g})",
     )
@@ -224,6 +228,14 @@ def add_track_arguments(p) -> None:
         help="also log every frame (scan, given and used boxes, fused inputs, completions) on a time line into a "
         "rerun recording (needs the rerun extra; docs/viewer.md)",
     )
+
+
+def check_track_arguments(args) -> None:
+    """Refuse in one line, before any work, a track option given without ``--fuse`` (as ``--heading-margin``
+    without ``--heading-check``): ``--max-gap``, which would be ignored. Not given, ``--max-gap`` is absent from
+    ``args`` and the settings keep their default (:data:`~spotlights.data.tracks.MAX_GAP_S`)."""
+    if hasattr(args, "max_gap") and not args.fuse.fuses:
+        raise ParameterError("--max-gap goes with --fuse (the longest time between two fused frames of a track)")
 
 
 def register(sub) -> None:
@@ -320,5 +332,8 @@ def warn(line: str) -> None:
 
 
 def _complete(args) -> int:
-    complete_input(settings_from_namespace(ScanSettings, args), say=print, warn=warn)
+    check_track_arguments(args)
+    settings = settings_from_namespace(ScanSettings, args)
+    settings.check_paths()  # a multi-frame scene too: --out is not its input folder
+    complete_input(settings, say=print, warn=warn)
     return 0

@@ -12,7 +12,7 @@ from ..experiments.files import (
     encode_meshes,
     show_file,
 )
-from ..utils import settings_from_namespace
+from ..utils import check_distinct_paths, settings_from_namespace
 from ._util import add_command, add_quiet, unit_interval
 from .view import add_html_argument
 
@@ -141,15 +141,21 @@ def register(sub) -> None:
 
 
 def _encode(args) -> int:
-    encode_meshes(settings_from_namespace(EncodeSettings, args), say=print)
+    s = settings_from_namespace(EncodeSettings, args)
+    check_distinct_paths([("MESH", m) for m in s.meshes], [("--out", t) for t in s.targets()])
+    encode_meshes(s, say=print)
     return 0
 
 
 def _decode(args) -> int:
-    decode_file(settings_from_namespace(DecodeSettings, args), say=print)
+    s = settings_from_namespace(DecodeSettings, args)
+    check_distinct_paths([("FILE.npz", s.encoding)], [("--out", s.out)])
+    decode_file(s, say=print)
     return 0
 
 
 def _show(args) -> int:
-    show_file(settings_from_namespace(ShowSettings, args), say=print)
+    s = settings_from_namespace(ShowSettings, args)
+    check_distinct_paths([("FILE", s.file)], [("--out", s.out), ("--html", s.html)])
+    show_file(s, say=print)
     return 0

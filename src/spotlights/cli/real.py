@@ -24,7 +24,14 @@ from ._util import (
     positive_int,
     unit_interval,
 )
-from .complete import SNAP_HELP, SNAP_MIRROR_HELP, add_completion_arguments, add_track_arguments, warn
+from .complete import (
+    SNAP_HELP,
+    SNAP_MIRROR_HELP,
+    add_completion_arguments,
+    add_track_arguments,
+    check_track_arguments,
+    warn,
+)
 from .view import add_html_argument
 
 FORMAT_CHOICES = ("kitti", "kitti360", "av2", "nuscenes", "generic")
@@ -334,5 +341,6 @@ def _show(args) -> int:
 
 
 def _complete(args) -> int:
+    check_track_arguments(args)  # --max-gap goes with --fuse
     complete_frames(settings_from_namespace(FramesSettings, args), say=print, warn=warn)
     return 0

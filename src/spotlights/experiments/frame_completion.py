@@ -28,6 +28,7 @@ from ..data.tracks import MAX_GAP_S, TIME_UNIT_S, WindowPolicy, parse_window
 from ..errors import ParameterError, ProcessFailure
 from ..geometry.io import POINT_SUFFIXES
 from ..learning.inference import BaseCompleter
+from ..options import check_threads
 from ..utils import (
     StageTimer,
     output_folder,
@@ -310,10 +311,10 @@ def picture_workers(asked: int | None, n_frames: int) -> int:
 
 
 def _ready_to_draw() -> None:
-    """In a picture process: import matplotlib's Agg and the drawing code (while the frame loop's model loads)."""
+    """In a picture process (which imported this module, so the drawing code, to run this): import matplotlib's Agg
+    and 3-D axes while the frame loop's model loads."""
     import matplotlib.backends.backend_agg  # noqa: F401
-
-    from ..viz import scene  # noqa: F401
+    import mpl_toolkits.mplot3d  # noqa: F401
 
 
 class PictureProcesses:
@@ -643,6 +644,7 @@ def complete_frames(
     are counted), ``say`` the summary line; ``completer``: a model already loaded (default: the one ``s``
     names). Returns the run's summary (the content of ``summary.json``).
     """
+    check_threads(s.threads)  # also when a model is given (loading one checks it)
     # the track worker's interpreter starts while the dataset is opened and read (refusals stop it)
     early = TrackWorker.start() if s.track_worker and s.window.fuses else None
     try:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,7 +35,8 @@ from ..geometry.io import axes_rotation
 from ..inputs import read_json
 from ..learning.inference import BaseCompleter
 from ..learning.runtime import Runtime, load_completer
-from ..utils import atomic_output, check_suffix, check_writable
+from ..options import check_threads
+from ..utils import atomic_output, check_distinct_paths, check_suffix, check_writable, same_file
 from .scene import (
     HEADING_MARGIN,
     SceneConfig,
@@ -183,7 +185,11 @@ class CompletionOptions:
         """The model of :attr:`checkpoint` run with :attr:`runtime` on :attr:`device` at :attr:`precision`
         (:func:`spotlights.learning.runtime.load_completer`)."""
         return load_completer(
-            self.checkpoint, runtime=self.runtime, device=self.device, precision=self.precision, threads=self.threads
+            self.checkpoint,
+            runtime=self.runtime,
+            device=self.device,
+            precision=self.precision,
+            threads=check_threads(self.threads),
         )
 
     def check_snap(self, completer: BaseCompleter) -> None:
@@ -315,8 +321,27 @@ class ScanSettings(CompletionOptions):
             raise ParameterError("--classes chooses among the boxes of --boxes; one object's box is always completed")
         return dataclasses.replace(config, any_label=True)
 
+    def check_paths(self) -> None:
+        """Refuse, before any work, an output that would overwrite an input (the scan, a box or calib file) or
+        another output, per-object files (``--per-object DIR``'s ``object_<id>.ply``) included: one line naming
+        both options (:func:`spotlights.utils.check_distinct_paths`)."""
+        inputs = [("SCAN", self.input), ("--boxes", self.boxes), ("--calib", self.calib), ("--box", self.box)]
+        outputs = [("--out", self.out), ("--summary", self.summary), ("--show", self.show), ("--html", self.html)]
+        outputs.append(("--rerun", self.rerun))
+        check_distinct_paths(inputs, outputs)
+        if self.per_object is not None:
+            for option, path in inputs + outputs:
+                if path is not None and _PER_OBJECT_NAME.match(Path(path).name):
+                    if same_file(Path(path).parent, self.per_object):
+                        raise ParameterError(
+                            f"{option} {path} is in --per-object {self.per_object}, which receives object_<id>.ply "
+                            "files: one would replace it; choose another folder"
+                        )
+
     def check_outputs(self) -> None:
-        """Refuse, before any work, an output whose suffix does not fit or that cannot be written."""
+        """Refuse, before any work, an output whose suffix does not fit, that cannot be written, or that would
+        overwrite an input or another output (:meth:`check_paths`)."""
+        self.check_paths()
         check_suffix(self.show, (".png",), "the picture", "--show")
         check_suffix(self.html, (".html", ".htm"), "the page (HTML)", "--html")
         check_suffix(self.summary, (".json",), "the summary (JSON)", "--summary")
@@ -343,6 +368,10 @@ class ScanSettings(CompletionOptions):
         if not box.is_valid():
             raise ParameterError(f"{self.box_source}: box size must be positive, got {box.size.tolist()}")
         return [with_class(box)]
+
+
+#: The names of ``--per-object DIR``'s files: ``object_<id>.ply`` (:func:`~spotlights.experiments.scene.write_scene`).
+_PER_OBJECT_NAME = re.compile(r"^object_-?\d+\.ply$")
 
 
 def _check_single(s: ScanSettings, result: SceneResult, points: np.ndarray, axes: np.ndarray, warn: Say) -> None:
@@ -388,6 +417,7 @@ def complete_scan(
     s.check_single_scan()
     s.check_boxes()
     config = s.scan_config()
+    check_threads(s.threads)  # also for a completer given: torch's OpenMP crashes on absurd counts
     s.check_outputs()
     axes = axes_rotation(s.up, s.forward)
     points = read_scan(s.input)

@@ -65,6 +65,7 @@ from ..data.tracks import (
 from ..errors import ParameterError, ProcessFailure
 from ..geometry.boxes import Box
 from ..geometry.io import save_ply
+from ..options import check_threads
 from ..utils import StageTimer, _quiet_worker, atomic_output, process_pool_context, sigint_held
 from .names import file_stem, sequence_folders, unique_names
 from .scene import SOURCE_COMPLETION, SOURCE_PARTIAL, SceneConfig, SceneResult, _selected, scene_crops
@@ -542,7 +543,7 @@ def threads_beside_worker(plan: TrackPlan | None, threads: int | None = None):
     import torch
 
     before = torch.get_num_threads()
-    torch.set_num_threads(int(threads) if threads else max(1, min(before, usable_cpus() - 1)))
+    torch.set_num_threads(check_threads(threads) if threads else max(1, min(before, usable_cpus() - 1)))
     try:
         yield
     finally:

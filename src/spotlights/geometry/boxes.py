@@ -33,6 +33,19 @@ from ..inputs import read_json
 from .frames import Normalization, normalization_from_box
 from .rotations import is_rotation, orthonormalize, quaternion_to_matrix, rotation_z
 
+#: Largest absolute value of a box centre coordinate, metres. Georeferenced frames put boxes far from the origin
+#: (UTM northings reach ~1e7 m, ECEF coordinates ~6.4e6 m); 1e8 m leaves ten times that, while anything beyond it
+#: is a corrupt file, whose squared distances would overflow float64 (beyond ~1e154 m) in crops and KD-trees.
+MAX_BOX_CENTER_M = 1e8
+
+#: Largest box side, metres. A LiDAR sees ~300 m at most, and the largest annotated boxes (KITTI-360's buildings and
+#: walls) are a few hundred metres long; 1e4 m leaves a wide margin and keeps radii, norms and unit frames finite.
+MAX_BOX_SIZE_M = 1e4
+
+#: How far a box rotation may be from orthonormal (largest entry of ``R.T @ R - I``): the tolerance of
+#: :func:`~spotlights.geometry.rotations.is_rotation`; rotations rounded to float32 (~1e-7) pass easily.
+ROTATION_TOLERANCE = 1e-3
+
 #: 180 degrees about the box's own z axis: the same box, heading turned around.
 FLIP_Z = np.diag([-1.0, -1.0, 1.0])
 
@@ -103,8 +116,13 @@ class Box:
     yaw : keyword alternative to a numeric ``rotation``.
 
     Attributes are read-only float64 arrays (``center``, ``size``, ``rotation``) and
-    strings. Sizes are not checked here (annotations may hold degenerate boxes; see
-    :meth:`is_valid`); shapes are.
+    strings. Sizes are not checked for sign here (annotations may hold degenerate boxes,
+    even NaN ones; see :meth:`is_valid`), but shapes and numbers are: :class:`ParameterError`
+    (one line) for input that is not numeric, a finite centre coordinate beyond
+    :data:`MAX_BOX_CENTER_M`, a finite side beyond :data:`MAX_BOX_SIZE_M`, or a finite
+    rotation that is not a proper rotation (``R.T @ R`` within :data:`ROTATION_TOLERANCE`
+    of the identity, det > 0; readers orthonormalise calibration chains first). The
+    checks are cheap: a box is made for every annotation of every frame.
     """
 
     __slots__ = ("center", "size", "rotation", "label", "cls", "track_id", "_normalization")
@@ -128,22 +146,28 @@ class Box:
         *,
         yaw: float | None = None,
     ) -> None:
-        c = np.array(center, dtype=np.float64).reshape(-1)
-        s = np.array(size, dtype=np.float64).reshape(-1)
+        c = _numbers(center, "centre")
+        s = _numbers(size, "size")
         if c.shape != (3,) or s.shape != (3,):
             raise ParameterError(f"a box needs a 3-vector centre and size, got shapes {c.shape} and {s.shape}")
+        problem = _range_problem(c.tolist(), s.tolist())
+        if problem:
+            raise ParameterError(f"box {problem}")
         if rotation is not None and np.ndim(rotation) == 0:
             if yaw is not None:
                 raise ParameterError("give a box either a rotation or a yaw, not both")
-            rotation, yaw = None, float(rotation)  # type: ignore[arg-type]
+            rotation, yaw = None, _scalar(rotation, "yaw")
         if rotation is None:
-            r = rotation_z(0.0 if yaw is None else float(yaw))
+            r = rotation_z(0.0 if yaw is None else _scalar(yaw, "yaw"))
         else:
             if yaw is not None:
                 raise ParameterError("give a box either a rotation or a yaw, not both")
-            r = np.array(rotation, dtype=np.float64)
+            r = _numbers(rotation, "rotation")
             if r.shape != (3, 3):
                 raise ParameterError(f"a box rotation must be (3, 3), got shape {r.shape}")
+            problem = _rotation_problem(r)
+            if problem:
+                raise ParameterError(f"box rotation {problem}")
         for name, v in (("center", c), ("size", s), ("rotation", r)):
             v.setflags(write=False)
             object.__setattr__(self, name, v)
@@ -284,7 +308,9 @@ class Box:
     def transformed(self, t: np.ndarray) -> Box:
         """This box moved by the rigid (4, 4) transform ``t`` (new frame <- this box's frame)."""
         t = np.asarray(t, dtype=np.float64)
-        rot = orthonormalize(t[:3, :3] @ self.rotation)
+        rot = t[:3, :3] @ self.rotation
+        if np.all(np.isfinite(rot)):  # an invalid (NaN) box stays invalid: there is no rotation to make exact
+            rot = orthonormalize(rot)
         return self.replace(center=t[:3, :3] @ self.center + t[:3, 3], rotation=rot)
 
     def to_dict(self) -> dict:
@@ -298,6 +324,74 @@ class Box:
             "cls": self.cls,
             "track_id": self.track_id,
         }
+
+
+def _numbers(value: object, what: str) -> np.ndarray:
+    """``value`` as a float64 array, or :class:`ParameterError` (one line) when it is not numeric."""
+    try:
+        return np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ParameterError(f"a box {what} must be numbers, got {value!r:.60}") from None
+
+
+def _scalar(value: object, what: str) -> float:
+    """``value`` as a float, or :class:`ParameterError` (one line) when it is not one number."""
+    try:
+        return float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise ParameterError(f"a box {what} must be a number, got {value!r:.60}") from None
+
+
+def box_range_problem(center: ArrayLike, size: ArrayLike) -> str | None:
+    """Why a box's centre (3,) and size (3,), metres, are out of range, or None: a finite centre coordinate
+    beyond :data:`MAX_BOX_CENTER_M` in absolute value, or a finite side beyond :data:`MAX_BOX_SIZE_M`.
+
+    The one owner of these bounds (:class:`Box` checks every box with it; file readers name the file). Non-finite
+    values are not judged here: they make an invalid box (:meth:`Box.is_valid`), which readers refuse themselves.
+    Returns a phrase such as ``"centre [1e+300, 0, 0] is out of range (each coordinate within ±1e+08 m)"``.
+    """
+    return _range_problem(
+        np.asarray(center, dtype=np.float64).reshape(-1).tolist(),
+        np.asarray(size, dtype=np.float64).reshape(-1).tolist(),
+    )
+
+
+def _range_problem(c: list[float], s: list[float]) -> str | None:
+    """:func:`box_range_problem` of a centre and a size as lists of floats."""
+    if max(map(abs, c), default=0.0) <= MAX_BOX_CENTER_M and max(s, default=0.0) <= MAX_BOX_SIZE_M:
+        return None  # the common case, cheaply (a NaN never passes a larger value in max: it takes the long way)
+    if any(math.isfinite(v) and abs(v) > MAX_BOX_CENTER_M for v in c):
+        return f"centre {_short(c)} is out of range (each coordinate within ±{MAX_BOX_CENTER_M:.0e} m)"
+    if any(math.isfinite(v) and v > MAX_BOX_SIZE_M for v in s):
+        return f"size {_short(s)} is out of range (each side at most {MAX_BOX_SIZE_M:.0e} m)"
+    return None
+
+
+def _short(values: list[float]) -> str:
+    return "[" + ", ".join(f"{v:.6g}" for v in values) + "]"
+
+
+def _rotation_problem(r: np.ndarray) -> str | None:
+    """Why a finite (3, 3) matrix is not a proper rotation (see :data:`ROTATION_TOLERANCE`), or None; a matrix with
+    non-finite entries is not judged (an invalid box). Pure Python on 9 floats: ~2 us, a box is made per annotation."""
+    (a, b, c), (d, e, f), (g, h, i) = r.tolist()
+    if not math.isfinite(a + b + c + d + e + f + g + h + i):  # NaN, or an infinity (inf - inf is NaN too)
+        if all(math.isfinite(v) for v in (a, b, c, d, e, f, g, h, i)):  # finite, only their sum overflowed
+            return "holds numbers far beyond a rotation's (entries are within [-1, 1])"
+        return None
+    tol = ROTATION_TOLERANCE
+    if not (
+        abs(a * a + d * d + g * g - 1.0) <= tol  # columns of unit length
+        and abs(b * b + e * e + h * h - 1.0) <= tol
+        and abs(c * c + f * f + i * i - 1.0) <= tol
+        and abs(a * b + d * e + g * h) <= tol  # and at right angles
+        and abs(a * c + d * f + g * i) <= tol
+        and abs(b * c + e * f + h * i) <= tol
+    ):
+        return f"is not orthonormal (its columns must be unit axes at right angles, within {tol:g})"
+    if a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) <= 0:
+        return "is a reflection (determinant < 0): columns must be forward, left, up of a right-handed frame"
+    return None
 
 
 # --- boxes in JSON ---------------------------------------------------------------------
@@ -368,7 +462,8 @@ def box_from_dict(
     ``axes``: optional (3, 3) rotation taking the scan's coordinates to the object convention
     (x forward, y left, z up), as :func:`spotlights.geometry.io.axes_rotation` gives for
     ``--up/--forward``: a ``yaw`` then turns about the scan's up axis. The box returned is in
-    the scan's own coordinates. Errors are :class:`InputFileError` naming ``src`` and ``what``.
+    the scan's own coordinates. Errors are :class:`InputFileError` naming ``src`` and ``what``, among them
+    a centre or size out of range (:func:`box_range_problem`: :data:`MAX_BOX_CENTER_M`, :data:`MAX_BOX_SIZE_M`).
     """
     if not isinstance(d, dict):
         raise InputFileError(src, f"{what} is not a JSON object with center, size and a heading")
@@ -379,6 +474,9 @@ def box_from_dict(
         raise InputFileError(src, f"{what} has no 'size' [length, width, height]")
     center = _vector(d["center"], 3, src, f"{what} center")
     size = _vector(d[size_key], 3, src, f"{what} size")
+    problem = box_range_problem(center, size)
+    if problem:
+        raise InputFileError(src, f"{what} {problem}")
     a = np.eye(3) if axes is None else np.asarray(axes, dtype=np.float64)
     rot_value = d.get("rotation", d.get("quaternion"))
     if rot_value is not None:
@@ -413,7 +511,10 @@ def box_from_dict(
     track = next((d[k] for k in ID_KEYS if k in d), "")
     if isinstance(track, float) and track.is_integer():
         track = int(track)
-    return Box(center, size, rot, label, None, "" if track is None else str(track))
+    try:
+        return Box(center, size, rot, label, None, "" if track is None else str(track))
+    except ParameterError as exc:  # the box's own checks (one owner), here naming the file
+        raise InputFileError(src, f"{what}: {exc}") from None
 
 
 def load_box(path: str | os.PathLike) -> Box:

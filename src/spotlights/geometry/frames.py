@@ -23,6 +23,12 @@ import numpy as np
 from ..errors import ParameterError
 from .rotations import rotation_z
 
+#: Largest absolute coordinate of the points or mesh vertices a normalisation is made from, in their own unit
+#: (metres, millimetres, ...): a vehicle in millimetres spans ~1e4, georeferenced scans reach ~1e7 m (UTM), and
+#: 1e12 still leaves a margin for both together; beyond it a file is corrupt, and sizes, squares and norms of
+#: such numbers overflow float64 (near 1e154) with RuntimeWarnings instead of an error.
+MAX_COORDINATE = 1e12
+
 
 @dataclass(frozen=True, eq=False)
 class Normalization:
@@ -97,13 +103,16 @@ class Normalization:
 def normalization_from_points(points: np.ndarray) -> Normalization:
     """Axis-aligned box of (K, 3) points, its circumscribed sphere, and the transform into it.
 
-    Raises :class:`ParameterError` for empty, non-finite or zero-size input.
+    Raises :class:`ParameterError` for empty, non-finite, out-of-range (beyond :data:`MAX_COORDINATE`)
+    or zero-size input.
     """
     p = np.asarray(points, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3 or len(p) == 0:
         raise ParameterError(f"expected a non-empty (K, 3) point array, got shape {p.shape}")
     if not np.all(np.isfinite(p)):
         raise ParameterError("points contain NaN or infinite coordinates")
+    if np.abs(p).max() > MAX_COORDINATE:
+        raise ParameterError(f"points lie out of range: coordinates must be within ±{MAX_COORDINATE:.0e}")
     lo, hi = p.min(axis=0), p.max(axis=0)
     size = hi - lo
     radius = 0.5 * float(np.linalg.norm(size))
@@ -135,7 +144,9 @@ def normalization_from_box(center, size, yaw: float = 0.0, rotation=None) -> Nor
     if not np.all(np.isfinite(size)) or np.any(size < 0) or not np.any(size > 0):
         raise ParameterError(f"box size must be finite, non-negative and not all zero, got {size.tolist()}")
     rot = rotation_z(float(yaw)) if rotation is None else np.asarray(rotation, dtype=np.float64)
-    return Normalization(center=center, radius=0.5 * float(np.linalg.norm(size)), rotation=rot, size=size)
+    with np.errstate(over="ignore"):  # a huge size gives an infinite radius: Normalization's one-line error
+        radius = 0.5 * float(np.linalg.norm(size))
+    return Normalization(center=center, radius=radius, rotation=rot, size=size)
 
 
 def clamp_to_unit_sphere(points: np.ndarray) -> np.ndarray:

@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputFileError, ParameterError
-from ..utils import atomic_output
+from ..utils import atomic_output, check_regular_file
+from .frames import MAX_COORDINATE
 
 MESH_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
 POINT_SUFFIXES = (".ply", ".pcd", ".npy", ".npz", ".xyz", ".txt", ".las", ".laz")
@@ -62,16 +63,13 @@ def load_mesh(path: str | os.PathLike, up: str = "z", forward: str = "x"):
 
     Raises
     ------
-    InputFileError : missing/unreadable file, not a mesh, empty, non-finite
-        vertices, only degenerate faces, zero-size bounding box.
+    InputFileError : missing/unreadable file, not a regular file (folder, FIFO), not a mesh, empty, non-finite
+        vertices or vertices beyond :data:`~spotlights.geometry.frames.MAX_COORDINATE`, only degenerate faces,
+        zero-size bounding box.
     """
     import trimesh
 
-    p = Path(path)
-    if not p.exists():
-        raise InputFileError(p, "no such file")
-    if p.is_dir():
-        raise InputFileError(p, "is a folder, expected a mesh file")
+    p = check_regular_file(path, "mesh file")  # not a FIFO: reading one would block for ever
     rot = axes_rotation(up, forward)
     try:
         loaded = trimesh.load(str(p), force="mesh", process=False)
@@ -88,6 +86,8 @@ def load_mesh(path: str | os.PathLike, up: str = "z", forward: str = "x"):
         raise InputFileError(p, "empty mesh (no faces)")
     if not np.all(np.isfinite(v)):
         raise InputFileError(p, "mesh has NaN or infinite vertex coordinates")
+    if np.abs(v).max() > MAX_COORDINATE:  # refused before any size or area: no overflow warnings
+        raise InputFileError(p, f"mesh has vertex coordinates out of range (beyond ±{MAX_COORDINATE:.0e})")
     if f.min() < 0 or f.max() >= len(v):
         raise InputFileError(p, "mesh has face indices out of range")
     used = v[np.unique(f)]
@@ -111,11 +111,10 @@ def load_points(path: str | os.PathLike, drop_nonfinite: bool = False) -> np.nda
     in float64; needs the optional ``laspy`` extra, ``pip install 'spotlights[las]'``).
     Raises :class:`InputFileError` for missing, unreadable, empty or non-finite clouds
     (``drop_nonfinite=True``: rows with NaN or infinite coordinates, the "no return" points of
-    organised scans, are dropped instead; a cloud with none left is still an error).
+    organised scans, are dropped instead; a cloud with none left is still an error), and for a
+    path that is not a regular file (a folder; a FIFO, which reading would block on).
     """
-    p = Path(path)
-    if not p.exists():
-        raise InputFileError(p, "no such file")
+    p = check_regular_file(path, "point-cloud file")  # not a FIFO: reading one would block for ever
     suffix = p.suffix.lower()
     try:
         if suffix == ".pcd":

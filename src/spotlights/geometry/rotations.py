@@ -10,6 +10,8 @@ import math
 
 import numpy as np
 
+from ..errors import ParameterError
+
 
 def rotation_z(yaw: float) -> np.ndarray:
     """(3, 3) float64 rotation by ``yaw`` radians about +z (counter-clockwise seen from above).
@@ -25,9 +27,14 @@ def orthonormalize(m: np.ndarray) -> np.ndarray:
     """Nearest proper rotation (3, 3) float64 to ``m`` (polar decomposition via SVD).
 
     Calibration chains (e.g. KITTI's ``R0_rect`` times ``Tr_velo_to_cam``) are
-    rotations only up to rounding; boxes need an exact one.
+    rotations only up to rounding; boxes need an exact one. A matrix with a NaN or
+    infinite entry has no nearest rotation: :class:`ParameterError` (readers refuse
+    such numbers first, naming their file; this keeps LAPACK's "SVD did not converge" out).
     """
-    u, _, vt = np.linalg.svd(np.asarray(m, dtype=np.float64))
+    m = np.asarray(m, dtype=np.float64)
+    if not np.all(np.isfinite(m)):
+        raise ParameterError("cannot make a rotation of a matrix with NaN or infinite entries")
+    u, _, vt = np.linalg.svd(m)
     r = u @ vt
     if np.linalg.det(r) < 0:  # improper: flip the weakest axis
         u[:, -1] = -u[:, -1]

@@ -24,7 +24,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from ..geometry.rig import make_rig
-from ..options import DEVICE_HELP, non_negative_int, option, positive_int
+from ..options import DEVICE_HELP, check_threads, non_negative_int, option, positive_int
 from ..utils import atomic_output, check_writable
 from .models import DISPLAY_NAMES, MODEL_NAMES, build_model, check_model_name, load_config
 from .rays import timing_directions
@@ -184,7 +184,7 @@ def bench_models(
     from .device import resolve_device
 
     if threads:
-        torch.set_num_threads(int(threads))
+        torch.set_num_threads(check_threads(threads))
     dev = resolve_device(device)
     sync = torch.cuda.synchronize if dev.type == "cuda" else None
     rig = rig or make_rig(32, 64, 60.0)

@@ -19,8 +19,8 @@ def default_device() -> torch.device:
 def resolve_device(device=None) -> torch.device:
     """The torch device to use: ``device`` if given (validated), else CUDA when available, else CPU.
 
-    Raises :class:`ParameterError` for an unknown device string or a CUDA device on a machine
-    without CUDA.
+    Raises :class:`ParameterError` for an unknown device string, or a CUDA or MPS device on a machine
+    without it (naming the devices that are available).
     """
     if device is None:
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
@@ -36,9 +36,34 @@ def resolve_device(device=None) -> torch.device:
             raise ParameterError(f"device {device!r} asked for, but CUDA is not available on this machine")
         if dev.index is not None and dev.index >= torch.cuda.device_count():
             raise ParameterError(f"device {device!r}: only {torch.cuda.device_count()} CUDA device(s) here")
-    elif dev.type not in ("cpu", "mps"):
+    elif dev.type == "mps":
+        if not mps_available():
+            raise ParameterError(
+                f"device {device!r} asked for, but MPS (Apple GPU) is not available on this machine "
+                f"(available: {', '.join(available_devices())})"
+            )
+    elif dev.type != "cpu":
         raise ParameterError(f"unsupported torch device {device!r} (use cpu, cuda or cuda:N)")
     return dev
+
+
+def mps_available() -> bool:
+    """Whether this torch can run on an Apple GPU (MPS): built with it, on a Mac that has one."""
+    mps = getattr(torch.backends, "mps", None)
+    try:
+        return bool(mps is not None and mps.is_available())
+    except RuntimeError:  # pragma: no cover - a torch that cannot even ask
+        return False
+
+
+def available_devices() -> list[str]:
+    """The device names :func:`resolve_device` accepts here: ``cpu``, then ``cuda:0``... and ``mps`` when present."""
+    names = ["cpu"]
+    if torch.cuda.is_available():
+        names += [f"cuda:{i}" for i in range(torch.cuda.device_count())]
+    if mps_available():
+        names.append("mps")
+    return names
 
 
 PRECISIONS = ("auto", "fp32", "bf16")

@@ -35,6 +35,7 @@ from ..metrics.completion import METRIC_DESCRIPTIONS, evaluate_completions, summ
 from ..options import (
     DEVICE_HELP,
     REQUIRED,
+    check_threads,
     non_negative_float,
     non_negative_int,
     option,
@@ -617,7 +618,7 @@ def run_evaluation(s: EvaluateSettings, log: Callable[[str], None] = print) -> d
     if s.threads:
         import torch
 
-        torch.set_num_threads(int(s.threads))
+        torch.set_num_threads(check_threads(s.threads))
     report = evaluate_checkpoints(
         s.checkpoint,
         s.data,

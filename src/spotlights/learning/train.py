@@ -34,6 +34,7 @@ from torch.utils.data import DataLoader
 from tqdm import tqdm
 
 from ..errors import OutputFileError, SpotlightsError
+from ..options import check_threads
 from ..utils import StageTimer, atomic_output, output_folder
 from .checkpoint import save_checkpoint
 from .config import SELECT_BY
@@ -149,7 +150,7 @@ def run_training(settings: TrainSettings, log=_print_flush) -> dict:
     inside the run folder (``settings.run_dir``; a run that fails before writing anything leaves
     no empty folder). Returns :func:`train_with`'s dict."""
     if settings.threads:
-        torch.set_num_threads(int(settings.threads))
+        torch.set_num_threads(check_threads(settings.threads))
     with output_folder(settings.run_dir):
         return train_with(settings, log)
 

@@ -14,7 +14,9 @@ down, e.g. ``sensor/val/``) are logs. Sweeps are already in the ego-vehicle
 frame (x forward, y left, z up), and so are the cuboids of the same
 ``timestamp_ns``: the sensor frame of a frame here is the ego frame. The cuboid
 translation is its centre; its rotation (scalar-first quaternion) maps the
-cuboid's x (length), y (width), z (height) axes into the ego frame.
+cuboid's x (length), y (width), z (height) axes into the ego frame. An annotation row with a NaN
+or infinite number, a zero quaternion or a box out of range (:func:`~spotlights.geometry.boxes.box_range_problem`)
+is refused: :class:`~spotlights.errors.InputFileError` naming the file and row.
 
 The LiDAR's optical centre (``Frame.sensor_origin``, for free-space reasoning) is the translation
 of ``up_lidar`` in ``LOG/calibration/egovehicle_SE3_sensor.feather`` (a sweep merges the roof's
@@ -40,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...errors import InputFileError
+from ...errors import InputFileError, ParameterError
 from ...geometry.boxes import Box
 from ...geometry.rotations import quaternion_to_matrix
 from .base import Frame, SceneReader, lookup_class
@@ -133,8 +135,21 @@ class _Log:
         ann = _read_feather(self.ann_path, ANNOTATION_COLUMNS, "annotations")
         order = np.argsort(ann["timestamp_ns"], kind="stable")
         self.ann = {k: v[order] for k, v in ann.items()}
-        for c in ("length_m", "width_m", "height_m", "qw", "qx", "qy", "qz", "tx_m", "ty_m", "tz_m"):
+        numeric = ("length_m", "width_m", "height_m", "qw", "qx", "qy", "qz", "tx_m", "ty_m", "tz_m")
+        for c in numeric:
             self.ann[c] = self.ann[c].astype(np.float64)
+        self.ann_rows = order  # each sorted row's row number in the file (for errors)
+        # refuse corrupt numbers here, naming the file and row: a NaN would make a box without a rotation
+        for c in numeric:
+            bad = np.flatnonzero(~np.isfinite(self.ann[c]))
+            if len(bad):
+                raise InputFileError(
+                    self.ann_path, f"row {int(order[bad[0]])}: {c} must be finite, got {self.ann[c][bad[0]]}"
+                )
+        qnorm = np.sqrt(sum(self.ann[c] ** 2 for c in ("qw", "qx", "qy", "qz")))
+        bad = np.flatnonzero(qnorm < 1e-9)
+        if len(bad):
+            raise InputFileError(self.ann_path, f"row {int(order[bad[0]])}: the quaternion (qw, qx, qy, qz) is zero")
         pose_path = path / "city_SE3_egovehicle.feather"
         if pose_path.is_file():
             cols = _read_feather(pose_path, POSE_COLUMNS, "ego poses")
@@ -173,8 +188,8 @@ class _Log:
         boxes = []
         for k, i in enumerate(range(lo, hi)):
             label = str(a["category"][i])
-            boxes.append(
-                Box(
+            try:
+                box = Box(
                     np.array([a["tx_m"][i], a["ty_m"][i], a["tz_m"][i]]),
                     np.array([a["length_m"][i], a["width_m"][i], a["height_m"][i]]),
                     rot[k],
@@ -182,7 +197,9 @@ class _Log:
                     lookup_class(label, CLASS_MAP),
                     str(a["track_uuid"][i]),
                 )
-            )
+            except ParameterError as exc:  # out of range (the box's own checks), here naming the file and row
+                raise InputFileError(self.ann_path, f"row {int(self.ann_rows[i])}: {exc}") from None
+            boxes.append(box)
         return boxes
 
 

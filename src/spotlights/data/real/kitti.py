@@ -37,8 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ...errors import InputFileError
-from ...geometry.boxes import Box
+from ...errors import InputFileError, ParameterError
+from ...geometry.boxes import Box, box_range_problem
 from ...geometry.rotations import orthonormalize
 from .base import Frame, SceneReader, lookup_class
 from .scans import read_kitti_bin  # noqa: F401  (re-exported: the KITTI reader's scan format)
@@ -98,8 +98,16 @@ def velo_from_rect(calib: dict[str, np.ndarray]) -> np.ndarray:
     return np.linalg.inv(tr) @ np.linalg.inv(r0)
 
 
+#: The 14 numeric fields of a ``label_2`` line, in order (after the type).
+LABEL_FIELDS = (
+    "truncated", "occluded", "alpha", "x1", "y1", "x2", "y2", "h", "w", "l", "x", "y", "z", "rotation_y",
+)  # fmt: skip
+
+
 def parse_label_line(line: str, path, lineno: int) -> tuple[str, np.ndarray]:
-    """Split one ``label_2`` line into (type, 14 float64 values); raises InputFileError if malformed."""
+    """Split one ``label_2`` line into (type, 14 float64 values); raises InputFileError if malformed:
+    a wrong field count, a non-numeric field, or a NaN or infinite one (KITTI's own placeholders, such as
+    DontCare's -1 and -1000, are finite)."""
     fields = line.split()
     if len(fields) not in (15, 16):
         raise InputFileError(
@@ -109,6 +117,10 @@ def parse_label_line(line: str, path, lineno: int) -> tuple[str, np.ndarray]:
         nums = np.array([float(v) for v in fields[1:15]], dtype=np.float64)
     except ValueError:
         raise InputFileError(path, f"line {lineno}: non-numeric field in {line.strip()!r}") from None
+    bad = np.flatnonzero(~np.isfinite(nums))
+    if len(bad):
+        k = int(bad[0])
+        raise InputFileError(path, f"line {lineno}: {LABEL_FIELDS[k]} must be a finite number, got {fields[k + 1]!r}")
     return fields[0], nums
 
 
@@ -116,11 +128,18 @@ def box_from_label(kind: str, nums: np.ndarray, t_velo_rect: np.ndarray, track_i
     """A KITTI label (type + 14 numbers) -> :class:`Box` in the Velodyne frame.
 
     ``nums`` = truncated, occluded, alpha, x1, y1, x2, y2, h, w, l, x, y, z, rotation_y
-    (camera-frame bottom centre); ``t_velo_rect`` from :func:`velo_from_rect`.
+    (camera-frame bottom centre, metres; rotation_y radians); ``t_velo_rect`` from :func:`velo_from_rect`.
+    Raises :class:`ParameterError` for non-finite numbers or a box out of the range of
+    :func:`~spotlights.geometry.boxes.box_range_problem` (:func:`read_labels` names the file and line).
     """
+    if not np.all(np.isfinite(nums)):
+        raise ParameterError("a KITTI label's numbers must be finite")
+    problem = box_range_problem(nums[10:13], nums[7:10])  # before the transform: no overflow on the way
     h, w, length = nums[7:10]
     x, y, z = nums[10:13]
     ry = nums[13]
+    if problem:
+        raise ParameterError(f"box {problem}")
     c, s = np.cos(ry), np.sin(ry)
     axes_rect = np.array([[c, s, 0.0], [0.0, 0.0, -1.0], [-s, c, 0.0]])  # columns: forward, left, up
     center_rect = np.array([x, y - h / 2.0, z])  # camera y points down: centre is h/2 above the bottom
@@ -140,7 +159,10 @@ def read_labels(path: str | os.PathLike, t_velo_rect: np.ndarray) -> list[Box]:
             if not line.strip():
                 continue
             kind, nums = parse_label_line(line, path, lineno)
-            boxes.append(box_from_label(kind, nums, t_velo_rect))
+            try:
+                boxes.append(box_from_label(kind, nums, t_velo_rect))
+            except ParameterError as exc:  # out of range (the box's own checks), here naming the file and line
+                raise InputFileError(path, f"line {lineno}: {exc}") from None
     return boxes
 
 

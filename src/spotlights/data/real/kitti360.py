@@ -43,13 +43,14 @@ extraction); scene objects such as buildings, poles or signs are ignored.
 
 from __future__ import annotations
 
+import math
 import os
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 
-from ...errors import InputFileError
+from ...errors import InputFileError, ParameterError
 from ...geometry.boxes import Box
 from ...geometry.rotations import orthonormalize
 from .base import Frame, SceneReader, lookup_class
@@ -109,6 +110,8 @@ def _matrix(node, path, what: str) -> np.ndarray:
         raise InputFileError(path, f"{what}: malformed OpenCV matrix (rows, cols, data expected)") from None
     if data.size != rows * cols:
         raise InputFileError(path, f"{what}: {data.size} values for a {rows}x{cols} matrix")
+    if not np.all(np.isfinite(data)):
+        raise InputFileError(path, f"{what}: holds a NaN or infinite value")
     return data.reshape(rows, cols)
 
 
@@ -219,6 +222,8 @@ def _read_rigid(path: Path, key: str | None) -> np.ndarray:
         raise InputFileError(path, f"non-numeric value in {key or 'matrix'}") from None
     if len(nums) != 12:
         raise InputFileError(path, f"{key or 'matrix'} has {len(nums)} values, expected 12 (3x4)")
+    if not all(math.isfinite(v) for v in nums):
+        raise InputFileError(path, f"{key or 'matrix'} holds a NaN or infinite value")
     t = np.eye(4)
     t[:3, :4] = np.array(nums).reshape(3, 4)
     return t
@@ -240,6 +245,8 @@ def read_poses(path: Path) -> dict[int, np.ndarray]:
                 nums = [float(v) for v in f]
             except ValueError:
                 raise InputFileError(path, f"line {lineno}: non-numeric value") from None
+            if not all(math.isfinite(v) for v in nums):
+                raise InputFileError(path, f"line {lineno}: NaN or infinite value")
             t = np.eye(4)
             t[:3, :4] = np.array(nums[1:]).reshape(3, 4)
             out[int(nums[0])] = t
@@ -335,8 +342,8 @@ class Kitti360Reader(SceneReader):
         for o in objs:
             center = velo_T_world[:3, :3] @ o["center"] + velo_T_world[:3, 3]
             rot, size = vehicle_axes(velo_T_world[:3, :3] @ o["rotation"], o["size"])
-            boxes.append(
-                Box(
+            try:
+                box = Box(
                     center,
                     size,
                     rot,
@@ -344,7 +351,9 @@ class Kitti360Reader(SceneReader):
                     lookup_class(o["label"], CLASS_MAP),
                     f"{o['semantic_id']}-{o['instance_id']}",
                 )
-            )
+            except ParameterError as exc:  # out of range (the box's own checks), here naming the file and object
+                raise InputFileError(s["xml"], f"object {o['semantic_id']}-{o['instance_id']}: {exc}") from None
+            boxes.append(box)
         return Frame(
             sequence=seq,
             frame_id=stem,

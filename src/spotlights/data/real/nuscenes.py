@@ -48,7 +48,7 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import InputFileError, ParameterError
-from ...geometry.boxes import Box
+from ...geometry.boxes import MAX_BOX_CENTER_M, Box
 from ...geometry.rotations import quaternion_to_matrix, rigid_transform
 from ...inputs import path_inside, read_json
 from .base import Frame, SceneReader, lookup_class
@@ -146,6 +146,11 @@ def _pose(row: dict, path: Path, what: str) -> np.ndarray:
             f"{what} {row.get('token', '?')}: translation must be 3 numbers and rotation a "
             "non-zero quaternion (w, x, y, z)",
         )
+    if np.abs(t).max() > MAX_BOX_CENTER_M:  # the bound of a box centre: frames chained to a box stay within it
+        raise InputFileError(
+            path,
+            f"{what} {row.get('token', '?')}: translation {t.tolist()} is out of range (±{MAX_BOX_CENTER_M:.0e} m)",
+        )
     return rigid_transform(quaternion_to_matrix(*q), t)
 
 
@@ -158,17 +163,20 @@ def annotation_box(row: dict, category: str, path: Path | str = "sample_annotati
         wlh = np.asarray(row["size"], dtype=np.float64)
     except (TypeError, ValueError):
         wlh = np.zeros(0)
-    if wlh.shape != (3,):
-        raise InputFileError(path, f"annotation {row.get('token', '?')}: size must be 3 numbers (w, l, h)")
+    if wlh.shape != (3,) or not np.all(np.isfinite(wlh)):
+        raise InputFileError(path, f"annotation {row.get('token', '?')}: size must be 3 finite numbers (w, l, h)")
     t = _pose(row, Path(path), "annotation")
-    return Box(
-        t[:3, 3],
-        (wlh[1], wlh[0], wlh[2]),
-        t[:3, :3],
-        category,
-        lookup_class(category, CLASS_MAP),
-        str(row["instance_token"]),
-    )
+    try:
+        return Box(
+            t[:3, 3],
+            (wlh[1], wlh[0], wlh[2]),
+            t[:3, :3],
+            category,
+            lookup_class(category, CLASS_MAP),
+            str(row["instance_token"]),
+        )
+    except ParameterError as exc:  # out of range (the box's own checks), here naming the file and row
+        raise InputFileError(path, f"annotation {row.get('token', '?')}: {exc}") from None
 
 
 class NuScenesReader(SceneReader):
@@ -266,9 +274,8 @@ class NuScenesReader(SceneReader):
     def sensor_to_world(self, key: tuple[str, str]) -> np.ndarray:
         """(4, 4) float64 global <- LIDAR_TOP sensor transform of one frame."""
         sd = self._frames[key][3]
-        path = self.tables / "sample_data.json"
-        return _pose(self._ego[sd["ego_pose_token"]], path, "ego_pose") @ _pose(
-            self._calib[sd["calibrated_sensor_token"]], path, "calibrated_sensor"
+        return _pose(self._ego[sd["ego_pose_token"]], self.tables / "ego_pose.json", "ego_pose") @ _pose(
+            self._calib[sd["calibrated_sensor_token"]], self.tables / "calibrated_sensor.json", "calibrated_sensor"
         )
 
     def annotations(self, key: tuple[str, str]) -> list[dict]:
