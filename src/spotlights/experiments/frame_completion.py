@@ -326,16 +326,20 @@ class PictureProcesses:
 
     def __init__(self, workers: int) -> None:
         self.workers = int(workers)
-        # Ctrl-C held back while they start (as the track worker's start): the fork server and the workers inherit
-        # the blocked signal (they ignore it), and none lands half-way through the start
-        with sigint_held():
-            self.pool = start_process_pool(self.workers)
-            try:
+        pool = None
+        try:
+            # Ctrl-C held back while they start (as the track worker's start): the fork server and the workers
+            # inherit the blocked signal (they ignore it), and none lands half-way through the start; one that came
+            # meanwhile is raised as the block ends, and stops the processes here
+            with sigint_held():
+                pool = start_process_pool(self.workers)
                 for _ in range(self.workers):  # each task starts a process: their imports overlap the model's load
-                    self.pool.submit(_ready_to_draw)
-            except BaseException:
-                stop_process_pool(self.pool)
-                raise
+                    pool.submit(_ready_to_draw)
+        except BaseException:
+            if pool is not None:
+                stop_process_pool(pool)
+            raise
+        self.pool = pool
 
     @classmethod
     def start(cls, s: FramesSettings, n_frames: int) -> PictureProcesses | None:
