@@ -373,8 +373,11 @@ class PictureProcesses:
             ) from None
 
     def close(self) -> None:
-        """Stop the processes now (what is left to draw is dropped)."""
-        stop_process_pool(self.pool)
+        """Stop the processes: what is not being drawn yet is dropped, a picture being drawn is finished (a second or
+        so: the run waits for its frames in flight first anyway), then the processes end. Not terminated mid-task:
+        a terminated worker's queues are not cleaned up, and the resource tracker then warns of leaked semaphores
+        as the run exits (seen after a Ctrl-C during the frames)."""
+        self.pool.shutdown(wait=True, cancel_futures=True)
 
 
 class _FrameRun:
