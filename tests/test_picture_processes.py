@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import json
 import os
+import time
 
+import numpy as np
 import pytest
 
 from spotlights.cli import main
@@ -59,9 +61,16 @@ def _outputs(out) -> dict:
 
 
 def test_the_same_files_whatever_the_picture_processes(tmp_path):
-    """Three frames drawn by the writer thread (0), by one picture process and by two (two frames in flight): the
-    same PNG, PLY and JSON bytes (but timings and paths) - independent truth: the drawing in this process."""
+    """Three different frames drawn by the writer thread (0), by one picture process and by two (two frames in
+    flight): the same PNG, PLY and JSON bytes (but timings and paths) - independent truth: the drawing in this
+    process - so no picture went to another frame's file."""
     scans = three_frames(tmp_path / "scans")
+    rng = np.random.default_rng(1)
+    for k in (1, 2):  # frames of their own: the car's points moved a little, the clutter redrawn
+        pts = np.load(scans / f"f{k}.npy")
+        pts[:600] += rng.normal(0, 0.02, (600, 3)).astype(np.float32)
+        pts[600:] = rng.uniform(-30, 30, pts[600:].shape).astype(np.float32) + [0, 0, 40]
+        np.save(scans / f"f{k}.npy", pts)
     runs = {}
     for n in ("0", "1", "2"):
         out = tmp_path / f"out{n}"
@@ -71,6 +80,7 @@ def test_the_same_files_whatever_the_picture_processes(tmp_path):
     frames = {f"scans/f{k}{ext}" for k in range(3) for ext in (".png", ".ply", ".json")}
     assert frames | {"summary.json"} <= set(runs["0"]), sorted(runs["0"])
     assert runs["1"].keys() == runs["0"].keys() == runs["2"].keys()
+    assert len({runs["0"][f"scans/f{k}.png"] for k in range(3)}) == 3  # three different pictures
     for name in runs["0"]:
         assert runs["1"][name] == runs["0"][name], name
         assert runs["2"][name] == runs["0"][name], name
@@ -89,6 +99,46 @@ def test_a_picture_process_that_dies_is_one_line_naming_the_picture(tmp_path):
         assert caught.value.exit_code == 1 and "--picture-workers 0" in str(caught.value)
     finally:
         pictures.close()
+
+
+def test_a_broken_pool_is_reported_in_frame_order_not_at_the_next_frame(tmp_path):
+    """A picture process died: the next frame's draw() does not raise (a traceback in the frame loop, before), its
+    future holds the error, which png() reports as one line when the writer reaches that frame."""
+    pictures = PictureProcesses(1)
+    try:
+        dead = pictures.pool.submit(_die)
+        with pytest.raises(ProcessFailure):
+            PictureProcesses.png(dead, tmp_path / "f0.png")
+        later = pictures.draw(None, "not drawn")  # the pool is broken: submit would raise here
+        with pytest.raises(ProcessFailure, match=r"f1\.png: the process drawing it ended"):
+            PictureProcesses.png(later, tmp_path / "f1.png")
+    finally:
+        pictures.close()
+
+
+def _hang() -> None:  # in a picture process: never ends
+    time.sleep(3600)
+
+
+def test_a_hung_picture_process_stops_the_run_and_is_ended(tmp_path, monkeypatch):
+    """A picture that never comes: png() gives up after PICTURE_STALL_S with one line (the run waited for ever,
+    Ctrl-C included, before), and close() ends the hung process after PICTURE_CLOSE_S."""
+    monkeypatch.setattr(frame_completion, "PICTURE_STALL_S", 1.0)
+    monkeypatch.setattr(frame_completion, "PICTURE_CLOSE_S", 1.0)
+    pictures = PictureProcesses(1)
+    processes = []
+    try:
+        hung = pictures.pool.submit(_hang)
+        processes = list(pictures.pool._processes.values())
+        t0 = time.monotonic()
+        with pytest.raises(ProcessFailure, match=r"f3\.png: the process drawing it made no progress for 1 s") as e:
+            PictureProcesses.png(hung, tmp_path / "f3.png")
+        assert e.value.exit_code == 1 and time.monotonic() - t0 < 30
+    finally:
+        t0 = time.monotonic()
+        pictures.close()
+        assert time.monotonic() - t0 < 30
+    assert processes and not any(p.is_alive() for p in processes)
 
 
 def test_picture_workers_on_the_command_line(tmp_path, capsys):

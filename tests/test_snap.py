@@ -243,7 +243,7 @@ def test_onnxruntime_snaps_like_torch(tmp_path, hit_ckpt):
 
 
 @pytest.mark.parametrize(
-    "value, radius", [(None, None), (0, None), (0.0, None), (0.05, 0.05), ("0.08", 0.08), (np.float32(0.5), 0.5)]
+    "value, radius", [(None, None), (0, None), (0.0, None), (0.05, 0.05), (np.float32(0.5), 0.5), (np.int64(1), 1.0)]
 )
 def test_snap_radius_reads_off_and_radii(value, radius):
     from spotlights.geometry.evidence import snap_radius
@@ -251,7 +251,7 @@ def test_snap_radius_reads_off_and_radii(value, radius):
     assert snap_radius(value) == (None if radius is None else pytest.approx(radius))
 
 
-@pytest.mark.parametrize("value", [-0.1, float("nan"), float("inf"), -float("inf"), "abc", [0.1, 0.2]])
+@pytest.mark.parametrize("value", [-0.1, float("nan"), float("inf"), -float("inf"), "abc", "0.08", True, [0.1, 0.2]])
 def test_snap_radius_refuses_other_values_naming_the_option(value):
     from spotlights.geometry.evidence import snap_radius
 
@@ -274,6 +274,10 @@ def test_every_surface_checks_the_snap_radius_and_mirror_alike():
         with pytest.raises(ParameterError, match="^--snap-mirror goes with --snap R$"):
             make(snap=0.0, snap_mirror=True)
         assert make(snap=0.0).snap == 0.0 and make(snap=0.05, snap_mirror=True).snap_mirror
+        assert make(snap=None).snap == 0.0  # off
+        for bad in ("0.5", True):  # text and booleans are not radii (were a raw TypeError further on)
+            with pytest.raises(ParameterError, match=r"^--snap: the snap radius must be a finite number > 0"):
+                make(snap=bad)
 
 
 def test_scene_options_and_real_evaluation_refuse_snap_with_the_heading_check():

@@ -581,10 +581,19 @@ def start_process_pool(workers: int, initializer: Callable | None = None, initar
     )
 
 
-def stop_process_pool(pool) -> None:
-    """Stop a ProcessPoolExecutor now: cancel what has not started, end the workers."""
-    processes = list(getattr(pool, "_processes", {}).values())
+def stop_process_pool(pool, grace: float = 0.0) -> None:
+    """Stop a ProcessPoolExecutor: cancel what has not started; with ``grace`` > 0 seconds, let the tasks that are
+    running finish for up to that long (workers that end on their own leave no half-cleaned queue: terminated
+    mid-task, the resource tracker may warn of a leaked semaphore at exit); then end the workers still alive."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    manager = getattr(pool, "_executor_manager_thread", None)
     pool.shutdown(wait=False, cancel_futures=True)
+    if grace > 0:
+        deadline = time.monotonic() + grace
+        for p in processes:
+            p.join(max(0.0, deadline - time.monotonic()))
+        if manager is not None:
+            manager.join(max(0.0, deadline - time.monotonic()))
     for p in processes:
         with contextlib.suppress(Exception):
             p.terminate()

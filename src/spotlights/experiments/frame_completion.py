@@ -294,8 +294,15 @@ def done_frame(
 FRAME_KEYS = ("sequence", "frame_id", "timestamp", "scan", "ply", "n_boxes", "n_completed", "n_flipped", "skipped")
 
 
-#: The most processes that draw PNGs by default (:func:`picture_workers`).
+#: The most processes that draw PNGs by default (:func:`picture_workers`); each holds ~140 MB (matplotlib).
 PICTURE_WORKERS_MAX = 8
+
+#: Seconds a frame's PNG may take in a picture process before the run stops with one line (a hung process; a
+#: frame of scene-0523 takes about 0.5 s, a slow machine a few): the run never waits for ever on a picture.
+PICTURE_STALL_S = 120.0
+
+#: Seconds the picture processes get to finish the picture they draw when the run ends (then they are ended).
+PICTURE_CLOSE_S = 10.0
 
 
 def picture_workers(asked: int | None, n_frames: int) -> int:
@@ -355,29 +362,43 @@ class PictureProcesses:
             return None
 
     def draw(self, result: SceneResult, title: str) -> Future:
-        """Start drawing ``result``'s PNG; a future of its bytes (:meth:`png`)."""
-        return self.pool.submit(result_png, result, title)
-
-    @staticmethod
-    def png(drawn: Future, path: Path) -> bytes:
-        """The bytes of ``drawn`` (waiting for them); a one-line :class:`~spotlights.errors.ProcessFailure` naming
-        ``path`` when the process drawing it ended first (killed, say for memory)."""
+        """Start drawing ``result``'s PNG; a future of its bytes (:meth:`png`). When a picture process has died
+        already (the pool is broken), the future holds that error: it is reported in frame order, by :meth:`png`."""
         from concurrent.futures.process import BrokenProcessPool
 
         try:
-            return drawn.result()
+            return self.pool.submit(result_png, result, title)
+        except BrokenProcessPool as exc:
+            failed: Future = Future()
+            failed.set_exception(exc)
+            return failed
+
+    @staticmethod
+    def png(drawn: Future, path: Path) -> bytes:
+        """The bytes of ``drawn`` (waiting for them, :data:`PICTURE_STALL_S` at most); a one-line
+        :class:`~spotlights.errors.ProcessFailure` naming ``path`` when the process drawing it ended first (killed,
+        say for memory) or took longer than that (hung)."""
+        from concurrent.futures import TimeoutError as FutureTimeout
+        from concurrent.futures.process import BrokenProcessPool
+
+        hint = "--picture-workers 0 draws the pictures in this process"
+        try:
+            return drawn.result(timeout=PICTURE_STALL_S)
         except BrokenProcessPool:
             raise ProcessFailure(
-                f"{path}: the process drawing it ended before it was done (killed, or out of memory?); "
-                "--picture-workers 0 draws the pictures in this process"
+                f"{path}: the process drawing it ended before it was done (killed, or out of memory?); {hint}"
+            ) from None
+        except FutureTimeout:
+            raise ProcessFailure(
+                f"{path}: the process drawing it made no progress for {PICTURE_STALL_S:g} s and was stopped; {hint}"
             ) from None
 
     def close(self) -> None:
-        """Stop the processes: what is not being drawn yet is dropped, a picture being drawn is finished (a second or
-        so: the run waits for its frames in flight first anyway), then the processes end. Not terminated mid-task:
-        a terminated worker's queues are not cleaned up, and the resource tracker then warns of leaked semaphores
-        as the run exits (seen after a Ctrl-C during the frames)."""
-        self.pool.shutdown(wait=True, cancel_futures=True)
+        """Stop the processes: what is not being drawn yet is dropped, a picture being drawn gets
+        :data:`PICTURE_CLOSE_S` to finish (the run has waited for its frames in flight first anyway), then the
+        processes still alive are ended (:func:`~spotlights.utils.stop_process_pool`: workers ended mid-task can
+        leave the resource tracker warning of a leaked semaphore at exit, seen after a Ctrl-C during the frames)."""
+        stop_process_pool(self.pool, grace=PICTURE_CLOSE_S)
 
 
 class _FrameRun:
@@ -417,6 +438,8 @@ class _FrameRun:
 
     def complete(self, key: tuple, stem: Path) -> dict | None:
         """Complete frame ``key`` and write its files; its summary, or None for a scan with too few points."""
+        if self._stopped:  # a frame in flight failed to write: stop now (its error is raised), not N frames later
+            self.wait_writes()
         config = self.config
         frame = None if self.tracks is None else self.tracks.take(key)  # read once: the track plan kept it
         frame = self.reader.load(key) if frame is None else frame
@@ -493,9 +516,11 @@ class _FrameRun:
         self._written.append(shared_thread_pool("write", 1).submit(files))
 
     def wait_writes(self, keep: int = 0) -> None:
-        """Wait until at most ``keep`` frames are not on disk yet, oldest first (a write's error raised here)."""
+        """Wait until at most ``keep`` frames are not on disk yet, oldest first (a write's error raised here). A
+        write leaves the queue once done: a Ctrl-C while waiting leaves it there for :meth:`close` to wait for."""
         while len(self._written) > keep:
-            self._written.popleft().result()
+            self._written[0].result()
+            self._written.popleft()
 
     def close(self) -> None:
         """Stop: the frames not yet written write nothing, the one being written is finished (also after an error

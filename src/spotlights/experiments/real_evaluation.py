@@ -294,7 +294,7 @@ class RealEvaluationSettings:
     snap_mirror: bool = False
 
     def __post_init__(self):
-        snap_radius(self.snap, self.snap_mirror)
+        object.__setattr__(self, "snap", snap_radius(self.snap, self.snap_mirror) or 0.0)  # None (off): 0.0
         if self.snap > 0 and self.heading_check:
             raise ParameterError(
                 "--snap does not go with the heading check (add --no-heading-check): the flips are counted by "

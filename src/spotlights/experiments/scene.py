@@ -116,7 +116,7 @@ class SceneConfig:
     snap_mirror: bool = False
 
     def __post_init__(self):
-        for name in ("margin", "ground_clearance", "heading_margin", "snap"):
+        for name in ("margin", "ground_clearance", "heading_margin"):  # snap: snap_radius below
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, numbers.Real):
                 raise ParameterError(f"{name} must be a number, got {v!r}")
@@ -145,7 +145,7 @@ class SceneConfig:
             raise ParameterError(f"the heading margin must be in [0, 1), got {self.heading_margin}")
         if self.min_points < 1:
             raise ParameterError(f"the minimum point count must be >= 1, got {self.min_points}")
-        snap_radius(self.snap, self.snap_mirror)
+        object.__setattr__(self, "snap", snap_radius(self.snap, self.snap_mirror) or 0.0)  # None (off): 0.0
         if self.snap > 0 and self.heading_check:
             raise ParameterError(
                 "--snap does not go with --heading-check: the check compares how close each heading's completion "

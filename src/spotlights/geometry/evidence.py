@@ -315,12 +315,13 @@ def snap_radius(snap, snap_mirror: bool = False, option: str = "--snap", mirror_
     a float > 0 (unit frame of a box: its half-diagonal is 1).
 
     Raises :class:`~spotlights.errors.ParameterError` naming ``option`` for any other value (negative, NaN,
-    infinite, not a number), and naming ``mirror_option`` when ``snap_mirror`` is asked without a radius.
+    infinite, not a real number: text and booleans too), and naming ``mirror_option`` when ``snap_mirror`` is asked
+    without a radius.
     """
-    try:
-        r = float(snap) if snap is not None else 0.0
-    except (TypeError, ValueError):
-        r = float("nan")
+    import numbers
+
+    real = isinstance(snap, numbers.Real) and not isinstance(snap, (bool, np.bool_))
+    r = 0.0 if snap is None else float(snap) if real else float("nan")
     if not (np.isfinite(r) and r >= 0):
         raise ParameterError(
             f"{option}: the snap radius must be a finite number > 0 (unit frame; 0: off), got {snap!r}"

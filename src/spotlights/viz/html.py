@@ -21,7 +21,7 @@ import numpy as np
 
 from ..data.real.extract import read_observations
 from ..data.real.frames import frame_rows
-from ..errors import InputFileError, SpotlightsError
+from ..errors import InputFileError, ParameterError, SpotlightsError
 from ..geometry.boxes import BOX_EDGES, Box
 from ..geometry.encode import decode, load_encoding
 from ..geometry.io import MESH_SUFFIXES, POINT_SUFFIXES, load_mesh, load_ply_fields, load_points, ply_has_faces
@@ -456,6 +456,8 @@ def read_boxes_json(path: str | os.PathLike) -> list[Box]:
                 box = Box(center, size, np.asarray(b["rotation"], dtype=np.float64).reshape(3, 3), label=label)
             else:
                 box = Box(center, size, yaw=float(b.get("yaw", 0.0)), label=label)
+        except ParameterError as exc:  # Box's own checks (range, rotation): its message
+            raise InputFileError(path, f"box {i}: {exc}") from None
         except (TypeError, ValueError):
             raise InputFileError(path, f"box {i}: center/size must be 3 numbers (rotation 3 x 3)") from None
         boxes.append(box)

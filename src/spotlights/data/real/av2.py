@@ -45,7 +45,7 @@ import numpy as np
 from ...errors import InputFileError, ParameterError
 from ...geometry.boxes import Box
 from ...geometry.rotations import quaternion_to_matrix
-from .base import Frame, SceneReader, lookup_class
+from .base import Frame, SceneReader, finite_rows, lookup_class
 
 CLASS_MAP: dict[str, str | None] = {
     "regular_vehicle": "car",
@@ -242,7 +242,7 @@ class Av2Reader(SceneReader):
             sequence=log_name,
             frame_id=stem,
             timestamp=ts,
-            points=read_av2_sweep(scan_path),
+            points=finite_rows(read_av2_sweep(scan_path)),
             boxes=lg.boxes_at(ts),
             sensor_to_world=lg.pose_at(ts),
             scan_path=str(scan_path),

@@ -113,6 +113,14 @@ class SceneReader(abc.ABC):
         return len(self.frame_keys())
 
 
+def finite_rows(points: np.ndarray) -> np.ndarray:
+    """``points`` (N, 3) without the rows holding NaN or an infinity (no-return points of organised scans, damaged
+    records): what every reader of a sensor scan (KITTI .bin, nuScenes .pcd.bin, AV2 feather) gives the frame loop,
+    as :func:`read_scan` does; the same array when every row is finite."""
+    keep = np.all(np.isfinite(points), axis=1)
+    return points if keep.all() else points[keep]
+
+
 def lookup_class(label: str, table: dict[str, str | None]) -> str | None:
     """Map a dataset label to one of :data:`CLASSES` (case-insensitive); ``None`` if unmapped."""
     return table.get(label.strip().lower())
@@ -124,6 +132,7 @@ __all__ = [
     "Box",
     "Frame",
     "SceneReader",
+    "finite_rows",
     "lookup_class",
     "orthonormalize",
     "quaternion_to_matrix",

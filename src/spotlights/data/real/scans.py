@@ -22,6 +22,7 @@ import numpy as np
 from ...errors import InputFileError, ParameterError
 from ...geometry.io import POINT_SUFFIXES, load_points
 from .av2 import read_av2_sweep
+from .base import finite_rows
 
 SCAN_KINDS = ("auto", "kitti", "nuscenes", "av2", "points")
 MIN_SCAN_POINTS = 10
@@ -127,9 +128,7 @@ def read_scan(path: str | os.PathLike, kind: str = "auto") -> np.ndarray:
         pts = read_av2_sweep(p)
     else:
         return load_points(p, drop_nonfinite=True)
-    keep = np.all(np.isfinite(pts), axis=1)
-    if not keep.all():
-        pts = pts[keep]
+    pts = finite_rows(pts)
     if len(pts) == 0:
         raise InputFileError(p, "scan holds no finite point")
     return pts
