@@ -452,3 +452,24 @@ def test_snapped_track_windows_stop38():
                 f"{one['accuracy_m']:.4f} / {one['completeness_m']:.4f} -> {five['accuracy_m']:.4f} / "
                 f"{five['completeness_m']:.4f} ({five['accuracy_gain']:.0%} / {five['completeness_gain']:.0%})",
             )
+
+
+def test_mirror_fine_tune_rows_stop39():
+    """The trained mirror's table of docs/learning.md, from benchmarks/generalisation.py's report."""
+    g = _json("fair/mirror/generalisation_mirror_stop39.json")
+    rows_in, rows_out = g["scores"]["in_distribution"]["rows"], g["scores"]["held_out"]["rows"]
+    ratios = g["ratio_held_out_over_in_distribution"]
+    for key, thr in (("default", 0.4), ("ft_false/best.pt", 0.3), ("ft_true/best.pt", 0.3)):
+        name = f"{key} (p(hit) >= {thr})"
+        a, h, r = rows_in[name], rows_out[name], ratios[name]
+        cells = f"{a['accuracy']:.5f} / {a['completeness']:.5f} / {a['fscore']:.3f} | {h['accuracy']:.5f}"
+        _says("docs/learning.md", f"{cells} ({r['accuracy']:.2f}x) | {r['subset_accuracy']:.2f}x |")
+
+
+def test_picture_processes_side_by_side_stop39():
+    """The picture processes' speed-up of docs/real-data.md, from benchmarks/frame_pictures.py's report."""
+    d = _json("real/frame_pictures_processes_stop39.json")
+    m = d["median_frames_per_second"]
+    _says("docs/real-data.md", f"**{m['this']:.2f} against {m['other']:.2f} frames/s ({d['speedup_median']:.2f}x)**")
+    lo, hi = min(d["time_ratio_this_over_other_per_round"]), max(d["time_ratio_this_over_other_per_round"])
+    _says("docs/real-data.md", f"each round {1 / hi:.1f}-{1 / lo:.1f}x")
