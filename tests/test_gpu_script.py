@@ -22,7 +22,10 @@ SCRIPT = REPO / "scripts" / "gpu_train.sh"
 
 
 def _run(tmp_path, *args, env=None):
-    full = dict(os.environ, GPU_BUNDLE=str(tmp_path / "no-wheels"), OMP_NUM_THREADS="1", **(env or {}))
+    """The script with this test's interpreter as its Python (PYTHON; the script's default is ``python3`` on the
+    PATH, which under ``make test`` is not the project environment's: it would miss the packages)."""
+    full = dict(os.environ, GPU_BUNDLE=str(tmp_path / "no-wheels"), OMP_NUM_THREADS="1", PYTHON=sys.executable)
+    full.update(env or {})
     full.pop("OUT", None)
     return subprocess.run(["bash", str(SCRIPT), *map(str, args)], capture_output=True, text=True, env=full, timeout=300)
 

@@ -4,6 +4,7 @@ loop's process, and a process that dies while drawing ends the run with one line
 from __future__ import annotations
 
 import json
+import multiprocessing
 import os
 import time
 
@@ -125,11 +126,12 @@ def test_a_hung_picture_process_stops_the_run_and_is_ended(tmp_path, monkeypatch
     Ctrl-C included, before), and close() ends the hung process after PICTURE_CLOSE_S."""
     monkeypatch.setattr(frame_completion, "PICTURE_STALL_S", 1.0)
     monkeypatch.setattr(frame_completion, "PICTURE_CLOSE_S", 1.0)
+    before = set(multiprocessing.active_children())
     pictures = PictureProcesses(1)
     processes = []
     try:
         hung = pictures.pool.submit(_hang)
-        processes = list(pictures.pool._processes.values())
+        processes = [p for p in multiprocessing.active_children() if p not in before]
         t0 = time.monotonic()
         with pytest.raises(ProcessFailure, match=r"f3\.png: the process drawing it made no progress for 1 s") as e:
             PictureProcesses.png(hung, tmp_path / "f3.png")
