@@ -535,7 +535,8 @@ def process_map(
     pool = start_process_pool(min(workers, len(items)), initializer, initargs)
     ok = False
     try:
-        futures = {pool.submit(fn, item): i for i, item in enumerate(items)}
+        with sigint_held():  # the fork server and the workers start as these are submitted: with Ctrl-C held back
+            futures = {pool.submit(fn, item): i for i, item in enumerate(items)}
         pending = set(futures)
         ready: dict = {}
         nxt = 0
@@ -573,9 +574,14 @@ def start_process_pool(workers: int, initializer: Callable | None = None, initar
     """A ``ProcessPoolExecutor`` of ``workers`` processes as every pool of the package starts one: from the fork
     server of :func:`process_pool_context` (refusing where processes cannot start), its workers ignoring Ctrl-C
     (the owner stops the pool: :func:`stop_process_pool`) and dying with their parent, then running
-    ``initializer(*initargs)``. Workers start as tasks come (the executor's rule)."""
+    ``initializer(*initargs)``. Workers start as tasks come (the executor's rule): submit the first tasks inside
+    :func:`sigint_held` so that the fork server and the workers start with Ctrl-C blocked. The resource tracker is
+    started here, before any such block: its start unblocks SIGINT in the calling thread, which would let the fork
+    server start with Ctrl-C live (a KeyboardInterrupt traceback of its own)."""
     from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import resource_tracker
 
+    resource_tracker.ensure_running()
     return ProcessPoolExecutor(
         workers, mp_context=process_pool_context(), initializer=_quiet_worker, initargs=(initializer, initargs)
     )

@@ -18,7 +18,6 @@ from collections import Counter, deque
 from collections.abc import Sequence
 from concurrent.futures import Future
 from dataclasses import asdict, dataclass, field, fields
-from multiprocessing import resource_tracker
 from pathlib import Path
 
 from tqdm import tqdm
@@ -336,14 +335,11 @@ class PictureProcesses:
         self.workers = int(workers)
         pool = None
         try:
-            # the resource tracker first: its start unblocks SIGINT in this thread, which would let the fork server
-            # below start with Ctrl-C live (a KeyboardInterrupt traceback of its own, seen at 0.45 s into a run)
-            resource_tracker.ensure_running()
             # Ctrl-C held back while they start (as the track worker's start): the fork server and the workers
             # inherit the blocked signal (they ignore it), and none lands half-way through the start; one that came
             # meanwhile is raised as the block ends, and stops the processes here
+            pool = start_process_pool(self.workers)  # the resource tracker started (which unblocks SIGINT) first
             with sigint_held():
-                pool = start_process_pool(self.workers)
                 for _ in range(self.workers):  # each task starts a process: their imports overlap the model's load
                     pool.submit(_ready_to_draw)
         except BaseException:
