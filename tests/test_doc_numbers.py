@@ -331,13 +331,23 @@ def _says_snap_test_and_real_rows(table: str, real: str) -> None:
         _says("docs/learning.md", f"{m['equal_density']['average']['cd']:.4f} / {m['average']['fidelity']:.4f}")
 
 
+def _says_frame_pictures(report: str, headline: str, rounds: str) -> None:
+    """docs/real-data.md cites a benchmarks/frame_pictures.py report: ``headline`` and ``rounds`` are formats of
+    this/other frames per second, the median speed-up, and the per-round speed-ups' range (lo, hi)."""
+    d = _json(report)
+    m = d["median_frames_per_second"]
+    _says("docs/real-data.md", headline.format(this=m["this"], other=m["other"], x=d["speedup_median"]))
+    lo, hi = min(d["time_ratio_this_over_other_per_round"]), max(d["time_ratio_this_over_other_per_round"])
+    _says("docs/real-data.md", rounds.format(lo=1 / hi, hi=1 / lo))
+
+
 def test_frame_pictures_side_by_side_stop37():
     """The pictures' speed-up of docs/real-data.md, from benchmarks/frame_pictures.py's report."""
-    d = _json("real/frame_pictures_stop37.json")
-    m = d["median_frames_per_second"]
-    _says("docs/real-data.md", f"{m['this']:.2f} against {m['other']:.2f} frames/s ({d['speedup_median']:.2f}x)")
-    lo, hi = min(d["time_ratio_this_over_other_per_round"]), max(d["time_ratio_this_over_other_per_round"])
-    _says("docs/real-data.md", f"each of the three rounds {1 / hi:.1f}-{1 / lo:.1f}x")
+    _says_frame_pictures(
+        "real/frame_pictures_stop37.json",
+        "{this:.2f} against {other:.2f} frames/s ({x:.2f}x)",
+        "each of the three rounds {lo:.1f}-{hi:.1f}x",
+    )
 
 
 def test_snap_with_track_fusion_stop37():
@@ -468,8 +478,8 @@ def test_mirror_fine_tune_rows_stop39():
 
 def test_picture_processes_side_by_side_stop39():
     """The picture processes' speed-up of docs/real-data.md, from benchmarks/frame_pictures.py's report."""
-    d = _json("real/frame_pictures_processes_stop39.json")
-    m = d["median_frames_per_second"]
-    _says("docs/real-data.md", f"**{m['this']:.2f} against {m['other']:.2f} frames/s ({d['speedup_median']:.2f}x)**")
-    lo, hi = min(d["time_ratio_this_over_other_per_round"]), max(d["time_ratio_this_over_other_per_round"])
-    _says("docs/real-data.md", f"each round {1 / hi:.1f}-{1 / lo:.1f}x")
+    _says_frame_pictures(
+        "real/frame_pictures_processes_stop39.json",
+        "**{this:.2f} against {other:.2f} frames/s ({x:.2f}x)**",
+        "each round {lo:.1f}-{hi:.1f}x",
+    )
