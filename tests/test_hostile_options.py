@@ -234,3 +234,16 @@ def test_point_and_mesh_readers_refuse_a_fifo(tmp_path):
     reader.join(30)
     assert not reader.is_alive(), "reading a FIFO blocked"
     assert len(errors) == 2 and all("not a regular file" in e for e in errors), errors
+
+
+@pytest.mark.parametrize("name", ["ff.bin", "ff.pcd.bin", "ff.feather"])
+def test_sensor_scan_readers_refuse_a_fifo_and_say_so(tmp_path, name):
+    """KITTI .bin, nuScenes .pcd.bin and AV2 feather scans (what the dataset readers read): a FIFO is "not a
+    regular file" (before: "scan file not found" for a file that exists), one line naming it."""
+    from spotlights.data.real.scans import read_scan
+
+    fifo = tmp_path / name
+    os.mkfifo(fifo)
+    kind = {"ff.bin": "kitti", "ff.pcd.bin": "nuscenes", "ff.feather": "av2"}[name]
+    with pytest.raises(InputFileError, match=r"ff\..*: not a regular file \(a FIFO, socket or device\)"):
+        read_scan(fifo, kind)

@@ -45,6 +45,7 @@ import numpy as np
 from ...errors import InputFileError, ParameterError
 from ...geometry.boxes import Box
 from ...geometry.rotations import quaternion_to_matrix
+from ...utils import check_regular_file
 from .base import Frame, SceneReader, finite_rows, lookup_class
 
 CLASS_MAP: dict[str, str | None] = {
@@ -84,8 +85,7 @@ def _read_feather(path: Path, columns, what: str):
     """Read the named columns of a feather file as a dict of numpy arrays; errors name the file."""
     import pyarrow.feather as feather
 
-    if not path.is_file():
-        raise InputFileError(path, f"{what} not found")
+    check_regular_file(path, what)  # missing, a folder, a FIFO (reading one would block): one line
     try:
         table = feather.read_table(path)
     except Exception as exc:  # pyarrow raises several types for corrupt files

@@ -21,6 +21,7 @@ import numpy as np
 
 from ...errors import InputFileError, ParameterError
 from ...geometry.io import POINT_SUFFIXES, load_points
+from ...utils import check_regular_file
 from .av2 import read_av2_sweep
 from .base import finite_rows
 
@@ -60,9 +61,7 @@ def _looks_like_nuscenes(raw: np.ndarray) -> bool:
 
 def read_float_bin(path: str | os.PathLike, columns: int, what: str) -> np.ndarray:
     """An N x ``columns`` float32 little-endian file as an array; errors name the file and the layout."""
-    p = Path(path)
-    if not p.is_file():
-        raise InputFileError(p, "scan file not found")
+    p = check_regular_file(path, "scan file")  # missing, a folder, a FIFO (reading one would block): one line
     size = p.stat().st_size
     width = 4 * columns
     if size == 0:
