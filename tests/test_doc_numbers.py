@@ -483,3 +483,8 @@ def test_picture_processes_side_by_side_stop39():
         "**{this:.2f} against {other:.2f} frames/s ({x:.2f}x)**",
         "each round {lo:.1f}-{hi:.1f}x",
     )
+    _says_frame_pictures(
+        "real/frame_pictures_processes_fused_stop39.json",
+        "**{this:.2f} against {other:.2f} frames/s ({x:.2f}x)**",
+        "each round {lo:.1f}-{hi:.1f}x",
+    )
