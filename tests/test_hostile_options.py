@@ -247,3 +247,21 @@ def test_sensor_scan_readers_refuse_a_fifo_and_say_so(tmp_path, name):
     kind = {"ff.bin": "kitti", "ff.pcd.bin": "nuscenes", "ff.feather": "av2"}[name]
     with pytest.raises(InputFileError, match=r"ff\..*: not a regular file \(a FIFO, socket or device\)"):
         read_scan(fifo, kind)
+
+
+def test_sensor_scan_readers_drop_rows_that_are_not_finite(tmp_path):
+    """A KITTI .bin and a nuScenes .pcd.bin with NaN and infinite rows: the readers (every dataset reader reads
+    through them) return the finite rows alone, in order (before: the NaN reached the frame loop and stopped it)."""
+    from spotlights.data.real.scans import read_kitti_bin, read_nuscenes_bin
+
+    rng = np.random.default_rng(0)
+    xyz = rng.uniform(-20, 20, (50, 3)).astype(np.float32)
+    xyz[[3, 17]] = [np.nan, 0, 0], [0, np.inf, 0]
+    keep = np.ones(50, bool)
+    keep[[3, 17]] = False
+    kitti = np.c_[xyz, np.zeros(50, np.float32)]
+    (tmp_path / "s.bin").write_bytes(kitti.astype("<f4").tobytes())
+    nusc = np.c_[xyz, np.zeros(50, np.float32), rng.integers(0, 32, 50).astype(np.float32)]
+    (tmp_path / "s.pcd.bin").write_bytes(nusc.astype("<f4").tobytes())
+    for got in (read_kitti_bin(tmp_path / "s.bin"), read_nuscenes_bin(tmp_path / "s.pcd.bin")):
+        np.testing.assert_array_equal(got, xyz[keep])

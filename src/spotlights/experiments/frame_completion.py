@@ -311,7 +311,11 @@ def picture_workers(asked: int | None, n_frames: int) -> int:
     times its completion, so the frame loop's own CPU is mostly free), at most :data:`PICTURE_WORKERS_MAX`, none on
     one CPU; never more than ``n_frames`` and none for a single frame (0: the writer thread draws them, one frame
     at a time, as before)."""
-    n = (lambda c: c if c >= 2 else 0)(min(usable_cpus(), PICTURE_WORKERS_MAX)) if asked is None else int(asked)
+    if asked is None:
+        cpus = min(usable_cpus(), PICTURE_WORKERS_MAX)
+        n = cpus if cpus >= 2 else 0
+    else:
+        n = int(asked)
     if n < 0:
         raise ParameterError(f"--picture-workers must be >= 0, got {n}")
     return 0 if n_frames < 2 else min(n, n_frames)

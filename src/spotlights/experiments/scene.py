@@ -46,7 +46,7 @@ from ..geometry.boxes import FLIP_Z, Box, crop_boxes
 from ..geometry.evidence import snap_radius
 from ..geometry.io import save_ply, save_points
 from ..geometry.neighbors import serial_queries
-from ..geometry.rotations import rigid_transform
+from ..geometry.rotations import is_rotation, rigid_transform
 from ..learning.inference import DEFAULT, complete_in_boxes, prepare_partial, with_observed
 from ..metrics.consistency import fidelity
 from ..utils import StageTimer, shared_thread_pool
@@ -396,15 +396,10 @@ def check_scene_inputs(boxes, completer, config, axes) -> None:
         raise ParameterError(f"config must be a SceneConfig, got {type(config).__name__}")
     if axes is not None:
         try:
-            r = np.asarray(axes, dtype=np.float64)
-        except (TypeError, ValueError):
-            r = np.full((1,), np.nan)
-        if (
-            r.shape != (3, 3)
-            or not np.isfinite(r).all()
-            or not np.allclose(r @ r.T, np.eye(3), atol=1e-3)
-            or np.linalg.det(r) < 0
-        ):
+            rotation = is_rotation(axes)
+        except (TypeError, ValueError):  # not numbers
+            rotation = False
+        if not rotation:
             raise ParameterError(f"axes must be a (3, 3) rotation (orthonormal, determinant +1), got {axes!r}")
 
 

@@ -97,9 +97,10 @@ def _read_feather(path: Path, columns, what: str):
 
 
 def read_av2_sweep(path: str | os.PathLike) -> np.ndarray:
-    """Read an AV2 lidar sweep ``.feather``: (N, 3) float32 x, y, z, metres, ego-vehicle frame."""
+    """Read an AV2 lidar sweep ``.feather``: (N, 3) float32 x, y, z, metres, ego-vehicle frame, rows with NaN or
+    infinite coordinates dropped (:func:`~spotlights.data.real.base.finite_rows`)."""
     cols = _read_feather(Path(path), ("x", "y", "z"), "lidar sweep")
-    return np.stack([cols["x"], cols["y"], cols["z"]], axis=1).astype(np.float32)
+    return finite_rows(np.stack([cols["x"], cols["y"], cols["z"]], axis=1).astype(np.float32))
 
 
 def pose_matrices(cols: dict) -> np.ndarray:
@@ -242,7 +243,7 @@ class Av2Reader(SceneReader):
             sequence=log_name,
             frame_id=stem,
             timestamp=ts,
-            points=finite_rows(read_av2_sweep(scan_path)),
+            points=read_av2_sweep(scan_path),
             boxes=lg.boxes_at(ts),
             sensor_to_world=lg.pose_at(ts),
             scan_path=str(scan_path),

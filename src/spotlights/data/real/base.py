@@ -115,8 +115,8 @@ class SceneReader(abc.ABC):
 
 def finite_rows(points: np.ndarray) -> np.ndarray:
     """``points`` (N, 3) without the rows holding NaN or an infinity (no-return points of organised scans, damaged
-    records): what every reader of a sensor scan (KITTI .bin, nuScenes .pcd.bin, AV2 feather) gives the frame loop,
-    as :func:`read_scan` does; the same array when every row is finite."""
+    records): what the sensor-scan readers (KITTI .bin, nuScenes .pcd.bin, AV2 feather) return, so every dataset
+    reader and ``read_scan`` give finite points; the same array when every row is finite."""
     keep = np.all(np.isfinite(points), axis=1)
     return points if keep.all() else points[keep]
 

@@ -40,7 +40,7 @@ import numpy as np
 from ...errors import InputFileError, ParameterError
 from ...geometry.boxes import Box, box_range_problem
 from ...geometry.rotations import orthonormalize
-from .base import Frame, SceneReader, finite_rows, lookup_class
+from .base import Frame, SceneReader, lookup_class
 from .scans import read_kitti_bin  # noqa: F401  (read_kitti_bin re-exported: the KITTI scan format)
 
 CLASS_MAP: dict[str, str | None] = {"car": "car", "van": "caravan", "truck": "truck"}
@@ -219,7 +219,7 @@ class KittiReader(SceneReader):
         label_path = root / "label_2" / f"{stem}.txt"
         boxes = read_labels(label_path, t)
         scan_path = root / self.velodyne / f"{stem}.bin"
-        points = finite_rows(read_kitti_bin(scan_path))
+        points = read_kitti_bin(scan_path)
         index = int(stem) if stem.isdigit() else 0
         return Frame(
             sequence="",

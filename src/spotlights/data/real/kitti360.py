@@ -53,7 +53,7 @@ import numpy as np
 from ...errors import InputFileError, ParameterError
 from ...geometry.boxes import Box
 from ...geometry.rotations import orthonormalize
-from .base import Frame, SceneReader, finite_rows, lookup_class
+from .base import Frame, SceneReader, lookup_class
 from .scans import read_kitti_bin
 
 CLASS_MAP: dict[str, str | None] = {
@@ -358,7 +358,7 @@ class Kitti360Reader(SceneReader):
             sequence=seq,
             frame_id=stem,
             timestamp=f,
-            points=finite_rows(read_kitti_bin(s["scans"][f])),
+            points=read_kitti_bin(s["scans"][f]),
             boxes=boxes,
             sensor_to_world=world_T_velo,
             scan_path=str(s["scans"][f]),

@@ -51,7 +51,7 @@ from ...errors import InputFileError, ParameterError
 from ...geometry.boxes import MAX_BOX_CENTER_M, Box
 from ...geometry.rotations import quaternion_to_matrix, rigid_transform
 from ...inputs import path_inside, read_json
-from .base import Frame, SceneReader, finite_rows, lookup_class
+from .base import Frame, SceneReader, lookup_class
 from .scans import read_nuscenes_bin
 
 CLASS_MAP: dict[str, str | None] = {
@@ -297,7 +297,7 @@ class NuScenesReader(SceneReader):
             sequence=name,
             frame_id=sample,
             timestamp=ts,
-            points=finite_rows(read_nuscenes_bin(scan)),
+            points=read_nuscenes_bin(scan),
             boxes=boxes,
             sensor_to_world=world,
             scan_path=str(scan),

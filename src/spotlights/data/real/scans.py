@@ -77,7 +77,8 @@ def read_float_bin(path: str | os.PathLike, columns: int, what: str) -> np.ndarr
 
 
 def read_kitti_bin(path: str | os.PathLike) -> np.ndarray:
-    """Read a KITTI Velodyne ``.bin`` scan: (N, 3) float32 x, y, z in metres (sensor frame).
+    """Read a KITTI Velodyne ``.bin`` scan: (N, 3) float32 x, y, z in metres (sensor frame), rows with NaN or
+    infinite coordinates dropped (:func:`~spotlights.data.real.base.finite_rows`).
 
     Raises :class:`InputFileError` if the file is missing, empty, its size not a multiple
     of 16 bytes (4 float32 per point), or its bytes are those of a nuScenes N x 5 sweep.
@@ -88,11 +89,12 @@ def read_kitti_bin(path: str | os.PathLike) -> np.ndarray:
             path,
             "holds N x 5 float32 with a ring-index column: a nuScenes sweep, not a KITTI N x 4 scan; name it *.pcd.bin",
         )
-    return np.ascontiguousarray(data[:, :3])
+    return finite_rows(np.ascontiguousarray(data[:, :3]))
 
 
 def read_nuscenes_bin(path: str | os.PathLike) -> np.ndarray:
-    """Read a nuScenes ``.pcd.bin`` sweep: (N, 3) float32 x, y, z in metres (LIDAR_TOP sensor frame).
+    """Read a nuScenes ``.pcd.bin`` sweep: (N, 3) float32 x, y, z in metres (LIDAR_TOP sensor frame), rows with
+    NaN or infinite coordinates dropped (:func:`~spotlights.data.real.base.finite_rows`).
 
     The file is N x 5 float32 (x, y, z, intensity, ring index). Raises :class:`InputFileError`
     when the size is not a multiple of 20 bytes or the 5th column is not a ring index.
@@ -100,7 +102,7 @@ def read_nuscenes_bin(path: str | os.PathLike) -> np.ndarray:
     data = read_float_bin(path, 5, "nuScenes sweep")
     if not _looks_like_nuscenes(data.reshape(-1)):
         raise InputFileError(path, "5th column is not a ring index (integers 0-255): not a nuScenes N x 5 sweep")
-    return np.ascontiguousarray(data[:, :3])
+    return finite_rows(np.ascontiguousarray(data[:, :3]))
 
 
 def read_scan(path: str | os.PathLike, kind: str = "auto") -> np.ndarray:
@@ -127,7 +129,6 @@ def read_scan(path: str | os.PathLike, kind: str = "auto") -> np.ndarray:
         pts = read_av2_sweep(p)
     else:
         return load_points(p, drop_nonfinite=True)
-    pts = finite_rows(pts)
-    if len(pts) == 0:
+    if len(pts) == 0:  # every row dropped as not finite by the format's reader
         raise InputFileError(p, "scan holds no finite point")
     return pts
