@@ -343,3 +343,59 @@ def test_forward_concat_rejects_a_channel_mismatch():
     mlp = MLP([5, 4, 3])
     with pytest.raises(ValueError, match="channels"):
         mlp.forward_concat([torch.zeros(1, 2, 3), torch.zeros(1, 1, 3)])
+
+
+def _encoder_by_hand(enc, points: torch.Tensor) -> torch.Tensor:
+    """PCN's encoder as the paper writes it, one shape at a time on all its rows (repeats included)."""
+    codes = []
+    for shape in points:
+        f = enc.first(shape)  # (K, 256)
+        f = torch.cat([f, f.amax(dim=0, keepdim=True).expand_as(f)], dim=-1)
+        codes.append(enc.second(f).amax(dim=0))
+    return torch.stack(codes)
+
+
+@pytest.mark.parametrize("precision", ["fp32", "bf16"])
+def test_encoder_without_gradients_skips_repeated_rows_bit_for_bit(precision):
+    """Inference runs the encoder on each shape's distinct rows only: the same codes bit for bit as the dense
+    forward and as a shape-by-shape reference, for sparse scans padded by repeats, a shape of one point repeated,
+    a shape with no repeat, rows equal in another shape, and -0.0 beside 0.0."""
+    from spotlights.learning.device import autocast
+    from spotlights.learning.models.base import PCNEncoder
+
+    torch.manual_seed(0)
+    enc = PCNEncoder(64, (16, 32, 48)).eval()
+    rng = np.random.default_rng(3)
+    k = 64
+    shapes = []
+    for n_distinct in (5, 1, 64, 17):
+        rows = rng.normal(size=(n_distinct, 3)).astype(np.float32)
+        shapes.append(np.concatenate([rows, rows[rng.integers(0, n_distinct, k - n_distinct)]]))
+    shapes[3][:5] = shapes[0][:5]  # rows shared between two shapes stay in both
+    shapes[2][0] = (0.0, 0.0, 0.0)
+    shapes[2][1] = (-0.0, 0.0, 0.0)
+    points = torch.from_numpy(np.stack([s[rng.permutation(k)] for s in shapes]))
+    with autocast(precision, torch.device("cpu")):
+        with torch.enable_grad():
+            dense = enc(points)
+        with torch.no_grad():
+            distinct = enc(points)
+            by_hand = _encoder_by_hand(enc, points)
+    assert dense.requires_grad and not distinct.requires_grad
+    assert torch.equal(distinct, dense.detach())
+    assert torch.equal(distinct, by_hand)
+    assert distinct.shape == (4, 64)
+
+
+def test_encoder_distinct_rows_run_fewer_rows():
+    """The inference path runs the layers on the distinct rows only (counted at the first Linear)."""
+    from spotlights.learning.models.base import PCNEncoder
+
+    enc = PCNEncoder(8, (4, 8, 8)).eval()
+    seen = []
+    enc.first.linears[0].register_forward_hook(lambda mod, args, out: seen.append(args[0].shape[0]))
+    rows = torch.randn(3, 3)
+    points = torch.stack([rows[[0, 1, 2, 0, 1, 2, 0, 0]], rows[[1, 1, 1, 1, 1, 1, 1, 1]]])  # 3 + 1 distinct
+    with torch.no_grad():
+        enc(points)
+    assert seen == [4]

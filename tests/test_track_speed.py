@@ -67,6 +67,9 @@ def test_few_query_tree_gives_brute_force_distances():
     brute = np.sqrt(((p[:, None, :] - c[None]) ** 2).sum(-1)).min(axis=1)
     np.testing.assert_allclose(NearestNeighbors(c, few_queries=True).distances(p), brute, rtol=0, atol=1e-12)
     assert fidelity(p, c) == pytest.approx(brute.mean(), abs=1e-12)
+    c32, p32 = c.astype(np.float32), p.astype(np.float32)  # float32 points: distances still in float64
+    brute32 = np.sqrt(((p32[:, None, :].astype(np.float64) - c32[None].astype(np.float64)) ** 2).sum(-1)).min(axis=1)
+    np.testing.assert_allclose(NearestNeighbors(c32, few_queries=True).distances(p32), brute32, rtol=0, atol=1e-12)
 
 
 def _clip_by_hand(m, depths, keep, dirs, half):

@@ -141,13 +141,15 @@ def count_macs(model, n_input: int = 256) -> int:
     actually run (a linear layer on R rows costs ``R * in_features * out_features``; a
     per-shape code broadcast over K points by ``MLP.forward_concat`` is counted once, not
     K times). Biases, activations, normalisation and max-pooling are not counted: they
-    are a few percent.
+    are a few percent. The sample is ``n_input`` distinct points (:func:`timing_inputs`): at inference the
+    encoder runs on a shape's distinct points only, so a sample of repeated points would count fewer.
     """
     import torch
     from torch.utils.flop_counter import FlopCounterMode
 
+    sample = timing_inputs([1], n_input, device=next(model.parameters()).device)[1]
     with torch.inference_mode(), FlopCounterMode(display=False) as counter:
-        model(torch.zeros(1, n_input, 3, device=next(model.parameters()).device))
+        model(sample)
     return int(counter.get_total_flops()) // 2
 
 
