@@ -137,7 +137,6 @@ class PCNEncoder(nn.Module):
         f = torch.cat([f, g.expand_as(f)], dim=-1)  # (B, K, 512)
         return self.second(f).amax(dim=1)  # (B, code)
 
-
     def _forward_distinct(self, points: torch.Tensor) -> torch.Tensor:
         """:meth:`forward` on each shape's distinct points only (inference): (B, K, 3) -> (B, code_size).
 
