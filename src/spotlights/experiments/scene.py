@@ -724,7 +724,7 @@ FIDELITY_THREADS = 2
 
 def _one_openmp_thread() -> None:
     """A fidelity thread's start: OpenMP on one thread in it for good (the limit is per thread;
-    :func:`~spotlights.geometry.neighbors.serial_queries`, never restored): a small completion is scored with
+    :func:`~spotlights.geometry.neighbors.serial_queries`, never restored): completions are scored with
     pykdtree, whose OpenMP split of small queries costs more than it saves."""
     serial_queries()
 
@@ -735,8 +735,8 @@ def _fidelity_or_none(partial: np.ndarray, completion: np.ndarray) -> float | No
 
 class Fidelities:
     """:func:`~spotlights.metrics.consistency.fidelity` of a frame's completions (unit frame), scored on
-    :data:`FIDELITY_THREADS` threads while the frame goes on: the KD-tree over each completion (scipy's
-    ``cKDTree``) is built and queried without the GIL, so one model's batch is scored while the other model's
+    :data:`FIDELITY_THREADS` threads while the frame goes on: the KD-tree over each completion (pykdtree's,
+    :class:`~spotlights.geometry.neighbors.NearestNeighbors` with ``few_queries``) is built and queried without the GIL, so one model's batch is scored while the other model's
     batch and the frame's assembly go on (on scene-0523, 16 objects a frame of ~15,000 points each, scoring was a
     fifth of ``real complete``'s frame loop on one core). The values are those of one thread.
 
