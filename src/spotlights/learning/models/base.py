@@ -145,7 +145,7 @@ class PCNEncoder(nn.Module):
         repeated row changes nothing but costs its two MLPs. The rows that are bit-for-bit distinct within a
         shape are packed into one (R, 3) batch, run through the same layers, and max-pooled per shape
         (``scatter_reduce``); every Linear works row by row, so the code is the dense forward's (tested
-        equal bit for bit, fp32 and bf16), at ~R / (B K) of its cost. Used when no gradient is recorded
+        equal bit for bit on the CPU, fp32 and bf16), at ~R / (B K) of its cost. Used when no gradient is recorded
         (a gradient would be the same but is not needed), never while exporting to ONNX (fixed shapes).
         """
         b, k, _ = points.shape
