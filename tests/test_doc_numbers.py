@@ -512,3 +512,20 @@ def test_fallback_speed_side_by_side_stop40():
         f"{med['this']['cpu_ms_per_frame']:.0f} against {med['other']['cpu_ms_per_frame']:.0f} ms of CPU a frame",
     )
     assert fps_this[0] >= 10.0  # the claim "met": every round at 10 frames/s or more
+
+
+def test_fused_window_input_points_stop40():
+    """1,024 against 256 input points for fused windows (docs/learning.md), from benchmarks/track_sequences.py."""
+    big = _json("real/track_sequences_input1024_bf16_2hz.json")["completion"]["default"]
+    small = _json("real/track_sequences_input256_bf16_2hz.json")["completion"]["default"]
+    for key, label in (
+        ("refined past:5", "refined `past:5`"),
+        ("refined all", "refined `all`"),
+        ("true past:5", "true `past:5`"),
+    ):
+        a, b = big[key], small[key]
+        _says(
+            "docs/learning.md",
+            f"{label} {a['accuracy_m']:.4f} / {a['completeness_m']:.4f} against "
+            f"{b['accuracy_m']:.4f} / {b['completeness_m']:.4f}",
+        )
