@@ -372,6 +372,8 @@ def test_encoder_without_gradients_skips_repeated_rows_bit_for_bit(precision):
         rows = rng.normal(size=(n_distinct, 3)).astype(np.float32)
         shapes.append(np.concatenate([rows, rows[rng.integers(0, n_distinct, k - n_distinct)]]))
     shapes[3][:5] = shapes[0][:5]  # rows shared between two shapes stay in both
+    shapes[1][:] = 100.0  # one point repeated, after every other row of shape 0 in the sort (by bits, x first):
+    shapes[0][0] = shapes[1][0]  # ... the last sorted row of shape 0 and the first of shape 1 are equal
     shapes[2][0] = (0.0, 0.0, 0.0)
     shapes[2][1] = (-0.0, 0.0, 0.0)
     points = torch.from_numpy(np.stack([s[rng.permutation(k)] for s in shapes]))
@@ -399,3 +401,24 @@ def test_encoder_distinct_rows_run_fewer_rows():
     with torch.no_grad():
         enc(points)
     assert seen == [4]
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.bfloat16, torch.float16])
+def test_encoder_distinct_rows_in_other_dtypes(dtype):
+    """A model cast to float64 or a 16-bit float (``model.to(dtype)``, no autocast) keeps the dense forward's codes
+    without gradients (float64: up to the matrix library's rounding, whose kernels depend on the row count), and
+    its repeated rows are skipped (16-bit rows are compared as float32, which is exact)."""
+    from spotlights.learning.models.base import PCNEncoder
+
+    torch.manual_seed(1)
+    enc = PCNEncoder(16, (8, 16, 16)).eval().to(dtype)
+    seen = []
+    enc.first.linears[0].register_forward_hook(lambda mod, args, out: seen.append(args[0].shape[0]))
+    rows = torch.randn(5, 3).to(dtype)
+    points = torch.stack([rows[[0, 1, 2, 0, 1, 2, 0, 0]], rows[[3, 4, 3, 4, 3, 4, 3, 4]]])  # 3 + 2 distinct
+    with torch.no_grad():
+        distinct = enc(points)
+    with torch.enable_grad():
+        dense = enc(points)
+    assert seen == [5, 16] and distinct.dtype == dtype
+    torch.testing.assert_close(distinct, dense.detach(), rtol=1e-12 if dtype == torch.float64 else 0, atol=0)

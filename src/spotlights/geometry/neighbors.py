@@ -34,40 +34,26 @@ class NearestNeighbors:
     few_queries : the tree will answer few queries (a 256-point partial against a 16k-point completion):
         pykdtree with leaves of 128 points over the points in float64: about 2x cheaper to build and query
         than scipy's ``cKDTree`` built without balancing or node compaction (used before; the 631 fidelities
-        of scene-0523's ``real complete``: 0.57 against 1.08 s) and 5x cheaper than leaves of 16, with the
-        same distances bit for bit (both compute them in float64; float32 would move them by ~2e-8).
+        of scene-0523's ``real complete``: 0.57 against 1.08 s) and 1.3-1.5x cheaper than leaves of 16, with
+        the same distances bit for bit (both compute them in float64; float32 would move them by ~2e-8).
     """
 
     def __init__(self, points: np.ndarray, few_queries: bool = False):
         pts = as_points(points)
         if len(pts) == 0:
             raise ValueError("cannot build a KD-tree over an empty point set")
+        if few_queries:
+            pts = pts.astype(np.float64, copy=False)
         self.points = pts
         self.dtype = pts.dtype
-        if few_queries:
-            try:
-                from pykdtree.kdtree import KDTree
-            except ImportError:  # pragma: no cover - pykdtree is a dependency
-                from scipy.spatial import cKDTree
-
-                self._tree = cKDTree(pts, leafsize=128, balanced_tree=False, compact_nodes=False)
-                self._pykd = False
-                return
-            self.points = pts = pts.astype(np.float64, copy=False)
-            self.dtype = pts.dtype
-            self._tree = KDTree(pts, leafsize=128)
-            self._pykd = True
-            return
         try:
             from pykdtree.kdtree import KDTree
         except ImportError:  # pragma: no cover - pykdtree is a dependency
             from scipy.spatial import cKDTree
 
             self._tree = cKDTree(pts)
-            self._pykd = False
         else:
-            self._tree = KDTree(pts, leafsize=16)
-            self._pykd = True
+            self._tree = KDTree(pts, leafsize=128 if few_queries else 16)
 
     def query(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Nearest neighbour of every query point.

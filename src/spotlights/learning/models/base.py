@@ -145,12 +145,15 @@ class PCNEncoder(nn.Module):
         repeated row changes nothing but costs its two MLPs. The rows that are bit-for-bit distinct within a
         shape are packed into one (R, 3) batch, run through the same layers, and max-pooled per shape
         (``scatter_reduce``); every Linear works row by row, so the code is the dense forward's (tested
-        equal bit for bit on the CPU, fp32 and bf16), at ~R / (B K) of its cost. Used when no gradient is recorded
-        (a gradient would be the same but is not needed), never while exporting to ONNX (fixed shapes).
+        equal bit for bit on the CPU, fp32 and bf16), at ~R / (B K) of its cost. Used when no gradient is
+        recorded (a gradient would be the same but is not needed), never while tracing, compiling or exporting
+        (R depends on the data). Any floating dtype: rows are compared by their bits (16-bit ones widened to
+        float32 first, which is exact), so -0.0 and 0.0 count as two rows.
         """
         b, k, _ = points.shape
         flat = points.reshape(b * k, 3)
-        bits = flat.contiguous().view(torch.int32)  # exact equality, -0.0 kept apart from 0.0
+        key = flat.float() if flat.element_size() == 2 else flat.contiguous()
+        bits = key.view(torch.int64 if key.element_size() == 8 else torch.int32)  # (B K, 3) exact equality
         order = torch.arange(b * k, device=points.device)
         for column in (2, 1, 0):  # stable sorts, least significant key first: rows by (shape, x, y, z)
             order = order[torch.sort(bits[order, column], stable=True).indices]
