@@ -167,6 +167,8 @@ def load_points(path: str | os.PathLike, drop_nonfinite: bool = False) -> np.nda
             p, f"cannot read point cloud ({type(exc).__name__}: {str(exc).splitlines()[0][:100] if str(exc) else ''})"
         ) from None
     pts = np.asarray(pts)
+    if pts.dtype.kind not in "fiu":  # text, bytes, records, dates, complex numbers, booleans: not coordinates
+        raise InputFileError(p, f"points must be real numbers (float or integer), got dtype {pts.dtype}")
     if pts.ndim != 2 or pts.shape[1] < 3:
         raise InputFileError(p, f"expected (K, 3) points, got shape {pts.shape}")
     pts = pts[:, :3].astype(np.float64)

@@ -208,6 +208,21 @@ def check_schedule(value) -> None:
     if kind not in SCHEDULES:
         raise ParameterError(f"train.lr_schedule: unknown type {kind!r} ({', '.join(SCHEDULES)})")
     _check_args(SCHEDULES[kind], args, f"train.lr_schedule ({kind})", skip=1)
+    for name, (lo, hi, low_open) in SCHEDULE_RANGES.items():
+        if name not in args:
+            continue
+        v = args[name]
+        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+        if ok and name == "every":
+            ok = float(v).is_integer()
+        if not ok or not ((lo < v) if low_open else (lo <= v)) or v > hi:
+            interval = f"{'(' if low_open else '['}{lo:g}, {hi:g}]"
+            raise ParameterError(f"train.lr_schedule ({kind}): {name} must be a number in {interval}, got {v!r}")
+
+
+SCHEDULE_RANGES = {"every": (1, 1e9, False), "gamma": (0.0, 1.0, True), "min_factor": (0.0, 1.0, False)}
+"""Schedule argument -> (low, high, low end open): a learning rate that only decays and stays positive (a negative
+``gamma`` was gradient ascent; ``min_factor`` above 1 made the rate rise; ``every: 0`` was taken as 1)."""
 
 
 def build_optimizer(params, tcfg: TrainConfig):

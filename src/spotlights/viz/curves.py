@@ -60,6 +60,7 @@ def render_learning_curves(
         ax.grid(True, which="both", lw=0.3, alpha=0.5)
         ax.tick_params(labelsize=8)
     handles, labels = axes[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="outside lower center", ncol=min(len(labels), 5), fontsize=8, frameon=False)
+    if labels:  # none when every curve is empty (all-NaN validation metrics of a short run)
+        fig.legend(handles, labels, loc="outside lower center", ncol=min(len(labels), 5), fontsize=8, frameon=False)
     fig.suptitle(title, fontsize=11)
     return save_png(fig, path, dpi=110)

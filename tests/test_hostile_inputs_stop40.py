@@ -1,0 +1,78 @@
+"""Hostile inputs found by the second fuzzing pass (stop 40), each answered with a clear error instead of a
+traceback or a silently wrong run: scan arrays that hold no real numbers, learning-rate schedules that grow or
+turn negative, and learning curves whose validation metrics are all NaN."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from spotlights.errors import InputFileError, ParameterError
+from spotlights.geometry.io import load_points
+from spotlights.learning.config import check_schedule
+
+
+@pytest.mark.parametrize(
+    "array",
+    [
+        np.array([["a", "b", "c"]] * 20),  # text
+        np.array([[1 + 2j, 0, 0]] * 20),  # complex: the imaginary part was dropped with a ComplexWarning
+        np.ones((20, 3), dtype=bool),
+        np.array([["2020-01-01"] * 3] * 20, dtype="datetime64[D]"),
+        np.zeros(20, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")]),  # records: 1-D of a void dtype
+    ],
+)
+def test_scan_arrays_of_no_real_numbers_are_refused(tmp_path, array):
+    path = tmp_path / "scan.npy"
+    np.save(path, array)
+    with pytest.raises(InputFileError, match="scan.npy.*(real numbers|expected)"):
+        load_points(path)
+
+
+def test_integer_and_float_scans_still_read(tmp_path):
+    for dtype in (np.int16, np.float32, np.float64):
+        path = tmp_path / f"scan_{np.dtype(dtype).name}.npy"
+        np.save(path, (np.arange(60).reshape(20, 3) % 7).astype(dtype))
+        pts = load_points(path)
+        assert pts.dtype == np.float64 and pts.shape == (20, 3) and pts[3, 0] == 9 % 7
+
+
+@pytest.mark.parametrize(
+    "schedule, message",
+    [
+        ({"kind": "step", "every": 1, "gamma": -0.5}, "gamma must be a number in \\(0, 1\\]"),
+        ({"kind": "step", "every": 1, "gamma": 1.5}, "gamma"),
+        ({"kind": "step", "every": 0}, "every must be a number in \\[1, "),
+        ({"kind": "step", "every": 2.5}, "every"),
+        ({"kind": "step", "every": "abc"}, "every"),
+        ({"kind": "step", "gamma": float("nan")}, "gamma"),
+        ({"kind": "cosine", "min_factor": 5}, "min_factor must be a number in \\[0, 1\\]"),
+        ({"kind": "cosine", "min_factor": "abc"}, "min_factor"),
+        ({"kind": "cosine", "min_factor": True}, "min_factor"),
+    ],
+)
+def test_schedules_that_grow_or_turn_negative_are_refused(schedule, message):
+    with pytest.raises(ParameterError, match=message):
+        check_schedule(schedule)
+
+
+def test_valid_schedules_pass():
+    for schedule in (
+        {"kind": "step", "every": 30, "gamma": 0.5},
+        {"kind": "step", "every": 1, "gamma": 1.0},
+        {"kind": "cosine", "min_factor": 0.0},
+        {"kind": "cosine", "min_factor": 0.05},
+        {"type": "constant"},
+        None,
+    ):
+        check_schedule(schedule)
+
+
+def test_learning_curves_of_all_nan_metrics_are_drawn(tmp_path):
+    """A short run's validation metrics can all be NaN: the page is drawn (empty panels), no legend to fail."""
+    from spotlights.viz.curves import render_learning_curves
+
+    nan = float("nan")
+    curves = {"run": {"epoch": [1, 2], "val_accuracy": [nan, nan]}}
+    out = render_learning_curves(tmp_path / "c.png", curves, [("val_accuracy", "accuracy")], "epoch", "epoch", "t")
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
