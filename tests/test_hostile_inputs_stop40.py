@@ -76,3 +76,40 @@ def test_learning_curves_of_all_nan_metrics_are_drawn(tmp_path):
     curves = {"run": {"epoch": [1, 2], "val_accuracy": [nan, nan]}}
     out = render_learning_curves(tmp_path / "c.png", curves, [("val_accuracy", "accuracy")], "epoch", "epoch", "t")
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_resume_completes_again_a_frame_whose_json_is_not_a_summary_or_whose_ply_is_gone(tmp_path):
+    """``real complete --resume`` skips a frame only when its JSON is a summary of the same run and its scene PLY is
+    there (a JSON list raised AttributeError; a deleted or emptied PLY was skipped, the output left incomplete)."""
+    import json
+    from dataclasses import asdict
+
+    from spotlights.experiments.frame_completion import done_frame
+    from spotlights.experiments.scene import SceneConfig
+
+    cfg = asdict(SceneConfig())
+    cfg["clip"] = str(cfg["clip"])
+    f = tmp_path / "frame.json"
+    ply = tmp_path / "frame.ply"
+    f.write_text(json.dumps({"model": "sanet-hit", "checkpoint": "default", "config": cfg, "ply": str(ply)}))
+    ply.write_bytes(b"ply\n")
+    assert done_frame(f, SceneConfig(), "sanet-hit", "default") is not None
+    ply.write_bytes(b"")
+    assert done_frame(f, SceneConfig(), "sanet-hit", "default") is None
+    ply.unlink()
+    assert done_frame(f, SceneConfig(), "sanet-hit", "default") is None
+    f.write_text("[1, 2]")
+    assert done_frame(f, SceneConfig(), "sanet-hit", "default") is None
+
+
+def test_sequence_size_noise_is_bounded_and_never_flattens_a_box():
+    from spotlights.data.synthetic.sequences import MAX_SIZE_SIGMA, MIN_SIZE_FACTOR, BoxNoise
+    from spotlights.geometry.boxes import Box
+
+    with pytest.raises(ParameterError, match="size-sigma"):
+        BoxNoise(size_rel=5.0)
+    noise = BoxNoise(size_rel=MAX_SIZE_SIGMA)
+    box = Box.from_yaw(np.zeros(3), np.array([4.0, 1.8, 1.5]), 0.0)
+    rng = np.random.default_rng(0)
+    sizes = np.array([noise.apply(box, rng).size for _ in range(2000)])
+    assert (sizes >= MIN_SIZE_FACTOR * box.size - 1e-12).all() and (sizes > 0).all()

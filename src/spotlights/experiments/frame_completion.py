@@ -275,6 +275,13 @@ def done_frame(
         summ = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
+    if not isinstance(summ, dict):
+        return None  # not a frame's summary: the frame is completed again
+    ply = summ.get("ply")
+    if isinstance(ply, str):  # the frame's scene PLY beside its JSON: gone or empty, the frame is completed again
+        scene = path.parent / Path(ply).name
+        if not scene.is_file() or scene.stat().st_size == 0:
+            return None
     cfg = asdict(config)
     cfg["clip"] = str(cfg["clip"]) if cfg["clip"] is not None and not isinstance(cfg["clip"], float) else cfg["clip"]
     earlier = summ.get("config")

@@ -59,6 +59,14 @@ from ...utils import atomic_output, hdf5_output, output_folder, process_map
 from ..lidar import LidarSimulator, SensorModel, VehiclePose, sensor_preset
 from ..store_writer import COMPRESSION
 
+MAX_SIZE_SIGMA = 0.25
+"""The largest relative size noise (a detector's size error is a few percent; 5 at the command line wrote boxes of
+negative size)."""
+
+MIN_SIZE_FACTOR = 0.1
+"""A noisy box keeps at least this share of each true dimension (reached only by draws beyond ~3.6 sigma at the
+largest size noise; the default's 0.03 never reaches it)."""
+
 
 @dataclass(frozen=True)
 class BoxNoise:
@@ -73,12 +81,16 @@ class BoxNoise:
         for k, v in asdict(self).items():
             if not (math.isfinite(v) and v >= 0):
                 raise ParameterError(f"box noise {k} must be >= 0, got {v}")
+        if self.size_rel > MAX_SIZE_SIGMA:
+            raise ParameterError(
+                f"box noise size_rel (--size-sigma) must be at most {MAX_SIZE_SIGMA:g} (relative), got {self.size_rel:g}"
+            )
 
     def apply(self, box: Box, rng: np.random.Generator) -> Box:
         """A noisy copy of ``box`` (draws 6 normals from ``rng``: dx, dy, dyaw, dl, dw, dh)."""
         d = rng.normal(size=6)
         center = box.center + np.array([d[0], d[1], 0.0]) * self.translation_m
-        size = box.size * (1.0 + d[3:] * self.size_rel)
+        size = box.size * np.maximum(1.0 + d[3:] * self.size_rel, MIN_SIZE_FACTOR)  # never a flat or negative box
         return Box.from_yaw(center, size, box.yaw + math.radians(self.yaw_deg) * d[2], box.label, box.cls, box.track_id)
 
 
