@@ -113,3 +113,35 @@ def test_sequence_size_noise_is_bounded_and_never_flattens_a_box():
     rng = np.random.default_rng(0)
     sizes = np.array([noise.apply(box, rng).size for _ in range(2000)])
     assert (sizes >= MIN_SIZE_FACTOR * box.size - 1e-12).all() and (sizes > 0).all()
+
+
+def test_checkpoint_with_nan_weights_or_a_bad_threshold_is_refused(tmp_path):
+    """A diverged run's checkpoint (NaN weights) passed ``export`` and ``evaluate`` with NaN everywhere; a p(hit)
+    threshold of NaN or 2 made ``complete`` say every ray was clipped. Both are now the file's one-line error."""
+    torch = pytest.importorskip("torch")
+    from spotlights.learning.checkpoint import load_checkpoint, model_from_checkpoint, save_checkpoint
+
+    from learning_fixtures import make_checkpoint
+
+    path = make_checkpoint(tmp_path / "ok.pt", "sanet-hit")
+    ckpt = load_checkpoint(path)
+    model_from_checkpoint(ckpt)  # the valid file loads
+    state = {k: v.clone() for k, v in ckpt["model_state"].items()}
+    first = next(k for k, v in state.items() if v.is_floating_point())
+    state[first].view(-1)[0] = float("nan")
+    bad = save_checkpoint(tmp_path / "nan.pt", {**ckpt, "model_state": state})
+    with pytest.raises(InputFileError, match="nan.pt.*NaN or infinite"):
+        model_from_checkpoint(load_checkpoint(bad))
+    for value in (float("nan"), 2.0):
+        odd = save_checkpoint(tmp_path / "thr.pt", {**ckpt, "hit_threshold": value})
+        with pytest.raises(InputFileError, match="threshold"):
+            model_from_checkpoint(load_checkpoint(odd))
+    assert torch.isfinite(ckpt["model_state"][first]).all()
+
+
+def test_box_with_infinite_yaw_is_a_clear_error():
+    from spotlights.geometry.boxes import Box
+
+    for yaw in (float("inf"), float("nan")):
+        with pytest.raises(ValueError, match="yaw must be a finite angle"):
+            Box.from_yaw(np.zeros(3), np.ones(3), yaw)

@@ -201,7 +201,9 @@ class Box:
         cls: str | None = None,
         track_id: str = "",
     ) -> Box:
-        """A box turned by ``yaw`` radians about the scan's +z axis."""
+        """A box turned by ``yaw`` radians about the scan's +z axis (ValueError for a NaN or infinite yaw)."""
+        if not math.isfinite(float(yaw)):
+            raise ValueError(f"box yaw must be a finite angle in radians, got {yaw}")
         return cls_(center, size, rotation_z(float(yaw)), label, cls, track_id)
 
     def replace(self, **changes: object) -> Box:

@@ -149,6 +149,17 @@ def model_from_checkpoint(ckpt: dict, device=None):
         raise InputFileError(
             ckpt.get("path", "checkpoint"), f"weights do not match the {ckpt['model_name']} config ({first})"
         ) from None
+    bad = [
+        name for name, t in model.state_dict().items() if t.is_floating_point() and not bool(torch.isfinite(t).all())
+    ]
+    if bad:  # a run that diverged: every completion would be NaN (export's parity and evaluate's scores passed)
+        raise InputFileError(
+            ckpt.get("path", "checkpoint"),
+            f"weights hold NaN or infinite values ({bad[0]}{f' and {len(bad) - 1} more' if len(bad) > 1 else ''})",
+        )
+    threshold = getattr(model, "threshold", None)
+    if threshold is not None and not 0.0 < float(threshold) < 1.0:
+        raise InputFileError(ckpt.get("path", "checkpoint"), f"p(hit) threshold {threshold} is not in (0, 1)")
     model = model.float()
     if device is not None:
         model = model.to(torch.device(device))

@@ -227,7 +227,7 @@ def _train_epoch(run: TrainingRun, loader: DataLoader, epoch: int, progress: boo
         loss, _ = model.loss(float_outputs(out), batch, run.global_step / run.total_steps)
         if not torch.isfinite(loss):
             raise SpotlightsError(
-                f"{run.model_name}: the training loss became {float(loss)} at epoch {epoch + 1}, "
+                f"{run.model_name}: the training loss became {float(loss.detach())} at epoch {epoch + 1}, "
                 f"step {run.global_step}; lower train.lr or set train.grad_clip"
             )
         _step(run, loss)
