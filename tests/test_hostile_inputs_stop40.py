@@ -143,5 +143,9 @@ def test_box_with_infinite_yaw_is_a_clear_error():
     from spotlights.geometry.boxes import Box
 
     for yaw in (float("inf"), float("nan")):
-        with pytest.raises(ValueError, match="yaw must be a finite angle"):
+        with pytest.raises(ParameterError, match="yaw must be a finite number"):
             Box.from_yaw(np.zeros(3), np.ones(3), yaw)
+        with pytest.raises(ParameterError, match="yaw must be a finite number"):
+            Box(np.zeros(3), np.ones(3), yaw=yaw)
+        with pytest.raises(ParameterError, match="yaw must be a finite number"):
+            Box(np.zeros(3), np.ones(3), yaw)

@@ -737,8 +737,9 @@ class Fidelities:
     """:func:`~spotlights.metrics.consistency.fidelity` of a frame's completions (unit frame), scored on
     :data:`FIDELITY_THREADS` threads while the frame goes on: the KD-tree over each completion (pykdtree's:
     :class:`~spotlights.geometry.neighbors.NearestNeighbors` with ``few_queries``) is built and queried without
-    the GIL, so one model's batch is scored while the other model's batch and the frame's assembly go on (on scene-0523, 16 objects a frame of ~15,000 points each, scoring was a
-    fifth of ``real complete``'s frame loop on one core). The values are those of one thread.
+    the GIL, so one model's batch is scored while the other model's batch and the frame's assembly go on (on
+    scene-0523, 16 objects a frame of ~15,000 points each, scoring was a fifth of ``real complete``'s frame loop
+    on one core). The values are those of one thread.
 
     Positions are those of :func:`_complete_objects`' list: ``0..n-1`` each object of ``todo`` (its observed
     ``partial_unit``), then, with ``heading_check``, ``n..2n-1`` the same objects turned around (their partial

@@ -201,10 +201,9 @@ class Box:
         cls: str | None = None,
         track_id: str = "",
     ) -> Box:
-        """A box turned by ``yaw`` radians about the scan's +z axis (ValueError for a NaN or infinite yaw)."""
-        if not math.isfinite(float(yaw)):
-            raise ValueError(f"box yaw must be a finite angle in radians, got {yaw}")
-        return cls_(center, size, rotation_z(float(yaw)), label, cls, track_id)
+        """A box turned by ``yaw`` radians about the scan's +z axis (:class:`ParameterError` for a NaN or infinite
+        yaw, as the constructor's)."""
+        return cls_(center, size, label=label, cls=cls, track_id=track_id, yaw=yaw)
 
     def replace(self, **changes: object) -> Box:
         """A copy with some of ``center``, ``size``, ``rotation``, ``label``, ``cls``, ``track_id`` changed."""
@@ -337,11 +336,15 @@ def _numbers(value: object, what: str) -> np.ndarray:
 
 
 def _scalar(value: object, what: str) -> float:
-    """``value`` as a float, or :class:`ParameterError` (one line) when it is not one number."""
+    """``value`` as a finite float, or :class:`ParameterError` (one line) when it is not one finite number (a NaN or
+    infinite yaw raised "math domain error")."""
     try:
-        return float(value)  # type: ignore[arg-type]
+        x = float(value)  # type: ignore[arg-type]
     except (TypeError, ValueError):
         raise ParameterError(f"a box {what} must be a number, got {value!r:.60}") from None
+    if not math.isfinite(x):
+        raise ParameterError(f"a box {what} must be a finite number (radians), got {x}")
+    return x
 
 
 def box_range_problem(center: ArrayLike, size: ArrayLike) -> str | None:
