@@ -188,7 +188,7 @@ def test_every_writer_fails_cleanly_when_a_write_fails(writer, meshes, built, tm
     proc = run_limited(LIMIT if writer != "real-extract" else 4096, *args, cwd=tmp_path, tmp=tmp)
     assert_user_error(proc, "cannot write")
     assert "Segmentation" not in proc.stderr and "Exception ignored" not in proc.stderr, proc.stderr
-    left = listing(work) - before - {".c.h5.lock"}  # add-rig's lock file stays by design (exclusive_lock)
+    left = listing(work) - before  # add-rig's lock file is removed too (exclusive_lock(remove=True))
     assert not left and before <= listing(work), (left, proc.stderr)
     assert not list(tmp.glob("pymp-*")), "multiprocessing's folder left behind"
 

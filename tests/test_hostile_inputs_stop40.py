@@ -92,7 +92,9 @@ def test_resume_completes_again_a_frame_whose_json_is_not_a_summary_or_whose_ply
     f = tmp_path / "frame.json"
     ply = tmp_path / "frame.ply"
     f.write_text(json.dumps({"model": "sanet-hit", "checkpoint": "default", "config": cfg, "ply": str(ply)}))
-    ply.write_bytes(b"ply\n")
+    from spotlights.geometry.io import save_ply
+
+    save_ply(ply, np.zeros((3, 3)), {"source": np.zeros(3, np.uint8)})
     assert done_frame(f, SceneConfig(), "sanet-hit", "default") is not None
     ply.write_bytes(b"")
     assert done_frame(f, SceneConfig(), "sanet-hit", "default") is None

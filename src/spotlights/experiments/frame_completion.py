@@ -26,7 +26,7 @@ from ..data.real import open_reader
 from ..data.real.base import SceneReader
 from ..data.tracks import MAX_GAP_S, TIME_UNIT_S, WindowPolicy, parse_window
 from ..errors import ParameterError, ProcessFailure
-from ..geometry.io import POINT_SUFFIXES
+from ..geometry.io import POINT_SUFFIXES, ply_is_whole
 from ..learning.inference import BaseCompleter
 from ..options import check_threads
 from ..utils import (
@@ -278,9 +278,8 @@ def done_frame(
     if not isinstance(summ, dict):
         return None  # not a frame's summary: the frame is completed again
     ply = summ.get("ply")
-    if isinstance(ply, str):  # the frame's scene PLY beside its JSON: gone or empty, the frame is completed again
-        scene = path.parent / Path(ply).name
-        if not scene.is_file() or scene.stat().st_size == 0:
+    if isinstance(ply, str):  # the frame's scene PLY beside its JSON: gone, empty or cut short, completed again
+        if not ply_is_whole(path.parent / Path(ply).name):
             return None
     cfg = asdict(config)
     cfg["clip"] = str(cfg["clip"]) if cfg["clip"] is not None and not isinstance(cfg["clip"], float) else cfg["clip"]

@@ -442,22 +442,33 @@ def complete_scan(
     else:
         check_completed(result, s.boxes)
     written = write_scene(result, s.out, per_object=s.per_object, scan_name=Path(s.input).name)
+    title = f"{Path(s.input).name}: {result.model} completion of {len(result.completed)} object(s), scan frame"
+    extra: list[Path] = []
+    try:  # all or nothing, as write_scene: a failing --summary/--show/--html removes what this run wrote
+        if s.summary:
+            sensor = None if s.sensor is None else [float(v) for v in s.sensor]  # None: the scan's origin
+            head = {"scan": str(s.input), "boxes": str(s.box_source), "out": str(s.out), "sensor": sensor}
+            write_json(s.summary, {**head, **result.summary()})
+            extra.append(Path(s.summary))
+        if s.show:
+            render_result(result, s.show, title)
+            extra.append(Path(s.show))
+        if s.html:
+            render_result_html(result, s.html, title)
+            extra.append(Path(s.html))
+    except BaseException:
+        for p in written + extra:
+            p.unlink(missing_ok=True)
+        raise
     for w in result.warnings():
         warn(w)
-    if s.summary:
-        sensor = None if s.sensor is None else [float(v) for v in s.sensor]  # None: the scan's origin
-        head = {"scan": str(s.input), "boxes": str(s.box_source), "out": str(s.out), "sensor": sensor}
-        write_json(s.summary, {**head, **result.summary()})
     say(
         f"{s.input}: {len(points)} points, {describe(result)} ({result.model}) -> {s.out}"
         + (f" (+{len(written) - 1} per-object files in {s.per_object})" if s.per_object else "")
     )
-    title = f"{Path(s.input).name}: {result.model} completion of {len(result.completed)} object(s), scan frame"
     if s.show:
-        render_result(result, s.show, title)
         say(f"picture -> {s.show}")
     if s.html:
-        render_result_html(result, s.html, title)
         say(f"page -> {s.html}")
     return result
 

@@ -23,7 +23,27 @@ from ..utils import atomic_output
 from .frames import Normalization, normalization_from_mesh
 from .io import load_mesh
 from .raycast import RayCaster
-from .rig import Rig, RigSpec, extents_from_normalization
+from .rig import Rig, RigSpec, extents_from_normalization, parse_rig
+
+
+def check_mesh_arrays(mesh) -> None:
+    """Refuse what is not a triangle mesh: ``mesh`` needs ``vertices`` (V, 3) real numbers and ``faces`` (F, 3)
+    integer indices (what :func:`~spotlights.geometry.io.load_mesh` returns: a ``trimesh.Trimesh``).
+
+    Raises :class:`~spotlights.errors.ParameterError` naming what was given (a path, None, a point array or a
+    ``trimesh.Scene`` gave an AttributeError deep in the ray caster).
+    """
+    hint = "a triangle mesh with vertices (V, 3) and faces (F, 3), e.g. spotlights.load_mesh(path)"
+    if isinstance(mesh, (str, os.PathLike)):
+        raise ParameterError(f"mesh must be {hint}, got the path {str(mesh)!r}: load it first")
+    vertices, faces = getattr(mesh, "vertices", None), getattr(mesh, "faces", None)
+    if vertices is None or faces is None:
+        raise ParameterError(f"mesh must be {hint}, got {type(mesh).__name__}")
+    v, f = np.asarray(vertices), np.asarray(faces)
+    if v.ndim != 2 or v.shape[1] != 3 or v.dtype.kind not in "iuf":
+        raise ParameterError(f"mesh vertices must be (V, 3) real numbers, got {v.shape} of {v.dtype}")
+    if f.ndim != 2 or f.shape[1] != 3 or f.dtype.kind not in "iu" or (f.size and (f.min() < 0 or f.max() >= len(v))):
+        raise ParameterError(f"mesh faces must be (F, 3) indices of its {len(v)} vertices, got {f.shape} of {f.dtype}")
 
 
 class MeshProbe:
@@ -41,6 +61,7 @@ class MeshProbe:
     """
 
     def __init__(self, mesh, normalization: Normalization | None = None, engine: str | None = None, workers: int = 1):
+        check_mesh_arrays(mesh)
         self.normalization = normalization if normalization is not None else normalization_from_mesh(mesh)
         unit_vertices = self.normalization.to_unit(np.asarray(mesh.vertices))
         self.caster = RayCaster(unit_vertices, np.asarray(mesh.faces), engine=engine, workers=workers)
@@ -60,11 +81,16 @@ class MeshProbe:
         """(3,) float64 half-extents of the object's box in the unit frame (``size / 2R``)."""
         return extents_from_normalization(self.normalization)
 
-    def rig_for(self, rig: Rig | RigSpec) -> Rig:
-        """The concrete rig to cast: ``rig`` itself, or a spec resolved for this object's box."""
+    def rig_for(self, rig: Rig | RigSpec | str) -> Rig:
+        """The concrete rig to cast: ``rig`` itself, or a spec resolved for this object's box (a rig name such as
+        ``"cap-32x64-60"`` or ``"box-128x128-ellipsoid-s1"`` is read by :func:`~spotlights.geometry.rig.parse_rig`)."""
+        if isinstance(rig, str):
+            rig = parse_rig(rig)
+        if not isinstance(rig, (Rig, RigSpec)):
+            raise ParameterError(f"rig must be a Rig, a RigSpec or a rig name (see make_rig), got {type(rig).__name__}")
         return rig.for_normalization(self.normalization) if isinstance(rig, RigSpec) else rig
 
-    def encode(self, rig: Rig | RigSpec) -> np.ndarray:
+    def encode(self, rig: Rig | RigSpec | str) -> np.ndarray:
         """(N*M,) float32 normalised depths for ``rig`` (0 = miss).
 
         A :class:`RigSpec` is resolved for this object's box first (:meth:`rig_for`);
@@ -85,14 +111,16 @@ class MeshProbe:
         self.close()
 
 
-def encode_mesh(mesh, rig: Rig | RigSpec, normalization: Normalization | None = None) -> np.ndarray:
+def encode_mesh(mesh, rig: Rig | RigSpec | str, normalization: Normalization | None = None) -> np.ndarray:
     """Encode one mesh with one rig.
 
     Parameters
     ----------
-    mesh : object with ``vertices`` (V, 3) and ``faces`` (F, 3) in its own frame.
-    rig : the ray rig, or a :class:`RigSpec` (box specs: resolved for the mesh's box;
-        ``spec.for_normalization(norm)`` gives the rig that decodes the result).
+    mesh : object with ``vertices`` (V, 3) and ``faces`` (F, 3) in its own frame (anything else:
+        :class:`~spotlights.errors.ParameterError`, :func:`check_mesh_arrays`).
+    rig : the ray rig, a :class:`RigSpec` (box specs: resolved for the mesh's box;
+        ``spec.for_normalization(norm)`` gives the rig that decodes the result), or a rig name
+        (``"cap-32x64-60"``, ``"64x32@60"``, ``"box-128x128-ellipsoid-s1"``: :func:`~spotlights.geometry.rig.parse_rig`).
     normalization : source -> unit transform (default: the mesh's bounding-box sphere).
 
     Returns
@@ -112,7 +140,8 @@ def encode_meshes(meshes: Iterable, rigs: Rig | RigSpec | Sequence, normalizatio
     -------
     dict ``rig.name -> (n_meshes, N*M) float32`` depth arrays, meshes in input order.
     """
-    rigs = [rigs] if isinstance(rigs, (Rig, RigSpec)) else list(rigs)
+    rigs = [rigs] if isinstance(rigs, (Rig, RigSpec, str)) else list(rigs)
+    rigs = [parse_rig(r) if isinstance(r, str) else r for r in rigs]
     meshes = list(meshes)
     norms = list(normalizations) if normalizations is not None else [None] * len(meshes)
     out = {r.name: np.zeros((len(meshes), r.n_rays), dtype=np.float32) for r in rigs}
@@ -149,7 +178,8 @@ def encode_mesh_files(
     -------
     dict ``rig.name -> (n_files, N*M) float32`` depth arrays.
     """
-    rigs = [rigs] if isinstance(rigs, (Rig, RigSpec)) else list(rigs)
+    rigs = [rigs] if isinstance(rigs, (Rig, RigSpec, str)) else list(rigs)
+    rigs = [parse_rig(r) if isinstance(r, str) else r for r in rigs]
     jobs = [(os.fspath(p), rigs, up, forward) for p in paths]
     workers = min(FILE_WORKERS if workers is None else int(workers), len(jobs))
     if workers < 1 and jobs:

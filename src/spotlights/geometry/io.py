@@ -352,6 +352,56 @@ def load_ply_fields(path: str | os.PathLike) -> dict[str, np.ndarray]:
     return fields
 
 
+#: Bytes of each PLY scalar type (the names of the PLY specification and their aliases).
+_PLY_TYPE_BYTES = {
+    "char": 1, "uchar": 1, "int8": 1, "uint8": 1,
+    "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
+    "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4,
+    "double": 8, "float64": 8,
+}  # fmt: skip
+
+
+def ply_is_whole(path: str | os.PathLike) -> bool:
+    """True when a binary vertex-only PLY (what :func:`save_ply` writes) holds exactly the bytes its header declares.
+
+    Reads the header only (one stat, at most 64 KiB): a file cut short by a crash or a full disk, or with bytes
+    appended, is False, as is a missing file or a header that is not PLY. Other PLYs (ASCII, faces, list
+    properties) are read whole with :func:`load_ply_fields`, which checks the vertex count.
+    """
+    p = Path(path)
+    try:
+        size = p.stat().st_size
+        with open(p, "rb") as fh:
+            head = fh.read(65536)
+    except OSError:
+        return False
+    end = head.find(b"end_header")
+    if not head.startswith(b"ply") or end < 0:
+        return False
+    body = end + len(b"end_header")
+    body += 2 if head[body : body + 2] == b"\r\n" else 1
+    lines = [line.split() for line in head[:end].decode("ascii", "replace").splitlines()]
+    fmt = next((line[1] for line in lines if len(line) >= 2 and line[0] == "format"), "")
+    elements = [line for line in lines if line and line[0] == "element"]
+    props = [line for line in lines if line and line[0] == "property"]
+    simple = (
+        fmt == "binary_little_endian"
+        and len(elements) == 1
+        and len(elements[0]) == 3
+        and elements[0][1] == "vertex"
+        and elements[0][2].isdigit()
+        and all(len(q) == 3 and q[1] in _PLY_TYPE_BYTES for q in props)
+    )
+    if not simple:
+        try:
+            load_ply_fields(p)
+        except InputFileError:
+            return False
+        return True
+    row = sum(_PLY_TYPE_BYTES[q[1]] for q in props)
+    return size == body + int(elements[0][2]) * row
+
+
 def ply_has_faces(path: str | os.PathLike) -> bool:
     """True when a PLY file's header declares at least one face (a mesh, not a point cloud)."""
     with open(path, "rb") as fh:

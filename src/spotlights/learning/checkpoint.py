@@ -98,11 +98,20 @@ def load_checkpoint(path, expect_model: str | None = None, map_location="cpu") -
     p = resolve_checkpoint(path)
     if p.is_dir():
         raise InputFileError(p, "is a folder, expected a checkpoint file (e.g. RUN/best.pt)")
+    if p.suffix.lower() == ".onnx":
+        raise InputFileError(
+            p,
+            "is an ONNX model: this command reads PyTorch checkpoints (.pt); ONNX models run in 'complete' and "
+            "'real complete' (--runtime onnx)",
+        )
     try:
         ckpt = torch.load(p, map_location=map_location, weights_only=True)
     except Exception as exc:  # noqa: BLE001 - any failure of unpickling garbage is the file's fault
-        msg = (str(exc).splitlines() or [""])[0][:100]
-        raise InputFileError(p, f"not a readable checkpoint ({type(exc).__name__}: {msg})") from None
+        msg = (str(exc).splitlines() or [""])[0]
+        cut = isinstance(exc, EOFError) or "central directory" in msg  # the zip's index is at the file's end
+        msg = msg.split(". This is an internal")[0][:100]  # torch's own advice is not for the user
+        what = "truncated (its end is missing)" if cut else "not a readable checkpoint"
+        raise InputFileError(p, f"{what} ({type(exc).__name__}: {msg})" if msg else what) from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         raise InputFileError(p, "not a spotlights checkpoint (no 'format: spotlights-checkpoint' entry)")
     if not isinstance(ckpt.get("format_version", 0), int):

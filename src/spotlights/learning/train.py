@@ -33,7 +33,7 @@ import torch
 from torch.utils.data import DataLoader
 from tqdm import tqdm
 
-from ..errors import OutputFileError, SpotlightsError
+from ..errors import SpotlightsError
 from ..options import check_threads
 from ..utils import StageTimer, atomic_output, output_folder
 from .checkpoint import save_checkpoint
@@ -169,9 +169,9 @@ def train_with(settings: TrainSettings, log=_print_flush) -> dict:
         with output_folder(out_dir) if dist.main else contextlib.nullcontext():
             try:
                 return _train(dist, settings, log)
-            except (OSError, OutputFileError):
-                # a write failed (a full disk): a run with nothing to resume from leaves nothing
-                # behind (output_folder then removes the folders it created)
+            except (OSError, SpotlightsError):
+                # a write failed (a full disk), the data or the loss went wrong (NaN): a run with nothing to
+                # resume from leaves nothing behind (output_folder then removes the folders it created)
                 if dist.main and not (out_dir / "last.pt").exists():
                     for name in ("config.yaml", *RUN_STATE_FILES):
                         (out_dir / name).unlink(missing_ok=True)
@@ -226,9 +226,17 @@ def _train_epoch(run: TrainingRun, loader: DataLoader, epoch: int, progress: boo
             out = run.net(*model.forward_inputs(batch, run.train_rays))
         loss, _ = model.loss(float_outputs(out), batch, run.global_step / run.total_steps)
         if not torch.isfinite(loss):
+            bad = [
+                k for k, v in batch.items() if torch.is_tensor(v) and v.is_floating_point() and not v.isfinite().all()
+            ]
+            cause = (
+                f"the batch's {', '.join(sorted(bad))} hold NaN or infinite values: check the dataset {run.data}"
+                if bad
+                else "lower train.lr or set train.grad_clip"
+            )
             raise SpotlightsError(
                 f"{run.model_name}: the training loss became {float(loss.detach())} at epoch {epoch + 1}, "
-                f"step {run.global_step}; lower train.lr or set train.grad_clip"
+                f"step {run.global_step}; {cause}"
             )
         _step(run, loss)
         run.global_step += 1

@@ -29,6 +29,15 @@ from .scans import read_scan as _read
 
 FORMATS = ("kitti", "kitti360", "av2", "nuscenes", "generic")
 
+#: The options each reader takes (:func:`open_reader`'s ``**options``); any other is refused by name.
+READER_OPTIONS = {
+    "kitti": ("velodyne",),
+    "kitti360": ("sequences", "frames"),
+    "av2": (),
+    "nuscenes": ("sequences",),
+    "generic": ("boxes",),
+}
+
 
 def open_reader(source: str | os.PathLike | Sequence, format: str, **options) -> SceneReader:
     """Open ``source`` with the reader of ``format`` (one of :data:`FORMATS`).
@@ -39,7 +48,17 @@ def open_reader(source: str | os.PathLike | Sequence, format: str, **options) ->
     ``boxes`` (generic, one scan file). Raises :class:`spotlights.errors.InputFileError`
     for a bad folder or file.
     """
+    if format not in FORMATS:
+        raise ParameterError(f"unknown format {format!r}; choose one of {', '.join(FORMATS)}")
+    unknown = sorted(set(options) - set(READER_OPTIONS[format]))
+    if unknown:
+        allowed = ", ".join(READER_OPTIONS[format]) or "none"
+        raise ParameterError(
+            f"option(s) {', '.join(unknown)} are not options of the {format} reader (it takes: {allowed})"
+        )
     if isinstance(source, (list, tuple)):
+        if not source:
+            raise ParameterError("no source given: name a dataset folder or scan file (or a list of them)")
         if len(source) == 1:
             source = source[0]
         else:

@@ -93,7 +93,7 @@ def add_rig(
     :class:`AddRigReport` (``already_present`` when the file holds the identical rig already).
 
     A second ``add_rig`` on the same file while one runs raises SpotlightsError (a lock file
-    ``.NAME.lock`` beside it), instead of silently losing one of the two rigs.
+    ``.NAME.lock`` beside it while it runs), instead of silently losing one of the two rigs.
     """
     path = Path(path)
     rig = parse_rig(rig)
@@ -103,7 +103,9 @@ def add_rig(
     # Two add-rig runs on one file would each copy it and rename their copy onto it: the last
     # rename would drop the other's rig. A lock beside the file makes the second one fail.
     with exclusive_lock(
-        path.with_name(f".{path.name}.lock"), f"{path}: another 'dataset add-rig' is rewriting this file right now"
+        path.with_name(f".{path.name}.lock"),
+        f"{path}: another 'dataset add-rig' is rewriting this file right now",
+        remove=True,  # nothing stays beside the user's dataset
     ):
         return _add_rig_locked(path, rig, meshes, workers, progress, log or default_log, backend, ray_address, retries)
 

@@ -24,7 +24,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from ...distributed import DEFAULT_RETRIES, check_backend, import_ray, ray_session
-from ...errors import InputFileError, OutputFileError, ParameterError, SpotlightsError
+from ...errors import InputFileError, OutputFileError, ParameterError, ProcessFailure, SpotlightsError
 from ...utils import (
     StageTimer,
     atomic_output,
@@ -314,16 +314,20 @@ def _sweep_finished_parts(parts: Path) -> None:
 @contextlib.contextmanager
 def _parts_folder(parts: Path):
     """Create the parts folder for the body; if the body fails before any unit was saved (a full
-    disk while writing the plan, an interrupt at once), remove the folder this call created:
-    nothing is left behind that could not be resumed."""
+    disk while writing the plan, an interrupt at once), or because of its input (a mesh or an option
+    found wrong while simulating), remove the folder this call created: nothing is left behind that
+    could not be resumed (a corrected input is another plan)."""
     created = not parts.exists()
     parts.mkdir(parents=True, exist_ok=True)
     try:
         yield parts
     except BaseException as exc:
         # a disk that refused a write (full, read-only): the folder this run made is removed, freeing its
-        # space; other errors (Ctrl-C, SIGTERM) keep saved units so that the next run resumes from them
-        if created and (isinstance(exc, (OSError, OutputFileError)) or not any(parts.glob("*.npz"))):
+        # space; so is one whose input was found wrong (its units belong to a plan the fix changes: a rerun
+        # would be refused as "another plan"); other errors (Ctrl-C, SIGTERM, a worker killed) keep saved
+        # units so that the next run resumes from them
+        wrong_input = isinstance(exc, SpotlightsError) and not isinstance(exc, ProcessFailure)
+        if created and (isinstance(exc, (OSError, OutputFileError)) or wrong_input or not any(parts.glob("*.npz"))):
             shutil.rmtree(parts, ignore_errors=True)
         raise
 

@@ -191,9 +191,7 @@ def run_state(run_dir: Path) -> dict:
 
 def run_info(run_dir: Path) -> dict:
     """Facts of a finished run for the report: model, rig, epochs, steps, schedule-relevant config, best epoch."""
-    import torch
-
-    ck = torch.load(run_dir / "last.pt", map_location="cpu", weights_only=True)
+    ck = load_checkpoint(run_dir / "last.pt")
     cfg = ck["config"]
     hist = ck.get("history") or []
     return {
