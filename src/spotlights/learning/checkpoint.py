@@ -167,8 +167,13 @@ def model_from_checkpoint(ckpt: dict, device=None):
             f"weights hold NaN or infinite values ({bad[0]}{f' and {len(bad) - 1} more' if len(bad) > 1 else ''})",
         )
     threshold = getattr(model, "threshold", None)
-    if threshold is not None and not 0.0 < float(threshold) < 1.0:
-        raise InputFileError(ckpt.get("path", "checkpoint"), f"p(hit) threshold {threshold} is not in (0, 1)")
+    if threshold is not None:
+        from .models.sanet_hit import check_probability  # loaded already: the model was built from it
+
+        try:
+            check_probability(threshold, "its p(hit) threshold")
+        except ValueError as exc:
+            raise InputFileError(ckpt.get("path", "checkpoint"), str(exc)) from None
     model = model.float()
     if device is not None:
         model = model.to(torch.device(device))

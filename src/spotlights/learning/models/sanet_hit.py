@@ -93,8 +93,8 @@ class HitSANet(SANet):
             class_templates=class_templates,
         )
         self.decoder.float32_last = bool(float32_head)
-        self.threshold = _check_probability(threshold, "threshold")
-        self.threshold_grid = tuple(_check_probability(t, "threshold_grid value") for t in (threshold_grid or ()))
+        self.threshold = check_probability(threshold, "threshold")
+        self.threshold_grid = tuple(check_probability(t, "threshold_grid value") for t in (threshold_grid or ()))
         self.hit_weight, self.depth_weight = float(hit_weight), float(depth_weight)
         if self.hit_weight < 0 or self.depth_weight < 0 or self.hit_weight + self.depth_weight == 0:
             raise ValueError(
@@ -209,7 +209,10 @@ def box_outside_term(
     return (torch.sigmoid(hit_logits) * outside).sum() / n_hit
 
 
-def _check_probability(t, what: str) -> float:
+def check_probability(t, what: str) -> float:
+    """``t`` as a float if it lies strictly between 0 and 1 (a p(hit) threshold), else ValueError naming ``what``
+    (NaN fails too). The one owner of the threshold's range: the model's arguments and a checkpoint's stored
+    threshold (:func:`~spotlights.learning.checkpoint.model_from_checkpoint`)."""
     t = float(t)
     if not 0.0 < t < 1.0:
         raise ValueError(f"{what} must lie strictly between 0 and 1, got {t}")
