@@ -92,6 +92,65 @@ def _strings(ds) -> np.ndarray:
     return np.array([x.decode() if isinstance(x, bytes) else str(x) for x in ds[()]])
 
 
+def _attr_value(v):
+    """An HDF5 attribute's value as a plain Python value: a scalar for numpy scalars and one-element arrays,
+    a list for other arrays (``.item()`` of a two-element array raised ValueError)."""
+    if getattr(v, "size", None) == 1 and hasattr(v, "item"):
+        return v.item()
+    return v.tolist() if hasattr(v, "tolist") else v
+
+
+_JSON_KINDS = {dict: "object", list: "list"}
+
+
+def json_attribute(path: str | os.PathLike, attrs, key: str, kind: type, default=None, where: str = ""):
+    """The HDF5 attribute ``key`` of ``attrs`` (a file's or group's ``attrs``, or a dict of them) read as JSON
+    and checked to be a ``kind`` (``dict`` or ``list``); ``default`` when the attribute is absent (``None``:
+    it is required). ``where`` names the group holding it (e.g. ``"/rigs/cap-32x64-60 "``) in the message.
+
+    Raises :class:`InputFileError` naming the file ``path`` and the attribute when it is absent and required,
+    not a string of valid JSON, or JSON of another type (``[1, 2]`` where an object is expected)."""
+    raw = attrs.get(key)
+    if raw is None:
+        if default is None:
+            raise InputFileError(path, f"damaged dataset file: no {where}{key} attribute")
+        return default
+    if isinstance(raw, bytes):
+        raw = raw.decode("utf-8", errors="replace")
+    if not isinstance(raw, str):
+        raise InputFileError(path, f"damaged {where}{key} attribute: not a JSON string")
+    try:
+        value = json.loads(raw)
+    except (ValueError, RecursionError):
+        raise InputFileError(path, f"damaged {where}{key} attribute: not valid JSON") from None
+    if not isinstance(value, kind):
+        found = _JSON_KINDS.get(type(value), type(value).__name__ if value is not None else "null")
+        raise InputFileError(
+            path, f"damaged {where}{key} attribute: a JSON {found}, expected a JSON {_JSON_KINDS[kind]}"
+        )
+    return value
+
+
+def int_attribute(path: str | os.PathLike, attrs, key: str, default: int, minimum: int | None = None) -> int:
+    """The integer HDF5 attribute ``key`` of ``attrs`` (``default`` when absent). Raises
+    :class:`InputFileError` naming the file ``path`` and the attribute when it is not an integer (text, a
+    fraction, a boolean) or is below ``minimum``."""
+    raw = attrs.get(key, default)
+    if isinstance(raw, np.ndarray) and raw.shape == ():
+        raw = raw.item()
+    value = None
+    if isinstance(raw, (int, np.integer)) and not isinstance(raw, (bool, np.bool_)):
+        value = int(raw)
+    elif isinstance(raw, (float, np.floating)) and np.isfinite(raw) and float(raw).is_integer():
+        value = int(raw)
+    if value is None:
+        shown = raw.decode("utf-8", errors="replace") if isinstance(raw, bytes) else raw
+        raise InputFileError(path, f"damaged {key} attribute: {str(shown)[:40]!r} is not an integer")
+    if minimum is not None and value < minimum:
+        raise InputFileError(path, f"damaged {key} attribute: {value} is below {minimum}")
+    return value
+
+
 class CompletionDataset:
     """Lazy reader of a dataset: one HDF5 file, or a shard index (JSON) and its HDF5 shards,
     read as one logical dataset (global model rows and sample indices); safe to use across
@@ -104,7 +163,8 @@ class CompletionDataset:
     ``radius`` (n_models,), ``size`` (n_models, 3) or None, float64 metres; ``sources``,
     ``origins``, ``augments`` (n_models,) str or None (multi-source / augmented builds);
     ``sample_model``, ``sample_view`` (n_samples,) int64; ``rig_names``, ``default_rig``,
-    ``views_per_model``, ``config``, ``sensor``, ``seed``; ``shards`` (list of shard paths;
+    ``views_per_model``, ``config``, ``sensor``, ``skipped`` (meshes the build could not read: list of
+    ``{"file", "problem"}``), ``seed``; ``shards`` (list of shard paths;
     ``[path]`` for a single file).
     """
 
@@ -154,18 +214,24 @@ class CompletionDataset:
         attrs = first["attrs"]
         self.attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in attrs.items()}
         self.default_rig = str(attrs.get("default_rig", self.rig_names[0] if self.rig_names else ""))
-        self.views_per_model = int(attrs.get("views_per_model", 0))
-        self.config = json.loads(attrs.get("config_json", "{}"))
+        self.views_per_model = first["views_per_model"]
+        self.config = dict(first["config"])
         if self.sharded:  # the extra rigs of any shard that every shard holds (an add-rig may be half done)
             union = []
-            for t in tables:
-                for r in json.loads(t["attrs"].get("config_json", "{}")).get("extra_rigs") or []:
+            for k, t in enumerate(tables):
+                extra = t["config"].get("extra_rigs") or []
+                if not isinstance(extra, list) or not all(isinstance(r, str) for r in extra):
+                    raise InputFileError(
+                        self.shards[k], "damaged config_json attribute: extra_rigs is not a list of rig names"
+                    )
+                for r in extra:
                     if r not in union and parse_rig(r).name in self.rig_names:
                         union.append(r)
             if "extra_rigs" in self.config:
                 self.config["extra_rigs"] = union
-        self.sensor = json.loads(attrs.get("sensor_json", "{}"))
-        self.seed = int(attrs.get("seed", 0))
+        self.sensor = first["sensor"]
+        self.skipped = first["skipped"]
+        self.seed = first["seed"]
         if len(self.sample_model) and (self.sample_model.min() < 0 or self.sample_model.max() >= len(self.names)):
             raise InputFileError(self.path, "/samples/model refers to rows outside /models")
 
@@ -178,9 +244,10 @@ class CompletionDataset:
         fmt = f.attrs.get("format")
         if fmt != FORMAT:
             raise InputFileError(path, f"not a spotlights completion dataset (format attribute {fmt!r})")
-        version = int(f.attrs.get("format_version", -1))
+        version = int_attribute(path, f.attrs, "format_version", -1)
         if version != FORMAT_VERSION:
             raise InputFileError(path, f"dataset format version {version}, this spotlights reads {FORMAT_VERSION}")
+        _check_layout(path, f)
         try:
             m = f["models"]
             t = {
@@ -198,7 +265,15 @@ class CompletionDataset:
                 t[key] = _strings(m[key]) if key in m else None
         except KeyError as exc:
             raise InputFileError(path, f"incomplete dataset file: missing {exc}") from None
-        t["attrs"] = {key: (v.item() if hasattr(v, "item") else v) for key, v in f.attrs.items()}
+        t["attrs"] = attrs = {key: _attr_value(v) for key, v in f.attrs.items()}
+        t["config"] = json_attribute(path, attrs, "config_json", dict, {})
+        t["sensor"] = json_attribute(path, attrs, "sensor_json", dict, {})
+        t["skipped"] = json_attribute(path, attrs, "skipped_json", list, [])
+        if not all(isinstance(s, dict) and {"file", "problem"} <= s.keys() for s in t["skipped"]):
+            raise InputFileError(path, 'damaged skipped_json attribute: expected a list of {"file", "problem"} objects')
+        t["views_per_model"] = int_attribute(path, attrs, "views_per_model", 0, minimum=0)
+        t["seed"] = int_attribute(path, attrs, "seed", 0)
+        _check_partials(path, f["samples"], len(t["sample_model"]), t["config"].get("n_points"))
         if entry["n_models"] is not None and (len(t["names"]), len(t["sample_model"])) != (
             entry["n_models"],
             entry["n_samples"],
@@ -311,13 +386,30 @@ class CompletionDataset:
         return self._gather(f"rigs/{name}/depths", rows, self._model_shard)
 
     def partials(self, indices) -> np.ndarray:
-        """(K, n_points, 3) float32 partial scans of global samples ``indices`` (K,), in that order."""
-        return self._gather("samples/partial", indices, self._sample_shard)
+        """(K, n_points, 3) float32 partial scans of global samples ``indices`` (K,), in that order.
+        Raises :class:`InputFileError` naming the file and the sample when one holds NaN or infinite
+        coordinates."""
+        indices = np.asarray(indices, dtype=np.int64).reshape(-1)
+        out = self._gather("samples/partial", indices, self._sample_shard)
+        if not np.isfinite(out).all():
+            self._refuse_partial(int(indices[np.flatnonzero(~np.isfinite(out).all(axis=(1, 2)))[0]]))
+        return out
 
     def partial(self, index: int) -> np.ndarray:
-        """(n_points, 3) float32 partial scan of one global sample."""
+        """(n_points, 3) float32 partial scan of one global sample (InputFileError when it holds NaN
+        or infinite coordinates)."""
         k, i = self._sample_shard(np.array([int(index)]))
-        return self._h5(int(k[0]))["samples/partial"][int(i[0])]
+        out = self._h5(int(k[0]))["samples/partial"][int(i[0])]
+        if not np.isfinite(out).all():
+            self._refuse_partial(int(index))
+        return out
+
+    def _refuse_partial(self, index: int) -> None:
+        """Raise the error for global sample ``index``, whose partial scan is not finite, naming its file."""
+        k, i = (int(x[0]) for x in self._sample_shard(np.array([index])))
+        raise InputFileError(
+            self.shards[k], f"/samples/partial[{i}]: partial scans contain NaN or infinite coordinates"
+        )
 
     def __len__(self) -> int:
         return len(self.sample_model)
@@ -371,7 +463,7 @@ class CompletionDataset:
         name = name or self.default_rig
         if name not in self.rig_names:
             raise ParameterError(f"{self.path}: no rig {name!r}; stored rigs: {', '.join(self.rig_names)}")
-        return json.loads(self._h5()[f"rigs/{name}"].attrs["rig_json"])
+        return json_attribute(self.path, self._h5()[f"rigs/{name}"].attrs, "rig_json", dict, where=f"/rigs/{name} ")
 
     def rig(self, name: str | None = None, model: int | None = None):
         """The :class:`~spotlights.geometry.rig.Rig` whose rays gave model row ``model``'s depths
@@ -569,7 +661,7 @@ class CompletionDataset:
             "splits": splits,
             "default_rig": self.default_rig,
             "rigs": {n: int(f[f"rigs/{n}/depths"].shape[1]) for n in self.rig_names},
-            "skipped": json.loads(f.attrs.get("skipped_json", "[]")),
+            "skipped": self.skipped,
             "sensor": self.sensor,
             "config": self.config,
             "datasets": shapes,
@@ -577,6 +669,56 @@ class CompletionDataset:
         if self.sharded:
             out["shards"] = [str(p) for p in self.shards]
         return out
+
+
+# The groups and datasets every dataset file holds (h5py's own message for a missing one,
+# "Unable to synchronously open object (component not found)", names neither).
+_GROUPS = ("models", "samples", "rigs")
+_REQUIRED = (
+    "models/name",
+    "models/category",
+    "models/split",
+    "models/center",
+    "models/radius",
+    "samples/model",
+    "samples/view",
+)
+
+
+def _check_layout(path: Path, f) -> None:
+    """Refuse a file that lacks one of the groups or datasets the reader needs, naming it."""
+    import h5py
+
+    for key in _GROUPS:
+        if not isinstance(f.get(key), h5py.Group):
+            raise InputFileError(
+                path, f"incomplete dataset file: missing /{key}" if key not in f else f"/{key} is not a group"
+            )
+    for key in _REQUIRED:
+        if not isinstance(f.get(key), h5py.Dataset):
+            raise InputFileError(
+                path, f"incomplete dataset file: missing /{key}" if key not in f else f"/{key} is not a dataset"
+            )
+
+
+def _check_partials(path: Path, samples, n_samples: int, n_points) -> None:
+    """Refuse a ``/samples/partial`` that is not (n_samples, P, 3) floating-point coordinates, P >= 1 and, when
+    the build configuration states it (``n_points``), P = that count. Reads only the dataset's header: whether
+    the coordinates are finite is checked where they are read (:meth:`CompletionDataset.partials`)."""
+    import h5py
+
+    d = samples.get("partial")
+    if d is None:  # reported by the readers that need it (spotlights.learning.data: "lacks /samples/partial")
+        return
+    if not isinstance(d, h5py.Dataset):
+        raise InputFileError(path, "/samples/partial is not a dataset")
+    if d.dtype.kind != "f":
+        raise InputFileError(path, f"/samples/partial holds {d.dtype} values, expected floating-point coordinates")
+    want_p = n_points if isinstance(n_points, int) and not isinstance(n_points, bool) and n_points >= 1 else None
+    if d.ndim != 3 or d.shape[0] != n_samples or d.shape[2] != 3 or d.shape[1] < 1 or (want_p and d.shape[1] != want_p):
+        want = f"({n_samples}, {want_p or 'P'}, 3)"
+        stated = " (n_points of its config_json)" if want_p else ""
+        raise InputFileError(path, f"/samples/partial has shape {tuple(d.shape)}, expected {want}{stated}")
 
 
 def _check_shard_order(index: Path, shards: list[Path], attrs: list[dict]) -> None:

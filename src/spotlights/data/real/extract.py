@@ -50,6 +50,7 @@ from ...errors import InputFileError, ParameterError
 from ...geometry.boxes import Box
 from ...geometry.sampling import resample_set
 from ...utils import atomic_output, hdf5_output
+from ..store import int_attribute, json_attribute
 from .base import CLASSES, PAPER_CLASSES, Frame, SceneReader
 
 FILE_FORMAT = "spotlights-real-observations"
@@ -400,17 +401,16 @@ def read_observations(path: str | os.PathLike) -> Observations:
                 path,
                 f"not a real-observation file (format attribute {f.attrs.get('format')!r}, expected {FILE_FORMAT!r}; make one with 'spotlights real extract')",
             )
-        if int(f.attrs.get("format_version", -1)) > FILE_FORMAT_VERSION:
+        version = int_attribute(path, f.attrs, "format_version", 1)
+        if version > FILE_FORMAT_VERSION:
             raise InputFileError(
-                path,
-                f"format version {int(f.attrs['format_version'])} is newer than this spotlights ({FILE_FORMAT_VERSION})",
+                path, f"format version {version} is newer than this spotlights ({FILE_FORMAT_VERSION})"
             )
         g = f.get("observations")
         missing = [k for k in _ARRAYS + _STRINGS if g is None or k not in g]
         if missing:
             raise InputFileError(path, f"missing dataset(s) {', '.join('observations/' + m for m in missing)}")
         arrays = {k: g[k][()] for k in _ARRAYS}
-        version = int(f.attrs.get("format_version", 1))
         if version >= 2 and "raw_points" in g and "raw_offsets" in g:
             arrays["raw_points"] = g["raw_points"][()]
             arrays["raw_offsets"] = g["raw_offsets"][()]
@@ -420,11 +420,11 @@ def read_observations(path: str | os.PathLike) -> Observations:
         meta = dict(
             source_format=str(f.attrs.get("source_format", "")),
             source=str(f.attrs.get("source", "")),
-            config=json.loads(f.attrs.get("config_json", "{}")),
-            skipped=json.loads(f.attrs.get("skipped_json", "{}")),
-            skipped_labels=json.loads(f.attrs.get("skipped_labels_json", "{}")),
-            n_frames=int(f.attrs.get("n_frames", 0)),
-            n_boxes=int(f.attrs.get("n_boxes", 0)),
+            config=json_attribute(path, f.attrs, "config_json", dict, {}),
+            skipped=json_attribute(path, f.attrs, "skipped_json", dict, {}),
+            skipped_labels=json_attribute(path, f.attrs, "skipped_labels_json", dict, {}),
+            n_frames=int_attribute(path, f.attrs, "n_frames", 0, minimum=0),
+            n_boxes=int_attribute(path, f.attrs, "n_boxes", 0, minimum=0),
         )
     n = arrays["partial"].shape[0]
     if any(len(arrays[k]) != n for k in _ARRAYS) or any(len(v) != n for v in strings.values()):
@@ -437,6 +437,15 @@ def read_observations(path: str | os.PathLike) -> Observations:
         off = arrays["raw_offsets"]
         if off.shape != (n + 1,) or off[0] != 0 or np.any(np.diff(off) < 0) or off[-1] != len(arrays["raw_points"]):
             raise InputFileError(path, "observations/raw_offsets do not index observations/raw_points")
+    for key, what in (
+        ("partial", "partial scans contain NaN or infinite coordinates"),
+        ("box_size", "box sizes must be finite"),
+        ("unit_to_sensor", "box frames must be finite"),
+    ):
+        a = np.asarray(arrays[key])
+        if a.dtype.kind != "f" or not np.isfinite(a).all():  # the first bad row, named with the file
+            bad = 0 if a.dtype.kind != "f" else int(np.argmin(np.isfinite(a).reshape(n, -1).all(axis=1)))
+            raise InputFileError(path, f"observations/{key}[{bad}]: {what}")
     meta["file"] = str(path)
     meta["format_version"] = version
     return Observations(**arrays, **strings, meta=meta)
