@@ -282,3 +282,26 @@ def test_a_truncated_checkpoint_or_an_onnx_file_is_named_as_such(tmp_path):
     onnx.write_bytes(b"\x08\x07onnx")
     with pytest.raises(InputFileError, match="m.onnx: is an ONNX model: .*--runtime onnx"):
         load_checkpoint(onnx)
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize("scale", [1e-30, 1000.0])
+def test_sequences_refuse_a_mesh_not_in_metres_before_writing(tmp_path, scale):
+    """A tetrahedron of 1e-30 m drove past the sensor as scans of no points, exit 0."""
+    import trimesh
+
+    from helpers import assert_user_error, run_cli
+
+    good = trimesh.creation.box(extents=(4.0, 1.8, 1.5))
+    tiny = trimesh.creation.box(extents=(4.0, 1.8, 1.5))
+    tiny.apply_scale(scale)
+    folder = tmp_path / "meshes"
+    folder.mkdir()
+    good.export(folder / "a.ply")
+    tiny.export(folder / "b.ply")
+    for out in ("seqs", "seqs.h5"):
+        proc = run_cli(
+            "dataset", "sequences", "--meshes", folder, "--sequences", 2, "--frames", 2, "-q", "--out", tmp_path / out
+        )
+        assert_user_error(proc, "b.ply", "m long: a vehicle to drive past is 0.5-50 m")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["meshes"]

@@ -92,3 +92,99 @@ def check_threads(threads: Any, option: str = "--threads") -> int | None:
 
 thread_count = _number_type(int, lambda v: 1 <= v <= MAX_THREADS, _THREADS_EXPECTED)
 """argparse type: a thread count, 1..:data:`MAX_THREADS` (``--threads`` of every command; :func:`check_threads`)."""
+
+
+# ---------------------------------------------------------------------------- seeds and batch sizes
+
+MAX_SEED = 2**63 - 1
+"""The largest seed of every ``--seed`` option and every config's ``seed``: a seed is stored as a signed 64-bit
+integer (an HDF5 attribute of the dataset, NumPy int64) and handed to ``torch.manual_seed``, which unpacks a 64-bit
+integer; a larger one failed there (a TypeError at the end of a dataset build, "Overflow when unpacking long long"
+in torch). 0..2**63-1 is every seed NumPy, torch and HDF5 all accept."""
+
+_SEED_EXPECTED = "a whole number in 0..2**63-1"
+
+
+def check_seed(seed: Any, what: str = "--seed") -> int:
+    """``seed`` as an int, or a one-line :class:`ParameterError` naming ``what`` when it is not a whole number in
+    0..:data:`MAX_SEED` (the one bound of every seed)."""
+    whole = isinstance(seed, int) and not isinstance(seed, bool)
+    if not whole and hasattr(seed, "dtype") and getattr(seed.dtype, "kind", "") in "iu":  # a NumPy integer
+        seed, whole = int(seed), True
+    elif not whole and isinstance(seed, float) and seed.is_integer():  # 3.0 from a JSON or YAML config
+        seed, whole = int(seed), True
+    if not whole or not 0 <= seed <= MAX_SEED:
+        raise ParameterError(f"{what} must be {_SEED_EXPECTED}, got {seed!r}")
+    return int(seed)
+
+
+seed_number = _number_type(int, lambda v: 0 <= v <= MAX_SEED, _SEED_EXPECTED)
+"""argparse type: a seed, 0..:data:`MAX_SEED` (every ``--seed``; :func:`check_seed`)."""
+
+SEED_HELP = "0..2**63-1"
+"""Said in every ``--seed`` option's help: its range (:data:`MAX_SEED`)."""
+
+MAX_BATCH = 4096
+"""The largest batch size (``train --batch-size`` and ``train.batch_size``, ``evaluate``/``real complete``
+``--batch-size``, ``bench models --batch``): 128 times the paper's 32. Memory grows with it: PCN's folding decoder
+alone holds 16,384 points x 512 channels (32 MB float32) per sample and layer, so 4096 samples already fill an
+80 GB GPU; 100,000 asked for 26 GB at the first step and 10^8 for 300 GB."""
+
+batch_size_number = _number_type(int, lambda v: 1 <= v <= MAX_BATCH, f"a batch size in 1..{MAX_BATCH}")
+"""argparse type: a batch size, 1..:data:`MAX_BATCH`."""
+
+
+def check_batch_size(value: Any, what: str = "--batch-size") -> int:
+    """``value`` as an int, or a one-line :class:`ParameterError` naming ``what`` when it is not a whole number in
+    1..:data:`MAX_BATCH` (the one bound of every batch size)."""
+    whole = isinstance(value, int) and not isinstance(value, bool)
+    if not whole and isinstance(value, float) and value.is_integer():  # YAML 1e3
+        value, whole = int(value), True
+    if not whole or not 1 <= value <= MAX_BATCH:
+        raise ParameterError(
+            f"{what} must be a whole number in 1..{MAX_BATCH} (batch sizes are bounded: memory "
+            f"grows with them), got {value!r}"
+        )
+    return int(value)
+
+
+# ---------------------------------------------------------------------------- axis values
+
+AXIS_OPTIONS = ("--up", "--forward")
+"""Options whose value is an axis (x, y, z, -x, -y, -z): ``--up -z`` is read as the value ``-z`` (argparse alone
+takes ``-z`` for an option and says "expected one argument"); ``--up=-z`` works either way."""
+
+_AXIS_VALUES = frozenset(f"{s}{a}" for s in ("-", "+") for a in "xyzXYZ")
+
+
+def join_axis_values(argv: list[str]) -> list[str]:
+    """``argv`` with every ``--up -z`` / ``--forward -x`` (an :data:`AXIS_OPTIONS` option followed by a signed axis)
+    written as one token ``--up=-z``; nothing after ``--`` is touched."""
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        a = argv[i]
+        if a == "--":
+            out.extend(argv[i:])
+            break
+        if a in AXIS_OPTIONS and i + 1 < len(argv) and argv[i + 1] in _AXIS_VALUES:
+            out.append(f"{a}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(a)
+        i += 1
+    return out
+
+
+# ---------------------------------------------------------------------------- crop margins
+
+MAX_CROP_M = 10.0
+"""The largest crop margin or ground clearance, metres, either sign (``complete`` and ``real complete``/``real
+extract`` ``--margin``, ``--crop``, ``--ground-clearance``): a box grown by more takes in the vehicles of the next
+lanes (a lane is 3.5 m wide) and the road; the defaults are 0.15 and 0.10. 1e300 overflowed NumPy's squared
+norms and ran on with a crop of the whole scan."""
+
+crop_metres = _number_type(
+    float, lambda v: -MAX_CROP_M <= v <= MAX_CROP_M, f"a number of metres in [-{MAX_CROP_M:g}, {MAX_CROP_M:g}]"
+)
+"""argparse type: a crop margin or ground clearance, metres in [-:data:`MAX_CROP_M`, :data:`MAX_CROP_M`]."""

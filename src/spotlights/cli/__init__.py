@@ -17,6 +17,7 @@ import sys
 
 from .._version import __version__
 from ..errors import SpotlightsError
+from ..options import join_axis_values
 from ..utils import os_error_reason, sigint_held
 
 # One line per command group; a new group is one module and one line here.
@@ -60,6 +61,11 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str):  # noqa: D401 - argparse API
         self.print_usage(sys.stderr)
         self.exit(2, f"{self.prog}: error: {message}\n")
+
+    def parse_known_args(self, args=None, namespace=None):  # noqa: D401 - argparse API
+        """As argparse's, with ``--up -z`` read as ``--up=-z`` (:func:`spotlights.options.join_axis_values`)."""
+        args = sys.argv[1:] if args is None else [str(a) for a in args]
+        return super().parse_known_args(join_axis_values(args), namespace)
 
 
 def build_parser() -> argparse.ArgumentParser:

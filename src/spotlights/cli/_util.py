@@ -9,11 +9,17 @@ from typing import Any
 from ..errors import ParameterError
 from ..options import (  # noqa: F401 - the argparse types, importable from here by every command module
     DEVICE_HELP,
+    MAX_BATCH,
+    MAX_CROP_M,
+    SEED_HELP,
+    batch_size_number,
+    crop_metres,
     non_negative_float,
     non_negative_int,
     port_number,
     positive_float,
     positive_int,
+    seed_number,
     thread_count,
     unit_interval,
 )

@@ -6,9 +6,17 @@ checked with real rigs and real ray casting, written as CSV, figures and a summa
 
 from __future__ import annotations
 
-from ..experiments.density_report import DensityConfig, density_summary_lines, run_density_analysis
+from ..experiments.density_report import (
+    MAX_MC_RAYS,
+    MAX_ROTATIONS,
+    MIN_ALPHA_STEP_DEG,
+    MIN_R_STEP,
+    DensityConfig,
+    density_summary_lines,
+    run_density_analysis,
+)
 from ..utils import output_folder
-from ._util import add_command, add_group, add_quiet, non_negative_int
+from ._util import SEED_HELP, add_command, add_group, add_quiet, seed_number
 
 
 def register(sub) -> None:
@@ -47,14 +55,18 @@ def register(sub) -> None:
         "Several give a column 'angle' and the cap comparison figure",
     )
     d.add_argument(
-        "--r-step", type=float, default=0.01, metavar="DR", help="grid step in r, grid 0..0.99 (default 0.01)"
+        "--r-step",
+        type=float,
+        default=0.01,
+        metavar="DR",
+        help=f"grid step in r, {MIN_R_STEP:g}..0.5 (default 0.01)",
     )
     d.add_argument(
         "--alpha-step",
         type=float,
         default=1.0,
         metavar="DEG",
-        help="grid step in alpha in degrees, grid 0..180 (default 1)",
+        help=f"grid step in alpha in degrees, {MIN_ALPHA_STEP_DEG:g}..90, grid 0..180 (default 1)",
     )
     d.add_argument("--no-mc", action="store_true", help="skip the Monte-Carlo check with real rays")
     d.add_argument(
@@ -63,19 +75,19 @@ def register(sub) -> None:
         nargs=2,
         default=[1024, 1024],
         metavar=("N", "M"),
-        help="viewpoints and rays per viewpoint of the Monte-Carlo rigs (default 1024 1024)",
+        help=f"viewpoints and rays per viewpoint of the Monte-Carlo rigs, N x M <= {MAX_MC_RAYS} (default 1024 1024)",
     )
     d.add_argument(
         "--rotations",
         type=int,
         default=24,
         metavar="K",
-        help="random rotations per disc placement; the error is their spread (default 24)",
+        help=f"random rotations per disc placement, 2..{MAX_ROTATIONS}; the error is their spread (default 24)",
     )
     d.add_argument(
         "--disc-radius", type=float, default=0.08, metavar="A", help="Monte-Carlo disc radius (default 0.08)"
     )
-    d.add_argument("--seed", type=non_negative_int, default=0, help="seed of the random rotations (default 0)")
+    d.add_argument("--seed", type=seed_number, default=0, help=f"seed of the random rotations, {SEED_HELP} (default 0)")
     add_quiet(d)
 
 

@@ -13,12 +13,15 @@ from ..experiments.scan_completion import ScanSettings
 from ..utils import settings_from_namespace
 from ._util import (
     DEVICE_HELP,
+    MAX_CROP_M,
+    SEED_HELP,
     add_command,
     argparse_type,
+    crop_metres,
     non_negative_float,
-    non_negative_int,
     positive_float,
     positive_int,
+    seed_number,
     thread_count,
     unit_interval,
 )
@@ -112,14 +115,14 @@ def add_completion_arguments(p, single: bool) -> None:
     g = p.add_argument_group("crop (" + CROP_DOC + ")")
     g.add_argument(
         "--margin",
-        type=float,
+        type=crop_metres,
         default=None,
         metavar="M",
-        help="grow each box by M metres on its sides and top (default 0.15)",
+        help=f"grow each box by M metres on its sides and top, |M| <= {MAX_CROP_M:g} (default 0.15)",
     )
     if single:
         g.add_argument(
-            "--crop", type=float, default=None, metavar="MARGIN", help="same as --margin (kept for older scripts)"
+            "--crop", type=crop_metres, default=None, metavar="MARGIN", help="same as --margin (kept for older scripts)"
         )
         g.add_argument(
             "--no-crop",
@@ -128,10 +131,10 @@ def add_completion_arguments(p, single: bool) -> None:
         )
     g.add_argument(
         "--ground-clearance",
-        type=float,
+        type=crop_metres,
         default=0.10,
         metavar="M",
-        help="drop points less than M metres above the box bottom: ground returns (default 0.10)",
+        help=f"drop points below M metres over the box bottom (ground), |M| <= {MAX_CROP_M:g} (default 0.10)",
     )
     g.add_argument(
         "--min-points",
@@ -149,7 +152,7 @@ def add_completion_arguments(p, single: bool) -> None:
         "(default, as in the training data) or farthest-point sampling from a seeded start; either way the "
         "points are first sorted, so the same points give the same input",
     )
-    g.add_argument("--seed", type=non_negative_int, default=0, help="seed of the resampling (default 0)")
+    g.add_argument("--seed", type=seed_number, default=0, help=f"seed of the resampling, {SEED_HELP} (default 0)")
     m = g.add_mutually_exclusive_group()
     m.add_argument(
         "--clip",
@@ -308,7 +311,7 @@ def register(sub) -> None:
         "scan): the free space that the ray-local model and --snap's occlusion rule read; one scan only",
     )
     p.add_argument("--up", default="z", help="the scan's up axis (x, y, z, -x, ...); PCN-style scans are y (default z)")
-    p.add_argument("--forward", default="x", help="the scan's forward axis: a box's yaw 0 points along it (default x)")
+    p.add_argument("--forward", default="x", help="the scan's forward axis (x, -y, ...): yaw 0 points along it")
     p.add_argument(
         "--per-object", default=None, metavar="DIR", help="also write DIR/object_<id>.ply per completed object"
     )

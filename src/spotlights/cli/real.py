@@ -15,13 +15,18 @@ from ..experiments.scene import HEADING_MARGIN
 from ..utils import settings_from_namespace
 from ._util import (
     DEVICE_HELP,
+    MAX_BATCH,
+    MAX_CROP_M,
+    SEED_HELP,
     add_command,
     add_group,
     add_quiet,
     argparse_type,
+    batch_size_number,
+    crop_metres,
     non_negative_float,
     non_negative_int,
-    positive_int,
+    seed_number,
     unit_interval,
 )
 from .complete import (
@@ -67,17 +72,17 @@ def register(sub) -> None:
     p.add_argument("--out", "-o", required=True, metavar="FILE.h5", help="output HDF5 of observations")
     p.add_argument(
         "--margin",
-        type=float,
+        type=crop_metres,
         default=0.15,
         metavar="M",
-        help="grow each box by M metres on the sides and top (default 0.15)",
+        help=f"grow each box by M metres on the sides and top, |M| <= {MAX_CROP_M:g} (default 0.15)",
     )
     p.add_argument(
         "--ground-clearance",
-        type=float,
+        type=crop_metres,
         default=0.10,
         metavar="M",
-        help="drop points less than M metres above the box bottom: ground returns (default 0.10)",
+        help=f"drop points below M metres over the box bottom (ground), |M| <= {MAX_CROP_M:g} (default 0.10)",
     )
     p.add_argument(
         "--min-points", type=int, default=10, metavar="K", help="skip boxes with fewer than K points (default 10)"
@@ -85,7 +90,7 @@ def register(sub) -> None:
     p.add_argument(
         "--points", type=int, default=256, metavar="P", help="points per observation after resampling (default 256)"
     )
-    p.add_argument("--seed", type=non_negative_int, default=0, help="resampling seed (default 0)")
+    p.add_argument("--seed", type=seed_number, default=0, help=f"resampling seed, {SEED_HELP} (default 0)")
     p.add_argument(
         "--classes",
         default="car,truck,caravan,trailer",
@@ -222,7 +227,9 @@ def register(sub) -> None:
         metavar="PREFIX",
         help="writes PREFIX.md and PREFIX.json (default: FILE without .h5 + '_consistency')",
     )
-    p.add_argument("--batch-size", type=positive_int, default=64, help="completion batch size (default 64)")
+    p.add_argument(
+        "--batch-size", type=batch_size_number, default=64, help=f"completion batch size, 1..{MAX_BATCH} (default 64)"
+    )
     p.add_argument(
         "--clip",
         type=unit_interval,

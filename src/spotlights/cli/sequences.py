@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 from ..data.lidar import SENSOR_PRESETS
-from ..data.synthetic.sequences import BoxNoise, SequenceSpec, simulate_sequences
-from ._util import add_command, add_quiet, non_negative_int, positive_int
+from ..data.synthetic.sequences import HZ_RANGE, MAX_FRAMES, BoxNoise, SequenceSpec, simulate_sequences
+from ._util import SEED_HELP, add_command, add_quiet, positive_int, seed_number
 
 
 def register(dsub) -> None:
@@ -32,10 +32,14 @@ def register(dsub) -> None:
         "--workers", type=positive_int, default=1, help="processes simulating (.h5 output; same bytes for any number)"
     )
     p.add_argument("--sequences", type=positive_int, default=4, metavar="N", help="sequences (default 4)")
-    p.add_argument("--frames", type=positive_int, default=20, metavar="F", help="frames per sequence (default 20)")
-    p.add_argument("--hz", type=float, default=10.0, help="frame rate (default 10 Hz)")
+    p.add_argument("--frames", type=positive_int, default=20, metavar="F", help=f"frames a sequence, 1..{MAX_FRAMES}")
+    p.add_argument(
+        "--hz", type=float, default=10.0, help=f"frame rate, {HZ_RANGE[0]:g}..{HZ_RANGE[1]:g} Hz (default 10)"
+    )
     p.add_argument("--sensor", default="hdl64e", choices=tuple(SENSOR_PRESETS), help="LiDAR (default hdl64e)")
-    p.add_argument("--seed", type=non_negative_int, default=0, help="seed (default 0): the same seed, the same bytes")
+    p.add_argument(
+        "--seed", type=seed_number, default=0, help=f"seed, {SEED_HELP} (default 0): the same seed, the same bytes"
+    )
     g = p.add_argument_group("noisy boxes (independent per frame)")
     g.add_argument("--translation-sigma", type=float, default=0.10, metavar="M", help="per horizontal axis (0.10 m)")
     g.add_argument("--yaw-sigma", type=float, default=2.0, metavar="DEG", help="heading (2 degrees)")

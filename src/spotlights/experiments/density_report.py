@@ -19,6 +19,7 @@ from ..analysis import density as dens
 from ..analysis.montecarlo import DiscPlacement, mc_density
 from ..errors import ParameterError
 from ..geometry.rig import make_rig
+from ..options import check_seed
 from ..utils import StageTimer, atomic_output
 from ..viz import density as plots
 
@@ -27,6 +28,21 @@ __all__ = ["DensityConfig", "run_density_analysis", "extrema", "hit_ratios", "MC
 #: Monte-Carlo disc placements: every r with every alpha (alpha irrelevant at r = 0)
 MC_RADII = (0.0, 0.3, 0.5, 0.7, 0.8, 0.9)
 MC_ALPHAS_DEG = (0.0, 45.0, 90.0, 135.0)
+
+# The bounds of DensityConfig (analyze density's options), checked before the output folder is made:
+MIN_R_STEP = 0.001
+"""Finest grid step in r (``--r-step``): 10 times finer than the default 0.01, 991 radii. With
+:data:`MIN_ALPHA_STEP_DEG` a grid of 1.8 million cells per angle (a minute or two of quadrature, a 70 MB CSV);
+1e-9 asked for 84 GiB."""
+MIN_ALPHA_STEP_DEG = 0.1
+"""Finest grid step in alpha, degrees (``--alpha-step``): 10 times finer than the default 1, 1801 orientations;
+1e-9 asked for 1.3 TiB."""
+MAX_ROTATIONS = 10_000
+"""Most random rotations per disc placement (``--rotations``): 400 times the default 24 (the error estimate, their
+spread, gains nothing past a few hundred); every rotation casts all the rig's rays, 10^12 asked for 611 TiB."""
+MAX_MC_RAYS = 2**24
+"""Most rays of a Monte-Carlo rig, N x M (``--mc-rays N M``): 16 times the default 1024 x 1024; the rig's
+directions alone are 24 bytes a ray."""
 
 
 @dataclass
@@ -63,15 +79,26 @@ class DensityConfig:
                 raise ParameterError(f"cap angle must be in (0, 90] degrees, got {a:g}")
         if len(set(float(a) for a in self.angles)) != len(self.angles):
             raise ParameterError("cap angles must be distinct")
-        if not (0.0 < self.r_step <= 0.5) or not (0.0 < self.alpha_step_deg <= 90.0):
-            raise ParameterError("grid steps must be positive (r_step <= 0.5, alpha_step <= 90 degrees)")
+        if not (MIN_R_STEP <= self.r_step <= 0.5):
+            raise ParameterError(f"--r-step must be in [{MIN_R_STEP:g}, 0.5], got {self.r_step:g}")
+        if not (MIN_ALPHA_STEP_DEG <= self.alpha_step_deg <= 90.0):
+            raise ParameterError(
+                f"--alpha-step must be in [{MIN_ALPHA_STEP_DEG:g}, 90] degrees, got {self.alpha_step_deg:g}"
+            )
+        n, m = self.mc_primary, self.mc_secondary
+        if not (1 <= n and 1 <= m and n * m <= MAX_MC_RAYS):  # the rig is made (hit ratios) even without mc
+            raise ParameterError(
+                f"--mc-rays N M: the Monte-Carlo rig needs N, M >= 1 and N x M <= {MAX_MC_RAYS}, got {n} {m}"
+            )
         if not (0.0 < self.r_limit < 1.0):
             raise ParameterError(f"r_limit must be in (0, 1), got {self.r_limit:g}")
         if self.mc:
-            if self.mc_rotations < 2:
-                raise ParameterError("at least 2 rotations are needed to estimate the Monte-Carlo error")
-            if self.mc_primary < 1 or self.mc_secondary < 1:
-                raise ParameterError("the Monte-Carlo rig needs N >= 1 and M >= 1")
+            if not 2 <= self.mc_rotations <= MAX_ROTATIONS:
+                raise ParameterError(
+                    f"--rotations must be in 2..{MAX_ROTATIONS} (at least 2 to estimate the Monte-Carlo error), "
+                    f"got {self.mc_rotations}"
+                )
+            check_seed(self.seed, "--seed")
             if not (0.0 < self.disc_radius < 0.1):
                 raise ParameterError("disc radius must be in (0, 0.1) so that a disc at r = 0.9 fits in the sphere")
 

@@ -24,7 +24,16 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from ..geometry.rig import make_rig
-from ..options import DEVICE_HELP, check_threads, non_negative_int, option, positive_int
+from ..options import (
+    DEVICE_HELP,
+    MAX_BATCH,
+    batch_size_number,
+    check_batch_size,
+    check_threads,
+    non_negative_int,
+    option,
+    positive_int,
+)
 from ..utils import atomic_output, check_writable
 from .models import DISPLAY_NAMES, MODEL_NAMES, build_model, check_model_name, load_config
 from .rays import timing_directions
@@ -185,6 +194,7 @@ def bench_models(
 
     from .device import resolve_device
 
+    batches = [check_batch_size(b, "batch") for b in batches]
     if threads:
         torch.set_num_threads(check_threads(threads))
     dev = resolve_device(device)
@@ -308,7 +318,13 @@ class BenchSettings:
         metavar="MODEL",
         help=f"models to measure (default all: {', '.join(MODEL_NAMES)})",
     )
-    batch: list = option(default=[1, 32], type=positive_int, nargs="+", metavar="B", help="batch sizes (default 1 32)")
+    batch: list = option(
+        default=[1, 32],
+        type=batch_size_number,
+        nargs="+",
+        metavar="B",
+        help=f"batch sizes, each 1..{MAX_BATCH} (default 1 32)",
+    )
     repeats: int = option(default=10, type=positive_int, help="timed runs per measurement (median reported)")
     warmup: int = option(default=2, type=non_negative_int, help="untimed warm-up runs (default 2)")
     threads: int | None = option(

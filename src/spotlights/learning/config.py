@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputFileError, ParameterError
+from ..options import _number_type, check_batch_size, check_seed
 from ..utils import did_you_mean
 from .registry import MODEL_REGISTRY, model_class
 
@@ -93,6 +94,87 @@ class TrainConfig:
     steps_per_epoch: int | None = None
     select_by: str = "chamfer_l1"
     compile: bool = False
+
+
+MAX_LR = 10.0
+"""The largest learning rate (``train.lr``, ``train --lr``): the packaged configs train at 5e-4 to 1e-3 and SGD
+is run at up to about 0.1; 100 times that is far past any rate that trains. 1e300 failed inside the optimizer
+("value cannot be converted to type float without overflow") after the datasets were loaded."""
+
+learning_rate = _number_type(float, lambda v: 0.0 < v <= MAX_LR, f"a learning rate in (0, {MAX_LR:g}]")
+"""argparse type: a learning rate, (0, :data:`MAX_LR`] (``train --lr``)."""
+
+MAX_WIDTH = 16384
+"""The widest layer ``model.args`` may ask for (``code_size``, ``hidden``, ``encoder_widths``, ``dim``, ...):
+16 times the packaged models' widest (1024). One 16384 x 16384 float32 layer is already 1 GiB of weights (4 GiB
+with its gradient and Adam's two moments)."""
+
+MAX_MODEL_POINTS = 2**18
+"""The most points (or grid cells, tree nodes, neighbours) a count of ``model.args`` may ask for (``num_coarse``,
+``n_start``, ``grid``, ``degrees``, ``up_factors``, ...; a list's product): 16 times the 16,384 points the packaged
+point decoders output; the Chamfer loss compares every output point with every ground-truth point."""
+
+MAX_LAYERS = 64
+"""The longest list of layer widths of ``model.args`` (the packaged models have 2 or 3)."""
+
+MODEL_WIDTH_ARGS = (
+    "code_size",
+    "seed_code",
+    "dim",
+    "candidate_width",
+    "node_features",
+    "attn_hidden",
+    "encoder_widths",
+    "hidden",
+    "coarse_hidden",
+    "folding_hidden",
+    "root_hidden",
+    "local_hidden",
+)
+"""``model.args`` that are layer widths (a whole number or a list of them, each in 1..:data:`MAX_WIDTH`)."""
+
+MODEL_COUNT_ARGS = (
+    "num_coarse",
+    "grid_size",
+    "n_patches",
+    "n_seeds",
+    "n_start",
+    "k",
+    "near_cells",
+    "carve_cells",
+    "carve_samples",
+    "grid",
+    "patch_grid",
+    "degrees",
+    "up_factors",
+)
+"""``model.args`` that count points, grid cells or neighbours (a whole number, or a list whose product is, in
+1..:data:`MAX_MODEL_POINTS`)."""
+
+
+def check_model_args(args: dict, source=None) -> None:
+    """Raise an error naming the key and its range when a size of ``model.args`` (:data:`MODEL_WIDTH_ARGS`,
+    :data:`MODEL_COUNT_ARGS`) is not a whole number (or list of them) in its range: 0 or -5 failed deep in torch,
+    10^9 allocated for minutes."""
+    for key, value in args.items():
+        if key in MODEL_WIDTH_ARGS:
+            hi, what = MAX_WIDTH, "a layer width"
+        elif key in MODEL_COUNT_ARGS:
+            hi, what = MAX_MODEL_POINTS, "a count of points"
+        else:
+            continue
+        if value is None and key == "attn_hidden":  # null: the model's default width
+            continue
+        items = value if isinstance(value, (list, tuple)) else [value]
+        ok = len(items) <= MAX_LAYERS and all(
+            isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= hi for v in items
+        )
+        if ok and key in MODEL_COUNT_ARGS and math.prod(items) > hi:
+            ok = False
+        if not ok:
+            form = "a whole number" if not isinstance(value, (list, tuple)) else "a list of whole numbers"
+            extra = " (and their product)" if key in MODEL_COUNT_ARGS and isinstance(value, (list, tuple)) else ""
+            raise _fail(source, f"model.args.{key} must be {form} in 1..{hi}{extra}, {what}; got {value!r}")
 
 
 SELECT_BY = {"chamfer_l1": "val_chamfer_l1", "accuracy": "val_accuracy", "loss": "val_loss"}
@@ -284,6 +366,7 @@ def check_keys(cfg: dict, source=None, model_name: str | None = None) -> None:
     if args is not None:
         if not isinstance(args, dict):
             raise _fail(source, f"model.args must be a mapping, got {args!r}")
+        check_model_args(args, source)
         if name is not None:
             if name in MODEL_REGISTRY:
                 known = model_arguments(model_class(name))
@@ -322,6 +405,14 @@ def _float(v, what, lo=None, strict=False, none_ok=False):
     if lo is not None and (v <= lo if strict else v < lo):
         raise ParameterError(f"{what} must be {'>' if strict else '>='} {lo}, got {v:g}")
     return v
+
+
+def _learning_rate(v) -> float:
+    """``train.lr``: a number in (0, :data:`MAX_LR`]."""
+    lr = _float(v, "train.lr", 0.0, strict=True)
+    if lr > MAX_LR:
+        raise ParameterError(f"train.lr must be a learning rate in (0, {MAX_LR:g}], got {lr:g}")
+    return lr
 
 
 def data_config(cfg: dict) -> DataConfig:
@@ -370,15 +461,17 @@ def train_config(cfg: dict) -> TrainConfig:
         raise ParameterError(f"train.compile must be true or false, got {compile_!r}")
     out = TrainConfig(
         epochs=_int(t.get("epochs", base.epochs), "train.epochs", 0),
-        batch_size=_int(t.get("batch_size", base.batch_size), "train.batch_size", 1),
+        batch_size=check_batch_size(
+            _int(t.get("batch_size", base.batch_size), "train.batch_size", 1), "train.batch_size"
+        ),
         optimizer=t.get("optimizer", base.optimizer),
-        lr=_float(t.get("lr", base.lr), "train.lr", 0.0, strict=True),
+        lr=_learning_rate(t.get("lr", base.lr)),
         weight_decay=_float(t.get("weight_decay", 0.0) or 0.0, "train.weight_decay", 0.0),
         lr_schedule=t.get("lr_schedule") or {"kind": "constant"},
         grad_clip=_float(t.get("grad_clip"), "train.grad_clip", 0.0, strict=True, none_ok=True)
         if t.get("grad_clip")
         else None,
-        seed=_int(t.get("seed", 0), "train.seed"),
+        seed=check_seed(t.get("seed", 0), "train.seed"),
         precision=precision.lower(),
         steps_per_epoch=_int(t.get("steps_per_epoch"), "train.steps_per_epoch", 1, none_ok=True),
         select_by=select_by,

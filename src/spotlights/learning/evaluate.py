@@ -34,7 +34,9 @@ from ..geometry.evidence import SnapTargets, snap_radius
 from ..metrics.completion import METRIC_DESCRIPTIONS, evaluate_completions, summarize
 from ..options import (
     DEVICE_HELP,
+    MAX_BATCH,
     REQUIRED,
+    batch_size_number,
     check_threads,
     non_negative_float,
     non_negative_int,
@@ -540,7 +542,9 @@ class EvaluateSettings:
         metavar="T",
         help="SA-Net clip for the 'w/ clip' row (default: the checkpoint's: 0.2 for the paper SA-Net)",
     )
-    batch_size: int = option(default=32, type=positive_int, help="evaluation batch size (default 32)")
+    batch_size: int = option(
+        default=32, type=batch_size_number, help=f"evaluation batch size, 1..{MAX_BATCH} (default 32)"
+    )
     fscore_threshold: float = option(
         default=0.01, type=positive_float, metavar="T", help="F-score distance threshold, unit frame (default 0.01)"
     )

@@ -10,8 +10,18 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..options import DEVICE_HELP, non_negative_int, option, positive_float, positive_int
+from ..options import (
+    DEVICE_HELP,
+    MAX_BATCH,
+    SEED_HELP,
+    batch_size_number,
+    non_negative_int,
+    option,
+    positive_int,
+    seed_number,
+)
 from ..utils import settings_from_dict
+from .config import MAX_LR, learning_rate
 from .registry import MODEL_NAMES
 
 # The options that override one key of the config: config section -> (config key, option field).
@@ -81,9 +91,11 @@ class TrainSettings:
     epochs: int | None = option(
         default=None, type=positive_int, help="number of epochs (with --resume: raise it to train longer)"
     )
-    batch_size: int | None = option(default=None, type=positive_int, help="batch size per process")
+    batch_size: int | None = option(
+        default=None, type=batch_size_number, help=f"batch size per process, 1..{MAX_BATCH}"
+    )
     lr: float | None = option(
-        default=None, type=positive_float, help="learning rate, a finite number > 0 (default: the config's)"
+        default=None, type=learning_rate, help=f"learning rate, in (0, {MAX_LR:g}] (default: the config's)"
     )
     max_views: int | None = option(
         default=None, type=positive_int, metavar="V", help="use only views 0..V-1 of each training model"
@@ -96,7 +108,7 @@ class TrainSettings:
         default=None, type=non_negative_int, help="DataLoader worker processes (0: load in the main process)"
     )
     seed: int | None = option(
-        default=None, type=non_negative_int, help="random seed (same seed + config = same weights)"
+        default=None, type=seed_number, help=f"random seed, {SEED_HELP} (same seed + config = same weights)"
     )
     device: str | None = option(default=None, help=DEVICE_HELP)
     threads: int | None = option(default=None, type=positive_int, help="torch CPU threads (default: torch's)")

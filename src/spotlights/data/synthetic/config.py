@@ -19,6 +19,7 @@ import numpy as np
 
 from ...errors import ParameterError
 from ...geometry.rig import Rig, RigSpec, parse_rig
+from ...options import check_seed
 from ...utils import settings_from_dict
 from ..lidar import SensorModel, hdl64e
 from ..vehicle_classes import VEHICLE_CLASSES, canonical_class
@@ -38,6 +39,24 @@ SOURCE_KEYS = ("manifest", "up", "forward", "scale", "split", "name")
 RETIRED_KEYS: dict[str, str] = {}
 # Clearance between the sensor and the vehicle's footprint (metres), on top of its half diagonal.
 SENSOR_CLEARANCE = 0.5
+# Upper bounds of the build's counts, checked by BuildConfig.validate before anything is written or a worker
+# starts (each was an endless build or workers killed for memory):
+MAX_VIEWS = 100_000
+"""Views per model (``--views``): 50 times the paper's 2000; at the default sizes a model's views are then about
+1 GB of file (256 partial points and a 32 x 64 rig's depths each)."""
+MAX_PARTIAL_POINTS = 65_536
+"""Points per partial observation (``--points``): 256 times the paper's 256, and twice what a car a few metres from
+a 128-beam LiDAR returns; a work unit of 250 views then holds 197 MB of them per worker (2e9 asked for 5.5 TiB)."""
+MAX_GT_POINTS = 2**20
+"""Ground-truth points per model (``--gt-points``, ``--gt-dense``): 64 times the default dense 16,384; sampled in
+float64 by every worker, 2e9 of them killed the workers."""
+COUNT_BOUNDS = {
+    "views": ("--views", MAX_VIEWS),
+    "n_points": ("--points", MAX_PARTIAL_POINTS),
+    "gt_points": ("--gt-points", MAX_GT_POINTS),
+    "gt_dense": ("--gt-dense", MAX_GT_POINTS),
+    "max_draws": ("max_draws", 1_000_000),  # poses per observation; not an option
+}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -299,12 +318,11 @@ class BuildConfig:
 
     def _check_numbers(self) -> None:
         """Counts, seed, distance range (normalised to a float pair), downsampling and scale."""
-        for name in ("views", "n_points", "gt_points", "gt_dense", "max_draws"):
+        for name, (option, hi) in COUNT_BOUNDS.items():
             v = getattr(self, name)
-            if not (isinstance(v, (int, np.integer)) and v >= 1):
-                raise ParameterError(f"{name.replace('_', ' ')} must be an integer >= 1, got {v!r}")
-        if not (isinstance(self.seed, (int, np.integer)) and self.seed >= 0):
-            raise ParameterError(f"seed must be an integer >= 0, got {self.seed!r}")
+            if not (isinstance(v, (int, np.integer)) and not isinstance(v, bool) and 1 <= v <= hi):
+                raise ParameterError(f"{option} must be a whole number in 1..{hi}, got {v!r}")
+        self.seed = check_seed(self.seed, "--seed")
         if not (isinstance(self.min_points, (int, np.integer)) and self.min_points >= 1):
             raise ParameterError(f"min points must be an integer >= 1, got {self.min_points!r}")
         d = tuple(float(x) for x in self.distance)

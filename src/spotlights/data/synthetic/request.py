@@ -15,10 +15,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ...errors import InputFileError, ParameterError
-from ...options import REQUIRED, non_negative_int, option, positive_int
+from ...options import REQUIRED, SEED_HELP, non_negative_int, option, positive_int, seed_number
 from ...utils import settings_from_dict
-from ..lidar import SensorModel, sensor_preset
-from .config import BuildConfig, parse_range, parse_source
+from ..lidar import MIN_AZIMUTH_STEP, SensorModel, sensor_preset
+from .config import MAX_GT_POINTS, MAX_PARTIAL_POINTS, MAX_VIEWS, BuildConfig, parse_range, parse_source
 from .runner import BuildReport, BuildSettings, build_dataset
 
 LIDAR = "LiDAR (default: Velodyne HDL-64E as in KITTI)"
@@ -56,7 +56,9 @@ class BuildRequest:
     manifest: str | None = option(
         default=None, metavar="CSV", help="manifest CSV (default: DIR/manifest.csv if present)"
     )
-    views: int = option(default=2000, type=positive_int, help="partial observations per model (default 2000)")
+    views: int = option(
+        default=2000, type=positive_int, help=f"partial observations per model, 1..{MAX_VIEWS} (default 2000)"
+    )
     split: str = option(
         default="0.81/0.1/0.09",
         metavar="A/B/C",
@@ -64,7 +66,7 @@ class BuildRequest:
         "paper's 64/8/7 for 79 models)",
     )
     no_stratify: bool = option(default=False, action="store_true", help="split over all models instead of per category")
-    seed: int = option(default=0, type=non_negative_int, help="root seed (default 0)")
+    seed: int = option(default=0, type=seed_number, help=f"root seed, {SEED_HELP} (default 0)")
     workers: int | None = option(
         "--workers",
         "-j",
@@ -80,20 +82,30 @@ class BuildRequest:
         "--rig 256x64@60) or rig names, e.g. box-32x64-ellipsoid-s1 (box-targeted: each model's own box)",
     )
     default_rig: str = option(default="32x64@60", metavar="RIG", help="the main rig (default 32x64@60)")
-    points: int = option(default=256, type=int, help="points per partial observation (default 256)")
-    gt_points: int = option(default=2048, type=int, help="uniform ground-truth points (default 2048)")
-    gt_dense: int = option(default=16384, type=int, help="dense ground-truth points (default 16384)")
+    points: int = option(
+        default=256, type=int, help=f"points per partial observation, 1..{MAX_PARTIAL_POINTS} (default 256)"
+    )
+    gt_points: int = option(
+        default=2048, type=int, help=f"uniform ground-truth points, 1..{MAX_GT_POINTS} (default 2048)"
+    )
+    gt_dense: int = option(
+        default=16384, type=int, help=f"dense ground-truth points, 1..{MAX_GT_POINTS} (default 16384)"
+    )
     downsample: str = option(
         default="random",
         choices=("random", "fps"),
         help="how scans with more points are reduced: random subset (default) or farthest-point sampling",
     )
-    up: str = option(default="z", help="the mesh files' up axis (glTF: y; default z)")
-    forward: str = option(default="x", help="the mesh files' forward axis (default x)")
+    up: str = option(default="z", help="the mesh files' up axis (x, y, z, -x, -y, -z; glTF: y; default z)")
+    forward: str = option(default="x", help="the mesh files' forward axis (x, y, z, -x, -y, -z; default x)")
     scale: float = option(default=1.0, type=float, help="multiply mesh coordinates by this to get metres (default 1)")
     sensor: str = option(default="hdl64e", group=LIDAR, help="preset: hdl64e (default), hdl32e, vlp16")
     azimuth_step: float | None = option(
-        default=None, group=LIDAR, type=float, metavar="DEG", help="horizontal step (hdl64e: 0.17)"
+        default=None,
+        group=LIDAR,
+        type=float,
+        metavar="DEG",
+        help=f"horizontal step, {MIN_AZIMUTH_STEP:g}..90 (hdl64e: 0.17)",
     )
     mount_height: str | float | None = option(
         default=None,

@@ -94,6 +94,14 @@ class BoxNoise:
         return Box.from_yaw(center, size, box.yaw + math.radians(self.yaw_deg) * d[2], box.label, box.cls, box.track_id)
 
 
+MAX_FRAMES = 10_000
+"""Frames per sequence (``dataset sequences --frames``): 1000 s of driving past at 10 Hz, 10 times a KITTI tracking
+sequence; 10^8 ran for ever."""
+HZ_RANGE = (0.1, 1000.0)
+"""Frame rates (``--hz``), Hz: spinning LiDARs turn at 5-20 Hz; far outside, the vehicle's positions (speed / rate
+per frame) overflowed (1e-300 Hz put it 1e301 m away, with NumPy overflow warnings)."""
+
+
 @dataclass(frozen=True)
 class SequenceSpec:
     """How sequences are drawn: frames, rate, trajectory ranges, noise."""
@@ -105,10 +113,30 @@ class SequenceSpec:
     noise: BoxNoise = BoxNoise()
 
     def __post_init__(self):
-        if self.n_frames < 1:
-            raise ParameterError(f"a sequence needs at least 1 frame, got {self.n_frames}")
-        if not (math.isfinite(self.hz) and self.hz > 0):
-            raise ParameterError(f"the frame rate must be > 0 Hz, got {self.hz}")
+        if not 1 <= self.n_frames <= MAX_FRAMES:
+            raise ParameterError(f"--frames: a sequence has 1..{MAX_FRAMES} frames, got {self.n_frames}")
+        lo, hi = HZ_RANGE
+        if not (math.isfinite(self.hz) and lo <= self.hz <= hi):
+            raise ParameterError(f"--hz: the frame rate must be in [{lo:g}, {hi:g}] Hz, got {self.hz:g}")
+
+
+VEHICLE_LENGTH_M = (0.5, 50.0)
+"""The longest side a mesh may have to drive past the sensor, metres: a toy car is longer than 0.5 m, a road train
+shorter than 50 m. Outside, the mesh is not in metres (a 1e-30 m mesh gave scans of no points, exit 0)."""
+
+
+def load_vehicle_mesh(path):
+    """The mesh of ``path`` (:func:`~spotlights.geometry.io.load_mesh`), refused with an
+    :class:`~spotlights.errors.InputFileError` naming the file when its longest side is outside
+    :data:`VEHICLE_LENGTH_M`."""
+    mesh = load_mesh(path)
+    longest = float(np.ptp(np.asarray(mesh.vertices), axis=0).max())
+    lo, hi = VEHICLE_LENGTH_M
+    if not lo <= longest <= hi:
+        raise InputFileError(
+            path, f"the mesh is {longest:.3g} m long: a vehicle to drive past is {lo:g}-{hi:g} m (is it in metres?)"
+        )
+    return mesh
 
 
 def simulate_sequence(vertices: np.ndarray, faces: np.ndarray, sensor: SensorModel, spec: SequenceSpec, rng) -> dict:
@@ -188,7 +216,7 @@ def write_sequences(
     for i in range(n_sequences):
         j = i % len(meshes)
         if j not in loaded:
-            mesh = load_mesh(meshes[j])
+            mesh = load_vehicle_mesh(meshes[j])
             loaded[j] = (mesh, np.asarray(mesh.vertices), np.asarray(mesh.faces))
         mesh, v, f = loaded[j]
         rng = np.random.default_rng([seed, i])
@@ -248,7 +276,7 @@ def _sequence_arrays(job: tuple) -> dict:
     mesh_path, i, seed, spec, sensor = job
     if mesh_path not in _MESHES:
         _MESHES.clear()
-        mesh = load_mesh(mesh_path)
+        mesh = load_vehicle_mesh(mesh_path)
         _MESHES[mesh_path] = (mesh, np.asarray(mesh.vertices), np.asarray(mesh.faces))
     mesh, v, f = _MESHES[mesh_path]
     rng = np.random.default_rng([seed, i])
@@ -392,6 +420,8 @@ def simulate_sequences(
     ``seqNNNN/`` per sequence (:func:`write_sequences`; removed again if nothing could be written).
     Returns ``out``."""
     files = mesh_files(meshes)
+    for f in files[: max(0, n_sequences)]:  # every mesh a sequence drives, checked before anything is written
+        load_vehicle_mesh(f)
     if Path(out).suffix.lower() in (".h5", ".hdf5"):
         return write_sequences_h5(files, out, n_sequences, spec, seed, sensor, workers)
     with output_folder(out) as folder:
