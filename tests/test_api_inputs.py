@@ -90,7 +90,8 @@ def test_complete_scene_refuses_a_completer_a_config_or_axes_it_cannot_use():
         ({"margin": "0.2"}, "margin must be a number, got '0.2'"),
         ({"heading_margin": None}, "heading_margin must be a number"),
         ({"min_points": 2.5}, "min_points must be a whole number, got 2.5"),
-        ({"seed": -1}, "the seed must be >= 0, got -1"),
+        ({"seed": -1}, "the seed must be a whole number in 0..2\\*\\*63-1, got -1"),
+        ({"seed": 2**63}, "the seed must be a whole number in 0..2\\*\\*63-1"),
         ({"seed": 1.0}, "seed must be a whole number"),
         ({"clip": 5.0}, r"clip must be a depth threshold in \[0, 1\]"),
         ({"clip": float("nan")}, r"clip must be a depth threshold in \[0, 1\]"),
@@ -116,5 +117,5 @@ def test_the_api_answers_the_same_way():
         spotlights.complete_frame(np.c_[_scan(300), np.ones(300)], [BOX], _Stub(), fallback=None)
     with pytest.raises(ParameterError, match="boxes must be a list of Box objects"):
         spotlights.complete_frame(_scan(), BOX, _Stub(), fallback=None)
-    with pytest.raises(ParameterError, match="the seed must be >= 0"):
+    with pytest.raises(ParameterError, match="the seed must be a whole number in 0"):
         spotlights.complete_frame(_scan(), [BOX], _Stub(), fallback=None, seed=-1)

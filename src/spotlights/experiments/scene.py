@@ -49,6 +49,7 @@ from ..geometry.neighbors import serial_queries
 from ..geometry.rotations import is_rotation, rigid_transform
 from ..learning.inference import DEFAULT, complete_in_boxes, prepare_partial, with_observed
 from ..metrics.consistency import fidelity
+from ..options import check_seed
 from ..utils import StageTimer, shared_thread_pool
 from ..viz import SceneObject, html, scene_png, write_png
 
@@ -124,8 +125,7 @@ class SceneConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, numbers.Integral):
                 raise ParameterError(f"{name} must be a whole number, got {v!r}")
-        if self.seed < 0:
-            raise ParameterError(f"the seed must be >= 0, got {self.seed}")
+        check_seed(self.seed, "the seed")
         clip = self.clip
         number = isinstance(clip, numbers.Real) and not isinstance(clip, bool)
         if not (

@@ -16,7 +16,7 @@ from ...distributed import DEFAULT_RETRIES, check_backend, import_ray, ray_sessi
 from ...errors import InputFileError, ParameterError
 from ...geometry.rig import Rig, RigSpec
 from ...utils import StageTimer, atomic_output, exclusive_lock, hdf5_output
-from ..store import open_dataset, write_rig_group
+from ..store import json_attribute, open_dataset, write_rig_group
 from .catalogue import discover_sources
 from .config import BuildConfig, parse_rig
 from .ray_backend import RayBuild
@@ -122,7 +122,11 @@ def _add_rig_locked(
         offsets = [int(x) for x in ds.model_offset]
         present = [f"rigs/{rig.name}" in ds.handle(k) for k in range(len(shards))]
         for k in range(len(shards)):
-            if present[k] and json.loads(ds.handle(k)[f"rigs/{rig.name}"].attrs["rig_json"]) != want_json:
+            stored = ds.handle(k)[f"rigs/{rig.name}"].attrs if present[k] else None
+            if (
+                stored is not None
+                and json_attribute(shards[k], stored, "rig_json", dict, where=f"/rigs/{rig.name} ") != want_json
+            ):
                 raise InputFileError(shards[k], f"holds a different rig under the name {rig.name}")
         if all(present):
             return AddRigReport(
