@@ -137,6 +137,18 @@ def assert_user_error(proc: subprocess.CompletedProcess, *fragments: str) -> Non
         assert frag in err_lines[0], (frag, proc.stderr)
 
 
+def write_box_scan(root: Path) -> dict:
+    """A scan (.npy, float32, metres) of 600 points in a car-sized box at x = 10 m and its box file (.json), written
+    into ``root``: {"root", "scan", "box"} paths (the hostile-input tests' shared input)."""
+    import json
+
+    rng = np.random.default_rng(0)
+    pts = rng.uniform([-2.0, -0.9, 0.0], [2.0, 0.9, 1.5], size=(600, 3)) + [10.0, 0.0, 0.0]
+    np.save(root / "scan.npy", pts.astype(np.float32))
+    (root / "box.json").write_text(json.dumps({"center": [10.0, 0.0, 0.75], "size": [4.0, 1.8, 1.5], "yaw": 0.0}))
+    return {"root": root, "scan": root / "scan.npy", "box": root / "box.json"}
+
+
 def sphere_ray_depths(origins: np.ndarray, directions: np.ndarray, center, radius: float):
     """Closed-form first hit of rays with a sphere: (t (K,), discriminant (K,)); t = inf on a miss.
 

@@ -5,15 +5,13 @@ the axis -z instead of an unknown option."""
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 
 from spotlights.errors import ParameterError
 from spotlights.options import MAX_BATCH, MAX_CROP_M, MAX_SEED, check_seed, join_axis_values
 
-from helpers import CARS, assert_user_error, run_cli
+from helpers import CARS, assert_user_error, run_cli, write_box_scan
 
 BIG_SEED = str(10**23)
 
@@ -22,11 +20,7 @@ BIG_SEED = str(10**23)
 def scan(tmp_path_factory):
     """A scan (.npy) of a car-sized box at x = 10 m and its box file: {root, scan, box}."""
     root = tmp_path_factory.mktemp("bounds41")
-    rng = np.random.default_rng(0)
-    pts = rng.uniform([-2.0, -0.9, 0.0], [2.0, 0.9, 1.5], size=(600, 3)) + [10.0, 0.0, 0.0]
-    np.save(root / "scan.npy", pts.astype(np.float32))
-    (root / "box.json").write_text(json.dumps({"center": [10.0, 0.0, 0.75], "size": [4.0, 1.8, 1.5], "yaw": 0.0}))
-    return {"root": root, "scan": root / "scan.npy", "box": root / "box.json"}
+    return write_box_scan(root)
 
 
 def _nothing_in(folder):

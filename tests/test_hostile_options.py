@@ -18,18 +18,14 @@ from spotlights.data.tracks import MAX_GAP_S
 from spotlights.errors import InputFileError, ParameterError
 from spotlights.options import MAX_THREADS, check_threads
 
-from helpers import assert_user_error, run_cli, run_cli_subprocess
+from helpers import assert_user_error, run_cli, run_cli_subprocess, write_box_scan
 
 
 @pytest.fixture(scope="module")
 def scan(tmp_path_factory):
     """A scan (.npy) of a car-sized box's surface at x = 10 m, its box file (.json): {name: path}."""
     root = tmp_path_factory.mktemp("hostile")
-    rng = np.random.default_rng(0)
-    pts = rng.uniform([-2.0, -0.9, 0.0], [2.0, 0.9, 1.5], size=(600, 3)) + [10.0, 0.0, 0.0]
-    np.save(root / "scan.npy", pts.astype(np.float32))
-    (root / "box.json").write_text(json.dumps({"center": [10.0, 0.0, 0.75], "size": [4.0, 1.8, 1.5], "yaw": 0.0}))
-    return {"root": root, "scan": root / "scan.npy", "box": root / "box.json"}
+    return write_box_scan(root)
 
 
 def _complete(scan, *extra):
