@@ -268,6 +268,8 @@ def test_a_failing_mesh_stops_a_ray_build_with_one_line(meshes, tmp_path, capsys
     assert rc == 2 and err.count("\n") == 0 and "Traceback" not in err, err
     assert "tiny.ply" in err and "no pose" in err
     assert not out.exists()
+    # the input error crossed from the Ray task as itself: the build removed its parts (a corrected mesh is another plan)
+    assert not (tmp_path / "bad.h5.parts").exists()
 
 
 def test_backend_ray_without_ray_says_how_to_install(meshes, tmp_path, capsys, monkeypatch):

@@ -32,6 +32,23 @@ def test_ply_is_whole_counts_the_bytes_its_header_declares(tmp_path):
 
 
 @pytest.mark.timeout(60)
+def test_ply_is_whole_reads_a_long_header_and_a_comment_that_names_end_header(tmp_path):
+    """A busy frame's PLY has a header of many comment lines: over 64 KiB it was judged cut short (and completed
+    again by every --resume); a comment holding the word end_header was taken for the header's end."""
+    path = tmp_path / "busy.ply"
+    comments = ["a comment that holds end_header inside"] + [f"object {k}: car, 4.5 x 1.8 x 1.5 m" for k in range(3000)]
+    save_ply(path, np.arange(30.0).reshape(10, 3), {"source": np.ones(10, np.uint8)}, comments=comments)
+    data = path.read_bytes()
+    header = data.index(b"\nend_header\n") + len(b"\nend_header\n")
+    assert header > 65536 and len(data) == header + 10 * 13  # independent truth: the bytes the header declares
+    assert ply_is_whole(path)
+    path.write_bytes(data[:-1])
+    assert not ply_is_whole(path)
+    path.write_bytes(data[: header - 1])  # cut inside the header's last line
+    assert not ply_is_whole(path)
+
+
+@pytest.mark.timeout(60)
 def test_ply_is_whole_reads_other_plys_whole(tmp_path):
     path = tmp_path / "ascii.ply"
     head = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
@@ -174,6 +191,24 @@ def test_a_run_stopped_by_a_nan_loss_leaves_nothing_and_names_the_cause(tmp_path
     assert not (tmp_path / "run").exists(), sorted(p.name for p in (tmp_path / "run").rglob("*"))
 
 
+@pytest.mark.timeout(120)
+def test_a_failed_call_keeps_the_files_of_a_run_it_did_not_write(tmp_path, capsys):
+    """The cleanup of a failed run removed ``config.yaml``, ``best.pt`` and ``log.csv`` of an existing run folder
+    (one without ``last.pt``: a kept best model) on any input error: a wrong ``--data`` or "nothing to resume"."""
+    from learning_fixtures import cli
+
+    run = tmp_path / "run"
+    run.mkdir()
+    kept = {"config.yaml": b"model: {name: sanet}\n", "best.pt": b"a kept best model", "log.csv": b"epoch\n1\n"}
+    for name, data in kept.items():
+        (run / name).write_bytes(data)
+    missing = tmp_path / "missing.h5"
+    for extra in ([], ["--resume"]):
+        proc = cli(capsys, "train", "--model", "sanet", "--data", missing, "--out", run, "-q", *extra)
+        assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+        assert {p.name: p.read_bytes() for p in run.iterdir()} == kept, extra
+
+
 @pytest.mark.timeout(60)
 def test_a_removed_lock_file_still_excludes_and_leaves_nothing(tmp_path):
     """``dataset add-rig`` left ``.X.h5.lock`` beside the user's dataset; with ``remove=True`` the lock file goes,
@@ -263,6 +298,33 @@ def test_a_build_stopped_by_its_input_leaves_no_parts(tmp_path):
     good = BuildConfig(meshes=str(tmp_path / "meshes"), views=2, split="1/1/0", seed=0)
     build_dataset(good, out, workers=1, progress=False, log=lambda m: None)
     assert out.is_file() and not (tmp_path / "d.h5.parts").exists()
+
+
+@pytest.mark.timeout(120)
+def test_a_build_stopped_by_an_unreadable_part_keeps_the_others(tmp_path, monkeypatch):
+    """The cleanup above first took every SpotlightsError for an input error: an unreadable part found while
+    writing the file (or a Ray node that cannot run the build) removed all the saved units a rerun resumes from."""
+    import trimesh
+
+    from spotlights.data.synthetic import BuildConfig, build_dataset, consolidate
+    from spotlights.errors import SpotlightsError
+
+    root = tmp_path / "meshes" / "boxes"
+    root.mkdir(parents=True)
+    for k in range(2):
+        trimesh.creation.box(extents=(4.0 + k, 1.8, 1.5)).export(root / f"box_{k}.ply")
+    out = tmp_path / "d.h5"
+    cfg = BuildConfig(meshes=str(tmp_path / "meshes"), views=2, split="1/1/0", seed=0)
+
+    def unreadable(parts, unit, recompute=None):
+        raise SpotlightsError(f"{parts / consolidate.part_name(unit)}: unreadable part, deleted; run the build again")
+
+    monkeypatch.setattr(consolidate, "read_part", unreadable)
+    with pytest.raises(SpotlightsError, match="unreadable part"):
+        build_dataset(cfg, out, workers=1, progress=False, log=lambda m: None)
+    parts = sorted(p.name for p in (tmp_path / "d.h5.parts").glob("*.npz"))
+    assert len(parts) >= 2, parts  # every unit computed is kept for the rerun
+    assert not out.exists()
 
 
 @pytest.mark.timeout(60)

@@ -361,26 +361,43 @@ _PLY_TYPE_BYTES = {
 }  # fmt: skip
 
 
+# ply_is_whole reads a header line by line up to this many bytes; a longer one is read whole
+_PLY_HEADER_MAX = 1 << 20
+
+
 def ply_is_whole(path: str | os.PathLike) -> bool:
     """True when a binary vertex-only PLY (what :func:`save_ply` writes) holds exactly the bytes its header declares.
 
-    Reads the header only (one stat, at most 64 KiB): a file cut short by a crash or a full disk, or with bytes
-    appended, is False, as is a missing file or a header that is not PLY. Other PLYs (ASCII, faces, list
-    properties) are read whole with :func:`load_ply_fields`, which checks the vertex count.
+    Reads the header only (one stat, its lines up to ``end_header``, at most 1 MiB): a file cut short by a crash
+    or a full disk, or with bytes appended, is False, as is a missing file or a header that is not PLY. Other
+    PLYs (ASCII, faces, list properties, a longer header) are read whole with :func:`load_ply_fields`, which
+    checks the vertex count.
     """
     p = Path(path)
+    lines: list[list[str]] = []
+    body = -1
     try:
         size = p.stat().st_size
         with open(p, "rb") as fh:
-            head = fh.read(65536)
+            first = fh.readline(_PLY_HEADER_MAX)
+            read = len(first)
+            while first.rstrip(b"\r\n") == b"ply" and read < _PLY_HEADER_MAX:
+                line = fh.readline(_PLY_HEADER_MAX - read)
+                read += len(line)
+                if not line.endswith(b"\n"):  # the file or the window ends inside the header
+                    break
+                if line.rstrip(b"\r\n") == b"end_header":  # a whole line: not a comment that holds the word
+                    body = read
+                    break
+                lines.append(line.decode("ascii", "replace").split())
     except OSError:
         return False
-    end = head.find(b"end_header")
-    if not head.startswith(b"ply") or end < 0:
+    if first.rstrip(b"\r\n") != b"ply":
         return False
-    body = end + len(b"end_header")
-    body += 2 if head[body : body + 2] == b"\r\n" else 1
-    lines = [line.split() for line in head[:end].decode("ascii", "replace").splitlines()]
+    if body < 0:
+        if read < _PLY_HEADER_MAX:
+            return False  # no end_header before the end of the file
+        lines = [["header", "too", "long"]]  # not judged from the window: read whole below
     fmt = next((line[1] for line in lines if len(line) >= 2 and line[0] == "format"), "")
     elements = [line for line in lines if line and line[0] == "element"]
     props = [line for line in lines if line and line[0] == "property"]

@@ -167,17 +167,34 @@ def train_with(settings: TrainSettings, log=_print_flush) -> dict:
     out_dir = settings.run_dir
     try:
         with output_folder(out_dir) if dist.main else contextlib.nullcontext():
+            before = _run_files(out_dir)
             try:
                 return _train(dist, settings, log)
             except (OSError, SpotlightsError):
                 # a write failed (a full disk), the data or the loss went wrong (NaN): a run with nothing to
-                # resume from leaves nothing behind (output_folder then removes the folders it created)
+                # resume from leaves nothing behind (output_folder then removes the folders it created). Only
+                # the files this call wrote go: a wrong --data or "nothing to resume" keeps an existing run's.
                 if dist.main and not (out_dir / "last.pt").exists():
-                    for name in ("config.yaml", *RUN_STATE_FILES):
-                        (out_dir / name).unlink(missing_ok=True)
+                    after = _run_files(out_dir)
+                    for name, stamp in after.items():
+                        if before.get(name) != stamp:
+                            (out_dir / name).unlink(missing_ok=True)
                 raise
     finally:
         dist.close()
+
+
+def _run_files(out_dir: Path) -> dict[str, tuple[int, int, int]]:
+    """``{name: (inode, size, mtime_ns)}`` of the run files (config.yaml and :data:`RUN_STATE_FILES`)
+    present in ``out_dir``: what a failed call compares to find the files it wrote."""
+    stamps = {}
+    for name in ("config.yaml", *RUN_STATE_FILES):
+        try:
+            st = (out_dir / name).stat()
+        except OSError:
+            continue
+        stamps[name] = (st.st_ino, st.st_size, st.st_mtime_ns)
+    return stamps
 
 
 def _epoch_loader(run: TrainingRun, epoch: int) -> DataLoader:

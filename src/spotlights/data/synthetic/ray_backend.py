@@ -78,7 +78,7 @@ def _cfg(cfg_dict: dict) -> BuildConfig:
 
 def _check_version(version: str) -> None:
     if version != __version__:
-        raise SpotlightsError(
+        raise ProcessFailure(
             f"spotlights {__version__} on Ray node {os.uname().nodename}, the driver runs {version}: "
             "install the same version on every node (the bytes of a dataset depend on it)"
         )
@@ -97,13 +97,13 @@ def _load_task(entry: ModelEntry, root: str, scale: float, version: str):
 
 def _unit_task(unit: tuple, origin: LoadedModel, entry: ModelEntry, cfg_dict: dict, parts: str, version: str):
     """Compute one work unit on a worker and write its part; returns ``("ok", unit, seconds, node)``
-    or ``("error", message)`` for a SpotlightsError (bad input: not retried)."""
+    or ``("error", exc)`` for a SpotlightsError (bad input, or a node that cannot run it: not retried)."""
     timer = StageTimer()
     try:
         _check_version(version)
         parts_dir = Path(parts)
         if not parts_dir.is_dir():
-            raise SpotlightsError(
+            raise ProcessFailure(
                 f"{parts}: the build's parts folder is not visible on Ray node {os.uname().nodename}; "
                 "the output must be on a filesystem every node mounts at the same path"
             )
@@ -111,7 +111,7 @@ def _unit_task(unit: tuple, origin: LoadedModel, entry: ModelEntry, cfg_dict: di
         arrays = compute_unit(unit, model, _cfg(cfg_dict), _SIMS)
         save_npz_atomic(parts_dir / part_name(unit), arrays)
     except SpotlightsError as exc:
-        return ("error", str(exc))
+        return ("error", exc)
     return ("ok", unit, timer.lap("unit"), os.uname().nodename)
 
 
@@ -131,7 +131,7 @@ def _shard_task(
         _check_version(version)
         write_output_file(Path(path), _cfg(cfg_dict), entries, range(*rows), Path(parts), units, skipped, attrs)
     except SpotlightsError as exc:
-        return ("error", str(exc))
+        return ("error", exc)
     return ("ok", path)
 
 
@@ -143,7 +143,7 @@ def _add_rig_task(m: int, entry: ModelEntry, cfg_dict: dict, stored: dict, rig_d
         rig = spec if spec.needs_box else spec.for_box(None)
         return ("ok", model_depths(_cfg(cfg_dict), entry, stored, m, rig))
     except SpotlightsError as exc:
-        return ("error", str(exc))
+        return ("error", exc)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -187,8 +187,9 @@ class RayBuild:
         pending; call ``on_done(item, result)`` as results arrive (any order); stop at the first failure.
 
         A task that fails after its ``retries`` is a one-line :class:`SpotlightsError` starting with
-        ``describe(item)`` and saying the attempts and the reason; a task result ``("error", message)``
-        is a SpotlightsError with that message. The other pending tasks are cancelled (not on Ctrl-C)."""
+        ``describe(item)`` and saying the attempts and the reason; a task result ``("error", exc)``
+        raises the task's own SpotlightsError ``exc`` (its type kept: an input error lets the build
+        remove its parts, a :class:`ProcessFailure` of the node keeps them). The other pending tasks are cancelled (not on Ctrl-C)."""
         ray = self.ray
         pending: dict = {}
         it = iter(items)
@@ -212,7 +213,7 @@ class RayBuild:
                     except ray.exceptions.RayError as exc:
                         self._fail(describe(item), exc)
                     if isinstance(res, tuple) and res and res[0] == "error":
-                        raise SpotlightsError(res[1])
+                        raise res[1]  # the task's own error (its type says whether the input was wrong)
                     on_done(item, res)
         except BaseException as exc:
             # on Ctrl-C / SIGTERM no cancel: cancelling races with replies on their way and Ray 2.60's

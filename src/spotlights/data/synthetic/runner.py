@@ -24,7 +24,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from ...distributed import DEFAULT_RETRIES, check_backend, import_ray, ray_session
-from ...errors import InputFileError, OutputFileError, ParameterError, ProcessFailure, SpotlightsError
+from ...errors import InputFileError, OutputFileError, ParameterError, SpotlightsError
 from ...utils import (
     StageTimer,
     atomic_output,
@@ -326,7 +326,7 @@ def _parts_folder(parts: Path):
         # space; so is one whose input was found wrong (its units belong to a plan the fix changes: a rerun
         # would be refused as "another plan"); other errors (Ctrl-C, SIGTERM, a worker killed) keep saved
         # units so that the next run resumes from them
-        wrong_input = isinstance(exc, SpotlightsError) and not isinstance(exc, ProcessFailure)
+        wrong_input = isinstance(exc, (InputFileError, ParameterError))
         if created and (isinstance(exc, (OSError, OutputFileError)) or wrong_input or not any(parts.glob("*.npz"))):
             shutil.rmtree(parts, ignore_errors=True)
         raise

@@ -15,7 +15,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ...errors import InputFileError, SpotlightsError
+from ...errors import InputFileError
 from ...geometry.encode import MeshProbe
 from ...geometry.frames import normalization_from_mesh
 from ...geometry.sampling import resample, sample_surface
@@ -89,8 +89,9 @@ def simulate_views(
     dmin = max(cfg.distance[0], sim.footprint_radius + SENSOR_CLEARANCE)
     dmax = cfg.distance[1]
     if dmin >= dmax:
-        raise SpotlightsError(
-            f"{model.entry.file}: the mesh is too large ({sim.size[0]:.1f} x {sim.size[1]:.1f} m "
+        raise InputFileError(
+            model.entry.file,
+            f"the mesh is too large ({sim.size[0]:.1f} x {sim.size[1]:.1f} m "
             f"footprint) for the distance range {cfg.distance[0]:g}-{dmax:g} m; is it in metres? "
             "(see --scale)"
         )
@@ -113,8 +114,9 @@ def simulate_views(
             if len(scan.points) >= cfg.min_points:
                 break
         else:
-            raise SpotlightsError(
-                f"{model.entry.file}: view {v}: no pose out of {cfg.max_draws} gave {cfg.min_points} LiDAR returns "
+            raise InputFileError(
+                model.entry.file,
+                f"view {v}: no pose out of {cfg.max_draws} gave {cfg.min_points} LiDAR returns "
                 f"(last: {len(scan.points)}); the mesh may be too small or not in metres (see --scale), or lower "
                 "--min-points"
             )
