@@ -93,7 +93,7 @@ def simulate_views(
             model.entry.file,
             f"the mesh is too large ({sim.size[0]:.1f} x {sim.size[1]:.1f} m "
             f"footprint) for the distance range {cfg.distance[0]:g}-{dmax:g} m; is it in metres? "
-            "(see --scale)"
+            "(see --scale)",
         )
     center, radius = sim.center, 0.5 * float(np.linalg.norm(sim.size))
     heights = cfg.mount_height_range
@@ -118,7 +118,7 @@ def simulate_views(
                 model.entry.file,
                 f"view {v}: no pose out of {cfg.max_draws} gave {cfg.min_points} LiDAR returns "
                 f"(last: {len(scan.points)}); the mesh may be too small or not in metres (see --scale), or lower "
-                "--min-points"
+                "--min-points",
             )
         pose_s = view_timer.lap("pose_loop")
         pts = resample(scan.points, cfg.n_points, rng, method=cfg.downsample)
