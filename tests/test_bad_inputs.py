@@ -406,7 +406,12 @@ CASES = [
         "--frames",
         usage=True,
     ),
-    C("extract-points-0", "real extract {empty_dir} --format kitti -o {out}/k.h5 --points 0 -q", "points"),
+    C(
+        "extract-points-0",
+        "real extract {empty_dir} --format kitti -o {out}/k.h5 --points 0 -q",
+        "--points",
+        usage=True,
+    ),
     C("extract-margin-neg", "real extract {empty_dir} --format kitti -o {out}/k.h5 --margin -1 -q", "margin"),
     C("extract-classes", "real extract {scene} --format generic -o {out}/k.h5 --classes tractor -q", "tractor"),
     C("extract-readonly", "real extract {scene} --format generic -o {out}/k.h5 -q", "k.h5", fault="readonly"),

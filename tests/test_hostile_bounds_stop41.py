@@ -199,12 +199,14 @@ def test_bench_models_api_checks_batches():
 
 @pytest.mark.timeout(30)
 @pytest.mark.parametrize(
-    "option, value, fragment", [("--frames", "100000000", "1..10000"), ("--hz", "1e-300", "[0.1, 1000]")]
+    "option, value, fragment",
+    [("--frames", "100000000", "1..10000"), ("--hz", "1e-300", "[0.1, 1000]"), ("--sequences", "10**12", "1..100000")],
 )
 def test_sequence_frames_and_rate_are_bounded(tmp_path, option, value, fragment):
     mesh = CARS / "sedan" / "aodi-a6.ply"
     if not mesh.exists():
         mesh = tmp_path / "m.ply"  # the check comes before the mesh is read
+    value = str(10**12) if value == "10**12" else value
     proc = run_cli("dataset", "sequences", "--meshes", mesh, "--sequences", "1", "-o", tmp_path / "s", option, value)
     assert_user_error(proc, option, fragment)
     assert "Warning" not in proc.stderr, proc.stderr  # no raw NumPy overflow warning first
@@ -242,10 +244,25 @@ def test_complete_crop_margins_are_bounded(scan, tmp_path, option):
 
 
 @pytest.mark.timeout(30)
-def test_real_extract_crop_margin_is_bounded(scan, tmp_path):
-    proc = run_cli("real", "extract", scan["root"], "--format", "generic", "-o", tmp_path / "r.h5", "--margin", "1e300")
-    assert_user_error(proc, "--margin", "[-10, 10]")
+@pytest.mark.parametrize(
+    "option, value, fragment", [("--margin", "1e300", "[-10, 10]"), ("--points", "70000", "1..65536")]
+)
+def test_real_extract_crop_margin_and_points_are_bounded(scan, tmp_path, option, value, fragment):
+    proc = run_cli("real", "extract", scan["root"], "--format", "generic", "-o", tmp_path / "r.h5", option, value)
+    assert_user_error(proc, option, fragment)
     assert not (tmp_path / "r.h5").exists()
+
+
+@pytest.mark.timeout(30)
+def test_the_library_checks_the_same_bounds():
+    from spotlights.data.real.extract import ExtractConfig
+    from spotlights.data.synthetic.sequences import MAX_SEQUENCES, SequenceSpec, write_sequences_h5
+
+    ExtractConfig(n_points=65536)  # the bound itself is taken
+    with pytest.raises(ParameterError, match="1..65536"):
+        ExtractConfig(n_points=65537)
+    with pytest.raises(ParameterError, match="--sequences"):
+        write_sequences_h5(["m.ply"], "never-written.h5", MAX_SEQUENCES + 1, SequenceSpec())
 
 
 # ---------------------------------------------------------------------------- --up -z
@@ -292,7 +309,8 @@ def test_complete_runs_with_up_minus_z(scan, tmp_path):
     "argv, fragments",
     [
         (["dataset", "build"], ["1..100000", "1..65536", "1..1048576", "0.01..90", "0..2**63-1", "-x, -y, -z"]),
-        (["dataset", "sequences"], ["1..10000", "0.1..1000 Hz", "0..2**63-1"]),
+        (["dataset", "sequences"], ["1..10000", "1..100000", "0.1..1000 Hz", "0..2**63-1"]),
+        (["real", "extract"], ["1..65536", "|M| <= 10", "0..2**63-1"]),
         (["analyze", "density"], ["0.001..0.5", "0.1..90", "2..10000", "16777216", "0..2**63-1"]),
         (["train"], ["(0, 10]", f"1..{MAX_BATCH}", "0..2**63-1"]),
         (["bench", "models"], [f"1..{MAX_BATCH}"]),

@@ -39,7 +39,7 @@ def option(*flags: str, default: Any = REQUIRED, help: str, group: str | None = 
     return dataclasses.field(default=default, metadata=md)
 
 
-def _number_type(cast: Callable[[str], Any], accept: Callable[[Any], bool], expected: str) -> Callable[[str], Any]:
+def number_type(cast: Callable[[str], Any], accept: Callable[[Any], bool], expected: str) -> Callable[[str], Any]:
     """An argparse type: ``cast(text)`` that must satisfy ``accept``, else a usage error saying ``expected``."""
 
     def parse(text: str):
@@ -55,17 +55,17 @@ def _number_type(cast: Callable[[str], Any], accept: Callable[[Any], bool], expe
     return parse
 
 
-positive_int = _number_type(int, lambda v: v >= 1, "a whole number >= 1")
+positive_int = number_type(int, lambda v: v >= 1, "a whole number >= 1")
 """argparse type: an integer >= 1 (counts, batch sizes, epochs)."""
-non_negative_int = _number_type(int, lambda v: v >= 0, "a whole number >= 0")
+non_negative_int = number_type(int, lambda v: v >= 0, "a whole number >= 0")
 """argparse type: an integer >= 0 (e.g. DataLoader workers, 0 = in-process)."""
-unit_interval = _number_type(float, lambda v: 0.0 <= v <= 1.0, "a number in [0, 1]")
+unit_interval = number_type(float, lambda v: 0.0 <= v <= 1.0, "a number in [0, 1]")
 """argparse type: a finite number in [0, 1] (depth clips; NaN is refused)."""
-positive_float = _number_type(float, lambda v: 0.0 < v < float("inf"), "a finite number > 0")
+positive_float = number_type(float, lambda v: 0.0 < v < float("inf"), "a finite number > 0")
 """argparse type: a finite number > 0 (distance thresholds)."""
-non_negative_float = _number_type(float, lambda v: 0.0 <= v < float("inf"), "a finite number >= 0")
+non_negative_float = number_type(float, lambda v: 0.0 <= v < float("inf"), "a finite number >= 0")
 """argparse type: a finite number >= 0 (margins, noise levels)."""
-port_number = _number_type(int, lambda v: 0 <= v <= 65535, "a TCP port number in 0..65535")
+port_number = number_type(int, lambda v: 0 <= v <= 65535, "a TCP port number in 0..65535")
 """argparse type: a TCP port, 0 (the system picks a free one) to 65535."""
 
 MAX_THREADS = max(64, 4 * (os.cpu_count() or 1))
@@ -90,7 +90,7 @@ def check_threads(threads: Any, option: str = "--threads") -> int | None:
     return n
 
 
-thread_count = _number_type(int, lambda v: 1 <= v <= MAX_THREADS, _THREADS_EXPECTED)
+thread_count = number_type(int, lambda v: 1 <= v <= MAX_THREADS, _THREADS_EXPECTED)
 """argparse type: a thread count, 1..:data:`MAX_THREADS` (``--threads`` of every command; :func:`check_threads`)."""
 
 
@@ -118,7 +118,7 @@ def check_seed(seed: Any, what: str = "--seed") -> int:
     return int(seed)
 
 
-seed_number = _number_type(int, lambda v: 0 <= v <= MAX_SEED, _SEED_EXPECTED)
+seed_number = number_type(int, lambda v: 0 <= v <= MAX_SEED, _SEED_EXPECTED)
 """argparse type: a seed, 0..:data:`MAX_SEED` (every ``--seed``; :func:`check_seed`)."""
 
 SEED_HELP = "0..2**63-1"
@@ -130,7 +130,7 @@ MAX_BATCH = 4096
 alone holds 16,384 points x 512 channels (32 MB float32) per sample and layer, so 4096 samples already fill an
 80 GB GPU; 100,000 asked for 26 GB at the first step and 10^8 for 300 GB."""
 
-batch_size_number = _number_type(int, lambda v: 1 <= v <= MAX_BATCH, f"a batch size in 1..{MAX_BATCH}")
+batch_size_number = number_type(int, lambda v: 1 <= v <= MAX_BATCH, f"a batch size in 1..{MAX_BATCH}")
 """argparse type: a batch size, 1..:data:`MAX_BATCH`."""
 
 
@@ -184,7 +184,7 @@ extract`` ``--margin``, ``--crop``, ``--ground-clearance``): a box grown by more
 lanes (a lane is 3.5 m wide) and the road; the defaults are 0.15 and 0.10. 1e300 overflowed NumPy's squared
 norms and ran on with a crop of the whole scan."""
 
-crop_metres = _number_type(
+crop_metres = number_type(
     float, lambda v: -MAX_CROP_M <= v <= MAX_CROP_M, f"a number of metres in [-{MAX_CROP_M:g}, {MAX_CROP_M:g}]"
 )
 """argparse type: a crop margin or ground clearance, metres in [-:data:`MAX_CROP_M`, :data:`MAX_CROP_M`]."""

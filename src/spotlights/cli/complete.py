@@ -13,9 +13,9 @@ from ..experiments.scan_completion import ScanSettings
 from ..utils import settings_from_namespace
 from ._util import (
     DEVICE_HELP,
-    MAX_CROP_M,
     SEED_HELP,
     add_command,
+    add_crop_arguments,
     argparse_type,
     crop_metres,
     non_negative_float,
@@ -113,13 +113,7 @@ def add_completion_arguments(p, single: bool) -> None:
         "0.3 turned none of the real cars; docs/real-data.md)",
     )
     g = p.add_argument_group("crop (" + CROP_DOC + ")")
-    g.add_argument(
-        "--margin",
-        type=crop_metres,
-        default=None,
-        metavar="M",
-        help=f"grow each box by M metres on its sides and top, |M| <= {MAX_CROP_M:g} (default 0.15)",
-    )
+    add_crop_arguments(g, margin_default=None)
     if single:
         g.add_argument(
             "--crop", type=crop_metres, default=None, metavar="MARGIN", help="same as --margin (kept for older scripts)"
@@ -129,13 +123,6 @@ def add_completion_arguments(p, single: bool) -> None:
             action="store_true",
             help="single object: use every point of the scan (a scan that is already cropped to the object)",
         )
-    g.add_argument(
-        "--ground-clearance",
-        type=crop_metres,
-        default=0.10,
-        metavar="M",
-        help=f"drop points below M metres over the box bottom (ground), |M| <= {MAX_CROP_M:g} (default 0.10)",
-    )
     g.add_argument(
         "--min-points",
         type=positive_int,
@@ -311,7 +298,9 @@ def register(sub) -> None:
         "scan): the free space that the ray-local model and --snap's occlusion rule read; one scan only",
     )
     p.add_argument("--up", default="z", help="the scan's up axis (x, y, z, -x, ...); PCN-style scans are y (default z)")
-    p.add_argument("--forward", default="x", help="the scan's forward axis (x, -y, ...): yaw 0 points along it")
+    p.add_argument(
+        "--forward", default="x", help="the scan's forward axis (x, -y, ...): yaw 0 points along it (default x)"
+    )
     p.add_argument(
         "--per-object", default=None, metavar="DIR", help="also write DIR/object_<id>.ply per completed object"
     )

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from ..data.store import MAX_PARTIAL_POINTS
 from ..experiments.frame_completion import FramesSettings, complete_frames, parse_frames, parse_frames_range
 from ..experiments.real_runs import (
     EvaluateSettings,
@@ -16,16 +17,16 @@ from ..utils import settings_from_namespace
 from ._util import (
     DEVICE_HELP,
     MAX_BATCH,
-    MAX_CROP_M,
     SEED_HELP,
     add_command,
+    add_crop_arguments,
     add_group,
     add_quiet,
     argparse_type,
     batch_size_number,
-    crop_metres,
     non_negative_float,
     non_negative_int,
+    positive_int,
     seed_number,
     unit_interval,
 )
@@ -70,25 +71,16 @@ def register(sub) -> None:
     p.add_argument("source", nargs="+", metavar="SOURCE", help=SOURCE_HELP)
     p.add_argument("--format", "-f", required=True, choices=FORMAT_CHOICES, help="dataset format")
     p.add_argument("--out", "-o", required=True, metavar="FILE.h5", help="output HDF5 of observations")
-    p.add_argument(
-        "--margin",
-        type=crop_metres,
-        default=0.15,
-        metavar="M",
-        help=f"grow each box by M metres on the sides and top, |M| <= {MAX_CROP_M:g} (default 0.15)",
-    )
-    p.add_argument(
-        "--ground-clearance",
-        type=crop_metres,
-        default=0.10,
-        metavar="M",
-        help=f"drop points below M metres over the box bottom (ground), |M| <= {MAX_CROP_M:g} (default 0.10)",
-    )
+    add_crop_arguments(p)
     p.add_argument(
         "--min-points", type=int, default=10, metavar="K", help="skip boxes with fewer than K points (default 10)"
     )
     p.add_argument(
-        "--points", type=int, default=256, metavar="P", help="points per observation after resampling (default 256)"
+        "--points",
+        type=positive_int,
+        default=256,
+        metavar="P",
+        help=f"points per observation after resampling, 1..{MAX_PARTIAL_POINTS} (default 256)",
     )
     p.add_argument("--seed", type=seed_number, default=0, help=f"resampling seed, {SEED_HELP} (default 0)")
     p.add_argument(

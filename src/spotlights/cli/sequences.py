@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from ..data.lidar import SENSOR_PRESETS
-from ..data.synthetic.sequences import HZ_RANGE, MAX_FRAMES, BoxNoise, SequenceSpec, simulate_sequences
+from ..data.synthetic.sequences import HZ_RANGE, MAX_FRAMES, MAX_SEQUENCES, BoxNoise, SequenceSpec, simulate_sequences
 from ._util import SEED_HELP, add_command, add_quiet, positive_int, seed_number
 
 
@@ -31,8 +31,12 @@ def register(dsub) -> None:
     p.add_argument(
         "--workers", type=positive_int, default=1, help="processes simulating (.h5 output; same bytes for any number)"
     )
-    p.add_argument("--sequences", type=positive_int, default=4, metavar="N", help="sequences (default 4)")
-    p.add_argument("--frames", type=positive_int, default=20, metavar="F", help=f"frames a sequence, 1..{MAX_FRAMES}")
+    p.add_argument(
+        "--sequences", type=positive_int, default=4, metavar="N", help=f"sequences, 1..{MAX_SEQUENCES} (default 4)"
+    )
+    p.add_argument(
+        "--frames", type=positive_int, default=20, metavar="F", help=f"frames a sequence, 1..{MAX_FRAMES} (default 20)"
+    )
     p.add_argument(
         "--hz", type=float, default=10.0, help=f"frame rate, {HZ_RANGE[0]:g}..{HZ_RANGE[1]:g} Hz (default 10)"
     )

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputFileError, ParameterError
-from ..options import _number_type, check_batch_size, check_seed
+from ..options import check_batch_size, check_seed, number_type
 from ..utils import did_you_mean
 from .registry import MODEL_REGISTRY, model_class
 
@@ -101,7 +101,7 @@ MAX_LR = 10.0
 is run at up to about 0.1; 100 times that is far past any rate that trains. 1e300 failed inside the optimizer
 ("value cannot be converted to type float without overflow") after the datasets were loaded."""
 
-learning_rate = _number_type(float, lambda v: 0.0 < v <= MAX_LR, f"a learning rate in (0, {MAX_LR:g}]")
+learning_rate = number_type(float, lambda v: 0.0 < v <= MAX_LR, f"a learning rate in (0, {MAX_LR:g}]")
 """argparse type: a learning rate, (0, :data:`MAX_LR`] (``train --lr``)."""
 
 MAX_WIDTH = 16384

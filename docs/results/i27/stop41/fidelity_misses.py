@@ -5,6 +5,9 @@ Usage: PYTHONPATH=src python docs/results/i27/stop41/fidelity_misses.py av2.h5
 --classes car,truck,caravan,trailer,bus,construction,emergency --out av2.h5`).
 Every car observation's 256 stored points (unit frame) against the completion of the default and the class model:
 a point is missed when it lies farther than 0.08 unit from the completion; "interior" = inside the box shrunk to 70%.
+The mean distance of the observed points to the completion is a proxy of fidelity over these 59 observations (the
+reported fidelity is per tracked car over its raw points); printed with and without the interior points, and the
+interior points' share of the summed distance.
 """
 
 import sys
@@ -25,6 +28,11 @@ for name in ("default", "classes"):
     c = spotlights.load_completer(name, device="cpu")
     extra = {"classes": ["car"] * len(idx)} if name == "classes" else {}
     outs = c.complete(partials, extents=half.astype(np.float32), sensor_origins=obs.sensor_origin[idx], **extra)
-    missed = np.stack([cKDTree(o).query(p)[0] > 0.08 for o, p in zip(outs, partials)])
+    dist = np.stack([cKDTree(o).query(p)[0] for o, p in zip(outs, partials)])
+    missed = dist > 0.08
     share = (missed & interior).sum() / missed.sum()
     print(f"{name}: missed points {missed.sum()} of {missed.size}; {share:.0%} of them in the interior")
+    print(
+        f"{name}: mean distance {dist.mean():.4f} (interior points left out: {dist[~interior].mean():.4f}); "
+        f"the interior points hold {dist[interior].sum() / dist.sum():.0%} of the summed distance"
+    )

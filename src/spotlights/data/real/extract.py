@@ -50,7 +50,7 @@ from ...errors import InputFileError, ParameterError
 from ...geometry.boxes import Box
 from ...geometry.sampling import resample_set
 from ...utils import atomic_output, hdf5_output
-from ..store import int_attribute, json_attribute
+from ..store import MAX_PARTIAL_POINTS, int_attribute, json_attribute
 from .base import CLASSES, PAPER_CLASSES, Frame, SceneReader
 
 FILE_FORMAT = "spotlights-real-observations"
@@ -82,8 +82,8 @@ class ExtractConfig:
             raise ParameterError(f"ground clearance must be finite, got {self.ground_clearance}")
         if self.min_points < 1:
             raise ParameterError(f"minimum point count must be >= 1, got {self.min_points}")
-        if self.n_points < 1:
-            raise ParameterError(f"points per observation must be >= 1, got {self.n_points}")
+        if not 1 <= self.n_points <= MAX_PARTIAL_POINTS:
+            raise ParameterError(f"--points: 1..{MAX_PARTIAL_POINTS} points per observation, got {self.n_points}")
         bad = [c for c in self.classes if c not in CLASSES]
         if bad or not self.classes:
             raise ParameterError(f"unknown class(es) {bad}; choose among {', '.join(CLASSES)}")

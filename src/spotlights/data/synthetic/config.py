@@ -22,6 +22,7 @@ from ...geometry.rig import Rig, RigSpec, parse_rig
 from ...options import check_seed
 from ...utils import settings_from_dict
 from ..lidar import SensorModel, hdl64e
+from ..store import MAX_PARTIAL_POINTS
 from ..vehicle_classes import VEHICLE_CLASSES, canonical_class
 
 PLAN_VERSION = 1
@@ -44,9 +45,6 @@ SENSOR_CLEARANCE = 0.5
 MAX_VIEWS = 100_000
 """Views per model (``--views``): 50 times the paper's 2000; at the default sizes a model's views are then about
 1 GB of file (256 partial points and a 32 x 64 rig's depths each)."""
-MAX_PARTIAL_POINTS = 65_536
-"""Points per partial observation (``--points``): 256 times the paper's 256, and twice what a car a few metres from
-a 128-beam LiDAR returns; a work unit of 250 views then holds 197 MB of them per worker (2e9 asked for 5.5 TiB)."""
 MAX_GT_POINTS = 2**20
 """Ground-truth points per model (``--gt-points``, ``--gt-dense``): 64 times the default dense 16,384; sampled in
 float64 by every worker, 2e9 of them killed the workers."""

@@ -97,6 +97,9 @@ class BoxNoise:
 MAX_FRAMES = 10_000
 """Frames per sequence (``dataset sequences --frames``): 1000 s of driving past at 10 Hz, 10 times a KITTI tracking
 sequence; 10^8 ran for ever."""
+MAX_SEQUENCES = 100_000
+"""Sequences in one call (``dataset sequences --sequences``): 100 times nuScenes' 850 scenes' worth of vehicles is
+not one call's job (without a bound any count was accepted, to run for ever)."""
 HZ_RANGE = (0.1, 1000.0)
 """Frame rates (``--hz``), Hz: spinning LiDARs turn at 5-20 Hz; far outside, the vehicle's positions (speed / rate
 per frame) overflowed (1e-300 Hz put it 1e301 m away, with NumPy overflow warnings)."""
@@ -197,6 +200,12 @@ def mesh_files(path: str | Path) -> list[Path]:
     raise ParameterError(f"{src}: no such mesh file or folder")
 
 
+def _check_sequence_count(n_sequences: int) -> None:
+    """``--sequences``: 1..:data:`MAX_SEQUENCES` (checked before any output)."""
+    if not 1 <= n_sequences <= MAX_SEQUENCES:
+        raise ParameterError(f"--sequences: 1..{MAX_SEQUENCES} sequences, got {n_sequences}")
+
+
 def write_sequences(
     meshes: list, out, n_sequences: int, spec: SequenceSpec, seed: int = 0, sensor: str = "hdl64e"
 ) -> list[Path]:
@@ -205,8 +214,7 @@ def write_sequences(
     meshes : mesh files (z up, x forward, metres). Returns the ``sequence.json`` paths written. Every file
     is written atomically; a sequence is complete when its ``sequence.json`` exists (written last).
     """
-    if n_sequences < 1:
-        raise ParameterError(f"--sequences must be >= 1, got {n_sequences}")
+    _check_sequence_count(n_sequences)
     if not meshes:
         raise ParameterError("no mesh to simulate")
     sens = sensor_preset(sensor)
@@ -302,8 +310,7 @@ def write_sequences_h5(
     """Simulate ``n_sequences`` sequences (mesh ``i % len(meshes)`` for sequence ``i``) into one HDF5 file ``out``
     (the module docstring's layout; written atomically). ``workers`` processes simulate; the bytes do not
     depend on their number. Returns ``out``."""
-    if n_sequences < 1:
-        raise ParameterError(f"--sequences must be >= 1, got {n_sequences}")
+    _check_sequence_count(n_sequences)
     if not meshes:
         raise ParameterError("no mesh to simulate")
     sensor_preset(sensor)  # an unknown sensor fails before any work
