@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from spotlights.data.store import int_attribute, json_attribute, open_dataset
-from spotlights.errors import InputFileError
+from spotlights.errors import InputFileError, ProcessFailure, SpotlightsError
 from test_dataset import meshes, reference, small_cfg  # noqa: F401  (module fixtures: a 3-model, 18-sample file)
 
 from helpers import assert_user_error, run_cli
@@ -123,14 +123,19 @@ def test_evaluate_refuses_partials_that_are_not_finite_float_scans(reference, tm
 
 
 @pytest.mark.timeout(120)
-@pytest.mark.parametrize("lazy", [False, True])
-def test_train_refuses_nan_partials(reference, tmp_path, lazy):  # noqa: F811
+@pytest.mark.parametrize("lazy, workers", [(False, 0), (True, 0), (True, 2)])
+def test_train_refuses_nan_partials(reference, tmp_path, lazy, workers):  # noqa: F811
+    """With lazy reading in DataLoader worker processes (``workers`` 2) the file's error came back as torch's
+    RuntimeError and its traceback: torch rebuilds a worker's exception from its message alone."""
     bad = damaged(reference, tmp_path, set_partial(with_nan))
     args = ["train", "--model", "pcn", "--data", bad, "--epochs", "1", "--out", tmp_path / "run", "-q"]
-    if lazy:  # partials read one sample at a time (in this process: --workers 0)
-        (tmp_path / "lazy.yaml").write_text("data:\n  partials_in_memory: false\n")
+    if lazy:  # partials read one sample at a time (in this process, or in DataLoader workers)
+        (tmp_path / "lazy.yaml").write_text(f"data:\n  partials_in_memory: false\n  num_workers: {workers}\n")
         args += ["--config", tmp_path / "lazy.yaml"]
-    assert_user_error(run_cli(*args), f"{bad}: /samples/partial[0]: partial scans contain NaN or infinite")
+    proc = run_cli(*args)
+    assert_user_error(proc, f"{bad}: /samples/partial[0]: partial scans contain NaN or infinite")
+    assert "DataLoader" not in proc.stderr and "Original Traceback" not in proc.stderr, proc.stderr
+    assert not (tmp_path / "run").exists()
 
 
 @pytest.mark.timeout(60)
@@ -259,3 +264,41 @@ def test_observations_with_nan_rows_name_the_file_and_row(tmp_path, key, message
         f[f"observations/{key}"][...] = a
     with pytest.raises(InputFileError, match=f"{src.name}: observations/{key}\\[1\\]: {message}"):
         read_observations(src)
+
+
+class _Failing:
+    """A map-style dataset whose item 1 raises ``error`` (in a DataLoader worker process)."""
+
+    def __init__(self, error):
+        self.error = error
+
+    def __len__(self):
+        return 3
+
+    def __getitem__(self, i):
+        if i == 1:
+            raise self.error
+        return i
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize(
+    "error, code",
+    [
+        (InputFileError("/data/d.h5", "/samples/partial[1]: NaN"), 2),  # torch rebuilt it as RuntimeError
+        (SpotlightsError("/data/d.h5: a damaged sample"), 2),  # torch rebuilt it with the traceback as its message
+        (ProcessFailure("a helper died: run again"), 1),
+    ],
+)
+def test_worker_errors_come_out_as_their_one_line(error, code):
+    from torch.utils.data import DataLoader
+
+    from spotlights.learning.data import worker_batches
+
+    loader = DataLoader(_Failing(error), batch_size=1, num_workers=1)
+    with pytest.raises(SpotlightsError) as caught:
+        list(worker_batches(loader))
+    assert str(caught.value) == str(error) and caught.value.exit_code == code
+    assert [int(b) for b in worker_batches(DataLoader(_Failing(error), batch_size=1, sampler=[0, 2]))] == [0, 2]
+    with pytest.raises(RuntimeError, match="not ours"):  # other errors pass through as they are
+        list(worker_batches(DataLoader(_Failing(RuntimeError("not ours")), batch_size=1, num_workers=1)))

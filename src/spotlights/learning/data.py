@@ -31,6 +31,8 @@ results do not depend on the number of workers.
 
 from __future__ import annotations
 
+import re
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,9 +40,10 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from .. import errors
 from ..data.store import SPLITS, CompletionDataset, open_dataset
 from ..data.vehicle_classes import canonical_class
-from ..errors import InputFileError, ParameterError
+from ..errors import InputFileError, ParameterError, ProcessFailure, SpotlightsError
 from ..geometry.rig import RigSpec
 
 CATEGORY_ORDER = ("hatchback", "sedan", "suv")
@@ -259,3 +262,31 @@ class TorchCompletionDataset(Dataset):
         finally:
             self.store.close()
         return {int(m): np.asarray(d, dtype=np.float32) for m, d in zip(rows, dense)}
+
+
+# torch rebuilds an exception raised in a DataLoader worker from its text alone ("Caught X in DataLoader worker
+# process N.\nOriginal Traceback ...\nmodule.X: message"): a RuntimeError for the errors whose constructor takes
+# two arguments (InputFileError), the error with the whole traceback as its message for the others
+_WORKER_ERROR = re.compile(r"^spotlights\.errors\.(\w+): (.+)$", re.MULTILINE)
+
+
+def worker_batches(batches: Iterable) -> Iterator:
+    """Iterate a DataLoader's ``batches`` (or a tqdm over it); a :class:`~spotlights.errors.SpotlightsError` raised
+    in a worker process (a damaged sample read lazily) comes out as its own one line, with its exit code, instead of
+    torch's RuntimeError and the worker's traceback."""
+    it = iter(batches)
+    while True:
+        try:
+            batch = next(it)
+        except StopIteration:
+            return
+        except (RuntimeError, SpotlightsError) as exc:
+            text = str(exc)
+            found = _WORKER_ERROR.findall(text) if "in DataLoader worker process" in text else []
+            if not found:
+                raise
+            name, message = found[-1]
+            cls = getattr(errors, name, None)
+            failure = isinstance(cls, type) and issubclass(cls, ProcessFailure)
+            raise (ProcessFailure if failure else SpotlightsError)(message) from None
+        yield batch

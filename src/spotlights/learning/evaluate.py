@@ -108,7 +108,7 @@ def evaluate_checkpoint(
     from torch.utils.data import DataLoader
     from tqdm import tqdm
 
-    from .data import TorchCompletionDataset
+    from .data import TorchCompletionDataset, worker_batches
     from .device import resolve_device
 
     dev = resolve_device(device)
@@ -141,7 +141,8 @@ def evaluate_checkpoint(
     loader = DataLoader(ds, batch_size=batch_size, shuffle=False, num_workers=num_workers)
     timer = StageTimer()
     with timer("predict"), torch.inference_mode():
-        for batch in tqdm(loader, desc=f"evaluate {name}", unit="batch", disable=not progress, leave=False):
+        bar = tqdm(loader, desc=f"evaluate {name}", unit="batch", disable=not progress, leave=False)
+        for batch in worker_batches(bar):
             b = {k: (v.to(dev) if torch.is_tensor(v) else v) for k, v in batch.items()}
             if getattr(model, "class_embedding", None) is not None:  # each sample's class, from its model row
                 b["cls"] = model.class_indices(ds.classes[batch["model"].numpy()]).to(dev)

@@ -38,6 +38,7 @@ from ..options import check_threads
 from ..utils import StageTimer, atomic_output, output_folder
 from .checkpoint import save_checkpoint
 from .config import SELECT_BY
+from .data import worker_batches
 from .device import autocast, default_device
 from .inference import LearnedDomain
 from .process_group import ProcessGroup
@@ -237,7 +238,7 @@ def _train_epoch(run: TrainingRun, loader: DataLoader, epoch: int, progress: boo
         disable=not (progress and run.dist.main),
         dynamic_ncols=True,
     )
-    for batch in bar:
+    for batch in worker_batches(bar):
         batch = with_boxes(to_device(batch, run.device), model, run.train_rays, run.train_set.sizes)
         with autocast(run.precision, run.device):
             out = run.net(*model.forward_inputs(batch, run.train_rays))

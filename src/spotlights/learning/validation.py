@@ -15,7 +15,7 @@ from ..errors import SpotlightsError
 from ..geometry.box_clamp import grown_half_extents
 from ..geometry.distances import accuracy, combine_directions, completeness
 from ..geometry.neighbors import NearestNeighbors
-from .data import TorchCompletionDataset
+from .data import TorchCompletionDataset, worker_batches
 from .device import autocast
 from .models.base import CLIP_DEFAULT
 from .process_group import ProcessGroup
@@ -112,7 +112,7 @@ def validate(
     loss_sum = 0.0
     count = 0
     acc_sum, comp_sum, scored = [0.0] * len(grid), [0.0] * len(grid), [0] * len(grid)
-    for batch in loader:
+    for batch in worker_batches(loader):
         batch = with_boxes(to_device(batch, device), model, rays, dataset.sizes)
         with autocast(precision, device):
             out = model(*model.forward_inputs(batch, rays))
