@@ -575,3 +575,8 @@ def test_car_model_candidates_stop41():
     for frag in ("23% of the observed points", "61% of the default's missed points", "(the class model: 47%", "37%"):
         assert frag in doc, frag
     assert "37% of the summed distance" in misses and "0.0387 (interior points left out: 0.0318)" in misses
+    probe = _text(REPO / "docs/results/i27/stop42/select_probe.txt")
+    assert "default accuracy 0.01525" in probe and "classes accuracy 0.01653" in probe
+    assert "selected by fidelity: accuracy 0.01556; class model chosen for 34%; oracle 0.01504" in probe
+    for frag in ("takes the class model for 34% of the scans and is 0.01556 accurate", "reach only 0.01504"):
+        assert frag in doc, frag
