@@ -337,6 +337,7 @@ def test_tables_3_and_4_alone_on_balls_match_the_closed_form(tmp_path):
     assert set(steps) == {"rig-study", "fig-rig", "fig-density", "fig-gt", "table-3", "table-4"}
     assert not (out / "data").exists() and not (out / "runs").exists()
     assert set(res.ran) == set(steps)
+    assert not (out / ".reproduce.lock").exists()  # the lock goes with the run (it stayed in the user's folder)
     # the box table's study numbers (same rig-study step) on the boxes: every ray of a box rig hits a
     # solid box; a cap rig's hit ratio is the share of its rays that pass a slab test
     from spotlights.experiments.reproduce import BOX_STUDY_LABELS, Context, Settings

@@ -172,7 +172,7 @@ def reproduce(
     ctx.steps = all_steps(ctx)
     s.out.mkdir(parents=True, exist_ok=True)
     with exclusive_lock(
-        s.out / ".reproduce.lock", f"{s.out}: another 'spotlights reproduce' is running in this folder"
+        s.out / ".reproduce.lock", f"{s.out}: another 'spotlights reproduce' is running in this folder", remove=True
     ):
         load_records(ctx)
         inv = {"started": now(), "argv": list(argv) if argv is not None else None, "tables": keys, "seconds": None}
