@@ -564,19 +564,64 @@ def test_car_model_candidates_stop41():
     cells += [real_cells(_json(f"{base}/av2_ft39.json"), "ft39"), "-"]
     row = "| stop-39 control | " + " | ".join(cells) + f" | {kenney39:.4f} |"
     assert row in doc, f"docs/real-data.md should hold the row {row!r}"
-    # the prose's numbers of where the AV2 fidelity's misses lie, from the script's output beside it
-    misses = _text(REPO / f"docs/results/{base}/fidelity_misses.txt")
-    for frag in (
-        "interior: 23%",
-        "default: missed points 1776 of 15104; 61%",
-        "classes: missed points 874 of 15104; 47%",
-    ):
-        assert frag in misses, frag
-    for frag in ("23% of the observed points", "61% of the default's missed points", "(the class model: 47%", "37%"):
-        assert frag in doc, frag
-    assert "37% of the summed distance" in misses and "0.0387 (interior points left out: 0.0318)" in misses
-    probe = _text(REPO / "docs/results/i27/stop42/select_probe.txt")
-    assert "default accuracy 0.01525" in probe and "classes accuracy 0.01653" in probe
-    assert "selected by fidelity: accuracy 0.01556; class model chosen for 34%; oracle 0.01504" in probe
-    for frag in ("takes the class model for 34% of the scans and is 0.01556 accurate", "reach only 0.01504"):
-        assert frag in doc, frag
+    # the prose's numbers, each built from the result files
+    para = doc[doc.index("A car model for the product path, measured (stop 41") :]
+    para = " ".join(para[: para.index("One model per class family")].split())  # one paragraph, lines joined
+    misses = (RESULTS / base / "fidelity_misses.txt").read_text()
+    interior = re.search(r"observed points in the interior: (\d+%)", misses).group(1)
+    share = dict(re.findall(r"(\w+): missed points \d+ of \d+; (\d+%) of them in the interior", misses))
+    dist = {
+        m[0]: m[1:]
+        for m in re.findall(
+            r"(\w+): mean distance ([\d.]+) \(interior points left out: ([\d.]+)\); "
+            r"the interior points hold (\d+%)",
+            misses,
+        )
+    }
+    frags = [
+        f"{interior} of the observed points of AV2's cars",
+        f"{share['default']} of the default's missed points",
+        f"(the class model: {share['classes']})",
+        f"they hold {dist['default'][2]} of the default's summed distance (its mean distance {dist['default'][0]}, "
+        f"{dist['default'][1]} without them; the class model {dist['classes'][0]} and {dist['classes'][1]})",
+    ]
+    runs = {}
+    for name in ("mix60", "mix20"):
+        lines = (RESULTS / base / f"{name}_train_log.csv").read_text().splitlines()
+        head, first, last = lines[0].split(","), lines[1].split(","), lines[-1].split(",")
+        col = {k: head.index(k) for k in ("val_chamfer_l1", "wall_seconds", "global_step")}
+        runs[name] = (
+            float(last[col["wall_seconds"]]) / 60,
+            float(first[col["val_chamfer_l1"]]),
+            float(last[col["val_chamfer_l1"]]),
+        )
+        assert int(last[col["global_step"]]) == 2000
+    frags += [
+        f"one thread each, {runs['mix60'][0]:.0f} and {runs['mix20'][0]:.0f} wall minutes",
+        f"mix60's validation CD-L1 still falling at the end, {runs['mix60'][1]:.4f} -> {runs['mix60'][2]:.4f}",
+        f"mix20's flat, {runs['mix20'][1]:.4f} -> {runs['mix20'][2]:.4f}",
+    ]
+    cons = {
+        (set_, m["name"]): m["equal_density"]["classes"]["car"]["cd"]
+        for set_ in ("av2", "nuscenes")
+        for m in _json(f"{base}/cand-{set_}.json")["models"]
+    }
+    worse = [cons[(s_, n)] / cons[(s_, "default")] - 1 for s_ in ("av2", "nuscenes") for n in ("mix60", "mix20")]
+    frags.append(f"(+{min(worse):.0%} to +{max(worse):.0%})")
+    (m60,) = [m for m in _json(f"{base}/cand-av2.json")["models"] if m["name"] == "mix60"]
+    fid60 = np.mean([o["fidelity"] for o in m60["objects"] if o["cls"] == "car"])
+    acc60 = _summary(_json(f"{base}/cars-test_mix60.json"), "sanet-hit")["accuracy"]
+    frags.append(f"(mix60: {acc60:.4f} and {fid60:.4f})")
+    probe = (RESULTS / "i27/stop42/select_probe.txt").read_text()
+    acc = dict(re.findall(r"^(\w+) accuracy ([\d.]+)", probe, re.MULTILINE))
+    picked, chosen, oracle = re.search(
+        r"accuracy ([\d.]+); class model chosen for (\d+%); oracle ([\d.]+)", probe
+    ).groups()
+    frags += [
+        f"accuracies, {acc['default']} and {acc['classes']}",
+        f"the pick takes the class model for {chosen} of the scans and is {picked} accurate",
+        f"reach only {oracle}",
+    ]
+    assert acc["default"] == f"{_summary(_json(f'{base}/cars-test_default.json'), 'sanet-hit')['accuracy']:.5f}"
+    for frag in frags:
+        assert frag in para, frag

@@ -256,13 +256,15 @@ def test_real_extract_crop_margin_and_points_are_bounded(scan, tmp_path, option,
 @pytest.mark.timeout(30)
 def test_the_library_checks_the_same_bounds():
     from spotlights.data.real.extract import ExtractConfig
-    from spotlights.data.synthetic.sequences import MAX_SEQUENCES, SequenceSpec, write_sequences_h5
+    from spotlights.data.synthetic.sequences import MAX_SEQUENCES, SequenceSpec, simulate_sequences, write_sequences_h5
 
     ExtractConfig(n_points=65536)  # the bound itself is taken
     with pytest.raises(ParameterError, match="1..65536"):
         ExtractConfig(n_points=65537)
     with pytest.raises(ParameterError, match="--sequences"):
         write_sequences_h5(["m.ply"], "never-written.h5", MAX_SEQUENCES + 1, SequenceSpec())
+    with pytest.raises(ParameterError, match="--sequences"):  # checked before the (missing) mesh is looked for
+        simulate_sequences("no-such-mesh.ply", "never-written", MAX_SEQUENCES + 1, SequenceSpec())
 
 
 # ---------------------------------------------------------------------------- --up -z

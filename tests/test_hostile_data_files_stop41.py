@@ -302,3 +302,27 @@ def test_worker_errors_come_out_as_their_one_line(error, code):
     assert [int(b) for b in worker_batches(DataLoader(_Failing(error), batch_size=1, sampler=[0, 2]))] == [0, 2]
     with pytest.raises(RuntimeError, match="not ours"):  # other errors pass through as they are
         list(worker_batches(DataLoader(_Failing(RuntimeError("not ours")), batch_size=1, num_workers=1)))
+
+
+class _ChainedFailing(_Failing):
+    def __getitem__(self, i):
+        try:
+            raise InputFileError("/x.h5", "bad sample")
+        except InputFileError as exc:
+            raise RuntimeError("a bug while handling it") from exc
+
+
+@pytest.mark.timeout(60)
+def test_worker_errors_keep_a_bug_caused_by_an_input_error_and_a_whole_message():
+    """A RuntimeError raised from an InputFileError is a bug, not the input's one line; a message of two lines
+    comes out whole."""
+    from torch.utils.data import DataLoader
+
+    from spotlights.learning.data import worker_batches
+
+    with pytest.raises(RuntimeError, match="a bug while handling it"):
+        list(worker_batches(DataLoader(_ChainedFailing(None), batch_size=1, num_workers=1)))
+    two = SpotlightsError("line one\nline two")
+    with pytest.raises(SpotlightsError) as caught:
+        list(worker_batches(DataLoader(_Failing(two), batch_size=1, num_workers=1)))
+    assert str(caught.value) == "line one\nline two"

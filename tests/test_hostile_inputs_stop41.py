@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from spotlights.geometry.io import ply_is_whole, save_ply
+from spotlights.geometry.io import load_ply_fields, ply_has_faces, ply_is_whole, save_ply
 
 
 @pytest.mark.timeout(60)
@@ -42,10 +42,25 @@ def test_ply_is_whole_reads_a_long_header_and_a_comment_that_names_end_header(tm
     header = data.index(b"\nend_header\n") + len(b"\nend_header\n")
     assert header > 65536 and len(data) == header + 10 * 13  # independent truth: the bytes the header declares
     assert ply_is_whole(path)
+    assert len(load_ply_fields(path)["x"]) == 10  # a reader that splits at the first end_header reads it too
+    assert data.count(b"end_header") == 1 and b"holds end-header inside" in data
     path.write_bytes(data[:-1])
     assert not ply_is_whole(path)
     path.write_bytes(data[: header - 1])  # cut inside the header's last line
     assert not ply_is_whole(path)
+
+
+@pytest.mark.timeout(60)
+def test_ply_has_faces_reads_the_header_up_to_its_own_end(tmp_path):
+    path = tmp_path / "mesh.ply"
+    head = "ply\nformat ascii 1.0\ncomment end_header in a comment\nelement vertex 3\nproperty float x\n"
+    head += "property float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+    path.write_text(head + "end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+    assert ply_has_faces(path)
+    path.write_text(head.replace("element face 1", "element face 0") + "end_header\n0 0 0\n1 0 0\n0 1 0\n")
+    assert not ply_has_faces(path)
+    save_ply(path, np.zeros((2, 3)), comments=["element face 5"])  # a comment is not the header's element line
+    assert not ply_has_faces(path)
 
 
 @pytest.mark.timeout(60)
@@ -189,6 +204,15 @@ def test_a_run_stopped_by_a_nan_loss_leaves_nothing_and_names_the_cause(tmp_path
     else:
         assert "lower train.lr" in proc.stderr
     assert not (tmp_path / "run").exists(), sorted(p.name for p in (tmp_path / "run").rglob("*"))
+    # a folder that holds a kept best model and its config (no last.pt): the NaN stop puts the config back
+    run = tmp_path / "kept"
+    run.mkdir()
+    (run / "config.yaml").write_text("model: {name: sanet}\n")
+    (run / "best.pt").write_bytes(b"a kept best model")
+    proc = cli(capsys, "train", "--model", "sanet", "--data", data, "--config", cfg, "--out", run, "-q")
+    assert proc.returncode == 2 and "the training loss became nan" in proc.stderr, proc.stderr
+    assert sorted(p.name for p in run.iterdir()) == ["best.pt", "config.yaml"]
+    assert (run / "config.yaml").read_text() == "model: {name: sanet}\n"
 
 
 @pytest.mark.timeout(120)
@@ -207,6 +231,12 @@ def test_a_failed_call_keeps_the_files_of_a_run_it_did_not_write(tmp_path, capsy
         proc = cli(capsys, "train", "--model", "sanet", "--data", missing, "--out", run, "-q", *extra)
         assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
         assert {p.name: p.read_bytes() for p in run.iterdir()} == kept, extra
+    # --overwrite with a mistyped --data: the old run (here with its last.pt) goes only once the data is found
+    kept["last.pt"] = b"a run to continue"
+    (run / "last.pt").write_bytes(kept["last.pt"])
+    proc = cli(capsys, "train", "--model", "sanet", "--data", missing, "--out", run, "-q", "--overwrite")
+    assert proc.returncode == 2 and "missing.h5" in proc.stderr, proc.stderr
+    assert {p.name: p.read_bytes() for p in run.iterdir()} == kept
 
 
 @pytest.mark.timeout(60)

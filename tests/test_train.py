@@ -373,23 +373,28 @@ def test_two_checkpoints_of_one_model_are_told_apart_in_the_report():
     ]
 
 
-def test_overwrite_removes_the_old_runs_state_before_starting(tmp_path):
+def test_overwrite_removes_the_old_runs_state_before_starting(data, tmp_path):
     """A fresh start with --overwrite that stops before its first save must not leave the old run's
-    last.pt beside the new config (a later --resume would continue the old run)."""
-    from types import SimpleNamespace
+    last.pt beside the new config (a later --resume would continue the old run); the old state goes once the
+    data and the model are found sound (a mistyped --data keeps it: tests/test_hostile_inputs_stop41.py)."""
+    from spotlights.learning.training_run import RUN_STATE_FILES
 
-    from spotlights.learning.training_run import RUN_STATE_FILES, resolve_run_config
-
+    run = tmp_path / "run"
+    run.mkdir()
     for name in RUN_STATE_FILES + ("config.yaml", "notes.txt"):
-        (tmp_path / name).write_bytes(b"old")
-    dist = SimpleNamespace(main=True, active=False)
+        (run / name).write_bytes(b"old")
     with pytest.raises(SpotlightsError, match="--overwrite"):  # without it the old run is kept and refused
-        resolve_run_config("pcn", tmp_path, None, None, False, False, None, dist, print)
-    assert (tmp_path / "last.pt").exists()
-    cfg, state, _ = resolve_run_config("pcn", tmp_path, None, None, False, True, None, dist, print)
-    assert state is None and cfg["model"]["name"] == "pcn"
-    assert not any((tmp_path / name).exists() for name in RUN_STATE_FILES)
-    assert (tmp_path / "notes.txt").exists()  # only the run's own state goes
+        _run("pcn", data, run, epochs=1)
+    assert (run / "last.pt").read_bytes() == b"old"
+
+    def stop(*args):  # the first log line comes when the run is prepared, before the first epoch
+        raise KeyboardInterrupt
+
+    ov = tiny_overrides("pcn", epochs=1)
+    with pytest.raises(KeyboardInterrupt):
+        train("pcn", data, run, overrides=ov, overwrite=True, progress=False, log=stop)
+    assert not any((run / name).exists() for name in RUN_STATE_FILES)
+    assert (run / "config.yaml").read_bytes() != b"old" and (run / "notes.txt").exists()  # only the run's state goes
 
 
 def test_process_group_backend_follows_the_run_device_and_refuses_missing_gpus():

@@ -79,8 +79,6 @@ def add_quiet(p: argparse.ArgumentParser, what: str = "no progress bar") -> None
     p.add_argument("--no-progress", dest="quiet", action="store_true", help=argparse.SUPPRESS)
 
 
-#: Settings fields whose command-line type is fixed here whatever their declaration says: every ``--threads``
-#: is bounded by :data:`spotlights.options.MAX_THREADS` (torch's OpenMP crashes on absurd counts).
 def add_crop_arguments(p, margin_default: float | None = 0.15) -> None:
     """``--margin`` and ``--ground-clearance`` (metres, within :data:`MAX_CROP_M`) on a parser or group ``p``;
     ``margin_default`` None: the command resolves it (``--crop``, ``--no-crop``)."""
@@ -91,6 +89,8 @@ def add_crop_arguments(p, margin_default: float | None = 0.15) -> None:
     p.add_argument("--ground-clearance", type=crop_metres, default=0.10, metavar="M", help=help_ground)
 
 
+#: Settings fields whose command-line type is fixed here whatever their declaration says: every ``--threads``
+#: is bounded by :data:`spotlights.options.MAX_THREADS` (torch's OpenMP crashes on absurd counts).
 FIELD_TYPES = {"threads": thread_count}
 
 

@@ -268,7 +268,8 @@ def save_ply(
     points : (K, 3) coordinates, written as ``x y z``.
     fields : name -> (K,) array of extra vertex properties; the PLY type follows the dtype
         (uint8 -> uchar, int32 -> int, float32 -> float, ...; int64/float64 are narrowed to int/double).
-    comments : header ``comment`` lines (one line each; newlines are replaced by spaces).
+    comments : header ``comment`` lines (one line each; newlines are replaced by spaces, ``end_header`` by
+        ``end-header``).
     precision : ``"float"`` (float32), ``"double"`` (float64) or ``"auto"``: double when a
         coordinate's magnitude exceeds 1e4 (float32 would round georeferenced scans to cm or worse).
 
@@ -309,7 +310,8 @@ def save_ply(
     for name, a in cols.items():
         rec[name] = a
     head = ["ply", "format binary_little_endian 1.0"]
-    head += ["comment " + " ".join(str(c).split()) for c in (comments or [])]
+    # one line each, and never the word that ends a header (readers split the file at its first occurrence)
+    head += ["comment " + " ".join(str(c).split()).replace("end_header", "end-header") for c in (comments or [])]
     head.append(f"element vertex {len(pts)}")
     head += [f"property {ply_types[rec.dtype[n].str[1:]]} {n}" for n in rec.dtype.names]
     head.append("end_header")
@@ -421,10 +423,14 @@ def ply_is_whole(path: str | os.PathLike) -> bool:
 
 def ply_has_faces(path: str | os.PathLike) -> bool:
     """True when a PLY file's header declares at least one face (a mesh, not a point cloud)."""
+    read = 0
     with open(path, "rb") as fh:
-        head = fh.read(4096).split(b"end_header")[0].decode("ascii", "replace")
-    for line in head.splitlines():
-        parts = line.split()
-        if len(parts) == 3 and parts[0] == "element" and parts[1] == "face":
-            return parts[2].isdigit() and int(parts[2]) > 0
+        while read < _PLY_HEADER_MAX:  # the header's lines, up to its own end_header line (not a comment's word)
+            raw = fh.readline(_PLY_HEADER_MAX - read)
+            read += len(raw)
+            parts = raw.decode("ascii", "replace").split()
+            if parts == ["end_header"] or not raw.endswith(b"\n"):
+                break
+            if len(parts) == 3 and parts[0] == "element" and parts[1] == "face":
+                return parts[2].isdigit() and int(parts[2]) > 0
     return False

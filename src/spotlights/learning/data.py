@@ -32,6 +32,7 @@ results do not depend on the number of workers.
 from __future__ import annotations
 
 import re
+import sys
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,7 +41,6 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from .. import errors
 from ..data.store import SPLITS, CompletionDataset, open_dataset
 from ..data.vehicle_classes import canonical_class
 from ..errors import InputFileError, ParameterError, ProcessFailure, SpotlightsError
@@ -267,12 +267,32 @@ class TorchCompletionDataset(Dataset):
 # torch rebuilds an exception raised in a DataLoader worker from its text alone ("Caught X in DataLoader worker
 # process N.\nOriginal Traceback ...\nmodule.X: message"): a RuntimeError for the errors whose constructor takes
 # two arguments (InputFileError), the error with the whole traceback as its message for the others
-_WORKER_ERROR = re.compile(r"^spotlights\.errors\.(\w+): (.+)$", re.MULTILINE)
+_CAUGHT = re.compile(r"\ACaught (\w+) in DataLoader worker process \d+")
+
+
+def _worker_error(text: str) -> SpotlightsError | None:
+    """The one-line :class:`~spotlights.errors.SpotlightsError` of torch's rebuilt worker exception ``text``,
+    or None when the worker's exception was not one of the package's errors."""
+    caught = _CAUGHT.match(text)
+    if caught is None:
+        return None
+    name = caught.group(1)
+    # the traceback's last "module.Name: message" is the caught exception (earlier ones are its causes)
+    found = list(re.finditer(rf"^(spotlights(?:\.\w+)*)\.{name}: ", text, re.MULTILINE))
+    last = found[-1] if found else None
+    if last is None or text.find("\nThe above exception", last.end()) >= 0:
+        return None
+    module = sys.modules.get(last.group(1))
+    cls = getattr(module, name, None)
+    if not (isinstance(cls, type) and issubclass(cls, SpotlightsError)):
+        return None
+    message = text[last.end() :].strip()
+    return (ProcessFailure if issubclass(cls, ProcessFailure) else SpotlightsError)(message)
 
 
 def worker_batches(batches: Iterable) -> Iterator:
     """Iterate a DataLoader's ``batches`` (or a tqdm over it); a :class:`~spotlights.errors.SpotlightsError` raised
-    in a worker process (a damaged sample read lazily) comes out as its own one line, with its exit code, instead of
+    in a worker process (a damaged sample read lazily) comes out as its own message, with its exit code, instead of
     torch's RuntimeError and the worker's traceback."""
     it = iter(batches)
     while True:
@@ -281,12 +301,8 @@ def worker_batches(batches: Iterable) -> Iterator:
         except StopIteration:
             return
         except (RuntimeError, SpotlightsError) as exc:
-            text = str(exc)
-            found = _WORKER_ERROR.findall(text) if "in DataLoader worker process" in text else []
-            if not found:
+            error = _worker_error(str(exc))
+            if error is None:
                 raise
-            name, message = found[-1]
-            cls = getattr(errors, name, None)
-            failure = isinstance(cls, type) and issubclass(cls, ProcessFailure)
-            raise (ProcessFailure if failure else SpotlightsError)(message) from None
+            raise error from None
         yield batch

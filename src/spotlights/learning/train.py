@@ -169,20 +169,34 @@ def train_with(settings: TrainSettings, log=_print_flush) -> dict:
     try:
         with output_folder(out_dir) if dist.main else contextlib.nullcontext():
             before = _run_files(out_dir)
+            old_config = _read_or_none(out_dir / "config.yaml") if dist.main else None
             try:
                 return _train(dist, settings, log)
             except (OSError, SpotlightsError):
                 # a write failed (a full disk), the data or the loss went wrong (NaN): a run with nothing to
                 # resume from leaves nothing behind (output_folder then removes the folders it created). Only
-                # the files this call wrote go: a wrong --data or "nothing to resume" keeps an existing run's.
+                # the files this call wrote go: a wrong --data or "nothing to resume" keeps an existing run's,
+                # and a config.yaml this call replaced is put back.
                 if dist.main and not (out_dir / "last.pt").exists():
-                    after = _run_files(out_dir)
-                    for name, stamp in after.items():
-                        if before.get(name) != stamp:
+                    for name, stamp in _run_files(out_dir).items():
+                        if before.get(name) == stamp:
+                            continue
+                        if name == "config.yaml" and old_config is not None:
+                            with contextlib.suppress(OSError, SpotlightsError), atomic_output(out_dir / name) as tmp:
+                                tmp.write_bytes(old_config)
+                        else:
                             (out_dir / name).unlink(missing_ok=True)
                 raise
     finally:
         dist.close()
+
+
+def _read_or_none(path: Path) -> bytes | None:
+    """The bytes of ``path``, or None when it cannot be read (missing)."""
+    try:
+        return path.read_bytes()
+    except OSError:
+        return None
 
 
 def _run_files(out_dir: Path) -> dict[str, tuple[int, int, int]]:

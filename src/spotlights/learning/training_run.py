@@ -169,12 +169,6 @@ def run_config(settings: TrainSettings, dist: ProcessGroup, log) -> tuple[dict, 
                 f"{out_dir}: holds a run already; pass --resume to continue it or --overwrite to start again"
             )
         cfg = load_config(model_name, config, overrides, schedule=schedule)
-        if overwrite and dist.main:
-            # the old run's state goes now, not at the new run's first save: a fresh start stopped before
-            # its first interval must not leave the old last.pt beside the new config.yaml (a --resume
-            # would then continue the old run)
-            for name in RUN_STATE_FILES:
-                (out_dir / name).unlink(missing_ok=True)
         return cfg, None, False
     if not last_path.exists():
         raise SpotlightsError(f"{last_path}: nothing to resume (no last.pt in the run folder)")
@@ -331,6 +325,12 @@ def prepare_run(dist: ProcessGroup, settings: TrainSettings, log) -> TrainingRun
         run.net = torch.compile(run.net)
     if dist.main:
         out_dir.mkdir(parents=True, exist_ok=True)
+        if settings.overwrite and state is None:
+            # the old run's state goes now, once the data and the model are found sound (a mistyped --data keeps
+            # it), and not at the new run's first save: a fresh start stopped before its first interval must not
+            # leave the old last.pt beside the new config.yaml (a --resume would then continue the old run)
+            for name in RUN_STATE_FILES:
+                (out_dir / name).unlink(missing_ok=True)
         _write_yaml(out_dir / "config.yaml", cfg)
         pc = run.param_counts
         log(

@@ -78,7 +78,7 @@ def _cfg(cfg_dict: dict) -> BuildConfig:
 
 def _check_version(version: str) -> None:
     if version != __version__:
-        raise ProcessFailure(
+        raise SpotlightsError(
             f"spotlights {__version__} on Ray node {os.uname().nodename}, the driver runs {version}: "
             "install the same version on every node (the bytes of a dataset depend on it)"
         )
@@ -97,13 +97,13 @@ def _load_task(entry: ModelEntry, root: str, scale: float, version: str):
 
 def _unit_task(unit: tuple, origin: LoadedModel, entry: ModelEntry, cfg_dict: dict, parts: str, version: str):
     """Compute one work unit on a worker and write its part; returns ``("ok", unit, seconds, node)``
-    or ``("error", exc)`` for a SpotlightsError (bad input, or a node that cannot run it: not retried)."""
+    or ``("error", exc)`` for a SpotlightsError (bad input, or a node set up wrong: not retried)."""
     timer = StageTimer()
     try:
         _check_version(version)
         parts_dir = Path(parts)
         if not parts_dir.is_dir():
-            raise ProcessFailure(
+            raise SpotlightsError(
                 f"{parts}: the build's parts folder is not visible on Ray node {os.uname().nodename}; "
                 "the output must be on a filesystem every node mounts at the same path"
             )
@@ -189,7 +189,7 @@ class RayBuild:
         A task that fails after its ``retries`` is a one-line :class:`SpotlightsError` starting with
         ``describe(item)`` and saying the attempts and the reason; a task result ``("error", exc)``
         raises the task's own SpotlightsError ``exc`` (its type kept: an input error lets the build
-        remove its parts, a :class:`ProcessFailure` of the node keeps them). The other pending tasks are cancelled (not on Ctrl-C)."""
+        remove its parts; a node that cannot run the build, a plain SpotlightsError, keeps them). The other pending tasks are cancelled (not on Ctrl-C)."""
         ray = self.ray
         pending: dict = {}
         it = iter(items)

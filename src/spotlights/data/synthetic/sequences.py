@@ -426,8 +426,9 @@ def simulate_sequences(
     (:func:`write_sequences_h5`, ``workers`` processes, the same bytes for any number), else a folder with one
     ``seqNNNN/`` per sequence (:func:`write_sequences`; removed again if nothing could be written).
     Returns ``out``."""
+    _check_sequence_count(n_sequences)  # before any mesh is read
     files = mesh_files(meshes)
-    for f in files[: max(0, n_sequences)]:  # every mesh a sequence drives, checked before anything is written
+    for f in files[:n_sequences]:  # every mesh a sequence drives, checked before anything is written
         load_vehicle_mesh(f)
     if Path(out).suffix.lower() in (".h5", ".hdf5"):
         return write_sequences_h5(files, out, n_sequences, spec, seed, sensor, workers)
