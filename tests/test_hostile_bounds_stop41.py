@@ -53,6 +53,21 @@ def test_dataset_build_sizes_are_bounded_before_any_work(tmp_path, option, value
 
 
 @pytest.mark.timeout(30)
+def test_a_work_unit_of_views_times_points_is_bounded(tmp_path):
+    """--block 100000 --points 65536 asked a worker for 78 GB of partial points (each bound alone held); 256 views
+    of 65,536 points (2**24) is the most a unit takes."""
+    from spotlights.data.synthetic.runner import MAX_UNIT_POINTS
+
+    assert MAX_UNIT_POINTS == 256 * 65536 and 250 * 65536 <= MAX_UNIT_POINTS  # the default block always fits
+    out = tmp_path / "out"
+    out.mkdir()
+    base = ["dataset", "build", "--procedural", "1", "--classes", "car", "-j", "1", "-q", "-o", out / "d.h5"]
+    proc = run_cli(*base, "--views", "100000", "--points", "65536", "--block", "257")
+    assert_user_error(proc, "--block: at most 256 views a work unit at 65536 points")
+    _nothing_in(out)
+
+
+@pytest.mark.timeout(30)
 def test_a_build_yaml_seed_out_of_range_is_refused_before_the_build(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
@@ -310,7 +325,10 @@ def test_complete_runs_with_up_minus_z(scan, tmp_path):
 @pytest.mark.parametrize(
     "argv, fragments",
     [
-        (["dataset", "build"], ["1..100000", "1..65536", "1..1048576", "0.01..90", "0..2**63-1", "-x, -y, -z"]),
+        (
+            ["dataset", "build"],
+            ["1..100000", "1..65536", "1..1048576", "0.01..90", "0..2**63-1", "-x, -y, -z", "2**24"],
+        ),
         (["dataset", "sequences"], ["1..10000", "1..100000", "0.1..1000 Hz", "0..2**63-1"]),
         (["real", "extract"], ["1..65536", "|M| <= 10", "0..2**63-1"]),
         (["analyze", "density"], ["0.001..0.5", "0.1..90", "2..10000", "16777216", "0..2**63-1"]),

@@ -214,7 +214,11 @@ class BuildRequest:
         help="accept an existing complete FILE (unfinished parts resume anyway)",
     )
     block: int | None = option(
-        default=None, group=RUN, type=positive_int, help="views per work unit (default ~views/8, at most 250)"
+        default=None,
+        group=RUN,
+        type=positive_int,
+        help="views per work unit (default ~views/8, at most 250); a unit holds at most 2**24 partial points "
+        "(views x --points)",
     )
     keep_parts: bool = option(default=False, group=RUN, action="store_true", help="keep FILE.parts after writing FILE")
     quiet: bool = option(default=False, group=RUN, quiet=True, help="no progress bars")

@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import numbers
 import os
 import shutil
 import signal
@@ -170,6 +171,7 @@ def build_dataset(
         if backend == "ray":
             import_ray()  # before anything else: one line saying how to install it
         cfg = cfg.validate()
+        _check_block(s.block, cfg)
         out = Path(out)
         parts = out.with_name(out.name + ".parts")
         complete = _check_output(out, parts, cfg, s)
@@ -330,6 +332,26 @@ def _parts_folder(parts: Path):
         if created and (isinstance(exc, (OSError, OutputFileError)) or wrong_input or not any(parts.glob("*.npz"))):
             shutil.rmtree(parts, ignore_errors=True)
         raise
+
+
+# Partial points one work unit holds (views x points): the default block (at most 250 views) at the most points
+# (MAX_PARTIAL_POINTS) fits, 197 MB of float32 per worker; --block 100000 --points 65536 asked for 78 GB.
+MAX_UNIT_POINTS = 2**24
+
+
+def _check_block(block: int | None, cfg: BuildConfig) -> None:
+    """``--block``: a whole number >= 1 whose work unit (``min(block, views)`` views of ``cfg.n_points`` points)
+    holds at most :data:`MAX_UNIT_POINTS` partial points; checked before anything is read or written."""
+    if block is None:
+        return
+    if not (isinstance(block, numbers.Integral) and not isinstance(block, bool) and block >= 1):
+        raise ParameterError(f"--block must be a whole number >= 1, got {block!r}")
+    most = max(1, MAX_UNIT_POINTS // cfg.n_points)
+    if min(block, cfg.views) > most:
+        raise ParameterError(
+            f"--block: at most {most} views a work unit at {cfg.n_points} points each "
+            f"({MAX_UNIT_POINTS:,} partial points a worker holds), got {block}"
+        )
 
 
 def _check_plan(parts: Path, plan: dict, block: int) -> int:
