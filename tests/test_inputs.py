@@ -57,6 +57,8 @@ def test_names_leading_out_are_refused_naming_the_file_that_holds_them(tree, nam
         ("[" + "9" * 5000 + "]", "thousands of digits"),
         ('{"a": ', "not valid JSON"),
         (b"\xff\xfe[1]", "not valid JSON"),
+        ('{"center": [1' + "0" * 400 + ", 0, 0]}", r"an integer beyond 64 bits \(10000000000000000000\.\.\.\)"),
+        ('{"frame_index": -9223372036854775809}', "beyond 64 bits"),  # one below int64's least
     ],
 )
 def test_read_json_refuses_every_fault_in_one_line(tmp_path, text, why):
@@ -70,6 +72,8 @@ def test_read_json_refuses_every_fault_in_one_line(tmp_path, text, why):
 def test_read_json_reads_json_and_names_a_missing_file(tmp_path):
     (tmp_path / "ok.json").write_text('{"center": [1, 2.5, -3], "id": "汽车"}', encoding="utf-8")
     assert read_json(tmp_path / "ok.json") == {"center": [1, 2.5, -3], "id": "汽车"}
+    (tmp_path / "ts.json").write_text('{"timestamp": 1700000000123456789, "least": -9223372036854775808}')
+    assert read_json(tmp_path / "ts.json") == {"timestamp": 1700000000123456789, "least": -(2**63)}  # ns stay exact
     with pytest.raises(InputFileError, match="box file not found"):
         read_json(tmp_path / "nope.json", "box file")
     with pytest.raises(InputFileError, match="is not a file"):

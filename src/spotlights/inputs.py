@@ -10,21 +10,36 @@ from pathlib import Path
 from .errors import InputFileError
 
 
+class _BeyondInt64(ValueError):
+    pass
+
+
+def _int64(text: str) -> int:
+    """A JSON integer, refused beyond 64 bits: no value a box, frame or timestamp (nanoseconds) holds needs more,
+    and numpy cannot hold it (``float()`` and ``np.isfinite`` failed deep in the readers)."""
+    value = int(text)
+    if not -(2**63) <= value < 2**63:
+        raise _BeyondInt64(f"an integer beyond 64 bits ({text[:20]}{'...' if len(text) > 20 else ''})")
+    return value
+
+
 def read_json(path: str | os.PathLike, what: str = "JSON file"):
     """Parse the JSON file ``path``; any fault of its text is an :class:`InputFileError` naming it.
 
     Besides a syntax error: text that is not UTF-8, nesting too deep for the parser
-    (``RecursionError``) and integers too long to convert (``ValueError``, Python's
-    4,300-digit limit). A missing file is an :class:`InputFileError` too (``what`` names it).
+    (``RecursionError``), integers too long to convert (``ValueError``, Python's
+    4,300-digit limit) and integers beyond 64 bits. A missing file is an :class:`InputFileError` too (``what`` names it).
     """
     p = Path(path)
     if not p.is_file():
         raise InputFileError(p, f"{what} not found" if not p.exists() else f"is not a file, expected a {what}")
     try:
         with open(p, encoding="utf-8") as fh:
-            return json.load(fh)
+            return json.load(fh, parse_int=_int64)
     except RecursionError:
         raise InputFileError(p, "not valid JSON (nested too deeply)") from None
+    except _BeyondInt64 as exc:
+        raise InputFileError(p, f"holds {exc}") from None
     except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError, an integer of thousands of digits
         first = (str(exc).splitlines() or [type(exc).__name__])[0][:160]
         if "integer string conversion" in first:

@@ -323,6 +323,15 @@ def load_encoding(path: str | os.PathLike) -> Encoding:
     missing = [k for k in ("depths", "center", "radius", "primary", "secondary", "angle") if k not in data]
     if missing:
         raise InputFileError(path, f"not a Spotlights encoding: missing key(s) {', '.join(missing)}")
+    for key, kinds in (("primary", "iu"), ("secondary", "iu"), ("angle", "fiu"), ("radius", "fiu")):
+        if data[key].shape != () or data[key].dtype.kind not in kinds:
+            what = "a whole number" if kinds == "iu" else "a real number"
+            raise InputFileError(
+                path, f"{key} must be {what}, got a {data[key].dtype} array of shape {data[key].shape}"
+            )
+    for key in ("depths", "center", *(["rotation"] if "rotation" in data else [])):
+        if data[key].dtype.kind not in "fiu":
+            raise InputFileError(path, f"{key} holds {data[key].dtype} values, expected real numbers")
     try:
         rig = (
             Rig.from_dict(json.loads(str(data["rig"])))
@@ -332,8 +341,9 @@ def load_encoding(path: str | os.PathLike) -> Encoding:
         norm = Normalization(
             center=data["center"], radius=float(data["radius"]), rotation=data.get("rotation", np.eye(3))
         )
-    except (ParameterError, ValueError) as exc:
-        raise InputFileError(path, f"invalid rig or normalisation: {exc}") from None
+    except (ParameterError, ValueError, TypeError, KeyError, IndexError, AttributeError) as exc:
+        msg = str(exc).splitlines()[0][:160] if str(exc) else type(exc).__name__
+        raise InputFileError(path, f"invalid rig or normalisation: {msg}") from None
     depths = np.asarray(data["depths"], dtype=np.float32)
     if depths.shape != (rig.n_rays,):
         raise InputFileError(path, f"depths has shape {depths.shape}, expected ({rig.n_rays},) for {rig.name}")

@@ -35,7 +35,7 @@ from tqdm import tqdm
 
 from ..errors import SpotlightsError
 from ..options import check_threads
-from ..utils import StageTimer, atomic_output, output_folder
+from ..utils import StageTimer, atomic_output, exclusive_lock, output_folder
 from .checkpoint import save_checkpoint
 from .config import SELECT_BY
 from .data import worker_batches
@@ -167,7 +167,11 @@ def train_with(settings: TrainSettings, log=_print_flush) -> dict:
     dist = ProcessGroup(settings.device)
     out_dir = settings.run_dir
     try:
-        with output_folder(out_dir) if dist.main else contextlib.nullcontext():
+        busy = f"{out_dir}: another 'spotlights train' is writing this run folder right now"
+        with (
+            output_folder(out_dir) if dist.main else contextlib.nullcontext(),
+            exclusive_lock(out_dir / ".train.lock", busy, remove=True) if dist.main else contextlib.nullcontext(),
+        ):
             before = _run_files(out_dir)
             old_config = _read_or_none(out_dir / "config.yaml") if dist.main else None
             try:
