@@ -95,3 +95,25 @@ def test_two_trainings_into_one_run_folder_are_refused(tmp_path):
         "last.pt",
         "log.csv",
     ]
+
+
+@pytest.mark.timeout(30)
+def test_an_unwritable_folder_is_named_by_the_output_not_its_temporary(tmp_path, monkeypatch):
+    """Writing into a folder the user may not write named the hidden temporary
+    (``.summary.json.15598-5lueg2kh.part.json: permission denied``) instead of ``summary.json``."""
+    import errno
+    import tempfile
+
+    from spotlights.errors import OutputFileError
+    from spotlights.utils import atomic_output
+
+    def refused(prefix="", suffix="", dir=None):
+        name = f"{dir}/{prefix}abcd1234{suffix}"
+        raise PermissionError(errno.EACCES, "Permission denied", name)
+
+    monkeypatch.setattr(tempfile, "mkstemp", refused)
+    target = tmp_path / "summary.json"
+    with pytest.raises(OutputFileError) as err:
+        with atomic_output(target) as tmp:
+            tmp.write_text("{}")
+    assert str(err.value).startswith(f"{target}: cannot write") and ".part" not in str(err.value), str(err.value)

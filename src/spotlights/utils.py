@@ -155,13 +155,12 @@ def atomic_output(path: str | os.PathLike, suffix: str | None = None) -> Iterato
             yield tmp_path
             os.replace(tmp_path, path)
         except OSError as exc:
-            if getattr(exc, "filename", None) not in (
-                None,
-                str(tmp_path),
-                str(path),
-                str(path.parent),
-                *map(str, created),
-            ):
+            name = getattr(exc, "filename", None)
+            ours = name in (None, str(tmp_path), str(path), str(path.parent), *map(str, created)) or (
+                # the temporary mkstemp could not create (an unwritable folder): named by the file it stands for
+                Path(str(name)).parent == path.parent and Path(str(name)).name.startswith(f".{path.name}.")
+            )
+            if not ours:
                 raise  # about another file: the caller's own error
             raise OutputFileError(path, f"cannot write ({os_error_reason(exc)})") from exc
     except BaseException:
