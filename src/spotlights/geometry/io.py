@@ -363,8 +363,31 @@ _PLY_TYPE_BYTES = {
 }  # fmt: skip
 
 
-# ply_is_whole reads a header line by line up to this many bytes; a longer one is read whole
+# a PLY header is read line by line up to this many bytes (ply_is_whole reads a longer one whole)
 _PLY_HEADER_MAX = 1 << 20
+
+
+def _ply_header(fh) -> tuple[list[list[str]] | None, int, int]:
+    """The header of the PLY open in ``fh`` (binary, at its start), read line by line up to its own ``end_header``
+    line (not a comment holding the word) and at most :data:`_PLY_HEADER_MAX` bytes.
+
+    Returns ``(lines, body, read)``: the whitespace-split lines between ``ply`` and ``end_header`` (None when the
+    first line is not ``ply``), the body's byte offset (-1: no ``end_header`` line within the file or the window),
+    and the bytes read."""
+    first = fh.readline(_PLY_HEADER_MAX)
+    read = len(first)
+    if first.rstrip(b"\r\n") != b"ply":
+        return None, -1, read
+    lines: list[list[str]] = []
+    while read < _PLY_HEADER_MAX:
+        line = fh.readline(_PLY_HEADER_MAX - read)
+        read += len(line)
+        if not line.endswith(b"\n"):  # the file or the window ends inside the header
+            break
+        if line.rstrip(b"\r\n") == b"end_header":
+            return lines, read, read
+        lines.append(line.decode("ascii", "replace").split())
+    return lines, -1, read
 
 
 def ply_is_whole(path: str | os.PathLike) -> bool:
@@ -376,25 +399,13 @@ def ply_is_whole(path: str | os.PathLike) -> bool:
     checks the vertex count.
     """
     p = Path(path)
-    lines: list[list[str]] = []
-    body = -1
     try:
         size = p.stat().st_size
         with open(p, "rb") as fh:
-            first = fh.readline(_PLY_HEADER_MAX)
-            read = len(first)
-            while first.rstrip(b"\r\n") == b"ply" and read < _PLY_HEADER_MAX:
-                line = fh.readline(_PLY_HEADER_MAX - read)
-                read += len(line)
-                if not line.endswith(b"\n"):  # the file or the window ends inside the header
-                    break
-                if line.rstrip(b"\r\n") == b"end_header":  # a whole line: not a comment that holds the word
-                    body = read
-                    break
-                lines.append(line.decode("ascii", "replace").split())
+            lines, body, read = _ply_header(fh)
     except OSError:
         return False
-    if first.rstrip(b"\r\n") != b"ply":
+    if lines is None:
         return False
     if body < 0:
         if read < _PLY_HEADER_MAX:
@@ -423,14 +434,9 @@ def ply_is_whole(path: str | os.PathLike) -> bool:
 
 def ply_has_faces(path: str | os.PathLike) -> bool:
     """True when a PLY file's header declares at least one face (a mesh, not a point cloud)."""
-    read = 0
     with open(path, "rb") as fh:
-        while read < _PLY_HEADER_MAX:  # the header's lines, up to its own end_header line (not a comment's word)
-            raw = fh.readline(_PLY_HEADER_MAX - read)
-            read += len(raw)
-            parts = raw.decode("ascii", "replace").split()
-            if parts == ["end_header"] or not raw.endswith(b"\n"):
-                break
-            if len(parts) == 3 and parts[0] == "element" and parts[1] == "face":
-                return parts[2].isdigit() and int(parts[2]) > 0
+        lines, _, _ = _ply_header(fh)
+    for parts in lines or []:
+        if len(parts) == 3 and parts[0] == "element" and parts[1] == "face":
+            return parts[2].isdigit() and int(parts[2]) > 0
     return False

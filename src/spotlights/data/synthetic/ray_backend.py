@@ -189,7 +189,8 @@ class RayBuild:
         A task that fails after its ``retries`` is a one-line :class:`SpotlightsError` starting with
         ``describe(item)`` and saying the attempts and the reason; a task result ``("error", exc)``
         raises the task's own SpotlightsError ``exc`` (its type kept: an input error lets the build
-        remove its parts; a node that cannot run the build, a plain SpotlightsError, keeps them). The other pending tasks are cancelled (not on Ctrl-C)."""
+        remove its parts; a node that cannot run the build, a plain SpotlightsError, keeps them). The
+        other pending tasks are cancelled (not on Ctrl-C)."""
         ray = self.ray
         pending: dict = {}
         it = iter(items)
