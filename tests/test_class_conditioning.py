@@ -352,11 +352,13 @@ def test_complete_cli_fallback_option(tmp_path):
 
 def test_resolve_fallback_auto_is_the_class_model_beside_the_default_only():
     """``--fallback auto`` (the default): the packaged class model beside the packaged default (no --checkpoint,
-    or 'default') on the torch runtime; nothing beside a model the user chose or an ONNX run; 'none' is none."""
+    or 'default') on either runtime (the class model's export ships); nothing beside a model the user chose; 'none'
+    is none."""
     assert resolve_fallback("auto") == "classes" and resolve_fallback("AUTO", "default") == "classes"
     assert resolve_fallback("auto", "default", "torch") == "classes"
     assert resolve_fallback("auto", "paper") is None and resolve_fallback("auto", "runs/x/best.pt") is None
-    assert resolve_fallback("auto", "classes") is None and resolve_fallback("auto", None, "onnx") is None
+    assert resolve_fallback("auto", "classes") is None and resolve_fallback("auto", "runs/x/m.onnx", "onnx") is None
+    assert resolve_fallback("auto", None, "onnx") == "classes"  # its export ships: an ONNX run stays torch-free
     assert resolve_fallback("none") is None and resolve_fallback("None", "default") is None
     assert resolve_fallback(None) is None
     assert resolve_fallback("my.pt", "paper") == "my.pt"  # an explicit model is used as given

@@ -141,6 +141,8 @@ def test_cli_complete_writes_the_scan_frame_and_a_picture(ckpts, partial_unit, t
         png,
         "--no-clip",
         "--no-crop",
+        "--precision",
+        "fp32",  # compared with the library's float32 completion below
     )
     assert proc.returncode == 0, proc.stderr
     from spotlights.geometry.io import load_ply_fields

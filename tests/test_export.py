@@ -126,7 +126,9 @@ def test_complete_runtime_onnx_gives_the_torch_completion(tmp_path, capsys):
     scan = np.random.default_rng(0).normal(size=(400, 3)) * [1.5, 0.7, 0.5] + [10.0, 2.0, 0.8]
     np.save(tmp_path / "scan.npy", scan)
     box = ["--center", "10", "2", "0.8", "--size", "4.2", "1.8", "1.5", "--yaw", "0.3", "--no-crop"]
-    a = cli(capsys, "complete", tmp_path / "scan.npy", *box, "--checkpoint", ckpt, "--out", tmp_path / "a.npy", "-q")
+    a = cli(
+        capsys, "complete", tmp_path / "scan.npy", *box, "-c", ckpt, "--precision", "fp32", "--out", tmp_path / "a.npy"
+    )
     b = cli(
         capsys,
         "complete",
@@ -161,8 +163,10 @@ def test_complete_runtime_onnx_gives_the_torch_completion(tmp_path, capsys):
         tmp_path / "d.npy",
     )
     assert_user_error(d, "hit.onnx", "--runtime onnx")
-    e = cli(capsys, "complete", tmp_path / "scan.npy", *box, "--runtime", "onnx", "--out", tmp_path / "e.npy")
-    assert_user_error(e, "--checkpoint MODEL.onnx")
+    e = cli(
+        capsys, "complete", tmp_path / "scan.npy", *box, "-c", "paper", "--runtime", "onnx", "--out", tmp_path / "e.npy"
+    )
+    assert_user_error(e, "--checkpoint MODEL.onnx")  # the packaged paper model ships no export
 
 
 def test_export_errors_are_one_line(tmp_path, capsys, monkeypatch):

@@ -217,7 +217,7 @@ def test_complete_cli_runtime_onnx_with_a_class_export_and_an_onnx_fallback(hit_
         return np.load(tmp_path / f"{name}.npy"), [(o["status"], o.get("completed_by")) for o in summ["objects"]]
 
     pa, sa = run("onnx", "--checkpoint", path, "--runtime", "onnx")
-    pb, sb = run("torch", "--checkpoint", ckpt)
+    pb, sb = run("torch", "--checkpoint", ckpt, "--precision", "fp32")
     assert sa == sb == [("completed", None), ("completed", None), ("not_learned", None)]
     assert pa.shape == pb.shape and len(pa) > 0 and np.abs(pa - pb).max() < 1e-4
     car_only = export_onnx(make_checkpoint(tmp_path / "car.pt", "sanet-hit", rig=BOX), tmp_path / "car.onnx")

@@ -174,3 +174,16 @@ def test_frames_read_once_give_the_bytes_of_frames_read_twice(tmp_path, monkeypa
             assert _without_timings(json.loads(a), str(once)) == _without_timings(json.loads(b), str(twice)), rel
         else:
             assert a == b, rel
+
+
+def test_the_tree_crop_of_a_large_frame_equals_each_box_by_hand(monkeypatch):
+    """Above :data:`SMALL_CROP` points x boxes the pre-cut is a KD-tree, below it a numpy pass: both give the boxes'
+    points by hand (the small case is the test above)."""
+    import spotlights.geometry.boxes as boxes_module
+
+    monkeypatch.setattr(boxes_module, "SMALL_CROP", 0)
+    rng = np.random.default_rng(4)
+    pts = rng.uniform(-8, 8, size=(2000, 3))
+    boxes = [Box.from_yaw(rng.uniform(-6, 6, 3), rng.uniform(0.5, 4.5, 3), float(rng.uniform(-3, 3))) for _ in range(6)]
+    for b, g in zip(boxes, crop_boxes(pts, boxes, 0.15, 0.10)):
+        np.testing.assert_array_equal(g, brute_force_crop(pts, b, 0.15, 0.10))

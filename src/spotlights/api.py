@@ -40,7 +40,7 @@ from .geometry.encode import decode, encode_mesh
 from .geometry.io import load_mesh
 from .geometry.rig import make_rig
 from .learning.checkpoint import PRETRAINED
-from .learning.runtime import load_completer
+from .learning.runtime import fallback_runtime, load_completer
 
 
 def complete_frame(
@@ -96,8 +96,11 @@ def complete_frame(
         completer = _named_completer(name)
         checkpoint = name if checkpoint is None else checkpoint
     fallback_name = None
-    if isinstance(fallback, str):
-        fallback_name, fallback = fallback, _named_completer(fallback)
+    if isinstance(fallback, str):  # beside a loaded model: with its runtime and precision where the fallback can
+        runtime = "auto" if by_name else fallback_runtime(getattr(completer, "runtime", "torch"), fallback)
+        precision = "auto" if by_name else getattr(completer, "precision", "fp32")
+        precision = precision if precision in ("fp32", "bf16") else "auto"
+        fallback_name, fallback = fallback, _named_completer(fallback, runtime, precision)
     return complete_scene(
         points,
         boxes,
@@ -128,25 +131,26 @@ if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_new_named_lock_after_fork)
 
 
-def _named_completer(name: str) -> Any:
+def _named_completer(name: str, runtime: str = "auto", precision: str = "auto") -> Any:
     """The model ``name`` (a packaged name or a checkpoint/ONNX file) as :func:`load_completer` loads it, loaded once
     and kept for later calls (a frame loop of ``complete_frame(points, boxes)`` loaded the default and the class
     model on every call: 0.14 s a nuScenes frame against 0.08 s with models loaded once). A file is loaded again
-    when it changed (its inode, size, modification or change time); its older model is dropped then."""
-    key: tuple = (name,)
+    when it changed (its inode, size, modification or change time); its older model is dropped then. ``runtime``
+    and ``precision``: as :func:`load_completer` takes them."""
+    key: tuple = (name, runtime, precision)
     if name not in PRETRAINED:
         try:
             path = os.path.realpath(os.path.expanduser(name))
             st = os.stat(path)
         except OSError:  # load_completer names the missing file
-            return load_completer(name)
-        key = (path, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+            return load_completer(name, runtime=runtime, precision=precision)  # type: ignore[arg-type]
+        key = (path, runtime, precision, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
     with _NAMED_LOCK:  # one load per key, whatever the callers' threads
         model = _NAMED.pop(key, None)
         if model is None:
-            for old in [k for k in _NAMED if k[0] == key[0]]:  # an older version of the same file
+            for old in [k for k in _NAMED if k[:3] == key[:3]]:  # an older version of the same file
                 del _NAMED[old]
-            model = load_completer(name)
+            model = load_completer(name, runtime=runtime, precision=precision)  # type: ignore[arg-type]
         _NAMED[key] = model  # the most recently used last
         while len(_NAMED) > NAMED_MODELS_KEPT:
             _NAMED.pop(next(iter(_NAMED)))

@@ -152,10 +152,11 @@ def add_completion_arguments(p, single: bool) -> None:
     p.add_argument("--device", default=None, help=DEVICE_HELP)
     p.add_argument(
         "--precision",
-        choices=("fp32", "bf16", "auto"),
-        default="fp32",
-        help="torch runtime: fp32 (default) or bf16 autocast (4x faster per scan measured on a 2-core CPU with "
-        "AMX-BF16, docs/benchmarks.md; depths move by up to ~0.01); auto = bf16 where supported",
+        choices=("auto", "fp32", "bf16"),
+        default="auto",
+        help="torch runtime: bf16 autocast or fp32; auto (default): bf16 where the CPU multiplies bfloat16 natively "
+        "(avx512_bf16 or AMX flags), else fp32; onnxruntime runs fp32. bf16 measured 1.4-2.1x faster per scan than "
+        "fp32 on a CPU with avx512_bf16 (docs/studies/speed.md); depths move by up to ~0.01",
     )
     p.add_argument(
         "--threads",
@@ -163,15 +164,17 @@ def add_completion_arguments(p, single: bool) -> None:
         default=None,
         metavar="N",
         help="CPU threads of the model: torch's (default: one per core; with the track worker of --fuse, one less, "
-        "leaving a core to it) or, with --runtime onnx, onnxruntime's intra-op threads; N is used as it is, up to 4 "
+        "leaving a core to it) or, run by onnxruntime, its intra-op threads; N is used as it is, up to 4 "
         "per CPU (at least 64)",
     )
     p.add_argument(
         "--runtime",
-        choices=("torch", "onnx"),
-        default=None,
-        help="run the model with torch (default) or onnxruntime (--checkpoint is then a 'spotlights export' "
-        ".onnx file; a .onnx checkpoint selects it; pip install 'spotlights[onnx]')",
+        choices=("auto", "torch", "onnx"),
+        default="auto",
+        help="auto (default): onnxruntime on the CPU for the packaged default and class models (their ONNX exports "
+        "ship with them; no torch start-up), torch for other checkpoints, on CUDA or with --precision bf16; torch; "
+        "or onnx (a 'spotlights export' .onnx --checkpoint, or a packaged model's export; a .onnx checkpoint "
+        "selects it; pip install 'spotlights[onnx]')",
     )
 
 

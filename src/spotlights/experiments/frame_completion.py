@@ -28,6 +28,7 @@ from ..data.tracks import MAX_GAP_S, TIME_UNIT_S, WindowPolicy, parse_window
 from ..errors import ParameterError, ProcessFailure
 from ..geometry.io import POINT_SUFFIXES, ply_is_whole
 from ..learning.inference import BaseCompleter
+from ..learning.runtime import runs_with
 from ..options import check_threads
 from ..utils import (
     StageTimer,
@@ -669,7 +670,8 @@ class _FrameRun:
                 if "not_learned" in sk
                 else ""
             )
-            + f" ({self.completer.model_name}, {self.t_model:.1f} s of completion{resumed}) -> {self.out}/"
+            + f" ({self.completer.model_name}, {runs_with(self.completer)}, {self.t_model:.1f} s of completion{resumed})"
+            + f" -> {self.out}/"
         )
 
 
@@ -762,6 +764,8 @@ def _run_frames(
         format=reader.format,
         model=completer.model_name,
         checkpoint=s.checkpoint_name,
+        runtime=str(getattr(completer, "runtime", "torch")),  # what ran the model, and at what precision
+        precision=str(getattr(completer, "precision", "fp32")),
         n_frames=len(keys),
         totals=run.totals,
         heading_check=config.heading_check,

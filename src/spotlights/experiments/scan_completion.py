@@ -34,7 +34,7 @@ from ..geometry.boxes import Box, box_from_dict
 from ..geometry.io import axes_rotation
 from ..inputs import read_json
 from ..learning.inference import BaseCompleter
-from ..learning.runtime import Runtime, load_completer
+from ..learning.runtime import Runtime, fallback_runtime, load_completer, runs_with, shipped_onnx
 from ..options import check_threads
 from ..utils import atomic_output, check_distinct_paths, check_suffix, check_writable, same_file
 from .scene import (
@@ -81,16 +81,17 @@ def resolve_fallback(fallback: str | None, checkpoint: str | None = None, runtim
     """The fallback model a completion runs, from ``--fallback`` and the main model.
 
     ``"auto"`` (the default) is the packaged class model (``"classes"``) when the main model is the packaged
-    car-only default (``checkpoint`` None or ``"default"``) on the torch runtime (``runtime`` None or
-    ``"torch"``), else no fallback: a model the user chose is not second-guessed, and an ONNX run stays
-    torch-free. ``"none"`` (any case) or None: no fallback. Any other text is a checkpoint file or short name,
+    car-only default (``checkpoint`` None or ``"default"``) on any runtime that can run it (``runtime`` None,
+    ``"auto"`` or ``"torch"``; ``"onnx"`` where its export is shipped, so an ONNX run stays torch-free), else no
+    fallback: a model the user chose is not second-guessed. ``"none"`` (any case) or None: no fallback. Any other text is a checkpoint file or short name,
     returned as it is."""
     if fallback is None or str(fallback).strip().lower() == "none":
         return None
     if str(fallback).strip().lower() != AUTO_FALLBACK:
         return str(fallback)
     is_default = checkpoint is None or str(checkpoint) == "default"
-    return CLASS_MODEL if is_default and runtime in (None, "torch") else None
+    runs = runtime in (None, "auto", "torch") or (runtime == "onnx" and shipped_onnx(CLASS_MODEL) is not None)
+    return CLASS_MODEL if is_default and runs else None
 
 
 @dataclass(kw_only=True)
@@ -114,7 +115,9 @@ class CompletionOptions:
     min_points : boxes with fewer points are not completed; a scan needs at least this many.
     resample, seed : how the 256-point model input is drawn (``"random"`` or ``"fps"``) and its seed.
     clip, no_clip : SA-Net depth clip in [0, 1] (None: the checkpoint's); ``no_clip`` keeps every ray.
-    device, precision, runtime : torch device, ``fp32``/``bf16``/``auto``, ``torch``/``onnx`` (None: by suffix).
+    device, precision, runtime : torch device; ``auto`` (default: bf16 with torch on a CPU with native bfloat16,
+        else fp32), ``fp32`` or ``bf16``; ``auto`` (default: onnxruntime for a packaged model shipped with its
+        export, on the CPU; :func:`spotlights.learning.runtime.choose_runtime`), ``torch`` or ``onnx``.
     threads : torch CPU threads for the run (None: torch's default; with a track worker process, the usable CPUs less
         one: :func:`spotlights.experiments.tracks.threads_beside_worker`); a given count is used as it is, and with
         ``runtime="onnx"`` it is onnxruntime's intra-op thread count too.
@@ -137,8 +140,8 @@ class CompletionOptions:
     clip: float | None = None
     no_clip: bool = False
     device: str | None = None
-    precision: str = "fp32"
-    runtime: Runtime | None = None
+    precision: str = "auto"
+    runtime: Runtime | None = "auto"
     threads: int | None = None
 
     @property
@@ -198,12 +201,14 @@ class CompletionOptions:
         require_rays_to_snap(completer, self.snap)
 
     def load_fallback(self) -> BaseCompleter | None:
-        """The model of :attr:`fallback_model` (same device and precision; its runtime follows its file: a
-        ``.onnx`` runs with onnxruntime), or None."""
+        """The model of :attr:`fallback_model` (same device, precision and runtime where it can run with it:
+        :func:`~spotlights.learning.runtime.fallback_runtime`), or None."""
         fb = self.fallback_model
         if fb is None:
             return None
-        return load_completer(fb, device=self.device, precision=self.precision)
+        return load_completer(
+            fb, runtime=fallback_runtime(self.runtime, fb), device=self.device, precision=self.precision
+        )
 
 
 @dataclass(kw_only=True)
@@ -425,6 +430,7 @@ def complete_scan(
     boxes = s.read_boxes(axes)
     completer = s.load_completer() if completer is None else completer
     s.check_snap(completer)
+    fallback = s.load_fallback()  # before the threads are set: a torch fallback imports torch
     with threads_beside_worker(None, s.threads):  # --threads, if given
         result = complete_scene(
             points,
@@ -434,7 +440,7 @@ def complete_scan(
             axes=axes,
             checkpoint=s.checkpoint_name,
             sensor=None if s.sensor is None else np.asarray(s.sensor, dtype=np.float64),
-            fallback=s.load_fallback(),
+            fallback=fallback,
             fallback_name=s.fallback_model,
         )
     if s.single:
@@ -448,6 +454,8 @@ def complete_scan(
         if s.summary:
             sensor = None if s.sensor is None else [float(v) for v in s.sensor]  # None: the scan's origin
             head = {"scan": str(s.input), "boxes": str(s.box_source), "out": str(s.out), "sensor": sensor}
+            head["runtime"] = str(getattr(completer, "runtime", "torch"))  # what ran the model, and at what precision
+            head["precision"] = str(getattr(completer, "precision", "fp32"))
             write_json(s.summary, {**head, **result.summary()})
             extra.append(Path(s.summary))
         if s.show:
@@ -463,7 +471,7 @@ def complete_scan(
     for w in result.warnings():
         warn(w)
     say(
-        f"{s.input}: {len(points)} points, {describe(result)} ({result.model}) -> {s.out}"
+        f"{s.input}: {len(points)} points, {describe(result)} ({result.model}, {runs_with(completer)}) -> {s.out}"
         + (f" (+{len(written) - 1} per-object files in {s.per_object})" if s.per_object else "")
     )
     if s.show:

@@ -37,6 +37,7 @@ import json
 import math
 import os
 import pickle
+import sys
 import time
 import traceback
 import weakref
@@ -537,10 +538,10 @@ def threads_beside_worker(plan: TrackPlan | None, threads: int | None = None):
     two cores a second torch thread only competes with the worker (scene-0523, ``past:5 --refine-boxes``, bf16, a
     quiet 2-core machine: 14.4 frames/s with one torch thread against 11.0 with two; docs/real-data.md). A lower
     thread count set by the caller is kept; without a worker (and ``threads``) nothing changes."""
-    if not threads and (plan is None or plan.worker_process is None):
+    torch = sys.modules.get("torch")  # not imported: onnxruntime runs the model (its threads are its session's)
+    if torch is None or (not threads and (plan is None or plan.worker_process is None)):
         yield
         return
-    import torch
 
     before = torch.get_num_threads()
     torch.set_num_threads(check_threads(threads) if threads else max(1, min(before, usable_cpus() - 1)))

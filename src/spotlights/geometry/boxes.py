@@ -406,6 +406,11 @@ LABEL_KEYS = ("label", "category", "class", "detection_name")
 ID_KEYS = ("track_id", "id", "instance_token", "tracking_id")
 
 
+SMALL_CROP = 1_000_000
+"""Points x boxes up to which :func:`crop_boxes` pre-cuts each box's sphere with one numpy pass per box instead of
+a KD-tree (a KITTI frame: 19k points, 15 boxes)."""
+
+
 def crop_boxes(
     points: ArrayLike, boxes: list[Box], margin: float = 0.0, ground_clearance: float | None = None
 ) -> list[np.ndarray]:
@@ -415,10 +420,14 @@ def crop_boxes(
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if not boxes or len(p) == 0:
         return [np.zeros(0, np.int64) for _ in boxes]
-    from scipy.spatial import cKDTree
-
     grow = max(float(margin), 0.0) + abs(float(ground_clearance or 0.0))
     reach = np.array([float(np.linalg.norm(0.5 * b.size + grow)) for b in boxes])
+    if len(p) * len(boxes) <= SMALL_CROP:  # a pass over the points per box: no scipy.spatial import (0.25 s)
+        r2 = (reach * (1 + 1e-9)) ** 2
+        near_all = [np.flatnonzero(((p - b.center) ** 2).sum(axis=1) <= r) for b, r in zip(boxes, r2)]
+        return [near[b.contains(p[near], margin, ground_clearance)] for b, near in zip(boxes, near_all)]
+    from scipy.spatial import cKDTree
+
     # one query per box: a tree built without balancing is ~2x cheaper to build and finds the same points
     tree = cKDTree(p, balanced_tree=False, compact_nodes=False)
     hits = tree.query_ball_point(np.array([b.center for b in boxes]), reach * (1 + 1e-9))

@@ -235,6 +235,36 @@ def export_onnx(checkpoint, out, opset: int = OPSET, n_input: int = 256) -> Path
     return Path(out)
 
 
+def halve_weights(proto, min_size: int = 1024) -> int:
+    """Store ``proto``'s (an ``onnx.ModelProto``) float32 weights as float16, in place, where that loses nothing.
+
+    Every float32 initializer of at least ``min_size`` values that float16 holds exactly (the shipped checkpoints'
+    weights are float16 numbers: ``export_weights(half=True)``) is replaced by a float16 initializer and a ``Cast``
+    node back to float32 at the head of the graph, so the graph computes with the same float32 weights (onnxruntime
+    folds the casts when the session starts) from a file about half the size. Returns the number of initializers
+    halved."""
+    from onnx import TensorProto, helper, numpy_helper
+
+    graph, casts, n = proto.graph, [], 0
+    for init in list(graph.initializer):
+        if init.data_type != TensorProto.FLOAT:
+            continue
+        w = numpy_helper.to_array(init)
+        if w.size < min_size:
+            continue
+        half = w.astype(np.float16)
+        if not np.array_equal(half.astype(np.float32), w):
+            continue
+        name = init.name
+        init.CopyFrom(numpy_helper.from_array(half, f"{name}__float16"))
+        casts.append(helper.make_node("Cast", [f"{name}__float16"], [name], to=TensorProto.FLOAT))
+        n += 1
+    nodes = casts + list(graph.node)
+    del graph.node[:]
+    graph.node.extend(nodes)
+    return n
+
+
 def strip_node_metadata(proto) -> None:
     """Remove the exporter's per-node notes (``pkg.torch.onnx.stack_trace``, name scopes, FX node names:
     absolute source paths and line numbers of this package) from every node of ``proto`` (an
@@ -309,6 +339,20 @@ def _onnx_fields(p: Path, meta: dict[str, str]) -> dict:
     return f
 
 
+def _unloadable(path: Path, exc: Exception) -> str:
+    """Why onnxruntime could not load ``path`` (its error ``exc``), in a few words: not an ONNX file at all (when
+    the onnx package can tell), or a graph onnxruntime cannot run."""
+    try:
+        import onnx
+
+        onnx.load(str(path), load_external_data=False)
+    except ImportError:
+        pass
+    except Exception as bad:  # noqa: BLE001 - any parse failure is a bad file
+        return f"not a readable ONNX file ({str(bad).splitlines()[0][:100]})"
+    return f"onnxruntime cannot load this graph ({str(exc).splitlines()[0][:100]})"
+
+
 class OnnxCompleter(BaseCompleter):
     """A ``spotlights export`` ONNX file run with onnxruntime: a
     :class:`~spotlights.learning.inference.BaseCompleter` (same ``complete``, same results as the torch
@@ -318,20 +362,26 @@ class OnnxCompleter(BaseCompleter):
     ``clip``, ``threshold``, ``needs_box``, ``domain`` (:class:`~spotlights.learning.inference.LearnedDomain`),
     ``classes`` (the class vocabulary of a class-conditioned export, in row order; ``()`` for the others, which
     complete every box as the car models they are), ``path``, ``session`` (the onnxruntime session),
-    ``device`` (``"onnxruntime:CPUExecutionProvider"`` or the first provider used).
+    ``device`` (``"onnxruntime:CPUExecutionProvider"`` or the first provider used), ``runtime`` (``"onnx"``) and
+    ``precision`` (``"fp32"``: the graph runs as exported).
     """
+
+    runtime = "onnx"
+    precision = "fp32"
 
     def __init__(self, path, threads: int | None = None, providers=None):
         ort = _require("onnxruntime")
-        onnx = _require("onnx")
         p = Path(path)
         if not p.is_file():
             raise InputFileError(p, "no such ONNX file")
-        try:
-            proto = onnx.load(str(p), load_external_data=False)
-        except Exception as exc:  # noqa: BLE001 - any parse failure is a bad file
-            raise InputFileError(p, f"not a readable ONNX file ({str(exc).splitlines()[0][:100]})") from None
-        meta = {m.key: m.value for m in proto.metadata_props}
+        opts = ort.SessionOptions()
+        if threads:
+            opts.intra_op_num_threads = int(threads)
+        try:  # the metadata is read from the session: the onnx package is not imported (a tenth of a second)
+            self.session = ort.InferenceSession(str(p), opts, providers=providers or ["CPUExecutionProvider"])
+        except Exception as exc:  # noqa: BLE001 - a file onnxruntime cannot run is a bad file
+            raise InputFileError(p, _unloadable(p, exc)) from None
+        meta = dict(self.session.get_modelmeta().custom_metadata_map)
         if meta.get("spotlights_format") != FORMAT:
             raise InputFileError(
                 p,
@@ -339,13 +389,6 @@ class OnnxCompleter(BaseCompleter):
                 "'spotlights export CHECKPOINT --out model.onnx')",
             )
         fields = _onnx_fields(p, meta)
-        opts = ort.SessionOptions()
-        if threads:
-            opts.intra_op_num_threads = int(threads)
-        try:
-            self.session = ort.InferenceSession(str(p), opts, providers=providers or ["CPUExecutionProvider"])
-        except Exception as exc:  # noqa: BLE001 - a graph onnxruntime cannot run is a bad file
-            raise InputFileError(p, f"onnxruntime cannot load this graph ({str(exc).splitlines()[0][:100]})") from None
         graph_inputs = {i.name for i in self.session.get_inputs()}
         graph_outputs = {o.name for o in self.session.get_outputs()}
         missing = [n for n in fields["inputs"] if n not in graph_inputs] + [

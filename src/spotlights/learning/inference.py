@@ -268,8 +268,12 @@ class BaseCompleter:
     threshold : the hit-aware SA-Net's p(hit) threshold, else None.
     needs_box : True when :meth:`complete` needs each scan's box (SA-Net on a box-targeted rig).
     domain : :class:`LearnedDomain`, the classes and box sizes the model learned.
+    runtime : what runs the network, ``"torch"`` or ``"onnx"``. precision : the precision it runs at
+    (``"fp32"``, ``"bf16"``, ``"fp16"``).
     """
 
+    runtime: str = "torch"
+    precision: str = "fp32"
     model_name: str
     n_params: int
     param_counts: dict

@@ -1,32 +1,115 @@
 """The runtime choice: a completer from a checkpoint name or file, run with torch or with onnxruntime.
 
 :func:`load_completer` is the one place that decides which runtime runs a model (``spotlights complete``,
-``real complete`` and the public :func:`spotlights.load_completer` call it): a ``.onnx`` file (a
-``spotlights export``) runs with onnxruntime (:class:`~spotlights.learning.export.OnnxCompleter`), anything
-else (a checkpoint file, ``"default"``, ``"paper"``, ``"classes"``) with torch (:class:`~spotlights.learning.inference.Completer`).
-Neither runtime is imported before it is needed.
+``real complete`` and the public :func:`spotlights.load_completer` call it):
+
+* ``"auto"`` (the default): onnxruntime on the CPU for a packaged model shipped with its ONNX export
+  (``default``, ``classes``: ``learning/pretrained/NAME.onnx``) when onnxruntime imports, and for any ``.onnx``
+  file; torch for every other checkpoint, on a CUDA device (one given, or an NVIDIA driver present and no device
+  given), or for ``precision="bf16"``. A one-frame completion then never imports torch (its start-up was 95% of
+  ``spotlights complete`` on one frame); the exports give torch's outputs within float rounding
+  (docs/studies/speed.md: parity);
+* ``"onnx"``: an ONNX file, or the shipped export of a packaged name;
+* ``"torch"``: a checkpoint with torch (:class:`~spotlights.learning.inference.Completer`).
+
+``precision="auto"`` (the default) is float32 with onnxruntime and bfloat16 autocast with torch on a CPU that
+multiplies bfloat16 natively (:func:`spotlights.learning.cpu.auto_precision`). Every completer says what ran:
+``runtime`` (``"torch"`` or ``"onnx"``) and ``precision`` (``"fp32"``, ``"bf16"``, ``"fp16"``). Neither runtime
+is imported before it is needed.
 """
 
 from __future__ import annotations
 
 import os
+from pathlib import Path
 from typing import Literal
 
 from ..errors import ParameterError
+from .checkpoint import PRETRAINED
+from .cpu import auto_precision
 from .export import load_onnx_completer
 from .inference import BaseCompleter
 from .inference import load_completer as load_torch_completer
 
-RUNTIMES = ("torch", "onnx")
+RUNTIMES = ("auto", "torch", "onnx")
 
-Runtime = Literal["torch", "onnx"]
+Runtime = Literal["auto", "torch", "onnx"]
+
+PRECISIONS = ("auto", "fp32", "bf16")
+
+PRETRAINED_DIR = Path(__file__).resolve().parent / "pretrained"
+
+
+def shipped_onnx(name: str | os.PathLike | None) -> Path | None:
+    """The ONNX export shipped beside a packaged model (``pretrained/NAME.onnx`` of a short name; None =
+    ``"default"``), or None (not a short name, or no export shipped)."""
+    key = "default" if name is None else os.fspath(name)
+    if key not in PRETRAINED:
+        return None
+    p = PRETRAINED_DIR / f"{Path(PRETRAINED[key]).stem}.onnx"
+    return p if p.is_file() else None
+
+
+def onnxruntime_imports() -> bool:
+    """Whether onnxruntime (the optional extra ``spotlights[onnx]``) can be imported here."""
+    try:
+        import onnxruntime  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def cuda_present() -> bool:
+    """Whether this machine may have a CUDA device, read without torch: an NVIDIA driver is loaded and
+    ``CUDA_VISIBLE_DEVICES`` does not hide every device."""
+    if os.environ.get("CUDA_VISIBLE_DEVICES", None) in ("", "-1"):
+        return False
+    return os.path.exists("/proc/driver/nvidia/version") or os.path.exists("/dev/nvidiactl")
+
+
+def choose_runtime(
+    name_or_path: str | os.PathLike | None = "default",
+    runtime: str | None = "auto",
+    device: str | None = None,
+    precision: str | None = "auto",
+) -> tuple[str, str | os.PathLike | None]:
+    """The runtime a model runs with and what it loads: ``("onnx", ONNX file)`` or ``("torch", checkpoint)``.
+
+    The rules of :func:`load_completer` (see the module docstring); ``runtime`` None is ``"auto"``. Raises
+    :class:`ParameterError` for an unknown runtime or precision, or one that does not fit the model.
+    """
+    runtime = "auto" if runtime is None else runtime
+    if runtime not in RUNTIMES:
+        raise ParameterError(f"unknown runtime {runtime!r}; choose one of {', '.join(RUNTIMES)}")
+    if precision is not None and precision not in PRECISIONS:
+        raise ParameterError(f"unknown precision {precision!r}; choose one of {', '.join(PRECISIONS)}")
+    is_onnx = str(name_or_path or "").lower().endswith(".onnx")
+    if runtime == "torch":
+        if is_onnx:
+            raise ParameterError(f"{name_or_path} is an ONNX file: run it with --runtime onnx")
+        return "torch", name_or_path
+    if is_onnx:
+        return "onnx", name_or_path
+    shipped = shipped_onnx(name_or_path)
+    if runtime == "onnx":
+        if shipped is None:
+            raise ParameterError(
+                "--runtime onnx runs an ONNX file: pass --checkpoint MODEL.onnx "
+                "(make one with 'spotlights export CHECKPOINT --out MODEL.onnx'; the packaged "
+                f"{', '.join(n for n in PRETRAINED if shipped_onnx(n) is not None)} ship one)"
+            )
+        return "onnx", shipped
+    on_cpu = str(device).split(":")[0] == "cpu" if device is not None else not cuda_present()
+    if shipped is not None and on_cpu and precision != "bf16" and onnxruntime_imports():
+        return "onnx", shipped
+    return "torch", name_or_path
 
 
 def load_completer(
     name_or_path: str | os.PathLike | None = "default",
-    runtime: Runtime | None = None,
+    runtime: Runtime | None = "auto",
     device: str | None = None,
-    precision: str | None = "fp32",
+    precision: str | None = "auto",
     threads: int | None = None,
 ) -> BaseCompleter:
     """A completion model ready for inference.
@@ -34,34 +117,63 @@ def load_completer(
     Parameters
     ----------
     name_or_path : a checkpoint file (``.pt``), a short name (``"default"``: the package's default model;
-        ``"paper"``: the paper-faithful SA-Net; None = ``"default"``) or a ``spotlights export`` ``.onnx`` file.
-    runtime : ``"torch"`` or ``"onnx"``; None (default) picks onnx for a ``.onnx`` file, torch otherwise.
-    device : torch device or name (torch runtime; default CUDA when available, else CPU).
-    precision : torch runtime: ``"fp32"`` (default), ``"bf16"`` or ``"auto"``; an ONNX model runs as exported.
+        ``"paper"``: the paper-faithful SA-Net; ``"classes"``: the class model; None = ``"default"``) or a
+        ``spotlights export`` ``.onnx`` file.
+    runtime : ``"auto"`` (default; None is the same), ``"torch"`` or ``"onnx"`` (:func:`choose_runtime`, the
+        module docstring).
+    device : torch device or name (torch runtime; default CUDA when available, else CPU); ``"cpu"`` (or None on a
+        machine without an NVIDIA driver) lets ``"auto"`` choose onnxruntime.
+    precision : ``"auto"`` (default: :func:`spotlights.learning.cpu.auto_precision`), ``"fp32"`` or ``"bf16"``
+        (torch autocast; an ONNX model runs as exported, float32, and refuses ``"bf16"``).
     threads : onnx runtime: onnxruntime's intra-op threads (None: its default); the torch runtime's threads are the
         process's (``torch.set_num_threads``).
 
     Returns a :class:`~spotlights.learning.inference.BaseCompleter` (a torch
     :class:`~spotlights.learning.inference.Completer` or an :class:`~spotlights.learning.export.OnnxCompleter`): ``complete(partials (B, K, 3) float32,
-    unit frame) -> B arrays (K_i, 3) float32, unit frame``. Raises :class:`~spotlights.errors.ParameterError`
-    for a runtime that does not fit the file, :class:`~spotlights.errors.InputFileError` for a bad file, and
-    :class:`~spotlights.errors.SpotlightsError` when the runtime's package is not installed.
+    unit frame) -> B arrays (K_i, 3) float32, unit frame``; its ``runtime`` and ``precision`` say what runs.
+    Raises :class:`~spotlights.errors.ParameterError` for a runtime that does not fit the file,
+    :class:`~spotlights.errors.InputFileError` for a bad file, and :class:`~spotlights.errors.SpotlightsError`
+    when the runtime's package is not installed.
     """
-    if runtime is not None and runtime not in RUNTIMES:
-        raise ParameterError(f"unknown runtime {runtime!r}; choose one of {', '.join(RUNTIMES)}")
-    is_onnx = str(name_or_path or "").lower().endswith(".onnx")
-    if runtime == "onnx" or (runtime is None and is_onnx):
-        if name_or_path is None or not is_onnx:
-            raise ParameterError(
-                "--runtime onnx runs an ONNX file: pass --checkpoint MODEL.onnx "
-                "(make one with 'spotlights export CHECKPOINT --out MODEL.onnx')"
-            )
-        if precision not in (None, "fp32"):
+    chosen, what = choose_runtime(name_or_path, runtime, device, precision)
+    if chosen == "onnx":
+        if precision not in (None, "auto", "fp32"):
             raise ParameterError("--precision applies to the torch runtime; an ONNX model runs as exported (float32)")
-        return load_onnx_completer(name_or_path, threads=threads)
-    if runtime == "torch" and is_onnx:
-        raise ParameterError(f"{name_or_path} is an ONNX file: run it with --runtime onnx")
-    return load_torch_completer(name_or_path, device=device, precision=precision or "fp32")
+        return load_onnx_completer(what, threads=threads)
+    if precision in (None, "auto"):
+        device_type = "cpu" if device is None and not cuda_present() else str(device or "cuda").split(":")[0]
+        precision = auto_precision("torch", device_type)
+    return load_torch_completer(what, device=device, precision=precision)
 
 
-__all__ = ["RUNTIMES", "load_completer"]
+def runs_with(completer: object) -> str:
+    """What runs a completer, as summary lines say it: ``"onnxruntime fp32"``, ``"torch bf16"``..."""
+    runtime = getattr(completer, "runtime", "torch")
+    name = "onnxruntime" if runtime == "onnx" else str(runtime)
+    return f"{name} {getattr(completer, 'precision', 'fp32')}"
+
+
+def fallback_runtime(main_runtime: str | None, fallback: str | os.PathLike | None) -> Runtime:
+    """The runtime of the fallback model beside a main model run with ``main_runtime`` (as asked: ``auto``,
+    ``torch``, ``onnx``): the same, except where the fallback cannot run with it (an ``.onnx`` fallback beside
+    torch; a checkpoint without an export beside onnx): then ``"auto"``, its file decides."""
+    asked: Runtime = "torch" if main_runtime == "torch" else "onnx" if main_runtime == "onnx" else "auto"
+    is_onnx = str(fallback or "").lower().endswith(".onnx")
+    if asked == "torch" and is_onnx:
+        return "auto"
+    if asked == "onnx" and not is_onnx and shipped_onnx(fallback) is None:
+        return "auto"
+    return asked
+
+
+__all__ = [
+    "PRECISIONS",
+    "RUNTIMES",
+    "choose_runtime",
+    "cuda_present",
+    "fallback_runtime",
+    "load_completer",
+    "onnxruntime_imports",
+    "runs_with",
+    "shipped_onnx",
+]
