@@ -11,11 +11,11 @@ import pytest
 import torch
 
 from spotlights.api import complete_frame
+from spotlights.completion.frame import SceneConfig, scene_objects
+from spotlights.completion.scan import CompletionOptions, resolve_fallback
 from spotlights.data.real.base import lookup_class
 from spotlights.data.real.boxfiles import CLASS_MAP
 from spotlights.data.vehicle_classes import VEHICLE_CLASSES, canonical_class
-from spotlights.experiments.scan_completion import CompletionOptions, resolve_fallback
-from spotlights.experiments.scene import SceneConfig, scene_objects
 from spotlights.geometry.boxes import Box
 from spotlights.geometry.rig import make_rig_spec
 from spotlights.learning.inference import Completer, complete_in_boxes, load_completer

@@ -218,8 +218,8 @@ def test_a_failed_frame_write_stops_the_run_at_the_next_frame(tmp_path, monkeypa
     import threading
 
     from spotlights.cli import main
+    from spotlights.completion import frames as frame_completion
     from spotlights.errors import OutputFileError
-    from spotlights.experiments import frame_completion
 
     scans = three_frames(tmp_path / "scans")
     real_write, calls = frame_completion.write_scene, []

@@ -84,8 +84,8 @@ def test_resume_completes_again_a_frame_whose_json_is_not_a_summary_or_whose_ply
     import json
     from dataclasses import asdict
 
-    from spotlights.experiments.frame_completion import done_frame
-    from spotlights.experiments.scene import SceneConfig
+    from spotlights.completion.frame import SceneConfig
+    from spotlights.completion.frames import done_frame
 
     cfg = asdict(SceneConfig())
     cfg["clip"] = str(cfg["clip"])

@@ -79,8 +79,8 @@ def test_resume_completes_again_a_frame_whose_ply_is_cut_short(tmp_path):
     import json
     from dataclasses import asdict
 
-    from spotlights.experiments.frame_completion import done_frame
-    from spotlights.experiments.scene import SceneConfig
+    from spotlights.completion.frame import SceneConfig
+    from spotlights.completion.frames import done_frame
 
     cfg = asdict(SceneConfig())
     cfg["clip"] = str(cfg["clip"])
@@ -149,8 +149,8 @@ def test_complete_removes_its_outputs_when_a_later_one_fails(tmp_path, monkeypat
     """A failing ``--show``/``--html``/``--summary`` kept ``OUT.ply`` (a failing ``--per-object`` removed it): every
     output of the run is now all or nothing."""
     from spotlights.assets import asset_path
+    from spotlights.completion import scan as scan_completion
     from spotlights.errors import OutputFileError
-    from spotlights.experiments import scan_completion
 
     from helpers import run_cli
 

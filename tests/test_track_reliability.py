@@ -11,8 +11,8 @@ import time
 
 import pytest
 
-from spotlights.experiments import tracks
-from spotlights.experiments.tracks import TrackWorkerStalled, usable_cpus
+from spotlights.completion import fusion as tracks
+from spotlights.completion.fusion import TrackWorkerStalled, usable_cpus
 from test_track_worker import _inputs, _plan
 from test_tracks_cli import write_drive
 
@@ -187,7 +187,7 @@ SUSPENDED = """
 import pathlib
 import sys
 
-from spotlights.experiments import tracks
+from spotlights.completion import fusion as tracks
 from test_track_reliability import slow_worker
 from test_track_worker import _plan
 from test_tracks_cli import write_drive
@@ -343,7 +343,7 @@ def test_threads_option_wins_over_the_core_left_to_the_worker(tmp_path, monkeypa
     ``--threads N`` (N = the usable CPUs here: more than the default), and on N without the worker too; the
     caller's count is restored after; ``--threads 0`` is a usage error."""
     torch = pytest.importorskip("torch")
-    from spotlights.experiments import frame_completion
+    from spotlights.completion import frames as frame_completion
 
     from helpers import run_cli
     from learning_fixtures import make_checkpoint

@@ -139,7 +139,7 @@ def test_frames_read_once_give_the_bytes_of_frames_read_twice(tmp_path, monkeypa
     """``real complete --fuse`` reads each frame once (the track plan keeps what it read); with nothing kept (every
     frame read again) and no ray-box interval kept, the same files, the same PLY bytes, the same JSON but clocks."""
     pytest.importorskip("torch")
-    import spotlights.experiments.tracks as plans
+    import spotlights.completion.fusion as plans
     from spotlights.cli import main
     from spotlights.data.real.nuscenes import NuScenesReader
     from spotlights.learning.models.sanet import SANet

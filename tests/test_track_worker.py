@@ -11,10 +11,10 @@ import os
 import numpy as np
 import pytest
 
+from spotlights.completion.frame import SceneConfig
+from spotlights.completion.fusion import TrackPlan, TrackWorker, usable_cpus
 from spotlights.data.real import open_reader
 from spotlights.data.tracks import TrackFrame, TrackRefiner, parse_window, refine_track
-from spotlights.experiments.scene import SceneConfig
-from spotlights.experiments.tracks import TrackPlan, TrackWorker, usable_cpus
 from test_tracks import drive_past
 from test_tracks_cli import write_drive
 
@@ -102,7 +102,7 @@ def test_worker_gives_the_inputs_boxes_and_statuses_of_one_process(tmp_path, win
 def test_torch_leaves_a_core_to_the_worker_while_it_runs(tmp_path):
     """With a worker, torch runs on the usable CPUs less one (not fewer than the caller's count), restored after."""
     torch = pytest.importorskip("torch")
-    from spotlights.experiments.tracks import threads_beside_worker
+    from spotlights.completion.fusion import threads_beside_worker
 
     src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0])
     plan, keys = _plan(src, "past:2", worker=False)
@@ -146,7 +146,7 @@ def test_a_plan_dropped_without_finishing_ends_its_worker(tmp_path):
 def test_a_dying_worker_ends_the_run_with_an_error(tmp_path):
     """A worker process killed before its first result: the frame loop raises at once (no wait forever) a
     TrackWorkerDied (a ProcessFailure: one line, exit code 1 on the command line)."""
-    from spotlights.experiments.tracks import TrackWorkerDied
+    from spotlights.completion.fusion import TrackWorkerDied
 
     src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0])
     plan, keys = _plan(src, "past:2", worker=False)
@@ -193,8 +193,8 @@ def test_a_refused_run_leaves_no_worker_behind(tmp_path):
     is the usual one line, and the worker process has ended."""
     import multiprocessing
 
+    from spotlights.completion.frames import FramesSettings, complete_frames
     from spotlights.errors import ParameterError
-    from spotlights.experiments.frame_completion import FramesSettings, complete_frames
 
     src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0], ("a", ""))
     s = FramesSettings(source=[str(src)], format="generic", out=str(tmp_path / "out"), fuse="past:2", quiet=True)
@@ -348,7 +348,7 @@ def test_the_worker_leaves_ctrl_c_to_the_run(tmp_path):
 def test_a_container_cpu_quota_bounds_the_usable_cpus(tmp_path):
     """cgroup v2 cpu.max: "100000 100000" (docker --cpus=1) is 1 CPU, "150000 100000" 2, "max 100000" no limit;
     an unreadable or malformed file is no limit."""
-    from spotlights.experiments.tracks import cgroup_cpu_limit
+    from spotlights.completion.fusion import cgroup_cpu_limit
 
     f = tmp_path / "cpu.max"
     for text, expected in (("100000 100000\n", 1), ("150000 100000\n", 2), ("50000 100000", 1), ("max 100000", None)):

@@ -49,7 +49,7 @@ _HOMES = {
     "load_completer": "spotlights.learning.runtime",
     "complete": "spotlights.api",
     "complete_frame": "spotlights.api",
-    "SceneResult": "spotlights.experiments.scene",
+    "SceneResult": "spotlights.completion.frame",
     "read_frames": "spotlights.api",
 }
 

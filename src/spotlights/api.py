@@ -13,8 +13,8 @@ name               home
 ``decode``         :func:`spotlights.geometry.encode.decode` (depths + rig -> points)
 ``load_completer`` :func:`spotlights.learning.runtime.load_completer` (torch or onnx runtime)
 ``complete``       :func:`complete` (one object in its box)
-``complete_frame`` :func:`complete_frame` (every vehicle of a frame: ``experiments.scene.complete_scene``)
-``SceneResult``    :class:`spotlights.experiments.scene.SceneResult` (what ``complete_frame`` returns)
+``complete_frame`` :func:`complete_frame` (every vehicle of a frame: ``completion.frame.complete_scene``)
+``SceneResult``    :class:`spotlights.completion.frame.SceneResult` (what ``complete_frame`` returns)
 ``read_frames``    :func:`read_frames` (LiDAR frames with their boxes, any supported format)
 =================  ============================================================================
 """
@@ -30,11 +30,11 @@ from typing import Any
 
 import numpy as np
 
+from .completion.frame import ObjectResult, SceneConfig, SceneResult, complete_scene
+from .completion.scan import AUTO_FALLBACK, resolve_fallback
 from .data.real import FORMATS, open_reader
 from .data.real.base import Frame
 from .errors import ParameterError
-from .experiments.scan_completion import AUTO_FALLBACK, resolve_fallback
-from .experiments.scene import ObjectResult, SceneConfig, SceneResult, complete_scene
 from .geometry.boxes import Box
 from .geometry.encode import decode, encode_mesh
 from .geometry.io import load_mesh
@@ -55,7 +55,7 @@ def complete_frame(
     sensor: np.ndarray | None = None,
     **options: Any,
 ) -> SceneResult:
-    """Complete every vehicle of one LiDAR frame: :func:`~spotlights.experiments.scene.complete_scene` (what
+    """Complete every vehicle of one LiDAR frame: :func:`~spotlights.completion.frame.complete_scene` (what
     ``spotlights complete`` and ``real complete`` run) with the model given by name or object and the options
     as keywords.
 
@@ -68,20 +68,20 @@ def complete_frame(
         name or file (``"default"``, ``"paper"``, ``"classes"``, ``model.pt``, ``model.onnx``) loaded on the CPU/GPU with
         the runtime its suffix implies, on the first call only (a model given by name, and the fallback, are kept
         for the next calls: :data:`NAMED_MODELS_KEPT`; a file that changed is loaded again).
-    config : a :class:`~spotlights.experiments.scene.SceneConfig`; or give its fields as keyword ``options`` (``margin=0.2``,
+    config : a :class:`~spotlights.completion.frame.SceneConfig`; or give its fields as keyword ``options`` (``margin=0.2``,
         ``heading_check=True``, ...), not both.
     axes : optional (3, 3) rotation scan coordinates -> object convention (x forward, y left, z up).
     checkpoint : the model's name for the result's summary (default: ``completer`` when it is a name).
     fallback : a second model (loaded, or a name such as ``"classes"``) for the boxes ``completer`` did not learn
         but it did (``ObjectResult.completed_by`` names it); ``"auto"`` (default): the packaged class model
         ``"classes"`` when ``completer`` is the name ``"default"`` (or None), else none
-        (:func:`~spotlights.experiments.scan_completion.resolve_fallback`, as ``--fallback``); ``"none"`` or None:
+        (:func:`~spotlights.completion.scan.resolve_fallback`, as ``--fallback``); ``"none"`` or None:
         such boxes are left as observed points.
     sensor : (3,) the LiDAR's position in the scan's frame, metres (default: the scan's origin, as in a sensor-frame
         scan): the free space of the ray-local model and the ``snap`` option's occlusion rule.
 
-    Returns a :class:`~spotlights.experiments.scene.SceneResult` (scan frame, metres): ``xyz``, ``source`` and
-    ``object`` per point, one :class:`~spotlights.experiments.scene.ObjectResult` per box. Raises :class:`~spotlights.errors.ParameterError` for
+    Returns a :class:`~spotlights.completion.frame.SceneResult` (scan frame, metres): ``xyz``, ``source`` and
+    ``object`` per point, one :class:`~spotlights.completion.frame.ObjectResult` per box. Raises :class:`~spotlights.errors.ParameterError` for
     unknown options or a scan with fewer than ``min_points`` points.
     """
     config = _scene_config(config, options)
@@ -168,7 +168,7 @@ def complete(
 
     ``completer``, ``fallback`` (``"auto"``: the packaged class model completes a van, truck, bus or trailer beside
     the default model; ``"none"``: no second model) and ``options`` (the fields of
-    :class:`~spotlights.experiments.scene.SceneConfig`) as in :func:`complete_frame`. Returns the box's :class:`~spotlights.experiments.scene.ObjectResult`: ``completion`` (K, 3) float64 in the scan's frame,
+    :class:`~spotlights.completion.frame.SceneConfig`) as in :func:`complete_frame`. Returns the box's :class:`~spotlights.completion.frame.ObjectResult`: ``completion`` (K, 3) float64 in the scan's frame,
     ``completion_unit`` (K, 3) float32 in the box's unit frame, ``partial_unit`` (256, 3) float32 (the
     model's input), ``input_indices`` (the scan rows used). Raises
     :class:`~spotlights.errors.ParameterError` when the box is invalid, holds fewer than ``min_points``
@@ -194,7 +194,7 @@ def complete(
 
 
 def _scene_config(config: SceneConfig | None, options: dict) -> SceneConfig:
-    """``config``, or a :class:`~spotlights.experiments.scene.SceneConfig` of the keyword ``options`` (unknown
+    """``config``, or a :class:`~spotlights.completion.frame.SceneConfig` of the keyword ``options`` (unknown
     names: an error naming the nearest)."""
     if config is not None:
         if options:

@@ -428,14 +428,14 @@ def complete_scene(
     sensor : (3,) the LiDAR's optical centre in the scan's frame, metres (default: the scan's origin); models
         that read free space (``sanet-local``) get it in each box's unit frame.
     extra_points : optional {box index: (k, 3) points, metres, scan frame}: more evidence of that object
-        (other frames of its track, :mod:`spotlights.experiments.tracks`) added to its crop for the model
+        (other frames of its track, :mod:`spotlights.completion.fusion`) added to its crop for the model
         input (and counted towards ``min_points``); the scene's ``source``/``object`` fields keep the scan's own.
     fallback : optional second completer for the boxes whose class or size ``completer`` did not learn (its
         learned domain gates them) but ``fallback`` did, e.g. ``load_completer("classes")`` beside the car-only
         default: those boxes are completed by it (``ObjectResult.completed_by``: ``fallback_name``, else its
         model's name), the others by ``completer``.
     crops : optional {box index: (k,) int64 scan indices} of every valid box, :func:`scene_crops` of these
-        ``points`` and ``boxes`` made elsewhere (a track worker process, :mod:`spotlights.experiments.tracks`);
+        ``points`` and ``boxes`` made elsewhere (a track worker process, :mod:`spotlights.completion.fusion`);
         used without ``axes`` and with ``config.crop``, else ignored.
 
     Returns a :class:`SceneResult`; raises :class:`ParameterError` for a scan with fewer than
