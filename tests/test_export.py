@@ -1,4 +1,4 @@
-"""ONNX export (issue 17 item 3): every model exports, onnxruntime matches torch on test scans, the rig and the
+"""ONNX export: every model exports, onnxruntime matches torch on test scans, the rig and the
 threshold travel as metadata, ``complete --runtime onnx`` gives torch's completion, a missing runtime is one line."""
 
 from __future__ import annotations

@@ -15,7 +15,8 @@ from spotlights.cli import main
 from spotlights.completion import frames as frame_completion
 from spotlights.completion.frames import PICTURE_WORKERS_MAX, PictureProcesses, picture_workers
 from spotlights.errors import ParameterError, ProcessFailure
-from test_faults import three_frames
+
+from builders import three_frames
 
 pytestmark = pytest.mark.timeout(300)
 

@@ -1,4 +1,4 @@
-"""The library behind the run-side commands (issue 29): settings dataclasses and one function per command,
+"""The library behind the run-side commands: settings dataclasses and one function per command,
 called from Python (no argparse), checked against hand counts and brute force."""
 
 from __future__ import annotations
@@ -26,7 +26,8 @@ from spotlights.experiments.real_runs import EvaluateSettings, report_names
 from spotlights.files import EncodeSettings, RigOptions
 from spotlights.geometry.io import load_ply_fields
 from spotlights.utils import check_suffix, settings_from_namespace
-from test_real_consistency import Identity, tracked_scene
+
+from builders import Identity, tracked_scene
 
 
 def test_frame_specs_parse_and_select_by_hand():

@@ -13,9 +13,10 @@ import pytest
 
 from spotlights.completion import fusion as tracks
 from spotlights.completion.fusion import TrackWorkerStalled, usable_cpus
-from test_track_worker import _inputs, _plan
-from test_tracks_cli import write_drive
 
+from builders import track_inputs as _inputs
+from builders import track_plan as _plan
+from builders import write_drive
 from helpers import REPO
 
 needs_two_cpus = pytest.mark.skipif(usable_cpus() < 2, reason="a worker process is started with 2+ usable CPUs only")
@@ -189,8 +190,8 @@ import sys
 
 from spotlights.completion import fusion as tracks
 from test_track_reliability import slow_worker
-from test_track_worker import _plan
-from test_tracks_cli import write_drive
+from builders import track_plan as _plan
+from builders import write_drive
 
 if __name__ == "__main__":
     tracks.worker_main = slow_worker
