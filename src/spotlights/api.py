@@ -3,20 +3,27 @@
 ``import spotlights`` is light (numpy only): each name below is imported from its home module on
 first use (PEP 562, ``spotlights.__getattr__``). Examples of every name: ``docs/api.md``.
 
-=================  ============================================================================
-name               home
-=================  ============================================================================
-``Box``            :class:`spotlights.geometry.boxes.Box` (the one oriented box)
-``make_rig``       :func:`spotlights.geometry.rig.make_rig` (the paper's cap rig, box rigs)
-``load_mesh``      :func:`spotlights.geometry.io.load_mesh` (a mesh in the object frame)
-``encode_mesh``    :func:`spotlights.geometry.encode.encode_mesh` (mesh + rig -> depths)
-``decode``         :func:`spotlights.geometry.encode.decode` (depths + rig -> points)
-``load_completer`` :func:`spotlights.learning.runtime.load_completer` (torch or onnx runtime)
-``complete``       :func:`complete` (one object in its box)
-``complete_frame`` :func:`complete_frame` (every vehicle of a frame: ``completion.frame.complete_scene``)
-``SceneResult``    :class:`spotlights.completion.frame.SceneResult` (what ``complete_frame`` returns)
-``read_frames``    :func:`read_frames` (LiDAR frames with their boxes, any supported format)
-=================  ============================================================================
+==================  ===========================================================================
+name                home
+==================  ===========================================================================
+``Box``             :class:`spotlights.geometry.boxes.Box` (the one oriented box; ``load_box`` reads a box file)
+``make_rig``        :func:`spotlights.geometry.rig.make_rig` (the paper's cap rig, box rigs)
+``load_mesh``       :func:`spotlights.geometry.io.load_mesh` (a mesh in the object frame)
+``load_points``     :func:`spotlights.geometry.io.load_points` (a point file: PLY, PCD, XYZ, NPY, ...)
+``save_points``     :func:`spotlights.geometry.io.save_points` (points to a file, by suffix)
+``encode_mesh``     :func:`spotlights.geometry.encode.encode_mesh` (mesh + rig -> depths)
+``decode``          :func:`spotlights.geometry.encode.decode` (depths + rig -> points)
+``Frame``           :class:`spotlights.data.real.base.Frame` (a LiDAR frame with its boxes)
+``read_frames``     :func:`read_frames` (LiDAR frames with their boxes, any supported format)
+``load_completer``  :func:`spotlights.learning.runtime.load_completer` (torch or onnx runtime)
+``BaseCompleter``   :class:`spotlights.learning.inference.BaseCompleter` (what ``load_completer`` returns)
+``SceneConfig``     :class:`spotlights.completion.config.SceneConfig` (the options of a frame's completion)
+``complete``        :func:`complete` (one object in its box)
+``complete_frame``  :func:`complete_frame` (every vehicle of a frame: ``completion.frame.complete_scene``)
+``SceneResult``     :class:`spotlights.completion.results.SceneResult` (what ``complete_frame`` returns;
+                    ``save(path)`` writes the PLY and JSON ``spotlights complete`` writes)
+``ObjectResult``    :class:`spotlights.completion.results.ObjectResult` (one box's outcome)
+==================  ===========================================================================
 """
 
 from __future__ import annotations
@@ -35,23 +42,28 @@ from .completion.scan import AUTO_FALLBACK, resolve_fallback
 from .data.real import FORMATS, open_reader
 from .data.real.base import Frame
 from .errors import ParameterError
-from .geometry.boxes import Box
+from .geometry.boxes import Box, load_box
 from .geometry.encode import decode, encode_mesh
-from .geometry.io import load_mesh
+from .geometry.io import load_mesh, load_points, save_points
 from .geometry.rig import make_rig
 from .learning.checkpoint import PRETRAINED
+from .learning.inference import BaseCompleter
 from .learning.runtime import load_completer
+
+CompleterLike = BaseCompleter | str | os.PathLike | None
+"""A model as the API takes it: loaded (:func:`load_completer`), or its name or file (``"default"``, ``"classes"``,
+``"paper"``, ``model.pt``, ``model.onnx``); None: the default (for a fallback: none)."""
 
 
 def complete_frame(
     points: np.ndarray,
     boxes: Sequence[Box],
-    completer: Any = "default",
+    completer: CompleterLike = "default",
     config: SceneConfig | None = None,
     *,
     axes: np.ndarray | None = None,
     checkpoint: str | None = None,
-    fallback: Any = AUTO_FALLBACK,
+    fallback: CompleterLike = AUTO_FALLBACK,
     sensor: np.ndarray | None = None,
     **options: Any,
 ) -> SceneResult:
@@ -91,8 +103,8 @@ def complete_frame(
         fallback = resolve_fallback(
             None if fallback is None else str(fallback), str(completer or "default") if by_name else ""
         )
-    if by_name:
-        name = "default" if completer is None else os.fspath(completer)
+    if completer is None or isinstance(completer, (str, os.PathLike)):
+        name = "default" if completer is None else str(os.fspath(completer))
         completer = _named_completer(name)
         checkpoint = name if checkpoint is None else checkpoint
     fallback_name = None
@@ -112,7 +124,7 @@ def complete_frame(
 
 
 #: models that :func:`complete_frame` and :func:`complete` loaded by name, kept for the next call
-_NAMED: dict[tuple, Any] = {}
+_NAMED: dict[tuple, BaseCompleter] = {}
 _NAMED_LOCK = threading.Lock()
 NAMED_MODELS_KEPT = 4
 """At most this many models given by name are kept (the least recently used is dropped first)."""
@@ -128,7 +140,7 @@ if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_new_named_lock_after_fork)
 
 
-def _named_completer(name: str) -> Any:
+def _named_completer(name: str) -> BaseCompleter:
     """The model ``name`` (a packaged name or a checkpoint/ONNX file) as :func:`load_completer` loads it, loaded once
     and kept for later calls (a frame loop of ``complete_frame(points, boxes)`` loaded the default and the class
     model on every call: 0.14 s a nuScenes frame against 0.08 s with models loaded once). A file is loaded again
@@ -156,10 +168,10 @@ def _named_completer(name: str) -> Any:
 def complete(
     points: np.ndarray,
     box: Box,
-    completer: Any = "default",
+    completer: CompleterLike = "default",
     *,
     axes: np.ndarray | None = None,
-    fallback: Any = AUTO_FALLBACK,
+    fallback: CompleterLike = AUTO_FALLBACK,
     **options: Any,
 ) -> ObjectResult:
     """Complete one object: the points of ``points`` (N, 3) inside ``box`` (scan frame, metres; grown by
@@ -236,6 +248,8 @@ def read_frames(
 __all__ = [
     "FORMATS",
     "Box",
+    "BaseCompleter",
+    "CompleterLike",
     "Frame",
     "ObjectResult",
     "SceneConfig",
@@ -244,8 +258,11 @@ __all__ = [
     "complete_frame",
     "decode",
     "encode_mesh",
+    "load_box",
     "load_completer",
     "load_mesh",
+    "load_points",
     "make_rig",
     "read_frames",
+    "save_points",
 ]

@@ -18,7 +18,6 @@ axes (:func:`spotlights.geometry.io.axes_rotation`), and every output is in the 
 from __future__ import annotations
 
 import dataclasses
-import json
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -36,7 +35,7 @@ from ..inputs import read_json
 from ..learning.inference import BaseCompleter
 from ..learning.runtime import Runtime, load_completer
 from ..options import check_threads
-from ..utils import atomic_output, check_distinct_paths, check_suffix, check_writable, same_file
+from ..utils import check_distinct_paths, check_suffix, check_writable, same_file
 from .frame import (
     HEADING_MARGIN,
     SceneConfig,
@@ -52,6 +51,7 @@ from .frame import (
     write_scene,
 )
 from .fusion import threads_beside_worker
+from .writing import write_json
 
 Say = Callable[[str], None]
 """A callback taking one line of text (``print`` for the summary lines; a warning printer for warnings)."""
@@ -394,12 +394,6 @@ def _check_single(s: ScanSettings, result: SceneResult, points: np.ndarray, axes
         outside = float(np.mean(np.linalg.norm(unit, axis=1) > 1.2))
         if outside > 0.5:
             warn(f"{outside:.0%} of the scan lies outside the box's sphere; is the box in the scan's frame?")
-
-
-def write_json(path: str | Path, data: dict) -> None:
-    """``data`` as indented JSON (numpy scalars as floats), written atomically to ``path``."""
-    with atomic_output(path) as tmp:
-        tmp.write_text(json.dumps(data, indent=2, default=float) + "\n", encoding="utf-8")
 
 
 def complete_scan(
