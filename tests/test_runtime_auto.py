@@ -95,9 +95,9 @@ def test_fallback_routing_gives_the_same_statuses_in_both_runtimes(monkeypatch):
     the same status and model, and the completions agree within float rounding."""
     pytest.importorskip("torch")
     _no_cuda(monkeypatch)
+    from spotlights.completion.frame import complete_scene
+    from spotlights.completion.scan import CompletionOptions
     from spotlights.data.real import open_reader
-    from spotlights.experiments.scan_completion import CompletionOptions
-    from spotlights.experiments.scene import complete_scene
 
     frame = open_reader(need(KITTI), "kitti").load(("", "002155"))
     results = {}
