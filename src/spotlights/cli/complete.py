@@ -314,7 +314,13 @@ def register(sub) -> None:
         "--show",
         default=None,
         metavar="PNG",
-        help="also draw the scene: bird's-eye view with box outlines and ids, close-ups with a 1 m ruler",
+        help="also draw the scene: a bird's-eye view with box outlines and ids and the objects' captions (a raster, "
+        "a few hundredths of a second)",
+    )
+    p.add_argument(
+        "--closeups",
+        action="store_true",
+        help="with --show: also a 3-D close-up of every object with a 1 m ruler (matplotlib; most of a second)",
     )
     add_html_argument(p)
     add_track_arguments(p)

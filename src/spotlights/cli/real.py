@@ -124,14 +124,23 @@ def register(sub) -> None:
     p.add_argument(
         "--per-object", action="store_true", help="also write FRAME_objects/object_<id>.ply per completed object"
     )
-    p.add_argument("--no-pictures", action="store_true", help="do not draw FRAME.png (faster)")
+    p.add_argument(
+        "--no-pictures", action="store_true", help="do not draw FRAME.png (a bird's-eye raster, drawn beside the loop)"
+    )
+    p.add_argument(
+        "--closeups",
+        action="store_true",
+        help="FRAME.png also shows a 3-D close-up of every object with a 1 m ruler (matplotlib: most of a second a "
+        "frame, drawn by --picture-workers processes)",
+    )
     p.add_argument(
         "--picture-workers",
         type=non_negative_int,
         default=None,
         metavar="N",
         help="processes that draw the frames' PNGs, N frames at once while the next frames are completed "
-        "(default: one per CPU, at most 8, none on one CPU; 0: drawn in this process, one frame at a time; "
+        "(default: none for the bird's-eye raster, drawn by the writer thread beside the frame loop; with "
+        "--closeups one per CPU, at most 8, none on one CPU; 0: drawn in this process, one frame at a time; "
         "the same bytes either way)",
     )
     p.add_argument(

@@ -43,6 +43,7 @@ from ..learning.inference import DEFAULT, complete_in_boxes, prepare_partial, wi
 from ..metrics.consistency import fidelity
 from ..utils import StageTimer, shared_thread_pool
 from ..viz import SceneObject, html, scene_png, write_png
+from ..viz.bev import bev_png
 from .config import (
     HEADING_DOC,
     HEADING_MARGIN,
@@ -511,17 +512,23 @@ def scene_objects(result: SceneResult) -> list:
     return objs
 
 
-def render_result(result: SceneResult, path: str | Path, title: str | None = None) -> Path:
-    """Draw a completed scene into a PNG (atomic write): a bird's-eye view (equal aspect, grey scan, purple inputs,
-    green completions, box outlines labelled with their ``object`` ids, a scale bar) and a 3-D close-up of every
-    completed object seen from the sensor (box wireframe, 1 m ruler): the bytes of :func:`result_png`."""
-    return write_png(result_png(result, title), path)
+def render_result(result: SceneResult, path: str | Path, title: str | None = None, closeups: bool = False) -> Path:
+    """Draw a completed scene into a PNG (atomic write): a bird's-eye view (grey scan, purple inputs, green
+    completions, box outlines labelled with their ``object`` ids, a scale bar, the objects' captions), and with
+    ``closeups`` a 3-D close-up of every completed object seen from the sensor (box wireframe, 1 m ruler): the
+    bytes of :func:`result_png`."""
+    return write_png(result_png(result, title, closeups), path)
 
 
-def result_png(result: SceneResult, title: str | None = None) -> bytes:
-    """The PNG bytes :func:`render_result` writes (:func:`spotlights.viz.scene_png`); a picklable function of a
-    picklable :class:`SceneResult`, so another process can draw them (``real complete``'s picture processes)."""
-    return scene_png(result.points, scene_objects(result), title=title, id_note="boxes: object id, as in the PLY")
+def result_png(result: SceneResult, title: str | None = None, closeups: bool = False) -> bytes:
+    """The PNG bytes :func:`render_result` writes: the bird's-eye raster (:func:`spotlights.viz.bev.bev_png`, a few
+    hundredths of a second), or with ``closeups`` matplotlib's figure with a close-up per object
+    (:func:`spotlights.viz.scene_png`, most of a second); a picklable function of a picklable :class:`SceneResult`,
+    so another process can draw them (``real complete``'s picture processes)."""
+    note = "boxes: object id, as in the PLY"
+    if closeups:
+        return scene_png(result.points, scene_objects(result), title=title, id_note=note)
+    return bev_png(result.points, scene_objects(result), title=title, id_note=note)
 
 
 def render_result_html(

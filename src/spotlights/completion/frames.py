@@ -179,9 +179,10 @@ class FramesSettings(ReaderOptions, CompletionOptions):
     (:class:`~spotlights.completion.scan.CompletionOptions`), and
 
     out : the output folder; frames : a :func:`parse_frames` selection (None: every frame);
-    per_object, no_pictures, html : per-object PLYs, no PNGs, an HTML page per frame; picture_workers : processes
-    that draw the PNGs, several frames at once (None: :func:`picture_workers`' default; 0: the writer thread draws
-    them, one frame at a time);
+    per_object, no_pictures, html : per-object PLYs, no PNGs, an HTML page per frame; closeups : the PNGs show a
+    matplotlib close-up of every object beside the bird's-eye raster; picture_workers : processes that draw the
+    PNGs, several frames at once (None: none for the raster, drawn by the writer thread beside the frame loop;
+    :func:`picture_workers`' default with closeups; 0: the writer thread draws them, one frame at a time);
     resume : skip frames an earlier run with the same model and options finished;
     fuse : the frames of a track fused into its input (``"none"``, ``"all"``, ``"past:K"``, ``"centered:K"`` or a
     :class:`~spotlights.data.tracks.WindowPolicy`); refine_boxes : register and correct the boxes (with fuse);
@@ -195,6 +196,7 @@ class FramesSettings(ReaderOptions, CompletionOptions):
     frames: tuple | None = None
     per_object: bool = False
     no_pictures: bool = False
+    closeups: bool = False
     picture_workers: int | None = None
     html: bool = False
     resume: bool = False
@@ -220,7 +222,10 @@ class FramesSettings(ReaderOptions, CompletionOptions):
             ("--boxes/--calib/--box/--center/--size/--yaw", (s.boxes, s.calib, s.box, s.center, s.size, s.yaw)),
             ("--crop/--no-crop", (s.crop, s.no_crop or None)),
             ("--up/--forward", (None if s.up == "z" else s.up, None if s.forward == "x" else s.forward)),
-            ("--per-object/--summary/--show/--html", (s.per_object, s.summary, s.show, s.html)),
+            (
+                "--per-object/--summary/--show/--closeups/--html",
+                (s.per_object, s.summary, s.show, s.closeups or None, s.html),
+            ),
         ):
             if any(v is not None for v in given):
                 raise ParameterError(
@@ -342,8 +347,9 @@ class PictureProcesses:
     function; matplotlib's defaults in both: rcParams changed in this process do not reach the workers); the
     writer thread writes them in frame order."""
 
-    def __init__(self, workers: int) -> None:
+    def __init__(self, workers: int, closeups: bool = False) -> None:
         self.workers = int(workers)
+        self.closeups = bool(closeups)  # matplotlib's close-ups too (result_png)
         pool = None
         try:
             # Ctrl-C held back while they start (as the track worker's start): the fork server and the workers
@@ -364,11 +370,14 @@ class PictureProcesses:
         """The processes of a run of ``s`` over ``n_frames`` frames, started; None when no picture is drawn,
         :func:`picture_workers` says 0, or no process can be started here (an unguarded script, a sandbox: the
         writer thread draws the pictures, as with 0)."""
-        n = 0 if s.no_pictures else picture_workers(s.picture_workers, n_frames)
+        # the bird's-eye raster costs a few hundredths of a second: the writer thread draws it, beside the frame loop,
+        # unless processes are asked for; the close-ups (matplotlib) get their processes by default
+        asked = s.picture_workers if s.closeups or s.picture_workers is not None else 0
+        n = 0 if s.no_pictures else picture_workers(asked, n_frames)
         if n == 0:
             return None
         try:
-            return cls(n)
+            return cls(n, s.closeups)
         except Exception:
             return None
 
@@ -378,7 +387,7 @@ class PictureProcesses:
         from concurrent.futures.process import BrokenProcessPool
 
         try:
-            return self.pool.submit(result_png, result, title)
+            return self.pool.submit(result_png, result, title, self.closeups)
         except BrokenProcessPool as exc:
             failed: Future = Future()
             failed.set_exception(exc)
@@ -515,7 +524,7 @@ class _FrameRun:
                 if drawn is not None:
                     write_png(PictureProcesses.png(drawn, png), png)
                 elif picture:
-                    render_result(result, png, title)
+                    render_result(result, png, title, s.closeups)
                 if s.html:
                     js = os.path.relpath(write_plotlyjs(out), stem.parent).replace(os.sep, "/")
                     render_result_html(result, _with(stem, ".html"), title, js)

@@ -224,7 +224,8 @@ class ScanSettings(CompletionOptions):
     sensor : the LiDAR's position in the scan's frame (metres; None: the scan's origin, as a sensor-frame scan
     has it): the free space the ray-local model reads and ``--snap``'s occlusion rule; one scan only.
     up, forward : the scan's axes; per_object : folder of ``object_<id>.ply``; summary : JSON file;
-    show : PNG picture; html : interactive page; quiet : no summary lines.
+    show : PNG picture (a bird's-eye raster); closeups : and a matplotlib close-up per object in it; html :
+    interactive page; quiet : no summary lines.
     fuse, refine_boxes, max_gap, rerun, track_worker : for a multi-frame scene (:attr:`multi_frame`: ``input`` a folder of
     frames or a sequence ``.json`` of the generic format), as :class:`~spotlights.completion.frames.
     FramesSettings` has them; a single scan refuses a fusing window, ``refine_boxes``, ``rerun`` and
@@ -248,6 +249,7 @@ class ScanSettings(CompletionOptions):
     per_object: str | None = None
     summary: str | None = None
     show: str | None = None
+    closeups: bool = False
     html: str | None = None
     quiet: bool = False
     fuse: WindowPolicy | str = field(default_factory=lambda: parse_window("none"))
@@ -347,6 +349,8 @@ class ScanSettings(CompletionOptions):
         """Refuse, before any work, an output whose suffix does not fit, that cannot be written, or that would
         overwrite an input or another output (:meth:`check_paths`)."""
         self.check_paths()
+        if self.closeups and not self.show:
+            raise ParameterError("--closeups goes with --show PNG (the picture they are drawn in)")
         check_suffix(self.show, (".png",), "the picture", "--show")
         check_suffix(self.html, (".html", ".htm"), "the page (HTML)", "--html")
         check_suffix(self.summary, (".json",), "the summary (JSON)", "--summary")
@@ -453,7 +457,7 @@ def complete_scan(
             write_json(s.summary, {**head, **result.summary()})
             extra.append(Path(s.summary))
         if s.show:
-            render_result(result, s.show, title)
+            render_result(result, s.show, title, s.closeups)
             extra.append(Path(s.show))
         if s.html:
             render_result_html(result, s.html, title)

@@ -13,6 +13,7 @@ Modules by topic:
 - :mod:`.encoding` Spotlights encodings (:func:`render_encoding`, :func:`viewpoint_rays`)
 - :mod:`.sample` dataset samples (:func:`render_sample`)
 - :mod:`.scene` whole scans with boxes (:func:`render_scene`, :func:`render_frame`)
+- :mod:`.bev` a frame's bird's-eye raster (numpy and PIL, no matplotlib: :func:`~spotlights.viz.bev.bev_png`)
 - :mod:`.completion` predictions beside their ground truth (:func:`render_predictions`)
 - :mod:`.grid`, :mod:`.study`, :mod:`.density` the reproduction's, rig study's and density analysis' figures
 - :mod:`.html` the interactive viewer (:func:`write_html`, ``spotlights view``)
