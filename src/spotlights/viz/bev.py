@@ -13,6 +13,7 @@ pixels.
 
 from __future__ import annotations
 
+import functools
 import io
 import math
 from collections.abc import Sequence
@@ -37,7 +38,9 @@ CAPTION_WIDTH = 400
 """Pixels of the column right of the plot that lists the objects' captions (id: class, points...)."""
 
 
+@functools.lru_cache(maxsize=8)
 def _font(size: int):
+    """PIL's default font at ``size`` pixels (loaded once per size)."""
     from PIL import ImageFont
 
     try:
