@@ -333,11 +333,27 @@ def picture_workers(asked: int | None, n_frames: int) -> int:
     return 0 if n_frames < 2 else min(n, n_frames)
 
 
-def _ready_to_draw() -> None:
-    """In a picture process (which imported this module, so the drawing code, to run this): import matplotlib's Agg
-    and 3-D axes while the frame loop's model loads."""
-    import matplotlib.backends.backend_agg  # noqa: F401
-    import mpl_toolkits.mplot3d  # noqa: F401
+#: How much lower a picture process runs than the frame loop (``os.nice``): a picture waits for a free core, the
+#: frame loop does not wait for the picture.
+PICTURE_NICE = 5
+
+
+def _lower_priority() -> None:
+    """A picture process's start: :data:`PICTURE_NICE` below its parent (where the system allows it)."""
+    try:
+        os.nice(PICTURE_NICE)
+    except (AttributeError, OSError):  # pragma: no cover - not POSIX, or refused
+        pass
+
+
+def _ready_to_draw(closeups: bool = True) -> None:
+    """In a picture process (which imported this module, so the drawing code, to run this): import what draws
+    (matplotlib's Agg and 3-D axes for the close-ups; PIL for the raster) while the frame loop's model loads."""
+    if closeups:
+        import matplotlib.backends.backend_agg  # noqa: F401
+        import mpl_toolkits.mplot3d  # noqa: F401
+    else:
+        import PIL.PngImagePlugin  # noqa: F401
 
 
 class PictureProcesses:
@@ -355,10 +371,11 @@ class PictureProcesses:
             # Ctrl-C held back while they start (as the track worker's start): the fork server and the workers
             # inherit the blocked signal (they ignore it), and none lands half-way through the start; one that came
             # meanwhile is raised as the block ends, and stops the processes here
-            pool = start_process_pool(self.workers)  # the resource tracker started (which unblocks SIGINT) first
+            # the resource tracker started (which unblocks SIGINT) first
+            pool = start_process_pool(self.workers, _lower_priority)
             with sigint_held():
                 for _ in range(self.workers):  # each task starts a process: their imports overlap the model's load
-                    pool.submit(_ready_to_draw)
+                    pool.submit(_ready_to_draw, self.closeups)
         except BaseException:
             if pool is not None:
                 stop_process_pool(pool)
@@ -370,9 +387,10 @@ class PictureProcesses:
         """The processes of a run of ``s`` over ``n_frames`` frames, started; None when no picture is drawn,
         :func:`picture_workers` says 0, or no process can be started here (an unguarded script, a sandbox: the
         writer thread draws the pictures, as with 0)."""
-        # the bird's-eye raster costs a few hundredths of a second: the writer thread draws it, beside the frame loop,
-        # unless processes are asked for; the close-ups (matplotlib) get their processes by default
-        asked = s.picture_workers if s.closeups or s.picture_workers is not None else 0
+        # the bird's-eye raster costs a few hundredths of a second: one process draws it (none on one CPU), beside the
+        # frame loop and below its priority; the close-ups (matplotlib) get one process per CPU by default
+        raster = 1 if usable_cpus() >= 2 else 0
+        asked = s.picture_workers if s.closeups or s.picture_workers is not None else raster
         n = 0 if s.no_pictures else picture_workers(asked, n_frames)
         if n == 0:
             return None
@@ -450,9 +468,10 @@ class _FrameRun:
         self.resumed: dict = {}
         self.latest: dict = {}  # track key -> the resumed frame holding its latest completion so far
         # a frame's files are written by one thread, in frame order, while the next frames are completed: one frame
-        # in flight, or as many as there are picture processes (each drawing one frame's PNG)
+        # in flight, or one more than there are picture processes (each drawing one frame's PNG, below the loop's
+        # priority: a picture may finish a frame later)
         self.pictures = pictures
-        self.in_flight = max(1, pictures.workers) if pictures is not None else 1
+        self.in_flight = pictures.workers + 1 if pictures is not None else 1
         self._written: deque[Future] = deque()
         self._stopped = False  # a write failed, or the run ends early: the frames not yet written write nothing
 
@@ -716,9 +735,11 @@ def complete_frames(
     pictures = None
     try:
         pictures = PictureProcesses.start(s, len(keys))  # their start and imports overlap the model's load
-        completer = s.load_completer() if completer is None else completer
+        # onnxruntime's threads leave a core to the track worker, as threads_beside_worker does torch's
+        beside = max(1, usable_cpus() - 1) if tracks is not None and tracks.worker_process is not None else None
+        completer = s.load_completer(beside) if completer is None else completer
         s.check_snap(completer)
-        fallback = s.load_fallback()  # loaded beside the main model, before any output exists
+        fallback = s.load_fallback(beside)  # loaded beside the main model, before any output exists
         # the folder is removed again if nothing could be written; the recording is written only when the run ends
         with (
             output_folder(s.out) as out,

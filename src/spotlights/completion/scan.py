@@ -184,15 +184,16 @@ class CompletionOptions:
             heading_margin=HEADING_MARGIN if self.heading_margin is None else float(self.heading_margin),
         )
 
-    def load_completer(self) -> BaseCompleter:
+    def load_completer(self, threads: int | None = None) -> BaseCompleter:
         """The model of :attr:`checkpoint` run with :attr:`runtime` on :attr:`device` at :attr:`precision`
-        (:func:`spotlights.learning.runtime.load_completer`)."""
+        (:func:`spotlights.learning.runtime.load_completer`); onnxruntime's threads: :attr:`threads`, else
+        ``threads`` (None: its default; a run with a track worker leaves that process a core)."""
         return load_completer(
             self.checkpoint,
             runtime=self.runtime,
             device=self.device,
             precision=self.precision,
-            threads=check_threads(self.threads),
+            threads=check_threads(self.threads) or threads,
         )
 
     def check_snap(self, completer: BaseCompleter) -> None:
@@ -200,15 +201,15 @@ class CompletionOptions:
         require_rays_to_snap`, which :func:`~spotlights.completion.frame.complete_scene` runs again per scan)."""
         require_rays_to_snap(completer, self.snap)
 
-    def load_fallback(self) -> BaseCompleter | None:
-        """The model of :attr:`fallback_model` (same device, precision and runtime where it can run with it:
+    def load_fallback(self, threads: int | None = None) -> BaseCompleter | None:
+        """The model of :attr:`fallback_model` (same device, precision, threads and runtime where it can run with it:
         :func:`~spotlights.learning.runtime.fallback_runtime`), or None."""
         fb = self.fallback_model
         if fb is None:
             return None
-        return load_completer(
-            fb, runtime=fallback_runtime(self.runtime, fb), device=self.device, precision=self.precision
-        )
+        runtime = fallback_runtime(self.runtime, fb)
+        threads = check_threads(self.threads) or threads
+        return load_completer(fb, runtime=runtime, device=self.device, precision=self.precision, threads=threads)
 
 
 @dataclass(kw_only=True)
