@@ -90,7 +90,8 @@ def main() -> int:
                     d[int(i)]
                 read_one[name] = (time.process_time() - c0) / len(picks) * 1e6
     res = {
-        "command": "python benchmarks/dataset_compression.py " + " ".join(sys.argv[1:]),
+        "command": "python benchmarks/dataset_compression.py "
+        + " ".join(Path(a).name if a == args.data else a for a in sys.argv[1:]),
         "cpu": cpu_description(),
         "load_average": list(os.getloadavg()),
         "data": {"file": Path(args.data).name, "samples": int(len(arrays["partial"])), "raw_mb": raw_mb},

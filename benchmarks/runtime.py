@@ -393,7 +393,8 @@ def main() -> int:
     from spotlights.learning.cpu import cpu_description
 
     res: dict = {
-        "command": "python benchmarks/runtime.py " + " ".join(sys.argv[1:]),
+        "command": "python benchmarks/runtime.py "
+        + " ".join(Path(a).name if a == args.data else a for a in sys.argv[1:]),
         "cpu": cpu_description(),
         "load_average_at_start": list(os.getloadavg()),
         "python": sys.version.split()[0],

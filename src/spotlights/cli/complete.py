@@ -155,8 +155,9 @@ def add_completion_arguments(p, single: bool) -> None:
         choices=("auto", "fp32", "bf16"),
         default="auto",
         help="torch runtime: bf16 autocast or fp32; auto (default): bf16 where the CPU multiplies bfloat16 natively "
-        "(avx512_bf16 or AMX flags), else fp32; onnxruntime runs fp32. bf16 measured 1.4-2.1x faster per scan than "
-        "fp32 on a CPU with avx512_bf16 (docs/studies/speed.md); depths move by up to ~0.01",
+        "(avx512_bf16 or AMX flags), else fp32; onnxruntime runs fp32. bf16 took 2.0-2.6x less CPU per scan than fp32 "
+        "(one thread, batch 1-32) on an AMD EPYC with avx512_bf16 and no AMX; depths move by up to 0.02 "
+        "(docs/studies/speed.md)",
     )
     p.add_argument(
         "--threads",

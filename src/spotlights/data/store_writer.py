@@ -15,8 +15,8 @@ SPLITS = ("train", "val", "test")
 # HDF5 compression of every array dataset (portable: gzip is in every HDF5 build).
 COMPRESSION = dict(compression="gzip", compression_opts=4, shuffle=True)
 # The per-sample arrays (/samples/*: one small chunk per partial scan, most of a build's writes): lzf, h5py's own
-# filter (every h5py reads it; HDF5 tools outside h5py need its plugin). On the test cars' 7,900 samples it wrote
-# 2.5x faster and read 1.8x faster than gzip for a file 6% larger, the arrays read back the same
+# filter (every h5py reads it; HDF5 tools outside h5py need its plugin). On 7,900 samples of the cars it took 2.3x
+# less CPU to write than gzip and 1.5-1.9x less to read, for a file 6% larger, the arrays read back the same
 # (docs/studies/speed.md, benchmarks/dataset_compression.py).
 SAMPLE_COMPRESSION = dict(compression="lzf", shuffle=True)
 
