@@ -435,8 +435,9 @@ class Completer(BaseCompleter):
 
     Attributes: those of :class:`BaseCompleter`, and ``device`` (a torch device), ``checkpoint`` (the loaded
     checkpoint dict, weights included), ``precision``: ``"fp32"`` (default) or ``"bf16"``: the forward pass under
-    bfloat16 autocast (weights stay float32; decoding in float32). On CPUs with AVX512-BF16/AMX about 3x
-    faster at batch 32; the depths move by up to ~1e-2 (docs/learning.md, "Inference speed").
+    bfloat16 autocast (weights stay float32; decoding in float32). On an AMD EPYC with avx512_bf16 (no AMX) it took
+    2.0-2.6x less CPU per scan than fp32 (one thread, batch 1-32); the depths move by up to 0.02
+    (docs/studies/speed.md).
     """
 
     def __init__(self, model: Any, checkpoint: dict, device: Any, precision: str = "fp32") -> None:

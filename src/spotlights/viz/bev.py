@@ -221,8 +221,9 @@ def bev_image(
             while len(text) > 8 and draw.textlength(text, font=small) > CAPTION_WIDTH - 12:
                 text = text[:-2] + "\u2026" if text.endswith("\u2026") else text[:-1] + "\u2026"
             draw.text((x, r0 + 20 + 16 * i), text, fill=BLACK, font=small, anchor="lt")
-    if title:
-        draw.text((plot_width / 2, r0 / 2), title, fill=BLACK, font=font, anchor="mm")
+    if title:  # centred over the plot, moved right as far as it needs to start inside the picture
+        cx = max(plot_width / 2, draw.textlength(title, font=font) / 2 + 6)
+        draw.text((cx, r0 / 2), title, fill=BLACK, font=font, anchor="mm")
     return pic, canvas
 
 
