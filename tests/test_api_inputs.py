@@ -87,12 +87,12 @@ def test_complete_scene_refuses_a_completer_a_config_or_axes_it_cannot_use():
 @pytest.mark.parametrize(
     "options, message",
     [
-        ({"margin": "0.2"}, "margin must be a number, got '0.2'"),
-        ({"heading_margin": None}, "heading_margin must be a number"),
-        ({"min_points": 2.5}, "min_points must be a whole number, got 2.5"),
+        ({"margin": "0.2"}, "`margin` must be a number, got '0.2'"),
+        ({"heading_margin": None}, "`heading_margin` must be a number"),
+        ({"min_points": 2.5}, "`min_points` must be a whole number, got 2.5"),
         ({"seed": -1}, "the seed must be a whole number in 0..2\\*\\*63-1, got -1"),
         ({"seed": 2**63}, "the seed must be a whole number in 0..2\\*\\*63-1"),
-        ({"seed": 1.0}, "seed must be a whole number"),
+        ({"seed": 1.0}, "`seed` must be a whole number"),
         ({"clip": 5.0}, r"clip must be a depth threshold in \[0, 1\]"),
         ({"clip": float("nan")}, r"clip must be a depth threshold in \[0, 1\]"),
         ({"clip": "none"}, r"clip must be a depth threshold"),

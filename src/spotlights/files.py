@@ -58,9 +58,11 @@ class RigOptions:
         """The :class:`~spotlights.geometry.rig.RigSpec` (box rigs become rigs with an object's box)."""
         kind = self.rig_kind or "cap"
         box = {"targets": self.box_targets, "scale": self.box_scale, "cap_share": self.box_cap_share}
-        given = [f"--box-{k.replace('_', '-')}" for k, v in box.items() if v is not None]
+        given = [f"box_{k}" for k, v in box.items() if v is not None]
         if kind == "cap" and given:
-            raise ParameterError(f"{', '.join(given)} only apply with --rig-kind box")
+            raise ParameterError(
+                f"{', '.join(f'`{g}`' for g in given)} only apply with `rig_kind` box", *given, "rig_kind"
+            )
         return make_rig_spec(
             self.primary,
             self.secondary,
@@ -224,7 +226,7 @@ def show_file(s: ShowSettings, say: Say = silent) -> Path | None:
     out = Path(s.out) if s.out else Path.cwd() / (src.stem + ".png")
     if not src.exists():
         raise InputFileError(src, "no such file")
-    check_suffix(s.html, (".html", ".htm"), "the page (HTML)", "--html")
+    check_suffix(s.html, (".html", ".htm"), "the page (HTML)", "html")
     check_writable(s.out or (None if s.html else out), s.html)
     if s.html:
         traces, what = html.file_traces(src, clip=s.clip, up=s.up, forward=s.forward)

@@ -15,7 +15,7 @@ import os
 from collections.abc import Callable
 from typing import Any
 
-from .errors import ParameterError
+from .errors import ParameterError, parameter_names, shown
 
 REQUIRED: Any = dataclasses.MISSING
 """The default of an :func:`option` the command line must give (argparse ``required=True``)."""
@@ -75,7 +75,7 @@ More is no speed-up, and OpenMP fails to start (or segfaults) at tens of thousan
 _THREADS_EXPECTED = f"a whole number of threads in 1..{MAX_THREADS} (the bound: 4 per CPU, at least 64)"
 
 
-def check_threads(threads: Any, option: str = "--threads") -> int | None:
+def check_threads(threads: Any, option: str = "threads") -> int | None:
     """``threads`` as an int (None stays None: the default count), or a one-line :class:`ParameterError` naming
     ``option`` when it is not a whole number in 1..:data:`MAX_THREADS` (the one bound of every thread count)."""
     if threads is None:
@@ -86,7 +86,9 @@ def check_threads(threads: Any, option: str = "--threads") -> int | None:
     except (TypeError, ValueError, OverflowError):
         whole = False
     if not whole or not 1 <= n <= MAX_THREADS:
-        raise ParameterError(f"{option}: expected {_THREADS_EXPECTED}, got {threads!r}")
+        raise ParameterError(
+            f"{shown(option)}: expected {_THREADS_EXPECTED}, got {threads!r}", *parameter_names(option)
+        )
     return n
 
 
@@ -105,7 +107,7 @@ in torch). 0..2**63-1 is every seed NumPy, torch and HDF5 all accept."""
 _SEED_EXPECTED = "a whole number in 0..2**63-1"
 
 
-def check_seed(seed: Any, what: str = "--seed") -> int:
+def check_seed(seed: Any, what: str = "seed") -> int:
     """``seed`` as an int, or a one-line :class:`ParameterError` naming ``what`` when it is not a whole number in
     0..:data:`MAX_SEED` (the one bound of every seed)."""
     whole = isinstance(seed, int) and not isinstance(seed, bool)
@@ -114,7 +116,7 @@ def check_seed(seed: Any, what: str = "--seed") -> int:
     elif not whole and isinstance(seed, float) and seed.is_integer():  # 3.0 from a JSON or YAML config
         seed, whole = int(seed), True
     if not whole or not 0 <= seed <= MAX_SEED:
-        raise ParameterError(f"{what} must be {_SEED_EXPECTED}, got {seed!r}")
+        raise ParameterError(f"{shown(what)} must be {_SEED_EXPECTED}, got {seed!r}", *parameter_names(what))
     return int(seed)
 
 
@@ -134,7 +136,7 @@ batch_size_number = number_type(int, lambda v: 1 <= v <= MAX_BATCH, f"a batch si
 """argparse type: a batch size, 1..:data:`MAX_BATCH`."""
 
 
-def check_batch_size(value: Any, what: str = "--batch-size") -> int:
+def check_batch_size(value: Any, what: str = "batch_size") -> int:
     """``value`` as an int, or a one-line :class:`ParameterError` naming ``what`` when it is not a whole number in
     1..:data:`MAX_BATCH` (the one bound of every batch size)."""
     whole = isinstance(value, int) and not isinstance(value, bool)
@@ -142,8 +144,9 @@ def check_batch_size(value: Any, what: str = "--batch-size") -> int:
         value, whole = int(value), True
     if not whole or not 1 <= value <= MAX_BATCH:
         raise ParameterError(
-            f"{what} must be a whole number in 1..{MAX_BATCH} (batch sizes are bounded: memory "
-            f"grows with them), got {value!r}"
+            f"{shown(what)} must be a whole number in 1..{MAX_BATCH} (batch sizes are bounded: memory "
+            f"grows with them), got {value!r}",
+            *parameter_names(what),
         )
     return int(value)
 

@@ -129,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
                 stack.enter_context(contextlib.redirect_stdout(stack.enter_context(open(os.devnull, "w"))))
             return int(args.func(args) or 0)
     except SpotlightsError as exc:
-        print(f"spotlights: error: {exc}", file=sys.stderr)
+        print(f"spotlights: error: {option_names(exc, parser)}", file=sys.stderr)
         return exc.exit_code
     except Terminated:
         print("spotlights: terminated", file=sys.stderr)
@@ -145,6 +145,37 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+
+
+def option_names(exc: SpotlightsError, parser: argparse.ArgumentParser) -> str:
+    """The error's message with the library parameters it names (:attr:`ParameterError.parameters`, shown as
+    ```heading_margin```: :func:`spotlights.errors.shown`) written as the command line's options:
+    ``--heading-margin`` (the option whose ``dest`` it is, in any command; else the name with dashes)."""
+    message = str(exc)
+    names = getattr(exc, "parameters", ())
+    if not names:
+        return message
+    options = _options_by_dest(parser)
+    for name in sorted(names, key=len, reverse=True):
+        dashed = "--" + name.replace("_", "-")
+        flags = options.get(name, [])
+        flag = dashed if dashed in flags or not flags else flags[0]
+        message = message.replace(f"`{name}`", flag)
+    return message
+
+
+def _options_by_dest(parser: argparse.ArgumentParser) -> dict[str, list[str]]:
+    """``{dest: its long options}`` over a parser and all its sub-commands."""
+    out: dict[str, list[str]] = {}
+    for action in parser._actions:  # noqa: SLF001 - argparse has no public walk of its actions
+        for flag in (o for o in action.option_strings if o.startswith("--")):
+            if flag not in out.setdefault(action.dest, []):
+                out[action.dest].append(flag)
+        if isinstance(action, argparse._SubParsersAction):  # noqa: SLF001
+            for sub in action.choices.values():
+                for dest, flags in _options_by_dest(sub).items():
+                    out.setdefault(dest, []).extend(f for f in flags if f not in out[dest])
+    return out
 
 
 def _interrupted() -> int:

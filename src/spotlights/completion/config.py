@@ -11,7 +11,7 @@ import numpy as np
 
 from ..data.real.base import CLASSES
 from ..data.real.scans import MIN_SCAN_POINTS
-from ..errors import ParameterError
+from ..errors import ParameterError, parameter_names, shown
 from ..geometry.evidence import snap_radius
 from ..learning.inference import DEFAULT
 from ..options import check_seed
@@ -87,11 +87,11 @@ class SceneConfig:
         for name in ("margin", "ground_clearance", "heading_margin"):  # snap: snap_radius below
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, numbers.Real):
-                raise ParameterError(f"{name} must be a number, got {v!r}")
+                raise ParameterError(f"{shown(name)} must be a number, got {v!r}", *parameter_names(name))
         for name in ("min_points", "seed"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, numbers.Integral):
-                raise ParameterError(f"{name} must be a whole number, got {v!r}")
+                raise ParameterError(f"{shown(name)} must be a whole number, got {v!r}", *parameter_names(name))
         check_seed(self.seed, "the seed")
         clip = self.clip
         number = isinstance(clip, numbers.Real) and not isinstance(clip, bool)
@@ -115,8 +115,10 @@ class SceneConfig:
         object.__setattr__(self, "snap", snap_radius(self.snap, self.snap_mirror) or 0.0)  # None (off): 0.0
         if self.snap > 0 and self.heading_check:
             raise ParameterError(
-                "--snap does not go with --heading-check: the check compares how close each heading's completion "
-                "comes to the observed points, and snapping puts both on them"
+                "`snap` does not go with `heading_check`: the check compares how close each heading's completion "
+                "comes to the observed points, and snapping puts both on them",
+                "snap",
+                "heading_check",
             )
         if self.classes is not None:
             bad = [c for c in self.classes if c not in CLASSES]

@@ -35,7 +35,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from ..data.vehicle_classes import VEHICLE_CLASSES, canonical_class
-from ..errors import InputFileError, ParameterError
+from ..errors import InputFileError, ParameterError, parameter_names, shown
 from ..geometry.boxes import FLIP_Z, Box, crop_boxes
 from ..geometry.neighbors import serial_queries
 from ..geometry.rotations import is_rotation, rigid_transform
@@ -377,8 +377,9 @@ def require_rays_to_snap(completer, snap: float | None) -> None:
     point-set model) to snap: it could not snap a single box. (A point-set fallback completes unsnapped.)"""
     if snap and getattr(completer, "rig", None) is None:
         raise ParameterError(
-            f"--snap: {getattr(completer, 'model_name', 'this model')} has no rays to snap; snapping to the observed "
-            "points needs an SA-Net (a point-set fallback completes its boxes unsnapped)"
+            f"`snap`: {getattr(completer, 'model_name', 'this model')} has no rays to snap; snapping to the observed "
+            "points needs an SA-Net (a point-set fallback completes its boxes unsnapped)",
+            "snap",
         )
 
 
@@ -386,7 +387,10 @@ def require_sensor(sensor, name: str = "sensor") -> None:
     """Raise :class:`ParameterError` unless ``sensor`` (the LiDAR's place in the scan's frame, metres; option
     ``name``) is None or three finite numbers."""
     if sensor is not None and (np.shape(sensor) != (3,) or not np.all(np.isfinite(np.asarray(sensor, dtype=float)))):
-        raise ParameterError(f"{name}: give the LiDAR's X Y Z in the scan's frame (metres), got {sensor!r}")
+        raise ParameterError(
+            f"{shown(name)}: give the LiDAR's X Y Z in the scan's frame (metres), got {sensor!r}",
+            *parameter_names(name),
+        )
 
 
 def snap_options(completer, snap: float | None, snap_mirror: bool, todo: Sequence[ObjectResult] = ()) -> dict:

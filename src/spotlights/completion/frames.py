@@ -159,13 +159,13 @@ class ReaderOptions:
         elif self.format == "generic":
             options["boxes"] = self.boxes
         for name, val, fmts in (
-            ("--velodyne", self.velodyne != "auto", ("kitti",)),
-            ("--sequence", self.sequence, ("kitti360", "nuscenes")),
-            ("--frames", frames is not None, ("kitti360",)),
-            ("--boxes", self.boxes, ("generic",)),
+            ("velodyne", self.velodyne != "auto", ("kitti",)),
+            ("sequence", self.sequence, ("kitti360", "nuscenes")),
+            ("frames", frames is not None, ("kitti360",)),
+            ("boxes", self.boxes, ("generic",)),
         ):
             if val and self.format not in fmts:
-                raise ParameterError(f"{name} applies to --format {' or '.join(fmts)} only")
+                raise ParameterError(f"`{name}` applies to `format` {' or '.join(fmts)} only", name, "format")
         return open_reader(self.source, self.format, **options)
 
 
@@ -212,8 +212,10 @@ class FramesSettings(ReaderOptions, CompletionOptions):
         a point-cloud file and for the options of one scan (its boxes, axes, crop, per-file outputs)."""
         if Path(s.out).suffix.lower() in POINT_SUFFIXES:
             raise ParameterError(
-                f"--out {s.out}: {s.input} is a multi-frame scene, written to a folder: give --out DIR "
-                "(DIR/[SEQUENCE/]FRAME.ply per frame, summary.json; with --fuse tracks/ and tracks.json)"
+                f"`out` {s.out}: {s.input} is a multi-frame scene, written to a folder: give `out` DIR "
+                "(DIR/[SEQUENCE/]FRAME.ply per frame, summary.json; with `fuse` tracks/ and tracks.json)",
+                "out",
+                "fuse",
             )
         for name, given in (
             ("--boxes/--calib/--box/--center/--size/--yaw", (s.boxes, s.calib, s.box, s.center, s.size, s.yaw)),
@@ -224,8 +226,9 @@ class FramesSettings(ReaderOptions, CompletionOptions):
             if any(v is not None for v in given):
                 raise ParameterError(
                     f"{name} apply to one scan; {s.input} is a multi-frame scene (its box files name the boxes, z "
-                    "up; DIR gets FRAME.json per frame and summary.json; 'real complete --format generic' draws "
-                    "pictures, per-object files and pages)"
+                    "up; DIR gets FRAME.json per frame and summary.json; 'real complete `format` generic' draws "
+                    "pictures, per-object files and pages)",
+                    "format",
                 )
         return cls(
             **{f.name: getattr(s, f.name) for f in fields(CompletionOptions)},
@@ -261,7 +264,11 @@ class FramesSettings(ReaderOptions, CompletionOptions):
                 plan.close()
                 raise
         if self.refine_boxes:
-            raise ParameterError("--refine-boxes needs --fuse all, past:K or centered:K (the frames to register to)")
+            raise ParameterError(
+                "`refine_boxes` needs `fuse` all, past:K or centered:K (the frames to register to)",
+                "refine_boxes",
+                "fuse",
+            )
         return None
 
 
@@ -323,7 +330,7 @@ def picture_workers(asked: int | None, n_frames: int) -> int:
     else:
         n = int(asked)
     if n < 0:
-        raise ParameterError(f"--picture-workers must be >= 0, got {n}")
+        raise ParameterError(f"`picture_workers` must be >= 0, got {n}", "picture_workers")
     return 0 if n_frames < 2 else min(n, n_frames)
 
 
@@ -693,7 +700,7 @@ def complete_frames(
         reader = s.open()
         keys = select_frames(reader.frame_keys(), s.frames)
         if not keys:
-            raise ParameterError("--frames selects no frame")
+            raise ParameterError("`frames` selects no frame", "frames")
         config = s.scene_config()
         if s.rerun is not None:
             check_rerun_path(s.rerun)
@@ -732,7 +739,9 @@ def complete_input(
     summary). ``say``, ``warn`` and ``completer`` as those functions take them."""
     if s.multi_frame:
         if s.sensor is not None:
-            raise ParameterError(f"{s.input}: --sensor is for one scan; a multi-frame scene's frames give their own")
+            raise ParameterError(
+                f"{s.input}: `sensor` is for one scan; a multi-frame scene's frames give their own", "sensor"
+            )
         return complete_frames(FramesSettings.of_scene(s), say=say, warn=warn, completer=completer)
     return complete_scan(s, say=say, warn=warn, completer=completer)
 

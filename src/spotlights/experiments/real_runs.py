@@ -170,18 +170,21 @@ class EvaluateSettings:
     def scoring(self) -> RealEvaluationSettings:
         """The :class:`~.real_evaluation.RealEvaluationSettings` of these options, checked (one-line errors)."""
         if self.reference_split and not self.reference:
-            raise ParameterError("--reference-split needs --reference DATASET.h5")
+            raise ParameterError("`reference_split` needs `reference` DATASET.h5", "reference_split", "reference")
         if self.equal_points < 0:
-            raise ParameterError(f"--equal-points must be >= 0, got {self.equal_points}")
+            raise ParameterError(f"`equal_points` must be >= 0, got {self.equal_points}", "equal_points")
         if not (self.equal_density >= 0 and self.equal_density < float("inf")):
-            raise ParameterError(f"--equal-density must be a voxel size >= 0, got {self.equal_density}")
+            raise ParameterError(
+                f"`equal_density` must be a voxel size >= 0, got {self.equal_density}", "equal_density"
+            )
         margin = HEADING_MARGIN if self.heading_margin is None else self.heading_margin
         if not 0.0 <= margin < 1.0:
-            raise ParameterError(f"--heading-margin must be in [0, 1), got {self.heading_margin}")
+            raise ParameterError(f"`heading_margin` must be in [0, 1), got {self.heading_margin}", "heading_margin")
         n = len(self.checkpoints)
         if self.names is not None and (len(self.names) != n or len(set(self.names)) != len(self.names)):
             raise ParameterError(
-                f"--names: give {n} distinct names, one per checkpoint, got {len(self.names)}: " + " ".join(self.names)
+                f"`names`: give {n} distinct names, one per checkpoint, got {len(self.names)}: " + " ".join(self.names),
+                "names",
             )
         return RealEvaluationSettings(
             classes=parse_classes(self.classes),
@@ -306,9 +309,9 @@ def show_file(s: ShowSettings, say: Say = silent) -> Path | None:
     """Draw one frame of ``s.file``: the raw scan (grey), partial inputs (purple) and completions (green) of the
     ``s.max_objects`` objects with most points, as a PNG and/or an HTML page. Returns the PNG (None: page only)."""
     if s.max_objects < 1:
-        raise ParameterError("--max-objects must be >= 1")
+        raise ParameterError("`max_objects` must be >= 1", "max_objects")
     check_suffix(s.out, (".png",), "the picture")
-    check_suffix(s.html, (".html", ".htm"), "the page (HTML)", "--html")
+    check_suffix(s.html, (".html", ".htm"), "the page (HTML)", "html")
     obs = read_observations(s.file)
     rows = frame_rows(obs, s.sequence, s.frame)
     rows = sorted(rows, key=lambda i: -int(obs.n_points_raw[i]))[: s.max_objects]
@@ -316,7 +319,7 @@ def show_file(s: ShowSettings, say: Say = silent) -> Path | None:
     check_writable(s.out or (None if s.html else default_out), s.html)
     completions, model = None, None
     if s.no_completion and s.checkpoint:
-        raise ParameterError("--no-completion draws no model: it takes no --checkpoint")
+        raise ParameterError("`no_completion` draws no model: it takes no `checkpoint`", "no_completion", "checkpoint")
     if not s.no_completion:
         completer = load_completers([s.checkpoint or "default"], s.device)[0]
         completions = complete_all(

@@ -171,7 +171,9 @@ def export_onnx(checkpoint, out, opset: int = OPSET, n_input: int = 256) -> Path
     _require("onnxscript")  # torch's ONNX exporter
     newest = int(onnx.defs.onnx_opset_version())
     if not MIN_OPSET <= int(opset) <= newest:
-        raise ParameterError(f"--opset {opset}: ONNX opsets {MIN_OPSET} to {newest} can be written (default {OPSET})")
+        raise ParameterError(
+            f"`opset` {opset}: ONNX opsets {MIN_OPSET} to {newest} can be written (default {OPSET})", "opset"
+        )
     path = resolve_checkpoint(checkpoint)
     ckpt = load_checkpoint(path)
     model = model_from_checkpoint(ckpt, torch.device("cpu"))
@@ -222,8 +224,9 @@ def export_onnx(checkpoint, out, opset: int = OPSET, n_input: int = 256) -> Path
         written = {o.version for o in proto.opset_import if o.domain in ("", "ai.onnx")}
         if written != {int(opset)}:  # the exporter could not convert the graph and kept its own opset
             raise ParameterError(
-                f"--opset {opset}: the exporter cannot write this model at opset {opset} "
-                f"(it wrote {', '.join(map(str, sorted(written)))}); try {OPSET} or higher"
+                f"`opset` {opset}: the exporter cannot write this model at opset {opset} "
+                f"(it wrote {', '.join(map(str, sorted(written)))}); try {OPSET} or higher",
+                "opset",
             )
         strip_node_metadata(proto)
         del proto.metadata_props[:]

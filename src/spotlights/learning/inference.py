@@ -674,7 +674,9 @@ def complete_scan(
     if crop is not None:
         unit = unit[box.contains(pts, margin=float(crop))]
         if len(unit) == 0:
-            raise ParameterError("no scan point lies inside the box (after --crop); check the box and the scan's frame")
+            raise ParameterError(
+                "no scan point lies inside the box (after `crop`); check the box and the scan's frame", "crop"
+            )
     partial = prepare_partial(unit, n_input, seed=seed, method=resample_method)
     done = complete_in_boxes(completer, partial[None], box.size[None], clip=clip)[0]
     return {
