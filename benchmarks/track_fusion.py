@@ -41,7 +41,7 @@ of ``--speed-threads``, ``--repeats`` times: CPU seconds per frame of the proces
 frames per second, the load average before and after each run, and the ratios of this code to the other
 measured side by side (on a shared machine the honest number)::
 
-    nice -n 10 python benchmarks/track_fusion.py --against /work/main/src --refine-boxes --precision bf16 \\
+    nice -n 10 python benchmarks/track_fusion.py --against src --refine-boxes --precision bf16 \\
         --speed-threads 1 2 --json docs/results/real/track_fusion_speed_side_by_side.json
 """
 

@@ -4,7 +4,7 @@ frame, with the box grown by 0.15 m drawn as dots; titles give the object's size
 of points inside the grown box before the clamp.
 
     PYTHONPATH=src python3 scripts/class_sheet.py nuscenes.h5 --classes truck,bus,trailer \\
-        --checkpoint default run/best.pt --names default classes --out docs/results/i27/scene0523_sheet.png
+        --checkpoint default run/best.pt --names default classes --out docs/results/classes/scene0523_sheet.png
 
 ``--projections``: instead of the 3-D views, each completion seen from the side (x-z) and from above (x-y) in the
 box frame, metres, with the observed points (purple) and the box (dotted): profiles that a perspective view hides

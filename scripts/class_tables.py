@@ -3,7 +3,7 @@ JSONs: inside the grown box before any clamp, fidelity, consistency at equal den
 
     PYTHONPATH=src python3 scripts/class_tables.py --synthetic default.json classes.json \\
         --real nuscenes=default-nuscenes.json,classes-nuscenes.json av2=default-av2.json,classes-av2.json \\
-        --out docs/results/i27/classes
+        --out docs/results/classes/classes
 """
 
 from __future__ import annotations

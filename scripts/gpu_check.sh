@@ -12,7 +12,7 @@ set -uo pipefail
 cd "$(dirname "$0")/.." || exit 2
 PY=${PYTHON:-python3}
 BUNDLE=${GPU_BUNDLE:-.whl}
-SITE=${GPU_SITE:-/tmp/spotlights-site}
+SITE=${GPU_SITE:-${TMPDIR:-/tmp}/spotlights-site}
 DEST=${OUT:-gpu-check}
 mkdir -p "$DEST" || exit 2
 export PYTHONPATH="$PWD/src${PYTHONPATH:+:$PYTHONPATH}"

@@ -16,7 +16,7 @@ if [ $# -lt 1 ] || [ "$1" = "-h" ] || [ "$1" = "--help" ]; then
 fi
 PY=${PYTHON:-python3}
 BUNDLE=${GPU_BUNDLE:-.whl}
-SITE=${GPU_SITE:-/tmp/spotlights-site}
+SITE=${GPU_SITE:-${TMPDIR:-/tmp}/spotlights-site}
 export PYTHONPATH="$PWD/src${PYTHONPATH:+:$PYTHONPATH}"
 NEEDED="import numpy, h5py, yaml, tqdm, trimesh, pykdtree, rtree, pypcd4, scipy"  # torch: the machine's own
 if ! "$PY" -c "$NEEDED" 2>/dev/null; then

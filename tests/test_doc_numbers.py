@@ -125,7 +125,7 @@ def test_readme_table2_fidelity():
 
 
 def test_suv_hold_out_of_the_ray_local_model():
-    gen = _json("fair/i26/generalisation_suv_i26.json")
+    gen = _json("fair/ray_local/generalisation_suv.json")
     (local,) = [k for k in gen["rows"] if k.startswith("sanet-local-nosuv")]
     row, ratio = gen["rows"][local], gen["ratio_held_out_over_in_distribution"][local]
     _says(
@@ -140,8 +140,8 @@ def test_suv_hold_out_of_the_ray_local_model():
 
 def _real_cell(name: str, where: str, cls: str) -> str:
     """One cell of the issue-27 real-data tables: inside / fidelity / consistency at equal density of class ``cls``
-    in ``docs/results/i27/{name}-{where}.json``, as the docs print it."""
-    m = _json(f"i27/{name}-{where}.json")["models"][0]
+    in ``docs/results/classes/{name}-{where}.json``, as the docs print it."""
+    m = _json(f"classes/{name}-{where}.json")["models"][0]
     ins, fid = m["inside_box"][cls], m["classes"][cls]["fidelity"]
     cd = m["equal_density"]["classes"][cls]["cd"]
     return f"{100 * ins:.1f}% / {fid:.4f} / {cd:.4f}"
@@ -162,7 +162,7 @@ def test_issue27_weight0_control():
     """docs/learning.md's weight-0 control table: nuScenes inside per class of the three fine-tunes, from their JSONs."""
 
     def inside(name: str) -> str:
-        m = _json(f"i27/{name}-nuscenes.json")["models"][0]
+        m = _json(f"classes/{name}-nuscenes.json")["models"][0]
         return " / ".join(f"{100 * m['inside_box'][c]:.1f}" for c in ("trailer", "bus", "truck", "car")) + "%"
 
     row = " | ".join(inside(n) for n in ("classes", "classes-w0", "classes-box30"))
@@ -232,7 +232,7 @@ def test_issue27_weight60_rows():
         "docs/real-data.md",
         f"| nuScenes trailer (12) | {cell('classes-box30', 'nuscenes', 'trailer')} | **{ins}** / {rest} |",
     )
-    acc = _summary(_json("i27/cars-test_classes-w60.json"), "sanet-hit")["accuracy"]
+    acc = _summary(_json("classes/cars-test_classes-w60.json"), "sanet-hit")["accuracy"]
     _says("docs/real-data.md", f"cars are slightly more accurate ({acc:.5f} against 0.01738")
 
 
@@ -250,9 +250,9 @@ def test_issue27_class_template_rows():
         ins, fid, cd = cell(m, "av2", "truck").split(" / ")
         truck.append(f"{ins} / {'**' + fid + '**' if k >= 2 else fid} / {cd}")
     _says("docs/real-data.md", "| AV2 truck (1) | " + " | ".join(truck) + " |")
-    acc = [_summary(_json(f"i27/cars-test_{m}.json"), "sanet-hit")["accuracy"] for m in names]
+    acc = [_summary(_json(f"classes/cars-test_{m}.json"), "sanet-hit")["accuracy"] for m in names]
     _says("docs/real-data.md", f"{acc[0]:.5f}, {acc[1]:.5f}, {acc[2]:.5f}, **{acc[3]:.5f}**")
-    fid = _json("i27/classes-tmpl100-av2.json")["models"][0]["classes"]["truck"]["fidelity"]
+    fid = _json("classes/classes-tmpl100-av2.json")["models"][0]["classes"]["truck"]["fidelity"]
     assert fid <= 0.04  # the issue's target, met by the shipped fallback on AV2's truck
 
 
@@ -260,7 +260,7 @@ def test_issue27_family_model_rows():
     """docs/real-data.md's class-family table: both models' held-out trailers and scene-0523 trailers, from the JSONs."""
 
     def synth(name: str) -> str:
-        g = _json(f"i27/synthetic_{name}.json")["results"][0]["groups"]["procedural/trailer"]
+        g = _json(f"classes/synthetic_{name}.json")["results"][0]["groups"]["procedural/trailer"]
         return f"{g['accuracy']:.4f} / {g['completeness']:.4f}"
 
     cls, fam = synth("classes-tmpl100"), synth("family-trailer")
@@ -277,13 +277,13 @@ def test_issue27_family_model_rows():
 
 def test_frame_loop_speed_stop36_side_by_side():
     """The stop-36 side-by-side: the frame loop's medians and the per-round ratios the docs quote."""
-    d = _json("real/track_fusion_speed_stop36.json")["summary"]["threads_1"]
+    d = _json("real/track_fusion_speed.json")["summary"]["threads_1"]
     new, old = d["median"]["this"]["fps_loop"], d["median"]["other"]["fps_loop"]
     _says("docs/real-data.md", f"**{new:.2f} frames/s against {old:.2f}**")
     a, b, c = (f"{r:.2f}" for r in d["loop_ratio_this_over_other"])
     _says("docs/real-data.md", f"per round {a}, {b} and {c} of the")
     assert new < 10  # the docs say the target is not met
-    runs = _json("real/track_fusion_speed_stop36.json")["runs"]
+    runs = _json("real/track_fusion_speed.json")["runs"]
     assert {r["completed"] for r in runs} == {631} and {r["completed_by"]["classes"] for r in runs} == {320}
     _says("docs/real-data.md", "631 objects completed by both (320 by the class model)")
     cpu = {k: d["median"][k]["cpu_ms_per_frame"] for k in ("this", "other")}
@@ -294,7 +294,7 @@ def test_frame_loop_speed_stop36_side_by_side():
 
 def test_fused_consistency_with_every_vehicle_stop36():
     """The per-class fused/single consistency with the class model as fallback, as docs/real-data.md quotes it."""
-    d = _json("real/track_fusion_fallback_stop36.json")
+    d = _json("real/track_fusion_fallback.json")
     assert d["fallback"] == "classes"
     q = d["quality_on_common_observations"]
     single, fused = q["single"]["consistency_voxel_per_class"], q["fused"]["consistency_voxel_per_class"]
@@ -344,7 +344,7 @@ def _says_frame_pictures(report: str, headline: str, rounds: str) -> None:
 def test_frame_pictures_side_by_side_stop37():
     """The pictures' speed-up of docs/real-data.md, from benchmarks/frame_pictures.py's report."""
     _says_frame_pictures(
-        "real/frame_pictures_stop37.json",
+        "real/frame_pictures.json",
         "{this:.2f} against {other:.2f} frames/s ({x:.2f}x)",
         "each of the three rounds {lo:.1f}-{hi:.1f}x",
     )
@@ -352,8 +352,11 @@ def test_frame_pictures_side_by_side_stop37():
 
 def test_snap_with_track_fusion_stop37():
     """Consistency and fidelity with and without --snap under past:5 fusion, as docs/learning.md quotes them."""
-    q = {s: _json(f"real/track_fusion_{s}_stop37.json")["quality_on_common_observations"] for s in ("nosnap", "snap")}
-    assert _json("real/track_fusion_snap_stop37.json")["snap"] == 0.05
+    q = {
+        s: _json(f"real/track_fusion_{f}.json")["quality_on_common_observations"]
+        for s, f in (("nosnap", "nosnap"), ("snap", "snap_no_rule"))
+    }
+    assert _json("real/track_fusion_snap_no_rule.json")["snap"] == 0.05
     assert q["snap"]["n_observations"] == q["nosnap"]["n_observations"]
     c = {
         s: (v["single"]["consistency_voxel_all_objects"], v["fused"]["consistency_voxel_all_objects"])
@@ -381,7 +384,7 @@ def test_mirrored_snap_rows_stop37():
     _says("docs/learning.md", f"**{rows[snap]['accuracy']:.4f} ({ratio[snap]['accuracy']:.2f}x)**")
     _says("docs/learning.md", f"**{1 - rows[snap]['accuracy'] / rows[plain]['accuracy']:.0%} better**")
     _says("docs/learning.md", f"{rows[snap]['subset_accuracy']:.4f} ({ratio[snap]['subset_accuracy']:.2f}x)")
-    q = _json("real/track_fusion_snap0.08_mirror_stop37.json")["quality_on_common_observations"]
+    q = _json("real/track_fusion_snap0.08_mirror_no_rule.json")["quality_on_common_observations"]
     c = (q["single"]["consistency_voxel_all_objects"], q["fused"]["consistency_voxel_all_objects"])
     _says("docs/learning.md", f"| 0.0469 / 0.0225 | {c[0]:.4f} / {c[1]:.4f} |")
 
@@ -406,7 +409,7 @@ def test_gpu_trained_rows_stop38():
 def test_gpu_trained_real_rows_stop38():
     """The GPU-trained rows of the real-set table (docs/learning.md), from the Table 2 reports they were added to."""
     for name in ("av2", "nuscenes"):
-        models = {m["name"]: m for m in _json(f"real/table2_fair_i26/{name}.json")["models"]}
+        models = {m["name"]: m for m in _json(f"real/table2_ray_local/{name}.json")["models"]}
         for run, label in (("sanet-local-gpu", "ray-local SA-Net"), ("snowflakenet-gpu", "SnowflakeNet")):
             m = models[run]
             row = (
@@ -423,25 +426,25 @@ def test_snap_with_the_occlusion_rule_stop38():
         ("snap", "snap 0.05", "snap"),
         ("snap0.08_mirror", "snap 0.08 mirrored", "snap0.08_mirror"),
     ):
-        t = _summary(_json(f"fair/snap/stop38/table1_{variant}.json"), "sanet-hit")
+        t = _summary(_json(f"fair/snap/occlusion_rule/table1_{variant}.json"), "sanet-hit")
         test_row = f"{t['accuracy']:.5f} / {t['completeness']:.5f} / {t['chamfer_l1']:.5f} / {t['fscore']:.3f}"
-        g = _json(f"fair/snap/stop38/generalisation_{variant}.json")
+        g = _json(f"fair/snap/occlusion_rule/generalisation_{variant}.json")
         rows, ratio = g["scores"]["held_out"]["rows"], g["ratio_held_out_over_in_distribution"]
         plain, snap = "default (p(hit) >= 0.4)", f"default (p(hit) >= 0.4, {key})"
         better = 1 - rows[snap]["accuracy"] / rows[plain]["accuracy"]
         kenney = f"{rows[snap]['accuracy']:.4f} ({ratio[snap]['accuracy']:.2f}x), {better:.0%} better"
         reals = []
         for name in ("av2", "nuscenes"):
-            (m,) = _json(f"real/snap/stop38/{name}_{real}.json")["models"]
+            (m,) = _json(f"real/snap/occlusion_rule/{name}_{real}.json")["models"]
             assert m["snapped"]
             reals.append(f"{m['equal_density']['average']['cd']:.4f} / {m['average']['fidelity']:.4f}")
-        q = _json(f"real/track_fusion_{variant}_stop38.json")["quality_on_common_observations"]
+        q = _json(f"real/track_fusion_{variant}.json")["quality_on_common_observations"]
         fused = (
             f"{q['single']['consistency_voxel_all_objects']:.4f} / {q['fused']['consistency_voxel_all_objects']:.4f}"
         )
         for expected in (test_row, kenney, *reals, fused):
             _says("docs/learning.md", expected)
-    speed = _json("fair/snap/stop38/snap_speed_stop38.json")
+    speed = _json("fair/snap/occlusion_rule/snap_speed.json")
     m = speed["median_ms_per_box"]
     _says(
         "docs/learning.md",
@@ -466,7 +469,7 @@ def test_snapped_track_windows_stop38():
 
 def test_mirror_fine_tune_rows_stop39():
     """The trained mirror's table of docs/learning.md, from benchmarks/generalisation.py's report."""
-    g = _json("fair/mirror/generalisation_mirror_stop39.json")
+    g = _json("fair/mirror/generalisation_mirror.json")
     rows_in, rows_out = g["scores"]["in_distribution"]["rows"], g["scores"]["held_out"]["rows"]
     ratios = g["ratio_held_out_over_in_distribution"]
     for key, thr in (("default", 0.4), ("ft_false/best.pt", 0.3), ("ft_true/best.pt", 0.3)):
@@ -479,12 +482,12 @@ def test_mirror_fine_tune_rows_stop39():
 def test_picture_processes_side_by_side_stop39():
     """The picture processes' speed-up of docs/real-data.md, from benchmarks/frame_pictures.py's report."""
     _says_frame_pictures(
-        "real/frame_pictures_processes_stop39.json",
+        "real/frame_pictures_processes.json",
         "**{this:.2f} against {other:.2f} frames/s ({x:.2f}x)**",
         "each round {lo:.1f}-{hi:.1f}x",
     )
     _says_frame_pictures(
-        "real/frame_pictures_processes_fused_stop39.json",
+        "real/frame_pictures_processes_fused.json",
         "**{this:.2f} against {other:.2f} frames/s ({x:.2f}x)**",
         "each round {lo:.1f}-{hi:.1f}x",
     )
@@ -493,7 +496,7 @@ def test_picture_processes_side_by_side_stop39():
 def test_fallback_speed_side_by_side_stop40():
     """Stop 40's speed of `real complete --fuse past:5 --refine-boxes` with every vehicle completed
     (docs/real-data.md), from benchmarks/track_fusion.py's side-by-side report."""
-    report = _json("real/track_fusion_speed_fallback_stop40.json")
+    report = _json("real/track_fusion_speed_fallback.json")
     med = report["summary"]["threads_1"]["median"]
     this = [r for r in report["runs"] if r["code"] == "this"]
     other = [r for r in report["runs"] if r["code"] == "other"]
@@ -533,10 +536,10 @@ def test_fused_window_input_points_stop40():
 
 def test_car_model_candidates_stop41():
     """Issue 27's car-model candidates (docs/real-data.md, stop 41), from `real evaluate`, `evaluate` and
-    benchmarks/generalisation.py's reports in docs/results/i27/stop41/ (bold marks dropped before comparing)."""
+    benchmarks/generalisation.py's reports in docs/results/car_model/ (bold marks dropped before comparing)."""
     import numpy as np
 
-    base = "i27/stop41"
+    base = "car_model"
     held = _json(f"{base}/generalisation_cands.json")["scores"]["held_out"]["rows"]
     kenney = {k.split(" ")[0]: v["accuracy"] for k, v in held.items()}
     doc = _text(REPO / "docs/real-data.md").replace("**", "")
@@ -557,11 +560,11 @@ def test_car_model_candidates_stop41():
         row = f"| {label} | " + " | ".join(cells) + f" | {kenney[ckpt]:.4f} |"
         assert row in doc, f"docs/real-data.md should hold the row {row!r} (from docs/results/{base})"
     # the stop-39 control: its in-distribution accuracy and Kenney's from stop 39's run, AV2 measured in stop 41
-    gen39 = _json("fair/mirror/generalisation_mirror_stop39.json")["scores"]
+    gen39 = _json("fair/mirror/generalisation_mirror.json")["scores"]
     ((k_in, in39),) = [(k, v) for k, v in gen39["in_distribution"]["rows"].items() if k.startswith("ft_false/")]
     kenney39 = gen39["held_out"]["rows"][k_in]["accuracy"]
     cells = [f"({in39['accuracy']:.4f} on {gen39['in_distribution']['n_samples']} scans)"]
-    cells += [real_cells(_json(f"{base}/av2_ft39.json"), "ft39"), "-"]
+    cells += [real_cells(_json(f"{base}/av2_cars_only.json"), "cars_only"), "-"]
     row = "| stop-39 control | " + " | ".join(cells) + f" | {kenney39:.4f} |"
     assert row in doc, f"docs/real-data.md should hold the row {row!r}"
     # the prose's numbers, each built from the result files
@@ -612,7 +615,7 @@ def test_car_model_candidates_stop41():
     fid60 = np.mean([o["fidelity"] for o in m60["objects"] if o["cls"] == "car"])
     acc60 = _summary(_json(f"{base}/cars-test_mix60.json"), "sanet-hit")["accuracy"]
     frags.append(f"(mix60: {acc60:.4f} and {fid60:.4f})")
-    probe = (RESULTS / "i27/stop42/select_probe.txt").read_text()
+    probe = (RESULTS / "car_model/pick_per_object.txt").read_text()
     acc = dict(re.findall(r"^(\w+) accuracy ([\d.]+)", probe, re.MULTILINE))
     picked, chosen, oracle = re.search(
         r"accuracy ([\d.]+); class model chosen for (\d+%); oracle ([\d.]+)", probe
