@@ -1,4 +1,4 @@
-"""Per class and per source accuracy / completeness of checkpoints on one split of a dataset (issue 27).
+"""Per class and per source accuracy / completeness of checkpoints on one split of a dataset.
 
 Each sample is scored as ``spotlights evaluate`` scores it (the model's output as it is, unit frame, against the
 model's dense ground truth), grouped by its model's source (the name's first part: ``apolloscape-cars``,

@@ -18,7 +18,7 @@ measures the queue for the CPU as much as the work). Frames per second = frames 
 refinement's statuses and the share of vehicle boxes whose refined box moved more than 0.3 m.
 
 ``--fallback auto`` completes the boxes the car model did not learn with the class model, as ``real complete``
-does by default since stop 36 (the benchmark's default stays ``none``: the car model alone, as its earlier results).
+does by default (the benchmark's default stays ``none``: the car model alone, as in its first results).
 
 Usage::
 
@@ -120,7 +120,7 @@ def main(argv=None) -> int:
         "--fallback",
         default="none",
         help="the second model for the boxes the first did not learn, as real complete's --fallback (auto: the "
-        "class model beside the default); default none (the car model alone, as the results before stop 36)",
+        "class model beside the default); default none (the car model alone, as in the first results)",
     )
     ap.add_argument("--fuse", default="past:5")
     ap.add_argument("--refine-boxes", action="store_true")

@@ -1,4 +1,4 @@
-"""A picture sheet of every object of some classes in a real observation file (issue 27): per object (its
+"""A picture sheet of every object of some classes in a real observation file: per object (its
 observation with the most points), the observed points and each checkpoint's completion in the box's unit
 frame, with the box grown by 0.15 m drawn as dots; titles give the object's size and each completion's share
 of points inside the grown box before the clamp.
