@@ -28,7 +28,7 @@ PATTERNS: list[tuple[str, re.Pattern[str]]] = [
     ("iNN name", re.compile(r"(?<![A-Za-z0-9.])i\d{2}(?![0-9])(?=[A-Za-z_/.\-)\]`'\", ]|$)")),
     ("who did it", re.compile(r"\bthe lead\b(?! (?:vehicle|car|truck|object)s?\b)", re.IGNORECASE)),
     ("session", re.compile(r"\bsessions?\b", re.IGNORECASE)),
-    ("when", re.compile(r"\b(?:this|that|each|every|earlier|later|next|previous|last|same|one) stop\b", re.IGNORECASE)),
+    ("when", re.compile(r"\b(?:this|each|every|earlier|later|next|previous|last|same) stop\b", re.IGNORECASE)),
     ("machine path", re.compile(r"(?<![\w.~$}])/(?:work|root)/|(?<![\w.~$}])/tmp/[A-Za-z0-9_]")),
 ]
 
