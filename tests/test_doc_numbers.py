@@ -43,14 +43,19 @@ def test_kitti_002155_completion_count():
     assert frame["checkpoint"] == "default" and frame["every_completion_point_inside_its_sphere"]
     n = f"{frame['completion_points']:,}"
     assert frame["fallback"] == "classes" and frame["completed_by_fallback"] == 1  # the van, by the class model
-    _says("docs/real-data.md", f"{frame['completed']} vehicles completed, {n} completion points: 7 cars by the default")
-    _says("docs/real-data.md", f"the van by the class model in a batch of its own ({n} completion points")
+    _says(
+        "docs/completion.md", f"{frame['completed']} vehicles completed, {n} completion points: 7 cars by the default"
+    )
+    _says("docs/studies/frame-speed.md", f"the van by the class model in a batch of its own ({n} completion points")
     for threads in ("1", "2"):
         ms = f"{1000 * frame['end_to_end_no_picture'][threads]['wall_s']:.0f} ms"
-        _says("docs/real-data.md", f"| end to end without the picture | {ms}" if threads == "1" else f"**{ms}** |")
+        _says(
+            "docs/studies/frame-speed.md",
+            f"| end to end without the picture | {ms}" if threads == "1" else f"**{ms}** |",
+        )
     paper = _json("complete_frame.json")
     assert paper["checkpoint"] == "paper"
-    _says("docs/real-data.md", f"({paper['completion_points']:,} with `--checkpoint paper`)")
+    _says("docs/completion.md", f"({paper['completion_points']:,} with `--checkpoint paper`)")
 
 
 def test_readme_default_model_against_the_paper_sanet():
@@ -58,12 +63,12 @@ def test_readme_default_model_against_the_paper_sanet():
     d = _summary(rep, "sanet-hit", "default")
     p = _summary(rep, "sanet", "paper", variant=1)  # the clipped row (clip 0.2)
     _says(
-        "README.md",
+        "docs/studies/README.md",
         f"accuracy {d['accuracy']:.4f}, completeness {d['completeness']:.4f}, "
         f"**{d['n_points']:,.0f} points per completion**",
     )
     _says(
-        "README.md",
+        "docs/studies/README.md",
         f"the paper-faithful SA-Net's {p['accuracy']:.4f}, {p['completeness']:.4f} and {p['n_points']:.0f} points",
     )
 
@@ -71,26 +76,26 @@ def test_readme_default_model_against_the_paper_sanet():
 def test_readme_fair_table1_rows():
     t1 = _json("fair/table1.json")
     fold, atlas, top = (_summary(t1, m) for m in ("foldingnet", "atlasnet", "topnet"))
-    _says("README.md", f"(FoldingNet {fold['accuracy']:.4f}, AtlasNet {atlas['accuracy']:.4f})")
-    _says("README.md", f"(best baseline: TopNet {top['completeness']:.4f})")
+    _says("docs/studies/README.md", f"(FoldingNet {fold['accuracy']:.4f}, AtlasNet {atlas['accuracy']:.4f})")
+    _says("docs/studies/README.md", f"(best baseline: TopNet {top['completeness']:.4f})")
     sanet = _summary(t1, "sanet", variant=1)  # clip 0.2
-    _says("README.md", f"gets {sanet['accuracy']:.4f} / {sanet['completeness']:.4f}")
+    _says("docs/studies/README.md", f"gets {sanet['accuracy']:.4f} / {sanet['completeness']:.4f}")
 
 
 def test_readme_reproduction_headline():
     t1 = _json("reproduction/tables/table1.json")
     ours, paper = t1["ours"], t1["paper"]
     _says(
-        "README.md",
+        "docs/studies/README.md",
         f"({ours['sanet (clip 0.2)']['average']:.4f} vs TopNet's {ours['topnet']['average']:.4f}; "
         f"the paper: {paper['sanet (clip 0.2)']['average']:.4f} vs {paper['topnet']['average']:.4f})",
     )
     t4 = _json("reproduction/tables/table4.json")
     ours4, paper4 = t4["ours"], t4["paper"]
     angles = ("30", "60", "83")
-    _says("README.md", "hit ratios " + " / ".join(f"{ours4[a]['average']:.1f}" for a in angles))
+    _says("docs/studies/README.md", "hit ratios " + " / ".join(f"{ours4[a]['average']:.1f}" for a in angles))
     paper_ratios = " / ".join(f"{paper4[a]['average']:.1f}" for a in sorted(paper4, key=int))
-    _says("README.md", f"(paper {paper_ratios} %)")
+    _says("docs/studies/README.md", f"(paper {paper_ratios} %)")
 
 
 @pytest.mark.parametrize(
@@ -111,7 +116,7 @@ def test_readme_table2_headline(data, sentence):
         k: f"{models[n]['equal_density']['average']['cd']:.3f}"
         for k, n in (("default", "sanet-hit-dense-f32"), ("topnet", "topnet"), ("foldingnet", "foldingnet"))
     }
-    _says("README.md", sentence.format(**cd))
+    _says("docs/studies/README.md", sentence.format(**cd))
 
 
 def test_readme_table2_fidelity():
@@ -121,7 +126,7 @@ def test_readme_table2_fidelity():
         models = {m["name"]: m for m in _json(f"real/table2_fair/{data}.json")["models"]}
         fid.append(f"{models['sanet-hit-dense-f32']['average']['fidelity']:.3f}")
         baselines += [models[b]["average"]["fidelity"] for b in ("atlasnet", "pcn", "foldingnet", "topnet")]
-    _says("README.md", f"(fidelity {fid[0]} / {fid[1]}; baselines {min(baselines):.3f} or more)")
+    _says("docs/studies/README.md", f"(fidelity {fid[0]} / {fid[1]}; baselines {min(baselines):.3f} or more)")
 
 
 def test_suv_hold_out_of_the_ray_local_model():
@@ -129,13 +134,13 @@ def test_suv_hold_out_of_the_ray_local_model():
     (local,) = [k for k in gen["rows"] if k.startswith("sanet-local-nosuv")]
     row, ratio = gen["rows"][local], gen["ratio_held_out_over_in_distribution"][local]
     _says(
-        "docs/learning.md",
+        "docs/studies/ray-local.md",
         f"| ray-local, trained without SUVs (p(hit) >= 0.5) | {row['in_distribution']['accuracy']:.4f} "
         f"({row['in_distribution']['completeness']:.4f}) | {row['held_out']['accuracy']:.4f} "
         f"({row['held_out']['completeness']:.4f}) | **{ratio['accuracy']:.2f}x** ({ratio['completeness']:.2f}x) |",
     )
     default = gen["rows"]["default (p(hit) >= 0.4)"]["held_out"]["accuracy"]
-    _says("docs/learning.md", f"the one of stop 23 ({default:.6f} on the SUVs)")
+    _says("docs/studies/ray-local.md", f"the one of stop 23 ({default:.6f} on the SUVs)")
 
 
 def _real_cell(name: str, where: str, cls: str) -> str:
@@ -155,7 +160,7 @@ def test_issue27_box_term_rows():
 
     for cls, objects in (("trailer", 12), ("car", 23)):
         row = " | ".join(cell(n, cls) for n in ("classes", "classes-box", "classes-box30"))
-        _says("docs/real-data.md", f"| nuScenes {cls} ({objects}) | {row} |")
+        _says("docs/studies/classes-real.md", f"| nuScenes {cls} ({objects}) | {row} |")
 
 
 def test_issue27_weight0_control():
@@ -166,7 +171,7 @@ def test_issue27_weight0_control():
         return " / ".join(f"{100 * m['inside_box'][c]:.1f}" for c in ("trailer", "bus", "truck", "car")) + "%"
 
     row = " | ".join(inside(n) for n in ("classes", "classes-w0", "classes-box30"))
-    _says("docs/learning.md", f"| nuScenes inside: trailer / bus / truck / car | {row} |")
+    _says("docs/studies/classes.md", f"| nuScenes inside: trailer / bus / truck / car | {row} |")
 
 
 def test_issue27_wider_coverage_candidate():
@@ -176,11 +181,12 @@ def test_issue27_wider_coverage_candidate():
 
     old, new = cell("classes-box30", "nuscenes", "trailer"), cell("classes-v2", "nuscenes", "trailer")
     _says(
-        "docs/real-data.md", f"| nuScenes trailer (12) | {old} | **{new.split(' / ')[0]}** / {new.split(' / ', 1)[1]} |"
+        "docs/studies/classes-real.md",
+        f"| nuScenes trailer (12) | {old} | **{new.split(' / ')[0]}** / {new.split(' / ', 1)[1]} |",
     )
     old, new = cell("classes-box30", "av2", "truck"), cell("classes-v2", "av2", "truck")
     ins, fid, cd = new.split(" / ")
-    _says("docs/real-data.md", f"| AV2 truck (1) | {old} | {ins} / **{fid}** / {cd} |")
+    _says("docs/studies/classes-real.md", f"| AV2 truck (1) | {old} | {ins} / **{fid}** / {cd} |")
 
 
 def test_track_worker_speed_on_a_quiet_machine():
@@ -189,10 +195,11 @@ def test_track_worker_speed_on_a_quiet_machine():
         w, one = med["median"]["worker"], med["median"]["one_process"]
         fps = f"**{w['fps_wall']:.1f}**" if threads == 1 else f"{w['fps_wall']:.1f}"
         _says(
-            "docs/real-data.md", f"| {row} | {w['cpu_ms_per_frame']:.0f} | {w['worker_cpu_ms_per_frame']:.0f} | {fps} ("
+            "docs/studies/frame-speed.md",
+            f"| {row} | {w['cpu_ms_per_frame']:.0f} | {w['worker_cpu_ms_per_frame']:.0f} | {fps} (",
         )
         _says(
-            "docs/real-data.md",
+            "docs/studies/frame-speed.md",
             f"| one process, {threads} torch thread{'s' if threads == 2 else ''} | "
             f"{one['cpu_ms_per_frame']:.0f} | - | {one['fps_wall']:.2f} (",
         )
@@ -203,11 +210,11 @@ def test_track_sequences_truth_floor():
     rep = _json("real/track_sequences_floor_2hz.json")
     floor, one = rep["truth_floor"], rep["completion"]["default"]["true past:1"]
     acc, comp = f"{floor['accuracy_m']:.4f}", f"{floor['completeness_m']:.4f}"
-    _says("docs/learning.md", f"**accuracy {acc} m, completeness {comp} m**")
-    _says("docs/real-data.md", f"score {comp} m completeness (accuracy {acc} m)")
+    _says("docs/studies/fusion.md", f"**accuracy {acc} m, completeness {comp} m**")
+    _says("docs/studies/fusion.md", f"score {comp} m completeness (accuracy {acc} m)")
     target = 0.6 * one["completeness_m"]
     assert target < floor["completeness_m"]  # 40% better than one true-box frame lies below the floor
-    _says("docs/real-data.md", f"better than one true-box frame ({one['completeness_m']:.4f} m) is {target:.4f} m")
+    _says("docs/studies/fusion.md", f"better than one true-box frame ({one['completeness_m']:.4f} m) is {target:.4f} m")
 
 
 def test_issue27_weight60_rows():
@@ -223,17 +230,17 @@ def test_issue27_weight60_rows():
     rows += (("av2", "AV2", "car", 20), ("av2", "AV2", "truck", 1))
     for where, label, cls, n in rows:
         _says(
-            "docs/real-data.md",
+            "docs/studies/classes-real.md",
             f"| {label} {cls} ({n}) | {cell('classes-box30', where, cls)} | {cell('classes-w60', where, cls)} |",
         )
     new = cell("classes-w60", "nuscenes", "trailer")
     ins, rest = new.split(" / ", 1)
     _says(
-        "docs/real-data.md",
+        "docs/studies/classes-real.md",
         f"| nuScenes trailer (12) | {cell('classes-box30', 'nuscenes', 'trailer')} | **{ins}** / {rest} |",
     )
     acc = _summary(_json("classes/cars-test_classes-w60.json"), "sanet-hit")["accuracy"]
-    _says("docs/real-data.md", f"cars are slightly more accurate ({acc:.5f} against 0.01738")
+    _says("docs/studies/classes-real.md", f"cars are slightly more accurate ({acc:.5f} against 0.01738")
 
 
 def test_issue27_class_template_rows():
@@ -244,14 +251,17 @@ def test_issue27_class_template_rows():
 
     rows = [("nuscenes", "nuScenes", c, n) for c, n in (("car", 23), ("truck", 7), ("trailer", 12), ("bus", 1))]
     for where, label, cls, n in rows + [("av2", "AV2", "car", 20)]:
-        _says("docs/real-data.md", f"| {label} {cls} ({n}) | " + " | ".join(cell(m, where, cls) for m in names) + " |")
+        _says(
+            "docs/studies/classes-real.md",
+            f"| {label} {cls} ({n}) | " + " | ".join(cell(m, where, cls) for m in names) + " |",
+        )
     truck = []
     for k, m in enumerate(names):  # the two template models' fidelity in bold: the issue's target met
         ins, fid, cd = cell(m, "av2", "truck").split(" / ")
         truck.append(f"{ins} / {'**' + fid + '**' if k >= 2 else fid} / {cd}")
-    _says("docs/real-data.md", "| AV2 truck (1) | " + " | ".join(truck) + " |")
+    _says("docs/studies/classes-real.md", "| AV2 truck (1) | " + " | ".join(truck) + " |")
     acc = [_summary(_json(f"classes/cars-test_{m}.json"), "sanet-hit")["accuracy"] for m in names]
-    _says("docs/real-data.md", f"{acc[0]:.5f}, {acc[1]:.5f}, {acc[2]:.5f}, **{acc[3]:.5f}**")
+    _says("docs/studies/classes-real.md", f"{acc[0]:.5f}, {acc[1]:.5f}, {acc[2]:.5f}, **{acc[3]:.5f}**")
     fid = _json("classes/classes-tmpl100-av2.json")["models"][0]["classes"]["truck"]["fidelity"]
     assert fid <= 0.04  # the issue's target, met by the shipped fallback on AV2's truck
 
@@ -265,11 +275,11 @@ def test_issue27_family_model_rows():
 
     cls, fam = synth("classes-tmpl100"), synth("family-trailer")
     bold = " / ".join(f"**{v}**" for v in cls.split(" / "))
-    _says("docs/real-data.md", f"| held-out procedural trailers, accuracy / completeness | {bold} | {fam} |")
+    _says("docs/studies/classes-real.md", f"| held-out procedural trailers, accuracy / completeness | {bold} | {fam} |")
     ins, fid, cd = _real_cell("family-trailer", "nuscenes", "trailer").split(" / ")
     c_ins, c_fid, c_cd = _real_cell("classes-tmpl100", "nuscenes", "trailer").split(" / ")
     _says(
-        "docs/real-data.md",
+        "docs/studies/classes-real.md",
         f"| nuScenes scene-0523 trailers (12): inside / fidelity / consistency | {c_ins} / **{c_fid}** / {c_cd} | "
         f"**{ins}** / {fid} / **{cd}** |",
     )
@@ -279,17 +289,17 @@ def test_frame_loop_speed_stop36_side_by_side():
     """The stop-36 side-by-side: the frame loop's medians and the per-round ratios the docs quote."""
     d = _json("real/track_fusion_speed.json")["summary"]["threads_1"]
     new, old = d["median"]["this"]["fps_loop"], d["median"]["other"]["fps_loop"]
-    _says("docs/real-data.md", f"**{new:.2f} frames/s against {old:.2f}**")
+    _says("docs/studies/frame-speed.md", f"**{new:.2f} frames/s against {old:.2f}**")
     a, b, c = (f"{r:.2f}" for r in d["loop_ratio_this_over_other"])
-    _says("docs/real-data.md", f"per round {a}, {b} and {c} of the")
+    _says("docs/studies/frame-speed.md", f"per round {a}, {b} and {c} of the")
     assert new < 10  # the docs say the target is not met
     runs = _json("real/track_fusion_speed.json")["runs"]
     assert {r["completed"] for r in runs} == {631} and {r["completed_by"]["classes"] for r in runs} == {320}
-    _says("docs/real-data.md", "631 objects completed by both (320 by the class model)")
+    _says("docs/studies/frame-speed.md", "631 objects completed by both (320 by the class model)")
     cpu = {k: d["median"][k]["cpu_ms_per_frame"] for k in ("this", "other")}
     work = {k: d["median"][k]["worker_cpu_ms_per_frame"] for k in ("this", "other")}
-    _says("docs/real-data.md", f"the main process {cpu['this']:.0f} against {cpu['other']:.0f} ms a frame")
-    _says("docs/real-data.md", f"the worker {work['this']:.0f} against {work['other']:.0f} ms")
+    _says("docs/studies/frame-speed.md", f"the main process {cpu['this']:.0f} against {cpu['other']:.0f} ms a frame")
+    _says("docs/studies/frame-speed.md", f"the worker {work['this']:.0f} against {work['other']:.0f} ms")
 
 
 def test_fused_consistency_with_every_vehicle_stop36():
@@ -301,10 +311,10 @@ def test_fused_consistency_with_every_vehicle_stop36():
     names = {"car": "cars", "truck": "trucks", "trailer": "trailers"}
     for cls, name in names.items():
         f, s = fused[cls][0], single[cls][0]
-        _says("docs/real-data.md", f"{name} {f:.4f} against {s:.4f} ({f / s:.2f}x)")
+        _says("docs/studies/frame-speed.md", f"{name} {f:.4f} against {s:.4f} ({f / s:.2f}x)")
     a, b = q["fused"]["consistency_voxel_all_objects"], q["single"]["consistency_voxel_all_objects"]
-    _says("docs/real-data.md", f"all objects {a:.4f} against {b:.4f} ({a / b:.2f}x)")
-    _says("docs/real-data.md", f"the {q['n_observations']} observations of Table 2's")
+    _says("docs/studies/frame-speed.md", f"all objects {a:.4f} against {b:.4f} ({a / b:.2f}x)")
+    _says("docs/studies/frame-speed.md", f"the {q['n_observations']} observations of Table 2's")
 
 
 def test_snap_rows_stop37():
@@ -314,21 +324,21 @@ def test_snap_rows_stop37():
     rows, ratio = g["scores"]["held_out"]["rows"], g["ratio_held_out_over_in_distribution"]
     plain, snap = "default (p(hit) >= 0.4)", "default (p(hit) >= 0.4, snap 0.05)"
     assert g["snap"] == [0.05]
-    _says("docs/learning.md", f"{rows[plain]['accuracy']:.4f} ({ratio[plain]['accuracy']:.2f}x the test cars')")
-    _says("docs/learning.md", f"{rows[snap]['accuracy']:.4f} ({ratio[snap]['accuracy']:.2f}x)")
-    _says("docs/learning.md", f"{1 - rows[snap]['accuracy'] / rows[plain]['accuracy']:.0%} better")
+    _says("docs/studies/snap.md", f"{rows[plain]['accuracy']:.4f} ({ratio[plain]['accuracy']:.2f}x the test cars')")
+    _says("docs/studies/snap.md", f"{rows[snap]['accuracy']:.4f} ({ratio[snap]['accuracy']:.2f}x)")
+    _says("docs/studies/snap.md", f"{1 - rows[snap]['accuracy'] / rows[plain]['accuracy']:.0%} better")
 
 
 def _says_snap_test_and_real_rows(table: str, real: str) -> None:
     """A snap table's test-car row (docs/results/fair/snap/TABLE) and its real-set rows (real/snap/SET_REAL.json)."""
     t = _summary(_json(f"fair/snap/{table}"), "sanet-hit")
     _says(
-        "docs/learning.md",
+        "docs/studies/snap.md",
         f"{t['accuracy']:.5f} / {t['completeness']:.5f} / {t['chamfer_l1']:.5f} / {t['fscore']:.3f}",
     )
     for name in ("av2", "nuscenes"):
         (m,) = _json(f"real/snap/{name}_{real}.json")["models"]
-        _says("docs/learning.md", f"{m['equal_density']['average']['cd']:.4f} / {m['average']['fidelity']:.4f}")
+        _says("docs/studies/snap.md", f"{m['equal_density']['average']['cd']:.4f} / {m['average']['fidelity']:.4f}")
 
 
 def _says_frame_pictures(report: str, headline: str, rounds: str) -> None:
@@ -336,9 +346,9 @@ def _says_frame_pictures(report: str, headline: str, rounds: str) -> None:
     this/other frames per second, the median speed-up, and the per-round speed-ups' range (lo, hi)."""
     d = _json(report)
     m = d["median_frames_per_second"]
-    _says("docs/real-data.md", headline.format(this=m["this"], other=m["other"], x=d["speedup_median"]))
+    _says("docs/studies/frame-speed.md", headline.format(this=m["this"], other=m["other"], x=d["speedup_median"]))
     lo, hi = min(d["time_ratio_this_over_other_per_round"]), max(d["time_ratio_this_over_other_per_round"])
-    _says("docs/real-data.md", rounds.format(lo=1 / hi, hi=1 / lo))
+    _says("docs/studies/frame-speed.md", rounds.format(lo=1 / hi, hi=1 / lo))
 
 
 def test_frame_pictures_side_by_side_stop37():
@@ -364,14 +374,14 @@ def test_snap_with_track_fusion_stop37():
     }
     f = {s: (v["single"]["fidelity_own_points"], v["fused"]["fidelity_own_points"]) for s, v in q.items()}
     _says(
-        "docs/learning.md",
+        "docs/studies/snap.md",
         f"is {c['nosnap'][0]:.4f} / {c['nosnap'][1]:.4f} without the snap and {c['snap'][0]:.4f} / {c['snap'][1]:.4f}",
     )
     _says(
-        "docs/learning.md",
+        "docs/studies/snap.md",
         f"{f['nosnap'][0]:.4f} / {f['nosnap'][1]:.4f} without and {f['snap'][0]:.4f} / {f['snap'][1]:.4f} with",
     )
-    _says("docs/learning.md", f"still {c['snap'][1] / c['nosnap'][0]:.2f}x as inconsistent")
+    _says("docs/studies/snap.md", f"still {c['snap'][1] / c['nosnap'][0]:.2f}x as inconsistent")
 
 
 def test_mirrored_snap_rows_stop37():
@@ -381,12 +391,12 @@ def test_mirrored_snap_rows_stop37():
     assert g["snap"] == [0.08] and g["snap_mirror"]
     rows, ratio = g["scores"]["held_out"]["rows"], g["ratio_held_out_over_in_distribution"]
     plain, snap = "default (p(hit) >= 0.4)", "default (p(hit) >= 0.4, snap 0.08 mirrored)"
-    _says("docs/learning.md", f"**{rows[snap]['accuracy']:.4f} ({ratio[snap]['accuracy']:.2f}x)**")
-    _says("docs/learning.md", f"**{1 - rows[snap]['accuracy'] / rows[plain]['accuracy']:.0%} better**")
-    _says("docs/learning.md", f"{rows[snap]['subset_accuracy']:.4f} ({ratio[snap]['subset_accuracy']:.2f}x)")
+    _says("docs/studies/snap.md", f"**{rows[snap]['accuracy']:.4f} ({ratio[snap]['accuracy']:.2f}x)**")
+    _says("docs/studies/snap.md", f"**{1 - rows[snap]['accuracy'] / rows[plain]['accuracy']:.0%} better**")
+    _says("docs/studies/snap.md", f"{rows[snap]['subset_accuracy']:.4f} ({ratio[snap]['subset_accuracy']:.2f}x)")
     q = _json("real/track_fusion_snap0.08_mirror_no_rule.json")["quality_on_common_observations"]
     c = (q["single"]["consistency_voxel_all_objects"], q["fused"]["consistency_voxel_all_objects"])
-    _says("docs/learning.md", f"| 0.0469 / 0.0225 | {c[0]:.4f} / {c[1]:.4f} |")
+    _says("docs/studies/snap.md", f"| 0.0469 / 0.0225 | {c[0]:.4f} / {c[1]:.4f} |")
 
 
 def test_gpu_trained_rows_stop38():
@@ -401,9 +411,9 @@ def test_gpu_trained_rows_stop38():
         assert plan["device"].startswith("NVIDIA H100") and plan["precision"] == "bf16"
         t = _summary(rep, model)
         row = f"{t['accuracy']:.5f} | {t['completeness']:.5f} | {t['chamfer_l1']:.5f} | {t['fscore']:.3f} |"
-        _says("docs/learning.md", f"{plan['steps_done']:,} | {row}")
-        _says("docs/learning.md", f"({gen[gen_row]['accuracy']:.2f}x)")
-        _says("docs/learning.md", f"{plan['step_seconds'] * 1e3:.1f} ms | 10 x {plan['steps_per_interval']:,}")
+        _says("docs/training.md", f"{plan['steps_done']:,} | {row}")
+        _says("docs/training.md", f"({gen[gen_row]['accuracy']:.2f}x)")
+        _says("docs/training.md", f"{plan['step_seconds'] * 1e3:.1f} ms | 10 x {plan['steps_per_interval']:,}")
 
 
 def test_gpu_trained_real_rows_stop38():
@@ -417,7 +427,7 @@ def test_gpu_trained_real_rows_stop38():
                 f"{m['average']['cd']:.4f} | {m['equal_density']['diversity']:.4f} | {m['average']['fidelity']:.4f} | "
                 f"{m['average']['mmd']:.4f} | {m['heading']['rate']:.1%} |"
             )
-            _says("docs/learning.md", row)
+            _says("docs/studies/ray-local.md", row)
 
 
 def test_snap_with_the_occlusion_rule_stop38():
@@ -443,15 +453,15 @@ def test_snap_with_the_occlusion_rule_stop38():
             f"{q['single']['consistency_voxel_all_objects']:.4f} / {q['fused']['consistency_voxel_all_objects']:.4f}"
         )
         for expected in (test_row, kenney, *reals, fused):
-            _says("docs/learning.md", expected)
+            _says("docs/studies/snap.md", expected)
     speed = _json("fair/snap/occlusion_rule/snap_speed.json")
     m = speed["median_ms_per_box"]
     _says(
-        "docs/learning.md",
+        "docs/studies/snap.md",
         f"{m['this']['no sensor']:.1f} ms of CPU a box plain, {m['this']['sensor (occlusion rule)']:.1f} ms",
     )
-    _says("docs/learning.md", f"was {m['other']['no sensor']:.1f} ms before")
-    _says("docs/learning.md", f"{speed['speedup_no_sensor']:.2f}x; `python benchmarks/snap_speed.py")
+    _says("docs/studies/snap.md", f"was {m['other']['no sensor']:.1f} ms before")
+    _says("docs/studies/snap.md", f"{speed['speedup_no_sensor']:.2f}x; `python benchmarks/snap_speed.py")
 
 
 def test_snapped_track_windows_stop38():
@@ -461,7 +471,7 @@ def test_snapped_track_windows_stop38():
         for boxes in ("true", "refined"):
             one, five = rows[f"{boxes} past:1"], rows[f"{boxes} past:5"]
             _says(
-                "docs/learning.md",
+                "docs/studies/fusion.md",
                 f"{one['accuracy_m']:.4f} / {one['completeness_m']:.4f} -> {five['accuracy_m']:.4f} / "
                 f"{five['completeness_m']:.4f} ({five['accuracy_gain']:.0%} / {five['completeness_gain']:.0%})",
             )
@@ -476,7 +486,7 @@ def test_mirror_fine_tune_rows_stop39():
         name = f"{key} (p(hit) >= {thr})"
         a, h, r = rows_in[name], rows_out[name], ratios[name]
         cells = f"{a['accuracy']:.5f} / {a['completeness']:.5f} / {a['fscore']:.3f} | {h['accuracy']:.5f}"
-        _says("docs/learning.md", f"{cells} ({r['accuracy']:.2f}x) | {r['subset_accuracy']:.2f}x |")
+        _says("docs/models.md", f"{cells} ({r['accuracy']:.2f}x) | {r['subset_accuracy']:.2f}x |")
 
 
 def test_picture_processes_side_by_side_stop39():
@@ -501,17 +511,20 @@ def test_fallback_speed_side_by_side_stop40():
     this = [r for r in report["runs"] if r["code"] == "this"]
     other = [r for r in report["runs"] if r["code"] == "other"]
     assert len(this) == len(other) == 5 and all(r["completed"] == 631 for r in this + other)
-    _says("docs/real-data.md", f"**{med['this']['fps_loop']:.2f} against {med['other']['fps_loop']:.2f} frames/s**")
+    _says(
+        "docs/studies/frame-speed.md",
+        f"**{med['this']['fps_loop']:.2f} against {med['other']['fps_loop']:.2f} frames/s**",
+    )
     fps_this = sorted(r["fps_loop"] for r in this)
     fps_other = sorted(r["fps_loop"] for r in other)
     _says(
-        "docs/real-data.md",
+        "docs/studies/frame-speed.md",
         f"every round {fps_this[0]:.2f}-{fps_this[-1]:.2f} against {fps_other[0]:.2f}-{fps_other[-1]:.2f}",
     )
     ratios = report["summary"]["threads_1"]["loop_ratio_this_over_other"]
-    _says("docs/real-data.md", f"{min(ratios):.2f}-{max(ratios):.2f} of the old time")
+    _says("docs/studies/frame-speed.md", f"{min(ratios):.2f}-{max(ratios):.2f} of the old time")
     _says(
-        "docs/real-data.md",
+        "docs/studies/frame-speed.md",
         f"{med['this']['cpu_ms_per_frame']:.0f} against {med['other']['cpu_ms_per_frame']:.0f} ms of CPU a frame",
     )
     assert fps_this[0] >= 10.0  # the claim "met": every round at 10 frames/s or more
@@ -528,7 +541,7 @@ def test_fused_window_input_points_stop40():
     ):
         a, b = big[key], small[key]
         _says(
-            "docs/learning.md",
+            "docs/studies/fusion.md",
             f"{label} {a['accuracy_m']:.4f} / {a['completeness_m']:.4f} against "
             f"{b['accuracy_m']:.4f} / {b['completeness_m']:.4f}",
         )
@@ -542,7 +555,7 @@ def test_car_model_candidates_stop41():
     base = "car_model"
     held = _json(f"{base}/generalisation_cands.json")["scores"]["held_out"]["rows"]
     kenney = {k.split(" ")[0]: v["accuracy"] for k, v in held.items()}
-    doc = _text(REPO / "docs/real-data.md").replace("**", "")
+    doc = _text(REPO / "docs/studies/car-model.md").replace("**", "")
 
     def real_cells(report, name):
         (m,) = [m for m in report["models"] if m["name"] == name]
@@ -558,7 +571,7 @@ def test_car_model_candidates_stop41():
         cells = [f"{test['accuracy']:.5f} / {test['chamfer_l1']:.5f}"]
         cells += [real_cells(_json(f"{base}/cand-{set_}.json"), name) for set_ in ("av2", "nuscenes")]
         row = f"| {label} | " + " | ".join(cells) + f" | {kenney[ckpt]:.4f} |"
-        assert row in doc, f"docs/real-data.md should hold the row {row!r} (from docs/results/{base})"
+        assert row in doc, f"docs/studies/car-model.md should hold the row {row!r} (from docs/results/{base})"
     # the stop-39 control: its in-distribution accuracy and Kenney's from stop 39's run, AV2 measured in stop 41
     gen39 = _json("fair/mirror/generalisation_mirror.json")["scores"]
     ((k_in, in39),) = [(k, v) for k, v in gen39["in_distribution"]["rows"].items() if k.startswith("ft_false/")]
@@ -566,10 +579,9 @@ def test_car_model_candidates_stop41():
     cells = [f"({in39['accuracy']:.4f} on {gen39['in_distribution']['n_samples']} scans)"]
     cells += [real_cells(_json(f"{base}/av2_cars_only.json"), "cars_only"), "-"]
     row = "| stop-39 control | " + " | ".join(cells) + f" | {kenney39:.4f} |"
-    assert row in doc, f"docs/real-data.md should hold the row {row!r}"
+    assert row in doc, f"docs/studies/car-model.md should hold the row {row!r}"
     # the prose's numbers, each built from the result files
-    para = doc[doc.index("A car model for the product path, measured (stop 41") :]
-    para = " ".join(para[: para.index("One model per class family")].split())  # one paragraph, lines joined
+    para = " ".join(doc.split())  # the study page, lines joined
     misses = (RESULTS / base / "fidelity_misses.txt").read_text()
     interior = re.search(r"observed points in the interior: (\d+%)", misses).group(1)
     share = dict(re.findall(r"(\w+): missed points \d+ of \d+; (\d+%) of them in the interior", misses))

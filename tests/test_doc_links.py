@@ -1,0 +1,69 @@
+"""Every relative link of the Markdown docs resolves, and every reference page stays short.
+
+Links are ``[text](target)`` and ``![alt](target)`` outside code blocks and code spans, in README.md and every
+tracked ``.md`` file under ``docs/``. A target with a scheme (``https:``, ``mailto:``) or only an anchor
+(``#section``) is not a file and is skipped; a relative target (anchor dropped) must name a tracked file or
+folder, relative to the page.
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)")
+MAX_LINES = 500  # a reference or study page under docs/ (docs/results/ holds generated reports)
+
+
+def _pages() -> list[str]:
+    try:
+        out = subprocess.run(["git", "ls-files", "-z", "README.md", "docs"], cwd=REPO, capture_output=True, check=True)
+    except (OSError, subprocess.CalledProcessError):
+        pytest.skip("not a git checkout: the tracked pages are not known")
+    return [p for p in out.stdout.decode().split("\0") if p.endswith(".md")]
+
+
+def _links(text: str) -> list[tuple[int, str]]:
+    """(line number, target) of every link outside fenced code blocks and inline code spans."""
+    found, fence = [], False
+    for no, line in enumerate(text.splitlines(), 1):
+        if line.lstrip().startswith("```"):
+            fence = not fence
+            continue
+        if fence:
+            continue
+        for m in LINK.finditer(re.sub(r"`[^`]*`", "", line)):
+            found.append((no, m.group(1)))
+    return found
+
+
+def test_the_link_parser_on_a_hand_written_page():
+    text = "see [a](a.md#x) and ![p](img/p.png)\n```\n[no](inside.md)\n```\n`[no](span.md)` [w](https://x.org)\n"
+    assert _links(text) == [(1, "a.md#x"), (1, "img/p.png"), (5, "https://x.org")]
+
+
+def test_every_relative_link_resolves():
+    broken = []
+    for page in _pages():
+        path = REPO / page
+        for no, target in _links(path.read_text(encoding="utf-8")):
+            if re.match(r"^[a-z][a-z0-9+.-]*:", target) or target.startswith("#"):
+                continue
+            rel = target.split("#", 1)[0]
+            if not (path.parent / rel).exists():
+                broken.append(f"{page}:{no}: {target}")
+    assert not broken, f"{len(broken)} links resolve to nothing:\n" + "\n".join(broken)
+
+
+def test_every_doc_page_is_at_most_500_lines():
+    long = []
+    for page in _pages():
+        if page.startswith("docs/") and not page.startswith("docs/results/"):
+            n = len((REPO / page).read_text(encoding="utf-8").splitlines())
+            if n > MAX_LINES:
+                long.append(f"{page}: {n} lines")
+    assert not long, f"pages over {MAX_LINES} lines (split them by topic):\n" + "\n".join(long)
