@@ -1,6 +1,6 @@
 """Measured numbers quoted in the README and the docs agree with the committed results JSON they come from.
 
-A number written by hand into prose drifts when the result is measured again (docs/real-data.md
+A number written by hand into prose drifts when the result is measured again (the docs
 said 4,439 completion points for KITTI 002155 long after the default model changed; the count is
 124,695). Each check below formats the JSON's value the way the doc prints it and looks for it in
 the doc's text (whitespace and line breaks collapsed). When a result is re-measured, the JSON and
@@ -140,11 +140,11 @@ def test_suv_hold_out_of_the_ray_local_model():
         f"({row['held_out']['completeness']:.4f}) | **{ratio['accuracy']:.2f}x** ({ratio['completeness']:.2f}x) |",
     )
     default = gen["rows"]["default (p(hit) >= 0.4)"]["held_out"]["accuracy"]
-    _says("docs/studies/ray-local.md", f"the one of stop 23 ({default:.6f} on the SUVs)")
+    _says("docs/studies/ray-local.md", f"the one of the generalisation study ({default:.6f} on the SUVs)")
 
 
 def _real_cell(name: str, where: str, cls: str) -> str:
-    """One cell of the issue-27 real-data tables: inside / fidelity / consistency at equal density of class ``cls``
+    """One cell of the class study's real-data tables: inside / fidelity / consistency at equal density of class ``cls``
     in ``docs/results/classes/{name}-{where}.json``, as the docs print it."""
     m = _json(f"classes/{name}-{where}.json")["models"][0]
     ins, fid = m["inside_box"][cls], m["classes"][cls]["fidelity"]
@@ -152,8 +152,8 @@ def _real_cell(name: str, where: str, cls: str) -> str:
     return f"{100 * ins:.1f}% / {fid:.4f} / {cd:.4f}"
 
 
-def test_issue27_box_term_rows():
-    """docs/real-data.md's box-term table: each class's inside / fidelity / consistency of the three models."""
+def test_classes_box_term_rows():
+    """docs/studies/classes-real.md's box-term table: each class's inside / fidelity / consistency of the three models."""
 
     def cell(name: str, cls: str) -> str:
         return _real_cell(name, "nuscenes", cls)
@@ -163,8 +163,8 @@ def test_issue27_box_term_rows():
         _says("docs/studies/classes-real.md", f"| nuScenes {cls} ({objects}) | {row} |")
 
 
-def test_issue27_weight0_control():
-    """docs/learning.md's weight-0 control table: nuScenes inside per class of the three fine-tunes, from their JSONs."""
+def test_classes_weight0_control():
+    """docs/studies/classes.md's weight-0 control table: nuScenes inside per class of the three fine-tunes, from their JSONs."""
 
     def inside(name: str) -> str:
         m = _json(f"classes/{name}-nuscenes.json")["models"][0]
@@ -174,8 +174,8 @@ def test_issue27_weight0_control():
     _says("docs/studies/classes.md", f"| nuScenes inside: trailer / bus / truck / car | {row} |")
 
 
-def test_issue27_wider_coverage_candidate():
-    """docs/real-data.md's wider-coverage table: the trailers' and AV2 truck's rows from the two models' JSONs."""
+def test_classes_wider_coverage_candidate():
+    """docs/studies/classes-real.md's wider-coverage table: the trailers' and AV2 truck's rows from the two models' JSONs."""
 
     cell = _real_cell
 
@@ -206,7 +206,7 @@ def test_track_worker_speed_on_a_quiet_machine():
 
 
 def test_track_sequences_truth_floor():
-    """The representation's floor under the fused-window targets (issue 28), as docs/learning.md and real-data.md say."""
+    """The representation's floor under the fused-window targets , as docs/studies/fusion.md says."""
     rep = _json("real/track_sequences_floor_2hz.json")
     floor, one = rep["truth_floor"], rep["completion"]["default"]["true past:1"]
     acc, comp = f"{floor['accuracy_m']:.4f}", f"{floor['completeness_m']:.4f}"
@@ -217,8 +217,8 @@ def test_track_sequences_truth_floor():
     _says("docs/studies/fusion.md", f"better than one true-box frame ({one['completeness_m']:.4f} m) is {target:.4f} m")
 
 
-def test_issue27_weight60_rows():
-    """docs/real-data.md's weight-60 table: each class's inside / fidelity / consistency of both models, from the JSONs."""
+def test_classes_weight60_rows():
+    """docs/studies/classes-real.md's weight-60 table: each class's inside / fidelity / consistency of both models, from the JSONs."""
 
     cell = _real_cell
 
@@ -243,8 +243,8 @@ def test_issue27_weight60_rows():
     _says("docs/studies/classes-real.md", f"cars are slightly more accurate ({acc:.5f} against 0.01738")
 
 
-def test_issue27_class_template_rows():
-    """docs/real-data.md's class-template table (four models, six rows) and the test cars, from their JSONs."""
+def test_classes_class_template_rows():
+    """docs/studies/classes-real.md's class-template table (four models, six rows) and the test cars, from their JSONs."""
     names = ("classes-w60", "classes-ctl", "classes-tmpl", "classes-tmpl100")
 
     cell = _real_cell
@@ -266,8 +266,8 @@ def test_issue27_class_template_rows():
     assert fid <= 0.04  # the issue's target, met by the shipped fallback on AV2's truck
 
 
-def test_issue27_family_model_rows():
-    """docs/real-data.md's class-family table: both models' held-out trailers and scene-0523 trailers, from the JSONs."""
+def test_classes_family_model_rows():
+    """docs/studies/classes-real.md's class-family table: both models' held-out trailers and scene-0523 trailers, from the JSONs."""
 
     def synth(name: str) -> str:
         g = _json(f"classes/synthetic_{name}.json")["results"][0]["groups"]["procedural/trailer"]
@@ -285,8 +285,8 @@ def test_issue27_family_model_rows():
     )
 
 
-def test_frame_loop_speed_stop36_side_by_side():
-    """The stop-36 side-by-side: the frame loop's medians and the per-round ratios the docs quote."""
+def test_frame_loop_speed_side_by_side():
+    """The frame loop's side-by-side: the frame loop's medians and the per-round ratios the docs quote."""
     d = _json("real/track_fusion_speed.json")["summary"]["threads_1"]
     new, old = d["median"]["this"]["fps_loop"], d["median"]["other"]["fps_loop"]
     _says("docs/studies/frame-speed.md", f"**{new:.2f} frames/s against {old:.2f}**")
@@ -302,8 +302,8 @@ def test_frame_loop_speed_stop36_side_by_side():
     _says("docs/studies/frame-speed.md", f"the worker {work['this']:.0f} against {work['other']:.0f} ms")
 
 
-def test_fused_consistency_with_every_vehicle_stop36():
-    """The per-class fused/single consistency with the class model as fallback, as docs/real-data.md quotes it."""
+def test_fused_consistency_with_every_vehicle():
+    """The per-class fused/single consistency with the class model as fallback, as docs/studies/frame-speed.md quotes it."""
     d = _json("real/track_fusion_fallback.json")
     assert d["fallback"] == "classes"
     q = d["quality_on_common_observations"]
@@ -317,8 +317,8 @@ def test_fused_consistency_with_every_vehicle_stop36():
     _says("docs/studies/frame-speed.md", f"the {q['n_observations']} observations of Table 2's")
 
 
-def test_snap_rows_stop37():
-    """The --snap 0.05 table of docs/learning.md: test cars, Kenney vehicles and the real sets, from their reports."""
+def test_snap_rows():
+    """The --snap 0.05 table of docs/studies/snap.md: test cars, Kenney vehicles and the real sets, from their reports."""
     _says_snap_test_and_real_rows("table1_snap.json", "snap")
     g = _json("fair/snap/generalisation_snap.json")
     rows, ratio = g["scores"]["held_out"]["rows"], g["ratio_held_out_over_in_distribution"]
@@ -342,7 +342,7 @@ def _says_snap_test_and_real_rows(table: str, real: str) -> None:
 
 
 def _says_frame_pictures(report: str, headline: str, rounds: str) -> None:
-    """docs/real-data.md cites a benchmarks/frame_pictures.py report: ``headline`` and ``rounds`` are formats of
+    """docs/studies/frame-speed.md cites a benchmarks/frame_pictures.py report: ``headline`` and ``rounds`` are formats of
     this/other frames per second, the median speed-up, and the per-round speed-ups' range (lo, hi)."""
     d = _json(report)
     m = d["median_frames_per_second"]
@@ -351,8 +351,8 @@ def _says_frame_pictures(report: str, headline: str, rounds: str) -> None:
     _says("docs/studies/frame-speed.md", rounds.format(lo=1 / hi, hi=1 / lo))
 
 
-def test_frame_pictures_side_by_side_stop37():
-    """The pictures' speed-up of docs/real-data.md, from benchmarks/frame_pictures.py's report."""
+def test_frame_pictures_side_by_side():
+    """The pictures' speed-up of docs/studies/frame-speed.md, from benchmarks/frame_pictures.py's report."""
     _says_frame_pictures(
         "real/frame_pictures.json",
         "{this:.2f} against {other:.2f} frames/s ({x:.2f}x)",
@@ -360,8 +360,8 @@ def test_frame_pictures_side_by_side_stop37():
     )
 
 
-def test_snap_with_track_fusion_stop37():
-    """Consistency and fidelity with and without --snap under past:5 fusion, as docs/learning.md quotes them."""
+def test_snap_with_track_fusion():
+    """Consistency and fidelity with and without --snap under past:5 fusion, as docs/studies/snap.md quotes them."""
     q = {
         s: _json(f"real/track_fusion_{f}.json")["quality_on_common_observations"]
         for s, f in (("nosnap", "nosnap"), ("snap", "snap_no_rule"))
@@ -384,8 +384,8 @@ def test_snap_with_track_fusion_stop37():
     _says("docs/studies/snap.md", f"still {c['snap'][1] / c['nosnap'][0]:.2f}x as inconsistent")
 
 
-def test_mirrored_snap_rows_stop37():
-    """The --snap 0.08 --snap-mirror table of docs/learning.md, from its reports."""
+def test_mirrored_snap_rows():
+    """The --snap 0.08 --snap-mirror table of docs/studies/snap.md, from its reports."""
     _says_snap_test_and_real_rows("table1_snap0.08_mirror.json", "snap0.08_mirror")
     g = _json("fair/snap/generalisation_snap0.08_mirror.json")
     assert g["snap"] == [0.08] and g["snap_mirror"]
@@ -399,8 +399,8 @@ def test_mirrored_snap_rows_stop37():
     _says("docs/studies/snap.md", f"| 0.0469 / 0.0225 | {c[0]:.4f} / {c[1]:.4f} |")
 
 
-def test_gpu_trained_rows_stop38():
-    """The GPU-trained rows of docs/learning.md (H100 runs of scripts/gpu_train.sh), from their plans and reports."""
+def test_gpu_trained_rows():
+    """The GPU-trained rows of docs/training.md (H100 runs of scripts/gpu_train.sh), from their plans and reports."""
     rep = _json("fair/gpu/table1_gpu.json")
     gen = _json("fair/gpu/generalisation_gpu.json")["ratio_held_out_over_in_distribution"]
     for model, run, gen_row in (
@@ -416,8 +416,8 @@ def test_gpu_trained_rows_stop38():
         _says("docs/training.md", f"{plan['step_seconds'] * 1e3:.1f} ms | 10 x {plan['steps_per_interval']:,}")
 
 
-def test_gpu_trained_real_rows_stop38():
-    """The GPU-trained rows of the real-set table (docs/learning.md), from the Table 2 reports they were added to."""
+def test_gpu_trained_real_rows():
+    """The GPU-trained rows of the real-set table (docs/studies/ray-local.md), from the Table 2 reports they were added to."""
     for name in ("av2", "nuscenes"):
         models = {m["name"]: m for m in _json(f"real/table2_ray_local/{name}.json")["models"]}
         for run, label in (("sanet-local-gpu", "ray-local SA-Net"), ("snowflakenet-gpu", "SnowflakeNet")):
@@ -430,8 +430,8 @@ def test_gpu_trained_real_rows_stop38():
             _says("docs/studies/ray-local.md", row)
 
 
-def test_snap_with_the_occlusion_rule_stop38():
-    """The stop-38 table of docs/learning.md (the package's snap with the occlusion rule), from its reports."""
+def test_snap_with_the_occlusion_rule():
+    """The occlusion-rule table of docs/studies/snap.md (the package's snap with the occlusion rule), from its reports."""
     for variant, key, real in (
         ("snap", "snap 0.05", "snap"),
         ("snap0.08_mirror", "snap 0.08 mirrored", "snap0.08_mirror"),
@@ -464,8 +464,8 @@ def test_snap_with_the_occlusion_rule_stop38():
     _says("docs/studies/snap.md", f"{speed['speedup_no_sensor']:.2f}x; `python benchmarks/snap_speed.py")
 
 
-def test_snapped_track_windows_stop38():
-    """The snapped drive-past windows' table of docs/learning.md, from benchmarks/track_sequences.py's reports."""
+def test_snapped_track_windows():
+    """The snapped drive-past windows' table of docs/studies/fusion.md, from benchmarks/track_sequences.py's reports."""
     for name in ("track_sequences_snap_2hz", "track_sequences_snap0.08_mirror_2hz"):
         rows = _json(f"real/{name}.json")["completion"]["default"]
         for boxes in ("true", "refined"):
@@ -477,8 +477,8 @@ def test_snapped_track_windows_stop38():
             )
 
 
-def test_mirror_fine_tune_rows_stop39():
-    """The trained mirror's table of docs/learning.md, from benchmarks/generalisation.py's report."""
+def test_mirror_fine_tune_rows():
+    """The trained mirror's table of docs/models.md, from benchmarks/generalisation.py's report."""
     g = _json("fair/mirror/generalisation_mirror.json")
     rows_in, rows_out = g["scores"]["in_distribution"]["rows"], g["scores"]["held_out"]["rows"]
     ratios = g["ratio_held_out_over_in_distribution"]
@@ -489,8 +489,8 @@ def test_mirror_fine_tune_rows_stop39():
         _says("docs/models.md", f"{cells} ({r['accuracy']:.2f}x) | {r['subset_accuracy']:.2f}x |")
 
 
-def test_picture_processes_side_by_side_stop39():
-    """The picture processes' speed-up of docs/real-data.md, from benchmarks/frame_pictures.py's report."""
+def test_picture_processes_side_by_side():
+    """The picture processes' speed-up of docs/studies/frame-speed.md, from benchmarks/frame_pictures.py's report."""
     _says_frame_pictures(
         "real/frame_pictures_processes.json",
         "**{this:.2f} against {other:.2f} frames/s ({x:.2f}x)**",
@@ -503,9 +503,9 @@ def test_picture_processes_side_by_side_stop39():
     )
 
 
-def test_fallback_speed_side_by_side_stop40():
-    """Stop 40's speed of `real complete --fuse past:5 --refine-boxes` with every vehicle completed
-    (docs/real-data.md), from benchmarks/track_fusion.py's side-by-side report."""
+def test_fallback_speed_side_by_side():
+    """The speed of `real complete --fuse past:5 --refine-boxes` with every vehicle completed
+    (docs/studies/frame-speed.md), from benchmarks/track_fusion.py's side-by-side report."""
     report = _json("real/track_fusion_speed_fallback.json")
     med = report["summary"]["threads_1"]["median"]
     this = [r for r in report["runs"] if r["code"] == "this"]
@@ -530,8 +530,8 @@ def test_fallback_speed_side_by_side_stop40():
     assert fps_this[0] >= 10.0  # the claim "met": every round at 10 frames/s or more
 
 
-def test_fused_window_input_points_stop40():
-    """1,024 against 256 input points for fused windows (docs/learning.md), from benchmarks/track_sequences.py."""
+def test_fused_window_input_points():
+    """1,024 against 256 input points for fused windows (docs/studies/fusion.md), from benchmarks/track_sequences.py."""
     big = _json("real/track_sequences_input1024_bf16_2hz.json")["completion"]["default"]
     small = _json("real/track_sequences_input256_bf16_2hz.json")["completion"]["default"]
     for key, label in (
@@ -547,8 +547,8 @@ def test_fused_window_input_points_stop40():
         )
 
 
-def test_car_model_candidates_stop41():
-    """Issue 27's car-model candidates (docs/real-data.md, stop 41), from `real evaluate`, `evaluate` and
+def test_car_model_candidates():
+    """The car-model candidates (docs/studies/car-model.md), from `real evaluate`, `evaluate` and
     benchmarks/generalisation.py's reports in docs/results/car_model/ (bold marks dropped before comparing)."""
     import numpy as np
 
@@ -572,13 +572,13 @@ def test_car_model_candidates_stop41():
         cells += [real_cells(_json(f"{base}/cand-{set_}.json"), name) for set_ in ("av2", "nuscenes")]
         row = f"| {label} | " + " | ".join(cells) + f" | {kenney[ckpt]:.4f} |"
         assert row in doc, f"docs/studies/car-model.md should hold the row {row!r} (from docs/results/{base})"
-    # the stop-39 control: its in-distribution accuracy and Kenney's from stop 39's run, AV2 measured in stop 41
+    # the cars-only control: its in-distribution accuracy and Kenney's from the mirror study's run, AV2 measured here
     gen39 = _json("fair/mirror/generalisation_mirror.json")["scores"]
     ((k_in, in39),) = [(k, v) for k, v in gen39["in_distribution"]["rows"].items() if k.startswith("ft_false/")]
     kenney39 = gen39["held_out"]["rows"][k_in]["accuracy"]
     cells = [f"({in39['accuracy']:.4f} on {gen39['in_distribution']['n_samples']} scans)"]
     cells += [real_cells(_json(f"{base}/av2_cars_only.json"), "cars_only"), "-"]
-    row = "| stop-39 control | " + " | ".join(cells) + f" | {kenney39:.4f} |"
+    row = "| cars-only control | " + " | ".join(cells) + f" | {kenney39:.4f} |"
     assert row in doc, f"docs/studies/car-model.md should hold the row {row!r}"
     # the prose's numbers, each built from the result files
     para = " ".join(doc.split())  # the study page, lines joined
