@@ -400,7 +400,7 @@ def test_mirrored_snap_rows():
 
 
 def test_gpu_trained_rows():
-    """The GPU-trained rows of docs/training.md (H100 runs of scripts/gpu_train.sh), from their plans and reports."""
+    """The GPU-trained rows of docs/studies/gpu.md (H100 runs of scripts/gpu_train.sh), from their plans and reports."""
     rep = _json("fair/gpu/table1_gpu.json")
     gen = _json("fair/gpu/generalisation_gpu.json")["ratio_held_out_over_in_distribution"]
     for model, run, gen_row in (
@@ -411,9 +411,9 @@ def test_gpu_trained_rows():
         assert plan["device"].startswith("NVIDIA H100") and plan["precision"] == "bf16"
         t = _summary(rep, model)
         row = f"{t['accuracy']:.5f} | {t['completeness']:.5f} | {t['chamfer_l1']:.5f} | {t['fscore']:.3f} |"
-        _says("docs/training.md", f"{plan['steps_done']:,} | {row}")
-        _says("docs/training.md", f"({gen[gen_row]['accuracy']:.2f}x)")
-        _says("docs/training.md", f"{plan['step_seconds'] * 1e3:.1f} ms | 10 x {plan['steps_per_interval']:,}")
+        _says("docs/studies/gpu.md", f"{plan['steps_done']:,} | {row}")
+        _says("docs/studies/gpu.md", f"({gen[gen_row]['accuracy']:.2f}x)")
+        _says("docs/studies/gpu.md", f"{plan['step_seconds'] * 1e3:.1f} ms | 10 x {plan['steps_per_interval']:,}")
 
 
 def test_gpu_trained_real_rows():
@@ -478,7 +478,7 @@ def test_snapped_track_windows():
 
 
 def test_mirror_fine_tune_rows():
-    """The trained mirror's table of docs/models.md, from benchmarks/generalisation.py's report."""
+    """The trained mirror's table of docs/studies/generalisation.md, from benchmarks/generalisation.py's report."""
     g = _json("fair/mirror/generalisation_mirror.json")
     rows_in, rows_out = g["scores"]["in_distribution"]["rows"], g["scores"]["held_out"]["rows"]
     ratios = g["ratio_held_out_over_in_distribution"]
@@ -486,7 +486,7 @@ def test_mirror_fine_tune_rows():
         name = f"{key} (p(hit) >= {thr})"
         a, h, r = rows_in[name], rows_out[name], ratios[name]
         cells = f"{a['accuracy']:.5f} / {a['completeness']:.5f} / {a['fscore']:.3f} | {h['accuracy']:.5f}"
-        _says("docs/models.md", f"{cells} ({r['accuracy']:.2f}x) | {r['subset_accuracy']:.2f}x |")
+        _says("docs/studies/generalisation.md", f"{cells} ({r['accuracy']:.2f}x) | {r['subset_accuracy']:.2f}x |")
 
 
 def test_picture_processes_side_by_side():
