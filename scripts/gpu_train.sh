@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The GPU recipe (docs/learning.md, "GPU recipe"):
+# The GPU recipe (docs/training.md, "GPU recipe"):
 #   scripts/gpu_train.sh MODEL_CONFIG [MINUTES] [options of scripts/gpu_train.py]
 # MODEL_CONFIG: 'default' (the default model's configuration), a registered model name (snowflakenet, foldingnet, ...)
 # or a YAML config; MINUTES: the time budget of the whole run (default 7, or $GPU_MINUTES).
