@@ -28,7 +28,7 @@ PATTERNS: list[tuple[str, re.Pattern[str]]] = [
     ("iNN name", re.compile(r"(?<![A-Za-z0-9.])i\d{2}(?![0-9])(?=[A-Za-z_/.\-)\]`'\", ]|$)")),
     ("who did it", re.compile(r"\bthe lead\b(?! (?:vehicle|car|truck|object)s?\b)", re.IGNORECASE)),
     ("session", re.compile(r"\bsessions?\b", re.IGNORECASE)),
-    ("when", re.compile(r"\b(?:this|each|every|earlier|later|next|previous|last|same) stop\b", re.IGNORECASE)),
+    ("when", re.compile(r"\b(?:this|each|every|earlier|later|next|previous|last|same) stops?\b", re.IGNORECASE)),
     ("machine path", re.compile(r"(?<![\w.~$}])/(?:work|root)/|(?<![\w.~$}])/tmp/[A-Za-z0-9_]")),
 ]
 
@@ -82,6 +82,17 @@ def history_hits(line: str) -> list[str]:
     return [kind for kind, rx in PATTERNS if rx.search(line) and not _allowed(kind, line)]
 
 
+def _hits_across(line: str, following: str) -> list[str]:
+    """The kinds of history word that start on ``line`` and end on ``following`` (a phrase broken by the wrap)."""
+    joined = line.rstrip() + " " + following.lstrip()
+    cut = len(line.rstrip())
+    return [
+        kind
+        for kind, rx in PATTERNS
+        if any(m.start() < cut < m.end() for m in rx.finditer(joined)) and not _allowed(kind, joined)
+    ]
+
+
 def offenders(prefixes: tuple[str, ...] = ("",)) -> list[str]:
     """``file:line: kind: text`` for every history word in the tracked files under ``prefixes``."""
     found = []
@@ -93,8 +104,10 @@ def offenders(prefixes: tuple[str, ...] = ("",)) -> list[str]:
         text = _text(REPO / rel)
         if text is None:
             continue
-        for no, line in enumerate(text.splitlines(), 1):
-            for kind in history_hits(line):
+        lines = text.splitlines()
+        for no, line in enumerate(lines, 1):
+            following = lines[no] if no < len(lines) else ""
+            for kind in history_hits(line) + _hits_across(line, following):
                 if (kind, rel) in FILE_ALLOWED:
                     continue
                 found.append(f"{rel}:{no}: {kind}: {line.strip()[:160]}")
@@ -116,6 +129,7 @@ def offenders(prefixes: tuple[str, ...] = ("",)) -> list[str]:
         "the lead decides",
         "in this session",
         "new in this stop",
+        "the comparisons of earlier stops",
         "python x.py --against /work/main/src",
         "--out /tmp/before/x.json",
         "/root/out/a.ply",
@@ -123,6 +137,11 @@ def offenders(prefixes: tuple[str, ...] = ("",)) -> list[str]:
 )
 def test_history_words_are_caught(line):
     assert history_hits(line), f"{line!r} holds a history word the check should catch"
+
+
+def test_a_history_word_broken_by_the_line_wrap_is_caught():
+    assert _hits_across("the class model, its fallback since stop", "35 (`--fallback auto`)") == ["numbered stop"]
+    assert _hits_across("a ray stops at the first hit;", "12 rays miss") == []
 
 
 @pytest.mark.parametrize(
