@@ -119,3 +119,27 @@ def test_the_api_answers_the_same_way():
         spotlights.complete_frame(_scan(), BOX, _Stub(), fallback=None)
     with pytest.raises(ParameterError, match="the seed must be a whole number in 0"):
         spotlights.complete_frame(_scan(), [BOX], _Stub(), fallback=None, seed=-1)
+
+
+def test_library_errors_name_parameters_and_the_cli_writes_its_options():
+    """A library error names the Python parameters (```heading_margin```); the command line shows its options
+    instead (``--heading-margin``), also for a parameter whose option has another first spelling."""
+    import argparse
+
+    from spotlights.errors import ParameterError
+    from spotlights.options import option_names
+
+    parser = argparse.ArgumentParser()
+    sub = parser.add_subparsers()
+    cmd = sub.add_parser("complete")
+    cmd.add_argument("--heading-margin", type=float)
+    cmd.add_argument("--no-heading-check", dest="heading_check", action="store_false")
+    cmd.add_argument("--heading-check", dest="heading_check", action="store_true")
+    cmd.add_argument("--ckpt", "--checkpoint", dest="checkpoint")
+    exc = ParameterError(
+        "`heading_margin` goes with `heading_check` (the heading margin)", "heading_margin", "heading_check"
+    )
+    assert option_names(exc, parser) == "--heading-margin goes with --heading-check (the heading margin)"
+    exc = ParameterError("pass `checkpoint` MODEL.onnx; `threads` too", "checkpoint", "threads")
+    assert option_names(exc, parser) == "pass --ckpt MODEL.onnx; --threads too"
+    assert option_names(ParameterError("plain `words`"), parser) == "plain `words`"

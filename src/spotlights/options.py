@@ -191,3 +191,37 @@ crop_metres = number_type(
     float, lambda v: -MAX_CROP_M <= v <= MAX_CROP_M, f"a number of metres in [-{MAX_CROP_M:g}, {MAX_CROP_M:g}]"
 )
 """argparse type: a crop margin or ground clearance, metres in [-:data:`MAX_CROP_M`, :data:`MAX_CROP_M`]."""
+
+
+# ---------------------------------------------------------------------------- error messages as the CLI shows them
+
+
+def option_names(exc: Exception, parser: argparse.ArgumentParser) -> str:
+    """The error's message with the library parameters it names (:attr:`ParameterError.parameters`, shown as
+    ```heading_margin```: :func:`spotlights.errors.shown`) written as the command line's options:
+    ``--heading-margin`` (the option whose ``dest`` it is, in any command; else the name with dashes)."""
+    message = str(exc)
+    names = getattr(exc, "parameters", ())
+    if not names:
+        return message
+    options = _options_by_dest(parser)
+    for name in sorted(names, key=len, reverse=True):
+        dashed = "--" + name.replace("_", "-")
+        flags = options.get(name, [])
+        flag = dashed if dashed in flags or not flags else flags[0]
+        message = message.replace(f"`{name}`", flag)
+    return message
+
+
+def _options_by_dest(parser: argparse.ArgumentParser) -> dict[str, list[str]]:
+    """``{dest: its long options}`` over a parser and all its sub-commands."""
+    out: dict[str, list[str]] = {}
+    for action in parser._actions:  # noqa: SLF001 - argparse has no public walk of its actions
+        for flag in (o for o in action.option_strings if o.startswith("--")):
+            if flag not in out.setdefault(action.dest, []):
+                out[action.dest].append(flag)
+        if isinstance(action, argparse._SubParsersAction):  # noqa: SLF001
+            for sub in action.choices.values():
+                for dest, flags in _options_by_dest(sub).items():
+                    out.setdefault(dest, []).extend(f for f in flags if f not in out[dest])
+    return out

@@ -52,8 +52,8 @@ from .config import (
     SceneConfig,
     heading_turns,
 )
-from .results import ObjectResult, SceneResult, fallback_counts, object_ids
-from .writing import check_completed, describe, scene_comments, write_scene
+from .results import ObjectResult, SceneResult, object_ids
+from .writing import check_completed, describe, fallback_counts, scene_comments, write_scene
 
 
 def _selected(box: Box, config: SceneConfig) -> bool:
