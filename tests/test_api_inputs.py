@@ -135,7 +135,7 @@ def test_library_errors_name_parameters_and_the_cli_writes_its_options():
     cmd.add_argument("--heading-margin", type=float)
     cmd.add_argument("--no-heading-check", dest="heading_check", action="store_false")
     cmd.add_argument("--heading-check", dest="heading_check", action="store_true")
-    cmd.add_argument("--ckpt", "--checkpoint", dest="checkpoint")
+    cmd.add_argument("-c", "--ckpt", dest="checkpoint")
     exc = ParameterError(
         "`heading_margin` goes with `heading_check` (the heading margin)", "heading_margin", "heading_check"
     )
