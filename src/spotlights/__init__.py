@@ -22,6 +22,7 @@ numpy/scipy/trimesh/embreex; torch is imported only by ``spotlights.learning``.
 from __future__ import annotations
 
 import importlib
+import logging
 from typing import TYPE_CHECKING, Any
 
 from ._version import __version__
@@ -46,6 +47,8 @@ if TYPE_CHECKING:  # the names as type checkers and IDEs see them
         read_frames,
         save_points,
     )
+
+logging.getLogger("spotlights").addHandler(logging.NullHandler())  # silent unless the application configures it
 
 #: public name -> the module that defines it (imported on first use); the one list of public names
 _HOMES = {

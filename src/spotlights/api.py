@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import logging
 import os
 import threading
 from collections.abc import Iterator, Sequence
@@ -49,6 +50,8 @@ from .geometry.rig import make_rig
 from .learning.checkpoint import PRETRAINED
 from .learning.inference import BaseCompleter
 from .learning.runtime import load_completer
+
+LOG = logging.getLogger(__name__)
 
 CompleterLike = BaseCompleter | str | os.PathLike | None
 """A model as the API takes it: loaded (:func:`load_completer`), or its name or file (``"default"``, ``"classes"``,
@@ -159,6 +162,7 @@ def _named_completer(name: str) -> BaseCompleter:
             for old in [k for k in _NAMED if k[0] == key[0]]:  # an older version of the same file
                 del _NAMED[old]
             model = load_completer(name)
+            LOG.info("loaded the model %s (%s)", name, getattr(model, "device", "?"))
         _NAMED[key] = model  # the most recently used last
         while len(_NAMED) > NAMED_MODELS_KEPT:
             _NAMED.pop(next(iter(_NAMED)))

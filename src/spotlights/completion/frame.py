@@ -28,6 +28,7 @@ scan whose up axis is not z into the object convention first and the results bac
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TypeVar
@@ -54,6 +55,8 @@ from .config import (
 )
 from .results import ObjectResult, SceneResult, object_ids
 from .writing import check_completed, describe, fallback_counts, scene_comments, write_scene
+
+LOG = logging.getLogger(__name__)
 
 
 def _selected(box: Box, config: SceneConfig) -> bool:
@@ -196,7 +199,7 @@ def complete_scene(
                 back = rigid_transform(a.T, np.zeros(3))
                 for o in todo:
                     o.used_box = _set(o.used_box).transformed(back)
-    return SceneResult(
+    result = SceneResult(
         scan,
         objects,
         str(getattr(completer, "model_name", "model")),
@@ -205,6 +208,14 @@ def complete_scene(
         timings={f"{k}_s": v for k, v in timer.seconds.items()} | {"total_s": timer.total},
         member=member,
     )
+    LOG.debug(
+        "%d box(es), %d completed by %s; stages: %s",
+        len(objects),
+        len(result.completed),
+        result.model,
+        ", ".join(f"{k} {1000 * v:.0f} ms" for k, v in timer.seconds.items()),
+    )
+    return result
 
 
 def scene_crops(points: np.ndarray, boxes: Sequence[Box], config: SceneConfig) -> dict[int, np.ndarray]:

@@ -22,6 +22,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from .. import logs
 from ..data.real import open_reader
 from ..data.real.base import SceneReader
 from ..data.tracks import MAX_GAP_S, TIME_UNIT_S, WindowPolicy, parse_window
@@ -54,7 +55,7 @@ from .frame import (
 )
 from .fusion import TrackPlan, TrackWorker, threads_beside_worker, usable_cpus
 from .names import FRAME_SUFFIXES, RESERVED_FRAMES, file_stem, safe_name, sequence_folders, unique_names
-from .scan import CompletionOptions, Say, ScanSettings, complete_scan, silent, write_json
+from .scan import CompletionOptions, Say, ScanSettings, complete_scan, write_json
 
 
 def frame_stems(keys) -> dict[tuple, Path]:
@@ -681,7 +682,7 @@ class _FrameRun:
 
 
 def complete_frames(
-    s: FramesSettings, say: Say = silent, warn: Say = silent, completer: BaseCompleter | None = None
+    s: FramesSettings, say: Say = logs.info, warn: Say = logs.warning, completer: BaseCompleter | None = None
 ) -> dict:
     """Complete the selected frames of a dataset into the folder ``s.out`` as ``spotlights real complete`` does.
 
@@ -730,7 +731,7 @@ def complete_frames(
 
 
 def complete_input(
-    s: ScanSettings, say: Say = silent, warn: Say = silent, completer: BaseCompleter | None = None
+    s: ScanSettings, say: Say = logs.info, warn: Say = logs.warning, completer: BaseCompleter | None = None
 ) -> SceneResult | dict:
     """What ``spotlights complete INPUT`` runs: one scan file (:func:`~spotlights.completion.scan.
     complete_scan`: ``s.out`` is its scene file; returns its :class:`SceneResult`), or a multi-frame generic scene

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import logs
 from ..data.real.boxfiles import read_box_file, with_class
 from ..data.real.scans import read_scan
 from ..data.tracks import MAX_GAP_S, WindowPolicy, parse_window
@@ -420,7 +421,7 @@ def _check_single(s: ScanSettings, result: SceneResult, points: np.ndarray, axes
 
 
 def complete_scan(
-    s: ScanSettings, say: Say = silent, warn: Say = silent, completer: BaseCompleter | None = None
+    s: ScanSettings, say: Say = logs.info, warn: Say = logs.warning, completer: BaseCompleter | None = None
 ) -> SceneResult:
     """Complete the vehicles of one scan file as ``spotlights complete`` does.
 

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import logs
 from ..analysis import density as dens
 from ..analysis.montecarlo import DiscPlacement, mc_density
 from ..errors import ParameterError
@@ -232,7 +233,7 @@ def _mc_stats(results) -> dict:
 
 
 def run_density_analysis(
-    out_dir: str | os.PathLike, config: DensityConfig | None = None, progress: bool = True, log=print
+    out_dir: str | os.PathLike, config: DensityConfig | None = None, progress: bool = True, log=logs.info
 ) -> tuple[dict, dict]:
     """Compute, check and draw the ray density of Spotlights rigs; write everything under ``out_dir``.
 

@@ -19,9 +19,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from .. import logs
 from ..completion.frame import HEADING_MARGIN
 from ..completion.frames import ReaderOptions, file_stem
-from ..completion.scan import Say, parse_classes, silent
+from ..completion.scan import Say, parse_classes
 from ..data.real.base import CLASSES
 from ..data.real.extract import ExtractConfig, Observations, extract, read_observations, write_observations
 from ..data.real.frames import frame_rows
@@ -81,7 +82,7 @@ def observation_lines(obs: Observations) -> list[str]:
     return lines
 
 
-def extract_file(s: ExtractSettings, say: Say = silent) -> Observations:
+def extract_file(s: ExtractSettings, say: Say = logs.info) -> Observations:
     """Extract every vehicle box of a dataset into ``s.out`` (HDF5, see
     :func:`spotlights.data.real.extract.extract`); ``say`` receives its summary. Returns the observations."""
     check_suffix(s.out, (".h5", ".hdf5"), "the observations file (HDF5)")
@@ -200,7 +201,7 @@ class EvaluateSettings:
         )
 
 
-def earlier_reports(paths: Sequence[Path], warn: Say = silent) -> list[dict]:
+def earlier_reports(paths: Sequence[Path], warn: Say = logs.warning) -> list[dict]:
     """The reports of ``paths`` that exist and read as ``real evaluate`` reports with settings (others: a
     warning each, not reused)."""
     previous = []
@@ -217,7 +218,7 @@ def earlier_reports(paths: Sequence[Path], warn: Say = silent) -> list[dict]:
     return previous
 
 
-def evaluate_file(s: EvaluateSettings, say: Say = silent, warn: Say = silent) -> dict:
+def evaluate_file(s: EvaluateSettings, say: Say = logs.info, warn: Say = logs.warning) -> dict:
     """Score the consistency of ``s.checkpoint`` on the observation file ``s.file`` and write ``PREFIX.md`` and
     ``PREFIX.json`` (:func:`~.real_evaluation.evaluate_consistency`, :func:`~.real_evaluation.write_report`).
 
@@ -305,7 +306,7 @@ class ShowSettings:
     html: str | None = None
 
 
-def show_file(s: ShowSettings, say: Say = silent) -> Path | None:
+def show_file(s: ShowSettings, say: Say = logs.info) -> Path | None:
     """Draw one frame of ``s.file``: the raw scan (grey), partial inputs (purple) and completions (green) of the
     ``s.max_objects`` objects with most points, as a PNG and/or an HTML page. Returns the PNG (None: page only)."""
     if s.max_objects < 1:

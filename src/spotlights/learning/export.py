@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import logs
 from .._version import __version__
 from ..data.vehicle_classes import class_rows
 from ..errors import InputFileError, ParameterError, SpotlightsError
@@ -527,7 +528,12 @@ def parity(
 
 
 def export_model(
-    checkpoint, out, opset: int = OPSET, describe: bool = True, check: bool = True, log: Callable[[str], None] = print
+    checkpoint,
+    out,
+    opset: int = OPSET,
+    describe: bool = True,
+    check: bool = True,
+    log: Callable[[str], None] = logs.info,
 ) -> Path:
     """``spotlights export``: :func:`export_onnx`, then (``describe``) one line about the model
     written (parameters, rig, p(hit) threshold, clip, size in MB) and, with ``check`` as well,
