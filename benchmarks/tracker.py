@@ -5,7 +5,7 @@ annotation's ``num_lidar_pts``. Detections: :func:`spotlights.tracking.simulate.
 detectable boxes missed, 10% false positives with low scores, 0.15 m / 3 degree / 5% size noise, seed 0; detectable:
 at least one LiDAR point and within 50 m). Tracker: :func:`spotlights.tracking.track_boxes` with its default
 settings, on detections with a score of at least ``--min-score``. Metrics: py-motmetrics (2 m centre distance,
-same class) against the detectable boxes. Speed: frames per CPU second of ``track_boxes`` alone (the median of
+same class) against the detectable boxes; seeds 1-4 as well, for the spread. Speed: frames per CPU second of ``track_boxes`` alone (the median of
 ``--repeats`` runs; one thread: run with ``OMP_NUM_THREADS=1``).
 
     OMP_NUM_THREADS=1 python benchmarks/tracker.py --json docs/results/tracking/tracker_nuscenes.json
@@ -14,6 +14,7 @@ same class) against the detectable boxes. Speed: frames per CPU second of ``trac
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -72,6 +73,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--min-score", type=float, default=0.0)
     ap.add_argument("--repeats", type=int, default=20, help="timed runs of the tracker (the median is reported)")
+    ap.add_argument("--more-seeds", type=int, default=4, help="also score seeds SEED+1 .. SEED+N (the spread)")
     ap.add_argument("--json", required=True, help="results file")
     args = ap.parse_args()
 
@@ -83,6 +85,11 @@ def main() -> None:
     tracked = track_boxes(dets, config)
     scores = clear_mot(truth, tracked)
     n_det = sum(len(f.boxes) for f in dets)
+    other = {}
+    for seed in range(args.seed + 1, args.seed + 1 + args.more_seeds):
+        d, t = simulate_detections(truth_all, counts, model, seed=seed)
+        m = clear_mot(t, track_boxes(filter_detections(d, args.min_score)[0], config))
+        other[str(seed)] = {k: m[k] for k in ("mota", "idf1", "id_switches", "id_switches_per_100_tracks")}
     seconds = []
     for _ in range(args.repeats):
         t0 = time.process_time()
@@ -95,13 +102,12 @@ def main() -> None:
         "frames": len(dets),
         "detections": n_det,
         "detections_per_frame": n_det / max(len(dets), 1),
-        "detector_model": vars(model)
-        if not hasattr(model, "__dataclass_fields__")
-        else {k: getattr(model, k) for k in model.__dataclass_fields__},
+        "detector_model": dataclasses.asdict(model),
         "seed": args.seed,
         "min_score": args.min_score,
-        "tracker": {k: getattr(config, k) for k in config.__dataclass_fields__},
+        "tracker": dataclasses.asdict(config),
         "metrics": scores,
+        "other_seeds": other,
         "speed": {
             "cpu_seconds_median": cpu_s,
             "frames_per_cpu_second": len(dets) / cpu_s,

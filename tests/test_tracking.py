@@ -346,3 +346,28 @@ def test_cli_on_the_shared_nuscenes_scene(tmp_path):
         truth = np.array([r["translation"] for r in results[token]]).reshape(-1, 3)
         for e in entries:
             assert np.min(np.linalg.norm(truth - e["translation"], axis=1)) < 1.0
+
+
+def test_the_study_page_quotes_the_results_file():
+    """docs/studies/tracking.md says the numbers of docs/results/tracking/tracker_nuscenes.json."""
+    from helpers import REPO
+
+    res = json.loads((REPO / "docs" / "results" / "tracking" / "tracker_nuscenes.json").read_text())
+    text = " ".join((REPO / "docs" / "studies" / "tracking.md").read_text().split())
+    m = res["metrics"]
+    row = f"| 0 (reported) | {m['mota']:.3f} | {m['idf1']:.3f} | {m['id_switches']} | {m['id_switches_per_100_tracks']:.1f} |"
+    assert row in text
+    for seed, o in res["other_seeds"].items():
+        assert (
+            f"| {seed} | {o['mota']:.3f} | {o['idf1']:.3f} | {o['id_switches']} | {o['id_switches_per_100_tracks']:.1f} |"
+            in text
+        )
+    for phrase in (
+        f"{res['speed']['frames_per_cpu_second']:.0f} frames per CPU second",
+        f"{m['misses']} misses of {m['gt_boxes']} boxes",
+        f"{m['gt_boxes']} boxes of {m['gt_tracks']} tracks",
+        f"MOTP {m['motp_m']:.3f} m",
+        f"{res['detections']} detections, {res['detections_per_frame']:.1f} a frame",
+        f"{m['mostly_tracked']} tracks mostly tracked, {m['mostly_lost']} mostly lost",
+    ):
+        assert phrase in text, phrase
