@@ -349,14 +349,14 @@ def read_generic_detections(path: str | os.PathLike) -> list[DetectionFrame]:
         if not files:
             raise InputFileError(path, "no box files (*.json)")
         _cap(len(files), path, "frames")
-        for f in files:
-            bf = read_json_boxes(f)
+        for file in files:
+            bf = read_json_boxes(file)
             keys = {
                 k: v
                 for k, v in vars(bf).items()
                 if k in ("timestamp", "frame_index", "frame_id", "sequence", "sensor_to_world") and v is not None
             }
-            raw.append(_generic_frame(keys, bf.boxes, f.stem, path.name, f))
+            raw.append(_generic_frame(keys, bf.boxes, file.stem, path.name, file))
     else:
         doc = read_json(path)
         if isinstance(doc, dict) and isinstance(doc.get("frames"), list):
