@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from spotlights.completion.frame import SceneConfig, complete_scene, scene_points
 from spotlights.errors import ParameterError
-from spotlights.experiments.scene import SceneConfig, complete_scene, scene_points
 from spotlights.geometry.boxes import Box
 
 pytestmark = pytest.mark.timeout(120)

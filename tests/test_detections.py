@@ -21,7 +21,8 @@ from spotlights.tracking.detections import (
     read_kitti_detections,
     read_nuscenes_detections,
 )
-from test_nuscenes import quat_z, write_mini_nuscenes
+
+from builders import quat_z, write_mini_nuscenes
 
 # --- the box score ------------------------------------------------------------------------------------------
 

@@ -1,4 +1,4 @@
-"""The library behind the run-side commands (issue 29): settings dataclasses and one function per command,
+"""The library behind the run-side commands: settings dataclasses and one function per command,
 called from Python (no argparse), checked against hand counts and brute force."""
 
 from __future__ import annotations
@@ -11,9 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
 
-from spotlights.errors import ParameterError, SpotlightsError
-from spotlights.experiments.files import EncodeSettings, RigOptions
-from spotlights.experiments.frame_completion import (
+from spotlights.completion.frames import (
     FramesSettings,
     ReaderOptions,
     complete_frames,
@@ -21,12 +19,15 @@ from spotlights.experiments.frame_completion import (
     parse_frames_range,
     select_frames,
 )
+from spotlights.completion.scan import CompletionOptions, ScanSettings
+from spotlights.errors import ParameterError, SpotlightsError
 from spotlights.experiments.real_evaluation import RealEvaluationSettings, evaluate_consistency
 from spotlights.experiments.real_runs import EvaluateSettings, report_names
-from spotlights.experiments.scan_completion import CompletionOptions, ScanSettings
+from spotlights.files import EncodeSettings, RigOptions
 from spotlights.geometry.io import load_ply_fields
 from spotlights.utils import check_suffix, settings_from_namespace
-from test_real_consistency import Identity, tracked_scene
+
+from builders import Identity, tracked_scene
 
 
 def test_frame_specs_parse_and_select_by_hand():

@@ -189,7 +189,7 @@ def test_a_point_model_refuses_to_snap(tmp_path):
     with pytest.raises(ParameterError, match="no rays to snap"):
         c.complete(_scans()[0], snap=0.05)
     # in a scene: refused as the main model; as a --fallback it completes its boxes unsnapped (an SA-Net snaps)
-    from spotlights.experiments.scene import SceneConfig, complete_scene, snap_options
+    from spotlights.completion.frame import SceneConfig, complete_scene, snap_options
     from spotlights.geometry.boxes import Box
 
     scan = np.random.default_rng(0).uniform(-1, 1, (400, 3)) * [2.0, 0.9, 0.7] + [10.0, 2.0, 0.8]
@@ -264,8 +264,8 @@ def test_snap_radius_refuses_other_values_naming_the_option(value):
 def test_every_surface_checks_the_snap_radius_and_mirror_alike():
     """SceneConfig (complete, real complete, the API), RealEvaluationSettings (real evaluate) and the completer's
     own check answer the same values with the same messages (one owner: geometry.evidence.snap_radius)."""
+    from spotlights.completion.frame import SceneConfig
     from spotlights.experiments.real_evaluation import RealEvaluationSettings
-    from spotlights.experiments.scene import SceneConfig
 
     for make in (lambda **k: SceneConfig(**k), lambda **k: RealEvaluationSettings(heading_check=False, **k)):
         for bad in (-1.0, float("inf")):
@@ -281,8 +281,8 @@ def test_every_surface_checks_the_snap_radius_and_mirror_alike():
 
 
 def test_scene_options_and_real_evaluation_refuse_snap_with_the_heading_check():
+    from spotlights.completion.frame import SceneConfig
     from spotlights.experiments.real_evaluation import RealEvaluationSettings
-    from spotlights.experiments.scene import SceneConfig
 
     assert SceneConfig(snap=0.05).snap == 0.05
     for bad in (-0.1, float("nan")):
@@ -343,8 +343,8 @@ def test_evaluate_names_the_snapped_rows(tmp_path, hit_ckpt):
 def test_resume_reuses_frames_written_before_snap_existed(tmp_path):
     from dataclasses import asdict
 
-    from spotlights.experiments.frame_completion import done_frame
-    from spotlights.experiments.scene import SceneConfig
+    from spotlights.completion.frame import SceneConfig
+    from spotlights.completion.frames import done_frame
 
     cfg = asdict(SceneConfig())
     cfg["clip"] = str(cfg["clip"])
@@ -375,8 +375,8 @@ def test_mirrored_snapping_draws_the_side_the_lidar_did_not_see(hit_ckpt):
 
 
 def test_snap_mirror_needs_a_radius_everywhere(tmp_path, capsys, hit_ckpt):
+    from spotlights.completion.frame import SceneConfig
     from spotlights.experiments.real_evaluation import RealEvaluationSettings
-    from spotlights.experiments.scene import SceneConfig
 
     assert SceneConfig(snap=0.08, snap_mirror=True).snap_mirror
     with pytest.raises(ParameterError, match="--snap-mirror goes with --snap R"):
@@ -498,7 +498,7 @@ def test_complete_frame_passes_the_sensor(hit_ckpt):
 def test_fused_windows_carve_only_from_the_scans_own_points():
     """With other frames fused in (``extra_points``), the occlusion rule's free space is carved from the scan's own
     points (seen from its sensor), not from the fused ones (seen from elsewhere): complete_scene hands them over."""
-    from spotlights.experiments.scene import SceneConfig, complete_scene
+    from spotlights.completion.frame import SceneConfig, complete_scene
     from spotlights.geometry.boxes import Box
 
     rng = np.random.default_rng(1)

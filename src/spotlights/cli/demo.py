@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ..experiments.demo import run_demo
+from ..completion.demo import run_demo
 from ..utils import output_folder
 from ._util import add_command
 

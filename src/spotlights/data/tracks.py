@@ -579,7 +579,7 @@ class TrackRefiner:
     def upto(self, t: int, progress: Callable[[], None] | None = None) -> None:
         """Make the boxes of frames ``0..t`` final (causal: register the frames up to ``t`` not yet registered;
         otherwise: refine the whole track, once). ``progress``: called after each frame's registration (the track
-        worker's sign of life, :class:`spotlights.experiments.tracks.TrackWorker`)."""
+        worker's sign of life, :class:`spotlights.completion.fusion.TrackWorker`)."""
         n = len(self.frames)
         if t <= self.done:
             return

@@ -19,6 +19,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..completion.frame import HEADING_MARGIN
+from ..completion.frames import ReaderOptions, file_stem
+from ..completion.scan import Say, parse_classes, silent
 from ..data.real.base import CLASSES
 from ..data.real.extract import ExtractConfig, Observations, extract, read_observations, write_observations
 from ..data.real.frames import frame_rows
@@ -27,7 +30,6 @@ from ..metrics.consistency import consecutive_pairs
 from ..utils import check_suffix, check_writable
 from ..viz import html, render_frame
 from ..viz.scene import frame_objects, read_frame_scan
-from .frame_completion import ReaderOptions, file_stem
 from .real_evaluation import (
     RealEvaluationSettings,
     complete_all,
@@ -37,8 +39,6 @@ from .real_evaluation import (
     write_report,
     write_report_json,
 )
-from .scan_completion import Say, parse_classes, silent
-from .scene import HEADING_MARGIN
 
 # ---------------------------------------------------------------------------- extract
 

@@ -8,7 +8,7 @@
 - :mod:`.show` - the paper's qualitative figure: raw scan, partial input, completion.
 
 Completion of real scans and the consistency report (they run models) live one layer up,
-in :mod:`spotlights.experiments.real_evaluation` and :mod:`spotlights.experiments.scene`.
+in :mod:`spotlights.experiments.real_evaluation` and :mod:`spotlights.completion.frame`.
 The file formats, frames and choices are documented in ``docs/real-data.md``.
 """
 

@@ -28,313 +28,32 @@ scan whose up axis is not z into the object convention first and the results bac
 
 from __future__ import annotations
 
-import math
-import numbers
-from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
 
-from ..data.real.base import CLASSES
-from ..data.real.scans import MIN_SCAN_POINTS
 from ..data.vehicle_classes import VEHICLE_CLASSES, canonical_class
 from ..errors import InputFileError, ParameterError
 from ..geometry.boxes import FLIP_Z, Box, crop_boxes
-from ..geometry.evidence import snap_radius
-from ..geometry.io import save_ply, save_points
 from ..geometry.neighbors import serial_queries
 from ..geometry.rotations import is_rotation, rigid_transform
 from ..learning.inference import DEFAULT, complete_in_boxes, prepare_partial, with_observed
 from ..metrics.consistency import fidelity
-from ..options import check_seed
 from ..utils import StageTimer, shared_thread_pool
 from ..viz import SceneObject, html, scene_png, write_png
-
-SOURCE_RAW, SOURCE_PARTIAL, SOURCE_COMPLETION = 0, 1, 2
-HEADING_MARGIN = 0.5
-"""The heading check turns a box around only when the turned completion's fidelity is lower by more than this
-share (0.5: below half the given heading's). Measured with the default model (``benchmarks/heading.py
---checkpoint default``, docs/real-data.md): on 280 synthetic test scans no right box is turned at any margin
-up to 0.6 and 70% of backward boxes are turned back at 0.5 (98% at 0.3); on *correct* annotated real boxes its
-dense completions fit the observed points almost as well either way round, so lower margins turn many of them
-(at 0.3: 15.6% on AV2, 5.5% on nuScenes, 7.7% on KITTI); at 0.5: 3.1%, 0.5% and 0%. (The paper SA-Net turned
-none of the real cars at 0.3: with ``--checkpoint paper`` a margin of 0.3 recovers more.) A backward box
-multiplies the completion's error by 3.2-3.5."""
-HEADING_DOC = (
-    "complete each box also turned by 180 degrees and keep the heading whose completion is clearly closer "
-    "to the observed points (fidelity lower by more than the margin)"
+from .config import (
+    HEADING_DOC,
+    HEADING_MARGIN,
+    SOURCE_COMPLETION,
+    SOURCE_PARTIAL,
+    SOURCE_RAW,
+    SceneConfig,
+    heading_turns,
 )
-
-
-def heading_turns(f_given, f_turned, margin: float = HEADING_MARGIN):
-    """True where the turned heading wins: its fidelity is finite and below ``(1 - margin)`` x the given one's
-    (a given heading with an empty completion loses to any turned one). Scalars or arrays."""
-    fg = np.asarray(f_given, dtype=np.float64)
-    ft = np.asarray(f_turned, dtype=np.float64)
-    return np.isfinite(ft) & (~np.isfinite(fg) | (ft < (1.0 - margin) * fg))
-
-
-@dataclass(frozen=True)
-class SceneConfig:
-    """Parameters of :func:`complete_scene` (lengths in metres).
-
-    classes : classes to complete (None: every vehicle class); ``any_label=True`` completes
-        every valid box whatever its label (the single-object form of ``complete``).
-    crop : False uses every scan point as the object's input (a scan that is already cropped).
-    resample, seed : the 256-point input (see :func:`spotlights.learning.inference.prepare_partial`).
-    clip : SA-Net depth clip (``DEFAULT`` = the checkpoint's; None = no clip).
-    keep_observed : return each object's observed points (the model's input points, repeats removed) after
-        its predicted ones in ``completion`` / ``completion_unit`` (PoinTr-style); fidelity and the heading
-        check are scored on the predicted points alone. Off here; ``complete`` and ``real complete`` turn it
-        on by default (``--no-keep-observed``).
-    complete_unknown : also complete the boxes the model did not learn (``LearnedDomain.gate``: a class
-        outside its classes, or a size far outside its class's range); by default they are left as their
-        observed points, status ``not_learned`` (counted per class in the summary's ``not_completed``).
-    snap : > 0: the SA-Nets' rays that pass within ``snap`` (unit frame: the box's half diagonal) of one of the
-        object's input points take their depth from the scan
-        (:func:`spotlights.geometry.evidence.snap_to_observed`); 0: off (default). Fidelity is then scored on
-        the snapped completion (near 0 by construction), so it does not go with the heading check.
-    snap_mirror : with ``snap``, also snap to the input's mirror image across the box's x-z plane (``y -> -y``).
-    """
-
-    margin: float = 0.15
-    ground_clearance: float = 0.10
-    min_points: int = MIN_SCAN_POINTS
-    classes: tuple | None = None
-    any_label: bool = False
-    crop: bool = True
-    resample: str = "random"
-    seed: int = 0
-    heading_check: bool = False
-    heading_margin: float = HEADING_MARGIN
-    clip: object = "default"
-    keep_observed: bool = False
-    complete_unknown: bool = False
-    snap: float = 0.0
-    snap_mirror: bool = False
-
-    def __post_init__(self):
-        for name in ("margin", "ground_clearance", "heading_margin"):  # snap: snap_radius below
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, numbers.Real):
-                raise ParameterError(f"{name} must be a number, got {v!r}")
-        for name in ("min_points", "seed"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, numbers.Integral):
-                raise ParameterError(f"{name} must be a whole number, got {v!r}")
-        check_seed(self.seed, "the seed")
-        clip = self.clip
-        number = isinstance(clip, numbers.Real) and not isinstance(clip, bool)
-        if not (
-            clip is None
-            or clip is DEFAULT
-            or (isinstance(clip, str) and clip == "default")
-            or (number and 0 <= clip <= 1)
-        ):
-            raise ParameterError(
-                f"clip must be a depth threshold in [0, 1] (unit frame), None (no clip) or 'default', got {clip!r}"
-            )
-        if not (math.isfinite(self.margin) and self.margin >= 0):
-            raise ParameterError(f"margin must be >= 0 metres, got {self.margin}")
-        if not math.isfinite(self.ground_clearance):
-            raise ParameterError(f"ground clearance must be finite, got {self.ground_clearance}")
-        if not 0.0 <= self.heading_margin < 1.0:
-            raise ParameterError(f"the heading margin must be in [0, 1), got {self.heading_margin}")
-        if self.min_points < 1:
-            raise ParameterError(f"the minimum point count must be >= 1, got {self.min_points}")
-        object.__setattr__(self, "snap", snap_radius(self.snap, self.snap_mirror) or 0.0)  # None (off): 0.0
-        if self.snap > 0 and self.heading_check:
-            raise ParameterError(
-                "--snap does not go with --heading-check: the check compares how close each heading's completion "
-                "comes to the observed points, and snapping puts both on them"
-            )
-        if self.classes is not None:
-            bad = [c for c in self.classes if c not in CLASSES]
-            if bad or not self.classes:
-                raise ParameterError(
-                    f"unknown class(es) {', '.join(bad) or '(none given)'}; choose among {', '.join(CLASSES)}"
-                )
-
-
-@dataclass
-class ObjectResult:
-    """One box of the scene and what happened to it.
-
-    ``status``: ``"completed"`` or the reason it was not (``class_excluded``, ``invalid_box``,
-    ``too_few_points``, ``not_learned``: a class or size the model did not learn, left as observed points,
-    ``empty_completion``). Arrays (scan frame, float64, metres):
-    ``completion`` (K, 3); ``input_indices`` (k,) int64 rows of the scan used as the input.
-    ``partial_unit`` (256, 3) and ``completion_unit`` (K, 3) float32: the box's unit frame; ``sensor_unit`` (3,)
-    float64 the LiDAR in that frame; ``seen_unit`` (K', 3) float32, with other frames fused in and ``snap``, the
-    scan's own points in that frame (the occlusion rule's free space). ``box`` as given; ``used_box`` the box
-    completed (turned around when ``flipped``).
-    """
-
-    index: int
-    object_id: int
-    box: Box
-    status: str
-    used_box: Box | None = None
-    input_indices: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    partial_unit: np.ndarray | None = None
-    completion_unit: np.ndarray | None = None
-    sensor_unit: np.ndarray | None = None
-    completion: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    flipped: bool = False
-    fidelity: float | None = None
-    fidelity_flipped: float | None = None
-    warnings: list = field(default_factory=list)
-    n_fused: int | None = None  # input points with other frames' fused in (``extra_points``), else None
-    # with other frames fused in: this scan's own points, unit frame (float32), the free space --snap's occlusion
-    # rule carves from this scan's sensor (the other frames' points were seen from elsewhere); else None
-    seen_unit: np.ndarray | None = None
-    # share of the points inside the box grown by 0.15 m before the clamp (the network's; with --snap, snapped)
-    inside_box: float | None = None
-    completed_by: str | None = None  # the fallback model's name when it, not the main model, completed the box
-
-    def summary(self) -> dict:
-        """JSON-ready description (no point arrays)."""
-        return (
-            dict(
-                index=self.index,
-                object=self.object_id,
-                status=self.status,
-                label=self.box.label,
-                cls=self.box.cls,
-                track_id=self.box.track_id,
-                n_points=int(len(self.input_indices)),
-                n_completion=int(len(self.completion)),
-                flipped=self.flipped,
-                fidelity=self.fidelity,
-                fidelity_flipped=self.fidelity_flipped,
-                warnings=list(self.warnings),
-                box=(self.used_box or self.box).to_dict(),
-            )
-            | ({} if self.n_fused is None else {"n_fused": self.n_fused})
-            | ({} if self.inside_box is None else {"inside_box": round(float(self.inside_box), 4)})
-            | ({} if self.completed_by is None else {"completed_by": self.completed_by})
-        )
-
-
-@dataclass
-class SceneResult:
-    """A completed scene: the scan, every box's :class:`ObjectResult`, the model and timings (seconds)."""
-
-    points: np.ndarray
-    objects: list[ObjectResult]
-    model: str
-    checkpoint: str | None
-    config: SceneConfig
-    timings: dict = field(default_factory=dict)
-    member: np.ndarray | None = None  # (N,) int64 box index of each scan point (-1: none)
-
-    @property
-    def completed(self) -> list[ObjectResult]:
-        return [o for o in self.objects if o.status == "completed"]
-
-    @property
-    def xyz(self) -> np.ndarray:
-        """(M, 3) float64 scan frame, metres: every scan point, then every completion (see :meth:`fields`)."""
-        return self.fields()[0]
-
-    @property
-    def source(self) -> np.ndarray:
-        """(M,) uint8 per point of :attr:`xyz`: 0 raw point, 1 partial input of an object, 2 completion."""
-        return self.fields()[1]
-
-    @property
-    def object(self) -> np.ndarray:
-        """(M,) int32 per point of :attr:`xyz`: its object's id (:func:`object_ids`), -1 outside every box."""
-        return self.fields()[2]
-
-    def skipped(self) -> dict:
-        """{reason: count} of the boxes not completed."""
-        out: dict = {}
-        for o in self.objects:
-            if o.status != "completed":
-                out[o.status] = out.get(o.status, 0) + 1
-        return out
-
-    def not_completed(self) -> dict:
-        """{class: count} of the boxes left as observed points because the model did not learn them (status
-        ``not_learned``; a box without a class counts as ``"unknown"``)."""
-        out: dict = {}
-        for o in self.objects:
-            if o.status == "not_learned":
-                key = o.box.cls or "unknown"
-                out[key] = out.get(key, 0) + 1
-        return out
-
-    def warnings(self) -> list[str]:
-        """One line per warned box: ``object ID (label): reason; reason``."""
-        return [
-            f"object {o.object_id} ({o.box.label or o.box.cls or 'box'}): " + "; ".join(o.warnings)
-            for o in self.objects
-            if o.warnings
-        ]
-
-    def fields(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The scene as arrays: xyz (M, 3) float64 scan frame, ``source`` (M,) uint8, ``object`` (M,) int32.
-
-        Raw points first (every scan point once: source 1 where it is an object's input, else 0),
-        then every completion (source 2).
-        """
-        n = len(self.points)
-        source = np.zeros(n, np.uint8)
-        obj = np.full(n, -1, np.int32)
-        ids = {o.index: o.object_id for o in self.objects}
-        if self.member is not None:
-            inside = self.member >= 0
-            obj[inside] = [ids[i] for i in self.member[inside]]
-        for o in self.completed:
-            source[o.input_indices] = SOURCE_PARTIAL
-        xyz = [self.points] + [o.completion for o in self.completed]
-        src = [source] + [np.full(len(o.completion), SOURCE_COMPLETION, np.uint8) for o in self.completed]
-        ob = [obj] + [np.full(len(o.completion), o.object_id, np.int32) for o in self.completed]
-        return np.concatenate(xyz), np.concatenate(src), np.concatenate(ob)
-
-    def summary(self) -> dict:
-        """JSON-ready summary: counts, model, config, timings, warnings and every object."""
-        from dataclasses import asdict
-
-        cfg = asdict(self.config)
-        cfg["clip"] = (
-            str(cfg["clip"]) if cfg["clip"] is not None and not isinstance(cfg["clip"], float) else cfg["clip"]
-        )
-        return dict(
-            n_points=int(len(self.points)),
-            n_boxes=len(self.objects),
-            n_completed=len(self.completed),
-            n_flipped=sum(o.flipped for o in self.completed),
-            skipped=self.skipped(),
-            not_completed=self.not_completed(),
-            model=self.model,
-            checkpoint=self.checkpoint,
-            config=cfg,
-            timings=self.timings,
-            warnings=self.warnings(),
-            objects=[o.summary() for o in self.objects],
-        )
-
-
-def object_ids(boxes: Sequence[Box]) -> list[int]:
-    """The ``object`` value of each box: its track id where it has an integer one (``"track_id": 7``), its
-    index in the box list where it has none. When a track id is not an integer (nuScenes tokens, AV2 UUIDs),
-    or two boxes would share a value, every box gets its index (the track ids are then in the summary and
-    the PLY header)."""
-    ids = []
-    for i, b in enumerate(boxes):
-        t = str(b.track_id).strip()
-        if not t:
-            ids.append(i)
-        elif t.lstrip("-").isdigit() and -(2**31) < int(t) < 2**31 and int(t) != -1:
-            ids.append(int(t))
-        else:
-            return list(range(len(boxes)))
-    return ids if len(set(ids)) == len(ids) else list(range(len(boxes)))
+from .results import ObjectResult, SceneResult, fallback_counts, object_ids
+from .writing import check_completed, describe, scene_comments, write_scene
 
 
 def _selected(box: Box, config: SceneConfig) -> bool:
@@ -428,14 +147,14 @@ def complete_scene(
     sensor : (3,) the LiDAR's optical centre in the scan's frame, metres (default: the scan's origin); models
         that read free space (``sanet-local``) get it in each box's unit frame.
     extra_points : optional {box index: (k, 3) points, metres, scan frame}: more evidence of that object
-        (other frames of its track, :mod:`spotlights.experiments.tracks`) added to its crop for the model
+        (other frames of its track, :mod:`spotlights.completion.fusion`) added to its crop for the model
         input (and counted towards ``min_points``); the scene's ``source``/``object`` fields keep the scan's own.
     fallback : optional second completer for the boxes whose class or size ``completer`` did not learn (its
         learned domain gates them) but ``fallback`` did, e.g. ``load_completer("classes")`` beside the car-only
         default: those boxes are completed by it (``ObjectResult.completed_by``: ``fallback_name``, else its
         model's name), the others by ``completer``.
     crops : optional {box index: (k,) int64 scan indices} of every valid box, :func:`scene_crops` of these
-        ``points`` and ``boxes`` made elsewhere (a track worker process, :mod:`spotlights.experiments.tracks`);
+        ``points`` and ``boxes`` made elsewhere (a track worker process, :mod:`spotlights.completion.fusion`);
         used without ``axes`` and with ``config.crop``, else ignored.
 
     Returns a :class:`SceneResult`; raises :class:`ParameterError` for a scan with fewer than
@@ -566,11 +285,6 @@ def _crop_objects(
                 o.warnings.append(f"not completed (left as observed points; {hint}--complete-unknown completes it)")
         objects.append(o)
     return objects
-
-
-def fallback_counts(by: dict) -> str:
-    """``{fallback name: boxes it completed}`` as the summary lines say it ("4 by the fallback classes"; "" for none)."""
-    return ", ".join(f"{v} by the fallback {k}" for k, v in sorted(by.items()))
 
 
 def fallback_hint(cls: str | None, domain) -> bool:
@@ -766,105 +480,6 @@ class Fidelities:
         return self.pending[position].result()
 
 
-def check_completed(result: SceneResult, source) -> None:
-    """Raise a one-line :class:`InputFileError` (naming ``source``) when no box of the scene was completed."""
-    if result.completed:
-        return
-    sk = result.skipped()
-    if not result.objects:
-        raise InputFileError(source, "holds no box")
-    what = ", ".join(f"{k} {v}" for k, v in sorted(sk.items()))
-    labels = sorted({o.box.label for o in result.objects if o.status == "class_excluded" and o.box.label})
-    hint = f" (labels: {', '.join(labels[:6])})" if labels else ""
-    if sk.get("not_learned"):
-        hint += " (not_learned: a class or size the model did not learn; --complete-unknown completes them)"
-    raise InputFileError(
-        source,
-        f"no vehicle box to complete: {len(result.objects)} box(es), {what}{hint}; "
-        f"classes completed: {', '.join(result.config.classes or CLASSES)}",
-    )
-
-
-def scene_comments(result: SceneResult, scan_name: str = "") -> list[str]:
-    """PLY header comments describing a scene: fields, model, every object, warnings."""
-    lines = [
-        f"spotlights scene{(' of ' + scan_name) if scan_name else ''}: scan frame, metres",
-        "source: 0 raw point, 1 partial input of an object, 2 completion; object: box index or track id, -1 none",
-        f"model {result.model}" + (f" ({result.checkpoint})" if result.checkpoint else ""),
-    ]
-    for o in result.objects:
-        tid = f" track {o.box.track_id}" if o.box.track_id and str(o.object_id) != o.box.track_id else ""
-        lines.append(
-            f"object {o.object_id}: box {o.index}{tid} {o.box.label or '-'} ({o.box.cls or '-'}) {o.status}, "
-            f"{len(o.input_indices)} points in box, {len(o.completion)} completed"
-            + (", heading flipped" if o.flipped else "")
-        )
-    lines += [f"warning: {w}" for w in result.warnings()]
-    return lines
-
-
-def write_scene(
-    result: SceneResult, out: str | Path, per_object: str | Path | None = None, scan_name: str = ""
-) -> list[Path]:
-    """Write the scene: ``out`` ``.ply`` with x y z, ``source``, ``object`` (any other suffix: the completion
-    points only, as ``save_points`` writes them); ``per_object`` folder: ``object_<id>.ply`` per completed
-    object (its input and completion, with ``source``). Atomic writes, all or nothing: when one
-    fails, those already written are removed again; returns the paths written."""
-    out = Path(out)
-    written: list[Path] = []
-    try:
-        _write_scene_files(result, out, per_object, scan_name, written)
-    except BaseException:
-        for p in written:
-            p.unlink(missing_ok=True)
-        raise
-    return written
-
-
-def _write_scene_files(result: SceneResult, out: Path, per_object, scan_name: str, written: list) -> None:
-    if out.suffix.lower() == ".ply":
-        xyz, src, obj = result.fields()
-        written.append(save_ply(out, xyz, {"source": src, "object": obj}, comments=scene_comments(result, scan_name)))
-    else:
-        pts = np.concatenate([o.completion for o in result.completed]) if result.completed else np.zeros((0, 3))
-        written.append(save_points(out, pts))
-    if per_object is not None:
-        folder = Path(per_object)
-        for o in result.completed:
-            xyz = np.concatenate([result.points[o.input_indices], o.completion])
-            src = np.r_[
-                np.full(len(o.input_indices), SOURCE_PARTIAL, np.uint8),
-                np.full(len(o.completion), SOURCE_COMPLETION, np.uint8),
-            ]
-            com = [
-                f"object {o.object_id}: box {o.index} {o.box.label or '-'} ({o.box.cls or '-'}), model {result.model}"
-            ]
-            com += [f"warning: {w}" for w in o.warnings]
-            written.append(save_ply(folder / f"object_{o.object_id}.ply", xyz, {"source": src}, comments=com))
-
-
-def describe(result: SceneResult) -> str:
-    """One line: boxes, completed objects, skips, points, time."""
-    sk = result.skipped()
-    flips = sum(o.flipped for o in result.completed)
-    by = fallback_counts(Counter(o.completed_by for o in result.completed if o.completed_by))
-    return (
-        f"{len(result.objects)} box(es): {len(result.completed)} completed"
-        + (f" ({by})" if by else "")
-        + (f" ({flips} heading flip{'s' if flips != 1 else ''})" if result.config.heading_check else "")
-        + (", skipped " + ", ".join(f"{k} {v}" for k, v in sorted(sk.items())) if sk else "")
-        + (
-            " (not_learned: left as observed points, "
-            + ", ".join(f"{k} {v}" for k, v in sorted(result.not_completed().items()))
-            + "; --complete-unknown completes them)"
-            if sk.get("not_learned")
-            else ""
-        )
-        + f"; {sum(len(o.completion) for o in result.completed)} completion points; "
-        f"{1000 * result.timings.get('total_s', 0):.0f} ms"
-    )
-
-
 def scene_objects(result: SceneResult) -> list:
     """The completed objects of a scene as :class:`spotlights.viz.SceneObject` (scan frame): box, partial
     input, completion, labelled with their ``object`` ids (as in the PLY); then the objects left as their
@@ -938,6 +553,13 @@ def require_points(points: np.ndarray, min_points: int, source) -> None:
 
 
 __all__ = [
+    "HEADING_MARGIN",
+    "SOURCE_COMPLETION",
+    "SOURCE_PARTIAL",
+    "SOURCE_RAW",
+    "fallback_counts",
+    "heading_turns",
+    "scene_comments",
     "SceneConfig",
     "SceneResult",
     "ObjectResult",

@@ -13,7 +13,7 @@ The plan behind ``spotlights real complete ... --fuse POLICY [--refine-boxes]``:
    refine the whole track at its first frame.
 3. Per frame, :meth:`TrackPlan.frame_inputs` gives the boxes (refined where refined) and, per vehicle box,
    the other frames of its window fused in its box frame (:func:`spotlights.data.tracks.fuse_track`, the
-   completion's crop) and put in this frame's scan frame: :func:`spotlights.experiments.scene.complete_scene`
+   completion's crop) and put in this frame's scan frame: :func:`spotlights.completion.frame.complete_scene`
    adds them to the box's own crop for the model input. The completion is the existing one, on more points.
    With ``worker=True`` (and two usable CPUs) a :class:`TrackWorker` process crops the tracked boxes while the
    frames are read, then refines and fuses the frames ahead of the frame loop, which completes them meanwhile:
@@ -67,8 +67,8 @@ from ..geometry.boxes import Box
 from ..geometry.io import save_ply
 from ..options import check_threads
 from ..utils import StageTimer, _quiet_worker, atomic_output, process_pool_context, sigint_held
+from .frame import SOURCE_COMPLETION, SOURCE_PARTIAL, SceneConfig, SceneResult, _selected, scene_crops
 from .names import file_stem, sequence_folders, unique_names
-from .scene import SOURCE_COMPLETION, SOURCE_PARTIAL, SceneConfig, SceneResult, _selected, scene_crops
 
 if TYPE_CHECKING:
     from multiprocessing.process import BaseProcess
@@ -326,7 +326,7 @@ class TrackPlan:
 
     def frame_crops(self, key: Hashable) -> dict | None:
         """The crops of frame ``key``'s scene that the worker made with its (refined) boxes ({box index: (k,) int64},
-        :func:`spotlights.experiments.scene.scene_crops`), for ``complete_scene(..., crops=...)``; None without (no
+        :func:`spotlights.completion.frame.scene_crops`), for ``complete_scene(..., crops=...)``; None without (no
         worker, or a frame it was not sent the scan of). Asked for after :meth:`frame_inputs`, handed out once."""
         return self.scene_crops.pop(key, None)
 
@@ -670,7 +670,7 @@ class TrackWorker:
         """Have the worker crop the tracked boxes ``todo`` (indices into the frame's ``boxes``) of frame ``key`` from
         its scan ``points`` (N, 3): the plan's crops (:meth:`TrackPlan.build` leaves their points None), made while
         the frames are still being read. ``keep``: the worker keeps the scan and, when it prepares the frame,
-        makes its scene's crops too (:func:`spotlights.experiments.scene.scene_crops`, :meth:`TrackPlan.frame_crops`)."""
+        makes its scene's crops too (:func:`spotlights.completion.frame.scene_crops`, :meth:`TrackPlan.frame_crops`)."""
         self.jobs.put(("scan", key, points, todo, boxes, grow, ground_clearance, keep))
 
     def send(self, plan: TrackPlan, keys: list) -> None:

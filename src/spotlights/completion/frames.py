@@ -2,7 +2,7 @@
 
 :class:`ReaderOptions` opens a dataset of any supported format with its format's options checked;
 :class:`FramesSettings` adds the frame selection, the outputs, the track fusion (``fuse``) and the
-:class:`~spotlights.experiments.scan_completion.CompletionOptions`; :func:`complete_frames` runs the
+:class:`~spotlights.completion.scan.CompletionOptions`; :func:`complete_frames` runs the
 resumable per-frame loop and writes, per frame, ``[SEQUENCE/]FRAME.ply`` (x y z, ``source``, ``object``;
 scan frame, metres), ``FRAME.png``, ``FRAME.html``, ``FRAME_objects/`` and, last, ``FRAME.json`` (a frame
 with its JSON is done: ``resume`` skips it), then ``summary.json``.
@@ -41,9 +41,7 @@ from ..utils import (
 from ..viz import write_png
 from ..viz.html import write_plotlyjs
 from ..viz.rerun_log import check_rerun_path, open_recording
-from .names import FRAME_SUFFIXES, RESERVED_FRAMES, file_stem, safe_name, sequence_folders, unique_names
-from .scan_completion import CompletionOptions, Say, ScanSettings, complete_scan, silent, write_json
-from .scene import (
+from .frame import (
     SceneConfig,
     SceneResult,
     complete_scene,
@@ -54,12 +52,14 @@ from .scene import (
     result_png,
     write_scene,
 )
-from .tracks import TrackPlan, TrackWorker, threads_beside_worker, usable_cpus
+from .fusion import TrackPlan, TrackWorker, threads_beside_worker, usable_cpus
+from .names import FRAME_SUFFIXES, RESERVED_FRAMES, file_stem, safe_name, sequence_folders, unique_names
+from .scan import CompletionOptions, Say, ScanSettings, complete_scan, silent, write_json
 
 
 def frame_stems(keys) -> dict[tuple, Path]:
     """The output stem of each frame key ``(sequence, frame_id)``, relative to the output folder:
-    ``SEQUENCE/FRAME`` (``FRAME`` without a sequence; :mod:`spotlights.experiments.names`). Distinct frames never
+    ``SEQUENCE/FRAME`` (``FRAME`` without a sequence; :mod:`spotlights.completion.names`). Distinct frames never
     share a file, none is a file of the run (``summary.json``, ``tracks.json``); a frame's name depends on the other
     frames only when two names differ in letter case alone (``A`` and ``a`` both take the digest)."""
     seqs = sequence_folders(keys)
@@ -175,7 +175,7 @@ class ReaderOptions:
 @dataclass(kw_only=True)
 class FramesSettings(ReaderOptions, CompletionOptions):
     """What ``spotlights real complete`` does: a dataset (:class:`ReaderOptions`), the model and its options
-    (:class:`~spotlights.experiments.scan_completion.CompletionOptions`), and
+    (:class:`~spotlights.completion.scan.CompletionOptions`), and
 
     out : the output folder; frames : a :func:`parse_frames` selection (None: every frame);
     per_object, no_pictures, html : per-object PLYs, no PNGs, an HTML page per frame; picture_workers : processes
@@ -187,7 +187,7 @@ class FramesSettings(ReaderOptions, CompletionOptions):
     max_gap : the longest time between two frames of one track, seconds; rerun : a ``.rrd`` file that also
     receives every frame on a time line (:mod:`spotlights.viz.rerun_log`; None: none); quiet : no progress bar;
     track_worker : with fuse, refine the boxes and fuse the windows in a second process, a frame ahead of the
-    completion (:class:`~spotlights.experiments.tracks.TrackWorker`: the same outputs, two cores).
+    completion (:class:`~spotlights.completion.fusion.TrackWorker`: the same outputs, two cores).
     """
 
     out: str
@@ -249,8 +249,8 @@ class FramesSettings(ReaderOptions, CompletionOptions):
     def track_plan(
         self, reader: SceneReader, keys: list, config: SceneConfig, worker: TrackWorker | None = None
     ) -> TrackPlan | None:
-        """The built :class:`~spotlights.experiments.tracks.TrackPlan` of ``fuse`` (None without fusion); ``worker``:
-        its :class:`~spotlights.experiments.tracks.TrackWorker`, started earlier (default: one started here with
+        """The built :class:`~spotlights.completion.fusion.TrackPlan` of ``fuse`` (None without fusion); ``worker``:
+        its :class:`~spotlights.completion.fusion.TrackWorker`, started earlier (default: one started here with
         ``track_worker``)."""
         if self.window.fuses:
             use = worker if worker is not None else self.track_worker
@@ -269,7 +269,7 @@ def done_frame(
     path: Path, config: SceneConfig, model: str, checkpoint: str, fuse: dict | None = None, precision: str = "fp32"
 ) -> dict | None:
     """The summary of a frame finished by an earlier run with the same model and options (``fuse``: the track
-    fusion's, :meth:`~spotlights.experiments.tracks.TrackPlan.settings`; None: none; ``precision``: the model's,
+    fusion's, :meth:`~spotlights.completion.fusion.TrackPlan.settings`; None: none; ``precision``: the model's,
     ``fp32`` or ``bf16``), else None."""
     try:
         summ = json.loads(path.read_text(encoding="utf-8"))
@@ -313,7 +313,7 @@ PICTURE_CLOSE_S = 10.0
 
 def picture_workers(asked: int | None, n_frames: int) -> int:
     """How many processes draw a run's PNGs (:class:`PictureProcesses`): ``asked`` (``--picture-workers``), by
-    default one per usable CPU (:func:`~spotlights.experiments.tracks.usable_cpus`: drawing a frame costs several
+    default one per usable CPU (:func:`~spotlights.completion.fusion.usable_cpus`: drawing a frame costs several
     times its completion, so the frame loop's own CPU is mostly free), at most :data:`PICTURE_WORKERS_MAX`, none on
     one CPU; never more than ``n_frames`` and none for a single frame (0: the writer thread draws them, one frame
     at a time, as before)."""
@@ -336,7 +336,7 @@ def _ready_to_draw() -> None:
 
 class PictureProcesses:
     """Worker processes (:func:`~spotlights.utils.start_process_pool`: the fork server, Ctrl-C left to this
-    process) that draw frames' PNGs (:func:`~spotlights.experiments.scene.result_png`), ``workers`` frames at once,
+    process) that draw frames' PNGs (:func:`~spotlights.completion.frame.result_png`), ``workers`` frames at once,
     while the frame loop completes the next ones. The bytes are those of drawing in this process (the same
     function; matplotlib's defaults in both: rcParams changed in this process do not reach the workers); the
     writer thread writes them in frame order."""
@@ -644,7 +644,7 @@ class _FrameRun:
 
     def _fallback_hint(self) -> bool:
         """True when, without a fallback model, some box was left as observed points for a vehicle class that the
-        main model did not learn and the packaged class model did (:func:`spotlights.experiments.scene.fallback_hint`)."""
+        main model did not learn and the packaged class model did (:func:`spotlights.completion.frame.fallback_hint`)."""
         domain = getattr(self.completer, "domain", None)
         if self.fallback is not None or domain is None:
             return False
@@ -725,7 +725,7 @@ def complete_frames(
 def complete_input(
     s: ScanSettings, say: Say = silent, warn: Say = silent, completer: BaseCompleter | None = None
 ) -> SceneResult | dict:
-    """What ``spotlights complete INPUT`` runs: one scan file (:func:`~spotlights.experiments.scan_completion.
+    """What ``spotlights complete INPUT`` runs: one scan file (:func:`~spotlights.completion.scan.
     complete_scan`: ``s.out`` is its scene file; returns its :class:`SceneResult`), or a multi-frame generic scene
     (a folder of frames or a sequence ``.json``: :func:`complete_frames` of :meth:`FramesSettings.of_scene`,
     ``s.out`` a folder, with ``s.fuse``, ``s.refine_boxes``, ``s.max_gap``, ``s.rerun`` and ``s.track_worker``; returns the run's

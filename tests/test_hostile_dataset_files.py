@@ -1,4 +1,4 @@
-"""Hostile data files found by the fuzzing pass of stop 41, each answered with the file's one-line error (exit
+"""Hostile data files, each answered with the file's one-line error (exit
 code 2, no traceback) instead of a JSONDecodeError / ValueError / AttributeError or a silently wrong run:
 damaged JSON or integer attributes of completion datasets and real-observation files, partial scans that hold
 NaN or infinities, are not floating point or have the wrong number of points, and files without /samples."""
@@ -14,13 +14,25 @@ import pytest
 
 from spotlights.data.store import int_attribute, json_attribute, open_dataset
 from spotlights.errors import InputFileError, ProcessFailure, SpotlightsError
-from test_dataset import meshes, reference, small_cfg  # noqa: F401  (module fixtures: a 3-model, 18-sample file)
 
+from builders import build_reference, small_cfg, write_box_meshes
 from helpers import assert_user_error, run_cli
 from learning_fixtures import make_checkpoint
 
 
-def damaged(reference, tmp_path, change, name="bad.h5"):  # noqa: F811
+@pytest.fixture(scope="module")
+def meshes(tmp_path_factory):
+    """Three small models in two categories (the dataset tests' meshes)."""
+    return write_box_meshes(tmp_path_factory.mktemp("meshes"))
+
+
+@pytest.fixture(scope="module")
+def reference(meshes, tmp_path_factory):
+    """A 3-model, 18-sample dataset of ``meshes``."""
+    return build_reference(meshes, tmp_path_factory.mktemp("ref") / "ref.h5")
+
+
+def damaged(reference, tmp_path, change, name="bad.h5"):
     """A copy of the reference dataset in ``tmp_path`` with ``change(h5py.File)`` applied."""
     out = tmp_path / name
     shutil.copy(reference, out)
@@ -70,7 +82,7 @@ ATTRIBUTES = [
 
 @pytest.mark.timeout(120)
 @pytest.mark.parametrize("key, value, message", ATTRIBUTES)
-def test_damaged_attributes_are_the_files_one_line_error(reference, tmp_path, key, value, message):  # noqa: F811
+def test_damaged_attributes_are_the_files_one_line_error(reference, tmp_path, key, value, message):
     bad = damaged(reference, tmp_path, set_attr(key, value))
     for args in (
         ["dataset", "info", bad],
@@ -84,14 +96,14 @@ def test_damaged_attributes_are_the_files_one_line_error(reference, tmp_path, ke
 
 
 @pytest.mark.timeout(120)
-def test_damaged_attribute_stops_train(reference, tmp_path):  # noqa: F811
+def test_damaged_attribute_stops_train(reference, tmp_path):
     bad = damaged(reference, tmp_path, set_attr("config_json", "[1,2]"))
     proc = run_cli("train", "--model", "pcn", "--data", bad, "--epochs", "1", "--out", tmp_path / "run", "-q")
     assert_user_error(proc, f"{bad}: damaged config_json attribute")
 
 
 @pytest.mark.timeout(120)
-def test_damaged_rig_json_names_the_rig(reference, tmp_path):  # noqa: F811
+def test_damaged_rig_json_names_the_rig(reference, tmp_path):
     bad = damaged(reference, tmp_path, lambda f: None)
     with h5py.File(bad, "a") as f:
         f["rigs/cap-64x32-60"].attrs["rig_json"] = "[1, 2]"
@@ -113,7 +125,7 @@ def test_damaged_rig_json_names_the_rig(reference, tmp_path):  # noqa: F811
         (lambda p: p[:10], "/samples/partial has shape (10, 256, 3), expected (18, 256, 3)"),
     ],
 )
-def test_evaluate_refuses_partials_that_are_not_finite_float_scans(reference, tmp_path, edit, message):  # noqa: F811
+def test_evaluate_refuses_partials_that_are_not_finite_float_scans(reference, tmp_path, edit, message):
     bad = damaged(reference, tmp_path, set_partial(edit))
     ckpt = make_checkpoint(tmp_path / "pcn.pt", "pcn")
     out = tmp_path / "report"
@@ -124,7 +136,7 @@ def test_evaluate_refuses_partials_that_are_not_finite_float_scans(reference, tm
 
 @pytest.mark.timeout(120)
 @pytest.mark.parametrize("lazy, workers", [(False, 0), (True, 0), (True, 2)])
-def test_train_refuses_nan_partials(reference, tmp_path, lazy, workers):  # noqa: F811
+def test_train_refuses_nan_partials(reference, tmp_path, lazy, workers):
     """With lazy reading in DataLoader worker processes (``workers`` 2) the file's error came back as torch's
     RuntimeError and its traceback: torch rebuilds a worker's exception from its message alone."""
     bad = damaged(reference, tmp_path, set_partial(with_nan))
@@ -139,7 +151,7 @@ def test_train_refuses_nan_partials(reference, tmp_path, lazy, workers):  # noqa
 
 
 @pytest.mark.timeout(60)
-def test_reader_checks_partials_where_it_reads_them(reference, tmp_path):  # noqa: F811
+def test_reader_checks_partials_where_it_reads_them(reference, tmp_path):
     bad = damaged(reference, tmp_path, set_partial(lambda p: np.where(np.arange(18)[:, None, None] == 6, np.nan, p)))
     with open_dataset(bad) as ds:  # the header is sound: the file opens
         with pytest.raises(InputFileError, match=r"partial\[6\]: partial scans contain NaN"):
@@ -155,7 +167,7 @@ def test_reader_checks_partials_where_it_reads_them(reference, tmp_path):  # noq
 
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize("missing", ["samples", "samples/model", "models", "models/split", "rigs"])
-def test_file_without_a_group_names_it(reference, tmp_path, missing):  # noqa: F811
+def test_file_without_a_group_names_it(reference, tmp_path, missing):
     def change(f):
         del f[missing]
 
@@ -166,7 +178,7 @@ def test_file_without_a_group_names_it(reference, tmp_path, missing):  # noqa: F
 
 
 @pytest.mark.timeout(60)
-def test_a_group_that_is_a_dataset_is_named(reference, tmp_path):  # noqa: F811
+def test_a_group_that_is_a_dataset_is_named(reference, tmp_path):
     def change(f):
         del f["samples"]
         f["samples"] = np.zeros(3)
@@ -176,7 +188,7 @@ def test_a_group_that_is_a_dataset_is_named(reference, tmp_path):  # noqa: F811
 
 
 @pytest.mark.timeout(180)
-def test_shards_are_checked_one_by_one(meshes, reference, tmp_path):  # noqa: F811
+def test_shards_are_checked_one_by_one(meshes, reference, tmp_path):
     from spotlights.data.synthetic import build_dataset
 
     index = tmp_path / "sh.json"
@@ -193,7 +205,8 @@ def make_observations(tmp_path):
     """A small real-observation file (one scan, two vehicles) made by 'real extract'."""
     from spotlights.data.real import open_reader
     from spotlights.data.real.extract import ExtractConfig, extract, write_observations
-    from test_real_extract import make_scene
+
+    from builders import make_scene
 
     make_scene(tmp_path)
     obs = extract(open_reader(tmp_path / "scan.npy", "generic"), ExtractConfig(min_points=5), progress=False)

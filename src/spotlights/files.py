@@ -17,10 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import viz
-from ..errors import InputFileError, ParameterError, SpotlightsError
-from ..geometry.encode import MeshProbe, hit_ratio, load_encoding, save_encoding
-from ..geometry.io import (
+from . import viz
+from .completion.scan import Say, silent
+from .errors import InputFileError, ParameterError, SpotlightsError
+from .geometry.encode import MeshProbe, hit_ratio, load_encoding, save_encoding
+from .geometry.io import (
     MESH_SUFFIXES,
     POINT_SUFFIXES,
     load_mesh,
@@ -29,11 +30,10 @@ from ..geometry.io import (
     ply_has_faces,
     save_points,
 )
-from ..geometry.rig import RigSpec, make_rig_spec
-from ..utils import check_suffix, check_writable
-from ..viz import html, serve
-from ..viz.html import SOURCES
-from .scan_completion import Say, silent
+from .geometry.rig import RigSpec, make_rig_spec
+from .utils import check_suffix, check_writable
+from .viz import html, serve
+from .viz.html import SOURCES
 
 
 @dataclass(kw_only=True)

@@ -3,7 +3,7 @@
 :class:`CompletionOptions` holds the options ``complete`` and ``real complete`` share (model, runtime,
 class selection, crop, model input, heading check), one field per command-line option, with the same
 defaults; :meth:`CompletionOptions.scene_config` turns them into the
-:class:`~spotlights.experiments.scene.SceneConfig` of :func:`~spotlights.experiments.scene.complete_scene`
+:class:`~spotlights.completion.frame.SceneConfig` of :func:`~spotlights.completion.frame.complete_scene`
 and :meth:`CompletionOptions.load_completer` loads the model with the runtime
 (:func:`spotlights.learning.runtime.load_completer`, the one place that chooses torch or ONNX).
 
@@ -18,7 +18,6 @@ axes (:func:`spotlights.geometry.io.axes_rotation`), and every output is in the 
 from __future__ import annotations
 
 import dataclasses
-import json
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -36,8 +35,8 @@ from ..inputs import read_json
 from ..learning.inference import BaseCompleter
 from ..learning.runtime import Runtime, load_completer
 from ..options import check_threads
-from ..utils import atomic_output, check_distinct_paths, check_suffix, check_writable, same_file
-from .scene import (
+from ..utils import check_distinct_paths, check_suffix, check_writable, same_file
+from .frame import (
     HEADING_MARGIN,
     SceneConfig,
     SceneResult,
@@ -51,7 +50,8 @@ from .scene import (
     require_sensor,
     write_scene,
 )
-from .tracks import threads_beside_worker
+from .fusion import threads_beside_worker
+from .writing import write_json
 
 Say = Callable[[str], None]
 """A callback taking one line of text (``print`` for the summary lines; a warning printer for warnings)."""
@@ -101,7 +101,7 @@ class CompletionOptions:
     classes : comma-separated classes to complete (text or tuple); None: every vehicle class.
     keep_observed : return each object's observed points beside its predicted ones.
     snap : > 0: snap the SA-Nets' rays to each object's observed points within this radius (unit frame; 0: off;
-        :class:`~spotlights.experiments.scene.SceneConfig`); snap_mirror : and to their mirror image (``y -> -y``).
+        :class:`~spotlights.completion.frame.SceneConfig`); snap_mirror : and to their mirror image (``y -> -y``).
     complete_unknown : also complete boxes whose class (or size, far outside its class's range) the model did not
         learn (default: left as their observed points, status ``not_learned``, counted per class).
     fallback : a second model (file or short name, e.g. ``"classes"``) for the boxes :attr:`checkpoint`'s model
@@ -116,7 +116,7 @@ class CompletionOptions:
     clip, no_clip : SA-Net depth clip in [0, 1] (None: the checkpoint's); ``no_clip`` keeps every ray.
     device, precision, runtime : torch device, ``fp32``/``bf16``/``auto``, ``torch``/``onnx`` (None: by suffix).
     threads : torch CPU threads for the run (None: torch's default; with a track worker process, the usable CPUs less
-        one: :func:`spotlights.experiments.tracks.threads_beside_worker`); a given count is used as it is, and with
+        one: :func:`spotlights.completion.fusion.threads_beside_worker`); a given count is used as it is, and with
         ``runtime="onnx"`` it is onnxruntime's intra-op thread count too.
     """
 
@@ -155,7 +155,7 @@ class CompletionOptions:
         return resolve_fallback(self.fallback, self.checkpoint, self.runtime)
 
     def scene_config(self, margin: float | None = None, crop: bool = True) -> SceneConfig:
-        """The :class:`~spotlights.experiments.scene.SceneConfig` of these options (``margin``: the crop
+        """The :class:`~spotlights.completion.frame.SceneConfig` of these options (``margin``: the crop
         margin in metres when given another way, else :attr:`margin`; ``crop=False``: every scan point is the
         object's input). Raises :class:`ParameterError` for options that do not go together."""
         margin = self.margin if margin is None else margin
@@ -193,8 +193,8 @@ class CompletionOptions:
         )
 
     def check_snap(self, completer: BaseCompleter) -> None:
-        """Refuse ``--snap`` for a main model without rays before any work (:func:`~spotlights.experiments.scene.
-        require_rays_to_snap`, which :func:`~spotlights.experiments.scene.complete_scene` runs again per scan)."""
+        """Refuse ``--snap`` for a main model without rays before any work (:func:`~spotlights.completion.frame.
+        require_rays_to_snap`, which :func:`~spotlights.completion.frame.complete_scene` runs again per scan)."""
         require_rays_to_snap(completer, self.snap)
 
     def load_fallback(self) -> BaseCompleter | None:
@@ -221,7 +221,7 @@ class ScanSettings(CompletionOptions):
     up, forward : the scan's axes; per_object : folder of ``object_<id>.ply``; summary : JSON file;
     show : PNG picture; html : interactive page; quiet : no summary lines.
     fuse, refine_boxes, max_gap, rerun, track_worker : for a multi-frame scene (:attr:`multi_frame`: ``input`` a folder of
-    frames or a sequence ``.json`` of the generic format), as :class:`~spotlights.experiments.frame_completion.
+    frames or a sequence ``.json`` of the generic format), as :class:`~spotlights.completion.frames.
     FramesSettings` has them; a single scan refuses a fusing window, ``refine_boxes``, ``rerun`` and
     ``track_worker=False``
     (:meth:`check_single_scan`).
@@ -370,7 +370,7 @@ class ScanSettings(CompletionOptions):
         return [with_class(box)]
 
 
-#: The names of ``--per-object DIR``'s files: ``object_<id>.ply`` (:func:`~spotlights.experiments.scene.write_scene`).
+#: The names of ``--per-object DIR``'s files: ``object_<id>.ply`` (:func:`~spotlights.completion.frame.write_scene`).
 _PER_OBJECT_NAME = re.compile(r"^object_-?\d+\.ply$")
 
 
@@ -396,12 +396,6 @@ def _check_single(s: ScanSettings, result: SceneResult, points: np.ndarray, axes
             warn(f"{outside:.0%} of the scan lies outside the box's sphere; is the box in the scan's frame?")
 
 
-def write_json(path: str | Path, data: dict) -> None:
-    """``data`` as indented JSON (numpy scalars as floats), written atomically to ``path``."""
-    with atomic_output(path) as tmp:
-        tmp.write_text(json.dumps(data, indent=2, default=float) + "\n", encoding="utf-8")
-
-
 def complete_scan(
     s: ScanSettings, say: Say = silent, warn: Say = silent, completer: BaseCompleter | None = None
 ) -> SceneResult:
@@ -409,7 +403,7 @@ def complete_scan(
 
     Checks every option and destination first (one-line :class:`~spotlights.errors.SpotlightsError` naming the
     option or file), reads the scan ((N, 3) metres, scan frame) and its boxes, loads the model
-    (:meth:`CompletionOptions.load_completer`), completes (:func:`~spotlights.experiments.scene.complete_scene`)
+    (:meth:`CompletionOptions.load_completer`), completes (:func:`~spotlights.completion.frame.complete_scene`)
     and writes ``s.out`` (+ per-object files, JSON summary, PNG, HTML). ``say`` receives the summary lines,
     ``warn`` one line per warning (out-of-domain boxes); ``completer``: a model already loaded (default: the
     one ``s`` names). Returns the :class:`SceneResult` (scan frame, metres).

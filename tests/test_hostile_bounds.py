@@ -1,4 +1,4 @@
-"""Hostile sizes found by the stop-41 fuzzing pass: counts, steps, seeds and learning rates without an upper bound
+"""Hostile sizes: counts, steps, seeds and learning rates without an upper bound
 ran for ever, died of memory in a worker or failed deep in torch. Each is now one line with exit code 2, naming
 the option (or config key) and its range, before any output is written or a worker starts; ``--up -z`` is read as
 the axis -z instead of an unknown option."""
