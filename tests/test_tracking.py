@@ -371,3 +371,87 @@ def test_the_study_page_quotes_the_results_file():
         f"{m['mostly_tracked']} tracks mostly tracked, {m['mostly_lost']} mostly lost",
     ):
         assert phrase in text, phrase
+
+
+# --- real complete --detections --track ------------------------------------------------------------------------
+
+
+CARS = ([10.0, 2.0, -0.9], [-6.0, -5.0, -0.9])  # centres at t = 0; the first drives at 2 m/s along x
+CAR_SIZE = [4.2, 1.8, 1.5]
+
+
+def _write_drive(folder, times):
+    """Generic frames ``f0.npy`` + ``f0.json`` ...: two cars as points on their front and back faces, plus ground;
+    their boxes have no track id."""
+    rng = np.random.default_rng(0)
+    folder.mkdir(parents=True)
+    size = np.array(CAR_SIZE)
+    for k, t in enumerate(times):
+        pts, boxes = [rng.uniform(-30, 30, (300, 3)) * [1, 1, 0] - [0, 0, 1.7]], []
+        for c in CARS:
+            c = [c[0] + (2.0 * t if c is CARS[0] else 0.0), c[1], c[2]]
+            obj = rng.uniform(-0.5, 0.5, (300, 3)) * size
+            obj[:, 0] = np.sign(obj[:, 0]) * size[0] / 2
+            obj[:, 2] = rng.uniform(-size[2] / 2 + 0.12, size[2] / 2, 300)  # above the ground cut
+            pts.append(obj + c)
+            boxes.append({"center": c, "size": CAR_SIZE, "yaw": 0.0, "label": "car"})
+        np.save(folder / f"f{k}.npy", np.concatenate(pts).astype(np.float32))
+        (folder / f"f{k}.json").write_text(json.dumps({"timestamp": t, "boxes": boxes}))
+    return folder
+
+
+def _drive_detections(tmp_path, times) -> str:
+    """Detections of the two cars of :func:`_write_drive` (no track ids, scores), as a generic sequence JSON."""
+    frames = []
+    for k, t in enumerate(times):
+        boxes = [
+            {"center": c, "size": CAR_SIZE, "yaw": 0.0, "label": "car", "score": 0.9}
+            for c in ([CARS[0][0] + 2.0 * t, *CARS[0][1:]], CARS[1])
+        ]
+        frames.append({"frame_id": f"f{k}", "timestamp": t, "boxes": boxes})
+    path = tmp_path / "det.json"
+    path.write_text(json.dumps({"sequence": "drive", "frames": frames}))
+    return str(path)
+
+
+def test_real_complete_refuses_detections_without_track(tmp_path, capsys):
+    from spotlights.cli import main
+
+    src = _write_drive(tmp_path / "drive", [0.0, 0.5])
+    det = _drive_detections(tmp_path, [0.0, 0.5])
+    out = tmp_path / "out"
+    for extra, message in (
+        ([], "--detections needs --track"),
+        (["--track", "--format", "kitti360"], "--detections is read beside --format nuscenes, kitti, generic"),
+    ):
+        argv = ["real", "complete", str(src), "--format", "generic", "--out", str(out), "--detections", det, *extra]
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and message in err[0] and not out.exists(), err
+    assert main(["real", "complete", str(src), "--format", "generic", "--out", str(out), "--track"]) == 2
+    assert "--track goes with --detections" in capsys.readouterr().err and not out.exists()
+
+
+def test_real_complete_tracks_detections_and_fuses_them(tmp_path):
+    """The drive's boxes carry no track id (--fuse alone refuses them); its detections, tracked, give the two cars
+    one id each, and --fuse all fuses each car's three frames."""
+    pytest.importorskip("torch")
+    from spotlights.cli import main
+
+    from learning_fixtures import make_checkpoint
+
+    times = [0.0, 0.5, 1.0]
+    src = _write_drive(tmp_path / "drive", times)
+    det = _drive_detections(tmp_path, times)
+    ck = make_checkpoint(tmp_path / "tiny.pt", "sanet")
+    common = ["--format", "generic", "-c", str(ck), "--no-clip", "-q", "--no-pictures", "--fuse", "all"]
+    assert main(["real", "complete", str(src), "--out", str(tmp_path / "plain"), *common]) == 2  # no track ids
+    argv = ["real", "complete", str(src), "--out", str(tmp_path / "out"), *common, "--detections", det, "--track"]
+    assert main(argv) == 0
+    tracks = json.loads((tmp_path / "out" / "tracks.json").read_text())
+    assert tracks["n_tracks"] == 2
+    for tr in tracks["tracks"]:
+        assert [r["n_points"] for r in tr["frames"]] == [300, 300, 300]
+        assert [r["n_fused"] for r in tr["frames"]] == [900, 900, 900]
+    rec = json.loads((tmp_path / "out" / "drive" / "f1.json").read_text())
+    assert sorted(o["n_fused"] for o in rec["objects"] if o["status"] == "completed") == [900, 900]

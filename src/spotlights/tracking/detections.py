@@ -51,7 +51,7 @@ import numpy as np
 from ..data.real.base import CLASSES
 from ..data.real.boxfiles import CLASS_MAP as BOX_FILE_CLASSES
 from ..data.real.boxfiles import parse_boxes, parse_frame_keys, read_json_boxes
-from ..data.real.generic import natural_key
+from ..data.real.generic import frame_name, natural_key
 from ..data.real.kitti import box_from_label, read_calib, velo_from_rect
 from ..data.real.nuscenes import NuScenesReader
 from ..errors import InputFileError, ParameterError
@@ -377,7 +377,7 @@ def read_generic_detections(path: str | os.PathLike) -> list[DetectionFrame]:
                 else:
                     _cap(len(fr["boxes"]), path)
                     boxes = parse_boxes(fr["boxes"], path, what=f"{what} box")
-                name = Path(str(fr["scan"])).stem if isinstance(fr.get("scan"), str) else f"{i:06d}"
+                name = frame_name(Path(fr["scan"])) if isinstance(fr.get("scan"), str) else f"{i:06d}"
                 raw.append(_generic_frame(keys, boxes, name, default_seq, path))
         else:
             bf = read_json_boxes(path)
