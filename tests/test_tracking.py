@@ -428,8 +428,9 @@ def test_real_complete_refuses_detections_without_track(tmp_path, capsys):
         assert main(argv) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and message in err[0] and not out.exists(), err
-    assert main(["real", "complete", str(src), "--format", "generic", "--out", str(out), "--track"]) == 2
-    assert "--track goes with --detections" in capsys.readouterr().err and not out.exists()
+    for alone in (["--track"], ["--min-score", "0.3"]):
+        assert main(["real", "complete", str(src), "--format", "generic", "--out", str(out), *alone]) == 2
+        assert "--track and --min-score go with --detections" in capsys.readouterr().err and not out.exists()
 
 
 def test_real_complete_tracks_detections_and_fuses_them(tmp_path):

@@ -157,7 +157,9 @@ def register(sub) -> None:
     g.add_argument(
         "--track", action="store_true", help="give --detections track ids (the tracker of 'spotlights track')"
     )
-    g.add_argument("--min-score", type=unit_interval, default=0.0, metavar="S", help="drop detections scoring below S")
+    g.add_argument(
+        "--min-score", type=unit_interval, metavar="S", help="drop detections scoring below S (default: none)"
+    )
     add_quiet(p)
 
     p = add_command(

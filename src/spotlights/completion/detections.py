@@ -41,12 +41,14 @@ class TrackedReader(SceneReader):
         return dataclasses.replace(frame, boxes=list(self.tracked.get(key, [])), label_path=self.label_path)
 
 
-def check_detection_options(detections: str | None, track: bool, fmt: str, sources: int) -> None:
-    """One-line :class:`ParameterError` for ``--detections`` without ``--track`` (or the reverse), for a format
-    whose detections cannot be read, or for several sources."""
+def check_detection_options(
+    detections: str | None, track: bool, fmt: str, sources: int, min_score: float | None = None
+) -> None:
+    """One-line :class:`ParameterError` for ``--detections`` without ``--track`` (or ``--track`` or ``--min-score``
+    without ``--detections``), for a format whose detections cannot be read, or for several sources."""
     if detections is None:
-        if track:
-            raise ParameterError("--track goes with --detections FILE (the detector's boxes to track)")
+        if track or min_score is not None:
+            raise ParameterError("--track and --min-score go with --detections FILE (the detector's boxes to track)")
         return
     if not track:
         raise ParameterError(
@@ -62,12 +64,12 @@ def tracked_reader(
     reader: SceneReader,
     detections: str,
     source: str,
-    min_score: float = 0.0,
+    min_score: float | None = None,
     scenes: list | None = None,
     config: TrackerConfig | None = None,
 ) -> TrackedReader:
     """``reader`` (the dataset at ``source``) with the tracked boxes of the detection file ``detections`` (module
-    docstring); ``scenes``: the nuScenes scenes read. :class:`InputFileError` when no detection frame is a frame of
+    docstring); ``min_score``: None keeps every score; ``scenes``: the nuScenes scenes read. :class:`InputFileError` when no detection frame is a frame of
     the dataset."""
     fmt = reader.format
     if fmt == "nuscenes":
@@ -80,6 +82,6 @@ def tracked_reader(
     frames = [f for f in frames if (f.sequence, f.frame_id) in keys]
     if not frames:
         raise InputFileError(detections, f"no frame of the detections is a frame of {source} (sequence, frame id)")
-    frames, _ = filter_detections(frames, min_score, CLASSES)
+    frames, _ = filter_detections(frames, min_score or 0.0, CLASSES)
     tracked = track_boxes(frames, config)
     return TrackedReader(reader, {(f.sequence, f.frame_id): f.boxes for f in tracked}, str(detections))

@@ -208,7 +208,7 @@ class FramesSettings(ReaderOptions, CompletionOptions):
     track_worker: bool = True
     detections: str | None = None
     track: bool = False
-    min_score: float = 0.0
+    min_score: float | None = None
 
     @classmethod
     def of_scene(cls, s: ScanSettings) -> FramesSettings:
@@ -693,7 +693,7 @@ def complete_frames(
     names). Returns the run's summary (the content of ``summary.json``).
     """
     check_threads(s.threads)  # also when a model is given (loading one checks it)
-    check_detection_options(s.detections, s.track, s.format, len(s.source))
+    check_detection_options(s.detections, s.track, s.format, len(s.source), s.min_score)
     # the track worker's interpreter starts while the dataset is opened and read (refusals stop it)
     early = TrackWorker.start() if s.track_worker and s.window.fuses else None
     try:
