@@ -46,6 +46,7 @@ if TYPE_CHECKING:  # the names as type checkers and IDEs see them
         make_rig,
         read_frames,
         save_points,
+        track_boxes,
     )
 
 logging.getLogger("spotlights").addHandler(logging.NullHandler())  # silent unless the application configures it
@@ -69,6 +70,7 @@ _HOMES = {
     "SceneResult": "spotlights.completion.results",
     "complete": "spotlights.api",
     "complete_frame": "spotlights.api",
+    "track_boxes": "spotlights.tracking.tracker",
 }
 
 #: the same names as :data:`_HOMES` (tests/test_api.py checks it)
@@ -91,6 +93,7 @@ __all__ = [
     "SceneResult",
     "complete",
     "complete_frame",
+    "track_boxes",
 ]
 
 

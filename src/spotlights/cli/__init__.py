@@ -33,6 +33,7 @@ COMMAND_MODULES = [
     "spotlights.cli.complete",  # complete (a frame with its boxes, or one object)
     "spotlights.cli.reproduce",  # reproduce (the paper's tables)
     "spotlights.cli.view",  # view (interactive HTML page)
+    "spotlights.cli.track",  # track (a detector's boxes -> tracks)
 ]
 
 EPILOG = """\
