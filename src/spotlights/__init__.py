@@ -65,7 +65,7 @@ _HOMES = {
     "read_frames": "spotlights.api",
     "BaseCompleter": "spotlights.learning.inference",
     "load_completer": "spotlights.learning.runtime",
-    "SceneConfig": "spotlights.completion.config",
+    "SceneConfig": "spotlights.completion.scene_config",
     "ObjectResult": "spotlights.completion.results",
     "SceneResult": "spotlights.completion.results",
     "complete": "spotlights.api",

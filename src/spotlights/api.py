@@ -17,7 +17,7 @@ name                home
 ``read_frames``     :func:`read_frames` (LiDAR frames with their boxes, any supported format)
 ``load_completer``  :func:`spotlights.learning.runtime.load_completer` (torch or onnx runtime)
 ``BaseCompleter``   :class:`spotlights.learning.inference.BaseCompleter` (what ``load_completer`` returns)
-``SceneConfig``     :class:`spotlights.completion.config.SceneConfig` (the options of a frame's completion)
+``SceneConfig``     :class:`spotlights.completion.scene_config.SceneConfig` (the options of a frame's completion)
 ``complete``        :func:`complete` (one object in its box)
 ``complete_frame``  :func:`complete_frame` (every vehicle of a frame: ``completion.frame.complete_scene``)
 ``SceneResult``     :class:`spotlights.completion.results.SceneResult` (what ``complete_frame`` returns;
