@@ -18,7 +18,7 @@ measures the queue for the CPU as much as the work). Frames per second = frames 
 refinement's statuses and the share of vehicle boxes whose refined box moved more than 0.3 m.
 
 ``--fallback auto`` completes the boxes the car model did not learn with the class model, as ``real complete``
-does by default since stop 36 (the benchmark's default stays ``none``: the car model alone, as its earlier results).
+does by default (the benchmark's default stays ``none``: the car model alone, as in its first results).
 
 Usage::
 
@@ -41,7 +41,7 @@ of ``--speed-threads``, ``--repeats`` times: CPU seconds per frame of the proces
 frames per second, the load average before and after each run, and the ratios of this code to the other
 measured side by side (on a shared machine the honest number)::
 
-    nice -n 10 python benchmarks/track_fusion.py --against /work/main/src --refine-boxes --precision bf16 \\
+    nice -n 10 python benchmarks/track_fusion.py --against src --refine-boxes --precision bf16 \\
         --speed-threads 1 2 --json docs/results/real/track_fusion_speed_side_by_side.json
 """
 
@@ -120,7 +120,7 @@ def main(argv=None) -> int:
         "--fallback",
         default="none",
         help="the second model for the boxes the first did not learn, as real complete's --fallback (auto: the "
-        "class model beside the default); default none (the car model alone, as the results before stop 36)",
+        "class model beside the default); default none (the car model alone, as in the first results)",
     )
     ap.add_argument("--fuse", default="past:5")
     ap.add_argument("--refine-boxes", action="store_true")

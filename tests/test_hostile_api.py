@@ -12,7 +12,7 @@ def test_sequence_size_noise_is_bounded_and_never_flattens_a_box():
     from spotlights.data.synthetic.sequences import MAX_SIZE_SIGMA, MIN_SIZE_FACTOR, BoxNoise
     from spotlights.geometry.boxes import Box
 
-    with pytest.raises(ParameterError, match="size-sigma"):
+    with pytest.raises(ParameterError, match="`size_sigma`"):
         BoxNoise(size_rel=5.0)
     noise = BoxNoise(size_rel=MAX_SIZE_SIGMA)
     box = Box.from_yaw(np.zeros(3), np.array([4.0, 1.8, 1.5]), 0.0)

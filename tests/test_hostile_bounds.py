@@ -276,9 +276,9 @@ def test_the_library_checks_the_same_bounds():
     ExtractConfig(n_points=65536)  # the bound itself is taken
     with pytest.raises(ParameterError, match="1..65536"):
         ExtractConfig(n_points=65537)
-    with pytest.raises(ParameterError, match="--sequences"):
+    with pytest.raises(ParameterError, match="`sequences`"):
         write_sequences_h5(["m.ply"], "never-written.h5", MAX_SEQUENCES + 1, SequenceSpec())
-    with pytest.raises(ParameterError, match="--sequences"):  # checked before the (missing) mesh is looked for
+    with pytest.raises(ParameterError, match="`sequences`"):  # checked before the (missing) mesh is looked for
         simulate_sequences("no-such-mesh.ply", "never-written", MAX_SEQUENCES + 1, SequenceSpec())
 
 

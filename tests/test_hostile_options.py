@@ -78,10 +78,10 @@ def test_api_thread_counts_are_checked(scan, tmp_path):
             check_threads(bad)
     from spotlights.completion.scan import CompletionOptions, ScanSettings, complete_scan
 
-    with pytest.raises(ParameterError, match="--threads"):
+    with pytest.raises(ParameterError, match="`threads`"):
         CompletionOptions(threads=100000).load_completer()
     s = ScanSettings(input=str(scan["scan"]), box=str(scan["box"]), out=str(tmp_path / "c.ply"), threads=100000)
-    with pytest.raises(ParameterError, match="--threads"):
+    with pytest.raises(ParameterError, match="`threads`"):
         complete_scan(s, completer=object())  # a model given: the count is checked all the same, before any work
     assert not (tmp_path / "c.ply").exists()
 

@@ -40,7 +40,7 @@ def test_picture_workers(monkeypatch, asked, cpus, frames, want):
 
 
 def test_picture_workers_refuses_a_negative_count():
-    with pytest.raises(ParameterError, match="--picture-workers must be >= 0"):
+    with pytest.raises(ParameterError, match="`picture_workers` must be >= 0"):
         picture_workers(-1, 10)
 
 

@@ -47,10 +47,10 @@ def test_auto_picks_onnx_for_shipped_exports_on_the_cpu_and_torch_elsewhere(monk
     assert rt.choose_runtime("m.onnx", "auto", "cuda") == ("onnx", "m.onnx")
     with pytest.raises(ParameterError, match="m.onnx is an ONNX file"):
         rt.choose_runtime("m.onnx", "torch")
-    with pytest.raises(ParameterError, match="--checkpoint MODEL.onnx"):
+    with pytest.raises(ParameterError, match="pass `checkpoint` MODEL.onnx"):
         rt.choose_runtime("paper", "onnx")
     assert rt.choose_runtime("default", "onnx") == ("onnx", rt.shipped_onnx("default"))
-    with pytest.raises(ParameterError, match="unknown runtime"):
+    with pytest.raises(ParameterError, match="unknown `runtime`"):
         rt.choose_runtime("default", "tensorrt")
 
 

@@ -169,9 +169,9 @@ def test_the_completer_snaps_only_when_asked_and_onto_the_scan(hit_ckpt):
     assert all(np.mean(np.abs(q[:, 1] + 0.8 * E[1]) < 1e-5) > 0.05 for q in mirrored)
     with pytest.raises(ParameterError, match="radius"):
         c.complete(x, extents=e, snap=-0.1)
-    with pytest.raises(ParameterError, match="observed point sets"):
+    with pytest.raises(ParameterError, match="`observed` point sets"):
         c.complete(x, extents=e, snap=0.05, observed=other[:2])
-    with pytest.raises(ParameterError, match="seen point sets"):
+    with pytest.raises(ParameterError, match="`seen` point sets"):
         c.complete(x, extents=e, snap=0.05, seen=other[:2])
     with pytest.raises(ParameterError, match="go with a snap radius"):
         c.complete(x, extents=e, seen=other)
@@ -255,9 +255,9 @@ def test_snap_radius_reads_off_and_radii(value, radius):
 def test_snap_radius_refuses_other_values_naming_the_option(value):
     from spotlights.geometry.evidence import snap_radius
 
-    with pytest.raises(ParameterError, match=r"^--snap: the snap radius must be a finite number > 0"):
+    with pytest.raises(ParameterError, match=r"^`snap`: the snap radius must be a finite number > 0"):
         snap_radius(value)
-    with pytest.raises(ParameterError, match=r"^snap: the snap radius"):
+    with pytest.raises(ParameterError, match=r"^`snap`: the snap radius"):
         snap_radius(value, option="snap")
 
 
@@ -269,14 +269,14 @@ def test_every_surface_checks_the_snap_radius_and_mirror_alike():
 
     for make in (lambda **k: SceneConfig(**k), lambda **k: RealEvaluationSettings(heading_check=False, **k)):
         for bad in (-1.0, float("inf")):
-            with pytest.raises(ParameterError, match=r"^--snap: the snap radius must be a finite number > 0"):
+            with pytest.raises(ParameterError, match=r"^`snap`: the snap radius must be a finite number > 0"):
                 make(snap=bad)
-        with pytest.raises(ParameterError, match="^--snap-mirror goes with --snap R$"):
+        with pytest.raises(ParameterError, match="^`snap_mirror` goes with `snap` R$"):
             make(snap=0.0, snap_mirror=True)
         assert make(snap=0.0).snap == 0.0 and make(snap=0.05, snap_mirror=True).snap_mirror
         assert make(snap=None).snap == 0.0  # off
         for bad in ("0.5", True):  # text and booleans are not radii (were a raw TypeError further on)
-            with pytest.raises(ParameterError, match=r"^--snap: the snap radius must be a finite number > 0"):
+            with pytest.raises(ParameterError, match=r"^`snap`: the snap radius must be a finite number > 0"):
                 make(snap=bad)
 
 
@@ -288,9 +288,9 @@ def test_scene_options_and_real_evaluation_refuse_snap_with_the_heading_check():
     for bad in (-0.1, float("nan")):
         with pytest.raises(ParameterError, match="snap radius"):
             SceneConfig(snap=bad)
-    with pytest.raises(ParameterError, match="heading-check"):
+    with pytest.raises(ParameterError, match="`heading_check`"):
         SceneConfig(snap=0.05, heading_check=True)
-    with pytest.raises(ParameterError, match="no-heading-check"):
+    with pytest.raises(ParameterError, match="`no_heading_check`"):
         RealEvaluationSettings(snap=0.05)
     assert RealEvaluationSettings(snap=0.05, heading_check=False).snap == 0.05
 
@@ -333,7 +333,7 @@ def test_evaluate_names_the_snapped_rows(tmp_path, hit_ckpt):
     assert res["snap"] == 0.05 and all("snap 0.05" in r["variant"] for r in res["rows"])
     both = evaluate_checkpoint(ck, data, progress=False, snap=0.05, snap_mirror=True)
     assert both["snap_mirror"] and all(r["variant"].endswith("snap 0.05 mirrored") for r in both["rows"])
-    with pytest.raises(ParameterError, match="--snap-mirror goes with --snap R"):
+    with pytest.raises(ParameterError, match="`snap_mirror` goes with `snap` R"):
         evaluate_checkpoint(ck, data, progress=False, snap_mirror=True)
     plain = evaluate_checkpoint(ck, data, progress=False)
     assert plain["snap"] is None and not any("snap" in r["variant"] for r in plain["rows"])
@@ -370,7 +370,7 @@ def test_mirrored_snapping_draws_the_side_the_lidar_did_not_see(hit_ckpt):
     both = c.complete(x, extents=e, snap=0.05, snap_mirror=True)
     for a, b in zip(plain, both):
         assert right(a) == 0.0 and right(b) > 0.05
-    with pytest.raises(ParameterError, match="snap_mirror, observed and seen go with"):
+    with pytest.raises(ParameterError, match="`snap_mirror`, `observed` and `seen` go with"):
         c.complete(x, extents=e, snap_mirror=True)
 
 
@@ -379,9 +379,9 @@ def test_snap_mirror_needs_a_radius_everywhere(tmp_path, capsys, hit_ckpt):
     from spotlights.experiments.real_evaluation import RealEvaluationSettings
 
     assert SceneConfig(snap=0.08, snap_mirror=True).snap_mirror
-    with pytest.raises(ParameterError, match="--snap-mirror goes with --snap R"):
+    with pytest.raises(ParameterError, match="`snap_mirror` goes with `snap` R"):
         SceneConfig(snap_mirror=True)
-    with pytest.raises(ParameterError, match="--snap-mirror goes with --snap R"):
+    with pytest.raises(ParameterError, match="`snap_mirror` goes with `snap` R"):
         RealEvaluationSettings(snap_mirror=True, heading_check=False)
     np.save(tmp_path / "scan.npy", side_points(300) * 2.5 + [10.0, 2.0, 0.8])
     box = ["--center", "10", "2", "0.8", "--size", "4.6", "1.9", "1.6", "--no-crop", "--checkpoint", hit_ckpt]

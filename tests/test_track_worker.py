@@ -186,7 +186,7 @@ def test_a_refused_run_leaves_no_worker_behind(tmp_path):
 
 
 def test_docs_quote_the_measured_worker_speed():
-    """docs/real-data.md's "Two cores" table quotes the medians of ``benchmarks/track_fusion.py --compare-worker``
+    """docs/studies/frame-speed.md's "Two cores" table quotes the medians of ``benchmarks/track_fusion.py --compare-worker``
     (docs/results/real/track_fusion_speed_worker_1thread_bf16.json): the frame loop's and the worker's CPU a frame
     and the wall rate, in one process and with the worker."""
     import re
@@ -195,7 +195,7 @@ def test_docs_quote_the_measured_worker_speed():
 
     med = json.loads((REPO / "docs/results/real/track_fusion_speed_worker_1thread_bf16.json").read_text())
     one, two = (med["worker_and_one_process"]["median"][k] for k in ("one_process", "worker"))
-    doc = re.sub(r"\s+", " ", (REPO / "docs/real-data.md").read_text())
+    doc = re.sub(r"\s+", " ", (REPO / "docs/studies/frame-speed.md").read_text())
     assert f"| one process, 1 torch thread | {one['cpu_ms_per_frame']:.0f} | - | {one['fps_wall']:.2f}" in doc
     want = (
         f"| with the worker, 1 torch thread | **{two['cpu_ms_per_frame']:.0f}** | {two['worker_cpu_ms_per_frame']:.0f} "

@@ -406,5 +406,5 @@ def test_process_group_backend_follows_the_run_device_and_refuses_missing_gpus()
     assert group_backend(torch.device("cuda", 0), 0, 2) == ("nccl", 0)  # an explicit index: one process per node
     with pytest.raises(ParameterError, match="would share one GPU"):  # NCCL cannot run two ranks on one GPU
         group_backend(torch.device("cuda", 0), 1, 2, local_world=2)
-    with pytest.raises(ParameterError, match="--nproc-per-node 1"):  # 2 processes on a 1-GPU node (seen on an H100)
+    with pytest.raises(ParameterError, match="`nproc_per_node` 1"):  # 2 processes on a 1-GPU node (seen on an H100)
         group_backend(torch.device("cuda"), 1, 1)

@@ -22,6 +22,7 @@ numpy/scipy/trimesh/embreex; torch is imported only by ``spotlights.learning``.
 from __future__ import annotations
 
 import importlib
+import logging
 from typing import TYPE_CHECKING, Any
 
 from ._version import __version__
@@ -45,7 +46,10 @@ if TYPE_CHECKING:  # the names as type checkers and IDEs see them
         make_rig,
         read_frames,
         save_points,
+        track_boxes,
     )
+
+logging.getLogger("spotlights").addHandler(logging.NullHandler())  # silent unless the application configures it
 
 #: public name -> the module that defines it (imported on first use); the one list of public names
 _HOMES = {
@@ -61,11 +65,12 @@ _HOMES = {
     "read_frames": "spotlights.api",
     "BaseCompleter": "spotlights.learning.inference",
     "load_completer": "spotlights.learning.runtime",
-    "SceneConfig": "spotlights.completion.config",
+    "SceneConfig": "spotlights.completion.scene_config",
     "ObjectResult": "spotlights.completion.results",
     "SceneResult": "spotlights.completion.results",
     "complete": "spotlights.api",
     "complete_frame": "spotlights.api",
+    "track_boxes": "spotlights.tracking.tracker",
 }
 
 #: the same names as :data:`_HOMES` (tests/test_api.py checks it)
@@ -88,6 +93,7 @@ __all__ = [
     "SceneResult",
     "complete",
     "complete_frame",
+    "track_boxes",
 ]
 
 

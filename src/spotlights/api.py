@@ -17,12 +17,13 @@ name                home
 ``read_frames``     :func:`read_frames` (LiDAR frames with their boxes, any supported format)
 ``load_completer``  :func:`spotlights.learning.runtime.load_completer` (torch or onnx runtime)
 ``BaseCompleter``   :class:`spotlights.learning.inference.BaseCompleter` (what ``load_completer`` returns)
-``SceneConfig``     :class:`spotlights.completion.config.SceneConfig` (the options of a frame's completion)
+``SceneConfig``     :class:`spotlights.completion.scene_config.SceneConfig` (the options of a frame's completion)
 ``complete``        :func:`complete` (one object in its box)
 ``complete_frame``  :func:`complete_frame` (every vehicle of a frame: ``completion.frame.complete_scene``)
 ``SceneResult``     :class:`spotlights.completion.results.SceneResult` (what ``complete_frame`` returns;
                     ``save(path)`` writes the PLY and JSON ``spotlights complete`` writes)
 ``ObjectResult``    :class:`spotlights.completion.results.ObjectResult` (one box's outcome)
+``track_boxes``     :func:`spotlights.tracking.tracker.track_boxes` (a detector's boxes of many frames -> tracks)
 ==================  ===========================================================================
 """
 
@@ -30,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import logging
 import os
 import threading
 from collections.abc import Iterator, Sequence
@@ -49,6 +51,9 @@ from .geometry.rig import make_rig
 from .learning.checkpoint import PRETRAINED
 from .learning.inference import BaseCompleter
 from .learning.runtime import fallback_runtime, load_completer
+from .tracking.tracker import track_boxes
+
+LOG = logging.getLogger(__name__)
 
 CompleterLike = BaseCompleter | str | os.PathLike | None
 """A model as the API takes it: loaded (:func:`load_completer`), or its name or file (``"default"``, ``"classes"``,
@@ -163,6 +168,7 @@ def _named_completer(name: str, runtime: str = "auto", precision: str = "auto") 
             for old in [k for k in _NAMED if k[:3] == key[:3]]:  # an older version of the same file
                 del _NAMED[old]
             model = load_completer(name, runtime=runtime, precision=precision)  # type: ignore[arg-type]
+            LOG.info("loaded the model %s (%s)", name, getattr(model, "device", "?"))
         _NAMED[key] = model  # the most recently used last
         while len(_NAMED) > NAMED_MODELS_KEPT:
             _NAMED.pop(next(iter(_NAMED)))
@@ -269,4 +275,5 @@ __all__ = [
     "make_rig",
     "read_frames",
     "save_points",
+    "track_boxes",
 ]

@@ -39,7 +39,31 @@ class InputFileError(SpotlightsError):
 
 
 class ParameterError(SpotlightsError, ValueError):
-    """An invalid parameter value (e.g. a rig with N < 1)."""
+    """An invalid parameter value (e.g. a rig with N < 1).
+
+    The message names the library's parameters (``heading_margin``); ``parameters`` lists the ones it names, so
+    that the command line can write them as its options instead (``--heading-margin``:
+    :func:`spotlights.cli.option_names`)."""
+
+    def __init__(self, message: str, *parameters: str):
+        self.parameters = parameters
+        super().__init__(message)
+
+    def __reduce__(self):  # picklable with its parameters (worker pools, Ray)
+        return (type(self), (str(self), *self.parameters))
+
+
+def shown(label: str) -> str:
+    """A parameter's name as a message shows it: ```threads``` (the command line writes its option there,
+    ``--threads``); any other label (``"train.seed"``, ``"the seed"``) as it is."""
+    return f"`{label}`" if label.isidentifier() else label
+
+
+def parameter_names(*labels: str) -> tuple[str, ...]:
+    """The labels that are Python parameter names (``"threads"``, ``"batch_size"``), for
+    :attr:`ParameterError.parameters`; option spellings (``"--seed"``) and descriptions (``"train.seed"``, ``"the
+    seed"``) are left out (they are shown as written)."""
+    return tuple(x for x in labels if x.isidentifier())
 
 
 class OutputFileError(SpotlightsError):
@@ -52,3 +76,32 @@ class OutputFileError(SpotlightsError):
 
     def __reduce__(self):
         return (type(self), (self.path, self.problem))
+
+
+#: optional package (top-level module) -> the extra of ``pyproject.toml`` that installs it
+EXTRAS = {
+    "torch": "learn",
+    "pandas": "real",
+    "pyarrow": "real",
+    "laspy": "las",
+    "lazrs": "las",
+    "plotly": "viewer",
+    "ray": "distributed",
+    "onnx": "onnx",
+    "onnxruntime": "onnx",
+    "onnxscript": "onnx",
+    "rerun": "rerun",
+    "filterpy": "track",
+    "shapely": "track",
+    "motmetrics": "track",
+}
+
+
+def missing_extra(exc: ImportError) -> str | None:
+    """The one line for an optional package that is not installed (``exc`` from its import): which package and
+    which extra installs it; None when ``exc`` is not about one of :data:`EXTRAS` (a bug or a broken install)."""
+    name = (getattr(exc, "name", None) or "").split(".")[0]
+    if name not in EXTRAS:
+        return None
+    extra = EXTRAS[name]
+    return f"this needs the optional package {name}: pip install 'spotlights[{extra}]' (or 'spotlights[all]')"

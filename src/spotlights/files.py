@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import viz
+from . import logs, viz
 from .completion.scan import Say, silent
 from .errors import InputFileError, ParameterError, SpotlightsError
 from .geometry.encode import MeshProbe, hit_ratio, load_encoding, save_encoding
@@ -58,9 +58,11 @@ class RigOptions:
         """The :class:`~spotlights.geometry.rig.RigSpec` (box rigs become rigs with an object's box)."""
         kind = self.rig_kind or "cap"
         box = {"targets": self.box_targets, "scale": self.box_scale, "cap_share": self.box_cap_share}
-        given = [f"--box-{k.replace('_', '-')}" for k, v in box.items() if v is not None]
+        given = [f"box_{k}" for k, v in box.items() if v is not None]
         if kind == "cap" and given:
-            raise ParameterError(f"{', '.join(given)} only apply with --rig-kind box")
+            raise ParameterError(
+                f"{', '.join(f'`{g}`' for g in given)} only apply with `rig_kind` box", *given, "rig_kind"
+            )
         return make_rig_spec(
             self.primary,
             self.secondary,
@@ -104,7 +106,7 @@ class EncodeSettings(RigOptions):
         return targets
 
 
-def encode_meshes(s: EncodeSettings, say: Say = silent) -> list[Path]:
+def encode_meshes(s: EncodeSettings, say: Say = logs.info) -> list[Path]:
     """Encode every mesh of ``s.meshes`` (each in its object frame, normalised to the unit sphere) with the rig
     of ``s`` (box rigs: aimed at each mesh's own box) and write its depths ((N, M) float32, unit frame) and
     normalisation as ``.npz``; every mesh is read before any file is written. ``say`` gets one line per mesh
@@ -140,7 +142,7 @@ class DecodeSettings:
     clip: float | None = None
 
 
-def decode_file(s: DecodeSettings, say: Say = silent) -> np.ndarray:
+def decode_file(s: DecodeSettings, say: Say = logs.info) -> np.ndarray:
     """Decode ``s.encoding`` into its ordered points ((K, 3) float64, ``s.frame``) and write them to ``s.out``;
     a one-line :class:`InputFileError` when no ray hit (nothing written). Returns the points."""
     check_writable(s.out)
@@ -217,14 +219,14 @@ def render_file(src: Path, out: Path, clip: float | None = None, up: str = "z", 
     raise InputFileError(src, f"unknown file type {suffix!r} (a mesh, a point cloud or an encoding .npz)")
 
 
-def show_file(s: ShowSettings, say: Say = silent) -> Path | None:
+def show_file(s: ShowSettings, say: Say = logs.info) -> Path | None:
     """Draw ``s.file`` as a PNG (:func:`render_file`) and/or an HTML page; returns the PNG (None: page only)."""
     check_suffix(s.out, (".png",), "the picture")
     src = Path(s.file)
     out = Path(s.out) if s.out else Path.cwd() / (src.stem + ".png")
     if not src.exists():
         raise InputFileError(src, "no such file")
-    check_suffix(s.html, (".html", ".htm"), "the page (HTML)", "--html")
+    check_suffix(s.html, (".html", ".htm"), "the page (HTML)", "html")
     check_writable(s.out or (None if s.html else out), s.html)
     if s.html:
         traces, what = html.file_traces(src, clip=s.clip, up=s.up, forward=s.forward)
@@ -258,7 +260,7 @@ class ViewSettings:
     quiet: bool = False
 
 
-def view_files(s: ViewSettings, say: Say = silent) -> int:
+def view_files(s: ViewSettings, say: Say = logs.info) -> int:
     """Write ``s.files`` as one self-contained HTML page (:mod:`spotlights.viz.html`) and, with ``s.serve``,
     serve it until Ctrl-C (:func:`spotlights.viz.serve.serve`). Returns the exit code (0)."""
     if not s.serve and (s.port is not None or s.host is not None):

@@ -15,9 +15,10 @@ import argparse
 import importlib
 import sys
 
+from .. import logs
 from .._version import __version__
-from ..errors import SpotlightsError
-from ..options import join_axis_values
+from ..errors import SpotlightsError, missing_extra
+from ..options import join_axis_values, option_names
 from ..utils import os_error_reason, sigint_held
 
 # One line per command group; a new group is one module and one line here.
@@ -32,6 +33,7 @@ COMMAND_MODULES = [
     "spotlights.cli.complete",  # complete (a frame with its boxes, or one object)
     "spotlights.cli.reproduce",  # reproduce (the paper's tables)
     "spotlights.cli.view",  # view (interactive HTML page)
+    "spotlights.cli.track",  # track (a detector's boxes -> tracks)
 ]
 
 EPILOG = """\
@@ -77,6 +79,13 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"spotlights {__version__}")
+    parser.add_argument(
+        "-v",
+        "--verbose",
+        action="count",
+        default=0,
+        help="log what the library does on stderr (-v: info lines, -vv: debug); by default warnings only",
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(sub)
@@ -125,11 +134,13 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with contextlib.ExitStack() as stack:
             args = _with_config_file(parser, args, argv)
+            verbosity = -1 if getattr(args, "quiet", False) else args.verbose
+            stack.callback(logs.LOGGER.removeHandler, logs.configure(verbosity))
             if getattr(args, "quiet", False):
                 stack.enter_context(contextlib.redirect_stdout(stack.enter_context(open(os.devnull, "w"))))
             return int(args.func(args) or 0)
     except SpotlightsError as exc:
-        print(f"spotlights: error: {exc}", file=sys.stderr)
+        print(f"spotlights: error: {option_names(exc, parser)}", file=sys.stderr)
         return exc.exit_code
     except Terminated:
         print("spotlights: terminated", file=sys.stderr)
@@ -139,6 +150,12 @@ def main(argv: list[str] | None = None) -> int:
         return _interrupted()
     except BrokenPipeError:
         return 0
+    except ModuleNotFoundError as exc:  # an optional extra that is not installed: which one, in one line
+        line = missing_extra(exc)
+        if line is None:
+            raise
+        print(f"spotlights: error: {line}", file=sys.stderr)
+        return 2
     except OSError as exc:  # a file the command reads or writes: one line, naming it
         print(f"spotlights: error: {_os_error_line(exc)}", file=sys.stderr)
         return 2

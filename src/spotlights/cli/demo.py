@@ -22,5 +22,5 @@ def _demo(args) -> int:
     from pathlib import Path
 
     with output_folder(args.out) as out:  # removed again if the demo fails before writing anything
-        run_demo(Path(out))
+        run_demo(Path(out), log=print)
     return 0

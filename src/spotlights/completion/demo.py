@@ -5,14 +5,14 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
-from .. import viz
+from .. import logs, viz
 from ..assets import DEMO_VEHICLE, asset_path
 from ..geometry import MeshProbe, hit_ratio, load_mesh, load_points, make_rig, save_encoding, save_points
 from ..geometry.encode import load_encoding
 from ..learning.inference import complete_scan, load_box, load_completer
 
 
-def run_demo(out: Path, log: Callable[[str], None] = print) -> None:
+def run_demo(out: Path, log: Callable[[str], None] = logs.info) -> None:
     """The end-to-end demonstration (``spotlights demo``) into the folder ``out``: the bundled
     CC0 vehicle encoded with two rigs (``.npz``, ``.ply`` points in metres, ``.png``), and the
     shipped partial scan (sensor frame) completed by the pretrained SA-Net

@@ -28,6 +28,7 @@ scan whose up axis is not z into the object convention first and the results bac
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TypeVar
@@ -35,7 +36,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from ..data.vehicle_classes import VEHICLE_CLASSES, canonical_class
-from ..errors import InputFileError, ParameterError
+from ..errors import InputFileError, ParameterError, parameter_names, shown
 from ..geometry.boxes import FLIP_Z, Box, crop_boxes
 from ..geometry.neighbors import serial_queries
 from ..geometry.rotations import is_rotation, rigid_transform
@@ -44,7 +45,8 @@ from ..metrics.consistency import fidelity
 from ..utils import StageTimer, shared_thread_pool
 from ..viz import SceneObject, html, scene_png, write_png
 from ..viz.bev import bev_png
-from .config import (
+from .results import ObjectResult, SceneResult, object_ids
+from .scene_config import (
     HEADING_DOC,
     HEADING_MARGIN,
     SOURCE_COMPLETION,
@@ -53,8 +55,9 @@ from .config import (
     SceneConfig,
     heading_turns,
 )
-from .results import ObjectResult, SceneResult, fallback_counts, object_ids
-from .writing import check_completed, describe, scene_comments, write_scene
+from .writing import check_completed, describe, fallback_counts, scene_comments, write_scene
+
+LOG = logging.getLogger(__name__)
 
 
 def _selected(box: Box, config: SceneConfig) -> bool:
@@ -197,7 +200,7 @@ def complete_scene(
                 back = rigid_transform(a.T, np.zeros(3))
                 for o in todo:
                     o.used_box = _set(o.used_box).transformed(back)
-    return SceneResult(
+    result = SceneResult(
         scan,
         objects,
         str(getattr(completer, "model_name", "model")),
@@ -206,6 +209,14 @@ def complete_scene(
         timings={f"{k}_s": v for k, v in timer.seconds.items()} | {"total_s": timer.total},
         member=member,
     )
+    LOG.debug(
+        "%d box(es), %d completed by %s; stages: %s",
+        len(objects),
+        len(result.completed),
+        result.model,
+        ", ".join(f"{k} {1000 * v:.0f} ms" for k, v in timer.seconds.items()),
+    )
+    return result
 
 
 def scene_crops(points: np.ndarray, boxes: Sequence[Box], config: SceneConfig) -> dict[int, np.ndarray]:
@@ -378,8 +389,9 @@ def require_rays_to_snap(completer, snap: float | None) -> None:
     point-set model) to snap: it could not snap a single box. (A point-set fallback completes unsnapped.)"""
     if snap and getattr(completer, "rig", None) is None:
         raise ParameterError(
-            f"--snap: {getattr(completer, 'model_name', 'this model')} has no rays to snap; snapping to the observed "
-            "points needs an SA-Net (a point-set fallback completes its boxes unsnapped)"
+            f"`snap`: {getattr(completer, 'model_name', 'this model')} has no rays to snap; snapping to the observed "
+            "points needs an SA-Net (a point-set fallback completes its boxes unsnapped)",
+            "snap",
         )
 
 
@@ -387,7 +399,10 @@ def require_sensor(sensor, name: str = "sensor") -> None:
     """Raise :class:`ParameterError` unless ``sensor`` (the LiDAR's place in the scan's frame, metres; option
     ``name``) is None or three finite numbers."""
     if sensor is not None and (np.shape(sensor) != (3,) or not np.all(np.isfinite(np.asarray(sensor, dtype=float)))):
-        raise ParameterError(f"{name}: give the LiDAR's X Y Z in the scan's frame (metres), got {sensor!r}")
+        raise ParameterError(
+            f"{shown(name)}: give the LiDAR's X Y Z in the scan's frame (metres), got {sensor!r}",
+            *parameter_names(name),
+        )
 
 
 def snap_options(completer, snap: float | None, snap_mirror: bool, todo: Sequence[ObjectResult] = ()) -> dict:

@@ -22,6 +22,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from .. import logs
 from ..data.real import open_reader
 from ..data.real.base import SceneReader
 from ..data.tracks import MAX_GAP_S, TIME_UNIT_S, WindowPolicy, parse_window
@@ -42,6 +43,7 @@ from ..utils import (
 from ..viz import write_png
 from ..viz.html import write_plotlyjs
 from ..viz.rerun_log import check_rerun_path, open_recording
+from .detections import check_detection_options, tracked_reader
 from .frame import (
     SceneConfig,
     SceneResult,
@@ -55,7 +57,7 @@ from .frame import (
 )
 from .fusion import TrackPlan, TrackWorker, threads_beside_worker, usable_cpus
 from .names import FRAME_SUFFIXES, RESERVED_FRAMES, file_stem, safe_name, sequence_folders, unique_names
-from .scan import CompletionOptions, Say, ScanSettings, complete_scan, silent, write_json
+from .scan import CompletionOptions, Say, ScanSettings, complete_scan, write_json
 
 
 def frame_stems(keys) -> dict[tuple, Path]:
@@ -160,13 +162,13 @@ class ReaderOptions:
         elif self.format == "generic":
             options["boxes"] = self.boxes
         for name, val, fmts in (
-            ("--velodyne", self.velodyne != "auto", ("kitti",)),
-            ("--sequence", self.sequence, ("kitti360", "nuscenes")),
-            ("--frames", frames is not None, ("kitti360",)),
-            ("--boxes", self.boxes, ("generic",)),
+            ("velodyne", self.velodyne != "auto", ("kitti",)),
+            ("sequence", self.sequence, ("kitti360", "nuscenes")),
+            ("frames", frames is not None, ("kitti360",)),
+            ("boxes", self.boxes, ("generic",)),
         ):
             if val and self.format not in fmts:
-                raise ParameterError(f"{name} applies to --format {' or '.join(fmts)} only")
+                raise ParameterError(f"`{name}` applies to `format` {' or '.join(fmts)} only", name, "format")
         return open_reader(self.source, self.format, **options)
 
 
@@ -189,7 +191,9 @@ class FramesSettings(ReaderOptions, CompletionOptions):
     max_gap : the longest time between two frames of one track, seconds; rerun : a ``.rrd`` file that also
     receives every frame on a time line (:mod:`spotlights.viz.rerun_log`; None: none); quiet : no progress bar;
     track_worker : with fuse, refine the boxes and fuse the windows in a second process, a frame ahead of the
-    completion (:class:`~spotlights.completion.fusion.TrackWorker`: the same outputs, two cores).
+    completion (:class:`~spotlights.completion.fusion.TrackWorker`: the same outputs, two cores);
+    detections, track, min_score : a detector's boxes (a file of the dataset's format) tracked and used instead of
+    the dataset's boxes, those scoring below ``min_score`` dropped (:mod:`spotlights.completion.detections`).
     """
 
     out: str
@@ -206,6 +210,9 @@ class FramesSettings(ReaderOptions, CompletionOptions):
     rerun: str | None = None
     quiet: bool = False
     track_worker: bool = True
+    detections: str | None = None
+    track: bool = False
+    min_score: float | None = None
 
     @classmethod
     def of_scene(cls, s: ScanSettings) -> FramesSettings:
@@ -215,8 +222,10 @@ class FramesSettings(ReaderOptions, CompletionOptions):
         a point-cloud file and for the options of one scan (its boxes, axes, crop, per-file outputs)."""
         if Path(s.out).suffix.lower() in POINT_SUFFIXES:
             raise ParameterError(
-                f"--out {s.out}: {s.input} is a multi-frame scene, written to a folder: give --out DIR "
-                "(DIR/[SEQUENCE/]FRAME.ply per frame, summary.json; with --fuse tracks/ and tracks.json)"
+                f"`out` {s.out}: {s.input} is a multi-frame scene, written to a folder: give `out` DIR "
+                "(DIR/[SEQUENCE/]FRAME.ply per frame, summary.json; with `fuse` tracks/ and tracks.json)",
+                "out",
+                "fuse",
             )
         for name, given in (
             ("--boxes/--calib/--box/--center/--size/--yaw", (s.boxes, s.calib, s.box, s.center, s.size, s.yaw)),
@@ -230,8 +239,9 @@ class FramesSettings(ReaderOptions, CompletionOptions):
             if any(v is not None for v in given):
                 raise ParameterError(
                     f"{name} apply to one scan; {s.input} is a multi-frame scene (its box files name the boxes, z "
-                    "up; DIR gets FRAME.json per frame and summary.json; 'real complete --format generic' draws "
-                    "pictures, per-object files and pages)"
+                    "up; DIR gets FRAME.json per frame and summary.json; 'real complete `format` generic' draws "
+                    "pictures, per-object files and pages)",
+                    "format",
                 )
         return cls(
             **{f.name: getattr(s, f.name) for f in fields(CompletionOptions)},
@@ -267,7 +277,11 @@ class FramesSettings(ReaderOptions, CompletionOptions):
                 plan.close()
                 raise
         if self.refine_boxes:
-            raise ParameterError("--refine-boxes needs --fuse all, past:K or centered:K (the frames to register to)")
+            raise ParameterError(
+                "`refine_boxes` needs `fuse` all, past:K or centered:K (the frames to register to)",
+                "refine_boxes",
+                "fuse",
+            )
         return None
 
 
@@ -329,7 +343,7 @@ def picture_workers(asked: int | None, n_frames: int) -> int:
     else:
         n = int(asked)
     if n < 0:
-        raise ParameterError(f"--picture-workers must be >= 0, got {n}")
+        raise ParameterError(f"`picture_workers` must be >= 0, got {n}", "picture_workers")
     return 0 if n_frames < 2 else min(n, n_frames)
 
 
@@ -704,7 +718,7 @@ class _FrameRun:
 
 
 def complete_frames(
-    s: FramesSettings, say: Say = silent, warn: Say = silent, completer: BaseCompleter | None = None
+    s: FramesSettings, say: Say = logs.info, warn: Say = logs.warning, completer: BaseCompleter | None = None
 ) -> dict:
     """Complete the selected frames of a dataset into the folder ``s.out`` as ``spotlights real complete`` does.
 
@@ -717,13 +731,16 @@ def complete_frames(
     names). Returns the run's summary (the content of ``summary.json``).
     """
     check_threads(s.threads)  # also when a model is given (loading one checks it)
+    check_detection_options(s.detections, s.track, s.format, len(s.source), s.min_score)
     # the track worker's interpreter starts while the dataset is opened and read (refusals stop it)
     early = TrackWorker.start() if s.track_worker and s.window.fuses else None
     try:
         reader = s.open()
+        if s.detections is not None:
+            reader = tracked_reader(reader, s.detections, s.source[0], s.min_score, s.sequence)
         keys = select_frames(reader.frame_keys(), s.frames)
         if not keys:
-            raise ParameterError("--frames selects no frame")
+            raise ParameterError("`frames` selects no frame", "frames")
         config = s.scene_config()
         if s.rerun is not None:
             check_rerun_path(s.rerun)
@@ -755,7 +772,7 @@ def complete_frames(
 
 
 def complete_input(
-    s: ScanSettings, say: Say = silent, warn: Say = silent, completer: BaseCompleter | None = None
+    s: ScanSettings, say: Say = logs.info, warn: Say = logs.warning, completer: BaseCompleter | None = None
 ) -> SceneResult | dict:
     """What ``spotlights complete INPUT`` runs: one scan file (:func:`~spotlights.completion.scan.
     complete_scan`: ``s.out`` is its scene file; returns its :class:`SceneResult`), or a multi-frame generic scene
@@ -764,7 +781,9 @@ def complete_input(
     summary). ``say``, ``warn`` and ``completer`` as those functions take them."""
     if s.multi_frame:
         if s.sensor is not None:
-            raise ParameterError(f"{s.input}: --sensor is for one scan; a multi-frame scene's frames give their own")
+            raise ParameterError(
+                f"{s.input}: `sensor` is for one scan; a multi-frame scene's frames give their own", "sensor"
+            )
         return complete_frames(FramesSettings.of_scene(s), say=say, warn=warn, completer=completer)
     return complete_scan(s, say=say, warn=warn, completer=completer)
 

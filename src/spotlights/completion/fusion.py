@@ -168,9 +168,13 @@ class TrackPlan:
         :class:`ParameterError` for what cannot be fused (see the module docstring)."""
         unit = TIME_UNIT_S.get(reader.format)
         if unit is None:
-            raise ParameterError(f"--format {reader.format} has no tracks over time: --fuse needs a sequence format")
+            raise ParameterError(
+                f"`format` {reader.format} has no tracks over time: `fuse` needs a sequence format", "format", "fuse"
+            )
         if len(keys) < 2:
-            raise ParameterError(f"--fuse needs a sequence of at least 2 frames; the selection holds {len(keys)}")
+            raise ParameterError(
+                f"`fuse` needs a sequence of at least 2 frames; the selection holds {len(keys)}", "fuse"
+            )
         laps = StageTimer()
         self.folders = sequence_folders(keys)  # the frames' sequence folders (frame_completion.frame_stems) are theirs
         grow = self.config.margin + (self.max_translation if self.refine else 0.0)
@@ -210,7 +214,8 @@ class TrackPlan:
                 where = f"{frame.sequence}/{frame.frame_id}" if frame.sequence else frame.frame_id
                 raise ParameterError(
                     f"frame {where} ({frame.label_path or frame.scan_path}): {untracked} vehicle box(es) without a "
-                    "track id; --fuse needs a track id on every box it completes (track_id in the box files)"
+                    "track id; `fuse` needs a track id on every box it completes (track_id in the box files)",
+                    "fuse",
                 )
         for tr in self.tracks.values():
             check_track(

@@ -11,7 +11,8 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..geometry.boxes import Box
-from .config import SOURCE_COMPLETION, SOURCE_PARTIAL, SceneConfig
+from .scene_config import SOURCE_COMPLETION, SOURCE_PARTIAL, SceneConfig
+from .writing import write_json, write_scene
 
 
 @dataclass
@@ -163,8 +164,6 @@ class SceneResult:
         summary (:meth:`summary`, plus ``"out"``) at ``summary`` (True: ``path`` with the suffix ``.json``; False:
         none) and, with ``per_object``, ``object_<id>.ply`` per completed object in that folder. All or nothing
         (atomic writes; when one fails, those already written are removed). Returns the paths written."""
-        from .writing import write_json, write_scene
-
         path = Path(path)
         summary_path = path.with_suffix(".json") if summary is True else (Path(summary) if summary else None)
         if summary_path is not None and summary_path.resolve() == path.resolve():
@@ -219,8 +218,3 @@ def object_ids(boxes: Sequence[Box]) -> list[int]:
         else:
             return list(range(len(boxes)))
     return ids if len(set(ids)) == len(ids) else list(range(len(boxes)))
-
-
-def fallback_counts(by: dict) -> str:
-    """``{fallback name: boxes it completed}`` as the summary lines say it ("4 by the fallback classes"; "" for none)."""
-    return ", ".join(f"{v} by the fallback {k}" for k, v in sorted(by.items()))

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import logs
 from ..data.real.boxfiles import read_box_file, with_class
 from ..data.real.scans import read_scan
 from ..data.tracks import MAX_GAP_S, WindowPolicy, parse_window
@@ -164,9 +165,9 @@ class CompletionOptions:
         margin = self.margin if margin is None else margin
         clip = None if self.no_clip else ("default" if self.clip is None else float(self.clip))
         if self.heading_margin is not None and not self.heading_check:
-            raise ParameterError("--heading-margin goes with --heading-check")
+            raise ParameterError("`heading_margin` goes with `heading_check`", "heading_margin", "heading_check")
         if not crop and margin is not None:
-            raise ParameterError("--no-crop uses every point: it takes no --margin/--crop")
+            raise ParameterError("`no_crop` uses every point: it takes no `margin`/`crop`", "no_crop", "margin", "crop")
         return SceneConfig(
             margin=0.15 if margin is None else float(margin),
             ground_clearance=float(self.ground_clearance),
@@ -297,22 +298,39 @@ class ScanSettings(CompletionOptions):
             if v
         ]
         if self.boxes is not None and single_given:
-            raise ParameterError(f"give the boxes either as --boxes or as {single_given[0]} (one object), not both")
+            raise ParameterError(
+                f"give the boxes either as `boxes` or as {single_given[0]} (one object), not both", "boxes"
+            )
         if len(single_given) > 1:
-            raise ParameterError("give the box either as --box BOX.json or as --center/--size/--yaw, not both")
+            raise ParameterError(
+                "give the box either as `box` BOX.json or as `center`/`size`/`yaw`, not both",
+                "box",
+                "center",
+                "size",
+                "yaw",
+            )
         if self.calib is not None and self.boxes is None:
-            raise ParameterError("--calib goes with a KITTI label_2 file in --boxes")
+            raise ParameterError("`calib` goes with a KITTI label_2 file in `boxes`", "calib", "boxes")
         if self.single and (self.center is None) != (self.size is None) and self.box is None:
-            raise ParameterError("one object's box needs both --center X Y Z and --size L W H")
+            raise ParameterError("one object's box needs both `center` X Y Z and `size` L W H", "center", "size")
         if self.yaw is not None and self.center is None:
-            raise ParameterError("--yaw goes with --center/--size (a box file gives its own heading)")
+            raise ParameterError(
+                "`yaw` goes with `center`/`size` (a box file gives its own heading)", "yaw", "center", "size"
+            )
         if self.single and self.box is None and self.center is None:
             raise ParameterError(
-                "the boxes are missing: pass --boxes BOXES (a frame), or one object's --box BOX.json or "
-                "--center X Y Z --size L W H [--yaw RAD]"
+                "the boxes are missing: pass `boxes` BOXES (a frame), or one object's `box` BOX.json or "
+                "`center` X Y Z `size` L W H [`yaw` RAD]",
+                "boxes",
+                "box",
+                "center",
+                "size",
+                "yaw",
             )
         if not self.single and self.no_crop:
-            raise ParameterError("--no-crop is for one object already cropped; the boxes of a frame are always cropped")
+            raise ParameterError(
+                "`no_crop` is for one object already cropped; the boxes of a frame are always cropped", "no_crop"
+            )
 
     def scan_config(self) -> SceneConfig:
         """The :class:`SceneConfig` of a scan: :meth:`scene_config` with ``--crop`` (an alias of ``--margin``) and
@@ -322,11 +340,13 @@ class ScanSettings(CompletionOptions):
         margin = self.margin
         if self.crop is not None:
             if margin is not None and margin != self.crop:
-                raise ParameterError("give the crop margin once: --margin or --crop")
+                raise ParameterError("give the crop margin once: `margin` or `crop`", "margin", "crop")
             margin = self.crop
         config = self.scene_config(margin, crop=not self.no_crop)
         if self.classes is not None:
-            raise ParameterError("--classes chooses among the boxes of --boxes; one object's box is always completed")
+            raise ParameterError(
+                "`classes` chooses among the boxes of `boxes`; one object's box is always completed", "classes", "boxes"
+            )
         return dataclasses.replace(config, any_label=True)
 
     def check_paths(self) -> None:
@@ -342,8 +362,9 @@ class ScanSettings(CompletionOptions):
                 if path is not None and _PER_OBJECT_NAME.match(Path(path).name):
                     if same_file(Path(path).parent, self.per_object):
                         raise ParameterError(
-                            f"{option} {path} is in --per-object {self.per_object}, which receives object_<id>.ply "
-                            "files: one would replace it; choose another folder"
+                            f"{option} {path} is in `per_object` {self.per_object}, which receives object_<id>.ply "
+                            "files: one would replace it; choose another folder",
+                            "per_object",
                         )
 
     def check_outputs(self) -> None:
@@ -351,10 +372,10 @@ class ScanSettings(CompletionOptions):
         overwrite an input or another output (:meth:`check_paths`)."""
         self.check_paths()
         if self.closeups and not self.show:
-            raise ParameterError("--closeups goes with --show PNG (the picture they are drawn in)")
-        check_suffix(self.show, (".png",), "the picture", "--show")
-        check_suffix(self.html, (".html", ".htm"), "the page (HTML)", "--html")
-        check_suffix(self.summary, (".json",), "the summary (JSON)", "--summary")
+            raise ParameterError("`closeups` goes with `show` PNG (the picture they are drawn in)", "closeups", "show")
+        check_suffix(self.show, (".png",), "the picture", "show")
+        check_suffix(self.html, (".html", ".htm"), "the page (HTML)", "html")
+        check_suffix(self.summary, (".json",), "the summary (JSON)", "summary")
         check_writable(self.out, self.show, self.html, self.summary)
         if self.per_object is not None:  # every destination before anything is written
             check_writable(Path(self.per_object) / "object_0.ply")
@@ -393,11 +414,14 @@ def _check_single(s: ScanSettings, result: SceneResult, points: np.ndarray, axes
         raise ParameterError(
             f"{s.box_source}: {len(o.input_indices)} scan point(s) lie in the box (grown by {config.margin} m, "
             f"bottom raised {config.ground_clearance} m); at least {config.min_points} are needed - check "
-            "the box and the scan's frame (--no-crop for an already cropped scan)"
+            "the box and the scan's frame (`no_crop` for an already cropped scan)",
+            "no_crop",
         )
     if o.status == "empty_completion":
         raise ParameterError(
-            f"{s.input}: the completion is empty (every ray was clipped); try --no-clip or a lower --clip"
+            f"{s.input}: the completion is empty (every ray was clipped); try `no_clip` or a lower `clip`",
+            "no_clip",
+            "clip",
         )
     if not config.crop:
         unit = (o.used_box or o.box).normalization().to_unit(np.asarray(points, dtype=np.float64) @ axes.T)
@@ -407,7 +431,7 @@ def _check_single(s: ScanSettings, result: SceneResult, points: np.ndarray, axes
 
 
 def complete_scan(
-    s: ScanSettings, say: Say = silent, warn: Say = silent, completer: BaseCompleter | None = None
+    s: ScanSettings, say: Say = logs.info, warn: Say = logs.warning, completer: BaseCompleter | None = None
 ) -> SceneResult:
     """Complete the vehicles of one scan file as ``spotlights complete`` does.
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from collections import Counter
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -13,8 +14,10 @@ from ..data.real.base import CLASSES
 from ..errors import InputFileError
 from ..geometry.io import save_ply, save_points
 from ..utils import atomic_output
-from .config import SOURCE_COMPLETION, SOURCE_PARTIAL
-from .results import SceneResult, fallback_counts
+from .scene_config import SOURCE_COMPLETION, SOURCE_PARTIAL
+
+if TYPE_CHECKING:  # the results import this module (SceneResult.save)
+    from .results import SceneResult
 
 
 def check_completed(result: SceneResult, source) -> None:
@@ -120,3 +123,8 @@ def write_json(path: str | Path, data: dict) -> None:
     """``data`` as indented JSON (numpy scalars as floats), written atomically to ``path``."""
     with atomic_output(path) as tmp:
         tmp.write_text(json.dumps(data, indent=2, default=float) + "\n", encoding="utf-8")
+
+
+def fallback_counts(by: dict) -> str:
+    """``{fallback name: boxes it completed}`` as the summary lines say it ("4 by the fallback classes"; "" for none)."""
+    return ", ".join(f"{v} by the fallback {k}" for k, v in sorted(by.items()))

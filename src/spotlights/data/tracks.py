@@ -252,7 +252,8 @@ def check_track(
         i = int(np.argmax(d))
         raise ParameterError(
             f"{name} has a gap of {d[i]:.3g} s between its frames {i} and {i + 1} (limit {max_gap_s:g} s): "
-            "the object is not tracked across it; raise the limit (--max-gap) or split the track"
+            "the object is not tracked across it; raise the limit (`max_gap`) or split the track",
+            "max_gap",
         )
 
 

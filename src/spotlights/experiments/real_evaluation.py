@@ -297,8 +297,10 @@ class RealEvaluationSettings:
         object.__setattr__(self, "snap", snap_radius(self.snap, self.snap_mirror) or 0.0)  # None (off): 0.0
         if self.snap > 0 and self.heading_check:
             raise ParameterError(
-                "--snap does not go with the heading check (add --no-heading-check): the flips are counted by "
-                "fidelity, which snapping puts near 0 for both headings"
+                "`snap` does not go with the heading check (add `no_heading_check`): the flips are counted by "
+                "fidelity, which snapping puts near 0 for both headings",
+                "snap",
+                "no_heading_check",
             )
 
     @classmethod

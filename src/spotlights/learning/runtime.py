@@ -80,13 +80,13 @@ def choose_runtime(
     """
     runtime = "auto" if runtime is None else runtime
     if runtime not in RUNTIMES:
-        raise ParameterError(f"unknown runtime {runtime!r}; choose one of {', '.join(RUNTIMES)}")
+        raise ParameterError(f"unknown `runtime` {runtime!r}; choose one of {', '.join(RUNTIMES)}", "runtime")
     if precision is not None and precision not in PRECISIONS:
-        raise ParameterError(f"unknown precision {precision!r}; choose one of {', '.join(PRECISIONS)}")
+        raise ParameterError(f"unknown `precision` {precision!r}; choose one of {', '.join(PRECISIONS)}", "precision")
     is_onnx = str(name_or_path or "").lower().endswith(".onnx")
     if runtime == "torch":
         if is_onnx:
-            raise ParameterError(f"{name_or_path} is an ONNX file: run it with --runtime onnx")
+            raise ParameterError(f"{name_or_path} is an ONNX file: run it with `runtime` onnx", "runtime")
         return "torch", name_or_path
     if is_onnx:
         return "onnx", name_or_path
@@ -94,9 +94,12 @@ def choose_runtime(
     if runtime == "onnx":
         if shipped is None:
             raise ParameterError(
-                "--runtime onnx runs an ONNX file: pass --checkpoint MODEL.onnx "
-                "(make one with 'spotlights export CHECKPOINT --out MODEL.onnx'; the packaged "
-                f"{', '.join(n for n in PRETRAINED if shipped_onnx(n) is not None)} ship one)"
+                "`runtime` onnx runs an ONNX file: pass `checkpoint` MODEL.onnx "
+                "(make one with 'spotlights export CHECKPOINT `out` MODEL.onnx'; the packaged "
+                f"{', '.join(n for n in PRETRAINED if shipped_onnx(n) is not None)} ship one)",
+                "runtime",
+                "checkpoint",
+                "out",
             )
         return "onnx", shipped
     on_cpu = str(device).split(":")[0] == "cpu" if device is not None else not cuda_present()
@@ -138,7 +141,9 @@ def load_completer(
     chosen, what = choose_runtime(name_or_path, runtime, device, precision)
     if chosen == "onnx":
         if precision not in (None, "auto", "fp32"):
-            raise ParameterError("--precision applies to the torch runtime; an ONNX model runs as exported (float32)")
+            raise ParameterError(
+                "`precision` applies to the torch runtime; an ONNX model runs as exported (float32)", "precision"
+            )
         return load_onnx_completer(what, threads=threads)
     if precision in (None, "auto"):
         device_type = "cpu" if device is None and not cuda_present() else str(device or "cuda").split(":")[0]

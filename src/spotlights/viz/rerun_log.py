@@ -42,7 +42,7 @@ def _rerun():
         import rerun as rr
     except ImportError:
         raise ParameterError(
-            "--rerun needs the rerun-sdk package: pip install 'spotlights[rerun]' (or pip install rerun-sdk)"
+            "`rerun` needs the rerun-sdk package: pip install 'spotlights[rerun]' (or pip install rerun-sdk)", "rerun"
         ) from None
     return rr
 

@@ -63,7 +63,7 @@ def open_reader(source: str | os.PathLike | Sequence, format: str, **options) ->
             source = source[0]
         else:
             if options.get("boxes") is not None:
-                raise ParameterError("--boxes names the box file of a single scan SOURCE, not of several")
+                raise ParameterError("`boxes` names the box file of a single scan SOURCE, not of several", "boxes")
             return MultiReader([open_reader(s, format, **options) for s in source])
     if format == "kitti":
         return KittiReader(source, **options)
