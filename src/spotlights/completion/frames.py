@@ -231,10 +231,8 @@ class FramesSettings(ReaderOptions, CompletionOptions):
             ("--boxes/--calib/--box/--center/--size/--yaw", (s.boxes, s.calib, s.box, s.center, s.size, s.yaw)),
             ("--crop/--no-crop", (s.crop, s.no_crop or None)),
             ("--up/--forward", (None if s.up == "z" else s.up, None if s.forward == "x" else s.forward)),
-            (
-                "--per-object/--summary/--show/--closeups/--html",
-                (s.per_object, s.summary, s.show, s.closeups or None, s.html),
-            ),
+            ("--per-object/--summary/--show/--html", (s.per_object, s.summary, s.show, s.html)),
+            ("--closeups", (s.closeups or None,)),
         ):
             if any(v is not None for v in given):
                 raise ParameterError(
