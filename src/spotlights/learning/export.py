@@ -245,7 +245,7 @@ def halve_weights(proto, min_size: int = 1024) -> int:
     Every float32 initializer of at least ``min_size`` values that float16 holds exactly (the shipped checkpoints'
     weights are float16 numbers: ``export_weights(half=True)``) is replaced by a float16 initializer and a ``Cast``
     node back to float32 at the head of the graph, so the graph computes with the same float32 weights (onnxruntime
-    folds the casts when the session starts) from a file about half the size. Returns the number of initializers
+    folds the casts when it loads the model) from a file about half the size. Returns the number of initializers
     halved."""
     from onnx import TensorProto, helper, numpy_helper
 
@@ -381,7 +381,7 @@ class OnnxCompleter(BaseCompleter):
         opts = ort.SessionOptions()
         if threads:
             opts.intra_op_num_threads = int(threads)
-        try:  # the metadata is read from the session: the onnx package is not imported (a tenth of a second)
+        try:  # the metadata is read from the InferenceSession: the onnx package is not imported (a tenth of a second)
             self.session = ort.InferenceSession(str(p), opts, providers=providers or ["CPUExecutionProvider"])
         except Exception as exc:  # noqa: BLE001 - a file onnxruntime cannot run is a bad file
             raise InputFileError(p, _unloadable(p, exc)) from None
