@@ -9,6 +9,7 @@ Neither runtime is imported before it is needed.
 
 from __future__ import annotations
 
+import numbers
 import os
 from typing import Literal
 
@@ -38,8 +39,8 @@ def load_completer(
     runtime : ``"torch"`` or ``"onnx"``; None (default) picks onnx for a ``.onnx`` file, torch otherwise.
     device : torch device or name (torch runtime; default CUDA when available, else CPU).
     precision : torch runtime: ``"fp32"`` (default), ``"bf16"`` or ``"auto"``; an ONNX model runs as exported.
-    threads : onnx runtime: onnxruntime's intra-op threads (None: its default); the torch runtime's threads are the
-        process's (``torch.set_num_threads``).
+    threads : onnx runtime: onnxruntime's intra-op threads, >= 1 (None: its default); the torch runtime's threads are
+        the process's (``torch.set_num_threads``).
 
     Returns a :class:`~spotlights.learning.inference.BaseCompleter` (a torch
     :class:`~spotlights.learning.inference.Completer` or an :class:`~spotlights.learning.export.OnnxCompleter`): ``complete(partials (B, K, 3) float32,
@@ -47,6 +48,8 @@ def load_completer(
     for a runtime that does not fit the file, :class:`~spotlights.errors.InputFileError` for a bad file, and
     :class:`~spotlights.errors.SpotlightsError` when the runtime's package is not installed.
     """
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, numbers.Integral) or threads < 1):
+        raise ParameterError(f"threads must be a whole number >= 1 or None (the runtime's default), got {threads!r}")
     if runtime is not None and runtime not in RUNTIMES:
         raise ParameterError(f"unknown runtime {runtime!r}; choose one of {', '.join(RUNTIMES)}")
     is_onnx = str(name_or_path or "").lower().endswith(".onnx")
