@@ -250,10 +250,33 @@ def check_track(
         )
     if max_gap_s is not None and len(d) and d.max() > max_gap_s:
         i = int(np.argmax(d))
+        unit = _timestamp_unit_hint(d)
+        if unit:
+            raise ParameterError(
+                f"{name} has a gap of {d[i]:.3g} s between its frames {i} and {i + 1} (limit {max_gap_s:g} s): "
+                f"timestamps are read in seconds, and these look like {unit}"
+            )
         raise ParameterError(
             f"{name} has a gap of {d[i]:.3g} s between its frames {i} and {i + 1} (limit {max_gap_s:g} s): "
             "the object is not tracked across it; raise the limit (--max-gap) or split the track"
         )
+
+
+#: Typical time between LiDAR frames, seconds (10-20 Hz sensors); the median gap of a track in another unit is this
+#: many milli-, micro- or nanoseconds: (name, factor to seconds).
+_TIME_UNITS = (("nanoseconds", 1e-9), ("microseconds", 1e-6), ("milliseconds", 1e-3))
+
+
+def _timestamp_unit_hint(gaps: np.ndarray) -> str | None:
+    """A hint such as ``"nanoseconds (divide them by 1e9)"`` when a track's median gap between frames, read in
+    another unit, is a LiDAR's 0.01-1 s (aiMotive stores nanoseconds: 0.0667 s read as 6.67e7 s); else None."""
+    median = float(np.median(gaps))
+    if median < 10.0:  # plausible seconds (or a track with one long gap): no hint
+        return None
+    for unit, factor in _TIME_UNITS:
+        if 0.01 <= median * factor <= 1.0:
+            return f"{unit} (divide them by {1 / factor:.0e}: a median gap of {median * factor:.3g} s then)"
+    return None
 
 
 # --- box refinement ----------------------------------------------------------------------------

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputFileError, ParameterError
+from ..inputs import check_npz_members
 from ..utils import atomic_output
 from .frames import Normalization, normalization_from_mesh
 from .io import load_mesh
@@ -332,7 +333,9 @@ def save_encoding(path: str | os.PathLike, depths: np.ndarray, rig: Rig, normali
 
 
 def load_encoding(path: str | os.PathLike) -> Encoding:
-    """Read an encoding ``.npz`` written by :func:`save_encoding` (validated)."""
+    """Read an encoding ``.npz`` written by :func:`save_encoding` (validated; a zip bomb refused unopened:
+    :func:`~spotlights.inputs.check_npz_members`)."""
+    check_npz_members(path, ".npz encoding")
     try:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
