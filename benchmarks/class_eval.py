@@ -1,4 +1,4 @@
-"""Per class and per source accuracy / completeness of checkpoints on one split of a dataset (issue 27).
+"""Per class and per source accuracy / completeness of checkpoints on one split of a dataset.
 
 Each sample is scored as ``spotlights evaluate`` scores it (the model's output as it is, unit frame, against the
 model's dense ground truth), grouped by its model's source (the name's first part: ``apolloscape-cars``,
@@ -6,7 +6,7 @@ model's dense ground truth), grouped by its model's source (the name's first par
 by 0.15 m (the network's own, no clamp) is counted. A class-conditioned checkpoint gets each sample's class.
 
     python benchmarks/class_eval.py --data product.h5 --checkpoint default run/best.pt --max-views 100 \\
-        --json docs/results/i27/synthetic.json
+        --json docs/results/classes/synthetic.json
 """
 
 from __future__ import annotations

@@ -78,10 +78,10 @@ def main() -> None:
 
     import torch
 
+    from spotlights.completion.frame import SceneConfig, complete_scene, write_scene
+    from spotlights.completion.scan import resolve_fallback
     from spotlights.data.real.boxfiles import read_box_file
     from spotlights.data.real.scans import read_scan
-    from spotlights.experiments.scan_completion import resolve_fallback
-    from spotlights.experiments.scene import SceneConfig, complete_scene, write_scene
     from spotlights.learning.inference import load_completer
 
     threads = tuple(args.threads)

@@ -1,4 +1,4 @@
-"""Benchmark of the synthetic dataset build (issue 4): samples/s, where the time goes, disk size.
+"""Benchmark of the synthetic dataset build: samples/s, where the time goes, disk size.
 
 Two measurements in one run (the machine is shared: the load average is printed
 before and after; compare ratios, not absolute numbers across runs):

@@ -1,4 +1,4 @@
-"""Benchmark of the encode path: one thread against two, beside Open3D (issue 18).
+"""Benchmark of the encode path: one thread against two, beside Open3D.
 
 Measured side by side in one run (the machine is shared and noisy: compare the ratios
 of one run, not absolute numbers across runs):

@@ -9,8 +9,8 @@ numbers measured apart).
 
 Usage::
 
-    python benchmarks/frame_pictures.py --against /tmp/before/src --frames 12 --rounds 3 \\
-        --json docs/results/real/frame_pictures_stop37.json
+    python benchmarks/frame_pictures.py --against before/src --frames 12 --rounds 3 \\
+        --json docs/results/real/frame_pictures.json
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ partial input to the completion). This script measures, for one model:
 
 Writes ``--json`` (default ``docs/results/heading_check.json``). Usage::
 
-    python benchmarks/heading.py --data /work/data/cars.h5 --real av2.h5 nuscenes.h5 kitti.h5 --views 40
+    python benchmarks/heading.py --data data/cars.h5 --real av2.h5 nuscenes.h5 kitti.h5 --views 40
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Same numbers out (issue 29): run the same fixed-seed jobs at two commits and compare their outputs.
+"""Same numbers out: run the same fixed-seed jobs at two commits and compare their outputs.
 
     python benchmarks/same_outputs.py --ref cbb37db --out same_outputs.json   # HEAD's working tree vs cbb37db
 

@@ -1,4 +1,4 @@
-"""Benchmark of the scale-out backends (issue 16): Ray vs the local process pool, shards, costs.
+"""Benchmark of the scale-out backends: Ray vs the local process pool, shards, costs.
 
 One run, side by side (the machine may be shared: every ratio compares builds of the same
 round, and rounds are repeated; the load average is recorded with each build):

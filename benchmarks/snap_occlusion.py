@@ -1,5 +1,5 @@
-"""Occlusion-aware snapping, the stop-37 prototype (superseded: the package's ``snap_to_observed`` applies the rule
-itself since stop 38, with ``sensor=``; kept to reproduce ``occlusion_{kenney,val}.txt``; its threshold is
+"""Occlusion-aware snapping, the prototype (superseded: the package's ``snap_to_observed`` applies the rule
+itself, with ``sensor=``; kept to reproduce ``occlusion_{kenney,val}.txt``; its threshold is
 ``dt > R`` in normalised depth, the package's ``2 dt > R``): does the snap's gain survive when a kept ray may not
 snap onto an observed point more than R behind its predicted surface, unless that surface lies in observed free
 space (carved from the sensor, ``carved_depths``)?

@@ -9,7 +9,7 @@ work, not the wait for a core). Report: medians per tree and their ratio.
 
 Usage::
 
-    python benchmarks/snap_speed.py --against /tmp/before/src --rounds 5 --json docs/results/fair/snap/stop38/snap_speed_stop38.json
+    python benchmarks/snap_speed.py --against before/src --rounds 5 --json docs/results/fair/snap/occlusion_rule/snap_speed.json
 """
 
 from __future__ import annotations

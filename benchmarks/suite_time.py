@@ -1,6 +1,6 @@
 """Time the test suite at two (or more) commits side by side, on this machine, in one run.
 
-    python3 benchmarks/suite_time.py b26f0e3 HEAD            # the issue-29 comparison
+    python3 benchmarks/suite_time.py b26f0e3 HEAD            # a comparison of two commits
     python3 benchmarks/suite_time.py b26f0e3 HEAD --rounds 2 --json out.json
     python3 benchmarks/suite_time.py HEAD --pytest-args "-m 'not slow'"
 

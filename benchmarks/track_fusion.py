@@ -18,7 +18,7 @@ measures the queue for the CPU as much as the work). Frames per second = frames 
 refinement's statuses and the share of vehicle boxes whose refined box moved more than 0.3 m.
 
 ``--fallback auto`` completes the boxes the car model did not learn with the class model, as ``real complete``
-does by default since stop 36 (the benchmark's default stays ``none``: the car model alone, as its earlier results).
+does by default (the benchmark's default stays ``none``: the car model alone, as in its first results).
 
 Usage::
 
@@ -34,14 +34,14 @@ the load average, whether the completions equal the first run's; medians)::
         --compare-worker --repeats 3 --json docs/results/real/track_fusion_speed_worker_1thread_bf16.json
 
 **The command side by side** (``--against OTHER_SRC``): the whole ``real complete SOURCE --fuse ... --no-pictures``
-(:func:`~spotlights.experiments.frame_completion.complete_frames`, every file written), timed after the model
+(:func:`~spotlights.completion.frames.complete_frames`, every file written), timed after the model
 loads, in a fresh process per run, alternating ``OTHER_SRC`` (e.g. main's), this checkout's ``src`` in one
 process (``this_serial``: ``--no-track-worker``) and with its track worker (``this``) for each torch thread count
 of ``--speed-threads``, ``--repeats`` times: CPU seconds per frame of the process (and of the worker), wall
 frames per second, the load average before and after each run, and the ratios of this code to the other
 measured side by side (on a shared machine the honest number)::
 
-    nice -n 10 python benchmarks/track_fusion.py --against /work/main/src --refine-boxes --precision bf16 \\
+    nice -n 10 python benchmarks/track_fusion.py --against src --refine-boxes --precision bf16 \\
         --speed-threads 1 2 --json docs/results/real/track_fusion_speed_side_by_side.json
 """
 
@@ -60,11 +60,11 @@ from pathlib import Path
 
 import numpy as np
 
+from spotlights.completion.frame import SceneConfig, complete_scene
+from spotlights.completion.fusion import TrackPlan
+from spotlights.completion.scan import resolve_fallback
 from spotlights.data.real import open_reader
 from spotlights.data.tracks import parse_window
-from spotlights.experiments.scan_completion import resolve_fallback
-from spotlights.experiments.scene import SceneConfig, complete_scene
-from spotlights.experiments.tracks import TrackPlan
 from spotlights.geometry.sampling import voxel_downsample
 from spotlights.learning.inference import load_completer
 from spotlights.metrics.consistency import aggregate, fidelity, track_consistency
@@ -120,7 +120,7 @@ def main(argv=None) -> int:
         "--fallback",
         default="none",
         help="the second model for the boxes the first did not learn, as real complete's --fallback (auto: the "
-        "class model beside the default); default none (the car model alone, as the results before stop 36)",
+        "class model beside the default); default none (the car model alone, as in the first results)",
     )
     ap.add_argument("--fuse", default="past:5")
     ap.add_argument("--refine-boxes", action="store_true")
@@ -157,7 +157,7 @@ def main(argv=None) -> int:
     reader = open_reader(args.source, args.format)
     keys = reader.frame_keys()
     config = SceneConfig(snap=args.snap, snap_mirror=args.snap_mirror)
-    from spotlights.experiments.tracks import TrackWorker  # this checkout's (--against runs an older one's command)
+    from spotlights.completion.fusion import TrackWorker  # this checkout's (--against runs an older one's command)
 
     early = TrackWorker.start() if args.track_worker else None  # as real complete: started before the model loads
     completer = load_completer(args.checkpoint, precision=args.precision)
@@ -283,7 +283,7 @@ def compare_worker(args, fused, kept, n_frames: int) -> dict:
     """``--compare-worker``: ``--repeats`` rounds of the fused loop with its track worker (started 1 s before, as
     ``real complete`` starts it before the model loads) and in one process, in turn: wall and CPU seconds (this
     process; the worker's own), the load average; the outputs of every round equal the first run's."""
-    from spotlights.experiments.tracks import TrackWorker
+    from spotlights.completion.fusion import TrackWorker
 
     first = dict(kept["fused"])
     runs = []
@@ -328,7 +328,7 @@ def command_run(args) -> int:
     """One timed ``real complete`` (child of :func:`side_by_side`): prints a JSON line."""
     import torch
 
-    from spotlights.experiments.frame_completion import FramesSettings, complete_frames
+    from spotlights.completion.frames import FramesSettings, complete_frames
 
     torch.set_num_threads(args.threads)
     has_worker = "track_worker" in {f.name for f in dataclasses.fields(FramesSettings)}  # an older checkout: none

@@ -1,10 +1,10 @@
-"""A picture sheet of every object of some classes in a real observation file (issue 27): per object (its
+"""A picture sheet of every object of some classes in a real observation file: per object (its
 observation with the most points), the observed points and each checkpoint's completion in the box's unit
 frame, with the box grown by 0.15 m drawn as dots; titles give the object's size and each completion's share
 of points inside the grown box before the clamp.
 
     PYTHONPATH=src python3 scripts/class_sheet.py nuscenes.h5 --classes truck,bus,trailer \\
-        --checkpoint default run/best.pt --names default classes --out docs/results/i27/scene0523_sheet.png
+        --checkpoint default run/best.pt --names default classes --out docs/results/classes/scene0523_sheet.png
 
 ``--projections``: instead of the 3-D views, each completion seen from the side (x-z) and from above (x-y) in the
 box frame, metres, with the observed points (purple) and the box (dotted): profiles that a perspective view hides

@@ -1,9 +1,9 @@
-"""Issue 27's result tables: per class, synthetic (``benchmarks/class_eval.py`` JSONs) and real (``real evaluate``
+"""The class models' result tables: per class, synthetic (``benchmarks/class_eval.py`` JSONs) and real (``real evaluate``
 JSONs: inside the grown box before any clamp, fidelity, consistency at equal density), side by side per model.
 
     PYTHONPATH=src python3 scripts/class_tables.py --synthetic default.json classes.json \\
         --real nuscenes=default-nuscenes.json,classes-nuscenes.json av2=default-av2.json,classes-av2.json \\
-        --out docs/results/i27/classes
+        --out docs/results/classes/classes
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ def main() -> None:
     ap.add_argument("--out", required=True)
     a = ap.parse_args()
     out: dict = {"synthetic": {}, "real": {}}
-    lines = ["# Issue 27: per class results", ""]
+    lines = ["# Per class results", ""]
     if a.synthetic:
         lines += [
             "## Synthetic (test split, unit frame, model output as it is)",

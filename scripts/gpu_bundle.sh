@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Prepare, on a machine with PyPI, what scripts/gpu_train.sh needs on a GPU machine without internet
-# (docs/learning.md, "GPU recipe"): into .whl/ (git-ignored; carry it to the GPU machine)
+# (docs/training.md, "GPU recipe"): into .whl/ (git-ignored; carry it to the GPU machine)
 #   - not the project's own wheel: gpu_train.sh runs the checkout's src/ (the wheel, 16 MB with its
 #     pretrained checkpoints, would push the call past the 64 MiB a device call carries),
 #   - the wheels of its dependencies that the GPU image may lack (trimesh, embreex, pykdtree, rtree,

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The test suite where CUDA is (docs/learning.md, "The inference paths on CUDA"): CI never has a GPU, and every
+# The test suite where CUDA is (docs/studies/gpu.md, "The inference paths on CUDA"): CI never has a GPU, and every
 # completion path defaults to CUDA when it is there, so run this once whenever a GPU machine is lent:
 #   make gpu-bundle                         # here, with PyPI: the wheels the GPU image lacks, into .whl/
 #   scripts/gpu_check.sh [PYTEST ARGS]      # there, from the checkout's root, .whl/ carried beside it
@@ -12,7 +12,7 @@ set -uo pipefail
 cd "$(dirname "$0")/.." || exit 2
 PY=${PYTHON:-python3}
 BUNDLE=${GPU_BUNDLE:-.whl}
-SITE=${GPU_SITE:-/tmp/spotlights-site}
+SITE=${GPU_SITE:-${TMPDIR:-/tmp}/spotlights-site}
 DEST=${OUT:-gpu-check}
 mkdir -p "$DEST" || exit 2
 export PYTHONPATH="$PWD/src${PYTHONPATH:+:$PYTHONPATH}"

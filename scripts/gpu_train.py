@@ -1,7 +1,7 @@
 """The GPU recipe: build the training set from carried meshes, time a step, train what fits a time budget.
 
 Run through ``scripts/gpu_train.sh MODEL_CONFIG [MINUTES] [options]`` (which first installs missing packages from
-the carried wheels); docs/learning.md, "GPU recipe". On a machine with one GPU and a hard limit per run:
+the carried wheels); docs/training.md, "GPU recipe". On a machine with one GPU and a hard limit per run:
 
 1. **data**: ``spotlights dataset build`` of the meshes it carries (``--meshes``; default the first of
    ``$GPU_MESHES``, ``.whl/meshes/apolloscape-cars``, ``shared/data/...`` and ``../shared/data/...``), the paper's
@@ -40,7 +40,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 PAPER_STEPS = 160_000
-"""The paper's scale: 40 epochs of 4,000 steps of 32 (docs/learning.md, "Schedules")."""
+"""The paper's scale: 40 epochs of 4,000 steps of 32 (docs/training.md, "Schedules")."""
 DEFAULT_VARIANT = "variants/sanet-hit-dense.yaml"
 MESH_CANDIDATES = (
     REPO / ".whl" / "meshes" / "apolloscape-cars",

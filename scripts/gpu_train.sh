@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The GPU recipe (docs/learning.md, "GPU recipe"):
+# The GPU recipe (docs/training.md, "GPU recipe"):
 #   scripts/gpu_train.sh MODEL_CONFIG [MINUTES] [options of scripts/gpu_train.py]
 # MODEL_CONFIG: 'default' (the default model's configuration), a registered model name (snowflakenet, foldingnet, ...)
 # or a YAML config; MINUTES: the time budget of the whole run (default 7, or $GPU_MINUTES).
@@ -16,7 +16,7 @@ if [ $# -lt 1 ] || [ "$1" = "-h" ] || [ "$1" = "--help" ]; then
 fi
 PY=${PYTHON:-python3}
 BUNDLE=${GPU_BUNDLE:-.whl}
-SITE=${GPU_SITE:-/tmp/spotlights-site}
+SITE=${GPU_SITE:-${TMPDIR:-/tmp}/spotlights-site}
 export PYTHONPATH="$PWD/src${PYTHONPATH:+:$PYTHONPATH}"
 NEEDED="import numpy, h5py, yaml, tqdm, trimesh, pykdtree, rtree, pypcd4, scipy"  # torch: the machine's own
 if ! "$PY" -c "$NEEDED" 2>/dev/null; then

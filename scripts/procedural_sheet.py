@@ -2,7 +2,7 @@
 
     PYTHONPATH=src python3 scripts/procedural_sheet.py --out docs/results/procedural_sheet.png
     PYTHONPATH=src python3 scripts/procedural_sheet.py --bodies box_truck,articulated_truck,trailer_box,trailer_flatbed \
-        --per-body 6 --out docs/results/i27/procedural_long_short.png
+        --per-body 6 --out docs/results/classes/procedural_long_short.png
 
 Rows: the body types of spotlights.data.synthetic.procedural; columns: generated vehicles
 (seeds 0..N-1) and, where the shared data holds one, a real mesh of that body (ApolloScape car

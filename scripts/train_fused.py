@@ -9,7 +9,7 @@ VAL cars (hit-depth loss); ``best.pt`` is the lowest validation loss, an inferen
 
 Usage::
 
-    OMP_NUM_THREADS=1 nice -n 10 python scripts/train_fused.py --out /work/runs/i28-fused --minutes 55 \
+    OMP_NUM_THREADS=1 nice -n 10 python scripts/train_fused.py --out runs/fused --minutes 55 \
         --steps 4000 --threads 1 [--resume]
 """
 

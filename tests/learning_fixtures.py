@@ -1,6 +1,6 @@
 """A tiny synthetic completion dataset written to the HDF5 schema of notes/contracts.md.
 
-Independent of ``spotlights.data`` (issue 4): analytic shapes (boxes, ellipsoids,
+Independent of ``spotlights.data``: analytic shapes (boxes, ellipsoids,
 capsules) per category, ground truth by uniform surface sampling, depths by the
 geometry core's ``encode_mesh``, partial scans by casting rays from a virtual
 sensor and keeping the first hits (then resampled to 256 points). Everything is

@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from spotlights.completion.frame import SceneConfig, complete_scene, scene_points
 from spotlights.errors import ParameterError
-from spotlights.experiments.scene import SceneConfig, complete_scene, scene_points
 from spotlights.geometry.boxes import Box
 
 pytestmark = pytest.mark.timeout(120)
@@ -87,12 +87,12 @@ def test_complete_scene_refuses_a_completer_a_config_or_axes_it_cannot_use():
 @pytest.mark.parametrize(
     "options, message",
     [
-        ({"margin": "0.2"}, "margin must be a number, got '0.2'"),
-        ({"heading_margin": None}, "heading_margin must be a number"),
-        ({"min_points": 2.5}, "min_points must be a whole number, got 2.5"),
+        ({"margin": "0.2"}, "`margin` must be a number, got '0.2'"),
+        ({"heading_margin": None}, "`heading_margin` must be a number"),
+        ({"min_points": 2.5}, "`min_points` must be a whole number, got 2.5"),
         ({"seed": -1}, "the seed must be a whole number in 0..2\\*\\*63-1, got -1"),
         ({"seed": 2**63}, "the seed must be a whole number in 0..2\\*\\*63-1"),
-        ({"seed": 1.0}, "seed must be a whole number"),
+        ({"seed": 1.0}, "`seed` must be a whole number"),
         ({"clip": 5.0}, r"clip must be a depth threshold in \[0, 1\]"),
         ({"clip": float("nan")}, r"clip must be a depth threshold in \[0, 1\]"),
         ({"clip": "none"}, r"clip must be a depth threshold"),
@@ -119,3 +119,27 @@ def test_the_api_answers_the_same_way():
         spotlights.complete_frame(_scan(), BOX, _Stub(), fallback=None)
     with pytest.raises(ParameterError, match="the seed must be a whole number in 0"):
         spotlights.complete_frame(_scan(), [BOX], _Stub(), fallback=None, seed=-1)
+
+
+def test_library_errors_name_parameters_and_the_cli_writes_its_options():
+    """A library error names the Python parameters (```heading_margin```); the command line shows its options
+    instead (``--heading-margin``), also for a parameter whose option has another first spelling."""
+    import argparse
+
+    from spotlights.errors import ParameterError
+    from spotlights.options import option_names
+
+    parser = argparse.ArgumentParser()
+    sub = parser.add_subparsers()
+    cmd = sub.add_parser("complete")
+    cmd.add_argument("--heading-margin", type=float)
+    cmd.add_argument("--no-heading-check", dest="heading_check", action="store_false")
+    cmd.add_argument("--heading-check", dest="heading_check", action="store_true")
+    cmd.add_argument("-c", "--ckpt", dest="checkpoint")
+    exc = ParameterError(
+        "`heading_margin` goes with `heading_check` (the heading margin)", "heading_margin", "heading_check"
+    )
+    assert option_names(exc, parser) == "--heading-margin goes with --heading-check (the heading margin)"
+    exc = ParameterError("pass `checkpoint` MODEL.onnx; `threads` too", "checkpoint", "threads")
+    assert option_names(exc, parser) == "pass --ckpt MODEL.onnx; --threads too"
+    assert option_names(ParameterError("plain `words`"), parser) == "plain `words`"

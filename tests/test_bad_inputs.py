@@ -1,4 +1,4 @@
-"""Every bad input answered: a table of bad inputs across every command (issue 18).
+"""Every bad input answered: a table of bad inputs across every command.
 
 Each case runs the CLI in-process (``spotlights.cli.main``) in a fresh working folder and
 checks: exit code 2; exactly one stderr line, the error, naming the file or parameter
@@ -29,8 +29,8 @@ import pytest
 import trimesh
 
 from spotlights.cli import main
-from test_nuscenes import write_mini_nuscenes
 
+from builders import write_mini_nuscenes
 from helpers import assert_user_error, has_module, run_cli
 
 
@@ -669,7 +669,7 @@ def test_ctrl_c_exits_130(monkeypatch, capsys):
     assert capsys.readouterr().err.strip() == "spotlights: interrupted"
 
 
-# ---------------------------------------------------------------------------- hostile files (issue 25)
+# ---------------------------------------------------------------------------- hostile files
 #
 # Each case builds its hostile file(s) in the test's own folder (tiny), runs the command in a
 # subprocess (helpers.run_cli) with the working folder as cwd and checks one error line, exit 2,

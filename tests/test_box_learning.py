@@ -1,4 +1,4 @@
-"""Box-targeted rigs in the dataset and in SA-Net (issue 8, item 2's learning half).
+"""Box-targeted rigs in the dataset and in SA-Net.
 
 Independent truths: a solid box mesh is hit by every box-rig ray at the slab
 distance (closed form); CAD vehicles' depths equal a brute-force Moller-Trumbore
@@ -418,7 +418,7 @@ def test_hit_aware_sanet_on_a_box_rig(built, tmp_path):
 
 
 def test_box_term_trains_on_a_box_rig_with_each_samples_grown_box(built, tmp_path):
-    """sanet-hit with ``box_weight`` (issue 27): the batch carries each model's rays and its box grown by 0.15 m
+    """sanet-hit with ``box_weight``: the batch carries each model's rays and its box grown by 0.15 m
     (in its unit frame, by hand), the run trains and its checkpoint keeps the weight."""
     from spotlights.learning.checkpoint import load_checkpoint
     from spotlights.learning.data import TorchCompletionDataset

@@ -1,4 +1,4 @@
-"""Box-targeted rigs (issue 8): geometry against closed forms, determinism, files, CLI, study."""
+"""Box-targeted rigs: geometry against closed forms, determinism, files, CLI, study."""
 
 import hashlib
 import json

@@ -1,4 +1,4 @@
-"""Issue 27: a model that knows the class (a zero-initialised class embedding), the learned-domain gate
+"""A model that knows the class (a zero-initialised class embedding), the learned-domain gate
 (an unknown class is left as observed points and counted) and every SA-Net ray clipped to the box grown by
 0.15 m at decoding (checked against a hand-computed ray/box intersection)."""
 
@@ -11,11 +11,11 @@ import pytest
 import torch
 
 from spotlights.api import complete_frame
+from spotlights.completion.frame import SceneConfig, scene_objects
+from spotlights.completion.scan import CompletionOptions, resolve_fallback
 from spotlights.data.real.base import lookup_class
 from spotlights.data.real.boxfiles import CLASS_MAP
 from spotlights.data.vehicle_classes import VEHICLE_CLASSES, canonical_class
-from spotlights.experiments.scan_completion import CompletionOptions, resolve_fallback
-from spotlights.experiments.scene import SceneConfig, scene_objects
 from spotlights.geometry.boxes import Box
 from spotlights.geometry.rig import make_rig_spec
 from spotlights.learning.inference import Completer, complete_in_boxes, load_completer
@@ -237,7 +237,7 @@ def test_learned_domain_keeps_a_size_range_per_class_and_gates_far_outside_it():
 
 
 def test_shipped_classes_model_completes_a_bus_the_default_leaves_as_observed():
-    """`--checkpoint classes` (pretrained/classes.pt, issue 27's class-conditioned fine-tune) learned buses: it
+    """`--checkpoint classes` (pretrained/classes.pt, the class-conditioned fine-tune) learned buses: it
     completes a 12 x 2.5 x 3.2 m bus that the car-only default leaves as its observed points; every completion
     point lies in the box grown by 0.15 m (checked by hand in the box frame)."""
     rng = np.random.default_rng(3)

@@ -1,4 +1,4 @@
-"""`spotlights encode / decode / show` end to end, and every bad input of issue 2."""
+"""`spotlights encode / decode / show` end to end, and their bad inputs."""
 
 import math
 

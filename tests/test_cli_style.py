@@ -1,4 +1,4 @@
-"""One CLI style (issue 17 item 5): walks every sub-command's parser.
+"""One CLI style: walks every sub-command's parser.
 
 Every option has help text; every command that writes has ``-o/--out``; every command with
 a progress bar has ``-q/--quiet`` (``--no-progress`` stays as a hidden alias); ``-q`` also

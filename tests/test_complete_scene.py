@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from spotlights.experiments.tracks import usable_cpus
+from spotlights.completion.fusion import usable_cpus
 from spotlights.geometry.boxes import Box
 
 from helpers import assert_user_error, run_cli

@@ -1,4 +1,4 @@
-"""Config schema (issue 15 / issue 18): unknown keys name themselves, values are checked before torch,
+"""Config schema: unknown keys name themselves, values are checked before torch,
 the optimizer and the schedule are built from ``type`` + arguments, old configs still load."""
 
 from __future__ import annotations

@@ -25,13 +25,10 @@ from spotlights.errors import ParameterError, SpotlightsError
 from spotlights.geometry.encode import encode_mesh
 from spotlights.geometry.io import load_mesh
 
+from builders import BOXES, build_reference, small_cfg, write_box_meshes
 from helpers import CARS, need, src_pythonpath
 
 ROOT = Path(__file__).resolve().parents[1]
-BOXES = {  # file -> (extents, centre) in the object frame, metres
-    "boxes/box_a.ply": ((4.5, 1.8, 1.5), (0.2, 0.0, 0.75)),
-    "boxes/box_b.obj": ((4.0, 1.7, 1.6), (0.0, 0.1, 0.0)),
-}
 
 
 def box_distance(p, center, half):
@@ -43,23 +40,7 @@ def box_distance(p, center, half):
 @pytest.fixture(scope="module")
 def meshes(tmp_path_factory):
     """Three small models in two categories (sub-folders)."""
-    root = tmp_path_factory.mktemp("meshes")
-    for rel, (ext, c) in BOXES.items():
-        m = trimesh.creation.box(extents=ext)
-        m.apply_translation(c)
-        (root / rel).parent.mkdir(parents=True, exist_ok=True)
-        m.export(root / rel)
-    e = trimesh.creation.icosphere(subdivisions=2)
-    e.apply_scale((2.2, 0.9, 0.75))
-    (root / "blobs").mkdir()
-    e.export(root / "blobs" / "ellipsoid.ply")
-    return root
-
-
-def small_cfg(meshes, **kw):
-    base = dict(meshes=str(meshes), views=6, split="1/1/1", seed=3, extra_rigs=["64x32@60"])
-    base.update(kw)
-    return BuildConfig(**base)
+    return write_box_meshes(tmp_path_factory.mktemp("meshes"))
 
 
 def read_all(path):
@@ -76,10 +57,7 @@ def sha(path):
 
 @pytest.fixture(scope="module")
 def reference(meshes, tmp_path_factory):
-    out = tmp_path_factory.mktemp("ref") / "ref.h5"
-    rep = build_dataset(small_cfg(meshes), out, workers=1, progress=False, log=lambda m: None)
-    assert rep.units_computed == rep.units_total and not Path(str(out) + ".parts").exists()
-    return out
+    return build_reference(meshes, tmp_path_factory.mktemp("ref") / "ref.h5")
 
 
 def test_schema_and_ground_truth_match_core_and_closed_form(reference, meshes):

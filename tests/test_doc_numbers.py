@@ -1,6 +1,6 @@
 """Measured numbers quoted in the README and the docs agree with the committed results JSON they come from.
 
-A number written by hand into prose drifts when the result is measured again (docs/real-data.md
+A number written by hand into prose drifts when the result is measured again (the docs
 said 4,439 completion points for KITTI 002155 long after the default model changed; the count is
 124,695). Each check below formats the JSON's value the way the doc prints it and looks for it in
 the doc's text (whitespace and line breaks collapsed). When a result is re-measured, the JSON and
@@ -43,14 +43,19 @@ def test_kitti_002155_completion_count():
     assert frame["checkpoint"] == "default" and frame["every_completion_point_inside_its_sphere"]
     n = f"{frame['completion_points']:,}"
     assert frame["fallback"] == "classes" and frame["completed_by_fallback"] == 1  # the van, by the class model
-    _says("docs/real-data.md", f"{frame['completed']} vehicles completed, {n} completion points: 7 cars by the default")
-    _says("docs/real-data.md", f"the van by the class model in a batch of its own ({n} completion points")
+    _says(
+        "docs/completion.md", f"{frame['completed']} vehicles completed, {n} completion points: 7 cars by the default"
+    )
+    _says("docs/studies/frame-speed.md", f"the van by the class model in a batch of its own ({n} completion points")
     for threads in ("1", "2"):
         ms = f"{1000 * frame['end_to_end_no_picture'][threads]['wall_s']:.0f} ms"
-        _says("docs/real-data.md", f"| end to end without the picture | {ms}" if threads == "1" else f"**{ms}** |")
+        _says(
+            "docs/studies/frame-speed.md",
+            f"| end to end without the picture | {ms}" if threads == "1" else f"**{ms}** |",
+        )
     paper = _json("complete_frame.json")
     assert paper["checkpoint"] == "paper"
-    _says("docs/real-data.md", f"({paper['completion_points']:,} with `--checkpoint paper`)")
+    _says("docs/completion.md", f"({paper['completion_points']:,} with `--checkpoint paper`)")
 
 
 def test_readme_default_model_against_the_paper_sanet():
@@ -58,12 +63,12 @@ def test_readme_default_model_against_the_paper_sanet():
     d = _summary(rep, "sanet-hit", "default")
     p = _summary(rep, "sanet", "paper", variant=1)  # the clipped row (clip 0.2)
     _says(
-        "README.md",
+        "docs/studies/README.md",
         f"accuracy {d['accuracy']:.4f}, completeness {d['completeness']:.4f}, "
         f"**{d['n_points']:,.0f} points per completion**",
     )
     _says(
-        "README.md",
+        "docs/studies/README.md",
         f"the paper-faithful SA-Net's {p['accuracy']:.4f}, {p['completeness']:.4f} and {p['n_points']:.0f} points",
     )
 
@@ -71,26 +76,26 @@ def test_readme_default_model_against_the_paper_sanet():
 def test_readme_fair_table1_rows():
     t1 = _json("fair/table1.json")
     fold, atlas, top = (_summary(t1, m) for m in ("foldingnet", "atlasnet", "topnet"))
-    _says("README.md", f"(FoldingNet {fold['accuracy']:.4f}, AtlasNet {atlas['accuracy']:.4f})")
-    _says("README.md", f"(best baseline: TopNet {top['completeness']:.4f})")
+    _says("docs/studies/README.md", f"(FoldingNet {fold['accuracy']:.4f}, AtlasNet {atlas['accuracy']:.4f})")
+    _says("docs/studies/README.md", f"(best baseline: TopNet {top['completeness']:.4f})")
     sanet = _summary(t1, "sanet", variant=1)  # clip 0.2
-    _says("README.md", f"gets {sanet['accuracy']:.4f} / {sanet['completeness']:.4f}")
+    _says("docs/studies/README.md", f"gets {sanet['accuracy']:.4f} / {sanet['completeness']:.4f}")
 
 
 def test_readme_reproduction_headline():
     t1 = _json("reproduction/tables/table1.json")
     ours, paper = t1["ours"], t1["paper"]
     _says(
-        "README.md",
+        "docs/studies/README.md",
         f"({ours['sanet (clip 0.2)']['average']:.4f} vs TopNet's {ours['topnet']['average']:.4f}; "
         f"the paper: {paper['sanet (clip 0.2)']['average']:.4f} vs {paper['topnet']['average']:.4f})",
     )
     t4 = _json("reproduction/tables/table4.json")
     ours4, paper4 = t4["ours"], t4["paper"]
     angles = ("30", "60", "83")
-    _says("README.md", "hit ratios " + " / ".join(f"{ours4[a]['average']:.1f}" for a in angles))
+    _says("docs/studies/README.md", "hit ratios " + " / ".join(f"{ours4[a]['average']:.1f}" for a in angles))
     paper_ratios = " / ".join(f"{paper4[a]['average']:.1f}" for a in sorted(paper4, key=int))
-    _says("README.md", f"(paper {paper_ratios} %)")
+    _says("docs/studies/README.md", f"(paper {paper_ratios} %)")
 
 
 @pytest.mark.parametrize(
@@ -111,7 +116,7 @@ def test_readme_table2_headline(data, sentence):
         k: f"{models[n]['equal_density']['average']['cd']:.3f}"
         for k, n in (("default", "sanet-hit-dense-f32"), ("topnet", "topnet"), ("foldingnet", "foldingnet"))
     }
-    _says("README.md", sentence.format(**cd))
+    _says("docs/studies/README.md", sentence.format(**cd))
 
 
 def test_readme_table2_fidelity():
@@ -121,66 +126,67 @@ def test_readme_table2_fidelity():
         models = {m["name"]: m for m in _json(f"real/table2_fair/{data}.json")["models"]}
         fid.append(f"{models['sanet-hit-dense-f32']['average']['fidelity']:.3f}")
         baselines += [models[b]["average"]["fidelity"] for b in ("atlasnet", "pcn", "foldingnet", "topnet")]
-    _says("README.md", f"(fidelity {fid[0]} / {fid[1]}; baselines {min(baselines):.3f} or more)")
+    _says("docs/studies/README.md", f"(fidelity {fid[0]} / {fid[1]}; baselines {min(baselines):.3f} or more)")
 
 
 def test_suv_hold_out_of_the_ray_local_model():
-    gen = _json("fair/i26/generalisation_suv_i26.json")
+    gen = _json("fair/ray_local/generalisation_suv.json")
     (local,) = [k for k in gen["rows"] if k.startswith("sanet-local-nosuv")]
     row, ratio = gen["rows"][local], gen["ratio_held_out_over_in_distribution"][local]
     _says(
-        "docs/learning.md",
+        "docs/studies/ray-local.md",
         f"| ray-local, trained without SUVs (p(hit) >= 0.5) | {row['in_distribution']['accuracy']:.4f} "
         f"({row['in_distribution']['completeness']:.4f}) | {row['held_out']['accuracy']:.4f} "
         f"({row['held_out']['completeness']:.4f}) | **{ratio['accuracy']:.2f}x** ({ratio['completeness']:.2f}x) |",
     )
     default = gen["rows"]["default (p(hit) >= 0.4)"]["held_out"]["accuracy"]
-    _says("docs/learning.md", f"the one of stop 23 ({default:.6f} on the SUVs)")
+    _says("docs/studies/ray-local.md", f"the one of the generalisation study ({default:.6f} on the SUVs)")
 
 
 def _real_cell(name: str, where: str, cls: str) -> str:
-    """One cell of the issue-27 real-data tables: inside / fidelity / consistency at equal density of class ``cls``
-    in ``docs/results/i27/{name}-{where}.json``, as the docs print it."""
-    m = _json(f"i27/{name}-{where}.json")["models"][0]
+    """One cell of the class study's real-data tables: inside / fidelity / consistency at equal density of class ``cls``
+    in ``docs/results/classes/{name}-{where}.json``, as the docs print it."""
+    m = _json(f"classes/{name}-{where}.json")["models"][0]
     ins, fid = m["inside_box"][cls], m["classes"][cls]["fidelity"]
     cd = m["equal_density"]["classes"][cls]["cd"]
     return f"{100 * ins:.1f}% / {fid:.4f} / {cd:.4f}"
 
 
-def test_issue27_box_term_rows():
-    """docs/real-data.md's box-term table: each class's inside / fidelity / consistency of the three models."""
+def test_classes_box_term_rows():
+    """docs/studies/classes-real.md's box-term table: each class's inside / fidelity / consistency of the three models."""
 
     def cell(name: str, cls: str) -> str:
         return _real_cell(name, "nuscenes", cls)
 
     for cls, objects in (("trailer", 12), ("car", 23)):
         row = " | ".join(cell(n, cls) for n in ("classes", "classes-box", "classes-box30"))
-        _says("docs/real-data.md", f"| nuScenes {cls} ({objects}) | {row} |")
+        _says("docs/studies/classes-real.md", f"| nuScenes {cls} ({objects}) | {row} |")
 
 
-def test_issue27_weight0_control():
-    """docs/learning.md's weight-0 control table: nuScenes inside per class of the three fine-tunes, from their JSONs."""
+def test_classes_weight0_control():
+    """docs/studies/classes.md's weight-0 control table: nuScenes inside per class of the three fine-tunes, from their JSONs."""
 
     def inside(name: str) -> str:
-        m = _json(f"i27/{name}-nuscenes.json")["models"][0]
+        m = _json(f"classes/{name}-nuscenes.json")["models"][0]
         return " / ".join(f"{100 * m['inside_box'][c]:.1f}" for c in ("trailer", "bus", "truck", "car")) + "%"
 
     row = " | ".join(inside(n) for n in ("classes", "classes-w0", "classes-box30"))
-    _says("docs/learning.md", f"| nuScenes inside: trailer / bus / truck / car | {row} |")
+    _says("docs/studies/classes.md", f"| nuScenes inside: trailer / bus / truck / car | {row} |")
 
 
-def test_issue27_wider_coverage_candidate():
-    """docs/real-data.md's wider-coverage table: the trailers' and AV2 truck's rows from the two models' JSONs."""
+def test_classes_wider_coverage_candidate():
+    """docs/studies/classes-real.md's wider-coverage table: the trailers' and AV2 truck's rows from the two models' JSONs."""
 
     cell = _real_cell
 
     old, new = cell("classes-box30", "nuscenes", "trailer"), cell("classes-v2", "nuscenes", "trailer")
     _says(
-        "docs/real-data.md", f"| nuScenes trailer (12) | {old} | **{new.split(' / ')[0]}** / {new.split(' / ', 1)[1]} |"
+        "docs/studies/classes-real.md",
+        f"| nuScenes trailer (12) | {old} | **{new.split(' / ')[0]}** / {new.split(' / ', 1)[1]} |",
     )
     old, new = cell("classes-box30", "av2", "truck"), cell("classes-v2", "av2", "truck")
     ins, fid, cd = new.split(" / ")
-    _says("docs/real-data.md", f"| AV2 truck (1) | {old} | {ins} / **{fid}** / {cd} |")
+    _says("docs/studies/classes-real.md", f"| AV2 truck (1) | {old} | {ins} / **{fid}** / {cd} |")
 
 
 def test_track_worker_speed_on_a_quiet_machine():
@@ -189,29 +195,30 @@ def test_track_worker_speed_on_a_quiet_machine():
         w, one = med["median"]["worker"], med["median"]["one_process"]
         fps = f"**{w['fps_wall']:.1f}**" if threads == 1 else f"{w['fps_wall']:.1f}"
         _says(
-            "docs/real-data.md", f"| {row} | {w['cpu_ms_per_frame']:.0f} | {w['worker_cpu_ms_per_frame']:.0f} | {fps} ("
+            "docs/studies/frame-speed.md",
+            f"| {row} | {w['cpu_ms_per_frame']:.0f} | {w['worker_cpu_ms_per_frame']:.0f} | {fps} (",
         )
         _says(
-            "docs/real-data.md",
+            "docs/studies/frame-speed.md",
             f"| one process, {threads} torch thread{'s' if threads == 2 else ''} | "
             f"{one['cpu_ms_per_frame']:.0f} | - | {one['fps_wall']:.2f} (",
         )
 
 
 def test_track_sequences_truth_floor():
-    """The representation's floor under the fused-window targets (issue 28), as docs/learning.md and real-data.md say."""
+    """The representation's floor under the fused-window targets , as docs/studies/fusion.md says."""
     rep = _json("real/track_sequences_floor_2hz.json")
     floor, one = rep["truth_floor"], rep["completion"]["default"]["true past:1"]
     acc, comp = f"{floor['accuracy_m']:.4f}", f"{floor['completeness_m']:.4f}"
-    _says("docs/learning.md", f"**accuracy {acc} m, completeness {comp} m**")
-    _says("docs/real-data.md", f"score {comp} m completeness (accuracy {acc} m)")
+    _says("docs/studies/fusion.md", f"**accuracy {acc} m, completeness {comp} m**")
+    _says("docs/studies/fusion.md", f"score {comp} m completeness (accuracy {acc} m)")
     target = 0.6 * one["completeness_m"]
     assert target < floor["completeness_m"]  # 40% better than one true-box frame lies below the floor
-    _says("docs/real-data.md", f"better than one true-box frame ({one['completeness_m']:.4f} m) is {target:.4f} m")
+    _says("docs/studies/fusion.md", f"better than one true-box frame ({one['completeness_m']:.4f} m) is {target:.4f} m")
 
 
-def test_issue27_weight60_rows():
-    """docs/real-data.md's weight-60 table: each class's inside / fidelity / consistency of both models, from the JSONs."""
+def test_classes_weight60_rows():
+    """docs/studies/classes-real.md's weight-60 table: each class's inside / fidelity / consistency of both models, from the JSONs."""
 
     cell = _real_cell
 
@@ -223,137 +230,143 @@ def test_issue27_weight60_rows():
     rows += (("av2", "AV2", "car", 20), ("av2", "AV2", "truck", 1))
     for where, label, cls, n in rows:
         _says(
-            "docs/real-data.md",
+            "docs/studies/classes-real.md",
             f"| {label} {cls} ({n}) | {cell('classes-box30', where, cls)} | {cell('classes-w60', where, cls)} |",
         )
     new = cell("classes-w60", "nuscenes", "trailer")
     ins, rest = new.split(" / ", 1)
     _says(
-        "docs/real-data.md",
+        "docs/studies/classes-real.md",
         f"| nuScenes trailer (12) | {cell('classes-box30', 'nuscenes', 'trailer')} | **{ins}** / {rest} |",
     )
-    acc = _summary(_json("i27/cars-test_classes-w60.json"), "sanet-hit")["accuracy"]
-    _says("docs/real-data.md", f"cars are slightly more accurate ({acc:.5f} against 0.01738")
+    acc = _summary(_json("classes/cars-test_classes-w60.json"), "sanet-hit")["accuracy"]
+    _says("docs/studies/classes-real.md", f"cars are slightly more accurate ({acc:.5f} against 0.01738")
 
 
-def test_issue27_class_template_rows():
-    """docs/real-data.md's class-template table (four models, six rows) and the test cars, from their JSONs."""
+def test_classes_class_template_rows():
+    """docs/studies/classes-real.md's class-template table (four models, six rows) and the test cars, from their JSONs."""
     names = ("classes-w60", "classes-ctl", "classes-tmpl", "classes-tmpl100")
 
     cell = _real_cell
 
     rows = [("nuscenes", "nuScenes", c, n) for c, n in (("car", 23), ("truck", 7), ("trailer", 12), ("bus", 1))]
     for where, label, cls, n in rows + [("av2", "AV2", "car", 20)]:
-        _says("docs/real-data.md", f"| {label} {cls} ({n}) | " + " | ".join(cell(m, where, cls) for m in names) + " |")
+        _says(
+            "docs/studies/classes-real.md",
+            f"| {label} {cls} ({n}) | " + " | ".join(cell(m, where, cls) for m in names) + " |",
+        )
     truck = []
     for k, m in enumerate(names):  # the two template models' fidelity in bold: the issue's target met
         ins, fid, cd = cell(m, "av2", "truck").split(" / ")
         truck.append(f"{ins} / {'**' + fid + '**' if k >= 2 else fid} / {cd}")
-    _says("docs/real-data.md", "| AV2 truck (1) | " + " | ".join(truck) + " |")
-    acc = [_summary(_json(f"i27/cars-test_{m}.json"), "sanet-hit")["accuracy"] for m in names]
-    _says("docs/real-data.md", f"{acc[0]:.5f}, {acc[1]:.5f}, {acc[2]:.5f}, **{acc[3]:.5f}**")
-    fid = _json("i27/classes-tmpl100-av2.json")["models"][0]["classes"]["truck"]["fidelity"]
+    _says("docs/studies/classes-real.md", "| AV2 truck (1) | " + " | ".join(truck) + " |")
+    acc = [_summary(_json(f"classes/cars-test_{m}.json"), "sanet-hit")["accuracy"] for m in names]
+    _says("docs/studies/classes-real.md", f"{acc[0]:.5f}, {acc[1]:.5f}, {acc[2]:.5f}, **{acc[3]:.5f}**")
+    fid = _json("classes/classes-tmpl100-av2.json")["models"][0]["classes"]["truck"]["fidelity"]
     assert fid <= 0.04  # the issue's target, met by the shipped fallback on AV2's truck
 
 
-def test_issue27_family_model_rows():
-    """docs/real-data.md's class-family table: both models' held-out trailers and scene-0523 trailers, from the JSONs."""
+def test_classes_family_model_rows():
+    """docs/studies/classes-real.md's class-family table: both models' held-out trailers and scene-0523 trailers, from the JSONs."""
 
     def synth(name: str) -> str:
-        g = _json(f"i27/synthetic_{name}.json")["results"][0]["groups"]["procedural/trailer"]
+        g = _json(f"classes/synthetic_{name}.json")["results"][0]["groups"]["procedural/trailer"]
         return f"{g['accuracy']:.4f} / {g['completeness']:.4f}"
 
     cls, fam = synth("classes-tmpl100"), synth("family-trailer")
     bold = " / ".join(f"**{v}**" for v in cls.split(" / "))
-    _says("docs/real-data.md", f"| held-out procedural trailers, accuracy / completeness | {bold} | {fam} |")
+    _says("docs/studies/classes-real.md", f"| held-out procedural trailers, accuracy / completeness | {bold} | {fam} |")
     ins, fid, cd = _real_cell("family-trailer", "nuscenes", "trailer").split(" / ")
     c_ins, c_fid, c_cd = _real_cell("classes-tmpl100", "nuscenes", "trailer").split(" / ")
     _says(
-        "docs/real-data.md",
+        "docs/studies/classes-real.md",
         f"| nuScenes scene-0523 trailers (12): inside / fidelity / consistency | {c_ins} / **{c_fid}** / {c_cd} | "
         f"**{ins}** / {fid} / **{cd}** |",
     )
 
 
-def test_frame_loop_speed_stop36_side_by_side():
-    """The stop-36 side-by-side: the frame loop's medians and the per-round ratios the docs quote."""
-    d = _json("real/track_fusion_speed_stop36.json")["summary"]["threads_1"]
+def test_frame_loop_speed_side_by_side():
+    """The frame loop's side-by-side: the frame loop's medians and the per-round ratios the docs quote."""
+    d = _json("real/track_fusion_speed.json")["summary"]["threads_1"]
     new, old = d["median"]["this"]["fps_loop"], d["median"]["other"]["fps_loop"]
-    _says("docs/real-data.md", f"**{new:.2f} frames/s against {old:.2f}**")
+    _says("docs/studies/frame-speed.md", f"**{new:.2f} frames/s against {old:.2f}**")
     a, b, c = (f"{r:.2f}" for r in d["loop_ratio_this_over_other"])
-    _says("docs/real-data.md", f"per round {a}, {b} and {c} of the")
+    _says("docs/studies/frame-speed.md", f"per round {a}, {b} and {c} of the")
     assert new < 10  # the docs say the target is not met
-    runs = _json("real/track_fusion_speed_stop36.json")["runs"]
+    runs = _json("real/track_fusion_speed.json")["runs"]
     assert {r["completed"] for r in runs} == {631} and {r["completed_by"]["classes"] for r in runs} == {320}
-    _says("docs/real-data.md", "631 objects completed by both (320 by the class model)")
+    _says("docs/studies/frame-speed.md", "631 objects completed by both (320 by the class model)")
     cpu = {k: d["median"][k]["cpu_ms_per_frame"] for k in ("this", "other")}
     work = {k: d["median"][k]["worker_cpu_ms_per_frame"] for k in ("this", "other")}
-    _says("docs/real-data.md", f"the main process {cpu['this']:.0f} against {cpu['other']:.0f} ms a frame")
-    _says("docs/real-data.md", f"the worker {work['this']:.0f} against {work['other']:.0f} ms")
+    _says("docs/studies/frame-speed.md", f"the main process {cpu['this']:.0f} against {cpu['other']:.0f} ms a frame")
+    _says("docs/studies/frame-speed.md", f"the worker {work['this']:.0f} against {work['other']:.0f} ms")
 
 
-def test_fused_consistency_with_every_vehicle_stop36():
-    """The per-class fused/single consistency with the class model as fallback, as docs/real-data.md quotes it."""
-    d = _json("real/track_fusion_fallback_stop36.json")
+def test_fused_consistency_with_every_vehicle():
+    """The per-class fused/single consistency with the class model as fallback, as docs/studies/frame-speed.md quotes it."""
+    d = _json("real/track_fusion_fallback.json")
     assert d["fallback"] == "classes"
     q = d["quality_on_common_observations"]
     single, fused = q["single"]["consistency_voxel_per_class"], q["fused"]["consistency_voxel_per_class"]
     names = {"car": "cars", "truck": "trucks", "trailer": "trailers"}
     for cls, name in names.items():
         f, s = fused[cls][0], single[cls][0]
-        _says("docs/real-data.md", f"{name} {f:.4f} against {s:.4f} ({f / s:.2f}x)")
+        _says("docs/studies/frame-speed.md", f"{name} {f:.4f} against {s:.4f} ({f / s:.2f}x)")
     a, b = q["fused"]["consistency_voxel_all_objects"], q["single"]["consistency_voxel_all_objects"]
-    _says("docs/real-data.md", f"all objects {a:.4f} against {b:.4f} ({a / b:.2f}x)")
-    _says("docs/real-data.md", f"the {q['n_observations']} observations of Table 2's")
+    _says("docs/studies/frame-speed.md", f"all objects {a:.4f} against {b:.4f} ({a / b:.2f}x)")
+    _says("docs/studies/frame-speed.md", f"the {q['n_observations']} observations of Table 2's")
 
 
-def test_snap_rows_stop37():
-    """The --snap 0.05 table of docs/learning.md: test cars, Kenney vehicles and the real sets, from their reports."""
+def test_snap_rows():
+    """The --snap 0.05 table of docs/studies/snap.md: test cars, Kenney vehicles and the real sets, from their reports."""
     _says_snap_test_and_real_rows("table1_snap.json", "snap")
     g = _json("fair/snap/generalisation_snap.json")
     rows, ratio = g["scores"]["held_out"]["rows"], g["ratio_held_out_over_in_distribution"]
     plain, snap = "default (p(hit) >= 0.4)", "default (p(hit) >= 0.4, snap 0.05)"
     assert g["snap"] == [0.05]
-    _says("docs/learning.md", f"{rows[plain]['accuracy']:.4f} ({ratio[plain]['accuracy']:.2f}x the test cars')")
-    _says("docs/learning.md", f"{rows[snap]['accuracy']:.4f} ({ratio[snap]['accuracy']:.2f}x)")
-    _says("docs/learning.md", f"{1 - rows[snap]['accuracy'] / rows[plain]['accuracy']:.0%} better")
+    _says("docs/studies/snap.md", f"{rows[plain]['accuracy']:.4f} ({ratio[plain]['accuracy']:.2f}x the test cars')")
+    _says("docs/studies/snap.md", f"{rows[snap]['accuracy']:.4f} ({ratio[snap]['accuracy']:.2f}x)")
+    _says("docs/studies/snap.md", f"{1 - rows[snap]['accuracy'] / rows[plain]['accuracy']:.0%} better")
 
 
 def _says_snap_test_and_real_rows(table: str, real: str) -> None:
     """A snap table's test-car row (docs/results/fair/snap/TABLE) and its real-set rows (real/snap/SET_REAL.json)."""
     t = _summary(_json(f"fair/snap/{table}"), "sanet-hit")
     _says(
-        "docs/learning.md",
+        "docs/studies/snap.md",
         f"{t['accuracy']:.5f} / {t['completeness']:.5f} / {t['chamfer_l1']:.5f} / {t['fscore']:.3f}",
     )
     for name in ("av2", "nuscenes"):
         (m,) = _json(f"real/snap/{name}_{real}.json")["models"]
-        _says("docs/learning.md", f"{m['equal_density']['average']['cd']:.4f} / {m['average']['fidelity']:.4f}")
+        _says("docs/studies/snap.md", f"{m['equal_density']['average']['cd']:.4f} / {m['average']['fidelity']:.4f}")
 
 
 def _says_frame_pictures(report: str, headline: str, rounds: str) -> None:
-    """docs/real-data.md cites a benchmarks/frame_pictures.py report: ``headline`` and ``rounds`` are formats of
+    """docs/studies/frame-speed.md cites a benchmarks/frame_pictures.py report: ``headline`` and ``rounds`` are formats of
     this/other frames per second, the median speed-up, and the per-round speed-ups' range (lo, hi)."""
     d = _json(report)
     m = d["median_frames_per_second"]
-    _says("docs/real-data.md", headline.format(this=m["this"], other=m["other"], x=d["speedup_median"]))
+    _says("docs/studies/frame-speed.md", headline.format(this=m["this"], other=m["other"], x=d["speedup_median"]))
     lo, hi = min(d["time_ratio_this_over_other_per_round"]), max(d["time_ratio_this_over_other_per_round"])
-    _says("docs/real-data.md", rounds.format(lo=1 / hi, hi=1 / lo))
+    _says("docs/studies/frame-speed.md", rounds.format(lo=1 / hi, hi=1 / lo))
 
 
-def test_frame_pictures_side_by_side_stop37():
-    """The pictures' speed-up of docs/real-data.md, from benchmarks/frame_pictures.py's report."""
+def test_frame_pictures_side_by_side():
+    """The pictures' speed-up of docs/studies/frame-speed.md, from benchmarks/frame_pictures.py's report."""
     _says_frame_pictures(
-        "real/frame_pictures_stop37.json",
+        "real/frame_pictures.json",
         "{this:.2f} against {other:.2f} frames/s ({x:.2f}x)",
         "each of the three rounds {lo:.1f}-{hi:.1f}x",
     )
 
 
-def test_snap_with_track_fusion_stop37():
-    """Consistency and fidelity with and without --snap under past:5 fusion, as docs/learning.md quotes them."""
-    q = {s: _json(f"real/track_fusion_{s}_stop37.json")["quality_on_common_observations"] for s in ("nosnap", "snap")}
-    assert _json("real/track_fusion_snap_stop37.json")["snap"] == 0.05
+def test_snap_with_track_fusion():
+    """Consistency and fidelity with and without --snap under past:5 fusion, as docs/studies/snap.md quotes them."""
+    q = {
+        s: _json(f"real/track_fusion_{f}.json")["quality_on_common_observations"]
+        for s, f in (("nosnap", "nosnap"), ("snap", "snap_no_rule"))
+    }
+    assert _json("real/track_fusion_snap_no_rule.json")["snap"] == 0.05
     assert q["snap"]["n_observations"] == q["nosnap"]["n_observations"]
     c = {
         s: (v["single"]["consistency_voxel_all_objects"], v["fused"]["consistency_voxel_all_objects"])
@@ -361,33 +374,33 @@ def test_snap_with_track_fusion_stop37():
     }
     f = {s: (v["single"]["fidelity_own_points"], v["fused"]["fidelity_own_points"]) for s, v in q.items()}
     _says(
-        "docs/learning.md",
+        "docs/studies/snap.md",
         f"is {c['nosnap'][0]:.4f} / {c['nosnap'][1]:.4f} without the snap and {c['snap'][0]:.4f} / {c['snap'][1]:.4f}",
     )
     _says(
-        "docs/learning.md",
+        "docs/studies/snap.md",
         f"{f['nosnap'][0]:.4f} / {f['nosnap'][1]:.4f} without and {f['snap'][0]:.4f} / {f['snap'][1]:.4f} with",
     )
-    _says("docs/learning.md", f"still {c['snap'][1] / c['nosnap'][0]:.2f}x as inconsistent")
+    _says("docs/studies/snap.md", f"still {c['snap'][1] / c['nosnap'][0]:.2f}x as inconsistent")
 
 
-def test_mirrored_snap_rows_stop37():
-    """The --snap 0.08 --snap-mirror table of docs/learning.md, from its reports."""
+def test_mirrored_snap_rows():
+    """The --snap 0.08 --snap-mirror table of docs/studies/snap.md, from its reports."""
     _says_snap_test_and_real_rows("table1_snap0.08_mirror.json", "snap0.08_mirror")
     g = _json("fair/snap/generalisation_snap0.08_mirror.json")
     assert g["snap"] == [0.08] and g["snap_mirror"]
     rows, ratio = g["scores"]["held_out"]["rows"], g["ratio_held_out_over_in_distribution"]
     plain, snap = "default (p(hit) >= 0.4)", "default (p(hit) >= 0.4, snap 0.08 mirrored)"
-    _says("docs/learning.md", f"**{rows[snap]['accuracy']:.4f} ({ratio[snap]['accuracy']:.2f}x)**")
-    _says("docs/learning.md", f"**{1 - rows[snap]['accuracy'] / rows[plain]['accuracy']:.0%} better**")
-    _says("docs/learning.md", f"{rows[snap]['subset_accuracy']:.4f} ({ratio[snap]['subset_accuracy']:.2f}x)")
-    q = _json("real/track_fusion_snap0.08_mirror_stop37.json")["quality_on_common_observations"]
+    _says("docs/studies/snap.md", f"**{rows[snap]['accuracy']:.4f} ({ratio[snap]['accuracy']:.2f}x)**")
+    _says("docs/studies/snap.md", f"**{1 - rows[snap]['accuracy'] / rows[plain]['accuracy']:.0%} better**")
+    _says("docs/studies/snap.md", f"{rows[snap]['subset_accuracy']:.4f} ({ratio[snap]['subset_accuracy']:.2f}x)")
+    q = _json("real/track_fusion_snap0.08_mirror_no_rule.json")["quality_on_common_observations"]
     c = (q["single"]["consistency_voxel_all_objects"], q["fused"]["consistency_voxel_all_objects"])
-    _says("docs/learning.md", f"| 0.0469 / 0.0225 | {c[0]:.4f} / {c[1]:.4f} |")
+    _says("docs/studies/snap.md", f"| 0.0469 / 0.0225 | {c[0]:.4f} / {c[1]:.4f} |")
 
 
-def test_gpu_trained_rows_stop38():
-    """The GPU-trained rows of docs/learning.md (H100 runs of scripts/gpu_train.sh), from their plans and reports."""
+def test_gpu_trained_rows():
+    """The GPU-trained rows of docs/studies/gpu.md (H100 runs of scripts/gpu_train.sh), from their plans and reports."""
     rep = _json("fair/gpu/table1_gpu.json")
     gen = _json("fair/gpu/generalisation_gpu.json")["ratio_held_out_over_in_distribution"]
     for model, run, gen_row in (
@@ -398,15 +411,15 @@ def test_gpu_trained_rows_stop38():
         assert plan["device"].startswith("NVIDIA H100") and plan["precision"] == "bf16"
         t = _summary(rep, model)
         row = f"{t['accuracy']:.5f} | {t['completeness']:.5f} | {t['chamfer_l1']:.5f} | {t['fscore']:.3f} |"
-        _says("docs/learning.md", f"{plan['steps_done']:,} | {row}")
-        _says("docs/learning.md", f"({gen[gen_row]['accuracy']:.2f}x)")
-        _says("docs/learning.md", f"{plan['step_seconds'] * 1e3:.1f} ms | 10 x {plan['steps_per_interval']:,}")
+        _says("docs/studies/gpu.md", f"{plan['steps_done']:,} | {row}")
+        _says("docs/studies/gpu.md", f"({gen[gen_row]['accuracy']:.2f}x)")
+        _says("docs/studies/gpu.md", f"{plan['step_seconds'] * 1e3:.1f} ms | 10 x {plan['steps_per_interval']:,}")
 
 
-def test_gpu_trained_real_rows_stop38():
-    """The GPU-trained rows of the real-set table (docs/learning.md), from the Table 2 reports they were added to."""
+def test_gpu_trained_real_rows():
+    """The GPU-trained rows of the real-set table (docs/studies/ray-local.md), from the Table 2 reports they were added to."""
     for name in ("av2", "nuscenes"):
-        models = {m["name"]: m for m in _json(f"real/table2_fair_i26/{name}.json")["models"]}
+        models = {m["name"]: m for m in _json(f"real/table2_ray_local/{name}.json")["models"]}
         for run, label in (("sanet-local-gpu", "ray-local SA-Net"), ("snowflakenet-gpu", "SnowflakeNet")):
             m = models[run]
             row = (
@@ -414,108 +427,111 @@ def test_gpu_trained_real_rows_stop38():
                 f"{m['average']['cd']:.4f} | {m['equal_density']['diversity']:.4f} | {m['average']['fidelity']:.4f} | "
                 f"{m['average']['mmd']:.4f} | {m['heading']['rate']:.1%} |"
             )
-            _says("docs/learning.md", row)
+            _says("docs/studies/ray-local.md", row)
 
 
-def test_snap_with_the_occlusion_rule_stop38():
-    """The stop-38 table of docs/learning.md (the package's snap with the occlusion rule), from its reports."""
+def test_snap_with_the_occlusion_rule():
+    """The occlusion-rule table of docs/studies/snap.md (the package's snap with the occlusion rule), from its reports."""
     for variant, key, real in (
         ("snap", "snap 0.05", "snap"),
         ("snap0.08_mirror", "snap 0.08 mirrored", "snap0.08_mirror"),
     ):
-        t = _summary(_json(f"fair/snap/stop38/table1_{variant}.json"), "sanet-hit")
+        t = _summary(_json(f"fair/snap/occlusion_rule/table1_{variant}.json"), "sanet-hit")
         test_row = f"{t['accuracy']:.5f} / {t['completeness']:.5f} / {t['chamfer_l1']:.5f} / {t['fscore']:.3f}"
-        g = _json(f"fair/snap/stop38/generalisation_{variant}.json")
+        g = _json(f"fair/snap/occlusion_rule/generalisation_{variant}.json")
         rows, ratio = g["scores"]["held_out"]["rows"], g["ratio_held_out_over_in_distribution"]
         plain, snap = "default (p(hit) >= 0.4)", f"default (p(hit) >= 0.4, {key})"
         better = 1 - rows[snap]["accuracy"] / rows[plain]["accuracy"]
         kenney = f"{rows[snap]['accuracy']:.4f} ({ratio[snap]['accuracy']:.2f}x), {better:.0%} better"
         reals = []
         for name in ("av2", "nuscenes"):
-            (m,) = _json(f"real/snap/stop38/{name}_{real}.json")["models"]
+            (m,) = _json(f"real/snap/occlusion_rule/{name}_{real}.json")["models"]
             assert m["snapped"]
             reals.append(f"{m['equal_density']['average']['cd']:.4f} / {m['average']['fidelity']:.4f}")
-        q = _json(f"real/track_fusion_{variant}_stop38.json")["quality_on_common_observations"]
+        q = _json(f"real/track_fusion_{variant}.json")["quality_on_common_observations"]
         fused = (
             f"{q['single']['consistency_voxel_all_objects']:.4f} / {q['fused']['consistency_voxel_all_objects']:.4f}"
         )
         for expected in (test_row, kenney, *reals, fused):
-            _says("docs/learning.md", expected)
-    speed = _json("fair/snap/stop38/snap_speed_stop38.json")
+            _says("docs/studies/snap.md", expected)
+    speed = _json("fair/snap/occlusion_rule/snap_speed.json")
     m = speed["median_ms_per_box"]
     _says(
-        "docs/learning.md",
+        "docs/studies/snap.md",
         f"{m['this']['no sensor']:.1f} ms of CPU a box plain, {m['this']['sensor (occlusion rule)']:.1f} ms",
     )
-    _says("docs/learning.md", f"was {m['other']['no sensor']:.1f} ms before")
-    _says("docs/learning.md", f"{speed['speedup_no_sensor']:.2f}x; `python benchmarks/snap_speed.py")
+    _says("docs/studies/snap.md", f"was {m['other']['no sensor']:.1f} ms before")
+    _says("docs/studies/snap.md", f"{speed['speedup_no_sensor']:.2f}x; `python benchmarks/snap_speed.py")
 
 
-def test_snapped_track_windows_stop38():
-    """The snapped drive-past windows' table of docs/learning.md, from benchmarks/track_sequences.py's reports."""
+def test_snapped_track_windows():
+    """The snapped drive-past windows' table of docs/studies/fusion.md, from benchmarks/track_sequences.py's reports."""
     for name in ("track_sequences_snap_2hz", "track_sequences_snap0.08_mirror_2hz"):
         rows = _json(f"real/{name}.json")["completion"]["default"]
         for boxes in ("true", "refined"):
             one, five = rows[f"{boxes} past:1"], rows[f"{boxes} past:5"]
             _says(
-                "docs/learning.md",
+                "docs/studies/fusion.md",
                 f"{one['accuracy_m']:.4f} / {one['completeness_m']:.4f} -> {five['accuracy_m']:.4f} / "
                 f"{five['completeness_m']:.4f} ({five['accuracy_gain']:.0%} / {five['completeness_gain']:.0%})",
             )
 
 
-def test_mirror_fine_tune_rows_stop39():
-    """The trained mirror's table of docs/learning.md, from benchmarks/generalisation.py's report."""
-    g = _json("fair/mirror/generalisation_mirror_stop39.json")
+def test_mirror_fine_tune_rows():
+    """The trained mirror's table of docs/studies/generalisation.md, from benchmarks/generalisation.py's report."""
+    g = _json("fair/mirror/generalisation_mirror.json")
     rows_in, rows_out = g["scores"]["in_distribution"]["rows"], g["scores"]["held_out"]["rows"]
     ratios = g["ratio_held_out_over_in_distribution"]
     for key, thr in (("default", 0.4), ("ft_false/best.pt", 0.3), ("ft_true/best.pt", 0.3)):
         name = f"{key} (p(hit) >= {thr})"
         a, h, r = rows_in[name], rows_out[name], ratios[name]
         cells = f"{a['accuracy']:.5f} / {a['completeness']:.5f} / {a['fscore']:.3f} | {h['accuracy']:.5f}"
-        _says("docs/learning.md", f"{cells} ({r['accuracy']:.2f}x) | {r['subset_accuracy']:.2f}x |")
+        _says("docs/studies/generalisation.md", f"{cells} ({r['accuracy']:.2f}x) | {r['subset_accuracy']:.2f}x |")
 
 
-def test_picture_processes_side_by_side_stop39():
-    """The picture processes' speed-up of docs/real-data.md, from benchmarks/frame_pictures.py's report."""
+def test_picture_processes_side_by_side():
+    """The picture processes' speed-up of docs/studies/frame-speed.md, from benchmarks/frame_pictures.py's report."""
     _says_frame_pictures(
-        "real/frame_pictures_processes_stop39.json",
+        "real/frame_pictures_processes.json",
         "**{this:.2f} against {other:.2f} frames/s ({x:.2f}x)**",
         "each round {lo:.1f}-{hi:.1f}x",
     )
     _says_frame_pictures(
-        "real/frame_pictures_processes_fused_stop39.json",
+        "real/frame_pictures_processes_fused.json",
         "**{this:.2f} against {other:.2f} frames/s ({x:.2f}x)**",
         "each round {lo:.1f}-{hi:.1f}x",
     )
 
 
-def test_fallback_speed_side_by_side_stop40():
-    """Stop 40's speed of `real complete --fuse past:5 --refine-boxes` with every vehicle completed
-    (docs/real-data.md), from benchmarks/track_fusion.py's side-by-side report."""
-    report = _json("real/track_fusion_speed_fallback_stop40.json")
+def test_fallback_speed_side_by_side():
+    """The speed of `real complete --fuse past:5 --refine-boxes` with every vehicle completed
+    (docs/studies/frame-speed.md), from benchmarks/track_fusion.py's side-by-side report."""
+    report = _json("real/track_fusion_speed_fallback.json")
     med = report["summary"]["threads_1"]["median"]
     this = [r for r in report["runs"] if r["code"] == "this"]
     other = [r for r in report["runs"] if r["code"] == "other"]
     assert len(this) == len(other) == 5 and all(r["completed"] == 631 for r in this + other)
-    _says("docs/real-data.md", f"**{med['this']['fps_loop']:.2f} against {med['other']['fps_loop']:.2f} frames/s**")
+    _says(
+        "docs/studies/frame-speed.md",
+        f"**{med['this']['fps_loop']:.2f} against {med['other']['fps_loop']:.2f} frames/s**",
+    )
     fps_this = sorted(r["fps_loop"] for r in this)
     fps_other = sorted(r["fps_loop"] for r in other)
     _says(
-        "docs/real-data.md",
+        "docs/studies/frame-speed.md",
         f"every round {fps_this[0]:.2f}-{fps_this[-1]:.2f} against {fps_other[0]:.2f}-{fps_other[-1]:.2f}",
     )
     ratios = report["summary"]["threads_1"]["loop_ratio_this_over_other"]
-    _says("docs/real-data.md", f"{min(ratios):.2f}-{max(ratios):.2f} of the old time")
+    _says("docs/studies/frame-speed.md", f"{min(ratios):.2f}-{max(ratios):.2f} of the old time")
     _says(
-        "docs/real-data.md",
+        "docs/studies/frame-speed.md",
         f"{med['this']['cpu_ms_per_frame']:.0f} against {med['other']['cpu_ms_per_frame']:.0f} ms of CPU a frame",
     )
     assert fps_this[0] >= 10.0  # the claim "met": every round at 10 frames/s or more
 
 
-def test_fused_window_input_points_stop40():
-    """1,024 against 256 input points for fused windows (docs/learning.md), from benchmarks/track_sequences.py."""
+def test_fused_window_input_points():
+    """1,024 against 256 input points for fused windows (docs/studies/fusion.md), from benchmarks/track_sequences.py."""
     big = _json("real/track_sequences_input1024_bf16_2hz.json")["completion"]["default"]
     small = _json("real/track_sequences_input256_bf16_2hz.json")["completion"]["default"]
     for key, label in (
@@ -525,21 +541,21 @@ def test_fused_window_input_points_stop40():
     ):
         a, b = big[key], small[key]
         _says(
-            "docs/learning.md",
+            "docs/studies/fusion.md",
             f"{label} {a['accuracy_m']:.4f} / {a['completeness_m']:.4f} against "
             f"{b['accuracy_m']:.4f} / {b['completeness_m']:.4f}",
         )
 
 
-def test_car_model_candidates_stop41():
-    """Issue 27's car-model candidates (docs/real-data.md, stop 41), from `real evaluate`, `evaluate` and
-    benchmarks/generalisation.py's reports in docs/results/i27/stop41/ (bold marks dropped before comparing)."""
+def test_car_model_candidates():
+    """The car-model candidates (docs/studies/car-model.md), from `real evaluate`, `evaluate` and
+    benchmarks/generalisation.py's reports in docs/results/car_model/ (bold marks dropped before comparing)."""
     import numpy as np
 
-    base = "i27/stop41"
+    base = "car_model"
     held = _json(f"{base}/generalisation_cands.json")["scores"]["held_out"]["rows"]
     kenney = {k.split(" ")[0]: v["accuracy"] for k, v in held.items()}
-    doc = _text(REPO / "docs/real-data.md").replace("**", "")
+    doc = _text(REPO / "docs/studies/car-model.md").replace("**", "")
 
     def real_cells(report, name):
         (m,) = [m for m in report["models"] if m["name"] == name]
@@ -555,18 +571,17 @@ def test_car_model_candidates_stop41():
         cells = [f"{test['accuracy']:.5f} / {test['chamfer_l1']:.5f}"]
         cells += [real_cells(_json(f"{base}/cand-{set_}.json"), name) for set_ in ("av2", "nuscenes")]
         row = f"| {label} | " + " | ".join(cells) + f" | {kenney[ckpt]:.4f} |"
-        assert row in doc, f"docs/real-data.md should hold the row {row!r} (from docs/results/{base})"
-    # the stop-39 control: its in-distribution accuracy and Kenney's from stop 39's run, AV2 measured in stop 41
-    gen39 = _json("fair/mirror/generalisation_mirror_stop39.json")["scores"]
+        assert row in doc, f"docs/studies/car-model.md should hold the row {row!r} (from docs/results/{base})"
+    # the cars-only control: its in-distribution accuracy and Kenney's from the mirror study's run, AV2 measured here
+    gen39 = _json("fair/mirror/generalisation_mirror.json")["scores"]
     ((k_in, in39),) = [(k, v) for k, v in gen39["in_distribution"]["rows"].items() if k.startswith("ft_false/")]
     kenney39 = gen39["held_out"]["rows"][k_in]["accuracy"]
     cells = [f"({in39['accuracy']:.4f} on {gen39['in_distribution']['n_samples']} scans)"]
-    cells += [real_cells(_json(f"{base}/av2_ft39.json"), "ft39"), "-"]
-    row = "| stop-39 control | " + " | ".join(cells) + f" | {kenney39:.4f} |"
-    assert row in doc, f"docs/real-data.md should hold the row {row!r}"
+    cells += [real_cells(_json(f"{base}/av2_cars_only.json"), "cars_only"), "-"]
+    row = "| cars-only control | " + " | ".join(cells) + f" | {kenney39:.4f} |"
+    assert row in doc, f"docs/studies/car-model.md should hold the row {row!r}"
     # the prose's numbers, each built from the result files
-    para = doc[doc.index("A car model for the product path, measured (stop 41") :]
-    para = " ".join(para[: para.index("One model per class family")].split())  # one paragraph, lines joined
+    para = " ".join(doc.split())  # the study page, lines joined
     misses = (RESULTS / base / "fidelity_misses.txt").read_text()
     interior = re.search(r"observed points in the interior: (\d+%)", misses).group(1)
     share = dict(re.findall(r"(\w+): missed points \d+ of \d+; (\d+%) of them in the interior", misses))
@@ -612,7 +627,7 @@ def test_car_model_candidates_stop41():
     fid60 = np.mean([o["fidelity"] for o in m60["objects"] if o["cls"] == "car"])
     acc60 = _summary(_json(f"{base}/cars-test_mix60.json"), "sanet-hit")["accuracy"]
     frags.append(f"(mix60: {acc60:.4f} and {fid60:.4f})")
-    probe = (RESULTS / "i27/stop42/select_probe.txt").read_text()
+    probe = (RESULTS / "car_model/pick_per_object.txt").read_text()
     acc = dict(re.findall(r"^(\w+) accuracy ([\d.]+)", probe, re.MULTILINE))
     picked, chosen, oracle = re.search(
         r"accuracy ([\d.]+); class model chosen for (\d+%); oracle ([\d.]+)", probe

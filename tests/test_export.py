@@ -1,4 +1,4 @@
-"""ONNX export (issue 17 item 3): every model exports, onnxruntime matches torch on test scans, the rig and the
+"""ONNX export: every model exports, onnxruntime matches torch on test scans, the rig and the
 threshold travel as metadata, ``complete --runtime onnx`` gives torch's completion, a missing runtime is one line."""
 
 from __future__ import annotations
@@ -110,7 +110,7 @@ def test_the_shipped_paper_sanet_exports_with_its_rig_and_matches_on_test_scans(
 
 def test_threads_reach_onnxruntime(tmp_path, capsys):
     """`complete --runtime onnx --threads N`: N is the session's intra-op thread count (it was ignored)."""
-    from spotlights.experiments.scan_completion import CompletionOptions
+    from spotlights.completion.scan import CompletionOptions
 
     ckpt = _checkpoint(tmp_path, "sanet-hit", make_rig(8, 16, 60.0), 0.4)
     assert cli(capsys, "export", ckpt, "-o", tmp_path / "hit.onnx", "-q").returncode == 0

@@ -1,4 +1,4 @@
-"""ONNX export of class-conditioned SA-Nets (issue 27): the graph's ``classes`` (B,) int64 input gives the torch
+"""ONNX export of class-conditioned SA-Nets: the graph's ``classes`` (B,) int64 input gives the torch
 model's outputs for each class, ``OnnxCompleter`` feeds it from box classes as the torch ``Completer`` does (the
 learned-domain gate, the grown-box clip, ``--fallback``), bad class rows are one line, old exports stay cars."""
 

@@ -14,13 +14,13 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 import trimesh
 
 from spotlights.cli import main
 from spotlights.data.synthetic import BuildConfig, build_dataset
 
+from builders import scan_folder, three_frames
 from helpers import REPO, assert_user_error, run_cli
 
 # the tiny build of these tests: parts of ~19 KB, a dataset file of ~120 KB, shards of ~73 KB
@@ -96,23 +96,6 @@ def built(meshes, tmp_path_factory):
             == 0
         )
     assert (root / "cars.h5").stat().st_size > LIMIT and (root / "cars-00000-of-00003.h5").stat().st_size > LIMIT
-    return root
-
-
-def scan_folder(root: Path) -> Path:
-    """A generic-format scan (.npy) with one car box (.json) holding 600 points on its surface."""
-    rng = np.random.default_rng(0)
-    size = np.array([4.2, 1.8, 1.5])
-    car = rng.uniform(-0.5, 0.5, (600, 3)) * size
-    face = rng.integers(0, 3, 600)
-    for k in range(3):
-        car[face == k, k] = np.sign(car[face == k, k]) * size[k] / 2
-    center = np.array([10.0, 3.0, -0.9])
-    clutter = rng.uniform(-30, 30, (300, 3)) + [0, 0, 40]
-    root.mkdir(parents=True, exist_ok=True)
-    np.save(root / "f0.npy", np.concatenate([car + center, clutter]).astype(np.float32))
-    box = {"center": center.tolist(), "size": size.tolist(), "yaw": 0.0, "label": "car"}
-    (root / "f0.json").write_text(json.dumps([box]))
     return root
 
 
@@ -218,8 +201,8 @@ def test_a_failed_frame_write_stops_the_run_at_the_next_frame(tmp_path, monkeypa
     import threading
 
     from spotlights.cli import main
+    from spotlights.completion import frames as frame_completion
     from spotlights.errors import OutputFileError
-    from spotlights.experiments import frame_completion
 
     scans = three_frames(tmp_path / "scans")
     real_write, calls = frame_completion.write_scene, []
@@ -241,15 +224,6 @@ def test_a_failed_frame_write_stops_the_run_at_the_next_frame(tmp_path, monkeypa
     assert {"f0.ply", "f0.json"} | ({"f0.png"} if pictures else set()) <= names
     assert not names & {"f1.ply", "f1.png", "f1.json", "f2.ply", "f2.png", "f2.json", "summary.json"}, names
     assert not [n for n in names if ".part" in n], names
-
-
-def three_frames(root: Path) -> Path:
-    """:func:`scan_folder` with its frame copied twice: f0, f1, f2."""
-    scans = scan_folder(root)
-    for k in (1, 2):
-        shutil.copy(scans / "f0.npy", scans / f"f{k}.npy")
-        shutil.copy(scans / "f0.json", scans / f"f{k}.json")
-    return scans
 
 
 def test_build_on_a_full_tmpfs(meshes, tmp_path):

@@ -16,8 +16,8 @@ import pytest
 from spotlights.errors import InputFileError, ParameterError
 from spotlights.geometry.boxes import MAX_BOX_CENTER_M, MAX_BOX_SIZE_M, Box, box_from_dict, box_range_problem
 from spotlights.geometry.rotations import orthonormalize, rotation_z
-from test_nuscenes import write_mini_nuscenes
 
+from builders import write_mini_nuscenes
 from helpers import assert_user_error, run_cli
 
 KITTI_CALIB = (

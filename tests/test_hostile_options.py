@@ -76,12 +76,12 @@ def test_api_thread_counts_are_checked(scan, tmp_path):
     for bad in (0, -1, 100000, 2.5, True, "4"):
         with pytest.raises(ParameterError, match="threads"):
             check_threads(bad)
-    from spotlights.experiments.scan_completion import CompletionOptions, ScanSettings, complete_scan
+    from spotlights.completion.scan import CompletionOptions, ScanSettings, complete_scan
 
-    with pytest.raises(ParameterError, match="--threads"):
+    with pytest.raises(ParameterError, match="`threads`"):
         CompletionOptions(threads=100000).load_completer()
     s = ScanSettings(input=str(scan["scan"]), box=str(scan["box"]), out=str(tmp_path / "c.ply"), threads=100000)
-    with pytest.raises(ParameterError, match="--threads"):
+    with pytest.raises(ParameterError, match="`threads`"):
         complete_scan(s, completer=object())  # a model given: the count is checked all the same, before any work
     assert not (tmp_path / "c.ply").exists()
 
@@ -190,7 +190,7 @@ def test_max_gap_goes_with_fuse(scan, tmp_path, fuse):
 
 def test_max_gap_default_is_the_documented_one():
     from spotlights.cli import build_parser
-    from spotlights.experiments.scan_completion import ScanSettings
+    from spotlights.completion.scan import ScanSettings
     from spotlights.utils import settings_from_namespace
 
     parser = build_parser()

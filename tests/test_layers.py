@@ -10,7 +10,17 @@ from pathlib import Path
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "spotlights"
 #: package -> floor (higher floors may import lower ones)
-FLOORS = {"geometry": 0, "metrics": 1, "data": 2, "analysis": 2, "viz": 3, "learning": 4, "experiments": 5, "cli": 6}
+FLOORS = {
+    "geometry": 0,
+    "metrics": 1,
+    "data": 2,
+    "analysis": 2,
+    "viz": 3,
+    "learning": 4,
+    "completion": 5,
+    "experiments": 6,
+    "cli": 7,
+}
 
 
 def _imports(path: Path) -> list[tuple[int, str]]:

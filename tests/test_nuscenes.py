@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,160 +15,10 @@ from spotlights.data.real.extract import ExtractConfig, extract
 from spotlights.data.real.nuscenes import CLASS_MAP, NuScenesReader
 from spotlights.errors import InputFileError
 
+from builders import BOX_YAW, CENTER_S, LWH, rz, write_mini_nuscenes
 from helpers import LIDAR, need
 
 NUSCENES = LIDAR / "nuscenes"
-BOX_YAW = math.radians(30.0)
-CENTER_S = np.array([10.0, 0.0, -1.0])  # the box centre in the sensor frame, by construction below
-LWH = np.array([4.0, 2.0, 1.5])
-
-
-def quat_z(deg: float) -> list[float]:
-    """Scalar-first quaternion (w, x, y, z) of a rotation by ``deg`` degrees about +z."""
-    h = math.radians(deg) / 2
-    return [math.cos(h), 0.0, 0.0, math.sin(h)]
-
-
-def rz(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
-
-
-def write_mini_nuscenes(root: Path, break_table: str | None = None) -> dict:
-    """A two-keyframe nuScenes folder in the release layout with one car, one bicycle and one truck.
-
-    Ego pose: yaw 90 degrees at (100, 200, 0); LIDAR_TOP mounted at (1, 0, 2) in the ego frame, turned
-    by -90 degrees (as the real sensor: x right, y forward). So global <- sensor has no rotation and the
-    sensor sits at (100, 201, 2): a global point (110, 201, 1) is (10, 0, -1) in the sensor frame.
-    """
-    tables = root / "v1.0-mini"
-    (root / "samples" / "LIDAR_TOP").mkdir(parents=True)
-    tables.mkdir()
-    rng = np.random.default_rng(0)
-    r = rz(BOX_YAW)
-    inside_obj = rng.uniform(-0.95, 0.95, (120, 3)) * (LWH / 2)
-    outside_obj = np.array([[2.3, 0, 0], [0, 1.2, 0], [0, 0, 0.9], [-2.1, 0.5, 0.0], [1.0, -1.1, 0.2]])
-    clutter = rng.uniform(-40, 40, (300, 3)) * [1, 1, 0] + [0, 0, -1.9] + [0, 30, 0]
-    pts = np.concatenate([inside_obj @ r.T + CENTER_S, outside_obj @ r.T + CENTER_S, clutter])
-    files = []
-    for k in range(2):
-        data = np.c_[pts + [0.1 * k, 0, 0], rng.uniform(0, 100, len(pts)), rng.integers(0, 32, len(pts))].astype("<f4")
-        name = f"samples/LIDAR_TOP/n000__LIDAR_TOP__{1000 + k}.pcd.bin"
-        data.tofile(root / name)
-        files.append(name)
-    t = {
-        "sensor": [
-            {"token": "s-lidar", "channel": "LIDAR_TOP", "modality": "lidar"},
-            {"token": "s-cam", "channel": "CAM_FRONT", "modality": "camera"},
-        ],
-        "calibrated_sensor": [
-            {"token": "cs-lidar", "sensor_token": "s-lidar", "translation": [1.0, 0.0, 2.0], "rotation": quat_z(-90)},
-            {
-                "token": "cs-cam",
-                "sensor_token": "s-cam",
-                "translation": [1.5, 0.0, 1.5],
-                "rotation": [0.5, -0.5, 0.5, -0.5],
-            },
-        ],
-        "ego_pose": [
-            {
-                "token": f"e{k}",
-                "timestamp": 1000 + k,
-                "translation": [100.0 + 0.1 * k, 200.0, 0.0],
-                "rotation": quat_z(90),
-            }
-            for k in range(2)
-        ],
-        "scene": [
-            {"token": "sc", "name": "scene-0001", "first_sample_token": "smp0", "log_token": "l", "nbr_samples": 2}
-        ],
-        "sample": [
-            {"token": f"smp{k}", "timestamp": 1000 + k, "scene_token": "sc", "prev": "", "next": ""} for k in range(2)
-        ],
-        "sample_data": [
-            *(
-                {
-                    "token": f"sd{k}",
-                    "sample_token": f"smp{k}",
-                    "ego_pose_token": f"e{k}",
-                    "calibrated_sensor_token": "cs-lidar",
-                    "timestamp": 1000 + k,
-                    "is_key_frame": True,
-                    "filename": files[k],
-                    "fileformat": "pcd",
-                }
-                for k in range(2)
-            ),
-            {
-                "token": "cam0",
-                "sample_token": "smp0",
-                "ego_pose_token": "e0",
-                "calibrated_sensor_token": "cs-cam",
-                "timestamp": 1000,
-                "is_key_frame": True,
-                "filename": "samples/CAM_FRONT/x.jpg",
-                "fileformat": "jpg",
-            },
-            {
-                "token": "sweep",
-                "sample_token": "smp0",
-                "ego_pose_token": "e0",
-                "calibrated_sensor_token": "cs-lidar",
-                "timestamp": 1050,
-                "is_key_frame": False,
-                "filename": "sweeps/LIDAR_TOP/absent.pcd.bin",
-                "fileformat": "pcd",
-            },
-        ],
-        "category": [
-            {"token": "c-car", "name": "vehicle.car"},
-            {"token": "c-bike", "name": "vehicle.bicycle"},
-            {"token": "c-truck", "name": "vehicle.truck"},
-        ],
-        "instance": [
-            {"token": "i-car", "category_token": "c-car"},
-            {"token": "i-bike", "category_token": "c-bike"},
-            {"token": "i-truck", "category_token": "c-truck"},
-        ],
-        "sample_annotation": [],
-    }
-    for k in range(2):
-        t["sample_annotation"] += [
-            {
-                "token": f"a-car{k}",
-                "sample_token": f"smp{k}",
-                "instance_token": "i-car",
-                "translation": [110.0 + 0.1 * k, 201.0, 1.0],
-                "size": [2.0, 4.0, 1.5],
-                "rotation": quat_z(30),
-                "num_lidar_pts": 120,
-            },
-            {
-                "token": f"a-bike{k}",
-                "sample_token": f"smp{k}",
-                "instance_token": "i-bike",
-                "translation": [90.0, 190.0, 1.0],
-                "size": [0.6, 1.8, 1.4],
-                "rotation": quat_z(0),
-                "num_lidar_pts": 0,
-            },
-            {
-                "token": f"a-truck{k}",
-                "sample_token": f"smp{k}",
-                "instance_token": "i-truck",
-                "translation": [400.0, 600.0, 1.5],
-                "size": [2.5, 8.0, 3.0],
-                "rotation": quat_z(0),
-                "num_lidar_pts": 0,
-            },
-        ]
-    if break_table == "sample_annotation":
-        del t["sample_annotation"][0]["size"]
-    for name, rows in t.items():
-        (tables / f"{name}.json").write_text(json.dumps(rows))
-    if break_table == "ego_pose":
-        (tables / "ego_pose.json").write_text('[{"token": "e0", "translation": [1, 2')
-    return t
 
 
 def test_transforms_against_hand_computed_corners_and_inside_points(tmp_path):

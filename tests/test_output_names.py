@@ -1,5 +1,5 @@
 """Output names taken from the data (frame ids, sequences, track ids) never overwrite a file of the run or of each
-other, and the tracks of a sequence go to that sequence's folder (spotlights.experiments.names: one owner)."""
+other, and the tracks of a sequence go to that sequence's folder (spotlights.completion.names: one owner)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from spotlights.cli import main
-from spotlights.experiments.frame_completion import frame_stems
-from spotlights.experiments.names import file_stem, sequence_folders, unique_names
+from spotlights.completion.frames import frame_stems
+from spotlights.completion.names import file_stem, sequence_folders, unique_names
 
 SIZE = [4.2, 1.8, 1.5]
 

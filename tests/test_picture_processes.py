@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 
 from spotlights.cli import main
+from spotlights.completion import frames as frame_completion
+from spotlights.completion.frames import PICTURE_WORKERS_MAX, PictureProcesses, picture_workers
 from spotlights.errors import ParameterError, ProcessFailure
-from spotlights.experiments import frame_completion
-from spotlights.experiments.frame_completion import PICTURE_WORKERS_MAX, PictureProcesses, picture_workers
-from test_faults import three_frames
+
+from builders import three_frames
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -39,7 +40,7 @@ def test_picture_workers(monkeypatch, asked, cpus, frames, want):
 
 
 def test_picture_workers_refuses_a_negative_count():
-    with pytest.raises(ParameterError, match="--picture-workers must be >= 0"):
+    with pytest.raises(ParameterError, match="`picture_workers` must be >= 0"):
         picture_workers(-1, 10)
 
 

@@ -1,6 +1,6 @@
 """The guard behind "two ray-casting threads are never slower than one", without timing anything.
 
-The speed-up target (2 threads >= 1.85x one at 8k rays) is retired (issue 25: 1.4-1.5x at 8k and
+The speed-up target (2 threads >= 1.85x one at 8k rays) is retired (measured: 1.4-1.5x at 8k and
 1.7x at 32k rays is what this binding allows, docs/benchmarks.md; benchmarks/encode.py still
 measures it). What must hold on any machine, however loaded, is structural:
 

@@ -1,10 +1,10 @@
 """Every command of the README runs as written from the checkout.
 
 The ```bash blocks are read from README.md and each ``spotlights ...`` line is run in order, in
-process (``helpers.run_cli``), in one temporary folder: the paths that name files of the checkout
-(``src/spotlights/assets/...``) or of the shared data (``../shared/data/...``, or
-``$SPOTLIGHTS_SHARED``) are made absolute, every other path (the outputs) lands in the temporary
-folder, so later commands read what earlier ones wrote, as they would in the checkout. Skipped,
+process (``helpers.run_cli``), as written, in a copy of the checkout (its tracked files) with the shared
+data beside it as ``../shared`` (``$SPOTLIGHTS_SHARED`` where set): later commands read what earlier ones
+wrote, as they would in the checkout, and the checkout itself is never written (checked: its ``git status``
+and the modification times of its untracked files are the same before and after). Skipped,
 with the reason: the two install commands (``make demo``, ``make test``: tests/test_setup.py),
 a command whose shared data is absent (and those reading its outputs), a command that serves a
 port. A line of another kind fails the test: whoever adds one says here how to check it.
@@ -12,8 +12,11 @@ port. A line of another kind fails the test: whoever adds one says here how to c
 
 from __future__ import annotations
 
+import os
 import re
 import shlex
+import shutil
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -46,22 +49,41 @@ def test_the_readme_has_commands_of_every_kind():
     assert not [c for c in COMMANDS if c.split()[0] not in ("make", "spotlights")], COMMANDS
 
 
-def _argument(arg: str) -> Path | str:
-    """An argument as run from the checkout: shared data and checkout files absolute, the rest as written."""
-    if arg.startswith("../shared/"):
-        path = SHARED / arg[len("../shared/") :]
-        if not path.exists():
-            pytest.skip(f"shared data not found at {path} (set SPOTLIGHTS_SHARED to the folder holding data/)")
-        return path
-    if not arg.startswith("-") and (REPO / arg).exists():
-        return REPO / arg
+def _argument(arg: str) -> str:
+    """An argument as written; a path into the shared data that is absent skips the command."""
+    if arg.startswith("../shared/") and not (SHARED / arg[len("../shared/") :]).exists():
+        pytest.skip(f"shared data not found at {SHARED} (set SPOTLIGHTS_SHARED to the folder holding data/)")
     return arg
+
+
+def checkout_state() -> tuple[str, dict[str, int]]:
+    """The checkout's ``git status`` and the modification times of its untracked, not ignored files."""
+    status = subprocess.run(["git", "status", "--porcelain"], cwd=REPO, capture_output=True, text=True, check=True)
+    untracked = subprocess.run(
+        ["git", "ls-files", "--others", "--exclude-standard"], cwd=REPO, capture_output=True, text=True, check=True
+    ).stdout.split()
+    return status.stdout, {f: (REPO / f).stat().st_mtime_ns for f in untracked if (REPO / f).exists()}
 
 
 @pytest.fixture(scope="module")
 def work(tmp_path_factory) -> Path:
-    """The folder standing in for the checkout's root: every command's outputs land here."""
-    return tmp_path_factory.mktemp("readme")
+    """A copy of the checkout's tracked files, the shared data beside it as ``../shared``: every command runs
+    here as written. After the module, the checkout is as it was."""
+    if shutil.which("git") is None or not (REPO / ".git").exists():
+        pytest.skip("the README's commands run in a copy of a git checkout (git and .git needed)")
+    before = checkout_state()
+    root = tmp_path_factory.mktemp("readme")
+    copy = root / "checkout"
+    files = subprocess.run(["git", "ls-files", "-z"], cwd=REPO, capture_output=True, check=True).stdout
+    for name in filter(None, files.decode().split("\0")):
+        src = REPO / name
+        if src.is_file():
+            (copy / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, copy / name)
+    if SHARED.exists():
+        os.symlink(SHARED, root / "shared")
+    yield copy
+    assert checkout_state() == before, "the README's commands changed the checkout"
 
 
 def _param(i: int, command: str):
@@ -97,12 +119,12 @@ def test_readme_command_runs_as_written(command, work):
             assert out.exists() and (out.is_dir() or out.stat().st_size > 0), (command, value)
 
 
-def test_readme_python_example_runs(monkeypatch):
-    """The README's Python block, run from the checkout: the paper's rig has 32 x 64 rays."""
+def test_readme_python_example_runs(monkeypatch, work):
+    """The README's Python block, run in the copy of the checkout: the paper's rig has 32 x 64 rays."""
     import numpy as np
 
     (code,) = re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S)
-    monkeypatch.chdir(REPO)
+    monkeypatch.chdir(work)
     ns: dict = {}
     exec(compile(code, "README.md", "exec"), ns)
     assert ns["depths"].shape == (32 * 64,) and ns["depths"].dtype == np.float32

@@ -24,6 +24,8 @@ from spotlights.metrics.consistency import (
     track_consistency,
 )
 
+from builders import Identity, tracked_scene
+
 
 def test_chamfer_matches_brute_force():
     rng = np.random.default_rng(0)
@@ -93,14 +95,6 @@ def test_track_consistency_frames_and_aggregation():
     assert agg["average"]["n_classes"] == 2
 
 
-class Identity:
-    model_name = "identity"
-    n_params = 0
-
-    def complete(self, partials):
-        return [p.copy() for p in partials]
-
-
 class Ellipsoid:
     model_name = "ellipsoid"
     n_params = 3
@@ -112,31 +106,6 @@ class Ellipsoid:
 
     def complete(self, partials):
         return [self.points for _ in partials]
-
-
-def tracked_scene(tmp_path):
-    """Two frames of one sequence: a car (track 'a') and a van (track 'v') that move; a car seen once."""
-    rng = np.random.default_rng(5)
-    frames = []
-    for f in range(2):
-        pts, boxes = [rng.uniform(-50, 50, (200, 3)) + [0, 0, 30]], []
-        for tid, label, c, size in (
-            ("a", "Car", [10.0 + f, 2.0, -0.8], [4.2, 1.8, 1.5]),
-            ("v", "Van", [-8.0, 6.0 - f, -0.6], [5.0, 2.0, 2.0]),
-        ):
-            obj = rng.uniform(-0.5, 0.5, (150, 3)) * size
-            obj[:, 2] = np.abs(obj[:, 2])
-            pts.append(obj + c)
-            boxes.append({"center": c, "size": size, "yaw": 0.0, "label": label, "track_id": tid})
-        if f == 0:
-            pts.append(rng.uniform(-0.5, 0.5, (80, 3)) * [4, 1.8, 1.4] + [0, -10, -0.8])
-            boxes.append(
-                {"center": [0, -10, -0.8], "size": [4, 1.8, 1.4], "yaw": 0.0, "label": "Car", "track_id": "once"}
-            )
-        np.save(tmp_path / f"s{f}.npy", np.concatenate(pts).astype(np.float32))
-        frames.append({"scan": f"s{f}.npy", "timestamp": f, "sequence": "seq", "boxes": boxes})
-    (tmp_path / "scene.json").write_text(json.dumps({"frames": frames}))
-    return extract(open_reader(tmp_path / "scene.json", "generic"), ExtractConfig(), progress=False)
 
 
 def test_evaluate_consistency_with_fake_completers(tmp_path):

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 
 import h5py
 import numpy as np
@@ -14,47 +13,7 @@ from spotlights.data.real import open_reader
 from spotlights.data.real.extract import ExtractConfig, extract, read_observations, write_observations
 from spotlights.errors import InputFileError, ParameterError
 
-CENTER = np.array([12.0, -3.0, -0.8])
-SIZE = np.array([4.2, 1.8, 1.5])
-YAW = 0.7
-
-
-def rot(yaw):
-    c, s = math.cos(yaw), math.sin(yaw)
-    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
-
-
-def car_surface(rng, n):
-    """n points on the sides and top of the box (object frame), none below 0.2 m above its bottom."""
-    p = rng.uniform(-0.5, 0.5, (n, 3)) * SIZE
-    face = rng.integers(0, 3, n)
-    p[face == 0, 0] = np.sign(p[face == 0, 0]) * SIZE[0] / 2
-    p[face == 1, 1] = np.sign(p[face == 1, 1]) * SIZE[1] / 2
-    p[face == 2, 2] = SIZE[2] / 2
-    p[:, 2] = np.maximum(p[:, 2], -SIZE[2] / 2 + 0.2)
-    return p
-
-
-def make_scene(tmp_path, n_car=500, seed=0):
-    """A scan (.npy) with one car (n_car surface points), ground under it, clutter, and its box list (.json)."""
-    rng = np.random.default_rng(seed)
-    car_obj = car_surface(rng, n_car)
-    ground_obj = np.c_[rng.uniform(-3, 3, (400, 2)), rng.uniform(-0.03, 0.03, 400) - SIZE[2] / 2]
-    clutter = rng.uniform(-30, 30, (1000, 3)) + [0, 0, 40]  # far above: never in a box
-    r = rot(YAW)
-    scan = np.concatenate([car_obj @ r.T + CENTER, ground_obj @ r.T + CENTER, clutter])
-    few = np.array([[30.0, 5.0, -1.0]]) + rng.normal(scale=0.2, size=(5, 3))  # 5 points in a small box
-    scan = np.concatenate([scan, few]).astype(np.float32)
-    np.save(tmp_path / "scan.npy", scan)
-    boxes = [
-        {"center": CENTER.tolist(), "size": SIZE.tolist(), "yaw": YAW, "label": "Car", "track_id": "a"},
-        {"center": [-20.0, 0.0, -0.8], "size": [4.0, 1.8, 1.5], "yaw": 0.0, "label": "Car"},  # empty
-        {"center": [30.0, 5.0, -1.0], "size": [4.0, 1.8, 1.5], "yaw": 0.0, "label": "van"},  # 5 points
-        {"center": [5.0, 5.0, -1.0], "size": [0.6, 0.6, 1.8], "yaw": 0.0, "label": "Pedestrian"},
-        {"center": [8.0, 8.0, -1.0], "size": [4.0, 0.0, 1.5], "yaw": 0.0, "label": "truck"},  # zero width
-    ]
-    (tmp_path / "scan.json").write_text(json.dumps(boxes))
-    return scan, car_obj
+from builders import CENTER, SIZE, YAW, car_surface, make_scene
 
 
 def test_synthetic_scan_round_trip(tmp_path):

@@ -180,7 +180,7 @@ def test_report_has_figures_steps_versions(quick):
         assert f"- {pkg}: " in report
     results = json.loads((out / "results.json").read_text())
     assert set(results["tables"]) == set("12345") | {"box"}
-    # the layout the lead trains into
+    # the layout a training run writes
     from spotlights.experiments.reproduce import RUNS
 
     for run in RUNS:

@@ -1,4 +1,4 @@
-"""The library behind the run-side commands (issue 29): settings dataclasses and one function per command,
+"""The library behind the run-side commands: settings dataclasses and one function per command,
 called from Python (no argparse), checked against hand counts and brute force."""
 
 from __future__ import annotations
@@ -11,9 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
 
-from spotlights.errors import ParameterError, SpotlightsError
-from spotlights.experiments.files import EncodeSettings, RigOptions
-from spotlights.experiments.frame_completion import (
+from spotlights.completion.frames import (
     FramesSettings,
     ReaderOptions,
     complete_frames,
@@ -21,12 +19,15 @@ from spotlights.experiments.frame_completion import (
     parse_frames_range,
     select_frames,
 )
+from spotlights.completion.scan import CompletionOptions, ScanSettings
+from spotlights.errors import ParameterError, SpotlightsError
 from spotlights.experiments.real_evaluation import RealEvaluationSettings, evaluate_consistency
 from spotlights.experiments.real_runs import EvaluateSettings, report_names
-from spotlights.experiments.scan_completion import CompletionOptions, ScanSettings
+from spotlights.files import EncodeSettings, RigOptions
 from spotlights.geometry.io import load_ply_fields
 from spotlights.utils import check_suffix, settings_from_namespace
-from test_real_consistency import Identity, tracked_scene
+
+from builders import Identity, tracked_scene
 
 
 def test_frame_specs_parse_and_select_by_hand():
@@ -45,9 +46,9 @@ def test_frame_specs_parse_and_select_by_hand():
 
 
 def test_reader_options_refuse_another_formats_option():
-    with pytest.raises(ParameterError, match="--boxes applies to --format generic only"):
+    with pytest.raises(ParameterError, match="`boxes` applies to `format` generic only"):
         ReaderOptions(source=["nowhere"], format="kitti", boxes="b.json").open()
-    with pytest.raises(ParameterError, match="--frames applies to --format kitti360 only"):
+    with pytest.raises(ParameterError, match="`frames` applies to `format` kitti360 only"):
         ReaderOptions(source=["nowhere"], format="nuscenes").open(frames=(0, 2, 1))
 
 
@@ -57,7 +58,7 @@ def test_completion_options_give_the_scene_config():
     c = CompletionOptions(classes="Car, truck", clip=0.3, heading_check=True, heading_margin=0.2).scene_config()
     assert c.classes == ("car", "truck") and c.clip == 0.3 and c.heading_margin == 0.2
     assert CompletionOptions(no_clip=True).scene_config().clip is None
-    with pytest.raises(ParameterError, match="--heading-margin goes with --heading-check"):
+    with pytest.raises(ParameterError, match="`heading_margin` goes with `heading_check`"):
         CompletionOptions(heading_margin=0.2).scene_config()
 
 
@@ -69,11 +70,11 @@ def test_scan_settings_check_the_box_options():
         scan().check_boxes()
     with pytest.raises(ParameterError, match="not both"):
         scan(boxes="b.json", box="one.json").check_boxes()
-    with pytest.raises(ParameterError, match="needs both --center"):
+    with pytest.raises(ParameterError, match="needs both `center`"):
         scan(center=[0, 0, 0]).check_boxes()
-    with pytest.raises(ParameterError, match="needs both --center"):  # the missing centre first, not the yaw
+    with pytest.raises(ParameterError, match="needs both `center`"):  # the missing centre first, not the yaw
         scan(size=[4, 2, 1.5], yaw=0.3).check_boxes()
-    with pytest.raises(ParameterError, match="--yaw goes with --center/--size"):
+    with pytest.raises(ParameterError, match="`yaw` goes with `center`/`size`"):
         scan(box="one.json", yaw=0.0).check_boxes()
     scan(center=[0, 0, 0], size=[4, 2, 1.5], yaw=0.0).check_boxes()  # given with its box: fine
     with pytest.raises(ParameterError, match="give the crop margin once"):
@@ -190,16 +191,16 @@ def test_evaluate_settings_check_and_name_like_the_command():
     scoring = s.scoring()
     assert scoring.equal_points is None and scoring.heading_check is False and scoring.equal_density == 0.1
     assert s.prefix == "runs/av2_consistency" and s.checkpoints == ["default"]
-    with pytest.raises(ParameterError, match="--names: give 2 distinct names"):
+    with pytest.raises(ParameterError, match="`names`: give 2 distinct names"):
         EvaluateSettings(file="a.h5", checkpoint=["a.pt", "b.pt"], names=["x", "x"]).scoring()
-    with pytest.raises(ParameterError, match=r"--heading-margin must be in \[0, 1\)"):
+    with pytest.raises(ParameterError, match=r"`heading_margin` must be in \[0, 1\)"):
         EvaluateSettings(file="a.h5", heading_margin=1.0).scoring()
     names = report_names(["sanet", "sanet", "pcn"], ["runs/r1/best.pt", "other/sanet_b.pt", "pcn.pt"])
     assert names == ["sanet (r1)", "sanet (sanet_b)", "pcn"]
 
 
 def test_rig_options_and_encode_targets(tmp_path):
-    with pytest.raises(ParameterError, match="--box-scale only apply with --rig-kind box"):
+    with pytest.raises(ParameterError, match="`box_scale` only apply with `rig_kind` box"):
         RigOptions(box_scale=0.5).spec()
     spec = RigOptions(primary=8, secondary=16, angle=45.0).spec()
     assert spec.for_box(None).n_rays == 8 * 16

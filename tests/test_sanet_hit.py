@@ -1,4 +1,4 @@
-"""Hit-aware SA-Net (issue 13 item 2): loss, threshold chosen on validation and used, bf16, old checkpoints.
+"""Hit-aware SA-Net: loss, threshold chosen on validation and used, bf16, old checkpoints.
 
 Independent truths: the loss of a 2 x 3 batch computed by hand (BCE and the hit-only L1
 written out with ``math``); completions rebuilt in numpy from the raw logits and depths
@@ -88,7 +88,7 @@ def test_loss_matches_a_hand_computation():
 
 
 def test_box_term_matches_a_hand_computation_and_pushes_points_into_the_box():
-    """Issue 27's box term: p(hit) * Euclidean distance outside the grown box, over the number of true hits."""
+    """The box term: p(hit) * Euclidean distance outside the grown box, over the number of true hits."""
     half = torch.tensor([[0.2, 0.5, 0.5]])  # the box [-0.2, 0.2] x [-0.5, 0.5]^2
     origins = torch.tensor([[-1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]])
     s = 1 / math.sqrt(1.5**2 + 0.9**2)

@@ -142,7 +142,7 @@ def test_scene_completion_gives_models_the_sensor_in_each_box_frame():
     observed points after the predicted ones when asked."""
     from types import SimpleNamespace
 
-    from spotlights.experiments.scene import SceneConfig, complete_scene
+    from spotlights.completion.frame import SceneConfig, complete_scene
     from spotlights.geometry.boxes import Box
 
     seen = {}

@@ -151,7 +151,7 @@ def test_kitti_label_route_matches_real_extract(tmp_path, capsys, tiny):
 
 def test_clamping_keeps_every_point_in_the_sphere(tmp_path, tiny):
     """A model that predicts depth 5 for every ray yields no point outside the unit sphere (nor the box's sphere)."""
-    from spotlights.experiments.scene import SceneConfig, complete_scene
+    from spotlights.completion.frame import SceneConfig, complete_scene
     from spotlights.learning.inference import load_completer
 
     comp = load_completer(tiny, device="cpu")
@@ -196,7 +196,7 @@ def test_point_model_completions_are_clamped_to_the_sphere(tmp_path):
     """A point model predicting points far outside the unit sphere: every completion point ends inside its box's
     sphere (scan frame) and on or inside the unit sphere (unit frame), radially (directions kept); points inside are
     unchanged; with the heading check too."""
-    from spotlights.experiments.scene import SceneConfig, complete_scene
+    from spotlights.completion.frame import SceneConfig, complete_scene
     from spotlights.geometry.frames import clamp_to_unit_sphere
 
     raw = _PointModel().complete(np.zeros((1, 256, 3)))[0]
@@ -225,8 +225,8 @@ def test_heading_check_turns_a_reversed_car_around(tmp_path):
     """The shipped model on the demo's simulated scan of the CC0 sedan: the box turned by 180 degrees is flipped
     back by the heading check, the right box is kept."""
     from spotlights.assets import asset_path
+    from spotlights.completion.frame import SceneConfig, complete_scene
     from spotlights.data.real.scans import read_scan
-    from spotlights.experiments.scene import SceneConfig, complete_scene
     from spotlights.geometry.boxes import load_box
     from spotlights.learning.inference import load_completer
 
@@ -247,7 +247,7 @@ def test_heading_check_turns_a_reversed_car_around(tmp_path):
 
 def test_same_observation_same_completion(tmp_path, tiny):
     """Default input: canonical order + seeded subset: shuffled points (another file order) give the same completion."""
-    from spotlights.experiments.scene import SceneConfig, complete_scene
+    from spotlights.completion.frame import SceneConfig, complete_scene
     from spotlights.learning.inference import load_completer
 
     comp = load_completer(tiny, device="cpu")
@@ -517,7 +517,7 @@ def test_long_box_completion_stays_in_the_grown_box_and_reports_the_share_before
     """A 16 x 2.5 x 4 m truck box and a point model spraying points over the whole unit sphere: every completion
     point lies inside the box grown by 0.15 m (box frame, by hand), and the object's ``inside_box`` is the share of
     the raw prediction inside that grown box, counted by hand in the unit frame."""
-    from spotlights.experiments.scene import SceneConfig, complete_scene
+    from spotlights.completion.frame import SceneConfig, complete_scene
 
     size = np.array([16.0, 2.5, 4.0])
     box = Box([20.0, -4.0, 1.0], size, 0.3, "truck", "truck")
@@ -542,7 +542,7 @@ def test_fidelities_on_threads_equal_a_brute_force_loop():
     positions (heading check) score the partial turned around; an empty completion scores None."""
     from types import SimpleNamespace
 
-    from spotlights.experiments.scene import Fidelities
+    from spotlights.completion.frame import Fidelities
     from spotlights.geometry.boxes import FLIP_Z
 
     rng = np.random.default_rng(5)
@@ -583,7 +583,7 @@ def test_fidelity_threads_run_openmp_on_one_thread_each():
     code = """
 import os, numpy as np
 from types import SimpleNamespace
-from spotlights.experiments.scene import Fidelities
+from spotlights.completion.frame import Fidelities
 rng = np.random.default_rng(0)
 todo = [SimpleNamespace(partial_unit=rng.random((256, 3)).astype(np.float32)) for _ in range(4)]
 before = len(os.listdir('/proc/self/task'))

@@ -1,4 +1,4 @@
-"""Settings objects (issue 29): one strict policy for every config reader (an unknown key is one line
+"""Settings objects: one strict policy for every config reader (an unknown key is one line
 naming its file, with the closest key suggested; exit code 2 through the CLI), known keys round-trip,
 and the options a command declares on its settings object are the object's defaults."""
 

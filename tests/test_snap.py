@@ -189,7 +189,7 @@ def test_a_point_model_refuses_to_snap(tmp_path):
     with pytest.raises(ParameterError, match="no rays to snap"):
         c.complete(_scans()[0], snap=0.05)
     # in a scene: refused as the main model; as a --fallback it completes its boxes unsnapped (an SA-Net snaps)
-    from spotlights.experiments.scene import SceneConfig, complete_scene, snap_options
+    from spotlights.completion.frame import SceneConfig, complete_scene, snap_options
     from spotlights.geometry.boxes import Box
 
     scan = np.random.default_rng(0).uniform(-1, 1, (400, 3)) * [2.0, 0.9, 0.7] + [10.0, 2.0, 0.8]
@@ -255,42 +255,42 @@ def test_snap_radius_reads_off_and_radii(value, radius):
 def test_snap_radius_refuses_other_values_naming_the_option(value):
     from spotlights.geometry.evidence import snap_radius
 
-    with pytest.raises(ParameterError, match=r"^--snap: the snap radius must be a finite number > 0"):
+    with pytest.raises(ParameterError, match=r"^`snap`: the snap radius must be a finite number > 0"):
         snap_radius(value)
-    with pytest.raises(ParameterError, match=r"^snap: the snap radius"):
+    with pytest.raises(ParameterError, match=r"^`snap`: the snap radius"):
         snap_radius(value, option="snap")
 
 
 def test_every_surface_checks_the_snap_radius_and_mirror_alike():
     """SceneConfig (complete, real complete, the API), RealEvaluationSettings (real evaluate) and the completer's
     own check answer the same values with the same messages (one owner: geometry.evidence.snap_radius)."""
+    from spotlights.completion.frame import SceneConfig
     from spotlights.experiments.real_evaluation import RealEvaluationSettings
-    from spotlights.experiments.scene import SceneConfig
 
     for make in (lambda **k: SceneConfig(**k), lambda **k: RealEvaluationSettings(heading_check=False, **k)):
         for bad in (-1.0, float("inf")):
-            with pytest.raises(ParameterError, match=r"^--snap: the snap radius must be a finite number > 0"):
+            with pytest.raises(ParameterError, match=r"^`snap`: the snap radius must be a finite number > 0"):
                 make(snap=bad)
-        with pytest.raises(ParameterError, match="^--snap-mirror goes with --snap R$"):
+        with pytest.raises(ParameterError, match="^`snap_mirror` goes with `snap` R$"):
             make(snap=0.0, snap_mirror=True)
         assert make(snap=0.0).snap == 0.0 and make(snap=0.05, snap_mirror=True).snap_mirror
         assert make(snap=None).snap == 0.0  # off
         for bad in ("0.5", True):  # text and booleans are not radii (were a raw TypeError further on)
-            with pytest.raises(ParameterError, match=r"^--snap: the snap radius must be a finite number > 0"):
+            with pytest.raises(ParameterError, match=r"^`snap`: the snap radius must be a finite number > 0"):
                 make(snap=bad)
 
 
 def test_scene_options_and_real_evaluation_refuse_snap_with_the_heading_check():
+    from spotlights.completion.frame import SceneConfig
     from spotlights.experiments.real_evaluation import RealEvaluationSettings
-    from spotlights.experiments.scene import SceneConfig
 
     assert SceneConfig(snap=0.05).snap == 0.05
     for bad in (-0.1, float("nan")):
         with pytest.raises(ParameterError, match="snap radius"):
             SceneConfig(snap=bad)
-    with pytest.raises(ParameterError, match="heading-check"):
+    with pytest.raises(ParameterError, match="`heading_check`"):
         SceneConfig(snap=0.05, heading_check=True)
-    with pytest.raises(ParameterError, match="no-heading-check"):
+    with pytest.raises(ParameterError, match="`no_heading_check`"):
         RealEvaluationSettings(snap=0.05)
     assert RealEvaluationSettings(snap=0.05, heading_check=False).snap == 0.05
 
@@ -333,7 +333,7 @@ def test_evaluate_names_the_snapped_rows(tmp_path, hit_ckpt):
     assert res["snap"] == 0.05 and all("snap 0.05" in r["variant"] for r in res["rows"])
     both = evaluate_checkpoint(ck, data, progress=False, snap=0.05, snap_mirror=True)
     assert both["snap_mirror"] and all(r["variant"].endswith("snap 0.05 mirrored") for r in both["rows"])
-    with pytest.raises(ParameterError, match="--snap-mirror goes with --snap R"):
+    with pytest.raises(ParameterError, match="`snap_mirror` goes with `snap` R"):
         evaluate_checkpoint(ck, data, progress=False, snap_mirror=True)
     plain = evaluate_checkpoint(ck, data, progress=False)
     assert plain["snap"] is None and not any("snap" in r["variant"] for r in plain["rows"])
@@ -343,8 +343,8 @@ def test_evaluate_names_the_snapped_rows(tmp_path, hit_ckpt):
 def test_resume_reuses_frames_written_before_snap_existed(tmp_path):
     from dataclasses import asdict
 
-    from spotlights.experiments.frame_completion import done_frame
-    from spotlights.experiments.scene import SceneConfig
+    from spotlights.completion.frame import SceneConfig
+    from spotlights.completion.frames import done_frame
 
     cfg = asdict(SceneConfig())
     cfg["clip"] = str(cfg["clip"])
@@ -375,13 +375,13 @@ def test_mirrored_snapping_draws_the_side_the_lidar_did_not_see(hit_ckpt):
 
 
 def test_snap_mirror_needs_a_radius_everywhere(tmp_path, capsys, hit_ckpt):
+    from spotlights.completion.frame import SceneConfig
     from spotlights.experiments.real_evaluation import RealEvaluationSettings
-    from spotlights.experiments.scene import SceneConfig
 
     assert SceneConfig(snap=0.08, snap_mirror=True).snap_mirror
-    with pytest.raises(ParameterError, match="--snap-mirror goes with --snap R"):
+    with pytest.raises(ParameterError, match="`snap_mirror` goes with `snap` R"):
         SceneConfig(snap_mirror=True)
-    with pytest.raises(ParameterError, match="--snap-mirror goes with --snap R"):
+    with pytest.raises(ParameterError, match="`snap_mirror` goes with `snap` R"):
         RealEvaluationSettings(snap_mirror=True, heading_check=False)
     np.save(tmp_path / "scan.npy", side_points(300) * 2.5 + [10.0, 2.0, 0.8])
     box = ["--center", "10", "2", "0.8", "--size", "4.6", "1.9", "1.6", "--no-crop", "--checkpoint", hit_ckpt]
@@ -498,7 +498,7 @@ def test_complete_frame_passes_the_sensor(hit_ckpt):
 def test_fused_windows_carve_only_from_the_scans_own_points():
     """With other frames fused in (``extra_points``), the occlusion rule's free space is carved from the scan's own
     points (seen from its sensor), not from the fused ones (seen from elsewhere): complete_scene hands them over."""
-    from spotlights.experiments.scene import SceneConfig, complete_scene
+    from spotlights.completion.frame import SceneConfig, complete_scene
     from spotlights.geometry.boxes import Box
 
     rng = np.random.default_rng(1)

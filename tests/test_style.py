@@ -79,7 +79,7 @@ def test_ruff_format_leaves_every_file_as_it_is():
 
 
 def test_one_stage_timer():
-    """Issue 29: stages are timed by utils.StageTimer; time.perf_counter appears only there and in
+    """Stages are timed by utils.StageTimer; time.perf_counter appears only there and in
     learning.bench (the latency timer of repeated calls)."""
     allowed = {"utils.py", "learning/bench.py"}
     src = ROOT / "src" / "spotlights"
@@ -92,7 +92,7 @@ def test_one_stage_timer():
 
 
 def test_the_cli_stays_thin():
-    """Issue 29: the CLI parses, builds settings, calls one library function and prints: under 2,000 lines
+    """The CLI parses, builds settings, calls one library function and prints: under 2,000 lines
     in all and no function over cyclomatic complexity 15 (ruff's mccabe count)."""
     lines = sum(len(f.read_text().splitlines()) for f in (ROOT / "src" / "spotlights" / "cli").glob("*.py"))
     assert lines < 2000, f"the CLI has {lines} lines: move logic into the library"
@@ -103,7 +103,7 @@ def test_the_cli_stays_thin():
 
 
 # ---------------------------------------------------------------------------------------------
-# tests use the public API only (issue 29): no private spotlights name is imported or reached
+# tests use the public API only: no private spotlights name is imported or reached
 # ---------------------------------------------------------------------------------------------
 # Private attributes of other libraries that tests may reach, each for a reason (nothing public does it).
 FOREIGN_PRIVATE = {
@@ -178,7 +178,7 @@ def test_the_private_name_check_finds_each_kind_of_reach():
 
 def test_no_test_imports_or_reaches_a_private_name():
     """Tests check public behaviour: a private name (``_foo``) of spotlights is not imported, reached or
-    monkeypatched (issue 29); a unit worth testing on its own is made public (documented, annotated)."""
+    monkeypatched; a unit worth testing on its own is made public (documented, annotated)."""
     bad = [
         f"{path.relative_to(ROOT)}:{line}: {what}"
         for path in sorted((ROOT / "tests").glob("*.py"))

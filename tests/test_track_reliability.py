@@ -11,11 +11,12 @@ import time
 
 import pytest
 
-from spotlights.experiments import tracks
-from spotlights.experiments.tracks import TrackWorkerStalled, usable_cpus
-from test_track_worker import _inputs, _plan
-from test_tracks_cli import write_drive
+from spotlights.completion import fusion as tracks
+from spotlights.completion.fusion import TrackWorkerStalled, usable_cpus
 
+from builders import track_inputs as _inputs
+from builders import track_plan as _plan
+from builders import write_drive
 from helpers import REPO
 
 needs_two_cpus = pytest.mark.skipif(usable_cpus() < 2, reason="a worker process is started with 2+ usable CPUs only")
@@ -187,10 +188,10 @@ SUSPENDED = """
 import pathlib
 import sys
 
-from spotlights.experiments import tracks
+from spotlights.completion import fusion as tracks
 from test_track_reliability import slow_worker
-from test_track_worker import _plan
-from test_tracks_cli import write_drive
+from builders import track_plan as _plan
+from builders import write_drive
 
 if __name__ == "__main__":
     tracks.worker_main = slow_worker
@@ -343,7 +344,7 @@ def test_threads_option_wins_over_the_core_left_to_the_worker(tmp_path, monkeypa
     ``--threads N`` (N = the usable CPUs here: more than the default), and on N without the worker too; the
     caller's count is restored after; ``--threads 0`` is a usage error."""
     torch = pytest.importorskip("torch")
-    from spotlights.experiments import frame_completion
+    from spotlights.completion import frames as frame_completion
 
     from helpers import run_cli
     from learning_fixtures import make_checkpoint

@@ -12,21 +12,7 @@ from spotlights.geometry.boxes import Box, crop_boxes
 from spotlights.geometry.rig import parse_rig
 from spotlights.learning.rays import directions_for_extents
 
-
-def brute_force_crop(points: np.ndarray, box: Box, margin: float, clearance: float) -> np.ndarray:
-    """Indices of the points inside the box grown by ``margin``, bottom raised by ``clearance``, by hand."""
-    idx = []
-    half = 0.5 * box.size
-    for i, p in enumerate(points):
-        q = box.rotation.T @ (p - box.center)
-        if (
-            abs(q[0]) <= half[0] + margin
-            and abs(q[1]) <= half[1] + margin
-            and q[2] <= half[2] + margin
-            and q[2] >= -half[2] + clearance
-        ):
-            idx.append(i)
-    return np.array(idx, dtype=np.int64)
+from builders import brute_force_crop
 
 
 def test_one_tree_crop_equals_each_box_by_hand():
@@ -139,7 +125,7 @@ def test_frames_read_once_give_the_bytes_of_frames_read_twice(tmp_path, monkeypa
     """``real complete --fuse`` reads each frame once (the track plan keeps what it read); with nothing kept (every
     frame read again) and no ray-box interval kept, the same files, the same PLY bytes, the same JSON but clocks."""
     pytest.importorskip("torch")
-    import spotlights.experiments.tracks as plans
+    import spotlights.completion.fusion as plans
     from spotlights.cli import main
     from spotlights.data.real.nuscenes import NuScenesReader
     from spotlights.learning.models.sanet import SANet

@@ -11,12 +11,10 @@ import os
 import numpy as np
 import pytest
 
-from spotlights.data.real import open_reader
-from spotlights.data.tracks import TrackFrame, TrackRefiner, parse_window, refine_track
-from spotlights.experiments.scene import SceneConfig
-from spotlights.experiments.tracks import TrackPlan, TrackWorker, usable_cpus
-from test_tracks import drive_past
-from test_tracks_cli import write_drive
+from spotlights.completion.fusion import TrackWorker, usable_cpus
+from spotlights.data.tracks import TrackFrame, TrackRefiner, refine_track
+
+from builders import drive_past, track_inputs, track_plan, write_drive
 
 
 def test_frame_by_frame_causal_refinement_sees_no_later_frame_and_recovers_the_perturbation():
@@ -56,23 +54,6 @@ def test_a_window_that_looks_ahead_refines_the_whole_track_at_the_first_frame():
 needs_two_cpus = pytest.mark.skipif(usable_cpus() < 2, reason="a worker process is started with 2+ usable CPUs only")
 
 
-def _plan(src, window: str, worker: bool) -> tuple[TrackPlan, list]:
-    reader = open_reader(src, "generic")
-    keys = reader.frame_keys()
-    return TrackPlan(parse_window(window), SceneConfig(), refine=True, worker=worker).build(reader, keys), keys
-
-
-def _inputs(plan: TrackPlan, keys) -> list:
-    """Per frame (in order): its boxes (centre, rotation) and fused points, as the frame loop gets them."""
-    out = []
-    for key in keys:
-        boxes, extra = plan.frame_inputs(key, plan.take(key).boxes)
-        out.append(
-            ([(b.center.tolist(), b.rotation.tolist()) for b in boxes], {i: v.tolist() for i, v in extra.items()})
-        )
-    return out
-
-
 @needs_two_cpus
 @pytest.mark.timeout(120)
 @pytest.mark.parametrize("window", ["past:2", "centered:3"])
@@ -84,10 +65,10 @@ def test_worker_gives_the_inputs_boxes_and_statuses_of_one_process(tmp_path, win
     boxes = json.loads((src / "f2.json").read_text())
     boxes["boxes"][0]["yaw"] = 0.08
     (src / "f2.json").write_text(json.dumps(boxes))
-    alone, keys = _plan(src, window, worker=False)
-    paired, _ = _plan(src, window, worker=True)
+    alone, keys = track_plan(src, window, worker=False)
+    paired, _ = track_plan(src, window, worker=True)
     assert paired.worker_process is not None  # a worker process started
-    assert _inputs(paired, keys) == _inputs(alone, keys)
+    assert track_inputs(paired, keys) == track_inputs(alone, keys)
     sa, sp = alone.summary(), paired.summary()
     assert sa["timings"]["worker_cpu_s"] == 0.0 and sp["timings"]["worker_cpu_s"] > 0.0
     for s in (sa, sp):
@@ -102,10 +83,10 @@ def test_worker_gives_the_inputs_boxes_and_statuses_of_one_process(tmp_path, win
 def test_torch_leaves_a_core_to_the_worker_while_it_runs(tmp_path):
     """With a worker, torch runs on the usable CPUs less one (not fewer than the caller's count), restored after."""
     torch = pytest.importorskip("torch")
-    from spotlights.experiments.tracks import threads_beside_worker
+    from spotlights.completion.fusion import threads_beside_worker
 
     src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0])
-    plan, keys = _plan(src, "past:2", worker=False)
+    plan, keys = track_plan(src, "past:2", worker=False)
     before = torch.get_num_threads()
     try:
         torch.set_num_threads(usable_cpus())
@@ -130,7 +111,7 @@ def test_a_plan_dropped_without_finishing_ends_its_worker(tmp_path):
     import gc
 
     src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0])
-    plan, keys = _plan(src, "past:2", worker=False)
+    plan, keys = track_plan(src, "past:2", worker=False)
     assert plan.start_worker(keys)
     proc = plan.worker_process
     plan.frame_inputs(keys[0], plan.take(keys[0]).boxes)
@@ -146,10 +127,10 @@ def test_a_plan_dropped_without_finishing_ends_its_worker(tmp_path):
 def test_a_dying_worker_ends_the_run_with_an_error(tmp_path):
     """A worker process killed before its first result: the frame loop raises at once (no wait forever) a
     TrackWorkerDied (a ProcessFailure: one line, exit code 1 on the command line)."""
-    from spotlights.experiments.tracks import TrackWorkerDied
+    from spotlights.completion.fusion import TrackWorkerDied
 
     src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0])
-    plan, keys = _plan(src, "past:2", worker=False)
+    plan, keys = track_plan(src, "past:2", worker=False)
     w = TrackWorker.start()
     assert w is not None
     w.proc.kill()
@@ -168,7 +149,7 @@ def test_an_error_in_the_worker_is_raised_in_the_run(tmp_path):
     """A track whose frame holds points of the wrong shape: the worker's ValueError is raised by the frame loop,
     and the worker has ended."""
     src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0])
-    plan, keys = _plan(src, "past:2", worker=False)
+    plan, keys = track_plan(src, "past:2", worker=False)
     tr = next(iter(plan.tracks.values()))
     f = tr.frames[1]
     tr.frames[1] = TrackFrame(np.zeros((7, 2)), f.box, f.origin, f.timestamp)  # 14 numbers: not (N, 3)
@@ -193,8 +174,8 @@ def test_a_refused_run_leaves_no_worker_behind(tmp_path):
     is the usual one line, and the worker process has ended."""
     import multiprocessing
 
+    from spotlights.completion.frames import FramesSettings, complete_frames
     from spotlights.errors import ParameterError
-    from spotlights.experiments.frame_completion import FramesSettings, complete_frames
 
     src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0], ("a", ""))
     s = FramesSettings(source=[str(src)], format="generic", out=str(tmp_path / "out"), fuse="past:2", quiet=True)
@@ -205,7 +186,7 @@ def test_a_refused_run_leaves_no_worker_behind(tmp_path):
 
 
 def test_docs_quote_the_measured_worker_speed():
-    """docs/real-data.md's "Two cores" table quotes the medians of ``benchmarks/track_fusion.py --compare-worker``
+    """docs/studies/frame-speed.md's "Two cores" table quotes the medians of ``benchmarks/track_fusion.py --compare-worker``
     (docs/results/real/track_fusion_speed_worker_1thread_bf16.json): the frame loop's and the worker's CPU a frame
     and the wall rate, in one process and with the worker."""
     import re
@@ -214,7 +195,7 @@ def test_docs_quote_the_measured_worker_speed():
 
     med = json.loads((REPO / "docs/results/real/track_fusion_speed_worker_1thread_bf16.json").read_text())
     one, two = (med["worker_and_one_process"]["median"][k] for k in ("one_process", "worker"))
-    doc = re.sub(r"\s+", " ", (REPO / "docs/real-data.md").read_text())
+    doc = re.sub(r"\s+", " ", (REPO / "docs/studies/frame-speed.md").read_text())
     assert f"| one process, 1 torch thread | {one['cpu_ms_per_frame']:.0f} | - | {one['fps_wall']:.2f}" in doc
     want = (
         f"| with the worker, 1 torch thread | **{two['cpu_ms_per_frame']:.0f}** | {two['worker_cpu_ms_per_frame']:.0f} "
@@ -266,10 +247,10 @@ def test_real_complete_with_and_without_the_worker_writes_the_same_files(tmp_pat
 def test_the_worker_crops_each_scene_as_complete_scene_would(tmp_path):
     """With a worker, each frame's scene crops come from it: for every valid box (the refined ones in place) the
     indices of the scan points inside the box grown by 0.15 m with its bottom raised by 0.10 m, by hand."""
-    from test_track_speed import brute_force_crop
+    from builders import brute_force_crop
 
     src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0])
-    plan, keys = _plan(src, "past:2", worker=True)
+    plan, keys = track_plan(src, "past:2", worker=True)
     for key in keys:
         frame = plan.take(key)
         boxes, _ = plan.frame_inputs(key, frame.boxes)
@@ -292,7 +273,7 @@ def test_a_frame_the_loop_passes_over_counts_no_points_with_the_worker_either(tm
     src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0, 1.5])
     counts = {}
     for worker in (False, True):
-        plan, keys = _plan(src, "past:2", worker=worker)
+        plan, keys = track_plan(src, "past:2", worker=worker)
         assert (plan.worker_process is not None) == worker
         for key in keys[:2] + keys[3:]:  # frame 2 passed over
             plan.frame_inputs(key, plan.take(key).boxes)
@@ -326,9 +307,9 @@ def test_the_worker_leaves_ctrl_c_to_the_run(tmp_path):
     if not sys.platform.startswith("linux"):
         pytest.skip("reads the signal mask in /proc (Linux)")
     src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0])
-    alone, keys = _plan(src, "past:2", worker=False)
-    want = _inputs(alone, keys)
-    plan, _ = _plan(src, "past:2", worker=False)
+    alone, keys = track_plan(src, "past:2", worker=False)
+    want = track_inputs(alone, keys)
+    plan, _ = track_plan(src, "past:2", worker=False)
     w = TrackWorker.start()
     assert w is not None
     # a process just forked by the fork server ignores SIGINT for a moment, then gets its parent's handlers back:
@@ -340,7 +321,7 @@ def test_the_worker_leaves_ctrl_c_to_the_run(tmp_path):
     assert streak == 10
     os.kill(w.proc.pid, signal.SIGINT)
     assert plan.start_worker(keys, w)
-    assert _inputs(plan, keys) == want
+    assert track_inputs(plan, keys) == want
     plan.finish()
 
 
@@ -348,7 +329,7 @@ def test_the_worker_leaves_ctrl_c_to_the_run(tmp_path):
 def test_a_container_cpu_quota_bounds_the_usable_cpus(tmp_path):
     """cgroup v2 cpu.max: "100000 100000" (docker --cpus=1) is 1 CPU, "150000 100000" 2, "max 100000" no limit;
     an unreadable or malformed file is no limit."""
-    from spotlights.experiments.tracks import cgroup_cpu_limit
+    from spotlights.completion.fusion import cgroup_cpu_limit
 
     f = tmp_path / "cpu.max"
     for text, expected in (("100000 100000\n", 1), ("150000 100000\n", 2), ("50000 100000", 1), ("max 100000", None)):

@@ -18,25 +18,7 @@ from spotlights.data.tracks import (
 from spotlights.errors import ParameterError
 from spotlights.geometry.boxes import Box
 
-
-def visible_surface(box: Box, origin: np.ndarray, density: float, rng: np.random.Generator) -> np.ndarray:
-    """Points (K, 3) in the scan frame, uniform on the faces of ``box`` that face ``origin`` (a sensor there
-    sees exactly those faces of a convex box): ``density`` points per square metre."""
-    o = box.to_object(origin)
-    half = 0.5 * box.size
-    out = []
-    for axis in range(3):
-        for sign in (-1.0, 1.0):
-            if sign * o[axis] <= half[axis]:  # the sensor is not outside this face's plane: face hidden
-                continue
-            a, b = [k for k in range(3) if k != axis]
-            n = int(density * box.size[a] * box.size[b])
-            p = np.zeros((n, 3))
-            p[:, axis] = sign * half[axis]
-            p[:, a] = rng.uniform(-half[a], half[a], n)
-            p[:, b] = rng.uniform(-half[b], half[b], n)
-            out.append(p)
-    return box.from_object(np.concatenate(out))
+from builders import drive_past
 
 
 def test_cube_seen_from_two_sides_fuses_both_sides_in_the_box_frame():
@@ -117,24 +99,6 @@ def test_track_checks_gap_order_and_frame_count():
         refine_track([TrackFrame(np.zeros((20, 3)), box)])
     with pytest.raises(ParameterError, match="at least one frame"):
         fuse_track([])
-
-
-def drive_past(perturb: dict[int, tuple[float, float, float]], n: int = 7, seed: int = 0):
-    """A 4.4 x 1.8 x 1.5 m box driving past a sensor 1.8 m high (true boxes 5 m apart along x from -15 m, 6 m
-    to the left: three frames see its front, three its back, one only its side), each frame's visible faces sampled; ``perturb`` {frame: (dx, dy, dyaw)} moves the given boxes."""
-    rng = np.random.default_rng(seed)
-    origin = np.array([0.0, 0.0, 1.8])
-    frames, truth = [], []
-    for k in range(n):
-        b = Box([-15.0 + 5.0 * k, 6.0, 0.75], [4.4, 1.8, 1.5], yaw=0.05 * k)
-        pts = visible_surface(b, origin, 150.0, rng)
-        dx, dy, dyaw = perturb.get(k, (0.0, 0.0, 0.0))
-        given = b.replace(
-            center=b.center + [dx, dy, 0.0], rotation=Box([0, 0, 0], [1, 1, 1], yaw=b.yaw + dyaw).rotation
-        )
-        frames.append(TrackFrame(pts, given, origin, 0.1 * k))
-        truth.append(b)
-    return frames, truth
 
 
 def test_refinement_recovers_a_known_perturbation():

@@ -304,7 +304,7 @@ def test_bench_models_cli_json(capsys):
 
 
 def test_reads_and_trains_on_a_file_built_by_the_dataset_builder(tmp_path):
-    """Integration with issue 4's builder: its file is read, trained on and evaluated."""
+    """Integration with the dataset builder: its file is read, trained on and evaluated."""
     synthetic = pytest.importorskip("spotlights.data.synthetic")
     from learning_fixtures import make_shape
 
@@ -376,7 +376,7 @@ def test_two_checkpoints_of_one_model_are_told_apart_in_the_report():
 def test_overwrite_removes_the_old_runs_state_before_starting(data, tmp_path):
     """A fresh start with --overwrite that stops before its first save must not leave the old run's
     last.pt beside the new config (a later --resume would continue the old run); the old state goes once the
-    data and the model are found sound (a mistyped --data keeps it: tests/test_hostile_inputs_stop41.py)."""
+    data and the model are found sound (a mistyped --data keeps it: tests/test_hostile_training.py)."""
     from spotlights.learning.training_run import RUN_STATE_FILES
 
     run = tmp_path / "run"
@@ -406,5 +406,5 @@ def test_process_group_backend_follows_the_run_device_and_refuses_missing_gpus()
     assert group_backend(torch.device("cuda", 0), 0, 2) == ("nccl", 0)  # an explicit index: one process per node
     with pytest.raises(ParameterError, match="would share one GPU"):  # NCCL cannot run two ranks on one GPU
         group_backend(torch.device("cuda", 0), 1, 2, local_world=2)
-    with pytest.raises(ParameterError, match="--nproc-per-node 1"):  # 2 processes on a 1-GPU node (seen on an H100)
+    with pytest.raises(ParameterError, match="`nproc_per_node` 1"):  # 2 processes on a 1-GPU node (seen on an H100)
         group_backend(torch.device("cuda"), 1, 1)

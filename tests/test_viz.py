@@ -501,3 +501,25 @@ def test_view_without_plotly_says_how_to_install(tmp_path):
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
     assert proc.returncode == 2 and "pip install 'spotlights[viewer]'" in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1 and not (tmp_path / "v.html").exists()
+
+
+def test_the_viewer_reads_boxes_with_the_one_box_parser(tmp_path):
+    """Generic box files and a completion summary's boxes give the same boxes; a box without a heading is refused
+    as everywhere else (the one parser)."""
+    import json
+
+    from spotlights.errors import InputFileError
+    from spotlights.geometry.boxes import Box
+    from spotlights.viz.html import read_boxes_json
+
+    box = Box([1.0, 2.0, 0.5], [4.2, 1.8, 1.5], yaw=0.3, label="car", track_id="7")
+    (tmp_path / "summary.json").write_text(json.dumps({"objects": [{"object": 7, "box": box.to_dict()}]}))
+    generic = [{"center": [1.0, 2.0, 0.5], "size": [4.2, 1.8, 1.5], "yaw": 0.3, "label": "car"}]
+    (tmp_path / "boxes.json").write_text(json.dumps(generic))
+    (a,), (b,) = read_boxes_json(tmp_path / "summary.json"), read_boxes_json(tmp_path / "boxes.json")
+    np.testing.assert_allclose(a.corners(), box.corners(), atol=1e-9)
+    np.testing.assert_allclose(b.corners(), box.corners(), atol=1e-9)
+    assert (a.label, b.label) == ("7", "car")
+    (tmp_path / "bad.json").write_text(json.dumps([{"center": [0, 0, 0], "size": [4, 2, 1.5]}]))
+    with pytest.raises(InputFileError, match="needs 'yaw' or 'rotation'"):
+        read_boxes_json(tmp_path / "bad.json")

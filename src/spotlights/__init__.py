@@ -7,12 +7,13 @@ The public API (``docs/api.md``)::
     depths = spotlights.encode_mesh(spotlights.load_mesh(path), rig)
     points, hit = spotlights.decode(depths, rig)
     result = spotlights.complete_frame(scan_points, boxes)        # every vehicle of a LiDAR frame
+    result.save("out/frame.ply")                                  # the PLY and JSON ``spotlights complete`` writes
     for frame in spotlights.read_frames(folder, format="kitti"): ...
 
 ``import spotlights`` imports numpy only: every name is loaded from its home module on first use
 (PEP 562 ``__getattr__``; the table in :mod:`spotlights.api`). Layers (imports point down only)::
 
-    cli -> experiments -> learning -> viz -> data / analysis -> metrics -> geometry
+    cli -> experiments -> completion -> tracking -> learning -> viz -> data / analysis -> metrics -> geometry
 
 ``spotlights.geometry`` (rig, normalisation, ray casting, encoding, I/O) needs only
 numpy/scipy/trimesh/embreex; torch is imported only by ``spotlights.learning``.
@@ -21,50 +22,75 @@ numpy/scipy/trimesh/embreex; torch is imported only by ``spotlights.learning``.
 from __future__ import annotations
 
 import importlib
+import logging
 from typing import TYPE_CHECKING, Any
 
 from ._version import __version__
 
 if TYPE_CHECKING:  # the names as type checkers and IDEs see them
     from .api import (
+        BaseCompleter,
         Box,
+        Frame,
+        ObjectResult,
+        SceneConfig,
         SceneResult,
         complete,
         complete_frame,
         decode,
         encode_mesh,
+        load_box,
         load_completer,
         load_mesh,
+        load_points,
         make_rig,
         read_frames,
+        save_points,
     )
 
-#: public name -> the module that defines it (imported on first use)
+logging.getLogger("spotlights").addHandler(logging.NullHandler())  # silent unless the application configures it
+
+#: public name -> the module that defines it (imported on first use); the one list of public names
 _HOMES = {
     "Box": "spotlights.geometry.boxes",
+    "load_box": "spotlights.geometry.boxes",
     "make_rig": "spotlights.geometry.rig",
     "load_mesh": "spotlights.geometry.io",
+    "load_points": "spotlights.geometry.io",
+    "save_points": "spotlights.geometry.io",
     "encode_mesh": "spotlights.geometry.encode",
     "decode": "spotlights.geometry.encode",
+    "Frame": "spotlights.data.real.base",
+    "read_frames": "spotlights.api",
+    "BaseCompleter": "spotlights.learning.inference",
     "load_completer": "spotlights.learning.runtime",
+    "SceneConfig": "spotlights.completion.config",
+    "ObjectResult": "spotlights.completion.results",
+    "SceneResult": "spotlights.completion.results",
     "complete": "spotlights.api",
     "complete_frame": "spotlights.api",
-    "SceneResult": "spotlights.experiments.scene",
-    "read_frames": "spotlights.api",
 }
 
+#: the same names as :data:`_HOMES` (tests/test_api.py checks it)
 __all__ = [
     "__version__",
     "Box",
+    "load_box",
+    "make_rig",
+    "load_mesh",
+    "load_points",
+    "save_points",
+    "encode_mesh",
+    "decode",
+    "Frame",
+    "read_frames",
+    "BaseCompleter",
+    "load_completer",
+    "SceneConfig",
+    "ObjectResult",
     "SceneResult",
     "complete",
     "complete_frame",
-    "decode",
-    "encode_mesh",
-    "load_completer",
-    "load_mesh",
-    "make_rig",
-    "read_frames",
 ]
 
 

@@ -3,26 +3,34 @@
 ``import spotlights`` is light (numpy only): each name below is imported from its home module on
 first use (PEP 562, ``spotlights.__getattr__``). Examples of every name: ``docs/api.md``.
 
-=================  ============================================================================
-name               home
-=================  ============================================================================
-``Box``            :class:`spotlights.geometry.boxes.Box` (the one oriented box)
-``make_rig``       :func:`spotlights.geometry.rig.make_rig` (the paper's cap rig, box rigs)
-``load_mesh``      :func:`spotlights.geometry.io.load_mesh` (a mesh in the object frame)
-``encode_mesh``    :func:`spotlights.geometry.encode.encode_mesh` (mesh + rig -> depths)
-``decode``         :func:`spotlights.geometry.encode.decode` (depths + rig -> points)
-``load_completer`` :func:`spotlights.learning.runtime.load_completer` (torch or onnx runtime)
-``complete``       :func:`complete` (one object in its box)
-``complete_frame`` :func:`complete_frame` (every vehicle of a frame: ``experiments.scene.complete_scene``)
-``SceneResult``    :class:`spotlights.experiments.scene.SceneResult` (what ``complete_frame`` returns)
-``read_frames``    :func:`read_frames` (LiDAR frames with their boxes, any supported format)
-=================  ============================================================================
+==================  ===========================================================================
+name                home
+==================  ===========================================================================
+``Box``             :class:`spotlights.geometry.boxes.Box` (the one oriented box; ``load_box`` reads a box file)
+``make_rig``        :func:`spotlights.geometry.rig.make_rig` (the paper's cap rig, box rigs)
+``load_mesh``       :func:`spotlights.geometry.io.load_mesh` (a mesh in the object frame)
+``load_points``     :func:`spotlights.geometry.io.load_points` (a point file: PLY, PCD, XYZ, NPY, ...)
+``save_points``     :func:`spotlights.geometry.io.save_points` (points to a file, by suffix)
+``encode_mesh``     :func:`spotlights.geometry.encode.encode_mesh` (mesh + rig -> depths)
+``decode``          :func:`spotlights.geometry.encode.decode` (depths + rig -> points)
+``Frame``           :class:`spotlights.data.real.base.Frame` (a LiDAR frame with its boxes)
+``read_frames``     :func:`read_frames` (LiDAR frames with their boxes, any supported format)
+``load_completer``  :func:`spotlights.learning.runtime.load_completer` (torch or onnx runtime)
+``BaseCompleter``   :class:`spotlights.learning.inference.BaseCompleter` (what ``load_completer`` returns)
+``SceneConfig``     :class:`spotlights.completion.config.SceneConfig` (the options of a frame's completion)
+``complete``        :func:`complete` (one object in its box)
+``complete_frame``  :func:`complete_frame` (every vehicle of a frame: ``completion.frame.complete_scene``)
+``SceneResult``     :class:`spotlights.completion.results.SceneResult` (what ``complete_frame`` returns;
+                    ``save(path)`` writes the PLY and JSON ``spotlights complete`` writes)
+``ObjectResult``    :class:`spotlights.completion.results.ObjectResult` (one box's outcome)
+==================  ===========================================================================
 """
 
 from __future__ import annotations
 
 import dataclasses
 import difflib
+import logging
 import os
 import threading
 from collections.abc import Iterator, Sequence
@@ -30,32 +38,39 @@ from typing import Any
 
 import numpy as np
 
+from .completion.frame import ObjectResult, SceneConfig, SceneResult, complete_scene
+from .completion.scan import AUTO_FALLBACK, resolve_fallback
 from .data.real import FORMATS, open_reader
 from .data.real.base import Frame
 from .errors import ParameterError
-from .experiments.scan_completion import AUTO_FALLBACK, resolve_fallback
-from .experiments.scene import ObjectResult, SceneConfig, SceneResult, complete_scene
-from .geometry.boxes import Box
+from .geometry.boxes import Box, load_box
 from .geometry.encode import decode, encode_mesh
-from .geometry.io import load_mesh
+from .geometry.io import load_mesh, load_points, save_points
 from .geometry.rig import make_rig
 from .learning.checkpoint import PRETRAINED
+from .learning.inference import BaseCompleter
 from .learning.runtime import load_completer
+
+LOG = logging.getLogger(__name__)
+
+CompleterLike = BaseCompleter | str | os.PathLike | None
+"""A model as the API takes it: loaded (:func:`load_completer`), or its name or file (``"default"``, ``"classes"``,
+``"paper"``, ``model.pt``, ``model.onnx``); None: the default (for a fallback: none)."""
 
 
 def complete_frame(
     points: np.ndarray,
     boxes: Sequence[Box],
-    completer: Any = "default",
+    completer: CompleterLike = "default",
     config: SceneConfig | None = None,
     *,
     axes: np.ndarray | None = None,
     checkpoint: str | None = None,
-    fallback: Any = AUTO_FALLBACK,
+    fallback: CompleterLike = AUTO_FALLBACK,
     sensor: np.ndarray | None = None,
     **options: Any,
 ) -> SceneResult:
-    """Complete every vehicle of one LiDAR frame: :func:`~spotlights.experiments.scene.complete_scene` (what
+    """Complete every vehicle of one LiDAR frame: :func:`~spotlights.completion.frame.complete_scene` (what
     ``spotlights complete`` and ``real complete`` run) with the model given by name or object and the options
     as keywords.
 
@@ -68,20 +83,20 @@ def complete_frame(
         name or file (``"default"``, ``"paper"``, ``"classes"``, ``model.pt``, ``model.onnx``) loaded on the CPU/GPU with
         the runtime its suffix implies, on the first call only (a model given by name, and the fallback, are kept
         for the next calls: :data:`NAMED_MODELS_KEPT`; a file that changed is loaded again).
-    config : a :class:`~spotlights.experiments.scene.SceneConfig`; or give its fields as keyword ``options`` (``margin=0.2``,
+    config : a :class:`~spotlights.completion.frame.SceneConfig`; or give its fields as keyword ``options`` (``margin=0.2``,
         ``heading_check=True``, ...), not both.
     axes : optional (3, 3) rotation scan coordinates -> object convention (x forward, y left, z up).
     checkpoint : the model's name for the result's summary (default: ``completer`` when it is a name).
     fallback : a second model (loaded, or a name such as ``"classes"``) for the boxes ``completer`` did not learn
         but it did (``ObjectResult.completed_by`` names it); ``"auto"`` (default): the packaged class model
         ``"classes"`` when ``completer`` is the name ``"default"`` (or None), else none
-        (:func:`~spotlights.experiments.scan_completion.resolve_fallback`, as ``--fallback``); ``"none"`` or None:
+        (:func:`~spotlights.completion.scan.resolve_fallback`, as ``--fallback``); ``"none"`` or None:
         such boxes are left as observed points.
     sensor : (3,) the LiDAR's position in the scan's frame, metres (default: the scan's origin, as in a sensor-frame
         scan): the free space of the ray-local model and the ``snap`` option's occlusion rule.
 
-    Returns a :class:`~spotlights.experiments.scene.SceneResult` (scan frame, metres): ``xyz``, ``source`` and
-    ``object`` per point, one :class:`~spotlights.experiments.scene.ObjectResult` per box. Raises :class:`~spotlights.errors.ParameterError` for
+    Returns a :class:`~spotlights.completion.frame.SceneResult` (scan frame, metres): ``xyz``, ``source`` and
+    ``object`` per point, one :class:`~spotlights.completion.frame.ObjectResult` per box. Raises :class:`~spotlights.errors.ParameterError` for
     unknown options or a scan with fewer than ``min_points`` points.
     """
     config = _scene_config(config, options)
@@ -91,8 +106,8 @@ def complete_frame(
         fallback = resolve_fallback(
             None if fallback is None else str(fallback), str(completer or "default") if by_name else ""
         )
-    if by_name:
-        name = "default" if completer is None else os.fspath(completer)
+    if completer is None or isinstance(completer, (str, os.PathLike)):
+        name = "default" if completer is None else str(os.fspath(completer))
         completer = _named_completer(name)
         checkpoint = name if checkpoint is None else checkpoint
     fallback_name = None
@@ -112,7 +127,7 @@ def complete_frame(
 
 
 #: models that :func:`complete_frame` and :func:`complete` loaded by name, kept for the next call
-_NAMED: dict[tuple, Any] = {}
+_NAMED: dict[tuple, BaseCompleter] = {}
 _NAMED_LOCK = threading.Lock()
 NAMED_MODELS_KEPT = 4
 """At most this many models given by name are kept (the least recently used is dropped first)."""
@@ -128,7 +143,7 @@ if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_new_named_lock_after_fork)
 
 
-def _named_completer(name: str) -> Any:
+def _named_completer(name: str) -> BaseCompleter:
     """The model ``name`` (a packaged name or a checkpoint/ONNX file) as :func:`load_completer` loads it, loaded once
     and kept for later calls (a frame loop of ``complete_frame(points, boxes)`` loaded the default and the class
     model on every call: 0.14 s a nuScenes frame against 0.08 s with models loaded once). A file is loaded again
@@ -147,6 +162,7 @@ def _named_completer(name: str) -> Any:
             for old in [k for k in _NAMED if k[0] == key[0]]:  # an older version of the same file
                 del _NAMED[old]
             model = load_completer(name)
+            LOG.info("loaded the model %s (%s)", name, getattr(model, "device", "?"))
         _NAMED[key] = model  # the most recently used last
         while len(_NAMED) > NAMED_MODELS_KEPT:
             _NAMED.pop(next(iter(_NAMED)))
@@ -156,10 +172,10 @@ def _named_completer(name: str) -> Any:
 def complete(
     points: np.ndarray,
     box: Box,
-    completer: Any = "default",
+    completer: CompleterLike = "default",
     *,
     axes: np.ndarray | None = None,
-    fallback: Any = AUTO_FALLBACK,
+    fallback: CompleterLike = AUTO_FALLBACK,
     **options: Any,
 ) -> ObjectResult:
     """Complete one object: the points of ``points`` (N, 3) inside ``box`` (scan frame, metres; grown by
@@ -168,7 +184,7 @@ def complete(
 
     ``completer``, ``fallback`` (``"auto"``: the packaged class model completes a van, truck, bus or trailer beside
     the default model; ``"none"``: no second model) and ``options`` (the fields of
-    :class:`~spotlights.experiments.scene.SceneConfig`) as in :func:`complete_frame`. Returns the box's :class:`~spotlights.experiments.scene.ObjectResult`: ``completion`` (K, 3) float64 in the scan's frame,
+    :class:`~spotlights.completion.frame.SceneConfig`) as in :func:`complete_frame`. Returns the box's :class:`~spotlights.completion.frame.ObjectResult`: ``completion`` (K, 3) float64 in the scan's frame,
     ``completion_unit`` (K, 3) float32 in the box's unit frame, ``partial_unit`` (256, 3) float32 (the
     model's input), ``input_indices`` (the scan rows used). Raises
     :class:`~spotlights.errors.ParameterError` when the box is invalid, holds fewer than ``min_points``
@@ -194,7 +210,7 @@ def complete(
 
 
 def _scene_config(config: SceneConfig | None, options: dict) -> SceneConfig:
-    """``config``, or a :class:`~spotlights.experiments.scene.SceneConfig` of the keyword ``options`` (unknown
+    """``config``, or a :class:`~spotlights.completion.frame.SceneConfig` of the keyword ``options`` (unknown
     names: an error naming the nearest)."""
     if config is not None:
         if options:
@@ -236,6 +252,8 @@ def read_frames(
 __all__ = [
     "FORMATS",
     "Box",
+    "BaseCompleter",
+    "CompleterLike",
     "Frame",
     "ObjectResult",
     "SceneConfig",
@@ -244,8 +262,11 @@ __all__ = [
     "complete_frame",
     "decode",
     "encode_mesh",
+    "load_box",
     "load_completer",
     "load_mesh",
+    "load_points",
     "make_rig",
     "read_frames",
+    "save_points",
 ]

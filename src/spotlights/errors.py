@@ -39,7 +39,31 @@ class InputFileError(SpotlightsError):
 
 
 class ParameterError(SpotlightsError, ValueError):
-    """An invalid parameter value (e.g. a rig with N < 1)."""
+    """An invalid parameter value (e.g. a rig with N < 1).
+
+    The message names the library's parameters (``heading_margin``); ``parameters`` lists the ones it names, so
+    that the command line can write them as its options instead (``--heading-margin``:
+    :func:`spotlights.cli.option_names`)."""
+
+    def __init__(self, message: str, *parameters: str):
+        self.parameters = parameters
+        super().__init__(message)
+
+    def __reduce__(self):  # picklable with its parameters (worker pools, Ray)
+        return (type(self), (str(self), *self.parameters))
+
+
+def shown(label: str) -> str:
+    """A parameter's name as a message shows it: ```threads``` (the command line writes its option there,
+    ``--threads``); any other label (``"train.seed"``, ``"the seed"``) as it is."""
+    return f"`{label}`" if label.isidentifier() else label
+
+
+def parameter_names(*labels: str) -> tuple[str, ...]:
+    """The labels that are Python parameter names (``"threads"``, ``"batch_size"``), for
+    :attr:`ParameterError.parameters`; option spellings (``"--seed"``) and descriptions (``"train.seed"``, ``"the
+    seed"``) are left out (they are shown as written)."""
+    return tuple(x for x in labels if x.isidentifier())
 
 
 class OutputFileError(SpotlightsError):

@@ -15,7 +15,7 @@ import os
 from collections.abc import Callable
 from typing import Any
 
-from .errors import ParameterError
+from .errors import ParameterError, parameter_names, shown
 
 REQUIRED: Any = dataclasses.MISSING
 """The default of an :func:`option` the command line must give (argparse ``required=True``)."""
@@ -75,7 +75,7 @@ More is no speed-up, and OpenMP fails to start (or segfaults) at tens of thousan
 _THREADS_EXPECTED = f"a whole number of threads in 1..{MAX_THREADS} (the bound: 4 per CPU, at least 64)"
 
 
-def check_threads(threads: Any, option: str = "--threads") -> int | None:
+def check_threads(threads: Any, option: str = "threads") -> int | None:
     """``threads`` as an int (None stays None: the default count), or a one-line :class:`ParameterError` naming
     ``option`` when it is not a whole number in 1..:data:`MAX_THREADS` (the one bound of every thread count)."""
     if threads is None:
@@ -86,7 +86,9 @@ def check_threads(threads: Any, option: str = "--threads") -> int | None:
     except (TypeError, ValueError, OverflowError):
         whole = False
     if not whole or not 1 <= n <= MAX_THREADS:
-        raise ParameterError(f"{option}: expected {_THREADS_EXPECTED}, got {threads!r}")
+        raise ParameterError(
+            f"{shown(option)}: expected {_THREADS_EXPECTED}, got {threads!r}", *parameter_names(option)
+        )
     return n
 
 
@@ -105,7 +107,7 @@ in torch). 0..2**63-1 is every seed NumPy, torch and HDF5 all accept."""
 _SEED_EXPECTED = "a whole number in 0..2**63-1"
 
 
-def check_seed(seed: Any, what: str = "--seed") -> int:
+def check_seed(seed: Any, what: str = "seed") -> int:
     """``seed`` as an int, or a one-line :class:`ParameterError` naming ``what`` when it is not a whole number in
     0..:data:`MAX_SEED` (the one bound of every seed)."""
     whole = isinstance(seed, int) and not isinstance(seed, bool)
@@ -114,7 +116,7 @@ def check_seed(seed: Any, what: str = "--seed") -> int:
     elif not whole and isinstance(seed, float) and seed.is_integer():  # 3.0 from a JSON or YAML config
         seed, whole = int(seed), True
     if not whole or not 0 <= seed <= MAX_SEED:
-        raise ParameterError(f"{what} must be {_SEED_EXPECTED}, got {seed!r}")
+        raise ParameterError(f"{shown(what)} must be {_SEED_EXPECTED}, got {seed!r}", *parameter_names(what))
     return int(seed)
 
 
@@ -134,7 +136,7 @@ batch_size_number = number_type(int, lambda v: 1 <= v <= MAX_BATCH, f"a batch si
 """argparse type: a batch size, 1..:data:`MAX_BATCH`."""
 
 
-def check_batch_size(value: Any, what: str = "--batch-size") -> int:
+def check_batch_size(value: Any, what: str = "batch_size") -> int:
     """``value`` as an int, or a one-line :class:`ParameterError` naming ``what`` when it is not a whole number in
     1..:data:`MAX_BATCH` (the one bound of every batch size)."""
     whole = isinstance(value, int) and not isinstance(value, bool)
@@ -142,8 +144,9 @@ def check_batch_size(value: Any, what: str = "--batch-size") -> int:
         value, whole = int(value), True
     if not whole or not 1 <= value <= MAX_BATCH:
         raise ParameterError(
-            f"{what} must be a whole number in 1..{MAX_BATCH} (batch sizes are bounded: memory "
-            f"grows with them), got {value!r}"
+            f"{shown(what)} must be a whole number in 1..{MAX_BATCH} (batch sizes are bounded: memory "
+            f"grows with them), got {value!r}",
+            *parameter_names(what),
         )
     return int(value)
 
@@ -188,3 +191,37 @@ crop_metres = number_type(
     float, lambda v: -MAX_CROP_M <= v <= MAX_CROP_M, f"a number of metres in [-{MAX_CROP_M:g}, {MAX_CROP_M:g}]"
 )
 """argparse type: a crop margin or ground clearance, metres in [-:data:`MAX_CROP_M`, :data:`MAX_CROP_M`]."""
+
+
+# ---------------------------------------------------------------------------- error messages as the CLI shows them
+
+
+def option_names(exc: Exception, parser: argparse.ArgumentParser) -> str:
+    """The error's message with the library parameters it names (:attr:`ParameterError.parameters`, shown as
+    ```heading_margin```: :func:`spotlights.errors.shown`) written as the command line's options:
+    ``--heading-margin`` (the option whose ``dest`` it is, in any command; else the name with dashes)."""
+    message = str(exc)
+    names = getattr(exc, "parameters", ())
+    if not names:
+        return message
+    options = _options_by_dest(parser)
+    for name in sorted(names, key=len, reverse=True):
+        dashed = "--" + name.replace("_", "-")
+        flags = options.get(name, [])
+        flag = dashed if dashed in flags or not flags else flags[0]
+        message = message.replace(f"`{name}`", flag)
+    return message
+
+
+def _options_by_dest(parser: argparse.ArgumentParser) -> dict[str, list[str]]:
+    """``{dest: its long options}`` over a parser and all its sub-commands."""
+    out: dict[str, list[str]] = {}
+    for action in parser._actions:  # noqa: SLF001 - argparse has no public walk of its actions
+        for flag in (o for o in action.option_strings if o.startswith("--")):
+            if flag not in out.setdefault(action.dest, []):
+                out[action.dest].append(flag)
+        if isinstance(action, argparse._SubParsersAction):  # noqa: SLF001
+            for sub in action.choices.values():
+                for dest, flags in _options_by_dest(sub).items():
+                    out.setdefault(dest, []).extend(f for f in flags if f not in out[dest])
+    return out

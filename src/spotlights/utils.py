@@ -20,7 +20,15 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import TypeVar
 
-from .errors import InputFileError, OutputFileError, ParameterError, ProcessFailure, SpotlightsError
+from .errors import (
+    InputFileError,
+    OutputFileError,
+    ParameterError,
+    ProcessFailure,
+    SpotlightsError,
+    parameter_names,
+    shown,
+)
 
 _T = TypeVar("_T")
 
@@ -293,7 +301,7 @@ def check_writable(*paths: str | os.PathLike | None) -> None:
             raise OutputFileError(p, f"cannot write ({os_error_reason(exc)})") from None
 
 
-def check_suffix(path: str | os.PathLike | None, suffixes: tuple[str, ...], what: str, option: str = "--out") -> None:
+def check_suffix(path: str | os.PathLike | None, suffixes: tuple[str, ...], what: str, option: str = "out") -> None:
     """Refuse an output whose extension would not match what is written: a :class:`ParameterError` naming
     ``option`` and ``path`` (None is skipped). ``suffixes``: the accepted lower-case extensions, e.g.
     ``(".h5", ".hdf5")``; ``what``: the kind of file, e.g. ``"the picture"``."""
@@ -301,9 +309,10 @@ def check_suffix(path: str | os.PathLike | None, suffixes: tuple[str, ...], what
         return
     suffix = Path(path).suffix.lower()
     if suffix not in suffixes:
-        shown = " or ".join(suffixes)
+        kinds = " or ".join(suffixes)
         raise ParameterError(
-            f"{option} {path}: {what} is written as {shown}; name it {Path(path).stem or 'FILE'}{suffixes[0]}"
+            f"{shown(option)} {path}: {what} is written as {kinds}; name it {Path(path).stem or 'FILE'}{suffixes[0]}",
+            *parameter_names(option),
         )
 
 

@@ -15,9 +15,10 @@ import argparse
 import importlib
 import sys
 
+from .. import logs
 from .._version import __version__
 from ..errors import SpotlightsError
-from ..options import join_axis_values
+from ..options import join_axis_values, option_names
 from ..utils import os_error_reason, sigint_held
 
 # One line per command group; a new group is one module and one line here.
@@ -77,6 +78,13 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"spotlights {__version__}")
+    parser.add_argument(
+        "-v",
+        "--verbose",
+        action="count",
+        default=0,
+        help="log what the library does on stderr (-v: info lines, -vv: debug); by default warnings only",
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(sub)
@@ -125,11 +133,13 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with contextlib.ExitStack() as stack:
             args = _with_config_file(parser, args, argv)
+            verbosity = -1 if getattr(args, "quiet", False) else args.verbose
+            stack.callback(logs.LOGGER.removeHandler, logs.configure(verbosity))
             if getattr(args, "quiet", False):
                 stack.enter_context(contextlib.redirect_stdout(stack.enter_context(open(os.devnull, "w"))))
             return int(args.func(args) or 0)
     except SpotlightsError as exc:
-        print(f"spotlights: error: {exc}", file=sys.stderr)
+        print(f"spotlights: error: {option_names(exc, parser)}", file=sys.stderr)
         return exc.exit_code
     except Terminated:
         print("spotlights: terminated", file=sys.stderr)

@@ -106,6 +106,6 @@ def _density(args) -> int:
 
     cfg.validate()  # bad parameters fail before the folder is made
     with output_folder(args.out):  # removed again if the analysis fails before writing anything
-        summary, timings = run_density_analysis(args.out, cfg, progress=not args.quiet)
+        summary, timings = run_density_analysis(args.out, cfg, progress=not args.quiet, log=print)
     print("\n".join(density_summary_lines(summary, timings, cfg, args.out)))
     return 0

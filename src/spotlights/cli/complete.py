@@ -6,10 +6,10 @@ import argparse
 import math
 import sys
 
+from ..completion.frames import complete_input
+from ..completion.scan import ScanSettings
 from ..data.tracks import MAX_GAP_S, MAX_TRANSLATION_M, MAX_YAW_RAD, WINDOW_HELP, parse_window
 from ..errors import ParameterError
-from ..experiments.frame_completion import complete_input
-from ..experiments.scan_completion import ScanSettings
 from ..utils import settings_from_namespace
 from ._util import (
     DEVICE_HELP,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ..experiments.files import (
+from ..files import (
     DecodeSettings,
     EncodeSettings,
     ShowSettings,

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ..experiments.demo import run_demo
+from ..completion.demo import run_demo
 from ..utils import output_folder
 from ._util import add_command
 
@@ -22,5 +22,5 @@ def _demo(args) -> int:
     from pathlib import Path
 
     with output_folder(args.out) as out:  # removed again if the demo fails before writing anything
-        run_demo(Path(out))
+        run_demo(Path(out), log=print)
     return 0

@@ -148,7 +148,7 @@ def _train(args) -> int:
 
 
 def _evaluate(args) -> int:
-    run_evaluation(settings_of(EvaluateSettings, args))
+    run_evaluation(settings_of(EvaluateSettings, args), log=print)
     return 0
 
 
@@ -163,11 +163,11 @@ def _export(args) -> int:
     from pathlib import Path
 
     check_suffix(Path(args.out), (".onnx",), "an ONNX model")
-    export_model(args.checkpoint, args.out, args.opset, describe=not args.quiet, check=not args.no_check)
+    export_model(args.checkpoint, args.out, args.opset, describe=not args.quiet, check=not args.no_check, log=print)
     return 0
 
 
 def _bench_models(args) -> int:
     check_suffix(args.out, (".json",), "the result (JSON)")
-    run_bench(settings_of(BenchSettings, args))
+    run_bench(settings_of(BenchSettings, args), log=print)
     return 0

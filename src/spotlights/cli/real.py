@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from ..completion.frame import HEADING_MARGIN
+from ..completion.frames import FramesSettings, complete_frames, parse_frames, parse_frames_range
 from ..data.store import MAX_PARTIAL_POINTS
-from ..experiments.frame_completion import FramesSettings, complete_frames, parse_frames, parse_frames_range
 from ..experiments.real_runs import (
     EvaluateSettings,
     ExtractSettings,
@@ -12,7 +13,6 @@ from ..experiments.real_runs import (
     extract_file,
     show_file,
 )
-from ..experiments.scene import HEADING_MARGIN
 from ..utils import settings_from_namespace
 from ._util import (
     DEVICE_HELP,

@@ -61,7 +61,9 @@ def pick_sample(ds: CompletionDataset, split: str, index: int) -> int:
     out of range, naming ``--index``)."""
     idx = ds.split_indices(split)
     if not (0 <= index < len(idx)):
-        raise ParameterError(f"{ds.path}: split {split!r} has {len(idx)} samples; --index {index} is out of range")
+        raise ParameterError(
+            f"{ds.path}: split {split!r} has {len(idx)} samples; `index` {index} is out of range", "index"
+        )
     return int(idx[index])
 
 

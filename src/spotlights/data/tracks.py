@@ -258,7 +258,8 @@ def check_track(
             )
         raise ParameterError(
             f"{name} has a gap of {d[i]:.3g} s between its frames {i} and {i + 1} (limit {max_gap_s:g} s): "
-            "the object is not tracked across it; raise the limit (--max-gap) or split the track"
+            "the object is not tracked across it; raise the limit (`max_gap`) or split the track",
+            "max_gap",
         )
 
 
@@ -602,7 +603,7 @@ class TrackRefiner:
     def upto(self, t: int, progress: Callable[[], None] | None = None) -> None:
         """Make the boxes of frames ``0..t`` final (causal: register the frames up to ``t`` not yet registered;
         otherwise: refine the whole track, once). ``progress``: called after each frame's registration (the track
-        worker's sign of life, :class:`spotlights.experiments.tracks.TrackWorker`)."""
+        worker's sign of life, :class:`spotlights.completion.fusion.TrackWorker`)."""
         n = len(self.frames)
         if t <= self.done:
             return

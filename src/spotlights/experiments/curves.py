@@ -156,7 +156,7 @@ def learning_curves(
     if len(names) != len(runs):
         raise ParameterError(f"{len(names)} names for {len(runs)} runs")
     if len(set(names)) != len(names):
-        raise ParameterError(f"run names must differ: {', '.join(names)} (give --names)")
+        raise ParameterError(f"run names must differ: {', '.join(names)} (give `names`)", "names")
     logs = {n: read_log(r) for n, r in zip(names, runs)}
     total_steps = {n: _total_steps(r, logs[n]) for n, r in zip(names, runs)}
     summary: dict = {"tail": tail, "tolerance": tolerance, "budget_minutes": budget_minutes, "runs": {}}

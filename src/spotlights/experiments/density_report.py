@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import logs
 from ..analysis import density as dens
 from ..analysis.montecarlo import DiscPlacement, mc_density
 from ..errors import ParameterError
@@ -80,25 +81,27 @@ class DensityConfig:
         if len(set(float(a) for a in self.angles)) != len(self.angles):
             raise ParameterError("cap angles must be distinct")
         if not (MIN_R_STEP <= self.r_step <= 0.5):
-            raise ParameterError(f"--r-step must be in [{MIN_R_STEP:g}, 0.5], got {self.r_step:g}")
+            raise ParameterError(f"`r_step` must be in [{MIN_R_STEP:g}, 0.5], got {self.r_step:g}", "r_step")
         if not (MIN_ALPHA_STEP_DEG <= self.alpha_step_deg <= 90.0):
             raise ParameterError(
-                f"--alpha-step must be in [{MIN_ALPHA_STEP_DEG:g}, 90] degrees, got {self.alpha_step_deg:g}"
+                f"`alpha_step` must be in [{MIN_ALPHA_STEP_DEG:g}, 90] degrees, got {self.alpha_step_deg:g}",
+                "alpha_step",
             )
         n, m = self.mc_primary, self.mc_secondary
         if not (1 <= n and 1 <= m and n * m <= MAX_MC_RAYS):  # the rig is made (hit ratios) even without mc
             raise ParameterError(
-                f"--mc-rays N M: the Monte-Carlo rig needs N, M >= 1 and N x M <= {MAX_MC_RAYS}, got {n} {m}"
+                f"`mc_rays` N M: the Monte-Carlo rig needs N, M >= 1 and N x M <= {MAX_MC_RAYS}, got {n} {m}", "mc_rays"
             )
         if not (0.0 < self.r_limit < 1.0):
             raise ParameterError(f"r_limit must be in (0, 1), got {self.r_limit:g}")
         if self.mc:
             if not 2 <= self.mc_rotations <= MAX_ROTATIONS:
                 raise ParameterError(
-                    f"--rotations must be in 2..{MAX_ROTATIONS} (at least 2 to estimate the Monte-Carlo error), "
-                    f"got {self.mc_rotations}"
+                    f"`rotations` must be in 2..{MAX_ROTATIONS} (at least 2 to estimate the Monte-Carlo error), "
+                    f"got {self.mc_rotations}",
+                    "rotations",
                 )
-            check_seed(self.seed, "--seed")
+            check_seed(self.seed)
             if not (0.0 < self.disc_radius < 0.1):
                 raise ParameterError("disc radius must be in (0, 0.1) so that a disc at r = 0.9 fits in the sphere")
 
@@ -230,7 +233,7 @@ def _mc_stats(results) -> dict:
 
 
 def run_density_analysis(
-    out_dir: str | os.PathLike, config: DensityConfig | None = None, progress: bool = True, log=print
+    out_dir: str | os.PathLike, config: DensityConfig | None = None, progress: bool = True, log=logs.info
 ) -> tuple[dict, dict]:
     """Compute, check and draw the ray density of Spotlights rigs; write everything under ``out_dir``.
 

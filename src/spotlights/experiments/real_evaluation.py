@@ -37,7 +37,7 @@ them) the report holds, per model:
 - **heading flips**: each observation also completed with its box turned by 180 degrees
   (the partial input rotated about the box's up axis); a flip is counted when that
   completion is clearly closer to the observed points (fidelity lower by more than the
-  margin of :func:`spotlights.experiments.scene.heading_turns`) - what
+  margin of :func:`spotlights.completion.frame.heading_turns`) - what
   ``spotlights complete --heading-check`` would do - and, separately, when it is closer at
   all. On annotated boxes every flip is a false alarm of the check.
 - **out-of-domain boxes**: observations whose class or box size is outside what the
@@ -56,6 +56,7 @@ from typing import Any
 import numpy as np
 
 from .._version import __version__
+from ..completion.frame import HEADING_MARGIN, heading_turns, snap_options
 from ..data.real.base import CLASSES
 from ..data.real.extract import Observations, read_observations
 from ..data.store import open_dataset
@@ -80,7 +81,6 @@ from ..metrics.consistency import (
 )
 from ..utils import settings_from_dict
 from .real_report import report_markdown, write_report, write_report_json
-from .scene import HEADING_MARGIN, heading_turns, snap_options
 
 __all__ = [
     "EQUAL_DENSITY",
@@ -271,7 +271,7 @@ class RealEvaluationSettings:
     noise_floor : also complete each observation resampled with a second seed (needs the raw
         points of a format-2 file; older files report no floor).
     heading_check : also complete each observation with its box turned around and count flips.
-    heading_margin : margin of the counted heading flips (:func:`~spotlights.experiments.scene.heading_turns`),
+    heading_margin : margin of the counted heading flips (:func:`~spotlights.completion.frame.heading_turns`),
         in [0, 1).
     batch_size : observations per ``complete`` call.
     snap : > 0: the SA-Nets' rays snapped to each observation's input points within this radius (unit frame;
@@ -297,8 +297,10 @@ class RealEvaluationSettings:
         object.__setattr__(self, "snap", snap_radius(self.snap, self.snap_mirror) or 0.0)  # None (off): 0.0
         if self.snap > 0 and self.heading_check:
             raise ParameterError(
-                "--snap does not go with the heading check (add --no-heading-check): the flips are counted by "
-                "fidelity, which snapping puts near 0 for both headings"
+                "`snap` does not go with the heading check (add `no_heading_check`): the flips are counted by "
+                "fidelity, which snapping puts near 0 for both headings",
+                "snap",
+                "no_heading_check",
             )
 
     @classmethod

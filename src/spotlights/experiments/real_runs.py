@@ -19,6 +19,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from .. import logs
+from ..completion.frame import HEADING_MARGIN
+from ..completion.frames import ReaderOptions, file_stem
+from ..completion.scan import Say, parse_classes
 from ..data.real.base import CLASSES
 from ..data.real.extract import ExtractConfig, Observations, extract, read_observations, write_observations
 from ..data.real.frames import frame_rows
@@ -27,7 +31,6 @@ from ..metrics.consistency import consecutive_pairs
 from ..utils import check_suffix, check_writable
 from ..viz import html, render_frame
 from ..viz.scene import frame_objects, read_frame_scan
-from .frame_completion import ReaderOptions, file_stem
 from .real_evaluation import (
     RealEvaluationSettings,
     complete_all,
@@ -37,8 +40,6 @@ from .real_evaluation import (
     write_report,
     write_report_json,
 )
-from .scan_completion import Say, parse_classes, silent
-from .scene import HEADING_MARGIN
 
 # ---------------------------------------------------------------------------- extract
 
@@ -81,7 +82,7 @@ def observation_lines(obs: Observations) -> list[str]:
     return lines
 
 
-def extract_file(s: ExtractSettings, say: Say = silent) -> Observations:
+def extract_file(s: ExtractSettings, say: Say = logs.info) -> Observations:
     """Extract every vehicle box of a dataset into ``s.out`` (HDF5, see
     :func:`spotlights.data.real.extract.extract`); ``say`` receives its summary. Returns the observations."""
     check_suffix(s.out, (".h5", ".hdf5"), "the observations file (HDF5)")
@@ -170,18 +171,21 @@ class EvaluateSettings:
     def scoring(self) -> RealEvaluationSettings:
         """The :class:`~.real_evaluation.RealEvaluationSettings` of these options, checked (one-line errors)."""
         if self.reference_split and not self.reference:
-            raise ParameterError("--reference-split needs --reference DATASET.h5")
+            raise ParameterError("`reference_split` needs `reference` DATASET.h5", "reference_split", "reference")
         if self.equal_points < 0:
-            raise ParameterError(f"--equal-points must be >= 0, got {self.equal_points}")
+            raise ParameterError(f"`equal_points` must be >= 0, got {self.equal_points}", "equal_points")
         if not (self.equal_density >= 0 and self.equal_density < float("inf")):
-            raise ParameterError(f"--equal-density must be a voxel size >= 0, got {self.equal_density}")
+            raise ParameterError(
+                f"`equal_density` must be a voxel size >= 0, got {self.equal_density}", "equal_density"
+            )
         margin = HEADING_MARGIN if self.heading_margin is None else self.heading_margin
         if not 0.0 <= margin < 1.0:
-            raise ParameterError(f"--heading-margin must be in [0, 1), got {self.heading_margin}")
+            raise ParameterError(f"`heading_margin` must be in [0, 1), got {self.heading_margin}", "heading_margin")
         n = len(self.checkpoints)
         if self.names is not None and (len(self.names) != n or len(set(self.names)) != len(self.names)):
             raise ParameterError(
-                f"--names: give {n} distinct names, one per checkpoint, got {len(self.names)}: " + " ".join(self.names)
+                f"`names`: give {n} distinct names, one per checkpoint, got {len(self.names)}: " + " ".join(self.names),
+                "names",
             )
         return RealEvaluationSettings(
             classes=parse_classes(self.classes),
@@ -197,7 +201,7 @@ class EvaluateSettings:
         )
 
 
-def earlier_reports(paths: Sequence[Path], warn: Say = silent) -> list[dict]:
+def earlier_reports(paths: Sequence[Path], warn: Say = logs.warning) -> list[dict]:
     """The reports of ``paths`` that exist and read as ``real evaluate`` reports with settings (others: a
     warning each, not reused)."""
     previous = []
@@ -214,7 +218,7 @@ def earlier_reports(paths: Sequence[Path], warn: Say = silent) -> list[dict]:
     return previous
 
 
-def evaluate_file(s: EvaluateSettings, say: Say = silent, warn: Say = silent) -> dict:
+def evaluate_file(s: EvaluateSettings, say: Say = logs.info, warn: Say = logs.warning) -> dict:
     """Score the consistency of ``s.checkpoint`` on the observation file ``s.file`` and write ``PREFIX.md`` and
     ``PREFIX.json`` (:func:`~.real_evaluation.evaluate_consistency`, :func:`~.real_evaluation.write_report`).
 
@@ -302,13 +306,13 @@ class ShowSettings:
     html: str | None = None
 
 
-def show_file(s: ShowSettings, say: Say = silent) -> Path | None:
+def show_file(s: ShowSettings, say: Say = logs.info) -> Path | None:
     """Draw one frame of ``s.file``: the raw scan (grey), partial inputs (purple) and completions (green) of the
     ``s.max_objects`` objects with most points, as a PNG and/or an HTML page. Returns the PNG (None: page only)."""
     if s.max_objects < 1:
-        raise ParameterError("--max-objects must be >= 1")
+        raise ParameterError("`max_objects` must be >= 1", "max_objects")
     check_suffix(s.out, (".png",), "the picture")
-    check_suffix(s.html, (".html", ".htm"), "the page (HTML)", "--html")
+    check_suffix(s.html, (".html", ".htm"), "the page (HTML)", "html")
     obs = read_observations(s.file)
     rows = frame_rows(obs, s.sequence, s.frame)
     rows = sorted(rows, key=lambda i: -int(obs.n_points_raw[i]))[: s.max_objects]
@@ -316,7 +320,7 @@ def show_file(s: ShowSettings, say: Say = silent) -> Path | None:
     check_writable(s.out or (None if s.html else default_out), s.html)
     completions, model = None, None
     if s.no_completion and s.checkpoint:
-        raise ParameterError("--no-completion draws no model: it takes no --checkpoint")
+        raise ParameterError("`no_completion` draws no model: it takes no `checkpoint`", "no_completion", "checkpoint")
     if not s.no_completion:
         completer = load_completers([s.checkpoint or "default"], s.device)[0]
         completions = complete_all(

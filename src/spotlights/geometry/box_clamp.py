@@ -1,4 +1,4 @@
-"""Keeping completions inside the object's box grown by a margin (issue 27: "inside the box").
+"""Keeping completions inside the object's box grown by a margin (the "inside the box" rule of completion).
 
 Everything here works in a box's **unit frame** (its object frame divided by R = half the box
 diagonal, :mod:`spotlights.geometry.frames`), where the box is axis-aligned and centred on the

@@ -68,7 +68,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ParameterError
+from ..errors import ParameterError, parameter_names, shown
 from .lattice import viewpoint_frames
 
 NEAR_CANDIDATES = 4
@@ -309,7 +309,7 @@ def point_normals(points: np.ndarray, k: int = NORMAL_NEIGHBOURS) -> np.ndarray:
     return vec[:, :, 0]
 
 
-def snap_radius(snap, snap_mirror: bool = False, option: str = "--snap", mirror_option: str = "--snap-mirror"):
+def snap_radius(snap, snap_mirror: bool = False, option: str = "snap", mirror_option: str = "snap_mirror"):
     """The radius that a ``--snap`` value asks for, checked once for every surface that snaps (``complete``,
     ``real complete``, ``evaluate``, ``real evaluate``, the API): ``None`` (snapping off) for ``None`` or 0, else
     a float > 0 (unit frame of a box: its half-diagonal is 1).
@@ -324,10 +324,13 @@ def snap_radius(snap, snap_mirror: bool = False, option: str = "--snap", mirror_
     r = 0.0 if snap is None else float(snap) if real else float("nan")
     if not (np.isfinite(r) and r >= 0):
         raise ParameterError(
-            f"{option}: the snap radius must be a finite number > 0 (unit frame; 0: off), got {snap!r}"
+            f"{shown(option)}: the snap radius must be a finite number > 0 (unit frame; 0: off), got {snap!r}",
+            *parameter_names(option),
         )
     if snap_mirror and r == 0:
-        raise ParameterError(f"{mirror_option} goes with {option} R")
+        raise ParameterError(
+            f"{shown(mirror_option)} goes with {shown(option)} R", *parameter_names(option, mirror_option)
+        )
     return r if r > 0 else None
 
 

@@ -23,6 +23,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+from .. import logs
 from ..geometry.rig import make_rig
 from ..options import (
     DEVICE_HELP,
@@ -342,7 +343,7 @@ class BenchSettings:
     )
 
 
-def run_bench(s: BenchSettings, log: Callable[[str], None] = print) -> dict:
+def run_bench(s: BenchSettings, log: Callable[[str], None] = logs.info) -> dict:
     """``spotlights bench models``: :func:`bench_models` as ``s`` says (progress lines on stderr
     unless ``s.json`` or ``s.quiet``), the JSON result written to ``s.out`` (atomically) when
     given, then ``log`` gets the JSON (``s.json``) or the Markdown table. Returns the result."""

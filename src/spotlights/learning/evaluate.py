@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import logs
 from ..data.store import open_dataset
 from ..distributed import check_backend, ray_session
 from ..errors import ParameterError
@@ -614,7 +615,7 @@ def report_path(prefix: str | os.PathLike) -> str:
     ) + ".md"
 
 
-def run_evaluation(s: EvaluateSettings, log: Callable[[str], None] = print) -> dict:
+def run_evaluation(s: EvaluateSettings, log: Callable[[str], None] = logs.info) -> dict:
     """``spotlights evaluate``: score ``s.checkpoint`` on ``s.data``, write the report (Markdown
     and JSON) and, with ``s.examples``, the figure of predictions beside the ground truth (PNG).
     ``log`` receives the Table-1 summary and the paths as they are written. Returns the report

@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import logs
 from .._version import __version__
 from ..data.vehicle_classes import class_rows
 from ..errors import InputFileError, ParameterError, SpotlightsError
@@ -171,7 +172,9 @@ def export_onnx(checkpoint, out, opset: int = OPSET, n_input: int = 256) -> Path
     _require("onnxscript")  # torch's ONNX exporter
     newest = int(onnx.defs.onnx_opset_version())
     if not MIN_OPSET <= int(opset) <= newest:
-        raise ParameterError(f"--opset {opset}: ONNX opsets {MIN_OPSET} to {newest} can be written (default {OPSET})")
+        raise ParameterError(
+            f"`opset` {opset}: ONNX opsets {MIN_OPSET} to {newest} can be written (default {OPSET})", "opset"
+        )
     path = resolve_checkpoint(checkpoint)
     ckpt = load_checkpoint(path)
     model = model_from_checkpoint(ckpt, torch.device("cpu"))
@@ -222,8 +225,9 @@ def export_onnx(checkpoint, out, opset: int = OPSET, n_input: int = 256) -> Path
         written = {o.version for o in proto.opset_import if o.domain in ("", "ai.onnx")}
         if written != {int(opset)}:  # the exporter could not convert the graph and kept its own opset
             raise ParameterError(
-                f"--opset {opset}: the exporter cannot write this model at opset {opset} "
-                f"(it wrote {', '.join(map(str, sorted(written)))}); try {OPSET} or higher"
+                f"`opset` {opset}: the exporter cannot write this model at opset {opset} "
+                f"(it wrote {', '.join(map(str, sorted(written)))}); try {OPSET} or higher",
+                "opset",
             )
         strip_node_metadata(proto)
         del proto.metadata_props[:]
@@ -524,7 +528,12 @@ def parity(
 
 
 def export_model(
-    checkpoint, out, opset: int = OPSET, describe: bool = True, check: bool = True, log: Callable[[str], None] = print
+    checkpoint,
+    out,
+    opset: int = OPSET,
+    describe: bool = True,
+    check: bool = True,
+    log: Callable[[str], None] = logs.info,
 ) -> Path:
     """``spotlights export``: :func:`export_onnx`, then (``describe``) one line about the model
     written (parameters, rig, p(hit) threshold, clip, size in MB) and, with ``check`` as well,

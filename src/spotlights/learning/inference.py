@@ -42,7 +42,7 @@ def _one_torch_thread_after_fork() -> None:
     """In a process forked from one whose torch ran on several threads (a ``multiprocessing`` pool of frames started
     with ``fork``, Linux's default): torch on one thread, as PyTorch's DataLoader workers do. GNU OpenMP's thread
     team does not survive a fork: the child's first multi-threaded torch operation waited forever (measured:
-    ``complete_frame`` in such a child never returned, before and after stop 36's threads; with one thread it does)."""
+    ``complete_frame`` in such a child never returned, with or without the frame loop's threads; with one thread it does)."""
     import sys
 
     torch = sys.modules.get("torch")
@@ -674,7 +674,9 @@ def complete_scan(
     if crop is not None:
         unit = unit[box.contains(pts, margin=float(crop))]
         if len(unit) == 0:
-            raise ParameterError("no scan point lies inside the box (after --crop); check the box and the scan's frame")
+            raise ParameterError(
+                "no scan point lies inside the box (after `crop`); check the box and the scan's frame", "crop"
+            )
     partial = prepare_partial(unit, n_input, seed=seed, method=resample_method)
     done = complete_in_boxes(completer, partial[None], box.size[None], clip=clip)[0]
     return {

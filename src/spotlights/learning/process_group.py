@@ -20,15 +20,18 @@ def group_backend(device: torch.device, local_rank: int, n_gpus: int, local_worl
         return "gloo", None
     if device.index is not None and local_world > 1:
         raise ParameterError(
-            f"--device {device}: the {local_world} processes of this node would share one GPU; give --device cuda "
-            "(each process takes the GPU of its local rank)"
+            f"`device` {device}: the {local_world} processes of this node would share one GPU; give `device` cuda "
+            "(each process takes the GPU of its local rank)",
+            "device",
         )
     index = local_rank if device.index is None else int(device.index)
     if not 0 <= index < n_gpus:
         raise ParameterError(
             f"torchrun rank with local rank {local_rank} would train on cuda:{index}, but this node has {n_gpus} "
-            f"CUDA device(s): start one process per GPU (--nproc-per-node {n_gpus}) or train on the CPU with "
-            "--device cpu (gloo)"
+            f"CUDA device(s): start one process per GPU (`nproc_per_node` {n_gpus}) or train on the CPU with "
+            "`device` cpu (gloo)",
+            "nproc_per_node",
+            "device",
         )
     return "nccl", index
 

@@ -5,7 +5,7 @@
 every sample's metrics depend only on its own prediction and its model's dense ground truth.
 :class:`RayMetrics` is a drop-in replacement with the same signature: each model's dense
 ground truth is put in the object store once (shared by every checkpoint and variant
-scored in the session), its samples are cut into chunks, and each chunk is one Ray task
+scored in one run), its samples are cut into chunks, and each chunk is one Ray task
 running ``evaluate_completions`` on the cluster. The values are identical to the local
 computation (the same function on the same arrays; chunking does not change a sample's value).
 """

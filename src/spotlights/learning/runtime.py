@@ -56,14 +56,19 @@ def load_completer(
     if runtime == "onnx" or (runtime is None and is_onnx):
         if name_or_path is None or not is_onnx:
             raise ParameterError(
-                "--runtime onnx runs an ONNX file: pass --checkpoint MODEL.onnx "
-                "(make one with 'spotlights export CHECKPOINT --out MODEL.onnx')"
+                "`runtime` onnx runs an ONNX file: pass `checkpoint` MODEL.onnx "
+                "(make one with 'spotlights export CHECKPOINT `out` MODEL.onnx')",
+                "runtime",
+                "checkpoint",
+                "out",
             )
         if precision not in (None, "fp32"):
-            raise ParameterError("--precision applies to the torch runtime; an ONNX model runs as exported (float32)")
+            raise ParameterError(
+                "`precision` applies to the torch runtime; an ONNX model runs as exported (float32)", "precision"
+            )
         return load_onnx_completer(name_or_path, threads=threads)
     if runtime == "torch" and is_onnx:
-        raise ParameterError(f"{name_or_path} is an ONNX file: run it with --runtime onnx")
+        raise ParameterError(f"{name_or_path} is an ONNX file: run it with `runtime` onnx", "runtime")
     return load_torch_completer(name_or_path, device=device, precision=precision or "fp32")
 
 

@@ -19,10 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..data.real.boxfiles import read_json_boxes
 from ..data.real.extract import read_observations
 from ..data.real.frames import frame_rows
-from ..errors import InputFileError, ParameterError, SpotlightsError
-from ..geometry.boxes import BOX_EDGES, Box
+from ..errors import InputFileError, SpotlightsError
+from ..geometry.boxes import BOX_EDGES, Box, box_from_dict
 from ..geometry.encode import decode, load_encoding
 from ..geometry.io import MESH_SUFFIXES, POINT_SUFFIXES, load_mesh, load_ply_fields, load_points, ply_has_faces
 from ..inputs import read_json
@@ -445,31 +446,23 @@ def scene_ply_traces(fields: dict[str, np.ndarray], name: str) -> list:
 
 
 def read_boxes_json(path: str | os.PathLike) -> list[Box]:
-    """Boxes from JSON: one box ``{"center", "size", "yaw"|"rotation", ...}``, a list of them, or
-    ``{"boxes": [...]}``. Each box's id (its ``label`` here): ``id``, ``track_id``, ``object`` or ``label``, else its
-    index."""
+    """Boxes from JSON, read by the project's one box parser (:func:`spotlights.geometry.boxes.box_from_dict`): a
+    generic box file (one box, a list, or ``{"boxes": [...]}``) or a completion summary (``{"objects": [{"box":
+    ...}]}``, its boxes as :meth:`Box.to_dict` writes them). Each box's ``label`` here is its id in the picture:
+    its track id, else its label, else its index."""
     data = read_json(path)
-    items = data.get("boxes", data.get("objects", [data])) if isinstance(data, dict) else data
-    boxes = []
-    for i, b in enumerate(items if isinstance(items, list) else []):
-        if not isinstance(b, dict) or "center" not in b or "size" not in b:
-            raise InputFileError(path, f"box {i}: needs 'center' and 'size'")
-        label = str(next((b[k] for k in ("id", "track_id", "object", "label") if b.get(k) not in (None, "")), i))
-        try:
-            center = np.asarray(b["center"], dtype=np.float64).reshape(3)
-            size = np.asarray(b["size"], dtype=np.float64).reshape(3)
-            if b.get("rotation") is not None:
-                box = Box(center, size, np.asarray(b["rotation"], dtype=np.float64).reshape(3, 3), label=label)
-            else:
-                box = Box(center, size, yaw=float(b.get("yaw", 0.0)), label=label)
-        except ParameterError as exc:  # Box's own checks (range, rotation): its message
-            raise InputFileError(path, f"box {i}: {exc}") from None
-        except (TypeError, ValueError):
-            raise InputFileError(path, f"box {i}: center/size must be 3 numbers (rotation 3 x 3)") from None
-        boxes.append(box)
+    if isinstance(data, dict) and isinstance(data.get("objects"), list):  # a summary: rotation given, yaw derived
+        items = [o.get("box", o) if isinstance(o, dict) else o for o in data["objects"]]
+        items = [
+            {k: v for k, v in d.items() if not ("rotation" in d and k == "yaw")} if isinstance(d, dict) else d
+            for d in items
+        ]
+        boxes = [box_from_dict(d, path, f"object {i} box") for i, d in enumerate(items)]
+    else:
+        boxes = list(read_json_boxes(path, require_label=False).boxes)
     if not boxes:
         raise InputFileError(path, "no box in the file (expected a box, a list of boxes, or {'boxes': [...]})")
-    return boxes
+    return [b.replace(label=str(b.track_id or b.label or i)) for i, b in enumerate(boxes)]
 
 
 def file_traces(

@@ -1,6 +1,6 @@
 """Scenes over time in a rerun recording (``.rrd``): ``real complete --rerun FILE.rrd`` (and ``complete SCENE --rerun``).
 
-A completed frame (the scene's result, :func:`spotlights.experiments.scene.complete_scene`) is logged at its
+A completed frame (the scene's result, :func:`spotlights.completion.frame.complete_scene`) is logged at its
 place on two timelines, ``frame`` (its position in the run, 0, 1, ...) and ``time`` (its timestamp, seconds, as a
 duration from the run's first frame), so the rerun viewer scrubs through a sequence. Entities, per sequence
 ``SEQ`` (omitted for data without sequences), all in the frame's scan frame (metres):
@@ -42,7 +42,7 @@ def _rerun():
         import rerun as rr
     except ImportError:
         raise ParameterError(
-            "--rerun needs the rerun-sdk package: pip install 'spotlights[rerun]' (or pip install rerun-sdk)"
+            "`rerun` needs the rerun-sdk package: pip install 'spotlights[rerun]' (or pip install rerun-sdk)", "rerun"
         ) from None
     return rr
 

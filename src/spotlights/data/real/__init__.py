@@ -8,7 +8,7 @@
 - :mod:`.show` - the paper's qualitative figure: raw scan, partial input, completion.
 
 Completion of real scans and the consistency report (they run models) live one layer up,
-in :mod:`spotlights.experiments.real_evaluation` and :mod:`spotlights.experiments.scene`.
+in :mod:`spotlights.experiments.real_evaluation` and :mod:`spotlights.completion.frame`.
 The file formats, frames and choices are documented in ``docs/real-data.md``.
 """
 
@@ -63,7 +63,7 @@ def open_reader(source: str | os.PathLike | Sequence, format: str, **options) ->
             source = source[0]
         else:
             if options.get("boxes") is not None:
-                raise ParameterError("--boxes names the box file of a single scan SOURCE, not of several")
+                raise ParameterError("`boxes` names the box file of a single scan SOURCE, not of several", "boxes")
             return MultiReader([open_reader(s, format, **options) for s in source])
     if format == "kitti":
         return KittiReader(source, **options)

@@ -83,7 +83,9 @@ class ExtractConfig:
         if self.min_points < 1:
             raise ParameterError(f"minimum point count must be >= 1, got {self.min_points}")
         if not 1 <= self.n_points <= MAX_PARTIAL_POINTS:
-            raise ParameterError(f"--points: 1..{MAX_PARTIAL_POINTS} points per observation, got {self.n_points}")
+            raise ParameterError(
+                f"`points`: 1..{MAX_PARTIAL_POINTS} points per observation, got {self.n_points}", "points"
+            )
         bad = [c for c in self.classes if c not in CLASSES]
         if bad or not self.classes:
             raise ParameterError(f"unknown class(es) {bad}; choose among {', '.join(CLASSES)}")

@@ -27,6 +27,7 @@ def frame_rows(obs: Observations, sequence: str | None = None, frame_id: str | N
         )
     if len(cands) > 1:
         raise ParameterError(
-            f"frame {frame_id!r} exists in several sequences ({', '.join(k[0] for k in cands)}); give --sequence"
+            f"frame {frame_id!r} exists in several sequences ({', '.join(k[0] for k in cands)}); give `sequence`",
+            "sequence",
         )
     return frames[cands[0]]

@@ -157,11 +157,12 @@ def _add_rig_locked(
             if len(meshes) != len(cfg.sources):
                 raise ParameterError(
                     f"{path} was built from {len(cfg.sources)} mesh folders "
-                    f"({', '.join(s['name'] for s in cfg.sources)}): give --meshes once for each, in order"
+                    f"({', '.join(s['name'] for s in cfg.sources)}): give `meshes` once for each, in order",
+                    "meshes",
                 )
             cfg.sources = [{**s, "path": str(p)} for s, p in zip(cfg.sources, meshes)]
         elif len(meshes) != 1:
-            raise ParameterError(f"{path} was built from one mesh folder: give --meshes once")
+            raise ParameterError(f"{path} was built from one mesh folder: give `meshes` once", "meshes")
         else:
             cfg.meshes = str(meshes[0])
     if not cfg.sources and cfg.manifest and not Path(cfg.manifest).exists():

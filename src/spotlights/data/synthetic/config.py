@@ -128,9 +128,13 @@ def parse_source(text: str) -> dict:
         if eq and key.strip() in SOURCE_KEYS:
             opts[key.strip()] = value.strip()
         elif eq and not opts and "/" not in key:
-            raise ParameterError(f"--meshes {text!r}: unknown option {key.strip()!r}; known: {', '.join(SOURCE_KEYS)}")
+            raise ParameterError(
+                f"`meshes` {text!r}: unknown option {key.strip()!r}; known: {', '.join(SOURCE_KEYS)}", "meshes"
+            )
         elif opts:
-            raise ParameterError(f"--meshes {text!r}: {p!r} is not key=value (keys: {', '.join(SOURCE_KEYS)})")
+            raise ParameterError(
+                f"`meshes` {text!r}: {p!r} is not key=value (keys: {', '.join(SOURCE_KEYS)})", "meshes"
+            )
         else:
             path.append(p)
     return {"path": ",".join(path), **opts}
@@ -194,7 +198,7 @@ def normalize_procedural(proc: dict | None) -> dict | None:
         raise ParameterError(f"unknown procedural option(s): {', '.join(unknown)}")
     n = proc.get("count")
     if not (isinstance(n, (int, np.integer)) and not isinstance(n, bool) and n >= 0):
-        raise ParameterError(f"--procedural must be a count of vehicles per class >= 0, got {n!r}")
+        raise ParameterError(f"`procedural` must be a count of vehicles per class >= 0, got {n!r}", "procedural")
     if n == 0:
         return None
     classes = proc.get("classes") or list(VEHICLE_CLASSES)
@@ -203,7 +207,8 @@ def normalize_procedural(proc: dict | None) -> dict | None:
     bad = [c for c in classes if c not in VEHICLE_CLASSES]
     if bad or not classes:
         raise ParameterError(
-            f"--classes: unknown vehicle class {bad[0] if bad else ''!r}; known: {', '.join(VEHICLE_CLASSES)} (van = caravan)"
+            f"`classes`: unknown vehicle class {bad[0] if bad else ''!r}; known: {', '.join(VEHICLE_CLASSES)} (van = caravan)",
+            "classes",
         )
     split = proc.get("split") or None
     if split is not None:
@@ -320,7 +325,7 @@ class BuildConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, np.integer)) and not isinstance(v, bool) and 1 <= v <= hi):
                 raise ParameterError(f"{option} must be a whole number in 1..{hi}, got {v!r}")
-        self.seed = check_seed(self.seed, "--seed")
+        self.seed = check_seed(self.seed)
         if not (isinstance(self.min_points, (int, np.integer)) and self.min_points >= 1):
             raise ParameterError(f"min points must be an integer >= 1, got {self.min_points!r}")
         d = tuple(float(x) for x in self.distance)
@@ -345,7 +350,7 @@ class BuildConfig:
             self.meshes = self.sources[0]["path"]
         self.procedural = normalize_procedural(self.procedural)
         if not self.meshes and not self.procedural:
-            raise ParameterError("no meshes folder given (--meshes DIR or --procedural N)")
+            raise ParameterError("no meshes folder given (`meshes` DIR or `procedural` N)", "meshes", "procedural")
         if self.procedural and PROCEDURAL_SOURCE in names:
             raise ParameterError(f"a mesh source is named {PROCEDURAL_SOURCE!r}, the name of the procedural vehicles")
 

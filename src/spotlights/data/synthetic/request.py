@@ -277,7 +277,7 @@ class BuildRequest:
                 mount = float(mount)
             except ValueError:
                 raise ParameterError(
-                    f"--mount-height {self.mount_height!r}: write metres (1.73) or MIN:MAX (1.5:2.1)"
+                    f"`mount_height` {self.mount_height!r}: write metres (1.73) or MIN:MAX (1.5:2.1)", "mount_height"
                 ) from None
         sensor = sensor_preset(
             self.sensor,
@@ -295,14 +295,21 @@ class BuildRequest:
         raises ParameterError naming the option at fault."""
         sensor, heights = self.sensor_model()
         if not self.meshes and not self.procedural:
-            raise ParameterError("give --meshes DIR (repeatable) or --procedural N (or both)")
+            raise ParameterError("give `meshes` DIR (repeatable) or `procedural` N (or both)", "meshes", "procedural")
         if not self.procedural and (self.classes or self.procedural_split):
-            raise ParameterError("--classes and --procedural-split apply to --procedural N (vehicles per class)")
+            raise ParameterError(
+                "`classes` and `procedural_split` apply to `procedural` N (vehicles per class)",
+                "classes",
+                "procedural_split",
+                "procedural",
+            )
         sources = [parse_source(m) for m in self.meshes]
         single = len(sources) <= 1 and all(set(s) == {"path"} for s in sources)
         if not single and self.manifest:
             raise ParameterError(
-                "--manifest applies to a single --meshes folder; give each source its own (--meshes DIR,manifest=CSV)"
+                "`manifest` applies to a single `meshes` folder; give each source its own (`meshes` DIR,manifest=CSV)",
+                "manifest",
+                "meshes",
             )
         category_split, augment = self._category_split(), self._augment()
         return BuildConfig(
@@ -337,7 +344,9 @@ class BuildRequest:
         for item in self.category_split:
             cat, eq, split = item.partition("=")
             if not eq or not cat.strip():
-                raise ParameterError(f"--category-split {item!r}: write CATEGORY=SPLIT, e.g. suv=test")
+                raise ParameterError(
+                    f"`category_split` {item!r}: write CATEGORY=SPLIT, e.g. suv=test", "category_split"
+                )
             category_split[cat.strip()] = split.strip()
         return category_split
 
@@ -396,7 +405,7 @@ def _distance(text: str) -> tuple[float, float]:
     try:
         a, b = (float(x) for x in text.replace(",", ":").split(":"))
     except ValueError:
-        raise ParameterError(f"--distance {text!r}: write MIN:MAX in metres, e.g. 4:40") from None
+        raise ParameterError(f"`distance` {text!r}: write MIN:MAX in metres, e.g. 4:40", "distance") from None
     return a, b
 
 

@@ -345,12 +345,13 @@ def _check_block(block: int | None, cfg: BuildConfig) -> None:
     if block is None:
         return
     if not (isinstance(block, numbers.Integral) and not isinstance(block, bool) and block >= 1):
-        raise ParameterError(f"--block must be a whole number >= 1, got {block!r}")
+        raise ParameterError(f"`block` must be a whole number >= 1, got {block!r}", "block")
     most = max(1, MAX_UNIT_POINTS // cfg.n_points)
     if min(block, cfg.views) > most:
         raise ParameterError(
-            f"--block: at most {most} views a work unit at {cfg.n_points} points each "
-            f"({MAX_UNIT_POINTS:,} partial points a worker holds), got {block}"
+            f"`block`: at most {most} views a work unit at {cfg.n_points} points each "
+            f"({MAX_UNIT_POINTS:,} partial points a worker holds), got {block}",
+            "block",
         )
 
 

@@ -83,7 +83,8 @@ class BoxNoise:
                 raise ParameterError(f"box noise {k} must be >= 0, got {v}")
         if self.size_rel > MAX_SIZE_SIGMA:
             raise ParameterError(
-                f"box noise size_rel (--size-sigma) must be at most {MAX_SIZE_SIGMA:g} (relative), got {self.size_rel:g}"
+                f"box noise size_rel (`size_sigma`) must be at most {MAX_SIZE_SIGMA:g} (relative), got {self.size_rel:g}",
+                "size_sigma",
             )
 
     def apply(self, box: Box, rng: np.random.Generator) -> Box:
@@ -117,10 +118,10 @@ class SequenceSpec:
 
     def __post_init__(self):
         if not 1 <= self.n_frames <= MAX_FRAMES:
-            raise ParameterError(f"--frames: a sequence has 1..{MAX_FRAMES} frames, got {self.n_frames}")
+            raise ParameterError(f"`frames`: a sequence has 1..{MAX_FRAMES} frames, got {self.n_frames}", "frames")
         lo, hi = HZ_RANGE
         if not (math.isfinite(self.hz) and lo <= self.hz <= hi):
-            raise ParameterError(f"--hz: the frame rate must be in [{lo:g}, {hi:g}] Hz, got {self.hz:g}")
+            raise ParameterError(f"`hz`: the frame rate must be in [{lo:g}, {hi:g}] Hz, got {self.hz:g}", "hz")
 
 
 VEHICLE_LENGTH_M = (0.5, 50.0)
@@ -203,7 +204,7 @@ def mesh_files(path: str | Path) -> list[Path]:
 def _check_sequence_count(n_sequences: int) -> None:
     """``--sequences``: 1..:data:`MAX_SEQUENCES` (checked before any output)."""
     if not 1 <= n_sequences <= MAX_SEQUENCES:
-        raise ParameterError(f"--sequences: 1..{MAX_SEQUENCES} sequences, got {n_sequences}")
+        raise ParameterError(f"`sequences`: 1..{MAX_SEQUENCES} sequences, got {n_sequences}", "sequences")
 
 
 def write_sequences(

@@ -143,9 +143,9 @@ def reproduce(
     if eval_views == "default":
         eval_views = 4 if quick else 200
     if eval_views is not None and int(eval_views) < 1:
-        raise ParameterError(f"--eval-views must be >= 1, got {eval_views}")
+        raise ParameterError(f"`eval_views` must be >= 1, got {eval_views}", "eval_views")
     if workers is not None and int(workers) < 1:
-        raise ParameterError(f"--workers must be >= 1, got {workers}")
+        raise ParameterError(f"`workers` must be >= 1, got {workers}", "workers")
     kw = {
         k: Path(v)
         for k, v in (("cars_meshes", cars_meshes), ("category_meshes", category_meshes), ("lidar", lidar))

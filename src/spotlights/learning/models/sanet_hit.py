@@ -11,7 +11,7 @@ questions. The decoder (same PCN encoder, same hidden layers) ends in ``2 N*M`` 
 
 Loss = ``hit_weight * BCE + depth_weight * L1_hits`` where BCE is the mean over all rays
 of the batch and ``L1_hits = sum over hit rays |d - d*| / number of hit rays`` (batch-wide).
-With ``box_weight > 0`` (opt-in, issue 27) it adds ``box_weight * BOX``: every ray's point
+With ``box_weight > 0`` (opt-in) it adds ``box_weight * BOX``: every ray's point
 ``o + 2 d u`` is scored by its Euclidean distance outside the sample's box grown by 0.15 m
 (the decoding clamp's box), weighted by p(hit) and divided by the number of hit rays
 (:func:`box_outside_term`): a hit drawn outside the box is pushed in or turned off.

@@ -94,7 +94,9 @@ def parse_tables(text: str | Sequence | None) -> list[str]:
     bad = [x for x in items if x not in TABLES]
     if bad or not items or not all(items):
         what = f"unknown table {bad[0]!r}" if bad and bad[0] else "empty table list"
-        raise ParameterError(f"--tables: {what}; choose from {', '.join(TABLES)} (comma-separated, e.g. --tables 1,3)")
+        raise ParameterError(
+            f"`tables`: {what}; choose from {', '.join(TABLES)} (comma-separated, e.g. `tables` 1,3)", "tables"
+        )
     return [k for k in TABLES if k in items]
 
 

@@ -1,0 +1,591 @@
+"""Completion of whole LiDAR frames: a scan plus its boxes -> every vehicle completed, in the scan's frame.
+
+:func:`complete_scene` is the library behind ``spotlights complete SCAN --boxes BOXES`` and
+``spotlights real complete``:
+
+1. **Selection.** Boxes of the chosen classes (default: every vehicle class,
+   :data:`spotlights.data.real.base.CLASSES`) are completed; others (pedestrians,
+   bicycles, unlabelled boxes in a list) are kept as raw points, counted by reason.
+2. **Crop.** Each box's points are those of
+   :meth:`spotlights.geometry.boxes.Box.contains` with ``margin`` (default
+   **0.15 m** on the sides and top) and its bottom raised by ``ground_clearance``
+   (default **0.10 m**: the ground returns under a vehicle), the same cut as
+   ``real extract``. A box with fewer than ``min_points`` (default **10**) is skipped.
+3. **Input.** The crop in the box's unit frame (object frame / half the box diagonal),
+   brought to 256 points by :func:`spotlights.learning.inference.prepare_partial`
+   (canonical order, seeded random subset: the same points give the same input).
+4. **Completion.** All objects in one batch (with ``heading_check``: twice as many, each
+   also with its box turned by 180 degrees; the turned heading is kept when its completion
+   is clearly closer to the observed points: fidelity lower by more than
+   :data:`HEADING_MARGIN`, see :func:`heading_turns`).
+5. **Output** in the scan's frame: per point ``source`` (0 raw, 1 partial input of an
+   object, 2 completion) and ``object`` (see :func:`object_ids`; -1 for raw points outside
+   every box). Boxes whose class or size is outside what the model learned get warnings.
+
+Frames: points and boxes are in the scan's frame. ``axes`` (from ``--up/--forward``) turns a
+scan whose up axis is not z into the object convention first and the results back after.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+
+from ..data.vehicle_classes import VEHICLE_CLASSES, canonical_class
+from ..errors import InputFileError, ParameterError, parameter_names, shown
+from ..geometry.boxes import FLIP_Z, Box, crop_boxes
+from ..geometry.neighbors import serial_queries
+from ..geometry.rotations import is_rotation, rigid_transform
+from ..learning.inference import DEFAULT, complete_in_boxes, prepare_partial, with_observed
+from ..metrics.consistency import fidelity
+from ..utils import StageTimer, shared_thread_pool
+from ..viz import SceneObject, html, scene_png, write_png
+from .config import (
+    HEADING_DOC,
+    HEADING_MARGIN,
+    SOURCE_COMPLETION,
+    SOURCE_PARTIAL,
+    SOURCE_RAW,
+    SceneConfig,
+    heading_turns,
+)
+from .results import ObjectResult, SceneResult, object_ids
+from .writing import check_completed, describe, fallback_counts, scene_comments, write_scene
+
+LOG = logging.getLogger(__name__)
+
+
+def _selected(box: Box, config: SceneConfig) -> bool:
+    if config.any_label:
+        return True
+    if box.cls is None:
+        return False
+    return config.classes is None or box.cls in config.classes
+
+
+def scene_points(points) -> np.ndarray:
+    """``points`` as the (N, 3) float64 scan :func:`complete_scene` works on; a one-line :class:`ParameterError`
+    for anything else: another shape ((N, 4) with intensity: pass ``points[:, :3]``), a type that is not real
+    numbers, or rows that are not finite (the command line's readers drop them; an array given here is not
+    changed behind the caller's back)."""
+    try:
+        a = np.asarray(points)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(f"points must be an (N, 3) array of x y z in metres: {exc}") from None
+    if a.ndim != 2 or a.shape[1] != 3:
+        hint = (
+            " (pass points[:, :3]: the other columns, such as intensity, are not used)"
+            if a.ndim == 2 and a.shape[1] > 3
+            else ""
+        )
+        raise ParameterError(f"points must be an (N, 3) array of x y z in metres, got shape {a.shape}{hint}")
+    if a.dtype.kind not in "fiu":
+        raise ParameterError(f"points must be real numbers (float or int), got dtype {a.dtype}")
+    scan = a.astype(np.float64, copy=False)
+    bad = ~np.isfinite(scan).all(axis=1)
+    if bad.any():
+        raise ParameterError(
+            f"{int(bad.sum())} of the {len(scan)} points are not finite (NaN or inf); drop them first: "
+            "points[np.isfinite(points).all(axis=1)]"
+        )
+    return scan
+
+
+def check_scene_inputs(boxes, completer, config, axes) -> None:
+    """One-line :class:`ParameterError` for what :func:`complete_scene` cannot use: ``boxes`` not a sequence of
+    :class:`~spotlights.geometry.boxes.Box`, a ``completer`` without ``complete``, a ``config`` that is not a
+    :class:`SceneConfig`, ``axes`` that are not a (3, 3) rotation (orthonormal, determinant +1, to 1e-3)."""
+    if isinstance(boxes, Box) or not isinstance(boxes, Sequence) or isinstance(boxes, str):
+        raise ParameterError(
+            f"boxes must be a list of Box objects (for one box: [box], or spotlights.complete), got {type(boxes).__name__}"
+        )
+    for i, b in enumerate(boxes):
+        if not isinstance(b, Box):
+            raise ParameterError(
+                f"boxes[{i}] is a {type(b).__name__}, not a Box (spotlights.geometry.boxes.box_from_dict makes one "
+                "from a dict with center, size and yaw)"
+            )
+    if not callable(getattr(completer, "complete", None)):
+        raise ParameterError(
+            f"completer must be a loaded model (spotlights.learning.runtime.load_completer) or a checkpoint name, "
+            f"got {type(completer).__name__}"
+        )
+    if not isinstance(config, SceneConfig):
+        raise ParameterError(f"config must be a SceneConfig, got {type(config).__name__}")
+    if axes is not None:
+        try:
+            rotation = is_rotation(axes)
+        except (TypeError, ValueError):  # not numbers
+            rotation = False
+        if not rotation:
+            raise ParameterError(f"axes must be a (3, 3) rotation (orthonormal, determinant +1), got {axes!r}")
+
+
+def complete_scene(
+    points: np.ndarray,
+    boxes: Sequence[Box],
+    completer,
+    config: SceneConfig | None = None,
+    axes: np.ndarray | None = None,
+    checkpoint: str | None = None,
+    sensor: np.ndarray | None = None,
+    extra_points: dict | None = None,
+    fallback=None,
+    fallback_name: str | None = None,
+    crops: dict | None = None,
+) -> SceneResult:
+    """Complete every selected box of one scan (see the module docstring).
+
+    Parameters
+    ----------
+    points : (N, 3) scan points, metres, the scan's frame (float32 or float64).
+    boxes : the scan's boxes in the same frame (:class:`~spotlights.geometry.boxes.Box`, with ``cls``).
+    completer : a :class:`~spotlights.learning.inference.Completer` (or any object with its
+        ``complete``/``needs_box``/``domain``/``model_name``).
+    axes : optional (3, 3) rotation scan coordinates -> object convention (x forward, y left, z up).
+    sensor : (3,) the LiDAR's optical centre in the scan's frame, metres (default: the scan's origin); models
+        that read free space (``sanet-local``) get it in each box's unit frame.
+    extra_points : optional {box index: (k, 3) points, metres, scan frame}: more evidence of that object
+        (other frames of its track, :mod:`spotlights.completion.fusion`) added to its crop for the model
+        input (and counted towards ``min_points``); the scene's ``source``/``object`` fields keep the scan's own.
+    fallback : optional second completer for the boxes whose class or size ``completer`` did not learn (its
+        learned domain gates them) but ``fallback`` did, e.g. ``load_completer("classes")`` beside the car-only
+        default: those boxes are completed by it (``ObjectResult.completed_by``: ``fallback_name``, else its
+        model's name), the others by ``completer``.
+    crops : optional {box index: (k,) int64 scan indices} of every valid box, :func:`scene_crops` of these
+        ``points`` and ``boxes`` made elsewhere (a track worker process, :mod:`spotlights.completion.fusion`);
+        used without ``axes`` and with ``config.crop``, else ignored.
+
+    Returns a :class:`SceneResult`; raises :class:`ParameterError` for a scan with fewer than
+    ``config.min_points`` points.
+    """
+    config = SceneConfig() if config is None else config
+    timer = StageTimer()
+    scan = scene_points(points)
+    check_scene_inputs(boxes, completer, config, axes)
+    if len(scan) < config.min_points:
+        raise ParameterError(
+            f"the scan holds {len(scan)} point{'s' if len(scan) != 1 else ''}; at least "
+            f"{config.min_points} are needed to complete anything"
+        )
+    require_rays_to_snap(completer, config.snap)
+    require_sensor(sensor)
+    a = None if axes is None or np.allclose(axes, np.eye(3)) else np.asarray(axes, dtype=np.float64)
+    with timer("crop"):
+        work = scan if a is None else scan @ a.T
+        lidar = np.zeros(3) if sensor is None else np.asarray(sensor, dtype=np.float64)
+        lidar = lidar if a is None else a @ lidar
+        member = np.full(len(scan), -1, np.int64)
+        fb = None if fallback is None else (fallback, fallback_name or str(getattr(fallback, "model_name", "fallback")))
+        given = crops if a is None and config.crop else None
+        objects = _crop_objects(work, boxes, a, lidar, member, completer, config, extra_points, fb, given)
+    todo = [o for o in objects if o.status == "completed"]
+    shares: list[float] = []  # per completion: the share the network put inside its grown box (before the clamp)
+    with timer("model"):
+        scores = Fidelities(todo)  # scored on threads as each model's batch is decoded
+        outs = _complete_objects(todo, completer, config, shares, fallback, scores) if todo else []
+    with timer("assemble"):
+        if todo:
+            # no KD-tree query runs here (Fidelities' threads do, each limited to one OpenMP thread once): no
+            # threadpool limit around it (threadpoolctl's scan of the loaded libraries took ~5 ms a frame)
+            _assemble(todo, outs, config, a, scores)
+            for k, o in enumerate(todo):  # the share of the completion kept (turned around when the heading flipped)
+                o.inside_box = shares[len(todo) + k] if o.flipped else shares[k]
+            if a is not None:
+                back = rigid_transform(a.T, np.zeros(3))
+                for o in todo:
+                    o.used_box = _set(o.used_box).transformed(back)
+    result = SceneResult(
+        scan,
+        objects,
+        str(getattr(completer, "model_name", "model")),
+        checkpoint,
+        config,
+        timings={f"{k}_s": v for k, v in timer.seconds.items()} | {"total_s": timer.total},
+        member=member,
+    )
+    LOG.debug(
+        "%d box(es), %d completed by %s; stages: %s",
+        len(objects),
+        len(result.completed),
+        result.model,
+        ", ".join(f"{k} {1000 * v:.0f} ms" for k, v in timer.seconds.items()),
+    )
+    return result
+
+
+def scene_crops(points: np.ndarray, boxes: Sequence[Box], config: SceneConfig) -> dict[int, np.ndarray]:
+    """{box index: (k,) int64 indices of the scan ``points`` (N, 3), metres, the boxes' frame} for every valid box:
+    the crop :func:`complete_scene` makes (the box grown by ``config.margin``, bottom raised by
+    ``config.ground_clearance``; one KD-tree, :func:`spotlights.geometry.boxes.crop_boxes`)."""
+    work = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    valid = [i for i, b in enumerate(boxes) if b.is_valid()]
+    return dict(zip(valid, crop_boxes(work, [boxes[i] for i in valid], config.margin, config.ground_clearance)))
+
+
+def _crop_objects(
+    work,
+    boxes,
+    a,
+    lidar,
+    member,
+    completer,
+    config: SceneConfig,
+    extra_points,
+    fallback: tuple | None = None,
+    given: dict | None = None,
+) -> list[ObjectResult]:
+    """Every box's :class:`ObjectResult`: its crop of ``work`` (N, 3) (the scan in the object convention,
+    metres), its 256-point model input (unit frame) and out-of-domain warnings, or why it is skipped.
+    ``member`` (N,) int64 receives each point's first box index (-1: none); ``lidar`` (3,) the sensor."""
+    to_work = None if a is None else rigid_transform(a, np.zeros(3))
+    ids = object_ids(boxes)
+    objects: list[ObjectResult] = []
+    wbs = [b if to_work is None else b.transformed(to_work) for b in boxes]
+    # one KD-tree crop of the scan for every box (geometry.boxes.crop_boxes: Box.crop's indices), unless given
+    crops = (given if given is not None else scene_crops(work, wbs, config)) if config.crop else {}
+    for i, b in enumerate(boxes):
+        wb = wbs[i]
+        if not wb.is_valid():
+            objects.append(ObjectResult(i, ids[i], b, "invalid_box" if _selected(b, config) else "class_excluded"))
+            continue
+        idx = crops[i] if config.crop else np.arange(len(work))
+        free = idx[member[idx] < 0]
+        member[free] = i
+        if not _selected(b, config):
+            objects.append(ObjectResult(i, ids[i], b, "class_excluded", input_indices=idx))
+            continue
+        more = None if extra_points is None else extra_points.get(i)
+        pts = work[idx] if more is None else np.concatenate([work[idx], more if a is None else more @ a.T])
+        if len(pts) < config.min_points:
+            objects.append(ObjectResult(i, ids[i], b, "too_few_points", input_indices=idx))
+            continue
+        unit = wb.normalization().to_unit(pts)
+        partial = prepare_partial(unit, seed=config.seed, method=config.resample)
+        o = ObjectResult(i, ids[i], b, "completed", used_box=wb, input_indices=idx, partial_unit=partial)
+        o.sensor_unit = wb.normalization().to_unit(lidar)
+        o.n_fused = None if more is None else len(pts)
+        if more is not None and config.snap:
+            o.seen_unit = wb.normalization().to_unit(work[idx]).astype(np.float32)
+        domain = getattr(completer, "domain", None)
+        if domain is not None:
+            unlearned = domain.gate(b.cls, b.size) is not None
+            # a box the main model did not learn goes to a fallback that did, whatever --complete-unknown says
+            # (which is for what neither learned)
+            fb = getattr(fallback[0], "domain", None) if unlearned and fallback is not None else None
+            if fb is not None and fallback is not None and fb.gate(b.cls, b.size) is None:  # the fallback learned it
+                o.completed_by = fallback[1]
+                o.warnings.extend(fb.warnings(b.cls, b.size))
+                objects.append(o)
+                continue
+            o.warnings.extend(domain.warnings(b.cls, b.size))
+            if unlearned and not config.complete_unknown:
+                o.status, o.used_box, o.partial_unit = "not_learned", None, None
+                if fallback is not None and fb is None:
+                    hint = f"the fallback {fallback[1]} records no learned domain, so it is not used; "
+                elif fallback is not None:
+                    hint = f"nor did the fallback {fallback[1]} learn it; "
+                elif fallback_hint(b.cls, domain):
+                    hint = "--fallback classes completes it with the class model; "
+                else:
+                    hint = ""
+                o.warnings.append(f"not completed (left as observed points; {hint}--complete-unknown completes it)")
+        objects.append(o)
+    return objects
+
+
+def fallback_hint(cls: str | None, domain) -> bool:
+    """True when a box of class ``cls`` that the model of ``domain`` (a
+    :class:`~spotlights.learning.inference.LearnedDomain`) did not learn is of a vehicle class the packaged class
+    model (``--fallback classes``: car, caravan, truck, bus, trailer) did learn: the hint a user needs beside a
+    car-only model."""
+    c = canonical_class(cls) if cls else None
+    return c in VEHICLE_CLASSES and not domain.learned(c)
+
+
+_T = TypeVar("_T")
+
+
+def _set(value: _T | None) -> _T:
+    """``value``, which a completed object always has (its used box, model input, sensor); a bug otherwise."""
+    if value is None:
+        raise RuntimeError("a completed object lacks its box, input or sensor (a bug in complete_scene)")
+    return value
+
+
+def _complete_objects(
+    todo: list[ObjectResult], completer, config: SceneConfig, shares: list, fallback, scores: Fidelities
+) -> list:
+    """The completions (unit frame, clamped to the grown box) of every object of ``todo``, then (heading check)
+    of every object turned around, in that order; ``shares`` receives each one's share inside its box. The
+    objects the ``fallback`` model completes (``completed_by``) go through it in a batch of their own.
+    ``scores`` (:class:`Fidelities`) starts scoring each batch's completions as soon as it is decoded."""
+    own = [k for k, o in enumerate(todo) if o.completed_by is None]
+    n = len(todo)
+    if len(own) == len(todo) or fallback is None:
+        res = _complete_batch(todo, completer, config, shares)
+        scores.add(range(len(res)), res)
+        return res
+    width = 2 * n if config.heading_check else n
+    outs: list = [None] * width
+    inside: list = [float("nan")] * width
+    others = sorted(set(range(n)) - set(own))
+    # the fallback's batch runs on a thread beside the main model's (torch computes without the GIL)
+    beside = None
+    if own and others:
+        beside = shared_thread_pool("fallback", 1).submit(
+            _complete_batch_shares, [todo[k] for k in others], fallback, config
+        )
+    for model, idx, ready in ((completer, own, None), (fallback, others, beside)):
+        if not idx:
+            continue
+        part, res = (
+            ready.result() if ready is not None else _complete_batch_shares([todo[k] for k in idx], model, config)
+        )
+        at = list(idx) + ([n + k for k in idx] if config.heading_check else [])  # positions of res in outs
+        for j, k in enumerate(at):
+            outs[k], inside[k] = res[j], part[j]
+        scores.add(at, res)
+    shares.extend(inside)
+    return outs
+
+
+def _complete_batch_shares(todo: list[ObjectResult], completer, config: SceneConfig) -> tuple[list, list]:
+    """(shares inside the box, completions) of :func:`_complete_batch`."""
+    part: list[float] = []
+    return part, _complete_batch(todo, completer, config, part)
+
+
+def _complete_batch(todo: list[ObjectResult], completer, config: SceneConfig, shares: list) -> list:
+    """:func:`_complete_objects` for objects that one model completes: one batch."""
+    partials = np.stack([_set(o.partial_unit) for o in todo])
+    sizes = np.stack([_set(o.used_box).size for o in todo])
+    sensors = np.stack([_set(o.sensor_unit) for o in todo])
+    classes = [o.box.cls for o in todo]
+    if config.heading_check:
+        classes = classes + classes
+        partials = np.concatenate([partials, (partials @ FLIP_Z).astype(np.float32)])
+        sizes = np.concatenate([sizes, sizes])
+        sensors = np.concatenate([sensors, sensors @ FLIP_Z])
+    return complete_in_boxes(
+        completer,
+        partials,
+        sizes,
+        clip=DEFAULT if config.clip == "default" else config.clip,
+        sensor_origins=sensors,
+        inside=shares,
+        classes=classes,
+        **snap_options(completer, config.snap, config.snap_mirror, todo),
+    )
+
+
+def require_rays_to_snap(completer, snap: float | None) -> None:
+    """Raise :class:`ParameterError` when ``snap`` (a radius; 0 or None: off) asks a main model without rays (a
+    point-set model) to snap: it could not snap a single box. (A point-set fallback completes unsnapped.)"""
+    if snap and getattr(completer, "rig", None) is None:
+        raise ParameterError(
+            f"`snap`: {getattr(completer, 'model_name', 'this model')} has no rays to snap; snapping to the observed "
+            "points needs an SA-Net (a point-set fallback completes its boxes unsnapped)",
+            "snap",
+        )
+
+
+def require_sensor(sensor, name: str = "sensor") -> None:
+    """Raise :class:`ParameterError` unless ``sensor`` (the LiDAR's place in the scan's frame, metres; option
+    ``name``) is None or three finite numbers."""
+    if sensor is not None and (np.shape(sensor) != (3,) or not np.all(np.isfinite(np.asarray(sensor, dtype=float)))):
+        raise ParameterError(
+            f"{shown(name)}: give the LiDAR's X Y Z in the scan's frame (metres), got {sensor!r}",
+            *parameter_names(name),
+        )
+
+
+def snap_options(completer, snap: float | None, snap_mirror: bool, todo: Sequence[ObjectResult] = ()) -> dict:
+    """``snap``, ``snap_mirror`` and ``seen`` for one model's ``complete`` (through
+    :func:`~spotlights.learning.inference.complete_in_boxes` or ``real evaluate``'s batches) and its objects
+    ``todo``: the radius and mirror asked for an SA-Net (it has a rig), off for a point-set model (a ``--fallback``
+    baseline completes its boxes unsnapped and ``real evaluate`` scores one as it is, as ``evaluate`` does;
+    :func:`complete_scene` refuses one as the main model); ``seen``, when some objects have other frames fused in,
+    each object's own points (:attr:`ObjectResult.seen_unit`, else its input) for the occlusion rule's free space."""
+    rays = getattr(completer, "rig", None) is not None
+    out: dict[str, Any] = {"snap": (snap or None) if rays else None, "snap_mirror": bool(snap_mirror) and rays}
+    if out["snap"] and any(o.seen_unit is not None for o in todo):
+        out["seen"] = [o.partial_unit if o.seen_unit is None else o.seen_unit for o in todo]
+    return out
+
+
+def _assemble(todo: list, outs: list, config: SceneConfig, a, scores: Fidelities) -> None:
+    """Fidelity, heading choice and the scan-frame completion of every completed object (in place).
+
+    ``outs`` come from :func:`complete_in_boxes`, clamped to the unit sphere: no completion point
+    of any model leaves its box's sphere. ``scores``: their fidelities (:class:`Fidelities`, started already)."""
+    n = len(todo)
+    for k, o in enumerate(todo):
+        comp = outs[k]
+        o.fidelity = scores.get(k)
+        if config.heading_check:
+            comp_f = outs[n + k]
+            flipped_partial = scores.partial(n + k)
+            o.fidelity_flipped = scores.get(n + k)
+            if o.fidelity_flipped is not None and bool(
+                heading_turns(np.nan if o.fidelity is None else o.fidelity, o.fidelity_flipped, config.heading_margin)
+            ):
+                o.flipped, comp = True, comp_f
+                o.used_box = o.used_box.flipped()
+                o.partial_unit = flipped_partial.astype(np.float32)
+        o.completion_unit = comp
+        if len(comp) == 0:
+            o.status = "empty_completion"
+            continue
+        if config.keep_observed:  # scored above on the predicted points alone
+            comp = o.completion_unit = with_observed(comp, o.partial_unit)
+        done = o.used_box.normalization().from_unit(comp.astype(np.float64))
+        o.completion = done if a is None else done @ a
+
+
+#: threads that score the completions' fidelity (:class:`Fidelities`)
+FIDELITY_THREADS = 2
+
+
+def _one_openmp_thread() -> None:
+    """A fidelity thread's start: OpenMP on one thread in it for good (the limit is per thread;
+    :func:`~spotlights.geometry.neighbors.serial_queries`, never restored): completions are scored with
+    pykdtree, whose OpenMP split of small queries costs more than it saves."""
+    serial_queries()
+
+
+def _fidelity_or_none(partial: np.ndarray, completion: np.ndarray) -> float | None:
+    return fidelity(partial, completion) if len(completion) else None
+
+
+class Fidelities:
+    """:func:`~spotlights.metrics.consistency.fidelity` of a frame's completions (unit frame), scored on
+    :data:`FIDELITY_THREADS` threads while the frame goes on: the KD-tree over each completion (pykdtree's:
+    :class:`~spotlights.geometry.neighbors.NearestNeighbors` with ``few_queries``) is built and queried without
+    the GIL, so one model's batch is scored while the other model's batch and the frame's assembly go on (on
+    scene-0523, 16 objects a frame of ~15,000 points each, scoring was a fifth of ``real complete``'s frame loop
+    on one core). The values are those of one thread.
+
+    Positions are those of :func:`_complete_objects`' list: ``0..n-1`` each object of ``todo`` (its observed
+    ``partial_unit``), then, with ``heading_check``, ``n..2n-1`` the same objects turned around (their partial
+    turned by :data:`~spotlights.geometry.boxes.FLIP_Z`).
+    """
+
+    def __init__(self, todo: list) -> None:
+        self.todo = todo
+        self.pending: dict = {}
+
+    def partial(self, position: int) -> np.ndarray:
+        """(P, 3) the observed points that position ``position`` is scored against (unit frame)."""
+        n = len(self.todo)
+        return self.todo[position].partial_unit if position < n else self.todo[position - n].partial_unit @ FLIP_Z
+
+    def add(self, positions, completions: list) -> None:
+        """Start scoring ``completions`` ((K, 3) each), at ``positions`` (same length)."""
+        pool = shared_thread_pool("fidelity", FIDELITY_THREADS, initializer=_one_openmp_thread)
+        for k, comp in zip(positions, completions):
+            self.pending[k] = pool.submit(_fidelity_or_none, self.partial(k), comp)
+
+    def get(self, position: int) -> float | None:
+        """The fidelity at ``position`` (waits for it; None for an empty completion)."""
+        return self.pending[position].result()
+
+
+def scene_objects(result: SceneResult) -> list:
+    """The completed objects of a scene as :class:`spotlights.viz.SceneObject` (scan frame): box, partial
+    input, completion, labelled with their ``object`` ids (as in the PLY); then the objects left as their
+    observed points because the model did not learn them (status ``not_learned``: box and points, no
+    completion), so a picture shows what was not completed too."""
+    objs = []
+    for o in result.completed:
+        objs.append(
+            SceneObject(
+                label=str(o.object_id),
+                box=_set(o.used_box),
+                partial=result.points[o.input_indices],
+                completion=o.completion,
+                caption=_caption(o),
+            )
+        )
+    for o in result.objects:
+        if o.status == "not_learned":
+            objs.append(
+                SceneObject(
+                    label=str(o.object_id),
+                    box=o.box,
+                    partial=result.points[o.input_indices],
+                    completion=None,
+                    caption=f"{o.box.cls or o.box.label or 'box'}: {len(o.input_indices)} pts in box, not learned: "
+                    "left as observed",
+                )
+            )
+    return objs
+
+
+def render_result(result: SceneResult, path: str | Path, title: str | None = None) -> Path:
+    """Draw a completed scene into a PNG (atomic write): a bird's-eye view (equal aspect, grey scan, purple inputs,
+    green completions, box outlines labelled with their ``object`` ids, a scale bar) and a 3-D close-up of every
+    completed object seen from the sensor (box wireframe, 1 m ruler): the bytes of :func:`result_png`."""
+    return write_png(result_png(result, title), path)
+
+
+def result_png(result: SceneResult, title: str | None = None) -> bytes:
+    """The PNG bytes :func:`render_result` writes (:func:`spotlights.viz.scene_png`); a picklable function of a
+    picklable :class:`SceneResult`, so another process can draw them (``real complete``'s picture processes)."""
+    return scene_png(result.points, scene_objects(result), title=title, id_note="boxes: object id, as in the PLY")
+
+
+def render_result_html(
+    result: SceneResult, path: str | Path, title: str | None = None, plotlyjs: str | None = None
+) -> Path:
+    """The same scene as one interactive HTML page (:mod:`spotlights.viz.html`): self-contained, or with
+    ``plotlyjs`` a relative path to a shared local copy of plotly.js (:func:`spotlights.viz.html.write_plotlyjs`)."""
+    fig = html.page([("scene", html.scene_traces(result.points, scene_objects(result)))], title or "")
+    return html.write_html(path, fig, plotlyjs=plotlyjs)
+
+
+def _caption(o: ObjectResult) -> str:
+    return (
+        f"{o.box.cls or o.box.label or 'box'}: {len(o.input_indices)} pts in box, {len(o.completion)} completed"
+        + (f" by {o.completed_by}" if o.completed_by else "")
+        + (", heading flipped" if o.flipped else "")
+        + (" [outside learned domain]" if o.warnings else "")
+    )
+
+
+def require_points(points: np.ndarray, min_points: int, source) -> None:
+    """A one-line error naming ``source`` when a scan holds fewer than ``min_points`` points."""
+    if len(points) < min_points:
+        raise InputFileError(
+            source,
+            f"holds {len(points)} point{'s' if len(points) != 1 else ''}; at least {min_points} "
+            "are needed to complete anything",
+        )
+
+
+__all__ = [
+    "HEADING_MARGIN",
+    "SOURCE_COMPLETION",
+    "SOURCE_PARTIAL",
+    "SOURCE_RAW",
+    "fallback_counts",
+    "heading_turns",
+    "scene_comments",
+    "SceneConfig",
+    "SceneResult",
+    "ObjectResult",
+    "complete_scene",
+    "scene_crops",
+    "write_scene",
+    "check_completed",
+    "object_ids",
+    "describe",
+    "render_result",
+    "render_result_html",
+    "scene_objects",
+    "HEADING_DOC",
+]
