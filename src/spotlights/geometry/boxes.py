@@ -50,6 +50,11 @@ ROTATION_TOLERANCE = 1e-3
 #: while a norm far from 1 (or one that overflows) is a corrupt number, not a rotation to normalise silently.
 QUATERNION_TOLERANCE = 1e-3
 
+#: Most boxes one frame may hold (a box file, a frame given to scene completion): the busiest frames of the datasets
+#: read hold a few hundred annotations; 2,000 leaves a wide margin, while 100,000 boxes took minutes and 7 GB before
+#: a MemoryError. Checked before any box is cropped or completed.
+MAX_BOXES_PER_FRAME = 2_000
+
 #: 180 degrees about the box's own z axis: the same box, heading turned around.
 FLIP_Z = np.diag([-1.0, -1.0, 1.0])
 

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import InputFileError
-from ...geometry.boxes import Box, box_from_dict, holds_non_numbers
+from ...geometry.boxes import MAX_BOXES_PER_FRAME, Box, box_from_dict, holds_non_numbers
 from ...geometry.rotations import is_rotation
 from ...inputs import read_json
 from . import av2, kitti, kitti360, nuscenes
@@ -70,6 +70,8 @@ def parse_boxes(items, path, require_label: bool = True, axes=None, what: str = 
     """A JSON list of boxes -> :class:`Box` list with classes (see :func:`box_from_dict`)."""
     if not isinstance(items, list):
         raise InputFileError(path, "expected a JSON list of boxes")
+    if len(items) > MAX_BOXES_PER_FRAME:
+        raise InputFileError(path, f"{len(items):,} boxes in one frame; at most {MAX_BOXES_PER_FRAME:,} are read")
     return [
         with_class(box_from_dict(d, path, f"{what} {j}", require_label=require_label, axes=axes))
         for j, d in enumerate(items)
