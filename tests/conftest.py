@@ -52,3 +52,16 @@ def _one_torch_thread_per_worker():
         yield
     finally:
         torch.set_num_threads(before)
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_sessionfinish(session, exitstatus):
+    """A run with failures keeps its temporary folders (pytest's ``tmp_path_retention_policy = "failed"``): trimmed
+    here to what a failing test is read by (:func:`helpers.trim_kept_files`: no file above 8 MiB, 64 MiB in all), so
+    that a failed run no longer leaves hundreds of MB under the system's temporary folder."""
+    from helpers import trim_kept_files
+
+    factory = getattr(session.config, "_tmp_path_factory", None)
+    base = getattr(factory, "_basetemp", None) if factory is not None else None
+    if base is not None and Path(base).is_dir():
+        trim_kept_files(Path(base))
