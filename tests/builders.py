@@ -319,6 +319,10 @@ def drive_past(perturb: dict[int, tuple[float, float, float]], n: int = 7, seed:
     return frames, truth
 
 
+DRIVE_SIZE = [4.2, 1.8, 1.5]
+"""The two cars' box size in :func:`write_drive` (metres)."""
+
+
 def write_drive(folder, times, track_ids=("a", "b"), rng=None):
     """Generic frames: two cars (track ids ``track_ids``; "" = none) as box-surface points, plus ground."""
     rng = rng or np.random.default_rng(0)
@@ -326,11 +330,11 @@ def write_drive(folder, times, track_ids=("a", "b"), rng=None):
     for k, t in enumerate(times):
         boxes, pts = [], [rng.uniform(-30, 30, (300, 3)) * [1, 1, 0] - [0, 0, 1.7]]
         for tid, c in zip(track_ids, ([10.0 + 2.0 * t, 2.0, -0.9], [-6.0, -5.0, -0.9])):
-            obj = rng.uniform(-0.5, 0.5, (300, 3)) * SIZE
-            obj[:, 0] = np.sign(obj[:, 0]) * SIZE[0] / 2  # front and back faces
-            obj[:, 2] = rng.uniform(-SIZE[2] / 2 + 0.12, SIZE[2] / 2, 300)  # above the ground cut (0.10 m)
+            obj = rng.uniform(-0.5, 0.5, (300, 3)) * DRIVE_SIZE
+            obj[:, 0] = np.sign(obj[:, 0]) * DRIVE_SIZE[0] / 2  # front and back faces
+            obj[:, 2] = rng.uniform(-DRIVE_SIZE[2] / 2 + 0.12, DRIVE_SIZE[2] / 2, 300)  # above the ground cut (0.10 m)
             pts.append(obj + c)
-            box = {"center": c, "size": SIZE, "yaw": 0.0, "label": "car"}
+            box = {"center": c, "size": DRIVE_SIZE, "yaw": 0.0, "label": "car"}
             if tid:
                 box["track_id"] = tid
             boxes.append(box)

@@ -32,6 +32,7 @@ PUBLIC = [
     "make_rig",
     "read_frames",
     "save_points",
+    "track_boxes",
 ]
 
 

@@ -534,6 +534,16 @@ CASES = [
     C("view-out-png", "view {mesh} -o {out}/v.png -q", "v.png"),
     C("view-readonly", "view {mesh} -o {out}/v.html -q", "v.html", fault="readonly"),
     C("view-port-too-big", "view {mesh} --serve --port 70000 -q", "--port", usage=True),
+    # ---- track
+    C("track-garbage", "track {garbage} --format generic -o {out}/t.json -q", "garbage.bin"),
+    C("track-nuscenes-no-data", "track {garbage} --format nuscenes -o {out}/t.json -q", "--data"),
+    C(
+        "track-min-score",
+        "track {garbage} --format generic --min-score 2 -o {out}/t.json -q",
+        "--min-score",
+        usage=True,
+    ),
+    C("track-readonly", "track {garbage} --format generic -o {out}/t.json -q", "t.json", fault="readonly"),
     # ---- curves
     C("curves-missing", "curves {out}/nope -o {out}/cv", "nope"),
     C("curves-no-log", "curves {empty_dir} -o {out}/cv", "log.csv"),

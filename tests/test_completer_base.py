@@ -72,3 +72,23 @@ def test_box_rigs_get_each_scans_directions_and_results_are_clamped():
         expect = inbox / np.maximum(r, 1.0)
         np.testing.assert_allclose(p.astype(np.float64), expect, rtol=1e-5, atol=1e-6)
         assert np.linalg.norm(p.astype(np.float64), axis=1).max() <= 1.0 + 1e-6
+
+
+def test_a_request_object_is_the_same_call_as_its_keywords():
+    """``complete(CompletionRequest(x, ...))`` gives what ``complete(x, ...)`` gives; options beside a request are
+    refused (one way to say each option)."""
+    from spotlights.learning.inference import CompletionRequest
+
+    c = Scaled(needs_box=True)
+    x = np.random.default_rng(0).uniform(-0.5, 0.5, (3, 7, 3)).astype(np.float32)
+    e = np.array([0.8, 0.4, 0.3])
+    by_words = c.complete(x, batch_size=2, extents=e)
+    by_request = c.complete(CompletionRequest(x, batch_size=2, extents=e))
+    assert [s for s, *_ in c.calls] == [(2, 7, 3), (1, 7, 3)] * 2
+    assert len(by_words) == len(by_request) == 3
+    for a, b in zip(by_words, by_request):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(ParameterError, match="in the request"):
+        c.complete(CompletionRequest(x), batch_size=2)
+    with pytest.raises(ParameterError, match="3 class names for 2 scans"):
+        c.complete(CompletionRequest(x[:2], extents=e, classes=["a", "b", "c"]))

@@ -17,6 +17,7 @@ FLOORS = {
     "analysis": 2,
     "viz": 3,
     "learning": 4,
+    "tracking": 4.5,
     "completion": 5,
     "experiments": 6,
     "cli": 7,

@@ -169,9 +169,9 @@ def test_the_completer_snaps_only_when_asked_and_onto_the_scan(hit_ckpt):
     assert all(np.mean(np.abs(q[:, 1] + 0.8 * E[1]) < 1e-5) > 0.05 for q in mirrored)
     with pytest.raises(ParameterError, match="radius"):
         c.complete(x, extents=e, snap=-0.1)
-    with pytest.raises(ParameterError, match="observed point sets"):
+    with pytest.raises(ParameterError, match="`observed` point sets"):
         c.complete(x, extents=e, snap=0.05, observed=other[:2])
-    with pytest.raises(ParameterError, match="seen point sets"):
+    with pytest.raises(ParameterError, match="`seen` point sets"):
         c.complete(x, extents=e, snap=0.05, seen=other[:2])
     with pytest.raises(ParameterError, match="go with a snap radius"):
         c.complete(x, extents=e, seen=other)
@@ -370,7 +370,7 @@ def test_mirrored_snapping_draws_the_side_the_lidar_did_not_see(hit_ckpt):
     both = c.complete(x, extents=e, snap=0.05, snap_mirror=True)
     for a, b in zip(plain, both):
         assert right(a) == 0.0 and right(b) > 0.05
-    with pytest.raises(ParameterError, match="snap_mirror, observed and seen go with"):
+    with pytest.raises(ParameterError, match="`snap_mirror`, `observed` and `seen` go with"):
         c.complete(x, extents=e, snap_mirror=True)
 
 

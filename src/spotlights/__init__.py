@@ -72,6 +72,7 @@ if TYPE_CHECKING:  # the names as type checkers and IDEs see them
         make_rig,
         read_frames,
         save_points,
+        track_boxes,
     )
 
 logging.getLogger("spotlights").addHandler(logging.NullHandler())  # silent unless the application configures it
@@ -90,11 +91,12 @@ _HOMES = {
     "read_frames": "spotlights.api",
     "BaseCompleter": "spotlights.learning.inference",
     "load_completer": "spotlights.learning.runtime",
-    "SceneConfig": "spotlights.completion.config",
+    "SceneConfig": "spotlights.completion.scene_config",
     "ObjectResult": "spotlights.completion.results",
     "SceneResult": "spotlights.completion.results",
     "complete": "spotlights.api",
     "complete_frame": "spotlights.api",
+    "track_boxes": "spotlights.tracking.tracker",
 }
 
 #: the same names as :data:`_HOMES` (tests/test_api.py checks it)
@@ -117,6 +119,7 @@ __all__ = [
     "SceneResult",
     "complete",
     "complete_frame",
+    "track_boxes",
 ]
 
 

@@ -17,12 +17,13 @@ name                home
 ``read_frames``     :func:`read_frames` (LiDAR frames with their boxes, any supported format)
 ``load_completer``  :func:`spotlights.learning.runtime.load_completer` (torch or onnx runtime)
 ``BaseCompleter``   :class:`spotlights.learning.inference.BaseCompleter` (what ``load_completer`` returns)
-``SceneConfig``     :class:`spotlights.completion.config.SceneConfig` (the options of a frame's completion)
+``SceneConfig``     :class:`spotlights.completion.scene_config.SceneConfig` (the options of a frame's completion)
 ``complete``        :func:`complete` (one object in its box)
 ``complete_frame``  :func:`complete_frame` (every vehicle of a frame: ``completion.frame.complete_scene``)
 ``SceneResult``     :class:`spotlights.completion.results.SceneResult` (what ``complete_frame`` returns;
                     ``save(path)`` writes the PLY and JSON ``spotlights complete`` writes)
 ``ObjectResult``    :class:`spotlights.completion.results.ObjectResult` (one box's outcome)
+``track_boxes``     :func:`spotlights.tracking.tracker.track_boxes` (a detector's boxes of many frames -> tracks)
 ==================  ===========================================================================
 """
 
@@ -50,6 +51,7 @@ from .geometry.rig import make_rig
 from .learning.checkpoint import PRETRAINED
 from .learning.inference import BaseCompleter
 from .learning.runtime import load_completer
+from .tracking.tracker import track_boxes
 
 LOG = logging.getLogger(__name__)
 
@@ -269,4 +271,5 @@ __all__ = [
     "make_rig",
     "read_frames",
     "save_points",
+    "track_boxes",
 ]

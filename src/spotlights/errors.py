@@ -76,3 +76,32 @@ class OutputFileError(SpotlightsError):
 
     def __reduce__(self):
         return (type(self), (self.path, self.problem))
+
+
+#: optional package (top-level module) -> the extra of ``pyproject.toml`` that installs it
+EXTRAS = {
+    "torch": "learn",
+    "pandas": "real",
+    "pyarrow": "real",
+    "laspy": "las",
+    "lazrs": "las",
+    "plotly": "viewer",
+    "ray": "distributed",
+    "onnx": "onnx",
+    "onnxruntime": "onnx",
+    "onnxscript": "onnx",
+    "rerun": "rerun",
+    "filterpy": "track",
+    "shapely": "track",
+    "motmetrics": "track",
+}
+
+
+def missing_extra(exc: ImportError) -> str | None:
+    """The one line for an optional package that is not installed (``exc`` from its import): which package and
+    which extra installs it; None when ``exc`` is not about one of :data:`EXTRAS` (a bug or a broken install)."""
+    name = (getattr(exc, "name", None) or "").split(".")[0]
+    if name not in EXTRAS:
+        return None
+    extra = EXTRAS[name]
+    return f"this needs the optional package {name}: pip install 'spotlights[{extra}]' (or 'spotlights[all]')"

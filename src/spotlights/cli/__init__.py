@@ -17,7 +17,7 @@ import sys
 
 from .. import logs
 from .._version import __version__
-from ..errors import SpotlightsError
+from ..errors import SpotlightsError, missing_extra
 from ..options import join_axis_values, option_names
 from ..utils import os_error_reason, sigint_held
 
@@ -33,6 +33,7 @@ COMMAND_MODULES = [
     "spotlights.cli.complete",  # complete (a frame with its boxes, or one object)
     "spotlights.cli.reproduce",  # reproduce (the paper's tables)
     "spotlights.cli.view",  # view (interactive HTML page)
+    "spotlights.cli.track",  # track (a detector's boxes -> tracks)
 ]
 
 EPILOG = """\
@@ -149,6 +150,12 @@ def main(argv: list[str] | None = None) -> int:
         return _interrupted()
     except BrokenPipeError:
         return 0
+    except ModuleNotFoundError as exc:  # an optional extra that is not installed: which one, in one line
+        line = missing_extra(exc)
+        if line is None:
+            raise
+        print(f"spotlights: error: {line}", file=sys.stderr)
+        return 2
     except OSError as exc:  # a file the command reads or writes: one line, naming it
         print(f"spotlights: error: {_os_error_line(exc)}", file=sys.stderr)
         return 2

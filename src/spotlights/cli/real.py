@@ -147,6 +147,19 @@ def register(sub) -> None:
         "with --fuse, done with the same fusion: the outputs are those of one run)",
     )
     add_track_arguments(p)
+    g = p.add_argument_group("a detector's boxes instead of the dataset's (docs/tracking.md)")
+    g.add_argument(
+        "--detections",
+        metavar="FILE",
+        help="detector output in the dataset's format (nuscenes: a result JSON; kitti: a folder of result files with "
+        "scores; generic: box JSON with scores), used instead of the dataset's boxes; needs --track",
+    )
+    g.add_argument(
+        "--track", action="store_true", help="give --detections track ids (the tracker of 'spotlights track')"
+    )
+    g.add_argument(
+        "--min-score", type=unit_interval, metavar="S", help="drop detections scoring below S (default: none)"
+    )
     add_quiet(p)
 
     p = add_command(

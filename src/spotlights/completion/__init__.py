@@ -3,9 +3,12 @@
 ==========================  =====================================================================
 module                      job
 ==========================  =====================================================================
+:mod:`.scene_config`        :class:`~.scene_config.SceneConfig`: the options of a frame's completion
 :mod:`.frame`               one frame: a scan and its boxes -> every vehicle completed
-                            (:func:`~.frame.complete_scene`, :class:`~.frame.SceneConfig`,
-                            :class:`~.frame.SceneResult`, :class:`~.frame.ObjectResult`)
+                            (:func:`~.frame.complete_scene`: cropping, batching, the heading check)
+:mod:`.results`             :class:`~.results.ObjectResult`, :class:`~.results.SceneResult` (``save``)
+:mod:`.writing`             a frame's files: the scene PLY, per-object PLYs, the JSON summary
+:mod:`.detections`          a detector's boxes tracked into the frames of ``real complete``
 :mod:`.scan`                one scan from files (what ``spotlights complete`` runs): options, checks, outputs
 :mod:`.frames`              every frame of a dataset into a folder, resumable (``spotlights real complete``)
 :mod:`.fusion`              fusion and box refinement over tracks (``real complete --fuse``)

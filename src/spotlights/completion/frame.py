@@ -44,7 +44,8 @@ from ..learning.inference import DEFAULT, complete_in_boxes, prepare_partial, wi
 from ..metrics.consistency import fidelity
 from ..utils import StageTimer, shared_thread_pool
 from ..viz import SceneObject, html, scene_png, write_png
-from .config import (
+from .results import ObjectResult, SceneResult, object_ids
+from .scene_config import (
     HEADING_DOC,
     HEADING_MARGIN,
     SOURCE_COMPLETION,
@@ -53,7 +54,6 @@ from .config import (
     SceneConfig,
     heading_turns,
 )
-from .results import ObjectResult, SceneResult, object_ids
 from .writing import check_completed, describe, fallback_counts, scene_comments, write_scene
 
 LOG = logging.getLogger(__name__)

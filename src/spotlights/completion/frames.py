@@ -42,6 +42,7 @@ from ..utils import (
 from ..viz import write_png
 from ..viz.html import write_plotlyjs
 from ..viz.rerun_log import check_rerun_path, open_recording
+from .detections import check_detection_options, tracked_reader
 from .frame import (
     SceneConfig,
     SceneResult,
@@ -188,7 +189,9 @@ class FramesSettings(ReaderOptions, CompletionOptions):
     max_gap : the longest time between two frames of one track, seconds; rerun : a ``.rrd`` file that also
     receives every frame on a time line (:mod:`spotlights.viz.rerun_log`; None: none); quiet : no progress bar;
     track_worker : with fuse, refine the boxes and fuse the windows in a second process, a frame ahead of the
-    completion (:class:`~spotlights.completion.fusion.TrackWorker`: the same outputs, two cores).
+    completion (:class:`~spotlights.completion.fusion.TrackWorker`: the same outputs, two cores);
+    detections, track, min_score : a detector's boxes (a file of the dataset's format) tracked and used instead of
+    the dataset's boxes, those scoring below ``min_score`` dropped (:mod:`spotlights.completion.detections`).
     """
 
     out: str
@@ -204,6 +207,9 @@ class FramesSettings(ReaderOptions, CompletionOptions):
     rerun: str | None = None
     quiet: bool = False
     track_worker: bool = True
+    detections: str | None = None
+    track: bool = False
+    min_score: float | None = None
 
     @classmethod
     def of_scene(cls, s: ScanSettings) -> FramesSettings:
@@ -695,10 +701,13 @@ def complete_frames(
     names). Returns the run's summary (the content of ``summary.json``).
     """
     check_threads(s.threads)  # also when a model is given (loading one checks it)
+    check_detection_options(s.detections, s.track, s.format, len(s.source), s.min_score)
     # the track worker's interpreter starts while the dataset is opened and read (refusals stop it)
     early = TrackWorker.start() if s.track_worker and s.window.fuses else None
     try:
         reader = s.open()
+        if s.detections is not None:
+            reader = tracked_reader(reader, s.detections, s.source[0], s.min_score, s.sequence)
         keys = select_frames(reader.frame_keys(), s.frames)
         if not keys:
             raise ParameterError("`frames` selects no frame", "frames")

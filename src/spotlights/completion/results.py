@@ -11,7 +11,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..geometry.boxes import Box
-from .config import SOURCE_COMPLETION, SOURCE_PARTIAL, SceneConfig
+from .scene_config import SOURCE_COMPLETION, SOURCE_PARTIAL, SceneConfig
 from .writing import write_json, write_scene
 
 

@@ -122,6 +122,7 @@ class Box:
     label : the source's own label (e.g. ``"Van"``, ``"vehicle.car"``); ``""`` when unknown.
     cls : one of the vehicle classes of :mod:`spotlights.data.real` (``"car"``, ...) or None.
     track_id : identity of the object across frames (``""`` when there is none).
+    score : a detector's or tracker's confidence, a finite number in [0, 1], or None (annotations).
     yaw : keyword alternative to a numeric ``rotation``.
 
     Attributes are read-only float64 arrays (``center``, ``size``, ``rotation``) and
@@ -135,14 +136,15 @@ class Box:
     checks are cheap: a box is made for every annotation of every frame.
     """
 
-    __slots__ = ("center", "size", "rotation", "label", "cls", "track_id", "_normalization")
-    FIELDS = ("center", "size", "rotation", "label", "cls", "track_id")
+    __slots__ = ("center", "size", "rotation", "label", "cls", "track_id", "score", "_normalization")
+    FIELDS = ("center", "size", "rotation", "label", "cls", "track_id", "score")
     center: np.ndarray
     size: np.ndarray
     rotation: np.ndarray
     label: str
     cls: str | None
     track_id: str
+    score: float | None
     _normalization: Normalization | None
 
     def __init__(
@@ -153,6 +155,7 @@ class Box:
         label: str = "",
         cls: str | None = None,
         track_id: str | None = "",
+        score: float | None = None,
         *,
         yaw: float | None = None,
     ) -> None:
@@ -189,6 +192,7 @@ class Box:
         object.__setattr__(self, "label", str(label))
         object.__setattr__(self, "cls", None if cls is None else str(cls))
         object.__setattr__(self, "track_id", "" if track_id is None else str(track_id))
+        object.__setattr__(self, "score", None if score is None else _score(score))
         object.__setattr__(self, "_normalization", None)  # made once by normalization() (the box is immutable)
 
     def __setattr__(self, name: str, value: object) -> None:
@@ -196,13 +200,14 @@ class Box:
 
     def __repr__(self) -> str:
         extra = "".join(f", {k}={getattr(self, k)!r}" for k in ("label", "cls", "track_id") if getattr(self, k))
+        extra += "" if self.score is None else f", score={self.score:.4f}"
         return (
             f"Box(center={np.round(self.center, 3).tolist()}, size={np.round(self.size, 3).tolist()}, "
             f"yaw={self.yaw:.4f}{extra})"
         )
 
     def __reduce__(self) -> tuple:  # picklable (process pools, Ray)
-        return (Box, (self.center, self.size, self.rotation, self.label, self.cls, self.track_id))
+        return (Box, (self.center, self.size, self.rotation, self.label, self.cls, self.track_id, self.score))
 
     # --- construction -----------------------------------------------------------------
 
@@ -221,7 +226,7 @@ class Box:
         return cls_(center, size, label=label, cls=cls, track_id=track_id, yaw=yaw)
 
     def replace(self, **changes: object) -> Box:
-        """A copy with some of ``center``, ``size``, ``rotation``, ``label``, ``cls``, ``track_id`` changed."""
+        """A copy with some of ``center``, ``size``, ``rotation``, ``label``, ``cls``, ``track_id``, ``score`` changed."""
         d = {k: getattr(self, k) for k in self.FIELDS}
         unknown = set(changes) - set(d)
         if unknown:
@@ -332,8 +337,8 @@ class Box:
         return self.replace(center=t[:3, :3] @ self.center + t[:3, 3], rotation=rot)
 
     def to_dict(self) -> dict:
-        """JSON-ready description: centre, size, rotation (rows), yaw, label, class, track id."""
-        return {
+        """JSON-ready description: centre, size, rotation (rows), yaw, label, class, track id (and score when set)."""
+        d = {
             "center": [float(v) for v in self.center],
             "size": [float(v) for v in self.size],
             "rotation": [[float(v) for v in row] for row in self.rotation],
@@ -342,6 +347,20 @@ class Box:
             "cls": self.cls,
             "track_id": self.track_id,
         }
+        if self.score is not None:
+            d["score"] = self.score
+        return d
+
+
+def _score(value: object) -> float:
+    """A box score as a float in [0, 1], or :class:`ParameterError` (one line)."""
+    try:
+        x = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise ParameterError(f"a box score must be a number in [0, 1], got {value!r:.60}") from None
+    if not 0.0 <= x <= 1.0:  # NaN fails too
+        raise ParameterError(f"a box score must be a finite number in [0, 1], got {x}")
+    return x
 
 
 def _numbers(value: object, what: str) -> np.ndarray:
@@ -454,6 +473,7 @@ def _rotation_problem(r: np.ndarray) -> str | None:
 SIZE_KEYS = ("size", "dimensions", "extent")
 LABEL_KEYS = ("label", "category", "class", "detection_name")
 ID_KEYS = ("track_id", "id", "instance_token", "tracking_id")
+SCORE_KEYS = ("score", "detection_score", "tracking_score")
 
 
 def crop_boxes(
@@ -515,6 +535,7 @@ def box_from_dict(
         required when ``require_label``.
     track_id : optional identity across frames (``id``, ``instance_token``, ``tracking_id``
         also accepted), a string or an integer.
+    score : optional confidence, a number in [0, 1] (``detection_score``, ``tracking_score`` also accepted).
 
     ``axes``: optional (3, 3) rotation taking the scan's coordinates to the object convention
     (x forward, y left, z up), as :func:`spotlights.geometry.io.axes_rotation` gives for
@@ -583,8 +604,11 @@ def box_from_dict(
         track = int(track)
     if track is not None and (isinstance(track, bool) or not isinstance(track, (str, int))):
         raise InputFileError(src, f"{what} {id_key} must be a string or a whole number, got {track!r:.60}")
+    score = next((d[k] for k in SCORE_KEYS if k in d), None)
+    if score is not None and (isinstance(score, bool) or not isinstance(score, (int, float)) or not 0 <= score <= 1):
+        raise InputFileError(src, f"{what} score must be a number in [0, 1], got {score!r:.40}")
     try:
-        return Box(center, size, rot, label, None, "" if track is None else str(track))
+        return Box(center, size, rot, label, None, "" if track is None else str(track), score)
     except ParameterError as exc:  # the box's own checks (one owner), here naming the file
         raise InputFileError(src, f"{what}: {exc}") from None
 

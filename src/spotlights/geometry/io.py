@@ -137,8 +137,8 @@ def load_points(path: str | os.PathLike, drop_nonfinite: bool = False) -> np.nda
             pts = getattr(obj, "vertices", None)
             if pts is None:
                 raise InputFileError(p, "PLY holds no vertices")
-            declared = obj.metadata.get("_ply_raw", {}).get("vertex", {}).get("length", len(pts))
-            if declared != len(pts):
+            declared = _ply_vertex_count(p)
+            if declared is not None and declared != len(pts):
                 raise InputFileError(
                     p, f"truncated PLY: its header declares {declared} vertices, the file holds {len(pts)}"
                 )
@@ -387,33 +387,41 @@ def save_ply(
 def load_ply_fields(path: str | os.PathLike) -> dict[str, np.ndarray]:
     """Every vertex property of a PLY file as name -> (K,) array (e.g. ``x``, ``y``, ``z``, ``source``, ``object``).
 
-    Reads what :func:`save_ply` writes (binary little-endian or ASCII vertex-only PLYs).
+    Reads what :func:`save_ply` writes (binary little-endian or ASCII vertex-only PLYs) with ``plyfile``; a file
+    holding fewer vertices than its header declares is a one-line :class:`InputFileError`.
     """
-    import trimesh
+    from plyfile import PlyData
 
     p = Path(path)
     if not p.is_file():
         raise InputFileError(p, "no such file")
+    declared = _ply_vertex_count(p)
     try:
-        with open(p, "rb") as fh:
-            cloud = trimesh.exchange.ply.load_ply(fh, prefer_color=None)
-        vertex = cloud.get("metadata", {}).get("_ply_raw", {}).get("vertex", {})
-        attrs = vertex.get("data")
-        if attrs is None:
-            raise InputFileError(p, "PLY holds no vertex element")
-        # binary PLYs give a structured array, ASCII ones a dict of (K, 1) columns
-        names = attrs.dtype.names if hasattr(attrs, "dtype") else list(attrs)
-        fields = {n: np.asarray(attrs[n]) for n in names}
-        fields = {n: a[:, 0] if a.ndim == 2 and a.shape[1] == 1 else a for n, a in fields.items()}
-        declared = int(vertex.get("length", -1))
-    except InputFileError:
-        raise
+        ply = PlyData.read(str(p))
     except Exception as exc:  # noqa: BLE001 - whatever the parser trips on is the file's fault
+        if declared is not None and "end-of-file" in str(exc).lower():
+            raise InputFileError(
+                p, f"truncated PLY: its header declares {declared} vertices, the file holds fewer"
+            ) from None
         raise InputFileError(p, f"cannot read PLY ({type(exc).__name__}: {str(exc)[:100]})") from None
+    if "vertex" not in ply:
+        raise InputFileError(p, "PLY holds no vertex element")
+    data = ply["vertex"].data
+    fields = {n: np.asarray(data[n]) for n in data.dtype.names}
     held = {len(a) for a in fields.values()}
-    if held != {declared}:
+    if declared is not None and held != {declared}:
         raise InputFileError(p, f"truncated PLY: its header declares {declared} vertices, the file holds {min(held)}")
     return fields
+
+
+def _ply_vertex_count(path: Path) -> int | None:
+    """The vertex count a PLY's header declares (``element vertex N``), None when it declares none or is no PLY."""
+    with open(path, "rb") as fh:
+        lines, _, _ = _ply_header(fh)
+    for words in lines or []:
+        if words[:2] == ["element", "vertex"] and len(words) == 3 and words[2].isdigit():
+            return int(words[2])
+    return None
 
 
 #: Bytes of each PLY scalar type (the names of the PLY specification and their aliases).

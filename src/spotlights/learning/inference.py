@@ -253,6 +253,130 @@ DEFAULT = _Default()
 """Sentinel for "the model's configured clip" (SA-Net: 0.2), shared by every completer."""
 
 
+def _rows(value: np.ndarray | None, n: int) -> np.ndarray | None:
+    """``value`` as (n, 3) float32 rows (one (3,) row repeated), or None."""
+    return None if value is None else np.broadcast_to(np.asarray(value, dtype=np.float32).reshape(-1, 3), (n, 3))
+
+
+@dataclass
+class CompletionRequest:
+    """What :meth:`BaseCompleter.complete` is asked to do: the scans and every option of their completion.
+
+    Attributes
+    ----------
+    partials : (B, K, 3) float32 unit-frame points (K = 256 as in training; any K >= 1
+        works, the encoder max-pools), or one (K, 3) scan.
+    clip : SA-Net depth threshold: :data:`DEFAULT` = the model's (0.2 for the paper SA-Net), ``None`` = keep
+        every ray with depth > 0. Ignored by the point models. The hit-aware SA-Net keeps
+        the rays with p(hit) >= its stored threshold (:attr:`threshold`); its default clip is none.
+    batch_size : forward passes are chunked to this many scans.
+    extents : (B, 3) (or (3,) for all) box half-extents of each scan in its unit frame,
+        ``size / |size|`` for a box of size (l, w, h) (:func:`~spotlights.geometry.boxes.unit_extents`).
+        Required when :attr:`needs_box` (SA-Net on a box-targeted rig: each scan decodes
+        with the rays aimed at its own box); ignored otherwise.
+    sensor_origins : (B, 3) (or (3,)) the LiDAR's optical centre in each scan's unit frame, for models that
+        read free space (``sanet-local``; None or NaN rows: no free-space evidence) and for ``snap``'s
+        occlusion rule; ignored by the others.
+    classes : B class names (or None each) for a class-conditioned model (its :attr:`classes`; a name it
+        lacks: no class input); ignored by the others.
+    box_half : (B, 3) half-extents of a box per scan in its unit frame (e.g. the box grown by 0.15 m):
+        the SA-Nets clip every kept ray's depth to it, exactly along the ray (``inside``, a list, gets each
+        scan's share of points inside before the clip); the point models ignore both.
+    snap : radius R > 0 (unit frame) to snap each scan's rays to its observed points (SA-Nets only;
+        :func:`spotlights.geometry.evidence.snap_to_observed`: a ray passing within R of an observed point
+        takes its depth from the scan; with ``sensor_origins``, not onto a point hidden behind the predicted
+        surface unless the LiDAR saw through it); None or 0: off (default).
+    observed : with ``snap``, B arrays (K_b, 3) of each scan's observed points, unit frame (default: the
+        partials themselves).
+    snap_mirror : with ``snap``, also snap to the observed points' mirror image across the box's x-z plane
+        (``y -> -y``: vehicles are left-right symmetric), so the side the LiDAR did not see follows the one
+        it saw.
+    seen : with ``snap`` and ``sensor_origins``, B arrays (K'_b, 3) of the points each scan's LiDAR saw from
+        its sensor origin, unit frame: the free space the occlusion rule carves (default: the observed points;
+        give them when other frames' points were fused into the input, which were seen from elsewhere).
+    inside : a list that receives each scan's share of points inside ``box_half`` before the clip (SA-Nets).
+    """
+
+    partials: np.ndarray
+    clip: Any = DEFAULT
+    batch_size: int = 256
+    extents: np.ndarray | None = None
+    sensor_origins: np.ndarray | None = None
+    classes: Sequence[str | None] | None = None
+    box_half: np.ndarray | None = None
+    inside: list | None = None
+    snap: float | None = None
+    observed: Sequence[np.ndarray] | None = None
+    snap_mirror: bool = False
+    seen: Sequence[np.ndarray] | None = None
+
+    def checked_partials(self) -> np.ndarray:
+        """The partials as (B, K, 3) float32 (one (K, 3) scan becomes B = 1), checked: K >= 1, finite."""
+        x = np.asarray(self.partials, dtype=np.float32)
+        if x.ndim == 2:
+            x = x[None]
+        if x.ndim != 3 or x.shape[-1] != 3:
+            raise ParameterError(f"`partials` must have shape (B, K, 3), got {x.shape}", "partials")
+        if x.shape[0] and x.shape[1] == 0:
+            raise ParameterError("partial scans are empty (K = 0 points)", "partials")
+        if not np.all(np.isfinite(x)):
+            raise ParameterError("partial scans contain NaN or infinite coordinates", "partials")
+        return x
+
+    def checked_extents(self, completer: BaseCompleter, n: int) -> np.ndarray | None:
+        """(n, 3) float64 box half-extents when ``completer`` needs each scan's box, else None."""
+        if not completer.needs_box:
+            return None
+        if self.extents is None:
+            raise ParameterError(
+                f"this SA-Net regresses the box-targeted rig {completer.rig.name}: give each scan's box "
+                "half-extents (`extents` = size / |size|)",
+                "extents",
+            )
+        e = np.asarray(self.extents, dtype=np.float64)
+        e = np.broadcast_to(e, (n, 3)) if e.shape == (3,) else e
+        if e.shape != (n, 3):
+            raise ParameterError(f"`extents` must have shape ({n}, 3) or (3,), got {np.shape(self.extents)}", "extents")
+        return e
+
+    def checked_classes(self, n: int) -> list | None:
+        """The class names as a list of n, or None."""
+        names = None if self.classes is None else list(self.classes)
+        if names is not None and len(names) != n:
+            raise ParameterError(f"{len(names)} class names for {n} scans", "classes")
+        return names
+
+    def checked_snap(self, completer: BaseCompleter, n: int) -> float | None:
+        """The snap radius (None: off), checked against the completer and the point sets given with it."""
+        snap = snap_radius(self.snap, option="snap")
+        if snap is None:
+            if self.snap_mirror or self.observed is not None or self.seen is not None:
+                raise ParameterError(
+                    "`snap_mirror`, `observed` and `seen` go with a snap radius (`snap`=R)",
+                    "snap_mirror",
+                    "observed",
+                    "seen",
+                    "snap",
+                )
+            return None
+        if completer.rig is None or not accepts(completer._forward, "snap"):  # noqa: SLF001 - its own runtime
+            raise ParameterError(
+                f"{completer.model_name} has no rays to snap: snapping to the observed points needs an SA-Net"
+            )
+        for name, sets in (("observed", self.observed), ("seen", self.seen)):
+            if sets is not None and len(sets) != n:
+                raise ParameterError(f"{len(sets)} `{name}` point sets for {n} scans", name)
+        return snap
+
+    def snap_targets(self, x: np.ndarray, chunk: slice, snap: float, origins: np.ndarray | None) -> SnapTargets:
+        """The snap targets of the scans ``x[chunk]`` (their observed points, mirrored with ``snap_mirror``)."""
+        obs = x[chunk] if self.observed is None else self.observed[chunk]
+        pts = [np.asarray(o, dtype=np.float64).reshape(-1, 3) for o in obs]
+        seen = self.seen
+        carve = pts if seen is None else [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in seen[chunk]]
+        return SnapTargets([mirrored(p) for p in pts] if self.snap_mirror else pts, snap, origins, carve)
+
+
 class BaseCompleter:
     """What every completer shares, whatever runs its network (torch: :class:`Completer`; onnxruntime:
     :class:`~spotlights.learning.export.OnnxCompleter`): the input checks, the box handling (each scan's
@@ -280,123 +404,43 @@ class BaseCompleter:
     domain: LearnedDomain
     device: Any
 
-    def complete(
-        self,
-        partials: np.ndarray,
-        clip: Any = DEFAULT,
-        batch_size: int = 256,
-        extents: np.ndarray | None = None,
-        sensor_origins: np.ndarray | None = None,
-        classes=None,
-        box_half: np.ndarray | None = None,
-        inside: list | None = None,
-        snap: float | None = None,
-        observed: Sequence[np.ndarray] | None = None,
-        snap_mirror: bool = False,
-        seen: Sequence[np.ndarray] | None = None,
-    ) -> list[np.ndarray]:
-        """Complete partial scans.
-
-        Parameters
-        ----------
-        partials : (B, K, 3) float32 unit-frame points (K = 256 as in training; any K >= 1
-            works, the encoder max-pools), or one (K, 3) scan.
-        clip : SA-Net depth threshold: :data:`DEFAULT` = the model's (0.2 for the paper SA-Net), ``None`` = keep
-            every ray with depth > 0. Ignored by the point models. The hit-aware SA-Net keeps
-            the rays with p(hit) >= its stored threshold (:attr:`threshold`); its default clip is none.
-        batch_size : forward passes are chunked to this many scans.
-        extents : (B, 3) (or (3,) for all) box half-extents of each scan in its unit frame,
-            ``size / |size|`` for a box of size (l, w, h) (:func:`~spotlights.geometry.boxes.unit_extents`).
-            Required when :attr:`needs_box` (SA-Net on a box-targeted rig: each scan decodes
-            with the rays aimed at its own box); ignored otherwise.
-        sensor_origins : (B, 3) (or (3,)) the LiDAR's optical centre in each scan's unit frame, for models that
-            read free space (``sanet-local``; None or NaN rows: no free-space evidence) and for ``snap``'s
-            occlusion rule; ignored by the others.
-        classes : B class names (or None each) for a class-conditioned model (its :attr:`classes`; a name it
-            lacks: no class input); ignored by the others.
-        box_half : (B, 3) half-extents of a box per scan in its unit frame (e.g. the box grown by 0.15 m):
-            the SA-Nets clip every kept ray's depth to it, exactly along the ray (``inside``, a list, gets each
-            scan's share of points inside before the clip); the point models ignore both.
-        snap : radius R > 0 (unit frame) to snap each scan's rays to its observed points (SA-Nets only;
-            :func:`spotlights.geometry.evidence.snap_to_observed`: a ray passing within R of an observed point
-            takes its depth from the scan; with ``sensor_origins``, not onto a point hidden behind the predicted
-            surface unless the LiDAR saw through it); None or 0: off (default).
-        observed : with ``snap``, B arrays (K_b, 3) of each scan's observed points, unit frame (default: the
-            partials themselves).
-        snap_mirror : with ``snap``, also snap to the observed points' mirror image across the box's x-z plane
-            (``y -> -y``: vehicles are left-right symmetric), so the side the LiDAR did not see follows the one
-            it saw.
-        seen : with ``snap`` and ``sensor_origins``, B arrays (K'_b, 3) of the points each scan's LiDAR saw from
-            its sensor origin, unit frame: the free space the occlusion rule carves (default: the observed points;
-            give them when other frames' points were fused into the input, which were seen from elsewhere).
+    def complete(self, partials: np.ndarray | CompletionRequest, **options: Any) -> list[np.ndarray]:
+        """Complete partial scans: ``complete(partials, clip=..., extents=..., ...)`` or
+        ``complete(CompletionRequest(partials, ...))`` (the options are :class:`CompletionRequest`'s fields).
 
         Returns
         -------
         list of B arrays (K_i, 3) float32, unit frame. SA-Net: the kept rays in ray
         order (variable K_i); baselines: their 2048 points.
         """
-        x = np.asarray(partials, dtype=np.float32)
-        if x.ndim == 2:
-            x = x[None]
-        if x.ndim != 3 or x.shape[-1] != 3:
-            raise ParameterError(f"partials must have shape (B, K, 3), got {x.shape}")
+        if isinstance(partials, CompletionRequest):
+            if options:
+                raise ParameterError(f"give the options in the request, not beside it: {', '.join(sorted(options))}")
+            request = partials
+        else:
+            request = CompletionRequest(partials, **options)
+        x = request.checked_partials()
         if x.shape[0] == 0:
             return []
-        if x.shape[1] == 0:
-            raise ParameterError("partial scans are empty (K = 0 points)")
-        if not np.all(np.isfinite(x)):
-            raise ParameterError("partial scans contain NaN or infinite coordinates")
-        e = None
-        if self.needs_box:
-            if extents is None:
-                raise ParameterError(
-                    f"this SA-Net regresses the box-targeted rig {self.rig.name}: give each scan's box "
-                    "half-extents (extents = size / |size|)"
-                )
-            e = np.asarray(extents, dtype=np.float64)
-            e = np.broadcast_to(e, (len(x), 3)) if e.shape == (3,) else e
-            if e.shape != (len(x), 3):
-                raise ParameterError(f"extents must have shape ({len(x)}, 3) or (3,), got {np.shape(extents)}")
-        so = None
-        if sensor_origins is not None:
-            so = np.broadcast_to(np.asarray(sensor_origins, dtype=np.float32).reshape(-1, 3), (len(x), 3))
-        names = None if classes is None else list(classes)
-        if names is not None and len(names) != len(x):
-            raise ParameterError(f"{len(names)} class names for {len(x)} scans")
-        bh = None
-        if box_half is not None:
-            bh = np.broadcast_to(np.asarray(box_half, dtype=np.float32).reshape(-1, 3), (len(x), 3))
-        snap = snap_radius(snap, option="snap")
-        if snap is not None:
-            if self.rig is None or not accepts(self._forward, "snap"):
-                raise ParameterError(
-                    f"{self.model_name} has no rays to snap: snapping to the observed points needs an SA-Net"
-                )
-            for name, sets in (("observed", observed), ("seen", seen)):
-                if sets is not None and len(sets) != len(x):
-                    raise ParameterError(f"{len(sets)} {name} point sets for {len(x)} scans")
-        elif snap_mirror or observed is not None or seen is not None:
-            raise ParameterError("snap_mirror, observed and seen go with a snap radius (snap=R)")
+        e = request.checked_extents(self, len(x))
+        so = _rows(request.sensor_origins, len(x))
+        bh = _rows(request.box_half, len(x))
+        names = request.checked_classes(len(x))
+        snap = request.checked_snap(self, len(x))
         out: list[np.ndarray] = []
         with self._session():
-            for s in range(0, len(x), batch_size):
-                dirs = None if e is None else directions_for_extents(self.rig, e[s : s + batch_size])
-                sb = None if so is None else np.array(so[s : s + batch_size])
+            for s in range(0, len(x), request.batch_size):
+                chunk = slice(s, s + request.batch_size)
+                dirs = None if e is None else directions_for_extents(self.rig, e[chunk])
+                sb = None if so is None else np.array(so[chunk])
                 kw: dict = {}
                 if names is not None and accepts(self._forward, "classes"):
-                    kw["classes"] = names[s : s + batch_size]
+                    kw["classes"] = names[chunk]
                 if bh is not None and accepts(self._forward, "box_half"):
-                    kw["box_half"], kw["inside"] = np.array(bh[s : s + batch_size]), inside
+                    kw["box_half"], kw["inside"] = np.array(bh[chunk]), request.inside
                 if snap is not None:
-                    obs = x[s : s + batch_size] if observed is None else observed[s : s + batch_size]
-                    pts = [np.asarray(o, dtype=np.float64).reshape(-1, 3) for o in obs]
-                    carve = (
-                        pts
-                        if seen is None
-                        else [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in seen[s : s + batch_size]]
-                    )
-                    kw["snap"] = SnapTargets([mirrored(p) for p in pts] if snap_mirror else pts, snap, sb, carve)
-                out.extend(self._forward(x[s : s + batch_size], clip, dirs, sb, **kw))
+                    kw["snap"] = request.snap_targets(x, chunk, snap, sb)
+                out.extend(self._forward(x[chunk], request.clip, dirs, sb, **kw))
         return out
 
     def complete_boxes(self, partials: np.ndarray, sizes: np.ndarray, clip: Any = DEFAULT) -> list[np.ndarray]:

@@ -278,6 +278,11 @@ class NuScenesReader(SceneReader):
             self._calib[sd["calibrated_sensor_token"]], self.tables / "calibrated_sensor.json", "calibrated_sensor"
         )
 
+    def keyframe(self, key: tuple[str, str]) -> tuple[int, str]:
+        """(LIDAR_TOP timestamp in integer microseconds, scan file path) of one frame, without reading the scan."""
+        f = self._frames[key]
+        return f[1], str(f[4])
+
     def annotations(self, key: tuple[str, str]) -> list[dict]:
         """The raw ``sample_annotation`` rows of one frame (global frame), in table order."""
         return list(self._annotations.get(key[1], []))

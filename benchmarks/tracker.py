@@ -1,0 +1,132 @@
+"""The 3-D tracker on the shared nuScenes scene with simulated detections: MOTA, IDF1, identity switches, speed.
+
+Ground truth: the scene's vehicle boxes (:data:`spotlights.data.real.CLASSES`) in each LIDAR_TOP keyframe, with the
+annotation's ``num_lidar_pts``. Detections: :func:`spotlights.tracking.simulate.simulate_detections` (10% of the
+detectable boxes missed, 10% false positives with low scores, 0.15 m / 3 degree / 5% size noise, seed 0; detectable:
+at least one LiDAR point and within 50 m). Tracker: :func:`spotlights.tracking.track_boxes` with its default
+settings, on detections with a score of at least ``--min-score``. Metrics: py-motmetrics (2 m centre distance,
+same class) against the detectable boxes; seeds 1-4 as well, for the spread. Speed: frames per CPU second of ``track_boxes`` alone (the median of
+``--repeats`` runs; one thread: run with ``OMP_NUM_THREADS=1``).
+
+    OMP_NUM_THREADS=1 python benchmarks/tracker.py --json docs/results/tracking/tracker_nuscenes.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+from spotlights.data.real.nuscenes import NuScenesReader
+from spotlights.tracking.detections import DetectionFrame, filter_detections
+from spotlights.tracking.evaluate import clear_mot
+from spotlights.tracking.simulate import DetectorModel, simulate_detections
+from spotlights.tracking.tracker import TrackerConfig, track_boxes
+
+SHARED = Path(os.environ.get("SPOTLIGHTS_SHARED", Path(__file__).resolve().parents[2] / "shared")) / "data"
+NUSCENES = SHARED / "lidar" / "nuscenes"
+
+
+def cpu() -> dict:
+    """The CPU's model name and whether it has AVX-512, bf16 and AMX (from /proc/cpuinfo's flags)."""
+    name, flags = platform.processor(), set()
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("model name") and name in ("", platform.processor()):
+                    name = line.split(":", 1)[1].strip()
+                elif line.startswith("flags"):
+                    flags = set(line.split(":", 1)[1].split())
+                    break
+    except OSError:
+        pass
+    return {
+        "model": name,
+        "avx512": "avx512f" in flags,
+        "bf16": bool({"avx512_bf16", "amx_bf16"} & flags),
+        "amx": bool({"amx_tile", "amx_bf16", "amx_int8"} & flags),
+        "logical_cpus": os.cpu_count(),
+    }
+
+
+def ground_truth(folder: Path) -> tuple[list[DetectionFrame], list[np.ndarray]]:
+    """The scene's keyframes: annotated boxes in the LIDAR_TOP frame, and each box's ``num_lidar_pts``."""
+    reader = NuScenesReader(folder)
+    frames, counts = [], []
+    for key in reader.frame_keys():
+        fr = reader.load(key)
+        rows = reader.annotations(key)
+        frames.append(DetectionFrame(fr.sequence, fr.frame_id, fr.timestamp * 1e-6, fr.boxes, fr.sensor_to_world))
+        counts.append(np.array([r.get("num_lidar_pts", 0) for r in rows], dtype=np.float64))
+    return frames, counts
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", default=str(NUSCENES), help="the nuScenes folder (default: the shared scene)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--min-score", type=float, default=0.0)
+    ap.add_argument("--repeats", type=int, default=20, help="timed runs of the tracker (the median is reported)")
+    ap.add_argument("--more-seeds", type=int, default=4, help="also score seeds SEED+1 .. SEED+N (the spread)")
+    ap.add_argument("--json", required=True, help="results file")
+    args = ap.parse_args()
+
+    truth_all, counts = ground_truth(Path(args.data))
+    model = DetectorModel()
+    dets, truth = simulate_detections(truth_all, counts, model, seed=args.seed)
+    dets, kept = filter_detections(dets, args.min_score)
+    config = TrackerConfig()
+    tracked = track_boxes(dets, config)
+    scores = clear_mot(truth, tracked)
+    n_det = sum(len(f.boxes) for f in dets)
+    other = {}
+    for seed in range(args.seed + 1, args.seed + 1 + args.more_seeds):
+        d, t = simulate_detections(truth_all, counts, model, seed=seed)
+        m = clear_mot(t, track_boxes(filter_detections(d, args.min_score)[0], config))
+        other[str(seed)] = {k: m[k] for k in ("mota", "idf1", "id_switches", "id_switches_per_100_tracks")}
+    seconds = []
+    for _ in range(args.repeats):
+        t0 = time.process_time()
+        track_boxes(dets, config)
+        seconds.append(time.process_time() - t0)
+    cpu_s = float(np.median(seconds))
+    result = {
+        "command": "OMP_NUM_THREADS=1 python benchmarks/tracker.py --json docs/results/tracking/tracker_nuscenes.json",
+        "data": "nuScenes v1.0-mini scene-0523 (shared data), LIDAR_TOP keyframes",
+        "frames": len(dets),
+        "detections": n_det,
+        "detections_per_frame": n_det / max(len(dets), 1),
+        "detector_model": dataclasses.asdict(model),
+        "seed": args.seed,
+        "min_score": args.min_score,
+        "tracker": dataclasses.asdict(config),
+        "metrics": scores,
+        "other_seeds": other,
+        "speed": {
+            "cpu_seconds_median": cpu_s,
+            "frames_per_cpu_second": len(dets) / cpu_s,
+            "repeats": args.repeats,
+            "threads": os.environ.get("OMP_NUM_THREADS", "unset"),
+        },
+        "cpu": cpu(),
+        "targets": {"mota": 0.80, "id_switches_per_100_tracks": 3.0, "frames_per_second": 200.0},
+    }
+    out = Path(args.json)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
+    m = scores
+    print(
+        f"MOTA {m['mota']:.3f}  IDF1 {m['idf1']:.3f}  ID switches {m['id_switches']} "
+        f"({m['id_switches_per_100_tracks']:.1f} per 100 of {m['gt_tracks']} tracks)  FP {m['false_positives']}  "
+        f"FN {m['misses']} of {m['gt_boxes']}  {len(dets) / cpu_s:.0f} frames/s ({cpu()['model']}) -> {out}"
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,87 @@
+"""A detector's boxes, tracked, in place of a dataset's annotations (``real complete --detections FILE --track``).
+
+:func:`tracked_reader` reads the detections beside the dataset (:func:`spotlights.tracking.detections.
+read_detections`: nuScenes results beside ``--format nuscenes``, KITTI results with scores beside ``kitti``, the
+generic box JSON with scores beside ``generic``), keeps the vehicle boxes scoring at least ``min_score``, tracks them
+(:func:`spotlights.tracking.track_boxes`, default settings) and returns a reader whose frames are the dataset's
+scans with the tracked boxes (track ids, scores) instead of its own boxes: ``--fuse`` then fuses each track.
+A frame of the dataset with no detection has no box; detections of frames the dataset lacks are left out.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from ..data.real.base import CLASSES, Frame, SceneReader
+from ..errors import InputFileError, ParameterError
+from ..geometry.boxes import Box
+from ..tracking.detections import DetectionFrame, filter_detections, read_detections, read_nuscenes_detections
+from ..tracking.tracker import TrackerConfig, track_boxes
+
+#: Dataset formats whose detections can be read (the detection format is the dataset's).
+DETECTION_FORMATS = ("nuscenes", "kitti", "generic")
+
+
+class TrackedReader(SceneReader):
+    """The frames of ``reader`` with the boxes of ``tracked`` (keyed by (sequence, frame_id)) instead of its own."""
+
+    def __init__(self, reader: SceneReader, tracked: dict[tuple[str, str], list[Box]], label_path: str) -> None:
+        self.reader = reader
+        self.format = reader.format
+        self.root = reader.root
+        self.tracked = tracked
+        self.label_path = label_path
+
+    def frame_keys(self) -> list[tuple[str, str]]:
+        return self.reader.frame_keys()
+
+    def load(self, key: tuple[str, str]) -> Frame:
+        frame = self.reader.load(key)
+        return dataclasses.replace(frame, boxes=list(self.tracked.get(key, [])), label_path=self.label_path)
+
+
+def check_detection_options(
+    detections: str | None, track: bool, fmt: str, sources: int, min_score: float | None = None
+) -> None:
+    """One-line :class:`ParameterError` for ``--detections`` without ``--track`` (or ``--track`` or ``--min-score``
+    without ``--detections``), for a format whose detections cannot be read, or for several sources."""
+    if detections is None:
+        if track or min_score is not None:
+            raise ParameterError("--track and --min-score go with --detections FILE (the detector's boxes to track)")
+        return
+    if not track:
+        raise ParameterError(
+            "--detections needs --track: a detector's boxes have no track ids (--track gives them ids before --fuse)"
+        )
+    if fmt not in DETECTION_FORMATS:
+        raise ParameterError(f"--detections is read beside --format {', '.join(DETECTION_FORMATS)}, not {fmt}")
+    if sources != 1:
+        raise ParameterError("--detections goes with one SOURCE (the dataset its frames belong to)")
+
+
+def tracked_reader(
+    reader: SceneReader,
+    detections: str,
+    source: str,
+    min_score: float | None = None,
+    scenes: list | None = None,
+    config: TrackerConfig | None = None,
+) -> TrackedReader:
+    """``reader`` (the dataset at ``source``) with the tracked boxes of the detection file ``detections`` (module
+    docstring); ``min_score``: None keeps every score; ``scenes``: the nuScenes scenes read. :class:`InputFileError` when no detection frame is a frame of
+    the dataset."""
+    fmt = reader.format
+    if fmt == "nuscenes":
+        frames: list[DetectionFrame] = read_nuscenes_detections(detections, source, scenes)
+    elif fmt == "kitti":
+        frames = read_detections(detections, "kitti", data=Path(reader.root))
+    else:
+        frames = read_detections(detections, "generic")
+    keys = set(reader.frame_keys())
+    frames = [f for f in frames if (f.sequence, f.frame_id) in keys]
+    if not frames:
+        raise InputFileError(detections, f"no frame of the detections is a frame of {source} (sequence, frame id)")
+    frames, _ = filter_detections(frames, min_score or 0.0, CLASSES)
+    tracked = track_boxes(frames, config)
+    return TrackedReader(reader, {(f.sequence, f.frame_id): f.boxes for f in tracked}, str(detections))

@@ -1,0 +1,354 @@
+"""A 3-D multi-object tracker in the style of AB3DMOT: a Kalman filter per track, optimal assignment per class.
+
+Per sequence, frame after frame (times in seconds from :attr:`DetectionFrame.timestamp`):
+
+1. **World frame.** Boxes are moved into the world frame with the frame's ``sensor_to_world`` (when given), so a
+   moving sensor does not move the objects; outputs are moved back into each frame's own coordinates.
+2. **Predict.** Every track's constant-velocity Kalman filter (filterpy's ``KalmanFilter``) over the state
+   ``(x, y, z, yaw, l, w, h, vx, vy, vz)`` is advanced by the time since its last frame ``dt``: position += velocity
+   x dt; process noise of a white acceleration ``accel_sigma`` (m/s^2) on each axis, random walks of yaw
+   (``yaw_rate_sigma`` rad/s) and size (``size_rate_sigma`` m/s).
+3. **Associate** per class (the box's ``cls``, else its label), by
+   :func:`~spotlights.tracking.association.assign` (``scipy.optimize.linear_sum_assignment``) in two stages:
+   3-D GIoU (:mod:`~spotlights.tracking.association`) above ``giou_threshold`` within a gate that follows the
+   track's uncertainty (``gate_floor_m`` + ``gate_sigmas`` standard deviations of its predicted position, at most ``gate_m``), then, among the tracks and detections left, centre distances below
+   ``max_distance_m`` (a track whose prediction drifted sideways while it was not seen). ``metric="distance"``: the
+   second stage alone.
+4. **Update** matched tracks with the detection ``(x, y, z, yaw, l, w, h)``. Yaw: the detection's heading is taken
+   within +-90 degrees of the track's (a detector's heading turned by 180 degrees is the same box: it is turned back,
+   the **flip correction**), angles are wrapped to (-pi, pi]. A track's score is the mean score of the detections
+   it matched (a box without a score counts as 1).
+5. **Birth and death.** An unmatched detection starts a tentative track when its score is at least
+   ``birth_score`` (low-score detections may only continue tracks); a track is confirmed after ``min_hits``
+   matched frames and reported from then on; a track unmatched for ``max_misses`` frames in a row ends. While a
+   confirmed track misses (fewer than ``max_misses`` frames) its prediction is reported when ``report_coasted``.
+
+Deterministic: no randomness; classes are processed in sorted order; track ids ("1", "2", ...) are given in order
+of birth, unique over the call (over every sequence). The output boxes are the filter's posterior (or prediction
+while coasting), with the track id, class, label and score, and their velocities.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ParameterError
+from ..geometry.boxes import Box
+from ..geometry.rotations import rotation_z
+from .association import assign, centre_distances, giou_matrix
+from .detections import DetectionFrame
+
+log = logging.getLogger(__name__)
+
+METRICS = ("giou", "distance")
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """The tracker's settings (see the module docstring); defaults suit 2-10 Hz LiDAR detections of vehicles.
+
+    metric : ``"giou"`` (3-D GIoU of the predicted and detected boxes) or ``"distance"`` (centre distance).
+    giou_threshold : match when GIoU > this (-1..1; -0.5 lets a fast car with an unknown velocity be matched).
+    gate_m, gate_floor_m, gate_sigmas : a track and a detection whose centres are farther apart than
+        ``min(gate_m, gate_floor_m + gate_sigmas * sigma)`` metres (sigma: the predicted position's standard deviation,
+        bird's eye) are never matched by GIoU: a new track (velocity unknown) reaches far, a steady one near.
+    max_distance_m : the second stage (and ``metric="distance"``): match when the centres are nearer, metres.
+    min_hits : matched frames before a track is confirmed (reported).
+    max_misses : frames in a row without a match that end a track.
+    birth_score : least score of a detection that starts a track.
+    confirm_score : a track whose detection scores at least this is confirmed at once (1: only by ``min_hits``).
+    report_coasted : report a confirmed track's prediction in the frames it misses (before it ends).
+    meas_sigma_xy, meas_sigma_z (m), meas_sigma_yaw (rad), meas_sigma_size (m) : measurement noise.
+    accel_sigma (m/s^2), yaw_rate_sigma (rad/s), size_rate_sigma (m/s) : process noise.
+    init_velocity_sigma : prior standard deviation of a new track's velocity, m/s.
+    """
+
+    metric: str = "giou"
+    giou_threshold: float = -0.3
+    gate_m: float = 10.0
+    gate_floor_m: float = 2.0
+    gate_sigmas: float = 2.0
+    max_distance_m: float = 2.0
+    min_hits: int = 2
+    max_misses: int = 6
+    birth_score: float = 0.4
+    confirm_score: float = 0.6
+    report_coasted: bool = False
+    meas_sigma_xy: float = 0.2
+    meas_sigma_z: float = 0.2
+    meas_sigma_yaw: float = math.radians(5.0)
+    meas_sigma_size: float = 0.2
+    accel_sigma: float = 1.0
+    yaw_rate_sigma: float = 0.5
+    size_rate_sigma: float = 0.05
+    init_velocity_sigma: float = 10.0
+
+    def __post_init__(self) -> None:
+        if self.metric not in METRICS:
+            raise ParameterError(f"metric: one of {', '.join(METRICS)}, got {self.metric!r}")
+        if not -1.0 <= self.giou_threshold < 1.0:
+            raise ParameterError(f"giou_threshold: a GIoU in [-1, 1), got {self.giou_threshold}")
+        for name in ("gate_m", "gate_floor_m", "gate_sigmas", "max_distance_m", "meas_sigma_xy", "meas_sigma_z", "meas_sigma_yaw", "meas_sigma_size",
+                     "init_velocity_sigma"):  # fmt: skip
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ParameterError(f"{name}: a positive number, got {v}")
+        for name in ("accel_sigma", "yaw_rate_sigma", "size_rate_sigma"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ParameterError(f"{name}: a number >= 0, got {v}")
+        for name in ("min_hits", "max_misses"):
+            v = getattr(self, name)
+            if not (isinstance(v, int) and 1 <= v <= 1000):
+                raise ParameterError(f"{name}: a whole number in 1..1000, got {v}")
+        for name in ("birth_score", "confirm_score"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ParameterError(f"{name}: a score in [0, 1], got {getattr(self, name)}")
+
+
+def wrap_angle(a: float) -> float:
+    """``a`` radians wrapped to (-pi, pi]."""
+    a = math.fmod(a + math.pi, 2.0 * math.pi)
+    if a <= 0.0:
+        a += 2.0 * math.pi
+    return a - math.pi
+
+
+def corrected_yaw(measured: float, predicted: float) -> float:
+    """The measured heading as the equivalent angle within +-90 degrees of ``predicted`` (radians): the same box
+    turned by 180 degrees where it differs by more than 90 degrees (the flip correction), then unwrapped around
+    ``predicted`` so the innovation is small."""
+    d = wrap_angle(measured - predicted)
+    if abs(d) > 0.5 * math.pi:
+        d = wrap_angle(d + math.pi)
+    return predicted + d
+
+
+class KalmanTrack:
+    """One track: a constant-velocity Kalman filter over ``(x, y, z, yaw, l, w, h, vx, vy, vz)`` (filterpy).
+
+    ``z0`` (7,) the first detection ``(x, y, z, yaw, l, w, h)``; covariances from ``config``. :meth:`predict`
+    advances by ``dt`` seconds, :meth:`update` takes one detection (7,). ``kf.x`` (10, 1) and ``kf.P`` (10, 10) are
+    filterpy's state and covariance (float64; units: metres, radians, metres per second).
+    """
+
+    def __init__(
+        self, z0: np.ndarray, config: TrackerConfig, track_id: str, key: str, cls: str | None, label: str, score: float
+    ):
+        from filterpy.kalman import KalmanFilter
+
+        self.config = config
+        kf = KalmanFilter(dim_x=10, dim_z=7)
+        kf.H = np.eye(7, 10)
+        c = config
+        r = np.array([c.meas_sigma_xy, c.meas_sigma_xy, c.meas_sigma_z, c.meas_sigma_yaw] + [c.meas_sigma_size] * 3)
+        kf.R = np.diag(r**2)
+        kf.P = np.diag(np.concatenate([r**2, np.full(3, c.init_velocity_sigma**2)]))
+        kf.x = np.zeros((10, 1))
+        kf.x[:7, 0] = z0
+        self.kf = kf
+        self.track_id = track_id
+        self.key = key  # the class the track is associated within
+        self.cls = cls
+        self.label = label
+        self.scores = [score]
+        self.hits = 1
+        self.misses = 0
+        self.confirmed = config.min_hits <= 1 or score >= config.confirm_score
+
+    def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """(F, Q): the (10, 10) transition and process noise over ``dt`` seconds (see the module docstring)."""
+        c = self.config
+        f = np.eye(10)
+        f[0, 7] = f[1, 8] = f[2, 9] = dt
+        q = np.zeros((10, 10))
+        a2 = c.accel_sigma**2
+        for p, v in ((0, 7), (1, 8), (2, 9)):
+            q[p, p] = a2 * dt**4 / 4.0
+            q[p, v] = q[v, p] = a2 * dt**3 / 2.0
+            q[v, v] = a2 * dt**2
+        q[3, 3] = (c.yaw_rate_sigma * dt) ** 2
+        q[4, 4] = q[5, 5] = q[6, 6] = (c.size_rate_sigma * dt) ** 2
+        return f, q
+
+    def predict(self, dt: float) -> None:
+        """Advance the state by ``dt`` seconds (> 0); the yaw is wrapped."""
+        f, q = self.transition(dt)
+        self.kf.predict(F=f, Q=q)
+        self.kf.x[3, 0] = wrap_angle(float(self.kf.x[3, 0]))
+
+    def update(self, z: np.ndarray, score: float) -> None:
+        """Correct with one detection ``(x, y, z, yaw, l, w, h)`` (its yaw flip-corrected) of score ``score``."""
+        z = np.array(z, dtype=np.float64)
+        z[3] = corrected_yaw(float(z[3]), float(self.kf.x[3, 0]))
+        self.kf.update(z.reshape(7, 1))
+        self.kf.x[3, 0] = wrap_angle(float(self.kf.x[3, 0]))
+        self.kf.x[4:7, 0] = np.maximum(self.kf.x[4:7, 0], 1e-3)  # sizes stay positive
+        self.scores.append(score)
+        self.hits += 1
+        self.misses = 0
+        if self.hits >= self.config.min_hits or score >= self.config.confirm_score:
+            self.confirmed = True
+
+    @property
+    def state(self) -> np.ndarray:
+        """(7,) float64 the box ``(x, y, z, yaw, l, w, h)`` of the current state."""
+        return self.kf.x[:7, 0].copy()
+
+    @property
+    def position_sigma(self) -> float:
+        """Standard deviation of the predicted bird's-eye position, metres: ``sqrt(P_xx + P_yy)``."""
+        return math.sqrt(float(self.kf.P[0, 0] + self.kf.P[1, 1]))
+
+    @property
+    def velocity(self) -> np.ndarray:
+        """(3,) float64 velocity, m/s, in the tracking (world) frame."""
+        return self.kf.x[7:10, 0].copy()
+
+    @property
+    def score(self) -> float:
+        """The mean score of the detections matched so far."""
+        return float(np.mean(self.scores))
+
+
+def _box_row(b: Box) -> np.ndarray:
+    return np.array([*b.center, b.yaw, *b.size], dtype=np.float64)
+
+
+def _class_key(b: Box) -> str:
+    return b.cls if b.cls else b.label.strip().lower()
+
+
+def _check_order(frames: Sequence[DetectionFrame]) -> dict[str, list[int]]:
+    """Indices of the frames of each sequence, in input order; :class:`ParameterError` unless times increase."""
+    by_seq: dict[str, list[int]] = {}
+    for i, f in enumerate(frames):
+        t = float(f.timestamp)
+        if not math.isfinite(t):
+            raise ParameterError(f"frames: frame {f.frame_id!r} has a timestamp that is not finite")
+        seq = by_seq.setdefault(f.sequence, [])
+        if seq and t <= float(frames[seq[-1]].timestamp):
+            raise ParameterError(
+                f"frames: frame {f.frame_id!r} of sequence {f.sequence!r} is not later than the frame before it "
+                "(frames of a sequence must come in time order)"
+            )
+        seq.append(i)
+    return by_seq
+
+
+class _Ids:
+    def __init__(self) -> None:
+        self.n = 0
+
+    def next(self) -> str:
+        self.n += 1
+        return str(self.n)
+
+
+def _sequence(frames: list[DetectionFrame], config: TrackerConfig, ids: _Ids) -> list[DetectionFrame]:
+    """Track the frames of one sequence (in time order)."""
+    tracks: list[KalmanTrack] = []
+    out = []
+    t_prev = None
+    for f in frames:
+        pose = None if f.sensor_to_world is None else np.asarray(f.sensor_to_world, dtype=np.float64)
+        world = [b if pose is None else b.transformed(pose) for b in f.boxes]
+        if t_prev is not None:
+            dt = float(f.timestamp) - t_prev
+            for tr in tracks:
+                tr.predict(dt)
+        t_prev = float(f.timestamp)
+        det = np.array([_box_row(b) for b in world]).reshape(-1, 7)
+        keys = [_class_key(b) for b in world]
+        scores = [1.0 if b.score is None else b.score for b in world]
+        matched_det: set[int] = set()
+        matched_tracks: set[int] = set()
+        for key in sorted(set(keys) | {t.key for t in tracks}):
+            di = [i for i, k in enumerate(keys) if k == key]
+            ti = [j for j, t in enumerate(tracks) if t.key == key]
+            if not di or not ti:
+                continue
+            pred = np.array([tracks[j].state for j in ti])
+            gate = np.array(
+                [min(config.gate_m, config.gate_floor_m + config.gate_sigmas * tracks[j].position_sigma) for j in ti]
+            )
+            stages = [] if config.metric != "giou" else [(giou_matrix(pred, det[di], gate), config.giou_threshold)]
+            stages.append((-centre_distances(pred, det[di]), -config.max_distance_m))
+            for sim, thr in stages:  # GIoU first, then the centre distance for what is left
+                free_t = [r for r in range(len(ti)) if ti[r] not in matched_tracks]
+                free_d = [c for c in range(len(di)) if di[c] not in matched_det]
+                for r, c in assign(sim[np.ix_(free_t, free_d)], thr):
+                    j, i = ti[free_t[r]], di[free_d[c]]
+                    tracks[j].update(det[i], scores[i])
+                    matched_tracks.add(j)
+                    matched_det.add(i)
+        for j, tr in enumerate(tracks):
+            if j not in matched_tracks:
+                tr.misses += 1
+        tracks = [t for t in tracks if t.misses < config.max_misses]
+        for i, b in enumerate(world):
+            if i not in matched_det and scores[i] >= config.birth_score:
+                tracks.append(KalmanTrack(det[i], config, ids.next(), keys[i], b.cls, b.label, scores[i]))
+        boxes, velocities = [], []
+        to_frame = None if pose is None else np.linalg.inv(pose)
+        for tr in tracks:
+            if not tr.confirmed or (tr.misses and not config.report_coasted):
+                continue
+            s = tr.state
+            box = Box(s[:3], s[4:7], rotation_z(s[3]), tr.label, tr.cls, tr.track_id, min(1.0, tr.score))
+            v = tr.velocity
+            if to_frame is not None:
+                box = box.transformed(to_frame)
+                v = to_frame[:3, :3] @ v
+            boxes.append(box)
+            velocities.append(v)
+        out.append(
+            DetectionFrame(
+                f.sequence,
+                f.frame_id,
+                f.timestamp,
+                boxes,
+                f.sensor_to_world,
+                f.scan_path,
+                np.array(velocities, dtype=np.float64).reshape(-1, 3),
+            )  # fmt: skip
+        )
+    return out
+
+
+def track_boxes(frames: Sequence[DetectionFrame], config: TrackerConfig | None = None) -> list[DetectionFrame]:
+    """Track detections: the frames with their tracks' boxes (see the module docstring).
+
+    Parameters
+    ----------
+    frames : :class:`~spotlights.tracking.detections.DetectionFrame` list (any object with ``sequence``,
+        ``frame_id``, ``timestamp`` (seconds), ``boxes`` and ``sensor_to_world`` works, e.g. a reader's
+        ``Frame`` whose timestamp is converted to seconds); the frames of each sequence in time order
+        (sequences may follow one another or interleave). Boxes: metres, the frame's coordinates, with an
+        optional ``score`` in [0, 1] and a class (``cls``, else ``label``).
+    config : :class:`TrackerConfig` (default settings when None).
+
+    Returns
+    -------
+    One :class:`DetectionFrame` per input frame, in the input order: the confirmed tracks' boxes in that frame
+    (the filter's estimate, in the frame's own coordinates) with ``track_id`` set (ids unique over the call) and
+    ``score`` = the track's mean detection score, and ``velocities`` (K, 3) float64 m/s in the same coordinates.
+    :class:`ParameterError` for frames out of time order.
+    """
+    config = TrackerConfig() if config is None else config
+    frames = list(frames)
+    by_seq = _check_order(frames)
+    ids = _Ids()
+    out: list[DetectionFrame | None] = [None] * len(frames)
+    for seq in by_seq:  # sequences in order of first appearance: ids deterministic
+        idx = by_seq[seq]
+        for i, f in zip(idx, _sequence([frames[i] for i in idx], config, ids)):
+            out[i] = f
+    n_tracks = ids.n
+    log.info("tracked %d frame(s): %d track(s) started", len(frames), n_tracks)
+    return [f for f in out if f is not None]

@@ -1,0 +1,458 @@
+"""The tracker: the Kalman step against a hand computation, the assignment against brute force, GIoU against closed
+forms, scripted scenes (a crossing, a missed frame, a moving sensor), the writers, the metrics against a hand count,
+the simulated detector, and the ``track`` command."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+
+import numpy as np
+import pytest
+
+from spotlights.errors import ParameterError
+from spotlights.geometry.boxes import Box
+from spotlights.geometry.rotations import rigid_transform, rotation_z
+from spotlights.tracking.association import assign, giou_matrix, giou_pairs
+from spotlights.tracking.detections import DetectionFrame, read_generic_detections
+from spotlights.tracking.evaluate import clear_mot
+from spotlights.tracking.outputs import nuscenes_tracking_document, tracks_document
+from spotlights.tracking.simulate import DetectorModel, simulate_detections
+from spotlights.tracking.tracker import KalmanTrack, TrackerConfig, corrected_yaw, track_boxes, wrap_angle
+
+from helpers import LIDAR, assert_user_error, need, run_cli
+
+# --- the Kalman filter ---------------------------------------------------------------------------------------
+
+
+def test_kalman_predict_update_by_hand():
+    """x axis only: position 0, velocity 2, P = diag(1, 4), no process noise, R = 1, dt = 1, measurement 5.
+
+    By hand: predicted x = 2, P' = [[1 + 4, 4], [4, 4]] = [[5, 4], [4, 4]]; gain K = P'[:, 0] / (5 + 1) = (5/6, 4/6);
+    innovation 3: x = 2 + 2.5 = 4.5, v = 2 + 2 = 4; P = (I - K H) P' = [[5/6, 2/3], [2/3, 4/3]]."""
+    cfg = TrackerConfig(accel_sigma=0.0, yaw_rate_sigma=0.0, size_rate_sigma=0.0, meas_sigma_xy=1.0)
+    tr = KalmanTrack(np.array([0.0, 0, 0, 0, 4, 2, 1.5]), cfg, "1", "car", "car", "car", 0.9)
+    tr.kf.x[7, 0] = 2.0
+    tr.kf.P[0, 0], tr.kf.P[7, 7] = 1.0, 4.0
+    tr.predict(1.0)
+    assert tr.kf.x[0, 0] == pytest.approx(2.0)
+    np.testing.assert_allclose(tr.kf.P[np.ix_([0, 7], [0, 7])], [[5, 4], [4, 4]])
+    tr.update(np.array([5.0, 0, 0, 0, 4, 2, 1.5]), 0.5)
+    assert tr.kf.x[0, 0] == pytest.approx(4.5) and tr.kf.x[7, 0] == pytest.approx(4.0)
+    np.testing.assert_allclose(tr.kf.P[np.ix_([0, 7], [0, 7])], [[5 / 6, 2 / 3], [2 / 3, 4 / 3]], atol=1e-12)
+    assert tr.score == pytest.approx(0.7) and tr.hits == 2
+
+
+def test_kalman_process_noise_by_hand():
+    """White acceleration sigma_a over dt: Q = sigma_a^2 [[dt^4/4, dt^3/2], [dt^3/2, dt^2]] per axis."""
+    cfg = TrackerConfig(accel_sigma=2.0, yaw_rate_sigma=0.1, size_rate_sigma=0.0)
+    tr = KalmanTrack(np.zeros(7), cfg, "1", "car", "car", "car", 1.0)
+    f, q = tr.transition(0.5)
+    assert f[0, 7] == 0.5 and f[2, 9] == 0.5 and f[3, 3] == 1.0
+    np.testing.assert_allclose(
+        q[np.ix_([1, 8], [1, 8])], 4.0 * np.array([[0.5**4 / 4, 0.5**3 / 2], [0.5**3 / 2, 0.25]])
+    )
+    assert q[3, 3] == pytest.approx(0.05**2) and q[4, 4] == 0.0
+
+
+def test_yaw_wrapping_and_flip():
+    assert wrap_angle(3 * math.pi / 2) == pytest.approx(-math.pi / 2)
+    assert wrap_angle(-math.pi) == pytest.approx(math.pi)
+    assert corrected_yaw(math.radians(179), math.radians(-179)) == pytest.approx(math.radians(-181))
+    # a heading turned around (170 degrees off) is the same box: turned back to 10 degrees off
+    assert corrected_yaw(math.radians(190), 0.0) == pytest.approx(math.radians(10))
+    assert corrected_yaw(math.radians(-100), 0.0) == pytest.approx(math.radians(80))
+
+
+# --- association -----------------------------------------------------------------------------------------------
+
+
+def _row(x=0.0, y=0.0, z=0.0, yaw=0.0, length=1.0, w=1.0, h=1.0):
+    return [x, y, z, yaw, length, w, h]
+
+
+def test_giou_closed_forms():
+    a = np.array([_row(), _row(), _row(), _row(), _row(length=4, w=2, yaw=0.7), _row()])
+    b = np.array(
+        [_row(), _row(x=0.5), _row(x=5.0), _row(z=0.5), _row(length=4, w=2, yaw=0.7 + math.pi), _row(yaw=math.pi / 2)]
+    )
+    g = giou_pairs(a, b)
+    assert g[0] == pytest.approx(1.0)  # identical
+    assert g[1] == pytest.approx(1 / 3)  # I 0.5, U 1.5, C 1.5
+    assert g[2] == pytest.approx(-(6 - 2) / 6)  # disjoint: I 0, U 2, C 6
+    assert g[3] == pytest.approx(1 / 3)  # shifted up by half its height
+    assert g[4] == pytest.approx(1.0)  # turned around: the same box
+    assert g[5] == pytest.approx(1.0)  # a unit cube turned by 90 degrees
+    # a square turned by 45 degrees inside the hull of the other: I = area of the regular octagon overlap
+    (g45,) = giou_pairs(np.array([_row()]), np.array([_row(yaw=math.pi / 4)]))
+    octagon = 2 * (math.sqrt(2) - 1)  # the overlap: the unit square less four corners of legs 1 - sqrt(2)/2
+    hull = 0.5 * 8 * 0.5 * math.sin(math.pi / 4)  # the 8 corners lie on a circle of radius sqrt(2)/2, 45 deg apart
+    union = 2 - octagon
+    assert g45 == pytest.approx(octagon / union - (hull - union) / hull)
+    m = giou_matrix(np.array([_row(), _row(x=20.0)]), np.array([_row(x=0.5)]), gate_m=3.0)
+    assert m[0, 0] == pytest.approx(1 / 3) and m[1, 0] == -np.inf
+
+
+def _brute_force(sim: np.ndarray, thr: float) -> float:
+    """The best summed margin over one-to-one matchings (every permutation of columns over rows)."""
+    n, m = sim.shape
+    best = 0.0
+    k = max(n, m)
+    pad = np.full((k, k), -np.inf)
+    pad[:n, :m] = sim
+    for perm in itertools.permutations(range(k)):
+        total = sum(pad[r, c] - thr for r, c in enumerate(perm) if pad[r, c] > thr)
+        best = max(best, total)
+    return best
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_assignment_matches_brute_force(seed):
+    rng = np.random.default_rng(seed)
+    sim = rng.uniform(-1, 1, size=(4, 5))
+    sim[rng.random(sim.shape) < 0.3] = -np.inf
+    pairs = assign(sim, -0.2)
+    assert len({r for r, _ in pairs}) == len(pairs) == len({c for _, c in pairs})
+    assert all(sim[r, c] > -0.2 for r, c in pairs)
+    assert sum(sim[r, c] + 0.2 for r, c in pairs) == pytest.approx(_brute_force(sim, -0.2))
+
+
+def test_assignment_tiny_case_by_hand():
+    # the greedy pick (0, 0) = 0.9 leaves row 1 unmatched; the optimum pairs (0, 1) and (1, 0)
+    sim = np.array([[0.9, 0.8], [0.7, -np.inf]])
+    assert assign(sim, 0.0) == [(0, 1), (1, 0)]
+    assert assign(np.array([[-0.5]]), 0.0) == [] and assign(np.zeros((0, 3)), 0.0) == []
+
+
+# --- scripted scenes ------------------------------------------------------------------------------------------
+
+
+def _car(x, y, yaw, score=0.9, cls="car") -> Box:
+    return Box([x, y, 0.0], [4.5, 1.9, 1.6], rotation_z(yaw), cls, cls, "", score)
+
+
+def _ids_along(tracked, truth_xy, tol=1.0) -> set[str]:
+    """Track ids of the boxes within ``tol`` metres of each frame's true position (per frame: one (x, y))."""
+    ids = set()
+    for f, (x, y) in zip(tracked, truth_xy):
+        ids |= {b.track_id for b in f.boxes if math.hypot(b.center[0] - x, b.center[1] - y) < tol}
+    return ids
+
+
+def test_two_crossing_cars_keep_their_ids():
+    """Two cars on an X, 10 Hz, 10 m/s, passing the crossing 0.4 s apart (4 m apart when the second arrives)."""
+    a = [(-20 + 1.0 * k * math.cos(0.5), -10 + 1.0 * k * math.sin(0.5)) for k in range(40)]
+    b = [(-20 + 1.0 * (k - 4) * math.cos(-0.5), 10 + 1.0 * (k - 4) * math.sin(-0.5)) for k in range(40)]
+    rng = np.random.default_rng(0)
+    frames = []
+    for k in range(40):
+        na, nb = rng.normal(0, 0.1, 2), rng.normal(0, 0.1, 2)
+        boxes = [_car(a[k][0] + na[0], a[k][1] + na[1], 0.5), _car(b[k][0] + nb[0], b[k][1] + nb[1], -0.5)]
+        frames.append(DetectionFrame("x", str(k), 0.1 * k, boxes if k % 2 else boxes[::-1]))
+    tracked = track_boxes(frames)
+    ida, idb = _ids_along(tracked, a), _ids_along(tracked, b)
+    assert len(ida) == 1 and len(idb) == 1 and ida != idb
+    assert all(len(f.boxes) == 2 for f in tracked[1:])  # confirmed from the second frame on
+
+
+def test_a_missed_detection_keeps_the_track():
+    xs = [2.0 * k for k in range(12)]
+    frames = [
+        DetectionFrame("s", str(k), 0.5 * k, [] if k in (5, 6) else [_car(x, 3.0, 0.0)]) for k, x in enumerate(xs)
+    ]
+    tracked = track_boxes(frames, TrackerConfig(min_hits=2, confirm_score=1.0))
+    assert [len(f.boxes) for f in tracked] == [0, 1, 1, 1, 1, 0, 0, 1, 1, 1, 1, 1]
+    assert {b.track_id for f in tracked for b in f.boxes} == {"1"}
+    coasted = track_boxes(frames, TrackerConfig(min_hits=2, confirm_score=1.0, report_coasted=True))
+    assert coasted[5].boxes[0].track_id == "1" and coasted[5].boxes[0].center[0] == pytest.approx(10.0, abs=0.3)
+    v = tracked[-1].velocities[0]
+    assert v[0] == pytest.approx(4.0, abs=0.2) and abs(v[1]) < 0.1
+
+
+def test_scores_birth_and_death():
+    low = [DetectionFrame("s", str(k), 0.1 * k, [_car(0.0, 0.0, 0.0, score=0.2)]) for k in range(5)]
+    assert all(f.boxes == [] for f in track_boxes(low))  # low scores never start a track
+    mixed = [
+        DetectionFrame("s", str(k), 0.1 * k, [_car(0.0, 0.0, 0.0, score=0.9 if k == 0 else 0.2)]) for k in range(5)
+    ]
+    out = track_boxes(mixed, TrackerConfig(confirm_score=1.0))
+    assert [len(f.boxes) for f in out] == [0, 1, 1, 1, 1]  # born by a high score, continued by low ones
+    assert out[-1].boxes[0].score == pytest.approx((0.9 + 4 * 0.2) / 5)
+    gone = [DetectionFrame("s", str(k), 0.1 * k, [_car(0.0, 0.0, 0.0)] if k < 3 or k == 9 else []) for k in range(10)]
+    out = track_boxes(gone, TrackerConfig(max_misses=3))
+    assert out[2].boxes[0].track_id != out[9].boxes[0].track_id  # ended after 3 misses; a new track later
+
+
+def test_classes_are_tracked_apart_and_ids_are_deterministic():
+    frames = [
+        DetectionFrame("s", str(k), 0.1 * k, [_car(0.1 * k, 0, 0), _car(0.1 * k, 0.2, 0, cls="truck")])
+        for k in range(5)
+    ]
+    out = track_boxes(frames)
+    assert all(len(f.boxes) == 2 for f in out) and len({b.track_id for f in out for b in f.boxes}) == 2
+    assert {b.cls for b in out[-1].boxes} == {"car", "truck"}
+    assert json.dumps(tracks_document(out)) == json.dumps(tracks_document(track_boxes(frames)))
+
+
+def test_a_moving_sensor_sees_a_parked_car():
+    """The sensor drives at 5 m/s along the world x; a car parked at world (30, 4): in the sensor frame it moves."""
+    frames = []
+    for k in range(10):
+        pose = rigid_transform(rotation_z(0.1), [2.5 * k, 0.0, 0.0])
+        car = _car(30.0, 4.0, 0.3).transformed(np.linalg.inv(pose))
+        frames.append(DetectionFrame("s", str(k), 0.5 * k, [car], pose))
+    out = track_boxes(frames)
+    assert {b.track_id for f in out for b in f.boxes} == {"1"}
+    world = out[-1].boxes[0].transformed(frames[-1].sensor_to_world)
+    np.testing.assert_allclose(world.center[:2], [30.0, 4.0], atol=1e-6)
+    assert np.linalg.norm(frames[-1].sensor_to_world[:3, :3] @ out[-1].velocities[0]) < 1e-6
+
+
+def test_frames_out_of_time_order_are_refused():
+    frames = [DetectionFrame("s", "a", 1.0, []), DetectionFrame("s", "b", 0.5, [])]
+    with pytest.raises(ParameterError, match="time order"):
+        track_boxes(frames)
+    with pytest.raises(ParameterError, match="giou_threshold"):
+        TrackerConfig(giou_threshold=2.0)
+
+
+# --- writers and metrics -------------------------------------------------------------------------------------
+
+
+def test_tracks_round_trip_and_nuscenes_document(tmp_path):
+    pose = rigid_transform(rotation_z(math.pi / 2), [100.0, 200.0, 0.0])
+    frames = [DetectionFrame("s", f"tok{k}", 0.5 * k, [_car(10.0 + k, 0.0, 0.0)], pose) for k in range(4)]
+    out = track_boxes(frames)
+    path = tmp_path / "tracks.json"
+    path.write_text(json.dumps(tracks_document(out, tmp_path)))
+    back = read_generic_detections(path)
+    assert [len(f.boxes) for f in back] == [1, 1, 1, 1]
+    assert back[2].boxes[0].track_id == "1" and back[2].boxes[0].score == pytest.approx(0.9)
+    np.testing.assert_allclose(back[2].boxes[0].center, out[2].boxes[0].center, atol=1e-5)
+    doc = nuscenes_tracking_document(out)
+    (entry,) = doc["results"]["tok2"]
+    # sensor x -> global y: the car at sensor (12, 0) is at global (100, 212); size w, l, h; heading 90 degrees
+    np.testing.assert_allclose(entry["translation"], [100.0, 212.0, 0.0], atol=0.3)
+    np.testing.assert_allclose(entry["size"], [1.9, 4.5, 1.6], atol=0.05)
+    np.testing.assert_allclose(
+        np.abs(entry["rotation"]), [math.cos(math.pi / 4), 0, 0, math.sin(math.pi / 4)], atol=0.02
+    )
+    assert entry["tracking_name"] == "car" and entry["tracking_id"] == "1"
+
+
+def test_clear_mot_against_a_hand_count():
+    """Two objects over three frames. Hypotheses: frame 0 both right; frame 1 object B missed and a false
+    positive far away; frame 2 object A under a new id (one switch). GT boxes 6: MOTA = 1 - (1 + 1 + 1) / 6."""
+    ga, gb = (
+        Box([0, 0, 0], [4, 2, 1.5], label="car", cls="car", track_id="A"),
+        Box([10, 0, 0], [4, 2, 1.5], label="car", cls="car", track_id="B"),
+    )
+    truth = [DetectionFrame("s", str(k), k, [ga, gb]) for k in range(3)]
+    h = lambda box, tid: box.replace(track_id=tid)  # noqa: E731
+    far = Box([50, 0, 0], [4, 2, 1.5], label="car", cls="car", track_id="9")
+    hyp = [
+        DetectionFrame("s", "0", 0, [h(ga, "1"), h(gb, "2")]),
+        DetectionFrame("s", "1", 1, [h(ga, "1"), far]),
+        DetectionFrame("s", "2", 2, [h(ga, "3"), h(gb, "2")]),
+    ]
+    m = clear_mot(truth, hyp)
+    assert (m["misses"], m["false_positives"], m["id_switches"], m["gt_boxes"], m["gt_tracks"]) == (1, 1, 1, 6, 2)
+    assert m["mota"] == pytest.approx(0.5) and m["id_switches_per_100_tracks"] == pytest.approx(50.0)
+
+
+def test_simulated_detector_rates_and_seed():
+    rng = np.random.default_rng(1)
+    frames = [
+        DetectionFrame("s", str(k), 0.5 * k, [_car(*rng.uniform(-40, 40, 2), 0.0, score=None) for _ in range(50)])
+        for k in range(20)
+    ]
+    counts = [np.full(50, 100.0) for _ in frames]
+    model = DetectorModel(miss_rate=0.2, false_positive_rate=0.1)
+    dets, truth = simulate_detections(frames, counts, model, seed=3)
+    n_truth = sum(len(f.boxes) for f in truth)
+    tp = sum(sum(b.score > 0.45 for b in f.boxes) for f in dets)  # false positives score at most 0.40
+    fp = sum(len(f.boxes) for f in dets) - tp
+    assert n_truth == sum(math.hypot(*b.center[:2]) <= 50 for f in frames for b in f.boxes)
+    assert tp / n_truth == pytest.approx(0.8, abs=0.04) and fp / n_truth == pytest.approx(0.1, abs=0.03)
+    again, _ = simulate_detections(frames, counts, model, seed=3)
+    assert json.dumps(tracks_document(again)) == json.dumps(tracks_document(dets))
+
+
+# --- the command ----------------------------------------------------------------------------------------------
+
+
+def _sequence_file(tmp_path):
+    frames = [{"timestamp": 0.1 * k, "boxes": [{"center": [1.0 * k, 0, 0], "size": [4.5, 1.9, 1.6], "yaw": 0.0,
+                                                  "label": "car", "score": 0.8}]} for k in range(6)]  # fmt: skip
+    path = tmp_path / "det.json"
+    path.write_text(json.dumps({"sequence": "a", "frames": frames}))
+    return path
+
+
+def test_cli_writes_tracks(tmp_path):
+    det = _sequence_file(tmp_path)
+    proc = run_cli("track", str(det), "--format", "generic", "--out", str(tmp_path / "o" / "tracks.json"),
+                   "--nuscenes-out", str(tmp_path / "nus.json"), "--min-score", "0.5")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert "6 frame(s), 6 detection(s) tracked" in proc.stdout and "1 track(s)" in proc.stdout
+    doc = json.loads((tmp_path / "o" / "tracks.json").read_text())
+    assert [len(f["boxes"]) for f in doc["frames"]] == [1] * 6 and doc["frames"][3]["boxes"][0]["track_id"] == "1"
+    assert len(json.loads((tmp_path / "nus.json").read_text())["results"]) == 6
+
+
+def test_cli_bad_input_is_one_line_and_writes_nothing(tmp_path):
+    bad = tmp_path / "det.json"
+    bad.write_text(
+        json.dumps(
+            {"frames": [{"boxes": [{"center": [0, 0, 0], "size": [1, 1, 1], "yaw": 0, "label": "car", "score": 7}]}]}
+        )
+    )
+    out = tmp_path / "tracks.json"
+    proc = run_cli("track", str(bad), "--format", "generic", "--out", str(out))
+    assert_user_error(proc, str(bad), "score")
+    assert not out.exists() and list(tmp_path.iterdir()) == [bad]
+    proc = run_cli("track", str(bad), "--format", "nuscenes", "--out", str(out))
+    assert_user_error(proc, "--data")
+    proc = run_cli("track", str(bad), "--format", "generic", "--calib", "c.txt", "--out", str(out))
+    assert_user_error(proc, "--calib")
+    proc = run_cli("track", str(_sequence_file(tmp_path)), "--format", "generic", "--out", str(tmp_path / "x.txt"))
+    assert_user_error(proc, "--out")
+    assert not out.exists()
+
+
+def test_cli_on_the_shared_nuscenes_scene(tmp_path):
+    folder = need(LIDAR / "nuscenes")
+    from spotlights.data.real.nuscenes import NuScenesReader
+
+    reader = NuScenesReader(folder)
+    results = {}
+    for key in reader.frame_keys():
+        rows = [r for r in reader.annotations(key) if r.get("num_lidar_pts", 0) >= 20][:30]
+        results[key[1]] = [
+            {"translation": r["translation"], "size": r["size"], "rotation": r["rotation"], "velocity": [0, 0],
+             "detection_name": "car", "detection_score": 0.9, "attribute_name": ""} for r in rows
+        ]  # fmt: skip
+    det = tmp_path / "det.json"
+    det.write_text(json.dumps({"meta": {}, "results": results}))
+    nus = tmp_path / "nus.json"
+    proc = run_cli("track", str(det), "--format", "nuscenes", "--data", str(folder), "--out", str(tmp_path / "t.json"),
+                   "--nuscenes-out", str(nus))  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads(nus.read_text())
+    assert set(doc["results"]) == {k[1] for k in reader.frame_keys()}
+    # every tracked box lies where an annotation was (global frame, within the filter's smoothing)
+    for token, entries in doc["results"].items():
+        truth = np.array([r["translation"] for r in results[token]]).reshape(-1, 3)
+        for e in entries:
+            assert np.min(np.linalg.norm(truth - e["translation"], axis=1)) < 1.0
+
+
+def test_the_study_page_quotes_the_results_file():
+    """docs/studies/tracking.md says the numbers of docs/results/tracking/tracker_nuscenes.json."""
+    from helpers import REPO
+
+    res = json.loads((REPO / "docs" / "results" / "tracking" / "tracker_nuscenes.json").read_text())
+    text = " ".join((REPO / "docs" / "studies" / "tracking.md").read_text().split())
+    m = res["metrics"]
+    row = f"| 0 (reported) | {m['mota']:.3f} | {m['idf1']:.3f} | {m['id_switches']} | {m['id_switches_per_100_tracks']:.1f} |"
+    assert row in text
+    for seed, o in res["other_seeds"].items():
+        assert (
+            f"| {seed} | {o['mota']:.3f} | {o['idf1']:.3f} | {o['id_switches']} | {o['id_switches_per_100_tracks']:.1f} |"
+            in text
+        )
+    for phrase in (
+        f"{res['speed']['frames_per_cpu_second']:.0f} frames per CPU second",
+        f"{m['misses']} misses of {m['gt_boxes']} boxes",
+        f"{m['gt_boxes']} boxes of {m['gt_tracks']} tracks",
+        f"MOTP {m['motp_m']:.3f} m",
+        f"{res['detections']} detections, {res['detections_per_frame']:.1f} a frame",
+        f"{m['mostly_tracked']} tracks mostly tracked, {m['mostly_lost']} mostly lost",
+    ):
+        assert phrase in text, phrase
+
+
+# --- real complete --detections --track ------------------------------------------------------------------------
+
+
+CARS = ([10.0, 2.0, -0.9], [-6.0, -5.0, -0.9])  # centres at t = 0; the first drives at 2 m/s along x
+CAR_SIZE = [4.2, 1.8, 1.5]
+
+
+def _write_drive(folder, times):
+    """Generic frames ``f0.npy`` + ``f0.json`` ...: two cars as points on their front and back faces, plus ground;
+    their boxes have no track id."""
+    rng = np.random.default_rng(0)
+    folder.mkdir(parents=True)
+    size = np.array(CAR_SIZE)
+    for k, t in enumerate(times):
+        pts, boxes = [rng.uniform(-30, 30, (300, 3)) * [1, 1, 0] - [0, 0, 1.7]], []
+        for c in CARS:
+            c = [c[0] + (2.0 * t if c is CARS[0] else 0.0), c[1], c[2]]
+            obj = rng.uniform(-0.5, 0.5, (300, 3)) * size
+            obj[:, 0] = np.sign(obj[:, 0]) * size[0] / 2
+            obj[:, 2] = rng.uniform(-size[2] / 2 + 0.12, size[2] / 2, 300)  # above the ground cut
+            pts.append(obj + c)
+            boxes.append({"center": c, "size": CAR_SIZE, "yaw": 0.0, "label": "car"})
+        np.save(folder / f"f{k}.npy", np.concatenate(pts).astype(np.float32))
+        (folder / f"f{k}.json").write_text(json.dumps({"timestamp": t, "boxes": boxes}))
+    return folder
+
+
+def _drive_detections(tmp_path, times) -> str:
+    """Detections of the two cars of :func:`_write_drive` (no track ids, scores), as a generic sequence JSON."""
+    frames = []
+    for k, t in enumerate(times):
+        boxes = [
+            {"center": c, "size": CAR_SIZE, "yaw": 0.0, "label": "car", "score": 0.9}
+            for c in ([CARS[0][0] + 2.0 * t, *CARS[0][1:]], CARS[1])
+        ]
+        frames.append({"frame_id": f"f{k}", "timestamp": t, "boxes": boxes})
+    path = tmp_path / "det.json"
+    path.write_text(json.dumps({"sequence": "drive", "frames": frames}))
+    return str(path)
+
+
+def test_real_complete_refuses_detections_without_track(tmp_path, capsys):
+    from spotlights.cli import main
+
+    src = _write_drive(tmp_path / "drive", [0.0, 0.5])
+    det = _drive_detections(tmp_path, [0.0, 0.5])
+    out = tmp_path / "out"
+    for extra, message in (
+        ([], "--detections needs --track"),
+        (["--track", "--format", "kitti360"], "--detections is read beside --format nuscenes, kitti, generic"),
+    ):
+        argv = ["real", "complete", str(src), "--format", "generic", "--out", str(out), "--detections", det, *extra]
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and message in err[0] and not out.exists(), err
+    for alone in (["--track"], ["--min-score", "0.3"]):
+        assert main(["real", "complete", str(src), "--format", "generic", "--out", str(out), *alone]) == 2
+        assert "--track and --min-score go with --detections" in capsys.readouterr().err and not out.exists()
+
+
+def test_real_complete_tracks_detections_and_fuses_them(tmp_path):
+    """The drive's boxes carry no track id (--fuse alone refuses them); its detections, tracked, give the two cars
+    one id each, and --fuse all fuses each car's three frames."""
+    pytest.importorskip("torch")
+    from spotlights.cli import main
+
+    from learning_fixtures import make_checkpoint
+
+    times = [0.0, 0.5, 1.0]
+    src = _write_drive(tmp_path / "drive", times)
+    det = _drive_detections(tmp_path, times)
+    ck = make_checkpoint(tmp_path / "tiny.pt", "sanet")
+    common = ["--format", "generic", "-c", str(ck), "--no-clip", "-q", "--no-pictures", "--fuse", "all"]
+    assert main(["real", "complete", str(src), "--out", str(tmp_path / "plain"), *common]) == 2  # no track ids
+    argv = ["real", "complete", str(src), "--out", str(tmp_path / "out"), *common, "--detections", det, "--track"]
+    assert main(argv) == 0
+    tracks = json.loads((tmp_path / "out" / "tracks.json").read_text())
+    assert tracks["n_tracks"] == 2
+    for tr in tracks["tracks"]:
+        assert [r["n_points"] for r in tr["frames"]] == [300, 300, 300]
+        assert [r["n_fused"] for r in tr["frames"]] == [900, 900, 900]
+    rec = json.loads((tmp_path / "out" / "drive" / "f1.json").read_text())
+    assert sorted(o["n_fused"] for o in rec["objects"] if o["status"] == "completed") == [900, 900]
