@@ -201,7 +201,7 @@ def slab_interval(origins, directions, lo, hi):
 
 def wait_until_command_started(pid: int, limit_s: float = 300.0) -> None:
     """Return once the ``python -m spotlights`` process ``pid`` runs the package's code: its main thread holds Ctrl-C
-    (SIGINT blocked: ``spotlights._hold_sigint_for_the_command``), or the process ended, or (not Linux: no /proc)
+    (SIGINT blocked: the package's first lines do that for the command), or the process ended, or (not Linux: no /proc)
     at once. A Ctrl-C test counts its delays from there: Python's own start-up, which no code of the package can
     guard and which takes seconds on a loaded machine, is not what it tests. ``limit_s``: a generous bound."""
     import signal
