@@ -220,3 +220,33 @@ def test_a_ray_build_that_gives_up_waits_for_its_cancelled_tasks():
     # after the cancels, one wait for all three to end, before the error leaves (and the build removes their parts)
     assert ray.calls[-1] == ("wait", [1, 2, 3], 3, CANCEL_WAIT_S)
     assert ray.calls.index(cancels[-1]) < len(ray.calls) - 1
+
+
+def test_an_interrupted_command_whose_exit_hangs_still_ends_with_130(tmp_path):
+    """The interpreter's exit waiting for ever on what a stopped pool left (concurrent.futures joins its manager
+    threads at exit): the command's exit code 130 comes anyway, within its stated grace."""
+    code = (
+        "import sys, threading, time\n"
+        "import spotlights.cli, spotlights.entry as entry\n"
+        "spotlights.cli.main = lambda: 130\n"  # a command that was interrupted and cleaned up
+        "entry.EXIT_GRACE_S = 0.5\n"
+        "threading._register_atexit(lambda: time.sleep(3600))\n"  # an exit-time join that never returns
+        "sys.exit(entry.main())\n"
+    )
+    env = dict(os.environ, PYTHONPATH=src_pythonpath())
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+    assert proc.returncode == 130, proc.stderr
+
+
+def test_a_normal_exit_is_not_cut_short():
+    code = (
+        "import sys, threading, time\n"
+        "import spotlights.cli, spotlights.entry as entry\n"
+        "spotlights.cli.main = lambda: 0\n"
+        "entry.EXIT_GRACE_S = 0.01\n"
+        "threading._register_atexit(lambda: (time.sleep(0.3), print('joined', flush=True)))\n"
+        "sys.exit(entry.main())\n"
+    )
+    env = dict(os.environ, PYTHONPATH=src_pythonpath())
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+    assert (proc.returncode, proc.stdout.strip()) == (0, "joined"), proc.stderr
