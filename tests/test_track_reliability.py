@@ -196,7 +196,7 @@ import pathlib
 import sys
 
 from spotlights.completion import fusion as tracks
-from test_track_reliability import slow_worker
+from test_track_reliability import SLOW_STALL_S, slow_worker
 from builders import track_plan as _plan
 from builders import write_drive
 
@@ -206,7 +206,7 @@ if __name__ == "__main__":
     plan, keys = _plan(src, "past:2", worker=False)
     assert plan.start_worker(keys)
     plan.frame_inputs(keys[0], plan.take(keys[0]).boxes)  # the worker started (its start is not timed here)
-    tracks.STALL_S = 2.0
+    tracks.STALL_S = SLOW_STALL_S
     print("ready", flush=True)
     for key in keys[1:]:
         plan.frame_inputs(key, plan.take(key).boxes)
@@ -216,11 +216,12 @@ if __name__ == "__main__":
 
 
 @needs_two_cpus
-@pytest.mark.timeout(90)
+@pytest.mark.timeout(600)
 def test_a_suspended_run_is_not_taken_for_a_hung_worker(tmp_path):
-    """Ctrl-Z (SIGSTOP to the run's process group: it and its worker) for 3 s, then ``fg`` (SIGCONT), while the run
-    waits for a slow worker that shows signs of life (stall limit 2 s here): the run goes on and finishes. Before, the
-    pause counted as silence: the first poll after SIGCONT found the limit passed and stopped the worker."""
+    """Ctrl-Z (SIGSTOP to the run's process group: it and its worker) for longer than the stall limit, then ``fg``
+    (SIGCONT), while the run waits for a slow worker that shows signs of life (stall limit SLOW_STALL_S here): the run
+    goes on and finishes. Before, the pause counted as silence: the first poll after SIGCONT found the limit passed
+    and stopped the worker."""
     (tmp_path / "suspended_probe.py").write_text(SUSPENDED)
     env = _env()
     env["PYTHONPATH"] = os.pathsep.join([str(tmp_path), str(REPO / "tests"), env["PYTHONPATH"]])
@@ -234,11 +235,11 @@ def test_a_suspended_run_is_not_taken_for_a_hung_worker(tmp_path):
     )
     try:
         assert proc.stdout.readline().strip() == "ready", proc.stderr.read()
-        time.sleep(0.3)  # the run waits for frame 1 (the slow worker fuses it for ~0.8 s)
+        time.sleep(0.3)  # the run waits for frame 1 (the slow worker fuses it for several seconds)
         os.killpg(proc.pid, signal.SIGSTOP)
-        time.sleep(3.0)
+        time.sleep(SLOW_STALL_S + 2.0)
         os.killpg(proc.pid, signal.SIGCONT)
-        out, err = proc.communicate(timeout=60)
+        out, err = proc.communicate(timeout=300)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
