@@ -19,7 +19,7 @@ def _private_tmpdir(tmp_path_factory):
     when this process exits: nothing is left in /tmp, and no other program's folders are touched.
     pytest's own ``tmp_path`` folders stay under its base folder (kept only for failed tests:
     ``tmp_path_retention_policy`` in pyproject.toml)."""
-    tmp_path_factory.getbasetemp()  # fixed before TMPDIR changes
+    _BASETEMP.append(tmp_path_factory.getbasetemp())  # fixed before TMPDIR changes; trimmed at the end
     root = tempfile.mkdtemp(prefix="sl-suite-")  # short: Ray's socket paths must stay under 107 bytes
     # Removed at exit after multiprocessing's own clean-up (its temp folder, priority -100, lies in
     # root: removing root at the end of the session would make that clean-up fail with a traceback).
@@ -52,3 +52,19 @@ def _one_torch_thread_per_worker():
         yield
     finally:
         torch.set_num_threads(before)
+
+
+#: pytest's base temporary folder of this run (set by _private_tmpdir)
+_BASETEMP: list = []
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_sessionfinish(session, exitstatus):
+    """A run with failures keeps its temporary folders (pytest's ``tmp_path_retention_policy = "failed"``): trimmed
+    here to what a failing test is read by (:func:`helpers.trim_kept_files`: no file above 8 MiB, 64 MiB in all), so
+    that a failed run no longer leaves hundreds of MB under the system's temporary folder."""
+    from helpers import trim_kept_files
+
+    for base in _BASETEMP:
+        if Path(base).is_dir():  # pytest removed it already when every test passed
+            trim_kept_files(Path(base))

@@ -197,3 +197,71 @@ def slab_interval(origins, directions, lo, hi):
     t1 = np.where(np.isnan(t1), -np.inf, t1)
     t2 = np.where(np.isnan(t2), np.inf, t2)
     return np.minimum(t1, t2).max(axis=1), np.maximum(t1, t2).min(axis=1)
+
+
+def wait_until_command_started(pid: int, limit_s: float = 300.0) -> None:
+    """Return once the ``python -m spotlights`` process ``pid`` runs the package's code: its main thread holds Ctrl-C
+    (SIGINT blocked: the package's first lines do that for the command), or the process ended, or (not Linux: no /proc)
+    at once. A Ctrl-C test counts its delays from there: Python's own start-up, which no code of the package can
+    guard and which takes seconds on a loaded machine, is not what it tests. ``limit_s``: a generous bound."""
+    import signal
+    import time
+
+    status = Path(f"/proc/{pid}/status")
+    if not status.exists():
+        return
+    deadline = time.monotonic() + limit_s
+    bit = 1 << (signal.SIGINT - 1)
+    while time.monotonic() < deadline:
+        try:
+            text = status.read_text()
+        except OSError:  # ended
+            return
+        blocked = next((line.split()[1] for line in text.splitlines() if line.startswith("SigBlk:")), "0")
+        if int(blocked, 16) & bit or "State:\tZ" in text:
+            return
+        time.sleep(0.0005)
+
+
+#: What the suite keeps of a failed run's temporary folders (pytest keeps a failed test's ``tmp_path``, and every
+#: module fixture's folder of a run with a failure): no file above KEEP_FILE_BYTES, and KEEP_TOTAL_BYTES in all, the
+#: largest files removed first (datasets, checkpoints; a failed run left 718 MB). Logs, configs and small outputs,
+#: what a failing test is read by, stay; TRIMMED.txt in the folder lists what went.
+KEEP_FILE_BYTES = 8 << 20
+KEEP_TOTAL_BYTES = 64 << 20
+
+
+def trim_kept_files(root: Path, file_bytes: int = KEEP_FILE_BYTES, total_bytes: int = KEEP_TOTAL_BYTES) -> list:
+    """Remove files under ``root`` (links are not followed) until none is larger than ``file_bytes`` and all
+    together hold at most ``total_bytes``, largest first; list them in ``root/TRIMMED.txt``. Returns the
+    ``(path, size)`` pairs removed."""
+    root = Path(root)
+    if not root.is_dir():
+        return []
+    files = []
+    for dirpath, _, names in os.walk(root):
+        for name in names:
+            p = Path(dirpath) / name
+            try:
+                if not p.is_symlink():
+                    files.append((p.stat().st_size, str(p)))
+            except OSError:
+                continue
+    files.sort(reverse=True)
+    total = sum(size for size, _ in files)
+    removed = []
+    for size, path in files:
+        if size <= file_bytes and total <= total_bytes:
+            break
+        try:
+            os.unlink(path)
+        except OSError:
+            continue
+        total -= size
+        removed.append((path, size))
+    if removed:
+        lines = [f"{size} {os.path.relpath(path, root)}" for path, size in removed]
+        (root / "TRIMMED.txt").write_text(
+            "removed after the run to keep a failed run's folders small (bytes, file):\n" + "\n".join(lines) + "\n"
+        )
+    return removed

@@ -17,7 +17,7 @@ from spotlights.completion.fusion import TrackWorkerStalled, usable_cpus
 from builders import track_inputs as _inputs
 from builders import track_plan as _plan
 from builders import write_drive
-from helpers import REPO
+from helpers import REPO, wait_until_command_started
 
 needs_two_cpus = pytest.mark.skipif(usable_cpus() < 2, reason="a worker process is started with 2+ usable CPUs only")
 
@@ -61,13 +61,19 @@ def dying_worker(jobs, results) -> None:
     WORKER_MAIN(jobs, _DiesAfterOneFrame(results))
 
 
+#: seconds a fused window takes in :func:`slow_worker`, and the stall limit of the test that runs it: a frame of two
+#: cars (~4 windows) lasts longer than the limit, while the worker's silence between signs of life (a window) stays
+#: far below it even on a loaded machine (load 30 on 2 cores delays a sleeping process by well under a second)
+SLOW_WINDOW_S, SLOW_STALL_S = 1.5, 6.0
+
+
 def slow_worker(jobs, results) -> None:
-    """The track worker, fusing slowly (0.4 s a fused window: ~1.6 s a frame of two cars) with a sign of life every
-    0.1 s at most (in the worker process)."""
+    """The track worker, fusing slowly (:data:`SLOW_WINDOW_S` a fused window: ~4 times that a frame of two cars) with
+    a sign of life every 0.1 s at most between windows (in the worker process)."""
     real = tracks.fuse_track
 
     def slow(*args, **kwargs):
-        time.sleep(0.4)
+        time.sleep(SLOW_WINDOW_S)
         return real(*args, **kwargs)
 
     tracks.fuse_track = slow
@@ -141,25 +147,26 @@ def test_a_worker_that_dies_ends_the_run_with_one_line_and_exit_code_1(tmp_path,
 
 
 @needs_two_cpus
-@pytest.mark.timeout(120)
+@pytest.mark.timeout(600)
 def test_a_slow_worker_that_shows_signs_of_life_is_not_taken_for_hung(tmp_path, monkeypatch):
-    """A worker taking ~1.6 s a frame (0.4 s a fused window) under a 1 s stall limit: its signs of life (every 0.1 s
-    at most here) keep the run going, and the frames get the inputs of the plan working alone. (The worker's start,
-    before it can send anything, is given 3 s: the default limit, 120 s, covers it.)"""
+    """A worker taking ~4 x SLOW_WINDOW_S a frame under a stall limit of SLOW_STALL_S: its signs of life (between
+    fused windows) keep the run going, and the frames get the inputs of the plan working alone. The limit is lowered
+    only once the first frame came: the worker's start (an interpreter, seconds on a loaded machine) is under the
+    default limit (120 s). No bound on speed: the sleeps make the frames at least that long."""
     src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0])
     alone, keys = _plan(src, "past:2", worker=False)
     want = _inputs(alone, keys)
     monkeypatch.setattr(tracks, "worker_main", slow_worker)
-    monkeypatch.setattr(tracks, "STALL_S", 1.0)
     plan, _ = _plan(src, "past:2", worker=False)
-    t0 = time.monotonic()
     assert plan.start_worker(keys)
-    time.sleep(3.0)
-    got = _inputs(plan, keys)
+    got = _inputs(plan, keys[:1])
+    monkeypatch.setattr(tracks, "STALL_S", SLOW_STALL_S)
+    t0 = time.monotonic()
+    got += _inputs(plan, keys[1:])
     plan.finish()
     assert got == want
-    # the worker was slow: its 3 frames (~1.6 s each, each longer than the stall limit) outlast the 3 s wait
-    assert time.monotonic() - t0 > 4.0
+    # the worker was slow: the frames after the first outlast the stall limit (each fused window sleeps)
+    assert time.monotonic() - t0 > SLOW_STALL_S
 
 
 @needs_two_cpus
@@ -189,7 +196,7 @@ import pathlib
 import sys
 
 from spotlights.completion import fusion as tracks
-from test_track_reliability import slow_worker
+from test_track_reliability import SLOW_STALL_S, slow_worker
 from builders import track_plan as _plan
 from builders import write_drive
 
@@ -199,7 +206,7 @@ if __name__ == "__main__":
     plan, keys = _plan(src, "past:2", worker=False)
     assert plan.start_worker(keys)
     plan.frame_inputs(keys[0], plan.take(keys[0]).boxes)  # the worker started (its start is not timed here)
-    tracks.STALL_S = 2.0
+    tracks.STALL_S = SLOW_STALL_S
     print("ready", flush=True)
     for key in keys[1:]:
         plan.frame_inputs(key, plan.take(key).boxes)
@@ -209,11 +216,12 @@ if __name__ == "__main__":
 
 
 @needs_two_cpus
-@pytest.mark.timeout(90)
+@pytest.mark.timeout(600)
 def test_a_suspended_run_is_not_taken_for_a_hung_worker(tmp_path):
-    """Ctrl-Z (SIGSTOP to the run's process group: it and its worker) for 3 s, then ``fg`` (SIGCONT), while the run
-    waits for a slow worker that shows signs of life (stall limit 2 s here): the run goes on and finishes. Before, the
-    pause counted as silence: the first poll after SIGCONT found the limit passed and stopped the worker."""
+    """Ctrl-Z (SIGSTOP to the run's process group: it and its worker) for longer than the stall limit, then ``fg``
+    (SIGCONT), while the run waits for a slow worker that shows signs of life (stall limit SLOW_STALL_S here): the run
+    goes on and finishes. Before, the pause counted as silence: the first poll after SIGCONT found the limit passed
+    and stopped the worker."""
     (tmp_path / "suspended_probe.py").write_text(SUSPENDED)
     env = _env()
     env["PYTHONPATH"] = os.pathsep.join([str(tmp_path), str(REPO / "tests"), env["PYTHONPATH"]])
@@ -227,11 +235,11 @@ def test_a_suspended_run_is_not_taken_for_a_hung_worker(tmp_path):
     )
     try:
         assert proc.stdout.readline().strip() == "ready", proc.stderr.read()
-        time.sleep(0.3)  # the run waits for frame 1 (the slow worker fuses it for ~0.8 s)
+        time.sleep(0.3)  # the run waits for frame 1 (the slow worker fuses it for several seconds)
         os.killpg(proc.pid, signal.SIGSTOP)
-        time.sleep(3.0)
+        time.sleep(SLOW_STALL_S + 2.0)
         os.killpg(proc.pid, signal.SIGCONT)
-        out, err = proc.communicate(timeout=60)
+        out, err = proc.communicate(timeout=300)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
@@ -290,10 +298,11 @@ def test_ctrl_c_inside_exec_run_code_still_exits_130(tmp_path):
 
 
 @needs_two_cpus
-@pytest.mark.timeout(90)
+@pytest.mark.timeout(900)
 def test_ctrl_c_at_any_moment_of_a_fused_run_is_130_and_one_line(tmp_path):
     """``python -m spotlights real complete --fuse past:2`` (worker on, and off), SIGINT to the process group (as a
-    terminal's Ctrl-C: the worker, the fork server and the resource tracker get it too) while the modules import,
+    terminal's Ctrl-C: the worker, the fork server and the resource tracker get it too), counted from the package's
+    first line (:func:`helpers.wait_until_command_started`), while the modules import,
     while the worker and its fork server start, while torch imports and during the frames: every time exit code 130,
     the one line "spotlights: interrupted", no traceback (of the run or of a child), no temporaries left. Before:
     now and then a traceback of the fork server or of the worker starting, or an end by SIGINT itself (-2)."""
@@ -303,7 +312,7 @@ def test_ctrl_c_at_any_moment_of_a_fused_run_is_130_and_one_line(tmp_path):
     src = write_drive(tmp_path / "drive", [0.5 * k for k in range(16)])
     ck = make_checkpoint(tmp_path / "tiny.pt", "sanet")
     outcomes = []
-    for k, delay in enumerate((0.15, 0.45, 0.6, 0.9, 1.3, 1.8)):
+    for k, delay in enumerate((0.0, 0.05, 0.15, 0.45, 0.6, 0.9, 1.3, 1.8)):
         out = tmp_path / f"out{k}"
         argv = ["real", "complete", str(src), "--format", "generic", "-c", str(ck), "--out", str(out)]
         argv += ["--fuse", "past:2", "--refine-boxes", "-q"] + (["--no-track-worker"] if k % 2 else [])
@@ -315,13 +324,14 @@ def test_ctrl_c_at_any_moment_of_a_fused_run_is_130_and_one_line(tmp_path):
             env=_env(),
             start_new_session=True,
         )
+        wait_until_command_started(proc.pid)  # delays count from the package's first line, not Python's start-up
         time.sleep(delay)
         try:
             os.killpg(proc.pid, signal.SIGINT)
         except ProcessLookupError:  # already done (a fast machine): nothing to check at this delay
             pass
         try:
-            _, err = proc.communicate(timeout=60)
+            _, err = proc.communicate(timeout=300)  # generous: a hang is a failure, a loaded machine is not
         finally:  # a run that hangs is not left behind (nor its worker, fork server and resource tracker)
             if proc.poll() is None:
                 os.killpg(proc.pid, signal.SIGKILL)

@@ -21,11 +21,37 @@ numpy/scipy/trimesh/embreex; torch is imported only by ``spotlights.learning``.
 
 from __future__ import annotations
 
-import importlib
-import logging
-from typing import TYPE_CHECKING, Any
 
-from ._version import __version__
+def _hold_sigint_for_the_command() -> object:
+    """When this import starts the ``spotlights`` command (``python -m spotlights``, or the console script), block
+    Ctrl-C (SIGINT) in this thread at once and return the signal mask before, else None. A Ctrl-C that came while
+    the package, numpy or :mod:`spotlights.entry` loaded gave a traceback and exit -2; held here, it is raised by
+    :func:`spotlights.entry.main` once the command line's modules are loaded: one line, exit 130."""
+    import os
+    import signal
+    import sys
+
+    argv = list(getattr(sys, "orig_argv", ()))
+    by_module = any(a == "-m" and b in ("spotlights", "spotlights.__main__") for a, b in zip(argv, argv[1:]))
+    main = getattr(sys.modules.get("__main__"), "__file__", None) or ""
+    by_script = (
+        bool(sys.argv)
+        and os.path.basename(sys.argv[0]) in ("spotlights", "spotlights.exe")
+        and (os.path.basename(main) in ("spotlights", "spotlights.exe", "__main__.py"))
+    )
+    if not (by_module or by_script) or not hasattr(signal, "pthread_sigmask"):
+        return None
+    return signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+
+
+#: the signal mask before the command held Ctrl-C (None: imported as a library); taken by spotlights.entry.main
+_SIGINT_MASK_BEFORE = _hold_sigint_for_the_command()
+
+import importlib  # noqa: E402 - after the hold above: a Ctrl-C while these load waits for the command
+import logging  # noqa: E402
+from typing import TYPE_CHECKING, Any  # noqa: E402
+
+from ._version import __version__  # noqa: E402
 
 if TYPE_CHECKING:  # the names as type checkers and IDEs see them
     from .api import (

@@ -11,8 +11,9 @@ cannot take a KeyboardInterrupt in their middle:
   in this thread is not enough. :func:`guard_imports` defers the interrupt instead: a Ctrl-C that comes while
   such a package's first import runs is noted, and raised as a KeyboardInterrupt once that import is complete.
 
-This module imports nothing heavy itself (``import spotlights`` loads no numpy), so the console script's own imports
-are covered too. Python's start-up before this module runs (a few tens of milliseconds) is not.
+The package's import holds Ctrl-C first thing when it starts the command (``spotlights._hold_sigint_for_the_command``),
+so the package's, numpy's and this module's imports are covered too; :func:`main` delivers the held signal once the
+command line is loaded. Python's own start-up before the package's first line (a few tens of milliseconds) is not.
 """
 
 from __future__ import annotations
@@ -23,9 +24,12 @@ import sys
 import threading
 from collections.abc import Iterable
 
-#: top-level packages whose first imports run C++ (pybind11) module initialisers: a KeyboardInterrupt raised in
-#: Python code they call back aborts the process; their first imports take a Ctrl-C only once complete
-DEFERRED_IMPORTS = frozenset({"torch", "onnxruntime", "open3d", "scipy"})
+#: top-level packages whose first imports cannot take a KeyboardInterrupt in their middle, which take a Ctrl-C only
+#: once complete: C++ (pybind11) module initialisers (a KeyboardInterrupt raised in Python code they call back aborts
+#: the process), and packages that catch BaseException around their optional imports (trimesh keeps the interrupt
+#: as a placeholder module: the Ctrl-C was lost, or came back later as a TypeError traceback about an
+#: ``ExceptionWrapper``; ``dataset build`` of a mesh folder, 1.2-1.6 s in)
+DEFERRED_IMPORTS = frozenset({"torch", "onnxruntime", "open3d", "scipy", "trimesh", "embreex", "h5py", "matplotlib"})
 
 
 class _Deferral:
@@ -134,6 +138,10 @@ def main() -> int:
     """Run the command line on ``sys.argv``; returns its exit code (130 for a Ctrl-C while it loads)."""
     held = hasattr(signal, "pthread_sigmask")
     before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT}) if held else None
+    package = sys.modules.get("spotlights")
+    early = package.__dict__.pop("_SIGINT_MASK_BEFORE", None) if package is not None else None
+    if early is not None:  # the package's import already held Ctrl-C: the mask to restore is the one before it
+        before = early
     try:
         try:
             guard_imports()
@@ -145,4 +153,34 @@ def main() -> int:
         print("spotlights: interrupted", file=sys.stderr)
         exec("pass")  # noqa: S102 - clears CPython's unhandled-interrupt note (spotlights.cli._forget_interrupt)
         return 130
-    return run()
+    code = run()
+    if code in (130, 143):
+        exit_within(EXIT_GRACE_S, code)
+    return code
+
+
+#: Seconds an interrupted command (Ctrl-C: 130, SIGTERM: 143) may spend in the interpreter's exit, after its one
+#: line and its own clean-up, before the process ends regardless (:func:`exit_within`).
+EXIT_GRACE_S = 20.0
+
+
+def exit_within(seconds: float, code: int) -> None:
+    """End the process with ``code`` (``os._exit``, standard streams flushed) if the interpreter's exit has not ended
+    it within ``seconds``: a daemon thread's timer. The interpreter's exit joins what the command left running
+    (``concurrent.futures`` joins its executors' manager threads), and an interrupt that came while a pool was
+    being stopped could leave one waiting for ever: the command had printed its line and then never ended (4 of
+    15 interrupted builds). Everything of the command's own (temporaries, parts, pools) is handled before its exit
+    code is returned, so only the interpreter's waiting is cut short."""
+    import os
+
+    def hard_exit() -> None:
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except Exception:  # noqa: BLE001 - a closed stream: nothing left to flush
+                pass
+        os._exit(code)
+
+    timer = threading.Timer(seconds, hard_exit)
+    timer.daemon = True
+    timer.start()

@@ -226,6 +226,8 @@ def show_file(s: ShowSettings, say: Say = logs.info) -> Path | None:
     out = Path(s.out) if s.out else Path.cwd() / (src.stem + ".png")
     if not src.exists():
         raise InputFileError(src, "no such file")
+    if src.is_dir():
+        raise InputFileError(src, f"is a folder: {html.FOLDER_HINT}")
     check_suffix(s.html, (".html", ".htm"), "the page (HTML)", "html")
     check_writable(s.out or (None if s.html else out), s.html)
     if s.html:

@@ -76,3 +76,36 @@ def path_inside(
         )
         raise InputFileError(source, f"{what} {text!r} leads outside {root}{how}")
     return candidate
+
+
+#: An ``.npz`` member may unpack to at most this many times its compressed size once beyond
+#: :data:`NPZ_FREE_BYTES`: numpy's zlib compresses real coordinates, depths and masks 1-10x, while a zip bomb
+#: (2 MB of zeros declared as a 2 GB array) unpacks ~1000x. Smaller members are never judged.
+NPZ_MAX_RATIO = 100
+
+#: Members of at most this many unpacked bytes are read whatever their ratio (64 MiB).
+NPZ_FREE_BYTES = 64 << 20
+
+
+def check_npz_members(path: str | os.PathLike, what: str = ".npz file") -> None:
+    """Refuse an ``.npz`` file (a zip archive) before numpy unpacks it, from its zip directory alone: a file that is
+    not a zip archive, or a member that would unpack beyond :data:`NPZ_FREE_BYTES` and :data:`NPZ_MAX_RATIO` times
+    its compressed size (a zip bomb). The directory's sizes are binding: Python's zip reader stops at the declared
+    size (a member that holds more fails its check). :class:`InputFileError` naming ``path``, one line."""
+    import zipfile
+
+    p = Path(path)
+    try:
+        with zipfile.ZipFile(p) as zf:
+            members = zf.infolist()
+    except FileNotFoundError:
+        raise InputFileError(p, f"{what} not found") from None
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
+        raise InputFileError(p, f"not a readable {what} ({type(exc).__name__})") from None
+    for m in members:
+        if m.file_size > NPZ_FREE_BYTES and m.file_size > NPZ_MAX_RATIO * max(m.compress_size, 1):
+            raise InputFileError(
+                p,
+                f"member {m.filename[:60]!r} would unpack {m.compress_size:,} bytes into {m.file_size:,} "
+                f"(more than {NPZ_MAX_RATIO}x beyond {NPZ_FREE_BYTES >> 20} MiB): refused as a zip bomb",
+            )

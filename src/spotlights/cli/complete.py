@@ -268,7 +268,7 @@ def register(sub) -> None:
         metavar="BOXES",
         help='every box of the frame: a JSON list [{"center": [x,y,z], "size": [l,w,h], "yaw": rad (or "rotation": '
         '3x3 or quaternion w,x,y,z), "label": "car", "track_id": 7}, ...] or {"boxes": [...]}; or a KITTI '
-        "label_2 .txt with --calib",
+        "label_2 .txt with --calib; at most 2000 boxes a frame",
     )
     g.add_argument("--calib", default=None, metavar="CALIB.txt", help="the KITTI calib file of a label_2 --boxes file")
     g.add_argument(

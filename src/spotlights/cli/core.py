@@ -125,7 +125,12 @@ def register(sub) -> None:
         "spotlights show car.npz --out car.png",
         _show,
     )
-    p.add_argument("file", metavar="FILE", help="mesh, point cloud (.ply .pcd .npy .xyz) or encoding (.npz)")
+    p.add_argument(
+        "file",
+        metavar="FILE",
+        help="mesh, point cloud (.ply .pcd .npy .xyz) or encoding (.npz); a picture draws at most 200000 points "
+        "(an even subsample beyond; --html: 400000 per cloud)",
+    )
     p.add_argument(
         "--out",
         "-o",

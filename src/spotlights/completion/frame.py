@@ -37,7 +37,7 @@ import numpy as np
 
 from ..data.vehicle_classes import VEHICLE_CLASSES, canonical_class
 from ..errors import InputFileError, ParameterError, parameter_names, shown
-from ..geometry.boxes import FLIP_Z, Box, crop_boxes
+from ..geometry.boxes import FLIP_Z, MAX_BOXES_PER_FRAME, Box, crop_boxes
 from ..geometry.neighbors import serial_queries
 from ..geometry.rotations import is_rotation, rigid_transform
 from ..learning.inference import DEFAULT, complete_in_boxes, prepare_partial, with_observed
@@ -99,11 +99,14 @@ def scene_points(points) -> np.ndarray:
 def check_scene_inputs(boxes, completer, config, axes) -> None:
     """One-line :class:`ParameterError` for what :func:`complete_scene` cannot use: ``boxes`` not a sequence of
     :class:`~spotlights.geometry.boxes.Box`, a ``completer`` without ``complete``, a ``config`` that is not a
-    :class:`SceneConfig`, ``axes`` that are not a (3, 3) rotation (orthonormal, determinant +1, to 1e-3)."""
+    :class:`SceneConfig`, ``axes`` that are not a (3, 3) rotation (orthonormal, determinant +1, to 1e-3), more than
+    :data:`~spotlights.geometry.boxes.MAX_BOXES_PER_FRAME` boxes."""
     if isinstance(boxes, Box) or not isinstance(boxes, Sequence) or isinstance(boxes, str):
         raise ParameterError(
             f"boxes must be a list of Box objects (for one box: [box], or spotlights.complete), got {type(boxes).__name__}"
         )
+    if len(boxes) > MAX_BOXES_PER_FRAME:
+        raise ParameterError(f"boxes holds {len(boxes):,} boxes; a frame takes at most {MAX_BOXES_PER_FRAME:,}")
     for i, b in enumerate(boxes):
         if not isinstance(b, Box):
             raise ParameterError(

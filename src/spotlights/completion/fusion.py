@@ -52,6 +52,7 @@ import numpy as np
 from ..data.real.base import Frame
 from ..data.real.extract import points_in_box
 from ..data.tracks import (
+    FLAGGED,
     MAX_GAP_S,
     MAX_TRANSLATION_M,
     MAX_YAW_RAD,
@@ -268,6 +269,11 @@ class TrackPlan:
         reads each frame once, not twice. None when it was not kept (beyond :data:`KEEP_POINTS`) or was taken."""
         return self.kept.pop(key, None)
 
+    def _kept(self, tr: _Track) -> list[int] | None:
+        """The positions of ``tr``'s frames that its whole-track fusion takes (None: every one): not a yaw flip."""
+        kept = [j for j in range(len(tr.frames)) if not _flipped(tr, j)]
+        return None if len(kept) == len(tr.frames) else kept or [0]
+
     def _own(self, tr: _Track, pos: int) -> np.ndarray:
         """The frame's points in the completion's crop of its (refined) box, box frame."""
         return fuse_track(
@@ -296,7 +302,8 @@ class TrackPlan:
             self._refine_upto(tr, int(window[-1]))
             laps = StageTimer()
             box = tr.boxes[pos]
-            others = [j for j in window if j != pos]
+            # a frame whose box is turned around (yaw_flip) is left out of the fusion: its points are mirrored
+            others = [] if _flipped(tr, pos) else [j for j in window if j != pos and not _flipped(tr, j)]
             own = len(self._own(tr, pos))
             fused = (
                 fuse_track(
@@ -399,7 +406,7 @@ class TrackPlan:
                         timestamp_s=f.timestamp,
                         box_index=tr.box_index[pos],
                         status=st,
-                        flagged=st in ("not_converged", "exceeds_bound"),
+                        flagged=st in FLAGGED,
                         moved_m=d,
                         turned_deg=math.degrees(dyaw),
                         n_points=tr.n_points[pos],
@@ -410,7 +417,7 @@ class TrackPlan:
                 )
                 n += 1
                 moved += d > 0.3
-                flagged += st in ("not_converged", "exceeds_bound")
+                flagged += st in FLAGGED
                 refined += st == "refined"
             tracks.append(dict(sequence=tr.sequence, track_id=tr.track_id, n_frames=len(tr.frames), frames=rows))
         fixed = {k: v for k, v in self.settings().items() if k != "tracks"}  # the tracks themselves follow, in full
@@ -445,7 +452,11 @@ class TrackPlan:
                 tr.fused
                 if tr.fused is not None
                 else fuse_track(
-                    tr.frames, boxes=tr.boxes, margin=self.config.margin, ground_clearance=self.config.ground_clearance
+                    tr.frames,
+                    self._kept(tr),
+                    boxes=tr.boxes,
+                    margin=self.config.margin,
+                    ground_clearance=self.config.ground_clearance,
                 )
             )
             comp = np.zeros((0, 3)) if tr.completion is None else tr.boxes[tr.completion_frame].to_object(tr.completion)
@@ -499,6 +510,12 @@ STALL_S = 120.0
 
 #: Seconds between the worker's signs of life (``("beat",)`` messages) while it works without another message.
 BEAT_S = 1.0
+
+
+def _flipped(tr, pos: int) -> bool:
+    """Whether frame ``pos`` of the track ``tr`` was found with its box turned around (refinement status
+    ``yaw_flip``: :func:`~spotlights.data.tracks.yaw_flips`)."""
+    return pos < len(tr.status) and tr.status[pos] == "yaw_flip"
 
 
 class TrackWorkerStalled(ProcessFailure):
@@ -611,7 +628,9 @@ def worker_main(jobs: Queue, results: Queue) -> None:
         cfg = plan.config
         state = {}
         for k, tr in plan.tracks.items():
-            fused = fuse_track(tr.frames, boxes=tr.boxes, margin=cfg.margin, ground_clearance=cfg.ground_clearance)
+            fused = fuse_track(
+                tr.frames, plan._kept(tr), boxes=tr.boxes, margin=cfg.margin, ground_clearance=cfg.ground_clearance
+            )
             state[k] = (tr.boxes, tr.status, tr.n_points, tr.n_fused, fused)
             beat()
         put(("done", state, dict(plan.timer.seconds) | {"worker_cpu_s": time.process_time() - cpu0}))

@@ -250,11 +250,34 @@ def check_track(
         )
     if max_gap_s is not None and len(d) and d.max() > max_gap_s:
         i = int(np.argmax(d))
+        unit = _timestamp_unit_hint(d)
+        if unit:
+            raise ParameterError(
+                f"{name} has a gap of {d[i]:.3g} s between its frames {i} and {i + 1} (limit {max_gap_s:g} s): "
+                f"timestamps are read in seconds, and these look like {unit}"
+            )
         raise ParameterError(
             f"{name} has a gap of {d[i]:.3g} s between its frames {i} and {i + 1} (limit {max_gap_s:g} s): "
             "the object is not tracked across it; raise the limit (`max_gap`) or split the track",
             "max_gap",
         )
+
+
+#: Typical time between LiDAR frames, seconds (10-20 Hz sensors); the median gap of a track in another unit is this
+#: many milli-, micro- or nanoseconds: (name, factor to seconds).
+_TIME_UNITS = (("nanoseconds", 1e-9), ("microseconds", 1e-6), ("milliseconds", 1e-3))
+
+
+def _timestamp_unit_hint(gaps: np.ndarray) -> str | None:
+    """A hint such as ``"nanoseconds (divide them by 1e9)"`` when a track's median gap between frames, read in
+    another unit, is a LiDAR's 0.01-1 s (aiMotive stores nanoseconds: 0.0667 s read as 6.67e7 s); else None."""
+    median = float(np.median(gaps))
+    if median < 10.0:  # plausible seconds (or a track with one long gap): no hint
+        return None
+    for unit, factor in _TIME_UNITS:
+        if 0.01 <= median * factor <= 1.0:
+            return f"{unit} (divide them by {1 / factor:.0e}: a median gap of {median * factor:.3g} s then)"
+    return None
 
 
 # --- box refinement ----------------------------------------------------------------------------
@@ -464,8 +487,37 @@ def corrected_box(box: Box, translation: np.ndarray, yaw: float) -> Box:
     return box.replace(center=center, rotation=rot)
 
 
-#: Statuses of :func:`refine_track` whose frame keeps its box and is flagged.
-FLAGGED = ("not_converged", "exceeds_bound")
+#: Statuses of :func:`refine_track` whose frame keeps its box and is flagged (``yaw_flip``: also left out of the
+#: fusion, :func:`yaw_flips`).
+FLAGGED = ("not_converged", "exceeds_bound", "yaw_flip")
+
+#: A box whose heading differs from its track's by more than this (radians) is a flipped annotation, not a turn: a
+#: vehicle (and the sensor carrying the frames, between two of them) turns far less between consecutive frames, while
+#: a 180-degree flip mirrors the box's points, which a fusion would then put on the wrong end of the vehicle.
+YAW_FLIP_RAD = math.radians(135.0)
+
+
+def yaw_flips(boxes: Sequence[Box], limit: float = YAW_FLIP_RAD) -> list[bool]:
+    """Per box of a track (in time order), whether its heading is flipped: more than ``limit`` radians from the
+    track's heading, followed frame to frame (each box's yaw about the scan's z axis; a U-turn over many frames is
+    followed, a flip between two frames is not). Causal: box ``i``'s answer depends on boxes ``0..i`` only. When two
+    consecutive boxes both differ from the heading but agree with each other (within ``limit / 3``), the track's
+    heading is theirs from the second on (the first box of the track, or a lasting change of convention, was the
+    odd one); the first of the two stays flagged."""
+    out = [False] * len(boxes)
+    if not boxes:
+        return out
+    ref = boxes[0].yaw
+    for i in range(1, len(boxes)):
+        y = boxes[i].yaw
+        if abs(math.remainder(y - ref, 2 * math.pi)) <= limit:
+            ref = y
+            continue
+        if out[i - 1] and abs(math.remainder(y - boxes[i - 1].yaw, 2 * math.pi)) <= limit / 3:
+            ref = y  # two in a row agree: the heading is theirs now
+            continue
+        out[i] = True
+    return out
 
 
 @dataclass
@@ -475,7 +527,9 @@ class Refinement:
     boxes : the refined boxes (the given box where not refined).
     status : ``refined``; ``no_reference`` (no other frame in its window, e.g. the first frame of a causal
         window: kept); ``no_gain`` (the correction barely improved the fit: kept); ``too_few_points`` (the frame or its reference holds fewer than ``min_points``: kept);
-        ``not_converged`` and ``exceeds_bound`` (kept, flagged: see :data:`FLAGGED`).
+        ``not_converged`` and ``exceeds_bound`` (kept, flagged: see :data:`FLAGGED`); ``yaw_flip`` (its heading is
+        turned around against the track's, :func:`yaw_flips`: kept, flagged, neither registered nor a reference,
+        and left out of the fusion).
     translation : (F,) float64 metres, horizontal distance between the given and the refined box centre.
     yaw : (F,) float64 radians, the refined minus the given heading (wrapped to (-pi, pi]).
     proposed_translation, proposed_yaw : (F,) the correction the registration found (also where it was refused).
@@ -538,6 +592,7 @@ class TrackRefiner:
         # current correction of each frame relative to its given box (points p' = Rz p + t)
         self.corr = [(np.zeros(2), 0.0) for _ in range(n)]
         self.done = -1  # frames 0..done are final
+        self.flipped = yaw_flips(self.given)  # causal: frame i's answer needs frames 0..i only
 
     def _obj(self, i: int) -> np.ndarray:
         if self.objs[i] is None:
@@ -553,7 +608,10 @@ class TrackRefiner:
     def _step(self, i: int) -> None:
         """Register frame ``i`` to the other frames of its window under their current corrections."""
         n, voxel = len(self.frames), self.voxel
-        others = [j for j in self.policy.select(n, i) if j != i]
+        if self.flipped[i]:  # mirrored points: not registered (a fit would turn it by half a turn at most by chance)
+            self.status[i], self.corr[i] = "yaw_flip", (np.zeros(2), 0.0)
+            return
+        others = [j for j in self.policy.select(n, i) if j != i and not self.flipped[j]]
         if not others:
             return
         ref = np.concatenate([self._in_current(j) for j in others])

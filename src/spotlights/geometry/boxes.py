@@ -46,6 +46,15 @@ MAX_BOX_SIZE_M = 1e4
 #: :func:`~spotlights.geometry.rotations.is_rotation`; rotations rounded to float32 (~1e-7) pass easily.
 ROTATION_TOLERANCE = 1e-3
 
+#: How far a box file's quaternion may be from unit length: files store unit quaternions rounded (float32: ~1e-7),
+#: while a norm far from 1 (or one that overflows) is a corrupt number, not a rotation to normalise silently.
+QUATERNION_TOLERANCE = 1e-3
+
+#: Most boxes one frame may hold (a box file, a frame given to scene completion): the busiest frames of the datasets
+#: read hold a few hundred annotations; 2,000 leaves a wide margin, while 100,000 boxes took minutes and 7 GB before
+#: a MemoryError. Checked before any box is cropped or completed.
+MAX_BOXES_PER_FRAME = 2_000
+
 #: 180 degrees about the box's own z axis: the same box, heading turned around.
 FLIP_Z = np.diag([-1.0, -1.0, 1.0])
 
@@ -117,9 +126,10 @@ class Box:
     yaw : keyword alternative to a numeric ``rotation``.
 
     Attributes are read-only float64 arrays (``center``, ``size``, ``rotation``) and
-    strings. Sizes are not checked for sign here (annotations may hold degenerate boxes,
-    even NaN ones; see :meth:`is_valid`), but shapes and numbers are: :class:`ParameterError`
-    (one line) for input that is not numeric, a finite centre coordinate beyond
+    strings. Sizes are not checked for sign here (annotations may hold degenerate boxes of
+    zero or negative sides; see :meth:`is_valid`), but shapes and numbers are: :class:`ParameterError`
+    (one line) for input that is not numeric (booleans included), a NaN or infinite centre,
+    size or rotation entry, a centre coordinate beyond
     :data:`MAX_BOX_CENTER_M`, a finite side beyond :data:`MAX_BOX_SIZE_M`, or a finite
     rotation that is not a proper rotation (``R.T @ R`` within :data:`ROTATION_TOLERANCE`
     of the identity, det > 0; readers orthonormalise calibration chains first). The
@@ -153,6 +163,9 @@ class Box:
         s = _numbers(size, "size")
         if c.shape != (3,) or s.shape != (3,):
             raise ParameterError(f"a box needs a 3-vector centre and size, got shapes {c.shape} and {s.shape}")
+        for what, v in (("center", c), ("size", s)):
+            if not math.isfinite(float(v[0] + v[1] + v[2])) and not np.all(np.isfinite(v)):
+                raise ParameterError(f"a box {what} must be finite numbers, got {_short(v.tolist())}")
         problem = _range_problem(c.tolist(), s.tolist())
         if problem:
             raise ParameterError(f"box {problem}")
@@ -168,6 +181,8 @@ class Box:
             r = _numbers(rotation, "rotation")
             if r.shape != (3, 3):
                 raise ParameterError(f"a box rotation must be (3, 3), got shape {r.shape}")
+            if not np.all(np.isfinite(r)):
+                raise ParameterError("a box rotation must be finite numbers, got NaN or infinite entries")
             problem = _rotation_problem(r)
             if problem:
                 raise ParameterError(f"box rotation {problem}")
@@ -256,8 +271,9 @@ class Box:
         return corners(self.center, self.size, self.rotation)
 
     def to_object(self, points: ArrayLike) -> np.ndarray:
-        """Scan-frame points (..., 3) -> object frame (..., 3) float64, metres."""
-        return (np.asarray(points, dtype=np.float64) - self.center) @ self.rotation
+        """Scan-frame points (..., 3) -> object frame (..., 3) float64, metres (:class:`ParameterError` for anything
+        that is not an array of numbers whose last axis has 3 entries)."""
+        return (_points(points) - self.center) @ self.rotation
 
     def from_object(self, points: ArrayLike) -> np.ndarray:
         """Object-frame points (..., 3) -> scan frame (..., 3) float64, metres."""
@@ -276,9 +292,10 @@ class Box:
 
         ``ground_clearance`` (metres): when given, the bottom face is not grown but raised by it
         (points with object z < -h/2 + ground_clearance are out): this drops the ground returns
-        under a vehicle. Faces are inclusive.
+        under a vehicle. Faces are inclusive. :class:`ParameterError` (naming ``points``) for anything but an (N, 3)
+        array of numbers.
         """
-        p = self.to_object(points)
+        p = self.to_object(_points(points, flat=True))
         half = 0.5 * self.size
         inside = (
             (np.abs(p[:, 0]) <= half[0] + margin)
@@ -294,7 +311,7 @@ class Box:
         ``margin + |ground_clearance|`` along each of its axes holds every point :meth:`contains` keeps."""
         grow = max(float(margin), 0.0) + abs(float(ground_clearance or 0.0))
         reach = float(np.linalg.norm(0.5 * self.size + grow))
-        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        p = _points(points, flat=True)
         near = np.flatnonzero(np.sum((p - self.center) ** 2, axis=1) <= reach * reach)
         return near[self.contains(p[near], margin, ground_clearance)]
 
@@ -347,16 +364,49 @@ def _score(value: object) -> float:
 
 
 def _numbers(value: object, what: str) -> np.ndarray:
-    """``value`` as a float64 array, or :class:`ParameterError` (one line) when it is not numeric."""
+    """``value`` as a float64 array, or :class:`ParameterError` (one line) when it is not numeric (booleans and
+    strings are not numbers here, though numpy would read ``True`` as 1 and ``"1.5"`` as 1.5)."""
+    if isinstance(value, (bool, str, bytes)) or (isinstance(value, np.ndarray) and value.dtype.kind not in "iuf"):
+        raise ParameterError(f"a box {what} must be numbers, got {value!r:.60}")
     try:
-        return np.array(value, dtype=np.float64)
+        a = np.array(value, dtype=np.float64)
     except (TypeError, ValueError):
         raise ParameterError(f"a box {what} must be numbers, got {value!r:.60}") from None
+    if isinstance(value, (list, tuple)) and holds_non_numbers(value):
+        raise ParameterError(f"a box {what} must be numbers, got {value!r:.60}")
+    return a
+
+
+def holds_non_numbers(items: list | tuple) -> bool:
+    """Whether a (nested) list or tuple holds a boolean or a string, which numpy converts to floats silently (``True``
+    to 1.0, ``"1.5"`` to 1.5): box files and box arguments refuse both."""
+    for v in items:
+        if isinstance(v, (list, tuple)):
+            if holds_non_numbers(v):
+                return True
+        elif isinstance(v, (bool, np.bool_, str, bytes)):
+            return True
+    return False
+
+
+def _points(points: object, flat: bool = False) -> np.ndarray:
+    """``points`` as a float64 array of shape (..., 3) (``flat``: exactly (N, 3)), or :class:`ParameterError` naming
+    ``points`` (None, a (5, 2) array or strings gave numpy's own errors, or wrong answers)."""
+    try:
+        p = np.asarray(points, dtype=np.float64)
+    except (TypeError, ValueError):
+        p = None
+    if p is None or p.ndim == 0 or p.shape[-1] != 3 or (flat and p.ndim != 2):
+        got = "None" if points is None else f"shape {p.shape}" if p is not None else type(points).__name__
+        raise ParameterError(f"points must be an {'(N, 3)' if flat else '(..., 3)'} array of numbers, got {got}")
+    return p
 
 
 def _scalar(value: object, what: str) -> float:
     """``value`` as a finite float, or :class:`ParameterError` (one line) when it is not one finite number (a NaN or
-    infinite yaw raised "math domain error")."""
+    infinite yaw raised "math domain error"; a boolean or a string is not a number here)."""
+    if isinstance(value, (bool, np.bool_, str, bytes)):
+        raise ParameterError(f"a box {what} must be a number, got {value!r:.60}")
     try:
         x = float(value)  # type: ignore[arg-type]
     except (TypeError, ValueError):
@@ -463,6 +513,8 @@ def _vector(value: object, n: int | tuple[int, ...], src: str | os.PathLike, wha
         a = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         a = None
+    if isinstance(value, (str, bytes, bool)) or (isinstance(value, (list, tuple)) and holds_non_numbers(value)):
+        a = None  # a boolean or a string is not a number in a box file (numpy reads true as 1, "1.5" as 1.5)
     shape = (n,) if isinstance(n, int) else tuple(n)
     if a is None or a.shape != shape or not np.all(np.isfinite(a)):
         desc = "three" if shape == (3,) else "x".join(map(str, shape))
@@ -520,8 +572,16 @@ def box_from_dict(
         flat = np.asarray(rot_value, dtype=object).reshape(-1) if isinstance(rot_value, list) else None
         if flat is not None and flat.size == 4:
             q = _vector(rot_value, 4, src, f"{what} quaternion")
-            if np.linalg.norm(q) < 1e-6:
+            with np.errstate(over="ignore"):
+                norm = float(np.linalg.norm(q))
+            if norm < 1e-6:
                 raise InputFileError(src, f"{what} quaternion is zero")
+            if not abs(norm - 1.0) <= QUATERNION_TOLERANCE:  # an overflowing norm is inf: refused too
+                raise InputFileError(
+                    src,
+                    f"{what} quaternion must be a unit quaternion (norm 1 within {QUATERNION_TOLERANCE:g}), "
+                    f"got norm {norm:.6g}",
+                )
             rot = quaternion_to_matrix(*q)
         else:
             rot = _vector(rot_value, (3, 3), src, f"{what} rotation")
@@ -531,6 +591,8 @@ def box_from_dict(
     elif "yaw" in d or "yaw_deg" in d:
         key = "yaw" if "yaw" in d else "yaw_deg"
         try:
+            if isinstance(d[key], (str, bool)):  # "0.5" and true are not numbers in a box file
+                raise TypeError(key)
             yaw = float(d[key])
         except (TypeError, ValueError):
             raise InputFileError(src, f"{what} {key} must be a number, got {d[key]!r}") from None
@@ -542,10 +604,15 @@ def box_from_dict(
     label_key = next((k for k in LABEL_KEYS if k in d), None)
     if label_key is None and require_label:
         raise InputFileError(src, f"{what} has no 'label' (e.g. \"car\")")
-    label = "" if label_key is None else str(d[label_key])
-    track = next((d[k] for k in ID_KEYS if k in d), "")
+    if label_key is not None and not isinstance(d[label_key], str):
+        raise InputFileError(src, f"{what} {label_key} must be a string, got {d[label_key]!r:.60}")
+    label = "" if label_key is None else d[label_key]
+    id_key = next((k for k in ID_KEYS if k in d), None)
+    track = "" if id_key is None else d[id_key]
     if isinstance(track, float) and track.is_integer():
         track = int(track)
+    if track is not None and (isinstance(track, bool) or not isinstance(track, (str, int))):
+        raise InputFileError(src, f"{what} {id_key} must be a string or a whole number, got {track!r:.60}")
     score = next((d[k] for k in SCORE_KEYS if k in d), None)
     if score is not None and (isinstance(score, bool) or not isinstance(score, (int, float)) or not 0 <= score <= 1):
         raise InputFileError(src, f"{what} score must be a number in [0, 1], got {score!r:.40}")

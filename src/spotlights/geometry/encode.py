@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputFileError, ParameterError
+from ..inputs import check_npz_members
 from ..utils import atomic_output
 from .frames import Normalization, normalization_from_mesh
 from .io import load_mesh
@@ -213,8 +214,8 @@ def decode(
     depths : (..., N*M) float depths in [0, 1] (any batch shape).
     rig : the rig that produced (or that a model predicted for) the depths; or a
         :class:`RigSpec` with ``extents`` (box specs: each depth array decodes with
-        the rig of its own box).
-    clip : optional threshold; depths below it count as misses (the paper uses
+        the rig of its own box); or a rig name (``"cap-32x64-60"``, read by :func:`parse_rig`).
+    clip : optional threshold in [0, 1]; depths below it count as misses (the paper uses
         0.2 on predicted arrays). A depth of exactly 0 is always a miss.
     extents : with a box spec, (..., 3) float box half-extents in the unit frame,
         one per depth array (batch shape of ``depths``).
@@ -226,8 +227,28 @@ def decode(
 
     Kept depths are clamped to half their ray's chord through the unit sphere, so every point
     lies in the sphere (predicted depths can exceed it; encoded ones cannot).
+    :class:`~spotlights.errors.ParameterError` for a ``rig`` that is none of these (None), depths that are NaN,
+    infinite, negative or above 1, or a ``clip`` that is NaN or outside [0, 1].
     """
-    d = np.asarray(depths, dtype=np.float64)
+    if isinstance(rig, str):
+        rig = parse_rig(rig)
+    if not isinstance(rig, (Rig, RigSpec)):
+        raise ParameterError(f"rig must be a Rig, a RigSpec or a rig name (see make_rig), got {type(rig).__name__}")
+    try:
+        d = np.asarray(depths, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ParameterError(f"depths must be an array of numbers, got {type(depths).__name__}") from None
+    if d.size and not (np.all(np.isfinite(d)) and d.min() >= 0.0 and d.max() <= 1.0):
+        bad = int(np.count_nonzero(~((d >= 0.0) & (d <= 1.0))))  # NaN fails both comparisons
+        raise ParameterError(
+            f"depths must be finite numbers in [0, 1] (0 = miss), got {bad} of {d.size} outside "
+            f"(NaN, infinite, negative or above 1)"
+        )
+    if clip is not None:
+        if isinstance(clip, (bool, str)) or not isinstance(clip, (int, float, np.number)):
+            raise ParameterError(f"clip must be a depth threshold in [0, 1] or None, got {clip!r:.60}")
+        if not 0.0 <= float(clip) <= 1.0:  # NaN fails too
+            raise ParameterError(f"clip must be a depth threshold in [0, 1] or None, got {clip}")
     if d.shape[-1:] != (rig.n_rays,):
         raise ParameterError(
             f"depth array has {d.shape[-1] if d.ndim else 0} entries, the rig {rig.name} has {rig.n_rays} rays"
@@ -312,7 +333,9 @@ def save_encoding(path: str | os.PathLike, depths: np.ndarray, rig: Rig, normali
 
 
 def load_encoding(path: str | os.PathLike) -> Encoding:
-    """Read an encoding ``.npz`` written by :func:`save_encoding` (validated)."""
+    """Read an encoding ``.npz`` written by :func:`save_encoding` (validated; a zip bomb refused unopened:
+    :func:`~spotlights.inputs.check_npz_members`)."""
+    check_npz_members(path, ".npz encoding")
     try:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}

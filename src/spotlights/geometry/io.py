@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputFileError, ParameterError
+from ..inputs import check_npz_members
 from ..utils import atomic_output, check_regular_file
 from .frames import MAX_COORDINATE
 
@@ -144,6 +145,7 @@ def load_points(path: str | os.PathLike, drop_nonfinite: bool = False) -> np.nda
         elif suffix == ".npy":
             pts = np.load(p, allow_pickle=False)
         elif suffix == ".npz":
+            check_npz_members(p, "NPZ point cloud")  # a zip bomb is refused from the zip directory, unopened
             with np.load(p, allow_pickle=False) as z:
                 key = next((k for k in ("points", "partial") if k in z.files), None)
                 if key is None and len(z.files) == 1:
@@ -205,25 +207,85 @@ def _check_las_size(p: Path, header) -> None:
         )
 
 
+#: Points decompressed at a time from a LAS/LAZ file: only their x, y, z (24 bytes a point) are kept, so the reader's
+#: memory beyond the result stays under ~100 MB whatever the point record's size.
+LAS_CHUNK_POINTS = 1 << 20
+
+#: Smallest size of a VLR (its 54-byte header) and of an extended VLR (60 bytes), LAS 1.0-1.4.
+_VLR_HEADER_BYTES, _EVLR_HEADER_BYTES = 54, 60
+
+#: The LAS header's own size by minor version (1.0-1.2, 1.3, 1.4).
+_LAS_HEADER_BYTES = {0: 227, 1: 227, 2: 227, 3: 235, 4: 375}
+
+
+def _check_las_header(p: Path) -> None:
+    """Refuse a LAS/LAZ file whose fixed header cannot be true for a file of its size, before laspy reads it.
+
+    laspy trusts the header's counts: 4 KB of ``LASF`` and random bytes declared ~1e9 VLRs, which it read one
+    empty record at a time, growing by 15 MB/s for as long as it ran. Checked here (LAS 1.0-1.4 header layout):
+    the version, the header size, the offset of the point data within the file, every declared VLR (54 bytes
+    at least) between the header and the points, the point format (0-10, compressed or not), and the extended
+    VLRs of LAS 1.4 within the file.
+    """
+    import struct
+
+    size = p.stat().st_size
+    with open(p, "rb") as fh:
+        head = fh.read(375)
+
+    def bad(problem: str) -> InputFileError:
+        return InputFileError(p, f"not a readable LAS/LAZ file ({problem})")
+
+    if len(head) < 227 or head[:4] != b"LASF":
+        raise bad("no LAS header: it must start with LASF and hold 227 bytes at least")
+    major, minor = head[24], head[25]
+    if major != 1 or minor not in _LAS_HEADER_BYTES:
+        raise bad(f"unknown LAS version {major}.{minor} (1.0-1.4 are read)")
+    header_size, offset, n_vlrs = struct.unpack_from("<HII", head, 94)
+    point_format, record = struct.unpack_from("<BH", head, 104)
+    if not _LAS_HEADER_BYTES[minor] <= header_size <= size:
+        raise bad(f"header size {header_size} does not fit LAS 1.{minor} or the file's {size:,} bytes")
+    if not header_size <= offset <= size:
+        raise bad(f"points start at byte {offset:,}, outside the file's {header_size}-{size:,}")
+    if n_vlrs * _VLR_HEADER_BYTES > offset - header_size:
+        raise bad(f"header declares {n_vlrs:,} VLRs, more than its {offset - header_size:,} bytes before the points")
+    if (point_format & 0x3F) > 10:
+        raise bad(f"unknown point format {point_format & 0x3F}")
+    if minor >= 4 and len(head) >= 375:
+        first_evlr, n_evlrs = struct.unpack_from("<QI", head, 235)
+        if n_evlrs and (first_evlr > size or n_evlrs * _EVLR_HEADER_BYTES > size - first_evlr):
+            raise bad(f"header declares {n_evlrs:,} extended VLRs beyond the file's {size:,} bytes")
+
+
 def _read_las(p: Path) -> np.ndarray:
-    """x, y, z (K, 3) float64 of a LAS/LAZ file (scale and offset applied) via laspy."""
+    """x, y, z (K, 3) float64 of a LAS/LAZ file (scale and offset applied) via laspy, bounded in memory: the
+    header is checked against the file's size first (:func:`_check_las_header`, :func:`_check_las_size`), then the
+    points are decompressed :data:`LAS_CHUNK_POINTS` at a time."""
     try:
         import laspy
     except ImportError:
         raise InputFileError(p, f"reading LAS/LAZ needs laspy: {LAS_INSTALL_HINT}") from None
+    _check_las_header(p)
     try:
         with laspy.open(str(p)) as reader:
             _check_las_size(p, reader.header)
-            las = reader.read()
+            parts = [
+                np.stack(
+                    [
+                        np.asarray(chunk.x, dtype=np.float64),
+                        np.asarray(chunk.y, dtype=np.float64),
+                        np.asarray(chunk.z, dtype=np.float64),
+                    ],
+                    axis=1,
+                )
+                for chunk in reader.chunk_iterator(LAS_CHUNK_POINTS)
+            ]
     except laspy.errors.LaspyException as exc:
         msg = str(exc).splitlines()[0][:100] if str(exc) else type(exc).__name__
         if p.suffix.lower() == ".laz" and "backend" in msg.lower():
             raise InputFileError(p, f"reading LAZ needs a decompressor (lazrs): {LAS_INSTALL_HINT}") from None
         raise InputFileError(p, f"not a readable LAS/LAZ file ({msg})") from None
-    return np.stack(
-        [np.asarray(las.x, dtype=np.float64), np.asarray(las.y, dtype=np.float64), np.asarray(las.z, dtype=np.float64)],
-        axis=1,
-    )
+    return np.concatenate(parts) if parts else np.zeros((0, 3))
 
 
 def save_points(path: str | os.PathLike, points: np.ndarray) -> Path:

@@ -46,10 +46,21 @@ def quaternion_to_matrix(qw, qx, qy, qz) -> np.ndarray:
     """Rotation matrices from scalar-first unit quaternions (w, x, y, z), as Argoverse 2 and nuScenes store them.
 
     Inputs are scalars or arrays of shape (n,); returns (3, 3) or (n, 3, 3)
-    float64. The quaternions are normalised first.
+    float64. The quaternions are normalised first; one that cannot be (a NaN or infinite
+    component, a zero norm, or a norm that overflows float64, such as [1e300, 1e300, 0, 0],
+    which became the identity) raises :class:`ParameterError`.
     """
     q = np.stack(np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in (qw, qx, qy, qz))), axis=-1)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    with np.errstate(over="ignore", invalid="ignore"):
+        norm = np.linalg.norm(q, axis=-1, keepdims=True)
+    bad = ~(np.isfinite(norm) & (norm > 0))
+    if np.any(bad):
+        first = q[np.unravel_index(int(np.argmax(bad)), bad.shape)[:-1]] if q.ndim > 1 else q
+        raise ParameterError(
+            f"quaternion (w, x, y, z) {np.asarray(first).tolist()} cannot be normalised (NaN, infinite, zero or "
+            "overflowing norm)"
+        )
+    q = q / norm
     w, x, y, z = np.moveaxis(q, -1, 0)
     m = np.stack(
         [

@@ -20,6 +20,7 @@ is imported before it is needed.
 
 from __future__ import annotations
 
+import numbers
 import os
 from pathlib import Path
 from typing import Literal
@@ -128,7 +129,7 @@ def load_completer(
         machine without an NVIDIA driver) lets ``"auto"`` choose onnxruntime.
     precision : ``"auto"`` (default: :func:`spotlights.learning.cpu.auto_precision`), ``"fp32"`` or ``"bf16"``
         (torch autocast; an ONNX model runs as exported, float32, and refuses ``"bf16"``).
-    threads : onnx runtime: onnxruntime's intra-op threads (None: its default); the torch runtime's threads are the
+    threads : onnx runtime: onnxruntime's intra-op threads, >= 1 (None: its default); the torch runtime's threads are the
         process's (``torch.set_num_threads``).
 
     Returns a :class:`~spotlights.learning.inference.BaseCompleter` (a torch
@@ -138,6 +139,10 @@ def load_completer(
     :class:`~spotlights.errors.InputFileError` for a bad file, and :class:`~spotlights.errors.SpotlightsError`
     when the runtime's package is not installed.
     """
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, numbers.Integral) or threads < 1):
+        raise ParameterError(
+            f"`threads` must be a whole number >= 1 or None (the runtime's default), got {threads!r}", "threads"
+        )
     chosen, what = choose_runtime(name_or_path, runtime, device, precision)
     if chosen == "onnx":
         if precision not in (None, "auto", "fp32"):

@@ -41,6 +41,12 @@ SOURCES = {
     1: ("partial input", PURPLE, "partial"),
     2: ("completion", GREEN, "completion"),
 }
+#: What to give instead of a folder, where one file is expected (``view``, ``show``).
+FOLDER_HINT = (
+    "give its files (meshes, point clouds, encodings .npz, boxes .json, observations .h5); a dataset folder is "
+    "read by 'spotlights real extract' or 'spotlights real complete'"
+)
+
 MAX_POINTS = 400_000  # per trace, beyond which a cloud is subsampled (evenly, deterministic)
 
 
@@ -476,6 +482,8 @@ def file_traces(
     suffix = src.suffix.lower()
     if not src.exists():
         raise InputFileError(src, "no such file")
+    if src.is_dir():
+        raise InputFileError(src, f"is a folder: {FOLDER_HINT}")
     if suffix == ".json":
         boxes = read_boxes_json(src)
         return box_traces(boxes, f"{name}: boxes"), f"{len(boxes)} box{'es' if len(boxes) != 1 else ''}"

@@ -74,6 +74,33 @@ class Layer:
         return Normalize(lo, hi if hi > lo else lo + 1.0)
 
 
+#: Points drawn at most in one picture, all layers together: beyond it every layer is thinned evenly (deterministic,
+#: in proportion to its size). A picture of 10 million points took 115 s and 6.5 GB; 200,000 take seconds and
+#: look the same at the picture's resolution.
+MAX_DRAWN_POINTS = 200_000
+
+
+def thin_layers(layers: Sequence[Layer], max_points: int = MAX_DRAWN_POINTS) -> list[Layer]:
+    """The layers with at most ``max_points`` points in all: each layer of K points keeps an even subsample of
+    ``ceil(K * max_points / total)`` rows (per-point colours thinned with them); unchanged when they fit."""
+    import dataclasses
+    import math
+
+    sizes = [len(np.asarray(layer.points).reshape(-1, 3)) for layer in layers]
+    total = sum(sizes)
+    if total <= max_points:
+        return list(layers)
+    out = []
+    for layer, n in zip(layers, sizes):
+        k = min(n, math.ceil(n * max_points / total))
+        idx = np.linspace(0, n - 1, k).astype(np.int64) if k else np.zeros(0, np.int64)
+        color = layer.color
+        if not isinstance(color, (str, tuple)) and len(np.asarray(color)) == n and n > 1:
+            color = np.asarray(color)[idx]
+        out.append(dataclasses.replace(layer, points=np.asarray(layer.points).reshape(-1, 3)[idx], color=color))
+    return out
+
+
 def merge_layers(layers: Sequence[Layer]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """All layers as one set: points (K, 3) float64, RGBA (K, 4), marker sizes (K,)."""
     pts, cols, sizes = [], [], []
@@ -138,8 +165,11 @@ def _legend(ax, layers: Sequence[Layer]) -> None:
 def figure_layers(
     layers: Sequence[Layer], title: str | None = None, views: Sequence[tuple[float, float]] = DEFAULT_VIEWS
 ):
-    """The :class:`~matplotlib.figure.Figure` of :func:`render_layers` (not saved)."""
+    """The :class:`~matplotlib.figure.Figure` of :func:`render_layers` (not saved); at most
+    :data:`MAX_DRAWN_POINTS` points are drawn (:func:`thin_layers`)."""
     from matplotlib.cm import ScalarMappable
+
+    layers = thin_layers(layers)
 
     p, _, _ = merge_layers(layers)
     center, half = cube_limits(p, 0.0)
@@ -176,7 +206,8 @@ def render_layers(
     views: Sequence[tuple[float, float]] = DEFAULT_VIEWS,
     dpi: int = 110,
 ) -> Path:
-    """Draw point layers from several viewpoints side by side into a PNG (atomic write).
+    """Draw point layers from several viewpoints side by side into a PNG (atomic write); at most
+    :data:`MAX_DRAWN_POINTS` points in all (an even subsample of each layer beyond).
 
     Parameters
     ----------

@@ -19,13 +19,15 @@ behind otherwise). Needs the optional ``rerun-sdk`` package (``pip install 'spot
 
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import ParameterError
+from ..errors import OutputFileError, ParameterError
 from ..geometry.sampling import voxel_downsample
+from ..utils import check_writable
 
 GREY, BLUE, GREEN, ORANGE, RED, WHITE = (
     (150, 150, 150),
@@ -38,6 +40,9 @@ GREY, BLUE, GREEN, ORANGE, RED, WHITE = (
 
 
 def _rerun():
+    # rerun-sdk's own log lines (a full disk: a WARN and an ERROR from its writer thread) would stand beside the
+    # command's one-line error; its failures reach us as exceptions. A RUST_LOG the user set is kept.
+    os.environ.setdefault("RUST_LOG", "off")
     try:
         import rerun as rr
     except ImportError:
@@ -56,6 +61,7 @@ def check_rerun_path(path) -> Path:
     if not p.parent.exists() and str(p.parent) not in ("", "."):
         raise ParameterError(f"{p}: its folder {p.parent} does not exist")
     _rerun()
+    check_writable(p)  # a folder named x.rrd, a read-only folder: refused before the work, naming the recording
     return p
 
 
@@ -94,7 +100,11 @@ class SceneRecording:
         self.path = check_rerun_path(path)
         self.tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.part.rrd")
         self.rec = rr.RecordingStream(application, recording_id=self.path.stem)
-        self.rec.save(str(self.tmp))
+        try:
+            self.rec.save(str(self.tmp))
+        except (RuntimeError, OSError) as exc:  # rerun's file sink could not create its file
+            self._discard()
+            raise OutputFileError(self.path, f"cannot write the recording ({_first_line(exc)})") from None
         self.n_frames = 0
         self.unit = time_unit_s
         self.voxel = voxel
@@ -144,12 +154,29 @@ class SceneRecording:
         return pts if self.voxel is None or len(pts) == 0 else voxel_downsample(pts, self.voxel)
 
     def close(self, ok: bool = True) -> None:
-        """Finish the file: renamed to ``path`` when ``ok``, removed otherwise."""
-        self.rec.flush()
-        self.rec.disconnect()
-        if ok:
-            os.replace(self.tmp, self.path)
-        else:
+        """Finish the file: renamed to ``path`` when ``ok``, removed otherwise. A recording that could not be
+        written whole (a full disk: rerun's writer thread stops; the name taken by a folder meanwhile) is removed
+        and, when ``ok``, an :class:`~spotlights.errors.OutputFileError` naming ``path`` (one line)."""
+        try:
+            self.rec.flush()
+            self.rec.disconnect()
+            if ok:
+                if self.path.is_dir():
+                    raise IsADirectoryError(21, "is a folder, expected a file name")
+                os.replace(self.tmp, self.path)
+        except (RuntimeError, OSError) as exc:
+            self._discard()
+            if ok:
+                raise OutputFileError(self.path, f"the recording could not be written ({_first_line(exc)})") from None
+            return
+        if not ok:
+            self._discard()
+
+    def _discard(self) -> None:
+        """Stop writing and remove the temporary file, whatever state rerun's writer is in."""
+        with contextlib.suppress(Exception):
+            self.rec.disconnect()
+        with contextlib.suppress(OSError):
             self.tmp.unlink(missing_ok=True)
 
     def __enter__(self) -> SceneRecording:
@@ -157,6 +184,12 @@ class SceneRecording:
 
     def __exit__(self, exc_type, *exc) -> None:
         self.close(ok=exc_type is None)
+
+
+def _first_line(exc: BaseException) -> str:
+    """An exception's first line (rerun's errors say "Failed to create file: ... (os error 20), path: ...")."""
+    text = str(exc).strip().splitlines()
+    return (text[0] if text else type(exc).__name__)[:160]
 
 
 def open_recording(path, time_unit_s: float | None = 1.0):

@@ -5,7 +5,9 @@ held in memory and answered at ``/`` (and ``/index.html``) until Ctrl-C. Only th
 library is used. The server binds to the loopback interface by default, so the page is
 reached from a laptop through an SSH tunnel (``ssh -L PORT:localhost:PORT user@host``);
 another address is bound only when the caller names it (``--host``), with a warning, since
-the server has no authentication.
+the server has no authentication. Requests must name the server in their ``Host`` header (an
+address, ``localhost``, or the bound name): a web page cannot read the served cloud through DNS
+rebinding (:func:`host_allowed`).
 """
 
 from __future__ import annotations
@@ -36,17 +38,54 @@ def is_loopback(host: str) -> bool:
     return bool(addresses) and all(ipaddress.ip_address(a.split("%")[0]).is_loopback for a in addresses)
 
 
+def allowed_host_names(host: str) -> frozenset[str]:
+    """The names a request's ``Host`` header may carry for a server bound to ``host`` (lower case, no port), besides
+    IP address literals, which are always accepted: ``localhost`` (and ``*.localhost``, checked by
+    :func:`host_allowed`), and for an address other than loopback the name it was given and this machine's names."""
+    names = {"localhost"}
+    if not is_loopback(host):
+        names |= {host.strip("[]").lower(), socket.gethostname().lower(), socket.getfqdn().lower()}
+    return frozenset(n for n in names if n)
+
+
+def host_allowed(header: str | None, allowed: frozenset[str]) -> bool:
+    """Whether a request's ``Host`` header names this server: an IP address literal (a browser page can reach one
+    only by its address, as any client can), ``localhost`` or ``*.localhost``, or one of ``allowed``; any port.
+
+    DNS rebinding: a page of ``evil.example`` whose name is made to resolve to 127.0.0.1 reads what a loopback server
+    answers, but its requests carry ``Host: evil.example``: refused. A missing header is refused too."""
+    if not header:
+        return False
+    name = header.strip().lower()
+    if name.startswith("["):  # [IPv6]:port
+        name = name[1 : name.find("]")] if "]" in name else ""
+    elif name.count(":") == 1:
+        name = name.rsplit(":", 1)[0]
+    try:
+        ipaddress.ip_address(name)
+        return True
+    except ValueError:
+        pass
+    name = name.rstrip(".")
+    return name in allowed or name.endswith(".localhost")
+
+
 def make_server(body: bytes, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT) -> ThreadingHTTPServer:
-    """A bound (not yet serving) HTTP server answering ``GET /`` with ``body`` (an HTML page).
+    """A bound (not yet serving) HTTP server answering ``GET /`` with ``body`` (an HTML page), to requests whose
+    ``Host`` header names it (:func:`host_allowed`; others get 403: no DNS rebinding).
 
     ``port`` 0 picks a free port (read it from ``server.server_address[1]``). Raises a
     one-line :class:`SpotlightsError` when the address cannot be bound.
     """
+    allowed = allowed_host_names(host)
 
     class Handler(BaseHTTPRequestHandler):
         server_version = "spotlights-view"
 
         def _answer(self, send_body: bool) -> None:
+            if not host_allowed(self.headers.get("Host"), allowed):
+                self.send_error(403, "unknown Host: open the page at localhost or this machine's address")
+                return
             if self.path.split("?", 1)[0] not in ("/", "/index.html"):
                 self.send_error(404, "only / is served")
                 return

@@ -147,16 +147,25 @@ class _Log:
                 raise InputFileError(
                     self.ann_path, f"row {int(order[bad[0]])}: {c} must be finite, got {self.ann[c][bad[0]]}"
                 )
-        qnorm = np.sqrt(sum(self.ann[c] ** 2 for c in ("qw", "qx", "qy", "qz")))
+        with np.errstate(over="ignore"):
+            qnorm = np.sqrt(sum(self.ann[c] ** 2 for c in ("qw", "qx", "qy", "qz")))
         bad = np.flatnonzero(qnorm < 1e-9)
         if len(bad):
             raise InputFileError(self.ann_path, f"row {int(order[bad[0]])}: the quaternion (qw, qx, qy, qz) is zero")
+        bad = np.flatnonzero(~np.isfinite(qnorm))  # finite components whose squares overflow: not a rotation
+        if len(bad):
+            raise InputFileError(
+                self.ann_path, f"row {int(order[bad[0]])}: the quaternion (qw, qx, qy, qz) cannot be normalised"
+            )
         pose_path = path / "city_SE3_egovehicle.feather"
         if pose_path.is_file():
             cols = _read_feather(pose_path, POSE_COLUMNS, "ego poses")
             order = np.argsort(cols["timestamp_ns"], kind="stable")
             self.pose_ts = cols["timestamp_ns"][order].astype(np.int64)
-            self.poses = pose_matrices({k: v[order] for k, v in cols.items()})
+            try:
+                self.poses = pose_matrices({k: v[order] for k, v in cols.items()})
+            except ParameterError as exc:  # a quaternion that cannot be normalised, here naming the file
+                raise InputFileError(pose_path, str(exc)) from None
         else:
             self.pose_ts = np.zeros(0, np.int64)
             self.poses = np.zeros((0, 4, 4))

@@ -26,7 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import InputFileError
-from ...geometry.boxes import Box, box_from_dict
+from ...geometry.boxes import MAX_BOXES_PER_FRAME, Box, box_from_dict, holds_non_numbers
+from ...geometry.rotations import is_rotation
 from ...inputs import read_json
 from . import av2, kitti, kitti360, nuscenes
 from .base import CLASSES, lookup_class
@@ -69,6 +70,8 @@ def parse_boxes(items, path, require_label: bool = True, axes=None, what: str = 
     """A JSON list of boxes -> :class:`Box` list with classes (see :func:`box_from_dict`)."""
     if not isinstance(items, list):
         raise InputFileError(path, "expected a JSON list of boxes")
+    if len(items) > MAX_BOXES_PER_FRAME:
+        raise InputFileError(path, f"{len(items):,} boxes in one frame; at most {MAX_BOXES_PER_FRAME:,} are read")
     return [
         with_class(box_from_dict(d, path, f"{what} {j}", require_label=require_label, axes=axes))
         for j, d in enumerate(items)
@@ -76,6 +79,8 @@ def parse_boxes(items, path, require_label: bool = True, axes=None, what: str = 
 
 
 def _number(v, path, what, cast=float):
+    if isinstance(v, (bool, str)):  # true is not 1 and "3" is not 3 in a box file
+        raise InputFileError(path, f"{what} must be a number, got {v!r:.60}")
     try:
         x = cast(v)
     except (TypeError, ValueError):
@@ -97,17 +102,26 @@ def parse_frame_keys(d: dict, path, what: str = "frame") -> dict:
         )
     if d.get("frame_index") is not None:
         out["frame_index"] = _number(d["frame_index"], path, f"{what} frame_index", int)
-    if d.get("frame_id") is not None:
-        out["frame_id"] = str(d["frame_id"])
-    if d.get("sequence") is not None:
-        out["sequence"] = str(d["sequence"])
+    for key in ("frame_id", "sequence"):
+        v = d.get(key)
+        if v is None:
+            continue
+        if isinstance(v, bool) or not isinstance(v, (str, int)):  # a list or an object is no name
+            raise InputFileError(path, f"{what} {key} must be a string, got {v!r:.60}")
+        out[key] = str(v)
     if d.get("sensor_to_world") is not None:
         try:
             m = np.asarray(d["sensor_to_world"], dtype=np.float64)
         except (TypeError, ValueError):
             m = np.zeros(0)
-        if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+        if m.shape != (4, 4) or not np.all(np.isfinite(m)) or holds_non_numbers(d["sensor_to_world"]):
             raise InputFileError(path, f"{what} sensor_to_world must be a finite 4x4 matrix")
+        if not is_rotation(m[:3, :3]) or not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=1e-6):
+            raise InputFileError(  # a singular or scaled pose would fuse frames into a collapsed or stretched world
+                path,
+                f"{what} sensor_to_world must be a rigid transform (a rotation, orthonormal within 1e-3 with "
+                "determinant +1, a translation, and the last row 0 0 0 1)",
+            )
         out["sensor_to_world"] = m
     return out
 

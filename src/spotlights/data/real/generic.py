@@ -112,6 +112,26 @@ def _order_sequence(frames: list[dict], source) -> None:
             )
 
 
+#: The dataset formats a folder's layout gives away, with their names in messages.
+DATASET_NAMES = {"nuscenes": "nuScenes", "kitti": "KITTI object", "kitti360": "KITTI-360", "av2": "Argoverse 2"}
+
+
+def dataset_layout(folder: Path) -> str | None:
+    """The format (``nuscenes``, ``kitti``, ``kitti360``, ``av2``) whose layout ``folder`` has, from a few names
+    in it and one level down (nothing is read), or None: a dataset given as a folder of generic scans."""
+    if (folder / "sample_annotation.json").is_file() or any(folder.glob("*/sample_annotation.json")):
+        return "nuscenes"
+    if (folder / "samples" / "LIDAR_TOP").is_dir():
+        return "nuscenes"
+    if (folder / "label_2").is_dir() or (folder / "training" / "label_2").is_dir():
+        return "kitti"
+    if (folder / "data_3d_raw").is_dir():
+        return "kitti360"
+    if (folder / "annotations.feather").is_file() or any(folder.glob("*/annotations.feather")):
+        return "av2"
+    return None
+
+
 class GenericReader(SceneReader):
     """A scan file with its JSON boxes, a folder of frames, or a sequence JSON (see the module doc).
 
@@ -165,8 +185,22 @@ class GenericReader(SceneReader):
 
     @staticmethod
     def _folder(folder: Path) -> list[dict]:
+        dataset = dataset_layout(folder)
+        if dataset is not None:
+            raise InputFileError(
+                folder,
+                f"this is a {DATASET_NAMES[dataset]} folder, not a folder of scans with NAME.json box files: read it "
+                f"with the format {dataset!r} ('spotlights real complete FOLDER --format {dataset}')",
+            )
         scans = []
         for p in folder.iterdir():
+            if p.is_symlink() and not p.exists():  # a broken link was skipped silently: a frame went missing
+                try:
+                    scan_kind(p)
+                except InputFileError:
+                    if p.suffix.lower() != ".json":
+                        continue  # not a scan or a box file
+                raise InputFileError(p, f"a broken symbolic link (its target {os.readlink(p)!r} does not exist)")
             if not p.is_file() or p.suffix.lower() == ".json":
                 continue
             try:

@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import InputFileError, ParameterError
-from ...geometry.boxes import Box, box_range_problem
+from ...geometry.boxes import MAX_BOXES_PER_FRAME, Box, box_range_problem
 from ...geometry.rotations import orthonormalize
 from .base import Frame, SceneReader, lookup_class
 from .scans import read_kitti_bin  # noqa: F401  (read_kitti_bin re-exported: the KITTI scan format)
@@ -158,6 +158,8 @@ def read_labels(path: str | os.PathLike, t_velo_rect: np.ndarray) -> list[Box]:
         for lineno, line in enumerate(fh, 1):
             if not line.strip():
                 continue
+            if len(boxes) >= MAX_BOXES_PER_FRAME:
+                raise InputFileError(path, f"more than {MAX_BOXES_PER_FRAME:,} boxes in one frame")
             kind, nums = parse_label_line(line, path, lineno)
             try:
                 boxes.append(box_from_label(kind, nums, t_velo_rect))

@@ -48,6 +48,9 @@ MAX_VIEWS = 100_000
 MAX_GT_POINTS = 2**20
 """Ground-truth points per model (``--gt-points``, ``--gt-dense``): 64 times the default dense 16,384; sampled in
 float64 by every worker, 2e9 of them killed the workers."""
+MAX_PROCEDURAL = 10_000
+"""Procedural vehicles per class (``--procedural``): 10,000 per class is 50,000 models, about a hundred times the
+mesh datasets the paper uses; a million per class never ended."""
 COUNT_BOUNDS = {
     "views": ("--views", MAX_VIEWS),
     "n_points": ("--points", MAX_PARTIAL_POINTS),
@@ -199,13 +202,22 @@ def normalize_procedural(proc: dict | None) -> dict | None:
     n = proc.get("count")
     if not (isinstance(n, (int, np.integer)) and not isinstance(n, bool) and n >= 0):
         raise ParameterError(f"`procedural` must be a count of vehicles per class >= 0, got {n!r}", "procedural")
+    if n > MAX_PROCEDURAL:
+        raise ParameterError(
+            f"`procedural` must be at most {MAX_PROCEDURAL:,} vehicles per class, got {n:,}", "procedural"
+        )
     if n == 0:
         return None
-    classes = proc.get("classes") or list(VEHICLE_CLASSES)
+    classes = proc.get("classes")
+    classes = list(VEHICLE_CLASSES) if classes is None else classes
     classes = classes.split(",") if isinstance(classes, str) else list(classes)
     classes = [canonical_class(c) for c in classes if str(c).strip()]
+    if not classes:  # "" named no class: it was read as every class
+        raise ParameterError(
+            f"`classes` names no class; give some of {', '.join(VEHICLE_CLASSES)}, or leave it out for all", "classes"
+        )
     bad = [c for c in classes if c not in VEHICLE_CLASSES]
-    if bad or not classes:
+    if bad:
         raise ParameterError(
             f"`classes`: unknown vehicle class {bad[0] if bad else ''!r}; known: {', '.join(VEHICLE_CLASSES)} (van = caravan)",
             "classes",

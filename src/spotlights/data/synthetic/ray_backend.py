@@ -149,6 +149,11 @@ def _add_rig_task(m: int, entry: ModelEntry, cfg_dict: dict, stored: dict, rig_d
 # ----------------------------------------------------------------------------------------------
 # the driver side
 # ----------------------------------------------------------------------------------------------
+#: Seconds a build that gives up waits for its cancelled Ray tasks to end before it removes their parts (a forced
+#: cancel kills the task's worker; ending one takes well under a second on an idle cluster).
+CANCEL_WAIT_S = 60.0
+
+
 class RayBuild:
     """Runs a build's loading, units and shard writing on a connected Ray cluster.
 
@@ -224,7 +229,19 @@ class RayBuild:
             if not isinstance(exc, KeyboardInterrupt):
                 for ref in pending:
                     ray.cancel(ref, force=True)
+                self._wait_ended(list(pending))
             raise
+
+    def _wait_ended(self, refs: list) -> None:
+        """Wait (at most :data:`CANCEL_WAIT_S`) until cancelled tasks have ended: a cancel only asks, and a task
+        still running went on writing its part after the build had removed the parts folder (a finished part
+        and a ``.part.npz`` were found in a folder the build had removed). Their errors are theirs, not news."""
+        if not refs:
+            return
+        try:
+            self.ray.wait(refs, num_returns=len(refs), timeout=CANCEL_WAIT_S)
+        except Exception:  # noqa: BLE001 - a cluster going away while we wait: nothing more to wait for
+            pass
 
     # --- loading --------------------------------------------------------------------------
     def loader(self, cfg: BuildConfig, entries: list, progress: bool = False) -> list[tuple]:

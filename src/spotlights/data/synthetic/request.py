@@ -142,14 +142,14 @@ class BuildRequest:
         type=non_negative_int,
         metavar="N",
         help="add N generated vehicles per class of --classes (models procedural/CLASS/BODY-IIII; with or without "
-        "--meshes); stores every model's detector class",
+        "--meshes; at most 10000); stores every model's detector class",
     )
     classes: str | None = option(
         default=None,
         group=PROCEDURAL,
         metavar="LIST",
         help="classes of --procedural (the real readers' names): car (sedan, hatchback, SUV, pickup), van (stored "
-        "as caravan), truck (box truck, semi-tractor, pickup), bus, trailer (box, flatbed); default all",
+        "as caravan), truck (box truck, semi-tractor, pickup), bus, trailer (box, flatbed); default all (an empty list is refused)",
     )
     procedural_split: str | None = option(
         default=None,

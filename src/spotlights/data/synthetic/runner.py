@@ -284,23 +284,34 @@ def _write_outputs(out: Path, cfg, entries, parts: Path, units, skipped, state, 
         )
         return
     jobs = shard_jobs(out, cfg, n_models, int(s.shard_size))
-    if runner is not None:
-        runner.write_shards(jobs, cfg, entries, parts, units, skipped, s.progress)
-    else:
-        for j in jobs:
-            write_output_file(
-                j["path"],
-                cfg,
-                entries,
-                j["rows"],
-                parts,
-                units,
-                skipped,
-                j["attrs"],
-                recompute=recompute,
-                progress=s.progress,
-            )
-    write_build_index(out, [j["path"] for j in jobs], [(len(j["rows"]), len(j["rows"]) * cfg.views) for j in jobs], cfg)
+    new = [Path(j["path"]) for j in jobs if not Path(j["path"]).exists()]  # what a failure below must take back
+    try:
+        if runner is not None:
+            runner.write_shards(jobs, cfg, entries, parts, units, skipped, s.progress)
+        else:
+            for j in jobs:
+                write_output_file(
+                    j["path"],
+                    cfg,
+                    entries,
+                    j["rows"],
+                    parts,
+                    units,
+                    skipped,
+                    j["attrs"],
+                    recompute=recompute,
+                    progress=s.progress,
+                )
+        write_build_index(
+            out, [j["path"] for j in jobs], [(len(j["rows"]), len(j["rows"]) * cfg.views) for j in jobs], cfg
+        )
+    except BaseException:
+        # a full disk at the second shard left the first one finished beside no index: shards without their index
+        # are no dataset, so those this run wrote go (the parts stay, or not, as the build decides: a rerun resumes)
+        for p in new:
+            with contextlib.suppress(OSError):
+                p.unlink(missing_ok=True)
+        raise
 
 
 def _sweep_finished_parts(parts: Path) -> None:

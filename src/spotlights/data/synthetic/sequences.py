@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -213,7 +214,8 @@ def write_sequences(
     """Simulate ``n_sequences`` sequences (mesh ``i % len(meshes)`` for sequence ``i``) into ``out``.
 
     meshes : mesh files (z up, x forward, metres). Returns the ``sequence.json`` paths written. Every file
-    is written atomically; a sequence is complete when its ``sequence.json`` exists (written last).
+    is written atomically; a sequence is complete when its ``sequence.json`` exists (written last). When a write
+    fails (a full disk), the sequence folders this call made are removed before the error goes on.
     """
     _check_sequence_count(n_sequences)
     if not meshes:
@@ -222,52 +224,62 @@ def write_sequences(
     out = Path(out)
     loaded: dict[int, tuple] = {}
     written = []
-    for i in range(n_sequences):
-        j = i % len(meshes)
-        if j not in loaded:
-            mesh = load_vehicle_mesh(meshes[j])
-            loaded[j] = (mesh, np.asarray(mesh.vertices), np.asarray(mesh.faces))
-        mesh, v, f = loaded[j]
-        rng = np.random.default_rng([seed, i])
-        seq = simulate_sequence(v, f, sens, spec, rng)
-        name = f"seq{i:04d}"
-        folder = out / name
-        folder.mkdir(parents=True, exist_ok=True)
-        gt = (sample_surface(mesh, 2048, seed=rng) - seq["center_in_mesh"]).astype(np.float32)
-        with atomic_output(folder / "gt.npy") as tmp:
-            with open(tmp, "wb") as fh:
-                np.save(fh, gt)
-        rows = []
-        for k, fr in enumerate(seq["frames"]):
-            with atomic_output(folder / f"{k:04d}.npy") as tmp:
+    made_here: list[Path] = []  # the sequence folders this call creates
+    try:
+        for i in range(n_sequences):
+            j = i % len(meshes)
+            if j not in loaded:
+                mesh = load_vehicle_mesh(meshes[j])
+                loaded[j] = (mesh, np.asarray(mesh.vertices), np.asarray(mesh.faces))
+            mesh, v, f = loaded[j]
+            rng = np.random.default_rng([seed, i])
+            seq = simulate_sequence(v, f, sens, spec, rng)
+            name = f"seq{i:04d}"
+            folder = out / name
+            if not folder.exists():
+                made_here.append(folder)
+            folder.mkdir(parents=True, exist_ok=True)
+            gt = (sample_surface(mesh, 2048, seed=rng) - seq["center_in_mesh"]).astype(np.float32)
+            with atomic_output(folder / "gt.npy") as tmp:
                 with open(tmp, "wb") as fh:
-                    np.save(fh, fr["points"])
-            rows.append(
-                dict(
-                    scan=f"{k:04d}.npy",
-                    frame_id=f"{k:04d}",
-                    timestamp=fr["timestamp"],
-                    boxes=[_box_json(fr["noisy_box"])],
-                    true_box=_box_json(fr["true_box"]),
-                    n_points=len(fr["points"]),
+                    np.save(fh, gt)
+            rows = []
+            for k, fr in enumerate(seq["frames"]):
+                with atomic_output(folder / f"{k:04d}.npy") as tmp:
+                    with open(tmp, "wb") as fh:
+                        np.save(fh, fr["points"])
+                rows.append(
+                    dict(
+                        scan=f"{k:04d}.npy",
+                        frame_id=f"{k:04d}",
+                        timestamp=fr["timestamp"],
+                        boxes=[_box_json(fr["noisy_box"])],
+                        true_box=_box_json(fr["true_box"]),
+                        n_points=len(fr["points"]),
+                    )
                 )
+            truth = dict(
+                mesh=str(meshes[j]),
+                sensor=sensor,
+                noise=asdict(spec.noise),
+                trajectory=seq["trajectory"],
+                seed=seed,
+                index=i,
+                gt="gt.npy (2048 points on the mesh surface, box frame)",
+                frames=rows,
             )
-        truth = dict(
-            mesh=str(meshes[j]),
-            sensor=sensor,
-            noise=asdict(spec.noise),
-            trajectory=seq["trajectory"],
-            seed=seed,
-            index=i,
-            gt="gt.npy (2048 points on the mesh surface, box frame)",
-            frames=rows,
-        )
-        with atomic_output(folder / "truth.json") as tmp:
-            tmp.write_text(json.dumps(truth, indent=1) + "\n", encoding="utf-8")
-        frames = [{k: r[k] for k in ("scan", "frame_id", "timestamp", "boxes")} for r in rows]
-        with atomic_output(folder / "sequence.json") as tmp:
-            tmp.write_text(json.dumps({"sequence": name, "frames": frames}, indent=1) + "\n", encoding="utf-8")
-        written.append(folder / "sequence.json")
+            with atomic_output(folder / "truth.json") as tmp:
+                tmp.write_text(json.dumps(truth, indent=1) + "\n", encoding="utf-8")
+            frames = [{k: r[k] for k in ("scan", "frame_id", "timestamp", "boxes")} for r in rows]
+            with atomic_output(folder / "sequence.json") as tmp:
+                tmp.write_text(json.dumps({"sequence": name, "frames": frames}, indent=1) + "\n", encoding="utf-8")
+            written.append(folder / "sequence.json")
+    except BaseException:
+        # a full disk (or Ctrl-C) midway: the run is incomplete; the sequence folders this call made go with what
+        # they hold (an empty or half folder was left, and a run is written whole or not at all)
+        for made in made_here:
+            shutil.rmtree(made, ignore_errors=True)
+        raise
     return written
 
 
