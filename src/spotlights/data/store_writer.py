@@ -14,11 +14,13 @@ FORMAT_VERSION = 1
 SPLITS = ("train", "val", "test")
 # HDF5 compression of every array dataset (portable: gzip is in every HDF5 build).
 COMPRESSION = dict(compression="gzip", compression_opts=4, shuffle=True)
-# The per-sample arrays (/samples/*: one small chunk per partial scan, most of a build's writes): lzf, h5py's own
-# filter (every h5py reads it; HDF5 tools outside h5py need its plugin). On 7,900 samples of the cars it took 2.3x
-# less CPU to write than gzip and 1.5-1.9x less to read, for a file 6% larger, the arrays read back the same
-# (docs/studies/speed.md, benchmarks/dataset_compression.py).
-SAMPLE_COMPRESSION = dict(compression="lzf", shuffle=True)
+# The per-sample arrays (/samples/*: one small chunk per partial scan, most of a build's writes): uncompressed. On
+# 7,900 samples of the cars that took 7.1x less CPU to write than gzip and 4.4x less to read all, for a file
+# 24% larger, the arrays read back the same (docs/studies/speed.md, benchmarks/dataset_compression.py). lzf
+# measured faster than gzip too, but its output is not a function of its input alone (h5py's liblzf leaves its
+# hash table uninitialised: the same arrays gave different bytes), and a build's bytes must not depend on anything
+# but its seed and config.
+SAMPLE_COMPRESSION: dict = {}
 
 # Per-model string columns written only by builds that use them (multi-source, augmentation,
 # procedural vehicles: the detector class of every model).
