@@ -34,7 +34,7 @@ import numpy as np
 from spotlights.data.lidar import LidarSimulator
 from spotlights.data.synthetic import (BuildConfig, save_npz_atomic, build_dataset, discover_models, load_model,
                                        model_ground_truth, simulate_views)
-from spotlights.utils import StageTimer
+from spotlights.timing import StageTimer
 
 ROOT = Path(__file__).resolve().parents[1]
 CARS = Path(os.environ.get("SPOTLIGHTS_SHARED", ROOT.parent / "shared")) / "data" / "meshes" / "apolloscape-cars"

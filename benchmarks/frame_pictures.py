@@ -25,7 +25,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from spotlights.utils import atomic_output
+from spotlights.outputs import atomic_output
 
 HERE = Path(__file__).resolve().parents[1]
 NUSCENES = HERE.parent / "shared" / "data" / "lidar" / "nuscenes"

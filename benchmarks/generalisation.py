@@ -50,7 +50,7 @@ from spotlights.geometry.distances import accuracy, completeness
 from spotlights.geometry.encode import decode
 from spotlights.learning.checkpoint import load_checkpoint, resolve_checkpoint
 from spotlights.learning.evaluate import evaluate_checkpoints
-from spotlights.utils import atomic_output
+from spotlights.outputs import atomic_output
 
 
 def decode_ceiling(path, rig: str, split: str = "test") -> dict:

@@ -540,7 +540,7 @@ def main() -> None:
         print("  parity: " + ", ".join(f"{k} {v:.1e}" for k, v in rt["parity"].items()))
         done("runtime", {"runtime": rt}, ts, ls)
     if args.json:
-        from spotlights.utils import atomic_output
+        from spotlights.outputs import atomic_output
 
         with atomic_output(args.json) as tmp:
             tmp.write_text(json.dumps(result, indent=2))

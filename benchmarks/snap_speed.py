@@ -22,7 +22,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from spotlights.utils import atomic_output
+from spotlights.outputs import atomic_output
 
 HERE = Path(__file__).resolve().parents[1]
 

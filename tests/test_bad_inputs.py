@@ -256,7 +256,7 @@ class _Faulty:
             return real_file_init(obj, name, mode, *a, **kw)
 
         mp.setattr(h5py.File, "__init__", fake_h5)
-        if full:  # a file-like HDF5 writer (utils.hdf5_output) writes with os.pwrite: the disk fills there
+        if full:  # a file-like HDF5 writer (outputs.hdf5_output) writes with os.pwrite: the disk fills there
             real_pwrite = os.pwrite
 
             def fake_pwrite(fd, data, offset):

@@ -191,7 +191,7 @@ def test_max_gap_goes_with_fuse(scan, tmp_path, fuse):
 def test_max_gap_default_is_the_documented_one():
     from spotlights.cli import build_parser
     from spotlights.completion.scan import ScanSettings
-    from spotlights.utils import settings_from_namespace
+    from spotlights.options import settings_from_namespace
 
     parser = build_parser()
     args = parser.parse_args(["complete", "scene", "-o", "out", "--fuse", "all"])

@@ -88,7 +88,7 @@ def test_a_removed_lock_file_still_excludes_and_leaves_nothing(tmp_path):
     """``dataset add-rig`` left ``.X.h5.lock`` beside the user's dataset; with ``remove=True`` the lock file goes,
     and a second holder is still refused while the first holds it (flock: two open files conflict even in one
     process)."""
-    from spotlights.utils import exclusive_lock
+    from spotlights.locks import exclusive_lock
 
     lock = tmp_path / ".d.h5.lock"
     with exclusive_lock(lock, "busy", remove=True):
@@ -109,7 +109,7 @@ def test_a_lock_on_a_file_removed_meanwhile_is_taken_again_on_the_new_file(tmp_p
     made a new one. Locking the removed file would let two processes in; the lock is taken on the file at the path."""
     import os
 
-    from spotlights.utils import exclusive_lock
+    from spotlights.locks import exclusive_lock
 
     lock = tmp_path / ".d.h5.lock"
     real_open = open
@@ -205,7 +205,7 @@ def test_an_unwritable_folder_is_named_by_the_output_not_its_temporary(tmp_path,
     import tempfile
 
     from spotlights.errors import OutputFileError
-    from spotlights.utils import atomic_output
+    from spotlights.outputs import atomic_output
 
     def refused(prefix="", suffix="", dir=None):
         name = f"{dir}/{prefix}abcd1234{suffix}"

@@ -122,7 +122,7 @@ def test_two_trainings_into_one_run_folder_are_refused(tmp_path):
     """Two ``train`` runs into one ``--out`` both exited 0 and both reported their checkpoints; the folder held one
     model's files (or a mix). The second is now refused while the first holds the folder's lock."""
     from spotlights.learning.train import train
-    from spotlights.utils import exclusive_lock
+    from spotlights.locks import exclusive_lock
 
     from learning_fixtures import tiny_dataset_path, tiny_overrides
 

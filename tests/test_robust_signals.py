@@ -143,7 +143,7 @@ def _interrupt_at_import(module: str, args, cwd: Path) -> subprocess.CompletedPr
 
 
 @pytest.mark.parametrize(
-    "module", ["logging", "importlib", "spotlights.entry", "spotlights.cli", "numpy", "spotlights.utils"]
+    "module", ["logging", "importlib", "spotlights.entry", "spotlights.cli", "numpy", "spotlights.processes"]
 )
 def test_ctrl_c_while_the_command_itself_is_imported_is_130_and_one_line(tmp_path, module):
     """A Ctrl-C 0.15 s in, while ``spotlights.entry`` was imported, gave a traceback and exit -2."""

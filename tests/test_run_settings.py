@@ -25,7 +25,8 @@ from spotlights.experiments.real_evaluation import RealEvaluationSettings, evalu
 from spotlights.experiments.real_runs import EvaluateSettings, report_names
 from spotlights.files import EncodeSettings, RigOptions
 from spotlights.geometry.io import load_ply_fields
-from spotlights.utils import check_suffix, settings_from_namespace
+from spotlights.options import settings_from_namespace
+from spotlights.outputs import check_suffix
 
 from builders import Identity, tracked_scene
 

@@ -8,7 +8,8 @@ import time
 import pytest
 
 from spotlights.errors import InputFileError, ParameterError
-from spotlights.utils import StageTimer, settings_from_dict
+from spotlights.options import settings_from_dict
+from spotlights.timing import StageTimer
 
 
 @dataclasses.dataclass

@@ -51,7 +51,7 @@ def test_the_import_check_tells_light_modules_from_heavy_ones(tmp_path):
         "\n"
         "def optional():\n"
         "    try:\n"
-        "        from spotlights.utils import atomic_output\n"
+        "        from spotlights.outputs import atomic_output\n"
         "    except ImportError:\n"
         "        return None\n"
         "    return atomic_output\n"
@@ -79,16 +79,16 @@ def test_ruff_format_leaves_every_file_as_it_is():
 
 
 def test_one_stage_timer():
-    """Stages are timed by utils.StageTimer; time.perf_counter appears only there and in
+    """Stages are timed by timing.StageTimer; time.perf_counter appears only there and in
     learning.bench (the latency timer of repeated calls)."""
-    allowed = {"utils.py", "learning/bench.py"}
+    allowed = {"timing.py", "learning/bench.py"}
     src = ROOT / "src" / "spotlights"
     found = [
         str(f.relative_to(src))
         for f in src.rglob("*.py")
         if "perf_counter" in f.read_text() and str(f.relative_to(src)) not in allowed
     ]
-    assert not found, f"hand-written stage timing (use spotlights.utils.StageTimer) in: {found}"
+    assert not found, f"hand-written stage timing (use spotlights.timing.StageTimer) in: {found}"
 
 
 def test_the_cli_stays_thin():

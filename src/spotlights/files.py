@@ -31,7 +31,7 @@ from .geometry.io import (
     save_points,
 )
 from .geometry.rig import RigSpec, make_rig_spec
-from .utils import check_suffix, check_writable
+from .outputs import check_suffix, check_writable
 from .viz import html, serve
 from .viz.html import SOURCES
 

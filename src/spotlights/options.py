@@ -11,11 +11,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import difflib
 import os
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Iterable, Mapping
+from pathlib import Path
+from typing import Any, TypeVar
 
-from .errors import ParameterError, parameter_names, shown
+from .errors import InputFileError, ParameterError, SpotlightsError, parameter_names, shown
 
 REQUIRED: Any = dataclasses.MISSING
 """The default of an :func:`option` the command line must give (argparse ``required=True``)."""
@@ -225,3 +227,55 @@ def _options_by_dest(parser: argparse.ArgumentParser) -> dict[str, list[str]]:
                 for dest, flags in _options_by_dest(sub).items():
                     out.setdefault(dest, []).extend(f for f in flags if f not in out[dest])
     return out
+
+
+# ---------------------------------------------------------------------------- settings read from dicts and namespaces
+
+_T = TypeVar("_T")
+
+
+def did_you_mean(key: object, known: Iterable[str]) -> str:
+    """``" (did you mean 'x'?)"`` for the closest known name to ``key``, or ``""``."""
+    close = difflib.get_close_matches(str(key), list(known), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def settings_from_dict(cls: type, d: object, where: str | os.PathLike | None = None, **fixed: object):
+    """The one policy for reading a settings dataclass from a mapping (a YAML file, a JSON
+    record, a dataset's attributes): every key must be a field of ``cls``; an unknown key is an
+    error naming ``where`` and suggesting the closest field; a non-mapping is an error too.
+
+    Parameters
+    ----------
+    cls : a dataclass type.
+    d : the mapping (None reads as empty).
+    where : a file path (the error is an :class:`InputFileError` naming it) or a label such as
+        ``"sensor"`` (a :class:`ParameterError` prefixed with it).
+    fixed : values passed to ``cls`` beside ``d``'s (not checked against ``d``).
+
+    Returns ``cls(**d, **fixed)``; a wrong value that ``cls`` itself rejects keeps its own error.
+    """
+
+    def fail(msg: str) -> SpotlightsError:
+        if where is not None and Path(os.fspath(where)).suffix.lower() in (".yaml", ".yml", ".json", ".h5", ".hdf5"):
+            return InputFileError(where, msg)
+        return ParameterError(f"{where}: {msg}" if where else msg)
+
+    if d is None:
+        d = {}
+    if not isinstance(d, Mapping):
+        raise fail(f"expected a mapping of {cls.__name__} settings, got {type(d).__name__}")
+    names = [f.name for f in dataclasses.fields(cls) if f.init]
+    for key in d:
+        if key not in names:
+            raise fail(f"unknown setting {key!r}{did_you_mean(key, names)} (known: {', '.join(names)})")
+    return cls(**dict(d), **fixed)
+
+
+def settings_from_namespace(cls: type[_T], namespace: object, **values: object) -> _T:
+    """The settings dataclass ``cls`` of an object with one attribute per field (an ``argparse.Namespace``):
+    each field the namespace has is taken from the attribute of its name (or from ``values``, for fields
+    named otherwise), the others keep their defaults; attributes that are no field are ignored (the
+    command-line options map one to one onto the fields)."""
+    names = [f.name for f in dataclasses.fields(cls) if f.init and f.name not in values]  # type: ignore[arg-type]
+    return cls(**{n: getattr(namespace, n) for n in names if hasattr(namespace, n)}, **values)

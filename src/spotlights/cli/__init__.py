@@ -19,7 +19,8 @@ from .. import logs
 from .._version import __version__
 from ..errors import SpotlightsError, missing_extra
 from ..options import join_axis_values, option_names
-from ..utils import os_error_reason, sigint_held
+from ..outputs import os_error_reason
+from ..processes import sigint_held
 
 # One line per command group; a new group is one module and one line here.
 COMMAND_MODULES = [

@@ -20,10 +20,11 @@ from ..options import (  # noqa: F401 - the argparse types, importable from here
     positive_float,
     positive_int,
     seed_number,
+    settings_from_namespace,
     thread_count,
     unit_interval,
 )
-from ..utils import check_suffix, settings_from_namespace  # noqa: F401 - check_suffix: used by the command modules
+from ..outputs import check_suffix
 
 
 def argparse_type(parse: Callable[[str], Any]) -> Callable[[str], Any]:
@@ -128,7 +129,7 @@ def add_options(parser: argparse.ArgumentParser, cls, only: tuple = (), grouped:
 def settings_of(cls, args: argparse.Namespace, **values):
     """The settings dataclass ``cls`` of a command: each field from the parsed option of the same
     name (``--gt-points`` -> ``gt_points``), or from ``values`` (fields named otherwise);
-    :func:`spotlights.utils.settings_from_namespace`."""
+    :func:`spotlights.options.settings_from_namespace`."""
     return settings_from_namespace(cls, args, **values)
 
 

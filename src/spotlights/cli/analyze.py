@@ -15,7 +15,7 @@ from ..experiments.density_report import (
     density_summary_lines,
     run_density_analysis,
 )
-from ..utils import output_folder
+from ..outputs import output_folder
 from ._util import SEED_HELP, add_command, add_group, add_quiet, seed_number
 
 

@@ -10,7 +10,7 @@ from ..completion.frames import complete_input
 from ..completion.scan import ScanSettings
 from ..data.tracks import MAX_GAP_S, MAX_TRANSLATION_M, MAX_YAW_RAD, WINDOW_HELP, parse_window
 from ..errors import ParameterError
-from ..utils import settings_from_namespace
+from ..options import settings_from_namespace
 from ._util import (
     DEVICE_HELP,
     SEED_HELP,

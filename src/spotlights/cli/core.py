@@ -12,7 +12,8 @@ from ..files import (
     encode_meshes,
     show_file,
 )
-from ..utils import check_distinct_paths, settings_from_namespace
+from ..options import settings_from_namespace
+from ..outputs import check_distinct_paths
 from ._util import add_command, add_quiet, unit_interval
 from .view import add_html_argument
 

@@ -6,7 +6,7 @@ from ..data.dataset_report import dataset_info, export_sample, info_lines, read_
 from ..data.synthetic import BuildRequest, add_rig, build_from_request, build_summary
 from ..data.synthetic.consolidate import merge_shards
 from ..data.synthetic.request import read_request_yaml
-from ..utils import check_writable
+from ..outputs import check_writable
 from ..viz import html, render_sample
 from ._util import (
     add_command,

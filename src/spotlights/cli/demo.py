@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from ..completion.demo import run_demo
-from ..utils import output_folder
+from ..outputs import output_folder
 from ._util import add_command
 
 

@@ -13,7 +13,7 @@ from ..experiments.real_runs import (
     extract_file,
     show_file,
 )
-from ..utils import settings_from_namespace
+from ..options import settings_from_namespace
 from ._util import (
     DEVICE_HELP,
     MAX_BATCH,

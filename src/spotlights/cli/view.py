@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from ..files import ViewSettings, view_files
-from ..utils import settings_from_namespace
+from ..options import settings_from_namespace
 from ..viz import html
 from ._util import add_command, port_number, positive_int, unit_interval
 

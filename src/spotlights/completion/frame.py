@@ -42,7 +42,8 @@ from ..geometry.neighbors import serial_queries
 from ..geometry.rotations import is_rotation, rigid_transform
 from ..learning.inference import DEFAULT, complete_in_boxes, prepare_partial, with_observed
 from ..metrics.consistency import fidelity
-from ..utils import StageTimer, shared_thread_pool
+from ..processes import shared_thread_pool
+from ..timing import StageTimer
 from ..viz import SceneObject, html, scene_png, write_png
 from ..viz.bev import bev_png
 from .results import ObjectResult, SceneResult, object_ids

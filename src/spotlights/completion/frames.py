@@ -31,15 +31,9 @@ from ..geometry.io import POINT_SUFFIXES, ply_is_whole
 from ..learning.inference import BaseCompleter
 from ..learning.runtime import runs_with
 from ..options import check_threads
-from ..utils import (
-    StageTimer,
-    output_folder,
-    shared_thread_pool,
-    sigint_held,
-    start_process_pool,
-    stop_process_pool,
-    sweep_folder_temporaries,
-)
+from ..outputs import output_folder, sweep_folder_temporaries
+from ..processes import shared_thread_pool, sigint_held, start_process_pool, stop_process_pool
+from ..timing import StageTimer
 from ..viz import write_png
 from ..viz.html import write_plotlyjs
 from ..viz.rerun_log import check_rerun_path, open_recording
@@ -369,7 +363,7 @@ def _ready_to_draw(closeups: bool = True) -> None:
 
 
 class PictureProcesses:
-    """Worker processes (:func:`~spotlights.utils.start_process_pool`: the fork server, Ctrl-C left to this
+    """Worker processes (:func:`~spotlights.processes.start_process_pool`: the fork server, Ctrl-C left to this
     process) that draw frames' PNGs (:func:`~spotlights.completion.frame.result_png`), ``workers`` frames at once,
     while the frame loop completes the next ones. The bytes are those of drawing in this process (the same
     function; matplotlib's defaults in both: rcParams changed in this process do not reach the workers); the
@@ -446,7 +440,7 @@ class PictureProcesses:
     def close(self) -> None:
         """Stop the processes: what is not being drawn yet is dropped, a picture being drawn gets
         :data:`PICTURE_CLOSE_S` to finish (the run has waited for its frames in flight first anyway), then the
-        processes still alive are ended (:func:`~spotlights.utils.stop_process_pool`: workers ended mid-task can
+        processes still alive are ended (:func:`~spotlights.processes.stop_process_pool`: workers ended mid-task can
         leave the resource tracker warning of a leaked semaphore at exit, seen after a Ctrl-C during the frames)."""
         stop_process_pool(self.pool, grace=PICTURE_CLOSE_S)
 

@@ -68,7 +68,9 @@ from ..errors import ParameterError, ProcessFailure
 from ..geometry.boxes import Box
 from ..geometry.io import save_ply
 from ..options import check_threads
-from ..utils import StageTimer, _quiet_worker, atomic_output, process_pool_context, sigint_held
+from ..outputs import atomic_output
+from ..processes import _quiet_worker, process_pool_context, sigint_held
+from ..timing import StageTimer
 from .frame import SOURCE_COMPLETION, SOURCE_PARTIAL, SceneConfig, SceneResult, _selected, scene_crops
 from .names import file_stem, sequence_folders, unique_names
 
@@ -649,7 +651,7 @@ class TrackWorker:
     frame ``t`` while the worker prepares frame ``t + 1``). It computes what :meth:`TrackPlan.frame_inputs` would
     (the same functions on the same inputs: the same numbers); the plan's frames (the crops of its tracked
     boxes) are sent to it once, after :meth:`TrackPlan.build` has read them. Started from the fork server of
-    :func:`spotlights.utils.process_pool_context` (never a fork of a process holding a model), it ends with its
+    :func:`spotlights.processes.process_pool_context` (never a fork of a process holding a model), it ends with its
     parent."""
 
     def __init__(self, proc: BaseProcess, jobs: Queue, results: Queue):

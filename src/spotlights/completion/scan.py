@@ -36,7 +36,7 @@ from ..inputs import read_json
 from ..learning.inference import BaseCompleter
 from ..learning.runtime import Runtime, fallback_runtime, load_completer, runs_with, shipped_onnx
 from ..options import check_threads
-from ..utils import check_distinct_paths, check_suffix, check_writable, same_file
+from ..outputs import check_distinct_paths, check_suffix, check_writable, same_file
 from .frame import (
     HEADING_MARGIN,
     SceneConfig,
@@ -352,7 +352,7 @@ class ScanSettings(CompletionOptions):
     def check_paths(self) -> None:
         """Refuse, before any work, an output that would overwrite an input (the scan, a box or calib file) or
         another output, per-object files (``--per-object DIR``'s ``object_<id>.ply``) included: one line naming
-        both options (:func:`spotlights.utils.check_distinct_paths`)."""
+        both options (:func:`spotlights.outputs.check_distinct_paths`)."""
         inputs = [("SCAN", self.input), ("--boxes", self.boxes), ("--calib", self.calib), ("--box", self.box)]
         outputs = [("--out", self.out), ("--summary", self.summary), ("--show", self.show), ("--html", self.html)]
         outputs.append(("--rerun", self.rerun))

@@ -13,7 +13,7 @@ import numpy as np
 from ..data.real.base import CLASSES
 from ..errors import InputFileError
 from ..geometry.io import save_ply, save_points
-from ..utils import atomic_output
+from ..outputs import atomic_output
 from .scene_config import SOURCE_COMPLETION, SOURCE_PARTIAL
 
 if TYPE_CHECKING:  # the results import this module (SceneResult.save)

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ParameterError, SpotlightsError
-from ..utils import atomic_output, check_writable
+from ..outputs import atomic_output, check_writable
 from .store import CompletionDataset, open_dataset
 
 

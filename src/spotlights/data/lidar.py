@@ -53,7 +53,8 @@ from ..errors import ParameterError
 from ..geometry.frames import Normalization
 from ..geometry.raycast import RayCaster
 from ..geometry.rotations import rotation_z
-from ..utils import StageTimer, settings_from_dict
+from ..options import settings_from_dict
+from ..timing import StageTimer
 
 MIN_AZIMUTH_STEP = 0.01
 """The finest azimuth step a sensor may have (degrees; ``dataset build --azimuth-step``): 10 times finer than the
@@ -149,7 +150,7 @@ class SensorModel:
     @classmethod
     def from_dict(cls, d: dict, where: str | os.PathLike = "sensor") -> SensorModel:
         """Rebuild from :meth:`to_dict` output by the one strict policy
-        (:func:`spotlights.utils.settings_from_dict`): an unknown key is a one-line error naming
+        (:func:`spotlights.options.settings_from_dict`): an unknown key is a one-line error naming
         ``where`` (a file path or a label, default ``"sensor"``) with the closest field suggested."""
         d = dict(d) if isinstance(d, Mapping) else d
         if isinstance(d, dict) and d.get("elevations") is not None:
@@ -342,7 +343,7 @@ class LidarSimulator:
         ----------
         pose : vehicle placement; the sensor must be outside the box's footprint.
         rng : random generator for dropout and range noise (consumed deterministically).
-        timings : optional :class:`~spotlights.utils.StageTimer`; the seconds spent in its stages ``rays``,
+        timings : optional :class:`~spotlights.timing.StageTimer`; the seconds spent in its stages ``rays``,
             ``cast`` and ``returns`` are added to it.
 
         Returns

@@ -18,7 +18,7 @@ from pathlib import Path
 from .._version import __version__
 from ..errors import InputFileError
 from ..inputs import path_inside, read_json
-from ..utils import atomic_output
+from ..outputs import atomic_output
 
 INDEX_FORMAT = "spotlights-completion-shards"
 INDEX_FORMAT_VERSION = 1

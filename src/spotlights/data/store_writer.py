@@ -7,7 +7,7 @@ import json
 
 import numpy as np
 
-from ..utils import hdf5_output
+from ..outputs import hdf5_output
 
 FORMAT = "spotlights-completion"
 FORMAT_VERSION = 1

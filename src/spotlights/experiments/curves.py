@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputFileError, ParameterError
-from ..utils import atomic_output
+from ..outputs import atomic_output
 from ..viz.curves import render_learning_curves
 
 METRICS = (

@@ -21,7 +21,8 @@ from ..analysis.montecarlo import DiscPlacement, mc_density
 from ..errors import ParameterError
 from ..geometry.rig import make_rig
 from ..options import check_seed
-from ..utils import StageTimer, atomic_output
+from ..outputs import atomic_output
+from ..timing import StageTimer
 from ..viz import density as plots
 
 __all__ = ["DensityConfig", "run_density_analysis", "extrema", "hit_ratios", "MC_RADII", "MC_ALPHAS_DEG"]

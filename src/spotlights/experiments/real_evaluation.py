@@ -79,7 +79,7 @@ from ..metrics.consistency import (
     same_observation_cd,
     track_consistency,
 )
-from ..utils import settings_from_dict
+from ..options import settings_from_dict
 from .real_report import report_markdown, write_report, write_report_json
 
 __all__ = [
@@ -305,7 +305,7 @@ class RealEvaluationSettings:
 
     @classmethod
     def from_dict(cls, d: object, where: str = "evaluate_consistency") -> RealEvaluationSettings:
-        """The settings of mapping ``d`` (:func:`spotlights.utils.settings_from_dict`: unknown keys are errors
+        """The settings of mapping ``d`` (:func:`spotlights.options.settings_from_dict`: unknown keys are errors
         naming ``where`` and the closest field)."""
         return settings_from_dict(cls, d, where)
 

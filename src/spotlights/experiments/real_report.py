@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..utils import atomic_output
+from ..outputs import atomic_output
 
 
 def _fmt(v, digits=4) -> str:

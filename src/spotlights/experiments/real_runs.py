@@ -28,7 +28,7 @@ from ..data.real.extract import ExtractConfig, Observations, extract, read_obser
 from ..data.real.frames import frame_rows
 from ..errors import InputFileError, ParameterError, SpotlightsError
 from ..metrics.consistency import consecutive_pairs
-from ..utils import check_suffix, check_writable
+from ..outputs import check_suffix, check_writable
 from ..viz import html, render_frame
 from ..viz.scene import frame_objects, read_frame_scan
 from .real_evaluation import (

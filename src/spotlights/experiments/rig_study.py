@@ -36,7 +36,8 @@ from ..geometry.io import MESH_SUFFIXES, load_mesh
 from ..geometry.rig import RigSpec, make_rig_spec
 from ..geometry.sampling import sample_surface
 from ..options import REQUIRED, non_negative_int, option, positive_int
-from ..utils import atomic_output, output_folder, process_map
+from ..outputs import atomic_output, output_folder
+from ..processes import process_map
 from ..viz.study import plot_rig_study
 
 CARS = "apolloscape-cars"

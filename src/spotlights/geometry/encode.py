@@ -20,7 +20,7 @@ import numpy as np
 
 from ..errors import InputFileError, ParameterError
 from ..inputs import check_npz_members
-from ..utils import atomic_output
+from ..outputs import atomic_output
 from .frames import Normalization, normalization_from_mesh
 from .io import load_mesh
 from .raycast import RayCaster

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..errors import InputFileError, ParameterError
 from ..inputs import check_npz_members
-from ..utils import atomic_output, check_regular_file
+from ..outputs import atomic_output, check_regular_file
 from .frames import MAX_COORDINATE
 
 MESH_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")

@@ -49,7 +49,7 @@ from collections.abc import Callable
 import numpy as np
 
 from ..errors import ParameterError
-from ..utils import shared_thread_pool
+from ..processes import shared_thread_pool
 
 # Queries with fewer rays run on one thread: below this, splitting does not pay (measured in
 # benchmarks/encode.py: 2,048 rays, ~0.12 ms, gain nothing or lose; 4,096 rays gain a little).

@@ -35,7 +35,7 @@ from ..options import (
     option,
     positive_int,
 )
-from ..utils import atomic_output, check_writable
+from ..outputs import atomic_output, check_writable
 from .models import DISPLAY_NAMES, MODEL_NAMES, build_model, check_model_name, load_config
 from .rays import timing_directions
 

@@ -25,7 +25,7 @@ from pathlib import Path
 
 from .._version import __version__
 from ..errors import InputFileError
-from ..utils import atomic_output
+from ..outputs import atomic_output
 from .models import MODEL_REGISTRY, build_model
 
 FORMAT = "spotlights-checkpoint"

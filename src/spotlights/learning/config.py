@@ -25,8 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputFileError, ParameterError
-from ..options import check_batch_size, check_seed, number_type
-from ..utils import did_you_mean
+from ..options import check_batch_size, check_seed, did_you_mean, number_type
 from .registry import MODEL_REGISTRY, model_class
 
 SECTIONS = ("model", "data", "train")

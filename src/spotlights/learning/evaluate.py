@@ -44,9 +44,11 @@ from ..options import (
     option,
     positive_float,
     positive_int,
+    settings_from_dict,
     unit_interval,
 )
-from ..utils import StageTimer, atomic_output, check_writable, settings_from_dict
+from ..outputs import atomic_output, check_writable
+from ..timing import StageTimer
 from ..viz import render_predictions
 from .bench import model_latency
 from .checkpoint import load_checkpoint, model_from_checkpoint
@@ -603,7 +605,7 @@ class EvaluateSettings:
 
     @classmethod
     def from_dict(cls, d: Mapping, where: str | os.PathLike | None = None) -> EvaluateSettings:
-        """Read settings by the one strict policy (:func:`spotlights.utils.settings_from_dict`)."""
+        """Read settings by the one strict policy (:func:`spotlights.options.settings_from_dict`)."""
         return settings_from_dict(cls, d, where)
 
 

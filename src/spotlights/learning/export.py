@@ -46,7 +46,7 @@ from ..errors import InputFileError, ParameterError, SpotlightsError
 from ..geometry.box_clamp import ray_box_interval
 from ..geometry.boxes import unit_extents
 from ..geometry.evidence import snap_batch_to_observed
-from ..utils import atomic_output
+from ..outputs import atomic_output
 from .checkpoint import load_checkpoint, model_from_checkpoint, resolve_checkpoint
 from .inference import DEFAULT, BaseCompleter, LearnedDomain
 from .rays import TIMING_BOX_SIZE, directions_for_extents, rig_rays, rig_spec, timing_directions

@@ -19,8 +19,8 @@ from ..options import (
     option,
     positive_int,
     seed_number,
+    settings_from_dict,
 )
-from ..utils import settings_from_dict
 from .config import MAX_LR, learning_rate
 from .registry import MODEL_NAMES
 
@@ -156,7 +156,7 @@ class TrainSettings:
 
     @classmethod
     def from_dict(cls, d: Mapping, where: str | os.PathLike | None = None) -> TrainSettings:
-        """Read settings by the one strict policy (:func:`spotlights.utils.settings_from_dict`)."""
+        """Read settings by the one strict policy (:func:`spotlights.options.settings_from_dict`)."""
         return settings_from_dict(cls, d, where)
 
     @property

@@ -34,8 +34,10 @@ from torch.utils.data import DataLoader
 from tqdm import tqdm
 
 from ..errors import SpotlightsError
+from ..locks import exclusive_lock
 from ..options import check_threads
-from ..utils import StageTimer, atomic_output, exclusive_lock, output_folder
+from ..outputs import atomic_output, output_folder
+from ..timing import StageTimer
 from .checkpoint import save_checkpoint
 from .config import SELECT_BY
 from .data import worker_batches

@@ -18,7 +18,7 @@ import yaml
 from ..data.shard_index import without_extra_rigs
 from ..errors import InputFileError, SpotlightsError
 from ..geometry.rig import RigSpec
-from ..utils import atomic_output
+from ..outputs import atomic_output
 from .checkpoint import load_checkpoint
 from .config import DataConfig, TrainConfig, build_optimizer, build_scheduler, check_keys, data_config, train_config
 from .data import TorchCompletionDataset

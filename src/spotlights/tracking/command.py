@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from ..data.real.base import CLASSES
 from ..errors import ParameterError
 from ..options import option, positive_int, unit_interval
-from ..utils import check_distinct_paths, check_suffix, check_writable
+from ..outputs import check_distinct_paths, check_suffix, check_writable
 from .detections import FORMATS, filter_detections, read_detections
 from .outputs import write_nuscenes_tracking, write_tracks
 from .tracker import METRICS, TrackerConfig, track_boxes

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..utils import atomic_output
+from ..outputs import atomic_output
 from .detections import DetectionFrame
 
 TRACKS_FORMAT = "spotlights-tracks"

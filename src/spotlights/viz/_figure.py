@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..utils import atomic_output
+from ..outputs import atomic_output
 
 
 def new_figure(width: float, height: float, layout: str | None = None):

@@ -27,7 +27,7 @@ from ..geometry.boxes import BOX_EDGES, Box, box_from_dict
 from ..geometry.encode import decode, load_encoding
 from ..geometry.io import MESH_SUFFIXES, POINT_SUFFIXES, load_mesh, load_ply_fields, load_points, ply_has_faces
 from ..inputs import read_json
-from ..utils import atomic_output
+from ..outputs import atomic_output
 from .encoding import encoding_layers, viewpoint_rays
 from .scene import bev_window, frame_objects, read_frame_scan
 

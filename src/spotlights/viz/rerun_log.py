@@ -27,7 +27,7 @@ import numpy as np
 
 from ..errors import OutputFileError, ParameterError
 from ..geometry.sampling import voxel_downsample
-from ..utils import check_writable
+from ..outputs import check_writable
 
 GREY, BLUE, GREEN, ORANGE, RED, WHITE = (
     (150, 150, 150),

@@ -18,7 +18,7 @@ import sys
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 from ..errors import SpotlightsError
-from ..utils import os_error_reason
+from ..outputs import os_error_reason
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8000

@@ -45,7 +45,7 @@ import numpy as np
 from ...errors import InputFileError, ParameterError
 from ...geometry.boxes import Box
 from ...geometry.rotations import quaternion_to_matrix
-from ...utils import check_regular_file
+from ...outputs import check_regular_file
 from .base import Frame, SceneReader, finite_rows, lookup_class
 
 CLASS_MAP: dict[str, str | None] = {

@@ -49,7 +49,7 @@ from ..._version import __version__
 from ...errors import InputFileError, ParameterError
 from ...geometry.boxes import Box
 from ...geometry.sampling import resample_set
-from ...utils import atomic_output, hdf5_output
+from ...outputs import atomic_output, hdf5_output
 from ..store import MAX_PARTIAL_POINTS, int_attribute, json_attribute
 from .base import CLASSES, PAPER_CLASSES, Frame, SceneReader
 

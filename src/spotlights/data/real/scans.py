@@ -21,7 +21,7 @@ import numpy as np
 
 from ...errors import InputFileError, ParameterError
 from ...geometry.io import POINT_SUFFIXES, load_points
-from ...utils import check_regular_file
+from ...outputs import check_regular_file
 from .av2 import read_av2_sweep
 from .base import finite_rows
 

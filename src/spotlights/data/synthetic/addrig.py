@@ -15,7 +15,9 @@ from tqdm import tqdm
 from ...distributed import DEFAULT_RETRIES, check_backend, import_ray, ray_session
 from ...errors import InputFileError, ParameterError
 from ...geometry.rig import Rig, RigSpec
-from ...utils import StageTimer, atomic_output, exclusive_lock, hdf5_output
+from ...locks import exclusive_lock
+from ...outputs import atomic_output, hdf5_output
+from ...timing import StageTimer
 from ..store import json_attribute, open_dataset, write_rig_group
 from .catalogue import discover_sources
 from .config import BuildConfig, parse_rig

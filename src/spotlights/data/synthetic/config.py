@@ -19,8 +19,7 @@ import numpy as np
 
 from ...errors import ParameterError
 from ...geometry.rig import Rig, RigSpec, parse_rig
-from ...options import check_seed
-from ...utils import settings_from_dict
+from ...options import check_seed, settings_from_dict
 from ..lidar import SensorModel, hdl64e
 from ..store import MAX_PARTIAL_POINTS
 from ..vehicle_classes import VEHICLE_CLASSES, canonical_class
@@ -432,7 +431,7 @@ class BuildConfig:
     @classmethod
     def from_dict(cls, d: Mapping, where: str | os.PathLike | None = None) -> BuildConfig:
         """Rebuild and validate a config from :meth:`to_dict` output (a dataset's ``config_json``,
-        a build plan) by the one strict policy (:func:`spotlights.utils.settings_from_dict`): an
+        a build plan) by the one strict policy (:func:`spotlights.options.settings_from_dict`): an
         unknown key, here or in ``sensor``, is a one-line error naming ``where`` (a file path or a
         label) with the closest field suggested. Keys of :data:`RETIRED_KEYS` (written by older
         versions, no longer fields) are dropped explicitly."""

@@ -24,7 +24,7 @@ from tqdm import tqdm
 from ..._version import __version__
 from ...errors import InputFileError, SpotlightsError
 from ...geometry.rig import RigSpec
-from ...utils import atomic_output
+from ...outputs import atomic_output
 from ..shard_index import shard_paths, write_index
 from ..store import FORMAT, FORMAT_VERSION, OPTIONAL_MODEL_STRINGS, SAMPLE_FIELDS, open_dataset, write_dataset
 from .config import BuildConfig, parse_rig

@@ -35,7 +35,7 @@ from ..._version import __version__
 from ...distributed import DEFAULT_RETRIES, cluster_cpus, error_reason
 from ...errors import InputFileError, ProcessFailure, SpotlightsError
 from ...geometry.rig import RigSpec
-from ...utils import StageTimer
+from ...timing import StageTimer
 from .catalogue import LoadedModel, ModelEntry, apply_augment, load_model, source_root, source_scale
 from .config import BuildConfig
 from .consolidate import part_name, save_npz_atomic, write_output_file

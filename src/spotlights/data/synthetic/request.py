@@ -15,8 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ...errors import InputFileError, ParameterError
-from ...options import REQUIRED, SEED_HELP, non_negative_int, option, positive_int, seed_number
-from ...utils import settings_from_dict
+from ...options import REQUIRED, SEED_HELP, non_negative_int, option, positive_int, seed_number, settings_from_dict
 from ..lidar import MIN_AZIMUTH_STEP, SensorModel, sensor_preset
 from .config import MAX_GT_POINTS, MAX_PARTIAL_POINTS, MAX_VIEWS, BuildConfig, parse_range, parse_source
 from .runner import BuildReport, BuildSettings, build_dataset
@@ -263,7 +262,7 @@ class BuildRequest:
 
     @classmethod
     def from_dict(cls, d: Mapping, where: str | os.PathLike | None = None) -> BuildRequest:
-        """Read a request by the one strict policy (:func:`spotlights.utils.settings_from_dict`)."""
+        """Read a request by the one strict policy (:func:`spotlights.options.settings_from_dict`)."""
         return settings_from_dict(cls, d, where)
 
     def sensor_model(self) -> tuple[SensorModel, tuple[float, float] | None]:

@@ -26,14 +26,11 @@ from tqdm import tqdm
 
 from ...distributed import DEFAULT_RETRIES, check_backend, import_ray, ray_session
 from ...errors import InputFileError, OutputFileError, ParameterError, SpotlightsError
-from ...utils import (
-    StageTimer,
-    atomic_output,
-    check_can_start_processes,
-    exclusive_lock,
-    process_map,
-    settings_from_dict,
-)
+from ...locks import exclusive_lock
+from ...options import settings_from_dict
+from ...outputs import atomic_output
+from ...processes import check_can_start_processes, process_map
+from ...timing import StageTimer
 from ..store import open_dataset
 from .catalogue import build_catalogue
 from .config import PLAN_VERSION, BuildConfig
@@ -142,7 +139,7 @@ class BuildSettings:
 
     @classmethod
     def from_dict(cls, d: Mapping, where: str | os.PathLike | None = None) -> BuildSettings:
-        """Read the settings by the one strict policy (:func:`spotlights.utils.settings_from_dict`)."""
+        """Read the settings by the one strict policy (:func:`spotlights.options.settings_from_dict`)."""
         return settings_from_dict(cls, d, where)
 
 
@@ -161,7 +158,7 @@ def build_dataset(
 
     Returns
     -------
-    :class:`BuildReport` (its seconds from a :class:`~spotlights.utils.StageTimer`).
+    :class:`BuildReport` (its seconds from a :class:`~spotlights.timing.StageTimer`).
     """
     s = replace(settings or BuildSettings(), **options)
     timer = StageTimer()
@@ -426,9 +423,9 @@ def _run_units(pending: list, state: dict, workers: int, progress: bool, n_model
 def map_units(fn, items: list, state: dict, workers: int):
     """Yield ``fn(item)`` for every item: in this process when ``workers == 1`` (or one item),
     else unordered on ``min(workers, len(items))`` processes started from a fork server
-    (:func:`spotlights.utils.process_map`), each initialised with ``state``; the pool is stopped
+    (:func:`spotlights.processes.process_map`), each initialised with ``state``; the pool is stopped
     on any error or when the caller stops early, a dead worker or a pool in which no unit
-    finishes within ``utils.POOL_TIMEOUT_S`` is a one-line error, never a hang."""
+    finishes within ``processes.POOL_TIMEOUT_S`` is a one-line error, never a hang."""
     if workers == 1 or len(items) <= 1:
         init_worker(state, quiet_sigint=False)
         for item in items:

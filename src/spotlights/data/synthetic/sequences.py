@@ -56,7 +56,8 @@ from ...errors import InputFileError, ParameterError
 from ...geometry.boxes import Box
 from ...geometry.io import load_mesh
 from ...geometry.sampling import sample_surface
-from ...utils import atomic_output, hdf5_output, output_folder, process_map
+from ...outputs import atomic_output, hdf5_output, output_folder
+from ...processes import process_map
 from ..lidar import LidarSimulator, SensorModel, VehiclePose, sensor_preset
 from ..store_writer import COMPRESSION
 

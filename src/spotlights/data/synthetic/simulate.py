@@ -19,7 +19,7 @@ from ...errors import InputFileError
 from ...geometry.encode import MeshProbe
 from ...geometry.frames import normalization_from_mesh
 from ...geometry.sampling import resample, sample_surface
-from ...utils import StageTimer
+from ...timing import StageTimer
 from ..lidar import LidarSimulator, VehiclePose
 from ..store import SAMPLE_FIELDS
 from .catalogue import LoadedModel, apply_augment, load_model, model_key, source_root, source_scale

@@ -43,7 +43,8 @@ from pathlib import Path
 
 from ...errors import ParameterError, SpotlightsError
 from ...learning.models import schedule_path
-from ...utils import StageTimer, exclusive_lock
+from ...locks import exclusive_lock
+from ...timing import StageTimer
 from .figures import figure_steps
 from .pipeline import Context, Step, execute, load_records, now, resolve, save_records
 from .report import publish, write_report

@@ -21,7 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import SpotlightsError
-from ...utils import StageTimer, atomic_output
+from ...outputs import atomic_output
+from ...timing import StageTimer
 from .settings import Settings
 
 STEPS_FORMAT = "spotlights-reproduce-steps"

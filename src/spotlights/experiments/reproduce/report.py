@@ -25,7 +25,7 @@ from ...data.synthetic import BuildConfig
 from ...errors import SpotlightsError
 from ...learning.bench import cpu_name
 from ...learning.models import load_config
-from ...utils import atomic_output
+from ...outputs import atomic_output
 from .. import paper_tables as paper
 from ..rig_study import N_SURFACE
 from .figures import EXTRA_FIGURES, FIGURES

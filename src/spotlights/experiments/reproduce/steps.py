@@ -24,7 +24,7 @@ from ...learning.checkpoint import load_checkpoint, model_from_checkpoint
 from ...learning.evaluate import evaluate_checkpoints
 from ...learning.inference import load_completer
 from ...learning.models import load_config, load_schedule
-from ...utils import atomic_output
+from ...outputs import atomic_output
 from .. import real_evaluation
 from ..real_evaluation import evaluate_consistency, reference_shapes
 from ..rig_study import BOX_RIGS, PAPER_RIGS, find_meshes, run_study, study_rigs, summarize

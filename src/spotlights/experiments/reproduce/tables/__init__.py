@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ....errors import ParameterError
-from ....utils import atomic_output
+from ....outputs import atomic_output
 from ... import paper_tables as paper
 from ..pipeline import Context, Step, to_json, write_json
 from ..settings import BOX_RUNS, PEER_RUNS, PRODUCT_RUNS, TABLE1_RUNS, TABLE2_SETS, TABLE5_RUNS

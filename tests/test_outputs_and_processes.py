@@ -1,4 +1,4 @@
-"""Atomic writes, stale temporaries and process pools that fail instead of hanging (spotlights.utils).
+"""Atomic writes, stale temporaries and process pools that fail instead of hanging (spotlights.outputs, spotlights.processes).
 
 Truth: the file system itself (what exists after), exit codes and messages of real processes.
 No test here depends on timing: a hang is a function that never returns, and the pool
@@ -17,14 +17,8 @@ from pathlib import Path
 import pytest
 
 from spotlights.errors import OutputFileError, SpotlightsError
-from spotlights.utils import (
-    atomic_output,
-    check_writable,
-    output_folder,
-    process_map,
-    sweep_temporaries,
-    unguarded_main_call,
-)
+from spotlights.outputs import atomic_output, check_writable, output_folder, sweep_temporaries
+from spotlights.processes import process_map, unguarded_main_call
 
 from helpers import src_pythonpath
 
@@ -167,11 +161,11 @@ def test_a_units_own_error_comes_back_as_it_is():
 
 
 SCRIPT_UNGUARDED = """
-from spotlights.utils import process_map
+from spotlights.processes import process_map
 print(list(process_map(abs, [-1, -2, 3], 2)))
 """
 SCRIPT_GUARDED = """
-from spotlights.utils import process_map
+from spotlights.processes import process_map
 
 def main():
     print(list(process_map(abs, [-1, -2, 3], 2)))
