@@ -227,3 +227,43 @@ def test_one_scan_refuses_a_shape_per_track(tmp_path):
     err = proc.stderr.strip().splitlines()
     assert proc.returncode == 2 and len(err) == 1 and "--track-shape" in err[0], proc.stderr
     assert not out.exists()
+
+
+@pytest.mark.timeout(300)
+def test_resume_keeps_the_shape_of_a_skipped_frame(tmp_path):
+    """``--resume`` after the last frame's files were lost: the first frame (which makes every track's shape) is
+    skipped, completed again in memory, and the last frame shows the same shape as in one run (same PLY bytes)."""
+    pytest.importorskip("torch")
+    from learning_fixtures import make_checkpoint
+
+    src = drive(tmp_path)
+    ck = make_checkpoint(tmp_path / "tiny.pt", "pcn")
+    out = tmp_path / "out"
+    args = ("real", "complete", src, "--format", "generic", "-c", ck, "--out", out, "--fuse", "all", "--track-shape")
+    args += ("--no-pictures", "-q", "--no-track-worker")
+    assert run_cli(*args).returncode == 0
+    last, track = out / "drive" / "f4.ply", out / "drive" / "tracks" / "a.ply"
+    before = last.read_bytes(), track.read_bytes()
+    (out / "drive" / "f4.json").unlink()
+    last.unlink()
+    proc = run_cli(*args, "--resume")
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads((out / "summary.json").read_text())["totals"]["resumed"] == 4
+    assert (last.read_bytes(), track.read_bytes()) == before
+
+
+@pytest.mark.timeout(300)
+def test_complete_scene_takes_a_shape_per_track(tmp_path):
+    """``spotlights complete SCENE --fuse past:2 --track-shape`` (a multi-frame generic scene): the causal shapes,
+    made at positions 0, 2 and 4 of each track."""
+    pytest.importorskip("torch")
+    from learning_fixtures import make_checkpoint
+
+    src = drive(tmp_path)
+    ck = make_checkpoint(tmp_path / "tiny.pt", "pcn")
+    out = tmp_path / "out"
+    proc = run_cli("complete", src, "-c", ck, "--out", out, "--fuse", "past:2", "--track-shape", "-q")
+    assert proc.returncode == 0, proc.stderr
+    tracks = json.loads((out / "tracks.json").read_text())
+    assert tracks["track_shape"] == "causal"
+    assert [t["shape_made_at"] for t in tracks["tracks"]] == [[0, 2, 4], [0, 2, 4]]
