@@ -8,11 +8,11 @@
   ``benchmarks/tracker.py``), the vehicle classes kept (any score), tracked by
   :func:`spotlights.tracking.track_boxes` with its default settings (tracker ids).
 
-Each is completed in five ways, as ``real complete``'s frame loop does (no files; no box refinement):
-``frame`` (``--fuse none``: every frame alone), ``past:5`` and ``all`` (``--fuse``), ``shape all`` and ``shape
-past:5`` (``--fuse ... --track-shape``). Tracks are let through with any gap between their frames (a tracker's
+Each is completed in eight ways, as ``real complete``'s frame loop does (no files): ``frame`` (``--fuse none``:
+every frame alone), ``past:5`` and ``all`` (``--fuse``), ``shape all`` and ``shape past:5`` (``--fuse ...
+--track-shape``), and ``all``, ``shape all``, ``shape past:5`` with ``refined`` boxes (``--refine-boxes``). Tracks are let through with any gap between their frames (a tracker's
 track may skip more than ``--max-gap``'s 2 s). On the observations (frame, box) with a track id completed by all
-five: **consistency** between consecutive completions of each track (:func:`spotlights.metrics.consistency.
+of them: **consistency** between consecutive completions of each track (:func:`spotlights.metrics.consistency.
 track_consistency`: two-sided unsquared Chamfer ``cd``; each completion a seeded 2,048-point subset, in the box
 frame of its (unturned) box; track-normalised by the mean half diagonal, and in metres; mean over the tracks,
 ``all_objects``) and **fidelity** (:func:`spotlights.metrics.consistency.fidelity`: each frame's own points to the
@@ -59,7 +59,16 @@ HERE = Path(__file__).resolve().parent
 SHARED = Path(os.environ.get("SPOTLIGHTS_SHARED", HERE.parents[1] / "shared")) / "data"
 NUSCENES = SHARED / "lidar" / "nuscenes"
 MESHES = SHARED / "meshes" / "apolloscape-cars"
-MODES = ("frame", "past:5", "all", "shape all", "shape past:5")
+MODES = (
+    "frame",
+    "past:5",
+    "all",
+    "shape all",
+    "shape past:5",
+    "all refined",
+    "shape all refined",
+    "shape past:5 refined",
+)
 SAMPLE = 2048
 
 
@@ -82,16 +91,17 @@ def sample(points: np.ndarray) -> np.ndarray:
     return points[np.sort(np.random.default_rng(0).choice(len(points), SAMPLE, replace=False))]
 
 
-def complete_all(reader, keys, completer, mode: str, config: SceneConfig) -> tuple[dict, float]:
+def complete_all(reader, keys, completer, mode: str, config: SceneConfig) -> tuple[dict, float, int | None]:
     """{(frame key, box index): (frame's box, scan-frame completion, own points, timestamp s)} of the tracked
-    boxes completed in ``mode``, and the loop's CPU seconds."""
+    boxes completed in ``mode``, the loop's CPU seconds and, with a shape per track, the tracks split by size."""
     out: dict = {}
     c0 = time.process_time()
     plan = None
     if mode != "frame":
-        shape = mode.startswith("shape ")
-        window = parse_window(mode.split()[-1])
-        plan = TrackPlan(window, config, max_gap_s=None, track_shape=shape).build(reader, keys)
+        words = mode.split()
+        window = parse_window(next(w for w in words if w not in ("shape", "refined")))
+        plan = TrackPlan(window, config, "refined" in words, max_gap_s=None, track_shape="shape" in words)
+        plan.build(reader, keys)
     for key in keys:
         frame = reader.load(key) if plan is None else (plan.take(key) or reader.load(key))
         boxes, extra = (frame.boxes, None) if plan is None else plan.frame_inputs(key, frame.boxes)
@@ -102,7 +112,8 @@ def complete_all(reader, keys, completer, mode: str, config: SceneConfig) -> tup
         for o in result.completed:
             if o.box.track_id:
                 out[(key, o.index)] = (o.box, o.completion, result.points[o.input_indices], frame.timestamp)
-    return out, time.process_time() - c0
+    splits = None if plan is None or plan.shapes is None else plan.n_size_splits
+    return out, time.process_time() - c0, splits
 
 
 def scores(rows: list) -> dict:
@@ -143,12 +154,16 @@ def real_scene(args, completer, config) -> dict:
     }
     report: dict = {}
     for source, reader in readers.items():
-        kept, cpu = {}, {}
+        kept, cpu, splits = {}, {}, {}
         for mode in MODES:
-            kept[mode], cpu[mode] = complete_all(reader, keys, completer, mode, config)
+            kept[mode], cpu[mode], splits[mode] = complete_all(reader, keys, completer, mode, config)
             print(f"{source} {mode}: {len(kept[mode])} completions, {cpu[mode]:.1f} CPU s", file=sys.stderr, flush=True)
         common = sorted(set.intersection(*(set(v) for v in kept.values())))
         per = {mode: scores([kept[mode][k] for k in common]) | {"cpu_s": cpu[mode]} for mode in MODES}
+        for mode in MODES:
+            per[mode] |= {"n_completed": len(kept[mode])}
+            if splits[mode] is not None:
+                per[mode]["n_size_splits"] = splits[mode]
         ref = per["frame"]
         for mode in MODES:
             per[mode]["consistency_over_frame"] = per[mode]["consistency_cd"] / ref["consistency_cd"]
@@ -207,7 +222,7 @@ def sequences(args, completer, config) -> dict:
         keys = reader.frame_keys()
         row: dict = {"mesh": m.name}
         for mode in ("frame", "shape all"):
-            kept, _ = complete_all(reader, keys, completer, mode, config)
+            kept, _, _ = complete_all(reader, keys, completer, mode, config)
             acc, comp = [], []
             for box, c, _, _ in kept.values():
                 pred = box.to_object(c)  # the true box: its object frame is the truth's
