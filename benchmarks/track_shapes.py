@@ -26,6 +26,12 @@ the mesh) of each frame completed alone (``frame``) and of the track's one shape
 representation's floor (the mesh's own depths on the model's rig, decoded: ``truth_floor`` of
 ``benchmarks/track_sequences.py``). ``gap_closed`` = (frame - shape) / (frame - floor).
 
+``--maker-box own`` makes each shape in the making frame's own box instead of one of the track's median size (the
+comparison; ``--skip-sequences``: true boxes have one size)::
+
+    OMP_NUM_THREADS=1 nice -n 10 python benchmarks/track_shapes.py --maker-box own --skip-sequences \
+        --json docs/results/tracking/track_shapes_own_box.json
+
 Usage::
 
     OMP_NUM_THREADS=1 nice -n 10 python benchmarks/track_shapes.py --json docs/results/tracking/track_shapes.json
@@ -259,6 +265,13 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=20)
     ap.add_argument("--hz", type=float, default=2.0, help="frame rate (2: nuScenes keyframes)")
     ap.add_argument("--gt-points", type=int, default=20000)
+    ap.add_argument(
+        "--maker-box",
+        default="median",
+        choices=("median", "own"),
+        help="the box a frame that makes a shape is completed in: the track's median size (the library's) or its "
+        "own box (the comparison)",
+    )
     ap.add_argument("--skip-real", action="store_true")
     ap.add_argument("--skip-sequences", action="store_true")
     ap.add_argument("--json", required=True)
@@ -266,6 +279,10 @@ def main(argv=None) -> int:
     import torch
 
     torch.set_num_threads(1)
+    if args.maker_box == "own":  # the comparison: the shape made in the making frame's own box
+        from spotlights.completion.shapes import TrackShapes
+
+        TrackShapes.maker_box = lambda self, tr, pos: None
     completer = load_completer(args.checkpoint, precision=args.precision)
     config = SceneConfig()
     report: dict = dict(
@@ -274,6 +291,7 @@ def main(argv=None) -> int:
         checkpoint=args.checkpoint,
         model=completer.model_name,
         precision=args.precision,
+        maker_box=args.maker_box,
         torch_threads=1,
         sample_points=SAMPLE,
     )

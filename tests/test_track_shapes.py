@@ -65,29 +65,38 @@ def run_loop(src, window: str, track_shape: bool, refine: bool = False):
     return out, plan
 
 
-def drive(tmp_path, sizes: dict | None = None):
+#: car a's box sides, per frame, x the drive's (the size noise of a detector); their median is frame 1's
+SCALES = {0: 1.06, 1: 1.0, 2: 0.95, 3: 1.03, 4: 0.97}
+
+
+def drive(tmp_path, sizes: dict | None = None, name: str = "drive"):
     """Five frames of two cars (tracks a and b, :func:`write_drive`); car a's box in frame k scaled by sizes[k]
-    (the size noise of a detector: every frame's completion differs in metres)."""
-    src = write_drive(tmp_path / "drive", TIMES)
-    for k, scale in (sizes if sizes is not None else {0: 1.0, 1: 1.06, 2: 0.95, 3: 1.03, 4: 0.97}).items():
+    (default :data:`SCALES`: every frame's completion differs in metres)."""
+    src = write_drive(tmp_path / name, TIMES)
+    for k, scale in (sizes if sizes is not None else SCALES).items():
         resize(src, k, "a", scale)
     return src
 
 
 def test_offline_shape_is_the_same_points_in_every_frame_box_frame(tmp_path):
     """``fuse all`` with a shape per track: every frame of a track shows the same points in its box frame, those
-    of the first frame's completion (the whole track fused); without it the frames differ (the box sizes differ)."""
+    of the first frame's completion (the whole track fused) in a box of the track's median size; without it the
+    frames differ (the box sizes differ)."""
     src = drive(tmp_path)
     plain, _ = run_loop(src, "all", track_shape=False)
     shaped, plan = run_loop(src, "all", track_shape=True)
+    # the first frame completed alone in a box of the median size (frame 1's): the same drive, that one box resized
+    median = drive(tmp_path, {**SCALES, 0: SCALES[1]}, name="median")
+    first_in_median, _ = run_loop(median, "all", track_shape=False)
     for tid in ("a", "b"):
         first = shaped[(tid, 0)]
-        assert np.array_equal(first, plain[(tid, 0)])  # the shape is the first frame's own completion
+        np.testing.assert_allclose(first, first_in_median[(tid, 0)], rtol=0, atol=1e-9)
         for pos in range(1, len(TIMES)):
             np.testing.assert_allclose(shaped[(tid, pos)], first, rtol=0, atol=1e-9)
     # car a's boxes differ in size: its plain completions differ by about 0.05 x the change of the half diagonal
     half = 0.5 * np.linalg.norm([4.2, 1.8, 1.5])
     assert np.abs(plain[("a", 1)] - plain[("a", 0)]).max() > 0.5 * 0.05 * 0.06 * half
+    assert np.abs(first_in_median[("a", 0)] - plain[("a", 0)]).max() > 0.5 * 0.05 * 0.06 * half
     summ = plan.summary()
     assert summ["track_shape"] == "offline" and summ["size_tolerance"] == SIZE_TOLERANCE
     assert [t["shape_made_at"] for t in summ["tracks"]] == [[0], [0]]

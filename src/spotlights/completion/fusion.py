@@ -160,6 +160,7 @@ class TrackPlan:
         # place_shapes; None: every frame shows its own completion
         self.shapes = TrackShapes(policy) if track_shape else None
         self.n_size_splits = 0
+        self.recrop: set = set()  # frames with a box frame_inputs resized to make a shape: complete_scene crops them
 
     @property
     def timings(self) -> dict[str, float]:
@@ -337,13 +338,20 @@ class TrackPlan:
         out = list(boxes)
         for i, box in repl.items():
             out[i] = box
+        if self.shapes is not None:  # a box that makes its track's shape is completed in the track's median size
+            for i, (tr, pos) in self.where.get(key, {}).items():
+                made = self.shapes.maker_box(tr, pos)
+                if made is not None and not np.array_equal(made.size, out[i].size):
+                    out[i] = made
+                    self.recrop.add(key)  # the worker's crops were of the other box
         return out, extra
 
     def frame_crops(self, key: Hashable) -> dict | None:
         """The crops of frame ``key``'s scene that the worker made with its (refined) boxes ({box index: (k,) int64},
         :func:`spotlights.completion.frame.scene_crops`), for ``complete_scene(..., crops=...)``; None without (no
         worker, or a frame it was not sent the scan of). Asked for after :meth:`frame_inputs`, handed out once."""
-        return self.scene_crops.pop(key, None)
+        crops = self.scene_crops.pop(key, None)
+        return None if key in self.recrop else crops
 
     def finish(self) -> None:
         """Refine what no frame reached (the boxes of frames left out of the frame loop) and, with a worker

@@ -38,7 +38,7 @@ import numpy as np
 
 from ..data.tracks import WindowPolicy
 from ..errors import ParameterError
-from ..geometry.boxes import FLIP_Z, Box
+from ..geometry.boxes import Box
 from ..metrics.consistency import fidelity
 from .results import ObjectResult
 
@@ -144,18 +144,20 @@ class Shape:
 
 def place_shape(o: ObjectResult, box: Box, shape: Shape) -> None:
     """Show ``shape`` as the completion of the completed object ``o`` whose (refined) box is ``box`` (scan frame),
-    in place: ``completion`` (scan frame, metres), ``used_box`` (``box``, turned around when the shape was made
-    so), ``completion_unit`` (float32, its unit frame), ``partial_unit`` / ``seen_unit`` turned with it, and
-    ``fidelity`` of the shape to the object's input (unit frame)."""
+    in place: ``box`` and ``used_box`` (``box``, turned around when the shape was made so), ``completion`` (scan
+    frame, metres), ``completion_unit`` (float32, its unit frame), ``partial_unit`` / ``seen_unit`` moved from the
+    unit frame of the box ``o`` was completed in into that of the new used box, and ``fidelity`` of the shape to
+    the object's input (unit frame)."""
     used = box.flipped() if shape.flipped else box
-    if o.flipped != shape.flipped:
-        if o.partial_unit is not None:
-            o.partial_unit = (o.partial_unit @ FLIP_Z).astype(np.float32)
-        if o.seen_unit is not None:
-            o.seen_unit = (o.seen_unit @ FLIP_Z).astype(np.float32)
+    before = o.used_box if o.used_box is not None else o.box
+    for name in ("partial_unit", "seen_unit"):
+        p = getattr(o, name)
+        if p is not None:
+            scan = before.normalization().from_unit(np.asarray(p, dtype=np.float64))
+            setattr(o, name, used.normalization().to_unit(scan).astype(np.float32))
     comp = box.from_object(shape.points)
     o.completion = comp
-    o.used_box, o.flipped = used, shape.flipped
+    o.box, o.used_box, o.flipped = box, used, shape.flipped
     o.completion_unit = used.normalization().to_unit(comp).astype(np.float32)
     o.fidelity = None if o.partial_unit is None or not len(comp) else fidelity(o.partial_unit, o.completion_unit)
     o.fidelity_flipped = None
@@ -185,6 +187,15 @@ class TrackShapes:
             return True
         return self.refresh is not None and pos - prior.position >= self.refresh
 
+    def maker_box(self, tr, pos: int) -> Box | None:
+        """The box frame ``pos`` of track ``tr`` is completed in when it makes the track's shape: its own (refined)
+        box with the per-side median size of the track's boxes (offline: all its frames; causal: those up to
+        ``pos``), so that the one shape has the track's size, not one frame's; None when it does not make one."""
+        if not self.makes((tr.sequence, tr.track_id), pos):
+            return None
+        frames = tr.frames if self.mode == "offline" else tr.frames[: pos + 1]
+        return tr.boxes[pos].replace(size=np.median(np.array([f.box.size for f in frames]), axis=0))
+
     def apply(self, hits: dict, result) -> None:
         """For one frame's ``result`` (:class:`~spotlights.completion.results.SceneResult`) and its tracked boxes
         ``hits`` ({box index: (track, position)}): a completed box that makes its track's shape keeps its
@@ -203,6 +214,8 @@ class TrackShapes:
                     made = Shape(pos, box.to_object(o.completion), bool(o.flipped))
                     self.shapes.setdefault(key, []).append(made)
                     self.shapes[key].sort(key=lambda s: s.position)
+                    prior = made
+                place_shape(o, box, prior)  # completed in the track's median size: shown in its own box
                 continue
             place_shape(o, box, self.shape_at(key, pos))
 
