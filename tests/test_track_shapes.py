@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from spotlights.completion.frame import SceneConfig, complete_scene
-from spotlights.completion.fusion import TrackPlan
+from spotlights.completion.fusion import TrackPlan, usable_cpus
 from spotlights.completion.shapes import SIZE_TOLERANCE, size_groups
 from spotlights.data.real import open_reader
 from spotlights.data.tracks import parse_window
@@ -276,3 +276,32 @@ def test_complete_scene_takes_a_shape_per_track(tmp_path):
     tracks = json.loads((out / "tracks.json").read_text())
     assert tracks["track_shape"] == "causal"
     assert [t["shape_made_at"] for t in tracks["tracks"]] == [[0, 2, 4], [0, 2, 4]]
+
+
+@pytest.mark.timeout(300)
+@pytest.mark.skipif(usable_cpus() < 2, reason="a worker process is started with 2+ usable CPUs only")
+def test_the_track_worker_gives_the_same_shapes(tmp_path):
+    """``--fuse all --refine-boxes --track-shape`` with the track worker process (where two CPUs are usable) and in
+    one process: the same scene and track PLYs, byte for byte (the making frames are cropped again in the track's
+    median size on both paths)."""
+    pytest.importorskip("torch")
+    from learning_fixtures import make_checkpoint
+
+    src = drive(tmp_path)
+    # points 2.3 m ahead of car a's centre in frame 0: inside its own box grown by the margin (1.06 x 4.2 m long),
+    # outside the median-size box's (4.2 m) that frame is completed in
+    scan = np.load(src / "f0.npy")
+    box = json.loads((src / "f0.json").read_text())["boxes"][0]
+    ahead = np.random.default_rng(1).uniform(-0.3, 0.3, (60, 3)) * [0, 1, 1] + [2.3, 0, 0] + box["center"]
+    np.save(src / "f0.npy", np.concatenate([scan, ahead]).astype(np.float32))
+    ck = make_checkpoint(tmp_path / "tiny.pt", "pcn")
+    outs = []
+    for name, flags in (("worker", ()), ("alone", ("--no-track-worker",))):
+        out = tmp_path / name
+        proc = run_cli(
+            "real", "complete", src, "--format", "generic", "-c", ck, "--out", out, "--fuse", "all",
+            "--refine-boxes", "--track-shape", "--no-pictures", "-q", *flags,
+        )  # fmt: skip
+        assert proc.returncode == 0, proc.stderr
+        outs.append({p.relative_to(out): p.read_bytes() for p in sorted(out.rglob("*.ply"))})
+    assert len(outs[0]) == len(TIMES) + 2 and outs[0] == outs[1]

@@ -12,6 +12,10 @@ each track keeps **one shape** in its box frame (object frame: x forward, y left
   ``past:K`` window (frames up to it, never a later one); the frames between show the shape in use. A frame's
   shape depends on its own and earlier frames only.
 
+The frame that makes a shape is completed in its own (refined) box resized to the per-side median size of the
+track's boxes (offline: all of them; causal: those up to it; :meth:`TrackShapes.maker_box`), so the shape has the
+track's size rather than one noisy frame's; its result then shows the shape in its own box like the others.
+
 A shape is kept in the frame of the track's box (not of a box turned around by the heading check: a shape made
 with its heading turned is shown turned in every frame, ``flipped`` as in the frame that made it).
 
