@@ -268,7 +268,7 @@ class FramesSettings(ReaderOptions, CompletionOptions):
         ``track_worker``)."""
         if self.window.fuses:
             use = worker if worker is not None else self.track_worker
-            # refused before a worker starts: a window that has no shape per track
+            # a window without a shape per track (track_shape) is refused here, before any frame is read
             plan = TrackPlan(
                 self.window, config, self.refine_boxes, self.max_gap, worker=use, track_shape=self.track_shape
             )
