@@ -640,3 +640,36 @@ def test_car_model_candidates():
     assert acc["default"] == f"{_summary(_json(f'{base}/cars-test_default.json'), 'sanet-hit')['accuracy']:.5f}"
     for frag in frags:
         assert frag in para, frag
+
+
+def test_track_shapes_study_tables():
+    rep = _json("tracking/track_shapes.json")
+    doc = "docs/studies/track-shapes.md"
+    for source in ("labels", "detections"):
+        for mode, v in rep["nuscenes"][source]["modes"].items():
+            _says(
+                doc,
+                f"| {mode} | {v['consistency_cd']:.4f} | {v['consistency_cd_m']:.4f} | "
+                f"{v['consistency_over_frame']:.2f} | {v['fidelity']:.4f} | {v['fidelity_over_frame']:.3f} | "
+                f"{v['cpu_s']:.1f} |",
+            )
+    mean = rep["sequences"]["mean"]
+    for name, key in (("one frame", "frame"), ("the track's shape (`all`)", "shape all"), ("floor", "floor")):
+        _says(doc, f"{name}")
+        _says(doc, f"| {mean[key]['accuracy_m']:.4f} | {mean[key]['completeness_m']:.4f} |")
+    _says(doc, f"(`gap_closed_accuracy` {rep['sequences']['gap_closed_accuracy']:.3f})")
+    _says(doc, f"of the completeness gap ({rep['sequences']['gap_closed_completeness']:.3f})")
+    own = _json("tracking/track_shapes_own_box.json")["nuscenes"]["detections"]["modes"]
+    med = rep["nuscenes"]["detections"]["modes"]
+    _says(
+        doc,
+        f"{own['shape all']['fidelity_over_frame']:.3f}x for `shape all` and "
+        f"{own['shape all refined']['fidelity_over_frame']:.3f}x refined (median: "
+        f"{med['shape all']['fidelity_over_frame']:.3f}x and {med['shape all refined']['fidelity_over_frame']:.3f}x)",
+    )
+    _says(
+        "docs/fusion.md",
+        f"fidelity {med['shape all']['fidelity_over_frame']:.3f}x that of frame-by-frame with `all` "
+        f"({med['shape all refined']['fidelity_over_frame']:.3f}x with `--refine-boxes`) and "
+        f"{med['shape past:5']['fidelity_over_frame']:.3f}x with `past:5`",
+    )

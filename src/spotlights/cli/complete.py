@@ -8,6 +8,7 @@ import sys
 
 from ..completion.frames import complete_input
 from ..completion.scan import ScanSettings
+from ..completion.shapes import SIZE_TOLERANCE
 from ..data.tracks import MAX_GAP_S, MAX_TRANSLATION_M, MAX_YAW_RAD, WINDOW_HELP, parse_window
 from ..errors import ParameterError
 from ..options import settings_from_namespace
@@ -199,6 +200,14 @@ def add_track_arguments(p) -> None:
         help="with --fuse: register each frame's points to the other frames of its window and correct its box "
         f"(x, y, yaw; at most {MAX_TRANSLATION_M:g} m and {math.degrees(MAX_YAW_RAD):g} degrees, else kept and "
         "flagged); the refined boxes are used and written to tracks.json",
+    )
+    g.add_argument(
+        "--track-shape",
+        action="store_true",
+        help="with --fuse all: one completion per track (its whole track fused, completed once) shown in every frame "
+        "through that frame's box (refined with --refine-boxes); with --fuse past:K: a shape made again every K "
+        "frames from the past K, never from later frames. A track whose boxes differ in size by more than "
+        f"{100 * SIZE_TOLERANCE:g}%% a side is split (tracks.json: split_from); docs/fusion.md",
     )
     g.add_argument(
         "--max-gap",

@@ -187,7 +187,9 @@ class FramesSettings(ReaderOptions, CompletionOptions):
     track_worker : with fuse, refine the boxes and fuse the windows in a second process, a frame ahead of the
     completion (:class:`~spotlights.completion.fusion.TrackWorker`: the same outputs, two cores);
     detections, track, min_score : a detector's boxes (a file of the dataset's format) tracked and used instead of
-    the dataset's boxes, those scoring below ``min_score`` dropped (:mod:`spotlights.completion.detections`).
+    the dataset's boxes, those scoring below ``min_score`` dropped (:mod:`spotlights.completion.detections`);
+    track_shape : with fuse all or past:K, one shape per track shown in every frame through its box
+    (:mod:`spotlights.completion.shapes`).
     """
 
     out: str
@@ -207,6 +209,7 @@ class FramesSettings(ReaderOptions, CompletionOptions):
     detections: str | None = None
     track: bool = False
     min_score: float | None = None
+    track_shape: bool = False
 
     @classmethod
     def of_scene(cls, s: ScanSettings) -> FramesSettings:
@@ -247,6 +250,7 @@ class FramesSettings(ReaderOptions, CompletionOptions):
             rerun=s.rerun,
             track_worker=s.track_worker,
             quiet=s.quiet,
+            track_shape=s.track_shape,
         )
 
     @property
@@ -262,7 +266,10 @@ class FramesSettings(ReaderOptions, CompletionOptions):
         ``track_worker``)."""
         if self.window.fuses:
             use = worker if worker is not None else self.track_worker
-            plan = TrackPlan(self.window, config, self.refine_boxes, self.max_gap, worker=use)
+            # a window without a shape per track (track_shape) is refused here, before any frame is read
+            plan = TrackPlan(
+                self.window, config, self.refine_boxes, self.max_gap, worker=use, track_shape=self.track_shape
+            )
             try:
                 return plan.build(reader, keys)
             except BaseException:
@@ -272,6 +279,12 @@ class FramesSettings(ReaderOptions, CompletionOptions):
             raise ParameterError(
                 "`refine_boxes` needs `fuse` all, past:K or centered:K (the frames to register to)",
                 "refine_boxes",
+                "fuse",
+            )
+        if self.track_shape:
+            raise ParameterError(
+                "`track_shape` needs `fuse` all (one shape per track) or past:K (made again every K frames)",
+                "track_shape",
                 "fuse",
             )
         return None
@@ -504,6 +517,8 @@ class _FrameRun:
         boxes, extra = (frame.boxes, None) if tracks is None else tracks.frame_inputs(key, frame.boxes)
         crops = None if tracks is None else tracks.frame_crops(key)  # made by the track worker, if any
         result = self._scene(frame, boxes, extra, crops)
+        if tracks is not None:
+            tracks.place_shapes(key, result)  # with track_shape: the track's shape where this frame does not make it
         # at most in_flight - 1 frames before this one are not on disk yet (one: the frame before is, its PNG too); a
         # failed write stops the run at the next wait, and no later frame writes a file
         self.wait_writes(keep=self.in_flight - 1)
@@ -611,6 +626,9 @@ class _FrameRun:
         boxes, extra = tracks.frame_inputs(key, frame.boxes)
         crops = tracks.frame_crops(key)
         completed = {o["index"] for o in summ["objects"] if o["status"] == "completed"}
+        if tracks.shapes is not None and tracks.shapes.needed(tracks.where.get(key, {}), completed):
+            # it makes a track's shape, which the frames after it show: completed again (in memory, not rewritten)
+            tracks.place_shapes(key, self._scene(frame, boxes, extra, crops))
         held = set()
         for i, (tr, _) in tracks.where.get(key, {}).items():
             if i in completed:
@@ -624,7 +642,9 @@ class _FrameRun:
         """Complete again the resumed frames that hold a track's latest completion (the same inputs: the same
         completion as the run that wrote them) and record it, so that tracks/<track>.ply is that of one run."""
         for key, (boxes, extra, crops, _) in self.resumed.items():
-            self.tracks.record(key, self._scene(self.reader.load(key), boxes, extra, crops))
+            result = self._scene(self.reader.load(key), boxes, extra, crops)
+            self.tracks.place_shapes(key, result)
+            self.tracks.record(key, result)
         self.resumed.clear()
 
     def count(self, key: tuple, summ: dict) -> None:

@@ -73,6 +73,7 @@ from ..processes import _quiet_worker, process_pool_context, sigint_held
 from ..timing import StageTimer
 from .frame import SOURCE_COMPLETION, SOURCE_PARTIAL, SceneConfig, SceneResult, _selected, scene_crops
 from .names import file_stem, sequence_folders, unique_names
+from .shapes import SIZE_TOLERANCE, TrackShapes, split_by_size
 
 if TYPE_CHECKING:
     from multiprocessing.process import BaseProcess
@@ -99,6 +100,8 @@ class _Track:
     completion_frame: int = -1
     refiner: TrackRefiner | None = None  # the box refinement, made as the frames are reached (None: none)
     fused: FusedTrack | None = None  # the whole track fused under its final boxes (from the worker), for write()
+    size_group: int = 1  # with track shapes: its size group (1-based) of the track it was split from (shapes.py)
+    split_from: str | None = None  # with track shapes: the track id it was split from (boxes of several sizes)
 
 
 def _near_boxes(points: np.ndarray, boxes: list[Box], margin: float, ground_clearance: float) -> list[np.ndarray]:
@@ -136,6 +139,7 @@ class TrackPlan:
         max_translation: float = MAX_TRANSLATION_M,
         max_yaw: float = MAX_YAW_RAD,
         worker: bool | TrackWorker = False,
+        track_shape: bool = False,
     ):
         if not policy.fuses:
             raise ParameterError("a track plan needs a window that fuses frames (all, past:K or centered:K)")
@@ -156,6 +160,11 @@ class TrackPlan:
         # life (worker_main); None: nothing
         self.progress: Callable[[], None] | None = None
         self._tracks_digest: str | None = None  # settings(): the digest of the tracks' frame keys
+        # a shape per track (spotlights.completion.shapes): tracks split by box size in build, shapes placed by
+        # place_shapes; None: every frame shows its own completion
+        self.shapes = TrackShapes(policy) if track_shape else None
+        self.n_size_splits = 0
+        self.recrop: set = set()  # frames with a box frame_inputs resized to make a shape: complete_scene crops them
 
     @property
     def timings(self) -> dict[str, float]:
@@ -226,6 +235,8 @@ class TrackPlan:
                 self.max_gap_s,
                 name=f"track {tr.track_id}" + (f" of {tr.sequence}" if tr.sequence else ""),
             )
+        if self.shapes is not None:  # one shape is one size: a track of boxes of several sizes is split
+            self.tracks, self.where, self.n_size_splits = split_by_size(self.tracks, self.where)
         self.timer.add("read_s", laps.lap("read"))
         for tr in self.tracks.values():
             tr.boxes = [f.box for f in tr.frames]
@@ -337,13 +348,20 @@ class TrackPlan:
         out = list(boxes)
         for i, box in repl.items():
             out[i] = box
+        if self.shapes is not None:  # a box that makes its track's shape is completed in the track's median size
+            for i, (tr, pos) in self.where.get(key, {}).items():
+                made = self.shapes.maker_box(tr, pos)
+                if made is not None and not np.array_equal(made.size, out[i].size):
+                    out[i] = made
+                    self.recrop.add(key)  # the worker's crops were of the other box
         return out, extra
 
     def frame_crops(self, key: Hashable) -> dict | None:
         """The crops of frame ``key``'s scene that the worker made with its (refined) boxes ({box index: (k,) int64},
         :func:`spotlights.completion.frame.scene_crops`), for ``complete_scene(..., crops=...)``; None without (no
         worker, or a frame it was not sent the scan of). Asked for after :meth:`frame_inputs`, handed out once."""
-        return self.scene_crops.pop(key, None)
+        crops = self.scene_crops.pop(key, None)
+        return None if key in self.recrop else crops
 
     def finish(self) -> None:
         """Refine what no frame reached (the boxes of frames left out of the frame loop) and, with a worker
@@ -359,6 +377,13 @@ class TrackPlan:
         if self._worker is not None:
             self._worker.stop()
             self._worker = None
+
+    def place_shapes(self, key, result: SceneResult) -> None:
+        """With ``track_shape``: in frame ``key``'s ``result`` (after :meth:`frame_inputs` and ``complete_scene``),
+        each tracked box that does not make its track's shape shows the shape in use instead of its own completion
+        (:class:`~spotlights.completion.shapes.TrackShapes`, in place; frames asked for in order). Else nothing."""
+        if self.shapes is not None:
+            self.shapes.apply(self.where.get(key, {}), result)
 
     def record(self, key, result: SceneResult) -> None:
         """Keep each track's completion of this frame (scan frame; :meth:`write` puts it in its box frame), the
@@ -382,13 +407,17 @@ class TrackPlan:
             keys = [[list(k), [list(x) for x in tr.keys]] for k, tr in self.tracks.items()]  # in the frames' order
             text = json.dumps(keys, default=str, separators=(",", ":"))
             self._tracks_digest = hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
-        return dict(
-            fuse=str(self.policy),
-            refine_boxes=self.refine,
-            max_gap_s=self.max_gap_s,
-            max_translation_m=self.max_translation,
-            max_yaw_deg=math.degrees(self.max_yaw),
-            tracks=self._tracks_digest,
+        shape = {} if self.shapes is None else {"track_shape": self.shapes.mode, "size_tolerance": SIZE_TOLERANCE}
+        return (
+            dict(
+                fuse=str(self.policy),
+                refine_boxes=self.refine,
+                max_gap_s=self.max_gap_s,
+                max_translation_m=self.max_translation,
+                max_yaw_deg=math.degrees(self.max_yaw),
+                tracks=self._tracks_digest,
+            )
+            | shape
         )
 
     def summary(self) -> dict:
@@ -421,8 +450,14 @@ class TrackPlan:
                 moved += d > 0.3
                 flagged += st in FLAGGED
                 refined += st == "refined"
-            tracks.append(dict(sequence=tr.sequence, track_id=tr.track_id, n_frames=len(tr.frames), frames=rows))
+            entry = dict(sequence=tr.sequence, track_id=tr.track_id, n_frames=len(tr.frames), frames=rows)
+            if self.shapes is not None:
+                made = self.shapes.made_at((tr.sequence, tr.track_id))
+                entry |= dict(size_group=tr.size_group, split_from=tr.split_from, shape_made_at=made)
+            tracks.append(entry)
         fixed = {k: v for k, v in self.settings().items() if k != "tracks"}  # the tracks themselves follow, in full
+        if self.shapes is not None:
+            fixed["n_size_splits"] = self.n_size_splits
         return dict(
             **fixed,
             n_tracks=len(tracks),
@@ -474,8 +509,14 @@ class TrackPlan:
                 f"spotlights track {tr.track_id}"
                 + (f" of {tr.sequence}" if tr.sequence else "")
                 + ": box frame (x forward, y left, z up, box centre), metres",
-                f"source: 1 fused input, 2 completion of frame {tr.completion_frame} ({last + 1} frames); "
-                "frame: position in the track (-1: completion)",
+                (
+                    f"source: 1 fused input, 2 completion of frame {tr.completion_frame} ({last + 1} frames); "
+                    if self.shapes is None
+                    else f"source: 1 fused input, 2 the track's {self.shapes.mode} shape, made at frame(s) "
+                    f"{' '.join(map(str, self.shapes.made_at((tr.sequence, tr.track_id)))) or 'none'} "
+                    f"({last + 1} frames); "
+                )
+                + "frame: position in the track (-1: completion)",
                 f"fuse {self.policy}"
                 + (", boxes refined" if self.refine else "")
                 + (f", model {model}" if model else ""),

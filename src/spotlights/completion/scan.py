@@ -228,10 +228,10 @@ class ScanSettings(CompletionOptions):
     up, forward : the scan's axes; per_object : folder of ``object_<id>.ply``; summary : JSON file;
     show : PNG picture (a bird's-eye raster); closeups : and a matplotlib close-up per object in it; html :
     interactive page; quiet : no summary lines.
-    fuse, refine_boxes, max_gap, rerun, track_worker : for a multi-frame scene (:attr:`multi_frame`: ``input`` a folder of
-    frames or a sequence ``.json`` of the generic format), as :class:`~spotlights.completion.frames.
-    FramesSettings` has them; a single scan refuses a fusing window, ``refine_boxes``, ``rerun`` and
-    ``track_worker=False``
+    fuse, refine_boxes, max_gap, rerun, track_worker, track_shape : for a multi-frame scene (:attr:`multi_frame`:
+    ``input`` a folder of frames or a sequence ``.json`` of the generic format), as :class:`~spotlights.completion.
+    frames.FramesSettings` has them; a single scan refuses a fusing window, ``refine_boxes``, ``rerun``,
+    ``track_worker=False`` and ``track_shape``
     (:meth:`check_single_scan`).
     """
 
@@ -259,6 +259,7 @@ class ScanSettings(CompletionOptions):
     max_gap: float = MAX_GAP_S
     rerun: str | None = None
     track_worker: bool = True
+    track_shape: bool = False
 
     @property
     def multi_frame(self) -> bool:
@@ -275,6 +276,7 @@ class ScanSettings(CompletionOptions):
                 ("--refine-boxes", self.refine_boxes),
                 ("--rerun", self.rerun is not None),
                 ("--no-track-worker", not self.track_worker),
+                ("--track-shape", self.track_shape),
             )
             if on
         ]
