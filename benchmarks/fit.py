@@ -1,0 +1,162 @@
+"""Evidence fitting at inference (``--fit``): accuracy and completeness on synthetic test sets, fidelity on real
+observations, CPU seconds per scan, with and without the fit, one thread.
+
+Synthetic sets (``--synthetic NAME=FILE.h5``, a ``spotlights dataset build`` file): the first ``--max-views``
+views of every model of ``--split``, completed by the default model as ``spotlights evaluate`` does (no box
+clip), each with the dataset's sensor origin; scored against the dense ground truth (accuracy, completeness,
+CD-L1, F@0.01) and fidelity to the partial. Real sets (``--real NAME=FILE.h5``, a ``spotlights real extract``
+file): every observation completed as ``real complete`` does (:func:`spotlights.learning.inference.complete_in_boxes`:
+each box clipped, every class by the one model), fidelity per observation -> mean per track (an untracked
+observation is its own track) -> per class -> mean over classes (``average``), and the mean over observations.
+CPU: ``time.process_time`` of the completion calls (the fit: evidence, steps and gate), per scan::
+
+    spotlights dataset build --meshes ../shared/data/meshes/apolloscape-cars --views 20 --split 64/8/7 \\
+        --rig box-128x128-ellipsoid-s1 --seed 0 --out cars20.h5
+    spotlights dataset build --meshes ../shared/data/meshes/kenney-vehicles,manifest=src/spotlights/assets/manifests/kenney-vehicles.csv,split=test \\
+        --views 20 --rig box-128x128-ellipsoid-s1 --seed 0 --out kenney20.h5
+    spotlights real extract ../shared/data/lidar/nuscenes --format nuscenes \\
+        --classes car,truck,caravan,trailer,bus,construction,emergency --out nuscenes.h5
+    spotlights real extract ../shared/data/lidar/argoverse2 --format av2 \\
+        --classes car,truck,caravan,trailer,bus,construction,emergency --out av2.h5
+    OMP_NUM_THREADS=1 python benchmarks/fit.py --synthetic apollo-test=cars20.h5 kenney=kenney20.h5 \\
+        --real nuscenes=nuscenes.h5 av2=av2.h5 --max-views 10 --json docs/results/fit/fit.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader
+
+from spotlights.data.real.extract import read_observations
+from spotlights.learning.data import TorchCompletionDataset
+from spotlights.learning.fit import FitSettings, fit_completions
+from spotlights.learning.inference import complete_in_boxes, load_completer
+from spotlights.metrics.completion import evaluate_completions
+from spotlights.metrics.consistency import fidelity
+
+BATCH = 16
+
+
+def _r(x: float) -> float:
+    return round(float(x), 5)
+
+
+def synthetic(completer, path: str, split: str, max_views: int, settings: FitSettings) -> dict:
+    ds = TorchCompletionDataset(path, split, rig=False, max_views=max_views, partials_in_memory=True)
+    dense = ds.gt_dense()
+    prior, fitted, f_prior, f_fit, kept, parts = [], [], [], [], [], []
+    cpu = {"without": 0.0, "with": 0.0}
+    for batch in DataLoader(ds, batch_size=BATCH, shuffle=False):
+        part = batch["partial"].numpy()
+        parts += list(part)
+        ext = ds.extents[batch["model"].numpy()]
+        t0 = time.process_time()
+        with torch.inference_mode():
+            prior += completer.complete(part, extents=ext)
+        t1 = time.process_time()
+        res = fit_completions(completer, part, ext, batch["sensor_origin"].numpy(), settings=settings)
+        t2 = time.process_time()
+        cpu["without"] += t1 - t0
+        cpu["with"] += t2 - t1
+        fitted += res.clouds
+        kept += list(res.fitted)
+    for p, a, b in zip(parts, prior, fitted):
+        f_prior.append(fidelity(p, a) if len(a) else np.nan)
+        f_fit.append(fidelity(p, b) if len(b) else np.nan)
+    out: dict = {"scans": len(prior), "models": int(len(np.unique(ds.sample_models)))}
+    for name, preds, fid in (("without", prior, f_prior), ("with", fitted, f_fit)):
+        per = evaluate_completions(preds, ds.sample_models, dense, 0.01, True, {})
+        out[name] = {m: _r(np.nanmean(per[m])) for m in ("accuracy", "completeness", "chamfer_l1", "fscore")}
+        out[name]["fidelity"] = _r(np.nanmean(fid))
+        out[name]["cpu_s_per_scan"] = _r(cpu[name] / len(prior))
+    out["fit_kept_share"] = _r(np.mean(kept))
+    return out
+
+
+def _class_average(fid: np.ndarray, tracks: list, classes: list) -> tuple[dict, float]:
+    per_track: dict = defaultdict(list)
+    for v, t, c in zip(fid, tracks, classes):
+        per_track[(c, t)].append(v)
+    per_class: dict = defaultdict(list)
+    for (c, _), vals in per_track.items():
+        per_class[c].append(np.mean(vals))
+    cls = {c: _r(np.mean(v)) for c, v in sorted(per_class.items())}
+    return cls, _r(np.mean(list(cls.values())))
+
+
+def real(completer, path: str, settings: FitSettings) -> dict:
+    obs = read_observations(path)
+    n = len(obs)
+    tracks = [f"{s}/{t}" if t else f"obs{i}" for i, (s, t) in enumerate(zip(obs.sequence, obs.track_id))]
+    out: dict = {"observations": n, "classes": dict(sorted({c: obs.cls.count(c) for c in set(obs.cls)}.items()))}
+    kept: list = []
+    for name, fit in (("without", None), ("with", settings)):
+        comps: list = []
+        cpu = 0.0
+        for s in range(0, n, BATCH):
+            rows = slice(s, s + BATCH)
+            t0 = time.process_time()
+            comps += complete_in_boxes(
+                completer,
+                obs.partial[rows],
+                obs.box_size[rows],
+                sensor_origins=obs.sensor_origin[rows],
+                classes=obs.cls[rows],
+                fit=fit,
+                fitted=kept if fit is not None else None,
+            )
+            cpu += time.process_time() - t0
+        fid = np.array([fidelity(p, c) if len(c) else np.nan for p, c in zip(obs.partial, comps)])
+        per_class, average = _class_average(fid, tracks, obs.cls)
+        out[name] = {
+            "fidelity_average": average,
+            "fidelity_per_class": per_class,
+            "fidelity_mean_over_observations": _r(np.nanmean(fid)),
+            "cpu_s_per_scan": _r(cpu / n),
+        }
+    out["fit_kept_share"] = _r(np.mean(kept))
+    out["sensor_known_share"] = _r(np.mean(np.all(np.isfinite(obs.sensor_origin), axis=1)))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--synthetic", nargs="*", default=[], metavar="NAME=FILE.h5")
+    ap.add_argument("--real", nargs="*", default=[], metavar="NAME=FILE.h5")
+    ap.add_argument("--split", default="test")
+    ap.add_argument("--max-views", type=int, default=10)
+    ap.add_argument("--steps", type=int, default=FitSettings().steps)
+    ap.add_argument("--json", required=True)
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    completer = load_completer("default", device="cpu")
+    settings = FitSettings(steps=args.steps)
+    result: dict = {
+        "checkpoint": "default",
+        "threads": 1,
+        "fit": {k: getattr(settings, k) for k in settings.__dataclass_fields__},
+        "synthetic": {},
+        "real": {},
+    }
+    result["synthetic_views_per_model"] = args.max_views
+    for item in args.synthetic:
+        name, path = item.split("=", 1)
+        result["synthetic"][name] = synthetic(completer, path, args.split, args.max_views, settings)
+        print(name, json.dumps(result["synthetic"][name]), flush=True)
+    for item in args.real:
+        name, path = item.split("=", 1)
+        result["real"][name] = real(completer, path, settings)
+        print(name, json.dumps(result["real"][name]), flush=True)
+    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.json).write_text(json.dumps(result, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
