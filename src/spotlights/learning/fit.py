@@ -344,17 +344,14 @@ def fit_completions(
     box_half : (B, 3) half-extents of each box grown by the clamp's margin (unit frame): kept rays clipped to it
         as :meth:`~spotlights.learning.models.sanet.SANet.clip_to_boxes` does; None: no clip.
     classes : B class names for a class-conditioned model (others ignore them).
-    clip : the depth clip: ``"default"`` (or :data:`~spotlights.learning.inference.DEFAULT`): the model's own;
-        None: none; a number in [0, 1].
+    clip : the depth clip: a number in [0, 1]; None: none; anything else (``"default"``,
+        :data:`~spotlights.learning.inference.DEFAULT`): the model's own.
     observed : B arrays (K_b, 3), the observed points the evidence and the gate use (default: the partials).
     settings : :class:`FitSettings` (default: its defaults).
 
     Returns a :class:`FitResult`. Raises :class:`ParameterError` for a completer that cannot be fitted.
     """
     import torch
-
-    from .inference import DEFAULT
-    from .models.base import CLIP_DEFAULT
 
     require_fittable(completer)
     cfg = FitSettings() if settings is None else settings
@@ -369,7 +366,7 @@ def fit_completions(
     if len(obs) != b_n:
         raise ParameterError(f"{len(obs)} observed point sets for {b_n} scans", "observed")
     so = np.full((b_n, 3), np.nan) if sensor_origins is None else np.asarray(sensor_origins, np.float64).reshape(b_n, 3)
-    own = clip is DEFAULT or clip is CLIP_DEFAULT or (isinstance(clip, str) and clip == "default")
+    own = clip is not None and (isinstance(clip, bool) or not isinstance(clip, numbers.Real))  # a marker
     c = model.clip if own else clip
     nbr = ray_neighbours(spec, cfg.neighbours)
     dirs = torch.from_numpy(np.ascontiguousarray(dirs_np)).to(dev)

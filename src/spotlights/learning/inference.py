@@ -35,6 +35,7 @@ from ..geometry.boxes import Box, box_from_dict, load_box  # noqa: F401  (the bo
 from ..geometry.evidence import SnapTargets, snap_radius
 from ..geometry.sampling import resample_set
 from .checkpoint import PRETRAINED, load_checkpoint, model_from_checkpoint, resolve_checkpoint
+from .fit import fit_completions
 from .rays import directions_for_extents, unit_extents
 
 
@@ -674,8 +675,6 @@ def complete_in_boxes(
 
 def _fitted_in_boxes(completer, partials, sizes, clip, sensor_origins, inside, classes, snap, seen, fit, fitted):
     """:func:`complete_in_boxes` with ``fit``: the evidence fit (:func:`spotlights.learning.fit.fit_completions`)."""
-    from .fit import fit_completions
-
     if snap:
         raise ParameterError("`fit` does not go with `snap`: the fit puts the rays near observed points on them", "fit")
     x = np.asarray(partials, dtype=np.float32)
