@@ -216,3 +216,22 @@ def test_fit_flag_end_to_end(tmp_path):
     proc = run_cli("complete", *common, "--fit", "--fit-steps", "0", "--out", str(bad))
     assert proc.returncode == 2 and "--fit-steps" in proc.stderr
     assert not bad.exists()
+
+
+@pytest.mark.timeout(120)
+def test_complete_frame_with_fit_and_the_heading_check(completer):
+    """The API's ``fit=True`` beside the heading check (a batch of both headings): every completed box says
+    whether its kept heading's fit was kept, and its fidelity is at most the unfitted one's of the same heading."""
+    import spotlights
+    from spotlights.data.real.scans import read_scan
+    from spotlights.geometry.boxes import load_box
+
+    scan = read_scan(asset_path("demo_scan.pcd"))
+    box = load_box(asset_path("demo_scan_box.json")).replace(label="car", cls="car")
+    opts = {"heading_check": True, "complete_unknown": True, "fallback": None}
+    plain = spotlights.complete_frame(scan, [box], completer, **opts).objects[0]
+    fitted = spotlights.complete_frame(scan, [box], completer, fit=True, fit_steps=3, **opts).objects[0]
+    assert plain.fitted is None and isinstance(fitted.fitted, bool)
+    assert fitted.flipped == plain.flipped  # the demo box is right: both keep it
+    assert fitted.fidelity <= plain.fidelity
+    assert fitted.summary()["fitted"] == fitted.fitted
