@@ -411,10 +411,13 @@ def fit_completions(
         if free[b].known:
             t_pt = np.clip(dep_p[b], 0.0, h[b])
             samples = (np.arange(n_t) + 0.5)[None] / n_t * h[b][:, None]  # (R, T)
-            ahead = samples <= t_pt[:, None]
-            y = origins[:, None] + 2.0 * samples[..., None] * d_b[:, None]
-            crossed = (free[b].carved(y, cfg.margin) & ahead).any(-1)
-            at_point = free[b].carved(origins + 2.0 * t_pt[:, None] * d_b, cfg.margin)
+            ray, j = np.nonzero((samples <= t_pt[:, None]) & keep_p[b][:, None])  # the kept rays' samples ahead
+            y = origins[ray] + 2.0 * samples[ray, j][:, None] * d_b[ray]
+            crossed = np.zeros(r_n, dtype=bool)
+            crossed[ray[free[b].carved(y, cfg.margin)]] = True
+            kept = np.flatnonzero(keep_p[b])
+            at_point = np.zeros(r_n, dtype=bool)
+            at_point[kept] = free[b].carved(origins[kept] + 2.0 * t_pt[kept, None] * d_b[kept], cfg.margin)
             evid_free[b] = keep_p[b] & (crossed | at_point)
     evidence = data | evid_free
     changed = dilate(evidence, nbr, cfg.rings)
