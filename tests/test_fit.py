@@ -192,6 +192,18 @@ def test_settings_are_checked():
         SceneConfig(fit=True, fit_steps=2.5)
 
 
+def test_a_runtime_without_the_torch_model_cannot_be_fitted(completer):
+    """An ONNX-like completer (rays, but no torch model to differentiate) is refused in one line naming `fit`."""
+
+    class RaysOnly:
+        model_name = "onnx-like"
+        rig = completer.rig
+
+    with pytest.raises(ParameterError, match="cannot be fitted") as err:
+        fit_completions(RaysOnly(), np.zeros((1, 8, 3), np.float32), unit_extents(SIZE))
+    assert err.value.parameters == ("fit",)
+
+
 @pytest.mark.timeout(300)
 def test_fit_flag_end_to_end(tmp_path):
     """``complete --fit`` on the bundled demo scan: the summary says whether the fit was kept, and the fidelity is

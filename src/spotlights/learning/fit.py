@@ -55,7 +55,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..errors import ParameterError
+from ..errors import ParameterError, parameter_names, shown
 from ..geometry.evidence import cell_of, nearest_per_cell, sensor_extent, snap_to_observed, stereo_coords, stereo_frames
 from ..metrics.consistency import fidelity
 from .rays import directions_for_extents, rig_spec
@@ -133,7 +133,9 @@ class FitSettings:
 def check_fit_steps(steps, name: str = "fit_steps") -> int:
     """``steps`` as an int in 1..:data:`MAX_FIT_STEPS`, else :class:`ParameterError` naming ``name``."""
     if isinstance(steps, bool) or not isinstance(steps, numbers.Integral) or not 1 <= steps <= MAX_FIT_STEPS:
-        raise ParameterError(f"`{name}` must be a whole number in 1..{MAX_FIT_STEPS}, got {steps!r}", name)
+        raise ParameterError(
+            f"{shown(name)} must be a whole number in 1..{MAX_FIT_STEPS}, got {steps!r}", *parameter_names(name)
+        )
     return int(steps)
 
 
@@ -154,9 +156,9 @@ def require_fittable(completer, what: str = "fit") -> None:
     """Raise :class:`ParameterError` (naming ``what``) unless :func:`can_fit` ``completer``."""
     if not can_fit(completer):
         raise ParameterError(
-            f"`{what}`: {getattr(completer, 'model_name', 'this model')} cannot be fitted: evidence fitting needs an "
+            f"{shown(what)}: {getattr(completer, 'model_name', 'this model')} cannot be fitted: evidence fitting needs an "
             "SA-Net run with torch (not an ONNX file, not a point-set model)",
-            what,
+            *parameter_names(what),
         )
 
 
