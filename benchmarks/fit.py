@@ -8,7 +8,9 @@ CD-L1, F@0.01) and fidelity to the partial. Real sets (``--real NAME=FILE.h5``, 
 file): every observation completed as ``real complete`` does (:func:`spotlights.learning.inference.complete_in_boxes`:
 each box clipped, every class by the one model), fidelity per observation -> mean per track (an untracked
 observation is its own track) -> per class -> mean over classes (``average``), and the mean over observations.
-CPU: ``time.process_time`` of the completion calls (the fit: evidence, steps and gate), per scan::
+Consistency at equal density as ``real evaluate`` scores it: each completion voxel-downsampled (cell 0.1, unit
+frame), two-sided Chamfer of consecutive observations of a track (object frame / the track's mean box radius) ->
+track -> class -> mean over classes. CPU: ``time.process_time`` of the completion calls (the fit: evidence, steps and gate), per scan::
 
     spotlights dataset build --meshes ../shared/data/meshes/apolloscape-cars --views 20 --split 64/8/7 \\
         --rig box-128x128-ellipsoid-s1 --seed 0 --out cars20.h5
@@ -35,13 +37,16 @@ import torch
 from torch.utils.data import DataLoader
 
 from spotlights.data.real.extract import read_observations
+from spotlights.geometry.sampling import voxel_downsample
 from spotlights.learning.data import TorchCompletionDataset
 from spotlights.learning.fit import FitSettings, fit_completions
 from spotlights.learning.inference import complete_in_boxes, load_completer
 from spotlights.metrics.completion import evaluate_completions
-from spotlights.metrics.consistency import fidelity
+from spotlights.metrics.consistency import aggregate, fidelity, track_consistency
 
 BATCH = 16
+VOXEL = 0.1
+"""Cell side (unit frame) of the equal-density consistency, as ``real evaluate``'s default."""
 
 
 def _r(x: float) -> float:
@@ -115,10 +120,16 @@ def real(completer, path: str, settings: FitSettings) -> dict:
             cpu += time.process_time() - t0
         fid = np.array([fidelity(p, c) if len(c) else np.nan for p, c in zip(obs.partial, comps)])
         per_class, average = _class_average(fid, tracks, obs.cls)
+        radii = np.linalg.norm(obs.box_size, axis=1) / 2.0
+        voxels = [voxel_downsample(c, VOXEL) if len(c) else c for c in comps]
+        agg = aggregate(track_consistency(voxels, tracks, obs.timestamp, obs.cls, radii))
         out[name] = {
             "fidelity_average": average,
             "fidelity_per_class": per_class,
             "fidelity_mean_over_observations": _r(np.nanmean(fid)),
+            "consistency_voxel_average": _r(agg["average"]["cd"]),
+            "consistency_voxel_per_class": {c: _r(e["cd"]) for c, e in agg["classes"].items() if e["cd"] is not None},
+            "tracks_scored": agg["all_objects"]["n_objects"],
             "cpu_s_per_scan": _r(cpu / n),
         }
     out["fit_kept_share"] = _r(np.mean(kept))
