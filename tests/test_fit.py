@@ -69,6 +69,23 @@ def test_dilate_by_hand():
     assert dilate(m, nbr, 2).tolist() == [False, True, True, True]
 
 
+def test_free_space_of_one_point_by_hand():
+    """Sensor at x = 5, one observed point at the origin, margin 0.1: the beam in front of the point (x from 5 down to
+    0.1) is free; the point itself, behind it, and places off the beam are not; a NaN sensor frees nothing."""
+    from spotlights.learning.fit import FreeSpace, out_of_free_space
+
+    free = FreeSpace.of(np.zeros((1, 3)), [5.0, 0.0, 0.0], cells=32)
+    q = np.array([[2.0, 0, 0], [0.2, 0, 0], [0.05, 0, 0], [0, 0, 0], [-1.0, 0, 0], [2.0, 1.0, 0], [2.0, 0, -1.0]])
+    assert free.carved(q, 0.1).tolist() == [True, True, False, False, False, False, False]
+    np.testing.assert_allclose(free.depth_inside(q[:1], 0.1), [5.0 - 0.1 - 3.0])  # limit - margin - range
+    assert not FreeSpace.of(np.zeros((1, 3)), [np.nan] * 3).carved(q, 0.1).any()
+    # a ray along -x from (1, 0, 0) (on the unit sphere, half chord 1), margin 0.12: free space ends at x = 0.12;
+    # the point at t = 0.2 (x = 1 - 2t = 0.6) is in it; the nearest place that is not, in steps of 0.05 (t = 0.25,
+    # 0.15, 0.3, 0.1, ...; t < 0 is off the ray) is t = 0.45 (x = 0.1)
+    t, ok = out_of_free_space(free, [[1.0, 0, 0]], [[-1.0, 0, 0]], [0.2], 0.12, 0.05, 16)
+    assert ok.tolist() == [True] and t[0] == pytest.approx(0.45)
+
+
 def test_gate_by_hand():
     assert gate([0.02, 0.02, 0.02, np.inf], [0.01, 0.02, 0.03, 0.5]).tolist() == [True, False, False, True]
     assert gate([0.02], [np.inf]).tolist() == [False]
@@ -180,9 +197,9 @@ def test_same_inputs_same_bytes(completer):
 
 
 def test_settings_are_checked():
-    with pytest.raises(ParameterError, match="fit_steps"):
+    with pytest.raises(ParameterError, match="steps"):
         FitSettings(steps=0)
-    with pytest.raises(ParameterError, match="fit_steps"):
+    with pytest.raises(ParameterError, match="steps"):
         FitSettings(steps=51)
     from spotlights.completion.config import SceneConfig
 

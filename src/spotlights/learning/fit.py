@@ -8,22 +8,25 @@ it comes closer to the observed points (the gate). Everything is in the unit fra
 
 What is optimised, per scan
 ---------------------------
-* ``dc`` (C,): an offset of the encoder's global code (the decoder's input), initially 0;
-* ``r`` (R,): a per-ray depth residual, initially 0, applied smoothed: ray ``i`` gets the mean of ``r`` over
-  itself and its :data:`FitSettings.neighbours` nearest rays of the same viewpoint (:func:`ray_neighbours`).
+* ``dc`` (C,): an offset of the encoder's global code (the decoder's input), initially 0 (Adam step size
+  ``code_learning_rate``);
+* ``r`` (R,): a per-ray depth residual (step size ``learning_rate``), starting from :func:`initial_residual`:
+  each data ray's offset to its target, filled into the changed rays around it (``rings`` passes of neighbour
+  means, from the data rays that were prior hits and move by at most ``radius``).
 
-The fitted depth of a ray is ``decoder(code + dc)`` plus its smoothed residual; its hit decision is not
-optimised (the prior's hits, plus the data rays below).
+The fitted depth of a ray is ``decoder(code + dc) + r``; its hit decision is not optimised (the prior's hits,
+plus the data rays below). Neighbours: the :attr:`FitSettings.neighbours` nearest rays of the same viewpoint
+(:func:`ray_neighbours`).
 
 Evidence (computed once from the unfitted prediction, reused by every step)
 ----------------------------------------------------------------------------
 * **data rays**: the rays that :func:`spotlights.geometry.evidence.snap_to_observed` would snap at radius
   :attr:`FitSettings.radius` (occlusion rule included when the sensor is known), with its depth as target;
-* **free space**: the LiDAR's angular grid of :func:`spotlights.geometry.evidence.carved_depths`
-  (``carve_cells`` cells; a place is *carved*, observed empty, when its direction from the sensor falls in a
-  cell that holds an observed point and it is nearer to the sensor than that cell's nearest point minus
-  ``margin``). A kept ray *carries free-space evidence* when a carved place lies on it in front of (or at) its
-  predicted point (``carve_samples`` samples per ray).
+* **free space** (:class:`FreeSpace`): the LiDAR's angular grid of
+  :func:`spotlights.geometry.evidence.carved_depths` (``carve_cells`` cells; a place is *carved*, observed
+  empty, when its direction from the sensor falls in a cell that holds an observed point and it is nearer to
+  the sensor than that cell's nearest point minus ``margin``). A kept ray *carries free-space evidence* when a
+  carved place lies on it in front of (or at) its predicted point (``carve_samples`` samples per ray).
 
 The rays that the fit may change (``changed``) are the evidence rays (data or free space) and every ray within
 :attr:`FitSettings.rings` hops of one in the neighbour graph; **every other ray keeps the prior's depth and hit
@@ -31,15 +34,21 @@ exactly** (the code offset moves them too, so their fitted values are discarded)
 
 Loss (a sum over scans of per-scan terms, so every scan's fit is independent of the others in its batch)
 ------------------------------------------------------------------------------------------------------------
-``data_weight * mean_data huber(t - t*) + free_weight * sum_changed relu(rho_cell - margin - |P - S|) / n_changed
-+ anchor_weight * mean_(changed, not data) (t - t_prior)^2 + residual_weight * mean r^2 + code_weight * mean dc^2``
-(the hinge: how far a kept point is inside observed free space, toward the sensor).
+Over the changed hits ``H`` (prior hits and data rays among the changed rays)::
+
+    data_weight * mean_data huber(t - t*)                         (Huber, beta 0.01)
+    + free_weight * sum_H relu(rho_cell - margin - |P - S|) / |H|   (the hinge: how deep in observed free space)
+    + anchor_weight * mean_(H, not data) (t - t_prior)^2
+    + smooth_weight * mean over neighbour pairs of H (r_i - r_j)^2
+    + code_weight * mean dc^2
 
 After the steps: the prior's hits plus the data rays, decoded as the completion is (the model's clip, each ray
-clipped to its grown box), then every changed ray whose point still lies in observed free space is dropped: **no
-fitted point is in observed free space**. The gate keeps the fitted completion of a scan only when its
-fidelity to the observed points (:func:`spotlights.metrics.consistency.fidelity`) is lower than the unfitted
-one's; else the scan's completion is the unfitted one, bit for bit.
+clipped to its grown box); then every changed kept point still in observed free space moves along its ray to the
+nearest place that is not (:func:`out_of_free_space`: steps of ``free_step``, at most ``free_tries`` each way,
+inside the grown box) or is dropped: **no fitted point is in observed free space**. The gate (:func:`gate`)
+keeps the fitted completion of a scan only when its fidelity to the observed points
+(:func:`spotlights.metrics.consistency.fidelity`) is lower than the unfitted one's; else the scan's completion
+is the unfitted one, bit for bit.
 
 Budget: :data:`FIT_STEPS` steps by default (at most :data:`MAX_FIT_STEPS`); the candidates (data targets,
 free-space grid, changed rays) are computed once per scan and reused by every step. Deterministic: no random
@@ -72,13 +81,15 @@ MAX_FIT_STEPS = 50
 class FitSettings:
     """Settings of :func:`fit_completions` (lengths in the unit frame of each box: its half diagonal is 1).
 
-    steps : Adam steps (1..:data:`MAX_FIT_STEPS`, default :data:`FIT_STEPS`). learning_rate : Adam's step size
-    for the code offset and the residual (normalised depth units per step, roughly).
+    steps : Adam steps (1..:data:`MAX_FIT_STEPS`, default :data:`FIT_STEPS`). learning_rate, code_learning_rate :
+    Adam's step sizes of the residual (normalised depth per step, roughly) and of the code offset.
     radius : data rays: rays passing within this of an observed point (the snap radius, 0.05 ~ 13 cm on a car).
     margin : free space ends this far in front of each observed point (LiDAR noise).
     neighbours : rays of the same viewpoint that smooth each ray's residual; rings : hops of that graph around
     the evidence rays that the fit may change. carve_cells : the sensor grid's G; carve_samples : samples per
-    ray that find the rays crossing free space. The weights: see the module docstring.
+    ray that find the rays crossing free space. free_step, free_tries : how a point left in free space is moved
+    out (:func:`out_of_free_space`). The weights: see the module docstring. The defaults were chosen on the
+    validation cars (docs/studies/fit.md).
     """
 
     steps: int = FIT_STEPS
@@ -103,7 +114,7 @@ class FitSettings:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, numbers.Integral):
                 raise ParameterError(f"`{name}` must be a whole number, got {v!r}", name)
-        check_fit_steps(self.steps)
+        check_fit_steps(self.steps, "steps")
         if not 1 <= self.neighbours <= 32 or not 0 <= self.rings <= 8:
             raise ParameterError(
                 f"`neighbours` must be in 1..32 and `rings` in 0..8, got {self.neighbours}, {self.rings}",
@@ -164,7 +175,7 @@ def require_fittable(completer, what: str = "fit") -> None:
 
 @lru_cache(maxsize=8)
 def _neighbour_table(spec_key: str, k: int) -> np.ndarray:
-    spec = rig_spec(eval_spec(spec_key))
+    spec = rig_spec(_spec_of_key(spec_key))
     m = spec.n_secondary
     d = directions_for_extents(spec, np.full((1, 3), 1.0 / np.sqrt(3.0)))[0].astype(np.float64)
     views = d.reshape(-1, m, 3)
@@ -179,8 +190,8 @@ def _neighbour_table(spec_key: str, k: int) -> np.ndarray:
     return out
 
 
-def eval_spec(key: str):
-    """The rig of a :func:`ray_neighbours` cache key (a ``RigSpec.to_dict()`` as sorted items)."""
+def _spec_of_key(key: str):
+    """The rig description of a :func:`ray_neighbours` cache key (a ``RigSpec.to_dict()`` as JSON)."""
     import json
 
     return json.loads(key)
@@ -633,6 +644,8 @@ __all__ = [
     "dilate",
     "fit_completions",
     "gate",
+    "initial_residual",
+    "out_of_free_space",
     "ray_neighbours",
     "require_fittable",
 ]
