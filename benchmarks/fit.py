@@ -21,7 +21,11 @@ track -> class -> mean over classes. CPU: ``time.process_time`` of the completio
     spotlights real extract ../shared/data/lidar/argoverse2 --format av2 \\
         --classes car,truck,caravan,trailer,bus,construction,emergency --out av2.h5
     OMP_NUM_THREADS=1 python benchmarks/fit.py --synthetic apollo-test=cars20.h5 kenney=kenney20.h5 \\
-        --real nuscenes=nuscenes.h5 av2=av2.h5 --max-views 10 --json docs/results/fit/fit.json
+        --real nuscenes=nuscenes.h5 av2=av2.h5 --max-views 10 \\
+        --frame ../shared/data/lidar/kitti-object/training-fov-cropped 002155 --json docs/results/fit/fit.json
+
+``--frame ROOT ID``: also a whole KITTI frame completed with and without the fit (``complete_scene``, the class
+model as fallback), median wall and CPU seconds of ``--repeats`` runs, one thread.
 """
 
 from __future__ import annotations
@@ -137,6 +141,38 @@ def real(completer, path: str, settings: FitSettings) -> dict:
     return out
 
 
+def frame(root: str, frame_id: str, settings: FitSettings, repeats: int) -> dict:
+    """A whole KITTI frame (``root``/velodyne_reduced, label_2, calib) completed by :func:`complete_scene` with and
+    without the fit (the default model, the class model as fallback, as ``complete``): median wall and CPU seconds
+    of ``repeats`` runs after a warm-up, one thread."""
+    import statistics
+
+    from spotlights.completion.frame import SceneConfig, complete_scene
+    from spotlights.data.real.boxfiles import read_box_file
+    from spotlights.data.real.scans import read_scan
+
+    base = Path(root)
+    points = read_scan(base / "velodyne_reduced" / f"{frame_id}.bin")
+    boxes = read_box_file(base / "label_2" / f"{frame_id}.txt", calib=base / "calib" / f"{frame_id}.txt").boxes
+    completer, fallback = load_completer("default", device="cpu"), load_completer("classes", device="cpu")
+    out: dict = {"frame": f"kitti-object/training-fov-cropped {frame_id}"}
+    for name, config in (("without", SceneConfig()), ("with", SceneConfig(fit=True, fit_steps=settings.steps))):
+        wall, cpu = [], []
+        for k in range(repeats + 1):
+            t0, c0 = time.perf_counter(), time.process_time()
+            result = complete_scene(points, boxes, completer, config, fallback=fallback, fallback_name="classes")
+            if k:  # the first run warms up
+                wall.append(time.perf_counter() - t0)
+                cpu.append(time.process_time() - c0)
+        out[name] = {
+            "completed": len(result.completed),
+            "fitted": sum(bool(o.fitted) for o in result.completed),
+            "wall_s": _r(statistics.median(wall)),
+            "cpu_s": _r(statistics.median(cpu)),
+        }
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--synthetic", nargs="*", default=[], metavar="NAME=FILE.h5")
@@ -144,6 +180,8 @@ def main() -> None:
     ap.add_argument("--split", default="test")
     ap.add_argument("--max-views", type=int, default=10)
     ap.add_argument("--steps", type=int, default=FitSettings().steps)
+    ap.add_argument("--frame", nargs=2, default=None, metavar=("KITTI_ROOT", "FRAME"))
+    ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--json", required=True)
     args = ap.parse_args()
     torch.set_num_threads(1)
@@ -165,6 +203,9 @@ def main() -> None:
         name, path = item.split("=", 1)
         result["real"][name] = real(completer, path, settings)
         print(name, json.dumps(result["real"][name]), flush=True)
+    if args.frame is not None:
+        result["frame"] = frame(args.frame[0], args.frame[1], settings, args.repeats)
+        print("frame", json.dumps(result["frame"]), flush=True)
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(result, indent=1) + "\n")
 
