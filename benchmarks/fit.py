@@ -24,6 +24,12 @@ track -> class -> mean over classes. CPU: ``time.process_time`` of the completio
         --real nuscenes=nuscenes.h5 av2=av2.h5 --max-views 10 \\
         --frame ../shared/data/lidar/kitti-object/training-fov-cropped 002155 --json docs/results/fit/fit.json
 
+The settings were chosen on the validation cars (``--split val --max-views 3``, the rows of ``--variant``)::
+
+    OMP_NUM_THREADS=1 python benchmarks/fit.py --synthetic apollo-val=cars20.h5 --split val --max-views 3 \\
+        --variant steps16:steps=16 --variant rings0:rings=0 --variant rings2:rings=2 \\
+        --variant large-steps:learning_rate=0.01,code_learning_rate=0.01 --json docs/results/fit/fit_val.json
+
 ``--frame ROOT ID``: also a whole KITTI frame completed with and without the fit (``complete_scene``, the class
 model as fallback), median wall and CPU seconds of ``--repeats`` runs, one thread.
 """
@@ -57,36 +63,47 @@ def _r(x: float) -> float:
     return round(float(x), 5)
 
 
-def synthetic(completer, path: str, split: str, max_views: int, settings: FitSettings) -> dict:
+def synthetic(completer, path: str, split: str, max_views: int, fits: dict) -> dict:
+    """The rows ``without`` and one per entry of ``fits`` ({row name: FitSettings})."""
     ds = TorchCompletionDataset(path, split, rig=False, max_views=max_views, partials_in_memory=True)
     dense = ds.gt_dense()
-    prior, fitted, f_prior, f_fit, kept, parts = [], [], [], [], [], []
-    cpu = {"without": 0.0, "with": 0.0}
+    clouds: dict = {"without": [], **{k: [] for k in fits}}
+    cpu = dict.fromkeys(clouds, 0.0)
+    kept: dict = {k: [] for k in fits}
+    parts: list = []
     for batch in DataLoader(ds, batch_size=BATCH, shuffle=False):
         part = batch["partial"].numpy()
         parts += list(part)
         ext = ds.extents[batch["model"].numpy()]
         t0 = time.process_time()
         with torch.inference_mode():
-            prior += completer.complete(part, extents=ext)
-        t1 = time.process_time()
-        res = fit_completions(completer, part, ext, batch["sensor_origin"].numpy(), settings=settings)
-        t2 = time.process_time()
-        cpu["without"] += t1 - t0
-        cpu["with"] += t2 - t1
-        fitted += res.clouds
-        kept += list(res.fitted)
-    for p, a, b in zip(parts, prior, fitted):
-        f_prior.append(fidelity(p, a) if len(a) else np.nan)
-        f_fit.append(fidelity(p, b) if len(b) else np.nan)
-    out: dict = {"scans": len(prior), "models": int(len(np.unique(ds.sample_models)))}
-    for name, preds, fid in (("without", prior, f_prior), ("with", fitted, f_fit)):
+            clouds["without"] += completer.complete(part, extents=ext)
+        cpu["without"] += time.process_time() - t0
+        for name, settings in fits.items():
+            t0 = time.process_time()
+            res = fit_completions(completer, part, ext, batch["sensor_origin"].numpy(), settings=settings)
+            cpu[name] += time.process_time() - t0
+            clouds[name] += res.clouds
+            kept[name] += list(res.fitted)
+    out: dict = {"scans": len(parts), "models": int(len(np.unique(ds.sample_models)))}
+    for name, preds in clouds.items():
         per = evaluate_completions(preds, ds.sample_models, dense, 0.01, True, {})
         out[name] = {m: _r(np.nanmean(per[m])) for m in ("accuracy", "completeness", "chamfer_l1", "fscore")}
-        out[name]["fidelity"] = _r(np.nanmean(fid))
-        out[name]["cpu_s_per_scan"] = _r(cpu[name] / len(prior))
-    out["fit_kept_share"] = _r(np.mean(kept))
+        out[name]["fidelity"] = _r(np.nanmean([fidelity(p, c) if len(c) else np.nan for p, c in zip(parts, preds)]))
+        out[name]["cpu_s_per_scan"] = _r(cpu[name] / len(parts))
+        if name in kept:
+            out[name]["fit_kept_share"] = _r(np.mean(kept[name]))
     return out
+
+
+def parse_variant(text: str) -> tuple[str, FitSettings]:
+    """``NAME:key=value,key=value`` -> (NAME, FitSettings with those fields; ints stay ints)."""
+    name, _, items = text.partition(":")
+    fields: dict = {}
+    for item in filter(None, items.split(",")):
+        key, value = item.split("=", 1)
+        fields[key] = int(value) if value.lstrip("-").isdigit() else float(value)
+    return name, FitSettings(**fields)
 
 
 def _class_average(fid: np.ndarray, tracks: list, classes: list) -> tuple[dict, float]:
@@ -180,6 +197,13 @@ def main() -> None:
     ap.add_argument("--split", default="test")
     ap.add_argument("--max-views", type=int, default=10)
     ap.add_argument("--steps", type=int, default=FitSettings().steps)
+    ap.add_argument(
+        "--variant",
+        action="append",
+        default=[],
+        metavar="NAME:KEY=VALUE,...",
+        help="synthetic sets: also the fit with these FitSettings fields (row 'NAME')",
+    )
     ap.add_argument("--frame", nargs=2, default=None, metavar=("KITTI_ROOT", "FRAME"))
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--json", required=True)
@@ -195,9 +219,12 @@ def main() -> None:
         "real": {},
     }
     result["synthetic_views_per_model"] = args.max_views
+    result["synthetic_split"] = args.split
+    result["variants"] = list(args.variant)
     for item in args.synthetic:
         name, path = item.split("=", 1)
-        result["synthetic"][name] = synthetic(completer, path, args.split, args.max_views, settings)
+        fits = {"with": settings, **dict(parse_variant(v) for v in args.variant)}
+        result["synthetic"][name] = synthetic(completer, path, args.split, args.max_views, fits)
         print(name, json.dumps(result["synthetic"][name]), flush=True)
     for item in args.real:
         name, path = item.split("=", 1)
