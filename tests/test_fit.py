@@ -264,3 +264,30 @@ def test_complete_frame_with_fit_and_the_heading_check(completer):
     assert fitted.flipped == plain.flipped  # the demo box is right: both keep it
     assert fitted.fidelity <= plain.fidelity
     assert fitted.summary()["fitted"] == fitted.fitted
+
+
+def test_the_study_quotes_its_results():
+    """docs/studies/fit.md quotes the committed results as they are (no number typed by hand)."""
+    from helpers import REPO
+
+    text = " ".join((REPO / "docs" / "studies" / "fit.md").read_text().split())
+    res = json.loads((REPO / "docs" / "results" / "fit" / "fit.json").read_text())
+    val = json.loads((REPO / "docs" / "results" / "fit" / "fit_val.json").read_text())
+    for s in res["synthetic"].values():
+        for row in ("without", "with"):
+            for key in ("accuracy", "completeness", "chamfer_l1", "fscore", "fidelity", "cpu_s_per_scan"):
+                assert str(s[row][key]) in text, (row, key, s[row][key])
+    for r in res["real"].values():
+        for row in ("without", "with"):
+            for key in ("fidelity_average", "consistency_voxel_average", "cpu_s_per_scan"):
+                assert str(r[row][key]) in text, (row, key, r[row][key])
+    for row in ("without", "with"):
+        assert str(res["frame"][row]["cpu_s"]) in text
+    v = val["synthetic"]["apollo-val"]
+    for row, key in (
+        ("with", "accuracy"),
+        ("without", "accuracy"),
+        ("steps16", "chamfer_l1"),
+        ("rings0", "chamfer_l1"),
+    ):
+        assert str(v[row][key]) in text, (row, key)

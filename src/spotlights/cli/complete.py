@@ -54,8 +54,9 @@ FIT_HELP = (
     "SA-Nets run with torch: fit each object's completion to its scan for a few steps (the depths of the rays that "
     "pass near observed points pulled onto them, a smooth per-ray correction around them, no point left in the "
     "free space the LiDAR saw in front of its points), kept only where it comes closer to the observed points "
-    "(lower fidelity); rays without evidence keep the model's shape; not with --snap; ~0.1 s of CPU per object "
-    "(docs/studies/fit.md)"
+    "(lower fidelity); rays without evidence keep the model's shape; not with --snap; about 0.05-0.08 s of CPU per "
+    "object; off by default: fidelity 2.4-3.8x lower on real scans, but 5%% less accurate on cars like the training "
+    "ones and less consistent from frame to frame (docs/studies/fit.md)"
 )
 
 
