@@ -183,6 +183,16 @@ def test_gate_keeps_the_prior_when_the_fit_cannot_come_closer(completer):
 
 
 @pytest.mark.timeout(120)
+def test_no_observed_point_no_fit(completer):
+    """An empty observed set carries no evidence: nothing may change, and the completion is the unfitted one."""
+    ext = unit_extents(SIZE)
+    partial = _patch([0.75, 0.1, 0.05], [0, 1, 0], [0, 0, 1], 0.08, 0.02)[None].astype(np.float32)
+    res = fit_completions(completer, partial, ext, observed=[np.zeros((0, 3))], settings=FitSettings(steps=2))
+    assert not res.changed.any() and not res.fitted[0]
+    assert res.clouds[0].tobytes() == completer.complete(partial, extents=ext)[0].tobytes()
+
+
+@pytest.mark.timeout(120)
 def test_same_inputs_same_bytes(completer):
     ext = unit_extents(np.array([[4.5, 1.8, 1.5], [4.0, 1.7, 1.6]]))
     rng = np.random.default_rng(0)
