@@ -362,7 +362,8 @@ def fit_completions(
     observed : B arrays (K_b, 3), the observed points the evidence and the gate use (default: the partials).
     settings : :class:`FitSettings` (default: its defaults).
 
-    Returns a :class:`FitResult`. Raises :class:`ParameterError` for a completer that cannot be fitted.
+    Runs in float32 whatever the completer's ``precision`` (the unfitted completion is the float32 one). Returns a
+    :class:`FitResult`. Raises :class:`ParameterError` for a completer that cannot be fitted.
     """
     import torch
 
@@ -396,15 +397,11 @@ def fit_completions(
         xt = torch.from_numpy(x).to(dev)
         code0 = model.encode(xt, cls)
         out0 = model.add_template(model.decoder(code0), cls)
-        d0 = depths_of(out0).float()
+        d0 = _activated(model, depths_of(out0).float())
         if hit_model:
             keep0 = torch.sigmoid(out0[..., :r_n].float()) >= model.threshold
         else:
-            keep0 = d0 > 0
-        if getattr(model, "output_activation", "none") == "relu":
-            d0 = torch.relu(d0)
-        elif getattr(model, "output_activation", "none") == "sigmoid":
-            d0 = torch.sigmoid(d0)
+            keep0 = d0 > 0  # as SANet.outputs_to_points keeps them
         prior = _decode(model, d0, keep0, c, dirs, bh)
 
     origins = model.origins.detach().cpu().double().numpy()
@@ -588,15 +585,20 @@ def _optimise(torch, model, code0, cls, d0, data, target, changed, hits, free, s
 
 def _fitted_depth(model, code0, dc, res, cls, depths_of):
     """(B, R) the decoder's depths of the code ``code0 + dc`` (its output activation applied) plus ``res``."""
+    return _activated(model, depths_of(model.add_template(model.decoder(code0 + dc), cls)).float()) + res
+
+
+def _activated(model, d):
+    """The depths ``d`` after the model's output activation (:class:`~spotlights.learning.models.sanet.SANet`'s
+    ``output_activation``: none, ReLU or sigmoid; the hit-aware SA-Net has none)."""
     import torch
 
-    d = depths_of(model.add_template(model.decoder(code0 + dc), cls)).float()
     act = getattr(model, "output_activation", "none")
     if act == "relu":
-        d = torch.relu(d)
-    elif act == "sigmoid":
-        d = torch.sigmoid(d)
-    return d + res
+        return torch.relu(d)
+    if act == "sigmoid":
+        return torch.sigmoid(d)
+    return d
 
 
 def out_of_free_space(
