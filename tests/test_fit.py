@@ -301,3 +301,26 @@ def test_the_study_quotes_its_results():
         ("rings0", "chamfer_l1"),
     ):
         assert str(v[row][key]) in text, (row, key)
+
+
+@pytest.mark.timeout(120)
+def test_a_plain_sanet_on_a_cap_rig_is_fitted_too(tmp_path):
+    """The paper's SA-Net (one depth per ray, a cap rig: fixed rays), untrained: the same invariants (rays without
+    evidence in reach keep the prior exactly; a kept fit comes closer to the observed points)."""
+    from spotlights.learning.inference import load_completer
+
+    from learning_fixtures import make_checkpoint
+
+    comp = load_completer(make_checkpoint(tmp_path / "sanet.pt", "sanet"), device="cpu")
+    assert not comp.needs_box
+    patch = _patch([0.3, 0.0, 0.1], [0, 1, 0], [0, 0, 1], 0.2, 0.04)
+    ext = unit_extents(SIZE)
+    cfg = FitSettings(steps=3)
+    res = fit_completions(comp, patch[None].astype(np.float32), ext, sensor_origins=[[4.0, 0.5, 0.5]], settings=cfg)
+    far = ~dilate(res.evidence[0], ray_neighbours(comp.rig, cfg.neighbours), cfg.rings)
+    np.testing.assert_array_equal(res.depth_fit[0][far], res.depth_prior[0][far])
+    np.testing.assert_array_equal(res.keep_fit[0][far], res.keep_prior[0][far])
+    if res.fitted[0]:
+        assert res.fidelity_fit[0] < res.fidelity_prior[0]
+    else:
+        assert res.clouds[0].tobytes() == comp.complete(patch[None].astype(np.float32))[0].tobytes()

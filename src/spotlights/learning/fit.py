@@ -383,7 +383,7 @@ def fit_completions(
     own = clip is not None and (isinstance(clip, bool) or not isinstance(clip, numbers.Real))  # a marker
     c = model.clip if own else clip
     nbr = ray_neighbours(spec, cfg.neighbours)
-    dirs = torch.from_numpy(np.ascontiguousarray(dirs_np)).to(dev)
+    dirs = torch.from_numpy(np.array(dirs_np, dtype=np.float32)).to(dev)  # a copy: a cap rig's rays are a view
     bh = None if box_half is None else torch.from_numpy(np.asarray(box_half, np.float32).reshape(b_n, 3)).to(dev)
     cls = None
     if classes is not None and getattr(model, "class_embedding", None) is not None:
