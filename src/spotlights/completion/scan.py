@@ -105,7 +105,8 @@ class CompletionOptions:
     snap : > 0: snap the SA-Nets' rays to each object's observed points within this radius (unit frame; 0: off;
         :class:`~spotlights.completion.frame.SceneConfig`); snap_mirror : and to their mirror image (``y -> -y``).
     fit, fit_steps : fit each SA-Net completion to its object's evidence with ``fit_steps`` Adam steps (None: the
-        default, :data:`~spotlights.learning.fit.FIT_STEPS`), kept where it lowers the fidelity (SceneConfig).
+        default, :data:`~spotlights.learning.fit.FIT_STEPS`), kept where it lowers the fidelity (SceneConfig); a
+        runtime left to choose (None, ``"auto"``) is then torch, which the fit needs.
     complete_unknown : also complete boxes whose class (or size, far outside its class's range) the model did not
         learn (default: left as their observed points, status ``not_learned``, counted per class).
     fallback : a second model (file or short name, e.g. ``"classes"``) for the boxes :attr:`checkpoint`'s model
@@ -146,6 +147,11 @@ class CompletionOptions:
     precision: str = "fp32"
     runtime: Runtime | None = None
     threads: int | None = None
+
+    def __post_init__(self) -> None:
+        # the evidence fit differentiates the torch model: where the runtime is left to choose, torch runs it
+        if self.fit and self.runtime in (None, "auto") and not str(self.checkpoint or "").lower().endswith(".onnx"):
+            self.runtime = "torch"
 
     @property
     def checkpoint_name(self) -> str:
