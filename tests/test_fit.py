@@ -211,7 +211,7 @@ def test_settings_are_checked():
         FitSettings(steps=0)
     with pytest.raises(ParameterError, match="steps"):
         FitSettings(steps=51)
-    from spotlights.completion.config import SceneConfig
+    from spotlights.completion.frame import SceneConfig
 
     with pytest.raises(ParameterError, match="snap"):
         SceneConfig(fit=True, snap=0.05)
@@ -324,3 +324,34 @@ def test_a_plain_sanet_on_a_cap_rig_is_fitted_too(tmp_path):
         assert res.fidelity_fit[0] < res.fidelity_prior[0]
     else:
         assert res.clouds[0].tobytes() == comp.complete(patch[None].astype(np.float32))[0].tobytes()
+
+
+@pytest.mark.timeout(120)
+def test_an_onnx_export_is_fitted_through_its_checkpoint(tmp_path):
+    """A completer that runs an ONNX export (its ``path``, no torch model) is fitted with the checkpoint beside it
+    (``NAME.pt`` next to ``NAME.onnx``, as the packaged models ship); without one the fit is refused in one line."""
+    import shutil
+
+    from spotlights.completion.frame import SceneConfig, complete_scene
+    from spotlights.data.real.scans import read_scan
+    from spotlights.geometry.boxes import load_box
+    from spotlights.learning.checkpoint import resolve_checkpoint
+
+    shutil.copy(resolve_checkpoint("default"), tmp_path / "model.pt")
+
+    class Export:  # what an onnxruntime completer shows: its file, rays, no torch model
+        path = tmp_path / "model.onnx"
+        model_name = "sanet-hit"
+        rig = None
+
+        def complete(self, *args, **kwargs):
+            raise AssertionError("the fit must not run the export")
+
+    scan = read_scan(asset_path("demo_scan.pcd"))
+    box = load_box(asset_path("demo_scan_box.json")).replace(label="car", cls="car")
+    config = SceneConfig(fit=True, fit_steps=2, complete_unknown=True)
+    done = complete_scene(scan, [box], Export(), config).objects[0]
+    assert done.status == "completed" and isinstance(done.fitted, bool)
+    (tmp_path / "model.pt").unlink()
+    with pytest.raises(ParameterError, match="cannot be fitted"):
+        complete_scene(scan, [box], Export(), config)

@@ -41,7 +41,7 @@ from ..geometry.boxes import FLIP_Z, Box, crop_boxes
 from ..geometry.neighbors import serial_queries
 from ..geometry.rotations import is_rotation, rigid_transform
 from ..learning.fit import can_fit, require_fittable
-from ..learning.inference import DEFAULT, complete_in_boxes, prepare_partial, with_observed
+from ..learning.inference import DEFAULT, complete_in_boxes, load_completer, prepare_partial, with_observed
 from ..metrics.consistency import fidelity
 from ..utils import StageTimer, shared_thread_pool
 from ..viz import SceneObject, html, scene_png, write_png
@@ -174,8 +174,10 @@ def complete_scene(
             f"{config.min_points} are needed to complete anything"
         )
     require_rays_to_snap(completer, config.snap)
-    if config.fit:
+    if config.fit:  # the fit differentiates a torch model: an ONNX export runs as its checkpoint
+        completer = fittable(completer)
         require_fittable(completer)
+        fallback = None if fallback is None else fittable(fallback)
     require_sensor(sensor)
     a = None if axes is None or np.allclose(axes, np.eye(3)) else np.asarray(axes, dtype=np.float64)
     with timer("crop"):
@@ -219,6 +221,32 @@ def complete_scene(
         ", ".join(f"{k} {1000 * v:.0f} ms" for k, v in timer.seconds.items()),
     )
     return result
+
+
+#: torch twins of ONNX exports loaded for the fit (:func:`fittable`), by file, size and modification time
+_TWINS: dict[tuple, Any] = {}
+TWINS_KEPT = 4
+"""Most torch twins kept loaded (a main model and its fallback need two)."""
+
+
+def fittable(completer):
+    """``completer`` when the evidence fit can run it (:func:`~spotlights.learning.fit.can_fit`), else its torch
+    twin: the checkpoint beside its ONNX export (``NAME.pt`` next to ``NAME.onnx``, as the packaged models are
+    shipped), loaded once on the CPU in float32; ``completer`` itself when it has none (the fit then refuses it)."""
+    path = getattr(completer, "path", None)
+    if can_fit(completer) or path is None or Path(path).suffix.lower() != ".onnx":
+        return completer
+    twin = Path(path).with_suffix(".pt")
+    if not twin.is_file():
+        return completer
+    st = twin.stat()
+    key = (str(twin.resolve()), st.st_size, st.st_mtime_ns)
+    if key not in _TWINS:
+        LOG.info("the fit runs %s (the checkpoint of %s) with torch", twin.name, Path(path).name)
+        _TWINS[key] = load_completer(str(twin), device="cpu")
+        while len(_TWINS) > TWINS_KEPT:  # the oldest first
+            _TWINS.pop(next(iter(_TWINS)))
+    return _TWINS[key]
 
 
 def scene_crops(points: np.ndarray, boxes: Sequence[Box], config: SceneConfig) -> dict[int, np.ndarray]:
