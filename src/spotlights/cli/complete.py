@@ -10,7 +10,7 @@ from ..completion.frames import complete_input
 from ..completion.scan import ScanSettings
 from ..data.tracks import MAX_GAP_S, MAX_TRANSLATION_M, MAX_YAW_RAD, WINDOW_HELP, parse_window
 from ..errors import ParameterError
-from ..learning.fit import FIT_STEPS, MAX_FIT_STEPS, check_fit_steps
+from ..learning.fit import FIT_DOC, FIT_STEPS_DOC, parse_fit_steps
 from ..utils import settings_from_namespace
 from ._util import (
     DEVICE_HELP,
@@ -48,24 +48,6 @@ SNAP_MIRROR_HELP = (
     "with --snap R: also snap to the observed points' mirror image across the box's length-height plane (vehicles "
     "are left-right symmetric), so the side the LiDAR did not see follows the side it saw (docs/learning.md)"
 )
-
-
-FIT_HELP = (
-    "SA-Nets run with torch: fit each object's completion to its scan for a few steps (the depths of the rays that "
-    "pass near observed points pulled onto them, a smooth per-ray correction around them, no point left in the "
-    "free space the LiDAR saw in front of its points), kept only where it comes closer to the observed points "
-    "(lower fidelity); rays without evidence keep the model's shape; not with --snap; about 0.05-0.08 s of CPU per "
-    "object; off by default: fidelity 2.4-3.8x lower on real scans, but 5%% less accurate on cars like the training "
-    "ones and less consistent from frame to frame (docs/studies/fit.md)"
-)
-
-
-def fit_steps_number(text: str) -> int:
-    """``--fit-steps`` value: a whole number in 1..MAX_FIT_STEPS (argparse type)."""
-    try:
-        return check_fit_steps(int(text), "--fit-steps")
-    except (ValueError, ParameterError):
-        raise argparse.ArgumentTypeError(f"expected a whole number in 1..{MAX_FIT_STEPS}, got {text!r}") from None
 
 
 def add_completion_arguments(p, single: bool) -> None:
@@ -116,14 +98,8 @@ def add_completion_arguments(p, single: bool) -> None:
         help=SNAP_HELP + "; not with --heading-check",
     )
     p.add_argument("--snap-mirror", action="store_true", help=SNAP_MIRROR_HELP)
-    p.add_argument("--fit", action="store_true", help=FIT_HELP)
-    p.add_argument(
-        "--fit-steps",
-        type=fit_steps_number,
-        default=None,
-        metavar="N",
-        help=f"with --fit: Adam steps per object, 1..{MAX_FIT_STEPS} (default {FIT_STEPS})",
-    )
+    p.add_argument("--fit", action="store_true", help=FIT_DOC)
+    p.add_argument("--fit-steps", type=argparse_type(parse_fit_steps), default=None, metavar="N", help=FIT_STEPS_DOC)
     p.add_argument(
         "--heading-check",
         action="store_true",

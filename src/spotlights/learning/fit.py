@@ -76,6 +76,19 @@ FIT_STEPS = 8
 MAX_FIT_STEPS = 50
 """Most steps a fit may take (``--fit-steps`` is refused above it)."""
 
+FIT_DOC = (
+    "SA-Nets run with torch: fit each object's completion to its scan for a few steps (the depths of the rays that "
+    "pass near observed points pulled onto them, a smooth per-ray correction around them, no point left in the "
+    "free space the LiDAR saw in front of its points), kept only where it comes closer to the observed points "
+    "(lower fidelity); rays without evidence keep the model's shape; not with --snap; about 0.05-0.08 s of CPU per "
+    "object; off by default: fidelity 2.4-3.8x lower on real scans, but less accurate on cars like the training "
+    "ones and less consistent from frame to frame (docs/studies/fit.md)"
+)
+"""What ``--fit`` does (its help)."""
+
+FIT_STEPS_DOC = f"with --fit: Adam steps per object, 1..{MAX_FIT_STEPS} (default {FIT_STEPS})"
+"""``--fit-steps``'s help."""
+
 
 @dataclass(frozen=True)
 class FitSettings:
@@ -148,6 +161,15 @@ def check_fit_steps(steps, name: str = "fit_steps") -> int:
             f"{shown(name)} must be a whole number in 1..{MAX_FIT_STEPS}, got {steps!r}", *parameter_names(name)
         )
     return int(steps)
+
+
+def parse_fit_steps(text: str) -> int:
+    """``--fit-steps`` text -> a step count in 1..:data:`MAX_FIT_STEPS` (:class:`ParameterError` otherwise)."""
+    try:
+        steps = int(text)
+    except ValueError:
+        raise ParameterError(f"expected a whole number in 1..{MAX_FIT_STEPS}, got {text!r}") from None
+    return check_fit_steps(steps, "--fit-steps")
 
 
 def can_fit(completer) -> bool:
@@ -636,7 +658,9 @@ def out_of_free_space(
 
 
 __all__ = [
+    "FIT_DOC",
     "FIT_STEPS",
+    "FIT_STEPS_DOC",
     "MAX_FIT_STEPS",
     "FitResult",
     "FitSettings",
@@ -647,6 +671,7 @@ __all__ = [
     "fit_completions",
     "gate",
     "initial_residual",
+    "parse_fit_steps",
     "out_of_free_space",
     "ray_neighbours",
     "require_fittable",
