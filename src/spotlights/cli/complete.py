@@ -11,6 +11,7 @@ from ..completion.scan import ScanSettings
 from ..completion.shapes import SIZE_TOLERANCE
 from ..data.tracks import MAX_GAP_S, MAX_TRANSLATION_M, MAX_YAW_RAD, WINDOW_HELP, parse_window
 from ..errors import ParameterError
+from ..learning.fit import FIT_DOC, FIT_STEPS_DOC, parse_fit_steps
 from ..options import settings_from_namespace
 from ._util import (
     DEVICE_HELP,
@@ -98,6 +99,8 @@ def add_completion_arguments(p, single: bool) -> None:
         help=SNAP_HELP + "; not with --heading-check",
     )
     p.add_argument("--snap-mirror", action="store_true", help=SNAP_MIRROR_HELP)
+    p.add_argument("--fit", action="store_true", help=FIT_DOC)
+    p.add_argument("--fit-steps", type=argparse_type(parse_fit_steps), default=None, metavar="N", help=FIT_STEPS_DOC)
     p.add_argument(
         "--heading-check",
         action="store_true",

@@ -40,7 +40,8 @@ from ..errors import InputFileError, ParameterError, parameter_names, shown
 from ..geometry.boxes import FLIP_Z, MAX_BOXES_PER_FRAME, Box, crop_boxes
 from ..geometry.neighbors import serial_queries
 from ..geometry.rotations import is_rotation, rigid_transform
-from ..learning.inference import DEFAULT, complete_in_boxes, prepare_partial, with_observed
+from ..learning.fit import can_fit, require_fittable
+from ..learning.inference import DEFAULT, complete_in_boxes, load_completer, prepare_partial, with_observed
 from ..metrics.consistency import fidelity
 from ..processes import shared_thread_pool
 from ..timing import StageTimer
@@ -178,6 +179,10 @@ def complete_scene(
             f"{config.min_points} are needed to complete anything"
         )
     require_rays_to_snap(completer, config.snap)
+    if config.fit:  # the fit differentiates a torch model: an ONNX export runs as its checkpoint
+        completer = fittable(completer)
+        require_fittable(completer)
+        fallback = None if fallback is None else fittable(fallback)
     require_sensor(sensor)
     a = None if axes is None or np.allclose(axes, np.eye(3)) else np.asarray(axes, dtype=np.float64)
     with timer("crop"):
@@ -221,6 +226,32 @@ def complete_scene(
         ", ".join(f"{k} {1000 * v:.0f} ms" for k, v in timer.seconds.items()),
     )
     return result
+
+
+#: torch twins of ONNX exports loaded for the fit (:func:`fittable`), by file, size and modification time
+_TWINS: dict[tuple, Any] = {}
+TWINS_KEPT = 4
+"""Most torch twins kept loaded (a main model and its fallback need two)."""
+
+
+def fittable(completer):
+    """``completer`` when the evidence fit can run it (:func:`~spotlights.learning.fit.can_fit`), else its torch
+    twin: the checkpoint beside its ONNX export (``NAME.pt`` next to ``NAME.onnx``, as the packaged models are
+    shipped), loaded once on the CPU in float32; ``completer`` itself when it has none (the fit then refuses it)."""
+    path = getattr(completer, "path", None)
+    if can_fit(completer) or path is None or Path(path).suffix.lower() != ".onnx":
+        return completer
+    twin = Path(path).with_suffix(".pt")
+    if not twin.is_file():
+        return completer
+    st = twin.stat()
+    key = (str(twin.resolve()), st.st_size, st.st_mtime_ns)
+    if key not in _TWINS:
+        LOG.info("the fit runs %s (the checkpoint of %s) with torch", twin.name, Path(path).name)
+        _TWINS[key] = load_completer(str(twin), device="cpu")
+        while len(_TWINS) > TWINS_KEPT:  # the oldest first
+            _TWINS.pop(next(iter(_TWINS)))
+    return _TWINS[key]
 
 
 def scene_crops(points: np.ndarray, boxes: Sequence[Box], config: SceneConfig) -> dict[int, np.ndarray]:
@@ -274,7 +305,7 @@ def _crop_objects(
         o = ObjectResult(i, ids[i], b, "completed", used_box=wb, input_indices=idx, partial_unit=partial)
         o.sensor_unit = wb.normalization().to_unit(lidar)
         o.n_fused = None if more is None else len(pts)
-        if more is not None and config.snap:
+        if more is not None and (config.snap or config.fit):
             o.seen_unit = wb.normalization().to_unit(work[idx]).astype(np.float32)
         domain = getattr(completer, "domain", None)
         if domain is not None:
@@ -366,7 +397,8 @@ def _complete_batch_shares(todo: list[ObjectResult], completer, config: SceneCon
 
 
 def _complete_batch(todo: list[ObjectResult], completer, config: SceneConfig, shares: list) -> list:
-    """:func:`_complete_objects` for objects that one model completes: one batch."""
+    """:func:`_complete_objects` for objects that one model completes: one batch. With ``config.fit`` (and a model
+    that can be fitted) each object's ``fitted`` is set (the gate's choice for the heading it keeps is set later)."""
     partials = np.stack([_set(o.partial_unit) for o in todo])
     sizes = np.stack([_set(o.used_box).size for o in todo])
     sensors = np.stack([_set(o.sensor_unit) for o in todo])
@@ -376,7 +408,14 @@ def _complete_batch(todo: list[ObjectResult], completer, config: SceneConfig, sh
         partials = np.concatenate([partials, (partials @ FLIP_Z).astype(np.float32)])
         sizes = np.concatenate([sizes, sizes])
         sensors = np.concatenate([sensors, sensors @ FLIP_Z])
-    return complete_in_boxes(
+    fit: dict[str, Any] = {}
+    if config.fit and can_fit(completer):
+        flags: list[bool] = []
+        fit = {"fit": config.fit_settings, "fitted": flags}
+        if any(o.seen_unit is not None for o in todo):
+            seen = [o.partial_unit if o.seen_unit is None else o.seen_unit for o in todo]
+            fit["seen"] = seen + [s @ FLIP_Z for s in seen] if config.heading_check else seen
+    out = complete_in_boxes(
         completer,
         partials,
         sizes,
@@ -385,7 +424,12 @@ def _complete_batch(todo: list[ObjectResult], completer, config: SceneConfig, sh
         inside=shares,
         classes=classes,
         **snap_options(completer, config.snap, config.snap_mirror, todo),
+        **fit,
     )
+    if fit:
+        for k, o in enumerate(todo):
+            o.fitted_headings = (flags[k], flags[len(todo) + k] if config.heading_check else None)
+    return out
 
 
 def require_rays_to_snap(completer, snap: float | None) -> None:
@@ -442,6 +486,9 @@ def _assemble(todo: list, outs: list, config: SceneConfig, a, scores: Fidelities
                 o.flipped, comp = True, comp_f
                 o.used_box = o.used_box.flipped()
                 o.partial_unit = flipped_partial.astype(np.float32)
+        heads = o.fitted_headings
+        if heads is not None:
+            o.fitted = bool(heads[1] if o.flipped else heads[0])
         o.completion_unit = comp
         if len(comp) == 0:
             o.status = "empty_completion"

@@ -50,6 +50,11 @@ class ObjectResult:
     # share of the points inside the box grown by 0.15 m before the clamp (the network's; with --snap, snapped)
     inside_box: float | None = None
     completed_by: str | None = None  # the fallback model's name when it, not the main model, completed the box
+    # with fit: True when the evidence fit was kept (it lowered the fidelity), False when the gate kept the
+    # unfitted completion; None without fit (or a model that cannot be fitted)
+    fitted: bool | None = None
+    # with fit: the gate's choice for the given heading and, with the heading check, the turned one (internal)
+    fitted_headings: tuple | None = field(default=None, repr=False)
 
     def summary(self) -> dict:
         """JSON-ready description (no point arrays)."""
@@ -72,6 +77,7 @@ class ObjectResult:
             | ({} if self.n_fused is None else {"n_fused": self.n_fused})
             | ({} if self.inside_box is None else {"inside_box": round(float(self.inside_box), 4)})
             | ({} if self.completed_by is None else {"completed_by": self.completed_by})
+            | ({} if self.fitted is None else {"fitted": self.fitted})
         )
 
 

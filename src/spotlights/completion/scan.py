@@ -33,6 +33,7 @@ from ..errors import ParameterError
 from ..geometry.boxes import Box, box_from_dict
 from ..geometry.io import axes_rotation
 from ..inputs import read_json
+from ..learning.fit import FIT_STEPS
 from ..learning.inference import BaseCompleter
 from ..learning.runtime import Runtime, fallback_runtime, load_completer, runs_with, shipped_onnx
 from ..options import check_threads
@@ -104,6 +105,9 @@ class CompletionOptions:
     keep_observed : return each object's observed points beside its predicted ones.
     snap : > 0: snap the SA-Nets' rays to each object's observed points within this radius (unit frame; 0: off;
         :class:`~spotlights.completion.frame.SceneConfig`); snap_mirror : and to their mirror image (``y -> -y``).
+    fit, fit_steps : fit each SA-Net completion to its object's evidence with ``fit_steps`` Adam steps (None: the
+        default, :data:`~spotlights.learning.fit.FIT_STEPS`), kept where it lowers the fidelity (SceneConfig); a
+        runtime left to choose (None, ``"auto"``) is then torch, which the fit needs.
     complete_unknown : also complete boxes whose class (or size, far outside its class's range) the model did not
         learn (default: left as their observed points, status ``not_learned``, counted per class).
     fallback : a second model (file or short name, e.g. ``"classes"``) for the boxes :attr:`checkpoint`'s model
@@ -129,6 +133,8 @@ class CompletionOptions:
     keep_observed: bool = True
     snap: float = 0.0
     snap_mirror: bool = False
+    fit: bool = False
+    fit_steps: int | None = None
     complete_unknown: bool = False
     fallback: str | None = AUTO_FALLBACK
     heading_check: bool = False
@@ -144,6 +150,11 @@ class CompletionOptions:
     precision: str = "auto"
     runtime: Runtime | None = "auto"
     threads: int | None = None
+
+    def __post_init__(self) -> None:
+        # the evidence fit differentiates the torch model: where the runtime is left to choose, torch runs it
+        if self.fit and self.runtime in (None, "auto") and not str(self.checkpoint or "").lower().endswith(".onnx"):
+            self.runtime = "torch"
 
     @property
     def checkpoint_name(self) -> str:
@@ -168,6 +179,8 @@ class CompletionOptions:
             raise ParameterError("`heading_margin` goes with `heading_check`", "heading_margin", "heading_check")
         if not crop and margin is not None:
             raise ParameterError("`no_crop` uses every point: it takes no `margin`/`crop`", "no_crop", "margin", "crop")
+        if self.fit_steps is not None and not self.fit:
+            raise ParameterError("`fit_steps` goes with `fit`", "fit_steps", "fit")
         return SceneConfig(
             margin=0.15 if margin is None else float(margin),
             ground_clearance=float(self.ground_clearance),
@@ -181,6 +194,8 @@ class CompletionOptions:
             keep_observed=bool(self.keep_observed),
             snap=float(self.snap),
             snap_mirror=bool(self.snap_mirror),
+            fit=bool(self.fit),
+            fit_steps=FIT_STEPS if self.fit_steps is None else self.fit_steps,
             complete_unknown=bool(self.complete_unknown),
             heading_margin=HEADING_MARGIN if self.heading_margin is None else float(self.heading_margin),
         )

@@ -13,6 +13,7 @@ from ..data.real.base import CLASSES
 from ..data.real.scans import MIN_SCAN_POINTS
 from ..errors import ParameterError, parameter_names, shown
 from ..geometry.evidence import snap_radius
+from ..learning.fit import FIT_STEPS, FitSettings, check_fit_steps
 from ..learning.inference import DEFAULT
 from ..options import check_seed
 
@@ -65,6 +66,10 @@ class SceneConfig:
         (:func:`spotlights.geometry.evidence.snap_to_observed`); 0: off (default). Fidelity is then scored on
         the snapped completion (near 0 by construction), so it does not go with the heading check.
     snap_mirror : with ``snap``, also snap to the input's mirror image across the box's x-z plane (``y -> -y``).
+    fit : fit each SA-Net completion to its object's evidence (observed points and the free space in front of
+        them) with ``fit_steps`` Adam steps, kept only where it lowers the fidelity
+        (:func:`spotlights.learning.fit.fit_completions`; a fallback that cannot be fitted completes unfitted);
+        off by default. Not with ``snap``. fit_steps : 1..:data:`~spotlights.learning.fit.MAX_FIT_STEPS`.
     """
 
     margin: float = 0.15
@@ -82,6 +87,8 @@ class SceneConfig:
     complete_unknown: bool = False
     snap: float = 0.0
     snap_mirror: bool = False
+    fit: bool = False
+    fit_steps: int = FIT_STEPS
 
     def __post_init__(self):
         for name in ("margin", "ground_clearance", "heading_margin"):  # snap: snap_radius below
@@ -120,9 +127,21 @@ class SceneConfig:
                 "snap",
                 "heading_check",
             )
+        if not isinstance(self.fit, (bool, np.bool_)):
+            raise ParameterError(f"`fit` must be True or False, got {self.fit!r}", "fit")
+        check_fit_steps(self.fit_steps)
+        if self.fit and self.snap > 0:
+            raise ParameterError(
+                "`fit` does not go with `snap`: the fit puts the rays near observed points on them", "fit", "snap"
+            )
         if self.classes is not None:
             bad = [c for c in self.classes if c not in CLASSES]
             if bad or not self.classes:
                 raise ParameterError(
                     f"unknown class(es) {', '.join(bad) or '(none given)'}; choose among {', '.join(CLASSES)}"
                 )
+
+    @property
+    def fit_settings(self) -> FitSettings | None:
+        """The :class:`~spotlights.learning.fit.FitSettings` of ``fit``/``fit_steps``, or None when ``fit`` is off."""
+        return FitSettings(steps=int(self.fit_steps)) if self.fit else None

@@ -35,6 +35,7 @@ from ..geometry.boxes import Box, box_from_dict, load_box  # noqa: F401  (the bo
 from ..geometry.evidence import SnapTargets, snap_radius
 from ..geometry.sampling import resample_set
 from .checkpoint import PRETRAINED, load_checkpoint, model_from_checkpoint, resolve_checkpoint
+from .fit import fit_completions
 from .rays import directions_for_extents, unit_extents
 
 
@@ -613,6 +614,8 @@ def complete_in_boxes(
     snap: float | None = None,
     snap_mirror: bool = False,
     seen=None,
+    fit=None,
+    fitted: list | None = None,
 ) -> list[np.ndarray]:
     """Complete unit-frame partial scans, each with its box, every point inside its box grown by
     0.15 m and inside the box's sphere (``inside``, when given, gets each completion's share of points the
@@ -642,9 +645,16 @@ def complete_in_boxes(
     snap : radius (unit frame) to snap the SA-Nets' rays to each scan's partial (:meth:`Completer.complete`);
         None or 0: off. snap_mirror : also to its mirror image (``y -> -y``). seen : B arrays, the points each
         scan's LiDAR saw itself (the occlusion rule's free space; default the partials).
+    fit : a :class:`~spotlights.learning.fit.FitSettings`: each completion fitted to its scan's evidence
+        (:func:`~spotlights.learning.fit.fit_completions`; the observed points are ``seen``, default the partials);
+        None: off. Not with ``snap``. fitted : a list that receives, per scan, whether the gate kept the fit.
 
     Returns a list of B arrays (K_i, 3) float32, unit frame, norms <= 1, inside the grown boxes.
     """
+    if fit is not None:
+        return _fitted_in_boxes(
+            completer, partials, sizes, clip, sensor_origins, inside, classes, snap, seen, fit, fitted
+        )
     kw = {"clip": clip}
     if snap:
         kw["snap"] = snap
@@ -665,6 +675,33 @@ def complete_in_boxes(
     done, shares = clamp_to_grown_boxes(completer.complete(partials, **kw), sizes)
     if inside is not None:
         inside.extend(decoded if len(decoded) == len(shares) else shares)
+    return done
+
+
+def _fitted_in_boxes(completer, partials, sizes, clip, sensor_origins, inside, classes, snap, seen, fit, fitted):
+    """:func:`complete_in_boxes` with ``fit``: the evidence fit (:func:`spotlights.learning.fit.fit_completions`)."""
+    if snap:
+        raise ParameterError("`fit` does not go with `snap`: the fit puts the rays near observed points on them", "fit")
+    x = np.asarray(partials, dtype=np.float32)
+    sz = np.asarray(sizes, dtype=np.float64).reshape(-1, 3)
+    if len(x) == 0:
+        return []
+    res = fit_completions(
+        completer,
+        x,
+        unit_extents(sz),
+        sensor_origins=sensor_origins,
+        box_half=grown_half_extents(sz),
+        classes=None if classes is None else list(classes),
+        clip=clip,
+        observed=seen,
+        settings=fit,
+    )
+    done, _ = clamp_to_grown_boxes(res.clouds, sizes)
+    if inside is not None:
+        inside.extend(float(v) for v in res.inside)
+    if fitted is not None:
+        fitted.extend(bool(v) for v in res.fitted)
     return done
 
 
