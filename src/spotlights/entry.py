@@ -151,7 +151,7 @@ def main() -> int:
                 signal.pthread_sigmask(signal.SIG_SETMASK, before)  # a Ctrl-C held meanwhile is raised here
     except KeyboardInterrupt:
         print("spotlights: interrupted", file=sys.stderr)
-        exec("pass")  # noqa: S102 - clears CPython's unhandled-interrupt note (spotlights.cli._forget_interrupt)
+        exec("pass")  # noqa: S102 - clears CPython's unhandled-interrupt note (spotlights.processes.forget_interrupt)
         return 130
     code = run()
     if code in (130, 143):

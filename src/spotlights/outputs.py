@@ -112,6 +112,13 @@ def os_error_reason(exc: OSError) -> str:
     return text[:160]
 
 
+def os_error_line(exc: OSError) -> str:
+    """``"FILE: reason"`` of an OS error (the reason alone when it names no file): the command line's one line."""
+    name = exc.filename if exc.filename is not None else None
+    reason = os_error_reason(exc)
+    return f"{name}: {reason}" if name is not None else reason
+
+
 @contextlib.contextmanager
 def atomic_output(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it onto ``path`` on success.

@@ -19,8 +19,8 @@ from .. import logs
 from .._version import __version__
 from ..errors import SpotlightsError, missing_extra
 from ..options import join_axis_values, option_names
-from ..outputs import os_error_reason
-from ..processes import sigint_held
+from ..outputs import os_error_line
+from ..processes import forget_interrupt, in_main_thread, sigint_held
 
 # One line per command group; a new group is one module and one line here.
 COMMAND_MODULES = [
@@ -101,12 +101,6 @@ def _on_sigterm(signum, frame):
     raise Terminated()
 
 
-def _os_error_line(exc: OSError) -> str:
-    name = exc.filename if exc.filename is not None else None
-    reason = os_error_reason(exc)
-    return f"{name}: {reason}" if name is not None else reason
-
-
 def main(argv: list[str] | None = None) -> int:
     """Run one command; returns the exit code.
 
@@ -130,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 0 if args.command is None else 2
     previous = None
-    if threading_is_main():
+    if in_main_thread():
         previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         with contextlib.ExitStack() as stack:
@@ -145,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
         return exc.exit_code
     except Terminated:
         print("spotlights: terminated", file=sys.stderr)
-        _forget_interrupt()
+        forget_interrupt()
         return 143
     except KeyboardInterrupt:
         return _interrupted()
@@ -158,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"spotlights: error: {line}", file=sys.stderr)
         return 2
     except OSError as exc:  # a file the command reads or writes: one line, naming it
-        print(f"spotlights: error: {_os_error_line(exc)}", file=sys.stderr)
+        print(f"spotlights: error: {os_error_line(exc)}", file=sys.stderr)
         return 2
     finally:
         if previous is not None:
@@ -168,19 +162,8 @@ def main(argv: list[str] | None = None) -> int:
 def _interrupted() -> int:
     """Ctrl-C: one line on stderr, exit code 130."""
     print("spotlights: interrupted", file=sys.stderr)
-    _forget_interrupt()
+    forget_interrupt()
     return 130
-
-
-def _forget_interrupt() -> None:
-    """Clear CPython's note of an unhandled Ctrl-C after handling it, so that the exit code stays ours.
-
-    CPython (3.11-3.13) notes a KeyboardInterrupt as unhandled whenever one leaves code run by ``exec`` or ``eval``
-    of a string (``dataclasses`` and ``namedtuple`` build their methods that way, at import), even when a caller
-    handles it later; ``python -m spotlights`` then ends by the signal itself (killed by SIGINT) instead of exit
-    code 130 (Ctrl-C about 1.2 s into ``real complete``, while modules were imported). Each ``exec`` of a string
-    resets that note first: one that finishes clears it."""
-    exec("pass")  # noqa: S102 - a constant string: resets the interpreter's unhandled-interrupt note
 
 
 def _with_config_file(parser: argparse.ArgumentParser, args: argparse.Namespace, argv) -> argparse.Namespace:
@@ -191,10 +174,3 @@ def _with_config_file(parser: argparse.ArgumentParser, args: argparse.Namespace,
         return args
     args.command_parser.set_defaults(**reader(args.config))
     return parser.parse_args(argv)
-
-
-def threading_is_main() -> bool:
-    """Signal handlers can only be installed from the main thread."""
-    import threading
-
-    return threading.current_thread() is threading.main_thread()
