@@ -456,3 +456,24 @@ def test_real_complete_tracks_detections_and_fuses_them(tmp_path):
         assert [r["n_fused"] for r in tr["frames"]] == [900, 900, 900]
     rec = json.loads((tmp_path / "out" / "drive" / "f1.json").read_text())
     assert sorted(o["n_fused"] for o in rec["objects"] if o["status"] == "completed") == [900, 900]
+
+
+def test_tracks_are_split_where_they_go_unseen_longer_than_the_fusion_allows():
+    """Track 3 seen at 0, 1.0 s, then again at 4.0 and 4.5 s (a 3 s gap) becomes two tracks for a 2 s limit; track 7,
+    seen every second between, keeps its id; ids stay integers, the new one above every id of the call."""
+    from spotlights.completion.detections import split_at_gaps
+    from spotlights.geometry.boxes import Box
+    from spotlights.tracking.detections import DetectionFrame
+
+    def box(tid):
+        return Box([10.0, 0.0, 0.0], [4.2, 1.8, 1.5], yaw=0.0, label="car", track_id=tid)
+
+    times = [0.0, 1.0, 2.0, 3.0, 4.0, 4.5]
+    frames = [DetectionFrame("s", f"f{k}", t, [box("3")] * (k not in (2, 3)) + [box("7")]) for k, t in enumerate(times)]
+    got = split_at_gaps(frames, 2.0)
+    expected = [["3", "7"], ["3", "7"], ["7"], ["7"], ["8", "7"], ["8", "7"]]
+    assert [[b.track_id for b in f.boxes] for f in got] == expected
+    assert [f.frame_id for f in got] == [f.frame_id for f in frames]
+    assert [[b.track_id for b in f.boxes] for f in split_at_gaps(frames, 5.0)] == [
+        [b.track_id for b in f.boxes] for f in frames
+    ]

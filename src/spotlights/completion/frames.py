@@ -749,7 +749,7 @@ def complete_frames(
     try:
         reader = s.open()
         if s.detections is not None:
-            reader = tracked_reader(reader, s.detections, s.source[0], s.min_score, s.sequence)
+            reader = tracked_reader(reader, s.detections, s.source[0], s.min_score, s.sequence, max_gap=s.max_gap)
         keys = select_frames(reader.frame_keys(), s.frames)
         if not keys:
             raise ParameterError("`frames` selects no frame", "frames")
