@@ -24,18 +24,18 @@ def _car_top(p: VehicleParams, nose: float) -> tuple[list, float, float]:
     body's rear: sedan and coupe a rear window down to a boot lid, estate a long roof and a
     near-vertical tailgate, hatchback a roof sloping to a steep hatch."""
     L, H, f, b = p.length, p.height, p.shape, p.body
-    cowl = {"sedan": 0.30, "estate": 0.29, "coupe": 0.33, "hatchback": 0.25}[b] + 0.04 * f[2]
-    hood = (0.64 if b != "coupe" else 0.62) + 0.04 * f[1]
-    front = (hood - 0.12) * H
+    cowl = {"sedan": 0.28, "estate": 0.28, "coupe": 0.32, "hatchback": 0.25}[b] + 0.04 * f[2]
+    hood = (0.68 if b != "coupe" else 0.64) + 0.04 * f[1]
+    front = (hood - 0.09) * H
     screen = cowl + (0.17 if b != "coupe" else 0.19) + 0.04 * f[3]
     apex = screen + 0.07
     top = [(0, nose), (0.025 * L, nose + 0.7 * (front - nose)), (0.07 * L, front), (cowl * L, hood * H),
            (screen * L, 0.955 * H), (apex * L, H)]  # fmt: skip
     if b in ("sedan", "coupe"):
-        rw = (0.80 if b == "sedan" else 0.86) + 0.03 * f[5]
-        deck = (0.70 + 0.04 * f[6]) * H
-        back = (0.65 + 0.04 * f[4]) * L if b == "sedan" else (apex + 0.12) * L
-        top += [(back, 0.95 * H if b == "sedan" else 0.90 * H), (rw * L, deck), (0.975 * L, deck - 0.015 * H),
+        rw = (0.82 if b == "sedan" else 0.86) + 0.03 * f[5]
+        deck = (0.73 + 0.04 * f[6]) * H
+        back = (0.68 + 0.04 * f[4]) * L if b == "sedan" else (apex + 0.12) * L
+        top += [(back, 0.96 * H if b == "sedan" else 0.90 * H), (rw * L, deck), (0.975 * L, deck - 0.015 * H),
                 (L, deck - 0.1 * H)]  # fmt: skip
         return top, cowl * L, min(rw * L - 0.15, back + 0.1)
     if b == "estate":
@@ -66,15 +66,15 @@ def _profile(p: VehicleParams) -> dict:
         pick = b == "pickup"
         cowl = (0.25 if pick else 0.27) + 0.03 * f[2]
         hood = (0.71 if pick else 0.68) + 0.04 * f[1]
-        front = (hood - 0.06) * H
+        front = (hood - 0.10) * H
         screen = cowl + (0.10 if pick else 0.14) + 0.03 * f[3]
         nose = max(nose, 0.45 * H)
         top = [(0, nose), (0.02 * L, nose + 0.7 * (front - nose)), (0.05 * L, front), (cowl * L, hood * H),
                (screen * L, 0.965 * H), ((screen + 0.05) * L, H)]  # fmt: skip
         if not pick:
-            re = 0.90 + 0.04 * f[4]
-            tail = (0.68 + 0.08 * f[6]) * H
-            top += [(re * L, (0.975 - 0.02 * f[5]) * H), (0.985 * L, tail + 0.1 * H), (L, tail)]
+            re = 0.84 + 0.06 * f[4]
+            tail = (0.64 + 0.08 * f[6]) * H
+            top += [(re * L, (0.96 - 0.02 * f[5]) * H), (0.97 * L, tail + 0.12 * H), (L, tail)]
             glass_end = re * L - 0.15
         else:
             cab = (0.50 + 0.08 * f[4]) * L  # crew cab ... extended cab

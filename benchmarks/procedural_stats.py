@@ -1,0 +1,148 @@
+"""Shape statistics of the procedural vehicles against the real meshes, per class and body type.
+
+For every procedural body type (``--per-body`` seeds each) and every real mesh (the ApolloScape
+cars in metres; the Kenney vehicles at the packaged manifest's scale 1.8, toys whose absolute
+sizes mean little, so compare their ratios): the box's length, width and height (m), the height
+over the length, and the **roof line**: the height of the top surface (first hit of a ray straight
+down at y = 0, or at y = +-W/4 where y = 0 misses) at 9 stations from 10% to 90% of the length
+from the front, as a fraction of the box height. Per group: quantiles (min, 10%, median, 90%,
+max) and the mean roof line. Writes ``--json`` and the Markdown table of ``--markdown``.
+
+    PYTHONPATH=src python benchmarks/procedural_stats.py --json docs/results/procedural/shape_stats.json \\
+        --markdown docs/results/procedural/shape_stats.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from spotlights.data.synthetic.procedural import BODY_TYPES, CLASS_BODIES, generate_vehicle
+from spotlights.data.vehicle_classes import class_of_category
+from spotlights.geometry.io import load_mesh
+from spotlights.geometry.raycast import RayCaster
+
+ROOT = Path(__file__).resolve().parents[1]
+MESHES = ROOT.parent / "shared" / "data" / "meshes"
+KENNEY_MANIFEST = ROOT / "src" / "spotlights" / "assets" / "manifests" / "kenney-vehicles.csv"
+STATIONS = np.linspace(0.1, 0.9, 9)  # fractions of the length from the front
+
+
+def measure(v: np.ndarray, f: np.ndarray) -> dict:
+    """Box (length, width, height, m) and roof line (fractions of the height) of a mesh in the
+    object frame (x forward, y left, z up)."""
+    lo, hi = v.min(0), v.max(0)
+    size = hi - lo
+    xs = hi[0] - STATIONS * size[0]
+    caster = RayCaster(v, f)
+    z_top = np.full(len(xs), np.nan)
+    for y in (0.0, 0.25 * size[1], -0.25 * size[1]):
+        o = np.column_stack([xs, np.full(len(xs), (lo[1] + hi[1]) / 2 + y), np.full(len(xs), hi[2] + 1.0)])
+        t, face = caster.first_hit(o, np.tile([0.0, 0.0, -1.0], (len(xs), 1)))
+        z = hi[2] + 1.0 - t
+        fill = np.isnan(z_top) & (face >= 0)
+        z_top[fill] = z[fill]
+    return {
+        "length": float(size[0]),
+        "width": float(size[1]),
+        "height": float(size[2]),
+        "roof": ((z_top - lo[2]) / size[2]).tolist(),
+    }
+
+
+def real_meshes() -> list[tuple[str, str, str, dict]]:
+    """(source, class, category, measures) of every real vehicle mesh found under the shared data."""
+    out = []
+    apollo = MESHES / "apolloscape-cars"
+    if (apollo / "manifest.csv").exists():
+        for row in csv.DictReader(open(apollo / "manifest.csv")):
+            m = load_mesh(apollo / row["file"], up="z", forward="x")
+            out.append(("apolloscape", "car", row["category"], measure(np.asarray(m.vertices), np.asarray(m.faces))))
+    kenney = MESHES / "kenney-vehicles"
+    if kenney.exists():
+        for row in csv.DictReader(open(KENNEY_MANIFEST)):
+            cls = class_of_category(row["category"])
+            if cls == "other":
+                continue
+            m = load_mesh(kenney / row["file"], up=row["up"], forward=row["forward"])
+            v = np.asarray(m.vertices) * float(row["scale"])
+            out.append(("kenney", cls, row["category"], measure(v, np.asarray(m.faces))))
+    return out
+
+
+def summarise(items: list[dict]) -> dict:
+    """Quantiles of length, width, height, height / length and the mean roof line of ``items``."""
+    res = {"n": len(items)}
+    for key in ("length", "width", "height"):
+        x = np.array([it[key] for it in items])
+        res[key] = {
+            q: round(float(np.quantile(x, p)), 3)
+            for q, p in (("min", 0), ("p10", 0.1), ("median", 0.5), ("p90", 0.9), ("max", 1))
+        }
+    hl = np.array([it["height"] / it["length"] for it in items])
+    res["height_over_length"] = {"median": round(float(np.median(hl)), 3)}
+    roof = np.array([it["roof"] for it in items], dtype=np.float64)
+    res["roof_line"] = [round(float(x), 3) for x in np.nanmean(roof, axis=0)]
+    return res
+
+
+def markdown(stats: dict) -> str:
+    """One table: a row per group (class / source or body), median and 10-90% of L, W, H, and
+    the mean roof line at 10%, 30%, 50%, 70%, 90% of the length."""
+    lines = [
+        "| group | n | length m: median (10-90%) | width m | height m | H/L | roof line at 10/30/50/70/90% (x H) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name, s in stats.items():
+        cells = [f"{s[k]['median']:.2f} ({s[k]['p10']:.2f}-{s[k]['p90']:.2f})" for k in ("length", "width", "height")]
+        roof = " / ".join(f"{s['roof_line'][i]:.2f}" for i in (0, 2, 4, 6, 8))
+        lines.append(f"| {name} | {s['n']} | {' | '.join(cells)} | {s['height_over_length']['median']:.3f} | {roof} |")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--per-body", type=int, default=100, help="procedural seeds per body type (0..N-1)")
+    ap.add_argument("--json", type=Path, default=ROOT / "docs" / "results" / "procedural" / "shape_stats.json")
+    ap.add_argument("--markdown", type=Path, default=None)
+    args = ap.parse_args()
+    proc = {}
+    t0 = time.process_time()
+    for body in BODY_TYPES:
+        proc[body] = [measure(*generate_vehicle(body, s)[:2]) for s in range(args.per_body)]
+    seconds = time.process_time() - t0
+    real = real_meshes()
+    stats = {}
+    for cls, bodies in CLASS_BODIES.items():
+        stats[f"{cls} / procedural"] = summarise([it for b in bodies for it in proc[b]])
+        for src in ("apolloscape", "kenney"):
+            items = [m for s, c, _, m in real if s == src and c == cls]
+            if items:
+                stats[f"{cls} / {src}"] = summarise(items)
+    for body in BODY_TYPES:
+        stats[f"{body} (procedural)"] = summarise(proc[body])
+        items = [m for s, _, cat, m in real if s == "apolloscape" and cat == body]
+        if items:
+            stats[f"{body} (apolloscape)"] = summarise(items)
+    out = {
+        "command": "PYTHONPATH=src python benchmarks/procedural_stats.py",
+        "per_body": args.per_body,
+        "stations": STATIONS.round(2).tolist(),
+        "kenney_scale": 1.8,
+        "cpu_seconds_generate_and_measure": round(seconds, 1),
+        "groups": stats,
+    }
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(out, indent=1) + "\n")
+    if args.markdown:
+        args.markdown.write_text(markdown(stats))
+    print(args.json)
+
+
+if __name__ == "__main__":
+    main()
