@@ -39,7 +39,7 @@ import numpy as np
 
 from ...vehicle_classes import CATEGORY_CLASS, CLASS_BODIES, VEHICLE_CLASSES, class_of_category
 from . import cars, heavy
-from .params import BODY_TYPES, DIMENSIONS, PASSENGER, TRAILERS, VehicleParams, draw_params
+from .params import BODY_TYPES, DIMENSIONS, PASSENGER, TRAILERS, VehicleParams, box_range, draw_params
 
 __all__ = [
     "BODY_TYPES",
@@ -48,6 +48,7 @@ __all__ = [
     "DIMENSIONS",
     "VEHICLE_CLASSES",
     "VehicleParams",
+    "box_range",
     "class_of_category",
     "draw_params",
     "generate_vehicle",

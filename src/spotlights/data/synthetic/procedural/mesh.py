@@ -171,7 +171,8 @@ def loft_body(
     for a, b in windows:
         stations.append([a - 1e-3, a, b, b + 1e-3])
     s = np.unique(np.clip(np.concatenate([np.ravel(x) for x in stations]), s0, s1))
-    s = s[np.concatenate([[True], np.diff(s) > 2e-4])]
+    knot = np.isin(s, np.array(top, dtype=np.float64)[:, 0])  # the roof line's maxima lie on its knots
+    s = s[np.concatenate([[True], np.diff(s) > 2e-4]) | knot]
     zt = smooth(top, s)
     zf = smooth(floor, s)
     r = arch - ARCH_GAP
