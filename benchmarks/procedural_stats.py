@@ -6,9 +6,11 @@ sizes mean little, so compare their ratios): the box's length, width and height 
 over the length, and the **roof line**: the height of the top surface (first hit of a ray straight
 down at y = 0, or at y = +-W/4 where y = 0 misses) at 9 stations from 10% to 90% of the length
 from the front, as a fraction of the box height. Per group: quantiles (min, 10%, median, 90%,
-max) and the mean roof line. Writes ``--json`` and the Markdown table of ``--markdown``.
+max) and the mean roof line. Also the generation speed (process CPU time of ``generate_vehicle``,
+one thread: run it with ``OMP_NUM_THREADS=1``) per body type. Writes ``--json`` and the Markdown
+table of ``--markdown``.
 
-    PYTHONPATH=src python benchmarks/procedural_stats.py --json docs/results/procedural/shape_stats.json \\
+    OMP_NUM_THREADS=1 PYTHONPATH=src python benchmarks/procedural_stats.py --json docs/results/procedural/shape_stats.json \\
         --markdown docs/results/procedural/shape_stats.md
 """
 
@@ -111,11 +113,19 @@ def main() -> None:
     ap.add_argument("--json", type=Path, default=ROOT / "docs" / "results" / "procedural" / "shape_stats.json")
     ap.add_argument("--markdown", type=Path, default=None)
     args = ap.parse_args()
-    proc = {}
-    t0 = time.process_time()
+    proc, speed = {}, {}
+    generate_vehicle("sedan", 0)  # imports (scipy's interpolator) outside the timing
     for body in BODY_TYPES:
-        proc[body] = [measure(*generate_vehicle(body, s)[:2]) for s in range(args.per_body)]
-    seconds = time.process_time() - t0
+        t0 = time.process_time()
+        meshes = [generate_vehicle(body, s)[:2] for s in range(args.per_body)]
+        dt = time.process_time() - t0
+        speed[body] = {
+            "bodies_per_second": round(args.per_body / dt, 1),
+            "vertices_median": int(np.median([len(v) for v, _ in meshes])),
+            "faces_median": int(np.median([len(f) for _, f in meshes])),
+        }
+        proc[body] = [measure(v, f) for v, f in meshes]
+    total = sum(args.per_body / s["bodies_per_second"] for s in speed.values())
     real = real_meshes()
     stats = {}
     for cls, bodies in CLASS_BODIES.items():
@@ -130,11 +140,14 @@ def main() -> None:
         if items:
             stats[f"{body} (apolloscape)"] = summarise(items)
     out = {
-        "command": "PYTHONPATH=src python benchmarks/procedural_stats.py",
+        "command": "OMP_NUM_THREADS=1 PYTHONPATH=src python benchmarks/procedural_stats.py",
         "per_body": args.per_body,
         "stations": STATIONS.round(2).tolist(),
         "kenney_scale": 1.8,
-        "cpu_seconds_generate_and_measure": round(seconds, 1),
+        "generation_one_core": {
+            "bodies_per_second_all_types": round(len(BODY_TYPES) * args.per_body / total, 1),
+            "per_body": speed,
+        },
         "groups": stats,
     }
     args.json.parent.mkdir(parents=True, exist_ok=True)
