@@ -77,7 +77,7 @@ def _profile(p: VehicleParams) -> dict:
             top += [(re * L, (0.96 - 0.02 * f[5]) * H), (0.97 * L, tail + 0.12 * H), (L, tail)]
             glass_end = re * L - 0.15
         else:
-            cab = (0.50 + 0.08 * f[4]) * L  # crew cab ... extended cab
+            cab = (0.53 + 0.07 * f[4]) * L  # extended cab ... crew cab
             top += [(cab - 0.12, 0.985 * H), (cab, 0.95 * H)]
             glass_end = cab - 0.15
         belt = max(((0.62 if pick else 0.58) + 0.03 * f[7]) * H, arch_top + 0.15)
@@ -130,9 +130,10 @@ def passenger(p: VehicleParams) -> list:
         corners = (0.25 + 0.15 * f[11], 0.08)
     windows = _windows(p, pr["cowl"] + 0.25, pr["glass_end"])
     parts = _bed(p, half, pr, x_of) if p.body == "pickup" else []
+    boxy = {"van": (6.0, 3.0), "minibus": (6.0, 3.0), "pickup": (5.0, 5.0)}.get(p.body, (4.0, 3.0))
     parts += [
         loft_body(0.0, L, pr["top"], pr["floor"], pr["belt"], half, half * pr["roof"], [sf, sr], arch, x_of,
-                  corners=corners, n_low=4.0 if p.body not in ("van", "minibus") else 6.0, windows=windows)
+                  corners=corners, n_low=boxy[0], n_up=boxy[1], windows=windows)
     ]  # fmt: skip
     if p.variant:
         s_m = pr["cowl"] + 0.22
