@@ -38,14 +38,19 @@ CONFIG = ROOT / "src" / "spotlights" / "learning" / "configs" / "variants" / "sa
 RIG = "box-128x128-ellipsoid-s1"
 
 
-def cli(*args, log: Path) -> float:
-    """Run ``python -m spotlights ARGS`` (one thread); return its CPU seconds (children included)."""
+def cli(*args, log: Path, stage: str) -> None:
+    """Run ``python -m spotlights ARGS`` (one thread); add its CPU seconds to ``stage`` in the work
+    folder's cpu.json (summed over invocations: a resumed training adds its part)."""
     env = dict(os.environ, OMP_NUM_THREADS="1", PYTHONPATH=str(ROOT / "src"))
     before = os.times()
     with open(log, "a") as fh:
         subprocess.run([sys.executable, "-m", "spotlights", *map(str, args)], check=True, env=env, stdout=fh, stderr=fh)
     after = os.times()
-    return (after.children_user - before.children_user) + (after.children_system - before.children_system)
+    cpu_file = log.parent / "cpu.json"
+    cpu = json.loads(cpu_file.read_text()) if cpu_file.exists() else {}
+    cpu[stage] = cpu.get(stage, 0.0) + (after.children_user - before.children_user)
+    cpu[stage] += after.children_system - before.children_system
+    cpu_file.write_text(json.dumps(cpu, indent=1))
 
 
 def curve(run: Path) -> list[dict]:
@@ -89,18 +94,20 @@ def main() -> None:
     work = args.work.resolve()
     work.mkdir(parents=True, exist_ok=True)
     log = work / "realism.log"
-    cpu = {}
     n_train_proc = round(args.procedural * 5 / 6 * 0.8)
     proc_views = max(1, round(args.apollo_views * 64 / n_train_proc))
     data = {"apollo": work / "apollo.h5", "procedural": work / "proc_cars.h5"}
     common = ["--default-rig", RIG, "--workers", 1, "--seed", 0, "--quiet"]
     if not data["apollo"].exists():
-        cpu["build_apollo"] = cli("dataset", "build", "--meshes", APOLLO, "--views", args.apollo_views,
-                                  "--out", data["apollo"], *common, log=log)  # fmt: skip
+        cli(
+            "dataset", "build", "--meshes", APOLLO, "--views", args.apollo_views, "--out", data["apollo"], *common,
+            log=log, stage="build_apollo",
+        )  # fmt: skip
     if not data["procedural"].exists():
-        cpu["build_procedural"] = cli(
+        cli(
             "dataset", "build", "--procedural", args.procedural, "--classes", "car", "--exclude-category", "pickup",
             "--procedural-split", "0.8/0.1/0.1", "--views", proc_views, "--out", data["procedural"], *common, log=log,
+            stage="build_procedural",
         )  # fmt: skip
     views = {"apollo": args.apollo_views, "procedural": proc_views}
     runs = {}
@@ -110,22 +117,25 @@ def main() -> None:
         done = (run / "log.csv").exists() and len(curve(run)) >= args.epochs
         if not done:
             resume = ["--resume"] if (run / "last.pt").exists() else []
-            cpu[f"train_{name}"] = cli(
+            cli(
                 "train", "--model", "sanet-hit", "--schedule", "budget", "--config", CONFIG, "--data", path,
                 "--epochs", args.epochs, "--steps-per-epoch", args.steps, "--max-views", views[name],
                 "--val-max-views", 10 if name == "apollo" else 3, "--threads", 1, "--seed", 0, "--out", run,
-                "--quiet", *resume, log=log,
+                "--quiet", *resume, log=log, stage=f"train_{name}",
             )  # fmt: skip
     scores = {}
     for name, path in data.items():
         out = work / f"eval-{name}"
         if not out.with_suffix(".json").exists():
             mv = args.eval_views if name == "apollo" else max(1, args.eval_views // 4)
-            cpu[f"eval_{name}"] = cli(
+            cli(
                 "evaluate", "--data", path, "--checkpoint", runs["apollo"] / "best.pt", runs["procedural"] / "best.pt",
                 "--max-views", mv, "--threads", 1, "--examples", 0, "--out", out, "--quiet", log=log,
+                stage=f"eval_{name}",
             )  # fmt: skip
         scores[name] = json.loads(out.with_suffix(".json").read_text())
+    cpu_file = work / "cpu.json"
+    cpu = json.loads(cpu_file.read_text()) if cpu_file.exists() else {}
     write(args, scores, runs, cpu, views)
 
 
@@ -164,12 +174,36 @@ def write(args, scores: dict, runs: dict, cpu: dict, views: dict) -> None:
         / acc["procedural_on_procedural"],
         "bar": 1.3,
         "training": train,
-        "cpu_seconds_this_invocation": {k: round(v, 1) for k, v in cpu.items()},
+        "cpu_seconds": {k: round(v, 1) for k, v in cpu.items()},
+        "cpu_minutes_total": round(sum(cpu.values()) / 60, 1),
         "generated": time.strftime("%Y-%m-%d"),
     }
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(result, indent=1) + "\n")
+    args.json.with_suffix(".md").write_text(markdown(result))
     print(args.json)
+
+
+def markdown(result: dict) -> str:
+    """The study's table: accuracy (completeness) of both models on both test splits, the ratios."""
+    sc, tr = result["scores"], result["training"]
+    lines = [
+        "| trained on | steps | curve flat (gain over the last 4 epochs) | ApolloScape test cars: accuracy / completeness"
+        " | held-out procedural cars: accuracy / completeness |",
+        "|---|---|---|---|---|",
+    ]
+    for name in ("apollo", "procedural"):
+        a, p, t = sc[f"{name}_on_apollo"], sc[f"{name}_on_procedural"], tr[name]
+        flat = f"{'yes' if t['flat'] else 'no'} ({100 * t['gain_last_epochs']:.1f}%)"
+        lines.append(
+            f"| {name} | {t['steps']} | {flat} | {a['accuracy']:.5f} / {a['completeness']:.5f} ({a['scans']} scans)"
+            f" | {p['accuracy']:.5f} / {p['completeness']:.5f} ({p['scans']} scans) |"
+        )
+    r1 = result["ratio_procedural_over_apollo_on_apollo_test"]
+    r2 = result["ratio_apollo_over_procedural_on_procedural_test"]
+    lines += ["", f"Ratio on the ApolloScape test cars (procedural-trained / ApolloScape-trained accuracy): **{r1:.2f}x** "
+              f"(bar {result['bar']}x); on the held-out procedural cars (ApolloScape-trained / procedural-trained): {r2:.2f}x."]  # fmt: skip
+    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":
