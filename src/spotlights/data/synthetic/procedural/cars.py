@@ -14,8 +14,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .mesh import ARCH_GAP, box, loft_body, wheel_pair
+from .mesh import ARCH_GAP, box, loft_body, wheel_house, wheel_pair
 from .params import MIRROR, VehicleParams
+
+FLOOR_ABOVE_CLEARANCE = 0.08  # m: the body's floor above the published ground clearance (its lowest point)
+CABIN = (0.20, 0.35)  # m: how far inside the pillars a side window's surface lies (the cabin through open glass)
 
 
 def _car_top(p: VehicleParams, nose: float) -> tuple[list, float, float]:
@@ -94,8 +97,9 @@ def _profile(p: VehicleParams) -> dict:
         roof = 0.88 + 0.06 * f[8]
         glass_end = L - 0.25 if b == "minibus" else screen + 0.12 * L
         rise = 0.0
-    floor = [(0, cl + 0.24), (0.12, cl + 0.12), (0.35, cl + 0.02), (0.6, cl), (L - 0.7, cl), (L - 0.3, cl + 0.08),
-             (L - 0.1, cl + 0.16), (L, cl + 0.24)]  # fmt: skip
+    fl = cl + FLOOR_ABOVE_CLEARANCE
+    floor = [(0, fl + 0.2), (0.12, fl + 0.1), (0.35, fl + 0.02), (0.6, fl), (L - 0.7, fl), (L - 0.3, fl + 0.06),
+             (L - 0.1, fl + 0.12), (L, fl + 0.2)]  # fmt: skip
     belt_pts = [(0, belt - 0.01 * H), (cowl, belt), (L, belt + rise)]
     return {"top": top, "floor": floor, "belt": belt_pts, "roof": roof, "cowl": cowl, "glass_end": glass_end}
 
@@ -133,7 +137,8 @@ def passenger(p: VehicleParams) -> list:
     boxy = {"van": (6.0, 3.0), "minibus": (6.0, 3.0), "pickup": (5.0, 5.0)}.get(p.body, (4.0, 3.0))
     parts += [
         loft_body(0.0, L, pr["top"], pr["floor"], pr["belt"], half, half * pr["roof"], [sf, sr], arch, x_of,
-                  corners=corners, n_low=boxy[0], n_up=boxy[1], windows=windows)
+                  corners=corners, n_low=boxy[0], n_up=boxy[1], windows=windows,
+                  recess=CABIN[0] + (CABIN[1] - CABIN[0]) * f[9])
     ]  # fmt: skip
     if p.variant:
         s_m = pr["cowl"] + 0.22
@@ -144,6 +149,7 @@ def passenger(p: VehicleParams) -> list:
     tyre = (0.21 + 0.04 * f[4]) if p.body in ("van", "minibus") else 0.19 + 0.07 * f[4]
     for s in (sf, sr):
         parts += wheel_pair(x_of(s)[()], half, tyre, r)
+        parts.append(wheel_house(x_of(s)[()], r, arch, p.clearance + FLOOR_ABOVE_CLEARANCE, half - tyre - 0.05))
     return parts
 
 

@@ -111,8 +111,9 @@ def smooth(points, s: np.ndarray) -> np.ndarray:
 def _sections(zf, zb, zt, w, wt, glass, n_low: float, n_up: float) -> np.ndarray:
     """(S, K, 2) cross-sections: a lower body from the floor ``zf`` to the beltline ``zb``
     (half-width ``w``, superellipse exponent ``n_low``) and an upper part from ``zb`` to the top
-    ``zt`` leaning in to half-width ``wt`` at the top (tumblehome; rounded by ``n_up``); upper
-    points of stations with ``glass`` lie :data:`GLASS_RECESS` further in."""
+    ``zt`` leaning in to half-width ``wt`` at the top (tumblehome; rounded by ``n_up``); the upper
+    points between the sill and the roof rail of a station lie ``glass`` (m, per station) further
+    in (at most to 30% of their half-width)."""
     tl = np.linspace(np.pi / 2, 0.0, N_LOWER + 1)[1:]  # bottom centre excluded ... beltline
     tu = np.linspace(0.0, np.pi / 2, N_UPPER + 1)[1:]  # above the beltline ... roof centre
     cl, sl = np.cos(tl) ** (2 / n_low), np.sin(tl) ** (2 / n_low)
@@ -123,7 +124,7 @@ def _sections(zf, zb, zt, w, wt, glass, n_low: float, n_up: float) -> np.ndarray
     yu = (w[:, None] - (w - wt)[:, None] * su) * cu
     zu = zb[:, None] + (zt - zb)[:, None] * su
     band = (su > 0.08) & (su < 0.8)
-    yu = yu - GLASS_RECESS * glass[:, None] * band[None, :]
+    yu = np.where(band[None, :], np.maximum(yu - glass[:, None], 0.3 * yu), yu)
     right_y = np.concatenate([np.zeros((len(w), 1)), yl, yu], axis=1)
     right_z = np.concatenate([zf[:, None], zl, zu], axis=1)
     y = np.concatenate([right_y, -right_y[:, -2:0:-1]], axis=1)
@@ -147,6 +148,7 @@ def loft_body(
     n_low: float = 4.0,
     n_up: float = 3.0,
     windows=(),
+    recess: float = GLASS_RECESS,
     step: float = 0.1,
 ) -> tuple[np.ndarray, np.ndarray]:
     """A lofted body from ``s0`` to ``s1`` (distance from the front, m).
@@ -158,7 +160,9 @@ def loft_body(
         or more above it the section has a
         greenhouse of half-width ``roof_half`` at the top (tumblehome), else a crowned lid.
     half : half-width (m) of the body; the plan view is a rectangle with rounded corners of radii
-        ``corners`` (front, rear) m. windows : (s_a, s_b) spans whose side glass is recessed.
+        ``corners`` (front, rear) m. windows : (s_a, s_b) spans whose side glass lies ``recess``
+        m inside the pillars (:data:`GLASS_RECESS`; passenger bodies: the cabin seen through an open
+        window).
     """
     rf, rr = corners
     stations = [np.arange(s0, s1, step), [s1], np.array(top)[:, 0], np.array(floor)[:, 0]]
@@ -193,7 +197,19 @@ def loft_body(
     for a, b in windows:
         glass[(s >= a) & (s <= b)] = 1.0
     glass[[0, -1]] = 0.0
-    return loft(x_of(s), _sections(zf, zb, zt, w, wt, glass * green, n_low, n_up))
+    return loft(x_of(s), _sections(zf, zb, zt, w, wt, recess * glass * green, n_low, n_up))
+
+
+def wheel_house(x: float, r: float, arch: float, floor: float, half_gap: float) -> tuple[np.ndarray, np.ndarray]:
+    """The inside of a wheel arch between the wheels of one axle at x: a solid from ``floor`` up to
+    the arch (radius ``arch`` - 1 cm about the axle at height ``r``), for |y| <= ``half_gap``, so
+    that the arch is a wheel well at each side, not a tunnel across the car (a tombstone-shaped
+    section lofted along y)."""
+    a = arch - 0.01
+    t = np.linspace(np.pi, 0.0, 15)
+    ring = np.concatenate([[[x - a, floor]], np.column_stack([x + a * np.cos(t), r + a * np.sin(t)]), [[x + a, floor]]])
+    v, f = loft(np.array([-half_gap, half_gap]), np.stack([ring, ring]))
+    return outward(v[:, [1, 0, 2]], f)
 
 
 def wheel_pair(x: float, half: float, tyre: float, r: float) -> list:
