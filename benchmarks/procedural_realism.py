@@ -157,8 +157,11 @@ def write(args, scores: dict, runs: dict, cpu: dict, views: dict) -> None:
     train = {}
     for name, run in runs.items():
         rows = curve(run)
+        best = min(rows, key=lambda r: r["val_chamfer_l1"])  # best.pt: the project's selection by validation CD-L1
         train[name] = {
             "steps": rows[-1]["step"],
+            "best_epoch": best["epoch"],
+            "best_step": best["step"],
             "train_seconds_wall": round(sum(r["seconds"] for r in rows), 1),
             "views_per_car": views[name],
             "curve": rows,
@@ -188,15 +191,15 @@ def markdown(result: dict) -> str:
     """The study's table: accuracy (completeness) of both models on both test splits, the ratios."""
     sc, tr = result["scores"], result["training"]
     lines = [
-        "| trained on | steps | curve flat (gain over the last 4 epochs) | ApolloScape test cars: accuracy / completeness"
-        " | held-out procedural cars: accuracy / completeness |",
+        "| trained on | steps (best.pt at) | curve flat (gain over the last 4 epochs) | ApolloScape test cars: accuracy"
+        " / completeness | held-out procedural cars: accuracy / completeness |",
         "|---|---|---|---|---|",
     ]
     for name in ("apollo", "procedural"):
         a, p, t = sc[f"{name}_on_apollo"], sc[f"{name}_on_procedural"], tr[name]
         flat = f"{'yes' if t['flat'] else 'no'} ({100 * t['gain_last_epochs']:.1f}%)"
         lines.append(
-            f"| {name} | {t['steps']} | {flat} | {a['accuracy']:.5f} / {a['completeness']:.5f} ({a['scans']} scans)"
+            f"| {name} | {t['steps']} ({t['best_step']}) | {flat} | {a['accuracy']:.5f} / {a['completeness']:.5f} ({a['scans']} scans)"
             f" | {p['accuracy']:.5f} / {p['completeness']:.5f} ({p['scans']} scans) |"
         )
     r1 = result["ratio_procedural_over_apollo_on_apollo_test"]
