@@ -5,8 +5,11 @@ cars in metres; the Kenney vehicles at the packaged manifest's scale 1.8, toys w
 sizes mean little, so compare their ratios): the box's length, width and height (m), the height
 over the length, and the **roof line**: the height of the top surface (first hit of a ray straight
 down at y = 0, or at y = +-W/4 where y = 0 misses) at 9 stations from 10% to 90% of the length
-from the front, as a fraction of the box height. Per group: quantiles (min, 10%, median, 90%,
-max) and the mean roof line. Also the generation speed (process CPU time of ``generate_vehicle``,
+from the front, as a fraction of the box height; the share of side rays (at 0.8 of the height,
+through the middle 30% of the length) that go more than 0.25 m into the box (open windows), and the
+median height of the underside at y = 0. Per group: quantiles (min, 10%, median, 90%, max), the
+mean roof line, the mean deep-ray share and how many meshes let more than half of them in, the
+median underside height. Also the generation speed (process CPU time of ``generate_vehicle``,
 one thread: run it with ``OMP_NUM_THREADS=1``) per body type. Writes ``--json`` and the Markdown
 table of ``--markdown``.
 
@@ -49,11 +52,24 @@ def measure(v: np.ndarray, f: np.ndarray) -> dict:
         z = hi[2] + 1.0 - t
         fill = np.isnan(z_top) & (face >= 0)
         z_top[fill] = z[fill]
+    # side rays (along -y) at 0.8 of the height through the middle 30% of the length: how many go
+    # more than 0.25 m into the box (through a window with no glass, or a deep recess)
+    xs = np.linspace(lo[0] + 0.35 * size[0], lo[0] + 0.65 * size[0], 20)
+    o = np.column_stack([xs, np.full(20, hi[1] + 1.0), np.full(20, lo[2] + 0.8 * size[2])])
+    t, face = caster.first_hit(o, np.tile([0.0, -1.0, 0.0], (20, 1)))
+    deep = np.where(face >= 0, t - 1.0, np.inf) > 0.25
+    # the underside at y = 0 (rays up from below over 10-90% of the length): its median height (m)
+    xs = np.linspace(lo[0] + 0.1 * size[0], hi[0] - 0.1 * size[0], 30)
+    o = np.column_stack([xs, np.full(30, (lo[1] + hi[1]) / 2), np.full(30, lo[2] - 1.0)])
+    t, face = caster.first_hit(o, np.tile([0.0, 0.0, 1.0], (30, 1)))
+    under = np.where(face >= 0, t - 1.0, np.nan)
     return {
         "length": float(size[0]),
         "width": float(size[1]),
         "height": float(size[2]),
         "roof": ((z_top - lo[2]) / size[2]).tolist(),
+        "side_rays_deep": float(deep.mean()),
+        "underside": float(np.nanmedian(under)) if np.isfinite(under).any() else float("nan"),
     }
 
 
@@ -90,6 +106,12 @@ def summarise(items: list[dict]) -> dict:
     res["height_over_length"] = {"median": round(float(np.median(hl)), 3)}
     roof = np.array([it["roof"] for it in items], dtype=np.float64)
     res["roof_line"] = [round(float(x), 3) for x in np.nanmean(roof, axis=0)]
+    deep = np.array([it["side_rays_deep"] for it in items])
+    res["side_rays_deeper_than_25cm"] = {
+        "mean": round(float(deep.mean()), 3),
+        "meshes_over_half": int((deep > 0.5).sum()),
+    }
+    res["underside_median_m"] = round(float(np.nanmedian([it["underside"] for it in items])), 3)
     return res
 
 
@@ -97,13 +119,18 @@ def markdown(stats: dict) -> str:
     """One table: a row per group (class / source or body), median and 10-90% of L, W, H, and
     the mean roof line at 10%, 30%, 50%, 70%, 90% of the length."""
     lines = [
-        "| group | n | length m: median (10-90%) | width m | height m | H/L | roof line at 10/30/50/70/90% (x H) |",
-        "|---|---|---|---|---|---|---|",
+        "| group | n | length m: median (10-90%) | width m | height m | H/L | roof line at 10/30/50/70/90% (x H) "
+        "| side rays > 25 cm in (meshes > half) | underside m |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for name, s in stats.items():
         cells = [f"{s[k]['median']:.2f} ({s[k]['p10']:.2f}-{s[k]['p90']:.2f})" for k in ("length", "width", "height")]
         roof = " / ".join(f"{s['roof_line'][i]:.2f}" for i in (0, 2, 4, 6, 8))
-        lines.append(f"| {name} | {s['n']} | {' | '.join(cells)} | {s['height_over_length']['median']:.3f} | {roof} |")
+        deep = s["side_rays_deeper_than_25cm"]
+        lines.append(
+            f"| {name} | {s['n']} | {' | '.join(cells)} | {s['height_over_length']['median']:.3f} | {roof} "
+            f"| {deep['mean']:.2f} ({deep['meshes_over_half']}) | {s['underside_median_m']:.2f} |"
+        )
     return "\n".join(lines) + "\n"
 
 
