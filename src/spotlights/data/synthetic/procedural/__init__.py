@@ -13,9 +13,11 @@ Every vehicle is a few disjoint closed components, concatenated (no boolean oper
 interior faces): **lofted shells** through smooth cross-sections (superellipses below the
 beltline; above it the sides lean in to the roof's width, rounded at the roof's edges) along a
 smooth side profile (monotone cubic through the nose, bonnet, windscreen, roof, rear window and
-boot, hatch or bed), plan-view corners rounded, side glass recessed 1.5 cm between the pillars,
-the floor rising over every wheel into a **wheel arch** (a circular tunnel of radius
-``wheel radius + 4 cm``); boxes (cargo boxes, trailer bodies, frames, bed walls, landing legs,
+boot, hatch or bed), plan-view corners rounded, side glass recessed between the pillars (1.5 cm
+on cabs and buses; 0.20-0.35 m on passenger bodies: the cabin as rays see it through the open
+windows of the ApolloScape meshes), the floor rising over every wheel into a **wheel arch** (a
+circular tunnel of radius ``wheel radius + 4 cm``, closed between the wheels of a passenger body
+by a wheel house); boxes (cargo boxes, trailer bodies, frames, bed walls, landing legs,
 fifth wheels, door mirrors), tanks and **wheels** (20-sided cylinders along y, tyre bottoms on the
 ground, inside the body's width). Components are 1-10 cm apart, so the concatenation is watertight
 (every edge in exactly two faces: every ray that enters leaves), wound outward, of positive volume.

@@ -4,8 +4,11 @@ Each body is one lofted shell (:func:`~.mesh.loft_body`) whose side profile is a
 through control points - nose, bonnet, cowl (windscreen base), windscreen top, roof, the rear
 window's or hatch's base, boot lid and tail - drawn as fractions of the length and height from
 the vehicle's shape fractions; the cross-sections are superellipses below the beltline and lean
-in above it (tumblehome) to the roof's width, with rounded edges; side glass is recessed between
-the pillars. Four wheels stand in wheel arches; door mirrors (variant 1) stand 1 cm off the body
+in above it (tumblehome) to the roof's width, with rounded edges; the side windows are open onto a
+cabin surface :data:`CABIN` m inside the pillars (the ApolloScape meshes have no side glass: rays
+through their windows meet the cabin). Four wheels stand in wheel arches, a wheel house between the
+two wheels of an axle (a well at each side, no tunnel across; the floor :data:`FLOOR_ABOVE_CLEARANCE`
+above the published ground clearance, which is the lowest point); door mirrors (variant 1) stand 1 cm off the body
 and reach the box's width (the body is then 0.2 m narrower). A pickup's bed is open: a floor
 in the shell, two side walls and a tailgate as separate boxes.
 """
