@@ -28,8 +28,10 @@ REAL = {
     "sedan": ("apolloscape-cars/sedan/aodi-a6.ply", "z", "x", 1.0),
     "hatchback": ("apolloscape-cars/hatchback/baojun-310-2017.ply", "z", "x", 1.0),
     "suv": ("apolloscape-cars/suv/019-SUV.ply", "z", "x", 1.0),
+    "coupe": ("kenney-vehicles/sedan-sports.glb", "y", "z", 1.8),
     "pickup": ("kenney-vehicles/truck.glb", "y", "z", 1.8),
     "van": ("kenney-vehicles/van.glb", "y", "z", 1.8),
+    "minibus": ("kenney-vehicles/ambulance.glb", "y", "z", 1.8),
     "box_truck": ("kenney-vehicles/garbage-truck.glb", "y", "z", 1.8),
 }
 
@@ -60,8 +62,8 @@ def main() -> None:
     bodies = args.bodies.split(",")
     n = args.per_body
     cols = n + 1
-    fig = new_figure(2.3 * cols, 1.45 * len(bodies), layout=None)
-    fig.subplots_adjust(0.01, 0.01, 0.99, min(0.955, 1 - 0.5 / (1.45 * len(bodies))), 0.02, 0.3)
+    fig = new_figure(2.6 * cols, 1.6 * len(bodies), layout=None)
+    fig.subplots_adjust(0.01, 0.01, 0.99, min(0.955, 1 - 0.5 / (1.6 * len(bodies))), 0.02, 0.25)
     elev, azim = 20.0, -60.0
     for r, body in enumerate(bodies):
         meshes = []
@@ -73,11 +75,11 @@ def main() -> None:
             v, f, label = real
             size = v.max(0) - v.min(0)
             meshes.append((v, f, f"real: {label} {size[0]:.1f}x{size[1]:.2f}x{size[2]:.2f}"))
-        half = max(float(v.max(0)[0] - v.min(0)[0]) for v, _, _ in meshes) / 2 * 0.95
+        half = max(float(v.max(0)[0] - v.min(0)[0]) for v, _, _ in meshes) / 2
         for c, (v, f, label) in enumerate(meshes):
             ax = fig.add_subplot(len(bodies), cols, r * cols + c + 1)
             centre = (v.min(0) + v.max(0)) / 2
-            rgba, extent = shade_mesh(v - centre, f, elev, azim, size=260, center=np.zeros(3), half=half)
+            rgba, extent = shade_mesh(v - centre, f, elev, azim, size=320, center=np.zeros(3), half=half)
             ax.imshow(rgba, extent=extent, interpolation="antialiased", origin="upper")
             ax.set_xticks([])
             ax.set_yticks([])

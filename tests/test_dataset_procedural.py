@@ -13,7 +13,7 @@ import trimesh
 from spotlights.data.store import open_dataset
 from spotlights.data.synthetic import BuildConfig, add_rig, build_dataset, parse_rig
 from spotlights.data.synthetic.catalogue import model_key
-from spotlights.data.synthetic.procedural import DIMENSIONS, generate_vehicle, mesh_digest
+from spotlights.data.synthetic.procedural import box_range, generate_vehicle, mesh_digest
 from spotlights.geometry.encode import encode_mesh
 
 from helpers import assert_user_error, run_cli
@@ -53,9 +53,9 @@ def test_procedural_build_stores_the_class_of_every_sample(built):
         # two vehicles per class, body types taking turns through the class's bodies
         expect = {
             "car": ["sedan", "hatchback"],
-            "caravan": ["van", "van"],  # asked for as "van"
+            "caravan": ["van", "minibus"],  # asked for as "van"
             "truck": ["box_truck", "semi_tractor"],
-            "bus": ["bus", "bus"],
+            "bus": ["bus", "articulated_bus"],
             "trailer": ["trailer_box", "trailer_flatbed"],
         }
         names = [f"procedural/{c}/{b}-{i:04d}" for c, bodies in expect.items() for i, b in enumerate(bodies)]
@@ -69,7 +69,7 @@ def test_procedural_build_stores_the_class_of_every_sample(built):
         for m, name in enumerate(ds.names):
             body = ds.categories[m]
             for k, key in enumerate(("length", "width", "height")):
-                lo, hi = DIMENSIONS[body][key]
+                lo, hi = box_range(body, key)
                 assert lo - 1e-9 <= ds.size[m][k] <= hi + 1e-9
             # the documented seed: SeedSequence(seed, spawn_key=(model_key(name), 7)); the mesh's bytes hashed
             v, f, _ = generate_vehicle(body, np.random.SeedSequence(4, spawn_key=(model_key(str(name)), 7)))

@@ -11,6 +11,7 @@ from spotlights.data.synthetic.procedural import (
     BODY_TYPES,
     CLASS_BODIES,
     DIMENSIONS,
+    box_range,
     draw_params,
     generate_vehicle,
     mesh_digest,
@@ -37,7 +38,8 @@ def test_dimensions_inside_stated_ranges(body):
         size = v.max(axis=0) - v.min(axis=0)
         sizes.append(size)
         for k, x in zip(("length", "width", "height"), size):
-            assert d[k][0] - 1e-9 <= x <= d[k][1] + 1e-9, (body, seed, k, x)
+            lo, hi = box_range(body, k)  # the width of a passenger body with door mirrors: + 0.2 m
+            assert lo - 1e-9 <= x <= hi + 1e-9, (body, seed, k, x)
         # the box is exactly the drawn one, centred on the origin (the object frame of the project)
         np.testing.assert_allclose(size, [p.length, p.width, p.height], atol=1e-9)
         np.testing.assert_allclose(v.max(axis=0) + v.min(axis=0), 0.0, atol=1e-9)
@@ -49,7 +51,7 @@ def test_dimensions_inside_stated_ranges(body):
     sizes = np.array(sizes)
     # the draws spread over the ranges (not one fixed size)
     for k, name in enumerate(("length", "width", "height")):
-        lo, hi = d[name]
+        lo, hi = box_range(body, name)
         assert sizes[:, k].max() - sizes[:, k].min() > 0.5 * (hi - lo)
     assert max(d["width"][1] for d in DIMENSIONS.values()) <= 2.55
     assert max(d["height"][1] for d in DIMENSIONS.values()) <= 4.1
@@ -193,3 +195,144 @@ def test_short_trailers_have_a_drawbar_and_no_landing_gear(body):
             long += 1
             assert (face >= 0).any(), (seed, p)
     assert short >= 3 and long >= 3
+
+
+def _crossings(v: np.ndarray, f: np.ndarray, origins: np.ndarray, dirs: np.ndarray) -> list[np.ndarray]:
+    """Brute-force Moller-Trumbore: for every ray, the signs of dot(face normal, direction) of all
+    the faces it crosses (t > 0), in order along the ray (-1: entering, +1: leaving)."""
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    e1, e2 = b - a, c - a
+    normal = np.cross(e1, e2)
+    out = []
+    for o, d in zip(origins, dirs):
+        p = np.cross(d, e2)
+        det = np.einsum("ij,ij->i", e1, p)
+        ok = np.abs(det) > 1e-14
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+        s = o - a
+        u = np.einsum("ij,ij->i", s, p) * inv
+        q = np.cross(s, e1)
+        w = (q @ d) * inv
+        t = np.einsum("ij,ij->i", e2, q) * inv
+        hit = ok & (u >= 0) & (w >= 0) & (u + w <= 1) & (t > 0)
+        order = np.argsort(t[hit])
+        out.append(np.sign(normal[hit] @ d)[order])
+    return out
+
+
+@pytest.mark.parametrize("body", BODY_TYPES)
+def test_every_ray_that_enters_leaves(body):
+    """Lines in random directions through random points of the box (brute force, every face):
+    the crossings alternate enter, leave, enter, leave ... and end leaving (closed, outward, no
+    overlapping components)."""
+    rng = np.random.default_rng(11)
+    for seed in (0, 1):
+        v, f, p = generate_vehicle(body, seed)
+        half = np.array([p.length, p.width, p.height]) / 2
+        targets = rng.uniform(-half, half, size=(40, 3))
+        dirs = rng.normal(size=(40, 3))
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+        origins = targets - 40.0 * dirs
+        n_hit = 0
+        for signs in _crossings(v, f, origins, dirs):
+            assert len(signs) % 2 == 0, (body, seed, signs)
+            assert np.all(signs[0::2] < 0) and np.all(signs[1::2] > 0), (body, seed, signs)
+            n_hit += len(signs) > 0
+        assert n_hit >= 10
+
+
+def _slab_hits(caster: RayCaster, axis: int, level: float, half: np.ndarray, n: int = 60) -> int:
+    """How many of n x 3 lines inside the plane {x[axis] = level} hit the mesh: lines along the
+    next axis at a grid of positions along the other, spanning the box (+ 1 m)."""
+    a1, a2 = (axis + 1) % 3, (axis + 2) % 3
+    hits = 0
+    for sweep, across in ((a1, a2), (a2, a1)):
+        grid = np.linspace(-half[across], half[across], n)
+        o = np.zeros((n, 3))
+        o[:, axis] = level
+        o[:, across] = grid
+        o[:, sweep] = -half[sweep] - 1.0
+        d = np.zeros((n, 3))
+        d[:, sweep] = 1.0
+        _, face = caster.first_hit(o, d)
+        hits += int((face >= 0).sum())
+    return hits
+
+
+@pytest.mark.parametrize("body", BODY_TYPES)
+def test_the_box_faces_touch_the_mesh_and_nothing_lies_beyond(body):
+    """The stated box (the drawn length, width, height, centred): lines in the planes 1 mm outside
+    each of its six faces hit nothing; lines in the planes 2.5 cm inside hit the mesh."""
+    for seed in (0, 1, 2):
+        v, f, p = generate_vehicle(body, seed)
+        half = np.array([p.length, p.width, p.height]) / 2
+        caster = RayCaster(v, f)
+        for axis in range(3):
+            for sign in (1.0, -1.0):
+                assert _slab_hits(caster, axis, sign * (half[axis] + 1e-3), half) == 0, (body, seed, axis, sign)
+                assert _slab_hits(caster, axis, sign * (half[axis] - 0.025), half) > 0, (body, seed, axis, sign)
+
+
+def test_long_vehicles_reach_twenty_metres():
+    """Articulated trucks span 13.5-20.0 m (a US conventional tractor with a 53 ft semi-trailer at the
+    top), their semi-trailer the rest; articulated buses 17.5-18.75 m (EU 96/53/EC). A ray along -x at
+    cab height from ahead of a 16-20 m truck first meets its cab's front at x = +L/2, one from behind
+    at the trailer's mid height its rear at -L/2."""
+    lengths = []
+    for seed in range(40):
+        v, f, p = generate_vehicle("articulated_truck", seed)
+        lengths.append(p.length)
+        assert 13.5 <= p.length <= 20.0
+        if p.length < 16.0:
+            continue
+        size = v.max(0) - v.min(0)
+        assert size[0] == pytest.approx(p.length, abs=1e-9)
+        z = -p.height / 2 + p.clearance + 0.4
+        # the semi-trailer's floor (a tank's bottom) rests at 2 r + 0.48 m; its top (a tank's) is at
+        # most 0.1 m below the height: the middle between them is the rear's most rearward point
+        z_rear = -p.height / 2 + (2 * p.wheel_radius + 0.48 + p.height - 0.1) / 2
+        t, face = RayCaster(v, f).first_hit(
+            np.array([[p.length, 0.0, z], [-p.length, 0.0, z_rear]]), np.array([[-1.0, 0, 0], [1.0, 0, 0]])
+        )
+        assert np.all(face >= 0)
+        np.testing.assert_allclose([p.length - t[0], -p.length + t[1]], [p.length / 2, -p.length / 2], atol=1e-5)
+    assert max(lengths) > 19.5 and sum(x >= 16.0 for x in lengths) >= 10
+    buses = [generate_vehicle("articulated_bus", s)[2].length for s in range(10)]
+    assert min(buses) >= 17.5 and max(buses) <= 18.75
+
+
+def test_new_bodies_have_their_features():
+    """A pickup stays open; a coupe is lower than a sedan of the same seed's range; a tanker's top
+    at mid length is its catwalk at the stated height; door mirrors (variant 1) widen a passenger
+    body's box by 0.2 m beyond the body drawn from the published range."""
+    v, f, p = generate_vehicle("trailer_tanker", 0)
+    t, face = RayCaster(v, f).first_hit(np.array([[0.0, 0.0, 10.0]]), np.array([[0, 0, -1.0]]))
+    assert face[0] >= 0 and 10.0 - t[0] == pytest.approx(p.height / 2, abs=1e-5)
+    assert max(DIMENSIONS["coupe"]["height"]) < max(DIMENSIONS["sedan"]["height"])
+    mirrors = 0
+    for seed in range(20):
+        p = draw_params("sedan", seed)
+        lo, hi = DIMENSIONS["sedan"]["width"]
+        body = p.width - 0.2 * p.variant
+        assert lo - 1e-9 <= body <= hi + 1e-9
+        mirrors += p.variant
+    assert 10 <= mirrors <= 20  # 80% of passenger bodies have mirrors
+
+
+@pytest.mark.timeout(300)
+def test_dataset_build_same_bytes_with_one_or_two_workers(tmp_path):
+    """A tiny dataset build of every car body and every trailer body (6 + 3 procedural vehicles, one
+    view each): the same file's bytes with 1 and 2 workers."""
+    import hashlib
+
+    from spotlights.data.synthetic import BuildConfig, build_dataset
+
+    cfg = BuildConfig(
+        procedural={"count": 6, "classes": ["car"]}, views=1, split="4/1/1", seed=3, gt_points=32, gt_dense=64
+    )
+    digests = []
+    for workers in (1, 2):
+        out = tmp_path / f"w{workers}.h5"
+        build_dataset(cfg, out, workers=workers, block=1, progress=False, log=lambda m: None)
+        digests.append(hashlib.sha256(out.read_bytes()).hexdigest())
+    assert digests[0] == digests[1]

@@ -15,13 +15,14 @@ import numpy as np
 #: detector class -> procedural body types drawn for it, in round-robin order. Pickups are in both car
 #: and truck: nuScenes labels pickups ``vehicle.truck``, Argoverse 2 ``REGULAR_VEHICLE`` and KITTI ``Car``.
 #: Vehicle ``i`` of a class is body ``i % len(bodies)``: a body appended to a class changes which body (and
-#: name, hence seed) the indices from ``len(bodies)`` on draw (``articulated_truck`` was appended to truck).
+#: name, hence seed) the indices from ``len(bodies)`` on draw (``articulated_truck`` was appended to truck;
+#: coupe, estate, minibus, articulated_bus and trailer_tanker to their classes).
 CLASS_BODIES: dict[str, tuple[str, ...]] = {
-    "car": ("sedan", "hatchback", "suv", "pickup"),
-    "caravan": ("van",),
+    "car": ("sedan", "hatchback", "suv", "pickup", "coupe", "estate"),
+    "caravan": ("van", "minibus"),
     "truck": ("box_truck", "semi_tractor", "pickup", "articulated_truck"),
-    "bus": ("bus",),
-    "trailer": ("trailer_box", "trailer_flatbed"),
+    "bus": ("bus", "articulated_bus"),
+    "trailer": ("trailer_box", "trailer_flatbed", "trailer_tanker"),
 }
 #: the classes the procedural generator makes: the one class vocabulary of the models (a class-conditioned
 #: SA-Net's ``classes``); every reader's labels map onto these (``data.real.boxfiles.CLASS_MAP`` merges the
@@ -38,19 +39,23 @@ CATEGORY_CLASS: dict[str, str] = {
     "suv": "car",
     "coupe": "car",
     "wagon": "car",
+    "estate": "car",
     "pickup": "car",
     "race": "car",
     "car": "car",
     "van": "caravan",
     "caravan": "caravan",
+    "minibus": "caravan",
     "truck": "truck",
     "box_truck": "truck",
     "semi_tractor": "truck",
     "articulated_truck": "truck",
     "bus": "bus",
+    "articulated_bus": "bus",
     "trailer": "trailer",
     "trailer_box": "trailer",
     "trailer_flatbed": "trailer",
+    "trailer_tanker": "trailer",
 }
 
 

@@ -147,8 +147,9 @@ class BuildRequest:
         default=None,
         group=PROCEDURAL,
         metavar="LIST",
-        help="classes of --procedural (the real readers' names): car (sedan, hatchback, SUV, pickup), van (stored "
-        "as caravan), truck (box truck, semi-tractor, pickup), bus, trailer (box, flatbed); default all (an empty list is refused)",
+        help="classes of --procedural (the real readers' names): car (sedan, hatchback, SUV, pickup, coupe, estate), "
+        "van (van, minibus; stored as caravan), truck (box truck, semi-tractor, pickup, articulated truck up to 20 m), "
+        "bus (rigid, articulated), trailer (box, flatbed, tanker); default all (an empty list is refused)",
     )
     procedural_split: str | None = option(
         default=None,
