@@ -256,9 +256,11 @@ class Identity:
         return [p.copy() for p in partials]
 
 
-def tracked_scene(tmp_path):
-    """Two frames of one sequence: a car (track 'a') and a van (track 'v') that move; a car seen once."""
-    rng = np.random.default_rng(5)
+def tracked_scene(tmp_path, points_per_car: int = 150, seed: int = 5, seen_once: bool = True):
+    """Two frames of one sequence: a car (track 'a') and a van (track 'v') that move, ``points_per_car`` each; with
+    ``seen_once`` a car seen in the first frame only; their observations as ``real extract`` gives them."""
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
     frames = []
     for f in range(2):
         pts, boxes = [rng.uniform(-50, 50, (200, 3)) + [0, 0, 30]], []
@@ -266,11 +268,11 @@ def tracked_scene(tmp_path):
             ("a", "Car", [10.0 + f, 2.0, -0.8], [4.2, 1.8, 1.5]),
             ("v", "Van", [-8.0, 6.0 - f, -0.6], [5.0, 2.0, 2.0]),
         ):
-            obj = rng.uniform(-0.5, 0.5, (150, 3)) * size
+            obj = rng.uniform(-0.5, 0.5, (points_per_car, 3)) * size
             obj[:, 2] = np.abs(obj[:, 2])
             pts.append(obj + c)
             boxes.append({"center": c, "size": size, "yaw": 0.0, "label": label, "track_id": tid})
-        if f == 0:
+        if f == 0 and seen_once:
             pts.append(rng.uniform(-0.5, 0.5, (80, 3)) * [4, 1.8, 1.4] + [0, -10, -0.8])
             boxes.append(
                 {"center": [0, -10, -0.8], "size": [4, 1.8, 1.4], "yaw": 0.0, "label": "Car", "track_id": "once"}

@@ -272,7 +272,7 @@ def test_noise_floor_equal_points_and_heading_flips(tmp_path):
     ident, ell = rep["models"]
     assert ident["average"]["noise_floor"] == pytest.approx(0.0, abs=1e-12)  # same points, other repeats
     # more points than inputs: keep 1000 per car
-    obs2 = tracked_scene_dense(tmp_path / "dense")
+    obs2 = tracked_scene(tmp_path / "dense", points_per_car=1000, seed=6, seen_once=False)  # inputs: 256-point subsets
     rep = evaluate_consistency(obs2, [Identity(), Ellipsoid()], progress=False, equal_points=64)
     ident, ell = rep["models"]
     rows = [i for i, t in enumerate(obs2.track_id) if t in ("a", "v")]
@@ -313,24 +313,3 @@ def test_noise_floor_equal_points_and_heading_flips(tmp_path):
     write_report(rep, tmp_path / "r")
     text = (tmp_path / "r.md").read_text()
     assert "Noise floor @64" in text and "Heading flips" in text and "CD @voxel 0.1" in text
-
-
-def tracked_scene_dense(tmp_path):
-    """tracked_scene with 1000 points per car (inputs are 256-point subsets)."""
-    tmp_path.mkdir(parents=True, exist_ok=True)
-    rng = np.random.default_rng(6)
-    frames = []
-    for f in range(2):
-        pts, boxes = [rng.uniform(-50, 50, (200, 3)) + [0, 0, 30]], []
-        for tid, label, c, size in (
-            ("a", "Car", [10.0 + f, 2.0, -0.8], [4.2, 1.8, 1.5]),
-            ("v", "Van", [-8.0, 6.0 - f, -0.6], [5.0, 2.0, 2.0]),
-        ):
-            obj = rng.uniform(-0.5, 0.5, (1000, 3)) * size
-            obj[:, 2] = np.abs(obj[:, 2])
-            pts.append(obj + c)
-            boxes.append({"center": c, "size": size, "yaw": 0.0, "label": label, "track_id": tid})
-        np.save(tmp_path / f"s{f}.npy", np.concatenate(pts).astype(np.float32))
-        frames.append({"scan": f"s{f}.npy", "timestamp": f, "sequence": "seq", "boxes": boxes})
-    (tmp_path / "scene.json").write_text(json.dumps({"frames": frames}))
-    return extract(open_reader(tmp_path / "scene.json", "generic"), ExtractConfig(), progress=False)
