@@ -57,8 +57,8 @@ from spotlights.data.real.nuscenes import NuScenesReader
 from spotlights.data.tracks import parse_window
 from spotlights.learning.inference import load_completer
 from spotlights.metrics.consistency import aggregate, fidelity, track_consistency
-from spotlights.tracking.detections import DetectionFrame, filter_detections
-from spotlights.tracking.simulate import DetectorModel, simulate_detections
+from spotlights.tracking.detections import filter_detections
+from spotlights.tracking.simulate import DetectorModel, nuscenes_ground_truth, simulate_detections
 from spotlights.tracking.tracker import track_boxes
 
 HERE = Path(__file__).resolve().parent
@@ -76,18 +76,6 @@ MODES = (
     "shape past:5 refined",
 )
 SAMPLE = 2048
-
-
-def ground_truth(reader) -> tuple[list[DetectionFrame], list[np.ndarray]]:
-    """The scene's keyframes as detection frames (annotated boxes, LIDAR_TOP frame, seconds) and each box's
-    ``num_lidar_pts`` (as ``benchmarks/tracker.py``)."""
-    frames, counts = [], []
-    for key in reader.frame_keys():
-        fr = reader.load(key)
-        rows = reader.annotations(key)
-        frames.append(DetectionFrame(fr.sequence, fr.frame_id, fr.timestamp * 1e-6, fr.boxes, fr.sensor_to_world))
-        counts.append(np.array([r.get("num_lidar_pts", 0) for r in rows], dtype=np.float64))
-    return frames, counts
 
 
 def sample(points: np.ndarray) -> np.ndarray:
@@ -149,7 +137,7 @@ def scores(rows: list) -> dict:
 def real_scene(args, completer, config) -> dict:
     base = NuScenesReader(Path(args.data))
     keys = base.frame_keys()
-    truth, counts = ground_truth(base)
+    truth, counts = nuscenes_ground_truth(base)
     model = DetectorModel()
     dets, _ = simulate_detections(truth, counts, model, seed=args.seed)
     dets, _ = filter_detections(dets, 0.0, CLASSES)

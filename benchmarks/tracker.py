@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 
 from spotlights.data.real.nuscenes import NuScenesReader
-from spotlights.tracking.detections import DetectionFrame, filter_detections
+from spotlights.tracking.detections import filter_detections
 from spotlights.tracking.evaluate import clear_mot
-from spotlights.tracking.simulate import DetectorModel, simulate_detections
+from spotlights.tracking.simulate import DetectorModel, nuscenes_ground_truth, simulate_detections
 from spotlights.tracking.tracker import TrackerConfig, track_boxes
 
 SHARED = Path(os.environ.get("SPOTLIGHTS_SHARED", Path(__file__).resolve().parents[2] / "shared")) / "data"
@@ -55,18 +55,6 @@ def cpu() -> dict:
     }
 
 
-def ground_truth(folder: Path) -> tuple[list[DetectionFrame], list[np.ndarray]]:
-    """The scene's keyframes: annotated boxes in the LIDAR_TOP frame, and each box's ``num_lidar_pts``."""
-    reader = NuScenesReader(folder)
-    frames, counts = [], []
-    for key in reader.frame_keys():
-        fr = reader.load(key)
-        rows = reader.annotations(key)
-        frames.append(DetectionFrame(fr.sequence, fr.frame_id, fr.timestamp * 1e-6, fr.boxes, fr.sensor_to_world))
-        counts.append(np.array([r.get("num_lidar_pts", 0) for r in rows], dtype=np.float64))
-    return frames, counts
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", default=str(NUSCENES), help="the nuScenes folder (default: the shared scene)")
@@ -77,7 +65,7 @@ def main() -> None:
     ap.add_argument("--json", required=True, help="results file")
     args = ap.parse_args()
 
-    truth_all, counts = ground_truth(Path(args.data))
+    truth_all, counts = nuscenes_ground_truth(NuScenesReader(Path(args.data)))
     model = DetectorModel()
     dets, truth = simulate_detections(truth_all, counts, model, seed=args.seed)
     dets, kept = filter_detections(dets, args.min_score)

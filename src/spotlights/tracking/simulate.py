@@ -143,3 +143,16 @@ def simulate_detections(
         out.sort(key=lambda b: -(b.score or 0.0))
         dets.append(replace(f, boxes=out, velocities=None))
     return dets, truth
+
+
+def nuscenes_ground_truth(reader) -> tuple[list[DetectionFrame], list[np.ndarray]]:
+    """A nuScenes reader's keyframes as detection frames to simulate a detector from: the annotated boxes
+    (LIDAR_TOP frame, metres), timestamps in seconds (the reader's microseconds), the sensor poses; and per frame
+    each box's ``num_lidar_pts`` as a (K,) float64 array (the point counts of :func:`simulate_detections`)."""
+    frames, counts = [], []
+    for key in reader.frame_keys():
+        fr = reader.load(key)
+        rows = reader.annotations(key)
+        frames.append(DetectionFrame(fr.sequence, fr.frame_id, fr.timestamp * 1e-6, fr.boxes, fr.sensor_to_world))
+        counts.append(np.array([r.get("num_lidar_pts", 0) for r in rows], dtype=np.float64))
+    return frames, counts
