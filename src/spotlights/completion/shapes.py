@@ -221,7 +221,10 @@ class TrackShapes:
                     prior = made
                 place_shape(o, box, prior)  # completed in the track's median size: shown in its own box
                 continue
-            place_shape(o, box, self.shape_at(key, pos))
+            shape = self.shape_at(key, pos)
+            if shape is None:  # a frame that makes no shape comes after the one that made it: a bug otherwise
+                raise RuntimeError(f"track {key}: no shape made before its frame {pos}")
+            place_shape(o, box, shape)
 
     def needed(self, hits: dict, completed: set) -> bool:
         """Whether a frame whose completed box indices are ``completed`` makes some track's shape (``real complete
