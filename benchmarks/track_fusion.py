@@ -328,7 +328,8 @@ def command_run(args) -> int:
     """One timed ``real complete`` (child of :func:`side_by_side`): prints a JSON line."""
     import torch
 
-    from spotlights.completion.frames import FramesSettings, complete_frames
+    from spotlights.completion.frame_selection import FramesSettings
+    from spotlights.completion.frames import complete_frames
 
     torch.set_num_threads(args.threads)
     has_worker = "track_worker" in {f.name for f in dataclasses.fields(FramesSettings)}  # an older checkout: none

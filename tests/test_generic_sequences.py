@@ -232,7 +232,7 @@ CLASHING_IDS = ["a", "../a", "汽车", "日本", "..", "frame", "x.1", "x.2", "B
 
 
 def test_frame_stems_are_distinct_readable_and_stable():
-    from spotlights.completion.frames import frame_stems
+    from spotlights.completion.frame_selection import frame_stems
 
     keys = [("", f) for f in CLASHING_IDS] + [("scene-0523", "smp0"), ("../scene-0523", "smp0"), ("s", "a")]
     stems = frame_stems(keys)

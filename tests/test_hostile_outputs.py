@@ -19,7 +19,7 @@ def test_resume_completes_again_a_frame_whose_json_is_not_a_summary_or_whose_ply
     from dataclasses import asdict
 
     from spotlights.completion.frame import SceneConfig
-    from spotlights.completion.frames import done_frame
+    from spotlights.completion.frame_selection import done_frame
 
     cfg = asdict(SceneConfig())
     cfg["clip"] = str(cfg["clip"])
@@ -45,7 +45,7 @@ def test_resume_completes_again_a_frame_whose_ply_is_cut_short(tmp_path):
     from dataclasses import asdict
 
     from spotlights.completion.frame import SceneConfig
-    from spotlights.completion.frames import done_frame
+    from spotlights.completion.frame_selection import done_frame
 
     cfg = asdict(SceneConfig())
     cfg["clip"] = str(cfg["clip"])

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from spotlights.cli import main
-from spotlights.completion.frames import frame_stems
+from spotlights.completion.frame_selection import frame_stems
 from spotlights.completion.names import file_stem, sequence_folders, unique_names
 
 SIZE = [4.2, 1.8, 1.5]

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from spotlights.cli import main
-from spotlights.completion import frames as frame_completion
-from spotlights.completion.frames import PICTURE_WORKERS_MAX, PictureProcesses, picture_workers
+from spotlights.completion import picture_processes
+from spotlights.completion.picture_processes import PICTURE_WORKERS_MAX, PictureProcesses, picture_workers
 from spotlights.errors import ParameterError, ProcessFailure
 
 from builders import three_frames
@@ -35,7 +35,7 @@ pytestmark = pytest.mark.timeout(300)
     ],
 )
 def test_picture_workers(monkeypatch, asked, cpus, frames, want):
-    monkeypatch.setattr(frame_completion, "usable_cpus", lambda: cpus)
+    monkeypatch.setattr(picture_processes, "usable_cpus", lambda: cpus)
     assert picture_workers(asked, frames) == want
 
 
@@ -125,8 +125,8 @@ def _hang() -> None:  # in a picture process: never ends
 def test_a_hung_picture_process_stops_the_run_and_is_ended(tmp_path, monkeypatch):
     """A picture that never comes: png() gives up after PICTURE_STALL_S with one line (the run waited for ever,
     Ctrl-C included, before), and close() ends the hung process after PICTURE_CLOSE_S."""
-    monkeypatch.setattr(frame_completion, "PICTURE_STALL_S", 1.0)
-    monkeypatch.setattr(frame_completion, "PICTURE_CLOSE_S", 1.0)
+    monkeypatch.setattr(picture_processes, "PICTURE_STALL_S", 1.0)
+    monkeypatch.setattr(picture_processes, "PICTURE_CLOSE_S", 1.0)
     before = set(multiprocessing.active_children())
     pictures = PictureProcesses(1)
     processes = []

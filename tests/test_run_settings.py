@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
 
-from spotlights.completion.frames import (
+from spotlights.completion.frame_selection import (
     FramesSettings,
     ReaderOptions,
-    complete_frames,
     parse_frames,
     parse_frames_range,
     select_frames,
 )
+from spotlights.completion.frames import complete_frames
 from spotlights.completion.scan import CompletionOptions, ScanSettings
 from spotlights.errors import ParameterError, SpotlightsError
 from spotlights.experiments.real_evaluation import RealEvaluationSettings, evaluate_consistency

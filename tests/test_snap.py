@@ -344,7 +344,7 @@ def test_resume_reuses_frames_written_before_snap_existed(tmp_path):
     from dataclasses import asdict
 
     from spotlights.completion.frame import SceneConfig
-    from spotlights.completion.frames import done_frame
+    from spotlights.completion.frame_selection import done_frame
 
     cfg = asdict(SceneConfig())
     cfg["clip"] = str(cfg["clip"])

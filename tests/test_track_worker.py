@@ -174,7 +174,8 @@ def test_a_refused_run_leaves_no_worker_behind(tmp_path):
     is the usual one line, and the worker process has ended."""
     import multiprocessing
 
-    from spotlights.completion.frames import FramesSettings, complete_frames
+    from spotlights.completion.frame_selection import FramesSettings
+    from spotlights.completion.frames import complete_frames
     from spotlights.errors import ParameterError
 
     src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0], ("a", ""))

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 from ..completion.frame import HEADING_MARGIN
-from ..completion.frames import FramesSettings, complete_frames, parse_frames, parse_frames_range
+from ..completion.frame_selection import FramesSettings, parse_frames, parse_frames_range
+from ..completion.frames import complete_frames
 from ..data.store import MAX_PARTIAL_POINTS
 from ..experiments.real_runs import (
     EvaluateSettings,

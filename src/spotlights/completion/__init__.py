@@ -11,6 +11,9 @@ module                      job
 :mod:`.detections`          a detector's boxes tracked into the frames of ``real complete``
 :mod:`.scan`                one scan from files (what ``spotlights complete`` runs): options, checks, outputs
 :mod:`.frames`              every frame of a dataset into a folder, resumable (``spotlights real complete``)
+:mod:`.frame_selection`     that run's settings, its frames and their file names, what marks a frame done
+:mod:`.picture_processes`   its frame pictures, drawn by worker processes beside the loop
+:mod:`.shapes`              one shape per track (``--track-shape``)
 :mod:`.fusion`              fusion and box refinement over tracks (``real complete --fuse``)
 :mod:`.names`               output file names of frames, sequences and tracks
 :mod:`.demo`                the end-to-end demonstration (``spotlights demo``)

@@ -245,7 +245,7 @@ class ScanSettings(CompletionOptions):
     interactive page; quiet : no summary lines.
     fuse, refine_boxes, max_gap, rerun, track_worker, track_shape : for a multi-frame scene (:attr:`multi_frame`:
     ``input`` a folder of frames or a sequence ``.json`` of the generic format), as :class:`~spotlights.completion.
-    frames.FramesSettings` has them; a single scan refuses a fusing window, ``refine_boxes``, ``rerun``,
+    frame_selection.FramesSettings` has them; a single scan refuses a fusing window, ``refine_boxes``, ``rerun``,
     ``track_worker=False`` and ``track_shape``
     (:meth:`check_single_scan`).
     """

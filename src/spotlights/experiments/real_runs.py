@@ -21,7 +21,8 @@ from pathlib import Path
 
 from .. import logs
 from ..completion.frame import HEADING_MARGIN
-from ..completion.frames import ReaderOptions, file_stem
+from ..completion.frame_selection import ReaderOptions
+from ..completion.names import file_stem
 from ..completion.scan import Say, parse_classes
 from ..data.real.base import CLASSES
 from ..data.real.extract import ExtractConfig, Observations, extract, read_observations, write_observations
