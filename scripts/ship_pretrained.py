@@ -65,7 +65,8 @@ def _raw(completer, x, e):
 
 def main() -> int:
     from spotlights.learning.checkpoint import PRETRAINED, export_weights, load_checkpoint, save_checkpoint
-    from spotlights.learning.inference import LearnedDomain, load_completer
+    from spotlights.learning.domain import LearnedDomain
+    from spotlights.learning.inference import load_completer
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("checkpoint", help="trained checkpoint (RUN/best.pt)")

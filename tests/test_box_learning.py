@@ -237,7 +237,8 @@ def test_box_sanet_trains_and_records_its_spec(box_run):
 
 def test_checkpoint_records_the_train_splits_domain_and_the_completer_warns_outside_it(box_run, tmp_path):
     from spotlights.learning.checkpoint import export_weights, load_checkpoint
-    from spotlights.learning.inference import LearnedDomain, load_completer
+    from spotlights.learning.domain import LearnedDomain
+    from spotlights.learning.inference import load_completer
 
     _, best, _ = box_run
     d = load_checkpoint(best)["domain"]
@@ -257,7 +258,7 @@ def test_checkpoint_records_the_train_splits_domain_and_the_completer_warns_outs
 
 
 def test_learned_domain_maps_body_types_to_detector_classes():
-    from spotlights.learning.inference import CARS_DOMAIN, LearnedDomain
+    from spotlights.learning.domain import CARS_DOMAIN, LearnedDomain
 
     sizes = np.array([[4.0, 1.8, 1.5], [3.5, 1.7, 1.6], [6.0, 2.2, 2.5], [5.2, 2.0, 2.1]])
     dom = LearnedDomain.from_training_set(["sedan", "Hatchback", "van", "tractor"], sizes, source="hand")

@@ -221,7 +221,7 @@ def test_reader_labels_map_to_the_one_vocabulary(label, cls):
 
 
 def test_learned_domain_keeps_a_size_range_per_class_and_gates_far_outside_it():
-    from spotlights.learning.inference import LearnedDomain
+    from spotlights.learning.domain import LearnedDomain
 
     sizes = np.array([[4.0, 1.8, 1.5], [5.0, 2.0, 1.7], [12.0, 2.5, 3.2], [10.0, 2.5, 3.0]])
     dom = LearnedDomain.from_training_set(
@@ -438,7 +438,7 @@ def test_data_classes_keeps_one_class_family_and_its_learned_domain(tmp_path):
     from spotlights.errors import InputFileError, ParameterError
     from spotlights.learning.config import data_config
     from spotlights.learning.data import TorchCompletionDataset
-    from spotlights.learning.inference import LearnedDomain
+    from spotlights.learning.domain import LearnedDomain
 
     from learning_fixtures import write_tiny_dataset
 

@@ -8,8 +8,9 @@ import pytest
 
 from spotlights.errors import ParameterError
 from spotlights.geometry.rig import make_rig_spec
+from spotlights.learning.domain import LearnedDomain
 from spotlights.learning.export import OnnxCompleter
-from spotlights.learning.inference import DEFAULT, BaseCompleter, Completer, LearnedDomain
+from spotlights.learning.inference import DEFAULT, BaseCompleter, Completer
 
 
 class Scaled(BaseCompleter):

@@ -336,7 +336,7 @@ def _crop_objects(
 
 def fallback_hint(cls: str | None, domain) -> bool:
     """True when a box of class ``cls`` that the model of ``domain`` (a
-    :class:`~spotlights.learning.inference.LearnedDomain`) did not learn is of a vehicle class the packaged class
+    :class:`~spotlights.learning.domain.LearnedDomain`) did not learn is of a vehicle class the packaged class
     model (``--fallback classes``: car, caravan, truck, bus, trailer) did learn: the hint a user needs beside a
     car-only model."""
     c = canonical_class(cls) if cls else None

@@ -41,7 +41,7 @@ them) the report holds, per model:
   ``spotlights complete --heading-check`` would do - and, separately, when it is closer at
   all. On annotated boxes every flip is a false alarm of the check.
 - **out-of-domain boxes**: observations whose class or box size is outside what the
-  model learned (:class:`spotlights.learning.inference.LearnedDomain`), counted per reason.
+  model learned (:class:`spotlights.learning.domain.LearnedDomain`), counted per reason.
 """
 
 from __future__ import annotations

@@ -48,7 +48,8 @@ from ..geometry.boxes import unit_extents
 from ..geometry.evidence import snap_batch_to_observed
 from ..outputs import atomic_output
 from .checkpoint import load_checkpoint, model_from_checkpoint, resolve_checkpoint
-from .inference import DEFAULT, BaseCompleter, LearnedDomain
+from .domain import LearnedDomain
+from .inference import DEFAULT, BaseCompleter
 from .rays import TIMING_BOX_SIZE, directions_for_extents, rig_rays, rig_spec, timing_directions
 
 FORMAT = "spotlights-onnx"
@@ -363,7 +364,7 @@ class OnnxCompleter(BaseCompleter):
     :class:`~spotlights.learning.inference.Completer` up to float rounding) whose forward pass is the graph.
 
     Attributes: ``model_name``, ``n_params``, ``param_counts``, ``rig`` (RigSpec or None),
-    ``clip``, ``threshold``, ``needs_box``, ``domain`` (:class:`~spotlights.learning.inference.LearnedDomain`),
+    ``clip``, ``threshold``, ``needs_box``, ``domain`` (:class:`~spotlights.learning.domain.LearnedDomain`),
     ``classes`` (the class vocabulary of a class-conditioned export, in row order; ``()`` for the others, which
     complete every box as the car models they are), ``path``, ``session`` (the onnxruntime session),
     ``device`` (``"onnxruntime:CPUExecutionProvider"`` or the first provider used), ``runtime`` (``"onnx"``) and

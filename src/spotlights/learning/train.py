@@ -42,7 +42,7 @@ from .checkpoint import save_checkpoint
 from .config import SELECT_BY
 from .data import worker_batches
 from .device import autocast, default_device
-from .inference import LearnedDomain
+from .domain import LearnedDomain
 from .process_group import ProcessGroup
 from .settings import TrainSettings
 from .training_run import RUN_STATE_FILES, TrainingRun, data_identity, prepare_run
