@@ -17,13 +17,8 @@ pytest.importorskip("torch")
 from spotlights.assets import asset_path  # noqa: E402
 from spotlights.errors import ParameterError  # noqa: E402
 from spotlights.geometry.boxes import unit_extents  # noqa: E402
-from spotlights.learning.fit import (  # noqa: E402
-    FitSettings,
-    dilate,
-    fit_completions,
-    gate,
-    ray_neighbours,
-)
+from spotlights.learning.fit import FitSettings, fit_completions, gate  # noqa: E402
+from spotlights.learning.fit_evidence import dilate, ray_neighbours  # noqa: E402
 from spotlights.learning.rays import directions_for_extents  # noqa: E402
 
 from helpers import assert_user_error, run_cli  # noqa: E402
@@ -72,7 +67,7 @@ def test_dilate_by_hand():
 def test_free_space_of_one_point_by_hand():
     """Sensor at x = 5, one observed point at the origin, margin 0.1: the beam in front of the point (x from 5 down to
     0.1) is free; the point itself, behind it, and places off the beam are not; a NaN sensor frees nothing."""
-    from spotlights.learning.fit import FreeSpace, out_of_free_space
+    from spotlights.learning.fit_evidence import FreeSpace, out_of_free_space
 
     free = FreeSpace.of(np.zeros((1, 3)), [5.0, 0.0, 0.0], cells=32)
     q = np.array([[2.0, 0, 0], [0.2, 0, 0], [0.05, 0, 0], [0, 0, 0], [-1.0, 0, 0], [2.0, 1.0, 0], [2.0, 0, -1.0]])
