@@ -328,7 +328,8 @@ def section_parity() -> dict:
 
 
 def section_pictures(frames: int, rounds: int) -> dict:
-    from spotlights.completion.frame import complete_scene, result_png
+    from spotlights.completion.frame import complete_scene
+    from spotlights.completion.pictures import result_png
     from spotlights.completion.scan import CompletionOptions
     from spotlights.data.real import open_reader
 

@@ -11,7 +11,8 @@ import pytest
 import torch
 
 from spotlights.api import complete_frame
-from spotlights.completion.frame import SceneConfig, scene_objects
+from spotlights.completion.frame import SceneConfig
+from spotlights.completion.pictures import scene_objects
 from spotlights.completion.scan import CompletionOptions, resolve_fallback
 from spotlights.data.real.base import lookup_class
 from spotlights.data.real.boxfiles import CLASS_MAP

@@ -8,6 +8,7 @@ module                      job
                             (:func:`~.frame.complete_scene`: cropping, batching, the heading check)
 :mod:`.results`             :class:`~.results.ObjectResult`, :class:`~.results.SceneResult` (``save``)
 :mod:`.writing`             a frame's files: the scene PLY, per-object PLYs, the JSON summary
+:mod:`.pictures`            a frame drawn: the bird's-eye raster, close-ups where asked, the HTML page
 :mod:`.detections`          a detector's boxes tracked into the frames of ``real complete``
 :mod:`.scan`                one scan from files (what ``spotlights complete`` runs): options, checks, outputs
 :mod:`.frames`              every frame of a dataset into a folder, resumable (``spotlights real complete``)

@@ -9,12 +9,10 @@ from pathlib import Path
 
 from ..errors import ParameterError, ProcessFailure
 from ..processes import sigint_held, start_process_pool, stop_process_pool
-from .frame import (
-    SceneResult,
-    result_png,
-)
+from .frame import SceneResult
 from .frame_selection import FramesSettings
 from .fusion import usable_cpus
+from .pictures import result_png
 
 #: The most processes that draw PNGs by default (:func:`picture_workers`); each holds ~140 MB (matplotlib).
 PICTURE_WORKERS_MAX = 8
@@ -70,7 +68,7 @@ def _ready_to_draw(closeups: bool = True) -> None:
 
 class PictureProcesses:
     """Worker processes (:func:`~spotlights.processes.start_process_pool`: the fork server, Ctrl-C left to this
-    process) that draw frames' PNGs (:func:`~spotlights.completion.frame.result_png`), ``workers`` frames at once,
+    process) that draw frames' PNGs (:func:`~spotlights.completion.pictures.result_png`), ``workers`` frames at once,
     while the frame loop completes the next ones. The bytes are those of drawing in this process (the same
     function; matplotlib's defaults in both: rcParams changed in this process do not reach the workers); the
     writer thread writes them in frame order."""

@@ -45,14 +45,13 @@ from .frame import (
     check_completed,
     complete_scene,
     describe,
-    render_result,
-    render_result_html,
     require_points,
     require_rays_to_snap,
     require_sensor,
     write_scene,
 )
 from .fusion import threads_beside_worker
+from .pictures import render_result, render_result_html
 from .writing import write_json
 
 Say = Callable[[str], None]
