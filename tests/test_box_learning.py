@@ -302,8 +302,8 @@ def test_validation_decodes_each_sample_with_its_box(box_run):
 
 
 def test_box_completer_uses_each_scans_box(box_run):
-    from spotlights.geometry.boxes import unit_extents
-    from spotlights.learning.inference import Box, complete_scan, load_completer
+    from spotlights.geometry.boxes import Box, unit_extents
+    from spotlights.learning.inference import complete_scan, load_completer
 
     _, best, _ = box_run
     comp = load_completer(best, device="cpu")

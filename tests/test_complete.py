@@ -11,17 +11,12 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from spotlights.errors import InputFileError, ParameterError  # noqa: E402
+from spotlights.geometry.box_json import box_from_dict, load_box  # noqa: E402
+from spotlights.geometry.boxes import Box  # noqa: E402
 from spotlights.geometry.frames import normalization_from_box  # noqa: E402
 from spotlights.geometry.io import load_points, save_points  # noqa: E402
 from spotlights.geometry.rig import make_rig  # noqa: E402
-from spotlights.learning.inference import (  # noqa: E402
-    Box,
-    box_from_dict,
-    complete_in_boxes,
-    complete_scan,
-    load_box,
-    load_completer,
-)
+from spotlights.learning.inference import complete_in_boxes, complete_scan, load_completer  # noqa: E402
 
 from helpers import assert_user_error  # noqa: E402
 from learning_fixtures import cli, make_checkpoint, one_torch_thread  # noqa: E402

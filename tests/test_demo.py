@@ -40,7 +40,8 @@ def test_demo_writes_pictures_and_completion(tmp_path):
 
 
 def test_pretrained_sanet_completes_the_unseen_side():
-    from spotlights.learning.inference import complete_scan, load_box, load_completer
+    from spotlights.geometry.box_json import load_box
+    from spotlights.learning.inference import complete_scan, load_completer
 
     scan = load_points(asset_path("demo_scan.pcd"))
     box = load_box(asset_path("demo_scan_box.json"))

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from spotlights.errors import InputFileError, ParameterError
-from spotlights.geometry.boxes import Box, box_from_dict
+from spotlights.geometry.box_json import box_from_dict
+from spotlights.geometry.boxes import Box
 from spotlights.tracking.detections import (
     DetectionFrame,
     detector_class,

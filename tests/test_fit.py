@@ -258,7 +258,7 @@ def test_complete_frame_with_fit_and_the_heading_check(completer):
     whether its kept heading's fit was kept, and its fidelity is at most the unfitted one's of the same heading."""
     import spotlights
     from spotlights.data.real.scans import read_scan
-    from spotlights.geometry.boxes import load_box
+    from spotlights.geometry.box_json import load_box
 
     scan = read_scan(asset_path("demo_scan.pcd"))
     box = load_box(asset_path("demo_scan_box.json")).replace(label="car", cls="car")
@@ -329,7 +329,7 @@ def test_an_onnx_export_is_fitted_through_its_checkpoint(tmp_path):
 
     from spotlights.completion.frame import SceneConfig, complete_scene
     from spotlights.data.real.scans import read_scan
-    from spotlights.geometry.boxes import load_box
+    from spotlights.geometry.box_json import load_box
     from spotlights.learning.checkpoint import resolve_checkpoint
 
     shutil.copy(resolve_checkpoint("default"), tmp_path / "model.pt")

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from spotlights.errors import InputFileError, ParameterError
-from spotlights.geometry.boxes import MAX_BOX_CENTER_M, MAX_BOX_SIZE_M, Box, box_from_dict, box_range_problem
+from spotlights.geometry.box_json import box_from_dict
+from spotlights.geometry.boxes import MAX_BOX_CENTER_M, MAX_BOX_SIZE_M, Box, box_range_problem
 from spotlights.geometry.rotations import orthonormalize, rotation_z
 
 from builders import write_mini_nuscenes

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from spotlights.errors import InputFileError, ParameterError
-from spotlights.geometry.boxes import Box, box_from_dict
+from spotlights.geometry.box_json import box_from_dict
+from spotlights.geometry.boxes import Box
 from spotlights.geometry.encode import decode
 from spotlights.geometry.rig import make_rig
 from spotlights.geometry.rotations import quaternion_to_matrix

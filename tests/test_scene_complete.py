@@ -227,7 +227,7 @@ def test_heading_check_turns_a_reversed_car_around(tmp_path):
     from spotlights.assets import asset_path
     from spotlights.completion.frame import SceneConfig, complete_scene
     from spotlights.data.real.scans import read_scan
-    from spotlights.geometry.boxes import load_box
+    from spotlights.geometry.box_json import load_box
     from spotlights.learning.inference import load_completer
 
     comp = load_completer("default", device="cpu")

@@ -80,7 +80,7 @@ logging.getLogger("spotlights").addHandler(logging.NullHandler())  # silent unle
 #: public name -> the module that defines it (imported on first use); the one list of public names
 _HOMES = {
     "Box": "spotlights.geometry.boxes",
-    "load_box": "spotlights.geometry.boxes",
+    "load_box": "spotlights.geometry.box_json",
     "make_rig": "spotlights.geometry.rig",
     "load_mesh": "spotlights.geometry.io",
     "load_points": "spotlights.geometry.io",

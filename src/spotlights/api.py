@@ -44,7 +44,8 @@ from .completion.scan import AUTO_FALLBACK, resolve_fallback
 from .data.real import FORMATS, open_reader
 from .data.real.base import Frame
 from .errors import ParameterError
-from .geometry.boxes import Box, load_box
+from .geometry.box_json import load_box
+from .geometry.boxes import Box
 from .geometry.encode import decode, encode_mesh
 from .geometry.io import load_mesh, load_points, save_points
 from .geometry.rig import make_rig

@@ -8,8 +8,9 @@ from pathlib import Path
 from .. import logs, viz
 from ..assets import DEMO_VEHICLE, asset_path
 from ..geometry import MeshProbe, hit_ratio, load_mesh, load_points, make_rig, save_encoding, save_points
+from ..geometry.box_json import load_box
 from ..geometry.encode import load_encoding
-from ..learning.inference import complete_scan, load_box, load_completer
+from ..learning.inference import complete_scan, load_completer
 
 
 def run_demo(out: Path, log: Callable[[str], None] = logs.info) -> None:

@@ -110,7 +110,7 @@ def check_scene_inputs(boxes, completer, config, axes) -> None:
     for i, b in enumerate(boxes):
         if not isinstance(b, Box):
             raise ParameterError(
-                f"boxes[{i}] is a {type(b).__name__}, not a Box (spotlights.geometry.boxes.box_from_dict makes one "
+                f"boxes[{i}] is a {type(b).__name__}, not a Box (spotlights.geometry.box_json.box_from_dict makes one "
                 "from a dict with center, size and yaw)"
             )
     if not callable(getattr(completer, "complete", None)):

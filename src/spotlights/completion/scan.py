@@ -30,7 +30,8 @@ from ..data.real.boxfiles import read_box_file, with_class
 from ..data.real.scans import read_scan
 from ..data.tracks import MAX_GAP_S, WindowPolicy, parse_window
 from ..errors import ParameterError
-from ..geometry.boxes import Box, box_from_dict
+from ..geometry.box_json import box_from_dict
+from ..geometry.boxes import Box
 from ..geometry.io import axes_rotation
 from ..inputs import read_json
 from ..learning.fit import FIT_STEPS

@@ -8,7 +8,8 @@ Knows nothing of learning (no torch). Main entry points::
     points, mask = decode(depths, rig)                   # (2048, 3) unit frame + hit mask
 """
 
-from .boxes import Box, box_from_dict, load_box
+from .box_json import box_from_dict, load_box
+from .boxes import Box
 from .encode import (
     Encoding,
     MeshProbe,

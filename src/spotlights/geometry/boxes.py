@@ -23,15 +23,13 @@ radius, unit extents, containment and crop; nothing else computes them.
 from __future__ import annotations
 
 import math
-import os
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..errors import InputFileError, ParameterError
-from ..inputs import read_json
+from ..errors import ParameterError
 from .frames import Normalization, normalization_from_box
-from .rotations import is_rotation, orthonormalize, quaternion_to_matrix, rotation_z
+from .rotations import orthonormalize, rotation_z
 
 #: Largest absolute value of a box centre coordinate, metres. Georeferenced frames put boxes far from the origin
 #: (UTM northings reach ~1e7 m, ECEF coordinates ~6.4e6 m); 1e8 m leaves ten times that, while anything beyond it
@@ -46,9 +44,6 @@ MAX_BOX_SIZE_M = 1e4
 #: :func:`~spotlights.geometry.rotations.is_rotation`; rotations rounded to float32 (~1e-7) pass easily.
 ROTATION_TOLERANCE = 1e-3
 
-#: How far a box file's quaternion may be from unit length: files store unit quaternions rounded (float32: ~1e-7),
-#: while a norm far from 1 (or one that overflows) is a corrupt number, not a rotation to normalise silently.
-QUATERNION_TOLERANCE = 1e-3
 
 #: Most boxes one frame may hold (a box file, a frame given to scene completion): the busiest frames of the datasets
 #: read hold a few hundred annotations; 2,000 leaves a wide margin, while 100,000 boxes took minutes and 7 GB before
@@ -470,11 +465,6 @@ def _rotation_problem(r: np.ndarray) -> str | None:
 
 # --- boxes in JSON ---------------------------------------------------------------------
 
-SIZE_KEYS = ("size", "dimensions", "extent")
-LABEL_KEYS = ("label", "category", "class", "detection_name")
-ID_KEYS = ("track_id", "id", "instance_token", "tracking_id")
-SCORE_KEYS = ("score", "detection_score", "tracking_score")
-
 
 SMALL_CROP = 1_000_000
 """Points x boxes up to which :func:`crop_boxes` pre-cuts each box's sphere with one numpy pass per box instead of
@@ -506,127 +496,3 @@ def crop_boxes(
         near = np.sort(np.asarray(h, dtype=np.int64))
         out.append(near[b.contains(p[near], margin, ground_clearance)])
     return out
-
-
-def _vector(value: object, n: int | tuple[int, ...], src: str | os.PathLike, what: str) -> np.ndarray:
-    try:
-        a = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        a = None
-    if isinstance(value, (str, bytes, bool)) or (isinstance(value, (list, tuple)) and holds_non_numbers(value)):
-        a = None  # a boolean or a string is not a number in a box file (numpy reads true as 1, "1.5" as 1.5)
-    shape = (n,) if isinstance(n, int) else tuple(n)
-    if a is None or a.shape != shape or not np.all(np.isfinite(a)):
-        desc = "three" if shape == (3,) else "x".join(map(str, shape))
-        got = f"shape {a.shape}" if a is not None and a.shape != shape else repr(value)[:60]
-        raise InputFileError(src, f"{what} must be {desc} finite numbers, got {got}")
-    return a
-
-
-def box_from_dict(
-    d: object,
-    src: str | os.PathLike = "box",
-    what: str = "box",
-    require_label: bool = False,
-    axes: ArrayLike | None = None,
-) -> Box:
-    """A :class:`Box` from a JSON object (the generic box format of ``complete`` and ``real``).
-
-    Keys
-    ----
-    center : [x, y, z] metres, the geometric centre, in the scan's frame.
-    size : [length, width, height] metres (``dimensions`` or ``extent`` also accepted).
-    heading, one of: ``yaw`` (radians about the scan's up axis, 0 = box forward along the
-        scan's forward axis), ``yaw_deg`` (degrees), ``rotation`` (3x3 nested list, row-major,
-        whose columns are the box's forward, left, up axes; or 4 numbers, a scalar-first
-        quaternion w, x, y, z), ``quaternion`` (w, x, y, z).
-    label : the object's label (``category``, ``class`` or ``detection_name`` also accepted);
-        required when ``require_label``.
-    track_id : optional identity across frames (``id``, ``instance_token``, ``tracking_id``
-        also accepted), a string or an integer.
-    score : optional confidence, a number in [0, 1] (``detection_score``, ``tracking_score`` also accepted).
-
-    ``axes``: optional (3, 3) rotation taking the scan's coordinates to the object convention
-    (x forward, y left, z up), as :func:`spotlights.geometry.io.axes_rotation` gives for
-    ``--up/--forward``: a ``yaw`` then turns about the scan's up axis. The box returned is in
-    the scan's own coordinates. Errors are :class:`InputFileError` naming ``src`` and ``what``, among them
-    a centre or size out of range (:func:`box_range_problem`: :data:`MAX_BOX_CENTER_M`, :data:`MAX_BOX_SIZE_M`).
-    """
-    if not isinstance(d, dict):
-        raise InputFileError(src, f"{what} is not a JSON object with center, size and a heading")
-    if "center" not in d:
-        raise InputFileError(src, f"{what} has no 'center' [x, y, z]")
-    size_key = next((k for k in SIZE_KEYS if k in d), None)
-    if size_key is None:
-        raise InputFileError(src, f"{what} has no 'size' [length, width, height]")
-    center = _vector(d["center"], 3, src, f"{what} center")
-    size = _vector(d[size_key], 3, src, f"{what} size")
-    problem = box_range_problem(center, size)
-    if problem:
-        raise InputFileError(src, f"{what} {problem}")
-    a = np.eye(3) if axes is None else np.asarray(axes, dtype=np.float64)
-    rot_value = d.get("rotation", d.get("quaternion"))
-    if rot_value is not None:
-        if "yaw" in d or "yaw_deg" in d:
-            raise InputFileError(src, f"{what} has both a yaw and a rotation: give one")
-        flat = np.asarray(rot_value, dtype=object).reshape(-1) if isinstance(rot_value, list) else None
-        if flat is not None and flat.size == 4:
-            q = _vector(rot_value, 4, src, f"{what} quaternion")
-            with np.errstate(over="ignore"):
-                norm = float(np.linalg.norm(q))
-            if norm < 1e-6:
-                raise InputFileError(src, f"{what} quaternion is zero")
-            if not abs(norm - 1.0) <= QUATERNION_TOLERANCE:  # an overflowing norm is inf: refused too
-                raise InputFileError(
-                    src,
-                    f"{what} quaternion must be a unit quaternion (norm 1 within {QUATERNION_TOLERANCE:g}), "
-                    f"got norm {norm:.6g}",
-                )
-            rot = quaternion_to_matrix(*q)
-        else:
-            rot = _vector(rot_value, (3, 3), src, f"{what} rotation")
-            if not is_rotation(rot):
-                raise InputFileError(src, f"{what} rotation is not a proper rotation matrix (orthonormal, det +1)")
-            rot = orthonormalize(rot)
-    elif "yaw" in d or "yaw_deg" in d:
-        key = "yaw" if "yaw" in d else "yaw_deg"
-        try:
-            if isinstance(d[key], (str, bool)):  # "0.5" and true are not numbers in a box file
-                raise TypeError(key)
-            yaw = float(d[key])
-        except (TypeError, ValueError):
-            raise InputFileError(src, f"{what} {key} must be a number, got {d[key]!r}") from None
-        if not math.isfinite(yaw):
-            raise InputFileError(src, f"{what} {key} must be finite")
-        rot = a.T @ rotation_z(math.radians(yaw) if key == "yaw_deg" else yaw)
-    else:
-        raise InputFileError(src, f"{what} needs 'yaw' or 'rotation' (a box's heading is never assumed)")
-    label_key = next((k for k in LABEL_KEYS if k in d), None)
-    if label_key is None and require_label:
-        raise InputFileError(src, f"{what} has no 'label' (e.g. \"car\")")
-    if label_key is not None and not isinstance(d[label_key], str):
-        raise InputFileError(src, f"{what} {label_key} must be a string, got {d[label_key]!r:.60}")
-    label = "" if label_key is None else d[label_key]
-    id_key = next((k for k in ID_KEYS if k in d), None)
-    track = "" if id_key is None else d[id_key]
-    if isinstance(track, float) and track.is_integer():
-        track = int(track)
-    if track is not None and (isinstance(track, bool) or not isinstance(track, (str, int))):
-        raise InputFileError(src, f"{what} {id_key} must be a string or a whole number, got {track!r:.60}")
-    score = next((d[k] for k in SCORE_KEYS if k in d), None)
-    if score is not None and (isinstance(score, bool) or not isinstance(score, (int, float)) or not 0 <= score <= 1):
-        raise InputFileError(src, f"{what} score must be a number in [0, 1], got {score!r:.40}")
-    try:
-        return Box(center, size, rot, label, None, "" if track is None else str(track), score)
-    except ParameterError as exc:  # the box's own checks (one owner), here naming the file
-        raise InputFileError(src, f"{what}: {exc}") from None
-
-
-def load_box(path: str | os.PathLike) -> Box:
-    """Read a one-box JSON file (see :func:`box_from_dict`; the label is optional here)."""
-    from pathlib import Path
-
-    p = Path(path)
-    if not p.is_file():
-        raise InputFileError(p, "no such box file")
-    return box_from_dict(read_json(p, "box file"), p)

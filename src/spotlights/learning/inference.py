@@ -29,7 +29,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..geometry.box_clamp import clamp_to_grown_boxes, grown_half_extents
-from ..geometry.boxes import Box, box_from_dict, load_box  # noqa: F401  (the box of complete_scan; re-exported)
+from ..geometry.boxes import Box
 from ..geometry.evidence import SnapTargets, snap_radius
 from ..geometry.sampling import resample_set
 from .checkpoint import PRETRAINED, load_checkpoint, model_from_checkpoint, resolve_checkpoint

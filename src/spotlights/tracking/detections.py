@@ -25,7 +25,7 @@ or a folder with ``FRAME.txt`` per frame (object layout) or ``SEQUENCE.txt`` (tr
 KITTI runs at 10 Hz: a frame's time is its number x 0.1 s. Scores must lie in [0, 1]; detectors that write logits
 (PointRCNN) are read with ``logit_scores=True`` (a sigmoid).
 
-``generic``: the project's box JSON (:func:`spotlights.geometry.boxes.box_from_dict`) with an optional ``score``:
+``generic``: the project's box JSON (:func:`spotlights.geometry.box_json.box_from_dict`) with an optional ``score``:
 a sequence JSON ``{"sequence": ..., "frames": [{"boxes": [...] or "FILE.json", "frame_id", "timestamp",
 "frame_index", "sensor_to_world"}, ...]}`` (``scan`` is optional here), a folder of per-frame box files, or one box
 file (one frame). Time: ``timestamp`` in seconds, else ``frame_index`` x 0.1 s, else the position x 0.1 s.

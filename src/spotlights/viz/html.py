@@ -23,7 +23,8 @@ from ..data.real.boxfiles import read_json_boxes
 from ..data.real.extract import read_observations
 from ..data.real.frames import frame_rows
 from ..errors import InputFileError, SpotlightsError
-from ..geometry.boxes import BOX_EDGES, Box, box_from_dict
+from ..geometry.box_json import box_from_dict
+from ..geometry.boxes import BOX_EDGES, Box
 from ..geometry.encode import decode, load_encoding
 from ..geometry.io import MESH_SUFFIXES, POINT_SUFFIXES, load_mesh, load_ply_fields, load_points, ply_has_faces
 from ..inputs import read_json
@@ -446,7 +447,7 @@ def scene_ply_traces(fields: dict[str, np.ndarray], name: str) -> list:
 
 
 def read_boxes_json(path: str | os.PathLike) -> list[Box]:
-    """Boxes from JSON, read by the project's one box parser (:func:`spotlights.geometry.boxes.box_from_dict`): a
+    """Boxes from JSON, read by the project's one box parser (:func:`spotlights.geometry.box_json.box_from_dict`): a
     generic box file (one box, a list, or ``{"boxes": [...]}``) or a completion summary (``{"objects": [{"box":
     ...}]}``, its boxes as :meth:`Box.to_dict` writes them). Each box's ``label`` here is its id in the picture:
     its track id, else its label, else its index."""

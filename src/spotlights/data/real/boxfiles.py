@@ -7,7 +7,7 @@ Generic JSON (``*.json``), one of:
   "sequence": "drive-a", "sensor_to_world": 4x4}`` (every key but ``boxes`` optional);
 - a single box object (with ``center``).
 
-A box's keys are those of :func:`spotlights.geometry.boxes.box_from_dict` (centre, size
+A box's keys are those of :func:`spotlights.geometry.box_json.box_from_dict` (centre, size
 l/w/h, ``yaw`` or a full ``rotation``, ``label``, optional ``track_id``). Labels map to
 classes with :data:`CLASS_MAP`: the class names themselves, ``van``, and every label of
 the KITTI, KITTI-360, Argoverse 2 and nuScenes readers, case-insensitively.
@@ -26,7 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import InputFileError
-from ...geometry.boxes import MAX_BOXES_PER_FRAME, Box, box_from_dict, holds_non_numbers
+from ...geometry.box_json import box_from_dict
+from ...geometry.boxes import MAX_BOXES_PER_FRAME, Box, holds_non_numbers
 from ...geometry.rotations import is_rotation
 from ...inputs import read_json
 from . import av2, kitti, kitti360, nuscenes
