@@ -121,7 +121,9 @@ def test_a_result_saves_the_files_the_command_line_writes(tmp_path):
     summary = json.loads((tmp_path / "scene.json").read_text())
     assert summary["n_completed"] == len(result.completed) == 1 and summary["out"] == str(tmp_path / "scene.ply")
     assert result.save(tmp_path / "only.ply", summary=False) == [tmp_path / "only.ply"]
-    with pytest.raises(spotlights.api.ParameterError, match="summary"):
+    from spotlights.errors import ParameterError
+
+    with pytest.raises(ParameterError, match="summary"):
         result.save(tmp_path / "x.json", summary=tmp_path / "x.json")
     assert not (tmp_path / "x.json").exists()
 

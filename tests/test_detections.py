@@ -276,3 +276,17 @@ def test_caps_are_enforced(tmp_path, monkeypatch):
     path.write_text(json.dumps({"frames": [{"boxes": [_box(1), _box(2), _box(3)]}]}))
     with pytest.raises(InputFileError, match="3 boxes in one frame, more than the cap of 2"):
         read_generic_detections(path)
+
+
+def test_generic_frames_at_one_time_are_the_files_error(tmp_path):
+    """Two frames of a sequence at the same time cannot be tracked: the file's one line (not the tracker's)."""
+    import json
+
+    from spotlights.errors import InputFileError
+    from spotlights.tracking.detections import read_detections
+
+    box = {"center": [10.0, 0.0, 0.0], "size": [4.2, 1.8, 1.5], "yaw": 0.0, "label": "car", "score": 0.9}
+    frames = [{"frame_id": f, "timestamp": 1.0, "boxes": [box]} for f in ("a", "b")]
+    (tmp_path / "d.json").write_text(json.dumps({"frames": frames}))
+    with pytest.raises(InputFileError, match=r"d\.json: sequence '': frames 'a' and 'b' share the time 1 s"):
+        read_detections(tmp_path / "d.json", "generic")

@@ -22,8 +22,9 @@ REPO = Path(__file__).resolve().parents[1]
 
 # (name, pattern) - each pattern names one kind of history word
 PATTERNS: list[tuple[str, re.Pattern[str]]] = [
-    ("numbered stop", re.compile(r"(?<![A-Za-z])stops?[ _-]?\d+(?![0-9])", re.IGNORECASE)),
-    ("numbered issue", re.compile(r"(?<![A-Za-z])issues?[ _#-]?\d+(?![0-9])", re.IGNORECASE)),
+    ("numbered stop", re.compile(r"(?<![A-Za-z])stops?[ _-]?#?\s*\d+(?![0-9])", re.IGNORECASE)),
+    ("numbered issue", re.compile(r"(?<![A-Za-z])issues?[ _-]?#?\s*\d+(?![0-9])", re.IGNORECASE)),
+    ("numbered reference", re.compile(r"(?:^|[\s(])#\d+\b|\bspotlights#\d+", re.IGNORECASE)),
     # an issue number as a name token: "i27/", "_i26", "-i35", "i27box", "(i26)"; not "i386" nor "pi3"
     ("iNN name", re.compile(r"(?<![A-Za-z0-9.])i\d{2}(?![0-9])(?=[A-Za-z_/.\-)\]`'\", ]|$)")),
     ("who did it", re.compile(r"\bthe lead\b(?! (?:vehicle|car|truck|object)s?\b)", re.IGNORECASE)),
@@ -42,7 +43,7 @@ ALLOWED: list[tuple[str, re.Pattern[str]]] = [
         re.compile(r"\.session\b|session's intra-op|scope=.session.|\b(?:test|pytest) session|interactive sessions?"),
     ),
     ("machine path", re.compile(r"/tmp/pytest-of-")),  # pytest's own folder for a failed test's files
-    ("numbered issue", re.compile(r"github\.com/[\w.-]+/[\w.-]+/issues/\d+|[\w.-]+#\d+")),
+    ("numbered issue", re.compile(r"github\.com/[\w.-]+/[\w.-]+/issues/\d+|(?!spotlights)[\w.-]+#\d+")),
 ]
 
 # this file names the patterns it checks for
@@ -123,6 +124,9 @@ def offenders(prefixes: tuple[str, ...] = ("",)) -> list[str]:
         "tests/test_hostile_inputs_stop41.py",
         "issue 27's target",
         "def test_issue27_rows():",
+        "fixed in issue #27",
+        "see #27 for the numbers",
+        "as spotlights#27 asked",
         "docs/results/i27/classes.json",
         "table1_i26.json",
         "runs/i27box/best.pt",

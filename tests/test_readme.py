@@ -3,8 +3,8 @@
 The ```bash blocks are read from README.md and each ``spotlights ...`` line is run in order, in
 process (``helpers.run_cli``), as written, in a copy of the checkout (its tracked files) with the shared
 data beside it as ``../shared`` (``$SPOTLIGHTS_SHARED`` where set): later commands read what earlier ones
-wrote, as they would in the checkout, and the checkout itself is never written (checked: its ``git status``
-and the modification times of its untracked files are the same before and after). Skipped,
+wrote, as they would in the checkout, and the checkout itself is never written (checked: no file of its own
+appears or changes among its untracked files and ``out/``). Skipped,
 with the reason: the two install commands (``make demo``, ``make test``: tests/test_setup.py),
 a command whose shared data is absent (and those reading its outputs), a command that serves a
 port. A line of another kind fails the test: whoever adds one says here how to check it.
@@ -56,13 +56,15 @@ def _argument(arg: str) -> str:
     return arg
 
 
-def checkout_state() -> tuple[str, dict[str, int]]:
-    """The checkout's ``git status`` and the modification times of its untracked, not ignored files."""
-    status = subprocess.run(["git", "status", "--porcelain"], cwd=REPO, capture_output=True, text=True, check=True)
+def checkout_state() -> dict[str, int]:
+    """The checkout's files a README command could write: its untracked, not ignored files and everything under its
+    ``out/`` (git-ignored), each with its modification time. Tracked files are left out: they change while the suite
+    runs whenever someone edits the checkout, and no README command writes one."""
     untracked = subprocess.run(
         ["git", "ls-files", "--others", "--exclude-standard"], cwd=REPO, capture_output=True, text=True, check=True
     ).stdout.split()
-    return status.stdout, {f: (REPO / f).stat().st_mtime_ns for f in untracked if (REPO / f).exists()}
+    files = [REPO / f for f in untracked] + [p for p in (REPO / "out").rglob("*") if p.is_file()]
+    return {str(f.relative_to(REPO)): f.stat().st_mtime_ns for f in files if f.exists()}
 
 
 @pytest.fixture(scope="module")

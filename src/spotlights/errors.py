@@ -9,6 +9,7 @@ helper process that died or hung), so that a script can tell the two apart.
 
 from __future__ import annotations
 
+import importlib.util
 import os
 
 
@@ -43,7 +44,7 @@ class ParameterError(SpotlightsError, ValueError):
 
     The message names the library's parameters (``heading_margin``); ``parameters`` lists the ones it names, so
     that the command line can write them as its options instead (``--heading-margin``:
-    :func:`spotlights.cli.option_names`)."""
+    :func:`spotlights.options.option_names`)."""
 
     def __init__(self, message: str, *parameters: str):
         self.parameters = parameters
@@ -101,7 +102,7 @@ def missing_extra(exc: ImportError) -> str | None:
     """The one line for an optional package that is not installed (``exc`` from its import): which package and
     which extra installs it; None when ``exc`` is not about one of :data:`EXTRAS` (a bug or a broken install)."""
     name = (getattr(exc, "name", None) or "").split(".")[0]
-    if name not in EXTRAS:
-        return None
+    if name not in EXTRAS or (exc.name != name and importlib.util.find_spec(name) is not None):
+        return None  # a broken install of the package (a submodule missing), not a missing extra
     extra = EXTRAS[name]
     return f"this needs the optional package {name}: pip install 'spotlights[{extra}]' (or 'spotlights[all]')"

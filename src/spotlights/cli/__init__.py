@@ -6,7 +6,8 @@ dependencies (torch, matplotlib, plotly, pyarrow, ray, onnx are imported inside
 the handlers that need them), so ``spotlights --help`` loads no torch.
 
 Handlers return an exit code (0 on success). Any :class:`SpotlightsError`
-becomes one line on stderr and exit code 2; no traceback is shown.
+becomes one line on stderr and its exit code (2 the input's fault, 1 a helper process that failed), an
+optional package that is not installed one line naming its extra (2); no traceback is shown.
 """
 
 from __future__ import annotations
@@ -129,8 +130,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with contextlib.ExitStack() as stack:
             args = _with_config_file(parser, args, argv)
-            verbosity = -1 if getattr(args, "quiet", False) else args.verbose
-            stack.callback(logs.LOGGER.removeHandler, logs.configure(verbosity))
+            stack.callback(logs.LOGGER.setLevel, logs.LOGGER.level)  # the level as it was, after the command
+            stack.callback(
+                logs.LOGGER.removeHandler, logs.configure(0 if getattr(args, "quiet", False) else args.verbose)
+            )
             if getattr(args, "quiet", False):
                 stack.enter_context(contextlib.redirect_stdout(stack.enter_context(open(os.devnull, "w"))))
             return int(args.func(args) or 0)

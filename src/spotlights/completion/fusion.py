@@ -106,7 +106,7 @@ class _Track:
 
 def _near_boxes(points: np.ndarray, boxes: list[Box], margin: float, ground_clearance: float) -> list[np.ndarray]:
     """Per box, the sorted indices (int64) of the scan points (N, 3) within the reach of
-    :func:`spotlights.data.real.extract.crop_box`'s pre-cut (box radius + margin + clearance): one KD-tree
+    :func:`spotlights.geometry.boxes.crop_boxes`' pre-cut (box radius + margin + clearance): one KD-tree
     for the scan instead of a distance to every point per box (a nuScenes keyframe: 35k points, 40 boxes)."""
     if not boxes or len(points) == 0:
         return [np.zeros(0, np.int64) for _ in boxes]
@@ -188,7 +188,7 @@ class TrackPlan:
                 f"`fuse` needs a sequence of at least 2 frames; the selection holds {len(keys)}", "fuse"
             )
         laps = StageTimer()
-        self.folders = sequence_folders(keys)  # the frames' sequence folders (frame_completion.frame_stems) are theirs
+        self.folders = sequence_folders(keys)  # the frames' sequence folders (frame_selection.frame_stems) are theirs
         grow = self.config.margin + (self.max_translation if self.refine else 0.0)
         budget = KEEP_POINTS
         if self.worker and self._worker is None:

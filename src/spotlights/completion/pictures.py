@@ -1,4 +1,5 @@
-"""A completed frame drawn: the bird's-eye raster (the default), matplotlib's close-ups where asked, the\ninteractive HTML page."""
+"""A completed frame drawn: the bird's-eye raster (the default), matplotlib's close-ups where asked, the
+interactive HTML page."""
 
 from __future__ import annotations
 

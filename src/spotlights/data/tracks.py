@@ -69,7 +69,7 @@ class TrackFrame:
     """One observation of one object.
 
     points : (N, 3) float, metres, the scan's frame (sensor or world): the object's points,
-        usually the crop of its box grown by a margin (:func:`spotlights.data.real.extract.crop_box`).
+        usually the crop of its box grown by a margin (:meth:`spotlights.geometry.boxes.Box.crop`).
     box : the object's :class:`~spotlights.geometry.boxes.Box` in the same frame.
     origin : (3,) float, metres, the sensor's position in the same frame (zeros for points stored
         in the sensor frame).

@@ -47,7 +47,7 @@ from .real_evaluation import (
 
 @dataclass(kw_only=True)
 class ExtractSettings(ReaderOptions):
-    """What ``spotlights real extract`` does: a dataset (:class:`~.frame_completion.ReaderOptions`) cut into
+    """What ``spotlights real extract`` does: a dataset (:class:`~spotlights.completion.frame_selection.ReaderOptions`) cut into
     unit-frame partial observations.
 
     out : the observation file (``.h5``); margin, ground_clearance : the crop (metres); min_points : boxes

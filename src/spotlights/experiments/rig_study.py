@@ -210,10 +210,7 @@ def _job(args):
     entry, rigs, seed, n_surface, cache = args
     if cache is not None and cache.exists():
         return json.loads(cache.read_text())
-    try:
-        rows = evaluate_mesh(entry, rigs, seed, n_surface)
-    except SpotlightsError as exc:  # a plain SpotlightsError crosses process boundaries (pickles) intact
-        raise SpotlightsError(str(exc)) from None
+    rows = evaluate_mesh(entry, rigs, seed, n_surface)  # its errors pickle whole (types, parameters) across processes
     if cache is not None:
         ignore = cache.parent.parent / ".gitignore"
         if not ignore.exists():

@@ -1,4 +1,5 @@
-"""Boxes read from JSON (the generic box format of ``complete``, ``real`` and the viewer): the one parser,\n:func:`box_from_dict`, and :func:`load_box` for a one-box file."""
+"""Boxes read from JSON (the generic box format of ``complete``, ``real`` and the viewer): the one parser,
+:func:`box_from_dict`, and :func:`load_box` for a one-box file."""
 
 from __future__ import annotations
 

@@ -287,6 +287,8 @@ def _worker_error(text: str) -> SpotlightsError | None:
     if not (isinstance(cls, type) and issubclass(cls, SpotlightsError)):
         return None
     message = text[last.end() :].strip()
+    if issubclass(cls, ParameterError):  # the parameters it names, as `name` (the CLI writes them as its options)
+        return ParameterError(message, *dict.fromkeys(re.findall(r"`(\w+)`", message)))
     return (ProcessFailure if issubclass(cls, ProcessFailure) else SpotlightsError)(message)
 
 

@@ -1,4 +1,5 @@
-"""What a model learned (:class:`LearnedDomain`: its classes and box sizes) and the gate that leaves other boxes as\nobserved points."""
+"""What a model learned (:class:`LearnedDomain`: its classes and box sizes) and the gate that leaves other boxes as
+observed points."""
 
 from __future__ import annotations
 

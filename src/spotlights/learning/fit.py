@@ -135,7 +135,9 @@ class FitSettings:
                 "rings",
             )
         if not 1 <= self.carve_cells <= 256 or not 1 <= self.carve_samples <= 64:
-            raise ParameterError("`carve_cells` must be in 1..256 and `carve_samples` in 1..64", "carve_cells")
+            raise ParameterError(
+                "`carve_cells` must be in 1..256 and `carve_samples` in 1..64", "carve_cells", "carve_samples"
+            )
         if (
             isinstance(self.free_tries, bool)
             or not isinstance(self.free_tries, numbers.Integral)
@@ -169,7 +171,9 @@ def parse_fit_steps(text: str) -> int:
         steps = int(text)
     except ValueError:
         raise ParameterError(f"expected a whole number in 1..{MAX_FIT_STEPS}, got {text!r}") from None
-    return check_fit_steps(steps, "--fit-steps")
+    if not 1 <= steps <= MAX_FIT_STEPS:
+        raise ParameterError(f"expected a whole number in 1..{MAX_FIT_STEPS}, got {text!r}")
+    return steps
 
 
 def can_fit(completer) -> bool:

@@ -1,4 +1,5 @@
-"""The evidence the fit of :mod:`spotlights.learning.fit` reads: the rig's neighbouring rays (the residual's\nsmoothness and the evidence's reach) and the observed free space (each beam from the sensor to its point)."""
+"""The evidence the fit of :mod:`spotlights.learning.fit` reads: the rig's neighbouring rays (the residual's
+smoothness and the evidence's reach) and the observed free space (each beam from the sensor to its point)."""
 
 from __future__ import annotations
 

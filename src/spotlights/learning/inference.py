@@ -510,7 +510,9 @@ def complete_in_boxes(
 def _fitted_in_boxes(completer, partials, sizes, clip, sensor_origins, inside, classes, snap, seen, fit, fitted):
     """:func:`complete_in_boxes` with ``fit``: the evidence fit (:func:`spotlights.learning.fit.fit_completions`)."""
     if snap:
-        raise ParameterError("`fit` does not go with `snap`: the fit puts the rays near observed points on them", "fit")
+        raise ParameterError(
+            "`fit` does not go with `snap`: the fit puts the rays near observed points on them", "fit", "snap"
+        )
     x = np.asarray(partials, dtype=np.float32)
     sz = np.asarray(sizes, dtype=np.float64).reshape(-1, 3)
     if len(x) == 0:

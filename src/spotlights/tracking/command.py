@@ -72,20 +72,24 @@ def run_track(s: TrackSettings) -> dict:
     ``s.all_classes``), track them and write ``s.out`` (and ``s.nuscenes_out``), each atomically; every check on
     the options is made before anything is read. Returns ``{"frames", "kept", "low_score", "other_class",
     "tracks"}``. Errors are one line naming the option (:class:`ParameterError`) or the file."""
-    check_suffix(s.out, (".json",), "the tracks file", "--out")
-    check_suffix(s.nuscenes_out, (".json",), "the nuScenes tracking file", "--nuscenes-out")
+    check_suffix(s.out, (".json",), "the tracks file", "out")
+    check_suffix(s.nuscenes_out, (".json",), "the nuScenes tracking file", "nuscenes_out")
     check_distinct_paths([("DETECTIONS", s.detections)], [("--out", s.out), ("--nuscenes-out", s.nuscenes_out)])
     if s.format == "nuscenes" and s.data is None:
-        raise ParameterError("--data: nuScenes detections are read beside their nuScenes folder; name it")
+        raise ParameterError("`data`: nuScenes detections are read beside their nuScenes folder; name it", "data")
     if s.format != "kitti" and (s.calib is not None or s.logit_scores):
-        raise ParameterError("--calib and --logit-scores apply to --format kitti only")
+        raise ParameterError(
+            "`calib` and `logit_scores` apply to `format` kitti only", "calib", "logit_scores", "format"
+        )
     if s.format == "generic" and s.data is not None:
-        raise ParameterError("--data applies to --format nuscenes and kitti only")
+        raise ParameterError("`data` applies to `format` nuscenes and kitti only", "data", "format")
     if s.format == "kitti" and s.calib is None and s.data is None:
-        raise ParameterError("--calib: KITTI detections are in the camera frame; name their calibration (or --data)")
-    for value, flag in ((s.min_hits, "--min-hits"), (s.max_misses, "--max-misses")):
+        raise ParameterError(
+            "`calib`: KITTI detections are in the camera frame; name their calibration (or `data`)", "calib", "data"
+        )
+    for value, name in ((s.min_hits, "min_hits"), (s.max_misses, "max_misses")):
         if not 1 <= value <= 1000:
-            raise ParameterError(f"{flag}: a whole number in 1..1000, got {value}")
+            raise ParameterError(f"`{name}`: a whole number in 1..1000, got {value}", name)
     check_writable(s.out, s.nuscenes_out)
     config = TrackerConfig(
         metric=s.metric,

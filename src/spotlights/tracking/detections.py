@@ -40,6 +40,7 @@ challenge allows 500); a file beyond them is refused. Every damaged file is an :
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import os
@@ -290,8 +291,9 @@ def read_kitti_detections(
                     if line.strip():
                         boxes.append(_kitti_row(line.split(), f, lineno, cached[cf], logit_scores))
             _cap(len(boxes), f)
-            index = int(f.stem) if f.stem.isdigit() else pos
-            frames.append(DetectionFrame("", f.stem, index * FRAME_PERIOD_S, boxes))
+            frames.append(DetectionFrame("", f.stem, pos * FRAME_PERIOD_S, boxes))
+        if all(f.frame_id.isdigit() for f in frames):  # KITTI names: the frame number is its time
+            frames = [dataclasses.replace(f, timestamp=int(f.frame_id) * FRAME_PERIOD_S) for f in frames]
         return frames
     t = velo_from_rect(read_calib(_calib_file(calib, path.stem)))
     by_frame: dict[int, list[Box]] = {}
@@ -410,6 +412,13 @@ def read_generic_detections(path: str | os.PathLike) -> list[DetectionFrame]:
                 t = pos * FRAME_PERIOD_S
             frames.append(DetectionFrame(seq, f["frame_id"], t, f["boxes"], f["sensor_to_world"]))
     frames.sort(key=lambda f: (f.sequence, f.timestamp))
+    for a, b in zip(frames, frames[1:]):
+        if a.sequence == b.sequence and not b.timestamp > a.timestamp:
+            raise InputFileError(
+                path,
+                f"sequence {a.sequence!r}: frames {a.frame_id!r} and {b.frame_id!r} share the time {a.timestamp:g} s "
+                "(a sequence's frames need distinct times)",
+            )
     return frames
 
 

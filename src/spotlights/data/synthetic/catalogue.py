@@ -487,7 +487,7 @@ def _deal(entries, idx, spec, cfg, out, where) -> None:
     try:
         labels = assign_splits([entries[i].category for i in idx], spec, cfg.seed, cfg.stratify)
     except ParameterError as exc:
-        raise ParameterError(f"{exc}{where}") from None
+        raise ParameterError(f"{exc}{where}", *exc.parameters) from None
     for i, s in zip(idx, labels):
         out[i] = s
 
