@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from spotlights.completion.frame import SceneConfig
 from spotlights.completion.fusion import TrackPlan
+from spotlights.completion.scene_config import SceneConfig
 from spotlights.data.real import open_reader
 from spotlights.data.real.extract import ExtractConfig, extract
 from spotlights.data.synthetic import BuildConfig, build_dataset

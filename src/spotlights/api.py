@@ -39,8 +39,10 @@ from typing import Any
 
 import numpy as np
 
-from .completion.frame import ObjectResult, SceneConfig, SceneResult, complete_scene
+from .completion.frame import complete_scene
+from .completion.results import ObjectResult, SceneResult
 from .completion.scan import AUTO_FALLBACK, resolve_fallback
+from .completion.scene_config import SceneConfig
 from .data.real import FORMATS, open_reader
 from .data.real.base import Frame
 from .errors import ParameterError

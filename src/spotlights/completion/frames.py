@@ -32,7 +32,7 @@ from ..viz import write_png
 from ..viz.html import write_plotlyjs
 from ..viz.rerun_log import check_rerun_path, open_recording
 from .detections import check_detection_options, tracked_reader
-from .frame import SceneConfig, SceneResult, complete_scene, fallback_counts, fallback_hint, write_scene
+from .frame import complete_scene, fallback_hint
 from .frame_selection import (
     FRAME_KEYS,
     FramesSettings,
@@ -44,7 +44,10 @@ from .frame_selection import (
 from .fusion import TrackPlan, TrackWorker, threads_beside_worker, usable_cpus
 from .picture_processes import PictureProcesses
 from .pictures import render_result, render_result_html
-from .scan import Say, ScanSettings, complete_scan, write_json
+from .results import SceneResult
+from .scan import Say, ScanSettings, complete_scan
+from .scene_config import SceneConfig
+from .writing import fallback_counts, write_json, write_scene
 
 # ---------------------------------------------------------------------------- frame selection
 

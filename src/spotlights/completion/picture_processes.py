@@ -9,10 +9,10 @@ from pathlib import Path
 
 from ..errors import ParameterError, ProcessFailure
 from ..processes import sigint_held, start_process_pool, stop_process_pool
-from .frame import SceneResult
 from .frame_selection import FramesSettings
 from .fusion import usable_cpus
 from .pictures import result_png
+from .results import SceneResult
 
 #: The most processes that draw PNGs by default (:func:`picture_workers`); each holds ~140 MB (matplotlib).
 PICTURE_WORKERS_MAX = 8
