@@ -5,7 +5,9 @@ the carried wheels); docs/training.md, "GPU recipe". On a machine with one GPU a
 
 1. **data**: ``spotlights dataset build`` of the meshes it carries (``--meshes``; default the first of
    ``$GPU_MESHES``, ``.whl/meshes/apolloscape-cars``, ``shared/data/...`` and ``../shared/data/...``), the paper's
-   64/8/7 split, ``--views`` views per car, with the rig the configuration trains on, all cores;
+   64/8/7 split, ``--views`` views per car, with the rig the configuration trains on, all cores; with ``--source``
+   (more mesh folders) and ``--procedural N`` (procedural vehicles per class) a training set of every class,
+   ``WORK/union.h5`` (docs/studies/one-model.md);
 2. **step time**: a few warm-up steps, then ``--probe-steps`` timed training steps (batch, precision and
    optimizer of the run, CUDA synchronised);
 3. **plan**: the steps that fit what is left of ``MINUTES`` (less a reserve for the last interval's validation
@@ -80,6 +82,27 @@ def parse_args(argv=None) -> argparse.Namespace:
         action="store_true",
         help="keep WORK/cars.h5 when an earlier run built it from the same meshes, views, split and seed with the rig "
         "this model needs (a second model in the same call: no second build)",
+    )
+    ap.add_argument(
+        "--source",
+        action="append",
+        default=[],
+        metavar="DIR[,key=value...]",
+        help="another mesh folder of the training set, as `spotlights dataset build --meshes` takes it (repeatable; "
+        "e.g. DIR,manifest=CSV,split=train,name=NAME); the carried meshes then keep --split as their own split",
+    )
+    ap.add_argument(
+        "--procedural",
+        type=int,
+        default=0,
+        metavar="N",
+        help="add N procedural vehicles per class of --classes to the training set (0..10000; default 0: none)",
+    )
+    ap.add_argument(
+        "--classes", default="car,van,truck,bus,trailer", help="classes of --procedural (default every class)"
+    )
+    ap.add_argument(
+        "--procedural-split", default="0.8/0.1/0.1", help="split of the procedural vehicles (default 0.8/0.1/0.1)"
     )
     ap.add_argument("--cpu", action="store_true", help="force the CPU (tests; the GPU otherwise)")
     ap.add_argument("--precision", default="bf16", choices=["bf16", "fp32"], help="autocast of training")
@@ -158,7 +181,7 @@ def reuse_problem(path: Path, cfg, rig: str | None) -> str | None:
     except SpotlightsError as exc:
         return str(exc)
     want, have = cfg.to_dict(), store.config
-    for key in ("meshes", "views", "split", "seed"):
+    for key in ("meshes", "views", "split", "seed", "sources", "procedural"):
         if have.get(key) != want.get(key):
             return f"its {key} is {have.get(key)!r}, not {want.get(key)!r}"
     if rig and parse_rig(rig).name not in store.rig_names:
@@ -181,6 +204,8 @@ def build_data(meshes: Path, out: Path, args, rig: str | None, log) -> dict:
         seed=int(args.seed),
         extra_rigs=[rig] if rig else [],
     )
+    if getattr(args, "source", None) or getattr(args, "procedural", 0):
+        cfg = union_config(meshes, args, rig)
     if getattr(args, "reuse_data", False):
         why = reuse_problem(out, cfg, rig)
         if why is None:
@@ -200,6 +225,26 @@ def build_data(meshes: Path, out: Path, args, rig: str | None, log) -> dict:
     n = int(rep.n_samples)
     log(f"dataset: {out} built in {seconds:.1f} s ({args.views} views per model, split {args.split})")
     return {"path": str(out), "seconds": seconds, "views": int(args.views), "samples": n, "rig": rig, "reused": False}
+
+
+def union_config(meshes: Path, args, rig: str | None):
+    """The ``BuildConfig`` of a training set of several sources (the carried meshes with ``--split`` as their own
+    split, every ``--source``) and ``--procedural`` N vehicles per class of ``--classes`` (as ``spotlights dataset
+    build`` makes it: :class:`~spotlights.data.synthetic.request.BuildRequest`; bad values are a ParameterError)."""
+    from spotlights.data.synthetic.request import BuildRequest
+
+    n = int(args.procedural or 0)
+    req = BuildRequest(
+        out="unused.h5",
+        meshes=[f"{meshes},split={args.split}", *args.source],
+        views=int(args.views),
+        seed=int(args.seed),
+        rig=[rig] if rig else [],
+        procedural=n,
+        classes=args.classes if n else None,
+        procedural_split=args.procedural_split if n else None,
+    )
+    return req.build_config()
 
 
 def probe_step(name: str, cfg: dict, data: Path, device, precision: str, steps: int, log) -> float:
@@ -298,7 +343,7 @@ def main(argv=None) -> int:
     if not args.out:
         print("gpu_train: error: no output folder: set $OUT or pass --out", file=sys.stderr)
         return 2
-    from spotlights.errors import ParameterError, SpotlightsError
+    from spotlights.errors import InputFileError, ParameterError, SpotlightsError
 
     try:
         # the inputs first, before any folder is made or torch imported
@@ -306,6 +351,20 @@ def main(argv=None) -> int:
         if args.minutes <= 0:
             raise ParameterError(f"MINUTES must be > 0, got {args.minutes}")
         meshes = find_meshes(args.meshes)
+        if not 0 <= args.procedural <= 10_000:
+            raise ParameterError(f"--procedural must be 0..10000 vehicles per class, got {args.procedural}")
+        for src in args.source:
+            folder = Path(src.split(",")[0])
+            if not folder.is_dir():
+                raise InputFileError(folder, "no such mesh folder (--source)")
+        if args.procedural:
+            from spotlights.data.vehicle_classes import VEHICLE_CLASSES, canonical_class
+
+            bad = [c for c in args.classes.split(",") if canonical_class(c) not in VEHICLE_CLASSES]
+            if bad:
+                raise ParameterError(f"--classes: {bad[0]!r} is not one of {', '.join(VEHICLE_CLASSES)} (or van)")
+        if args.source or args.procedural:
+            union_config(meshes, args, None)  # its values checked now, before any folder is made
         if not args.cpu:
             import torch
 
@@ -349,7 +408,8 @@ def run(args, name: str, cfg_path: Path | None, meshes: Path, out: Path, log, t_
 
     work = Path(args.work) if args.work else out.parent / (out.name + "-work")
     work.mkdir(parents=True, exist_ok=True)
-    data = build_data(meshes, work / "cars.h5", args, rig, log)
+    union = bool(args.source or args.procedural)
+    data = build_data(meshes, work / ("union.h5" if union else "cars.h5"), args, rig, log)
 
     step_s = probe_step(name, cfg, Path(data["path"]), device, args.precision, args.probe_steps, log)
     left = deadline - time.perf_counter() - reserve

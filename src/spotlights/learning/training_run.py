@@ -350,8 +350,11 @@ def init_from_checkpoint(model: torch.nn.Module, path) -> None:
     is taken too. Raises :class:`InputFileError` naming the checkpoint otherwise."""
     ckpt = load_checkpoint(path)
     try:
-        missing, unexpected = model.load_state_dict(ckpt["model_state"], strict=False)
-    except RuntimeError as exc:
+        state = ckpt["model_state"]
+        if hasattr(model, "init_state"):  # e.g. a plain decoder's weights for a per-viewpoint decoder
+            state = model.init_state(state)
+        missing, unexpected = model.load_state_dict(state, strict=False)
+    except (RuntimeError, ValueError) as exc:
         first = (str(exc).splitlines() or [""])[0][:160]
         raise InputFileError(ckpt["path"], f"its weights do not fit the model of this run ({first})") from None
     bad = [k for k in missing if not k.startswith(("class_embedding.", "class_template."))] + list(unexpected)

@@ -32,6 +32,7 @@ import torch
 
 from .base import CLIP_DEFAULT
 from .sanet import SANet
+from .viewpoint_head import ViewpointDecoder
 
 THRESHOLD_GRID = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
 """Hit-probability thresholds tried on the validation split (the CD-L1 minimiser is kept)."""
@@ -59,6 +60,11 @@ class HitSANet(SANet):
         packaged config sets true). Measured: 400 bf16 steps with it reach a validation CD-L1
         4.4% *below* fp32's (0.0363 vs 0.0380), without it 9.1% above (0.0414); docs/learning.md.
 
+    viewpoint_code : width ``c`` of a code per viewpoint (default None: the plain decoder, every checkpoint
+        before it). With ``c`` the decoder's last layer is replaced by per-viewpoint codes and one output
+        matrix per viewpoint (:class:`~spotlights.learning.models.viewpoint_head.ViewpointDecoder`): a
+        completion is a ReLU mix of N*c output patterns instead of ``hidden[-1]``; same outputs, layout and loss.
+
     forward: partial (B, K, 3) -> {"hit_logits": (B, N*M), "depths": (B, N*M)} (raw depths;
     decoding clamps them to [0, half the ray's chord]).
     """
@@ -81,6 +87,7 @@ class HitSANet(SANet):
         classes: Sequence[str] | None = None,
         box_weight: float = 0.0,
         class_templates: bool = False,
+        viewpoint_code: int | None = None,
     ):
         super().__init__(
             rig,
@@ -92,6 +99,17 @@ class HitSANet(SANet):
             classes=classes,
             class_templates=class_templates,
         )
+        self.viewpoint_code = None if viewpoint_code is None else int(viewpoint_code)
+        if self.viewpoint_code is not None:
+            if self.viewpoint_code < 1:
+                raise ValueError(f"viewpoint_code must be >= 1 or None, got {viewpoint_code}")
+            self.decoder = ViewpointDecoder(
+                [code_size, *hidden],
+                self.rig.n_primary,
+                self.rig.n_secondary,
+                self.outputs_per_ray,
+                self.viewpoint_code,
+            )
         self.decoder.float32_last = bool(float32_head)
         self.threshold = check_probability(threshold, "threshold")
         self.threshold_grid = tuple(check_probability(t, "threshold_grid value") for t in (threshold_grid or ()))
@@ -103,6 +121,14 @@ class HitSANet(SANet):
         self.box_weight = float(box_weight)
         if not self.box_weight >= 0:
             raise ValueError(f"box_weight must be >= 0, got {box_weight}")
+
+    def init_state(self, state: dict) -> dict:
+        """A checkpoint's state dict made to fit this model for ``model.init``: a plain decoder's weights become
+        this model's per-viewpoint decoder computing the same outputs
+        (:meth:`~spotlights.learning.models.viewpoint_head.ViewpointDecoder.state_from_plain`); else ``state``."""
+        if isinstance(self.decoder, ViewpointDecoder) and "decoder.view_weight" not in state:
+            return self.decoder.state_from_plain(state)
+        return state
 
     def forward(self, partial: torch.Tensor, classes: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         out = self.add_template(self.decoder(self.encode(partial, classes)), classes)
