@@ -157,3 +157,17 @@ def test_one_frame_from_the_command_line_never_imports_torch(tmp_path):
     summ = json.loads((tmp_path / "o.json").read_text())
     assert summ["runtime"] == "onnx" and summ["precision"] == "fp32"
     assert any(o.get("completed_by") == "classes" for o in summ["objects"])
+
+
+def test_auto_runs_many_frames_with_torch_at_bf16_where_the_cpu_has_it(monkeypatch):
+    """``frames`` >= MANY_FRAMES on a CPU with native bfloat16: torch (its bf16 scans cost less than onnxruntime's
+    float32 ones, and the frames repay its start-up); one frame, or a CPU without bf16, or bf16 refused: onnx."""
+    _no_cuda(monkeypatch)
+    many, bf16, plain = rt.MANY_FRAMES, {"avx512_bf16", "avx512f"}, {"avx2", "avx512f"}
+    assert rt.choose_runtime("default", frames=many, flags=bf16) == ("torch", "default")
+    assert rt.choose_runtime("default", frames=many, flags={"amx_bf16"})[0] == "torch"
+    assert rt.choose_runtime("default", frames=many - 1, flags=bf16)[0] == "onnx"
+    assert rt.choose_runtime("default", frames=many, flags=plain)[0] == "onnx"
+    assert rt.choose_runtime("default", precision="fp32", frames=many, flags=bf16)[0] == "onnx"
+    monkeypatch.setattr(rt, "torch_imports", lambda: False)  # a core install with onnxruntime only
+    assert rt.choose_runtime("default", frames=many, flags=bf16)[0] == "onnx"

@@ -90,3 +90,13 @@ def test_picture_and_compression_numbers():
         _says(f"{row['file_mb']:.2f} | yes")
     g, z = c["gzip 4 + shuffle"], c["none"]
     _says(f"{g['write_cpu_s'] / z['write_cpu_s']:.1f}x less CPU to write than gzip")
+
+
+def test_idle_frame_rates_are_the_results_files():
+    fr = _json("frames_runtime.json")["rows"]
+    for row in fr.values():
+        _says(f"| {row['runtime']} | {row['precision']} | {row['frames_per_s']:.2f} |")
+    assert fr["auto (default)"]["runtime"] == "torch" or fr["auto (default)"]["precision"] == "fp32"
+    pic = _json("pictures_idle.json")["pictures"]
+    _says(f"{pic['real_complete']['pictures (default)']['frames_per_s']:.2f} frames/s with the raster pictures")
+    _says(f"slow the frame loop by {pic['frame_loop_pictures_over_none']:.2f}x")

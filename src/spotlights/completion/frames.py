@@ -363,9 +363,9 @@ def complete_frames(
         pictures = PictureProcesses.start(s, len(keys))  # their start and imports overlap the model's load
         # onnxruntime's threads leave a core to the track worker, as threads_beside_worker does torch's
         beside = max(1, usable_cpus() - 1) if tracks is not None and tracks.worker_process is not None else None
-        completer = s.load_completer(beside) if completer is None else completer
+        completer = s.load_completer(beside, len(keys)) if completer is None else completer
         s.check_snap(completer)
-        fallback = s.load_fallback(beside)  # loaded beside the main model, before any output exists
+        fallback = s.load_fallback(beside, len(keys))  # loaded beside the main model, before any output exists
         # the folder is removed again if nothing could be written; the recording is written only when the run ends
         with (
             output_folder(s.out) as out,

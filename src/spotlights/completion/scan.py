@@ -200,16 +200,18 @@ class CompletionOptions:
             heading_margin=HEADING_MARGIN if self.heading_margin is None else float(self.heading_margin),
         )
 
-    def load_completer(self, threads: int | None = None) -> BaseCompleter:
+    def load_completer(self, threads: int | None = None, frames: int = 1) -> BaseCompleter:
         """The model of :attr:`checkpoint` run with :attr:`runtime` on :attr:`device` at :attr:`precision`
-        (:func:`spotlights.learning.runtime.load_completer`); onnxruntime's threads: :attr:`threads`, else
-        ``threads`` (None: its default; a run with a track worker leaves that process a core)."""
+        (:func:`spotlights.learning.runtime.load_completer`, ``frames`` the frames it will complete); onnxruntime's
+        threads: :attr:`threads`, else ``threads`` (None: its default; a run with a track worker leaves that process
+        a core)."""
         return load_completer(
             self.checkpoint,
             runtime=self.runtime,
             device=self.device,
             precision=self.precision,
             threads=check_threads(self.threads) or threads,
+            frames=frames,
         )
 
     def check_snap(self, completer: BaseCompleter) -> None:
@@ -217,7 +219,7 @@ class CompletionOptions:
         require_rays_to_snap`, which :func:`~spotlights.completion.frame.complete_scene` runs again per scan)."""
         require_rays_to_snap(completer, self.snap)
 
-    def load_fallback(self, threads: int | None = None) -> BaseCompleter | None:
+    def load_fallback(self, threads: int | None = None, frames: int = 1) -> BaseCompleter | None:
         """The model of :attr:`fallback_model` (same device, precision, threads and runtime where it can run with it:
         :func:`~spotlights.learning.runtime.fallback_runtime`), or None."""
         fb = self.fallback_model
@@ -225,7 +227,9 @@ class CompletionOptions:
             return None
         runtime = fallback_runtime(self.runtime, fb)
         threads = check_threads(self.threads) or threads
-        return load_completer(fb, runtime=runtime, device=self.device, precision=self.precision, threads=threads)
+        return load_completer(
+            fb, runtime=runtime, device=self.device, precision=self.precision, threads=threads, frames=frames
+        )
 
 
 @dataclass(kw_only=True)

@@ -8,7 +8,11 @@
   file; torch for every other checkpoint, on a CUDA device (one given, or an NVIDIA driver present and no device
   given), or for ``precision="bf16"``. A one-frame completion then never imports torch (its start-up was 95% of
   ``spotlights complete`` on one frame); the exports give torch's outputs within float rounding
-  (docs/studies/speed.md: parity);
+  (docs/studies/speed.md: parity). A run of :data:`MANY_FRAMES` frames or more (``frames``: ``real complete``)
+  on a CPU that multiplies bfloat16 natively runs torch at bf16 instead when torch is installed: there its scans
+  cost less CPU than onnxruntime's float32 ones (2.44 against 3.62 ms a scan, one thread, batch 32) and the
+  frames repay torch's start-up (nuScenes scene-0523, 40 frames, ``--fuse past:5 --refine-boxes``: 14.4 frames/s
+  against 8.5, docs/studies/speed.md);
 * ``"onnx"``: an ONNX file, or the shipped export of a packaged name;
 * ``"torch"``: a checkpoint with torch (:class:`~spotlights.learning.inference.Completer`).
 
@@ -22,12 +26,13 @@ from __future__ import annotations
 
 import numbers
 import os
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Literal
 
 from ..errors import ParameterError
 from .checkpoint import PRETRAINED
-from .cpu import auto_precision
+from .cpu import auto_precision, has_bf16
 from .export import load_onnx_completer
 from .inference import BaseCompleter
 from .inference import load_completer as load_torch_completer
@@ -37,6 +42,9 @@ RUNTIMES = ("auto", "torch", "onnx")
 Runtime = Literal["auto", "torch", "onnx"]
 
 PRECISIONS = ("auto", "fp32", "bf16")
+
+MANY_FRAMES = 8
+"""From this many frames on, ``"auto"`` prefers torch at bf16 on a CPU with native bfloat16 (module docstring)."""
 
 PRETRAINED_DIR = Path(__file__).resolve().parent / "pretrained"
 
@@ -73,10 +81,14 @@ def choose_runtime(
     runtime: str | None = "auto",
     device: str | None = None,
     precision: str | None = "auto",
+    frames: int = 1,
+    flags: Iterable[str] | None = None,
 ) -> tuple[str, str | os.PathLike | None]:
     """The runtime a model runs with and what it loads: ``("onnx", ONNX file)`` or ``("torch", checkpoint)``.
 
-    The rules of :func:`load_completer` (see the module docstring); ``runtime`` None is ``"auto"``. Raises
+    The rules of :func:`load_completer` (see the module docstring); ``runtime`` None is ``"auto"``; ``frames``: how
+    many frames the model will complete (a hint for ``"auto"``); ``flags``: the CPU's flags (default: this CPU's,
+    :func:`spotlights.learning.cpu.cpu_flags`). Raises
     :class:`ParameterError` for an unknown runtime or precision, or one that does not fit the model.
     """
     runtime = "auto" if runtime is None else runtime
@@ -105,8 +117,16 @@ def choose_runtime(
         return "onnx", shipped
     on_cpu = str(device).split(":")[0] == "cpu" if device is not None else not cuda_present()
     if shipped is not None and on_cpu and precision != "bf16" and onnxruntime_imports():
-        return "onnx", shipped
+        many = frames >= MANY_FRAMES and precision in (None, "auto") and has_bf16(flags) and torch_imports()
+        return ("torch", name_or_path) if many else ("onnx", shipped)
     return "torch", name_or_path
+
+
+def torch_imports() -> bool:
+    """Whether torch is installed (found, not imported: the check costs no start-up)."""
+    import importlib.util
+
+    return importlib.util.find_spec("torch") is not None
 
 
 def load_completer(
@@ -115,6 +135,7 @@ def load_completer(
     device: str | None = None,
     precision: str | None = "auto",
     threads: int | None = None,
+    frames: int = 1,
 ) -> BaseCompleter:
     """A completion model ready for inference.
 
@@ -131,6 +152,8 @@ def load_completer(
         (torch autocast; an ONNX model runs as exported, float32, and refuses ``"bf16"``).
     threads : onnx runtime: onnxruntime's intra-op threads, >= 1 (None: its default); the torch runtime's threads are the
         process's (``torch.set_num_threads``).
+    frames : how many frames the model will complete (``"auto"`` prefers torch at bf16 from :data:`MANY_FRAMES` on,
+        on a CPU with native bfloat16).
 
     Returns a :class:`~spotlights.learning.inference.BaseCompleter` (a torch
     :class:`~spotlights.learning.inference.Completer` or an :class:`~spotlights.learning.export.OnnxCompleter`): ``complete(partials (B, K, 3) float32,
@@ -143,7 +166,7 @@ def load_completer(
         raise ParameterError(
             f"`threads` must be a whole number >= 1 or None (the runtime's default), got {threads!r}", "threads"
         )
-    chosen, what = choose_runtime(name_or_path, runtime, device, precision)
+    chosen, what = choose_runtime(name_or_path, runtime, device, precision, frames)
     if chosen == "onnx":
         if precision not in (None, "auto", "fp32"):
             raise ParameterError(
