@@ -10,6 +10,9 @@ seeded; the file is a few hundred kB.
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -256,3 +259,24 @@ def one_torch_thread():
         yield
     finally:
         torch.set_num_threads(before)
+
+
+def write_category_shapes(root: Path) -> Path:
+    """Three category folders (hatchback, sedan, suv) of three :func:`make_shape` meshes each under ``root``."""
+    rng = np.random.default_rng(0)
+    for cat in ("hatchback", "sedan", "suv"):
+        (root / cat).mkdir()
+        for j in range(3):
+            make_shape(cat, rng).export(root / cat / f"{cat}{j}.ply")
+    return root
+
+
+def run_gpu_script(tmp_path: Path, *args, env: dict | None = None) -> subprocess.CompletedProcess:
+    """scripts/gpu_train.sh with ``args``, with this test's interpreter as its Python (PYTHON; the script's default
+    is ``python3`` on the PATH, which under ``make test`` is not the project environment's: it would miss the
+    packages), no wheel bundle, one OpenMP thread and ``env`` on top."""
+    full = dict(os.environ, GPU_BUNDLE=str(tmp_path / "no-wheels"), OMP_NUM_THREADS="1", PYTHON=sys.executable)
+    full.update(env or {})
+    full.pop("OUT", None)
+    script = Path(__file__).resolve().parents[1] / "scripts" / "gpu_train.sh"
+    return subprocess.run(["bash", str(script), *map(str, args)], capture_output=True, text=True, env=full, timeout=550)

@@ -9,36 +9,18 @@ import subprocess
 import sys
 from types import SimpleNamespace
 
-import numpy as np
 import pytest
 
 torch = pytest.importorskip("torch")
 pytest.importorskip("embreex")
 
 from helpers import REPO, assert_user_error, load_script  # noqa: E402
-from learning_fixtures import TINY_MODEL_ARGS, make_shape  # noqa: E402
-
-SCRIPT = REPO / "scripts" / "gpu_train.sh"
-
-
-def _run(tmp_path, *args, env=None):
-    """The script with this test's interpreter as its Python (PYTHON; the script's default is ``python3`` on the
-    PATH, which under ``make test`` is not the project environment's: it would miss the packages)."""
-    full = dict(os.environ, GPU_BUNDLE=str(tmp_path / "no-wheels"), OMP_NUM_THREADS="1", PYTHON=sys.executable)
-    full.update(env or {})
-    full.pop("OUT", None)
-    return subprocess.run(["bash", str(SCRIPT), *map(str, args)], capture_output=True, text=True, env=full, timeout=550)
+from learning_fixtures import TINY_MODEL_ARGS, run_gpu_script, write_category_shapes  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def meshes(tmp_path_factory):
-    root = tmp_path_factory.mktemp("gpu-meshes")
-    rng = np.random.default_rng(0)
-    for cat in ("hatchback", "sedan", "suv"):
-        (root / cat).mkdir()
-        for j in range(3):
-            make_shape(cat, rng).export(root / cat / f"{cat}{j}.ply")
-    return root
+    return write_category_shapes(tmp_path_factory.mktemp("gpu-meshes"))
 
 
 @pytest.mark.slow  # the recipe end to end: a dataset build and a training (seconds)
@@ -50,7 +32,7 @@ def test_tiny_cpu_run_writes_a_loadable_checkpoint_log_and_config(tmp_path, mesh
     out = tmp_path / "out"
     # a budget of 60 minutes: --steps 20 are all done however slow the machine (with 1 minute, a loaded machine
     # stopped after 10: the run stops at its budget); the plan is then the steps asked for, not a timing
-    proc = _run(
+    proc = run_gpu_script(
         tmp_path, cfg, 60, "--cpu", "--meshes", meshes, "--split", "3/3/3", "--views", 4, "--steps", 20,
         "--intervals", 2, "--batch-size", 4, "--probe-steps", 2, "--val-views", 2, "--workers", 1,
         "--out", out, "--work", tmp_path / "work",
@@ -75,7 +57,7 @@ def test_tiny_cpu_run_writes_a_loadable_checkpoint_log_and_config(tmp_path, mesh
 
 
 def test_bad_inputs_exit_2_with_one_line(tmp_path, meshes, capsys, monkeypatch):
-    proc = _run(tmp_path, "no-such-model", 1, "--cpu", "--out", tmp_path / "o")
+    proc = run_gpu_script(tmp_path, "no-such-model", 1, "--cpu", "--out", tmp_path / "o")
     assert_user_error(proc, "unknown model 'no-such-model'")
     gpu = load_script("scripts/gpu_train.py")  # the same checks in-process (no torch is imported before them)
     monkeypatch.delenv("OUT", raising=False)

@@ -4,37 +4,19 @@ vehicles (``--source``, ``--procedural``), a class-conditioned per-viewpoint mod
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 
-import numpy as np
 import pytest
 
 torch = pytest.importorskip("torch")
 pytest.importorskip("embreex")
 
-from helpers import REPO, assert_user_error, load_script  # noqa: E402
-from learning_fixtures import TINY_MODEL_ARGS, make_shape  # noqa: E402
-
-SCRIPT = REPO / "scripts" / "gpu_train.sh"
-
-
-def _run(tmp_path, *args):
-    env = dict(os.environ, GPU_BUNDLE=str(tmp_path / "no-wheels"), OMP_NUM_THREADS="1", PYTHON=sys.executable)
-    env.pop("OUT", None)
-    return subprocess.run(["bash", str(SCRIPT), *map(str, args)], capture_output=True, text=True, env=env, timeout=550)
+from helpers import assert_user_error, load_script  # noqa: E402
+from learning_fixtures import TINY_MODEL_ARGS, run_gpu_script, write_category_shapes  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def meshes(tmp_path_factory):
-    root = tmp_path_factory.mktemp("gpu-union-meshes")
-    rng = np.random.default_rng(0)
-    for cat in ("hatchback", "sedan", "suv"):
-        (root / cat).mkdir()
-        for j in range(3):
-            make_shape(cat, rng).export(root / cat / f"{cat}{j}.ply")
-    return root
+    return write_category_shapes(tmp_path_factory.mktemp("gpu-union-meshes"))
 
 
 @pytest.mark.slow  # a dataset build of 20 models and a few training steps (seconds)
@@ -46,7 +28,7 @@ def test_a_union_run_trains_a_class_conditioned_viewpoint_model_on_every_source(
     cfg = tmp_path / "wide.yaml"
     cfg.write_text(json.dumps({"model": {"name": "sanet-hit", "args": args}, "data": {"rig": "box-4x8-ellipsoid-s1"}}))
     out = tmp_path / "out"
-    proc = _run(
+    proc = run_gpu_script(
         tmp_path, cfg, 60, "--cpu", "--meshes", meshes, "--split", "3/3/3", "--views", 2,
         "--source", f"{meshes},split=train,name=extra", "--procedural", 1, "--classes", "truck,trailer",
         "--procedural-split", "train", "--steps", 4, "--intervals", 2, "--batch-size", 4, "--probe-steps", 1,
@@ -79,5 +61,5 @@ def test_bad_union_inputs_exit_2_with_one_line(tmp_path, meshes, capsys, monkeyp
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and message in err[0] and err[0].startswith("gpu_train: error:"), err
     assert not (tmp_path / "o").exists()  # refused before any work
-    proc = _run(tmp_path, "pcn", 1, "--cpu", "--meshes", meshes, "--procedural", -1, "--out", tmp_path / "o")
+    proc = run_gpu_script(tmp_path, "pcn", 1, "--cpu", "--meshes", meshes, "--procedural", -1, "--out", tmp_path / "o")
     assert_user_error(proc, "--procedural must be 0..10000")
