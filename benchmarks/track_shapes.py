@@ -185,28 +185,15 @@ class MemoryReader:
 
 def sequences(args, completer, config) -> dict:
     sys.path.insert(0, str(HERE))
-    from spotlights.data.lidar import sensor_preset
-    from spotlights.data.synthetic.sequences import SequenceSpec, simulate_sequence
     from spotlights.geometry.distances import accuracy, completeness
-    from spotlights.geometry.io import load_mesh
-    from spotlights.geometry.sampling import sample_surface
     from spotlights.learning.fused import paper_split_meshes
-    from track_sequences import truth_floor
+    from track_sequences import simulated_sequence, truth_floor
 
     meshes = paper_split_meshes(args.meshes, args.split)[: args.n]
     rig = getattr(completer, "rig", None)
     rows = []
     for i, m in enumerate(meshes):
-        mesh = load_mesh(m)
-        rng = np.random.default_rng([args.seed, i])
-        seq = simulate_sequence(
-            np.asarray(mesh.vertices),
-            np.asarray(mesh.faces),
-            sensor_preset("hdl32e"),
-            SequenceSpec(args.frames, args.hz),
-            rng,
-        )
-        gt = sample_surface(mesh, args.gt_points, seed=np.random.default_rng([args.seed, i, 1])) - seq["center_in_mesh"]
+        mesh, seq, gt = simulated_sequence(m, i, args.seed, "hdl32e", args.frames, args.hz, args.gt_points)
         name = f"seq{i:04d}"
         frames = {
             (name, f"{k:04d}"): Frame(name, f"{k:04d}", f["timestamp"], f["points"], [f["true_box"]])
