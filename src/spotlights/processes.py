@@ -273,6 +273,27 @@ def stop_process_pool(pool, grace: float = 0.0) -> None:
             p.join(5)
             if p.is_alive():
                 p.kill()
+    _end_manager_thread(pool, manager)
+
+
+def _end_manager_thread(pool, manager, timeout: float = 5.0) -> None:
+    """Let the pool's manager thread see its workers gone and close its wake-up pipe, then forget it.
+
+    At interpreter exit CPython 3.11 wakes every pool's manager thread through that pipe without the pool's lock:
+    if the manager closes the pipe in the same instant (it does once its workers have ended), the exit prints an
+    ``OSError: Bad file descriptor`` traceback after our one line. Joined here (bounded), the pipe is closed
+    before exit and the exit hook skips it; a manager still alive after ``timeout`` seconds is taken out of the
+    exit hook's list under the pool's lock, so that nothing writes to its pipe while it closes it."""
+    if manager is None:
+        return
+    with contextlib.suppress(Exception):
+        manager.join(timeout)
+    with contextlib.suppress(Exception):
+        from concurrent.futures import process as futures_process
+
+        lock = getattr(pool, "_shutdown_lock", None) or contextlib.nullcontext()
+        with lock:
+            futures_process._threads_wakeups.pop(manager, None)
 
 
 _THREAD_POOLS: dict[str, tuple] = {}  # name -> (owner pid, executor, threads)
