@@ -357,6 +357,11 @@ def test_the_study_page_quotes_the_results_file():
     m = res["metrics"]
     row = f"| 0 (reported) | {m['mota']:.3f} | {m['idf1']:.3f} | {m['id_switches']} | {m['id_switches_per_100_tracks']:.1f} |"
     assert row in text
+    mean = res["mean_over_seeds"]
+    assert (
+        f"| mean of {mean['seeds']} | {mean['mota']:.3f} | {mean['idf1']:.3f} | {mean['id_switches']:.1f} | "
+        f"{mean['id_switches_per_100_tracks']:.1f} |" in text
+    )
     for seed, o in res["other_seeds"].items():
         assert (
             f"| {seed} | {o['mota']:.3f} | {o['idf1']:.3f} | {o['id_switches']} | {o['id_switches_per_100_tracks']:.1f} |"
@@ -369,6 +374,10 @@ def test_the_study_page_quotes_the_results_file():
         f"MOTP {m['motp_m']:.3f} m",
         f"{res['detections']} detections, {res['detections_per_frame']:.1f} a frame",
         f"{m['mostly_tracked']} tracks mostly tracked, {m['mostly_lost']} mostly lost",
+        f"over the same ten seeds {res['mean_over_seeds']['id_switches_total']} identity switches instead of "
+        f"{res['alternatives']['max_misses=6']['id_switches_total']}",
+        f"centre distance 3 m: {res['alternatives']['max_distance_m=3']['id_switches_total']}, "
+        f"4 m: {res['alternatives']['max_distance_m=4']['id_switches_total']}",
     ):
         assert phrase in text, phrase
 

@@ -75,7 +75,7 @@ class TrackerConfig:
     gate_sigmas: float = 2.0
     max_distance_m: float = 2.0
     min_hits: int = 2
-    max_misses: int = 6
+    max_misses: int = 10
     birth_score: float = 0.4
     confirm_score: float = 0.6
     report_coasted: bool = False
