@@ -42,7 +42,7 @@ from .frame_selection import (
     stem_file,
 )
 from .fusion import TrackPlan, TrackWorker, threads_beside_worker, usable_cpus
-from .picture_processes import PictureProcesses
+from .picture_processes import PICTURE_BACKLOG, PictureProcesses
 from .pictures import render_result, render_result_html
 from .results import SceneResult
 from .scan import Say, ScanSettings, complete_scan
@@ -84,10 +84,10 @@ class _FrameRun:
         self.resumed: dict = {}
         self.latest: dict = {}  # track key -> the resumed frame holding its latest completion so far
         # a frame's files are written by one thread, in frame order, while the next frames are completed: one frame
-        # in flight, or one more than there are picture processes (each drawing one frame's PNG, below the loop's
-        # priority: a picture may finish a frame later)
+        # in flight, or PICTURE_BACKLOG more than there are picture processes (each drawing one frame's PNG, below the
+        # loop's priority: the pictures catch up in the loop's idle moments, and at the end)
         self.pictures = pictures
-        self.in_flight = pictures.workers + 1 if pictures is not None else 1
+        self.in_flight = pictures.workers + PICTURE_BACKLOG if pictures is not None else 1
         self._written: deque[Future] = deque()
         self._stopped = False  # a write failed, or the run ends early: the frames not yet written write nothing
 
@@ -116,8 +116,8 @@ class _FrameRun:
         result = self._scene(frame, boxes, extra, crops)
         if tracks is not None:
             tracks.place_shapes(key, result)  # with track_shape: the track's shape where this frame does not make it
-        # at most in_flight - 1 frames before this one are not on disk yet (one: the frame before is, its PNG too); a
-        # failed write stops the run at the next wait, and no later frame writes a file
+        # at most in_flight - 1 frames before this one are not on disk yet (without picture processes none: the frame
+        # before is, its PNG too); a failed write stops the run at the next wait, and no later frame writes a file
         self.wait_writes(keep=self.in_flight - 1)
         if tracks is not None:
             tracks.record(key, result)

@@ -43,6 +43,12 @@ def picture_workers(asked: int | None, n_frames: int) -> int:
     return 0 if n_frames < 2 else min(n, n_frames)
 
 
+#: Frames whose pictures may wait to be drawn while the frame loop goes on, beyond one per picture process: the
+#: pictures are drawn in the loop's idle moments rather than the loop waiting for each (each waiting frame holds its
+#: result in memory, a few MB for a nuScenes frame).
+PICTURE_BACKLOG = 4
+
+
 #: How much lower a picture process runs than the frame loop (``os.nice``): a picture waits for a free core, the
 #: frame loop does not wait for the picture.
 PICTURE_NICE = 5
