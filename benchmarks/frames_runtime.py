@@ -7,6 +7,11 @@ Runs ``spotlights real complete ../shared/data/lidar/nuscenes --format nuscenes 
 times each (interleaved), and reports the frame loop's frames per second (the run's ``wall_seconds``, from its
 summary) and the whole command's wall and CPU seconds (children's rusage), naming the CPU. Wall-clock figures:
 run it on an idle machine and compare the rows with each other, not with another machine's.
+
+One more row, ``detections --track`` (the default runtime): the same scene from a detector's boxes instead of the
+labels, ``real complete ... --detections DETECTIONS.json --track --fuse past:5 --no-pictures``, with the detections
+of :func:`spotlights.tracking.simulate.simulate_detections` (seed 0, the tracker benchmark's detector model) written
+as a nuScenes detection result JSON: tracking, fusion and completion in one command.
 """
 
 from __future__ import annotations
@@ -25,11 +30,34 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 NUSCENES = Path(os.environ.get("SPOTLIGHTS_SHARED", REPO.parent / "shared")) / "data" / "lidar" / "nuscenes"
 RUNTIMES = {"onnx": ["--runtime", "onnx"], "torch": ["--runtime", "torch"], "auto (default)": []}
+DETECTIONS_ROW = "detections --track"
 
 
-def run_once(extra: list[str], out: Path) -> dict:
+def detections_file(path: Path) -> Path:
+    """Simulated detections of the shared scene (seed 0) as a nuScenes detection result JSON at ``path``."""
+    from spotlights.data.real.nuscenes import NuScenesReader
+    from spotlights.tracking.outputs import nuscenes_tracking_document
+    from spotlights.tracking.simulate import DetectorModel, nuscenes_ground_truth, simulate_detections
+
+    truth, counts = nuscenes_ground_truth(NuScenesReader(NUSCENES))
+    detections, _ = simulate_detections(truth, counts, DetectorModel(), seed=0)
+    doc = nuscenes_tracking_document(detections)
+    results = {
+        token: [
+            {k: v for k, v in e.items() if k not in ("tracking_id", "tracking_name", "tracking_score")}
+            | {"detection_name": e["tracking_name"], "detection_score": e["tracking_score"], "attribute_name": ""}
+            for e in entries
+        ]
+        for token, entries in doc["results"].items()
+    }
+    path.write_text(json.dumps({"meta": doc["meta"], "results": results}))
+    return path
+
+
+def run_once(extra: list[str], out: Path, base: list[str] | None = None) -> dict:
     """One ``real complete`` process: its frames, loop seconds, runtime, precision, wall and CPU seconds."""
-    args = ["real", "complete", str(NUSCENES), "--format", "nuscenes", "--fuse", "past:5", "--refine-boxes"]
+    args = ["real", "complete", str(NUSCENES), "--format", "nuscenes"]
+    args += ["--fuse", "past:5", "--refine-boxes"] if base is None else base
     args += ["--no-pictures", "--out", str(out), "-q", *extra]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
@@ -58,11 +86,14 @@ def main() -> None:
     sys.path.insert(0, str(REPO / "src"))
     from spotlights.learning.cpu import cpu_description
 
-    runs: dict[str, list[dict]] = {k: [] for k in RUNTIMES}
+    runs: dict[str, list[dict]] = {k: [] for k in [*RUNTIMES, DETECTIONS_ROW]}
     with tempfile.TemporaryDirectory() as tmp:
+        detections = detections_file(Path(tmp) / "detections.json")
+        tracked = ["--detections", str(detections), "--track", "--fuse", "past:5"]
         for r in range(a.rounds):
             for name, extra in RUNTIMES.items():
                 runs[name].append(run_once(extra, Path(tmp) / f"{r}-{name.split()[0]}"))
+            runs[DETECTIONS_ROW].append(run_once([], Path(tmp) / f"{r}-detections", base=tracked))
     rows = {}
     for name, rs in runs.items():
         loop = statistics.median(x["loop_s"] for x in rs)
