@@ -261,8 +261,8 @@ def main(argv=None) -> int:
     completer = load_completer(args.checkpoint, precision=args.precision)
     config = SceneConfig()
     report: dict = dict(
-        command="OMP_NUM_THREADS=1 nice -n 10 python benchmarks/track_shapes.py --json "
-        "docs/results/tracking/track_shapes.json",
+        command="OMP_NUM_THREADS=1 nice -n 10 python benchmarks/track_shapes.py "
+        + " ".join(sys.argv[1:] if argv is None else argv),
         checkpoint=args.checkpoint,
         model=completer.model_name,
         precision=args.precision,
