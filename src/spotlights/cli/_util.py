@@ -80,14 +80,10 @@ def add_quiet(p: argparse.ArgumentParser, what: str = "no progress bar") -> None
     p.add_argument("--no-progress", dest="quiet", action="store_true", help=argparse.SUPPRESS)
 
 
-def add_crop_arguments(p, margin_default: float | None = 0.15) -> None:
-    """``--margin`` and ``--ground-clearance`` (metres, within :data:`MAX_CROP_M`) on a parser or group ``p``;
-    ``margin_default`` None: the command resolves it (``--crop``, ``--no-crop``)."""
-    m = f"|M| <= {MAX_CROP_M:g}"
-    help_margin = f"grow each box by M metres on its sides and top, {m} (default 0.15)"
-    p.add_argument("--margin", type=crop_metres, default=margin_default, metavar="M", help=help_margin)
-    help_ground = f"drop points below M metres over the box bottom (ground), {m} (default 0.10)"
-    p.add_argument("--ground-clearance", type=crop_metres, default=0.10, metavar="M", help=help_ground)
+CROP_MARGIN_HELP = f"grow each box by M metres on its sides and top, |M| <= {MAX_CROP_M:g} (default 0.15)"
+"""Help of ``--margin`` (``complete``, ``real complete``, ``real extract``): metres within :data:`MAX_CROP_M`."""
+CROP_GROUND_HELP = f"drop points below M metres over the box bottom (ground), |M| <= {MAX_CROP_M:g} (default 0.10)"
+"""Help of ``--ground-clearance`` (``complete``, ``real complete``, ``real extract``)."""
 
 
 #: Settings fields whose command-line type is fixed here whatever their declaration says: every ``--threads``
