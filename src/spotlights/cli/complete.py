@@ -60,7 +60,7 @@ TRACKS_GROUP = "tracks of a multi-frame input (fuse each vehicle's frames in its
 
 
 @dataclass(kw_only=True)
-class CompletionOptions:
+class CompletionArguments:
     """Options shared by ``complete`` and ``real complete``: model, selection, crop, input, heading check
     (``--crop`` and ``--no-crop``: ``complete`` alone, a single object)."""
 
@@ -197,12 +197,12 @@ class CompletionOptions:
 
 
 def add_completion_arguments(p, single: bool) -> None:
-    """Add :class:`CompletionOptions` (``single``: with ``--crop`` and ``--no-crop``, a single object's)."""
-    add_options(p, CompletionOptions, exclude=() if single else ("crop", "no_crop"))
+    """Add :class:`CompletionArguments` (``single``: with ``--crop`` and ``--no-crop``, a single object's)."""
+    add_options(p, CompletionArguments, exclude=() if single else ("crop", "no_crop"))
 
 
 @dataclass(kw_only=True)
-class TrackFusionOptions:
+class TrackArguments:
     """Options of multi-frame input shared by ``complete`` and ``real complete``: track fusion, box refinement,
     the longest gap in a track, the track worker process, the rerun recording."""
 
@@ -257,8 +257,8 @@ class TrackFusionOptions:
 
 
 def add_track_arguments(p) -> None:
-    """Add :class:`TrackFusionOptions`, the options of a multi-frame input."""
-    add_options(p, TrackFusionOptions)
+    """Add :class:`TrackArguments`, the options of a multi-frame input."""
+    add_options(p, TrackArguments)
 
 
 def check_track_arguments(args) -> None:
@@ -275,7 +275,7 @@ BOXES_GROUP = "boxes (one of)"
 @dataclass(kw_only=True)
 class CompleteOptions:
     """The first options of ``spotlights complete``: the scan, the output and the boxes (then
-    :class:`CompletionOptions`, :class:`CompleteSceneOptions`, ``--html``, :class:`TrackFusionOptions`, ``-q``;
+    :class:`CompletionArguments`, :class:`CompleteSceneOptions`, ``--html``, :class:`TrackArguments`, ``-q``;
     all read as :class:`~spotlights.completion.scan.ScanSettings`)."""
 
     input: str = option(

@@ -22,7 +22,7 @@ RIG_GROUP = "rig (paper defaults: 32 x 64 rays, 60 degrees)"
 
 
 @dataclass(kw_only=True)
-class RigOptions:
+class RigArguments:
     """The rig options shared by every command that builds a rig (read as the rig fields of
     :class:`~spotlights.files.EncodeSettings`)."""
 
@@ -78,7 +78,7 @@ class RigOptions:
 
 
 @dataclass(kw_only=True)
-class MeshAxesOptions:
+class MeshAxesArguments:
     """The axes of a mesh file (``encode``, ``show``)."""
 
     up: str = option(
@@ -89,7 +89,7 @@ class MeshAxesOptions:
 
 @dataclass(kw_only=True)
 class EncodeOptions:
-    """The own options of ``spotlights encode`` (then :class:`RigOptions`, :class:`MeshAxesOptions`, ``-q``)."""
+    """The own options of ``spotlights encode`` (then :class:`RigArguments`, :class:`MeshAxesArguments`, ``-q``)."""
 
     meshes: list[str] = option("meshes", nargs="+", metavar="MESH", help="mesh files (OBJ, PLY, OFF, STL, GLB, GLTF)")
     out: str = option(
@@ -121,7 +121,7 @@ class DecodeOptions:
 
 @dataclass(kw_only=True)
 class ShowOptions:
-    """The own options of ``spotlights show`` (then ``--html`` and :class:`MeshAxesOptions`)."""
+    """The own options of ``spotlights show`` (then ``--html`` and :class:`MeshAxesArguments`)."""
 
     file: str = option(
         "file",
@@ -142,13 +142,13 @@ class ShowOptions:
 
 
 def add_rig_arguments(p: argparse.ArgumentParser) -> None:
-    """Add :class:`RigOptions`, the rig options shared by every command that builds a rig."""
-    add_options(p, RigOptions)
+    """Add :class:`RigArguments`, the rig options shared by every command that builds a rig."""
+    add_options(p, RigArguments)
 
 
 def add_axes_arguments(p: argparse.ArgumentParser) -> None:
-    """Add :class:`MeshAxesOptions` (``--up``, ``--forward`` of a mesh file)."""
-    add_options(p, MeshAxesOptions)
+    """Add :class:`MeshAxesArguments` (``--up``, ``--forward`` of a mesh file)."""
+    add_options(p, MeshAxesArguments)
 
 
 def register(sub) -> None:

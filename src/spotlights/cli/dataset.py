@@ -65,7 +65,7 @@ class InfoOptions:
 
 
 @dataclass(kw_only=True)
-class ExportOptions:
+class DatasetExportOptions:
     """The options of ``spotlights dataset export``."""
 
     file: str = option("file", metavar="FILE", help=DATASET_FILE_HELP)
@@ -81,7 +81,7 @@ class ExportOptions:
 
 
 @dataclass(kw_only=True)
-class ShowOptions:
+class DatasetShowOptions:
     """The own options of ``spotlights dataset show`` (then ``--html``)."""
 
     file: str = option("file", metavar="FILE", help=DATASET_FILE_HELP)
@@ -157,7 +157,7 @@ def register(sub) -> None:
         "spotlights dataset export cars.h5 --split test --index 0 --out sample.npz",
         _export,
     )
-    add_options(e, ExportOptions)
+    add_options(e, DatasetExportOptions)
 
     s = add_command(
         dsub,
@@ -166,7 +166,7 @@ def register(sub) -> None:
         "spotlights dataset show cars.h5 --split test --index 0 --out sample.png",
         _show,
     )
-    add_options(s, ShowOptions)
+    add_options(s, DatasetShowOptions)
     add_html_argument(s)
 
 

@@ -71,7 +71,7 @@ def _format():
 
 
 @dataclass(kw_only=True)
-class ReaderOptions:
+class ReaderArguments:
     """How ``real extract`` and ``real complete`` read their SOURCEs (per format)."""
 
     velodyne: str = option(
@@ -94,8 +94,8 @@ class ReaderOptions:
 
 
 @dataclass(kw_only=True)
-class ExtractOptions:
-    """The own options of ``spotlights real extract``, added around :class:`ReaderOptions` (``--frames`` after
+class RealExtractOptions:
+    """The own options of ``spotlights real extract``, added around :class:`ReaderArguments` (``--frames`` after
     them, then ``-q``); read as :class:`~spotlights.experiments.real_runs.ExtractSettings`."""
 
     source: list[str] = _source()
@@ -123,8 +123,8 @@ class ExtractOptions:
 
 @dataclass(kw_only=True)
 class RealCompleteOptions:
-    """The own options of ``spotlights real complete``, added around :class:`ReaderOptions`,
-    :class:`~spotlights.cli.complete.CompletionOptions` and :class:`~spotlights.cli.complete.TrackFusionOptions`
+    """The own options of ``spotlights real complete``, added around :class:`ReaderArguments`,
+    :class:`~spotlights.cli.complete.CompletionArguments` and :class:`~spotlights.cli.complete.TrackArguments`
     (:data:`REAL_COMPLETE_OUTPUTS`); read as :class:`~spotlights.completion.frame_selection.FramesSettings`."""
 
     source: list[str] = _source()
@@ -199,7 +199,7 @@ class RealCompleteOptions:
 
 
 REAL_COMPLETE_OUTPUTS = ("per_object", "no_pictures", "closeups", "picture_workers", "html", "resume")
-"""The options of ``real complete`` added after :class:`~spotlights.cli.complete.CompletionOptions`."""
+"""The options of ``real complete`` added after :class:`~spotlights.cli.complete.CompletionArguments`."""
 
 
 @dataclass(kw_only=True)
@@ -358,9 +358,9 @@ def register(sub) -> None:
         "spotlights real extract ../shared/data/lidar/kitti-object/training --format kitti --out kitti.h5",
         _extract,
     )
-    add_options(p, ExtractOptions, exclude=("frames",))
-    add_options(p, ReaderOptions)
-    add_options(p, ExtractOptions, only=("frames",))
+    add_options(p, RealExtractOptions, exclude=("frames",))
+    add_options(p, ReaderArguments)
+    add_options(p, RealExtractOptions, only=("frames",))
     add_quiet(p)
 
     p = add_command(
@@ -371,7 +371,7 @@ def register(sub) -> None:
         _complete,
     )
     add_options(p, RealCompleteOptions, only=("source", "format", "out"))
-    add_options(p, ReaderOptions)
+    add_options(p, ReaderArguments)
     add_options(p, RealCompleteOptions, only=("frames",))
     add_completion_arguments(p, single=False)
     add_options(p, RealCompleteOptions, only=REAL_COMPLETE_OUTPUTS)

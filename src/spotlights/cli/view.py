@@ -92,7 +92,7 @@ def _view(args) -> int:
 
 
 @dataclass(kw_only=True)
-class HtmlOption:
+class HtmlArgument:
     """The ``--html PATH`` option of the commands that draw (show, real show, dataset show, complete)."""
 
     html: str | None = option(
@@ -103,8 +103,8 @@ class HtmlOption:
 
 
 def add_html_argument(p) -> None:
-    """Add :class:`HtmlOption` (``--html PATH``) to the parser ``p``."""
-    add_options(p, HtmlOption)
+    """Add :class:`HtmlArgument` (``--html PATH``) to the parser ``p``."""
+    add_options(p, HtmlArgument)
 
 
 def write_page(path, panels, title: str, quiet: bool = False) -> None:
