@@ -91,11 +91,24 @@ def test_one_stage_timer():
     assert not found, f"hand-written stage timing (use spotlights.timing.StageTimer) in: {found}"
 
 
+def _declaration_lines(source: str) -> int:
+    """Lines of the dataclasses of ``source`` (a command's options, declared as ``option()`` fields)."""
+    import ast
+
+    return sum(
+        node.end_lineno - node.lineno + 1 + len(node.decorator_list)
+        for node in ast.parse(source).body
+        if isinstance(node, ast.ClassDef) and any("dataclass" in ast.unparse(d) for d in node.decorator_list)
+    )
+
+
 def test_the_cli_stays_thin():
-    """The CLI parses, builds settings, calls one library function and prints: under 2,100 lines
-    in all and no function over cyclomatic complexity 15 (ruff's mccabe count)."""
-    lines = sum(len(f.read_text().splitlines()) for f in (ROOT / "src" / "spotlights" / "cli").glob("*.py"))
-    assert lines < 2100, f"the CLI has {lines} lines: move logic into the library"
+    """The CLI parses, builds settings, calls one library function and prints: under 1,500 lines
+    besides its option declarations (dataclasses of ``option()`` fields) and no function over
+    cyclomatic complexity 15 (ruff's mccabe count)."""
+    sources = [f.read_text() for f in (ROOT / "src" / "spotlights" / "cli").glob("*.py")]
+    lines = sum(len(s.splitlines()) - _declaration_lines(s) for s in sources)
+    assert lines < 1500, f"the CLI has {lines} lines besides its option declarations: move logic into the library"
     proc = _ruff(
         "check", "--no-cache", "--select", "C901", "--config", "lint.mccabe.max-complexity=15", "src/spotlights/cli"
     )

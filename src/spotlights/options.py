@@ -28,12 +28,14 @@ DEVICE_HELP = "torch device: cpu, cuda or cuda:N (default: cuda when available, 
 def option(*flags: str, default: Any = REQUIRED, help: str, group: str | None = None, **argparse_kw: Any) -> Any:
     """A dataclass field that is also a command-line option.
 
-    flags : option strings (default ``--FIELD-NAME``). default : the field's and the option's
-    default (a list is copied per instance; :data:`REQUIRED`: no default, a required option).
-    help : the option's help. group : title of the ``--help`` section it is listed under (None:
-    the command's own options). argparse_kw : ``type``, ``metavar``, ``choices``, ``action``,
-    ``nargs``; ``quiet=True`` declares ``-q/--quiet`` with its hidden alias ``--no-progress``;
-    ``mutex=NAME``: options naming the same NAME exclude each other.
+    flags : option strings (default ``--FIELD-NAME``); one name without leading dashes, the field's
+    own, declares a positional argument instead. The field's name is the option's ``dest``
+    (``--no-track-worker`` on a field ``track_worker``). default : the field's and the option's
+    default (a list is copied per instance; :data:`REQUIRED`: no default, a required option or a
+    positional). help : the option's help. group : title of the ``--help`` section it is listed under
+    (None: the command's own options). argparse_kw : ``type``, ``metavar``, ``choices``, ``action``
+    (``argparse.BooleanOptionalAction`` too), ``nargs``; ``quiet=True`` declares ``-q/--quiet`` with
+    its hidden alias ``--no-progress``; ``mutex=NAME``: options naming the same NAME exclude each other.
     """
     md = {"cli": {"flags": flags, "help": help, "group": group, **argparse_kw}}
     if isinstance(default, list):

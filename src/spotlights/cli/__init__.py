@@ -22,6 +22,7 @@ from ..errors import SpotlightsError, missing_extra
 from ..options import join_axis_values, option_names
 from ..outputs import os_error_line
 from ..processes import forget_interrupt, in_main_thread, sigint_held
+from ._util import add_options  # noqa: F401 - the one way a command adds its options (option() fields)
 
 # One line per command group; a new group is one module and one line here.
 COMMAND_MODULES = [

@@ -80,14 +80,10 @@ def add_quiet(p: argparse.ArgumentParser, what: str = "no progress bar") -> None
     p.add_argument("--no-progress", dest="quiet", action="store_true", help=argparse.SUPPRESS)
 
 
-def add_crop_arguments(p, margin_default: float | None = 0.15) -> None:
-    """``--margin`` and ``--ground-clearance`` (metres, within :data:`MAX_CROP_M`) on a parser or group ``p``;
-    ``margin_default`` None: the command resolves it (``--crop``, ``--no-crop``)."""
-    m = f"|M| <= {MAX_CROP_M:g}"
-    help_margin = f"grow each box by M metres on its sides and top, {m} (default 0.15)"
-    p.add_argument("--margin", type=crop_metres, default=margin_default, metavar="M", help=help_margin)
-    help_ground = f"drop points below M metres over the box bottom (ground), {m} (default 0.10)"
-    p.add_argument("--ground-clearance", type=crop_metres, default=0.10, metavar="M", help=help_ground)
+CROP_MARGIN_HELP = f"grow each box by M metres on its sides and top, |M| <= {MAX_CROP_M:g} (default 0.15)"
+"""Help of ``--margin`` (``complete``, ``real complete``, ``real extract``): metres within :data:`MAX_CROP_M`."""
+CROP_GROUND_HELP = f"drop points below M metres over the box bottom (ground), |M| <= {MAX_CROP_M:g} (default 0.10)"
+"""Help of ``--ground-clearance`` (``complete``, ``real complete``, ``real extract``)."""
 
 
 #: Settings fields whose command-line type is fixed here whatever their declaration says: every ``--threads``
@@ -95,32 +91,49 @@ def add_crop_arguments(p, margin_default: float | None = 0.15) -> None:
 FIELD_TYPES = {"threads": thread_count}
 
 
-def add_options(parser: argparse.ArgumentParser, cls, only: tuple = (), grouped: bool = True) -> None:
-    """Add the options declared on the settings dataclass ``cls`` (:func:`spotlights.options.option`),
-    in field order (``only``: these fields alone); ``grouped``: under their sections' titles; options
-    naming the same ``mutex`` exclude each other; a field of :data:`FIELD_TYPES` takes its type from there."""
+def add_options(
+    parser: argparse.ArgumentParser, cls, only: tuple = (), grouped: bool = True, exclude: tuple = ()
+) -> None:
+    """Add the options declared on the dataclass ``cls`` (:func:`spotlights.options.option`) to ``parser``,
+    in field order; the one way a command declares its options.
+
+    only : these fields alone (default: every field with an option). exclude : all but these fields.
+    grouped : under their sections' titles (a section the parser already has is reused, so blocks of
+    options added by several calls share it). Options naming the same ``mutex`` exclude each other. A
+    field of :data:`FIELD_TYPES` takes its type from there. A flag without leading dashes (the field's
+    name) is a positional argument; every other option's ``dest`` is its field's name.
+    """
     import dataclasses
 
     sections: dict = {}
     for f in dataclasses.fields(cls):
         kw = dict(f.metadata.get("cli") or {})
-        if not kw or (only and f.name not in only):
+        if not kw or (only and f.name not in only) or f.name in exclude:
             continue
         if f.name in FIELD_TYPES and "type" in kw:
             kw["type"] = FIELD_TYPES[f.name]
         flags, title = kw.pop("flags") or (f"--{f.name.replace('_', '-')}",), kw.pop("group")
         if title is not None and grouped and title not in sections:
-            sections[title] = parser.add_argument_group(title)
+            known = [g for g in parser._action_groups if g.title == title]  # noqa: SLF001 - no public lookup
+            sections[title] = known[0] if known else parser.add_argument_group(title)
         target = sections[title] if title is not None and grouped else parser
         if "mutex" in kw:  # options that exclude each other share a mutually exclusive group
             key = ("mutex", kw.pop("mutex"))
             if key not in sections:
                 sections[key] = target.add_mutually_exclusive_group()
             target = sections[key]
+        has_default = f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING
+        default = f.default if f.default_factory is dataclasses.MISSING else f.default_factory()
+        if not flags[0].startswith("-"):  # a positional argument: its name is its dest
+            if flags != (f.name,):
+                raise ValueError(f"{cls.__name__}.{f.name}: a positional is named as its field, got {flags}")
+            target.add_argument(*flags, **({"default": default} if has_default else {}), **kw)
+            continue
         if kw.pop("quiet", False):
             add_quiet(target, kw["help"])
-        elif f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING:
-            default = f.default if f.default_factory is dataclasses.MISSING else f.default_factory()
+            continue
+        kw.setdefault("dest", f.name)
+        if has_default:
             target.add_argument(*flags, default=default, **kw)
         else:
             target.add_argument(*flags, required=True, **kw)

@@ -6,6 +6,8 @@ checked with real rigs and real ray casting, written as CSV, figures and a summa
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from ..experiments.density_report import (
     MAX_MC_RAYS,
     MAX_ROTATIONS,
@@ -15,8 +17,56 @@ from ..experiments.density_report import (
     density_summary_lines,
     run_density_analysis,
 )
+from ..options import option
 from ..outputs import output_folder
-from ._util import SEED_HELP, add_command, add_group, add_quiet, seed_number
+from ._util import SEED_HELP, add_command, add_group, add_options, add_quiet, seed_number
+
+
+@dataclass(kw_only=True)
+class DensityOptions:
+    """The options of ``spotlights analyze density`` (then ``-q``; read as a :class:`DensityConfig`)."""
+
+    out: str = option(
+        "--out",
+        "-o",
+        metavar="DIR",
+        help="output folder: density.csv (r, alpha [radians], rho_per_nm[, angle]), density_heatmap.png, "
+        "density_directional.png, density_montecarlo.png, density_mc.csv, density_caps.png "
+        "(several angles), summary.json",
+    )
+    angle: list[float] = option(
+        default=[90.0],
+        type=float,
+        nargs="+",
+        metavar="DEG",
+        help="cap half-angles omega in degrees, (0, 90]; 90 is the paper's 2 pi analysis (default 90). "
+        "Several give a column 'angle' and the cap comparison figure",
+    )
+    r_step: float = option(
+        default=0.01, type=float, metavar="DR", help=f"grid step in r, {MIN_R_STEP:g}..0.5 (default 0.01)"
+    )
+    alpha_step: float = option(
+        default=1.0,
+        type=float,
+        metavar="DEG",
+        help=f"grid step in alpha in degrees, {MIN_ALPHA_STEP_DEG:g}..90, grid 0..180 (default 1)",
+    )
+    no_mc: bool = option(default=False, action="store_true", help="skip the Monte-Carlo check with real rays")
+    mc_rays: list[int] = option(
+        default=[1024, 1024],
+        type=int,
+        nargs=2,
+        metavar=("N", "M"),
+        help=f"viewpoints and rays per viewpoint of the Monte-Carlo rigs, N x M <= {MAX_MC_RAYS} (default 1024 1024)",
+    )
+    rotations: int = option(
+        default=24,
+        type=int,
+        metavar="K",
+        help=f"random rotations per disc placement, 2..{MAX_ROTATIONS}; the error is their spread (default 24)",
+    )
+    disc_radius: float = option(default=0.08, type=float, metavar="A", help="Monte-Carlo disc radius (default 0.08)")
+    seed: int = option(default=0, type=seed_number, help=f"seed of the random rotations, {SEED_HELP} (default 0)")
 
 
 def register(sub) -> None:
@@ -36,58 +86,7 @@ def register(sub) -> None:
         "spotlights analyze density --out out/density --angle 90 83 60 30",
         _density,
     )
-    d.add_argument(
-        "--out",
-        "-o",
-        required=True,
-        metavar="DIR",
-        help="output folder: density.csv (r, alpha [radians], rho_per_nm[, angle]), density_heatmap.png, "
-        "density_directional.png, density_montecarlo.png, density_mc.csv, density_caps.png "
-        "(several angles), summary.json",
-    )
-    d.add_argument(
-        "--angle",
-        type=float,
-        nargs="+",
-        default=[90.0],
-        metavar="DEG",
-        help="cap half-angles omega in degrees, (0, 90]; 90 is the paper's 2 pi analysis (default 90). "
-        "Several give a column 'angle' and the cap comparison figure",
-    )
-    d.add_argument(
-        "--r-step",
-        type=float,
-        default=0.01,
-        metavar="DR",
-        help=f"grid step in r, {MIN_R_STEP:g}..0.5 (default 0.01)",
-    )
-    d.add_argument(
-        "--alpha-step",
-        type=float,
-        default=1.0,
-        metavar="DEG",
-        help=f"grid step in alpha in degrees, {MIN_ALPHA_STEP_DEG:g}..90, grid 0..180 (default 1)",
-    )
-    d.add_argument("--no-mc", action="store_true", help="skip the Monte-Carlo check with real rays")
-    d.add_argument(
-        "--mc-rays",
-        type=int,
-        nargs=2,
-        default=[1024, 1024],
-        metavar=("N", "M"),
-        help=f"viewpoints and rays per viewpoint of the Monte-Carlo rigs, N x M <= {MAX_MC_RAYS} (default 1024 1024)",
-    )
-    d.add_argument(
-        "--rotations",
-        type=int,
-        default=24,
-        metavar="K",
-        help=f"random rotations per disc placement, 2..{MAX_ROTATIONS}; the error is their spread (default 24)",
-    )
-    d.add_argument(
-        "--disc-radius", type=float, default=0.08, metavar="A", help="Monte-Carlo disc radius (default 0.08)"
-    )
-    d.add_argument("--seed", type=seed_number, default=0, help=f"seed of the random rotations, {SEED_HELP} (default 0)")
+    add_options(d, DensityOptions)
     add_quiet(d)
 
 

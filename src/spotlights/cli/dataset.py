@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from ..data.dataset_report import dataset_info, export_sample, info_lines, read_sample
 from ..data.synthetic import BuildRequest, add_rig, build_from_request, build_summary
 from ..data.synthetic.consolidate import merge_shards
 from ..data.synthetic.request import read_request_yaml
+from ..options import option
 from ..outputs import check_writable
 from ..viz import html, render_sample
 from ._util import (
@@ -20,6 +23,79 @@ from ._util import (
 )
 from .sequences import register as register_sequences
 from .view import add_html_argument, write_page
+
+SPLITS = ("train", "val", "test")
+DATASET_FILE_HELP = "dataset file (.h5)"
+
+
+@dataclass(kw_only=True)
+class AddRigOptions:
+    """The own options of ``spotlights dataset add-rig`` (then ``--workers``, ``-q`` and the backend's of
+    :class:`~spotlights.data.synthetic.BuildRequest`)."""
+
+    file: str = option("file", metavar="FILE", help="dataset file (.h5) to extend in place")
+    rig: str = option(
+        metavar="RIG",
+        help="NxM[@DEG] or a rig name (cap-32x64-60, box-32x64-ellipsoid-s1, box-32x64-volume-s0.9, ...)",
+    )
+    meshes: list[str] | None = option(
+        default=None,
+        metavar="DIR",
+        action="append",
+        help="the meshes folder the dataset was built from (default: the one its config records); "
+        "repeat once per source, in the build's order, for a multi-source dataset",
+    )
+
+
+@dataclass(kw_only=True)
+class MergeOptions:
+    """The options of ``spotlights dataset merge`` (then ``-q``)."""
+
+    file: str = option("file", metavar="INDEX", help="the shard index (.json) of a sharded dataset")
+    out: str = option("--out", "-o", metavar="FILE", help="the single dataset file to write (.h5)")
+    overwrite: bool = option(default=False, action="store_true", help="replace an existing FILE")
+
+
+@dataclass(kw_only=True)
+class InfoOptions:
+    """The options of ``spotlights dataset info``."""
+
+    file: str = option("file", metavar="FILE", help=DATASET_FILE_HELP)
+    json: bool = option(default=False, action="store_true", help="machine-readable output")
+
+
+@dataclass(kw_only=True)
+class DatasetExportOptions:
+    """The options of ``spotlights dataset export``."""
+
+    file: str = option("file", metavar="FILE", help=DATASET_FILE_HELP)
+    split: str = option(choices=SPLITS, help="split of the sample")
+    index: int = option(type=int, help="sample index within the split")
+    out: str = option(
+        "--out",
+        "-o",
+        metavar="SAMPLE.npz",
+        help="output .npz: partial, gt_points, gt_dense, gt_depths and the sample's metadata",
+    )
+    rig: str | None = option(default=None, help="rig of gt_depths (default: the dataset's default rig)")
+
+
+@dataclass(kw_only=True)
+class DatasetShowOptions:
+    """The own options of ``spotlights dataset show`` (then ``--html``)."""
+
+    file: str = option("file", metavar="FILE", help=DATASET_FILE_HELP)
+    split: str = option(default="test", choices=SPLITS, help="split of the sample (default test)")
+    index: int = option(default=0, type=int, help="sample index within the split (default 0)")
+    out: str | None = option(
+        "--out",
+        "-o",
+        default=None,
+        metavar="PNG",
+        help="output picture (default: ./SPLIT-INDEX.png; with --html alone, no picture)",
+    )
+    rig: str | None = option(default=None, help="rig whose points are drawn (default: the default rig)")
+    clip: float | None = option(default=None, type=unit_interval, metavar="T", help="depths below T count as misses")
 
 
 def register(sub) -> None:
@@ -50,21 +126,7 @@ def register(sub) -> None:
         "spotlights dataset add-rig cars.h5 --rig box-32x64-ellipsoid-s1",
         _add_rig,
     )
-    a.add_argument("file", metavar="FILE", help="dataset file (.h5) to extend in place")
-    a.add_argument(
-        "--rig",
-        required=True,
-        metavar="RIG",
-        help="NxM[@DEG] or a rig name (cap-32x64-60, box-32x64-ellipsoid-s1, box-32x64-volume-s0.9, ...)",
-    )
-    a.add_argument(
-        "--meshes",
-        default=None,
-        metavar="DIR",
-        action="append",
-        help="the meshes folder the dataset was built from (default: the one its config records); "
-        "repeat once per source, in the build's order, for a multi-source dataset",
-    )
+    add_options(a, AddRigOptions)
     add_options(a, BuildRequest, only=("workers",), grouped=False)
     add_quiet(a)
     add_options(a, BuildRequest, only=("backend", "ray_address", "task_retries"), grouped=False)
@@ -76,9 +138,7 @@ def register(sub) -> None:
         "spotlights dataset merge cars.json --out cars.h5",
         _merge,
     )
-    mg.add_argument("file", metavar="INDEX", help="the shard index (.json) of a sharded dataset")
-    mg.add_argument("--out", "-o", required=True, metavar="FILE", help="the single dataset file to write (.h5)")
-    mg.add_argument("--overwrite", action="store_true", help="replace an existing FILE")
+    add_options(mg, MergeOptions)
     add_quiet(mg)
 
     i = add_command(
@@ -88,8 +148,7 @@ def register(sub) -> None:
         "spotlights dataset info cars.h5 --json",
         _info,
     )
-    i.add_argument("file", metavar="FILE", help="dataset file (.h5)")
-    i.add_argument("--json", action="store_true", help="machine-readable output")
+    add_options(i, InfoOptions)
 
     e = add_command(
         dsub,
@@ -98,17 +157,7 @@ def register(sub) -> None:
         "spotlights dataset export cars.h5 --split test --index 0 --out sample.npz",
         _export,
     )
-    e.add_argument("file", metavar="FILE", help="dataset file (.h5)")
-    e.add_argument("--split", required=True, choices=("train", "val", "test"), help="split of the sample")
-    e.add_argument("--index", type=int, required=True, help="sample index within the split")
-    e.add_argument(
-        "--out",
-        "-o",
-        required=True,
-        metavar="SAMPLE.npz",
-        help="output .npz: partial, gt_points, gt_dense, gt_depths and the sample's metadata",
-    )
-    e.add_argument("--rig", default=None, help="rig of gt_depths (default: the dataset's default rig)")
+    add_options(e, DatasetExportOptions)
 
     s = add_command(
         dsub,
@@ -117,20 +166,7 @@ def register(sub) -> None:
         "spotlights dataset show cars.h5 --split test --index 0 --out sample.png",
         _show,
     )
-    s.add_argument("file", metavar="FILE", help="dataset file (.h5)")
-    s.add_argument(
-        "--split", default="test", choices=("train", "val", "test"), help="split of the sample (default test)"
-    )
-    s.add_argument("--index", type=int, default=0, help="sample index within the split (default 0)")
-    s.add_argument(
-        "--out",
-        "-o",
-        default=None,
-        metavar="PNG",
-        help="output picture (default: ./SPLIT-INDEX.png; with --html alone, no picture)",
-    )
-    s.add_argument("--rig", default=None, help="rig whose points are drawn (default: the default rig)")
-    s.add_argument("--clip", type=unit_interval, default=None, metavar="T", help="depths below T count as misses")
+    add_options(s, DatasetShowOptions)
     add_html_argument(s)
 
 

@@ -2,9 +2,19 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from ..completion.demo import run_demo
+from ..options import option
 from ..outputs import output_folder
-from ._util import add_command
+from ._util import add_command, add_options
+
+
+@dataclass(kw_only=True)
+class DemoOptions:
+    """The options of ``spotlights demo``."""
+
+    out: str = option("--out", "-o", default="out/demo", metavar="DIR", help="output folder (default out/demo)")
 
 
 def register(sub) -> None:
@@ -15,7 +25,7 @@ def register(sub) -> None:
         "spotlights demo --out out/demo",
         _demo,
     )
-    p.add_argument("--out", "-o", default="out/demo", metavar="DIR", help="output folder (default out/demo)")
+    add_options(p, DemoOptions)
 
 
 def _demo(args) -> int:

@@ -5,11 +5,14 @@ Thin over :mod:`spotlights.learning`; torch and numpy are imported inside the ha
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from ..experiments.curves import learning_curves, summary_markdown
 from ..learning.bench import BenchSettings, run_bench
 from ..learning.evaluate import EvaluateSettings, run_evaluation
 from ..learning.export import export_model
 from ..learning.settings import TrainSettings
+from ..options import option
 from ._util import (
     add_command,
     add_group,
@@ -21,6 +24,65 @@ from ._util import (
     settings_of,
     unit_interval,
 )
+
+
+@dataclass(kw_only=True)
+class CurvesOptions:
+    """The options of ``spotlights curves``."""
+
+    runs: list[str] = option(
+        "runs", nargs="+", metavar="RUN", help="run folders of 'spotlights train' (each holds log.csv)"
+    )
+    out: str = option(
+        "--out",
+        "-o",
+        default="curves",
+        metavar="DIR",
+        help="output folder: curves_samples.png, curves_minutes.png, curves.json, one CSV per run (default ./curves)",
+    )
+    names: list[str] | None = option(
+        default=None, nargs="+", metavar="NAME", help="display names, one per run (default: folder names)"
+    )
+    budget_minutes: float | None = option(
+        default=None,
+        type=positive_float,
+        metavar="M",
+        help="minutes axis in budget minutes: M x (steps done / steps planned), for runs given equal step "
+        "budgets measured on a quiet machine (default: each run's wall clock)",
+    )
+    tail: float = option(
+        default=0.2,
+        type=unit_interval,
+        metavar="SHARE",
+        help="share of each run (by steps) judged for flatness (default 0.2: the last 20%%)",
+    )
+    tolerance: float = option(
+        default=0.02,
+        type=positive_float,
+        metavar="REL",
+        help="a curve has flattened when its tail improves it by less than this share (default 0.02)",
+    )
+
+
+@dataclass(kw_only=True)
+class ExportOptions:
+    """The options of ``spotlights export`` (then ``-q``)."""
+
+    checkpoint: str = option(
+        "checkpoint",
+        metavar="CHECKPOINT",
+        help="a checkpoint file or a short name: 'default' (the package's default model), 'paper' or 'classes' "
+        "(class-conditioned: the graph takes each scan's class row too)",
+    )
+    out: str = option("--out", "-o", metavar="MODEL.onnx", help="the ONNX file to write (.onnx)")
+    opset: int = option(
+        default=18, type=positive_int, help="ONNX opset, 15 to the newest the installed onnx knows (default 18)"
+    )
+    no_check: bool = option(
+        default=False,
+        action="store_true",
+        help="skip the parity check (onnxruntime against torch on 8 seeded random scans)",
+    )
 
 
 def register(sub) -> None:
@@ -54,39 +116,7 @@ def register(sub) -> None:
         "spotlights curves runs/sanet runs/topnet --budget-minutes 45 --out results/curves",
         _curves,
     )
-    p.add_argument("runs", nargs="+", metavar="RUN", help="run folders of 'spotlights train' (each holds log.csv)")
-    p.add_argument(
-        "--out",
-        "-o",
-        default="curves",
-        metavar="DIR",
-        help="output folder: curves_samples.png, curves_minutes.png, curves.json, one CSV per run (default ./curves)",
-    )
-    p.add_argument(
-        "--names", nargs="+", default=None, metavar="NAME", help="display names, one per run (default: folder names)"
-    )
-    p.add_argument(
-        "--budget-minutes",
-        type=positive_float,
-        default=None,
-        metavar="M",
-        help="minutes axis in budget minutes: M x (steps done / steps planned), for runs given equal step "
-        "budgets measured on a quiet machine (default: each run's wall clock)",
-    )
-    p.add_argument(
-        "--tail",
-        type=unit_interval,
-        default=0.2,
-        metavar="SHARE",
-        help="share of each run (by steps) judged for flatness (default 0.2: the last 20%%)",
-    )
-    p.add_argument(
-        "--tolerance",
-        type=positive_float,
-        default=0.02,
-        metavar="REL",
-        help="a curve has flattened when its tail improves it by less than this share (default 0.02)",
-    )
+    add_options(p, CurvesOptions)
 
     # ---- export
     p = add_command(
@@ -97,24 +127,7 @@ def register(sub) -> None:
         "sanet.onnx --runtime onnx --out car.ply",
         _export,
     )
-    p.add_argument(
-        "checkpoint",
-        metavar="CHECKPOINT",
-        help="a checkpoint file or a short name: 'default' (the package's default model), 'paper' or 'classes' "
-        "(class-conditioned: the graph takes each scan's class row too)",
-    )
-    p.add_argument("--out", "-o", required=True, metavar="MODEL.onnx", help="the ONNX file to write (.onnx)")
-    p.add_argument(
-        "--opset",
-        type=positive_int,
-        default=18,
-        help="ONNX opset, 15 to the newest the installed onnx knows (default 18)",
-    )
-    p.add_argument(
-        "--no-check",
-        action="store_true",
-        help="skip the parity check (onnxruntime against torch on 8 seeded random scans)",
-    )
+    add_options(p, ExportOptions)
     add_quiet(p, "no summary")
 
     # ---- bench models (reuses an existing 'bench' group if another module made one)

@@ -2,8 +2,73 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from ..experiments.reproduce import parse_tables, publish, reproduce
-from ._util import add_command, add_quiet, positive_int
+from ..options import option
+from ._util import add_command, add_options, add_quiet, positive_int
+
+
+@dataclass(kw_only=True)
+class ReproduceOptions:
+    """The options of ``spotlights reproduce`` (then ``-q``)."""
+
+    out: str = option(
+        "--out",
+        "-o",
+        metavar="DIR",
+        help="output folder: REPORT.md, results.json, tables/, figures/, steps.json, data/, runs/, eval/; "
+        "rerun with the same DIR to resume",
+    )
+    tables: str | None = option(
+        default=None,
+        metavar="LIST",
+        help="comma-separated tables to reproduce, from 1,2,3,4,5 and box (box-targeted rigs, docs/box-rig.md; default: all)",
+    )
+    quick: bool = option(
+        default=False,
+        action="store_true",
+        help="small data (9 cars, 16 views), the tiny 'quick' schedule, a few meshes per category: every "
+        "stage in a few minutes; the numbers mean nothing",
+    )
+    schedule: str | None = option(
+        default=None,
+        metavar="NAME|YAML",
+        help="training schedule of new runs (default 'budget', with --quick 'quick'); existing runs keep theirs",
+    )
+    cars_data: str | None = option(
+        default=None,
+        metavar="FILE.h5|INDEX.json",
+        help="use this car dataset (a file, or the index .json of a sharded dataset) instead of building "
+        "DIR/data/cars.h5 (needs rigs 32x64, 64x32 and 256x64 at 60 deg; "
+        "the box table adds rig box-32x64-ellipsoid-s1 to it with dataset add-rig if it lacks it)",
+    )
+    eval_views: int | None = option(
+        default=None,
+        type=positive_int,
+        metavar="V",
+        help="score the first V views of each test car in Tables 1 and 5 (default 200, --quick 4; 2000 = all)",
+    )
+    meshes: str | None = option(
+        default=None, metavar="DIR", help="car meshes (default ../shared/data/meshes/apolloscape-cars)"
+    )
+    category_meshes: str | None = option(
+        default=None,
+        metavar="DIR",
+        help="category meshes of Tables 3 and 4 (default ../shared/data/meshes/categories)",
+    )
+    lidar: str | None = option(default=None, metavar="DIR", help="real LiDAR data (default ../shared/data/lidar)")
+    workers: int | None = option(
+        default=None,
+        type=positive_int,
+        help="processes for the dataset build and the rig study (default 1; results do not depend on it)",
+    )
+    publish: str | None = option(
+        default=None,
+        metavar="DIR",
+        help="afterwards, copy REPORT.md, results.json, steps.json, tables/ and figures/ into DIR "
+        "(e.g. docs/results/reproduction)",
+    )
 
 
 def register(sub) -> None:
@@ -17,70 +82,7 @@ def register(sub) -> None:
         "  spotlights reproduce --out out/repro --cars-data cars.h5 # everything, reusing a car dataset",
         _reproduce,
     )
-    p.add_argument(
-        "--out",
-        "-o",
-        required=True,
-        metavar="DIR",
-        help="output folder: REPORT.md, results.json, tables/, figures/, steps.json, data/, runs/, eval/; "
-        "rerun with the same DIR to resume",
-    )
-    p.add_argument(
-        "--tables",
-        default=None,
-        metavar="LIST",
-        help="comma-separated tables to reproduce, from 1,2,3,4,5 and box (box-targeted rigs, docs/box-rig.md; default: all)",
-    )
-    p.add_argument(
-        "--quick",
-        action="store_true",
-        help="small data (9 cars, 16 views), the tiny 'quick' schedule, a few meshes per category: every "
-        "stage in a few minutes; the numbers mean nothing",
-    )
-    p.add_argument(
-        "--schedule",
-        default=None,
-        metavar="NAME|YAML",
-        help="training schedule of new runs (default 'budget', with --quick 'quick'); existing runs keep theirs",
-    )
-    p.add_argument(
-        "--cars-data",
-        default=None,
-        metavar="FILE.h5|INDEX.json",
-        help="use this car dataset (a file, or the index .json of a sharded dataset) instead of building "
-        "DIR/data/cars.h5 (needs rigs 32x64, 64x32 and 256x64 at 60 deg; "
-        "the box table adds rig box-32x64-ellipsoid-s1 to it with dataset add-rig if it lacks it)",
-    )
-    p.add_argument(
-        "--eval-views",
-        type=positive_int,
-        default=None,
-        metavar="V",
-        help="score the first V views of each test car in Tables 1 and 5 (default 200, --quick 4; 2000 = all)",
-    )
-    p.add_argument(
-        "--meshes", default=None, metavar="DIR", help="car meshes (default ../shared/data/meshes/apolloscape-cars)"
-    )
-    p.add_argument(
-        "--category-meshes",
-        default=None,
-        metavar="DIR",
-        help="category meshes of Tables 3 and 4 (default ../shared/data/meshes/categories)",
-    )
-    p.add_argument("--lidar", default=None, metavar="DIR", help="real LiDAR data (default ../shared/data/lidar)")
-    p.add_argument(
-        "--workers",
-        type=positive_int,
-        default=None,
-        help="processes for the dataset build and the rig study (default 1; results do not depend on it)",
-    )
-    p.add_argument(
-        "--publish",
-        default=None,
-        metavar="DIR",
-        help="afterwards, copy REPORT.md, results.json, steps.json, tables/ and figures/ into DIR "
-        "(e.g. docs/results/reproduction)",
-    )
+    add_options(p, ReproduceOptions)
     add_quiet(p, "no progress bars")
 
 

@@ -2,9 +2,48 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from ..data.lidar import SENSOR_PRESETS
 from ..data.synthetic.sequences import HZ_RANGE, MAX_FRAMES, MAX_SEQUENCES, BoxNoise, SequenceSpec, simulate_sequences
-from ._util import SEED_HELP, add_command, add_quiet, positive_int, seed_number
+from ..options import option
+from ._util import SEED_HELP, add_command, add_options, add_quiet, positive_int, seed_number
+
+NOISE_GROUP = "noisy boxes (independent per frame)"
+
+
+@dataclass(kw_only=True)
+class SequencesOptions:
+    """The options of ``spotlights dataset sequences`` (then ``-q``)."""
+
+    meshes: str = option(metavar="PATH", help="a mesh file or a folder of them (z up, x forward, metres)")
+    out: str = option(
+        "--out",
+        "-o",
+        metavar="DIR|FILE.h5",
+        help="output folder (DIR/seqNNNN/ per sequence) or one HDF5 file (.h5: track ids, both boxes, sensor origins)",
+    )
+    workers: int = option(
+        default=1, type=positive_int, help="processes simulating (.h5 output; same bytes for any number)"
+    )
+    sequences: int = option(
+        default=4, type=positive_int, metavar="N", help=f"sequences, 1..{MAX_SEQUENCES} (default 4)"
+    )
+    frames: int = option(
+        default=20, type=positive_int, metavar="F", help=f"frames a sequence, 1..{MAX_FRAMES} (default 20)"
+    )
+    hz: float = option(default=10.0, type=float, help=f"frame rate, {HZ_RANGE[0]:g}..{HZ_RANGE[1]:g} Hz (default 10)")
+    sensor: str = option(default="hdl64e", choices=tuple(SENSOR_PRESETS), help="LiDAR (default hdl64e)")
+    seed: int = option(
+        default=0, type=seed_number, help=f"seed, {SEED_HELP} (default 0): the same seed, the same bytes"
+    )
+    translation_sigma: float = option(
+        default=0.10, type=float, metavar="M", group=NOISE_GROUP, help="per horizontal axis (0.10 m)"
+    )
+    yaw_sigma: float = option(default=2.0, type=float, metavar="DEG", group=NOISE_GROUP, help="heading (2 degrees)")
+    size_sigma: float = option(
+        default=0.03, type=float, metavar="REL", group=NOISE_GROUP, help="relative, per dimension (0.03)"
+    )
 
 
 def register(dsub) -> None:
@@ -18,36 +57,7 @@ def register(dsub) -> None:
         "--frames 20 --out seqs",
         _sequences,
     )
-    p.add_argument(
-        "--meshes", required=True, metavar="PATH", help="a mesh file or a folder of them (z up, x forward, metres)"
-    )
-    p.add_argument(
-        "--out",
-        "-o",
-        required=True,
-        metavar="DIR|FILE.h5",
-        help="output folder (DIR/seqNNNN/ per sequence) or one HDF5 file (.h5: track ids, both boxes, sensor origins)",
-    )
-    p.add_argument(
-        "--workers", type=positive_int, default=1, help="processes simulating (.h5 output; same bytes for any number)"
-    )
-    p.add_argument(
-        "--sequences", type=positive_int, default=4, metavar="N", help=f"sequences, 1..{MAX_SEQUENCES} (default 4)"
-    )
-    p.add_argument(
-        "--frames", type=positive_int, default=20, metavar="F", help=f"frames a sequence, 1..{MAX_FRAMES} (default 20)"
-    )
-    p.add_argument(
-        "--hz", type=float, default=10.0, help=f"frame rate, {HZ_RANGE[0]:g}..{HZ_RANGE[1]:g} Hz (default 10)"
-    )
-    p.add_argument("--sensor", default="hdl64e", choices=tuple(SENSOR_PRESETS), help="LiDAR (default hdl64e)")
-    p.add_argument(
-        "--seed", type=seed_number, default=0, help=f"seed, {SEED_HELP} (default 0): the same seed, the same bytes"
-    )
-    g = p.add_argument_group("noisy boxes (independent per frame)")
-    g.add_argument("--translation-sigma", type=float, default=0.10, metavar="M", help="per horizontal axis (0.10 m)")
-    g.add_argument("--yaw-sigma", type=float, default=2.0, metavar="DEG", help="heading (2 degrees)")
-    g.add_argument("--size-sigma", type=float, default=0.03, metavar="REL", help="relative, per dimension (0.03)")
+    add_options(p, SequencesOptions)
     add_quiet(p)
 
 

@@ -17,13 +17,6 @@ def register(sub) -> None:
         "--out tracks.json --nuscenes-out tracking_result.json --min-score 0.1",
         _track,
     )
-    p.add_argument(
-        "detections",
-        metavar="DETECTIONS",
-        help="nuscenes: a detection result JSON; kitti: a folder of per-frame result files (16 fields, score last) "
-        "or one file with a frame column (tracking layout); generic: a sequence JSON, a folder of box files or one "
-        "box file (boxes with an optional 'score')",
-    )
     add_options(p, TrackSettings)
 
 

@@ -20,7 +20,13 @@ _D = TrackerConfig()
 class TrackSettings:
     """What ``spotlights track`` is asked to do (its options; ``detections`` is the command's positional)."""
 
-    detections: str
+    detections: str = option(
+        "detections",
+        metavar="DETECTIONS",
+        help="nuscenes: a detection result JSON; kitti: a folder of per-frame result files (16 fields, score last) "
+        "or one file with a frame column (tracking layout); generic: a sequence JSON, a folder of box files or one "
+        "box file (boxes with an optional 'score')",
+    )
     format: str = option(choices=FORMATS, help="the detections' format")
     out: str = option("--out", "-o", metavar="JSON", help="tracks in the generic sequence format (.json)")
     data: str | None = option(
