@@ -396,19 +396,11 @@ def mc_density(
         Two :class:`MCResult` per placement (front face, then back face), in order.
     """
     placements = [p if isinstance(p, DiscPlacement) else DiscPlacement(float(p[0]), float(p[1])) for p in placements]
-    if n_rotations < 2:
-        raise ParameterError("n_rotations must be >= 2 to estimate the statistical error")
-    if not (0.0 < disc_radius < 1.0):
-        raise ParameterError(f"disc radius must be in (0, 1), got {disc_radius}")
-    for p in placements:
-        far = np.max(np.linalg.norm(disc_mesh(p.r, p.alpha, disc_radius, segments)[0], axis=1))
-        if p.r < 0 or far >= 1.0:
-            raise ParameterError(f"disc at r={p.r:g} with radius {disc_radius:g} does not fit inside the unit sphere")
+    _check_mc_arguments(placements, disc_radius, n_rotations, segments)
     from tqdm import tqdm
 
     rotations = _random_rotations(n_rotations * len(placements), seed).reshape(len(placements), n_rotations, 3, 3)
     area = _polygon_area(disc_radius, segments)
-    nm = rig.n_rays
     rays = RigRays(rig)
     results: list[MCResult] = []
     bar = tqdm(
@@ -421,43 +413,74 @@ def mc_density(
             q = rotations[j, k]
             counts[k] = count_disc_hits(rig, vertices @ q.T, faces, q @ normal, rays=rays)
             bar.update(1)
-        quad = disc_expected_density(p.r, p.alpha, disc_radius, angle=rig.angle, segments=segments)
-        if p.r == 0.0:  # the centre: exact rig expectation (the finite-M expansion does not apply)
-            exact = centre_disc_expected_density(disc_radius, rig.n_secondary, angle=rig.angle)
-            corr = (exact - quad[0], exact - quad[1])
-        else:
-            corr = finite_m_correction(p.r, p.alpha, disc_radius, rig.n_secondary, angle=rig.angle, segments=segments)
+        quad, corr = _expected_density(rig, p, disc_radius, segments)
         shells = _cap_steps_spanned(vertices, disc_radius, rig.n_secondary, rig.angle)
-        for col, side, alpha in ((0, "front", p.alpha), (1, "back", np.pi - p.alpha)):
-            c = counts[:, col].astype(np.float64)
-            scale = 1.0 / (nm * area)
-            rho_mc = float(c.mean() * scale)
-            se = float(c.std(ddof=1) / np.sqrt(n_rotations) * scale)
-            se_p = float(np.sqrt(c.sum()) / n_rotations * scale)
-            expect = quad[col] + corr[col]
-            z = (rho_mc - expect) / se if se > 0 else (0.0 if rho_mc == expect else np.inf)
-            results.append(
-                MCResult(
-                    angle=float(rig.angle),
-                    r=float(p.r),
-                    alpha=float(alpha),
-                    side=side,
-                    n_primary=int(rig.n_primary),
-                    n_secondary=int(rig.n_secondary),
-                    n_rotations=int(n_rotations),
-                    disc_radius=float(disc_radius),
-                    area=float(area),
-                    hits=int(c.sum()),
-                    rho_mc=rho_mc,
-                    se_mc=se,
-                    se_poisson=se_p,
-                    rho_quad=float(quad[col]),
-                    correction=float(corr[col]),
-                    rho_expected=float(expect),
-                    rho_center=float(rho(p.r, alpha, angle=rig.angle)),
-                    z=float(z),
-                    shells=float(shells),
-                )
-            )
+        results += _placement_results(rig, p, counts, quad, corr, area, disc_radius, shells)
     bar.close()
+    return results
+
+
+def _check_mc_arguments(placements: list[DiscPlacement], disc_radius: float, n_rotations: int, segments: int) -> None:
+    """Raise ParameterError unless ``n_rotations >= 2``, ``0 < disc_radius < 1`` and every disc fits
+    inside the unit sphere."""
+    if n_rotations < 2:
+        raise ParameterError("n_rotations must be >= 2 to estimate the statistical error")
+    if not (0.0 < disc_radius < 1.0):
+        raise ParameterError(f"disc radius must be in (0, 1), got {disc_radius}")
+    for p in placements:
+        far = np.max(np.linalg.norm(disc_mesh(p.r, p.alpha, disc_radius, segments)[0], axis=1))
+        if p.r < 0 or far >= 1.0:
+            raise ParameterError(f"disc at r={p.r:g} with radius {disc_radius:g} does not fit inside the unit sphere")
+
+
+def _expected_density(rig, p: DiscPlacement, disc_radius: float, segments: int) -> tuple:
+    """``(quad, corr)``: the quadrature's (front, back) disc densities per unit N*M and the rig's
+    finite-M corrections (at the centre: the exact rig expectation minus the quadrature)."""
+    quad = disc_expected_density(p.r, p.alpha, disc_radius, angle=rig.angle, segments=segments)
+    if p.r == 0.0:  # the centre: exact rig expectation (the finite-M expansion does not apply)
+        exact = centre_disc_expected_density(disc_radius, rig.n_secondary, angle=rig.angle)
+        corr = (exact - quad[0], exact - quad[1])
+    else:
+        corr = finite_m_correction(p.r, p.alpha, disc_radius, rig.n_secondary, angle=rig.angle, segments=segments)
+    return quad, corr
+
+
+def _placement_results(
+    rig, p: DiscPlacement, counts: np.ndarray, quad, corr, area: float, disc_radius: float, shells: float
+) -> list[MCResult]:
+    """The front and back :class:`MCResult` of one placement from its (K, 2) int64 hit ``counts``."""
+    n_rotations = len(counts)
+    nm = rig.n_rays
+    results = []
+    for col, side, alpha in ((0, "front", p.alpha), (1, "back", np.pi - p.alpha)):
+        c = counts[:, col].astype(np.float64)
+        scale = 1.0 / (nm * area)
+        rho_mc = float(c.mean() * scale)
+        se = float(c.std(ddof=1) / np.sqrt(n_rotations) * scale)
+        se_p = float(np.sqrt(c.sum()) / n_rotations * scale)
+        expect = quad[col] + corr[col]
+        z = (rho_mc - expect) / se if se > 0 else (0.0 if rho_mc == expect else np.inf)
+        results.append(
+            MCResult(
+                angle=float(rig.angle),
+                r=float(p.r),
+                alpha=float(alpha),
+                side=side,
+                n_primary=int(rig.n_primary),
+                n_secondary=int(rig.n_secondary),
+                n_rotations=int(n_rotations),
+                disc_radius=float(disc_radius),
+                area=float(area),
+                hits=int(c.sum()),
+                rho_mc=rho_mc,
+                se_mc=se,
+                se_poisson=se_p,
+                rho_quad=float(quad[col]),
+                correction=float(corr[col]),
+                rho_expected=float(expect),
+                rho_center=float(rho(p.r, alpha, angle=rig.angle)),
+                z=float(z),
+                shells=float(shells),
+            )
+        )
     return results

@@ -256,12 +256,7 @@ def run_density_analysis(
 
     timer = StageTimer()  # laps, one per stage
     angles = [float(a) for a in config.angles]
-    n_r = int(round(0.99 / config.r_step)) + 1
-    r_values = np.round(np.linspace(0.0, config.r_step * (n_r - 1), n_r), 12)
-    r_values = r_values[r_values < 1.0]
-    n_a = int(round(180.0 / config.alpha_step_deg)) + 1
-    alpha_values = np.radians(np.linspace(0.0, config.alpha_step_deg * (n_a - 1), n_a))
-    alpha_values = alpha_values[alpha_values <= np.pi + 1e-12]
+    r_values, alpha_values = _grid_axes(config)
 
     # --- quadrature on the grid -------------------------------------------------------------
     timer.lap("setup")
@@ -270,26 +265,66 @@ def run_density_analysis(
     summary: dict = {
         "format": "spotlights-density-summary",
         "config": {k: (list(v) if isinstance(v, (list, tuple)) else v) for k, v in config.__dict__.items()},
-        "angles": {},
+        "angles": {f"{a:g}": _angle_summary(a, config.r_limit, r_values, alpha_values, grids[a]) for a in angles},
     }
-    for a in angles:
-        ref = _symmetric_grid(r_values, alpha_values, a, nodes=2 * dens.DEFAULT_NODES)
-        ext = extrema(a, config.r_limit, r_values, alpha_values, grids[a])
-        ext_wide = extrema(a, 0.95, r_values, alpha_values, grids[a])
-        summary["angles"][f"{a:g}"] = {
-            "angle": a,
-            "rho_r0": float(grids[a][0, 0]),
-            "rho_r0_closed_form": dens.rho_closed_form_r0(a),
-            "quadrature_max_abs_error": float(np.max(np.abs(grids[a] - ref))),
-            "quadrature_max_rel_error": float(np.max(np.abs(grids[a] - ref) / ref)),
-            f"range_r_le_{config.r_limit:g}": ext,
-            "uniformity_max_over_min": ext["max"] / ext["min"],
-            "range_r_le_0.95": ext_wide,
-            "uniformity_max_over_min_r_le_0.95": ext_wide["max"] / ext_wide["min"],
-        }
     timer.lap("extrema_and_error")
 
     # --- CSV + heat maps + occlusion figure ---------------------------------------------------
+    _write_grid_outputs(out, config, angles, r_values, alpha_values, grids)
+    timer.lap("csv_and_figures")
+
+    # --- real rigs: hit ratios and Monte-Carlo ------------------------------------------------
+    all_results = _real_rigs(config, angles, summary, progress)
+    timer.lap("montecarlo")
+    if config.mc:
+        _write_mc_csv(out / "density_mc.csv", all_results)
+        curve_r = np.linspace(0.0, 0.95, 96)
+        curves = {
+            a: (curve_r, {ad: dens.rho(curve_r, np.radians(ad), angle=a) for ad in (0.0, 45.0, 90.0)}) for a in angles
+        }
+        plots.plot_montecarlo(out / "density_montecarlo.png", all_results, curves)
+        summary["montecarlo"] = _mc_stats(all_results)
+    if len(angles) > 1:
+        _plot_caps(out, angles, summary, r_values, alpha_values, grids)
+    with atomic_output(out / "summary.json") as tmp:
+        tmp.write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
+    timer.lap("mc_figures_and_summary")
+    timings = {k: v for k, v in timer.seconds.items() if k != "setup"}
+    return summary, {**timings, "total": timer.total}
+
+
+def _grid_axes(config: DensityConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The grid's radii (R,) in [0, 1) and orientations alpha (A,) in [0, pi] radians, float64."""
+    n_r = int(round(0.99 / config.r_step)) + 1
+    r_values = np.round(np.linspace(0.0, config.r_step * (n_r - 1), n_r), 12)
+    r_values = r_values[r_values < 1.0]
+    n_a = int(round(180.0 / config.alpha_step_deg)) + 1
+    alpha_values = np.radians(np.linspace(0.0, config.alpha_step_deg * (n_a - 1), n_a))
+    alpha_values = alpha_values[alpha_values <= np.pi + 1e-12]
+    return r_values, alpha_values
+
+
+def _angle_summary(a: float, r_limit: float, r_values, alpha_values, grid: np.ndarray) -> dict:
+    """One cap angle's summary: the density at the centre (and its closed form), the quadrature's
+    error against twice the nodes, and the extremes and uniformity over ``r <= r_limit`` and 0.95."""
+    ref = _symmetric_grid(r_values, alpha_values, a, nodes=2 * dens.DEFAULT_NODES)
+    ext = extrema(a, r_limit, r_values, alpha_values, grid)
+    ext_wide = extrema(a, 0.95, r_values, alpha_values, grid)
+    return {
+        "angle": a,
+        "rho_r0": float(grid[0, 0]),
+        "rho_r0_closed_form": dens.rho_closed_form_r0(a),
+        "quadrature_max_abs_error": float(np.max(np.abs(grid - ref))),
+        "quadrature_max_rel_error": float(np.max(np.abs(grid - ref) / ref)),
+        f"range_r_le_{r_limit:g}": ext,
+        "uniformity_max_over_min": ext["max"] / ext["min"],
+        "range_r_le_0.95": ext_wide,
+        "uniformity_max_over_min_r_le_0.95": ext_wide["max"] / ext_wide["min"],
+    }
+
+
+def _write_grid_outputs(out: Path, config: DensityConfig, angles: list[float], r_values, alpha_values, grids) -> None:
+    """``density.csv``, ``density_heatmap.png`` and ``density_directional.png`` (the occlusion formula)."""
     rr, aa = np.meshgrid(r_values, alpha_values, indexing="ij")
     cols, fmts, header = [], ["%.4f", "%.10f", "%.12e"], "r,alpha,rho_per_nm"
     if len(angles) == 1:
@@ -313,10 +348,11 @@ def run_density_analysis(
         for r, a in [(0.0, 0.0), (0.5, np.radians(60.0)), (0.8, 0.0), (0.8, np.pi / 2), (0.8, np.pi)]
     ]
     plots.plot_directional(out / "density_directional.png", cases, beta, gamma, angle=dir_angle)
-    timer.lap("csv_and_figures")
 
-    # --- real rigs: hit ratios and Monte-Carlo ------------------------------------------------
 
+def _real_rigs(config: DensityConfig, angles: list[float], summary: dict, progress: bool) -> list:
+    """Each angle's real rig: its name and hit ratios added to ``summary``, and (with ``config.mc``) its
+    Monte-Carlo check; returns every :class:`~spotlights.analysis.montecarlo.MCResult`, angle by angle."""
     all_results = []
     placements = [DiscPlacement(0.0, 0.0)] + [
         DiscPlacement(float(r), float(np.radians(ad))) for r in config.mc_radii if r > 0 for ad in config.mc_alphas_deg
@@ -336,35 +372,25 @@ def run_density_analysis(
             )
             all_results.extend(res)
             summary["angles"][f"{a:g}"]["montecarlo"] = _mc_stats(res)
-    timer.lap("montecarlo")
-    if config.mc:
-        _write_mc_csv(out / "density_mc.csv", all_results)
-        curve_r = np.linspace(0.0, 0.95, 96)
-        curves = {
-            a: (curve_r, {ad: dens.rho(curve_r, np.radians(ad), angle=a) for ad in (0.0, 45.0, 90.0)}) for a in angles
+    return all_results
+
+
+def _plot_caps(out: Path, angles: list[float], summary: dict, r_values, alpha_values, grids) -> None:
+    """``density_caps.png``: the angles' uniformity and hit ratios, and their profiles at alpha 0 and 90 deg."""
+    table = [
+        {
+            "angle": a,
+            "uniformity": summary["angles"][f"{a:g}"]["uniformity_max_over_min"],
+            "uniformity_095": summary["angles"][f"{a:g}"]["uniformity_max_over_min_r_le_0.95"],
+            "hit_ratio_05": summary["angles"][f"{a:g}"]["hit_ratio_05"],
+            "hit_ratio_08": summary["angles"][f"{a:g}"]["hit_ratio_08"],
         }
-        plots.plot_montecarlo(out / "density_montecarlo.png", all_results, curves)
-        summary["montecarlo"] = _mc_stats(all_results)
-    if len(angles) > 1:
-        table = [
-            {
-                "angle": a,
-                "uniformity": summary["angles"][f"{a:g}"]["uniformity_max_over_min"],
-                "uniformity_095": summary["angles"][f"{a:g}"]["uniformity_max_over_min_r_le_0.95"],
-                "hit_ratio_05": summary["angles"][f"{a:g}"]["hit_ratio_05"],
-                "hit_ratio_08": summary["angles"][f"{a:g}"]["hit_ratio_08"],
-            }
-            for a in angles
-        ]
-        ia0 = 0
-        ia90 = int(np.argmin(np.abs(alpha_values - np.pi / 2)))
-        profiles = {a: {"alpha0": grids[a][:, ia0], "alpha90": grids[a][:, ia90]} for a in angles}
-        plots.plot_caps(out / "density_caps.png", r_values, profiles, table)
-    with atomic_output(out / "summary.json") as tmp:
-        tmp.write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
-    timer.lap("mc_figures_and_summary")
-    timings = {k: v for k, v in timer.seconds.items() if k != "setup"}
-    return summary, {**timings, "total": timer.total}
+        for a in angles
+    ]
+    ia0 = 0
+    ia90 = int(np.argmin(np.abs(alpha_values - np.pi / 2)))
+    profiles = {a: {"alpha0": grids[a][:, ia0], "alpha90": grids[a][:, ia90]} for a in angles}
+    plots.plot_caps(out / "density_caps.png", r_values, profiles, table)
 
 
 def density_summary_lines(summary: dict, timings: dict, cfg: DensityConfig, out: str | os.PathLike) -> list[str]:

@@ -132,7 +132,29 @@ def _extra_lines(report: dict) -> list[str]:
     eq = d.get("equal_points")
     vox = d.get("equal_density")
     lines += ["", "## Noise floor, equal density, equal point counts, heading check", ""]
-    lines.append(
+    lines.append(_extra_intro(eq, vox))
+    lines.append("")
+    head = _extra_head(report, eq, vox)
+    lines += [head, "|" + "---|" * (head.count("|") - 1)]
+    lines += [_extra_row(m, d, eq, vox) for m in report["models"]]
+    for m in report["models"]:
+        od = m.get("out_of_domain")
+        if od and od["n_observations"]:
+            lines.append(
+                f"\nWarning - {m['name']}: {od['n_observations']} of {d['n_observations_tracked']} observations are "
+                "outside what the model learned ("
+                + "; ".join(f"{k}: {v}" for k, v in od["reasons"].items())
+                + "): their completions extrapolate."
+            )
+    if d.get("noise_floor") and not str(d["noise_floor"]).startswith("kept"):
+        lines.append(f"\nNoise floor {d['noise_floor']}.")
+    return lines
+
+
+def _extra_intro(eq, vox) -> str:
+    """The paragraph that defines the noise floor, the equal-count and equal-density scores (when
+    scored: ``eq`` points, voxel side ``vox``) and the heading flips."""
+    return (
         "Noise floor: consistency's CD between two completions of the *same* observation, its points "
         "resampled to the network's input with two seeds - the part of CD that resampling alone explains. "
         + (
@@ -152,7 +174,10 @@ def _extra_lines(report: dict) -> list[str]:
         + "Heading flips: observations whose completion with the box turned around is closer to the observed "
         "points (on annotated boxes, false alarms of `--heading-check`). Average over classes; All objects in brackets."
     )
-    lines.append("")
+
+
+def _extra_head(report: dict, eq, vox) -> str:
+    """The header row of the noise-floor table (its columns depend on what was scored)."""
     head = "| Model | CD | Noise floor |"
     if vox:
         head += f" **CD @voxel {vox:g}** | Noise floor @voxel | Diversity @voxel | points @voxel |"
@@ -162,37 +187,28 @@ def _extra_lines(report: dict) -> list[str]:
     head += (
         f" Heading flips (margin {margins.pop():g}) |" if len(margins) == 1 else " Heading flips |"
     ) + " Out of domain |"
-    lines += [head, "|" + "---|" * (head.count("|") - 1)]
-    for m in report["models"]:
-        a, o = m["average"], m["all_objects"]
-        row = f"| {m['name']} | {_fmt(a['cd'])} ({_fmt(o['cd'])}) | {_fmt(a.get('noise_floor'))} ({_fmt(o.get('noise_floor'))}) |"
-        if vox:
-            v = m.get("equal_density") or {}
-            row += _resampled_cells(v, _fmt(v.get("mean_points_per_completion"), 0), bold=True)
-        if eq:
-            e = m.get("equal_points") or {}
-            row += _resampled_cells(e, _fmt(e.get("consistency_over_diversity"), 3))
-        h = m.get("heading")
-        row += (
-            f" {h['n_flipped']} / {h['n_observations']} ({100 * h['rate']:.1f}%; {100 * h['rate_margin0']:.1f}% at margin 0) |"
-            if h and h.get("rate") is not None
-            else " - |"
-        )
-        od = m.get("out_of_domain")
-        row += f" {od['n_observations']} / {d['n_observations_tracked']} |" if od else " - |"
-        lines.append(row)
-    for m in report["models"]:
-        od = m.get("out_of_domain")
-        if od and od["n_observations"]:
-            lines.append(
-                f"\nWarning - {m['name']}: {od['n_observations']} of {d['n_observations_tracked']} observations are "
-                "outside what the model learned ("
-                + "; ".join(f"{k}: {v}" for k, v in od["reasons"].items())
-                + "): their completions extrapolate."
-            )
-    if d.get("noise_floor") and not str(d["noise_floor"]).startswith("kept"):
-        lines.append(f"\nNoise floor {d['noise_floor']}.")
-    return lines
+    return head
+
+
+def _extra_row(m: dict, d: dict, eq, vox) -> str:
+    """One model's row of the noise-floor table."""
+    a, o = m["average"], m["all_objects"]
+    row = f"| {m['name']} | {_fmt(a['cd'])} ({_fmt(o['cd'])}) | {_fmt(a.get('noise_floor'))} ({_fmt(o.get('noise_floor'))}) |"
+    if vox:
+        v = m.get("equal_density") or {}
+        row += _resampled_cells(v, _fmt(v.get("mean_points_per_completion"), 0), bold=True)
+    if eq:
+        e = m.get("equal_points") or {}
+        row += _resampled_cells(e, _fmt(e.get("consistency_over_diversity"), 3))
+    h = m.get("heading")
+    row += (
+        f" {h['n_flipped']} / {h['n_observations']} ({100 * h['rate']:.1f}%; {100 * h['rate_margin0']:.1f}% at margin 0) |"
+        if h and h.get("rate") is not None
+        else " - |"
+    )
+    od = m.get("out_of_domain")
+    row += f" {od['n_observations']} / {d['n_observations_tracked']} |" if od else " - |"
+    return row
 
 
 def _closing_lines(report: dict) -> list[str]:

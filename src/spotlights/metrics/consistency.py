@@ -287,17 +287,9 @@ def aggregate(tracks: list[TrackResult], classes=None) -> dict:
     res: dict = {"classes": {}}
     class_means = []
     for c in names:
-        ts = [t for t in tracks if t.cls == c]
-        scored = [t for t in ts if np.isfinite(t.values["cd"])]
-        entry: dict[str, float | None] = {
-            "n_objects": len(scored),
-            "n_objects_unscored": len(ts) - len(scored),
-            "n_pairs": sum(t.n_pairs - t.n_pairs_empty for t in ts),
-        }
-        for k in keys:
-            entry[k] = _mean([t.values.get(k, np.nan) for t in scored])
+        entry, n_scored = _class_entry([t for t in tracks if t.cls == c], keys)
         res["classes"][c] = entry
-        if scored:
+        if n_scored:
             class_means.append(entry)
     res["average"] = {"n_classes": len(class_means)}
     for k in keys:
@@ -307,6 +299,20 @@ def aggregate(tracks: list[TrackResult], classes=None) -> dict:
     for k in keys:
         res["all_objects"][k] = _mean([t.values.get(k, np.nan) for t in scored])
     return res
+
+
+def _class_entry(ts: list[TrackResult], keys: list[str]) -> tuple[dict, int]:
+    """One class's entry of :func:`aggregate` (counts, then the mean of every key over its scored
+    tracks) and how many of its tracks were scored."""
+    scored = [t for t in ts if np.isfinite(t.values["cd"])]
+    entry: dict[str, float | None] = {
+        "n_objects": len(scored),
+        "n_objects_unscored": len(ts) - len(scored),
+        "n_pairs": sum(t.n_pairs - t.n_pairs_empty for t in ts),
+    }
+    for k in keys:
+        entry[k] = _mean([t.values.get(k, np.nan) for t in scored])
+    return entry, len(scored)
 
 
 def _mean(values) -> float | None:

@@ -158,62 +158,18 @@ def bev_image(
         width += CAPTION_WIDTH
         height = max(height, MARGIN[1] + 16 * (len(captions) + 1) + 10)
     image = np.full((height, width, 3), 255, dtype=np.uint8)
-    c0, r0 = canvas.origin
-    pw, ph = canvas.plot_size
     step = nice_step((canvas.hi[0] - canvas.lo[0]) / 6.0)
     xs = np.arange(math.ceil(canvas.lo[0] / step) * step, canvas.hi[0] + 1e-9, step)
     ys = np.arange(math.ceil(canvas.lo[1] / step) * step, canvas.hi[1] + 1e-9, step)
-    for x in xs:  # the metre grid, under everything
-        image[r0 : r0 + ph, int(canvas.to_pixel([[x, 0.0]])[0, 0])] = GRID
-    for y in ys:
-        image[int(canvas.to_pixel([[0.0, y]])[0, 1]), c0 : c0 + pw] = GRID
-    paint_points(image, canvas, np.asarray(scan, dtype=np.float64).reshape(-1, 3), GREY)
-    comps = [np.asarray(o.completion) for o in objects if o.completion is not None and len(o.completion)]
-    if comps:
-        paint_points(image, canvas, np.concatenate(comps), GREEN)
-    parts = [np.asarray(o.partial, dtype=np.float64).reshape(-1, 3) for o in objects]
-    if parts:
-        paint_points(image, canvas, np.concatenate(parts), PURPLE, radius=1)
+    _paint_layers(image, canvas, xs, ys, scan, objects)
     pic = Image.fromarray(image)
     draw = ImageDraw.Draw(pic)
     small, font = _font(11), _font(13)
-    draw.rectangle([c0 - 1, r0 - 1, c0 + pw, r0 + ph], outline=BLACK)
-    for x in xs:
-        col = canvas.to_pixel([[x, 0.0]])[0, 0]
-        draw.text((col, r0 + ph + 4), f"{x:g}", fill=BLACK, font=small, anchor="mt")
-    for y in ys:
-        row = canvas.to_pixel([[0.0, y]])[0, 1]
-        draw.text((c0 - 5, row), f"{y:g}", fill=BLACK, font=small, anchor="rm")
-    draw.text((c0 + pw / 2, r0 + ph + 20), "x (m, sensor frame)", fill=BLACK, font=small, anchor="mt")
-    draw.text((12, r0 + ph / 2), "y (m)", fill=BLACK, font=small, anchor="lm")
-    for o in objects:  # each box's bottom face, then its id above its northmost corner
-        k = canvas.to_pixel(o.box.corners()[[1, 3, 7, 5, 1]])
-        draw.line([tuple(p) for p in k], fill=BLACK, width=1)
-    for o in objects:
-        k = canvas.to_pixel(o.box.corners())
-        at = (float(canvas.to_pixel([o.center])[0, 0]), float(k[:, 1].min()) - 3)
-        box = draw.textbbox(at, str(o.label), font=small, anchor="mb")
-        draw.rectangle([box[0] - 2, box[1] - 1, box[2] + 2, box[3] + 1], fill=WHITE)
-        draw.text(at, str(o.label), fill=BLACK, font=small, anchor="mb")
-    s = canvas.to_pixel([[0.0, 0.0]])[0]
-    if c0 <= s[0] < c0 + pw and r0 <= s[1] < r0 + ph:
-        draw.polygon([(s[0], s[1] - 7), (s[0] - 6, s[1] + 5), (s[0] + 6, s[1] + 5)], fill=BLACK)
-        draw.text((s[0], s[1] + 8), "sensor", fill=BLACK, font=small, anchor="mt")
-    bar = nice_step((canvas.hi[0] - canvas.lo[0]) / 5.0)  # the scale bar, lower left of the plot
-    x0, y0 = c0 + 12, r0 + ph - 14
-    draw.line([(x0, y0), (x0 + bar * canvas.px_per_m, y0)], fill=BLACK, width=3)
-    draw.text((x0 + bar * canvas.px_per_m / 2, y0 - 4), f"{bar:g} m", fill=BLACK, font=small, anchor="mb")
-    legend = [(GREY, "raw scan"), (GREEN, "completion"), (PURPLE, "partial input"), (BLACK, id_note)]
-    lw = max(draw.textlength(t, font=small) for _, t in legend) + 30
-    lx, ly = c0 + pw - lw - 6, r0 + 6
-    draw.rectangle([lx, ly, lx + lw, ly + 16 * len(legend) + 6], fill=WHITE, outline=GRID)
-    for i, (color, text) in enumerate(legend):
-        y = ly + 6 + 16 * i
-        if i < 3:
-            draw.rectangle([lx + 6, y + 2, lx + 15, y + 11], fill=color)
-        else:
-            draw.rectangle([lx + 6, y + 2, lx + 15, y + 11], outline=color)
-        draw.text((lx + 22, y + 7), text, fill=BLACK, font=small, anchor="lm")
+    _draw_axes(draw, canvas, xs, ys, small)
+    _draw_boxes(draw, canvas, objects, small)
+    _draw_sensor_and_scale(draw, canvas, small)
+    _draw_legend(draw, canvas, id_note, small)
+    r0 = canvas.origin[1]
     if captions:  # the objects, one line each (long lines cut at the column's edge)
         x = plot_width + 4
         draw.text((x, r0), "objects", fill=BLACK, font=font, anchor="lt")
@@ -225,6 +181,83 @@ def bev_image(
         cx = max(plot_width / 2, draw.textlength(title, font=font) / 2 + 6)
         draw.text((cx, r0 / 2), title, fill=BLACK, font=font, anchor="mm")
     return pic, canvas
+
+
+def _paint_layers(image: np.ndarray, canvas: BevCanvas, xs, ys, scan, objects: list) -> None:
+    """Paint into ``image`` (H, W, 3) uint8: the metre grid at ``xs``/``ys`` (metres), the scan (grey),
+    the completions (green), then the partial inputs (purple, larger)."""
+    c0, r0 = canvas.origin
+    pw, ph = canvas.plot_size
+    for x in xs:  # the metre grid, under everything
+        image[r0 : r0 + ph, int(canvas.to_pixel([[x, 0.0]])[0, 0])] = GRID
+    for y in ys:
+        image[int(canvas.to_pixel([[0.0, y]])[0, 1]), c0 : c0 + pw] = GRID
+    paint_points(image, canvas, np.asarray(scan, dtype=np.float64).reshape(-1, 3), GREY)
+    comps = [np.asarray(o.completion) for o in objects if o.completion is not None and len(o.completion)]
+    if comps:
+        paint_points(image, canvas, np.concatenate(comps), GREEN)
+    parts = [np.asarray(o.partial, dtype=np.float64).reshape(-1, 3) for o in objects]
+    if parts:
+        paint_points(image, canvas, np.concatenate(parts), PURPLE, radius=1)
+
+
+def _draw_axes(draw, canvas: BevCanvas, xs, ys, small) -> None:
+    """The plot's frame, the grid lines' coordinates (metres) and the axis names."""
+    c0, r0 = canvas.origin
+    pw, ph = canvas.plot_size
+    draw.rectangle([c0 - 1, r0 - 1, c0 + pw, r0 + ph], outline=BLACK)
+    for x in xs:
+        col = canvas.to_pixel([[x, 0.0]])[0, 0]
+        draw.text((col, r0 + ph + 4), f"{x:g}", fill=BLACK, font=small, anchor="mt")
+    for y in ys:
+        row = canvas.to_pixel([[0.0, y]])[0, 1]
+        draw.text((c0 - 5, row), f"{y:g}", fill=BLACK, font=small, anchor="rm")
+    draw.text((c0 + pw / 2, r0 + ph + 20), "x (m, sensor frame)", fill=BLACK, font=small, anchor="mt")
+    draw.text((12, r0 + ph / 2), "y (m)", fill=BLACK, font=small, anchor="lm")
+
+
+def _draw_boxes(draw, canvas: BevCanvas, objects: list, small) -> None:
+    """Each box's bottom face (black), then its label above its northmost corner on white."""
+    for o in objects:  # each box's bottom face, then its id above its northmost corner
+        k = canvas.to_pixel(o.box.corners()[[1, 3, 7, 5, 1]])
+        draw.line([tuple(p) for p in k], fill=BLACK, width=1)
+    for o in objects:
+        k = canvas.to_pixel(o.box.corners())
+        at = (float(canvas.to_pixel([o.center])[0, 0]), float(k[:, 1].min()) - 3)
+        box = draw.textbbox(at, str(o.label), font=small, anchor="mb")
+        draw.rectangle([box[0] - 2, box[1] - 1, box[2] + 2, box[3] + 1], fill=WHITE)
+        draw.text(at, str(o.label), fill=BLACK, font=small, anchor="mb")
+
+
+def _draw_sensor_and_scale(draw, canvas: BevCanvas, small) -> None:
+    """The sensor (a triangle at the origin, when inside the plot) and the scale bar (lower left)."""
+    c0, r0 = canvas.origin
+    pw, ph = canvas.plot_size
+    s = canvas.to_pixel([[0.0, 0.0]])[0]
+    if c0 <= s[0] < c0 + pw and r0 <= s[1] < r0 + ph:
+        draw.polygon([(s[0], s[1] - 7), (s[0] - 6, s[1] + 5), (s[0] + 6, s[1] + 5)], fill=BLACK)
+        draw.text((s[0], s[1] + 8), "sensor", fill=BLACK, font=small, anchor="mt")
+    bar = nice_step((canvas.hi[0] - canvas.lo[0]) / 5.0)  # the scale bar, lower left of the plot
+    x0, y0 = c0 + 12, r0 + ph - 14
+    draw.line([(x0, y0), (x0 + bar * canvas.px_per_m, y0)], fill=BLACK, width=3)
+    draw.text((x0 + bar * canvas.px_per_m / 2, y0 - 4), f"{bar:g} m", fill=BLACK, font=small, anchor="mb")
+
+
+def _draw_legend(draw, canvas: BevCanvas, id_note: str, small) -> None:
+    """The legend box in the plot's upper right corner: the three point colours and the box labels."""
+    c0, r0 = canvas.origin
+    pw, _ = canvas.plot_size
+    legend = [(GREY, "raw scan"), (GREEN, "completion"), (PURPLE, "partial input"), (BLACK, id_note)]
+    lw = max(draw.textlength(t, font=small) for _, t in legend) + 30
+    lx, ly = c0 + pw - lw - 6, r0 + 6
+    draw.rectangle([lx, ly, lx + lw, ly + 16 * len(legend) + 6], fill=WHITE, outline=GRID)
+    for i, (color, text) in enumerate(legend):
+        y = ly + 6 + 16 * i
+        if i < 3:
+            draw.rectangle([lx + 6, y + 2, lx + 15, y + 11], fill=color)
+        else:
+            draw.rectangle([lx + 6, y + 2, lx + 15, y + 11], outline=color)
+        draw.text((lx + 22, y + 7), text, fill=BLACK, font=small, anchor="lm")
 
 
 def bev_png(

@@ -17,6 +17,9 @@ from ._figure import colormap, new_figure, save_png
 
 __all__ = ["plot_heatmaps", "plot_montecarlo", "plot_directional", "plot_caps"]
 
+#: line and marker colour per disc orientation alpha (degrees) of :func:`plot_montecarlo`
+_MC_COLOURS = {0.0: "tab:blue", 45.0: "tab:orange", 90.0: "tab:green", 135.0: "tab:orange", 180.0: "tab:blue"}
+
 
 def _save(fig, path, dpi=120) -> Path:
     return save_png(fig, path, dpi, deterministic=True)
@@ -89,7 +92,6 @@ def plot_montecarlo(
     for j in range(len(angles), nrow * ncol):
         axes[2 * (j // ncol), j % ncol].set_visible(False)
         axes[2 * (j // ncol) + 1, j % ncol].set_visible(False)
-    colours = {0.0: "tab:blue", 45.0: "tab:orange", 90.0: "tab:green", 135.0: "tab:orange", 180.0: "tab:blue"}
     for j, ang in enumerate(angles):
         ax, bx = axes[2 * (j // ncol), j % ncol], axes[2 * (j // ncol) + 1, j % ncol]
         rr, by_alpha = curves[ang]
@@ -97,7 +99,7 @@ def plot_montecarlo(
             ax.plot(
                 rr,
                 vals,
-                color=colours.get(a_deg, "k"),
+                color=_MC_COLOURS.get(a_deg, "k"),
                 lw=1.2,
                 label=f"quadrature, alpha = {a_deg:g} deg" + (f" (= {180 - a_deg:g})" if a_deg < 90 else ""),
             )
@@ -106,28 +108,7 @@ def plot_montecarlo(
         lim = 100 * max([abs(v) + 2.5 * x.se_mc / x.rho_expected for v, x in zip(rel, sel)] + [0.01])
         lim = float(np.ceil(1.2 * lim * 2) / 2)
         for x, rv in zip(sel, rel):
-            a_deg = round(float(np.degrees(x.alpha)), 6)
-            col = colours.get(a_deg, "k")
-            dx = 0.006 if x.side == "back" else -0.006
-            ax.errorbar(x.r + dx, x.rho_mc, yerr=2 * x.se_mc, fmt="o", ms=3.5, color=col, capsize=2, lw=0.8)
-            ax.plot(x.r + dx, x.rho_expected, marker="o", ms=7, mfc="none", color=col, lw=0)
-            bx.errorbar(
-                x.r + dx, 100 * rv, yerr=200 * x.se_mc / x.rho_expected, fmt="o", ms=3.5, color=col, capsize=2, lw=0.8
-            )
-            cont = 100 * (x.rho_mc / x.rho_quad - 1.0)
-            if abs(cont) <= lim:
-                bx.plot(x.r + dx, cont, "x", color="0.55", ms=4)
-            else:  # off the scale: pin to the edge and print the value
-                bx.plot(x.r + dx, np.sign(cont) * 0.97 * lim, marker="^" if cont > 0 else "v", color="0.55", ms=5)
-                if x.side == "front":
-                    bx.annotate(
-                        f"{cont:+.0f} % vs continuum\n(every bundle's central\nray crosses the centre)",
-                        (x.r, np.sign(cont) * 0.97 * lim),
-                        textcoords="offset points",
-                        xytext=(10, -28),
-                        fontsize=7,
-                        color="0.35",
-                    )
+            _draw_mc_result(ax, bx, x, rv, lim)
         if sel:
             zs = np.array([x.z for x in sel])
             n, m, k = sel[0].n_primary, sel[0].n_secondary, sel[0].n_rotations
@@ -137,20 +118,50 @@ def plot_montecarlo(
                 f"{np.mean(np.abs(zs) < 2):.0%} within 2 sigma",
                 fontsize=9,
             )
-        ax.plot([], [], "ko", ms=3.5, label="Monte-Carlo, real rays (2 sigma bars)")
-        ax.plot([], [], "o", mfc="none", color="k", ms=7, label="expected: quadrature over the disc + finite-M term")
-        ax.set_xlabel("r")
-        ax.set_ylabel("rho / (N M)")
-        ax.legend(fontsize=7, loc="best")
-        bx.axhline(0.0, color="k", lw=0.8)
-        bx.plot([], [], "x", color="0.55", label="vs continuum only (no finite-M term)")
-        bx.plot([], [], "ko", ms=3.5, label="vs expected (2 sigma bars)")
-        bx.set_xlabel("r")
-        bx.set_ylabel("Monte-Carlo / expected - 1  (%)")
-        bx.legend(fontsize=7, loc="lower right")
-        bx.set_ylim(-lim, lim)
+        _finish_mc_axes(ax, bx, lim)
     fig.tight_layout()
     return _save(fig, path)
+
+
+def _draw_mc_result(ax, bx, x, rv: float, lim: float) -> None:
+    """One Monte-Carlo disc face: its density and expectation on ``ax``, its relative deviations
+    (%, ``rv`` from the expectation) on ``bx``, a value past ``lim`` pinned to the edge."""
+    a_deg = round(float(np.degrees(x.alpha)), 6)
+    col = _MC_COLOURS.get(a_deg, "k")
+    dx = 0.006 if x.side == "back" else -0.006
+    ax.errorbar(x.r + dx, x.rho_mc, yerr=2 * x.se_mc, fmt="o", ms=3.5, color=col, capsize=2, lw=0.8)
+    ax.plot(x.r + dx, x.rho_expected, marker="o", ms=7, mfc="none", color=col, lw=0)
+    bx.errorbar(x.r + dx, 100 * rv, yerr=200 * x.se_mc / x.rho_expected, fmt="o", ms=3.5, color=col, capsize=2, lw=0.8)
+    cont = 100 * (x.rho_mc / x.rho_quad - 1.0)
+    if abs(cont) <= lim:
+        bx.plot(x.r + dx, cont, "x", color="0.55", ms=4)
+    else:  # off the scale: pin to the edge and print the value
+        bx.plot(x.r + dx, np.sign(cont) * 0.97 * lim, marker="^" if cont > 0 else "v", color="0.55", ms=5)
+        if x.side == "front":
+            bx.annotate(
+                f"{cont:+.0f} % vs continuum\n(every bundle's central\nray crosses the centre)",
+                (x.r, np.sign(cont) * 0.97 * lim),
+                textcoords="offset points",
+                xytext=(10, -28),
+                fontsize=7,
+                color="0.35",
+            )
+
+
+def _finish_mc_axes(ax, bx, lim: float) -> None:
+    """Labels and legends of one column of :func:`plot_montecarlo`; ``bx`` spans +-``lim`` %."""
+    ax.plot([], [], "ko", ms=3.5, label="Monte-Carlo, real rays (2 sigma bars)")
+    ax.plot([], [], "o", mfc="none", color="k", ms=7, label="expected: quadrature over the disc + finite-M term")
+    ax.set_xlabel("r")
+    ax.set_ylabel("rho / (N M)")
+    ax.legend(fontsize=7, loc="best")
+    bx.axhline(0.0, color="k", lw=0.8)
+    bx.plot([], [], "x", color="0.55", label="vs continuum only (no finite-M term)")
+    bx.plot([], [], "ko", ms=3.5, label="vs expected (2 sigma bars)")
+    bx.set_xlabel("r")
+    bx.set_ylabel("Monte-Carlo / expected - 1  (%)")
+    bx.legend(fontsize=7, loc="lower right")
+    bx.set_ylim(-lim, lim)
 
 
 def plot_directional(

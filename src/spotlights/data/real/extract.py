@@ -386,48 +386,40 @@ def write_observations(path: str | os.PathLike, obs: Observations) -> Path:
     return path
 
 
-def read_observations(path: str | os.PathLike) -> Observations:
-    """Read a file written by :func:`write_observations`; errors name the file."""
-    import h5py
-
-    path = Path(path)
-    if not path.is_file():
-        raise InputFileError(path, "file not found")
-    try:
-        f = h5py.File(path, "r")
-    except OSError as exc:
-        raise InputFileError(path, f"not an HDF5 file ({str(exc).splitlines()[0]})") from None
-    with f:
-        if f.attrs.get("format") != FILE_FORMAT:
-            raise InputFileError(
-                path,
-                f"not a real-observation file (format attribute {f.attrs.get('format')!r}, expected {FILE_FORMAT!r}; make one with 'spotlights real extract')",
-            )
-        version = int_attribute(path, f.attrs, "format_version", 1)
-        if version > FILE_FORMAT_VERSION:
-            raise InputFileError(
-                path, f"format version {version} is newer than this spotlights ({FILE_FORMAT_VERSION})"
-            )
-        g = f.get("observations")
-        missing = [k for k in _ARRAYS + _STRINGS if g is None or k not in g]
-        if missing:
-            raise InputFileError(path, f"missing dataset(s) {', '.join('observations/' + m for m in missing)}")
-        arrays = {k: g[k][()] for k in _ARRAYS}
-        if version >= 2 and "raw_points" in g and "raw_offsets" in g:
-            arrays["raw_points"] = g["raw_points"][()]
-            arrays["raw_offsets"] = g["raw_offsets"][()]
-        if "sensor_origin" in g:  # absent from files written before it: NaN rows (Observations)
-            arrays["sensor_origin"] = g["sensor_origin"][()]
-        strings = {k: [s.decode("utf-8") if isinstance(s, bytes) else str(s) for s in g[k][()]] for k in _STRINGS}
-        meta = dict(
-            source_format=str(f.attrs.get("source_format", "")),
-            source=str(f.attrs.get("source", "")),
-            config=json_attribute(path, f.attrs, "config_json", dict, {}),
-            skipped=json_attribute(path, f.attrs, "skipped_json", dict, {}),
-            skipped_labels=json_attribute(path, f.attrs, "skipped_labels_json", dict, {}),
-            n_frames=int_attribute(path, f.attrs, "n_frames", 0, minimum=0),
-            n_boxes=int_attribute(path, f.attrs, "n_boxes", 0, minimum=0),
+def _observation_file_version(path: Path, f) -> int:
+    """The ``format_version`` of an open real-observation file; raises InputFileError for another
+    format or a newer version."""
+    if f.attrs.get("format") != FILE_FORMAT:
+        raise InputFileError(
+            path,
+            f"not a real-observation file (format attribute {f.attrs.get('format')!r}, expected {FILE_FORMAT!r}; make one with 'spotlights real extract')",
         )
+    version = int_attribute(path, f.attrs, "format_version", 1)
+    if version > FILE_FORMAT_VERSION:
+        raise InputFileError(path, f"format version {version} is newer than this spotlights ({FILE_FORMAT_VERSION})")
+    return version
+
+
+def _observation_datasets(path: Path, f, version: int) -> tuple[dict, dict]:
+    """``(arrays, strings)``: the ``/observations`` numeric datasets (with the raw points and sensor
+    origins when the file has them) and string columns; raises InputFileError for a missing one."""
+    g = f.get("observations")
+    missing = [k for k in _ARRAYS + _STRINGS if g is None or k not in g]
+    if missing:
+        raise InputFileError(path, f"missing dataset(s) {', '.join('observations/' + m for m in missing)}")
+    arrays = {k: g[k][()] for k in _ARRAYS}
+    if version >= 2 and "raw_points" in g and "raw_offsets" in g:
+        arrays["raw_points"] = g["raw_points"][()]
+        arrays["raw_offsets"] = g["raw_offsets"][()]
+    if "sensor_origin" in g:  # absent from files written before it: NaN rows (Observations)
+        arrays["sensor_origin"] = g["sensor_origin"][()]
+    strings = {k: [s.decode("utf-8") if isinstance(s, bytes) else str(s) for s in g[k][()]] for k in _STRINGS}
+    return arrays, strings
+
+
+def _check_observation_arrays(path: Path, arrays: dict, strings: dict) -> None:
+    """Equal lengths, ``sensor_origin`` (N, 3), ``raw_offsets`` indexing ``raw_points`` and finite
+    scans, sizes and frames; raises InputFileError naming the first bad row."""
     n = arrays["partial"].shape[0]
     if any(len(arrays[k]) != n for k in _ARRAYS) or any(len(v) != n for v in strings.values()):
         raise InputFileError(path, "observation datasets have different lengths")
@@ -448,6 +440,32 @@ def read_observations(path: str | os.PathLike) -> Observations:
         if a.dtype.kind != "f" or not np.isfinite(a).all():  # the first bad row, named with the file
             bad = 0 if a.dtype.kind != "f" else int(np.argmin(np.isfinite(a).reshape(n, -1).all(axis=1)))
             raise InputFileError(path, f"observations/{key}[{bad}]: {what}")
+
+
+def read_observations(path: str | os.PathLike) -> Observations:
+    """Read a file written by :func:`write_observations`; errors name the file."""
+    import h5py
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError(path, "file not found")
+    try:
+        f = h5py.File(path, "r")
+    except OSError as exc:
+        raise InputFileError(path, f"not an HDF5 file ({str(exc).splitlines()[0]})") from None
+    with f:
+        version = _observation_file_version(path, f)
+        arrays, strings = _observation_datasets(path, f, version)
+        meta = dict(
+            source_format=str(f.attrs.get("source_format", "")),
+            source=str(f.attrs.get("source", "")),
+            config=json_attribute(path, f.attrs, "config_json", dict, {}),
+            skipped=json_attribute(path, f.attrs, "skipped_json", dict, {}),
+            skipped_labels=json_attribute(path, f.attrs, "skipped_labels_json", dict, {}),
+            n_frames=int_attribute(path, f.attrs, "n_frames", 0, minimum=0),
+            n_boxes=int_attribute(path, f.attrs, "n_boxes", 0, minimum=0),
+        )
+    _check_observation_arrays(path, arrays, strings)
     meta["file"] = str(path)
     meta["format_version"] = version
     return Observations(**arrays, **strings, meta=meta)

@@ -261,6 +261,54 @@ def _bbox_xml(root: Path, seq: str) -> Path | None:
     return None
 
 
+def _default_sequences(root: Path, raw: Path) -> list[str]:
+    """Every sequence (sorted) with both a scan folder and a box XML; raises InputFileError if none."""
+    sequences = sorted(
+        p.name for p in raw.iterdir() if (p / "velodyne_points" / "data").is_dir() and _bbox_xml(root, p.name)
+    )
+    if not sequences:
+        raise InputFileError(
+            root, "no sequence has both data_3d_raw/<seq>/velodyne_points/data and data_3d_bboxes/*/<seq>.xml"
+        )
+    return sequences
+
+
+def _vehicle_objects(objs: list[dict]) -> tuple[list[dict], np.ndarray, dict[int, list[dict]]]:
+    """The vehicle objects of a box XML: ``(static objects, their (N, 2) int64 first/last frames,
+    {frame: dynamic objects})``."""
+    # Scene objects (buildings, poles, signs, ...) are not road users: only objects of
+    # the vehicle category become boxes (car, truck, caravan, trailer, and bus, train,
+    # motorcycle, bicycle, unknown vehicle, which the extraction counts as excluded).
+    objs = [o for o in objs if o["label"] in VEHICLE_LABELS]
+    static = [o for o in objs if o["timestamp"] < 0]
+    dynamic: dict[int, list[dict]] = {}
+    for o in objs:
+        if o["timestamp"] >= 0:
+            dynamic.setdefault(o["timestamp"], []).append(o)
+    span = np.array([[o["start_frame"], o["end_frame"]] for o in static], dtype=np.int64).reshape(-1, 2)
+    return static, span, dynamic
+
+
+def _read_sequence(root: Path, raw: Path, seq: str, frames) -> tuple[dict, list[int]]:
+    """One sequence's scans, poses and vehicle objects, and its frame indices (those with a scan
+    and a pose, within ``frames``); raises InputFileError for a missing scan folder or XML."""
+    data = raw / seq / "velodyne_points" / "data"
+    if not data.is_dir():
+        raise InputFileError(data, "scan folder not found")
+    xml = _bbox_xml(root, seq)
+    if xml is None:
+        raise InputFileError(root / "data_3d_bboxes" / "train" / f"{seq}.xml", "bounding-box XML not found")
+    poses = read_poses(root / "data_poses" / seq / "poses.txt")
+    objs = parse_bboxes_xml(xml)
+    scans = {int(p.stem): p for p in data.glob("*.bin") if p.stem.isdigit()}
+    idx = sorted(i for i in scans if i in poses)
+    if frames is not None:
+        start, stop, step = frames
+        idx = [i for i in idx if i >= start and (stop is None or i < stop) and (i - start) % step == 0]
+    static, span, dynamic = _vehicle_objects(objs)
+    return dict(scans=scans, poses=poses, static=static, span=span, dynamic=dynamic, xml=str(xml)), idx
+
+
 class Kitti360Reader(SceneReader):
     """KITTI-360 sequences: one :class:`Frame` per Velodyne scan that has a pose.
 
@@ -286,13 +334,7 @@ class Kitti360Reader(SceneReader):
         if not raw.is_dir():
             raise InputFileError(root, "not a KITTI-360 folder: no data_3d_raw/ inside")
         if sequences is None:
-            sequences = sorted(
-                p.name for p in raw.iterdir() if (p / "velodyne_points" / "data").is_dir() and _bbox_xml(root, p.name)
-            )
-            if not sequences:
-                raise InputFileError(
-                    root, "no sequence has both data_3d_raw/<seq>/velodyne_points/data and data_3d_bboxes/*/<seq>.xml"
-                )
+            sequences = _default_sequences(root, raw)
         calib = root / "calibration"
         cam_to_pose = _read_rigid(calib / "calib_cam_to_pose.txt", "image_00")
         cam_to_velo = _read_rigid(calib / "calib_cam_to_velo.txt", None)
@@ -301,30 +343,7 @@ class Kitti360Reader(SceneReader):
         self._seq: dict[str, dict] = {}
         self._keys: list[tuple[str, str]] = []
         for seq in sequences:
-            data = raw / seq / "velodyne_points" / "data"
-            if not data.is_dir():
-                raise InputFileError(data, "scan folder not found")
-            xml = _bbox_xml(root, seq)
-            if xml is None:
-                raise InputFileError(root / "data_3d_bboxes" / "train" / f"{seq}.xml", "bounding-box XML not found")
-            poses = read_poses(root / "data_poses" / seq / "poses.txt")
-            objs = parse_bboxes_xml(xml)
-            scans = {int(p.stem): p for p in data.glob("*.bin") if p.stem.isdigit()}
-            idx = sorted(i for i in scans if i in poses)
-            if frames is not None:
-                start, stop, step = frames
-                idx = [i for i in idx if i >= start and (stop is None or i < stop) and (i - start) % step == 0]
-            # Scene objects (buildings, poles, signs, ...) are not road users: only objects of
-            # the vehicle category become boxes (car, truck, caravan, trailer, and bus, train,
-            # motorcycle, bicycle, unknown vehicle, which the extraction counts as excluded).
-            objs = [o for o in objs if o["label"] in VEHICLE_LABELS]
-            static = [o for o in objs if o["timestamp"] < 0]
-            dynamic: dict[int, list[dict]] = {}
-            for o in objs:
-                if o["timestamp"] >= 0:
-                    dynamic.setdefault(o["timestamp"], []).append(o)
-            span = np.array([[o["start_frame"], o["end_frame"]] for o in static], dtype=np.int64).reshape(-1, 2)
-            self._seq[seq] = dict(scans=scans, poses=poses, static=static, span=span, dynamic=dynamic, xml=str(xml))
+            self._seq[seq], idx = _read_sequence(root, raw, seq, frames)
             self._keys.extend((seq, f"{i:010d}") for i in idx)
 
     def frame_keys(self) -> list[tuple[str, str]]:

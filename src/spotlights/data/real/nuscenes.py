@@ -179,6 +179,78 @@ def annotation_box(row: dict, category: str, path: Path | str = "sample_annotati
         raise InputFileError(path, f"annotation {row.get('token', '?')}: {exc}") from None
 
 
+def _instance_categories(t: dict, tables: Path) -> dict[str, str]:
+    """``{instance token: category name}`` of the tables ``t``; raises InputFileError for an
+    instance whose category is not in ``category.json``."""
+    category = {r["token"]: str(r["name"]) for r in t["category"]}
+    out = {}
+    for r in t["instance"]:
+        if r["category_token"] not in category:
+            raise InputFileError(
+                tables / "instance.json", f"instance {r['token']}: unknown category_token {r['category_token']}"
+            )
+        out[r["token"]] = category[r["category_token"]]
+    return out
+
+
+def _lidar_keyframes(t: dict, calib: dict, tables: Path) -> dict[str, dict]:
+    """``{sample token: its LIDAR_TOP keyframe sample_data row}``; raises InputFileError for a
+    keyframe with an unknown calibrated sensor."""
+    sensor_channel = {r["token"]: str(r["channel"]) for r in t["sensor"]}
+    lidar: dict[str, dict] = {}
+    for r in t["sample_data"]:
+        if not r["is_key_frame"]:
+            continue
+        cs = calib.get(r["calibrated_sensor_token"])
+        if cs is None:
+            raise InputFileError(
+                tables / "sample_data.json",
+                f"sample_data {r['token']}: unknown calibrated_sensor_token {r['calibrated_sensor_token']}",
+            )
+        if sensor_channel.get(cs["sensor_token"]) == LIDAR_CHANNEL:
+            lidar[r["sample_token"]] = r
+    return lidar
+
+
+def _wanted_scenes(scenes, scene_names: dict[str, str]) -> set[str] | None:
+    """The scene names asked for (None: all); raises ParameterError naming those the tables lack."""
+    wanted = None if scenes is None else {str(s) for s in scenes}
+    if wanted is not None:
+        unknown = sorted(wanted - set(scene_names.values()))
+        if unknown:
+            raise ParameterError(
+                f"unknown nuScenes scene(s) {', '.join(unknown)}; the tables hold "
+                f"{', '.join(sorted(scene_names.values())[:10])}"
+            )
+    return wanted
+
+
+def _samples_of_scenes(t: dict, scene_names: dict[str, str], wanted: set[str] | None, tables: Path):
+    """``(sample row, scene name)`` of every sample of the wanted scenes, in table order; raises
+    InputFileError for a sample of an unknown scene."""
+    for s in t["sample"]:
+        name = scene_names.get(s["scene_token"])
+        if name is None:
+            raise InputFileError(tables / "sample.json", f"sample {s['token']}: unknown scene_token {s['scene_token']}")
+        if wanted is None or name in wanted:
+            yield s, name
+
+
+def _frame_record(s: dict, name: str, lidar: dict, ego: dict, data_root: Path, tables: Path) -> tuple:
+    """``(scene name, timestamp, sample token, sample_data row, scan path)`` of one sample; raises
+    InputFileError when its keyframe, ego pose or scan file is missing."""
+    sd = lidar.get(s["token"])
+    if sd is None:
+        raise InputFileError(tables / "sample_data.json", f"sample {s['token']} has no {LIDAR_CHANNEL} keyframe")
+    for key, table in (("ego_pose_token", ego),):
+        if sd[key] not in table:
+            raise InputFileError(tables / "sample_data.json", f"sample_data {sd['token']}: unknown {key} {sd[key]}")
+    scan = path_inside(data_root, sd["filename"], tables / "sample_data.json", f"sample_data {sd['token']} filename")
+    if not scan.is_file():
+        raise InputFileError(scan, f"{LIDAR_CHANNEL} keyframe scan of sample {s['token']} not found")
+    return (name, sd["timestamp"], s["token"], sd, scan)
+
+
 class NuScenesReader(SceneReader):
     """nuScenes LIDAR_TOP keyframes with their annotated boxes (see the module docstring).
 
@@ -202,64 +274,17 @@ class NuScenesReader(SceneReader):
         by_token = {name: {r["token"]: r for r in rows} for name, rows in t.items()}
         self._calib = by_token["calibrated_sensor"]
         self._ego = by_token["ego_pose"]
-        sensor_channel = {r["token"]: str(r["channel"]) for r in t["sensor"]}
-        category = {r["token"]: str(r["name"]) for r in t["category"]}
-        self._instance_category = {}
-        for r in t["instance"]:
-            if r["category_token"] not in category:
-                raise InputFileError(
-                    tables / "instance.json", f"instance {r['token']}: unknown category_token {r['category_token']}"
-                )
-            self._instance_category[r["token"]] = category[r["category_token"]]
+        self._instance_category = _instance_categories(t, tables)
         self._annotations: dict[str, list[dict]] = defaultdict(list)
         for r in t["sample_annotation"]:
             self._annotations[r["sample_token"]].append(r)
-        lidar: dict[str, dict] = {}
-        for r in t["sample_data"]:
-            if not r["is_key_frame"]:
-                continue
-            cs = self._calib.get(r["calibrated_sensor_token"])
-            if cs is None:
-                raise InputFileError(
-                    tables / "sample_data.json",
-                    f"sample_data {r['token']}: unknown calibrated_sensor_token {r['calibrated_sensor_token']}",
-                )
-            if sensor_channel.get(cs["sensor_token"]) == LIDAR_CHANNEL:
-                lidar[r["sample_token"]] = r
+        lidar = _lidar_keyframes(t, self._calib, tables)
         scene_names = {r["token"]: str(r["name"]) for r in t["scene"]}
-        wanted = None if scenes is None else {str(s) for s in scenes}
-        if wanted is not None:
-            unknown = sorted(wanted - set(scene_names.values()))
-            if unknown:
-                raise ParameterError(
-                    f"unknown nuScenes scene(s) {', '.join(unknown)}; the tables hold "
-                    f"{', '.join(sorted(scene_names.values())[:10])}"
-                )
-        frames = []
-        for s in t["sample"]:
-            name = scene_names.get(s["scene_token"])
-            if name is None:
-                raise InputFileError(
-                    tables / "sample.json", f"sample {s['token']}: unknown scene_token {s['scene_token']}"
-                )
-            if wanted is not None and name not in wanted:
-                continue
-            sd = lidar.get(s["token"])
-            if sd is None:
-                raise InputFileError(
-                    tables / "sample_data.json", f"sample {s['token']} has no {LIDAR_CHANNEL} keyframe"
-                )
-            for key, table in (("ego_pose_token", self._ego),):
-                if sd[key] not in table:
-                    raise InputFileError(
-                        tables / "sample_data.json", f"sample_data {sd['token']}: unknown {key} {sd[key]}"
-                    )
-            scan = path_inside(
-                data_root, sd["filename"], tables / "sample_data.json", f"sample_data {sd['token']} filename"
-            )
-            if not scan.is_file():
-                raise InputFileError(scan, f"{LIDAR_CHANNEL} keyframe scan of sample {s['token']} not found")
-            frames.append((name, sd["timestamp"], s["token"], sd, scan))
+        wanted = _wanted_scenes(scenes, scene_names)
+        frames = [
+            _frame_record(s, name, lidar, self._ego, data_root, tables)
+            for s, name in _samples_of_scenes(t, scene_names, wanted, tables)
+        ]
         if not frames:
             raise InputFileError(
                 tables, "no LIDAR_TOP keyframe" + (f" in scene(s) {', '.join(sorted(wanted))}" if wanted else "")

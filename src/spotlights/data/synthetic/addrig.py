@@ -117,19 +117,11 @@ def _add_rig_locked(
 ) -> AddRigReport:
     """:func:`add_rig` once the file's lock is held."""
     timer = StageTimer()
-    want_json = json.loads(json.dumps(rig.to_dict()))
     with open_dataset(path) as ds:
         cfg_dict = dict(ds.config)
         shards = list(ds.shards)
         offsets = [int(x) for x in ds.model_offset]
-        present = [f"rigs/{rig.name}" in ds.handle(k) for k in range(len(shards))]
-        for k in range(len(shards)):
-            stored = ds.handle(k)[f"rigs/{rig.name}"].attrs if present[k] else None
-            if (
-                stored is not None
-                and json_attribute(shards[k], stored, "rig_json", dict, where=f"/rigs/{rig.name} ") != want_json
-            ):
-                raise InputFileError(shards[k], f"holds a different rig under the name {rig.name}")
+        present = _rig_presence(ds, shards, rig)
         if all(present):
             return AddRigReport(
                 str(path),
@@ -140,16 +132,58 @@ def _add_rig_locked(
                 already_present=True,
                 file_size=ds.info()["file_size_bytes"],
             )
-        stored = {
-            "names": [str(x) for x in ds.names],
-            "sha256": [x.decode() if isinstance(x, bytes) else str(x) for x in ds.models_array("sha256")]
-            if ds.has("models/sha256")
-            else [""] * ds.n_models,
-            "center": np.asarray(ds.center, dtype=np.float64),
-            "radius": np.asarray(ds.radius, dtype=np.float64),
-            "origin": [str(x) for x in ds.origins] if ds.origins is not None else [""] * ds.n_models,
-            "augment": [str(x) for x in ds.augments] if ds.augments is not None else [""] * ds.n_models,
-        }
+        stored = _stored_models(ds)
+    cfg = _build_config(path, cfg_dict, meshes)
+    entries = _model_entries(cfg, stored)
+    depths = _rig_depths(cfg, entries, stored, rig, workers, progress, backend, ray_address, retries)
+    timer.lap("depths")
+    cfg_dict["extra_rigs"] = [r for r in (cfg_dict.get("extra_rigs") or []) if r != rig.name] + [rig.name]
+    _write_rig_to_shards(shards, present, offsets, rig, depths, cfg_dict)
+    hit = float(np.mean(depths > 0))
+    with open_dataset(path) as ds:
+        size = ds.info()["file_size_bytes"]
+    return AddRigReport(
+        str(path),
+        rig.name,
+        len(stored["names"]),
+        rig.n_rays,
+        hit,
+        seconds_depths=timer.seconds["depths"],
+        seconds_write=timer.lap("write"),
+        file_size=size,
+    )
+
+
+def _rig_presence(ds, shards: list, rig) -> list[bool]:
+    """Per shard: whether it holds ``/rigs/<rig.name>`` already (an InputFileError if that one differs)."""
+    want_json = json.loads(json.dumps(rig.to_dict()))
+    present = [f"rigs/{rig.name}" in ds.handle(k) for k in range(len(shards))]
+    for k in range(len(shards)):
+        stored = ds.handle(k)[f"rigs/{rig.name}"].attrs if present[k] else None
+        if (
+            stored is not None
+            and json_attribute(shards[k], stored, "rig_json", dict, where=f"/rigs/{rig.name} ") != want_json
+        ):
+            raise InputFileError(shards[k], f"holds a different rig under the name {rig.name}")
+    return present
+
+
+def _stored_models(ds) -> dict:
+    """The per-model records a worker needs: names, SHA-256, boxes (float64), origins and augments."""
+    return {
+        "names": [str(x) for x in ds.names],
+        "sha256": [x.decode() if isinstance(x, bytes) else str(x) for x in ds.models_array("sha256")]
+        if ds.has("models/sha256")
+        else [""] * ds.n_models,
+        "center": np.asarray(ds.center, dtype=np.float64),
+        "radius": np.asarray(ds.radius, dtype=np.float64),
+        "origin": [str(x) for x in ds.origins] if ds.origins is not None else [""] * ds.n_models,
+        "augment": [str(x) for x in ds.augments] if ds.augments is not None else [""] * ds.n_models,
+    }
+
+
+def _build_config(path: Path, cfg_dict: dict, meshes) -> BuildConfig:
+    """The file's build config, with its mesh folder(s) replaced by ``meshes`` when given."""
     if not cfg_dict.get("meshes") and not meshes and not cfg_dict.get("procedural"):
         raise InputFileError(path, "config_json records no meshes folder; pass --meshes DIR")
     cfg = BuildConfig.from_dict(cfg_dict, path)
@@ -169,6 +203,11 @@ def _add_rig_locked(
             cfg.meshes = str(meshes[0])
     if not cfg.sources and cfg.manifest and not Path(cfg.manifest).exists():
         cfg.manifest = None
+    return cfg
+
+
+def _model_entries(cfg: BuildConfig, stored: dict) -> list:
+    """The catalogue entry of every stored model, in the file's order (an augmented copy: its origin's)."""
     entries, _ = discover_sources(cfg)
     by_name = {e.name: e for e in entries}
     wanted = [o or n for n, o in zip(stored["names"], stored["origin"])]
@@ -180,7 +219,11 @@ def _add_rig_locked(
             f"has no mesh for {len(missing)} of the dataset's models (first: {missing[0]}); "
             "pass the meshes folder the dataset was built from (--meshes)",
         )
-    entries = [by_name[n] for n in wanted]
+    return [by_name[n] for n in wanted]
+
+
+def _rig_depths(cfg, entries, stored, rig, workers, progress, backend, ray_address, retries) -> np.ndarray:
+    """Every model's depths for ``rig``: float32 (n_models, rig.n_rays), computed locally or on Ray."""
     n = len(stored["names"])
     depths = np.zeros((n, rig.n_rays), dtype=np.float32)
     bar = tqdm(total=n, desc=f"depths {rig.name}", unit="model", disable=not progress, dynamic_ncols=True)
@@ -198,8 +241,11 @@ def _add_rig_locked(
                 bar.update(1)
     finally:
         bar.close()
-    timer.lap("depths")
-    cfg_dict["extra_rigs"] = [r for r in (cfg_dict.get("extra_rigs") or []) if r != rig.name] + [rig.name]
+    return depths
+
+
+def _write_rig_to_shards(shards, present, offsets, rig, depths, cfg_dict) -> None:
+    """Add the rig group (and the new ``config_json``) to every shard still without it."""
     # shard by shard (a single file is one shard), each copied, completed and renamed: an
     # interruption leaves every file whole; a rerun completes the shards still without the rig
     for k, shard in enumerate(shards):
@@ -210,16 +256,3 @@ def _add_rig_locked(
             with hdf5_output(tmp, "r+") as (f, _):
                 write_rig_group(f.require_group("rigs"), rig, depths[offsets[k] : offsets[k + 1]])
                 f.attrs["config_json"] = json.dumps(cfg_dict, sort_keys=True)
-    hit = float(np.mean(depths > 0))
-    with open_dataset(path) as ds:
-        size = ds.info()["file_size_bytes"]
-    return AddRigReport(
-        str(path),
-        rig.name,
-        n,
-        rig.n_rays,
-        hit,
-        seconds_depths=timer.seconds["depths"],
-        seconds_write=timer.lap("write"),
-        file_size=size,
-    )

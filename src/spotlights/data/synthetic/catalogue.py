@@ -92,65 +92,10 @@ def discover_models(
     if not root.is_dir():
         raise InputFileError(root, "is not a folder of meshes")
     man = Path(manifest) if manifest else (root / "manifest.csv" if (root / "manifest.csv").exists() else None)
-    entries: list[ModelEntry] = []
-    problems: list[dict] = []
     if man is not None:
-        if not man.exists():
-            raise InputFileError(man, "no such manifest")
-        try:
-            with open(man, newline="") as fh:
-                rows = list(csv.DictReader(fh))
-        except (OSError, UnicodeDecodeError, csv.Error) as exc:
-            raise InputFileError(man, f"cannot read the manifest CSV ({exc})") from None
-        if not rows or "file" not in rows[0]:
-            raise InputFileError(man, "manifest needs a header with a 'file' column (and 'category')")
-        for row in rows:
-            rel = (row.get("file") or "").strip()
-            if not rel:
-                continue
-            p = path_inside(root, rel, man, "mesh file")
-            cat = (row.get("category") or "").strip() or (Path(rel).parts[0] if len(Path(rel).parts) > 1 else root.name)
-            split = (row.get("split") or "").strip().lower() or None
-            if split is not None and split not in SPLITS:
-                raise InputFileError(man, f"row {rel}: split {split!r} is not one of {', '.join(SPLITS)}")
-            scale = (row.get("scale") or "").strip() or None
-            if scale is not None:
-                try:
-                    scale = float(scale)
-                except ValueError:
-                    scale = -1.0
-                if not (math.isfinite(scale) and scale > 0):
-                    raise InputFileError(man, f"row {rel}: scale {row.get('scale')!r} is not a number > 0")
-            if not p.is_file():
-                problems.append({"file": rel, "problem": "listed in the manifest but missing"})
-                continue
-            entries.append(
-                ModelEntry(
-                    name=str(Path(rel).with_suffix("").as_posix()),
-                    file=Path(rel).as_posix(),
-                    category=cat,
-                    up=(row.get("up") or "").strip() or up,
-                    forward=(row.get("forward") or "").strip() or forward,
-                    split=split,
-                    scale=scale,
-                )
-            )
+        entries, problems = _manifest_entries(root, man, up, forward)
     else:
-        files = sorted(
-            p
-            for p in root.rglob("*")
-            if p.is_file()
-            and p.suffix.lower() in MESH_SUFFIXES
-            and not any(part.startswith(".") for part in p.relative_to(root).parts)
-        )
-        for p in files:
-            rel = p.relative_to(root)
-            cat = rel.parts[0] if len(rel.parts) > 1 else root.name
-            entries.append(
-                ModelEntry(
-                    name=rel.with_suffix("").as_posix(), file=rel.as_posix(), category=cat, up=up, forward=forward
-                )
-            )
+        entries, problems = _folder_entries(root, up, forward), []
     if not entries and not problems:
         raise InputFileError(
             root, f"no mesh files ({' '.join(MESH_SUFFIXES)}) found" + (f" from manifest {man}" if man else "")
@@ -161,6 +106,86 @@ def discover_models(
         raise InputFileError(root, f"several mesh files share the name {dup[0]!r} (differing only by suffix)")
     entries.sort(key=lambda e: e.name)
     return entries, problems
+
+
+def _manifest_entries(root: Path, man: Path, up: str, forward: str) -> tuple[list[ModelEntry], list[dict]]:
+    """The entries of a manifest's rows (in row order) and the ``{"file", "problem"}`` of rows
+    whose file is missing; raises InputFileError for an unreadable manifest or a bad row."""
+    if not man.exists():
+        raise InputFileError(man, "no such manifest")
+    try:
+        with open(man, newline="") as fh:
+            rows = list(csv.DictReader(fh))
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise InputFileError(man, f"cannot read the manifest CSV ({exc})") from None
+    if not rows or "file" not in rows[0]:
+        raise InputFileError(man, "manifest needs a header with a 'file' column (and 'category')")
+    entries: list[ModelEntry] = []
+    problems: list[dict] = []
+    for row in rows:
+        rel = (row.get("file") or "").strip()
+        if not rel:
+            continue
+        p = path_inside(root, rel, man, "mesh file")
+        cat = (row.get("category") or "").strip() or (Path(rel).parts[0] if len(Path(rel).parts) > 1 else root.name)
+        split = _row_split(man, rel, row)
+        scale = _row_scale(man, rel, row)
+        if not p.is_file():
+            problems.append({"file": rel, "problem": "listed in the manifest but missing"})
+            continue
+        entries.append(
+            ModelEntry(
+                name=str(Path(rel).with_suffix("").as_posix()),
+                file=Path(rel).as_posix(),
+                category=cat,
+                up=(row.get("up") or "").strip() or up,
+                forward=(row.get("forward") or "").strip() or forward,
+                split=split,
+                scale=scale,
+            )
+        )
+    return entries, problems
+
+
+def _row_split(man: Path, rel: str, row: dict) -> str | None:
+    """A manifest row's ``split`` (lower case; None when empty); raises InputFileError."""
+    split = (row.get("split") or "").strip().lower() or None
+    if split is not None and split not in SPLITS:
+        raise InputFileError(man, f"row {rel}: split {split!r} is not one of {', '.join(SPLITS)}")
+    return split
+
+
+def _row_scale(man: Path, rel: str, row: dict) -> float | None:
+    """A manifest row's ``scale`` (a finite number > 0; None when empty); raises InputFileError."""
+    scale = (row.get("scale") or "").strip() or None
+    if scale is not None:
+        try:
+            scale = float(scale)
+        except ValueError:
+            scale = -1.0
+        if not (math.isfinite(scale) and scale > 0):
+            raise InputFileError(man, f"row {rel}: scale {row.get('scale')!r} is not a number > 0")
+    return scale
+
+
+def _folder_entries(root: Path, up: str, forward: str) -> list[ModelEntry]:
+    """Every mesh file under ``root`` (sorted, hidden files and folders left out); the category is
+    the first sub-folder (``root``'s name for files directly in it)."""
+    files = sorted(
+        p
+        for p in root.rglob("*")
+        if p.is_file()
+        and p.suffix.lower() in MESH_SUFFIXES
+        and not any(part.startswith(".") for part in p.relative_to(root).parts)
+    )
+    entries = []
+    for p in files:
+        rel = p.relative_to(root)
+        cat = rel.parts[0] if len(rel.parts) > 1 else root.name
+        entries.append(
+            ModelEntry(name=rel.with_suffix("").as_posix(), file=rel.as_posix(), category=cat, up=up, forward=forward)
+        )
+    return entries
 
 
 @dataclass
@@ -233,17 +258,7 @@ def assign_splits(
         return list(fixed)
     if fixed is not None and any(s is not None for s in fixed):
         raise ParameterError("the manifest gives a split for some models but not all")
-    kind, vals = parse_split(spec)
-    if kind == "counts":
-        counts = [int(v) for v in vals]
-        if sum(counts) != n:
-            raise ParameterError(f"split {spec} adds up to {sum(counts)} models but there are {n} usable meshes")
-    else:
-        raw = [v * n for v in vals]
-        counts = [int(math.floor(r)) for r in raw]
-        order = sorted(range(3), key=lambda i: (-(raw[i] - counts[i]), i))
-        for i in order[: n - sum(counts)]:
-            counts[i] += 1
+    counts = _split_counts(spec, n)
     rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(0, STREAM_SPLIT)))
     if stratify:
         cats = sorted(set(categories))
@@ -253,6 +268,32 @@ def assign_splits(
             order.extend(members[j] for j in rng.permutation(len(members)))
     else:
         order = [int(i) for i in rng.permutation(n)]
+    labels = _spread_labels(counts, n)
+    out = [""] * n
+    for pos, i in enumerate(order):
+        out[i] = labels[pos]
+    return out
+
+
+def _split_counts(spec: str, n: int) -> list[int]:
+    """The (train, val, test) model counts of a split ``spec`` for ``n`` models: counts as given
+    (they must add up to ``n``; else ParameterError), fractions by the largest-remainder rule."""
+    kind, vals = parse_split(spec)
+    if kind == "counts":
+        counts = [int(v) for v in vals]
+        if sum(counts) != n:
+            raise ParameterError(f"split {spec} adds up to {sum(counts)} models but there are {n} usable meshes")
+        return counts
+    raw = [v * n for v in vals]
+    counts = [int(math.floor(r)) for r in raw]
+    order = sorted(range(3), key=lambda i: (-(raw[i] - counts[i]), i))
+    for i in order[: n - sum(counts)]:
+        counts[i] += 1
+    return counts
+
+
+def _spread_labels(counts: list[int], n: int) -> list[str]:
+    """``n`` split names, ``counts[s]`` of split ``s``, evenly spread along the sequence."""
     # Evenly spread label sequence with exact counts (largest deficit first, ties by split order).
     labels = []
     assigned = [0, 0, 0]
@@ -261,10 +302,7 @@ def assign_splits(
         s = max((s for s in range(3) if assigned[s] < counts[s]), key=lambda s: (deficit[s], -s))
         assigned[s] += 1
         labels.append(SPLITS[s])
-    out = [""] * n
-    for pos, i in enumerate(order):
-        out[i] = labels[pos]
-    return out
+    return labels
 
 
 # ----------------------------------------------------------------------------------------------
@@ -454,33 +492,40 @@ def assign_model_splits(entries: list[ModelEntry], cfg) -> list[str]:
     proc = getattr(cfg, "procedural", None)
     pseudo = [MeshSource("", split=proc["split"], name=PROCEDURAL_SOURCE)] if proc else []
     for src in cfg.mesh_sources() + pseudo:
-        idx = [i for i, e in enumerate(entries) if e.source == src.name]
-        fixed = [entries[i].split for i in idx]
-        if idx and all(s is not None for s in fixed):
-            for i in idx:
-                out[i] = entries[i].split
-            continue
-        if any(s is not None for s in fixed):
-            raise ParameterError(
-                "the manifest gives a split for some models but not all" + (f" (source {src.name})" if src.name else "")
-            )
-        rest = []
-        for i in idx:
-            held = cfg.category_split.get(entries[i].category)
-            if held is not None:
-                out[i] = held
-            else:
-                rest.append(i)
-        if src.split is None:
-            pool.extend(rest)
-        elif src.split in SPLITS:
-            for i in rest:
-                out[i] = src.split
-        elif rest:
-            _deal(entries, rest, src.split, cfg, out, f" of source {src.name}")
+        pool.extend(_assign_source_splits(entries, src, cfg, out))
     if pool:
         _deal(entries, pool, cfg.split, cfg, out, "")
     return [str(s) for s in out]
+
+
+def _assign_source_splits(entries: list[ModelEntry], src: MeshSource, cfg, out: list) -> list[int]:
+    """Fill ``out`` for the models of source ``src`` (manifest splits, held-out categories, the
+    source's own split); returns the indices left for the pooled ``cfg.split``."""
+    idx = [i for i, e in enumerate(entries) if e.source == src.name]
+    fixed = [entries[i].split for i in idx]
+    if idx and all(s is not None for s in fixed):
+        for i in idx:
+            out[i] = entries[i].split
+        return []
+    if any(s is not None for s in fixed):
+        raise ParameterError(
+            "the manifest gives a split for some models but not all" + (f" (source {src.name})" if src.name else "")
+        )
+    rest = []
+    for i in idx:
+        held = cfg.category_split.get(entries[i].category)
+        if held is not None:
+            out[i] = held
+        else:
+            rest.append(i)
+    if src.split is None:
+        return rest
+    if src.split in SPLITS:
+        for i in rest:
+            out[i] = src.split
+    elif rest:
+        _deal(entries, rest, src.split, cfg, out, f" of source {src.name}")
+    return []
 
 
 def _deal(entries, idx, spec, cfg, out, where) -> None:

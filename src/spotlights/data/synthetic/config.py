@@ -198,16 +198,32 @@ def normalize_procedural(proc: dict | None) -> dict | None:
     unknown = sorted(set(proc) - {"count", "classes", "split"})
     if unknown:
         raise ParameterError(f"unknown procedural option(s): {', '.join(unknown)}")
-    n = proc.get("count")
+    n = _procedural_count(proc.get("count"))
+    if n == 0:
+        return None
+    classes = _procedural_classes(proc.get("classes"))
+    split = proc.get("split") or None
+    if split is not None:
+        split = str(split).strip().lower()
+        if split not in SPLIT_NAMES:
+            parse_split(split)
+    return {"count": int(n), "classes": [c for c in VEHICLE_CLASSES if c in classes], "split": split}
+
+
+def _procedural_count(n) -> int:
+    """The procedural vehicles per class: an integer in [0, MAX_PROCEDURAL]; raises ParameterError."""
     if not (isinstance(n, (int, np.integer)) and not isinstance(n, bool) and n >= 0):
         raise ParameterError(f"`procedural` must be a count of vehicles per class >= 0, got {n!r}", "procedural")
     if n > MAX_PROCEDURAL:
         raise ParameterError(
             f"`procedural` must be at most {MAX_PROCEDURAL:,} vehicles per class, got {n:,}", "procedural"
         )
-    if n == 0:
-        return None
-    classes = proc.get("classes")
+    return n
+
+
+def _procedural_classes(classes) -> list[str]:
+    """The canonical class names of ``classes`` (a list or a comma-separated string; None: every
+    class); raises ParameterError for none or an unknown one."""
     classes = list(VEHICLE_CLASSES) if classes is None else classes
     classes = classes.split(",") if isinstance(classes, str) else list(classes)
     classes = [canonical_class(c) for c in classes if str(c).strip()]
@@ -221,12 +237,7 @@ def normalize_procedural(proc: dict | None) -> dict | None:
             f"`classes`: unknown vehicle class {bad[0] if bad else ''!r}; known: {', '.join(VEHICLE_CLASSES)} (van = caravan)",
             "classes",
         )
-    split = proc.get("split") or None
-    if split is not None:
-        split = str(split).strip().lower()
-        if split not in SPLIT_NAMES:
-            parse_split(split)
-    return {"count": int(n), "classes": [c for c in VEHICLE_CLASSES if c in classes], "split": split}
+    return classes
 
 
 @dataclass

@@ -109,10 +109,27 @@ def write_output_file(
     extra_attrs : root attributes added (a shard's position). ``/samples/model`` is local to the
         file (row in its ``/models``).
     """
-    lo = rows.start
     sel = [entries[m] for m in rows]
-    rigs = cfg.rigs
     gts = [read_part(parts, ("gt", m), recompute) for m in rows]
+    model_arrays = _model_arrays(cfg, sel, gts)
+    rig_arrays = [(r, np.stack([g[f"depths_{i}"] for g in gts])) for i, r in enumerate(cfg.rigs)]
+    del gts
+    obs_units = [u for u in units if u[0] == "obs" and u[1] in rows]
+    attrs = {**root_attrs(cfg, skipped), **(extra_attrs or {})}
+    with atomic_output(path, suffix=".h5") as tmp:
+        write_dataset(
+            tmp,
+            attrs=attrs,
+            models=model_arrays,
+            rigs=rig_arrays,
+            n_points=cfg.n_points,
+            views_per_model=cfg.views,
+            sample_blocks=_sample_blocks(path, cfg, rows, parts, obs_units, recompute, progress),
+        )
+
+
+def _model_arrays(cfg: BuildConfig, sel: list, gts: list[dict]) -> dict:
+    """The ``/models`` columns of the entries ``sel`` and their ground-truth parts ``gts``."""
     model_arrays = {
         "name": [e.name for e in sel],
         "file": [e.file for e in sel],
@@ -125,49 +142,47 @@ def write_output_file(
         "radius": np.array([float(g["radius"]) for g in gts]),
         "size": np.stack([g["size"] for g in gts]),
     }
+    model_arrays.update(_optional_model_columns(cfg, sel))
+    return model_arrays
+
+
+def _optional_model_columns(cfg: BuildConfig, sel: list) -> dict:
+    """The ``/models`` columns only some builds have: ``source`` (several sources or procedural
+    models), ``class`` (procedural models), ``origin`` and ``augment`` (augmented copies)."""
+    cols = {}
     if cfg.sources or cfg.procedural:
-        model_arrays["source"] = [e.source for e in sel]
+        cols["source"] = [e.source for e in sel]
     if cfg.procedural:
-        model_arrays["class"] = [e.vclass for e in sel]
+        cols["class"] = [e.vclass for e in sel]
     if cfg.augment:
-        model_arrays["origin"] = [e.origin or e.name for e in sel]
-        model_arrays["augment"] = [json.dumps(e.augment, sort_keys=True) if e.augment else "" for e in sel]
-    rig_arrays = [(r, np.stack([g[f"depths_{i}"] for g in gts])) for i, r in enumerate(rigs)]
-    del gts
-    obs_units = [u for u in units if u[0] == "obs" and u[1] in rows]
-    attrs = {**root_attrs(cfg, skipped), **(extra_attrs or {})}
+        cols["origin"] = [e.origin or e.name for e in sel]
+        cols["augment"] = [json.dumps(e.augment, sort_keys=True) if e.augment else "" for e in sel]
+    return cols
 
-    def blocks():
-        bar = tqdm(
-            total=len(rows) * cfg.views,
-            desc="write " + path.name,
-            unit="sample",
-            disable=not progress,
-            dynamic_ncols=True,
-        )
-        try:
-            for u in obs_units:
-                a = read_part(parts, u, recompute)
-                if a["partial"].shape != (u[3] - u[2], cfg.n_points, 3) or np.any(a["model"] != u[1]):
-                    raise SpotlightsError(f"{parts / part_name(u)}: part does not match the plan; delete it and rerun")
-                if lo:
-                    a["model"] = (a["model"] - lo).astype(a["model"].dtype)
-                a["start"] = (u[1] - lo) * cfg.views + u[2]
-                yield a
-                bar.update(u[3] - u[2])
-        finally:
-            bar.close()
 
-    with atomic_output(path, suffix=".h5") as tmp:
-        write_dataset(
-            tmp,
-            attrs=attrs,
-            models=model_arrays,
-            rigs=rig_arrays,
-            n_points=cfg.n_points,
-            views_per_model=cfg.views,
-            sample_blocks=blocks(),
-        )
+def _sample_blocks(path: Path, cfg: BuildConfig, rows: range, parts: Path, obs_units: list, recompute, progress: bool):
+    """The observation parts of ``rows``, checked against the plan, one block at a time, with
+    ``model`` made local to the file and ``start`` (the block's first sample row in it)."""
+    lo = rows.start
+    bar = tqdm(
+        total=len(rows) * cfg.views,
+        desc="write " + path.name,
+        unit="sample",
+        disable=not progress,
+        dynamic_ncols=True,
+    )
+    try:
+        for u in obs_units:
+            a = read_part(parts, u, recompute)
+            if a["partial"].shape != (u[3] - u[2], cfg.n_points, 3) or np.any(a["model"] != u[1]):
+                raise SpotlightsError(f"{parts / part_name(u)}: part does not match the plan; delete it and rerun")
+            if lo:
+                a["model"] = (a["model"] - lo).astype(a["model"].dtype)
+            a["start"] = (u[1] - lo) * cfg.views + u[2]
+            yield a
+            bar.update(u[3] - u[2])
+    finally:
+        bar.close()
 
 
 # ----------------------------------------------------------------------------------------------

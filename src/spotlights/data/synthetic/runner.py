@@ -174,58 +174,24 @@ def build_dataset(
         complete = _check_output(out, parts, cfg, s)
         if complete is not None:
             return complete
-        workers = (
-            max(1, int(s.workers or os.cpu_count() or 1)) if backend == "local" or not s.ray_address else s.workers
-        )
+        workers = _worker_count(s, backend)
         if backend == "local" and workers > 1:
             check_can_start_processes()  # an unguarded script fails here, before anything is written
 
         with ray_session(s.ray_address, workers) if backend == "ray" else contextlib.nullcontext() as ray:
             runner = RayBuild(ray, workers if s.ray_address else None, s.retries) if backend == "ray" else None
             models, skipped = build_catalogue(cfg, log, s.progress, loader=runner.loader if runner else None)
-            n_models, views = len(models), cfg.views
-            block = int(s.block or max(1, min(250, math.ceil(views / 8))))
-            plan = {
-                "plan_version": PLAN_VERSION,
-                "config": cfg.to_dict(),
-                "models": [m.entry.plan_dict() for m in models],
-                "skipped": skipped,
-            }
-
-            # --- the parts folder: new, resumed, or refused ----------------------------------
-            if s.overwrite and parts.exists():
-                shutil.rmtree(parts)
-            # two builds never write the same parts
-            with (
-                _parts_folder(parts),
-                exclusive_lock(parts / ".lock", f"{parts}: another build is writing this dataset right now"),
-            ):
-                block = _check_plan(parts, plan, block)
-                for stale in parts.glob(".*.part*"):  # temporaries of a killed run
-                    stale.unlink(missing_ok=True)
-                units = _plan_units(n_models, views, block)
-                pending = [u for u in units if not (parts / part_name(u)).exists()]
-                done_before = len(units) - len(pending)
-                if done_before:
-                    log(f"resuming {parts}: {done_before} of {len(units)} work units already done")
-                state = {"cfg": cfg, "models": models, "parts": parts}
-                with timer("units"):
-                    if runner is not None:
-                        runner.run_units(pending, models, cfg, parts, s.progress)
-                    else:
-                        _run_units(pending, state, workers, s.progress, n_models, views)
-                with timer("consolidate"):
-                    _write_outputs(out, cfg, [m.entry for m in models], parts, units, skipped, state, runner, s)
+            units, pending = _build_in_parts(out, parts, cfg, models, skipped, runner, workers, timer, s, log)
     if not s.keep_parts:
         shutil.rmtree(parts, ignore_errors=True)
     with open_dataset(out) as ds:
         size = ds.info()["file_size_bytes"] if s.shard_size is not None else out.stat().st_size
     return BuildReport(
         out=str(out),
-        n_models=n_models,
-        n_samples=n_models * views,
+        n_models=len(models),
+        n_samples=len(models) * cfg.views,
         units_total=len(units),
-        units_done_before=done_before,
+        units_done_before=len(units) - len(pending),
         units_computed=len(pending),
         skipped=skipped,
         seconds_units=timer.seconds["units"],
@@ -233,6 +199,55 @@ def build_dataset(
         seconds_total=timer.seconds["total"],
         file_size=size,
     )
+
+
+def _worker_count(s: BuildSettings, backend: str) -> int | None:
+    """Processes of a local build (default: all cores); Ray: the CPUs of its local instance, or
+    ``s.workers`` as given when joining a cluster."""
+    if backend == "local" or not s.ray_address:
+        return max(1, int(s.workers or os.cpu_count() or 1))
+    return s.workers
+
+
+def _build_in_parts(
+    out: Path, parts: Path, cfg: BuildConfig, models: list, skipped: list, runner, workers, timer, s, log
+) -> tuple[list[tuple], list[tuple]]:
+    """Plan the work units, compute those without a part in ``parts`` (a new, resumed or refused
+    folder), then write the output; returns ``(all units, units computed now)``."""
+    n_models, views = len(models), cfg.views
+    block = int(s.block or max(1, min(250, math.ceil(views / 8))))
+    plan = {
+        "plan_version": PLAN_VERSION,
+        "config": cfg.to_dict(),
+        "models": [m.entry.plan_dict() for m in models],
+        "skipped": skipped,
+    }
+
+    # --- the parts folder: new, resumed, or refused ----------------------------------
+    if s.overwrite and parts.exists():
+        shutil.rmtree(parts)
+    # two builds never write the same parts
+    with (
+        _parts_folder(parts),
+        exclusive_lock(parts / ".lock", f"{parts}: another build is writing this dataset right now"),
+    ):
+        block = _check_plan(parts, plan, block)
+        for stale in parts.glob(".*.part*"):  # temporaries of a killed run
+            stale.unlink(missing_ok=True)
+        units = _plan_units(n_models, views, block)
+        pending = [u for u in units if not (parts / part_name(u)).exists()]
+        done_before = len(units) - len(pending)
+        if done_before:
+            log(f"resuming {parts}: {done_before} of {len(units)} work units already done")
+        state = {"cfg": cfg, "models": models, "parts": parts}
+        with timer("units"):
+            if runner is not None:
+                runner.run_units(pending, models, cfg, parts, s.progress)
+            else:
+                _run_units(pending, state, workers, s.progress, n_models, views)
+        with timer("consolidate"):
+            _write_outputs(out, cfg, [m.entry for m in models], parts, units, skipped, state, runner, s)
+    return units, pending
 
 
 def _check_output(out: Path, parts: Path, cfg: BuildConfig, s: BuildSettings) -> BuildReport | None:
