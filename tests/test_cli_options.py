@@ -16,8 +16,9 @@ from helpers import REPO
 
 CLI = REPO / "src" / "spotlights" / "cli"
 
-# The plumbing that may call add_argument: add_options and add_quiet, and the global options of `spotlights`.
-ALLOWED = {("_util.py", "add_options"), ("_util.py", "add_quiet"), ("__init__.py", "build_parser")}
+# The plumbing that may call add_argument: add_options (through _add_field_option) and add_quiet, and the global
+# options of `spotlights`.
+ALLOWED = {("_util.py", "_add_field_option"), ("_util.py", "add_quiet"), ("__init__.py", "build_parser")}
 
 
 def add_argument_calls(source: str) -> list[tuple[int, str | None]]:

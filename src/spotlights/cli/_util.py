@@ -113,30 +113,43 @@ def add_options(
         if f.name in FIELD_TYPES and "type" in kw:
             kw["type"] = FIELD_TYPES[f.name]
         flags, title = kw.pop("flags") or (f"--{f.name.replace('_', '-')}",), kw.pop("group")
-        if title is not None and grouped and title not in sections:
+        target = _option_target(parser, sections, title if grouped else None, kw.pop("mutex", None))
+        _add_field_option(target, cls, f, flags, kw)
+
+
+def _option_target(parser: argparse.ArgumentParser, sections: dict, title: str | None, mutex: str | None):
+    """Where an option goes: the parser, its section ``title`` (one the parser already has is reused) and, for
+    options naming the same ``mutex``, a mutually exclusive group in it (``sections``: those made so far)."""
+    target = parser
+    if title is not None:
+        if title not in sections:
             known = [g for g in parser._action_groups if g.title == title]  # noqa: SLF001 - no public lookup
             sections[title] = known[0] if known else parser.add_argument_group(title)
-        target = sections[title] if title is not None and grouped else parser
-        if "mutex" in kw:  # options that exclude each other share a mutually exclusive group
-            key = ("mutex", kw.pop("mutex"))
-            if key not in sections:
-                sections[key] = target.add_mutually_exclusive_group()
-            target = sections[key]
-        has_default = f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING
-        default = f.default if f.default_factory is dataclasses.MISSING else f.default_factory()
-        if not flags[0].startswith("-"):  # a positional argument: its name is its dest
-            if flags != (f.name,):
-                raise ValueError(f"{cls.__name__}.{f.name}: a positional is named as its field, got {flags}")
-            target.add_argument(*flags, **({"default": default} if has_default else {}), **kw)
-            continue
-        if kw.pop("quiet", False):
-            add_quiet(target, kw["help"])
-            continue
-        kw.setdefault("dest", f.name)
-        if has_default:
-            target.add_argument(*flags, default=default, **kw)
-        else:
-            target.add_argument(*flags, required=True, **kw)
+        target = sections[title]
+    if mutex is not None:
+        key = ("mutex", mutex)
+        if key not in sections:
+            sections[key] = target.add_mutually_exclusive_group()
+        target = sections[key]
+    return target
+
+
+def _add_field_option(target, cls, f, flags: tuple, kw: dict) -> None:
+    """Add the option (or positional, or ``-q``) of the dataclass field ``f`` with argparse keywords ``kw``."""
+    import dataclasses
+
+    has_default = f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING
+    default = f.default if f.default_factory is dataclasses.MISSING else f.default_factory()
+    if not flags[0].startswith("-"):  # a positional argument: its name is its dest
+        if flags != (f.name,):
+            raise ValueError(f"{cls.__name__}.{f.name}: a positional is named as its field, got {flags}")
+        target.add_argument(*flags, **({"default": default} if has_default else {}), **kw)
+    elif kw.pop("quiet", False):
+        add_quiet(target, kw["help"])
+    elif has_default:
+        target.add_argument(*flags, default=default, dest=kw.pop("dest", f.name), **kw)
+    else:
+        target.add_argument(*flags, required=True, dest=kw.pop("dest", f.name), **kw)
 
 
 def settings_of(cls, args: argparse.Namespace, **values):
