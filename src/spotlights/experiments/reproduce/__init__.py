@@ -28,9 +28,9 @@ even without a record (a run whose ``last.pt`` finished its epochs as is, an unf
 one is resumed).
 
 The parts: :mod:`.settings` (what is computed: runs, rigs, sizes), :mod:`.pipeline` (the step
-engine: signatures, records, resuming), :mod:`.steps` (datasets, training, evaluation, real
-data, rig study), :mod:`.figures`, :mod:`.tables` (a registry: one module per group of
-tables), :mod:`.report` (REPORT.md from the template ``report.md``; results.json; publish).
+engine: signatures, records, resuming), :mod:`.steps` (datasets, training, evaluation, rig
+study; the real data and consistency in :mod:`.steps_real`), :mod:`.figures`, :mod:`.tables`
+(a registry: one module per group of tables), :mod:`.report` (REPORT.md from the template ``report.md``; results.json; publish).
 Adding a table is one :class:`~.tables.Table` entry of :data:`~.tables.TABLES` and its
 builder (and its steps, if they are new): see docs/architecture.md.
 """
