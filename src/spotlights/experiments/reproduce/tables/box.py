@@ -32,6 +32,8 @@ def box_study_values(ctx: Context) -> dict:
 
 
 def box_study_section(vals: dict, mesh_set: str, ctx: Context) -> tuple[list, list]:
+    """Markdown lines and CSV rows of the rig study of ``mesh_set`` ("cars" or "categories"; ``vals`` from
+    :func:`box_study_values`): per rig, hit ratio and completeness at each ray count, completeness against cap 60."""
     labels = list(ANGLE_LABELS) + list(BOX_STUDY_LABELS)
     head = ["rig", "name (2048 rays)"] + [f"{r} rays: hit ratio / completeness (vs cap 60)" for r in ABLATION_RAYS]
     body, rows = [], []

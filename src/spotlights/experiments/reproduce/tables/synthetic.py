@@ -265,6 +265,7 @@ def build_table1(ctx: Context) -> dict:
 
 
 def build_table5(ctx: Context) -> dict:
+    """Table 5: SA-Net (with clip) at three sampling resolutions N*M beside the paper's values."""
     cols = list(paper.CAR_CATEGORIES) + ["average"]
     ours = {}
     for res_name, run in TABLE5_RUNS.items():
