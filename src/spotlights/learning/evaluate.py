@@ -18,8 +18,6 @@ and 32 (same threads for every model; opt-in because timing every model costs mi
 from __future__ import annotations
 
 import contextlib
-import json
-import math
 import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -47,17 +45,111 @@ from ..options import (
     settings_from_dict,
     unit_interval,
 )
-from ..outputs import atomic_output, check_writable
+from ..outputs import check_writable
 from ..timing import StageTimer
 from ..viz import render_predictions
 from .bench import model_latency
 from .checkpoint import load_checkpoint, model_from_checkpoint
+from .evaluate_report import TABLE_METRIC as TABLE_METRIC
+from .evaluate_report import latency_key as latency_key
+from .evaluate_report import model_label as model_label
+from .evaluate_report import report_markdown, tag_repeated_models, write_report
 from .inference import DEFAULT, load_completer, mirrored
-from .models import DISPLAY_NAMES
 from .ray_metrics import RayMetrics
 from .rays import DirectionTable
 
-TABLE_METRIC = "accuracy"
+
+def _variants(model, clip, snap: float | None, snap_mirror: bool) -> list[tuple[str, float | None]]:
+    """The rows a model is scored in: (variant name, clip) pairs (SA-Net without and with clip, the hit-aware
+    SA-Net at its threshold, a baseline once), each named with its snap radius when ``snap`` is set."""
+    if hasattr(model, "hit_probabilities"):  # hit-aware SA-Net: rays with p(hit) >= the checkpoint's threshold
+        # no clip (a clip only if asked)
+        variants = [(f"p(hit) >= {model.threshold:g}", None)] + (
+            [(f"p(hit) >= {model.threshold:g}, clip {float(clip):g}", float(clip))] if clip is not None else []
+        )
+    elif model.target == "depths":
+        c = model.clip if clip is None else float(clip)
+        variants = [("no clip", None)] + ([(f"clip {c:g}", c)] if c is not None else [])
+    else:
+        variants = [("", None)]
+    if snap is not None:
+        tag = f"snap {snap:g}" + (" mirrored" if snap_mirror else "")
+        variants = [((v + ", " if v else "") + tag, c) for v, c in variants]
+    return variants
+
+
+def _snap_kwargs(batch: dict, snap: float | None, snap_mirror: bool) -> dict:
+    """``outputs_to_points``' ``snap`` argument for one batch: its partials (and their mirror images) as targets."""
+    if snap is None:
+        return {}
+    seen = [p.numpy() for p in batch["partial"]]
+    observed = [mirrored(p) for p in seen] if snap_mirror else seen
+    return {"snap": SnapTargets(observed, snap, batch["sensor_origin"].numpy(), seen)}
+
+
+@dataclass
+class _Predictions:
+    """Every variant's completions of a split: {variant: [(M, 3) float arrays]} and the share of rays kept."""
+
+    points: dict
+    kept: dict
+    seconds: float = 0.0
+
+
+def _predict(model, ds, dev, variants: list, snap, snap_mirror: bool, loader_kw: dict, desc: str, progress: bool):
+    """Complete every scan of ``ds`` with ``model`` in each variant: a :class:`_Predictions`."""
+    import torch
+    from torch.utils.data import DataLoader
+    from tqdm import tqdm
+
+    from .data import worker_batches
+
+    preds = _Predictions({v: [] for v, _ in variants}, {v: [] for v, _ in variants})
+    rays = None
+    if getattr(model, "needs_box", False):  # box-targeted SA-Net: each sample decodes with its model's box
+        rays = DirectionTable(model.rig, ds.extents)
+    loader = DataLoader(ds, shuffle=False, **loader_kw)
+    timer = StageTimer()
+    with timer("predict"), torch.inference_mode():
+        bar = tqdm(loader, desc=desc, unit="batch", disable=not progress, leave=False)
+        for batch in worker_batches(bar):
+            b = {k: (v.to(dev) if torch.is_tensor(v) else v) for k, v in batch.items()}
+            if getattr(model, "class_embedding", None) is not None:  # each sample's class, from its model row
+                b["cls"] = model.class_indices(ds.classes[batch["model"].numpy()]).to(dev)
+            out = model(*model.forward_inputs(b, rays))
+            dirs = rays.directions(batch["model"].to(dev)) if rays is not None else None
+            snap_kw = _snap_kwargs(batch, snap, snap_mirror)
+            for v, c in variants:
+                pts = model.outputs_to_points(out, c, dirs, **snap_kw)
+                preds.points[v].extend(p.cpu().numpy() for p in pts)
+                if model.target == "depths":
+                    preds.kept[v].extend(len(p) / model.rig.n_rays for p in pts)
+    preds.seconds = timer.seconds["predict"]
+    return preds
+
+
+def _score_rows(model, variants: list, preds: _Predictions, ds, dense, scorer, fscore_threshold, with_completeness):
+    """One report row per variant: its clip, the summary of its metrics (and the hit-aware SA-Net's threshold)."""
+    models = ds.sample_models
+    cats = ds.sample_categories
+    order = ds.info.category_order()
+    rows = []
+    trees: dict = {}
+    for v, c in variants:
+        per = (scorer or evaluate_completions)(
+            preds.points[v], models, _DenseView(dense), fscore_threshold, with_completeness, trees
+        )
+        if model.target == "depths":
+            per["hit_ratio"] = np.asarray(preds.kept[v], dtype=np.float64)
+        rows.append(
+            {
+                "variant": v,
+                "clip": c,
+                "summary": summarize(per, cats, order),
+                **({"threshold": model.threshold} if hasattr(model, "hit_probabilities") else {}),
+            }
+        )
+    return rows
 
 
 def evaluate_checkpoint(
@@ -107,11 +199,7 @@ def evaluate_checkpoint(
     "p(hit) >= t" with ``threshold``; baselines one), each with ``summary`` (see
     :func:`~spotlights.metrics.completion.summarize`; SA-Nets add ``hit_ratio``).
     """
-    import torch
-    from torch.utils.data import DataLoader
-    from tqdm import tqdm
-
-    from .data import TorchCompletionDataset, worker_batches
+    from .data import TorchCompletionDataset
     from .device import resolve_device
 
     dev = resolve_device(device)
@@ -120,67 +208,13 @@ def evaluate_checkpoint(
     name = ckpt["model_name"]
     ds = dataset or TorchCompletionDataset(data, split, rig=False, max_views=max_views, partials_in_memory=True)
     dense = gt_dense if gt_dense is not None else ds.gt_dense()
-    hit_aware = hasattr(model, "hit_probabilities")
     snap = snap_radius(snap, snap_mirror)
     if not hasattr(model, "snap_rays"):  # a point model has no rays: scored as it is beside the snapped SA-Nets
         snap, snap_mirror = None, False
-    if hit_aware:  # hit-aware SA-Net: rays with p(hit) >= the checkpoint's threshold, no clip (a clip only if asked)
-        variants = [(f"p(hit) >= {model.threshold:g}", None)] + (
-            [(f"p(hit) >= {model.threshold:g}, clip {float(clip):g}", float(clip))] if clip is not None else []
-        )
-    elif model.target == "depths":
-        c = model.clip if clip is None else float(clip)
-        variants = [("no clip", None)] + ([(f"clip {c:g}", c)] if c is not None else [])
-    else:
-        variants = [("", None)]
-    if snap is not None:
-        tag = f"snap {snap:g}" + (" mirrored" if snap_mirror else "")
-        variants = [((v + ", " if v else "") + tag, c) for v, c in variants]
-    preds = {v: [] for v, _ in variants}
-    kept = {v: [] for v, _ in variants}
-    rays = None
-    if getattr(model, "needs_box", False):  # box-targeted SA-Net: each sample decodes with its model's box
-        rays = DirectionTable(model.rig, ds.extents)
-    loader = DataLoader(ds, batch_size=batch_size, shuffle=False, num_workers=num_workers)
-    timer = StageTimer()
-    with timer("predict"), torch.inference_mode():
-        bar = tqdm(loader, desc=f"evaluate {name}", unit="batch", disable=not progress, leave=False)
-        for batch in worker_batches(bar):
-            b = {k: (v.to(dev) if torch.is_tensor(v) else v) for k, v in batch.items()}
-            if getattr(model, "class_embedding", None) is not None:  # each sample's class, from its model row
-                b["cls"] = model.class_indices(ds.classes[batch["model"].numpy()]).to(dev)
-            out = model(*model.forward_inputs(b, rays))
-            dirs = rays.directions(batch["model"].to(dev)) if rays is not None else None
-            snap_kw = {}
-            if snap is not None:
-                seen = [p.numpy() for p in batch["partial"]]
-                observed = [mirrored(p) for p in seen] if snap_mirror else seen
-                snap_kw = {"snap": SnapTargets(observed, snap, batch["sensor_origin"].numpy(), seen)}
-            for v, c in variants:
-                pts = model.outputs_to_points(out, c, dirs, **snap_kw)
-                preds[v].extend(p.cpu().numpy() for p in pts)
-                if model.target == "depths":
-                    kept[v].extend(len(p) / model.rig.n_rays for p in pts)
-    predict_s = timer.seconds["predict"]
-    models = ds.sample_models
-    cats = ds.sample_categories
-    order = ds.info.category_order()
-    rows = []
-    trees: dict = {}
-    for v, c in variants:
-        per = (scorer or evaluate_completions)(
-            preds[v], models, _DenseView(dense), fscore_threshold, with_completeness, trees
-        )
-        if model.target == "depths":
-            per["hit_ratio"] = np.asarray(kept[v], dtype=np.float64)
-        rows.append(
-            {
-                "variant": v,
-                "clip": c,
-                "summary": summarize(per, cats, order),
-                **({"threshold": model.threshold} if hit_aware else {}),
-            }
-        )
+    variants = _variants(model, clip, snap, snap_mirror)
+    loader_kw = {"batch_size": batch_size, "num_workers": num_workers}
+    preds = _predict(model, ds, dev, variants, snap, snap_mirror, loader_kw, f"evaluate {name}", progress)
+    rows = _score_rows(model, variants, preds, ds, dense, scorer, fscore_threshold, with_completeness)
     result = {
         "model": name,
         "checkpoint": str(checkpoint),
@@ -188,17 +222,26 @@ def evaluate_checkpoint(
         "n_samples": len(ds),
         "params": model.param_counts(),
         "rows": rows,
-        "predict_seconds": predict_s,
+        "predict_seconds": preds.seconds,
         "snap": snap,
         "snap_mirror": bool(snap_mirror),
         "trained_epochs": int(ckpt.get("epoch", 0) or 0),
         "training": training_facts(ckpt),
     }
     if latency:
-        result["latency_ms"] = model_latency(model, dev, repeats=latency_repeats)
-        result["latency_device"] = str(dev)
-        result["threads"] = torch.get_num_threads()
+        result.update(_latency(model, dev, latency_repeats))
     return result
+
+
+def _latency(model, dev, repeats: int) -> dict:
+    """The model's median latency at batch 1 and 32 in ms (``latency_ms``), the device and torch's threads."""
+    import torch
+
+    return {
+        "latency_ms": model_latency(model, dev, repeats=repeats),
+        "latency_device": str(dev),
+        "threads": torch.get_num_threads(),
+    }
 
 
 def training_facts(ckpt: dict) -> dict:
@@ -224,12 +267,6 @@ def training_facts(ckpt: dict) -> dict:
         "minutes": None if wall is None else float(wall) / 60.0,
         "precision": ckpt.get("precision", "fp32"),
     }
-
-
-def latency_key(res: dict, row: dict) -> str:
-    """Which latency a row reports: the network alone for SA-Net without clip (its raw depths are the
-    completion), else forward + turning the output into clouds (``complete_ms``)."""
-    return "forward_ms" if row.get("clip") is None and res["model"] == "sanet" else "complete_ms"
 
 
 class _DenseView:
@@ -284,179 +321,6 @@ def evaluate_checkpoints(
         "metric_descriptions": METRIC_DESCRIPTIONS,
         "results": results,
     }
-
-
-def _fmt(x: float, digits: int = 5) -> str:
-    return "n/a" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}f}"
-
-
-def model_label(res: dict, row: dict) -> str:
-    """A report row's model name: the display name of ``res["model"]``, its ``res["tag"]`` in brackets
-    when :func:`tag_repeated_models` gave one, and the row's ``row["variant"]`` in parentheses when set."""
-    name = DISPLAY_NAMES.get(res["model"], res["model"])
-    if res.get("tag"):  # two checkpoints of one model in a report: say which is which
-        name += f" [{res['tag']}]"
-    return name + (f" ({row['variant']})" if row["variant"] else "")
-
-
-def tag_repeated_models(results: list[dict]) -> None:
-    """Give each result whose model appears more than once a ``tag``: its run folder's name
-    (``runs/NAME/best.pt``) or the checkpoint file's stem."""
-    models = [r["model"] for r in results]
-    for r in results:
-        if models.count(r["model"]) > 1:
-            p = Path(r["checkpoint"])
-            r["tag"] = p.parent.name if p.stem in ("best", "last") and p.parent.name else p.stem
-
-
-def _lat(res: dict, row: dict, batch: int) -> str:
-    lat = res.get("latency_ms") or {}
-    v = lat.get(batch, lat.get(str(batch)))
-    return f"{v[latency_key(res, row)]:.2f}" if v else "n/a"
-
-
-def report_markdown(report: dict, metric: str = TABLE_METRIC) -> str:
-    """The Markdown report: Table 1 (every metric, parameters, training, latency), the accuracy per
-    category (the paper's layout), all metrics, parameters and definitions."""
-    cats = [c for c in report["categories"]]
-    lines = [
-        f"# Completion on `{report['data']}` ({report['split']} split: "
-        f"{report['n_samples']} samples of {report['n_models']} models)",
-        "",
-        "Means over samples, unit frame, lower is better except F-score; points = points per completion. "
-        "Training: optimizer steps, samples seen and minutes (training + validation) up to the checkpoint, "
-        "and its precision.",
-        "",
-    ]
-    head = [
-        "Method",
-        "Accuracy",
-        "Completeness",
-        "CD-L1",
-        "F@0.01",
-        "Points",
-        "#Params",
-        "Steps",
-        "Samples seen",
-        "Minutes",
-        "Precision",
-        "Latency b1 (ms)",
-        "Latency b32 (ms)",
-    ]
-    lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for res in report["results"]:
-        tr = res.get("training") or {}
-        for row in res["rows"]:
-            m = row["summary"]["mean_over_samples"]
-            n = m.get("n_points")
-            cells = [
-                model_label(res, row),
-                _fmt(m.get("accuracy")),
-                _fmt(m.get("completeness")),
-                _fmt(m.get("chamfer_l1")),
-                _fmt(m.get("fscore"), 4),
-                "n/a" if n is None else f"{n:.0f}",
-                f"{res['params']['total'] / 1e6:.2f}M",
-                "n/a" if tr.get("steps") is None else f"{tr['steps']:,}",
-                "n/a" if tr.get("samples_seen") is None else f"{tr['samples_seen']:,}",
-                "n/a" if tr.get("minutes") is None else f"{tr['minutes']:.0f}",
-                tr.get("precision", "n/a"),
-                _lat(res, row, 1),
-                _lat(res, row, 32),
-            ]
-            lines.append("| " + " | ".join(cells) + " |")
-    timed = [r for r in report["results"] if "latency_ms" in r]
-    if timed:
-        lines += [
-            "",
-            "Latency: median forward time (SA-Net without clip) or forward + decoding (+ clip or p(hit) "
-            f"threshold; baselines: forward + split into clouds), on {timed[0]['latency_device']} "
-            f"with {timed[0]['threads']} threads.",
-        ]
-    else:
-        lines += ["", "Latency not measured (opt-in: `spotlights evaluate --latency`)."]
-    lines += [
-        "",
-        "## Accuracy per category",
-        "",
-        f"{metric}: {METRIC_DESCRIPTIONS[metric]}. Average (samples) = mean over all samples (the paper's "
-        "Average); Average (categories) = unweighted mean of the per-category means.",
-        "",
-    ]
-    head = [
-        "Method",
-        *[c.capitalize() if c != "suv" else "SUV" for c in cats],
-        "Average (samples)",
-        "Average (categories)",
-        "#Params",
-        "Latency b1 (ms)",
-        "Latency b32 (ms)",
-    ]
-    lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for res in report["results"]:
-        for row in res["rows"]:
-            s = row["summary"]
-            cells = [
-                model_label(res, row),
-                *[_fmt(s["per_category"].get(c, {}).get(metric)) for c in cats],
-                _fmt(s["mean_over_samples"][metric]),
-                _fmt(s["mean_over_categories"][metric]),
-                f"{res['params']['total'] / 1e6:.2f}M",
-                _lat(res, row, 1),
-                _lat(res, row, 32),
-            ]
-            lines.append("| " + " | ".join(cells) + " |")
-    lines += [""]
-    others = [m for m in ("completeness", "chamfer_l1", "chamfer_l2", "fscore", "hit_ratio", "n_points")]
-    lines += ["## All metrics (mean over samples; per category in the JSON report)", ""]
-    head = ["Method", "accuracy", *others]
-    lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for res in report["results"]:
-        for row in res["rows"]:
-            m = row["summary"]["mean_over_samples"]
-            cells = [model_label(res, row), _fmt(m.get("accuracy"))]
-            for k in others:
-                v = m.get(k)
-                cells.append(
-                    "n/a"
-                    if v is None
-                    else (f"{v:.1f}" if k == "n_points" else _fmt(v, 4 if k in ("fscore", "hit_ratio") else 5))
-                )
-            lines.append("| " + " | ".join(cells) + " |")
-    lines += ["", "Parameters (encoder / decoder / total):", ""]
-
-    for res in report["results"]:
-        p = res["params"]
-        lines.append(
-            f"- {DISPLAY_NAMES.get(res['model'], res['model'])}: {p['encoder']:,} / {p['decoder']:,} / {p['total']:,} "
-            f"({res['checkpoint']}, {res['trained_epochs']} epochs)"
-        )
-    lines += ["", "Metric definitions:", ""] + [f"- `{k}`: {v}" for k, v in METRIC_DESCRIPTIONS.items()]
-    return "\n".join(lines) + "\n"
-
-
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, (np.floating, float)):
-        return None if math.isnan(float(x)) else float(x)
-    if isinstance(x, np.integer):
-        return int(x)
-    return x
-
-
-def write_report(report: dict, out) -> tuple[Path, Path]:
-    """Write ``OUT.md`` and ``OUT.json`` (atomically; NaN written as null). ``out`` may end in .md/.json or not."""
-    out = Path(out)
-    stem = out.with_suffix("") if out.suffix.lower() in (".md", ".json") else out
-    md, js = Path(f"{stem}.md"), Path(f"{stem}.json")
-    with atomic_output(md) as tmp:
-        tmp.write_text(report_markdown(report))
-    with atomic_output(js) as tmp:
-        tmp.write_text(json.dumps(_jsonable(report), indent=2))
-    return md, js
 
 
 def prediction_examples(

@@ -28,9 +28,9 @@ even without a record (a run whose ``last.pt`` finished its epochs as is, an unf
 one is resumed).
 
 The parts: :mod:`.settings` (what is computed: runs, rigs, sizes), :mod:`.pipeline` (the step
-engine: signatures, records, resuming), :mod:`.steps` (datasets, training, evaluation, real
-data, rig study), :mod:`.figures`, :mod:`.tables` (a registry: one module per group of
-tables), :mod:`.report` (REPORT.md from the template ``report.md``; results.json; publish).
+engine: signatures, records, resuming), :mod:`.steps` (datasets, training, evaluation, rig
+study; the real data and consistency in :mod:`.steps_real`), :mod:`.figures`, :mod:`.tables`
+(a registry: one module per group of tables), :mod:`.report` (REPORT.md from the template ``report.md``; results.json; publish).
 Adding a table is one :class:`~.tables.Table` entry of :data:`~.tables.TABLES` and its
 builder (and its steps, if they are new): see docs/architecture.md.
 """
@@ -108,6 +108,59 @@ class ReproduceResult:
     seconds: float = 0.0
 
 
+def _settings(
+    out, *, quick, schedule, cars_data, cars_meshes, category_meshes, lidar, eval_views, workers, seed, progress
+) -> Settings:
+    """The :class:`Settings` of :func:`reproduce`'s arguments; raises :class:`ParameterError` for bad counts."""
+    if eval_views == "default":
+        eval_views = 4 if quick else 200
+    if eval_views is not None and int(eval_views) < 1:
+        raise ParameterError(f"`eval_views` must be >= 1, got {eval_views}", "eval_views")
+    if workers is not None and int(workers) < 1:
+        raise ParameterError(f"`workers` must be >= 1, got {workers}", "workers")
+    kw = {
+        k: Path(v)
+        for k, v in (("cars_meshes", cars_meshes), ("category_meshes", category_meshes), ("lidar", lidar))
+        if v is not None
+    }
+    return Settings(
+        out=Path(out),
+        quick=quick,
+        schedule=schedule or ("quick" if quick else "budget"),
+        cars_data=Path(cars_data) if cars_data else None,
+        eval_views=None if eval_views is None else int(eval_views),
+        workers=int(workers or 1),
+        seed=int(seed),
+        progress=progress,
+        **kw,
+    )
+
+
+def _check_paths(s: Settings) -> None:
+    """Fail before anything is made: an unknown schedule, an output that is a file, a missing --cars-data."""
+    schedule_path(s.schedule)  # an unknown schedule fails now, not after an hour
+    if s.out.exists() and not s.out.is_dir():
+        raise SpotlightsError(f"{s.out}: exists and is not a folder")
+    if s.cars_data is not None and not s.cars_data.is_file():  # fails before the output folder is made
+        raise SpotlightsError(f"{s.cars_data}: --cars-data names no such file")
+
+
+def _execute_all(ctx: Context, todo: list, progress: bool) -> tuple[list, list]:
+    """Run or reuse each step of ``todo`` in order under a progress bar: (names run, names reused)."""
+    from tqdm import tqdm
+
+    ran, reused = [], []
+    bar = tqdm(total=len(todo), desc="reproduce", unit="step", disable=not progress, position=0, dynamic_ncols=True)
+    try:
+        for st in todo:
+            bar.set_postfix_str(st.name)
+            (ran if execute(ctx, st) == "ran" else reused).append(st.name)
+            bar.update()
+    finally:
+        bar.close()
+    return ran, reused
+
+
 def reproduce(
     out,
     tables=None,
@@ -141,34 +194,20 @@ def reproduce(
     """
     timer = StageTimer()  # laps: prepare, steps, records, report
     keys = parse_tables(tables)
-    if eval_views == "default":
-        eval_views = 4 if quick else 200
-    if eval_views is not None and int(eval_views) < 1:
-        raise ParameterError(f"`eval_views` must be >= 1, got {eval_views}", "eval_views")
-    if workers is not None and int(workers) < 1:
-        raise ParameterError(f"`workers` must be >= 1, got {workers}", "workers")
-    kw = {
-        k: Path(v)
-        for k, v in (("cars_meshes", cars_meshes), ("category_meshes", category_meshes), ("lidar", lidar))
-        if v is not None
-    }
-    s = Settings(
-        out=Path(out),
+    s = _settings(
+        out,
         quick=quick,
-        schedule=schedule or ("quick" if quick else "budget"),
-        cars_data=Path(cars_data) if cars_data else None,
-        eval_views=None if eval_views is None else int(eval_views),
-        workers=int(workers or 1),
-        seed=int(seed),
+        schedule=schedule,
+        cars_data=cars_data,
+        cars_meshes=cars_meshes,
+        category_meshes=category_meshes,
+        lidar=lidar,
+        eval_views=eval_views,
+        workers=workers,
+        seed=seed,
         progress=progress,
-        **kw,
     )
-
-    schedule_path(s.schedule)  # an unknown schedule fails now, not after an hour
-    if s.out.exists() and not s.out.is_dir():
-        raise SpotlightsError(f"{s.out}: exists and is not a folder")
-    if s.cars_data is not None and not s.cars_data.is_file():  # fails before the output folder is made
-        raise SpotlightsError(f"{s.cars_data}: --cars-data names no such file")
+    _check_paths(s)
     ctx = Context(s, log)
     ctx.steps = all_steps(ctx)
     s.out.mkdir(parents=True, exist_ok=True)
@@ -180,17 +219,9 @@ def reproduce(
         ctx.invocations.append(inv)
         todo = plan(ctx, keys)
         timer.lap("prepare")
-        ran, reused = [], []
-        from tqdm import tqdm
-
-        bar = tqdm(total=len(todo), desc="reproduce", unit="step", disable=not progress, position=0, dynamic_ncols=True)
         try:
-            for st in todo:
-                bar.set_postfix_str(st.name)
-                (ran if execute(ctx, st) == "ran" else reused).append(st.name)
-                bar.update()
+            ran, reused = _execute_all(ctx, todo, progress)
         finally:
-            bar.close()
             timer.lap("steps")
             inv["seconds"] = round(timer.total, 2)
             save_records(ctx)

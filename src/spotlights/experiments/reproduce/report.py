@@ -190,11 +190,9 @@ def facts(ctx: Context, vers: dict) -> dict:
 
 
 # --- the report --------------------------------------------------------------------------------------
-def write_report(ctx: Context, keys: Sequence[str], seconds: float) -> tuple[Path, Path]:
-    """Write ``OUT/results.json`` and ``OUT/REPORT.md`` from the table JSONs and the step records."""
-    tables = {k: read_json(ctx.table_json(k)) for k in keys}
-    vers = versions()
-    results = {
+def _results(ctx: Context, keys: Sequence[str], tables: dict, vers: dict) -> dict:
+    """The content of ``OUT/results.json``: the tables, the paper's values, the step records, versions, seeds."""
+    return {
         "format": RESULTS_FORMAT,
         "mode": ctx.s.mode,
         "tables": tables,
@@ -213,31 +211,39 @@ def write_report(ctx: Context, keys: Sequence[str], seconds: float) -> tuple[Pat
         },
         "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in ctx.s.__dict__.items()},
     }
-    res_path = ctx.out / "results.json"
-    write_json(res_path, results)
 
+
+def _command_line(ctx: Context) -> str:
+    """The command of the last invocation (as recorded), or the plain command for this output folder."""
     inv = ctx.invocations[-1] if ctx.invocations else {}
     argv = inv.get("argv")
-    cmdline = (
-        "spotlights " + " ".join(shlex.quote(a) for a in argv)
-        if argv
-        else "spotlights reproduce --out " + shell_quote(ctx.out)
-    )
-    total = sum(float(r.get("seconds") or 0) for r in ctx.records.values())
-    f = facts(ctx, vers)
-    claims = [
+    if argv:
+        return "spotlights " + " ".join(shlex.quote(a) for a in argv)
+    return "spotlights reproduce --out " + shell_quote(ctx.out)
+
+
+def _claim_lines(tables: dict) -> list:
+    """One Markdown table line per check of every table: table, claim, holds, detail."""
+    return [
         f"| {k} | {c['claim']} | {'yes' if c['holds'] else '**no**'} | {c['detail']} |"
         for k, t in tables.items()
         for c in t.get("checks", [])
     ]
-    sections = []
-    for k, t in tables.items():
-        sections += [f"## {t['title']}", "", t["markdown"], ""]
-        for fig in TABLES[k].steps(ctx.s):
-            if fig in FIGURES and (ctx.figures / FIGURES[fig][0]).is_file():
-                for name, cap in [FIGURES[fig]] + EXTRA_FIGURES.get(fig, []):
-                    if (ctx.figures / name).is_file():
-                        sections += [f"![{cap}](figures/{name})", "", f"*{cap}*", ""]
+
+
+def _figure_lines(ctx: Context, key: str) -> list:
+    """The figures (image and caption) of table ``key`` that this output folder has."""
+    lines = []
+    for fig in TABLES[key].steps(ctx.s):
+        if fig in FIGURES and (ctx.figures / FIGURES[fig][0]).is_file():
+            for name, cap in [FIGURES[fig]] + EXTRA_FIGURES.get(fig, []):
+                if (ctx.figures / name).is_file():
+                    lines += [f"![{cap}](figures/{name})", "", f"*{cap}*", ""]
+    return lines
+
+
+def _step_lines(ctx: Context) -> list:
+    """One Markdown table line per step record: name, seconds, ran or reused, command."""
     steps = []
     for name, r in ctx.records.items():
         if r.get("status") != "done":
@@ -247,20 +253,36 @@ def write_report(ctx: Context, keys: Sequence[str], seconds: float) -> tuple[Pat
                 f"| {name} | {float(r.get('seconds') or 0):.1f} | {'reused' if r.get('reused') else 'ran'} | "
                 f"`{r.get('command', '')}` |"
             )
+    return steps
+
+
+def write_report(ctx: Context, keys: Sequence[str], seconds: float) -> tuple[Path, Path]:
+    """Write ``OUT/results.json`` and ``OUT/REPORT.md`` from the table JSONs and the step records."""
+    tables = {k: read_json(ctx.table_json(k)) for k in keys}
+    vers = versions()
+    res_path = ctx.out / "results.json"
+    write_json(res_path, _results(ctx, keys, tables, vers))
+
+    total = sum(float(r.get("seconds") or 0) for r in ctx.records.values())
+    f = facts(ctx, vers)
+    sections = []
+    for k, t in tables.items():
+        sections += [f"## {t['title']}", "", t["markdown"], ""]
+        sections += _figure_lines(ctx, k)
     text = _fill(
         "report",
         mode=ctx.s.mode,
         quick_note=_fill("quick_note", **f) + "\n\n" if ctx.s.quick else "",
         generated=now(),
-        command=cmdline,
+        command=_command_line(ctx),
         version=vers["spotlights"],
         tables=", ".join(keys),
         total_minutes=f"{total / 60:.1f}",
         seconds=f"{seconds:.1f}",
         box_goals=_fill("box_goals") if "box" in tables else "",
-        claims="\n".join(claims),
+        claims="\n".join(_claim_lines(tables)),
         table_sections="\n".join(sections),
-        steps="\n".join(steps),
+        steps="\n".join(_step_lines(ctx)),
         versions="\n".join(f"- {k}: {v}" for k, v in vers.items()),
         **f,
     )

@@ -2,8 +2,8 @@
 
 Each step is a ``run(ctx) -> info`` function, its equivalent command and, where artifacts
 made outside the reproduction can stand in for it, a ``reuse`` check; :func:`work_steps`
-lists them as :class:`~.pipeline.Step` records (the figures are in :mod:`.figures`, the
-table steps in :mod:`.tables`).
+lists them as :class:`~.pipeline.Step` records (the real scans and consistency are in
+:mod:`.steps_real`, the figures in :mod:`.figures`, the table steps in :mod:`.tables`).
 """
 
 from __future__ import annotations
@@ -13,8 +13,6 @@ import io
 import math
 from pathlib import Path
 
-from ...data.real import SceneReader, open_reader
-from ...data.real.extract import SKIP_REASONS, ExtractConfig, extract, write_observations
 from ...data.store import open_dataset
 from ...data.synthetic import BuildConfig, add_rig, build_dataset
 from ...errors import SpotlightsError
@@ -22,17 +20,13 @@ from ...learning import evaluate as learning_evaluate
 from ...learning.bench import model_latency
 from ...learning.checkpoint import load_checkpoint, model_from_checkpoint
 from ...learning.evaluate import evaluate_checkpoints
-from ...learning.inference import load_completer
 from ...learning.models import load_config, load_schedule
 from ...outputs import atomic_output
-from .. import real_evaluation
-from ..real_evaluation import evaluate_consistency, reference_shapes
 from ..rig_study import BOX_RIGS, PAPER_RIGS, find_meshes, run_study, study_rigs, summarize
 from .pipeline import Context, Step, shell_quote
 from .settings import (
     ABLATION_RAYS,
     BOX_RIG,
-    BOX_RUNS,
     BOX_STUDY_LABELS,
     DENSE_RIG,
     PEER_RUNS,
@@ -41,11 +35,18 @@ from .settings import (
     RIG_STEPS,
     RUNS,
     TABLE1_RUNS,
-    TABLE2_CLASSES,
-    TABLE2_RUNS,
-    TABLE2_SETS,
     Settings,
 )
+
+# the real-data steps live in .steps_real; their public names stay importable from here
+from .steps_real import CONSISTENCY_OPTIONS as CONSISTENCY_OPTIONS
+from .steps_real import REAL_SOURCES as REAL_SOURCES
+from .steps_real import FirstFrames as FirstFrames
+from .steps_real import completers as completers
+from .steps_real import real_classes as real_classes
+from .steps_real import real_frames as real_frames
+from .steps_real import real_min_points as real_min_points
+from .steps_real import real_steps
 
 
 # --- car dataset ------------------------------------------------------------------------------
@@ -346,155 +347,6 @@ def _run_eval(ctx: Context, run: str) -> dict:
     return {"n_samples": rep["n_samples"], "n_models": rep["n_models"]}
 
 
-def completers(ctx: Context, runs) -> list:
-    """The completers (``learning.inference``) of the ``best.pt`` of ``runs``, on the CPU."""
-    return [load_completer(ctx.run_dir(r) / "best.pt", device="cpu") for r in runs]
-
-
-# --- real data ----------------------------------------------------------------------------------
-REAL_SOURCES = {  # name -> (folder under --lidar, format)
-    "kitti": ("kitti-object/training-fov-cropped", "kitti"),
-    "av2": ("argoverse2", "av2"),
-    "nuscenes": ("nuscenes", "nuscenes"),
-}
-
-
-class FirstFrames(SceneReader):
-    """The first ``n`` frames of ``reader`` (in its time order): ``reproduce --quick`` scores a short stretch."""
-
-    def __init__(self, reader: SceneReader, n: int):
-        self.reader, self.n = reader, int(n)
-        self.format, self.root = reader.format, reader.root
-
-    def frame_keys(self) -> list[tuple[str, str]]:
-        """The first ``n`` (sequence, frame_id) keys of the wrapped reader."""
-        return self.reader.frame_keys()[: self.n]
-
-    def load(self, key: tuple[str, str]):
-        """One frame of the wrapped reader."""
-        return self.reader.load(key)
-
-
-def real_frames(ctx: Context, name: str) -> int | None:
-    """Frames extracted from source ``name``: --quick keeps the first few of each Table 2 set (None: all)."""
-    return ctx.s.real_frames if name in TABLE2_SETS else None
-
-
-def real_min_points(ctx: Context, name: str) -> int | None:
-    """Points an extracted object of source ``name`` needs: --quick keeps the better-seen objects of each
-    Table 2 set (None: the extraction's default)."""
-    return ctx.s.real_min_points if name in TABLE2_SETS else None
-
-
-def real_classes(name: str) -> tuple | None:
-    """Classes extracted from source ``name``: Table 2's (car, truck, trailer) for its sets, None (the
-    extraction's default, the paper's four classes) for KITTI (the qualitative figure)."""
-    return TABLE2_CLASSES if name in TABLE2_SETS else None
-
-
-def _real_command(ctx: Context, name: str) -> str:
-    folder, fmt = REAL_SOURCES[name]
-    classes = real_classes(name)
-    return (
-        f"spotlights real extract {shell_quote(Path(ctx.s.lidar) / folder)} --format {fmt}"
-        + (f" --classes {','.join(classes)}" if classes else "")
-        + (f" --min-points {real_min_points(ctx, name)}" if real_min_points(ctx, name) else "")
-        + f" --out {shell_quote(ctx.out / 'data' / f'{name}.h5')}"
-        + (f" (--quick: the first {real_frames(ctx, name)} frames)" if real_frames(ctx, name) else "")
-    )
-
-
-def _run_real(ctx: Context, name: str) -> dict:
-    folder, fmt = REAL_SOURCES[name]
-    src = Path(ctx.s.lidar) / folder
-    if not src.exists():
-        raise SpotlightsError(
-            f"{src}: real LiDAR data not found (pass --lidar DIR, the folder of the shared lidar data)"
-        )
-    classes = real_classes(name)
-    min_points = real_min_points(ctx, name)
-    cfg = ExtractConfig(
-        seed=ctx.s.seed,
-        **({"classes": classes} if classes else {}),
-        **({"min_points": min_points} if min_points else {}),
-    )
-    reader = open_reader(src, fmt)
-    if real_frames(ctx, name):
-        reader = FirstFrames(reader, real_frames(ctx, name))
-    obs = extract(reader, cfg, progress=ctx.s.progress)
-    write_observations(ctx.out / "data" / f"{name}.h5", obs)
-    return {"observations": len(obs), "frames": int(obs.meta["n_frames"]), "classes": list(cfg.classes)}
-
-
-def _skip_reasons() -> list[str]:
-    """The extraction's skip reasons: a new one (e.g. duplicate_box) changes what is extracted, so it re-runs the step."""
-    return list(SKIP_REASONS)
-
-
-CONSISTENCY_OPTIONS = {
-    "classes": list(TABLE2_CLASSES),
-    "equal_points": real_evaluation.EQUAL_POINTS,
-    "equal_density": real_evaluation.EQUAL_DENSITY,
-    "noise_floor": True,
-    "heading_check": True,
-}
-"""What Table 2's consistency steps ask of :func:`evaluate_consistency`: Table 2's classes and the defaults of
-``spotlights real evaluate`` (equal density 0.1, equal point counts 512, the resampling noise floor, the heading
-check)."""
-
-
-def _consistency_command(ctx: Context, name: str) -> str:
-    ck = " ".join(shell_quote(ctx.run_dir(r) / "best.pt") for r in TABLE2_RUNS)
-    return (
-        f"spotlights real evaluate {shell_quote(ctx.out / 'data' / f'{name}.h5')} --checkpoint {ck} "
-        f"--classes {','.join(CONSISTENCY_OPTIONS['classes'])} --equal-points {CONSISTENCY_OPTIONS['equal_points']} "
-        f"--equal-density {CONSISTENCY_OPTIONS['equal_density']:g} "
-        f"--names {' '.join(TABLE2_RUNS)} "
-        f"--out {shell_quote(ctx.out / 'eval' / f'{name}_consistency')} --reference {shell_quote(ctx.s.cars_path)}"
-    )
-
-
-def _run_consistency(ctx: Context, name: str) -> dict:
-    """Table 2 on real set ``name``: consistency (native and at equal counts), noise floor, fidelity, MMD,
-    diversity, heading flips and out-of-domain counts of every Table 1 and product checkpoint."""
-    runs = list(TABLE2_RUNS)
-    refs, ref_info = reference_shapes(ctx.s.cars_path)
-    rep = evaluate_consistency(
-        ctx.out / "data" / f"{name}.h5",
-        completers(ctx, runs),
-        names=runs,
-        checkpoints=[str(ctx.run_dir(r) / "best.pt") for r in runs],
-        progress=ctx.s.progress,
-        references=refs,
-        reference_info=ref_info,
-        **CONSISTENCY_OPTIONS,
-    )
-    real_evaluation.write_report(rep, ctx.out / "eval" / f"{name}_consistency")
-    return {"objects": rep["data"]["n_objects_tracked"], "pairs": rep["data"]["n_pairs"]}
-
-
-def _consistency_box_command(ctx: Context) -> str:
-    ck = " ".join(shell_quote(ctx.run_dir(r) / "best.pt") for r in BOX_RUNS.values())
-    return (
-        f"spotlights real evaluate {shell_quote(ctx.out / 'data' / 'av2.h5')} --checkpoint {ck} "
-        f"--out {shell_quote(ctx.out / 'eval' / 'av2_consistency_box')}"
-    )
-
-
-def _run_consistency_box(ctx: Context) -> dict:
-    """Consistency on the AV2 tracks of SA-Net on the paper's rig and on the box rig (each observation's own box)."""
-    runs = list(BOX_RUNS.values())
-    rep = evaluate_consistency(
-        ctx.out / "data" / "av2.h5",
-        completers(ctx, runs),
-        names=runs,
-        checkpoints=[str(ctx.run_dir(r) / "best.pt") for r in runs],
-        progress=ctx.s.progress,
-    )
-    real_evaluation.write_report(rep, ctx.out / "eval" / "av2_consistency_box")
-    return {"objects": rep["data"]["n_objects_tracked"], "pairs": rep["data"]["n_pairs"]}
-
-
 # --- rig study (Tables 3 and 4) ------------------------------------------------------------------
 def study_meshes(s: Settings) -> list:
     """The rig study's meshes: category folders with >= 5 meshes, then the cars (--quick: a few of each)."""
@@ -547,8 +399,8 @@ def _run_study(ctx: Context) -> dict:
     return {"meshes": {f"{a}/{b}": int(n) for (a, b), n in counts.items()}}
 
 
-def work_steps() -> list[Step]:
-    """The steps that compute (datasets, runs, evaluations, real data, consistency, rig study), in execution order."""
+def _cars_steps() -> list[Step]:
+    """The car dataset step and one step per box rig that adds its ground truth to a dataset lacking it."""
     steps = [
         Step("cars-data", _run_cars, _cars_command, lambda c: [c.s.cars_path], reuse=_reuse_cars),
     ]
@@ -565,92 +417,57 @@ def work_steps() -> list[Step]:
                 reuse=(lambda c, g=rig: _reuse_cars_rig(c, g)),
             )
         )
-    for run in RUNS:
-        needs = ("cars-data",) + ((RIG_STEPS[RUNS[run].rig],) if RUNS[run].rig in RIG_STEPS else ())
-        steps.append(
-            Step(
-                f"train-{run}",
-                (lambda c, r=run: _run_train(c, r)),
-                (lambda c, r=run: train_command(c, r)),
-                (lambda c, r=run: [c.run_dir(r) / "last.pt", c.run_dir(r) / "best.pt"]),
-                needs=needs,
-                reuse=(lambda c, r=run: _reuse_train(c, r)),
-            )
-        )
-    for run in RUNS:
-        steps.append(
-            Step(
-                f"eval-{run}",
-                (lambda c, r=run: _run_eval(c, r)),
-                (lambda c, r=run: _eval_command(c, r)),
-                (lambda c, r=run: [c.eval_json(r)]),
-                needs=("cars-data", f"train-{run}"),
-                inputs=(lambda c, r=run: [c.s.cars_path, c.run_dir(r) / "best.pt"]),
-                params=lambda c: {"eval_views": c.s.eval_views, "quick": c.s.quick},
-            )
-        )
-    for name in REAL_SOURCES:
-        steps.append(
-            Step(
-                f"real-{name}",
-                (lambda c, n=name: _run_real(c, n)),
-                (lambda c, n=name: _real_command(c, n)),
-                (lambda c, n=name: [c.out / "data" / f"{n}.h5"]),
-                params=(
-                    lambda c, n=name: {
-                        "lidar": str(c.s.lidar),
-                        "skip_reasons": _skip_reasons(),
-                        "classes": list(real_classes(n) or ()),
-                        "frames": real_frames(c, n),
-                        # only when set: a full run's signature (and its finished steps) stays as it was
-                        **({"min_points": real_min_points(c, n)} if real_min_points(c, n) else {}),
-                    }
-                ),
-            )
-        )
-    for name in TABLE2_SETS:
-        steps.append(
-            Step(
-                f"consistency-{name}",
-                (lambda c, n=name: _run_consistency(c, n)),
-                (lambda c, n=name: _consistency_command(c, n)),
-                (lambda c, n=name: [c.out / "eval" / f"{n}_consistency.json"]),
-                needs=(f"real-{name}", "cars-data") + tuple(f"train-{r}" for r in TABLE2_RUNS),
-                inputs=(
-                    lambda c, n=name: (
-                        [c.out / "data" / f"{n}.h5", c.s.cars_path] + [c.run_dir(r) / "best.pt" for r in TABLE2_RUNS]
-                    )
-                ),
-                params=lambda c: {
-                    "scores": ["consistency", "fidelity", "mmd", "diversity"],
-                    "runs": list(TABLE2_RUNS),
-                    **CONSISTENCY_OPTIONS,
-                },
-            )
-        )
-    box_runs = tuple(BOX_RUNS.values())
-    steps.append(
-        Step(
-            "consistency-av2-box",
-            _run_consistency_box,
-            _consistency_box_command,
-            lambda c: [c.out / "eval" / "av2_consistency_box.json"],
-            needs=("real-av2",) + tuple(f"train-{r}" for r in box_runs),
-            inputs=lambda c: [c.out / "data" / "av2.h5"] + [c.run_dir(r) / "best.pt" for r in box_runs],
-        )
-    )
-    steps.append(
-        Step(
-            "rig-study",
-            _run_study,
-            _study_command,
-            lambda c: [c.out / "rig_study" / "summary.csv", c.out / "rig_study" / "per_mesh.csv"],
-            params=lambda c: {
-                "quick": c.s.quick,
-                "seed": c.s.seed,
-                "meshes": [str(c.s.category_meshes), str(c.s.cars_meshes)],
-                "rigs": [label for label, _ in study_variants()],
-            },
-        )
-    )
     return steps
+
+
+def _train_step(run: str) -> Step:
+    """The step that trains (or resumes, or reuses) run ``run``."""
+    needs = ("cars-data",) + ((RIG_STEPS[RUNS[run].rig],) if RUNS[run].rig in RIG_STEPS else ())
+    return Step(
+        f"train-{run}",
+        (lambda c, r=run: _run_train(c, r)),
+        (lambda c, r=run: train_command(c, r)),
+        (lambda c, r=run: [c.run_dir(r) / "last.pt", c.run_dir(r) / "best.pt"]),
+        needs=needs,
+        reuse=(lambda c, r=run: _reuse_train(c, r)),
+    )
+
+
+def _eval_step(run: str) -> Step:
+    """The step that evaluates run ``run``'s ``best.pt`` on the car dataset's test split."""
+    return Step(
+        f"eval-{run}",
+        (lambda c, r=run: _run_eval(c, r)),
+        (lambda c, r=run: _eval_command(c, r)),
+        (lambda c, r=run: [c.eval_json(r)]),
+        needs=("cars-data", f"train-{run}"),
+        inputs=(lambda c, r=run: [c.s.cars_path, c.run_dir(r) / "best.pt"]),
+        params=lambda c: {"eval_views": c.s.eval_views, "quick": c.s.quick},
+    )
+
+
+def _study_step() -> Step:
+    """The rig study step (Tables 3, 4 and the box table)."""
+    return Step(
+        "rig-study",
+        _run_study,
+        _study_command,
+        lambda c: [c.out / "rig_study" / "summary.csv", c.out / "rig_study" / "per_mesh.csv"],
+        params=lambda c: {
+            "quick": c.s.quick,
+            "seed": c.s.seed,
+            "meshes": [str(c.s.category_meshes), str(c.s.cars_meshes)],
+            "rigs": [label for label, _ in study_variants()],
+        },
+    )
+
+
+def work_steps() -> list[Step]:
+    """The steps that compute (datasets, runs, evaluations, real data, consistency, rig study), in execution order."""
+    return [
+        *_cars_steps(),
+        *(_train_step(run) for run in RUNS),
+        *(_eval_step(run) for run in RUNS),
+        *real_steps(),
+        _study_step(),
+    ]

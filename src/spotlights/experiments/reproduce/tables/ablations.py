@@ -45,39 +45,42 @@ def _ablation_values(ctx: Context, metric: str, rays_list) -> tuple[dict, list, 
     return out, cats, extra, counts
 
 
-def build_table3(ctx: Context) -> dict:
-    vals, cats, extra, counts = _ablation_values(ctx, "completeness", ABLATION_RAYS)
-    p6 = list(paper.ABLATION_CATEGORIES)
-    head = [
-        "#Rays",
-        "Angle",
+def _ablation_head(lead: list, cats: list, extra: list) -> list:
+    """Header of Tables 3 and 4: ``lead`` columns, the paper's 6 categories and their average, ours, the cars."""
+    return [
+        *lead,
         "",
-        *[c.capitalize() for c in p6],
+        *[c.capitalize() for c in paper.ABLATION_CATEGORIES],
         "Average (6)",
         *[c.capitalize() for c in extra],
         f"Average ({len(cats)})",
         "Cars",
     ]
-    body, rows = [], []
-    for (rays, angle), o in vals.items():
-        p = paper.TABLE3[(rays, angle)]
-        body.append(
-            [
-                f"**{rays}**",
-                f"{angle}°",
-                "ours",
-                *[fmt(o.get(c), 4) for c in p6],
-                fmt(o["average"], 4),
-                *[fmt(o.get(c), 4) for c in extra],
-                fmt(o["average_all"], 4),
-                fmt(o["cars"], 4),
-            ]
-        )
-        body.append(["", "", "paper", *[fmt(p[c], 4) for c in p6], fmt(p["average"], 4), *[""] * len(extra), "", ""])
-        for c in p6 + ["average"]:
-            rows.append({"row": f"{rays} rays {angle} deg", "column": c, "ours": o.get(c), "paper": p.get(c)})
-        for c in extra + ["average_all", "cars"]:
-            rows.append({"row": f"{rays} rays {angle} deg", "column": c, "ours": o.get(c), "paper": None})
+
+
+def _ablation_rows(lead: list, row: str, o: dict, p: dict, extra: list, digits: int) -> tuple[list, list]:
+    """One setting's lines of Table 3 or 4 (ours, then the paper's) and its CSV rows named ``row``."""
+    p6 = list(paper.ABLATION_CATEGORIES)
+    blank = [""] * (len(lead) - 1)
+    body = [
+        [
+            *lead,
+            "ours",
+            *[fmt(o.get(c), digits) for c in p6],
+            fmt(o["average"], digits),
+            *[fmt(o.get(c), digits) for c in extra],
+            fmt(o["average_all"], digits),
+            fmt(o["cars"], digits),
+        ],
+        ["", *blank, "paper", *[fmt(p[c], digits) for c in p6], fmt(p["average"], digits), *[""] * len(extra), "", ""],
+    ]
+    rows = [{"row": row, "column": c, "ours": o.get(c), "paper": p.get(c)} for c in p6 + ["average"]]
+    rows += [{"row": row, "column": c, "ours": o.get(c), "paper": None} for c in extra + ["average_all", "cars"]]
+    return body, rows
+
+
+def _table3_checks(vals: dict, cats: list) -> list:
+    """Table 3's claims (completeness improves with the ray count; 60° beats 30° and 83°) per average."""
     checks = []
     for key, lab in (
         ("average", "the paper's 6 categories"),
@@ -104,6 +107,20 @@ def build_table3(ctx: Context) -> dict:
                     "detail": f"30°: {fmt(c30, 4)}, 60°: {fmt(c60, 4)}, 83°: {fmt(c83, 4)}",
                 }
             )
+    return checks
+
+
+def build_table3(ctx: Context) -> dict:
+    """Table 3: completeness of the cap rigs (ray count x opening angle) per category, beside the paper's."""
+    vals, cats, extra, counts = _ablation_values(ctx, "completeness", ABLATION_RAYS)
+    head = _ablation_head(["#Rays", "Angle"], cats, extra)
+    body, rows = [], []
+    for (rays, angle), o in vals.items():
+        b, r = _ablation_rows(
+            [f"**{rays}**", f"{angle}°"], f"{rays} rays {angle} deg", o, paper.TABLE3[(rays, angle)], extra, 4
+        )
+        body += b
+        rows += r
     md = [
         "Completeness = mean distance from 16,384 uniform surface points to the Spotlights points (one-sided, "
         "unsquared, unit frame; lower is better), N x 64 rays (N = rays / 64), each object normalised by its own box. "
@@ -120,47 +137,13 @@ def build_table3(ctx: Context) -> dict:
         "categories": cats,
         "meshes": counts,
         "rows": rows,
-        "checks": checks,
+        "checks": _table3_checks(vals, cats),
         "markdown": "\n".join(md),
     }
 
 
-def build_table4(ctx: Context) -> dict:
-    vals, cats, extra, counts = _ablation_values(ctx, "hit_ratio", ABLATION_RAYS)
-    p6 = list(paper.ABLATION_CATEGORIES)
-    head = [
-        "Angle",
-        "",
-        *[c.capitalize() for c in p6],
-        "Average (6)",
-        *[c.capitalize() for c in extra],
-        f"Average ({len(cats)})",
-        "Cars",
-    ]
-    body, rows = [], []
-    for angle in (30, 60, 83):
-        o, p = vals[(HIT_RATIO_RAYS, angle)], paper.TABLE4[angle]
-        body.append(
-            [
-                f"**{angle}°**",
-                "ours",
-                *[fmt(o.get(c), 1) for c in p6],
-                fmt(o["average"], 1),
-                *[fmt(o.get(c), 1) for c in extra],
-                fmt(o["average_all"], 1),
-                fmt(o["cars"], 1),
-            ]
-        )
-        body.append(["", "paper", *[fmt(p[c], 1) for c in p6], fmt(p["average"], 1), *[""] * len(extra), "", ""])
-        for c in p6 + ["average"]:
-            rows.append({"row": f"{angle} deg", "column": c, "ours": o.get(c), "paper": p.get(c)})
-        for c in extra + ["average_all", "cars"]:
-            rows.append({"row": f"{angle} deg", "column": c, "ours": o.get(c), "paper": None})
-    spread = max(
-        abs(vals[(r, a)]["average_all"] - vals[(HIT_RATIO_RAYS, a)]["average_all"])
-        for r in ABLATION_RAYS
-        for a in (30, 60, 83)
-    )
+def _table4_checks(vals: dict, cats: list) -> list:
+    """Table 4's claim (the hit ratio falls as the angle grows) per average, the cars and each category."""
     checks = []
     for key in ["average", "average_all", "cars"] + cats:
         seq = [vals[(HIT_RATIO_RAYS, a)].get(key) for a in (30, 60, 83)]
@@ -173,6 +156,39 @@ def build_table4(ctx: Context) -> dict:
                 "detail": " > ".join(f"{v:.1f}%" for v in seq),
             }
         )
+    return checks
+
+
+def _table4_gap_note(ours_avg: list) -> list:
+    """Markdown lines explaining the angles where our average hit ratio is over 2 points below the paper's."""
+    lower = [a for a, o in zip((30, 60, 83), ours_avg) if o is not None and o < paper.TABLE4[a]["average"] - 2.0]
+    if not lower:
+        return []
+    return [
+        "",
+        f"Our hit ratios are lower than the paper's at {', '.join(f'{a}°' for a in lower)}: each of our objects is "
+        "normalised by its axis-aligned box (centre and half diagonal, the paper's step 1), so it fills less of the "
+        "unit sphere the wider the cap looks around it; different meshes and the paper's unstated details of the "
+        "normalisation can account for the gap. The ordering by angle is the paper's.",
+    ]
+
+
+def build_table4(ctx: Context) -> dict:
+    """Table 4: hit ratio (%) of the cap rigs per opening angle and category, beside the paper's."""
+    vals, cats, extra, counts = _ablation_values(ctx, "hit_ratio", ABLATION_RAYS)
+    head = _ablation_head(["Angle"], cats, extra)
+    body, rows = [], []
+    for angle in (30, 60, 83):
+        b, r = _ablation_rows(
+            [f"**{angle}°**"], f"{angle} deg", vals[(HIT_RATIO_RAYS, angle)], paper.TABLE4[angle], extra, 1
+        )
+        body += b
+        rows += r
+    spread = max(
+        abs(vals[(r, a)]["average_all"] - vals[(HIT_RATIO_RAYS, a)]["average_all"])
+        for r in ABLATION_RAYS
+        for a in (30, 60, 83)
+    )
     ours_avg = [vals[(HIT_RATIO_RAYS, a)]["average"] for a in (30, 60, 83)]
     md = [
         f"Hit ratio = rays that hit the object / all rays (%), at {HIT_RATIO_RAYS} rays (the paper does not give the ray "
@@ -181,20 +197,12 @@ def build_table4(ctx: Context) -> dict:
         "",
     ]
     md += md_table(head, body)
-    lower = [a for a, o in zip((30, 60, 83), ours_avg) if o is not None and o < paper.TABLE4[a]["average"] - 2.0]
-    if lower:
-        md += [
-            "",
-            f"Our hit ratios are lower than the paper's at {', '.join(f'{a}°' for a in lower)}: each of our objects is "
-            "normalised by its axis-aligned box (centre and half diagonal, the paper's step 1), so it fills less of the "
-            "unit sphere the wider the cap looks around it; different meshes and the paper's unstated details of the "
-            "normalisation can account for the gap. The ordering by angle is the paper's.",
-        ]
+    md += _table4_gap_note(ours_avg)
     return {
         "ours": {str(a): vals[(HIT_RATIO_RAYS, a)] for a in (30, 60, 83)},
         "ours_by_rays": {f"{r}x{a}": v for (r, a), v in vals.items()},
         "paper": {str(a): v for a, v in paper.TABLE4.items()},
         "rows": rows,
-        "checks": checks,
+        "checks": _table4_checks(vals, cats),
         "markdown": "\n".join(md),
     }

@@ -150,22 +150,38 @@ def _name(run: str) -> str:
     return DISPLAY.get(run, run)
 
 
-def _set_section(ctx: Context, key: str, label: str) -> tuple[list, list, list, dict, dict]:
-    """Markdown lines, CSV rows, checks, values and data counts of one set's Table 2 section."""
-    p = ctx.out / "eval" / f"{key}_consistency.json"
-    if not p.is_file():
-        claim = f"{label}: Table 2 computed"
-        note = f"### {label}\n\nNot computed in this output folder (step `consistency-{key}`)."
-        return [note], [], [{"claim": claim, "holds": False, "detail": f"{p} missing"}], {}, {}
-    rep = read_json(p)
-    ours = consistency_values(rep)
-    d = rep["data"]
+def _missing_section(p, key: str, label: str) -> tuple[list, list, list, dict, dict]:
+    """The section of a set whose consistency report is missing: a note and a failed check."""
+    claim = f"{label}: Table 2 computed"
+    note = f"### {label}\n\nNot computed in this output folder (step `consistency-{key}`)."
+    return [note], [], [{"claim": claim, "holds": False, "detail": f"{p} missing"}], {}, {}
+
+
+def _extra_columns(cols: list, vox) -> list:
+    """The CSV columns of a model beyond the per-class consistency at its own count (``vox``: equal density)."""
+    return [
+        "all_objects",
+        *[f"{c}_eq" for c in cols],
+        "all_objects_eq",
+        *([f"{c}_vox" for c in cols] + ["all_objects_vox", "noise_floor_vox", "diversity_vox"] if vox else []),
+        *(["cd_over_diversity_vox", "points_vox"] if vox else []),
+        "noise_floor",
+        "noise_floor_eq",
+        "fidelity",
+        "mmd",
+        "diversity",
+        "diversity_eq",
+        "cd_over_diversity_eq",
+        "points_per_completion",
+        "out_of_domain",
+    ]
+
+
+def _paper_style_table(ours: dict, runs: list, key: str, d: dict) -> tuple[list, list]:
+    """Body of the paper-style table of one set (per class, at each resampling, the paper's values) and CSV rows."""
     n_eq = d.get("equal_points") or "?"
-    suffix, hl = headline(d)
     vox = d.get("equal_density")
-    runs = [r for r in TABLE2_RUNS if r in ours]
     cols = list(TABLE2_CLASSES) + ["average"]
-    head = ["Model", "", *[c.capitalize() for c in TABLE2_CLASSES], "Average", "All objects"]
     body, rows = [], []
     variants = ([("_vox", f"ours @voxel {vox:g}")] if vox else []) + [
         ("_eq", f"ours @{n_eq}"),
@@ -184,53 +200,62 @@ def _set_section(ctx: Context, key: str, label: str) -> tuple[list, list, list, 
         row = f"{run} ({key})"
         for c in cols:
             rows.append({"row": row, "column": c, "ours": o[c], "paper": None if pp is None else pp[c]})
-        for c in [
-            "all_objects",
-            *[f"{c}_eq" for c in cols],
-            "all_objects_eq",
-            *([f"{c}_vox" for c in cols] + ["all_objects_vox", "noise_floor_vox", "diversity_vox"] if vox else []),
-            *(["cd_over_diversity_vox", "points_vox"] if vox else []),
-            "noise_floor",
-            "noise_floor_eq",
-            "fidelity",
-            "mmd",
-            "diversity",
-            "diversity_eq",
-            "cd_over_diversity_eq",
-            "points_per_completion",
-            "out_of_domain",
-        ]:
+        for c in _extra_columns(cols, vox):
             rows.append({"row": row, "column": c, "ours": o[c], "paper": None})
-    per_class = ", ".join(f"{c} {n}" for c, n in (d.get("objects_per_class") or {}).items())
-    why = (
-        f"**Headline: consistency at equal density** (every completion replaced by the centroids of its occupied "
-        f"cells of one voxel grid of side {vox:g}, unit frame): two samplings of one surface at different densities "
-        "give nearly the same cells, so models that output 560, 2,048 or 16,384 points compare at one spatial "
-        "resolution. At the models' own counts (the paper's way) a sparse output is penalised against a dense one "
-        f"(a Chamfer between two sparse samplings of one surface is larger); at a fixed count ({n_eq} points, "
-        "farthest-point sampling) it is the other way round: the subset draws *different* points from two nearly "
-        "identical dense clouds, so a dense model's value there is mostly subsampling noise. Both are shown."
-        if vox
-        else f"**Headline: consistency at {n_eq} points** (every completion first brought to {n_eq} points by "
+    return body, rows
+
+
+def _headline_text(vox, n_eq) -> str:
+    """Why the headline consistency is at equal density (``vox``, voxel side) or at ``n_eq`` points."""
+    if vox:
+        return (
+            f"**Headline: consistency at equal density** (every completion replaced by the centroids of its occupied "
+            f"cells of one voxel grid of side {vox:g}, unit frame): two samplings of one surface at different "
+            "densities give nearly the same cells, so models that output 560, 2,048 or 16,384 points compare at one "
+            "spatial resolution. At the models' own counts (the paper's way) a sparse output is penalised against a "
+            f"dense one (a Chamfer between two sparse samplings of one surface is larger); at a fixed count ({n_eq} "
+            "points, farthest-point sampling) it is the other way round: the subset draws *different* points from two "
+            "nearly identical dense clouds, so a dense model's value there is mostly subsampling noise. Both are shown."
+        )
+    return (
+        f"**Headline: consistency at {n_eq} points** (every completion first brought to {n_eq} points by "
         "farthest-point sampling), because a Chamfer distance between two sparse samplings of one surface is larger "
         "than between two dense ones. The 'own count' rows are consistency as the paper computes it."
     )
-    md = [
-        f"### {label}",
-        "",
-        f"{d['n_objects_tracked']} vehicles seen in two or more frames ({per_class}; "
-        f"{d.get('n_objects_5_or_more', '?')} in 5 or more), {d['n_pairs']} consecutive pairs, "
-        f"{d['n_observations_tracked']} observations. " + why,
-        "",
+
+
+def _scores_row(o: dict, name: str, vox, n_tracked) -> list:
+    """One model's row of the scores table (CD, noise floors, fidelity, MMD, diversity, points, out of domain)."""
+    vox_cells = [
+        fmt(o["average_vox"], 4),
+        fmt(o["noise_floor_vox"], 4),
+        fmt(o["diversity_vox"], 4),
+        fmt(o["cd_over_diversity_vox"], 3),
+        fmt(o["points_vox"], 0),
     ]
-    md += md_table(head, body)
-    md += [
-        "",
-        "Average over classes (All objects for CD / diversity); lower is better except diversity and points.",
-        "",
-    ]
+    return (
+        [f"**{name}**", fmt(o["average"], 4), fmt(o["noise_floor"], 4)]
+        + (vox_cells if vox else [])
+        + [
+            fmt(o["average_eq"], 4),
+            fmt(o["noise_floor_eq"], 4),
+            fmt(o["fidelity"], 4),
+            fmt(o["mmd"], 4),
+            fmt(o["diversity"], 4),
+            fmt(o["diversity_eq"], 4),
+            fmt(o["cd_over_diversity_eq"], 3),
+            f"{o['points_per_completion']:.0f}",
+            "-" if o["out_of_domain"] is None else f"{o['out_of_domain']} / {n_tracked}",
+        ]
+    )
+
+
+def _scores_table(ours: dict, runs: list, d: dict) -> list:
+    """Markdown lines of the scores that tell a consistent model from one that ignores its input."""
+    n_eq = d.get("equal_points") or "?"
+    vox = d.get("equal_density")
     vhead = ["CD @voxel", "noise floor @voxel", "diversity @voxel", "CD / diversity @voxel", "points @voxel"]
-    md += md_table(
+    return md_table(
         ["Model", "CD", "noise floor"]
         + (vhead if vox else [])
         + [
@@ -244,35 +269,39 @@ def _set_section(ctx: Context, key: str, label: str) -> tuple[list, list, list, 
             "points per completion",
             "out of domain",
         ],
-        [
-            [f"**{_name(n)}**", fmt(ours[n]["average"], 4), fmt(ours[n]["noise_floor"], 4)]
-            + (
-                [
-                    fmt(ours[n]["average_vox"], 4),
-                    fmt(ours[n]["noise_floor_vox"], 4),
-                    fmt(ours[n]["diversity_vox"], 4),
-                    fmt(ours[n]["cd_over_diversity_vox"], 3),
-                    fmt(ours[n]["points_vox"], 0),
-                ]
-                if vox
-                else []
-            )
-            + [
-                fmt(ours[n]["average_eq"], 4),
-                fmt(ours[n]["noise_floor_eq"], 4),
-                fmt(ours[n]["fidelity"], 4),
-                fmt(ours[n]["mmd"], 4),
-                fmt(ours[n]["diversity"], 4),
-                fmt(ours[n]["diversity_eq"], 4),
-                fmt(ours[n]["cd_over_diversity_eq"], 3),
-                f"{ours[n]['points_per_completion']:.0f}",
-                "-"
-                if ours[n]["out_of_domain"] is None
-                else f"{ours[n]['out_of_domain']} / {d['n_observations_tracked']}",
-            ]
-            for n in runs
-        ],
+        [_scores_row(ours[n], _name(n), vox, d["n_observations_tracked"]) for n in runs],
     )
+
+
+def _set_section(ctx: Context, key: str, label: str) -> tuple[list, list, list, dict, dict]:
+    """Markdown lines, CSV rows, checks, values and data counts of one set's Table 2 section."""
+    p = ctx.out / "eval" / f"{key}_consistency.json"
+    if not p.is_file():
+        return _missing_section(p, key, label)
+    rep = read_json(p)
+    ours = consistency_values(rep)
+    d = rep["data"]
+    suffix, hl = headline(d)
+    runs = [r for r in TABLE2_RUNS if r in ours]
+    head = ["Model", "", *[c.capitalize() for c in TABLE2_CLASSES], "Average", "All objects"]
+    body, rows = _paper_style_table(ours, runs, key, d)
+    per_class = ", ".join(f"{c} {n}" for c, n in (d.get("objects_per_class") or {}).items())
+    md = [
+        f"### {label}",
+        "",
+        f"{d['n_objects_tracked']} vehicles seen in two or more frames ({per_class}; "
+        f"{d.get('n_objects_5_or_more', '?')} in 5 or more), {d['n_pairs']} consecutive pairs, "
+        f"{d['n_observations_tracked']} observations. "
+        + _headline_text(d.get("equal_density"), d.get("equal_points") or "?"),
+        "",
+    ]
+    md += md_table(head, body)
+    md += [
+        "",
+        "Average over classes (All objects for CD / diversity); lower is better except diversity and points.",
+        "",
+    ]
+    md += _scores_table(ours, runs, d)
     checks = consistency_checks(ours, label, hl, suffix)
     eligible, _ = eligible_baselines(ours, suffix=suffix)
     md += [

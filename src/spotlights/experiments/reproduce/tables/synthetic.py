@@ -4,6 +4,7 @@ three sampling resolutions)."""
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 
 from ....errors import SpotlightsError
 from ... import paper_tables as paper
@@ -76,29 +77,38 @@ def sanet_checks(ours: dict, sanet_rows: list, baseline_rows: list) -> list:
     ]
 
 
-def build_table1(ctx: Context) -> dict:
-    """Table 1: the paper's five models (six rows: SA-Net without and with clip) beside the paper's values,
-    then the product's hit-aware SA-Nets (:data:`PRODUCT_RUNS`), and every model in one table of the
-    metrics the paper does not give (completeness, CD-L1, F-score, points, batch-32 runtime, training)."""
-    ours, row_run = {}, {}
+@dataclass
+class _Table1Rows:
+    """The evaluated rows of Table 1: row name -> values, the run of each row, and the groups of rows."""
+
+    ours: dict = field(default_factory=dict)
+    row_run: dict = field(default_factory=dict)
+    product: list = field(default_factory=list)
+    peer: list = field(default_factory=list)
+    not_evaluated: list = field(default_factory=list)
+
+
+def _table1_rows(ctx: Context) -> _Table1Rows:
+    """Every Table 1 row from the runs' evaluate reports (product and peer runs only where evaluated)."""
+    t = _Table1Rows()
     for run in TABLE1_RUNS:
         for name, row in eval_rows(ctx, run).items():
-            ours[name], row_run[name] = row, run
-    product, peer, not_evaluated = [], [], []
+            t.ours[name], t.row_run[name] = row, run
     for run in PRODUCT_RUNS + PEER_RUNS:
         if not ctx.eval_json(run).is_file():  # not part of this table's steps (an older output folder)
-            not_evaluated.append(run)
+            t.not_evaluated.append(run)
             continue
         for name, row in eval_rows(ctx, run, label=run).items():
-            ours[name], row_run[name] = row, run
-            (peer if run in PEER_RUNS else product).append(name)
-    # the clipped SA-Net row is named after the checkpoint's clip (the paper's is 0.2)
-    clipped = next((k for k in ours if k.startswith("sanet (clip")), "sanet (clip 0.2)")
-    order = ["atlasnet", "pcn", "foldingnet", "topnet", "sanet (no clip)", clipped]
+            t.ours[name], t.row_run[name] = row, run
+            (t.peer if run in PEER_RUNS else t.product).append(name)
+    return t
+
+
+def _paper_comparison(ours: dict, names: list, clipped: str) -> tuple[list, list]:
+    """Body of Table 1 (ours, the paper's, the difference per model) and its CSV rows."""
     cols = list(paper.CAR_CATEGORIES) + ["average"]
-    head = ["Method", "", "Hatchback", "Sedan", "SUV", "Average", "#Params", "Runtime b1 (ms)"]
     body, rows = [], []
-    for name in order + product + peer:
+    for name in names:
         o = ours.get(name)
         if o is None:
             continue
@@ -121,10 +131,15 @@ def build_table1(ctx: Context) -> dict:
             rows.append({"row": name, "column": c, "ours": o.get(c), "paper": None if p is None else p.get(c)})
         for c in EXTRA_COLUMNS:
             rows.append({"row": name, "column": c, "ours": o.get(c), "paper": None})
+    return body, rows
+
+
+def _paper_checks(ours: dict, order: list, clipped: str) -> list:
+    """The paper's three claims of Table 1 on its own rows (accuracy, the clip, size and runtime)."""
     paper_rows = {n: ours[n] for n in order if n in ours}
     avg = {n: value(r["average"]) for n, r in paper_rows.items()}
     best = min(avg, key=lambda n: avg[n]) if avg else None
-    checks = [
+    return [
         {
             "claim": "SA-Net with clip is the most accurate method (lowest Average)",
             "holds": best == clipped,
@@ -146,12 +161,15 @@ def build_table1(ctx: Context) -> dict:
                 f"{n}: {r['params_m']:.2f}M / {fmt(r['runtime_ms'], 2)} ms" for n, r in paper_rows.items()
             ),
         },
-        *sanet_checks(ours, ["sanet (no clip)", clipped, *product], list(BASELINE_RUNS)),
     ]
+
+
+def _every_model_table(ctx: Context, t: _Table1Rows, names: list) -> list:
+    """Markdown lines of the table of every model on the metrics the paper does not give."""
     facts = run_facts(ctx, [*TABLE1_RUNS, *PRODUCT_RUNS, *PEER_RUNS])
     every = []
-    for name in order + product + peer:
-        o = ours.get(name)
+    for name in names:
+        o = t.ours.get(name)
         if o is None:
             continue
         b32 = o.get("runtime_b32_ms")
@@ -166,35 +184,10 @@ def build_table1(ctx: Context) -> dict:
                 f"{o['params_m']:.2f}M",
                 fmt(o["runtime_ms"], 2),
                 fmt(None if b32 is None else b32 / 32.0, 2),
-                _training_cell(facts.get(row_run[name]) or {}),
+                _training_cell(facts.get(t.row_run[name]) or {}),
             ]
         )
-    any_row = next(iter(ours.values())) if ours else {}
-    md = [
-        f"Accuracy = one-sided CD prediction -> 16,384-point dense ground truth (unit frame, lower is better), on the "
-        f"test split: {any_row.get('n_samples', '?')} scans of {any_row.get('n_models', '?')} cars. Average = mean over scans "
-        "(the paper's Average). Runtime: median time of one scan (batch 1), forward pass (SA-Net no clip) or forward + "
-        f"decoding (the others), on {any_row.get('latency_device') or '?'} with {any_row.get('threads') or '?'} threads "
-        "(the paper: a GPU). Beyond the paper's rows, the product's hit-aware SA-Nets (no paper values: '-'): "
-        + ", ".join(f"`{r}` = {DISPLAY[r]}" for r in PRODUCT_RUNS)
-        + "; each keeps the rays whose predicted hit probability reaches the checkpoint's threshold (no clip), "
-        "decoded with each scan's own box. The modern peer: "
-        + ", ".join(f"`{r}` = {DISPLAY[r]}" for r in PEER_RUNS)
-        + ".",
-        "",
-    ]
-    md += md_table(head, body)
-    md += [
-        "",
-        "**Every model, one protocol**: the metrics the paper does not give, on the same test scans. Completeness = "
-        "one-sided CD dense ground truth -> prediction; CD-L1 = (accuracy + completeness) / 2; F-score@0.01 = harmonic "
-        "mean of precision (predicted points within 0.01 of the ground truth) and recall (ground-truth points within "
-        "0.01 of the prediction); points = points per completion; all means over scans, unit frame. Runtime b32 per "
-        "scan = median time of a batch of 32 / 32 ('-': not timed, e.g. --quick times batch 1 only). Training = the "
-        "run's optimizer steps and training minutes (validation excluded).",
-        "",
-    ]
-    md += md_table(
+    return md_table(
         [
             "Model",
             "Accuracy",
@@ -209,8 +202,59 @@ def build_table1(ctx: Context) -> dict:
         ],
         every,
     )
-    if not_evaluated:
-        md += ["", f"Not evaluated in this output folder (no `eval/<run>.json`): {', '.join(not_evaluated)}."]
+
+
+def _table1_intro(ours: dict) -> list:
+    """The text above Table 1: the metric, the test scans, the runtime's machine, the extra rows."""
+    any_row = next(iter(ours.values())) if ours else {}
+    return [
+        f"Accuracy = one-sided CD prediction -> 16,384-point dense ground truth (unit frame, lower is better), on the "
+        f"test split: {any_row.get('n_samples', '?')} scans of {any_row.get('n_models', '?')} cars. Average = mean over scans "
+        "(the paper's Average). Runtime: median time of one scan (batch 1), forward pass (SA-Net no clip) or forward + "
+        f"decoding (the others), on {any_row.get('latency_device') or '?'} with {any_row.get('threads') or '?'} threads "
+        "(the paper: a GPU). Beyond the paper's rows, the product's hit-aware SA-Nets (no paper values: '-'): "
+        + ", ".join(f"`{r}` = {DISPLAY[r]}" for r in PRODUCT_RUNS)
+        + "; each keeps the rays whose predicted hit probability reaches the checkpoint's threshold (no clip), "
+        "decoded with each scan's own box. The modern peer: "
+        + ", ".join(f"`{r}` = {DISPLAY[r]}" for r in PEER_RUNS)
+        + ".",
+        "",
+    ]
+
+
+EVERY_MODEL_TEXT = (
+    "**Every model, one protocol**: the metrics the paper does not give, on the same test scans. Completeness = "
+    "one-sided CD dense ground truth -> prediction; CD-L1 = (accuracy + completeness) / 2; F-score@0.01 = harmonic "
+    "mean of precision (predicted points within 0.01 of the ground truth) and recall (ground-truth points within "
+    "0.01 of the prediction); points = points per completion; all means over scans, unit frame. Runtime b32 per "
+    "scan = median time of a batch of 32 / 32 ('-': not timed, e.g. --quick times batch 1 only). Training = the "
+    "run's optimizer steps and training minutes (validation excluded)."
+)
+"""The text above Table 1's table of every model."""
+
+
+def build_table1(ctx: Context) -> dict:
+    """Table 1: the paper's five models (six rows: SA-Net without and with clip) beside the paper's values,
+    then the product's hit-aware SA-Nets (:data:`PRODUCT_RUNS`), and every model in one table of the
+    metrics the paper does not give (completeness, CD-L1, F-score, points, batch-32 runtime, training)."""
+    t = _table1_rows(ctx)
+    ours = t.ours
+    # the clipped SA-Net row is named after the checkpoint's clip (the paper's is 0.2)
+    clipped = next((k for k in ours if k.startswith("sanet (clip")), "sanet (clip 0.2)")
+    order = ["atlasnet", "pcn", "foldingnet", "topnet", "sanet (no clip)", clipped]
+    names = order + t.product + t.peer
+    head = ["Method", "", "Hatchback", "Sedan", "SUV", "Average", "#Params", "Runtime b1 (ms)"]
+    body, rows = _paper_comparison(ours, names, clipped)
+    checks = [
+        *_paper_checks(ours, order, clipped),
+        *sanet_checks(ours, ["sanet (no clip)", clipped, *t.product], list(BASELINE_RUNS)),
+    ]
+    md = _table1_intro(ours)
+    md += md_table(head, body)
+    md += ["", EVERY_MODEL_TEXT, ""]
+    md += _every_model_table(ctx, t, names)
+    if t.not_evaluated:
+        md += ["", f"Not evaluated in this output folder (no `eval/<run>.json`): {', '.join(t.not_evaluated)}."]
     md += [
         "",
         f"Training (schedule `{ctx.s.schedule}` for new runs; each run's own config kept when reused): "
@@ -221,6 +265,7 @@ def build_table1(ctx: Context) -> dict:
 
 
 def build_table5(ctx: Context) -> dict:
+    """Table 5: SA-Net (with clip) at three sampling resolutions N*M beside the paper's values."""
     cols = list(paper.CAR_CATEGORIES) + ["average"]
     ours = {}
     for res_name, run in TABLE5_RUNS.items():
