@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from spotlights.completion import fusion as tracks
+from spotlights.completion import track_windows, track_worker
 from spotlights.completion.fusion import TrackWorkerStalled, usable_cpus
 
 from builders import track_inputs as _inputs
@@ -24,7 +24,7 @@ needs_two_cpus = pytest.mark.skipif(usable_cpus() < 2, reason="a worker process 
 #: the worker process's real entry (the tests below run it under a wrapper in the worker process; the worker is
 #: started by a fork server, a fresh interpreter: a monkeypatch of this process reaches it only through the target
 #: it is given, which it imports from this module by name)
-WORKER_MAIN = tracks.worker_main
+WORKER_MAIN = track_worker.worker_main
 
 
 class _StuckAfterOneFrame:
@@ -70,14 +70,14 @@ SLOW_WINDOW_S, SLOW_STALL_S = 1.5, 6.0
 def slow_worker(jobs, results) -> None:
     """The track worker, fusing slowly (:data:`SLOW_WINDOW_S` a fused window: ~4 times that a frame of two cars) with
     a sign of life every 0.1 s at most between windows (in the worker process)."""
-    real = tracks.fuse_track
+    real = track_windows.fuse_track
 
     def slow(*args, **kwargs):
         time.sleep(SLOW_WINDOW_S)
         return real(*args, **kwargs)
 
-    tracks.fuse_track = slow
-    tracks.BEAT_S = 0.1
+    track_windows.fuse_track = slow
+    track_worker.BEAT_S = 0.1
     WORKER_MAIN(jobs, results)
 
 
@@ -98,8 +98,8 @@ def test_a_hung_worker_ends_the_run_with_one_line_after_the_stall_limit(tmp_path
     from helpers import run_cli
     from learning_fixtures import make_checkpoint
 
-    monkeypatch.setattr(tracks, "worker_main", hanging_worker)
-    monkeypatch.setattr(tracks, "STALL_S", 2.0)
+    monkeypatch.setattr(track_worker, "worker_main", hanging_worker)
+    monkeypatch.setattr(track_worker, "STALL_S", 2.0)
     src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0, 1.5])
     ck = make_checkpoint(tmp_path / "tiny.pt", "sanet")
     out = tmp_path / "out"
@@ -129,7 +129,7 @@ def test_a_worker_that_dies_ends_the_run_with_one_line_and_exit_code_1(tmp_path,
     from helpers import run_cli
     from learning_fixtures import make_checkpoint
 
-    monkeypatch.setattr(tracks, "worker_main", dying_worker)
+    monkeypatch.setattr(track_worker, "worker_main", dying_worker)
     src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0, 1.5])
     ck = make_checkpoint(tmp_path / "tiny.pt", "sanet")
     out = tmp_path / "out"
@@ -156,11 +156,11 @@ def test_a_slow_worker_that_shows_signs_of_life_is_not_taken_for_hung(tmp_path, 
     src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0])
     alone, keys = _plan(src, "past:2", worker=False)
     want = _inputs(alone, keys)
-    monkeypatch.setattr(tracks, "worker_main", slow_worker)
+    monkeypatch.setattr(track_worker, "worker_main", slow_worker)
     plan, _ = _plan(src, "past:2", worker=False)
     assert plan.start_worker(keys)
     got = _inputs(plan, keys[:1])
-    monkeypatch.setattr(tracks, "STALL_S", SLOW_STALL_S)
+    monkeypatch.setattr(track_worker, "STALL_S", SLOW_STALL_S)
     t0 = time.monotonic()
     got += _inputs(plan, keys[1:])
     plan.finish()
@@ -176,13 +176,13 @@ def test_a_stalled_plan_raises_and_ends_its_worker(tmp_path, monkeypatch):
     was silent for STALL_S, and the worker process has ended."""
     from spotlights.errors import SpotlightsError
 
-    monkeypatch.setattr(tracks, "worker_main", hanging_worker)
+    monkeypatch.setattr(track_worker, "worker_main", hanging_worker)
     src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0])
     plan, keys = _plan(src, "past:2", worker=False)
     assert plan.start_worker(keys)
     proc = plan.worker_process
     plan.frame_inputs(keys[0], plan.take(keys[0]).boxes)  # the first frame comes (the worker started)
-    monkeypatch.setattr(tracks, "STALL_S", 1.0)
+    monkeypatch.setattr(track_worker, "STALL_S", 1.0)
     with pytest.raises(TrackWorkerStalled, match="made no progress for 1 s") as caught:
         plan.frame_inputs(keys[1], plan.take(keys[1]).boxes)
     assert isinstance(caught.value, SpotlightsError)
@@ -195,18 +195,18 @@ SUSPENDED = """
 import pathlib
 import sys
 
-from spotlights.completion import fusion as tracks
+from spotlights.completion import track_worker
 from test_track_reliability import SLOW_STALL_S, slow_worker
 from builders import track_plan as _plan
 from builders import write_drive
 
 if __name__ == "__main__":
-    tracks.worker_main = slow_worker
+    track_worker.worker_main = slow_worker
     src = write_drive(pathlib.Path(sys.argv[1]), [0.0, 0.5, 1.0])
     plan, keys = _plan(src, "past:2", worker=False)
     assert plan.start_worker(keys)
     plan.frame_inputs(keys[0], plan.take(keys[0]).boxes)  # the worker started (its start is not timed here)
-    tracks.STALL_S = SLOW_STALL_S
+    track_worker.STALL_S = SLOW_STALL_S
     print("ready", flush=True)
     for key in keys[1:]:
         plan.frame_inputs(key, plan.take(key).boxes)
@@ -250,8 +250,8 @@ def test_a_suspended_run_is_not_taken_for_a_hung_worker(tmp_path):
 def test_the_stall_limit_is_generous():
     """The default stall limit leaves a slow machine 100 times the measured slowest step of the worker (0.6 s: the
     longest track's whole refinement of scene-0523 with ``all``), and signs of life come far more often than it."""
-    assert tracks.STALL_S >= 100 * 0.6
-    assert tracks.BEAT_S * 10 <= tracks.STALL_S
+    assert track_worker.STALL_S >= 100 * 0.6
+    assert track_worker.BEAT_S * 10 <= track_worker.STALL_S
 
 
 # --- Ctrl-C --------------------------------------------------------------------------------------------------------

@@ -1,7 +1,8 @@
 """The synthetic completion dataset file (HDF5): schema, streaming writer, lazy reader.
 
-The reader (:class:`CompletionDataset`, :func:`open_dataset`) is here, the writer and the schema's
-constants in :mod:`.store_writer` (importable from here too).
+The reader (:class:`CompletionDataset`, :func:`open_dataset`) is here, the checks it makes of a file as it opens
+it in :mod:`.store_reading`, the writer and the schema's constants in :mod:`.store_writer` (importable from here
+too).
 
 Schema (``format = "spotlights-completion"``, ``format_version = 1``; see docs/dataset.md)
 -----------------------------------------------------------------------------------------
@@ -52,7 +53,6 @@ The samples of a split are those whose model's split equals it.
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
@@ -60,8 +60,17 @@ import numpy as np
 
 from ..errors import InputFileError, ParameterError
 from ..geometry.boxes import unit_extents
-from ..geometry.rig import RigSpec, parse_rig
-from .shard_index import is_shard_index, read_shard_index, without_extra_rigs
+from ..geometry.rig import RigSpec
+from .shard_index import is_shard_index, read_shard_index
+from .store_reading import (
+    check_same_build,
+    check_shard_order,
+    int_attribute,
+    json_attribute,
+    read_tables,
+    shared_extra_rigs,
+)
+from .store_summary import dataset_info
 from .store_writer import (
     COMPRESSION,
     FORMAT,
@@ -78,26 +87,17 @@ __all__ = [
     "COMPRESSION",
     "FORMAT",
     "FORMAT_VERSION",
+    "MAX_PARTIAL_POINTS",
     "OPTIONAL_MODEL_STRINGS",
     "SAMPLE_FIELDS",
     "SPLITS",
     "CompletionDataset",
+    "int_attribute",
+    "json_attribute",
     "open_dataset",
     "write_dataset",
     "write_rig_group",
 ]
-
-
-def _strings(ds) -> np.ndarray:
-    return np.array([x.decode() if isinstance(x, bytes) else str(x) for x in ds[()]])
-
-
-def _attr_value(v):
-    """An HDF5 attribute's value as a plain Python value: a scalar for numpy scalars and one-element arrays,
-    a list for other arrays (``.item()`` of a two-element array raised ValueError)."""
-    if getattr(v, "size", None) == 1 and hasattr(v, "item"):
-        return v.item()
-    return v.tolist() if hasattr(v, "tolist") else v
 
 
 MAX_PARTIAL_POINTS = 65_536
@@ -105,55 +105,10 @@ MAX_PARTIAL_POINTS = 65_536
 256, and twice what a car a few metres from a 128-beam LiDAR returns; a build's work unit of 250 views then holds
 197 MB of them per worker (2e9 asked for 5.5 TiB)."""
 
-_JSON_KINDS = {dict: "object", list: "list"}
 
-
-def json_attribute(path: str | os.PathLike, attrs, key: str, kind: type, default=None, where: str = ""):
-    """The HDF5 attribute ``key`` of ``attrs`` (a file's or group's ``attrs``, or a dict of them) read as JSON
-    and checked to be a ``kind`` (``dict`` or ``list``); ``default`` when the attribute is absent (``None``:
-    it is required). ``where`` names the group holding it (e.g. ``"/rigs/cap-32x64-60 "``) in the message.
-
-    Raises :class:`InputFileError` naming the file ``path`` and the attribute when it is absent and required,
-    not a string of valid JSON, or JSON of another type (``[1, 2]`` where an object is expected)."""
-    raw = attrs.get(key)
-    if raw is None:
-        if default is None:
-            raise InputFileError(path, f"damaged dataset file: no {where}{key} attribute")
-        return default
-    if isinstance(raw, bytes):
-        raw = raw.decode("utf-8", errors="replace")
-    if not isinstance(raw, str):
-        raise InputFileError(path, f"damaged {where}{key} attribute: not a JSON string")
-    try:
-        value = json.loads(raw)
-    except (ValueError, RecursionError):
-        raise InputFileError(path, f"damaged {where}{key} attribute: not valid JSON") from None
-    if not isinstance(value, kind):
-        found = _JSON_KINDS.get(type(value), type(value).__name__ if value is not None else "null")
-        raise InputFileError(
-            path, f"damaged {where}{key} attribute: a JSON {found}, expected a JSON {_JSON_KINDS[kind]}"
-        )
-    return value
-
-
-def int_attribute(path: str | os.PathLike, attrs, key: str, default: int, minimum: int | None = None) -> int:
-    """The integer HDF5 attribute ``key`` of ``attrs`` (``default`` when absent). Raises
-    :class:`InputFileError` naming the file ``path`` and the attribute when it is not an integer (text, a
-    fraction, a boolean) or is below ``minimum``."""
-    raw = attrs.get(key, default)
-    if isinstance(raw, np.ndarray) and raw.shape == ():
-        raw = raw.item()
-    value = None
-    if isinstance(raw, (int, np.integer)) and not isinstance(raw, (bool, np.bool_)):
-        value = int(raw)
-    elif isinstance(raw, (float, np.floating)) and np.isfinite(raw) and float(raw).is_integer():
-        value = int(raw)
-    if value is None:
-        shown = raw.decode("utf-8", errors="replace") if isinstance(raw, bytes) else raw
-        raise InputFileError(path, f"damaged {key} attribute: {str(shown)[:40]!r} is not an integer")
-    if minimum is not None and value < minimum:
-        raise InputFileError(path, f"damaged {key} attribute: {value} is below {minimum}")
-    return value
+def _joined(tables: list[dict], key: str) -> np.ndarray | None:
+    """The shards' table ``key`` concatenated (rows in shard order); None when a shard lacks it."""
+    return np.concatenate([t[key] for t in tables]) if all(t[key] is not None for t in tables) else None
 
 
 class CompletionDataset:
@@ -191,104 +146,57 @@ class CompletionDataset:
             self.sharded = False
         self.shards = [e["path"] for e in entries]
         tables = [self._read_tables(k, e) for k, e in enumerate(entries)]
-        first = tables[0]
-        for k, t in enumerate(tables[1:], 1):
-            for key in ("config_json", "default_rig", "views_per_model", "sensor_json", "seed"):
-                a, b = t["attrs"].get(key), first["attrs"].get(key)
-                if key == "config_json":  # an interrupted add-rig leaves some shards with one more rig
-                    a, b = without_extra_rigs(a), without_extra_rigs(b)
-                if a != b:
-                    raise InputFileError(
-                        self.shards[k],
-                        f"shard differs from {self.shards[0].name} in {key}: not a shard of the same dataset",
-                    )
+        check_same_build(self.shards, tables)
         if self.sharded:
-            _check_shard_order(self.path, self.shards, [t["attrs"] for t in tables])
+            check_shard_order(self.path, self.shards, [t["attrs"] for t in tables])
+        self._join_tables(tables)
+        self._take_build(tables)
+        if len(self.sample_model) and (self.sample_model.min() < 0 or self.sample_model.max() >= len(self.names)):
+            raise InputFileError(self.path, "/samples/model refers to rows outside /models")
+
+    def _join_tables(self, tables: list[dict]) -> None:
+        """The shards' tables joined into the dataset's (global model rows and sample indices)."""
         self.model_offset = np.cumsum([0] + [len(t["names"]) for t in tables]).astype(np.int64)
         self.sample_offset = np.cumsum([0] + [len(t["sample_model"]) for t in tables]).astype(np.int64)
-        cat = lambda key: np.concatenate([t[key] for t in tables]) if all(t[key] is not None for t in tables) else None  # noqa: E731
-        self.names, self.categories, self.splits = cat("names"), cat("categories"), cat("splits")
-        self.center, self.radius, self.size = cat("center"), cat("radius"), cat("size")
-        self.sources, self.origins, self.augments = cat("source"), cat("origin"), cat("augment")
-        self.stored_classes = cat("class")
+        self.names, self.categories = _joined(tables, "names"), _joined(tables, "categories")
+        self.splits = _joined(tables, "splits")
+        self.center, self.radius, self.size = (
+            _joined(tables, "center"),
+            _joined(tables, "radius"),
+            _joined(tables, "size"),
+        )
+        self.sources, self.origins = _joined(tables, "source"), _joined(tables, "origin")
+        self.augments = _joined(tables, "augment")
+        self.stored_classes = _joined(tables, "class")
         self._classes = None
         self.sample_model = np.concatenate([t["sample_model"] + self.model_offset[k] for k, t in enumerate(tables)])
-        self.sample_view = cat("sample_view")
+        self.sample_view = _joined(tables, "sample_view")
         # a rig is the dataset's when every shard holds it (an interrupted add-rig adds it to some only)
         self.rig_names = sorted(set.intersection(*[set(t["rigs"]) for t in tables]))
+
+    def _take_build(self, tables: list[dict]) -> None:
+        """The build's attributes, configuration, sensor, skipped meshes and seed (the first shard's; a sharded
+        configuration lists the extra rigs every shard holds)."""
+        first = tables[0]
         attrs = first["attrs"]
         self.attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in attrs.items()}
         self.default_rig = str(attrs.get("default_rig", self.rig_names[0] if self.rig_names else ""))
         self.views_per_model = first["views_per_model"]
         self.config = dict(first["config"])
         if self.sharded:  # the extra rigs of any shard that every shard holds (an add-rig may be half done)
-            union = []
-            for k, t in enumerate(tables):
-                extra = t["config"].get("extra_rigs") or []
-                if not isinstance(extra, list) or not all(isinstance(r, str) for r in extra):
-                    raise InputFileError(
-                        self.shards[k], "damaged config_json attribute: extra_rigs is not a list of rig names"
-                    )
-                for r in extra:
-                    if r not in union and parse_rig(r).name in self.rig_names:
-                        union.append(r)
+            union = shared_extra_rigs(self.shards, tables, self.rig_names)
             if "extra_rigs" in self.config:
                 self.config["extra_rigs"] = union
         self.sensor = first["sensor"]
         self.skipped = first["skipped"]
         self.seed = first["seed"]
-        if len(self.sample_model) and (self.sample_model.min() < 0 or self.sample_model.max() >= len(self.names)):
-            raise InputFileError(self.path, "/samples/model refers to rows outside /models")
 
     def _read_tables(self, k: int, entry: dict) -> dict:
-        """Small tables and attributes of shard ``k``, validated."""
+        """Small tables and attributes of shard ``k``, validated (:func:`~.store_reading.read_tables`)."""
         path = entry["path"]
         if not path.exists():
             raise InputFileError(path, f"no such file (a shard of {self.path})" if self.sharded else "no such file")
-        f = self._h5(k)
-        fmt = f.attrs.get("format")
-        if fmt != FORMAT:
-            raise InputFileError(path, f"not a spotlights completion dataset (format attribute {fmt!r})")
-        version = int_attribute(path, f.attrs, "format_version", -1)
-        if version != FORMAT_VERSION:
-            raise InputFileError(path, f"dataset format version {version}, this spotlights reads {FORMAT_VERSION}")
-        _check_layout(path, f)
-        try:
-            m = f["models"]
-            t = {
-                "names": _strings(m["name"]),
-                "categories": _strings(m["category"]),
-                "splits": _strings(m["split"]),
-                "center": m["center"][()],
-                "radius": m["radius"][()],
-                "size": m["size"][()] if "size" in m else None,
-                "sample_model": f["samples/model"][()].astype(np.int64),
-                "sample_view": f["samples/view"][()].astype(np.int64),
-                "rigs": list(f["rigs"].keys()),
-            }
-            for key in OPTIONAL_MODEL_STRINGS:
-                t[key] = _strings(m[key]) if key in m else None
-        except KeyError as exc:
-            raise InputFileError(path, f"incomplete dataset file: missing {exc}") from None
-        t["attrs"] = attrs = {key: _attr_value(v) for key, v in f.attrs.items()}
-        t["config"] = json_attribute(path, attrs, "config_json", dict, {})
-        t["sensor"] = json_attribute(path, attrs, "sensor_json", dict, {})
-        t["skipped"] = json_attribute(path, attrs, "skipped_json", list, [])
-        if not all(isinstance(s, dict) and {"file", "problem"} <= s.keys() for s in t["skipped"]):
-            raise InputFileError(path, 'damaged skipped_json attribute: expected a list of {"file", "problem"} objects')
-        t["views_per_model"] = int_attribute(path, attrs, "views_per_model", 0, minimum=0)
-        t["seed"] = int_attribute(path, attrs, "seed", 0)
-        _check_partials(path, f["samples"], len(t["sample_model"]), t["config"].get("n_points"))
-        if entry["n_models"] is not None and (len(t["names"]), len(t["sample_model"])) != (
-            entry["n_models"],
-            entry["n_samples"],
-        ):
-            raise InputFileError(
-                path,
-                f"holds {len(t['names'])} models and {len(t['sample_model'])} samples, the "
-                f"index {self.path.name} says {entry['n_models']} and {entry['n_samples']}",
-            )
-        return t
+        return read_tables(path, self._h5(k), entry, self.path)
 
     # --- file handles ---------------------------------------------------------------------
     def _h5(self, k: int = 0):
@@ -613,147 +521,9 @@ class CompletionDataset:
     def info(self) -> dict:
         """Summary: splits, categories, counts, shapes and dtypes of every dataset (a sharded
         dataset's logical shapes: rows of all shards), build config; for a sharded dataset also
-        ``shards`` (their files) and ``file_size_bytes`` of the index and all shards."""
-        import h5py
-
-        f = self._h5()
-        shapes = {}
-
-        def visit(name, obj):
-            if isinstance(obj, h5py.Dataset):
-                shapes["/" + name] = {
-                    "shape": list(obj.shape),
-                    "dtype": str(obj.dtype) if obj.dtype.kind != "O" else "str",
-                }
-
-        f.visititems(visit)
-        if self.sharded:
-            for name, d in shapes.items():
-                if name.startswith("/samples/"):
-                    d["shape"][0] = self.n_samples
-                elif name.startswith(("/models/", "/rigs/")) and d["shape"]:
-                    d["shape"][0] = self.n_models
-            shapes = {
-                k: v for k, v in shapes.items() if not k.startswith("/rigs/") or k.split("/")[2] in self.rig_names
-            }
-        splits = {}
-        for sp in SPLITS:
-            rows = self.split_models(sp)
-            cats = {}
-            for c in self.categories[rows]:
-                cats[str(c)] = cats.get(str(c), 0) + 1
-            splits[sp] = {
-                "models": int(len(rows)),
-                "samples": int(len(rows) * self.views_per_model),
-                "categories": dict(sorted(cats.items())),
-            }
-        cats = {}
-        for c in self.categories:
-            cats[str(c)] = cats.get(str(c), 0) + 1
-        size = self.path.stat().st_size + (sum(p.stat().st_size for p in self.shards) if self.sharded else 0)
-        out = {
-            "path": str(self.path),
-            "file_size_bytes": size,
-            "format": FORMAT,
-            "format_version": FORMAT_VERSION,
-            "spotlights_version": str(f.attrs.get("spotlights_version", "")),
-            "seed": self.seed,
-            "n_models": self.n_models,
-            "n_samples": self.n_samples,
-            "views_per_model": self.views_per_model,
-            "categories": dict(sorted(cats.items())),
-            "classes": {str(c): int(k) for c, k in zip(*np.unique(self.classes, return_counts=True))},
-            "splits": splits,
-            "default_rig": self.default_rig,
-            "rigs": {n: int(f[f"rigs/{n}/depths"].shape[1]) for n in self.rig_names},
-            "skipped": self.skipped,
-            "sensor": self.sensor,
-            "config": self.config,
-            "datasets": shapes,
-        }
-        if self.sharded:
-            out["shards"] = [str(p) for p in self.shards]
-        return out
-
-
-# The groups and datasets every dataset file holds (h5py's own message for a missing one,
-# "Unable to synchronously open object (component not found)", names neither).
-_GROUPS = ("models", "samples", "rigs")
-_REQUIRED = (
-    "models/name",
-    "models/category",
-    "models/split",
-    "models/center",
-    "models/radius",
-    "samples/model",
-    "samples/view",
-)
-
-
-def _check_layout(path: Path, f) -> None:
-    """Refuse a file that lacks one of the groups or datasets the reader needs, naming it."""
-    import h5py
-
-    for key in _GROUPS:
-        if not isinstance(f.get(key), h5py.Group):
-            raise InputFileError(
-                path, f"incomplete dataset file: missing /{key}" if key not in f else f"/{key} is not a group"
-            )
-    for key in _REQUIRED:
-        if not isinstance(f.get(key), h5py.Dataset):
-            raise InputFileError(
-                path, f"incomplete dataset file: missing /{key}" if key not in f else f"/{key} is not a dataset"
-            )
-
-
-def _check_partials(path: Path, samples, n_samples: int, n_points) -> None:
-    """Refuse a ``/samples/partial`` that is not (n_samples, P, 3) floating-point coordinates, P >= 1 and, when
-    the build configuration states it (``n_points``), P = that count. Reads only the dataset's header: whether
-    the coordinates are finite is checked where they are read (:meth:`CompletionDataset.partials`)."""
-    import h5py
-
-    d = samples.get("partial")
-    if d is None:  # reported by the readers that need it (spotlights.learning.data: "lacks /samples/partial")
-        return
-    if not isinstance(d, h5py.Dataset):
-        raise InputFileError(path, "/samples/partial is not a dataset")
-    if d.dtype.kind != "f":
-        raise InputFileError(path, f"/samples/partial holds {d.dtype} values, expected floating-point coordinates")
-    want_p = n_points if isinstance(n_points, int) and not isinstance(n_points, bool) and n_points >= 1 else None
-    if d.ndim != 3 or d.shape[0] != n_samples or d.shape[2] != 3 or d.shape[1] < 1 or (want_p and d.shape[1] != want_p):
-        want = f"({n_samples}, {want_p or 'P'}, 3)"
-        stated = " (n_points of its config_json)" if want_p else ""
-        raise InputFileError(path, f"/samples/partial has shape {tuple(d.shape)}, expected {want}{stated}")
-
-
-def _check_shard_order(index: Path, shards: list[Path], attrs: list[dict]) -> None:
-    """Refuse an index that does not list its build's shards once each, in order: every shard
-    records its position (``shard_index``, 0-based, of ``shard_count``). A shard listed twice, a
-    missing one or a swapped pair would silently change the dataset (its models, sample order and
-    bytes). Shards without a recorded position are not checked."""
-    pos = [(a.get("shard_index"), a.get("shard_count")) for a in attrs]
-    if any(k is None or n is None for k, n in pos):
-        return
-    counts = sorted({int(n) for _, n in pos})
-    if len(counts) > 1:
-        raise InputFileError(index, f"lists shards of different builds (shard counts {counts})")
-    count, first = counts[0], {}
-    for i, (k, _) in enumerate(pos):
-        if int(k) in first:
-            raise InputFileError(
-                index, f"lists shard {int(k)} of {count} twice ({shards[first[int(k)]].name} and {shards[i].name})"
-            )
-        first[int(k)] = i
-    missing = [k for k in range(count) if k not in first]
-    if missing:
-        raise InputFileError(
-            index, f"lacks shard {missing[0]} of {count} (it lists {len(pos)}): a shard file is missing from the index"
-        )
-    for i, (k, _) in enumerate(pos):
-        if int(k) != i:
-            raise InputFileError(
-                index, f"lists {shards[i].name} (shard {int(k)} of {count}) in place {i}: list the shards in order"
-            )
+        ``shards`` (their files) and ``file_size_bytes`` of the index and all shards
+        (:func:`~spotlights.data.store_summary.dataset_info`)."""
+        return dataset_info(self)
 
 
 def open_dataset(path: str | os.PathLike) -> CompletionDataset:
