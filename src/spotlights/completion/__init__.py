@@ -16,6 +16,8 @@ module                      job
 :mod:`.picture_processes`   its frame pictures, drawn by worker processes beside the loop
 :mod:`.shapes`              one shape per track (``--track-shape``)
 :mod:`.fusion`              fusion and box refinement over tracks (``real complete --fuse``)
+:mod:`.track_windows`       each frame's fusion window of every track (the work of the fusion)
+:mod:`.track_worker`        that work in a worker process beside the frame loop
 :mod:`.names`               output file names of frames, sequences and tracks
 :mod:`.demo`                the end-to-end demonstration (``spotlights demo``)
 ==========================  =====================================================================
