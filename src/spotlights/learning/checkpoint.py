@@ -93,6 +93,8 @@ def load_checkpoint(path, expect_model: str | None = None, map_location="cpu") -
     InputFileError : missing file, not a torch file, not a spotlights checkpoint,
         unknown model, or a model other than ``expect_model``.
     """
+    import torch
+
     p = resolve_checkpoint(path)
     if p.is_dir():
         raise InputFileError(p, "is a folder, expected a checkpoint file (e.g. RUN/best.pt)")
@@ -102,23 +104,21 @@ def load_checkpoint(path, expect_model: str | None = None, map_location="cpu") -
             "is an ONNX model: this command reads PyTorch checkpoints (.pt); ONNX models run in 'complete' and "
             "'real complete' (--runtime onnx)",
         )
-    ckpt = _read_torch_file(p, map_location)
+    ckpt = _read_torch_file(torch, p, map_location)
     _check_format(p, ckpt)
     name = ckpt.get("model_name")
     if not isinstance(name, str) or name not in MODEL_REGISTRY:
         raise InputFileError(p, f"checkpoint holds an unknown model {name!r}")
     if expect_model is not None and name != expect_model:
         raise InputFileError(p, f"checkpoint holds a {name!r} model, expected {expect_model!r}")
-    _check_entries(p, ckpt)
+    _check_entries(torch, p, ckpt)
     ckpt["path"] = os.fspath(p)
     return ckpt
 
 
-def _read_torch_file(p: Path, map_location):
-    """The object of the torch file ``p`` (weights only); a one-line :class:`InputFileError` for a file that is not
-    one (truncated, garbage)."""
-    import torch
-
+def _read_torch_file(torch, p: Path, map_location):
+    """The object of the torch file ``p`` (weights only; ``torch`` the module); a one-line :class:`InputFileError`
+    for a file that is not one (truncated, garbage)."""
     try:
         return torch.load(p, map_location=map_location, weights_only=True)
     except Exception as exc:  # noqa: BLE001 - any failure of unpickling garbage is the file's fault
@@ -142,11 +142,9 @@ def _check_format(p: Path, ckpt) -> None:
         )
 
 
-def _check_entries(p: Path, ckpt: dict) -> None:
+def _check_entries(torch, p: Path, ckpt: dict) -> None:
     """Refuse a checkpoint whose ``config`` is not a model/data/train mapping or whose ``model_state`` is not a
-    mapping of tensors."""
-    import torch
-
+    mapping of tensors (``torch`` the module)."""
     for key in ("config", "model_state"):
         if key not in ckpt:
             raise InputFileError(p, f"checkpoint lacks its {key!r} entry")
