@@ -38,13 +38,12 @@ import numpy as np
 from ..data.vehicle_classes import VEHICLE_CLASSES, canonical_class
 from ..errors import InputFileError, ParameterError, parameter_names, shown
 from ..geometry.boxes import FLIP_Z, MAX_BOXES_PER_FRAME, Box, crop_boxes
-from ..geometry.neighbors import serial_queries
 from ..geometry.rotations import is_rotation, rigid_transform
 from ..learning.fit import can_fit, require_fittable
 from ..learning.inference import DEFAULT, complete_in_boxes, load_completer, prepare_partial, with_observed
-from ..metrics.consistency import fidelity
 from ..processes import shared_thread_pool
 from ..timing import StageTimer
+from .fidelities import FIDELITY_THREADS, Fidelities
 from .results import ObjectResult, SceneResult, object_ids
 from .scene_config import (
     HEADING_DOC,
@@ -171,11 +170,7 @@ def complete_scene(
     timer = StageTimer()
     scan = scene_points(points)
     check_scene_inputs(boxes, completer, config, axes)
-    if len(scan) < config.min_points:
-        raise ParameterError(
-            f"the scan holds {len(scan)} point{'s' if len(scan) != 1 else ''}; at least "
-            f"{config.min_points} are needed to complete anything"
-        )
+    _require_scan_size(scan, config)
     require_rays_to_snap(completer, config.snap)
     if config.fit:  # the fit differentiates a torch model: an ONNX export runs as its checkpoint
         completer = fittable(completer)
@@ -198,15 +193,15 @@ def complete_scene(
         outs = _complete_objects(todo, completer, config, shares, fallback, scores) if todo else []
     with timer("assemble"):
         if todo:
-            # no KD-tree query runs here (Fidelities' threads do, each limited to one OpenMP thread once): no
-            # threadpool limit around it (threadpoolctl's scan of the loaded libraries took ~5 ms a frame)
-            _assemble(todo, outs, config, a, scores)
-            for k, o in enumerate(todo):  # the share of the completion kept (turned around when the heading flipped)
-                o.inside_box = shares[len(todo) + k] if o.flipped else shares[k]
-            if a is not None:
-                back = rigid_transform(a.T, np.zeros(3))
-                for o in todo:
-                    o.used_box = _set(o.used_box).transformed(back)
+            _finish_objects(todo, outs, config, a, scores, shares)
+    return _scene_result(scan, objects, completer, checkpoint, config, timer, member)
+
+
+def _scene_result(
+    scan: np.ndarray, objects: list[ObjectResult], completer, checkpoint, config: SceneConfig, timer, member
+) -> SceneResult:
+    """The :class:`SceneResult` of a completed scan, with the stage times of ``timer`` (a
+    :class:`~spotlights.timing.StageTimer`) in seconds; logs a one-line summary at debug level."""
     result = SceneResult(
         scan,
         objects,
@@ -224,6 +219,32 @@ def complete_scene(
         ", ".join(f"{k} {1000 * v:.0f} ms" for k, v in timer.seconds.items()),
     )
     return result
+
+
+def _require_scan_size(scan: np.ndarray, config: SceneConfig) -> None:
+    """Raise :class:`ParameterError` for a scan (N, 3) with fewer than ``config.min_points`` points."""
+    if len(scan) < config.min_points:
+        raise ParameterError(
+            f"the scan holds {len(scan)} point{'s' if len(scan) != 1 else ''}; at least "
+            f"{config.min_points} are needed to complete anything"
+        )
+
+
+def _finish_objects(
+    todo: list[ObjectResult], outs: list, config: SceneConfig, a, scores: Fidelities, shares: list[float]
+) -> None:
+    """The completed objects' fidelities, headings and scan-frame completions (:func:`_assemble`), their share of
+    the completion kept inside the box (``shares``: :func:`_complete_objects`' list), and their used boxes back in
+    the scan's coordinates (``a``: the (3, 3) scan-to-object axes, None for none); in place."""
+    # no KD-tree query runs here (Fidelities' threads do, each limited to one OpenMP thread once): no
+    # threadpool limit around it (threadpoolctl's scan of the loaded libraries took ~5 ms a frame)
+    _assemble(todo, outs, config, a, scores)
+    for k, o in enumerate(todo):  # the share of the completion kept (turned around when the heading flipped)
+        o.inside_box = shares[len(todo) + k] if o.flipped else shares[k]
+    if a is not None:
+        back = rigid_transform(a.T, np.zeros(3))
+        for o in todo:
+            o.used_box = _set(o.used_box).transformed(back)
 
 
 #: torch twins of ONNX exports loaded for the fit (:func:`fittable`), by file, size and modification time
@@ -305,31 +326,45 @@ def _crop_objects(
         o.n_fused = None if more is None else len(pts)
         if more is not None and (config.snap or config.fit):
             o.seen_unit = wb.normalization().to_unit(work[idx]).astype(np.float32)
-        domain = getattr(completer, "domain", None)
-        if domain is not None:
-            unlearned = domain.gate(b.cls, b.size) is not None
-            # a box the main model did not learn goes to a fallback that did, whatever --complete-unknown says
-            # (which is for what neither learned)
-            fb = getattr(fallback[0], "domain", None) if unlearned and fallback is not None else None
-            if fb is not None and fallback is not None and fb.gate(b.cls, b.size) is None:  # the fallback learned it
-                o.completed_by = fallback[1]
-                o.warnings.extend(fb.warnings(b.cls, b.size))
-                objects.append(o)
-                continue
-            o.warnings.extend(domain.warnings(b.cls, b.size))
-            if unlearned and not config.complete_unknown:
-                o.status, o.used_box, o.partial_unit = "not_learned", None, None
-                if fallback is not None and fb is None:
-                    hint = f"the fallback {fallback[1]} records no learned domain, so it is not used; "
-                elif fallback is not None:
-                    hint = f"nor did the fallback {fallback[1]} learn it; "
-                elif fallback_hint(b.cls, domain):
-                    hint = "--fallback classes completes it with the class model; "
-                else:
-                    hint = ""
-                o.warnings.append(f"not completed (left as observed points; {hint}--complete-unknown completes it)")
+        _gate_by_domain(o, completer, config, fallback)
         objects.append(o)
     return objects
+
+
+def _gate_by_domain(o: ObjectResult, completer, config: SceneConfig, fallback: tuple | None) -> None:
+    """Route an object to be completed by what its model learned (``completer.domain``, a
+    :class:`~spotlights.learning.domain.LearnedDomain`; no gate without one): its out-of-domain warnings, and for a
+    box the model did not learn, the ``fallback`` (model, name) when that learned it, else completion anyway with
+    ``config.complete_unknown``, else status ``not_learned`` with a hint of what would complete it; in place."""
+    b = o.box
+    domain = getattr(completer, "domain", None)
+    if domain is None:
+        return
+    unlearned = domain.gate(b.cls, b.size) is not None
+    # a box the main model did not learn goes to a fallback that did, whatever --complete-unknown says
+    # (which is for what neither learned)
+    fb = getattr(fallback[0], "domain", None) if unlearned and fallback is not None else None
+    if fb is not None and fallback is not None and fb.gate(b.cls, b.size) is None:  # the fallback learned it
+        o.completed_by = fallback[1]
+        o.warnings.extend(fb.warnings(b.cls, b.size))
+        return
+    o.warnings.extend(domain.warnings(b.cls, b.size))
+    if unlearned and not config.complete_unknown:
+        o.status, o.used_box, o.partial_unit = "not_learned", None, None
+        hint = _not_learned_hint(b, domain, fallback, fb)
+        o.warnings.append(f"not completed (left as observed points; {hint}--complete-unknown completes it)")
+
+
+def _not_learned_hint(b: Box, domain, fallback: tuple | None, fb) -> str:
+    """What would complete a box that neither the model (``domain``) nor the ``fallback`` (whose domain is ``fb``)
+    learned: the start of its warning's hint (empty when nothing but ``--complete-unknown`` would)."""
+    if fallback is not None and fb is None:
+        return f"the fallback {fallback[1]} records no learned domain, so it is not used; "
+    if fallback is not None:
+        return f"nor did the fallback {fallback[1]} learn it; "
+    if fallback_hint(b.cls, domain):
+        return "--fallback classes completes it with the class model; "
+    return ""
 
 
 def fallback_hint(cls: str | None, domain) -> bool:
@@ -497,54 +532,6 @@ def _assemble(todo: list, outs: list, config: SceneConfig, a, scores: Fidelities
         o.completion = done if a is None else done @ a
 
 
-#: threads that score the completions' fidelity (:class:`Fidelities`)
-FIDELITY_THREADS = 2
-
-
-def _one_openmp_thread() -> None:
-    """A fidelity thread's start: OpenMP on one thread in it for good (the limit is per thread;
-    :func:`~spotlights.geometry.neighbors.serial_queries`, never restored): completions are scored with
-    pykdtree, whose OpenMP split of small queries costs more than it saves."""
-    serial_queries()
-
-
-def _fidelity_or_none(partial: np.ndarray, completion: np.ndarray) -> float | None:
-    return fidelity(partial, completion) if len(completion) else None
-
-
-class Fidelities:
-    """:func:`~spotlights.metrics.consistency.fidelity` of a frame's completions (unit frame), scored on
-    :data:`FIDELITY_THREADS` threads while the frame goes on: the KD-tree over each completion (pykdtree's:
-    :class:`~spotlights.geometry.neighbors.NearestNeighbors` with ``few_queries``) is built and queried without
-    the GIL, so one model's batch is scored while the other model's batch and the frame's assembly go on (on
-    scene-0523, 16 objects a frame of ~15,000 points each, scoring was a fifth of ``real complete``'s frame loop
-    on one core). The values are those of one thread.
-
-    Positions are those of :func:`_complete_objects`' list: ``0..n-1`` each object of ``todo`` (its observed
-    ``partial_unit``), then, with ``heading_check``, ``n..2n-1`` the same objects turned around (their partial
-    turned by :data:`~spotlights.geometry.boxes.FLIP_Z`).
-    """
-
-    def __init__(self, todo: list) -> None:
-        self.todo = todo
-        self.pending: dict = {}
-
-    def partial(self, position: int) -> np.ndarray:
-        """(P, 3) the observed points that position ``position`` is scored against (unit frame)."""
-        n = len(self.todo)
-        return self.todo[position].partial_unit if position < n else self.todo[position - n].partial_unit @ FLIP_Z
-
-    def add(self, positions, completions: list) -> None:
-        """Start scoring ``completions`` ((K, 3) each), at ``positions`` (same length)."""
-        pool = shared_thread_pool("fidelity", FIDELITY_THREADS, initializer=_one_openmp_thread)
-        for k, comp in zip(positions, completions):
-            self.pending[k] = pool.submit(_fidelity_or_none, self.partial(k), comp)
-
-    def get(self, position: int) -> float | None:
-        """The fidelity at ``position`` (waits for it; None for an empty completion)."""
-        return self.pending[position].result()
-
-
 def require_points(points: np.ndarray, min_points: int, source) -> None:
     """A one-line error naming ``source`` when a scan holds fewer than ``min_points`` points."""
     if len(points) < min_points:
@@ -573,4 +560,6 @@ __all__ = [
     "object_ids",
     "describe",
     "HEADING_DOC",
+    "Fidelities",
+    "FIDELITY_THREADS",
 ]

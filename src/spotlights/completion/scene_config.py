@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import numbers
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -91,34 +92,10 @@ class SceneConfig:
     fit_steps: int = FIT_STEPS
 
     def __post_init__(self):
-        for name in ("margin", "ground_clearance", "heading_margin"):  # snap: snap_radius below
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, numbers.Real):
-                raise ParameterError(f"{shown(name)} must be a number, got {v!r}", *parameter_names(name))
-        for name in ("min_points", "seed"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, numbers.Integral):
-                raise ParameterError(f"{shown(name)} must be a whole number, got {v!r}", *parameter_names(name))
+        _check_option_types(self)
         check_seed(self.seed, "the seed")
-        clip = self.clip
-        number = isinstance(clip, numbers.Real) and not isinstance(clip, bool)
-        if not (
-            clip is None
-            or clip is DEFAULT
-            or (isinstance(clip, str) and clip == "default")
-            or (number and 0 <= clip <= 1)
-        ):
-            raise ParameterError(
-                f"clip must be a depth threshold in [0, 1] (unit frame), None (no clip) or 'default', got {clip!r}"
-            )
-        if not (math.isfinite(self.margin) and self.margin >= 0):
-            raise ParameterError(f"margin must be >= 0 metres, got {self.margin}")
-        if not math.isfinite(self.ground_clearance):
-            raise ParameterError(f"ground clearance must be finite, got {self.ground_clearance}")
-        if not 0.0 <= self.heading_margin < 1.0:
-            raise ParameterError(f"the heading margin must be in [0, 1), got {self.heading_margin}")
-        if self.min_points < 1:
-            raise ParameterError(f"the minimum point count must be >= 1, got {self.min_points}")
+        _check_clip(self.clip)
+        _check_ranges(self)
         object.__setattr__(self, "snap", snap_radius(self.snap, self.snap_mirror) or 0.0)  # None (off): 0.0
         if self.snap > 0 and self.heading_check:
             raise ParameterError(
@@ -134,14 +111,55 @@ class SceneConfig:
             raise ParameterError(
                 "`fit` does not go with `snap`: the fit puts the rays near observed points on them", "fit", "snap"
             )
-        if self.classes is not None:
-            bad = [c for c in self.classes if c not in CLASSES]
-            if bad or not self.classes:
-                raise ParameterError(
-                    f"unknown class(es) {', '.join(bad) or '(none given)'}; choose among {', '.join(CLASSES)}"
-                )
+        _check_classes(self.classes)
 
     @property
     def fit_settings(self) -> FitSettings | None:
         """The :class:`~spotlights.learning.fit.FitSettings` of ``fit``/``fit_steps``, or None when ``fit`` is off."""
         return FitSettings(steps=int(self.fit_steps)) if self.fit else None
+
+
+def _check_option_types(config: SceneConfig) -> None:
+    """Refuse a :class:`SceneConfig` whose real-valued options are not numbers or whose counts are not whole."""
+    for name in ("margin", "ground_clearance", "heading_margin"):  # snap: snap_radius below
+        v = getattr(config, name)
+        if isinstance(v, bool) or not isinstance(v, numbers.Real):
+            raise ParameterError(f"{shown(name)} must be a number, got {v!r}", *parameter_names(name))
+    for name in ("min_points", "seed"):
+        v = getattr(config, name)
+        if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+            raise ParameterError(f"{shown(name)} must be a whole number, got {v!r}", *parameter_names(name))
+
+
+def _check_clip(clip: Any) -> None:
+    """Refuse a ``clip`` that is not a depth threshold in [0, 1], None, ``DEFAULT`` or ``"default"``."""
+    number = isinstance(clip, numbers.Real) and not isinstance(clip, bool)
+    if not (
+        clip is None or clip is DEFAULT or (isinstance(clip, str) and clip == "default") or (number and 0 <= clip <= 1)
+    ):
+        raise ParameterError(
+            f"clip must be a depth threshold in [0, 1] (unit frame), None (no clip) or 'default', got {clip!r}"
+        )
+
+
+def _check_ranges(config: SceneConfig) -> None:
+    """Refuse a :class:`SceneConfig` whose margin, ground clearance, heading margin or minimum point count is out
+    of range."""
+    if not (math.isfinite(config.margin) and config.margin >= 0):
+        raise ParameterError(f"margin must be >= 0 metres, got {config.margin}")
+    if not math.isfinite(config.ground_clearance):
+        raise ParameterError(f"ground clearance must be finite, got {config.ground_clearance}")
+    if not 0.0 <= config.heading_margin < 1.0:
+        raise ParameterError(f"the heading margin must be in [0, 1), got {config.heading_margin}")
+    if config.min_points < 1:
+        raise ParameterError(f"the minimum point count must be >= 1, got {config.min_points}")
+
+
+def _check_classes(classes) -> None:
+    """Refuse an empty ``classes`` list or one naming a class outside ``CLASSES`` (None: every vehicle class)."""
+    if classes is not None:
+        bad = [c for c in classes if c not in CLASSES]
+        if bad or not classes:
+            raise ParameterError(
+                f"unknown class(es) {', '.join(bad) or '(none given)'}; choose among {', '.join(CLASSES)}"
+            )

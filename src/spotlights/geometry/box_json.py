@@ -45,6 +45,90 @@ def _vector(value: object, n: int | tuple[int, ...], src: str | os.PathLike, wha
     return a
 
 
+def _quaternion_rotation(rot_value: object, src: str | os.PathLike, what: str) -> np.ndarray:
+    """The (3, 3) rotation of a scalar-first unit quaternion given in a box file (checked)."""
+    q = _vector(rot_value, 4, src, f"{what} quaternion")
+    with np.errstate(over="ignore"):
+        norm = float(np.linalg.norm(q))
+    if norm < 1e-6:
+        raise InputFileError(src, f"{what} quaternion is zero")
+    if not abs(norm - 1.0) <= QUATERNION_TOLERANCE:  # an overflowing norm is inf: refused too
+        raise InputFileError(
+            src,
+            f"{what} quaternion must be a unit quaternion (norm 1 within {QUATERNION_TOLERANCE:g}), "
+            f"got norm {norm:.6g}",
+        )
+    return quaternion_to_matrix(*q)
+
+
+def _matrix_rotation(rot_value: object, src: str | os.PathLike, what: str) -> np.ndarray:
+    """The (3, 3) rotation matrix given in a box file (checked, then re-orthonormalised)."""
+    rot = _vector(rot_value, (3, 3), src, f"{what} rotation")
+    if not is_rotation(rot):
+        raise InputFileError(src, f"{what} rotation is not a proper rotation matrix (orthonormal, det +1)")
+    return orthonormalize(rot)
+
+
+def _yaw_rotation(d: dict, src: str | os.PathLike, what: str, a: np.ndarray) -> np.ndarray:
+    """The (3, 3) rotation of a box's ``yaw`` (radians) or ``yaw_deg`` about the scan's up axis
+    (``a``: the scan-to-object axes rotation)."""
+    key = "yaw" if "yaw" in d else "yaw_deg"
+    try:
+        if isinstance(d[key], (str, bool)):  # "0.5" and true are not numbers in a box file
+            raise TypeError(key)
+        yaw = float(d[key])
+    except (TypeError, ValueError):
+        raise InputFileError(src, f"{what} {key} must be a number, got {d[key]!r}") from None
+    if not math.isfinite(yaw):
+        raise InputFileError(src, f"{what} {key} must be finite")
+    return a.T @ rotation_z(math.radians(yaw) if key == "yaw_deg" else yaw)
+
+
+def _heading(d: dict, src: str | os.PathLike, what: str, a: np.ndarray) -> np.ndarray:
+    """The box's (3, 3) rotation from exactly one of its heading keys (rotation, quaternion, yaw, yaw_deg)."""
+    rot_value = d.get("rotation", d.get("quaternion"))
+    has_yaw = "yaw" in d or "yaw_deg" in d
+    if rot_value is not None:
+        if has_yaw:
+            raise InputFileError(src, f"{what} has both a yaw and a rotation: give one")
+        flat = np.asarray(rot_value, dtype=object).reshape(-1) if isinstance(rot_value, list) else None
+        if flat is not None and flat.size == 4:
+            return _quaternion_rotation(rot_value, src, what)
+        return _matrix_rotation(rot_value, src, what)
+    if has_yaw:
+        return _yaw_rotation(d, src, what, a)
+    raise InputFileError(src, f"{what} needs 'yaw' or 'rotation' (a box's heading is never assumed)")
+
+
+def _label(d: dict, src: str | os.PathLike, what: str, require_label: bool) -> str:
+    """The box's label (``""`` when absent and not required)."""
+    label_key = next((k for k in LABEL_KEYS if k in d), None)
+    if label_key is None and require_label:
+        raise InputFileError(src, f"{what} has no 'label' (e.g. \"car\")")
+    if label_key is not None and not isinstance(d[label_key], str):
+        raise InputFileError(src, f"{what} {label_key} must be a string, got {d[label_key]!r:.60}")
+    return "" if label_key is None else d[label_key]
+
+
+def _track_id(d: dict, src: str | os.PathLike, what: str) -> str:
+    """The box's track identity as a string (``""`` when absent or null; a whole float becomes an integer)."""
+    id_key = next((k for k in ID_KEYS if k in d), None)
+    track = "" if id_key is None else d[id_key]
+    if isinstance(track, float) and track.is_integer():
+        track = int(track)
+    if track is not None and (isinstance(track, bool) or not isinstance(track, (str, int))):
+        raise InputFileError(src, f"{what} {id_key} must be a string or a whole number, got {track!r:.60}")
+    return "" if track is None else str(track)
+
+
+def _score(d: dict, src: str | os.PathLike, what: str) -> float | None:
+    """The box's optional confidence in [0, 1] (``None`` when absent)."""
+    score = next((d[k] for k in SCORE_KEYS if k in d), None)
+    if score is not None and (isinstance(score, bool) or not isinstance(score, (int, float)) or not 0 <= score <= 1):
+        raise InputFileError(src, f"{what} score must be a number in [0, 1], got {score!r:.40}")
+    return score
+
+
 def box_from_dict(
     d: object,
     src: str | os.PathLike = "box",
@@ -87,59 +171,12 @@ def box_from_dict(
     if problem:
         raise InputFileError(src, f"{what} {problem}")
     a = np.eye(3) if axes is None else np.asarray(axes, dtype=np.float64)
-    rot_value = d.get("rotation", d.get("quaternion"))
-    if rot_value is not None:
-        if "yaw" in d or "yaw_deg" in d:
-            raise InputFileError(src, f"{what} has both a yaw and a rotation: give one")
-        flat = np.asarray(rot_value, dtype=object).reshape(-1) if isinstance(rot_value, list) else None
-        if flat is not None and flat.size == 4:
-            q = _vector(rot_value, 4, src, f"{what} quaternion")
-            with np.errstate(over="ignore"):
-                norm = float(np.linalg.norm(q))
-            if norm < 1e-6:
-                raise InputFileError(src, f"{what} quaternion is zero")
-            if not abs(norm - 1.0) <= QUATERNION_TOLERANCE:  # an overflowing norm is inf: refused too
-                raise InputFileError(
-                    src,
-                    f"{what} quaternion must be a unit quaternion (norm 1 within {QUATERNION_TOLERANCE:g}), "
-                    f"got norm {norm:.6g}",
-                )
-            rot = quaternion_to_matrix(*q)
-        else:
-            rot = _vector(rot_value, (3, 3), src, f"{what} rotation")
-            if not is_rotation(rot):
-                raise InputFileError(src, f"{what} rotation is not a proper rotation matrix (orthonormal, det +1)")
-            rot = orthonormalize(rot)
-    elif "yaw" in d or "yaw_deg" in d:
-        key = "yaw" if "yaw" in d else "yaw_deg"
-        try:
-            if isinstance(d[key], (str, bool)):  # "0.5" and true are not numbers in a box file
-                raise TypeError(key)
-            yaw = float(d[key])
-        except (TypeError, ValueError):
-            raise InputFileError(src, f"{what} {key} must be a number, got {d[key]!r}") from None
-        if not math.isfinite(yaw):
-            raise InputFileError(src, f"{what} {key} must be finite")
-        rot = a.T @ rotation_z(math.radians(yaw) if key == "yaw_deg" else yaw)
-    else:
-        raise InputFileError(src, f"{what} needs 'yaw' or 'rotation' (a box's heading is never assumed)")
-    label_key = next((k for k in LABEL_KEYS if k in d), None)
-    if label_key is None and require_label:
-        raise InputFileError(src, f"{what} has no 'label' (e.g. \"car\")")
-    if label_key is not None and not isinstance(d[label_key], str):
-        raise InputFileError(src, f"{what} {label_key} must be a string, got {d[label_key]!r:.60}")
-    label = "" if label_key is None else d[label_key]
-    id_key = next((k for k in ID_KEYS if k in d), None)
-    track = "" if id_key is None else d[id_key]
-    if isinstance(track, float) and track.is_integer():
-        track = int(track)
-    if track is not None and (isinstance(track, bool) or not isinstance(track, (str, int))):
-        raise InputFileError(src, f"{what} {id_key} must be a string or a whole number, got {track!r:.60}")
-    score = next((d[k] for k in SCORE_KEYS if k in d), None)
-    if score is not None and (isinstance(score, bool) or not isinstance(score, (int, float)) or not 0 <= score <= 1):
-        raise InputFileError(src, f"{what} score must be a number in [0, 1], got {score!r:.40}")
+    rot = _heading(d, src, what, a)
+    label = _label(d, src, what, require_label)
+    track = _track_id(d, src, what)
+    score = _score(d, src, what)
     try:
-        return Box(center, size, rot, label, None, "" if track is None else str(track), score)
+        return Box(center, size, rot, label, None, track, score)
     except ParameterError as exc:  # the box's own checks (one owner), here naming the file
         raise InputFileError(src, f"{what}: {exc}") from None
 

@@ -343,6 +343,18 @@ def load_encoding(path: str | os.PathLike) -> Encoding:
         raise InputFileError(path, "no such file") from None
     except Exception as exc:
         raise InputFileError(path, f"not a readable .npz encoding ({type(exc).__name__})") from None
+    _check_encoding_arrays(path, data)
+    rig, norm = _encoding_rig(path, data)
+    depths = np.asarray(data["depths"], dtype=np.float32)
+    if depths.shape != (rig.n_rays,):
+        raise InputFileError(path, f"depths has shape {depths.shape}, expected ({rig.n_rays},) for {rig.name}")
+    if not np.all(np.isfinite(depths)) or depths.min() < 0 or depths.max() > 1:
+        raise InputFileError(path, "depths must be finite and within [0, 1]")
+    return Encoding(depths=depths, rig=rig, normalization=norm)
+
+
+def _check_encoding_arrays(path: str | os.PathLike, data: dict[str, np.ndarray]) -> None:
+    """Refuse an encoding's arrays that miss a key, or whose scalars or real-valued arrays have the wrong kind."""
     missing = [k for k in ("depths", "center", "radius", "primary", "secondary", "angle") if k not in data]
     if missing:
         raise InputFileError(path, f"not a Spotlights encoding: missing key(s) {', '.join(missing)}")
@@ -355,6 +367,11 @@ def load_encoding(path: str | os.PathLike) -> Encoding:
     for key in ("depths", "center", *(["rotation"] if "rotation" in data else [])):
         if data[key].dtype.kind not in "fiu":
             raise InputFileError(path, f"{key} holds {data[key].dtype} values, expected real numbers")
+
+
+def _encoding_rig(path: str | os.PathLike, data: dict[str, np.ndarray]) -> tuple[Rig, Normalization]:
+    """The rig (from its JSON when stored, else from primary, secondary, angle) and the normalisation of an
+    encoding's arrays; their own checks' errors name the file."""
     try:
         rig = (
             Rig.from_dict(json.loads(str(data["rig"])))
@@ -367,9 +384,4 @@ def load_encoding(path: str | os.PathLike) -> Encoding:
     except (ParameterError, ValueError, TypeError, KeyError, IndexError, AttributeError) as exc:
         msg = str(exc).splitlines()[0][:160] if str(exc) else type(exc).__name__
         raise InputFileError(path, f"invalid rig or normalisation: {msg}") from None
-    depths = np.asarray(data["depths"], dtype=np.float32)
-    if depths.shape != (rig.n_rays,):
-        raise InputFileError(path, f"depths has shape {depths.shape}, expected ({rig.n_rays},) for {rig.name}")
-    if not np.all(np.isfinite(depths)) or depths.min() < 0 or depths.max() > 1:
-        raise InputFileError(path, "depths must be finite and within [0, 1]")
-    return Encoding(depths=depths, rig=rig, normalization=norm)
+    return rig, norm

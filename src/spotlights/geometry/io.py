@@ -117,57 +117,77 @@ def load_points(path: str | os.PathLike, drop_nonfinite: bool = False) -> np.nda
     """
     p = check_regular_file(path, "point-cloud file")  # not a FIFO: reading one would block for ever
     suffix = p.suffix.lower()
+    reader = _POINT_READERS.get(suffix)
     try:
-        if suffix == ".pcd":
-            from pypcd4 import PointCloud
-
-            pc = PointCloud.from_path(p)
-            if not all(k in pc.fields for k in ("x", "y", "z")):
-                raise InputFileError(p, f"PCD has no x, y, z fields (fields: {', '.join(pc.fields)})")
-            if len(pc.pc_data) != pc.metadata.points:
-                raise InputFileError(
-                    p,
-                    f"truncated PCD: its header declares {pc.metadata.points} points, the file holds {len(pc.pc_data)}",
-                )
-            pts = pc.numpy(("x", "y", "z"))
-        elif suffix == ".ply":
-            import trimesh
-
-            obj = trimesh.load(str(p), process=False)
-            pts = getattr(obj, "vertices", None)
-            if pts is None:
-                raise InputFileError(p, "PLY holds no vertices")
-            declared = _ply_vertex_count(p)
-            if declared is not None and declared != len(pts):
-                raise InputFileError(
-                    p, f"truncated PLY: its header declares {declared} vertices, the file holds {len(pts)}"
-                )
-        elif suffix == ".npy":
-            pts = np.load(p, allow_pickle=False)
-        elif suffix == ".npz":
-            check_npz_members(p, "NPZ point cloud")  # a zip bomb is refused from the zip directory, unopened
-            with np.load(p, allow_pickle=False) as z:
-                key = next((k for k in ("points", "partial") if k in z.files), None)
-                if key is None and len(z.files) == 1:
-                    key = z.files[0]
-                if key is None:
-                    raise InputFileError(p, f"NPZ has no 'points' array (keys: {', '.join(z.files)})")
-                pts = z[key]
-        elif suffix in (".las", ".laz"):
-            pts = _read_las(p)
-        elif suffix in (".xyz", ".txt", ".csv"):
-            with open(p) as fh:
-                text = fh.read().replace(",", " ")
-            rows = [ln.split() for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
-            pts = np.array([r[:3] for r in rows], dtype=np.float64) if rows else np.zeros((0, 3))
-        else:
+        if reader is None:
             raise InputFileError(p, f"unknown point-cloud format {suffix!r} (use {', '.join(POINT_SUFFIXES)})")
+        pts = reader(p)
     except InputFileError:
         raise
     except Exception as exc:
         raise InputFileError(
             p, f"cannot read point cloud ({type(exc).__name__}: {str(exc).splitlines()[0][:100] if str(exc) else ''})"
         ) from None
+    return _checked_xyz(p, pts, drop_nonfinite)
+
+
+def _read_pcd_points(p: Path) -> np.ndarray:
+    """x, y, z of a PCD file (pypcd4), checked for the fields and for truncation."""
+    from pypcd4 import PointCloud
+
+    pc = PointCloud.from_path(p)
+    if not all(k in pc.fields for k in ("x", "y", "z")):
+        raise InputFileError(p, f"PCD has no x, y, z fields (fields: {', '.join(pc.fields)})")
+    if len(pc.pc_data) != pc.metadata.points:
+        raise InputFileError(
+            p,
+            f"truncated PCD: its header declares {pc.metadata.points} points, the file holds {len(pc.pc_data)}",
+        )
+    return pc.numpy(("x", "y", "z"))
+
+
+def _read_ply_points(p: Path) -> np.ndarray:
+    """The vertices of a PLY file (trimesh), checked against the header's vertex count."""
+    import trimesh
+
+    obj = trimesh.load(str(p), process=False)
+    pts = getattr(obj, "vertices", None)
+    if pts is None:
+        raise InputFileError(p, "PLY holds no vertices")
+    declared = _ply_vertex_count(p)
+    if declared is not None and declared != len(pts):
+        raise InputFileError(p, f"truncated PLY: its header declares {declared} vertices, the file holds {len(pts)}")
+    return pts
+
+
+def _read_npy_points(p: Path) -> np.ndarray:
+    """The array of an NPY file (no pickles)."""
+    return np.load(p, allow_pickle=False)
+
+
+def _read_npz_points(p: Path) -> np.ndarray:
+    """The ``points`` array of an NPZ file, else ``partial``, else its only array."""
+    check_npz_members(p, "NPZ point cloud")  # a zip bomb is refused from the zip directory, unopened
+    with np.load(p, allow_pickle=False) as z:
+        key = next((k for k in ("points", "partial") if k in z.files), None)
+        if key is None and len(z.files) == 1:
+            key = z.files[0]
+        if key is None:
+            raise InputFileError(p, f"NPZ has no 'points' array (keys: {', '.join(z.files)})")
+        return z[key]
+
+
+def _read_text_points(p: Path) -> np.ndarray:
+    """The first three columns of a whitespace- or comma-separated text file (``#`` lines are comments)."""
+    with open(p) as fh:
+        text = fh.read().replace(",", " ")
+    rows = [ln.split() for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    return np.array([r[:3] for r in rows], dtype=np.float64) if rows else np.zeros((0, 3))
+
+
+def _checked_xyz(p: Path, pts: object, drop_nonfinite: bool) -> np.ndarray:
+    """The (K, 3) float64 coordinates of a cloud just read from ``p`` (extra columns dropped), checked for
+    dtype, shape, emptiness and finiteness (non-finite rows dropped first when ``drop_nonfinite``)."""
     pts = np.asarray(pts)
     if pts.dtype.kind not in "fiu":  # text, bytes, records, dates, complex numbers, booleans: not coordinates
         raise InputFileError(p, f"points must be real numbers (float or integer), got dtype {pts.dtype}")
@@ -286,6 +306,20 @@ def _read_las(p: Path) -> np.ndarray:
             raise InputFileError(p, f"reading LAZ needs a decompressor (lazrs): {LAS_INSTALL_HINT}") from None
         raise InputFileError(p, f"not a readable LAS/LAZ file ({msg})") from None
     return np.concatenate(parts) if parts else np.zeros((0, 3))
+
+
+#: The point-cloud reader of each file suffix (each returns the raw array; :func:`load_points` checks it).
+_POINT_READERS = {
+    ".pcd": _read_pcd_points,
+    ".ply": _read_ply_points,
+    ".npy": _read_npy_points,
+    ".npz": _read_npz_points,
+    ".las": _read_las,
+    ".laz": _read_las,
+    ".xyz": _read_text_points,
+    ".txt": _read_text_points,
+    ".csv": _read_text_points,
+}
 
 
 def save_points(path: str | os.PathLike, points: np.ndarray) -> Path:
@@ -481,18 +515,9 @@ def ply_is_whole(path: str | os.PathLike) -> bool:
         if read < _PLY_HEADER_MAX:
             return False  # no end_header before the end of the file
         lines = [["header", "too", "long"]]  # not judged from the window: read whole below
-    fmt = next((line[1] for line in lines if len(line) >= 2 and line[0] == "format"), "")
     elements = [line for line in lines if line and line[0] == "element"]
     props = [line for line in lines if line and line[0] == "property"]
-    simple = (
-        fmt == "binary_little_endian"
-        and len(elements) == 1
-        and len(elements[0]) == 3
-        and elements[0][1] == "vertex"
-        and elements[0][2].isdigit()
-        and all(len(q) == 3 and q[1] in _PLY_TYPE_BYTES for q in props)
-    )
-    if not simple:
+    if not _is_binary_vertex_ply(lines, elements, props):
         try:
             load_ply_fields(p)
         except InputFileError:
@@ -500,6 +525,20 @@ def ply_is_whole(path: str | os.PathLike) -> bool:
         return True
     row = sum(_PLY_TYPE_BYTES[q[1]] for q in props)
     return size == body + int(elements[0][2]) * row
+
+
+def _is_binary_vertex_ply(lines: list[list[str]], elements: list[list[str]], props: list[list[str]]) -> bool:
+    """True when a PLY header's split ``lines`` (with its ``element`` and ``property`` lines) declare a binary
+    little-endian file of one ``vertex`` element with scalar properties only: its size follows from the header."""
+    fmt = next((line[1] for line in lines if len(line) >= 2 and line[0] == "format"), "")
+    return (
+        fmt == "binary_little_endian"
+        and len(elements) == 1
+        and len(elements[0]) == 3
+        and elements[0][1] == "vertex"
+        and elements[0][2].isdigit()
+        and all(len(q) == 3 and q[1] in _PLY_TYPE_BYTES for q in props)
+    )
 
 
 def ply_has_faces(path: str | os.PathLike) -> bool:

@@ -207,6 +207,30 @@ def bench_models(
         check_model_name(name)
         torch.manual_seed(seed)
         models[name] = build_model(load_config(name), rig=rig).to(dev).eval()
+    med = _median_times(models, names, batches, (inputs, dev), (repeats, warmup, sync), progress)
+    rows = _model_rows(models, batches, med, n_input)
+    return {
+        "device": str(dev) if dev.type == "cpu" else f"{dev} ({torch.cuda.get_device_name(dev)})",
+        "cpu": cpu_name(),
+        "cpu_count": os.cpu_count(),
+        "threads": torch.get_num_threads(),
+        "torch": torch.__version__,
+        "repeats": repeats,
+        "warmup": warmup,
+        "batches": [int(b) for b in batches],
+        "rig": rig.name,
+        "models": rows,
+    }
+
+
+def _median_times(models: dict, names, batches: list[int], inputs: tuple, timing: tuple, progress) -> dict:
+    """{(model name, batch, "forward" or "complete"): median seconds} of every model (name -> module) on the inputs
+    of each batch size (``inputs`` = ({batch: tensor}, device); ``timing`` = (repeats, warmup, the device's
+    synchronize or None)); ``progress`` (optional callable(str)) is told each batch's times of the ``names``."""
+    import torch
+
+    tensors, dev = inputs
+    repeats, warmup, sync = timing
     # Round-robin over every model and both timings (time_calls), so that a change of load on a
     # shared machine hits all models alike and the ratios stay meaningful.
     med = {}
@@ -215,7 +239,7 @@ def bench_models(
             calls = {
                 (name, kind): fn
                 for name, model in models.items()
-                for kind, fn in _model_calls(model, inputs[b], dev).items()
+                for kind, fn in _model_calls(model, tensors[b], dev).items()
             }
             med.update({(name, b, kind): t for (name, kind), t in time_calls(calls, repeats, warmup, sync).items()})
             if progress:
@@ -224,6 +248,12 @@ def bench_models(
                         f"{name} batch {b}: forward {med[(name, b, 'forward')] * 1e3:.2f} ms, "
                         f"complete {med[(name, b, 'complete')] * 1e3:.2f} ms"
                     )
+    return med
+
+
+def _model_rows(models: dict, batches: list[int], med: dict, n_input: int) -> list[dict]:
+    """:func:`bench_models`' row of each model: its parameters, multiply-accumulates per sample and latencies (ms)
+    of each batch size from the median times ``med`` (:func:`_median_times`)."""
     rows = []
     for name, model in models.items():
         lat = {
@@ -239,18 +269,7 @@ def bench_models(
                 "latency_ms": lat,
             }
         )
-    return {
-        "device": str(dev) if dev.type == "cpu" else f"{dev} ({torch.cuda.get_device_name(dev)})",
-        "cpu": cpu_name(),
-        "cpu_count": os.cpu_count(),
-        "threads": torch.get_num_threads(),
-        "torch": torch.__version__,
-        "repeats": repeats,
-        "warmup": warmup,
-        "batches": [int(b) for b in batches],
-        "rig": rig.name,
-        "models": rows,
-    }
+    return rows
 
 
 def bench_markdown(result: dict) -> str:

@@ -104,14 +104,33 @@ def load_checkpoint(path, expect_model: str | None = None, map_location="cpu") -
             "is an ONNX model: this command reads PyTorch checkpoints (.pt); ONNX models run in 'complete' and "
             "'real complete' (--runtime onnx)",
         )
+    ckpt = _read_torch_file(torch, p, map_location)
+    _check_format(p, ckpt)
+    name = ckpt.get("model_name")
+    if not isinstance(name, str) or name not in MODEL_REGISTRY:
+        raise InputFileError(p, f"checkpoint holds an unknown model {name!r}")
+    if expect_model is not None and name != expect_model:
+        raise InputFileError(p, f"checkpoint holds a {name!r} model, expected {expect_model!r}")
+    _check_entries(torch, p, ckpt)
+    ckpt["path"] = os.fspath(p)
+    return ckpt
+
+
+def _read_torch_file(torch, p: Path, map_location):
+    """The object of the torch file ``p`` (weights only; ``torch`` the module); a one-line :class:`InputFileError`
+    for a file that is not one (truncated, garbage)."""
     try:
-        ckpt = torch.load(p, map_location=map_location, weights_only=True)
+        return torch.load(p, map_location=map_location, weights_only=True)
     except Exception as exc:  # noqa: BLE001 - any failure of unpickling garbage is the file's fault
         msg = (str(exc).splitlines() or [""])[0]
         cut = isinstance(exc, EOFError) or "central directory" in msg  # the zip's index is at the file's end
         msg = msg.split(". This is an internal")[0][:100]  # torch's own advice is not for the user
         what = "truncated (its end is missing)" if cut else "not a readable checkpoint"
         raise InputFileError(p, f"{what} ({type(exc).__name__}: {msg})" if msg else what) from None
+
+
+def _check_format(p: Path, ckpt) -> None:
+    """Refuse what is not a spotlights checkpoint of a format version this installation reads."""
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         raise InputFileError(p, "not a spotlights checkpoint (no 'format: spotlights-checkpoint' entry)")
     if not isinstance(ckpt.get("format_version", 0), int):
@@ -121,11 +140,11 @@ def load_checkpoint(path, expect_model: str | None = None, map_location="cpu") -
             p,
             f"checkpoint format version {ckpt.get('format_version')} is newer than this spotlights ({FORMAT_VERSION})",
         )
-    name = ckpt.get("model_name")
-    if not isinstance(name, str) or name not in MODEL_REGISTRY:
-        raise InputFileError(p, f"checkpoint holds an unknown model {name!r}")
-    if expect_model is not None and name != expect_model:
-        raise InputFileError(p, f"checkpoint holds a {name!r} model, expected {expect_model!r}")
+
+
+def _check_entries(torch, p: Path, ckpt: dict) -> None:
+    """Refuse a checkpoint whose ``config`` is not a model/data/train mapping or whose ``model_state`` is not a
+    mapping of tensors (``torch`` the module)."""
     for key in ("config", "model_state"):
         if key not in ckpt:
             raise InputFileError(p, f"checkpoint lacks its {key!r} entry")
@@ -136,8 +155,6 @@ def load_checkpoint(path, expect_model: str | None = None, map_location="cpu") -
         isinstance(v, torch.Tensor) for v in ckpt["model_state"].values()
     ):
         raise InputFileError(p, "damaged checkpoint: its 'model_state' entry is not a mapping of tensors")
-    ckpt["path"] = os.fspath(p)
-    return ckpt
 
 
 def model_from_checkpoint(ckpt: dict, device=None):

@@ -128,6 +128,41 @@ def _info_of(ds: CompletionDataset) -> DatasetInfo:
     )
 
 
+def _split_models(store, info, split: str, only_classes) -> np.ndarray:
+    """(k,) int64 the model rows of ``split`` (``"all"``: every model), only those of ``only_classes`` when given."""
+    rows = np.flatnonzero(info.splits == split) if split != "all" else np.arange(info.n_models)
+    if only_classes:  # a class family's model: only these classes' models of the split
+        want = {canonical_class(c) for c in only_classes}
+        of = np.array([canonical_class(c) in want for c in np.asarray(store.classes).astype(str)])
+        rows = rows[of[rows]]
+        if len(rows) == 0:
+            raise InputFileError(str(info.path), f"split {split!r} has no models of class {', '.join(sorted(want))}")
+    return rows
+
+
+def _split_samples(info, model_rows: np.ndarray, split: str, max_views: int | None) -> np.ndarray:
+    """(n,) int64 the rows of /samples (storage order, model-major) of the models ``model_rows``, only their views
+    below ``max_views`` when given."""
+    keep = np.isin(info.sample_model, model_rows)
+    if max_views is not None:
+        if int(max_views) < 1:
+            raise ParameterError(f"max_views must be >= 1, got {max_views}")
+        keep &= info.sample_view < int(max_views)
+    indices = np.flatnonzero(keep).astype(np.int64)  # rows of /samples, storage order (model-major)
+    if len(indices) == 0:
+        raise InputFileError(
+            str(info.path), f"split {split!r} has no samples" + (f" with view < {max_views}" if max_views else "")
+        )
+    return indices
+
+
+def _class_rows(classes: np.ndarray, class_vocab) -> np.ndarray:
+    """(n_models,) int64 the row of each model's class (``classes``, (n_models,) str) in ``class_vocab``, -1 when
+    absent."""
+    table = {canonical_class(c): i for i, c in enumerate(class_vocab)}
+    return np.array([table.get(canonical_class(c), -1) for c in classes], np.int64)
+
+
 class TorchCompletionDataset(Dataset):
     """One split of a completion dataset file as a torch ``Dataset`` (see the module docstring).
 
@@ -172,23 +207,8 @@ class TorchCompletionDataset(Dataset):
             self.info = info = _info_of(store)
             self.path = str(info.path)
             self.split = split
-            self.model_rows = np.flatnonzero(info.splits == split) if split != "all" else np.arange(info.n_models)
-            if only_classes:  # a class family's model: only these classes' models of the split
-                want = {canonical_class(c) for c in only_classes}
-                of = np.array([canonical_class(c) in want for c in np.asarray(store.classes).astype(str)])
-                self.model_rows = self.model_rows[of[self.model_rows]]
-                if len(self.model_rows) == 0:
-                    raise InputFileError(self.path, f"split {split!r} has no models of class {', '.join(sorted(want))}")
-            keep = np.isin(info.sample_model, self.model_rows)
-            if max_views is not None:
-                if int(max_views) < 1:
-                    raise ParameterError(f"max_views must be >= 1, got {max_views}")
-                keep &= info.sample_view < int(max_views)
-            self.indices = np.flatnonzero(keep).astype(np.int64)  # rows of /samples, storage order (model-major)
-            if len(self.indices) == 0:
-                raise InputFileError(
-                    self.path, f"split {split!r} has no samples" + (f" with view < {max_views}" if max_views else "")
-                )
+            self.model_rows = _split_models(store, info, split, only_classes)
+            self.indices = _split_samples(info, self.model_rows, split, max_views)
             self.rig_name = None if rig is False else info.resolve_rig(rig if rig is not True else None)
             self.rig = info.rigs[self.rig_name] if self.rig_name else None
             self.gt_points = np.ascontiguousarray(store.models_array("gt_points"), dtype=np.float32)
@@ -204,10 +224,7 @@ class TorchCompletionDataset(Dataset):
             self.sizes = None if store.size is None else np.asarray(store.size, dtype=np.float64)
             self.classes = np.asarray(store.classes).astype(str)  # (n_models,) detector class of every model
             self.has_stored_classes = store.stored_classes is not None  # /models/class (else from categories)
-            self.class_rows = None
-            if class_vocab:
-                table = {canonical_class(c): i for i, c in enumerate(class_vocab)}
-                self.class_rows = np.array([table.get(canonical_class(c), -1) for c in self.classes], np.int64)
+            self.class_rows = _class_rows(self.classes, class_vocab) if class_vocab else None
         finally:
             store.close()  # DataLoader workers open their own handles
         if self.rig is not None and self.rig.needs_box and self.extents is None:

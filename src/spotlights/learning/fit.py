@@ -64,9 +64,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ParameterError, parameter_names, shown
-from ..geometry.evidence import snap_to_observed
 from ..metrics.consistency import fidelity
 from .fit_evidence import FreeSpace, dilate, out_of_free_space, ray_neighbours
+from .fit_targets import evidence_rays, leave_free_space
 from .rays import directions_for_extents
 
 LOG = logging.getLogger(__name__)
@@ -318,76 +318,72 @@ def fit_completions(
     def depths_of(out):
         return out[..., r_n:] if hit_model else out
 
-    with torch.no_grad():
-        xt = torch.from_numpy(x).to(dev)
-        code0 = model.encode(xt, cls)
-        out0 = model.add_template(model.decoder(code0), cls)
-        d0 = _activated(model, depths_of(out0).float())
-        if hit_model:
-            keep0 = torch.sigmoid(out0[..., :r_n].float()) >= model.threshold
-        else:
-            keep0 = d0 > 0  # as SANet.outputs_to_points keeps them
-        prior = _decode(model, d0, keep0, c, dirs, bh)
+    code0, d0, keep0, prior = _prior(torch, model, x, cls, (c, dirs, bh), depths_of, hit_model, dev)
 
     origins = model.origins.detach().cpu().double().numpy()
     free = [FreeSpace.of(obs[b], so[b], cfg.carve_cells) for b in range(b_n)]
     dep_p = prior["depth"].cpu().double().numpy()
     keep_p = prior["keep"].cpu().numpy()
-    data = np.zeros((b_n, r_n), dtype=bool)
-    target = np.zeros((b_n, r_n))
-    evid_free = np.zeros((b_n, r_n), dtype=bool)
-    h = np.clip(-np.einsum("rj,brj->br", origins, dirs_np.astype(np.float64)), 0.0, None)  # (B, R) half chords
-    n_t = cfg.carve_samples
-    for b in range(b_n):
-        d_b = dirs_np[b].astype(np.float64)
-        sensor = so[b] if np.all(np.isfinite(so[b])) else None
-        dep, _, snapped = snap_to_observed(obs[b], origins, d_b, m, dep_p[b], keep_p[b], cfg.radius, sensor=sensor)
-        data[b], target[b] = snapped, np.where(snapped, dep, 0.0)
-        if free[b].known:
-            t_pt = np.clip(dep_p[b], 0.0, h[b])
-            samples = (np.arange(n_t) + 0.5)[None] / n_t * h[b][:, None]  # (R, T)
-            ray, j = np.nonzero((samples <= t_pt[:, None]) & keep_p[b][:, None])  # the kept rays' samples ahead
-            y = origins[ray] + 2.0 * samples[ray, j][:, None] * d_b[ray]
-            crossed = np.zeros(r_n, dtype=bool)
-            crossed[ray[free[b].carved(y, cfg.margin)]] = True
-            kept = np.flatnonzero(keep_p[b])
-            at_point = np.zeros(r_n, dtype=bool)
-            at_point[kept] = free[b].carved(origins[kept] + 2.0 * t_pt[kept, None] * d_b[kept], cfg.margin)
-            evid_free[b] = keep_p[b] & (crossed | at_point)
+    data, target, evid_free = evidence_rays(obs, so, origins, dirs_np, dep_p, keep_p, free, m, cfg)
     evidence = data | evid_free
     changed = dilate(evidence, nbr, cfg.rings)
 
     fit_depth = _optimise(
         torch, model, code0, cls, d0, data, target, changed, keep_p, free, so, dirs, nbr, cfg, depths_of, dev
     )
+    bh_np = None if box_half is None else np.asarray(box_half, np.float64).reshape(b_n, 3)
+    rays = (origins, dirs_np, dirs)
+    fit = _fitted_completion(torch, model, (d0, keep0), fit_depth, data, changed, free, rays, (c, bh, bh_np), cfg, dev)
+    return _gated_result(obs, prior, fit, evidence, changed, data, target, keep_p)
+
+
+def _fitted_completion(torch, model, start, fit_depth, data, changed, free, rays, clips, cfg: FitSettings, dev) -> dict:
+    """The fitted completion after the steps: the ``changed`` rays take the fitted depths ``fit_depth`` (B, R)
+    (the others keep the prior's, ``start`` = (depths, kept rays)), the prior's hits plus the ``data`` rays are
+    decoded (:func:`_decode`; ``clips`` = (the depth clip, the box half-extents as a tensor and as an array)),
+    then moved out of observed free space (:func:`~spotlights.learning.fit_targets.leave_free_space`; ``rays`` = (origins (R, 3), directions
+    (B, R, 3) array and tensor)). Returns ``clouds`` (B arrays (K_b, 3) float32), ``decoded``, ``depth`` (B, R)
+    and ``keep`` (B, R) bool."""
+    d0, keep0 = start
+    origins, dirs_np, dirs = rays
+    clip, bh, bh_np = clips
     keep_f = keep0 | torch.from_numpy(data).to(dev)
     ch = torch.from_numpy(changed).to(dev)
     d_f = torch.where(ch, fit_depth, d0)
     with torch.no_grad():
-        fitted_dec = _decode(model, d_f, keep_f, c, dirs, bh)
+        fitted_dec = _decode(model, d_f, keep_f, clip, dirs, bh)
     dep_np = fitted_dec["depth"].cpu().double().numpy()
     keep_fit = fitted_dec["keep"].cpu().numpy()
-    bh_np = None if box_half is None else np.asarray(box_half, np.float64).reshape(b_n, 3)
-    for b in range(b_n):  # no fitted point in observed free space: moved out along its ray, or dropped
-        if free[b].known:
-            rows = np.flatnonzero(changed[b] & keep_fit[b])
-            t, ok = out_of_free_space(
-                free[b],
-                origins[rows],
-                dirs_np[b, rows],
-                dep_np[b, rows],
-                cfg.margin,
-                cfg.free_step,
-                cfg.free_tries,
-                None if bh_np is None else bh_np[b],
-            )
-            dep_np[b, rows] = t
-            keep_fit[b, rows[~ok]] = False
+    leave_free_space(free, changed, keep_fit, dep_np, origins, dirs_np, bh_np, cfg)
     dep_f = torch.where(ch, torch.from_numpy(dep_np).to(dev, fitted_dec["depth"].dtype), fitted_dec["depth"])
     with torch.no_grad():
         pts_fit, mask_fit = model.decode(dep_f, None, dirs, keep=torch.from_numpy(keep_fit).to(dev))
-    clouds_prior = prior["clouds"]
     clouds_fit = [p[k].cpu().numpy().astype(np.float32) for p, k in zip(pts_fit, mask_fit)]
+    return {"clouds": clouds_fit, "decoded": fitted_dec, "depth": dep_f, "keep": keep_fit}
+
+
+def _prior(torch, model, x: np.ndarray, cls, decoding: tuple, depths_of, hit_model: bool, dev):
+    """The unfitted prediction of the partials ``x`` (B, K, 3): the global codes, the activated depths (B, R), the
+    kept rays (B, R) and :func:`_decode` 's completion with ``decoding`` = (clip, directions, box half-extents)."""
+    clip, dirs, bh = decoding
+    with torch.no_grad():
+        xt = torch.from_numpy(x).to(dev)
+        code0 = model.encode(xt, cls)
+        out0 = model.add_template(model.decoder(code0), cls)
+        d0 = _activated(model, depths_of(out0).float())
+        if hit_model:
+            keep0 = torch.sigmoid(out0[..., : model.rig.n_rays].float()) >= model.threshold
+        else:
+            keep0 = d0 > 0  # as SANet.outputs_to_points keeps them
+        prior = _decode(model, d0, keep0, clip, dirs, bh)
+    return code0, d0, keep0, prior
+
+
+def _gated_result(obs, prior: dict, fit: dict, evidence, changed, data, target, keep_p) -> FitResult:
+    """The :class:`FitResult`: each scan's fitted completion (``fit``: its ``clouds``, ``decoded`` (:func:`_decode`),
+    ``depth``, ``keep``) where :func:`gate` keeps it over the ``prior``'s, by their fidelities to ``obs``."""
+    b_n = len(obs)
+    clouds_prior, clouds_fit = prior["clouds"], fit["clouds"]
     f_prior = np.array([_fidelity(obs[b], clouds_prior[b]) for b in range(b_n)])
     f_fit = np.array([_fidelity(obs[b], clouds_fit[b]) for b in range(b_n)])
     keep_it = gate(f_prior, f_fit)
@@ -402,10 +398,10 @@ def fit_completions(
         data=data,
         target=target.astype(np.float32),
         depth_prior=prior["depth"].cpu().numpy().astype(np.float32),
-        depth_fit=dep_f.cpu().numpy().astype(np.float32),
+        depth_fit=fit["depth"].cpu().numpy().astype(np.float32),
         keep_prior=keep_p,
-        keep_fit=keep_fit,
-        inside=np.where(keep_it, fitted_dec["share"], prior["share"]).astype(np.float32),
+        keep_fit=fit["keep"],
+        inside=np.where(keep_it, fit["decoded"]["share"], prior["share"]).astype(np.float32),
     )
 
 

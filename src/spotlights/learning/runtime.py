@@ -92,10 +92,7 @@ def choose_runtime(
     :class:`ParameterError` for an unknown runtime or precision, or one that does not fit the model.
     """
     runtime = "auto" if runtime is None else runtime
-    if runtime not in RUNTIMES:
-        raise ParameterError(f"unknown `runtime` {runtime!r}; choose one of {', '.join(RUNTIMES)}", "runtime")
-    if precision is not None and precision not in PRECISIONS:
-        raise ParameterError(f"unknown `precision` {precision!r}; choose one of {', '.join(PRECISIONS)}", "precision")
+    _check_choices(runtime, precision)
     is_onnx = str(name_or_path or "").lower().endswith(".onnx")
     if runtime == "torch":
         if is_onnx:
@@ -105,16 +102,43 @@ def choose_runtime(
         return "onnx", name_or_path
     shipped = shipped_onnx(name_or_path)
     if runtime == "onnx":
-        if shipped is None:
-            raise ParameterError(
-                "`runtime` onnx runs an ONNX file: pass `checkpoint` MODEL.onnx "
-                "(make one with 'spotlights export CHECKPOINT `out` MODEL.onnx'; the packaged "
-                f"{', '.join(n for n in PRETRAINED if shipped_onnx(n) is not None)} ship one)",
-                "runtime",
-                "checkpoint",
-                "out",
-            )
-        return "onnx", shipped
+        return "onnx", _required_export(shipped)
+    return _auto_runtime(name_or_path, shipped, device, precision, frames, flags)
+
+
+def _check_choices(runtime: str, precision: str | None) -> None:
+    """Refuse an unknown ``runtime`` or ``precision``."""
+    if runtime not in RUNTIMES:
+        raise ParameterError(f"unknown `runtime` {runtime!r}; choose one of {', '.join(RUNTIMES)}", "runtime")
+    if precision is not None and precision not in PRECISIONS:
+        raise ParameterError(f"unknown `precision` {precision!r}; choose one of {', '.join(PRECISIONS)}", "precision")
+
+
+def _required_export(shipped: Path | None) -> Path:
+    """``shipped`` (the ONNX export of a packaged model) for ``runtime="onnx"``; a :class:`ParameterError` saying
+    how to make one when the model has none."""
+    if shipped is None:
+        raise ParameterError(
+            "`runtime` onnx runs an ONNX file: pass `checkpoint` MODEL.onnx "
+            "(make one with 'spotlights export CHECKPOINT `out` MODEL.onnx'; the packaged "
+            f"{', '.join(n for n in PRETRAINED if shipped_onnx(n) is not None)} ship one)",
+            "runtime",
+            "checkpoint",
+            "out",
+        )
+    return shipped
+
+
+def _auto_runtime(
+    name_or_path: str | os.PathLike | None,
+    shipped: Path | None,
+    device: str | None,
+    precision: str | None,
+    frames: int,
+    flags: Iterable[str] | None,
+) -> tuple[str, str | os.PathLike | None]:
+    """``runtime="auto"`` for a checkpoint (not an ONNX file; ``shipped``: its packaged export, or None): the export
+    with onnxruntime on the CPU, unless bf16 is asked or many frames on a CPU with native bfloat16 repay torch."""
     on_cpu = str(device).split(":")[0] == "cpu" if device is not None else not cuda_present()
     if shipped is not None and on_cpu and precision != "bf16" and onnxruntime_imports():
         many = frames >= MANY_FRAMES and precision in (None, "auto") and has_bf16(flags) and torch_imports()

@@ -238,52 +238,21 @@ def prepare_run(dist: ProcessGroup, settings: TrainSettings, log) -> TrainingRun
     """Config, device, precision, datasets, model, optimizer and schedule of a run (restored from
     ``last.pt`` when resuming; a resume on other data than the run's is refused unless
     ``settings.allow_new_data``); writes ``config.yaml`` (rank 0)."""
-    model_name, data, out_dir, device = settings.model, settings.data, settings.run_dir, settings.device
-    device = resolve_device(device) if device is not None else default_device()
-    if dist.active and device.type == "cuda" and device.index is None:
-        device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))  # one GPU per process
+    model_name, data = settings.model, settings.data
+    device = _run_device(dist, settings.device)
     cfg, state, extended = run_config(settings, dist, log)
     dcfg, tcfg = data_config(cfg), train_config(cfg)
     precision = resolve_precision(tcfg.precision, device)
 
     wants_depths = model_class(model_name).target == "depths"
-    rig_sel = dcfg.rig if wants_depths else False
-    vocab = ((cfg.get("model") or {}).get("args") or {}).get("classes")
-    train_set = TorchCompletionDataset(
-        data,
-        "train",
-        rig=rig_sel,
-        max_views=dcfg.max_views,
-        partials_in_memory=dcfg.partials_in_memory,
-        class_vocab=vocab,
-        only_classes=dcfg.classes,
-    )
-    val_set = TorchCompletionDataset(
-        data,
-        "val",
-        rig=rig_sel,
-        max_views=dcfg.val_max_views,
-        partials_in_memory=dcfg.partials_in_memory,
-        class_vocab=vocab,
-        only_classes=dcfg.classes,
-    )
+    train_set, val_set = _datasets(data, cfg, dcfg, wants_depths)
     rig = train_set.rig if wants_depths else None  # the dataset's RigSpec
-    if state is not None and not settings.allow_new_data:
-        check_same_data(state, out_dir / "last.pt", data, data_identity(train_set.info))
-    if state is not None and wants_depths and rig_spec(state.get("rig")) != rig:
-        raise SpotlightsError(
-            f"{out_dir / 'last.pt'}: was trained on rig {state.get('rig')}, the dataset serves {rig.to_dict()}"
-        )
+    if state is not None:
+        _check_resumed_data(settings, state, train_set, rig, wants_depths)
     val_rays = None
     if rig is not None and rig.needs_box:
         val_rays = DirectionTable(rig, val_set.extents)  # each validation sample decodes with its model's box
-    if getattr(model_class(model_name), "uses_evidence", False):
-        if not (train_set.has_sensor_origin and val_set.has_sensor_origin):
-            raise InputFileError(
-                train_set.path,
-                f"has no sensor origin per sample (/samples/sensor_to_unit), which {model_name} needs; "
-                "rebuild the dataset with `spotlights dataset build`",
-            )
+    _check_sensor_origins(model_name, train_set, val_set)
 
     torch.manual_seed(tcfg.seed)
     np.random.seed(tcfg.seed % (2**32))
@@ -324,22 +293,88 @@ def prepare_run(dist: ProcessGroup, settings: TrainSettings, log) -> TrainingRun
     if tcfg.compile:  # the training forward only; validation and checkpoints use the eager model
         run.net = torch.compile(run.net)
     if dist.main:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        if settings.overwrite and state is None:
-            # the old run's state goes now, once the data and the model are found sound (a mistyped --data keeps
-            # it), and not at the new run's first save: a fresh start stopped before its first interval must not
-            # leave the old last.pt beside the new config.yaml (a --resume would then continue the old run)
-            for name in RUN_STATE_FILES:
-                (out_dir / name).unlink(missing_ok=True)
-        _write_yaml(out_dir / "config.yaml", cfg)
-        pc = run.param_counts
-        log(
-            f"{model_name}: {pc['total']:,} parameters (encoder {pc['encoder']:,}, decoder {pc['decoder']:,}); "
-            f"{len(train_set)} train / {len(val_set)} val samples; device {device}; {dist.world} process(es)"
-        )
-        if precision != "fp32":
-            log(f"{model_name}: training at {precision} (autocast forward, float32 weights, losses and metrics)")
+        _start_run_folder(run, fresh=state is None, log=log)
     return run
+
+
+def _run_device(dist: ProcessGroup, device) -> torch.device:
+    """The run's device: ``device`` (a name or None: the default), one GPU per process under DDP."""
+    device = resolve_device(device) if device is not None else default_device()
+    if dist.active and device.type == "cuda" and device.index is None:
+        device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))  # one GPU per process
+    return device
+
+
+def _datasets(data, cfg: dict, dcfg: DataConfig, wants_depths: bool):
+    """The (train, val) :class:`TorchCompletionDataset` of ``data`` for the run's data config (with rays for a
+    model whose target is depths; the class vocabulary of ``cfg``'s model)."""
+    rig_sel = dcfg.rig if wants_depths else False
+    vocab = ((cfg.get("model") or {}).get("args") or {}).get("classes")
+    train_set = TorchCompletionDataset(
+        data,
+        "train",
+        rig=rig_sel,
+        max_views=dcfg.max_views,
+        partials_in_memory=dcfg.partials_in_memory,
+        class_vocab=vocab,
+        only_classes=dcfg.classes,
+    )
+    val_set = TorchCompletionDataset(
+        data,
+        "val",
+        rig=rig_sel,
+        max_views=dcfg.val_max_views,
+        partials_in_memory=dcfg.partials_in_memory,
+        class_vocab=vocab,
+        only_classes=dcfg.classes,
+    )
+    return train_set, val_set
+
+
+def _check_resumed_data(
+    settings: TrainSettings, state: dict, train_set: TorchCompletionDataset, rig, wants_depths: bool
+) -> None:
+    """Refuse to resume a run (``state``: its ``last.pt``) on other data (unless ``settings.allow_new_data``) or,
+    for a model that learns depths (``wants_depths``), on another rig (``rig``: the dataset's) than it was trained on."""
+    out_dir = settings.run_dir
+    if not settings.allow_new_data:
+        check_same_data(state, out_dir / "last.pt", settings.data, data_identity(train_set.info))
+    if wants_depths and rig_spec(state.get("rig")) != rig:
+        raise SpotlightsError(
+            f"{out_dir / 'last.pt'}: was trained on rig {state.get('rig')}, the dataset serves {rig.to_dict()}"
+        )
+
+
+def _check_sensor_origins(model_name: str, train_set: TorchCompletionDataset, val_set: TorchCompletionDataset):
+    """Refuse datasets without each sample's sensor origin for a model that reads free space."""
+    if getattr(model_class(model_name), "uses_evidence", False):
+        if not (train_set.has_sensor_origin and val_set.has_sensor_origin):
+            raise InputFileError(
+                train_set.path,
+                f"has no sensor origin per sample (/samples/sensor_to_unit), which {model_name} needs; "
+                "rebuild the dataset with `spotlights dataset build`",
+            )
+
+
+def _start_run_folder(run: TrainingRun, fresh: bool, log) -> None:
+    """Rank 0's start of the run folder: the old run's state files removed (a fresh start with ``overwrite``),
+    ``config.yaml`` written, the model's size and the run's data and device logged."""
+    settings, out_dir, model_name = run.settings, run.settings.run_dir, run.settings.model
+    out_dir.mkdir(parents=True, exist_ok=True)
+    if settings.overwrite and fresh:
+        # the old run's state goes now, once the data and the model are found sound (a mistyped --data keeps
+        # it), and not at the new run's first save: a fresh start stopped before its first interval must not
+        # leave the old last.pt beside the new config.yaml (a --resume would then continue the old run)
+        for name in RUN_STATE_FILES:
+            (out_dir / name).unlink(missing_ok=True)
+    _write_yaml(out_dir / "config.yaml", run.cfg)
+    pc = run.param_counts
+    log(
+        f"{model_name}: {pc['total']:,} parameters (encoder {pc['encoder']:,}, decoder {pc['decoder']:,}); "
+        f"{len(run.train_set)} train / {len(run.val_set)} val samples; device {run.device}; {run.dist.world} process(es)"
+    )
+    if run.precision != "fp32":
+        log(f"{model_name}: training at {run.precision} (autocast forward, float32 weights, losses and metrics)")
 
 
 def init_from_checkpoint(model: torch.nn.Module, path) -> None:

@@ -97,17 +97,9 @@ def validate(
     if rays is None and getattr(model, "needs_box", False):
         rays = DirectionTable(model.rig, dataset.extents)
     hit_aware = hasattr(model, "hit_probabilities")
-    if hit_aware:
-        grid = thresholds if thresholds is not None else (model.threshold_grid or (model.threshold,))
-        grid = [float(t) for t in grid]
-    else:
-        grid = [None]
+    grid = _threshold_grid(model, thresholds) if hit_aware else [None]
     active = dist is not None and dist.active
-    world, rank = (dist.world, dist.rank) if active else (1, 0)
-    n = len(dataset)
-    lo, hi = n * rank // world, n * (rank + 1) // world
-    subset = torch.utils.data.Subset(dataset, range(lo, hi))
-    loader = DataLoader(subset, batch_size=batch_size, shuffle=False, num_workers=num_workers, collate_fn=collate)
+    loader = _shard_loader(dataset, dist if active else None, batch_size, num_workers)
     model.eval()
     loss_sum = 0.0
     count = 0
@@ -127,21 +119,51 @@ def validate(
                 preds = model.outputs_to_points(out, CLIP_DEFAULT, dirs, threshold=t)
             else:
                 preds = model.outputs_to_points(out, CLIP_DEFAULT, dirs)
-            for p, m in zip(preds, batch["model"].tolist()):
-                if len(p) == 0:
-                    continue
-                if m not in gt_trees:
-                    raise SpotlightsError(f"no dense ground truth for model row {m}")
-                tree = gt_trees[m]
-                if not isinstance(tree, NearestNeighbors):
-                    tree = gt_trees[m] = NearestNeighbors(tree)
-                pts = p.detach().cpu().numpy()
-                acc_sum[j] += accuracy(pts, tree)
-                comp_sum[j] += completeness(pts, tree)
-                scored[j] += 1
+            _score_points(preds, batch["model"].tolist(), gt_trees, j, (acc_sum, comp_sum, scored))
     sums = [loss_sum, float(count), *acc_sum, *comp_sum, *map(float, scored)]
     if active:
         sums = dist.all_sum(sums, device)
+    return _results(sums, grid, hit_aware)
+
+
+def _threshold_grid(model, thresholds) -> list[float]:
+    """The p(hit) thresholds a hit-aware model is scored at: ``thresholds``, else its ``threshold_grid``, else its
+    ``threshold``."""
+    grid = thresholds if thresholds is not None else (model.threshold_grid or (model.threshold,))
+    return [float(t) for t in grid]
+
+
+def _shard_loader(dataset: TorchCompletionDataset, dist: ProcessGroup | None, batch_size: int, num_workers: int):
+    """A DataLoader (in order) of this rank's contiguous shard of ``dataset`` (all of it when ``dist`` is None)."""
+    world, rank = (dist.world, dist.rank) if dist is not None else (1, 0)
+    n = len(dataset)
+    lo, hi = n * rank // world, n * (rank + 1) // world
+    subset = torch.utils.data.Subset(dataset, range(lo, hi))
+    return DataLoader(subset, batch_size=batch_size, shuffle=False, num_workers=num_workers, collate_fn=collate)
+
+
+def _score_points(preds, rows: list[int], gt_trees: dict, j: int, sums: tuple[list, list, list]) -> None:
+    """Add each non-empty completion of ``preds`` ((K, 3) tensors of the model rows ``rows``) to the sums of
+    threshold ``j``: ``sums`` = (accuracy sums, completeness sums, counts), against the dense ground truth of
+    ``gt_trees`` (an array there is replaced by its KD-tree on first use)."""
+    acc_sum, comp_sum, scored = sums
+    for p, m in zip(preds, rows):
+        if len(p) == 0:
+            continue
+        if m not in gt_trees:
+            raise SpotlightsError(f"no dense ground truth for model row {m}")
+        tree = gt_trees[m]
+        if not isinstance(tree, NearestNeighbors):
+            tree = gt_trees[m] = NearestNeighbors(tree)
+        pts = p.detach().cpu().numpy()
+        acc_sum[j] += accuracy(pts, tree)
+        comp_sum[j] += completeness(pts, tree)
+        scored[j] += 1
+
+
+def _results(sums: list[float], grid: list, hit_aware: bool) -> dict:
+    """:func:`validate`'s results from its (all-reduced) ``sums`` = [loss sum, count, the accuracy sums, the
+    completeness sums and the counts scored of each threshold of ``grid``]: the threshold of the lowest CD-L1."""
     k = len(grid)
     loss_sum, count = sums[0], sums[1]
     acc_sum, comp_sum, scored = sums[2 : 2 + k], sums[2 + k : 2 + 2 * k], sums[2 + 2 * k : 2 + 3 * k]

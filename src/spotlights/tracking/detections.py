@@ -339,58 +339,70 @@ def _generic_frame(keys: dict, boxes: list[Box], name: str, sequence: str, path)
     )
 
 
-def read_generic_detections(path: str | os.PathLike) -> list[DetectionFrame]:
-    """The project's box JSON with optional scores (see the module docstring): a sequence JSON, a folder of
-    per-frame box files, or one box file. Frames are ordered by sequence then time."""
-    path = Path(path)
-    if not path.exists():
-        raise InputFileError(path, "detection file or folder not found")
-    raw: list[dict] = []
-    if path.is_dir():
-        files = sorted(path.glob("*.json"), key=lambda p: natural_key(p.stem))
-        if not files:
-            raise InputFileError(path, "no box files (*.json)")
-        _cap(len(files), path, "frames")
-        for file in files:
-            bf = read_json_boxes(file)
-            keys = {
-                k: v
-                for k, v in vars(bf).items()
-                if k in ("timestamp", "frame_index", "frame_id", "sequence", "sensor_to_world") and v is not None
-            }
-            raw.append(_generic_frame(keys, bf.boxes, file.stem, path.name, file))
+def _folder_frames(path: Path) -> list[dict]:
+    """The raw frames of a folder of per-frame box files (natural order of their names)."""
+    files = sorted(path.glob("*.json"), key=lambda p: natural_key(p.stem))
+    if not files:
+        raise InputFileError(path, "no box files (*.json)")
+    _cap(len(files), path, "frames")
+    raw = []
+    for file in files:
+        bf = read_json_boxes(file)
+        keys = {
+            k: v
+            for k, v in vars(bf).items()
+            if k in ("timestamp", "frame_index", "frame_id", "sequence", "sensor_to_world") and v is not None
+        }
+        raw.append(_generic_frame(keys, bf.boxes, file.stem, path.name, file))
+    return raw
+
+
+def _listed_frame(path: Path, fr: object, i: int, default_seq: str) -> dict:
+    """The raw frame of entry ``i`` of a sequence JSON's ``frames``: its boxes inline or in a box file (whose
+    frame keys fill those the entry does not give)."""
+    what = f"frames[{i}]"
+    if not isinstance(fr, dict) or not isinstance(fr.get("boxes"), (list, str)):
+        raise InputFileError(path, f"{what} needs 'boxes' (a list of boxes, or a box file path)")
+    keys = parse_frame_keys(fr, path, what)
+    if isinstance(fr["boxes"], str):
+        bp = path_inside(path.parent, fr["boxes"], path, f"{what} boxes")
+        bf = read_json_boxes(bp)
+        boxes = bf.boxes
+        for k in ("timestamp", "frame_index", "frame_id", "sequence", "sensor_to_world"):
+            if k not in keys and getattr(bf, k) is not None:
+                keys[k] = getattr(bf, k)
     else:
-        doc = read_json(path)
-        if isinstance(doc, dict) and isinstance(doc.get("frames"), list):
-            _cap(len(doc["frames"]), path, "frames")
-            default_seq = str(doc["sequence"]) if doc.get("sequence") is not None else ""
-            for i, fr in enumerate(doc["frames"]):
-                what = f"frames[{i}]"
-                if not isinstance(fr, dict) or not isinstance(fr.get("boxes"), (list, str)):
-                    raise InputFileError(path, f"{what} needs 'boxes' (a list of boxes, or a box file path)")
-                keys = parse_frame_keys(fr, path, what)
-                if isinstance(fr["boxes"], str):
-                    bp = path_inside(path.parent, fr["boxes"], path, f"{what} boxes")
-                    bf = read_json_boxes(bp)
-                    boxes = bf.boxes
-                    for k in ("timestamp", "frame_index", "frame_id", "sequence", "sensor_to_world"):
-                        if k not in keys and getattr(bf, k) is not None:
-                            keys[k] = getattr(bf, k)
-                else:
-                    _cap(len(fr["boxes"]), path)
-                    boxes = parse_boxes(fr["boxes"], path, what=f"{what} box")
-                name = frame_name(Path(fr["scan"])) if isinstance(fr.get("scan"), str) else f"{i:06d}"
-                raw.append(_generic_frame(keys, boxes, name, default_seq, path))
-        else:
-            bf = read_json_boxes(path)
-            keys = {k: getattr(bf, k) for k in ("timestamp", "frame_index", "frame_id", "sequence", "sensor_to_world")}
-            raw.append(_generic_frame({k: v for k, v in keys.items() if v is not None}, bf.boxes, path.stem, "", path))
+        _cap(len(fr["boxes"]), path)
+        boxes = parse_boxes(fr["boxes"], path, what=f"{what} box")
+    name = frame_name(Path(fr["scan"])) if isinstance(fr.get("scan"), str) else f"{i:06d}"
+    return _generic_frame(keys, boxes, name, default_seq, path)
+
+
+def _file_frames(path: Path) -> list[dict]:
+    """The raw frames of one JSON file: a sequence JSON (a ``frames`` list), else one box file."""
+    doc = read_json(path)
+    if isinstance(doc, dict) and isinstance(doc.get("frames"), list):
+        _cap(len(doc["frames"]), path, "frames")
+        default_seq = str(doc["sequence"]) if doc.get("sequence") is not None else ""
+        return [_listed_frame(path, fr, i, default_seq) for i, fr in enumerate(doc["frames"])]
+    bf = read_json_boxes(path)
+    keys = {k: getattr(bf, k) for k in ("timestamp", "frame_index", "frame_id", "sequence", "sensor_to_world")}
+    return [_generic_frame({k: v for k, v in keys.items() if v is not None}, bf.boxes, path.stem, "", path)]
+
+
+def _check_unique_frames(path: Path, raw: list[dict]) -> None:
+    """Refuse two raw frames with the same (sequence, frame_id)."""
     seen = set()
     for f in raw:
         key = (f["sequence"], f["frame_id"])
         if key in seen:
             raise InputFileError(path, f"two frames share the sequence {key[0]!r} and frame_id {key[1]!r}")
         seen.add(key)
+
+
+def _timed_frames(path: Path, raw: list[dict]) -> list[DetectionFrame]:
+    """The raw frames as :class:`DetectionFrame` s with times in seconds, sequence by sequence (sorted): their
+    timestamps when every frame has one, else their frame indices, else their positions, times the frame period."""
     by_seq: dict[str, list[dict]] = {}
     for f in raw:
         by_seq.setdefault(f["sequence"], []).append(f)
@@ -411,6 +423,18 @@ def read_generic_detections(path: str | os.PathLike) -> list[DetectionFrame]:
             else:
                 t = pos * FRAME_PERIOD_S
             frames.append(DetectionFrame(seq, f["frame_id"], t, f["boxes"], f["sensor_to_world"]))
+    return frames
+
+
+def read_generic_detections(path: str | os.PathLike) -> list[DetectionFrame]:
+    """The project's box JSON with optional scores (see the module docstring): a sequence JSON, a folder of
+    per-frame box files, or one box file. Frames are ordered by sequence then time."""
+    path = Path(path)
+    if not path.exists():
+        raise InputFileError(path, "detection file or folder not found")
+    raw = _folder_frames(path) if path.is_dir() else _file_frames(path)
+    _check_unique_frames(path, raw)
+    frames = _timed_frames(path, raw)
     frames.sort(key=lambda f: (f.sequence, f.timestamp))
     for a, b in zip(frames, frames[1:]):
         if a.sequence == b.sequence and not b.timestamp > a.timestamp:

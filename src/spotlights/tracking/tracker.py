@@ -250,6 +250,70 @@ class _Ids:
         return str(self.n)
 
 
+def _match_class(
+    tracks: list[KalmanTrack],
+    ti: list[int],
+    det: np.ndarray,
+    di: list[int],
+    scores: list[float],
+    config: TrackerConfig,
+    matched: tuple[set[int], set[int]],
+) -> None:
+    """Match the detections ``di`` (rows of ``det``, (D, 7)) to the tracks ``ti`` of one class, GIoU first
+    (when ``config.metric`` says so), then the centre distance for what is left; updates the matched tracks
+    and adds their indices to ``matched`` = (detection indices, track indices)."""
+    matched_det, matched_tracks = matched
+    pred = np.array([tracks[j].state for j in ti])
+    gate = np.array(
+        [min(config.gate_m, config.gate_floor_m + config.gate_sigmas * tracks[j].position_sigma) for j in ti]
+    )
+    stages = [] if config.metric != "giou" else [(giou_matrix(pred, det[di], gate), config.giou_threshold)]
+    stages.append((-centre_distances(pred, det[di]), -config.max_distance_m))
+    for sim, thr in stages:  # GIoU first, then the centre distance for what is left
+        free_t = [r for r in range(len(ti)) if ti[r] not in matched_tracks]
+        free_d = [c for c in range(len(di)) if di[c] not in matched_det]
+        for r, c in assign(sim[np.ix_(free_t, free_d)], thr):
+            j, i = ti[free_t[r]], di[free_d[c]]
+            tracks[j].update(det[i], scores[i])
+            matched_tracks.add(j)
+            matched_det.add(i)
+
+
+def _associate(
+    tracks: list[KalmanTrack], det: np.ndarray, keys: list, scores: list[float], config: TrackerConfig
+) -> tuple[set[int], set[int]]:
+    """Match one frame's detections (``det`` (D, 7) world rows, their class ``keys`` and ``scores``) to the
+    tracks class by class, updating the matched tracks; returns (matched detection indices, matched track indices)."""
+    matched: tuple[set[int], set[int]] = (set(), set())
+    for key in sorted(set(keys) | {t.key for t in tracks}):
+        di = [i for i, k in enumerate(keys) if k == key]
+        ti = [j for j, t in enumerate(tracks) if t.key == key]
+        if di and ti:
+            _match_class(tracks, ti, det, di, scores, config, matched)
+    return matched
+
+
+def _reported(
+    tracks: list[KalmanTrack], pose: np.ndarray | None, config: TrackerConfig
+) -> tuple[list[Box], list[np.ndarray]]:
+    """The boxes and (3,) velocities (m/s) of the tracks to report in a frame, in the frame's own coordinates
+    (``pose``: its (4, 4) sensor-to-world transform, None when the frame is the world)."""
+    boxes, velocities = [], []
+    to_frame = None if pose is None else np.linalg.inv(pose)
+    for tr in tracks:
+        if not tr.confirmed or (tr.misses and not config.report_coasted):
+            continue
+        s = tr.state
+        box = Box(s[:3], s[4:7], rotation_z(s[3]), tr.label, tr.cls, tr.track_id, min(1.0, tr.score))
+        v = tr.velocity
+        if to_frame is not None:
+            box = box.transformed(to_frame)
+            v = to_frame[:3, :3] @ v
+        boxes.append(box)
+        velocities.append(v)
+    return boxes, velocities
+
+
 def _sequence(frames: list[DetectionFrame], config: TrackerConfig, ids: _Ids) -> list[DetectionFrame]:
     """Track the frames of one sequence (in time order)."""
     tracks: list[KalmanTrack] = []
@@ -266,27 +330,7 @@ def _sequence(frames: list[DetectionFrame], config: TrackerConfig, ids: _Ids) ->
         det = np.array([_box_row(b) for b in world]).reshape(-1, 7)
         keys = [_class_key(b) for b in world]
         scores = [1.0 if b.score is None else b.score for b in world]
-        matched_det: set[int] = set()
-        matched_tracks: set[int] = set()
-        for key in sorted(set(keys) | {t.key for t in tracks}):
-            di = [i for i, k in enumerate(keys) if k == key]
-            ti = [j for j, t in enumerate(tracks) if t.key == key]
-            if not di or not ti:
-                continue
-            pred = np.array([tracks[j].state for j in ti])
-            gate = np.array(
-                [min(config.gate_m, config.gate_floor_m + config.gate_sigmas * tracks[j].position_sigma) for j in ti]
-            )
-            stages = [] if config.metric != "giou" else [(giou_matrix(pred, det[di], gate), config.giou_threshold)]
-            stages.append((-centre_distances(pred, det[di]), -config.max_distance_m))
-            for sim, thr in stages:  # GIoU first, then the centre distance for what is left
-                free_t = [r for r in range(len(ti)) if ti[r] not in matched_tracks]
-                free_d = [c for c in range(len(di)) if di[c] not in matched_det]
-                for r, c in assign(sim[np.ix_(free_t, free_d)], thr):
-                    j, i = ti[free_t[r]], di[free_d[c]]
-                    tracks[j].update(det[i], scores[i])
-                    matched_tracks.add(j)
-                    matched_det.add(i)
+        matched_det, matched_tracks = _associate(tracks, det, keys, scores, config)
         for j, tr in enumerate(tracks):
             if j not in matched_tracks:
                 tr.misses += 1
@@ -294,19 +338,7 @@ def _sequence(frames: list[DetectionFrame], config: TrackerConfig, ids: _Ids) ->
         for i, b in enumerate(world):
             if i not in matched_det and scores[i] >= config.birth_score:
                 tracks.append(KalmanTrack(det[i], config, ids.next(), keys[i], b.cls, b.label, scores[i]))
-        boxes, velocities = [], []
-        to_frame = None if pose is None else np.linalg.inv(pose)
-        for tr in tracks:
-            if not tr.confirmed or (tr.misses and not config.report_coasted):
-                continue
-            s = tr.state
-            box = Box(s[:3], s[4:7], rotation_z(s[3]), tr.label, tr.cls, tr.track_id, min(1.0, tr.score))
-            v = tr.velocity
-            if to_frame is not None:
-                box = box.transformed(to_frame)
-                v = to_frame[:3, :3] @ v
-            boxes.append(box)
-            velocities.append(v)
+        boxes, velocities = _reported(tracks, pose, config)
         out.append(
             DetectionFrame(
                 f.sequence,
