@@ -26,7 +26,7 @@ Sections (``--only``; default all), every one measured side by side in this run,
   graph output on 32 seeded scans (the class model: every class row and no class in turn) and the rays kept by
   one and not the other (:func:`spotlights.learning.export.parity`);
 * ``pictures``: the frame picture of the first ``--picture-frames`` frames of the shared nuScenes scene (the default
-  model and its fallback): CPU seconds per frame of the bird's-eye raster (``result_png``, the default) and of
+  model and its fallback): CPU seconds (of the drawing thread) per frame of the bird's-eye raster (``result_png``, the default) and of
   matplotlib's figure with close-ups (``--closeups``), drawn in this process; then ``real complete --frames 0:N``
   as a process, pictures on (the default), ``--no-pictures`` and ``--closeups``, interleaved: the frame loop's
   wall seconds (``summary.json``'s ``wall_seconds``, after the model loads) and the child's CPU seconds.
@@ -344,9 +344,9 @@ def section_pictures(frames: int, rounds: int) -> dict:
             f.points, f.boxes, main_model, opts.scene_config(), fallback=fallback, fallback_name=opts.fallback_model
         )
         for name, closeups in (("raster", False), ("closeups", True)):
-            c0 = time.process_time()
+            c0 = time.thread_time()  # this thread's CPU: not the model's threads, which may spin after a forward
             result_png(r, "title", closeups)
-            cpu[name].append(time.process_time() - c0)
+            cpu[name].append(time.thread_time() - c0)
     out: dict = {
         "source": "nuScenes scene-0523 (the shared mini extract)",
         "frames": len(keys),

@@ -14,6 +14,8 @@ import pytest
 from spotlights.cli import main
 from spotlights.completion import picture_processes
 from spotlights.completion.picture_processes import PICTURE_WORKERS_MAX, PictureProcesses, picture_workers
+from spotlights.completion.results import SceneResult
+from spotlights.completion.scene_config import SceneConfig
 from spotlights.errors import ParameterError, ProcessFailure
 
 from builders import three_frames
@@ -111,7 +113,8 @@ def test_a_broken_pool_is_reported_in_frame_order_not_at_the_next_frame(tmp_path
         dead = pictures.pool.submit(_die)
         with pytest.raises(ProcessFailure):
             PictureProcesses.png(dead, tmp_path / "f0.png")
-        later = pictures.draw(None, "not drawn")  # the pool is broken: submit would raise here
+        empty = SceneResult(np.zeros((3, 3)), [], "model", None, SceneConfig())
+        later = pictures.draw(empty, "not drawn")  # the pool is broken: submit would raise here
         with pytest.raises(ProcessFailure, match=r"f1\.png: the process drawing it ended"):
             PictureProcesses.png(later, tmp_path / "f1.png")
     finally:

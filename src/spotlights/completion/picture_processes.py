@@ -11,7 +11,7 @@ from ..errors import ParameterError, ProcessFailure
 from ..processes import sigint_held, start_process_pool, stop_process_pool
 from .frame_selection import FramesSettings
 from .fusion import usable_cpus
-from .pictures import result_png
+from .pictures import bev_scene, bev_scene_png, result_png
 from .results import SceneResult
 
 #: The most processes that draw PNGs by default (:func:`picture_workers`); each holds ~140 MB (matplotlib).
@@ -121,7 +121,9 @@ class PictureProcesses:
         from concurrent.futures.process import BrokenProcessPool
 
         try:
-            return self.pool.submit(result_png, result, title, self.closeups)
+            if self.closeups:
+                return self.pool.submit(result_png, result, title, True)
+            return self.pool.submit(bev_scene_png, *bev_scene(result), title)  # what it draws, not the result
         except BrokenProcessPool as exc:
             failed: Future = Future()
             failed.set_exception(exc)

@@ -3,11 +3,17 @@ interactive HTML page."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
+
+import numpy as np
 
 from ..viz import SceneObject, html, scene_png, write_png
 from ..viz.bev import bev_png
 from .results import ObjectResult, SceneResult
+
+#: The legend's line on the boxes' labels.
+ID_NOTE = "boxes: object id, as in the PLY"
 
 
 def scene_objects(result: SceneResult) -> list:
@@ -41,6 +47,32 @@ def scene_objects(result: SceneResult) -> list:
     return objs
 
 
+def bev_scene(result: SceneResult) -> tuple[np.ndarray, list]:
+    """What the bird's-eye picture of ``result`` draws, and no more: the scan's (N, 2) float32 x, y and
+    :func:`scene_objects` with (K, 2) float32 x, y inputs and completions (scan frame, metres); a tenth of the
+    result's bytes, for a picture process (each frame's result is pickled to it)."""
+    objects = [
+        dataclasses.replace(
+            o,
+            partial=_xy32(o.partial),
+            completion=None if o.completion is None else _xy32(o.completion),
+        )
+        for o in scene_objects(result)
+    ]
+    return _xy32(result.points), objects
+
+
+def _xy32(points) -> np.ndarray:
+    """(K, 2) float32 x, y of (K, >= 2) points."""
+    a = np.asarray(points)
+    return np.ascontiguousarray(a.reshape(len(a), -1)[:, :2], dtype=np.float32)
+
+
+def bev_scene_png(scan_xy: np.ndarray, objects: list, title: str | None = None) -> bytes:
+    """The PNG bytes of the bird's-eye picture of :func:`bev_scene`'s ``(scan_xy, objects)``."""
+    return bev_png(scan_xy, objects, title=title, id_note=ID_NOTE)
+
+
 def render_result(result: SceneResult, path: str | Path, title: str | None = None, closeups: bool = False) -> Path:
     """Draw a completed scene into a PNG (atomic write): a bird's-eye view (grey scan, purple inputs, green
     completions, box outlines labelled with their ``object`` ids, a scale bar, the objects' captions), and with
@@ -54,10 +86,9 @@ def result_png(result: SceneResult, title: str | None = None, closeups: bool = F
     hundredths of a second), or with ``closeups`` matplotlib's figure with a close-up per object
     (:func:`spotlights.viz.scene_png`, most of a second); a picklable function of a picklable :class:`SceneResult`,
     so another process can draw them (``real complete``'s picture processes)."""
-    note = "boxes: object id, as in the PLY"
     if closeups:
-        return scene_png(result.points, scene_objects(result), title=title, id_note=note)
-    return bev_png(result.points, scene_objects(result), title=title, id_note=note)
+        return scene_png(result.points, scene_objects(result), title=title, id_note=ID_NOTE)
+    return bev_scene_png(*bev_scene(result), title=title)
 
 
 def render_result_html(
