@@ -46,6 +46,7 @@ def detections_file(path: Path) -> Path:
         token: [
             {k: v for k, v in e.items() if k not in ("tracking_id", "tracking_name", "tracking_score")}
             | {"detection_name": e["tracking_name"], "detection_score": e["tracking_score"], "attribute_name": ""}
+            | {"velocity": None}  # the simulated detector reports no velocity
             for e in entries
         ]
         for token, entries in doc["results"].items()

@@ -5,7 +5,9 @@ annotation's ``num_lidar_pts``. Detections: :func:`spotlights.tracking.simulate.
 detectable boxes missed, 10% false positives with low scores, 0.15 m / 3 degree / 5% size noise, seed 0; detectable:
 at least one LiDAR point and within 50 m). Tracker: :func:`spotlights.tracking.track_boxes` with its default
 settings, on detections with a score of at least ``--min-score``. Metrics: py-motmetrics (2 m centre distance,
-same class) against the detectable boxes; seeds 1-9 as well, for the spread (and the means over the ten seeds). Speed: frames per CPU second of ``track_boxes`` alone (the median of
+same class) against the detectable boxes; seeds 1-29 as well, for the spread (and the means over the thirty seeds);
+single changes of the tracker's settings on the same detections; and a detector that also reports velocities
+(0.3 m/s of noise), tracked with and without them. Speed: frames per CPU second of ``track_boxes`` alone (the median of
 ``--repeats`` runs; one thread: run with ``OMP_NUM_THREADS=1``).
 
     OMP_NUM_THREADS=1 python benchmarks/tracker.py --json docs/results/tracking/tracker_nuscenes.json
@@ -28,6 +30,10 @@ from spotlights.tracking.detections import filter_detections
 from spotlights.tracking.evaluate import clear_mot
 from spotlights.tracking.simulate import DetectorModel, nuscenes_ground_truth, simulate_detections
 from spotlights.tracking.tracker import TrackerConfig, track_boxes
+
+#: The simulated detector's velocity noise, m/s, where it reports velocities (published LiDAR detectors' mean
+#: velocity errors on nuScenes are of this order).
+VELOCITY_SIGMA = 0.3
 
 SHARED = Path(os.environ.get("SPOTLIGHTS_SHARED", Path(__file__).resolve().parents[2] / "shared")) / "data"
 NUSCENES = SHARED / "lidar" / "nuscenes"
@@ -61,7 +67,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--min-score", type=float, default=0.0)
     ap.add_argument("--repeats", type=int, default=20, help="timed runs of the tracker (the median is reported)")
-    ap.add_argument("--more-seeds", type=int, default=9, help="also score seeds SEED+1 .. SEED+N (the spread)")
+    ap.add_argument("--more-seeds", type=int, default=29, help="also score seeds SEED+1 .. SEED+N (the spread)")
     ap.add_argument("--json", required=True, help="results file")
     args = ap.parse_args()
 
@@ -83,18 +89,31 @@ def main() -> None:
         k: float(np.mean([m[k] for m in every])) for k in ("mota", "idf1", "id_switches", "id_switches_per_100_tracks")
     }
     means["seeds"] = len(every)
-    alternatives = {}  # the default against single changes of one setting, over the same seeds
-    for name, change in (("max_misses=6", {"max_misses": 6}), ("max_distance_m=3", {"max_distance_m": 3.0}),
-                         ("max_distance_m=4", {"max_distance_m": 4.0})):  # fmt: skip
-        alt = dataclasses.replace(config, **change)
+    seeds = range(args.seed, args.seed + 1 + args.more_seeds)
+
+    def over_seeds(detector: DetectorModel, tracker: TrackerConfig) -> dict:
+        """Totals and means of ``tracker`` on ``detector``'s detections of every seed."""
         runs = []
-        for seed in range(args.seed, args.seed + 1 + args.more_seeds):
-            d, t = simulate_detections(truth_all, counts, model, seed=seed)
-            runs.append(clear_mot(t, track_boxes(filter_detections(d, args.min_score)[0], alt)))
-        alternatives[name] = {
+        for seed in seeds:
+            d, t = simulate_detections(truth_all, counts, detector, seed=seed)
+            runs.append(clear_mot(t, track_boxes(filter_detections(d, args.min_score)[0], tracker)))
+        return {
             "id_switches_total": int(sum(m["id_switches"] for m in runs)),
+            "id_switches_per_100_tracks_mean": float(np.mean([m["id_switches_per_100_tracks"] for m in runs])),
             "mota_mean": float(np.mean([m["mota"] for m in runs])),
         }
+
+    alternatives = {}  # the default against single changes of one setting, on the same detections
+    for name, change in (("max_misses=6", {"max_misses": 6}), ("max_distance_m=3", {"max_distance_m": 3.0}),
+                         ("max_distance_m=4", {"max_distance_m": 4.0})):  # fmt: skip
+        alternatives[name] = over_seeds(model, dataclasses.replace(config, **change))
+    # a detector that reports velocities (VELOCITY_SIGMA m/s of noise): the tracker using them, and ignoring them
+    moving = dataclasses.replace(model, velocity_sigma_mps=VELOCITY_SIGMA)
+    velocities = {
+        "detector_velocity_sigma_mps": VELOCITY_SIGMA,
+        "used (default)": over_seeds(moving, config),
+        "ignored": over_seeds(moving, dataclasses.replace(config, detection_velocity_sigma=0.0)),
+    }
     means["id_switches_total"] = int(sum(m["id_switches"] for m in every))
     seconds = []
     for _ in range(args.repeats):
@@ -116,6 +135,7 @@ def main() -> None:
         "other_seeds": other,
         "mean_over_seeds": means,
         "alternatives": alternatives,
+        "detector_velocities": velocities,
         "speed": {
             "cpu_seconds_median": cpu_s,
             "frames_per_cpu_second": len(dets) / cpu_s,

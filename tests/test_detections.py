@@ -105,6 +105,26 @@ def test_nuscenes_results_in_the_sensor_frame(tmp_path):
     assert frames[0].sensor_to_world is not None and frames[0].scan_path.endswith("1000.pcd.bin")
 
 
+def test_nuscenes_velocities_turn_with_the_boxes(tmp_path):
+    """A result's global-frame velocity, in the sensor frame as its box is; none (no key, null, NaN): NaN rows."""
+    data = tmp_path / "nus"
+    write_mini_nuscenes(data)
+    no_key = _nus_result("smp0")
+    del no_key["velocity"]
+    rows = [_nus_result("smp0", velocity=[3.0, -1.0]), _nus_result("smp0", velocity=[None, None]), no_key]
+    rows.append(_nus_result("smp0", velocity=[float("nan"), float("nan")], detection_name="pedestrian"))
+    path = tmp_path / "det.json"
+    path.write_text(json.dumps({"meta": {}, "results": {"smp0": rows}}))
+    frames = read_nuscenes_detections(path, data)
+    f = frames[0]
+    assert f.velocities.shape == (4, 3) and frames[1].velocities.shape == (0, 3)
+    np.testing.assert_allclose(f.sensor_to_world[:3, :3] @ f.velocities[0], [3.0, -1.0, 0.0], atol=1e-9)
+    assert np.isnan(f.velocities[1:]).all()
+    kept, _ = filter_detections(frames)  # the pedestrian is left out, with its velocity
+    assert len(kept[0].boxes) == 3 and kept[0].velocities.shape == (3, 3)
+    np.testing.assert_allclose(kept[0].velocities[0], f.velocities[0])
+
+
 @pytest.mark.parametrize(
     "doc, problem",
     [
@@ -117,6 +137,9 @@ def test_nuscenes_results_in_the_sensor_frame(tmp_path):
         ({"results": {"smp0": [_nus_result("smp0", detection_score=1.5)]}}, "outside [0, 1]"),
         ({"results": {"smp0": [_nus_result("smp0", detection_score="x")]}}, "detection_score must be a finite"),
         ({"results": {"smp0": [{"translation": [0, 0, 0]}]}}, "has no 'size'"),
+        ({"results": {"smp0": [_nus_result("smp0", velocity=[1.0])]}}, "velocity must be [vx, vy]"),
+        ({"results": {"smp0": [_nus_result("smp0", velocity=["a", 1.0])]}}, "velocity must be two numbers"),
+        ({"results": {"smp0": [_nus_result("smp0", velocity=[1e6, 0.0])]}}, "velocity is out of range"),
     ],
 )
 def test_nuscenes_damaged_results(tmp_path, doc, problem):

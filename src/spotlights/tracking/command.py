@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 from ..data.real.base import CLASSES
 from ..errors import ParameterError
-from ..options import option, positive_int, unit_interval
+from ..options import non_negative_float, option, positive_int, unit_interval
 from ..outputs import check_distinct_paths, check_suffix, check_writable
 from .detections import FORMATS, filter_detections, read_detections
 from .outputs import write_nuscenes_tracking, write_tracks
@@ -70,6 +70,11 @@ class TrackSettings:
         default=_D.confirm_score, type=unit_interval, metavar="S", group="tracker",
         help=f"a detection scoring S or more confirms its track at once (default {_D.confirm_score}; 1: --min-hits)",
     )  # fmt: skip
+    detection_velocity_sigma: float = option(
+        default=_D.detection_velocity_sigma, type=non_negative_float, metavar="MPS", group="tracker",
+        help="a track born from a detection that reports its velocity (a nuScenes result's 'velocity') starts with "
+        f"it, give or take MPS m/s (default {_D.detection_velocity_sigma}; 0: reported velocities are not used)",
+    )  # fmt: skip
     quiet: bool = option("--quiet", "-q", default=False, action="store_true", quiet=True, help="nothing on stdout")
 
 
@@ -103,6 +108,7 @@ def run_track(s: TrackSettings) -> dict:
         max_misses=s.max_misses,
         birth_score=s.birth_score,
         confirm_score=s.confirm_score,
+        detection_velocity_sigma=s.detection_velocity_sigma,
     )
     frames = read_detections(s.detections, s.format, s.data, s.calib, s.logit_scores)
     frames, counts = filter_detections(frames, s.min_score, None if s.all_classes else CLASSES)

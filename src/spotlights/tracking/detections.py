@@ -11,7 +11,8 @@ dataset reader of the same data uses, with :attr:`~spotlights.geometry.boxes.Box
 
 read beside the nuScenes folder that holds those samples (:class:`~spotlights.data.real.nuscenes.NuScenesReader`):
 boxes are in the global frame with nuScenes' **(width, length, height)** size order; they are moved into each
-keyframe's LIDAR_TOP frame with the inverse of that frame's ``sensor_to_world``, as the reader moves annotations.
+keyframe's LIDAR_TOP frame with the inverse of that frame's ``sensor_to_world``, as the reader moves annotations,
+and their ``velocity`` (global frame, m/s; optional, NaN or null where a detector gives none) is turned with them.
 Frames are the folder's keyframes (a keyframe without results has no box); results of sample tokens that are not
 keyframes of the folder are left out (logged), and none matching at all is an error.
 
@@ -69,6 +70,9 @@ MAX_FRAMES = 100_000
 
 #: Most boxes one frame may hold (the nuScenes detection challenge keeps at most 500 a sample).
 MAX_BOXES_PER_FRAME = 1000
+
+#: The largest speed a detection may report, m/s (about 720 km/h): beyond it a velocity is a damaged value.
+MAX_VELOCITY_MPS = 200.0
 
 #: Seconds between frames where the input gives only frame numbers (KITTI's 10 Hz).
 FRAME_PERIOD_S = 0.1
@@ -196,6 +200,28 @@ def nuscenes_box(d: object, path, what: str) -> Box:
         raise InputFileError(path, f"{what}: {exc}") from None
 
 
+def nuscenes_velocity(d: dict, path, what: str) -> np.ndarray:
+    """(3,) float64 a nuScenes result box's ``velocity`` ``[vx, vy]`` (global frame, m/s) as ``(vx, vy, 0)``; NaN
+    where the box has none (no key, ``null`` or NaN values: the detector did not estimate it)."""
+    v = d.get("velocity")
+    if v is None:
+        return np.full(3, np.nan)
+    if not isinstance(v, list) or len(v) != 2:
+        raise InputFileError(path, f"{what} velocity must be [vx, vy], got {str(v)[:40]}")
+    out = np.full(3, np.nan)
+    for k, x in enumerate(v):
+        if x is None:
+            continue
+        if isinstance(x, bool) or not isinstance(x, (int, float)) or math.isinf(x):
+            raise InputFileError(path, f"{what} velocity must be two numbers (m/s), got {str(v)[:40]}")
+        out[k] = float(x)
+    if np.all(np.isfinite(out[:2])):
+        if np.abs(out[:2]).max() > MAX_VELOCITY_MPS:
+            raise InputFileError(path, f"{what} velocity is out of range (±{MAX_VELOCITY_MPS:g} m/s)")
+        out[2] = 0.0
+    return out
+
+
 def read_nuscenes_detections(
     path: str | os.PathLike, data: str | os.PathLike, scenes: list[str] | None = None
 ) -> list[DetectionFrame]:
@@ -203,7 +229,8 @@ def read_nuscenes_detections(
 
     Returns one :class:`DetectionFrame` per LIDAR_TOP keyframe of ``data`` (``scenes``: those scenes only), in scene
     then time order: ``frame_id`` = sample token, ``timestamp`` = seconds, boxes in the LIDAR_TOP frame,
-    ``sensor_to_world`` the keyframe's pose. :class:`InputFileError` for a damaged file or folder.
+    ``sensor_to_world`` the keyframe's pose, ``velocities`` (K, 3) the boxes' reported velocities in that frame
+    (m/s; NaN rows where a box reports none: :func:`nuscenes_velocity`). :class:`InputFileError` for a damaged file or folder.
     """
     path = Path(path)
     reader = NuScenesReader(data, scenes)
@@ -230,8 +257,14 @@ def read_nuscenes_detections(
         world = reader.sensor_to_world(key)
         to_sensor = np.linalg.inv(world)
         boxes = [nuscenes_box(r, path, f"results[{key[1]!r}][{i}]").transformed(to_sensor) for i, r in enumerate(rows)]
+        velocities = (
+            np.array(
+                [nuscenes_velocity(r, path, f"results[{key[1]!r}][{i}]") for i, r in enumerate(rows)], dtype=np.float64
+            ).reshape(-1, 3)
+            @ to_sensor[:3, :3].T
+        )
         us, scan = reader.keyframe(key)
-        frames.append(DetectionFrame(key[0], key[1], us * 1e-6, boxes, world, scan))
+        frames.append(DetectionFrame(key[0], key[1], us * 1e-6, boxes, world, scan, velocities))
     return frames
 
 
@@ -487,23 +520,26 @@ def filter_detections(
     frames: list[DetectionFrame], min_score: float = 0.0, classes: tuple[str, ...] | None = CLASSES
 ) -> tuple[list[DetectionFrame], dict[str, int]]:
     """The frames with only the boxes whose score is at least ``min_score`` (a box without a score counts as 1)
-    and, unless ``classes`` is None, whose class is one of ``classes``. Returns the frames and the counts
+    and, unless ``classes`` is None, whose class is one of ``classes`` (with their reported velocities, if any).
+    Returns the frames and the counts
     ``{"kept", "low_score", "other_class"}``."""
     if not 0.0 <= min_score <= 1.0:
         raise ParameterError(f"min_score: a score in [0, 1], got {min_score}")
     counts = {"kept": 0, "low_score": 0, "other_class": 0}
     out = []
     for f in frames:
-        keep = []
-        for b in f.boxes:
+        kept = []
+        for i, b in enumerate(f.boxes):
             if classes is not None and b.cls not in classes:
                 counts["other_class"] += 1
             elif (1.0 if b.score is None else b.score) < min_score:
                 counts["low_score"] += 1
             else:
-                keep.append(b)
-        counts["kept"] += len(keep)
-        out.append(replace(f, boxes=keep, velocities=None))
+                kept.append(i)
+        counts["kept"] += len(kept)
+        v = f.velocities
+        v = None if v is None or len(v) != len(f.boxes) else np.asarray(v, dtype=np.float64).reshape(-1, 3)[kept]
+        out.append(replace(f, boxes=[f.boxes[i] for i in kept], velocities=v))
     return out, counts
 
 
@@ -514,11 +550,13 @@ __all__ = [
     "KITTI_DETECTION_CLASSES",
     "MAX_BOXES_PER_FRAME",
     "MAX_FRAMES",
+    "MAX_VELOCITY_MPS",
     "NUSCENES_DETECTION_CLASSES",
     "detector_class",
     "filter_detections",
     "read_detections",
     "read_generic_detections",
     "read_kitti_detections",
+    "nuscenes_velocity",
     "read_nuscenes_detections",
 ]

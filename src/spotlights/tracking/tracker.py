@@ -19,7 +19,9 @@ Per sequence, frame after frame (times in seconds from :attr:`DetectionFrame.tim
    the **flip correction**), angles are wrapped to (-pi, pi]. A track's score is the mean score of the detections
    it matched (a box without a score counts as 1).
 5. **Birth and death.** An unmatched detection starts a tentative track when its score is at least
-   ``birth_score`` (low-score detections may only continue tracks); a track is confirmed after ``min_hits``
+   ``birth_score`` (low-score detections may only continue tracks), with the velocity the detector reports for it
+   where it reports one (``detection_velocity_sigma``; nuScenes results carry one), else an unknown one; a track
+   is confirmed after ``min_hits``
    matched frames and reported from then on; a track unmatched for ``max_misses`` frames in a row ends. While a
    confirmed track misses (fewer than ``max_misses`` frames) its prediction is reported when ``report_coasted``.
 
@@ -66,6 +68,9 @@ class TrackerConfig:
     meas_sigma_xy, meas_sigma_z (m), meas_sigma_yaw (rad), meas_sigma_size (m) : measurement noise.
     accel_sigma (m/s^2), yaw_rate_sigma (rad/s), size_rate_sigma (m/s) : process noise.
     init_velocity_sigma : prior standard deviation of a new track's velocity, m/s.
+    detection_velocity_sigma : a track born from a detection that reports its velocity (the frame's
+        ``velocities``, e.g. a nuScenes result's ``velocity``; finite x and y) starts with that velocity and this
+        standard deviation, m/s (0: reported velocities are not used).
     """
 
     metric: str = "giou"
@@ -87,6 +92,7 @@ class TrackerConfig:
     yaw_rate_sigma: float = 0.5
     size_rate_sigma: float = 0.05
     init_velocity_sigma: float = 10.0
+    detection_velocity_sigma: float = 0.5
 
     def __post_init__(self) -> None:
         if self.metric not in METRICS:
@@ -98,7 +104,7 @@ class TrackerConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ParameterError(f"{name}: a positive number, got {v}")
-        for name in ("accel_sigma", "yaw_rate_sigma", "size_rate_sigma"):
+        for name in ("accel_sigma", "yaw_rate_sigma", "size_rate_sigma", "detection_velocity_sigma"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ParameterError(f"{name}: a number >= 0, got {v}")
@@ -132,13 +138,22 @@ def corrected_yaw(measured: float, predicted: float) -> float:
 class KalmanTrack:
     """One track: a constant-velocity Kalman filter over ``(x, y, z, yaw, l, w, h, vx, vy, vz)`` (filterpy).
 
-    ``z0`` (7,) the first detection ``(x, y, z, yaw, l, w, h)``; covariances from ``config``. :meth:`predict`
+    ``z0`` (7,) the first detection ``(x, y, z, yaw, l, w, h)``; ``velocity`` (3,) its reported velocity, m/s in the
+    same frame, or None (unknown: zero with ``config.init_velocity_sigma``); covariances from ``config``. :meth:`predict`
     advances by ``dt`` seconds, :meth:`update` takes one detection (7,). ``kf.x`` (10, 1) and ``kf.P`` (10, 10) are
     filterpy's state and covariance (float64; units: metres, radians, metres per second).
     """
 
     def __init__(
-        self, z0: np.ndarray, config: TrackerConfig, track_id: str, key: str, cls: str | None, label: str, score: float
+        self,
+        z0: np.ndarray,
+        config: TrackerConfig,
+        track_id: str,
+        key: str,
+        cls: str | None,
+        label: str,
+        score: float,
+        velocity: np.ndarray | None = None,
     ):
         from filterpy.kalman import KalmanFilter
 
@@ -151,6 +166,9 @@ class KalmanTrack:
         kf.P = np.diag(np.concatenate([r**2, np.full(3, c.init_velocity_sigma**2)]))
         kf.x = np.zeros((10, 1))
         kf.x[:7, 0] = z0
+        if velocity is not None and c.detection_velocity_sigma > 0 and np.all(np.isfinite(velocity[:2])):
+            kf.x[7:9, 0] = velocity[:2]  # the detector's estimate: a new track knows where it goes
+            kf.P[7, 7] = kf.P[8, 8] = c.detection_velocity_sigma**2
         self.kf = kf
         self.track_id = track_id
         self.key = key  # the class the track is associated within
@@ -314,6 +332,16 @@ def _reported(
     return boxes, velocities
 
 
+def _world_velocities(f: DetectionFrame, pose: np.ndarray | None) -> np.ndarray | None:
+    """(K, 3) float64 the frame's reported box velocities in the tracking (world) frame, m/s (rows may be NaN:
+    unknown), or None when the frame reports none."""
+    v = f.velocities
+    if v is None or len(v) != len(f.boxes):
+        return None
+    v = np.asarray(v, dtype=np.float64).reshape(-1, 3)
+    return v if pose is None else v @ pose[:3, :3].T
+
+
 def _sequence(frames: list[DetectionFrame], config: TrackerConfig, ids: _Ids) -> list[DetectionFrame]:
     """Track the frames of one sequence (in time order)."""
     tracks: list[KalmanTrack] = []
@@ -335,9 +363,11 @@ def _sequence(frames: list[DetectionFrame], config: TrackerConfig, ids: _Ids) ->
             if j not in matched_tracks:
                 tr.misses += 1
         tracks = [t for t in tracks if t.misses < config.max_misses]
+        velocity = _world_velocities(f, pose)
         for i, b in enumerate(world):
             if i not in matched_det and scores[i] >= config.birth_score:
-                tracks.append(KalmanTrack(det[i], config, ids.next(), keys[i], b.cls, b.label, scores[i]))
+                v = None if velocity is None else velocity[i]
+                tracks.append(KalmanTrack(det[i], config, ids.next(), keys[i], b.cls, b.label, scores[i], v))
         boxes, velocities = _reported(tracks, pose, config)
         out.append(
             DetectionFrame(
