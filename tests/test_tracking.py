@@ -7,6 +7,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -530,6 +531,14 @@ def test_real_complete_tracks_detections_and_fuses_them(tmp_path):
         assert [r["n_fused"] for r in tr["frames"]] == [900, 900, 900]
     rec = json.loads((tmp_path / "out" / "drive" / "f1.json").read_text())
     assert sorted(o["n_fused"] for o in rec["objects"] if o["status"] == "completed") == [900, 900]
+    # --resume keeps the frames made from the same detections, and completes again those of changed ones
+    assert main([*argv, "--resume"]) == 0
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["totals"]["resumed"] == 3
+    doc = json.loads(Path(det).read_text())
+    doc["frames"][1]["boxes"][1]["center"][1] += 0.3
+    Path(det).write_text(json.dumps(doc))
+    assert main([*argv, "--resume"]) == 0
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["totals"]["resumed"] == 0
 
 
 def test_tracks_are_split_where_they_go_unseen_longer_than_the_fusion_allows():

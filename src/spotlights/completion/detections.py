@@ -13,6 +13,7 @@ A frame of the dataset with no detection has no box; detections of frames the da
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 from pathlib import Path
 
 from ..data.real.base import CLASSES, Frame, SceneReader
@@ -28,12 +29,21 @@ DETECTION_FORMATS = ("nuscenes", "kitti", "generic")
 class TrackedReader(SceneReader):
     """The frames of ``reader`` with the boxes of ``tracked`` (keyed by (sequence, frame_id)) instead of its own."""
 
-    def __init__(self, reader: SceneReader, tracked: dict[tuple[str, str], list[Box]], label_path: str) -> None:
+    def __init__(
+        self,
+        reader: SceneReader,
+        tracked: dict[tuple[str, str], list[Box]],
+        label_path: str,
+        detection_settings: dict | None = None,
+    ) -> None:
         self.reader = reader
         self.format = reader.format
         self.root = reader.root
         self.tracked = tracked
         self.label_path = label_path
+        #: what the boxes were made from (the detection file's digest, the score cut, the tracker's settings, the
+        #: longest gap): a frame's summary records it and ``--resume`` completes again the frames of another
+        self.detection_settings = detection_settings
 
     def frame_keys(self) -> list[tuple[str, str]]:
         return self.reader.frame_keys()
@@ -100,7 +110,25 @@ def tracked_reader(
     tracked = track_boxes(frames, config)
     if max_gap is not None:
         tracked = split_at_gaps(tracked, max_gap)
-    return TrackedReader(reader, {(f.sequence, f.frame_id): f.boxes for f in tracked}, str(detections))
+    settings = {
+        "sha256": file_digest(detections),
+        "min_score": min_score or 0.0,
+        "max_gap": max_gap,
+        "tracker": dataclasses.asdict(config if config is not None else TrackerConfig()),
+    }
+    return TrackedReader(reader, {(f.sequence, f.frame_id): f.boxes for f in tracked}, str(detections), settings)
+
+
+def file_digest(path: str | Path) -> str:
+    """The SHA-256 (hex) of a file's bytes, or of every file of a folder (names and bytes, in name order)."""
+    h = hashlib.sha256()
+    path = Path(path)
+    for f in sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]:
+        h.update(str(f.relative_to(path) if path.is_dir() else f.name).encode())
+        with open(f, "rb") as fh:
+            for chunk in iter(lambda: fh.read(1 << 20), b""):
+                h.update(chunk)
+    return h.hexdigest()
 
 
 def split_at_gaps(frames: list[DetectionFrame], max_gap: float) -> list[DetectionFrame]:

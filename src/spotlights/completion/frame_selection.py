@@ -253,11 +253,18 @@ class FramesSettings(ReaderOptions, CompletionOptions):
 
 
 def done_frame(
-    path: Path, config: SceneConfig, model: str, checkpoint: str, fuse: dict | None = None, precision: str = "fp32"
+    path: Path,
+    config: SceneConfig,
+    model: str,
+    checkpoint: str,
+    fuse: dict | None = None,
+    precision: str = "fp32",
+    detections: dict | None = None,
 ) -> dict | None:
     """The summary of a frame finished by an earlier run with the same model and options (``fuse``: the track
     fusion's, :meth:`~spotlights.completion.fusion.TrackPlan.settings`; None: none; ``precision``: the model's,
-    ``fp32`` or ``bf16``), else None."""
+    ``fp32`` or ``bf16``; ``detections``: what tracked boxes were made from, ``TrackedReader.detection_settings``;
+    None: the dataset's own boxes), else None."""
     try:
         summ = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError):
@@ -279,6 +286,7 @@ def done_frame(
         and json.loads(json.dumps(cfg)) == earlier
         and summ.get("fuse") == fuse
         and summ.get("precision", "fp32") == precision
+        and json.loads(json.dumps(summ.get("detections"))) == json.loads(json.dumps(detections))
     )
     return summ if same else None
 

@@ -134,6 +134,9 @@ class _FrameRun:
             summ["precision"] = self.precision  # compared by resume (absent: fp32, as frames of older runs)
         if tracks is not None:
             summ["fuse"] = tracks.settings()  # compared by resume
+        detections = getattr(self.reader, "detection_settings", None)
+        if detections is not None:
+            summ["detections"] = detections  # compared by resume: boxes from other detections are other boxes
         if frame.sensor_to_world is not None:
             summ["sensor_to_world"] = [[float(v) for v in row] for row in frame.sensor_to_world]
         self._write(result, stem, Path(frame.scan_path).name, title, summ)
@@ -279,7 +282,15 @@ class _FrameRun:
         for key in tqdm(keys, desc="complete", unit="frame", disable=self.s.quiet):
             stem = self.out / stems[key]
             summ = (
-                done_frame(stem_file(stem, ".json"), self.config, model, self.s.checkpoint_name, fuse, self.precision)
+                done_frame(
+                    stem_file(stem, ".json"),
+                    self.config,
+                    model,
+                    self.s.checkpoint_name,
+                    fuse,
+                    self.precision,
+                    getattr(self.reader, "detection_settings", None),
+                )  # fmt: skip
                 if self.s.resume
                 else None
             )
