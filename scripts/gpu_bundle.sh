@@ -1,12 +1,15 @@
 #!/usr/bin/env bash
 # Prepare, on a machine with PyPI, what scripts/gpu_train.sh needs on a GPU machine without internet
 # (docs/training.md, "GPU recipe"): into .whl/ (git-ignored; carry it to the GPU machine)
-#   - not the project's own wheel: gpu_train.sh runs the checkout's src/ (the wheel, 16 MB with its
-#     pretrained checkpoints, would push the call past the 64 MiB a device call carries),
-#   - the wheels of its dependencies that the GPU image may lack (trimesh, embreex, pykdtree, rtree,
-#     pypcd4 and its needs: python-neo-lzf, pydantic..., tqdm, pyyaml), at the versions installed here, for the GPU machine's
-#     Python (GPU_PYTHON_VERSION, default 3.12) on x86-64 manylinux; never torch;
-#   - the ApolloScape car meshes (.whl/meshes/apolloscape-cars, 8.6 MB) from ../shared/data.
+#   - not the project's own wheel: gpu_train.sh runs the checkout's src/ (the wheel, with its pretrained
+#     checkpoints, would push the call past the 64 MiB a device call carries),
+#   - the wheels of the dependencies of the recipe that the GPU image lacks (trimesh, embreex, pykdtree; its image
+#     has numpy, scipy, h5py, pyyaml, tqdm and torch), at the versions installed here, for the GPU machine's Python
+#     (GPU_PYTHON_VERSION, default 3.12) on x86-64 manylinux; never torch,
+#   - the ApolloScape car meshes and the Kenney vehicles (the one model's union takes their training split) from
+#     ../shared/data, as one xz archive .whl/meshes.tar.xz (4 MB; gpu_train.sh unpacks it outside the checkout).
+# Then it checks that the checkout's tracked and untracked files and .whl/ together stay under the 64 MiB a device
+# call carries (exit 1, saying by how much, when they do not).
 # Usage: scripts/gpu_bundle.sh            (or: make gpu-bundle)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -14,12 +17,12 @@ PY=${PYTHON:-python3}
 DEST=${GPU_BUNDLE:-.whl}
 PYV=${GPU_PYTHON_VERSION:-3.12}
 MESHES=${GPU_MESHES:-../shared/data/meshes/apolloscape-cars}
+KENNEY=${GPU_KENNEY:-../shared/data/meshes/kenney-vehicles}
+LIMIT=$((64 * 1024 * 1024))
 rm -rf "$DEST.tmp" && mkdir -p "$DEST.tmp"
 pins=$("$PY" - <<'PY'
 from importlib.metadata import version
-names = ["trimesh", "embreex", "pykdtree", "rtree", "pypcd4", "python-neo-lzf", "pydantic", "pydantic-core",
-         "annotated-types", "typing-inspection", "typing-extensions", "tqdm", "pyyaml"]
-print(" ".join(f"{n}=={version(n)}" for n in names))
+print(" ".join(f"{n}=={version(n)}" for n in ["trimesh", "embreex", "pykdtree"]))
 PY
 )
 platforms=""
@@ -27,10 +30,25 @@ for n in 17 27 28; do platforms="$platforms --platform manylinux_2_${n}_x86_64";
 # shellcheck disable=SC2086
 "$PY" -m pip download --quiet --no-deps --only-binary=:all: --python-version "$PYV" --implementation cp \
     $platforms --platform manylinux2014_x86_64 --platform manylinux1_x86_64 --platform any -d "$DEST.tmp" $pins
-if [ -d "$MESHES" ]; then
-    mkdir -p "$DEST.tmp/meshes" && cp -r "$MESHES" "$DEST.tmp/meshes/"
-else
-    echo "gpu_bundle: no meshes at $MESHES (set GPU_MESHES); the bundle has none" >&2
+mkdir -p "$DEST.tmp/stage"
+if [ -d "$MESHES" ]; then cp -r "$MESHES" "$DEST.tmp/stage/apolloscape-cars"
+else echo "gpu_bundle: no meshes at $MESHES (set GPU_MESHES)" >&2; fi
+if [ -d "$KENNEY" ]; then cp -r "$KENNEY" "$DEST.tmp/stage/kenney-vehicles"
+else echo "gpu_bundle: no Kenney vehicles at $KENNEY (set GPU_KENNEY)" >&2; fi
+if [ -n "$(ls -A "$DEST.tmp/stage")" ]; then
+    tar -C "$DEST.tmp/stage" -cf - . | xz -9 -T0 > "$DEST.tmp/meshes.tar.xz"
 fi
+rm -rf "$DEST.tmp/stage"
 rm -rf "$DEST" && mv "$DEST.tmp" "$DEST"
-echo "gpu_bundle: $(ls "$DEST"/*.whl | wc -l) wheels and meshes in $DEST ($(du -sh "$DEST" | cut -f1)); carry it with the checkout"
+travels=$(
+    { git ls-files -z; git ls-files -z --others --exclude-standard; } | xargs -0 stat -c %s 2>/dev/null \
+        | awk '{s += $1} END {print s + 0}'
+)
+bundle=$(du -sb "$DEST" | cut -f1)
+total=$((travels + bundle))
+echo "gpu_bundle: $(ls "$DEST"/*.whl | wc -l) wheels and the meshes in $DEST ($((bundle / 1048576)) MiB); with the checkout" \
+    "($((travels / 1048576)) MiB) $((total / 1048576)) MiB of the 64 MiB a device call carries"
+if [ "$total" -gt "$LIMIT" ]; then
+    echo "gpu_bundle: error: $((total - LIMIT)) bytes over the 64 MiB a device call carries: carry less" >&2
+    exit 1
+fi

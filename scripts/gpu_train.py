@@ -89,7 +89,8 @@ def parse_args(argv=None) -> argparse.Namespace:
         default=[],
         metavar="DIR[,key=value...]",
         help="another mesh folder of the training set, as `spotlights dataset build --meshes` takes it (repeatable; "
-        "e.g. DIR,manifest=CSV,split=train,name=NAME); the carried meshes then keep --split as their own split",
+        "e.g. DIR,manifest=CSV,split=train,name=NAME; DIR may name a folder of the carried meshes, kenney-vehicles); "
+        "the carried meshes then keep --split as their own split",
     )
     ap.add_argument(
         "--procedural",
@@ -227,6 +228,16 @@ def build_data(meshes: Path, out: Path, args, rig: str | None, log) -> dict:
     return {"path": str(out), "seconds": seconds, "views": int(args.views), "samples": n, "rig": rig, "reused": False}
 
 
+def carried_source(source: str) -> str:
+    """``--source DIR[,key=value...]`` with DIR a folder of the carried meshes (``$GPU_MESH_DIR``, where
+    gpu_train.sh unpacked ``.whl/meshes.tar.xz``: ``kenney-vehicles``) when no folder DIR exists here."""
+    folder, _, rest = source.partition(",")
+    base = os.environ.get("GPU_MESH_DIR")
+    if base and not Path(folder).exists() and (Path(base) / folder).is_dir():
+        folder = str(Path(base) / folder)
+    return folder + ("," + rest if rest else "")
+
+
 def union_config(meshes: Path, args, rig: str | None):
     """The ``BuildConfig`` of a training set of several sources (the carried meshes with ``--split`` as their own
     split, every ``--source``) and ``--procedural`` N vehicles per class of ``--classes`` (as ``spotlights dataset
@@ -353,6 +364,7 @@ def main(argv=None) -> int:
         meshes = find_meshes(args.meshes)
         if not 0 <= args.procedural <= 10_000:
             raise ParameterError(f"--procedural must be 0..10000 vehicles per class, got {args.procedural}")
+        args.source = [carried_source(src) for src in args.source]
         for src in args.source:
             folder = Path(src.split(",")[0])
             if not folder.is_dir():

@@ -63,3 +63,22 @@ def test_bad_union_inputs_exit_2_with_one_line(tmp_path, meshes, capsys, monkeyp
     assert not (tmp_path / "o").exists()  # refused before any work
     proc = run_gpu_script(tmp_path, "pcn", 1, "--cpu", "--meshes", meshes, "--procedural", -1, "--out", tmp_path / "o")
     assert_user_error(proc, "--procedural must be 0..10000")
+
+
+def test_a_source_may_name_a_folder_of_the_carried_meshes(tmp_path, monkeypatch):
+    """``--source kenney-vehicles,...`` on the GPU machine: the folder gpu_train.sh unpacked the carried meshes into
+    (``$GPU_MESH_DIR``); a folder that exists as given, or a name not carried, stays as it is."""
+    gpu = load_script("scripts/gpu_train.py")
+    carried = tmp_path / "carried"
+    (carried / "kenney-vehicles").mkdir(parents=True)
+    here = tmp_path / "here"
+    here.mkdir()
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("GPU_MESH_DIR", str(carried))
+    assert (
+        gpu.carried_source("kenney-vehicles,split=train,name=k") == f"{carried / 'kenney-vehicles'},split=train,name=k"
+    )
+    assert gpu.carried_source("here,split=test") == "here,split=test"
+    assert gpu.carried_source("nothing") == "nothing"
+    monkeypatch.delenv("GPU_MESH_DIR")
+    assert gpu.carried_source("kenney-vehicles") == "kenney-vehicles"
