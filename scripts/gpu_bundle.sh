@@ -10,7 +10,9 @@
 #     ../shared/data, as one xz archive .whl/meshes.tar.xz (4 MB; gpu_train.sh unpacks it outside the checkout).
 # Then it checks that the checkout's tracked and untracked files and .whl/ together stay under the 64 MiB a device
 # call carries (exit 1, saying by how much, when they do not).
-# Usage: scripts/gpu_bundle.sh            (or: make gpu-bundle)
+# Usage: scripts/gpu_bundle.sh            (or: make gpu-bundle): for scripts/gpu_train.sh
+#        scripts/gpu_bundle.sh --tests    for scripts/gpu_check.sh (the test suite there): the wheels of the
+#                                          packages the tests import too (rtree, pypcd4 and its needs), no meshes
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
@@ -19,10 +21,16 @@ PYV=${GPU_PYTHON_VERSION:-3.12}
 MESHES=${GPU_MESHES:-../shared/data/meshes/apolloscape-cars}
 KENNEY=${GPU_KENNEY:-../shared/data/meshes/kenney-vehicles}
 LIMIT=$((64 * 1024 * 1024))
+TESTS=0
+[ "${1:-}" = "--tests" ] && TESTS=1
 rm -rf "$DEST.tmp" && mkdir -p "$DEST.tmp"
-pins=$("$PY" - <<'PY'
+pins=$(TESTS=$TESTS "$PY" - <<'PY'
+import os
 from importlib.metadata import version
-print(" ".join(f"{n}=={version(n)}" for n in ["trimesh", "embreex", "pykdtree"]))
+names = ["trimesh", "embreex", "pykdtree"]
+if os.environ["TESTS"] == "1":
+    names += ["rtree", "pypcd4", "python-neo-lzf", "pydantic", "pydantic-core", "annotated-types", "typing-inspection"]
+print(" ".join(f"{n}=={version(n)}" for n in names))
 PY
 )
 platforms=""
@@ -31,9 +39,11 @@ for n in 17 27 28; do platforms="$platforms --platform manylinux_2_${n}_x86_64";
 "$PY" -m pip download --quiet --no-deps --only-binary=:all: --python-version "$PYV" --implementation cp \
     $platforms --platform manylinux2014_x86_64 --platform manylinux1_x86_64 --platform any -d "$DEST.tmp" $pins
 mkdir -p "$DEST.tmp/stage"
-if [ -d "$MESHES" ]; then cp -r "$MESHES" "$DEST.tmp/stage/apolloscape-cars"
+if [ "$TESTS" = 1 ]; then :  # the suite skips what needs the shared data
+elif [ -d "$MESHES" ]; then cp -r "$MESHES" "$DEST.tmp/stage/apolloscape-cars"
 else echo "gpu_bundle: no meshes at $MESHES (set GPU_MESHES)" >&2; fi
-if [ -d "$KENNEY" ]; then cp -r "$KENNEY" "$DEST.tmp/stage/kenney-vehicles"
+if [ "$TESTS" = 1 ]; then :
+elif [ -d "$KENNEY" ]; then cp -r "$KENNEY" "$DEST.tmp/stage/kenney-vehicles"
 else echo "gpu_bundle: no Kenney vehicles at $KENNEY (set GPU_KENNEY)" >&2; fi
 if [ -n "$(ls -A "$DEST.tmp/stage")" ]; then
     tar -C "$DEST.tmp/stage" -cf - . | xz -9 -T0 > "$DEST.tmp/meshes.tar.xz"
@@ -46,7 +56,7 @@ travels=$(
 )
 bundle=$(du -sb "$DEST" | cut -f1)
 total=$((travels + bundle))
-echo "gpu_bundle: $(ls "$DEST"/*.whl | wc -l) wheels and the meshes in $DEST ($((bundle / 1048576)) MiB); with the checkout" \
+echo "gpu_bundle: $(ls "$DEST"/*.whl | wc -l) wheels (and the meshes, unless --tests) in $DEST ($((bundle / 1048576)) MiB); with the checkout" \
     "($((travels / 1048576)) MiB) $((total / 1048576)) MiB of the 64 MiB a device call carries"
 if [ "$total" -gt "$LIMIT" ]; then
     echo "gpu_bundle: error: $((total - LIMIT)) bytes over the 64 MiB a device call carries: carry less" >&2

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The test suite where CUDA is (docs/studies/gpu.md, "The inference paths on CUDA"): CI never has a GPU, and every
 # completion path defaults to CUDA when it is there, so run this once whenever a GPU machine is lent:
-#   make gpu-bundle                         # here, with PyPI: the wheels the GPU image lacks, into .whl/
+#   scripts/gpu_bundle.sh --tests           # here, with PyPI: the wheels the GPU image lacks, into .whl/
 #   scripts/gpu_check.sh [PYTEST ARGS]      # there, from the checkout's root, .whl/ carried beside it
 # Default PYTEST ARGS: the whole suite on 12 processes by file (-n 12 --dist loadfile, as make test: the README
 # commands' test shares one folder), 300 s a test. It installs the carried wheels the
@@ -19,7 +19,7 @@ export PYTHONPATH="$PWD/src${PYTHONPATH:+:$PYTHONPATH}"
 NEEDED="import numpy, h5py, yaml, tqdm, trimesh, pykdtree, rtree, pypcd4, scipy, pytest, xdist, pytest_timeout"
 if ! "$PY" -c "$NEEDED" 2>/dev/null; then
     if ! ls "$BUNDLE"/*.whl >/dev/null 2>&1; then
-        echo "gpu_check.sh: error: packages are missing ($NEEDED failed) and $BUNDLE holds no wheels (make gpu-bundle)" >&2
+        echo "gpu_check.sh: error: packages are missing ($NEEDED failed) and $BUNDLE holds no wheels (scripts/gpu_bundle.sh --tests)" >&2
         exit 2
     fi
     "$PY" -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target "$SITE" "$BUNDLE"/*.whl \
