@@ -121,15 +121,8 @@ def simulate_detections(
         ]
         gt = [f.boxes[i] for i in idx]
         truth.append(replace(f, boxes=gt, velocities=None if true_v is None else true_v[idx]))
-        found: list[tuple[Box, np.ndarray | None]] = []
-        if idx:
-            h = _hardness(dist[idx], counts[idx], model.range_m)
-            w = 0.25 + 1.5 * h
-            missed = rng.random(len(idx)) < np.clip(model.miss_rate * w / w.mean(), 0.0, 1.0)
-            for k, b in enumerate(gt):
-                box = _noisy_box(b, h[k], bool(missed[k]), model, rng)
-                if box is not None:
-                    found.append((box, None if true_v is None else _noisy_velocity(true_v[idx[k]], model, rng)))
+        gt_v = None if true_v is None else true_v[idx]
+        found = _detected(gt, gt_v, dist[idx], counts[idx], model, rng)
         for _ in range(int(rng.poisson(model.false_positive_rate * len(idx)))):
             box = _false_positive(gt, model, rng)
             found.append((box, None if true_v is None else _noisy_velocity(np.zeros(3), model, rng)))
@@ -137,6 +130,29 @@ def simulate_detections(
         velocities = None if true_v is None else np.array([v for _, v in found], dtype=np.float64).reshape(-1, 3)
         dets.append(replace(f, boxes=[b for b, _ in found], velocities=velocities))
     return dets, truth
+
+
+def _detected(
+    gt: list[Box],
+    gt_v: np.ndarray | None,
+    dist: np.ndarray,
+    counts: np.ndarray,
+    model: DetectorModel,
+    rng: np.random.Generator,
+) -> list[tuple[Box, np.ndarray | None]]:
+    """The detected boxes of a frame's detectable boxes ``gt`` (their distances, metres, point counts and, when the
+    detector reports velocities, (K, 3) velocities ``gt_v``): misses by hardness, noise (module docstring)."""
+    found: list[tuple[Box, np.ndarray | None]] = []
+    if not gt:
+        return found
+    h = _hardness(dist, counts, model.range_m)
+    w = 0.25 + 1.5 * h
+    missed = rng.random(len(gt)) < np.clip(model.miss_rate * w / w.mean(), 0.0, 1.0)
+    for k, b in enumerate(gt):
+        box = _noisy_box(b, h[k], bool(missed[k]), model, rng)
+        if box is not None:
+            found.append((box, None if gt_v is None else _noisy_velocity(gt_v[k], model, rng)))
+    return found
 
 
 def _true_velocities(f: DetectionFrame, model: DetectorModel) -> np.ndarray | None:
