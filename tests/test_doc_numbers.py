@@ -673,3 +673,14 @@ def test_track_shapes_study_tables():
         f"({med['shape all refined']['fidelity_over_frame']:.3f}x with `--refine-boxes`) and "
         f"{med['shape past:5']['fidelity_over_frame']:.3f}x with `past:5`",
     )
+
+
+def test_same_outputs_study_table():
+    """docs/studies/same-outputs.md says of every job what the two results files say: same, or differs."""
+    doc = "docs/studies/same-outputs.md"
+    old = _json("same_outputs_restructure.json")
+    new = _json("same_outputs_module_split.json")
+    for job in (k for k in old if not k.startswith("_")):
+        cells = ["same" if r[job]["same"] else "**differs**" for r in (old, new)]
+        _says(doc, f"| {job} | {cells[0]} | {cells[1]} |")
+    _says(doc, f"module split ({new['_refs']['old']} -> {new['_refs']['new']})")
