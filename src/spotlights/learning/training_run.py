@@ -310,24 +310,19 @@ def _datasets(data, cfg: dict, dcfg: DataConfig, wants_depths: bool):
     model whose target is depths; the class vocabulary of ``cfg``'s model)."""
     rig_sel = dcfg.rig if wants_depths else False
     vocab = ((cfg.get("model") or {}).get("args") or {}).get("classes")
-    train_set = TorchCompletionDataset(
-        data,
-        "train",
-        rig=rig_sel,
-        max_views=dcfg.max_views,
-        partials_in_memory=dcfg.partials_in_memory,
-        class_vocab=vocab,
-        only_classes=dcfg.classes,
-    )
-    val_set = TorchCompletionDataset(
-        data,
-        "val",
-        rig=rig_sel,
-        max_views=dcfg.val_max_views,
-        partials_in_memory=dcfg.partials_in_memory,
-        class_vocab=vocab,
-        only_classes=dcfg.classes,
-    )
+
+    def split(name: str, max_views) -> TorchCompletionDataset:
+        return TorchCompletionDataset(
+            data,
+            name,
+            rig=rig_sel,
+            max_views=max_views,
+            partials_in_memory=dcfg.partials_in_memory,
+            class_vocab=vocab,
+            only_classes=dcfg.classes,
+        )
+
+    train_set, val_set = split("train", dcfg.max_views), split("val", dcfg.val_max_views)
     return train_set, val_set
 
 
