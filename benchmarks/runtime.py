@@ -328,21 +328,31 @@ def section_parity() -> dict:
 
 
 def section_pictures(frames: int, rounds: int) -> dict:
+    import pickle
+
     from spotlights.completion.frame import complete_scene
-    from spotlights.completion.pictures import result_png
+    from spotlights.completion.pictures import ID_NOTE, bev_scene, result_png
     from spotlights.completion.scan import CompletionOptions
     from spotlights.data.real import open_reader
+    from spotlights.viz.bev import bev_image
 
     reader = open_reader(NUSCENES, "nuscenes")
     keys = reader.frame_keys()[:frames]
     opts = CompletionOptions()
     main_model, fallback = opts.load_completer(), opts.load_fallback()
     cpu: dict = {"raster": [], "closeups": []}
+    sizes: dict = {"result_pickle_bytes": [], "payload_pickle_bytes": [], "raster_colours": [], "png_bytes": []}
     for key in keys:
         f = reader.load(key)
         r = complete_scene(
             f.points, f.boxes, main_model, opts.scene_config(), fallback=fallback, fallback_name=opts.fallback_model
         )
+        scan_xy, objects = bev_scene(r)  # what a picture process is sent, against the whole result
+        sizes["result_pickle_bytes"].append(len(pickle.dumps(r)))
+        sizes["payload_pickle_bytes"].append(len(pickle.dumps((scan_xy, objects))))
+        pic, _ = bev_image(scan_xy, objects, title="title", id_note=ID_NOTE)
+        sizes["raster_colours"].append(len(pic.getcolors(1 << 24)))
+        sizes["png_bytes"].append(len(result_png(r, "title", False)))
         for name, closeups in (("raster", False), ("closeups", True)):
             c0 = time.thread_time()  # this thread's CPU: not the model's threads, which may spin after a forward
             result_png(r, "title", closeups)
@@ -351,6 +361,8 @@ def section_pictures(frames: int, rounds: int) -> dict:
         "source": "nuScenes scene-0523 (the shared mini extract)",
         "frames": len(keys),
         "cpu_s_per_picture": {k: statistics.median(v[1:] or v) for k, v in cpu.items()},
+        "cpu_clock": "time.thread_time of the drawing thread (not the model's threads, which may spin after a forward)",
+        "medians": {k: statistics.median(v) for k, v in sizes.items()},
     }
     env = child_env()
     runs: dict = {"pictures (default)": [], "--no-pictures": [], "--closeups": []}

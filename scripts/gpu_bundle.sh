@@ -23,7 +23,8 @@ KENNEY=${GPU_KENNEY:-../shared/data/meshes/kenney-vehicles}
 LIMIT=$((64 * 1024 * 1024))
 TESTS=0
 [ "${1:-}" = "--tests" ] && TESTS=1
-rm -rf "$DEST.tmp" && mkdir -p "$DEST.tmp"
+STAGE=$(mktemp -d "${TMPDIR:-/tmp}/gpu-bundle.XXXXXX")  # outside the checkout: it would count as travelling
+trap 'rm -rf "$STAGE"' EXIT
 pins=$(TESTS=$TESTS "$PY" - <<'PY'
 import os
 from importlib.metadata import version
@@ -37,28 +38,29 @@ platforms=""
 for n in 17 27 28; do platforms="$platforms --platform manylinux_2_${n}_x86_64"; done
 # shellcheck disable=SC2086
 "$PY" -m pip download --quiet --no-deps --only-binary=:all: --python-version "$PYV" --implementation cp \
-    $platforms --platform manylinux2014_x86_64 --platform manylinux1_x86_64 --platform any -d "$DEST.tmp" $pins
-mkdir -p "$DEST.tmp/stage"
+    $platforms --platform manylinux2014_x86_64 --platform manylinux1_x86_64 --platform any -d "$STAGE" $pins
+mkdir -p "$STAGE/stage"
 if [ "$TESTS" = 1 ]; then :  # the suite skips what needs the shared data
-elif [ -d "$MESHES" ]; then cp -r "$MESHES" "$DEST.tmp/stage/apolloscape-cars"
+elif [ -d "$MESHES" ]; then cp -r "$MESHES" "$STAGE/stage/apolloscape-cars"
 else echo "gpu_bundle: no meshes at $MESHES (set GPU_MESHES)" >&2; fi
 if [ "$TESTS" = 1 ]; then :
-elif [ -d "$KENNEY" ]; then cp -r "$KENNEY" "$DEST.tmp/stage/kenney-vehicles"
+elif [ -d "$KENNEY" ]; then cp -r "$KENNEY" "$STAGE/stage/kenney-vehicles"
 else echo "gpu_bundle: no Kenney vehicles at $KENNEY (set GPU_KENNEY)" >&2; fi
-if [ -n "$(ls -A "$DEST.tmp/stage")" ]; then
-    tar -C "$DEST.tmp/stage" -cf - . | xz -9 -T0 > "$DEST.tmp/meshes.tar.xz"
+if [ -n "$(ls -A "$STAGE/stage")" ]; then
+    tar -C "$STAGE/stage" -cf - . | xz -9 -T0 > "$STAGE/meshes.tar.xz"
 fi
-rm -rf "$DEST.tmp/stage"
-rm -rf "$DEST" && mv "$DEST.tmp" "$DEST"
+rm -rf "$STAGE/stage"
 travels=$(
-    { git ls-files -z; git ls-files -z --others --exclude-standard; } | xargs -0 stat -c %s 2>/dev/null \
-        | awk '{s += $1} END {print s + 0}'
-)
-bundle=$(du -sb "$DEST" | cut -f1)
+    { git ls-files -z; git ls-files -z --others --exclude-standard; } \
+        | { xargs -0 stat -c %s 2>/dev/null || true; } | awk '{s += $1} END {print s + 0}'
+)  # tracked files deleted here do not travel: stat skips them
+bundle=$(du -sb "$STAGE" | cut -f1)
 total=$((travels + bundle))
-echo "gpu_bundle: $(ls "$DEST"/*.whl | wc -l) wheels (and the meshes, unless --tests) in $DEST ($((bundle / 1048576)) MiB); with the checkout" \
-    "($((travels / 1048576)) MiB) $((total / 1048576)) MiB of the 64 MiB a device call carries"
 if [ "$total" -gt "$LIMIT" ]; then
-    echo "gpu_bundle: error: $((total - LIMIT)) bytes over the 64 MiB a device call carries: carry less" >&2
+    echo "gpu_bundle: error: the checkout ($((travels / 1048576)) MiB) and the bundle ($((bundle / 1048576)) MiB) are" \
+        "$((total - LIMIT)) bytes over the 64 MiB a device call carries: carry less ($DEST is left as it was)" >&2
     exit 1
 fi
+rm -rf "$DEST" && mkdir -p "$DEST" && mv "$STAGE"/* "$DEST"/
+echo "gpu_bundle: $(ls "$DEST"/*.whl | wc -l) wheels (and the meshes, unless --tests) in $DEST ($((bundle / 1048576)) MiB);" \
+    "with the checkout ($((travels / 1048576)) MiB) $((total / 1048576)) MiB of the 64 MiB a device call carries"

@@ -18,7 +18,9 @@ from spotlights.completion.results import SceneResult
 from spotlights.completion.scene_config import SceneConfig
 from spotlights.errors import ParameterError, ProcessFailure
 
-from builders import three_frames
+from builders import three_frames, write_drive
+
+Image = pytest.importorskip("PIL.Image")
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -88,6 +90,22 @@ def test_the_same_files_whatever_the_picture_processes(tmp_path):
     for name in runs["0"]:
         assert runs["1"][name] == runs["0"][name], name
         assert runs["2"][name] == runs["0"][name], name
+
+
+@pytest.mark.parametrize("workers", ["0", "1"])
+def test_a_box_completed_from_fused_points_alone_is_drawn(tmp_path, workers):
+    """Car "a" has no point of its own in the third frame: --fuse completes it from the frames before, and its
+    picture is drawn (an empty input), by the writer thread and by a picture process alike."""
+    src = write_drive(tmp_path / "drive", [0.0, 0.5, 1.0])
+    pts = np.load(src / "f2.npy")
+    np.save(src / "f2.npy", np.concatenate([pts[:300], pts[600:]]))  # ground, then car "b": car "a"'s 300 points gone
+    out = tmp_path / "out"
+    args = ["real", "complete", str(src), "--format", "generic", "--out", str(out), "-q", "--fuse", "past:2"]
+    assert main([*args, "--picture-workers", workers]) == 0
+    frame = json.loads((out / "drive" / "f2.json").read_text())
+    done = {o["track_id"]: o for o in frame["objects"] if o["status"] == "completed"}
+    assert done["a"]["n_points"] == 0 and done["a"]["n_fused"] > 0
+    assert Image.open(out / "drive" / "f2.png").size[0] > 0
 
 
 def _die() -> None:  # in a picture process: ended as the system ends a process out of memory

@@ -100,3 +100,9 @@ def test_idle_frame_rates_are_the_results_files():
     pic = _json("pictures_idle.json")["pictures"]
     _says(f"{pic['real_complete']['pictures (default)']['frames_per_s']:.2f} frames/s with the raster pictures")
     _says(f"slow the frame loop by {pic['frame_loop_pictures_over_none']:.2f}x")
+    m = pic["medians"]
+    _says(
+        f"{pic['cpu_s_per_picture']['raster'] * 1000:.0f} ms of CPU (the drawing thread's own",
+        f"{m['payload_pickle_bytes'] / 1e6:.2f} MB pickled against {m['result_pickle_bytes'] / 1e6:.2f} MB",
+        f"{m['raster_colours']:.0f} colours: lossless; {m['png_bytes'] / 1e3:.0f} kB",
+    )

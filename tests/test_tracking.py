@@ -204,6 +204,15 @@ def test_a_fast_car_seen_once_keeps_its_id_when_the_detector_reports_its_velocit
     assert len(ids(track_boxes(unknown))) == 2  # NaN: the detector gave none
 
 
+def test_a_readers_frames_are_tracked_as_they_are():
+    """track_boxes takes a dataset reader's Frame (no velocities field): a car driving along x keeps one id."""
+    from spotlights.data.real.base import Frame
+
+    frames = [Frame("s", str(k), 0.5 * k, np.zeros((0, 3), np.float32), [_car(2.0 * k, 3.0, 0.0)]) for k in range(5)]
+    out = track_boxes(frames)
+    assert {b.track_id for f in out for b in f.boxes} == {"1"} and all(len(f.boxes) == 1 for f in out)
+
+
 def test_scores_birth_and_death():
     low = [DetectionFrame("s", str(k), 0.1 * k, [_car(0.0, 0.0, 0.0, score=0.2)]) for k in range(5)]
     assert all(f.boxes == [] for f in track_boxes(low))  # low scores never start a track

@@ -14,7 +14,10 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import json
 from pathlib import Path
+
+import numpy as np
 
 from ..data.real.base import CLASSES, Frame, SceneReader
 from ..errors import InputFileError, ParameterError
@@ -111,7 +114,7 @@ def tracked_reader(
     if max_gap is not None:
         tracked = split_at_gaps(tracked, max_gap)
     settings = {
-        "sha256": file_digest(detections),
+        "sha256": detections_digest(frames),
         "min_score": min_score or 0.0,
         "max_gap": max_gap,
         "tracker": dataclasses.asdict(config if config is not None else TrackerConfig()),
@@ -119,15 +122,19 @@ def tracked_reader(
     return TrackedReader(reader, {(f.sequence, f.frame_id): f.boxes for f in tracked}, str(detections), settings)
 
 
-def file_digest(path: str | Path) -> str:
-    """The SHA-256 (hex) of a file's bytes, or of every file of a folder (names and bytes, in name order)."""
+def detections_digest(frames: list[DetectionFrame]) -> str:
+    """The SHA-256 (hex) of detection frames as read: each frame's sequence, id and time, its boxes (centre, size,
+    rotation, label, class, score, rounded to 1e-9) and reported velocities, so that any file the detections were
+    read from (a sequence JSON's box files too) counts."""
     h = hashlib.sha256()
-    path = Path(path)
-    for f in sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]:
-        h.update(str(f.relative_to(path) if path.is_dir() else f.name).encode())
-        with open(f, "rb") as fh:
-            for chunk in iter(lambda: fh.read(1 << 20), b""):
-                h.update(chunk)
+    for f in frames:
+        h.update(json.dumps([f.sequence, f.frame_id, round(float(f.timestamp), 9)]).encode())
+        for b in f.boxes:
+            row = np.concatenate([b.center, b.size, np.asarray(b.rotation).ravel()]).round(9).tolist()
+            h.update(json.dumps([row, b.label, b.cls, b.score]).encode())
+        v = getattr(f, "velocities", None)
+        if v is not None:
+            h.update(np.round(np.asarray(v, dtype=np.float64), 9).tobytes())
     return h.hexdigest()
 
 

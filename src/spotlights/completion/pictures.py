@@ -63,8 +63,10 @@ def bev_scene(result: SceneResult) -> tuple[np.ndarray, list]:
 
 
 def _xy32(points) -> np.ndarray:
-    """(K, 2) float32 x, y of (K, >= 2) points."""
+    """(K, 2) float32 x, y of (K, >= 2) points ((0, 2) for none)."""
     a = np.asarray(points)
+    if a.size == 0:  # a box completed from fused points alone has none of its own
+        return np.zeros((0, 2), dtype=np.float32)
     return np.ascontiguousarray(a.reshape(len(a), -1)[:, :2], dtype=np.float32)
 
 

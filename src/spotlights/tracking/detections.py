@@ -128,7 +128,8 @@ class DetectionFrame:
     sensor_to_world : (4, 4) float64 pose of those coordinates in a fixed world frame, or None (a static sensor,
         or boxes already in one frame for the whole sequence).
     scan_path : the frame's scan file when known (provenance), else ``""``.
-    velocities : (len(boxes), 3) float64 m/s in the frame's coordinates (a tracker's estimate), or None.
+    velocities : (len(boxes), 3) float64 m/s in the frame's coordinates (a tracker's estimate, or what a detector
+        reported: NaN rows where it gave none), or None (nothing known).
     """
 
     sequence: str

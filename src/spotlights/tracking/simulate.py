@@ -19,7 +19,8 @@ frames, model and seed give the same detections):
 * **Scores.** A detected box scores ``clip(0.9 - 0.5 h + N(0, 0.1^2), 0.05, 1)``.
 * **Velocities** (only with ``velocity_sigma_mps``, as detectors such as CenterPoint report them): the true box's
   velocity (the truth frames' ``velocities``: :func:`nuscenes_ground_truth` gives them) + N(0,
-  ``velocity_sigma_mps``^2) on x and y, z 0; a false positive's: N(0, ``velocity_sigma_mps``^2) on x and y.
+  ``velocity_sigma_mps``^2) on x and y, z 0 (the sensor frame's: nuScenes reports are horizontal in the global
+  frame, nearly the same for a level sensor); a false positive's: N(0, ``velocity_sigma_mps``^2) on x and y.
   Without it the detections carry no velocity and the random stream is that of a detector without one.
 * **False positives.** Per frame, Poisson(``false_positive_rate`` x detectable boxes) boxes at uniform bird's-eye
   positions between 5 m and ``range_m`` from the sensor, a uniform heading, the class, size (x (1 + N(0, 0.1^2)))

@@ -335,7 +335,7 @@ def _reported(
 def _world_velocities(f: DetectionFrame, pose: np.ndarray | None) -> np.ndarray | None:
     """(K, 3) float64 the frame's reported box velocities in the tracking (world) frame, m/s (rows may be NaN:
     unknown), or None when the frame reports none."""
-    v = f.velocities
+    v = getattr(f, "velocities", None)  # a reader's Frame has none
     if v is None or len(v) != len(f.boxes):
         return None
     v = np.asarray(v, dtype=np.float64).reshape(-1, 3)

@@ -108,7 +108,7 @@ class BevCanvas:
 
 
 def paint_points(image: np.ndarray, canvas: BevCanvas, points: np.ndarray, color, radius: int = 0) -> None:
-    """Paint (K, >= 2) points (metres) into ``image`` (H, W, 3) uint8 (C-contiguous) in place with ``color``: each a
+    """Paint (K, >= 2) points (metres) into ``image`` (H, W, 3) uint8 in place with ``color``: each a
     square of (2 ``radius`` + 1) pixels; points outside the plot area are dropped. The pixels hit are marked once
     in a mask and painted in one assignment (however many points share a pixel)."""
     if points is None or len(points) == 0:
@@ -119,14 +119,14 @@ def paint_points(image: np.ndarray, canvas: BevCanvas, points: np.ndarray, color
     inside = (px[:, 0] >= c0) & (px[:, 0] < c0 + w) & (px[:, 1] >= r0) & (px[:, 1] < r0 + h)
     px = px[inside]
     width = image.shape[1]
-    hit = np.zeros(image.shape[0] * width, dtype=bool)
+    hit = np.zeros(image.shape[0] * width, dtype=bool)  # flat over (H, W): any strides of ``image`` work
     d = np.arange(-radius, radius + 1)
     for dr in d:
         for dc in d:
             r = np.clip(px[:, 1] + dr, r0, r0 + h - 1) if radius else px[:, 1]
             c = np.clip(px[:, 0] + dc, c0, c0 + w - 1) if radius else px[:, 0]
             hit[r * width + c] = True
-    image.reshape(-1, image.shape[-1])[hit] = color
+    image[hit.reshape(image.shape[:2])] = color
 
 
 def bev_image(
@@ -141,9 +141,10 @@ def bev_image(
 
     Parameters
     ----------
-    scan : (N, 3) raw scan points, sensor frame, metres (every point inside the window is drawn, one pixel each).
+    scan : (N, >= 2) raw scan points (x, y first; float32 or float64), sensor frame, metres (every point inside the
+        window is drawn, one pixel each).
     objects : :class:`~spotlights.viz.scene.SceneObject`-like objects (``label``, ``box`` with ``corners()``,
-        ``center``, ``reach``, ``partial`` (K, 3), ``completion`` (L, 3) or None), sensor frame, metres.
+        ``center``, ``reach``, ``partial`` (K, >= 2), ``completion`` (L, >= 2) or None), sensor frame, metres.
     title : the line above the picture; id_note : what the box labels are (in the legend).
     window : (lo (2,), hi (2,)) metres drawn (default :func:`frame_window`); max_plot : the largest plot area.
     """
