@@ -131,3 +131,14 @@ def test_a_positional_is_named_as_its_field():
 
     with pytest.raises(ValueError, match="positional"):
         add_options(argparse.ArgumentParser(), Wrong)
+
+
+def test_verbose_goes_before_or_after_the_command():
+    """``-v`` counts before the command (the program's option) and after it (every command's), ``-vv`` too."""
+    from spotlights.cli import build_parser
+
+    p = build_parser()
+    base = ["track", "x.json", "--format", "generic", "--out", "o.json"]
+    assert [p.parse_args(a).verbose for a in (base, [*base, "-v"], ["-v", *base], [*base, "-vv"])] == [0, 1, 1, 2]
+    deep = ["dataset", "info", "d.h5"]
+    assert p.parse_args(deep).verbose == 0 and p.parse_args([*deep, "--verbose"]).verbose == 1

@@ -92,7 +92,28 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(sub)
+    for leaf in _commands(parser):  # -v after the command as well: spotlights real complete ... -v
+        leaf.add_argument(
+            "-v",
+            "--verbose",
+            action="count",
+            default=argparse.SUPPRESS,
+            help="log what the library does on stderr (-v: info lines, -vv: debug), as `spotlights -v COMMAND` does",
+        )
     return parser
+
+
+def _commands(parser: argparse.ArgumentParser):
+    """The parsers of every command (the leaves below the sub-command groups), in registration order."""
+    groups = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]  # noqa: SLF001 - argparse's
+    if not groups:
+        yield parser
+    for group in groups:
+        seen: set[int] = set()
+        for child in group.choices.values():  # a command's aliases name one parser
+            if id(child) not in seen:
+                seen.add(id(child))
+                yield from _commands(child)
 
 
 class Terminated(KeyboardInterrupt):
