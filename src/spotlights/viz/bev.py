@@ -110,22 +110,33 @@ class BevCanvas:
 def paint_points(image: np.ndarray, canvas: BevCanvas, points: np.ndarray, color, radius: int = 0) -> None:
     """Paint (K, >= 2) points (metres) into ``image`` (H, W, 3) uint8 in place with ``color``: each a
     square of (2 ``radius`` + 1) pixels; points outside the plot area are dropped. The pixels hit are marked once
-    in a mask and painted in one assignment (however many points share a pixel)."""
+    in a mask and painted in one assignment (however many points share a pixel); pixel coordinates as
+    :meth:`BevCanvas.to_pixel` computes them (float64), without its (K, 2) array."""
     if points is None or len(points) == 0:
         return
-    px = np.floor(canvas.to_pixel(points)).astype(np.int64)
+    p = np.asarray(points)
+    p = p.reshape(len(p), -1)
+    col = p[:, 0].astype(np.float64)
+    col -= canvas.lo[0]
+    col *= canvas.px_per_m
+    col += canvas.origin[0]
+    row = p[:, 1].astype(np.float64)
+    np.subtract(canvas.hi[1], row, out=row)
+    row *= canvas.px_per_m
+    row += canvas.origin[1]
+    np.floor(col, out=col)
+    np.floor(row, out=row)
     w, h = canvas.plot_size
     c0, r0 = canvas.origin
-    inside = (px[:, 0] >= c0) & (px[:, 0] < c0 + w) & (px[:, 1] >= r0) & (px[:, 1] < r0 + h)
-    px = px[inside]
+    inside = (col >= c0) & (col < c0 + w) & (row >= r0) & (row < r0 + h)
+    c, r = col[inside].astype(np.intp), row[inside].astype(np.intp)
     width = image.shape[1]
     hit = np.zeros(image.shape[0] * width, dtype=bool)  # flat over (H, W): any strides of ``image`` work
-    d = np.arange(-radius, radius + 1)
-    for dr in d:
-        for dc in d:
-            r = np.clip(px[:, 1] + dr, r0, r0 + h - 1) if radius else px[:, 1]
-            c = np.clip(px[:, 0] + dc, c0, c0 + w - 1) if radius else px[:, 0]
-            hit[r * width + c] = True
+    for dr in range(-radius, radius + 1):
+        for dc in range(-radius, radius + 1):
+            rr = np.clip(r + dr, r0, r0 + h - 1) if radius else r
+            cc = np.clip(c + dc, c0, c0 + w - 1) if radius else c
+            hit[rr * width + cc] = True
     image[hit.reshape(image.shape[:2])] = color
 
 
@@ -186,8 +197,8 @@ def bev_image(
 
 
 def _xy(points) -> np.ndarray:
-    """(K, 2) float64 x, y (metres) of (K, >= 2) points; (0, 2) for none."""
-    a = np.asarray(points, dtype=np.float64)
+    """(K, 2) x, y (metres; the points' own float type) of (K, >= 2) points; (0, 2) for none."""
+    a = np.asarray(points)
     return a.reshape(len(a), -1)[:, :2] if a.size else np.zeros((0, 2))
 
 
