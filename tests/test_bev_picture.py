@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from spotlights.geometry.boxes import Box
-from spotlights.viz.bev import GREEN, GREY, MARGIN, PURPLE, BevCanvas, bev_image, bev_png, nice_step, png_bytes
+from spotlights.viz.bev import GREEN, GREY, MARGIN, PURPLE, BevCanvas, bev_image, bev_png, nice_step
 from spotlights.viz.scene import SceneObject
 
 PIL = pytest.importorskip("PIL.Image")
@@ -97,19 +97,3 @@ def test_complete_show_draws_the_raster_and_closeups_the_matplotlib_figure(tmp_p
     capsys.readouterr()
     assert main([*base, "--out", str(tmp_path / "c.ply"), "--closeups"]) == 2
     assert "--closeups goes with --show" in capsys.readouterr().err and not (tmp_path / "c.ply").exists()
-
-
-@pytest.mark.parametrize("colours", [3, 256, 300])
-def test_png_bytes_decode_to_the_same_pixels(colours):
-    """The PNG is lossless whether it is written with a palette (at most 256 colours) or as RGB (more)."""
-    from PIL import Image
-
-    rng = np.random.default_rng(colours)
-    palette = rng.integers(0, 256, (colours, 3), dtype=np.uint8)
-    palette[:, 0] = np.arange(colours) % 256  # distinct colours
-    palette[:, 1] = np.arange(colours) // 256
-    pixels = palette[rng.integers(0, colours, (37, 53))]
-    data = png_bytes(Image.fromarray(pixels))
-    back = Image.open(io.BytesIO(data))
-    assert back.mode == ("P" if colours <= 256 else "RGB")
-    assert np.array_equal(np.asarray(back.convert("RGB")), pixels)

@@ -7,6 +7,11 @@ metre grid with coordinates, a scale bar, a legend and a title. A nuScenes frame
 second of CPU (against about 0.8 s for matplotlib's figure with close-ups); the close-ups (``--closeups``) stay
 matplotlib's (:func:`spotlights.viz.scene.scene_png`).
 
+Drawn on two layers, then written as an 8-bit palette PNG: numpy paints every pixel's base colour (white, grid,
+grey, green, purple: :data:`BASE_COLOURS`) and PIL draws the black ink (text antialiased, lines, outlines) on an
+``L`` image; the palette (:data:`PALETTE`) holds each base colour under :data:`INK_LEVELS` shades of ink, so the
+picture needs no colour search (an RGB encoding of the same picture costs several times more).
+
 Frames: the scan's sensor frame, metres; x to the right of the picture, y up. :class:`BevCanvas` maps metres to
 pixels.
 """
@@ -140,6 +145,89 @@ def paint_points(image: np.ndarray, canvas: BevCanvas, points: np.ndarray, color
     image[hit.reshape(image.shape[:2])] = color
 
 
+#: The picture's colours under the ink, in palette order (white first: the background).
+BASE_COLOURS = (WHITE, GRID, GREY, GREEN, PURPLE)
+_BASE = {c: i for i, c in enumerate(BASE_COLOURS)}
+
+#: Shades of black ink (text, lines, outlines; 0: none, INK_LEVELS - 1: black) over each base colour: antialiased
+#: text in 32 steps, as the eye sees it.
+INK_LEVELS = 32
+
+#: The palette of the picture: base colour b with ink q is entry b * INK_LEVELS + q, ``round(b * (1 - q / 31))``.
+PALETTE = bytes(
+    int(round(c * (1.0 - q / (INK_LEVELS - 1)))) for base in BASE_COLOURS for q in range(INK_LEVELS) for c in base
+)
+
+#: An ink value (0..255, an ``L`` image's) -> its shade (0..INK_LEVELS - 1).
+_SHADE = np.round(np.arange(256) * (INK_LEVELS - 1) / 255.0).astype(np.uint8)
+
+
+class _LayeredDraw:
+    """The drawing calls of the picture (``PIL.ImageDraw``'s) on two layers: each pixel's base colour (an index into
+    :data:`BASE_COLOURS`, painted by numpy) and black ink over it (an ``L`` image: antialiased text, lines,
+    outlines). A shape filled or outlined with a base colour is opaque: it sets the base under it and wipes the ink
+    drawn there before, as drawing it on the RGB picture would; its pixels are PIL's (drawn on a scratch image)."""
+
+    def __init__(self, base: np.ndarray) -> None:
+        from PIL import Image, ImageDraw
+
+        self.base = base
+        h, w = base.shape
+        self.ink = Image.new("L", (w, h), 0)
+        self._ink = ImageDraw.Draw(self.ink)
+        self._scratch = Image.new("L", (w, h), 0)
+        self._mask = ImageDraw.Draw(self._scratch)
+
+    def _opaque(self, xy, colour, kind: str, width: int) -> None:
+        """A rectangle filled (``kind`` "fill") or outlined ("outline") with the base colour ``colour``."""
+        self._ink.rectangle(xy, **{kind: 0}, width=width)
+        self._mask.rectangle(xy, **{kind: 255}, width=width)
+        h, w = self.base.shape
+        p = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        x0, y0 = max(0, int(np.floor(p[:, 0].min())) - 2), max(0, int(np.floor(p[:, 1].min())) - 2)
+        x1, y1 = min(w, int(np.ceil(p[:, 0].max())) + 3), min(h, int(np.ceil(p[:, 1].max())) + 3)
+        if x1 <= x0 or y1 <= y0:
+            return
+        hit = np.asarray(self._scratch.crop((x0, y0, x1, y1))) > 0
+        self.base[y0:y1, x0:x1][hit] = _BASE[tuple(colour)]
+        self._mask.rectangle((x0, y0, x1 - 1, y1 - 1), fill=0)
+
+    def rectangle(self, xy, fill=None, outline=None, width: int = 1) -> None:
+        for kind, colour in (("fill", fill), ("outline", outline)):  # PIL's order: the fill, then the outline
+            if colour is None:
+                continue
+            if tuple(colour) == BLACK:
+                self._ink.rectangle(xy, **{kind: 255}, width=width)
+            else:
+                self._opaque(xy, colour, kind, width)
+
+    def line(self, xy, fill=BLACK, width: int = 1) -> None:
+        self._ink.line(xy, fill=_ink_of(fill), width=width)
+
+    def polygon(self, xy, fill=BLACK) -> None:
+        self._ink.polygon(xy, fill=_ink_of(fill))
+
+    def text(self, xy, text: str, fill=BLACK, font=None, anchor: str | None = None) -> None:
+        self._ink.text(xy, text, fill=_ink_of(fill), font=font, anchor=anchor)
+
+    def textbbox(self, xy, text: str, font=None, anchor: str | None = None):
+        return self._ink.textbbox(xy, text, font=font, anchor=anchor)
+
+    def textlength(self, text: str, font=None) -> float:
+        return self._ink.textlength(text, font=font)
+
+    def indexed(self) -> np.ndarray:
+        """(H, W) uint8 palette indices (:data:`PALETTE`) of the two layers."""
+        return self.base * np.uint8(INK_LEVELS) + _SHADE[np.asarray(self.ink)]
+
+
+def _ink_of(colour) -> int:
+    """The ink value of a colour drawn over the base: black only (the picture's lines and text are black)."""
+    if tuple(colour) != BLACK:
+        raise ValueError(f"the picture draws lines and text in black, got {colour}")
+    return 255
+
+
 def bev_image(
     scan: np.ndarray,
     objects: Sequence,
@@ -159,7 +247,14 @@ def bev_image(
     title : the line above the picture; id_note : what the box labels are (in the legend).
     window : (lo (2,), hi (2,)) metres drawn (default :func:`frame_window`); max_plot : the largest plot area.
     """
-    from PIL import Image, ImageDraw
+    pic, canvas = _bev_indexed(scan, objects, title, id_note, window, max_plot)
+    return pic.convert("RGB"), canvas
+
+
+def _bev_indexed(scan, objects, title, id_note, window, max_plot=MAX_PLOT_PX):
+    """:func:`bev_image`'s picture as an 8-bit palette image (:data:`BASE_COLOURS`, each in :data:`INK_LEVELS`
+    shades of black ink over it: :data:`PALETTE`) and its canvas."""
+    from PIL import Image
 
     objects = list(objects)
     lo, hi = window if window is not None else frame_window(objects)
@@ -170,13 +265,12 @@ def bev_image(
     if captions:
         width += CAPTION_WIDTH
         height = max(height, MARGIN[1] + 16 * (len(captions) + 1) + 10)
-    image = np.full((height, width, 3), 255, dtype=np.uint8)
+    base = np.zeros((height, width), dtype=np.uint8)  # BASE_COLOURS' indices: white
     step = nice_step((canvas.hi[0] - canvas.lo[0]) / 6.0)
     xs = np.arange(math.ceil(canvas.lo[0] / step) * step, canvas.hi[0] + 1e-9, step)
     ys = np.arange(math.ceil(canvas.lo[1] / step) * step, canvas.hi[1] + 1e-9, step)
-    _paint_layers(image, canvas, xs, ys, scan, objects)
-    pic = Image.fromarray(image)
-    draw = ImageDraw.Draw(pic)
+    _paint_layers(base, canvas, xs, ys, scan, objects)
+    draw = _LayeredDraw(base)
     small, font = _font(11), _font(13)
     _draw_axes(draw, canvas, xs, ys, small)
     _draw_boxes(draw, canvas, objects, small)
@@ -193,6 +287,8 @@ def bev_image(
     if title:  # centred over the plot, moved right as far as it needs to start inside the picture
         cx = max(plot_width / 2, draw.textlength(title, font=font) / 2 + 6)
         draw.text((cx, r0 / 2), title, fill=BLACK, font=font, anchor="mm")
+    pic = Image.fromarray(draw.indexed(), mode="P")
+    pic.putpalette(PALETTE)
     return pic, canvas
 
 
@@ -203,21 +299,21 @@ def _xy(points) -> np.ndarray:
 
 
 def _paint_layers(image: np.ndarray, canvas: BevCanvas, xs, ys, scan, objects: list) -> None:
-    """Paint into ``image`` (H, W, 3) uint8: the metre grid at ``xs``/``ys`` (metres), the scan (grey),
-    the completions (green), then the partial inputs (purple, larger)."""
+    """Paint into ``image`` (H, W) uint8 of :data:`BASE_COLOURS` indices: the metre grid at ``xs``/``ys``
+    (metres), the scan (grey), the completions (green), then the partial inputs (purple, larger)."""
     c0, r0 = canvas.origin
     pw, ph = canvas.plot_size
     for x in xs:  # the metre grid, under everything
-        image[r0 : r0 + ph, int(canvas.to_pixel([[x, 0.0]])[0, 0])] = GRID
+        image[r0 : r0 + ph, int(canvas.to_pixel([[x, 0.0]])[0, 0])] = _BASE[GRID]
     for y in ys:
-        image[int(canvas.to_pixel([[0.0, y]])[0, 1]), c0 : c0 + pw] = GRID
-    paint_points(image, canvas, _xy(scan), GREY)
+        image[int(canvas.to_pixel([[0.0, y]])[0, 1]), c0 : c0 + pw] = _BASE[GRID]
+    paint_points(image, canvas, _xy(scan), _BASE[GREY])
     comps = [_xy(o.completion) for o in objects if o.completion is not None and len(o.completion)]
     if comps:
-        paint_points(image, canvas, np.concatenate(comps), GREEN)
+        paint_points(image, canvas, np.concatenate(comps), _BASE[GREEN])
     parts = [_xy(o.partial) for o in objects]
     if parts:
-        paint_points(image, canvas, np.concatenate(parts), PURPLE, radius=1)
+        paint_points(image, canvas, np.concatenate(parts), _BASE[PURPLE], radius=1)
 
 
 def _draw_axes(draw, canvas: BevCanvas, xs, ys, small) -> None:
@@ -286,31 +382,12 @@ def bev_png(
     id_note: str = "boxes: object id",
     window: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> bytes:
-    """The PNG bytes of :func:`bev_image`: :func:`png_bytes` (an exact palette where the picture has at most 256
-    colours, as it has: flat colours and antialiased text; zlib level 3), a few tens of kB."""
-    pic, _ = bev_image(scan, objects, title, id_note, window)
-    return png_bytes(pic)
-
-
-def png_bytes(pic) -> bytes:
-    """The PNG bytes of the RGB ``PIL.Image`` ``pic``: as an 8-bit palette image of its own colours when it has at
-    most 256 (lossless: every pixel decodes to its RGB value; a third of the bytes to compress, about twice as
-    fast to encode), else as RGB; zlib level 3, run-length strategy."""
-    from PIL import Image
-
-    colours = pic.getcolors(256) if pic.mode == "RGB" else None
-    if colours is not None:
-        rgba = np.asarray(pic.convert("RGBA"))  # R, G, B, A bytes per pixel: read as one little-endian word
-        packed = rgba.view("<u4")[..., 0] & np.uint32(0xFFFFFF)  # R + G * 2^8 + B * 2^16
-        keys = [r | g << 8 | b << 16 for _, (r, g, b) in colours]
-        lookup = np.zeros(1 << 24, dtype=np.uint8)  # 24-bit colour word -> its palette index
-        lookup[np.array(keys, dtype=np.int64)] = np.arange(len(keys), dtype=np.uint8)
-        indexed = Image.fromarray(np.take(lookup, packed), mode="P")
-        indexed.putpalette(np.array([c for _, c in colours], dtype=np.uint8).tobytes())
-        pic = indexed
+    """The PNG bytes of :func:`bev_image`'s picture, written as the 8-bit palette image it is drawn as
+    (:data:`PALETTE`; zlib level 3, run-length strategy): a few tens of kB."""
+    pic, _ = _bev_indexed(scan, objects, title, id_note, window)
     buf = io.BytesIO()
     pic.save(buf, format="PNG", compress_level=3, compress_type=3)  # zlib's Z_RLE: runs of one colour
     return buf.getvalue()
 
 
-__all__ = ["BevCanvas", "bev_image", "bev_png", "frame_window", "nice_step", "paint_points", "png_bytes"]
+__all__ = ["BASE_COLOURS", "BevCanvas", "PALETTE", "bev_image", "bev_png", "frame_window", "nice_step", "paint_points"]
