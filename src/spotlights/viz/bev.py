@@ -390,4 +390,14 @@ def bev_png(
     return buf.getvalue()
 
 
-__all__ = ["BASE_COLOURS", "BevCanvas", "PALETTE", "bev_image", "bev_png", "frame_window", "nice_step", "paint_points"]
+__all__ = [
+    "BASE_COLOURS",
+    "INK_LEVELS",
+    "PALETTE",
+    "BevCanvas",
+    "bev_image",
+    "bev_png",
+    "frame_window",
+    "nice_step",
+    "paint_points",
+]
