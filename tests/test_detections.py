@@ -106,22 +106,24 @@ def test_nuscenes_results_in_the_sensor_frame(tmp_path):
 
 
 def test_nuscenes_velocities_turn_with_the_boxes(tmp_path):
-    """A result's global-frame velocity, in the sensor frame as its box is; none (no key, null, NaN): NaN rows."""
+    """A result's global-frame velocity, in the sensor frame as its box is; none (no key, null, NaN, exactly 0):
+    NaN rows."""
     data = tmp_path / "nus"
     write_mini_nuscenes(data)
     no_key = _nus_result("smp0")
     del no_key["velocity"]
     rows = [_nus_result("smp0", velocity=[3.0, -1.0]), _nus_result("smp0", velocity=[None, None]), no_key]
     rows.append(_nus_result("smp0", velocity=[float("nan"), float("nan")], detection_name="pedestrian"))
+    rows.append(_nus_result("smp0", velocity=[0, 0]))  # what exporters write for a velocity they do not estimate
     path = tmp_path / "det.json"
     path.write_text(json.dumps({"meta": {}, "results": {"smp0": rows}}))
     frames = read_nuscenes_detections(path, data)
     f = frames[0]
-    assert f.velocities.shape == (4, 3) and frames[1].velocities.shape == (0, 3)
+    assert f.velocities.shape == (5, 3) and frames[1].velocities.shape == (0, 3)
     np.testing.assert_allclose(f.sensor_to_world[:3, :3] @ f.velocities[0], [3.0, -1.0, 0.0], atol=1e-9)
     assert np.isnan(f.velocities[1:]).all()
     kept, _ = filter_detections(frames)  # the pedestrian is left out, with its velocity
-    assert len(kept[0].boxes) == 3 and kept[0].velocities.shape == (3, 3)
+    assert len(kept[0].boxes) == 4 and kept[0].velocities.shape == (4, 3)
     np.testing.assert_allclose(kept[0].velocities[0], f.velocities[0])
 
 

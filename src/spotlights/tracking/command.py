@@ -72,8 +72,9 @@ class TrackSettings:
     )  # fmt: skip
     detection_velocity_sigma: float = option(
         default=_D.detection_velocity_sigma, type=non_negative_float, metavar="MPS", group="tracker",
-        help="a track born from a detection that reports its velocity (a nuScenes result's 'velocity') starts with "
-        f"it, give or take MPS m/s (default {_D.detection_velocity_sigma}; 0: reported velocities are not used)",
+        help="a detection's reported velocity (a nuScenes result's 'velocity') starts its new track and corrects the "
+        f"track it matches, give or take MPS m/s (default {_D.detection_velocity_sigma}; 0: reported velocities are "
+        "not used)",
     )  # fmt: skip
     quiet: bool = option("--quiet", "-q", default=False, action="store_true", quiet=True, help="nothing on stdout")
 

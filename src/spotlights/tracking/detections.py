@@ -203,7 +203,9 @@ def nuscenes_box(d: object, path, what: str) -> Box:
 
 def nuscenes_velocity(d: dict, path, what: str) -> np.ndarray:
     """(3,) float64 a nuScenes result box's ``velocity`` ``[vx, vy]`` (global frame, m/s) as ``(vx, vy, 0)``; NaN
-    where the box has none (no key, ``null`` or NaN values: the detector did not estimate it)."""
+    where the box has none: no key, ``null`` or NaN values, or exactly ``[0, 0]`` (what exporters of detectors that
+    do not estimate velocity write; a parked car's own estimate is never exactly zero, and a tracker loses little
+    by not reading it)."""
     v = d.get("velocity")
     if v is None:
         return np.full(3, np.nan)
@@ -216,6 +218,8 @@ def nuscenes_velocity(d: dict, path, what: str) -> np.ndarray:
         if isinstance(x, bool) or not isinstance(x, (int, float)) or math.isinf(x):
             raise InputFileError(path, f"{what} velocity must be two numbers (m/s), got {str(v)[:40]}")
         out[k] = float(x)
+    if np.all(out[:2] == 0.0):
+        return np.full(3, np.nan)
     if np.all(np.isfinite(out[:2])):
         if np.abs(out[:2]).max() > MAX_VELOCITY_MPS:
             raise InputFileError(path, f"{what} velocity is out of range (±{MAX_VELOCITY_MPS:g} m/s)")

@@ -14,7 +14,8 @@ Per sequence, frame after frame (times in seconds from :attr:`DetectionFrame.tim
    track's uncertainty (``gate_floor_m`` + ``gate_sigmas`` standard deviations of its predicted position, at most ``gate_m``), then, among the tracks and detections left, centre distances below
    ``max_distance_m`` (a track whose prediction drifted sideways while it was not seen). ``metric="distance"``: the
    second stage alone.
-4. **Update** matched tracks with the detection ``(x, y, z, yaw, l, w, h)``. Yaw: the detection's heading is taken
+4. **Update** matched tracks with the detection ``(x, y, z, yaw, l, w, h)`` and, where the detector reports one, its
+   velocity (``detection_velocity_sigma``). Yaw: the detection's heading is taken
    within +-90 degrees of the track's (a detector's heading turned by 180 degrees is the same box: it is turned back,
    the **flip correction**), angles are wrapped to (-pi, pi]. A track's score is the mean score of the detections
    it matched (a box without a score counts as 1).
@@ -68,9 +69,9 @@ class TrackerConfig:
     meas_sigma_xy, meas_sigma_z (m), meas_sigma_yaw (rad), meas_sigma_size (m) : measurement noise.
     accel_sigma (m/s^2), yaw_rate_sigma (rad/s), size_rate_sigma (m/s) : process noise.
     init_velocity_sigma : prior standard deviation of a new track's velocity, m/s.
-    detection_velocity_sigma : a track born from a detection that reports its velocity (the frame's
-        ``velocities``, e.g. a nuScenes result's ``velocity``; finite x and y) starts with that velocity and this
-        standard deviation, m/s (0: reported velocities are not used).
+    detection_velocity_sigma : a detection's reported velocity (the frame's ``velocities``, e.g. a nuScenes result's
+        ``velocity``; finite x and y) starts its new track with that velocity, and corrects the velocity of the track
+        it matches, with this standard deviation, m/s (0: reported velocities are not used).
     """
 
     metric: str = "giou"
@@ -200,11 +201,18 @@ class KalmanTrack:
         self.kf.predict(F=f, Q=q)
         self.kf.x[3, 0] = wrap_angle(float(self.kf.x[3, 0]))
 
-    def update(self, z: np.ndarray, score: float) -> None:
-        """Correct with one detection ``(x, y, z, yaw, l, w, h)`` (its yaw flip-corrected) of score ``score``."""
+    def update(self, z: np.ndarray, score: float, velocity: np.ndarray | None = None) -> None:
+        """Correct with one detection ``(x, y, z, yaw, l, w, h)`` (its yaw flip-corrected) of score ``score``, then
+        with the velocity ``velocity`` (3,) m/s it reports, if any (finite x and y; a second Kalman update of
+        ``(vx, vy)`` with standard deviation ``detection_velocity_sigma``, 0: not used)."""
         z = np.array(z, dtype=np.float64)
         z[3] = corrected_yaw(float(z[3]), float(self.kf.x[3, 0]))
         self.kf.update(z.reshape(7, 1))
+        sigma = self.config.detection_velocity_sigma
+        if velocity is not None and sigma > 0 and np.all(np.isfinite(velocity[:2])):
+            h = np.zeros((2, 10))
+            h[0, 7] = h[1, 8] = 1.0
+            self.kf.update(np.asarray(velocity[:2], dtype=np.float64).reshape(2, 1), R=np.eye(2) * sigma**2, H=h)
         self.kf.x[3, 0] = wrap_angle(float(self.kf.x[3, 0]))
         self.kf.x[4:7, 0] = np.maximum(self.kf.x[4:7, 0], 1e-3)  # sizes stay positive
         self.scores.append(score)
@@ -276,10 +284,12 @@ def _match_class(
     scores: list[float],
     config: TrackerConfig,
     matched: tuple[set[int], set[int]],
+    velocities: np.ndarray | None = None,
 ) -> None:
     """Match the detections ``di`` (rows of ``det``, (D, 7)) to the tracks ``ti`` of one class, GIoU first
     (when ``config.metric`` says so), then the centre distance for what is left; updates the matched tracks
-    and adds their indices to ``matched`` = (detection indices, track indices)."""
+    and adds their indices to ``matched`` = (detection indices, track indices); ``velocities`` (D, 3) the
+    detections' reported velocities (world frame; NaN rows: none), or None."""
     matched_det, matched_tracks = matched
     pred = np.array([tracks[j].state for j in ti])
     gate = np.array(
@@ -292,13 +302,18 @@ def _match_class(
         free_d = [c for c in range(len(di)) if di[c] not in matched_det]
         for r, c in assign(sim[np.ix_(free_t, free_d)], thr):
             j, i = ti[free_t[r]], di[free_d[c]]
-            tracks[j].update(det[i], scores[i])
+            tracks[j].update(det[i], scores[i], None if velocities is None else velocities[i])
             matched_tracks.add(j)
             matched_det.add(i)
 
 
 def _associate(
-    tracks: list[KalmanTrack], det: np.ndarray, keys: list, scores: list[float], config: TrackerConfig
+    tracks: list[KalmanTrack],
+    det: np.ndarray,
+    keys: list,
+    scores: list[float],
+    config: TrackerConfig,
+    velocities: np.ndarray | None = None,
 ) -> tuple[set[int], set[int]]:
     """Match one frame's detections (``det`` (D, 7) world rows, their class ``keys`` and ``scores``) to the
     tracks class by class, updating the matched tracks; returns (matched detection indices, matched track indices)."""
@@ -307,7 +322,7 @@ def _associate(
         di = [i for i, k in enumerate(keys) if k == key]
         ti = [j for j, t in enumerate(tracks) if t.key == key]
         if di and ti:
-            _match_class(tracks, ti, det, di, scores, config, matched)
+            _match_class(tracks, ti, det, di, scores, config, matched, velocities)
     return matched
 
 
@@ -358,12 +373,12 @@ def _sequence(frames: list[DetectionFrame], config: TrackerConfig, ids: _Ids) ->
         det = np.array([_box_row(b) for b in world]).reshape(-1, 7)
         keys = [_class_key(b) for b in world]
         scores = [1.0 if b.score is None else b.score for b in world]
-        matched_det, matched_tracks = _associate(tracks, det, keys, scores, config)
+        velocity = _world_velocities(f, pose)
+        matched_det, matched_tracks = _associate(tracks, det, keys, scores, config, velocity)
         for j, tr in enumerate(tracks):
             if j not in matched_tracks:
                 tr.misses += 1
         tracks = [t for t in tracks if t.misses < config.max_misses]
-        velocity = _world_velocities(f, pose)
         for i, b in enumerate(world):
             if i not in matched_det and scores[i] >= config.birth_score:
                 v = None if velocity is None else velocity[i]
