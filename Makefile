@@ -35,7 +35,7 @@ demo: install
 # (module fixtures run once): the suite keeps one core busy, so this uses the second of a 2-core machine.
 # `python -m pytest` alone runs the same tests in one process.
 test: install
-	$(PYTHON) -m pytest -q -n 2 --dist loadfile
+	$(PYTHON) -m pytest -q -n 2 --dist loadfile --max-worker-restart 0
 
 bench: install
 	$(PYTHON) benchmarks/encode.py
