@@ -17,12 +17,11 @@ import hashlib
 import json
 from pathlib import Path
 
-import numpy as np
-
 from ..data.real.base import CLASSES, Frame, SceneReader
 from ..errors import InputFileError, ParameterError
 from ..geometry.boxes import Box
 from ..tracking.detections import DetectionFrame, filter_detections, read_detections, read_nuscenes_detections
+from ..tracking.outputs import tracks_document
 from ..tracking.tracker import TrackerConfig, track_boxes
 
 #: Dataset formats whose detections can be read (the detection format is the dataset's).
@@ -123,19 +122,11 @@ def tracked_reader(
 
 
 def detections_digest(frames: list[DetectionFrame]) -> str:
-    """The SHA-256 (hex) of detection frames as read: each frame's sequence, id and time, its boxes (centre, size,
-    rotation, label, class, score, rounded to 1e-9) and reported velocities, so that any file the detections were
-    read from (a sequence JSON's box files too) counts."""
-    h = hashlib.sha256()
-    for f in frames:
-        h.update(json.dumps([f.sequence, f.frame_id, round(float(f.timestamp), 9)]).encode())
-        for b in f.boxes:
-            row = np.concatenate([b.center, b.size, np.asarray(b.rotation).ravel()]).round(9).tolist()
-            h.update(json.dumps([row, b.label, b.cls, b.score]).encode())
-        v = getattr(f, "velocities", None)
-        if v is not None:
-            h.update(np.round(np.asarray(v, dtype=np.float64), 9).tobytes())
-    return h.hexdigest()
+    """The SHA-256 (hex) of detection frames as read, in the tracks file's form
+    (:func:`~spotlights.tracking.outputs.tracks_document`: every frame's sequence, id, time and pose, its boxes with
+    their scores and reported velocities), so that any file the detections were read from (a sequence JSON's box
+    files too) counts."""
+    return hashlib.sha256(json.dumps(tracks_document(frames), sort_keys=True).encode()).hexdigest()
 
 
 def split_at_gaps(frames: list[DetectionFrame], max_gap: float) -> list[DetectionFrame]:
