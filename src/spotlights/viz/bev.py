@@ -106,29 +106,31 @@ class BevCanvas:
     def to_pixel(self, xy: np.ndarray) -> np.ndarray:
         """(K, 2) float pixel coordinates (column, row; pixel (r, c) covers [c, c+1) x [r, r+1)) of (K, >= 2)
         points in metres (x, y of the sensor frame)."""
-        p = np.asarray(xy, dtype=np.float64).reshape(-1, np.shape(xy)[-1])[:, :2]
-        col = (p[:, 0] - self.lo[0]) * self.px_per_m + self.origin[0]
-        row = (self.hi[1] - p[:, 1]) * self.px_per_m + self.origin[1]
-        return np.stack([col, row], axis=1)
+        return np.stack(self.columns_rows(xy), axis=1)
+
+    def columns_rows(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The (K,) float64 columns and (K,) rows of :meth:`to_pixel`, as two arrays (no (K, 2) array is made)."""
+        p = np.asarray(xy)
+        p = p.reshape(-1, p.shape[-1])
+        col = p[:, 0].astype(np.float64)
+        col -= self.lo[0]
+        col *= self.px_per_m
+        col += self.origin[0]
+        row = p[:, 1].astype(np.float64)
+        np.subtract(self.hi[1], row, out=row)
+        row *= self.px_per_m
+        row += self.origin[1]
+        return col, row
 
 
 def paint_points(image: np.ndarray, canvas: BevCanvas, points: np.ndarray, color, radius: int = 0) -> None:
     """Paint (K, >= 2) points (metres) into ``image`` (H, W, 3) uint8 in place with ``color``: each a
     square of (2 ``radius`` + 1) pixels; points outside the plot area are dropped. The pixels hit are marked once
-    in a mask and painted in one assignment (however many points share a pixel); pixel coordinates as
-    :meth:`BevCanvas.to_pixel` computes them (float64), without its (K, 2) array."""
+    in a mask and painted in one assignment (however many points share a pixel); pixels of
+    :meth:`BevCanvas.columns_rows`."""
     if points is None or len(points) == 0:
         return
-    p = np.asarray(points)
-    p = p.reshape(len(p), -1)
-    col = p[:, 0].astype(np.float64)
-    col -= canvas.lo[0]
-    col *= canvas.px_per_m
-    col += canvas.origin[0]
-    row = p[:, 1].astype(np.float64)
-    np.subtract(canvas.hi[1], row, out=row)
-    row *= canvas.px_per_m
-    row += canvas.origin[1]
+    col, row = canvas.columns_rows(points)
     np.floor(col, out=col)
     np.floor(row, out=row)
     w, h = canvas.plot_size
