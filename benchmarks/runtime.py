@@ -331,17 +331,16 @@ def section_pictures(frames: int, rounds: int) -> dict:
     import pickle
 
     from spotlights.completion.frame import complete_scene
-    from spotlights.completion.pictures import ID_NOTE, bev_scene, result_png
+    from spotlights.completion.pictures import bev_scene, result_png
     from spotlights.completion.scan import CompletionOptions
     from spotlights.data.real import open_reader
-    from spotlights.viz.bev import bev_image
 
     reader = open_reader(NUSCENES, "nuscenes")
     keys = reader.frame_keys()[:frames]
     opts = CompletionOptions()
     main_model, fallback = opts.load_completer(), opts.load_fallback()
     cpu: dict = {"raster": [], "closeups": []}
-    sizes: dict = {"result_pickle_bytes": [], "payload_pickle_bytes": [], "raster_colours": [], "png_bytes": []}
+    sizes: dict = {"result_pickle_bytes": [], "payload_pickle_bytes": [], "png_bytes": []}
     for key in keys:
         f = reader.load(key)
         r = complete_scene(
@@ -350,13 +349,12 @@ def section_pictures(frames: int, rounds: int) -> dict:
         scan_xy, objects = bev_scene(r)  # what a picture process is sent, against the whole result
         sizes["result_pickle_bytes"].append(len(pickle.dumps(r)))
         sizes["payload_pickle_bytes"].append(len(pickle.dumps((scan_xy, objects))))
-        pic, _ = bev_image(scan_xy, objects, title="title", id_note=ID_NOTE)
-        sizes["raster_colours"].append(len(pic.getcolors(1 << 24)))
-        sizes["png_bytes"].append(len(result_png(r, "title", False)))
         for name, closeups in (("raster", False), ("closeups", True)):
             c0 = time.thread_time()  # this thread's CPU: not the model's threads, which may spin after a forward
-            result_png(r, "title", closeups)
+            png = result_png(r, "title", closeups)
             cpu[name].append(time.thread_time() - c0)
+            if not closeups:
+                sizes["png_bytes"].append(len(png))
     out: dict = {
         "source": "nuScenes scene-0523 (the shared mini extract)",
         "frames": len(keys),
