@@ -104,8 +104,8 @@ def main() -> None:
         }
 
     alternatives = {}  # the default against single changes of one setting, on the same detections
-    for name, change in (("max_misses=6", {"max_misses": 6}), ("max_distance_m=3", {"max_distance_m": 3.0}),
-                         ("max_distance_m=4", {"max_distance_m": 4.0})):  # fmt: skip
+    for name, change in (("coast_velocity_sigmas=0", {"coast_velocity_sigmas": 0.0}), ("max_misses=6", {"max_misses": 6}),
+                         ("max_distance_m=3", {"max_distance_m": 3.0}), ("max_distance_m=4", {"max_distance_m": 4.0})):  # fmt: skip
         alternatives[name] = over_seeds(model, dataclasses.replace(config, **change))
     # a detector that reports velocities (VELOCITY_SIGMA m/s of noise): the tracker using them, and ignoring them
     moving = dataclasses.replace(model, velocity_sigma_mps=VELOCITY_SIGMA)

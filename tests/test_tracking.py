@@ -58,6 +58,30 @@ def test_kalman_process_noise_by_hand():
     assert q[3, 3] == pytest.approx(0.05**2) and q[4, 4] == 0.0
 
 
+def test_a_coasting_track_moves_only_with_a_velocity_told_from_standstill():
+    """No process noise, P_v = diag(1, 1), dt = 1: a track that missed its last frame keeps its position when its
+    velocity's Mahalanobis norm |v| / 1 is below coast_velocity_sigmas (2), and moves by v when it is above;
+    a matched track, or coast_velocity_sigmas = 0, always moves by v."""
+    quiet = dict(accel_sigma=0.0, yaw_rate_sigma=0.0, size_rate_sigma=0.0)
+
+    def coasted(vx, misses, **kw):
+        tr = KalmanTrack(np.array([0.0, 0, 0, 0, 4, 2, 1.5]), TrackerConfig(**quiet, **kw), "1", "car", "car", "car", 0.9)
+        tr.kf.x[7, 0] = vx
+        tr.kf.P[7:10, 7:10] = np.eye(3)
+        tr.misses = misses
+        tr.predict(1.0)
+        return float(tr.kf.x[0, 0]), float(tr.kf.P[0, 0])
+
+    p0 = 0.2**2  # the new track's position variance (meas_sigma_xy)
+    assert coasted(0.5, 1) == pytest.approx((0.0, p0))  # 0.5 sigma: noise, stays (covariance not coupled)
+    assert coasted(1.9, 3) == pytest.approx((0.0, p0))
+    assert coasted(3.0, 1) == pytest.approx((3.0, p0 + 1.0))  # 3 sigma: moves by v, P_xx + P_vv
+    assert coasted(0.5, 0) == pytest.approx((0.5, p0 + 1.0))  # matched last frame: moves
+    assert coasted(0.5, 1, coast_velocity_sigmas=0.0) == pytest.approx((0.5, p0 + 1.0))
+    with pytest.raises(ParameterError, match="coast_velocity_sigmas"):
+        TrackerConfig(coast_velocity_sigmas=-1.0)
+
+
 def test_yaw_wrapping_and_flip():
     assert wrap_angle(3 * math.pi / 2) == pytest.approx(-math.pi / 2)
     assert wrap_angle(-math.pi) == pytest.approx(math.pi)
@@ -471,6 +495,10 @@ def test_the_study_page_quotes_the_results_file():
         f"{m['mostly_tracked']} tracks mostly tracked, {m['mostly_lost']} mostly lost",
         f"over the {res['mean_over_seeds']['seeds']} seeds {res['mean_over_seeds']['id_switches_total']} identity "
         f"switches instead of {res['alternatives']['max_misses=6']['id_switches_total']}",
+        f"over the {res['mean_over_seeds']['seeds']} seeds {res['mean_over_seeds']['id_switches_total']} identity "
+        f"switches instead of {res['alternatives']['coast_velocity_sigmas=0']['id_switches_total']} "
+        f"(`coast_velocity_sigmas=0`), MOTA {res['mean_over_seeds']['mota']:.3f} against "
+        f"{res['alternatives']['coast_velocity_sigmas=0']['mota_mean']:.3f}",
         f"**{res['detector_velocities']['used (default)']['id_switches_per_100_tracks_mean']:.1f} identity switches "
         f"per 100 tracks** ({res['detector_velocities']['used (default)']['id_switches_total']} in all; the target of "
         "3: met) against "

@@ -45,6 +45,10 @@ class DataConfig:
     partials_in_memory : read a split's partial scans into memory once (else lazily per sample).
     classes : train and validate on these classes' models only (a class family's model, e.g. ``[trailer]``);
         None: every model.
+    source_repeat : ``{source: K}``: every training sample of a model from mesh source ``source`` (the
+        dataset's ``/models/source``, e.g. ``apolloscape-cars``) comes K times in each pass (K >= 1, at most
+        :data:`MAX_SOURCE_REPEAT`), so a small source keeps its weight beside a large procedural one; stored as
+        sorted ``(source, K)`` pairs. None: every sample once.
     """
 
     rig: str | None = None
@@ -53,6 +57,10 @@ class DataConfig:
     num_workers: int = 0
     partials_in_memory: bool = True
     classes: tuple | None = None
+    source_repeat: tuple | None = None
+
+
+MAX_SOURCE_REPEAT = 100
 
 
 @dataclass(frozen=True)
@@ -430,7 +438,25 @@ def data_config(cfg: dict) -> DataConfig:
         num_workers=_int(d.get("num_workers", 0) or 0, "data.num_workers", 0),
         partials_in_memory=pim,
         classes=_class_list(d.get("classes")),
+        source_repeat=_source_repeat(d.get("source_repeat")),
     )
+
+
+def _source_repeat(value) -> tuple | None:
+    """``data.source_repeat``: a mapping of mesh source names to repeat counts -> sorted ``(source, K)`` pairs."""
+    if value is None:
+        return None
+    if not isinstance(value, dict) or not value:
+        raise ParameterError(f"data.source_repeat must be a mapping {{source: K}}, e.g. {{apolloscape-cars: 4}}; got {value!r}")
+    pairs = []
+    for name, k in value.items():
+        if not isinstance(name, str) or not name:
+            raise ParameterError(f"data.source_repeat: a source must be a name, got {name!r}")
+        k = _int(k, f"data.source_repeat.{name}", 1)
+        if k > MAX_SOURCE_REPEAT:
+            raise ParameterError(f"data.source_repeat.{name} must be <= {MAX_SOURCE_REPEAT}, got {k}")
+        pairs.append((name, k))
+    return tuple(sorted(pairs))
 
 
 def _class_list(value) -> tuple | None:

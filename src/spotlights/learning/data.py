@@ -223,6 +223,10 @@ class TorchCompletionDataset(Dataset):
             self.extents = store.extents if store.size is not None else None
             self.sizes = None if store.size is None else np.asarray(store.size, dtype=np.float64)
             self.classes = np.asarray(store.classes).astype(str)  # (n_models,) detector class of every model
+            # (n_models,) str mesh source of every model ("" for single-source files)
+            self.sources = (
+                np.asarray(store.sources).astype(str) if store.sources is not None else np.full(len(self.classes), "")
+            )
             self.has_stored_classes = store.stored_classes is not None  # /models/class (else from categories)
             self.class_rows = _class_rows(self.classes, class_vocab) if class_vocab else None
         finally:

@@ -222,13 +222,14 @@ def _epoch_loader(run: TrainingRun, epoch: int) -> DataLoader:
     """This process's DataLoader for ``epoch``: a seeded permutation (one pass) or the next
     ``steps_per_epoch`` batches of the seeded stream of passes, sharded over the processes."""
     seed, dist, bs = run.tcfg.seed, run.dist, run.tcfg.batch_size
+    items = run.pass_items  # one pass: every item once, or K times (data.source_repeat)
     if run.tcfg.steps_per_epoch is None:
         gen = torch.Generator().manual_seed(_epoch_seed(seed, epoch))
-        perm = torch.randperm(run.n_train, generator=gen)[: run.shard * dist.world]
+        perm = torch.randperm(len(items), generator=gen)[: run.shard * dist.world]
     else:
         per_epoch = run.steps_per_epoch * bs * dist.world
-        perm = torch.tensor(_stream_indices(run.n_train, seed, epoch * per_epoch, per_epoch))
-    indices = perm[dist.rank :: dist.world].tolist()
+        perm = torch.tensor(_stream_indices(len(items), seed, epoch * per_epoch, per_epoch))
+    indices = items[perm[dist.rank :: dist.world].numpy()].tolist()
     workers = run.dcfg.num_workers
     return DataLoader(
         run.train_set,

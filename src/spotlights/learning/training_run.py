@@ -16,7 +16,7 @@ import torch
 import yaml
 
 from ..data.shard_index import without_extra_rigs
-from ..errors import InputFileError, SpotlightsError
+from ..errors import InputFileError, ParameterError, SpotlightsError
 from ..geometry.rig import RigSpec
 from ..outputs import atomic_output
 from .checkpoint import load_checkpoint
@@ -57,6 +57,7 @@ class TrainingRun:
     gt_trees: dict = field(init=False)
     net: torch.nn.Module = field(init=False)
     param_counts: dict = field(init=False)
+    pass_items: np.ndarray = field(init=False)  # (P,) int64 the items of one pass (repeated_items)
     start_epoch: int = 0
     global_step: int = 0
     history: list = field(default_factory=list)
@@ -65,6 +66,7 @@ class TrainingRun:
 
     def __post_init__(self) -> None:
         self.dcfg, self.tcfg = data_config(self.cfg), train_config(self.cfg)
+        self.pass_items = repeated_items(self.train_set, self.dcfg.source_repeat)
         self.gt_trees = self.val_set.gt_dense()
         self.net = self.model
         self.param_counts = self.model.param_counts()
@@ -100,7 +102,7 @@ class TrainingRun:
     @property
     def shard(self) -> int:
         """Training samples per process and epoch (one pass split over the processes)."""
-        return self.n_train // self.dist.world
+        return len(self.pass_items) // self.dist.world
 
     @property
     def drop_last(self) -> bool:
@@ -370,6 +372,27 @@ def _start_run_folder(run: TrainingRun, fresh: bool, log) -> None:
     )
     if run.precision != "fp32":
         log(f"{model_name}: training at {run.precision} (autocast forward, float32 weights, losses and metrics)")
+
+
+def repeated_items(train_set, source_repeat) -> np.ndarray:
+    """(P,) int64 item indices of ``train_set`` for one pass: ``arange(len(train_set))``, with every item of a
+    model whose source ``source_repeat`` (``((source, K), ...)``, config ``data.source_repeat``) names repeated
+    K times in place. A named source the training split lacks is a :class:`ParameterError` naming the split's
+    sources."""
+    n = len(train_set)
+    if not source_repeat:
+        return np.arange(n, dtype=np.int64)
+    item_sources = train_set.sources[train_set.sample_models]
+    present = set(item_sources.tolist())
+    reps = np.ones(n, dtype=np.int64)
+    for source, k in source_repeat:
+        if source not in present:
+            known = ", ".join(sorted(s for s in present if s)) or "none recorded"
+            raise ParameterError(
+                f"data.source_repeat names source {source!r}, which no training model has (sources: {known})"
+            )
+        reps[item_sources == source] = k
+    return np.repeat(np.arange(n, dtype=np.int64), reps)
 
 
 def init_from_checkpoint(model: torch.nn.Module, path) -> None:

@@ -7,7 +7,8 @@ Per sequence, frame after frame (times in seconds from :attr:`DetectionFrame.tim
 2. **Predict.** Every track's constant-velocity Kalman filter (filterpy's ``KalmanFilter``) over the state
    ``(x, y, z, yaw, l, w, h, vx, vy, vz)`` is advanced by the time since its last frame ``dt``: position += velocity
    x dt; process noise of a white acceleration ``accel_sigma`` (m/s^2) on each axis, random walks of yaw
-   (``yaw_rate_sigma`` rad/s) and size (``size_rate_sigma`` m/s).
+   (``yaw_rate_sigma`` rad/s) and size (``size_rate_sigma`` m/s). A track that missed its last frame moves only by a
+   velocity the filter tells from standstill (``coast_velocity_sigmas``).
 3. **Associate** per class (the box's ``cls``, else its label), by
    :func:`~spotlights.tracking.association.assign` (``scipy.optimize.linear_sum_assignment``) in two stages:
    3-D GIoU (:mod:`~spotlights.tracking.association`) above ``giou_threshold`` within a gate that follows the
@@ -72,6 +73,10 @@ class TrackerConfig:
     detection_velocity_sigma : a detection's reported velocity (the frame's ``velocities``, e.g. a nuScenes result's
         ``velocity``; finite x and y) starts its new track with that velocity, and corrects the velocity of the track
         it matches, with this standard deviation, m/s (0: reported velocities are not used).
+    coast_velocity_sigmas : while a track misses, its velocity moves its prediction only when the filter can tell it
+        from standstill: when the bird's-eye velocity's Mahalanobis norm under its own covariance is at least this
+        (0: always). Two noisy hits of a parked car give it a velocity of noise, which would carry its prediction
+        onto the next parked car while it is not seen.
     """
 
     metric: str = "giou"
@@ -94,6 +99,7 @@ class TrackerConfig:
     size_rate_sigma: float = 0.05
     init_velocity_sigma: float = 10.0
     detection_velocity_sigma: float = 0.5
+    coast_velocity_sigmas: float = 2.0
 
     def __post_init__(self) -> None:
         if self.metric not in METRICS:
@@ -105,7 +111,8 @@ class TrackerConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ParameterError(f"{name}: a positive number, got {v}")
-        for name in ("accel_sigma", "yaw_rate_sigma", "size_rate_sigma", "detection_velocity_sigma"):
+        for name in ("accel_sigma", "yaw_rate_sigma", "size_rate_sigma", "detection_velocity_sigma",
+                     "coast_velocity_sigmas"):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ParameterError(f"{name}: a number >= 0, got {v}")
@@ -196,8 +203,12 @@ class KalmanTrack:
         return f, q
 
     def predict(self, dt: float) -> None:
-        """Advance the state by ``dt`` seconds (> 0); the yaw is wrapped."""
+        """Advance the state by ``dt`` seconds (> 0); the yaw is wrapped. While the track misses (``misses`` > 0)
+        and its velocity is not :meth:`velocity_significant`, the position stays where it is (its covariance grows
+        by the process noise alone)."""
         f, q = self.transition(dt)
+        if self.misses and not self.velocity_significant():
+            f[0, 7] = f[1, 8] = f[2, 9] = 0.0
         self.kf.predict(F=f, Q=q)
         self.kf.x[3, 0] = wrap_angle(float(self.kf.x[3, 0]))
 
@@ -220,6 +231,15 @@ class KalmanTrack:
         self.misses = 0
         if self.hits >= self.config.min_hits or score >= self.config.confirm_score:
             self.confirmed = True
+
+    def velocity_significant(self) -> bool:
+        """Whether the bird's-eye velocity ``v`` = (vx, vy) is told from standstill: ``v^T P_v^-1 v`` >=
+        ``coast_velocity_sigmas``^2 (``P_v`` its (2, 2) covariance)."""
+        k = self.config.coast_velocity_sigmas
+        if k <= 0:
+            return True
+        v = self.kf.x[7:9, 0]
+        return float(v @ np.linalg.solve(self.kf.P[7:9, 7:9], v)) >= k * k
 
     @property
     def state(self) -> np.ndarray:

@@ -50,7 +50,10 @@ articulated_truck 13.5-20.0  2.45-2.55   3.60-4.10   3.6-5.0     0.25-0.35  EU a
 trailer_box       5.0-16.2   2.45-2.55   3.60-4.10   (axles)     floor      EU 13.6 m semi-trailer, US 48-53 ft; below 9
                                                                  1.1-1.3    m drawbar trailers (EU centre-axle 7-8.5
                                                                             m, US enclosed cargo 16-28 ft)
-trailer_flatbed   5.0-16.2   2.45-2.55   1.40-1.70   (axles)     deck       US flatbed deck ~60 in (1.52 m)
+trailer_flatbed   5.0-19.0   2.45-2.55   1.40-1.70   (axles)     deck       US flatbed deck ~60 in (1.52 m); beyond
+                                                                            16.2 m: extendable ("stretch") flatbed
+                                                                            semi-trailers for long loads, which extend
+                                                                            past 20 m (capped at 19.0 m)
 trailer_tanker    9.0-13.6   2.45-2.55   3.30-4.00   (axles)     0.9-1.2    ADR fuel/chemical tank semi-trailers,
                                                                  (tank      3 axles: 10.5-13.6 x 2.50-2.55 x 3.5-3.9
                                                                  bottom)    (Kässbohrer, Feldbinder data sheets)
@@ -103,7 +106,7 @@ DIMENSIONS = {
     "box_truck": {"length": (6.5, 12.0), "width": (2.30, 2.55), "height": (3.00, 4.00), "wheelbase": (3.4, 6.8), "clearance": (0.25, 0.35)},
     "semi_tractor": {"length": (5.8, 7.5), "width": (2.45, 2.55), "height": (3.20, 4.00), "wheelbase": (3.6, 5.0), "clearance": (0.25, 0.35)},
     "trailer_box": {"length": (5.0, 16.2), "width": (2.45, 2.55), "height": (3.60, 4.10), "wheelbase": (0.0, 0.0), "clearance": (1.10, 1.30)},
-    "trailer_flatbed": {"length": (5.0, 16.2), "width": (2.45, 2.55), "height": (1.40, 1.70), "wheelbase": (0.0, 0.0), "clearance": (0.15, 0.22)},
+    "trailer_flatbed": {"length": (5.0, 19.0), "width": (2.45, 2.55), "height": (1.40, 1.70), "wheelbase": (0.0, 0.0), "clearance": (0.15, 0.22)},
     "bus": {"length": (9.0, 15.0), "width": (2.45, 2.55), "height": (2.90, 3.60), "wheelbase": (4.5, 7.0), "clearance": (0.25, 0.35)},
     "articulated_truck": {"length": (13.5, 20.0), "width": (2.45, 2.55), "height": (3.60, 4.10), "wheelbase": (3.6, 5.0), "clearance": (0.25, 0.35)},
     "coupe": {"length": (4.2, 4.8), "width": (1.78, 1.95), "height": (1.28, 1.42), "wheelbase": (2.45, 2.85), "clearance": (0.11, 0.15)},
