@@ -247,6 +247,12 @@ def main(argv=None) -> int:
         help="the box a frame that makes a shape is completed in: the track's median size (the library's) or its "
         "own box (the comparison)",
     )
+    ap.add_argument(
+        "--fit",
+        action="store_true",
+        help="every completion fitted to its input's evidence (`--fit`: SceneConfig(fit=True)); with a shape per "
+        "track, the shape's completion is fitted to the whole fused track",
+    )
     ap.add_argument("--skip-real", action="store_true")
     ap.add_argument("--skip-sequences", action="store_true")
     ap.add_argument("--json", required=True)
@@ -259,7 +265,7 @@ def main(argv=None) -> int:
 
         TrackShapes.maker_box = lambda self, tr, pos: None
     completer = load_completer(args.checkpoint, precision=args.precision)
-    config = SceneConfig()
+    config = SceneConfig(fit=args.fit)
     report: dict = dict(
         command="OMP_NUM_THREADS=1 nice -n 10 python benchmarks/track_shapes.py "
         + " ".join(sys.argv[1:] if argv is None else argv),
@@ -267,6 +273,7 @@ def main(argv=None) -> int:
         model=completer.model_name,
         precision=args.precision,
         maker_box=args.maker_box,
+        fit=args.fit,
         torch_threads=1,
         sample_points=SAMPLE,
     )

@@ -659,6 +659,13 @@ def test_track_shapes_study_tables():
         _says(doc, f"| {mean[key]['accuracy_m']:.4f} | {mean[key]['completeness_m']:.4f} |")
     _says(doc, f"(`gap_closed_accuracy` {rep['sequences']['gap_closed_accuracy']:.3f})")
     _says(doc, f"of the completeness gap ({rep['sequences']['gap_closed_completeness']:.3f})")
+    fit = _json("tracking/track_shapes_fit_sequences.json")["sequences"]
+    fm = fit["mean"]
+    _says(doc, f"one frame {fm['frame']['accuracy_m']:.4f} / {fm['frame']['completeness_m']:.4f} m")
+    _says(doc, f"the track's shape {fm['shape all']['accuracy_m']:.4f} / {fm['shape all']['completeness_m']:.4f} m")
+    _says(doc, f"(`gap_closed_accuracy` {fit['gap_closed_accuracy']:.3f} with `--fit`)")
+    _says(doc, f"{fit['gap_closed_completeness'] * 100:.0f}% of the completeness gap")
+    assert fm["shape all"]["accuracy_m"] > rep["sequences"]["mean"]["shape all"]["accuracy_m"]  # "less accurate"
     own = _json("tracking/track_shapes_own_box.json")["nuscenes"]["detections"]["modes"]
     med = rep["nuscenes"]["detections"]["modes"]
     _says(
