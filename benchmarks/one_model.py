@@ -44,11 +44,11 @@ from spotlights.learning.data import TorchCompletionDataset  # noqa: E402
 CURVE = ("epoch", "global_step", "wall_seconds", "val_chamfer_l1", "val_accuracy", "val_completeness", "val_threshold")
 
 
-def long_trucks(length: float, n: int, max_seeds: int = 2000) -> list:
-    """The first ``n`` seeds' articulated trucks whose length is within 0.5 m of ``length``: [(seed, v, f)]."""
+def long_trucks(length: float, n: int, max_seeds: int = 4000, body: str = "articulated_truck") -> list:
+    """The first ``n`` seeds' vehicles of ``body`` whose length is within 0.5 m of ``length``: [(seed, v, f)]."""
     out = []
     for seed in range(max_seeds):
-        p = draw_params("articulated_truck", seed)
+        p = draw_params(body, seed)
         if abs(p.length - length) <= 0.5:
             v, f = vehicle_arrays(p)
             out.append((seed, v, f))
@@ -57,8 +57,9 @@ def long_trucks(length: float, n: int, max_seeds: int = 2000) -> list:
     return out
 
 
-def truck_check(checkpoints: dict, trucks: list) -> dict:
-    """{label: [per truck: seed, size, status, inside_box, points, accuracy_m, completeness_m]}."""
+def truck_check(checkpoints: dict, trucks: list, cls: str = "truck") -> dict:
+    """{label: [per vehicle: seed, size, status, inside_box, points, accuracy_m, completeness_m]}; boxes of class
+    ``cls``."""
     scans = []
     for seed, v, f in trucks:
         sim = LidarSimulator(v, f)
@@ -69,7 +70,7 @@ def truck_check(checkpoints: dict, trucks: list) -> dict:
         scan = sim.scan(pose, rng)
         m = sim.object_to_sensor(pose)
         pts = scan.points @ m[:3, :3].T + m[:3, 3]
-        box = Box(sim.box_center_in_sensor(pose), sim.size, yaw=pose.heading, cls="truck", label="truck")
+        box = Box(sim.box_center_in_sensor(pose), sim.size, yaw=pose.heading, cls=cls, label=cls)
         surface = trimesh.Trimesh(v, f, process=False).sample(20000, seed=seed) @ m[:3, :3].T + m[:3, 3]
         scans.append((seed, pts, box, cKDTree(surface), surface))
     out = {}
@@ -98,6 +99,16 @@ def truck_check(checkpoints: dict, trucks: list) -> dict:
     return out
 
 
+def learned_lengths(checkpoint) -> dict:
+    """{class: [shortest, longest] training box length, m} of a checkpoint's learned domain."""
+    from spotlights.learning.checkpoint import load_checkpoint
+    from spotlights.learning.domain import LearnedDomain
+
+    dom = LearnedDomain.from_checkpoint(load_checkpoint(checkpoint))
+    sizes = dom.class_sizes or {c: (dom.size_min, dom.size_max) for c in dom.classes}
+    return {c: [round(float(lo[0]), 2), round(float(hi[0]), 2)] for c, (lo, hi) in sizes.items()}
+
+
 def learning_curve(path: Path) -> list:
     """The intervals of a run's ``log.csv``: the columns of :data:`CURVE` (numbers rounded)."""
     with open(path, newline="") as fh:
@@ -113,6 +124,7 @@ def main() -> None:
     p.add_argument("--max-views", type=int, default=100, help="test views per model (1..150)")
     p.add_argument("--trucks", type=int, default=3, help="long trucks scanned (1..20)")
     p.add_argument("--truck-length", type=float, default=16.0, help="metres, 12..20")
+    p.add_argument("--trailer-length", type=float, default=None, help="also --trucks flatbed trailers of this length")
     p.add_argument("--train-log", type=Path, default=None)
     p.add_argument("--json", type=Path, default=None)
     a = p.parse_args()
@@ -140,6 +152,14 @@ def main() -> None:
     for label, rows in result["trucks"]["results"].items():
         for r in rows:
             print(label, r)
+    if a.trailer_length:
+        trailers = long_trucks(a.trailer_length, a.trucks, body="trailer_flatbed")
+        result["trailers"] = {"length_m": a.trailer_length, "results": truck_check(ckpts, trailers, "trailer")}
+        for label, rows in result["trailers"]["results"].items():
+            for r in rows:
+                print(label, "trailer", r)
+    result["domains"] = {label: learned_lengths(c) for label, c in ckpts.items()}
+    print("learned lengths (m):", result["domains"])
     if a.train_log:
         result["learning_curve"] = learning_curve(a.train_log)
     if a.json:

@@ -350,3 +350,36 @@ def test_an_onnx_export_is_fitted_through_its_checkpoint(tmp_path):
     (tmp_path / "model.pt").unlink()
     with pytest.raises(ParameterError, match="cannot be fitted"):
         complete_scene(scan, [box], Export(), config)
+
+
+def test_real_evaluate_fits_and_no_fitted_observation_moves_away(tmp_path, completer):
+    """``real evaluate --fit``: the gate keeps a fit only where it comes closer to the observed points, so every
+    track's mean fidelity with the fit is at most the unfitted one; the settings record the fit's steps (a report
+    scored without it is not reused for it); --fit with --snap and --fit-steps without --fit are one line each."""
+    from builders import tracked_scene
+
+    from spotlights.data.real.extract import write_observations
+    from spotlights.experiments.real_evaluation import RealEvaluationSettings, evaluate_consistency
+
+    obs = tracked_scene(tmp_path / "scene")
+    quick = dict(heading_check=False, noise_floor=False, equal_points=None, equal_density=None)
+    plain = evaluate_consistency(obs, [completer], progress=False, **quick)
+    fitted = evaluate_consistency(obs, [completer], progress=False, fit=True, fit_steps=4, **quick)
+    (p,), (f,) = plain["models"], fitted["models"]
+    assert p["fitted"] is None and 0.0 < f["fitted"] <= 1.0
+    assert plain["data"]["settings"]["fit_steps"] is None and fitted["data"]["settings"]["fit_steps"] == 4
+    before = {o["track_id"]: o["fidelity"] for o in p["objects"]}
+    after = {o["track_id"]: o["fidelity"] for o in f["objects"]}
+    assert before.keys() == after.keys() and all(after[t] <= before[t] + 1e-9 for t in before)
+    assert any(after[t] < before[t] for t in before)
+    with pytest.raises(ParameterError, match="`fit_steps` goes with `fit`"):
+        RealEvaluationSettings(fit_steps=3)
+    with pytest.raises(ParameterError, match="does not go with `snap`"):
+        RealEvaluationSettings(fit=True, snap=0.05, heading_check=False)
+    path = tmp_path / "obs.h5"
+    write_observations(path, obs)
+    r = run_cli("real", "evaluate", path, "--fit", "--snap", "0.05", "--no-heading-check", "-o", tmp_path / "x", "-q")
+    assert_user_error(r, "--fit")
+    r = run_cli("real", "evaluate", path, "--fit-steps", "3", "-o", tmp_path / "y", "-q")
+    assert_user_error(r, "--fit-steps goes with --fit")
+    assert not list(tmp_path.glob("x*")) and not list(tmp_path.glob("y*"))

@@ -16,6 +16,7 @@ from ..experiments.real_runs import (
     extract_file,
     show_file,
 )
+from ..learning.fit import FIT_DOC, FIT_STEPS_DOC, parse_fit_steps
 from ..options import option, settings_from_namespace
 from ._util import (
     CROP_GROUND_HELP,
@@ -278,6 +279,8 @@ class RealEvaluateOptions:
         default=0.0, type=non_negative_float, metavar="R", help=SNAP_HELP + "; needs --no-heading-check"
     )
     snap_mirror: bool = option(default=False, action="store_true", help=SNAP_MIRROR_HELP)
+    fit: bool = option(default=False, action="store_true", help=FIT_DOC)
+    fit_steps: int | None = option(default=None, type=argparse_type(parse_fit_steps), metavar="N", help=FIT_STEPS_DOC)
     device: str | None = option(default=None, help=DEVICE_HELP)
     reference: str | None = option(
         default=None,

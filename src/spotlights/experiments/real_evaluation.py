@@ -62,6 +62,7 @@ from ..data.store import open_dataset
 from ..errors import InputFileError, ParameterError, SpotlightsError
 from ..geometry.evidence import snap_radius
 from ..learning.checkpoint import resolve_checkpoint
+from ..learning.fit import FIT_STEPS, check_fit_steps
 from ..metrics.consistency import (
     DIVERSITY_DOC,
     METRIC_DOC,
@@ -179,6 +180,9 @@ class RealEvaluationSettings:
         :meth:`~spotlights.learning.inference.BaseCompleter.complete`); 0: off. Not with ``heading_check`` (which
         compares fidelities that snapping puts near 0 for both headings). snap_mirror : also snap to the partial's
         mirror image (``y -> -y``).
+    fit : each completion fitted to its observation's evidence (:func:`~spotlights.learning.fit.fit_completions`,
+        as ``real complete --fit``; SA-Nets run with torch; point-set models unfitted); not with ``snap``.
+        fit_steps : the fit's Adam steps (1..:data:`~spotlights.learning.fit.MAX_FIT_STEPS`; None: the default).
 
     Read from a mapping with :meth:`from_dict` (unknown keys are errors naming the closest field).
     """
@@ -193,9 +197,21 @@ class RealEvaluationSettings:
     batch_size: int = 64
     snap: float = 0.0
     snap_mirror: bool = False
+    fit: bool = False
+    fit_steps: int | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "snap", snap_radius(self.snap, self.snap_mirror) or 0.0)  # None (off): 0.0
+        if not isinstance(self.fit, (bool, np.bool_)):
+            raise ParameterError(f"`fit` must be True or False, got {self.fit!r}", "fit")
+        if self.fit_steps is not None:
+            if not self.fit:
+                raise ParameterError("`fit_steps` goes with `fit`", "fit_steps", "fit")
+            object.__setattr__(self, "fit_steps", check_fit_steps(self.fit_steps))
+        if self.fit and self.snap > 0:
+            raise ParameterError(
+                "`fit` does not go with `snap`: the fit puts the rays near observed points on them", "fit", "snap"
+            )
         if self.snap > 0 and self.heading_check:
             raise ParameterError(
                 "`snap` does not go with the heading check (add `no_heading_check`): the flips are counted by "
@@ -241,8 +257,8 @@ def _reusable(previous: Sequence[dict] | None, scored: dict) -> dict:
     reusable = {}
     for rep in previous or ():
         earlier = (rep.get("data") or {}).get("settings")
-        if isinstance(earlier, dict):  # reports from before --snap existed did not snap
-            earlier = {"snap": 0.0, "snap_mirror": False} | earlier
+        if isinstance(earlier, dict):  # reports from before --snap / --fit existed did not snap or fit
+            earlier = {"snap": 0.0, "snap_mirror": False, "fit_steps": None} | earlier
         if earlier == same:
             reusable.update({(m.get("name"), m.get("checkpoint_sha256")): m for m in rep.get("models", [])})
     return reusable
@@ -281,6 +297,7 @@ def _scored_settings(
         mmd_reference=reference_info if references is not None else None,
         snap=float(settings.snap),
         snap_mirror=bool(settings.snap_mirror),
+        fit_steps=(settings.fit_steps or FIT_STEPS) if settings.fit else None,
     )
 
 

@@ -134,7 +134,8 @@ class EvaluateSettings:
     file : the observation file; checkpoint : the models (None: the default model); names : their row names;
     out : the report prefix (None: FILE without ``.h5`` + ``_consistency``); classes : comma-separated
     classes to score; equal_points, equal_density, no_noise_floor, no_heading_check, heading_margin,
-    batch_size, clip, snap, snap_mirror : the scoring (:class:`~.real_evaluation.RealEvaluationSettings`); device : torch device;
+    batch_size, clip, snap, snap_mirror, fit, fit_steps : the scoring (:class:`~.real_evaluation.RealEvaluationSettings`);
+    device : torch device;
     reference, reference_split : the MMD reference dataset and split; resume : reuse the models of an earlier
     report with the same settings; quiet : no progress bars.
     """
@@ -153,6 +154,8 @@ class EvaluateSettings:
     clip: float | None = None
     snap: float = 0.0
     snap_mirror: bool = False
+    fit: bool = False
+    fit_steps: int | None = None
     device: str | None = None
     reference: str | None = None
     reference_split: str | None = None
@@ -199,6 +202,8 @@ class EvaluateSettings:
             batch_size=self.batch_size,
             snap=float(self.snap),
             snap_mirror=bool(self.snap_mirror),
+            fit=bool(self.fit),
+            fit_steps=self.fit_steps,
         )
 
 

@@ -57,6 +57,8 @@ def complete_all(
     classes=None,
     snap: float | None = None,
     snap_mirror: bool = False,
+    fit=None,
+    fitted: list | None = None,
 ) -> list[np.ndarray]:
     """Run ``completer.complete`` over (n, P, 3) float32 partials in batches; returns n (K_i, 3) float32 arrays.
 
@@ -68,7 +70,9 @@ def complete_all(
     space (``sanet-local``; NaN rows: unknown) and for ``snap``'s occlusion rule; others never see it.
     ``classes`` (n,): each observation's class, for class-conditioned models (others never see it).
     ``snap``: radius (unit frame) of snapping each completion's rays to its partial (SA-Nets; None: off), with
-    ``snap_mirror`` to its mirror image too.
+    ``snap_mirror`` to its mirror image too. ``fit``: a :class:`~spotlights.learning.fit.FitSettings`: each
+    completion fitted to its partial's evidence (:func:`~spotlights.learning.fit.fit_completions`, needs
+    ``box_sizes``; outputs as they are, unclamped); ``fitted`` receives per observation whether the fit was kept.
     """
     from tqdm import tqdm
 
@@ -93,7 +97,11 @@ def complete_all(
             kw["classes"] = list(classes[s : s + batch_size])
         if snap:
             kw["snap"], kw["snap_mirror"] = snap, bool(snap_mirror)
-        res = completer.complete(batch, **kw)
+        if fit is not None:
+            origins = None if sensor_origins is None else sensor_origins[s : s + batch_size]
+            res = _fitted_batch(completer, batch, box_sizes[s : s + batch_size], origins, kw, fit, fitted)
+        else:
+            res = completer.complete(batch, **kw)
         if len(res) != len(batch):
             raise SpotlightsError(
                 f"completer {getattr(completer, 'model_name', '?')} returned {len(res)} completions for {len(batch)} inputs"
@@ -109,6 +117,29 @@ def complete_all(
                     )
             out.append(r)
     return out
+
+
+def _fitted_batch(completer, batch: np.ndarray, sizes, origins, kw: dict, fit, fitted: list | None) -> list:
+    """One batch of :func:`complete_all` through the evidence fit (``origins``: the batch's sensors in their unit
+    frames, NaN rows unknown, or None: the free-space term where known): the clouds as fitted (unclamped)."""
+    from ..learning.fit import fit_completions
+
+    if kw.get("snap"):
+        raise SpotlightsError("the fit does not go with snapping: the fit puts the rays near observed points on them")
+    sz = np.asarray(sizes, dtype=np.float64).reshape(-1, 3)
+    res = fit_completions(
+        completer,
+        batch,
+        unit_extents(sz),
+        sensor_origins=origins,
+        box_half=grown_half_extents(sz),
+        classes=kw.get("classes"),
+        clip=kw.get("clip"),
+        settings=fit,
+    )
+    if fitted is not None:
+        fitted.extend(bool(v) for v in res.fitted)
+    return list(res.clouds)
 
 
 def equal_count(points: np.ndarray, n: int = EQUAL_POINTS, seed: int = 0) -> np.ndarray:
@@ -260,6 +291,18 @@ def _domain_entry(domain, t: _Tracked) -> dict:
     return dict(n_observations=n_out, reasons=reasons)
 
 
+def fit_settings(completer, s):
+    """The :class:`~spotlights.learning.fit.FitSettings` of ``s`` (``fit``, ``fit_steps``) for ``completer``, None
+    when ``s`` does not fit or the model cannot be fitted (a point-set model: its entry's ``fitted`` is None)."""
+    if not getattr(s, "fit", False):
+        return None
+    from ..learning.fit import FIT_STEPS, FitSettings, can_fit
+
+    if not can_fit(completer):
+        return None
+    return FitSettings(steps=s.fit_steps or FIT_STEPS)
+
+
 def _model_entry(
     t: _Tracked, completer, name: str, checkpoint, digest, s: RealEvaluationSettings, progress: bool
 ) -> dict:
@@ -272,8 +315,10 @@ def _model_entry(
         sensor_origins=t.sensors,
         classes=t.cls,
         **snap_options(completer, s.snap, s.snap_mirror),  # a point-set model unsnapped (its entry says so)
+        fit=fit_settings(completer, s),
     )
-    comps = complete_all(completer, t.partials, desc=f"complete {name}", **run)
+    fitted: list[bool] = []
+    comps = complete_all(completer, t.partials, desc=f"complete {name}", fitted=fitted, **run)
     p2 = t.partials2
     comps2 = complete_all(completer, p2, desc=f"noise floor {name}", **run) if p2 is not None else None
     tracks, agg, div = _score(t, comps, t.ref_trees, comps2)
@@ -285,6 +330,7 @@ def _model_entry(
         n_params=getattr(completer, "n_params", None),
         mean_points_per_completion=float(np.mean([len(c) for c in comps])),
         snapped=run["snap"] is not None,
+        fitted=None if run["fit"] is None else float(np.mean(fitted)) if fitted else 0.0,
         diversity=div,
         consistency_over_diversity=_ratio(agg["all_objects"]["cd"], div),
         **agg,
