@@ -356,10 +356,10 @@ def test_real_evaluate_fits_and_no_fitted_observation_moves_away(tmp_path, compl
     """``real evaluate --fit``: the gate keeps a fit only where it comes closer to the observed points, so every
     track's mean fidelity with the fit is at most the unfitted one; the settings record the fit's steps (a report
     scored without it is not reused for it); --fit with --snap and --fit-steps without --fit are one line each."""
-    from builders import tracked_scene
-
     from spotlights.data.real.extract import write_observations
     from spotlights.experiments.real_evaluation import RealEvaluationSettings, evaluate_consistency
+
+    from builders import tracked_scene
 
     obs = tracked_scene(tmp_path / "scene")
     quick = dict(heading_check=False, noise_floor=False, equal_points=None, equal_density=None)

@@ -65,7 +65,9 @@ def test_a_coasting_track_moves_only_with_a_velocity_told_from_standstill():
     quiet = dict(accel_sigma=0.0, yaw_rate_sigma=0.0, size_rate_sigma=0.0)
 
     def coasted(vx, misses, **kw):
-        tr = KalmanTrack(np.array([0.0, 0, 0, 0, 4, 2, 1.5]), TrackerConfig(**quiet, **kw), "1", "car", "car", "car", 0.9)
+        tr = KalmanTrack(
+            np.array([0.0, 0, 0, 0, 4, 2, 1.5]), TrackerConfig(**quiet, **kw), "1", "car", "car", "car", 0.9
+        )
         tr.kf.x[7, 0] = vx
         tr.kf.P[7:10, 7:10] = np.eye(3)
         tr.misses = misses

@@ -25,6 +25,7 @@ from ..geometry.box_clamp import GROWN_BOX_MARGIN, grown_half_extents
 from ..geometry.boxes import FLIP_Z, unit_extents
 from ..geometry.neighbors import NearestNeighbors, serial_queries
 from ..geometry.sampling import resample_set, voxel_downsample
+from ..learning.fit import FIT_STEPS, FitSettings, can_fit, fit_completions
 from ..metrics.consistency import (
     aggregate,
     diversity,
@@ -122,8 +123,6 @@ def complete_all(
 def _fitted_batch(completer, batch: np.ndarray, sizes, origins, kw: dict, fit, fitted: list | None) -> list:
     """One batch of :func:`complete_all` through the evidence fit (``origins``: the batch's sensors in their unit
     frames, NaN rows unknown, or None: the free-space term where known): the clouds as fitted (unclamped)."""
-    from ..learning.fit import fit_completions
-
     if kw.get("snap"):
         raise SpotlightsError("the fit does not go with snapping: the fit puts the rays near observed points on them")
     sz = np.asarray(sizes, dtype=np.float64).reshape(-1, 3)
@@ -294,11 +293,7 @@ def _domain_entry(domain, t: _Tracked) -> dict:
 def fit_settings(completer, s):
     """The :class:`~spotlights.learning.fit.FitSettings` of ``s`` (``fit``, ``fit_steps``) for ``completer``, None
     when ``s`` does not fit or the model cannot be fitted (a point-set model: its entry's ``fitted`` is None)."""
-    if not getattr(s, "fit", False):
-        return None
-    from ..learning.fit import FIT_STEPS, FitSettings, can_fit
-
-    if not can_fit(completer):
+    if not getattr(s, "fit", False) or not can_fit(completer):
         return None
     return FitSettings(steps=s.fit_steps or FIT_STEPS)
 

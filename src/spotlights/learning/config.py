@@ -447,7 +447,9 @@ def _source_repeat(value) -> tuple | None:
     if value is None:
         return None
     if not isinstance(value, dict) or not value:
-        raise ParameterError(f"data.source_repeat must be a mapping {{source: K}}, e.g. {{apolloscape-cars: 4}}; got {value!r}")
+        raise ParameterError(
+            f"data.source_repeat must be a mapping {{source: K}}, e.g. {{apolloscape-cars: 4}}; got {value!r}"
+        )
     pairs = []
     for name, k in value.items():
         if not isinstance(name, str) or not name:

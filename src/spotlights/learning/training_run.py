@@ -372,7 +372,9 @@ def _start_run_folder(run: TrainingRun, fresh: bool, log) -> None:
     )
     if len(run.pass_items) != len(run.train_set):
         repeats = ", ".join(f"{source} x{k}" for source, k in run.dcfg.source_repeat)
-        log(f"{model_name}: a pass over the training set is {len(run.pass_items)} samples (data.source_repeat: {repeats})")
+        log(
+            f"{model_name}: a pass over the training set is {len(run.pass_items)} samples (data.source_repeat: {repeats})"
+        )
     if run.precision != "fp32":
         log(f"{model_name}: training at {run.precision} (autocast forward, float32 weights, losses and metrics)")
 
