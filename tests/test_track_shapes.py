@@ -45,17 +45,22 @@ def resize(folder, frame: int, track: str, scale: float) -> None:
     path.write_text(json.dumps(d))
 
 
-def run_loop(src, window: str, track_shape: bool, refine: bool = False):
+def run_loop(src, window: str, track_shape: bool, refine: bool = False, completer=None, config=None, results=None):
     """The frame loop of ``real complete`` (in this process, no files): {(track id, position): the completion in
-    the box frame of the track's (refined) box at that position (K, 3)}, and the plan."""
+    the box frame of the track's (refined) box at that position (K, 3)}, and the plan (``completer``: default
+    :class:`Shifted`; ``config``: default ``SceneConfig()``; ``results``, a list, receives each frame's result)."""
+    completer = Shifted() if completer is None else completer
+    config = SceneConfig() if config is None else config
     reader = open_reader(src, "generic")
     keys = reader.frame_keys()
-    plan = TrackPlan(parse_window(window), SceneConfig(), refine=refine, track_shape=track_shape).build(reader, keys)
+    plan = TrackPlan(parse_window(window), config, refine=refine, track_shape=track_shape).build(reader, keys)
     out = {}
     for key in keys:
         frame = plan.take(key) or reader.load(key)
         boxes, extra = plan.frame_inputs(key, frame.boxes)
-        result = complete_scene(frame.points, boxes, Shifted(), SceneConfig(), extra_points=extra)
+        result = complete_scene(frame.points, boxes, completer, config, extra_points=extra)
+        if results is not None:
+            results.append(result)
         plan.place_shapes(key, result)
         plan.record(key, result)
         for o in result.completed:
@@ -101,6 +106,28 @@ def test_offline_shape_is_the_same_points_in_every_frame_box_frame(tmp_path):
     assert summ["track_shape"] == "offline" and summ["size_tolerance"] == SIZE_TOLERANCE
     assert [t["shape_made_at"] for t in summ["tracks"]] == [[0], [0]]
     assert [t["split_from"] for t in summ["tracks"]] == [None, None]
+
+
+def test_with_fit_the_shape_is_fitted_to_the_whole_track(tmp_path):
+    """``--fit`` with a shape per track: the frame that makes the shape fits its completion to the fused track
+    (the gate keeps a fit only where it comes closer to the input), every frame shows that one fitted shape, and it
+    differs from the unfitted shape where the fit was kept."""
+    pytest.importorskip("torch")
+    from spotlights.learning.inference import load_completer
+
+    model = load_completer("default", device="cpu")
+    src = drive(tmp_path)
+    made: list = []
+    fitted, _ = run_loop(src, "all", True, completer=model, config=SceneConfig(fit=True), results=made)
+    plain, _ = run_loop(src, "all", True, completer=model)
+    first = {o.box.track_id: o for o in made[0].completed}
+    kept = [tid for tid in ("a", "b") if first[tid].fitted]
+    assert kept  # the drive's cars are fitted at the frame that makes their shapes
+    for tid in ("a", "b"):
+        for pos in range(1, len(TIMES)):
+            np.testing.assert_allclose(fitted[(tid, pos)], fitted[(tid, 0)], rtol=0, atol=1e-9)
+    for tid in kept:
+        assert fitted[(tid, 0)].shape != plain[(tid, 0)].shape or not np.allclose(fitted[(tid, 0)], plain[(tid, 0)])
 
 
 def test_offline_shape_follows_the_refined_boxes(tmp_path):
