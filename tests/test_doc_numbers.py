@@ -691,3 +691,60 @@ def test_same_outputs_study_table():
         cells = ["same" if r[job]["same"] else "**differs**" for r in (old, new)]
         _says(doc, f"| {job} | {cells[0]} | {cells[1]} |")
     _says(doc, f"module split ({new['_refs']['old']} -> {new['_refs']['new']})")
+
+
+ONE_MODEL_GROUPS = (
+    ("apolloscape-cars", "ApolloScape test cars"),
+    ("kenney-test", "Kenney test vehicles"),
+    ("procedural/car", "procedural car"),
+    ("procedural/caravan", "procedural caravan"),
+    ("procedural/truck", "procedural truck"),
+    ("procedural/bus", "procedural bus"),
+    ("procedural/trailer", "procedural trailer"),
+)
+
+
+def test_one_model_second_run_tables():
+    """docs/studies/one-model.md's second run: every test row and the real-set rows from their results files."""
+    doc = "docs/studies/one-model.md"
+    rep = _json("models/one_model_second.json")
+    labels = rep["checkpoints"]
+    for group, name in ONE_MODEL_GROUPS:
+        first = rep["test"][labels[0]][group]
+        cells = [
+            f"{v['accuracy']:.5f} / {v['completeness']:.5f} / {100 * v['inside']:.1f}%"
+            for v in (rep["test"][label][group] for label in labels)
+        ]
+        _says(doc, f"| {name} ({first['models']}, {first['n']}) | " + " | ".join(cells) + " |")
+    real = _json("models/one_model_real.json")
+    for set_name, models in real.items():
+        for cls in models["second-run"]:
+            cells = [
+                f"{100 * m[cls]['inside_box']:.1f}% / {m[cls]['fidelity']:.4f} / {m[cls]['consistency_voxel']:.4f}"
+                for m in models.values()
+            ]
+            _says(doc, f"| {set_name} {cls} ({models['second-run'][cls]['objects']}) | " + " | ".join(cells) + " |")
+
+
+def test_one_model_second_run_prose():
+    """The verdict's numbers of docs/studies/one-model.md's second run, computed from its results files."""
+    doc = "docs/studies/one-model.md"
+    rep = _json("models/one_model_second.json")
+    t = rep["test"]
+    cars, dflt, kenney = (
+        t["second-run"]["apolloscape-cars"],
+        t["default"]["apolloscape-cars"],
+        t["second-run"]["kenney-test"],
+    )
+    _says(doc, f"accuracy is **{cars['accuracy']:.5f}**")
+    _says(doc, f"**{100 * (cars['completeness'] / dflt['completeness'] - 1):.1f}% worse than the default's**")
+    _says(doc, f"**not met: {kenney['accuracy'] / cars['accuracy']:.2f}x**")
+    _says(doc, f"completeness within 1.4x not met ({kenney['completeness'] / cars['completeness']:.2f}x)")
+    trailer = rep["domains"]["second-run"]["trailer"]
+    _says(doc, f"**trailers {trailer[0]:.1f}-{trailer[1]:.1f} m**")
+    curve = rep["learning_curve"]
+    _says(
+        doc, f"**{int(curve[-1]['global_step']):,} steps in {curve[-1]['wall_seconds'] / 60:.1f} minutes of training**"
+    )
+    assert all(r["status"] == "completed" and r["inside_box"] >= 0.99 for r in rep["trucks"]["results"]["second-run"])
+    assert all(r["status"] == "completed" and r["inside_box"] >= 0.99 for r in rep["trailers"]["results"]["second-run"])
