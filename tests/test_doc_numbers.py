@@ -750,3 +750,21 @@ def test_one_model_second_run_prose():
     _says(doc, "| val CD-L1 | " + " | ".join(f"{r['val_chamfer_l1']:.5f}" for r in shown) + " |")
     assert all(r["status"] == "completed" and r["inside_box"] >= 0.99 for r in rep["trucks"]["results"]["second-run"])
     assert all(r["status"] == "completed" and r["inside_box"] >= 0.99 for r in rep["trailers"]["results"]["second-run"])
+
+
+def test_one_model_first_run_table():
+    """docs/studies/one-model.md's first-run table (bold marks aside) from results/models/one_model.json."""
+    rep = _json("models/one_model.json")
+    text = _text(REPO / "docs/studies/one-model.md").replace("**", "")
+
+    def share(x: float) -> str:
+        return "100%" if round(100 * x, 1) == 100.0 else f"{100 * x:.1f}%"
+
+    for group, name in ONE_MODEL_GROUPS:
+        first = rep["test"]["default"][group]
+        cells = [
+            f"{v['accuracy']:.5f} / {v['completeness']:.5f} / {share(v['inside'])}"
+            for v in (rep["test"][label][group] for label in rep["checkpoints"])
+        ]
+        row = f"| {name} ({first['models']}, {first['n']}) | " + " | ".join(cells) + " |"
+        assert row in text, row
