@@ -25,7 +25,9 @@ from ..geometry.box_clamp import GROWN_BOX_MARGIN, grown_half_extents
 from ..geometry.boxes import FLIP_Z, unit_extents
 from ..geometry.neighbors import NearestNeighbors, serial_queries
 from ..geometry.sampling import resample_set, voxel_downsample
-from ..learning.fit import FIT_STEPS, FitSettings, can_fit, fit_completions
+from ..learning.completion_request import DEFAULT
+from ..learning.fit import FIT_STEPS, FitSettings, can_fit
+from ..learning.inference import fit_in_boxes
 from ..metrics.consistency import (
     aggregate,
     diversity,
@@ -98,9 +100,12 @@ def complete_all(
             kw["classes"] = list(classes[s : s + batch_size])
         if snap:
             kw["snap"], kw["snap_mirror"] = snap, bool(snap_mirror)
-        if fit is not None:
+        if fit is not None:  # the clouds as fitted (outputs as they are: unclamped)
             origins = None if sensor_origins is None else sensor_origins[s : s + batch_size]
-            res = _fitted_batch(completer, batch, box_sizes[s : s + batch_size], origins, kw, fit, fitted)
+            sizes = box_sizes[s : s + batch_size]
+            clip_kw = kw.get("clip", DEFAULT)  # as complete() without a clip: the model's default
+            res = fit_in_boxes(completer, batch, sizes, fit, clip_kw, origins, kw.get("classes"), None,
+                               kw.get("snap"), fitted).clouds  # fmt: skip
         else:
             res = completer.complete(batch, **kw)
         if len(res) != len(batch):
@@ -118,27 +123,6 @@ def complete_all(
                     )
             out.append(r)
     return out
-
-
-def _fitted_batch(completer, batch: np.ndarray, sizes, origins, kw: dict, fit, fitted: list | None) -> list:
-    """One batch of :func:`complete_all` through the evidence fit (``origins``: the batch's sensors in their unit
-    frames, NaN rows unknown, or None: the free-space term where known): the clouds as fitted (unclamped)."""
-    if kw.get("snap"):
-        raise SpotlightsError("the fit does not go with snapping: the fit puts the rays near observed points on them")
-    sz = np.asarray(sizes, dtype=np.float64).reshape(-1, 3)
-    res = fit_completions(
-        completer,
-        batch,
-        unit_extents(sz),
-        sensor_origins=origins,
-        box_half=grown_half_extents(sz),
-        classes=kw.get("classes"),
-        clip=kw.get("clip"),
-        settings=fit,
-    )
-    if fitted is not None:
-        fitted.extend(bool(v) for v in res.fitted)
-    return list(res.clouds)
 
 
 def equal_count(points: np.ndarray, n: int = EQUAL_POINTS, seed: int = 0) -> np.ndarray:

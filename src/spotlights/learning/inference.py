@@ -367,7 +367,24 @@ def complete_in_boxes(
 
 
 def _fitted_in_boxes(completer, partials, sizes, clip, sensor_origins, inside, classes, snap, seen, fit, fitted):
-    """:func:`complete_in_boxes` with ``fit``: the evidence fit (:func:`spotlights.learning.fit.fit_completions`)."""
+    """:func:`complete_in_boxes` with ``fit``: :func:`fit_in_boxes`, then clamped to the grown boxes."""
+    res = fit_in_boxes(completer, partials, sizes, fit, clip, sensor_origins, classes, seen, snap, fitted)
+    if res is None:
+        return []
+    done, _ = clamp_to_grown_boxes(res.clouds, sizes)
+    if inside is not None:
+        inside.extend(float(v) for v in res.inside)
+    return done
+
+
+def fit_in_boxes(
+    completer, partials, sizes, fit, clip=DEFAULT, sensor_origins=None, classes=None, seen=None, snap=None, fitted=None
+):
+    """The evidence fit (:func:`spotlights.learning.fit.fit_completions`) of unit-frame ``partials`` (B, K, 3) in
+    boxes of ``sizes`` (B, 3), metres, with ``fit`` (:class:`~spotlights.learning.fit.FitSettings`): its
+    :class:`~spotlights.learning.fit.FitResult` (clouds as fitted, unclamped), None for no scan. ``seen``: the
+    observed points (default the partials); ``fitted``, a list, receives per scan whether the gate kept the fit.
+    A ``snap`` radius is refused (:class:`ParameterError`): the fit puts the rays near observed points itself."""
     if snap:
         raise ParameterError(
             "`fit` does not go with `snap`: the fit puts the rays near observed points on them", "fit", "snap"
@@ -375,7 +392,7 @@ def _fitted_in_boxes(completer, partials, sizes, clip, sensor_origins, inside, c
     x = np.asarray(partials, dtype=np.float32)
     sz = np.asarray(sizes, dtype=np.float64).reshape(-1, 3)
     if len(x) == 0:
-        return []
+        return None
     res = fit_completions(
         completer,
         x,
@@ -387,12 +404,9 @@ def _fitted_in_boxes(completer, partials, sizes, clip, sensor_origins, inside, c
         observed=seen,
         settings=fit,
     )
-    done, _ = clamp_to_grown_boxes(res.clouds, sizes)
-    if inside is not None:
-        inside.extend(float(v) for v in res.inside)
     if fitted is not None:
         fitted.extend(bool(v) for v in res.fitted)
-    return done
+    return res
 
 
 def with_observed(completion: np.ndarray, observed: np.ndarray) -> np.ndarray:
