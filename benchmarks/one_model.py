@@ -44,7 +44,7 @@ from spotlights.learning.data import TorchCompletionDataset  # noqa: E402
 CURVE = ("epoch", "global_step", "wall_seconds", "val_chamfer_l1", "val_accuracy", "val_completeness", "val_threshold")
 
 
-def long_trucks(length: float, n: int, max_seeds: int = 4000, body: str = "articulated_truck") -> list:
+def long_vehicles(length: float, n: int, max_seeds: int = 4000, body: str = "articulated_truck") -> list:
     """The first ``n`` seeds' vehicles of ``body`` whose length is within 0.5 m of ``length``: [(seed, v, f)]."""
     out = []
     for seed in range(max_seeds):
@@ -57,11 +57,11 @@ def long_trucks(length: float, n: int, max_seeds: int = 4000, body: str = "artic
     return out
 
 
-def truck_check(checkpoints: dict, trucks: list, cls: str = "truck") -> dict:
+def vehicle_check(checkpoints: dict, vehicles: list, cls: str = "truck") -> dict:
     """{label: [per vehicle: seed, size, status, inside_box, points, accuracy_m, completeness_m]}; boxes of class
     ``cls``."""
     scans = []
-    for seed, v, f in trucks:
+    for seed, v, f in vehicles:
         sim = LidarSimulator(v, f)
         rng = np.random.default_rng(seed)
         pose = VehiclePose(
@@ -147,14 +147,14 @@ def main() -> None:
             print(
                 f"{label:14s} {g:32s} n={v['n']:5d} acc={v['accuracy']:.5f} comp={v['completeness']:.5f} in={v['inside']:.3f}"
             )
-    trucks = long_trucks(a.truck_length, a.trucks)
-    result["trucks"] = {"length_m": a.truck_length, "results": truck_check(ckpts, trucks)}
+    trucks = long_vehicles(a.truck_length, a.trucks)
+    result["trucks"] = {"length_m": a.truck_length, "results": vehicle_check(ckpts, trucks)}
     for label, rows in result["trucks"]["results"].items():
         for r in rows:
             print(label, r)
     if a.trailer_length:
-        trailers = long_trucks(a.trailer_length, a.trucks, body="trailer_flatbed")
-        result["trailers"] = {"length_m": a.trailer_length, "results": truck_check(ckpts, trailers, "trailer")}
+        trailers = long_vehicles(a.trailer_length, a.trucks, body="trailer_flatbed")
+        result["trailers"] = {"length_m": a.trailer_length, "results": vehicle_check(ckpts, trailers, "trailer")}
         for label, rows in result["trailers"]["results"].items():
             for r in rows:
                 print(label, "trailer", r)

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..viz import SceneObject, html, scene_png, write_png
-from ..viz.bev import bev_png
+from ..viz.bev import bev_png, xy_of
 from .results import ObjectResult, SceneResult
 
 #: The legend's line on the boxes' labels.
@@ -63,11 +63,8 @@ def bev_scene(result: SceneResult) -> tuple[np.ndarray, list]:
 
 
 def _xy32(points) -> np.ndarray:
-    """(K, 2) float32 x, y of (K, >= 2) points ((0, 2) for none)."""
-    a = np.asarray(points)
-    if a.size == 0:  # a box completed from fused points alone has none of its own
-        return np.zeros((0, 2), dtype=np.float32)
-    return np.ascontiguousarray(a.reshape(len(a), -1)[:, :2], dtype=np.float32)
+    """:func:`~spotlights.viz.bev.xy_of` as a contiguous float32 copy (the bytes a picture process is sent)."""
+    return np.ascontiguousarray(xy_of(points), dtype=np.float32)
 
 
 def bev_scene_png(scan_xy: np.ndarray, objects: list, title: str | None = None) -> bytes:

@@ -294,8 +294,9 @@ def _bev_indexed(scan, objects, title, id_note, window, max_plot=MAX_PLOT_PX):
     return pic, canvas
 
 
-def _xy(points) -> np.ndarray:
-    """(K, 2) x, y (metres; the points' own float type) of (K, >= 2) points; (0, 2) for none."""
+def xy_of(points) -> np.ndarray:
+    """(K, 2) x, y (metres; the points' own float type, a view where it can be) of (K, >= 2) points; (0, 2) for
+    none."""
     a = np.asarray(points)
     return a.reshape(len(a), -1)[:, :2] if a.size else np.zeros((0, 2))
 
@@ -309,11 +310,11 @@ def _paint_layers(image: np.ndarray, canvas: BevCanvas, xs, ys, scan, objects: l
         image[r0 : r0 + ph, int(canvas.to_pixel([[x, 0.0]])[0, 0])] = _BASE[GRID]
     for y in ys:
         image[int(canvas.to_pixel([[0.0, y]])[0, 1]), c0 : c0 + pw] = _BASE[GRID]
-    paint_points(image, canvas, _xy(scan), _BASE[GREY])
-    comps = [_xy(o.completion) for o in objects if o.completion is not None and len(o.completion)]
+    paint_points(image, canvas, xy_of(scan), _BASE[GREY])
+    comps = [xy_of(o.completion) for o in objects if o.completion is not None and len(o.completion)]
     if comps:
         paint_points(image, canvas, np.concatenate(comps), _BASE[GREEN])
-    parts = [_xy(o.partial) for o in objects]
+    parts = [xy_of(o.partial) for o in objects]
     if parts:
         paint_points(image, canvas, np.concatenate(parts), _BASE[PURPLE], radius=1)
 
@@ -402,4 +403,5 @@ __all__ = [
     "frame_window",
     "nice_step",
     "paint_points",
+    "xy_of",
 ]
