@@ -44,10 +44,13 @@ from spotlights.learning.data import TorchCompletionDataset  # noqa: E402
 CURVE = ("epoch", "global_step", "wall_seconds", "val_chamfer_l1", "val_accuracy", "val_completeness", "val_threshold")
 
 
-def long_vehicles(length: float, n: int, max_seeds: int = 4000, body: str = "articulated_truck") -> list:
-    """The first ``n`` seeds' vehicles of ``body`` whose length is within 0.5 m of ``length``: [(seed, v, f)]."""
+def long_vehicles(
+    length: float, n: int, max_seeds: int = 4000, body: str = "articulated_truck", first_seed: int = 0
+) -> list:
+    """The first ``n`` seeds from ``first_seed`` on whose vehicle of ``body`` is within 0.5 m of ``length``:
+    [(seed, v, f)]."""
     out = []
-    for seed in range(max_seeds):
+    for seed in range(first_seed, first_seed + max_seeds):
         p = draw_params(body, seed)
         if abs(p.length - length) <= 0.5:
             v, f = vehicle_arrays(p)
@@ -125,6 +128,9 @@ def main() -> None:
     p.add_argument("--trucks", type=int, default=3, help="long trucks scanned (1..20)")
     p.add_argument("--truck-length", type=float, default=16.0, help="metres, 12..20")
     p.add_argument("--trailer-length", type=float, default=None, help="also --trucks flatbed trailers of this length")
+    p.add_argument(
+        "--first-seed", type=int, default=0, help="long vehicles: the generator seeds searched start here (default 0)"
+    )
     p.add_argument("--train-log", type=Path, default=None)
     p.add_argument("--json", type=Path, default=None)
     a = p.parse_args()
@@ -137,7 +143,7 @@ def main() -> None:
     ckpts = dict(zip(labels, a.checkpoint))
     ds = TorchCompletionDataset(a.data, "test", rig=False, max_views=a.max_views, partials_in_memory=True)
     dense = ds.gt_dense()
-    result = {"max_views": a.max_views, "checkpoints": list(labels), "test": {}}
+    result = {"max_views": a.max_views, "first_seed": a.first_seed, "checkpoints": list(labels), "test": {}}
     for label, c in ckpts.items():
         r = score(c, ds, dense)
         result["test"][label] = {
@@ -147,13 +153,13 @@ def main() -> None:
             print(
                 f"{label:14s} {g:32s} n={v['n']:5d} acc={v['accuracy']:.5f} comp={v['completeness']:.5f} in={v['inside']:.3f}"
             )
-    trucks = long_vehicles(a.truck_length, a.trucks)
+    trucks = long_vehicles(a.truck_length, a.trucks, first_seed=a.first_seed)
     result["trucks"] = {"length_m": a.truck_length, "results": vehicle_check(ckpts, trucks)}
     for label, rows in result["trucks"]["results"].items():
         for r in rows:
             print(label, r)
     if a.trailer_length:
-        trailers = long_vehicles(a.trailer_length, a.trucks, body="trailer_flatbed")
+        trailers = long_vehicles(a.trailer_length, a.trucks, body="trailer_flatbed", first_seed=a.first_seed)
         result["trailers"] = {"length_m": a.trailer_length, "results": vehicle_check(ckpts, trailers, "trailer")}
         for label, rows in result["trailers"]["results"].items():
             for r in rows:

@@ -768,3 +768,25 @@ def test_one_model_first_run_table():
         ]
         row = f"| {name} ({first['models']}, {first['n']}) | " + " | ".join(cells) + " |"
         assert row in text, row
+
+
+def test_one_model_fallback_swap_table_and_latency():
+    """docs/studies/one-model.md's fresh scores of the class-fallback swap, from their results files; the rule's
+    points that the files decide hold."""
+    doc = "docs/studies/one-model.md"
+    rep = _json("models/fallback_fresh_set.json")
+    old, new = rep["test"]["classes"], rep["test"]["one-model"]
+    for cls in ("car", "caravan", "truck", "bus", "trailer"):
+        a, b = old[f"procedural/{cls}"], new[f"procedural/{cls}"]
+        cells = [f"{v['accuracy']:.5f} / {v['completeness']:.5f} / {100 * v['inside']:.1f}%" for v in (a, b)]
+        _says(doc, f"| procedural {cls} ({a['models']}, {a['n']}) | " + " | ".join(cells) + " |")
+        assert b["accuracy"] <= a["accuracy"] and b["inside"] >= a["inside"] - 0.005  # rule points 1 and 2
+    for key in ("trucks", "trailers"):  # rule point 3
+        assert all(r["status"] == "completed" and r["inside_box"] >= 0.95 for r in rep[key]["results"]["one-model"])
+    lat = _json("models/fallback_onnx_latency.json")
+    ms = lat["cpu_ms_per_scan"]["32"]
+    _says(
+        doc,
+        f"{ms['one-model']:.2f} against {ms['classes']:.2f} ms a scan at batch 32 (**{lat['ratio_to_first']['32']['one-model']:.2f}x**)",
+    )
+    assert lat["ratio_to_first"]["32"]["one-model"] <= 1.5  # rule point 4

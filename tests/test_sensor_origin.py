@@ -89,3 +89,44 @@ def test_generic_scan_and_the_file_round_trip(tmp_path):
         del f["observations/sensor_origin"]
     old = read_observations(path)
     assert old.sensor_origin.shape == (1, 3) and np.isnan(old.sensor_origin).all()
+
+
+@pytest.mark.timeout(300)
+def test_real_complete_of_an_av2_log_without_calibration_uses_the_scan_origin_and_says_so(tmp_path):
+    """`real complete` of the log without calibration completes its sweep (it used to stop at the NaN LiDAR place),
+    says once that the place is unknown, and completes exactly as the same log with a calibration that puts
+    up_lidar at the ego origin."""
+    import pyarrow as pa
+    import pyarrow.feather as feather
+
+    from helpers import run_cli
+
+    log = need(LIDAR / "argoverse2" / "adcf7d18-0510-35b0-a2fa-b4cea13a6d76")
+    if (log / "calibration").exists():
+        pytest.skip("this log has a calibration")
+    calibrated = tmp_path / "calibrated" / log.name
+    (calibrated / "sensors" / "lidar").mkdir(parents=True)
+    for f in ("annotations.feather", "city_SE3_egovehicle.feather"):
+        (calibrated / f).symlink_to(log / f)
+    for sweep in (log / "sensors" / "lidar").glob("*.feather"):
+        (calibrated / "sensors" / "lidar" / sweep.name).symlink_to(sweep)
+    (calibrated / "calibration").mkdir()
+    table = {"sensor_name": ["up_lidar"], "tx_m": [0.0], "ty_m": [0.0], "tz_m": [0.0]}
+    feather.write_feather(pa.table(table), calibrated / "calibration" / "egovehicle_SE3_sensor.feather")
+
+    outs = {}
+    for name, src in (("unknown", log), ("origin", calibrated)):
+        outs[name] = tmp_path / f"out-{name}"
+        r = run_cli("real", "complete", str(src), "--format", "av2", "--no-pictures", "--out", str(outs[name]))
+        assert r.returncode == 0, r.stderr
+        said = r.stderr.count("the LiDAR's place is unknown")
+        assert said == (1 if name == "unknown" else 0), r.stderr
+    a, b = (sorted(outs[n].glob("*/*.json")) for n in ("unknown", "origin"))
+    assert [p.name for p in a] == [p.name for p in b] and a
+    for pa_, pb in zip(a, b):
+        oa, ob = json.loads(pa_.read_text())["objects"], json.loads(pb.read_text())["objects"]
+        assert sum(o["status"] == "completed" for o in oa) > 0
+        assert [(o["status"], o["n_completion"], o["fidelity"]) for o in oa] == [
+            (o["status"], o["n_completion"], o["fidelity"]) for o in ob
+        ]
+        assert pa_.with_suffix(".ply").read_bytes() == pb.with_suffix(".ply").read_bytes()

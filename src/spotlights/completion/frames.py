@@ -17,6 +17,7 @@ from collections import Counter, deque
 from concurrent.futures import Future
 from pathlib import Path
 
+import numpy as np
 from tqdm import tqdm
 
 from .. import logs
@@ -69,6 +70,7 @@ class _FrameRun:
         recorder=None,
         fallback=None,
         pictures: PictureProcesses | None = None,
+        warn: Say = logs.warning,
     ) -> None:
         self.s, self.reader, self.config = s, reader, config
         self.completer, self.out, self.tracks, self.recorder = completer, out, tracks, recorder
@@ -90,6 +92,8 @@ class _FrameRun:
         self.in_flight = pictures.workers + PICTURE_BACKLOG if pictures is not None else 1
         self._written: deque[Future] = deque()
         self._stopped = False  # a write failed, or the run ends early: the frames not yet written write nothing
+        self._no_lidar: set[str] = set()  # sequences whose LiDAR place is unknown (said once each)
+        self.warn = warn
 
     def complete(self, key: tuple, stem: Path) -> dict | None:
         """Complete frame ``key`` and write its files; its summary, or None for a scan with too few points."""
@@ -200,12 +204,25 @@ class _FrameRun:
             self.completer,
             self.config,
             checkpoint=s.checkpoint_name,
-            sensor=frame.lidar_origin(),
+            sensor=self._sensor(frame),
             extra_points=extra,
             fallback=self.fallback,
             fallback_name=s.fallback_model,
             crops=crops,
         )
+
+    def _sensor(self, frame) -> np.ndarray | None:
+        """The LiDAR's place in ``frame``'s scan frame for :func:`complete_scene`; None (the scan frame's origin) where
+        the dataset does not know it (an Argoverse 2 log without calibration), said once per sequence."""
+        if frame.lidar_known():
+            return frame.lidar_origin()
+        if frame.sequence not in self._no_lidar:
+            self._no_lidar.add(frame.sequence)
+            self.warn(
+                f"{frame.sequence or frame.frame_id}: the LiDAR's place is unknown (no calibration in the dataset): "
+                "its frames are completed as seen from the scan frame's origin"
+            )
+        return None
 
     def _not_latest(self, tr, key) -> None:
         """A frame after the resumed one that held ``tr``'s latest completion completed it: that one is not needed."""
@@ -424,7 +441,7 @@ def _run_frames(
 ) -> dict:
     """The loop of :func:`complete_frames` in the folder ``out`` that exists, and its summary."""
     sweep_folder_temporaries(out)  # what a killed run was writing (a 0-byte .FRAME.png.PID-X.part.png)
-    run = _FrameRun(s, reader, config, completer, out, tracks, recorder, fallback, pictures)
+    run = _FrameRun(s, reader, config, completer, out, tracks, recorder, fallback, pictures, warn)
     timer = StageTimer()
     with timer("frames"):
         run.run(keys)

@@ -188,8 +188,8 @@ class TrackPlan(TrackWindows):
     def _collect(self, key, frame: Frame, unit: float, grow: float) -> None:
         """Add frame ``key``'s tracked boxes to their tracks (their crops grown by ``grow`` metres, timestamps times
         ``unit`` seconds); one-line :class:`ParameterError` when a completed box has no track id."""
-        so = getattr(frame, "sensor_origin", None)
-        origin = np.zeros(3) if so is None else np.asarray(so, dtype=np.float64).reshape(3)
+        # the LiDAR's place; the scan frame's origin where it is unknown (as the frame loop completes that frame)
+        origin = frame.lidar_origin() if frame.lidar_known() else np.zeros(3)
         todo = [i for i, b in enumerate(frame.boxes) if self._completes(b) and b.track_id.strip()]
         untracked = sum(1 for b in frame.boxes if self._completes(b) and not b.track_id.strip())
         todo_boxes = [frame.boxes[i] for i in todo]

@@ -78,8 +78,13 @@ class Frame:
     sensor_origin: np.ndarray | None = None
 
     def lidar_origin(self) -> np.ndarray:
-        """(3,) float64 the LiDAR's optical centre in the sensor frame (zeros when :attr:`sensor_origin` is None)."""
+        """(3,) float64 the LiDAR's optical centre in the sensor frame (zeros when :attr:`sensor_origin` is None;
+        NaN where the dataset says it is unknown)."""
         return np.zeros(3) if self.sensor_origin is None else np.asarray(self.sensor_origin, dtype=np.float64)
+
+    def lidar_known(self) -> bool:
+        """Whether :meth:`lidar_origin` is a place (False for an Argoverse 2 log without calibration: its NaN)."""
+        return bool(np.all(np.isfinite(self.lidar_origin())))
 
 
 class SceneReader(abc.ABC):
