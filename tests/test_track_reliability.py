@@ -341,7 +341,9 @@ def test_ctrl_c_at_any_moment_of_a_fused_run_is_130_and_one_line(tmp_path):
         outcomes.append((delay, proc.returncode, err.strip().splitlines(), _stale(out)))
     assert outcomes, "every run finished before its Ctrl-C"
     for delay, code, err, stale in outcomes:
-        assert (code, err, stale) == (130, ["spotlights: interrupted"], []), (delay, code, err, stale)
+        assert (code, err, stale) == (130, ["spotlights: interrupted"], []), (
+            f"Ctrl-C {delay} s in: exit {code}, left behind {stale}, stderr:\n" + "\n".join(err)
+        )
 
 
 # --- --threads -----------------------------------------------------------------------------------------------------

@@ -137,19 +137,17 @@ def main(argv: list[str] | None = None) -> int:
     import os
     import signal
 
-    try:
+    previous = None
+    parser: argparse.ArgumentParser | None = None
+    try:  # from the first line on: a Ctrl-C while the arguments are parsed is 130 and one line too
         with sigint_held():  # imports every command's module (C extensions may turn a Ctrl-C into an ImportError)
             parser = build_parser()
-    except KeyboardInterrupt:
-        return _interrupted()
-    args = parser.parse_args(argv)
-    if not getattr(args, "func", None):
-        parser.print_help()
-        return 0 if args.command is None else 2
-    previous = None
-    if in_main_thread():
-        previous = signal.signal(signal.SIGTERM, _on_sigterm)
-    try:
+        args = parser.parse_args(argv)
+        if not getattr(args, "func", None):
+            parser.print_help()
+            return 0 if args.command is None else 2
+        if in_main_thread():
+            previous = signal.signal(signal.SIGTERM, _on_sigterm)
         with contextlib.ExitStack() as stack:
             args = _with_config_file(parser, args, argv)
             stack.callback(logs.LOGGER.setLevel, logs.LOGGER.level)  # the level as it was, after the command
@@ -160,7 +158,7 @@ def main(argv: list[str] | None = None) -> int:
                 stack.enter_context(contextlib.redirect_stdout(stack.enter_context(open(os.devnull, "w"))))
             return int(args.func(args) or 0)
     except SpotlightsError as exc:
-        print(f"spotlights: error: {option_names(exc, parser)}", file=sys.stderr)
+        print(f"spotlights: error: {option_names(exc, parser) if parser else exc}", file=sys.stderr)
         return exc.exit_code
     except Terminated:
         print("spotlights: terminated", file=sys.stderr)
