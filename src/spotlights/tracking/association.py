@@ -41,6 +41,15 @@ def centre_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.linalg.norm(a[:, None, :3] - b[None, :, :3], axis=-1)
 
 
+def lateral_offsets(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(N, M) float64 bird's-eye distances, metres, of the centres of boxes b (M, 7) from the line through each box
+    of a (N, 7) along its heading: ``|(c_b - c_a) . (-sin yaw_a, cos yaw_a)|``, how far b lies to a's side."""
+    a = np.asarray(a, dtype=np.float64).reshape(-1, 7)
+    b = np.asarray(b, dtype=np.float64).reshape(-1, 7)
+    d = b[None, :, :2] - a[:, None, :2]
+    return np.abs(-np.sin(a[:, 3])[:, None] * d[..., 0] + np.cos(a[:, 3])[:, None] * d[..., 1])
+
+
 def giou_pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(K,) float64 3-D GIoU of the box pairs a[k], b[k] (both (K, 7)); see the module docstring."""
     import shapely

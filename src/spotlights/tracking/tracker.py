@@ -14,7 +14,10 @@ Per sequence, frame after frame (times in seconds from :attr:`DetectionFrame.tim
    3-D GIoU (:mod:`~spotlights.tracking.association`) above ``giou_threshold`` within a gate that follows the
    track's uncertainty (``gate_floor_m`` + ``gate_sigmas`` standard deviations of its predicted position, at most ``gate_m``), then, among the tracks and detections left, centre distances below
    ``max_distance_m`` (a track whose prediction drifted sideways while it was not seen). ``metric="distance"``: the
-   second stage alone.
+   second stage alone. In both stages a road vehicle (``along_heading_classes``) is matched only to a detection
+   within ``lateral_floor_m`` + ``lateral_speed_mps`` x (seconds since its last match) of the line along its
+   predicted heading: vehicles drive along their heading, so a detection a full width to the side is the
+   neighbour parked beside it, not the vehicle (whose velocity, for a new track, is not known yet).
 4. **Update** matched tracks with the detection ``(x, y, z, yaw, l, w, h)`` and, where the detector reports one, its
    velocity (``detection_velocity_sigma``). Yaw: the detection's heading is taken
    within +-90 degrees of the track's (a detector's heading turned by 180 degrees is the same box: it is turned back,
@@ -44,7 +47,7 @@ import numpy as np
 from ..errors import ParameterError
 from ..geometry.boxes import Box
 from ..geometry.rotations import rotation_z
-from .association import assign, centre_distances, giou_matrix
+from .association import assign, centre_distances, giou_matrix, lateral_offsets
 from .detections import DetectionFrame
 
 log = logging.getLogger(__name__)
@@ -73,6 +76,13 @@ class TrackerConfig:
     detection_velocity_sigma : a detection's reported velocity (the frame's ``velocities``, e.g. a nuScenes result's
         ``velocity``; finite x and y) starts its new track with that velocity, and corrects the velocity of the track
         it matches, with this standard deviation, m/s (0: reported velocities are not used).
+    lateral_speed_mps, lateral_floor_m : the sideways gate of a track of ``along_heading_classes``: a detection
+        whose centre lies farther than ``lateral_floor_m + lateral_speed_mps * t`` metres from the line along the
+        track's predicted heading (t: seconds since its last match) is not matched to it (``lateral_speed_mps`` 0 and
+        a large floor: off). 1.5 m/s is a brisk lane change; 1 m holds the detectors' centre noise and the
+        prediction's.
+    along_heading_classes : the classes (track keys) the sideways gate applies to: road vehicles, which move along
+        their heading; not construction machines (an excavator slews) nor pedestrians.
     coast_velocity_sigmas : while a track misses, its velocity moves its prediction only when the filter can tell it
         from standstill: when the bird's-eye velocity's Mahalanobis norm under its own covariance is at least this
         (0: always). Two noisy hits of a parked car give it a velocity of noise, which would carry its prediction
@@ -100,22 +110,29 @@ class TrackerConfig:
     init_velocity_sigma: float = 10.0
     detection_velocity_sigma: float = 0.5
     coast_velocity_sigmas: float = 2.0
+    lateral_speed_mps: float = 1.5
+    lateral_floor_m: float = 1.0
+    along_heading_classes: tuple[str, ...] = ("car", "caravan", "truck", "bus", "trailer", "emergency")
 
     def __post_init__(self) -> None:
         if self.metric not in METRICS:
             raise ParameterError(f"metric: one of {', '.join(METRICS)}, got {self.metric!r}")
         if not -1.0 <= self.giou_threshold < 1.0:
             raise ParameterError(f"giou_threshold: a GIoU in [-1, 1), got {self.giou_threshold}")
-        for name in ("gate_m", "gate_floor_m", "gate_sigmas", "max_distance_m", "meas_sigma_xy", "meas_sigma_z", "meas_sigma_yaw", "meas_sigma_size",
+        for name in ("gate_m", "gate_floor_m", "gate_sigmas", "max_distance_m", "lateral_floor_m", "meas_sigma_xy", "meas_sigma_z", "meas_sigma_yaw", "meas_sigma_size",
                      "init_velocity_sigma"):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ParameterError(f"{name}: a positive number, got {v}")
         for name in ("accel_sigma", "yaw_rate_sigma", "size_rate_sigma", "detection_velocity_sigma",
-                     "coast_velocity_sigmas"):  # fmt: skip
+                     "coast_velocity_sigmas", "lateral_speed_mps"):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ParameterError(f"{name}: a number >= 0, got {v}")
+        if isinstance(self.along_heading_classes, str) or not all(
+            isinstance(c, str) for c in self.along_heading_classes
+        ):
+            raise ParameterError(f"along_heading_classes: a tuple of class names, got {self.along_heading_classes!r}")
         for name in ("min_hits", "max_misses"):
             v = getattr(self, name)
             if not (isinstance(v, int) and 1 <= v <= 1000):
@@ -185,6 +202,7 @@ class KalmanTrack:
         self.scores = [score]
         self.hits = 1
         self.misses = 0
+        self.since_update = 0.0  # seconds predicted since the last matched detection
         self.confirmed = config.min_hits <= 1 or score >= config.confirm_score
 
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -211,6 +229,7 @@ class KalmanTrack:
             f[0, 7] = f[1, 8] = f[2, 9] = 0.0
         self.kf.predict(F=f, Q=q)
         self.kf.x[3, 0] = wrap_angle(float(self.kf.x[3, 0]))
+        self.since_update += dt
 
     def update(self, z: np.ndarray, score: float, velocity: np.ndarray | None = None) -> None:
         """Correct with one detection ``(x, y, z, yaw, l, w, h)`` (its yaw flip-corrected) of score ``score``, then
@@ -229,6 +248,7 @@ class KalmanTrack:
         self.scores.append(score)
         self.hits += 1
         self.misses = 0
+        self.since_update = 0.0
         if self.hits >= self.config.min_hits or score >= self.config.confirm_score:
             self.confirmed = True
 
@@ -317,6 +337,11 @@ def _match_class(
     )
     stages = [] if config.metric != "giou" else [(giou_matrix(pred, det[di], gate), config.giou_threshold)]
     stages.append((-centre_distances(pred, det[di]), -config.max_distance_m))
+    along = np.array([tracks[j].key in config.along_heading_classes for j in ti])
+    if along.any():  # the sideways gate: a detection a width to the side of a vehicle is its neighbour
+        reach = config.lateral_floor_m + config.lateral_speed_mps * np.array([tracks[j].since_update for j in ti])
+        beside = along[:, None] & (lateral_offsets(pred, det[di]) > reach[:, None])
+        stages = [(np.where(beside, -np.inf, sim), thr) for sim, thr in stages]
     for sim, thr in stages:  # GIoU first, then the centre distance for what is left
         free_t = [r for r in range(len(ti)) if ti[r] not in matched_tracks]
         free_d = [c for c in range(len(di)) if di[c] not in matched_det]
