@@ -6,7 +6,8 @@ detectable boxes missed, 10% false positives with low scores, 0.15 m / 3 degree 
 at least one LiDAR point and within 50 m). Tracker: :func:`spotlights.tracking.track_boxes` with its default
 settings, on detections with a score of at least ``--min-score``. Metrics: py-motmetrics (2 m centre distance,
 same class) against the detectable boxes; seeds 1-29 as well, for the spread (and the means over the thirty seeds);
-single changes of the tracker's settings on the same detections; and a detector that also reports velocities
+single changes of the tracker's settings on the same detections; seeds 30-59 (``--check-seeds``), with and
+without the sideways gate, which was chosen on seeds 0-29; and a detector that also reports velocities
 (0.3 m/s of noise), tracked with and without them. Speed: frames per CPU second of ``track_boxes`` alone (the median of
 ``--repeats`` runs; one thread: run with ``OMP_NUM_THREADS=1``).
 
@@ -61,6 +62,10 @@ def cpu() -> dict:
     }
 
 
+#: The tracker without its sideways gate (the settings that turn it off).
+NO_SIDEWAYS_GATE = {"lateral_speed_mps": 0.0, "lateral_floor_m": 1000.0}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", default=str(NUSCENES), help="the nuScenes folder (default: the shared scene)")
@@ -68,6 +73,12 @@ def main() -> None:
     ap.add_argument("--min-score", type=float, default=0.0)
     ap.add_argument("--repeats", type=int, default=20, help="timed runs of the tracker (the median is reported)")
     ap.add_argument("--more-seeds", type=int, default=29, help="also score seeds SEED+1 .. SEED+N (the spread)")
+    ap.add_argument(
+        "--check-seeds",
+        type=int,
+        default=30,
+        help="seeds SEED+N+1 .. SEED+N+K scored too (K this; 0: none): the settings were chosen on the first ones",
+    )
     ap.add_argument("--json", required=True, help="results file")
     args = ap.parse_args()
 
@@ -91,10 +102,10 @@ def main() -> None:
     means["seeds"] = len(every)
     seeds = range(args.seed, args.seed + 1 + args.more_seeds)
 
-    def over_seeds(detector: DetectorModel, tracker: TrackerConfig) -> dict:
-        """Totals and means of ``tracker`` on ``detector``'s detections of every seed."""
+    def over_seeds(detector: DetectorModel, tracker: TrackerConfig, which=seeds) -> dict:
+        """Totals and means of ``tracker`` on ``detector``'s detections of every seed of ``which``."""
         runs = []
-        for seed in seeds:
+        for seed in which:
             d, t = simulate_detections(truth_all, counts, detector, seed=seed)
             runs.append(clear_mot(t, track_boxes(filter_detections(d, args.min_score)[0], tracker)))
         return {
@@ -105,8 +116,18 @@ def main() -> None:
 
     alternatives = {}  # the default against single changes of one setting, on the same detections
     for name, change in (("coast_velocity_sigmas=0", {"coast_velocity_sigmas": 0.0}), ("max_misses=6", {"max_misses": 6}),
-                         ("max_distance_m=3", {"max_distance_m": 3.0}), ("max_distance_m=4", {"max_distance_m": 4.0})):  # fmt: skip
+                         ("max_distance_m=3", {"max_distance_m": 3.0}), ("max_distance_m=4", {"max_distance_m": 4.0}),
+                         ("no sideways gate", NO_SIDEWAYS_GATE)):  # fmt: skip
         alternatives[name] = over_seeds(model, dataclasses.replace(config, **change))
+    first = args.seed + 1 + args.more_seeds
+    check = range(first, first + args.check_seeds)
+    held_out = {
+        "seeds": [check.start, check.stop - 1] if args.check_seeds else [],
+        "default": over_seeds(model, config, check) if args.check_seeds else None,
+        "no sideways gate": over_seeds(model, dataclasses.replace(config, **NO_SIDEWAYS_GATE), check)
+        if args.check_seeds
+        else None,
+    }
     # a detector that reports velocities (VELOCITY_SIGMA m/s of noise): the tracker using them, and ignoring them
     moving = dataclasses.replace(model, velocity_sigma_mps=VELOCITY_SIGMA)
     velocities = {
@@ -135,6 +156,7 @@ def main() -> None:
         "other_seeds": other,
         "mean_over_seeds": means,
         "alternatives": alternatives,
+        "held_out_seeds": held_out,
         "detector_velocities": velocities,
         "speed": {
             "cpu_seconds_median": cpu_s,
