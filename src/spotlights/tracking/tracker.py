@@ -160,6 +160,15 @@ def corrected_yaw(measured: float, predicted: float) -> float:
     return predicted + d
 
 
+def usable_velocity(velocity: np.ndarray | None, config: TrackerConfig) -> np.ndarray | None:
+    """The (2,) float64 bird's-eye velocity (m/s) a detection reports, when the tracker uses it: reported
+    (``velocity`` (3,), not None) with finite x and y, and ``config.detection_velocity_sigma`` > 0; else None."""
+    if velocity is None or config.detection_velocity_sigma <= 0:
+        return None
+    v = np.asarray(velocity[:2], dtype=np.float64)
+    return v if np.all(np.isfinite(v)) else None
+
+
 class KalmanTrack:
     """One track: a constant-velocity Kalman filter over ``(x, y, z, yaw, l, w, h, vx, vy, vz)`` (filterpy).
 
@@ -191,8 +200,9 @@ class KalmanTrack:
         kf.P = np.diag(np.concatenate([r**2, np.full(3, c.init_velocity_sigma**2)]))
         kf.x = np.zeros((10, 1))
         kf.x[:7, 0] = z0
-        if velocity is not None and c.detection_velocity_sigma > 0 and np.all(np.isfinite(velocity[:2])):
-            kf.x[7:9, 0] = velocity[:2]  # the detector's estimate: a new track knows where it goes
+        reported = usable_velocity(velocity, c)
+        if reported is not None:
+            kf.x[7:9, 0] = reported  # the detector's estimate: a new track knows where it goes
             kf.P[7, 7] = kf.P[8, 8] = c.detection_velocity_sigma**2
         self.kf = kf
         self.track_id = track_id
@@ -239,10 +249,11 @@ class KalmanTrack:
         z[3] = corrected_yaw(float(z[3]), float(self.kf.x[3, 0]))
         self.kf.update(z.reshape(7, 1))
         sigma = self.config.detection_velocity_sigma
-        if velocity is not None and sigma > 0 and np.all(np.isfinite(velocity[:2])):
+        reported = usable_velocity(velocity, self.config)
+        if reported is not None:
             h = np.zeros((2, 10))
             h[0, 7] = h[1, 8] = 1.0
-            self.kf.update(np.asarray(velocity[:2], dtype=np.float64).reshape(2, 1), R=np.eye(2) * sigma**2, H=h)
+            self.kf.update(reported.reshape(2, 1), R=np.eye(2) * sigma**2, H=h)
         self.kf.x[3, 0] = wrap_angle(float(self.kf.x[3, 0]))
         self.kf.x[4:7, 0] = np.maximum(self.kf.x[4:7, 0], 1e-3)  # sizes stay positive
         self.scores.append(score)
