@@ -480,8 +480,12 @@ def require_sensor(sensor, name: str = "sensor") -> None:
     """Raise :class:`ParameterError` unless ``sensor`` (the LiDAR's place in the scan's frame, metres; option
     ``name``) is None or three finite numbers."""
     if sensor is not None and (np.shape(sensor) != (3,) or not np.all(np.isfinite(np.asarray(sensor, dtype=float)))):
+        try:
+            got = " ".join(f"{float(v):g}" for v in np.ravel(sensor))
+        except (TypeError, ValueError):
+            got = repr(sensor)
         raise ParameterError(
-            f"{shown(name)}: give the LiDAR's X Y Z in the scan's frame (metres), got {sensor!r}",
+            f"{shown(name)}: give the LiDAR's X Y Z in the scan's frame (metres), got {got}",
             *parameter_names(name),
         )
 
