@@ -11,6 +11,18 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
+def pytest_configure(config):
+    """Ctrl-C reaches the suite's child processes as it reaches a command typed in a terminal. A run started in the
+    background by a non-interactive shell (``make test &`` in a script, ``(make test &)``) inherits SIGINT ignored,
+    and every process it starts would ignore it too: the tests that send a Ctrl-C to a command would then see it
+    run to its end. Here SIGINT gets Python's own handler back (before pytest-xdist starts its workers), so children
+    start with it at its default."""
+    import signal
+
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
 @pytest.fixture(scope="session", autouse=True)
 def _private_tmpdir(tmp_path_factory):
     """Every temporary folder that the suite's own processes make outside pytest's ``tmp_path``
