@@ -704,18 +704,26 @@ ONE_MODEL_GROUPS = (
 )
 
 
+def _one_model_rows(rep: dict, cell) -> list[str]:
+    """The study's table rows of a ``benchmarks/one_model.py`` report: per test group of :data:`ONE_MODEL_GROUPS`,
+    its name, (models, scans) and ``cell(scores)`` of every checkpoint in the report's order."""
+    labels = rep["checkpoints"]
+    rows = []
+    for group, name in ONE_MODEL_GROUPS:
+        first = rep["test"][labels[0]][group]
+        cells = [cell(rep["test"][label][group]) for label in labels]
+        rows.append(f"| {name} ({first['models']}, {first['n']}) | " + " | ".join(cells) + " |")
+    return rows
+
+
 def test_one_model_second_run_tables():
     """docs/studies/one-model.md's second run: every test row and the real-set rows from their results files."""
     doc = "docs/studies/one-model.md"
     rep = _json("models/one_model_second.json")
-    labels = rep["checkpoints"]
-    for group, name in ONE_MODEL_GROUPS:
-        first = rep["test"][labels[0]][group]
-        cells = [
-            f"{v['accuracy']:.5f} / {v['completeness']:.5f} / {100 * v['inside']:.1f}%"
-            for v in (rep["test"][label][group] for label in labels)
-        ]
-        _says(doc, f"| {name} ({first['models']}, {first['n']}) | " + " | ".join(cells) + " |")
+    for row in _one_model_rows(
+        rep, lambda v: f"{v['accuracy']:.5f} / {v['completeness']:.5f} / {100 * v['inside']:.1f}%"
+    ):
+        _says(doc, row)
     real = _json("models/one_model_real.json")
     for set_name, models in real.items():
         for cls in models["second-run"]:
@@ -797,14 +805,8 @@ def test_one_model_car_weighted_tables():
     results files; the verdict's direction holds."""
     doc = "docs/studies/one-model.md"
     rep = _json("models/one_model_car_weighted.json")
-    labels = rep["checkpoints"]
-    for group, name in ONE_MODEL_GROUPS:
-        first = rep["test"][labels[0]][group]
-        cells = [
-            f"{rep['test'][label][group]['accuracy']:.5f} / {rep['test'][label][group]['completeness']:.5f}"
-            for label in labels
-        ]
-        _says(doc, f"| {name} ({first['models']}, {first['n']}) | " + " | ".join(cells) + " |")
+    for row in _one_model_rows(rep, lambda v: f"{v['accuracy']:.5f} / {v['completeness']:.5f}"):
+        _says(doc, row)
     cars, dflt = rep["test"]["car-weighted"]["apolloscape-cars"], rep["test"]["default"]["apolloscape-cars"]
     worse = 100 * (cars["completeness"] / dflt["completeness"] - 1)
     assert worse > 2.0  # "it does not become the single default"
