@@ -820,3 +820,20 @@ def test_one_model_car_weighted_tables():
     for set_name, models in real.items():
         cells = [f"{m['car']['fidelity']:.4f} / {m['car']['consistency_voxel']:.4f}" for m in models.values()]
         _says(doc, f"| {set_name} car ({models['car-weighted']['car']['objects']}) | " + " | ".join(cells) + " |")
+
+
+def test_one_model_decoder_control_table():
+    """docs/studies/one-model.md's decoder control: its table and curves from its results file, and the claim that
+    the two decoders stay within 3% of each other on every group."""
+    doc = "docs/studies/one-model.md"
+    rep = _json("models/decoder_control.json")
+    for row in _one_model_rows(rep, lambda v: f"{v['accuracy']:.5f} / {v['completeness']:.5f}"):
+        _says(doc, row)
+    for label, name in (("plain-decoder", "plain"), ("viewpoint-decoder", "viewpoint")):
+        curve = " / ".join(f"{r['val_chamfer_l1']:.5f}" for r in rep["learning_curves"][label])
+        _says(doc, f"{name} {curve}")
+    plain, view = rep["test"]["plain-decoder"], rep["test"]["viewpoint-decoder"]
+    for group, _ in ONE_MODEL_GROUPS:
+        for metric in ("accuracy", "completeness"):
+            assert abs(view[group][metric] / plain[group][metric] - 1) < 0.03, (group, metric)
+        assert view[group]["completeness"] <= plain[group]["completeness"]  # "a little more complete everywhere"
