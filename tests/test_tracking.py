@@ -226,6 +226,14 @@ def test_a_parked_trailers_id_does_not_hop_to_the_one_beside_it():
         assert (len(first) == 1 and len(second) == 1 and first != second) is not hops, (first, second)
 
 
+def test_the_sideways_gate_settings_are_checked():
+    assert TrackerConfig(along_heading_classes=["car", "bus"]).along_heading_classes == ("car", "bus")
+    for bad in ({"along_heading_classes": "car"}, {"along_heading_classes": ("car", 3)}, {"lateral_floor_m": 0.0},
+                {"lateral_speed_mps": -1.0}, {"lateral_speed_mps": math.nan}):  # fmt: skip
+        with pytest.raises(ParameterError, match=next(iter(bad))):
+            TrackerConfig(**bad)
+
+
 def test_a_car_changing_lanes_keeps_its_id_and_an_excavator_slewing_sideways_too():
     """The sideways gate lets a lane change through (1 m/s sideways at 12 m/s ahead, 10 Hz, a miss in the middle),
     and is not applied to construction machines, which move across their heading (2 m/s sideways)."""

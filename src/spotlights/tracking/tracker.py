@@ -133,6 +133,7 @@ class TrackerConfig:
             isinstance(c, str) for c in self.along_heading_classes
         ):
             raise ParameterError(f"along_heading_classes: a tuple of class names, got {self.along_heading_classes!r}")
+        object.__setattr__(self, "along_heading_classes", tuple(self.along_heading_classes))  # a list given: hashable
         for name in ("min_hits", "max_misses"):
             v = getattr(self, name)
             if not (isinstance(v, int) and 1 <= v <= 1000):
