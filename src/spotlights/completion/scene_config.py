@@ -14,7 +14,7 @@ from ..data.real.base import CLASSES
 from ..data.real.scans import MIN_SCAN_POINTS
 from ..errors import ParameterError, parameter_names, shown
 from ..geometry.evidence import snap_radius
-from ..learning.fit import FIT_STEPS, FitSettings, check_fit_steps
+from ..learning.fit import FIT_STEPS, FitSettings, check_fit_options, check_fit_steps
 from ..learning.inference import DEFAULT
 from ..options import check_seed
 
@@ -104,13 +104,8 @@ class SceneConfig:
                 "snap",
                 "heading_check",
             )
-        if not isinstance(self.fit, (bool, np.bool_)):
-            raise ParameterError(f"`fit` must be True or False, got {self.fit!r}", "fit")
+        check_fit_options(self.fit, self.snap)
         check_fit_steps(self.fit_steps)
-        if self.fit and self.snap > 0:
-            raise ParameterError(
-                "`fit` does not go with `snap`: the fit puts the rays near observed points on them", "fit", "snap"
-            )
         _check_classes(self.classes)
 
     @property

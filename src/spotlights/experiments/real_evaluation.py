@@ -62,7 +62,7 @@ from ..data.store import open_dataset
 from ..errors import InputFileError, ParameterError, SpotlightsError
 from ..geometry.evidence import snap_radius
 from ..learning.checkpoint import resolve_checkpoint
-from ..learning.fit import FIT_STEPS, check_fit_steps
+from ..learning.fit import FIT_STEPS, FitSettings, check_fit_options, check_fit_steps
 from ..metrics.consistency import (
     DIVERSITY_DOC,
     METRIC_DOC,
@@ -202,16 +202,11 @@ class RealEvaluationSettings:
 
     def __post_init__(self):
         object.__setattr__(self, "snap", snap_radius(self.snap, self.snap_mirror) or 0.0)  # None (off): 0.0
-        if not isinstance(self.fit, (bool, np.bool_)):
-            raise ParameterError(f"`fit` must be True or False, got {self.fit!r}", "fit")
+        check_fit_options(self.fit, self.snap)
         if self.fit_steps is not None:
             if not self.fit:
                 raise ParameterError("`fit_steps` goes with `fit`", "fit_steps", "fit")
             object.__setattr__(self, "fit_steps", check_fit_steps(self.fit_steps))
-        if self.fit and self.snap > 0:
-            raise ParameterError(
-                "`fit` does not go with `snap`: the fit puts the rays near observed points on them", "fit", "snap"
-            )
         if self.snap > 0 and self.heading_check:
             raise ParameterError(
                 "`snap` does not go with the heading check (add `no_heading_check`): the flips are counted by "
@@ -235,6 +230,12 @@ class RealEvaluationSettings:
     def voxel(self) -> float:
         """:attr:`equal_density` as a float, 0.0 when not scored."""
         return float(self.equal_density) if self.equal_density else 0.0
+
+    @property
+    def fit_settings(self) -> FitSettings | None:
+        """The :class:`~spotlights.learning.fit.FitSettings` of ``fit``/``fit_steps`` (None: the default steps), or
+        None when ``fit`` is off."""
+        return FitSettings(steps=self.fit_steps or FIT_STEPS) if self.fit else None
 
 
 def _tracked_rows_or_fail(obs: Observations, classes, path: str | None) -> np.ndarray:
@@ -297,7 +298,7 @@ def _scored_settings(
         mmd_reference=reference_info if references is not None else None,
         snap=float(settings.snap),
         snap_mirror=bool(settings.snap_mirror),
-        fit_steps=(settings.fit_steps or FIT_STEPS) if settings.fit else None,
+        fit_steps=settings.fit_settings.steps if settings.fit_settings else None,
     )
 
 

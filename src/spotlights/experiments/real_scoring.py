@@ -26,7 +26,7 @@ from ..geometry.boxes import FLIP_Z, unit_extents
 from ..geometry.neighbors import NearestNeighbors, serial_queries
 from ..geometry.sampling import resample_set, voxel_downsample
 from ..learning.completion_request import DEFAULT
-from ..learning.fit import FIT_STEPS, FitSettings, can_fit
+from ..learning.fit import can_fit
 from ..learning.inference import fit_in_boxes
 from ..metrics.consistency import (
     aggregate,
@@ -274,12 +274,10 @@ def _domain_entry(domain, t: _Tracked) -> dict:
     return dict(n_observations=n_out, reasons=reasons)
 
 
-def fit_settings(completer, s):
-    """The :class:`~spotlights.learning.fit.FitSettings` of ``s`` (``fit``, ``fit_steps``) for ``completer``, None
-    when ``s`` does not fit or the model cannot be fitted (a point-set model: its entry's ``fitted`` is None)."""
-    if not getattr(s, "fit", False) or not can_fit(completer):
-        return None
-    return FitSettings(steps=s.fit_steps or FIT_STEPS)
+def fit_settings(completer, s: RealEvaluationSettings):
+    """``s.fit_settings`` for ``completer``: None when ``s`` does not fit or the model cannot be fitted (a point-set
+    model: its entry's ``fitted`` is None)."""
+    return s.fit_settings if can_fit(completer) else None
 
 
 def _model_entry(

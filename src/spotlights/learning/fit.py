@@ -165,6 +165,17 @@ def check_fit_steps(steps, name: str = "fit_steps") -> int:
     return int(steps)
 
 
+def check_fit_options(fit, snap: float | None) -> None:
+    """Raise :class:`ParameterError` unless ``fit`` is True or False, and when it is True beside a ``snap`` radius
+    (> 0): the fit puts the rays near observed points on them itself."""
+    if not isinstance(fit, (bool, np.bool_)):
+        raise ParameterError(f"`fit` must be True or False, got {fit!r}", "fit")
+    if fit and snap:
+        raise ParameterError(
+            "`fit` does not go with `snap`: the fit puts the rays near observed points on them", "fit", "snap"
+        )
+
+
 def parse_fit_steps(text: str) -> int:
     """``--fit-steps`` text -> a step count in 1..:data:`MAX_FIT_STEPS` (:class:`ParameterError` otherwise)."""
     try:

@@ -31,7 +31,7 @@ from ..geometry.sampling import resample_set
 from .checkpoint import PRETRAINED, load_checkpoint, model_from_checkpoint, resolve_checkpoint
 from .completion_request import DEFAULT, CompletionRequest, accepts, mirrored
 from .domain import LearnedDomain
-from .fit import fit_completions
+from .fit import check_fit_options, fit_completions
 from .rays import directions_for_extents, unit_extents
 
 
@@ -385,10 +385,7 @@ def fit_in_boxes(
     :class:`~spotlights.learning.fit.FitResult` (clouds as fitted, unclamped), None for no scan. ``seen``: the
     observed points (default the partials); ``fitted``, a list, receives per scan whether the gate kept the fit.
     A ``snap`` radius is refused (:class:`ParameterError`): the fit puts the rays near observed points itself."""
-    if snap:
-        raise ParameterError(
-            "`fit` does not go with `snap`: the fit puts the rays near observed points on them", "fit", "snap"
-        )
+    check_fit_options(True, snap)
     x = np.asarray(partials, dtype=np.float32)
     sz = np.asarray(sizes, dtype=np.float64).reshape(-1, 3)
     if len(x) == 0:
